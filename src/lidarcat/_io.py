@@ -1,0 +1,266 @@
+"""Shared file helpers: atomic output, located CSV reading, JSON serialisation.
+
+Every file lidarcat writes goes through :func:`atomic_write` (or
+:func:`atomic_dir`) so that an interrupted or failed run never leaves a partial
+file behind: content is written to a temporary file in the destination folder
+and renamed into place with :func:`os.replace`, which is atomic on POSIX.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import io
+import json
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import SurveyError, location
+
+__all__ = [
+    "atomic_write",
+    "atomic_dir",
+    "write_text_atomic",
+    "write_csv_atomic",
+    "write_json_atomic",
+    "read_csv_table",
+    "CsvTable",
+    "to_json",
+    "dumps_json",
+]
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike, mode: str = "w", **kwargs: Any) -> Iterator[io.IOBase]:
+    """Open a temporary file next to *path*; rename it onto *path* on success.
+
+    On an exception (including ``KeyboardInterrupt``) the temporary file is
+    removed and *path* is left untouched.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    os.close(fd)
+    try:
+        if "b" not in mode:
+            kwargs.setdefault("encoding", "utf-8")
+            kwargs.setdefault("newline", "")
+        with open(tmp, mode, **kwargs) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """Build a whole output folder in a temporary sibling, then move it into place.
+
+    Files already in *path* that the new run does not write are kept; files it
+    does write replace the old ones only once every file has been written.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent))
+    try:
+        yield tmp
+        path.mkdir(parents=True, exist_ok=True)
+        for item in sorted(tmp.rglob("*")):
+            if item.is_file():
+                dest = path / item.relative_to(tmp)
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(item, dest)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
+    """Write *text* (UTF-8) to *path* atomically and return the path."""
+    with atomic_write(path, "w", newline="\n") as fh:
+        fh.write(text)
+    return Path(path)
+
+
+def write_csv_atomic(
+    path: str | os.PathLike,
+    header: Sequence[str],
+    rows: Sequence[Sequence[Any]],
+    *,
+    comments: Sequence[str] = (),
+) -> Path:
+    """Write a CSV file atomically; *comments* become leading ``# ...`` lines."""
+    with atomic_write(path, "w") as fh:
+        for c in comments:
+            fh.write(f"# {c}\n")
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header)
+        for row in rows:
+            w.writerow([_csv_cell(v) for v in row])
+    return Path(path)
+
+
+def _csv_cell(v: Any) -> Any:
+    if isinstance(v, (float, np.floating)):
+        if not math.isfinite(v):
+            return ""
+        return repr(float(v))
+    if isinstance(v, np.integer):
+        return int(v)
+    return v
+
+
+def to_json(obj: Any) -> Any:
+    """``default=`` hook for :func:`json.dumps`: numpy, paths, dataclasses."""
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, (set, frozenset)):
+        return sorted(obj)
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        if hasattr(obj, "to_dict"):
+            return obj.to_dict()
+        return {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
+    if hasattr(obj, "to_dict"):
+        return obj.to_dict()
+    raise TypeError(f"cannot serialise {type(obj).__name__} to JSON")
+
+
+def _finite(obj: Any) -> Any:
+    # JSON has no NaN/inf: write null instead of an invalid token.
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
+
+
+def dumps_json(obj: Any, indent: int | None = 2) -> str:
+    """Serialise *obj* deterministically (sorted keys, NaN -> null)."""
+    plain = json.loads(json.dumps(obj, default=to_json))
+    return json.dumps(_finite(plain), sort_keys=True, indent=indent, allow_nan=False)
+
+
+def write_json_atomic(path: str | os.PathLike, obj: Any) -> Path:
+    """Write *obj* as JSON to *path* atomically."""
+    return write_text_atomic(path, dumps_json(obj) + "\n")
+
+
+@dataclasses.dataclass(frozen=True)
+class CsvTable:
+    """A CSV file read as strings, each row remembering its physical line number."""
+
+    path: Path
+    header: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+    lines: tuple[int, ...]
+
+    def column(self, name: str) -> list[str]:
+        i = self.header.index(name)
+        return [r[i] for r in self.rows]
+
+    def has(self, name: str) -> bool:
+        return name in self.header
+
+    def floats(self, name: str, *, required: bool = True, default: float = math.nan,
+               allow_nan: bool = False) -> np.ndarray:
+        """Column *name* as float64; an empty cell is *default* unless *required*."""
+        if not self.has(name):
+            if required:
+                raise SurveyError(f"{location(self.path, 1)}: missing column {name!r} "
+                                  f"(header is {', '.join(self.header)})")
+            return np.full(len(self.rows), default)
+        i = self.header.index(name)
+        out = np.empty(len(self.rows))
+        for k, (row, line) in enumerate(zip(self.rows, self.lines)):
+            cell = row[i].strip()
+            if cell == "":
+                if required:
+                    raise SurveyError(f"{location(self.path, line, name)}: empty value; a number is required")
+                out[k] = default
+                continue
+            try:
+                v = float(cell)
+            except ValueError:
+                raise SurveyError(f"{location(self.path, line, name)}: {cell!r} is not a number") from None
+            if not math.isfinite(v) and not allow_nan:
+                raise SurveyError(f"{location(self.path, line, name)}: {cell!r} is not a finite number")
+            out[k] = v
+        return out
+
+
+def read_csv_table(
+    path: str | os.PathLike,
+    required: Sequence[str] = (),
+    optional: Sequence[str] = (),
+    *,
+    allow_extra: bool = False,
+) -> CsvTable:
+    """Read a comma-separated file with a header line.
+
+    Lines starting with ``#`` and blank lines are skipped (but counted, so that
+    line numbers in messages are the ones an editor shows).  Cells are stripped.
+
+    Raises
+    ------
+    SurveyError
+        Missing file, missing required column, unknown column (unless
+        *allow_extra*), or a row with the wrong number of fields.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise SurveyError(f"{path}: file not found") from None
+    except OSError as ex:
+        raise SurveyError(f"{path}: cannot read ({ex.strerror})") from ex
+    header: tuple[str, ...] | None = None
+    rows: list[tuple[str, ...]] = []
+    lines: list[int] = []
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        if not raw.strip() or raw.lstrip().startswith("#"):
+            continue
+        cells = tuple(c.strip() for c in next(csv.reader([raw])))
+        if header is None:
+            header = cells
+            hline = lineno
+            continue
+        if len(cells) != len(header):
+            raise SurveyError(f"{location(path, lineno)}: {len(cells)} fields, expected "
+                              f"{len(header)} ({', '.join(header)})")
+        rows.append(cells)
+        lines.append(lineno)
+    if header is None:
+        raise SurveyError(f"{path}: empty file, expected a header line")
+    dup = {h for h in header if header.count(h) > 1}
+    if dup:
+        raise SurveyError(f"{location(path, hline)}: duplicate column(s) {', '.join(sorted(dup))}")
+    for name in required:
+        if name not in header:
+            raise SurveyError(f"{location(path, hline)}: missing column {name!r} "
+                              f"(header is {', '.join(header)})")
+    if not allow_extra:
+        known = set(required) | set(optional)
+        extra = [h for h in header if h not in known]
+        if extra:
+            raise SurveyError(f"{location(path, hline)}: unknown column(s) {', '.join(extra)}; "
+                              f"allowed: {', '.join(list(required) + list(optional))}")
+    return CsvTable(path, header, tuple(rows), tuple(lines))
+
+

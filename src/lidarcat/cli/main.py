@@ -1,0 +1,129 @@
+"""The ``lidarcat`` command group.
+
+Subcommands are listed in pipeline order and imported lazily, so that
+``lidarcat --help`` is fast and a broken optional stage never prevents the
+others from running.  Library errors (:class:`lidarcat.errors.LidarcatError`)
+become a one-line ``Error: ...`` message with exit code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import os
+import sys
+
+# Small dense factorisations stall under OpenBLAS threading on 2-core machines;
+# pin BLAS to one thread before numpy is imported by any subcommand.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import click  # noqa: E402
+
+__all__ = ["cli", "main", "COMMANDS"]
+
+#: (name, "module:attribute", one-line summary), in pipeline order.
+COMMANDS: list[tuple[str, str, str]] = [
+    ("camera", "lidarcat.cli.camera:camera", "Interior orientation: pixel to corrected photo coordinates."),
+    ("lidar", "lidarcat.cli.lidar:lidar", "LiDAR tiles: info, index, clip, raster views."),
+    ("extract", "lidarcat.cli.extract:extract", "Roof planes to control points (Delaunay facets + plane intersection)."),
+    ("adjust", "lidarcat.cli.adjust:adjust", "Bundle adjustment with weighted position constraints."),
+    ("assess", "lidarcat.cli.assess:assess", "Check-point accuracy: Filliben, t, chi-square, PEC, ASPRS, NSSDA."),
+    ("run", "lidarcat.cli.run:run", "The whole pipeline on a survey folder (default: the thesis block)."),
+    ("demo", "lidarcat.cli.demo:demo", "Write demonstration surveys (synthetic block with known truth)."),
+]
+
+
+class CliLibraryError(click.ClickException):
+    """A library error shown as one line, exit code 2."""
+
+    exit_code = 2
+
+
+class LazyGroup(click.Group):
+    """A group whose subcommands are imported on first use, listed in pipeline order."""
+
+    def __init__(self, *args, lazy: list[tuple[str, str, str]] | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._lazy = {name: (target, summary) for name, target, summary in (lazy or [])}
+        self._order = [name for name, _, _ in (lazy or [])]
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        extra = sorted(set(super().list_commands(ctx)) - set(self._order))
+        return self._order + extra
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name in self._lazy:
+            target, summary = self._lazy[name]
+            modname, attr = target.split(":")
+            try:
+                cmd = getattr(importlib.import_module(modname), attr)
+            except ImportError as ex:  # stage not available in this build
+                @click.command(name=name, help=f"{summary}\n\n(unavailable: {ex})")
+                def cmd() -> None:
+                    raise click.ClickException(f"'{name}' is not available: {ex}")
+            if not cmd.short_help:
+                cmd.short_help = summary
+            return cmd
+        return super().get_command(ctx, name)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        # Summaries come from the table, so --help never imports the stages.
+        rows = [(name, self._lazy[name][1]) for name in self._order]
+        with formatter.section("Commands (in pipeline order)"):
+            formatter.write_dl(rows)
+
+    def invoke(self, ctx: click.Context):
+        from ..errors import LidarcatError
+
+        try:
+            return super().invoke(ctx)
+        except LidarcatError as ex:
+            raise CliLibraryError(str(ex)) from ex
+
+
+def configure_logging(verbosity: int) -> None:
+    """Map -v/-q counts to a logging level for the ``lidarcat`` logger."""
+    level = max(logging.DEBUG, min(logging.ERROR, logging.WARNING - 10 * verbosity))
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    log = logging.getLogger("lidarcat")
+    log.handlers[:] = [handler]
+    log.setLevel(level)
+
+
+@click.group(cls=LazyGroup, lazy=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("-v", "--verbose", count=True, help="More log output (repeat for debug).")
+@click.option("-q", "--quiet", count=True, help="Less log output.")
+@click.version_option(package_name="lidarcat")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
+    """lidarcat: LiDAR-controlled aerial triangulation.
+
+    Orient a block of aerial photos with ground control taken from airborne
+    LiDAR roofs (planes intersected into points), from a GPS survey, or both,
+    and judge the result by check points against mapping standards.
+
+    \b
+    Quick start (the embedded thesis block, Fierro 2007):
+      lidarcat run -o out/
+      lidarcat adjust --control gps -o out/gps
+    A survey folder holds survey.toml plus CSV files; see docs/survey-format.md.
+    Units: metres and degrees on the ground, millimetres and pixels in the image.
+    """
+    ctx.ensure_object(dict)
+    ctx.obj["verbosity"] = verbose - quiet
+    configure_logging(verbose - quiet)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point."""
+    try:
+        cli.main(args=argv, prog_name="lidarcat")
+    except KeyboardInterrupt:  # pragma: no cover - interactive
+        click.echo("Interrupted; no partial output was kept.", err=True)
+        sys.exit(130)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()
