@@ -1,0 +1,608 @@
+"""Survey folder: the embedded thesis block, and one test per validation error.
+
+Every error test builds a broken copy of the thesis folder and asserts that the
+message names the file, the line (as an editor shows it) and the field.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import ROOT, THESIS_SURVEY, THESIS_TABLES
+from lidarcat._io import dumps_json
+from lidarcat.errors import SurveyError
+from lidarcat.survey import (
+    AdjustmentSettings,
+    Survey,
+    example_camera_path,
+    thesis_survey_path,
+)
+
+GPS_CONTROL = ["601", "604", "619", "624", "627", "661", "662", "664"]
+GPS_CHECK = ["603", "605", "606", "615", "616", "617", "618", "620", "621", "622", "623",
+             "625", "626"]
+LIDAR_CONTROL = ["701", "703", "705", "706", "707", "712", "719", "721"]
+
+
+@pytest.fixture(scope="module")
+def thesis() -> Survey:
+    return Survey.load()
+
+
+# ------------------------------------------------------------------ helpers
+def copy_thesis(tmp_path: Path) -> Path:
+    dest = tmp_path / "survey"
+    shutil.copytree(THESIS_SURVEY, dest, ignore=shutil.ignore_patterns("out"))
+    return dest
+
+
+def edit(folder: Path, name: str, old: str, new: str) -> str:
+    """Replace the first *old* in file *name* by *new*; return the new text."""
+    p = folder / name
+    text = p.read_text(encoding="utf-8")
+    assert old in text, f"{old!r} not in {name}"
+    text = text.replace(old, new, 1)
+    p.write_text(text, encoding="utf-8")
+    return text
+
+
+def line_of(text: str, needle: str, occurrence: int = 1) -> int:
+    hits = [i for i, line in enumerate(text.splitlines(), 1) if needle in line]
+    return hits[occurrence - 1]
+
+
+def rewrite_csv(folder: Path, name: str, fn) -> str:
+    """Rewrite CSV *name* (comments dropped) as fn(header, rows) -> (header, rows)."""
+    p = folder / name
+    with open(p, encoding="utf-8") as fh:
+        rows = list(csv.reader(line for line in fh if not line.startswith("#")))
+    header, body = fn(rows[0], rows[1:])
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(header)
+    w.writerows(body)
+    p.write_text(out.getvalue(), encoding="utf-8")
+    return out.getvalue()
+
+
+def drop_column(col):
+    def fn(header, rows):
+        i = header.index(col)
+        return header[:i] + header[i + 1:], [r[:i] + r[i + 1:] for r in rows]
+    return fn
+
+
+def expect(folder: Path, file: str, line: int, field: str, message: str = ""):
+    pattern = rf"{re.escape(file)}:{line}: field '{re.escape(field)}'"
+    if message:
+        pattern += rf".*{message}"
+    with pytest.raises(SurveyError, match=pattern) as ei:
+        Survey.load(folder)
+    assert str(folder) in str(ei.value)  # the full path of the file
+    return ei.value
+
+
+# ------------------------------------------------------------------ the thesis block
+def test_thesis_block_counts(thesis):
+    assert thesis.name == "thesis-fierro-2007"
+    assert thesis.crs == "EPSG:29192" and thesis.height_system == "orthometric"
+    assert thesis.embedded and thesis.root == thesis_survey_path()
+    assert thesis.photo_ids == ("1", "2", "3", "4", "5", "6")
+    assert list(thesis.cameras) == ["dcs14n"]
+    assert {p.camera for p in thesis.photos} == {"dcs14n"}
+    assert len(thesis.image_points) == 153
+    assert len(thesis.photo_observations()) == 151
+    assert int((thesis.image_points.point == "417").sum()) == 2
+    assert len(thesis.ground_points) == 39
+    src = thesis.ground_points.source.tolist()
+    assert (src.count("gps"), src.count("lidar")) == (21, 18)
+    assert thesis.tie_points == ("401", "403", "405", "406", "407", "408", "409", "410", "411",
+                                 "412", "413", "414", "415", "416", "418")
+    assert thesis.lidar_paths == () and thesis.extraction_jobs is None
+
+
+def test_image_points_are_appendix1(thesis):
+    with open(THESIS_TABLES / "appendix1_corrections.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(line for line in fh if not line.startswith("#")))
+    ip = thesis.image_points
+    assert ip.photo.tolist() == [r["photo"] for r in rows]
+    assert ip.point.tolist() == [r["point"] for r in rows]
+    np.testing.assert_array_equal(ip.pixel_px, [[float(r["C"]), float(r["L"])] for r in rows])
+    np.testing.assert_array_equal(ip.xy_mm, [[float(r["x_fotc"]), float(r["y_fotc"])] for r in rows])
+    assert np.isnan(ip.sd_mm).all()
+
+
+def test_thesis_settings(thesis):
+    s = thesis.settings
+    assert s == AdjustmentSettings("corrected", 0.006, frozenset({"417"}), "a_priori", 0.05)
+
+
+def test_thesis_control_sets(thesis):
+    assert list(thesis.control_sets) == ["gps", "lidar"]
+    gps = thesis.control_set()
+    assert gps.name == "gps" and thesis.default_control == "gps"
+    assert gps.control.tolist() == GPS_CONTROL
+    assert gps.check.tolist() == GPS_CHECK
+    np.testing.assert_array_equal(gps.sd_m, np.full((8, 3), 0.25))
+    lidar = thesis.control_set("lidar")
+    assert lidar.control.tolist() == LIDAR_CONTROL
+    assert len(lidar.check) == 31
+    np.testing.assert_array_equal(lidar.sd_m, np.tile([0.5, 0.5, 0.15], (8, 1)))
+    # checks keep their own ground-point sds: LiDAR 0.50/0.50/0.15, GPS 0.25
+    i = lidar.check.tolist().index("702")
+    np.testing.assert_array_equal(lidar.check_sd_m[i], [0.5, 0.5, 0.15])
+    i = lidar.check.tolist().index("603")
+    np.testing.assert_array_equal(lidar.check_sd_m[i], [0.25, 0.25, 0.25])
+    with pytest.raises(SurveyError, match="no control set 'nope'; available: gps, lidar"):
+        thesis.control_set("nope")
+
+
+def test_thesis_ground_points_are_table5(thesis):
+    with open(THESIS_TABLES / "table5_lidar_points.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(line for line in fh if not line.startswith("#")))
+    idx = thesis.ground_points.index([r["point"] for r in rows])
+    enh = np.array([[float(r[k]) for k in ("E", "N", "h")] for r in rows])
+    np.testing.assert_allclose(thesis.ground_points.enh_m[idx], enh, atol=5e-4)
+    with pytest.raises(SurveyError, match="point.s. 999 not among the ground points"):
+        thesis.ground_points.index(["601", "999"])
+    assert thesis.ground_points.index("601").tolist() == [0]
+
+
+def test_photo_observations_corrected_vs_pixel(thesis):
+    corr = thesis.photo_observations("corrected")
+    pix = thesis.photo_observations("pixel")
+    assert "417" not in corr.point
+    np.testing.assert_array_equal(corr.point, pix.point)
+    np.testing.assert_array_equal(corr.sd_mm, np.full((151, 2), 0.006))
+    diff = np.abs(corr.xy_mm - pix.xy_mm)
+    mis = (corr.photo == "5") & (corr.point == "662")
+    assert diff[~mis].max() < 0.0015            # rounding of Appendix 1
+    assert 0.0025 < diff[mis, 1][0] < 0.0035    # the documented misprint
+    with pytest.raises(SurveyError, match="observations kind 'raw'"):
+        thesis.photo_observations("raw")
+
+
+def test_arrays_are_read_only(thesis):
+    with pytest.raises(ValueError):
+        thesis.image_points.xy_mm[0, 0] = 1.0
+    with pytest.raises(ValueError):
+        thesis.ground_points.enh_m[0, 0] = 1.0
+    with pytest.raises(ValueError):
+        thesis.control_set().sd_m[0, 0] = 1.0
+
+
+def test_select_and_lines(thesis):
+    ip = thesis.image_points
+    sub = ip.select(ip.photo == "5")
+    assert len(sub) == len(set(sub.point.tolist())) and set(sub.photo.tolist()) == {"5"}
+    i = sub.point.tolist().index("662")
+    assert sub.line[i] == 126  # line of image_points.csv, comments counted
+    assert sub.where(i).endswith("image_points.csv:126")
+
+
+def test_output_dir_and_summary(thesis, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert thesis.output_dir() == tmp_path / "lidarcat-out"
+    assert thesis.output_dir("x") == Path("x")
+    copy = Survey.load(copy_thesis(tmp_path))
+    assert not copy.embedded and copy.output_dir() == tmp_path / "survey" / "out"
+    d = thesis.to_dict()
+    assert d["n_image_points"] == 153 and d["n_observations"] == 151
+    assert d["control_sets"] == {"gps": {"control": 8, "check": 13},
+                                 "lidar": {"control": 8, "check": 31}}
+    assert '"name": "thesis-fierro-2007"' in dumps_json(d)
+
+
+def test_load_by_toml_path_and_missing(tmp_path):
+    s = Survey.load(THESIS_SURVEY / "survey.toml")
+    assert s.root == THESIS_SURVEY and not s.embedded
+    with pytest.raises(SurveyError, match="survey folder not found"):
+        Survey.load(tmp_path / "nope")
+    with pytest.raises(SurveyError, match="no survey.toml in this folder"):
+        Survey.load(tmp_path)
+
+
+def test_embedded_paths():
+    assert (thesis_survey_path() / "image_points.csv").is_file()
+    assert example_camera_path().is_file()
+    assert example_camera_path("lactec_dcs14n_2008.toml") == example_camera_path()
+    with pytest.raises(SurveyError, match="available: lactec_dcs14n_2008"):
+        example_camera_path("nope")
+
+
+# ------------------------------------------------------------------ optional content
+def test_photos_with_positions_and_attitudes(tmp_path):
+    f = copy_thesis(tmp_path)
+    with open(THESIS_TABLES / "table6_eop_gps.csv", encoding="utf-8") as fh:
+        eo = list(csv.DictReader(line for line in fh if not line.startswith("#")))
+    cols = ["X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg", "sd_X0", "sd_Y0", "sd_Z0"]
+    rewrite_csv(f, "photos.csv", lambda h, rows: (
+        h + cols, [r + [e[c] for c in cols] for r, e in zip(rows, eo)]))
+    s = Survey.load(f)
+    np.testing.assert_allclose(s.photo("1").position_m, [677344.86, 7183454.439, 2255.938])
+    np.testing.assert_allclose(s.photo("6").attitude_deg, [-6.20025, 1.01147, 68.00129])
+    np.testing.assert_allclose(s.photo("2").sd_position_m, [1.78, 2.356, 0.427])
+    assert s.photo("2").sd_attitude_deg is None
+    assert s.camera_of("3").id == "dcs14n"
+    with pytest.raises(ValueError):
+        s.photo("1").position_m[0] = 0.0
+    with pytest.raises(SurveyError, match="no photo '9'"):
+        s.photo("9")
+
+
+def test_pixel_only_defaults(tmp_path):
+    f = copy_thesis(tmp_path)
+    rewrite_csv(f, "image_points.csv", drop_column("x_mm"))
+    rewrite_csv(f, "image_points.csv", drop_column("y_mm"))
+    edit(f, "survey.toml", 'observations = "corrected"', "")
+    edit(f, "survey.toml", "image_sd_mm = 0.006", "")
+    s = Survey.load(f)
+    assert s.settings.observations == "pixel"
+    assert s.settings.image_sd_mm == pytest.approx(0.75 * 0.0079)
+    obs = s.photo_observations()
+    assert np.isfinite(obs.xy_mm).all() and len(obs) == 151
+    with pytest.raises(SurveyError, match=r"image_points.csv:2: field 'x_mm': no corrected"):
+        s.photo_observations("corrected")
+
+
+def test_lidar_globs_and_extraction_jobs(tmp_path):
+    f = copy_thesis(tmp_path)
+    (f / "tiles").mkdir()
+    for n in ("b.laz", "a.laz", "c.txt"):
+        (f / "tiles" / n).write_bytes(b"")
+    (f / "extra.las").write_bytes(b"")
+    (f / "jobs.txt").write_text("faixa.xyz P799 677757.8 7183482.0 0.15 5.0\n", encoding="utf-8")
+    edit(f, "survey.toml", 'control_sets = "control_sets.csv"',
+         'control_sets = "control_sets.csv"\nlidar = ["tiles/*.laz", "extra.las"]\n'
+         'extraction_jobs = "jobs.txt"\n[lidar]\ncrs = "EPSG:31982"')
+    # 799 is measured on one photo only: legal because an extraction job names it
+    text = (f / "image_points.csv").read_text(encoding="utf-8")
+    (f / "image_points.csv").write_text(text + "3,799,1000,1000,,\n", encoding="utf-8")
+    s = Survey.load(f)
+    assert s.lidar_paths == (f / "extra.las", f / "tiles" / "a.laz", f / "tiles" / "b.laz")
+    assert s.lidar_crs == "EPSG:31982" and s.extraction_jobs == f / "jobs.txt"
+    assert "799" in s.tie_points
+
+
+# ------------------------------------------------------------------ survey.toml errors
+def test_toml_unknown_key(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "survey.toml", "chi2_level = 0.05", "chi2_level = 0.05\nmax_iterations = 3")
+    expect(f, "survey.toml", line_of(text, "max_iterations"), "max_iterations",
+           r"unknown key 'max_iterations' in \[adjustment\]; allowed: observations")
+
+
+def test_toml_unknown_table(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "survey.toml", "[adjustment]", "[bundle]\nx = 1\n\n[adjustment]")
+    expect(f, "survey.toml", line_of(text, "[bundle]"), "bundle", "unknown key/table")
+
+
+def test_toml_missing_required_key(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "survey.toml", 'crs = "EPSG:29192"', "")
+    expect(f, "survey.toml", line_of(text, "[survey]"), "crs", "missing required key 'crs'")
+
+
+def test_toml_missing_table(tmp_path):
+    f = copy_thesis(tmp_path)
+    edit(f, "survey.toml", "[files]", "[adjustment2]")
+    with pytest.raises(SurveyError, match="unknown key/table 'adjustment2'"):
+        Survey.load(f)
+
+
+def test_toml_missing_files_table(tmp_path):
+    f = copy_thesis(tmp_path)
+    (f / "survey.toml").write_text('[survey]\nname = "x"\ncrs = "EPSG:29192"\n', encoding="utf-8")
+    with pytest.raises(SurveyError, match=r"survey.toml: missing table \[files\]"):
+        Survey.load(f)
+    (f / "survey.toml").write_text('[survey]\nname = "x"\ncrs = "EPSG:29192"\n[files]\n'
+                                   'camera = "camera.toml"\nphotos = "photos.csv"\n', encoding="utf-8")
+    expect(f, "survey.toml", 4, "image_points", "missing required key 'image_points' in \\[files\\]")
+
+
+def test_toml_invalid(tmp_path):
+    f = copy_thesis(tmp_path)
+    edit(f, "survey.toml", 'height_system = "orthometric"', "height_system = orthometric")
+    with pytest.raises(SurveyError, match=r"survey.toml:9: invalid TOML"):
+        Survey.load(f)
+
+
+@pytest.mark.parametrize("key, old, new, message", [
+    ("observations", 'observations = "corrected"', 'observations = "raw"',
+     "'raw' is not one of 'corrected', 'pixel'"),
+    ("image_sd_mm", "image_sd_mm = 0.006", 'image_sd_mm = "0.006"', "expected int/float"),
+    ("image_sd_mm", "image_sd_mm = 0.006", "image_sd_mm = -0.006", "must be positive"),
+    ("image_sd_mm", "image_sd_mm = 0.006", "image_sd_mm = nan", "must be a finite number"),
+    ("variance_factor", 'variance_factor = "a_priori"', 'variance_factor = "posterior"',
+     "not one of 'a_priori', 'a_posteriori'"),
+    ("chi2_level", "chi2_level = 0.05", "chi2_level = 5", "between 0 and 1"),
+    ("exclude_points", 'exclude_points = ["417"]', 'exclude_points = ["417", "999"]',
+     "point '999' is defined nowhere"),
+    ("exclude_points", 'exclude_points = ["417"]', 'exclude_points = "417"', "expected list"),
+    ("default_control", 'default_control = "gps"', 'default_control = "GPS"',
+     r"control set 'GPS' is not in control_sets \(gps, lidar\)"),
+    ("name", 'name = "thesis-fierro-2007"', 'name = ""', "must not be empty"),
+    ("photos", 'photos = "photos.csv"', 'photos = "fotos.csv"', "file 'fotos.csv' not found"),
+    ("lidar", 'control_sets = "control_sets.csv"',
+     'control_sets = "control_sets.csv"\nlidar = ["tiles/*.laz"]', "matches no file"),
+    ("lidar", 'control_sets = "control_sets.csv"',
+     'control_sets = "control_sets.csv"\nlidar = "t.laz"', "LiDAR file 't.laz' not found"),
+])
+def test_toml_bad_values(tmp_path, key, old, new, message):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "survey.toml", old, new)
+    expect(f, "survey.toml", line_of(text, f"{key} ="), key, message)
+
+
+# ------------------------------------------------------------------ camera.toml errors
+def test_camera_unknown_key_in_survey(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "camera.toml", "k3 = 0.0", "k3 = 0.0\nk4 = 1.0")
+    expect(f, "camera.toml", line_of(text, "k4 ="), "k4", "unknown key")
+
+
+def test_camera_bad_value_in_survey(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "camera.toml", "columns_px = 3000", "columns_px = 0")
+    expect(f, "camera.toml", line_of(text, "columns_px"), "columns_px", "at least 1 pixel")
+
+
+def test_camera_not_defined(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "photos.csv", "4,dcs14n", "4,dcs15n")
+    expect(f, "photos.csv", line_of(text, "4,dcs15n"), "camera",
+           r"camera 'dcs15n' is not defined in camera.toml \(defined: dcs14n\)")
+
+
+def test_two_cameras_need_camera_column(tmp_path):
+    f = copy_thesis(tmp_path)
+    cam = (f / "camera.toml").read_text(encoding="utf-8")
+    (f / "camera.toml").write_text(cam + "\n" + cam.replace("[dcs14n]", "[other]"), encoding="utf-8")
+    rewrite_csv(f, "photos.csv", drop_column("camera"))
+    expect(f, "photos.csv", 1, "camera", "missing column 'camera'; camera.toml defines 2 cameras")
+
+
+# ------------------------------------------------------------------ photos.csv errors
+def test_photos_duplicate_id(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "photos.csv", "6,dcs14n", "6,dcs14n\n3,dcs14n")
+    expect(f, "photos.csv", line_of(text, "3,dcs14n", 2), "photo",
+           rf"duplicate photo id \(photo='3'\); first defined on line {line_of(text, '3,dcs14n')}")
+
+
+def test_photos_unknown_column(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = rewrite_csv(f, "photos.csv", lambda h, r: (h + ["lens"], [x + ["a"] for x in r]))
+    assert text.startswith("photo,camera,lens")
+    with pytest.raises(SurveyError, match=r"photos.csv:1: unknown column\(s\) lens; allowed: photo"):
+        Survey.load(f)
+
+
+def test_photos_partial_position_columns(tmp_path):
+    f = copy_thesis(tmp_path)
+    rewrite_csv(f, "photos.csv", lambda h, r: (h + ["X0", "Y0"], [x + ["1", "2"] for x in r]))
+    expect(f, "photos.csv", 1, "Z0", "missing column 'Z0'; a position needs all of X0, Y0, Z0")
+
+
+def test_photos_partial_position_row(tmp_path):
+    f = copy_thesis(tmp_path)
+    rewrite_csv(f, "photos.csv", lambda h, r: (
+        h + ["X0", "Y0", "Z0"], [x + ["1", "2", "3" if x[0] != "4" else ""] for x in r]))
+    expect(f, "photos.csv", 5, "Z0", "empty; fill all of X0, Y0, Z0 or none")
+
+
+# ------------------------------------------------------------------ image_points.csv errors
+def test_image_points_duplicate(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "image_points.csv", "1,701,1715.7,636.9,1.686,12.888",
+                "1,701,1715.7,636.9,1.686,12.888\n1,701,1715.8,636.9,1.686,12.888")
+    expect(f, "image_points.csv", line_of(text, "1,701,1715.8"), "point",
+           r"duplicate measurement of this point on this photo \(photo='1', point='701'\); "
+           rf"first defined on line {line_of(text, '1,701,1715.7')}")
+
+
+def test_image_points_unknown_photo(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "image_points.csv", "1,701,", "9,701,")
+    expect(f, "image_points.csv", line_of(text, "9,701,"), "photo",
+           "photo '9' is not in photos.csv; add it there or fix the id")
+
+
+@pytest.mark.parametrize("cell, message", [
+    ("abc", "'abc' is not a number"),
+    ("nan", "'nan' is not a finite number"),
+    ("inf", "'inf' is not a finite number"),
+    ("-Infinity", "'-Infinity' is not a finite number"),
+])
+def test_image_points_bad_number(tmp_path, cell, message):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "image_points.csv", "1,702,2643.3,", f"1,702,{cell},")
+    expect(f, "image_points.csv", line_of(text, "1,702,"), "col_px", message)
+
+
+def test_image_points_half_pair(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "image_points.csv", "1,702,2643.3,449.8,9.095,14.432", "1,702,2643.3,449.8,9.095,")
+    expect(f, "image_points.csv", line_of(text, "1,702,"), "y_mm", "fill both x_mm and y_mm or neither")
+
+
+def test_image_points_no_coordinates(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "image_points.csv", "1,702,2643.3,449.8,9.095,14.432", "1,702,,,,")
+    expect(f, "image_points.csv", line_of(text, "1,702,"), "x_mm", "no coordinates")
+
+
+def test_image_points_missing_columns(tmp_path):
+    f = copy_thesis(tmp_path)
+    rewrite_csv(f, "image_points.csv", drop_column("row_px"))
+    expect(f, "image_points.csv", 1, "row_px", "columns col_px, row_px come as a pair")
+    f2 = copy_thesis(tmp_path / "b")
+    rewrite_csv(f2, "image_points.csv", lambda h, r: (h[:2], [x[:2] for x in r]))
+    expect(f2, "image_points.csv", 1, "col_px", "give col_px, row_px")
+    f3 = copy_thesis(tmp_path / "c")
+    rewrite_csv(f3, "image_points.csv", drop_column("point"))
+    with pytest.raises(SurveyError, match=r"image_points.csv:1: missing column 'point'"):
+        Survey.load(f3)
+
+
+def test_image_points_negative_sd(tmp_path):
+    f = copy_thesis(tmp_path)
+    rewrite_csv(f, "image_points.csv", lambda h, r: (
+        h + ["sd_x_mm", "sd_y_mm"], [x + (["0.006", "-1"] if i == 3 else ["", ""]) for i, x in enumerate(r)]))
+    expect(f, "image_points.csv", 5, "sd_y_mm", "must be positive")
+
+
+def test_image_point_defined_nowhere(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "image_points.csv", "1,702,", "1,7020,")
+    expect(f, "image_points.csv", line_of(text, "1,7020,"), "point",
+           "'7020' is measured on photo '1' only and defined nowhere")
+
+
+def test_observations_kind_missing_for_a_row(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "image_points.csv", "2,", "2,", )  # locate photo 2's first row
+    first2 = next(line for line in text.splitlines() if line.startswith("2,"))
+    photo, point, c, r, x, y = first2.split(",")
+    text = edit(f, "image_points.csv", first2, f"{photo},{point},,,{x},{y}")
+    s = Survey.load(f)
+    assert len(s.photo_observations("corrected")) == 151
+    with pytest.raises(SurveyError, match=rf"image_points.csv:{line_of(text, f'{photo},{point},,,')}: "
+                       rf"field 'col_px': no pixel coordinates .* photo '2' point '{point}'"):
+        s.photo_observations("pixel")
+
+
+# ------------------------------------------------------------------ ground_points.csv errors
+def test_ground_points_duplicate(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "ground_points.csv", "603,677249.591", "601,677249.591")
+    expect(f, "ground_points.csv", line_of(text, "601,677249.591"), "point",
+           rf"duplicate ground point id \(point='601'\); first defined on line {line_of(text, '601,')}")
+
+
+@pytest.mark.parametrize("cell, field, message", [
+    ("677249.591x", "E", "'677249.591x' is not a number"),
+    ("NaN", "E", "'NaN' is not a finite number"),
+    ("", "E", "empty value; a number is required"),
+])
+def test_ground_points_bad_number(tmp_path, cell, field, message):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "ground_points.csv", "603,677249.591,", f"603,{cell},")
+    expect(f, "ground_points.csv", line_of(text, "603,"), field, message)
+
+
+def test_ground_points_bad_sd_and_source(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "ground_points.csv", "908.745,0.25,0.25,0.25,gps", "908.745,0.25,0.25,0,gps")
+    expect(f, "ground_points.csv", line_of(text, "603,"), "sd_h", "must be positive")
+    f = copy_thesis(tmp_path / "b")
+    text = edit(f, "ground_points.csv", "908.745,0.25,0.25,0.25,gps", "908.745,0.25,0.25,0.25,")
+    expect(f, "ground_points.csv", line_of(text, "603,"), "source", "empty; name the source")
+
+
+def test_ground_points_missing_column(tmp_path):
+    f = copy_thesis(tmp_path)
+    rewrite_csv(f, "ground_points.csv", drop_column("sd_h"))
+    with pytest.raises(SurveyError, match=r"ground_points.csv:1: missing column 'sd_h'"):
+        Survey.load(f)
+
+
+def test_ground_points_wrong_field_count(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "ground_points.csv", "908.745,0.25,0.25,0.25,gps", "908.745,0.25,0.25,0.25,gps,x")
+    with pytest.raises(SurveyError, match=rf"ground_points.csv:{line_of(text, '603,')}: 9 fields, expected 8"):
+        Survey.load(f)
+
+
+# ------------------------------------------------------------------ control_sets.csv errors
+def test_control_point_defined_nowhere(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "control_sets.csv", "gps,619,control", "gps,6190,control")
+    expect(f, "control_sets.csv", line_of(text, "gps,6190"), "point",
+           "point '6190' is defined nowhere: not in ground_points.csv")
+
+
+def test_control_bad_role(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "control_sets.csv", "gps,605,check", "gps,605,chek")
+    expect(f, "control_sets.csv", line_of(text, "gps,605"), "role", "'chek' is not 'control' or 'check'")
+
+
+def test_control_duplicate(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "control_sets.csv", "gps,605,check,,,", "gps,605,check,,,\ngps,601,check,,,")
+    expect(f, "control_sets.csv", line_of(text, "gps,601,check"), "point",
+           rf"duplicate point in this control set \(set='gps', point='601'\); "
+           rf"first defined on line {line_of(text, 'gps,601,control')}")
+
+
+def test_control_partial_override(tmp_path):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "control_sets.csv", "gps,604,control,0.25,0.25,0.25", "gps,604,control,0.25,,0.25")
+    expect(f, "control_sets.csv", line_of(text, "gps,604"), "sd_N", "fill all of sd_E, sd_N, sd_h or none")
+
+
+def test_control_point_excluded(tmp_path):
+    f = copy_thesis(tmp_path)
+    edit(f, "survey.toml", 'exclude_points = ["417"]', 'exclude_points = ["417", "603"]')
+    text = (f / "control_sets.csv").read_text(encoding="utf-8")
+    expect(f, "control_sets.csv", line_of(text, "gps,603"), "point", "excluded by survey.toml")
+
+
+def test_control_set_without_default(tmp_path):
+    f = copy_thesis(tmp_path)
+    edit(f, "survey.toml", 'default_control = "gps"', "")
+    s = Survey.load(f)
+    with pytest.raises(SurveyError, match="no control set named and no .survey. default_control; "
+                                          "available: gps, lidar"):
+        s.control_set()
+
+
+# ------------------------------------------------------------------ packaging
+@pytest.mark.slow
+def test_wheel_contains_thesis_block(tmp_path):
+    """Build the wheel, import lidarcat from it alone, load the embedded block."""
+    out = tmp_path / "wheel"
+    proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out),
+                           str(ROOT)], capture_output=True, text=True, timeout=300)
+    if proc.returncode != 0:
+        pytest.skip(f"cannot build the wheel here (offline?): {proc.stderr[-300:]}")
+    wheel = next(out.glob("lidarcat-*.whl"))
+    names = zipfile.ZipFile(wheel).namelist()
+    for n in ("survey.toml", "camera.toml", "photos.csv", "image_points.csv",
+              "ground_points.csv", "control_sets.csv"):
+        assert f"lidarcat/_data/thesis/{n}" in names
+    assert "lidarcat/_data/cameras/lactec_dcs14n_2008.toml" in names
+    site = tmp_path / "site"
+    zipfile.ZipFile(wheel).extractall(site)
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); sys.meta_path[:] = [f for f in sys.meta_path "
+            "if 'editable' not in type(f).__module__.lower() and 'editable' not in repr(f).lower()]\n"
+            "import lidarcat, lidarcat.survey as s\n"
+            "assert lidarcat.__file__.startswith(sys.argv[1]), lidarcat.__file__\n"
+            "sv = s.Survey.load(); print(sv.root, len(sv.image_points))")
+    res = subprocess.run([sys.executable, "-c", code, str(site)], capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 0, res.stderr
+    root, n = res.stdout.split()
+    assert Path(root) == site / "lidarcat" / "_data" / "thesis" and n == "153"
+
+
+def test_cameras_of(tmp_path):
+    from lidarcat.survey import cameras_of
+
+    assert list(cameras_of()) == ["dcs14n"]
+    assert list(cameras_of(THESIS_SURVEY)) == ["dcs14n"]
+    assert list(cameras_of(THESIS_SURVEY / "survey.toml")) == ["dcs14n"]
+    assert list(cameras_of(example_camera_path())) == ["lactec_dcs14n"]
+    assert list(cameras_of(f"{example_camera_path()}:lactec_dcs14n")) == ["lactec_dcs14n"]
