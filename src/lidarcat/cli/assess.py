@@ -1,0 +1,126 @@
+"""``lidarcat assess``: check-point accuracy, statistical tests, standards, report."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from .options import echo_json, json_opt
+
+__all__ = ["assess"]
+
+_STANDARDS = ("pec", "pec-pcd", "asprs2014", "asprs2023", "nssda")
+
+
+def _split(values: tuple[str, ...]) -> list[str] | None:
+    out = [v.strip() for val in values for v in val.split(",") if v.strip()]
+    return out or None
+
+
+@click.command(short_help="Check-point accuracy: Filliben, t, chi-square, PEC, ASPRS, NSSDA.")
+@click.argument("adjusted", metavar="ADJUSTED_POINTS", type=click.Path(exists=True))
+@click.argument("reference", metavar="REFERENCE", type=click.Path(exists=True))
+@click.option("--points", "points", multiple=True, metavar="ID[,ID...]",
+              help="Check points to assess (repeat or comma-separate). Default: role=check points of "
+                   "ADJUSTED_POINTS, else every reference point that is not a control point.")
+@click.option("--scale", type=float, default=2000, show_default=True,
+              help="Map scale denominator for PEC / PEC-PCD, the chi-square sigma0 and the CE90 limit.")
+@click.option("--contour-interval", "contour_interval", type=float, default=None, metavar="METRES",
+              help="Contour interval Eq (m) for the altimetric PEC classes (thesis: 2). "
+                   "Default: the standard's table value for the scale, if any.")
+@click.option("--standard", "standards", multiple=True, type=click.Choice(_STANDARDS, case_sensitive=False),
+              help="Standard(s) to classify by (repeatable). Default: all.")
+@click.option("--alpha", type=float, default=0.10, show_default=True, help="Level of every test.")
+@click.option("--plotting-position", type=click.Choice(["filliben", "hazen", "blom"]), default="filliben",
+              show_default=True, help="Filliben test positions; 'hazen' is the thesis's (i-0.5)/n.")
+@click.option("--sign", type=click.Choice(["reference_minus_adjusted", "adjusted_minus_reference"]),
+              default="reference_minus_adjusted", show_default=True,
+              help="Discrepancy convention (the thesis: reference minus adjusted).")
+@click.option("--pec-class", default="A", show_default=True,
+              help="Decreto class whose EP is the chi-square sigma0 and whose PEC limits CE90.")
+@click.option("--adjustment", "adjustment_dir", type=click.Path(exists=True, file_okay=False), default=None,
+              help="Adjustment output folder (eop.csv, points.csv, summary.json) for the report. "
+                   "Default: the folder of ADJUSTED_POINTS when it holds eop.csv.")
+@click.option("--survey", "survey", type=click.Path(exists=True, file_okay=False), default=None,
+              help="Survey folder (camera format for photo footprints in the report).")
+@click.option("-o", "--output", type=click.Path(), default=None,
+              help="Write the report: NAME.html (+ .md, .json, NAME_figures/) or a folder.")
+@json_opt
+def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float, contour_interval: float | None,
+           standards: tuple[str, ...], alpha: float, plotting_position: str, sign: str, pec_class: str,
+           adjustment_dir: str | None, survey: str | None, output: str | None, as_json: bool) -> None:
+    """Compare adjusted coordinates with reference check points (thesis 3.3.4).
+
+    ADJUSTED_POINTS is a CSV with columns point, E, N, h (the points.csv of
+    `lidarcat adjust`, or its output folder). REFERENCE is a CSV with the
+    same columns (extra columns such as sd_E, sd_N, sd_h, source are allowed;
+    a survey's ground_points.csv qualifies) or a survey folder. Metres.
+
+    Prints the discrepancy summary (mean, sd, RMSE, max), the tests (Filliben,
+    K-S and Lilliefors, t trend, chi-square precision, Hotelling T^2, CE90)
+    with their verdicts, and the class by each standard.
+
+    \b
+    Examples:
+      lidarcat assess out/gps/points.csv data/thesis --scale 2000 --contour-interval 2
+      lidarcat assess out/gps data/thesis/ground_points.csv --standard pec --json
+      lidarcat assess adj.csv ref.csv --points 603,605,606 -o report.html
+    """
+    from ..accuracy import assess as run_assess
+
+    ref_path = Path(reference)
+    if ref_path.is_dir():
+        survey = survey or str(ref_path)
+        ref_path = ref_path / "ground_points.csv"
+    adj_path = Path(adjusted)
+    if adjustment_dir is None and adj_path.is_dir() and (adj_path / "eop.csv").is_file():
+        adjustment_dir = str(adj_path)
+    elif adjustment_dir is None and adj_path.is_file() and (adj_path.parent / "eop.csv").is_file():
+        adjustment_dir = str(adj_path.parent)
+    a = run_assess(adj_path, ref_path, points=_split(points), sign=sign, scale=scale,
+                   contour_interval_m=contour_interval, standards=tuple(s.lower() for s in standards) or _STANDARDS,
+                   alpha=alpha, plotting_position=plotting_position, pec_class=pec_class)
+    paths = None
+    if output is not None:
+        from ..report import write_report
+
+        paths = write_report(output, assessment=a, adjustment_dir=adjustment_dir, survey=survey,
+                             title=f"lidarcat accuracy report: {adj_path.name} vs {ref_path.name}")
+    if as_json:
+        doc = a.to_dict()
+        if paths is not None:
+            doc["report"] = {k: (str(v) if not isinstance(v, list) else [str(p) for p in v]) for k, v in paths.items()}
+        echo_json(doc)
+        return
+    _print_text(a)
+    if paths is not None:
+        click.echo(f"report: {paths['html']} (+ {paths['markdown'].name}, {paths['json'].name})")
+
+
+def _fmt(x: object, nd: int = 3) -> str:
+    return "-" if x is None else f"{x:.{nd}f}" if isinstance(x, float) else str(x)
+
+
+def _print_text(a) -> None:
+    click.echo(f"{a.n} check points; discrepancies {a.settings['sign'].replace('_', ' ')} (m)")
+    click.echo(f"{'':12s}{'mean':>9s}{'sd':>9s}{'RMSE':>9s}{'max|d|':>9s}")
+    for comp in ("E", "N", "h", "planimetric"):
+        s = a.summary[comp]
+        click.echo(f"{comp:12s}" + "".join(f"{_fmt(s[k]):>9s}" for k in ("mean", "std", "rmse", "max_abs")))
+    click.echo(f"\ntests (alpha = {a.settings['alpha']:g}):")
+    for tname, comps in a.tests.items():
+        parts = []
+        for comp, t in comps.items():
+            if t.applicable:
+                parts.append(f"{comp} {t.statistic_name}={_fmt(t.statistic, 4)}"
+                             f"{'' if t.critical is None else '/' + _fmt(t.critical, 4)} {t.verdict}")
+            else:
+                parts.append(f"{comp} not applicable ({t.reason})")
+        click.echo(f"  {tname:15s} " + "; ".join(parts))
+    if a.standards:
+        click.echo("\nstandards:")
+        for name, s in a.standards.items():
+            click.echo(f"  {name:10s} {s.label}")
+    for note in a.notes:
+        click.echo(f"note: {note}")

@@ -1,0 +1,85 @@
+"""``lidarcat assess`` end to end: thesis GPS run, JSON layout, report, errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+from click.testing import CliRunner
+
+from conftest import DATA, THESIS_SURVEY
+from lidarcat.cli.main import cli
+
+POINTS = DATA / "report" / "points.csv"
+
+
+def _run(args):
+    return CliRunner().invoke(cli, ["assess", *args])
+
+
+def test_text_output_thesis_gps_run():
+    r = _run([str(POINTS), str(THESIS_SURVEY), "--contour-interval", "2", "--plotting-position", "hazen"])
+    assert r.exit_code == 0, r.output
+    assert "13 check points; discrepancies reference minus adjusted (m)" in r.output
+    # Table 7 mean / sd rows (E, N, h)
+    assert "E               0.056    0.119" in r.output
+    assert "h              -0.397    0.476" in r.output
+    assert "pec        1:2000 planimetric: class A; altimetric: class A" in r.output
+    assert "h t=-3.0037/1.7823 failed" in r.output
+
+
+def test_json_layout_scripts_rely_on():
+    r = _run([str(POINTS), str(THESIS_SURVEY / "ground_points.csv"), "--scale", "2000", "--contour-interval", "2",
+              "--standard", "pec", "--standard", "nssda", "--json"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.output)
+    for comp in ("E", "N", "h", "planimetric"):
+        assert set(doc["summary"][comp]) >= {"n", "mean", "std", "rmse", "max_abs"}
+        assert doc["summary"][comp]["n"] == 13
+    for comp in ("planimetric", "h"):
+        assert set(doc["tests"]["filliben"][comp]) >= {"r", "critical", "passed"}
+        assert set(doc["tests"]["chi2_precision"][comp]) >= {"chi2", "critical", "passed", "sigma_bound"}
+    for comp in ("E", "N", "h"):
+        assert set(doc["tests"]["trend_t"][comp]) >= {"t", "critical", "passed"}
+    assert sorted(doc["standards"]) == ["nssda", "pec"]
+    assert doc["standards"]["pec"]["class"] == {"altimetric": "A", "planimetric": "A"}
+    assert doc["summary"]["h"]["mean"] == pytest.approx(-0.397, abs=5e-4)
+
+
+def test_points_option_and_report(tmp_path):
+    out = tmp_path / "rep.html"
+    r = _run([str(POINTS), str(THESIS_SURVEY), "--points", "603,605", "--points", "606", "-o", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.output)
+    assert doc["summary"]["E"]["n"] == 3
+    assert doc["tests"]["filliben"]["h"]["critical"] == pytest.approx(0.891)  # n = 3
+    assert doc["report"]["html"] == str(out)
+    html = out.read_text()
+    assert '<section id="exterior-orientation">' in html and "677344.860" in html  # adjustment folder found
+    assert '<section id="qq-plots">' in html
+
+
+def test_adjust_output_folder_as_input(tmp_path):
+    folder = tmp_path / "gps"
+    shutil.copytree(DATA / "report", folder)
+    r = _run([str(folder), str(THESIS_SURVEY / "ground_points.csv"), "--standard", "pec", "-o", str(tmp_path / "r")])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "r" / "report.html").is_file()
+
+
+def test_mismatched_ids_is_one_line_error(tmp_path):
+    ref = tmp_path / "ref.csv"
+    ref.write_text("point,E,N,h\n603,0,0,0\n")
+    r = _run([str(POINTS), str(ref)])
+    assert r.exit_code == 2
+    assert "Traceback" not in r.output
+    assert "Error: check point(s) 605, 606, 615" in r.output and "ref.csv" in r.output
+    r2 = _run([str(POINTS), str(ref), "--points", "603,999"])
+    assert r2.exit_code == 2 and "999" in r2.output
+
+
+def test_help_teaches_units_and_example():
+    r = _run(["--help"])
+    assert r.exit_code == 0
+    assert "Metres" in r.output and "Examples:" in r.output and "--contour-interval" in r.output
