@@ -13,6 +13,11 @@ def test_help_lists_commands_in_pipeline_order():
 
 
 def test_library_error_is_one_line_exit_2(tmp_path):
-    result = CliRunner().invoke(cli, ["adjust", str(tmp_path)])
+    # a folder without survey.toml: SurveyError from the library -> one line, exit code 2
+    result = CliRunner().invoke(cli, ["adjust", str(tmp_path), "-o", str(tmp_path / "out")])
     assert result.exit_code == 2
     assert "Traceback" not in result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith("Error: ") and "survey.toml" in lines[0]
+    assert not (tmp_path / "out").exists()

@@ -35,18 +35,22 @@ _EXPORTS: dict[str, str] = {
     "ClipError": "errors", "DatumError": "errors", "ExtractionError": "errors",
     "AssessmentError": "errors",
     # camera / survey
-    "Camera": "camera",
-    "Survey": "survey", "thesis_survey_path": "survey",
+    "Camera": "camera", "load_cameras": "camera",
+    "Survey": "survey", "thesis_survey_path": "survey", "example_camera_path": "survey",
     # bundle adjustment
     "ExteriorOrientation": "bundle", "BundleProblem": "bundle", "BundleResult": "bundle",
-    "adjust": "bundle",
+    "adjust": "bundle", "adjust_survey": "bundle", "problem_from_survey": "bundle",
+    "check_datum": "bundle", "write_adjustment": "bundle",
     # lidar
     "PointCloud": "lidar", "read_points": "lidar", "TileIndex": "lidar",
     # roof facets and control points
     "Plane": "facets", "extract_roof": "facets",
     "ControlPoint": "control", "intersect_planes": "control",
     # accuracy
-    "assess": "accuracy",
+    "assess": "accuracy", "Assessment": "accuracy", "write_report": "report",
+    # the whole chain and the synthetic survey
+    "run_pipeline": "pipeline", "PipelineResult": "pipeline",
+    "write_synthetic_survey": "demo",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]

@@ -1,0 +1,178 @@
+r"""Collinearity equations, rotation matrices and their analytic derivatives.
+
+Convention (thesis eq. 08, Kraus 1992, Wolf 2004)
+-------------------------------------------------
+The rotation matrix from the object frame (E, N, h) to the image frame is
+
+.. math::  M = R_3(\kappa)\,R_2(\varphi)\,R_1(\omega)
+
+with
+
+.. math::
+
+    R_1(\omega) = \begin{bmatrix}1&0&0\\0&\cos\omega&\sin\omega\\0&-\sin\omega&\cos\omega\end{bmatrix},\;
+    R_2(\varphi) = \begin{bmatrix}\cos\varphi&0&-\sin\varphi\\0&1&0\\\sin\varphi&0&\cos\varphi\end{bmatrix},\;
+    R_3(\kappa) = \begin{bmatrix}\cos\kappa&\sin\kappa&0\\-\sin\kappa&\cos\kappa&0\\0&0&1\end{bmatrix}.
+
+Image coordinates are x right, y up, in millimetres, with the origin at the
+principal point.  With :math:`u = M (X - X_0)` the collinearity equations are
+
+.. math::  x = -c\,u_1/u_3, \qquad y = -c\,u_2/u_3 .
+
+Jacobians
+---------
+:math:`\partial u/\partial X = M`, :math:`\partial u/\partial X_0 = -M` and
+:math:`\partial u/\partial\theta = (\partial M/\partial\theta)(X - X_0)` with
+:math:`\partial M/\partial\omega = R_3 R_2 R_1'`, :math:`\partial M/\partial\varphi
+= R_3 R_2' R_1`, :math:`\partial M/\partial\kappa = R_3' R_2 R_1`.  The chain rule
+through :math:`\partial x/\partial u = -c\,[1/u_3,\;0,\;-u_1/u_3^2]` and
+:math:`\partial y/\partial u = -c\,[0,\;1/u_3,\;-u_2/u_3^2]` gives the 2x6 block
+of the exterior orientation (X0, Y0, Z0, omega, phi, kappa) and the 2x3 block of
+the point (E, N, h) of every observation; everything is vectorised over the
+observations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["block_sum", "rotation_matrix", "rotation_and_derivatives", "project", "project_with_jacobians",
+           "angles_from_matrix"]
+
+
+def _elementary(angles_rad: np.ndarray):
+    a = np.asarray(angles_rad, dtype=float).reshape(-1, 3)
+    n = a.shape[0]
+    co, so = np.cos(a[:, 0]), np.sin(a[:, 0])
+    cp, sp = np.cos(a[:, 1]), np.sin(a[:, 1])
+    ck, sk = np.cos(a[:, 2]), np.sin(a[:, 2])
+    z, o = np.zeros(n), np.ones(n)
+    r1 = np.stack([o, z, z, z, co, so, z, -so, co], axis=1).reshape(n, 3, 3)
+    r2 = np.stack([cp, z, -sp, z, o, z, sp, z, cp], axis=1).reshape(n, 3, 3)
+    r3 = np.stack([ck, sk, z, -sk, ck, z, z, z, o], axis=1).reshape(n, 3, 3)
+    d1 = np.stack([z, z, z, z, -so, co, z, -co, -so], axis=1).reshape(n, 3, 3)
+    d2 = np.stack([-sp, z, -cp, z, z, z, cp, z, -sp], axis=1).reshape(n, 3, 3)
+    d3 = np.stack([-sk, ck, z, -ck, -sk, z, z, z, z], axis=1).reshape(n, 3, 3)
+    return r1, r2, r3, d1, d2, d3
+
+
+def rotation_matrix(angles_rad: np.ndarray) -> np.ndarray:
+    """M = R3(kappa) R2(phi) R1(omega) for (omega, phi, kappa) in radians.
+
+    Parameters
+    ----------
+    angles_rad : (3,) or (n, 3) array
+
+    Returns
+    -------
+    (3, 3) or (n, 3, 3) array
+
+    >>> import numpy as np
+    >>> np.round(rotation_matrix([0.0, 0.0, np.pi / 2]), 12)
+    array([[ 0.,  1.,  0.],
+           [-1.,  0.,  0.],
+           [ 0.,  0.,  1.]])
+    """
+    a = np.asarray(angles_rad, dtype=float)
+    r1, r2, r3, *_ = _elementary(a)
+    m = r3 @ r2 @ r1
+    return m[0] if a.ndim == 1 else m
+
+
+def rotation_and_derivatives(angles_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """M (n, 3, 3) and dM/d(omega, phi, kappa) (n, 3, 3, 3), last-but-two axis = angle."""
+    r1, r2, r3, d1, d2, d3 = _elementary(angles_rad)
+    r32 = r3 @ r2
+    m = r32 @ r1
+    dm = np.stack([r32 @ d1, r3 @ d2 @ r1, d3 @ r2 @ r1], axis=1)
+    return m, dm
+
+
+def angles_from_matrix(m: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`rotation_matrix` (phi in [-90, 90] deg), (n, 3) radians."""
+    m = np.asarray(m, dtype=float).reshape(-1, 3, 3)
+    # m31 = sin(phi), m32 = -sin(omega) cos(phi), m33 = cos(omega) cos(phi),
+    # m11 = cos(phi) cos(kappa), m21 = -cos(phi) sin(kappa)
+    phi = np.arcsin(np.clip(m[:, 2, 0], -1.0, 1.0))
+    omega = np.arctan2(-m[:, 2, 1], m[:, 2, 2])
+    kappa = np.arctan2(-m[:, 1, 0], m[:, 0, 0])
+    return np.stack([omega, phi, kappa], axis=1)
+
+
+def project(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
+            index: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Photo coordinates of points, one ray per row.
+
+    Parameters
+    ----------
+    eo : (n, 6) array, or (P, 6) with *index*
+        X0, Y0, Z0 (m), omega, phi, kappa (rad) of the photo of each ray.
+    xyz_m : (n, 3) array
+        Object coordinates of the point of each ray.
+    focal_mm : (n,) array
+    index : (n,) int array, optional
+        Photo of each ray when *eo* holds one row per photo (rotations are then
+        computed once per photo).
+
+    Returns
+    -------
+    xy_mm : (n, 2) array
+    u3 : (n,) array
+        Third image-space component (negative for a point in front of the camera).
+    """
+    eo = np.asarray(eo, dtype=float)
+    m = rotation_matrix(eo[:, 3:6].reshape(-1, 3))
+    if index is not None:
+        m, eo = m[index], eo[index]
+    d = np.asarray(xyz_m, dtype=float) - eo[:, :3]
+    u = np.einsum("nij,nj->ni", m, d)
+    xy = -np.asarray(focal_mm, dtype=float)[:, None] * u[:, :2] / u[:, 2:3]
+    return xy, u[:, 2]
+
+
+def project_with_jacobians(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
+                           index: np.ndarray | None = None):
+    """Photo coordinates and the Jacobians of every ray (arguments as :func:`project`).
+
+    Returns
+    -------
+    xy_mm : (n, 2)
+    a_eo : (n, 2, 6)
+        d(x, y)/d(X0, Y0, Z0, omega, phi, kappa), mm per m and mm per rad.
+    a_pt : (n, 2, 3)
+        d(x, y)/d(E, N, h), mm per m.
+    u3 : (n,)
+    """
+    eo = np.asarray(eo, dtype=float)
+    m, dm = rotation_and_derivatives(eo[:, 3:6])
+    if index is not None:
+        m, dm, eo = m[index], dm[index], eo[index]
+    d = np.asarray(xyz_m, dtype=float) - eo[:, :3]
+    u = np.einsum("nij,nj->ni", m, d)
+    c = np.asarray(focal_mm, dtype=float)
+    inv3 = 1.0 / u[:, 2]
+    xy = -c[:, None] * u[:, :2] * inv3[:, None]
+    n = len(eo)
+    dxy_du = np.zeros((n, 2, 3))
+    dxy_du[:, 0, 0] = -c * inv3
+    dxy_du[:, 1, 1] = -c * inv3
+    dxy_du[:, 0, 2] = c * u[:, 0] * inv3**2
+    dxy_du[:, 1, 2] = c * u[:, 1] * inv3**2
+    a_pt = dxy_du @ m                               # (n, 2, 3)
+    du_dang = np.einsum("nkij,nj->nik", dm, d)      # (n, 3, 3): u component x angle
+    a_eo = np.concatenate([-a_pt, dxy_du @ du_dang], axis=2)
+    return xy, a_eo, a_pt, u[:, 2]
+
+
+def block_sum(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
+    """Sum (m, ...) blocks into (n, ...) by *index* (a fast scatter-add with bincount).
+
+    >>> block_sum(np.array([0, 1, 0]), np.ones((3, 2, 2)), 2)[:, 0, 0]
+    array([2., 1.])
+    """
+    blocks = np.asarray(blocks, dtype=float)
+    m = blocks.shape[0]
+    tail = blocks.shape[1:]
+    k = int(np.prod(tail)) if tail else 1
+    flat = (np.asarray(index)[:, None] * k + np.arange(k)).ravel()
+    return np.bincount(flat, weights=blocks.reshape(m * k), minlength=n * k).reshape((n,) + tail)

@@ -1,0 +1,102 @@
+"""``lidarcat adjust``: bundle adjustment of a survey (thesis section 2.1.2)."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from .options import echo_json, json_opt, survey_arg
+
+__all__ = ["adjust", "format_report"]
+
+
+def format_report(summary: dict, outdir: str | None = None) -> str:
+    """A short text report in the layout of the thesis Appendix 2."""
+    s = summary
+    lines = [
+        f"Bundle adjustment: survey {s.get('survey', '?')}, control set {s.get('control_set', '?')}, "
+        f"{s.get('observations', '?')} photo coordinates",
+        f"{s['message']} ({s['elapsed_s']:.2f} s)",
+        f"{s['n_photos']} photos, {s['n_points']} points, {s['n_observations']} observations, "
+        f"{s['n_unknowns']} unknowns, {s['n_constraints']} constraints",
+        "",
+        "RMS image residuals (mm)       photo       x        y",
+    ]
+    for photo, v in s["rms_image_residuals_mm"].items():
+        lines.append(f"{'':31}{photo:>5}  {v['x']:7.4f}  {v['y']:7.4f}")
+    con = s.get("sd_control_residuals_m") or {}
+    if con:
+        lines.append(f"Control residuals sd (m)       E {con['E']:.3f}  N {con['N']:.3f}  h {con['h']:.3f}")
+    free = s.get("mean_sd_free_m") or {}
+    if free:
+        lines.append(f"Mean sd of free points (m)     E {free['E']:.3f}  N {free['N']:.3f}  h {free['h']:.3f}")
+    lines += [
+        f"Variance factor a priori       {s['sigma0_sq_a_priori']:.2f}",
+        f"Variance factor a posteriori   {s['sigma0_sq']:.2f}",
+        f"Degrees of freedom             {s['dof']}",
+        f"Chi-square computed (v'Pv)     {s['vtpv']:.2f}",
+        f"Chi-square range ({100 * s['chi2_level']:g}%)         {s['chi2_lower']:.2f} - {s['chi2_upper']:.2f}"
+        f"  (Fisher approx. {s['chi2_lower_fisher']:.2f} - {s['chi2_upper_fisher']:.2f}): "
+        + ("accepted" if s["chi2_pass"] else "REJECTED"),
+        f"Parameter sds use the {s['variance_factor'].replace('_', ' ')} variance factor",
+    ]
+    if outdir is not None:
+        lines.append(f"Results: {outdir}/eop.csv, points.csv, residuals.csv, summary.json")
+    return "\n".join(lines)
+
+
+@click.command(short_help="Bundle adjustment with weighted position constraints.")
+@survey_arg
+@click.option("--control", metavar="NAME", default=None,
+              help="Control set of control_sets.csv (default: the survey's default_control, "
+                   "'gps' for the thesis block).")
+@click.option("--observations", type=click.Choice(["corrected", "pixel"]), default=None,
+              help="Photo coordinates: 'corrected' (x_mm, y_mm of image_points.csv) or 'pixel' "
+                   "(col_px, row_px through the interior orientation, eq. 01-07). "
+                   "Default: the survey's setting.")
+@click.option("-o", "--outdir", type=click.Path(file_okay=False), default=None,
+              help="Output folder (default SURVEY/out, or ./lidarcat-out for the embedded block); "
+                   "written atomically.")
+@click.option("--variance-factor", type=click.Choice(["a_priori", "a_posteriori"]), default=None,
+              help="Scale N^-1 by sigma0^2 a priori (=1, as the thesis tables) or a posteriori "
+                   "(v'Pv/dof). Default: the survey's setting.")
+@click.option("--eo-constraints", is_flag=True,
+              help="Use photo positions/attitudes of photos.csv that carry sd_* as weighted constraints.")
+@click.option("--max-iter", type=click.IntRange(1), default=50, show_default=True,
+              help="Maximum number of Gauss-Newton / Levenberg-Marquardt iterations.")
+@json_opt
+def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
+           variance_factor: str | None, eo_constraints: bool, max_iter: int, as_json: bool) -> None:
+    """Bundle adjustment of SURVEY (default: the embedded thesis block).
+
+    Unknowns: X0, Y0, Z0 (m) and omega, phi, kappa (deg; M = R3(kappa) R2(phi)
+    R1(omega)) of every photo and E, N, h (m) of every point. Control points of
+    the chosen set are weighted position constraints with their sigmas; check
+    points and tie points are free. Approximate values are computed from the
+    control points and the image measurements.
+
+    Writes OUTDIR/eop.csv, points.csv (role control/check/tie), residuals.csv
+    (adjusted minus observed) and summary.json (dof, v'Pv, sigma0^2, the
+    two-sided chi-square test of the variance factor, iterations). Exit code 1
+    when the adjustment did not converge (results are still written).
+
+    \b
+    Examples:
+      lidarcat adjust --control gps -o out/gps
+      lidarcat adjust data/thesis --control lidar --observations pixel -o out/lidar
+      lidarcat adjust my_survey --json
+    """
+    from ..bundle import adjust_survey
+
+    result, out = adjust_survey(survey, control=control, observations=observations, outdir=outdir,
+                                variance_factor=variance_factor, eo_constraints=eo_constraints,
+                                max_iter=max_iter)
+    summary = {**result.summary(), "outdir": str(out)}
+    if as_json:
+        echo_json(summary)
+    else:
+        click.echo(format_report(summary, str(out)))
+    if not result.success:
+        click.echo(f"Warning: the adjustment did not converge ({result.status}).", err=True)
+        sys.exit(1)
