@@ -1,0 +1,333 @@
+"""``lidarcat lidar``: LiDAR tiles from the command line (info, index, clip, raster)."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import click
+
+from .options import echo_json, json_opt
+
+__all__ = ["lidar", "info", "index", "clip_cmd", "raster"]
+
+_crs_opt = click.option(
+    "--crs", default=None, metavar="CRS",
+    help="CRS of files that carry none, e.g. EPSG:7415 (RD New + NAP, the AHN3 tiles) or "
+         "EPSG:31982 (SIRGAS 2000 / UTM 22S). Default: the file's own, or the survey's [lidar] crs.")
+_columns_opt = click.option(
+    "--columns", default=None, metavar="'E N H ...'",
+    help="Text files: column names in order (E N H intensity return class ...; '-' skips one). "
+         "Default: the file's header line, or E N H [intensity] [return] [class] by count.")
+_delimiter_opt = click.option(
+    "--delimiter", default=None, type=click.Choice(["whitespace", "comma", "semicolon"]),
+    help="Text files: field separator (default: detected from the first data line).")
+
+
+@click.group(short_help="LiDAR tiles: info, index, clip, raster views.")
+def lidar() -> None:
+    """LiDAR point files: LAS 1.0-1.4, LAZ, COPC and ASCII (.xyz .txt .csv .asc .pts).
+
+    PATH arguments take files, folders (all point files in them), globs
+    ('tiles/*.laz', quoted) or a survey folder (its [files] lidar tiles and
+    [lidar] crs). Coordinates are E, N, h in metres.
+    """
+
+
+def _is_tty() -> bool:
+    return sys.stderr.isatty()
+
+
+@contextlib.contextmanager
+def _progress(label: str, paths: Sequence[Path]) -> Iterator[Any]:
+    """A click progress bar over the bytes of *paths* on a TTY, else a no-op callable."""
+    if not _is_tty():
+        yield None
+        return
+    total = sum(p.stat().st_size for p in paths if p.exists())
+    with click.progressbar(length=max(total, 1), label=label, file=sys.stderr) as bar:
+        yield bar.update
+
+
+def _sources(paths: Sequence[str], crs: str | None) -> tuple[list[Path], str | None, Path | None]:
+    """Expand PATH arguments; a survey folder contributes its tiles and [lidar] crs."""
+    from ..lidar import expand_paths
+
+    out: list[Path] = []
+    survey_root: Path | None = None
+    plain: list[str] = []
+    for p in paths:
+        if Path(p).is_dir() and (Path(p) / "survey.toml").is_file():
+            files, survey_crs, survey_root = _survey_lidar(Path(p))
+            out.extend(files)
+            crs = crs or survey_crs
+        else:
+            plain.append(p)
+    if plain:
+        out.extend(expand_paths(plain))
+    if not out:
+        raise click.UsageError("no LiDAR files given")
+    return out, crs, survey_root
+
+
+def _survey_lidar(folder: Path) -> tuple[list[Path], str | None, Path]:
+    """(tile paths, [lidar] crs, root) of a survey folder."""
+    from ..errors import SurveyError
+
+    try:
+        from ..survey import Survey
+    except ImportError:  # survey module unavailable: read survey.toml directly
+        Survey = None  # type: ignore[assignment]
+    if Survey is not None:
+        s = Survey.load(folder)
+        files, crs, root = list(s.lidar_paths), s.lidar_crs, Path(s.root)
+    else:  # pragma: no cover - fallback
+        import tomllib
+
+        from ..lidar import expand_paths
+
+        doc = tomllib.loads((folder / "survey.toml").read_text(encoding="utf-8"))
+        globs = doc.get("files", {}).get("lidar", [])
+        globs = [globs] if isinstance(globs, str) else list(globs)
+        files = expand_paths(globs, root=folder) if globs else []
+        crs, root = doc.get("lidar", {}).get("crs"), folder
+    from ..lidar.readers import ASCII_SUFFIXES, LAS_SUFFIXES
+
+    files = [f for f in files if Path(f).suffix.lower() in LAS_SUFFIXES + ASCII_SUFFIXES]
+    if not files:
+        raise SurveyError(f"{folder / 'survey.toml'}: no LiDAR tiles; add lidar = [\"lidar/*.laz\"] "
+                          "to [files]")
+    return files, crs, root
+
+
+# ----------------------------------------------------------------------------- info
+@lidar.command()
+@click.argument("paths", nargs=-1, required=True, metavar="PATH...")
+@_crs_opt
+@_columns_opt
+@_delimiter_opt
+@json_opt
+def info(paths: tuple[str, ...], crs: str | None, columns: str | None, delimiter: str | None,
+         as_json: bool) -> None:
+    """Point counts, bounds, CRS, density, classes and returns of point files.
+
+    Density is points per m2 of covered ground (1 m cells holding a point).
+
+    \b
+    Examples:
+      lidarcat lidar info tests/data/lidar/ahn3_cropped_1.laz --crs EPSG:7415
+      lidarcat lidar info 'tiles/*.laz' --json
+      lidarcat lidar info faixa.xyz --columns 'E N H intensity' --crs EPSG:29192
+    """
+    from ..lidar import describe
+
+    files, crs, _ = _sources(paths, crs)
+    with _progress("Reading", files) as progress:
+        result = describe(files, crs=crs, columns=columns, delimiter=delimiter, progress=progress)
+    if as_json:
+        echo_json(result)
+        return
+    for f in result["files"] + ([{"path": "TOTAL", **result["total"]}] if len(result["files"]) > 1 else []):
+        click.echo(_info_text(f))
+
+
+def _fmt_counts(d: dict[str, int] | None) -> str:
+    return "-" if not d else ", ".join(f"{k}: {v:,}" for k, v in d.items())
+
+
+def _info_text(f: dict[str, Any]) -> str:
+    b = f.get("bounds") or {}
+    lines = [f"{f['path']}"]
+    if "format" in f:
+        lines.append(f"  format     {f['format']}")
+    lines.append(f"  points     {f['points']:,}")
+    if b:
+        lines.append(f"  E          {b['xmin']:.3f} .. {b['xmax']:.3f} m")
+        lines.append(f"  N          {b['ymin']:.3f} .. {b['ymax']:.3f} m")
+        lines.append(f"  h          {b['zmin']:.3f} .. {b['zmax']:.3f} m")
+    src = "" if "crs_from_file" not in f else (" (from the file)" if f["crs_from_file"] else
+                                              " (given)" if f["crs"] else "")
+    lines.append(f"  CRS        {f['crs'] or 'none (give --crs)'}{src}")
+    if f.get("density_pts_m2"):
+        dens = f"{f['density_pts_m2']:.2f} pts/m2 over {f['covered_area_m2']:,.0f} m2"
+        if f.get("first_return_density_pts_m2"):
+            dens += f" ({f['first_return_density_pts_m2']:.2f} first returns/m2)"
+        lines.append(f"  density    {dens}")
+    lines.append(f"  classes    {_fmt_counts(f.get('classes'))}")
+    lines.append(f"  returns    {_fmt_counts(f.get('returns'))}")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- index
+@lidar.command()
+@click.argument("survey", type=click.Path(exists=True, file_okay=False))
+@click.option("--rebuild", is_flag=True, help="Ignore the cached index and read every tile again.")
+@json_opt
+def index(survey: str, rebuild: bool, as_json: bool) -> None:
+    """Index the survey's LiDAR tiles: bounds and point counts per tile.
+
+    Uses [files] lidar (files or globs) and [lidar] crs of SURVEY/survey.toml.
+    The index is cached in SURVEY/lidar_index.json and refreshed for tiles whose
+    size or modification time changed, so later clips read only the tiles
+    they need.
+
+    \b
+    Example:
+      lidarcat lidar index my_survey/
+    """
+    from ..lidar import TileIndex
+
+    files, crs, root = _survey_lidar(Path(survey))
+    cache = Path(root) / "lidar_index.json"
+    if rebuild and cache.exists():
+        cache.unlink()
+    with _progress("Indexing", files) as progress:
+        idx = TileIndex.build(files, crs=crs, cache_path=cache, progress=progress)
+    if as_json:
+        echo_json({"index": str(cache), **idx.to_dict()})
+        return
+    b = idx.bounds
+    click.echo(f"{len(idx)} tiles, {idx.count:,} points, CRS {idx.to_dict()['crs'] or 'none'}")
+    click.echo(f"E {b.xmin:.2f} .. {b.xmax:.2f} m, N {b.ymin:.2f} .. {b.ymax:.2f} m")
+    for t in idx.tiles:
+        tb = t.bounds
+        click.echo(f"  {t.path.name:<32} {t.count:>12,}  E {tb.xmin:.1f}..{tb.xmax:.1f}  "
+                   f"N {tb.ymin:.1f}..{tb.ymax:.1f}")
+    click.echo(f"index written to {cache}")
+
+
+# ----------------------------------------------------------------------------- clip
+@lidar.command("clip")
+@click.argument("paths", nargs=-1, required=True, metavar="PATH...")
+@click.option("--at", "at", nargs=2, type=float, required=True, metavar="E N",
+              help="Approximate plan position of the roof vertex, metres.")
+@click.option("--radius", type=click.FloatRange(min=0, min_open=True), required=True, metavar="R",
+              help="Clip radius in metres (thesis: 2.5-5.0).")
+@_crs_opt
+@click.option("--at-crs", default=None, metavar="CRS",
+              help="CRS of --at when it differs from the tiles' (it is transformed with pyproj).")
+@click.option("--height-filter", type=click.Choice(["thesis", "robust", "none"]), default="thesis",
+              show_default=True,
+              help="thesis: drop points more than WINDOW from the clip's mean height; robust: window "
+                   "around the median of the upper half (the roof); none: no height filter.")
+@click.option("--window", "window_m", type=click.FloatRange(min=0, min_open=True), default=2.0,
+              show_default=True, help="Half-width of the height window, metres.")
+@click.option("--first-returns", is_flag=True, help="Keep only first (or only) returns.")
+@click.option("--class", "classes", type=int, multiple=True, metavar="CODE",
+              help="Keep only this LAS class (repeatable), e.g. --class 6 for buildings.")
+@click.option("--min-points", type=click.IntRange(min=1), default=10, show_default=True,
+              help="Fewest points accepted.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="Write the clip to .laz/.las/.csv/.xyz/.txt (atomically).")
+@_columns_opt
+@_delimiter_opt
+@json_opt
+def clip_cmd(paths: tuple[str, ...], at: tuple[float, float], radius: float, crs: str | None,
+             at_crs: str | None, height_filter: str, window_m: float, first_returns: bool,
+             classes: tuple[int, ...], min_points: int, output: str | None, columns: str | None,
+             delimiter: str | None, as_json: bool) -> None:
+    """Clip the points around a roof position (thesis section 3.2.3).
+
+    Only tiles near the position are read; a roof straddling tiles comes back
+    whole.
+
+    \b
+    Examples:
+      lidarcat lidar clip tests/data/lidar/ahn3_cropped_*.laz --crs EPSG:7415 \\
+          --at 85000.5 447500 --radius 5 --height-filter robust -o roof.laz
+      lidarcat lidar clip faixa.xyz --crs EPSG:29192 --at 677757.8 7183482.0 --radius 5
+    """
+    from ..lidar import TileIndex, clip, write_points
+
+    files, crs, _ = _sources(paths, crs)
+    idx = TileIndex.build(files, crs=crs, columns=columns, delimiter=delimiter)
+    cloud = clip(idx, at, radius, height_filter=None if height_filter == "none" else height_filter,
+                 height_window_m=window_m, first_returns_only=first_returns,
+                 classes=list(classes) or None, min_points=min_points, crs=at_crs)
+    if output is not None:
+        write_points(output, cloud)
+    summary = {"at": list(at), "radius_m": radius, "points": len(cloud),
+               "bounds": cloud.bounds._asdict(), "height_filter": height_filter,
+               "crs": None if cloud.crs is None else cloud.crs.to_string(), "output": output}
+    if as_json:
+        echo_json(summary)
+        return
+    b = cloud.bounds
+    click.echo(f"{len(cloud):,} points within {radius:g} m of E {at[0]:.3f} N {at[1]:.3f}; "
+               f"h {b.zmin:.2f} .. {b.zmax:.2f} m")
+    if output is not None:
+        click.echo(f"written to {output}")
+
+
+# ----------------------------------------------------------------------------- raster
+@lidar.command()
+@click.argument("paths", nargs=-1, required=True, metavar="PATH...")
+@click.option("--cell", "cell_m", type=click.FloatRange(min=0, min_open=True), default=0.5,
+              show_default=True, help="Cell size, metres.")
+@click.option("--what", type=click.Choice(["intensity", "dsm", "dtm"]), default="intensity",
+              show_default=True,
+              help="intensity: mean of first returns; dsm: highest first return; dtm: lowest "
+                   "ground (class 2) or last return, holes interpolated.")
+@click.option("--bounds", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
+              help="Area to grid, metres (default: all the tiles).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True,
+              help="GeoTIFF to write (a PNG preview with a colour bar goes next to it).")
+@click.option("--no-preview", is_flag=True, help="Do not write the PNG preview.")
+@_crs_opt
+@_columns_opt
+@_delimiter_opt
+@json_opt
+def raster(paths: tuple[str, ...], cell_m: float, what: str, bounds: tuple[float, ...] | None,
+           output: str, no_preview: bool, crs: str | None, columns: str | None,
+           delimiter: str | None, as_json: bool) -> None:
+    """Grid points into an intensity image, surface model or terrain model.
+
+    Writes a float32 GeoTIFF (EPSG GeoKeys; GDAL/QGIS open it georeferenced;
+    NaN = no data) and OUTPUT.png, a preview with a colour bar: the intensity
+    image is where an operator picks roof vertices (thesis section 3.2.2).
+
+    \b
+    Example:
+      lidarcat lidar raster tests/data/lidar/ahn3_cropped_*.laz --crs EPSG:7415 \\
+          --cell 0.5 --what intensity -o intensity.tif
+    """
+    import numpy as np
+
+    from ..lidar import TileIndex, rasterize, write_raster
+
+    files, crs, _ = _sources(paths, crs)
+    idx = TileIndex.build(files, crs=crs, columns=columns, delimiter=delimiter, max_cached_points=0)
+    box = tuple(bounds) if bounds else tuple(idx.bounds[:4])
+    if not np.all(np.isfinite(box)):
+        raise click.UsageError("the files hold no points")
+    tiles = idx.tiles_in_box(*box)
+    if not tiles:
+        from ..errors import ClipError
+
+        raise ClipError(f"no LiDAR points in E {box[0]:.1f}..{box[2]:.1f}, N {box[1]:.1f}..{box[3]:.1f}; "
+                        f"the tiles cover E {idx.bounds.xmin:.1f}..{idx.bounds.xmax:.1f}, "
+                        f"N {idx.bounds.ymin:.1f}..{idx.bounds.ymax:.1f}")
+    with _progress("Gridding", [t.path for t in tiles]) as progress:
+        def stream():
+            for t in tiles:
+                for chunk in idx.iter_points([t]):
+                    yield chunk
+                if progress is not None:
+                    progress(t.size)
+
+        grid, transform = rasterize(stream(), cell_m, what, box)
+    written = write_raster(output, grid, transform, idx.crs, what, preview=not no_preview)
+    filled = float(np.isfinite(grid).mean())
+    result = {"what": what, "cell_m": cell_m, "rows": grid.shape[0], "cols": grid.shape[1],
+              "transform": transform.to_gdal(), "valued_fraction": filled,
+              "crs": None if idx.crs is None else idx.crs.to_string(), "files": [str(p) for p in written]}
+    if as_json:
+        echo_json(result)
+        return
+    click.echo(f"{what}: {grid.shape[1]} x {grid.shape[0]} cells of {cell_m:g} m, "
+               f"{100 * filled:.1f} % valued")
+    for p in written:
+        click.echo(f"written {p}")

@@ -1,0 +1,44 @@
+"""LiDAR data access: tiles (LAS/LAZ/COPC/ASCII), CRS, tile index, clips, raster views.
+
+==================  ===========================================================
+:mod:`.cloud`       :class:`PointCloud` (E, N, h in metres + attributes + CRS)
+:mod:`.readers`     :func:`read_points`, :func:`iter_points`, :func:`write_points`
+:mod:`.crs`         :func:`resolve_crs`, :func:`transform_points`
+:mod:`.tileindex`   :class:`TileIndex`: bounds per tile, radius/box/polygon queries
+:mod:`.clipping`    :func:`clip`: points around a roof with height pre-filters
+:mod:`.raster`      :func:`rasterize` (intensity, DSM, DTM), GeoTIFF and PNG output
+:mod:`.info`        :func:`describe`: counts, bounds, density, classes, returns
+==================  ===========================================================
+
+Examples
+--------
+>>> import numpy as np
+>>> from lidarcat.lidar import PointCloud, clip
+>>> rng = np.random.default_rng(0)
+>>> xy = rng.uniform(0, 20, (4000, 2))
+>>> h = np.where(np.hypot(xy[:, 0] - 10, xy[:, 1] - 10) < 4, 8.0, 0.0)   # a flat roof on the ground
+>>> pc = PointCloud(np.column_stack([xy, h]), crs=None)
+>>> roof = clip(pc, (10, 10), 3.5, height_filter="robust")
+>>> bool(np.all(roof.z == 8.0)), len(roof) > 100
+(True, True)
+"""
+
+from __future__ import annotations
+
+from .cloud import STANDARD_ATTRIBUTES, Bounds, PointCloud
+from .clipping import HEIGHT_FILTERS, clip, height_window_mask
+from .crs import common_crs, crs_compatible, crs_label, resolve_crs, transform_points
+from .info import describe
+from .raster import GeoTransform, rasterize, write_geotiff, write_png_preview, write_raster
+from .readers import FileHeader, iter_points, read_header, read_points, write_points
+from .tileindex import Tile, TileIndex, expand_paths, in_box, in_polygon, in_radius
+
+__all__ = [
+    "PointCloud", "Bounds", "STANDARD_ATTRIBUTES",
+    "read_points", "iter_points", "write_points", "read_header", "FileHeader",
+    "resolve_crs", "transform_points", "crs_compatible", "common_crs", "crs_label",
+    "TileIndex", "Tile", "expand_paths", "in_radius", "in_box", "in_polygon",
+    "clip", "height_window_mask", "HEIGHT_FILTERS",
+    "rasterize", "GeoTransform", "write_geotiff", "write_png_preview", "write_raster",
+    "describe",
+]

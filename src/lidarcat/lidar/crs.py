@@ -1,0 +1,194 @@
+"""Coordinate reference systems for LiDAR tiles and query points.
+
+A tile's CRS comes from its LAS WKT or GeoTIFF-key VLRs when present; files
+without one (the AHN3 samples, most ASCII strips) take the CRS the user or the
+survey gives (``[lidar] crs`` in survey.toml, ``--crs`` on the command line).
+Two CRSs are *compatible* when their horizontal parts are the same and, if both
+have a vertical part, those are the same too: a tile labelled EPSG:28992 (RD
+New) and one labelled EPSG:7415 (RD New + NAP) may be merged, EPSG:29192
+(SAD69 / UTM 22S) and EPSG:31982 (SIRGAS 2000 / UTM 22S) may not.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+import pyproj
+from pyproj.exceptions import CRSError as _PyprojCRSError
+
+from ..errors import CRSError
+
+__all__ = ["resolve_crs", "crs_compatible", "common_crs", "transform_points", "crs_label"]
+
+
+def resolve_crs(value: Any, *, what: str = "CRS") -> pyproj.CRS | None:
+    """Turn a user value (``"EPSG:7415"``, ``28992``, WKT, a ``pyproj.CRS``) into a CRS.
+
+    ``None`` and ``""`` give ``None``.
+
+    Raises
+    ------
+    CRSError
+        The string is not a CRS pyproj knows; the message names it.
+
+    Examples
+    --------
+    >>> resolve_crs("EPSG:28992").to_epsg()
+    28992
+    >>> resolve_crs("EPSG:999999")
+    Traceback (most recent call last):
+    ...
+    lidarcat.errors.CRSError: unknown CRS 'EPSG:999999' ...
+    """
+    if value is None or (isinstance(value, str) and not value.strip()):
+        return None
+    if isinstance(value, pyproj.CRS):
+        return value
+    try:
+        return _cached_crs(value if not isinstance(value, str) else value.strip())
+    except (_PyprojCRSError, TypeError, ValueError) as ex:
+        raise CRSError(f"unknown {what} {value!r} (pyproj: {str(ex).splitlines()[0]}); "
+                       "give an EPSG code such as 'EPSG:28992', a PROJ string or WKT") from ex
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_crs(value: Any) -> pyproj.CRS:
+    return pyproj.CRS.from_user_input(value)
+
+
+def _parts(crs: pyproj.CRS) -> tuple[pyproj.CRS | None, pyproj.CRS | None]:
+    """(horizontal, vertical) components of *crs*."""
+    if crs.is_compound:
+        horiz = vert = None
+        for sub in crs.sub_crs_list:
+            if sub.is_vertical:
+                vert = sub
+            elif horiz is None:
+                horiz = sub
+        return horiz, vert
+    if crs.is_vertical:
+        return None, crs
+    return crs, None
+
+
+def crs_compatible(a: pyproj.CRS | None, b: pyproj.CRS | None) -> bool:
+    """True if points in *a* and *b* may be merged without transformation.
+
+    ``None`` (unknown) is compatible only with ``None``.
+
+    >>> crs_compatible(resolve_crs("EPSG:7415"), resolve_crs("EPSG:28992"))
+    True
+    >>> crs_compatible(resolve_crs("EPSG:29192"), resolve_crs("EPSG:31982"))
+    False
+    """
+    if a is None or b is None:
+        return a is None and b is None
+    if a is b or a == b:
+        return True
+    ha, va = _parts(a)
+    hb, vb = _parts(b)
+    if (ha is None) != (hb is None):
+        return False
+    if ha is not None and not ha.equals(hb, ignore_axis_order=True):
+        return False
+    if va is not None and vb is not None and not va.equals(vb, ignore_axis_order=True):
+        return False
+    return True
+
+
+def _richer(a: pyproj.CRS, b: pyproj.CRS) -> pyproj.CRS:
+    # prefer the CRS that also says the height system
+    return b if (b.is_compound and not a.is_compound) else a
+
+
+def common_crs(labelled: Iterable[tuple[str, pyproj.CRS | None]]) -> pyproj.CRS | None:
+    """The CRS shared by every ``(label, crs)`` pair (a compound one if any is).
+
+    Raises
+    ------
+    CRSError
+        Two entries differ, or some have a CRS and some have none; the message
+        names both.
+    """
+    result: pyproj.CRS | None = None
+    first_label = ""
+    seen = False
+    for label, crs in labelled:
+        if not seen:
+            result, first_label, seen = crs, label, True
+            continue
+        if not crs_compatible(result, crs):
+            raise CRSError(f"cannot mix coordinate systems: {first_label} is {crs_label(result)} "
+                           f"but {label} is {crs_label(crs)}; transform the tiles first or give "
+                           "--crs only for tiles that carry none")
+        if result is not None and crs is not None:
+            result = _richer(result, crs)
+    return result
+
+
+def crs_label(crs: pyproj.CRS | None) -> str:
+    """Short human label: ``'EPSG:7415 (Amersfoort / RD New + NAP height)'`` or ``'no CRS'``."""
+    if crs is None:
+        return "no CRS"
+    code = crs.to_epsg(min_confidence=90)
+    return f"EPSG:{code} ({crs.name})" if code else repr(crs.name)
+
+
+@functools.lru_cache(maxsize=32)
+def _transformer(src_wkt: str, dst_wkt: str) -> pyproj.Transformer:
+    return pyproj.Transformer.from_crs(pyproj.CRS.from_wkt(src_wkt), pyproj.CRS.from_wkt(dst_wkt),
+                                       always_xy=True)
+
+
+def transform_points(xy: Any, from_crs: Any, to_crs: Any) -> np.ndarray:
+    """Transform points between coordinate systems (pyproj, ``always_xy``).
+
+    Parameters
+    ----------
+    xy : array_like, shape (2,), (3,), (N, 2) or (N, 3)
+        Easting, northing [, height] in metres (degrees for geographic CRSs:
+        longitude, latitude).
+    from_crs, to_crs : CRS-like
+        Anything :func:`resolve_crs` accepts.
+
+    Returns
+    -------
+    ndarray
+        Same shape as *xy*, float64.
+
+    Raises
+    ------
+    CRSError
+        A CRS is unknown or missing, or the transformation fails (point outside
+        the area of use).
+
+    Examples
+    --------
+    >>> e, n = transform_points([677757.8, 7183482.0], "EPSG:29192", "EPSG:31982")
+    >>> round(e - 677757.8), round(n - 7183482.0)  # SAD69 -> SIRGAS 2000 shift, m
+    (-50, -44)
+    """
+    src = resolve_crs(from_crs, what="source CRS")
+    dst = resolve_crs(to_crs, what="target CRS")
+    if src is None or dst is None:
+        raise CRSError("transform_points needs both a source and a target CRS "
+                       f"(got {crs_label(src)} -> {crs_label(dst)})")
+    pts = np.array(xy, dtype=np.float64)
+    single = pts.ndim == 1
+    pts = np.atleast_2d(pts)
+    if pts.shape[1] not in (2, 3):
+        raise ValueError(f"xy must have 2 or 3 columns, got shape {pts.shape}")
+    if src == dst:
+        return pts[0] if single else pts
+    tr = _transformer(src.to_wkt(), dst.to_wkt())
+    try:
+        if pts.shape[1] == 3:
+            out = np.column_stack(tr.transform(pts[:, 0], pts[:, 1], pts[:, 2], errcheck=True))
+        else:
+            out = np.column_stack(tr.transform(pts[:, 0], pts[:, 1], errcheck=True))
+    except pyproj.exceptions.ProjError as ex:
+        raise CRSError(f"cannot transform points from {crs_label(src)} to {crs_label(dst)}: {ex}") from ex
+    return out[0] if single else out
