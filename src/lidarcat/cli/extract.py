@@ -1,0 +1,133 @@
+"""``lidarcat extract``: roof planes to control points."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from .options import echo_json
+
+__all__ = ["extract"]
+
+_EPILOG = """\b
+Examples:
+  lidarcat extract jobs.txt -o control.csv --planes planes.csv
+  lidarcat extract jobs.txt --preset thesis --figures figs/
+  lidarcat extract --lidar ahn3_1.laz --lidar ahn3_2.laz --crs EPSG:7415 --at 84996.5 447473.5 --json
+  lidarcat extract --find --lidar ahn3_1.laz --classes 6 -o candidates.geojson
+\b
+A job line (thesis section 4.2.2): file point E N threshold radius, e.g.
+  faixa.xyz P704 677757.8 7183482.0 0.15 5.0
+or a CSV with columns point,E,N[,threshold_m,radius_m,file].
+Units: metres, degrees. A roof that cannot give a point is a row with a
+status (two_planes, flat_roof, no_vertex, ...) and a reason; the batch goes on.
+"""
+
+
+def _progress(items: int, label: str):
+    if not sys.stderr.isatty():
+        return None, None
+    bar = click.progressbar(length=items, label=label, file=sys.stderr)
+    return bar, (lambda n: bar.update(n))
+
+
+@click.command(name="extract", epilog=_EPILOG)
+@click.argument("jobs", required=False, type=click.Path(exists=True, dir_okay=False))
+@click.option("--lidar", "lidar", multiple=True, type=click.Path(exists=True),
+              help="LiDAR tile(s) (LAS/LAZ/text); repeat for several. Default: each job's own file.")
+@click.option("--crs", default=None, help="CRS of tiles that carry none, e.g. EPSG:7415 (AHN3).")
+@click.option("--at", "at", nargs=2, type=float, default=None, metavar="E N",
+              help="Extract one roof at this approximate position (m).")
+@click.option("--radius", type=float, default=None,
+              help="Clip radius (m) for --at, --find and CSV jobs without radius_m; default from the preset (8 m; thesis 5 m).")
+@click.option("--find", is_flag=True, help="Search the tiles (or --box) for every roof vertex of 3+ planes.")
+@click.option("--box", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
+              help="Area for --find (m); default: all the tiles.")
+@click.option("--classes", default=None, help="Comma list of LAS classes kept for --find, e.g. 6 (buildings).")
+@click.option("--preset", type=click.Choice(["default", "thesis"]), default="default", show_default=True,
+              help="Parameter preset: 'thesis' = 4-30 deg window, 0.15 m threshold, +-2 m heights.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="Output: control.csv (jobs), candidates.geojson or .csv (--find).")
+@click.option("--planes", "planes_out", type=click.Path(dir_okay=False), default=None,
+              help="Also write the planes (a, b, c, d, sds, counts, RMS, slope, aspect) to this CSV.")
+@click.option("--figures", type=click.Path(file_okay=False), default=None,
+              help="Folder for one operator figure per point (PNG).")
+@click.option("--spec-sd", nargs=2, type=float, default=None, metavar="PLAN H",
+              help="Replace the propagated sds by specification sds (m), e.g. 0.50 0.15 (thesis).")
+@click.option("--json", "as_json", is_flag=True, help="Print results as JSON (with --at: one object).")
+def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, planes_out, figures,
+            spec_sd, as_json) -> None:
+    """Roof planes to control points (Delaunay facets + plane intersection)."""
+    from ..facets import get_params
+
+    params = get_params(preset, radius_m=radius)
+    modes = sum([jobs is not None, at is not None, bool(find)])
+    if modes != 1:
+        raise click.UsageError("give exactly one of: a JOBS file, --at E N, or --find")
+    if (at is not None or find) and not lidar:
+        raise click.UsageError("--at and --find need --lidar PATH")
+    if find:
+        _find(lidar, crs, box, classes, params, output, as_json)
+        return
+    from ..extraction import Job, extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
+
+    job_list = [Job("P1", at[0], at[1])] if at is not None else read_jobs(jobs)
+    bar, prog = _progress(len(job_list), "Extracting roofs")
+    try:
+        points = extract_batch(job_list, lidar=lidar or None, crs=crs, params=params,
+                               spec_sd=tuple(spec_sd) if spec_sd else None, progress=prog)
+    finally:
+        if bar is not None:
+            bar.render_finish()
+    if output:
+        write_control_csv(output, points, comments=[f"lidarcat extract, preset {preset}"])
+    if planes_out:
+        write_planes_csv(planes_out, points)
+    if figures:
+        write_figures(figures, points)
+    if as_json:
+        if at is not None:
+            echo_json(points[0].to_dict())
+        else:
+            echo_json({"points": [cp.to_dict() for cp in points]})
+        return
+    if not output:
+        click.echo(f"{'point':<10} {'E':>12} {'N':>13} {'h':>9} {'sd_E':>6} {'sd_N':>6} {'sd_h':>6} "
+                   f"{'pl':>2}  status")
+        for cp in points:
+            r = cp.to_row()
+            click.echo(f"{r['point']:<10} {r['E']:12.3f} {r['N']:13.3f} {r['h']:9.3f} {r['sd_E']:6.3f} "
+                       f"{r['sd_N']:6.3f} {r['sd_h']:6.3f} {r['n_planes']:2d}  {r['status']}"
+                       + (f" ({r['reason']})" if r["reason"] else ""))
+    n_ok = sum(bool(cp) for cp in points)
+    click.echo(f"{n_ok} of {len(points)} roofs gave a control point"
+               + (f"; written to {output}" if output else ""))
+
+
+def _find(lidar, crs, box, classes, params, output, as_json) -> None:
+    from ..extraction import write_candidates
+    from ..facets import find_candidates
+    from ..lidar import TileIndex
+
+    index = TileIndex.build(list(lidar), crs=crs)
+    b = index.bounds
+    area = box if box else (b.xmin, b.ymin, b.xmax, b.ymax)
+    cloud = index.query_box(*area)
+    cls = None
+    if classes:
+        try:
+            cls = [int(c) for c in classes.split(",")]
+        except ValueError:
+            raise click.BadParameter(f"{classes!r}: expected a comma list of integers", param_hint="--classes")
+    cands = find_candidates(cloud, box=area, params=params, classes=cls)
+    if output:
+        write_candidates(output, cands, crs=crs)
+    if as_json:
+        echo_json({"candidates": [c.to_feature() for c in cands]})
+        return
+    for c in cands:
+        r = c.point.to_row()
+        click.echo(f"{r['point']:<7} {r['E']:12.3f} {r['N']:13.3f} {r['h']:9.3f}  "
+                   f"{r['n_planes']} planes  score {c.score:.2f}")
+    click.echo(f"{len(cands)} candidate vertices" + (f"; written to {output}" if output else ""))

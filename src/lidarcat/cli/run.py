@@ -1,0 +1,131 @@
+"""``lidarcat run``: the whole pipeline on a survey folder."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from .options import echo_json, json_opt
+
+__all__ = ["run"]
+
+
+@click.command("run")
+@click.argument("survey", required=False, type=click.Path(exists=True, file_okay=False),
+                metavar="[SURVEY]")
+@click.option("-o", "--outdir", type=click.Path(file_okay=False), default=None,
+              help="Output folder (created; every file written atomically). "
+                   "Default: SURVEY/out, or ./lidarcat-out for the embedded thesis block.")
+@click.option("--force", is_flag=True,
+              help="Recompute every stage even when its inputs are unchanged "
+                   "(default: reuse stages whose input hashes match OUTDIR/.stages).")
+@click.option("--scale", type=click.FloatRange(min=0, min_open=True), default=2000, show_default=True,
+              help="Map scale denominator for classifying the check points (PEC classes, the "
+                   "chi-square sigma0, the CE90 limit); the thesis used 1:2000.")
+@click.option("--contour-interval", "contour_interval_m", type=click.FloatRange(min=0, min_open=True),
+              default=2.0, show_default=True,
+              help="Contour interval for the altimetric classes, metres.")
+@json_opt
+@click.pass_context
+def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool, scale: float,
+        contour_interval_m: float, as_json: bool) -> None:
+    """Run the whole pipeline on SURVEY (default: the embedded thesis block).
+
+    \b
+    Stages, in order (each skipped when its inputs are absent):
+      camera      interior orientation, pixel -> corrected photo coordinates
+      extract     LiDAR roof vertices -> control points (survey with lidar + jobs)
+      adjust-SET  bundle adjustment for every control set (thesis: gps, lidar)
+      assess-SET  check-point accuracy of each run
+      compare     differences of the runs: orientations, points free in both
+      report      HTML / Markdown / JSON report in OUTDIR/report/
+
+    OUTDIR gets one folder per stage, summary.json (status ran / reused /
+    skipped / failed of every stage and the key numbers) and lidarcat.log.
+    Stages whose inputs (file contents, parameters, lidarcat version) did not
+    change since the last run are reused. Exit code 1 when a stage failed,
+    2 for an invalid survey.
+
+    \b
+    Examples:
+      lidarcat run -o out/                    # the thesis block
+      lidarcat demo synthetic -o demo/ && lidarcat run demo/ -o demo-out/
+    """
+    from ..pipeline import run_pipeline
+
+    bars: dict[str, object] = {}
+    show = sys.stderr.isatty() and not as_json
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if not show:
+            return
+        bar = bars.get(stage)
+        if bar is None:
+            bar = click.progressbar(length=max(total, 1), label=f"{stage:<18}", file=sys.stderr,
+                                    show_eta=False, show_percent=True)
+            bar.__enter__()
+            bars[stage] = bar
+        if isinstance(bar, _Finished):
+            return
+        if done >= total:  # the stage ended
+            bar.update(max(0, bar.length - bar.pos))
+            bar.render_finish()
+            bars[stage] = _Finished()
+            return
+        if total != bar.length:  # the stage now knows its size
+            bar.length = max(total, 1)
+        bar.update(max(0, done - bar.pos))
+
+    try:
+        result = run_pipeline(survey, outdir, force=force, progress=progress, scale=scale,
+                              contour_interval_m=contour_interval_m)
+    finally:
+        for bar in bars.values():
+            if not isinstance(bar, _Finished):
+                bar.render_finish()
+    if as_json:
+        echo_json(result.to_dict())
+    else:
+        click.echo(_text(result))
+    if not result.ok:
+        ctx.exit(1)
+
+
+class _Finished:
+    """Placeholder for a stage whose bar is complete."""
+
+    def render_finish(self) -> None:
+        pass
+
+
+def _text(result) -> str:
+    lines = [f"lidarcat run: {result.summary.get('survey', {}).get('name', '?')} -> {result.outdir}"]
+    for s in result.stages:
+        if s.status in ("skipped", "failed"):
+            extra = s.reason
+        else:
+            extra = f"{s.seconds:.2f} s" if s.status == "ran" else ""
+        lines.append(f"  {s.name:<18} {s.status:<8} {extra}".rstrip())
+    ext = result.summary.get("extraction")
+    if ext:
+        lines.append(f"  extraction: {ext['n_ok']} of {ext['n_jobs']} roof vertices -> control set "
+                     f"{ext['control_set']}")
+    for name, run in (result.summary.get("runs") or {}).items():
+        adj = run.get("adjustment", {})
+        chk = run.get("check", {})
+        parts = [f"dof {adj.get('dof')}", f"v'Pv {_f(adj.get('vtpv'), 2)}",
+                 f"sigma0^2 {_f(adj.get('sigma0_sq'), 3)}",
+                 f"chi2 {'pass' if adj.get('chi2_pass') else 'fail'}"]
+        if chk:
+            parts.append("check RMSE E/N/h " + "/".join(_f(chk.get(f"rmse_{a}_m"), 3) for a in "ENh") + " m")
+        lines.append(f"  run {name}: " + ", ".join(parts))
+    report = result.summary.get("report")
+    if report:
+        lines.append(f"  report: {report}")
+    lines.append("ok" if result.ok else f"FAILED: {', '.join(result.failed)}")
+    return "\n".join(lines)
+
+
+def _f(v, nd: int) -> str:
+    return "-" if v is None else f"{v:.{nd}f}"

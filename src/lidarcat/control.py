@@ -1,0 +1,456 @@
+r"""Control points from roof planes: intersection (eq. 38-41) with covariance.
+
+Three planes :math:`n_i \cdot x + d_i = 0` meet in the point that solves the
+linear system of eq. 38, :math:`A x = -B` with rows :math:`A_i = n_i^T` and
+:math:`B_i = d_i`.  It is refused when two normals are closer than
+``min_dihedral_deg`` (nearly parallel planes) or the determinant of the unit
+normals is below ``min_det`` (the three planes meet along a line or at a
+grazing angle, so the point slides along it).
+
+More than three planes: the least-squares solution of eq. 41,
+:math:`x = -(A^T W A)^{-1} A^T W B`; the thesis uses :math:`W = I`, we weight
+each plane by the inverse variance of its offset at the point (``weighted``).
+The *misclosure* is the RMS of the distances :math:`r_i = n_i\cdot x + d_i` of
+the point from the planes (zero for three planes), and
+:math:`\chi^2 = \sum r_i^2 / \sigma_{r_i}^2` tests it.
+
+**Covariance.**  Planes come from disjoint point sets and are independent.
+Differentiating :math:`A x + B = 0`:
+
+.. math:: A\,\delta x = -(\delta A\, x + \delta B) = -\delta r,\qquad
+          \sigma^2_{r_i} = (x^T, 1)\, \Sigma_{(n,d)_i}\, (x^T, 1)^T
+
+so :math:`\Sigma_x = A^{-1} \Sigma_r A^{-T}` (three planes) or
+:math:`(A^T \Sigma_r^{-1} A)^{-1}` (least squares), all computed in a frame
+centred on the planes so that national-grid coordinates lose no digits.
+A survey may override it by specification standard deviations
+(:meth:`ControlPoint.with_specification`, thesis 0.50 m plan / 0.15 m height).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from .facets import ExtractionParams, Plane
+
+__all__ = [
+    "ControlPoint",
+    "intersect_planes",
+    "select_vertex",
+    "candidate_vertices",
+    "STATUSES",
+    "ROW_FIELDS",
+]
+
+#: status values and their meaning
+STATUSES: dict[str, str] = {
+    "ok": "vertex of 3 or more planes",
+    "too_few_points": "not enough LiDAR points in the clip",
+    "degenerate_points": "points collinear or coincident; no triangulation",
+    "flat_roof": "the clip is (nearly) horizontal; no sloped faces",
+    "wall": "points lie on surfaces steeper than the slope window (walls)",
+    "no_planes": "no face in the slope window",
+    "one_plane": "only one face found",
+    "two_planes": "only two faces found: they meet in a line, not a point",
+    "ill_conditioned": "planes nearly parallel or meeting at a grazing angle",
+    "no_vertex": "faces found but no three meet near the position",
+    "imprecise": "vertex found but its predicted standard deviation is too large",
+    "bad_input": "input not understood",
+}
+
+ROW_FIELDS = ["point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "n_planes", "misclosure_m",
+              "status", "reason"]
+
+
+def _ro(a: Any, shape: tuple[int, ...]) -> np.ndarray:
+    arr = np.array(a, dtype=np.float64, copy=True).reshape(shape)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class ControlPoint:
+    """A control point from intersected roof planes, or a falsy failure.
+
+    Parameters
+    ----------
+    point_id : str
+    enh_m : (3,) float
+        E, N, h (m); NaN when failed before an intersection.
+    cov_m2 : (3, 3) float
+        Covariance of E, N, h (m^2).
+    n_planes : int
+        Planes intersected.
+    misclosure_m : float
+        RMS distance of the point from its planes (0 for three planes).
+    status : str
+        One of :data:`STATUSES`; ``bool(cp)`` is ``status == "ok"``.
+    reason : str
+        Why it failed (empty when ok).
+    planes : tuple of Plane
+        Planes used (or found, when failed).
+    approx_en : (2,) float
+        Approximate position it was searched at.
+    chi2 : float
+        Misclosure test statistic (0 for three planes).
+    cov_source : str
+        "extraction" (propagated from the planes) or "specification".
+
+    Examples
+    --------
+    >>> cp = ControlPoint.failed("P1", [10.0, 20.0], "two_planes", "only 2 faces")
+    >>> bool(cp), cp.status, cp.to_row()["reason"]
+    (False, 'two_planes', 'only 2 faces')
+    """
+
+    point_id: str
+    enh_m: np.ndarray
+    cov_m2: np.ndarray
+    n_planes: int = 0
+    misclosure_m: float = math.nan
+    status: str = "ok"
+    reason: str = ""
+    planes: tuple = ()
+    approx_en: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    chi2: float = math.nan
+    cov_source: str = "extraction"
+    labels: Any = None  # optional (clip xyz, labels) for figures
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"unknown status {self.status!r}")
+        object.__setattr__(self, "enh_m", _ro(self.enh_m, (3,)))
+        object.__setattr__(self, "cov_m2", _ro(self.cov_m2, (3, 3)))
+        object.__setattr__(self, "approx_en", _ro(self.approx_en, (2,)))
+        object.__setattr__(self, "planes", tuple(self.planes))
+        object.__setattr__(self, "point_id", str(self.point_id))
+        if self.labels is not None:  # (clip xyz, face label per point), kept for figures
+            xyz, lab = (np.array(a, copy=True) for a in self.labels)
+            xyz.setflags(write=False)
+            lab.setflags(write=False)
+            object.__setattr__(self, "labels", (xyz, lab))
+
+    def __bool__(self) -> bool:
+        return self.status == "ok"
+
+    @classmethod
+    def failed(cls, point_id: str, approx_en: Any, status: str, reason: str, *,
+               planes: Sequence[Plane] = (), enh_m: Any = None, cov_m2: Any = None,
+               labels: Any = None) -> "ControlPoint":
+        """A falsy control point carrying *status* and *reason*."""
+        return cls(point_id=point_id, enh_m=np.full(3, np.nan) if enh_m is None else enh_m,
+                   cov_m2=np.full((3, 3), np.nan) if cov_m2 is None else cov_m2,
+                   n_planes=len(planes), status=status, reason=reason, planes=tuple(planes),
+                   approx_en=np.asarray(approx_en, dtype=float).reshape(-1)[:2], labels=labels)
+
+    # ---------------------------------------------------------------- sds
+    @property
+    def sd_m(self) -> np.ndarray:
+        """Standard deviations of E, N, h (m)."""
+        return np.sqrt(np.maximum(np.diag(self.cov_m2), 0.0))
+
+    @property
+    def sd_e_m(self) -> float:
+        return float(self.sd_m[0])
+
+    @property
+    def sd_n_m(self) -> float:
+        return float(self.sd_m[1])
+
+    @property
+    def sd_h_m(self) -> float:
+        return float(self.sd_m[2])
+
+    @property
+    def sd_plan_m(self) -> float:
+        """Root of the plan variance trace (m)."""
+        return float(math.sqrt(max(self.cov_m2[0, 0] + self.cov_m2[1, 1], 0.0)))
+
+    def error_ellipse(self, k: float = 1.0) -> tuple[float, float, float]:
+        """Plan error ellipse: semi-axes (m) scaled by *k* and azimuth of the major axis (deg)."""
+        val, vec = np.linalg.eigh(self.cov_m2[:2, :2])
+        val = np.maximum(val, 0.0)
+        az = math.degrees(math.atan2(vec[0, 1], vec[1, 1])) % 180.0
+        return k * math.sqrt(val[1]), k * math.sqrt(val[0]), az
+
+    def with_specification(self, sd_plan_m: float = 0.50, sd_h_m: float = 0.15) -> "ControlPoint":
+        """Copy whose covariance is the specification (thesis: 0.50 m plan, 0.15 m height)."""
+        cov = np.diag([sd_plan_m**2, sd_plan_m**2, sd_h_m**2])
+        return replace(self, cov_m2=cov, cov_source="specification")
+
+    # ---------------------------------------------------------------- output
+    def to_row(self) -> dict[str, Any]:
+        """One output row (the columns of :data:`ROW_FIELDS`)."""
+        e, n, h = (float(v) for v in self.enh_m)
+        sd = self.sd_m
+        return {"point": self.point_id, "E": e, "N": n, "h": h, "sd_E": float(sd[0]),
+                "sd_N": float(sd[1]), "sd_h": float(sd[2]), "n_planes": self.n_planes,
+                "misclosure_m": float(self.misclosure_m), "status": self.status, "reason": self.reason}
+
+    def to_dict(self) -> dict[str, Any]:
+        d = self.to_row()
+        d["planes"] = [p.to_dict() for p in self.planes]
+        d["cov_m2"] = self.cov_m2
+        d["cov_source"] = self.cov_source
+        d["approx_E"], d["approx_N"] = (float(v) for v in self.approx_en)
+        return d
+
+
+# ------------------------------------------------------------------- intersection
+def _conditioning(nmat: np.ndarray, min_dihedral_deg: float, min_det: float) -> str:
+    m = len(nmat)
+    for i, j in itertools.combinations(range(m), 2):
+        ang = math.degrees(math.acos(min(1.0, abs(float(nmat[i] @ nmat[j])))))
+        if ang < min_dihedral_deg:
+            return (f"planes {i + 1} and {j + 1} are nearly parallel (normals {ang:.1f} deg "
+                    f"apart < {min_dihedral_deg:g} deg)")
+    best = max(abs(float(np.linalg.det(nmat[list(t)]))) for t in itertools.combinations(range(m), 3))
+    if best < min_det:
+        return (f"the planes meet at a grazing angle or along a common line (|det| of the unit "
+                f"normals {best:.4f} < {min_det:g})")
+    return ""
+
+
+def intersect_planes(
+    planes: Sequence[Plane],
+    *,
+    point_id: str = "",
+    min_dihedral_deg: float = 3.0,
+    min_det: float = 0.002,
+    weighted: bool = True,
+    approx_en: Any = None,
+) -> ControlPoint:
+    """Intersect 3 planes (eq. 38) or more (least squares, eq. 41) with covariance.
+
+    Parameters
+    ----------
+    planes : sequence of Plane
+        At least three.
+    point_id : str
+    min_dihedral_deg, min_det : float
+        Conditioning limits (see module docstring).
+    weighted : bool
+        More than three planes: weight by plane offset variance (False: eq. 41 as printed).
+
+    Returns
+    -------
+    ControlPoint
+        Falsy with status ``"ill_conditioned"`` (reason says which planes) or
+        ``"two_planes"``/``"one_plane"``/``"no_planes"`` when fewer than three.
+
+    Examples
+    --------
+    >>> cov = np.diag([1e-6, 1e-6, 1e-6, 1e-4])
+    >>> pl = [Plane(n=[0.5, 0, 0.866], d=-0.866 * 10, cov=cov, centroid_m=[0, 0, 10]),
+    ...       Plane(n=[-0.5, 0, 0.866], d=-0.866 * 10, cov=cov, centroid_m=[0, 0, 10]),
+    ...       Plane(n=[0, 0.5, 0.866], d=-0.866 * 10, cov=cov, centroid_m=[0, 0, 10])]
+    >>> cp = intersect_planes(pl, point_id="V")
+    >>> cp.status, np.round(cp.enh_m, 6).tolist()
+    ('ok', [0.0, 0.0, 10.0])
+    >>> intersect_planes(pl[:2]).status
+    'two_planes'
+    """
+    planes = list(planes)
+    m = len(planes)
+    approx = np.full(2, np.nan) if approx_en is None else approx_en
+    if m < 3:
+        status = {0: "no_planes", 1: "one_plane", 2: "two_planes"}[m]
+        return ControlPoint.failed(point_id, approx, status,
+                                   f"{m} plane(s); a point needs 3 non-parallel planes", planes=planes)
+    nmat = np.array([p.n for p in planes])
+    why = _conditioning(nmat, min_dihedral_deg, min_det)
+    if why:
+        return ControlPoint.failed(point_id, approx, "ill_conditioned", why, planes=planes)
+    origin = np.mean([p.centroid_m for p in planes], axis=0)
+    dvec = np.array([p.offset_at(origin) for p in planes])
+    covs = [p.cov_at(origin) for p in planes]
+    if m == 3:
+        x = np.linalg.solve(nmat, -dvec)  # eq. 38
+    else:
+        x = -np.linalg.lstsq(nmat, dvec, rcond=None)[0]  # eq. 41
+    for _ in range(3 if (m > 3 and weighted) else 1):
+        xh = np.append(x, 1.0)
+        var_r = np.array([xh @ c @ xh for c in covs])
+        var_r = np.maximum(var_r, 1e-30)
+        if m > 3 and weighted:
+            w = 1.0 / var_r
+            nw = nmat.T @ (nmat * w[:, None])
+            x = -np.linalg.solve(nw, nmat.T @ (w * dvec))
+    xh = np.append(x, 1.0)
+    var_r = np.maximum(np.array([xh @ c @ xh for c in covs]), 1e-30)
+    if m == 3:
+        ainv = np.linalg.inv(nmat)
+        cov_x = ainv @ np.diag(var_r) @ ainv.T
+        r = np.zeros(3)
+    else:
+        if weighted:
+            cov_x = np.linalg.inv(nmat.T @ (nmat / var_r[:, None]))
+        else:
+            g = np.linalg.inv(nmat.T @ nmat) @ nmat.T
+            cov_x = g @ np.diag(var_r) @ g.T
+        r = nmat @ x + dvec
+    mis = float(np.sqrt(np.mean(r * r))) if m > 3 else 0.0
+    chi2 = float(np.sum(r * r / var_r)) if m > 3 else 0.0
+    return ControlPoint(point_id=point_id, enh_m=x + origin, cov_m2=0.5 * (cov_x + cov_x.T),
+                        n_planes=m, misclosure_m=mis, status="ok", reason="", planes=tuple(planes),
+                        approx_en=approx, chi2=chi2)
+
+
+# ------------------------------------------------------------------- vertex search
+def _support_trees(xyz: np.ndarray, labels: np.ndarray, m: int):
+    from scipy.spatial import cKDTree
+
+    return [cKDTree(xyz[labels == k, :2]) for k in range(m)]
+
+
+def _spacing(xyz: np.ndarray, info: dict | None) -> float:
+    if info and "spacing_m" in info:
+        return float(info["spacing_m"])
+    ext = np.ptp(xyz[:, :2], axis=0)
+    area = max(float(ext[0] * ext[1]) * math.pi / 4, 1e-6)
+    return math.sqrt(area / max(len(xyz), 1))
+
+
+def _on_surface(x: np.ndarray, xyz: np.ndarray, tree_all, r: float, tol: float = 0.3) -> bool:
+    """The vertex lies within the heights of the LiDAR points around it (+- tol)."""
+    idx = tree_all.query_ball_point(x[:2], r=r)
+    if not idx:
+        return False
+    h = xyz[idx, 2]
+    return bool(h.min() - tol <= x[2] <= h.max() + tol)
+
+
+def _triples(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, p: ExtractionParams,
+             info: dict | None, reasons: list[str] | None = None):
+    """Yield (triple, ControlPoint, support distances) for every supported triple.
+
+    Refusals of the intersection are appended to *reasons*.
+    """
+    from scipy.spatial import cKDTree
+
+    m = len(planes)
+    trees = _support_trees(xyz, labels, m)
+    spacing = _spacing(xyz, info)
+    support = p.support_m if p.support_m is not None else max(1.5, 4.0 * spacing)
+    tree_all = cKDTree(xyz[:, :2])
+    # adjacency: two faces touch when their points come within 2 x support
+    adj = np.zeros((m, m), dtype=bool)
+    for i in range(m):
+        for j in range(i + 1, m):
+            if len(trees[i].data) and len(trees[j].data):
+                dd, _ = trees[j].query(trees[i].data, k=1, distance_upper_bound=2 * support)
+                adj[i, j] = adj[j, i] = bool(np.isfinite(dd).any())
+    for t in itertools.combinations(range(m), 3):
+        if not (adj[t[0], t[1]] and adj[t[0], t[2]] and adj[t[1], t[2]]):
+            continue
+        cp = intersect_planes([planes[i] for i in t], min_dihedral_deg=p.min_dihedral_deg,
+                              min_det=p.min_det)
+        if not cp:
+            if reasons is not None:
+                reasons.append(cp.reason)
+            continue
+        x = cp.enh_m
+        sup = [float(trees[i].query(x[:2], k=1)[0]) for i in t]
+        if max(sup) > support:
+            continue
+        r_s = max(1.0, 2 * spacing)
+        tan_max = max(math.tan(math.radians(min(planes[i].slope_deg, 80.0))) for i in t)
+        if not _on_surface(x, xyz, tree_all, r_s, 0.2 + 0.5 * r_s * tan_max):
+            continue
+        yield t, cp, sup
+
+
+def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, center_en: Any,
+                  p: ExtractionParams, *, point_id: str = "", info: dict | None = None) -> ControlPoint:
+    """Choose the vertex of 3+ planes nearest to *center_en* among the faces of a clip.
+
+    A triple of faces qualifies when the faces touch, their intersection is
+    well conditioned, lies within ``max_offset_m`` of the position, every
+    face has a point within ``support_m`` of it in plan, and it lies on the
+    LiDAR surface.  Further faces join when their misclosure is below
+    ``join_sigma`` standard deviations; the point is then re-intersected by
+    least squares.
+    """
+    center = np.asarray(center_en, dtype=np.float64).reshape(-1)[:2]
+    info = info or {}
+    planes = list(planes)
+    keep = (xyz, labels)
+    if len(planes) < 3:
+        n_el = info.get("n_in_window", 0) + info.get("n_flat", 0) + info.get("n_steep", 0)
+        if len(planes) == 0 and n_el and info.get("n_flat", 0) > 0.6 * n_el:
+            return ControlPoint.failed(point_id, center, "flat_roof",
+                                       f"{info['n_flat']} of {n_el} elements slope less than "
+                                       f"{p.slope_min_deg:g} deg: a flat roof has no vertex", labels=keep)
+        if len(planes) == 0 and n_el and info.get("n_steep", 0) > 0.6 * n_el:
+            return ControlPoint.failed(point_id, center, "wall",
+                                       f"{info['n_steep']} of {n_el} elements slope more than "
+                                       f"{p.slope_max_deg:g} deg: a wall, or a roof steeper than the "
+                                       f"slope window (raise slope_max_deg)", labels=keep)
+        status = {0: "no_planes", 1: "one_plane", 2: "two_planes"}[len(planes)]
+        extra = {0: f"no face with {p.slope_min_deg:g}-{p.slope_max_deg:g} deg slope and "
+                    f">= {p.min_points} points",
+                 1: "one face found; a point needs three",
+                 2: "two faces found: they meet in a ridge line, not a point"}[len(planes)]
+        return ControlPoint.failed(point_id, center, status, extra, planes=planes, labels=keep)
+    max_off = p.max_offset_m if p.max_offset_m is not None else p.radius_m
+    found = []
+    reasons: list[str] = []
+    for t, cp, sup in _triples(planes, xyz, labels, p, info, reasons):
+        off = float(np.hypot(*(cp.enh_m[:2] - center)))
+        if off <= max_off:
+            sd3 = float(np.sqrt(max(np.trace(cp.cov_m2), 0.0)))
+            found.append((off + 3.0 * sd3, t, cp))
+    if not found:
+        if reasons and len(planes) == 3:
+            return ControlPoint.failed(point_id, center, "ill_conditioned", reasons[0],
+                                       planes=planes, labels=keep)
+        return ControlPoint.failed(point_id, center, "no_vertex",
+                                   f"{len(planes)} faces, but no three of them meet within "
+                                   f"{max_off:g} m of the position where all three have points",
+                                   planes=planes, labels=keep)
+    found.sort(key=lambda f: f[0])
+    off, t, cp = found[0]
+    x = cp.enh_m
+    members = list(t)
+    trees = _support_trees(xyz, labels, len(planes))
+    spacing = _spacing(xyz, info)
+    support = p.support_m if p.support_m is not None else max(1.5, 4.0 * spacing)
+    for k in range(len(planes)):
+        if k in members:
+            continue
+        pl = planes[k]
+        r = float(pl.distance(x[None])[0])
+        xh = np.append(x - pl.centroid_m, 1.0)
+        var = float(xh @ pl.cov_at(pl.centroid_m) @ xh + pl.n @ cp.cov_m2 @ pl.n)
+        if abs(r) < p.join_sigma * math.sqrt(max(var, 0.0)) + 0.5 * pl.rms_m and \
+                float(trees[k].query(x[:2], k=1)[0]) <= support:
+            members.append(k)
+    if len(members) > 3:
+        cp2 = intersect_planes([planes[i] for i in members], min_dihedral_deg=p.min_dihedral_deg,
+                               min_det=p.min_det)
+        if cp2:
+            cp = cp2
+    sd3 = float(math.sqrt(max(np.trace(cp.cov_m2), 0.0)))
+    status, reason = "ok", ""
+    if not np.isfinite(sd3) or sd3 > p.max_sd_m:
+        status, reason = "imprecise", (f"predicted 3-D sd {sd3:.3f} m exceeds {p.max_sd_m:g} m "
+                                       f"(weak faces or grazing intersection)")
+    return replace(cp, point_id=point_id, approx_en=center, status=status, reason=reason,
+                   labels=keep)
+
+
+def candidate_vertices(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray | None,
+                       p: ExtractionParams, info: dict | None = None) -> list[np.ndarray]:
+    """Every supported, well-conditioned vertex of 3 touching faces in a segmented area."""
+    if labels is None or len(planes) < 3:
+        return []
+    out: list[np.ndarray] = []
+    for t, cp, sup in _triples(planes, xyz, labels, p, info):
+        if all(np.hypot(*(cp.enh_m[:2] - v[:2])) > 0.5 for v in out):
+            out.append(np.array(cp.enh_m))
+    return out

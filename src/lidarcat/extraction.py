@@ -1,0 +1,287 @@
+"""Batch roof extraction: job files, tiles, output tables, operator figures.
+
+A **job file** is either the thesis's text format (section 4.2.2), one roof per
+line, whitespace separated::
+
+    faixa.xyz P704 677757.8 7183482.0 0.15 5.0
+
+(point-cloud file, point name, approximate E and N, residual threshold in m,
+clip radius in m), or a CSV file with a header and the columns ``point, E, N``
+plus optional ``threshold_m, radius_m, file``.  Relative file names are
+relative to the job file's folder.  ``#`` starts a comment line.
+
+:func:`extract_batch` runs :func:`lidarcat.facets.extract_roof` on every job;
+a degenerate roof gives a falsy :class:`~lidarcat.control.ControlPoint` with a
+status and a reason, and the batch goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+import numpy as np
+
+from ._io import atomic_dir, write_csv_atomic, write_json_atomic, read_csv_table
+from .control import ROW_FIELDS, ControlPoint
+from .errors import ClipError, ExtractionError, LidarcatError, location
+from .facets import Candidate, ExtractionParams, extract_roof, get_params
+
+__all__ = [
+    "Job", "read_jobs", "extract_batch", "write_control_csv", "write_planes_csv",
+    "write_candidates", "plot_control_point", "write_figures", "PLANE_FIELDS",
+]
+
+log = logging.getLogger(__name__)
+
+PLANE_FIELDS = ["point", "plane", "a", "b", "c", "d", "sd_a", "sd_b", "sd_c", "sd_offset_m",
+                "n_used", "n_rejected", "rms_m", "slope_deg", "aspect_deg"]
+
+
+@dataclass(frozen=True)
+class Job:
+    """One roof to extract: name, approximate position, threshold, radius, point file."""
+
+    point: str
+    e_m: float
+    n_m: float
+    threshold_m: float | None = None
+    radius_m: float | None = None
+    file: Path | None = None
+    line: int = 0
+
+
+def read_jobs(path: str | os.PathLike) -> list[Job]:
+    """Read a thesis job file (whitespace) or a CSV job file.
+
+    Raises
+    ------
+    ExtractionError
+        Missing file, wrong number of fields, non-numeric value (names file and line).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise ExtractionError(f"{path}: job file not found") from None
+    first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), "")
+    if "," in first and not first.split(",")[0].strip().replace(".", "").isdigit():
+        try:
+            t = read_csv_table(path, required=("point", "E", "N"),
+                               optional=("threshold_m", "radius_m", "file"))
+            e, n = t.floats("E"), t.floats("N")
+            thr = t.floats("threshold_m", required=False)
+            rad = t.floats("radius_m", required=False)
+        except LidarcatError as ex:
+            raise ExtractionError(str(ex)) from ex
+        files = t.column("file") if t.has("file") else [""] * len(t.rows)
+        return [Job(p, float(e[i]), float(n[i]),
+                    None if math.isnan(thr[i]) else float(thr[i]),
+                    None if math.isnan(rad[i]) else float(rad[i]),
+                    (path.parent / files[i]) if files[i] else None, t.lines[i])
+                for i, p in enumerate(t.column("point"))]
+    jobs = []
+    names = ("file", "point", "E", "N", "threshold", "radius")
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        if not raw.strip() or raw.lstrip().startswith("#"):
+            continue
+        f = raw.split()
+        if len(f) != 6:
+            raise ExtractionError(f"{location(path, lineno)}: {len(f)} fields, expected 6 "
+                                  f"(file point E N threshold radius, e.g. "
+                                  f"'faixa.xyz P704 677757.8 7183482.0 0.15 5.0')")
+        vals = []
+        for k in (2, 3, 4, 5):
+            try:
+                vals.append(float(f[k].replace(",", ".")))
+            except ValueError:
+                raise ExtractionError(f"{location(path, lineno, names[k])}: {f[k]!r} is not a number") from None
+        if vals[2] <= 0 or vals[3] <= 0:
+            raise ExtractionError(f"{location(path, lineno)}: threshold and radius must be positive")
+        jobs.append(Job(f[1], vals[0], vals[1], vals[2], vals[3], path.parent / f[0], lineno))
+    if not jobs:
+        raise ExtractionError(f"{path}: no jobs (expected lines like "
+                              f"'faixa.xyz P704 677757.8 7183482.0 0.15 5.0')")
+    return jobs
+
+
+class _Source:
+    """Points for a job: a tile index over --lidar paths, or the job's own file."""
+
+    def __init__(self, lidar: Sequence[str | os.PathLike] | None, crs: Any) -> None:
+        self.crs = crs
+        self.lidar = list(lidar or [])
+        self._index = None
+        self._per_file: dict[Path, Any] = {}
+
+    def _build(self, paths: Sequence[Any]):
+        from .lidar import TileIndex
+
+        return TileIndex.build(paths, crs=self.crs)
+
+    def query(self, job: Job, radius_m: float):
+        if self.lidar:
+            if self._index is None:
+                self._index = self._build(self.lidar)
+            idx = self._index
+        else:
+            if job.file is None:
+                raise ExtractionError(f"job {job.point}: no point file in the job and no --lidar given")
+            if job.file not in self._per_file:
+                if not job.file.exists():
+                    raise ExtractionError(f"job {job.point} (line {job.line}): point file {job.file} not found")
+                self._per_file[job.file] = self._build([job.file])
+            idx = self._per_file[job.file]
+        return idx.query_radius((job.e_m, job.n_m), radius_m)
+
+
+def extract_batch(
+    jobs: Iterable[Job],
+    *,
+    lidar: Sequence[str | os.PathLike] | None = None,
+    points: Any = None,
+    crs: Any = None,
+    params: ExtractionParams | str | None = None,
+    spec_sd: tuple[float, float] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> list[ControlPoint]:
+    """Extract every job; failures are rows with a status, never exceptions.
+
+    Parameters
+    ----------
+    jobs : iterable of Job
+    lidar : paths, optional
+        Tiles for all jobs (default: each job's own file).
+    points : (N, 3) array or PointCloud, optional
+        Points for all jobs (instead of files).
+    crs : CRS-like, optional
+        CRS of tiles that carry none (e.g. ``"EPSG:7415"`` for AHN3).
+    params : ExtractionParams or preset name
+        The job's threshold and radius override the preset's.
+    spec_sd : (plan, height), optional
+        Replace every point's covariance by these specification sds (m).
+    progress : callable(int), optional
+    """
+    p0 = get_params(params)
+    src = None if points is not None else _Source(lidar, crs)
+    out = []
+    for job in jobs:
+        p = p0.replace(**{k: v for k, v in (("residual_threshold_m", job.threshold_m),
+                                             ("radius_m", job.radius_m)) if v is not None})
+        try:
+            cloud = points if points is not None else src.query(job, p.radius_m)
+            cp = extract_roof(cloud, (job.e_m, job.n_m), params=p, point_id=job.point,
+                              clipped=points is None)
+        except ClipError as ex:
+            cp = ControlPoint.failed(job.point, (job.e_m, job.n_m), "too_few_points", str(ex))
+        if spec_sd is not None and cp:
+            cp = cp.with_specification(*spec_sd)
+        out.append(cp)
+        if progress is not None:
+            progress(1)
+    return out
+
+
+# ------------------------------------------------------------------ writers
+def write_control_csv(path: str | os.PathLike, points: Sequence[ControlPoint], comments: Sequence[str] = ()) -> Path:
+    """Control points, one row each (columns :data:`~lidarcat.control.ROW_FIELDS`)."""
+    rows = [[cp.to_row()[k] for k in ROW_FIELDS] for cp in points]
+    return write_csv_atomic(path, ROW_FIELDS, rows, comments=comments)
+
+
+def write_planes_csv(path: str | os.PathLike, points: Sequence[ControlPoint]) -> Path:
+    """Planes of every point: a, b, c, d (unit normal), sds, counts, RMS, slope, aspect."""
+    rows = []
+    for cp in points:
+        for k, pl in enumerate(cp.planes, start=1):
+            d = pl.to_dict()
+            rows.append([cp.point_id, k] + [d[f] for f in PLANE_FIELDS[2:]])
+    return write_csv_atomic(path, PLANE_FIELDS, rows,
+                            comments=["a E + b N + c h + d = 0 with (a, b, c) the unit normal (up); "
+                                      "sd_a..sd_c with d held fixed (thesis Table 4 datum); metres, degrees"])
+
+
+def write_candidates(path: str | os.PathLike, candidates: Sequence[Candidate], crs: Any = None) -> Path:
+    """Candidates as GeoJSON (``.geojson``/``.json``) or CSV (anything else)."""
+    path = Path(path)
+    if path.suffix.lower() in (".geojson", ".json"):
+        fc: dict[str, Any] = {"type": "FeatureCollection",
+                              "features": [c.to_feature() for c in candidates]}
+        if crs is not None:
+            fc["crs"] = {"type": "name", "properties": {"name": str(crs)}}
+        return write_json_atomic(path, fc)
+    fields = ROW_FIELDS + ["score"]
+    rows = [[c.point.to_row()[k] for k in ROW_FIELDS] + [c.score] for c in candidates]
+    return write_csv_atomic(path, fields, rows)
+
+
+# ------------------------------------------------------------------ figures
+def plot_control_point(cp: ControlPoint, path: str | os.PathLike, *, ellipse_k: float = 2.4477) -> Path:
+    """Operator view like thesis Figure 19: the clip from above, faces in colour,
+    rejected points in grey crosses, the vertex and its 95 % error ellipse (x 10)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Ellipse
+
+    fig, ax = plt.subplots(figsize=(6, 6), dpi=100)
+    try:
+        if cp.labels is not None:
+            xyz, lab = cp.labels
+            o = cp.approx_en
+            rej = lab < 0
+            ax.scatter(xyz[rej, 0] - o[0], xyz[rej, 1] - o[1], s=6, c="0.6", marker="x", label="rejected")
+            used_ids = sorted({int(v) for v in lab[lab >= 0]})
+            inter = {pl.label for pl in cp.planes}
+            others = [k for k in used_ids if k not in inter]
+            if others:
+                m = np.isin(lab, others)
+                ax.scatter(xyz[m, 0] - o[0], xyz[m, 1] - o[1], s=5, c="0.8", label="other faces")
+            for k in sorted(inter):
+                m = lab == k
+                pl = next(p for p in cp.planes if p.label == k)
+                ax.scatter(xyz[m, 0] - o[0], xyz[m, 1] - o[1], s=8,
+                           label=f"face {k + 1}: {pl.slope_deg:.0f} deg / {pl.aspect_deg:.0f}")
+        else:
+            o = cp.approx_en
+        ax.plot(0, 0, "k+", ms=14, label="approximate position")
+        if np.all(np.isfinite(cp.enh_m)):
+            x, y = cp.enh_m[0] - o[0], cp.enh_m[1] - o[1]
+            ax.plot(x, y, "r*", ms=14, label="intersection")
+            if np.all(np.isfinite(cp.cov_m2)):
+                a, b, az = cp.error_ellipse(ellipse_k)
+                ax.add_patch(Ellipse((x, y), 2 * a * 10, 2 * b * 10, angle=90 - az, fill=False,
+                                     color="r", lw=1.5, label="95 % ellipse x 10"))
+        ax.set_aspect("equal")
+        ax.set_xlabel("E - E0 (m)")
+        ax.set_ylabel("N - N0 (m)")
+        title = f"{cp.point_id}: {cp.status}, {cp.n_planes} planes"
+        if cp:
+            title += f"\nh = {cp.enh_m[2]:.3f} m, sd E/N/h = {cp.sd_e_m:.3f}/{cp.sd_n_m:.3f}/{cp.sd_h_m:.3f} m"
+        else:
+            title += f"\n{cp.reason[:80]}"
+        ax.set_title(title, fontsize=9)
+        ax.legend(fontsize=7, loc="upper right")
+        fig.tight_layout()
+        path = Path(path)
+        fig.savefig(path)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def write_figures(folder: str | os.PathLike, points: Sequence[ControlPoint]) -> list[Path]:
+    """One PNG per point (``<point>.png``) into *folder*, written atomically."""
+    out = []
+    folder = Path(folder)
+    with atomic_dir(folder) as tmp:
+        for cp in points:
+            name = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in cp.point_id) or "point"
+            plot_control_point(cp, tmp / f"{name}.png")
+            out.append(folder / f"{name}.png")
+    return out

@@ -1,0 +1,197 @@
+"""`lidarcat demo synthetic` + `lidarcat run`: the end-to-end test of the whole tool against known truth."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy import stats
+
+from lidarcat.cli.main import cli
+from lidarcat.demo import demo_camera, project_points, write_synthetic_survey
+from lidarcat.errors import LidarcatError
+from lidarcat.survey import Survey
+
+# demo synthetic + run end to end (about 15 s): slow, but still run in CI
+pytestmark = pytest.mark.slow
+
+
+def _csv(path: Path) -> dict[str, dict[str, str]]:
+    with open(path, encoding="utf-8") as fh:
+        rows = list(csv.DictReader(line for line in fh if not line.startswith("#")))
+    key = "photo" if "photo" in rows[0] and "point" not in rows[0] else "point"
+    return {r[key]: r for r in rows}
+
+
+def _f(row: dict[str, str], *keys: str) -> np.ndarray:
+    return np.array([float(row[k]) for k in keys])
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("demo")
+    runner = CliRunner()
+    res = runner.invoke(cli, ["demo", "synthetic", "-o", str(root / "survey"), "--seed", "7", "--json"])
+    assert res.exit_code == 0, res.output
+    info = json.loads(res.output)
+    res = runner.invoke(cli, ["run", str(root / "survey"), "-o", str(root / "out"), "--json"])
+    assert res.exit_code == 0, res.output
+    return root / "survey", root / "out", info, json.loads(res.output)
+
+
+def test_demo_writes_a_valid_survey(demo_run):
+    survey_dir, _, info, _ = demo_run
+    s = Survey.load(survey_dir)
+    assert len(s.photos) == info["n_photos"] == 6
+    assert s.settings.observations == "pixel"
+    assert len(s.lidar_paths) == 4 and s.extraction_jobs is not None
+    assert set(s.control_sets) == {"gps"}
+    assert len(s.control_sets["gps"].control) == 5
+    assert len(s.control_sets["gps"].check) == info["n_gps"] - 5 >= 6
+    for name in ("eop.csv", "points.csv", "roofs.csv", "README.md"):
+        assert (survey_dir / "truth" / name).is_file()
+
+
+def test_demo_measurements_follow_the_truth(demo_run):
+    """Pixel measurements, back through eq. 01-07, fit the true orientation within the noise."""
+    survey_dir, _, info, _ = demo_run
+    s = Survey.load(survey_dir)
+    obs = s.photo_observations("pixel")
+    eop = _csv(survey_dir / "truth" / "eop.csv")
+    pts = _csv(survey_dir / "truth" / "points.csv")
+    cam = demo_camera()
+    res = []
+    for ph, q, xy in zip(obs.photo, obs.point, obs.xy_mm):
+        e = _f(eop[ph], "X0", "Y0", "Z0", "omega", "phi", "kappa")
+        e[3:] = np.radians(e[3:])
+        res.append(project_points(_f(pts[q], "E", "N", "h")[None], e, cam.focal_length_mm)[0] - xy)
+    res = np.array(res) / cam.pixel_size_x_mm  # px
+    # 0.5 px noise: the sample sd agrees within 10 %, no bias
+    assert abs(res.std() / info["image_sd_px"] - 1) < 0.1
+    assert np.all(np.abs(res.mean(axis=0)) < 0.1)
+
+
+def test_demo_projection_agrees_with_the_bundle_convention():
+    from lidarcat._collinearity import project
+
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([-300, -200, 0], [300, 200, 30], (20, 3))
+    eo = np.array([10.0, -20.0, 700.0, 0.02, -0.015, 3.0])
+    ours = project_points(pts, eo, 35.0)
+    theirs, _ = project(eo[None, :].repeat(20, 0), pts, np.full(20, 35.0))
+    np.testing.assert_allclose(ours, theirs, atol=1e-9)
+
+
+def test_extraction_recovers_every_roof_vertex_within_3_sigma(demo_run):
+    survey_dir, out, info, summary = demo_run
+    truth = _csv(survey_dir / "truth" / "roofs.csv")
+    got = _csv(out / "extract" / "control.csv")
+    assert sorted(got) == sorted(truth) and len(truth) == info["n_roofs"] == 7
+    z = []
+    for pid, row in got.items():
+        assert row["status"] == "ok", row
+        assert int(row["n_planes"]) == int(truth[pid]["n_planes"])
+        err = _f(row, "E", "N", "h") - _f(truth[pid], "E", "N", "h")
+        z.extend(err / _f(row, "sd_E", "sd_N", "sd_h"))
+    z = np.abs(z)
+    # 7 vertices x 3 axes: even an honest covariance puts one of 21 beyond 3 sigma 5 % of the
+    # time, so the per-axis bound is 3.5 sigma (1 % family-wise) and at most one beyond 3 sigma
+    assert np.all(z <= 3.5), z
+    assert np.sum(z > 3.0) <= 1, z
+    assert np.sum(z ** 2) < stats.chi2.ppf(0.999, len(z))
+    assert summary["extraction"]["n_ok"] == 7
+
+
+@pytest.mark.parametrize("run", ["gps", "lidar"])
+def test_orientations_within_3_sigma_of_the_truth(demo_run, run):
+    survey_dir, out, _, summary = demo_run
+    adj = summary["runs"][run]["adjustment"]
+    assert adj["converged"] and adj["chi2_pass"]
+    truth = _csv(survey_dir / "truth" / "eop.csv")
+    got = _csv(out / f"adjust-{run}" / "eop.csv")
+    keys = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+    z = []
+    for ph, row in truth.items():
+        d = _f(got[ph], *keys) - _f(row, *keys)
+        d[3:] = (d[3:] + 180) % 360 - 180
+        sd = _f(got[ph], *(f"sd_{k}" for k in keys))
+        assert np.all(np.abs(d) <= 3 * sd), (run, ph, d, sd)
+        z.extend(d / sd)
+    # jointly: the normalised errors are consistent with N(0, 1) (36 values, 99.9 % bound)
+    assert np.sum(np.square(z)) < stats.chi2.ppf(0.999, len(z))
+
+
+@pytest.mark.parametrize("run", ["gps", "lidar"])
+def test_check_points_pass_chi_square_at_the_noise_level(demo_run, run):
+    """sum(d^2 / (sd_adjusted^2 + sd_gps^2)) over E, N, h of the check points ~ chi2(3n)."""
+    survey_dir, out, _, summary = demo_run
+    disc = _csv(out / f"assess-{run}" / "discrepancies.csv")
+    pts = _csv(out / f"adjust-{run}" / "points.csv")
+    ground = _csv(survey_dir / "ground_points.csv")
+    t = 0.0
+    for pid, row in disc.items():
+        d = _f(row, "dE", "dN", "dh")
+        var = _f(pts[pid], "sd_E", "sd_N", "sd_h") ** 2 + _f(ground[pid], "sd_E", "sd_N", "sd_h") ** 2
+        t += float(np.sum(d ** 2 / var))
+    df = 3 * len(disc)
+    assert summary["runs"][run]["check"]["n"] == len(disc) >= 6
+    assert stats.chi2.ppf(0.005, df) < t < stats.chi2.ppf(0.995, df), (t, df)
+
+
+def test_check_points_against_the_truth_within_3_sigma(demo_run):
+    survey_dir, out, _, _ = demo_run
+    truth = _csv(survey_dir / "truth" / "points.csv")
+    for run in ("gps", "lidar"):
+        pts = _csv(out / f"adjust-{run}" / "points.csv")
+        for pid, row in pts.items():
+            if row["role"] == "control":
+                continue
+            err = _f(row, "E", "N", "h") - _f(truth[pid], "E", "N", "h")
+            # 3.9 sigma: 52 points x 3 axes, a 1 % family-wise level
+            assert np.all(np.abs(err) <= 3.9 * _f(row, "sd_E", "sd_N", "sd_h")), (run, pid, err)
+
+
+def test_all_stages_ran(demo_run):
+    _, out, _, summary = demo_run
+    assert summary["ok"] is True
+    assert summary["stages_ran"] == ["camera", "extract", "adjust-gps", "adjust-lidar", "assess-gps",
+                                     "assess-lidar", "compare-gps-lidar", "report"]
+    derived = Survey.load(out / "extract" / "survey")
+    assert set(derived.control_sets) == {"gps", "lidar"}
+    assert len(derived.control_sets["lidar"].control) == 7
+
+
+def test_demo_compare_command(demo_run):
+    survey_dir, out, _, _ = demo_run
+    res = CliRunner().invoke(cli, ["demo", "compare", str(survey_dir), str(out), "--json"])
+    assert res.exit_code == 0, res.output
+    cmp_ = json.loads(res.output)
+    assert set(cmp_["runs"]) == {"gps", "lidar"} and len(cmp_["extraction"]) == 7
+    for r in cmp_["runs"].values():
+        assert r["eo_max_abs_z"] <= 3.0 and 0.5 < r["eo_rms_z"] < 1.5
+        assert r["check_dof"] == 3 * r["n_check"]
+    res = CliRunner().invoke(cli, ["demo", "compare", str(survey_dir), str(out)])
+    assert res.exit_code == 0 and "run lidar: orientations max |z|" in res.output
+
+
+def test_same_seed_same_survey(tmp_path):
+    a = write_synthetic_survey(tmp_path / "a", n_photos=4, seed=3)
+    b = write_synthetic_survey(tmp_path / "b", n_photos=4, seed=3)
+    c = write_synthetic_survey(tmp_path / "c", n_photos=4, seed=4)
+    assert a.files == b.files
+    for name in a.files:
+        if name.endswith(".csv"):
+            assert (a.path / name).read_bytes() == (b.path / name).read_bytes(), name
+    assert (a.path / "image_points.csv").read_bytes() != (c.path / "image_points.csv").read_bytes()
+    assert a.n_photos == 4 and a.n_roofs == 5
+
+
+def test_bad_sizes_are_errors(tmp_path):
+    with pytest.raises(LidarcatError, match="at least 2"):
+        write_synthetic_survey(tmp_path / "x", n_photos=1)
+    res = CliRunner().invoke(cli, ["demo", "synthetic", "-o", str(tmp_path / "y"), "--photos", "1"])
+    assert res.exit_code == 2 and "Traceback" not in res.output

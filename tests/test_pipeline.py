@@ -1,0 +1,388 @@
+"""The stage runner (caching, atomicity, failures) and `run_pipeline` on the thesis block."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import THESIS_SURVEY, THESIS_TABLES
+
+from lidarcat.errors import LidarcatError, SurveyError
+from lidarcat.pipeline import Stage, run_pipeline, run_stages
+
+
+# --------------------------------------------------------------------------- helpers
+
+def _csv(path: Path) -> list[dict[str, str]]:
+    with open(path, encoding="utf-8") as fh:
+        return list(csv.DictReader(line for line in fh if not line.startswith("#")))
+
+
+def _no_part_files(root: Path) -> list[Path]:
+    return [p for p in root.rglob("*") if p.name.endswith(".part") or ".part" in p.name]
+
+
+class _Counter:
+    """Stage bodies that count their calls and copy an input file."""
+
+    def __init__(self, src: Path):
+        self.src = src
+        self.calls: dict[str, int] = {}
+
+    def body(self, name: str, fail: Exception | None = None):
+        def run(ctx, tmp: Path) -> dict:
+            self.calls[name] = self.calls.get(name, 0) + 1
+            if fail is not None:
+                (tmp / "partial.txt").write_text("half")
+                raise fail
+            text = self.src.read_text()
+            if name == "second":
+                text = (ctx.folder("first") / "copy.txt").read_text() + "+"
+            (tmp / "copy.txt").write_text(text)
+            (tmp / "sub").mkdir()
+            (tmp / "sub" / "n.txt").write_text(str(len(text)))
+            return {"length": len(text)}
+        return run
+
+    def stages(self, **kw) -> list[Stage]:
+        return [
+            Stage("first", "first", self.body("first"), inputs=lambda ctx: [self.src],
+                  params={"p": kw.get("p", 1)}),
+            Stage("second", "second", self.body("second"), requires=("first",)),
+        ]
+
+
+# --------------------------------------------------------------------------- runner
+
+def test_stages_run_then_reuse_then_rerun_on_change(tmp_path):
+    src = tmp_path / "input.txt"
+    src.write_text("abc")
+    c = _Counter(src)
+    out = tmp_path / "out"
+    recs = run_stages(c.stages(), out)
+    assert [r.status for r in recs] == ["ran", "ran"]
+    assert (out / "second" / "copy.txt").read_text() == "abc+"
+    assert recs[1].outputs == ("second/copy.txt", "second/sub/n.txt")
+    assert recs[0].result == {"length": 3}
+    assert (out / ".stages" / "first.json").is_file()
+
+    recs = run_stages(c.stages(), out)
+    assert [r.status for r in recs] == ["reused", "reused"]
+    assert recs[1].result == {"length": 4}
+    assert c.calls == {"first": 1, "second": 1}
+
+    # a parameter change reruns the stage and, through its outputs, the next one
+    recs = run_stages(c.stages(p=2), out)
+    assert [r.status for r in recs] == ["ran", "reused"]  # same output content: second reused
+    src.write_text("abcd")
+    recs = run_stages(c.stages(p=2), out)
+    assert [r.status for r in recs] == ["ran", "ran"]
+    assert (out / "second" / "copy.txt").read_text() == "abcd+"
+    recs = run_stages(c.stages(p=2), out, force=True)
+    assert [r.status for r in recs] == ["ran", "ran"]
+    assert c.calls == {"first": 4, "second": 3}
+
+
+def test_tampered_or_missing_output_reruns_stage(tmp_path):
+    src = tmp_path / "input.txt"
+    src.write_text("abc")
+    c = _Counter(src)
+    out = tmp_path / "out"
+    run_stages(c.stages(), out)
+    (out / "second" / "copy.txt").write_text("edited by hand")
+    assert [r.status for r in run_stages(c.stages(), out)] == ["reused", "ran"]
+    (out / "first" / "sub" / "n.txt").unlink()
+    assert [r.status for r in run_stages(c.stages(), out)] == ["ran", "reused"]
+    assert (out / "first" / "sub" / "n.txt").read_text() == "3"
+
+
+def test_failed_stage_keeps_no_output_and_skips_dependents(tmp_path):
+    src = tmp_path / "input.txt"
+    src.write_text("abc")
+    c = _Counter(src)
+    stages = [Stage("first", "first", c.body("first", LidarcatError("no roof at (1, 2)"))),
+              Stage("second", "second", c.body("second"), requires=("first",)),
+              Stage("third", "third", c.body("third", RuntimeError("bug"))),
+              Stage("fourth", "fourth", c.body("fourth"), skip_reason="no LiDAR tiles")]
+    recs = run_stages(stages, tmp_path / "out")
+    assert [r.status for r in recs] == ["failed", "skipped", "failed", "skipped"]
+    assert recs[0].reason == "no roof at (1, 2)"
+    assert recs[1].reason == "needs first (first failed)"
+    assert recs[2].reason == "RuntimeError: bug"
+    assert recs[3].reason == "no LiDAR tiles"
+    assert "fourth" not in c.calls
+    assert not (tmp_path / "out" / "first").exists()
+    assert not (tmp_path / "out" / ".stages" / "first.json").exists()
+    assert _no_part_files(tmp_path / "out") == []
+
+
+def test_interrupted_stage_leaves_nothing_and_next_run_finishes(tmp_path):
+    src = tmp_path / "input.txt"
+    src.write_text("abc")
+    c = _Counter(src)
+    out = tmp_path / "out"
+    run_stages(c.stages(), out)
+    src.write_text("changed")
+    stages = c.stages()
+    stages[1] = Stage("second", "second", c.body("second", KeyboardInterrupt()), requires=("first",))
+    with pytest.raises(KeyboardInterrupt):
+        run_stages(stages, out)
+    assert _no_part_files(out) == []
+    # the old outputs of the interrupted stage are intact, its record is gone
+    assert (out / "second" / "copy.txt").read_text() == "abc+"
+    assert not (out / ".stages" / "second.json").exists()
+    recs = run_stages(c.stages(), out)
+    assert [r.status for r in recs] == ["reused", "ran"]
+    assert (out / "second" / "copy.txt").read_text() == "changed+"
+
+
+def test_leftovers_of_a_killed_run_are_removed(tmp_path):
+    """After SIGKILL nothing can clean up; the next run removes the temporary files."""
+    src = tmp_path / "input.txt"
+    src.write_text("abc")
+    out = tmp_path / "out"
+    (out / ".first.abc123.part" / "sub").mkdir(parents=True)
+    (out / ".first.abc123.part" / "sub" / "half.txt").write_text("half")
+    (out / ".stages").mkdir()
+    (out / ".stages" / ".first.json.xyz.part").write_text("{")
+    (out / ".summary.json.q.part").write_text("{")
+    (out / ".unrelated.part").write_text("not ours")
+    recs = run_stages(_Counter(src).stages(), out)
+    assert [r.status for r in recs] == ["ran", "ran"]
+    assert _no_part_files(out) == [out / ".unrelated.part"]
+
+
+def test_stale_outputs_of_a_stage_are_removed(tmp_path):
+    src = tmp_path / "input.txt"
+    src.write_text("abc")
+    out = tmp_path / "out"
+
+    def writes(names):
+        def run(ctx, tmp):
+            for n in names:
+                (tmp / n).write_text(n)
+            return {}
+        return run
+
+    run_stages([Stage("s", "s", writes(["a.txt", "b.txt"]), params={"v": 1})], out)
+    recs = run_stages([Stage("s", "s", writes(["a.txt"]), params={"v": 2})], out)
+    assert recs[0].outputs == ("s/a.txt",)
+    assert sorted(p.name for p in (out / "s").iterdir()) == ["a.txt"]
+
+
+def test_failure_removes_results_of_an_earlier_run(tmp_path):
+    src = tmp_path / "input.txt"
+    src.write_text("abc")
+    c = _Counter(src)
+    out = tmp_path / "out"
+    run_stages(c.stages(), out)
+    assert (out / "first" / "copy.txt").is_file()
+    src.write_text("changed")
+    recs = run_stages([Stage("first", "first", c.body("first", LidarcatError("broken")),
+                             inputs=lambda ctx: [src])], out)
+    assert recs[0].status == "failed"
+    assert not (out / "first").exists()
+    assert (out / "second" / "copy.txt").is_file()  # other stages are not touched
+
+
+def test_duplicate_stage_names_rejected(tmp_path):
+    s = Stage("x", "x", lambda ctx, tmp: {})
+    with pytest.raises(ValueError, match="duplicate stage names"):
+        run_stages([s, s], tmp_path)
+
+
+# --------------------------------------------------------------------------- thesis block
+
+@pytest.fixture(scope="module")
+def thesis_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("thesis") / "out"
+    return run_pipeline(None, out)
+
+
+def test_thesis_run_stages_and_summary(thesis_run):
+    r = thesis_run
+    assert r.ok, r.summary
+    status = {s.name: s.status for s in r.stages}
+    assert status == {"camera": "ran", "extract": "skipped", "adjust-gps": "ran",
+                      "adjust-lidar": "ran", "assess-gps": "ran", "assess-lidar": "ran",
+                      "compare-gps-lidar": "ran", "report": "ran"}
+    assert "no LiDAR tiles" in r.stage("extract").reason
+    summary = json.loads((r.outdir / "summary.json").read_text())
+    assert summary["ok"] is True and summary["failed"] == []
+    assert summary["stages_skipped"] == ["extract"]
+    assert (r.outdir / "lidarcat.log").read_text().count("stage adjust-gps: ran") == 1
+    assert _no_part_files(r.outdir) == []
+    # the camera stage reproduces the printed corrected coordinates (Appendix 1, 3 decimals;
+    # photo 5 point 662 is a known misprint of 0.003 mm)
+    cam = r.stage("camera").result
+    assert cam["n_points"] == 153 and cam["n_compared_with_file"] == 153
+    assert cam["max_abs_diff_file_mm"] < 0.0035
+
+
+def test_thesis_gps_run_matches_appendix_2_1(thesis_run):
+    published = json.loads((THESIS_TABLES / "appendix2_1_gps.json").read_text())["2.1_gps"]
+    for adj in (thesis_run.summary["runs"]["gps"]["adjustment"],
+                json.loads((thesis_run.outdir / "adjust-gps" / "summary.json").read_text())):
+        assert adj["dof"] == published["dof"] == 128
+        assert abs(adj["vtpv"] - 148.35) <= 0.5
+        assert abs(adj["sigma0_sq"] - 1.16) <= 0.01
+        assert adj["chi2_pass"] is True
+
+
+def test_thesis_gps_run_matches_table_6(thesis_run):
+    eop = {r["photo"]: r for r in _csv(thesis_run.outdir / "adjust-gps" / "eop.csv")}
+    for row in _csv(THESIS_TABLES / "table6_eop_gps.csv"):
+        got = eop[row["photo"]]
+        for key, tol in (("X0", 0.10), ("Y0", 0.10), ("Z0", 0.03)):
+            assert abs(float(got[key]) - float(row[key])) <= tol, (row["photo"], key)
+        for key in ("omega", "phi", "kappa"):
+            assert abs(float(got[key]) - float(row[f"{key}_deg"])) <= 0.005, (row["photo"], key)
+
+
+def test_thesis_gps_run_matches_appendix_3_1(thesis_run):
+    pts = {r["point"]: r for r in _csv(thesis_run.outdir / "adjust-gps" / "points.csv")}
+    rows = _csv(THESIS_TABLES / "appendix3_1_points_gps.csv")
+    assert len(rows) == 54 and len(pts) == 54
+    for row in rows:
+        got = pts[row["point"]]
+        for key, tol in (("E", 0.03), ("N", 0.03), ("h", 0.12)):
+            assert abs(float(got[key]) - float(row[key])) <= tol, (row["point"], key)
+        assert (got["role"] == "control") == (row["role"] == "control")
+
+
+def test_thesis_gps_check_points_match_table_7(thesis_run):
+    disc = {r["point"]: r for r in _csv(thesis_run.outdir / "assess-gps" / "discrepancies.csv")}
+    table = _csv(THESIS_TABLES / "table7_check_gps.csv")
+    points = [r for r in table if r["point"] not in ("mean", "std")]
+    assert sorted(disc) == sorted(r["point"] for r in points)
+    for row in points:
+        got = disc[row["point"]]
+        for key, tol in (("dE", 0.03), ("dN", 0.03), ("dh", 0.12)):
+            assert abs(float(got[key]) - float(row[key])) <= tol, (row["point"], key)
+    mean = next(r for r in table if r["point"] == "mean")
+    check = thesis_run.summary["runs"]["gps"]["check"]
+    assert check["n"] == 13
+    np.testing.assert_allclose([check["mean_E_m"], check["mean_N_m"], check["mean_h_m"]],
+                               [float(mean["dE"]), float(mean["dN"]), float(mean["dh"])], atol=0.03)
+    # the report says the same
+    report = json.loads((thesis_run.outdir / "report" / "report.json").read_text())
+    assert report["runs"]["gps"]["check"]["n"] == 13
+    assert report["runs"]["gps"]["adjustment"]["dof"] == 128
+
+
+def test_thesis_comparison_of_the_two_runs(thesis_run):
+    cmp_ = thesis_run.summary["comparison"]["gps-lidar"]
+    assert cmp_["n_photos"] == 6
+    # 54 points minus 8 GPS and 8 LiDAR control points are free in both runs
+    assert cmp_["n_points"] == 38
+    rows = _csv(thesis_run.outdir / "compare-gps-lidar" / "point_differences.csv")
+    assert len(rows) == 38
+    gps = {r["point"]: r for r in _csv(thesis_run.outdir / "adjust-gps" / "points.csv")}
+    lid = {r["point"]: r for r in _csv(thesis_run.outdir / "adjust-lidar" / "points.csv")}
+    for r in rows:
+        assert abs(float(r["dE"]) - (float(gps[r["point"]]["E"]) - float(lid[r["point"]]["E"]))) < 1e-9
+    # the LiDAR control (0.5 m plan) moves the photo centres by metres at most, not tens of metres
+    assert cmp_["eop"]["dX0"]["max_abs"] < 5.0 and cmp_["eop"]["dkappa"]["max_abs"] < 0.1
+
+
+def test_thesis_run_reuses_everything(thesis_run):
+    again = run_pipeline(None, thesis_run.outdir)
+    assert {s.status for s in again.stages} == {"reused", "skipped"}
+    assert again.summary["runs"]["gps"]["adjustment"]["dof"] == 128
+    assert again.summary["stages_ran"] == []
+
+
+@pytest.mark.slow
+def test_edited_control_set_reruns_dependent_stages(tmp_path):
+    survey = tmp_path / "thesis"
+    shutil.copytree(THESIS_SURVEY, survey)
+    first = run_pipeline(survey, tmp_path / "out")
+    assert first.ok
+    text = (survey / "control_sets.csv").read_text().replace("lidar,702,check", "lidar,702,control")
+    (survey / "control_sets.csv").write_text(text)
+    second = run_pipeline(survey, tmp_path / "out")
+    # every stage that reads the survey's files reruns
+    assert second.stage("adjust-lidar").status == "ran"
+    assert second.stage("assess-lidar").result["check"]["n"] == 30
+
+
+@pytest.mark.slow
+def test_failed_stage_gives_failed_summary(tmp_path):
+    survey = tmp_path / "thesis"
+    shutil.copytree(THESIS_SURVEY, survey)
+    # a control set whose only control point is measured on no photo: datum defect
+    with open(survey / "control_sets.csv", "a") as fh:
+        fh.write("weak,601,control,0.25,0.25,0.25\nweak,603,check,,,\n")
+    r = run_pipeline(survey, tmp_path / "out")
+    assert not r.ok
+    assert r.failed == ["adjust-weak"]
+    assert r.stage("assess-weak").status == "skipped"
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["ok"] is False and summary["failed"] == ["adjust-weak"]
+    assert not (tmp_path / "out" / "adjust-weak").exists()
+
+
+def test_invalid_survey_raises_before_any_stage(tmp_path):
+    survey = tmp_path / "bad"
+    shutil.copytree(THESIS_SURVEY, survey)
+    (survey / "survey.toml").write_text((survey / "survey.toml").read_text() + "\n[bogus]\nx = 1\n")
+    with pytest.raises(SurveyError, match="bogus"):
+        run_pipeline(survey, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_plan_for_a_survey_with_one_control_set_and_no_pixels(tmp_path):
+    from lidarcat.pipeline import plan_pipeline
+    from lidarcat.survey import Survey
+
+    survey = tmp_path / "s"
+    shutil.copytree(THESIS_SURVEY, survey)
+    rows = [ln for ln in (survey / "control_sets.csv").read_text().splitlines()
+            if not ln.startswith("lidar,")]
+    (survey / "control_sets.csv").write_text("\n".join(rows) + "\n")
+    lines = (survey / "image_points.csv").read_text().splitlines()
+    out = []
+    for ln in lines:
+        if ln.startswith("#"):
+            out.append(ln)
+            continue
+        cells = ln.split(",")
+        out.append(",".join(cells[:2] + cells[4:]))  # drop col_px, row_px
+    (survey / "image_points.csv").write_text("\n".join(out) + "\n")
+    plan = plan_pipeline(Survey.load(survey))
+    names = [s.name for s in plan]
+    assert names == ["camera", "extract", "adjust-gps", "assess-gps", "compare", "report"]
+    skipped = {s.name: s.skip_reason for s in plan if s.skip_reason}
+    assert skipped == {
+        "camera": "image_points has no pixel coordinates (col_px, row_px)",
+        "extract": "the survey has no LiDAR tiles ([files] lidar) and no extraction jobs",
+        "compare": "needs two control sets (runs) to compare; the survey has 1",
+    }
+
+
+def test_only_the_extraction_hashes_the_lidar_tiles(tmp_path):
+    from lidarcat.pipeline import plan_pipeline
+    from lidarcat.survey import Survey
+
+    survey = tmp_path / "s"
+    shutil.copytree(THESIS_SURVEY, survey)
+    (survey / "tile.xyz").write_text("677757.8 7183482.0 922.0\n677758.8 7183482.0 922.5\n")
+    (survey / "jobs.csv").write_text("point,E,N\n704,677757.8,7183482.0\n")
+    text = (survey / "survey.toml").read_text().replace(
+        'control_sets = "control_sets.csv"',
+        'control_sets = "control_sets.csv"\nlidar = ["tile.xyz"]\nextraction_jobs = "jobs.csv"')
+    (survey / "survey.toml").write_text(text)
+    plan = {s.name: s for s in plan_pipeline(Survey.load(survey))}
+    assert list(plan) == ["camera", "extract", "adjust-gps", "adjust-lidar", "adjust-lidar-extracted",
+                          "assess-gps", "assess-lidar", "assess-lidar-extracted",
+                          "compare-gps-lidar", "compare-gps-lidar-extracted", "report"]
+    assert plan["extract"].skip_reason is None
+    tile = (survey / "tile.xyz").resolve()
+    assert tile in {Path(p).resolve() for p in plan["extract"].inputs(None)}
+    for name in ("camera", "adjust-gps", "adjust-lidar-extracted", "report"):
+        assert tile not in {Path(p).resolve() for p in plan[name].inputs(None)}, name
+    assert plan["adjust-lidar-extracted"].requires == ("extract",)
