@@ -73,6 +73,13 @@ def test_run_invalid_survey_exits_2(tmp_path):
     assert "Traceback" not in res.output
 
 
+def test_run_unwritable_outdir_exits_2(tmp_path):
+    (tmp_path / "file").write_text("x")
+    res = CliRunner().invoke(cli, ["run", "-o", str(tmp_path / "file" / "out")])
+    assert res.exit_code == 2
+    assert res.output.startswith("Error: ") and "cannot write the output folder" in res.output
+
+
 def test_run_default_outdir_of_a_survey_folder(tmp_path):
     survey = tmp_path / "s"
     shutil.copytree(THESIS_SURVEY, survey)

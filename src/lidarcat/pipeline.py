@@ -681,7 +681,12 @@ def run_pipeline(
 
     survey = Survey.load(survey_path)
     out = Path(survey.output_dir(outdir))
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "lidarcat.log").touch()
+    except OSError as ex:
+        raise LidarcatError(f"{out}: cannot write the output folder ({ex.strerror or ex}); "
+                            f"choose another with -o/--outdir") from ex
     with _log_to(out / "lidarcat.log"):
         log.info("lidarcat %s run: survey %r (%s) -> %s%s", __version__, survey.name, survey.root,
                  out, " (forced)" if force else "")
