@@ -40,6 +40,15 @@ class CliLibraryError(click.ClickException):
     exit_code = 2
 
 
+class CliInterrupted(click.ClickException):
+    """Ctrl-C: outputs are written atomically, so nothing half-written remains."""
+
+    exit_code = 130
+
+    def show(self, file=None) -> None:  # no "Error:" prefix for an interrupt
+        click.echo(self.message, err=True)
+
+
 class LazyGroup(click.Group):
     """A group whose subcommands are imported on first use, listed in pipeline order."""
 
@@ -80,6 +89,9 @@ class LazyGroup(click.Group):
             return super().invoke(ctx)
         except LidarcatError as ex:
             raise CliLibraryError(str(ex)) from ex
+        except KeyboardInterrupt:
+            # click would print "Aborted!" and exit 1; say what state the output is in.
+            raise CliInterrupted("Interrupted; no partial output was kept.") from None
 
 
 def configure_logging(verbosity: int) -> None:
@@ -118,11 +130,7 @@ def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point."""
-    try:
-        cli.main(args=argv, prog_name="lidarcat")
-    except KeyboardInterrupt:  # pragma: no cover - interactive
-        click.echo("Interrupted; no partial output was kept.", err=True)
-        sys.exit(130)
+    cli.main(args=argv, prog_name="lidarcat")
 
 
 if __name__ == "__main__":  # pragma: no cover
