@@ -123,6 +123,13 @@ def test_bad_job_file_is_located(tmp_path):
     c.write_text("point,E,N,radius_m\nA,1.0,2.0,6\n")
     jobs = read_jobs(c)
     assert jobs[0].point == "A" and jobs[0].radius_m == 6.0 and jobs[0].threshold_m is None
+    assert jobs[0].sd_en_m is None and jobs[0].sd_h_m is None
+    c.write_text("point,E,N,sd_en_m,sd_h_m\nA,1.0,2.0,0.03,0.05\nB,1.0,2.0,,\n")
+    jobs = read_jobs(c)
+    assert (jobs[0].sd_en_m, jobs[0].sd_h_m) == (0.03, 0.05) and jobs[1].sd_en_m is None
+    c.write_text("point,E,N,sd_en_m,sd_h_m\nA,1.0,2.0,0.03,0.05\nB,1.0,2.0,0,0.05\n")
+    with pytest.raises(ExtractionError, match=r"jobs.csv:3: field 'sd_en_m': must be positive"):
+        read_jobs(c)
 
 
 def test_pdal_two_plane_building_in_a_batch(tmp_path):

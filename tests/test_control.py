@@ -127,6 +127,19 @@ def test_table4_planes_intersect_in_table5_point_708():
     assert [round(p.slope_deg, 1) for p in planes] == [9.8, 9.7, 10.3]
 
 
+def test_search_radius_defaults_to_half_the_clip_radius():
+    s = synthetic_roof("pyramid", width_m=12, density_m2=6, noise_h_m=0.03, seed=4)
+    v = s.vertices[0]
+    approx = v[:2] + np.array([2.6, 1.2])  # 2.86 m off: beyond the old fixed 2 m
+    cp = extract_roof(s.xyz, approx, radius_m=8)
+    assert cp.status == "ok"
+    np.testing.assert_allclose(cp.enh_m, v, atol=0.15)
+    near = extract_roof(s.xyz, approx, params=get_params(radius_m=8, max_offset_m=2.0))
+    assert near.status == "no_vertex" and "within 2 m" in near.reason
+    with pytest.raises(ValueError, match="max_offset_m must be positive"):
+        get_params(max_offset_m=0.0)
+
+
 # ----------------------------------------------------------------- Monte Carlo acceptance
 CASES = [(k, dens, nh) for k in ("hip", "pyramid") for dens in (2.0, 10.0) for nh in (0.05, 0.15)]
 

@@ -370,7 +370,8 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
     """Choose the vertex of 3+ planes nearest to *center_en* among the faces of a clip.
 
     A triple of faces qualifies when the faces touch, their intersection is
-    well conditioned, lies within ``max_offset_m`` of the position, every
+    well conditioned, lies within ``max_offset_m`` (default half the clip radius)
+    of the position, every
     face has a point within ``support_m`` of it in plan, and it lies on the
     LiDAR surface.  Further faces join when their misclosure is below
     ``join_sigma`` standard deviations; the point is then re-intersected by
@@ -397,7 +398,7 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
                  1: "one face found; a point needs three",
                  2: "two faces found: they meet in a ridge line, not a point"}[len(planes)]
         return ControlPoint.failed(point_id, center, status, extra, planes=planes, labels=keep)
-    max_off = p.max_offset_m if p.max_offset_m is not None else p.radius_m
+    max_off = p.max_offset_m if p.max_offset_m is not None else 0.5 * p.radius_m
     found = []
     reasons: list[str] = []
     for t, cp, sup in _triples(planes, xyz, labels, p, info, reasons):

@@ -19,7 +19,8 @@ test of the whole tool:
   buildings of :mod:`lidarcat.roofs` (pyramid and hip roofs, known vertices);
 * ``jobs.csv`` -- extraction jobs: one roof vertex per building, at an
   approximate position ``approx_error_m`` (1 m, from 0.5x to 1.5x) off in plan,
-  in a random direction, as an operator would click it;
+  in a random direction, as an operator would click it, with the noise of the
+  LiDAR points (``sd_en_m``, ``sd_h_m``) that weights the plane fits;
 * ``survey.toml`` -- ties it together (observations in pixels, image sd);
 * ``truth/`` -- true exterior orientations, true coordinates of every point
   (tie, gps, roof) and the true roof vertices, with a README.
@@ -61,6 +62,9 @@ _E0, _N0 = 680_000.0, 7_184_000.0
 #: above this many LiDAR points the terrain is sampled around the buildings only
 _MAX_BLOCK_POINTS = 12_000_000
 _GROUND_M = 900.0
+#: plan noise of the LiDAR points (m); written with the height noise into jobs.csv,
+#: so that the plane fits weight the points by the noise they really carry
+_LIDAR_PLAN_SD_M = 0.03
 
 
 @dataclasses.dataclass(frozen=True)
@@ -262,7 +266,8 @@ def write_synthetic_survey(
     if n_photos > 200:
         raise LidarcatError(f"--photos must be at most 200 for the demo (got {n_photos})")
     for name, v in (("image_sd_px", image_sd_px), ("gps_sd_m", gps_sd_m), ("gps_sd_h_m", gps_sd_h_m),
-                    ("lidar_density_m2", lidar_density_m2), ("height_m", height_m)):
+                    ("lidar_density_m2", lidar_density_m2), ("lidar_noise_m", lidar_noise_m),
+                    ("height_m", height_m)):
         if not v > 0:
             raise LidarcatError(f"{name} must be positive (got {v})")
     steps = 5
@@ -366,10 +371,12 @@ def write_synthetic_survey(
             r = approx_error_m * rng.uniform(0.5, 1.5)
             a = rng.uniform(0, 2 * np.pi)
             approx = b["vertex"][:2] + r * np.array([np.cos(a), np.sin(a)])
-            jobs.append((b["id"], round(float(approx[0]), 2), round(float(approx[1]), 2)))
-        write_csv_atomic(tmp / "jobs.csv", ["point", "E", "N"], jobs,
+            jobs.append((b["id"], round(float(approx[0]), 2), round(float(approx[1]), 2),
+                         _LIDAR_PLAN_SD_M, lidar_noise_m))
+        write_csv_atomic(tmp / "jobs.csv", ["point", "E", "N", "sd_en_m", "sd_h_m"], jobs,
                          comments=[f"Roof vertices to extract; approximate positions off by "
-                                   f"~{approx_error_m} m (0.5x-1.5x) from truth/roofs.csv."])
+                                   f"~{approx_error_m} m (0.5x-1.5x) from truth/roofs.csv; "
+                                   f"sd_en_m, sd_h_m: noise of the LiDAR points (m)."])
         tick(3)
         n_lidar = _write_lidar(tmp / "lidar", box, buildings, lidar_density_m2, lidar_noise_m, rng,
                                _roofs)
@@ -477,7 +484,7 @@ def _place_buildings(cand: np.ndarray, n: int, rng: np.random.Generator, roofs: 
             kind, slope_deg=float(rng.uniform(25, 35)), length_m=float(rng.uniform(15, 18)),
             width_m=float(rng.uniform(9, 11)), eave_m=float(rng.uniform(5, 7)),
             azimuth_deg=float(rng.uniform(0, 90)), density_m2=density_m2, noise_h_m=noise_m,
-            origin=(e, nn, float(_terrain(e, nn))), seed=int(rng.integers(2**31)))
+            noise_plan_m=_LIDAR_PLAN_SD_M, origin=(e, nn, float(_terrain(e, nn))), seed=int(rng.integers(2**31)))
         out.append({"id": f"R{k + 1:02d}", "kind": kind, "vertex": np.array(scene.vertices[0]),
                     "n_planes": int(scene.vertex_planes[0]), "scene": scene})
     return out

@@ -7,7 +7,9 @@ line, whitespace separated::
 
 (point-cloud file, point name, approximate E and N, residual threshold in m,
 clip radius in m), or a CSV file with a header and the columns ``point, E, N``
-plus optional ``threshold_m, radius_m, file``.  Relative file names are
+plus optional ``threshold_m, radius_m, file, sd_en_m, sd_h_m`` (the last two: the
+random noise of the points in plan and height, m, which sets the weights of the
+plane fits -- see :class:`~lidarcat.facets.ExtractionParams`).  Relative file names are
 relative to the job file's folder.  ``#`` starts a comment line.
 
 :func:`extract_batch` runs :func:`lidarcat.facets.extract_roof` on every job;
@@ -53,6 +55,8 @@ class Job:
     radius_m: float | None = None
     file: Path | None = None
     line: int = 0
+    sd_en_m: float | None = None
+    sd_h_m: float | None = None
 
 
 def read_jobs(path: str | os.PathLike) -> list[Job]:
@@ -72,17 +76,26 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
     if "," in first and not first.split(",")[0].strip().replace(".", "").isdigit():
         try:
             t = read_csv_table(path, required=("point", "E", "N"),
-                               optional=("threshold_m", "radius_m", "file"))
+                               optional=("threshold_m", "radius_m", "file", "sd_en_m", "sd_h_m"))
             e, n = t.floats("E"), t.floats("N")
             thr = t.floats("threshold_m", required=False)
             rad = t.floats("radius_m", required=False)
+            sde = t.floats("sd_en_m", required=False)
+            sdh = t.floats("sd_h_m", required=False)
         except LidarcatError as ex:
             raise ExtractionError(str(ex)) from ex
+        for col, vals in (("sd_en_m", sde), ("sd_h_m", sdh)):
+            bad = np.flatnonzero(~(np.isnan(vals) | (vals > 0)))
+            if len(bad):
+                raise ExtractionError(f"{location(path, t.lines[bad[0]], col)}: must be positive "
+                                      f"(got {vals[bad[0]]:g}); leave it empty for the default")
         files = t.column("file") if t.has("file") else [""] * len(t.rows)
         return [Job(p, float(e[i]), float(n[i]),
                     None if math.isnan(thr[i]) else float(thr[i]),
                     None if math.isnan(rad[i]) else float(rad[i]),
-                    (path.parent / files[i]) if files[i] else None, t.lines[i])
+                    (path.parent / files[i]) if files[i] else None, t.lines[i],
+                    None if math.isnan(sde[i]) else float(sde[i]),
+                    None if math.isnan(sdh[i]) else float(sdh[i]))
                 for i, p in enumerate(t.column("point"))]
     jobs = []
     names = ("file", "point", "E", "N", "threshold", "radius")
@@ -161,7 +174,7 @@ def extract_batch(
     crs : CRS-like, optional
         CRS of tiles that carry none (e.g. ``"EPSG:7415"`` for AHN3).
     params : ExtractionParams or preset name
-        The job's threshold and radius override the preset's.
+        The job's threshold, radius and point sds override the preset's.
     spec_sd : (plan, height), optional
         Replace every point's covariance by these specification sds (m).
     progress : callable(int), optional
@@ -171,7 +184,8 @@ def extract_batch(
     out = []
     for job in jobs:
         p = p0.replace(**{k: v for k, v in (("residual_threshold_m", job.threshold_m),
-                                             ("radius_m", job.radius_m)) if v is not None})
+                                             ("radius_m", job.radius_m), ("sd_en_m", job.sd_en_m),
+                                             ("sd_h_m", job.sd_h_m)) if v is not None})
         try:
             cloud = points if points is not None else src.query(job, p.radius_m)
             cp = extract_roof(cloud, (job.e_m, job.n_m), params=p, point_id=job.point,

@@ -313,7 +313,9 @@ class ExtractionParams:
     #: residual tested: "normal" (orthogonal), "vertical" (height difference to the
     #: plane, thesis 4.2.2) or "height" (GH adjusted-height residual v_h)
     residual_kind: str = "normal"
-    #: a-priori sds of every LiDAR point (m); their ratio sets the GH weights
+    #: a-priori sds of every LiDAR point (m); their ratio sets the GH weights.  They must
+    #: describe the points' random noise: overstating the plan noise against the height
+    #: noise biases the fitted slopes (errors in variables) and lifts apexes
     sd_en_m: float = 0.10
     sd_h_m: float = 0.05
     #: scale the covariance by the a-posteriori variance factor
@@ -327,8 +329,9 @@ class ExtractionParams:
     min_det: float = 0.002
     #: max plan distance (m) from a face's nearest point to the vertex; None = max(1.5, 4 x spacing)
     support_m: float | None = None
-    #: max plan distance (m) of the vertex from the approximate position (None = radius)
-    max_offset_m: float | None = 2.0
+    #: search radius: max plan distance (m) of the vertex from the approximate
+    #: position; None = half the clip radius (4 m at the default 8 m, 2.5 m in the thesis preset)
+    max_offset_m: float | None = None
     #: a vertex whose predicted 3-D sd exceeds this is "imprecise" (m)
     max_sd_m: float = 0.5
     #: extra planes join the vertex when their misclosure is below k sigma (and 3 x RMS)
@@ -349,6 +352,8 @@ class ExtractionParams:
             raise ValueError("min_points must be >= 4 (a plane has 3 degrees of freedom)")
         if self.sd_en_m <= 0 or self.sd_h_m <= 0:
             raise ValueError("sd_en_m and sd_h_m must be positive")
+        if self.max_offset_m is not None and self.max_offset_m <= 0:
+            raise ValueError(f"max_offset_m must be positive, got {self.max_offset_m}")
 
     def replace(self, **kw: Any) -> "ExtractionParams":
         """Copy with some fields changed (unknown names raise TypeError)."""

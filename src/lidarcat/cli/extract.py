@@ -19,7 +19,8 @@ Examples:
 \b
 A job line (thesis section 4.2.2): file point E N threshold radius, e.g.
   faixa.xyz P704 677757.8 7183482.0 0.15 5.0
-or a CSV with columns point,E,N[,threshold_m,radius_m,file].
+or a CSV with columns point,E,N[,threshold_m,radius_m,file,sd_en_m,sd_h_m]
+(sd_*: LiDAR point noise in plan / height, m; empty = the preset value).
 Units: metres, degrees. A roof that cannot give a point is a row with a
 status (two_planes, flat_roof, no_vertex, ...) and a reason; the batch goes on.
 """
