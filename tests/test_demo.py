@@ -75,15 +75,12 @@ def test_demo_measurements_follow_the_truth(demo_run):
     assert np.all(np.abs(res.mean(axis=0)) < 0.1)
 
 
-def test_demo_projection_agrees_with_the_bundle_convention():
-    from lidarcat._collinearity import project
-
-    rng = np.random.default_rng(3)
-    pts = rng.uniform([-300, -200, 0], [300, 200, 30], (20, 3))
-    eo = np.array([10.0, -20.0, 700.0, 0.02, -0.015, 3.0])
-    ours = project_points(pts, eo, 35.0)
-    theirs, _ = project(eo[None, :].repeat(20, 0), pts, np.full(20, 35.0))
-    np.testing.assert_allclose(ours, theirs, atol=1e-9)
+def test_demo_projection_known_geometry():
+    # camera at 1000 m, kappa = 90 deg, c = 50 mm: a point 10 m east lands at y = -0.5 mm
+    xy = project_points(np.array([[10.0, 0.0, 0.0], [0.0, 0.0, 1500.0]]),
+                        [0.0, 0.0, 1000.0, 0.0, 0.0, np.pi / 2], 50.0)
+    np.testing.assert_allclose(xy[0], [0.0, -0.5], atol=1e-12)
+    assert np.isnan(xy[1]).all()  # above the camera: not imaged
 
 
 def test_extraction_recovers_every_roof_vertex_within_3_sigma(demo_run):

@@ -13,7 +13,8 @@ import pytest
 from conftest import DATA, THESIS_SURVEY
 from lidarcat.accuracy import assess
 from lidarcat.errors import AssessmentError
-from lidarcat.report import SECTIONS, _rotation, footprints, load_adjustment, write_report
+from lidarcat._collinearity import rotation_matrix
+from lidarcat.report import SECTIONS, footprints, load_adjustment, write_report
 
 REPORT_FIXTURE = DATA / "report"
 SECTION_IDS = [sid for sid, _ in SECTIONS]
@@ -89,7 +90,7 @@ def test_footprint_convention_matches_thesis_image_measurements():
         if r["point"] not in pts:
             continue
         e = eop[r["photo"]]
-        m = _rotation(float(e["omega"]), float(e["phi"]), float(e["kappa"]))
+        m = rotation_matrix(np.radians([float(e["omega"]), float(e["phi"]), float(e["kappa"])]))
         u = m @ (pts[r["point"]] - np.array([float(e["X0"]), float(e["Y0"]), float(e["Z0"])]))
         errs.append([-51.902 * u[0] / u[2] - float(r["x_mm"]), -51.902 * u[1] / u[2] - float(r["y_mm"])])
     assert np.max(np.abs(errs)) < 0.03

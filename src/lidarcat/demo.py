@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from ._io import atomic_dir, write_csv_atomic, write_text_atomic
+from ._collinearity import project
 from .camera import Camera
 from .errors import LidarcatError
 
@@ -118,17 +119,6 @@ def demo_camera() -> Camera:
     )
 
 
-def _rotation(omega: float, phi: float, kappa: float) -> np.ndarray:
-    """M = R3(kappa) R2(phi) R1(omega) (thesis eq. 08), angles in radians."""
-    co, so = math.cos(omega), math.sin(omega)
-    cp, sp = math.cos(phi), math.sin(phi)
-    ck, sk = math.cos(kappa), math.sin(kappa)
-    r1 = np.array([[1, 0, 0], [0, co, so], [0, -so, co]])
-    r2 = np.array([[cp, 0, -sp], [0, 1, 0], [sp, 0, cp]])
-    r3 = np.array([[ck, sk, 0], [-sk, ck, 0], [0, 0, 1]])
-    return r3 @ r2 @ r1
-
-
 def project_points(points_m: np.ndarray, eo: Sequence[float], focal_length_mm: float) -> np.ndarray:
     """Collinearity equations (eq. 08): ground points -> corrected photo coordinates.
 
@@ -152,11 +142,10 @@ def project_points(points_m: np.ndarray, eo: Sequence[float], focal_length_mm: f
     array([[0.5, 0. ]])
     """
     p = np.asarray(points_m, dtype=float).reshape(-1, 3)
-    m = _rotation(*eo[3:6])
-    u = (p - np.asarray(eo[:3], dtype=float)) @ m.T
+    eo_rows = np.broadcast_to(np.asarray(eo, dtype=float), (len(p), 6))
     with np.errstate(divide="ignore", invalid="ignore"):
-        xy = -focal_length_mm * u[:, :2] / u[:, 2:3]
-    xy[u[:, 2] >= 0] = np.nan
+        xy, u3 = project(eo_rows, p, np.full(len(p), float(focal_length_mm)))
+    xy[u3 >= 0] = np.nan  # behind (or in the plane of) the projection centre
     return xy
 
 

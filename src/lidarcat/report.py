@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from . import __version__
+from ._collinearity import rotation_matrix
 from ._io import atomic_dir, dumps_json, read_csv_table
 from .errors import AssessmentError, LidarcatError
 
@@ -246,15 +247,6 @@ def _camera_info(survey: Any, camera: Any) -> dict[str, dict[str, float]]:
     return out
 
 
-def _rotation(omega_deg: float, phi_deg: float, kappa_deg: float) -> np.ndarray:
-    """M = R3(kappa) R2(phi) R1(omega), object -> image."""
-    o, p, k = np.radians([omega_deg, phi_deg, kappa_deg])
-    r1 = np.array([[1, 0, 0], [0, math.cos(o), math.sin(o)], [0, -math.sin(o), math.cos(o)]])
-    r2 = np.array([[math.cos(p), 0, -math.sin(p)], [0, 1, 0], [math.sin(p), 0, math.cos(p)]])
-    r3 = np.array([[math.cos(k), math.sin(k), 0], [-math.sin(k), math.cos(k), 0], [0, 0, 1]])
-    return r3 @ r2 @ r1
-
-
 def footprints(eop: Sequence[Mapping[str, Any]], cameras: Mapping[str, Mapping[str, float]],
                terrain_h_m: float) -> dict[str, np.ndarray]:
     """Ground footprints (4, 2) of the photos on the plane ``h = terrain_h_m``.
@@ -275,7 +267,7 @@ def footprints(eop: Sequence[Mapping[str, Any]], cameras: Mapping[str, Mapping[s
         if cam is None or any(v is None for v in vals):
             continue
         x0, y0, z0, om, ph, ka = vals
-        m = _rotation(om, ph, ka)
+        m = rotation_matrix(np.radians([om, ph, ka]))
         w, h, c = cam["width_mm"] / 2, cam["height_mm"] / 2, cam["focal_length_mm"]
         corners = []
         for x, y in ((-w, -h), (w, -h), (w, h), (-w, h)):
