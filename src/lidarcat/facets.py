@@ -694,7 +694,6 @@ def _circular_peaks(angles_deg: np.ndarray, weights: np.ndarray, tol_deg: float,
     centres = bins[:-1] + 2.5
     peaks: list[float] = []
     order = np.argsort(-smooth)
-    total = smooth.sum()
     for i in order:
         if smooth[i] < 0.2 * smooth.max() or len(peaks) >= max_peaks:
             break
@@ -750,27 +749,35 @@ def _local_normals(xyz: np.ndarray, k: int):
     return normals, rms, nb, dist, tree
 
 
+def _segment_setup(xyz: np.ndarray, p: ExtractionParams) -> dict[str, Any]:
+    """What both segmenters need: local normals, slopes, noise, tolerances, link length."""
+    normals, lrms, nb, nbd, _ = _local_normals(xyz, p.k_neighbours)
+    k = nb.shape[1]
+    slope = np.degrees(np.arccos(np.clip(normals[:, 2], 0.0, 1.0)))
+    in_win = (slope > p.slope_min_deg) & (slope < p.slope_max_deg)
+    # noise from the quieter local planes: the lower quartile of the local RMS
+    # (ridges and edges inflate the upper part); for pure noise it is ~0.70 sigma at k = 12.
+    # Vegetation and walls are not roof noise: estimate it on the sloped points.
+    pool = lrms[in_win] if in_win.sum() >= 20 else lrms
+    sigma = float(np.percentile(pool, 25)) / 0.70 if len(xyz) else 0.0
+    dist_tol = p.dist_tol_m if p.dist_tol_m is not None else max(0.05, 3.0 * sigma)
+    spacing = float(np.median(nbd[:, 1])) if k > 1 else 1.0
+    link = 4.0 * spacing if p.max_edge_m is None else p.max_edge_m
+    info = {"sigma_m": sigma, "dist_tol_m": dist_tol, "spacing_m": spacing,
+            "n_flat": int((slope <= p.slope_min_deg).sum()),
+            "n_steep": int((slope >= p.slope_max_deg).sum()), "n_in_window": int(in_win.sum())}
+    return dict(normals=normals, lrms=lrms, nb=nb, nbd=nbd, k=k, slope=slope, in_win=in_win,
+                sigma=sigma, dist_tol=dist_tol, spacing=spacing, link=link, info=info)
+
+
 def _segment_region(xyz: np.ndarray, p: ExtractionParams) -> tuple[np.ndarray, dict[str, Any]]:
     """Region growing on the kNN graph (normal angle + point-to-plane distance)."""
     m = len(xyz)
     labels = np.full(m, -1)
-    normals, lrms, nb, nbd, tree = _local_normals(xyz, p.k_neighbours)
-    k = nb.shape[1]
-    # noise from the quieter local planes: the lower quartile of the local RMS
-    # (ridges and edges inflate the upper part); for pure noise it is ~0.70 sigma at k = 12
-    slope0 = np.degrees(np.arccos(np.clip(normals[:, 2], 0.0, 1.0)))
-    win0 = (slope0 > p.slope_min_deg) & (slope0 < p.slope_max_deg)
-    # vegetation and walls are not roof noise: estimate it on the sloped points
-    pool = lrms[win0] if win0.sum() >= 20 else lrms
-    sigma = float(np.percentile(pool, 25)) / 0.70 if m else 0.0
-    dist_tol = p.dist_tol_m if p.dist_tol_m is not None else max(0.05, 3.0 * sigma)
-    spacing = float(np.median(nbd[:, 1])) if k > 1 else 1.0
-    max_link = 4.0 * spacing if p.max_edge_m is None else p.max_edge_m
-    slope = np.degrees(np.arccos(np.clip(normals[:, 2], 0.0, 1.0)))
-    in_win = (slope > p.slope_min_deg) & (slope < p.slope_max_deg)
-    info = {"sigma_m": sigma, "dist_tol_m": dist_tol, "spacing_m": spacing,
-            "n_flat": int((slope <= p.slope_min_deg).sum()),
-            "n_steep": int((slope >= p.slope_max_deg).sum()), "n_in_window": int(in_win.sum())}
+    st = _segment_setup(xyz, p)
+    normals, lrms, nb, nbd = st["normals"], st["lrms"], st["nb"], st["nbd"]
+    in_win, sigma, dist_tol = st["in_win"], st["sigma"], st["dist_tol"]
+    max_link, info = st["link"], st["info"]
     cos_tol = math.cos(math.radians(p.angle_tol_deg))
     linked = nbd <= max_link
     seeds = np.flatnonzero(in_win & (lrms < max(2.0 * sigma, 0.5 * dist_tol)))
@@ -822,18 +829,9 @@ def _segment_ransac(xyz: np.ndarray, p: ExtractionParams) -> tuple[np.ndarray, d
 
     m = len(xyz)
     labels = np.full(m, -1)
-    normals, lrms, nb, nbd, _ = _local_normals(xyz, p.k_neighbours)
-    k = nb.shape[1]
-    slope = np.degrees(np.arccos(np.clip(normals[:, 2], 0.0, 1.0)))
-    in_win = (slope > p.slope_min_deg) & (slope < p.slope_max_deg)
-    pool_r = lrms[in_win] if in_win.sum() >= 20 else lrms
-    sigma = float(np.percentile(pool_r, 25)) / 0.70 if m else 0.0
-    dist_tol = p.dist_tol_m if p.dist_tol_m is not None else max(0.05, 3.0 * sigma)
-    spacing = float(np.median(nbd[:, 1])) if k > 1 else 1.0
-    link = 4.0 * spacing if p.max_edge_m is None else p.max_edge_m
-    info = {"sigma_m": sigma, "dist_tol_m": dist_tol, "spacing_m": spacing,
-            "n_flat": int((slope <= p.slope_min_deg).sum()),
-            "n_steep": int((slope >= p.slope_max_deg).sum()), "n_in_window": int(in_win.sum())}
+    st = _segment_setup(xyz, p)
+    normals, nb, nbd, k = st["normals"], st["nb"], st["nbd"], st["k"]
+    in_win, dist_tol, link, info = st["in_win"], st["dist_tol"], st["link"], st["info"]
     rows = np.repeat(np.arange(m), k)
     cols = nb.ravel()
     ok = nbd.ravel() <= link
