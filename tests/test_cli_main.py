@@ -21,3 +21,12 @@ def test_library_error_is_one_line_exit_2(tmp_path):
     assert len(lines) == 1
     assert lines[0].startswith("Error: ") and "survey.toml" in lines[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_unavailable_stage_reports_the_import_error(monkeypatch):
+    import lidarcat.cli.main as m
+
+    monkeypatch.setattr(m.cli, "_lazy", {**m.cli._lazy, "demo": ("lidarcat.cli.no_such_module:demo", "x")})
+    result = CliRunner().invoke(m.cli, ["demo"])
+    assert result.exit_code == 1
+    assert "Error: 'demo' is not available: No module named 'lidarcat.cli.no_such_module'" in result.output

@@ -210,7 +210,6 @@ def _greedy_approximations(problem) -> tuple[np.ndarray, np.ndarray]:
         pos_only = np.isfinite(p.initial_eo[:, :3]).all(axis=1) & ~oriented
 
     def refresh_known():
-        nonlocal known
         free = np.flatnonzero(~known)
         if len(free) == 0 or oriented.sum() < 2:
             return False

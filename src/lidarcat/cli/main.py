@@ -68,9 +68,11 @@ class LazyGroup(click.Group):
             try:
                 cmd = getattr(importlib.import_module(modname), attr)
             except ImportError as ex:  # stage not available in this build
-                @click.command(name=name, help=f"{summary}\n\n(unavailable: {ex})")
+                reason = str(ex)  # `ex` is unbound once the except block ends
+
+                @click.command(name=name, help=f"{summary}\n\n(unavailable: {reason})")
                 def cmd() -> None:
-                    raise click.ClickException(f"'{name}' is not available: {ex}")
+                    raise click.ClickException(f"'{name}' is not available: {reason}")
             if not cmd.short_help:
                 cmd.short_help = summary
             return cmd
