@@ -601,3 +601,14 @@ def test_pointcloud_crs_string_is_resolved():
     assert isinstance(pc.crs, pyproj.CRS) and pc.crs.to_epsg() == 7415
     with pytest.raises(CRSError, match="unknown CRS 'EPSG:0'"):
         PointCloud(np.zeros((1, 3)), crs="EPSG:0")
+
+
+def test_query_outside_every_tile_keeps_the_attribute_schema(tmp_path):
+    # found by the split-survey property test: a circle touching no tile lost the attributes
+    pc = PointCloud(np.array([[1.0, 1.0, 0.0], [2.0, 2.0, 0.0]]),
+                    {"gps_time": np.array([0.0, 1.0]), "intensity": np.array([5, 6])},
+                    crs=pyproj.CRS("EPSG:31982"))
+    write_points(tmp_path / "t.las", pc)
+    got = TileIndex.build(str(tmp_path / "t.las"), crs="EPSG:31982").query_radius((50.0, 50.0), 1.0)
+    assert len(got) == 0
+    assert {"gps_time", "intensity"} <= set(got.attributes)

@@ -451,7 +451,10 @@ class TileIndex:
                 if m.any():
                     parts.append(chunk.select(m))
         if not parts:
-            return PointCloud.empty(attrs or (), self.crs)
+            if attrs is None:  # no tile touched: keep the schema the whole index shares
+                attrs = tuple(a for a in self.tiles[0].attributes
+                              if all(a in t.attributes for t in self.tiles)) if self.tiles else ()
+            return PointCloud.empty(attrs, self.crs)
         return PointCloud.concat(parts)
 
     def _to_index_crs(self, pts: np.ndarray, crs: Any) -> np.ndarray:
