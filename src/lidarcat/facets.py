@@ -998,7 +998,8 @@ def _refine_assignment(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], p
 
 
 def _drop_outer_edges(xyz: np.ndarray, labels: np.ndarray, k: int = 12,
-                      gap_deg: float = 150.0) -> np.ndarray:
+                      gap_deg: float = 150.0, max_slope_deg: float = 65.0,
+                      noise_m: float = 0.25) -> np.ndarray:
     """Leave out the points on a face's outer edge (eaves, verges, clip rim).
 
     Facade points just below an eave lie within the distance tolerance of the
@@ -1006,8 +1007,13 @@ def _drop_outer_edges(xyz: np.ndarray, labels: np.ndarray, k: int = 12,
     roof points along the same edge, are the points whose same-face plan
     neighbours all lie on one side (angular gap > *gap_deg*) with no other
     face beyond the gap.  Edges between two faces (ridges, hips, valleys) are
-    kept.  The choice depends on plan positions only, not on the height noise,
-    so it removes the facade bias without biasing the face.
+    kept.  A face across the gap makes an internal edge only when it continues
+    this face in height (height step at most ``plan distance x tan(max_slope_deg)
+    + noise_m``): the ground segmented below an eave is another face too, and
+    taking it for a ridge kept the facade points of the sides facing the
+    scanner (a 0.2-sigma bias of pyramid apexes towards the scanner).  The
+    choice depends on plan positions and metre-scale steps only, not on the
+    height noise, so it removes the facade bias without biasing the face.
     """
     from scipy.spatial import cKDTree
 
@@ -1021,7 +1027,9 @@ def _drop_outer_edges(xyz: np.ndarray, labels: np.ndarray, k: int = 12,
     ang = np.arctan2(d[..., 1], d[..., 0])  # (m, k-1)
     lab_nb = labels[nb]
     same = lab_nb == labels[:, None]
-    other = (lab_nb >= 0) & ~same
+    step = np.abs(xyz[nb, 2] - xyz[:, None, 2])
+    joined = step <= np.hypot(d[..., 0], d[..., 1]) * math.tan(math.radians(max_slope_deg)) + noise_m
+    other = (lab_nb >= 0) & ~same & joined
     a = np.where(same, ang, np.inf)
     a_sorted = np.sort(a, axis=1)
     n_same = same.sum(axis=1)
@@ -1084,7 +1092,7 @@ def segment_faces(xyz: Any, params: ExtractionParams | str | None = None) -> tup
         for it in range(2):
             lab2 = _refine_assignment(loc, faces, p, info["dist_tol_m"], info["spacing_m"])
             if it == 1 and p.drop_outer_edges:
-                lab2 = _drop_outer_edges(loc, lab2)
+                lab2 = _drop_outer_edges(loc, lab2, max_slope_deg=p.slope_max_deg)
             faces = _fit_groups(loc, lab2, p, p.residual_threshold_m)
     faces = [f for f in faces if p.slope_min_deg < f[0].slope_deg < p.slope_max_deg]
     faces.sort(key=lambda f: -f[0].n_used)
