@@ -15,6 +15,7 @@ from lidarcat.accuracy import (
     assess,
     ce90,
     chi2_precision_test,
+    covariance_consistency_test,
     filliben_test,
     hotelling_t2_test,
     ks_mahalanobis_test,
@@ -268,6 +269,65 @@ def test_ce90_empirical_is_order_statistic(thesis7):
 
 
 # -------------------------------------------------------------------- bad input
+
+
+# -------------------------------------------------------------------- consistency with the claimed precision
+
+
+def _correlated_cov(n_pts, rng):
+    """A covariance like a block's: a common tilt/shift term on top of independent noise."""
+    g = rng.normal(size=(3 * n_pts, 4)) * 0.3
+    return g @ g.T + np.diag(rng.uniform(0.01, 0.05, 3 * n_pts))
+
+
+def test_consistency_statistic_is_the_mahalanobis_form():
+    rng = np.random.default_rng(1)
+    C = _correlated_cov(5, rng)
+    d = rng.normal(size=(5, 3))
+    r = covariance_consistency_test(d, C, alpha=0.05)
+    assert r.statistic == pytest.approx(float(d.ravel() @ np.linalg.solve(C, d.ravel())), rel=1e-10)
+    assert r.details["df"] == 15 and r.details["n"] == 5
+    assert r.details["lower"] == pytest.approx(stats.chi2.ppf(0.025, 15))
+    assert r.critical == pytest.approx(stats.chi2.ppf(0.975, 15))
+    assert r.details["diagonal_statistic"] == pytest.approx(float(np.sum(d.ravel() ** 2 / np.diag(C))))
+
+
+def test_consistency_test_has_its_size_under_correlated_errors():
+    """Errors drawn from C: the test rejects alpha of the time; the diagonal sum far more."""
+    rng = np.random.default_rng(7)
+    C = _correlated_cov(10, rng)
+    L = np.linalg.cholesky(C)
+    lo, hi = stats.chi2.ppf([0.05, 0.95], 30)
+    passed, diag_out = 0, 0
+    for _ in range(2000):
+        d = (L @ rng.normal(size=30)).reshape(10, 3)
+        r = covariance_consistency_test(d, C, alpha=0.10)
+        passed += r.passed
+        diag_out += not lo <= r.details["diagonal_statistic"] <= hi
+    assert abs(passed / 2000 - 0.90) < 0.02
+    assert diag_out / 2000 > 0.3
+
+
+def test_consistency_not_applicable_with_reasons():
+    d = np.zeros((2, 3))
+    assert "expected 6 x 6" in covariance_consistency_test(d, np.eye(3)).reason
+    bad = np.eye(6)
+    bad[0, 0] = -1
+    assert covariance_consistency_test(d, bad).reason == "covariance of the discrepancies is not positive definite"
+
+
+def test_assess_runs_the_consistency_test_with_the_adjusted_covariance():
+    adj = {"1": (0.1, 0.0, 0.0), "2": (1.0, 1.2, 1.0), "3": (2.0, 2.0, 1.7)}
+    ref = {"point": ["1", "2", "3"], "E": [0.0, 1.0, 2.0], "N": [0.0, 1.0, 2.0], "h": [0.0, 1.0, 2.0],
+           "sd_E": [0.1] * 3, "sd_N": [0.1] * 3, "sd_h": [0.1] * 3}
+    cov = (["3", "2", "1"], np.eye(9) * 0.04)            # any order: matched by id
+    a = assess(adj, ref, scale=None, adjusted_cov=cov)
+    r = a.tests["consistency"]["ENh"]
+    # d = ref - adj = (-0.1, 0, 0), (0, -0.2, 0), (0, 0, 0.3); variances 0.04 + 0.01
+    assert r.statistic == pytest.approx((0.01 + 0.04 + 0.09) / 0.05)
+    assert "consistency" not in assess(adj, ref, scale=None).tests
+    miss = assess(adj, ref, scale=None, adjusted_cov=(["1", "2"], np.eye(6)))
+    assert miss.tests["consistency"]["ENh"].reason == "no adjusted covariance for check point(s) 3"
 
 
 def test_mismatched_ids_named():

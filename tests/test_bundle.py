@@ -625,3 +625,85 @@ def test_gnss_ins_datum_without_control_points():
     assert r.success
     z = (r.points_m - b.true_points_m) / r.point_sd_m
     assert np.mean(np.abs(z) <= 3) >= 0.99
+
+
+# --------------------------------------------------------------------------- joint covariance of points
+
+
+def _dense_point_covariance(r):
+    """N^-1 of the whole (unreduced) normal matrix J'PJ, built densely: the reference."""
+    p = r.problem
+    n_ph, n_pt = p.n_photos, p.n_points
+    ei, pj = p.photo_index, p.point_index
+    _, a_eo, a_pt, _ = project_with_jacobians(r.eo_params[ei], r.points_m[pj], p.focal_length_mm[ei])
+    nrow = 2 * len(ei) + 3 * len(p.constraint_point_index)
+    J = np.zeros((nrow, 6 * n_ph + 3 * n_pt))
+    w = np.zeros(nrow)
+    for k, (i, j) in enumerate(zip(ei, pj)):
+        J[2 * k:2 * k + 2, 6 * i:6 * i + 6] = a_eo[k]
+        J[2 * k:2 * k + 2, 6 * n_ph + 3 * j:6 * n_ph + 3 * j + 3] = a_pt[k]
+        w[2 * k:2 * k + 2] = 1.0 / p.sd_mm[k] ** 2
+    for m, (j, sd) in enumerate(zip(p.constraint_point_index, p.constraint_sd_m)):
+        row = 2 * len(ei) + 3 * m
+        J[row:row + 3, 6 * n_ph + 3 * j:6 * n_ph + 3 * j + 3] = np.eye(3)
+        w[row:row + 3] = 1.0 / sd ** 2
+    return np.linalg.inv(J.T @ (w[:, None] * J))[6 * n_ph:, 6 * n_ph:]
+
+
+def test_joint_point_covariance_equals_the_dense_inverse():
+    from lidarcat.bundle import joint_point_covariance
+
+    b = synthetic_block(2, 4, seed=3)
+    r = adjust(b.problem)
+    assert r.success
+    ids = [str(q) for q in r.point_ids]
+    pick = [ids[k] for k in (40, 3, 17, 25, 8)]           # any order, batches smaller than 3k
+    C = joint_point_covariance(r, pick, batch=4)
+    full = _dense_point_covariance(r)
+    sel = np.concatenate([[3 * ids.index(q) + c for c in range(3)] for q in pick])
+    np.testing.assert_allclose(C, full[np.ix_(sel, sel)], rtol=1e-7, atol=1e-12)
+    for a, q in enumerate(pick):   # its diagonal blocks are the per-point covariances
+        np.testing.assert_allclose(C[3 * a:3 * a + 3, 3 * a:3 * a + 3], r.point_cov[ids.index(q)], rtol=1e-7)
+    assert abs(full[np.ix_(sel, sel)][0, 3]) > 1e-3 * np.sqrt(full[sel[0], sel[0]] * full[sel[3], sel[3]])
+    with pytest.raises(DatumError, match="not in the adjustment: nope"):
+        joint_point_covariance(r, ["nope"])
+
+
+@pytest.mark.slow
+def test_joint_covariance_makes_the_point_chi_square_exact():
+    """d' C^-1 d of 20 free points against the truth ~ chi2(60) over 80 blocks; the sum of
+    per-coordinate z^2 (correlations ignored) has the same mean but is over-dispersed."""
+    from scipy import stats
+
+    from lidarcat.bundle import joint_point_covariance
+
+    joint, diag = [], []
+    for seed in range(80):
+        b = synthetic_block(2, 4, seed=seed, control_every=4)
+        r = adjust(b.problem)
+        assert r.success
+        free = np.flatnonzero(r.point_role != "control")[:20]
+        C = joint_point_covariance(r, [str(q) for q in r.point_ids[free]])
+        d = (r.points_m[free] - b.true_points_m[free]).ravel()
+        joint.append(d @ np.linalg.solve(C, d))
+        diag.append(np.sum(d ** 2 / np.diag(C)))
+    joint, diag = np.array(joint), np.array(diag)
+    assert stats.kstest(joint, stats.chi2(60).cdf).pvalue > 0.01
+    assert abs(joint.mean() - 60) < 3 * np.sqrt(120 / 80)
+    assert diag.var() > 2 * joint.var()   # correlated points: the diagonal statistic is no chi2(60)
+
+
+def test_adjust_writes_the_check_point_covariance(tmp_path, gps):
+    from lidarcat.bundle import read_point_covariance, write_adjustment, joint_point_covariance
+
+    r = gps
+    write_adjustment(r, tmp_path)
+    checks = [str(q) for q, role in zip(r.point_ids, r.point_role) if role == "check"]
+    assert len(checks) >= 10
+    ids, C = read_point_covariance(tmp_path / "check_covariance.csv")
+    assert ids == checks
+    np.testing.assert_allclose(C, joint_point_covariance(r, checks), rtol=1e-12)
+    sub_ids, sub = read_point_covariance(tmp_path / "check_covariance.csv", points=checks[:0:-1][:3])
+    np.testing.assert_allclose(sub[:3, :3], C[-3:, -3:], rtol=1e-12)
+    with pytest.raises(DatumError, match="no covariance for point"):
+        read_point_covariance(tmp_path / "check_covariance.csv", points=["zz"])

@@ -68,6 +68,24 @@ def test_adjust_output_folder_as_input(tmp_path):
     assert (tmp_path / "r" / "report.html").is_file()
 
 
+def test_consistency_test_uses_the_covariance_beside_the_points(tmp_path):
+    from lidarcat.bundle import adjust_survey
+    from lidarcat.survey import Survey
+
+    adjust_survey(Survey.load(THESIS_SURVEY), control="gps", outdir=tmp_path / "gps")
+    assert (tmp_path / "gps" / "check_covariance.csv").is_file()
+    r = _run([str(tmp_path / "gps" / "points.csv"), str(THESIS_SURVEY), "--json"])
+    assert r.exit_code == 0, r.output
+    cons = json.loads(r.output)["tests"]["consistency"]["ENh"]
+    assert cons["df"] == 3 * 13 and cons["applicable"]
+    r = _run([str(tmp_path / "gps" / "points.csv"), str(THESIS_SURVEY)])
+    assert "consistency" in r.output and "ENh chi2=" in r.output
+    bad = tmp_path / "cov.csv"
+    bad.write_text("point_a,point_b\n")
+    r = _run([str(tmp_path / "gps" / "points.csv"), str(THESIS_SURVEY), "--covariance", str(bad)])
+    assert r.exit_code == 2 and "cov.csv" in r.output and "Traceback" not in r.output
+
+
 def test_mismatched_ids_is_one_line_error(tmp_path):
     ref = tmp_path / "ref.csv"
     ref.write_text("point,E,N,h\n603,0,0,0\n")

@@ -94,13 +94,35 @@ def test_extraction_recovers_every_roof_vertex_within_3_sigma(demo_run):
         assert int(row["n_planes"]) == int(truth[pid]["n_planes"])
         err = _f(row, "E", "N", "h") - _f(truth[pid], "E", "N", "h")
         z.extend(err / _f(row, "sd_E", "sd_N", "sd_h"))
-    z = np.abs(z)
-    # 7 vertices x 3 axes: even an honest covariance puts one of 21 beyond 3 sigma 5 % of the
-    # time, so the per-axis bound is 3.5 sigma (1 % family-wise) and at most one beyond 3 sigma
-    assert np.all(z <= 3.5), z
-    assert np.sum(z > 3.0) <= 1, z
-    assert np.sum(z ** 2) < stats.chi2.ppf(0.999, len(z))
+    assert np.all(np.abs(z) <= 3.0), np.round(z, 2)
     assert summary["extraction"]["n_ok"] == 7
+
+
+def test_demo_roofs_are_extracted_without_bias_and_with_honest_sds():
+    """The 3-sigma statement above is one draw; this is its distribution: 160 buildings of the
+    demo's own generator (pyramid and hip roofs, facades, 4 pts/m2, 0.03 / 0.05 m noise), jobs
+    0.5-1.5 m off, extracted with the noise the demo states."""
+    from lidarcat import roofs
+    from lidarcat.demo import _LIDAR_PLAN_SD_M, _place_buildings
+    from lidarcat.facets import extract_roof, get_params
+
+    rng = np.random.default_rng(2026)
+    cand = np.column_stack([rng.uniform(0, 1000, 160), rng.uniform(0, 1000, 160)]) + [680_000, 7_184_000]
+    buildings = _place_buildings(cand, 160, rng, roofs, 4.0, 0.05)
+    params = get_params(sd_en_m=_LIDAR_PLAN_SD_M, sd_h_m=0.05)
+    z = []
+    for b in buildings:
+        a = rng.uniform(0, 2 * np.pi)
+        approx = b["vertex"][:2] + rng.uniform(0.5, 1.5) * np.array([np.cos(a), np.sin(a)])
+        cp = extract_roof(np.asarray(b["scene"].xyz), approx, params=params)
+        assert cp, (b["id"], cp.status, cp.reason)
+        z.append((cp.enh_m - b["vertex"]) / cp.sd_m)
+    z = np.array(z)
+    se = 1 / np.sqrt(len(z))
+    assert np.all(np.abs(z.mean(axis=0)) < 3.5 * se), z.mean(axis=0)   # no bias (facades handled)
+    rms = np.sqrt((z ** 2).mean(axis=0))
+    assert np.all((rms > 0.85) & (rms < 1.2)), rms                        # honest sds
+    assert np.mean(np.abs(z) <= 3) >= 0.99
 
 
 @pytest.mark.parametrize("run", ["gps", "lidar"])
@@ -124,19 +146,22 @@ def test_orientations_within_3_sigma_of_the_truth(demo_run, run):
 
 @pytest.mark.parametrize("run", ["gps", "lidar"])
 def test_check_points_pass_chi_square_at_the_noise_level(demo_run, run):
-    """sum(d^2 / (sd_adjusted^2 + sd_gps^2)) over E, N, h of the check points ~ chi2(3n)."""
+    """d' C^-1 d ~ chi2(3n): C the joint covariance of the adjusted check points (their errors
+    are correlated through the orientations) plus the GPS variances."""
+    from lidarcat.bundle import read_point_covariance
+
     survey_dir, out, _, summary = demo_run
     disc = _csv(out / f"assess-{run}" / "discrepancies.csv")
-    pts = _csv(out / f"adjust-{run}" / "points.csv")
     ground = _csv(survey_dir / "ground_points.csv")
-    t = 0.0
-    for pid, row in disc.items():
-        d = _f(row, "dE", "dN", "dh")
-        var = _f(pts[pid], "sd_E", "sd_N", "sd_h") ** 2 + _f(ground[pid], "sd_E", "sd_N", "sd_h") ** 2
-        t += float(np.sum(d ** 2 / var))
+    ids, C = read_point_covariance(out / f"adjust-{run}" / "check_covariance.csv", points=list(disc))
+    d = np.concatenate([_f(disc[q], "dE", "dN", "dh") for q in ids])
+    C = C + np.diag(np.concatenate([_f(ground[q], "sd_E", "sd_N", "sd_h") ** 2 for q in ids]))
+    t = float(d @ np.linalg.solve(C, d))
     df = 3 * len(disc)
     assert summary["runs"][run]["check"]["n"] == len(disc) >= 6
     assert stats.chi2.ppf(0.005, df) < t < stats.chi2.ppf(0.995, df), (t, df)
+    cons = summary["runs"][run]["check"]["consistency"]   # the assessment computed the same test
+    assert cons["df"] == df and abs(cons["chi2"] - t) < 1e-6 * t
 
 
 def test_check_points_against_the_truth_within_3_sigma(demo_run):
@@ -171,6 +196,7 @@ def test_demo_compare_command(demo_run):
     for r in cmp_["runs"].values():
         assert r["eo_max_abs_z"] <= 3.0 and 0.5 < r["eo_rms_z"] < 1.5
         assert r["check_dof"] == 3 * r["n_check"]
+        assert stats.chi2.ppf(0.005, r["check_dof"]) < r["check_chi2_joint"] < stats.chi2.ppf(0.995, r["check_dof"])
     res = CliRunner().invoke(cli, ["demo", "compare", str(survey_dir), str(out)])
     assert res.exit_code == 0 and "run lidar: orientations max |z|" in res.output
 

@@ -88,6 +88,7 @@ __all__ = [
     "plotting_positions",
     "filliben_test",
     "ks_test",
+    "covariance_consistency_test",
     "lilliefors_test",
     "ks_mahalanobis_test",
     "trend_t_test",
@@ -589,6 +590,60 @@ def chi2_precision_test(x: Any, sigma0: float | None, alpha: float = 0.10, *, co
         "p_value": float(stats.chi2.sf(chi, n - 1))})
 
 
+def covariance_consistency_test(d: Any, cov: Any, alpha: float = 0.10, *,
+                                source: str = "") -> TestResult:
+    """Do the discrepancies agree with the precision the adjustment claims?
+
+    ``chi2 = d^T C^-1 d`` over all coordinates of all check points, with ``C``
+    the covariance of the discrepancies: the joint covariance of the adjusted
+    points (cross-covariances included, :func:`lidarcat.bundle.joint_point_covariance`)
+    plus that of the reference coordinates.  Under the model it follows
+    chi-square with ``3 n`` degrees of freedom; passed when inside the two-sided
+    ``1 - alpha`` interval (above: errors larger than the stated precision, a
+    blunder or a model error; below: the precision is pessimistic).  Summing
+    ``d_i^2 / sigma_i^2`` instead ignores the correlation of points that share
+    the block's orientation errors and is *not* chi-square distributed.
+
+    Parameters
+    ----------
+    d : (n, 3) array
+        Discrepancies E, N, h (m), either sign convention.
+    cov : (3n, 3n) array
+        Their covariance (m^2), point after point.
+    alpha : float
+    source : str
+        Where the covariance came from (carried into the details).
+
+    >>> r = covariance_consistency_test(np.array([[0.1, -0.1, 0.2]]), np.diag([0.01, 0.01, 0.04]))
+    >>> round(r.statistic, 6), r.details["df"], r.passed
+    (3.0, 3, True)
+    """
+    x = np.asarray(d, dtype=float).reshape(-1)
+    c = np.asarray(cov, dtype=float)
+    n = x.size
+    if c.shape != (n, n):
+        return _na("consistency", "ENh", "chi2", alpha,
+                   f"covariance is {c.shape[0]} x {c.shape[1] if c.ndim == 2 else '?'}, expected {n} x {n}")
+    if n == 0 or not np.all(np.isfinite(c)) or not np.all(np.isfinite(x)):
+        return _na("consistency", "ENh", "chi2", alpha, "no discrepancies or a non-finite covariance")
+    try:
+        L = np.linalg.cholesky(0.5 * (c + c.T))
+    except np.linalg.LinAlgError:
+        return _na("consistency", "ENh", "chi2", alpha, "covariance of the discrepancies is not positive definite")
+    from scipy.linalg import solve_triangular
+
+    w = solve_triangular(L, x, lower=True)
+    chi = float(w @ w)
+    lo, hi = (float(v) for v in stats.chi2.ppf([alpha / 2, 1 - alpha / 2], n))
+    p_two = float(2 * min(stats.chi2.cdf(chi, n), stats.chi2.sf(chi, n)))
+    worst = np.sum(w.reshape(-1, 3) ** 2, axis=1) if n % 3 == 0 else None
+    return TestResult("consistency", "ENh", "chi2", chi, hi, bool(lo <= chi <= hi), alpha, details={
+        "n": n // 3 if n % 3 == 0 else n, "df": n, "lower": lo, "upper": hi, "p_value": p_two,
+        "ratio": chi / n, "covariance_source": source,
+        "diagonal_statistic": float(np.sum(x * x / np.diag(c))),
+        "largest_point_share": float(worst.max() / chi) if worst is not None and chi > 0 else None})
+
+
 def _nonsingular(s: np.ndarray) -> bool:
     scale = float(np.trace(s))
     return scale > 0 and float(np.linalg.det(s)) > 1e-12 * scale * scale
@@ -663,6 +718,22 @@ def ce90(den: Any, method: str = "empirical", *, prob: float = 0.90, limit_m: fl
 
 
 # ----------------------------------------------------------------------------- assessment
+
+
+def _consistency(sel: Sequence[str], adjusted_cov: Any, d: np.ndarray, ref_sd: np.ndarray | None,
+                 alpha: float) -> TestResult:
+    ids, c = adjusted_cov
+    pos = {str(q): i for i, q in enumerate(ids)}
+    missing = [q for q in sel if q not in pos]
+    if missing:
+        return _na("consistency", "ENh", "chi2", alpha,
+                   f"no adjusted covariance for check point(s) {', '.join(missing[:5])}")
+    if ref_sd is None or not np.all(np.isfinite(ref_sd)):
+        return _na("consistency", "ENh", "chi2", alpha, "the reference has no sd_E, sd_N, sd_h columns")
+    idx = np.array([[3 * pos[q] + k for k in range(3)] for q in sel]).ravel()
+    c = np.asarray(c, dtype=float)[np.ix_(idx, idx)] + np.diag(np.asarray(ref_sd, dtype=float).ravel() ** 2)
+    return covariance_consistency_test(d, c, alpha, source="joint covariance of the adjusted check "
+                                       "points + reference sds (independent)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -754,7 +825,7 @@ def assess(adjusted: Any, reference: Any, *, points: Iterable[str] | None = None
            alpha: float = 0.10, plotting_position: str = "filliben", filliben_critical: str = "table",
            pec_class: str = "A", checkpoint_sd_m: Any = None,
            asprs_target_cm: Mapping[str, float] | None = None, lilliefors_n_sim: int = 20000,
-           seed: int = 0) -> Assessment:
+           seed: int = 0, adjusted_cov: Any = None) -> Assessment:
     """Assess adjusted coordinates against reference (check-point) coordinates.
 
     Parameters
@@ -791,6 +862,12 @@ def assess(adjusted: Any, reference: Any, *, points: Iterable[str] | None = None
         ``{"planimetric": X, "altimetric": Y}`` ASPRS classes to test.
     lilliefors_n_sim, seed : int
         Monte-Carlo size and seed of the Lilliefors null distribution.
+    adjusted_cov : (ids, (3k, 3k) array), optional
+        Joint covariance of the adjusted check points (m^2; the
+        ``check_covariance.csv`` of an adjustment, see
+        :func:`lidarcat.bundle.read_point_covariance`).  With it, and the
+        reference sds, the ``consistency`` test compares the discrepancies with
+        the precision claimed (:func:`covariance_consistency_test`).
 
     Returns
     -------
@@ -862,6 +939,8 @@ def assess(adjusted: Any, reference: Any, *, points: Iterable[str] | None = None
                                  sigma0_source=f"EP planimetric / sqrt(2), {cls_txt}"),
     }
     tests["hotelling"] = {"EN": hotelling_t2_test(d[:, :2], alpha)}
+    if adjusted_cov is not None:
+        tests["consistency"] = {"ENh": _consistency(sel, adjusted_cov, d, ref_sd, alpha)}
     lim = tol["plan_pec_m"] if tol else None
     lim_src = f"planimetric PEC, {cls_txt}" if tol else ""
     tests["ce90"] = {m: ce90(d[:, :2], m, limit_m=lim, limit_source=lim_src)

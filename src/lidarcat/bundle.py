@@ -78,10 +78,20 @@ __all__ = [
     "check_datum",
     "problem_from_survey",
     "chi2_bounds",
+    "joint_point_covariance",
+    "read_point_covariance",
     "STATUS_MESSAGES",
+    "MAX_JOINT_COVARIANCE_POINTS",
 ]
 
 log = logging.getLogger(__name__)
+
+#: ``write_adjustment`` writes the joint covariance of the check points
+#: (``check_covariance.csv``, k (k + 1) / 2 rows) up to this many check points
+MAX_JOINT_COVARIANCE_POINTS = 500
+#: columns of ``check_covariance.csv``: the 3 x 3 cross-covariance block of two points, m^2
+COVARIANCE_COLUMNS = ["point_a", "point_b", "c_EE", "c_EN", "c_Eh", "c_NE", "c_NN", "c_Nh",
+                      "c_hE", "c_hN", "c_hh"]
 
 #: status -> message of :class:`BundleResult`
 STATUS_MESSAGES: dict[str, str] = {
@@ -1095,6 +1105,120 @@ def adjust(
     )
 
 
+def joint_point_covariance(result: BundleResult, points: Sequence[str], *, batch: int = 96) -> np.ndarray:
+    """Joint covariance of several adjusted points, cross-covariances included.
+
+    The per-point blocks of :attr:`BundleResult.point_cov` ignore that every
+    point shares the errors of the photo orientations: points controlled by
+    the same few constraints move together (a block tilt, a height offset).
+    Tests on several points at once -- the check-point chi-square of
+    :func:`lidarcat.accuracy.covariance_consistency_test` -- need the whole
+    matrix ``C[a, b] = V_a^-1 delta_ab + T_a^T S^-1 T_b`` (Schur complement
+    of the point blocks: S the reduced camera system, T_a = W_a V_a^-1).
+
+    Work: one sparse factorisation of S and 3k solves in batches of *batch*
+    columns; memory O(6 P batch + 9 k^2), never the dense N^-1.
+
+    Parameters
+    ----------
+    result : BundleResult
+        A converged adjustment (relinearised at its solution).
+    points : sequence of str
+        Point ids, in the order wanted.
+    batch : int
+        Right-hand sides per solve.
+
+    Returns
+    -------
+    (3k, 3k) array
+        Covariance of (E, N, h) of the points, point after point, m^2, scaled
+        by the result's variance factor.  Its diagonal 3 x 3 blocks equal
+        ``result.point_cov`` of those points.
+
+    Raises
+    ------
+    DatumError
+        An unknown point id (named), or a singular system.
+    """
+    ids = [str(q) for q in points]
+    index = {str(q): i for i, q in enumerate(result.point_ids)}
+    missing = [q for q in ids if q not in index]
+    if missing:
+        raise DatumError(f"joint covariance: point(s) not in the adjustment: {', '.join(missing[:10])}"
+                         + (" ..." if len(missing) > 10 else ""))
+    k = len(ids)
+    if k == 0:
+        return np.zeros((0, 0))
+    p = result.problem
+    sel = np.array([index[q] for q in ids])
+    system = _System(p, np.asarray(result.eo_params), np.asarray(result.points_m))
+    try:
+        S, vinv, T = system.reduced_system()
+        lu = _factor(S)
+    except _Singular as ex:
+        raise DatumError(f"joint covariance: {ex}") from ex
+    Tm = _block_sparse(p.photo_index, p.point_index, T, (6 * p.n_photos, 3 * p.n_points)).tocsc()
+    B = Tm[:, (3 * sel[:, None] + np.arange(3)[None, :]).ravel()]
+    BT = B.T.tocsr()
+    C = np.empty((3 * k, 3 * k))
+    for c0 in range(0, 3 * k, batch):
+        c1 = min(3 * k, c0 + batch)
+        C[:, c0:c1] = BT @ lu.solve(B[:, c0:c1].toarray())
+    C = 0.5 * (C + C.T)
+    for a, q in enumerate(sel):
+        C[3 * a:3 * a + 3, 3 * a:3 * a + 3] += vinv[q]
+    return C * result.variance_factor
+
+
+def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[list[str], np.ndarray]:
+    """Read a ``check_covariance.csv`` written by :func:`write_adjustment`.
+
+    Parameters
+    ----------
+    path : path
+    points : sequence of str, optional
+        Point ids to return, in this order (default: the file's order).
+
+    Returns
+    -------
+    ids : list of str
+    C : (3k, 3k) array
+        Joint covariance of E, N, h, m^2.
+
+    Raises
+    ------
+    DatumError
+        Unreadable file, a requested point missing, or a missing pair (named).
+    """
+    from ._io import read_csv_table
+    from .errors import LidarcatError
+
+    try:
+        t = read_csv_table(path, required=COVARIANCE_COLUMNS)
+        vals = np.column_stack([t.floats(c) for c in COVARIANCE_COLUMNS[2:]]).reshape(-1, 3, 3)
+    except LidarcatError as ex:
+        raise DatumError(str(ex)) from ex
+    pa, pb = t.column("point_a"), t.column("point_b")
+    order = list(dict.fromkeys(list(pa) + list(pb)))
+    ids = [str(q) for q in points] if points is not None else order
+    pos = {q: i for i, q in enumerate(ids)}
+    present = set(order)
+    missing = [q for q in ids if q not in present]
+    if missing:
+        raise DatumError(f"{path}: no covariance for point(s) {', '.join(missing[:10])}")
+    k = len(ids)
+    C = np.full((3 * k, 3 * k), np.nan)
+    for a, b, blk in zip(pa, pb, vals):
+        if a in pos and b in pos:
+            i, j = pos[a], pos[b]
+            C[3 * i:3 * i + 3, 3 * j:3 * j + 3] = blk
+            C[3 * j:3 * j + 3, 3 * i:3 * i + 3] = blk.T
+    if np.isnan(C).any():
+        i, j = (int(v) // 3 for v in np.argwhere(np.isnan(C))[0])
+        raise DatumError(f"{path}: no row for the pair {ids[i]}, {ids[j]}")
+    return ids, C
+
+
 def _tiny(dc: np.ndarray, dp: np.ndarray, tol_m: float, tol_rad: float) -> bool:
     lin = max(np.abs(dc[:, :3]).max(initial=0.0), np.abs(dp).max(initial=0.0))
     ang = np.abs(dc[:, 3:]).max(initial=0.0)
@@ -1259,6 +1383,18 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None) ->
             rows.append(["eo", pr.photo_ids[i], "", nan, nan, *v[:3], *np.degrees(v[3:])])
     write_csv_atomic(folder / "residuals.csv", RESIDUAL_COLUMNS, rows,
                      comments=["residuals v = adjusted - observed"])
+    checks = [str(q) for q, r in zip(result.point_ids, result.point_role) if r == "check"]
+    if checks and result.success and len(checks) <= MAX_JOINT_COVARIANCE_POINTS:
+        C = joint_point_covariance(result, checks)
+        cov_rows = [[a, b, *C[3 * i:3 * i + 3, 3 * j:3 * j + 3].ravel()]
+                    for i, a in enumerate(checks) for j, b in enumerate(checks[i:], start=i)]
+        write_csv_atomic(folder / "check_covariance.csv", COVARIANCE_COLUMNS, cov_rows, comments=[
+            "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances "
+            "included: c_XY = Cov(X of point_a, Y of point_b), one row per pair a <= b "
+            f"({result.variance_factor_kind.replace('_', ' ')} variance factor)"])
+    elif len(checks) > MAX_JOINT_COVARIANCE_POINTS:
+        log.info("%d check points: joint covariance not written (limit %d)", len(checks),
+                 MAX_JOINT_COVARIANCE_POINTS)
     summary = {**result.summary(), **(extra or {})}
     write_json_atomic(folder / "summary.json", summary)
     return summary

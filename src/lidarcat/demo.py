@@ -542,8 +542,10 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
         units of its standard deviation (z); ``runs``: for each run, the
         largest |z| of the exterior orientation and of the free points, the RMS
         of those z (1 for honest standard deviations), and the check-point
-        statistic ``sum d^2 / (sd_adjusted^2 + sd_gps^2)`` with its degrees of
-        freedom.
+        statistics ``check_chi2_joint`` = d' C^-1 d (C: joint covariance of the
+        adjusted check points + GPS variances; chi-square with ``check_dof``
+        degrees of freedom) and ``check_chi2`` = sum d^2 / (sd_adjusted^2 +
+        sd_gps^2) (correlations ignored: same mean, wider spread).
 
     Raises
     ------
@@ -598,10 +600,21 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
                 g = ground[pid]
                 stat += float(np.sum((g[:3] - v[:3]) ** 2 / (v[3:] ** 2 + g[3:] ** 2)))
                 n_chk += 1
+        joint = math.nan
+        cov_path = folder / "check_covariance.csv"
+        if checks and cov_path.is_file():
+            from .bundle import read_point_covariance
+
+            order = [q for q in pts_t.column("point") if q in checks]
+            _, C = read_point_covariance(cov_path, points=order)
+            adj = {q: v for q, v in zip(pts_t.column("point"), pv)}
+            d = np.concatenate([ground[q][:3] - adj[q][:3] for q in order])
+            C = C + np.diag(np.concatenate([ground[q][3:] ** 2 for q in order]))
+            joint = float(d @ np.linalg.solve(C, d))
         z_eo_a, z_pt_a = np.abs(z_eo), np.abs(z_pt)
         out["runs"][run] = {
             "eo_max_abs_z": float(z_eo_a.max()), "eo_rms_z": float(np.sqrt(np.mean(z_eo_a ** 2))),
             "points_max_abs_z": float(z_pt_a.max()) if len(z_pt_a) else math.nan,
             "points_rms_z": float(np.sqrt(np.mean(z_pt_a ** 2))) if len(z_pt_a) else math.nan,
-            "n_check": n_chk, "check_chi2": stat, "check_dof": 3 * n_chk}
+            "n_check": n_chk, "check_chi2": stat, "check_chi2_joint": joint, "check_dof": 3 * n_chk}
     return out

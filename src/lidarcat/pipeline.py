@@ -857,8 +857,14 @@ def _stage_assess(ctx: _Context, tmp: Path) -> dict:
     if not checks:
         raise LidarcatError(f"control set {name!r}: none of its check points was adjusted "
                             f"(measured on no photo): {', '.join(missing)}")
+    cov_path = ctx.folder(f"adjust-{name}") / "check_covariance.csv"
+    cov = None
+    if cov_path.is_file():
+        from .bundle import read_point_covariance
+
+        cov = read_point_covariance(cov_path)
     a = assess(adjusted, reference, points=checks, scale=par.get("scale"),
-               contour_interval_m=par.get("contour_interval_m"))
+               contour_interval_m=par.get("contour_interval_m"), adjusted_cov=cov)
     doc = a.to_dict()
     doc["control_set"] = name
     doc["check_points_not_adjusted"] = missing
@@ -873,6 +879,11 @@ def _stage_assess(ctx: _Context, tmp: Path) -> dict:
     write_report(tmp / "report.html", assessment=a, adjustment_dir=ctx.folder(f"adjust-{name}"),
                  survey=survey, title=f"lidarcat: {survey.name}, control set {name}")
     check = _stats(np.asarray(a.d).reshape(-1, 3))
+    cons = a.tests.get("consistency", {}).get("ENh")
+    if cons is not None and cons.applicable:
+        check["consistency"] = {"chi2": cons.statistic, "df": cons.details["df"], "alpha": cons.alpha,
+                                "lower": cons.details["lower"], "upper": cons.details["upper"],
+                                "passed": cons.passed}
     tests = {t: {c: r.get("passed") for c, r in comps.items()} for t, comps in doc["tests"].items()}
     classes = {k: v.get("class", v.get("classes")) for k, v in doc["standards"].items()}
     return {"check": check, "tests_passed": tests, "standards": classes, "control": name,
@@ -1125,6 +1136,13 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                 lines.append(f"| {c} (n={chk.get('n')}) | {_num(chk.get(f'mean_{c}_m'), 3)} | "
                              f"{_num(chk.get(f'std_{c}_m'), 3)} | {_num(chk.get(f'rmse_{c}_m'), 3)} | "
                              f"{_num(chk.get(f'max_abs_{c}_m'), 3)} |")
+            cons = chk.get("consistency")
+            if cons:
+                lines += ["", f"Discrepancies against the precision the adjustment claims (joint "
+                              f"covariance of the check points + their reference sds): d'C^-1 d = "
+                              f"{_num(cons['chi2'], 1)} on {cons['df']} degrees of freedom, "
+                              f"{1 - cons['alpha']:.0%} interval [{_num(cons['lower'], 1)}, "
+                              f"{_num(cons['upper'], 1)}]: {'passed' if cons['passed'] else 'failed'}."]
     for pair, cmp_ in doc["comparison"].items():
         pts = cmp_.get("points", {})
         lines += ["", f"## Comparison {cmp_.get('sign', pair)}", "",

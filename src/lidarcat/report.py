@@ -108,6 +108,7 @@ _TEST_TITLES = {
     "chi2_precision": "chi-square precision (eq. 45, 46)",
     "hotelling": "Hotelling T^2 on (dE, dN)",
     "ce90": "90 % circular error radius",
+    "consistency": "discrepancies vs claimed precision, d'C^-1 d (joint covariance)",
 }
 
 
@@ -631,7 +632,8 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
             for comp, t in comps.items():
                 det = t.details
                 extra = []
-                for k in ("p_value", "mean_lower", "mean_upper", "sigma0", "sigma_bound", "F", "fraction_within"):
+                for k in ("p_value", "mean_lower", "mean_upper", "sigma0", "sigma_bound", "F", "fraction_within",
+                          "lower", "df", "diagonal_statistic"):
                     if det.get(k) is not None:
                         extra.append(f"{k} {_f(det[k], 4)}")
                 if det.get("critical_source"):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import click
 
@@ -42,7 +43,8 @@ def format_report(summary: dict, outdir: str | None = None) -> str:
         f"Parameter sds use the {s['variance_factor'].replace('_', ' ')} variance factor",
     ]
     if outdir is not None:
-        lines.append(f"Results: {outdir}/eop.csv, points.csv, residuals.csv, summary.json")
+        lines.append(f"Results: {outdir}/eop.csv, points.csv, residuals.csv, summary.json"
+                     + (", check_covariance.csv" if (Path(outdir) / "check_covariance.csv").is_file() else ""))
     return "\n".join(lines)
 
 
@@ -77,8 +79,10 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     control points and the image measurements.
 
     Writes OUTDIR/eop.csv, points.csv (role control/check/tie), residuals.csv
-    (adjusted minus observed) and summary.json (dof, v'Pv, sigma0^2, the
-    two-sided chi-square test of the variance factor, iterations). Exit code 1
+    (adjusted minus observed), check_covariance.csv (joint covariance of the
+    check points, m^2, for the consistency test of `lidarcat assess`) and
+    summary.json (dof, v'Pv, sigma0^2, the two-sided chi-square test of the
+    variance factor, iterations). Exit code 1
     when the adjustment did not converge (results are still written).
 
     \b

@@ -42,6 +42,10 @@ def _split(values: tuple[str, ...]) -> list[str] | None:
 @click.option("--adjustment", "adjustment_dir", type=click.Path(exists=True, file_okay=False), default=None,
               help="Adjustment output folder (eop.csv, points.csv, summary.json) for the report. "
                    "Default: the folder of ADJUSTED_POINTS when it holds eop.csv.")
+@click.option("--covariance", "covariance", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Joint covariance of the adjusted check points (check_covariance.csv of `lidarcat "
+                   "adjust`) for the consistency test d'C^-1 d ~ chi2(3n). Default: the file beside "
+                   "ADJUSTED_POINTS when there is one.")
 @click.option("--survey", "survey", type=click.Path(exists=True, file_okay=False), default=None,
               help="Survey folder (camera format for photo footprints in the report).")
 @click.option("-o", "--output", type=click.Path(), default=None,
@@ -49,7 +53,8 @@ def _split(values: tuple[str, ...]) -> list[str] | None:
 @json_opt
 def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float, contour_interval: float | None,
            standards: tuple[str, ...], alpha: float, plotting_position: str, sign: str, pec_class: str,
-           adjustment_dir: str | None, survey: str | None, output: str | None, as_json: bool) -> None:
+           adjustment_dir: str | None, covariance: str | None, survey: str | None, output: str | None,
+           as_json: bool) -> None:
     """Compare adjusted coordinates with reference check points (thesis 3.3.4).
 
     ADJUSTED_POINTS is a CSV with columns point, E, N, h (the points.csv of
@@ -59,7 +64,10 @@ def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float,
 
     Prints the discrepancy summary (mean, sd, RMSE, max), the tests (Filliben,
     K-S and Lilliefors, t trend, chi-square precision, Hotelling T^2, CE90)
-    with their verdicts, and the class by each standard.
+    with their verdicts, and the class by each standard.  With the joint
+    covariance of the adjusted points (written by `lidarcat adjust` as
+    check_covariance.csv), the consistency test asks whether the discrepancies
+    agree with the precision the adjustment claims.
 
     \b
     Examples:
@@ -78,9 +86,17 @@ def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float,
         adjustment_dir = str(adj_path)
     elif adjustment_dir is None and adj_path.is_file() and (adj_path.parent / "eop.csv").is_file():
         adjustment_dir = str(adj_path.parent)
+    adj_dir = adj_path if adj_path.is_dir() else adj_path.parent
+    if covariance is None and (adj_dir / "check_covariance.csv").is_file():
+        covariance = str(adj_dir / "check_covariance.csv")
+    cov = None
+    if covariance is not None:
+        from ..bundle import read_point_covariance
+
+        cov = read_point_covariance(covariance)
     a = run_assess(adj_path, ref_path, points=_split(points), sign=sign, scale=scale,
                    contour_interval_m=contour_interval, standards=tuple(s.lower() for s in standards) or _STANDARDS,
-                   alpha=alpha, plotting_position=plotting_position, pec_class=pec_class)
+                   alpha=alpha, plotting_position=plotting_position, pec_class=pec_class, adjusted_cov=cov)
     paths = None
     if output is not None:
         from ..report import write_report

@@ -103,7 +103,8 @@ def compare(survey: str, outdir: str | None, as_json: bool) -> None:
     for run, r in result["runs"].items():
         click.echo(f"run {run}: orientations max |z| {r['eo_max_abs_z']:.2f}, RMS z {r['eo_rms_z']:.2f}; "
                    f"free points max |z| {r['points_max_abs_z']:.2f}, RMS z {r['points_rms_z']:.2f}; "
-                   f"check chi2 {r['check_chi2']:.1f} on {r['check_dof']} dof")
+                   f"check points d'C^-1d {r['check_chi2_joint']:.1f} on {r['check_dof']} dof "
+                   f"(correlations ignored: {r['check_chi2']:.1f})")
     for pid, e in result["extraction"].items():
         err = ", ".join(f"{v:+.3f}" for v in e["error_m"])
         z = ", ".join(f"{v:+.1f}" for v in e["z"])

@@ -119,6 +119,10 @@ def _text(result) -> str:
                  f"chi2 {'pass' if adj.get('chi2_pass') else 'fail'}"]
         if chk:
             parts.append("check RMSE E/N/h " + "/".join(_f(chk.get(f"rmse_{a}_m"), 3) for a in "ENh") + " m")
+            cons = chk.get("consistency")
+            if cons:
+                parts.append(f"d'C^-1d {_f(cons['chi2'], 1)} on {cons['df']} "
+                             f"{'pass' if cons['passed'] else 'fail'}")
         lines.append(f"  run {name}: " + ", ".join(parts))
     report = result.summary.get("report")
     if report:
