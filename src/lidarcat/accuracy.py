@@ -600,7 +600,8 @@ def covariance_consistency_test(d: Any, cov: Any, alpha: float = 0.10, *,
     plus that of the reference coordinates.  Under the model it follows
     chi-square with ``3 n`` degrees of freedom; passed when inside the two-sided
     ``1 - alpha`` interval (above: errors larger than the stated precision, a
-    blunder or a model error; below: the precision is pessimistic).  Summing
+    blunder or a model error; below: the precision is pessimistic; ``details["side"]``
+    says which).  Summing
     ``d_i^2 / sigma_i^2`` instead ignores the correlation of points that share
     the block's orientation errors and is *not* chi-square distributed.
 
@@ -640,6 +641,7 @@ def covariance_consistency_test(d: Any, cov: Any, alpha: float = 0.10, *,
     return TestResult("consistency", "ENh", "chi2", chi, hi, bool(lo <= chi <= hi), alpha, details={
         "n": n // 3 if n % 3 == 0 else n, "df": n, "lower": lo, "upper": hi, "p_value": p_two,
         "ratio": chi / n, "covariance_source": source,
+        "side": "below" if chi < lo else "above" if chi > hi else "inside",
         "diagonal_statistic": float(np.sum(x * x / np.diag(c))),
         "largest_point_share": float(worst.max() / chi) if worst is not None and chi > 0 else None})
 

@@ -883,7 +883,7 @@ def _stage_assess(ctx: _Context, tmp: Path) -> dict:
     if cons is not None and cons.applicable:
         check["consistency"] = {"chi2": cons.statistic, "df": cons.details["df"], "alpha": cons.alpha,
                                 "lower": cons.details["lower"], "upper": cons.details["upper"],
-                                "passed": cons.passed}
+                                "passed": cons.passed, "side": cons.details["side"]}
     tests = {t: {c: r.get("passed") for c, r in comps.items()} for t, comps in doc["tests"].items()}
     classes = {k: v.get("class", v.get("classes")) for k, v in doc["standards"].items()}
     return {"check": check, "tests_passed": tests, "standards": classes, "control": name,
@@ -1142,7 +1142,10 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                               f"covariance of the check points + their reference sds): d'C^-1 d = "
                               f"{_num(cons['chi2'], 1)} on {cons['df']} degrees of freedom, "
                               f"{1 - cons['alpha']:.0%} interval [{_num(cons['lower'], 1)}, "
-                              f"{_num(cons['upper'], 1)}]: {'passed' if cons['passed'] else 'failed'}."]
+                              f"{_num(cons['upper'], 1)}]: {'passed' if cons['passed'] else 'failed'}"
+                              + {"below": " (smaller discrepancies than claimed: the precision is pessimistic).",
+                                 "above": " (larger discrepancies than claimed: look for blunders, model "
+                                          "errors or optimistic control sds)."}.get(cons.get("side"), ".")]
     for pair, cmp_ in doc["comparison"].items():
         pts = cmp_.get("points", {})
         lines += ["", f"## Comparison {cmp_.get('sign', pair)}", "",

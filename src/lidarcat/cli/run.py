@@ -121,8 +121,9 @@ def _text(result) -> str:
             parts.append("check RMSE E/N/h " + "/".join(_f(chk.get(f"rmse_{a}_m"), 3) for a in "ENh") + " m")
             cons = chk.get("consistency")
             if cons:
-                parts.append(f"d'C^-1d {_f(cons['chi2'], 1)} on {cons['df']} "
-                             f"{'pass' if cons['passed'] else 'fail'}")
+                verdict = {"below": "below its interval: precision pessimistic",
+                           "above": "above its interval: errors larger than claimed"}.get(cons.get("side"), "pass")
+                parts.append(f"d'C^-1d {_f(cons['chi2'], 1)} on {cons['df']} dof {verdict}")
         lines.append(f"  run {name}: " + ", ".join(parts))
     report = result.summary.get("report")
     if report:
