@@ -386,3 +386,27 @@ def test_only_the_extraction_hashes_the_lidar_tiles(tmp_path):
     for name in ("camera", "adjust-gps", "adjust-lidar-extracted", "report"):
         assert tile not in {Path(p).resolve() for p in plan[name].inputs(None)}, name
     assert plan["adjust-lidar-extracted"].requires == ("extract",)
+
+
+def test_a_second_run_on_the_same_output_folder_is_refused(tmp_path):
+    import os
+    import socket
+    import subprocess
+
+    out = tmp_path / "out"
+    out.mkdir()
+    lock = out / ".lidarcat.lock"
+    host = socket.gethostname()
+    lock.write_text(f"pid={os.getpid()} host={host} started=2026-11-22T08:00:00\n")   # a live run
+    with pytest.raises(LidarcatError, match=rf"in use by another lidarcat run \(pid {os.getpid()} on "
+                                            rf"{host}, started 2026-11-22T08:00:00\); .* delete .*lidarcat.lock"):
+        run_pipeline(None, out)
+    assert not (out / "summary.json").exists() and lock.is_file()
+    lock.write_text("pid=123 host=some-other-node started=2026-11-22T08:00:00\n")   # cannot tell: refuse
+    with pytest.raises(LidarcatError, match="pid 123 on some-other-node"):
+        run_pipeline(None, out)
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+    lock.write_text(f"pid={dead.pid} host={host} started=2026-11-22T08:00:00\n")    # a run that died
+    res = run_pipeline(None, out)
+    assert res.ok and not lock.exists()

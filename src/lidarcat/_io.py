@@ -26,6 +26,7 @@ import numpy as np
 from .errors import SurveyError, location
 
 __all__ = [
+    "folder_lock",
     "atomic_write",
     "atomic_dir",
     "write_text_atomic",
@@ -85,6 +86,64 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
                 os.replace(item, dest)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def folder_lock(folder: str | os.PathLike, what: str = "lidarcat run") -> Iterator[Path]:
+    """Hold ``FOLDER/.lidarcat.lock`` while a run writes into *folder*.
+
+    Two runs writing one output folder would interleave their stage outputs;
+    the second one stops with an error naming the first (its pid, host and
+    start time).  A lock left by a run that died on this host (its pid is gone)
+    is taken over; one from another host must be removed by hand (the message
+    says so).  The lock is removed on exit, also on Ctrl-C.
+
+    Raises
+    ------
+    LidarcatError
+        The folder is in use by another run.
+    """
+    import datetime
+    import socket
+
+    from .errors import LidarcatError
+
+    lock = Path(folder) / ".lidarcat.lock"
+    host = socket.gethostname()
+    me = f"pid={os.getpid()} host={host} started={datetime.datetime.now().isoformat(timespec='seconds')}\n"
+    for _attempt in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                info = dict(kv.split("=", 1) for kv in lock.read_text().split() if "=" in kv)
+            except OSError:
+                info = {}
+            pid = int(info.get("pid", "0") or 0) if info.get("pid", "").isdigit() else 0
+            if info.get("host") == host and pid and not _pid_alive(pid):
+                lock.unlink(missing_ok=True)  # left by a run that died: take it over
+                continue
+            raise LidarcatError(
+                f"{folder}: in use by another {what} (pid {info.get('pid', '?')} on "
+                f"{info.get('host', '?')}, started {info.get('started', '?')}); wait for it to finish "
+                f"or choose another output folder; if no run is active, delete {lock}") from None
+        with os.fdopen(fd, "w") as fh:
+            fh.write(me)
+        break
+    try:
+        yield lock
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _umask() -> int:

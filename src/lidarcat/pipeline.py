@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 
 from . import __version__
-from ._io import atomic_dir, dumps_json, write_json_atomic
+from ._io import atomic_dir, dumps_json, folder_lock, write_json_atomic
 from .errors import LidarcatError
 
 __all__ = [
@@ -687,7 +687,7 @@ def run_pipeline(
     except OSError as ex:
         raise LidarcatError(f"{out}: cannot write the output folder ({ex.strerror or ex}); "
                             f"choose another with -o/--outdir") from ex
-    with _log_to(out / "lidarcat.log"):
+    with folder_lock(out), _log_to(out / "lidarcat.log"):
         log.info("lidarcat %s run: survey %r (%s) -> %s%s", __version__, survey.name, survey.root,
                  out, " (forced)" if force else "")
         stages = plan_pipeline(survey, scale=scale, contour_interval_m=contour_interval_m)

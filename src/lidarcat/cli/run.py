@@ -44,8 +44,9 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
     OUTDIR gets one folder per stage, summary.json (status ran / reused /
     skipped / failed of every stage and the key numbers) and lidarcat.log.
     Stages whose inputs (file contents, parameters, lidarcat version) did not
-    change since the last run are reused. Exit code 1 when a stage failed,
-    2 for an invalid survey.
+    change since the last run are reused. One run at a time per OUTDIR
+    (OUTDIR/.lidarcat.lock). Exit code 1 when a stage failed, 2 for an invalid
+    survey or an OUTDIR in use.
 
     \b
     Examples:
