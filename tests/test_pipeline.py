@@ -12,7 +12,7 @@ import pytest
 from conftest import THESIS_SURVEY, THESIS_TABLES
 
 from lidarcat.errors import LidarcatError, SurveyError
-from lidarcat.pipeline import Stage, run_pipeline, run_stages
+from lidarcat.pipeline import Stage, plan_pipeline, run_pipeline, run_stages
 
 
 # --------------------------------------------------------------------------- helpers
@@ -410,3 +410,42 @@ def test_a_second_run_on_the_same_output_folder_is_refused(tmp_path):
     lock.write_text(f"pid={dead.pid} host={host} started=2026-11-22T08:00:00\n")    # a run that died
     res = run_pipeline(None, out)
     assert res.ok and not lock.exists()
+
+
+def test_assessment_table_of_survey_toml_sets_scale_and_level(tmp_path):
+    survey = tmp_path / "s"
+    shutil.copytree(THESIS_SURVEY, survey)
+    toml = survey / "survey.toml"
+    toml.write_text(toml.read_text() + '\n[assessment]\nscale = 5000\ncontour_interval_m = 5.0\n'
+                                        'alpha = 0.05\npec_class = "B"\n')
+    from lidarcat.survey import Survey
+
+    s = Survey.load(survey)
+    assert (s.assessment.scale, s.assessment.contour_interval_m, s.assessment.alpha,
+            s.assessment.pec_class) == (5000.0, 5.0, 0.05, "B")
+    plan = {st.name: st for st in plan_pipeline(s)}
+    assert plan["assess-gps"].params["scale"] == 5000.0 and plan["assess-gps"].params["alpha"] == 0.05
+    over = {st.name: st for st in plan_pipeline(s, scale=1000)}
+    assert over["assess-gps"].params["scale"] == 1000 and over["assess-gps"].params["contour_interval_m"] == 5.0
+    res = run_pipeline(survey, tmp_path / "out")
+    doc = json.loads((tmp_path / "out" / "assess-gps" / "assessment.json").read_text())
+    assert doc["settings"]["scale"] == 5000 and doc["settings"]["alpha"] == 0.05
+    assert doc["settings"]["pec_class"] == "B" and res.ok
+
+
+@pytest.mark.parametrize("line,message", [
+    ("scale = -2", "must be a positive scale denominator"),
+    ("alpha = 1.5", "must lie between 0 and 1"),
+    ('pec_class = "Z"', "'Z' is not one of A, B, C"),
+    ("colour = 1", "colour"),
+])
+def test_assessment_table_errors_are_located(tmp_path, line, message):
+    survey = tmp_path / "s"
+    shutil.copytree(THESIS_SURVEY, survey)
+    toml = survey / "survey.toml"
+    toml.write_text(toml.read_text() + f"\n[assessment]\n{line}\n")
+    from lidarcat.survey import Survey
+
+    with pytest.raises(SurveyError, match="survey.toml") as ei:
+        Survey.load(survey)
+    assert message in str(ei.value)

@@ -60,6 +60,7 @@ from ._io import atomic_dir, dumps_json, folder_lock, write_json_atomic
 from .errors import LidarcatError
 
 __all__ = [
+    "FROM_SURVEY",
     "Stage",
     "StageRecord",
     "PipelineResult",
@@ -551,8 +552,12 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip(".") or "set"
 
 
-def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | None = 2000,
-                  contour_interval_m: float | None = 2.0) -> list[Stage]:
+#: default of ``scale`` / ``contour_interval_m``: take them from survey.toml [assessment]
+FROM_SURVEY = "survey"
+
+
+def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | None | str = FROM_SURVEY,
+                  contour_interval_m: float | None | str = FROM_SURVEY) -> list[Stage]:
     """The stages ``lidarcat run`` executes for a loaded survey, in order.
 
     Parameters
@@ -561,10 +566,11 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     extracted_set : str
         Name of the control set made of the extracted LiDAR points (renamed
         ``<name>-extracted`` when the survey already has a set of that name).
-    scale, contour_interval_m : float or None
+    scale, contour_interval_m : float, None or FROM_SURVEY
         Map scale denominator and contour interval (m) of the check-point
-        classification (PEC, the chi-square sigma0, the CE90 limit); the
-        thesis used 1:2000 and 2 m.
+        classification (PEC, the chi-square sigma0, the CE90 limit); default:
+        survey.toml ``[assessment]`` (1:2000 and 2 m, as the thesis, when the
+        table does not say); None: not applicable.
 
     Returns
     -------
@@ -573,6 +579,11 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
         compare stage per pair (default set vs each other set), report.
     """
     files = _survey_files(survey, lidar=False)  # only the extraction reads the tiles
+    judged = survey.assessment
+    if scale == FROM_SURVEY:
+        scale = judged.scale
+    if contour_interval_m == FROM_SURVEY:
+        contour_interval_m = judged.contour_interval_m
     files_lidar = _survey_files(survey)
     stages: list[Stage] = []
 
@@ -620,7 +631,8 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
             requires=(f"adjust-{name}",) + (("extract",) if derived else ()),
             inputs=lambda ctx: files,
             params={"control": name, "derived": derived, "scale": scale,
-                    "contour_interval_m": contour_interval_m},
+                    "contour_interval_m": contour_interval_m, "alpha": judged.alpha,
+                    "pec_class": judged.pec_class},
             skip_reason=f"control set {name} has no check points" if n_check == 0 else None,
             description=f"check-point accuracy, control set {name}"))
     pairs = [(runs[0][0], other) for other, _ in runs[1:]]
@@ -645,8 +657,8 @@ def run_pipeline(
     *,
     force: bool = False,
     progress: ProgressCallback | None = None,
-    scale: float | None = 2000,
-    contour_interval_m: float | None = 2.0,
+    scale: float | None | str = FROM_SURVEY,
+    contour_interval_m: float | None | str = FROM_SURVEY,
 ) -> PipelineResult:
     """Run the whole pipeline on a survey folder (``lidarcat run``).
 
@@ -661,10 +673,10 @@ def run_pipeline(
         Recompute every stage even when its inputs are unchanged.
     progress : callable, optional
         ``progress(stage, done, total)``.
-    scale, contour_interval_m : float or None
+    scale, contour_interval_m : float, None or FROM_SURVEY
         Map scale denominator and contour interval (m) for the classification
-        of the check points (default 1:2000 and 2 m, as the thesis); None:
-        those classifications are not applicable.
+        of the check points; default: survey.toml ``[assessment]`` (1:2000 and
+        2 m, as the thesis, when it does not say); None: not applicable.
 
     Returns
     -------
@@ -864,7 +876,8 @@ def _stage_assess(ctx: _Context, tmp: Path) -> dict:
 
         cov = read_point_covariance(cov_path)
     a = assess(adjusted, reference, points=checks, scale=par.get("scale"),
-               contour_interval_m=par.get("contour_interval_m"), adjusted_cov=cov)
+               contour_interval_m=par.get("contour_interval_m"), alpha=par.get("alpha", 0.10),
+               pec_class=par.get("pec_class", "A"), adjusted_cov=cov)
     doc = a.to_dict()
     doc["control_set"] = name
     doc["check_points_not_adjusted"] = missing

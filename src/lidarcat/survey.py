@@ -43,6 +43,7 @@ from .camera import Camera, _read_toml, _toml_line, load_camera, load_cameras
 from .errors import CameraError, SurveyError, location
 
 __all__ = [
+    "AssessmentSettings",
     "Survey",
     "Photo",
     "ImagePoints",
@@ -68,6 +69,7 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
     "adjustment": {"observations": False, "image_sd_mm": False, "exclude_points": False,
                    "variance_factor": False, "chi2_level": False},
     "lidar": {"crs": False},
+    "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False},
 }
 _REQUIRED_TABLES = ("survey", "files")
 _OBSERVATION_KINDS = ("corrected", "pixel")
@@ -363,6 +365,33 @@ class AdjustmentSettings:
                 "variance_factor": self.variance_factor, "chi2_level": self.chi2_level}
 
 
+@dataclass(frozen=True)
+class AssessmentSettings:
+    """The ``[assessment]`` table of survey.toml: how ``lidarcat run`` judges check points.
+
+    Attributes
+    ----------
+    scale : float
+        Map scale denominator of the product (PEC classes, the chi-square
+        sigma0, the CE90 limit).  Default 2000, the thesis's 1:2000.
+    contour_interval_m : float
+        Contour interval for the altimetric classes, m.  Default 2 (thesis).
+    alpha : float
+        Level of every test (thesis: 0.10).
+    pec_class : str
+        Decreto 89.817 class whose EP is the chi-square sigma0 ("A" in the thesis).
+    """
+
+    scale: float = 2000.0
+    contour_interval_m: float = 2.0
+    alpha: float = 0.10
+    pec_class: str = "A"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"scale": self.scale, "contour_interval_m": self.contour_interval_m, "alpha": self.alpha,
+                "pec_class": self.pec_class}
+
+
 # ---------------------------------------------------------------------- loading helpers
 class _Toml:
     """survey.toml content plus its text, for located errors."""
@@ -399,6 +428,27 @@ class _Toml:
         if isinstance(v, float) and not math.isfinite(v):
             raise self.err(table, key, f"must be a finite number, got {v!r}")
         return v
+
+
+def _assessment_settings(t: _Toml) -> AssessmentSettings:
+    """Read and check the ``[assessment]`` table (every key optional)."""
+    from . import standards as _std
+
+    d = AssessmentSettings()
+    scale = t.get("assessment", "scale", (int, float), d.scale)
+    if not scale > 0:
+        raise t.err("assessment", "scale", f"must be a positive scale denominator (2000 for 1:2000), got {scale!r}")
+    ci = t.get("assessment", "contour_interval_m", (int, float), d.contour_interval_m)
+    if not ci > 0:
+        raise t.err("assessment", "contour_interval_m", f"must be positive (metres), got {ci!r}")
+    alpha = t.get("assessment", "alpha", (int, float), d.alpha)
+    if not 0 < alpha < 1:
+        raise t.err("assessment", "alpha", f"must lie between 0 and 1, got {alpha!r}")
+    pec = t.get("assessment", "pec_class", str, d.pec_class)
+    classes = list(_std.pec_tolerances("pec", float(scale), float(ci)))
+    if pec not in classes:
+        raise t.err("assessment", "pec_class", f"{pec!r} is not one of {', '.join(classes)}")
+    return AssessmentSettings(float(scale), float(ci), float(alpha), pec)
 
 
 def _check_keys(t: _Toml) -> None:
@@ -529,6 +579,8 @@ class Survey:
     lidar_crs : str or None
     extraction_jobs : Path or None
     settings : AdjustmentSettings
+    assessment : AssessmentSettings
+        The ``[assessment]`` table (map scale, contour interval, test level).
     embedded : bool
         True for the embedded thesis block (``Survey.load()``).
     """
@@ -549,6 +601,7 @@ class Survey:
     lidar_crs: str | None
     extraction_jobs: Path | None
     settings: AdjustmentSettings
+    assessment: AssessmentSettings = field(default_factory=AssessmentSettings)
     embedded: bool = False
 
     # ------------------------------------------------------------ load
@@ -643,6 +696,7 @@ class Survey:
         if not 0 < level < 1:
             raise t.err("adjustment", "chi2_level", f"must lie between 0 and 1, got {level!r}")
         settings = AdjustmentSettings(obs, float(image_sd), frozenset(exclude), vf, float(level))
+        assessment = _assessment_settings(t)
 
         _check_single_photo_points(image_points, ground, job_words, exclude)
 
@@ -661,6 +715,7 @@ class Survey:
                      cameras=cameras, photos=photos, image_points=image_points,
                      ground_points=ground, control_sets=control_sets, lidar_paths=lidar_paths,
                      lidar_crs=lidar_crs, extraction_jobs=jobs_path, settings=settings,
+                     assessment=assessment,
                      embedded=embedded)
         log.info("loaded survey %r: %d photos, %d measurements, %d ground points, control sets %s",
                  name, len(photos), len(image_points), len(ground), ", ".join(control_sets) or "-")
@@ -789,6 +844,7 @@ class Survey:
             "lidar_paths": [str(p) for p in self.lidar_paths], "lidar_crs": self.lidar_crs,
             "extraction_jobs": str(self.extraction_jobs) if self.extraction_jobs else None,
             "settings": self.settings.to_dict(),
+            "assessment": self.assessment.to_dict(),
         }
 
 

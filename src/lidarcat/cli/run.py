@@ -20,16 +20,18 @@ __all__ = ["run"]
 @click.option("--force", is_flag=True,
               help="Recompute every stage even when its inputs are unchanged "
                    "(default: reuse stages whose input hashes match OUTDIR/.stages).")
-@click.option("--scale", type=click.FloatRange(min=0, min_open=True), default=2000, show_default=True,
+@click.option("--scale", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Map scale denominator for classifying the check points (PEC classes, the "
-                   "chi-square sigma0, the CE90 limit); the thesis used 1:2000.")
+                   "chi-square sigma0, the CE90 limit). Default: survey.toml [assessment] scale, "
+                   "else 2000 (the thesis's 1:2000).")
 @click.option("--contour-interval", "contour_interval_m", type=click.FloatRange(min=0, min_open=True),
-              default=2.0, show_default=True,
-              help="Contour interval for the altimetric classes, metres.")
+              default=None,
+              help="Contour interval for the altimetric classes, metres. Default: survey.toml "
+                   "[assessment] contour_interval_m, else 2.")
 @json_opt
 @click.pass_context
-def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool, scale: float,
-        contour_interval_m: float, as_json: bool) -> None:
+def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool, scale: float | None,
+        contour_interval_m: float | None, as_json: bool) -> None:
     """Run the whole pipeline on SURVEY (default: the embedded thesis block).
 
     \b
@@ -53,7 +55,7 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
       lidarcat run -o out/                    # the thesis block
       lidarcat demo synthetic -o demo/ && lidarcat run demo/ -o demo-out/
     """
-    from ..pipeline import run_pipeline
+    from ..pipeline import FROM_SURVEY, run_pipeline
 
     bars: dict[str, object] = {}
     show = sys.stderr.isatty() and not as_json
@@ -79,8 +81,9 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
         bar.update(max(0, done - bar.pos))
 
     try:
-        result = run_pipeline(survey, outdir, force=force, progress=progress, scale=scale,
-                              contour_interval_m=contour_interval_m)
+        result = run_pipeline(survey, outdir, force=force, progress=progress,
+                              scale=FROM_SURVEY if scale is None else scale,
+                              contour_interval_m=FROM_SURVEY if contour_interval_m is None else contour_interval_m)
     finally:
         for bar in bars.values():
             if not isinstance(bar, _Finished):
