@@ -201,6 +201,15 @@ def test_demo_compare_command(demo_run):
     assert res.exit_code == 0 and "run lidar: orientations max |z|" in res.output
 
 
+def test_run_with_figures_draws_every_roof(demo_run, tmp_path):
+    survey_dir, _, info, _ = demo_run
+    res = CliRunner().invoke(cli, ["run", str(survey_dir), "-o", str(tmp_path / "out"), "--figures"])
+    assert res.exit_code == 0, res.output
+    pngs = sorted(p.name for p in (tmp_path / "out" / "extract" / "figures").iterdir())
+    assert pngs == [f"R{k:02d}.png" for k in range(1, info["n_roofs"] + 1)]
+    assert all((tmp_path / "out" / "extract" / "figures" / p).read_bytes()[:4] == b"\x89PNG" for p in pngs)
+
+
 def test_same_seed_same_survey(tmp_path):
     a = write_synthetic_survey(tmp_path / "a", n_photos=4, seed=3)
     b = write_synthetic_survey(tmp_path / "b", n_photos=4, seed=3)

@@ -557,7 +557,7 @@ FROM_SURVEY = "survey"
 
 
 def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | None | str = FROM_SURVEY,
-                  contour_interval_m: float | None | str = FROM_SURVEY) -> list[Stage]:
+                  contour_interval_m: float | None | str = FROM_SURVEY, figures: bool = False) -> list[Stage]:
     """The stages ``lidarcat run`` executes for a loaded survey, in order.
 
     Parameters
@@ -571,6 +571,9 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
         classification (PEC, the chi-square sigma0, the CE90 limit); default:
         survey.toml ``[assessment]`` (1:2000 and 2 m, as the thesis, when the
         table does not say); None: not applicable.
+    figures : bool
+        The extract stage also draws one figure per roof (``extract/figures/``:
+        points by face, fitted planes, the vertex; thesis Figure 19).
 
     Returns
     -------
@@ -607,7 +610,7 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     ext_name = extracted_set if extracted_set not in survey.control_sets else f"{extracted_set}-extracted"
     stages.append(Stage(
         "extract", "extract", _stage_extract, inputs=lambda ctx: files_lidar,
-        params={"set": ext_name},
+        params={"set": ext_name, "figures": bool(figures)},
         skip_reason=None if can_extract else why,
         description="LiDAR roof vertices -> control points"))
 
@@ -659,6 +662,7 @@ def run_pipeline(
     progress: ProgressCallback | None = None,
     scale: float | None | str = FROM_SURVEY,
     contour_interval_m: float | None | str = FROM_SURVEY,
+    figures: bool = False,
 ) -> PipelineResult:
     """Run the whole pipeline on a survey folder (``lidarcat run``).
 
@@ -677,6 +681,8 @@ def run_pipeline(
         Map scale denominator and contour interval (m) for the classification
         of the check points; default: survey.toml ``[assessment]`` (1:2000 and
         2 m, as the thesis, when it does not say); None: not applicable.
+    figures : bool
+        Write one extraction figure per roof into ``OUTDIR/extract/figures/``.
 
     Returns
     -------
@@ -702,7 +708,7 @@ def run_pipeline(
     with folder_lock(out), _log_to(out / "lidarcat.log"):
         log.info("lidarcat %s run: survey %r (%s) -> %s%s", __version__, survey.name, survey.root,
                  out, " (forced)" if force else "")
-        stages = plan_pipeline(survey, scale=scale, contour_interval_m=contour_interval_m)
+        stages = plan_pipeline(survey, scale=scale, contour_interval_m=contour_interval_m, figures=figures)
         t0 = time.perf_counter()
         records = run_stages(stages, out, force=force, progress=progress,
                              values={"survey": survey, "plan": stages})
@@ -954,10 +960,11 @@ def _stage_extract(ctx: _Context, tmp: Path) -> dict:
     standard deviations) and a control set of them, in which every other
     ground point is a check point.
     """
-    from .extraction import write_control_csv, write_planes_csv
+    from .extraction import write_control_csv, write_figures, write_planes_csv
 
     survey = ctx["survey"]
-    name = _params(ctx)["set"]
+    par = _params(ctx)
+    name = par["set"]
     points = _extract_jobs(survey, ctx)
     write_control_csv(tmp / "control.csv", points, comments=[
         f"Roof vertices extracted from the LiDAR tiles of survey {survey.name} "
@@ -969,6 +976,8 @@ def _stage_extract(ctx: _Context, tmp: Path) -> dict:
                             f"({len(points)} jobs; see {ctx.stage.folder}/control.csv for the reasons)"
                             if points else f"{survey.extraction_jobs}: no extraction job")
     _write_derived_survey(survey, ok, name, tmp / "survey")
+    if par.get("figures"):
+        write_figures(tmp / "figures", points)
     status: dict[str, int] = {}
     for cp in points:
         status[cp.status] = status.get(cp.status, 0) + 1

@@ -28,10 +28,13 @@ __all__ = ["run"]
               default=None,
               help="Contour interval for the altimetric classes, metres. Default: survey.toml "
                    "[assessment] contour_interval_m, else 2.")
+@click.option("--figures", is_flag=True,
+              help="Also draw one figure per extracted roof (points by face, planes, vertex; thesis "
+                   "Figure 19) into OUTDIR/extract/figures/.")
 @json_opt
 @click.pass_context
 def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool, scale: float | None,
-        contour_interval_m: float | None, as_json: bool) -> None:
+        contour_interval_m: float | None, figures: bool, as_json: bool) -> None:
     """Run the whole pipeline on SURVEY (default: the embedded thesis block).
 
     \b
@@ -54,6 +57,7 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
     Examples:
       lidarcat run -o out/                    # the thesis block
       lidarcat demo synthetic -o demo/ && lidarcat run demo/ -o demo-out/
+      lidarcat run demo/ -o demo-out/ --figures   # + one figure per roof
     """
     from ..pipeline import FROM_SURVEY, run_pipeline
 
@@ -83,7 +87,8 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
     try:
         result = run_pipeline(survey, outdir, force=force, progress=progress,
                               scale=FROM_SURVEY if scale is None else scale,
-                              contour_interval_m=FROM_SURVEY if contour_interval_m is None else contour_interval_m)
+                              contour_interval_m=FROM_SURVEY if contour_interval_m is None else contour_interval_m,
+                              figures=figures)
     finally:
         for bar in bars.values():
             if not isinstance(bar, _Finished):
