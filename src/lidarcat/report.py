@@ -633,7 +633,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
                 det = t.details
                 extra = []
                 for k in ("p_value", "mean_lower", "mean_upper", "sigma0", "sigma_bound", "F", "fraction_within",
-                          "lower", "df", "diagonal_statistic"):
+                          "lower", "df", "diagonal_statistic", "side"):
                     if det.get(k) is not None:
                         extra.append(f"{k} {_f(det[k], 4)}")
                 if det.get("critical_source"):
