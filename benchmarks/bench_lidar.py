@@ -8,17 +8,27 @@ peak resident memory (ru_maxrss) is its own:
 ``index``    TileIndex.build over all tiles (headers only)
 ``stream``   every point of the survey streamed chunk by chunk (bounded memory)
 ``clip``     random 5 m roof clips through the TileIndex: "cold" (no tile cache,
-             every clip decodes the tiles it touches) and "cached" (jobs grouped
-             by tile, decoded tiles kept in memory, as a batch extraction does)
-            plus "hot" clips in a tile already in memory (cell-grid lookup) and
-             clips of a plain PointCloud (linear scan)
+             every clip decodes the tiles it touches: ``decode="whole"``),
+             "cold, blocks" (no cache, block index from the JSON cache: only the
+             LAZ chunks whose box meets the clip are decoded) and "cached" (jobs
+             grouped by tile, decoded tiles kept in memory, as a batch
+             extraction does) plus "hot" clips in a tile already in memory
+             (cell-grid lookup) and clips of a plain PointCloud (linear scan)
 ``ascii``    read_points of one tile written as a text .xyz file
+
+Point order inside the tiles (``--order``): ``random`` (default; points drawn
+uniformly, so every LAZ chunk spans the whole tile and the block index cannot
+help) or ``scan`` (the same kind of points stored in acquisition order: flight
+strips 60 m wide along x, alternate directions, as airborne files are).
+``--order both`` runs every phase on the random tiles and the clip phase on
+scan-ordered tiles too.
 
 Usage::
 
     python benchmarks/bench_lidar.py                 # 5 million points (about a minute)
     python benchmarks/bench_lidar.py --full          # 50 million points in 25 tiles (several minutes)
     python benchmarks/bench_lidar.py --points 2e7 --tiles 16 --format las
+    python benchmarks/bench_lidar.py --full --order both   # cold clips: whole tile vs blocks
 """
 
 from __future__ import annotations
@@ -44,6 +54,7 @@ import numpy as np  # noqa: E402
 CRS = "EPSG:31982"  # SIRGAS 2000 / UTM 22S
 E0, N0 = 677000.0, 7183000.0
 DENSITY = 10.0  # points per m^2
+STRIP_M = 60.0  # width of a flight strip in the scan-ordered tiles
 
 
 def _peak_mb() -> float:
@@ -58,7 +69,7 @@ def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _tile_cloud(i: int, j: int, side_m: float, n: int, seed: int):
+def _tile_cloud(i: int, j: int, side_m: float, n: int, seed: int, order: str = "random"):
     from lidarcat.lidar import PointCloud
 
     rng = np.random.default_rng(seed)
@@ -81,10 +92,18 @@ def _tile_cloud(i: int, j: int, side_m: float, n: int, seed: int):
              "gps_time": np.round(1e5 + (i * 1000 + j) * 100 + np.sort(rng.uniform(0, 100, n)), 6)}
     import pyproj
 
-    return PointCloud(np.column_stack([x, y, h]), attrs, pyproj.CRS(CRS))
+    xyz = np.column_stack([x, y, h])
+    if order == "scan":  # acquisition order: strip by strip, along x, alternate flight directions
+        strip = np.floor((y - y0) / STRIP_M)
+        along = np.where(strip % 2 == 0, x, -x)
+        perm = np.lexsort((along, strip))
+        xyz = xyz[perm]
+        attrs = {k: (v if k == "gps_time" else v[perm]) for k, v in attrs.items()}  # time follows file order
+    return PointCloud(xyz, attrs, pyproj.CRS(CRS))
 
 
-def generate(folder: Path, points: int, tiles: int, fmt: str) -> dict:
+def generate(folder: Path, points: int, tiles: int, fmt: str, order: str = "random",
+             prefix: str = "tile") -> dict:
     from lidarcat.lidar import write_points
 
     per_side = int(round(math.sqrt(tiles)))
@@ -94,10 +113,11 @@ def generate(folder: Path, points: int, tiles: int, fmt: str) -> dict:
     t = time.perf_counter()
     for i in range(per_side):
         for j in range(per_side):
-            write_points(folder / f"tile_{i:02d}_{j:02d}.{fmt}", _tile_cloud(i, j, side, n_tile, 1000 * i + j))
+            write_points(folder / f"{prefix}_{i:02d}_{j:02d}.{fmt}",
+                         _tile_cloud(i, j, side, n_tile, 1000 * i + j, order))
     return {"tiles": tiles, "points": n_tile * tiles, "points_per_tile": n_tile, "tile_side_m": side,
             "generate_s": time.perf_counter() - t,
-            "bytes": sum(p.stat().st_size for p in folder.iterdir())}
+            "bytes": sum(p.stat().st_size for p in folder.glob(f"{prefix}_*.{fmt}"))}
 
 
 # ----------------------------------------------------------------------------- phases (subprocess)
@@ -109,7 +129,25 @@ def phase_index(folder: Path, args) -> dict:
     dt = time.perf_counter() - t
     t = time.perf_counter()
     TileIndex.build(str(folder / "tile_*"), cache_path=folder / "index.json")
-    return {"tiles": len(idx), "points": idx.count, "build_s": dt, "cached_build_s": time.perf_counter() - t}
+    return {"tiles": len(idx), "points": idx.count, "build_s": dt, "cached_build_s": time.perf_counter() - t,
+            **_block_index(folder, "tile")}
+
+
+def _block_index(folder: Path, prefix: str) -> dict:
+    """Build the block index of every tile (one full read each) into blocks_<prefix>.json."""
+    from lidarcat.lidar import TileIndex
+
+    cache = folder / f"blocks_{prefix}.json"
+    t = time.perf_counter()
+    idx = TileIndex.build(str(folder / f"{prefix}_*"), cache_path=cache, blocks=True, max_cached_points=0)
+    dt = time.perf_counter() - t
+    t = time.perf_counter()
+    again = TileIndex.build(str(folder / f"{prefix}_*"), cache_path=cache, max_cached_points=0)
+    dt2 = time.perf_counter() - t
+    assert all(again.block_index(tl) is not None for tl in again.tiles)
+    return {"blocks_build_s": dt, "blocks_cached_build_s": dt2, "blocks_json_bytes": cache.stat().st_size,
+            "blocks_per_tile": len(idx.block_index(idx.tiles[0])),
+            "cells_per_tile": len(idx.block_index(idx.tiles[0]).boxes)}
 
 
 def phase_stream(folder: Path, args) -> dict:
@@ -130,20 +168,35 @@ def phase_stream(folder: Path, args) -> dict:
 def phase_clip(folder: Path, args) -> dict:
     from lidarcat.lidar import TileIndex, clip
 
+    prefix = args.prefix
     rng = np.random.default_rng(5)
     out = {}
-    for mode, cache in (("cold", 0), ("cached", 8_000_000)):
-        idx = TileIndex.build(str(folder / "tile_*"), max_cached_points=cache)
+    if prefix != "tile":  # the index phase made the random tiles' block index; make this one's
+        out["blocks_index"] = _block_index(folder, prefix)
+    batch_centers = None
+    for mode, cache in (("cold", 0), ("cold_blocks", 0), ("cached", 8_000_000), ("cached_blocks", 8_000_000)):
+        if mode in ("cold_blocks", "cached_blocks"):  # block index read from the JSON cache, no full pass here
+            idx = TileIndex.build(str(folder / f"{prefix}_*"), cache_path=folder / f"blocks_{prefix}.json",
+                                  max_cached_points=cache)
+            assert all(idx.block_index(tl) is not None for tl in idx.tiles)
+        else:
+            idx = TileIndex.build(str(folder / f"{prefix}_*"), max_cached_points=cache,
+                                  decode="whole" if mode == "cold" else "auto")
         b = idx.bounds
-        nclip = args.clips if mode == "cached" else max(5, args.clips // 10)
-        # roof vertices on the house grid (ridge ends), so the height filter has roofs to keep
-        gx = rng.integers(0, int((b.xmax - b.xmin) // 30) - 1, nclip)
-        gy = rng.integers(0, int((b.ymax - b.ymin) // 30) - 1, nclip)
-        centers = np.column_stack([E0 + 30 * gx + 9.0, N0 + 30 * gy + 15.0])
+        nclip = args.clips if mode.startswith("cached") else max(5, args.clips // 10)
+        if mode == "cached_blocks":  # the same batch, the block index known: blocks kept in memory
+            centers = batch_centers
+        else:
+            # cold_blocks: the very clips of "cold" (same generator state)
+            r = np.random.default_rng(5) if mode == "cold_blocks" else rng
+            # roof vertices on the house grid (ridge ends), so the height filter has roofs to keep
+            gx = r.integers(0, int((b.xmax - b.xmin) // 30) - 1, nclip)
+            gy = r.integers(0, int((b.ymax - b.ymin) // 30) - 1, nclip)
+            centers = np.column_stack([E0 + 30 * gx + 9.0, N0 + 30 * gy + 15.0])
         if mode == "cached":  # jobs grouped by tile, as a batch extraction should order them
             side = idx.tiles[0].bounds.xmax - idx.tiles[0].bounds.xmin
             tile_ij = np.floor((centers - [b.xmin, b.ymin]) / side)
-            centers = centers[np.lexsort((tile_ij[:, 1], tile_ij[:, 0]))]
+            centers = batch_centers = centers[np.lexsort((tile_ij[:, 1], tile_ij[:, 0]))]
         t = time.perf_counter()
         kept = 0
         for c in centers:
@@ -151,11 +204,13 @@ def phase_clip(folder: Path, args) -> dict:
         dt = time.perf_counter() - t
         out[mode] = {"clips": nclip, "seconds": dt, "clips_per_s": nclip / dt,
                      "points_kept_per_clip": kept / nclip,
-                     "survey_points_per_s": None}
+                     "survey_points_per_s": None, "decoded_per_clip": idx.decoded_points / nclip,
+                     "tile_points": idx.tiles[0].count}
         if mode == "cold":  # each clip decodes its tile(s): survey points handled per second
             per_tile = idx.tiles[0].count
             out[mode]["survey_points_per_s"] = nclip * per_tile / dt
     # hot: clips inside one tile already decoded and kept in memory (the query cost alone)
+    idx = TileIndex.build(str(folder / f"{prefix}_*"), max_cached_points=8_000_000)
     t0 = idx.tiles[0]
     idx.query_radius(((t0.bounds.xmin + t0.bounds.xmax) / 2, (t0.bounds.ymin + t0.bounds.ymax) / 2), 5.0)
     gx = rng.integers(0, int((t0.bounds.xmax - t0.bounds.xmin) // 30) - 1, args.clips)
@@ -183,7 +238,7 @@ def phase_clip(folder: Path, args) -> dict:
 def phase_ascii(folder: Path, args) -> dict:
     from lidarcat.lidar import read_points, write_points
 
-    src = sorted(folder.glob("tile_*"))[0]
+    src = sorted(folder.glob("tile_*.la[sz]"))[0]
     pc = read_points(src).select(slice(0, args.ascii_points))
     p = folder / "ascii_tile.xyz"
     t = time.perf_counter()
@@ -200,9 +255,9 @@ def phase_ascii(folder: Path, args) -> dict:
 PHASES = {"index": phase_index, "stream": phase_stream, "clip": phase_clip, "ascii": phase_ascii}
 
 
-def _run_phase(name: str, folder: Path, args) -> dict:
+def _run_phase(name: str, folder: Path, args, prefix: str = "tile") -> dict:
     cmd = [sys.executable, __file__, "--phase", name, "--dir", str(folder), "--chunk", str(args.chunk),
-           "--clips", str(args.clips), "--ascii-points", str(args.ascii_points)]
+           "--clips", str(args.clips), "--ascii-points", str(args.ascii_points), "--prefix", prefix]
     res = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if res.returncode != 0:
         raise SystemExit(f"phase {name} failed:\n{res.stderr}")
@@ -219,6 +274,9 @@ def main() -> None:
     ap.add_argument("--clips", type=int, default=200, help="clips in the cached clip phase")
     ap.add_argument("--ascii-points", type=int, default=1_000_000)
     ap.add_argument("--keep", type=Path, default=None, help="generate into (and keep) this folder")
+    ap.add_argument("--order", choices=["random", "scan", "both"], default="random",
+                    help="point order in the tiles (see above; default random)")
+    ap.add_argument("--prefix", default="tile", help=argparse.SUPPRESS)
     ap.add_argument("--phase", choices=sorted(PHASES), help=argparse.SUPPRESS)
     ap.add_argument("--dir", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -231,11 +289,17 @@ def main() -> None:
     folder = args.keep or Path(tempfile.mkdtemp(prefix="bench_lidar_"))
     folder.mkdir(parents=True, exist_ok=True)
     try:
-        gen = generate(folder, points, args.tiles, args.format)
+        first = "scan" if args.order == "scan" else "random"
+        gen = generate(folder, points, args.tiles, args.format, first)
         print(f"survey: {gen['points']:,} points in {gen['tiles']} {args.format.upper()} tiles of "
               f"{gen['points_per_tile']:,} ({gen['tile_side_m']:.0f} m side, {DENSITY:g} pts/m2), "
-              f"{gen['bytes'] / 1e6:,.0f} MB; generated in {gen['generate_s']:.0f} s")
+              f"{gen['bytes'] / 1e6:,.0f} MB, points in {first} order; generated in {gen['generate_s']:.0f} s")
         res = {name: _run_phase(name, folder, args) for name in ("index", "stream", "clip", "ascii")}
+        if args.order == "both":
+            gen2 = generate(folder, points, args.tiles, args.format, "scan", prefix="scan")
+            print(f"same survey in scan order: {gen2['bytes'] / 1e6:,.0f} MB; generated in "
+                  f"{gen2['generate_s']:.0f} s")
+            res["clip_scan"] = _run_phase("clip", folder, args, prefix="scan")
     finally:
         if args.keep is None:
             shutil.rmtree(folder, ignore_errors=True)
@@ -245,9 +309,19 @@ def main() -> None:
         ("stream whole survey", f"{s['points_per_s'] / 1e6:.2f} M pts/s",
          f"{s['points']:,} pts in {s['seconds']:.1f} s (chunk {s['chunk']:,})", s["peak_rss_mb"]),
         ("clip r=5 m, cold", f"{c['cold']['clips_per_s']:.2f} clips/s",
-         f"{c['cold']['survey_points_per_s'] / 1e6:.2f} M survey pts/s decoded", None),
+         f"{c['cold']['survey_points_per_s'] / 1e6:.2f} M survey pts/s decoded (whole tile)", None),
+        ("clip r=5 m, cold, blocks", f"{c['cold_blocks']['clips_per_s']:.2f} clips/s",
+         f"{c['cold_blocks']['decoded_per_clip']:,.0f} of {c['cold_blocks']['tile_points']:,} pts decoded "
+         f"per clip", None),
+        ("  block index (full read)", f"{i['blocks_build_s']:.1f} s",
+         f"{i['blocks_per_tile']} blocks, {i['cells_per_tile']} cells/tile; cached: "
+         f"{i['blocks_cached_build_s']:.3f} s, "
+         f"JSON {i['blocks_json_bytes'] / 1e3:.0f} kB", None),
         ("clip r=5 m, batch", f"{c['cached']['clips_per_s']:.1f} clips/s",
          f"{c['cached']['clips']} clips grouped by tile, each tile decoded once", c["peak_rss_mb"]),
+        ("clip r=5 m, batch, blocks", f"{c['cached_blocks']['clips_per_s']:.1f} clips/s",
+         f"same, block index known: {c['cached_blocks']['decoded_per_clip']:,.0f} pts decoded per clip",
+         None),
         ("clip r=5 m, tile in memory", f"{c['hot']['clips_per_s']:.0f} clips/s",
          f"{c['cached']['points_kept_per_clip']:.0f} pts kept per clip (robust filter)", None),
         ("clip of a PointCloud", f"{c['in_memory']['points_scanned_per_s'] / 1e6:.0f} M pts/s",
@@ -256,6 +330,22 @@ def main() -> None:
         ("ASCII .xyz read", f"{a['read_points_per_s'] / 1e6:.2f} M pts/s",
          f"{a['points']:,} pts, write {a['write_points_per_s'] / 1e6:.2f} M pts/s", a["peak_rss_mb"]),
     ]
+    if "clip_scan" in res:
+        cs = res["clip_scan"]
+        bi = cs["blocks_index"]
+        rows += [
+            ("scan order: clip, cold", f"{cs['cold']['clips_per_s']:.2f} clips/s", "whole-tile decode", None),
+            ("scan order: clip, blocks", f"{cs['cold_blocks']['clips_per_s']:.2f} clips/s",
+             f"{cs['cold_blocks']['decoded_per_clip']:,.0f} of {cs['cold_blocks']['tile_points']:,} pts "
+             f"decoded per clip", None),
+            ("scan order: block index", f"{bi['blocks_build_s']:.1f} s",
+             f"{bi['blocks_per_tile']} blocks, {bi['cells_per_tile']} cells/tile; cached: "
+             f"{bi['blocks_cached_build_s']:.3f} s", None),
+            ("scan order: clip, batch", f"{cs['cached']['clips_per_s']:.1f} clips/s",
+             "grouped by tile, tiles kept in memory", cs["peak_rss_mb"]),
+            ("scan order: batch, blocks", f"{cs['cached_blocks']['clips_per_s']:.1f} clips/s",
+             f"block index known: {cs['cached_blocks']['decoded_per_clip']:,.0f} pts decoded per clip", None),
+        ]
     print(f"{'phase':<28} {'throughput':<18} {'detail':<58} peak RSS")
     for name, thr, detail, mem in rows:
         print(f"{name:<28} {thr:<18} {detail:<58} {'' if mem is None else f'{mem:,.0f} MB'}")

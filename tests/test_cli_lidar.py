@@ -95,6 +95,32 @@ def test_index_survey_writes_cache(tmp_path):
     assert json.loads(r.output)["crs"] == "EPSG:7415"
 
 
+def test_index_blocks_then_extract_reuses_the_block_index(tmp_path):
+    from lidarcat.lidar import TileIndex
+
+    survey = tmp_path / "s"
+    shutil.copytree(THESIS_SURVEY, survey)
+    (survey / "lidar").mkdir()
+    shutil.copy(AHN1, survey / "lidar")
+    text = (survey / "survey.toml").read_text()
+    text = text.replace("[files]\n", '[files]\nlidar = ["lidar/*.laz"]\n') + '\n[lidar]\ncrs = "EPSG:7415"\n'
+    (survey / "survey.toml").write_text(text)
+    r = run("index", str(survey), "--blocks")
+    assert r.exit_code == 0, r.output
+    assert "block index: 1 of 1 tiles" in r.output
+    doc = json.loads((survey / "lidar_index.json").read_text())
+    assert doc["tiles"][0].get("blocks") is not None
+    idx = TileIndex.build([str(survey / "lidar" / "ahn3_cropped_1.laz")], crs="EPSG:7415",
+                          cache_path=survey / "lidar_index.json")
+    assert idx.block_index(idx.tiles[0]) is not None   # read back, no second full pass
+    args = ["extract", "--lidar", str(survey / "lidar" / "ahn3_cropped_1.laz"), "--crs", "EPSG:7415",
+            "--at", "85000", "447472", "--json"]
+    plain = CliRunner().invoke(cli, args)
+    cached = CliRunner().invoke(cli, args + ["--index-cache", str(survey / "lidar_index.json")])
+    assert plain.exit_code == 0 and cached.exit_code == 0, cached.output
+    assert json.loads(plain.output) == json.loads(cached.output)
+
+
 def test_errors_are_one_line(tmp_path):
     trunc = tmp_path / "trunc.laz"
     data = (LIDAR_DATA / "ahn3_cropped_2.laz").read_bytes()

@@ -182,6 +182,8 @@ def test_all_stages_ran(demo_run):
     assert summary["ok"] is True
     assert summary["stages_ran"] == ["camera", "extract", "adjust-gps", "adjust-lidar", "assess-gps",
                                      "assess-lidar", "compare-gps-lidar", "report"]
+    assert (out / ".lidar_index.json").is_file()      # tile + block index kept for the next run
+    assert not (out / ".lidarcat.lock").exists()
     derived = Survey.load(out / "extract" / "survey")
     assert set(derived.control_sets) == {"gps", "lidar"}
     assert len(derived.control_sets["lidar"].control) == 7

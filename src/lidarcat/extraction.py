@@ -125,9 +125,11 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
 class _Source:
     """Points for a job: a tile index over --lidar paths, or the job's own file."""
 
-    def __init__(self, lidar: Sequence[str | os.PathLike] | None, crs: Any) -> None:
+    def __init__(self, lidar: Sequence[str | os.PathLike] | None, crs: Any,
+                 index_cache: str | os.PathLike | None = None) -> None:
         self.crs = crs
         self.lidar = list(lidar or [])
+        self.index_cache = index_cache
         self._index = None
         self._per_file: dict[Path, Any] = {}
 
@@ -139,7 +141,9 @@ class _Source:
     def query(self, job: Job, radius_m: float):
         if self.lidar:
             if self._index is None:
-                self._index = self._build(self.lidar)
+                from .lidar import TileIndex
+
+                self._index = TileIndex.build(self.lidar, crs=self.crs, cache_path=self.index_cache)
             idx = self._index
         else:
             if job.file is None:
@@ -161,6 +165,7 @@ def extract_batch(
     params: ExtractionParams | str | None = None,
     spec_sd: tuple[float, float] | None = None,
     progress: Callable[[int], None] | None = None,
+    index_cache: str | os.PathLike | None = None,
 ) -> list[ControlPoint]:
     """Extract every job; failures are rows with a status, never exceptions.
 
@@ -178,9 +183,13 @@ def extract_batch(
     spec_sd : (plan, height), optional
         Replace every point's covariance by these specification sds (m).
     progress : callable(int), optional
+    index_cache : path, optional
+        JSON cache of the tile index of *lidar* (bounds, counts and the block
+        index that lets a clip decode only the parts of a LAZ tile it needs;
+        see :meth:`lidarcat.lidar.TileIndex.build`), reused and updated.
     """
     p0 = get_params(params)
-    src = None if points is not None else _Source(lidar, crs)
+    src = None if points is not None else _Source(lidar, crs, index_cache)
     out = []
     for job in jobs:
         p = p0.replace(**{k: v for k, v in (("residual_threshold_m", job.threshold_m),

@@ -998,8 +998,10 @@ def _extract_jobs(survey: Any, ctx: _Context) -> list:
         ctx.progress(done[0], len(jobs) + 1)
 
     ctx.progress(0, len(jobs) + 1)
+    # the tile index (with the block index of each LAZ tile) persists across runs
     return list(extract_batch(jobs, lidar=list(survey.lidar_paths),
-                              crs=survey.lidar_crs or survey.crs, progress=tick))
+                              crs=survey.lidar_crs or survey.crs, progress=tick,
+                              index_cache=ctx.outdir / ".lidar_index.json"))
 
 
 def _toml_value(v: Any) -> str:

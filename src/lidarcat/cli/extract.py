@@ -56,9 +56,13 @@ def _progress(items: int, label: str):
               help="Folder for one operator figure per point (PNG).")
 @click.option("--spec-sd", nargs=2, type=float, default=None, metavar="PLAN H",
               help="Replace the propagated sds by specification sds (m), e.g. 0.50 0.15 (thesis).")
+@click.option("--index-cache", "index_cache", type=click.Path(dir_okay=False), default=None,
+              help="JSON tile index of the --lidar tiles to reuse and update, e.g. SURVEY/lidar_index.json "
+                   "from `lidarcat lidar index --blocks`: later clips decode only the parts of a LAZ "
+                   "tile they need.")
 @click.option("--json", "as_json", is_flag=True, help="Print results as JSON (with --at: one object).")
 def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, planes_out, figures,
-            spec_sd, as_json) -> None:
+            spec_sd, index_cache, as_json) -> None:
     """Roof planes to control points (Delaunay facets + plane intersection)."""
     from ..facets import get_params
 
@@ -77,7 +81,8 @@ def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, pl
     bar, prog = _progress(len(job_list), "Extracting roofs")
     try:
         points = extract_batch(job_list, lidar=lidar or None, crs=crs, params=params,
-                               spec_sd=tuple(spec_sd) if spec_sd else None, progress=prog)
+                               spec_sd=tuple(spec_sd) if spec_sd else None, progress=prog,
+                               index_cache=index_cache)
     finally:
         if bar is not None:
             bar.render_finish()

@@ -31,13 +31,13 @@ from .crs import common_crs, crs_compatible, crs_label, resolve_crs, transform_p
 from .info import describe
 from .raster import GeoTransform, rasterize, write_geotiff, write_png_preview, write_raster
 from .readers import FileHeader, iter_points, read_header, read_points, write_points
-from .tileindex import Tile, TileIndex, expand_paths, in_box, in_polygon, in_radius
+from .tileindex import BlockIndex, Tile, TileIndex, expand_paths, in_box, in_polygon, in_radius
 
 __all__ = [
     "PointCloud", "Bounds", "STANDARD_ATTRIBUTES",
     "read_points", "iter_points", "write_points", "read_header", "FileHeader",
     "resolve_crs", "transform_points", "crs_compatible", "common_crs", "crs_label",
-    "TileIndex", "Tile", "expand_paths", "in_radius", "in_box", "in_polygon",
+    "TileIndex", "Tile", "BlockIndex", "expand_paths", "in_radius", "in_box", "in_polygon",
     "clip", "height_window_mask", "HEIGHT_FILTERS",
     "rasterize", "GeoTransform", "write_geotiff", "write_png_preview", "write_raster",
     "describe",

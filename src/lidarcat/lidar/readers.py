@@ -61,6 +61,8 @@ __all__ = [
     "LAS_SUFFIXES",
     "ASCII_SUFFIXES",
     "DEFAULT_CHUNK_SIZE",
+    "iter_las_ranges",
+    "las_chunk_points",
 ]
 
 log = logging.getLogger(__name__)
@@ -164,11 +166,14 @@ def _settle_crs(path: Path, file_crs: Any, given: Any) -> tuple[Any, bool]:
 
 
 # --------------------------------------------------------------------------- LAS
-def _open_las(path: Path):
+def _open_las(path: Path, serial: bool = False):
     import laspy
 
+    backend = None
+    if serial and laspy.LazBackend.Lazrs.is_available():
+        backend = laspy.LazBackend.Lazrs
     try:
-        return laspy.open(path)
+        return laspy.open(path, laz_backend=backend)
     except FileNotFoundError:
         raise TileIOError(f"{path}: file not found") from None
     except IsADirectoryError:
@@ -248,6 +253,111 @@ def _iter_las(path: Path, chunk_size: int, crs: Any, progress: Progress | None) 
         if done != total:
             raise LidarFormatError(f"{path}: truncated: read {done} of the {total} points "
                                    "the header announces")
+
+
+def las_chunk_points(path: str | os.PathLike) -> int | None:
+    """Points per compressed chunk of a LAZ file; ``None`` for LAS or variable-size chunks.
+
+    Raises
+    ------
+    TileIOError, LidarFormatError
+        As :func:`read_header`.
+    """
+    path = Path(path)
+    reader = _open_las(path)
+    with reader:
+        h = reader.header
+        if not h.are_points_compressed:
+            return None
+        try:
+            import lazrs
+
+            vlr = h.vlrs[h.vlrs.index("LasZipVlr")]
+            lv = lazrs.LazVlr(vlr.record_data)
+            if lv.uses_variable_size_chunks():
+                return None
+            return int(lv.chunk_size())
+        except Exception as ex:  # missing or corrupt LasZip record
+            raise LidarFormatError(f"{path}: cannot read the LAZ chunk record ({ex})") from ex
+
+
+def iter_las_ranges(path: str | os.PathLike, ranges: Sequence[tuple[int, int]], *, crs: Any = None,
+                    piece_points: int | None = None,
+                    max_read_points: int = DEFAULT_CHUNK_SIZE) -> Iterator[tuple[int, PointCloud]]:
+    """Decode only the point ranges ``[start, stop)`` of a LAS/LAZ file (seek, then read).
+
+    The points, coordinates and attributes are exactly those :func:`iter_points`
+    returns for the same indices.  A LAZ file is decompressed from the start of
+    the compressed chunk holding *start*, so ranges starting on its chunks
+    (:func:`las_chunk_points`) decode nothing else; the single-threaded lazrs
+    decoder is used, which stops at *stop* (the parallel one decodes whole
+    chunks).
+
+    Parameters
+    ----------
+    path : path-like
+        LAS/LAZ file.
+    ranges : sequence of (int, int)
+        Point index ranges, each ``0 <= start < stop <= count``; read in the order given.
+    crs : CRS-like, optional
+        CRS of the file when it carries none.
+    piece_points : int, optional
+        Split each range into pieces of this many points counted from its start
+        (the last one shorter); default: pieces of at most *max_read_points*.
+    max_read_points : int
+        Largest number of points decoded in one read (bounds memory).
+
+    Yields
+    ------
+    (int, PointCloud)
+        Index of the first point of the piece, and the piece; in range order.
+
+    Raises
+    ------
+    TileIOError
+        The file is missing or unreadable.
+    LidarFormatError
+        Not a LAS/LAZ file, a range outside ``0..count``, truncated or corrupt data.
+    CRSError
+        As :func:`iter_points`.
+    """
+    path = Path(path)
+    if file_kind(path) != "las":
+        raise LidarFormatError(f"{path}: point ranges can be read from LAS/LAZ files only")
+    piece = int(piece_points or max_read_points)
+    if piece <= 0 or max_read_points <= 0:
+        raise ValueError(f"piece_points and max_read_points must be positive, got {piece_points}, "
+                         f"{max_read_points}")
+    per_read = max(1, int(max_read_points) // piece) * piece
+    reader = _open_las(path, serial=True)
+    with reader:
+        header = reader.header
+        file_crs, _ = _settle_crs(path, _las_crs(path, header), crs)
+        _check_las_size(path, header)
+        total = int(header.point_count)
+        for start, stop in ranges:
+            start, stop = int(start), int(stop)
+            if not 0 <= start < stop <= total:
+                raise LidarFormatError(f"{path}: point range {start}..{stop} is outside the file's "
+                                       f"0..{total} points; rebuild the index")
+            pos = start
+            try:
+                reader.seek(start)
+                while pos < stop:
+                    n = min(per_read, stop - pos)
+                    rec = reader.read_points(n)
+                    if len(rec) != n:
+                        raise LidarFormatError(f"{path}: truncated: read {len(rec)} of the {n} points "
+                                               f"from point {pos}")
+                    for a in range(0, n, piece):
+                        b = min(a + piece, n)
+                        yield pos + a, _las_record_cloud(rec[a:b], header, file_crs)
+                    pos += n
+            except (LidarFormatError, CRSError):
+                raise
+            except Exception as ex:  # lazrs.LazrsError, ValueError on a short buffer, ...
+                raise LidarFormatError(f"{path}: truncated or corrupt point data reading points "
+                                       f"{pos}..{stop} of {total} ({type(ex).__name__}: {ex})") from ex
 
 
 def _las_header(path: Path, crs: Any) -> FileHeader:

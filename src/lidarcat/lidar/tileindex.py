@@ -18,10 +18,39 @@ once.
 Membership tests are the same whatever the tiling: a point is in a circle when
 ``(x - e)**2 + (y - n)**2 <= r**2``, in a box when ``xmin <= x <= xmax`` and
 ``ymin <= y <= ymax`` (edges included), in a polygon by the even-odd rule.
+
+**Block index (LAS/LAZ).**  A LAZ file is compressed in chunks (usually 50 000
+points) that can be decoded on their own.  A :class:`BlockIndex` cuts the points
+of a tile, in file order, into blocks (the LAZ chunk, or ``block_points`` points
+for LAS and variable-chunk LAZ) and cells (``cell_points``, default 5 000, a
+divisor of the block) and records the plan box of every cell.  With it, a query
+on a tile that is not in memory seeks to each block holding a cell whose box
+meets the query box and decodes it from its start to the end of the last such
+cell (touching ranges read in one go); it returns exactly the points,
+attributes and order a whole-tile decode returns.  Airborne scans store points
+in acquisition order, so a block covers a short piece of a strip and a roof clip
+decodes part of one or two blocks; in a file whose points are shuffled every
+cell spans the tile and the whole tile is decoded as before.
+
+The block index of a tile is computed in one full pass: as a by-product of the
+first whole-tile read (any query or :meth:`TileIndex.iter_points`), by
+:meth:`TileIndex.index_blocks`, or at :meth:`TileIndex.build` with
+``blocks=True``; it is kept in the JSON cache (``cache_path=``) with the tile
+and dropped when the file's size or modification time changes.  ``decode=``
+chooses how cold queries read: ``"auto"`` (default) uses the blocks when the
+index is known and they would decode less than half the tile's points,
+otherwise decodes the whole tile as before (tiles within ``max_cached_points``
+are then kept in memory whole, which is also done once the block reads of a
+tile that fits add up to a quarter of its points: many clips in one tile);
+``"blocks"`` always uses the blocks once the index is known; ``"whole"`` never
+does.  Decoded blocks share the ``max_cached_points`` memory
+budget with whole tiles; the counter :attr:`TileIndex.decoded_points` tells how
+many points were decoded from files.
 """
 
 from __future__ import annotations
 
+import base64
 import glob as _glob
 import json
 import logging
@@ -39,14 +68,26 @@ from .._io import write_json_atomic
 from ..errors import CRSError, TileIOError
 from .cloud import Bounds, PointCloud
 from .crs import common_crs, crs_compatible, crs_label, resolve_crs, transform_points
-from .readers import ASCII_SUFFIXES, LAS_SUFFIXES, file_kind, iter_points, read_header
+from .readers import (ASCII_SUFFIXES, LAS_SUFFIXES, file_kind, iter_las_ranges, iter_points,
+                      las_chunk_points, read_header)
 
-__all__ = ["TileIndex", "Tile", "expand_paths", "in_radius", "in_box", "in_polygon"]
+__all__ = ["TileIndex", "Tile", "BlockIndex", "DECODE_MODES", "DEFAULT_BLOCK_POINTS", "DEFAULT_CELL_POINTS",
+           "expand_paths", "in_radius", "in_box", "in_polygon"]
 
 log = logging.getLogger(__name__)
 
 _CACHE_FORMAT = "lidarcat-tile-index"
-_CACHE_VERSION = 1
+_CACHE_VERSION = 2  # 2: per-tile "blocks" (block index); version-1 files are read as absent
+#: how cold queries read LAS/LAZ tiles (see the module docstring)
+DECODE_MODES = ("auto", "blocks", "whole")
+#: points per block for LAS files and LAZ files with variable-size chunks
+DEFAULT_BLOCK_POINTS = 50_000
+#: points per cell (the unit of the recorded boxes; a divisor of the block size)
+DEFAULT_CELL_POINTS = 5_000
+#: "auto" uses the blocks when a query would decode less than this fraction of the tile's points
+_AUTO_BLOCK_FRACTION = 0.5
+#: ... and reads a tile that fits in memory whole once its block reads reach this fraction
+_AUTO_SWITCH_FRACTION = 0.25
 _GLOB_CHARS = set("*?[")
 
 
@@ -183,6 +224,163 @@ class Tile:
                    tuple(d.get("attributes", ())))
 
 
+@dataclass(frozen=True, eq=False)
+class BlockIndex:
+    """Plan boxes of the consecutive points of one LAS/LAZ tile, for partial decoding.
+
+    The points are cut, in file order, into *blocks* of ``block_points`` (the
+    unit a LAZ decoder starts from: its compressed chunk) and each block into
+    *cells* of ``cell_points``; ``boxes`` holds the exact minimum and maximum
+    of the coordinates of each cell as read.  A query decodes, in every block
+    holding a cell its box meets, the points from the block start to the end of
+    the last such cell.
+
+    Attributes
+    ----------
+    block_points : int
+        Points per block (the last block may hold fewer).
+    count : int
+        Points in the tile.
+    boxes : ndarray, shape (C, 4)
+        ``xmin, ymin, xmax, ymax`` of each cell, metres; ``C = ceil(count / cell_points)``.
+    cell_points : int
+        Points per cell, a divisor of *block_points* (default: *block_points*).
+
+    Examples
+    --------
+    >>> bi = BlockIndex(2, 5, np.array([[0, 0, 1, 1], [5, 0, 6, 1], [0.5, 0, 2, 1.0]]))
+    >>> bi.blocks_in_box(0.9, 0.5, 1.5, 0.6).tolist(), bi.ranges([0, 2])
+    ([0, 2], [(0, 2), (4, 5)])
+    >>> bi.ranges([0, 1])
+    [(0, 4)]
+    >>> cells = BlockIndex(4, 7, np.array([[0, 0, 1, 1], [5, 0, 6, 1], [0, 0, 1, 1], [9, 9, 9, 9]]), 2)
+    >>> cells.needs(cells.cells_in_box(0, 0, 1, 1))     # blocks 0 and 1, each read up to point 2 / 6
+    ([0, 1], [2, 6])
+    """
+
+    block_points: int
+    count: int
+    boxes: np.ndarray
+    cell_points: int = 0
+
+    def __post_init__(self) -> None:
+        bp, count = int(self.block_points), int(self.count)
+        cp = int(self.cell_points) or bp
+        boxes = np.array(self.boxes, dtype=np.float64, copy=True).reshape(-1, 4)
+        if bp <= 0 or cp <= 0 or count < 0 or bp % cp:
+            raise ValueError(f"block_points ({bp}) must be a positive multiple of cell_points ({cp}) "
+                             f"and count ({count}) >= 0")
+        if len(boxes) != -(-count // cp):
+            raise ValueError(f"{len(boxes)} boxes for {count} points in cells of {cp}")
+        boxes.setflags(write=False)
+        object.__setattr__(self, "block_points", bp)
+        object.__setattr__(self, "cell_points", cp)
+        object.__setattr__(self, "count", count)
+        object.__setattr__(self, "boxes", boxes)
+
+    def __len__(self) -> int:
+        """Number of blocks."""
+        return -(-self.count // self.block_points)
+
+    def block_range(self, k: int) -> tuple[int, int]:
+        """Point index range ``[start, stop)`` of block *k*."""
+        return k * self.block_points, min((k + 1) * self.block_points, self.count)
+
+    def cells_in_box(self, xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
+        """Ascending indices of the cells whose box meets the plan box (edges included)."""
+        b = self.boxes
+        return np.flatnonzero((b[:, 0] <= xmax) & (b[:, 2] >= xmin) & (b[:, 1] <= ymax) & (b[:, 3] >= ymin))
+
+    def blocks_in_box(self, xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
+        """Ascending indices of the blocks holding a cell whose box meets the plan box."""
+        return np.unique(self.cells_in_box(xmin, ymin, xmax, ymax) // (self.block_points // self.cell_points))
+
+    def needs(self, cells: np.ndarray) -> tuple[list[int], list[int]]:
+        """Blocks holding the ascending *cells*, and per block the point index where reading
+        may stop (the end of its last cell among *cells*)."""
+        c = np.asarray(cells, dtype=np.int64)
+        if len(c) == 0:
+            return [], []
+        blk = c // (self.block_points // self.cell_points)
+        ends = np.minimum((c + 1) * self.cell_points, self.count)
+        last = np.flatnonzero(np.r_[blk[1:] != blk[:-1], True])  # cells ascend: last one per block
+        return blk[last].tolist(), ends[last].tolist()
+
+    def points_in(self, blocks: np.ndarray) -> int:
+        """Number of points in the given blocks."""
+        b = np.asarray(blocks, dtype=np.int64)
+        return int(np.minimum((b + 1) * self.block_points, self.count).sum() - (b * self.block_points).sum())
+
+    def ranges(self, blocks: Iterable[int], stops: Iterable[int] | None = None) -> list[tuple[int, int]]:
+        """Point ranges ``[start, stop)`` of ascending *blocks* (each read from its start to
+        its entry of *stops*, default its end), ranges that touch merged."""
+        blocks = [int(k) for k in blocks]
+        stops = [self.block_range(k)[1] for k in blocks] if stops is None else [int(e) for e in stops]
+        out: list[tuple[int, int]] = []
+        for k, e in zip(blocks, stops):
+            a = k * self.block_points
+            if out and out[-1][1] == a:
+                out[-1] = (out[-1][0], e)
+            else:
+                out.append((a, e))
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form: the boxes as base64 of little-endian float64 (exact round trip)."""
+        return {"block_points": self.block_points, "cell_points": self.cell_points, "count": self.count,
+                "boxes_f8le": base64.b64encode(self.boxes.astype("<f8").tobytes()).decode("ascii")}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> BlockIndex:
+        raw = base64.b64decode(d["boxes_f8le"], validate=True)
+        return cls(int(d["block_points"]), int(d["count"]), np.frombuffer(raw, dtype="<f8").reshape(-1, 4),
+                   int(d.get("cell_points", 0)))
+
+
+def _cell_points_for(block_points: int, cell_points: int) -> int:
+    """The largest divisor of *block_points* not above *cell_points*."""
+    for c in range(min(int(cell_points), block_points), 0, -1):
+        if block_points % c == 0:
+            return c
+    return block_points
+
+
+class _BlockBoxes:
+    """Accumulates cell boxes from a stream of chunks in file order (any chunk sizes)."""
+
+    def __init__(self, block_points: int, cell_points: int, count: int) -> None:
+        self.block_points = int(block_points)
+        self.cell_points = int(cell_points)
+        self.count = int(count)
+        k = -(-self.count // self.cell_points)
+        self.boxes = np.empty((k, 4))
+        self.boxes[:, :2] = np.inf
+        self.boxes[:, 2:] = -np.inf
+        self.seen = 0
+
+    def add(self, xyz: np.ndarray) -> None:
+        m = len(xyz)
+        if m == 0:
+            return
+        if self.seen + m > self.count:
+            raise ValueError("more points than the tile holds")
+        cp = self.cell_points
+        first, last = self.seen // cp, (self.seen + m - 1) // cp
+        edges = np.concatenate([[0], np.arange(first + 1, last + 1) * cp - self.seen]).astype(np.intp)
+        x, y = xyz[:, 0], xyz[:, 1]
+        box = self.boxes[first:last + 1]
+        np.minimum(box[:, 0], np.minimum.reduceat(x, edges), out=box[:, 0])
+        np.minimum(box[:, 1], np.minimum.reduceat(y, edges), out=box[:, 1])
+        np.maximum(box[:, 2], np.maximum.reduceat(x, edges), out=box[:, 2])
+        np.maximum(box[:, 3], np.maximum.reduceat(y, edges), out=box[:, 3])
+        self.seen += m
+
+    def finish(self) -> BlockIndex | None:
+        if self.seen != self.count:
+            return None
+        return BlockIndex(self.block_points, self.count, self.boxes, self.cell_points)
+
+
 def expand_paths(paths_or_globs: str | os.PathLike | Iterable[str | os.PathLike],
                  root: str | os.PathLike | None = None) -> list[Path]:
     """Files named by paths, folders (their point files) and globs, in order, without duplicates.
@@ -244,20 +442,47 @@ class TileIndex:
     tiles : tuple of Tile
     crs : pyproj.CRS or None
         The common CRS of the tiles (from the files, or given when they have none).
+    decode : str
+        How queries read LAS/LAZ tiles not in memory: ``"auto"``, ``"blocks"``
+        or ``"whole"`` (see the module docstring).
+    max_cached_points : int
+        Memory budget, points, of the whole tiles and blocks kept in memory.
+    decoded_points : int
+        Points decoded from files so far by this index (diagnostics).
     """
 
     def __init__(self, tiles: Sequence[Tile], crs: Any = None, *, columns: Any = None,
                  delimiter: str | None = None, chunk_size: int | None = None,
-                 max_cached_points: int = 8_000_000) -> None:
+                 max_cached_points: int = 8_000_000, decode: str = "auto",
+                 block_points: int = DEFAULT_BLOCK_POINTS, cell_points: int = DEFAULT_CELL_POINTS,
+                 blocks: dict[Path, BlockIndex] | None = None,
+                 cache_path: str | os.PathLike | None = None) -> None:
+        if decode not in DECODE_MODES:
+            raise ValueError(f"decode must be one of {', '.join(DECODE_MODES)}, got {decode!r}")
+        if int(block_points) <= 0 or int(cell_points) <= 0:
+            raise ValueError(f"block_points and cell_points must be positive, got {block_points}, "
+                             f"{cell_points}")
         self.tiles: tuple[Tile, ...] = tuple(tiles)
         self.crs: pyproj.CRS | None = resolve_crs(crs)
         self._columns = columns
         self._delimiter = delimiter
         self._chunk_size = chunk_size
         self.max_cached_points = int(max_cached_points)
+        self.decode = decode
+        self.block_points = int(block_points)
+        self.cell_points = int(cell_points)
+        self.decoded_points = 0
+        self._cache_path = Path(cache_path) if cache_path is not None else None
+        self._defer_save = False
         self._cache: OrderedDict[Path, PointCloud] = OrderedDict()
+        self._block_cache: OrderedDict[tuple[Path, int], PointCloud] = OrderedDict()
+        self._lru: OrderedDict[Any, int] = OrderedDict()  # tile paths and (path, block): points
         self._grids: dict[Path, _CellGrid] = {}
         self._cached_points = 0
+        self._block_decoded: dict[Path, int] = {}  # points of each tile decoded by block reads
+        by_path = {t.path: t for t in self.tiles}
+        self._blocks: dict[Path, BlockIndex] = {
+            p: b for p, b in (blocks or {}).items() if p in by_path and b.count == by_path[p].count}
 
     # ---------------------------------------------------------------- building
     @classmethod
@@ -265,7 +490,9 @@ class TileIndex:
               cache_path: str | os.PathLike | None = None, root: str | os.PathLike | None = None,
               columns: Any = None, delimiter: str | None = None,
               progress: Callable[[int], Any] | None = None,
-              max_cached_points: int = 8_000_000) -> TileIndex:
+              max_cached_points: int = 8_000_000, decode: str = "auto", blocks: bool = False,
+              block_points: int = DEFAULT_BLOCK_POINTS,
+              cell_points: int = DEFAULT_CELL_POINTS) -> TileIndex:
         """Index the tiles named by paths, folders or globs.
 
         Parameters
@@ -281,7 +508,22 @@ class TileIndex:
         columns, delimiter
             For text tiles (see :mod:`lidarcat.lidar.readers`).
         progress : callable, optional
-            Called with the bytes of each tile indexed (or reused).
+            Called with the bytes of each tile indexed (or reused), and with
+            those of each tile read for its block index.
+        max_cached_points : int
+            Memory budget, points, for tiles and blocks kept in memory.
+        decode : {"auto", "blocks", "whole"}
+            How queries read LAS/LAZ tiles not in memory (module docstring).
+        blocks : bool
+            Compute now the block index of every LAS/LAZ tile that has none
+            yet (one full read per tile; stored in *cache_path*).  Without it
+            a tile's block index is made on its first whole read.
+        block_points : int
+            Points per block for LAS files (LAZ files use their chunk size).
+        cell_points : int
+            Points per recorded box (the largest divisor of the block size
+            not above it); smaller cells decode less per query but make a
+            larger index (32 bytes per cell).
 
         Raises
         ------
@@ -295,7 +537,7 @@ class TileIndex:
         """
         given = resolve_crs(crs)
         paths = expand_paths(paths_or_globs, root)
-        cached = cls._load_cache(Path(cache_path)) if cache_path is not None else {}
+        cached, cached_blocks = cls._load_cache_doc(Path(cache_path)) if cache_path is not None else ({}, {})
         tiles: list[Tile] = []
         changed = cache_path is not None and not Path(cache_path).exists()
         for p in paths:
@@ -313,8 +555,10 @@ class TileIndex:
                               h.description, h.attributes))
             changed = True
             log.debug("indexed %s: %d points", p, h.count)
+        known_blocks = {t.path: cached_blocks[t.path] for t in tiles
+                        if t.path in cached_blocks and cached.get(t.path) is t}
         if cache_path is not None and (changed or set(cached) != set(paths)):
-            cls._save_cache(Path(cache_path), tiles)
+            cls._save_cache(Path(cache_path), tiles, known_blocks)
         tile_crs = []
         for t in tiles:
             file_crs = resolve_crs(t.file_crs_wkt) if t.file_crs_wkt else None
@@ -323,28 +567,78 @@ class TileIndex:
                                f"{crs_label(given)} was given; drop the CRS option or transform the file")
             tile_crs.append((str(t.path), file_crs if file_crs is not None else given))
         common = common_crs(tile_crs)
-        return cls(tiles, common, columns=columns, delimiter=delimiter,
-                   max_cached_points=max_cached_points)
+        idx = cls(tiles, common, columns=columns, delimiter=delimiter,
+                  max_cached_points=max_cached_points, decode=decode, block_points=block_points,
+                  cell_points=cell_points,
+                  blocks=known_blocks, cache_path=cache_path)
+        if blocks:
+            idx.index_blocks(progress=progress)
+        return idx
 
     @staticmethod
     def _load_cache(path: Path) -> dict[Path, Tile]:
+        return TileIndex._load_cache_doc(path)[0]
+
+    @staticmethod
+    def _load_cache_doc(path: Path) -> tuple[dict[Path, Tile], dict[Path, BlockIndex]]:
+        """Tiles and block indexes of a cache file; empty when absent, old or unreadable."""
         if not path.exists():
-            return {}
+            return {}, {}
         try:
             doc = json.loads(path.read_text(encoding="utf-8"))
             if doc.get("format") != _CACHE_FORMAT or doc.get("version") != _CACHE_VERSION:
-                return {}
-            tiles = [Tile.from_dict(d, path.parent.resolve()) for d in doc["tiles"]]
+                return {}, {}
+            base = path.parent.resolve()
+            tiles: dict[Path, Tile] = {}
+            blocks: dict[Path, BlockIndex] = {}
+            for d in doc["tiles"]:
+                t = Tile.from_dict(d, base)
+                tiles[t.path] = t
+                if d.get("blocks") is not None:
+                    try:
+                        b = BlockIndex.from_dict(d["blocks"])
+                    except (ValueError, KeyError, TypeError) as ex:  # only this block index is lost
+                        log.warning("%s: ignoring the unreadable block index of %s (%s)", path, t.path, ex)
+                        continue
+                    if b.count == t.count:
+                        blocks[t.path] = b
         except (OSError, ValueError, KeyError, TypeError) as ex:
             log.warning("%s: ignoring unreadable tile-index cache (%s)", path, ex)
-            return {}
-        return {t.path: t for t in tiles}
+            return {}, {}
+        return tiles, blocks
 
     @staticmethod
-    def _save_cache(path: Path, tiles: Sequence[Tile]) -> None:
+    def _save_cache(path: Path, tiles: Sequence[Tile], blocks: dict[Path, BlockIndex] | None = None) -> None:
         base = path.parent.resolve()
-        write_json_atomic(path, {"format": _CACHE_FORMAT, "version": _CACHE_VERSION,
-                                 "tiles": [t.to_dict(base) for t in tiles]})
+        docs = []
+        for t in tiles:
+            d = t.to_dict(base)
+            if blocks and t.path in blocks:
+                d["blocks"] = blocks[t.path].to_dict()
+            docs.append(d)
+        write_json_atomic(path, {"format": _CACHE_FORMAT, "version": _CACHE_VERSION, "tiles": docs})
+
+    def _store_blocks(self, tile: Tile, blocks: BlockIndex) -> None:
+        """Keep a newly computed block index and write it to the cache file."""
+        self._blocks[tile.path] = blocks
+        if not self._defer_save:
+            self._save_blocks()
+
+    def _save_blocks(self) -> None:
+        """Write the block indexes to the cache file, merging those another process may
+        have written there meanwhile (for the same file size and mtime)."""
+        if self._cache_path is None:
+            return
+        on_disk_tiles, on_disk_blocks = self._load_cache_doc(self._cache_path)
+        for t in self.tiles:
+            old = on_disk_tiles.get(t.path)
+            if (t.path not in self._blocks and t.path in on_disk_blocks and old is not None
+                    and (old.size, old.mtime_ns, old.count) == (t.size, t.mtime_ns, t.count)):
+                self._blocks[t.path] = on_disk_blocks[t.path]
+        try:
+            self._save_cache(self._cache_path, self.tiles, self._blocks)
+        except OSError as ex:  # a read-only survey folder must not break queries
+            log.warning("%s: cannot store the block index (%s)", self._cache_path, ex)
 
     # ---------------------------------------------------------------- facts
     def __len__(self) -> int:
@@ -383,44 +677,100 @@ class TileIndex:
         return [t for t in self.tiles if t.count > 0 and t.bounds.intersects_box(xmin, ymin, xmax, ymax)]
 
     # ---------------------------------------------------------------- reading
-    def _tile_chunks(self, tile: Tile) -> Iterator[PointCloud]:
-        hit = self._cache.get(tile.path)
-        if hit is not None:
-            self._cache.move_to_end(tile.path)
-            yield hit
-            return
+    def _check_unchanged(self, tile: Tile) -> None:
         try:
             st = tile.path.stat()
         except FileNotFoundError:
             raise TileIOError(f"{tile.path}: file not found (it was indexed; rebuild the index)") from None
         if st.st_size != tile.size or st.st_mtime_ns != tile.mtime_ns:
             raise TileIOError(f"{tile.path}: the file changed since it was indexed; rebuild the index")
-        kw = dict(crs=self.crs if tile.file_crs_wkt is None else None, columns=self._columns,
-                  delimiter=self._delimiter)
+
+    def _file_crs_kw(self, tile: Tile) -> Any:
+        return self.crs if tile.file_crs_wkt is None else None
+
+    def _in_index_crs(self, cloud: PointCloud) -> PointCloud:
+        return cloud if cloud.crs is self.crs or self.crs is None else cloud.with_crs(self.crs)
+
+    def _wants_blocks(self, tile: Tile) -> bool:
+        """True when a whole read of *tile* should record its block index on the way."""
+        return (self.decode != "whole" and tile.count > 0 and tile.path not in self._blocks
+                and file_kind(tile.path) == "las")
+
+    def _decode_tile(self, tile: Tile, progress: Callable[[int], Any] | None = None) -> Iterator[PointCloud]:
+        """Stream a whole tile from its file (recording its block index when wanted)."""
+        self._check_unchanged(tile)
+        acc = None
+        if self._wants_blocks(tile):
+            bp = las_chunk_points(tile.path) or self.block_points
+            acc = _BlockBoxes(bp, _cell_points_for(bp, self.cell_points), tile.count)
+        for chunk in iter_points(tile.path, self._chunk_size, crs=self._file_crs_kw(tile),
+                                 columns=self._columns, delimiter=self._delimiter, progress=progress):
+            self.decoded_points += len(chunk)
+            if acc is not None:
+                acc.add(chunk.xyz)
+            yield chunk
+        if acc is not None:
+            blocks = acc.finish()
+            if blocks is not None:
+                self._store_blocks(tile, blocks)
+
+    def _tile_chunks(self, tile: Tile) -> Iterator[PointCloud]:
+        hit = self._cache.get(tile.path)
+        if hit is not None:
+            self._touch(tile.path)
+            yield hit
+            return
         if tile.count <= self.max_cached_points:
-            parts = list(iter_points(tile.path, self._chunk_size, **kw))
+            parts = list(self._decode_tile(tile))
             cloud = PointCloud.concat(parts) if parts else PointCloud.empty(tile.attributes, self.crs)
-            if cloud.crs is not self.crs and self.crs is not None:
-                cloud = cloud.with_crs(self.crs)
+            cloud = self._in_index_crs(cloud)
             self._remember(tile.path, cloud)
             yield cloud
             return
-        for chunk in iter_points(tile.path, self._chunk_size, **kw):
-            yield chunk if chunk.crs is self.crs or self.crs is None else chunk.with_crs(self.crs)
+        for chunk in self._decode_tile(tile):
+            yield self._in_index_crs(chunk)
+
+    def _touch(self, key: Any) -> None:
+        if key in self._lru:
+            self._lru.move_to_end(key)
 
     def _remember(self, path: Path, cloud: PointCloud) -> None:
+        for key in [k for k in self._block_cache if k[0] == path]:  # the whole tile replaces its blocks
+            self._forget(key)
         self._cache[path] = cloud
+        self._lru[path] = len(cloud)
         self._cached_points += len(cloud)
-        while self._cached_points > self.max_cached_points and len(self._cache) > 1:
-            old_path, old = self._cache.popitem(last=False)
-            self._grids.pop(old_path, None)
-            self._cached_points -= len(old)
+        self._evict()
+
+    def _remember_block(self, path: Path, k: int, cloud: PointCloud) -> None:
+        if (path, k) in self._lru:  # a longer part of the block replaces the shorter one
+            self._forget((path, k))
+        self._block_cache[(path, k)] = cloud
+        self._lru[(path, k)] = len(cloud)
+        self._cached_points += len(cloud)
+        self._evict()
+
+    def _forget(self, key: Any) -> None:
+        self._cached_points -= self._lru.pop(key)
+        if isinstance(key, tuple):
+            del self._block_cache[key]
+        else:
+            del self._cache[key]
+            self._grids.pop(key, None)
+
+    def _evict(self) -> None:
+        """Drop the least recently used tiles/blocks beyond ``max_cached_points`` (the newest
+        one stays unless it alone is too big)."""
+        while self._cached_points > self.max_cached_points and len(self._lru) > 1:
+            self._forget(next(iter(self._lru)))
         if self._cached_points > self.max_cached_points:
             self.clear_cache()
 
     def clear_cache(self) -> None:
-        """Forget the tiles kept in memory."""
+        """Forget the tiles and blocks kept in memory (block indexes are kept)."""
         self._cache.clear()
+        self._block_cache.clear()
+        self._lru.clear()
         self._grids.clear()
         self._cached_points = 0
 
@@ -428,6 +778,102 @@ class TileIndex:
         """Stream the points of *tiles* (default all), chunk by chunk, in index order."""
         for t in self.tiles if tiles is None else tiles:
             yield from self._tile_chunks(t)
+
+    # ---------------------------------------------------------------- block index
+    def block_index(self, tile: Tile | str | os.PathLike) -> BlockIndex | None:
+        """The block index of a tile (a :class:`Tile` or its path), ``None`` when not known yet."""
+        path = tile.path if isinstance(tile, Tile) else Path(tile).resolve()
+        return self._blocks.get(path)
+
+    def index_blocks(self, tiles: Sequence[Tile] | None = None,
+                     progress: Callable[[int], Any] | None = None) -> int:
+        """Compute the block index of the LAS/LAZ *tiles* (default all) that have none.
+
+        One full read per tile, one tile at a time (memory bounded by the
+        streaming chunk); the indexes are written to the cache file when the
+        index was built with ``cache_path``.  Nothing happens with
+        ``decode="whole"``.
+
+        Parameters
+        ----------
+        tiles : sequence of Tile, optional
+        progress : callable, optional
+            Called with the bytes of the file processed by each chunk read.
+
+        Returns
+        -------
+        int
+            Number of tiles indexed.
+
+        Raises
+        ------
+        TileIOError
+            A tile is missing or changed since it was indexed.
+        LidarFormatError
+            Corrupt or truncated point data.
+        """
+        done = 0
+        self._defer_save = True
+        try:
+            for t in self.tiles if tiles is None else tiles:
+                if not self._wants_blocks(t):
+                    continue
+                for _ in self._decode_tile(t, progress=progress):
+                    pass
+                done += 1
+        finally:
+            self._defer_save = False
+            if done:
+                self._save_blocks()
+        return done
+
+    def _query_blocks(self, tile: Tile, box: tuple[float, float, float, float],
+                      mask_fn: Callable[[np.ndarray], np.ndarray]) -> list[PointCloud] | None:
+        """Matching points of a tile not in memory, decoding only the blocks that meet *box*;
+        ``None`` when the block path does not apply (then the whole tile is read)."""
+        if self.decode == "whole":
+            return None
+        bi = self._blocks.get(tile.path)
+        if bi is None:
+            return None
+        blocks, stops = bi.needs(bi.cells_in_box(*box))
+        starts = [k * bi.block_points for k in blocks]
+        if self.decode == "auto" and sum(stops) - sum(starts) >= _AUTO_BLOCK_FRACTION * tile.count:
+            return None
+        have: dict[int, PointCloud | None] = {}
+        missing: list[tuple[int, int]] = []
+        for k, a, e in zip(blocks, starts, stops):
+            c = self._block_cache.get((tile.path, k))
+            if c is not None and a + len(c) >= e:  # kept in memory, long enough
+                self._touch((tile.path, k))
+            else:
+                c = None
+                missing.append((k, e))
+            have[k] = c
+        if missing:
+            ranges = bi.ranges([k for k, _ in missing], [e for _, e in missing])
+            need = sum(e - a for a, e in ranges)
+            if self.decode == "auto" and tile.count <= self.max_cached_points and \
+                    self._block_decoded.get(tile.path, 0) + need >= _AUTO_SWITCH_FRACTION * tile.count:
+                return None  # many queries in this tile: decode it once and keep it whole
+            self._block_decoded[tile.path] = self._block_decoded.get(tile.path, 0) + need
+            self._check_unchanged(tile)
+            per_read = max(int(self._chunk_size or 0), bi.block_points, 1_000_000)
+            for start, cloud in iter_las_ranges(tile.path, ranges, crs=self._file_crs_kw(tile),
+                                                piece_points=bi.block_points, max_read_points=per_read):
+                self.decoded_points += len(cloud)
+                cloud = self._in_index_crs(cloud)
+                k = start // bi.block_points
+                have[k] = cloud
+                self._remember_block(tile.path, k, cloud)
+        out: list[PointCloud] = []
+        for k in blocks:
+            cloud = have[k]
+            assert cloud is not None
+            m = mask_fn(cloud.xyz)  # points past the cells met cannot match: their cells miss the box
+            if m.any():
+                out.append(cloud.select(m))
+        return out
 
     def _query(self, box: tuple[float, float, float, float],
                mask_fn: Callable[[np.ndarray], np.ndarray]) -> PointCloud:
@@ -437,7 +883,7 @@ class TileIndex:
             attrs = t.attributes if attrs is None else tuple(a for a in attrs if a in t.attributes)
             cached = self._cache.get(t.path)
             if cached is not None and len(cached) > 0:
-                self._cache.move_to_end(t.path)
+                self._touch(t.path)
                 grid = self._grids.get(t.path)
                 if grid is None:
                     grid = self._grids[t.path] = _CellGrid(cached.xyz)
@@ -446,6 +892,11 @@ class TileIndex:
                 if len(idx):
                     parts.append(cached.select(idx))
                 continue
+            if cached is None:
+                from_blocks = self._query_blocks(t, box, mask_fn)
+                if from_blocks is not None:
+                    parts.extend(from_blocks)
+                    continue
             for chunk in self._tile_chunks(t):
                 m = mask_fn(chunk.xyz)
                 if m.any():
