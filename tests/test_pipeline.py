@@ -433,6 +433,14 @@ def test_assessment_table_of_survey_toml_sets_scale_and_level(tmp_path):
     assert doc["settings"]["pec_class"] == "B" and res.ok
 
 
+def test_survey_knows_the_pec_classes_of_the_standards_tables():
+    from lidarcat import standards
+    from lidarcat.survey import PEC_CLASSES
+
+    for scale, eq in ((500, 0.5), (2000, 2.0), (100_000, 50.0)):
+        assert tuple(standards.pec_tolerances("pec", scale, eq)) == PEC_CLASSES
+
+
 @pytest.mark.parametrize("line,message", [
     ("scale = -2", "must be a positive scale denominator"),
     ("alpha = 1.5", "must lie between 0 and 1"),

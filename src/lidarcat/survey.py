@@ -430,10 +430,13 @@ class _Toml:
         return v
 
 
+#: classes of Decreto 89.817 (lidarcat.standards has the tolerances; importing it here would pull
+#: scipy into every survey load)
+PEC_CLASSES = ("A", "B", "C")
+
+
 def _assessment_settings(t: _Toml) -> AssessmentSettings:
     """Read and check the ``[assessment]`` table (every key optional)."""
-    from . import standards as _std
-
     d = AssessmentSettings()
     scale = t.get("assessment", "scale", (int, float), d.scale)
     if not scale > 0:
@@ -445,9 +448,8 @@ def _assessment_settings(t: _Toml) -> AssessmentSettings:
     if not 0 < alpha < 1:
         raise t.err("assessment", "alpha", f"must lie between 0 and 1, got {alpha!r}")
     pec = t.get("assessment", "pec_class", str, d.pec_class)
-    classes = list(_std.pec_tolerances("pec", float(scale), float(ci)))
-    if pec not in classes:
-        raise t.err("assessment", "pec_class", f"{pec!r} is not one of {', '.join(classes)}")
+    if pec not in PEC_CLASSES:
+        raise t.err("assessment", "pec_class", f"{pec!r} is not one of {', '.join(PEC_CLASSES)}")
     return AssessmentSettings(float(scale), float(ci), float(alpha), pec)
 
 
