@@ -600,10 +600,10 @@ def covariance_consistency_test(d: Any, cov: Any, alpha: float = 0.10, *,
     plus that of the reference coordinates.  Under the model it follows
     chi-square with ``3 n`` degrees of freedom; passed when inside the two-sided
     ``1 - alpha`` interval (above: errors larger than the stated precision, a
-    blunder or a model error; below: the precision is pessimistic; ``details["side"]``
-    says which).  Summing
-    ``d_i^2 / sigma_i^2`` instead ignores the correlation of points that share
-    the block's orientation errors and is *not* chi-square distributed.
+    blunder or a model error; below: the precision is pessimistic;
+    ``details["side"]`` says which).  Summing ``d_i^2 / sigma_i^2`` instead
+    ignores the correlation of points that share the block's orientation
+    errors and is *not* chi-square distributed.
 
     Parameters
     ----------
@@ -624,7 +624,7 @@ def covariance_consistency_test(d: Any, cov: Any, alpha: float = 0.10, *,
     n = x.size
     if c.shape != (n, n):
         return _na("consistency", "ENh", "chi2", alpha,
-                   f"covariance is {c.shape[0]} x {c.shape[1] if c.ndim == 2 else '?'}, expected {n} x {n}")
+                   f"covariance has shape {c.shape}, expected ({n}, {n})")
     if n == 0 or not np.all(np.isfinite(c)) or not np.all(np.isfinite(x)):
         return _na("consistency", "ENh", "chi2", alpha, "no discrepancies or a non-finite covariance")
     try:
