@@ -17,6 +17,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .._frozen import frozen_array
+
 __all__ = ["PointCloud", "Bounds", "STANDARD_ATTRIBUTES"]
 
 log = logging.getLogger(__name__)
@@ -52,10 +54,15 @@ class Bounds(NamedTuple):
         return not (xmax < self.xmin or xmin > self.xmax or ymax < self.ymin or ymin > self.ymax)
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, copy=True)
-    a.setflags(write=False)
-    return a
+def _attribute(name: str, values: Any, n: int) -> np.ndarray:
+    """*values* as an (n,) array of the attribute's standard dtype (float intensity allowed)."""
+    arr = np.asarray(values)
+    want = STANDARD_ATTRIBUTES.get(name)
+    if want is not None and arr.dtype != want and not (name == "intensity" and arr.dtype.kind == "f"):
+        arr = arr.astype(want)
+    if arr.shape != (n,):
+        raise ValueError(f"attribute {name!r} has shape {arr.shape}, expected ({n},)")
+    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,16 +107,9 @@ class PointCloud:
             xyz = xyz.reshape(0, 3)
         if xyz.ndim != 2 or xyz.shape[1] != 3:
             raise ValueError(f"xyz must have shape (N, 3), got {xyz.shape}")
-        attrs: dict[str, np.ndarray] = {}
-        for name, values in dict(self.attributes).items():
-            arr = np.asarray(values)
-            if name in STANDARD_ATTRIBUTES and arr.dtype != STANDARD_ATTRIBUTES[name] \
-                    and not (name == "intensity" and arr.dtype.kind == "f"):
-                arr = arr.astype(STANDARD_ATTRIBUTES[name])
-            if arr.shape != (len(xyz),):
-                raise ValueError(f"attribute {name!r} has shape {arr.shape}, expected ({len(xyz)},)")
-            attrs[name] = _readonly(arr)
-        object.__setattr__(self, "xyz", _readonly(xyz))
+        attrs = {name: frozen_array(_attribute(name, values, len(xyz)), dtype=None)
+                 for name, values in dict(self.attributes).items()}
+        object.__setattr__(self, "xyz", frozen_array(xyz))
         object.__setattr__(self, "attributes", types.MappingProxyType(attrs))
         if self.crs is not None:
             from .crs import resolve_crs
@@ -124,12 +124,7 @@ class PointCloud:
             raise ValueError(f"xyz must have shape (N, 3), got {xyz.shape}")
         attrs = {}
         for name, values in attributes.items():
-            arr = np.asarray(values)
-            want = STANDARD_ATTRIBUTES.get(name)
-            if want is not None and arr.dtype != want and not (name == "intensity" and arr.dtype.kind == "f"):
-                arr = arr.astype(want)
-            if arr.shape != (len(xyz),):
-                raise ValueError(f"attribute {name!r} has shape {arr.shape}, expected ({len(xyz)},)")
+            arr = _attribute(name, values, len(xyz))
             if arr.base is not None or arr.flags.writeable is False:
                 arr = arr.copy()  # a view of someone else's buffer: take our own copy
             arr.setflags(write=False)
