@@ -694,16 +694,55 @@ def test_joint_covariance_makes_the_point_chi_square_exact():
 
 
 def test_adjust_writes_the_check_point_covariance(tmp_path, gps):
-    from lidarcat.bundle import read_point_covariance, write_adjustment, joint_point_covariance
+    from lidarcat.bundle import joint_point_covariance, read_point_covariance, write_adjustment
 
     r = gps
     write_adjustment(r, tmp_path)
     checks = [str(q) for q, role in zip(r.point_ids, r.point_role) if role == "check"]
-    assert len(checks) >= 10
-    ids, C = read_point_covariance(tmp_path / "check_covariance.csv")
+    assert len(checks) == 13
+    path = tmp_path / "check_covariance.csv"
+    assert len(_rows(path)) == 13 * 14 // 2               # one row per pair a <= b
+    ids, C = read_point_covariance(path)
     assert ids == checks
-    np.testing.assert_allclose(C, joint_point_covariance(r, checks), rtol=1e-12)
-    sub_ids, sub = read_point_covariance(tmp_path / "check_covariance.csv", points=checks[:0:-1][:3])
-    np.testing.assert_allclose(sub[:3, :3], C[-3:, -3:], rtol=1e-12)
-    with pytest.raises(DatumError, match="no covariance for point"):
-        read_point_covariance(tmp_path / "check_covariance.csv", points=["zz"])
+    np.testing.assert_allclose(C, joint_point_covariance(r, checks), rtol=1e-12)   # repr floats: exact
+    pick = [checks[12], checks[0], checks[5]]
+    sub_ids, sub = read_point_covariance(path, points=pick)
+    assert sub_ids == pick
+    sel = np.concatenate([[3 * checks.index(q) + c for c in range(3)] for q in pick])
+    np.testing.assert_array_equal(sub, C[np.ix_(sel, sel)])
+
+
+def test_read_point_covariance_errors_name_the_file_line_and_points(tmp_path, gps):
+    from lidarcat.bundle import read_point_covariance, write_adjustment
+    from lidarcat.errors import AssessmentError, SurveyError
+
+    write_adjustment(gps, tmp_path)
+    path = tmp_path / "check_covariance.csv"
+    text = path.read_text()
+    lines = text.splitlines()
+    head = sum(1 for line in lines if line.startswith("#")) + 1     # comment lines + header
+    first = lines[head].split(",")                                  # the first point with itself
+    assert first[0] == first[1] == "603"
+    with pytest.raises(AssessmentError, match=r"check_covariance\.csv: no covariance for point\(s\) zz; the "
+                                              r"file holds 13 check point\(s\) of its adjustment$"):
+        read_point_covariance(path, points=["603", "zz"])
+    bad = tmp_path / "bad.csv"
+    bad.write_text(text + lines[head + 1] + "\n")
+    with pytest.raises(AssessmentError, match=rf"bad\.csv:{len(lines) + 1}: a second row for the pair "
+                                              rf"603, {lines[head + 1].split(',')[1]} \(first at line {head + 2}\)"):
+        read_point_covariance(bad)
+    bad.write_text("\n".join(lines[:head + 1] + lines[head + 2:]) + "\n")
+    with pytest.raises(AssessmentError, match=rf"bad\.csv: no row for the pair 603, "
+                                              rf"{lines[head + 1].split(',')[1]}; the file must hold"):
+        read_point_covariance(bad)
+    bad.write_text("\n".join(lines[:head] + [",".join(first[:2] + ["-1"] + first[3:])]
+                             + lines[head + 1:]) + "\n")
+    with pytest.raises(AssessmentError, match=rf"bad\.csv:{head + 1}: point 603: the variances c_EE, c_NN, "
+                                              "c_hh must be positive"):
+        read_point_covariance(bad)
+    bad.write_text("\n".join(lines[:head] + [",".join(first[:3] + ["x"] + first[4:])]
+                             + lines[head + 1:]) + "\n")
+    with pytest.raises(SurveyError, match=rf"bad\.csv:{head + 1}: field 'c_EN': 'x' is not a number"):
+        read_point_covariance(bad)
+    with pytest.raises(SurveyError, match=r"nothing\.csv: file not found"):
+        read_point_covariance(tmp_path / "nothing.csv")

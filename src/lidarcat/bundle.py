@@ -1187,25 +1187,38 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
 
     Raises
     ------
-    DatumError
-        Unreadable file, a requested point missing, or a missing pair (named).
+    SurveyError
+        Missing or unreadable file, a missing column, a cell that is not a
+        number (file, line and field named).
+    AssessmentError
+        A requested point with no rows, a pair with no row or with two rows, a
+        point's own block with a variance that is not positive (file and line
+        or points named).
     """
     from ._io import read_csv_table
-    from .errors import LidarcatError
+    from .errors import AssessmentError, location
 
-    try:
-        t = read_csv_table(path, required=COVARIANCE_COLUMNS)
-        vals = np.column_stack([t.floats(c) for c in COVARIANCE_COLUMNS[2:]]).reshape(-1, 3, 3)
-    except LidarcatError as ex:
-        raise DatumError(str(ex)) from ex
+    t = read_csv_table(path, required=COVARIANCE_COLUMNS)
+    vals = np.column_stack([t.floats(c) for c in COVARIANCE_COLUMNS[2:]]).reshape(-1, 3, 3)
     pa, pb = t.column("point_a"), t.column("point_b")
-    order = list(dict.fromkeys(list(pa) + list(pb)))
+    seen: dict[frozenset, int] = {}
+    for a, b, blk, line in zip(pa, pb, vals, t.lines):
+        first = seen.setdefault(frozenset((a, b)), line)
+        if first != line:
+            raise AssessmentError(f"{location(path, line)}: a second row for the pair {a}, {b} (first at "
+                                  f"line {first}); keep one row per pair")
+        if a == b and np.any(np.diag(blk) <= 0):
+            raise AssessmentError(f"{location(path, line)}: point {a}: the variances c_EE, c_NN, c_hh "
+                                  "must be positive")
+    order = list(dict.fromkeys(pa + pb))
     ids = [str(q) for q in points] if points is not None else order
-    pos = {q: i for i, q in enumerate(ids)}
     present = set(order)
     missing = [q for q in ids if q not in present]
     if missing:
-        raise DatumError(f"{path}: no covariance for point(s) {', '.join(missing[:10])}")
+        raise AssessmentError(f"{path}: no covariance for point(s) {', '.join(missing[:10])}"
+                              + (" ..." if len(missing) > 10 else "")
+                              + f"; the file holds {len(order)} check point(s) of its adjustment")
+    pos = {q: i for i, q in enumerate(ids)}
     k = len(ids)
     C = np.full((3 * k, 3 * k), np.nan)
     for a, b, blk in zip(pa, pb, vals):
@@ -1215,8 +1228,19 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
             C[3 * j:3 * j + 3, 3 * i:3 * i + 3] = blk.T
     if np.isnan(C).any():
         i, j = (int(v) // 3 for v in np.argwhere(np.isnan(C))[0])
-        raise DatumError(f"{path}: no row for the pair {ids[i]}, {ids[j]}")
+        raise AssessmentError(f"{path}: no row for the pair {ids[i]}, {ids[j]}; the file must hold one row "
+                              "per pair of its points")
     return ids, C
+
+
+def _write_point_covariance(path, ids: Sequence[str], C: np.ndarray, comment: str) -> None:
+    """Write the joint covariance *C* (3k, 3k) of points *ids* as :func:`read_point_covariance` reads it:
+    one row of the 3 x 3 block per pair a <= b, atomically."""
+    from ._io import write_csv_atomic
+
+    rows = [[a, b, *C[3 * i:3 * i + 3, 3 * j:3 * j + 3].ravel()]
+            for i, a in enumerate(ids) for j, b in enumerate(ids[i:], start=i)]
+    write_csv_atomic(path, COVARIANCE_COLUMNS, rows, comments=[comment])
 
 
 def _tiny(dc: np.ndarray, dp: np.ndarray, tol_m: float, tol_rad: float) -> bool:
@@ -1385,13 +1409,11 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None) ->
                      comments=["residuals v = adjusted - observed"])
     checks = [str(q) for q, r in zip(result.point_ids, result.point_role) if r == "check"]
     if checks and result.success and len(checks) <= MAX_JOINT_COVARIANCE_POINTS:
-        C = joint_point_covariance(result, checks)
-        cov_rows = [[a, b, *C[3 * i:3 * i + 3, 3 * j:3 * j + 3].ravel()]
-                    for i, a in enumerate(checks) for j, b in enumerate(checks[i:], start=i)]
-        write_csv_atomic(folder / "check_covariance.csv", COVARIANCE_COLUMNS, cov_rows, comments=[
+        _write_point_covariance(
+            folder / "check_covariance.csv", checks, joint_point_covariance(result, checks),
             "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances "
             "included: c_XY = Cov(X of point_a, Y of point_b), one row per pair a <= b "
-            f"({result.variance_factor_kind.replace('_', ' ')} variance factor)"])
+            f"({result.variance_factor_kind.replace('_', ' ')} variance factor)")
     elif len(checks) > MAX_JOINT_COVARIANCE_POINTS:
         log.info("%d check points: joint covariance not written (limit %d)", len(checks),
                  MAX_JOINT_COVARIANCE_POINTS)
