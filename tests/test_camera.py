@@ -301,6 +301,10 @@ def test_load_cameras_invalid_toml_and_empty(tmp_path):
         load_cameras(p)
     with pytest.raises(SurveyError, match="file not found"):
         load_cameras(tmp_path / "nope.toml")
+    p.write_bytes('[a]\nmodel = "Câmera"\n'.encode("latin-1"))
+    with pytest.raises(SurveyError, match=r"camera.toml:2: byte 0xe2 is not UTF-8 text; "
+                                          r"save the file as UTF-8$"):
+        load_cameras(p)
 
 
 def test_load_camera_spec(tmp_path, thesis_camera, lactec_camera):

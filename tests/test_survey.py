@@ -483,6 +483,22 @@ def test_observations_kind_missing_for_a_row(tmp_path):
         s.photo_observations("pixel")
 
 
+def test_latin1_files_are_located_errors(tmp_path):
+    """A CSV or jobs file saved as Latin-1 (old spreadsheets) names its line, no traceback."""
+    f = copy_thesis(tmp_path)
+    text = edit(f, "ground_points.csv", "908.745,0.25,0.25,0.25,gps", "908.745,0.25,0.25,0.25,estação")
+    (f / "ground_points.csv").write_bytes(text.encode("latin-1"))
+    with pytest.raises(SurveyError, match=rf"ground_points.csv:{line_of(text, '603,')}: byte 0xe7 "
+                                          r"is not UTF-8 text; save the file as UTF-8$"):
+        Survey.load(f)
+    f = copy_thesis(tmp_path / "b")
+    (f / "jobs.txt").write_bytes("# faixa São José\nfaixa.xyz P799 1 2\n".encode("latin-1"))
+    edit(f, "survey.toml", 'control_sets = "control_sets.csv"',
+         'control_sets = "control_sets.csv"\nextraction_jobs = "jobs.txt"')
+    with pytest.raises(SurveyError, match=r"jobs.txt:1: byte 0xe3 is not UTF-8 text"):
+        Survey.load(f)
+
+
 # ------------------------------------------------------------------ ground_points.csv errors
 def test_ground_points_duplicate(tmp_path):
     f = copy_thesis(tmp_path)

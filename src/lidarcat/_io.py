@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import SurveyError, location
+from .errors import LidarcatError, SurveyError, location
 
 __all__ = [
     "folder_lock",
@@ -32,6 +32,7 @@ __all__ = [
     "write_text_atomic",
     "write_csv_atomic",
     "write_json_atomic",
+    "read_text",
     "read_csv_table",
     "CsvTable",
     "to_json",
@@ -228,6 +229,39 @@ def write_json_atomic(path: str | os.PathLike, obj: Any) -> Path:
     return write_text_atomic(path, dumps_json(obj) + "\n")
 
 
+def read_text(path: str | os.PathLike, error: type[LidarcatError] = SurveyError) -> str:
+    r"""Read a UTF-8 text input file (a leading byte-order mark is dropped).
+
+    Raises
+    ------
+    LidarcatError
+        Of class *error*: the file is missing, unreadable, or not UTF-8 (the
+        message names the line of the first bad byte and says to save as UTF-8).
+
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     p = Path(folder) / "pontos.csv"
+    ...     _ = p.write_bytes(b"photo,point\n1,Pra\xe7a\n")  # Latin-1, as old spreadsheets save
+    ...     read_text(p)
+    Traceback (most recent call last):
+    ...
+    lidarcat.errors.SurveyError: ...pontos.csv:2: byte 0xe7 is not UTF-8 text; save the file as UTF-8
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise error(f"{path}: file not found") from None
+    except OSError as ex:
+        raise error(f"{path}: cannot read ({ex.strerror})") from ex
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as ex:
+        line = ex.object.count(b"\n", 0, ex.start) + 1
+        raise error(f"{location(path, line)}: byte 0x{ex.object[ex.start]:02x} is not UTF-8 text; "
+                    f"save the file as UTF-8") from None
+
+
 @dataclasses.dataclass(frozen=True)
 class CsvTable:
     """A CSV file read as strings, each row remembering its physical line number."""
@@ -286,16 +320,11 @@ def read_csv_table(
     Raises
     ------
     SurveyError
-        Missing file, missing required column, unknown column (unless
-        *allow_extra*), or a row with the wrong number of fields.
+        Missing, unreadable or non-UTF-8 file, missing required column, unknown
+        column (unless *allow_extra*), or a row with the wrong number of fields.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise SurveyError(f"{path}: file not found") from None
-    except OSError as ex:
-        raise SurveyError(f"{path}: cannot read ({ex.strerror})") from ex
+    text = read_text(path)
     header: tuple[str, ...] | None = None
     rows: list[tuple[str, ...]] = []
     lines: list[int] = []

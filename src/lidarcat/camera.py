@@ -64,6 +64,7 @@ from typing import Any
 
 import numpy as np
 
+from ._io import read_text
 from .errors import CameraError, SurveyError, location
 
 __all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS"]
@@ -546,12 +547,7 @@ def _toml_line(text: str, table: str | None, key: str | None = None) -> int | No
 
 
 def _read_toml(path: Path) -> tuple[dict[str, Any], str]:
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise SurveyError(f"{path}: file not found") from None
-    except OSError as ex:
-        raise SurveyError(f"{path}: cannot read ({ex.strerror})") from ex
+    text = read_text(path)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as ex:
@@ -577,8 +573,9 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
     Raises
     ------
     SurveyError
-        Unreadable or invalid TOML, no camera table, an unknown or missing key, or
-        an invalid value: the message names the file, the line and the key.
+        Missing, unreadable or non-UTF-8 file, invalid TOML, no camera table, an
+        unknown or missing key, or an invalid value: the message names the file,
+        the line and the key.
     """
     path = Path(path)
     data, text = _read_toml(path)

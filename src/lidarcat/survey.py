@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from ._io import CsvTable, read_csv_table, write_csv_atomic
+from ._io import CsvTable, read_csv_table, read_text, write_csv_atomic
 from .camera import Camera, _read_toml, _toml_line, load_camera, load_cameras
 from .errors import CameraError, SurveyError, location
 
@@ -541,11 +541,7 @@ def _expand_lidar(t: _Toml, root: Path) -> tuple[Path, ...]:
 def _job_tokens(path: Path) -> set[str]:
     """Every word of an extraction-jobs file (and the word without a leading 'P')."""
     words: set[str] = set()
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError:
-        return words
-    for raw in text.splitlines():
+    for raw in read_text(path).splitlines():
         if raw.lstrip().startswith("#"):
             continue
         for w in raw.replace(",", " ").split():
