@@ -383,8 +383,14 @@ def test_zero_variance_marks_tests_not_applicable():
     a = assess(adj, ref, scale=2000, contour_interval_m=2)
     for test in ("filliben", "ks", "lilliefors"):
         assert "zero variance" in a.tests[test]["h"].reason
-    assert "zero variance" in a.tests["trend_t"]["E"].reason
-    assert "singular covariance" in a.tests["hotelling"]["EN"].reason
+    assert a.tests["trend_t"]["E"].reason == "zero variance: all discrepancies are equal"
+    singular = "singular covariance of (dE, dN): zero variance or collinear discrepancies"
+    assert a.tests["hotelling"]["EN"].reason == singular and a.tests["ks"]["EN"].reason == singular
+    # collinear (dN = 2 dE) is singular too; too few points are named with the test's own minimum
+    den = np.column_stack([np.arange(5.0), 2 * np.arange(5.0)])
+    assert hotelling_t2_test(den).reason == singular and ks_mahalanobis_test(den).reason == singular
+    assert ks_mahalanobis_test(den[:3]).reason == "needs at least 4 points, got 3"
+    assert lilliefors_test(den[:3, 0]).reason == "needs at least 4 points, got 3"
     assert a.tests["chi2_precision"]["h"].passed is True  # s = 0 passes any sigma0
 
 

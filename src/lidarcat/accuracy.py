@@ -354,6 +354,27 @@ def _zero_var(x: np.ndarray) -> bool:
     return x.size > 0 and float(np.ptp(x)) <= 1e-12 * max(1.0, float(np.max(np.abs(x))))
 
 
+def _precheck(test: str, comp: str, name: str, alpha: float, x: np.ndarray, min_n: int) -> TestResult | None:
+    """The *not applicable* result of a 1-D test on *x*, or None when it can be computed."""
+    n = x.size
+    if n < min_n:
+        return _na(test, comp, name, alpha, f"needs at least {min_n} points, got {n}", n=n)
+    if _zero_var(x):
+        return _na(test, comp, name, alpha, "zero variance: all discrepancies are equal", n=n)
+    return None
+
+
+def _precheck_en(test: str, name: str, alpha: float, x: np.ndarray, min_n: int) -> TestResult | None:
+    """The *not applicable* result of a test on (dE, dN) rows *x* (n, 2), or None when it can be computed."""
+    n = x.shape[0]
+    if n < min_n:
+        return _na(test, "EN", name, alpha, f"needs at least {min_n} points, got {n}", n=n)
+    if not _nonsingular(np.cov(x, rowvar=False, ddof=1)):
+        return _na(test, "EN", name, alpha,
+                   "singular covariance of (dE, dN): zero variance or collinear discrepancies", n=n)
+    return None
+
+
 def plotting_positions(n: int, kind: str = "filliben") -> np.ndarray:
     """Plotting positions m_i (probabilities) for i = 1..n.
 
@@ -425,10 +446,9 @@ def filliben_test(x: Any, alpha: float = 0.10, plotting_position: str = "fillibe
     x = _sample(x)
     n = x.size
     plotting_positions(3, plotting_position)  # validates the name
-    if n < 3:
-        return _na("filliben", component, "r", alpha, f"needs at least 3 points, got {n}", n=n)
-    if _zero_var(x):
-        return _na("filliben", component, "r", alpha, "zero variance: all discrepancies are equal", n=n)
+    na = _precheck("filliben", component, "r", alpha, x, 3)
+    if na is not None:
+        return na
     q = stats.norm.ppf(plotting_positions(n, plotting_position))
     r = float(np.corrcoef(np.sort(x), q)[0, 1])
     source = "Filliben (1975) table"
@@ -457,10 +477,9 @@ def ks_test(x: Any, alpha: float = 0.10, *, component: str = "x") -> TestResult:
     """
     x = _sample(x)
     n = x.size
-    if n < 3:
-        return _na("ks", component, "D", alpha, f"needs at least 3 points, got {n}", n=n)
-    if _zero_var(x):
-        return _na("ks", component, "D", alpha, "zero variance: all discrepancies are equal", n=n)
+    na = _precheck("ks", component, "D", alpha, x, 3)
+    if na is not None:
+        return na
     res = stats.kstest(x, "norm", args=(float(np.mean(x)), float(np.std(x, ddof=1))))
     crit = float(stats.kstwo.ppf(1 - alpha, n))
     return TestResult("ks", component, "D", float(res.statistic), crit, bool(res.statistic <= crit), alpha,
@@ -496,10 +515,9 @@ def lilliefors_test(x: Any, alpha: float = 0.10, *, n_sim: int = 20000, seed: in
     """
     x = _sample(x)
     n = x.size
-    if n < 4:
-        return _na("lilliefors", component, "D", alpha, f"needs at least 4 points, got {n}", n=n)
-    if _zero_var(x):
-        return _na("lilliefors", component, "D", alpha, "zero variance: all discrepancies are equal", n=n)
+    na = _precheck("lilliefors", component, "D", alpha, x, 4)
+    if na is not None:
+        return na
     d = float(_lilliefors_d(x[None, :])[0])
     sim = _lilliefors_null(n, n_sim, seed)
     crit = float(np.quantile(sim, 1 - alpha))
@@ -517,11 +535,10 @@ def ks_mahalanobis_test(den: Any, alpha: float = 0.10) -> TestResult:
     """
     x = np.asarray(den, dtype=float).reshape(-1, 2)
     n = x.shape[0]
-    if n < 4:
-        return _na("ks", "EN", "D", alpha, f"needs at least 4 points, got {n}", n=n)
+    na = _precheck_en("ks", "D", alpha, x, 4)
+    if na is not None:
+        return na
     s = np.cov(x, rowvar=False, ddof=1)
-    if not _nonsingular(s):
-        return _na("ks", "EN", "D", alpha, "singular covariance of (dE, dN): zero variance or collinear", n=n)
     c = x - x.mean(axis=0)
     d2 = np.einsum("ij,jk,ik->i", c, np.linalg.inv(s), c)
     u = n * d2 / (n - 1) ** 2
@@ -546,10 +563,9 @@ def trend_t_test(x: Any, alpha: float = 0.10, *, mu0: float = 0.0, component: st
     """
     x = _sample(x)
     n = x.size
-    if n < 2:
-        return _na("trend_t", component, "t", alpha, f"needs at least 2 points, got {n}", n=n)
-    if _zero_var(x):
-        return _na("trend_t", component, "t", alpha, "zero variance: all discrepancies are equal", n=n)
+    na = _precheck("trend_t", component, "t", alpha, x, 2)
+    if na is not None:
+        return na
     mean, s = float(np.mean(x)), float(np.std(x, ddof=1))
     se = s / math.sqrt(n)
     t = (mean - mu0) / se
@@ -659,12 +675,10 @@ def hotelling_t2_test(den: Any, alpha: float = 0.10) -> TestResult:
     """
     x = np.asarray(den, dtype=float).reshape(-1, 2)
     n, p = x.shape
-    if n < 3:
-        return _na("hotelling", "EN", "T2", alpha, f"needs at least 3 points, got {n}", n=n)
+    na = _precheck_en("hotelling", "T2", alpha, x, 3)
+    if na is not None:
+        return na
     s = np.cov(x, rowvar=False, ddof=1)
-    if not _nonsingular(s):
-        return _na("hotelling", "EN", "T2", alpha,
-                   "singular covariance of (dE, dN): zero variance or collinear discrepancies", n=n)
     m = x.mean(axis=0)
     t2 = float(n * m @ np.linalg.solve(s, m))
     f = (n - p) / (p * (n - 1)) * t2
