@@ -266,27 +266,20 @@ def _line_of(text, needle):
     return next(i for i, line in enumerate(text.splitlines(), 1) if needle in line)
 
 
-def test_load_cameras_unknown_key(tmp_path):
-    text = _thesis_cam_text().replace("k3 = 0.0", "k3 = 0.0\nk4 = 0.0")
-    p = _write_cam(tmp_path, text)
-    with pytest.raises(SurveyError, match=rf"camera.toml:{_line_of(text, 'k4 =')}: field 'k4': .*unknown key"):
-        load_cameras(p)
-
-
-def test_load_cameras_missing_key(tmp_path):
-    text = _thesis_cam_text().replace("focal_length_mm = 51.902\n", "")
-    p = _write_cam(tmp_path, text)
-    with pytest.raises(SurveyError, match=rf"camera.toml:{_line_of(text, '[dcs14n]')}: "
-                       r"field 'focal_length_mm': .*missing"):
-        load_cameras(p)
-
-
-def test_load_cameras_bad_value(tmp_path):
-    text = _thesis_cam_text().replace("pixel_size_y_mm = 0.0079", "pixel_size_y_mm = -0.0079")
-    p = _write_cam(tmp_path, text)
-    with pytest.raises(SurveyError, match=rf"camera.toml:{_line_of(text, 'pixel_size_y_mm')}: "
-                       r"field 'pixel_size_y_mm': camera \[dcs14n\]: must be positive"):
-        load_cameras(p)
+@pytest.mark.parametrize("old, new, needle, message", [
+    ("k3 = 0.0", "k3 = 0.0\nk4 = 0.0", "k4 =", r"field 'k4': camera \[dcs14n\]: unknown key; allowed: model"),
+    ("focal_length_mm = 51.902\n", "", "[dcs14n]",
+     r"field 'focal_length_mm': camera \[dcs14n\]: missing \(required\)$"),
+    ("pixel_size_y_mm = 0.0079", "pixel_size_y_mm = -0.0079", "pixel_size_y_mm",
+     r"field 'pixel_size_y_mm': camera \[dcs14n\]: must be positive, got -0.0079$"),
+])
+def test_load_cameras_located_error(tmp_path, old, new, needle, message):
+    """An edit of the thesis camera.toml: the error names the line (the key's, else the table's)."""
+    text = _thesis_cam_text()
+    assert old in text
+    text = text.replace(old, new, 1)
+    with pytest.raises(SurveyError, match=rf"camera.toml:{_line_of(text, needle)}: {message}"):
+        load_cameras(_write_cam(tmp_path, text))
 
 
 def test_load_cameras_invalid_toml_and_empty(tmp_path):
