@@ -796,7 +796,7 @@ def _stage_camera(ctx: _Context, tmp: Path) -> dict:
 
 def _stage_adjust(ctx: _Context, tmp: Path) -> dict:
     """Bundle adjustment of one control set -> eop.csv, points.csv, residuals.csv, summary.json."""
-    from .bundle import adjust, problem_from_survey
+    from .bundle import adjust, problem_from_survey, write_adjustment
     from .survey import Survey
 
     par = _params(ctx)
@@ -808,7 +808,9 @@ def _stage_adjust(ctx: _Context, tmp: Path) -> dict:
 
     result = adjust(problem, variance_factor=survey.settings.variance_factor,
                     chi2_level=survey.settings.chi2_level, progress=prog)
-    _write_adjustment(result, survey, par["control"], tmp)
+    write_adjustment(result, tmp, extra={"crs": survey.crs, "survey": survey.name,
+                                         "control_set": par["control"],
+                                         "observations": survey.settings.observations})
     summ = result.summary()
     if not result.success:
         raise LidarcatError(f"adjustment with control set {par['control']!r} did not converge: "
@@ -817,27 +819,6 @@ def _stage_adjust(ctx: _Context, tmp: Path) -> dict:
             "converged", "n_photos", "n_points", "n_observations", "n_constraints", "status")
     return {"adjustment": {k: summ.get(k) for k in keys}, "control": par["control"],
             "derived_survey": bool(par.get("derived"))}
-
-
-def _write_adjustment(result: Any, survey: Any, control: str, folder: Path) -> None:
-    """Write the folder of ``lidarcat adjust`` (eop.csv, points.csv, residuals.csv, summary.json)."""
-    from .bundle import write_adjustment
-
-    write_adjustment(result, folder, extra={"crs": survey.crs, "survey": survey.name,
-                                            "control_set": control,
-                                            "observations": survey.settings.observations})
-
-
-def _read_points_csv(path: Path) -> dict[str, dict[str, Any]]:
-    from ._io import read_csv_table
-
-    t = read_csv_table(path, required=("point", "E", "N", "h"), allow_extra=True)
-    ids = t.column("point")
-    cols = {c: t.floats(c, required=False) for c in ("E", "N", "h", "sd_E", "sd_N", "sd_h")}
-    role = t.column("role") if t.has("role") else [""] * len(ids)
-    return {q: {"enh": np.array([cols["E"][i], cols["N"][i], cols["h"][i]]),
-                "sd": np.array([cols["sd_E"][i], cols["sd_N"][i], cols["sd_h"][i]]),
-                "role": role[i]} for i, q in enumerate(ids)}
 
 
 def _stats(d: np.ndarray) -> dict[str, float]:
@@ -858,7 +839,7 @@ def _stats(d: np.ndarray) -> dict[str, float]:
 def _stage_assess(ctx: _Context, tmp: Path) -> dict:
     """Check points of one run against the survey's ground points -> assessment.json, discrepancies.csv."""
     from ._io import write_csv_atomic
-    from .accuracy import assess
+    from .accuracy import assess, read_points
     from .survey import Survey
 
     par = _params(ctx)
@@ -869,7 +850,7 @@ def _stage_assess(ctx: _Context, tmp: Path) -> dict:
     reference = {"point": [str(p) for p in gp.point], "E": gp.enh_m[:, 0], "N": gp.enh_m[:, 1],
                  "h": gp.enh_m[:, 2], "sd_E": gp.sd_m[:, 0], "sd_N": gp.sd_m[:, 1], "sd_h": gp.sd_m[:, 2]}
     adjusted = ctx.folder(f"adjust-{name}") / "points.csv"
-    adjusted_ids = set(_read_points_csv(adjusted))
+    adjusted_ids = set(read_points(adjusted).ids)
     checks = [str(c) for c in cset.check if str(c) in adjusted_ids]
     missing = [str(c) for c in cset.check if str(c) not in adjusted_ids]
     if not checks:
@@ -897,7 +878,10 @@ def _stage_assess(ctx: _Context, tmp: Path) -> dict:
 
     write_report(tmp / "report.html", assessment=a, adjustment_dir=ctx.folder(f"adjust-{name}"),
                  survey=survey, title=f"lidarcat: {survey.name}, control set {name}")
-    check = _stats(np.asarray(a.d).reshape(-1, 3))
+    # the assessment's own summary, under the key names of _stats
+    check: dict[str, Any] = {"n": len(checks)}
+    for c in ("E", "N", "h", "planimetric"):
+        check.update({f"{k}_{c}_m": a.summary[c][k] for k in ("mean", "std", "rmse", "max_abs")})
     cons = a.tests.get("consistency", {}).get("ENh")
     if cons is not None and cons.applicable:
         check["consistency"] = {"chi2": cons.statistic, "df": cons.details["df"], "alpha": cons.alpha,
@@ -909,35 +893,43 @@ def _stage_assess(ctx: _Context, tmp: Path) -> dict:
             "n_missing": len(missing)}
 
 
-def _read_eop_csv(path: Path) -> dict[str, np.ndarray]:
+_EOP = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+_EOP_DIFF = ("dX0", "dY0", "dZ0", "domega", "dphi", "dkappa")
+
+
+def _read_photo_rows(path: Path, names: Sequence[str]) -> dict[str, np.ndarray]:
+    """``{photo: values of the columns *names*}`` of a per-photo CSV (eop.csv, eop_differences.csv)."""
     from ._io import read_csv_table
 
-    t = read_csv_table(path, required=("photo", "X0", "Y0", "Z0", "omega", "phi", "kappa"),
-                       allow_extra=True)
-    cols = np.column_stack([t.floats(c) for c in ("X0", "Y0", "Z0", "omega", "phi", "kappa")])
+    t = read_csv_table(path, required=("photo", *names), allow_extra=True)
+    cols = np.column_stack([t.floats(c) for c in names])
     return {p: cols[i] for i, p in enumerate(t.column("photo"))}
 
 
 def _stage_compare(ctx: _Context, tmp: Path) -> dict:
     """Differences between two runs (thesis section 4.4): first minus second."""
     from ._io import write_csv_atomic
+    from .accuracy import read_points
 
     par = _params(ctx)
     a, b = par["first"], par["second"]
     fa, fb = ctx.folder(f"adjust-{a}"), ctx.folder(f"adjust-{b}")
-    ea, eb = _read_eop_csv(fa / "eop.csv"), _read_eop_csv(fb / "eop.csv")
+    ea, eb = _read_photo_rows(fa / "eop.csv", _EOP), _read_photo_rows(fb / "eop.csv", _EOP)
     photos = [p for p in ea if p in eb]
     d_eo = np.array([ea[p] - eb[p] for p in photos]).reshape(-1, 6)
-    eo_names = ["dX0", "dY0", "dZ0", "domega", "dphi", "dkappa"]
+    eo_names = list(_EOP_DIFF)
     write_csv_atomic(tmp / "eop_differences.csv", ["photo"] + eo_names,
                      [[p, *d] for p, d in zip(photos, d_eo)],
                      comments=[f"Exterior orientation of run {a} minus run {b}: metres and degrees."])
-    pa, pb = _read_points_csv(fa / "points.csv"), _read_points_csv(fb / "points.csv")
-    free = [q for q in pa if q in pb and pa[q]["role"] != "control" and pb[q]["role"] != "control"]
-    d_pt = np.array([pa[q]["enh"] - pb[q]["enh"] for q in free]).reshape(-1, 3)
+    pa, pb = read_points(fa / "points.csv"), read_points(fb / "points.csv")
+    ra = dict(zip(pa.ids, pa.roles or [""] * len(pa.ids)))
+    rb = dict(zip(pb.ids, pb.roles or [""] * len(pb.ids)))
+    ia, ib = pa.index(), pb.index()
+    free = [q for q in pa.ids if q in ib and ra[q] != "control" and rb[q] != "control"]
+    d_pt = np.array([pa.xyz[ia[q]] - pb.xyz[ib[q]] for q in free]).reshape(-1, 3)
     write_csv_atomic(tmp / "point_differences.csv",
                      ["point", f"role_{a}", f"role_{b}", "dE", "dN", "dh", "dP"],
-                     [[q, pa[q]["role"], pb[q]["role"], *d, float(np.hypot(d[0], d[1]))]
+                     [[q, ra[q], rb[q], *d, float(np.hypot(d[0], d[1]))]
                       for q, d in zip(free, d_pt)],
                      comments=[f"Points free (not control) in both runs: run {a} minus run {b}, metres."])
     eo_stats = {}
@@ -1106,7 +1098,7 @@ def _stage_report(ctx: _Context, tmp: Path) -> dict:
             cmp_ = dict(ctx.result(st.name))
             eo_path = ctx.folder(st.name) / "eop_differences.csv"
             if eo_path.is_file() and cmp_.get("n_photos", 0) <= 50:
-                cmp_["eop_per_photo"] = {p: v.tolist() for p, v in _read_eop_diff(eo_path).items()}
+                cmp_["eop_per_photo"] = {p: v.tolist() for p, v in _read_photo_rows(eo_path, _EOP_DIFF).items()}
             doc["comparison"][st.name[8:]] = cmp_
     write_json_atomic(tmp / "report.json", doc)
     md = _report_markdown(doc)
@@ -1115,15 +1107,6 @@ def _stage_report(ctx: _Context, tmp: Path) -> dict:
     write_text_atomic(tmp / "index.md", md)
     write_text_atomic(tmp / "index.html", _markdown_to_html(md, f"lidarcat report: {survey.name}"))
     return {"index": "report/index.html", "n_stages_done": sum(r["state"] == "done" for r in rows)}
-
-
-def _read_eop_diff(path: Path) -> dict[str, np.ndarray]:
-    from ._io import read_csv_table
-
-    names = ("dX0", "dY0", "dZ0", "domega", "dphi", "dkappa")
-    t = read_csv_table(path, required=("photo", *names))
-    cols = np.column_stack([t.floats(c) for c in names])
-    return {p: cols[i] for i, p in enumerate(t.column("photo"))}
 
 
 def _report_markdown(doc: Mapping[str, Any]) -> str:
