@@ -135,6 +135,25 @@ def test_asprs2023_includes_checkpoint_error():
     assert any("not 2x more accurate" in n for n in r.notes)
     r0 = classify_asprs2023(d)
     assert any("survey accuracy unknown" in n for n in r0.notes)
+    # targets are tested on the product RMSE (fit + survey): RMSE_H 3.16 cm, RMSE_V 3.61 cm
+    ev = classify_asprs2023(d, checkpoint_sd_m=sd, target_cm={"planimetric": 3.2, "altimetric": 3.6}).evidence
+    assert ev["target_planimetric_passed"] is True and ev["target_altimetric_passed"] is False
+    assert classify_asprs2023(d, checkpoint_sd_m=[0.02, 0.02, 0.03]).evidence["rmse_v_m"] == pytest.approx(
+        math.hypot(0.02, 0.03))
+
+
+def test_asprs_bad_targets_and_sds_are_named():
+    d = np.column_stack([np.full(5, 0.01), np.full(5, -0.01), np.full(5, 0.02)])
+    with pytest.raises(AssessmentError, match=r"^asprs2014 target class 'vertical': use 'planimetric' and/or "
+                                              r"'altimetric'"):
+        classify_asprs2014(d, target_cm={"vertical": 5.0})
+    with pytest.raises(AssessmentError, match=r"^asprs2023 target class 'h'"):
+        classify_asprs2023(d, target_cm={"h": 5.0})
+    with pytest.raises(AssessmentError, match=r"^check-point sds must be \(3,\) or \(5, 3\) \(sd_E, sd_N, sd_h "
+                                              r"in m\), got shape \(4, 3\)$"):
+        classify_asprs2023(d, checkpoint_sd_m=np.full((4, 3), 0.02))
+    with pytest.raises(AssessmentError, match="must be finite and >= 0"):
+        classify_asprs2023(d, checkpoint_sd_m=[0.02, -0.02, 0.03])
 
 
 def test_asprs2014_classes():

@@ -322,6 +322,12 @@ def _check_d(d: np.ndarray) -> np.ndarray:
     return d
 
 
+def _result(name: str, data: Mapping[str, Any], classes: dict[str, str | None], label: str,
+            evidence: dict[str, Any], notes: Sequence[str]) -> StandardResult:
+    return StandardResult(name, data["title"], data["version"], classes, label, evidence, tuple(notes),
+                          tuple(data.get("sources", ())), data.get("confidence", ""))
+
+
 def _chi2_row(x: np.ndarray, sigma0: float | None, alpha: float) -> dict[str, Any]:
     n = x.size
     if sigma0 is None or n < 2 or not sigma0 > 0:
@@ -418,8 +424,7 @@ def classify_pec(d: np.ndarray, scale: float, contour_interval_m: float | None =
     evidence = {"scale": scale, "contour_interval_m": eq["eq_m"], "contour_interval_source": eq["eq_source"],
                 "n": n, "rms_planimetric_m": rms_p, "rms_h_m": rms_h, "pass_fraction": frac_needed,
                 "classes": rows, "chi2_class": best_chi, "alpha": alpha}
-    return StandardResult(standard, data["title"], data["version"], classes, label, evidence, tuple(notes),
-                          tuple(data.get("sources", ())), data.get("confidence", ""))
+    return _result(standard, data, classes, label, evidence, notes)
 
 
 def nssda_horizontal_accuracy(rmse_x: float, rmse_y: float) -> tuple[float, str]:
@@ -466,8 +471,18 @@ def classify_nssda(d: np.ndarray) -> StandardResult:
     ev = {"n": n, "rmse_x_m": rx, "rmse_y_m": ry, "rmse_r_m": math.hypot(rx, ry), "rmse_z_m": rz,
           "ratio_min_max": (min(rx, ry) / max(rx, ry)) if max(rx, ry) > 0 else None,
           "accuracy_r_95_m": acc_r, "horizontal_formula": how, "accuracy_z_95_m": acc_z}
-    return StandardResult("nssda", data["title"], data["version"], classes, label, ev, tuple(notes),
-                          tuple(data.get("sources", ())), data.get("confidence", ""))
+    return _result("nssda", data, classes, label, ev, notes)
+
+
+def _target_evidence(ev: dict[str, Any], target_cm: Mapping[str, float] | None, rmse_h_m: float,
+                     rmse_v_m: float, standard: str) -> None:
+    """Add ``target_<comp>_cm`` and ``target_<comp>_passed`` to *ev* for each requested ASPRS class."""
+    for comp, x in (target_cm or {}).items():
+        if comp not in ("planimetric", "altimetric"):
+            raise AssessmentError(f"{standard} target class {comp!r}: use 'planimetric' and/or 'altimetric' "
+                                  "(e.g. {'planimetric': 5.0, 'altimetric': 10.0}, in cm)")
+        ev[f"target_{comp}_cm"] = x
+        ev[f"target_{comp}_passed"] = bool((rmse_h_m if comp == "planimetric" else rmse_v_m) * 100 <= x + 1e-9)
 
 
 def _class_cm(rmse_m: float, step_cm: float) -> float:
@@ -509,16 +524,11 @@ def classify_asprs2014(d: np.ndarray, *, target_cm: Mapping[str, float] | None =
         "horizontal_class_cm": xh, "vertical_class_cm": xv,
         "mean_m": mean.tolist(), "mean_exceeds_25_percent": {"horizontal": bias_h, "vertical": bias_v},
     }
-    if target_cm:
-        for comp, x in target_cm.items():
-            r = max(rx, ry) if comp == "planimetric" else rz
-            ev[f"target_{comp}_cm"] = x
-            ev[f"target_{comp}_passed"] = bool(r * 100 <= x + 1e-9)
+    _target_evidence(ev, target_cm, max(rx, ry), rz, "asprs2014")
     classes = {"planimetric": _fmt_cm(xh), "altimetric": _fmt_cm(xv)}
     label = (f"horizontal accuracy class {_fmt_cm(xh)} (RMSE_x {rx * 100:.2f} cm, RMSE_y {ry * 100:.2f} cm); "
              f"vertical (NVA) class {_fmt_cm(xv)} (RMSE_z {rz * 100:.2f} cm)")
-    return StandardResult("asprs2014", data["title"], data["version"], classes, label, ev, tuple(notes),
-                          tuple(data.get("sources", ())), data.get("confidence", ""))
+    return _result("asprs2014", data, classes, label, ev, notes)
 
 
 def asprs2023_product_rmse(fit: float, checkpoint: float) -> float:
@@ -545,6 +555,14 @@ def classify_asprs2023(d: np.ndarray, *, checkpoint_sd_m: np.ndarray | None = No
         Survey standard deviations of the check points (sd_E, sd_N, sd_h, m);
         the per-axis survey RMSE is ``sqrt(mean(sd^2))``.  ``None``: unknown,
         the product accuracy is the fit alone and the notes say so.
+    target_cm : dict, optional
+        ``{"planimetric": X, "altimetric": Y}`` classes (cm) to test.
+
+    Raises
+    ------
+    AssessmentError
+        Bad discrepancies, sds of the wrong shape or negative, or a target
+        key other than ``planimetric`` / ``altimetric``.
     """
     d = _check_d(d)
     data = load_standard("asprs2023")
@@ -557,7 +575,12 @@ def classify_asprs2023(d: np.ndarray, *, checkpoint_sd_m: np.ndarray | None = No
                      "(give the reference sd_E, sd_N, sd_h columns to include it)")
     else:
         sd = np.asarray(checkpoint_sd_m, dtype=float)
-        sd = np.broadcast_to(sd, d.shape) if sd.ndim == 1 else sd
+        if sd.shape not in ((3,), d.shape):
+            raise AssessmentError(f"check-point sds must be (3,) or ({d.shape[0]}, 3) (sd_E, sd_N, sd_h in m), "
+                                  f"got shape {sd.shape}")
+        if not np.all(np.isfinite(sd) & (sd >= 0)):
+            raise AssessmentError("check-point sds must be finite and >= 0 (sd_E, sd_N, sd_h in m)")
+        sd = np.broadcast_to(sd, d.shape)
         e2, n2, v2 = (float(np.sqrt(np.mean(np.square(sd[:, k])))) for k in range(3))
     h2 = math.hypot(e2, n2)
     rh = asprs2023_product_rmse(h1, h2)
@@ -590,16 +613,11 @@ def classify_asprs2023(d: np.ndarray, *, checkpoint_sd_m: np.ndarray | None = No
             "vertical": bool(abs(mean[2]) > lim * rz) if rz > 0 else False},
         "blunders_over_3x_rmse": {"horizontal": n_blunder_h, "vertical": n_blunder_v},
     }
-    if target_cm:
-        for comp, x in target_cm.items():
-            r = rh if comp == "planimetric" else rv
-            ev[f"target_{comp}_cm"] = x
-            ev[f"target_{comp}_passed"] = bool(r * 100 <= x + 1e-9)
+    _target_evidence(ev, target_cm, rh, rv, "asprs2023")
     classes = {"planimetric": _fmt_cm(xh), "altimetric": _fmt_cm(xv)}
     label = (f"horizontal class {_fmt_cm(xh)} (RMSE_H {rh * 100:.2f} cm incl. check-point error "
              f"{h2 * 100:.2f} cm); vertical NVA class {_fmt_cm(xv)} (RMSE_V {rv * 100:.2f} cm)")
-    return StandardResult("asprs2023", data["title"], data["version"], classes, label, ev, tuple(notes),
-                          tuple(data.get("sources", ())), data.get("confidence", ""))
+    return _result("asprs2023", data, classes, label, ev, notes)
 
 
 def classify(name: str, d: np.ndarray, *, scale: float | None = None, contour_interval_m: float | None = None,
