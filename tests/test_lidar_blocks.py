@@ -126,11 +126,10 @@ def _mask(xyz, q):
 # --------------------------------------------------------------------------- BlockIndex
 def test_block_index_ranges_boxes_and_json():
     bi = BlockIndex(3, 8, np.array([[0, 0, 1, 1], [2, 0, 3, 1], [0, 5, 3, 6]], float))
-    assert [bi.block_range(k) for k in range(3)] == [(0, 3), (3, 6), (6, 8)]
-    assert bi.points_in(np.array([0, 2])) == 5
-    assert bi.blocks_in_box(1.0, 1.0, 2.0, 5.0).tolist() == [0, 1, 2]  # edges touch all three
-    assert bi.blocks_in_box(1.0000001, 1.0000001, 1.9999999, 4.9999999).tolist() == []
-    assert bi.ranges([0, 1, 2]) == [(0, 8)] and bi.ranges([0, 2]) == [(0, 3), (6, 8)]
+    assert len(bi) == 3
+    assert bi.needs(bi.cells_in_box(1.0, 1.0, 2.0, 5.0)) == ([0, 1, 2], [3, 6, 8])  # edges touch all three
+    assert bi.cells_in_box(1.0000001, 1.0000001, 1.9999999, 4.9999999).tolist() == []
+    assert bi.ranges([0, 1, 2], [3, 6, 8]) == [(0, 8)] and bi.ranges([0, 2], [3, 8]) == [(0, 3), (6, 8)]
     back = BlockIndex.from_dict(json.loads(json.dumps(bi.to_dict())))
     np.testing.assert_array_equal(back.boxes, bi.boxes)
     assert (back.block_points, back.count) == (3, 8)
@@ -139,7 +138,7 @@ def test_block_index_ranges_boxes_and_json():
     # cells: boxes every 2 points, blocks of 4; reading stops after the last cell met
     cells = BlockIndex(4, 9, np.array([[0, 0, 1, 1], [5, 0, 6, 1], [0, 0, 1, 1], [9, 9, 9, 9],
                                        [0, 0, 1, 1]], float), 2)
-    assert len(cells) == 3 and cells.blocks_in_box(5, 0, 5, 0).tolist() == [0]
+    assert len(cells) == 3 and cells.needs(cells.cells_in_box(5, 0, 5, 0)) == ([0], [4])
     assert cells.needs(cells.cells_in_box(0, 0, 1, 1)) == ([0, 1, 2], [2, 6, 9])
     assert cells.needs(cells.cells_in_box(5, 0, 9, 9)) == ([0, 1], [4, 8])
     assert cells.ranges([0, 1], [4, 6]) == [(0, 6)] and cells.ranges([0, 1], [2, 6]) == [(0, 2), (4, 6)]

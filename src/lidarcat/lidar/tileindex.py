@@ -249,10 +249,10 @@ class BlockIndex:
     Examples
     --------
     >>> bi = BlockIndex(2, 5, np.array([[0, 0, 1, 1], [5, 0, 6, 1], [0.5, 0, 2, 1.0]]))
-    >>> bi.blocks_in_box(0.9, 0.5, 1.5, 0.6).tolist(), bi.ranges([0, 2])
-    ([0, 2], [(0, 2), (4, 5)])
-    >>> bi.ranges([0, 1])
-    [(0, 4)]
+    >>> bi.needs(bi.cells_in_box(0.9, 0.5, 1.5, 0.6))   # blocks 0 and 2, read to their ends
+    ([0, 2], [2, 5])
+    >>> bi.ranges([0, 2], [2, 5]), bi.ranges([0, 1], [2, 4])
+    ([(0, 2), (4, 5)], [(0, 4)])
     >>> cells = BlockIndex(4, 7, np.array([[0, 0, 1, 1], [5, 0, 6, 1], [0, 0, 1, 1], [9, 9, 9, 9]]), 2)
     >>> cells.needs(cells.cells_in_box(0, 0, 1, 1))     # blocks 0 and 1, each read up to point 2 / 6
     ([0, 1], [2, 6])
@@ -282,18 +282,10 @@ class BlockIndex:
         """Number of blocks."""
         return -(-self.count // self.block_points)
 
-    def block_range(self, k: int) -> tuple[int, int]:
-        """Point index range ``[start, stop)`` of block *k*."""
-        return k * self.block_points, min((k + 1) * self.block_points, self.count)
-
     def cells_in_box(self, xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
         """Ascending indices of the cells whose box meets the plan box (edges included)."""
         b = self.boxes
         return np.flatnonzero((b[:, 0] <= xmax) & (b[:, 2] >= xmin) & (b[:, 1] <= ymax) & (b[:, 3] >= ymin))
-
-    def blocks_in_box(self, xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
-        """Ascending indices of the blocks holding a cell whose box meets the plan box."""
-        return np.unique(self.cells_in_box(xmin, ymin, xmax, ymax) // (self.block_points // self.cell_points))
 
     def needs(self, cells: np.ndarray) -> tuple[list[int], list[int]]:
         """Blocks holding the ascending *cells*, and per block the point index where reading
@@ -306,18 +298,11 @@ class BlockIndex:
         last = np.flatnonzero(np.r_[blk[1:] != blk[:-1], True])  # cells ascend: last one per block
         return blk[last].tolist(), ends[last].tolist()
 
-    def points_in(self, blocks: np.ndarray) -> int:
-        """Number of points in the given blocks."""
-        b = np.asarray(blocks, dtype=np.int64)
-        return int(np.minimum((b + 1) * self.block_points, self.count).sum() - (b * self.block_points).sum())
-
-    def ranges(self, blocks: Iterable[int], stops: Iterable[int] | None = None) -> list[tuple[int, int]]:
-        """Point ranges ``[start, stop)`` of ascending *blocks* (each read from its start to
-        its entry of *stops*, default its end), ranges that touch merged."""
-        blocks = [int(k) for k in blocks]
-        stops = [self.block_range(k)[1] for k in blocks] if stops is None else [int(e) for e in stops]
+    def ranges(self, blocks: Iterable[int], stops: Iterable[int]) -> list[tuple[int, int]]:
+        """Point ranges ``[start, stop)`` of ascending *blocks*, each read from its start to
+        its entry of *stops* (see :meth:`needs`); ranges that touch are merged."""
         out: list[tuple[int, int]] = []
-        for k, e in zip(blocks, stops):
+        for k, e in zip(map(int, blocks), map(int, stops)):
             a = k * self.block_points
             if out and out[-1][1] == a:
                 out[-1] = (out[-1][0], e)
@@ -473,10 +458,8 @@ class TileIndex:
         self.cell_points = int(cell_points)
         self.decoded_points = 0
         self._cache_path = Path(cache_path) if cache_path is not None else None
-        self._defer_save = False
-        self._cache: OrderedDict[Path, PointCloud] = OrderedDict()
-        self._block_cache: OrderedDict[tuple[Path, int], PointCloud] = OrderedDict()
-        self._lru: OrderedDict[Any, int] = OrderedDict()  # tile paths and (path, block): points
+        # whole tiles (key: path) and block prefixes (key: (path, block)), least recently used first
+        self._cache: OrderedDict[Any, PointCloud] = OrderedDict()
         self._grids: dict[Path, _CellGrid] = {}
         self._cached_points = 0
         self._block_decoded: dict[Path, int] = {}  # points of each tile decoded by block reads
@@ -576,10 +559,6 @@ class TileIndex:
         return idx
 
     @staticmethod
-    def _load_cache(path: Path) -> dict[Path, Tile]:
-        return TileIndex._load_cache_doc(path)[0]
-
-    @staticmethod
     def _load_cache_doc(path: Path) -> tuple[dict[Path, Tile], dict[Path, BlockIndex]]:
         """Tiles and block indexes of a cache file; empty when absent, old or unreadable."""
         if not path.exists():
@@ -617,12 +596,6 @@ class TileIndex:
                 d["blocks"] = blocks[t.path].to_dict()
             docs.append(d)
         write_json_atomic(path, {"format": _CACHE_FORMAT, "version": _CACHE_VERSION, "tiles": docs})
-
-    def _store_blocks(self, tile: Tile, blocks: BlockIndex) -> None:
-        """Keep a newly computed block index and write it to the cache file."""
-        self._blocks[tile.path] = blocks
-        if not self._defer_save:
-            self._save_blocks()
 
     def _save_blocks(self) -> None:
         """Write the block indexes to the cache file, merging those another process may
@@ -696,8 +669,10 @@ class TileIndex:
         return (self.decode != "whole" and tile.count > 0 and tile.path not in self._blocks
                 and file_kind(tile.path) == "las")
 
-    def _decode_tile(self, tile: Tile, progress: Callable[[int], Any] | None = None) -> Iterator[PointCloud]:
-        """Stream a whole tile from its file (recording its block index when wanted)."""
+    def _decode_tile(self, tile: Tile, progress: Callable[[int], Any] | None = None,
+                     save: bool = True) -> Iterator[PointCloud]:
+        """Stream a whole tile from its file, recording its block index when wanted (and,
+        with *save*, writing it to the cache file)."""
         self._check_unchanged(tile)
         acc = None
         if self._wants_blocks(tile):
@@ -712,7 +687,9 @@ class TileIndex:
         if acc is not None:
             blocks = acc.finish()
             if blocks is not None:
-                self._store_blocks(tile, blocks)
+                self._blocks[tile.path] = blocks
+                if save:
+                    self._save_blocks()
 
     def _tile_chunks(self, tile: Tile) -> Iterator[PointCloud]:
         hit = self._cache.get(tile.path)
@@ -731,46 +708,28 @@ class TileIndex:
             yield self._in_index_crs(chunk)
 
     def _touch(self, key: Any) -> None:
-        if key in self._lru:
-            self._lru.move_to_end(key)
+        self._cache.move_to_end(key)
 
-    def _remember(self, path: Path, cloud: PointCloud) -> None:
-        for key in [k for k in self._block_cache if k[0] == path]:  # the whole tile replaces its blocks
-            self._forget(key)
-        self._cache[path] = cloud
-        self._lru[path] = len(cloud)
+    def _remember(self, key: Any, cloud: PointCloud) -> None:
+        """Keep a whole tile (key: its path) or a block prefix (key: (path, block)) in memory;
+        it replaces a shorter prefix of the same block, a whole tile all its blocks."""
+        for old in [k for k in self._cache if k == key or (isinstance(k, tuple) and k[0] == key)]:
+            self._forget(old)
+        self._cache[key] = cloud
         self._cached_points += len(cloud)
-        self._evict()
-
-    def _remember_block(self, path: Path, k: int, cloud: PointCloud) -> None:
-        if (path, k) in self._lru:  # a longer part of the block replaces the shorter one
-            self._forget((path, k))
-        self._block_cache[(path, k)] = cloud
-        self._lru[(path, k)] = len(cloud)
-        self._cached_points += len(cloud)
-        self._evict()
-
-    def _forget(self, key: Any) -> None:
-        self._cached_points -= self._lru.pop(key)
-        if isinstance(key, tuple):
-            del self._block_cache[key]
-        else:
-            del self._cache[key]
-            self._grids.pop(key, None)
-
-    def _evict(self) -> None:
-        """Drop the least recently used tiles/blocks beyond ``max_cached_points`` (the newest
-        one stays unless it alone is too big)."""
-        while self._cached_points > self.max_cached_points and len(self._lru) > 1:
-            self._forget(next(iter(self._lru)))
+        # drop the least recently used beyond the budget (the newest stays unless it alone is too big)
+        while self._cached_points > self.max_cached_points and len(self._cache) > 1:
+            self._forget(next(iter(self._cache)))
         if self._cached_points > self.max_cached_points:
             self.clear_cache()
+
+    def _forget(self, key: Any) -> None:
+        self._cached_points -= len(self._cache.pop(key))
+        self._grids.pop(key, None)
 
     def clear_cache(self) -> None:
         """Forget the tiles and blocks kept in memory (block indexes are kept)."""
         self._cache.clear()
-        self._block_cache.clear()
-        self._lru.clear()
         self._grids.clear()
         self._cached_points = 0
 
@@ -813,16 +772,13 @@ class TileIndex:
             Corrupt or truncated point data.
         """
         done = 0
-        self._defer_save = True
         try:
             for t in self.tiles if tiles is None else tiles:
-                if not self._wants_blocks(t):
-                    continue
-                for _ in self._decode_tile(t, progress=progress):
-                    pass
-                done += 1
+                if self._wants_blocks(t):
+                    for _ in self._decode_tile(t, progress=progress, save=False):
+                        pass
+                    done += 1
         finally:
-            self._defer_save = False
             if done:
                 self._save_blocks()
         return done
@@ -843,7 +799,7 @@ class TileIndex:
         have: dict[int, PointCloud | None] = {}
         missing: list[tuple[int, int]] = []
         for k, a, e in zip(blocks, starts, stops):
-            c = self._block_cache.get((tile.path, k))
+            c = self._cache.get((tile.path, k))
             if c is not None and a + len(c) >= e:  # kept in memory, long enough
                 self._touch((tile.path, k))
             else:
@@ -865,7 +821,7 @@ class TileIndex:
                 cloud = self._in_index_crs(cloud)
                 k = start // bi.block_points
                 have[k] = cloud
-                self._remember_block(tile.path, k, cloud)
+                self._remember((tile.path, k), cloud)
         out: list[PointCloud] = []
         for k in blocks:
             cloud = have[k]
