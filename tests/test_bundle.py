@@ -225,6 +225,16 @@ def test_gps_run_check_points_table7(gps, survey):
     assert {r["point"] for r in rows} == {q for q, r in zip(gps.point_ids, gps.point_role) if r == "check"}
 
 
+def test_result_lookup_by_id(gps):
+    np.testing.assert_array_equal(gps.point("601"), gps.points_m[list(gps.point_ids).index("601")])
+    assert gps.eo("4").photo == "4"
+    np.testing.assert_array_equal(gps.eo("4").params, gps.eo_params[3])
+    with pytest.raises(ValueError, match="^point 'zz' is not in the adjustment$"):
+        gps.point("zz")
+    with pytest.raises(ValueError, match="^photo '9' is not in the adjustment$"):
+        gps.eo(9)
+
+
 def test_variance_factor_a_posteriori_scales_sds(gps_problem, gps):
     post = adjust(gps_problem, variance_factor="a_posteriori")
     np.testing.assert_allclose(post.eo_sd, gps.eo_sd * np.sqrt(gps.sigma0_sq), rtol=1e-9)

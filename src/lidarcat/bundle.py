@@ -197,7 +197,7 @@ class ExteriorOrientation:
         return project(eo, xyz, np.full(len(xyz), float(focal_length_mm)))[0]
 
 
-def _str_array(a: Sequence[Any], name: str) -> np.ndarray:
+def _str_array(a: Sequence[Any]) -> np.ndarray:
     arr = np.array([str(v) for v in a], dtype=object)
     arr.setflags(write=False)
     return arr
@@ -261,8 +261,8 @@ class BundleProblem:
     def __post_init__(self) -> None:
         s = object.__setattr__
         s(self, "info", dict(self.info))
-        s(self, "photo_ids", _str_array(self.photo_ids, "photo_ids"))
-        s(self, "point_ids", _str_array(self.point_ids, "point_ids"))
+        s(self, "photo_ids", _str_array(self.photo_ids))
+        s(self, "point_ids", _str_array(self.point_ids))
         n_ph, n_pt = len(self.photo_ids), len(self.point_ids)
         for ids, what in ((self.photo_ids, "photo"), (self.point_ids, "point")):
             if len(set(ids)) != len(ids):
@@ -481,13 +481,25 @@ class BundleResult:
                      for i, p, c in zip(self.photo_ids, self.eo_params, self.eo_cov))
 
     def eo(self, photo: str) -> ExteriorOrientation:
-        """Exterior orientation of *photo*."""
-        i = list(self.photo_ids).index(str(photo))
+        """Exterior orientation of *photo*.
+
+        Raises
+        ------
+        ValueError
+            *photo* is not in the adjustment (named).
+        """
+        i = _position(self.photo_ids, photo, "photo")
         return ExteriorOrientation.from_params(self.eo_params[i], photo=self.photo_ids[i], cov=self.eo_cov[i])
 
     def point(self, point: str) -> np.ndarray:
-        """Adjusted E, N, h of *point* (3,)."""
-        return self.points_m[list(self.point_ids).index(str(point))]
+        """Adjusted E, N, h of *point* (3,).
+
+        Raises
+        ------
+        ValueError
+            *point* is not in the adjustment (named).
+        """
+        return self.points_m[_position(self.point_ids, point, "point")]
 
     def rms_residuals_per_photo(self) -> np.ndarray:
         """(P, 2) RMS image residual in x and y per photo (mm) (Appendix 2 'desvio padrao medio')."""
@@ -548,6 +560,13 @@ class BundleResult:
             if free.any() else {},
             "elapsed_s": float(self.elapsed_s),
         }
+
+
+def _position(ids: np.ndarray, wanted: Any, what: str) -> int:
+    hit = np.flatnonzero(ids == str(wanted))
+    if not len(hit):
+        raise ValueError(f"{what} {str(wanted)!r} is not in the adjustment")
+    return int(hit[0])
 
 
 # ---------------------------------------------------------------------------
@@ -654,17 +673,42 @@ def check_datum(problem: BundleProblem) -> None:
 # ---------------------------------------------------------------------------
 
 
-def _block_sum(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
-    """Sum (m, a, b) blocks into (n, a, b) by *index* with bincount (fast scatter-add)."""
-    return block_sum(index, blocks, n)
-
-
 def _block_sparse(rows: np.ndarray, cols: np.ndarray, blocks: np.ndarray, shape: tuple[int, int]) -> sp.csr_matrix:
     """Sparse matrix from (m, a, b) blocks at block row/col indices (duplicates summed)."""
     m, a, b = blocks.shape
     r = (rows[:, None, None] * a + np.arange(a)[None, :, None]) + np.zeros((1, 1, b), dtype=np.int64)
     c = (cols[:, None, None] * b + np.arange(b)[None, None, :]) + np.zeros((1, a, 1), dtype=np.int64)
     return sp.csr_matrix((blocks.ravel(), (r.ravel(), c.ravel())), shape=shape)
+
+
+def _constraint_terms(p: BundleProblem, eo: np.ndarray, pts: np.ndarray):
+    """Residuals (adjusted - observed) and weights of the point and camera constraints.
+
+    Returns ``(r_con (k, 3), w_con (k, 3), r_eo (e, 6) or None, w_eo (e, 6) or None)``;
+    angle residuals wrapped to (-pi, pi], weight 0 on a free axis.
+    """
+    w_con = np.where(np.isfinite(p.constraint_sd_m), 1.0 / p.constraint_sd_m**2, 0.0)
+    r_con = pts[p.constraint_point_index] - p.constraint_enh_m
+    if p.eo_constraint_photo_index is None or not len(p.eo_constraint_photo_index):
+        return r_con, w_con, None, None
+    w_eo = np.where(np.isfinite(p.eo_constraint_sd), 1.0 / p.eo_constraint_sd**2, 0.0)
+    r_eo = eo[p.eo_constraint_photo_index] - p.eo_constraint_params
+    r_eo[:, 3:] = (r_eo[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+    return r_con, w_con, r_eo, w_eo
+
+
+def _reduce(ei: np.ndarray, pj: np.ndarray, U: np.ndarray, V: np.ndarray, W: np.ndarray):
+    """Schur complement of the point blocks: S = U - W V^-1 W^T (sparse, 6P x 6P).
+
+    Returns ``S`` (csc), ``V^-1`` (Q, 3, 3), ``Tm`` = W V^-1 and ``Wm`` = W as sparse
+    (6P x 3Q) matrices.
+    """
+    n_ph, n_pt = len(U), len(V)
+    vinv = _inv3(V)
+    Tm = _block_sparse(ei, pj, W @ vinv[pj], (6 * n_ph, 3 * n_pt))
+    Wm = _block_sparse(ei, pj, W, (6 * n_ph, 3 * n_pt))
+    Ub = _block_sparse(np.arange(n_ph), np.arange(n_ph), U, (6 * n_ph, 6 * n_ph))
+    return (Ub - Tm @ Wm.T).tocsc(), vinv, Tm, Wm
 
 
 class _System:
@@ -682,29 +726,22 @@ class _System:
         aw_eo = a_eo * w[:, :, None]
         aw_pt = a_pt * w[:, :, None]
         n_ph, n_pt = p.n_photos, p.n_points
-        self.U = _block_sum(ei, np.transpose(aw_eo, (0, 2, 1)) @ a_eo, n_ph)
-        self.V = _block_sum(pj, np.transpose(aw_pt, (0, 2, 1)) @ a_pt, n_pt)
+        self.U = block_sum(ei, np.transpose(aw_eo, (0, 2, 1)) @ a_eo, n_ph)
+        self.V = block_sum(pj, np.transpose(aw_pt, (0, 2, 1)) @ a_pt, n_pt)
         self.W = np.transpose(aw_eo, (0, 2, 1)) @ a_pt     # (n, 6, 3)
-        self.g_c = _block_sum(ei, np.einsum("nki,nk->ni", aw_eo, r)[:, :, None], n_ph)[:, :, 0]
-        self.g_p = _block_sum(pj, np.einsum("nki,nk->ni", aw_pt, r)[:, :, None], n_pt)[:, :, 0]
+        self.g_c = block_sum(ei, np.einsum("nki,nk->ni", aw_eo, r)[:, :, None], n_ph)[:, :, 0]
+        self.g_p = block_sum(pj, np.einsum("nki,nk->ni", aw_pt, r)[:, :, None], n_pt)[:, :, 0]
         vtpv = float(np.sum(r**2 * w))
-        # point constraints
+        # point and exterior-orientation constraints
+        rc, wc, re, we = _constraint_terms(p, eo, pts)
+        self.r_con, self.r_eo = rc, re
         ci = p.constraint_point_index
-        wc = np.where(np.isfinite(p.constraint_sd_m), 1.0 / p.constraint_sd_m**2, 0.0)
-        rc = pts[ci] - p.constraint_enh_m
-        self.r_con = rc
         idx = np.arange(3)
         np.add.at(self.V, (ci[:, None], idx[None, :], idx[None, :]), wc)
         np.add.at(self.g_p, ci, wc * rc)
         vtpv += float(np.sum(wc * rc**2))
-        # exterior-orientation constraints
-        self.r_eo = None
-        if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
+        if re is not None:
             k = p.eo_constraint_photo_index
-            we = np.where(np.isfinite(p.eo_constraint_sd), 1.0 / p.eo_constraint_sd**2, 0.0)
-            re = eo[k] - p.eo_constraint_params
-            re[:, 3:] = (re[:, 3:] + np.pi) % (2 * np.pi) - np.pi
-            self.r_eo = re
             i6 = np.arange(6)
             np.add.at(self.U, (k[:, None], i6[None, :], i6[None, :]), we)
             np.add.at(self.g_c, k, we * re)
@@ -719,33 +756,18 @@ class _System:
             iu, iv = np.arange(6), np.arange(3)
             U[:, iu, iu] *= 1.0 + lam
             V[:, iv, iv] *= 1.0 + lam
-        vinv = _inv3(V)
-        n_ph, n_pt = p.n_photos, p.n_points
-        pj, ei = p.point_index, p.photo_index
-        T = self.W @ vinv[pj]                                   # (n, 6, 3)
-        Tm = _block_sparse(ei, pj, T, (6 * n_ph, 3 * n_pt))
-        Wm = _block_sparse(ei, pj, self.W, (6 * n_ph, 3 * n_pt))
-        Ub = _block_sparse(np.arange(n_ph), np.arange(n_ph), U, (6 * n_ph, 6 * n_ph))
-        S = (Ub - Tm @ Wm.T).tocsc()
+        S, vinv, Tm, Wm = _reduce(p.photo_index, p.point_index, U, V, self.W)
         b_c = -self.g_c.reshape(-1)
         b_p = -self.g_p.reshape(-1)
         rhs = b_c - Tm @ b_p
         dc = _factor(S).solve(rhs)
-        bp = (b_p - Wm.T @ dc).reshape(n_pt, 3)
+        bp = (b_p - Wm.T @ dc).reshape(p.n_points, 3)
         dp = np.einsum("qij,qj->qi", vinv, bp)
-        return dc.reshape(n_ph, 6), dp
+        return dc.reshape(p.n_photos, 6), dp
 
-    def reduced_system(self) -> tuple[sp.csc_matrix, np.ndarray, np.ndarray]:
-        """Undamped reduced camera system S, V^-1 (Q, 3, 3) and T = W V^-1 (n, 6, 3)."""
-        p = self.p
-        vinv = _inv3(self.V)
-        n_ph, n_pt = p.n_photos, p.n_points
-        pj, ei = p.point_index, p.photo_index
-        T = self.W @ vinv[pj]
-        Tm = _block_sparse(ei, pj, T, (6 * n_ph, 3 * n_pt))
-        Wm = _block_sparse(ei, pj, self.W, (6 * n_ph, 3 * n_pt))
-        Ub = _block_sparse(np.arange(n_ph), np.arange(n_ph), self.U, (6 * n_ph, 6 * n_ph))
-        return (Ub - Tm @ Wm.T).tocsc(), vinv, T
+    def reduced_system(self):
+        """Undamped ``S``, ``V^-1``, ``Tm``, ``Wm`` of :func:`_reduce`."""
+        return _reduce(self.p.photo_index, self.p.point_index, self.U, self.V, self.W)
 
     def covariance(self, method: str = "auto") -> tuple[np.ndarray, np.ndarray]:
         """Blocks of N^-1: (P, 6, 6) per photo and (Q, 3, 3) per point.
@@ -759,7 +781,8 @@ class _System:
         p = self.p
         n_ph, n_pt = p.n_photos, p.n_points
         pj, ei = p.point_index, p.photo_index
-        S, vinv, T = self.reduced_system()
+        S, vinv, _, _ = self.reduced_system()
+        T = self.W @ vinv[pj]                                  # (n, 6, 3)
         oa, ob = _observation_pairs(pj, n_pt)
         pi, pk = ei[oa], ei[ob]
         getter = None
@@ -772,7 +795,7 @@ class _System:
             eo_cov, blocks_pair = _solve_selected_inverse(S, n_ph, pi, pk)
         # point blocks: V^-1 + sum_{a,b} T_a^T C_ik T_b over pairs of rays of the point
         contrib = (np.transpose(T[oa], (0, 2, 1)) @ blocks_pair) @ T[ob]
-        point_cov = vinv + _block_sum(pj[oa], contrib, n_pt)
+        point_cov = vinv + block_sum(pj[oa], contrib, n_pt)
         eo_cov = 0.5 * (eo_cov + np.transpose(eo_cov, (0, 2, 1)))
         point_cov = 0.5 * (point_cov + np.transpose(point_cov, (0, 2, 1)))
         return eo_cov, point_cov
@@ -942,12 +965,9 @@ def _cost(problem: BundleProblem, eo: np.ndarray, pts: np.ndarray) -> float:
     if np.any(u3 >= 0) or not np.all(np.isfinite(xy)):
         return math.inf  # a point behind (or in the plane of) a camera
     c = float(np.sum(((xy - p.xy_mm) / p.sd_mm) ** 2))
-    wc = np.where(np.isfinite(p.constraint_sd_m), 1.0 / p.constraint_sd_m**2, 0.0)
-    c += float(np.sum(wc * (pts[p.constraint_point_index] - p.constraint_enh_m) ** 2))
-    if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
-        we = np.where(np.isfinite(p.eo_constraint_sd), 1.0 / p.eo_constraint_sd**2, 0.0)
-        re = eo[p.eo_constraint_photo_index] - p.eo_constraint_params
-        re[:, 3:] = (re[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+    rc, wc, re, we = _constraint_terms(p, eo, pts)
+    c += float(np.sum(wc * rc**2))
+    if re is not None:
         c += float(np.sum(we * re**2))
     return c
 
@@ -1153,12 +1173,11 @@ def joint_point_covariance(result: BundleResult, points: Sequence[str], *, batch
     sel = np.array([index[q] for q in ids])
     system = _System(p, np.asarray(result.eo_params), np.asarray(result.points_m))
     try:
-        S, vinv, T = system.reduced_system()
+        S, vinv, Tm, _ = system.reduced_system()
         lu = _factor(S)
     except _Singular as ex:
         raise DatumError(f"joint covariance: {ex}") from ex
-    Tm = _block_sparse(p.photo_index, p.point_index, T, (6 * p.n_photos, 3 * p.n_points)).tocsc()
-    B = Tm[:, (3 * sel[:, None] + np.arange(3)[None, :]).ravel()]
+    B = Tm.tocsc()[:, (3 * sel[:, None] + np.arange(3)[None, :]).ravel()]
     BT = B.T.tocsr()
     C = np.empty((3 * k, 3 * k))
     for c0 in range(0, 3 * k, batch):
@@ -1305,14 +1324,10 @@ def problem_from_survey(
     cenh = np.array([gp.enh_m[g_index[c]] for c in ctrl], dtype=float).reshape(-1, 3)
     csd = np.asarray(cset.sd_m, dtype=float).reshape(-1, 3)[np.asarray(measured, dtype=bool)]
     role = np.full(len(point_ids), "tie", dtype=object)
-    for q in point_ids:
-        if q in g_index:
-            role[pt_pos[q]] = "free"
     for q in cset.check:
         if str(q) in pt_pos:
             role[pt_pos[str(q)]] = "check"
     role[ci] = "control"
-    role[role == "free"] = "tie"
     n_ph = len(photo_ids)
     init = np.full((n_ph, 6), np.nan)
     e_idx, e_val, e_sd = [], [], []
