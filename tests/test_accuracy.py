@@ -431,3 +431,15 @@ def test_json_layout(thesis7):
     assert set(d["tests"]) >= {"ks", "lilliefors", "hotelling", "ce90"}
     assert d["standards"]["pec"]["class"] == {"planimetric": "A", "altimetric": "A"}
     assert len(d["points"]) == 13 and d["points"][0]["point"] == "603"
+
+
+def test_bad_in_memory_points_are_named():
+    cols = {"point": ["a", "b", "c"], "E": [1.0, 2.0], "N": [1.0, 2.0, 3.0], "h": [1.0, 2.0, 3.0]}
+    with pytest.raises(AssessmentError, match=r"^adjusted: column 'E' has 2 values for 3 points$"):
+        read_points(cols, "adjusted")
+    with pytest.raises(AssessmentError, match=r"^reference: point 'a': not a number \(could not convert string"):
+        read_points({"a": (1.0, 2.0, "x")}, "reference")
+    with pytest.raises(AssessmentError, match=r"^points: expected an \(N, 3\) array of E, N, h, got shape \(2, 2\)$"):
+        read_points((["a", "b"], np.zeros((2, 2))))
+    with pytest.raises(AssessmentError, match=r"^points: 2 ids for 3 coordinate rows$"):
+        read_points((["a", "b"], np.zeros((3, 3))))

@@ -188,26 +188,37 @@ def read_points(obj: Any, label: str = "points") -> PointSet:
     if isinstance(obj, Mapping):
         if "point" in obj and all(k in obj for k in ("E", "N", "h")):
             ids = tuple(str(p) for p in obj["point"])
-            xyz = np.column_stack([np.asarray(obj[c], dtype=float) for c in ("E", "N", "h")])
-            sd = None
-            if all(k in obj for k in ("sd_E", "sd_N", "sd_h")):
-                sd = np.column_stack([np.asarray(obj[c], dtype=float) for c in ("sd_E", "sd_N", "sd_h")])
+
+            def cols(names: Sequence[str]) -> np.ndarray:
+                out = []
+                for c in names:
+                    v = _floats(obj[c], f"{label}: column {c!r}").ravel()
+                    if v.size != len(ids):
+                        raise AssessmentError(f"{label}: column {c!r} has {v.size} values for {len(ids)} points")
+                    out.append(v)
+                return np.column_stack(out)
+
+            xyz = cols(("E", "N", "h"))
+            sd = cols(("sd_E", "sd_N", "sd_h")) if all(k in obj for k in ("sd_E", "sd_N", "sd_h")) else None
             roles = tuple(str(r).lower() for r in obj["role"]) if "role" in obj else None
             ps = PointSet(ids, xyz, sd, roles, label)
         else:
             ids = tuple(str(k) for k in obj)
             rows = []
             for k, v in obj.items():
-                arr = np.asarray(v, dtype=float).ravel()
+                arr = _floats(v, f"{label}: point {k!r}").ravel()
                 if arr.size < 3:
                     raise AssessmentError(f"{label}: point {k!r} has {arr.size} values, expected E, N, h")
                 rows.append(arr[:3])
             ps = PointSet(ids, np.array(rows).reshape(-1, 3), source=label)
     elif isinstance(obj, tuple) and len(obj) == 2:
         ids = tuple(str(p) for p in obj[0])
-        ps = PointSet(ids, np.asarray(obj[1], dtype=float), source=label)
+        arr = _floats(obj[1], label)
+        if arr.ndim != 2 or arr.shape[1] != 3:
+            raise AssessmentError(f"{label}: expected an (N, 3) array of E, N, h, got shape {arr.shape}")
+        ps = PointSet(ids, arr, source=label)
     else:
-        arr = np.asarray(obj, dtype=float)
+        arr = _floats(obj, label)
         if arr.ndim != 2 or arr.shape[1] != 3:
             raise AssessmentError(f"{label}: expected an (N, 3) array of E, N, h, got shape {arr.shape}")
         ps = PointSet(tuple(str(i + 1) for i in range(arr.shape[0])), arr, source=label)
@@ -215,6 +226,13 @@ def read_points(obj: Any, label: str = "points") -> PointSet:
         bad = [ps.ids[i] for i in np.nonzero(~np.all(np.isfinite(ps.xyz), axis=1))[0]]
         raise AssessmentError(f"{ps.source}: non-finite coordinates for point(s) {', '.join(bad)}")
     return ps
+
+
+def _floats(values: Any, where: str) -> np.ndarray:
+    try:
+        return np.asarray(values, dtype=float)
+    except (TypeError, ValueError) as ex:
+        raise AssessmentError(f"{where}: not a number ({ex})") from None
 
 
 def _select(adj: PointSet, ref: PointSet, points: Iterable[str] | None) -> list[str]:
