@@ -12,14 +12,10 @@ Never from the answer.  :func:`approximations` (the default of
    weights.  It gives kappa, the scale (hence the flying height) and the nadir of
    every photo at once, with no error propagation along strips;
 3. a few sweeps of (intersect all points by least-squares ray intersection,
-   resect every photo from all its points at once, :func:`resect_all`) recover
-   omega and phi.
+   :func:`intersect_points`; resect every photo from all its points at once,
+   :func:`resect_all`) recover omega and phi.
 
-An alternative, :func:`_greedy_approximations`, propagates along a strip: space
-resection of the photos with the most known points (control first), intersection
-of the points seen on two oriented photos, resection of the next photo from
-them, and so on.  Known points at the start are the constrained (control)
-points with all three coordinates; check points are never used.
+Known points are the constrained (control) points; check points are never used.
 """
 
 from __future__ import annotations
@@ -33,83 +29,9 @@ import scipy.sparse.linalg as spla
 from ._collinearity import block_sum, project, project_with_jacobians, rotation_matrix
 from .errors import DatumError
 
-__all__ = ["approximations", "intersect_points", "resect", "similarity_orientation"]
+__all__ = ["approximations", "intersect_points", "planimetric_block", "resect_all"]
 
 log = logging.getLogger(__name__)
-
-#: photos with at least this many known points are resected in the same round
-_MANY = 8
-
-
-def similarity_orientation(xy_mm: np.ndarray, enh_m: np.ndarray, focal_mm: float) -> np.ndarray:
-    """Orientation of a near-vertical photo from >= 2 points by a 2-D similarity.
-
-    Photo coordinates of a vertical photo are ``s R(-kappa) (EN - EN0)`` with
-    ``s = c / H``; fitting the complex-linear map ``z_photo = A z_ground + B``
-    gives ``kappa = -arg A``, ``H = c / |A|`` and the nadir ``z0 = -B / A``.
-
-    Returns
-    -------
-    (6,) array
-        X0, Y0, Z0 (m), omega = phi = 0, kappa (rad).
-    """
-    zp = xy_mm[:, 0] + 1j * xy_mm[:, 1]
-    zg = enh_m[:, 0] + 1j * enh_m[:, 1]
-    zg0 = zg.mean()
-    a = np.stack([zg - zg0, np.ones_like(zg)], axis=1)
-    (A, B), *_ = np.linalg.lstsq(a, zp, rcond=None)
-    if abs(A) == 0 or not np.isfinite(A):
-        raise np.linalg.LinAlgError("degenerate similarity")
-    z0 = zg0 - B / A
-    height = focal_mm / abs(A)
-    return np.array([z0.real, z0.imag, float(np.mean(enh_m[:, 2])) + height, 0.0, 0.0, -np.angle(A)])
-
-
-def resect(xy_mm: np.ndarray, enh_m: np.ndarray, focal_mm: float, eo0: np.ndarray,
-           max_iter: int = 30) -> tuple[np.ndarray, bool]:
-    """Space resection of one photo by damped Gauss-Newton on the collinearity equations.
-
-    Returns
-    -------
-    eo : (6,) array
-    ok : bool
-        False when the iteration failed (then *eo0* is returned).
-    """
-    n = len(xy_mm)
-    if n < 3:
-        return eo0, False
-    eo = np.array(eo0, dtype=float)
-    c = np.full(n, float(focal_mm))
-
-    def cost(e):
-        xy, u3 = project(np.broadcast_to(e, (n, 6)), enh_m, c)
-        return np.inf if np.any(u3 >= 0) else float(np.sum((xy - xy_mm) ** 2))
-
-    cur = cost(eo)
-    lam = 1e-3
-    for _ in range(max_iter):
-        xy, a_eo, _, _ = project_with_jacobians(np.broadcast_to(eo, (n, 6)), enh_m, c)
-        a = a_eo.reshape(2 * n, 6)
-        r = (xy - xy_mm).reshape(-1)
-        nmat = a.T @ a
-        g = a.T @ r
-        while True:
-            d = np.linalg.lstsq(nmat + lam * np.diag(np.diag(nmat)), -g, rcond=None)[0]
-            new = cost(eo + d)
-            if new <= cur:
-                break
-            lam *= 10
-            if lam > 1e10:
-                return (eo, True) if np.isfinite(cur) else (np.asarray(eo0, float), False)
-        eo = eo + d
-        lam = max(lam / 10, 1e-9)
-        done = abs(cur - new) <= 1e-12 * max(cur, 1e-12) or np.abs(d[:3]).max() < 1e-4
-        cur = new
-        if done:
-            break
-    ok = bool(np.isfinite(cur)) and np.all(np.isfinite(eo))
-    return (eo, True) if ok else (np.asarray(eo0, float), False)
-
 
 def _intersect(problem, eo: np.ndarray, oriented: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares intersection of the rays from oriented photos to *targets* (point indices).
@@ -167,8 +89,8 @@ def intersect_points(problem, eo: np.ndarray) -> np.ndarray:
     if not ok.all():
         h = np.nanmean(pts[ok, 2]) if ok.any() else float(np.mean(eo[:, 2]) - 1000.0)
         for j in np.flatnonzero(~ok):
-            i = p.photo_index[np.flatnonzero(p.point_index == j)[0]]
-            k = np.flatnonzero(p.point_index == j)[0]
+            k = np.flatnonzero(p.point_index == j)[0]           # its first observation
+            i = p.photo_index[k]
             pts[j] = _ray_at_height(eo[i], p.xy_mm[k], p.focal_length_mm[i], h)
     return pts
 
@@ -180,86 +102,6 @@ def _ray_at_height(eo: np.ndarray, xy: np.ndarray, c: float, h: float) -> np.nda
         return np.array([eo[0], eo[1], h])
     t = (h - eo[2]) / d[2]
     return eo[:3] + t * d
-
-
-def _greedy_approximations(problem) -> tuple[np.ndarray, np.ndarray]:
-    """Approximate exterior orientations (P, 6) and point coordinates (Q, 3).
-
-    Raises
-    ------
-    DatumError
-        A photo that cannot be oriented: fewer than 2 of its points have known
-        coordinates even after propagation (names the photo).
-    """
-    p = problem
-    n_ph, n_pt = p.n_photos, p.n_points
-    eo = np.full((n_ph, 6), np.nan)
-    oriented = np.zeros(n_ph, dtype=bool)
-    if p.initial_eo is not None:
-        full = np.isfinite(p.initial_eo).all(axis=1)
-        eo[full] = p.initial_eo[full]
-        oriented |= full
-    known = np.zeros(n_pt, dtype=bool)
-    coords = np.full((n_pt, 3), np.nan)
-    full_c = np.isfinite(p.constraint_sd_m).all(axis=1)
-    coords[p.constraint_point_index[full_c]] = p.constraint_enh_m[full_c]
-    known[p.constraint_point_index[full_c]] = True
-    # positions only (GNSS without attitude): keep for the resection start
-    pos_only = None
-    if p.initial_eo is not None:
-        pos_only = np.isfinite(p.initial_eo[:, :3]).all(axis=1) & ~oriented
-
-    def refresh_known():
-        free = np.flatnonzero(~known)
-        if len(free) == 0 or oriented.sum() < 2:
-            return False
-        xyz, ok = _intersect(p, eo, oriented, free)
-        if ok.any():
-            coords[free[ok]] = xyz[ok]
-            known[free[ok]] = True
-            return True
-        return False
-
-    refresh_known()
-    while not oriented.all():
-        sel = ~oriented[p.photo_index] & known[p.point_index]
-        counts = np.bincount(p.photo_index[sel], minlength=n_ph)
-        counts[oriented] = -1
-        best = counts.max()
-        if best < 2:
-            bad = p.photo_ids[np.flatnonzero(~oriented)]
-            raise DatumError(
-                f"cannot compute approximate exterior orientation for photo(s) {', '.join(bad)}: fewer "
-                "than 2 of their points have known or intersectable coordinates; add control on them or "
-                "give approximate X0, Y0, Z0, omega_deg, phi_deg, kappa_deg in photos.csv")
-        # orient the photo(s) with the most known points first, then intersect again, so that a
-        # photo with few control points is resected from the rays of its oriented neighbours
-        todo = np.flatnonzero(counts >= max(best, 2)) if best < _MANY else np.flatnonzero(counts >= _MANY)
-        progressed = False
-        for i in todo:
-            rows = np.flatnonzero(sel & (p.photo_index == i))
-            xy = p.xy_mm[rows]
-            enh = coords[p.point_index[rows]]
-            c = float(p.focal_length_mm[i])
-            try:
-                start = similarity_orientation(xy, enh, c)
-            except np.linalg.LinAlgError:
-                continue
-            if pos_only is not None and pos_only[i]:
-                start[:3] = p.initial_eo[i, :3]
-            e, ok = resect(xy, enh, c, start) if len(rows) >= 4 else (start, False)
-            eo[i] = e
-            oriented[i] = True
-            progressed = True
-            log.debug("photo %s: approximate orientation from %d points (%s)", p.photo_ids[i], len(rows),
-                      "resection" if ok else "similarity")
-        if not progressed:
-            bad = p.photo_ids[todo]
-            raise DatumError(f"cannot compute approximate exterior orientation for photo(s) "
-                             f"{', '.join(bad)}: their known points are degenerate (coincident)")
-        refresh_known()
-    pts = intersect_points(p, eo)
-    return eo, pts
 
 
 def planimetric_block(problem) -> np.ndarray:

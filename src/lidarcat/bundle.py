@@ -994,9 +994,9 @@ def adjust(
     initial : (eo (P, 6), points (Q, 3) or None), optional
         Approximate values (m, rad).  Default: computed by
         :func:`lidarcat._approx.approximations` from control points, image
-        measurements and ``problem.initial_eo`` (space resection, propagation
-        through intersected tie points).  With points ``None`` they are intersected
-        from the given orientations.
+        measurements and ``problem.initial_eo`` (a planimetric block adjustment,
+        then sweeps of intersection and space resection).  With points ``None``
+        they are intersected from the given orientations.
     max_iter : int
     tol_m, tol_rad : float
         Convergence threshold on the largest correction of a coordinate (m) and of
