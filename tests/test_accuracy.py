@@ -23,7 +23,6 @@ from lidarcat.accuracy import (
     lilliefors_test,
     plotting_positions,
     read_points,
-    summarize,
     trend_t_test,
 )
 from lidarcat.errors import AssessmentError, SurveyError
@@ -152,13 +151,17 @@ def test_filliben_montecarlo_critical_close_to_stored_simulation():
 # -------------------------------------------------------------------- K-S
 
 
-def test_ks_plain_matches_scipy(thesis7):
-    x = D7[:, 2]
-    ref = stats.kstest(x, "norm", args=(x.mean(), x.std(ddof=1)))
+def test_ks_plain_statistic_by_hand_and_massey_critical_values(thesis7):
+    # D written out: the largest gap between the empirical CDF and N(mean, s), on both sides of each step
+    x = np.sort(D7[:, 2])
+    f = stats.norm.cdf((x - x.mean()) / x.std(ddof=1))
+    i = np.arange(1, 14)
     t = thesis7.tests["ks"]["h"]
-    np.testing.assert_allclose(t.statistic, ref.statistic, atol=1e-12)
-    np.testing.assert_allclose(t.details["p_value"], ref.pvalue, atol=1e-12)
-    np.testing.assert_allclose(t.critical, stats.kstwo.ppf(0.9, 13), atol=1e-12)
+    np.testing.assert_allclose(t.statistic, max(np.max(i / 13 - f), np.max(f - (i - 1) / 13)), atol=1e-12)
+    # two-sided critical D from the Massey (1951) table (3 decimals): n = 13 -> 0.325 at 0.10, 0.361 at 0.05
+    assert t.critical == pytest.approx(0.325, abs=5e-4)
+    assert ks_test(x, 0.05).critical == pytest.approx(0.361, abs=5e-4)
+    assert ks_test(np.arange(20.0), 0.10).critical == pytest.approx(0.265, abs=5e-4)
 
 
 def test_lilliefors_matches_statsmodels():
@@ -415,8 +418,9 @@ def test_input_forms_agree():
     ref = {p: ADJ7[k] + D7[k] for k, p in enumerate(IDS)}
     a = assess(cols, ref, scale=2000, lilliefors_n_sim=500)
     b = assess(ADJ7, ADJ7 + D7, scale=2000, lilliefors_n_sim=500)
-    np.testing.assert_allclose(a.d, b.d, atol=1e-12)
-    assert summarize(a.d[:, 0])["mean"] == pytest.approx(b.summary["E"]["mean"], abs=1e-12)
+    np.testing.assert_allclose(a.d, D7, atol=1e-9)  # reference - adjusted, paired by id / by position
+    np.testing.assert_allclose(b.d, D7, atol=1e-9)
+    assert a.points == tuple(IDS) and b.points == tuple(str(k) for k in range(1, 14))
 
 
 def test_json_layout(thesis7):
