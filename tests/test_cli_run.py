@@ -22,6 +22,14 @@ def _part_files(root: Path) -> list[Path]:
     return [p for p in root.rglob("*") if ".part" in p.name]
 
 
+@pytest.fixture
+def survey_copy(tmp_path) -> Path:
+    """A writable copy of the thesis survey folder (tmp_path/s)."""
+    survey = tmp_path / "s"
+    shutil.copytree(THESIS_SURVEY, survey)
+    return survey
+
+
 def test_run_thesis_json_then_reuse(tmp_path):
     runner = CliRunner()
     res = runner.invoke(cli, ["run", "-o", str(tmp_path / "out"), "--json"])
@@ -51,9 +59,8 @@ def test_run_thesis_json_then_reuse(tmp_path):
     assert "adjust-gps" in json.loads(res.output)["stages_ran"]
 
 
-def test_run_failed_stage_exits_1(tmp_path):
-    survey = tmp_path / "s"
-    shutil.copytree(THESIS_SURVEY, survey)
+def test_run_failed_stage_exits_1(tmp_path, survey_copy):
+    survey = survey_copy
     with open(survey / "control_sets.csv", "a") as fh:
         fh.write("weak,601,control,0.25,0.25,0.25\nweak,603,check,,,\n")
     res = CliRunner().invoke(cli, ["run", str(survey), "-o", str(tmp_path / "out")])
@@ -63,9 +70,8 @@ def test_run_failed_stage_exits_1(tmp_path):
     assert "Traceback" not in res.output
 
 
-def test_run_invalid_survey_exits_2(tmp_path):
-    survey = tmp_path / "s"
-    shutil.copytree(THESIS_SURVEY, survey)
+def test_run_invalid_survey_exits_2(tmp_path, survey_copy):
+    survey = survey_copy
     (survey / "photos.csv").write_text("photo,camera\n1,nosuchcamera\n")
     res = CliRunner().invoke(cli, ["run", str(survey), "-o", str(tmp_path / "out")])
     assert res.exit_code == 2
@@ -80,9 +86,8 @@ def test_run_unwritable_outdir_exits_2(tmp_path):
     assert res.output.startswith("Error: ") and "cannot write the output folder" in res.output
 
 
-def test_run_default_outdir_of_a_survey_folder(tmp_path):
-    survey = tmp_path / "s"
-    shutil.copytree(THESIS_SURVEY, survey)
+def test_run_default_outdir_of_a_survey_folder(tmp_path, survey_copy):
+    survey = survey_copy
     res = CliRunner().invoke(cli, ["run", str(survey), "--json"])
     assert res.exit_code == 0, res.output
     assert (survey / "out" / "summary.json").is_file()

@@ -13,6 +13,7 @@ from conftest import THESIS_SURVEY, THESIS_TABLES
 
 from lidarcat.errors import LidarcatError, SurveyError
 from lidarcat.pipeline import Stage, plan_pipeline, run_pipeline, run_stages
+from lidarcat.survey import Survey
 
 
 # --------------------------------------------------------------------------- helpers
@@ -56,12 +57,26 @@ class _Counter:
         ]
 
 
-# --------------------------------------------------------------------------- runner
-
-def test_stages_run_then_reuse_then_rerun_on_change(tmp_path):
+@pytest.fixture
+def counter(tmp_path) -> _Counter:
+    """A _Counter whose input file tmp_path/input.txt holds "abc"."""
     src = tmp_path / "input.txt"
     src.write_text("abc")
-    c = _Counter(src)
+    return _Counter(src)
+
+
+@pytest.fixture
+def survey_copy(tmp_path) -> Path:
+    """A writable copy of the thesis survey folder (tmp_path/thesis)."""
+    survey = tmp_path / "thesis"
+    shutil.copytree(THESIS_SURVEY, survey)
+    return survey
+
+
+# --------------------------------------------------------------------------- runner
+
+def test_stages_run_then_reuse_then_rerun_on_change(tmp_path, counter):
+    c, src = counter, counter.src
     out = tmp_path / "out"
     recs = run_stages(c.stages(), out)
     assert [r.status for r in recs] == ["ran", "ran"]
@@ -87,10 +102,8 @@ def test_stages_run_then_reuse_then_rerun_on_change(tmp_path):
     assert c.calls == {"first": 4, "second": 3}
 
 
-def test_tampered_or_missing_output_reruns_stage(tmp_path):
-    src = tmp_path / "input.txt"
-    src.write_text("abc")
-    c = _Counter(src)
+def test_tampered_or_missing_output_reruns_stage(tmp_path, counter):
+    c = counter
     out = tmp_path / "out"
     run_stages(c.stages(), out)
     (out / "second" / "copy.txt").write_text("edited by hand")
@@ -100,10 +113,8 @@ def test_tampered_or_missing_output_reruns_stage(tmp_path):
     assert (out / "first" / "sub" / "n.txt").read_text() == "3"
 
 
-def test_failed_stage_keeps_no_output_and_skips_dependents(tmp_path):
-    src = tmp_path / "input.txt"
-    src.write_text("abc")
-    c = _Counter(src)
+def test_failed_stage_keeps_no_output_and_skips_dependents(tmp_path, counter):
+    c = counter
     stages = [Stage("first", "first", c.body("first", LidarcatError("no roof at (1, 2)"))),
               Stage("second", "second", c.body("second"), requires=("first",)),
               Stage("third", "third", c.body("third", RuntimeError("bug"))),
@@ -120,10 +131,8 @@ def test_failed_stage_keeps_no_output_and_skips_dependents(tmp_path):
     assert _no_part_files(tmp_path / "out") == []
 
 
-def test_interrupted_stage_leaves_nothing_and_next_run_finishes(tmp_path):
-    src = tmp_path / "input.txt"
-    src.write_text("abc")
-    c = _Counter(src)
+def test_interrupted_stage_leaves_nothing_and_next_run_finishes(tmp_path, counter):
+    c, src = counter, counter.src
     out = tmp_path / "out"
     run_stages(c.stages(), out)
     src.write_text("changed")
@@ -140,10 +149,8 @@ def test_interrupted_stage_leaves_nothing_and_next_run_finishes(tmp_path):
     assert (out / "second" / "copy.txt").read_text() == "changed+"
 
 
-def test_leftovers_of_a_killed_run_are_removed(tmp_path):
+def test_leftovers_of_a_killed_run_are_removed(tmp_path, counter):
     """After SIGKILL nothing can clean up; the next run removes the temporary files."""
-    src = tmp_path / "input.txt"
-    src.write_text("abc")
     out = tmp_path / "out"
     (out / ".first.abc123.part" / "sub").mkdir(parents=True)
     (out / ".first.abc123.part" / "sub" / "half.txt").write_text("half")
@@ -151,14 +158,12 @@ def test_leftovers_of_a_killed_run_are_removed(tmp_path):
     (out / ".stages" / ".first.json.xyz.part").write_text("{")
     (out / ".summary.json.q.part").write_text("{")
     (out / ".unrelated.part").write_text("not ours")
-    recs = run_stages(_Counter(src).stages(), out)
+    recs = run_stages(counter.stages(), out)
     assert [r.status for r in recs] == ["ran", "ran"]
     assert _no_part_files(out) == [out / ".unrelated.part"]
 
 
 def test_stale_outputs_of_a_stage_are_removed(tmp_path):
-    src = tmp_path / "input.txt"
-    src.write_text("abc")
     out = tmp_path / "out"
 
     def writes(names):
@@ -174,10 +179,8 @@ def test_stale_outputs_of_a_stage_are_removed(tmp_path):
     assert sorted(p.name for p in (out / "s").iterdir()) == ["a.txt"]
 
 
-def test_failure_removes_results_of_an_earlier_run(tmp_path):
-    src = tmp_path / "input.txt"
-    src.write_text("abc")
-    c = _Counter(src)
+def test_failure_removes_results_of_an_earlier_run(tmp_path, counter):
+    c, src = counter, counter.src
     out = tmp_path / "out"
     run_stages(c.stages(), out)
     assert (out / "first" / "copy.txt").is_file()
@@ -297,9 +300,8 @@ def test_thesis_run_reuses_everything(thesis_run):
 
 
 @pytest.mark.slow
-def test_edited_control_set_reruns_dependent_stages(tmp_path):
-    survey = tmp_path / "thesis"
-    shutil.copytree(THESIS_SURVEY, survey)
+def test_edited_control_set_reruns_dependent_stages(tmp_path, survey_copy):
+    survey = survey_copy
     first = run_pipeline(survey, tmp_path / "out")
     assert first.ok
     text = (survey / "control_sets.csv").read_text().replace("lidar,702,check", "lidar,702,control")
@@ -311,9 +313,8 @@ def test_edited_control_set_reruns_dependent_stages(tmp_path):
 
 
 @pytest.mark.slow
-def test_failed_stage_gives_failed_summary(tmp_path):
-    survey = tmp_path / "thesis"
-    shutil.copytree(THESIS_SURVEY, survey)
+def test_failed_stage_gives_failed_summary(tmp_path, survey_copy):
+    survey = survey_copy
     # a control set whose only control point is measured on no photo: datum defect
     with open(survey / "control_sets.csv", "a") as fh:
         fh.write("weak,601,control,0.25,0.25,0.25\nweak,603,check,,,\n")
@@ -326,21 +327,16 @@ def test_failed_stage_gives_failed_summary(tmp_path):
     assert not (tmp_path / "out" / "adjust-weak").exists()
 
 
-def test_invalid_survey_raises_before_any_stage(tmp_path):
-    survey = tmp_path / "bad"
-    shutil.copytree(THESIS_SURVEY, survey)
+def test_invalid_survey_raises_before_any_stage(tmp_path, survey_copy):
+    survey = survey_copy
     (survey / "survey.toml").write_text((survey / "survey.toml").read_text() + "\n[bogus]\nx = 1\n")
     with pytest.raises(SurveyError, match="bogus"):
         run_pipeline(survey, tmp_path / "out")
     assert not (tmp_path / "out").exists()
 
 
-def test_plan_for_a_survey_with_one_control_set_and_no_pixels(tmp_path):
-    from lidarcat.pipeline import plan_pipeline
-    from lidarcat.survey import Survey
-
-    survey = tmp_path / "s"
-    shutil.copytree(THESIS_SURVEY, survey)
+def test_plan_for_a_survey_with_one_control_set_and_no_pixels(survey_copy):
+    survey = survey_copy
     rows = [ln for ln in (survey / "control_sets.csv").read_text().splitlines()
             if not ln.startswith("lidar,")]
     (survey / "control_sets.csv").write_text("\n".join(rows) + "\n")
@@ -364,12 +360,8 @@ def test_plan_for_a_survey_with_one_control_set_and_no_pixels(tmp_path):
     }
 
 
-def test_only_the_extraction_hashes_the_lidar_tiles(tmp_path):
-    from lidarcat.pipeline import plan_pipeline
-    from lidarcat.survey import Survey
-
-    survey = tmp_path / "s"
-    shutil.copytree(THESIS_SURVEY, survey)
+def test_only_the_extraction_hashes_the_lidar_tiles(survey_copy):
+    survey = survey_copy
     (survey / "tile.xyz").write_text("677757.8 7183482.0 922.0\n677758.8 7183482.0 922.5\n")
     (survey / "jobs.csv").write_text("point,E,N\n704,677757.8,7183482.0\n")
     text = (survey / "survey.toml").read_text().replace(
@@ -412,14 +404,11 @@ def test_a_second_run_on_the_same_output_folder_is_refused(tmp_path):
     assert res.ok and not lock.exists()
 
 
-def test_assessment_table_of_survey_toml_sets_scale_and_level(tmp_path):
-    survey = tmp_path / "s"
-    shutil.copytree(THESIS_SURVEY, survey)
+def test_assessment_table_of_survey_toml_sets_scale_and_level(tmp_path, survey_copy):
+    survey = survey_copy
     toml = survey / "survey.toml"
     toml.write_text(toml.read_text() + '\n[assessment]\nscale = 5000\ncontour_interval_m = 5.0\n'
                                         'alpha = 0.05\npec_class = "B"\n')
-    from lidarcat.survey import Survey
-
     s = Survey.load(survey)
     assert (s.assessment.scale, s.assessment.contour_interval_m, s.assessment.alpha,
             s.assessment.pec_class) == (5000.0, 5.0, 0.05, "B")
@@ -447,13 +436,10 @@ def test_survey_knows_the_pec_classes_of_the_standards_tables():
     ('pec_class = "Z"', "'Z' is not one of A, B, C"),
     ("colour = 1", "colour"),
 ])
-def test_assessment_table_errors_are_located(tmp_path, line, message):
-    survey = tmp_path / "s"
-    shutil.copytree(THESIS_SURVEY, survey)
+def test_assessment_table_errors_are_located(tmp_path, line, message, survey_copy):
+    survey = survey_copy
     toml = survey / "survey.toml"
     toml.write_text(toml.read_text() + f"\n[assessment]\n{line}\n")
-    from lidarcat.survey import Survey
-
     with pytest.raises(SurveyError, match="survey.toml") as ei:
         Survey.load(survey)
     assert message in str(ei.value)
