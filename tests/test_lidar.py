@@ -135,8 +135,9 @@ def test_thesis_vs_robust_height_filter_on_roof_with_ground():
 
 def test_height_window_thesis_definition():
     h = np.array([10.0, 10.5, 11.0, 12.9, 13.1, 7.0])
-    m = h.mean()
-    np.testing.assert_array_equal(height_window_mask(h, "thesis", 2.0), np.abs(h - m) <= 2.0)
+    # mean 10.75 m: 12.9 (2.15 m above), 13.1 and 7.0 fall outside the 2 m window
+    assert height_window_mask(h, "thesis", 2.0).tolist() == [True, True, True, False, False, False]
+    assert height_window_mask(h, "thesis", 2.2).tolist() == [True, True, True, True, False, False]
 
 
 def test_clip_first_returns_and_class_filters(ahn_both):
@@ -292,6 +293,14 @@ def test_ascii_non_number_names_file_line_field(tmp_path):
 def test_missing_file_and_unknown_suffix(tmp_path):
     with pytest.raises(TileIOError, match=r"nope\.laz: file not found"):
         read_points(tmp_path / "nope.laz")
+    with pytest.raises(TileIOError, match=r"nope\.xyz: file not found"):
+        read_points(tmp_path / "nope.xyz")
+    (tmp_path / "dir.laz").mkdir()
+    (tmp_path / "dir.xyz").mkdir()
+    with pytest.raises(TileIOError, match=r"dir\.laz: is a folder, expected a LAS/LAZ file"):
+        read_header(tmp_path / "dir.laz")
+    with pytest.raises(TileIOError, match=r"dir\.xyz: is a folder, expected a point file"):
+        read_points(tmp_path / "dir.xyz")
     with pytest.raises(LidarFormatError, match=r"x\.shp: unsupported point file type '\.shp'"):
         read_points(tmp_path / "x.shp")
     with pytest.raises(TileIOError, match=r"no LiDAR files match"):

@@ -165,6 +165,15 @@ def _settle_crs(path: Path, file_crs: Any, given: Any) -> tuple[Any, bool]:
     return file_crs, True
 
 
+def _open_error(path: Path, ex: OSError, expected: str) -> TileIOError:
+    """The located error for a point file that cannot be opened."""
+    if isinstance(ex, FileNotFoundError):
+        return TileIOError(f"{path}: file not found")
+    if isinstance(ex, IsADirectoryError):
+        return TileIOError(f"{path}: is a folder, expected {expected}")
+    return TileIOError(f"{path}: cannot read ({ex.strerror})")
+
+
 # --------------------------------------------------------------------------- LAS
 def _open_las(path: Path, serial: bool = False):
     import laspy
@@ -174,12 +183,8 @@ def _open_las(path: Path, serial: bool = False):
         backend = laspy.LazBackend.Lazrs
     try:
         return laspy.open(path, laz_backend=backend)
-    except FileNotFoundError:
-        raise TileIOError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise TileIOError(f"{path}: is a folder, expected a LAS/LAZ file") from None
-    except PermissionError as ex:
-        raise TileIOError(f"{path}: cannot read ({ex.strerror})") from ex
+    except (FileNotFoundError, IsADirectoryError, PermissionError) as ex:
+        raise _open_error(path, ex, "a LAS/LAZ file") from ex
     except Exception as ex:  # laspy raises LaspyException, ValueError, struct.error...
         raise LidarFormatError(f"{path}: not a valid LAS/LAZ file: corrupt header ({ex})") from ex
 
@@ -440,12 +445,8 @@ def _is_number(tok: str, decimal_comma: bool) -> bool:
 def _ascii_layout(path: Path, columns: Sequence[str] | str | None, delimiter: str | None) -> _Layout:
     try:
         fh = open(path, encoding="utf-8-sig", errors="replace")
-    except FileNotFoundError:
-        raise TileIOError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise TileIOError(f"{path}: is a folder, expected a point file") from None
     except OSError as ex:
-        raise TileIOError(f"{path}: cannot read ({ex.strerror})") from ex
+        raise _open_error(path, ex, "a point file") from ex
     first: tuple[int, str] | None = None
     second: tuple[int, str] | None = None
     with fh:
