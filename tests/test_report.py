@@ -134,6 +134,12 @@ def test_comparison_section(tmp_path, gps_assessment):
     paths = write_report(tmp_path / "c.html", assessment=gps_assessment, comparison=("LiDAR run", other))
     html = paths["html"].read_text()
     assert "Check-point statistics of this run and of LiDAR run." in html
+    # Table 7 side by side: the other sign flips the means (dh -0.397 m), never the sd
+    md = paths["markdown"].read_text()
+    assert "| h | mean | -0.397 | 0.397 |" in md and "| h | std | 0.476 | 0.476 |" in md
+    assert "| t-Student trend (eq. 43, 44) | h | FAILED | FAILED |" in md
+    doc = json.loads(paths["json"].read_text())
+    assert doc["comparison"]["settings"]["sign"] == "adjusted_minus_reference"
 
 
 def test_bad_input(tmp_path):
