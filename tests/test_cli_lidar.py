@@ -137,6 +137,11 @@ def test_errors_are_one_line(tmp_path):
     assert_one_line_error(run("raster", AHN1, "-o", str(tmp_path / "x.tif"), "--bounds", "0", "0", "10", "10"),
                           "no LiDAR points in E 0.0..10.0, N 0.0..10.0")
     assert not list(tmp_path.glob("x.*"))
+    survey = tmp_path / "s"
+    shutil.copytree(THESIS_SURVEY, survey)  # a survey without [files] lidar
+    assert_one_line_error(run("index", str(survey)),
+                          f"{survey / 'survey.toml'}: no LiDAR tiles; add lidar = [\"lidar/*.laz\"] to [files]")
+    assert not (survey / "lidar_index.json").exists()
 
 
 def test_help_teaches_units_and_examples():

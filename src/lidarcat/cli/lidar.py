@@ -76,31 +76,15 @@ def _sources(paths: Sequence[str], crs: str | None) -> tuple[list[Path], str | N
 def _survey_lidar(folder: Path) -> tuple[list[Path], str | None, Path]:
     """(tile paths, [lidar] crs, root) of a survey folder."""
     from ..errors import SurveyError
-
-    try:
-        from ..survey import Survey
-    except ImportError:  # survey module unavailable: read survey.toml directly
-        Survey = None  # type: ignore[assignment]
-    if Survey is not None:
-        s = Survey.load(folder)
-        files, crs, root = list(s.lidar_paths), s.lidar_crs, Path(s.root)
-    else:  # pragma: no cover - fallback
-        import tomllib
-
-        from ..lidar import expand_paths
-
-        doc = tomllib.loads((folder / "survey.toml").read_text(encoding="utf-8"))
-        globs = doc.get("files", {}).get("lidar", [])
-        globs = [globs] if isinstance(globs, str) else list(globs)
-        files = expand_paths(globs, root=folder) if globs else []
-        crs, root = doc.get("lidar", {}).get("crs"), folder
     from ..lidar.readers import ASCII_SUFFIXES, LAS_SUFFIXES
+    from ..survey import Survey
 
-    files = [f for f in files if Path(f).suffix.lower() in LAS_SUFFIXES + ASCII_SUFFIXES]
+    s = Survey.load(folder)
+    files = [f for f in s.lidar_paths if Path(f).suffix.lower() in LAS_SUFFIXES + ASCII_SUFFIXES]
     if not files:
         raise SurveyError(f"{folder / 'survey.toml'}: no LiDAR tiles; add lidar = [\"lidar/*.laz\"] "
                           "to [files]")
-    return files, crs, root
+    return files, s.lidar_crs, Path(s.root)
 
 
 # ----------------------------------------------------------------------------- info
