@@ -178,8 +178,12 @@ def test_arrays_are_read_only(thesis):
         thesis.image_points.xy_mm[0, 0] = 1.0
     with pytest.raises(ValueError):
         thesis.ground_points.enh_m[0, 0] = 1.0
-    with pytest.raises(ValueError):
-        thesis.control_set().sd_m[0, 0] = 1.0
+    cs = thesis.control_set()
+    ip, gp = thesis.image_points, thesis.ground_points
+    for arr in (ip.photo, ip.point, ip.pixel_px, ip.sd_mm, ip.line, gp.point, gp.sd_m, gp.source,
+                gp.line, cs.control, cs.check, cs.sd_m, cs.check_sd_m):
+        with pytest.raises(ValueError, match="read-only"):
+            arr[0] = arr[1]
 
 
 def test_select_and_lines(thesis):

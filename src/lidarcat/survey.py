@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from ._frozen import frozen_array as _frozen
 from ._io import CsvTable, read_csv_table, read_text, write_csv_atomic
 from .camera import Camera, _read_toml, _toml_line, load_camera, load_cameras
 from .errors import CameraError, SurveyError, location
@@ -76,12 +77,6 @@ _OBSERVATION_KINDS = ("corrected", "pixel")
 _VARIANCE_FACTORS = ("a_priori", "a_posteriori")
 #: fraction of a pixel used as default image sd (thesis 3.3.1: 0.006 mm for a 7.9 um pixel)
 DEFAULT_SD_PIXELS = 0.75
-
-
-def _frozen(a: Any, dtype: Any = np.float64) -> np.ndarray:
-    arr = np.array(a, dtype=dtype, copy=True)
-    arr.setflags(write=False)
-    return arr
 
 
 def _data_dir(name: str) -> Path:
@@ -201,9 +196,7 @@ class ImagePoints:
         object.__setattr__(self, "point", _frozen(self.point, str))
         object.__setattr__(self, "line", _frozen(self.line, np.int64))
         for name in ("pixel_px", "xy_mm", "sd_mm"):
-            arr = _frozen(getattr(self, name)).reshape(-1, 2) if n else np.empty((0, 2))
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+            object.__setattr__(self, name, _frozen(getattr(self, name)).reshape(-1, 2))
         for name in ("point", "pixel_px", "xy_mm", "sd_mm", "line"):
             if len(getattr(self, name)) != n:
                 raise ValueError(f"ImagePoints.{name} has {len(getattr(self, name))} rows, expected {n}")
@@ -258,8 +251,6 @@ class GroundPoints:
         object.__setattr__(self, "sd_m", _frozen(self.sd_m).reshape(m, 3))
         line = np.zeros(m, np.int64) if self.line is None else self.line
         object.__setattr__(self, "line", _frozen(line, np.int64))
-        self.enh_m.setflags(write=False)
-        self.sd_m.setflags(write=False)
         object.__setattr__(self, "_pos", {p: i for i, p in enumerate(self.point.tolist())})
 
     def __len__(self) -> int:
@@ -324,8 +315,6 @@ class ControlSet:
         object.__setattr__(self, "sd_m", _frozen(self.sd_m).reshape(len(self.control), 3))
         csd = np.full((len(self.check), 3), np.nan) if self.check_sd_m is None else self.check_sd_m
         object.__setattr__(self, "check_sd_m", _frozen(csd).reshape(len(self.check), 3))
-        self.sd_m.setflags(write=False)
-        self.check_sd_m.setflags(write=False)  # type: ignore[union-attr]
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "control": self.control.tolist(),
