@@ -331,6 +331,9 @@ def test_assess_runs_the_consistency_test_with_the_adjusted_covariance():
     assert "consistency" not in assess(adj, ref, scale=None).tests
     miss = assess(adj, ref, scale=None, adjusted_cov=(["1", "2"], np.eye(6)))
     assert miss.tests["consistency"]["ENh"].reason == "no adjusted covariance for check point(s) 3"
+    with pytest.raises(AssessmentError, match=r"^adjusted_cov: covariance of shape \(6, 6\) for 3 point ids; "
+                                              r"expected \(9, 9\)"):
+        assess(adj, ref, scale=None, adjusted_cov=(["1", "2", "3"], np.eye(6)))
 
 
 def test_mismatched_ids_named():

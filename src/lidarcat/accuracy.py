@@ -756,7 +756,14 @@ def ce90(den: Any, method: str = "empirical", *, prob: float = 0.90, limit_m: fl
 
 def _consistency(sel: Sequence[str], adjusted_cov: Any, d: np.ndarray, ref_sd: np.ndarray | None,
                  alpha: float) -> TestResult:
-    ids, c = adjusted_cov
+    try:
+        ids, c = adjusted_cov
+        c = np.asarray(c, dtype=float)
+    except (TypeError, ValueError) as ex:
+        raise AssessmentError(f"adjusted_cov must be (ids, (3k, 3k) covariance array) ({ex})") from None
+    if c.shape != (3 * len(ids), 3 * len(ids)):
+        raise AssessmentError(f"adjusted_cov: covariance of shape {c.shape} for {len(ids)} point ids; "
+                              f"expected ({3 * len(ids)}, {3 * len(ids)}) (E, N, h of each point)")
     pos = {str(q): i for i, q in enumerate(ids)}
     missing = [q for q in sel if q not in pos]
     if missing:
@@ -765,7 +772,7 @@ def _consistency(sel: Sequence[str], adjusted_cov: Any, d: np.ndarray, ref_sd: n
     if ref_sd is None or not np.all(np.isfinite(ref_sd)):
         return _na("consistency", "ENh", "chi2", alpha, "the reference has no sd_E, sd_N, sd_h columns")
     idx = np.array([[3 * pos[q] + k for k in range(3)] for q in sel]).ravel()
-    c = np.asarray(c, dtype=float)[np.ix_(idx, idx)] + np.diag(np.asarray(ref_sd, dtype=float).ravel() ** 2)
+    c = c[np.ix_(idx, idx)] + np.diag(np.asarray(ref_sd, dtype=float).ravel() ** 2)
     return covariance_consistency_test(d, c, alpha, source="joint covariance of the adjusted check "
                                        "points + reference sds (independent)")
 
