@@ -80,6 +80,7 @@ def test_gps_run_report(gps_run):
     assert "Chi-square computed (v'Pv)     148.30" in text
     assert "98.58 - 161.21" in text and "Fisher approx. 98.12 - 160.72" in text and "accepted" in text
     assert "Variance factor a posteriori   1.16" in text
+    assert "RMS sd of all points (m)       E 0.264  N 0.215  h 1.057  (Appendix 2 'pontos livres')" in text
     assert str(out) in text
 
 
@@ -117,10 +118,12 @@ def test_a_posteriori_option(tmp_path, gps_run):
     _, out = gps_run
     r = CliRunner().invoke(cli, ["adjust", "--variance-factor", "a_posteriori", "-o", str(tmp_path), "--json"])
     assert r.exit_code == 0, r.output
-    assert json.loads(r.output)["variance_factor"] == "a_posteriori"
-    a = float(_read(out / "eop.csv")[1][7])
-    b = float(_read(tmp_path / "eop.csv")[1][7])
-    np.testing.assert_allclose(b / a, np.sqrt(148.29965 / 128), rtol=1e-5)
+    s = json.loads(r.output)
+    assert s["variance_factor"] == "a_posteriori"
+    assert abs(s["sigma0_sq"] - 1.16) < 0.005                  # Appendix 2.1, printed 1.16
+    a = np.array([[float(v) for v in row[7:]] for row in _read(out / "eop.csv")[1:]])
+    b = np.array([[float(v) for v in row[7:]] for row in _read(tmp_path / "eop.csv")[1:]])
+    np.testing.assert_allclose(b / a, np.sqrt(s["vtpv"] / s["dof"]), rtol=1e-9)   # every sd scaled
 
 
 def test_unknown_control_set_leaves_no_files(tmp_path):

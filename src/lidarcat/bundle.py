@@ -558,6 +558,10 @@ class BundleResult:
             if ctrl.any() else {},
             "mean_sd_free_m": dict(zip("ENh", (float(v) for v in sd[free].mean(axis=0))))
             if free.any() else {},
+            # Appendix 2 "desvio padrao medio dos pontos livres" is reproduced (to its printed
+            # precision) by the RMS of the sds over all adjusted points, control included
+            "rms_sd_points_m": dict(zip("ENh", (float(v) for v in np.sqrt(np.mean(sd**2, axis=0)))))
+            if len(sd) else {},
             "elapsed_s": float(self.elapsed_s),
         }
 

@@ -32,6 +32,10 @@ def format_report(summary: dict, outdir: str | None = None) -> str:
     free = s.get("mean_sd_free_m") or {}
     if free:
         lines.append(f"Mean sd of free points (m)     E {free['E']:.3f}  N {free['N']:.3f}  h {free['h']:.3f}")
+    rms = s.get("rms_sd_points_m") or {}
+    if rms:
+        lines.append(f"RMS sd of all points (m)       E {rms['E']:.3f}  N {rms['N']:.3f}  h {rms['h']:.3f}"
+                     "  (Appendix 2 'pontos livres')")
     lines += [
         f"Variance factor a priori       {s['sigma0_sq_a_priori']:.2f}",
         f"Variance factor a posteriori   {s['sigma0_sq']:.2f}",
