@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from scipy import stats
 
 from lidarcat.cli.main import cli
-from lidarcat.demo import demo_camera, project_points, write_synthetic_survey
+from lidarcat.demo import compare_with_truth, demo_camera, project_points, write_synthetic_survey
 from lidarcat.errors import LidarcatError
 from lidarcat.survey import Survey
 
@@ -201,6 +201,29 @@ def test_demo_compare_command(demo_run):
         assert stats.chi2.ppf(0.005, r["check_dof"]) < r["check_chi2_joint"] < stats.chi2.ppf(0.995, r["check_dof"])
     res = CliRunner().invoke(cli, ["demo", "compare", str(survey_dir), str(out)])
     assert res.exit_code == 0 and "run lidar: orientations max |z|" in res.output
+
+
+def test_demo_compare_errors_name_the_folder_and_the_missing_id(demo_run, tmp_path):
+    import shutil
+
+    survey_dir, out, _, _ = demo_run
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    res = CliRunner().invoke(cli, ["demo", "compare", str(survey_dir), str(empty)])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert res.output == (f"Error: {empty}: no adjust-* folder; run `lidarcat run {survey_dir} "
+                          f"-o {empty}` first\n")
+    # the truth of another survey: photo 6 of the run is not in its truth/eop.csv
+    other = tmp_path / "other"
+    shutil.copytree(survey_dir / "truth", other / "truth")
+    shutil.copy(survey_dir / "ground_points.csv", other)
+    eop = other / "truth" / "eop.csv"
+    eop.write_text("".join(ln for ln in eop.read_text().splitlines(keepends=True)
+                           if not ln.startswith("6,")))
+    with pytest.raises(LidarcatError) as ei:
+        compare_with_truth(other, out)
+    assert str(ei.value) == (f"{out / 'adjust-gps' / 'eop.csv'}: '6' is not in {eop}; is {out} the "
+                             f"output of `lidarcat run {other}`?")
 
 
 def test_run_with_figures_draws_every_roof(demo_run, tmp_path):

@@ -550,11 +550,16 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
     Raises
     ------
     LidarcatError
-        A folder lacks the expected files.
+        A folder lacks the expected files, *outdir* holds no run, or a point or
+        photo of the run is not in the survey's truth (the output of another survey).
     """
     from ._io import read_csv_table
 
     survey_dir, outdir = Path(survey_dir), Path(outdir)
+    runs = sorted(outdir.glob("adjust-*"))
+    if not runs:
+        raise LidarcatError(f"{outdir}: no adjust-* folder; run `lidarcat run {survey_dir} -o {outdir}` "
+                            "first")
 
     def table(path: Path, key: str, cols: Sequence[str]) -> dict[str, np.ndarray]:
         if not path.is_file():
@@ -562,6 +567,12 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
         t = read_csv_table(path, required=(key, *cols), allow_extra=True)
         arr = np.column_stack([t.floats(c) for c in cols])
         return {k: arr[i] for i, k in enumerate(t.column(key))}
+
+    def row(rows: dict[str, np.ndarray], key: str, where: Path, source: Path) -> np.ndarray:
+        if key not in rows:
+            raise LidarcatError(f"{source}: {key!r} is not in {where}; is {outdir} the output of "
+                                f"`lidarcat run {survey_dir}`?")
+        return rows[key]
 
     enh, sds = ("E", "N", "h"), ("sd_E", "sd_N", "sd_h")
     eo_keys = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
@@ -575,14 +586,14 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
         t = read_csv_table(ctl, required=("point", "status") + enh + sds, allow_extra=True)
         vals = np.column_stack([t.floats(c, required=False) for c in enh + sds])
         for pid, st, v in zip(t.column("point"), t.column("status"), vals):
-            err = v[:3] - roofs[pid]
+            err = v[:3] - row(roofs, pid, survey_dir / "truth" / "roofs.csv", ctl)
             out["extraction"][pid] = {"status": st, "error_m": err.tolist(), "z": (err / v[3:]).tolist()}
-    for folder in sorted(outdir.glob("adjust-*")):
+    for folder in runs:
         run = folder.name[len("adjust-"):]
         eo = table(folder / "eop.csv", "photo", eo_keys + tuple(f"sd_{k}" for k in eo_keys))
         z_eo = []
         for ph, v in eo.items():
-            d = v[:6] - truth_eo[ph]
+            d = v[:6] - row(truth_eo, ph, survey_dir / "truth" / "eop.csv", folder / "eop.csv")
             d[3:] = (d[3:] + 180) % 360 - 180
             z_eo.extend(d / v[6:])
         pts_t = read_csv_table(folder / "points.csv", required=("point", "role") + enh + sds,
@@ -597,7 +608,7 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
             if role != "control" and pid in truth_pts:
                 z_pt.extend((v[:3] - truth_pts[pid]) / v[3:])
             if pid in checks:
-                g = ground[pid]
+                g = row(ground, pid, survey_dir / "ground_points.csv", disc)
                 stat += float(np.sum((g[:3] - v[:3]) ** 2 / (v[3:] ** 2 + g[3:] ** 2)))
                 n_chk += 1
         joint = math.nan
