@@ -560,3 +560,30 @@ def test_cameras_of(tmp_path):
     assert list(cameras_of(THESIS_SURVEY / "survey.toml")) == ["dcs14n"]
     assert list(cameras_of(example_camera_path())) == ["lactec_dcs14n"]
     assert list(cameras_of(f"{example_camera_path()}:lactec_dcs14n")) == ["lactec_dcs14n"]
+
+
+def test_correct_measurements_uses_each_photos_camera(tmp_path):
+    """Two cameras in one survey: each row is corrected with its own photo's camera."""
+    from lidarcat.survey import correct_measurements
+
+    f = copy_thesis(tmp_path)
+    lactec = example_camera_path().read_text(encoding="utf-8")
+    (f / "camera.toml").write_text((f / "camera.toml").read_text(encoding="utf-8") + "\n" + lactec,
+                                   encoding="utf-8")
+    edit(f, "photos.csv", "5,dcs14n", "5,lactec_dcs14n")
+    with open(THESIS_TABLES / "appendix1_corrections.csv", encoding="utf-8") as fh:
+        ref = {(r["photo"], r["point"]): r
+               for r in csv.DictReader(line for line in fh if not line.startswith("#"))}
+    table = correct_measurements(f)
+    assert len(table) == 153
+    on5 = table.photo == "5"
+    assert set(table.camera[on5].tolist()) == {"lactec_dcs14n"}
+    assert set(table.camera[~on5].tolist()) == {"dcs14n"}
+    # thesis camera rows: Appendix 1 (3 printed decimals)
+    for i in np.flatnonzero(~on5):
+        r = ref[(str(table.photo[i]), str(table.point[i]))]
+        np.testing.assert_allclose(table.xy_mm[i], [float(r["x_fotc"]), float(r["y_fotc"])], atol=0.0015)
+    # LACTEC rows: eq. 01-02 with its 8 um pixels, 4500 x 3000 frame, (dx, dy) = (0.152, 0.139)
+    px = table.pixel_px[on5]
+    np.testing.assert_allclose(table.fot_mm[on5, 0], 0.008 * (px[:, 0] - 2249.5) - 0.152, atol=1e-12)
+    np.testing.assert_allclose(table.fot_mm[on5, 1], -0.008 * (px[:, 1] - 1499.5) - 0.139, atol=1e-12)

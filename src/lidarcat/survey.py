@@ -41,7 +41,7 @@ import numpy as np
 from ._frozen import frozen_array as _frozen
 from ._io import CsvTable, read_csv_table, read_text, write_csv_atomic
 from .camera import Camera, _read_toml, _toml_line, load_camera, load_cameras
-from .errors import CameraError, SurveyError, location
+from .errors import SurveyError, location
 
 __all__ = [
     "AssessmentSettings",
@@ -1099,9 +1099,9 @@ def correct_measurements(source: str | Path, camera: str | Path | Camera | None 
         ip = ip.select(has)
         photo, point, px = ip.photo, ip.point, ip.pixel_px
         if cam_obj is None:
-            cams = [survey.cameras[survey.photo(p).camera] for p in photo.tolist()]
-        else:
-            cams = [cam_obj] * len(photo)
+            cameras = survey.cameras
+            camera_of = {p.id: p.camera for p in survey.photos}
+            cam_ids = np.array([camera_of[p] for p in photo.tolist()], dtype=str)
     else:
         if cam_obj is None:
             raise SurveyError(f"{src}: a CSV of pixel measurements needs --camera FILE[:ID] "
@@ -1112,21 +1112,19 @@ def correct_measurements(source: str | Path, camera: str | Path | Camera | None 
         px = np.column_stack([t.floats("col_px"), t.floats("row_px")])
         if len(photo) == 0:
             raise SurveyError(f"{src}: no measurements")
-        cams = [cam_obj] * len(photo)
+    if cam_obj is not None:
+        cameras = {cam_obj.id: cam_obj}
+        cam_ids = np.full(len(photo), cam_obj.id)
     n = len(photo)
     fot = np.empty((n, 2))
     xy = np.empty((n, 2))
     corr = {k: np.empty(n) for k in ("dx_ra", "dy_ra", "dx_des", "dy_des", "dx_ref", "dy_ref")}
-    cam_ids = np.array([c.id for c in cams], dtype=str)
-    for cam in {id(c): c for c in cams}.values():
-        rows = np.array([c is cam for c in cams])
-        try:
-            f = cam.pixel_to_fot(px[rows])
-            d = cam.distortion_corrections(f)
-            xy[rows] = cam.pixel_to_photo(px[rows])
-        except CameraError as ex:  # pragma: no cover - shapes are checked above
-            raise SurveyError(str(ex)) from ex
-        fot[rows] = f
+    for cam_id in dict.fromkeys(cam_ids.tolist()):
+        rows = cam_ids == cam_id
+        cam = cameras[cam_id]
+        fot[rows] = cam.pixel_to_fot(px[rows])
+        xy[rows] = cam.pixel_to_photo(px[rows])
+        d = cam.distortion_corrections(fot[rows])
         for k in corr:
             corr[k][rows] = d[k]
     return CorrectedMeasurements(photo, point, cam_ids, px, fot, corr, xy)
