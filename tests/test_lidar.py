@@ -537,6 +537,21 @@ def test_geotiff_without_epsg_writes_wkt_sidecar(tmp_path):
     assert read_geotiff(p)[2].equals(crs)
 
 
+def test_read_geotiff_bad_files_named(tmp_path):
+    from lidarcat.lidar import GeoTransform
+
+    with pytest.raises(TileIOError, match=r"none\.tif: file not found"):
+        read_geotiff(tmp_path / "none.tif")
+    p = write_geotiff(tmp_path / "g.tif", np.ones((40, 30), np.float32), GeoTransform(0, 10, 1), RD)
+    data = p.read_bytes()
+    (tmp_path / "cut.tif").write_bytes(data[:len(data) - 200])  # the tag directory is at the end
+    with pytest.raises(LidarFormatError, match=r"cut\.tif: truncated or incomplete GeoTIFF"):
+        read_geotiff(tmp_path / "cut.tif")
+    (tmp_path / "png.tif").write_bytes(b"\x89PNG\r\n\x1a\n")
+    with pytest.raises(LidarFormatError, match=r"png\.tif: not a little-endian TIFF"):
+        read_geotiff(tmp_path / "png.tif")
+
+
 def test_png_preview_written(tmp_path):
     pc = _grid_cloud()
     grid, t = rasterize(pc, 1.0, "dsm")

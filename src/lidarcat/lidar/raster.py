@@ -50,9 +50,9 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from .._io import atomic_write, write_text_atomic
-from ..errors import LidarFormatError
+from ..errors import LidarcatError, LidarFormatError, TileIOError
 from .cloud import PointCloud
-from .crs import resolve_crs
+from .crs import _parts, resolve_crs
 
 __all__ = ["GeoTransform", "rasterize", "write_geotiff", "read_geotiff", "write_png_preview",
            "write_raster", "RASTER_KINDS"]
@@ -263,11 +263,8 @@ def _geokeys(crs: Any) -> tuple[list[int], str, bool]:
     ascii_params = ""
     sidecar = False
     if crs is not None:
-        horiz, vert = crs, None
-        if crs.is_compound:
-            subs = crs.sub_crs_list
-            horiz = next((s for s in subs if not s.is_vertical), subs[0])
-            vert = next((s for s in subs if s.is_vertical), None)
+        horiz, vert = _parts(crs)
+        horiz = horiz or crs
         code = horiz.to_epsg(min_confidence=90)
         citation = (crs.name + "|").replace("\x00", "")
         ascii_params = citation
@@ -390,13 +387,29 @@ def read_geotiff(path: str | os.PathLike) -> tuple[np.ndarray, GeoTransform, Any
 
     Raises
     ------
+    TileIOError
+        The file is missing or unreadable.
     LidarFormatError
-        Not a TIFF of that kind.
+        Not a TIFF of that kind, or truncated.
     """
     path = Path(path)
-    buf = path.read_bytes()
+    try:
+        buf = path.read_bytes()
+    except FileNotFoundError:
+        raise TileIOError(f"{path}: file not found") from None
+    except OSError as ex:
+        raise TileIOError(f"{path}: cannot read ({ex.strerror})") from ex
     if buf[:4] != b"II*\x00":
         raise LidarFormatError(f"{path}: not a little-endian TIFF")
+    try:
+        return _parse_geotiff(path, buf)
+    except LidarcatError:
+        raise
+    except (struct.error, KeyError, IndexError, ValueError) as ex:
+        raise LidarFormatError(f"{path}: truncated or incomplete GeoTIFF ({type(ex).__name__}: {ex})") from ex
+
+
+def _parse_geotiff(path: Path, buf: bytes) -> tuple[np.ndarray, GeoTransform, Any]:
     (ifd_offset,) = struct.unpack_from("<I", buf, 4)
     (n,) = struct.unpack_from("<H", buf, ifd_offset)
     tags: dict[int, Any] = {}
