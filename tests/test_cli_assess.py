@@ -101,3 +101,13 @@ def test_help_teaches_units_and_example():
     r = _run(["--help"])
     assert r.exit_code == 0
     assert "Metres" in r.output and "Examples:" in r.output and "--contour-interval" in r.output
+
+
+def test_option_choices_are_the_library_ones():
+    # the command keeps its own copies so that `assess --help` does not import scipy; they must not drift
+    from lidarcat.accuracy import PLOTTING_POSITIONS, SIGNS
+    from lidarcat.cli.assess import assess
+    from lidarcat.standards import STANDARD_NAMES
+
+    choices = {p.name: tuple(p.type.choices) for p in assess.params if hasattr(p.type, "choices")}
+    assert choices == {"standards": STANDARD_NAMES, "plotting_position": PLOTTING_POSITIONS, "sign": SIGNS}
