@@ -30,6 +30,7 @@ __all__ = [
     "atomic_write",
     "atomic_dir",
     "write_text_atomic",
+    "write_csv",
     "write_csv_atomic",
     "write_json_atomic",
     "read_text",
@@ -167,15 +168,33 @@ def write_csv_atomic(
     *,
     comments: Sequence[str] = (),
 ) -> Path:
-    """Write a CSV file atomically; *comments* become leading ``# ...`` lines."""
+    """Write a CSV file atomically (cells as in :func:`write_csv`)."""
     with atomic_write(path, "w") as fh:
-        for c in comments:
-            fh.write(f"# {c}\n")
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(header)
-        for row in rows:
-            w.writerow([_csv_cell(v) for v in row])
+        write_csv(fh, header, rows, comments=comments)
     return Path(path)
+
+
+def write_csv(fh: Any, header: Sequence[str], rows: Sequence[Sequence[Any]], *,
+              comments: Sequence[str] = ()) -> None:
+    """Write CSV to an open text file (e.g. ``sys.stdout``).
+
+    *comments* become leading ``# ...`` lines; floats are written with ``repr``
+    (they read back bit-identical), NaN and infinities as empty cells.
+
+    >>> import io
+    >>> buf = io.StringIO()
+    >>> write_csv(buf, ["point", "x_mm"], [["701", np.float64(0.1)], ["702", float("nan")]])
+    >>> print(buf.getvalue(), end="")
+    point,x_mm
+    701,0.1
+    702,
+    """
+    for c in comments:
+        fh.write(f"# {c}\n")
+    w = csv.writer(fh, lineterminator="\n")
+    w.writerow(header)
+    for row in rows:
+        w.writerow([_csv_cell(v) for v in row])
 
 
 def _csv_cell(v: Any) -> Any:

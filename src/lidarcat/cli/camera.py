@@ -61,12 +61,9 @@ def correct(source: str, camera_spec: str | None, output: str | None, as_json: b
             out["points"] = table.records()
         echo_json(out)
     elif output is None:
-        import csv
+        from .._io import write_csv
 
-        w = csv.writer(sys.stdout, lineterminator="\n")
-        w.writerow(table.columns)
-        for row in table.rows():
-            w.writerow([repr(float(v)) if isinstance(v, float) else v for v in row])
+        write_csv(sys.stdout, table.columns, table.rows())
     else:
         s = table.to_dict()
         click.echo(f"{s['n_points']} measurements corrected (camera {', '.join(s['cameras'])}, "
