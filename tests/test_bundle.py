@@ -413,8 +413,10 @@ def test_eo_constraints_are_weighted():
 # --------------------------------------------------------------------------- datum checks
 
 
-def _subset(p: BundleProblem, keep_obs=None, compact=False, **changes) -> BundleProblem:
-    keep = np.ones(len(p.photo_index), dtype=bool) if keep_obs is None else keep_obs
+def _subset(p: BundleProblem, keep_obs=None, compact=False, drop=(), **changes) -> BundleProblem:
+    """*p* with only the observations *keep_obs* (mask), without the rows *drop*, and *changes*."""
+    keep = np.ones(len(p.photo_index), dtype=bool) if keep_obs is None else np.array(keep_obs)
+    keep[np.asarray(drop, dtype=np.int64)] = False
     kw = dict(photo_ids=p.photo_ids, point_ids=p.point_ids, focal_length_mm=p.focal_length_mm,
               photo_index=p.photo_index[keep], point_index=p.point_index[keep], xy_mm=p.xy_mm[keep],
               sd_mm=p.sd_mm[keep], constraint_point_index=p.constraint_point_index,
@@ -438,21 +440,17 @@ def test_datum_ok_for_thesis(gps_problem, lidar_problem):
 def test_datum_photo_with_too_few_points(gps_problem):
     p = gps_problem
     on6 = np.flatnonzero(p.photo_index == list(p.photo_ids).index("6"))
-    keep = np.ones(len(p.photo_index), dtype=bool)
-    keep[on6[2:]] = False
     # points left with one ray must not mask the photo error: the photo check comes first
     with pytest.raises(DatumError, match=r"photo '6' has 2 measured point\(s\); at least 3"):
-        adjust(_subset(p, keep))
+        adjust(_subset(p, drop=on6[2:]))
 
 
 def test_datum_point_on_one_photo(gps_problem):
     p = gps_problem
     j = list(p.point_ids).index("401")   # pass point on photos 1 and 2
     rows = np.flatnonzero(p.point_index == j)
-    keep = np.ones(len(p.photo_index), dtype=bool)
-    keep[rows[1:]] = False
     with pytest.raises(DatumError, match=r"point '401' is seen on one photo only \('1'\)"):
-        check_datum(_subset(p, keep))
+        check_datum(_subset(p, drop=rows[1:]))
 
 
 def test_datum_point_on_no_photo(gps_problem):
@@ -467,9 +465,11 @@ def test_datum_control_point_on_one_photo_is_fine():
     p = b.problem
     j = int(p.constraint_point_index[0])
     rows = np.flatnonzero(p.point_index == j)
-    keep = np.ones(len(p.photo_index), dtype=bool)
-    keep[rows[1:]] = False
-    check_datum(_subset(p, keep))
+    q = _subset(p, drop=rows[1:])
+    check_datum(q)
+    r = adjust(q)                               # determined by its constraint
+    assert r.success
+    assert np.all(r.point_sd_m[j] <= p.constraint_sd_m[0] * (1 + 1e-9))
 
 
 def test_datum_no_control(gps_problem):
@@ -486,6 +486,19 @@ def test_datum_too_little_control(gps_problem):
     with pytest.raises(DatumError, match=r"too little control in the block: 2 point\(s\) with E, N and 2 "
                                          r"with h \(601, 604\)"):
         adjust(p)
+
+
+def test_datum_coincident_planimetric_control(gps_problem):
+    p = gps_problem
+    sd = np.array(p.constraint_sd_m)
+    sd[2:, :2] = np.inf                         # E, N held on the first two control points only
+    enh = np.array(p.constraint_enh_m)
+    enh[1, :2] = enh[0, :2]                     # ... at the same place
+    names = ", ".join(p.point_ids[p.constraint_point_index[:2]])
+    assert names == "601, 604"
+    with pytest.raises(DatumError, match=r"^planimetric control points coincide in the block: 601, 604; the "
+                                         r"block can turn about them \(give control at distinct places\)$"):
+        check_datum(_subset(p, constraint_enh_m=enh, constraint_sd_m=sd))
 
 
 def test_datum_collinear_control():

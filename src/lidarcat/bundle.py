@@ -656,20 +656,17 @@ def check_datum(problem: BundleProblem) -> None:
             raise DatumError(f"too little control in {where}: {n_plan} point(s) with E, N and {n_h} with h "
                              f"({', '.join(p.point_ids[ctrl_c])}); the datum needs at least 2 planimetric and "
                              "3 height control points not on a line")
-        plan = p.constraint_enh_m[kk][ax[:, 0] & ax[:, 1], :2]
-        hpts = p.constraint_enh_m[kk][ax[:, 2], :2]
-        for xy, what in ((plan, "planimetric"), (hpts, "height")):
-            if what == "planimetric" and len(xy) >= 2:
-                if np.ptp(xy, axis=0).max() < 1e-6:
-                    raise DatumError(f"{what} control points coincide in {where}: "
-                                     f"{', '.join(p.point_ids[ctrl_c])}")
-                continue
-            d = xy - xy.mean(axis=0)
-            sv = np.linalg.svd(d, compute_uv=False)
-            if sv[0] == 0 or sv[-1] / sv[0] < 1e-3:
-                raise DatumError(f"height control points are (nearly) on a line in {where}: "
-                                 f"{', '.join(p.point_ids[ctrl_c[ax[:, 2]]])}; the block can rotate about "
-                                 "that line (add control off the line)")
+        plan = p.constraint_enh_m[kk][ax[:, 0] & ax[:, 1], :2]     # >= 2 points
+        if np.ptp(plan, axis=0).max() < 1e-6:
+            raise DatumError(f"planimetric control points coincide in {where}: "
+                             f"{', '.join(p.point_ids[ctrl_c[ax[:, 0] & ax[:, 1]]])}; the block can turn "
+                             "about them (give control at distinct places)")
+        hpts = p.constraint_enh_m[kk][ax[:, 2], :2]                   # >= 3 points
+        sv = np.linalg.svd(hpts - hpts.mean(axis=0), compute_uv=False)
+        if sv[0] == 0 or sv[-1] / sv[0] < 1e-3:
+            raise DatumError(f"height control points are (nearly) on a line in {where}: "
+                             f"{', '.join(p.point_ids[ctrl_c[ax[:, 2]]])}; the block can rotate about "
+                             "that line (add control off the line)")
 
 
 # ---------------------------------------------------------------------------
