@@ -398,6 +398,9 @@ def test_zero_variance_marks_tests_not_applicable():
     assert ks_mahalanobis_test(den[:3]).reason == "needs at least 4 points, got 3"
     assert lilliefors_test(den[:3, 0]).reason == "needs at least 4 points, got 3"
     assert a.tests["chi2_precision"]["h"].passed is True  # s = 0 passes any sigma0
+    ce = a.tests["ce90"]
+    assert ce["circular"].reason == ce["bivariate_exact"].reason == "zero variance of dE and dN"
+    assert ce["empirical"].statistic == pytest.approx(math.hypot(0.1, 0.1), abs=1e-12)
 
 
 def test_no_scale_marks_chi2_not_applicable():

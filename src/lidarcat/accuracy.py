@@ -726,6 +726,8 @@ def ce90(den: Any, method: str = "empirical", *, prob: float = 0.90, limit_m: fl
         raise AssessmentError(f"CE90 method must be one of {', '.join(need)}, got {method!r}")
     if n < need[method]:
         return _na("ce90", method, "radius", None, f"needs at least {need[method]} points, got {n}", n=n)
+    if method != "empirical" and _zero_var(x[:, 0]) and _zero_var(x[:, 1]):
+        return _na("ce90", method, "radius", None, "zero variance of dE and dN", n=n)
     details: dict[str, Any] = {"n": n, "probability": prob}
     if method == "empirical":
         k = max(1, math.ceil(prob * n - 1e-9))
@@ -734,15 +736,10 @@ def ce90(den: Any, method: str = "empirical", *, prob: float = 0.90, limit_m: fl
         details["percentile_linear"] = float(np.quantile(dp, prob))
     elif method == "circular":
         sc = math.sqrt((np.var(x[:, 0], ddof=1) + np.var(x[:, 1], ddof=1)) / 2)
-        if _zero_var(x[:, 0]) and _zero_var(x[:, 1]):
-            return _na("ce90", method, "radius", None, "zero variance of dE and dN", n=n)
         r = sc * math.sqrt(-2 * math.log(1 - prob))
         details["sigma_c"] = sc
     else:
-        s = np.cov(x, rowvar=False, ddof=1)
-        if _zero_var(x[:, 0]) and _zero_var(x[:, 1]):
-            return _na("ce90", method, "radius", None, "zero variance of dE and dN", n=n)
-        r = _std.circular_error_radius(prob, x.mean(axis=0), s)
+        r = _std.circular_error_radius(prob, x.mean(axis=0), np.cov(x, rowvar=False, ddof=1))
         details["mean"] = x.mean(axis=0).tolist()
     details["fraction_within"] = float(np.mean(dp <= r + 1e-12))
     if limit_m is None:
