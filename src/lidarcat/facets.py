@@ -267,6 +267,17 @@ class Plane:
         }
 
 
+def _translated(pl: Plane, shift_m: np.ndarray, **changes: Any) -> Plane:
+    """*pl*, given in a frame whose origin is at *shift_m*, in the outer frame.
+
+    ``x_out = x_in + shift``: ``d_out = d_in - n . shift`` and the covariance of
+    ``(n, d)`` moves accordingly (:meth:`Plane.cov_at` at ``-shift``).
+    """
+    shift = np.asarray(shift_m, dtype=np.float64)
+    return dataclasses.replace(pl, n=pl.n, d=pl.d - float(pl.n @ shift), cov=pl.cov_at(-shift),
+                               centroid_m=pl.centroid_m + shift, **changes)
+
+
 # --------------------------------------------------------------------------- params
 _METHODS = ("region", "ransac", "thesis")
 _RESID = ("normal", "vertical", "height")
@@ -499,7 +510,8 @@ class PlaneFit:
         return self.plane is not None
 
 
-def _gh_solve(x: np.ndarray, s2: np.ndarray, n0: np.ndarray, max_iter: int = 30):
+def _gh_solve(x: np.ndarray, s2: np.ndarray, n0: np.ndarray,
+              max_iter: int = 30) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
     """Gauss-Helmert iterations in a local frame. Returns n, d, Q (4x4), r, w.
 
     The design matrix A is evaluated at the *adjusted* observations
@@ -510,7 +522,7 @@ def _gh_solve(x: np.ndarray, s2: np.ndarray, n0: np.ndarray, max_iter: int = 30)
     d = -float(x.mean(axis=0) @ n)
     v = np.zeros_like(x)
 
-    def bordered(xa: np.ndarray, w: np.ndarray, n: np.ndarray) -> np.ndarray:
+    def bordered(xa: np.ndarray, w: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         a_mat = np.column_stack([xa, np.ones(m)])
         big = np.zeros((5, 5))
         big[:4, :4] = (a_mat * w[:, None]).T @ a_mat
@@ -643,8 +655,7 @@ def fit_plane(
         if thr is None:
             # robust sigma from ALL points (rejected ones too), so that the
             # threshold does not shrink as the tails are cut
-            ra = xl_all @ n + d
-            mad = float(np.median(np.abs(ra - np.median(ra))))
+            mad = float(np.median(np.abs(r_all - np.median(r_all))))
             thr = max(0.03, 3.5 * 1.4826 * mad)
         bad = used & (test > thr)
         resid = test
@@ -661,13 +672,9 @@ def fit_plane(
     # error is t-distributed: its variance is dof / (dof - 2), not 1
     scale = sigma0_2 * (dof / (dof - 2.0) if dof > 4 else 3.0) \
         if posterior_variance and np.isfinite(sigma0_2) else 1.0
-    cov_local = qxx * scale
-    # absolute frame: d_abs = d_local - n . origin
-    j = np.eye(4)
-    j[3, :3] = -origin
-    cov = j @ cov_local @ j.T
-    plane = Plane(n=n, d=d - float(n @ origin), cov=cov, centroid_m=origin + xl_all[idx].mean(axis=0),
+    local = Plane(n=n, d=d, cov=qxx * scale, centroid_m=xl_all[idx].mean(axis=0),
                   n_used=m, n_rejected=m_all - m, rms_m=float(np.sqrt(np.mean(r * r))), label=label)
+    plane = _translated(local, origin)
     return PlaneFit(plane, used, resid, math.sqrt(sigma0_2) if np.isfinite(sigma0_2) else math.nan)
 
 
@@ -746,12 +753,12 @@ def _local_normals(xyz: np.ndarray, k: int):
     normals = vec[:, :, 0]
     normals *= np.where(normals[:, 2:3] < 0, -1.0, 1.0)
     rms = np.sqrt(np.maximum(val[:, 0], 0.0))
-    return normals, rms, nb, dist, tree
+    return normals, rms, nb, dist
 
 
 def _segment_setup(xyz: np.ndarray, p: ExtractionParams) -> dict[str, Any]:
     """What both segmenters need: local normals, slopes, noise, tolerances, link length."""
-    normals, lrms, nb, nbd, _ = _local_normals(xyz, p.k_neighbours)
+    normals, lrms, nb, nbd = _local_normals(xyz, p.k_neighbours)
     k = nb.shape[1]
     slope = np.degrees(np.arccos(np.clip(normals[:, 2], 0.0, 1.0)))
     in_win = (slope > p.slope_min_deg) & (slope < p.slope_max_deg)
@@ -870,34 +877,37 @@ def _segment_ransac(xyz: np.ndarray, p: ExtractionParams) -> tuple[np.ndarray, d
     return labels, info
 
 
-def _fit_groups(xyz: np.ndarray, labels: np.ndarray, p: ExtractionParams,
-                thr: float | None) -> list[tuple[Plane, np.ndarray]]:
+def _fit_groups(xyz: np.ndarray, labels: np.ndarray, p: ExtractionParams) -> list[tuple[Plane, np.ndarray]]:
+    """Fit every labelled group with the extraction's own rejection settings."""
     out = []
-    sd = (p.sd_en_m, p.sd_en_m, p.sd_h_m)
     for g in np.unique(labels[labels >= 0]):
         idx = np.flatnonzero(labels == g)
-        fit = fit_plane(xyz[idx], sd_m=sd, residual_threshold_m=thr, residual_kind=p.residual_kind,
+        fit = fit_plane(xyz[idx], sd_m=(p.sd_en_m, p.sd_en_m, p.sd_h_m),
+                        residual_threshold_m=p.residual_threshold_m, residual_kind=p.residual_kind,
                         min_points=p.min_points, posterior_variance=p.posterior_variance)
         if fit:
             out.append((fit.plane, idx[fit.used]))
     return out
 
 
+def _fit_trial(xyz: np.ndarray, p: ExtractionParams) -> PlaneFit:
+    """Plane of a trial face while segmenting: robust (MAD) threshold, orthogonal residuals."""
+    return fit_plane(xyz, sd_m=(p.sd_en_m, p.sd_en_m, p.sd_h_m), residual_threshold_m=None,
+                     min_points=p.min_points)
+
+
 def _drop_edge_strips(xyz: np.ndarray, idx_sets: list[np.ndarray], p: ExtractionParams,
-                      dist_tol: float) -> list[np.ndarray]:
+                      dist_tol: float) -> list[tuple[np.ndarray, PlaneFit]]:
     """Drop small faces whose points are explained by larger faces.
 
     Points along a ridge, hip or valley have blended local normals and can
     grow into a thin region of intermediate orientation; its points lie within
     the distance tolerance of the two real faces, which take them back.
+    Returns the kept point sets with their :func:`_fit_trial` fits.
     """
     order = sorted(range(len(idx_sets)), key=lambda i: -len(idx_sets[i]))
-    planes: dict[int, Plane] = {}
-    for i in order:
-        fit = fit_plane(xyz[idx_sets[i]], sd_m=(p.sd_en_m, p.sd_en_m, p.sd_h_m),
-                        residual_threshold_m=None, min_points=p.min_points)
-        if fit:
-            planes[i] = fit.plane
+    fits = {i: _fit_trial(xyz[idx_sets[i]], p) for i in order}
+    planes = {i: f.plane for i, f in fits.items() if f}
     keep = []
     for a, i in enumerate(order):
         pts = xyz[idx_sets[i]]
@@ -909,7 +919,7 @@ def _drop_edge_strips(xyz: np.ndarray, idx_sets: list[np.ndarray], p: Extraction
             if near.mean() >= 0.7:
                 continue
         keep.append(i)
-    return [idx_sets[i] for i in sorted(keep)]
+    return [(idx_sets[i], fits[i]) for i in sorted(keep)]
 
 
 def _refine_assignment(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], p: ExtractionParams,
@@ -942,16 +952,14 @@ def _refine_assignment(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], p
     groups: dict[int, set] = {}
     for i in range(len(faces)):
         groups.setdefault(root(i), set()).update(members[i])
-    idx_sets = [np.array(sorted(s)) for s in groups.values()]
-    idx_sets = _drop_edge_strips(xyz, idx_sets, p, dist_tol)
-    nf = len(idx_sets)
+    kept = _drop_edge_strips(xyz, [np.array(sorted(s)) for s in groups.values()], p, dist_tol)
+    idx_sets = [idx for idx, _ in kept]
+    nf = len(kept)
     dist = np.full((m, nf), np.inf)
     zpl = np.full((m, nf), np.nan)
     link = 3.0 * spacing + 0.2
     fitted = []
-    for k, idx in enumerate(idx_sets):
-        fit = fit_plane(xyz[idx], sd_m=(p.sd_en_m, p.sd_en_m, p.sd_h_m), residual_threshold_m=None,
-                        min_points=p.min_points)
+    for k, (idx, fit) in enumerate(kept):
         fitted.append(fit.plane if fit else None)
         if not fit:
             continue
@@ -1080,20 +1088,17 @@ def segment_faces(xyz: Any, params: ExtractionParams | str | None = None) -> tup
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     origin = xyz.mean(axis=0) if len(xyz) else np.zeros(3)
     loc = xyz - origin
-    if p.method == "thesis":
-        labels, info = _segment_thesis(loc, p)
-        faces = _fit_groups(loc, labels, p, p.residual_threshold_m)
-    else:
-        seg = _segment_ransac if p.method == "ransac" else _segment_region
-        labels, info = seg(loc, p)
-        faces = _fit_groups(loc, labels, p, p.residual_threshold_m)
+    segment = {"thesis": _segment_thesis, "ransac": _segment_ransac, "region": _segment_region}[p.method]
+    labels, info = segment(loc, p)
+    faces = _fit_groups(loc, labels, p)
+    if p.method != "thesis":
         # assign by the fitted faces, re-fit, and assign again with the better
         # intersection lines (a self-consistent partition)
         for it in range(2):
             lab2 = _refine_assignment(loc, faces, p, info["dist_tol_m"], info["spacing_m"])
             if it == 1 and p.drop_outer_edges:
                 lab2 = _drop_outer_edges(loc, lab2, max_slope_deg=p.slope_max_deg)
-            faces = _fit_groups(loc, lab2, p, p.residual_threshold_m)
+            faces = _fit_groups(loc, lab2, p)
     faces = [f for f in faces if p.slope_min_deg < f[0].slope_deg < p.slope_max_deg]
     faces.sort(key=lambda f: -f[0].n_used)
     faces = faces[: p.max_planes]
@@ -1101,10 +1106,7 @@ def segment_faces(xyz: Any, params: ExtractionParams | str | None = None) -> tup
     planes = []
     for k, (pl, idx) in enumerate(faces):
         out_labels[idx] = k
-        cov = pl.cov_at(-origin)  # back to absolute: d_abs = d_loc - n.origin
-        planes.append(Plane(n=pl.n, d=pl.d - float(pl.n @ origin), cov=cov,
-                            centroid_m=pl.centroid_m + origin, n_used=pl.n_used,
-                            n_rejected=pl.n_rejected, rms_m=pl.rms_m, label=k))
+        planes.append(_translated(pl, origin, label=k))
     info["n_faces"] = len(planes)
     return planes, out_labels, info
 
