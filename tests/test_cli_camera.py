@@ -26,9 +26,10 @@ def _appendix1() -> dict[tuple[str, str], dict[str, str]]:
 
 
 def _pixel_csv(tmp_path):
+    # other columns are ignored, also an unnamed one (a spreadsheet's trailing comma)
     p = tmp_path / "px.csv"
-    p.write_text("# two measurements\nphoto,point,col_px,row_px,comment\n"
-                 "1,701,1715.7,636.9,a\n5,662,2021.6,111.23,b\n", encoding="utf-8")
+    p.write_text("# two measurements\nphoto,point,col_px,row_px,comment,\n"
+                 "1,701,1715.7,636.9,a,\n5,662,2021.6,111.23,b,\n", encoding="utf-8")
     return p
 
 

@@ -455,6 +455,15 @@ def test_image_points_missing_columns(tmp_path):
         Survey.load(f3)
 
 
+def test_image_points_trailing_comma(tmp_path):
+    """A spreadsheet's trailing comma makes an unnamed column: say so, not 'unknown column(s) '."""
+    f = copy_thesis(tmp_path)
+    rewrite_csv(f, "image_points.csv", lambda h, r: (h + [""], [x + [""] for x in r]))
+    with pytest.raises(SurveyError, match=r"image_points.csv:1: column 7 has no name \(a trailing "
+                                          r"comma\?\); name it or delete it$"):
+        Survey.load(f)
+
+
 def test_image_points_negative_sd(tmp_path):
     f = copy_thesis(tmp_path)
     rewrite_csv(f, "image_points.csv", lambda h, r: (

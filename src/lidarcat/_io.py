@@ -340,7 +340,8 @@ def read_csv_table(
     ------
     SurveyError
         Missing, unreadable or non-UTF-8 file, missing required column, unknown
-        column (unless *allow_extra*), or a row with the wrong number of fields.
+        or unnamed column (unless *allow_extra*), or a row with the wrong number
+        of fields.
     """
     path = Path(path)
     text = read_text(path)
@@ -362,7 +363,11 @@ def read_csv_table(
         lines.append(lineno)
     if header is None:
         raise SurveyError(f"{path}: empty file, expected a header line")
-    dup = {h for h in header if header.count(h) > 1}
+    unnamed = [i for i, h in enumerate(header, start=1) if not h]
+    if unnamed and not allow_extra:
+        raise SurveyError(f"{location(path, hline)}: column {unnamed[0]} has no name (a trailing "
+                          f"comma?); name it or delete it")
+    dup = {h for h in header if h and header.count(h) > 1}
     if dup:
         raise SurveyError(f"{location(path, hline)}: duplicate column(s) {', '.join(sorted(dup))}")
     for name in required:
