@@ -94,7 +94,9 @@ def test_mismatched_ids_is_one_line_error(tmp_path):
     assert "Traceback" not in r.output
     assert "Error: check point(s) 605, 606, 615" in r.output and "ref.csv" in r.output
     r2 = _run([str(POINTS), str(ref), "--points", "603,999"])
-    assert r2.exit_code == 2 and "999" in r2.output
+    assert r2.exit_code == 2
+    assert r2.output == (f"Error: requested check point(s) not in the adjusted points ({POINTS}): 999; "
+                         f"not in the reference ({ref}): 999\n")
 
 
 def test_help_teaches_units_and_example():
