@@ -53,6 +53,25 @@ class Bounds(NamedTuple):
         """True if the plan box overlaps these bounds (edges count as overlap)."""
         return not (xmax < self.xmin or xmin > self.xmax or ymax < self.ymin or ymin > self.ymax)
 
+    @classmethod
+    def from_minmax(cls, lo: Any, hi: Any) -> Bounds:
+        """From the (3,) minima and maxima of E, N, h; all NaN when *lo* is None (no points)."""
+        if lo is None:
+            return cls(*([float("nan")] * 6))
+        return cls(float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]), float(lo[2]), float(hi[2]))
+
+    @classmethod
+    def union(cls, bounds: Iterable[Iterable[float]]) -> Bounds:
+        """Smallest bounds holding every one of *bounds* (each in field order); NaN when none.
+
+        >>> Bounds.union([(0, 0, 1, 1, 5, 6), (2, -1, 3, 0, 4, 5)])
+        Bounds(xmin=0.0, ymin=-1.0, xmax=3.0, ymax=1.0, zmin=4.0, zmax=6.0)
+        """
+        bs = np.array([list(b) for b in bounds], dtype=np.float64).reshape(-1, 6)
+        if len(bs) == 0:
+            return cls.from_minmax(None, None)
+        return cls.from_minmax(bs[:, [0, 1, 4]].min(axis=0), bs[:, [2, 3, 5]].max(axis=0))
+
 
 def _attribute(name: str, values: Any, n: int) -> np.ndarray:
     """*values* as an (n,) array of the attribute's standard dtype (float intensity allowed)."""
@@ -165,10 +184,8 @@ class PointCloud:
     def bounds(self) -> Bounds:
         """:class:`Bounds` of the points (NaN for an empty cloud)."""
         if len(self) == 0:
-            return Bounds(*([float("nan")] * 6))
-        lo = self.xyz.min(axis=0)
-        hi = self.xyz.max(axis=0)
-        return Bounds(float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]), float(lo[2]), float(hi[2]))
+            return Bounds.from_minmax(None, None)
+        return Bounds.from_minmax(self.xyz.min(axis=0), self.xyz.max(axis=0))
 
     def has(self, name: str) -> bool:
         """True if attribute *name* is present."""

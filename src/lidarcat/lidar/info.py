@@ -71,8 +71,7 @@ def _describe_file(path: Path, crs: Any, columns: Any, delimiter: str | None, ch
             has_ret = True
             returns += np.bincount(np.minimum(c.attributes["return_number"], 15), minlength=16)[:16]
     area = float(occupied.sum()) * cell * cell
-    bounds = Bounds(*(float(v) for v in (lo[0], lo[1], hi[0], hi[1], lo[2], hi[2]))) if count \
-        else Bounds(*([float("nan")] * 6))
+    bounds = Bounds.from_minmax(lo if count else None, hi)
     return {
         "path": str(path),
         "format": head.description,
@@ -119,9 +118,7 @@ def describe(paths: str | os.PathLike | Iterable[str | os.PathLike], *, crs: Any
                              "crs": crs_label(common) if common is not None else None}
     with_pts = [f for f in files if f["points"]]
     if with_pts:
-        bs = np.array([list(f["bounds"].values()) for f in with_pts])
-        total["bounds"] = Bounds(bs[:, 0].min(), bs[:, 1].min(), bs[:, 2].max(), bs[:, 3].max(),
-                                 bs[:, 4].min(), bs[:, 5].max())._asdict()
+        total["bounds"] = Bounds.union(f["bounds"].values() for f in with_pts)._asdict()
     area = sum(f["covered_area_m2"] for f in files)
     total["covered_area_m2"] = area
     total["density_pts_m2"] = total["points"] / area if area else None

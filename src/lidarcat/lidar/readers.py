@@ -372,12 +372,9 @@ def _las_header(path: Path, crs: Any) -> FileHeader:
         file_crs = _las_crs(path, h)
         crs_out, from_file = _settle_crs(path, file_crs, crs)
         _check_las_size(path, h)
-        mins, maxs = h.mins, h.maxs
         names = set(h.point_format.dimension_names)
         return FileHeader(path, "las", _las_description(path, h), int(h.point_count),
-                          Bounds(float(mins[0]), float(mins[1]), float(maxs[0]), float(maxs[1]),
-                                 float(mins[2]), float(maxs[2])),
-                          crs_out, from_file, tuple(a for a in _LAS_ATTRIBUTES if a in names))
+                          Bounds.from_minmax(h.mins, h.maxs), crs_out, from_file, tuple(a for a in _LAS_ATTRIBUTES if a in names))
 
 
 # --------------------------------------------------------------------------- ASCII
@@ -689,10 +686,8 @@ def read_header(path: str | os.PathLike, *, crs: Any = None, columns: Sequence[s
         lo = np.minimum(lo, chunk.xyz.min(axis=0))
         hi = np.maximum(hi, chunk.xyz.max(axis=0))
         names = tuple(chunk.attributes)
-    if count == 0:
-        lo = hi = np.full(3, np.nan)
     return FileHeader(path, "ascii", layout.describe(), count,
-                      Bounds(lo[0], lo[1], hi[0], hi[1], lo[2], hi[2]), crs_out, False, names)
+                      Bounds.from_minmax(lo if count else None, hi), crs_out, False, names)
 
 
 # --------------------------------------------------------------------------- writing

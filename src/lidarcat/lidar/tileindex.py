@@ -635,11 +635,7 @@ class TileIndex:
     @property
     def bounds(self) -> Bounds:
         """Union of the tile bounds (NaN when there are no points)."""
-        bs = np.array([list(t.bounds) for t in self.tiles if t.count > 0])
-        if len(bs) == 0:
-            return Bounds(*([float("nan")] * 6))
-        return Bounds(bs[:, 0].min(), bs[:, 1].min(), bs[:, 2].max(), bs[:, 3].max(),
-                      bs[:, 4].min(), bs[:, 5].max())
+        return Bounds.union(t.bounds for t in self.tiles if t.count > 0)
 
     def to_dict(self) -> dict[str, Any]:
         return {"crs": None if self.crs is None else crs_label(self.crs), "points": self.count,
