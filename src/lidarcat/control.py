@@ -302,12 +302,6 @@ def intersect_planes(
 
 
 # ------------------------------------------------------------------- vertex search
-def _support_trees(xyz: np.ndarray, labels: np.ndarray, m: int):
-    from scipy.spatial import cKDTree
-
-    return [cKDTree(xyz[labels == k, :2]) for k in range(m)]
-
-
 def _spacing(xyz: np.ndarray, info: dict | None) -> float:
     if info and "spacing_m" in info:
         return float(info["spacing_m"])
@@ -325,18 +319,28 @@ def _on_surface(x: np.ndarray, xyz: np.ndarray, tree_all, r: float, tol: float =
     return bool(h.min() - tol <= x[2] <= h.max() + tol)
 
 
-def _triples(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, p: ExtractionParams,
-             info: dict | None, reasons: list[str] | None = None):
+def _face_support(xyz: np.ndarray, labels: np.ndarray, m: int, p: ExtractionParams,
+                  info: dict | None) -> tuple[list, float, float]:
+    """Plan KD-tree of each of the *m* faces' points, point spacing (m), support distance (m)."""
+    from scipy.spatial import cKDTree
+
+    trees = [cKDTree(xyz[labels == k, :2]) for k in range(m)]
+    spacing = _spacing(xyz, info)
+    support = p.support_m if p.support_m is not None else max(1.5, 4.0 * spacing)
+    return trees, spacing, support
+
+
+def _triples(planes: Sequence[Plane], xyz: np.ndarray, p: ExtractionParams,
+             face_support: tuple[list, float, float], reasons: list[str] | None = None):
     """Yield (triple, ControlPoint, support distances) for every supported triple.
 
-    Refusals of the intersection are appended to *reasons*.
+    *face_support* is :func:`_face_support` of the faces.  Refusals of the
+    intersection are appended to *reasons*.
     """
     from scipy.spatial import cKDTree
 
     m = len(planes)
-    trees = _support_trees(xyz, labels, m)
-    spacing = _spacing(xyz, info)
-    support = p.support_m if p.support_m is not None else max(1.5, 4.0 * spacing)
+    trees, spacing, support = face_support
     tree_all = cKDTree(xyz[:, :2])
     # adjacency: two faces touch when their points come within 2 x support
     adj = np.zeros((m, m), dtype=bool)
@@ -401,7 +405,9 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
     max_off = p.max_offset_m if p.max_offset_m is not None else 0.5 * p.radius_m
     found = []
     reasons: list[str] = []
-    for t, cp, sup in _triples(planes, xyz, labels, p, info, reasons):
+    face_support = _face_support(xyz, labels, len(planes), p, info)
+    trees, _, support = face_support
+    for t, cp, sup in _triples(planes, xyz, p, face_support, reasons):
         off = float(np.hypot(*(cp.enh_m[:2] - center)))
         if off <= max_off:
             sd3 = float(np.sqrt(max(np.trace(cp.cov_m2), 0.0)))
@@ -418,9 +424,6 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
     off, t, cp = found[0]
     x = cp.enh_m
     members = list(t)
-    trees = _support_trees(xyz, labels, len(planes))
-    spacing = _spacing(xyz, info)
-    support = p.support_m if p.support_m is not None else max(1.5, 4.0 * spacing)
     for k in range(len(planes)):
         if k in members:
             continue
@@ -451,7 +454,7 @@ def candidate_vertices(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndar
     if labels is None or len(planes) < 3:
         return []
     out: list[np.ndarray] = []
-    for t, cp, sup in _triples(planes, xyz, labels, p, info):
+    for t, cp, sup in _triples(planes, xyz, p, _face_support(xyz, labels, len(planes), p, info)):
         if all(np.hypot(*(cp.enh_m[:2] - v[:2])) > 0.5 for v in out):
             out.append(np.array(cp.enh_m))
     return out
