@@ -591,6 +591,13 @@ def test_assert_poses_close_messages():
         assert_poses_close(a, b, atol_m=0.1, atol_rad=1e-12)
     with pytest.raises(AssertionError, match="shape mismatch"):
         assert_poses_close(a, b[:1], atol_m=1, atol_rad=1)
+    # arrays are named by row index, a single orientation by its photo id
+    with pytest.raises(AssertionError, match=r"^poses differ: 1 value\(s\) beyond tolerance; "
+                                             r"worst photo 1 Y0"):
+        assert_poses_close(np.array([e.params for e in a]), b, atol_m=0.1, atol_rad=1e-12)
+    with pytest.raises(AssertionError, match=r"^check: poses differ: 1 value\(s\) beyond tolerance; worst photo 13 "
+                                             r"phi: .* > 0\.001 rad$"):
+        assert_poses_close(a[1], b[1] + [0, 0, 0, 0, 0.002, 0], atol_m=1, atol_rad=1e-3, err_msg="check:")
 
 
 def test_datum_point_measured_twice_on_a_photo(gps_problem):

@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 
 __all__ = ["assert_poses_close"]
 
 
-def _params(poses) -> np.ndarray:
-    if isinstance(poses, np.ndarray) or (isinstance(poses, Sequence) and len(poses)
-                                         and not hasattr(poses[0], "position_m")):
-        arr = np.asarray(poses, dtype=float)
-        return arr.reshape(-1, 6)
+def _rows(poses) -> tuple[np.ndarray, list[str] | None]:
+    """(n, 6) X0, Y0, Z0, omega, phi, kappa of *poses*, and their photo ids (None for arrays)."""
     if hasattr(poses, "position_m"):
         poses = [poses]
-    return np.array([np.concatenate([p.position_m, p.angles_rad]) for p in poses]).reshape(-1, 6)
+    if isinstance(poses, np.ndarray) or not len(poses) or not hasattr(poses[0], "position_m"):
+        return np.asarray(poses, dtype=float).reshape(-1, 6), None
+    params = np.array([np.concatenate([p.position_m, p.angles_rad]) for p in poses])
+    return params, [getattr(p, "photo", "") or str(i) for i, p in enumerate(poses)]
 
 
 def assert_poses_close(actual, desired, atol_m: float, atol_rad: float, err_msg: str = "") -> None:
@@ -40,16 +38,11 @@ def assert_poses_close(actual, desired, atol_m: float, atol_rad: float, err_msg:
     >>> b = np.array([[100.05, 200.0, 1000.0, 0.01, -0.02, -np.pi]])
     >>> assert_poses_close(a, b, atol_m=0.1, atol_rad=1e-9)
     """
-    a, d = _params(actual), _params(desired)
+    (a, ids), (d, _) = _rows(actual), _rows(desired)
     if a.shape != d.shape:
         raise AssertionError(f"{err_msg} shape mismatch: {a.shape} vs {d.shape}".strip())
     diff = a - d
     diff[:, 3:] = (diff[:, 3:] + np.pi) % (2 * np.pi) - np.pi
-    ids = None
-    if not isinstance(actual, np.ndarray):
-        seq = [actual] if hasattr(actual, "position_m") else list(actual)
-        ids = [getattr(p, "photo", str(i)) or str(i) for i, p in enumerate(seq)] if hasattr(
-            seq[0] if seq else None, "photo") else None
     names = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
     tol = np.array([atol_m] * 3 + [atol_rad] * 3)
     excess = np.abs(diff) / tol
