@@ -88,6 +88,12 @@ def test_pec_90_percent_rule_and_ep_rule():
     dp2 = np.array([0.2] * 8 + [1.05, 1.05])
     r2 = classify_pec(np.column_stack([dp2, np.zeros(10), np.zeros(10)]), 2000, 2.0)
     assert r2.classes["planimetric"] == "B"
+    # the thesis chi-square rule (eq. 46, sigma0 = EP 0.6 m) on the same sample: 9 s^2 / 0.36 with
+    # 9 s^2 = 8 (0.2 - 0.37)^2 + 2 (1.05 - 0.37)^2 = 1.156, against chi2(9, 0.90) = 14.684: class A
+    a2 = r2.evidence["classes"][0]["planimetric"]
+    assert a2["chi2"] == pytest.approx(1.156 / 0.36, abs=1e-9)
+    assert a2["chi2_critical"] == pytest.approx(14.684, abs=5e-4) and a2["chi2_passed"] is True
+    assert r2.evidence["chi2_class"]["planimetric"] == "A"
     # RMS above every EP: no class, and the label states the EP found (Art. 10)
     r3 = classify_pec(np.column_stack([np.full(10, 1.5), np.zeros(10), np.zeros(10)]), 2000, 2.0)
     assert r3.classes["planimetric"] == "none" and "EP found 1.500 m" in r3.label

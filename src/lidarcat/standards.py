@@ -47,7 +47,7 @@ from importlib import resources
 from typing import Any
 
 import numpy as np
-from scipy import integrate, optimize, stats
+from scipy import integrate, optimize
 
 from .errors import AssessmentError
 
@@ -329,13 +329,11 @@ def _result(name: str, data: Mapping[str, Any], classes: dict[str, str | None], 
 
 
 def _chi2_row(x: np.ndarray, sigma0: float | None, alpha: float) -> dict[str, Any]:
-    n = x.size
-    if sigma0 is None or n < 2 or not sigma0 > 0:
-        return {"chi2": None, "chi2_critical": None, "chi2_passed": None}
-    s2 = float(np.var(x, ddof=1))
-    chi = (n - 1) * s2 / sigma0 ** 2
-    crit = float(stats.chi2.ppf(1 - alpha, n - 1))
-    return {"chi2": chi, "chi2_critical": crit, "chi2_passed": bool(chi <= crit)}
+    """The thesis chi-square precision test (eq. 46) as PEC evidence; None values when not applicable."""
+    from .accuracy import chi2_precision_test  # the one implementation; accuracy imports this module
+
+    t = chi2_precision_test(x, sigma0, alpha)
+    return {"chi2": t.statistic, "chi2_critical": t.critical, "chi2_passed": t.passed}
 
 
 def classify_pec(d: np.ndarray, scale: float, contour_interval_m: float | None = None, *,
