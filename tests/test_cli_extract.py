@@ -109,12 +109,20 @@ def test_usage_errors():
     assert r.exit_code == 2 and "exactly one of" in r.output
     r = CliRunner().invoke(cli, ["extract", "--at", "1", "2"])
     assert r.exit_code == 2 and "need --lidar" in r.output
+    # no traceback from the parameter checks of the library
+    r = CliRunner().invoke(cli, ["extract", "--at", "1", "2", "--radius", "-1"])
+    assert r.exit_code == 2 and "Invalid value for --radius: must be positive (m), got -1" in r.output
+    r = CliRunner().invoke(cli, ["extract", "--find", "--box", "10", "0", "5", "20"])
+    assert r.exit_code == 2 and "Invalid value for --box: 10 0 5 20: need XMIN < XMAX and YMIN < YMAX" in r.output
 
 
 def test_bad_job_file_is_located(tmp_path):
     p = tmp_path / "jobs.txt"
     p.write_text("faixa.xyz P704 677757.8 7183482.0 0.15\n")
     with pytest.raises(ExtractionError, match=r"jobs.txt:1: 5 fields, expected 6"):
+        read_jobs(p)
+    p.write_text("faixa.xyz P704 677757.8 7183482.0 0.15 0\n")
+    with pytest.raises(ExtractionError, match=r"jobs.txt:1: field 'radius': must be positive \(got 0\)"):
         read_jobs(p)
     p.write_text("faixa.xyz P704 677757.8 x 0.15 5.0\n")
     r = CliRunner().invoke(cli, ["extract", str(p)])
@@ -129,6 +137,13 @@ def test_bad_job_file_is_located(tmp_path):
     assert (jobs[0].sd_en_m, jobs[0].sd_h_m) == (0.03, 0.05) and jobs[1].sd_en_m is None
     c.write_text("point,E,N,sd_en_m,sd_h_m\nA,1.0,2.0,0.03,0.05\nB,1.0,2.0,0,0.05\n")
     with pytest.raises(ExtractionError, match=r"jobs.csv:3: field 'sd_en_m': must be positive"):
+        read_jobs(c)
+    # a zero radius or negative threshold in a CSV job is located too (was a traceback / silent no_planes)
+    c.write_text("point,E,N,radius_m,threshold_m\nA,1.0,2.0,0,\n")
+    with pytest.raises(ExtractionError, match=r"jobs.csv:2: field 'radius_m': must be positive \(got 0\)"):
+        read_jobs(c)
+    c.write_text("point,E,N,radius_m,threshold_m\nA,1.0,2.0,6,-0.15\n")
+    with pytest.raises(ExtractionError, match=r"jobs.csv:2: field 'threshold_m': must be positive \(got -0.15\)"):
         read_jobs(c)
 
 

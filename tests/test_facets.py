@@ -144,6 +144,8 @@ def test_presets():
         get_params("x")
     with pytest.raises(ValueError, match="method must be one of region, ransac, thesis, got 'hough'"):
         ExtractionParams(method="hough")
+    with pytest.raises(ValueError, match="residual_threshold_m must be positive, got -0.15"):
+        get_params("thesis", residual_threshold_m=-0.15)
 
 
 # ----------------------------------------------------------------- grouping

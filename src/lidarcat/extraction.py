@@ -84,7 +84,7 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
             sdh = t.floats("sd_h_m", required=False)
         except LidarcatError as ex:
             raise ExtractionError(str(ex)) from ex
-        for col, vals in (("sd_en_m", sde), ("sd_h_m", sdh)):
+        for col, vals in (("threshold_m", thr), ("radius_m", rad), ("sd_en_m", sde), ("sd_h_m", sdh)):
             bad = np.flatnonzero(~(np.isnan(vals) | (vals > 0)))
             if len(bad):
                 raise ExtractionError(f"{location(path, t.lines[bad[0]], col)}: must be positive "
@@ -113,8 +113,9 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
                 vals.append(float(f[k].replace(",", ".")))
             except ValueError:
                 raise ExtractionError(f"{location(path, lineno, names[k])}: {f[k]!r} is not a number") from None
-        if vals[2] <= 0 or vals[3] <= 0:
-            raise ExtractionError(f"{location(path, lineno)}: threshold and radius must be positive")
+        for k, v in ((4, vals[2]), (5, vals[3])):
+            if not v > 0:
+                raise ExtractionError(f"{location(path, lineno, names[k])}: must be positive (got {v:g})")
         jobs.append(Job(f[1], vals[0], vals[1], vals[2], vals[3], path.parent / f[0], lineno))
     if not jobs:
         raise ExtractionError(f"{path}: no jobs (expected lines like "
@@ -133,16 +134,11 @@ class _Source:
         self._index = None
         self._per_file: dict[Path, Any] = {}
 
-    def _build(self, paths: Sequence[Any]):
+    def query(self, job: Job, radius_m: float):
         from .lidar import TileIndex
 
-        return TileIndex.build(paths, crs=self.crs)
-
-    def query(self, job: Job, radius_m: float):
         if self.lidar:
             if self._index is None:
-                from .lidar import TileIndex
-
                 self._index = TileIndex.build(self.lidar, crs=self.crs, cache_path=self.index_cache)
             idx = self._index
         else:
@@ -151,7 +147,7 @@ class _Source:
             if job.file not in self._per_file:
                 if not job.file.exists():
                     raise ExtractionError(f"job {job.point} (line {job.line}): point file {job.file} not found")
-                self._per_file[job.file] = self._build([job.file])
+                self._per_file[job.file] = TileIndex.build([job.file], crs=self.crs)
             idx = self._per_file[job.file]
         return idx.query_radius((job.e_m, job.n_m), radius_m)
 

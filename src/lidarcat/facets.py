@@ -363,6 +363,8 @@ class ExtractionParams:
             raise ValueError("min_points must be >= 4 (a plane has 3 degrees of freedom)")
         if self.sd_en_m <= 0 or self.sd_h_m <= 0:
             raise ValueError("sd_en_m and sd_h_m must be positive")
+        if self.residual_threshold_m is not None and not self.residual_threshold_m > 0:
+            raise ValueError(f"residual_threshold_m must be positive, got {self.residual_threshold_m}")
         if self.max_offset_m is not None and self.max_offset_m <= 0:
             raise ValueError(f"max_offset_m must be positive, got {self.max_offset_m}")
 

@@ -66,6 +66,11 @@ def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, pl
     """Roof planes to control points (Delaunay facets + plane intersection)."""
     from ..facets import get_params
 
+    if radius is not None and not radius > 0:
+        raise click.BadParameter(f"must be positive (m), got {radius:g}", param_hint="--radius")
+    if box is not None and not (box[0] < box[2] and box[1] < box[3]):
+        raise click.BadParameter(f"{' '.join(f'{v:g}' for v in box)}: need XMIN < XMAX and YMIN < YMAX",
+                                 param_hint="--box")
     params = get_params(preset, radius_m=radius)
     modes = sum([jobs is not None, at is not None, bool(find)])
     if modes != 1:
