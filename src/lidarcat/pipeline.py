@@ -722,11 +722,11 @@ def run_pipeline(
     return PipelineResult(out, tuple(records), summary)
 
 
-def _summary(survey: Any, out: Path, records: Sequence[StageRecord], seconds: float) -> dict:
+def _results(records: Iterable[StageRecord]) -> dict[str, Any]:
+    """``runs``, ``comparison`` and ``extraction`` of the done stages (summary.json and the report)."""
     runs: dict[str, Any] = {}
     comparison: dict[str, Any] = {}
     extraction = None
-    report = None
     for r in records:
         if not r.done:
             continue
@@ -743,8 +743,11 @@ def _summary(survey: Any, out: Path, records: Sequence[StageRecord], seconds: fl
             comparison[r.name[8:]] = dict(r.result)
         elif r.name == "extract":
             extraction = dict(r.result)
-        elif r.name == "report":
-            report = r.result.get("index")
+    return {"runs": runs, "comparison": comparison, "extraction": extraction}
+
+
+def _summary(survey: Any, out: Path, records: Sequence[StageRecord], seconds: float) -> dict:
+    report = next((r.result.get("index") for r in records if r.name == "report" and r.done), None)
     return {
         "lidarcat_version": __version__,
         "survey": {"name": survey.name, "root": str(survey.root), "crs": survey.crs,
@@ -757,9 +760,7 @@ def _summary(survey: Any, out: Path, records: Sequence[StageRecord], seconds: fl
         "stages_reused": [r.name for r in records if r.status == "reused"],
         "stages_skipped": [r.name for r in records if r.status == "skipped"],
         "seconds": round(seconds, 3),
-        "runs": runs,
-        "comparison": comparison,
-        "extraction": extraction,
+        **_results(records),
         "report": report,
     }
 
@@ -1083,23 +1084,14 @@ def _stage_report(ctx: _Context, tmp: Path) -> dict:
         state = "done" if rec and rec.done else rec.status if rec else "not run"
         rows.append({"stage": st.name, "what": st.description, "state": state,
                      "reason": rec.reason if rec and not rec.done else ""})
-    doc = {"survey": survey.name, "stages": rows, "runs": {}, "comparison": {}, "reports": {},
-           "extraction": dict(ctx.result("extract")) if ctx.done("extract") else None}
-    for st in plan:
-        if not ctx.done(st.name):
-            continue
-        if st.name.startswith("adjust-"):
-            doc["runs"].setdefault(st.name[7:], {})["adjustment"] = ctx.result(st.name).get("adjustment")
-        elif st.name.startswith("assess-"):
-            doc["runs"].setdefault(st.name[7:], {})["check"] = ctx.result(st.name).get("check")
-            if (ctx.folder(st.name) / "report.html").is_file():
-                doc["reports"][st.name[7:]] = f"../{ctx.records[st.name].folder}/report.html"
-        elif st.name.startswith("compare-"):
-            cmp_ = dict(ctx.result(st.name))
-            eo_path = ctx.folder(st.name) / "eop_differences.csv"
-            if eo_path.is_file() and cmp_.get("n_photos", 0) <= 50:
-                cmp_["eop_per_photo"] = {p: v.tolist() for p, v in _read_photo_rows(eo_path, _EOP_DIFF).items()}
-            doc["comparison"][st.name[8:]] = cmp_
+    doc = {"survey": survey.name, "stages": rows,
+           **_results(ctx.records[st.name] for st in plan if st.name in ctx.records)}
+    doc["reports"] = {name: f"../{run['report']}" for name, run in doc["runs"].items()
+                      if "report" in run and (ctx.outdir / run["report"]).is_file()}
+    for name, cmp_ in doc["comparison"].items():
+        eo_path = ctx.folder(f"compare-{name}") / "eop_differences.csv"
+        if eo_path.is_file() and cmp_.get("n_photos", 0) <= 50:
+            cmp_["eop_per_photo"] = {p: v.tolist() for p, v in _read_photo_rows(eo_path, _EOP_DIFF).items()}
     write_json_atomic(tmp / "report.json", doc)
     md = _report_markdown(doc)
     from ._io import write_text_atomic
