@@ -888,8 +888,7 @@ def write_report(outdir_or_path: str | os.PathLike, *, assessment: Any = None, a
         "comparison": (comparison[1].to_dict() if isinstance(comparison, tuple) and hasattr(comparison[1], "to_dict")
                        else comparison.to_dict() if hasattr(comparison, "to_dict") else comparison),
     }
-    figures = [(name, png) for _, _, blocks in doc.sections for kind, (name, png, *_r) in
-               ((k, v) for k, v in blocks if k == "figure")]
+    figures = [val[:2] for _, _, blocks in doc.sections for kind, val in blocks if kind == "figure"]  # (name, png)
     with atomic_dir(folder) as tmp:
         (tmp / f"{stem}.html").write_text(html_text, encoding="utf-8")
         (tmp / f"{stem}.md").write_text(md_text, encoding="utf-8")
