@@ -60,6 +60,7 @@ import scipy.sparse.linalg as spla
 from scipy import stats
 
 from ._collinearity import block_sum, project, project_with_jacobians, rotation_matrix
+from ._frozen import frozen_array
 from .errors import DatumError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -103,11 +104,11 @@ STATUS_MESSAGES: dict[str, str] = {
 
 
 def _frozen_array(a: Any, shape_tail: tuple[int, ...], name: str, dtype=float) -> np.ndarray:
-    arr = np.array(a, dtype=dtype, copy=True)
+    """:func:`frozen_array` of shape (n, *shape_tail*), any n; the error names *name*."""
+    arr = frozen_array(a, dtype=dtype)
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
         raise ValueError(f"`{name}` must have shape (n, {', '.join(map(str, shape_tail))})"
                          if shape_tail else f"`{name}` must be one-dimensional")
-    arr.setflags(write=False)
     return arr
 
 
@@ -148,19 +149,15 @@ class ExteriorOrientation:
     cov: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        pos = np.array(self.position_m, dtype=float).reshape(3)
-        ang = np.array(self.angles_rad, dtype=float).reshape(3)
+        pos = frozen_array(np.reshape(self.position_m, 3))
+        ang = frozen_array(np.reshape(self.angles_rad, 3))
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(ang))):
             raise ValueError(f"exterior orientation of photo {self.photo!r} is not finite")
-        pos.setflags(write=False)
-        ang.setflags(write=False)
         object.__setattr__(self, "position_m", pos)
         object.__setattr__(self, "angles_rad", ang)
         object.__setattr__(self, "photo", str(self.photo))
         if self.cov is not None:
-            cov = np.array(self.cov, dtype=float).reshape(6, 6)
-            cov.setflags(write=False)
-            object.__setattr__(self, "cov", cov)
+            object.__setattr__(self, "cov", frozen_array(np.reshape(self.cov, (6, 6))))
 
     @property
     def angles_deg(self) -> np.ndarray:
@@ -198,9 +195,7 @@ class ExteriorOrientation:
 
 
 def _str_array(a: Sequence[Any]) -> np.ndarray:
-    arr = np.array([str(v) for v in a], dtype=object)
-    arr.setflags(write=False)
-    return arr
+    return frozen_array([str(v) for v in a], dtype=object)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -312,11 +307,10 @@ class BundleProblem:
             role = np.full(n_pt, "tie", dtype=object)
             role[self.constraint_point_index] = "control"
         else:
-            role = np.array([str(r) for r in self.point_role], dtype=object)
+            role = _str_array(self.point_role)
             if len(role) != n_pt:
                 raise ValueError("`point_role` must have one entry per point")
-        role.setflags(write=False)
-        s(self, "point_role", role)
+        s(self, "point_role", frozen_array(role, dtype=None))
 
     @property
     def n_photos(self) -> int:
@@ -460,9 +454,7 @@ class BundleResult:
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
             if isinstance(v, np.ndarray):
-                v = v.copy()
-                v.setflags(write=False)
-                object.__setattr__(self, f.name, v)
+                object.__setattr__(self, f.name, frozen_array(v, dtype=None))
 
     @property
     def eo_sd(self) -> np.ndarray:
