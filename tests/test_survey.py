@@ -110,6 +110,11 @@ def test_thesis_block_counts(thesis):
     assert thesis.tie_points == ("401", "403", "405", "406", "407", "408", "409", "410", "411",
                                  "412", "413", "414", "415", "416", "418")
     assert thesis.lidar_paths == () and thesis.extraction_jobs is None
+    root = thesis_survey_path()
+    assert thesis.files == {"camera": root / "camera.toml", "photos": root / "photos.csv",
+                            "ground_points": root / "ground_points.csv",
+                            "image_points": root / "image_points.csv",
+                            "control_sets": root / "control_sets.csv"}
 
 
 def test_image_points_are_appendix1(thesis):

@@ -570,6 +570,9 @@ class Survey:
         The ``[assessment]`` table (map scale, contour interval, test level).
     embedded : bool
         True for the embedded thesis block (``Survey.load()``).
+    files : dict[str, Path]
+        The input files named in ``[files]`` (``camera``, ``photos``, ...; the
+        LiDAR tiles are ``lidar_paths``), resolved against the folder.
     """
 
     root: Path
@@ -590,6 +593,7 @@ class Survey:
     settings: AdjustmentSettings
     assessment: AssessmentSettings = field(default_factory=AssessmentSettings)
     embedded: bool = False
+    files: dict[str, Path] = field(default_factory=dict)
 
     # ------------------------------------------------------------ load
     @classmethod
@@ -627,6 +631,8 @@ class Survey:
         height_system = t.get("survey", "height_system", str, "unspecified")
         default_control = t.get("survey", "default_control", str, None)
 
+        files: dict[str, Path] = {}
+
         def file_of(key: str) -> Path | None:
             rel = t.get("files", key, str, None)
             if rel is None:
@@ -634,6 +640,7 @@ class Survey:
             p = Path(rel) if Path(rel).is_absolute() else root / rel
             if not p.is_file():
                 raise t.err("files", key, f"file {rel!r} not found ({p})")
+            files[key] = p
             return p
 
         camera_path = file_of("camera")
@@ -702,8 +709,7 @@ class Survey:
                      cameras=cameras, photos=photos, image_points=image_points,
                      ground_points=ground, control_sets=control_sets, lidar_paths=lidar_paths,
                      lidar_crs=lidar_crs, extraction_jobs=jobs_path, settings=settings,
-                     assessment=assessment,
-                     embedded=embedded)
+                     assessment=assessment, embedded=embedded, files=files)
         log.info("loaded survey %r: %d photos, %d measurements, %d ground points, control sets %s",
                  name, len(photos), len(image_points), len(ground), ", ".join(control_sets) or "-")
         return survey
