@@ -3,7 +3,7 @@
 Generates a synthetic survey (terrain + box houses with gable roofs + noise;
 intensity, returns, classes, GPS time) as square LAZ (or LAS) tiles in a
 temporary folder, then measures, each phase in a fresh subprocess so that its
-peak resident memory (ru_maxrss) is its own:
+peak resident memory (VmHWM of /proc/self/status) is its own:
 
 ``index``    TileIndex.build over all tiles (headers only)
 ``stream``   every point of the survey streamed chunk by chunk (bounded memory)
@@ -153,8 +153,7 @@ def _block_index(folder: Path, prefix: str) -> dict:
 def phase_stream(folder: Path, args) -> dict:
     from lidarcat.lidar import TileIndex
 
-    idx = TileIndex.build(str(folder / "tile_*"), max_cached_points=0)
-    idx._chunk_size = args.chunk
+    idx = TileIndex.build(str(folder / "tile_*"), max_cached_points=0, chunk_size=args.chunk)
     t = time.perf_counter()
     n = 0
     zmax = -np.inf
@@ -229,7 +228,8 @@ def phase_clip(folder: Path, args) -> dict:
     t = time.perf_counter()
     reps = 50
     for k in range(reps):
-        clip(pc, ((b.xmin + b.xmax) / 2 + k, (b.ymin + b.ymax) / 2), 5.0, height_filter=None, min_points=0)
+        x = (b.xmin + b.xmax) / 2 + k * (b.xmax - b.xmin) / (2 * reps)  # inside the tile, whatever its size
+        clip(pc, (x, (b.ymin + b.ymax) / 2), 5.0, height_filter=None, min_points=0)
     dt = time.perf_counter() - t
     out["in_memory"] = {"points": len(pc), "clips_per_s": reps / dt, "points_scanned_per_s": reps * len(pc) / dt}
     return out

@@ -92,6 +92,9 @@ def test_iter_points_chunks_bounded_and_complete():
     assert sum(len(c) for c in chunks) == 208_432
     whole = read_points(AHN2)
     np.testing.assert_array_equal(PointCloud.concat(chunks).xyz, whole.xyz)
+    # a tile index streams a tile too big for its memory budget in chunks of chunk_size
+    idx = TileIndex.build([AHN2], crs=RD, max_cached_points=0, chunk_size=50_000)
+    assert [len(c) for c in idx.iter_points()] == [50_000] * 4 + [8_432]
 
 
 # --------------------------------------------------------------------------- clip across the tile boundary

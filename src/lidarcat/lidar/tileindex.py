@@ -471,7 +471,7 @@ class TileIndex:
     @classmethod
     def build(cls, paths_or_globs: str | os.PathLike | Iterable[str | os.PathLike], *, crs: Any = None,
               cache_path: str | os.PathLike | None = None, root: str | os.PathLike | None = None,
-              columns: Any = None, delimiter: str | None = None,
+              columns: Any = None, delimiter: str | None = None, chunk_size: int | None = None,
               progress: Callable[[int], Any] | None = None,
               max_cached_points: int = 8_000_000, decode: str = "auto", blocks: bool = False,
               block_points: int = DEFAULT_BLOCK_POINTS,
@@ -490,6 +490,9 @@ class TileIndex:
             changed.
         columns, delimiter
             For text tiles (see :mod:`lidarcat.lidar.readers`).
+        chunk_size : int, optional
+            Points per chunk when streaming tiles too large to keep in memory
+            (default :data:`~lidarcat.lidar.readers.DEFAULT_CHUNK_SIZE`).
         progress : callable, optional
             Called with the bytes of each tile indexed (or reused), and with
             those of each tile read for its block index.
@@ -550,7 +553,7 @@ class TileIndex:
                                f"{crs_label(given)} was given; drop the CRS option or transform the file")
             tile_crs.append((str(t.path), file_crs if file_crs is not None else given))
         common = common_crs(tile_crs)
-        idx = cls(tiles, common, columns=columns, delimiter=delimiter,
+        idx = cls(tiles, common, columns=columns, delimiter=delimiter, chunk_size=chunk_size,
                   max_cached_points=max_cached_points, decode=decode, block_points=block_points,
                   cell_points=cell_points,
                   blocks=known_blocks, cache_path=cache_path)
