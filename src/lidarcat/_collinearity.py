@@ -36,8 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["block_sum", "rotation_matrix", "rotation_and_derivatives", "project", "project_with_jacobians",
-           "angles_from_matrix"]
+__all__ = ["block_sum", "rotation_matrix", "rotation_and_derivatives", "project", "project_with_jacobians"]
 
 
 def _elementary(angles_rad: np.ndarray):
@@ -86,17 +85,6 @@ def rotation_and_derivatives(angles_rad: np.ndarray) -> tuple[np.ndarray, np.nda
     m = r32 @ r1
     dm = np.stack([r32 @ d1, r3 @ d2 @ r1, d3 @ r2 @ r1], axis=1)
     return m, dm
-
-
-def angles_from_matrix(m: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`rotation_matrix` (phi in [-90, 90] deg), (n, 3) radians."""
-    m = np.asarray(m, dtype=float).reshape(-1, 3, 3)
-    # m31 = sin(phi), m32 = -sin(omega) cos(phi), m33 = cos(omega) cos(phi),
-    # m11 = cos(phi) cos(kappa), m21 = -cos(phi) sin(kappa)
-    phi = np.arcsin(np.clip(m[:, 2, 0], -1.0, 1.0))
-    omega = np.arctan2(-m[:, 2, 1], m[:, 2, 2])
-    kappa = np.arctan2(-m[:, 1, 0], m[:, 0, 0])
-    return np.stack([omega, phi, kappa], axis=1)
 
 
 def project(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
