@@ -85,8 +85,10 @@ def compare(survey: str, outdir: str | None, as_json: bool) -> None:
     Prints, per run, the largest and the RMS normalised error z = error / sd of
     the exterior orientations and of the free points (RMS near 1 when the
     reported standard deviations are honest), the check-point statistic
-    sum d^2 / (sd_adjusted^2 + sd_gps^2) with its degrees of freedom, and the
-    error of every extracted roof vertex.
+    d'C^-1d (C: joint covariance of the adjusted check points + GPS variances;
+    chi-square with 3 x check points degrees of freedom) beside the sum
+    d^2 / (sd_adjusted^2 + sd_gps^2) that ignores the correlations, and the
+    error of every extracted roof vertex (m, and in units of its sd).
 
     \b
     Example:
