@@ -298,6 +298,8 @@ ONE_EDIT_ERRORS = [
      "observations", "'raw' is not one of 'corrected', 'pixel'"),
     ("survey.toml", "image_sd_mm = 0.006", 'image_sd_mm = "0.006"', "image_sd_mm =", "image_sd_mm",
      "expected int/float"),
+    ("survey.toml", "image_sd_mm = 0.006", "image_sd_mm = true", "image_sd_mm =", "image_sd_mm",
+     "expected int/float, got True$"),
     ("survey.toml", "image_sd_mm = 0.006", "image_sd_mm = -0.006", "image_sd_mm =", "image_sd_mm",
      "must be positive"),
     ("survey.toml", "image_sd_mm = 0.006", "image_sd_mm = nan", "image_sd_mm =", "image_sd_mm",

@@ -408,9 +408,7 @@ class _Toml:
             return default
         v = tab[key]
         kinds = kind if isinstance(kind, tuple) else (kind,)
-        if isinstance(v, bool) and bool not in kinds:
-            raise self.err(table, key, f"expected {'/'.join(k.__name__ for k in kinds)}, got {v!r}")
-        if not isinstance(v, kinds):
+        if not isinstance(v, kinds) or (isinstance(v, bool) and bool not in kinds):  # TOML true is no int
             raise self.err(table, key, f"expected {'/'.join(k.__name__ for k in kinds)}, got {v!r}")
         if isinstance(v, str) and not v.strip() and key != "description":
             raise self.err(table, key, "must not be empty")

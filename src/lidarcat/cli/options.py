@@ -6,15 +6,10 @@ import click
 
 from .._io import dumps_json
 
-__all__ = ["json_opt", "outdir_opt", "survey_arg", "echo_json"]
+__all__ = ["json_opt", "survey_arg", "echo_json"]
 
 json_opt = click.option("--json", "as_json", is_flag=True,
                         help="Print results as one JSON object (sorted keys) instead of text.")
-
-
-def outdir_opt(default: str | None = None, help: str = "Output folder (created; files written atomically)."):
-    return click.option("-o", "--outdir", type=click.Path(file_okay=False), default=default,
-                        show_default=default is not None, help=help)
 
 
 survey_arg = click.argument("survey", required=False, type=click.Path(exists=True),
