@@ -559,15 +559,22 @@ def test_png_preview_written(tmp_path):
     pc = _grid_cloud()
     grid, t = rasterize(pc, 1.0, "dsm")
     p = write_png_preview(tmp_path / "g.png", grid, t, "dsm")
-    assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    data = p.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    # 7.5 in wide, 6 in x (3 rows / 4 cols) + 0.6 in for the title, at 120 dpi
+    assert struct.unpack(">II", data[16:24]) == (900, 612)
     assert not list(tmp_path.glob(".*part"))
 
 
 # --------------------------------------------------------------------------- PointCloud
 def test_pointcloud_is_immutable_and_validates():
     pc = PointCloud(np.zeros((2, 3)), {"intensity": [1, 2]})
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         pc.xyz[0, 0] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        pc.attributes["intensity"][0] = 7
+    with pytest.raises(TypeError):
+        pc.attributes["gps_time"] = np.zeros(2)  # the mapping itself is read-only
     with pytest.raises(ValueError, match=r"attribute 'intensity' has shape \(3,\), expected \(2,\)"):
         PointCloud(np.zeros((2, 3)), {"intensity": [1, 2, 3]})
     with pytest.raises(ValueError, match=r"xyz must have shape \(N, 3\)"):
