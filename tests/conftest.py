@@ -1,4 +1,5 @@
-"""Shared fixtures and paths. BLAS is pinned to one thread before numpy loads."""
+"""Shared paths (import them: ``from conftest import ROOT``). BLAS is pinned to one thread
+before numpy loads."""
 
 from __future__ import annotations
 
@@ -13,23 +14,9 @@ import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 
-import pytest  # noqa: E402
-
 TESTS = Path(__file__).resolve().parent
 ROOT = TESTS.parent
 DATA = TESTS / "data"
 THESIS_TABLES = DATA / "thesis"
 THESIS_SURVEY = ROOT / "data" / "thesis"
 LIDAR_DATA = DATA / "lidar"
-
-
-@pytest.fixture(scope="session")
-def thesis_survey_dir() -> Path:
-    """The embedded thesis survey folder (read-only: copy it before writing)."""
-    return THESIS_SURVEY
-
-
-@pytest.fixture(scope="session")
-def thesis_tables() -> Path:
-    """Folder of the published thesis tables the tests compare with."""
-    return THESIS_TABLES
