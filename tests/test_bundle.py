@@ -136,10 +136,19 @@ def test_problem_validation():
     BundleProblem(**kw)
     with pytest.raises(ValueError, match="duplicate photo id"):
         BundleProblem(**{**kw, "photo_ids": ["a", "a"]})
-    with pytest.raises(ValueError, match="`point_index` out of range"):
-        BundleProblem(**{**kw, "point_index": [0, 1]})
     with pytest.raises(ValueError, match="`sd_mm` must be positive"):
         BundleProblem(**{**kw, "sd_mm": 0.0})
+    with pytest.raises(ValueError, match=r"^`point_index` out of range of `point_ids`: 1 \(there are 1\)$"):
+        BundleProblem(**{**kw, "point_index": [0, 1]})
+    # a negative index would silently wrap to the last point
+    with pytest.raises(ValueError, match=r"^`constraint_point_index` out of range of `point_ids`: -1 "):
+        BundleProblem(**{**kw, "constraint_point_index": [-1], "constraint_enh_m": np.zeros((1, 3)),
+                         "constraint_sd_m": 0.1})
+    eo = dict(eo_constraint_photo_index=[2], eo_constraint_params=np.zeros((1, 6)), eo_constraint_sd=1.0)
+    with pytest.raises(ValueError, match=r"^`eo_constraint_photo_index` out of range of `photo_ids`: 2 "):
+        BundleProblem(**kw, **eo)
+    with pytest.raises(ValueError, match=r"^`eo_constraint_sd` must be positive \(use inf for a free "):
+        BundleProblem(**kw, **{**eo, "eo_constraint_photo_index": [1], "eo_constraint_sd": 0.0})
 
 
 def test_chi2_bounds_exact_and_fisher():

@@ -194,6 +194,12 @@ class ExteriorOrientation:
         return project(eo, xyz, np.full(len(xyz), float(focal_length_mm)))[0]
 
 
+def _check_range(index: np.ndarray, n: int, name: str, of: str) -> None:
+    bad = (index < 0) | (index >= n)
+    if bad.any():
+        raise ValueError(f"`{name}` out of range of `{of}`: {int(index[bad][0])} (there are {n})")
+
+
 def _str_array(a: Sequence[Any]) -> np.ndarray:
     return frozen_array([str(v) for v in a], dtype=object)
 
@@ -273,10 +279,8 @@ class BundleProblem:
                                        (2,), "sd_mm"))
         if len(self.point_index) != n or len(self.xy_mm) != n:
             raise ValueError("`photo_index`, `point_index`, `xy_mm` and `sd_mm` must have the same length")
-        if n and (self.photo_index.min() < 0 or self.photo_index.max() >= n_ph):
-            raise ValueError("`photo_index` out of range of `photo_ids`")
-        if n and (self.point_index.min() < 0 or self.point_index.max() >= n_pt):
-            raise ValueError("`point_index` out of range of `point_ids`")
+        _check_range(self.photo_index, n_ph, "photo_index", "photo_ids")
+        _check_range(self.point_index, n_pt, "point_index", "point_ids")
         if not np.all(self.sd_mm > 0):
             raise ValueError("`sd_mm` must be positive")
         s(self, "constraint_point_index",
@@ -289,6 +293,7 @@ class BundleProblem:
         if np.any(sd <= 0):
             raise ValueError("`constraint_sd_m` must be positive (use inf for a free axis)")
         s(self, "constraint_sd_m", _frozen_array(sd, (3,), "constraint_sd_m"))
+        _check_range(self.constraint_point_index, n_pt, "constraint_point_index", "point_ids")
         if len(set(self.constraint_point_index.tolist())) != k:
             raise ValueError("a point is constrained twice in `constraint_point_index`")
         if self.eo_constraint_photo_index is not None:
@@ -300,7 +305,10 @@ class BundleProblem:
                                                           (6,), "eo_constraint_params"))
             esd = np.array(np.broadcast_to(np.asarray(self.eo_constraint_sd, dtype=float), (e, 6)))
             esd[~np.isfinite(esd)] = np.inf
+            if np.any(esd <= 0):
+                raise ValueError("`eo_constraint_sd` must be positive (use inf for a free parameter)")
             s(self, "eo_constraint_sd", _frozen_array(esd, (6,), "eo_constraint_sd"))
+            _check_range(self.eo_constraint_photo_index, n_ph, "eo_constraint_photo_index", "photo_ids")
         if self.initial_eo is not None:
             s(self, "initial_eo", _frozen_array(np.reshape(self.initial_eo, (n_ph, 6)), (6,), "initial_eo"))
         if self.point_role is None:
@@ -1379,7 +1387,9 @@ RESIDUAL_COLUMNS = ("kind", "photo", "point", "vx_mm", "vy_mm", "vE_m", "vN_m", 
 
 
 def write_adjustment(result: BundleResult, folder, extra: dict | None = None) -> dict:
-    """Write ``eop.csv``, ``points.csv``, ``residuals.csv`` and ``summary.json`` into *folder*.
+    """Write ``eop.csv``, ``points.csv``, ``residuals.csv`` and ``summary.json`` into *folder*,
+    and ``check_covariance.csv`` (:func:`read_point_covariance`) when the adjustment converged
+    with 1 to :data:`MAX_JOINT_COVARIANCE_POINTS` check points.
 
     Each file is written atomically; wrap the call in :func:`lidarcat._io.atomic_dir`
     to make the whole folder appear at once.  Returns the summary dict written.
