@@ -527,22 +527,7 @@ _COMPONENTS = ("E", "N", "h")
 
 def _survey_files(survey: Any, *, lidar: bool = True) -> list[Path]:
     """survey.toml and every file it names (LiDAR tiles when *lidar*), for hashing."""
-    import tomllib
-
-    root = survey.root
-    files = [survey.toml_path]
-    try:
-        data = tomllib.loads(survey.toml_path.read_text(encoding="utf-8-sig"))
-    except (OSError, ValueError):  # pragma: no cover - Survey.load read it already
-        data = {}
-    for key, rel in (data.get("files") or {}).items():
-        if key == "lidar" or not isinstance(rel, str):
-            continue
-        p = Path(rel)
-        files.append(p if p.is_absolute() else root / p)
-    if lidar:
-        files.extend(survey.lidar_paths)
-    return files
+    return [survey.toml_path, *survey.files.values(), *(survey.lidar_paths if lidar else ())]
 
 
 def _safe(name: str) -> str:
@@ -1018,11 +1003,9 @@ def _write_derived_survey(survey: Any, points: Sequence[Any], set_name: str, fol
 
     folder.mkdir(parents=True, exist_ok=True)
     data = tomllib.loads(survey.toml_path.read_text(encoding="utf-8-sig"))
-    files = dict(data.get("files", {}))
-    root = survey.root
     new_files: dict[str, str] = {}
     for key in ("camera", "photos", "image_points"):
-        src = Path(files[key]) if Path(files[key]).is_absolute() else root / files[key]
+        src = survey.files[key]
         shutil.copyfile(src, folder / f"{key}{src.suffix}")
         new_files[key] = f"{key}{src.suffix}"
     measured = set(survey.image_points.point.tolist())
@@ -1042,10 +1025,9 @@ def _write_derived_survey(survey: Any, points: Sequence[Any], set_name: str, fol
                      rows, comments=[f"Ground points of {survey.name} plus the roof vertices extracted "
                                      "by lidarcat run (source lidar)."])
     cs_rows = []
-    cs_key = files.get("control_sets")
-    if cs_key:
-        t = read_csv_table(root / cs_key if not Path(cs_key).is_absolute() else Path(cs_key),
-                           required=("set", "point", "role"), optional=("sd_E", "sd_N", "sd_h"))
+    if "control_sets" in survey.files:
+        t = read_csv_table(survey.files["control_sets"], required=("set", "point", "role"),
+                           optional=("sd_E", "sd_N", "sd_h"))
         for row in t.rows:
             d = dict(zip(t.header, row))
             cs_rows.append([d["set"], d["point"], d["role"], d.get("sd_E", ""), d.get("sd_N", ""),
