@@ -161,6 +161,13 @@ def test_clip_errors_name_position_radius_and_count(ahn_both):
     assert "E=85000.000 N=447472.000" in msg and "radius 0.3 m" in msg and "at least 10" in msg
     n = int((np.hypot(ahn_both.x - HOUSE[0], ahn_both.y - HOUSE[1]) <= 0.3).sum())
     assert f"{n} within 0.3 m" in msg
+    with pytest.raises(ClipError, match=r"clip position must be two finite numbers \(E, N\) in metres, "
+                                        r"got \(85000\.0,\)"):
+        clip(ahn_both, (85000.0,), 5.0)
+    with pytest.raises(ClipError, match=r"clip position must be two finite numbers .* got \[nan, 447472\.0\]"):
+        clip(ahn_both, [float("nan"), 447472.0], 5.0)
+    with pytest.raises(ClipError, match=r"clip radius must be positive, got 0 m"):
+        clip(ahn_both, HOUSE, 0)
 
 
 # --------------------------------------------------------------------------- round trips
@@ -579,6 +586,12 @@ def test_pointcloud_is_immutable_and_validates():
         PointCloud(np.zeros((2, 3)), {"intensity": [1, 2, 3]})
     with pytest.raises(ValueError, match=r"xyz must have shape \(N, 3\)"):
         PointCloud(np.zeros((2, 2)))
+    # a slice or an index array gives an independent, read-only copy
+    part = pc.select(slice(1, 2))
+    assert len(part) == 1 and part.xyz.base is None and not part.xyz.flags.writeable
+    assert pc.select(np.array([1, 1])).attributes["intensity"].tolist() == [2, 2]
+    with pytest.raises(ValueError, match=r"mask has shape \(3,\), expected \(2,\)"):
+        pc.select(np.ones(3, bool))
     a = PointCloud(np.ones((1, 3)), {"intensity": [5], "gps_time": [1.0]})
     both = PointCloud.concat([pc, a])
     assert len(both) == 3 and list(both.attributes) == ["intensity"]
@@ -635,6 +648,9 @@ def test_pointcloud_crs_string_is_resolved():
     assert isinstance(pc.crs, pyproj.CRS) and pc.crs.to_epsg() == 7415
     with pytest.raises(CRSError, match="unknown CRS 'EPSG:0'"):
         PointCloud(np.zeros((1, 3)), crs="EPSG:0")
+    assert pc.with_crs("EPSG:28992").crs.to_epsg() == 28992
+    with pytest.raises(CRSError, match="unknown CRS 'EPSG:0'"):
+        pc.with_crs("EPSG:0")
 
 
 def test_query_outside_every_tile_keeps_the_attribute_schema(tmp_path):

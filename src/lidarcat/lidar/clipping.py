@@ -158,7 +158,8 @@ def clip(source: PointCloud | TileIndex | str | os.PathLike | Iterable[str | os.
     ------
     ClipError
         Fewer than *min_points* points remain (the message names the position,
-        the radius, and the count at each step).
+        the radius, and the count at each step); a position that is not two
+        finite numbers; a radius that is not positive.
     CRSError
         The position's CRS cannot be related to the data's.
     LidarFormatError
@@ -169,7 +170,9 @@ def clip(source: PointCloud | TileIndex | str | os.PathLike | Iterable[str | os.
         raise ValueError(f"unknown height_filter {height_filter!r}; use 'thesis', 'robust' or None")
     if not radius_m > 0:
         raise ClipError(f"clip radius must be positive, got {radius_m} m")
-    center = np.asarray(center_en, dtype=np.float64)[:2]
+    center = np.asarray(center_en, dtype=np.float64).ravel()[:2]
+    if len(center) != 2 or not np.isfinite(center).all():
+        raise ClipError(f"clip position must be two finite numbers (E, N) in metres, got {center_en!r}")
     q_crs = resolve_crs(crs)
     if isinstance(source, PointCloud):
         data_crs = source.crs

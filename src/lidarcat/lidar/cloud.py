@@ -208,18 +208,25 @@ class PointCloud:
         """A new cloud holding the points selected by a boolean mask, an index array or a slice."""
         if not isinstance(mask, slice):
             mask = np.asarray(mask)
-        if not isinstance(mask, slice) and mask.dtype == bool and mask.shape != (len(self),):
-            raise ValueError(f"mask has shape {mask.shape}, expected ({len(self)},)")
-        if isinstance(mask, slice):
-            return PointCloud(self.xyz[mask], {k: v[mask] for k, v in self.attributes.items()}, self.crs)
+            if mask.dtype == bool and mask.shape != (len(self),):
+                raise ValueError(f"mask has shape {mask.shape}, expected ({len(self)},)")
         return PointCloud._owned(self.xyz[mask], {k: v[mask] for k, v in self.attributes.items()}, self.crs)
 
     def with_crs(self, crs: Any) -> PointCloud:
-        """The same points labelled with *crs* (no transformation)."""
+        """The same points labelled with *crs* (no transformation; a string such as
+        ``"EPSG:7415"`` is resolved).
+
+        Raises
+        ------
+        CRSError
+            *crs* is not a CRS pyproj knows.
+        """
+        from .crs import resolve_crs
+
         obj = object.__new__(PointCloud)
         object.__setattr__(obj, "xyz", self.xyz)
         object.__setattr__(obj, "attributes", self.attributes)
-        object.__setattr__(obj, "crs", crs)
+        object.__setattr__(obj, "crs", resolve_crs(crs))
         return obj
 
     @classmethod
