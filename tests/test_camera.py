@@ -128,6 +128,14 @@ def test_eq06_refraction():
     assert d["dy_ref"] == pytest.approx(y * (1 + r2 / 2500.0) * 1e-5, rel=1e-12)
 
 
+def test_no_negative_zero_in_corrections(thesis_camera):
+    # at the principal point every correction is 0; the tables must not print "-0.0"
+    d = thesis_camera.distortion_corrections([[0.0, -0.0], [-0.0, 0.0]])
+    assert all(not np.signbit(v).any() for v in d.values())
+    # K1 < 0: unguarded, dx_ra = x r^2 K1 at x = r = 0 is 0.0 * -0.0 = -0.0
+    assert np.signbit(0.0 * (0.0 * thesis_camera.k1))
+
+
 def test_single_point_and_shape_errors(thesis_camera):
     assert thesis_camera.pixel_to_photo([1500.0, 2000.0]).shape == (2,)
     assert thesis_camera.pixel_to_photo(np.zeros((0, 2))).shape == (0, 2)

@@ -346,7 +346,8 @@ class Camera:
             "dx_ref": x * ref,
             "dy_ref": y * ref,
         }
-        out = {k: v + 0.0 for k, v in out.items()}  # no -0.0 in tables
+        for v in out.values():  # no -0.0 in tables (in place: the inverse calls this per iteration)
+            v += 0.0
         if single:
             out = {k: v[0] for k, v in out.items()}
         return out
