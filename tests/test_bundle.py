@@ -376,24 +376,33 @@ def test_synthetic_block_truth_within_3_sigma(seed):
     assert abs(r.sigma0_sq - 1) < 3 * np.sqrt(2 / r.dof)
 
 
+def _dense_inverse(r):
+    """N^-1 of the whole (unreduced) normal matrix J'PJ at the solution, built densely: the
+    reference for the selected and joint inverses (photos first, then points)."""
+    p = r.problem
+    n_ph, n_pt = p.n_photos, p.n_points
+    ei, pj = p.photo_index, p.point_index
+    _, a_eo, a_pt, _ = project_with_jacobians(r.eo_params[ei], r.points_m[pj], p.focal_length_mm[ei])
+    nrow = 2 * len(ei) + 3 * len(p.constraint_point_index)
+    J = np.zeros((nrow, 6 * n_ph + 3 * n_pt))
+    w = np.zeros(nrow)
+    for k, (i, j) in enumerate(zip(ei, pj)):
+        J[2 * k:2 * k + 2, 6 * i:6 * i + 6] = a_eo[k]
+        J[2 * k:2 * k + 2, 6 * n_ph + 3 * j:6 * n_ph + 3 * j + 3] = a_pt[k]
+        w[2 * k:2 * k + 2] = 1.0 / p.sd_mm[k] ** 2
+    for m, (j, sd) in enumerate(zip(p.constraint_point_index, p.constraint_sd_m)):
+        row = 2 * len(ei) + 3 * m
+        J[row:row + 3, 6 * n_ph + 3 * j:6 * n_ph + 3 * j + 3] = np.eye(3)
+        w[row:row + 3] = 1.0 / sd ** 2
+    return np.linalg.inv(J.T @ (w[:, None] * J))
+
+
 def test_selected_inverse_equals_dense_inverse():
     b = synthetic_block(2, 4, seed=5, point_spacing_m=120.0)
     p = b.problem
     r = adjust(p)
-    # dense normal matrix of the same linearisation
     n_ph, n_pt = p.n_photos, p.n_points
-    ei, pj = p.photo_index, p.point_index
-    _, a_eo, a_pt, _ = project_with_jacobians(r.eo_params[ei], r.points_m[pj], p.focal_length_mm[ei])
-    J = np.zeros((p.n_observations, 6 * n_ph + 3 * n_pt))
-    for k in range(len(ei)):
-        J[2 * k:2 * k + 2, 6 * ei[k]:6 * ei[k] + 6] = a_eo[k]
-        J[2 * k:2 * k + 2, 6 * n_ph + 3 * pj[k]:6 * n_ph + 3 * pj[k] + 3] = a_pt[k]
-    w = (1 / p.sd_mm**2).ravel()
-    N = J.T @ (J * w[:, None])
-    for j, sd in zip(p.constraint_point_index, p.constraint_sd_m):
-        o = 6 * n_ph + 3 * j
-        N[o:o + 3, o:o + 3] += np.diag(1 / sd**2)
-    Q = np.linalg.inv(N)
+    Q = _dense_inverse(r)
     from lidarcat.bundle import _System
 
     system = _System(p, r.eo_params, r.points_m)
@@ -681,26 +690,6 @@ def test_gnss_ins_datum_without_control_points():
 # --------------------------------------------------------------------------- joint covariance of points
 
 
-def _dense_point_covariance(r):
-    """N^-1 of the whole (unreduced) normal matrix J'PJ, built densely: the reference."""
-    p = r.problem
-    n_ph, n_pt = p.n_photos, p.n_points
-    ei, pj = p.photo_index, p.point_index
-    _, a_eo, a_pt, _ = project_with_jacobians(r.eo_params[ei], r.points_m[pj], p.focal_length_mm[ei])
-    nrow = 2 * len(ei) + 3 * len(p.constraint_point_index)
-    J = np.zeros((nrow, 6 * n_ph + 3 * n_pt))
-    w = np.zeros(nrow)
-    for k, (i, j) in enumerate(zip(ei, pj)):
-        J[2 * k:2 * k + 2, 6 * i:6 * i + 6] = a_eo[k]
-        J[2 * k:2 * k + 2, 6 * n_ph + 3 * j:6 * n_ph + 3 * j + 3] = a_pt[k]
-        w[2 * k:2 * k + 2] = 1.0 / p.sd_mm[k] ** 2
-    for m, (j, sd) in enumerate(zip(p.constraint_point_index, p.constraint_sd_m)):
-        row = 2 * len(ei) + 3 * m
-        J[row:row + 3, 6 * n_ph + 3 * j:6 * n_ph + 3 * j + 3] = np.eye(3)
-        w[row:row + 3] = 1.0 / sd ** 2
-    return np.linalg.inv(J.T @ (w[:, None] * J))[6 * n_ph:, 6 * n_ph:]
-
-
 def test_joint_point_covariance_equals_the_dense_inverse():
     from lidarcat.bundle import joint_point_covariance
 
@@ -710,7 +699,7 @@ def test_joint_point_covariance_equals_the_dense_inverse():
     ids = [str(q) for q in r.point_ids]
     pick = [ids[k] for k in (40, 3, 17, 25, 8)]           # any order, batches smaller than 3k
     C = joint_point_covariance(r, pick, batch=4)
-    full = _dense_point_covariance(r)
+    full = _dense_inverse(r)[6 * r.problem.n_photos:, 6 * r.problem.n_photos:]
     sel = np.concatenate([[3 * ids.index(q) + c for c in range(3)] for q in pick])
     np.testing.assert_allclose(C, full[np.ix_(sel, sel)], rtol=1e-7, atol=1e-12)
     for a, q in enumerate(pick):   # its diagonal blocks are the per-point covariances
