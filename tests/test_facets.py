@@ -148,6 +148,23 @@ def test_presets():
         get_params("thesis", residual_threshold_m=-0.15)
 
 
+def test_robust_height_filter_is_the_lidar_clip_filter():
+    """ExtractionParams(height_filter="robust") is lidarcat.lidar.clip's "robust": +-2 m
+    around the median of the clip's upper half, so the ground 6 m below the eaves goes."""
+    s = synthetic_roof("pyramid", density_m2=4, noise_h_m=0.05, seed=0, slope_deg=30)
+    v = s.vertices[0]
+    cp = extract_roof(s.xyz, v[:2] + 0.4, params=get_params(height_filter="robust"))
+    assert cp, cp.reason
+    np.testing.assert_allclose(cp.enh_m, v, atol=0.15)
+    xyz, _ = cp.labels
+    truth = s.label[cKDTree(s.xyz).query(xyz)[1]]
+    in_clip = np.hypot(*(s.xyz[:, :2] - (v[:2] + 0.4)).T) <= 8.0
+    assert (s.label[in_clip] == LABELS["ground"]).sum() > 300  # the clip does hold ground...
+    assert (truth == LABELS["ground"]).sum() == 0  # ...which the filter removes
+    with pytest.raises(ValueError, match="height_window_m must be positive, got 0"):
+        get_params(height_filter="robust", height_window_m=0)
+
+
 # ----------------------------------------------------------------- grouping
 @pytest.mark.parametrize("method", ["region", "ransac", "thesis"])
 def test_segment_pyramid_finds_four_faces(method):

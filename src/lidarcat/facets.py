@@ -298,9 +298,9 @@ class ExtractionParams:
     method: str = "region"
     #: clip radius around the approximate position (m)
     radius_m: float = 8.0
-    #: height pre-filter: None, "thesis" (clip mean +- window) or "robust"
-    #: (drop points more than window below the clip's 90th height percentile
-    #: minus the roof's height range: keeps roofs, drops ground and low vegetation)
+    #: height pre-filter: None, "thesis" (clip mean +- window) or "robust" (+- window
+    #: around the median of the clip's upper half, the roof): the filters of
+    #: :func:`lidarcat.lidar.clip`, see :func:`lidarcat.lidar.clipping.height_window_mask`
     height_filter: str | None = None
     #: half-width of the thesis height window (m)
     height_window_m: float = 2.0
@@ -357,6 +357,8 @@ class ExtractionParams:
             raise ValueError(f"height_filter must be None, 'thesis' or 'robust', got {self.height_filter!r}")
         if not (0 <= self.slope_min_deg < self.slope_max_deg <= 90):
             raise ValueError("slope window must satisfy 0 <= slope_min_deg < slope_max_deg <= 90")
+        if not self.height_window_m > 0:
+            raise ValueError(f"height_window_m must be positive, got {self.height_window_m}")
         if self.radius_m <= 0:
             raise ValueError(f"radius_m must be positive, got {self.radius_m}")
         if self.min_points < 4:
@@ -682,16 +684,6 @@ def fit_plane(
 
 
 # --------------------------------------------------------------------------- grouping
-def _height_filter(xyz: np.ndarray, p: ExtractionParams) -> np.ndarray:
-    h = xyz[:, 2]
-    if p.height_filter == "thesis":
-        return np.abs(h - h.mean()) <= p.height_window_m
-    if p.height_filter == "robust":
-        top = np.percentile(h, 95)
-        return h >= top - max(p.height_window_m, 1.0) * 4.0
-    return np.ones(len(h), dtype=bool)
-
-
 def _circular_peaks(angles_deg: np.ndarray, weights: np.ndarray, tol_deg: float, max_peaks: int) -> list[float]:
     if len(angles_deg) == 0:
         return []
@@ -1165,6 +1157,7 @@ def extract_roof(
     True
     """
     from .control import ControlPoint, select_vertex
+    from .lidar.clipping import height_window_mask
 
     p = get_params(params, radius_m=radius_m)
     center = np.asarray(center_en, dtype=np.float64).reshape(-1)[:2]
@@ -1180,7 +1173,7 @@ def extract_roof(
         return ControlPoint.failed(point_id, center, "too_few_points",
                                    f"{len(xyz)} points within {p.radius_m:g} m; 3 planes need at "
                                    f"least {3 * p.min_points} (increase the radius or check the position)")
-    xyz = xyz[_height_filter(xyz, p)]
+    xyz = xyz[height_window_mask(xyz[:, 2], p.height_filter, p.height_window_m)]
     if len(xyz) < 3 * p.min_points:
         return ControlPoint.failed(point_id, center, "too_few_points",
                                    f"{len(xyz)} points left after the {p.height_filter} height filter")
