@@ -390,6 +390,13 @@ def test_index_cache_reused_and_refreshed(tmp_path, monkeypatch):
         fresh.query_box(*pc.bounds[:4])
 
 
+def test_unwritable_index_cache_named(tmp_path):
+    blocker = tmp_path / "survey.toml"
+    blocker.write_text("")  # a file where the cache's folder should be
+    with pytest.raises(TileIOError, match=r"survey\.toml/lidar_index\.json: cannot write the tile index"):
+        TileIndex.build([AHN2], crs=RD, cache_path=blocker / "lidar_index.json")
+
+
 def test_query_touches_only_needed_tiles(monkeypatch):
     idx = TileIndex.build([AHN1, AHN2], crs=RD)
     opened = []

@@ -514,7 +514,7 @@ class TileIndex:
         Raises
         ------
         TileIOError
-            Missing files, globs matching nothing.
+            Missing files, globs matching nothing, a *cache_path* that cannot be written.
         LidarFormatError
             A corrupt tile.
         CRSError
@@ -598,7 +598,11 @@ class TileIndex:
             if blocks and t.path in blocks:
                 d["blocks"] = blocks[t.path].to_dict()
             docs.append(d)
-        write_json_atomic(path, {"format": _CACHE_FORMAT, "version": _CACHE_VERSION, "tiles": docs})
+        try:
+            write_json_atomic(path, {"format": _CACHE_FORMAT, "version": _CACHE_VERSION, "tiles": docs})
+        except OSError as ex:
+            raise TileIOError(f"{path}: cannot write the tile index ({ex.strerror or ex}); "
+                              "choose a writable place for it") from ex
 
     def _save_blocks(self) -> None:
         """Write the block indexes to the cache file, merging those another process may
