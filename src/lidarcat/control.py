@@ -36,6 +36,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ._frozen import frozen_array
 from .facets import ExtractionParams, Plane
 
 __all__ = [
@@ -65,12 +66,6 @@ STATUSES: dict[str, str] = {
 
 ROW_FIELDS = ["point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "n_planes", "misclosure_m",
               "status", "reason"]
-
-
-def _ro(a: Any, shape: tuple[int, ...]) -> np.ndarray:
-    arr = np.array(a, dtype=np.float64, copy=True).reshape(shape)
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,16 +119,13 @@ class ControlPoint:
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
             raise ValueError(f"unknown status {self.status!r}")
-        object.__setattr__(self, "enh_m", _ro(self.enh_m, (3,)))
-        object.__setattr__(self, "cov_m2", _ro(self.cov_m2, (3, 3)))
-        object.__setattr__(self, "approx_en", _ro(self.approx_en, (2,)))
+        object.__setattr__(self, "enh_m", frozen_array(self.enh_m, shape=(3,)))
+        object.__setattr__(self, "cov_m2", frozen_array(self.cov_m2, shape=(3, 3)))
+        object.__setattr__(self, "approx_en", frozen_array(self.approx_en, shape=(2,)))
         object.__setattr__(self, "planes", tuple(self.planes))
         object.__setattr__(self, "point_id", str(self.point_id))
         if self.labels is not None:  # (clip xyz, face label per point), kept for figures
-            xyz, lab = (np.array(a, copy=True) for a in self.labels)
-            xyz.setflags(write=False)
-            lab.setflags(write=False)
-            object.__setattr__(self, "labels", (xyz, lab))
+            object.__setattr__(self, "labels", tuple(frozen_array(a, dtype=None) for a in self.labels))
 
     def __bool__(self) -> bool:
         return self.status == "ok"

@@ -80,6 +80,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ._frozen import frozen_array
+
 __all__ = [
     "Plane",
     "ExtractionParams",
@@ -100,14 +102,6 @@ log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------- Plane
-def _ro(a: Any, shape: tuple[int, ...] | None = None) -> np.ndarray:
-    arr = np.array(a, dtype=np.float64, copy=True)
-    if shape is not None and arr.shape != shape:
-        raise ValueError(f"expected shape {shape}, got {arr.shape}")
-    arr.setflags(write=False)
-    return arr
-
-
 @dataclass(frozen=True, eq=False)
 class Plane:
     """A fitted roof plane :math:`n \\cdot x + d = 0` (metres, E N h).
@@ -151,12 +145,12 @@ class Plane:
         if not np.isfinite(norm) or norm == 0.0:
             raise ValueError("plane normal must be a finite non-zero vector")
         sign = -1.0 if n[2] < 0 else 1.0
-        object.__setattr__(self, "n", _ro(sign * n / norm, (3,)))
+        object.__setattr__(self, "n", frozen_array(sign * n / norm, shape=(3,)))
         object.__setattr__(self, "d", float(sign * self.d / norm))
         cov = np.asarray(self.cov, dtype=np.float64).reshape(4, 4)
         # a sign flip of (n, d) leaves the covariance unchanged
-        object.__setattr__(self, "cov", _ro(cov / norm**2, (4, 4)))
-        object.__setattr__(self, "centroid_m", _ro(self.centroid_m, (3,)))
+        object.__setattr__(self, "cov", frozen_array(cov / norm**2, shape=(4, 4)))
+        object.__setattr__(self, "centroid_m", frozen_array(self.centroid_m, shape=(3,)))
 
     # ----------------------------------------------------------- geometry
     @property

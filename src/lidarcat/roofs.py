@@ -37,6 +37,8 @@ from typing import Any
 
 import numpy as np
 
+from ._frozen import frozen_array
+
 __all__ = ["SyntheticScene", "synthetic_roof", "LABELS", "KINDS"]
 
 #: point labels of a scene
@@ -74,9 +76,7 @@ class SyntheticScene:
 
     def __post_init__(self) -> None:
         for name in ("xyz", "label", "strip", "vertices", "vertex_planes"):
-            arr = np.array(getattr(self, name), copy=True)
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+            object.__setattr__(self, name, frozen_array(getattr(self, name), dtype=None))
 
 
 def _roof_height(kind: str, u: np.ndarray, v: np.ndarray, L: float, W: float, t: float, eave: float):
