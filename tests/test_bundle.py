@@ -144,6 +144,9 @@ def test_problem_validation():
     with pytest.raises(ValueError, match=r"^`constraint_point_index` out of range of `point_ids`: -1 "):
         BundleProblem(**{**kw, "constraint_point_index": [-1], "constraint_enh_m": np.zeros((1, 3)),
                          "constraint_sd_m": 0.1})
+    with pytest.raises(ValueError, match=r"^`constraint_sd_m` must be positive \(use inf for a free axis\)$"):
+        BundleProblem(**{**kw, "constraint_point_index": [0], "constraint_enh_m": np.zeros((1, 3)),
+                         "constraint_sd_m": [0.1, 0.0, 0.1]})
     eo = dict(eo_constraint_photo_index=[2], eo_constraint_params=np.zeros((1, 6)), eo_constraint_sd=1.0)
     with pytest.raises(ValueError, match=r"^`eo_constraint_photo_index` out of range of `photo_ids`: 2 "):
         BundleProblem(**kw, **eo)

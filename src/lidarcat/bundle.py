@@ -200,6 +200,15 @@ def _check_range(index: np.ndarray, n: int, name: str, of: str) -> None:
         raise ValueError(f"`{name}` out of range of `{of}`: {int(index[bad][0])} (there are {n})")
 
 
+def _sigmas(a: Any, shape: tuple[int, int], name: str, free: str) -> np.ndarray:
+    """Constraint sigmas broadcast to *shape*, frozen; inf or NaN (a free *free*) -> inf."""
+    sd = np.array(np.broadcast_to(np.asarray(a, dtype=float), shape))
+    sd[~np.isfinite(sd)] = np.inf
+    if np.any(sd <= 0):
+        raise ValueError(f"`{name}` must be positive (use inf for a free {free})")
+    return frozen_array(sd)
+
+
 def _str_array(a: Sequence[Any]) -> np.ndarray:
     return frozen_array([str(v) for v in a], dtype=object)
 
@@ -288,11 +297,7 @@ class BundleProblem:
         k = len(self.constraint_point_index)
         s(self, "constraint_enh_m", _frozen_array(np.reshape(self.constraint_enh_m, (k, 3)), (3,),
                                                   "constraint_enh_m"))
-        sd = np.array(np.broadcast_to(np.asarray(self.constraint_sd_m, dtype=float), (k, 3)))
-        sd[~np.isfinite(sd)] = np.inf
-        if np.any(sd <= 0):
-            raise ValueError("`constraint_sd_m` must be positive (use inf for a free axis)")
-        s(self, "constraint_sd_m", _frozen_array(sd, (3,), "constraint_sd_m"))
+        s(self, "constraint_sd_m", _sigmas(self.constraint_sd_m, (k, 3), "constraint_sd_m", "axis"))
         _check_range(self.constraint_point_index, n_pt, "constraint_point_index", "point_ids")
         if len(set(self.constraint_point_index.tolist())) != k:
             raise ValueError("a point is constrained twice in `constraint_point_index`")
@@ -303,11 +308,7 @@ class BundleProblem:
                             dtype=np.int64))
             s(self, "eo_constraint_params", _frozen_array(np.reshape(self.eo_constraint_params, (e, 6)),
                                                           (6,), "eo_constraint_params"))
-            esd = np.array(np.broadcast_to(np.asarray(self.eo_constraint_sd, dtype=float), (e, 6)))
-            esd[~np.isfinite(esd)] = np.inf
-            if np.any(esd <= 0):
-                raise ValueError("`eo_constraint_sd` must be positive (use inf for a free parameter)")
-            s(self, "eo_constraint_sd", _frozen_array(esd, (6,), "eo_constraint_sd"))
+            s(self, "eo_constraint_sd", _sigmas(self.eo_constraint_sd, (e, 6), "eo_constraint_sd", "parameter"))
             _check_range(self.eo_constraint_photo_index, n_ph, "eo_constraint_photo_index", "photo_ids")
         if self.initial_eo is not None:
             s(self, "initial_eo", _frozen_array(np.reshape(self.initial_eo, (n_ph, 6)), (6,), "initial_eo"))
