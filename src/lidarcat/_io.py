@@ -1,4 +1,4 @@
-"""Shared file helpers: atomic output, located CSV reading, JSON serialisation.
+"""Shared file helpers: atomic output, located text/CSV/TOML reading, JSON serialisation.
 
 Every file lidarcat writes goes through :func:`atomic_write` (or
 :func:`atomic_dir`) so that an interrupted or failed run never leaves a partial
@@ -15,8 +15,10 @@ import io
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
+import tomllib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -34,6 +36,8 @@ __all__ = [
     "write_csv_atomic",
     "write_json_atomic",
     "read_text",
+    "read_toml",
+    "toml_line",
     "read_csv_table",
     "CsvTable",
     "to_json",
@@ -279,6 +283,58 @@ def read_text(path: str | os.PathLike, error: type[LidarcatError] = SurveyError)
         line = ex.object.count(b"\n", 0, ex.start) + 1
         raise error(f"{location(path, line)}: byte 0x{ex.object[ex.start]:02x} is not UTF-8 text; "
                     f"save the file as UTF-8") from None
+
+
+def read_toml(path: str | os.PathLike) -> tuple[dict[str, Any], str]:
+    """Parse a TOML input file; return its content and its text (for :func:`toml_line`).
+
+    Raises
+    ------
+    SurveyError
+        As :func:`read_text`, or invalid TOML (names the line tomllib reports).
+    """
+    path = Path(path)
+    text = read_text(path)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as ex:
+        m = re.search(r"line (\d+)", str(ex))
+        line = int(m.group(1)) if m else None
+        raise SurveyError(f"{location(path, line)}: invalid TOML: {ex}") from ex
+    return data, text
+
+
+_TOML_TABLE_RE = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")
+_TOML_KEY_RE = re.compile(r'^\s*("([^"]*)"|\'([^\']*)\'|[A-Za-z0-9_-]+)\s*=')
+
+
+def toml_line(text: str, table: str | None, key: str | None = None) -> int | None:
+    r"""1-based line of ``key`` inside ``[table]`` (or of the table header) in TOML *text*.
+
+    A best-effort scan for error messages (tomllib gives no positions): top-level
+    keys have ``table=None``.  Returns the table's header line when *key* is not
+    in it, None when the table is not found.
+
+    >>> text = "top = 1\n[survey]\nname = 'x'\n"
+    >>> toml_line(text, "survey", "name"), toml_line(text, "survey", "crs"), toml_line(text, None, "top")
+    (3, 2, 1)
+    """
+    current: str | None = None
+    header_line: int | None = None
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        m = _TOML_TABLE_RE.match(raw)
+        if m:
+            current = m.group(1).strip().strip('"').strip("'")
+            if current == table and key is None:
+                return lineno
+            if current == table:
+                header_line = lineno
+            continue
+        if key is not None and current == table:
+            km = _TOML_KEY_RE.match(raw)
+            if km and (km.group(2) or km.group(3) or km.group(1)) == key:
+                return lineno
+    return header_line
 
 
 @dataclasses.dataclass(frozen=True)

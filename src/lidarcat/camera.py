@@ -55,7 +55,6 @@ import json
 import logging
 import math
 import re
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-from ._io import read_text
+from ._io import read_toml, toml_line
 from .errors import CameraError, SurveyError, location
 
 __all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS"]
@@ -518,46 +517,6 @@ def _toml_str(s: str) -> str:
     return json.dumps(s, ensure_ascii=False)
 
 
-_TABLE_RE = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")
-
-
-def _toml_line(text: str, table: str | None, key: str | None = None) -> int | None:
-    """1-based line of ``key`` inside ``[table]`` (or of the table header) in TOML *text*.
-
-    A best-effort scan for error messages (tomllib gives no positions): top-level
-    keys have ``table=None``.  Returns None when not found.
-    """
-    current: str | None = None
-    header_line: int | None = None
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        m = _TABLE_RE.match(raw)
-        if m:
-            current = m.group(1).strip().strip('"').strip("'")
-            if current == table and key is None:
-                return lineno
-            if current == table:
-                header_line = lineno
-            continue
-        if key is not None and current == table:
-            km = re.match(r'^\s*("([^"]*)"|\'([^\']*)\'|[A-Za-z0-9_-]+)\s*=', raw)
-            if km:
-                name = km.group(2) or km.group(3) or km.group(1)
-                if name == key:
-                    return lineno
-    return header_line
-
-
-def _read_toml(path: Path) -> tuple[dict[str, Any], str]:
-    text = read_text(path)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as ex:
-        m = re.search(r"line (\d+)", str(ex))
-        line = int(m.group(1)) if m else None
-        raise SurveyError(f"{location(path, line)}: invalid TOML: {ex}") from ex
-    return data, text
-
-
 def load_cameras(path: str | Path) -> dict[str, Camera]:
     """Read a ``camera.toml``: one table per camera id (format: docs/survey-format.md).
 
@@ -579,18 +538,18 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
         the line and the key.
     """
     path = Path(path)
-    data, text = _read_toml(path)
+    data, text = read_toml(path)
     cameras: dict[str, Camera] = {}
     for cam_id, table in data.items():
         if not isinstance(table, dict):
-            raise SurveyError(f"{location(path, _toml_line(text, None, cam_id), cam_id)}: "
+            raise SurveyError(f"{location(path, toml_line(text, None, cam_id), cam_id)}: "
                               f"top-level key outside a camera table; put each camera under "
                               f"a [camera_id] header")
         try:
             cameras[cam_id] = Camera.from_dict(cam_id, table)
         except CameraError as ex:
             fld = getattr(ex, "field", None)
-            line = _toml_line(text, cam_id, fld if fld in table else None)
+            line = toml_line(text, cam_id, fld if fld in table else None)
             msg = str(ex)
             if fld is not None:
                 msg = msg.removeprefix(f"field {fld!r}: ")

@@ -39,8 +39,8 @@ from typing import Any
 import numpy as np
 
 from ._frozen import frozen_array as _frozen
-from ._io import CsvTable, read_csv_table, read_text, write_csv_atomic
-from .camera import Camera, _read_toml, _toml_line, load_camera, load_cameras
+from ._io import CsvTable, read_csv_table, read_text, read_toml, toml_line, write_csv_atomic
+from .camera import Camera, load_camera, load_cameras
 from .errors import SurveyError, location
 
 __all__ = [
@@ -387,14 +387,14 @@ class _Toml:
 
     def __init__(self, path: Path):
         self.path = path
-        self.data, self.text = _read_toml(path)
+        self.data, self.text = read_toml(path)
 
     def err(self, table: str | None, key: str | None, message: str) -> SurveyError:
         """Error located at ``key`` of ``[table]`` (a top-level key/table when *table* is None)."""
         if table is None:
-            line = _toml_line(self.text, key) or _toml_line(self.text, None, key)
+            line = toml_line(self.text, key) or toml_line(self.text, None, key)
         else:
-            line = _toml_line(self.text, table, key)
+            line = toml_line(self.text, table, key)
         fld = key if key is not None else (f"[{table}]" if table else None)
         return SurveyError(f"{location(self.path, line, fld)}: {message}")
 
@@ -402,7 +402,7 @@ class _Toml:
         tab = self.data.get(table, {})
         if key not in tab:
             if SURVEY_KEYS[table][key]:
-                line = _toml_line(self.text, table)
+                line = toml_line(self.text, table)
                 raise SurveyError(f"{location(self.path, line, key)}: missing required key "
                                   f"{key!r} in [{table}] (see docs/survey-format.md)")
             return default
