@@ -30,3 +30,17 @@ def test_unavailable_stage_reports_the_import_error(monkeypatch):
     result = CliRunner().invoke(m.cli, ["demo"])
     assert result.exit_code == 1
     assert "Error: 'demo' is not available: No module named 'lidarcat.cli.no_such_module'" in result.output
+
+
+def test_command_summaries_match_the_lazy_table():
+    """``lidarcat --help`` shows COMMANDS' summaries without importing the stages; the
+    one-liners the commands declare themselves (``short_help``) must say the same."""
+    import importlib
+
+    import click
+
+    for name, target, summary in COMMANDS:
+        modname, attr = target.split(":")
+        cmd = getattr(importlib.import_module(modname), attr)
+        assert cmd.short_help in (None, summary), name
+        assert cli.get_command(click.Context(cli), name).short_help == summary
