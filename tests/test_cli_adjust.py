@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 from conftest import THESIS_SURVEY, THESIS_TABLES
 
-from lidarcat.bundle import EOP_COLUMNS, POINT_COLUMNS, RESIDUAL_COLUMNS
+from lidarcat.bundle import COVARIANCE_COLUMNS, EOP_COLUMNS, POINT_COLUMNS, RESIDUAL_COLUMNS
 from lidarcat.cli.main import cli
 
 SUMMARY_KEYS = {"dof", "vtpv", "sigma0_sq", "chi2_lower", "chi2_upper", "chi2_pass", "n_iterations",
@@ -53,6 +53,10 @@ def test_gps_run_writes_its_files(gps_run):
     assert tuple(res[0]) == RESIDUAL_COLUMNS
     kinds = [r[0] for r in res[1:]]
     assert kinds.count("image") == 151 and kinds.count("control") == 8
+    cov = _read(out / "check_covariance.csv")
+    assert tuple(cov[0]) == COVARIANCE_COLUMNS == ("point_a", "point_b", "c_EE", "c_EN", "c_Eh", "c_NE", "c_NN",
+                                                   "c_Nh", "c_hE", "c_hN", "c_hh")
+    assert len(cov) - 1 == 13 * 14 // 2 and cov[1][:2] == ["603", "603"]   # pairs a <= b of the 13 checks
 
 
 def test_gps_run_values_in_files(gps_run):

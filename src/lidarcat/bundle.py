@@ -72,6 +72,7 @@ __all__ = [
     "EOP_COLUMNS",
     "POINT_COLUMNS",
     "RESIDUAL_COLUMNS",
+    "COVARIANCE_COLUMNS",
     "ExteriorOrientation",
     "BundleProblem",
     "BundleResult",
@@ -91,8 +92,8 @@ log = logging.getLogger(__name__)
 #: (``check_covariance.csv``, k (k + 1) / 2 rows) up to this many check points
 MAX_JOINT_COVARIANCE_POINTS = 500
 #: columns of ``check_covariance.csv``: the 3 x 3 cross-covariance block of two points, m^2
-COVARIANCE_COLUMNS = ["point_a", "point_b", "c_EE", "c_EN", "c_Eh", "c_NE", "c_NN", "c_Nh",
-                      "c_hE", "c_hN", "c_hh"]
+COVARIANCE_COLUMNS = ("point_a", "point_b", "c_EE", "c_EN", "c_Eh", "c_NE", "c_NN", "c_Nh",
+                      "c_hE", "c_hN", "c_hh")
 
 #: status -> message of :class:`BundleResult`
 STATUS_MESSAGES: dict[str, str] = {
