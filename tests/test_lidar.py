@@ -195,6 +195,15 @@ def test_round_trip_synthetic_full_precision_text(tmp_path):
         np.testing.assert_array_equal(back.attributes["classification"], pc.attributes["classification"])
 
 
+@pytest.mark.parametrize("suffix", [".laz", ".xyz"])
+def test_write_refuses_non_finite_coordinates(tmp_path, suffix):
+    pc = PointCloud(np.array([[1.0, 2.0, 3.0], [4.0, np.nan, 6.0], [7.0, 8.0, np.inf]]))
+    with pytest.raises(LidarFormatError, match=r"bad\.\w+: point 1 \(counting from 0\) has a non-finite "
+                                               r"coordinate \[4\.0, nan, 6\.0\] \(2 such points\)"):
+        write_points(tmp_path / f"bad{suffix}", pc)
+    assert not list(tmp_path.iterdir())
+
+
 def test_las_crs_written_and_read_back(tmp_path):
     pc = read_points(PDAL).select(slice(0, 100)).with_crs(pyproj.CRS("EPSG:31982"))
     back = read_points(write_points(tmp_path / "c.laz", pc))

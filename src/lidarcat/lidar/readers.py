@@ -788,10 +788,16 @@ def write_points(path: str | os.PathLike, cloud: PointCloud, *, scale_m: float =
     Raises
     ------
     LidarFormatError
-        Unsupported suffix, or coordinates out of range for *scale_m*.
+        Unsupported suffix, a NaN or infinite coordinate (the readers refuse
+        them), or coordinates out of range for *scale_m*.
     """
     path = Path(path)
-    if file_kind(path) == "las":
+    kind = file_kind(path)
+    bad = np.flatnonzero(~np.isfinite(cloud.xyz).all(axis=1))
+    if len(bad):
+        raise LidarFormatError(f"{path}: point {int(bad[0])} (counting from 0) has a non-finite coordinate "
+                               f"{cloud.xyz[bad[0]].tolist()} ({len(bad)} such points); drop them first")
+    if kind == "las":
         _write_las(path, cloud, scale_m)
     else:
         _write_ascii(path, cloud, delimiter)
