@@ -14,6 +14,7 @@ import dataclasses
 import numpy as np
 
 from ._collinearity import project
+from ._frozen import frozen_array
 from .bundle import BundleProblem
 
 __all__ = ["SyntheticBlock", "synthetic_block"]
@@ -38,6 +39,10 @@ class SyntheticBlock:
     true_points_m: np.ndarray
     image_sd_mm: float
     control_sd_m: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("true_eo", "true_points_m", "control_sd_m"):
+            object.__setattr__(self, name, frozen_array(getattr(self, name)))
 
 
 def synthetic_block(
