@@ -443,3 +443,14 @@ def test_assessment_table_errors_are_located(tmp_path, line, message, survey_cop
     with pytest.raises(SurveyError, match="survey.toml") as ei:
         Survey.load(survey)
     assert message in str(ei.value)
+
+
+def test_control_sets_sharing_an_output_folder_are_refused(survey_copy, tmp_path):
+    with open(survey_copy / "control_sets.csv", "a") as fh:
+        fh.write("a b,601,control,0.25,0.25,0.25\na_b,601,control,0.25,0.25,0.25\n")
+    with pytest.raises(SurveyError) as ei:
+        run_pipeline(survey_copy, tmp_path / "out")
+    assert str(ei.value) == (f"{survey_copy / 'control_sets.csv'}: control sets 'a b' and 'a_b' would "
+                             "share the output folder adjust-a_b; rename one (letters, digits, _ . - "
+                             "are kept)")
+    assert not (tmp_path / "out" / "adjust-a_b").exists()

@@ -57,7 +57,7 @@ import numpy as np
 
 from . import __version__
 from ._io import atomic_dir, dumps_json, folder_lock, write_json_atomic
-from .errors import LidarcatError
+from .errors import LidarcatError, SurveyError
 
 __all__ = [
     "FROM_SURVEY",
@@ -565,6 +565,11 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     list of Stage
         camera, extract, one adjust-SET and assess-SET per control set, one
         compare stage per pair (default set vs each other set), report.
+
+    Raises
+    ------
+    SurveyError
+        Two control sets whose names map to the same output folder.
     """
     files = _survey_files(survey, lidar=False)  # only the extraction reads the tiles
     judged = survey.assessment
@@ -602,6 +607,13 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     runs: list[tuple[str, bool]] = [(name, False) for name in set_names]
     if can_extract:
         runs.append((ext_name, True))
+    folder_of: dict[str, str] = {}
+    for name, _ in runs:  # every run needs folders (and stage records) of its own
+        other = folder_of.setdefault(_safe(name), name)
+        if other != name:
+            raise SurveyError(f"{survey.files.get('control_sets', survey.toml_path)}: control sets "
+                              f"{other!r} and {name!r} would share the output folder "
+                              f"adjust-{_safe(name)}; rename one (letters, digits, _ . - are kept)")
     if not runs:
         stages.append(Stage("adjust", "adjust", _stage_adjust,
                             skip_reason="the survey defines no control set (control_sets.csv)"))
