@@ -303,8 +303,10 @@ def test_load_cameras_invalid_toml_and_empty(tmp_path):
     p = _write_cam(tmp_path, "focal_length_mm = 3\n")
     with pytest.raises(SurveyError, match=r"camera.toml:1: field 'focal_length_mm': top-level key"):
         load_cameras(p)
-    with pytest.raises(SurveyError, match="file not found"):
+    with pytest.raises(SurveyError, match=r"nope.toml: file not found$"):
         load_cameras(tmp_path / "nope.toml")
+    with pytest.raises(SurveyError, match=r": cannot read \(Is a directory\)$"):
+        load_cameras(tmp_path)
     p.write_bytes('[a]\nmodel = "Câmera"\n'.encode("latin-1"))
     with pytest.raises(SurveyError, match=r"camera.toml:2: byte 0xe2 is not UTF-8 text; "
                                           r"save the file as UTF-8$"):

@@ -35,6 +35,7 @@ __all__ = [
     "write_csv",
     "write_csv_atomic",
     "write_json_atomic",
+    "read_bytes",
     "read_text",
     "read_toml",
     "toml_line",
@@ -252,6 +253,24 @@ def write_json_atomic(path: str | os.PathLike, obj: Any) -> Path:
     return write_text_atomic(path, dumps_json(obj) + "\n")
 
 
+def read_bytes(path: str | os.PathLike, error: type[LidarcatError] = SurveyError) -> bytes:
+    """The content of an input file.
+
+    Raises
+    ------
+    LidarcatError
+        Of class *error* (e.g. ``TileIOError`` for a tile): ``PATH: file not
+        found`` or ``PATH: cannot read (REASON)``.
+    """
+    path = Path(path)
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise error(f"{path}: file not found") from None
+    except OSError as ex:
+        raise error(f"{path}: cannot read ({ex.strerror})") from ex
+
+
 def read_text(path: str | os.PathLike, error: type[LidarcatError] = SurveyError) -> str:
     r"""Read a UTF-8 text input file (a leading byte-order mark is dropped).
 
@@ -271,12 +290,7 @@ def read_text(path: str | os.PathLike, error: type[LidarcatError] = SurveyError)
     lidarcat.errors.SurveyError: ...pontos.csv:2: byte 0xe7 is not UTF-8 text; save the file as UTF-8
     """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise error(f"{path}: file not found") from None
-    except OSError as ex:
-        raise error(f"{path}: cannot read ({ex.strerror})") from ex
+    data = read_bytes(path, error)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as ex:
