@@ -9,8 +9,8 @@ from scipy.spatial import cKDTree
 from conftest import DATA, THESIS_TABLES
 from lidarcat.control import ControlPoint
 from lidarcat.facets import (
-    PRESETS, ExtractionParams, Plane, delaunay_facets, extract_roof, fit_plane, get_params,
-    segment_faces, triangle_planes, triangle_slope_aspect,
+    PRESETS, ExtractionParams, Plane, delaunay_facets, extract_roof, find_candidates, fit_plane,
+    get_params, segment_faces, triangle_planes, triangle_slope_aspect,
 )
 from lidarcat.roofs import LABELS, synthetic_roof
 
@@ -303,6 +303,8 @@ def test_degenerate_inputs_end_with_a_status():
     cp = extract_roof(np.zeros((5, 2)), (0, 0))
     assert isinstance(cp, ControlPoint) and cp.status == "bad_input"
     assert cp.reason == "points must be an (N, 3) array or a PointCloud, got shape (5, 2)"
+    # a search over no points (e.g. no point of the requested class) finds nothing
+    assert find_candidates(np.zeros((0, 3))) == []
 
 
 def test_two_face_real_building_pdal_sample_c():

@@ -1217,8 +1217,8 @@ def find_candidates(
 ) -> list[Candidate]:
     """Scan a tile (or a box) and propose every roof vertex where 3+ planes meet.
 
-    The box is cut into cells of *cell_m* (with an overlap of the clip radius);
-    in each cell the faces are segmented, every triple of faces whose
+    The box is cut into cells of *cell_m*, each segmented with 2 m of the
+    neighbouring cells around it; in each cell the faces are segmented, every triple of faces whose
     intersection is supported by all three faces gives a seed, which is then
     refined by :func:`extract_roof` at that position.  Duplicates (closer than
     1 m) keep the best score.
@@ -1255,32 +1255,33 @@ def find_candidates(
     if classes is not None:
         from .errors import LidarFormatError
 
-        cls = getattr(cloud, "attributes", {}).get("classification") if hasattr(cloud, "attributes") else None
+        cls = getattr(cloud, "attributes", {}).get("classification")
         if cls is None:
             raise LidarFormatError("classes: the points carry no classification; "
                                    "drop --classes or use LAS/LAZ tiles with classes")
         xyz = xyz[np.isin(np.asarray(cls), np.asarray(classes))]
+    if len(xyz) == 0:
+        return []
     if box is None:
         box = (*xyz[:, :2].min(axis=0), *xyz[:, :2].max(axis=0))
     xmin, ymin, xmax, ymax = (float(v) for v in box)
     inbox = (xyz[:, 0] >= xmin - p.radius_m) & (xyz[:, 0] <= xmax + p.radius_m) & \
             (xyz[:, 1] >= ymin - p.radius_m) & (xyz[:, 1] <= ymax + p.radius_m)
     xyz = xyz[inbox]
+    if len(xyz) == 0:
+        return []
     from scipy.spatial import cKDTree
 
-    tree = cKDTree(xyz[:, :2]) if len(xyz) else None
+    tree = cKDTree(xyz[:, :2])
     seeds: list[np.ndarray] = []
     nx = max(1, int(math.ceil((xmax - xmin) / cell_m)))
     ny = max(1, int(math.ceil((ymax - ymin) / cell_m)))
-    done = 0
     for i in range(nx):
         for j in range(ny):
             x0, y0 = xmin + i * cell_m, ymin + j * cell_m
             x1, y1 = min(x0 + cell_m, xmax), min(y0 + cell_m, ymax)
             c = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
             half = max(x1 - x0, y1 - y0) / 2 + 2.0
-            if tree is None:
-                continue
             idx = tree.query_ball_point(c, r=half * math.sqrt(2))
             sub = xyz[idx]
             sub = sub[(np.abs(sub[:, 0] - c[0]) <= half) & (np.abs(sub[:, 1] - c[1]) <= half)]
@@ -1292,7 +1293,6 @@ def find_candidates(
                 for v in candidate_vertices(planes, sub, labels, p):
                     if x0 <= v[0] < x1 and y0 <= v[1] < y1:
                         seeds.append(v)
-            done += 1
             if progress is not None:
                 progress(1)
     cands: list[Candidate] = []
