@@ -109,6 +109,8 @@ class _Finished:
 
 
 def _text(result) -> str:
+    from ..pipeline import _num as _f  # the report's number format: '-' for a missing value
+
     lines = [f"lidarcat run: {result.summary.get('survey', {}).get('name', '?')} -> {result.outdir}"]
     for s in result.stages:
         if s.status in ("skipped", "failed"):
@@ -139,7 +141,3 @@ def _text(result) -> str:
         lines.append(f"  report: {report}")
     lines.append("ok" if result.ok else f"FAILED: {', '.join(result.failed)}")
     return "\n".join(lines)
-
-
-def _f(v, nd: int) -> str:
-    return "-" if v is None else f"{v:.{nd}f}"
