@@ -126,7 +126,7 @@ def folder_lock(folder: str | os.PathLike, what: str = "lidarcat run") -> Iterat
                 info = dict(kv.split("=", 1) for kv in lock.read_text().split() if "=" in kv)
             except OSError:
                 info = {}
-            pid = int(info.get("pid", "0") or 0) if info.get("pid", "").isdigit() else 0
+            pid = int(info["pid"]) if info.get("pid", "").isdigit() else 0
             if info.get("host") == host and pid and not _pid_alive(pid):
                 lock.unlink(missing_ok=True)  # left by a run that died: take it over
                 continue
@@ -145,11 +145,11 @@ def folder_lock(folder: str | os.PathLike, what: str = "lidarcat run") -> Iterat
 
 def _pid_alive(pid: int) -> bool:
     try:
-        os.kill(pid, 0)
+        os.kill(pid, 0)  # signal 0: existence check only (PermissionError: alive, not ours)
     except ProcessLookupError:
         return False
     except PermissionError:
-        return True
+        pass
     return True
 
 
