@@ -123,6 +123,9 @@ def test_bad_job_file_is_located(tmp_path):
     p.write_text("faixa.xyz P704 677757.8 7183482.0 0.15\n")
     with pytest.raises(ExtractionError, match=r"jobs.txt:1: 5 fields, expected 6"):
         read_jobs(p)
+    p.write_text("faixa.xyz P704 677757,8 7183482,0 0,15 5,0\n")  # decimal commas (thesis files)
+    job = read_jobs(p)[0]
+    assert (job.point, job.e_m, job.n_m, job.threshold_m, job.radius_m) == ("P704", 677757.8, 7183482.0, 0.15, 5.0)
     p.write_text("faixa.xyz P704 677757.8 7183482.0 0.15 0\n")
     with pytest.raises(ExtractionError, match=r"jobs.txt:1: field 'radius': must be positive \(got 0\)"):
         read_jobs(p)

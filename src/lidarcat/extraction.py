@@ -73,7 +73,8 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
     except FileNotFoundError:
         raise ExtractionError(f"{path}: job file not found") from None
     first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), "")
-    if "," in first and not first.split(",")[0].strip().replace(".", "").isdigit():
+    # CSV: a header with a "point" column; a thesis line has 6 fields and may use decimal commas
+    if "," in first and ("point" in [c.strip() for c in first.split(",")] or len(first.split()) != 6):
         try:
             t = read_csv_table(path, required=("point", "E", "N"),
                                optional=("threshold_m", "radius_m", "file", "sd_en_m", "sd_h_m"))
