@@ -214,6 +214,19 @@ def _check_las_size(path: Path, header: Any) -> None:
                                f"({need} bytes) but the file has {have} bytes")
 
 
+def _open_checked(path: Path, crs: Any, serial: bool = False) -> tuple[Any, Any, bool]:
+    """An open laspy reader whose header was checked (CRS record, size against the point
+    count), the CRS of its points (the file's, else *crs*) and whether it is the file's."""
+    reader = _open_las(path, serial)
+    try:
+        crs_out, from_file = _settle_crs(path, _las_crs(path, reader.header), crs)
+        _check_las_size(path, reader.header)
+    except BaseException:
+        reader.close()
+        raise
+    return reader, crs_out, from_file
+
+
 def _scale_coords(raw: np.ndarray, scale: float, offset: float) -> np.ndarray:
     inv = 1.0 / scale
     inv_r = round(inv)
@@ -233,11 +246,9 @@ def _las_record_cloud(rec: Any, header: Any, crs: Any) -> PointCloud:
 
 
 def _iter_las(path: Path, chunk_size: int, crs: Any, progress: Progress | None) -> Iterator[PointCloud]:
-    reader = _open_las(path)
+    reader, file_crs, _ = _open_checked(path, crs)
     with reader:
         header = reader.header
-        file_crs, _ = _settle_crs(path, _las_crs(path, header), crs)
-        _check_las_size(path, header)
         total = int(header.point_count)
         size = path.stat().st_size
         done = 0
@@ -334,11 +345,9 @@ def iter_las_ranges(path: str | os.PathLike, ranges: Sequence[tuple[int, int]], 
         raise ValueError(f"piece_points and max_read_points must be positive, got {piece_points}, "
                          f"{max_read_points}")
     per_read = max(1, int(max_read_points) // piece) * piece
-    reader = _open_las(path, serial=True)
+    reader, file_crs, _ = _open_checked(path, crs, serial=True)
     with reader:
         header = reader.header
-        file_crs, _ = _settle_crs(path, _las_crs(path, header), crs)
-        _check_las_size(path, header)
         total = int(header.point_count)
         for start, stop in ranges:
             start, stop = int(start), int(stop)
@@ -366,15 +375,13 @@ def iter_las_ranges(path: str | os.PathLike, ranges: Sequence[tuple[int, int]], 
 
 
 def _las_header(path: Path, crs: Any) -> FileHeader:
-    reader = _open_las(path)
+    reader, crs_out, from_file = _open_checked(path, crs)
     with reader:
         h = reader.header
-        file_crs = _las_crs(path, h)
-        crs_out, from_file = _settle_crs(path, file_crs, crs)
-        _check_las_size(path, h)
         names = set(h.point_format.dimension_names)
         return FileHeader(path, "las", _las_description(path, h), int(h.point_count),
-                          Bounds.from_minmax(h.mins, h.maxs), crs_out, from_file, tuple(a for a in _LAS_ATTRIBUTES if a in names))
+                          Bounds.from_minmax(h.mins, h.maxs), crs_out, from_file,
+                          tuple(a for a in _LAS_ATTRIBUTES if a in names))
 
 
 # --------------------------------------------------------------------------- ASCII
