@@ -265,16 +265,17 @@ def intersect_planes(
         x = np.linalg.solve(nmat, -dvec)  # eq. 38
     else:
         x = -np.linalg.lstsq(nmat, dvec, rcond=None)[0]  # eq. 41
-    for _ in range(3 if (m > 3 and weighted) else 1):
+
+    def var_r_at(x: np.ndarray) -> np.ndarray:
+        """Variances of the plane distances r_i at x (m^2)."""
         xh = np.append(x, 1.0)
-        var_r = np.array([xh @ c @ xh for c in covs])
-        var_r = np.maximum(var_r, 1e-30)
-        if m > 3 and weighted:
-            w = 1.0 / var_r
-            nw = nmat.T @ (nmat * w[:, None])
-            x = -np.linalg.solve(nw, nmat.T @ (w * dvec))
-    xh = np.append(x, 1.0)
-    var_r = np.maximum(np.array([xh @ c @ xh for c in covs]), 1e-30)
+        return np.maximum(np.array([xh @ c @ xh for c in covs]), 1e-30)
+
+    if m > 3 and weighted:
+        for _ in range(3):
+            w = 1.0 / var_r_at(x)
+            x = -np.linalg.solve(nmat.T @ (nmat * w[:, None]), nmat.T @ (w * dvec))
+    var_r = var_r_at(x)
     if m == 3:
         ainv = np.linalg.inv(nmat)
         cov_x = ainv @ np.diag(var_r) @ ainv.T
