@@ -49,7 +49,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from .._io import atomic_write, write_text_atomic
+from .._io import atomic_write, read_bytes, write_text_atomic
 from ..errors import LidarcatError, LidarFormatError, TileIOError
 from .cloud import PointCloud
 from .crs import _parts, resolve_crs
@@ -393,12 +393,7 @@ def read_geotiff(path: str | os.PathLike) -> tuple[np.ndarray, GeoTransform, Any
         Not a TIFF of that kind, or truncated.
     """
     path = Path(path)
-    try:
-        buf = path.read_bytes()
-    except FileNotFoundError:
-        raise TileIOError(f"{path}: file not found") from None
-    except OSError as ex:
-        raise TileIOError(f"{path}: cannot read ({ex.strerror})") from ex
+    buf = read_bytes(path, TileIOError)
     if buf[:4] != b"II*\x00":
         raise LidarFormatError(f"{path}: not a little-endian TIFF")
     try:
