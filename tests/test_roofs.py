@@ -75,4 +75,6 @@ def test_bad_kind_and_hip_shape():
         synthetic_roof("dome")
     with pytest.raises(ValueError, match="length_m > width_m"):
         synthetic_roof("hip", length_m=8, width_m=8)
+    with pytest.raises(ValueError, match="strips must be 1 or 2, got 3"):  # was silently 2
+        synthetic_roof("hip", strips=3)
     assert set(KINDS) >= {"gable", "hip", "pyramid", "lgable"}

@@ -167,6 +167,12 @@ def synthetic_roof(
     -------
     SyntheticScene
 
+    Raises
+    ------
+    ValueError
+        Unknown *kind*, non-positive density, *strips* not 1 or 2, a hip roof
+        not longer than wide.
+
     Examples
     --------
     >>> s = synthetic_roof("pyramid", width_m=10, slope_deg=30, origin=(0, 0, 0), seed=3)
@@ -179,6 +185,8 @@ def synthetic_roof(
         raise ValueError(f"unknown roof kind {kind!r}; choose one of {', '.join(KINDS)}")
     if density_m2 <= 0:
         raise ValueError("density_m2 must be positive")
+    if strips not in (1, 2):
+        raise ValueError(f"strips must be 1 or 2, got {strips!r}")
     rng = np.random.default_rng(seed)
     W = float(width_m)
     L = W if kind == "pyramid" else float(length_m)
@@ -251,7 +259,7 @@ def synthetic_roof(
     ymin, ymax = wy.min() - margin_m, wy.max() + margin_m
     flying_h = 1000.0
     all_xyz, all_lab, all_strip = [], [], []
-    for k in range(max(1, min(int(strips), 2))):
+    for k in range(strips):
         side = 1.0 if k == 0 else -1.0
         nadir_x = (ox + side * 150.0)  # flight along N, nadir line at this E
         ys = np.arange(ymin, ymax, spacing)
