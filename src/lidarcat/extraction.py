@@ -180,6 +180,7 @@ def extract_batch(
     spec_sd : (plan, height), optional
         Replace every point's covariance by these specification sds (m).
     progress : callable(int), optional
+        Called with 1 after each job (an increment, like ``click.progressbar.update``).
     index_cache : path, optional
         JSON cache of the tile index of *lidar* (bounds, counts and the block
         index that lets a clip decode only the parts of a LAZ tile it needs;

@@ -1236,7 +1236,7 @@ def find_candidates(
     classes : sequence of int, optional
         Keep only these classification codes (e.g. ``[6]`` buildings); needs a PointCloud.
     progress : callable(int), optional
-        Called with the number of cells done.
+        Called with 1 after each cell (an increment, like ``click.progressbar.update``).
 
     Returns
     -------
