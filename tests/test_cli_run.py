@@ -83,14 +83,16 @@ def test_run_unwritable_outdir_exits_2(tmp_path):
     (tmp_path / "file").write_text("x")
     res = CliRunner().invoke(cli, ["run", "-o", str(tmp_path / "file" / "out")])
     assert res.exit_code == 2
-    assert res.output.startswith("Error: ") and "cannot write the output folder" in res.output
+    assert res.output == (f"Error: {tmp_path / 'file' / 'out'}: cannot write the output folder (Not a "
+                          "directory); choose another with -o/--outdir\n")
 
 
 def test_run_default_outdir_of_a_survey_folder(tmp_path, survey_copy):
     survey = survey_copy
     res = CliRunner().invoke(cli, ["run", str(survey), "--json"])
     assert res.exit_code == 0, res.output
-    assert (survey / "out" / "summary.json").is_file()
+    assert json.loads(res.output)["outdir"] == str(survey / "out")
+    assert json.loads((survey / "out" / "summary.json").read_text())["runs"]["gps"]["adjustment"]["dof"] == 128
 
 
 @pytest.mark.slow
