@@ -89,8 +89,10 @@ def test_find_writes_geojson_and_csv(tmp_path):
     out = tmp_path / "cand.geojson"
     r = CliRunner().invoke(cli, ["extract", "--find", "--lidar", str(lid / "ahn3_cropped_2.laz"),
                                  "--crs", "EPSG:7415", "--classes", "6",
-                                 "--box", "85000", "447460", "85050", "447520", "-o", str(out)])
+                                 "--box", "85000", "447460", "85050", "447520", "-o", str(out),
+                                 "--index-cache", str(tmp_path / "index.json")])
     assert r.exit_code == 0, r.output
+    assert "ahn3_cropped_2.laz" in (tmp_path / "index.json").read_text()  # --index-cache serves --find too
     fc = json.loads(out.read_text())
     assert fc["type"] == "FeatureCollection" and len(fc["features"]) >= 3
     f0 = fc["features"][0]
@@ -117,6 +119,8 @@ def test_usage_errors():
     assert r.exit_code == 2 and "Invalid value for --radius: must be positive (m), got -1" in r.output
     r = CliRunner().invoke(cli, ["extract", "--find", "--box", "10", "0", "5", "20"])
     assert r.exit_code == 2 and "Invalid value for --box: 10 0 5 20: need XMIN < XMAX and YMIN < YMAX" in r.output
+    r = CliRunner().invoke(cli, ["extract", "--find", "--lidar", ".", "--planes", "p.csv", "--spec-sd", "0.5", "0.15"])
+    assert r.exit_code == 2 and "--planes, --spec-sd: for jobs and --at, not --find" in r.output  # were ignored
 
 
 def test_bad_job_file_is_located(tmp_path):

@@ -78,7 +78,10 @@ def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, pl
     if (at is not None or find) and not lidar:
         raise click.UsageError("--at and --find need --lidar PATH")
     if find:
-        _find(lidar, crs, box, classes, params, output, as_json)
+        unused = [opt for opt, v in (("--planes", planes_out), ("--figures", figures), ("--spec-sd", spec_sd)) if v]
+        if unused:
+            raise click.UsageError(f"{', '.join(unused)}: for jobs and --at, not --find")
+        _find(lidar, crs, box, classes, params, output, as_json, index_cache)
         return
     from ..extraction import Job, extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
 
@@ -116,12 +119,12 @@ def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, pl
                + (f"; written to {output}" if output else ""))
 
 
-def _find(lidar, crs, box, classes, params, output, as_json) -> None:
+def _find(lidar, crs, box, classes, params, output, as_json, index_cache) -> None:
     from ..extraction import write_candidates
     from ..facets import find_candidates
     from ..lidar import TileIndex
 
-    index = TileIndex.build(list(lidar), crs=crs)
+    index = TileIndex.build(list(lidar), crs=crs, cache_path=index_cache)
     b = index.bounds
     area = box if box else (b.xmin, b.ymin, b.xmax, b.ymax)
     cloud = index.query_box(*area)
