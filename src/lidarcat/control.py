@@ -370,9 +370,10 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
     well conditioned, lies within ``max_offset_m`` (default half the clip radius)
     of the position, every
     face has a point within ``support_m`` of it in plan, and it lies on the
-    LiDAR surface.  Further faces join when their misclosure is below
-    ``join_sigma`` standard deviations; the point is then re-intersected by
-    least squares.
+    LiDAR surface.  Further faces join when their distance from the point is
+    below ``join_sigma`` standard deviations plus half their RMS and they have
+    a point within ``support_m``; the point is then re-intersected by least
+    squares.
     """
     center = np.asarray(center_en, dtype=np.float64).reshape(-1)[:2]
     info = info or {}

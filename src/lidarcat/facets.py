@@ -339,7 +339,8 @@ class ExtractionParams:
     max_offset_m: float | None = None
     #: a vertex whose predicted 3-D sd exceeds this is "imprecise" (m)
     max_sd_m: float = 0.5
-    #: extra planes join the vertex when their misclosure is below k sigma (and 3 x RMS)
+    #: extra planes join the vertex when their distance from it is below join_sigma x its
+    #: sd plus half the plane's RMS, with a point of the plane within support_m
     join_sigma: float = 3.0
 
     def __post_init__(self) -> None:
