@@ -303,6 +303,8 @@ def test_degenerate_inputs_end_with_a_status():
     cp = extract_roof(np.zeros((5, 2)), (0, 0))
     assert isinstance(cp, ControlPoint) and cp.status == "bad_input"
     assert cp.reason == "points must be an (N, 3) array or a PointCloud, got shape (5, 2)"
+    with pytest.raises(ValueError, match=r"center_en must be \(E, N\) in metres, got \(5.0,\)"):
+        extract_roof(flat.xyz, (5.0,))  # was taken for (5, 5)
     # a search over no points (e.g. no point of the requested class) finds nothing
     assert find_candidates(np.zeros((0, 3))) == []
 

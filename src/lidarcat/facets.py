@@ -1126,7 +1126,7 @@ def extract_roof(
     points : (N, 3) float or PointCloud
         LiDAR points E, N, h (m); may be a whole tile (clipped here) or a clip.
     center_en : (2,) float
-        Approximate plan position of the vertex (m).
+        Approximate plan position of the vertex (m); a third value (h) is ignored.
     radius_m : float, optional
         Clip radius (default ``params.radius_m``).
     params : ExtractionParams or {"default", "thesis"}
@@ -1140,6 +1140,11 @@ def extract_roof(
     ControlPoint
         Truthy when a vertex of 3+ planes was found; otherwise falsy with
         ``status`` and ``reason`` (degenerate roofs never raise).
+
+    Raises
+    ------
+    ValueError
+        *center_en* has fewer than two values, or a parameter is invalid.
 
     Examples
     --------
@@ -1156,6 +1161,8 @@ def extract_roof(
 
     p = get_params(params, radius_m=radius_m)
     center = np.asarray(center_en, dtype=np.float64).reshape(-1)[:2]
+    if center.shape != (2,):
+        raise ValueError(f"center_en must be (E, N) in metres, got {center_en!r}")
     try:
         xyz = _as_xyz(points)
     except ValueError as ex:
