@@ -101,6 +101,18 @@ def test_specification_override():
     assert a == pytest.approx(0.5) and b == pytest.approx(0.5)
 
 
+def test_error_ellipse_axes_and_azimuth():
+    """A plan covariance built from semi-axes 0.2 / 0.1 m with the major axis at azimuth 30 deg."""
+    az = math.radians(30.0)
+    major, minor = np.array([math.sin(az), math.cos(az)]), np.array([math.cos(az), -math.sin(az)])
+    cov = np.diag([0.0, 0.0, 0.05**2])
+    cov[:2, :2] = 0.2**2 * np.outer(major, major) + 0.1**2 * np.outer(minor, minor)
+    cp = ControlPoint("E1", [0.0, 0.0, 0.0], cov)
+    np.testing.assert_allclose(cp.error_ellipse(), (0.2, 0.1, 30.0), atol=1e-9)
+    np.testing.assert_allclose(cp.error_ellipse(2.4477)[:2], (0.48954, 0.24477), atol=1e-9)
+    assert cp.sd_plan_m == pytest.approx(math.hypot(0.2, 0.1))
+
+
 def test_failed_point_row_and_frozen():
     cp = ControlPoint.failed("P9", [1, 2], "flat_roof", "flat")
     row = cp.to_row()
