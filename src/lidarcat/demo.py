@@ -614,6 +614,7 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
         joint = math.nan
         cov_path = folder / "check_covariance.csv"
         if checks and cov_path.is_file():
+            from .accuracy import covariance_consistency_test
             from .bundle import read_point_covariance
 
             order = [q for q in pts_t.column("point") if q in checks]
@@ -621,7 +622,8 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
             adj = {q: v for q, v in zip(pts_t.column("point"), pv)}
             d = np.concatenate([ground[q][:3] - adj[q][:3] for q in order])
             C = C + np.diag(np.concatenate([ground[q][3:] ** 2 for q in order]))
-            joint = float(d @ np.linalg.solve(C, d))
+            test = covariance_consistency_test(d, C, source=str(cov_path))
+            joint = float(test.statistic) if test.applicable else math.nan
         z_eo_a, z_pt_a = np.abs(z_eo), np.abs(z_pt)
         out["runs"][run] = {
             "eo_max_abs_z": float(z_eo_a.max()), "eo_rms_z": float(np.sqrt(np.mean(z_eo_a ** 2))),
