@@ -58,7 +58,7 @@ def test_generator_detects_a_missing_option(monkeypatch):
 
 
 @pytest.mark.parametrize("page", ["index.md", "method.md", "cli.md", "figures.md", "survey-format.md",
-                                  "accuracy.md", "extraction.md"])
+                                  "accuracy.md", "extraction.md", "../README.md"])
 def test_doc_pages_exist_and_links_resolve(page):
     path = DOCS / page
     assert path.is_file(), page

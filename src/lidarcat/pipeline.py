@@ -114,6 +114,8 @@ class Stage:
     skip_reason : str or None
         When set the stage is not run and is reported as skipped with this
         reason (inputs absent).
+    description : str
+        One line for the report's table of stages.
     """
 
     name: str
