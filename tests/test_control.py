@@ -117,7 +117,7 @@ def test_failed_point_row_and_frozen():
     cp = ControlPoint.failed("P9", [1, 2], "flat_roof", "flat")
     row = cp.to_row()
     assert row["status"] == "flat_roof" and math.isnan(row["E"]) and not cp
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         cp.enh_m[0] = 1.0
     with pytest.raises(ValueError, match="unknown status"):
         ControlPoint.failed("P", [0, 0], "weird", "")
