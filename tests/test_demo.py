@@ -226,6 +226,24 @@ def test_demo_compare_errors_name_the_folder_and_the_missing_id(demo_run, tmp_pa
                              f"output of `lidarcat run {other}`?")
 
 
+def test_a_job_for_a_point_no_photo_measures_is_reported(demo_run, tmp_path):
+    import shutil
+
+    survey_dir, _, _, _ = demo_run
+    survey = tmp_path / "survey"
+    shutil.copytree(survey_dir, survey, ignore=shutil.ignore_patterns("out"))
+    jobs = survey / "jobs.csv"
+    last = jobs.read_text().splitlines()[-1]
+    jobs.write_text(jobs.read_text() + "X99" + last[last.index(","):] + "\n")   # R07's roof, unmeasured id
+    res = CliRunner().invoke(cli, ["run", str(survey), "-o", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    assert ("  extraction: measured on no photo, no effect on the block: X99 (check the ids in the "
+            "jobs file)\n") in res.output
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["extraction"]["not_measured"] == ["X99"] and summary["extraction"]["n_ok"] == 8
+    assert "X99: measured on no photo" in (tmp_path / "out" / "lidarcat.log").read_text()
+
+
 def test_run_with_figures_draws_every_roof(demo_run, tmp_path):
     survey_dir, _, info, _ = demo_run
     res = CliRunner().invoke(cli, ["run", str(survey_dir), "-o", str(tmp_path / "out"), "--figures"])

@@ -967,13 +967,18 @@ def _stage_extract(ctx: _Context, tmp: Path) -> dict:
         raise LidarcatError(f"no roof vertex could be extracted from {survey.extraction_jobs} "
                             f"({len(points)} jobs; see {ctx.stage.folder}/control.csv for the reasons)"
                             if points else f"{survey.extraction_jobs}: no extraction job")
-    _write_derived_survey(survey, ok, name, tmp / "survey")
+    unmeasured = _write_derived_survey(survey, ok, name, tmp / "survey")
+    if unmeasured:
+        log.warning("extracted point(s) %s: measured on no photo (%s), so they cannot control the "
+                    "block; check the ids in %s", ", ".join(unmeasured), survey.files["image_points"],
+                    survey.extraction_jobs)
     if par.get("figures"):
         write_figures(tmp / "figures", points)
     status: dict[str, int] = {}
     for cp in points:
         status[cp.status] = status.get(cp.status, 0) + 1
     return {"n_jobs": len(points), "n_ok": len(ok), "statuses": status, "control_set": name,
+            "not_measured": unmeasured,
             "points": {cp.point_id: {"status": cp.status, "n_planes": int(cp.n_planes),
                                      "sd_m": [float(v) for v in cp.sd_m]} for cp in points}}
 
@@ -1008,8 +1013,11 @@ def _toml_value(v: Any) -> str:
     raise TypeError(f"cannot write {v!r} to TOML")
 
 
-def _write_derived_survey(survey: Any, points: Sequence[Any], set_name: str, folder: Path) -> None:
-    """A copy of *survey* whose ground points and control sets include the extracted points."""
+def _write_derived_survey(survey: Any, points: Sequence[Any], set_name: str, folder: Path) -> list[str]:
+    """A copy of *survey* whose ground points and control sets include the extracted points.
+
+    Returns the ids of extracted points that no photo measures (they cannot control the block).
+    """
     import shutil
     import tomllib
 
@@ -1066,6 +1074,7 @@ def _write_derived_survey(survey: Any, points: Sequence[Any], set_name: str, fol
     if data.get("adjustment"):
         lines += ["", "[adjustment]"] + [f"{k} = {_toml_value(v)}" for k, v in data["adjustment"].items()]
     write_text_atomic(folder / "survey.toml", "\n".join(lines) + "\n")
+    return [pid for pid in extracted if pid not in measured]
 
 
 def _stage_report(ctx: _Context, tmp: Path) -> dict:

@@ -122,6 +122,9 @@ def _text(result) -> str:
     if ext:
         lines.append(f"  extraction: {ext['n_ok']} of {ext['n_jobs']} roof vertices -> control set "
                      f"{ext['control_set']}")
+        if ext.get("not_measured"):
+            lines.append(f"  extraction: measured on no photo, no effect on the block: "
+                         f"{', '.join(ext['not_measured'])} (check the ids in the jobs file)")
     for name, run in (result.summary.get("runs") or {}).items():
         adj = run.get("adjustment", {})
         chk = run.get("check", {})
