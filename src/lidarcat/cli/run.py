@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 import click
 
@@ -61,11 +62,12 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
     """
     from ..pipeline import FROM_SURVEY, run_pipeline
 
-    bars: dict[str, object] = {}
+    bars: dict[str, Any] = {}  # the open bar of every started stage (removed when it ends)
+    ended: set[str] = set()
     show = sys.stderr.isatty() and not as_json
 
     def progress(stage: str, done: int, total: int) -> None:
-        if not show:
+        if not show or stage in ended:
             return
         bar = bars.get(stage)
         if bar is None:
@@ -73,12 +75,11 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
                                     show_eta=False, show_percent=True)
             bar.__enter__()
             bars[stage] = bar
-        if isinstance(bar, _Finished):
-            return
         if done >= total:  # the stage ended
             bar.update(max(0, bar.length - bar.pos))
             bar.render_finish()
-            bars[stage] = _Finished()
+            del bars[stage]
+            ended.add(stage)
             return
         if total != bar.length:  # the stage now knows its size
             bar.length = max(total, 1)
@@ -90,22 +91,14 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
                               contour_interval_m=FROM_SURVEY if contour_interval_m is None else contour_interval_m,
                               figures=figures)
     finally:
-        for bar in bars.values():
-            if not isinstance(bar, _Finished):
-                bar.render_finish()
+        for bar in bars.values():  # stages interrupted mid-way
+            bar.render_finish()
     if as_json:
         echo_json(result.to_dict())
     else:
         click.echo(_text(result))
     if not result.ok:
         ctx.exit(1)
-
-
-class _Finished:
-    """Placeholder for a stage whose bar is complete."""
-
-    def render_finish(self) -> None:
-        pass
 
 
 def _text(result) -> str:
