@@ -1225,10 +1225,10 @@ def find_candidates(
 ) -> list[Candidate]:
     """Scan a tile (or a box) and propose every roof vertex where 3+ planes meet.
 
-    The box is cut into cells of *cell_m*, each segmented with 2 m of the
-    neighbouring cells around it; in each cell the faces are segmented, every triple of faces whose
-    intersection is supported by all three faces gives a seed, which is then
-    refined by :func:`extract_roof` at that position.  Duplicates (closer than
+    The box is cut into cells of *cell_m*; the faces of each cell are
+    segmented together with 2 m of its neighbours, every triple of faces
+    whose intersection is supported by all three faces gives a seed, which is
+    then refined by :func:`extract_roof` at that position.  Duplicates (closer than
     1 m) keep the best score.
 
     Parameters
