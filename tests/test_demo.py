@@ -226,7 +226,7 @@ def test_demo_compare_errors_name_the_folder_and_the_missing_id(demo_run, tmp_pa
                              f"output of `lidarcat run {other}`?")
 
 
-def test_a_job_for_a_point_no_photo_measures_is_reported(demo_run, tmp_path):
+def test_a_job_for_a_point_no_photo_measures_is_reported_and_settings_carry_over(demo_run, tmp_path):
     import shutil
 
     survey_dir, _, _, _ = demo_run
@@ -235,6 +235,8 @@ def test_a_job_for_a_point_no_photo_measures_is_reported(demo_run, tmp_path):
     jobs = survey / "jobs.csv"
     last = jobs.read_text().splitlines()[-1]
     jobs.write_text(jobs.read_text() + "X99" + last[last.index(","):] + "\n")   # R07's roof, unmeasured id
+    toml = survey / "survey.toml"
+    toml.write_text(toml.read_text() + '\n[assessment]\nscale = 5000\npec_class = "B"\n')
     res = CliRunner().invoke(cli, ["run", str(survey), "-o", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
     assert ("  extraction: measured on no photo, no effect on the block: X99 (check the ids in the "
@@ -242,6 +244,9 @@ def test_a_job_for_a_point_no_photo_measures_is_reported(demo_run, tmp_path):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["extraction"]["not_measured"] == ["X99"] and summary["extraction"]["n_ok"] == 8
     assert "X99: measured on no photo" in (tmp_path / "out" / "lidarcat.log").read_text()
+    # the derived survey keeps the [assessment] table (for lidarcat adjust / assess on it)
+    derived = Survey.load(tmp_path / "out" / "extract" / "survey")
+    assert (derived.assessment.scale, derived.assessment.pec_class) == (5000.0, "B")
 
 
 def test_run_with_figures_draws_every_roof(demo_run, tmp_path):

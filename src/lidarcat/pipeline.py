@@ -1071,8 +1071,9 @@ def _write_derived_survey(survey: Any, points: Sequence[Any], set_name: str, fol
     lines = ["# Derived by lidarcat run: the survey plus the extracted LiDAR control points.", "", "[survey]"]
     lines += [f"{k} = {_toml_value(v)}" for k, v in sv.items()]
     lines += ["", "[files]"] + [f"{k} = {_toml_value(v)}" for k, v in new_files.items()]
-    if data.get("adjustment"):
-        lines += ["", "[adjustment]"] + [f"{k} = {_toml_value(v)}" for k, v in data["adjustment"].items()]
+    for table in ("adjustment", "assessment"):  # [lidar] is left out with the tiles
+        if data.get(table):
+            lines += ["", f"[{table}]"] + [f"{k} = {_toml_value(v)}" for k, v in data[table].items()]
     write_text_atomic(folder / "survey.toml", "\n".join(lines) + "\n")
     return [pid for pid in extracted if pid not in measured]
 
