@@ -183,3 +183,15 @@ def test_find_classes_on_text_points_is_a_clear_error(tmp_path):
     xy = np.array([f["geometry"]["coordinates"] for f in feats])
     for v in s.vertices:  # both ridge ends of the hip roof are proposed
         assert np.min(np.linalg.norm(xy - v, axis=1)) < 0.15
+
+
+def test_job_file_not_utf8_is_a_located_error(tmp_path):
+    from lidarcat.errors import ExtractionError
+    from lidarcat.extraction import read_jobs
+
+    p = tmp_path / "jobs.csv"
+    p.write_bytes(b"point,E,N\nPra\xe7a,85000,447472\n")
+    with pytest.raises(ExtractionError, match=r"jobs.csv:2: byte 0xe7 is not UTF-8 text; save the file as UTF-8$"):
+        read_jobs(p)
+    with pytest.raises(ExtractionError, match=r"nope.csv: file not found"):
+        read_jobs(tmp_path / "nope.csv")

@@ -67,11 +67,10 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
     ExtractionError
         Missing file, wrong number of fields, non-numeric value (names file and line).
     """
+    from ._io import read_text
+
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise ExtractionError(f"{path}: job file not found") from None
+    text = read_text(path, ExtractionError)
     first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), "")
     # CSV: a header with a "point" column; a thesis line has 6 fields and may use decimal commas
     if "," in first and ("point" in [c.strip() for c in first.split(",")] or len(first.split()) != 6):
