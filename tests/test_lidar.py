@@ -678,3 +678,13 @@ def test_query_outside_every_tile_keeps_the_attribute_schema(tmp_path):
     got = TileIndex.build(str(tmp_path / "t.las"), crs="EPSG:31982").query_radius((50.0, 50.0), 1.0)
     assert len(got) == 0
     assert {"gps_time", "intensity"} <= set(got.attributes)
+
+
+def test_query_box_with_swapped_corners_is_a_clip_error():
+    from lidarcat.errors import ClipError
+    from lidarcat.lidar import TileIndex
+
+    idx = TileIndex.build([str(LIDAR_DATA / "ahn3_cropped_1.laz")], crs="EPSG:7415")
+    with pytest.raises(ClipError, match=r"^empty box: x 85010.0..85000.0, y 447470.0..447480.0; "
+                                        r"give xmin <= xmax and ymin <= ymax \(metres\)$"):
+        idx.query_box(85010.0, 447470.0, 85000.0, 447480.0)

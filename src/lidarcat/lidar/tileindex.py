@@ -65,7 +65,7 @@ import numpy as np
 import pyproj
 
 from .._io import write_json_atomic
-from ..errors import CRSError, TileIOError
+from ..errors import ClipError, CRSError, TileIOError
 from .cloud import Bounds, PointCloud
 from .crs import common_crs, crs_compatible, crs_label, resolve_crs, transform_points
 from .readers import (ASCII_SUFFIXES, LAS_SUFFIXES, file_kind, iter_las_ranges, iter_points,
@@ -894,7 +894,8 @@ class TileIndex:
         With *crs*, the four corners are transformed and their bounding box used.
         """
         if xmax < xmin or ymax < ymin:
-            raise ValueError(f"empty box: x {xmin}..{xmax}, y {ymin}..{ymax}")
+            raise ClipError(f"empty box: x {xmin}..{xmax}, y {ymin}..{ymax}; give xmin <= xmax and "
+                            f"ymin <= ymax (metres)")
         if crs is not None:
             corners = self._to_index_crs(np.array([[xmin, ymin], [xmax, ymin], [xmax, ymax], [xmin, ymax]],
                                                   dtype=np.float64), crs)
