@@ -97,7 +97,8 @@ _SUMMARY_LABELS = {  # known summary.json keys, in display order
     "rms_control_residuals_m": "RMS control-point residuals",
     "sd_control_residuals_m": "sd of control residuals (Appendix 2 'pontos fixos')",
     "mean_sd_control_m": "mean sd of control points",
-    "mean_sd_free_m": "mean sd of free points (Appendix 2 'pontos livres')",
+    "mean_sd_free_m": "mean sd of free points",
+    "rms_sd_points_m": "RMS sd of all points (Appendix 2 'pontos livres')",
 }
 
 _TEST_TITLES = {
