@@ -422,29 +422,6 @@ def test_assessment_table_of_survey_toml_sets_scale_and_level(tmp_path, survey_c
     assert doc["settings"]["pec_class"] == "B" and res.ok
 
 
-def test_survey_knows_the_pec_classes_of_the_standards_tables():
-    from lidarcat import standards
-    from lidarcat.survey import PEC_CLASSES
-
-    for scale, eq in ((500, 0.5), (2000, 2.0), (100_000, 50.0)):
-        assert tuple(standards.pec_tolerances("pec", scale, eq)) == PEC_CLASSES
-
-
-@pytest.mark.parametrize("line,message", [
-    ("scale = -2", "must be a positive scale denominator"),
-    ("alpha = 1.5", "must lie between 0 and 1"),
-    ('pec_class = "Z"', "'Z' is not one of A, B, C"),
-    ("colour = 1", "colour"),
-])
-def test_assessment_table_errors_are_located(tmp_path, line, message, survey_copy):
-    survey = survey_copy
-    toml = survey / "survey.toml"
-    toml.write_text(toml.read_text() + f"\n[assessment]\n{line}\n")
-    with pytest.raises(SurveyError, match="survey.toml") as ei:
-        Survey.load(survey)
-    assert message in str(ei.value)
-
-
 def test_control_sets_sharing_an_output_folder_are_refused(survey_copy, tmp_path):
     with open(survey_copy / "control_sets.csv", "a") as fh:
         fh.write("a b,601,control,0.25,0.25,0.25\na_b,601,control,0.25,0.25,0.25\n")

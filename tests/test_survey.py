@@ -603,3 +603,31 @@ def test_correct_measurements_uses_each_photos_camera(tmp_path):
     px = table.pixel_px[on5]
     np.testing.assert_allclose(table.fot_mm[on5, 0], 0.008 * (px[:, 0] - 2249.5) - 0.152, atol=1e-12)
     np.testing.assert_allclose(table.fot_mm[on5, 1], -0.008 * (px[:, 1] - 1499.5) - 0.139, atol=1e-12)
+
+
+# ------------------------------------------------------------------ [assessment]
+def test_survey_knows_the_pec_classes_of_the_standards_tables():
+    from lidarcat import standards
+    from lidarcat.survey import PEC_CLASSES
+
+    for scale, eq in ((500, 0.5), (2000, 2.0), (100_000, 50.0)):
+        assert tuple(standards.pec_tolerances("pec", scale, eq)) == PEC_CLASSES
+
+
+def test_assessment_defaults_are_the_thesis_settings(thesis):
+    a = thesis.assessment
+    assert (a.scale, a.contour_interval_m, a.alpha, a.pec_class) == (2000.0, 2.0, 0.10, "A")
+
+
+@pytest.mark.parametrize("line, field, message", [
+    ("scale = -2", "scale", "must be a positive scale denominator (2000 for 1:2000), got -2"),
+    ("contour_interval_m = 0", "contour_interval_m", "must be positive (metres), got 0"),
+    ("alpha = 1.5", "alpha", "must lie between 0 and 1, got 1.5"),
+    ('pec_class = "Z"', "pec_class", "'Z' is not one of A, B, C"),
+    ("colour = 1", "colour", "unknown key"),
+])
+def test_assessment_table_errors_are_located(tmp_path, line, field, message):
+    f = copy_thesis(tmp_path)
+    text = edit(f, "survey.toml", "[files]", f"[assessment]\n{line}\n\n[files]")
+    err = expect(f, "survey.toml", line_of(text, line), field)
+    assert message in str(err)
