@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import sys
-
 import click
 
-from .options import echo_json, json_opt
+from .options import echo_json, json_opt, progress_bar
 
 __all__ = ["demo"]
 
@@ -54,18 +52,11 @@ def synthetic(outdir: str, n_photos: int, seed: int, image_sd_px: float, gps_sd_
     """
     from ..demo import write_synthetic_survey
 
-    show = sys.stderr.isatty() and not as_json
-    bar = click.progressbar(length=5, label="demo survey", file=sys.stderr) if show else None
-    try:
-        if bar is not None:
-            bar.__enter__()
+    with progress_bar(5, "demo survey", enabled=not as_json) as bar:
         result = write_synthetic_survey(
             outdir, n_photos=n_photos, seed=seed, image_sd_px=image_sd_px, gps_sd_m=gps_sd_m,
             lidar_density_m2=lidar_density_m2,
             progress=(lambda done, total: bar.update(done - bar.pos)) if bar is not None else None)
-    finally:
-        if bar is not None:
-            bar.render_finish()
     if as_json:
         echo_json(result.to_dict())
         return

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import sys
-
 import click
 
-from .options import echo_json
+from .options import echo_json, progress_bar
 
 __all__ = ["extract"]
 
@@ -24,13 +22,6 @@ or a CSV with columns point,E,N[,threshold_m,radius_m,file,sd_en_m,sd_h_m]
 Units: metres, degrees. A roof that cannot give a point is a row with a
 status (two_planes, flat_roof, no_vertex, ...) and a reason; the batch goes on.
 """
-
-
-def _progress(items: int, label: str):
-    if not sys.stderr.isatty():
-        return None, None
-    bar = click.progressbar(length=items, label=label, file=sys.stderr)
-    return bar, (lambda n: bar.update(n))
 
 
 @click.command(name="extract", epilog=_EPILOG)
@@ -86,14 +77,10 @@ def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, pl
     from ..extraction import Job, extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
 
     job_list = [Job("P1", at[0], at[1])] if at is not None else read_jobs(jobs)
-    bar, prog = _progress(len(job_list), "Extracting roofs")
-    try:
+    with progress_bar(len(job_list), "Extracting roofs") as bar:
         points = extract_batch(job_list, lidar=lidar or None, crs=crs, params=params,
-                               spec_sd=tuple(spec_sd) if spec_sd else None, progress=prog,
-                               index_cache=index_cache)
-    finally:
-        if bar is not None:
-            bar.render_finish()
+                               spec_sd=tuple(spec_sd) if spec_sd else None,
+                               progress=bar.update if bar is not None else None, index_cache=index_cache)
     if output:
         write_control_csv(output, points, comments=[f"lidarcat extract, preset {preset}"])
     if planes_out:

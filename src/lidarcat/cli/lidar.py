@@ -10,7 +10,7 @@ from typing import Any
 
 import click
 
-from .options import echo_json, json_opt
+from .options import echo_json, json_opt, progress_bar
 
 __all__ = ["lidar", "info", "index", "clip_cmd", "raster"]
 
@@ -37,19 +37,12 @@ def lidar() -> None:
     """
 
 
-def _is_tty() -> bool:
-    return sys.stderr.isatty()
-
-
 @contextlib.contextmanager
 def _progress(label: str, paths: Sequence[Path]) -> Iterator[Any]:
     """A click progress bar over the bytes of *paths* on a TTY, else a no-op callable."""
-    if not _is_tty():
-        yield None
-        return
-    total = sum(p.stat().st_size for p in paths if p.exists())
-    with click.progressbar(length=max(total, 1), label=label, file=sys.stderr) as bar:
-        yield bar.update
+    total = sum(p.stat().st_size for p in paths if p.exists()) if sys.stderr.isatty() else 0
+    with progress_bar(total, label) as bar:
+        yield bar.update if bar is not None else None
 
 
 def _sources(paths: Sequence[str], crs: str | None) -> tuple[list[Path], str | None, Path | None]:
