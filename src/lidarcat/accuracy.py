@@ -72,6 +72,7 @@ import numpy as np
 from scipy import stats
 
 from . import standards as _std
+from ._frozen import frozen_array
 from ._io import read_csv_table
 from .errors import AssessmentError
 
@@ -134,13 +135,10 @@ class PointSet:
     source: str = "<points>"
 
     def __post_init__(self) -> None:
-        xyz = np.array(self.xyz, dtype=float).reshape(-1, 3)
-        xyz.setflags(write=False)
+        xyz = frozen_array(np.reshape(self.xyz, (-1, 3)))
         object.__setattr__(self, "xyz", xyz)
         if self.sd is not None:
-            sd = np.array(self.sd, dtype=float).reshape(-1, 3)
-            sd.setflags(write=False)
-            object.__setattr__(self, "sd", sd)
+            object.__setattr__(self, "sd", frozen_array(np.reshape(self.sd, (-1, 3))))
         if len(self.ids) != xyz.shape[0]:
             raise AssessmentError(f"{self.source}: {len(self.ids)} ids for {xyz.shape[0]} coordinate rows")
         seen: set[str] = set()
@@ -817,9 +815,7 @@ class Assessment:
         for name in ("adjusted", "reference", "d", "planimetric", "reference_sd"):
             v = getattr(self, name)
             if v is not None:
-                arr = np.array(v, dtype=float)
-                arr.setflags(write=False)
-                object.__setattr__(self, name, arr)
+                object.__setattr__(self, name, frozen_array(v))
 
     @property
     def n(self) -> int:
