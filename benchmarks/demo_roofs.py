@@ -24,7 +24,8 @@ import numpy as np  # noqa: E402
 def _batch(args: tuple[int, int]) -> list[tuple[str, list[float]]]:
     from lidarcat import roofs
     from lidarcat.demo import _LIDAR_PLAN_SD_M, _place_buildings
-    from lidarcat.facets import extract_roof, get_params
+    from lidarcat.control import extract_roof
+    from lidarcat.facets import get_params
 
     seed, n = args
     rng = np.random.default_rng(seed)

@@ -8,7 +8,8 @@ import pytest
 
 from conftest import DATA, THESIS_TABLES
 from lidarcat.control import ControlPoint, intersect_planes
-from lidarcat.facets import Plane, extract_roof, get_params
+from lidarcat.control import extract_roof
+from lidarcat.facets import Plane, get_params
 from lidarcat.roofs import synthetic_roof
 
 

@@ -104,7 +104,8 @@ def test_demo_roofs_are_extracted_without_bias_and_with_honest_sds():
     0.5-1.5 m off, extracted with the noise the demo states."""
     from lidarcat import roofs
     from lidarcat.demo import _LIDAR_PLAN_SD_M, _place_buildings
-    from lidarcat.facets import extract_roof, get_params
+    from lidarcat.control import extract_roof
+    from lidarcat.facets import get_params
 
     rng = np.random.default_rng(2026)
     cand = np.column_stack([rng.uniform(0, 1000, 160), rng.uniform(0, 1000, 160)]) + [680_000, 7_184_000]

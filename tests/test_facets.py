@@ -7,10 +7,10 @@ import pytest
 from scipy.spatial import cKDTree
 
 from conftest import DATA, THESIS_TABLES
-from lidarcat.control import ControlPoint
+from lidarcat.control import ControlPoint, extract_roof, find_candidates
 from lidarcat.facets import (
-    PRESETS, ExtractionParams, Plane, delaunay_facets, extract_roof, find_candidates, fit_plane,
-    get_params, segment_faces, triangle_planes, triangle_slope_aspect,
+    PRESETS, ExtractionParams, Plane, delaunay_facets, fit_plane, get_params, segment_faces,
+    triangle_planes, triangle_slope_aspect,
 )
 from lidarcat.roofs import LABELS, synthetic_roof
 

@@ -44,7 +44,7 @@ _EXPORTS: dict[str, str] = {
     # lidar
     "PointCloud": "lidar", "read_points": "lidar", "TileIndex": "lidar",
     # roof facets and control points
-    "Plane": "facets", "extract_roof": "facets", "find_candidates": "facets",
+    "Plane": "facets", "extract_roof": "control", "find_candidates": "control",
     "ControlPoint": "control", "intersect_planes": "control",
     # accuracy
     "assess": "accuracy", "Assessment": "accuracy", "write_report": "report",

@@ -25,6 +25,10 @@ so :math:`\Sigma_x = A^{-1} \Sigma_r A^{-T}` (three planes) or
 centred on the planes so that national-grid coordinates lose no digits.
 A survey may override it by specification standard deviations
 (:meth:`ControlPoint.with_specification`, thesis 0.50 m plan / 0.15 m height).
+
+:func:`extract_roof` chains the stage: clip -> faces (:mod:`lidarcat.facets`)
+-> vertex; :func:`find_candidates` searches an area for every vertex of 3+
+touching faces.
 """
 
 from __future__ import annotations
@@ -32,18 +36,21 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from ._frozen import frozen_array
-from .facets import ExtractionParams, Plane
+from .facets import ExtractionParams, Plane, get_params, segment_faces
 
 __all__ = [
     "ControlPoint",
     "intersect_planes",
     "select_vertex",
     "candidate_vertices",
+    "extract_roof",
+    "find_candidates",
+    "Candidate",
     "STATUSES",
     "ROW_FIELDS",
 ]
@@ -451,4 +458,226 @@ def candidate_vertices(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndar
     for t, cp, sup in _triples(planes, xyz, p, _face_support(xyz, labels, len(planes), p, info)):
         if all(np.hypot(*(cp.enh_m[:2] - v[:2])) > 0.5 for v in out):
             out.append(np.array(cp.enh_m))
+    return out
+
+
+# --------------------------------------------------------------------------- extraction
+def _as_xyz(points: Any) -> np.ndarray:
+    xyz = getattr(points, "xyz", points)
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError(f"points must be an (N, 3) array or a PointCloud, got shape {xyz.shape}")
+    return xyz
+
+
+def extract_roof(
+    points: Any,
+    center_en: Any,
+    *,
+    radius_m: float | None = None,
+    params: ExtractionParams | str | None = None,
+    point_id: str = "",
+    clipped: bool = False,
+):
+    """Extract the roof vertex nearest to *center_en* as a :class:`~lidarcat.control.ControlPoint`.
+
+    Parameters
+    ----------
+    points : (N, 3) float or PointCloud
+        LiDAR points E, N, h (m); may be a whole tile (clipped here) or a clip.
+    center_en : (2,) float
+        Approximate plan position of the vertex (m); a third value (h) is ignored.
+    radius_m : float, optional
+        Clip radius (default ``params.radius_m``).
+    params : ExtractionParams or {"default", "thesis"}
+    point_id : str
+        Name carried into the control point.
+    clipped : bool
+        *points* is already the clip (skip the radius selection).
+
+    Returns
+    -------
+    ControlPoint
+        Truthy when a vertex of 3+ planes was found; otherwise falsy with
+        ``status`` and ``reason`` (degenerate roofs never raise).
+
+    Raises
+    ------
+    ValueError
+        *center_en* has fewer than two values, or a parameter is invalid.
+
+    Examples
+    --------
+    >>> from lidarcat.roofs import synthetic_roof
+    >>> scene = synthetic_roof("pyramid", density_m2=8, noise_h_m=0.03, seed=1)
+    >>> cp = extract_roof(scene.xyz, scene.vertices[0, :2] + 0.8, radius_m=6)
+    >>> cp.status, cp.n_planes
+    ('ok', 4)
+    >>> bool(np.all(np.abs(cp.enh_m - scene.vertices[0]) < 0.15))
+    True
+    """
+    from .lidar.clipping import height_window_mask
+
+    p = get_params(params, radius_m=radius_m)
+    center = np.asarray(center_en, dtype=np.float64).reshape(-1)[:2]
+    if center.shape != (2,):
+        raise ValueError(f"center_en must be (E, N) in metres, got {center_en!r}")
+    try:
+        xyz = _as_xyz(points)
+    except ValueError as ex:
+        return ControlPoint.failed(point_id, center, "bad_input", str(ex))
+    if not clipped:
+        sel = np.sum((xyz[:, :2] - center) ** 2, axis=1) <= p.radius_m**2
+        xyz = xyz[sel]
+    xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+    if len(xyz) < 3 * p.min_points:
+        return ControlPoint.failed(point_id, center, "too_few_points",
+                                   f"{len(xyz)} points within {p.radius_m:g} m; 3 planes need at "
+                                   f"least {3 * p.min_points} (increase the radius or check the position)")
+    xyz = xyz[height_window_mask(xyz[:, 2], p.height_filter, p.height_window_m)]
+    if len(xyz) < 3 * p.min_points:
+        return ControlPoint.failed(point_id, center, "too_few_points",
+                                   f"{len(xyz)} points left after the {p.height_filter} height filter")
+    try:
+        planes, labels, info = segment_faces(xyz, p)
+    except ValueError as ex:
+        return ControlPoint.failed(point_id, center, "degenerate_points", str(ex))
+    cp = select_vertex(planes, xyz, labels, center, p, point_id=point_id, info=info)
+    return cp
+
+
+# --------------------------------------------------------------------------- candidates
+@dataclass(frozen=True, eq=False)
+class Candidate:
+    """An automatically found roof vertex (thesis section 5.2) with a quality score in [0, 1]."""
+
+    point: Any  # ControlPoint
+    score: float
+
+    def to_feature(self) -> dict[str, Any]:
+        cp = self.point
+        props = cp.to_row()
+        props["score"] = self.score
+        return {"type": "Feature", "geometry": {"type": "Point", "coordinates": [float(v) for v in cp.enh_m]},
+                "properties": props}
+
+
+def _score(cp: Any) -> float:
+    if not cp:
+        return 0.0
+    sd3 = float(np.sqrt(np.trace(cp.cov_m2)))
+    min_pts = min(pl.n_used for pl in cp.planes)
+    rms = max(pl.rms_m for pl in cp.planes)
+    return float(np.exp(-sd3 / 0.10) * min(1.0, min_pts / 30.0) * np.exp(-rms / 0.10)
+                 * min(1.0, (cp.n_planes / 3.0)))
+
+
+def find_candidates(
+    cloud: Any,
+    box: Any = None,
+    *,
+    params: ExtractionParams | str | None = None,
+    cell_m: float = 20.0,
+    min_score: float = 0.2,
+    classes: Any = None,
+    progress: Callable[[int], None] | None = None,
+) -> list[Candidate]:
+    """Scan a tile (or a box) and propose every roof vertex where 3+ planes meet.
+
+    The box is cut into cells of *cell_m*; the faces of each cell are
+    segmented together with 2 m of its neighbours, every triple of faces
+    whose intersection is supported by all three faces gives a seed, which is
+    then refined by :func:`extract_roof` at that position.  Duplicates (closer than
+    1 m) keep the best score.
+
+    Parameters
+    ----------
+    cloud : (N, 3) float or PointCloud
+    box : (xmin, ymin, xmax, ymax), optional
+        Default: the extent of the cloud.
+    params : ExtractionParams or preset name
+    cell_m : float
+        Cell size (m).
+    min_score : float
+        Candidates below this quality are dropped.
+    classes : sequence of int, optional
+        Keep only these classification codes (e.g. ``[6]`` buildings); needs a PointCloud.
+    progress : callable(int), optional
+        Called with 1 after each cell (an increment, like ``click.progressbar.update``).
+
+    Returns
+    -------
+    list of Candidate
+        Sorted by decreasing score.
+
+    Raises
+    ------
+    LidarFormatError
+        *classes* given but the points carry no classification.
+    """
+
+    p = get_params(params)
+    xyz = _as_xyz(cloud)
+    if classes is not None:
+        from .errors import LidarFormatError
+
+        cls = getattr(cloud, "attributes", {}).get("classification")
+        if cls is None:
+            raise LidarFormatError("classes: the points carry no classification; "
+                                   "drop --classes or use LAS/LAZ tiles with classes")
+        xyz = xyz[np.isin(np.asarray(cls), np.asarray(classes))]
+    if len(xyz) == 0:
+        return []
+    if box is None:
+        box = (*xyz[:, :2].min(axis=0), *xyz[:, :2].max(axis=0))
+    xmin, ymin, xmax, ymax = (float(v) for v in box)
+    inbox = (xyz[:, 0] >= xmin - p.radius_m) & (xyz[:, 0] <= xmax + p.radius_m) & \
+            (xyz[:, 1] >= ymin - p.radius_m) & (xyz[:, 1] <= ymax + p.radius_m)
+    xyz = xyz[inbox]
+    if len(xyz) == 0:
+        return []
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(xyz[:, :2])
+    seeds: list[np.ndarray] = []
+    nx = max(1, int(math.ceil((xmax - xmin) / cell_m)))
+    ny = max(1, int(math.ceil((ymax - ymin) / cell_m)))
+    for i in range(nx):
+        for j in range(ny):
+            x0, y0 = xmin + i * cell_m, ymin + j * cell_m
+            x1, y1 = min(x0 + cell_m, xmax), min(y0 + cell_m, ymax)
+            c = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+            half = max(x1 - x0, y1 - y0) / 2 + 2.0
+            idx = tree.query_ball_point(c, r=half * math.sqrt(2))
+            sub = xyz[idx]
+            sub = sub[(np.abs(sub[:, 0] - c[0]) <= half) & (np.abs(sub[:, 1] - c[1]) <= half)]
+            if len(sub) >= 3 * p.min_points:
+                try:
+                    planes, labels, _ = segment_faces(sub, p.replace(max_planes=60))
+                except ValueError:
+                    planes, labels = [], None
+                for v in candidate_vertices(planes, sub, labels, p):
+                    if x0 <= v[0] < x1 and y0 <= v[1] < y1:
+                        seeds.append(v)
+            if progress is not None:
+                progress(1)
+    cands: list[Candidate] = []
+    for k, v in enumerate(seeds):
+        cp = extract_roof(xyz, v[:2], params=p, point_id=f"C{k + 1:04d}")
+        if not cp:
+            continue
+        if np.hypot(*(cp.enh_m[:2] - v[:2])) > 1.0:
+            continue
+        s = _score(cp)
+        if s >= min_score:
+            cands.append(Candidate(cp, s))
+    cands.sort(key=lambda c: -c.score)
+    kept: list[Candidate] = []
+    for c in cands:
+        if all(np.hypot(*(c.point.enh_m[:2] - k.point.enh_m[:2])) > 1.0 for k in kept):
+            kept.append(c)
+    # renumber in order of score
+    out = []
+    for k, c in enumerate(kept):
+        out.append(Candidate(replace(c.point, point_id=f"C{k + 1:04d}"), c.score))
     return out

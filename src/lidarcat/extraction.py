@@ -12,7 +12,7 @@ random noise of the points in plan and height, m, which sets the weights of the
 plane fits -- see :class:`~lidarcat.facets.ExtractionParams`).  Relative file names are
 relative to the job file's folder.  ``#`` starts a comment line.
 
-:func:`extract_batch` runs :func:`lidarcat.facets.extract_roof` on every job;
+:func:`extract_batch` runs :func:`lidarcat.control.extract_roof` on every job;
 a degenerate roof gives a falsy :class:`~lidarcat.control.ControlPoint` with a
 status and a reason, and the batch goes on.
 """
@@ -29,9 +29,9 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from ._io import atomic_dir, write_csv_atomic, write_json_atomic, read_csv_table
-from .control import ROW_FIELDS, ControlPoint
+from .control import ROW_FIELDS, Candidate, ControlPoint, extract_roof
 from .errors import ClipError, ExtractionError, LidarcatError, location
-from .facets import Candidate, ExtractionParams, extract_roof, get_params
+from .facets import ExtractionParams, get_params
 
 __all__ = [
     "Job", "read_jobs", "extract_batch", "write_control_csv", "write_planes_csv",

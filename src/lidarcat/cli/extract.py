@@ -108,7 +108,7 @@ def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, pl
 
 def _find(lidar, crs, box, classes, params, output, as_json, index_cache) -> None:
     from ..extraction import write_candidates
-    from ..facets import find_candidates
+    from ..control import find_candidates
     from ..lidar import TileIndex
 
     index = TileIndex.build(list(lidar), crs=crs, cache_path=index_cache)
