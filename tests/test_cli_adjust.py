@@ -34,8 +34,9 @@ def gps_run(tmp_path_factory):
 def test_gps_run_writes_its_files(gps_run):
     result, out = gps_run
     assert result.exit_code == 0, result.output
-    assert sorted(p.name for p in out.iterdir()) == ["check_covariance.csv", "eop.csv", "points.csv",
-                                                     "residuals.csv", "summary.json"]
+    assert sorted(p.name for p in out.iterdir() if not p.name.endswith(".csv.json")) == [
+        "check_covariance.csv", "eop.csv", "points.csv", "residuals.csv", "summary.json"]
+    assert (out / "eop.csv").read_text().startswith("photo,")  # header first (notes in eop.csv.json)
     assert "check_covariance.csv" in result.output
     eop = _read(out / "eop.csv")
     assert tuple(eop[0]) == EOP_COLUMNS == ("photo", "X0", "Y0", "Z0", "omega", "phi", "kappa", "sd_X0",

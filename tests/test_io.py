@@ -83,7 +83,7 @@ def test_csv_round_trip_is_bit_identical(tmp_path):
     p = write_csv_atomic(tmp_path / "x.csv", ["id", "x"], [[f"p{i}", v] for i, v in enumerate(x)]
                          + [["nan", math.nan]], comments=["a comment", "another"])
     text = p.read_text(encoding="utf-8")
-    assert text.startswith("# a comment\n# another\nid,x\n") and text.endswith("nan,\n")
+    assert text.startswith("id,x\n") and text.endswith("nan,\n")
     t = read_csv_table(p, required=("id", "x"))
     assert t.lines[0] == 4  # comment lines are counted
     back = t.floats("x", required=False)
@@ -131,3 +131,38 @@ def test_dumps_json_is_valid_json_without_nan():
     text = dumps_json(doc, indent=None)
     assert text == '{"a": [0, 1, 2], "b": null, "c": [null, 4]}'
     assert json.loads(text)["c"] == [None, 4]
+
+
+def test_csv_header_is_the_first_line_and_notes_go_to_a_sidecar(tmp_path):
+    import pandas as pd
+
+    from lidarcat._io import csv_sidecar_path
+
+    path = tmp_path / "eop.csv"
+    write_csv_atomic(path, ["photo", "X0"], [["1", 1.5], ["2", 2.5]], comments=["X0 in metres"])
+    assert path.read_text().splitlines()[0] == "photo,X0"
+    df = pd.read_csv(path)  # default arguments: the first line is the header
+    assert list(df.columns) == ["photo", "X0"] and df["X0"].tolist() == [1.5, 2.5]
+    side = json.loads(csv_sidecar_path(path).read_text())
+    assert side["file"] == "eop.csv" and side["notes"] == ["X0 in metres"]
+    # rewritten without notes: the stale sidecar goes
+    write_csv_atomic(path, ["photo", "X0"], [["1", 1.5]])
+    assert not csv_sidecar_path(path).exists()
+
+
+def test_old_csv_files_with_comment_lines_still_read(tmp_path):
+    path = tmp_path / "old.csv"
+    path.write_text("# written by lidarcat 0.1\n# X0 in metres\nphoto,X0\n1,1.5\n")
+    table = read_csv_table(path, required=["photo", "X0"])
+    assert table.column("X0") == ["1.5"]
+
+
+def test_cli_docs_generator_prints_help_instead_of_writing_a_file(tmp_path, monkeypatch, capsys):
+    from lidarcat.cli import docs
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        docs.main(["--help"])
+    assert exc.value.code == 0
+    assert "Regenerate the Markdown reference" in capsys.readouterr().out
+    assert list(tmp_path.iterdir()) == []

@@ -40,6 +40,7 @@ __all__ = [
     "read_toml",
     "toml_line",
     "read_csv_table",
+    "csv_sidecar_path",
     "CsvTable",
     "to_json",
     "dumps_json",
@@ -173,18 +174,44 @@ def write_csv_atomic(
     *,
     comments: Sequence[str] = (),
 ) -> Path:
-    """Write a CSV file atomically (cells as in :func:`write_csv`)."""
+    """Write a CSV file atomically, header on the first line (cells as in :func:`write_csv`).
+
+    *comments* (units, provenance, conventions) do not go into the CSV, where
+    pandas, QGIS and GDAL/OGR would take them for the header: they are written
+    to a sidecar ``<name>.csv.json`` (``{"file", "notes", "lidarcat_version"}``),
+    see :func:`csv_sidecar_path`.  Without comments no sidecar is written and a
+    stale one is removed.
+    """
+    path = Path(path)
     with atomic_write(path, "w") as fh:
-        write_csv(fh, header, rows, comments=comments)
-    return Path(path)
+        write_csv(fh, header, rows)
+    side = csv_sidecar_path(path)
+    if comments:
+        from . import __version__
+
+        write_json_atomic(side, {"file": path.name, "notes": list(comments),
+                                 "lidarcat_version": __version__})
+    elif side.exists():
+        side.unlink()
+    return path
 
 
-def write_csv(fh: Any, header: Sequence[str], rows: Sequence[Sequence[Any]], *,
-              comments: Sequence[str] = ()) -> None:
-    """Write CSV to an open text file (e.g. ``sys.stdout``).
+def csv_sidecar_path(path: str | os.PathLike) -> Path:
+    """The JSON sidecar of a CSV file written by :func:`write_csv_atomic`.
 
-    *comments* become leading ``# ...`` lines; floats are written with ``repr``
-    (they read back bit-identical), NaN and infinities as empty cells.
+    >>> csv_sidecar_path("out/eop.csv").as_posix()
+    'out/eop.csv.json'
+    """
+    path = Path(path)
+    return path.with_name(path.name + ".json")
+
+
+def write_csv(fh: Any, header: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
+    """Write CSV to an open text file (e.g. ``sys.stdout``), header on the first line.
+
+    Floats are written with ``repr`` (they read back bit-identical), NaN and
+    infinities as empty cells.  (Files of lidarcat 0.1 began with ``# ...``
+    comment lines; :func:`read_csv_table` still skips them.)
 
     >>> import io
     >>> buf = io.StringIO()
@@ -194,8 +221,6 @@ def write_csv(fh: Any, header: Sequence[str], rows: Sequence[Sequence[Any]], *,
     701,0.1
     702,
     """
-    for c in comments:
-        fh.write(f"# {c}\n")
     w = csv.writer(fh, lineterminator="\n")
     w.writerow(header)
     for row in rows:

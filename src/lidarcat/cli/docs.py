@@ -90,8 +90,16 @@ def write_cli_reference(path: str | Path = DEFAULT_PATH) -> Path:
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = sys.argv[1:] if argv is None else argv
-    path = write_cli_reference(args[0] if args else DEFAULT_PATH)
+    """``python -m lidarcat.cli.docs [PATH]``: write the CLI reference (``--help`` prints usage)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m lidarcat.cli.docs",
+        description="Regenerate the Markdown reference of every lidarcat command from its click help.")
+    parser.add_argument("path", nargs="?", default=str(DEFAULT_PATH),
+                        help=f"output Markdown file (default: {DEFAULT_PATH})")
+    args = parser.parse_args(argv)
+    path = write_cli_reference(args.path)
     print(f"wrote {path}")
 
 
