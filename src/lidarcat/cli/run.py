@@ -102,7 +102,9 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
 
 
 def _text(result) -> str:
-    from ..pipeline import _num as _f  # the report's number format: '-' for a missing value
+    from ..pipeline.stages.report import (
+        num as _f,  # the report's number format: '-' for a missing value
+    )
 
     lines = [f"lidarcat run: {result.summary.get('survey', {}).get('name', '?')} -> {result.outdir}"]
     for s in result.stages:
