@@ -86,6 +86,9 @@ class BundleResult:
     initial_eo : (P, 6), initial_points_m : (Q, 3)
         The approximations the iteration started from.
     elapsed_s : float
+    precision : str
+        Which covariance blocks were computed (``all``, ``photos``, ``none``;
+        the others are NaN).
     """
 
     status: str
@@ -113,6 +116,7 @@ class BundleResult:
     initial_eo: np.ndarray
     initial_points_m: np.ndarray
     elapsed_s: float = 0.0
+    precision: str = "all"
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -219,6 +223,7 @@ class BundleResult:
             "rms_sd_points_m": dict(zip("ENh", (float(v) for v in np.sqrt(np.mean(sd**2, axis=0)))))
             if len(sd) else {},
             "elapsed_s": float(self.elapsed_s),
+            "precision": self.precision,
         }
 
 
@@ -389,5 +394,5 @@ def adjust(
         point_ids=p.point_ids, points_m=pts, point_cov=point_cov, point_role=p.point_role,
         residuals_mm=system.r_obs, constraint_residuals_m=system.r_con,
         eo_constraint_residuals=system.r_eo, history=tuple(history), problem=p,
-        initial_eo=eo0, initial_points_m=pts0, elapsed_s=time.perf_counter() - t0,
+        initial_eo=eo0, initial_points_m=pts0, elapsed_s=time.perf_counter() - t0, precision=precision,
     )
