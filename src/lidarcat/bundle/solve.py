@@ -12,6 +12,7 @@ Non-convergence is a ``status`` of :class:`BundleResult`, not an exception.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
@@ -24,11 +25,14 @@ import numpy as np
 from .._approx import approximations, intersect_points
 from .._frozen import frozen_array
 from .model import _cost, _System
-from .linear import _Singular
-from .precision import covariance_blocks
+from .linear import _Schur, _Singular
+from .precision import PRECISION_LEVELS, covariance_blocks
 from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
 
-__all__ = ["BundleResult", "adjust", "STATUS_MESSAGES"]
+__all__ = ["BundleResult", "adjust", "STATUS_MESSAGES", "PCG_MIN_PHOTOS"]
+
+#: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below)
+PCG_MIN_PHOTOS = 2000
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +90,14 @@ class BundleResult:
     initial_eo : (P, 6), initial_points_m : (Q, 3)
         The approximations the iteration started from.
     elapsed_s : float
+    precision : str
+        Which covariance blocks were computed (``all``, ``photos``, ``none``;
+        the others are NaN).
+    phases_s : dict
+        Wall time (s) of the phases: ``check``, ``approximations``, ``analysis``
+        (pattern and symbolic factorisation), ``model`` (residuals, Jacobians,
+        normal-equation blocks), ``solve`` (of it ``solve_assemble`` and
+        ``solve_factor``, or ``solve_pcg``), ``precision``.
     """
 
     status: str
@@ -113,6 +125,8 @@ class BundleResult:
     initial_eo: np.ndarray
     initial_points_m: np.ndarray
     elapsed_s: float = 0.0
+    precision: str = "all"
+    phases_s: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -219,6 +233,7 @@ class BundleResult:
             "rms_sd_points_m": dict(zip("ENh", (float(v) for v in np.sqrt(np.mean(sd**2, axis=0)))))
             if len(sd) else {},
             "elapsed_s": float(self.elapsed_s),
+            "precision": self.precision,
         }
 
 
@@ -247,6 +262,8 @@ def adjust(
     chi2_level: float = 0.05,
     damping: bool = True,
     check: bool = True,
+    precision: str = "all",
+    solver: str = "auto",
     progress: Callable[[int, float], None] | None = None,
 ) -> BundleResult:
     """Simultaneous bundle adjustment with weighted position constraints.
@@ -275,6 +292,15 @@ def adjust(
         plain Gauss-Newton.
     check : bool
         Run :func:`check_datum` first.
+    precision : {"all", "photos", "none"}
+        Covariance blocks to compute at the solution: of every photo and point,
+        of the photos only (``point_cov`` NaN), or none (both NaN; the fastest).
+    solver : {"auto", "direct", "pcg"}
+        Linear solver of the reduced camera system in the iterations: the
+        supernodal Cholesky (exact steps), or block-Jacobi preconditioned
+        conjugate gradients truncated as inexact Newton (cheaper steps on large
+        blocks); ``auto``: ``pcg`` from :data:`PCG_MIN_PHOTOS` photos.  The
+        covariance always uses the Cholesky factor.
     progress : callable(iteration, vtpv), optional
 
     Returns
@@ -292,12 +318,26 @@ def adjust(
         raise ValueError("`variance_factor` must be 'a_priori' or 'a_posteriori'")
     if not 0 < chi2_level < 1:
         raise ValueError("`chi2_level` must be in (0, 1)")
+    if precision not in PRECISION_LEVELS:
+        raise ValueError(f"`precision` must be one of {', '.join(PRECISION_LEVELS)}, got {precision!r}")
+    if solver not in ("auto", "direct", "pcg"):
+        raise ValueError(f"`solver` must be one of auto, direct, pcg, got {solver!r}")
     t0 = time.perf_counter()
     p = problem
+    phases = dict.fromkeys(("check", "approximations", "analysis", "model", "solve", "precision"), 0.0)
+
+    @contextlib.contextmanager
+    def phase(name: str):
+        t = time.perf_counter()
+        yield
+        phases[name] += time.perf_counter() - t
+
     if check:
-        check_datum(p)
+        with phase("check"):
+            check_datum(p)
     if initial is None:
-        eo, pts = approximations(p)
+        with phase("approximations"):
+            eo, pts = approximations(p)
     else:
         eo = np.array(initial[0], dtype=float).reshape(p.n_photos, 6)
         if initial[1] is None:
@@ -311,17 +351,23 @@ def adjust(
     n_iter = 0
     history: list[float] = []
     system = None
+    with phase("analysis"):
+        schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points)   # pattern of S, analysed once
+    method = solver if solver != "auto" else ("pcg" if p.n_photos >= PCG_MIN_PHOTOS else "direct")
     try:
-        system = _System(p, eo, pts)
-        cost = system.vtpv if np.all(system.u3 < 0) else _cost(p, eo, pts)
+        with phase("model"):
+            system = _System(p, eo, pts, schur)
+            cost = system.vtpv if np.all(system.u3 < 0) else _cost(p, eo, pts)
         history.append(cost)
         while n_iter < max_iter:
             n_iter += 1
             accepted = False
             while True:
-                dc, dp = system.solve(lam)
+                with phase("solve"):
+                    dc, dp = system.solve(lam, method)
                 eo_new, pts_new = eo + dc, pts + dp
-                new_cost = _cost(p, eo_new, pts_new)
+                with phase("model"):
+                    new_cost = _cost(p, eo_new, pts_new)
                 if not damping or new_cost <= cost * (1 + 1e-12) or _tiny(dc, dp, tol_m, tol_rad):
                     accepted = True
                     break
@@ -346,18 +392,20 @@ def adjust(
                 break
             if damping:
                 lam = lam / 10.0 if lam > 1e-12 else 0.0
-            system = _System(p, eo, pts)
+            with phase("model"):
+                system = _System(p, eo, pts, schur)
             if small and dcost < tol_vtpv:
                 status = "converged"
                 break
-        eo_cov, point_cov = covariance_blocks(system)       # system is linearised at (eo, pts)
+        with phase("precision"):
+            eo_cov, point_cov = covariance_blocks(system, precision)  # linearised at (eo, pts)
     except _Singular as ex:
         status = "singular"
         log.warning("bundle adjustment: %s", ex)
         eo_cov = np.full((p.n_photos, 6, 6), np.nan)
         point_cov = np.full((p.n_points, 3, 3), np.nan)
         if system is None:
-            system = _System(p, eo, pts)
+            system = _System(p, eo, pts, schur)
         message_extra = f": {ex}"
     else:
         message_extra = ""
@@ -382,5 +430,6 @@ def adjust(
         point_ids=p.point_ids, points_m=pts, point_cov=point_cov, point_role=p.point_role,
         residuals_mm=system.r_obs, constraint_residuals_m=system.r_con,
         eo_constraint_residuals=system.r_eo, history=tuple(history), problem=p,
-        initial_eo=eo0, initial_points_m=pts0, elapsed_s=time.perf_counter() - t0,
+        initial_eo=eo0, initial_points_m=pts0, elapsed_s=time.perf_counter() - t0, precision=precision,
+        phases_s={**phases, **{f"solve_{k}": v for k, v in schur.timings.items()}},
     )

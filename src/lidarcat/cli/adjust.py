@@ -71,9 +71,14 @@ def format_report(summary: dict, outdir: str | None = None) -> str:
               help="Use photo positions/attitudes of photos.csv that carry sd_* as weighted constraints.")
 @click.option("--max-iter", type=click.IntRange(1), default=50, show_default=True,
               help="Maximum number of Gauss-Newton / Levenberg-Marquardt iterations.")
+@click.option("--precision", type=click.Choice(["all", "photos", "none"]), default="all", show_default=True,
+              help="Standard deviations to compute: of every photo and point ('all'), of the photos only "
+                   "('photos': point sd_* empty), or none (fastest on blocks of thousands of photos; "
+                   "no check_covariance.csv).")
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
-           variance_factor: str | None, eo_constraints: bool, max_iter: int, as_json: bool) -> None:
+           variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str,
+           as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
     Unknowns: X0, Y0, Z0 (m) and omega, phi, kappa (deg; M = R3(kappa) R2(phi)
@@ -94,12 +99,13 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
       lidarcat adjust --control gps -o out/gps
       lidarcat adjust data/thesis --control lidar --observations pixel -o out/lidar
       lidarcat adjust my_survey --json
+      lidarcat adjust big_block --precision photos
     """
     from ..bundle import adjust_survey
 
     result, out = adjust_survey(survey, control=control, observations=observations, outdir=outdir,
                                 variance_factor=variance_factor, eo_constraints=eo_constraints,
-                                max_iter=max_iter)
+                                max_iter=max_iter, precision=precision)
     summary = {**result.summary(), "outdir": str(out)}
     if as_json:
         echo_json(summary)
