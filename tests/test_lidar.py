@@ -281,7 +281,7 @@ def test_corrupt_las_header_names_file(tmp_path):
     data[94:96] = struct.pack("<H", 17)  # header size
     p = tmp_path / "badhdr.las"
     p.write_bytes(bytes(data))
-    with pytest.raises(LidarFormatError, match=r"badhdr\.las: not a valid LAS/LAZ file: corrupt header"):
+    with pytest.raises(LidarFormatError, match=r"badhdr\.las: corrupt LAS header: header size 17 bytes \(at least 227"):
         read_points(p)
     q = tmp_path / "notlas.laz"
     q.write_bytes(b"hello world" * 50)
