@@ -408,6 +408,10 @@ def test_unwritable_index_cache_named(tmp_path):
 
 def test_query_touches_only_needed_tiles(monkeypatch):
     idx = TileIndex.build([AHN1, AHN2], crs=RD)
+    assert not any(t.bounds_verified for t in idx.tiles)   # header bounds: a claim, not used to skip
+    assert idx.verify_bounds() == 2 and all(t.bounds_verified for t in idx.tiles)
+    assert idx.tiles[1].bounds.xmin == pytest.approx(85000.001, abs=5e-4)
+    idx.clear_cache()
     opened = []
     import lidarcat.lidar.tileindex as ti
 

@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from ._io import atomic_dir, write_csv_atomic, write_json_atomic, read_csv_table
+from ._io import atomic_dir, parse_float, read_csv_table, write_csv_atomic, write_json_atomic
 from .control import ROW_FIELDS, Candidate, ControlPoint, extract_roof
 from .errors import ClipError, ExtractionError, LidarcatError, location
 from .facets import ExtractionParams, get_params
@@ -89,6 +89,9 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
             if len(bad):
                 raise ExtractionError(f"{location(path, t.lines[bad[0]], col)}: must be positive "
                                       f"(got {vals[bad[0]]:g}); leave it empty for the default")
+        for i, (pid, line) in enumerate(zip(t.column("point"), t.lines)):
+            if not pid:
+                raise ExtractionError(f"{location(path, line, 'point')}: empty point id; name the point")
         files = t.column("file") if t.has("file") else [""] * len(t.rows)
         return [Job(p, float(e[i]), float(n[i]),
                     None if math.isnan(thr[i]) else float(thr[i]),
@@ -110,9 +113,12 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
         vals = []
         for k in (2, 3, 4, 5):
             try:
-                vals.append(float(f[k].replace(",", ".")))
-            except ValueError:
-                raise ExtractionError(f"{location(path, lineno, names[k])}: {f[k]!r} is not a number") from None
+                v = parse_float(f[k], decimal_comma=True)
+            except ValueError as ex:
+                raise ExtractionError(f"{location(path, lineno, names[k])}: {ex}") from None
+            if not math.isfinite(v):
+                raise ExtractionError(f"{location(path, lineno, names[k])}: {f[k]!r} is not a finite number")
+            vals.append(v)
         for k, v in ((4, vals[2]), (5, vals[3])):
             if not v > 0:
                 raise ExtractionError(f"{location(path, lineno, names[k])}: must be positive (got {v:g})")

@@ -133,6 +133,8 @@ def _info_text(f: dict[str, Any]) -> str:
         if f.get("first_return_density_pts_m2"):
             dens += f" ({f['first_return_density_pts_m2']:.2f} first returns/m2)"
         lines.append(f"  density    {dens}")
+    elif f.get("density_note"):
+        lines.append(f"  density    - ({f['density_note']})")
     lines.append(f"  classes    {_fmt_counts(f.get('classes'))}")
     lines.append(f"  returns    {_fmt_counts(f.get('returns'))}")
     return "\n".join(lines)
@@ -285,6 +287,7 @@ def raster(paths: tuple[str, ...], cell_m: float, what: str, bounds: tuple[float
 
     files, crs, _ = _sources(paths, crs)
     idx = TileIndex.build(files, crs=crs, columns=columns, delimiter=delimiter, max_cached_points=0)
+    idx.verify_bounds()  # header bounds are claims: measure them before choosing tiles or the box
     box = tuple(bounds) if bounds else tuple(idx.bounds[:4])
     if not np.all(np.isfinite(box)):
         raise click.UsageError("the files hold no points")

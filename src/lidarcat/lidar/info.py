@@ -117,8 +117,6 @@ def _describe_file(path: Path, crs: Any, columns: Any, delimiter: str | None, ch
         r = _scan(path, crs, columns, delimiter, chunk_size, None, bounds, _grid_for(bounds))
     area = r["area"]
     density_ok = units_are_metres(head.crs)
-    if not density_ok and count:
-        log.warning("%s: %s is not in metres: no density", path, crs_label(head.crs))
     classes, returns = r["classes"], r["returns"]
     return {
         "path": str(path),
@@ -137,6 +135,7 @@ def _describe_file(path: Path, crs: Any, columns: Any, delimiter: str | None, ch
         "classes": {str(k): int(v) for k, v in enumerate(classes) if v} if classes is not None else None,
         "returns": {str(k): int(v) for k, v in enumerate(returns) if v} if returns is not None else None,
         "attributes": list(head.attributes),
+        "density_note": None if density_ok else f"no density: {crs_label(head.crs)} is not in metres",
     }, head.crs
 
 

@@ -60,7 +60,7 @@ from typing import Any
 
 import numpy as np
 
-from .._io import atomic_write
+from .._io import atomic_write, parse_float
 from ..errors import CRSError, LidarFormatError, TileIOError, location
 from .cloud import STANDARD_ATTRIBUTES, Bounds, PointCloud
 from .crs import crs_compatible, crs_label, resolve_crs
@@ -119,8 +119,8 @@ _DEFAULT_COLUMNS = {
     5: ("E", "N", "H", "intensity", "return_number"),
     6: ("E", "N", "H", "intensity", "return_number", "classification"),
 }
-_NUMBER_RE = re.compile(r"^[+-]?(\d+\.?\d*([eE][+-]?\d+)?|\.\d+([eE][+-]?\d+)?|nan|inf)$", re.I)
-_DECIMAL_COMMA_RE = re.compile(r"^[+-]?\d+(,\d+)?([eE][+-]?\d+)?$")
+_NUMBER_RE = re.compile(r"^[+-]?([0-9]+\.?[0-9]*([eE][+-]?[0-9]+)?|\.[0-9]+([eE][+-]?[0-9]+)?|nan|inf)$", re.I)
+_DECIMAL_COMMA_RE = re.compile(r"^[+-]?[0-9]+(,[0-9]+)?([eE][+-]?[0-9]+)?$")
 
 
 def file_kind(path: str | os.PathLike) -> str:
@@ -636,9 +636,9 @@ def _locate_bad_line(path: Path, lines: list[str], first_line_no: int, layout: _
                 continue
             t = tok.replace(",", ".") if layout.decimal_comma else tok
             try:
-                v = float(t)
-            except ValueError:
-                raise LidarFormatError(f"{location(path, line_no, name)}: {tok!r} is not a number") from None
+                v = parse_float(t)
+            except ValueError as ex:
+                raise LidarFormatError(f"{location(path, line_no, name)}: {ex}") from None
             if not math.isfinite(v):
                 raise LidarFormatError(f"{location(path, line_no, name)}: {tok!r} is not a finite number")
 
