@@ -232,17 +232,40 @@ def write_planes_csv(path: str | os.PathLike, points: Sequence[ControlPoint]) ->
 
 
 def write_candidates(path: str | os.PathLike, candidates: Sequence[Candidate], crs: Any = None) -> Path:
-    """Candidates as GeoJSON (``.geojson``/``.json``) or CSV (anything else)."""
+    """Candidates as GeoJSON (``.geojson``/``.json``) or CSV (anything else).
+
+    With a CRS (the tiles' own, or the one given), the GeoJSON carries a
+    ``"crs"`` member naming it (``urn:ogc:def:crs:EPSG::7415``; GDAL, QGIS and
+    GeoPandas read it) and a ``.prj`` file with its WKT is written next to
+    the output (both atomically), so the metres are never read as WGS 84.
+    """
+    from .lidar.crs import resolve_crs
+
     path = Path(path)
+    crs_obj = resolve_crs(crs)
     if path.suffix.lower() in (".geojson", ".json"):
         fc: dict[str, Any] = {"type": "FeatureCollection",
                               "features": [c.to_feature() for c in candidates]}
-        if crs is not None:
-            fc["crs"] = {"type": "name", "properties": {"name": str(crs)}}
+        if crs_obj is not None:
+            code = crs_obj.to_epsg(min_confidence=90)
+            name = f"urn:ogc:def:crs:EPSG::{code}" if code else crs_obj.to_wkt()
+            fc["crs"] = {"type": "name", "properties": {"name": name}}
+            from ._io import write_text_atomic
+
+            write_text_atomic(path.with_suffix(".prj"), _esri_wkt(crs_obj))
         return write_json_atomic(path, fc)
     fields = ROW_FIELDS + ["score"]
     rows = [[c.point.to_row()[k] for k in ROW_FIELDS] + [c.score] for c in candidates]
     return write_csv_atomic(path, fields, rows)
+
+
+def _esri_wkt(crs: Any) -> str:
+    """The ESRI WKT a ``.prj`` holds (the horizontal part), or WKT2 when pyproj cannot write it."""
+    try:
+        text = crs.to_wkt("WKT1_ESRI")
+    except Exception:  # pyproj.exceptions.CRSError for CRSs ESRI WKT cannot express
+        text = None
+    return text or crs.to_wkt()
 
 
 # ------------------------------------------------------------------ figures
