@@ -261,11 +261,15 @@ def write_candidates(path: str | os.PathLike, candidates: Sequence[Candidate], c
 
 def _esri_wkt(crs: Any) -> str:
     """The ESRI WKT a ``.prj`` holds (the horizontal part), or WKT2 when pyproj cannot write it."""
-    try:
-        text = crs.to_wkt("WKT1_ESRI")
-    except Exception:  # pyproj.exceptions.CRSError for CRSs ESRI WKT cannot express
-        text = None
-    return text or crs.to_wkt()
+    parts = [crs] + [c for c in (crs.sub_crs_list or []) if not c.is_vertical]
+    for c in parts:
+        try:
+            text = c.to_wkt("WKT1_ESRI")
+        except Exception:  # pyproj.exceptions.CRSError for CRSs ESRI WKT cannot express
+            text = None
+        if text:
+            return text
+    return crs.to_wkt()
 
 
 # ------------------------------------------------------------------ figures

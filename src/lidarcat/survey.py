@@ -513,7 +513,7 @@ def _positive(table: CsvTable, arr: np.ndarray, names: Sequence[str], unit: str 
                         for key in ("point", "photo") if table.has(key)), "")
             what = "must be positive" if not col[i] > 0 else "is outside the sane range"
             raise SurveyError(f"{location(table.path, table.lines[i], n)}{who}: standard deviation "
-                              f"{what}, got {col[i]!r} {unit}; sane values lie in {lo:g}..{hi:g} {unit}")
+                              f"{what}, got {float(col[i])!r} {unit}; sane values lie in {lo:g}..{hi:g} {unit}")
 
 
 def _check_crs(t: _Toml, table: str, crs: str, coords: Sequence[tuple[Path | None, np.ndarray, np.ndarray]]
