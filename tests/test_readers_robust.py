@@ -19,6 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 from conftest import LIDAR_DATA, THESIS_SURVEY
+from test_cli_lidar import assert_one_line_error
 from lidarcat._io import parse_float, read_csv_table
 from lidarcat.camera import load_cameras
 from lidarcat.cli.main import cli
@@ -32,16 +33,6 @@ from lidarcat.survey import Survey
 AHN2 = LIDAR_DATA / "ahn3_cropped_2.laz"
 PDAL = LIDAR_DATA / "pdal_sample_c.las"
 RD = "EPSG:7415"
-
-
-def _one_line_error(result, *fragments: str) -> str:
-    assert result.exit_code == 2, result.output
-    assert "Traceback" not in result.output
-    lines = [ln for ln in result.output.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("Error: "), result.output
-    for f in fragments:
-        assert f in lines[0], (f, lines[0])
-    return lines[0]
 
 
 def _patched(src: Path, dst: Path, offset: int, fmt: str, *values) -> Path:
@@ -62,7 +53,7 @@ def test_vlr_counts_beyond_the_file_are_refused_before_allocating(tmp_path):
         read_header(garbage)
     eleven = _patched(AHN2, tmp_path / "vlr11m.laz", 100, "<I", 11_000_000)
     r = CliRunner().invoke(cli, ["lidar", "info", str(eleven), "--crs", RD])
-    _one_line_error(r, "vlr11m.laz: corrupt LAS header: 11,000,000 variable-length records announced",
+    assert_one_line_error(r, "vlr11m.laz: corrupt LAS header: 11,000,000 variable-length records announced",
                     "only 102 bytes lie between")
 
 
@@ -89,17 +80,19 @@ def test_lazrs_panic_is_a_located_error(tmp_path):
                        r"208432 points \(PanicException: attempt to calculate the remainder"):
         read_points(bad, crs=RD)
     r = CliRunner().invoke(cli, ["lidar", "info", str(bad), "--crs", RD])
-    _one_line_error(r, "panic.laz", "PanicException")
+    assert_one_line_error(r, "panic.laz", "PanicException")
 
 
-@pytest.mark.parametrize("case", ["max_below_min", "max_1e308"])
+@pytest.mark.parametrize("case", ["max_below_min", "max_1e308", "max_far_too_wide"])
 def test_info_does_not_trust_header_bounds(tmp_path, case):
     lo_hi = struct.unpack_from("<2d", PDAL.read_bytes(), 179)  # max x, min x
-    values = (lo_hi[1] - 100.0, lo_hi[0]) if case == "max_below_min" else (1e308, lo_hi[1])
+    values = {"max_below_min": (lo_hi[1] - 100.0, lo_hi[0]), "max_1e308": (1e308, lo_hi[1]),
+              "max_far_too_wide": (lo_hi[0] + 5e7, lo_hi[1])}[case]   # a 50,000 km wide claim
     bad = _patched(PDAL, tmp_path / f"{case}.las", 179, "<2d", *values)
     good = describe_file(PDAL)
     got = describe_file(bad)
-    assert got["header_bounds_ok"] is False and good["header_bounds_ok"] is True
+    assert got["header_bounds_ok"] is (case == "max_far_too_wide") and good["header_bounds_ok"] is True
+    assert got["density_cell_m"] == good["density_cell_m"] == 1.0
     assert got["points"] == 14_408 and got["bounds"] == good["bounds"]
     assert got["density_pts_m2"] == pytest.approx(good["density_pts_m2"], rel=0.02)
     r = CliRunner().invoke(cli, ["lidar", "info", str(bad)])
@@ -159,7 +152,7 @@ def test_metres_required_for_density_and_clip_radius(tmp_path):
     feet = _las_with_wkt(tmp_path / "feet.las", None, np.column_stack(
         [500000 + rng.random(500) * 100, 600000 + rng.random(500) * 100, rng.random(500)]), epsg=2236)
     r = CliRunner().invoke(cli, ["lidar", "clip", str(feet), "--at", "500050", "600050", "--radius", "5"])
-    _one_line_error(r, "feet.las: a clip radius of 5 m needs coordinates in metres",
+    assert_one_line_error(r, "feet.las: a clip radius of 5 m needs coordinates in metres",
                     "uses the unit 'US survey foot' (1 US survey foot = 0.3048006096 m)")
     with pytest.raises(CRSError, match="needs coordinates in metres"):
         clip(PointCloud(np.zeros((20, 3)), crs="EPSG:4326"), (0.0, 0.0), 5.0)
@@ -232,7 +225,7 @@ def test_job_file_errors_are_located(tmp_path, text, message):
     with pytest.raises(ExtractionError, match=message):
         read_jobs(j)
     r = CliRunner().invoke(cli, ["extract", str(j)])
-    _one_line_error(r, "jobs.csv")
+    assert_one_line_error(r, "jobs.csv")
 
 
 def test_thesis_job_line_with_infinite_coordinate(tmp_path):

@@ -110,11 +110,15 @@ def _describe_file(path: Path, crs: Any, columns: Any, delimiter: str | None, ch
     count = r["count"]
     bounds = Bounds.from_minmax(r["lo"] if count else None, r["hi"])
     header_ok = bool(count == 0 or not r["outside"])
-    if count and r["outside"]:
-        # the header's bounds are wrong (or unusable): grid the points' own bounds in a second pass
-        log.warning("%s: the header's bounds %s do not hold the points %s; density from a second pass",
-                    path, tuple(round(v, 3) for v in head.bounds[:4]), tuple(round(v, 3) for v in bounds[:4]))
-        r = _scan(path, crs, columns, delimiter, chunk_size, None, bounds, _grid_for(bounds))
+    own = _grid_for(bounds) if count else None
+    if count and (r["outside"] or (own is not None and own[0] < r["cell"])):
+        # the header's bounds are wrong, unusable or far too wide (a coarser grid than the points
+        # need): grid the points' own bounds in a second pass
+        if r["outside"]:
+            log.warning("%s: the header's bounds %s do not hold the points %s; density from a second "
+                        "pass", path, tuple(round(v, 3) for v in head.bounds[:4]),
+                        tuple(round(v, 3) for v in bounds[:4]))
+        r = _scan(path, crs, columns, delimiter, chunk_size, None, bounds, own)
     area = r["area"]
     density_ok = units_are_metres(head.crs)
     classes, returns = r["classes"], r["returns"]
