@@ -65,6 +65,18 @@ def test_other_header_fields_checked_against_the_file_size(tmp_path):
         read_points(_patched(PDAL, tmp_path / "count.las", 107, "<I", 4_000_000_000))
     with pytest.raises(LidarFormatError, match=r"scale\.las: corrupt LAS header: Y scale 0\.0"):
         read_points(_patched(PDAL, tmp_path / "scale.las", 139, "<d", 0.0))
+    # a LAS 1.4 LAZ claiming 2**60 points (the fuzz suite's first hang: the block index was sized by it)
+    f6 = tmp_path / "f6.laz"
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = np.arange(30.0), np.arange(30.0), np.zeros(30)
+    las.write(f6)
+    with pytest.raises(LidarFormatError, match=r"huge\.laz: corrupt LAS header: 1,152,921,504,606,846,976 points "
+                       r"announced but the \d+ bytes of compressed point data cannot hold more than"):
+        read_points(_patched(f6, tmp_path / "huge.laz", 247, "<Q", 2**60))
+    lying = _patched(f6, tmp_path / "lying.laz", 247, "<Q", 1_000_000)  # within that bound: decoding stops
+    with pytest.raises(LidarFormatError, match=r"lying\.laz: (truncated or corrupt point data|truncated: read 30 of)"):
+        TileIndex.build([lying], crs="EPSG:32632").query_radius((10.0, 10.0), 5.0)
     with pytest.raises(LidarFormatError, match=r"ver\.las: corrupt LAS header: version 1\.9"):
         read_points(_patched(PDAL, tmp_path / "ver.las", 25, "<B", 9))
     with pytest.raises(LidarFormatError, match=r"short\.las: truncated: 100 bytes, shorter than a LAS header"):

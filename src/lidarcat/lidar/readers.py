@@ -93,6 +93,9 @@ MAX_ABS_COORD_M = 1e9
 _VLR_HEADER_BYTES = 54
 _EVLR_HEADER_BYTES = 60
 _NOT_CAUGHT = (KeyboardInterrupt, SystemExit, GeneratorExit)
+#: upper bound of LAZ points per byte of compressed data (a chunk of 50 000 points starts with one
+#: raw point of 20+ bytes: 2 500 points a byte; 10 000 leaves room for any real compressor)
+_MAX_LAZ_POINTS_PER_BYTE = 10_000
 
 #: progress callback: receives the number of bytes of the file just processed
 Progress = Callable[[int], Any]
@@ -246,6 +249,10 @@ def _precheck_las(path: Path) -> None:
             raise bad(f"{n_evlr:,} extended VLRs announced at byte {evlr_start:,} but the file has "
                       f"{size:,} bytes")
     compressed = bool(fmt_byte & 0xC0)
+    if compressed and count > _MAX_LAZ_POINTS_PER_BYTE * max(size - offset, 0):
+        raise LidarFormatError(f"{path}: corrupt LAS header: {count:,} points announced but the "
+                               f"{max(size - offset, 0):,} bytes of compressed point data cannot hold more "
+                               f"than {_MAX_LAZ_POINTS_PER_BYTE * max(size - offset, 0):,}")
     if not compressed and rec_len and count * rec_len > size - offset:
         raise LidarFormatError(f"{path}: truncated: the header announces {count} points "
                                f"({count * rec_len + offset} bytes) but the file has {size} bytes")

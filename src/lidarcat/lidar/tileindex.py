@@ -377,11 +377,17 @@ class _BlockBoxes:
         self.block_points = int(block_points)
         self.cell_points = int(cell_points)
         self.count = int(count)
-        k = -(-self.count // self.cell_points)
-        self.boxes = np.empty((k, 4))
-        self.boxes[:, :2] = np.inf
-        self.boxes[:, 2:] = -np.inf
+        self.cells = -(-self.count // self.cell_points)
+        # grown as points arrive: a header's count is a claim and must not size an allocation
+        self.boxes = self._empty(min(self.cells, 1024))
         self.seen = 0
+
+    @staticmethod
+    def _empty(k: int) -> np.ndarray:
+        boxes = np.empty((k, 4))
+        boxes[:, :2] = np.inf
+        boxes[:, 2:] = -np.inf
+        return boxes
 
     def add(self, xyz: np.ndarray) -> None:
         m = len(xyz)
@@ -391,6 +397,10 @@ class _BlockBoxes:
             raise ValueError("more points than the tile holds")
         cp = self.cell_points
         first, last = self.seen // cp, (self.seen + m - 1) // cp
+        if last >= len(self.boxes):
+            grown = self._empty(min(self.cells, max(last + 1, 2 * len(self.boxes))))
+            grown[:len(self.boxes)] = self.boxes
+            self.boxes = grown
         edges = np.concatenate([[0], np.arange(first + 1, last + 1) * cp - self.seen]).astype(np.intp)
         x, y = xyz[:, 0], xyz[:, 1]
         box = self.boxes[first:last + 1]
