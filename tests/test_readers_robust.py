@@ -150,6 +150,10 @@ def test_crs_option_read_before_an_unreadable_crs_record(tmp_path):
         assert read_points(p, crs="EPSG:32632").crs.to_epsg() == 32632
         r = CliRunner().invoke(cli, ["lidar", "info", str(p), "--crs", "EPSG:32632"])
         assert r.exit_code == 0 and "EPSG:32632" in r.output, r.output
+        r = CliRunner().invoke(cli, ["lidar", "clip", str(p), "--crs", "EPSG:32632", "--at", "500005", "5000005",
+                                     "--radius", "3", "--height-filter", "none", "--json"])
+        assert r.exit_code == 0, r.output
+        assert json.loads(r.output[r.output.index("{"):])["crs"] == "EPSG:32632"
 
 
 def test_metres_required_for_density_and_clip_radius(tmp_path):

@@ -585,7 +585,7 @@ class TileIndex:
                 if progress is not None:
                     progress(st.st_size)
                 continue
-            h = read_header(p, crs=None if file_kind(p) == "las" else given, columns=columns,
+            h = read_header(p, crs=given, columns=columns,
                             delimiter=delimiter, progress=progress)
             wkt = h.crs.to_wkt() if (h.crs is not None and h.crs_from_file) else None
             tiles.append(Tile(p, st.st_size, st.st_mtime_ns, h.count, h.bounds, wkt,
