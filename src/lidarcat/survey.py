@@ -700,8 +700,11 @@ class Survey:
                         f"{obs!r} is not one of {', '.join(map(repr, _OBSERVATION_KINDS))}")
         sd_default = max(max(c.pixel_size_x_mm, c.pixel_size_y_mm) for c in cameras.values())
         image_sd = t.get("adjustment", "image_sd_mm", (int, float), DEFAULT_SD_PIXELS * sd_default)
-        if image_sd <= 0:
-            raise t.err("adjustment", "image_sd_mm", f"must be positive, got {image_sd!r}")
+        lo_mm, hi_mm = SD_BOUNDS["mm"]
+        if not lo_mm <= image_sd <= hi_mm:
+            raise t.err("adjustment", "image_sd_mm",
+                        f"must be positive, got {image_sd!r}" if not image_sd > 0 else
+                        f"{image_sd!r} mm is outside the sane range {lo_mm:g}..{hi_mm:g} mm")
         excl_raw = t.get("adjustment", "exclude_points", list, [])
         exclude: set[str] = set()
         measured = set(image_points.point.tolist())
