@@ -61,6 +61,7 @@ import base64
 import glob as _glob
 import json
 import logging
+import math
 import os
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -239,7 +240,7 @@ class Tile:
         if not path.is_absolute():
             path = (base / path).resolve()
         return cls(path, int(d["size"]), int(d["mtime_ns"]), int(d["count"]),
-                   Bounds(*map(float, d["bounds"])), d.get("file_crs_wkt"), str(d["description"]),
+                   Bounds(*(math.nan if v is None else float(v) for v in d["bounds"])), d.get("file_crs_wkt"), str(d["description"]),
                    tuple(d.get("attributes", ())), bool(d.get("bounds_verified", False)))
 
 
