@@ -40,6 +40,7 @@ __all__ = [
     "read_toml",
     "toml_line",
     "read_csv_table",
+    "parse_float",
     "csv_sidecar_path",
     "CsvTable",
     "to_json",
@@ -376,6 +377,42 @@ def toml_line(text: str, table: str | None, key: str | None = None) -> int | Non
     return header_line
 
 
+_ASCII_FLOAT_RE = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+                             r"|[+-]?(?:inf|infinity|nan)", re.IGNORECASE)
+
+
+def parse_float(text: str, *, decimal_comma: bool = False) -> float:
+    """A number written in ASCII decimal notation (``-12.5``, ``1e-3``, ``inf``, ``nan``).
+
+    Python's ``float`` also reads Arabic-Indic and other Unicode digits,
+    ``1_000`` and surrounding Unicode spaces; input files must not depend on
+    that, so only ASCII digits, one ``.`` (or, with *decimal_comma*, one ``,``),
+    a sign and an exponent are accepted.
+
+    Raises
+    ------
+    ValueError
+        Not such a number; the message says why (non-ASCII digits named).
+
+    >>> parse_float(" 677757.80 "), parse_float("905,12", decimal_comma=True)
+    (677757.8, 905.12)
+    >>> parse_float("\u0661\u0662\u0663")
+    Traceback (most recent call last):
+    ...
+    ValueError: '١٢٣' is not a number: only ASCII digits 0-9 are read
+    """
+    s = text.strip(" \t\r\n")
+    if decimal_comma and "." not in s:
+        s = s.replace(",", ".", 1)
+    if _ASCII_FLOAT_RE.fullmatch(s):
+        return float(s)
+    if any(ch.isdigit() and not ch.isascii() for ch in s):
+        raise ValueError(f"{text!r} is not a number: only ASCII digits 0-9 are read")
+    if "," in s and _ASCII_FLOAT_RE.fullmatch(s.replace(",", ".", 1)):
+        raise ValueError(f"{text!r} is not a number: write the decimal separator as a point")
+    raise ValueError(f"{text!r} is not a number")
+
+
 @dataclasses.dataclass(frozen=True)
 class CsvTable:
     """A CSV file read as strings, each row remembering its physical line number."""
@@ -410,9 +447,9 @@ class CsvTable:
                 out[k] = default
                 continue
             try:
-                v = float(cell)
-            except ValueError:
-                raise SurveyError(f"{location(self.path, line, name)}: {cell!r} is not a number") from None
+                v = parse_float(cell)
+            except ValueError as ex:
+                raise SurveyError(f"{location(self.path, line, name)}: {ex}") from None
             if not math.isfinite(v) and not allow_nan:
                 raise SurveyError(f"{location(self.path, line, name)}: {cell!r} is not a finite number")
             out[k] = v
