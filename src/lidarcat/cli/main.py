@@ -29,6 +29,8 @@ COMMANDS: list[tuple[str, str, str]] = [
     ("extract", "lidarcat.cli.extract:extract", "Roof planes to control points (Delaunay facets + plane intersection)."),
     ("adjust", "lidarcat.cli.adjust:adjust", "Bundle adjustment with weighted position constraints."),
     ("assess", "lidarcat.cli.assess:assess", "Check-point accuracy: Filliben, t, chi-square, PEC, ASPRS, NSSDA."),
+    ("monoplot", "lidarcat.cli.monoplot:monoplot", "Monorestitution: features on one photo to the LiDAR surface."),
+    ("ortho", "lidarcat.cli.ortho:ortho", "Orthophotos (standard or true) and a mosaic of adjusted photos."),
     ("run", "lidarcat.cli.run:run", "The whole pipeline on a survey folder (default: the thesis block)."),
     ("demo", "lidarcat.cli.demo:demo", "Write demonstration surveys (synthetic block with known truth)."),
 ]
