@@ -70,7 +70,8 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
     "adjustment": {"observations": False, "image_sd_mm": False, "exclude_points": False,
                    "variance_factor": False, "chi2_level": False},
     "lidar": {"crs": False},
-    "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False},
+    "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False,
+                   "plotting_position": False},
 }
 _REQUIRED_TABLES = ("survey", "files")
 _OBSERVATION_KINDS = ("corrected", "pixel")
@@ -369,16 +370,21 @@ class AssessmentSettings:
         Level of every test (thesis: 0.10).
     pec_class : str
         Decreto 89.817 class whose EP is the chi-square sigma0 ("A" in the thesis).
+    plotting_position : str
+        Positions of the Filliben normal-probability test: ``filliben``
+        (Filliben 1975, matches its critical-value table), ``hazen``
+        ``(i - 0.5)/n`` (the thesis's Z_i, Tables 14/15) or ``blom``.
     """
 
     scale: float = 2000.0
     contour_interval_m: float = 2.0
     alpha: float = 0.10
     pec_class: str = "A"
+    plotting_position: str = "filliben"
 
     def to_dict(self) -> dict[str, Any]:
         return {"scale": self.scale, "contour_interval_m": self.contour_interval_m, "alpha": self.alpha,
-                "pec_class": self.pec_class}
+                "pec_class": self.pec_class, "plotting_position": self.plotting_position}
 
 
 # ---------------------------------------------------------------------- loading helpers
@@ -420,6 +426,8 @@ class _Toml:
 #: classes of Decreto 89.817 (lidarcat.standards has the tolerances; importing it here would pull
 #: scipy into every survey load)
 PEC_CLASSES = ("A", "B", "C")
+#: Filliben plotting positions (lidarcat.accuracy.PLOTTING_POSITIONS, not imported for the same reason)
+PLOTTING_POSITIONS = ("filliben", "hazen", "blom")
 
 
 def _assessment_settings(t: _Toml) -> AssessmentSettings:
@@ -437,7 +445,10 @@ def _assessment_settings(t: _Toml) -> AssessmentSettings:
     pec = t.get("assessment", "pec_class", str, d.pec_class)
     if pec not in PEC_CLASSES:
         raise t.err("assessment", "pec_class", f"{pec!r} is not one of {', '.join(PEC_CLASSES)}")
-    return AssessmentSettings(float(scale), float(ci), float(alpha), pec)
+    pp = t.get("assessment", "plotting_position", str, d.plotting_position)
+    if pp not in PLOTTING_POSITIONS:
+        raise t.err("assessment", "plotting_position", f"{pp!r} is not one of {', '.join(PLOTTING_POSITIONS)}")
+    return AssessmentSettings(float(scale), float(ci), float(alpha), pec, pp)
 
 
 def _check_keys(t: _Toml) -> None:

@@ -45,6 +45,7 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
       adjust-SET  bundle adjustment for every control set (thesis: gps, lidar)
       assess-SET  check-point accuracy of each run
       compare     differences of the runs: orientations, points free in both
+      thesis      the thesis's printed section 4.4 beside this run (embedded block)
       report      HTML / Markdown / JSON report in OUTDIR/report/
 
     OUTDIR gets one folder per stage, summary.json (status ran / reused /
@@ -134,6 +135,17 @@ def _text(result) -> str:
                            "above": "above its interval: errors larger than claimed"}.get(cons.get("side"), "pass")
                 parts.append(f"d'C^-1d {_f(cons['chi2'], 1)} on {cons['df']} dof {verdict}")
         lines.append(f"  run {name}: " + ", ".join(parts))
+    th = result.summary.get("thesis")
+    if th:
+        for src, label in (("printed", "recomputed from its printed values"), ("this_run", "from this run")):
+            s = th["table13"][src]
+            lines.append(f"  thesis Table 13, {label}: Filliben r plan/h {_f(s['r_plan'], 3)}/"
+                         f"{_f(s['r_altim'], 3)} (critical {_f(s['r_tab'], 3)}), t E/N/h "
+                         + "/".join(_f(s[f"t_{a}"], 2) for a in "ENh"))
+        odd = th["statistics_discrepant"] + th["tables_discrepant"]
+        lines.append(f"  thesis section 4.4: {th['statistics_agree']} of {th['statistics']} statistics and "
+                     f"{th['tables_agree']} of {th['tables']} table comparisons reproduced"
+                     + (f"; not reproduced (errata, see the report): {', '.join(odd)}" if odd else ""))
     report = result.summary.get("report")
     if report:
         lines.append(f"  report: {report}")
