@@ -18,7 +18,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -64,7 +63,8 @@ def run(tmp_path_factory):
 
 
 def _eop(run, name: str) -> dict[str, np.ndarray]:
-    rows = list(csv.DictReader(open(run.outdir / f"adjust-{name}" / "eop.csv", encoding="utf-8")))
+    with open(run.outdir / f"adjust-{name}" / "eop.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
     return {r["photo"]: (np.array([float(r[c]) for c in EOP]),
                          np.array([float(r[f"sd_{c}"]) for c in EOP])) for r in rows}
 
@@ -84,6 +84,44 @@ def _reference() -> dict[str, np.ndarray]:
 
 def _summary(run, name: str) -> dict:
     return json.loads((run.outdir / f"adjust-{name}" / "summary.json").read_text(encoding="utf-8"))
+
+
+# --------------------------------------------------------------------------- 4.1-4.2: the points
+
+#: Table 3: the points of the phototriangulation by type (code 700 LiDAR, 400 pass, 600 GPS)
+TABLE3 = {
+    "lidar": "701 702 703 704 705 706 707 708 709 710 711 712 713 717 718 719 720 721",
+    "pass": "401 403 405 406 407 408 409 410 411 412 413 414 415 416 418",
+    "gps": "601 603 604 605 606 615 616 617 618 619 620 621 622 623 624 625 626 627 661 662 664",
+}
+
+
+def test_thesis_table3_point_types(run):
+    from lidarcat.survey import Survey
+
+    s = Survey.load(None)
+    by_source = {src: sorted(str(q) for q, so in zip(s.ground_points.point, s.ground_points.source) if so == src)
+                 for src in ("lidar", "gps")}
+    assert by_source == {k: TABLE3[k].split() for k in ("lidar", "gps")}
+    pts, _ = _points(run, "gps")  # every adjusted point is one of Table 3 (pass point 417 left out)
+    assert sorted(pts.ids) == sorted(" ".join(TABLE3.values()).split())
+
+
+def test_thesis_tables4_5_point_708_and_the_lidar_points():
+    """Table 5's LiDAR coordinates are the survey's; Table 4's planes intersect in Table 5's point 708
+    within the rounding of the printed plane parameters (0.39 / 0.52 / 0.055 m, see test_control)."""
+    from lidarcat.control import intersect_planes
+    from lidarcat.facets import Plane
+
+    ref = _reference()
+    rows = _csv("table5_lidar_points.csv")
+    assert len(rows) == 18
+    for r in rows:
+        np.testing.assert_allclose(ref[r["point"]], [float(r[c]) for c in ("E", "N", "h")], atol=0.0015)
+    t4 = _floats(_csv("table4_planes_708.csv"), ("a", "b", "c", "d"))
+    cp = intersect_planes([Plane.from_abcd(row, centroid_m=[677872.0, 7183983.0, 918.0]) for row in t4],
+                          point_id="708")
+    assert np.all(np.abs(cp.enh_m - ref["708"]) < [0.39, 0.52, 0.055])
 
 
 # --------------------------------------------------------------------------- the GPS-controlled run
