@@ -355,6 +355,13 @@ class AdjustmentSettings:
                 "variance_factor": self.variance_factor, "chi2_level": self.chi2_level}
 
 
+#: default map scale denominator of the check-point classification (the thesis's 1:2000); shared by
+#: survey.toml [assessment], ``lidarcat run`` and ``lidarcat assess``
+DEFAULT_SCALE = 2000.0
+#: default contour interval of the altimetric classes, m (the thesis's 2 m); shared likewise
+DEFAULT_CONTOUR_INTERVAL_M = 2.0
+
+
 @dataclass(frozen=True)
 class AssessmentSettings:
     """The ``[assessment]`` table of survey.toml: how ``lidarcat run`` judges check points.
@@ -376,8 +383,8 @@ class AssessmentSettings:
         ``(i - 0.5)/n`` (the thesis's Z_i, Tables 14/15) or ``blom``.
     """
 
-    scale: float = 2000.0
-    contour_interval_m: float = 2.0
+    scale: float = DEFAULT_SCALE
+    contour_interval_m: float = DEFAULT_CONTOUR_INTERVAL_M
     alpha: float = 0.10
     pec_class: str = "A"
     plotting_position: str = "filliben"

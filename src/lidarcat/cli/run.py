@@ -7,6 +7,7 @@ from typing import Any
 
 import click
 
+from ..survey import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
 from .options import echo_json, json_opt
 
 __all__ = ["run"]
@@ -24,11 +25,13 @@ __all__ = ["run"]
 @click.option("--scale", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Map scale denominator for classifying the check points (PEC classes, the "
                    "chi-square sigma0, the CE90 limit). Default: survey.toml [assessment] scale, "
-                   "else 2000 (the thesis's 1:2000).")
+                   f"else {DEFAULT_SCALE:g} (the thesis's 1:{DEFAULT_SCALE:g}; the same default as "
+                   "`lidarcat assess`).")
 @click.option("--contour-interval", "contour_interval_m", type=click.FloatRange(min=0, min_open=True),
               default=None,
               help="Contour interval for the altimetric classes, metres. Default: survey.toml "
-                   "[assessment] contour_interval_m, else 2.")
+                   f"[assessment] contour_interval_m, else {DEFAULT_CONTOUR_INTERVAL_M:g} m (the thesis's; the "
+                   "same default as `lidarcat assess`).")
 @click.option("--figures", is_flag=True,
               help="Also draw one figure per extracted roof (points by face, planes, vertex; thesis "
                    "Figure 19) into OUTDIR/extract/figures/.")

@@ -62,7 +62,18 @@ def run(ctx: Context, tmp: Path) -> dict:
         state = "done" if rec and rec.done else rec.status if rec else "not run"
         rows.append({"stage": st.name, "what": st.description, "state": state,
                      "reason": rec.reason if rec and not rec.done else ""})
-    doc = {"survey": survey.name, "stages": rows,
+    from ...survey import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
+
+    judged = next((st.params for st in plan if st.name.startswith("assess-")), None)
+    settings = None
+    if judged is not None:
+        overridden = (judged["scale"] != survey.assessment.scale
+                      or judged["contour_interval_m"] != survey.assessment.contour_interval_m)
+        settings = {k: judged[k] for k in ("scale", "contour_interval_m", "alpha", "pec_class",
+                                           "plotting_position")}
+        settings.update(source="the command line" if overridden else "survey.toml [assessment]",
+                        default_scale=DEFAULT_SCALE, default_contour_interval_m=DEFAULT_CONTOUR_INTERVAL_M)
+    doc = {"survey": survey.name, "stages": rows, "settings": settings,
            **results(ctx.records[st.name] for st in plan if st.name in ctx.records)}
     doc["reports"] = {name: f"../{run['report']}" for name, run in doc["runs"].items()
                       if "report" in run and (ctx.outdir / run["report"]).is_file()}
@@ -84,6 +95,15 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
              "| stage | what | state | reason |", "|---|---|---|---|"]
     for r in doc["stages"]:
         lines.append(f"| {r['stage']} | {r['what']} | {r['state']} | {r['reason']} |")
+    st = doc.get("settings")
+    if st:
+        scale = f"1:{st['scale']:g}" if st["scale"] else "none (not applicable)"
+        ci = f"{st['contour_interval_m']:g} m" if st["contour_interval_m"] else "none (not applicable)"
+        lines += ["", f"Check points judged at map scale {scale} with a contour interval of "
+                      f"{ci}, PEC class {st['pec_class']}, every test at alpha "
+                      f"{st['alpha']:g}, Filliben positions {st['plotting_position']} (from "
+                      f"{st['source']}; `lidarcat assess` and `lidarcat run` share the defaults "
+                      f"1:{st['default_scale']:g} and {st['default_contour_interval_m']:g} m)."]
     ext = doc.get("extraction")
     if ext:
         lines += ["", "## LiDAR control points", "",
