@@ -70,7 +70,8 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
     "adjustment": {"observations": False, "image_sd_mm": False, "exclude_points": False,
                    "variance_factor": False, "chi2_level": False},
     "lidar": {"crs": False},
-    "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False},
+    "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False,
+                   "plotting_position": False},
 }
 _REQUIRED_TABLES = ("survey", "files")
 _OBSERVATION_KINDS = ("corrected", "pixel")
@@ -354,6 +355,13 @@ class AdjustmentSettings:
                 "variance_factor": self.variance_factor, "chi2_level": self.chi2_level}
 
 
+#: default map scale denominator of the check-point classification (the thesis's 1:2000); shared by
+#: survey.toml [assessment], ``lidarcat run`` and ``lidarcat assess``
+DEFAULT_SCALE = 2000.0
+#: default contour interval of the altimetric classes, m (the thesis's 2 m); shared likewise
+DEFAULT_CONTOUR_INTERVAL_M = 2.0
+
+
 @dataclass(frozen=True)
 class AssessmentSettings:
     """The ``[assessment]`` table of survey.toml: how ``lidarcat run`` judges check points.
@@ -369,16 +377,21 @@ class AssessmentSettings:
         Level of every test (thesis: 0.10).
     pec_class : str
         Decreto 89.817 class whose EP is the chi-square sigma0 ("A" in the thesis).
+    plotting_position : str
+        Positions of the Filliben normal-probability test: ``filliben``
+        (Filliben 1975, matches its critical-value table), ``hazen``
+        ``(i - 0.5)/n`` (the thesis's Z_i, Tables 14/15) or ``blom``.
     """
 
-    scale: float = 2000.0
-    contour_interval_m: float = 2.0
+    scale: float = DEFAULT_SCALE
+    contour_interval_m: float = DEFAULT_CONTOUR_INTERVAL_M
     alpha: float = 0.10
     pec_class: str = "A"
+    plotting_position: str = "filliben"
 
     def to_dict(self) -> dict[str, Any]:
         return {"scale": self.scale, "contour_interval_m": self.contour_interval_m, "alpha": self.alpha,
-                "pec_class": self.pec_class}
+                "pec_class": self.pec_class, "plotting_position": self.plotting_position}
 
 
 # ---------------------------------------------------------------------- loading helpers
@@ -420,6 +433,8 @@ class _Toml:
 #: classes of Decreto 89.817 (lidarcat.standards has the tolerances; importing it here would pull
 #: scipy into every survey load)
 PEC_CLASSES = ("A", "B", "C")
+#: Filliben plotting positions (lidarcat.accuracy.PLOTTING_POSITIONS, not imported for the same reason)
+PLOTTING_POSITIONS = ("filliben", "hazen", "blom")
 
 
 def _assessment_settings(t: _Toml) -> AssessmentSettings:
@@ -437,7 +452,10 @@ def _assessment_settings(t: _Toml) -> AssessmentSettings:
     pec = t.get("assessment", "pec_class", str, d.pec_class)
     if pec not in PEC_CLASSES:
         raise t.err("assessment", "pec_class", f"{pec!r} is not one of {', '.join(PEC_CLASSES)}")
-    return AssessmentSettings(float(scale), float(ci), float(alpha), pec)
+    pp = t.get("assessment", "plotting_position", str, d.plotting_position)
+    if pp not in PLOTTING_POSITIONS:
+        raise t.err("assessment", "plotting_position", f"{pp!r} is not one of {', '.join(PLOTTING_POSITIONS)}")
+    return AssessmentSettings(float(scale), float(ci), float(alpha), pec, pp)
 
 
 def _check_keys(t: _Toml) -> None:
