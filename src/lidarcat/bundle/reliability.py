@@ -681,7 +681,7 @@ def snoop(
     power: float = 0.80,
     robust: str = "none",
     max_rejections: int = 100,
-    progress: Callable[[int, int], None] | None = None,
+    on_rejection: Callable[[Blunder], None] | None = None,
     **adjust_kwargs: Any,
 ) -> SnoopingResult:
     """Adjust *problem* with blunder detection (Baarda's data snooping).
@@ -703,10 +703,12 @@ def snoop(
         many blunders); snooping then tests the rest.
     max_rejections : int
         Stop after this many one-at-a-time rejections (``more_remain`` tells).
-    progress : callable(n_rejected, n_adjustments), optional
+    on_rejection : callable(Blunder), optional
+        Called after every rejection.
     **adjust_kwargs
-        Passed to :func:`lidarcat.bundle.adjust` (``variance_factor``,
-        ``chi2_level``, ``max_iter``, ``precision``, ...).
+        Passed to every :func:`lidarcat.bundle.adjust` (``variance_factor``,
+        ``chi2_level``, ``max_iter``, ``progress``, ``precision`` -- the
+        intermediate adjustments skip the covariances).
 
     Returns
     -------
@@ -778,8 +780,8 @@ def snoop(
                 blunders.append(rel.blunder(int(other[0]), removed=True, iteration=iteration, note=note))
         log.info("data snooping: rejected %s (w %.2f > %.2f)", bl.label(), bl.w, bl.w_critical)
         res, cur, rel = res_new, nxt, rel_new
-        if progress is not None:
-            progress(len(blunders), n_adj)
+        if on_rejection is not None:
+            on_rejection(bl)
     if mode == "report" or res is first:
         final, final_rel = first, rel_first
         blunders = [dataclasses.replace(b, removed=False) for b in blunders] if mode == "report" else blunders
