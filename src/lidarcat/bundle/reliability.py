@@ -663,6 +663,11 @@ class _Subset:
                 partners.append(str(p.photo_ids[p.photo_index[rays]][0]))
         elif kind == "control":
             self.con &= p.point_ids[p.constraint_point_index] != point
+            j = int(np.flatnonzero(p.point_ids == point)[0])
+            rays = self.obs & (p.point_index == j)
+            if rays.sum() == 1:              # a control point on one photo: nothing left to fix it
+                self.obs &= ~rays
+                partners.append(str(p.photo_ids[p.photo_index[rays]][0]))
         else:
             self.eo &= p.photo_ids[p.eo_constraint_photo_index] != photo
         return partners
@@ -771,7 +776,9 @@ def snoop(
             log.warning("data snooping: %s not removed: %s", bl.label(), ex)
             break
         blunders.append(bl)
-        for ph in partners:                # the other ray of a two-ray point: not separable
+        for ph in partners if bl.kind == "control" else ():
+            blunders[-1] = dataclasses.replace(bl, note=f"its only ray (photo {ph}) removed with it")
+        for ph in partners if bl.kind == "image" else ():   # a two-ray point: the rays are not separable
             other = np.flatnonzero((rel.kind == "image") & (rel.photo == ph) & (rel.point == bl.point))
             note = (f"point {bl.point} is on two photos only: its rays on photos {bl.photo} and {ph} "
                     "cannot be told apart; both removed")
@@ -842,9 +849,15 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
                                                            for ph in partners)])))
     if not found:
         return res, p, rel, [], n_adj
-    nxt, _, _ = sub.problem(p)
-    r2 = adjust(nxt, initial=(np.asarray(r_cur.eo_params), _warm_points(r_cur, nxt)), precision="none",
-                **adjust_kwargs)
+    try:
+        nxt, _, _ = sub.problem(p)
+        r2 = adjust(nxt, initial=(np.asarray(r_cur.eo_params), _warm_points(r_cur, nxt)), precision="none",
+                    **adjust_kwargs)
+    except (DatumError, ValueError) as ex:
+        log.warning("robust %s: removing the %d down-weighted group(s) leaves %s; snooping alone", method,
+                    len(found), ex)
+        sub.obs[:], sub.con[:], sub.eo[:] = True, True, True
+        return res, p, rel, [], n_adj
     n_adj += 1
     rel2 = reliability(r2, level=level, power=power) if r2.success else None
     log.info("robust %s: %d group(s) removed", method, len(found))

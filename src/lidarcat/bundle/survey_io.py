@@ -209,14 +209,15 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
     return ids, C
 
 
-def _write_point_covariance(path, ids: Sequence[str], C: np.ndarray, comment: str) -> None:
+def _write_point_covariance(path, ids: Sequence[str], C: np.ndarray, comment: str,
+                            provenance: dict | None = None) -> None:
     """Write the joint covariance *C* (3k, 3k) of points *ids* as :func:`read_point_covariance` reads it:
     one row of the 3 x 3 block per pair a <= b, atomically."""
     from .._io import write_csv_atomic
 
     rows = [[a, b, *C[3 * i:3 * i + 3, 3 * j:3 * j + 3].ravel()]
             for i, a in enumerate(ids) for j, b in enumerate(ids[i:], start=i)]
-    write_csv_atomic(path, COVARIANCE_COLUMNS, rows, comments=[comment])
+    write_csv_atomic(path, COVARIANCE_COLUMNS, rows, comments=[comment], provenance=provenance)
 
 
 #: columns of eop.csv (metres and degrees)
@@ -286,7 +287,7 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None, *,
             folder / "check_covariance.csv", checks, joint_point_covariance(result, checks),
             "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances "
             "included: c_XY = Cov(X of point_a, Y of point_b), one row per pair a <= b "
-            f"({result.variance_factor_kind.replace('_', ' ')} variance factor)")
+            f"({result.variance_factor_kind.replace('_', ' ')} variance factor)", provenance)
     elif len(checks) > MAX_JOINT_COVARIANCE_POINTS:
         log.info("%d check points: joint covariance not written (limit %d)", len(checks),
                  MAX_JOINT_COVARIANCE_POINTS)
