@@ -235,7 +235,7 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None, *,
                      snooping: SnoopingResult | None = None, provenance: dict | None = None) -> dict:
     """Write ``eop.csv``, ``points.csv``, ``residuals.csv`` and ``summary.json`` into *folder*,
     and ``check_covariance.csv`` (:func:`read_point_covariance`) when the adjustment converged
-    with 1 to :data:`MAX_JOINT_COVARIANCE_POINTS` check points.
+    with 1 to :data:`MAX_JOINT_COVARIANCE_POINTS` check points and ``precision="all"``.
 
     With *snooping* (:func:`lidarcat.bundle.reliability.snoop`) also ``blunders.csv`` (every
     group rejected, :data:`BLUNDER_COLUMNS`) and ``reliability.csv`` (redundancy number,
@@ -282,7 +282,7 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None, *,
     write_csv_atomic(folder / "residuals.csv", RESIDUAL_COLUMNS, rows,
                      comments=["residuals v = adjusted - observed"])
     checks = [str(q) for q, r in zip(result.point_ids, result.point_role) if r == "check"]
-    if checks and result.success and len(checks) <= MAX_JOINT_COVARIANCE_POINTS:
+    if checks and result.success and result.precision == "all" and len(checks) <= MAX_JOINT_COVARIANCE_POINTS:
         _write_point_covariance(
             folder / "check_covariance.csv", checks, joint_point_covariance(result, checks),
             "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances "
@@ -340,6 +340,7 @@ def adjust_survey(
     chi2_level: float | None = None,
     eo_constraints: bool = False,
     max_iter: int = 50,
+    precision: str = "all",
     progress: Callable[[int, float], None] | None = None,
     snooping: str = "report",
     snooping_level: float = 0.001,
@@ -367,6 +368,9 @@ def adjust_survey(
         alpha of the one-dimensional w-test (B-method, power 0.80).
     robust : {"none", "danish", "huber"}
         Re-weighting before snooping (large blocks with many blunders).
+    precision : {"all", "photos", "none"}
+        Covariance blocks to compute (see :func:`adjust`); the joint covariance of
+        the check points is written with ``"all"`` only.
 
     Returns
     -------
@@ -392,10 +396,10 @@ def adjust_survey(
                   variance_factor=variance_factor or settings.variance_factor,
                   chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
                   eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
-                  snooping_level=float(snooping_level), robust=robust)
+                  snooping_level=float(snooping_level), robust=robust, precision=precision)
     sres = snoop(problem, mode=snooping, level=snooping_level, robust=robust, max_iter=max_iter,
-                 variance_factor=params["variance_factor"], chi2_level=params["chi2_level"],
-                 progress=progress)
+                 precision=precision, variance_factor=params["variance_factor"],
+                 chi2_level=params["chi2_level"], progress=progress)
     out = survey.output_dir(outdir)
     with atomic_dir(out) as tmp:
         write_adjustment(sres.result, tmp, extra={"elapsed_total_s": time.perf_counter() - t0,

@@ -107,6 +107,10 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="Use photo positions/attitudes of photos.csv that carry sd_* as weighted constraints.")
 @click.option("--max-iter", type=click.IntRange(1), default=50, show_default=True,
               help="Maximum number of Gauss-Newton / Levenberg-Marquardt iterations.")
+@click.option("--precision", type=click.Choice(["all", "photos", "none"]), default="all", show_default=True,
+              help="Standard deviations to compute: of every photo and point ('all'), of the photos only "
+                   "('photos': point sd_* empty), or none (fastest on blocks of thousands of photos; "
+                   "no check_covariance.csv).")
 @click.option("--snooping", type=click.Choice(["off", "report", "remove"]), default="report",
               show_default=True,
               help="Baarda's data snooping: test every image observation, control point and GNSS/INS "
@@ -120,7 +124,7 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="Iteratively re-weighted least squares before snooping (many blunders, large blocks).")
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
-           variance_factor: str | None, eo_constraints: bool, max_iter: int, snooping: str,
+           variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str,
            snooping_level: float, robust: str, as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
@@ -153,6 +157,7 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
       lidarcat adjust --control gps -o out/gps
       lidarcat adjust data/thesis --control lidar --observations pixel -o out/lidar
       lidarcat adjust my_survey --json
+      lidarcat adjust big_block --precision photos
       lidarcat adjust my_survey --snooping remove --robust danish
     """
     from ..bundle import adjust_survey
@@ -160,7 +165,7 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     result, out = adjust_survey(survey, control=control, observations=observations, outdir=outdir,
                                 variance_factor=variance_factor, eo_constraints=eo_constraints,
                                 max_iter=max_iter, snooping=snooping, snooping_level=snooping_level,
-                                robust=robust)
+                                robust=robust, precision=precision)
     # what was written is what is shown
     summary = {**json.loads((Path(out) / "summary.json").read_text(encoding="utf-8")), "outdir": str(out)}
     code, verdict = exit_status(summary)
