@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import hashlib
 import io
 import json
 import math
@@ -19,7 +20,7 @@ import re
 import shutil
 import tempfile
 import tomllib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,8 @@ __all__ = [
     "write_text_atomic",
     "write_csv",
     "write_csv_atomic",
+    "file_sha256",
+    "provenance",
     "write_json_atomic",
     "read_bytes",
     "read_text",
@@ -174,27 +177,64 @@ def write_csv_atomic(
     rows: Sequence[Sequence[Any]],
     *,
     comments: Sequence[str] = (),
+    provenance: Mapping[str, Any] | None = None,
 ) -> Path:
     """Write a CSV file atomically, header on the first line (cells as in :func:`write_csv`).
 
     *comments* (units, provenance, conventions) do not go into the CSV, where
     pandas, QGIS and GDAL/OGR would take them for the header: they are written
-    to a sidecar ``<name>.csv.json`` (``{"file", "notes", "lidarcat_version"}``),
-    see :func:`csv_sidecar_path`.  Without comments no sidecar is written and a
-    stale one is removed.
+    to a sidecar ``<name>.csv.json`` (``{"file", "notes", "lidarcat_version"}``,
+    and ``"provenance"`` when given: what the file was made from, e.g.
+    :func:`provenance`), see :func:`csv_sidecar_path`.  Without comments and
+    provenance no sidecar is written and a stale one is removed.
     """
     path = Path(path)
     with atomic_write(path, "w") as fh:
         write_csv(fh, header, rows)
     side = csv_sidecar_path(path)
-    if comments:
+    if comments or provenance:
         from . import __version__
 
-        write_json_atomic(side, {"file": path.name, "notes": list(comments),
-                                 "lidarcat_version": __version__})
+        doc: dict[str, Any] = {"file": path.name, "notes": list(comments), "lidarcat_version": __version__}
+        if provenance:
+            doc["provenance"] = dict(provenance)
+        write_json_atomic(side, doc)
     elif side.exists():
         side.unlink()
     return path
+
+
+def file_sha256(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
+    """SHA-256 (hex) of a file's content, read in chunks of *chunk* bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def provenance(inputs: Mapping[str, str | os.PathLike], parameters: Mapping[str, Any],
+               root: str | os.PathLike | None = None) -> dict[str, Any]:
+    """What an output was made from: ``{"lidarcat_version", "inputs", "parameters"}``.
+
+    *inputs* maps a role (``photos``, ``survey.toml``, ...) to a file read;
+    each becomes ``{"path", "sha256"}`` with the path relative to *root* when
+    it lies inside it (outputs do not change with the folder they are made
+    in).  No clock time: a rerun writes the same bytes.
+    """
+    from . import __version__
+
+    files = {}
+    for role, p in sorted(inputs.items()):
+        p = Path(p)
+        shown = p
+        if root is not None:
+            try:
+                shown = p.resolve().relative_to(Path(root).resolve())
+            except ValueError:
+                pass
+        files[str(role)] = {"path": shown.as_posix(), "sha256": file_sha256(p)}
+    return {"lidarcat_version": __version__, "inputs": files, "parameters": dict(parameters)}
 
 
 def csv_sidecar_path(path: str | os.PathLike) -> Path:
