@@ -1,0 +1,1 @@
+"""Import and export of other photogrammetric programs' files (issue 17)."""

@@ -1,0 +1,318 @@
+"""The in-memory block every reader fills and every writer drains, and its survey folder.
+
+A :class:`Block` holds what the formats have in common: cameras
+(:class:`lidarcat.camera.Camera`), photos with exterior orientations in
+lidarcat's convention (:mod:`lidarcat.interop.rotations`), image observations
+(pixels with the origin at the centre of the top-left pixel, and/or corrected
+photo coordinates in mm, x right, y up), object points and ground control.
+
+:func:`write_survey` turns a block into a survey folder (``docs/survey-format.md``),
+atomically; :func:`block_from_survey` builds a block from a survey folder and,
+optionally, the output folder of ``lidarcat adjust`` (``eop.csv``, ``points.csv``),
+which is what the exporters write out.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._frozen import frozen_array
+from .._io import atomic_dir, read_csv_table, write_csv_atomic, write_text_atomic
+from ..camera import Camera
+from ..errors import FormatError
+
+__all__ = ["Block", "write_survey", "block_from_survey", "photo_coordinates_mm", "reprojection_residuals_mm"]
+
+log = logging.getLogger(__name__)
+
+
+def _arr(a: Any, shape_tail: tuple[int, ...], dtype: Any = float) -> np.ndarray:
+    out = frozen_array(a, dtype=dtype)
+    return out.reshape((-1, *shape_tail)) if shape_tail else out.reshape(-1)
+
+
+@dataclass(frozen=True, eq=False)
+class Block:
+    """A photogrammetric block read from (or to be written to) another program's files.
+
+    Attributes
+    ----------
+    name : str
+        Survey name.
+    crs : str
+        CRS of the object coordinates (pyproj string), or a description of a local frame.
+    height_system : str
+        ``ellipsoidal``, ``orthometric`` or a description (reported in every output).
+    cameras : dict[str, Camera]
+    photo_ids, photo_camera : ndarray (P,) of str
+    eo : ndarray (P, 6)
+        X0, Y0, Z0 (m), omega, phi, kappa (rad, ``M = R3 R2 R1`` object to image);
+        NaN where unknown.
+    obs_photo, obs_point : ndarray (n,) of str
+    obs_px : ndarray (n, 2)
+        Pixel column, row; origin at the centre of the top-left pixel; NaN if unknown.
+    obs_mm : ndarray (n, 2)
+        Corrected photo coordinates x, y (mm, x right, y up, principal point origin,
+        distortion removed); NaN if unknown (then derived from ``obs_px`` by the camera).
+    point_ids : ndarray (Q,) of str
+    points_m : ndarray (Q, 3)
+        Object coordinates of the points (NaN if unknown).
+    ground_ids : ndarray (G,) of str
+    ground_m, ground_sd_m : ndarray (G, 3)
+        Reference coordinates of control/check points and their sds (m).
+    ground_source : ndarray (G,) of str
+    eo_sd : ndarray (P, 6) or None
+        Sds of ``eo`` (m, rad) when they are measurements (GNSS/IMU) to be used as
+        weighted constraints.
+    description : str
+        Provenance (source program and file), conventions applied.
+    """
+
+    name: str
+    crs: str
+    height_system: str
+    cameras: dict[str, Camera]
+    photo_ids: np.ndarray
+    photo_camera: np.ndarray
+    eo: np.ndarray
+    obs_photo: np.ndarray
+    obs_point: np.ndarray
+    obs_px: np.ndarray
+    obs_mm: np.ndarray
+    point_ids: np.ndarray = field(default_factory=lambda: np.empty(0, str))
+    points_m: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    ground_ids: np.ndarray = field(default_factory=lambda: np.empty(0, str))
+    ground_m: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    ground_sd_m: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    ground_source: np.ndarray = field(default_factory=lambda: np.empty(0, str))
+    eo_sd: np.ndarray | None = None
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        for name in ("photo_ids", "photo_camera", "obs_photo", "obs_point", "point_ids",
+                     "ground_ids", "ground_source"):
+            object.__setattr__(self, name, _arr(getattr(self, name), (), str))
+        for name, tail in (("eo", (6,)), ("obs_px", (2,)), ("obs_mm", (2,)), ("points_m", (3,)),
+                           ("ground_m", (3,)), ("ground_sd_m", (3,))):
+            object.__setattr__(self, name, _arr(getattr(self, name), tail))
+        if self.eo_sd is not None:
+            object.__setattr__(self, "eo_sd", _arr(self.eo_sd, (6,)))
+        if len(self.eo) != len(self.photo_ids) or len(self.photo_camera) != len(self.photo_ids):
+            raise ValueError("Block: eo and photo_camera need one row per photo")
+        n = len(self.obs_photo)
+        if not (len(self.obs_point) == len(self.obs_px) == len(self.obs_mm) == n):
+            raise ValueError("Block: obs_* need one row per observation")
+        if len(self.points_m) != len(self.point_ids):
+            raise ValueError("Block: points_m needs one row per point id")
+
+    @property
+    def n_photos(self) -> int:
+        return len(self.photo_ids)
+
+    def photo_index(self) -> dict[str, int]:
+        return {p: i for i, p in enumerate(self.photo_ids.tolist())}
+
+    def point(self, ids: np.ndarray) -> np.ndarray:
+        """Object coordinates (k, 3) of point ids (NaN for points without coordinates)."""
+        pos = {p: i for i, p in enumerate(self.point_ids.tolist())}
+        pts = np.vstack([self.points_m, np.full((1, 3), np.nan)])
+        return pts[np.array([pos.get(p, -1) for p in np.asarray(ids).tolist()], dtype=np.intp)]
+
+    def with_(self, **changes: Any) -> Block:
+        """A copy with some fields replaced."""
+        return replace(self, **changes)
+
+
+def photo_coordinates_mm(block: Block) -> np.ndarray:
+    """Corrected photo coordinates (n, 2), mm, of every observation: ``obs_mm`` where given,
+    else ``obs_px`` through the photo's camera (eq. 01-07)."""
+    out = np.array(block.obs_mm, dtype=float)
+    need = ~np.isfinite(out).all(axis=1)
+    if need.any():
+        cam_of = dict(zip(block.photo_ids.tolist(), block.photo_camera.tolist()))
+        cams = np.array([cam_of[p] for p in block.obs_photo.tolist()], dtype=str)
+        for cid in np.unique(cams[need]):
+            rows = need & (cams == cid)
+            out[rows] = block.cameras[cid].pixel_to_photo(block.obs_px[rows])
+    return out
+
+
+def _toml_str(s: str) -> str:
+    import json
+
+    return json.dumps(s, ensure_ascii=False)
+
+
+def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None = None,
+                 control_sd_m: float | None = None, overwrite: bool = False) -> Path:
+    """Write *block* as a survey folder (``docs/survey-format.md``), atomically.
+
+    ``photos.csv`` gets the orientations as approximations (and their sds when
+    ``block.eo_sd`` is given: weighted constraints with ``lidarcat adjust
+    --eo-constraints``); ``image_points.csv`` gets ``col_px, row_px`` and/or
+    ``x_mm, y_mm`` (then ``observations = "corrected"``); ground points, when
+    present, go to ``ground_points.csv`` and a control set ``imported`` (all of
+    them as control).  A block without ground points (COLMAP, OpenSfM models) can
+    give its model points as control with ``control_sd_m`` (sd of E, N and h, in
+    model units): the re-adjustment then keeps the model's datum.  Observations of
+    points seen on a single photo that are no
+    ground point are dropped (the survey format refuses them; logged).
+
+    Raises
+    ------
+    FormatError
+        *folder* exists and holds a survey.toml while *overwrite* is False, or the
+        block has no photo or no observation.
+    """
+    folder = Path(folder)
+    if control_sd_m is not None and len(block.ground_ids) == 0:
+        if not control_sd_m > 0:
+            raise FormatError(f"control_sd_m must be positive, got {control_sd_m!r}")
+        ok = np.isfinite(block.points_m).all(axis=1)
+        block = block.with_(ground_ids=block.point_ids[ok], ground_m=block.points_m[ok],
+                            ground_sd_m=np.full((int(ok.sum()), 3), float(control_sd_m)),
+                            ground_source=np.full(int(ok.sum()), "model"))
+    if (folder / "survey.toml").exists() and not overwrite:
+        raise FormatError(f"{folder}: already holds a survey.toml; choose another folder or "
+                          f"pass overwrite (--force)")
+    if block.n_photos == 0 or len(block.obs_photo) == 0:
+        raise FormatError(f"{block.name}: nothing to write: {block.n_photos} photos, "
+                          f"{len(block.obs_photo)} observations")
+    ground = set(block.ground_ids.tolist())
+    counts = Counter(block.obs_point.tolist())
+    keep = np.array([counts[p] >= 2 or p in ground for p in block.obs_point.tolist()], dtype=bool)
+    if (~keep).any():
+        log.info("%d observation(s) of points seen on one photo only dropped", int((~keep).sum()))
+    has_px = bool(np.isfinite(block.obs_px[keep]).all(axis=1).any())
+    has_mm = bool(np.isfinite(block.obs_mm[keep]).all(axis=1).any())
+    cols = ["photo", "point"] + (["col_px", "row_px"] if has_px else []) + (["x_mm", "y_mm"] if has_mm else [])
+    rows = []
+    for i in np.flatnonzero(keep):
+        r: list[Any] = [block.obs_photo[i], block.obs_point[i]]
+        if has_px:
+            r += list(block.obs_px[i])
+        if has_mm:
+            r += list(block.obs_mm[i])
+        rows.append(r)
+    with atomic_dir(folder) as tmp:
+        write_text_atomic(tmp / "camera.toml", "\n".join(c.to_toml() for c in block.cameras.values()))
+        pcols = ["photo", "camera"]
+        known = np.isfinite(block.eo)
+        if known[:, :3].any():
+            pcols += ["X0", "Y0", "Z0"]
+        if known[:, 3:].any():
+            pcols += ["omega_deg", "phi_deg", "kappa_deg"]
+        if block.eo_sd is not None:
+            pcols += ["sd_X0", "sd_Y0", "sd_Z0", "sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"]
+        prow = []
+        for i, pid in enumerate(block.photo_ids.tolist()):
+            r = [pid, block.photo_camera[i]]
+            if "X0" in pcols:
+                r += list(block.eo[i, :3])
+            if "omega_deg" in pcols:
+                r += list(np.degrees(block.eo[i, 3:]))
+            if block.eo_sd is not None:
+                r += list(block.eo_sd[i, :3]) + list(np.degrees(block.eo_sd[i, 3:]))
+            prow.append(r)
+        write_csv_atomic(tmp / "photos.csv", pcols, prow)
+        write_csv_atomic(tmp / "image_points.csv", cols, rows)
+        files = ['camera = "camera.toml"', 'photos = "photos.csv"', 'image_points = "image_points.csv"']
+        survey_extra = ""
+        if len(block.ground_ids):
+            write_csv_atomic(tmp / "ground_points.csv",
+                             ["point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "source"],
+                             [[p, *x, *s, src] for p, x, s, src in zip(
+                                 block.ground_ids, block.ground_m, block.ground_sd_m, block.ground_source)])
+            write_csv_atomic(tmp / "control_sets.csv", ["set", "point", "role"],
+                             [["imported", p, "control"] for p in block.ground_ids])
+            files += ['ground_points = "ground_points.csv"', 'control_sets = "control_sets.csv"']
+            survey_extra = 'default_control = "imported"\n'
+        adj = [f'observations = "{"corrected" if has_mm else "pixel"}"']
+        if image_sd_mm is not None:
+            adj.append(f"image_sd_mm = {float(image_sd_mm)!r}")
+        toml = (f"# written by lidarcat import\n[survey]\nname = {_toml_str(block.name)}\n"
+                f"description = {_toml_str(block.description)}\ncrs = {_toml_str(block.crs)}\n"
+                f"height_system = {_toml_str(block.height_system)}\n{survey_extra}\n"
+                "[files]\n" + "\n".join(files) + "\n\n[adjustment]\n" + "\n".join(adj) + "\n")
+        write_text_atomic(tmp / "survey.toml", toml)
+    log.info("wrote survey %s: %d photos, %d observations", folder, block.n_photos, len(rows))
+    return folder
+
+
+def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) -> Block:
+    """The block of a survey folder, with the adjusted orientations and points of *adjustment*.
+
+    Parameters
+    ----------
+    survey : Survey, path or None
+        The survey (None: the embedded thesis block).
+    adjustment : path, optional
+        Output folder of ``lidarcat adjust`` (``eop.csv`` and ``points.csv``);
+        without it the orientations of ``photos.csv`` and the ground points are used.
+
+    Raises
+    ------
+    SurveyError
+        Invalid survey or adjustment files (located).
+    """
+    from ..survey import Survey
+
+    if not isinstance(survey, Survey):
+        survey = Survey.load(survey)
+    ip = survey.image_points
+    excluded = np.isin(ip.point, list(survey.settings.exclude_points))
+    photo_ids = np.array([p.id for p in survey.photos], dtype=str)
+    eo = np.full((len(photo_ids), 6), np.nan)
+    for i, p in enumerate(survey.photos):
+        if p.position_m is not None:
+            eo[i, :3] = p.position_m
+        if p.attitude_deg is not None:
+            eo[i, 3:] = np.radians(p.attitude_deg)
+    gp = survey.ground_points
+    point_ids, points = gp.point, gp.enh_m
+    if adjustment is not None:
+        adj = Path(adjustment)
+        t = read_csv_table(adj / "eop.csv", required=("photo", "X0", "Y0", "Z0", "omega", "phi", "kappa"),
+                           allow_extra=True)
+        pos = {p: i for i, p in enumerate(photo_ids.tolist())}
+        vals = np.column_stack([t.floats(c) for c in ("X0", "Y0", "Z0", "omega", "phi", "kappa")])
+        for pid, v in zip(t.column("photo"), vals):
+            if pid in pos:
+                eo[pos[pid]] = np.concatenate([v[:3], np.radians(v[3:])])
+        tp = read_csv_table(adj / "points.csv", required=("point", "E", "N", "h"), allow_extra=True)
+        point_ids = np.array(tp.column("point"), dtype=str)
+        points = np.column_stack([tp.floats(c) for c in ("E", "N", "h")])
+    obs_mm = np.full((len(ip), 2), np.nan)
+    if survey.settings.observations == "corrected":
+        obs_mm = np.array(ip.xy_mm, dtype=float)
+    keep = ~excluded
+    return Block(
+        name=survey.name, crs=survey.crs, height_system=survey.height_system,
+        cameras=dict(survey.cameras), photo_ids=photo_ids,
+        photo_camera=np.array([p.camera for p in survey.photos], dtype=str), eo=eo,
+        obs_photo=ip.photo[keep], obs_point=ip.point[keep], obs_px=ip.pixel_px[keep],
+        obs_mm=obs_mm[keep], point_ids=point_ids, points_m=points,
+        ground_ids=gp.point, ground_m=gp.enh_m, ground_sd_m=gp.sd_m, ground_source=gp.source,
+        description=survey.description)
+
+
+def reprojection_residuals_mm(block: Block) -> np.ndarray:
+    """Image residuals (n, 2), projected minus observed photo coordinates, mm (x right, y up).
+
+    Every observation is projected with its photo's orientation ``block.eo`` and
+    its point's ``block.points_m`` through the collinearity equations
+    (:mod:`lidarcat._collinearity`); NaN where a photo or point is unknown.
+    """
+    from .._collinearity import project
+
+    idx = block.photo_index()
+    pi = np.array([idx[p] for p in block.obs_photo.tolist()], dtype=np.intp)
+    focal = np.array([block.cameras[c].focal_length_mm for c in block.photo_camera.tolist()])[pi]
+    xy, _ = project(block.eo[pi], block.point(block.obs_point), focal)
+    return xy - photo_coordinates_mm(block)
