@@ -27,7 +27,8 @@ from .._io import atomic_dir, read_csv_table, write_csv_atomic, write_text_atomi
 from ..camera import Camera
 from ..errors import FormatError
 
-__all__ = ["Block", "write_survey", "block_from_survey", "photo_coordinates_mm", "reprojection_residuals_mm"]
+__all__ = ["Block", "Orientations", "apply_orientations", "write_survey", "block_from_survey",
+           "photo_coordinates_mm", "reprojection_residuals_mm"]
 
 log = logging.getLogger(__name__)
 
@@ -316,3 +317,161 @@ def reprojection_residuals_mm(block: Block) -> np.ndarray:
     focal = np.array([block.cameras[c].focal_length_mm for c in block.photo_camera.tolist()])[pi]
     xy, _ = project(block.eo[pi], block.point(block.obs_point), focal)
     return xy - photo_coordinates_mm(block)
+
+
+# ---------------------------------------------------------------------- orientation files
+@dataclass(frozen=True, eq=False)
+class Orientations:
+    """Photo orientations read from an orientation or GNSS/IMU file.
+
+    Attributes
+    ----------
+    photo : ndarray (P,) of str
+        Photo names as in the file.
+    eo : ndarray (P, 6)
+        X0, Y0, Z0 (m, in ``crs``), omega, phi, kappa (rad, lidarcat convention);
+        NaN where the file gives no value (e.g. no attitude).
+    eo_sd : ndarray (P, 6)
+        Standard deviations (m, rad) when the file gives them, else NaN.
+    crs, height_system : str
+    source : str
+        File and conventions applied (angle unit, yaw/pitch/roll conversion).
+    camera : ndarray (P,) of str
+        Camera name per photo when the file gives one (else empty strings).
+    line : ndarray (P,) of int
+        Line of each photo in the file (for messages).
+    """
+
+    photo: np.ndarray
+    eo: np.ndarray
+    eo_sd: np.ndarray
+    crs: str
+    height_system: str
+    source: str
+    camera: np.ndarray | None = None
+    line: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.photo)
+        object.__setattr__(self, "photo", _arr(self.photo, (), str))
+        object.__setattr__(self, "eo", _arr(self.eo, (6,)))
+        object.__setattr__(self, "eo_sd", _arr(self.eo_sd, (6,)))
+        cam = np.full(n, "") if self.camera is None else self.camera
+        object.__setattr__(self, "camera", _arr(cam, (), str))
+        line = np.zeros(n, np.int64) if self.line is None else self.line
+        object.__setattr__(self, "line", _arr(line, (), np.int64))
+
+    def __len__(self) -> int:
+        return len(self.photo)
+
+
+def _match_photos(names: list[str], survey_ids: list[str]) -> dict[str, str]:
+    """File photo name -> survey photo id: exact, else the same name without extension."""
+    ids = set(survey_ids)
+    stem = {}
+    for s in survey_ids:
+        stem.setdefault(Path(s).stem, s)
+    out = {}
+    for n in names:
+        if n in ids:
+            out[n] = n
+        elif Path(n).stem in ids:
+            out[n] = Path(n).stem
+        elif Path(n).stem in stem:
+            out[n] = stem[Path(n).stem]
+    return out
+
+
+def apply_orientations(survey: Any, orientations: Orientations, folder: str | Path, *,
+                       sd_position_m: float | None = None, sd_attitude_deg: float | None = None,
+                       overwrite: bool = False) -> Path:
+    """Copy a survey folder to *folder* with the orientations written into its photos.csv.
+
+    The values become approximations; with standard deviations (from the file or
+    *sd_position_m* / *sd_attitude_deg*, which take precedence) they become weighted
+    constraints for ``lidarcat adjust --eo-constraints``.  Photos are matched by
+    id, else by name without extension; survey photos absent from the file keep
+    their old values.  The survey CRS must equal ``orientations.crs`` unless that
+    is unspecified.
+
+    Raises
+    ------
+    FormatError
+        No photo of the file is in the survey (names the first), CRS mismatch, or
+        *folder* holds a survey and *overwrite* is False.
+    """
+    import shutil
+
+    from ..survey import Survey
+
+    if not isinstance(survey, Survey):
+        survey = Survey.load(survey)
+    folder = Path(folder)
+    if (folder / "survey.toml").exists() and not overwrite:
+        raise FormatError(f"{folder}: already holds a survey.toml; choose another folder or "
+                          f"pass overwrite (--force)")
+    if orientations.crs not in ("", "unspecified") and orientations.crs != survey.crs:
+        raise FormatError(f"{orientations.source}: coordinates are in {orientations.crs}, the survey "
+                          f"{survey.root} in {survey.crs}; convert them first (give --crs {survey.crs})")
+    ids = [p.id for p in survey.photos]
+    match = _match_photos(orientations.photo.tolist(), ids)
+    if not match:
+        raise FormatError(f"{orientations.source}: none of its {len(orientations)} photos "
+                          f"({orientations.photo[0]!r}, ...) is a photo of {survey.files.get('photos')}")
+    unmatched = [p for p in orientations.photo.tolist() if p not in match]
+    if unmatched:
+        log.warning("%s: %d photo(s) not in the survey, ignored: %s", orientations.source,
+                    len(unmatched), ", ".join(unmatched[:5]))
+    sd = np.array(orientations.eo_sd, dtype=float)
+    if sd_position_m is not None:
+        sd[:, :3] = sd_position_m
+    if sd_attitude_deg is not None:
+        sd[:, 3:] = np.radians(sd_attitude_deg)
+    row_of = {match[p]: i for i, p in enumerate(orientations.photo.tolist()) if p in match}
+    eo = np.full((len(ids), 6), np.nan)
+    esd = np.full((len(ids), 6), np.nan)
+    for k, ph in enumerate(survey.photos):
+        if ph.position_m is not None:
+            eo[k, :3] = ph.position_m
+        if ph.attitude_deg is not None:
+            eo[k, 3:] = np.radians(ph.attitude_deg)
+        if ph.sd_position_m is not None:
+            esd[k, :3] = ph.sd_position_m
+        if ph.sd_attitude_deg is not None:
+            esd[k, 3:] = np.radians(ph.sd_attitude_deg)
+        if ph.id in row_of:
+            i = row_of[ph.id]
+            have = np.isfinite(orientations.eo[i])
+            eo[k, have] = orientations.eo[i, have]
+            esd[k, :] = np.where(np.isfinite(sd[i]), sd[i], esd[k])
+    cols = ["photo", "camera"]
+    groups = [(["X0", "Y0", "Z0"], eo[:, :3], 1.0), (["omega_deg", "phi_deg", "kappa_deg"], eo[:, 3:], None),
+              (["sd_X0", "sd_Y0", "sd_Z0"], esd[:, :3], 1.0),
+              (["sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"], esd[:, 3:], None)]
+    used = [g for g in groups if np.isfinite(g[1]).all(axis=1).any()]
+    for names, _, _ in used:
+        cols += names
+    rows = []
+    for k, ph in enumerate(survey.photos):
+        r: list[Any] = [ph.id, ph.camera]
+        for _, vals, unit in used:
+            v = vals[k] if np.isfinite(vals[k]).all() else np.full(3, np.nan)
+            r += list(v if unit else np.degrees(v))
+        rows.append(r)
+    photos_rel = survey.files["photos"].relative_to(survey.root) if survey.files["photos"].is_relative_to(survey.root) else None
+    if photos_rel is None:
+        raise FormatError(f"{survey.files['photos']}: photos.csv lies outside the survey folder; "
+                          f"copy it in first")
+    with atomic_dir(folder) as tmp:
+        for item in survey.root.rglob("*"):
+            rel = item.relative_to(survey.root)
+            if item.is_file() and rel.parts[0] != "out" and rel != photos_rel:
+                dest = tmp / rel
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(item, dest)
+        write_csv_atomic(tmp / photos_rel, cols, rows,
+                         comments=[f"orientations from {orientations.source}; CRS {orientations.crs}, "
+                                   f"heights {orientations.height_system}; omega, phi, kappa in degrees, "
+                                   f"M = R3(kappa) R2(phi) R1(omega)"])
+    log.info("wrote %s: orientations of %d photo(s) from %s", folder, len(row_of), orientations.source)
+    return folder
