@@ -23,14 +23,18 @@ from typing import Any
 import numpy as np
 
 from .._frozen import frozen_array
-from .._io import atomic_dir, read_csv_table, write_csv_atomic, write_text_atomic
+from .._io import atomic_dir, read_csv_table, read_text, write_csv_atomic, write_json_atomic, write_text_atomic
 from ..camera import Camera
 from ..errors import FormatError
 
-__all__ = ["Block", "Orientations", "apply_orientations", "write_survey", "block_from_survey",
-           "photo_coordinates_mm", "reprojection_residuals_mm"]
+__all__ = ["Block", "Orientations", "GroundControl", "apply_orientations", "apply_ground_control", "write_survey", "block_from_survey",
+           "photo_coordinates_mm", "reprojection_residuals_mm", "reprojection_residuals_px",
+           "pinhole_camera", "undistorted_mm", "SOURCE_CAMERAS"]
 
 log = logging.getLogger(__name__)
+
+#: file of a survey folder keeping the source programs' camera models (see Block.source_models)
+SOURCE_CAMERAS = "source_cameras.json"
 
 
 def _arr(a: Any, shape_tail: tuple[int, ...], dtype: Any = float) -> np.ndarray:
@@ -73,6 +77,12 @@ class Block:
         weighted constraints.
     description : str
         Provenance (source program and file), conventions applied.
+    source_models : dict[str, dict]
+        Camera id -> the source program's model in pixels (:func:`pinhole_camera`):
+        ``fx, fy, cx, cy`` (pixels, origin at the image *corner*), ``w, h``,
+        ``dist`` (k1..k6, p1, p2) and ``kind`` (``"brown"`` or ``"metashape"``).
+        Kept in the survey folder as ``source_cameras.json`` so that an export
+        writes the distortion model back.
     """
 
     name: str
@@ -94,6 +104,7 @@ class Block:
     ground_source: np.ndarray = field(default_factory=lambda: np.empty(0, str))
     eo_sd: np.ndarray | None = None
     description: str = ""
+    source_models: dict[str, dict] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for name in ("photo_ids", "photo_camera", "obs_photo", "obs_point", "point_ids",
@@ -203,6 +214,8 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
         rows.append(r)
     with atomic_dir(folder) as tmp:
         write_text_atomic(tmp / "camera.toml", "\n".join(c.to_toml() for c in block.cameras.values()))
+        if block.source_models:
+            write_json_atomic(tmp / SOURCE_CAMERAS, block.source_models)
         pcols = ["photo", "camera"]
         known = np.isfinite(block.eo)
         if known[:, :3].any():
@@ -293,6 +306,12 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
     if survey.settings.observations == "corrected":
         obs_mm = np.array(ip.xy_mm, dtype=float)
     keep = ~excluded
+    source_models = {}
+    side = survey.root / SOURCE_CAMERAS
+    if side.is_file():
+        import json
+
+        source_models = {k: v for k, v in json.loads(read_text(side)).items() if k in survey.cameras}
     return Block(
         name=survey.name, crs=survey.crs, height_system=survey.height_system,
         cameras=dict(survey.cameras), photo_ids=photo_ids,
@@ -300,7 +319,7 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
         obs_photo=ip.photo[keep], obs_point=ip.point[keep], obs_px=ip.pixel_px[keep],
         obs_mm=obs_mm[keep], point_ids=point_ids, points_m=points,
         ground_ids=gp.point, ground_m=gp.enh_m, ground_sd_m=gp.sd_m, ground_source=gp.source,
-        description=survey.description)
+        description=survey.description, source_models=source_models)
 
 
 def reprojection_residuals_mm(block: Block) -> np.ndarray:
@@ -400,16 +419,7 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
         No photo of the file is in the survey (names the first), CRS mismatch, or
         *folder* holds a survey and *overwrite* is False.
     """
-    import shutil
-
-    from ..survey import Survey
-
-    if not isinstance(survey, Survey):
-        survey = Survey.load(survey)
-    folder = Path(folder)
-    if (folder / "survey.toml").exists() and not overwrite:
-        raise FormatError(f"{folder}: already holds a survey.toml; choose another folder or "
-                          f"pass overwrite (--force)")
+    survey = _load_target(survey, folder, overwrite)
     if orientations.crs not in ("", "unspecified") and orientations.crs != survey.crs:
         raise FormatError(f"{orientations.source}: coordinates are in {orientations.crs}, the survey "
                           f"{survey.root} in {survey.crs}; convert them first (give --crs {survey.crs})")
@@ -463,15 +473,219 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
         raise FormatError(f"{survey.files['photos']}: photos.csv lies outside the survey folder; "
                           f"copy it in first")
     with atomic_dir(folder) as tmp:
-        for item in survey.root.rglob("*"):
-            rel = item.relative_to(survey.root)
-            if item.is_file() and rel.parts[0] != "out" and rel != photos_rel:
-                dest = tmp / rel
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                shutil.copy2(item, dest)
+        _copy_survey(survey, tmp, skip={photos_rel})
         write_csv_atomic(tmp / photos_rel, cols, rows,
                          comments=[f"orientations from {orientations.source}; CRS {orientations.crs}, "
                                    f"heights {orientations.height_system}; omega, phi, kappa in degrees, "
                                    f"M = R3(kappa) R2(phi) R1(omega)"])
     log.info("wrote %s: orientations of %d photo(s) from %s", folder, len(row_of), orientations.source)
     return folder
+
+
+def _load_target(survey: Any, folder: str | Path, overwrite: bool):
+    from ..survey import Survey
+
+    if not isinstance(survey, Survey):
+        survey = Survey.load(survey)
+    if (Path(folder) / "survey.toml").exists() and not overwrite:
+        raise FormatError(f"{folder}: already holds a survey.toml; choose another folder or "
+                          f"pass overwrite (--force)")
+    return survey
+
+
+def _copy_survey(survey: Any, tmp: Path, skip: set[Path]) -> None:
+    """Copy the files of *survey*'s folder (not its ``out/``) into *tmp*, except *skip* (relative)."""
+    import shutil
+
+    for item in survey.root.rglob("*"):
+        rel = item.relative_to(survey.root)
+        if item.is_file() and rel.parts[0] != "out" and rel not in skip:
+            dest = tmp / rel
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(item, dest)
+
+
+@dataclass(frozen=True, eq=False)
+class GroundControl:
+    """Ground control points and their image measurements read from a GCP file.
+
+    Attributes
+    ----------
+    point : ndarray (G,) of str
+    enh_m : ndarray (G, 3)
+        Coordinates in ``crs`` (m; NaN row for a point without a position).
+    crs, height_system : str
+    obs_point, obs_photo : ndarray (n,) of str
+    obs_px : ndarray (n, 2)
+        Pixel column, row, origin at the centre of the top-left pixel.
+    source : str
+    """
+
+    point: np.ndarray
+    enh_m: np.ndarray
+    crs: str
+    height_system: str
+    obs_point: np.ndarray
+    obs_photo: np.ndarray
+    obs_px: np.ndarray
+    source: str
+
+    def __post_init__(self) -> None:
+        for name in ("point", "obs_point", "obs_photo"):
+            object.__setattr__(self, name, _arr(getattr(self, name), (), str))
+        object.__setattr__(self, "enh_m", _arr(self.enh_m, (3,)))
+        object.__setattr__(self, "obs_px", _arr(self.obs_px, (2,)))
+
+
+def _toml_with_files(text: str, keys: dict[str, str]) -> str:
+    """survey.toml text with ``key = "value"`` lines added to ``[files]`` where missing."""
+    import tomllib
+
+    have = tomllib.loads(text).get("files", {})
+    add = [f"{k} = {_toml_str(v)}" for k, v in keys.items() if k not in have]
+    if not add:
+        return text
+    lines = text.splitlines()
+    i = next(k for k, ln in enumerate(lines) if ln.strip().startswith("[files]"))
+    return "\n".join(lines[:i + 1] + add + lines[i + 1:]) + "\n"
+
+
+def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *, sd_m: tuple[float, float, float] = (0.05, 0.05, 0.05),
+                         set_name: str = "gcp", role: str = "control", source: str = "gcp",
+                         overwrite: bool = False) -> Path:
+    """Copy a survey folder to *folder* adding ground points, their image measurements and a
+    control set *set_name* (all points with *role*), atomically.
+
+    Measurements are matched to photos by id, else by name without extension;
+    measurements on other images are dropped (logged).  When the survey's image
+    points carry ``x_mm, y_mm`` the new rows get them from the pixels through the
+    photo's camera (eq. 01-07).
+
+    Raises
+    ------
+    FormatError
+        CRS mismatch, a GCP id that is already a ground point, no measurement on a
+        survey photo, or *folder* holds a survey and *overwrite* is False.
+    """
+    survey = _load_target(survey, folder, overwrite)
+    if gcp.crs not in ("", "unspecified") and gcp.crs != survey.crs:
+        raise FormatError(f"{gcp.source}: coordinates are in {gcp.crs}, the survey {survey.root} in "
+                          f"{survey.crs}; give the survey CRS as target (--crs {survey.crs})")
+    clash = sorted(set(gcp.point.tolist()) & set(survey.ground_points.point.tolist()))
+    if clash:
+        raise FormatError(f"{gcp.source}: point {clash[0]!r} is already a ground point of {survey.root}")
+    ids = [p.id for p in survey.photos]
+    match = _match_photos(sorted(set(gcp.obs_photo.tolist())), ids)
+    keep = np.array([p in match for p in gcp.obs_photo.tolist()], dtype=bool)
+    if not keep.any():
+        raise FormatError(f"{gcp.source}: no measurement is on a photo of {survey.root} "
+                          f"(first image: {gcp.obs_photo[0] if len(gcp.obs_photo) else '-'!r})")
+    if (~keep).any():
+        log.warning("%s: %d measurement(s) on images not in the survey dropped", gcp.source, int((~keep).sum()))
+    has_pos = np.isfinite(gcp.enh_m).all(axis=1)
+    ip = survey.image_points
+    has_mm = bool(np.isfinite(ip.xy_mm).all(axis=1).any())
+    cam_of = {p.id: p.camera for p in survey.photos}
+    new_photo = np.array([match[p] for p in gcp.obs_photo[keep].tolist()], dtype=str)
+    new_px = gcp.obs_px[keep]
+    new_mm = np.full_like(new_px, np.nan)
+    if has_mm:
+        for k, ph in enumerate(new_photo.tolist()):
+            new_mm[k] = survey.cameras[cam_of[ph]].pixel_to_photo(new_px[k])
+    cols = ["photo", "point", "col_px", "row_px"] + (["x_mm", "y_mm"] if has_mm else [])
+    rows = [[a, b, *px] + (list(mm) if has_mm else []) for a, b, px, mm in
+            zip(ip.photo.tolist(), ip.point.tolist(), ip.pixel_px, ip.xy_mm)]
+    rows += [[a, b, *px] + (list(mm) if has_mm else []) for a, b, px, mm in
+             zip(new_photo.tolist(), gcp.obs_point[keep].tolist(), new_px, new_mm)]
+    gp = survey.ground_points
+    g_rows = [[p, *x, *s, src] for p, x, s, src in zip(gp.point.tolist(), gp.enh_m, gp.sd_m, gp.source.tolist())]
+    g_rows += [[p, *x, *sd_m, source] for p, x in zip(gcp.point[has_pos].tolist(), gcp.enh_m[has_pos])]
+    c_rows = []
+    for name, cs in survey.control_sets.items():
+        c_rows += [[name, p, "control", *s] for p, s in zip(cs.control.tolist(), cs.sd_m)]
+        c_rows += [[name, p, "check", *s] for p, s in zip(cs.check.tolist(), cs.check_sd_m)]
+    if set_name in survey.control_sets:
+        raise FormatError(f"{survey.root}: control set {set_name!r} exists already; choose another name")
+    c_rows += [[set_name, p, role, np.nan, np.nan, np.nan] for p in gcp.point[has_pos].tolist()]
+    rel = {k: (survey.files[k].relative_to(survey.root) if k in survey.files else Path(f"{k}.csv"))
+           for k in ("image_points", "ground_points", "control_sets")}
+    for k, p in rel.items():
+        if p.is_absolute():
+            raise FormatError(f"{p}: {k} lies outside the survey folder; copy it in first")
+    with atomic_dir(folder) as tmp:
+        _copy_survey(survey, tmp, skip=set(rel.values()) | {Path("survey.toml")})
+        write_csv_atomic(tmp / rel["image_points"], cols, rows)
+        write_csv_atomic(tmp / rel["ground_points"], ["point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "source"],
+                         g_rows, comments=[f"ground points; {gcp.source}: CRS {gcp.crs}, heights {gcp.height_system}"])
+        write_csv_atomic(tmp / rel["control_sets"], ["set", "point", "role", "sd_E", "sd_N", "sd_h"], c_rows)
+        text = survey.toml_path.read_text(encoding="utf-8")
+        write_text_atomic(tmp / "survey.toml", _toml_with_files(text, {
+            "ground_points": rel["ground_points"].as_posix(), "control_sets": rel["control_sets"].as_posix()}))
+    log.info("wrote %s: %d ground points, %d measurements from %s", folder, int(has_pos.sum()),
+             int(keep.sum()), gcp.source)
+    return folder
+
+
+def pinhole_camera(camera_id: str, fx: float, fy: float, cx: float, cy: float, w: int, h: int, *,
+                   pixel_size_mm: float, model: str, source: str, dist: dict | None = None,
+                   kind: str = "brown") -> tuple[Camera, dict]:
+    """lidarcat's camera for a source-program camera given in pixels, and its source-model dict.
+
+    ``fx, fy`` focal lengths (px), ``cx, cy`` principal point (px, origin at the
+    upper-left image *corner*), ``w, h`` image size.  With pixel pitch ``t``:
+    ``focal_length_mm = fx t``, ``pixel_size_y_mm = t fx / fy``,
+    ``dx = t (cx - w/2)``, ``dy = -t_y (cy - h/2)`` (eq. 01-02).  The lidarcat
+    camera has no distortion: the source distortion stays in the dict.
+
+    >>> cam, _ = pinhole_camera("c", 1000.0, 1000.0, 50.0, 40.0, 100, 80, pixel_size_mm=0.01,
+    ...                         model="m", source="s")
+    >>> cam.focal_length_mm, cam.principal_point_x_mm, cam.principal_point_y_mm
+    (10.0, 0.0, -0.0)
+    """
+    t = float(pixel_size_mm)
+    cam = Camera(camera_id, focal_length_mm=fx * t, principal_point_x_mm=t * (cx - w / 2),
+                 principal_point_y_mm=-(t * fx / fy) * (cy - h / 2), k1=0.0, k2=0.0, k3=0.0,
+                 p1=0.0, p2=0.0, refraction_eps45=0.0, pixel_size_x_mm=t, pixel_size_y_mm=t * fx / fy,
+                 columns_px=int(w), rows_px=int(h), model=model, source=source)
+    return cam, {"fx": float(fx), "fy": float(fy), "cx": float(cx), "cy": float(cy), "w": int(w),
+                 "h": int(h), "dist": {k: float(v) for k, v in (dist or {}).items()}, "kind": kind}
+
+
+def undistorted_mm(xy_corner_px: np.ndarray, cam: Camera, model: dict) -> np.ndarray:
+    """Corrected photo coordinates (n, 2), mm, of source pixels (origin at the image corner)."""
+    from ._distortion import undistort
+
+    xd = np.column_stack([(xy_corner_px[:, 0] - model["cx"]) / model["fx"],
+                          (xy_corner_px[:, 1] - model["cy"]) / model["fy"]])
+    xu = undistort(xd, model["dist"], metashape=model.get("kind") == "metashape")
+    return cam.focal_length_mm * xu * [1.0, -1.0]
+
+
+def reprojection_residuals_px(block: Block) -> np.ndarray:
+    """Image residuals (n, 2) in the source program's pixels: projected minus observed column,
+    row (y down), the projection going through the source camera model (distortion included)
+    where ``block.source_models`` has one, else through lidarcat's pinhole (``obs_mm`` in pixels).
+    """
+    from ._distortion import distort
+    from .rotations import opk_to_world_to_cv
+
+    idx = block.photo_index()
+    pi = np.array([idx[p] for p in block.obs_photo.tolist()], dtype=np.intp)
+    cams = block.photo_camera[pi]
+    r = opk_to_world_to_cv(block.eo[:, 3:])[pi]
+    v = np.einsum("nij,nj->ni", r, block.point(block.obs_point) - block.eo[pi, :3])
+    xn = v[:, :2] / v[:, 2:3]
+    out = np.full((len(pi), 2), np.nan)
+    mm = photo_coordinates_mm(block)
+    for cid in np.unique(cams):
+        rows = cams == cid
+        m = block.source_models.get(str(cid))
+        if m is None:
+            c = block.cameras[str(cid)]
+            fx, fy = c.focal_length_mm / c.pixel_size_x_mm, c.focal_length_mm / c.pixel_size_y_mm
+            out[rows] = xn[rows] * [fx, fy] - mm[rows] / [c.pixel_size_x_mm, -c.pixel_size_y_mm]
+            continue
+        xd = distort(xn[rows], m["dist"], metashape=m.get("kind") == "metashape")
+        proj = xd * [m["fx"], m["fy"]] + [m["cx"], m["cy"]]
+        out[rows] = proj - (block.obs_px[rows] + 0.5)
+    return out

@@ -41,9 +41,9 @@ import numpy as np
 from .._io import atomic_dir, read_text, write_text_atomic
 from ..camera import Camera
 from ..errors import FormatError
-from ._distortion import is_identity, undistort
+from ._distortion import is_identity
 from ._text import format_error
-from .block import Block, photo_coordinates_mm
+from .block import Block, photo_coordinates_mm, pinhole_camera, undistorted_mm
 from .rotations import matrix_to_quaternion_wxyz, opk_to_world_to_cv, quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
 __all__ = ["read_colmap", "write_colmap", "COLMAP_MODELS", "LOCAL_CRS"]
@@ -90,7 +90,7 @@ def _int(path: Path, line: int, field: str, cell: str) -> int:
 
 
 def _read_cameras(path: Path, pixel_size_mm: float):
-    cams: dict[str, tuple[Camera, dict, dict]] = {}
+    cams: dict[str, tuple[Camera, dict]] = {}
     for no, raw in _lines(path):
         f = raw.split()
         if not f:
@@ -118,17 +118,13 @@ def _read_cameras(path: Path, pixel_size_mm: float):
             raise format_error(path, no, "fx" if "fx" in p else "f", "focal length must be positive")
         if cid in cams:
             raise format_error(path, no, "CAMERA_ID", f"camera {cid} defined twice")
-        t = float(pixel_size_mm)
         dist = {k: v for k, v in p.items() if k[0] in "kp"}
-        k = {"fx": fx, "fy": fy, "cx": p["cx"], "cy": p["cy"], "w": w, "h": h}
-        cam = Camera(cid, focal_length_mm=fx * t, principal_point_x_mm=t * (p["cx"] - w / 2),
-                     principal_point_y_mm=-(t * fx / fy) * (p["cy"] - h / 2), k1=0.0, k2=0.0, k3=0.0,
-                     p1=0.0, p2=0.0, refraction_eps45=0.0, pixel_size_x_mm=t,
-                     pixel_size_y_mm=t * fx / fy, columns_px=w, rows_px=h,
-                     model=f"COLMAP {model}",
-                     source=f"{path.parent.name}/{path.name}:{no}: {model} " + " ".join(f"{n}={v!r}" for n, v in p.items())
-                     + ("" if is_identity(dist) else "; distortion removed from the observations on import"))
-        cams[cid] = (cam, k, dist)
+        cam, model_dict = pinhole_camera(
+            cid, fx, fy, p["cx"], p["cy"], w, h, pixel_size_mm=pixel_size_mm, model=f"COLMAP {model}",
+            source=f"{path.parent.name}/{path.name}:{no}: {model} " + " ".join(f"{n}={v!r}" for n, v in p.items())
+            + ("" if is_identity(dist) else "; distortion removed from the observations on import"),
+            dist=dist)
+        cams[cid] = (cam, model_dict)
     if not cams:
         raise FormatError(f"{path}: no camera defined")
     return cams
@@ -266,25 +262,43 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
     cam_arr = np.array(o_cam, dtype=str)
     obs_px = xy - 0.5
     obs_mm = np.empty_like(xy)
-    for cid, (cam, k, dist) in cams.items():
+    for cid, (cam, model_dict) in cams.items():
         rows = cam_arr == cid
-        if not rows.any():
-            continue
-        xd = np.column_stack([(xy[rows, 0] - k["cx"]) / k["fx"], (xy[rows, 1] - k["cy"]) / k["fy"]])
-        xu = undistort(xd, dist)
-        obs_mm[rows] = cam.focal_length_mm * xu * [1.0, -1.0]
+        if rows.any():
+            obs_mm[rows] = undistorted_mm(xy[rows], cam, model_dict)
     return Block(
         name=name or folder.name, crs=crs, height_system=height_system,
         cameras={c: v[0] for c, v in cams.items()}, photo_ids=np.array(photo, dtype=str),
         photo_camera=np.array(pcam, dtype=str), eo=np.array(eo), obs_photo=np.array(o_photo, dtype=str),
         obs_point=np.array(o_point, dtype=str), obs_px=obs_px, obs_mm=obs_mm,
         point_ids=np.array(pids, dtype=str), points_m=np.array(pxyz).reshape(-1, 3),
-        description=f"imported from the COLMAP model {folder}")
+        description=f"imported from the COLMAP model {folder}",
+        source_models={c: v[1] for c, v in cams.items()})
 
 
 def _r(v: float) -> str:
     """Shortest text that reads back to the same float64."""
     return repr(float(v))
+
+
+def _colmap_model(m: dict | None):
+    """(COLMAP model name, params, dict) reproducing a source model exactly, or None."""
+    if m is None or m.get("kind") != "brown" or not np.isfinite(m.get("w", np.nan)):
+        return None
+    d = {k: v for k, v in m["dist"].items() if v != 0.0}
+    fx, fy, cx, cy = m["fx"], m["fy"], m["cx"], m["cy"]
+    g = lambda k: m["dist"].get(k, 0.0)  # noqa: E731
+    if not d and fx == fy:
+        return "SIMPLE_PINHOLE", [fx, cx, cy], m
+    if not d:
+        return "PINHOLE", [fx, fy, cx, cy], m
+    if fx == fy and set(d) <= {"k1"}:
+        return "SIMPLE_RADIAL", [fx, cx, cy, g("k1")], m
+    if fx == fy and set(d) <= {"k1", "k2"}:
+        return "RADIAL", [fx, cx, cy, g("k1"), g("k2")], m
+    if set(d) <= {"k1", "k2", "p1", "p2"}:
+        return "OPENCV", [fx, fy, cx, cy, g("k1"), g("k2"), g("p1"), g("p2")], m
+    return "FULL_OPENCV", [fx, fy, cx, cy] + [g(k) for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")], m
 
 
 def _is_float(c: str) -> bool:
@@ -308,7 +322,13 @@ def _int_ids(ids: list[str]) -> list[int]:
 
 
 def write_colmap(block: Block, folder: str | Path) -> Path:
-    """Write *block* as a COLMAP text model (undistorted ``PINHOLE`` cameras), atomically.
+    """Write *block* as a COLMAP text model, atomically.
+
+    A camera read from COLMAP/OpenSfM (``block.source_models``, Brown-type) is
+    written back as the COLMAP model that reproduces it, with the measured pixels;
+    any other camera (lidarcat's correction polynomial, Metashape's) as the
+    ``PINHOLE`` camera of the undistorted image with the corrected photo
+    coordinates in ideal pixels.
 
     Photo ids become image NAMEs (and IMAGE_IDs when they are whole numbers),
     point ids POINT3D_IDs when whole numbers (else 1..n, in block order; the
@@ -330,10 +350,16 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
     cam_lines, kmat = [], {}
     for cid in cam_ids:
         c = block.cameras[cid]
+        src = _colmap_model(block.source_models.get(cid))
+        if src is not None:
+            model, params, m = src
+            kmat[cid] = (m, None)
+            cam_lines.append(f"{cam_num[cid]} {model} {m['w']} {m['h']} {' '.join(_r(v) for v in params)}")
+            continue
         fx, fy = c.focal_length_mm / c.pixel_size_x_mm, c.focal_length_mm / c.pixel_size_y_mm
         cx = c.columns_px / 2 + c.principal_point_x_mm / c.pixel_size_x_mm
         cy = c.rows_px / 2 - c.principal_point_y_mm / c.pixel_size_y_mm
-        kmat[cid] = (fx, fy, cx, cy, c)
+        kmat[cid] = (None, (cx, cy, c))
         if fx == fy:
             cam_lines.append(f"{cam_num[cid]} SIMPLE_PINHOLE {c.columns_px} {c.rows_px} {_r(fx)} {_r(cx)} {_r(cy)}")
         else:
@@ -350,7 +376,7 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
         r = r_all[i]
         q = matrix_to_quaternion_wxyz(r)
         t = -r @ block.eo[i, :3]
-        fx, fy, cx, cy, c = kmat[block.photo_camera[i]]
+        src, ideal = kmat[block.photo_camera[i]]
         rows = np.flatnonzero(block.obs_photo == pid)
         pts = []
         for k, j in enumerate(rows):
@@ -358,7 +384,12 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
             num = pt_num.get(pnt, -1)
             if num >= 0:
                 tracks[pnt].append((img_ids[pid], k))
-            pts.append(f"{_r(cx + mm[j, 0] / c.pixel_size_x_mm)} {_r(cy - mm[j, 1] / c.pixel_size_y_mm)} {num}")
+            if src is not None:  # the source model: the measured pixels, corner origin
+                x, y = block.obs_px[j] + 0.5
+            else:  # the undistorted pinhole: corrected photo coordinates in ideal pixels
+                cx, cy, c = ideal
+                x, y = cx + mm[j, 0] / c.pixel_size_x_mm, cy - mm[j, 1] / c.pixel_size_y_mm
+            pts.append(f"{_r(x)} {_r(y)} {num}")
         img_lines.append(f"{img_ids[pid]} {' '.join(_r(v) for v in q)} "
                          f"{' '.join(_r(v) for v in t)} {cam_num[block.photo_camera[i]]} {pid}")
         img_lines.append(" ".join(pts))
