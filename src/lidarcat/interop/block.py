@@ -655,8 +655,8 @@ def undistorted_mm(xy_corner_px: np.ndarray, cam: Camera, model: dict) -> np.nda
     """Corrected photo coordinates (n, 2), mm, of source pixels (origin at the image corner)."""
     from ._distortion import undistort
 
-    xd = np.column_stack([(xy_corner_px[:, 0] - model["cx"]) / model["fx"],
-                          (xy_corner_px[:, 1] - model["cy"]) / model["fy"]])
+    yd = (xy_corner_px[:, 1] - model["cy"]) / model["fy"]
+    xd = np.column_stack([(xy_corner_px[:, 0] - model["cx"] - model.get("skew", 0.0) * yd) / model["fx"], yd])
     xu = undistort(xd, model["dist"], metashape=model.get("kind") == "metashape")
     return cam.focal_length_mm * xu * [1.0, -1.0]
 
@@ -687,5 +687,6 @@ def reprojection_residuals_px(block: Block) -> np.ndarray:
             continue
         xd = distort(xn[rows], m["dist"], metashape=m.get("kind") == "metashape")
         proj = xd * [m["fx"], m["fy"]] + [m["cx"], m["cy"]]
+        proj[:, 0] += m.get("skew", 0.0) * xd[:, 1]
         out[rows] = proj - (block.obs_px[rows] + 0.5)
     return out
