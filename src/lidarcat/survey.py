@@ -71,6 +71,8 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
                    "variance_factor": False, "chi2_level": False},
     "lidar": {"crs": False},
     "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False},
+    # height datum per source and the geoid grid: read by lidarcat.interop.heights
+    "heights": {"sources": False, "geoid_grid": False},
 }
 _REQUIRED_TABLES = ("survey", "files")
 _OBSERVATION_KINDS = ("corrected", "pixel")
