@@ -45,7 +45,8 @@ from .._io import read_toml, toml_line
 from ..errors import LidarcatError, location
 
 __all__ = ["HEIGHT_SYSTEMS", "HeightError", "HeightDeclarations", "height_system_of_crs",
-           "read_height_declarations", "geoid_undulation", "convert_heights", "harmonise_ground_points"]
+           "read_height_declarations", "geoid_undulation", "convert_heights", "harmonise_ground_points",
+           "write_harmonised_survey", "json_report"]
 
 log = logging.getLogger(__name__)
 
@@ -244,3 +245,56 @@ def harmonise_ground_points(survey: Any, to_system: str | None = None, geoid_gri
         enh[rows, 2] = new
     out = GroundPoints(gp.point, enh, gp.sd_m, gp.source, gp.line, gp.path)
     return out, report
+
+
+def write_harmonised_survey(survey: Any, folder: str | Path, *, to_system: str | None = None,
+                            geoid_grid: str | Path | None = None, overwrite: bool = False) -> tuple[Path, dict]:
+    """Copy a survey to *folder* with every ground-point height in one system, atomically.
+
+    ``ground_points.csv`` gets the converted heights (its JSON sidecar says from
+    what), ``[survey] height_system`` the target and ``[heights] sources`` is
+    emptied (every source is now in the survey system).
+
+    Returns
+    -------
+    (folder, report) as :func:`harmonise_ground_points`.
+
+    Raises
+    ------
+    HeightError
+        As :func:`harmonise_ground_points`; *folder* holds a survey and not *overwrite*.
+    """
+    import re
+
+    from .._io import atomic_dir, write_csv_atomic, write_text_atomic
+    from ..survey import Survey
+    from .block import _copy_survey
+
+    if not isinstance(survey, Survey):
+        survey = Survey.load(survey)
+    folder = Path(folder)
+    if (folder / "survey.toml").exists() and not overwrite:
+        raise HeightError(f"{folder}: already holds a survey.toml; choose another folder or pass overwrite (--force)")
+    gp, report = harmonise_ground_points(survey, to_system, geoid_grid)
+    target = to_system or read_height_declarations(survey).survey_system
+    rel = survey.files["ground_points"].relative_to(survey.root)
+    text = survey.toml_path.read_text(encoding="utf-8")
+    text = re.sub(r"(?m)^(\s*sources\s*=).*$", r"\1 {}", text)
+    if re.search(r"(?m)^\s*height_system\s*=", text):
+        text = re.sub(r"(?m)^(\s*height_system\s*=)[^#\n]*", rf'\1 "{target}"  ', text)
+    else:
+        text = re.sub(r"(?m)^\[survey\]\s*$", f'[survey]\nheight_system = "{target}"', text, count=1)
+    with atomic_dir(folder) as tmp:
+        _copy_survey(survey, tmp, skip={rel, Path("survey.toml")})
+        write_csv_atomic(tmp / rel, ["point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "source"],
+                         [[p, *x, *s, src] for p, x, s, src in zip(gp.point.tolist(), gp.enh_m, gp.sd_m,
+                                                                   gp.source.tolist())],
+                         comments=[f"heights converted to {target}: " + json_report(report)])
+        write_text_atomic(tmp / "survey.toml", text)
+    return folder, report
+
+
+def json_report(report: dict) -> str:
+    """One line per source: ``source: from -> to (n points, mean |N| m)``."""
+    return "; ".join(f"{k}: {v['from']} -> {v['to']} ({v['n']} points, mean |N| {v['mean_N_m']:.3f} m)"
+                     for k, v in report.items())
