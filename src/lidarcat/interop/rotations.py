@@ -114,7 +114,7 @@ def ypr_to_opk(ypr_rad) -> np.ndarray:
     to the adjustment as constraint sds).
 
     >>> import numpy as np
-    >>> np.round(np.degrees(ypr_to_opk(np.radians([[90.0, 0.0, 0.0]]))), 9)
+    >>> np.round(np.degrees(ypr_to_opk(np.radians([[90.0, 0.0, 0.0]]))), 9) + 0.0  # heading east
     array([[  0.,   0., -90.]])
     """
     a = np.asarray(ypr_rad, dtype=float)
