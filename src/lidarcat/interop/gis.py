@@ -160,11 +160,16 @@ def gis_layers(survey: Any = None, adjustment: str | Path | None = None, *, elli
         "correlated": [bool(f) for f in full],
         "semi_major_m": [float(np.sqrt(max(np.linalg.eigvalsh(cv)[1], 0))) for cv in cov],
         "semi_minor_m": [float(np.sqrt(max(np.linalg.eigvalsh(cv)[0], 0))) for cv in cov]}))
-    res = read_csv_table(adj / "residuals.csv", required=("kind", "point", "vE_m", "vN_m", "vh_m"), allow_extra=True)
-    kinds = res.column("kind")
-    v = np.column_stack([res.floats(c, required=False) for c in ("vE_m", "vN_m", "vh_m")])
+    if (adj / "residuals.csv").is_file():
+        res = read_csv_table(adj / "residuals.csv", required=("kind", "point", "vE_m", "vN_m", "vh_m"),
+                             allow_extra=True)
+        kinds, res_pts = res.column("kind"), res.column("point")
+        v = np.column_stack([res.floats(c, required=False) for c in ("vE_m", "vN_m", "vh_m")])
+    else:
+        log.warning("%s: no residuals.csv; the residual_vectors layer is empty", adj)
+        kinds, res_pts, v = [], [], np.empty((0, 3))
     sel = [i for i, k in enumerate(kinds) if k == "control"]
-    rpts = [res.column("point")[i] for i in sel]
+    rpts = [res_pts[i] for i in sel]
     gpos = {p: i for i, p in enumerate(blk.ground_ids.tolist())}
     geo, keep = [], []
     for i, q in zip(sel, rpts):
@@ -173,7 +178,7 @@ def gis_layers(survey: Any = None, adjustment: str | Path | None = None, *, elli
             geo.append(np.vstack([ref, ref + vector_scale * np.nan_to_num(v[i, :2])]))
             keep.append(i)
     layers.append(Layer("residual_vectors", "LineString", geo, {
-        "point": [res.column("point")[i] for i in keep], "vE_m": [float(v[i, 0]) for i in keep],
+        "point": [res_pts[i] for i in keep], "vE_m": [float(v[i, 0]) for i in keep],
         "vN_m": [float(v[i, 1]) for i in keep], "vh_m": [float(v[i, 2]) for i in keep],
         "scale": [float(vector_scale)] * len(keep)}))
     chk = [i for i, r in enumerate(role) if r == "check" and p_ids[i] in gpos]
