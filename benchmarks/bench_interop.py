@@ -19,8 +19,18 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from lidarcat.interop import (block_from_survey, gis_layers, read_colmap, read_gcp_list,  # noqa: E402
-                              read_metashape, read_opensfm, write_colmap, write_gis, write_opensfm, write_opk)
+from lidarcat.interop import (  # noqa: E402
+    block_from_survey,
+    gis_layers,
+    read_colmap,
+    read_gcp_list,
+    read_metashape,
+    read_opensfm,
+    write_colmap,
+    write_gis,
+    write_opensfm,
+    write_opk,
+)
 
 D = Path(__file__).resolve().parents[1] / "tests" / "data" / "interop"
 ADJ = Path(__file__).resolve().parents[1] / "tests" / "data" / "report"

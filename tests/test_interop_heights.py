@@ -11,8 +11,14 @@ import numpy as np
 import pytest
 from pyproj import Transformer
 
-from lidarcat.interop.heights import (HeightError, convert_heights, geoid_undulation, harmonise_ground_points,
-                                      height_system_of_crs, read_height_declarations)
+from lidarcat.interop.heights import (
+    HeightError,
+    convert_heights,
+    geoid_undulation,
+    harmonise_ground_points,
+    height_system_of_crs,
+    read_height_declarations,
+)
 from lidarcat.survey import Survey, thesis_survey_path
 
 

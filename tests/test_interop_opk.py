@@ -91,7 +91,8 @@ def test_thesis_round_trip(tmp_path, unit, flavour):
 @pytest.mark.parametrize("text,expect", [
     ("NOM X Y Z O P\n", ":1: field 'kappa': header 'NOM X Y Z O P' has no column for kappa"),
     ("NOM X Y Z O P K\na 1 2 3 4 5 x\n", ":2: field 'K': 'x' is not a number"),
-    ("NOM X Y Z O P K\na 1 2 3 4 5\n", ":2: 6 fields, expected 7"),
+    ("NOM X Y Z O P K\na 1 2 3 4 5\n", ":2: field 'K': 6 fields, expected 7"),
+    ("NOM X Y Z O P K\na 1 2 3 4 5 6,5\n", ":2: field 'K': '6,5' is not a number (a decimal comma? write 1.5"),
     ("NOM X Y Z O P K\na 1 2 3 4 5 6\na 1 2 3 4 5 6\n", ":3: field 'NOM': photo 'a' already on line 2"),
     ("imageName X Y Z Omega Phi Kappa\nb 1 2 inf 4 5 6\n", ":2: field 'Z': 'inf' is not a finite number"),
     ("", "empty file"),

@@ -21,8 +21,17 @@ module                    reads / writes
 Errors are :class:`lidarcat.errors.FormatError` ``FILE:LINE: field 'NAME': ...``.
 """
 
-from .block import (Block, GroundControl, Orientations, apply_ground_control, apply_orientations,
-                    block_from_survey, reprojection_residuals_mm, reprojection_residuals_px, write_survey)
+from .block import (
+                    Block,
+                    GroundControl,
+                    Orientations,
+                    apply_ground_control,
+                    apply_orientations,
+                    block_from_survey,
+                    reprojection_residuals_mm,
+                    reprojection_residuals_px,
+                    write_survey,
+)
 from .colmap import read_colmap, write_colmap
 from .gis import gis_layers, write_gis
 from .gnss import read_gnss, read_kapture_gnss

@@ -56,7 +56,8 @@ class Row:
         try:
             v = float(cell)
         except ValueError:
-            raise self.error(name, f"{cell!r} is not a number") from None
+            hint = " (a decimal comma? write 1.5, not 1,5)" if "," in cell else ""
+            raise self.error(name, f"{cell!r} is not a number{hint}") from None
         if not math.isfinite(v):
             raise self.error(name, f"{cell!r} is not a finite number")
         return v

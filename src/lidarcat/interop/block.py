@@ -27,9 +27,10 @@ from .._io import atomic_dir, read_csv_table, read_text, write_csv_atomic, write
 from ..camera import Camera
 from ..errors import FormatError
 
-__all__ = ["Block", "Orientations", "GroundControl", "apply_orientations", "apply_ground_control", "write_survey", "block_from_survey",
+__all__ = ["Block", "Orientations", "GroundControl", "apply_orientations", "apply_ground_control",
+           "write_survey", "block_from_survey",
            "photo_coordinates_mm", "reprojection_residuals_mm", "reprojection_residuals_px",
-           "pinhole_camera", "undistorted_mm", "SOURCE_CAMERAS"]
+           "pinhole_camera", "undistorted_mm", "require_orientations", "SOURCE_CAMERAS"]
 
 log = logging.getLogger(__name__)
 
@@ -139,6 +140,27 @@ class Block:
     def with_(self, **changes: Any) -> Block:
         """A copy with some fields replaced."""
         return replace(self, **changes)
+
+
+def _photo_eo(photos) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 6) orientations and sds (m, rad; NaN where absent) of survey photos."""
+    eo = np.full((len(photos), 6), np.nan)
+    esd = np.full((len(photos), 6), np.nan)
+    for k, ph in enumerate(photos):
+        for arr, pos, att in ((eo, ph.position_m, ph.attitude_deg), (esd, ph.sd_position_m, ph.sd_attitude_deg)):
+            if pos is not None:
+                arr[k, :3] = pos
+            if att is not None:
+                arr[k, 3:] = np.radians(att)
+    return eo, esd
+
+
+def require_orientations(block: Block, program: str) -> None:
+    """Raise :class:`FormatError` naming the first photo without a complete orientation."""
+    missing = [p for p, e in zip(block.photo_ids.tolist(), block.eo) if not np.isfinite(e).all()]
+    if missing:
+        raise FormatError(f"photo {missing[0]!r} has no complete orientation, which {program} needs "
+                          f"(export an adjusted block: lidarcat adjust, then export its output folder)")
 
 
 def photo_coordinates_mm(block: Block) -> np.ndarray:
@@ -282,12 +304,7 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
     ip = survey.image_points
     excluded = np.isin(ip.point, list(survey.settings.exclude_points))
     photo_ids = np.array([p.id for p in survey.photos], dtype=str)
-    eo = np.full((len(photo_ids), 6), np.nan)
-    for i, p in enumerate(survey.photos):
-        if p.position_m is not None:
-            eo[i, :3] = p.position_m
-        if p.attitude_deg is not None:
-            eo[i, 3:] = np.radians(p.attitude_deg)
+    eo, _ = _photo_eo(survey.photos)
     gp = survey.ground_points
     point_ids, points = gp.point, gp.enh_m
     if adjustment is not None:
@@ -438,17 +455,8 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
     if sd_attitude_deg is not None:
         sd[:, 3:] = np.radians(sd_attitude_deg)
     row_of = {match[p]: i for i, p in enumerate(orientations.photo.tolist()) if p in match}
-    eo = np.full((len(ids), 6), np.nan)
-    esd = np.full((len(ids), 6), np.nan)
+    eo, esd = _photo_eo(survey.photos)
     for k, ph in enumerate(survey.photos):
-        if ph.position_m is not None:
-            eo[k, :3] = ph.position_m
-        if ph.attitude_deg is not None:
-            eo[k, 3:] = np.radians(ph.attitude_deg)
-        if ph.sd_position_m is not None:
-            esd[k, :3] = ph.sd_position_m
-        if ph.sd_attitude_deg is not None:
-            esd[k, 3:] = np.radians(ph.sd_attitude_deg)
         if ph.id in row_of:
             i = row_of[ph.id]
             have = np.isfinite(orientations.eo[i])
@@ -468,7 +476,8 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
             v = vals[k] if np.isfinite(vals[k]).all() else np.full(3, np.nan)
             r += list(v if unit else np.degrees(v))
         rows.append(r)
-    photos_rel = survey.files["photos"].relative_to(survey.root) if survey.files["photos"].is_relative_to(survey.root) else None
+    photos_path = survey.files["photos"]
+    photos_rel = photos_path.relative_to(survey.root) if photos_path.is_relative_to(survey.root) else None
     if photos_rel is None:
         raise FormatError(f"{survey.files['photos']}: photos.csv lies outside the survey folder; "
                           f"copy it in first")
@@ -550,7 +559,8 @@ def _toml_with_files(text: str, keys: dict[str, str]) -> str:
     return "\n".join(lines[:i + 1] + add + lines[i + 1:]) + "\n"
 
 
-def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *, sd_m: tuple[float, float, float] = (0.05, 0.05, 0.05),
+def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
+                         sd_m: tuple[float, float, float] = (0.05, 0.05, 0.05),
                          set_name: str = "gcp", role: str = "control", source: str = "gcp",
                          overwrite: bool = False) -> Path:
     """Copy a survey folder to *folder* adding ground points, their image measurements and a

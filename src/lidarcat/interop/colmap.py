@@ -43,7 +43,7 @@ from ..camera import Camera
 from ..errors import FormatError
 from ._distortion import is_identity
 from ._text import format_error
-from .block import Block, photo_coordinates_mm, pinhole_camera, undistorted_mm
+from .block import Block, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
 from .rotations import matrix_to_quaternion_wxyz, opk_to_world_to_cv, quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
 __all__ = ["read_colmap", "write_colmap", "COLMAP_MODELS", "LOCAL_CRS"]
@@ -341,10 +341,7 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
         A photo without a complete orientation.
     """
     folder = Path(folder)
-    missing = [p for p, e in zip(block.photo_ids.tolist(), block.eo) if not np.isfinite(e).all()]
-    if missing:
-        raise FormatError(f"photo {missing[0]!r} has no complete orientation; COLMAP images need one "
-                          f"(export an adjusted block: --adjustment)")
+    require_orientations(block, "COLMAP")
     cam_ids = list(block.cameras)
     cam_num = dict(zip(cam_ids, range(1, len(cam_ids) + 1)))
     cam_lines, kmat = [], {}

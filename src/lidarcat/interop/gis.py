@@ -183,9 +183,9 @@ def gis_layers(survey: Any = None, adjustment: str | Path | None = None, *, elli
         "scale": [float(vector_scale)] * len(keep)}))
     chk = [i for i, r in enumerate(role) if r == "check" and p_ids[i] in gpos]
     dis = [enh[i] - blk.ground_m[gpos[p_ids[i]]] for i in chk]
+    refs = [blk.ground_m[gpos[p_ids[i]], :2] for i in chk]
     layers.append(Layer("check_discrepancies", "LineString",
-                        [np.vstack([blk.ground_m[gpos[p_ids[i]], :2], blk.ground_m[gpos[p_ids[i]], :2] + vector_scale * d[:2]])
-                         for i, d in zip(chk, dis)], {
+                        [np.vstack([ref, ref + vector_scale * d[:2]]) for ref, d in zip(refs, dis)], {
         "point": [p_ids[i] for i in chk], "dE_m": [float(d[0]) for d in dis], "dN_m": [float(d[1]) for d in dis],
         "dh_m": [float(d[2]) for d in dis], "scale": [float(vector_scale)] * len(chk),
         "height_system": [hs] * len(chk)}))

@@ -42,7 +42,7 @@ from scipy.spatial.transform import Rotation
 from .._io import atomic_dir, read_text, write_text_atomic
 from ..errors import FormatError
 from ._text import format_error
-from .block import Block, GroundControl, photo_coordinates_mm, pinhole_camera, undistorted_mm
+from .block import Block, GroundControl, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
 from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
 
 __all__ = ["read_opensfm", "read_opensfm_gcp", "write_opensfm", "topocentric_crs", "OPENSFM_PROJECTIONS"]
@@ -154,7 +154,8 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     rec = data[index]
     for key in ("cameras", "shots", "points"):
         if not isinstance(rec.get(key), dict):
-            raise format_error(path, _json_line(text, key) or 1, key, f"missing or not an object in reconstruction {index}")
+            raise format_error(path, _json_line(text, key) or 1, key,
+                               f"missing or not an object in reconstruction {index}")
     cams, models = {}, {}
     for cid, c in rec["cameras"].items():
         cams[cid], models[cid] = _camera(path, text, cid, c, pixel_size_mm)
@@ -177,7 +178,8 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
         pxyz.append(_vec(path, text, pid, "coordinates", pt.get("coordinates") if isinstance(pt, dict) else None, 3))
     lla = rec.get("reference_lla")
     if isinstance(lla, dict):
-        lat, lon, alt = (_num(path, text, "reference_lla", k, lla.get(k)) for k in ("latitude", "longitude", "altitude"))
+        lat, lon, alt = (_num(path, text, "reference_lla", k, lla.get(k))
+                         for k in ("latitude", "longitude", "altitude"))
         crs, hs = topocentric_crs(lat, lon, alt), "ellipsoidal"
     else:
         crs, hs = "local: OpenSfM reconstruction frame (no reference_lla)", "unspecified"
@@ -329,9 +331,7 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
         A photo without a complete orientation.
     """
     folder = Path(folder)
-    missing = [p for p, e in zip(block.photo_ids.tolist(), block.eo) if not np.isfinite(e).all()]
-    if missing:
-        raise FormatError(f"photo {missing[0]!r} has no complete orientation; export an adjusted block")
+    require_orientations(block, "OpenSfM")
     cams, used = {}, {}
     for cid, cam in block.cameras.items():
         cams[cid], used[cid] = _opensfm_camera(cam, block.source_models.get(cid))

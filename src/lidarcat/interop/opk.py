@@ -34,7 +34,7 @@ import numpy as np
 from .._io import atomic_write, write_json_atomic
 from ..errors import FormatError
 from ._text import TextLines, format_error
-from .block import Block, Orientations
+from .block import Block, Orientations, require_orientations
 
 __all__ = ["read_opk", "write_opk", "read_borea", "read_borea_camera", "read_borea_points",
            "read_borea_measurements", "ANGLE_UNITS"]
@@ -98,6 +98,8 @@ def read_opk(path: str | Path, *, angle_unit: str = "deg", crs: str = "unspecifi
     if angle_unit not in ANGLE_UNITS:
         raise FormatError(f"angle unit {angle_unit!r} is not one of {', '.join(ANGLE_UNITS)}")
     tl = TextLines(path, comment=None)
+    first = next((ln for ln in tl.text.splitlines() if ln.strip()), "")
+    tl.split = None if ("," in first or ";" in first) else "ws"  # blanks: a comma is no separator
     rows = list(tl.rows())
     if not rows:
         raise FormatError(f"{tl.path}: empty file, expected a header line (e.g. 'NOM X Y Z O P K')")
@@ -111,8 +113,9 @@ def read_opk(path: str | Path, *, angle_unit: str = "deg", crs: str = "unspecifi
         if r.fields[0].startswith("#"):
             continue
         if len(r.fields) != len(head.fields):
-            raise r.error(None, f"{len(r.fields)} fields, expected {len(head.fields)} "
-                                f"({' '.join(head.fields)})")
+            fld = head.fields[len(r.fields)] if len(r.fields) < len(head.fields) else head.fields[-1]
+            raise r.error(fld, f"{len(r.fields)} fields, expected {len(head.fields)} "
+                               f"({' '.join(head.fields)})")
         name = r.fields[cols["photo"]]
         if name in seen:
             raise r.error(hdr["photo"], f"photo {name!r} already on line {seen[name]}")
@@ -154,10 +157,7 @@ def write_opk(block: Block, path: str | Path, *, angle_unit: str = "deg", flavou
         raise FormatError(f"angle unit {angle_unit!r} is not one of {', '.join(ANGLE_UNITS)}")
     if flavour not in ("pix4d", "ign"):
         raise FormatError(f"OPK flavour {flavour!r} is not 'pix4d' or 'ign'")
-    missing = [p for p, e in zip(block.photo_ids.tolist(), block.eo) if not np.isfinite(e).all()]
-    if missing:
-        raise FormatError(f"photo {missing[0]!r} has no complete orientation (export an adjusted "
-                          f"block: --adjustment)")
+    require_orientations(block, "an OPK file")
     path = Path(path)
     unit = ANGLE_UNITS[angle_unit]
     bad = [p for p in block.photo_ids.tolist() if not p or any(ch.isspace() for ch in p)]
