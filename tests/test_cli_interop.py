@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 from click.testing import CliRunner
 
 from lidarcat.cli.main import cli
@@ -51,3 +52,23 @@ def test_errors_are_one_line_exit_2(tmp_path):
                                  "--to", "ellipsoidal", "-o", str(tmp_path / "h")])
     assert r.exit_code == 2 and "no geoid model is given" in r.output
     assert not (tmp_path / "h").exists()
+
+
+def test_opensfm_with_ground_control(tmp_path):
+    o = DATA / "opensfm"
+    r = _run("import", "opensfm", o / "berlin_reconstruction_example.json", "--tracks", o / "berlin_tracks_example.csv",
+             "-o", tmp_path / "s")
+    assert r.exit_code == 0, r.output
+    gdir = tmp_path / "gcp"
+    gdir.mkdir()
+    (gdir / "ground_control_points.json").write_bytes((o / "berlin_ground_control_points.json").read_bytes())
+    (gdir / "config.yaml").write_text("bundle_use_gcp: yes\ngcp_horizontal_sd: 0.02\ngcp_vertical_sd: 0.1\n")
+    r = _run("import", "opensfm-gcp", gdir / "ground_control_points.json", "--survey", tmp_path / "s",
+             "-o", tmp_path / "s2", "--json")
+    assert r.exit_code == 0, r.output
+    from lidarcat.survey import Survey
+
+    s = Survey.load(tmp_path / "s2")
+    assert s.control_set("gcp").control.tolist() == ["gcp0", "gcp3"]
+    np.testing.assert_allclose(s.control_set("gcp").sd_m, [[0.02, 0.02, 0.1]] * 2)
+    assert s.height_system == "ellipsoidal"

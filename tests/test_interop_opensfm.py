@@ -90,7 +90,7 @@ def test_import_adjust_export_same_residuals(tmp_path):
 def test_ground_control_points_json():
     b = read_opensfm(REC, TRACKS)
     g = read_opensfm_gcp(D / "berlin_ground_control_points.json", b)
-    assert g.point.tolist() == ["0", "1", "3"]
+    assert g.point.tolist() == ["gcp0", "gcp1", "gcp3"]
     assert np.isnan(g.enh_m[1]).all()  # GCP '1' has no world position
     assert len(g.obs_point) == 5
     # OpenSfM's topocentric_from_lla, written out: ECEF difference rotated to ENU at reference_lla
@@ -138,3 +138,20 @@ def test_invalid_json_and_tracks(tmp_path):
     Path(t).write_text("\n".join(lines) + "\n")
     with pytest.raises(FormatError, match=r"tracks.csv:3: field 'x': 'x' is not a number"):
         read_opensfm(REC, t)
+
+
+def test_dataset_config(tmp_path):
+    from lidarcat.interop.opensfm import gcp_sd_from_config, read_opensfm_config
+
+    cfg = read_opensfm_config(D / "berlin_config.yaml")
+    assert cfg == {"processes": 8, "depthmap_min_consistent_views": 2, "depthmap_save_debug_files": False,
+                   "feature_process_size": 1024, "bundle_use_gcp": True}
+    assert gcp_sd_from_config(cfg, 0.05) == (0.05, 0.05, 0.05)
+    assert gcp_sd_from_config({"gcp_horizontal_sd": 0.02, "gcp_vertical_sd": 0.1}, 0.05) == (0.02, 0.02, 0.1)
+    p = tmp_path / "config.yaml"
+    p.write_text("processes: 8\nbundle_use_gcp yes\n")
+    with pytest.raises(FormatError, match=r"config.yaml:2: 'bundle_use_gcp yes' is no 'key: value' line"):
+        read_opensfm_config(p)
+    p.write_text("processes: 8\n# again\nprocesses: 4\n")
+    with pytest.raises(FormatError, match=r"config.yaml:3: field 'processes': given twice \(also line 1\)"):
+        read_opensfm_config(p)

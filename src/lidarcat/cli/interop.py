@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from .options import echo_json, json_opt
@@ -63,7 +65,9 @@ def _fmt_help(table: dict[str, str]) -> str:
               help="opk, gnss, odm-geo: sd of X0, Y0, Z0 (m): the positions become weighted constraints.")
 @click.option("--sd-attitude-deg", type=float, default=None,
               help="opk, gnss, odm-geo: sd of omega, phi, kappa (deg).")
-@click.option("--gcp-sd-m", type=float, default=0.05, show_default=True, help="odm-gcp, opensfm-gcp: sd of E, N, h.")
+@click.option("--gcp-sd-m", type=float, default=0.05, show_default=True,
+              help="odm-gcp, opensfm-gcp: sd of E, N, h (opensfm-gcp: config.yaml beside the file may set "
+                   "gcp_horizontal_sd, gcp_vertical_sd).")
 @click.option("--set", "set_name", default="gcp", show_default=True, help="odm-gcp, opensfm-gcp: control-set name.")
 @click.option("--to", "to_system", type=click.Choice(["ellipsoidal", "orthometric"]), default=None,
               help="heights: target height system (default: the survey's).")
@@ -151,7 +155,13 @@ def import_cmd(fmt, source, output, base, crs, file_crs, height_system, pixel_si
             if base is None:
                 raise click.UsageError("opensfm-gcp needs --survey (a survey imported from OpenSfM)")
             gcp = read_opensfm_gcp(source, B.block_from_survey(base))
-        B.apply_ground_control(base, gcp, output, sd_m=(gcp_sd_m,) * 3, set_name=set_name, overwrite=force)
+        sd = (gcp_sd_m,) * 3
+        config = Path(source).with_name("config.yaml")
+        if fmt == "opensfm-gcp" and config.is_file():  # the dataset's gcp_horizontal_sd / gcp_vertical_sd
+            from ..interop.opensfm import gcp_sd_from_config, read_opensfm_config
+
+            sd = gcp_sd_from_config(read_opensfm_config(config), gcp_sd_m)
+        B.apply_ground_control(base, gcp, output, sd_m=sd, set_name=set_name, overwrite=force)
         report.update(ground_points=int(len(gcp.point)), measurements=int(len(gcp.obs_point)), crs=gcp.crs,
                       height_system=gcp.height_system)
     else:

@@ -584,6 +584,10 @@ def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
     clash = sorted(set(gcp.point.tolist()) & set(survey.ground_points.point.tolist()))
     if clash:
         raise FormatError(f"{gcp.source}: point {clash[0]!r} is already a ground point of {survey.root}")
+    clash = sorted(set(gcp.point.tolist()) & set(survey.image_points.point.tolist()))
+    if clash:
+        raise FormatError(f"{gcp.source}: point id {clash[0]!r} is already a measured (tie) point of "
+                          f"{survey.root}; rename the GCP")
     ids = [p.id for p in survey.photos]
     match = _match_photos(sorted(set(gcp.obs_photo.tolist())), ids)
     keep = np.array([p in match for p in gcp.obs_photo.tolist()], dtype=bool)

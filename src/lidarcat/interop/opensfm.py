@@ -45,7 +45,8 @@ from ._text import format_error
 from .block import Block, GroundControl, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
 from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
 
-__all__ = ["read_opensfm", "read_opensfm_gcp", "write_opensfm", "topocentric_crs", "OPENSFM_PROJECTIONS"]
+__all__ = ["read_opensfm", "read_opensfm_gcp", "read_opensfm_config", "gcp_sd_from_config", "write_opensfm",
+           "topocentric_crs", "OPENSFM_PROJECTIONS"]
 
 log = logging.getLogger(__name__)
 
@@ -247,7 +248,8 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
     topocentric frame with PROJ (the ``+proj=topocentric`` pipeline of its
     ``crs``); points without ``position`` are kept with NaN coordinates (their
     measurements are still tie observations).  Normalised projections become
-    pixels with the shot's camera.
+    pixels with the shot's camera.  Point ids get the prefix ``gcp`` (OpenSfM keeps
+    GCP ids apart from track ids, which are the survey's tie-point ids).
 
     Raises
     ------
@@ -270,8 +272,8 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
     ids, enh, o_pt, o_ph, o_px = [], [], [], [], []
     cam_of = dict(zip(block.photo_ids.tolist(), block.photo_camera.tolist()))
     for p in pts:
-        pid = str(p.get("id"))
-        line = _json_line(text, pid) if p.get("id") is not None else None
+        line = _json_line(text, str(p.get("id"))) if p.get("id") is not None else None
+        pid = f"gcp{p.get('id')}"  # GCP ids are their own namespace in OpenSfM, apart from track ids
         pos = p.get("position")
         xyz = np.full(3, np.nan)
         if pos is not None:
@@ -368,3 +370,60 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
     log.info("wrote OpenSfM reconstruction %s: %d shots, %d points (CRS %s, heights %s)", folder,
              len(shots), len(points), block.crs, block.height_system)
     return folder
+
+
+def read_opensfm_config(path: str | Path) -> dict[str, Any]:
+    """An OpenSfM dataset ``config.yaml``: flat ``key: value`` lines (``#`` comments).
+
+    Values become bool (``yes``/``no``/``true``/``false``), int, float or text.
+    Only the flat subset of YAML that OpenSfM configs use is read (no PyYAML needed).
+
+    Raises
+    ------
+    FormatError
+        A line that is no ``key: value`` pair, or a key given twice (``FILE:LINE: field``).
+    """
+    path = Path(path)
+    out: dict[str, Any] = {}
+    lines: dict[str, int] = {}
+    for no, raw in enumerate(read_text(path, FormatError).splitlines(), start=1):
+        s = raw.split("#", 1)[0].strip()
+        if not s:
+            continue
+        if ":" not in s:
+            raise format_error(path, no, None, f"{s!r} is no 'key: value' line")
+        key, val = (x.strip() for x in s.split(":", 1))
+        if not key or not val:
+            raise format_error(path, no, key or None, "expected 'key: value' with both parts")
+        if key in out:
+            raise format_error(path, no, key, f"given twice (also line {lines[key]})")
+        low = val.lower()
+        v: Any
+        if low in ("yes", "true", "on"):
+            v = True
+        elif low in ("no", "false", "off"):
+            v = False
+        else:
+            try:
+                v = int(val)
+            except ValueError:
+                try:
+                    v = float(val)
+                except ValueError:
+                    v = val.strip("'\"")
+        out[key] = v
+        lines[key] = no
+    return out
+
+
+def gcp_sd_from_config(config: dict[str, Any], default: float) -> tuple[float, float, float]:
+    """(sd_E, sd_N, sd_h) of GCPs from OpenSfM's ``gcp_horizontal_sd``/``gcp_vertical_sd`` (m).
+
+    Keys missing from the dataset's config take *default*; a config with
+    ``bundle_use_gcp: no`` is logged (OpenSfM would not have used the GCPs).
+    """
+    if config.get("bundle_use_gcp") is False:
+        log.warning("the OpenSfM config says bundle_use_gcp: no; the GCPs are imported anyway")
+    hz = float(config.get("gcp_horizontal_sd", default))
+    vt = float(config.get("gcp_vertical_sd", default))
+    return hz, hz, vt
