@@ -72,6 +72,8 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
     "lidar": {"crs": False},
     "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False,
                    "plotting_position": False},
+    # height datum per source and the geoid grid: read by lidarcat.interop.heights
+    "heights": {"sources": False, "geoid_grid": False},
 }
 _REQUIRED_TABLES = ("survey", "files")
 _OBSERVATION_KINDS = ("corrected", "pixel")
