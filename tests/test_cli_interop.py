@@ -23,14 +23,17 @@ def test_colmap_import_adjust_export(tmp_path):
     assert r.exit_code == 0, r.output
     rep = json.loads(r.stdout)
     assert rep["photos"] == 4 and rep["observations"] == 3350 and rep["points"] == 1039
-    assert _run("adjust", tmp_path / "s", "-o", tmp_path / "adj").exit_code == 0
+    adj = _run("adjust", tmp_path / "s", "-o", tmp_path / "adj", "--snooping", "off")
+    # an SfM model's image sd is a guess: the global test may reject, and adjust then exits 3 (documented)
+    chi2_pass = json.loads((tmp_path / "adj" / "summary.json").read_text())["chi2_pass"]
+    assert adj.exit_code == (0 if chi2_pass else 3), adj.output
     r = _run("export", "colmap", tmp_path / "adj", "--survey", tmp_path / "s", "-o", tmp_path / "m")
     assert r.exit_code == 0 and "heights unspecified (model frame)" in r.output
     assert sorted(p.name for p in (tmp_path / "m").iterdir()) == ["cameras.txt", "images.txt", "points3D.txt"]
 
 
 def test_thesis_exports_and_opk_reimport(tmp_path):
-    assert _run("adjust", "-o", tmp_path / "adj").exit_code == 0
+    assert _run("adjust", "-o", tmp_path / "adj", "--snooping", "off").exit_code == 0
     r = _run("export", "opk", tmp_path / "adj", "-o", tmp_path / "t.opk")
     assert r.exit_code == 0 and "CRS EPSG:29192, heights orthometric" in r.output
     r = _run("export", "gis", tmp_path / "adj", "-o", tmp_path / "gis", "--format", "geojson")

@@ -95,7 +95,8 @@ def test_declaration_errors(tmp_path):
 
 
 def test_compound_crs_contradiction(tmp_path):
-    d = _survey_copy(tmp_path, "", crs="EPSG:7415", system="ellipsoidal")
+    # thesis coordinates: a compound CRS whose area of use holds them (SAD69 / UTM 22S + EGM96 height)
+    d = _survey_copy(tmp_path, "", crs="EPSG:29192+5773", system="ellipsoidal")
     with pytest.raises(HeightError, match=r"survey.toml:\d+: field 'height_system': 'ellipsoidal' contradicts "
-                                          r"the CRS EPSG:7415, whose heights are orthometric"):
+                                          r"the CRS EPSG:29192\+5773, whose heights are orthometric"):
         read_height_declarations(d)

@@ -536,6 +536,19 @@ def _positive(table: CsvTable, arr: np.ndarray, names: Sequence[str], unit: str 
                               f"{what}, got {float(col[i])!r} {unit}; sane values lie in {lo:g}..{hi:g} {unit}")
 
 
+def is_local_crs(crs: str) -> bool:
+    """True for a survey CRS declared as a local (not georeferenced) frame: ``"local"`` or
+    ``"local: <description>"`` (what ``lidarcat import`` writes for a COLMAP or OpenSfM model
+    without georeference).  Such a frame is taken to be in metres; products that need a real CRS
+    (GIS layers, LiDAR control) refuse it.
+
+    >>> is_local_crs("local: COLMAP model frame"), is_local_crs("EPSG:31983")
+    (True, False)
+    """
+    s = crs.strip().lower()
+    return s == "local" or s.startswith(("local:", "local "))
+
+
 def _check_crs(t: _Toml, table: str, crs: str, coords: Sequence[tuple[Path | None, np.ndarray, np.ndarray]]
                ) -> None:
     """``[table] crs`` must be a CRS pyproj knows, in metres, and hold the coordinates of
@@ -543,6 +556,8 @@ def _check_crs(t: _Toml, table: str, crs: str, coords: Sequence[tuple[Path | Non
     from .errors import CRSError
     from .lidar.crs import check_area_of_use, require_metres, resolve_crs
 
+    if table == "survey" and is_local_crs(crs):
+        return  # a local model frame (e.g. an imported SfM model): metres by declaration, no area of use
     try:
         c = resolve_crs(crs)
         require_metres(c, "the adjustment" if table == "survey" else "LiDAR control")
