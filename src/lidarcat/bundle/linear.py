@@ -127,10 +127,13 @@ class _Schur:
     n_cameras, n_points : int
     camera_size : int
         Parameters per camera (6: exterior orientation; 9: BAL).
+    coords : (C, 3) array, optional
+        Approximate camera positions: a better fill-reducing ordering
+        (:class:`~lidarcat.bundle.cholesky.SupernodalCholesky`).
     """
 
     def __init__(self, camera_index: np.ndarray, point_index: np.ndarray, n_cameras: int, n_points: int,
-                 camera_size: int = 6):
+                 camera_size: int = 6, coords: np.ndarray | None = None):
         ei, pj = np.asarray(camera_index), np.asarray(point_index)
         self.ei, self.pj = ei, pj
         self.n_cameras, self.n_points, self.cb = n_cameras, n_points, camera_size
@@ -179,7 +182,7 @@ class _Schur:
         scal_indptr = np.r_[0, np.cumsum(np.repeat(cnt * cb, cb))]
         self.pattern = sp.csr_matrix((np.ones(total), scal_cols, scal_indptr),
                                      shape=(n_cameras * cb, n_cameras * cb))
-        self.chol = SupernodalCholesky(self.pattern, np.full(n_cameras, cb))
+        self.chol = SupernodalCholesky(self.pattern, np.full(n_cameras, cb), coords=coords)
         self._zloc = None
 
     # -----------------------------------------------------------------------

@@ -352,7 +352,8 @@ def adjust(
     history: list[float] = []
     system = None
     with phase("analysis"):
-        schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points)   # pattern of S, analysed once
+        # pattern of S and its ordering (camera positions of the approximations), analysed once
+        schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points, coords=eo[:, :3])
     method = solver if solver != "auto" else ("pcg" if p.n_photos >= PCG_MIN_PHOTOS else "direct")
     try:
         with phase("model"):
