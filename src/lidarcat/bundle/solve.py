@@ -31,8 +31,9 @@ from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bound
 
 __all__ = ["BundleResult", "adjust", "STATUS_MESSAGES", "PCG_MIN_PHOTOS"]
 
-#: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below)
-PCG_MIN_PHOTOS = 2000
+#: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below; on
+#: strip blocks block-Jacobi PCG lost to the supernodal factor at 1,000 photos: docs/bundle.md)
+PCG_MIN_PHOTOS = 20000
 
 log = logging.getLogger(__name__)
 
