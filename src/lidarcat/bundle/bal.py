@@ -197,7 +197,9 @@ def solve_bal(problem: BalProblem, *, max_iter: int = 50, function_tolerance: fl
     p = problem
     ci, pj = p.camera_index, p.point_index
     cams, pts = p.cameras.astype(float).copy(), p.points.astype(float).copy()
-    schur = _Schur(ci, pj, p.n_cameras, p.n_points, camera_size=9)
+    R, _ = _rodrigues(cams[:, :3])
+    centres = -np.einsum("cji,cj->ci", R, cams[:, 3:6])          # C = -R^T t: ordering by position
+    schur = _Schur(ci, pj, p.n_cameras, p.n_points, camera_size=9, coords=centres)
 
     def linearise(c, x):
         pred, jc, jp = bal_project(c, x, ci, pj, jacobians=True)

@@ -127,10 +127,13 @@ class _Schur:
     n_cameras, n_points : int
     camera_size : int
         Parameters per camera (6: exterior orientation; 9: BAL).
+    coords : (C, 3) array, optional
+        Approximate camera positions: a better fill-reducing ordering
+        (:class:`~lidarcat.bundle.cholesky.SupernodalCholesky`).
     """
 
     def __init__(self, camera_index: np.ndarray, point_index: np.ndarray, n_cameras: int, n_points: int,
-                 camera_size: int = 6):
+                 camera_size: int = 6, coords: np.ndarray | None = None):
         ei, pj = np.asarray(camera_index), np.asarray(point_index)
         self.ei, self.pj = ei, pj
         self.n_cameras, self.n_points, self.cb = n_cameras, n_points, camera_size
@@ -154,7 +157,7 @@ class _Schur:
         self.n_slots = bpat.nnz
         self.slot_diag = _slots(bpat, diag, diag)
         s_up = _slots(bpat, ia, ib)
-        order = np.argsort(s_up, kind="stable")          # pairs sorted by slot (for reduceat)
+        order = np.argsort(s_up, kind="stable")          # pairs sorted by slot (chunks touch few slots)
         self.oa, self.ob, self.s_up = oa[order], ob[order], s_up[order]
         self._chunks = [(c0, min(len(oa), c0 + CHUNK_PAIRS)) for c0 in range(0, len(oa), CHUNK_PAIRS)]
         self._chunk_sum = [_Aggregator(self.s_up[c0:c1], self.n_slots) for c0, c1 in self._chunks]
@@ -179,14 +182,15 @@ class _Schur:
         scal_indptr = np.r_[0, np.cumsum(np.repeat(cnt * cb, cb))]
         self.pattern = sp.csr_matrix((np.ones(total), scal_cols, scal_indptr),
                                      shape=(n_cameras * cb, n_cameras * cb))
-        self.chol = SupernodalCholesky(self.pattern, np.full(n_cameras, cb))
-        self._zloc = None
+        self.chol = SupernodalCholesky(self.pattern, np.full(n_cameras, cb), coords=coords)
+        self._zloc = None        # locations of the Z blocks of the precision (set on first use)
+        self._dg: np.ndarray | None = None
 
     # -----------------------------------------------------------------------
 
     def _diag_gather(self) -> np.ndarray:
         """Positions in the scalar CSR data of the diagonal blocks, (C * cb * cb,) in block order."""
-        if getattr(self, "_dg", None) is None:
+        if self._dg is None:
             inv = np.empty_like(self.gather)
             inv[self.gather] = np.arange(len(self.gather))
             cb2 = self.cb * self.cb

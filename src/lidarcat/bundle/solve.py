@@ -31,8 +31,9 @@ from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bound
 
 __all__ = ["BundleResult", "adjust", "STATUS_MESSAGES", "PCG_MIN_PHOTOS"]
 
-#: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below)
-PCG_MIN_PHOTOS = 2000
+#: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below; on
+#: strip blocks block-Jacobi PCG lost to the supernodal factor at 1,000 photos: docs/bundle.md)
+PCG_MIN_PHOTOS = 20000
 
 log = logging.getLogger(__name__)
 
@@ -352,7 +353,8 @@ def adjust(
     history: list[float] = []
     system = None
     with phase("analysis"):
-        schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points)   # pattern of S, analysed once
+        # pattern of S and its ordering (camera positions of the approximations), analysed once
+        schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points, coords=eo[:, :3])
     method = solver if solver != "auto" else ("pcg" if p.n_photos >= PCG_MIN_PHOTOS else "direct")
     try:
         with phase("model"):
