@@ -84,6 +84,22 @@ def test_other_header_fields_checked_against_the_file_size(tmp_path):
         read_points(tmp_path / "short.las")
 
 
+def test_laz_chunk_table_checked_before_lazrs_allocates(tmp_path):
+    # found by the fuzz suite: a chunk table counting 3 billion chunks made lazrs allocate 46 GB
+    # and abort the process (a Rust allocation failure is no exception: nothing to catch)
+    data = AHN2.read_bytes()
+    offset = struct.unpack_from("<I", data, 96)[0]
+    table_at = struct.unpack_from("<q", data, offset)[0]
+    bad = _patched(AHN2, tmp_path / "chunks.laz", table_at + 4, "<I", 3_000_000_000)
+    with pytest.raises(LidarFormatError, match=r"chunks\.laz: corrupt LAS header: the LAZ chunk table announces "
+                       r"3,000,000,000 chunks but only \d[\d,]* bytes of compressed points precede it"):
+        read_points(bad, crs=RD)
+    moved = _patched(AHN2, tmp_path / "moved.laz", offset, "<q", len(data) + 10)
+    with pytest.raises(LidarFormatError, match=r"moved\.laz: corrupt LAS header: the LAZ chunk table offset "
+                       rf"{len(data) + 10} lies outside the compressed data"):
+        read_points(moved, crs=RD)
+
+
 def test_lazrs_panic_is_a_located_error(tmp_path):
     # like PDAL's simple-laszip-compressor-version-1.2r0.laz: the decoder panics (a Rust
     # PanicException, a BaseException); here the LasZip record's item count is zeroed

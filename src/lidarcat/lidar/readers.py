@@ -249,6 +249,8 @@ def _precheck_las(path: Path) -> None:
             raise bad(f"{n_evlr:,} extended VLRs announced at byte {evlr_start:,} but the file has "
                       f"{size:,} bytes")
     compressed = bool(fmt_byte & 0xC0)
+    if compressed and _laszip_compressor(path, header_size, offset, n_vlr) in (2, 3):
+        _precheck_laz_chunk_table(path, size, offset, bad)
     if compressed and count > _MAX_LAZ_POINTS_PER_BYTE * max(size - offset, 0):
         raise LidarFormatError(f"{path}: corrupt LAS header: {count:,} points announced but the "
                                f"{max(size - offset, 0):,} bytes of compressed point data cannot hold more "
@@ -260,6 +262,52 @@ def _precheck_las(path: Path) -> None:
         if not (math.isfinite(sc) and sc != 0.0 and math.isfinite(off)):
             raise bad(f"{axis} scale {sc!r} / offset {off!r}; a finite non-zero scale and a finite "
                       "offset are required")
+
+
+def _laszip_compressor(path: Path, header_size: int, offset: int, n_vlr: int) -> int | None:
+    """The compressor of the LasZip record (1 pointwise, 2 pointwise chunked, 3 layered chunked),
+    None when the record is missing (laspy then says so)."""
+    with open(path, "rb") as fh:
+        pos = header_size
+        for _ in range(n_vlr):
+            fh.seek(pos)
+            head = fh.read(_VLR_HEADER_BYTES)
+            if len(head) < _VLR_HEADER_BYTES:
+                return None
+            user_id = head[2:18].split(b"\0", 1)[0]
+            record_id, length = struct.unpack_from("<HH", head, 18)
+            if user_id == b"laszip encoded" and record_id == 22204 and length >= 2:
+                (compressor,) = struct.unpack("<H", fh.read(2))
+                return compressor
+            pos += _VLR_HEADER_BYTES + length
+            if pos > offset:
+                return None
+    return None
+
+
+def _precheck_laz_chunk_table(path: Path, size: int, offset: int, bad: Callable[[str], LidarFormatError]
+                              ) -> None:
+    """The LAZ chunk table (its offset, the first 8 bytes of the point data, or the file's last 8
+    when that is -1; then a version and the chunk count) must lie in the file and count no more
+    chunks than bytes before it: lazrs allocates the table from that count and a failed
+    allocation aborts the process (no exception to catch)."""
+    if size < offset + 8:
+        raise LidarFormatError(f"{path}: truncated: no compressed point data after byte {offset}")
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        (table_at,) = struct.unpack("<q", fh.read(8))
+        if table_at == -1:  # written by a streaming compressor: the offset is at the end
+            fh.seek(size - 8)
+            (table_at,) = struct.unpack("<q", fh.read(8))
+        if not offset + 8 <= table_at <= size - 8:
+            raise bad(f"the LAZ chunk table offset {table_at} lies outside the compressed data "
+                      f"(bytes {offset + 8}..{size - 8})")
+        fh.seek(table_at)
+        _version, n_chunks = struct.unpack("<II", fh.read(8))
+    room = table_at - offset - 8
+    if n_chunks > room:
+        raise bad(f"the LAZ chunk table announces {n_chunks:,} chunks but only {room:,} bytes of "
+                  "compressed points precede it")
 
 
 def _decoder_error(path: Path, ex: BaseException, what: str) -> LidarFormatError:
