@@ -299,8 +299,10 @@ def _precheck_laz_chunk_table(path: Path, size: int, offset: int, bad: Callable[
         if table_at == -1:  # written by a streaming compressor: the offset is at the end
             fh.seek(size - 8)
             (table_at,) = struct.unpack("<q", fh.read(8))
-        if not offset + 8 <= table_at <= size - 8:
-            raise bad(f"the LAZ chunk table offset {table_at} lies outside the compressed data "
+        if table_at > size - 8:
+            return  # a truncated file: lazrs decodes without the table and says where the data ends
+        if table_at < offset + 8:
+            raise bad(f"the LAZ chunk table offset {table_at} lies before the compressed data "
                       f"(bytes {offset + 8}..{size - 8})")
         fh.seek(table_at)
         _version, n_chunks = struct.unpack("<II", fh.read(8))
