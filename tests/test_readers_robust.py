@@ -102,13 +102,30 @@ def test_laz_chunk_table_checked_before_lazrs_allocates(tmp_path):
 
 def test_lazrs_panic_is_a_located_error(tmp_path):
     # like PDAL's simple-laszip-compressor-version-1.2r0.laz: the decoder panics (a Rust
-    # PanicException, a BaseException); here the LasZip record's item count is zeroed
-    bad = _patched(AHN2, tmp_path / "panic.laz", 227 + 54 + 32, "<H", 0)
+    # PanicException, a BaseException, "capacity overflow"); here the first byte of the
+    # compressed chunk-table entries is zeroed
+    data = AHN2.read_bytes()
+    table_at = struct.unpack_from("<q", data, struct.unpack_from("<I", data, 96)[0])[0]
+    bad = _patched(AHN2, tmp_path / "panic.laz", table_at + 8, "<B", 0)
     with pytest.raises(LidarFormatError, match=r"panic\.laz: truncated or corrupt point data after 0 of "
-                       r"208432 points \(PanicException: attempt to calculate the remainder"):
+                       r"208432 points \(PanicException: capacity overflow\)"):
         read_points(bad, crs=RD)
     r = CliRunner().invoke(cli, ["lidar", "info", str(bad), "--crs", RD])
     assert_one_line_error(r, "panic.laz", "PanicException")
+
+
+def test_laszip_record_checked(tmp_path):
+    # the LasZip record's item count zeroed made lazrs panic ("remainder with a divisor of zero");
+    # a chunk size of 771 million points made it allocate 23 GB and abort (found by the fuzz suite)
+    with pytest.raises(LidarFormatError, match=r"items\.laz: corrupt LAS header: the LasZip record lists 0 items "
+                       r"but holds 46 bytes \(expected 34\)"):
+        read_points(_patched(AHN2, tmp_path / "items.laz", 227 + 54 + 32, "<H", 0), crs=RD)
+    with pytest.raises(LidarFormatError, match=r"chunk\.laz: corrupt LAS header: LAZ chunk size 771,801,936 points "
+                       r"\(1\.\.10,000,000, or variable\)"):
+        read_points(_patched(AHN2, tmp_path / "chunk.laz", 227 + 54 + 12, "<I", 771_801_936), crs=RD)
+    with pytest.raises(LidarFormatError, match=r"size\.laz: corrupt LAS header: the LasZip items add up to 28 "
+                       r"bytes a point but the header says 29"):
+        read_points(_patched(AHN2, tmp_path / "size.laz", 105, "<H", 29), crs=RD)
 
 
 @pytest.mark.parametrize("case", ["max_below_min", "max_1e308", "max_far_too_wide"])

@@ -96,6 +96,8 @@ _NOT_CAUGHT = (KeyboardInterrupt, SystemExit, GeneratorExit)
 #: upper bound of LAZ points per byte of compressed data (a chunk of 50 000 points starts with one
 #: raw point of 20+ bytes: 2 500 points a byte; 10 000 leaves room for any real compressor)
 _MAX_LAZ_POINTS_PER_BYTE = 10_000
+#: largest LAZ chunk accepted, points (LASzip writes 50 000; lazrs allocates a chunk's points)
+_MAX_LAZ_CHUNK_POINTS = 10_000_000
 
 #: progress callback: receives the number of bytes of the file just processed
 Progress = Callable[[int], Any]
@@ -249,8 +251,10 @@ def _precheck_las(path: Path) -> None:
             raise bad(f"{n_evlr:,} extended VLRs announced at byte {evlr_start:,} but the file has "
                       f"{size:,} bytes")
     compressed = bool(fmt_byte & 0xC0)
-    if compressed and _laszip_compressor(path, header_size, offset, n_vlr) in (2, 3):
-        _precheck_laz_chunk_table(path, size, offset, bad)
+    if compressed:
+        rec = _laszip_record(path, header_size, offset, n_vlr)
+        if rec is not None and _precheck_laszip(path, rec, rec_len, bad) in (2, 3):
+            _precheck_laz_chunk_table(path, size, offset, bad)
     if compressed and count > _MAX_LAZ_POINTS_PER_BYTE * max(size - offset, 0):
         raise LidarFormatError(f"{path}: corrupt LAS header: {count:,} points announced but the "
                                f"{max(size - offset, 0):,} bytes of compressed point data cannot hold more "
@@ -264,9 +268,9 @@ def _precheck_las(path: Path) -> None:
                       "offset are required")
 
 
-def _laszip_compressor(path: Path, header_size: int, offset: int, n_vlr: int) -> int | None:
-    """The compressor of the LasZip record (1 pointwise, 2 pointwise chunked, 3 layered chunked),
-    None when the record is missing (laspy then says so)."""
+def _laszip_record(path: Path, header_size: int, offset: int, n_vlr: int) -> bytes | None:
+    """The data of the LasZip record (user id ``laszip encoded``, record 22204), None when missing
+    (laspy then says so)."""
     with open(path, "rb") as fh:
         pos = header_size
         for _ in range(n_vlr):
@@ -276,13 +280,31 @@ def _laszip_compressor(path: Path, header_size: int, offset: int, n_vlr: int) ->
                 return None
             user_id = head[2:18].split(b"\0", 1)[0]
             record_id, length = struct.unpack_from("<HH", head, 18)
-            if user_id == b"laszip encoded" and record_id == 22204 and length >= 2:
-                (compressor,) = struct.unpack("<H", fh.read(2))
-                return compressor
+            if user_id == b"laszip encoded" and record_id == 22204:
+                return fh.read(min(length, max(offset - pos - _VLR_HEADER_BYTES, 0)))
             pos += _VLR_HEADER_BYTES + length
             if pos > offset:
                 return None
     return None
+
+
+def _precheck_laszip(path: Path, rec: bytes, rec_len: int, bad: Callable[[str], LidarFormatError]) -> int:
+    """Check the LasZip record (lazrs allocates from its chunk size and item sizes, and a failed
+    allocation aborts the process); returns the compressor (1 pointwise, 2 chunked, 3 layered)."""
+    if len(rec) < 34:
+        raise bad(f"the LasZip record holds {len(rec)} bytes, fewer than its 34-byte head")
+    compressor, = struct.unpack_from("<H", rec, 0)
+    chunk_size, = struct.unpack_from("<I", rec, 12)
+    n_items, = struct.unpack_from("<H", rec, 32)
+    if len(rec) != 34 + 6 * n_items:
+        raise bad(f"the LasZip record lists {n_items} items but holds {len(rec)} bytes "
+                  f"(expected {34 + 6 * n_items})")
+    sizes = [struct.unpack_from("<H", rec, 34 + 6 * k + 2)[0] for k in range(n_items)]
+    if sum(sizes) != rec_len:
+        raise bad(f"the LasZip items add up to {sum(sizes)} bytes a point but the header says {rec_len}")
+    if chunk_size != 0xFFFFFFFF and not 0 < chunk_size <= _MAX_LAZ_CHUNK_POINTS:
+        raise bad(f"LAZ chunk size {chunk_size:,} points (1..{_MAX_LAZ_CHUNK_POINTS:,}, or variable)")
+    return compressor
 
 
 def _precheck_laz_chunk_table(path: Path, size: int, offset: int, bad: Callable[[str], LidarFormatError]
