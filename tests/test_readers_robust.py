@@ -126,6 +126,17 @@ def test_laszip_record_checked(tmp_path):
     with pytest.raises(LidarFormatError, match=r"size\.laz: corrupt LAS header: the LasZip items add up to 28 "
                        r"bytes a point but the header says 29"):
         read_points(_patched(AHN2, tmp_path / "size.laz", 105, "<H", 29), crs=RD)
+    # a LAS 1.4 (layered) chunk whose first layer claims 2.5 GB made lazrs abort the process
+    f6 = tmp_path / "f6.laz"
+    las = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
+    las.x, las.y, las.z = np.arange(300.0), np.arange(300.0), np.zeros(300)
+    las.write(f6)
+    offset = struct.unpack_from("<I", f6.read_bytes(), 96)[0]
+    layer = _patched(f6, tmp_path / "layer.laz", offset + 8 + 4 + 30, "<I", 2_500_000_000)
+    with pytest.raises(LidarFormatError, match=r"layer\.laz: corrupt LAS header: LAZ chunk 0 \(byte \d+\) announces "
+                       r"layers of 2,500,\d{3},\d{3} bytes but only \d+ bytes lie before the chunk table"):
+        read_points(layer)
+    assert len(read_points(f6)) == 300
 
 
 @pytest.mark.parametrize("case", ["max_below_min", "max_1e308", "max_far_too_wide"])

@@ -253,8 +253,10 @@ def _precheck_las(path: Path) -> None:
     compressed = bool(fmt_byte & 0xC0)
     if compressed:
         rec = _laszip_record(path, header_size, offset, n_vlr)
-        if rec is not None and _precheck_laszip(path, rec, rec_len, bad) in (2, 3):
-            _precheck_laz_chunk_table(path, size, offset, bad)
+        compressor = None if rec is None else _precheck_laszip(path, rec, rec_len, bad)
+        if compressor in (2, 3) and _precheck_laz_chunk_table(path, size, offset, bad) \
+                and compressor == 3 and _layered_items_only_point14(rec):
+            _precheck_layered_chunks(path, offset, rec_len, bad)
     if compressed and count > _MAX_LAZ_POINTS_PER_BYTE * max(size - offset, 0):
         raise LidarFormatError(f"{path}: corrupt LAS header: {count:,} points announced but the "
                                f"{max(size - offset, 0):,} bytes of compressed point data cannot hold more "
@@ -307,8 +309,37 @@ def _precheck_laszip(path: Path, rec: bytes, rec_len: int, bad: Callable[[str], 
     return compressor
 
 
+def _layered_items_only_point14(rec: bytes) -> bool:
+    """True when the LasZip record holds one item, a LAS 1.4 point (type 10, 9 layers)."""
+    n_items, = struct.unpack_from("<H", rec, 32)
+    return n_items == 1 and struct.unpack_from("<H", rec, 34)[0] == 10
+
+
+def _precheck_layered_chunks(path: Path, offset: int, rec_len: int, bad: Callable[[str], LidarFormatError]
+                             ) -> None:
+    """Walk the chunks of a layered LAZ file of LAS 1.4 points: each is a point count (4 bytes),
+    the first point raw, 9 layer sizes (4 bytes each) and the layers; every size must fit
+    before the chunk table.  lazrs allocates each layer from its size (up to 4 GB) and a
+    failed allocation aborts the process (found by the fuzz suite)."""
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        (table_at,) = struct.unpack("<q", fh.read(8))
+        pos, k = offset + 8, 0
+        while pos < table_at:
+            fh.seek(pos + 4 + rec_len)
+            raw = fh.read(36)
+            if len(raw) < 36:
+                return  # truncated: lazrs says where the data ends
+            sizes = struct.unpack("<9I", raw)
+            start = pos + 4 + rec_len + 36
+            if sum(sizes) > table_at - start:
+                raise bad(f"LAZ chunk {k} (byte {pos}) announces layers of {sum(sizes):,} bytes but only "
+                          f"{max(table_at - start, 0):,} bytes lie before the chunk table")
+            pos, k = start + sum(sizes), k + 1
+
+
 def _precheck_laz_chunk_table(path: Path, size: int, offset: int, bad: Callable[[str], LidarFormatError]
-                              ) -> None:
+                              ) -> bool:
     """The LAZ chunk table (its offset, the first 8 bytes of the point data, or the file's last 8
     when that is -1; then a version and the chunk count) must lie in the file and count no more
     chunks than bytes before it: lazrs allocates the table from that count and a failed
@@ -322,7 +353,7 @@ def _precheck_laz_chunk_table(path: Path, size: int, offset: int, bad: Callable[
             fh.seek(size - 8)
             (table_at,) = struct.unpack("<q", fh.read(8))
         if table_at > size - 8:
-            return  # a truncated file: lazrs decodes without the table and says where the data ends
+            return False  # a truncated file: lazrs decodes without the table and says where the data ends
         if table_at < offset + 8:
             raise bad(f"the LAZ chunk table offset {table_at} lies before the compressed data "
                       f"(bytes {offset + 8}..{size - 8})")
@@ -332,6 +363,7 @@ def _precheck_laz_chunk_table(path: Path, size: int, offset: int, bad: Callable[
     if n_chunks > room:
         raise bad(f"the LAZ chunk table announces {n_chunks:,} chunks but only {room:,} bytes of "
                   "compressed points precede it")
+    return True
 
 
 def _decoder_error(path: Path, ex: BaseException, what: str) -> LidarFormatError:
