@@ -34,8 +34,10 @@ with :mod:`struct` and checked against the file size (:func:`_precheck_las`):
 the header size, the offset to the points, the VLR count (each VLR takes at
 least 54 bytes between the header and the points, so a count of 3.5 billion in
 a 1 MB file is refused before anything is allocated), the extended VLRs of LAS
-1.4, the point count against the bytes left (uncompressed files), scales and
-offsets finite and non-zero.  The header's bounds are never used to select
+1.4, the point count against the bytes left, scales and offsets finite and
+non-zero; for LAZ also the LasZip record (item sizes, chunk size), the chunk
+table and, for LAS 1.4 points, the layer sizes of every chunk -- lazrs
+allocates from these numbers and a failed allocation aborts the process.  The header's bounds are never used to select
 points (they are often wrong); coordinates read must lie within
 :data:`MAX_ABS_COORD_M` of zero.  Decoder failures -- including the Rust
 ``PanicException`` of lazrs, which derives from ``BaseException`` -- become a
