@@ -216,6 +216,10 @@ def test_metres_required_for_density_and_clip_radius(tmp_path):
                     "uses the unit 'US survey foot' (1 US survey foot = 0.3048006096 m)")
     with pytest.raises(CRSError, match="needs coordinates in metres"):
         clip(PointCloud(np.zeros((20, 3)), crs="EPSG:4326"), (0.0, 0.0), 5.0)
+    r = CliRunner().invoke(cli, ["extract", "--find", "--lidar", str(geo)])
+    assert_one_line_error(r, "geo.las: roof extraction (--find) needs coordinates in metres")
+    r = CliRunner().invoke(cli, ["extract", "--at", "4.3505", "52.0005", str(geo)])
+    assert_one_line_error(r, "geo.las: a clip radius of 8 m needs coordinates in metres")
 
 
 def _survey_copy(tmp_path: Path) -> Path:
