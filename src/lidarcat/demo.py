@@ -14,7 +14,8 @@ test of the whole tool:
   (eq. 08) and the camera's inverse distortion model;
 * ``ground_points.csv`` -- the GPS points with their standard deviations (the
   coordinates carry that noise); ``control_sets.csv`` -- the ``gps`` run:
-  corner and centre points are control, the others check;
+  corner and centre points are control, and in a long block also chains
+  across the strips every 4 bases; the others check;
 * ``lidar/*.laz`` -- airborne-LiDAR tiles sampled from the terrain and the
   buildings of :mod:`lidarcat.roofs` (pyramid and hip roofs, known vertices);
 * ``jobs.csv`` -- extraction jobs: one roof vertex per building, at an
@@ -331,7 +332,7 @@ def write_synthetic_survey(
     gps_true = xyz_a[gps_idx]
     gps_meas = gps_true + rng.normal(0, 1.0, gps_true.shape) * [gps_sd_m, gps_sd_m, gps_sd_h_m]
     gps_ids = [ids[i] for i in gps_idx]
-    control = _pick_control(gps_true[:, :2])
+    control = _pick_control(gps_true[:, :2], base)
 
     outdir = Path(outdir)
     with atomic_dir(outdir) as tmp:
@@ -353,7 +354,9 @@ def write_synthetic_survey(
             tmp / "control_sets.csv", ["set", "point", "role", "sd_E", "sd_N", "sd_h"],
             [("gps", pid, "control" if i in control else "check", "", "", "")
              for i, pid in enumerate(gps_ids)],
-            comments=["gps: corner and centre GPS points are control, the others check. "
+            comments=["gps: corner and centre GPS points are control (in a block longer than "
+                      f"{_CONTROL_EVERY_BASES} bases also the outermost points of every {_CONTROL_EVERY_BASES} "
+                      "bases along the strips), the others check. "
                       "lidarcat run adds the set 'lidar' from the extracted roof vertices."])
         jobs = []
         for b in buildings:
@@ -398,8 +401,18 @@ def write_synthetic_survey(
                       seed, image_sd_px, gps_sd_m, files)
 
 
-def _pick_control(en: np.ndarray) -> set[int]:
-    """Indices of the GPS control: the four corners and the point nearest the centre."""
+#: along a strip, full control at least every this many photo bases: the usual layout of a bundle
+#: block (planimetric control along the perimeter every few bases, height-control chains across the
+#: strips every few bases; see any photogrammetry textbook on block control)
+_CONTROL_EVERY_BASES = 4
+
+
+def _pick_control(en: np.ndarray, base_m: float | None = None) -> set[int]:
+    """Indices of the GPS control: the four corners and the point nearest the centre, and, in a block
+    longer than ``_CONTROL_EVERY_BASES`` bases (``base_m``), the outermost points (lowest and highest
+    N) of every stretch of that length along E: chains across the strips at both block edges, which a
+    long block needs against the bending (the corners alone leave metres of height error in the middle
+    of a 200-photo block)."""
     c = en.mean(axis=0)
     d = en - c
     chosen = {int(np.argmax(d[:, 0] + d[:, 1])), int(np.argmax(d[:, 0] - d[:, 1])),
@@ -409,6 +422,11 @@ def _pick_control(en: np.ndarray) -> set[int]:
         if int(i) not in chosen:
             chosen.add(int(i))
             break
+    if base_m is not None and np.ptp(en[:, 0]) > (_CONTROL_EVERY_BASES + 1) * base_m:
+        stretch = np.floor((en[:, 0] - en[:, 0].min()) / (_CONTROL_EVERY_BASES * base_m)).astype(int)
+        for s in np.unique(stretch):
+            idx = np.flatnonzero(stretch == s)
+            chosen.update({int(idx[np.argmin(en[idx, 1])]), int(idx[np.argmax(en[idx, 1])])})
     return chosen
 
 

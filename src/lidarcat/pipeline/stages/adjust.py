@@ -38,5 +38,11 @@ def run(ctx: Context, tmp: Path) -> dict:
                             f"{result.status} ({result.message}) after {result.n_iter} iterations")
     keys = ("dof", "vtpv", "sigma0_sq", "chi2_lower", "chi2_upper", "chi2_pass", "n_iterations",
             "converged", "n_photos", "n_points", "n_observations", "n_constraints", "status")
+    failed = []
+    if summ.get("chi2_pass") is False:
+        failed.append(f"chi-square test of the variance factor failed: v'Pv {summ['vtpv']:.2f} outside "
+                      f"[{summ['chi2_lower']:.2f}, {summ['chi2_upper']:.2f}] ({summ['dof']} dof, "
+                      f"{summ.get('chi2_level', 0.05):g} level; sigma0^2 {summ['sigma0_sq']:.3f}): the image or "
+                      "control sds, the model or a blunder is wrong")
     return {"adjustment": {k: summ.get(k) for k in keys}, "control": par["control"],
-            "derived_survey": bool(par.get("derived"))}
+            "derived_survey": bool(par.get("derived")), "failed_tests": failed}

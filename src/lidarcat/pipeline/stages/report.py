@@ -18,7 +18,7 @@ import numpy as np
 
 from ..._io import write_json_atomic, write_text_atomic
 from .._html import markdown_to_html
-from ..runner import Context, Stage, StageRecord
+from ..runner import Context, Stage, StageRecord, failed_tests
 from .compare import EOP_DIFF, read_photo_rows
 
 __all__ = ["run", "results", "num"]
@@ -74,6 +74,7 @@ def run(ctx: Context, tmp: Path) -> dict:
         settings.update(source="the command line" if overridden else "survey.toml [assessment]",
                         default_scale=DEFAULT_SCALE, default_contour_interval_m=DEFAULT_CONTOUR_INTERVAL_M)
     doc = {"survey": survey.name, "stages": rows, "settings": settings,
+           "tests_failed": failed_tests(ctx.records[st.name] for st in plan if st.name in ctx.records),
            **results(ctx.records[st.name] for st in plan if st.name in ctx.records)}
     doc["reports"] = {name: f"../{run['report']}" for name, run in doc["runs"].items()
                       if "report" in run and (ctx.outdir / run["report"]).is_file()}
@@ -91,7 +92,11 @@ def run(ctx: Context, tmp: Path) -> dict:
 
 
 def _report_markdown(doc: Mapping[str, Any]) -> str:
-    lines = [f"# lidarcat report: {doc['survey']}", "", "## Stages", "",
+    lines = [f"# lidarcat report: {doc['survey']}", ""]
+    if doc.get("tests_failed"):
+        lines += ["**Statistical test failed** (every stage ran; read the results with care): "
+                  + "; ".join(doc["tests_failed"]), ""]
+    lines += ["## Stages", "",
              "| stage | what | state | reason |", "|---|---|---|---|"]
     for r in doc["stages"]:
         lines.append(f"| {r['stage']} | {r['what']} | {r['state']} | {r['reason']} |")
