@@ -433,3 +433,21 @@ def test_control_sets_sharing_an_output_folder_are_refused(survey_copy, tmp_path
                              "share the output folder adjust-a_b; rename one (letters, digits, _ . - "
                              "are kept)")
     assert not (tmp_path / "out" / "adjust-a_b").exists()
+
+
+def test_every_csv_output_of_the_run_opens_in_pandas_with_its_header_first(thesis_run):
+    """pandas.read_csv with default arguments (as QGIS and GDAL read the first line as the header):
+    the columns are the header line, numbers parse as numbers, notes live in the .csv.json sidecar."""
+    pd = pytest.importorskip("pandas")
+    csvs = sorted(thesis_run.outdir.rglob("*.csv"))
+    folders = {p.relative_to(thesis_run.outdir).parts[0] for p in csvs}
+    assert folders >= {"camera", "adjust-gps", "adjust-lidar", "assess-gps", "assess-lidar", "compare-gps-lidar"}
+    for path in csvs:
+        first = path.read_text(encoding="utf-8").splitlines()[0]
+        assert not first.startswith("#"), path
+        df = pd.read_csv(path)
+        assert list(df.columns) == first.split(","), path
+        assert len(df) > 0 and not any(str(c).startswith(("#", "Unnamed")) for c in df.columns), path
+        numeric = [c for c in df.columns if c in ("E", "N", "h", "X0", "dE", "dh", "x_mm")]
+        for c in numeric:
+            assert pd.api.types.is_float_dtype(df[c]), (path, c)
