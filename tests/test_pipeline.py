@@ -451,3 +451,23 @@ def test_every_csv_output_of_the_run_opens_in_pandas_with_its_header_first(thesi
         numeric = [c for c in df.columns if c in ("E", "N", "h", "X0", "dE", "dh", "x_mm")]
         for c in numeric:
             assert pd.api.types.is_float_dtype(df[c]), (path, c)
+
+
+def test_index_report_shows_the_figures_of_every_run(thesis_run):
+    """index.html embeds (base64, opens offline) the block layout and the discrepancy plots of each
+    run; index.md links the same PNG files of the runs' own reports."""
+    import base64
+    import re
+
+    out = thesis_run.outdir / "report"
+    md = (out / "index.md").read_text()
+    links = re.findall(r"^!\[([^\]]+)\]\(([^)]+)\)$", md, re.M)
+    assert [cap.split(":")[0] for cap, _ in links] == ["Run gps"] * 3 + ["Run lidar"] * 3
+    for _, src in links:
+        assert (out / src).resolve().is_file(), src
+    html = (out / "index.html").read_text()
+    imgs = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", html)
+    assert len(imgs) == 6
+    assert all(base64.b64decode(b)[:8] == b"\x89PNG\r\n\x1a\n" for b in imgs)
+    assert "<figcaption>Run lidar: block layout (photo footprints, control, check and tie points)</figcaption>" in html
+    assert not re.search(r"(src|href)='(https?:)?//", html)

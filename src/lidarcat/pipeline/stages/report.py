@@ -78,6 +78,11 @@ def run(ctx: Context, tmp: Path) -> dict:
            **results(ctx.records[st.name] for st in plan if st.name in ctx.records)}
     doc["reports"] = {name: f"../{run['report']}" for name, run in doc["runs"].items()
                       if "report" in run and (ctx.outdir / run["report"]).is_file()}
+    for run in doc["runs"].values():
+        if "report" in run:
+            figs = ctx.outdir / Path(run["report"]).parent / "report_figures"
+            run["figures_dir"] = figs.relative_to(ctx.outdir).as_posix()
+            run["figures"] = sorted(p.name for p in figs.glob("*.png")) if figs.is_dir() else []
     for name, cmp_ in doc["comparison"].items():
         eo_path = ctx.folder(f"compare-{name}") / "eop_differences.csv"
         if eo_path.is_file() and cmp_.get("n_photos", 0) <= 50:
@@ -87,7 +92,8 @@ def run(ctx: Context, tmp: Path) -> dict:
     write_json_atomic(tmp / "report.json", doc)
     md = _report_markdown(doc)
     write_text_atomic(tmp / "index.md", md)
-    write_text_atomic(tmp / "index.html", markdown_to_html(md, f"lidarcat report: {survey.name}"))
+    # figure paths in index.md are relative to OUTDIR/report; tmp is its sibling in OUTDIR
+    write_text_atomic(tmp / "index.html", markdown_to_html(md, f"lidarcat report: {survey.name}", base=tmp))
     return {"index": "report/index.html", "n_stages_done": sum(r["state"] == "done" for r in rows)}
 
 
@@ -130,6 +136,9 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                   f"sigma0^2 {num(adj.get('sigma0_sq'), 3)}, chi-square test "
                   f"[{num(adj.get('chi2_lower'), 2)}, {num(adj.get('chi2_upper'), 2)}]: "
                   f"{'passed' if adj.get('chi2_pass') else 'failed'}"]
+        for fig, caption in _RUN_FIGURES:
+            if fig in run.get("figures", ()):
+                lines += ["", f"![Run {name}: {caption}](../{run['figures_dir']}/{fig})"]
         chk = run.get("check")
         if chk:
             lines += ["", "| check points, reference minus adjusted (m) | mean | std | RMSE | max abs |",
@@ -170,6 +179,12 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                              + " | ".join(num(v, 4) for v in d[3:]) + " |")
     lines += _thesis_markdown(doc.get("thesis_detail"))
     return "\n".join(lines) + "\n"
+
+
+#: figures of each run's own report shown in the index (file in report_figures/, caption)
+_RUN_FIGURES = (("block_layout.png", "block layout (photo footprints, control, check and tie points)"),
+                ("planimetric_vectors.png", "planimetric discrepancies of the check points"),
+                ("height_discrepancies.png", "height discrepancies of the check points"))
 
 
 def _thesis_markdown(det: Mapping[str, Any] | None) -> list[str]:
