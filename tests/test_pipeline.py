@@ -471,3 +471,47 @@ def test_index_report_shows_the_figures_of_every_run(thesis_run):
     assert all(base64.b64decode(b)[:8] == b"\x89PNG\r\n\x1a\n" for b in imgs)
     assert "<figcaption>Run lidar: block layout (photo footprints, control, check and tie points)</figcaption>" in html
     assert not re.search(r"(src|href)='(https?:)?//", html)
+
+
+def test_consistency_test_above_the_covariance_file_limit_is_computed_in_memory(tmp_path, monkeypatch):
+    """Above MAX_JOINT_COVARIANCE_POINTS check points check_covariance.csv is not written; the adjust
+    stage uses the joint covariance in memory and the run reports the same d'C^-1 d as with the file.
+    (The limit is lowered to 5 so that the 13 GPS check points of the thesis exceed it.)"""
+    from lidarcat import bundle
+    from lidarcat.pipeline.stages import adjust as adjust_stage
+
+    ref = run_pipeline(None, tmp_path / "file")
+    want = ref.summary["runs"]["gps"]["check"]["consistency"]
+    monkeypatch.setattr(bundle, "MAX_JOINT_COVARIANCE_POINTS", 5)
+    res = run_pipeline(None, tmp_path / "memory")
+    assert not (res.outdir / "adjust-gps" / "check_covariance.csv").exists()
+    doc = json.loads((res.outdir / "adjust-gps" / "consistency.json").read_text())
+    assert doc["applicable"] and "used in memory" in doc["details"]["covariance_source"]
+    got = res.summary["runs"]["gps"]["check"]["consistency"]
+    assert got["df"] == want["df"] == 39
+    assert got["chi2"] == pytest.approx(want["chi2"], rel=1e-9) and got["passed"] == want["passed"]
+    # beyond the memory bound the output says why instead of dropping the test
+    monkeypatch.setattr(adjust_stage, "CONSISTENCY_MEMORY_BYTES", 1000)
+    res = run_pipeline(None, tmp_path / "bounded")
+    why = res.summary["runs"]["gps"]["check"]["consistency_not_computed"]
+    assert why.startswith("not computed: the joint covariance of 13 check points needs 0.0 GiB in memory")
+    assert "d'C^-1 d): " + why in (res.outdir / "report" / "index.md").read_text()
+
+
+def test_demo_compare_never_prints_a_bare_nan(monkeypatch, tmp_path):
+    import lidarcat.demo
+    from click.testing import CliRunner
+
+    from lidarcat.cli.main import cli
+
+    run = {"eo_max_abs_z": 1.0, "eo_rms_z": 0.5, "points_max_abs_z": 2.0, "points_rms_z": 0.9,
+           "n_check": 600, "check_chi2": 1790.0, "check_chi2_joint": float("nan"),
+           "check_chi2_joint_not_computed": "not computed: the joint covariance of 600 check points needs "
+                                            "1.2 GiB in memory (limit 1 GiB)", "check_dof": 1800}
+    monkeypatch.setattr(lidarcat.demo, "compare_with_truth", lambda *a, **k: {"runs": {"gps": run},
+                                                                               "extraction": {}})
+    r = CliRunner().invoke(cli, ["demo", "compare", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert "nan" not in r.output.lower()
+    assert ("check points d'C^-1d not computed: the joint covariance of 600 check points needs "
+            "1.2 GiB in memory (limit 1 GiB) on 1800 dof") in r.output

@@ -38,6 +38,7 @@ writes byte-identical CSV files.
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import math
 import os
@@ -629,8 +630,13 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
                 g = row(ground, pid, survey_dir / "ground_points.csv", disc)
                 stat += float(np.sum((g[:3] - v[:3]) ** 2 / (v[3:] ** 2 + g[3:] ** 2)))
                 n_chk += 1
-        joint = math.nan
+        joint, joint_why = math.nan, "no check point" if not checks else "no joint covariance"
         cov_path = folder / "check_covariance.csv"
+        cons_path = folder / "consistency.json"  # lidarcat run above the check_covariance.csv limit
+        if checks and not cov_path.is_file() and cons_path.is_file():
+            cons = json.loads(cons_path.read_text(encoding="utf-8"))
+            joint = float(cons["statistic"]) if cons["applicable"] else math.nan
+            joint_why = "" if cons["applicable"] else str(cons["reason"])
         if checks and cov_path.is_file():
             from .accuracy import covariance_consistency_test
             from .bundle import read_point_covariance
@@ -642,10 +648,13 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
             C = C + np.diag(np.concatenate([ground[q][3:] ** 2 for q in order]))
             test = covariance_consistency_test(d, C, source=str(cov_path))
             joint = float(test.statistic) if test.applicable else math.nan
+            joint_why = "" if test.applicable else str(test.reason)
         z_eo_a, z_pt_a = np.abs(z_eo), np.abs(z_pt)
         out["runs"][run] = {
             "eo_max_abs_z": float(z_eo_a.max()), "eo_rms_z": float(np.sqrt(np.mean(z_eo_a ** 2))),
             "points_max_abs_z": float(z_pt_a.max()) if len(z_pt_a) else math.nan,
             "points_rms_z": float(np.sqrt(np.mean(z_pt_a ** 2))) if len(z_pt_a) else math.nan,
-            "n_check": n_chk, "check_chi2": stat, "check_chi2_joint": joint, "check_dof": 3 * n_chk}
+            "n_check": n_chk, "check_chi2": stat, "check_chi2_joint": joint,
+            "check_chi2_joint_not_computed": joint_why if not math.isfinite(joint) else "",
+            "check_dof": 3 * n_chk}
     return out

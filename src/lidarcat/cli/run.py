@@ -148,6 +148,8 @@ def _text(result) -> str:
                 verdict = {"below": "below its interval: precision pessimistic",
                            "above": "above its interval: errors larger than claimed"}.get(cons.get("side"), "pass")
                 parts.append(f"d'C^-1d {_f(cons['chi2'], 1)} on {cons['df']} dof {verdict}")
+            elif chk.get("consistency_not_computed"):
+                parts.append(f"d'C^-1d {chk['consistency_not_computed']}")
         lines.append(f"  run {name}: " + ", ".join(parts))
     th = result.summary.get("thesis")
     if th:

@@ -148,6 +148,9 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                              f"{num(chk.get(f'std_{c}_m'), 3)} | {num(chk.get(f'rmse_{c}_m'), 3)} | "
                              f"{num(chk.get(f'max_abs_{c}_m'), 3)} |")
             cons = chk.get("consistency")
+            if chk.get("consistency_not_computed"):
+                lines += ["", "Discrepancies against the precision the adjustment claims (d'C^-1 d): "
+                              + chk["consistency_not_computed"] + "."]
             if cons:
                 lines += ["", f"Discrepancies against the precision the adjustment claims (joint "
                               f"covariance of the check points + their reference sds): d'C^-1 d = "
