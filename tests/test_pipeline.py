@@ -473,15 +473,16 @@ def test_index_report_shows_the_figures_of_every_run(thesis_run):
     assert not re.search(r"(src|href)='(https?:)?//", html)
 
 
-def test_consistency_test_above_the_covariance_file_limit_is_computed_in_memory(tmp_path, monkeypatch):
+def test_consistency_test_above_the_covariance_file_limit_is_computed_in_memory(thesis_run, tmp_path,
+                                                                              monkeypatch):
     """Above MAX_JOINT_COVARIANCE_POINTS check points check_covariance.csv is not written; the adjust
     stage uses the joint covariance in memory and the run reports the same d'C^-1 d as with the file.
     (The limit is lowered to 5 so that the 13 GPS check points of the thesis exceed it.)"""
     from lidarcat import bundle
     from lidarcat.pipeline.stages import adjust as adjust_stage
 
-    ref = run_pipeline(None, tmp_path / "file")
-    want = ref.summary["runs"]["gps"]["check"]["consistency"]
+    want = thesis_run.summary["runs"]["gps"]["check"]["consistency"]
+    assert (thesis_run.outdir / "adjust-gps" / "check_covariance.csv").is_file()
     monkeypatch.setattr(bundle, "MAX_JOINT_COVARIANCE_POINTS", 5)
     res = run_pipeline(None, tmp_path / "memory")
     assert not (res.outdir / "adjust-gps" / "check_covariance.csv").exists()
@@ -490,12 +491,13 @@ def test_consistency_test_above_the_covariance_file_limit_is_computed_in_memory(
     got = res.summary["runs"]["gps"]["check"]["consistency"]
     assert got["df"] == want["df"] == 39
     assert got["chi2"] == pytest.approx(want["chi2"], rel=1e-9) and got["passed"] == want["passed"]
-    # beyond the memory bound the output says why instead of dropping the test
+    # beyond the memory bound the result says why (before any matrix is built)
     monkeypatch.setattr(adjust_stage, "CONSISTENCY_MEMORY_BYTES", 1000)
-    res = run_pipeline(None, tmp_path / "bounded")
-    why = res.summary["runs"]["gps"]["check"]["consistency_not_computed"]
-    assert why.startswith("not computed: the joint covariance of 13 check points needs 0.0 GiB in memory")
-    assert "d'C^-1 d): " + why in (res.outdir / "report" / "index.md").read_text()
+    checks = [f"c{i}" for i in range(13)]
+    why = adjust_stage.consistency_in_memory(None, checks, Survey.load(None))
+    assert why["applicable"] is False and why["statistic"] is None
+    assert why["reason"] == ("not computed: the joint covariance of 13 check points needs 0.0 GiB in memory "
+                             "(limit 0 GiB); assess a subset of the check points")
 
 
 def test_demo_compare_never_prints_a_bare_nan(monkeypatch, tmp_path):
@@ -515,3 +517,13 @@ def test_demo_compare_never_prints_a_bare_nan(monkeypatch, tmp_path):
     assert "nan" not in r.output.lower()
     assert ("check points d'C^-1d not computed: the joint covariance of 600 check points needs "
             "1.2 GiB in memory (limit 1 GiB) on 1800 dof") in r.output
+
+
+def test_report_says_why_the_consistency_test_was_not_computed():
+    from lidarcat.pipeline.stages.report import _report_markdown
+
+    why = "not computed: the joint covariance of 4000 check points needs 1.6 GiB in memory (limit 1 GiB)"
+    md = _report_markdown({"survey": "s", "stages": [], "comparison": {},
+                           "runs": {"gps": {"adjustment": {}, "check": {"n": 4000, "consistency_not_computed": why}}}})
+    assert f"Discrepancies against the precision the adjustment claims (d'C^-1 d): {why}." in md
+    assert "nan" not in md
