@@ -408,6 +408,7 @@ def test_thesis_run_prints_table13_statistics_and_reports_section_4_4(run):
         assert f"| {table}" in section or f"({table})" in section, table
     assert "| mean bound mu_plan <= (4.4.4.3) | 0.441 | 0.4107 | 0.4116 | NO | [E] section 4.4.4.3" in section
     assert "[E] Table 8 (EOP, LiDAR run), photo 5, kappa: printed 68.21269, corrected 67.98952" in section
+    assert "| 1 | 605 | 0.067 | 0.067 |" in section and "| 21 | 605 | 0.876 | 0.876 |" in section  # Tables 14, 15
     html = (run.outdir / "report" / "index.html").read_text()
     assert "<h2>Thesis section 4.4</h2>" in html
 

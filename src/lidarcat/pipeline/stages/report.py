@@ -208,6 +208,20 @@ def _thesis_markdown(det: Mapping[str, Any] | None) -> list[str]:
         lines.append(f"| {r['label']} | {num(r['printed'], r['decimals'])} | "
                      + " | ".join(num(v, nd) for v in r["values"])
                      + f" | {'yes' if r['agrees'] else 'NO'} | {('[E] ' + r['erratum']) if r['erratum'] else ''} |")
+    printed14 = det.get("tables_14_15") or {}
+    for key, what in (("table14", "Table 14: normality test of the planimetric discrepancies X"),
+                      ("table15", "Table 15: normality test of the height discrepancies")):
+        if key not in printed14:
+            continue
+        a, b = det["table13_from_printed"][key], det["table13_this_run"][key]
+        lines += ["", f"{what}, sorted, with the cumulative probability (i-0.5)/n and its normal score Z: "
+                      "printed (the point of the printed row), recomputed from the printed Table 13, and "
+                      "this run's own sorted values (its order of points may differ), m.", "",
+                  "| i | point | X printed | X recomputed | X this run | (i-0.5)/n | Z printed | Z |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for r, ra, rb in zip(printed14[key], a, b):
+            lines.append(f"| {r['pos']} | {r['point']} | {num(r['X'], 3)} | {num(ra['X'], 3)} | {num(rb['X'], 3)} | "
+                         f"{num(ra['prob_acum'], 3)} | {num(r['Z'], 2)} | {num(ra['Z'], 3)} |")
     lines += ["", "Tables 8-13 and Appendices 2.2 / 3.2 against this run: largest difference "
                   "(this run minus printed, errata applied) and its tolerance (printed precision, or the "
                   "GPS run's where the rounding of the published photo coordinates limits the reproduction).", "",
