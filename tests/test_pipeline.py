@@ -478,12 +478,16 @@ def test_consistency_test_above_the_covariance_file_limit_is_computed_in_memory(
     """Above MAX_JOINT_COVARIANCE_POINTS check points check_covariance.csv is not written; the adjust
     stage uses the joint covariance in memory and the run reports the same d'C^-1 d as with the file.
     (The limit is lowered to 5 so that the 13 GPS check points of the thesis exceed it.)"""
+    import importlib
+
     from lidarcat import bundle
     from lidarcat.pipeline.stages import adjust as adjust_stage
 
+    writer = importlib.import_module(bundle.write_adjustment.__module__)  # where the limit is read
+
     want = thesis_run.summary["runs"]["gps"]["check"]["consistency"]
     assert (thesis_run.outdir / "adjust-gps" / "check_covariance.csv").is_file()
-    monkeypatch.setattr(bundle, "MAX_JOINT_COVARIANCE_POINTS", 5)
+    monkeypatch.setattr(writer, "MAX_JOINT_COVARIANCE_POINTS", 5)
     res = run_pipeline(None, tmp_path / "memory")
     assert not (res.outdir / "adjust-gps" / "check_covariance.csv").exists()
     doc = json.loads((res.outdir / "adjust-gps" / "consistency.json").read_text())

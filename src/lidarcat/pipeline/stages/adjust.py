@@ -52,10 +52,8 @@ def run(ctx: Context, tmp: Path) -> dict:
     if not result.success:
         raise LidarcatError(f"adjustment with control set {par['control']!r} did not converge: "
                             f"{result.status} ({result.message}) after {result.n_iter} iterations")
-    from ...bundle import MAX_JOINT_COVARIANCE_POINTS
-
     checks = [str(q) for q, r in zip(result.point_ids, result.point_role) if r == "check"]
-    if len(checks) > MAX_JOINT_COVARIANCE_POINTS:
+    if checks and not (tmp / "check_covariance.csv").is_file():  # above the limit of write_adjustment
         write_json_atomic(tmp / "consistency.json", consistency_in_memory(result, checks, survey))
     keys = ("dof", "vtpv", "sigma0_sq", "chi2_lower", "chi2_upper", "chi2_pass", "n_iterations",
             "converged", "n_photos", "n_points", "n_observations", "n_constraints", "status")
