@@ -652,6 +652,12 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
     # standards ----------------------------------------------------------------------------------
     b = doc.section("standards")
     if a and a.standards:
+        from .standards import CONFIDENCE_LABELS
+
+        _para(b, "Confidence of the rules of each standard, and tags such as [K] in the notes: "
+              + "; ".join(f"{k} = {v}" for k, v in CONFIDENCE_LABELS.items())
+              + ". Rules, sources and the open items the notes cite: STANDARDS.md (docs/standards.md; "
+                "installed as lidarcat/standards_data/STANDARDS.md).", "note")
         for name, s in a.standards.items():
             _para(b, f"**{s.title}** ({s.version}; confidence {s.confidence}): {s.label}")
             if name in ("pec", "pec-pcd"):

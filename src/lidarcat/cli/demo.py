@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import click
 
 from .options import echo_json, json_opt, progress_bar
@@ -94,9 +96,15 @@ def compare(survey: str, outdir: str | None, as_json: bool) -> None:
         echo_json(result)
         return
     for run, r in result["runs"].items():
+        joint = r["check_chi2_joint"]
+        if math.isfinite(joint):
+            joint_txt = f"{joint:.1f}"
+        else:  # never a bare nan: say why
+            why = r.get("check_chi2_joint_not_computed") or "no joint covariance"
+            joint_txt = why if why.startswith("not computed") else f"not computed ({why})"
         click.echo(f"run {run}: orientations max |z| {r['eo_max_abs_z']:.2f}, RMS z {r['eo_rms_z']:.2f}; "
                    f"free points max |z| {r['points_max_abs_z']:.2f}, RMS z {r['points_rms_z']:.2f}; "
-                   f"check points d'C^-1d {r['check_chi2_joint']:.1f} on {r['check_dof']} dof "
+                   f"check points d'C^-1d {joint_txt} on {r['check_dof']} dof "
                    f"(correlations ignored: {r['check_chi2']:.1f})")
     for pid, e in result["extraction"].items():
         err = ", ".join(f"{v:+.3f}" for v in e["error_m"])

@@ -27,6 +27,7 @@ from .runner import (
     ProgressCallback,
     Stage,
     StageRecord,
+    failed_tests,
     log_to,
     run_stages,
     safe_name,
@@ -201,8 +202,11 @@ def run_pipeline(
     Returns
     -------
     PipelineResult
-        ``result.ok`` is False when a stage failed; ``OUTDIR/summary.json``
-        holds ``result.summary``.
+        ``result.status`` is ``ok``, ``test failed`` (an adjustment failed its
+        chi-square test of the variance factor: outputs written, model or
+        weights suspect) or ``stage failed``; ``result.ok`` is True only for
+        ``ok``.  ``OUTDIR/summary.json`` holds ``result.summary`` (with
+        ``status``, ``ok``, ``failed`` and ``tests_failed``).
 
     Raises
     ------
@@ -231,6 +235,8 @@ def run_pipeline(
         failed = [r.name for r in records if r.status == "failed"]
         if failed:
             log.error("run finished with failed stage(s): %s", ", ".join(failed))
+        elif summary["tests_failed"]:
+            log.error("run finished, but a statistical test failed: %s", "; ".join(summary["tests_failed"]))
         else:
             log.info("run finished: %s", ", ".join(f"{r.name} {r.status}" for r in records))
     return PipelineResult(out, tuple(records), summary)
@@ -238,13 +244,18 @@ def run_pipeline(
 
 def _summary(survey: Any, out: Path, records: Sequence[StageRecord], seconds: float) -> dict:
     report = next((r.result.get("index") for r in records if r.name == "report" and r.done), None)
+    failed = [r.name for r in records if r.status == "failed"]
+    tests = failed_tests(records)
+    status = "stage failed" if failed else "test failed" if tests else "ok"
     return {
         "lidarcat_version": __version__,
         "survey": {"name": survey.name, "root": str(survey.root), "crs": survey.crs,
                    "embedded": bool(survey.embedded)},
         "outdir": str(out),
-        "ok": not any(r.status == "failed" for r in records),
-        "failed": [r.name for r in records if r.status == "failed"],
+        "ok": status == "ok",
+        "status": status,
+        "failed": failed,
+        "tests_failed": tests,
         "stages": [r.to_dict() for r in records],
         "stages_ran": [r.name for r in records if r.status == "ran"],
         "stages_reused": [r.name for r in records if r.status == "reused"],
