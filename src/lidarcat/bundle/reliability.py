@@ -121,6 +121,8 @@ COMPONENTS = {"image": ("x", "y"), "control": ("E", "N", "h"),
 MIN_REDUNDANCY = 1e-3
 #: IRLS: groups whose weight factor ends below this are removed before snooping
 ROBUST_CUT = 0.1
+#: IRLS: smallest weight factor (sigma x 100: a point keeps a regular normal-equation block)
+ROBUST_FLOOR = 1e-4
 
 
 # ---------------------------------------------------------------------------
@@ -187,7 +189,9 @@ class Blunder:
     photo, point : str or None
         Ids; ``photo`` is None for control, ``point`` None for eo.
     w : float
-        ``sqrt(T)`` of the q-dimensional test when it was found (= |w| for q = 1).
+        ``sqrt(T)`` of the q-dimensional test when it was found (= |w| for q = 1); for a
+        group removed by the robust step, sqrt of its sum of squared normalised residuals
+        (original sigmas) in the re-weighted adjustment.
     w_critical : float
         Its critical value.
     redundancy : float
@@ -815,24 +819,31 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     cur = p
     n_adj = 0
     r_cur, rel_cur = res, rel
+    crit = {q: critical_values(level, power, q)[1] for q in (1, 2, 3, 6)}
+    kq = np.array([crit[{"image": 2, "control": 3, "eo": 6}[str(k)]] for k in rel.kind])
     for _ in range(max_iter):
-        u = np.nan_to_num(rel_cur.w / rel_cur.w_critical, nan=0.0)
-        f_new = np.ones_like(u)
+        # normalised residuals with the original sigmas (not the re-weighted ones: a group weighted
+        # down must keep its large residual, or it would get its weight back the next time)
+        u = np.sqrt(_normalised_sq(p, r_cur) / kq)
+        new = np.ones_like(u)
         big = u > 1
-        f_new[big] = np.exp(1 - u[big] ** 2) if method == "danish" else 1.0 / u[big]
-        new = np.maximum(f_new * factor, 1e-12)
-        # the weights multiply: w of a down-weighted group is computed with its current weight
+        new[big] = np.maximum(np.exp(1 - u[big] ** 2) if method == "danish" else 1.0 / u[big], ROBUST_FLOOR)
         if np.allclose(new, factor, rtol=1e-3, atol=1e-6):
             break
         factor = new
         cur = _reweighted(p, factor, n_img, k_con)
+        prev = r_cur
         r_cur = adjust(cur, initial=(np.asarray(r_cur.eo_params), np.asarray(r_cur.points_m)),
                        precision="none", **adjust_kwargs)
         n_adj += 1
         if not r_cur.success:
+            r_cur = prev
             log.warning("robust %s: the re-weighted adjustment did not converge; stopped", method)
             break
+    try:
         rel_cur = reliability(r_cur, level=level, power=power)
+    except DatumError:
+        rel_cur = rel
     # remove the groups weighted down (tests of the original weights follow in snooping)
     found: list[Blunder] = []
     cut = np.flatnonzero(factor < ROBUST_CUT)
@@ -843,7 +854,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
         b = rel_cur.blunder(int(g), removed=True, iteration=0, found_by=method)
         # w and the estimated error of the original weights: e / sd relative to the critical value
         partners = sub.remove(p, kind, photo, point)
-        found.append(dataclasses.replace(b, w=float(rel_cur.w[g] / math.sqrt(factor[g])),
+        found.append(dataclasses.replace(b, w=float(math.sqrt(u[g] ** 2 * kq[g])),
                                          note="; ".join([f"weight factor {factor[g]:.1e}",
                                                          *(f"the other ray (photo {ph}) removed with it"
                                                            for ph in partners)])))
@@ -862,6 +873,18 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     rel2 = reliability(r2, level=level, power=power) if r2.success else None
     log.info("robust %s: %d group(s) removed", method, len(found))
     return r2, nxt, rel2, found, n_adj
+
+
+def _normalised_sq(p: BundleProblem, res: BundleResult) -> np.ndarray:
+    """Sum of (residual / original sigma)^2 of every group, in the order of :class:`Reliability`."""
+    parts = [np.sum((np.asarray(res.residuals_mm) / p.sd_mm) ** 2, axis=1)]
+    if len(p.constraint_point_index):
+        w = np.where(np.isfinite(p.constraint_sd_m), 1.0 / p.constraint_sd_m, 0.0)
+        parts.append(np.sum((np.asarray(res.constraint_residuals_m) * w) ** 2, axis=1))
+    if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
+        w = np.where(np.isfinite(p.eo_constraint_sd), 1.0 / p.eo_constraint_sd, 0.0)
+        parts.append(np.sum((np.asarray(res.eo_constraint_residuals) * w) ** 2, axis=1))
+    return np.concatenate(parts)
 
 
 def _reweighted(p: BundleProblem, factor: np.ndarray, n_img: int, k_con: int) -> BundleProblem:
