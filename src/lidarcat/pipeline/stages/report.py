@@ -100,6 +100,10 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                   f"sigma0^2 {num(adj.get('sigma0_sq'), 3)}, chi-square test "
                   f"[{num(adj.get('chi2_lower'), 2)}, {num(adj.get('chi2_upper'), 2)}]: "
                   f"{'passed' if adj.get('chi2_pass') else 'failed'}"]
+        if adj.get("blunders"):
+            lines += ["", "| blunder (data snooping, kept) | photo | point | w | redundancy |", "|---|---|---|---|---|"]
+            lines += [f"| {b['kind']} | {b.get('photo') or ''} | {b.get('point') or ''} | {num(b['w'], 2)} | "
+                      f"{num(b['redundancy'], 2)} |" for b in adj["blunders"]]
         chk = run.get("check")
         if chk:
             lines += ["", "| check points, reference minus adjusted (m) | mean | std | RMSE | max abs |",
