@@ -14,7 +14,7 @@ it), and the mean number of good observations named per trial.
 
 Part 2 -- a synthetic block (``lidarcat._synthetic_block``, default 20 strips x 50 photos) with
 1 % of its image observations corrupted by 10-50 sigma: the clean adjustment, then
-``snoop(robust="danish", mode="remove")`` at alpha = 0.05 / n (a family-wise level: 0.001 per
+``snoop(robust="danish", mode="remove", backward=False)`` at alpha = 0.05 / n (a family-wise level: 0.001 per
 test would reject ~0.3 % of 86,000 good observations), timed side by side; printed: the largest
 |orientation - truth| / sd of the clean and the cleaned run, blunders found / injected and good
 observations removed.
@@ -118,7 +118,8 @@ def large_block(strips: int, per_strip: int, share: float = 0.01) -> dict:
     t_raw = time.perf_counter() - t0
     level = 0.05 / n
     t0 = time.perf_counter()
-    sr = snoop(bad, mode="remove", robust="danish", level=level, precision="photos", max_rejections=50)
+    sr = snoop(bad, mode="remove", robust="danish", level=level, precision="photos", max_rejections=50,
+               backward=False)
     t_snoop = time.perf_counter() - t0
     injected = {(p.photo_ids[p.photo_index[i]], p.point_ids[p.point_index[i]]) for i in idx}
     removed = {(x.photo, x.point) for x in sr.blunders if x.removed}

@@ -690,6 +690,7 @@ def snoop(
     power: float = 0.80,
     robust: str = "none",
     max_rejections: int = 100,
+    backward: bool = True,
     on_rejection: Callable[[Blunder], None] | None = None,
     **adjust_kwargs: Any,
 ) -> SnoopingResult:
@@ -712,6 +713,10 @@ def snoop(
         many blunders); snooping then tests the rest.
     max_rejections : int
         Stop after this many one-at-a-time rejections (``more_remain`` tells).
+    backward : bool
+        After snooping stops, put back a rejected image observation when every test passes
+        with it, or exchange it for another ray of its point when that lowers v'Pv
+        (:func:`_refine`), and snoop again; costs up to (rays + 1) adjustments per rejection.
     on_rejection : callable(Blunder), optional
         Called after every rejection.
     **adjust_kwargs
@@ -753,46 +758,55 @@ def snoop(
         blunders += found
         n_adj += k
     iteration = 0
-    while rel is not None:
-        g = rel.worst()
-        if g is None or rel.ratio[g] <= 1:
+    for _round in range(20):
+        while rel is not None:
+            g = rel.worst()
+            if g is None or rel.ratio[g] <= 1:
+                break
+            if iteration >= max_rejections:
+                more = True
+                log.warning("data snooping stopped after %d rejections; tests still reject", iteration)
+                break
+            iteration += 1
+            bl = rel.blunder(g, removed=True, iteration=iteration)
+            saved = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
+            partners = sub.remove(p, bl.kind, bl.photo, bl.point)
+            try:
+                nxt, ph_map, pt_map = sub.problem(p)
+                warm = (np.asarray(res.eo_params), _warm_points(res, nxt))
+                res_new = adjust(nxt, initial=warm, precision="none", **adjust_kwargs)
+                n_adj += 1
+                if not res_new.success:
+                    raise DatumError(f"the adjustment without it did not converge ({res_new.status})")
+                rel_new = reliability(res_new, level=level, power=power)
+            except (DatumError, ValueError) as ex:
+                sub = saved
+                blunders.append(dataclasses.replace(bl, removed=False, note=f"not removed: {ex}"))
+                more = True
+                log.warning("data snooping: %s not removed: %s", bl.label(), ex)
+                break
+            blunders.append(bl)
+            for ph in partners if bl.kind == "control" else ():
+                blunders[-1] = dataclasses.replace(bl, note=f"its only ray (photo {ph}) removed with it")
+            for ph in partners if bl.kind == "image" else ():   # a two-ray point: the rays are not separable
+                other = np.flatnonzero((rel.kind == "image") & (rel.photo == ph) & (rel.point == bl.point))
+                note = (f"point {bl.point} is on two photos only: its rays on photos {bl.photo} and {ph} "
+                        "cannot be told apart; both removed")
+                blunders[-1] = dataclasses.replace(bl, note=note)
+                if len(other):
+                    blunders.append(rel.blunder(int(other[0]), removed=True, iteration=iteration, note=note))
+            log.info("data snooping: rejected %s (w %.2f > %.2f)", bl.label(), bl.w, bl.w_critical)
+            res, cur, rel = res_new, nxt, rel_new
+            if on_rejection is not None:
+                on_rejection(bl)
+        if more or rel is None or not backward:
             break
-        if iteration >= max_rejections:
-            more = True
-            log.warning("data snooping stopped after %d rejections; tests still reject", iteration)
+        # backward step: re-insert or exchange a rejected observation when the data prefer it
+        changed, sub, res, cur, rel, blunders, k = _refine(p, sub, blunders, res, cur, rel, level, power,
+                                                            adjust_kwargs)
+        n_adj += k
+        if not changed:
             break
-        iteration += 1
-        bl = rel.blunder(g, removed=True, iteration=iteration)
-        saved = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
-        partners = sub.remove(p, bl.kind, bl.photo, bl.point)
-        try:
-            nxt, ph_map, pt_map = sub.problem(p)
-            warm = (np.asarray(res.eo_params), _warm_points(res, nxt))
-            res_new = adjust(nxt, initial=warm, precision="none", **adjust_kwargs)
-            n_adj += 1
-            if not res_new.success:
-                raise DatumError(f"the adjustment without it did not converge ({res_new.status})")
-            rel_new = reliability(res_new, level=level, power=power)
-        except (DatumError, ValueError) as ex:
-            sub = saved
-            blunders.append(dataclasses.replace(bl, removed=False, note=f"not removed: {ex}"))
-            more = True
-            log.warning("data snooping: %s not removed: %s", bl.label(), ex)
-            break
-        blunders.append(bl)
-        for ph in partners if bl.kind == "control" else ():
-            blunders[-1] = dataclasses.replace(bl, note=f"its only ray (photo {ph}) removed with it")
-        for ph in partners if bl.kind == "image" else ():   # a two-ray point: the rays are not separable
-            other = np.flatnonzero((rel.kind == "image") & (rel.photo == ph) & (rel.point == bl.point))
-            note = (f"point {bl.point} is on two photos only: its rays on photos {bl.photo} and {ph} "
-                    "cannot be told apart; both removed")
-            blunders[-1] = dataclasses.replace(bl, note=note)
-            if len(other):
-                blunders.append(rel.blunder(int(other[0]), removed=True, iteration=iteration, note=note))
-        log.info("data snooping: rejected %s (w %.2f > %.2f)", bl.label(), bl.w, bl.w_critical)
-        res, cur, rel = res_new, nxt, rel_new
-        if on_rejection is not None:
-            on_rejection(bl)
     if mode == "report" or res is first:
         final, final_rel = first, rel_first
         blunders = [dataclasses.replace(b, removed=False) for b in blunders] if mode == "report" else blunders
@@ -802,6 +816,65 @@ def snoop(
         final_rel = rel
         n_adj += 1
     return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj)
+
+
+def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs):
+    """One backward step after snooping stopped; returns ``(changed, sub, res, cur, rel, blunders, n_adj)``.
+
+    For each image observation removed by snooping (not a two-ray point): adjust with it put back;
+    when every test then passes it was a false rejection (its w was raised by a blunder removed
+    later) and it is re-inserted.  Otherwise try removing, instead of it, each other ray of its
+    point: the w-tests of the rays of one point are correlated and the largest w can sit on a good
+    ray; the exchange is kept when it lowers v'Pv (the same number of observations removed, so
+    the likelihood decides).  At most one change per call.
+    """
+    n_adj = 0
+    pid, qid = p.photo_ids[p.photo_index], p.point_ids[p.point_index]
+    for k, b in enumerate(blunders):
+        if b.kind != "image" or b.found_by != "snooping" or not b.removed or b.note:
+            continue
+        a = int(np.flatnonzero((pid == b.photo) & (qid == b.point))[0])
+        others = np.flatnonzero(sub.obs & (p.point_index == p.point_index[a]))
+        best = back = None
+        for h in [None, *(int(o) for o in others)]:
+            trial = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
+            trial.obs[a] = True
+            if h is not None:
+                trial.obs[h] = False
+            try:
+                prob, _, _ = trial.problem(p)
+                r = adjust(prob, initial=(np.asarray(res.eo_params), _warm_points(res, prob)),
+                           precision="none", **adjust_kwargs)
+                n_adj += 1
+                if not r.success:
+                    continue
+                if h is None:
+                    relt = back = reliability(r, level=level, power=power)
+                    g = relt.worst()
+                    if g is None or relt.ratio[g] <= 1:
+                        best = (None, trial, r, prob, relt)
+                        break
+                elif r.vtpv < res.vtpv - 1e-9 * max(1.0, res.vtpv) and (best is None or r.vtpv < best[2].vtpv):
+                    best = (h, trial, r, prob, None)
+            except (DatumError, ValueError, KeyError):
+                continue
+        if best is None:
+            continue
+        h, trial, r, prob, relt = best
+        relt = relt if relt is not None else reliability(r, level=level, power=power)
+        out = list(blunders)
+        if h is None:
+            log.info("data snooping: %s put back (every test passes with it)", b.label())
+            del out[k]
+        else:
+            # its test in the adjustment with both rays in (where the choice was made)
+            src = back if back is not None else rel
+            g = int(np.flatnonzero((src.kind == "image") & (src.photo == pid[h]) & (src.point == qid[h]))[0])
+            out[k] = src.blunder(g, removed=True, iteration=b.iteration,
+                                 note=f"exchanged for photo {b.photo} (same point): lower v'Pv")
+            log.info("data snooping: %s exchanged for photo %s (lower v'Pv)", b.label(), pid[h])
+        return True, trial, r, prob, relt, out, n_adj
+    return False, sub, res, cur, rel, blunders, n_adj
 
 
 def _warm_points(res: BundleResult, nxt: BundleProblem) -> np.ndarray:
