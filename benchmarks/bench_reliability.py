@@ -35,13 +35,9 @@ import numpy as np  # noqa: E402
 
 
 def _truth_sim(p, truth, rng):
-    from lidarcat._collinearity import project
+    from lidarcat._synthetic_block import resimulated
 
-    ei, pj = p.photo_index, p.point_index
-    xy, _ = project(np.asarray(truth.eo_params), np.asarray(truth.points_m)[pj], p.focal_length_mm[ei], ei)
-    enh = np.asarray(truth.points_m)[p.constraint_point_index]
-    return dataclasses.replace(p, xy_mm=xy + rng.normal(0, 1, xy.shape) * p.sd_mm,
-                               constraint_enh_m=enh + rng.normal(0, 1, enh.shape) * p.constraint_sd_m)
+    return resimulated(p, np.asarray(truth.eo_params), np.asarray(truth.points_m), rng)
 
 
 def _whitened_qvv(p, res):
