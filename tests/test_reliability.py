@@ -364,3 +364,39 @@ def test_provenance_in_every_output(tmp_path):
     r2 = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "-o", str(tmp_path / "o2"), "--snooping", "off"])
     assert r2.exit_code == 0
     assert (out / "eop.csv.json").read_bytes() == (tmp_path / "o2" / "eop.csv.json").read_bytes()
+
+
+# --------------------------------------------------------------------------- lidarcat run
+
+
+class _Ctx:
+    """The part of :class:`lidarcat.pipeline.runner.Context` the adjust stage uses."""
+
+    def __init__(self, survey, control):
+        self.params = {"control": control}
+        self._survey = survey
+
+    def __getitem__(self, key):
+        return {"survey": self._survey}[key]
+
+    def progress(self, done, total):
+        pass
+
+
+def test_run_adjust_stage_and_run_line_name_the_blunders(tmp_path):
+    from types import SimpleNamespace
+
+    from lidarcat.cli.run import _text
+    from lidarcat.pipeline.stages import adjust as stage
+
+    out = stage.run(_Ctx(Survey.load(THESIS_SURVEY), "gps"), tmp_path)
+    bl = out["adjustment"]["blunders"]
+    assert [(b["kind"], b["photo"], b["point"], b["removed"]) for b in bl] == [
+        ("image", "3", "407", False), ("image", "2", "702", False), ("image", "5", "709", False)]
+    assert (tmp_path / "blunders.csv").is_file() and (tmp_path / "reliability.csv").is_file()
+    assert json.loads((tmp_path / "eop.csv.json").read_text())["provenance"]["parameters"]["snooping"] == "report"
+    fake = SimpleNamespace(summary={"survey": {"name": "thesis"}, "runs": {"gps": out}}, stages=(),
+                           outdir=tmp_path, ok=True, failed=())
+    line = [t for t in _text(fake).splitlines() if t.startswith("  run gps:")][0]
+    assert line.endswith("3 blunder(s) remain (w-test): image photo 3 point 407; image photo 2 point 702; "
+                         "image photo 5 point 709")
