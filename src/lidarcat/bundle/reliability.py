@@ -772,7 +772,7 @@ def snoop(
             saved = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
             partners = sub.remove(p, bl.kind, bl.photo, bl.point)
             try:
-                nxt, ph_map, pt_map = sub.problem(p)
+                nxt, _, _ = sub.problem(p)
                 warm = (np.asarray(res.eo_params), _warm_points(res, nxt))
                 res_new = adjust(nxt, initial=warm, precision="none", **adjust_kwargs)
                 n_adj += 1
