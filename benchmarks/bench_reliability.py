@@ -123,7 +123,9 @@ def large_block(strips: int, per_strip: int, share: float = 0.01) -> dict:
     removed = {(x.photo, x.point) for x in sr.blunders if x.removed}
 
     def dev(res):
-        return np.abs(np.asarray(res.eo_params) - np.asarray(b.true_eo)) / np.asarray(clean.eo_sd)
+        d = np.asarray(res.eo_params) - np.asarray(b.true_eo)
+        d[:, 3:] = (d[:, 3:] + np.pi) % (2 * np.pi) - np.pi          # kappa near +-pi on return strips
+        return np.abs(d) / np.asarray(clean.eo_sd)
 
     # detectable: the blunder is above its MDB in its direction (lambda >= lambda0 at this level)
     from lidarcat.bundle.reliability import noncentrality
