@@ -400,3 +400,18 @@ def test_run_adjust_stage_and_run_line_name_the_blunders(tmp_path):
     line = [t for t in _text(fake).splitlines() if t.startswith("  run gps:")][0]
     assert line.endswith("3 blunder(s) remain (w-test): image photo 3 point 407; image photo 2 point 702; "
                          "image photo 5 point 709")
+
+
+def test_report_lists_the_blunders(tmp_path):
+    from lidarcat.bundle import adjust_survey
+    from lidarcat.report import load_adjustment, write_report
+
+    _, out = adjust_survey(THESIS_SURVEY, control="gps", outdir=tmp_path / "adj")
+    adj = load_adjustment(out)
+    paths = write_report(tmp_path / "rep", adjustment_dir={"eop": adj["eop"], "points": adj["points"],
+                                                           "summary": adj["summary"]})
+    md = paths["markdown"].read_text()
+    assert "Data snooping (report, alpha 0.001)" in md
+    for photo, point in (("3", "407"), ("2", "702"), ("5", "709")):
+        assert f"| image | {photo} | {point} |" in md
+    assert md.count("no (kept)") == 3
