@@ -75,7 +75,10 @@ Data snooping and robust re-weighting
 :func:`snoop` adjusts, tests, removes the single group with the largest test
 ratio ``T_a / chi2_{1-alpha_q}(q)`` when it exceeds 1, re-adjusts from the
 previous solution, and repeats (Baarda: one rejection per iteration, because
-one blunder raises the w of its neighbours).  ``robust="danish"`` or
+one blunder raises the w of its neighbours).  A backward step then puts back a
+rejected observation when every test passes with it, or exchanges it for
+another ray of its point when that lowers v'Pv (the tests of the rays of one
+point are correlated), and snooping resumes.  ``robust="danish"`` or
 ``"huber"`` first runs iteratively re-weighted least squares: the weight of
 group a is multiplied by ``f(w_a / c_a)`` with ``c_a`` its critical value,
 ``f(u) = 1`` for ``u <= 1`` and ``exp(1 - u^2)`` (Danish type) or ``1 / u``
