@@ -415,3 +415,22 @@ def test_report_lists_the_blunders(tmp_path):
     for photo, point in (("3", "407"), ("2", "702"), ("5", "709")):
         assert f"| image | {photo} | {point} |" in md
     assert md.count("no (kept)") == 3
+
+
+def test_io_provenance_paths_and_hashes(tmp_path):
+    from lidarcat import __version__
+    from lidarcat._io import csv_sidecar_path, provenance, write_csv_atomic
+
+    (tmp_path / "in").mkdir()
+    f = tmp_path / "in" / "obs.csv"
+    f.write_bytes(b"a,b\n1,2\n")
+    prov = provenance({"obs": f}, {"level": 0.001}, root=tmp_path / "in")
+    assert prov == {"lidarcat_version": __version__, "parameters": {"level": 0.001},
+                    "inputs": {"obs": {"path": "obs.csv", "sha256": hashlib.sha256(b"a,b\n1,2\n").hexdigest()}}}
+    outside = provenance({"obs": f}, {}, root=tmp_path / "elsewhere")
+    assert outside["inputs"]["obs"]["path"] == f.as_posix()
+    out = tmp_path / "o.csv"
+    write_csv_atomic(out, ["x"], [[1]], provenance=prov)              # provenance alone writes the sidecar
+    assert json.loads(csv_sidecar_path(out).read_text())["provenance"] == prov
+    write_csv_atomic(out, ["x"], [[1]])                               # neither: the stale sidecar goes
+    assert not csv_sidecar_path(out).exists()
