@@ -141,6 +141,11 @@ def _text(result) -> str:
         parts = [f"dof {adj.get('dof')}", f"v'Pv {_f(adj.get('vtpv'), 2)}",
                  f"sigma0^2 {_f(adj.get('sigma0_sq'), 3)}",
                  f"chi2 {'pass' if adj.get('chi2_pass') else 'FAILED'}"]
+        if adj.get("blunders"):
+            parts.append(f"{len(adj['blunders'])} blunder(s) remain (w-test): " + "; ".join(
+                f"{b['kind']} {'photo ' + b['photo'] + ' ' if b.get('photo') else ''}point {b['point']}"
+                if b.get("point") else f"{b['kind']} photo {b['photo']}" for b in adj["blunders"][:5])
+                + (" ..." if len(adj["blunders"]) > 5 else ""))
         if chk:
             parts.append("check RMSE E/N/h " + "/".join(_f(chk.get(f"rmse_{a}_m"), 3) for a in "ENh") + " m")
             cons = chk.get("consistency")

@@ -1,7 +1,8 @@
 """Stage ``adjust-SET``: bundle adjustment of one control set (eq. 08-22).
 
-Writes ``eop.csv``, ``points.csv``, ``residuals.csv`` and ``summary.json``
-(:func:`lidarcat.bundle.write_adjustment`); a run of the extracted LiDAR
+Writes ``eop.csv``, ``points.csv``, ``residuals.csv``, ``summary.json``,
+``blunders.csv`` and ``reliability.csv`` (:func:`lidarcat.bundle.write_adjustment`;
+data snooping in ``report`` mode names the blunders and keeps every observation); a run of the extracted LiDAR
 control reads the derived survey of the ``extract`` stage.
 
 Above :data:`lidarcat.bundle.MAX_JOINT_COVARIANCE_POINTS` check points the
@@ -33,7 +34,9 @@ CONSISTENCY_MEMORY_BYTES = 1 << 30
 
 def run(ctx: Context, tmp: Path) -> dict:
     """Bundle adjustment of one control set -> eop.csv, points.csv, residuals.csv, summary.json."""
-    from ...bundle import adjust, problem_from_survey, write_adjustment
+    from ...bundle import problem_from_survey, write_adjustment
+    from ...bundle.reliability import snoop
+    from ...bundle.survey_io import survey_provenance
     from ...survey import Survey
 
     par = ctx.params
@@ -43,11 +46,15 @@ def run(ctx: Context, tmp: Path) -> dict:
     def prog(iteration: int, vtpv: float) -> None:
         ctx.progress(min(iteration, 49), 50)
 
-    result = adjust(problem, variance_factor=survey.settings.variance_factor,
-                    chi2_level=survey.settings.chi2_level, progress=prog)
+    kw = dict(variance_factor=survey.settings.variance_factor, chi2_level=survey.settings.chi2_level)
+    # data snooping, report only: the run keeps every observation and names the blunders
+    sres = snoop(problem, mode="report", progress=prog, **kw)
+    result = sres.result
     write_adjustment(result, tmp, extra={"crs": survey.crs, "survey": survey.name,
                                          "control_set": par["control"],
-                                         "observations": survey.settings.observations})
+                                         "observations": survey.settings.observations},
+                     snooping=sres, provenance=survey_provenance(survey, {
+                         "control": par["control"], "snooping": "report", "snooping_level": 0.001, **kw}))
     summ = result.summary()
     if not result.success:
         raise LidarcatError(f"adjustment with control set {par['control']!r} did not converge: "
@@ -63,7 +70,10 @@ def run(ctx: Context, tmp: Path) -> dict:
                       f"[{summ['chi2_lower']:.2f}, {summ['chi2_upper']:.2f}] ({summ['dof']} dof, "
                       f"{summ.get('chi2_level', 0.05):g} level; sigma0^2 {summ['sigma0_sq']:.3f}): the image or "
                       "control sds, the model or a blunder is wrong")
-    return {"adjustment": {k: summ.get(k) for k in keys}, "control": par["control"],
+    blunders = [{k: b[k] for k in ("kind", "photo", "point", "w", "redundancy", "removed")}
+                for b in sres.summary()["blunders"]]
+    return {"adjustment": {**{k: summ.get(k) for k in keys}, "blunders": blunders},
+            "control": par["control"],
             "derived_survey": bool(par.get("derived")), "failed_tests": failed}
 
 

@@ -139,6 +139,10 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
         for fig, caption in _RUN_FIGURES:
             if fig in run.get("figures", ()):
                 lines += ["", f"![Run {name}: {caption}](../{run['figures_dir']}/{fig})"]
+        if adj.get("blunders"):
+            lines += ["", "| blunder (data snooping, kept) | photo | point | w | redundancy |", "|---|---|---|---|---|"]
+            lines += [f"| {b['kind']} | {b.get('photo') or ''} | {b.get('point') or ''} | {num(b['w'], 2)} | "
+                      f"{num(b['redundancy'], 2)} |" for b in adj["blunders"]]
         chk = run.get("check")
         if chk:
             lines += ["", "| check points, reference minus adjusted (m) | mean | std | RMSE | max abs |",
