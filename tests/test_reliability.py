@@ -396,7 +396,7 @@ def test_run_adjust_stage_and_run_line_name_the_blunders(tmp_path):
     assert (tmp_path / "blunders.csv").is_file() and (tmp_path / "reliability.csv").is_file()
     assert json.loads((tmp_path / "eop.csv.json").read_text())["provenance"]["parameters"]["snooping"] == "report"
     fake = SimpleNamespace(summary={"survey": {"name": "thesis"}, "runs": {"gps": out}}, stages=(),
-                           outdir=tmp_path, ok=True, failed=())
+                           outdir=tmp_path, ok=True, failed=(), tests_failed=())
     line = [t for t in _text(fake).splitlines() if t.startswith("  run gps:")][0]
     assert line.endswith("3 blunder(s) remain (w-test): image photo 3 point 407; image photo 2 point 702; "
                          "image photo 5 point 709")
