@@ -19,7 +19,7 @@ is their true plan position (the paper's 1:2000 map base).
 
 * *monorestitution* -- each point projected into the photo, pointing noise
   0.5 px, intersected (first hit) with the paper's surface, a DSM of the
-  highest first return per cell (cell = point spacing,
+  highest first return per cell (1 m cells,
   :func:`lidarcat.lidar.rasterize`), by the nearest neighbour (``nearest``:
   the cell's value) or the triangular plane (``tin``: a TIN of the cell
   centres); the photo's orientation carries the errors of an adjustment
@@ -235,17 +235,26 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         Road edge points (the paper: 27).
     image_sd_px : float
         Pointing sd on the photo, px.
+    inward_px : float
+        The operator's click on a building corner moved this far (px) into the
+        roof along the corner's diagonal (0: on the corner; docs/mapping.md
+        shows how much the building figures depend on it).
     lidar_noise_m : float
         LiDAR height noise, m.
     scale : float
         Map scale of the PEC class.
+    dsm_cell_m : float, optional
+        Cell of the first-return DSM (default 1 m; None: the point spacing).
+    e0, n0 : float
+        Centre of the synthetic town, m.
 
     Returns
     -------
     dict
         ``tables``: ``{product: assess_features(...)}`` for ``intensity_image``,
-        ``nearest``, ``tin``; ``r90``: ``{product: {class: r90}}`` (Table 09);
-        ``setup``: the numbers used.
+        ``nearest``, ``tin``, ``nearest_points``, ``tin_points``; ``r90``:
+        ``{product: {class: r90}}`` (Table 09); ``status``: monoplot status
+        counts per surface; ``setup``: the numbers used.
     """
     from .monoplot import PointSurface, monoplot
     from ._collinearity import project

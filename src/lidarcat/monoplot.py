@@ -30,10 +30,14 @@ never returned as if measured).
 is sampled from where the ray enters the surface's height range
 ``[h_min, h_max]`` to where it leaves it, with a plan step of half the
 surface's resolution, and the first sign change ``f > 0 -> f <= 0`` is bisected
-to ``tol_m``.  This is the exact intersection with the interpolated surface (up
-to features narrower than half a cell between two samples), and it is
-occlusion-aware by construction: the camera sees what the ray meets first, so
-a pixel on a roof gives the roof, never the ground hidden behind it.
+to ``tol_m``.  A ray can clip a roof corner between two samples; every interval
+before the first sign change where the ray's lower end lies under a local upper
+bound of the surface (the 3 x 3 cell maximum of a grid; the 5 x 5 maximum of
+the highest point per cell for points) is sub-sampled 16 times, and the
+earliest crossing wins.  This is the exact intersection with the interpolated
+surface (up to a clip shorter than 1/32 of a cell), and it is occlusion-aware
+by construction: the camera sees what the ray meets first, so a pixel on a
+roof gives the roof, never the ground hidden behind it.
 
 Surfaces and interpolators
 --------------------------
