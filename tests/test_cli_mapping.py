@@ -141,3 +141,28 @@ def test_ortho_cli_true_orthos_and_mosaic(survey, tmp_path):
     assert r.exit_code == 2 and "give one of --dtm (standard orthophoto) or --dsm (true orthophoto)" in r.output
     assert not (tmp_path / "x").exists()
     assert math.isfinite(float(np.nanmax(m)))
+
+
+@pytest.mark.parametrize("name, text, message", [
+    ("a.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"id": "r1"}, '
+                  '"geometry": {"type": "MultiPoint", "coordinates": [[1, 2]]}}]}',
+     "a.geojson: feature 'r1': geometry type 'MultiPoint'; use Point, LineString or Polygon (one part per feature)"),
+    ("b.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"id": "L"}, '
+                  '"geometry": {"type": "LineString", "coordinates": [[1, 2]]}}]}',
+     "b.geojson: feature 'L': a line needs at least 2 vertices"),
+    ("c.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"id": "p"}, '
+                  '"geometry": {"type": "Point", "coordinates": ["x", 2]}}]}',
+     "c.geojson: feature 'p': coordinates are not [col_px, row_px] numbers"),
+    ("d.geojson", '{"type": "Feature"', "d.geojson:1: invalid JSON"),
+    ("e.csv", "feature,col_px,row_px\nA,1,2\nB,3,4\nA,5,6\n", "e.csv:4: field 'feature': rows of feature 'A' are not consecutive"),
+    ("f.csv", "feature,col_px,row_px,geometry\nA,1,2,polygon\nA,3,4,polygon\n",
+     "f.csv:2: field 'feature': feature 'A' is a polygon with 2 vertices"),
+    ("g.txt", "x", "g.txt: unknown feature file type '.txt'; use .geojson or .csv"),
+])
+def test_feature_file_errors_are_located(tmp_path, name, text, message):
+    from lidarcat.features import FeatureError, read_features
+
+    (tmp_path / name).write_text(text)
+    with pytest.raises(FeatureError) as ei:
+        read_features(tmp_path / name)
+    assert str(ei.value).startswith(f"{tmp_path}/{message}")      # file (and line) first, exact text
