@@ -166,3 +166,45 @@ def test_feature_file_errors_are_located(tmp_path, name, text, message):
     with pytest.raises(FeatureError) as ei:
         read_features(tmp_path / name)
     assert str(ei.value).startswith(f"{tmp_path}/{message}")      # file (and line) first, exact text
+
+
+def test_run_mapping_stage_when_the_survey_asks(survey, tmp_path):
+    """The [mapping] table: parsed with located errors, planned as a stage of lidarcat run,
+    and the stage writes the surface model, the true orthophotos and the mosaic."""
+    import shutil
+    from types import SimpleNamespace
+
+    from lidarcat.errors import SurveyError
+    from lidarcat.pipeline.plan import plan_pipeline
+    from lidarcat.pipeline.runner import Context
+    from lidarcat.pipeline.stages import mapping
+    from lidarcat.survey import Survey
+
+    root, scene, _ = survey
+    s0 = Survey.load(root)
+    stage = next(st for st in plan_pipeline(s0) if st.name == "mapping")
+    assert stage.skip_reason == "survey.toml has no [mapping] table"
+    work = tmp_path / "s"
+    shutil.copytree(root, work)
+    toml = work / "survey.toml"
+    base = toml.read_text()
+    toml.write_text(base + '\n[mapping]\northophotos = true\nsurface = "dsn"\n')
+    with pytest.raises(SurveyError, match=r"survey\.toml:\d+: field 'surface': 'dsn' is not 'dsm' \(true "
+                                          r"orthophotos\) or 'dtm'"):
+        mapping.settings(Survey.load(work))
+    toml.write_text(base + '\n[mapping]\northophotos = true\ngsd_m = 1.0\ncell_m = 0.5\n')
+    s = Survey.load(work)
+    stage = next(st for st in plan_pipeline(s) if st.name == "mapping")
+    assert stage.skip_reason == "no adjustment (control set) to take the orientations from"
+    # run the stage itself on the adjustment folder out/adjust-gps of the fixture
+    ctx = Context(work, values={"survey": s})
+    ctx.records["adjust-gps"] = SimpleNamespace(folder="out/adjust-gps")
+    ctx.stage = SimpleNamespace(params={"adjust": "adjust-gps"})
+    out = tmp_path / "mapping"
+    out.mkdir()
+    res = mapping.run(ctx, out)
+    assert sorted(p.name for p in out.iterdir()) == [
+        "dsm.png", "dsm.tif", "mosaic.png", "mosaic.tif", "ortho_A.png", "ortho_A.tif", "ortho_B.png",
+        "ortho_B.tif", "seamlines.geojson"]
+    assert [o["photo"] for o in res["orthophotos"]] == ["A", "B"] and res["mosaic"]["gsd_m"] == 1.0
+    assert all(o["true_ortho"] for o in res["orthophotos"])

@@ -220,8 +220,8 @@ class _ZBuffer:
         gsd_photo = cam.pixel_size_x_mm * height / cam.focal_length_mm
         self.bin = max(1, int(math.ceil(cell / max(gsd_photo, 1e-9))))
         self.tol = 3.0 * cell if tol_m is None else float(tol_m)
-        nb_r = cam.rows_px // self.bin + 2
-        nb_c = cam.columns_px // self.bin + 2
+        nb_r = cam.rows_px // self.bin + 3   # bins -1 .. N/bin + 1 (projections up to a bin off the frame)
+        nb_c = cam.columns_px // self.bin + 3
         z = np.full(nb_r * nb_c, np.inf)
         t = surface.transform
         g = surface.grid
