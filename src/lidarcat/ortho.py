@@ -150,11 +150,6 @@ class PhotoModel:
     def bands(self) -> int:
         return 1 if self.image.ndim == 2 else self.image.shape[2]
 
-    @property
-    def gsd_m(self) -> float:
-        """Nominal ground pixel at the height of the projection centre minus 0: pixel * Z0 / c (rough)."""
-        return self.camera.pixel_size_x_mm / self.camera.focal_length_mm
-
     def project(self, e: np.ndarray, n: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pixel column, row and depth ``-u3`` (m, > 0 in front) of ground points (any shape)."""
         p = self.eo_params
