@@ -11,7 +11,9 @@ survey.toml::
     images = "images"         # folder of the photo files <photo>.png/.tif/.jpg
     photos = ["1", "2"]       # optional: a subset (default: every adjusted photo)
 
-The orientations are those of the default control set's adjustment
+The stage is planned only for a survey with a ``[mapping]`` table (skipped,
+with the reason, when ``orthophotos`` is false or nothing was adjusted).  The
+orientations are those of the default control set's adjustment
 (``adjust-<set>/eop.csv``); the surface model is rasterised from the survey's
 LiDAR tiles over the photos' footprints (:func:`lidarcat.lidar.rasterize`,
 highest first return or lowest ground point) and written as ``dsm.tif`` /
