@@ -213,6 +213,8 @@ def write_synthetic_survey(
     lidar_noise_m: float = 0.05,
     approx_error_m: float = 1.0,
     n_roofs: int | None = None,
+    images: bool = False,
+    image_downsample: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> DemoSurvey:
     """Write a synthetic survey folder with known truth (see the module docstring).
@@ -240,6 +242,13 @@ def write_synthetic_survey(
         (each drawn between 0.5x and 1.5x, in a random direction).
     n_roofs : int, optional
         Number of buildings (default: 1 + n_photos, at most 12).
+    images : bool
+        Also render the photos of the block (:mod:`lidarcat.scene`: the terrain
+        textured, the buildings' roofs shaded) into ``images/<photo>.png``, for
+        ``lidarcat monoplot`` and ``lidarcat ortho``.
+    image_downsample : int
+        Render at 1/k of the resolution and upsample (faster; blurrier photos
+        with the same geometry).
     progress : callable, optional
         ``progress(done, total)`` over the writing steps.
 
@@ -374,6 +383,8 @@ def write_synthetic_survey(
         n_lidar = _write_lidar(tmp / "lidar", box, buildings, lidar_density_m2, lidar_noise_m, rng,
                                _roofs)
         tick(4)
+        if images:
+            _render_photos(tmp / "images", demo_scene_of(buildings), cam, eo, photo_ids, image_downsample)
         (tmp / "truth").mkdir()
         write_csv_atomic(
             tmp / "truth" / "eop.csv",
@@ -488,13 +499,14 @@ def _place_buildings(cand: np.ndarray, n: int, rng: np.random.Generator, roofs: 
     for k, i in enumerate(order):
         e, nn = (float(v) for v in cand[i])
         kind = ("pyramid", "hip")[k % 2]
+        params = {"slope_deg": float(rng.uniform(25, 35)), "length_m": float(rng.uniform(15, 18)),
+                  "width_m": float(rng.uniform(9, 11)), "eave_m": float(rng.uniform(5, 7)),
+                  "azimuth_deg": float(rng.uniform(0, 90))}
         scene = roofs.synthetic_roof(
-            kind, slope_deg=float(rng.uniform(25, 35)), length_m=float(rng.uniform(15, 18)),
-            width_m=float(rng.uniform(9, 11)), eave_m=float(rng.uniform(5, 7)),
-            azimuth_deg=float(rng.uniform(0, 90)), density_m2=density_m2, noise_h_m=noise_m,
+            kind, **params, density_m2=density_m2, noise_h_m=noise_m,
             noise_plan_m=_LIDAR_PLAN_SD_M, origin=(e, nn, float(_terrain(e, nn))), seed=int(rng.integers(2**31)))
         out.append({"id": f"R{k + 1:02d}", "kind": kind, "vertex": np.array(scene.vertices[0]),
-                    "n_planes": int(scene.vertex_planes[0]), "scene": scene})
+                    "n_planes": int(scene.vertex_planes[0]), "scene": scene, "params": {**params, "e": e, "n": nn}})
     return out
 
 
@@ -530,6 +542,8 @@ def _write_lidar(folder: Path, box, buildings: list[dict], density_m2: float, no
     ground = np.column_stack([en, _terrain(en[:, 0], en[:, 1]) + rng.normal(0, noise_m, len(en))])
     xyz = np.vstack([ground] + [c[0] for c in clouds])
     cls = np.concatenate([np.full(len(ground), 2, np.uint8)] + [c[1].astype(np.uint8) for c in clouds])
+    attrs = _lidar_attributes(xyz, np.concatenate([np.full(len(ground), roofs.LABELS["ground"])]
+                                                  + [np.asarray(b["scene"].label) for b in buildings]), roofs)
     folder.mkdir(parents=True, exist_ok=True)
     emid, nmid = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
     total = 0
@@ -538,10 +552,63 @@ def _write_lidar(folder: Path, box, buildings: list[dict], density_m2: float, no
             sel = (xyz[:, 0] >= elo) & (xyz[:, 0] < ehi) & (xyz[:, 1] >= nlo) & (xyz[:, 1] < nhi)
             if not sel.any():
                 continue
-            cloud = PointCloud(xyz[sel], {"classification": cls[sel]}, crs=resolve_crs(DEMO_CRS))
+            cloud = PointCloud(xyz[sel], {"classification": cls[sel], **{k: v[sel] for k, v in attrs.items()}},
+                               crs=resolve_crs(DEMO_CRS))
             write_points(folder / f"tile_{i}_{j}.laz", cloud)
             total += int(sel.sum())
     return total
+
+
+def _lidar_attributes(xyz: np.ndarray, label: np.ndarray, roofs: Any) -> dict[str, np.ndarray]:
+    """Intensity and returns of the demo's LiDAR points (issue 16: they were all 0, an invalid LAS).
+
+    One return per pulse (opaque ground and roofs: return 1 of 1).  Intensity by
+    material, so that the intensity image shows the roofs: ground 900 with a
+    +-150 pattern of 40 m, walls 1300, roofs 2200, chimneys and dormers 2000,
+    trees 600; 8 % noise from a generator of its own (the survey's random stream
+    is left as it was).
+    """
+    lab = np.asarray(label)
+    base = np.full(len(lab), 900.0)
+    for name, value in (("wall", 1300.0), ("roof", 2200.0), ("chimney", 2000.0), ("dormer", 2000.0),
+                        ("tree", 600.0)):
+        base[lab == roofs.LABELS[name]] = value
+    ground = lab == roofs.LABELS["ground"]
+    base[ground] += 150.0 * np.sin(2 * np.pi * xyz[ground, 0] / 40.0) * np.cos(2 * np.pi * xyz[ground, 1] / 40.0)
+    noise = np.random.default_rng(len(lab)).normal(1.0, 0.08, len(lab))
+    ones = np.ones(len(lab), dtype=np.uint8)
+    return {"intensity": np.clip(np.rint(base * noise), 1, 65535).astype(np.uint16),
+            "return_number": ones, "number_of_returns": ones.copy()}
+
+
+def demo_scene_of(buildings: Sequence[dict]) -> Any:
+    """The :class:`lidarcat.scene.Scene` of the demo's terrain and buildings (for rendering photos)."""
+    from .scene import Building, Scene
+
+    return Scene(tuple(Building(b["kind"], b["params"]["e"], b["params"]["n"], **{
+        k: v for k, v in b["params"].items() if k not in ("e", "n")}) for b in buildings))
+
+
+def _render_photos(folder: Path, scene: Any, cam: Camera, eo: np.ndarray, ids: Sequence[str], downsample: int) -> None:
+    """Render every photo into ``folder/<id>.png`` (at 1/downsample resolution, upsampled bilinearly)."""
+    import cv2
+
+    from ._io import atomic_write
+
+    if cam.columns_px % downsample or cam.rows_px % downsample:
+        raise LidarcatError(f"--image-downsample {downsample} must divide the image size "
+                            f"{cam.columns_px} x {cam.rows_px}")
+    small = Camera(cam.id, cam.focal_length_mm, cam.principal_point_x_mm, cam.principal_point_y_mm, cam.k1,
+                   cam.k2, cam.k3, cam.p1, cam.p2, cam.refraction_eps45, cam.pixel_size_x_mm * downsample,
+                   cam.pixel_size_y_mm * downsample, cam.columns_px // downsample, cam.rows_px // downsample)
+    folder.mkdir(parents=True, exist_ok=True)
+    for pid, e in zip(ids, eo):
+        img = scene.render(small, e)
+        if downsample > 1:   # pixel centres stay aligned: dst x <-> src (x + 0.5) / k - 0.5
+            img = cv2.resize(img, (cam.columns_px, cam.rows_px), interpolation=cv2.INTER_LINEAR)
+        ok, buf = cv2.imencode(".png", img)
+        with atomic_write(folder / f"{pid}.png", "wb") as fh:
+            fh.write(buf.tobytes())
 
 
 def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike) -> dict[str, Any]:

@@ -74,6 +74,9 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
                    "plotting_position": False},
     # height datum per source and the geoid grid: read by lidarcat.interop.heights
     "heights": {"sources": False, "geoid_grid": False},
+    # orthophotos / mosaic of lidarcat run: read by lidarcat.pipeline.stages.mapping
+    "mapping": {"orthophotos": False, "surface": False, "gsd_m": False, "cell_m": False, "mosaic": False,
+                "images": False, "photos": False},
 }
 _REQUIRED_TABLES = ("survey", "files")
 _OBSERVATION_KINDS = ("corrected", "pixel")

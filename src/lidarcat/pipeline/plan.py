@@ -32,7 +32,7 @@ from .runner import (
     run_stages,
     safe_name,
 )
-from .stages import adjust, assess, camera, compare, extract, report, thesis
+from .stages import adjust, assess, camera, compare, extract, mapping, report, thesis
 from .stages.report import results
 
 __all__ = ["FROM_SURVEY", "plan_pipeline", "run_pipeline"]
@@ -163,10 +163,37 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
             params={"alpha": judged.alpha},
             skip_reason=None if has_runs else f"needs the control sets {' and '.join(thesis.RUNS)} of the thesis",
             description="thesis section 4.4 (Tables 8-15) beside this run"))
+    if "mapping" in survey_tables(survey):   # only surveys that ask for map products get the stage
+        stages.append(_mapping_stage(survey, runs, files_lidar))
     upstream = tuple(s.name for s in stages)
     stages.append(Stage("report", "report", report.run, uses=upstream,
                         inputs=lambda ctx: files, description="HTML / Markdown / JSON report"))
     return stages
+
+
+def survey_tables(survey: Any) -> set[str]:
+    """The top-level tables of the survey's survey.toml (none for the embedded block's missing file)."""
+    from .._io import read_toml
+
+    try:
+        return set(read_toml(survey.toml_path)[0])
+    except (OSError, LidarcatError):
+        return set()
+
+
+def _mapping_stage(survey: Any, runs: Sequence[tuple[str, bool]], files_lidar: list[Path]) -> Stage:
+    """Orthophotos / mosaic of the default run when survey.toml's [mapping] asks (stages/mapping.py)."""
+    cfg = mapping.settings(survey)
+    first = runs[0][0] if runs else None
+    why = ("[mapping] orthophotos = false" if not cfg["orthophotos"] else
+           "the survey has no LiDAR tiles ([files] lidar) for the surface model" if not survey.lidar_paths else
+           "no adjustment (control set) to take the orientations from" if first is None else None)
+    images = survey.root / (cfg.get("images") or "images")
+    return Stage("mapping", "mapping", mapping.run,
+                 requires=(f"adjust-{first}",) if why is None else (),
+                 inputs=lambda ctx: [*files_lidar, *sorted(p for p in images.glob("*") if p.is_file())],
+                 params={"adjust": f"adjust-{first}", **{k: v for k, v in cfg.items()}},
+                 skip_reason=why, description="orthophotos and mosaic of the adjusted photos ([mapping])")
 
 
 def run_pipeline(
