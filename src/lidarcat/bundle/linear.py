@@ -1,4 +1,4 @@
-r"""Linear algebra of the normal equations: the Schur complement and its factorisation.
+r"""Linear algebra of the normal equations: the reduced camera system and its solution.
 
 The normal equations of one Gauss-Newton / Levenberg-Marquardt step are
 
@@ -6,49 +6,50 @@ The normal equations of one Gauss-Newton / Levenberg-Marquardt step are
            \begin{bmatrix}\Delta_c\\\Delta_p\end{bmatrix} =
            \begin{bmatrix}b_c\\b_p\end{bmatrix}
 
-where ``U`` is block diagonal (6x6 per photo), ``V`` block diagonal (3x3 per
-point) and ``W`` holds one 6x3 block per observation.  The points are eliminated
-through the Schur complement, giving the reduced camera system
-``S = U - W V^-1 W^T`` (sparse: a 6x6 block for every pair of photos sharing a
-point, :func:`_reduce`), solved with a sparse symmetric-mode LU factorisation
-(:func:`_factor`, no pivoting, minimum-degree ordering on ``S + S^T``); then
-``Delta_p = V^-1 (b_p - W^T Delta_c)``.  A rank defect shows as a pivot at
-rounding level relative to the diagonal of ``S`` and raises :class:`_Singular`.
+where ``U`` is block diagonal (c x c per camera, c = 6 for the exterior
+orientation), ``V`` block diagonal (3 x 3 per point) and ``W`` holds one c x 3
+block ``W_a`` per observation a.  The points are eliminated through the Schur
+complement, the reduced camera system
+
+    S = U - W V^-1 W^T,      S_ik = delta_ik U_i - sum_{a, b: same point j} W_a V_j^-1 W_b^T
+
+(sparse: a block for every pair of cameras sharing a point), solved for
+``Delta_c``; then ``Delta_p = V^-1 (b_p - W^T Delta_c)``.
+
+Assembly (:class:`_Schur`).  The pattern of S, the list of the pairs (a, b),
+a < b, of observations of the same point, the slot of every pair in the block
+pattern and the gather from blocks to the CSR order of the scalar matrix are
+computed once per problem; every step then evaluates ``T_a = W_a V_j^-1`` and
+the pair products ``T_a W_b^T`` in chunks of fixed size (memory bounded
+whatever the block), summed into their slots with ``np.add.reduceat`` over
+slot-sorted pairs (no ``np.add.at``).  The factorisation is the supernodal
+Cholesky of :mod:`.cholesky`, its ordering and symbolic analysis reused in
+every step.
+
+Global parameters (the seam for self-calibration).  ``k`` parameters shared by
+all observations of a camera (interior orientation) or by a control source
+(frame offset) border S:  ``[[S_cc, S_cg], [S_gc, S_gg]]``.  They are one more
+unit of size k in the root supernode of the factor (:class:`SupernodalCholesky`
+takes ``root_units``), so the solve and the selected inverse carry them with
+no other change; the model supplies the per-observation blocks.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+
+from .._collinearity import block_sum
+from .cholesky import SingularError, SupernodalCholesky
 
 __all__: list[str] = []
+
+#: observation pairs evaluated per chunk in the assembly of S
+CHUNK_PAIRS = 1 << 16
 
 
 class _Singular(Exception):
     pass
-
-
-def _block_sparse(rows: np.ndarray, cols: np.ndarray, blocks: np.ndarray, shape: tuple[int, int]) -> sp.csr_matrix:
-    """Sparse matrix from (m, a, b) blocks at block row/col indices (duplicates summed)."""
-    m, a, b = blocks.shape
-    r = (rows[:, None, None] * a + np.arange(a)[None, :, None]) + np.zeros((1, 1, b), dtype=np.int64)
-    c = (cols[:, None, None] * b + np.arange(b)[None, None, :]) + np.zeros((1, a, 1), dtype=np.int64)
-    return sp.csr_matrix((blocks.ravel(), (r.ravel(), c.ravel())), shape=shape)
-
-
-def _reduce(ei: np.ndarray, pj: np.ndarray, U: np.ndarray, V: np.ndarray, W: np.ndarray):
-    """Schur complement of the point blocks: S = U - W V^-1 W^T (sparse, 6P x 6P).
-
-    Returns ``S`` (csc), ``V^-1`` (Q, 3, 3), ``Tm`` = W V^-1 and ``Wm`` = W as sparse
-    (6P x 3Q) matrices.
-    """
-    n_ph, n_pt = len(U), len(V)
-    vinv = _inv3(V)
-    Tm = _block_sparse(ei, pj, W @ vinv[pj], (6 * n_ph, 3 * n_pt))
-    Wm = _block_sparse(ei, pj, W, (6 * n_ph, 3 * n_pt))
-    Ub = _block_sparse(np.arange(n_ph), np.arange(n_ph), U, (6 * n_ph, 6 * n_ph))
-    return (Ub - Tm @ Wm.T).tocsc(), vinv, Tm, Wm
 
 
 def _inv3(V: np.ndarray) -> np.ndarray:
@@ -59,18 +60,136 @@ def _inv3(V: np.ndarray) -> np.ndarray:
     return np.linalg.inv(V)
 
 
-def _factor(S: sp.csc_matrix):
-    try:
-        # symmetric positive definite: symmetric ordering, no pivoting (much less fill)
-        lu = spla.splu(S, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                       options={"SymmetricMode": True})
-    except RuntimeError as ex:  # "Factor is exactly singular"
-        raise _Singular(f"reduced camera system is singular ({ex})") from ex
-    # a rank defect shows as pivots at rounding level relative to the diagonal of S
-    piv = np.abs(lu.U.diagonal())
-    diag = np.abs(S.diagonal())[lu.perm_c]
-    ratio = piv / np.where(diag > 0, diag, 1.0)
-    if not np.all(np.isfinite(piv)) or ratio.min() < 1e-11:
-        raise _Singular(f"reduced camera system is singular (relative pivot {ratio.min():.1e}: "
-                        "datum defect or a photo with degenerate geometry)")
-    return lu
+def _observation_pairs(pj: np.ndarray, n_pt: int, *, diagonal: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (a, b) of observations of the same point: all ordered pairs (a == b
+    included) with *diagonal*, else the unordered pairs a < b (in point order)."""
+    order = np.argsort(pj, kind="stable")
+    counts = np.bincount(pj, minlength=n_pt)
+    starts = np.r_[0, np.cumsum(counts)[:-1]]
+    a_list, b_list = [], []
+    for m in np.unique(counts):
+        if m == 0 or (m == 1 and not diagonal):
+            continue
+        js = np.flatnonzero(counts == m)
+        if diagonal:
+            ii, kk = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+        else:
+            ii, kk = np.triu_indices(m, 1)
+        ii, kk = ii.ravel(), kk.ravel()
+        a_list.append(order[(starts[js][:, None] + ii[None, :]).ravel()])
+        b_list.append(order[(starts[js][:, None] + kk[None, :]).ravel()])
+    if not a_list:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    return np.concatenate(a_list), np.concatenate(b_list)
+
+
+class _Schur:
+    """The reduced camera system of one observation pattern (analysed once).
+
+    Parameters
+    ----------
+    camera_index, point_index : (n,) int
+        Camera and point of every observation.
+    n_cameras, n_points : int
+    camera_size : int
+        Parameters per camera (6: exterior orientation; 9: BAL).
+    """
+
+    def __init__(self, camera_index: np.ndarray, point_index: np.ndarray, n_cameras: int, n_points: int,
+                 camera_size: int = 6):
+        ei, pj = np.asarray(camera_index), np.asarray(point_index)
+        self.ei, self.pj = ei, pj
+        self.n_cameras, self.n_points, self.cb = n_cameras, n_points, camera_size
+        cb = camera_size
+        oa, ob = _observation_pairs(pj, n_points, diagonal=False)
+        ia, ib = ei[oa], ei[ob]
+        swap = ia > ib                                   # upper triangle: camera ia < ib
+        oa, ob = np.where(swap, ob, oa), np.where(swap, oa, ob)
+        ia, ib = ei[oa], ei[ob]
+        # block pattern: the diagonal and every camera pair (both triangles)
+        diag = np.arange(n_cameras)
+        br = np.r_[diag, ia, ib]
+        bc = np.r_[diag, ib, ia]
+        bpat = sp.csr_matrix((np.ones(len(br)), (br, bc)), shape=(n_cameras, n_cameras))
+        bpat.sum_duplicates()
+        bpat.sort_indices()
+        bpat.data = np.arange(bpat.nnz, dtype=float)      # slot number of every block
+        self.n_slots = bpat.nnz
+        self.slot_diag = _slots(bpat, diag, diag)
+        s_up = _slots(bpat, ia, ib)
+        order = np.argsort(s_up, kind="stable")          # pairs sorted by slot (for reduceat)
+        self.oa, self.ob, self.s_up = oa[order], ob[order], s_up[order]
+        self.up_slots = np.unique(self.s_up)
+        ui, uk = _slot_rc(bpat, self.up_slots)
+        self.lo_slots = _slots(bpat, uk, ui)
+        # scalar CSR pattern: row cb I + a holds, block after block of row I, its cb columns;
+        # source (slot s, a, b) of block row I goes to
+        # cb^2 indptr[I] + a cb cnt[I] + (s - indptr[I]) cb + b
+        indptr, cnt = bpat.indptr, np.diff(bpat.indptr)
+        s_all = np.arange(self.n_slots)
+        I = np.repeat(np.arange(n_cameras), cnt)
+        ar = np.arange(cb)
+        dest = (cb * cb * indptr[I][:, None, None] + ar[None, :, None] * cb * cnt[I][:, None, None]
+                + (s_all - indptr[I])[:, None, None] * cb + ar[None, None, :])
+        total = self.n_slots * cb * cb
+        self.gather = np.empty(total, dtype=np.int64)
+        self.gather[dest.ravel()] = np.arange(total)
+        scal_cols = np.empty(total, dtype=np.int64)
+        scal_cols[dest.ravel()] = np.broadcast_to(bpat.indices[:, None, None] * cb + ar[None, None, :],
+                                                  dest.shape).ravel()
+        scal_indptr = np.r_[0, np.cumsum(np.repeat(cnt * cb, cb))]
+        self.pattern = sp.csr_matrix((np.ones(total), scal_cols, scal_indptr),
+                                     shape=(n_cameras * cb, n_cameras * cb))
+        self.chol = SupernodalCholesky(self.pattern, np.full(n_cameras, cb))
+        self._zloc = None
+
+    # -----------------------------------------------------------------------
+
+    def assemble(self, U: np.ndarray, vinv: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """CSR data of S (pattern :attr:`pattern`) and T = W V^-1 (n, cb, 3)."""
+        T = W @ vinv[self.pj]                                   # (n, cb, 3)
+        blocks = np.zeros((self.n_slots, self.cb, self.cb))
+        blocks[self.slot_diag] = U - block_sum(self.ei, T @ np.transpose(W, (0, 2, 1)), self.n_cameras)
+        n = len(self.oa)
+        for c0 in range(0, n, CHUNK_PAIRS):
+            c1 = min(n, c0 + CHUNK_PAIRS)
+            vals = T[self.oa[c0:c1]] @ np.transpose(W[self.ob[c0:c1]], (0, 2, 1))
+            s = self.s_up[c0:c1]
+            start = np.r_[0, np.flatnonzero(np.diff(s)) + 1]
+            blocks[s[start]] -= np.add.reduceat(vals, start, axis=0)
+        blocks[self.lo_slots] = np.transpose(blocks[self.up_slots], (0, 2, 1))
+        return blocks.ravel()[self.gather], T
+
+    def factor(self, data: np.ndarray):
+        """Supernodal Cholesky of S with CSR *data*; :class:`_Singular` if not positive definite."""
+        try:
+            return self.chol.factor(data)
+        except SingularError as ex:
+            raise _Singular(f"reduced camera system is singular ({ex}: datum defect or a photo with "
+                            "degenerate geometry)") from ex
+
+    def solve(self, U, V, W, g_c, g_p):
+        """Corrections (cameras (C, cb), points (Q, 3)) of the normal equations with gradient g."""
+        vinv = _inv3(V)
+        data, T = self.assemble(U, vinv, W)
+        b_c, b_p = -g_c, -g_p
+        rhs = b_c - block_sum(self.ei, np.einsum("nij,nj->ni", T, b_p[self.pj]), self.n_cameras)
+        dc = self.factor(data).solve(rhs.reshape(-1)).reshape(self.n_cameras, self.cb)
+        bp = b_p - block_sum(self.pj, np.einsum("nij,ni->nj", W, dc[self.ei]), self.n_points)
+        dp = np.einsum("qij,qj->qi", vinv, bp)
+        return dc, dp
+
+
+def _slots(bpat: sp.csr_matrix, r: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Slot (position in the CSR data) of blocks (r, c) of a sorted block pattern."""
+    r = np.asarray(r, dtype=np.int64)
+    c = np.asarray(c, dtype=np.int64)
+    n = bpat.shape[1]
+    keys = np.repeat(np.arange(bpat.shape[0]), np.diff(bpat.indptr)) * n + bpat.indices
+    pos = np.searchsorted(keys, r * n + c)
+    return pos
+
+
+def _slot_rc(bpat: sp.csr_matrix, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    rows = np.repeat(np.arange(bpat.shape[0]), np.diff(bpat.indptr))
+    return rows[slots], bpat.indices[slots]

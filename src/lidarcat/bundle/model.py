@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from .._collinearity import block_sum, project, project_with_jacobians
-from .linear import _factor, _reduce
+from .linear import _Schur
 from .problem import BundleProblem
 
 __all__: list[str] = []
@@ -45,13 +45,19 @@ def _constraint_terms(p: BundleProblem, eo: np.ndarray, pts: np.ndarray):
     return r_con, w_con, r_eo, w_eo
 
 
-
 class _System:
-    """Normal-equation blocks of one linearisation."""
+    """Normal-equation blocks of one linearisation.
 
-    def __init__(self, problem: BundleProblem, eo: np.ndarray, pts: np.ndarray):
+    *schur* (:class:`lidarcat.bundle.linear._Schur`) is the analysed pattern of
+    the reduced camera system, shared by every linearisation of one problem
+    (built here when not given).
+    """
+
+    def __init__(self, problem: BundleProblem, eo: np.ndarray, pts: np.ndarray, schur: _Schur | None = None):
         p = problem
         self.p = p
+        self.schur = schur if schur is not None else _Schur(p.photo_index, p.point_index, p.n_photos,
+                                                            p.n_points)
         ei, pj = p.photo_index, p.point_index
         xy, a_eo, a_pt, u3 = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
         self.u3 = u3
@@ -84,25 +90,13 @@ class _System:
         self.vtpv = vtpv
 
     def solve(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
-        """Corrections (P, 6), (Q, 3) of the damped normal equations."""
-        p = self.p
+        """Corrections (P, 6), (Q, 3) of the damped normal equations (``N + lam diag(N)``)."""
         U, V = self.U.copy(), self.V.copy()
         if lam > 0:
             iu, iv = np.arange(6), np.arange(3)
             U[:, iu, iu] *= 1.0 + lam
             V[:, iv, iv] *= 1.0 + lam
-        S, vinv, Tm, Wm = _reduce(p.photo_index, p.point_index, U, V, self.W)
-        b_c = -self.g_c.reshape(-1)
-        b_p = -self.g_p.reshape(-1)
-        rhs = b_c - Tm @ b_p
-        dc = _factor(S).solve(rhs)
-        bp = (b_p - Wm.T @ dc).reshape(p.n_points, 3)
-        dp = np.einsum("qij,qj->qi", vinv, bp)
-        return dc.reshape(p.n_photos, 6), dp
-
-    def reduced_system(self):
-        """Undamped ``S``, ``V^-1``, ``Tm``, ``Wm`` of :func:`_reduce`."""
-        return _reduce(self.p.photo_index, self.p.point_index, self.U, self.V, self.W)
+        return self.schur.solve(U, V, self.W, self.g_c, self.g_p)
 
 
 def _cost(problem: BundleProblem, eo: np.ndarray, pts: np.ndarray) -> float:

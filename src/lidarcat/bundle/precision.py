@@ -1,19 +1,34 @@
 r"""Precision of the adjusted parameters: blocks of the inverse normal matrix.
 
 ``Sigma_X = f N^-1`` with ``f = 1`` (a priori, the thesis tables) or
-``f = v'Pv / dof`` (a posteriori).  Only the blocks that are needed are computed:
-``Z = S^-1`` inside the block band of ``S`` (photos ordered by reverse
-Cuthill-McKee, banded Cholesky ``S = L L^T``, then the Takahashi recursion
-``Z[I, j] = -Z[I, I] L[I, j] L[j, j]^-1``, ``Z[j, j] = L[j, j]^-T L[j, j]^-1 -
-Z[I, j]^T L[I, j] L[j, j]^-1`` from the last photo to the first), which holds the
-6x6 block of every photo and of every pair of photos sharing a point; and for
-every point ``V_j^-1 + T_j^T Z T_j`` with ``T_j = W_j V_j^-1``.  No dense inverse
-of the whole system is formed; the work is O(P beta^2) for block bandwidth beta
-(batched sparse solves are the fallback for blocks without a narrow band).
+``f = v'Pv / dof`` (a posteriori).  With the points eliminated
+(:mod:`.linear`), the blocks of ``N^-1`` follow from ``Z = S^-1``:
 
-:func:`covariance_blocks` gives the photo and point blocks of one linearisation;
-:func:`joint_point_covariance` the whole covariance of a set of points,
-cross-covariances included.
+    Cov(c_i, c_k)  = Z_ik
+    Cov(c_i, X_j)  = -sum_{b: obs of j} Z_{i, i_b} T_b                 (T_b = W_b V_j^-1)
+    Cov(X_j)       = V_j^-1 + sum_{a, b: obs of j} T_a^T Z_{i_a, i_b} T_b
+
+Every ``Z`` block these need -- the diagonal block of every camera and the block
+of every pair of cameras sharing a point -- lies on the pattern of the Cholesky
+factor of ``S``, so the selected inversion of :mod:`.cholesky` (Takahashi
+recursion over supernodes) gives them without a dense inverse: its work is a
+few times that of the factorisation.  The pair sums run in chunks of fixed size
+over the observation pairs of :class:`lidarcat.bundle.linear._Schur`.
+
+Functions
+---------
+:func:`covariance_blocks` ``(system, precision="all") -> (cam_cov (P, 6, 6), point_cov (Q, 3, 3))``
+    photo and point blocks of one linearisation (``precision="photos"``: point
+    blocks NaN; ``"none"``: both NaN, nothing computed).
+:func:`observation_blocks` ``(system) -> (n, 9, 9)``
+    for every image observation a = (photo i, point j), the covariance of
+    ``[eo_i (6), X_j (3)]``: ``[[Z_ii, C_ij], [C_ij^T, Cov(X_j)]]`` with the
+    cross block ``C_ij = Cov(c_i, X_j)`` above (blunder detection: redundancy
+    numbers and standardised residuals need ``A_a Sigma A_a^T``).
+:func:`joint_point_covariance` ``(result, points) -> (3k, 3k)``
+    the whole covariance of a set of points, cross-covariances included.
+
+All are a priori (factor 1); :func:`lidarcat.bundle.adjust` scales its result.
 """
 
 from __future__ import annotations
@@ -26,173 +41,142 @@ import scipy.sparse as sp
 
 from .._collinearity import block_sum
 from ..errors import DatumError
-from .linear import _factor, _Singular
+from .linear import CHUNK_PAIRS, _inv3, _Singular
 from .model import _System
 
 if TYPE_CHECKING:  # pragma: no cover
     from .solve import BundleResult
 
-__all__ = ["covariance_blocks", "joint_point_covariance"]
+__all__ = ["PRECISION_LEVELS", "covariance_blocks", "observation_blocks", "joint_point_covariance"]
+
+#: values of the ``precision`` switch: nothing, the photo blocks, photo and point blocks
+PRECISION_LEVELS = ("none", "photos", "all")
 
 
-def covariance_blocks(system: _System, method: str = "auto") -> tuple[np.ndarray, np.ndarray]:
-    """Blocks of N^-1: (P, 6, 6) per photo and (Q, 3, 3) per point.
+def _factorised(system: _System):
+    """Factor of the undamped S, V^-1 and T = W V^-1 of one linearisation."""
+    schur = system.schur
+    vinv = _inv3(system.V)
+    data, T = schur.assemble(system.U, vinv, system.W)
+    return schur.factor(data), vinv, T
 
-    ``method``: ``"banded"`` (block Takahashi recursion on a banded Cholesky
-    factor after reverse Cuthill-McKee ordering of the photos: work
-    O(P beta^2), beta the block bandwidth), ``"solve"`` (batched sparse solves
-    for all columns of S^-1: O(P nnz(L))) or ``"auto"`` (banded when the
-    bandwidth is small against P).
+
+class _Blocks:
+    """Selected inverse of S with the locations of the camera and pair blocks."""
+
+    def __init__(self, system: _System):
+        self.schur = schur = system.schur
+        self.factor, self.vinv, self.T = _factorised(system)
+        self.Z = self.factor.selected_inverse()
+        if schur._zloc is None:                # the locations depend on the pattern only
+            cams = np.arange(schur.n_cameras)
+            schur._zloc = (schur.chol.locate(cams, cams),
+                           schur.chol.locate(system.p.photo_index[schur.oa], system.p.photo_index[schur.ob]))
+        self.loc_diag, self.loc_pair = schur._zloc
+
+    def cameras(self) -> np.ndarray:
+        cb = self.schur.cb
+        z = self.Z.gather(self.loc_diag, cb, cb)
+        return 0.5 * (z + np.transpose(z, (0, 2, 1)))
+
+    def pair(self, c0: int, c1: int) -> np.ndarray:
+        """Z[i_a, i_b] of the observation pairs c0:c1 of the Schur pattern (a < b)."""
+        base, rs, cs = self.loc_pair
+        cb = self.schur.cb
+        return self.Z.gather((base[c0:c1], rs[c0:c1], cs[c0:c1]), cb, cb)
+
+
+def covariance_blocks(system: _System, precision: str = "all") -> tuple[np.ndarray, np.ndarray]:
+    """Blocks of N^-1 (a priori): (P, 6, 6) per photo and (Q, 3, 3) per point.
+
+    Parameters
+    ----------
+    system : _System
+        A linearisation (normally at the solution).
+    precision : {"all", "photos", "none"}
+        What to compute; the rest is NaN.
+
+    Raises
+    ------
+    ValueError
+        An unknown *precision*.
+    _Singular
+        The normal equations are singular.
+    """
+    if precision not in PRECISION_LEVELS:
+        raise ValueError(f"`precision` must be one of {', '.join(PRECISION_LEVELS)}, got {precision!r}")
+    p = system.p
+    cb = system.schur.cb
+    cam_cov = np.full((p.n_photos, cb, cb), np.nan)
+    point_cov = np.full((p.n_points, 3, 3), np.nan)
+    if precision == "none":
+        return cam_cov, point_cov
+    blk = _Blocks(system)
+    cam_cov = blk.cameras()
+    if precision == "photos":
+        return cam_cov, point_cov
+    T, pj, ei = blk.T, p.point_index, p.photo_index
+    Tt = np.transpose(T, (0, 2, 1))
+    # a == b: T_a^T Z_ii T_a
+    point_cov = blk.vinv + block_sum(pj, Tt @ cam_cov[ei] @ T, p.n_points)
+    schur = system.schur
+    n = len(schur.oa)
+    for c0 in range(0, n, CHUNK_PAIRS):
+        c1 = min(n, c0 + CHUNK_PAIRS)
+        oa, ob = schur.oa[c0:c1], schur.ob[c0:c1]
+        x = Tt[oa] @ blk.pair(c0, c1) @ T[ob]                   # a < b: x + x^T
+        point_cov += block_sum(pj[oa], x + np.transpose(x, (0, 2, 1)), p.n_points)
+    point_cov = 0.5 * (point_cov + np.transpose(point_cov, (0, 2, 1)))
+    return cam_cov, point_cov
+
+
+def observation_blocks(system: _System) -> np.ndarray:
+    """Joint covariance of ``[eo_i, X_j]`` for every image observation (photo i, point j), a priori.
+
+    Parameters
+    ----------
+    system : _System
+        A linearisation (normally at the solution).
+
+    Returns
+    -------
+    (n, 9, 9) array
+        In the order of the problem's observations: rows/columns 0-5 the
+        exterior orientation of the photo (m, rad), 6-8 the point (m).
+        Computed through the same selected inverse as :func:`covariance_blocks`.
+
+    Raises
+    ------
+    _Singular
+        The normal equations are singular.
     """
     p = system.p
-    n_ph, n_pt = p.n_photos, p.n_points
-    pj, ei = p.point_index, p.photo_index
-    S, vinv, _, _ = system.reduced_system()
-    T = system.W @ vinv[pj]                                  # (n, 6, 3)
-    oa, ob = _observation_pairs(pj, n_pt)
-    pi, pk = ei[oa], ei[ob]
-    getter = None
-    if method in ("auto", "banded"):
-        getter = _banded_selected_inverse(S, n_ph, force=method == "banded")
-    if getter is not None:
-        eo_cov = getter(np.arange(n_ph), np.arange(n_ph))
-        blocks_pair = getter(pi, pk)
-    else:
-        eo_cov, blocks_pair = _solve_selected_inverse(S, n_ph, pi, pk)
-    # point blocks: V^-1 + sum_{a,b} T_a^T C_ik T_b over pairs of rays of the point
-    contrib = (np.transpose(T[oa], (0, 2, 1)) @ blocks_pair) @ T[ob]
-    point_cov = vinv + block_sum(pj[oa], contrib, n_pt)
-    eo_cov = 0.5 * (eo_cov + np.transpose(eo_cov, (0, 2, 1)))
+    cb = system.schur.cb
+    blk = _Blocks(system)
+    cam_cov = blk.cameras()
+    T, pj, ei = blk.T, p.point_index, p.photo_index
+    Tt = np.transpose(T, (0, 2, 1))
+    n_obs = len(pj)
+    # cross[a] = Cov(c_{i_a}, X_{j_a}) = -sum_b Z[i_a, i_b] T_b over observations b of the point
+    cross = -(cam_cov[ei] @ T)
+    point_cov = blk.vinv + block_sum(pj, Tt @ cam_cov[ei] @ T, p.n_points)
+    schur = system.schur
+    n = len(schur.oa)
+    for c0 in range(0, n, CHUNK_PAIRS):
+        c1 = min(n, c0 + CHUNK_PAIRS)
+        oa, ob = schur.oa[c0:c1], schur.ob[c0:c1]
+        z = blk.pair(c0, c1)                                       # Z[i_a, i_b]
+        cross -= block_sum(oa, z @ T[ob], n_obs)
+        cross -= block_sum(ob, np.transpose(z, (0, 2, 1)) @ T[oa], n_obs)
+        x = Tt[oa] @ z @ T[ob]
+        point_cov += block_sum(pj[oa], x + np.transpose(x, (0, 2, 1)), p.n_points)
     point_cov = 0.5 * (point_cov + np.transpose(point_cov, (0, 2, 1)))
-    return eo_cov, point_cov
-
-
-def _observation_pairs(pj: np.ndarray, n_pt: int) -> tuple[np.ndarray, np.ndarray]:
-    """All ordered pairs (a, b) of observations of the same point (including a == b)."""
-    order = np.argsort(pj, kind="stable")
-    counts = np.bincount(pj, minlength=n_pt)
-    starts = np.r_[0, np.cumsum(counts)[:-1]]
-    a_list, b_list = [], []
-    for m in np.unique(counts):
-        if m == 0:
-            continue
-        js = np.flatnonzero(counts == m)
-        base = starts[js][:, None] + np.arange(m)[None, :]
-        a_list.append(order[np.repeat(base, m, axis=1).ravel()])
-        b_list.append(order[np.tile(base, (1, m)).ravel()])
-    if not a_list:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    return np.concatenate(a_list), np.concatenate(b_list)
-
-
-def _solve_selected_inverse(S: sp.csc_matrix, n_ph: int, pi: np.ndarray, pk: np.ndarray,
-                            batch: int = 64) -> tuple[np.ndarray, np.ndarray]:
-    """Diagonal blocks and blocks (pi, pk) of S^-1 by batched sparse solves."""
-    lu = _factor(S)
-    eo_cov = np.empty((n_ph, 6, 6))
-    blocks_pair = np.empty((len(pi), 6, 6))
-    col_order = np.argsort(pk, kind="stable")
-    pk_sorted = pk[col_order]
-    for k0 in range(0, n_ph, batch):
-        k1 = min(n_ph, k0 + batch)
-        nb = k1 - k0
-        rhs = np.zeros((6 * n_ph, 6 * nb))
-        rhs[6 * k0:6 * k1, :] = np.eye(6 * nb)
-        Xb = lu.solve(rhs).reshape(n_ph, 6, nb, 6)          # columns of S^-1 for photos k0..k1
-        kk = np.arange(nb)
-        eo_cov[k0:k1] = Xb[k0 + kk, :, kk, :]
-        lo, hi = np.searchsorted(pk_sorted, [k0, k1])
-        sel = col_order[lo:hi]
-        blocks_pair[sel] = Xb[pi[sel], :, pk[sel] - k0, :]
-    return eo_cov, blocks_pair
-
-
-def _banded_selected_inverse(S: sp.csc_matrix, n_ph: int, force: bool = False):
-    """Selected inverse of S within its block band (Takahashi recursion), or None.
-
-    The photos are ordered by reverse Cuthill-McKee; S = L L^T is factored in
-    LAPACK band storage; then for block columns j = P-1 .. 0, with I the block
-    rows of the band below j (all within the band of each other):
-
-        Z[I, j] = -Z[I, I] L[I, j] L[j, j]^-1
-        Z[j, j] = L[j, j]^-T L[j, j]^-1 - Z[I, j]^T L[I, j] L[j, j]^-1
-
-    which only reads and writes Z inside the band.  Returns a function
-    ``get(i, k) -> (m, 6, 6)`` blocks of S^-1 for photo indices i, k sharing a
-    point (inside the band), or None when the band is too wide to pay off.
-    """
-    import scipy.linalg as sla
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
-
-    coo = S.tocoo()
-    br, bc = coo.row // 6, coo.col // 6
-    graph = sp.csr_matrix((np.ones(len(br)), (br, bc)), shape=(n_ph, n_ph))
-    perm = np.asarray(reverse_cuthill_mckee(graph, symmetric_mode=True), dtype=np.int64)
-    pos = np.empty(n_ph, dtype=np.int64)
-    pos[perm] = np.arange(n_ph)
-    beta = int(np.abs(pos[br] - pos[bc]).max(initial=0))
-    if not force and n_ph > 8 and beta > n_ph // 3:
-        return None
-    n = 6 * n_ph
-    bw = 6 * beta + 5                                        # scalar lower bandwidth
-    r = pos[br] * 6 + coo.row % 6
-    c = pos[bc] * 6 + coo.col % 6
-    low = r >= c
-    ab = np.zeros((bw + 1, n))
-    np.add.at(ab, (r[low] - c[low], c[low]), coo.data[low])
-    try:
-        lb = sla.cholesky_banded(ab, lower=True, check_finite=False)
-    except np.linalg.LinAlgError as ex:
-        raise _Singular(f"reduced camera system is not positive definite ({ex})") from ex
-    diag = ab[0]
-    if np.any(lb[0] ** 2 < 1e-11 * np.where(diag > 0, diag, 1.0)):
-        raise _Singular("reduced camera system is singular (datum defect or degenerate photo)")
-
-    def lblock(rows0: int, nrows: int, col0: int) -> np.ndarray:
-        """L[rows0:rows0+nrows, col0:col0+6] from band storage (zeros outside)."""
-        rr = rows0 + np.arange(nrows)[:, None]
-        cc = col0 + np.arange(6)[None, :]
-        d = rr - cc
-        ok = (d >= 0) & (d <= bw)
-        out = np.zeros((nrows, 6))
-        out[ok] = lb[d[ok], np.broadcast_to(cc, d.shape)[ok]]
-        return out
-
-    zb = np.zeros((n_ph, beta + 1, 6, 6))                   # zb[i, d] = Z[i, i + d] (permuted order)
-    for jb in range(n_ph - 1, -1, -1):
-        j0 = 6 * jb
-        m = min(beta, n_ph - 1 - jb)
-        ljj = lblock(j0, 6, j0)
-        ljj_inv = sla.solve_triangular(ljj, np.eye(6), lower=True, check_finite=False)
-        if m:
-            lij = lblock(j0 + 6, 6 * m, j0)
-            x = lij @ ljj_inv                                # L[I, j] L[j, j]^-1
-            a = np.arange(1, m + 1)
-            aa, cc = np.meshgrid(a, a, indexing="ij")
-            lo = np.minimum(aa, cc)
-            blocks = zb[jb + lo, np.abs(aa - cc)]            # (m, m, 6, 6), upper-stored
-            lower = aa > cc
-            blocks[lower] = np.transpose(blocks[lower], (0, 2, 1))
-            zii = blocks.transpose(0, 2, 1, 3).reshape(6 * m, 6 * m)
-            zij = -zii @ x                                   # (6m, 6)
-            zjj = ljj_inv.T @ ljj_inv - zij.T @ x
-            zb[jb, 1:m + 1] = np.transpose(zij.reshape(m, 6, 6), (0, 2, 1))
-        else:
-            zjj = ljj_inv.T @ ljj_inv
-        zb[jb, 0] = 0.5 * (zjj + zjj.T)
-
-    def get(i: np.ndarray, k: np.ndarray) -> np.ndarray:
-        pi_, pk_ = pos[np.asarray(i)], pos[np.asarray(k)]
-        lo = np.minimum(pi_, pk_)
-        d = np.abs(pi_ - pk_)
-        if np.any(d > beta):
-            raise ValueError("requested block outside the band of S")
-        out = zb[lo, d].copy()
-        swap = pi_ > pk_
-        out[swap] = np.transpose(out[swap], (0, 2, 1))
-        return out
-
-    return get
+    out = np.empty((n_obs, cb + 3, cb + 3))
+    out[:, :cb, :cb] = cam_cov[ei]
+    out[:, :cb, cb:] = cross
+    out[:, cb:, :cb] = np.transpose(cross, (0, 2, 1))
+    out[:, cb:, cb:] = point_cov[pj]
+    return out
 
 
 def joint_point_covariance(result: BundleResult, points: Sequence[str], *, batch: int = 96) -> np.ndarray:
@@ -206,7 +190,7 @@ def joint_point_covariance(result: BundleResult, points: Sequence[str], *, batch
     matrix ``C[a, b] = V_a^-1 delta_ab + T_a^T S^-1 T_b`` (Schur complement
     of the point blocks: S the reduced camera system, T_a = W_a V_a^-1).
 
-    Work: one sparse factorisation of S and 3k solves in batches of *batch*
+    Work: one supernodal factorisation of S and 3k solves in batches of *batch*
     columns; memory O(6 P batch + 9 k^2), never the dense N^-1.
 
     Parameters
@@ -243,11 +227,17 @@ def joint_point_covariance(result: BundleResult, points: Sequence[str], *, batch
     sel = np.array([index[q] for q in ids])
     system = _System(p, np.asarray(result.eo_params), np.asarray(result.points_m))
     try:
-        S, vinv, Tm, _ = system.reduced_system()
-        lu = _factor(S)
+        lu, vinv, T = _factorised(system)
     except _Singular as ex:
         raise DatumError(f"joint covariance: {ex}") from ex
-    B = Tm.tocsc()[:, (3 * sel[:, None] + np.arange(3)[None, :]).ravel()]
+    # B = the columns of T W^-1-style coupling of the selected points: (cb P, 3k), sparse
+    col_of = np.full(p.n_points, -1)
+    col_of[sel] = np.arange(k)
+    obs = np.flatnonzero(col_of[p.point_index] >= 0)
+    cb = system.schur.cb
+    rr = (p.photo_index[obs][:, None, None] * cb + np.arange(cb)[None, :, None]) + np.zeros((1, 1, 3), np.int64)
+    cc = (col_of[p.point_index[obs]][:, None, None] * 3 + np.arange(3)[None, None, :]) + np.zeros((1, cb, 1), np.int64)
+    B = sp.csc_matrix((T[obs].ravel(), (rr.ravel(), cc.ravel())), shape=(cb * p.n_photos, 3 * k))
     BT = B.T.tocsr()
     C = np.empty((3 * k, 3 * k))
     for c0 in range(0, 3 * k, batch):

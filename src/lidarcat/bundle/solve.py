@@ -24,8 +24,8 @@ import numpy as np
 from .._approx import approximations, intersect_points
 from .._frozen import frozen_array
 from .model import _cost, _System
-from .linear import _Singular
-from .precision import covariance_blocks
+from .linear import _Schur, _Singular
+from .precision import PRECISION_LEVELS, covariance_blocks
 from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
 
 __all__ = ["BundleResult", "adjust", "STATUS_MESSAGES"]
@@ -247,6 +247,7 @@ def adjust(
     chi2_level: float = 0.05,
     damping: bool = True,
     check: bool = True,
+    precision: str = "all",
     progress: Callable[[int, float], None] | None = None,
 ) -> BundleResult:
     """Simultaneous bundle adjustment with weighted position constraints.
@@ -275,6 +276,9 @@ def adjust(
         plain Gauss-Newton.
     check : bool
         Run :func:`check_datum` first.
+    precision : {"all", "photos", "none"}
+        Covariance blocks to compute at the solution: of every photo and point,
+        of the photos only (``point_cov`` NaN), or none (both NaN; the fastest).
     progress : callable(iteration, vtpv), optional
 
     Returns
@@ -292,6 +296,8 @@ def adjust(
         raise ValueError("`variance_factor` must be 'a_priori' or 'a_posteriori'")
     if not 0 < chi2_level < 1:
         raise ValueError("`chi2_level` must be in (0, 1)")
+    if precision not in PRECISION_LEVELS:
+        raise ValueError(f"`precision` must be one of {', '.join(PRECISION_LEVELS)}, got {precision!r}")
     t0 = time.perf_counter()
     p = problem
     if check:
@@ -311,8 +317,9 @@ def adjust(
     n_iter = 0
     history: list[float] = []
     system = None
+    schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points)   # pattern of S, analysed once
     try:
-        system = _System(p, eo, pts)
+        system = _System(p, eo, pts, schur)
         cost = system.vtpv if np.all(system.u3 < 0) else _cost(p, eo, pts)
         history.append(cost)
         while n_iter < max_iter:
@@ -346,18 +353,18 @@ def adjust(
                 break
             if damping:
                 lam = lam / 10.0 if lam > 1e-12 else 0.0
-            system = _System(p, eo, pts)
+            system = _System(p, eo, pts, schur)
             if small and dcost < tol_vtpv:
                 status = "converged"
                 break
-        eo_cov, point_cov = covariance_blocks(system)       # system is linearised at (eo, pts)
+        eo_cov, point_cov = covariance_blocks(system, precision)  # system is linearised at (eo, pts)
     except _Singular as ex:
         status = "singular"
         log.warning("bundle adjustment: %s", ex)
         eo_cov = np.full((p.n_photos, 6, 6), np.nan)
         point_cov = np.full((p.n_points, 3, 3), np.nan)
         if system is None:
-            system = _System(p, eo, pts)
+            system = _System(p, eo, pts, schur)
         message_extra = f": {ex}"
     else:
         message_extra = ""
