@@ -1,0 +1,269 @@
+"""Self-calibration, frame offsets and their significance (issue 13).
+
+Synthetic truth: :func:`lidarcat._synthetic_block.selfcal_block` (a camera off
+its certificate by known c, x0, y0, K1; LiDAR control shifted by a known
+0.3 / -0.2 / 0.4 m).  Jacobians are checked by central finite differences, the
+bordered solve and its precision against the dense normal equations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from lidarcat._synthetic_block import selfcal_block, synthetic_block
+from lidarcat.bundle import adjust
+from lidarcat.bundle.additional import (AdditionalParameterError, GnssLineOffsets, SelfCalibration,
+                                        parse_parameters)
+from lidarcat.bundle.frame_offset import FrameOffset, frame_offset_from_sources
+from lidarcat.bundle.linear import _Schur
+from lidarcat._collinearity import project
+from lidarcat.bundle.selfcal import _BorderedSystem, _Globals, _State, adjust_with_parameters
+from lidarcat.camera import Camera
+
+def _components(b, params="c,x0,y0,k1", similarity=False):
+    p = b.problem
+    return [SelfCalibration({"cam": b.camera}, ["cam"] * p.n_photos, params),
+            frame_offset_from_sources(p, b.control_source, "lidar", "gps", similarity=similarity)]
+
+
+@pytest.fixture(scope="module")
+def block():
+    return selfcal_block(1)
+
+
+@pytest.fixture(scope="module")
+def solved(block):
+    return adjust_with_parameters(block.problem, _components(block))
+
+
+# ---------------------------------------------------------------------------
+# model: Jacobians by finite differences
+# ---------------------------------------------------------------------------
+
+
+def _residual_and_jacobian(gl, eo, pts, theta):
+    """Stacked residuals (image, control, camera constraints) and their Jacobian wrt theta."""
+    def resid(t):
+        bs = _BorderedSystem(gl, eo, pts, t, _Schur(gl.problem.photo_index, gl.problem.point_index,
+                                                    gl.problem.n_photos, gl.problem.n_points))
+        parts = [bs.sys.r_obs.ravel(), bs.sys.r_con.ravel()]
+        if bs.sys.r_eo is not None:
+            parts.append(bs.sys.r_eo.ravel())
+        return np.concatenate(parts), bs
+    return resid
+
+
+def test_io_and_frame_jacobians_match_finite_differences():
+    # a camera with every distortion term non-zero, all 8 IO parameters and the 7-parameter frame
+    b = selfcal_block(3, n_strips=2, photos_per_strip=4, noise=False)
+    cam = Camera("cam", 50.0, 0.02, -0.03, -3e-5, 2e-8, -1e-11, 4e-6, -3e-6, 0.0, 0.006, 0.006, 6000, 4000,
+                 sd={"sd_k1": 1e-6})
+    b = dataclasses.replace(b, camera=cam)
+    gl = _Globals(_components(b, "all", similarity=True), b.problem)
+    p = b.problem
+    eo, pts = np.array(b.block.true_eo), np.array(b.block.true_points_m)
+    theta = np.array([0.05, 0.01, -0.02, 2e-6, -1e-9, 3e-12, 1e-6, -2e-6, 0.3, -0.2, 0.4, 5.0, 3.0, -4.0, 6.0])
+    resid = _residual_and_jacobian(gl, eo, pts, theta)
+    r0, bs = resid(theta)
+    # analytic: dense Jacobian from the components
+    n_obs, n_con = 2 * len(p.photo_index), 3 * len(p.constraint_point_index)
+    A = np.zeros((len(r0), gl.k))
+    xy, _ = project(eo, pts[p.point_index], bs.pe.focal_length_mm[p.photo_index], p.photo_index)
+    for part, o in zip(gl.parts, gl.offsets):
+        for kind, rows, J, cols in part.jacobians(theta[o:o + part.n], _State(bs.pe, xy)):
+            d = J.shape[1]
+            base = {"obs": 0, "con": n_obs, "eo": n_obs + n_con}[kind]
+            for a in range(J.shape[2]):
+                for c in range(d):
+                    np.add.at(A, (base + rows * d + c, o + cols[:, a]), J[:, c, a])
+    steps = np.array([1e-4, 1e-4, 1e-4, 1e-8, 1e-11, 1e-14, 1e-7, 1e-7, 1e-3, 1e-3, 1e-3, 10.0, 10.0, 10.0, 10.0])
+    for i in range(gl.k):
+        e = np.zeros(gl.k)
+        e[i] = steps[i]
+        fd = (resid(theta + e)[0] - resid(theta - e)[0]) / (2 * steps[i])
+        scale = np.abs(fd).max()
+        assert scale > 0, gl.names[i]
+        np.testing.assert_allclose(A[:, i], fd, atol=1e-6 * scale, err_msg=gl.names[i])
+
+
+def test_gnss_line_offset_jacobian_and_recovery():
+    # the camera on its certificate, no frame shift: the line offset is the only systematic error
+    b = selfcal_block(4, n_strips=2, photos_per_strip=6, dc_mm=0, dx0_mm=0, dy0_mm=0, dk1=0, shift_m=(0, 0, 0))
+    p = b.problem
+    lines = [str(i // 6) for i in range(p.n_photos)]
+    # antenna offset of line "1": the GNSS positions of its photos are off by a known vector
+    off = np.array([0.4, -0.3, 0.25])
+    gnss = np.array(p.eo_constraint_params)
+    gnss[6:, :3] += off
+    p2 = dataclasses.replace(p, eo_constraint_params=gnss)
+    res = adjust_with_parameters(p2, [GnssLineOffsets(lines)])
+    est = np.array([res.estimates[res.index(f"gnss.1.offset_{c}")] for c in "ENh"])
+    sd = np.array([res.sd[res.index(f"gnss.1.offset_{c}")] for c in "ENh"])
+    assert np.all(np.abs(est - off) < 3 * sd), (est, sd)
+    assert np.all(sd < 0.1)
+    assert res.bundle.vtpv < res.without.vtpv - 100
+    assert res.group_tests()[1]["significant"] and not res.group_tests()[0]["significant"]
+    with pytest.raises(AdditionalParameterError, match="need constrained camera positions"):
+        GnssLineOffsets(lines[:8]).bind(synthetic_block(2, 4).problem)
+
+
+# ---------------------------------------------------------------------------
+# linear algebra: bordered Schur step and precision against the dense normal equations
+# ---------------------------------------------------------------------------
+
+
+def test_bordered_step_and_covariance_equal_dense_inverse():
+    b = selfcal_block(2, n_strips=2, photos_per_strip=4)
+    p = b.problem
+    gl = _Globals(_components(b), p)
+    r0 = adjust(p, precision="none")
+    eo, pts = np.array(r0.eo_params), np.array(r0.points_m)
+    theta = np.array([0.05, 0.01, -0.01, 1e-6, 0.1, 0.1, 0.1])
+    bs = _BorderedSystem(gl, eo, pts, theta, _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points))
+    P, Q, k = p.n_photos, p.n_points, gl.k
+    o, og = 6 * P, 6 * P + 3 * Q
+    N = np.zeros((og + k, og + k))
+    for i in range(P):
+        N[6 * i:6 * i + 6, 6 * i:6 * i + 6] = bs.sys.U[i]
+    for j in range(Q):
+        N[o + 3 * j:o + 3 * j + 3, o + 3 * j:o + 3 * j + 3] = bs.sys.V[j]
+    for a, (i, j) in enumerate(zip(p.photo_index, p.point_index)):
+        N[6 * i:6 * i + 6, o + 3 * j:o + 3 * j + 3] += bs.sys.W[a]
+        N[o + 3 * j:o + 3 * j + 3, 6 * i:6 * i + 6] += bs.sys.W[a].T
+    N[:o, og:] = bs.Ncg.reshape(-1, k)
+    N[o:og, og:] = bs.Npg.reshape(-1, k)
+    N[og:, :og] = N[:og, og:].T
+    N[og:, og:] = bs.Ngg
+    g = np.r_[bs.sys.g_c.ravel(), bs.sys.g_p.ravel(), bs.gg]
+    x = np.linalg.solve(N, -g)
+    dc, dp, dg = bs.solve(0.0)
+    np.testing.assert_allclose(dc.ravel(), x[:o], atol=1e-9 * np.abs(x[:o]).max())
+    np.testing.assert_allclose(dp.ravel(), x[o:og], atol=1e-9 * np.abs(x[o:og]).max())
+    np.testing.assert_allclose(dg, x[og:], rtol=1e-7)
+    # precision at the solution
+    res = adjust_with_parameters(p, _components(b), without=r0)
+    bs = _BorderedSystem(gl, np.array(res.bundle.eo_params), np.array(res.bundle.points_m), res.estimates,
+                         _Schur(p.photo_index, p.point_index, P, Q))
+    N[:] = 0
+    for i in range(P):
+        N[6 * i:6 * i + 6, 6 * i:6 * i + 6] = bs.sys.U[i]
+    for j in range(Q):
+        N[o + 3 * j:o + 3 * j + 3, o + 3 * j:o + 3 * j + 3] = bs.sys.V[j]
+    for a, (i, j) in enumerate(zip(p.photo_index, p.point_index)):
+        N[6 * i:6 * i + 6, o + 3 * j:o + 3 * j + 3] += bs.sys.W[a]
+        N[o + 3 * j:o + 3 * j + 3, 6 * i:6 * i + 6] += bs.sys.W[a].T
+    N[:o, og:] = bs.Ncg.reshape(-1, k)
+    N[o:og, og:] = bs.Npg.reshape(-1, k)
+    N[og:, :og] = N[:og, og:].T
+    N[og:, og:] = bs.Ngg
+    Ninv = np.linalg.inv(N)
+    np.testing.assert_allclose(res.cov, Ninv[og:, og:], rtol=1e-6)
+    for i in range(P):
+        np.testing.assert_allclose(res.bundle.eo_cov[i], Ninv[6 * i:6 * i + 6, 6 * i:6 * i + 6], rtol=1e-5,
+                                   atol=1e-12)
+    for j in range(Q):
+        np.testing.assert_allclose(res.bundle.point_cov[j], Ninv[o + 3 * j:o + 3 * j + 3, o + 3 * j:o + 3 * j + 3],
+                                   rtol=1e-5, atol=1e-12)
+    # correlation of the focal length with Z0 of photo 0
+    sd_c = np.sqrt(np.diag(Ninv)[:o]).reshape(P, 6)
+    r = Ninv[og, 2] / np.sqrt(Ninv[og, og]) / sd_c[0, 2]
+    assert res.eo_correlation[0, 0, 2] == pytest.approx(r, abs=1e-8)
+
+
+# ---------------------------------------------------------------------------
+# acceptance on the synthetic block
+# ---------------------------------------------------------------------------
+
+
+def test_synthetic_truth_recovered_within_3_sd_and_shift_significant(block, solved):
+    res = solved
+    assert res.bundle.success
+    truth = {f"cam.{k}": v for k, v in block.true_corrections.items()}
+    truth.update({f"frame.lidar:gps.{c}": v for c, v in zip(("dE", "dN", "dh"), block.shift_m)})
+    for name, true in truth.items():
+        i = res.index(name)
+        assert abs(res.estimates[i] - true) < 3 * res.sd[i], (name, res.estimates[i], true, res.sd[i])
+        assert res.sd[i] < abs(true) / 2, name          # each one significantly determined
+    fo = res.summary()["frame_offset"]
+    assert fo["source"] == "lidar" and fo["reference"] == "gps"
+    assert fo["significant"] and fo["test"]["p_value"] < 0.05
+    assert all(fo["significant_per_axis"])
+    assert res.warnings() == []
+    tests = {t["name"]: t for t in res.tests()}
+    assert all(t["significant"] and t["determinable"] for t in tests.values())
+    # with the parameters off, v'Pv shows the misfit: the chi-square test of sigma0^2 fails
+    off, on = res.without, res.bundle
+    assert off.vtpv > 2 * on.vtpv
+    assert not off.chi2["passed"] and on.chi2["passed"]
+    assert on.dof == off.dof - 7
+
+
+def test_residual_pattern_without_parameters_is_radial(block, solved):
+    """Without K1 the image residuals carry the radial signature x r^2: their regression on it is
+    significant off and vanishes on."""
+    def slope_t(res):
+        cam = block.camera
+        fot = cam.photo_to_fot(np.asarray(block.problem.xy_mm))
+        r2 = (fot**2).sum(axis=1)
+        a = (fot * r2[:, None]).ravel()
+        v = np.asarray(res.residuals_mm).ravel()
+        beta = a @ v / (a @ a)
+        s = np.sqrt(np.sum((v - beta * a) ** 2) / (len(v) - 1) / (a @ a))
+        return beta / s
+    assert abs(slope_t(solved.without)) > 10
+    assert abs(slope_t(solved.bundle)) < 3
+
+
+def test_undeterminable_focal_length_warns_and_still_returns(caplog):
+    # no GNSS/INS, moderate relief, nadir: c trades against the flying height
+    b = selfcal_block(5, n_strips=2, photos_per_strip=6, gnss_sd_m=None)
+    p = b.problem
+    with caplog.at_level(logging.WARNING, logger="lidarcat.bundle.selfcal"):
+        res = adjust_with_parameters(p, [SelfCalibration({"cam": b.camera}, ["cam"] * p.n_photos, "c")])
+    assert res.bundle.status == "converged"
+    msg = [r.getMessage() for r in caplog.records]
+    assert any("additional parameter 'cam.c' is not determinable" in m and "Z0 of photo" in m for m in msg), msg
+    t = res.tests()[0]
+    assert not t["determinable"] and abs(t["max_correlation_eo"]["r"]) > 0.95
+    assert np.isfinite(t["estimate"]) and np.isfinite(t["sd"])
+    assert res.summary()["warnings"] == res.warnings() != []
+
+
+def test_priors_from_certificate_and_free_parameters():
+    b = selfcal_block(6, n_strips=2, photos_per_strip=4)
+    cam = dataclasses.replace(b.camera, sd={"sd_focal_length_mm": 0.01, "sd_k1": 0.0})
+    p = b.problem
+    gl = _Globals([SelfCalibration({"cam": cam}, ["cam"] * p.n_photos, "c,k1")], p)
+    assert gl.prior_sd[0] == 0.01 and np.isinf(gl.prior_sd[1])      # sd 0: free
+    res = adjust_with_parameters(p, [SelfCalibration({"cam": cam}, ["cam"] * p.n_photos, "c,k1")])
+    assert res.bundle.dof == res.without.dof - 2 + 1
+    assert res.sd[0] < 0.01                                         # the prior bounds the sd
+    assert parse_parameters("K1,c") == ("c", "k1")
+    with pytest.raises(AdditionalParameterError, match="unknown self-calibration parameter 'f'; allowed: c, x0"):
+        parse_parameters("c,f")
+    with pytest.raises(AdditionalParameterError, match="no control point from source 'lidar'"):
+        frame_offset_from_sources(p, ["gps"] * len(p.constraint_point_index), "lidar", "gps")
+    with pytest.raises(AdditionalParameterError, match="has no control point"):
+        FrameOffset("a", "b", [])
+
+
+def test_monte_carlo_empirical_sd_matches_predicted():
+    """A small honest version of the 50-seed run of benchmarks/bench_selfcal.py: over 10 seeds the
+    standardised errors (estimate - truth) / sd of all 7 parameters (70 values) have a variance
+    inside the two-sided 99.9 % chi-square interval of 1."""
+    z = []
+    for seed in range(10):
+        b = selfcal_block(100 + seed, n_strips=2, photos_per_strip=6)
+        res = adjust_with_parameters(b.problem, _components(b))
+        truth = np.r_[[b.true_corrections[k] for k in ("c", "x0", "y0", "k1")], b.shift_m]
+        z.append((res.estimates - truth) / res.sd)
+    z = np.concatenate(z)
+    n = len(z)
+    q = float(np.sum(z**2))
+    assert stats.chi2.ppf(0.0005, n) < q < stats.chi2.ppf(0.9995, n), q / n
+    assert abs(z.mean()) < 4 / np.sqrt(n)
