@@ -169,6 +169,11 @@ def test_bordered_step_and_covariance_equal_dense_inverse():
     for j in range(Q):
         np.testing.assert_allclose(res.bundle.point_cov[j], Ninv[o + 3 * j:o + 3 * j + 3, o + 3 * j:o + 3 * j + 3],
                                    rtol=1e-5, atol=1e-12)
+    # joint covariance of two points, the rank-k term included
+    a, b2 = 3, 10
+    J = res.joint_point_covariance([p.point_ids[a], p.point_ids[b2]])
+    np.testing.assert_allclose(J[:3, 3:], Ninv[o + 3 * a:o + 3 * a + 3, o + 3 * b2:o + 3 * b2 + 3], rtol=1e-5,
+                               atol=1e-12)
     # correlation of the focal length with Z0 of photo 0
     sd_c = np.sqrt(np.diag(Ninv)[:o]).reshape(P, 6)
     r = Ninv[og, 2] / np.sqrt(Ninv[og, og]) / sd_c[0, 2]
@@ -267,3 +272,113 @@ def test_monte_carlo_empirical_sd_matches_predicted():
     q = float(np.sum(z**2))
     assert stats.chi2.ppf(0.0005, n) < q < stats.chi2.ppf(0.9995, n), q / n
     assert abs(z.mean()) < 4 / np.sqrt(n)
+
+
+# ---------------------------------------------------------------------------
+# the thesis block: both control sets and the LiDAR frame offset
+# ---------------------------------------------------------------------------
+
+
+def _table13():
+    import csv
+    from conftest import THESIS_TABLES
+    with open(THESIS_TABLES / "table13_gps_points_lidar_run.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(line for line in fh if not line.startswith("#")))
+    return [r["point"] for r in rows], np.array([[float(r[c]) for c in ("dE", "dN", "dh")] for r in rows])
+
+
+@pytest.fixture(scope="module")
+def thesis_offset(tmp_path_factory):
+    from lidarcat.bundle.selfcal_survey import adjust_survey_with_parameters
+    from lidarcat.survey import Survey
+    survey = Survey.load()
+    out = tmp_path_factory.mktemp("sc") / "out"
+    res, _ = adjust_survey_with_parameters(survey, control="gps+lidar", frame_offset="lidar:gps", outdir=out)
+    return survey, res, out
+
+
+def test_thesis_frame_offset_beside_table12(thesis_offset):
+    """Joint GPS + LiDAR control (0.25 m; 0.50 / 0.50 / 0.15 m, the thesis's sigmas): the shift of the
+    LiDAR frame agrees with the thesis's Table 12 means (-0.32 / -0.20 / +0.37 m) within one sd, and
+    with these sigmas it is not significant at 5 %."""
+    import json
+    from conftest import THESIS_TABLES
+    _, res, out = thesis_offset
+    t12 = json.loads((THESIS_TABLES / "table12_free_points.json").read_text())["text_line_1354"]
+    mean = np.array([t12["mean_shift_E"], t12["mean_shift_N"], t12["mean_shift_h"]])
+    s = json.loads((out / "summary.json").read_text())
+    fo = s["frame_offset"]
+    assert (fo["source"], fo["reference"]) == ("lidar", "gps")
+    shift, sd = np.array(fo["shift_m"]), np.array(fo["sd_m"])
+    assert np.all(np.abs(shift - mean) < sd), (shift, sd)
+    assert np.all(np.sign(shift) == np.sign(mean))
+    assert not fo["significant"] and fo["test"]["p_value"] > 0.05
+    assert fo["test"]["dof"] == 3 and np.allclose(np.diag(fo["correlation"]), 1.0)
+    assert s["dof"] == s["parameters_off"]["dof"] - 3 == 149
+    assert s["parameters_on"]["vtpv"] < s["parameters_off"]["vtpv"]
+    assert s["additional_parameters"] == {} and s["warnings"] == []
+
+
+def test_thesis_lidar_run_with_corrected_control_beside_table13(thesis_offset):
+    """The LiDAR-controlled run reproduces Table 13 (reference minus adjusted at the 21 GPS points,
+    within the reproduction tolerance of 0.02 m in E, N and 0.12 m in h); moving the LiDAR control by
+    the estimated shift removes the systematic E, N part: the mean goes to ~0 and the RMS drops."""
+    from lidarcat.bundle import problem_from_survey
+    survey, res, _ = thesis_offset
+    ids, t13 = _table13()
+    p = problem_from_survey(survey, control="lidar")
+    ref = survey.ground_points.enh_m[survey.ground_points.index(ids)]
+    r0 = adjust(p, precision="none")
+    shift = res.estimates[:3]
+    r1 = adjust(dataclasses.replace(p, constraint_enh_m=np.asarray(p.constraint_enh_m) + shift), precision="none")
+    d0 = ref - np.array([r0.point(i) for i in ids])
+    d1 = ref - np.array([r1.point(i) for i in ids])
+    assert np.all(np.abs(d0 - t13).max(axis=0) < [0.02, 0.02, 0.12])
+    rms0, rms1 = np.sqrt((d0**2).mean(axis=0)), np.sqrt((d1**2).mean(axis=0))
+    assert np.all(np.abs(d1.mean(axis=0)[:2]) < 0.05)
+    assert np.all(rms1[:2] < rms0[:2] - 0.09)
+    # the same shift lowers every height by +0.29 m: the h discrepancies grow (Table 13 mean -0.165 m)
+    assert d1.mean(axis=0)[2] == pytest.approx(d0.mean(axis=0)[2] - shift[2], abs=0.05)
+
+
+def test_cli_adjust_self_calibrate_and_frame_offset(tmp_path):
+    import json
+    from click.testing import CliRunner
+    from lidarcat.cli.main import cli
+    out = tmp_path / "o"
+    r = CliRunner().invoke(cli, ["adjust", "--control", "gps+lidar", "--frame-offset", "lidar:gps",
+                                 "--self-calibrate", "c,k1", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "Frame offset lidar -> gps" in r.output and "dcs14n.k1" in r.output
+    s = json.loads((out / "summary.json").read_text())
+    ap = s["additional_parameters"]
+    assert set(ap) == {"dcs14n.c", "dcs14n.k1"}
+    assert {"estimate", "sd", "t", "significant", "unit"} <= set(ap["dcs14n.c"])
+    assert ap["dcs14n.c"]["unit"] == "mm" and ap["dcs14n.c"]["prior_sd"] == 0.032
+    assert ap["dcs14n.c"]["sd"] <= 0.032
+    r = CliRunner().invoke(cli, ["adjust", "--self-calibrate", "c,f", "-o", str(tmp_path / "x")])
+    assert r.exit_code == 2
+    assert "unknown self-calibration parameter 'f'" in r.output
+    assert not (tmp_path / "x").exists()
+    r = CliRunner().invoke(cli, ["adjust", "--control", "gps", "--frame-offset", "lidar", "-o", str(tmp_path / "x")])
+    assert r.exit_code == 2 and "must be SOURCE:REFERENCE" in r.output
+
+
+def test_survey_toml_self_calibration_table(tmp_path):
+    import shutil
+    from lidarcat.bundle.selfcal_survey import self_calibration_settings
+    from lidarcat.errors import SurveyError
+    from lidarcat.survey import Survey, thesis_survey_path
+    folder = tmp_path / "s"
+    shutil.copytree(thesis_survey_path(), folder)
+    toml = folder / "survey.toml"
+    base = toml.read_text()
+    toml.write_text(base + '\n[self_calibration]\nparameters = "k1,c"\nframe_offset = "lidar:gps"\n'
+                    'control = "gps+lidar"\n')
+    st = self_calibration_settings(Survey.load(folder))
+    assert st.parameters == ("c", "k1") and st.frame_offset == ("lidar", "gps") and st.control == "gps+lidar"
+    toml.write_text(base + '\n[self_calibration]\nparameters = "c,zz"\n')
+    n = len(base.splitlines()) + 3
+    with pytest.raises(SurveyError, match=rf"survey.toml:{n}: field 'parameters': unknown self-calibration "
+                                          "parameter 'zz'"):
+        self_calibration_settings(Survey.load(folder))

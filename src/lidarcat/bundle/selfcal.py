@@ -258,6 +258,9 @@ class SelfCalResult:
         name -> calibrated value (interior orientation only).
     eo_correlation : (k, P, 6) array
         Correlation of every parameter with every exterior-orientation parameter.
+    point_coupling : (Q, k, 3) array or None
+        ``u_j`` of the module docstring: ``Cov(p_j, g) = u_j^T cov`` and the
+        rank-k term of the joint point covariance, ``Cov(p_a, p_b) += u_a^T cov u_b``.
     frame_offsets : tuple of FrameOffset
     alpha : float
         Level of the significance tests.
@@ -273,6 +276,7 @@ class SelfCalResult:
     prior_sd: np.ndarray
     calibrated: dict
     eo_correlation: np.ndarray
+    point_coupling: np.ndarray | None = None
     frame_offsets: tuple = ()
     alpha: float = 0.05
     determinability_limit: float = 0.95
@@ -287,6 +291,18 @@ class SelfCalResult:
         sd = self.sd
         with np.errstate(invalid="ignore", divide="ignore"):
             return self.cov / sd[:, None] / sd[None, :]
+
+    def joint_point_covariance(self, points: Sequence[str]) -> np.ndarray:
+        """:func:`lidarcat.bundle.joint_point_covariance` of the adjustment with the parameters,
+        their rank-k term included, (3k, 3k) m^2."""
+        from .precision import joint_point_covariance
+
+        C = joint_point_covariance(self.bundle, points)
+        if self.point_coupling is None or not len(self.names):
+            return C
+        pos = {str(q): i for i, q in enumerate(self.bundle.point_ids)}
+        Uk = np.concatenate([self.point_coupling[pos[str(q)]] for q in points], axis=1)      # (k, 3m)
+        return C + Uk.T @ self.cov @ Uk
 
     def index(self, name: str) -> int:
         """Position of parameter *name*; ValueError naming the known ones."""
@@ -540,6 +556,7 @@ def adjust_with_parameters(
     pe, sys = bs.pe, bs.sys
     # rank-k corrections of the photo and point blocks (module docstring)
     eo_cov = eo_cov + np.einsum("pik,kl,pjl->pij", X, H, X)
+    u = None
     if T is not None and precision == "all":
         ei, pj = pe.photo_index, pe.point_index
         u = block_sum(pj, np.einsum("nik,nij->nkj", X[ei], T), pe.n_points) - np.einsum(
@@ -581,7 +598,7 @@ def adjust_with_parameters(
     out = SelfCalResult(
         bundle=result, without=without, names=tuple(gl.names), units=tuple(gl.units), groups=tuple(gl.groups),
         estimates=theta, cov=cov_g, prior_sd=gl.prior_sd, calibrated=calibrated,
-        eo_correlation=np.nan_to_num(eo_corr), alpha=alpha, determinability_limit=determinability_limit,
+        eo_correlation=np.nan_to_num(eo_corr), point_coupling=u, alpha=alpha, determinability_limit=determinability_limit,
         frame_offsets=tuple(c for c in components if isinstance(c, FrameOffset)))
     for w in out.warnings():
         log.warning(w)

@@ -71,9 +71,21 @@ def format_report(summary: dict, outdir: str | None = None) -> str:
               help="Use photo positions/attitudes of photos.csv that carry sd_* as weighted constraints.")
 @click.option("--max-iter", type=click.IntRange(1), default=50, show_default=True,
               help="Maximum number of Gauss-Newton / Levenberg-Marquardt iterations.")
+@click.option("--self-calibrate", metavar="PARAMS", default=None,
+              help="Estimate interior-orientation corrections per camera: a comma list of c, x0, y0, "
+                   "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free). "
+                   "Each gets estimate, sd, t-test and its largest correlations; a warning names a "
+                   "parameter the block cannot determine (|r| > 0.95).")
+@click.option("--frame-offset", metavar="SOURCE:REFERENCE", default=None,
+              help="Estimate the 3-D shift to add to the control of ground-point source SOURCE to put it "
+                   "in the frame of REFERENCE (e.g. lidar:gps with --control gps+lidar), with its sd and "
+                   "a joint chi-square test.")
+@click.option("--similarity", is_flag=True, default=None,
+              help="With --frame-offset: a 7-parameter similarity (shift, scale ppm, rotations urad).")
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
-           variance_factor: str | None, eo_constraints: bool, max_iter: int, as_json: bool) -> None:
+           variance_factor: str | None, eo_constraints: bool, max_iter: int, self_calibrate: str | None,
+           frame_offset: str | None, similarity: bool | None, as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
     Unknowns: X0, Y0, Z0 (m) and omega, phi, kappa (deg; M = R3(kappa) R2(phi)
@@ -94,17 +106,34 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
       lidarcat adjust --control gps -o out/gps
       lidarcat adjust data/thesis --control lidar --observations pixel -o out/lidar
       lidarcat adjust my_survey --json
+      lidarcat adjust --control gps+lidar --frame-offset lidar:gps --self-calibrate c,x0,y0,k1
+
+    With --self-calibrate / --frame-offset (or a [self_calibration] table in
+    survey.toml) summary.json gains additional_parameters, frame_offset,
+    parameter_groups, parameters_off/parameters_on (v'Pv without and with them)
+    and warnings; a control set 'a+b' joins two sets of control_sets.csv.
     """
     from ..bundle import adjust_survey
+    from ..bundle.selfcal_survey import adjust_survey_with_parameters, format_parameters, wants_parameters
 
-    result, out = adjust_survey(survey, control=control, observations=observations, outdir=outdir,
-                                variance_factor=variance_factor, eo_constraints=eo_constraints,
-                                max_iter=max_iter)
-    summary = {**result.summary(), "outdir": str(out)}
+    if wants_parameters(survey, self_calibrate, frame_offset):
+        sc, out = adjust_survey_with_parameters(
+            survey, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
+            similarity=similarity, observations=observations, outdir=outdir,
+            variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter)
+        result = sc.bundle
+        summary = {**result.summary(), **sc.summary(), "outdir": str(out)}
+    else:
+        result, out = adjust_survey(survey, control=control, observations=observations, outdir=outdir,
+                                    variance_factor=variance_factor, eo_constraints=eo_constraints,
+                                    max_iter=max_iter)
+        summary = {**result.summary(), "outdir": str(out)}
     if as_json:
         echo_json(summary)
     else:
         click.echo(format_report(summary, str(out)))
+        if "additional_parameters" in summary:
+            click.echo(format_parameters(summary))
     if not result.success:
         click.echo(f"Warning: the adjustment did not converge ({result.status}).", err=True)
         sys.exit(1)
