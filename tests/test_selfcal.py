@@ -239,6 +239,17 @@ def test_undeterminable_focal_length_warns_and_still_returns(caplog):
     assert res.summary()["warnings"] == res.warnings() != []
 
 
+def test_singular_parameter_is_named_and_result_still_returned():
+    # every control point shifted: the shift is a datum defect (the whole block moves with it)
+    b = selfcal_block(7, n_strips=2, photos_per_strip=4, gnss_sd_m=None)
+    p = b.problem
+    res = adjust_with_parameters(p, [FrameOffset("all", "none", np.arange(len(p.constraint_point_index)))])
+    assert res.bundle.status == "singular"
+    w = res.warnings()
+    assert len(w) == 1 and "additional parameter 'frame.all:none.d" in w[0] and "cannot be determined" in w[0]
+    assert np.all(np.isnan(res.sd)) and len(res.tests()) == 3
+
+
 def test_priors_from_certificate_and_free_parameters():
     b = selfcal_block(6, n_strips=2, photos_per_strip=4)
     cam = dataclasses.replace(b.camera, sd={"sd_focal_length_mm": 0.01, "sd_k1": 0.0})

@@ -121,10 +121,10 @@ class _BorderedSystem:
         xy, a_eo, a_pt, _ = project_with_jacobians(eo, pts[pj], pe.focal_length_mm[ei], ei)
         state = _State(pe, xy)
         w_obs = 1.0 / pe.sd_mm**2
-        rc, wc, re, we = sys.r_con, None, sys.r_eo, None
+        rc, re = sys.r_con, sys.r_eo
         wc = np.where(np.isfinite(pe.constraint_sd_m), 1.0 / pe.constraint_sd_m**2, 0.0)
-        if re is not None:
-            we = np.where(np.isfinite(pe.eo_constraint_sd), 1.0 / pe.eo_constraint_sd**2, 0.0)
+        we = (np.where(np.isfinite(pe.eo_constraint_sd), 1.0 / pe.eo_constraint_sd**2, 0.0)
+              if re is not None else None)
         Ncg = np.zeros((n_ph, 6, k))
         Npg = np.zeros((n_pt, 3, k))
         Ngg = np.diag(gl.prior_w).astype(float)
@@ -146,11 +146,9 @@ class _BorderedSystem:
                     wJ = J * w[:, :, None]
                     _scatter(Ncg, pe.eo_constraint_photo_index[rows], wJ, cols)
                 JtwJ = np.transpose(J, (0, 2, 1)) @ wJ                       # (r, m, m)
-                m = cols.shape[1]
                 flat = (cols[:, :, None] * k + cols[:, None, :]).ravel()
                 Ngg += np.bincount(flat, weights=JtwJ.ravel(), minlength=k * k).reshape(k, k)
                 gg += np.bincount(cols.ravel(), weights=np.einsum("rdm,rd->rm", wJ, r).ravel(), minlength=k)
-                del m
         self.Ncg, self.Npg, self.Ngg, self.gg = Ncg, Npg, Ngg, gg
 
     def solve(self, lam: float, want_cov: bool = False):
@@ -182,7 +180,7 @@ class _BorderedSystem:
         X = F.solve(Scg2) if k else np.zeros((Scg2.shape[0], 0))
         y = F.solve(r_c.reshape(-1))
         G = Sgg - Scg2.T @ X
-        H, dg = _solve_globals(G, r_g - Scg2.T @ y, self.gl.names)
+        H, dg = _solve_globals(G, r_g - Scg2.T @ y, self.gl.names, np.diag(Ngg))
         dc = (y - X @ dg).reshape(pe.n_photos, 6)
         bp = b_p - block_sum(pj, np.einsum("nij,ni->nj", sys.W, dc[ei]), pe.n_points) - self.Npg @ dg
         dp = np.einsum("qij,qj->qi", vinv, bp)
@@ -208,15 +206,25 @@ def _scatter(target: np.ndarray, index: np.ndarray, blocks: np.ndarray, cols: np
     target += np.bincount(flat, weights=blocks.ravel(), minlength=n * d * k).reshape(n, d, k)
 
 
-def _solve_globals(G: np.ndarray, rhs: np.ndarray, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
-    """H = G^-1 and G^-1 rhs by an equilibrated Cholesky; :class:`_Singular` names the worst parameter."""
+def _solve_globals(G: np.ndarray, rhs: np.ndarray, names: Sequence[str],
+                   n_diag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """H = G^-1 and G^-1 rhs by an equilibrated Cholesky; :class:`_Singular` names the worst parameter.
+
+    *n_diag* is the diagonal of N_gg (before the elimination): a parameter with none has no
+    observation; one whose diagonal the elimination cancels is absorbed by the other unknowns.
+    """
     k = len(G)
     if k == 0:
         return np.zeros((0, 0)), np.zeros(0)
-    d = np.sqrt(np.clip(np.diag(G), 0, None))
-    if np.any(d <= 0) or not np.all(np.isfinite(G)):
-        i = int(np.argmin(d))
+    if np.any(n_diag <= 0):
+        i = int(np.argmin(n_diag))
         raise _Singular(f"additional parameter {names[i]!r} has no observation (zero normal-equation row)")
+    d = np.sqrt(np.clip(np.diag(G), 0, None))
+    if np.any(d <= 1e-6 * np.sqrt(n_diag)) or not np.all(np.isfinite(G)):
+        i = int(np.argmin(d / np.sqrt(n_diag)))
+        raise _Singular(f"additional parameter {names[i]!r} cannot be determined: the exterior orientations "
+                        "and points absorb it completely (a datum defect or a parameter the geometry "
+                        "cannot see)")
     Gs = G / d[:, None] / d[None, :]
     w, vecs = np.linalg.eigh(0.5 * (Gs + Gs.T))
     if w[0] < 1e-12 * w[-1]:
@@ -258,6 +266,8 @@ class SelfCalResult:
         name -> calibrated value (interior orientation only).
     eo_correlation : (k, P, 6) array
         Correlation of every parameter with every exterior-orientation parameter.
+    singular : str
+        Why the normal equations were singular (names the parameter), else "".
     point_coupling : (Q, k, 3) array or None
         ``u_j`` of the module docstring: ``Cov(p_j, g) = u_j^T cov`` and the
         rank-k term of the joint point covariance, ``Cov(p_a, p_b) += u_a^T cov u_b``.
@@ -277,6 +287,7 @@ class SelfCalResult:
     calibrated: dict
     eo_correlation: np.ndarray
     point_coupling: np.ndarray | None = None
+    singular: str = ""
     frame_offsets: tuple = ()
     alpha: float = 0.05
     determinability_limit: float = 0.95
@@ -333,7 +344,7 @@ class SelfCalResult:
             best = max(others, key=lambda jc: abs(jc[1])) if others else None
             r_eo = float(ce[a]) if a is not None else math.nan
             r_ap = float(best[1]) if best else math.nan
-            worst = max(abs(v) for v in (r_eo, r_ap) if math.isfinite(v)) if (a is not None or best) else 0.0
+            worst = max((abs(v) for v in (r_eo, r_ap) if math.isfinite(v)), default=0.0)
             out.append({
                 "name": name, "unit": self.units[i], "group": self.groups[i],
                 "estimate": est, "sd": sd, "t": t, "p_value": p,
@@ -369,8 +380,10 @@ class SelfCalResult:
         return out
 
     def warnings(self) -> list[str]:
-        """One message per parameter that the block cannot determine (|correlation| above the limit)."""
-        out = []
+        """One message per parameter that the block cannot determine (|correlation| above the limit,
+        or singular normal equations)."""
+        out = [f"{self.singular}; the values written are those of the last iteration, without "
+               "precision"] if self.singular else []
         for t in self.tests():
             if not t["determinable"]:
                 e, a = t["max_correlation_eo"], t["max_correlation_additional"]
@@ -508,7 +521,7 @@ def adjust_with_parameters(
     schur = _Schur(problem.photo_index, problem.point_index, problem.n_photos, problem.n_points)
     lam = 1e-6
     status, n_iter, history = "max_iterations", 0, []
-    message_extra = ""
+    message_extra = singular = ""
     bs = None
     try:
         bs = _BorderedSystem(gl, eo, pts, theta, schur)
@@ -544,7 +557,7 @@ def adjust_with_parameters(
     except _Singular as ex:
         status = "singular"
         log.warning("adjustment with additional parameters: %s", ex)
-        message_extra = f": {ex}"
+        message_extra, singular = f": {ex}", str(ex)
         if bs is None:
             raise DatumError(f"adjustment with additional parameters: {ex}") from ex
         k = gl.k
@@ -598,7 +611,7 @@ def adjust_with_parameters(
     out = SelfCalResult(
         bundle=result, without=without, names=tuple(gl.names), units=tuple(gl.units), groups=tuple(gl.groups),
         estimates=theta, cov=cov_g, prior_sd=gl.prior_sd, calibrated=calibrated,
-        eo_correlation=np.nan_to_num(eo_corr), point_coupling=u, alpha=alpha, determinability_limit=determinability_limit,
+        eo_correlation=np.nan_to_num(eo_corr), point_coupling=u, singular=singular, alpha=alpha, determinability_limit=determinability_limit,
         frame_offsets=tuple(c for c in components if isinstance(c, FrameOffset)))
     for w in out.warnings():
         log.warning(w)
