@@ -188,3 +188,22 @@ def test_eo_constraints_flag(tmp_path, gps_run):
     assert s["eo_constraints"] is True and s["n_constraints"] == 24 + 36 and s["dof"] == 128 + 36
     kinds = [r[0] for r in _read(tmp_path / "o" / "residuals.csv")[1:]]
     assert kinds.count("eo") == 6
+
+
+def test_precision_option(tmp_path, gps_run):
+    """--precision photos: photo sds as in the full run, point sds empty, no joint covariance file."""
+    out = tmp_path / "photos"
+    result = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--control", "gps", "--observations",
+                                      "corrected", "--precision", "photos", "-o", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output)["precision"] == "photos"
+    _, full = gps_run
+    full_eop, eop = _read(full / "eop.csv"), _read(out / "eop.csv")
+    assert eop[0] == full_eop[0] == list(EOP_COLUMNS)
+    for a, b in zip(full_eop[1:], eop[1:]):
+        np.testing.assert_allclose(np.array(b[7:], float), np.array(a[7:], float), rtol=1e-9)
+    pts = _read(out / "points.csv")
+    assert all(v in ("", "nan") for row in pts[1:] for v in row[4:7])
+    assert not (out / "check_covariance.csv").exists() and (full / "check_covariance.csv").exists()
+    bad = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--precision", "some"])
+    assert bad.exit_code == 2 and "'some' is not one of 'all', 'photos', 'none'" in bad.output

@@ -63,6 +63,7 @@ import dataclasses
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg.blas import dsyrk as _dsyrk
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
@@ -385,8 +386,12 @@ class _Factor:
             if nb:
                 Lbs = sla.solve_triangular(L, F[nc:].T, lower=True, check_finite=False).T
                 self.Lbs.append(Lbs)
-                # Fbb - Lbs Lbs^T (symmetric rank-k update through BLAS)
-                Fbb -= Lbs @ Lbs.T
+                # Fbb - Lbs Lbs^T, lower triangle only (BLAS syrk on the Fortran view: half the
+                # flops of a product); every reader of an update reads its lower triangle
+                ft = Fbb.T
+                out = _dsyrk(-1.0, Lbs, beta=1.0, c=ft, trans=0, lower=0, overwrite_c=1)
+                if out is not ft:  # pragma: no cover - f2py copied
+                    Fbb = out.T
                 updates[k] = Fbb
             else:
                 self.Lbs.append(np.zeros((0, nc)))

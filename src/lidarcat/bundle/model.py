@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from .._collinearity import block_sum, project, project_with_jacobians
+from .._collinearity import project, project_with_jacobians
 from .linear import _Schur
 from .problem import BundleProblem
 
@@ -66,12 +66,13 @@ class _System:
         self.r_obs = r
         aw_eo = a_eo * w[:, :, None]
         aw_pt = a_pt * w[:, :, None]
-        n_ph, n_pt = p.n_photos, p.n_points
-        self.U = block_sum(ei, np.transpose(aw_eo, (0, 2, 1)) @ a_eo, n_ph)
-        self.V = block_sum(pj, np.transpose(aw_pt, (0, 2, 1)) @ a_pt, n_pt)
-        self.W = np.transpose(aw_eo, (0, 2, 1)) @ a_pt     # (n, 6, 3)
-        self.g_c = block_sum(ei, np.einsum("nki,nk->ni", aw_eo, r)[:, :, None], n_ph)[:, :, 0]
-        self.g_p = block_sum(pj, np.einsum("nki,nk->ni", aw_pt, r)[:, :, None], n_pt)[:, :, 0]
+        by_cam, by_pt = self.schur.by_camera, self.schur.by_point
+        aw_eo_t = np.ascontiguousarray(np.transpose(aw_eo, (0, 2, 1)))
+        self.U = by_cam(aw_eo_t @ a_eo)
+        self.V = by_pt(np.ascontiguousarray(np.transpose(aw_pt, (0, 2, 1))) @ a_pt)
+        self.W = aw_eo_t @ a_pt                            # (n, 6, 3)
+        self.g_c = by_cam((aw_eo_t @ r[:, :, None])[:, :, 0])
+        self.g_p = by_pt((np.transpose(aw_pt, (0, 2, 1)) @ r[:, :, None])[:, :, 0])
         vtpv = float(np.sum(r**2 * w))
         # point and exterior-orientation constraints
         rc, wc, re, we = _constraint_terms(p, eo, pts)
@@ -89,14 +90,15 @@ class _System:
             vtpv += float(np.sum(we * re**2))
         self.vtpv = vtpv
 
-    def solve(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
-        """Corrections (P, 6), (Q, 3) of the damped normal equations (``N + lam diag(N)``)."""
+    def solve(self, lam: float, method: str = "direct") -> tuple[np.ndarray, np.ndarray]:
+        """Corrections (P, 6), (Q, 3) of the damped normal equations (``N + lam diag(N)``);
+        *method* ``direct`` or ``pcg`` (:meth:`lidarcat.bundle.linear._Schur.solve`)."""
         U, V = self.U.copy(), self.V.copy()
         if lam > 0:
             iu, iv = np.arange(6), np.arange(3)
             U[:, iu, iu] *= 1.0 + lam
             V[:, iv, iv] *= 1.0 + lam
-        return self.schur.solve(U, V, self.W, self.g_c, self.g_p)
+        return self.schur.solve(U, V, self.W, self.g_c, self.g_p, method)
 
 
 def _cost(problem: BundleProblem, eo: np.ndarray, pts: np.ndarray) -> float:

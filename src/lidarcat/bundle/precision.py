@@ -118,7 +118,7 @@ def covariance_blocks(system: _System, precision: str = "all") -> tuple[np.ndarr
     T, pj, ei = blk.T, p.point_index, p.photo_index
     Tt = np.transpose(T, (0, 2, 1))
     # a == b: T_a^T Z_ii T_a
-    point_cov = blk.vinv + block_sum(pj, Tt @ cam_cov[ei] @ T, p.n_points)
+    point_cov = blk.vinv + system.schur.by_point(Tt @ cam_cov[ei] @ T)
     schur = system.schur
     n = len(schur.oa)
     for c0 in range(0, n, CHUNK_PAIRS):
@@ -159,7 +159,7 @@ def observation_blocks(system: _System) -> np.ndarray:
     n_obs = len(pj)
     # cross[a] = Cov(c_{i_a}, X_{j_a}) = -sum_b Z[i_a, i_b] T_b over observations b of the point
     cross = -(cam_cov[ei] @ T)
-    point_cov = blk.vinv + block_sum(pj, Tt @ cam_cov[ei] @ T, p.n_points)
+    point_cov = blk.vinv + system.schur.by_point(Tt @ cam_cov[ei] @ T)
     schur = system.schur
     n = len(schur.oa)
     for c0 in range(0, n, CHUNK_PAIRS):

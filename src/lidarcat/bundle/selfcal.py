@@ -596,7 +596,7 @@ def adjust_with_parameters(
         point_cov=point_cov * factor, point_role=pe.point_role, residuals_mm=sys.r_obs,
         constraint_residuals_m=sys.r_con, eo_constraint_residuals=sys.r_eo, history=tuple(history),
         problem=pe, initial_eo=np.asarray(without.eo_params), initial_points_m=np.asarray(without.points_m),
-        elapsed_s=time.perf_counter() - t0)
+        elapsed_s=time.perf_counter() - t0, precision=precision)
     # correlations with the exterior orientation: Cov(c_i, g) = -X_i H
     cov_g = H * factor
     sd_g = np.sqrt(np.clip(np.diag(cov_g), 0, None))

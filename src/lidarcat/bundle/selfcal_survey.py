@@ -163,6 +163,7 @@ def adjust_survey_with_parameters(
     chi2_level: float | None = None,
     eo_constraints: bool = False,
     max_iter: int = 50,
+    precision: str = "all",
 ) -> tuple[SelfCalResult, Any]:
     """``lidarcat adjust`` with additional parameters: adjust, test, write the result folder.
 
@@ -179,7 +180,7 @@ def adjust_survey_with_parameters(
         ``"SOURCE:REFERENCE"`` (default: ``[self_calibration] frame_offset``).
     similarity : bool, optional
         7-parameter similarity for the frame offset.
-    observations, outdir, variance_factor, chi2_level, eo_constraints, max_iter
+    observations, outdir, variance_factor, chi2_level, eo_constraints, max_iter, precision
         As :func:`lidarcat.bundle.adjust_survey`.
 
     Returns
@@ -217,7 +218,7 @@ def adjust_survey_with_parameters(
     res = adjust_with_parameters(problem, components_from_survey(survey, problem, st), max_iter=max_iter,
                                  variance_factor=variance_factor or settings.variance_factor,
                                  chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
-                                 alpha=st.alpha)
+                                 alpha=st.alpha, precision=precision)
     out = survey.output_dir(outdir)
     with atomic_dir(out) as tmp:
         write_adjustment(res.bundle, tmp, extra={"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs,

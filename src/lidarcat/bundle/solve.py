@@ -28,7 +28,10 @@ from .linear import _Schur, _Singular
 from .precision import PRECISION_LEVELS, covariance_blocks
 from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
 
-__all__ = ["BundleResult", "adjust", "STATUS_MESSAGES"]
+__all__ = ["BundleResult", "adjust", "STATUS_MESSAGES", "PCG_MIN_PHOTOS"]
+
+#: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below)
+PCG_MIN_PHOTOS = 2000
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +89,9 @@ class BundleResult:
     initial_eo : (P, 6), initial_points_m : (Q, 3)
         The approximations the iteration started from.
     elapsed_s : float
+    precision : str
+        Which covariance blocks were computed (``all``, ``photos``, ``none``;
+        the others are NaN).
     """
 
     status: str
@@ -113,6 +119,7 @@ class BundleResult:
     initial_eo: np.ndarray
     initial_points_m: np.ndarray
     elapsed_s: float = 0.0
+    precision: str = "all"
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -219,6 +226,7 @@ class BundleResult:
             "rms_sd_points_m": dict(zip("ENh", (float(v) for v in np.sqrt(np.mean(sd**2, axis=0)))))
             if len(sd) else {},
             "elapsed_s": float(self.elapsed_s),
+            "precision": self.precision,
         }
 
 
@@ -248,6 +256,7 @@ def adjust(
     damping: bool = True,
     check: bool = True,
     precision: str = "all",
+    solver: str = "auto",
     progress: Callable[[int, float], None] | None = None,
 ) -> BundleResult:
     """Simultaneous bundle adjustment with weighted position constraints.
@@ -279,6 +288,12 @@ def adjust(
     precision : {"all", "photos", "none"}
         Covariance blocks to compute at the solution: of every photo and point,
         of the photos only (``point_cov`` NaN), or none (both NaN; the fastest).
+    solver : {"auto", "direct", "pcg"}
+        Linear solver of the reduced camera system in the iterations: the
+        supernodal Cholesky (exact steps), or block-Jacobi preconditioned
+        conjugate gradients truncated as inexact Newton (cheaper steps on large
+        blocks); ``auto``: ``pcg`` from :data:`PCG_MIN_PHOTOS` photos.  The
+        covariance always uses the Cholesky factor.
     progress : callable(iteration, vtpv), optional
 
     Returns
@@ -298,6 +313,8 @@ def adjust(
         raise ValueError("`chi2_level` must be in (0, 1)")
     if precision not in PRECISION_LEVELS:
         raise ValueError(f"`precision` must be one of {', '.join(PRECISION_LEVELS)}, got {precision!r}")
+    if solver not in ("auto", "direct", "pcg"):
+        raise ValueError(f"`solver` must be one of auto, direct, pcg, got {solver!r}")
     t0 = time.perf_counter()
     p = problem
     if check:
@@ -318,6 +335,7 @@ def adjust(
     history: list[float] = []
     system = None
     schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points)   # pattern of S, analysed once
+    method = solver if solver != "auto" else ("pcg" if p.n_photos >= PCG_MIN_PHOTOS else "direct")
     try:
         system = _System(p, eo, pts, schur)
         cost = system.vtpv if np.all(system.u3 < 0) else _cost(p, eo, pts)
@@ -326,7 +344,7 @@ def adjust(
             n_iter += 1
             accepted = False
             while True:
-                dc, dp = system.solve(lam)
+                dc, dp = system.solve(lam, method)
                 eo_new, pts_new = eo + dc, pts + dp
                 new_cost = _cost(p, eo_new, pts_new)
                 if not damping or new_cost <= cost * (1 + 1e-12) or _tiny(dc, dp, tol_m, tol_rad):
@@ -389,5 +407,5 @@ def adjust(
         point_ids=p.point_ids, points_m=pts, point_cov=point_cov, point_role=p.point_role,
         residuals_mm=system.r_obs, constraint_residuals_m=system.r_con,
         eo_constraint_residuals=system.r_eo, history=tuple(history), problem=p,
-        initial_eo=eo0, initial_points_m=pts0, elapsed_s=time.perf_counter() - t0,
+        initial_eo=eo0, initial_points_m=pts0, elapsed_s=time.perf_counter() - t0, precision=precision,
     )

@@ -232,7 +232,7 @@ RESIDUAL_COLUMNS = ("kind", "photo", "point", "vx_mm", "vy_mm", "vE_m", "vN_m", 
 def write_adjustment(result: BundleResult, folder, extra: dict | None = None) -> dict:
     """Write ``eop.csv``, ``points.csv``, ``residuals.csv`` and ``summary.json`` into *folder*,
     and ``check_covariance.csv`` (:func:`read_point_covariance`) when the adjustment converged
-    with 1 to :data:`MAX_JOINT_COVARIANCE_POINTS` check points.
+    with 1 to :data:`MAX_JOINT_COVARIANCE_POINTS` check points and ``precision="all"``.
 
     Each file is written atomically; wrap the call in :func:`lidarcat._io.atomic_dir`
     to make the whole folder appear at once.  Returns the summary dict written.
@@ -269,7 +269,7 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None) ->
     write_csv_atomic(folder / "residuals.csv", RESIDUAL_COLUMNS, rows,
                      comments=["residuals v = adjusted - observed"])
     checks = [str(q) for q, r in zip(result.point_ids, result.point_role) if r == "check"]
-    if checks and result.success and len(checks) <= MAX_JOINT_COVARIANCE_POINTS:
+    if checks and result.success and result.precision == "all" and len(checks) <= MAX_JOINT_COVARIANCE_POINTS:
         _write_point_covariance(
             folder / "check_covariance.csv", checks, joint_point_covariance(result, checks),
             "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances "
@@ -293,6 +293,7 @@ def adjust_survey(
     chi2_level: float | None = None,
     eo_constraints: bool = False,
     max_iter: int = 50,
+    precision: str = "all",
     progress: Callable[[int, float], None] | None = None,
 ) -> tuple[BundleResult, Any]:
     """Load a survey, adjust it and write the result folder (``lidarcat adjust``).
@@ -310,6 +311,9 @@ def adjust_survey(
         Default: the survey's ``[adjustment]`` settings.
     eo_constraints : bool
         Use photos.csv exterior orientations with sigmas as weighted constraints.
+    precision : {"all", "photos", "none"}
+        Covariance blocks to compute (see :func:`adjust`); the joint covariance of
+        the check points is written with ``"all"`` only.
 
     Returns
     -------
@@ -328,7 +332,7 @@ def adjust_survey(
     settings = survey.settings
     problem = problem_from_survey(survey, control=control, observations=observations,
                                   eo_constraints=eo_constraints)
-    result = adjust(problem, max_iter=max_iter,
+    result = adjust(problem, max_iter=max_iter, precision=precision,
                     variance_factor=variance_factor or settings.variance_factor,
                     chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
                     progress=progress)

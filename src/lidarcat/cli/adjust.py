@@ -71,6 +71,10 @@ def format_report(summary: dict, outdir: str | None = None) -> str:
               help="Use photo positions/attitudes of photos.csv that carry sd_* as weighted constraints.")
 @click.option("--max-iter", type=click.IntRange(1), default=50, show_default=True,
               help="Maximum number of Gauss-Newton / Levenberg-Marquardt iterations.")
+@click.option("--precision", type=click.Choice(["all", "photos", "none"]), default="all", show_default=True,
+              help="Standard deviations to compute: of every photo and point ('all'), of the photos only "
+                   "('photos': point sd_* empty), or none (fastest on blocks of thousands of photos; "
+                   "no check_covariance.csv).")
 @click.option("--self-calibrate", metavar="PARAMS", default=None,
               help="Estimate interior-orientation corrections per camera: a comma list of c, x0, y0, "
                    "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free). "
@@ -84,8 +88,9 @@ def format_report(summary: dict, outdir: str | None = None) -> str:
               help="With --frame-offset: a 7-parameter similarity (shift, scale ppm, rotations urad).")
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
-           variance_factor: str | None, eo_constraints: bool, max_iter: int, self_calibrate: str | None,
-           frame_offset: str | None, similarity: bool | None, as_json: bool) -> None:
+           variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str,
+           self_calibrate: str | None, frame_offset: str | None, similarity: bool | None,
+           as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
     Unknowns: X0, Y0, Z0 (m) and omega, phi, kappa (deg; M = R3(kappa) R2(phi)
@@ -106,6 +111,7 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
       lidarcat adjust --control gps -o out/gps
       lidarcat adjust data/thesis --control lidar --observations pixel -o out/lidar
       lidarcat adjust my_survey --json
+      lidarcat adjust big_block --precision photos
       lidarcat adjust --control gps+lidar --frame-offset lidar:gps --self-calibrate c,x0,y0,k1
 
     With --self-calibrate / --frame-offset (or a [self_calibration] table in
@@ -120,13 +126,14 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
         sc, out = adjust_survey_with_parameters(
             survey, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
             similarity=similarity, observations=observations, outdir=outdir,
-            variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter)
+            variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter,
+            precision=precision)
         result = sc.bundle
         summary = {**result.summary(), **sc.summary(), "outdir": str(out)}
     else:
         result, out = adjust_survey(survey, control=control, observations=observations, outdir=outdir,
                                     variance_factor=variance_factor, eo_constraints=eo_constraints,
-                                    max_iter=max_iter)
+                                    max_iter=max_iter, precision=precision)
         summary = {**result.summary(), "outdir": str(out)}
     if as_json:
         echo_json(summary)
