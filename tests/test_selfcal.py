@@ -393,3 +393,25 @@ def test_survey_toml_self_calibration_table(tmp_path):
     with pytest.raises(SurveyError, match=rf"survey.toml:{n}: field 'parameters': unknown self-calibration "
                                           "parameter 'zz'"):
         self_calibration_settings(Survey.load(folder))
+
+
+def test_run_report_shows_additional_parameters(tmp_path):
+    import json
+    import shutil
+    from lidarcat.pipeline import run_pipeline
+    from lidarcat.survey import thesis_survey_path
+    folder = tmp_path / "s"
+    shutil.copytree(thesis_survey_path(), folder)
+    with open(folder / "survey.toml", "a", encoding="utf-8") as fh:
+        fh.write('\n[self_calibration]\nparameters = "c"\nframe_offset = "lidar:gps"\ncontrol = "gps+lidar"\n')
+    res = run_pipeline(folder, tmp_path / "out")
+    assert res.ok
+    sc = res.summary["selfcal"]
+    assert sc["control_set"] == "gps+lidar" and sc["frame_offset"]["source"] == "lidar"
+    assert set(sc["additional_parameters"]) == {"dcs14n.c"}
+    md = (tmp_path / "out" / "report" / "index.md").read_text()
+    assert "## Additional parameters" in md and "| dcs14n.c | mm |" in md
+    shift = sc["frame_offset"]["shift_m"]
+    assert "| shift | " + " | ".join(f"{v:+.3f}" for v in shift) + " |" in md
+    s = json.loads((tmp_path / "out" / "selfcal" / "summary.json").read_text())
+    assert s["frame_offset"]["shift_m"] == shift

@@ -38,7 +38,8 @@ from .problem import BundleProblem
 from .selfcal import SelfCalResult, adjust_with_parameters
 
 __all__ = ["SelfCalSettings", "self_calibration_settings", "combined_control_set", "components_from_survey",
-           "adjust_survey_with_parameters", "format_parameters", "wants_parameters"]
+           "adjust_survey_with_parameters", "selfcal_adjust", "write_selfcal", "format_parameters",
+           "wants_parameters"]
 
 #: keys of the [self_calibration] table of survey.toml
 SELF_CALIBRATION_KEYS = ("parameters", "use_priors", "frame_offset", "similarity", "control", "alpha")
@@ -194,10 +195,27 @@ def adjust_survey_with_parameters(
     AdditionalParameterError, DatumError
     """
     from .._io import atomic_dir
-    from ..survey import Survey
-    from .survey_io import _write_point_covariance, problem_from_survey, write_adjustment
 
     t0 = time.perf_counter()
+    survey, res = selfcal_adjust(survey, control=control, self_calibrate=self_calibrate,
+                                 frame_offset=frame_offset, similarity=similarity, observations=observations,
+                                 variance_factor=variance_factor, chi2_level=chi2_level,
+                                 eo_constraints=eo_constraints, max_iter=max_iter, precision=precision)
+    out = survey.output_dir(outdir)
+    with atomic_dir(out) as tmp:
+        write_selfcal(res, tmp, extra={"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs})
+    return res, out
+
+
+def selfcal_adjust(survey=None, *, control: str | None = None, self_calibrate: str | None = None,
+                   frame_offset: str | None = None, similarity: bool | None = None,
+                   observations: str | None = None, variance_factor: str | None = None,
+                   chi2_level: float | None = None, eo_constraints: bool = False, max_iter: int = 50,
+                   precision: str = "all") -> tuple[Any, SelfCalResult]:
+    """The adjustment of :func:`adjust_survey_with_parameters` without writing: ``(survey, result)``."""
+    from ..survey import Survey
+    from .survey_io import problem_from_survey
+
     if not isinstance(survey, Survey):
         survey = Survey.load(survey)
     st = self_calibration_settings(survey)
@@ -219,19 +237,28 @@ def adjust_survey_with_parameters(
                                  variance_factor=variance_factor or settings.variance_factor,
                                  chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
                                  alpha=st.alpha, precision=precision)
-    out = survey.output_dir(outdir)
-    with atomic_dir(out) as tmp:
-        write_adjustment(res.bundle, tmp, extra={"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs,
-                                                 **res.summary()})
-        if (tmp / "check_covariance.csv").is_file():     # add the additional parameters' rank-k term
-            checks = [str(q) for q, r in zip(res.bundle.point_ids, res.bundle.point_role) if r == "check"]
-            _write_point_covariance(
-                tmp / "check_covariance.csv", checks, res.joint_point_covariance(checks),
-                "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances and the "
-                "uncertainty of the additional parameters included: c_XY = Cov(X of point_a, Y of "
-                f"point_b), one row per pair a <= b ({res.bundle.variance_factor_kind.replace('_', ' ')} "
-                "variance factor)")
-    return res, out
+    return survey, res
+
+
+def write_selfcal(res: SelfCalResult, folder, extra: dict | None = None) -> dict:
+    """:func:`lidarcat.bundle.write_adjustment` of the adjustment with the parameters, summary.json with
+    :meth:`SelfCalResult.summary`, check_covariance.csv with the parameters' rank-k term.  Returns the
+    summary written."""
+    from pathlib import Path
+
+    from .survey_io import _write_point_covariance, write_adjustment
+
+    folder = Path(folder)
+    summary = write_adjustment(res.bundle, folder, extra={**(extra or {}), **res.summary()})
+    if (folder / "check_covariance.csv").is_file():       # add the additional parameters' rank-k term
+        checks = [str(q) for q, r in zip(res.bundle.point_ids, res.bundle.point_role) if r == "check"]
+        _write_point_covariance(
+            folder / "check_covariance.csv", checks, res.joint_point_covariance(checks),
+            "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances and the "
+            "uncertainty of the additional parameters included: c_XY = Cov(X of point_a, Y of "
+            f"point_b), one row per pair a <= b ({res.bundle.variance_factor_kind.replace('_', ' ')} "
+            "variance factor)")
+    return summary
 
 
 def wants_parameters(survey, self_calibrate: str | None = None, frame_offset: str | None = None) -> bool:

@@ -31,7 +31,7 @@ from .runner import (
     run_stages,
     safe_name,
 )
-from .stages import adjust, assess, camera, compare, extract, report
+from .stages import adjust, assess, camera, compare, extract, report, selfcal
 from .stages.report import results
 
 __all__ = ["FROM_SURVEY", "plan_pipeline", "run_pipeline"]
@@ -152,6 +152,9 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
         stages.append(Stage("compare", "compare", compare.run,
                             skip_reason="needs two control sets (runs) to compare; the survey has "
                                         f"{len(runs)}"))
+    if selfcal.planned(survey):
+        stages.append(Stage("selfcal", "selfcal", selfcal.run, inputs=lambda ctx: files,
+                            description="adjustment with additional parameters ([self_calibration])"))
     upstream = tuple(s.name for s in stages)
     stages.append(Stage("report", "report", report.run, uses=upstream,
                         inputs=lambda ctx: files, description="HTML / Markdown / JSON report"))

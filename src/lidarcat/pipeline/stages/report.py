@@ -27,7 +27,7 @@ def results(records: Iterable[StageRecord]) -> dict[str, Any]:
     """``runs``, ``comparison`` and ``extraction`` of the done stages (summary.json and the report)."""
     runs: dict[str, Any] = {}
     comparison: dict[str, Any] = {}
-    extraction = None
+    extraction = selfcal = None
     for r in records:
         if not r.done:
             continue
@@ -44,7 +44,10 @@ def results(records: Iterable[StageRecord]) -> dict[str, Any]:
             comparison[r.name[8:]] = dict(r.result)
         elif r.name == "extract":
             extraction = dict(r.result)
-    return {"runs": runs, "comparison": comparison, "extraction": extraction}
+        elif r.name == "selfcal":
+            selfcal = dict(r.result)
+    return {"runs": runs, "comparison": comparison, "extraction": extraction,
+            **({"selfcal": selfcal} if selfcal else {})}
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -118,6 +121,10 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                               + {"below": " (smaller discrepancies than claimed: the precision is pessimistic).",
                                  "above": " (larger discrepancies than claimed: look for blunders, model "
                                           "errors or optimistic control sds)."}.get(cons.get("side"), ".")]
+    if doc.get("selfcal"):
+        from .selfcal import markdown as selfcal_markdown
+
+        lines += selfcal_markdown(doc["selfcal"])
     for pair, cmp_ in doc["comparison"].items():
         pts = cmp_.get("points", {})
         lines += ["", f"## Comparison {cmp_.get('sign', pair)}", "",
