@@ -415,3 +415,38 @@ def test_run_report_shows_additional_parameters(tmp_path):
     assert "| shift | " + " | ".join(f"{v:+.3f}" for v in shift) + " |" in md
     s = json.loads((tmp_path / "out" / "selfcal" / "summary.json").read_text())
     assert s["frame_offset"]["shift_m"] == shift
+
+
+def test_survey_gnss_lines_recover_an_antenna_offset(tmp_path):
+    """The thesis block with GNSS camera positions (the GPS run's own, 0.10 m) whose second line
+    (photos 4-6) is off by 0.5 / -0.4 / 0.6 m: [self_calibration.gnss_lines] finds it exactly (the
+    positions are the adjustment's own, so no noise) -- and warns that in this 6-photo strip the
+    offsets are not determinable: the projection centres are known to about a metre only (8 GPS
+    points at 0.25 m), so an offset trades against them (r ~ -0.99)."""
+    import shutil
+    from lidarcat.bundle.selfcal_survey import selfcal_adjust
+    from lidarcat.survey import Survey, thesis_survey_path
+    folder = tmp_path / "s"
+    shutil.copytree(thesis_survey_path(), folder)
+    from lidarcat.bundle import problem_from_survey
+    ref = adjust(problem_from_survey(Survey.load(folder), control="gps"), precision="none")
+    off = np.array([0.5, -0.4, 0.6])
+    rows = ["photo,camera,X0,Y0,Z0,sd_X0,sd_Y0,sd_Z0"]
+    for i, (pid, eo) in enumerate(zip(ref.photo_ids, ref.eo_params)):
+        x = eo[:3] + (off if i >= 3 else 0.0)
+        rows.append(f"{pid},dcs14n,{x[0]:.3f},{x[1]:.3f},{x[2]:.3f},0.1,0.1,0.1")
+    (folder / "photos.csv").write_text("\n".join(rows) + "\n")
+    with open(folder / "survey.toml", "a", encoding="utf-8") as fh:
+        fh.write('\n[self_calibration]\ncontrol = "gps"\n\n[self_calibration.gnss_lines]\n'
+                 'a = ["1", "2", "3"]\nb = ["4", "5", "6"]\n')
+    _, res = selfcal_adjust(Survey.load(folder))
+    est = res.estimates[[res.index(f"gnss.b.offset_{c}") for c in "ENh"]]
+    sd = res.sd[[res.index(f"gnss.b.offset_{c}") for c in "ENh"]]
+    np.testing.assert_allclose(est, off, atol=0.01)
+    assert np.all(sd > 0.3)
+    a = res.estimates[[res.index(f"gnss.a.offset_{c}") for c in "ENh"]]
+    np.testing.assert_allclose(a, 0.0, atol=0.01)
+    assert res.bundle.problem.info["eo_constraints"]
+    w = res.warnings()
+    assert len(w) == 6 and all("is not determinable" in m for m in w)
+    assert "'gnss.b.offset_E' is not determinable from this block: correlated with X0 of photo" in w[3]

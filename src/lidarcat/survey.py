@@ -73,7 +73,8 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
     "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False},
     # read by lidarcat.bundle.selfcal_survey (additional parameters, issue 13)
     "self_calibration": {"parameters": False, "use_priors": False, "frame_offset": False,
-                         "similarity": False, "control": False, "alpha": False},
+                         "similarity": False, "control": False, "alpha": False, "gnss_lines": False,
+                         "gnss_drift": False},
 }
 _REQUIRED_TABLES = ("survey", "files")
 _OBSERVATION_KINDS = ("corrected", "pixel")

@@ -10,6 +10,11 @@ survey.toml (every key optional)::
     similarity = false            # 7-parameter similarity instead of a 3-D shift
     control = "gps+lidar"         # control set(s); "a+b" joins two sets of control_sets.csv
     alpha = 0.05                  # level of the t-tests and group tests
+    gnss_drift = false            # GNSS lines: also a drift along each line (m/km)
+
+    [self_calibration.gnss_lines] # GNSS antenna offset per flight line (photos.csv X0, Y0, Z0 with
+    1 = ["1", "2", "3"]           # sd_X0.. become constraints): line label = its photo ids
+    2 = ["4", "5", "6"]
 
 ``lidarcat adjust --self-calibrate c,x0,y0,k1 --frame-offset lidar:gps
 --control gps+lidar`` overrides them.  A control-set name ``a+b`` is the union of
@@ -32,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import SurveyError
-from .additional import SelfCalibration, parse_parameters
+from .additional import GnssLineOffsets, SelfCalibration, parse_parameters
 from .frame_offset import frame_offset_from_sources
 from .problem import BundleProblem
 from .selfcal import SelfCalResult, adjust_with_parameters
@@ -42,7 +47,8 @@ __all__ = ["SelfCalSettings", "self_calibration_settings", "combined_control_set
            "wants_parameters"]
 
 #: keys of the [self_calibration] table of survey.toml
-SELF_CALIBRATION_KEYS = ("parameters", "use_priors", "frame_offset", "similarity", "control", "alpha")
+SELF_CALIBRATION_KEYS = ("parameters", "use_priors", "frame_offset", "similarity", "control", "alpha",
+                         "gnss_lines", "gnss_drift")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,10 +61,12 @@ class SelfCalSettings:
     similarity: bool = False
     control: str | None = None
     alpha: float = 0.05
+    gnss_lines: dict[str, str] | None = None        # photo id -> line label
+    gnss_drift: bool = False
 
     @property
     def active(self) -> bool:
-        return bool(self.parameters) or self.frame_offset is not None
+        return bool(self.parameters) or self.frame_offset is not None or bool(self.gnss_lines)
 
 
 def _split_offset(text: str) -> tuple[str, str]:
@@ -95,9 +103,26 @@ def self_calibration_settings(survey) -> SelfCalSettings:
     alpha = t.get("self_calibration", "alpha", (int, float), d.alpha)
     if not 0 < alpha < 1:
         raise t.err("self_calibration", "alpha", f"must lie between 0 and 1, got {alpha!r}")
+    lines_raw = t.get("self_calibration", "gnss_lines", dict, None)
+    lines: dict[str, str] | None = None
+    if lines_raw is not None:
+        lines = {}
+        for label, photos in lines_raw.items():
+            if not isinstance(photos, list) or not all(isinstance(v, str) for v in photos):
+                raise t.err("self_calibration", "gnss_lines", f"line {label!r} must be a list of photo ids "
+                            f"(strings), got {photos!r}")
+            for ph in photos:
+                if ph not in survey.photo_ids:
+                    raise t.err("self_calibration", "gnss_lines", f"line {label!r}: photo {ph!r} is not in "
+                                "photos.csv")
+                if ph in lines:
+                    raise t.err("self_calibration", "gnss_lines", f"photo {ph!r} is in lines {lines[ph]!r} "
+                                f"and {label!r}; a photo belongs to one line")
+                lines[ph] = str(label)
     return SelfCalSettings(parsed, t.get("self_calibration", "use_priors", bool, True), offset,
                            t.get("self_calibration", "similarity", bool, False),
-                           t.get("self_calibration", "control", str, None), float(alpha))
+                           t.get("self_calibration", "control", str, None), float(alpha), lines,
+                           t.get("self_calibration", "gnss_drift", bool, False))
 
 
 def combined_control_set(survey, name: str | None):
@@ -130,7 +155,8 @@ def combined_control_set(survey, name: str | None):
 
 
 def components_from_survey(survey, problem: BundleProblem, settings: SelfCalSettings) -> list[Any]:
-    """The components (:class:`SelfCalibration`, :class:`FrameOffset`) of *settings* for *problem*.
+    """The components (:class:`SelfCalibration`, :class:`FrameOffset`, :class:`GnssLineOffsets`) of
+    *settings* for *problem*.
 
     Raises
     ------
@@ -148,6 +174,9 @@ def components_from_survey(survey, problem: BundleProblem, settings: SelfCalSett
         sources = [src_of.get(str(problem.point_ids[j]), "") for j in problem.constraint_point_index]
         comps.append(frame_offset_from_sources(problem, sources, *settings.frame_offset,
                                                similarity=settings.similarity))
+    if settings.gnss_lines:
+        comps.append(GnssLineOffsets([settings.gnss_lines.get(str(i)) for i in problem.photo_ids],
+                                     drift=settings.gnss_drift))
     return comps
 
 
@@ -231,7 +260,9 @@ def selfcal_adjust(survey=None, *, control: str | None = None, self_calibrate: s
         raise SurveyError(f"{survey.toml_path}: no additional parameter switched on: give --self-calibrate "
                           "and/or --frame-offset, or a [self_calibration] table")
     cset = combined_control_set(survey, control or st.control)
-    problem = problem_from_survey(survey, control=cset, observations=observations, eo_constraints=eo_constraints)
+    # GNSS line offsets act on the camera-position constraints: switch them on
+    problem = problem_from_survey(survey, control=cset, observations=observations,
+                                  eo_constraints=eo_constraints or bool(st.gnss_lines))
     settings = survey.settings
     res = adjust_with_parameters(problem, components_from_survey(survey, problem, st), max_iter=max_iter,
                                  variance_factor=variance_factor or settings.variance_factor,
