@@ -611,7 +611,8 @@ def adjust_with_parameters(
     out = SelfCalResult(
         bundle=result, without=without, names=tuple(gl.names), units=tuple(gl.units), groups=tuple(gl.groups),
         estimates=theta, cov=cov_g, prior_sd=gl.prior_sd, calibrated=calibrated,
-        eo_correlation=np.nan_to_num(eo_corr), point_coupling=u, singular=singular, alpha=alpha, determinability_limit=determinability_limit,
+        eo_correlation=np.nan_to_num(eo_corr), point_coupling=u, singular=singular, alpha=alpha,
+        determinability_limit=determinability_limit,
         frame_offsets=tuple(c for c in components if isinstance(c, FrameOffset)))
     for w in out.warnings():
         log.warning(w)
