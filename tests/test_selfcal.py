@@ -364,6 +364,13 @@ def test_cli_adjust_self_calibrate_and_frame_offset(tmp_path):
     assert {"estimate", "sd", "t", "significant", "unit"} <= set(ap["dcs14n.c"])
     assert ap["dcs14n.c"]["unit"] == "mm" and ap["dcs14n.c"]["prior_sd"] == 0.032
     assert ap["dcs14n.c"]["sd"] <= 0.032
+    # the command line: no --control, the sets holding LiDAR and GPS control are joined
+    r = CliRunner().invoke(cli, ["adjust", "--self-calibrate", "c,x0,y0,k1,k2", "--frame-offset", "lidar:gps",
+                                 "-o", str(tmp_path / "i"), "--json"])
+    assert r.exit_code == 0, r.output
+    s2 = json.loads(r.output)
+    assert s2["control_set"] == "gps+lidar" and len(s2["additional_parameters"]) == 5
+    assert s2["frame_offset"]["shift_m"] == pytest.approx(s["frame_offset"]["shift_m"], abs=0.05)
     r = CliRunner().invoke(cli, ["adjust", "--self-calibrate", "c,f", "-o", str(tmp_path / "x")])
     assert r.exit_code == 2
     assert "unknown self-calibration parameter 'f'" in r.output

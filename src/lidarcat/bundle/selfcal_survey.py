@@ -19,7 +19,9 @@ survey.toml (every key optional)::
 ``lidarcat adjust --self-calibrate c,x0,y0,k1 --frame-offset lidar:gps
 --control gps+lidar`` overrides them.  A control-set name ``a+b`` is the union of
 the sets' control points (each with its own set's sds) and of their check
-points that are control in neither.
+points that are control in neither.  With a frame offset and no control named,
+the default set is joined with every set that holds control of one of the two
+sources (``gps+lidar`` for the thesis block).
 
 :func:`adjust_survey_with_parameters` writes the usual adjustment folder
 (:func:`lidarcat.bundle.write_adjustment`) of the adjustment *with* the
@@ -31,6 +33,7 @@ RMS residuals without and with them) and ``warnings``.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from typing import Any
 
@@ -45,6 +48,8 @@ from .selfcal import SelfCalResult, adjust_with_parameters
 __all__ = ["SelfCalSettings", "self_calibration_settings", "combined_control_set", "components_from_survey",
            "adjust_survey_with_parameters", "selfcal_adjust", "write_selfcal", "format_parameters",
            "wants_parameters"]
+
+log = logging.getLogger(__name__)
 
 #: keys of the [self_calibration] table of survey.toml
 SELF_CALIBRATION_KEYS = ("parameters", "use_priors", "frame_offset", "similarity", "control", "alpha",
@@ -154,6 +159,27 @@ def combined_control_set(survey, name: str | None):
                       np.array(sd).reshape(-1, 3), np.array(csd).reshape(-1, 3))
 
 
+def _sets_with_sources(survey, sources: tuple[str, str]) -> str | None:
+    """``a+b``: the default control set and every other set holding control of the two sources
+    (the default control of a frame offset); None when the default alone holds both."""
+    gp = survey.ground_points
+    src_of = dict(zip(gp.point.tolist(), gp.source.tolist()))
+    names = list(survey.control_sets)
+    default = survey.default_control or (names[0] if names else None)
+    if default is None:
+        return None
+    order = [default] + [n for n in names if n != default]
+    chosen, seen = [], set()
+    for n in order:
+        got = {src_of.get(q) for q in survey.control_sets[n].control.tolist()} & set(sources)
+        if n == default or got - seen:
+            chosen.append(n)
+            seen |= got
+    if len(chosen) > 1:
+        log.info("frame offset %s:%s: control sets %s joined", *sources, "+".join(chosen))
+    return "+".join(chosen) if len(chosen) > 1 else None
+
+
 def components_from_survey(survey, problem: BundleProblem, settings: SelfCalSettings) -> list[Any]:
     """The components (:class:`SelfCalibration`, :class:`FrameOffset`, :class:`GnssLineOffsets`) of
     *settings* for *problem*.
@@ -259,7 +285,10 @@ def selfcal_adjust(survey=None, *, control: str | None = None, self_calibrate: s
     if not st.active:
         raise SurveyError(f"{survey.toml_path}: no additional parameter switched on: give --self-calibrate "
                           "and/or --frame-offset, or a [self_calibration] table")
-    cset = combined_control_set(survey, control or st.control)
+    control = control or st.control
+    if control is None and st.frame_offset is not None:
+        control = _sets_with_sources(survey, st.frame_offset)
+    cset = combined_control_set(survey, control)
     # GNSS line offsets act on the camera-position constraints: switch them on
     problem = problem_from_survey(survey, control=cset, observations=observations,
                                   eo_constraints=eo_constraints or bool(st.gnss_lines))
