@@ -108,6 +108,19 @@ def test_gnss_line_offset_jacobian_and_recovery():
     assert np.all(sd < 0.1)
     assert res.bundle.vtpv < res.without.vtpv - 100
     assert res.group_tests()[1]["significant"] and not res.group_tests()[0]["significant"]
+    # a drift of line "0": 0.2 / -0.1 / 0.3 m per km along the line (tau from its centre, photo order)
+    drift = np.array([0.2, -0.1, 0.3])
+    xy = np.asarray(p.eo_constraint_params)[:6, :2]
+    d = xy - xy.mean(axis=0)
+    axis = (d[-1] - d[0]) / np.linalg.norm(d[-1] - d[0])
+    tau = d @ axis / 1000.0
+    gnss = np.array(p.eo_constraint_params)
+    gnss[:6, :3] += tau[:, None] * drift
+    res = adjust_with_parameters(dataclasses.replace(p, eo_constraint_params=gnss),
+                                 [GnssLineOffsets(lines, drift=True)])
+    est = res.estimates[[res.index(f"gnss.0.drift_{c}") for c in "ENh"]]
+    sd = res.sd[[res.index(f"gnss.0.drift_{c}") for c in "ENh"]]
+    assert np.all(np.abs(est - drift) < 3 * sd) and np.all(sd < 0.2), (est, sd)
     with pytest.raises(AdditionalParameterError, match="need constrained camera positions"):
         GnssLineOffsets(lines[:8]).bind(synthetic_block(2, 4).problem)
 
@@ -221,7 +234,7 @@ def test_residual_pattern_without_parameters_is_radial(block, solved):
     assert abs(slope_t(solved.bundle)) < 3
 
 
-def test_undeterminable_focal_length_warns_and_still_returns(caplog):
+def test_undeterminable_focal_length_warns_and_still_returns(caplog, tmp_path):
     # no GNSS/INS, moderate relief, nadir: c trades against the flying height
     b = selfcal_block(5, n_strips=2, photos_per_strip=6, gnss_sd_m=None)
     p = b.problem
@@ -234,6 +247,13 @@ def test_undeterminable_focal_length_warns_and_still_returns(caplog):
     assert not t["determinable"] and abs(t["max_correlation_eo"]["r"]) > 0.95
     assert np.isfinite(t["estimate"]) and np.isfinite(t["sd"])
     assert res.summary()["warnings"] == res.warnings() != []
+    # ... and still written
+    import json
+    from lidarcat.bundle.selfcal_survey import write_selfcal
+    write_selfcal(res, tmp_path / "o")
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert s["warnings"] == res.warnings() and s["additional_parameters"]["cam.c"]["determinable"] is False
+    assert (tmp_path / "o" / "eop.csv").is_file() and (tmp_path / "o" / "points.csv").is_file()
 
 
 def test_singular_parameter_is_named_and_result_still_returned():

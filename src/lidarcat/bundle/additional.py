@@ -42,7 +42,8 @@ Where camera positions are constrained by GNSS (``eo_constraint_*``), a line
 ``l`` of photos may carry an antenna offset ``a_l`` (E, N, h, m) and a drift
 ``b_l`` (m per km along the line): the constraint becomes
 ``X0_i + a_l + b_l tau_i = X0_GNSS,i`` with ``tau_i`` the distance (km) of the
-photo along the line from the line's centre (centred, so offset and drift are
+photo along the line from the line's centre (the principal axis of the line's
+GNSS positions, growing in photo order; centred, so offset and drift are
 uncorrelated for evenly spaced photos); ``dv/da = I``, ``dv/db = tau I``.
 
 Component protocol (used by :mod:`.selfcal`)
@@ -315,6 +316,8 @@ class _BoundGnss:
             d = gnss[sel] - gnss[sel].mean(axis=0)
             if len(d) > 1:
                 axis = np.linalg.svd(d, full_matrices=False)[2][0]
+                if (d[-1] - d[0]) @ axis < 0:                  # tau grows in photo order
+                    axis = -axis
                 tau[sel] = d @ axis / 1000.0
         self.tau_km = tau
         self.drift = spec.drift
