@@ -73,6 +73,9 @@ __all__ = ["SelfCalResult", "adjust_with_parameters"]
 
 log = logging.getLogger(__name__)
 
+#: values (floats) of one chunk of per-observation products T_a N_pg[j_a] (32 MB)
+_CHUNK_VALUES = 1 << 22
+
 _FIELDS = ("focal_length_mm", "xy_mm", "constraint_enh_m", "eo_constraint_params")
 
 
@@ -167,8 +170,9 @@ class _BorderedSystem:
         F = schur.factor(data)
         Scg = self.Ncg.copy()
         n = len(ei)
-        for c0 in range(0, n, CHUNK_PAIRS):
-            c1 = min(n, c0 + CHUNK_PAIRS)
+        chunk = max(1024, min(CHUNK_PAIRS, _CHUNK_VALUES // max(6 * k, 1)))   # bounded memory for any k
+        for c0 in range(0, n, chunk):
+            c1 = min(n, c0 + chunk)
             Scg -= block_sum(ei[c0:c1], T[c0:c1] @ self.Npg[pj[c0:c1]], pe.n_photos)
         VN = vinv @ self.Npg                                                  # (Q, 3, k)
         Sgg = Ngg - np.einsum("qik,qil->kl", self.Npg, VN)
@@ -572,8 +576,11 @@ def adjust_with_parameters(
     u = None
     if T is not None and precision == "all":
         ei, pj = pe.photo_index, pe.point_index
-        u = block_sum(pj, np.einsum("nik,nij->nkj", X[ei], T), pe.n_points) - np.einsum(
-            "qik,qij->qkj", bs.Npg, vinv)                                     # (Q, k, 3)
+        u = -np.einsum("qik,qij->qkj", bs.Npg, vinv)                         # (Q, k, 3)
+        chunk = max(1024, _CHUNK_VALUES // max(6 * gl.k, 1))
+        for c0 in range(0, len(ei), chunk):
+            sl = slice(c0, c0 + chunk)
+            u += block_sum(pj[sl], np.einsum("nik,nij->nkj", X[ei[sl]], T[sl]), pe.n_points)
         point_cov = point_cov + np.einsum("qkj,kl,qlm->qjm", u, H, u)
     elif precision != "all":
         point_cov = np.full((problem.n_points, 3, 3), np.nan)
