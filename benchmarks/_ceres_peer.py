@@ -117,3 +117,75 @@ def solve_with_ceres(problem, eo: np.ndarray, pts: np.ndarray, *, threads: int =
     return {"final_cost": float(summary.final_cost), "initial_cost": float(summary.initial_cost),
             "iterations": int(summary.num_successful_steps + summary.num_unsuccessful_steps),
             "seconds": seconds, "points": out_pts, "report": summary.BriefReport()}
+
+
+def solve_bal_with_ceres(problem, *, threads: int = 2, max_iter: int = 50) -> dict:
+    """A :class:`lidarcat.bundle.bal.BalProblem` adjusted by Ceres through pycolmap.
+
+    Every BAL camera is a COLMAP ``RADIAL`` camera (f, cx = cy = 0 constant, k1,
+    k2; the same distortion polynomial) of its own image.  BAL cameras look
+    along -z (``p = -P_xy / P_z``), COLMAP's along +z; with ``cam_from_world =
+    (D R(r), D t)``, ``D = diag(-1, 1, -1)`` (a rotation), COLMAP's ``P'_xy / P'_z``
+    is ``(-p_x, p_y)``, so the observations enter with x negated and the cost is
+    BAL's ``0.5 sum r^2``.  Ceres's defaults of its BAL example: SPARSE_SCHUR,
+    function tolerance 1e-6.  Returns final_cost, initial_cost, iterations,
+    seconds (the solve only) and the report.
+    """
+    import pyceres
+    import pycolmap
+    from scipy.spatial.transform import Rotation
+
+    from lidarcat.bundle.bal import _rodrigues
+
+    p = problem
+    Dm = np.diag([-1.0, 1.0, -1.0])
+    obs_px = p.observations_px * np.array([-1.0, 1.0])
+    R, _ = _rodrigues(p.cameras[:, :3])
+    R = Dm @ R
+    t = p.cameras[:, 3:6] @ Dm
+    quat = Rotation.from_matrix(R).as_quat()
+    rec = pycolmap.Reconstruction()
+    order = np.argsort(p.camera_index, kind="stable")
+    starts = np.searchsorted(p.camera_index[order], np.arange(p.n_cameras + 1))
+    elem_img = np.empty(len(order), dtype=np.int64)
+    elem_idx = np.empty(len(order), dtype=np.int64)
+    for i in range(p.n_cameras):
+        f, k1, k2 = p.cameras[i, 6:9]
+        rec.add_camera_with_trivial_rig(pycolmap.Camera(model="RADIAL", width=4000, height=4000,
+                                                        params=[f, 0.0, 0.0, k1, k2], camera_id=i + 1))
+        obs = order[starts[i]:starts[i + 1]]
+        img = pycolmap.Image(name=str(i), points2D=[pycolmap.Point2D(v) for v in obs_px[obs]],
+                             camera_id=i + 1, image_id=i + 1)
+        rec.add_image_with_trivial_frame(img, pycolmap.Rigid3d(pycolmap.Rotation3d(quat[i]), t[i]))
+        elem_img[obs] = i + 1
+        elem_idx[obs] = np.arange(len(obs))
+    by_pt = np.argsort(p.point_index, kind="stable")
+    pstarts = np.searchsorted(p.point_index[by_pt], np.arange(p.n_points + 1))
+    for j in range(p.n_points):
+        tr = pycolmap.Track()
+        for a in by_pt[pstarts[j]:pstarts[j + 1]]:
+            tr.add_element(int(elem_img[a]), int(elem_idx[a]))
+        rec.add_point3D(p.points[j], tr)
+    config = pycolmap.BundleAdjustmentConfig()
+    for i in range(p.n_cameras):
+        config.add_image(i + 1)
+    opts = pycolmap.BundleAdjustmentOptions()
+    opts.refine_focal_length = True
+    opts.refine_principal_point = False
+    opts.refine_extra_params = True
+    opts.ceres.auto_select_solver_type = False
+    opts.ceres.min_num_residuals_for_cpu_multi_threading = 1
+    so = opts.ceres.solver_options
+    so.linear_solver_type = pyceres.LinearSolverType.SPARSE_SCHUR
+    so.num_threads = threads
+    so.max_num_iterations = max_iter
+    so.function_tolerance = 1e-6
+    so.gradient_tolerance = 1e-10
+    so.parameter_tolerance = 1e-8
+    ba = pycolmap.create_default_ceres_bundle_adjuster(opts, config, rec)
+    t0 = time.perf_counter()
+    summary = ba.solve().ceres_summary
+    seconds = time.perf_counter() - t0
+    return {"final_cost": float(summary.final_cost), "initial_cost": float(summary.initial_cost),
+            "iterations": int(summary.num_successful_steps + summary.num_unsuccessful_steps),
+            "seconds": seconds, "report": summary.BriefReport()}

@@ -113,7 +113,7 @@ def project(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
     if index is not None:
         m, eo = m[index], eo[index]
     d = np.asarray(xyz_m, dtype=float) - eo[:, :3]
-    u = np.einsum("nij,nj->ni", m, d)
+    u = (m @ d[:, :, None])[:, :, 0]
     xy = -np.asarray(focal_mm, dtype=float)[:, None] * u[:, :2] / u[:, 2:3]
     return xy, u[:, 2]
 
@@ -136,7 +136,7 @@ def project_with_jacobians(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarr
     if index is not None:
         m, dm, eo = m[index], dm[index], eo[index]
     d = np.asarray(xyz_m, dtype=float) - eo[:, :3]
-    u = np.einsum("nij,nj->ni", m, d)
+    u = (m @ d[:, :, None])[:, :, 0]                # batched matmul: several times einsum's speed
     c = np.asarray(focal_mm, dtype=float)
     inv3 = 1.0 / u[:, 2]
     xy = -c[:, None] * u[:, :2] * inv3[:, None]
@@ -147,7 +147,7 @@ def project_with_jacobians(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarr
     dxy_du[:, 0, 2] = c * u[:, 0] * inv3**2
     dxy_du[:, 1, 2] = c * u[:, 1] * inv3**2
     a_pt = dxy_du @ m                               # (n, 2, 3)
-    du_dang = np.einsum("nkij,nj->nik", dm, d)      # (n, 3, 3): u component x angle
+    du_dang = np.transpose((dm @ d[:, None, :, None])[..., 0], (0, 2, 1))   # (n, 3, 3): u component x angle
     a_eo = np.concatenate([-a_pt, dxy_du @ du_dang], axis=2)
     return xy, a_eo, a_pt, u[:, 2]
 

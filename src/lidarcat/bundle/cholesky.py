@@ -14,9 +14,11 @@ Ordering (nested dissection on units)
 ``S`` is a matrix of *units*: the 6 (or 9) parameters of a camera, and
 optionally one global unit of k parameters (interior orientation, frame
 offset) that borders every camera.  The unit graph (an edge for every pair of
-cameras sharing a point) is split recursively by a separator: the middle
-level of a breadth-first level structure from a pseudo-peripheral unit
-(George's automatic nested dissection).  Every separator and every leaf (at
+cameras sharing a point) is split recursively by a separator: with camera
+positions, the vertices of one half of a median split along the longer axis
+that see the other half (for strips: a cut straight across them); without,
+the middle level of a breadth-first level structure from a pseudo-peripheral
+unit (George's automatic nested dissection).  Every separator and every leaf (at
 most ``leaf`` units) is a *supernode*; a separator is the parent of the parts
 it separates, the global unit (if any) the root.  Units are numbered in
 postorder of that tree.
@@ -87,8 +89,38 @@ def _levels(adj: sp.csr_matrix, start: int) -> np.ndarray:
     return csgraph.shortest_path(adj, method="D", unweighted=True, directed=False, indices=start)
 
 
-def _nested_dissection(adj: sp.csr_matrix, leaf: int) -> tuple[list[np.ndarray], list[int]]:
-    """Supernodes (unit index arrays) in postorder and their parent (-1: a root)."""
+def _coordinate_separator(sub: sp.csr_matrix, xy: np.ndarray) -> np.ndarray | None:
+    """Vertex separator of a connected graph by coordinate bisection, or None.
+
+    Split at the median of the coordinate with the larger spread; the separator
+    is the smaller of the two one-sided boundaries (vertices of one half with a
+    neighbour in the other).  For a block of strips this cuts straight across
+    the strips, which level structures (diagonal fronts) do not.
+    """
+    axis = int(np.argmax(np.ptp(xy, axis=0)))
+    left = xy[:, axis] <= np.median(xy[:, axis])
+    if left.all() or not left.any():
+        return None
+    coo = sub.tocoo()
+    cross = left[coo.row] != left[coo.col]
+    side_l = np.zeros(len(xy), dtype=bool)
+    side_l[coo.row[cross & left[coo.row]]] = True
+    side_r = np.zeros(len(xy), dtype=bool)
+    side_r[coo.row[cross & ~left[coo.row]]] = True
+    sep = side_l if side_l.sum() <= side_r.sum() else side_r
+    if sep.all() or not sep.any():
+        return None
+    return sep
+
+
+def _nested_dissection(adj: sp.csr_matrix, leaf: int,
+                       coords: np.ndarray | None = None) -> tuple[list[np.ndarray], list[int]]:
+    """Supernodes (unit index arrays) in postorder and their parent (-1: a root).
+
+    With *coords* (one row per vertex, e.g. camera positions) separators come
+    from coordinate bisection (:func:`_coordinate_separator`), else from the
+    middle level of a breadth-first level structure.
+    """
     nodes: list[np.ndarray] = []
     parent: list[int] = []
 
@@ -110,14 +142,16 @@ def _nested_dissection(adj: sp.csr_matrix, leaf: int) -> tuple[list[np.ndarray],
         if len(v) <= leaf:
             slot.append(new(v))
             continue
-        d = _levels(sub, 0)                           # pseudo-peripheral start: two sweeps
-        d = _levels(sub, int(np.argmax(d))).astype(np.int64)
-        counts = np.bincount(d)
-        m = int(np.searchsorted(np.cumsum(counts), len(v) / 2))
-        if m == 0 or m >= len(counts) - 1:            # no useful separator: a dense leaf
-            slot.append(new(v))
-            continue
-        sep = d == m
+        sep = _coordinate_separator(sub, coords[v]) if coords is not None else None
+        if sep is None:
+            d = _levels(sub, 0)                       # pseudo-peripheral start: two sweeps
+            d = _levels(sub, int(np.argmax(d))).astype(np.int64)
+            counts = np.bincount(d)
+            m = int(np.searchsorted(np.cumsum(counts), len(v) / 2))
+            if m == 0 or m >= len(counts) - 1:        # no useful separator: a dense leaf
+                slot.append(new(v))
+                continue
+            sep = d == m
         sid = new(v[sep])
         slot.append(sid)
         children: list[int] = []
@@ -181,9 +215,13 @@ class SupernodalCholesky:
         Units forced into the root supernode (global parameters).
     leaf : int
         Largest number of units in a leaf supernode.
+    coords : (u, k) array, optional
+        A position per unit (camera centres) for coordinate nested dissection;
+        rows of root units are ignored.
     """
 
-    def __init__(self, pattern: sp.spmatrix, unit_sizes: np.ndarray, root_units=(), leaf: int = 16):
+    def __init__(self, pattern: sp.spmatrix, unit_sizes: np.ndarray, root_units=(), leaf: int = 16,
+                 coords: np.ndarray | None = None):
         pat = sp.csr_matrix(pattern)
         pat.sort_indices()
         self.n = pat.shape[0]
@@ -202,7 +240,11 @@ class SupernodalCholesky:
         root = np.asarray(sorted(set(int(r) for r in root_units)), dtype=np.int64)
         free = np.setdiff1d(np.arange(n_units), root)
         sub = ug[free][:, free].tocsr()
-        nodes_u, parent = _nested_dissection(sub, leaf)
+        xy = None
+        if coords is not None:
+            xy = np.asarray(coords, dtype=float)[free]
+            xy = xy if np.all(np.isfinite(xy)) else None
+        nodes_u, parent = _nested_dissection(sub, leaf, xy)
         nodes_u = [free[nd] for nd in nodes_u]
         if len(root):
             rid = len(nodes_u)

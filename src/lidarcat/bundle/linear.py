@@ -36,6 +36,8 @@ no other change; the model supplies the per-observation blocks.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -125,13 +127,17 @@ class _Schur:
     n_cameras, n_points : int
     camera_size : int
         Parameters per camera (6: exterior orientation; 9: BAL).
+    coords : (C, 3) array, optional
+        Approximate camera positions: a better fill-reducing ordering
+        (:class:`~lidarcat.bundle.cholesky.SupernodalCholesky`).
     """
 
     def __init__(self, camera_index: np.ndarray, point_index: np.ndarray, n_cameras: int, n_points: int,
-                 camera_size: int = 6):
+                 camera_size: int = 6, coords: np.ndarray | None = None):
         ei, pj = np.asarray(camera_index), np.asarray(point_index)
         self.ei, self.pj = ei, pj
         self.n_cameras, self.n_points, self.cb = n_cameras, n_points, camera_size
+        self.timings = {"assemble": 0.0, "factor": 0.0, "pcg": 0.0}    # seconds, accumulated by solve()
         self.by_camera = _Aggregator(ei, n_cameras)
         self.by_point = _Aggregator(pj, n_points)
         cb = camera_size
@@ -176,7 +182,7 @@ class _Schur:
         scal_indptr = np.r_[0, np.cumsum(np.repeat(cnt * cb, cb))]
         self.pattern = sp.csr_matrix((np.ones(total), scal_cols, scal_indptr),
                                      shape=(n_cameras * cb, n_cameras * cb))
-        self.chol = SupernodalCholesky(self.pattern, np.full(n_cameras, cb))
+        self.chol = SupernodalCholesky(self.pattern, np.full(n_cameras, cb), coords=coords)
         self._zloc = None
 
     # -----------------------------------------------------------------------
@@ -216,8 +222,11 @@ class _Schur:
         preconditioned conjugate gradients on the explicit S, truncated as in
         inexact Newton: :func:`_pcg`).
         """
+        t0 = time.perf_counter()
         vinv = _inv3(V)
         data, T = self.assemble(U, vinv, W)
+        t1 = time.perf_counter()
+        self.timings["assemble"] += t1 - t0
         b_c, b_p = -g_c, -g_p
         rhs = b_c - self.by_camera(np.einsum("nij,nj->ni", T, b_p[self.pj]))
         if method == "pcg":
@@ -229,8 +238,10 @@ class _Schur:
                 raise _Singular(f"reduced camera system is singular ({ex})") from ex
             dc, self.last_cg_iterations = _pcg(S, rhs.reshape(-1), prec)
             dc = dc.reshape(self.n_cameras, self.cb)
+            self.timings["pcg"] += time.perf_counter() - t1
         else:
             dc = self.factor(data).solve(rhs.reshape(-1)).reshape(self.n_cameras, self.cb)
+            self.timings["factor"] += time.perf_counter() - t1
         bp = b_p - self.by_point(np.einsum("nij,ni->nj", W, dc[self.ei]))
         dp = np.einsum("qij,qj->qi", vinv, bp)
         return dc, dp

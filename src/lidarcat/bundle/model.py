@@ -57,7 +57,7 @@ class _System:
         p = problem
         self.p = p
         self.schur = schur if schur is not None else _Schur(p.photo_index, p.point_index, p.n_photos,
-                                                            p.n_points)
+                                                            p.n_points, coords=np.asarray(eo)[:, :3])
         ei, pj = p.photo_index, p.point_index
         xy, a_eo, a_pt, u3 = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
         self.u3 = u3

@@ -86,6 +86,29 @@ class _Blocks:
         return self.Z.gather((base[c0:c1], rs[c0:c1], cs[c0:c1]), cb, cb)
 
 
+def _point_terms(system: _System, blk: _Blocks, cam_cov: np.ndarray, *, cross: bool):
+    """Point blocks ``V_j^-1 + sum_{a,b} T_a^T Z_{i_a i_b} T_b`` (Q, 3, 3) and, with *cross*, the
+    photo-point blocks ``-sum_b Z_{i_a i_b} T_b`` of every observation (n, cb, 3), else None;
+    the pairs a < b in chunks of :data:`CHUNK_PAIRS`."""
+    p, schur = system.p, system.schur
+    T, pj, ei = blk.T, p.point_index, p.photo_index
+    Tt = np.transpose(T, (0, 2, 1))
+    n_obs = len(pj)
+    zt = cam_cov[ei] @ T                                           # Z_ii T_a
+    point_cov = blk.vinv + schur.by_point(Tt @ zt)                 # a == b
+    cr = -zt if cross else None
+    for c0 in range(0, len(schur.oa), CHUNK_PAIRS):
+        c1 = min(len(schur.oa), c0 + CHUNK_PAIRS)
+        oa, ob = schur.oa[c0:c1], schur.ob[c0:c1]
+        z = blk.pair(c0, c1)                                       # Z[i_a, i_b]
+        if cross:
+            cr -= block_sum(oa, z @ T[ob], n_obs)
+            cr -= block_sum(ob, np.transpose(z, (0, 2, 1)) @ T[oa], n_obs)
+        x = Tt[oa] @ z @ T[ob]                                     # a < b: x + x^T
+        point_cov += block_sum(pj[oa], x + np.transpose(x, (0, 2, 1)), p.n_points)
+    return 0.5 * (point_cov + np.transpose(point_cov, (0, 2, 1))), cr
+
+
 def covariance_blocks(system: _System, precision: str = "all") -> tuple[np.ndarray, np.ndarray]:
     """Blocks of N^-1 (a priori): (P, 6, 6) per photo and (Q, 3, 3) per point.
 
@@ -115,18 +138,7 @@ def covariance_blocks(system: _System, precision: str = "all") -> tuple[np.ndarr
     cam_cov = blk.cameras()
     if precision == "photos":
         return cam_cov, point_cov
-    T, pj, ei = blk.T, p.point_index, p.photo_index
-    Tt = np.transpose(T, (0, 2, 1))
-    # a == b: T_a^T Z_ii T_a
-    point_cov = blk.vinv + system.schur.by_point(Tt @ cam_cov[ei] @ T)
-    schur = system.schur
-    n = len(schur.oa)
-    for c0 in range(0, n, CHUNK_PAIRS):
-        c1 = min(n, c0 + CHUNK_PAIRS)
-        oa, ob = schur.oa[c0:c1], schur.ob[c0:c1]
-        x = Tt[oa] @ blk.pair(c0, c1) @ T[ob]                   # a < b: x + x^T
-        point_cov += block_sum(pj[oa], x + np.transpose(x, (0, 2, 1)), p.n_points)
-    point_cov = 0.5 * (point_cov + np.transpose(point_cov, (0, 2, 1)))
+    point_cov, _ = _point_terms(system, blk, cam_cov, cross=False)
     return cam_cov, point_cov
 
 
@@ -154,23 +166,9 @@ def observation_blocks(system: _System) -> np.ndarray:
     cb = system.schur.cb
     blk = _Blocks(system)
     cam_cov = blk.cameras()
-    T, pj, ei = blk.T, p.point_index, p.photo_index
-    Tt = np.transpose(T, (0, 2, 1))
+    point_cov, cross = _point_terms(system, blk, cam_cov, cross=True)
+    ei, pj = p.photo_index, p.point_index
     n_obs = len(pj)
-    # cross[a] = Cov(c_{i_a}, X_{j_a}) = -sum_b Z[i_a, i_b] T_b over observations b of the point
-    cross = -(cam_cov[ei] @ T)
-    point_cov = blk.vinv + system.schur.by_point(Tt @ cam_cov[ei] @ T)
-    schur = system.schur
-    n = len(schur.oa)
-    for c0 in range(0, n, CHUNK_PAIRS):
-        c1 = min(n, c0 + CHUNK_PAIRS)
-        oa, ob = schur.oa[c0:c1], schur.ob[c0:c1]
-        z = blk.pair(c0, c1)                                       # Z[i_a, i_b]
-        cross -= block_sum(oa, z @ T[ob], n_obs)
-        cross -= block_sum(ob, np.transpose(z, (0, 2, 1)) @ T[oa], n_obs)
-        x = Tt[oa] @ z @ T[ob]
-        point_cov += block_sum(pj[oa], x + np.transpose(x, (0, 2, 1)), p.n_points)
-    point_cov = 0.5 * (point_cov + np.transpose(point_cov, (0, 2, 1)))
     out = np.empty((n_obs, cb + 3, cb + 3))
     out[:, :cb, :cb] = cam_cov[ei]
     out[:, :cb, cb:] = cross

@@ -12,6 +12,7 @@ Non-convergence is a ``status`` of :class:`BundleResult`, not an exception.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
@@ -30,8 +31,9 @@ from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bound
 
 __all__ = ["BundleResult", "adjust", "STATUS_MESSAGES", "PCG_MIN_PHOTOS"]
 
-#: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below)
-PCG_MIN_PHOTOS = 2000
+#: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below; on
+#: strip blocks block-Jacobi PCG lost to the supernodal factor at 1,000 photos: docs/bundle.md)
+PCG_MIN_PHOTOS = 20000
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +94,11 @@ class BundleResult:
     precision : str
         Which covariance blocks were computed (``all``, ``photos``, ``none``;
         the others are NaN).
+    phases_s : dict
+        Wall time (s) of the phases: ``check``, ``approximations``, ``analysis``
+        (pattern and symbolic factorisation), ``model`` (residuals, Jacobians,
+        normal-equation blocks), ``solve`` (of it ``solve_assemble`` and
+        ``solve_factor``, or ``solve_pcg``), ``precision``.
     """
 
     status: str
@@ -120,6 +127,7 @@ class BundleResult:
     initial_points_m: np.ndarray
     elapsed_s: float = 0.0
     precision: str = "all"
+    phases_s: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -317,10 +325,20 @@ def adjust(
         raise ValueError(f"`solver` must be one of auto, direct, pcg, got {solver!r}")
     t0 = time.perf_counter()
     p = problem
+    phases = dict.fromkeys(("check", "approximations", "analysis", "model", "solve", "precision"), 0.0)
+
+    @contextlib.contextmanager
+    def phase(name: str):
+        t = time.perf_counter()
+        yield
+        phases[name] += time.perf_counter() - t
+
     if check:
-        check_datum(p)
+        with phase("check"):
+            check_datum(p)
     if initial is None:
-        eo, pts = approximations(p)
+        with phase("approximations"):
+            eo, pts = approximations(p)
     else:
         eo = np.array(initial[0], dtype=float).reshape(p.n_photos, 6)
         if initial[1] is None:
@@ -334,19 +352,24 @@ def adjust(
     n_iter = 0
     history: list[float] = []
     system = None
-    schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points)   # pattern of S, analysed once
+    with phase("analysis"):
+        # pattern of S and its ordering (camera positions of the approximations), analysed once
+        schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points, coords=eo[:, :3])
     method = solver if solver != "auto" else ("pcg" if p.n_photos >= PCG_MIN_PHOTOS else "direct")
     try:
-        system = _System(p, eo, pts, schur)
-        cost = system.vtpv if np.all(system.u3 < 0) else _cost(p, eo, pts)
+        with phase("model"):
+            system = _System(p, eo, pts, schur)
+            cost = system.vtpv if np.all(system.u3 < 0) else _cost(p, eo, pts)
         history.append(cost)
         while n_iter < max_iter:
             n_iter += 1
             accepted = False
             while True:
-                dc, dp = system.solve(lam, method)
+                with phase("solve"):
+                    dc, dp = system.solve(lam, method)
                 eo_new, pts_new = eo + dc, pts + dp
-                new_cost = _cost(p, eo_new, pts_new)
+                with phase("model"):
+                    new_cost = _cost(p, eo_new, pts_new)
                 if not damping or new_cost <= cost * (1 + 1e-12) or _tiny(dc, dp, tol_m, tol_rad):
                     accepted = True
                     break
@@ -371,11 +394,13 @@ def adjust(
                 break
             if damping:
                 lam = lam / 10.0 if lam > 1e-12 else 0.0
-            system = _System(p, eo, pts, schur)
+            with phase("model"):
+                system = _System(p, eo, pts, schur)
             if small and dcost < tol_vtpv:
                 status = "converged"
                 break
-        eo_cov, point_cov = covariance_blocks(system, precision)  # system is linearised at (eo, pts)
+        with phase("precision"):
+            eo_cov, point_cov = covariance_blocks(system, precision)  # linearised at (eo, pts)
     except _Singular as ex:
         status = "singular"
         log.warning("bundle adjustment: %s", ex)
@@ -408,4 +433,5 @@ def adjust(
         residuals_mm=system.r_obs, constraint_residuals_m=system.r_con,
         eo_constraint_residuals=system.r_eo, history=tuple(history), problem=p,
         initial_eo=eo0, initial_points_m=pts0, elapsed_s=time.perf_counter() - t0, precision=precision,
+        phases_s={**phases, **{f"solve_{k}": v for k, v in schur.timings.items()}},
     )
