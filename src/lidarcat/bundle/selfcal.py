@@ -522,7 +522,7 @@ def adjust_with_parameters(
         without = adjust(problem, variance_factor=variance_factor, chi2_level=chi2_level, precision="none")
     eo, pts = np.array(without.eo_params, dtype=float), np.array(without.points_m, dtype=float)
     theta = np.zeros(gl.k)
-    schur = _Schur(problem.photo_index, problem.point_index, problem.n_photos, problem.n_points)
+    schur = _Schur(problem.photo_index, problem.point_index, problem.n_photos, problem.n_points, coords=eo[:, :3])
     lam = 1e-6
     status, n_iter, history = "max_iterations", 0, []
     message_extra = singular = ""
