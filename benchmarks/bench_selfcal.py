@@ -119,6 +119,26 @@ def thesis() -> None:
             shift3 = np.array(fo["shift_m"])
             print(f"{'':24}v'Pv {res.without.vtpv:.2f} (dof {res.without.dof}) -> {res.bundle.vtpv:.2f} "
                   f"(dof {res.bundle.dof})")
+    print("\n   self-calibration of the Kodak DCS Pro 14n (c, x0, y0, k1, k2, p1) with the frame offset, gps+lidar")
+    print(f"   {'parameter':<12}{'certificate priors':>40}   {'free (no priors)':>52}")
+    both = []
+    for pri in (True, False):
+        comps = components_from_survey(s, p, SelfCalSettings(parameters=("c", "x0", "y0", "k1", "k2", "p1"),
+                                                              use_priors=pri, frame_offset=("lidar", "gps")))
+        both.append(adjust_with_parameters(p, comps))
+    for i, name in enumerate(both[0].names[:6]):
+        cells = []
+        for res in both:
+            t = res.tests()[i]
+            e, a = t["max_correlation_eo"], t["max_correlation_additional"]
+            r, w = (e["r"], f"{e['parameter']} {e['photo']}")
+            if abs(a["r"]) > abs(r):
+                r, w = a["r"], a["parameter"].split(".")[-1]
+            cells.append(f"{t['estimate']:+10.3g} +- {t['sd']:8.2g} t {t['t']:+5.2f} r {r:+.3f} ({w})")
+        print(f"   {name.split('.')[-1]:<12}" + "   ".join(cells))
+    for res, label in zip(both, ("priors", "free")):
+        print(f"   {label}: v'Pv {res.bundle.vtpv:.2f} (dof {res.bundle.dof}); warnings: "
+              + ("; ".join(w.split(":")[0] for w in res.warnings()) or "none"))
     import csv
     with open(Path(__file__).parents[1] / "tests/data/thesis/table13_gps_points_lidar_run.csv",
               encoding="utf-8") as fh:
