@@ -477,3 +477,27 @@ def test_survey_gnss_lines_recover_an_antenna_offset(tmp_path):
     w = res.warnings()
     assert len(w) == 6 and all("is not determinable" in m for m in w)
     assert "'gnss.b.offset_E' is not determinable from this block: correlated with X0 of photo" in w[3]
+
+
+def test_thesis_free_focal_length_is_warned_and_written(tmp_path):
+    """A real survey that cannot determine a switched-on parameter: the thesis strip with c free
+    (no certificate prior) -- r = +1.000 with a flying height; the warning is in summary.json and in
+    the CLI output, and the result folder is written."""
+    import json
+    import shutil
+    from click.testing import CliRunner
+    from lidarcat.cli.main import cli
+    from lidarcat.survey import thesis_survey_path
+    folder = tmp_path / "s"
+    shutil.copytree(thesis_survey_path(), folder)
+    with open(folder / "survey.toml", "a", encoding="utf-8") as fh:
+        fh.write('\n[self_calibration]\nparameters = "c"\nuse_priors = false\n')
+    r = CliRunner().invoke(cli, ["adjust", str(folder), "-o", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    assert "WARNING: additional parameter 'dcs14n.c' is not determinable from this block: correlated with Z0" \
+        in r.output
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    c = s["additional_parameters"]["dcs14n.c"]
+    assert not c["determinable"] and c["max_correlation_eo"]["parameter"] == "Z0" and c["max_correlation_eo"]["r"] > 0.99
+    assert c["prior_sd"] is None and s["warnings"]
+    assert (tmp_path / "o" / "eop.csv").is_file()
