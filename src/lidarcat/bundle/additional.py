@@ -151,10 +151,13 @@ class SelfCalibration:
                                            "calibration")
 
     def bind(self, problem) -> _BoundIO:
+        """The parameters of this switch for *problem* (see the module's component protocol)."""
         return _BoundIO(self, problem)
 
 
 class _BoundIO:
+    """Self-calibration bound to a problem: m parameters per camera used by its photos."""
+
     group_kind = "camera"
 
     def __init__(self, spec: SelfCalibration, problem):
@@ -268,10 +271,13 @@ class GnssLineOffsets:
     sd_drift_m_per_km: float = np.inf
 
     def bind(self, problem) -> _BoundGnss:
+        """The parameters of this switch for *problem* (see the module's component protocol)."""
         return _BoundGnss(self, problem)
 
 
 class _BoundGnss:
+    """GNSS line offsets bound to a problem: 3 (or 6) parameters per line with constrained positions."""
+
     group_kind = "gnss"
 
     def __init__(self, spec: GnssLineOffsets, problem):

@@ -72,6 +72,7 @@ class FrameOffset:
                                            f"{self.source!r} has no control point in the adjustment")
 
     def bind(self, problem) -> _BoundFrame:
+        """The parameters of this offset for *problem* (see :mod:`.additional`, component protocol)."""
         return _BoundFrame(self, problem)
 
 
@@ -104,6 +105,8 @@ def frame_offset_from_sources(problem, point_source: Sequence[str], source: str,
 
 
 class _BoundFrame:
+    """A frame offset bound to a problem: 3 or 7 parameters acting on the source's control rows."""
+
     group_kind = "frame"
 
     def __init__(self, spec: FrameOffset, problem):

@@ -51,9 +51,14 @@ __all__ = ["SelfCalSettings", "self_calibration_settings", "combined_control_set
 
 log = logging.getLogger(__name__)
 
-#: keys of the [self_calibration] table of survey.toml
-SELF_CALIBRATION_KEYS = ("parameters", "use_priors", "frame_offset", "similarity", "control", "alpha",
-                         "gnss_lines", "gnss_drift")
+def _keys() -> tuple[str, ...]:
+    from ..survey import SURVEY_KEYS
+
+    return tuple(SURVEY_KEYS["self_calibration"])
+
+
+#: keys of the [self_calibration] table of survey.toml (validated by lidarcat.survey)
+SELF_CALIBRATION_KEYS = _keys()
 
 
 @dataclasses.dataclass(frozen=True)
