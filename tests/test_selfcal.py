@@ -502,3 +502,27 @@ def test_thesis_free_focal_length_is_warned_and_written(tmp_path):
     assert c["max_correlation_eo"]["r"] > 0.99
     assert c["prior_sd"] is None and s["warnings"]
     assert (tmp_path / "o" / "eop.csv").is_file()
+
+
+def test_similarity_frame_offset_recovered_on_exact_data():
+    """Noise-free block whose LiDAR control is off by a shift, 40 ppm of scale and rotations of
+    50 / -30 / 80 urad: the 7-parameter frame offset returns them (to the linearisation, 1e-3)."""
+    b = selfcal_block(8, noise=False, dc_mm=0, dx0_mm=0, dy0_mm=0, dk1=0)
+    p = b.problem
+    lid = np.array(b.control_source) == "lidar"
+    truth = b.block.true_points_m[np.asarray(p.constraint_point_index)[lid]]
+    shift, scale, eps = np.array([0.3, -0.2, 0.4]), 40.0, np.array([50.0, -30.0, 80.0])
+    d = truth - truth.mean(axis=0)
+    src = truth - shift - 1e-6 * (scale * d + np.cross(eps, d))        # X_ref = X_s + t + 1e-6 (s dX + eps x dX)
+    c = np.asarray(p.constraint_enh_m).copy()
+    c[lid] = src
+    p2 = dataclasses.replace(p, constraint_enh_m=c)
+    res = adjust_with_parameters(p2, [frame_offset_from_sources(p2, b.control_source, "lidar", "gps",
+                                                                similarity=True)])
+    est = res.estimates
+    np.testing.assert_allclose(est[:3], shift, atol=2e-3)
+    assert est[3] == pytest.approx(scale, abs=1.0)
+    np.testing.assert_allclose(est[4:], eps, atol=1.0)
+    fo = res.summary()["frame_offset"]
+    assert fo["parameters"] == ["dE", "dN", "dh", "scale", "rot_E", "rot_N", "rot_h"]
+    assert fo["scale_ppm"]["estimate"] == pytest.approx(scale, abs=1.0) and len(fo["correlation"]) == 7
