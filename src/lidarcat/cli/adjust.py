@@ -121,17 +121,19 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     """
     from ..bundle import adjust_survey
     from ..bundle.selfcal_survey import adjust_survey_with_parameters, format_parameters, wants_parameters
+    from ..survey import Survey
 
-    if wants_parameters(survey, self_calibrate, frame_offset):
+    loaded = Survey.load(survey)  # once, for both paths
+    if wants_parameters(loaded, self_calibrate, frame_offset):
         sc, out = adjust_survey_with_parameters(
-            survey, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
+            loaded, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
             similarity=similarity, observations=observations, outdir=outdir,
             variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter,
             precision=precision)
         result = sc.bundle
         summary = {**result.summary(), **sc.summary(), "outdir": str(out)}
     else:
-        result, out = adjust_survey(survey, control=control, observations=observations, outdir=outdir,
+        result, out = adjust_survey(loaded, control=control, observations=observations, outdir=outdir,
                                     variance_factor=variance_factor, eo_constraints=eo_constraints,
                                     max_iter=max_iter, precision=precision)
         summary = {**result.summary(), "outdir": str(out)}
