@@ -261,9 +261,17 @@ def adjust_survey_with_parameters(
                                  frame_offset=frame_offset, similarity=similarity, observations=observations,
                                  variance_factor=variance_factor, chi2_level=chi2_level,
                                  eo_constraints=eo_constraints, max_iter=max_iter, precision=precision)
+    from .survey_io import survey_provenance
+
+    info = res.bundle.problem.info
+    params = dict(control=info.get("control_set"), observations=info.get("observations"),
+                  variance_factor=res.bundle.variance_factor_kind, chi2_level=float(res.bundle.chi2["level"]),
+                  eo_constraints=bool(info.get("eo_constraints")), max_iter=int(max_iter), precision=precision,
+                  additional_parameters=list(res.names), alpha=res.alpha)
     out = survey.output_dir(outdir)
     with atomic_dir(out) as tmp:
-        write_selfcal(res, tmp, extra={"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs})
+        write_selfcal(res, tmp, extra={"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs},
+                      provenance=survey_provenance(survey, params))
     return res, out
 
 
@@ -305,16 +313,17 @@ def selfcal_adjust(survey=None, *, control: str | None = None, self_calibrate: s
     return survey, res
 
 
-def write_selfcal(res: SelfCalResult, folder, extra: dict | None = None) -> dict:
+def write_selfcal(res: SelfCalResult, folder, extra: dict | None = None, provenance: dict | None = None) -> dict:
     """:func:`lidarcat.bundle.write_adjustment` of the adjustment with the parameters, summary.json with
-    :meth:`SelfCalResult.summary`, check_covariance.csv with the parameters' rank-k term.  Returns the
-    summary written."""
+    :meth:`SelfCalResult.summary`, check_covariance.csv with the parameters' rank-k term (and the
+    *provenance* of :func:`lidarcat.bundle.survey_io.survey_provenance`).  Returns the summary written."""
     from pathlib import Path
 
     from .survey_io import _write_point_covariance, write_adjustment
 
     folder = Path(folder)
-    summary = write_adjustment(res.bundle, folder, extra={**(extra or {}), **res.summary()})
+    summary = write_adjustment(res.bundle, folder, extra={**(extra or {}), **res.summary()},
+                               provenance=provenance)
     if (folder / "check_covariance.csv").is_file():       # add the additional parameters' rank-k term
         checks = [str(q) for q, r in zip(res.bundle.point_ids, res.bundle.point_role) if r == "check"]
         _write_point_covariance(
@@ -322,7 +331,7 @@ def write_selfcal(res: SelfCalResult, folder, extra: dict | None = None) -> dict
             "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances and the "
             "uncertainty of the additional parameters included: c_XY = Cov(X of point_a, Y of "
             f"point_b), one row per pair a <= b ({res.bundle.variance_factor_kind.replace('_', ' ')} "
-            "variance factor)")
+            "variance factor)", provenance=provenance)
     return summary
 
 

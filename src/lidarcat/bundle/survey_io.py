@@ -19,14 +19,15 @@ import numpy as np
 
 from .precision import joint_point_covariance
 from .problem import BundleProblem
-from .solve import BundleResult, adjust
+from .reliability import SnoopingResult, snoop
+from .solve import BundleResult
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..survey import Survey
 
 __all__ = ["adjust_survey", "write_adjustment", "problem_from_survey", "read_point_covariance",
            "EOP_COLUMNS", "POINT_COLUMNS", "RESIDUAL_COLUMNS", "COVARIANCE_COLUMNS",
-           "MAX_JOINT_COVARIANCE_POINTS"]
+           "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS"]
 
 log = logging.getLogger(__name__)
 
@@ -208,14 +209,15 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
     return ids, C
 
 
-def _write_point_covariance(path, ids: Sequence[str], C: np.ndarray, comment: str) -> None:
+def _write_point_covariance(path, ids: Sequence[str], C: np.ndarray, comment: str,
+                            provenance: dict | None = None) -> None:
     """Write the joint covariance *C* (3k, 3k) of points *ids* as :func:`read_point_covariance` reads it:
     one row of the 3 x 3 block per pair a <= b, atomically."""
     from .._io import write_csv_atomic
 
     rows = [[a, b, *C[3 * i:3 * i + 3, 3 * j:3 * j + 3].ravel()]
             for i, a in enumerate(ids) for j, b in enumerate(ids[i:], start=i)]
-    write_csv_atomic(path, COVARIANCE_COLUMNS, rows, comments=[comment])
+    write_csv_atomic(path, COVARIANCE_COLUMNS, rows, comments=[comment], provenance=provenance)
 
 
 #: columns of eop.csv (metres and degrees)
@@ -229,17 +231,28 @@ RESIDUAL_COLUMNS = ("kind", "photo", "point", "vx_mm", "vy_mm", "vE_m", "vN_m", 
                     "vomega_deg", "vphi_deg", "vkappa_deg")
 
 
-def write_adjustment(result: BundleResult, folder, extra: dict | None = None) -> dict:
+def write_adjustment(result: BundleResult, folder, extra: dict | None = None, *,
+                     snooping: SnoopingResult | None = None, provenance: dict | None = None) -> dict:
     """Write ``eop.csv``, ``points.csv``, ``residuals.csv`` and ``summary.json`` into *folder*,
     and ``check_covariance.csv`` (:func:`read_point_covariance`) when the adjustment converged
     with 1 to :data:`MAX_JOINT_COVARIANCE_POINTS` check points and ``precision="all"``.
 
+    With *snooping* (:func:`lidarcat.bundle.reliability.snoop`) also ``blunders.csv`` (every
+    group rejected, :data:`BLUNDER_COLUMNS`) and ``reliability.csv`` (redundancy number,
+    w-test, MDB and external reliability of every scalar observation), and the keys
+    ``snooping`` and ``blunders`` in the summary.  *provenance*
+    (:func:`lidarcat._io.provenance`) goes into every CSV sidecar and the summary.
+
     Each file is written atomically; wrap the call in :func:`lidarcat._io.atomic_dir`
     to make the whole folder appear at once.  Returns the summary dict written.
     """
+    from functools import partial
     from pathlib import Path
 
-    from .._io import write_csv_atomic, write_json_atomic
+    from .._io import write_csv_atomic as _write_csv
+    from .._io import write_json_atomic
+
+    write_csv_atomic = partial(_write_csv, provenance=provenance)
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -274,13 +287,47 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None) ->
             folder / "check_covariance.csv", checks, joint_point_covariance(result, checks),
             "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances "
             "included: c_XY = Cov(X of point_a, Y of point_b), one row per pair a <= b "
-            f"({result.variance_factor_kind.replace('_', ' ')} variance factor)")
+            f"({result.variance_factor_kind.replace('_', ' ')} variance factor)", provenance)
     elif len(checks) > MAX_JOINT_COVARIANCE_POINTS:
         log.info("%d check points: joint covariance not written (limit %d)", len(checks),
                  MAX_JOINT_COVARIANCE_POINTS)
     summary = {**result.summary(), **(extra or {})}
+    if snooping is not None:
+        summary.update(_write_snooping(snooping, folder, write_csv_atomic))
+    if provenance is not None:
+        summary["provenance"] = provenance
     write_json_atomic(folder / "summary.json", summary)
     return summary
+
+
+#: columns of ``blunders.csv``: estimated errors in mm (image), m (control), m and deg (eo)
+BLUNDER_COLUMNS = ("kind", "photo", "point", "w", "w_critical", "redundancy", "estimated_error_1",
+                   "estimated_error_2", "estimated_error_3", "removed", "found_by", "iteration", "note")
+
+
+def _write_snooping(snooping: SnoopingResult, folder, write_csv) -> dict:
+    """blunders.csv and reliability.csv of the snooping hook; returns the summary keys."""
+    from .reliability import RELIABILITY_COLUMNS
+
+    if snooping.mode == "off":
+        return snooping.summary()
+    rows = []
+    for b in snooping.blunders:
+        err = list(b.estimated_error[:3]) + [math.nan] * (3 - min(3, len(b.estimated_error)))
+        rows.append([b.kind, b.photo or "", b.point or "", b.w, b.w_critical, b.redundancy, *err,
+                     b.removed, b.found_by, b.iteration, b.note])
+    write_csv(folder / "blunders.csv", BLUNDER_COLUMNS, rows, comments=[
+        f"observation groups rejected by data snooping ({snooping.mode}; robust {snooping.robust}): "
+        "w = sqrt of the group's chi-square test statistic, w_critical its critical value, redundancy "
+        "the mean redundancy number, estimated_error_1..3 the estimated bias (observed minus true) of "
+        "x, y (mm, image), E, N, h (m, control) or X0, Y0, Z0 (m, eo)"])
+    if snooping.reliability is not None:
+        write_csv(folder / "reliability.csv", RELIABILITY_COLUMNS, snooping.reliability.rows(), comments=[
+            "one row per scalar observation: redundancy number r, component w-test, estimated error, "
+            "minimal detectable bias (mdb) in the unit given, bias-to-noise ratio (bnr) and the shift of "
+            "the orientation of effect_photo by that MDB (external reliability); w, w_critical: the "
+            "group's multi-dimensional test"])
+    return snooping.summary()
 
 
 def adjust_survey(
@@ -295,6 +342,9 @@ def adjust_survey(
     max_iter: int = 50,
     precision: str = "all",
     progress: Callable[[int, float], None] | None = None,
+    snooping: str = "report",
+    snooping_level: float = 0.001,
+    robust: str = "none",
 ) -> tuple[BundleResult, Any]:
     """Load a survey, adjust it and write the result folder (``lidarcat adjust``).
 
@@ -311,6 +361,13 @@ def adjust_survey(
         Default: the survey's ``[adjustment]`` settings.
     eo_constraints : bool
         Use photos.csv exterior orientations with sigmas as weighted constraints.
+    snooping : {"off", "report", "remove"}
+        Baarda's data snooping (:func:`lidarcat.bundle.reliability.snoop`): list the
+        blunders (``report``, the result keeps every observation) or remove them.
+    snooping_level : float
+        alpha of the one-dimensional w-test (B-method, power 0.80).
+    robust : {"none", "danish", "huber"}
+        Re-weighting before snooping (large blocks with many blunders).
     precision : {"all", "photos", "none"}
         Covariance blocks to compute (see :func:`adjust`); the joint covariance of
         the check points is written with ``"all"`` only.
@@ -318,6 +375,9 @@ def adjust_survey(
     Returns
     -------
     (BundleResult, Path of the output folder)
+        The final adjustment (without the removed groups for ``remove``); the
+        blunders are in ``summary.json`` (``blunders``, ``snooping``) and
+        ``blunders.csv``.
 
     Raises
     ------
@@ -332,12 +392,25 @@ def adjust_survey(
     settings = survey.settings
     problem = problem_from_survey(survey, control=control, observations=observations,
                                   eo_constraints=eo_constraints)
-    result = adjust(problem, max_iter=max_iter, precision=precision,
-                    variance_factor=variance_factor or settings.variance_factor,
-                    chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
-                    progress=progress)
+    params = dict(control=problem.info.get("control_set"), observations=problem.info.get("observations"),
+                  variance_factor=variance_factor or settings.variance_factor,
+                  chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
+                  eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
+                  snooping_level=float(snooping_level), robust=robust, precision=precision)
+    sres = snoop(problem, mode=snooping, level=snooping_level, robust=robust, max_iter=max_iter,
+                 precision=precision, variance_factor=params["variance_factor"],
+                 chi2_level=params["chi2_level"], progress=progress)
     out = survey.output_dir(outdir)
     with atomic_dir(out) as tmp:
-        write_adjustment(result, tmp, extra={"elapsed_total_s": time.perf_counter() - t0,
-                                             "crs": survey.crs})
-    return result, out
+        write_adjustment(sres.result, tmp, extra={"elapsed_total_s": time.perf_counter() - t0,
+                                                  "crs": survey.crs},
+                         snooping=sres, provenance=survey_provenance(survey, params))
+    return sres.result, out
+
+
+def survey_provenance(survey: Survey, parameters: dict) -> dict:
+    """:func:`lidarcat._io.provenance` of the survey files an adjustment reads (SHA-256 each)."""
+    from .._io import provenance
+
+    files = {"survey.toml": survey.toml_path, **{k: v for k, v in survey.files.items() if k != "lidar"}}
+    return provenance(files, parameters, root=survey.root)

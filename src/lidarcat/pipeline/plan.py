@@ -31,7 +31,7 @@ from .runner import (
     run_stages,
     safe_name,
 )
-from .stages import adjust, assess, camera, compare, extract, report, selfcal
+from .stages import adjust, assess, camera, compare, extract, report, selfcal, thesis
 from .stages.report import results
 
 __all__ = ["FROM_SURVEY", "plan_pipeline", "run_pipeline"]
@@ -139,7 +139,8 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
             inputs=lambda ctx: files,
             params={"control": name, "derived": derived, "scale": scale,
                     "contour_interval_m": contour_interval_m, "alpha": judged.alpha,
-                    "pec_class": judged.pec_class},
+                    "pec_class": judged.pec_class,
+                    "plotting_position": judged.plotting_position},
             skip_reason=f"control set {name} has no check points" if n_check == 0 else None,
             description=f"check-point accuracy, control set {name}"))
     pairs = [(runs[0][0], other) for other, _ in runs[1:]]
@@ -152,6 +153,15 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
         stages.append(Stage("compare", "compare", compare.run,
                             skip_reason="needs two control sets (runs) to compare; the survey has "
                                         f"{len(runs)}"))
+    published = survey.root / thesis.PUBLISHED
+    if published.is_dir():  # a survey that reproduces the thesis (the embedded block)
+        has_runs = all(r in dict(runs) for r in thesis.RUNS)
+        stages.append(Stage(
+            "thesis", "thesis", thesis.run, requires=tuple(f"adjust-{r}" for r in thesis.RUNS) if has_runs else (),
+            inputs=lambda ctx: [*files, *thesis.published_files(published).values()],
+            params={"alpha": judged.alpha},
+            skip_reason=None if has_runs else f"needs the control sets {' and '.join(thesis.RUNS)} of the thesis",
+            description="thesis section 4.4 (Tables 8-15) beside this run"))
     if selfcal.planned(survey):
         stages.append(Stage("selfcal", "selfcal", selfcal.run, inputs=lambda ctx: files,
                             description="adjustment with additional parameters ([self_calibration])"))

@@ -6,6 +6,7 @@
 ``adjust``     bundle adjustment of one control set (eq. 08-22)
 ``assess``     check-point accuracy of one run (section 3.3.4)
 ``compare``    run A minus run B (section 4.4)
+``thesis``     the thesis's printed section 4.4 beside this run
 ``selfcal``    adjustment with additional parameters (issue 13), when planned
 ``report``     index.html / index.md / report.json of the whole run
 =============  ======================================================
@@ -15,6 +16,6 @@ Each module has ``run(ctx, tmpdir) -> dict`` (see
 orders them for a survey.
 """
 
-from . import adjust, assess, camera, compare, extract, report, selfcal
+from . import adjust, assess, camera, compare, extract, report, selfcal, thesis
 
-__all__ = ["camera", "extract", "adjust", "assess", "compare", "selfcal", "report"]
+__all__ = ["camera", "extract", "adjust", "assess", "compare", "thesis", "selfcal", "report"]

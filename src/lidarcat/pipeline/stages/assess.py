@@ -46,7 +46,8 @@ def run(ctx: Context, tmp: Path) -> dict:
         cov = read_point_covariance(cov_path)
     a = assess(adjusted, reference, points=checks, scale=par.get("scale"),
                contour_interval_m=par.get("contour_interval_m"), alpha=par.get("alpha", 0.10),
-               pec_class=par.get("pec_class", "A"), adjusted_cov=cov)
+               pec_class=par.get("pec_class", "A"),
+               plotting_position=par.get("plotting_position", "filliben"), adjusted_cov=cov)
     doc = a.to_dict()
     doc["control_set"] = name
     doc["check_points_not_adjusted"] = missing

@@ -9,6 +9,7 @@ consistency test) with a link to its own HTML report, and every comparison.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -24,10 +25,10 @@ __all__ = ["run", "results", "num"]
 
 
 def results(records: Iterable[StageRecord]) -> dict[str, Any]:
-    """``runs``, ``comparison`` and ``extraction`` of the done stages (summary.json and the report)."""
+    """``runs``, ``comparison``, ``extraction`` and ``thesis`` of the done stages (summary.json, report)."""
     runs: dict[str, Any] = {}
     comparison: dict[str, Any] = {}
-    extraction = selfcal = None
+    extraction = thesis = selfcal = None
     for r in records:
         if not r.done:
             continue
@@ -44,9 +45,11 @@ def results(records: Iterable[StageRecord]) -> dict[str, Any]:
             comparison[r.name[8:]] = dict(r.result)
         elif r.name == "extract":
             extraction = dict(r.result)
+        elif r.name == "thesis":
+            thesis = dict(r.result)
         elif r.name == "selfcal":
             selfcal = dict(r.result)
-    return {"runs": runs, "comparison": comparison, "extraction": extraction,
+    return {"runs": runs, "comparison": comparison, "extraction": extraction, "thesis": thesis,
             **({"selfcal": selfcal} if selfcal else {})}
 
 
@@ -62,7 +65,18 @@ def run(ctx: Context, tmp: Path) -> dict:
         state = "done" if rec and rec.done else rec.status if rec else "not run"
         rows.append({"stage": st.name, "what": st.description, "state": state,
                      "reason": rec.reason if rec and not rec.done else ""})
-    doc = {"survey": survey.name, "stages": rows,
+    from ...survey import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
+
+    judged = next((st.params for st in plan if st.name.startswith("assess-")), None)
+    settings = None
+    if judged is not None:
+        overridden = (judged["scale"] != survey.assessment.scale
+                      or judged["contour_interval_m"] != survey.assessment.contour_interval_m)
+        settings = {k: judged[k] for k in ("scale", "contour_interval_m", "alpha", "pec_class",
+                                           "plotting_position")}
+        settings.update(source="the command line" if overridden else "survey.toml [assessment]",
+                        default_scale=DEFAULT_SCALE, default_contour_interval_m=DEFAULT_CONTOUR_INTERVAL_M)
+    doc = {"survey": survey.name, "stages": rows, "settings": settings,
            **results(ctx.records[st.name] for st in plan if st.name in ctx.records)}
     doc["reports"] = {name: f"../{run['report']}" for name, run in doc["runs"].items()
                       if "report" in run and (ctx.outdir / run["report"]).is_file()}
@@ -70,6 +84,8 @@ def run(ctx: Context, tmp: Path) -> dict:
         eo_path = ctx.folder(f"compare-{name}") / "eop_differences.csv"
         if eo_path.is_file() and cmp_.get("n_photos", 0) <= 50:
             cmp_["eop_per_photo"] = {p: v.tolist() for p, v in read_photo_rows(eo_path, EOP_DIFF).items()}
+    if doc.get("thesis") and ctx.done("thesis"):
+        doc["thesis_detail"] = json.loads((ctx.folder("thesis") / "thesis_4_4.json").read_text(encoding="utf-8"))
     write_json_atomic(tmp / "report.json", doc)
     md = _report_markdown(doc)
     write_text_atomic(tmp / "index.md", md)
@@ -82,6 +98,15 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
              "| stage | what | state | reason |", "|---|---|---|---|"]
     for r in doc["stages"]:
         lines.append(f"| {r['stage']} | {r['what']} | {r['state']} | {r['reason']} |")
+    st = doc.get("settings")
+    if st:
+        scale = f"1:{st['scale']:g}" if st["scale"] else "none (not applicable)"
+        ci = f"{st['contour_interval_m']:g} m" if st["contour_interval_m"] else "none (not applicable)"
+        lines += ["", f"Check points judged at map scale {scale} with a contour interval of "
+                      f"{ci}, PEC class {st['pec_class']}, every test at alpha "
+                      f"{st['alpha']:g}, Filliben positions {st['plotting_position']} (from "
+                      f"{st['source']}; `lidarcat assess` and `lidarcat run` share the defaults "
+                      f"1:{st['default_scale']:g} and {st['default_contour_interval_m']:g} m)."]
     ext = doc.get("extraction")
     if ext:
         lines += ["", "## LiDAR control points", "",
@@ -145,7 +170,44 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
             for ph, d in per_photo.items():
                 lines.append(f"| {ph} | " + " | ".join(num(v, 3) for v in d[:3]) + " | "
                              + " | ".join(num(v, 4) for v in d[3:]) + " |")
+    lines += _thesis_markdown(doc.get("thesis_detail"))
     return "\n".join(lines) + "\n"
+
+
+def _thesis_markdown(det: Mapping[str, Any] | None) -> list[str]:
+    """Section "Thesis section 4.4": the printed values beside the recomputed ones, errata marked."""
+    if not det:
+        return []
+    lines = ["", "## Thesis section 4.4", "",
+             "Fierro Sanhueza (2007), the LiDAR-controlled run and the comparison of the two runs. "
+             "Statistics of sections 4.4.4.1-4.4.4.4 on Table 13 (the 21 GPS points triangulated with "
+             "LiDAR control): printed, recomputed from the printed Table 13 (agreement at the printed "
+             "precision), and from this run's adjustment. Filliben with the positions (i-0.5)/n, "
+             "alpha 0.10, PEC 1:2000 class A, contour interval 2 m. A mark [E] names a misprint of "
+             "errata.json (listed below with its evidence).", "",
+             "| statistic | printed | from printed Table 13 | this run | agrees | erratum |",
+             "|---|---|---|---|---|---|"]
+    for r in det["statistics"]:
+        nd = r["decimals"] + 1
+        lines.append(f"| {r['label']} | {num(r['printed'], r['decimals'])} | "
+                     + " | ".join(num(v, nd) for v in r["values"])
+                     + f" | {'yes' if r['agrees'] else 'NO'} | {('[E] ' + r['erratum']) if r['erratum'] else ''} |")
+    lines += ["", "Tables 8-13 and Appendices 2.2 / 3.2 against this run: largest difference "
+                  "(this run minus printed, errata applied) and its tolerance (printed precision, or the "
+                  "GPS run's where the rounding of the published photo coordinates limits the reproduction).", "",
+              "| table | quantity | values | max abs difference | tolerance | agrees | erratum |",
+              "|---|---|---|---|---|---|---|"]
+    for r in det["tables"]:
+        unit = f" {r['unit']}" if r["unit"] and r["unit"] != "relative" else ""
+        diff = (f"{100 * r['max_abs_diff']:.2f} %" if r["unit"] == "relative" else num(r["max_abs_diff"], 4) + unit)
+        tol = f"{100 * r['tolerance']:.0f} %" if r["unit"] == "relative" else f"{r['tolerance']:g}{unit}"
+        lines.append(f"| {r['table']} | {r['what']} | {r['n']} | {diff} | {tol} | "
+                     f"{'yes' if r['agrees'] else 'NO'} | {('[E] ' + r['erratum']) if r['erratum'] else ''} |")
+    if det.get("errata"):
+        lines += ["", "Errata met above (errata.json):", ""]
+        for where, e in det["errata"].items():
+            lines.append(f"- [E] {where}: printed {e['printed']}, corrected {e['corrected']}. {e['evidence']}")
+    return lines
 
 
 def num(v: Any, nd: int) -> str:
