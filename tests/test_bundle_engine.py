@@ -136,3 +136,35 @@ def test_precision_switch():
     assert none.vtpv == full.vtpv and none.success
     with pytest.raises(ValueError, match="`precision` must be one of none, photos, all, got 'some'"):
         adjust(b.problem, initial=init, precision="some")
+
+
+def test_pcg_solver_reaches_the_direct_minimum():
+    """Inexact-Newton PCG steps (block Jacobi, Q-ratio truncation) end at the same minimum as the
+    Cholesky steps; the covariance (always from the factor) is the same."""
+    b = synthetic_block(3, 6, seed=6, point_spacing_m=120.0)
+    direct = adjust(b.problem, solver="direct")
+    pcg = adjust(b.problem, solver="pcg", max_iter=100)
+    assert direct.success and pcg.success
+    assert abs(pcg.vtpv - direct.vtpv) < 1e-8 * direct.vtpv
+    np.testing.assert_allclose(pcg.points_m, direct.points_m, rtol=0, atol=1e-3)
+    np.testing.assert_allclose(pcg.eo_cov, direct.eo_cov, rtol=1e-4, atol=1e-14)
+    assert pcg.phases_s["solve_pcg"] > 0 and pcg.phases_s["solve_factor"] == 0
+    with pytest.raises(ValueError, match="`solver` must be one of auto, direct, pcg, got 'lu'"):
+        adjust(b.problem, solver="lu")
+
+
+def test_pcg_truncation_and_exact_solution():
+    """_pcg solves an SPD system exactly with a tiny eta, and stops early (fewer iterations) with
+    Ceres's eta = 0.1 while still decreasing the quadratic model."""
+    from lidarcat.bundle.linear import _pcg
+
+    A, sizes, off, _ = _grid_matrix(8, 6, 0, seed=7)
+    b = np.random.default_rng(8).normal(size=A.shape[0])
+    D = A.toarray()
+    prec = np.linalg.inv(np.stack([D[o:o + 6, o:o + 6] for o in off[:-1]]))
+    x, it_exact = _pcg(A, b, prec, eta=1e-12, max_iter=2000)
+    # the Q-ratio converges quadratically faster than x: S x = b to ~1e-8, not to rounding
+    np.testing.assert_allclose(A @ x, b, rtol=0, atol=1e-6 * np.abs(b).max())
+    y, it_trunc = _pcg(A, b, prec)
+    assert 1 <= it_trunc < it_exact
+    assert 0.5 * y @ (A @ y) - b @ y < 0

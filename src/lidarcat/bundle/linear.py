@@ -157,7 +157,7 @@ class _Schur:
         self.n_slots = bpat.nnz
         self.slot_diag = _slots(bpat, diag, diag)
         s_up = _slots(bpat, ia, ib)
-        order = np.argsort(s_up, kind="stable")          # pairs sorted by slot (for reduceat)
+        order = np.argsort(s_up, kind="stable")          # pairs sorted by slot (chunks touch few slots)
         self.oa, self.ob, self.s_up = oa[order], ob[order], s_up[order]
         self._chunks = [(c0, min(len(oa), c0 + CHUNK_PAIRS)) for c0 in range(0, len(oa), CHUNK_PAIRS)]
         self._chunk_sum = [_Aggregator(self.s_up[c0:c1], self.n_slots) for c0, c1 in self._chunks]
@@ -183,13 +183,14 @@ class _Schur:
         self.pattern = sp.csr_matrix((np.ones(total), scal_cols, scal_indptr),
                                      shape=(n_cameras * cb, n_cameras * cb))
         self.chol = SupernodalCholesky(self.pattern, np.full(n_cameras, cb), coords=coords)
-        self._zloc = None
+        self._zloc = None        # locations of the Z blocks of the precision (set on first use)
+        self._dg: np.ndarray | None = None
 
     # -----------------------------------------------------------------------
 
     def _diag_gather(self) -> np.ndarray:
         """Positions in the scalar CSR data of the diagonal blocks, (C * cb * cb,) in block order."""
-        if getattr(self, "_dg", None) is None:
+        if self._dg is None:
             inv = np.empty_like(self.gather)
             inv[self.gather] = np.arange(len(self.gather))
             cb2 = self.cb * self.cb
