@@ -20,3 +20,19 @@ DATA = TESTS / "data"
 THESIS_TABLES = DATA / "thesis"
 THESIS_SURVEY = ROOT / "data" / "thesis"
 LIDAR_DATA = DATA / "lidar"
+
+
+def _named_like_an_option(folder: Path) -> list[str]:
+    """Files or folders in *folder* (not recursive) whose name starts with '-': a CLI that took an
+    option for its output path (the tracked file '--help' of issue 16)."""
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("-"))
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """After the suite: no file named like an option in the repository root, tests/ or docs/, or
+    the working directory (the run fails otherwise; see tests/test_repo_files.py)."""
+    stray = {str(d): _named_like_an_option(d) for d in {ROOT, TESTS, ROOT / "docs", Path.cwd()} if d.is_dir()}
+    stray = {d: names for d, names in stray.items() if names}
+    if stray:
+        session.config.get_terminal_writer().line(f"files named like an option after the tests: {stray}", red=True)
+        session.exitstatus = 1

@@ -138,3 +138,12 @@ def test_assess_and_run_share_one_contour_interval_default(tmp_path):
     md = (tmp_path / "rep" / "report.md").read_text()
     assert ("Map scale 1:2000, contour interval 2 m for the altimetric classes. `lidarcat assess` and "
             "`lidarcat run` share the defaults 1:2000 and 2 m") in md
+
+
+def test_text_output_explains_the_confidence_labels():
+    r = _run([str(POINTS), str(THESIS_SURVEY)])
+    assert r.exit_code == 0, r.output
+    assert "pec        1:2000 planimetric: class A; altimetric: class A [P (primary text read)]" in r.output
+    legend = next(ln for ln in r.output.splitlines() if ln.startswith("  confidence / tags like [K]:"))
+    assert "K domain knowledge, not confirmed against the standard" in legend
+    assert "STANDARDS.md: docs/standards.md, installed as lidarcat/standards_data/STANDARDS.md" in legend

@@ -141,3 +141,69 @@ def test_ortho_cli_true_orthos_and_mosaic(survey, tmp_path):
     assert r.exit_code == 2 and "give one of --dtm (standard orthophoto) or --dsm (true orthophoto)" in r.output
     assert not (tmp_path / "x").exists()
     assert math.isfinite(float(np.nanmax(m)))
+
+
+@pytest.mark.parametrize("name, text, message", [
+    ("a.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"id": "r1"}, '
+                  '"geometry": {"type": "MultiPoint", "coordinates": [[1, 2]]}}]}',
+     "a.geojson: feature 'r1': geometry type 'MultiPoint'; use Point, LineString or Polygon (one part per feature)"),
+    ("b.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"id": "L"}, '
+                  '"geometry": {"type": "LineString", "coordinates": [[1, 2]]}}]}',
+     "b.geojson: feature 'L': a line needs at least 2 vertices"),
+    ("c.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"id": "p"}, '
+                  '"geometry": {"type": "Point", "coordinates": ["x", 2]}}]}',
+     "c.geojson: feature 'p': coordinates are not [col_px, row_px] numbers"),
+    ("d.geojson", '{"type": "Feature"', "d.geojson:1: invalid JSON"),
+    ("e.csv", "feature,col_px,row_px\nA,1,2\nB,3,4\nA,5,6\n", "e.csv:4: field 'feature': rows of feature 'A' are not consecutive"),
+    ("f.csv", "feature,col_px,row_px,geometry\nA,1,2,polygon\nA,3,4,polygon\n",
+     "f.csv:2: field 'feature': feature 'A' is a polygon with 2 vertices"),
+    ("g.txt", "x", "g.txt: unknown feature file type '.txt'; use .geojson or .csv"),
+])
+def test_feature_file_errors_are_located(tmp_path, name, text, message):
+    from lidarcat.features import FeatureError, read_features
+
+    (tmp_path / name).write_text(text)
+    with pytest.raises(FeatureError) as ei:
+        read_features(tmp_path / name)
+    assert str(ei.value).startswith(f"{tmp_path}/{message}")      # file (and line) first, exact text
+
+
+def test_run_mapping_stage_when_the_survey_asks(survey, tmp_path):
+    """The [mapping] table: parsed with located errors, planned as a stage of lidarcat run,
+    and the stage writes the surface model, the true orthophotos and the mosaic."""
+    import shutil
+    from types import SimpleNamespace
+
+    from lidarcat.errors import SurveyError
+    from lidarcat.pipeline.plan import plan_pipeline
+    from lidarcat.pipeline.runner import Context
+    from lidarcat.pipeline.stages import mapping
+    from lidarcat.survey import Survey
+
+    root, scene, _ = survey
+    s0 = Survey.load(root)
+    assert "mapping" not in [st.name for st in plan_pipeline(s0)]      # no [mapping] table: no stage
+    work = tmp_path / "s"
+    shutil.copytree(root, work)
+    toml = work / "survey.toml"
+    base = toml.read_text()
+    toml.write_text(base + '\n[mapping]\northophotos = true\nsurface = "dsn"\n')
+    with pytest.raises(SurveyError, match=r"survey\.toml:\d+: field 'surface': 'dsn' is not 'dsm' \(true "
+                                          r"orthophotos\) or 'dtm'"):
+        mapping.settings(Survey.load(work))
+    toml.write_text(base + '\n[mapping]\northophotos = true\ngsd_m = 1.0\ncell_m = 0.5\n')
+    s = Survey.load(work)
+    stage = next(st for st in plan_pipeline(s) if st.name == "mapping")
+    assert stage.skip_reason == "no adjustment (control set) to take the orientations from"
+    # run the stage itself on the adjustment folder out/adjust-gps of the fixture
+    ctx = Context(work, values={"survey": s})
+    ctx.records["adjust-gps"] = SimpleNamespace(folder="out/adjust-gps")
+    ctx.stage = SimpleNamespace(params={"adjust": "adjust-gps"})
+    out = tmp_path / "mapping"
+    out.mkdir()
+    res = mapping.run(ctx, out)
+    assert sorted(p.name for p in out.iterdir()) == [
+        "dsm.png", "dsm.tif", "mosaic.png", "mosaic.tif", "ortho_A.png", "ortho_A.tif", "ortho_B.png",
+        "ortho_B.tif", "seamlines.geojson"]
+    assert [o["photo"] for o in res["orthophotos"]] == ["A", "B"] and res["mosaic"]["gsd_m"] == 1.0
+    assert all(o["true_ortho"] for o in res["orthophotos"])

@@ -166,3 +166,32 @@ def test_run_from_an_installed_layout_finds_the_embedded_block(tmp_path):
     # the default output folder of the embedded block is ./lidarcat-out
     assert (work / "lidarcat-out" / "report" / "index.html").is_file()
     assert summary["runs"]["gps"]["adjustment"]["dof"] == 128
+
+
+def test_run_whose_adjustment_fails_its_chi_square_test_does_not_end_ok(tmp_path):
+    """Image sd halved (0.003 mm instead of the thesis's 0.006): v'Pv is four times too large, both
+    adjustments fail the chi-square test of the variance factor. Every stage still runs, but the
+    run line, the last line, the exit code (3), summary.json and the report say so."""
+    survey = tmp_path / "thesis"
+    shutil.copytree(THESIS_SURVEY, survey)
+    toml = survey / "survey.toml"
+    toml.write_text(toml.read_text().replace("image_sd_mm = 0.006", "image_sd_mm = 0.003"))
+    r = CliRunner().invoke(cli, ["run", str(survey), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 3, r.output
+    lines = r.output.splitlines()
+    assert lines[-1] == ("STATISTICAL TEST FAILED: every stage ran, but adjust-gps, adjust-lidar failed its "
+                         "chi-square test (exit code 3)")
+    assert "ok" not in lines
+    run_gps = next(ln for ln in lines if ln.startswith("  run gps:"))
+    assert "chi2 FAILED" in run_gps
+    fail = next(ln for ln in lines if ln.startswith("  statistical test failed, adjust-gps:"))
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    adj = summary["runs"]["gps"]["adjustment"]
+    assert adj["vtpv"] > 3 * 148.30 and adj["chi2_pass"] is False  # the image residuals now weigh 4 x
+    assert (f"chi-square test of the variance factor failed: v'Pv {adj['vtpv']:.2f} outside [98.58, 161.21] "
+            f"(128 dof, 0.05 level; sigma0^2 {adj['sigma0_sq']:.3f})") in fail
+    assert summary["status"] == "test failed" and summary["ok"] is False and summary["failed"] == []
+    assert [t.split(":")[0] for t in summary["tests_failed"]] == ["adjust-gps", "adjust-lidar"]
+    md = (tmp_path / "out" / "report" / "index.md").read_text()
+    assert md.splitlines()[2].startswith("**Statistical test failed** (every stage ran; read the results")
+    # the thesis settings pass (exit 0, last line ok): covered by test_run_thesis_block_default_outdir

@@ -40,6 +40,11 @@ def lidar(scene):
 
 
 @pytest.fixture(scope="module")
+def tin(lidar):
+    return PointSurface(lidar["xyz"], "tin", sd_m=0.05)
+
+
+@pytest.fixture(scope="module")
 def truth_points(scene):
     """Roof vertices (apex, ridge ends) and ground points of the scene."""
     verts = np.vstack([b.vertices(scene.base_height(i)) for i, b in enumerate(scene.buildings)])
@@ -58,11 +63,10 @@ def truth_points(scene):
 
 
 @pytest.mark.parametrize("method", ["exact", "iterate"])
-def test_tin_roof_vertices_and_ground_within_1_5_ground_pixels(lidar, truth_points, method):
+def test_tin_roof_vertices_and_ground_within_1_5_ground_pixels(tin, truth_points, method):
     verts, ground = truth_points
     pts = np.vstack([verts, ground])
-    surf = PointSurface(lidar["xyz"], "tin", sd_m=0.05)
-    res = monoplot(_pixels(pts), CAM, EO, surf, method=method)
+    res = monoplot(_pixels(pts), CAM, EO, tin, method=method)
     assert res.status.tolist() == ["ok"] * len(pts)
     err = np.hypot(*(res.enh[:, :2] - pts[:, :2]).T)
     assert err.max() <= 1.5 * GSD_M

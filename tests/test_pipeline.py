@@ -433,3 +433,101 @@ def test_control_sets_sharing_an_output_folder_are_refused(survey_copy, tmp_path
                              "share the output folder adjust-a_b; rename one (letters, digits, _ . - "
                              "are kept)")
     assert not (tmp_path / "out" / "adjust-a_b").exists()
+
+
+def test_every_csv_output_of_the_run_opens_in_pandas_with_its_header_first(thesis_run):
+    """pandas.read_csv with default arguments (as QGIS and GDAL read the first line as the header):
+    the columns are the header line, numbers parse as numbers, notes live in the .csv.json sidecar."""
+    pd = pytest.importorskip("pandas")
+    csvs = sorted(thesis_run.outdir.rglob("*.csv"))
+    folders = {p.relative_to(thesis_run.outdir).parts[0] for p in csvs}
+    assert folders >= {"camera", "adjust-gps", "adjust-lidar", "assess-gps", "assess-lidar", "compare-gps-lidar"}
+    for path in csvs:
+        first = path.read_text(encoding="utf-8").splitlines()[0]
+        assert not first.startswith("#"), path
+        df = pd.read_csv(path)
+        assert list(df.columns) == first.split(","), path
+        assert len(df) > 0 and not any(str(c).startswith(("#", "Unnamed")) for c in df.columns), path
+        numeric = [c for c in df.columns if c in ("E", "N", "h", "X0", "dE", "dh", "x_mm")]
+        for c in numeric:
+            assert pd.api.types.is_float_dtype(df[c]), (path, c)
+
+
+def test_index_report_shows_the_figures_of_every_run(thesis_run):
+    """index.html embeds (base64, opens offline) the block layout and the discrepancy plots of each
+    run; index.md links the same PNG files of the runs' own reports."""
+    import base64
+    import re
+
+    out = thesis_run.outdir / "report"
+    md = (out / "index.md").read_text()
+    links = re.findall(r"^!\[([^\]]+)\]\(([^)]+)\)$", md, re.M)
+    assert [cap.split(":")[0] for cap, _ in links] == ["Run gps"] * 3 + ["Run lidar"] * 3
+    for _, src in links:
+        assert (out / src).resolve().is_file(), src
+    html = (out / "index.html").read_text()
+    imgs = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", html)
+    assert len(imgs) == 6
+    assert all(base64.b64decode(b)[:8] == b"\x89PNG\r\n\x1a\n" for b in imgs)
+    assert "<figcaption>Run lidar: block layout (photo footprints, control, check and tie points)</figcaption>" in html
+    assert not re.search(r"(src|href)='(https?:)?//", html)
+
+
+def test_consistency_test_above_the_covariance_file_limit_is_computed_in_memory(thesis_run, tmp_path,
+                                                                              monkeypatch):
+    """Above MAX_JOINT_COVARIANCE_POINTS check points check_covariance.csv is not written; the adjust
+    stage uses the joint covariance in memory and the run reports the same d'C^-1 d as with the file.
+    (The limit is lowered to 5 so that the 13 GPS check points of the thesis exceed it.)"""
+    import importlib
+
+    from lidarcat import bundle
+    from lidarcat.pipeline.stages import adjust as adjust_stage
+
+    writer = importlib.import_module(bundle.write_adjustment.__module__)  # where the limit is read
+
+    want = thesis_run.summary["runs"]["gps"]["check"]["consistency"]
+    assert (thesis_run.outdir / "adjust-gps" / "check_covariance.csv").is_file()
+    monkeypatch.setattr(writer, "MAX_JOINT_COVARIANCE_POINTS", 5)
+    res = run_pipeline(None, tmp_path / "memory")
+    assert not (res.outdir / "adjust-gps" / "check_covariance.csv").exists()
+    doc = json.loads((res.outdir / "adjust-gps" / "consistency.json").read_text())
+    assert doc["applicable"] and "used in memory" in doc["details"]["covariance_source"]
+    got = res.summary["runs"]["gps"]["check"]["consistency"]
+    assert got["df"] == want["df"] == 39
+    assert got["chi2"] == pytest.approx(want["chi2"], rel=1e-9) and got["passed"] == want["passed"]
+    # beyond the memory bound the result says why (before any matrix is built)
+    monkeypatch.setattr(adjust_stage, "CONSISTENCY_MEMORY_BYTES", 1000)
+    checks = [f"c{i}" for i in range(13)]
+    why = adjust_stage.consistency_in_memory(None, checks, Survey.load(None))
+    assert why["applicable"] is False and why["statistic"] is None
+    assert why["reason"] == ("not computed: the joint covariance of 13 check points needs 0.0 GiB in memory "
+                             "(limit 0 GiB); assess a subset of the check points")
+
+
+def test_demo_compare_never_prints_a_bare_nan(monkeypatch, tmp_path):
+    import lidarcat.demo
+    from click.testing import CliRunner
+
+    from lidarcat.cli.main import cli
+
+    run = {"eo_max_abs_z": 1.0, "eo_rms_z": 0.5, "points_max_abs_z": 2.0, "points_rms_z": 0.9,
+           "n_check": 600, "check_chi2": 1790.0, "check_chi2_joint": float("nan"),
+           "check_chi2_joint_not_computed": "not computed: the joint covariance of 600 check points needs "
+                                            "1.2 GiB in memory (limit 1 GiB)", "check_dof": 1800}
+    monkeypatch.setattr(lidarcat.demo, "compare_with_truth", lambda *a, **k: {"runs": {"gps": run},
+                                                                               "extraction": {}})
+    r = CliRunner().invoke(cli, ["demo", "compare", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert "nan" not in r.output.lower()
+    assert ("check points d'C^-1d not computed: the joint covariance of 600 check points needs "
+            "1.2 GiB in memory (limit 1 GiB) on 1800 dof") in r.output
+
+
+def test_report_says_why_the_consistency_test_was_not_computed():
+    from lidarcat.pipeline.stages.report import _report_markdown
+
+    why = "not computed: the joint covariance of 4000 check points needs 1.6 GiB in memory (limit 1 GiB)"
+    md = _report_markdown({"survey": "s", "stages": [], "comparison": {},
+                           "runs": {"gps": {"adjustment": {}, "check": {"n": 4000, "consistency_not_computed": why}}}})
+    assert f"Discrepancies against the precision the adjustment claims (d'C^-1 d): {why}." in md
+    assert "nan" not in md

@@ -84,15 +84,59 @@ def test_other_header_fields_checked_against_the_file_size(tmp_path):
         read_points(tmp_path / "short.las")
 
 
+def test_laz_chunk_table_checked_before_lazrs_allocates(tmp_path):
+    # found by the fuzz suite: a chunk table counting 3 billion chunks made lazrs allocate 46 GB
+    # and abort the process (a Rust allocation failure is no exception: nothing to catch)
+    data = AHN2.read_bytes()
+    offset = struct.unpack_from("<I", data, 96)[0]
+    table_at = struct.unpack_from("<q", data, offset)[0]
+    bad = _patched(AHN2, tmp_path / "chunks.laz", table_at + 4, "<I", 3_000_000_000)
+    with pytest.raises(LidarFormatError, match=r"chunks\.laz: corrupt LAS header: the LAZ chunk table announces "
+                       r"3,000,000,000 chunks but only \d[\d,]* bytes of compressed points precede it"):
+        read_points(bad, crs=RD)
+    moved = _patched(AHN2, tmp_path / "moved.laz", offset, "<q", 12)
+    with pytest.raises(LidarFormatError, match=r"moved\.laz: corrupt LAS header: the LAZ chunk table offset "
+                       rf"12 lies before the compressed data \(bytes {offset + 8}\.\."):
+        read_points(moved, crs=RD)
+
+
 def test_lazrs_panic_is_a_located_error(tmp_path):
     # like PDAL's simple-laszip-compressor-version-1.2r0.laz: the decoder panics (a Rust
-    # PanicException, a BaseException); here the LasZip record's item count is zeroed
-    bad = _patched(AHN2, tmp_path / "panic.laz", 227 + 54 + 32, "<H", 0)
+    # PanicException, a BaseException, "capacity overflow"); here the first byte of the
+    # compressed chunk-table entries is zeroed
+    data = AHN2.read_bytes()
+    table_at = struct.unpack_from("<q", data, struct.unpack_from("<I", data, 96)[0])[0]
+    bad = _patched(AHN2, tmp_path / "panic.laz", table_at + 8, "<B", 0)
     with pytest.raises(LidarFormatError, match=r"panic\.laz: truncated or corrupt point data after 0 of "
-                       r"208432 points \(PanicException: attempt to calculate the remainder"):
+                       r"208432 points \(PanicException: capacity overflow\)"):
         read_points(bad, crs=RD)
     r = CliRunner().invoke(cli, ["lidar", "info", str(bad), "--crs", RD])
     assert_one_line_error(r, "panic.laz", "PanicException")
+
+
+def test_laszip_record_checked(tmp_path):
+    # the LasZip record's item count zeroed made lazrs panic ("remainder with a divisor of zero");
+    # a chunk size of 771 million points made it allocate 23 GB and abort (found by the fuzz suite)
+    with pytest.raises(LidarFormatError, match=r"items\.laz: corrupt LAS header: the LasZip record lists 0 items "
+                       r"but holds 46 bytes \(expected 34\)"):
+        read_points(_patched(AHN2, tmp_path / "items.laz", 227 + 54 + 32, "<H", 0), crs=RD)
+    with pytest.raises(LidarFormatError, match=r"chunk\.laz: corrupt LAS header: LAZ chunk size 771,801,936 points "
+                       r"\(1\.\.10,000,000, or variable\)"):
+        read_points(_patched(AHN2, tmp_path / "chunk.laz", 227 + 54 + 12, "<I", 771_801_936), crs=RD)
+    with pytest.raises(LidarFormatError, match=r"size\.laz: corrupt LAS header: the LasZip items add up to 28 "
+                       r"bytes a point but the header says 29"):
+        read_points(_patched(AHN2, tmp_path / "size.laz", 105, "<H", 29), crs=RD)
+    # a LAS 1.4 (layered) chunk whose first layer claims 2.5 GB made lazrs abort the process
+    f6 = tmp_path / "f6.laz"
+    las = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
+    las.x, las.y, las.z = np.arange(300.0), np.arange(300.0), np.zeros(300)
+    las.write(f6)
+    offset = struct.unpack_from("<I", f6.read_bytes(), 96)[0]
+    layer = _patched(f6, tmp_path / "layer.laz", offset + 8 + 4 + 30, "<I", 2_500_000_000)
+    with pytest.raises(LidarFormatError, match=r"layer\.laz: corrupt LAS header: LAZ chunk 0 \(byte \d+\) announces "
+                       r"layers of 2,500,\d{3},\d{3} bytes but only \d+ bytes lie before the chunk table"):
+        read_points(layer)
+    assert len(read_points(f6)) == 300
 
 
 @pytest.mark.parametrize("case", ["max_below_min", "max_1e308", "max_far_too_wide"])
@@ -172,6 +216,10 @@ def test_metres_required_for_density_and_clip_radius(tmp_path):
                     "uses the unit 'US survey foot' (1 US survey foot = 0.3048006096 m)")
     with pytest.raises(CRSError, match="needs coordinates in metres"):
         clip(PointCloud(np.zeros((20, 3)), crs="EPSG:4326"), (0.0, 0.0), 5.0)
+    r = CliRunner().invoke(cli, ["extract", "--find", "--lidar", str(geo)])
+    assert_one_line_error(r, "geo.las: roof extraction (--find) needs coordinates in metres")
+    r = CliRunner().invoke(cli, ["extract", "--at", "4.3505", "52.0005", str(geo)])
+    assert_one_line_error(r, "geo.las: a clip radius of 8 m needs coordinates in metres")
 
 
 def _survey_copy(tmp_path: Path) -> Path:

@@ -20,8 +20,8 @@ import pytest
 from click.testing import CliRunner
 from conftest import THESIS_SURVEY, THESIS_TABLES
 
-from lidarcat._collinearity import project, project_with_jacobians
-from lidarcat._synthetic_block import synthetic_block
+from lidarcat._collinearity import project_with_jacobians
+from lidarcat._synthetic_block import resimulated, synthetic_block
 from lidarcat.bundle import adjust, problem_from_survey
 from lidarcat.bundle.reliability import MIN_REDUNDANCY, critical_values, noncentrality, reliability, snoop
 from lidarcat.cli.main import cli
@@ -233,11 +233,7 @@ def test_two_ray_point_both_rays_named(gps_problem, gps):
 
 def _simulated(p, truth, rng):
     """The thesis geometry with exact observations of *truth* plus noise of the stated sigmas."""
-    ei, pj = p.photo_index, p.point_index
-    xy, _ = project(np.asarray(truth.eo_params), np.asarray(truth.points_m)[pj], p.focal_length_mm[ei], ei)
-    enh = np.asarray(truth.points_m)[p.constraint_point_index]
-    return dataclasses.replace(p, xy_mm=xy + rng.normal(0, 1, xy.shape) * p.sd_mm,
-                               constraint_enh_m=enh + rng.normal(0, 1, enh.shape) * p.constraint_sd_m)
+    return resimulated(p, np.asarray(truth.eo_params), np.asarray(truth.points_m), rng)
 
 
 @pytest.mark.slow
@@ -276,12 +272,11 @@ def test_snooping_trials_thesis_geometry(gps_problem, gps):
 
 
 def _noncentrality_of(rel, p, i, err):
-    """lambda of a bias *err* (2,) on image observation *i*: the Q_vv block from its redundancy is
-    not enough (it is 2x2), so recompute it from the MDB identity lambda0 / MDB^2 on each axis and
-    the test's own estimate: here simply the whitened Q_vv of the reliability arrays."""
+    """lambda = nabla^T P Q_vv P nabla of a bias *err* (2,) on image observation *i*, with the
+    diagonal of P Q_vv P only (r_k / sd_k^2; the x-y correlation of the residuals is left out:
+    a filter of the trials, the benchmark uses the full 2 x 2 block)."""
     w = err / p.sd_mm[i]
-    r = rel.redundancy[i, :2]
-    return float(np.sum(w**2 * r))        # diagonal approximation of nabla^T P Q_vv P nabla
+    return float(np.sum(w**2 * rel.redundancy[i, :2]))
 
 
 # --------------------------------------------------------------------------- robust
@@ -369,3 +364,73 @@ def test_provenance_in_every_output(tmp_path):
     r2 = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "-o", str(tmp_path / "o2"), "--snooping", "off"])
     assert r2.exit_code == 0
     assert (out / "eop.csv.json").read_bytes() == (tmp_path / "o2" / "eop.csv.json").read_bytes()
+
+
+# --------------------------------------------------------------------------- lidarcat run
+
+
+class _Ctx:
+    """The part of :class:`lidarcat.pipeline.runner.Context` the adjust stage uses."""
+
+    def __init__(self, survey, control):
+        self.params = {"control": control}
+        self._survey = survey
+
+    def __getitem__(self, key):
+        return {"survey": self._survey}[key]
+
+    def progress(self, done, total):
+        pass
+
+
+def test_run_adjust_stage_and_run_line_name_the_blunders(tmp_path):
+    from types import SimpleNamespace
+
+    from lidarcat.cli.run import _text
+    from lidarcat.pipeline.stages import adjust as stage
+
+    out = stage.run(_Ctx(Survey.load(THESIS_SURVEY), "gps"), tmp_path)
+    bl = out["adjustment"]["blunders"]
+    assert [(b["kind"], b["photo"], b["point"], b["removed"]) for b in bl] == [
+        ("image", "3", "407", False), ("image", "2", "702", False), ("image", "5", "709", False)]
+    assert (tmp_path / "blunders.csv").is_file() and (tmp_path / "reliability.csv").is_file()
+    assert json.loads((tmp_path / "eop.csv.json").read_text())["provenance"]["parameters"]["snooping"] == "report"
+    fake = SimpleNamespace(summary={"survey": {"name": "thesis"}, "runs": {"gps": out}}, stages=(),
+                           outdir=tmp_path, ok=True, failed=(), tests_failed=())
+    line = [t for t in _text(fake).splitlines() if t.startswith("  run gps:")][0]
+    assert line.endswith("3 blunder(s) remain (w-test): image photo 3 point 407; image photo 2 point 702; "
+                         "image photo 5 point 709")
+
+
+def test_report_lists_the_blunders(tmp_path):
+    from lidarcat.bundle import adjust_survey
+    from lidarcat.report import load_adjustment, write_report
+
+    _, out = adjust_survey(THESIS_SURVEY, control="gps", outdir=tmp_path / "adj")
+    adj = load_adjustment(out)
+    paths = write_report(tmp_path / "rep", adjustment_dir={"eop": adj["eop"], "points": adj["points"],
+                                                           "summary": adj["summary"]})
+    md = paths["markdown"].read_text()
+    assert "Data snooping (report, alpha 0.001)" in md
+    for photo, point in (("3", "407"), ("2", "702"), ("5", "709")):
+        assert f"| image | {photo} | {point} |" in md
+    assert md.count("no (kept)") == 3
+
+
+def test_io_provenance_paths_and_hashes(tmp_path):
+    from lidarcat import __version__
+    from lidarcat._io import csv_sidecar_path, provenance, write_csv_atomic
+
+    (tmp_path / "in").mkdir()
+    f = tmp_path / "in" / "obs.csv"
+    f.write_bytes(b"a,b\n1,2\n")
+    prov = provenance({"obs": f}, {"level": 0.001}, root=tmp_path / "in")
+    assert prov == {"lidarcat_version": __version__, "parameters": {"level": 0.001},
+                    "inputs": {"obs": {"path": "obs.csv", "sha256": hashlib.sha256(b"a,b\n1,2\n").hexdigest()}}}
+    outside = provenance({"obs": f}, {}, root=tmp_path / "elsewhere")
+    assert outside["inputs"]["obs"]["path"] == f.as_posix()
+    out = tmp_path / "o.csv"
+    write_csv_atomic(out, ["x"], [[1]], provenance=prov)              # provenance alone writes the sidecar
+    assert json.loads(csv_sidecar_path(out).read_text())["provenance"] == prov
+    write_csv_atomic(out, ["x"], [[1]])                               # neither: the stale sidecar goes
+    assert not csv_sidecar_path(out).exists()

@@ -153,3 +153,34 @@ def test_bad_input(tmp_path):
     with pytest.raises(AssessmentError, match=r"summary\.json: cannot read the adjustment summary"):
         write_report(tmp_path / "o", adjustment_dir=bad)
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_standards_notes_the_report_cites_exist_in_the_repo_and_the_wheel(gps_report):
+    """The report and `assess` cite STANDARDS.md (open items, [K] tags, "confidence P"): the file is
+    docs/standards.md, shipped in the wheel as lidarcat/standards_data/STANDARDS.md, and every open
+    item and label cited by the code or its data is explained there."""
+    import tomllib
+    from pathlib import Path
+
+    from conftest import ROOT
+    from lidarcat.standards import CONFIDENCE_LABELS, notes_path
+
+    notes = notes_path()
+    assert notes.is_file()
+    text = (ROOT / "docs" / "standards.md").read_text(encoding="utf-8")
+    assert notes.read_text(encoding="utf-8") == text
+    force = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["hatch"]["build"]["targets"]["wheel"]
+    assert force["force-include"]["docs/standards.md"] == "lidarcat/standards_data/STANDARDS.md"
+    open_items = text[text.index("## 6. Open items"):]
+    cited = set()
+    src = ROOT / "src" / "lidarcat"
+    for p in [*src.rglob("*.py"), *src.rglob("*.json")]:
+        cited |= {int(n) for n in re.findall(r"STANDARDS\.md open item (\d+)", p.read_text(encoding="utf-8"))}
+    assert cited and all(re.search(rf"^{n}\. ", open_items, re.M) for n in cited), cited
+    for label, meaning in CONFIDENCE_LABELS.items():  # each label explained on the page and in the report
+        assert re.search(rf"^> \| {label} \| ", text, re.M), label
+    html = gps_report["html"].read_text()
+    assert "Confidence of the rules of each standard, and tags such as [K] in the notes: P = primary text" in html
+    assert "K = domain knowledge, not confirmed against the standard" in html
+    assert "STANDARDS.md (docs/standards.md; installed as lidarcat/standards_data/STANDARDS.md)" in html
+    assert isinstance(notes, Path)

@@ -82,6 +82,15 @@ def _reference() -> dict[str, np.ndarray]:
     return {str(q): e for q, e in zip(gp.point, gp.enh_m)}
 
 
+def _check_point_diffs(run, name: str, table: str) -> tuple[list[dict[str, str]], np.ndarray]:
+    """Rows of a printed discrepancy table (reference minus adjusted) and |this run - printed|, m."""
+    rows = [r for r in _csv(table) if r["point"] not in ("mean", "std")]
+    ref = _reference()
+    pts, idx = _points(run, name)
+    mine = np.array([ref[r["point"]] - pts.xyz[idx[r["point"]]] for r in rows])
+    return rows, np.abs(mine - _floats(rows, ("dE", "dN", "dh")))
+
+
 def _summary(run, name: str) -> dict:
     return json.loads((run.outdir / f"adjust-{name}" / "summary.json").read_text(encoding="utf-8"))
 
@@ -143,11 +152,7 @@ def test_thesis_table6_eop_gps_run(run):
 
 
 def test_thesis_table7_check_points_gps_run(run):
-    rows = [r for r in _csv("table7_check_gps.csv") if r["point"] not in ("mean", "std")]
-    ref = _reference()
-    pts, idx = _points(run, "gps")
-    mine = np.array([ref[r["point"]] - pts.xyz[idx[r["point"]]] for r in rows])
-    d = np.abs(mine - _floats(rows, ("dE", "dN", "dh")))
+    rows, d = _check_point_diffs(run, "gps", "table7_check_gps.csv")
     assert d[:, :2].max() < 0.03 and d[:, 2].max() < 0.12, d
     assert len(rows) == 13
 
@@ -163,14 +168,23 @@ def test_thesis_appendix3_1_points_gps_run(run):
     assert [r["role"] == "control" for r in rows] == [pts.roles[idx[r["point"]]] == "control" for r in rows]
 
 
-def test_thesis_appendix2_1_gps_run(run):
-    app = _json("appendix2_both_runs.json")["2.1_gps"]
-    s = _summary(run, "gps")
+def _appendix2(run, name: str, key: str) -> tuple[dict, dict]:
+    """Appendix 2.x against this run's summary: dof, v'Pv (0.5, as the GPS run), sigma0^2 (printed
+    with 2 decimals), chi-square range (Fisher's approximation, erratum); returns (printed, ours)."""
+    app = _json("appendix2_both_runs.json")[key]
+    s = _summary(run, name)
     assert s["dof"] == app["dof"] == 128
-    assert abs(s["vtpv"] - app["chi2_computed"]) <= 0.5          # 148.35
-    assert abs(s["sigma0_sq"] - app["variance_a_posteriori"]) <= 0.01  # 1.16
+    assert abs(s["vtpv"] - app["chi2_computed"]) <= 0.5
+    assert abs(s["sigma0_sq"] - app["variance_a_posteriori"]) <= 0.01
+    assert s["chi2_pass"] is True
     np.testing.assert_allclose([s["chi2_lower_fisher"], s["chi2_upper_fisher"]], app["chi2_range_5pct"],
                                atol=0.005)  # printed with 2 decimals
+    return app, s
+
+
+def test_thesis_appendix2_1_gps_run(run):
+    app, _ = _appendix2(run, "gps", "2.1_gps")
+    assert (app["chi2_computed"], app["variance_a_posteriori"]) == (148.35, 1.16)
 
 
 # --------------------------------------------------------------------------- the LiDAR-controlled run
@@ -204,16 +218,10 @@ def test_thesis_appendix3_2_points_lidar_run(run):
 
 
 def test_thesis_appendix2_2_lidar_run(run):
-    app = _json("appendix2_both_runs.json")["2.2_lidar"]
-    s = _summary(run, "lidar")
-    assert s["dof"] == app["dof"] == 128
-    assert abs(s["vtpv"] - app["chi2_computed"]) <= 0.5           # 149.12
-    assert abs(s["sigma0_sq"] - app["variance_a_posteriori"]) <= 0.01  # 1.16
-    assert s["chi2_pass"] is True
+    app, s = _appendix2(run, "lidar", "2.2_lidar")
+    assert (app["chi2_computed"], app["variance_a_posteriori"]) == (149.12, 1.16)
     # the printed range is Fisher's approximation, not the chi-square quantiles (erratum)
     e = _erratum("Appendix 2 chi-square range (5%)")
-    np.testing.assert_allclose([s["chi2_lower_fisher"], s["chi2_upper_fisher"]], app["chi2_range_5pct"],
-                               atol=0.005)  # printed with 2 decimals
     assert abs(s["chi2_lower"] - 98.58) < 0.005 and "98.58" in e["corrected"]
     # "desvio padrao medio dos pontos fixos": sample sd of the control residuals; "... livres": RMS sd
     np.testing.assert_allclose([s["sd_control_residuals_m"][k] for k in "ENh"],
@@ -234,11 +242,7 @@ def test_thesis_appendix2_2_lidar_run(run):
 
 
 def test_thesis_table9_lidar_check_points_lidar_run(run):
-    rows = _csv("table9_check_lidar.csv")
-    ref = _reference()
-    pts, idx = _points(run, "lidar")
-    mine = np.array([ref[r["point"]] - pts.xyz[idx[r["point"]]] for r in rows])
-    d = np.abs(mine - _floats(rows, ("dE", "dN", "dh")))
+    rows, d = _check_point_diffs(run, "lidar", "table9_check_lidar.csv")
     assert len(rows) == 10 and d[:, :2].max() < 0.03 and d[:, 2].max() < 0.12, d
     # plani is the planimetric resultant of the printed dE, dN
     np.testing.assert_allclose(np.hypot(*_floats(rows, ("dE", "dN")).T), _floats(rows, ("plani",))[:, 0],
@@ -301,11 +305,7 @@ def test_thesis_table12_free_points_gps_minus_lidar_run(run):
 
 
 def test_thesis_table13_gps_points_lidar_run(run):
-    rows = _csv("table13_gps_points_lidar_run.csv")
-    ref = _reference()
-    pts, idx = _points(run, "lidar")
-    mine = np.array([ref[r["point"]] - pts.xyz[idx[r["point"]]] for r in rows])
-    d = np.abs(mine - _floats(rows, ("dE", "dN", "dh")))
+    rows, d = _check_point_diffs(run, "lidar", "table13_gps_points_lidar_run.csv")
     assert len(rows) == 21 and d[:, :2].max() < 0.03 and d[:, 2].max() < 0.12, d
 
 
@@ -408,6 +408,7 @@ def test_thesis_run_prints_table13_statistics_and_reports_section_4_4(run):
         assert f"| {table}" in section or f"({table})" in section, table
     assert "| mean bound mu_plan <= (4.4.4.3) | 0.441 | 0.4107 | 0.4116 | NO | [E] section 4.4.4.3" in section
     assert "[E] Table 8 (EOP, LiDAR run), photo 5, kappa: printed 68.21269, corrected 67.98952" in section
+    assert "| 1 | 605 | 0.067 | 0.067 |" in section and "| 21 | 605 | 0.876 | 0.876 |" in section  # Tables 14, 15
     html = (run.outdir / "report" / "index.html").read_text()
     assert "<h2>Thesis section 4.4</h2>" in html
 

@@ -18,7 +18,8 @@ from ._collinearity import project
 from ._frozen import frozen_array
 from .bundle import BundleProblem
 
-__all__ = ["SyntheticBlock", "synthetic_block", "aerial_block", "AERIAL_LAYOUTS", "SelfCalBlock", "selfcal_block"]
+__all__ = ["SyntheticBlock", "synthetic_block", "aerial_block", "AERIAL_LAYOUTS", "resimulated", "SelfCalBlock",
+           "selfcal_block"]
 
 #: photos -> (strips, photos per strip) of the benchmark blocks (about 1 : 2, strips growing)
 AERIAL_LAYOUTS = {100: (7, 15), 1000: (22, 46), 5000: (50, 100), 10000: (70, 143)}
@@ -175,6 +176,24 @@ def synthetic_block(
         constraint_point_index=ctrl, constraint_enh_m=cobs, constraint_sd_m=np.broadcast_to(csd, (len(ctrl), 3)),
     )
     return SyntheticBlock(problem, eo, pts, image_sd_mm, csd)
+
+
+def resimulated(problem: BundleProblem, eo: np.ndarray, points_m: np.ndarray,
+                rng: np.random.Generator) -> BundleProblem:
+    """*problem* with its observations replaced by exact ones of a known truth plus noise.
+
+    The image coordinates are the projections of *points_m* (Q, 3) through *eo* (P, 6; m, rad)
+    plus Gaussian noise of ``problem.sd_mm``; the control coordinates are *points_m* plus noise
+    of ``problem.constraint_sd_m``.  Keeps the geometry of a real block (e.g. the thesis block
+    with its adjusted solution as the truth) with every observation good by construction.
+    """
+    p = problem
+    ei, pj = p.photo_index, p.point_index
+    xy, _ = project(np.asarray(eo), np.asarray(points_m)[pj], p.focal_length_mm[ei], ei)
+    enh = np.asarray(points_m)[p.constraint_point_index]
+    sd_con = np.where(np.isfinite(p.constraint_sd_m), p.constraint_sd_m, 0.0)
+    return dataclasses.replace(p, xy_mm=xy + rng.normal(0, 1, xy.shape) * p.sd_mm,
+                               constraint_enh_m=enh + rng.normal(0, 1, enh.shape) * sd_con)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -859,7 +859,7 @@ def assess(adjusted: Any, reference: Any, *, points: Iterable[str] | None = None
            alpha: float = 0.10, plotting_position: str = "filliben", filliben_critical: str = "table",
            pec_class: str = "A", checkpoint_sd_m: Any = None,
            asprs_target_cm: Mapping[str, float] | None = None, lilliefors_n_sim: int = 20000,
-           seed: int = 0, adjusted_cov: Any = None) -> Assessment:
+           seed: int = 0, adjusted_cov: Any = None, consistency: TestResult | None = None) -> Assessment:
     """Assess adjusted coordinates against reference (check-point) coordinates.
 
     Parameters
@@ -902,6 +902,11 @@ def assess(adjusted: Any, reference: Any, *, points: Iterable[str] | None = None
         :func:`lidarcat.bundle.read_point_covariance`).  With it, and the
         reference sds, the ``consistency`` test compares the discrepancies with
         the precision claimed (:func:`covariance_consistency_test`).
+    consistency : TestResult, optional
+        That test already computed (or not applicable, with its reason) where
+        the joint covariance was at hand but not written (``lidarcat run``
+        above :data:`lidarcat.bundle.MAX_JOINT_COVARIANCE_POINTS` check
+        points); used when *adjusted_cov* is not given.
 
     Returns
     -------
@@ -975,6 +980,8 @@ def assess(adjusted: Any, reference: Any, *, points: Iterable[str] | None = None
     tests["hotelling"] = {"EN": hotelling_t2_test(d[:, :2], alpha)}
     if adjusted_cov is not None:
         tests["consistency"] = {"ENh": _consistency(sel, adjusted_cov, d, ref_sd, alpha)}
+    elif consistency is not None:  # computed where the joint covariance was at hand, not written
+        tests["consistency"] = {"ENh": consistency}
     lim = tol["plan_pec_m"] if tol else None
     lim_src = f"planimetric PEC, {cls_txt}" if tol else ""
     tests["ce90"] = {m: ce90(d[:, :2], m, limit_m=lim, limit_source=lim_src)

@@ -14,7 +14,8 @@ test of the whole tool:
   (eq. 08) and the camera's inverse distortion model;
 * ``ground_points.csv`` -- the GPS points with their standard deviations (the
   coordinates carry that noise); ``control_sets.csv`` -- the ``gps`` run:
-  corner and centre points are control, the others check;
+  corner and centre points are control, and in a long block also chains
+  across the strips every 4 bases; the others check;
 * ``lidar/*.laz`` -- airborne-LiDAR tiles sampled from the terrain and the
   buildings of :mod:`lidarcat.roofs` (pyramid and hip roofs, known vertices);
 * ``jobs.csv`` -- extraction jobs: one roof vertex per building, at an
@@ -37,6 +38,7 @@ writes byte-identical CSV files.
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import math
 import os
@@ -211,6 +213,8 @@ def write_synthetic_survey(
     lidar_noise_m: float = 0.05,
     approx_error_m: float = 1.0,
     n_roofs: int | None = None,
+    images: bool = False,
+    image_downsample: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> DemoSurvey:
     """Write a synthetic survey folder with known truth (see the module docstring).
@@ -238,6 +242,13 @@ def write_synthetic_survey(
         (each drawn between 0.5x and 1.5x, in a random direction).
     n_roofs : int, optional
         Number of buildings (default: 1 + n_photos, at most 12).
+    images : bool
+        Also render the photos of the block (:mod:`lidarcat.scene`: the terrain
+        textured, the buildings' roofs shaded) into ``images/<photo>.png``, for
+        ``lidarcat monoplot`` and ``lidarcat ortho``.
+    image_downsample : int
+        Render at 1/k of the resolution and upsample (faster; blurrier photos
+        with the same geometry).
     progress : callable, optional
         ``progress(done, total)`` over the writing steps.
 
@@ -331,7 +342,7 @@ def write_synthetic_survey(
     gps_true = xyz_a[gps_idx]
     gps_meas = gps_true + rng.normal(0, 1.0, gps_true.shape) * [gps_sd_m, gps_sd_m, gps_sd_h_m]
     gps_ids = [ids[i] for i in gps_idx]
-    control = _pick_control(gps_true[:, :2])
+    control = _pick_control(gps_true[:, :2], base)
 
     outdir = Path(outdir)
     with atomic_dir(outdir) as tmp:
@@ -353,7 +364,9 @@ def write_synthetic_survey(
             tmp / "control_sets.csv", ["set", "point", "role", "sd_E", "sd_N", "sd_h"],
             [("gps", pid, "control" if i in control else "check", "", "", "")
              for i, pid in enumerate(gps_ids)],
-            comments=["gps: corner and centre GPS points are control, the others check. "
+            comments=["gps: corner and centre GPS points are control (in a block longer than "
+                      f"{_CONTROL_EVERY_BASES} bases also the outermost points of every {_CONTROL_EVERY_BASES} "
+                      "bases along the strips), the others check. "
                       "lidarcat run adds the set 'lidar' from the extracted roof vertices."])
         jobs = []
         for b in buildings:
@@ -370,6 +383,8 @@ def write_synthetic_survey(
         n_lidar = _write_lidar(tmp / "lidar", box, buildings, lidar_density_m2, lidar_noise_m, rng,
                                _roofs)
         tick(4)
+        if images:
+            _render_photos(tmp / "images", demo_scene_of(buildings), cam, eo, photo_ids, image_downsample)
         (tmp / "truth").mkdir()
         write_csv_atomic(
             tmp / "truth" / "eop.csv",
@@ -398,8 +413,18 @@ def write_synthetic_survey(
                       seed, image_sd_px, gps_sd_m, files)
 
 
-def _pick_control(en: np.ndarray) -> set[int]:
-    """Indices of the GPS control: the four corners and the point nearest the centre."""
+#: along a strip, full control at least every this many photo bases: the usual layout of a bundle
+#: block (planimetric control along the perimeter every few bases, height-control chains across the
+#: strips every few bases; see any photogrammetry textbook on block control)
+_CONTROL_EVERY_BASES = 4
+
+
+def _pick_control(en: np.ndarray, base_m: float | None = None) -> set[int]:
+    """Indices of the GPS control: the four corners and the point nearest the centre, and, in a block
+    longer than ``_CONTROL_EVERY_BASES`` bases (``base_m``), the outermost points (lowest and highest
+    N) of every stretch of that length along E: chains across the strips at both block edges, which a
+    long block needs against the bending (the corners alone leave metres of height error in the middle
+    of a 200-photo block)."""
     c = en.mean(axis=0)
     d = en - c
     chosen = {int(np.argmax(d[:, 0] + d[:, 1])), int(np.argmax(d[:, 0] - d[:, 1])),
@@ -409,6 +434,11 @@ def _pick_control(en: np.ndarray) -> set[int]:
         if int(i) not in chosen:
             chosen.add(int(i))
             break
+    if base_m is not None and np.ptp(en[:, 0]) > (_CONTROL_EVERY_BASES + 1) * base_m:
+        stretch = np.floor((en[:, 0] - en[:, 0].min()) / (_CONTROL_EVERY_BASES * base_m)).astype(int)
+        for s in np.unique(stretch):
+            idx = np.flatnonzero(stretch == s)
+            chosen.update({int(idx[np.argmin(en[idx, 1])]), int(idx[np.argmax(en[idx, 1])])})
     return chosen
 
 
@@ -469,13 +499,14 @@ def _place_buildings(cand: np.ndarray, n: int, rng: np.random.Generator, roofs: 
     for k, i in enumerate(order):
         e, nn = (float(v) for v in cand[i])
         kind = ("pyramid", "hip")[k % 2]
+        params = {"slope_deg": float(rng.uniform(25, 35)), "length_m": float(rng.uniform(15, 18)),
+                  "width_m": float(rng.uniform(9, 11)), "eave_m": float(rng.uniform(5, 7)),
+                  "azimuth_deg": float(rng.uniform(0, 90))}
         scene = roofs.synthetic_roof(
-            kind, slope_deg=float(rng.uniform(25, 35)), length_m=float(rng.uniform(15, 18)),
-            width_m=float(rng.uniform(9, 11)), eave_m=float(rng.uniform(5, 7)),
-            azimuth_deg=float(rng.uniform(0, 90)), density_m2=density_m2, noise_h_m=noise_m,
+            kind, **params, density_m2=density_m2, noise_h_m=noise_m,
             noise_plan_m=_LIDAR_PLAN_SD_M, origin=(e, nn, float(_terrain(e, nn))), seed=int(rng.integers(2**31)))
         out.append({"id": f"R{k + 1:02d}", "kind": kind, "vertex": np.array(scene.vertices[0]),
-                    "n_planes": int(scene.vertex_planes[0]), "scene": scene})
+                    "n_planes": int(scene.vertex_planes[0]), "scene": scene, "params": {**params, "e": e, "n": nn}})
     return out
 
 
@@ -511,6 +542,8 @@ def _write_lidar(folder: Path, box, buildings: list[dict], density_m2: float, no
     ground = np.column_stack([en, _terrain(en[:, 0], en[:, 1]) + rng.normal(0, noise_m, len(en))])
     xyz = np.vstack([ground] + [c[0] for c in clouds])
     cls = np.concatenate([np.full(len(ground), 2, np.uint8)] + [c[1].astype(np.uint8) for c in clouds])
+    attrs = _lidar_attributes(xyz, np.concatenate([np.full(len(ground), roofs.LABELS["ground"])]
+                                                  + [np.asarray(b["scene"].label) for b in buildings]), roofs)
     folder.mkdir(parents=True, exist_ok=True)
     emid, nmid = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
     total = 0
@@ -519,10 +552,63 @@ def _write_lidar(folder: Path, box, buildings: list[dict], density_m2: float, no
             sel = (xyz[:, 0] >= elo) & (xyz[:, 0] < ehi) & (xyz[:, 1] >= nlo) & (xyz[:, 1] < nhi)
             if not sel.any():
                 continue
-            cloud = PointCloud(xyz[sel], {"classification": cls[sel]}, crs=resolve_crs(DEMO_CRS))
+            cloud = PointCloud(xyz[sel], {"classification": cls[sel], **{k: v[sel] for k, v in attrs.items()}},
+                               crs=resolve_crs(DEMO_CRS))
             write_points(folder / f"tile_{i}_{j}.laz", cloud)
             total += int(sel.sum())
     return total
+
+
+def _lidar_attributes(xyz: np.ndarray, label: np.ndarray, roofs: Any) -> dict[str, np.ndarray]:
+    """Intensity and returns of the demo's LiDAR points (issue 16: they were all 0, an invalid LAS).
+
+    One return per pulse (opaque ground and roofs: return 1 of 1).  Intensity by
+    material, so that the intensity image shows the roofs: ground 900 with a
+    +-150 pattern of 40 m, walls 1300, roofs 2200, chimneys and dormers 2000,
+    trees 600; 8 % noise from a generator of its own (the survey's random stream
+    is left as it was).
+    """
+    lab = np.asarray(label)
+    base = np.full(len(lab), 900.0)
+    for name, value in (("wall", 1300.0), ("roof", 2200.0), ("chimney", 2000.0), ("dormer", 2000.0),
+                        ("tree", 600.0)):
+        base[lab == roofs.LABELS[name]] = value
+    ground = lab == roofs.LABELS["ground"]
+    base[ground] += 150.0 * np.sin(2 * np.pi * xyz[ground, 0] / 40.0) * np.cos(2 * np.pi * xyz[ground, 1] / 40.0)
+    noise = np.random.default_rng(len(lab)).normal(1.0, 0.08, len(lab))
+    ones = np.ones(len(lab), dtype=np.uint8)
+    return {"intensity": np.clip(np.rint(base * noise), 1, 65535).astype(np.uint16),
+            "return_number": ones, "number_of_returns": ones.copy()}
+
+
+def demo_scene_of(buildings: Sequence[dict]) -> Any:
+    """The :class:`lidarcat.scene.Scene` of the demo's terrain and buildings (for rendering photos)."""
+    from .scene import Building, Scene
+
+    return Scene(tuple(Building(b["kind"], b["params"]["e"], b["params"]["n"], **{
+        k: v for k, v in b["params"].items() if k not in ("e", "n")}) for b in buildings))
+
+
+def _render_photos(folder: Path, scene: Any, cam: Camera, eo: np.ndarray, ids: Sequence[str], downsample: int) -> None:
+    """Render every photo into ``folder/<id>.png`` (at 1/downsample resolution, upsampled bilinearly)."""
+    import cv2
+
+    from ._io import atomic_write
+
+    if cam.columns_px % downsample or cam.rows_px % downsample:
+        raise LidarcatError(f"--image-downsample {downsample} must divide the image size "
+                            f"{cam.columns_px} x {cam.rows_px}")
+    small = Camera(cam.id, cam.focal_length_mm, cam.principal_point_x_mm, cam.principal_point_y_mm, cam.k1,
+                   cam.k2, cam.k3, cam.p1, cam.p2, cam.refraction_eps45, cam.pixel_size_x_mm * downsample,
+                   cam.pixel_size_y_mm * downsample, cam.columns_px // downsample, cam.rows_px // downsample)
+    folder.mkdir(parents=True, exist_ok=True)
+    for pid, e in zip(ids, eo):
+        img = scene.render(small, e)
+        if downsample > 1:   # pixel centres stay aligned: dst x <-> src (x + 0.5) / k - 0.5
+            img = cv2.resize(img, (cam.columns_px, cam.rows_px), interpolation=cv2.INTER_LINEAR)
+        ok, buf = cv2.imencode(".png", img)
+        with atomic_write(folder / f"{pid}.png", "wb") as fh:
+            fh.write(buf.tobytes())
 
 
 def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike) -> dict[str, Any]:
@@ -611,8 +697,13 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
                 g = row(ground, pid, survey_dir / "ground_points.csv", disc)
                 stat += float(np.sum((g[:3] - v[:3]) ** 2 / (v[3:] ** 2 + g[3:] ** 2)))
                 n_chk += 1
-        joint = math.nan
+        joint, joint_why = math.nan, "no check point" if not checks else "no joint covariance"
         cov_path = folder / "check_covariance.csv"
+        cons_path = folder / "consistency.json"  # lidarcat run above the check_covariance.csv limit
+        if checks and not cov_path.is_file() and cons_path.is_file():
+            cons = json.loads(cons_path.read_text(encoding="utf-8"))
+            joint = float(cons["statistic"]) if cons["applicable"] else math.nan
+            joint_why = "" if cons["applicable"] else str(cons["reason"])
         if checks and cov_path.is_file():
             from .accuracy import covariance_consistency_test
             from .bundle import read_point_covariance
@@ -624,10 +715,13 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
             C = C + np.diag(np.concatenate([ground[q][3:] ** 2 for q in order]))
             test = covariance_consistency_test(d, C, source=str(cov_path))
             joint = float(test.statistic) if test.applicable else math.nan
+            joint_why = "" if test.applicable else str(test.reason)
         z_eo_a, z_pt_a = np.abs(z_eo), np.abs(z_pt)
         out["runs"][run] = {
             "eo_max_abs_z": float(z_eo_a.max()), "eo_rms_z": float(np.sqrt(np.mean(z_eo_a ** 2))),
             "points_max_abs_z": float(z_pt_a.max()) if len(z_pt_a) else math.nan,
             "points_rms_z": float(np.sqrt(np.mean(z_pt_a ** 2))) if len(z_pt_a) else math.nan,
-            "n_check": n_chk, "check_chi2": stat, "check_chi2_joint": joint, "check_dof": 3 * n_chk}
+            "n_check": n_chk, "check_chi2": stat, "check_chi2_joint": joint,
+            "check_chi2_joint_not_computed": joint_why if not math.isfinite(joint) else "",
+            "check_dof": 3 * n_chk}
     return out

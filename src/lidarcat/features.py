@@ -193,8 +193,7 @@ def features_geojson(features: list[ImageFeature], result: Any, crs: Any = None,
         sd = result.sd[sl]
         props = {"id": f.id, "class": f.cls, "status": "ok" if ok else next(s for s in st if s != "ok"),
                  "vertex_status": st,
-                 "sd_E_m": np.round(sd[:, 0], 4).tolist(), "sd_N_m": np.round(sd[:, 1], 4).tolist(),
-                 "sd_h_m": np.round(sd[:, 2], 4).tolist()}
+                 "sd_E_m": _nums(sd[:, 0]), "sd_N_m": _nums(sd[:, 1]), "sd_h_m": _nums(sd[:, 2])}
         out_feats.append({"type": "Feature", "properties": props, "geometry": geom})
     doc: dict[str, Any] = {"type": "FeatureCollection", "features": out_feats}
     if extra:
@@ -206,8 +205,12 @@ def features_geojson(features: list[ImageFeature], result: Any, crs: Any = None,
         code = c.to_epsg(min_confidence=70)
         doc["crs"] = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{code}" if code
                                                      else c.to_wkt()}}
-    # JSON has no NaN: a failed vertex's coordinates are not written (geometry is null)
-    return json.loads(json.dumps(doc).replace("NaN", "null"))
+    return doc
+
+
+def _nums(values: np.ndarray) -> list[float | None]:
+    """Rounded floats for JSON; None (null) where a vertex has no value (JSON has no NaN)."""
+    return [round(float(v), 4) if np.isfinite(v) else None for v in values]
 
 
 def features_rows(features: list[ImageFeature], result: Any) -> list[list[Any]]:

@@ -35,8 +35,7 @@ from typing import Any
 import numpy as np
 
 from ._io import write_text_atomic
-from .ortho import GeoTiffStream, OrthoError, PhotoModel, _bands, _tile_cells, _write_png, _ZBuffer, \
-    output_grid, sample_photo
+from .ortho import OrthoError, PhotoModel, _run_bands, _tile_cells, _ZBuffer, output_grid, sample_photo
 
 __all__ = ["MosaicResult", "mosaic", "seam_polygons"]
 
@@ -152,9 +151,6 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
     k = max(1, int(math.ceil(math.sqrt(rows * cols / _MAX_LABEL_CELLS))))
     labels = np.full(((rows + k - 1) // k, (cols + k - 1) // k), -1, dtype=np.int16)
     counts = np.zeros(len(photos) + 1, dtype=np.int64)
-    step_prev = max(1, int(math.ceil(max(rows, cols) / 2000)))
-    prev_rows: list[np.ndarray] = []
-    out_arr = None if path is not None else np.full((rows, cols, bands), np.nan, dtype=np.float32)
     tile_px = max(16, int(tile_px))
 
     def compute(r0: int, r1: int) -> np.ndarray:
@@ -180,23 +176,7 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
             labels[rr[sr][:, None] // k, cc[sc][None, :] // k] = choice[np.ix_(sr, sc)]
         return band
 
-    if path is not None:
-        path = Path(path)
-        with GeoTiffStream(path, (rows, cols), bands, transform, crs) as tif:
-            for r0, r1 in _bands(rows, cols, bands, tile_px):
-                band = compute(r0, r1)
-                tif.write_rows(band)
-                sel = np.arange(r0, r1)
-                prev_rows.append(band[sel % step_prev == 0][:, ::step_prev])
-                if progress:
-                    progress(r1, rows)
-        if preview:
-            _write_png(path.with_suffix(".png"), np.concatenate(prev_rows, axis=0))
-    else:
-        for r0, r1 in _bands(rows, cols, bands, tile_px):
-            out_arr[r0:r1] = compute(r0, r1)  # type: ignore[index]
-            if progress:
-                progress(r1, rows)
+    out_arr = _run_bands(compute, rows, cols, bands, tile_px, path, transform, crs, preview, progress)
     if seams_path is not None:
         seams_path = Path(seams_path)
         from .lidar.raster import GeoTransform
@@ -205,7 +185,7 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
         write_text_atomic(seams_path, json.dumps(seam_polygons(labels, lt, [p.photo_id for p in photos], crs)))
     per = {p.photo_id: int(c) for p, c in zip(photos, counts[:-1])}
     log.info("mosaic of %d photos: %d x %d cells of %.3g m; %s", len(photos), cols, rows, gsd_m, per)
-    return MosaicResult(path, seams_path, out_arr, labels, k, transform, (rows, cols), per, int(counts[-1]))
+    return MosaicResult(Path(path) if path is not None else None, seams_path, out_arr, labels, k, transform, (rows, cols), per, int(counts[-1]))
 
 
 def seam_polygons(labels: np.ndarray, transform: Any, photo_ids: Sequence[str], crs: Any = None) -> dict:

@@ -150,11 +150,6 @@ class PhotoModel:
     def bands(self) -> int:
         return 1 if self.image.ndim == 2 else self.image.shape[2]
 
-    @property
-    def gsd_m(self) -> float:
-        """Nominal ground pixel at the height of the projection centre minus 0: pixel * Z0 / c (rough)."""
-        return self.camera.pixel_size_x_mm / self.camera.focal_length_mm
-
     def project(self, e: np.ndarray, n: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pixel column, row and depth ``-u3`` (m, > 0 in front) of ground points (any shape)."""
         p = self.eo_params
@@ -220,8 +215,8 @@ class _ZBuffer:
         gsd_photo = cam.pixel_size_x_mm * height / cam.focal_length_mm
         self.bin = max(1, int(math.ceil(cell / max(gsd_photo, 1e-9))))
         self.tol = 3.0 * cell if tol_m is None else float(tol_m)
-        nb_r = cam.rows_px // self.bin + 2
-        nb_c = cam.columns_px // self.bin + 2
+        nb_r = cam.rows_px // self.bin + 3   # bins -1 .. N/bin + 1 (projections up to a bin off the frame)
+        nb_c = cam.columns_px // self.bin + 3
         z = np.full(nb_r * nb_c, np.inf)
         t = surface.transform
         g = surface.grid
@@ -470,6 +465,32 @@ def _bands(total_rows: int, cols: int, bands: int, tile_px: int) -> Iterator[tup
         yield r0, min(total_rows, r0 + step)
 
 
+def _run_bands(compute: Callable[[int, int], np.ndarray], rows: int, cols: int, bands: int, tile_px: int,
+               path: str | os.PathLike | None, transform: Any, crs: Any, preview: bool,
+               progress: Callable[[int, int], None] | None) -> np.ndarray | None:
+    """Compute the output band by band: stream it into *path* (+ PNG preview), or return the array."""
+    if path is None:
+        out = np.full((rows, cols, bands), np.nan, dtype=np.float32)
+        for r0, r1 in _bands(rows, cols, bands, tile_px):
+            out[r0:r1] = compute(r0, r1)
+            if progress:
+                progress(r1, rows)
+        return out
+    path = Path(path)
+    step = max(1, int(math.ceil(max(rows, cols) / 2000)))
+    small: list[np.ndarray] = []
+    with GeoTiffStream(path, (rows, cols), bands, transform, crs) as tif:
+        for r0, r1 in _bands(rows, cols, bands, tile_px):
+            band = compute(r0, r1)
+            tif.write_rows(band)
+            small.append(band[np.arange(r0, r1) % step == 0][:, ::step])
+            if progress:
+                progress(r1, rows)
+    if preview:
+        _write_png(path.with_suffix(".png"), np.concatenate(small, axis=0))
+    return None
+
+
 def orthophoto(photo: PhotoModel, surface: Any, gsd_m: float, path: str | os.PathLike | None = None, *,
                bounds: Sequence[float] | None = None, true_ortho: bool = False, crs: Any = None,
                tile_px: int = 1024, preview: bool = True, zbuffer_tol_m: float | None = None,
@@ -527,9 +548,6 @@ def orthophoto(photo: PhotoModel, surface: Any, gsd_m: float, path: str | os.Pat
                     zbuffer_tol_m) if true_ortho else None
     bands = photo.bands
     counts = np.zeros(3, dtype=np.int64)
-    step_prev = max(1, int(math.ceil(max(rows, cols) / 2000)))
-    prev_rows: list[np.ndarray] = []
-    out_arr = None if path is not None else np.full((rows, cols, bands), np.nan, dtype=np.float32)
 
     def compute(r0: int, r1: int) -> np.ndarray:
         band = np.full((r1 - r0, cols, bands), np.nan, dtype=np.float32)
@@ -544,24 +562,8 @@ def orthophoto(photo: PhotoModel, surface: Any, gsd_m: float, path: str | os.Pat
             counts[2] += int((~ok & ~occl).sum())
         return band
 
-    if path is not None:
-        path = Path(path)
-        with GeoTiffStream(path, (rows, cols), bands, transform, crs) as tif:
-            for r0, r1 in _bands(rows, cols, bands, tile_px):
-                band = compute(r0, r1)
-                tif.write_rows(band)
-                sel = np.arange(r0, r1)
-                prev_rows.append(band[(sel % step_prev == 0)][:, ::step_prev])
-                if progress:
-                    progress(r1, rows)
-        if preview:
-            _write_png(path.with_suffix(".png"), np.concatenate(prev_rows, axis=0))
-    else:
-        for r0, r1 in _bands(rows, cols, bands, tile_px):
-            out_arr[r0:r1] = compute(r0, r1)  # type: ignore[index]
-            if progress:
-                progress(r1, rows)
+    out_arr = _run_bands(compute, rows, cols, bands, tile_px, path, transform, crs, preview, progress)
     log.info("orthophoto of photo %s: %d x %d cells of %.3g m, %d valid, %d occluded", photo.photo_id,
              cols, rows, gsd_m, counts[0], counts[1])
-    return OrthoResult(path, out_arr, transform, (rows, cols), int(counts[0]), int(counts[1]),
+    return OrthoResult(Path(path) if path is not None else None, out_arr, transform, (rows, cols), int(counts[0]), int(counts[1]),
                        int(counts[2]), bool(true_ortho))

@@ -565,6 +565,17 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
             _table(b, ["quantity", "E (m)", "N (m)", "h (m)"],
                    [[_SUMMARY_LABELS.get(k, k)] + [_f(_num(v.get(c)), 3) for c in ("E", "N", "h")] for k, v in enh],
                    "Point statistics of the adjustment (Appendix 2).")
+        sn = summ.get("snooping") if isinstance(summ.get("snooping"), Mapping) else {}
+        if sn and sn.get("mode") != "off":
+            bl = [x for x in summ.get("blunders") or [] if isinstance(x, Mapping)]
+            _table(b, ["kind", "photo", "point", "w", "w critical", "redundancy", "estimated error", "removed"],
+                   [[x.get("kind"), x.get("photo") or "", x.get("point") or "", _f(_num(x.get("w")), 2),
+                     _f(_num(x.get("w_critical")), 2), _f(_num(x.get("redundancy")), 2),
+                     ", ".join(f"{k} {_f(_num(v), 4)}" for k, v in (x.get("estimated_error") or {}).items())
+                     + f" {x.get('unit', '')}", "yes" if x.get("removed") else "no (kept)"] for x in bl]
+                   or [["none", "", "", "", "", "", "", ""]],
+                   f"Data snooping ({sn.get('mode')}, alpha {sn.get('level')}): observations whose w-test "
+                   "rejects (blunders.csv; every observation's redundancy and MDB in reliability.csv).")
     if pts_adj and not (summ and ("mean_sd_control_m" in summ or "mean_sd_free_m" in summ)):
         groups: dict[str, list[list[float]]] = {}
         for r in pts_adj:
@@ -652,6 +663,12 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
     # standards ----------------------------------------------------------------------------------
     b = doc.section("standards")
     if a and a.standards:
+        from .standards import CONFIDENCE_LABELS
+
+        _para(b, "Confidence of the rules of each standard, and tags such as [K] in the notes: "
+              + "; ".join(f"{k} = {v}" for k, v in CONFIDENCE_LABELS.items())
+              + ". Rules, sources and the open items the notes cite: STANDARDS.md (docs/standards.md; "
+                "installed as lidarcat/standards_data/STANDARDS.md).", "note")
         for name, s in a.standards.items():
             _para(b, f"**{s.title}** ({s.version}; confidence {s.confidence}): {s.label}")
             if name in ("pec", "pec-pcd"):

@@ -44,6 +44,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -66,6 +67,8 @@ __all__ = [
     "classify_asprs2014",
     "classify_asprs2023",
     "classify",
+    "CONFIDENCE_LABELS",
+    "notes_path",
 ]
 
 #: standard names accepted by :func:`classify` (and ``lidarcat assess --standard``)
@@ -76,6 +79,27 @@ _FILES = {"pec": "pec_decreto_89817.json", "pec-pcd": "pec_pcd.json",
 _SQRT2 = math.sqrt(2.0)
 _SQRT2PI = math.sqrt(2.0 * math.pi)
 _EPS = 1e-9  # tolerance for "<=" against printed table values (metres)
+
+
+#: the confidence labels of the standards' rules (``StandardResult.confidence``, ``[K]`` in notes)
+CONFIDENCE_LABELS: dict[str, str] = {
+    "P": "primary text of the standard read",
+    "S": "secondary source (implementation, article) agrees; the standard itself not seen",
+    "K": "domain knowledge, not confirmed against the standard: check before relying on it",
+    "V": "computed or verified by the project",
+}
+
+
+def notes_path() -> Path:
+    """STANDARDS.md, the notes the reports cite (rules, sources, confidence labels, open items).
+
+    In an installed wheel ``lidarcat/standards_data/STANDARDS.md``; in a source checkout
+    ``docs/standards.md`` (the same file).
+    """
+    shipped = Path(str(resources.files("lidarcat") / "standards_data" / "STANDARDS.md"))
+    if shipped.is_file():
+        return shipped
+    return Path(__file__).resolve().parents[2] / "docs" / "standards.md"
 
 
 # ----------------------------------------------------------------------------- data

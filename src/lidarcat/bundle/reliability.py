@@ -75,7 +75,10 @@ Data snooping and robust re-weighting
 :func:`snoop` adjusts, tests, removes the single group with the largest test
 ratio ``T_a / chi2_{1-alpha_q}(q)`` when it exceeds 1, re-adjusts from the
 previous solution, and repeats (Baarda: one rejection per iteration, because
-one blunder raises the w of its neighbours).  ``robust="danish"`` or
+one blunder raises the w of its neighbours).  A backward step then puts back a
+rejected observation when every test passes with it, or exchanges it for
+another ray of its point when that lowers v'Pv (the tests of the rays of one
+point are correlated), and snooping resumes.  ``robust="danish"`` or
 ``"huber"`` first runs iteratively re-weighted least squares: the weight of
 group a is multiplied by ``f(w_a / c_a)`` with ``c_a`` its critical value,
 ``f(u) = 1`` for ``u <= 1`` and ``exp(1 - u^2)`` (Danish type) or ``1 / u``
@@ -121,6 +124,8 @@ COMPONENTS = {"image": ("x", "y"), "control": ("E", "N", "h"),
 MIN_REDUNDANCY = 1e-3
 #: IRLS: groups whose weight factor ends below this are removed before snooping
 ROBUST_CUT = 0.1
+#: IRLS: smallest weight factor (sigma x 100: a point keeps a regular normal-equation block)
+ROBUST_FLOOR = 1e-4
 
 
 # ---------------------------------------------------------------------------
@@ -187,7 +192,9 @@ class Blunder:
     photo, point : str or None
         Ids; ``photo`` is None for control, ``point`` None for eo.
     w : float
-        ``sqrt(T)`` of the q-dimensional test when it was found (= |w| for q = 1).
+        ``sqrt(T)`` of the q-dimensional test when it was found (= |w| for q = 1); for a
+        group removed by the robust step, sqrt of its sum of squared normalised residuals
+        (original sigmas) in the re-weighted adjustment.
     w_critical : float
         Its critical value.
     redundancy : float
@@ -686,6 +693,7 @@ def snoop(
     power: float = 0.80,
     robust: str = "none",
     max_rejections: int = 100,
+    backward: bool = True,
     on_rejection: Callable[[Blunder], None] | None = None,
     **adjust_kwargs: Any,
 ) -> SnoopingResult:
@@ -708,6 +716,10 @@ def snoop(
         many blunders); snooping then tests the rest.
     max_rejections : int
         Stop after this many one-at-a-time rejections (``more_remain`` tells).
+    backward : bool
+        After snooping stops, put back a rejected image observation when every test passes
+        with it, or exchange it for another ray of its point when that lowers v'Pv
+        (:func:`_refine`), and snoop again; costs up to (rays + 1) adjustments per rejection.
     on_rejection : callable(Blunder), optional
         Called after every rejection.
     **adjust_kwargs
@@ -749,46 +761,55 @@ def snoop(
         blunders += found
         n_adj += k
     iteration = 0
-    while rel is not None:
-        g = rel.worst()
-        if g is None or rel.ratio[g] <= 1:
+    for _round in range(20):
+        while rel is not None:
+            g = rel.worst()
+            if g is None or rel.ratio[g] <= 1:
+                break
+            if iteration >= max_rejections:
+                more = True
+                log.warning("data snooping stopped after %d rejections; tests still reject", iteration)
+                break
+            iteration += 1
+            bl = rel.blunder(g, removed=True, iteration=iteration)
+            saved = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
+            partners = sub.remove(p, bl.kind, bl.photo, bl.point)
+            try:
+                nxt, _, _ = sub.problem(p)
+                warm = (np.asarray(res.eo_params), _warm_points(res, nxt))
+                res_new = adjust(nxt, initial=warm, precision="none", **adjust_kwargs)
+                n_adj += 1
+                if not res_new.success:
+                    raise DatumError(f"the adjustment without it did not converge ({res_new.status})")
+                rel_new = reliability(res_new, level=level, power=power)
+            except (DatumError, ValueError) as ex:
+                sub = saved
+                blunders.append(dataclasses.replace(bl, removed=False, note=f"not removed: {ex}"))
+                more = True
+                log.warning("data snooping: %s not removed: %s", bl.label(), ex)
+                break
+            blunders.append(bl)
+            for ph in partners if bl.kind == "control" else ():
+                blunders[-1] = dataclasses.replace(bl, note=f"its only ray (photo {ph}) removed with it")
+            for ph in partners if bl.kind == "image" else ():   # a two-ray point: the rays are not separable
+                other = np.flatnonzero((rel.kind == "image") & (rel.photo == ph) & (rel.point == bl.point))
+                note = (f"point {bl.point} is on two photos only: its rays on photos {bl.photo} and {ph} "
+                        "cannot be told apart; both removed")
+                blunders[-1] = dataclasses.replace(bl, note=note)
+                if len(other):
+                    blunders.append(rel.blunder(int(other[0]), removed=True, iteration=iteration, note=note))
+            log.info("data snooping: rejected %s (w %.2f > %.2f)", bl.label(), bl.w, bl.w_critical)
+            res, cur, rel = res_new, nxt, rel_new
+            if on_rejection is not None:
+                on_rejection(bl)
+        if more or rel is None or not backward:
             break
-        if iteration >= max_rejections:
-            more = True
-            log.warning("data snooping stopped after %d rejections; tests still reject", iteration)
+        # backward step: re-insert or exchange a rejected observation when the data prefer it
+        changed, sub, res, cur, rel, blunders, k = _refine(p, sub, blunders, res, cur, rel, level, power,
+                                                            adjust_kwargs)
+        n_adj += k
+        if not changed:
             break
-        iteration += 1
-        bl = rel.blunder(g, removed=True, iteration=iteration)
-        saved = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
-        partners = sub.remove(p, bl.kind, bl.photo, bl.point)
-        try:
-            nxt, ph_map, pt_map = sub.problem(p)
-            warm = (np.asarray(res.eo_params), _warm_points(res, nxt))
-            res_new = adjust(nxt, initial=warm, precision="none", **adjust_kwargs)
-            n_adj += 1
-            if not res_new.success:
-                raise DatumError(f"the adjustment without it did not converge ({res_new.status})")
-            rel_new = reliability(res_new, level=level, power=power)
-        except (DatumError, ValueError) as ex:
-            sub = saved
-            blunders.append(dataclasses.replace(bl, removed=False, note=f"not removed: {ex}"))
-            more = True
-            log.warning("data snooping: %s not removed: %s", bl.label(), ex)
-            break
-        blunders.append(bl)
-        for ph in partners if bl.kind == "control" else ():
-            blunders[-1] = dataclasses.replace(bl, note=f"its only ray (photo {ph}) removed with it")
-        for ph in partners if bl.kind == "image" else ():   # a two-ray point: the rays are not separable
-            other = np.flatnonzero((rel.kind == "image") & (rel.photo == ph) & (rel.point == bl.point))
-            note = (f"point {bl.point} is on two photos only: its rays on photos {bl.photo} and {ph} "
-                    "cannot be told apart; both removed")
-            blunders[-1] = dataclasses.replace(bl, note=note)
-            if len(other):
-                blunders.append(rel.blunder(int(other[0]), removed=True, iteration=iteration, note=note))
-        log.info("data snooping: rejected %s (w %.2f > %.2f)", bl.label(), bl.w, bl.w_critical)
-        res, cur, rel = res_new, nxt, rel_new
-        if on_rejection is not None:
-            on_rejection(bl)
     if mode == "report" or res is first:
         final, final_rel = first, rel_first
         blunders = [dataclasses.replace(b, removed=False) for b in blunders] if mode == "report" else blunders
@@ -798,6 +819,65 @@ def snoop(
         final_rel = rel
         n_adj += 1
     return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj)
+
+
+def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs):
+    """One backward step after snooping stopped; returns ``(changed, sub, res, cur, rel, blunders, n_adj)``.
+
+    For each image observation removed by snooping (not a two-ray point): adjust with it put back;
+    when every test then passes it was a false rejection (its w was raised by a blunder removed
+    later) and it is re-inserted.  Otherwise try removing, instead of it, each other ray of its
+    point: the w-tests of the rays of one point are correlated and the largest w can sit on a good
+    ray; the exchange is kept when it lowers v'Pv (the same number of observations removed, so
+    the likelihood decides).  At most one change per call.
+    """
+    n_adj = 0
+    pid, qid = p.photo_ids[p.photo_index], p.point_ids[p.point_index]
+    for k, b in enumerate(blunders):
+        if b.kind != "image" or b.found_by != "snooping" or not b.removed or b.note:
+            continue
+        a = int(np.flatnonzero((pid == b.photo) & (qid == b.point))[0])
+        others = np.flatnonzero(sub.obs & (p.point_index == p.point_index[a]))
+        best = back = None
+        for h in [None, *(int(o) for o in others)]:
+            trial = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
+            trial.obs[a] = True
+            if h is not None:
+                trial.obs[h] = False
+            try:
+                prob, _, _ = trial.problem(p)
+                r = adjust(prob, initial=(np.asarray(res.eo_params), _warm_points(res, prob)),
+                           precision="none", **adjust_kwargs)
+                n_adj += 1
+                if not r.success:
+                    continue
+                if h is None:
+                    relt = back = reliability(r, level=level, power=power)
+                    g = relt.worst()
+                    if g is None or relt.ratio[g] <= 1:
+                        best = (None, trial, r, prob, relt)
+                        break
+                elif r.vtpv < res.vtpv - 1e-9 * max(1.0, res.vtpv) and (best is None or r.vtpv < best[2].vtpv):
+                    best = (h, trial, r, prob, None)
+            except (DatumError, ValueError, KeyError):
+                continue
+        if best is None:
+            continue
+        h, trial, r, prob, relt = best
+        relt = relt if relt is not None else reliability(r, level=level, power=power)
+        out = list(blunders)
+        if h is None:
+            log.info("data snooping: %s put back (every test passes with it)", b.label())
+            del out[k]
+        else:
+            # its test in the adjustment with both rays in (where the choice was made)
+            src = back if back is not None else rel
+            g = int(np.flatnonzero((src.kind == "image") & (src.photo == pid[h]) & (src.point == qid[h]))[0])
+            out[k] = src.blunder(g, removed=True, iteration=b.iteration,
+                                 note=f"exchanged for photo {b.photo} (same point): lower v'Pv")
+            log.info("data snooping: %s exchanged for photo %s (lower v'Pv)", b.label(), pid[h])
+        return True, trial, r, prob, relt, out, n_adj
+    return False, sub, res, cur, rel, blunders, n_adj
 
 
 def _warm_points(res: BundleResult, nxt: BundleProblem) -> np.ndarray:
@@ -815,24 +895,31 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     cur = p
     n_adj = 0
     r_cur, rel_cur = res, rel
+    crit = {q: critical_values(level, power, q)[1] for q in (1, 2, 3, 6)}
+    kq = np.array([crit[{"image": 2, "control": 3, "eo": 6}[str(k)]] for k in rel.kind])
     for _ in range(max_iter):
-        u = np.nan_to_num(rel_cur.w / rel_cur.w_critical, nan=0.0)
-        f_new = np.ones_like(u)
+        # normalised residuals with the original sigmas (not the re-weighted ones: a group weighted
+        # down must keep its large residual, or it would get its weight back the next time)
+        u = np.sqrt(_normalised_sq(p, r_cur) / kq)
+        new = np.ones_like(u)
         big = u > 1
-        f_new[big] = np.exp(1 - u[big] ** 2) if method == "danish" else 1.0 / u[big]
-        new = np.maximum(f_new * factor, 1e-12)
-        # the weights multiply: w of a down-weighted group is computed with its current weight
+        new[big] = np.maximum(np.exp(1 - u[big] ** 2) if method == "danish" else 1.0 / u[big], ROBUST_FLOOR)
         if np.allclose(new, factor, rtol=1e-3, atol=1e-6):
             break
         factor = new
         cur = _reweighted(p, factor, n_img, k_con)
+        prev = r_cur
         r_cur = adjust(cur, initial=(np.asarray(r_cur.eo_params), np.asarray(r_cur.points_m)),
                        precision="none", **adjust_kwargs)
         n_adj += 1
         if not r_cur.success:
+            r_cur = prev
             log.warning("robust %s: the re-weighted adjustment did not converge; stopped", method)
             break
+    try:
         rel_cur = reliability(r_cur, level=level, power=power)
+    except DatumError:
+        rel_cur = rel
     # remove the groups weighted down (tests of the original weights follow in snooping)
     found: list[Blunder] = []
     cut = np.flatnonzero(factor < ROBUST_CUT)
@@ -843,7 +930,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
         b = rel_cur.blunder(int(g), removed=True, iteration=0, found_by=method)
         # w and the estimated error of the original weights: e / sd relative to the critical value
         partners = sub.remove(p, kind, photo, point)
-        found.append(dataclasses.replace(b, w=float(rel_cur.w[g] / math.sqrt(factor[g])),
+        found.append(dataclasses.replace(b, w=float(math.sqrt(u[g] ** 2 * kq[g])),
                                          note="; ".join([f"weight factor {factor[g]:.1e}",
                                                          *(f"the other ray (photo {ph}) removed with it"
                                                            for ph in partners)])))
@@ -862,6 +949,18 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     rel2 = reliability(r2, level=level, power=power) if r2.success else None
     log.info("robust %s: %d group(s) removed", method, len(found))
     return r2, nxt, rel2, found, n_adj
+
+
+def _normalised_sq(p: BundleProblem, res: BundleResult) -> np.ndarray:
+    """Sum of (residual / original sigma)^2 of every group, in the order of :class:`Reliability`."""
+    parts = [np.sum((np.asarray(res.residuals_mm) / p.sd_mm) ** 2, axis=1)]
+    if len(p.constraint_point_index):
+        w = np.where(np.isfinite(p.constraint_sd_m), 1.0 / p.constraint_sd_m, 0.0)
+        parts.append(np.sum((np.asarray(res.constraint_residuals_m) * w) ** 2, axis=1))
+    if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
+        w = np.where(np.isfinite(p.eo_constraint_sd), 1.0 / p.eo_constraint_sd, 0.0)
+        parts.append(np.sum((np.asarray(res.eo_constraint_residuals) * w) ** 2, axis=1))
+    return np.concatenate(parts)
 
 
 def _reweighted(p: BundleProblem, factor: np.ndarray, n_img: int, k_con: int) -> BundleProblem:

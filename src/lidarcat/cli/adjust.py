@@ -54,6 +54,10 @@ def format_report(summary: dict, outdir: str | None = None) -> str:
     return "\n".join(lines)
 
 
+#: blunders listed in the text report (all of them are in blunders.csv and --json)
+MAX_LISTED = 20
+
+
 def format_blunders(summary: dict) -> list[str]:
     """Lines of the data-snooping result (empty when snooping was off)."""
     sn = summary.get("snooping") or {}
@@ -64,12 +68,14 @@ def format_blunders(summary: dict) -> list[str]:
     lines = ["", f"Data snooping ({sn['mode']}, alpha {sn.get('level', float('nan')):g}, power "
                  f"{sn.get('power', float('nan')):g}; critical w {crit}): "
                  + (f"{len(blunders)} blunder(s)" if blunders else "no blunder found")]
-    for b in blunders:
+    for b in blunders[:MAX_LISTED]:
         what = (f"image  photo {b['photo']} point {b['point']}" if b["kind"] == "image" else
                 f"control point {b['point']}" if b["kind"] == "control" else f"eo     photo {b['photo']}")
         err = ", ".join(f"{k} {v:+.4g}" for k, v in b["estimated_error"].items() if v == v)
         lines.append(f"  {what:<28} w {b['w']:6.2f}  r {b['redundancy']:.2f}  error {err} {b['unit']}"
                      f"  {'removed' if b['removed'] else 'KEPT'}" + (f"  ({b['note']})" if b.get("note") else ""))
+    if len(blunders) > MAX_LISTED:
+        lines.append(f"  ... {len(blunders) - MAX_LISTED} more in blunders.csv")
     return lines
 
 

@@ -140,8 +140,12 @@ def _print_text(a) -> None:
                 parts.append(f"{comp} not applicable ({t.reason})")
         click.echo(f"  {tname:15s} " + "; ".join(parts))
     if a.standards:
-        click.echo("\nstandards:")
+        from ..standards import CONFIDENCE_LABELS
+
+        click.echo("\nstandards (confidence of the rules in brackets):")
         for name, s in a.standards.items():
-            click.echo(f"  {name:10s} {s.label}")
+            click.echo(f"  {name:10s} {s.label} [{s.confidence}]")
+        click.echo("  confidence / tags like [K]: " + "; ".join(f"{k} {v}" for k, v in CONFIDENCE_LABELS.items())
+                   + " (STANDARDS.md: docs/standards.md, installed as lidarcat/standards_data/STANDARDS.md)")
     for note in a.notes:
         click.echo(f"note: {note}")

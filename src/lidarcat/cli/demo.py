@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import click
 
 from .options import echo_json, json_opt, progress_bar
@@ -32,9 +34,14 @@ def demo() -> None:
               show_default=True, help="Noise of the GPS coordinates E and N, m (height: 0.05 m).")
 @click.option("--density", "lidar_density_m2", type=click.FloatRange(min=0, min_open=True), default=4.0,
               show_default=True, help="LiDAR point density, points per m^2.")
+@click.option("--images", is_flag=True,
+              help="Also render the photos (textured terrain, shaded roofs) into OUTDIR/images/<photo>.png "
+                   "for `lidarcat ortho` and `lidarcat monoplot` (about a minute per 24 MP photo).")
+@click.option("--image-downsample", "image_downsample", type=click.IntRange(1, 20), default=1,
+              show_default=True, help="Render the photos at 1/k resolution and upsample them (faster, blurrier).")
 @json_opt
 def synthetic(outdir: str, n_photos: int, seed: int, image_sd_px: float, gps_sd_m: float,
-              lidar_density_m2: float, as_json: bool) -> None:
+              lidar_density_m2: float, images: bool, image_downsample: int, as_json: bool) -> None:
     """Write a synthetic survey folder with known truth to OUTDIR.
 
     A camera with distortion, a block of photos 700 m above a rolling terrain
@@ -49,13 +56,15 @@ def synthetic(outdir: str, n_photos: int, seed: int, image_sd_px: float, gps_sd_
     \b
     Example:
       lidarcat demo synthetic -o demo/ --photos 6 --seed 1
+      lidarcat demo synthetic -o demo/ --images && lidarcat run demo/ -o demo/out
+      lidarcat ortho demo/ --all --dsm dsm.tif --gsd 0.2 -o demo/ortho --mosaic
     """
     from ..demo import write_synthetic_survey
 
     with progress_bar(5, "demo survey", enabled=not as_json) as bar:
         result = write_synthetic_survey(
             outdir, n_photos=n_photos, seed=seed, image_sd_px=image_sd_px, gps_sd_m=gps_sd_m,
-            lidar_density_m2=lidar_density_m2,
+            lidar_density_m2=lidar_density_m2, images=images, image_downsample=image_downsample,
             progress=(lambda done, total: bar.update(done - bar.pos)) if bar is not None else None)
     if as_json:
         echo_json(result.to_dict())
@@ -94,9 +103,15 @@ def compare(survey: str, outdir: str | None, as_json: bool) -> None:
         echo_json(result)
         return
     for run, r in result["runs"].items():
+        joint = r["check_chi2_joint"]
+        if math.isfinite(joint):
+            joint_txt = f"{joint:.1f}"
+        else:  # never a bare nan: say why
+            why = r.get("check_chi2_joint_not_computed") or "no joint covariance"
+            joint_txt = why if why.startswith("not computed") else f"not computed ({why})"
         click.echo(f"run {run}: orientations max |z| {r['eo_max_abs_z']:.2f}, RMS z {r['eo_rms_z']:.2f}; "
                    f"free points max |z| {r['points_max_abs_z']:.2f}, RMS z {r['points_rms_z']:.2f}; "
-                   f"check points d'C^-1d {r['check_chi2_joint']:.1f} on {r['check_dof']} dof "
+                   f"check points d'C^-1d {joint_txt} on {r['check_dof']} dof "
                    f"(correlations ignored: {r['check_chi2']:.1f})")
     for pid, e in result["extraction"].items():
         err = ", ".join(f"{v:+.3f}" for v in e["error_m"])

@@ -157,9 +157,10 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
 def _find(lidar, crs, box, classes, params, output, as_json, index_cache) -> None:
     from ..extraction import write_candidates
     from ..control import find_candidates
-    from ..lidar import TileIndex
+    from ..lidar import TileIndex, require_metres
 
     index = TileIndex.build(list(lidar), crs=crs, cache_path=index_cache)
+    require_metres(index.crs, "roof extraction (--find)", str(index.tiles[0].path) if index.tiles else "")
     if not box:
         index.verify_bounds()  # the area is the points' own extent, not the headers' claim
     b = index.bounds

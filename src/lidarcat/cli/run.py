@@ -55,8 +55,17 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
     skipped / failed of every stage and the key numbers) and lidarcat.log.
     Stages whose inputs (file contents, parameters, lidarcat version) did not
     change since the last run are reused. One run at a time per OUTDIR
-    (OUTDIR/.lidarcat.lock). Exit code 1 when a stage failed, 2 for an invalid
-    survey or an OUTDIR in use.
+    (OUTDIR/.lidarcat.lock).
+
+    \b
+    Exit code and last line:
+      0  ok
+      1  FAILED: a stage failed (its reason is on its line)
+      2  invalid survey or an OUTDIR in use (nothing is run)
+      3  STATISTICAL TEST FAILED: every stage ran, but an adjustment
+         failed its chi-square test of the variance factor (image or
+         control sds, the model, or a blunder); summary.json has
+         status "test failed" and the test in tests_failed
 
     \b
     Examples:
@@ -101,8 +110,10 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
         echo_json(result.to_dict())
     else:
         click.echo(_text(result))
-    if not result.ok:
+    if result.failed:
         ctx.exit(1)
+    if result.tests_failed:
+        ctx.exit(3)
 
 
 def _text(result) -> str:
@@ -129,7 +140,12 @@ def _text(result) -> str:
         chk = run.get("check", {})
         parts = [f"dof {adj.get('dof')}", f"v'Pv {_f(adj.get('vtpv'), 2)}",
                  f"sigma0^2 {_f(adj.get('sigma0_sq'), 3)}",
-                 f"chi2 {'pass' if adj.get('chi2_pass') else 'fail'}"]
+                 f"chi2 {'pass' if adj.get('chi2_pass') else 'FAILED'}"]
+        if adj.get("blunders"):
+            parts.append(f"{len(adj['blunders'])} blunder(s) remain (w-test): " + "; ".join(
+                f"{b['kind']} {'photo ' + b['photo'] + ' ' if b.get('photo') else ''}point {b['point']}"
+                if b.get("point") else f"{b['kind']} photo {b['photo']}" for b in adj["blunders"][:5])
+                + (" ..." if len(adj["blunders"]) > 5 else ""))
         if chk:
             parts.append("check RMSE E/N/h " + "/".join(_f(chk.get(f"rmse_{a}_m"), 3) for a in "ENh") + " m")
             cons = chk.get("consistency")
@@ -137,6 +153,8 @@ def _text(result) -> str:
                 verdict = {"below": "below its interval: precision pessimistic",
                            "above": "above its interval: errors larger than claimed"}.get(cons.get("side"), "pass")
                 parts.append(f"d'C^-1d {_f(cons['chi2'], 1)} on {cons['df']} dof {verdict}")
+            elif chk.get("consistency_not_computed"):
+                parts.append(f"d'C^-1d {chk['consistency_not_computed']}")
         lines.append(f"  run {name}: " + ", ".join(parts))
     th = result.summary.get("thesis")
     if th:
@@ -152,5 +170,12 @@ def _text(result) -> str:
     report = result.summary.get("report")
     if report:
         lines.append(f"  report: {report}")
-    lines.append("ok" if result.ok else f"FAILED: {', '.join(result.failed)}")
+    if result.failed:
+        lines.append(f"FAILED: {', '.join(result.failed)}")
+    elif result.tests_failed:
+        lines += [f"  statistical test failed, {t}" for t in result.tests_failed]
+        lines.append("STATISTICAL TEST FAILED: every stage ran, but " + ", ".join(
+            t.split(":")[0] for t in result.tests_failed) + " failed its chi-square test (exit code 3)")
+    else:
+        lines.append("ok")
     return "\n".join(lines)

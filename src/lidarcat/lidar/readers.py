@@ -34,8 +34,10 @@ with :mod:`struct` and checked against the file size (:func:`_precheck_las`):
 the header size, the offset to the points, the VLR count (each VLR takes at
 least 54 bytes between the header and the points, so a count of 3.5 billion in
 a 1 MB file is refused before anything is allocated), the extended VLRs of LAS
-1.4, the point count against the bytes left (uncompressed files), scales and
-offsets finite and non-zero.  The header's bounds are never used to select
+1.4, the point count against the bytes left, scales and offsets finite and
+non-zero; for LAZ also the LasZip record (item sizes, chunk size), the chunk
+table and, for LAS 1.4 points, the layer sizes of every chunk -- lazrs
+allocates from these numbers and a failed allocation aborts the process.  The header's bounds are never used to select
 points (they are often wrong); coordinates read must lie within
 :data:`MAX_ABS_COORD_M` of zero.  Decoder failures -- including the Rust
 ``PanicException`` of lazrs, which derives from ``BaseException`` -- become a
@@ -96,6 +98,8 @@ _NOT_CAUGHT = (KeyboardInterrupt, SystemExit, GeneratorExit)
 #: upper bound of LAZ points per byte of compressed data (a chunk of 50 000 points starts with one
 #: raw point of 20+ bytes: 2 500 points a byte; 10 000 leaves room for any real compressor)
 _MAX_LAZ_POINTS_PER_BYTE = 10_000
+#: largest LAZ chunk accepted, points (LASzip writes 50 000; lazrs allocates a chunk's points)
+_MAX_LAZ_CHUNK_POINTS = 10_000_000
 
 #: progress callback: receives the number of bytes of the file just processed
 Progress = Callable[[int], Any]
@@ -249,6 +253,12 @@ def _precheck_las(path: Path) -> None:
             raise bad(f"{n_evlr:,} extended VLRs announced at byte {evlr_start:,} but the file has "
                       f"{size:,} bytes")
     compressed = bool(fmt_byte & 0xC0)
+    if compressed:
+        rec = _laszip_record(path, header_size, offset, n_vlr)
+        compressor = None if rec is None else _precheck_laszip(path, rec, rec_len, bad)
+        if compressor in (2, 3) and _precheck_laz_chunk_table(path, size, offset, bad) \
+                and compressor == 3 and _layered_items_only_point14(rec):
+            _precheck_layered_chunks(path, offset, rec_len, bad)
     if compressed and count > _MAX_LAZ_POINTS_PER_BYTE * max(size - offset, 0):
         raise LidarFormatError(f"{path}: corrupt LAS header: {count:,} points announced but the "
                                f"{max(size - offset, 0):,} bytes of compressed point data cannot hold more "
@@ -260,6 +270,102 @@ def _precheck_las(path: Path) -> None:
         if not (math.isfinite(sc) and sc != 0.0 and math.isfinite(off)):
             raise bad(f"{axis} scale {sc!r} / offset {off!r}; a finite non-zero scale and a finite "
                       "offset are required")
+
+
+def _laszip_record(path: Path, header_size: int, offset: int, n_vlr: int) -> bytes | None:
+    """The data of the LasZip record (user id ``laszip encoded``, record 22204), None when missing
+    (laspy then says so)."""
+    with open(path, "rb") as fh:
+        pos = header_size
+        for _ in range(n_vlr):
+            fh.seek(pos)
+            head = fh.read(_VLR_HEADER_BYTES)
+            if len(head) < _VLR_HEADER_BYTES:
+                return None
+            user_id = head[2:18].split(b"\0", 1)[0]
+            record_id, length = struct.unpack_from("<HH", head, 18)
+            if user_id == b"laszip encoded" and record_id == 22204:
+                return fh.read(min(length, max(offset - pos - _VLR_HEADER_BYTES, 0)))
+            pos += _VLR_HEADER_BYTES + length
+            if pos > offset:
+                return None
+    return None
+
+
+def _precheck_laszip(path: Path, rec: bytes, rec_len: int, bad: Callable[[str], LidarFormatError]) -> int:
+    """Check the LasZip record (lazrs allocates from its chunk size and item sizes, and a failed
+    allocation aborts the process); returns the compressor (1 pointwise, 2 chunked, 3 layered)."""
+    if len(rec) < 34:
+        raise bad(f"the LasZip record holds {len(rec)} bytes, fewer than its 34-byte head")
+    compressor, = struct.unpack_from("<H", rec, 0)
+    chunk_size, = struct.unpack_from("<I", rec, 12)
+    n_items, = struct.unpack_from("<H", rec, 32)
+    if len(rec) != 34 + 6 * n_items:
+        raise bad(f"the LasZip record lists {n_items} items but holds {len(rec)} bytes "
+                  f"(expected {34 + 6 * n_items})")
+    sizes = [struct.unpack_from("<H", rec, 34 + 6 * k + 2)[0] for k in range(n_items)]
+    if sum(sizes) != rec_len:
+        raise bad(f"the LasZip items add up to {sum(sizes)} bytes a point but the header says {rec_len}")
+    if chunk_size != 0xFFFFFFFF and not 0 < chunk_size <= _MAX_LAZ_CHUNK_POINTS:
+        raise bad(f"LAZ chunk size {chunk_size:,} points (1..{_MAX_LAZ_CHUNK_POINTS:,}, or variable)")
+    return compressor
+
+
+def _layered_items_only_point14(rec: bytes) -> bool:
+    """True when the LasZip record holds one item, a LAS 1.4 point (type 10, 9 layers)."""
+    n_items, = struct.unpack_from("<H", rec, 32)
+    return n_items == 1 and struct.unpack_from("<H", rec, 34)[0] == 10
+
+
+def _precheck_layered_chunks(path: Path, offset: int, rec_len: int, bad: Callable[[str], LidarFormatError]
+                             ) -> None:
+    """Walk the chunks of a layered LAZ file of LAS 1.4 points: each is a point count (4 bytes),
+    the first point raw, 9 layer sizes (4 bytes each) and the layers; every size must fit
+    before the chunk table.  lazrs allocates each layer from its size (up to 4 GB) and a
+    failed allocation aborts the process (found by the fuzz suite)."""
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        (table_at,) = struct.unpack("<q", fh.read(8))
+        pos, k = offset + 8, 0
+        while pos < table_at:
+            fh.seek(pos + 4 + rec_len)
+            raw = fh.read(36)
+            if len(raw) < 36:
+                return  # truncated: lazrs says where the data ends
+            sizes = struct.unpack("<9I", raw)
+            start = pos + 4 + rec_len + 36
+            if sum(sizes) > table_at - start:
+                raise bad(f"LAZ chunk {k} (byte {pos}) announces layers of {sum(sizes):,} bytes but only "
+                          f"{max(table_at - start, 0):,} bytes lie before the chunk table")
+            pos, k = start + sum(sizes), k + 1
+
+
+def _precheck_laz_chunk_table(path: Path, size: int, offset: int, bad: Callable[[str], LidarFormatError]
+                              ) -> bool:
+    """The LAZ chunk table (its offset, the first 8 bytes of the point data, or the file's last 8
+    when that is -1; then a version and the chunk count) must lie in the file and count no more
+    chunks than bytes before it: lazrs allocates the table from that count and a failed
+    allocation aborts the process (no exception to catch)."""
+    if size < offset + 8:
+        raise LidarFormatError(f"{path}: truncated: no compressed point data after byte {offset}")
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        (table_at,) = struct.unpack("<q", fh.read(8))
+        if table_at == -1:  # written by a streaming compressor: the offset is at the end
+            fh.seek(size - 8)
+            (table_at,) = struct.unpack("<q", fh.read(8))
+        if table_at > size - 8:
+            return False  # a truncated file: lazrs decodes without the table and says where the data ends
+        if table_at < offset + 8:
+            raise bad(f"the LAZ chunk table offset {table_at} lies before the compressed data "
+                      f"(bytes {offset + 8}..{size - 8})")
+        fh.seek(table_at)
+        _version, n_chunks = struct.unpack("<II", fh.read(8))
+    room = table_at - offset - 8
+    if n_chunks > room:
+        raise bad(f"the LAZ chunk table announces {n_chunks:,} chunks but only {room:,} bytes of "
+                  "compressed points precede it")
+    return True
 
 
 def _decoder_error(path: Path, ex: BaseException, what: str) -> LidarFormatError:

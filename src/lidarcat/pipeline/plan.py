@@ -27,11 +27,12 @@ from .runner import (
     ProgressCallback,
     Stage,
     StageRecord,
+    failed_tests,
     log_to,
     run_stages,
     safe_name,
 )
-from .stages import adjust, assess, camera, compare, extract, report, selfcal, thesis
+from .stages import adjust, assess, camera, compare, extract, mapping, report, selfcal, thesis
 from .stages.report import results
 
 __all__ = ["FROM_SURVEY", "plan_pipeline", "run_pipeline"]
@@ -162,6 +163,8 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
             params={"alpha": judged.alpha},
             skip_reason=None if has_runs else f"needs the control sets {' and '.join(thesis.RUNS)} of the thesis",
             description="thesis section 4.4 (Tables 8-15) beside this run"))
+    if "mapping" in survey_tables(survey):   # only surveys that ask for map products get the stage
+        stages.append(_mapping_stage(survey, runs, files_lidar))
     if selfcal.planned(survey):
         stages.append(Stage("selfcal", "selfcal", selfcal.run, inputs=lambda ctx: files,
                             description="adjustment with additional parameters ([self_calibration])"))
@@ -169,6 +172,31 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     stages.append(Stage("report", "report", report.run, uses=upstream,
                         inputs=lambda ctx: files, description="HTML / Markdown / JSON report"))
     return stages
+
+
+def survey_tables(survey: Any) -> set[str]:
+    """The top-level tables of the survey's survey.toml (none for the embedded block's missing file)."""
+    from .._io import read_toml
+
+    try:
+        return set(read_toml(survey.toml_path)[0])
+    except (OSError, LidarcatError):
+        return set()
+
+
+def _mapping_stage(survey: Any, runs: Sequence[tuple[str, bool]], files_lidar: list[Path]) -> Stage:
+    """Orthophotos / mosaic of the default run when survey.toml's [mapping] asks (stages/mapping.py)."""
+    cfg = mapping.settings(survey)
+    first = runs[0][0] if runs else None
+    why = ("[mapping] orthophotos = false" if not cfg["orthophotos"] else
+           "the survey has no LiDAR tiles ([files] lidar) for the surface model" if not survey.lidar_paths else
+           "no adjustment (control set) to take the orientations from" if first is None else None)
+    images = survey.root / (cfg.get("images") or "images")
+    return Stage("mapping", "mapping", mapping.run,
+                 requires=(f"adjust-{first}",) if why is None else (),
+                 inputs=lambda ctx: [*files_lidar, *sorted(p for p in images.glob("*") if p.is_file())],
+                 params={"adjust": f"adjust-{first}", **{k: v for k, v in cfg.items()}},
+                 skip_reason=why, description="orthophotos and mosaic of the adjusted photos ([mapping])")
 
 
 def run_pipeline(
@@ -204,8 +232,11 @@ def run_pipeline(
     Returns
     -------
     PipelineResult
-        ``result.ok`` is False when a stage failed; ``OUTDIR/summary.json``
-        holds ``result.summary``.
+        ``result.status`` is ``ok``, ``test failed`` (an adjustment failed its
+        chi-square test of the variance factor: outputs written, model or
+        weights suspect) or ``stage failed``; ``result.ok`` is True only for
+        ``ok``.  ``OUTDIR/summary.json`` holds ``result.summary`` (with
+        ``status``, ``ok``, ``failed`` and ``tests_failed``).
 
     Raises
     ------
@@ -234,6 +265,8 @@ def run_pipeline(
         failed = [r.name for r in records if r.status == "failed"]
         if failed:
             log.error("run finished with failed stage(s): %s", ", ".join(failed))
+        elif summary["tests_failed"]:
+            log.error("run finished, but a statistical test failed: %s", "; ".join(summary["tests_failed"]))
         else:
             log.info("run finished: %s", ", ".join(f"{r.name} {r.status}" for r in records))
     return PipelineResult(out, tuple(records), summary)
@@ -241,13 +274,18 @@ def run_pipeline(
 
 def _summary(survey: Any, out: Path, records: Sequence[StageRecord], seconds: float) -> dict:
     report = next((r.result.get("index") for r in records if r.name == "report" and r.done), None)
+    failed = [r.name for r in records if r.status == "failed"]
+    tests = failed_tests(records)
+    status = "stage failed" if failed else "test failed" if tests else "ok"
     return {
         "lidarcat_version": __version__,
         "survey": {"name": survey.name, "root": str(survey.root), "crs": survey.crs,
                    "embedded": bool(survey.embedded)},
         "outdir": str(out),
-        "ok": not any(r.status == "failed" for r in records),
-        "failed": [r.name for r in records if r.status == "failed"],
+        "ok": status == "ok",
+        "status": status,
+        "failed": failed,
+        "tests_failed": tests,
         "stages": [r.to_dict() for r in records],
         "stages_ran": [r.name for r in records if r.status == "ran"],
         "stages_reused": [r.name for r in records if r.status == "reused"],

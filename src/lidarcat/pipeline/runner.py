@@ -37,7 +37,7 @@ from .._io import atomic_dir, dumps_json, write_json_atomic
 from ..errors import LidarcatError
 
 __all__ = ["STATUSES", "ProgressCallback", "Stage", "StageRecord", "PipelineResult", "Context",
-           "run_stages", "safe_name", "log_to"]
+           "run_stages", "safe_name", "log_to", "failed_tests"]
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +66,8 @@ class Stage:
     run : callable
         ``run(ctx, tmpdir) -> dict``: writes the stage's files into *tmpdir*
         (moved into ``OUTDIR/folder`` only when it returns) and returns a
-        JSON-serialisable dict of key numbers.  *ctx* is a :class:`Context`
+        JSON-serialisable dict of key numbers; its list ``failed_tests``
+        (one line each) names statistical tests the outputs fail.  *ctx* is a :class:`Context`
         giving access to the output folder and the results of earlier stages.
     requires : tuple of str
         Stages whose outputs this stage reads; when one of them did not
@@ -164,13 +165,25 @@ class PipelineResult:
 
     @property
     def ok(self) -> bool:
-        """True when no stage failed."""
-        return not any(s.status == "failed" for s in self.stages)
+        """True when no stage failed and no statistical test of a stage failed (see :attr:`status`)."""
+        return self.status == "ok"
 
     @property
     def failed(self) -> list[str]:
         """Names of the failed stages."""
         return [s.name for s in self.stages if s.status == "failed"]
+
+    @property
+    def tests_failed(self) -> list[str]:
+        """``"stage: what failed"`` for every statistical test a done stage reports as failed
+        (its result's ``failed_tests``): the stage ran, its outputs exist, but they fail a test."""
+        return failed_tests(self.stages)
+
+    @property
+    def status(self) -> str:
+        """``ok``, ``test failed`` (every stage ran or was skipped, a statistical test failed) or
+        ``stage failed``."""
+        return "stage failed" if self.failed else "test failed" if self.tests_failed else "ok"
 
     def stage(self, name: str) -> StageRecord:
         """The record of stage *name* (KeyError when not planned)."""
@@ -181,6 +194,11 @@ class PipelineResult:
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.summary)
+
+
+def failed_tests(records: Iterable[StageRecord]) -> list[str]:
+    """``"stage: test"`` of every ``failed_tests`` entry in the results of the done *records*."""
+    return [f"{r.name}: {t}" for r in records if r.done for t in r.result.get("failed_tests", ())]
 
 
 class Context:

@@ -39,7 +39,14 @@ def run(ctx: Context, tmp: Path) -> dict:
         raise LidarcatError(f"control set {name!r}: none of its check points was adjusted "
                             f"(measured on no photo): {', '.join(missing)}")
     cov_path = ctx.folder(f"adjust-{name}") / "check_covariance.csv"
-    cov = None
+    cons_path = ctx.folder(f"adjust-{name}") / "consistency.json"
+    cov = consistency = None
+    if not cov_path.is_file() and cons_path.is_file():  # above the limit of check_covariance.csv
+        import json
+
+        from ...accuracy import TestResult
+
+        consistency = TestResult(**json.loads(cons_path.read_text(encoding="utf-8")))
     if cov_path.is_file():
         from ...bundle import read_point_covariance
 
@@ -47,7 +54,8 @@ def run(ctx: Context, tmp: Path) -> dict:
     a = assess(adjusted, reference, points=checks, scale=par.get("scale"),
                contour_interval_m=par.get("contour_interval_m"), alpha=par.get("alpha", 0.10),
                pec_class=par.get("pec_class", "A"),
-               plotting_position=par.get("plotting_position", "filliben"), adjusted_cov=cov)
+               plotting_position=par.get("plotting_position", "filliben"), adjusted_cov=cov,
+               consistency=consistency)
     doc = a.to_dict()
     doc["control_set"] = name
     doc["check_points_not_adjusted"] = missing
@@ -70,6 +78,8 @@ def run(ctx: Context, tmp: Path) -> dict:
         check["consistency"] = {"chi2": cons.statistic, "df": cons.details["df"], "alpha": cons.alpha,
                                 "lower": cons.details["lower"], "upper": cons.details["upper"],
                                 "passed": cons.passed, "side": cons.details["side"]}
+    elif cons is not None:
+        check["consistency_not_computed"] = cons.reason
     tests = {t: {c: r.get("passed") for c, r in comps.items()} for t, comps in doc["tests"].items()}
     classes = {k: v.get("class", v.get("classes")) for k, v in doc["standards"].items()}
     return {"check": check, "tests_passed": tests, "standards": classes, "control": name,

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..._io import write_json_atomic, write_text_atomic
 from .._html import markdown_to_html
-from ..runner import Context, Stage, StageRecord
+from ..runner import Context, Stage, StageRecord, failed_tests
 from .compare import EOP_DIFF, read_photo_rows
 
 __all__ = ["run", "results", "num"]
@@ -77,9 +77,15 @@ def run(ctx: Context, tmp: Path) -> dict:
         settings.update(source="the command line" if overridden else "survey.toml [assessment]",
                         default_scale=DEFAULT_SCALE, default_contour_interval_m=DEFAULT_CONTOUR_INTERVAL_M)
     doc = {"survey": survey.name, "stages": rows, "settings": settings,
+           "tests_failed": failed_tests(ctx.records[st.name] for st in plan if st.name in ctx.records),
            **results(ctx.records[st.name] for st in plan if st.name in ctx.records)}
     doc["reports"] = {name: f"../{run['report']}" for name, run in doc["runs"].items()
                       if "report" in run and (ctx.outdir / run["report"]).is_file()}
+    for run in doc["runs"].values():
+        if "report" in run:
+            figs = ctx.outdir / Path(run["report"]).parent / "report_figures"
+            run["figures_dir"] = figs.relative_to(ctx.outdir).as_posix()
+            run["figures"] = sorted(p.name for p in figs.glob("*.png")) if figs.is_dir() else []
     for name, cmp_ in doc["comparison"].items():
         eo_path = ctx.folder(f"compare-{name}") / "eop_differences.csv"
         if eo_path.is_file() and cmp_.get("n_photos", 0) <= 50:
@@ -89,12 +95,17 @@ def run(ctx: Context, tmp: Path) -> dict:
     write_json_atomic(tmp / "report.json", doc)
     md = _report_markdown(doc)
     write_text_atomic(tmp / "index.md", md)
-    write_text_atomic(tmp / "index.html", markdown_to_html(md, f"lidarcat report: {survey.name}"))
+    # figure paths in index.md are relative to OUTDIR/report; tmp is its sibling in OUTDIR
+    write_text_atomic(tmp / "index.html", markdown_to_html(md, f"lidarcat report: {survey.name}", base=tmp))
     return {"index": "report/index.html", "n_stages_done": sum(r["state"] == "done" for r in rows)}
 
 
 def _report_markdown(doc: Mapping[str, Any]) -> str:
-    lines = [f"# lidarcat report: {doc['survey']}", "", "## Stages", "",
+    lines = [f"# lidarcat report: {doc['survey']}", ""]
+    if doc.get("tests_failed"):
+        lines += ["**Statistical test failed** (every stage ran; read the results with care): "
+                  + "; ".join(doc["tests_failed"]), ""]
+    lines += ["## Stages", "",
              "| stage | what | state | reason |", "|---|---|---|---|"]
     for r in doc["stages"]:
         lines.append(f"| {r['stage']} | {r['what']} | {r['state']} | {r['reason']} |")
@@ -128,6 +139,13 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                   f"sigma0^2 {num(adj.get('sigma0_sq'), 3)}, chi-square test "
                   f"[{num(adj.get('chi2_lower'), 2)}, {num(adj.get('chi2_upper'), 2)}]: "
                   f"{'passed' if adj.get('chi2_pass') else 'failed'}"]
+        for fig, caption in _RUN_FIGURES:
+            if fig in run.get("figures", ()):
+                lines += ["", f"![Run {name}: {caption}](../{run['figures_dir']}/{fig})"]
+        if adj.get("blunders"):
+            lines += ["", "| blunder (data snooping, kept) | photo | point | w | redundancy |", "|---|---|---|---|---|"]
+            lines += [f"| {b['kind']} | {b.get('photo') or ''} | {b.get('point') or ''} | {num(b['w'], 2)} | "
+                      f"{num(b['redundancy'], 2)} |" for b in adj["blunders"]]
         chk = run.get("check")
         if chk:
             lines += ["", "| check points, reference minus adjusted (m) | mean | std | RMSE | max abs |",
@@ -137,6 +155,9 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                              f"{num(chk.get(f'std_{c}_m'), 3)} | {num(chk.get(f'rmse_{c}_m'), 3)} | "
                              f"{num(chk.get(f'max_abs_{c}_m'), 3)} |")
             cons = chk.get("consistency")
+            if chk.get("consistency_not_computed"):
+                lines += ["", "Discrepancies against the precision the adjustment claims (d'C^-1 d): "
+                              + chk["consistency_not_computed"] + "."]
             if cons:
                 lines += ["", f"Discrepancies against the precision the adjustment claims (joint "
                               f"covariance of the check points + their reference sds): d'C^-1 d = "
@@ -174,6 +195,12 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: figures of each run's own report shown in the index (file in report_figures/, caption)
+_RUN_FIGURES = (("block_layout.png", "block layout (photo footprints, control, check and tie points)"),
+                ("planimetric_vectors.png", "planimetric discrepancies of the check points"),
+                ("height_discrepancies.png", "height discrepancies of the check points"))
+
+
 def _thesis_markdown(det: Mapping[str, Any] | None) -> list[str]:
     """Section "Thesis section 4.4": the printed values beside the recomputed ones, errata marked."""
     if not det:
@@ -192,6 +219,20 @@ def _thesis_markdown(det: Mapping[str, Any] | None) -> list[str]:
         lines.append(f"| {r['label']} | {num(r['printed'], r['decimals'])} | "
                      + " | ".join(num(v, nd) for v in r["values"])
                      + f" | {'yes' if r['agrees'] else 'NO'} | {('[E] ' + r['erratum']) if r['erratum'] else ''} |")
+    printed14 = det.get("tables_14_15") or {}
+    for key, what in (("table14", "Table 14: normality test of the planimetric discrepancies X"),
+                      ("table15", "Table 15: normality test of the height discrepancies")):
+        if key not in printed14:
+            continue
+        a, b = det["table13_from_printed"][key], det["table13_this_run"][key]
+        lines += ["", f"{what}, sorted, with the cumulative probability (i-0.5)/n and its normal score Z: "
+                      "printed (the point of the printed row), recomputed from the printed Table 13, and "
+                      "this run's own sorted values (its order of points may differ), m.", "",
+                  "| i | point | X printed | X recomputed | X this run | (i-0.5)/n | Z printed | Z |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for r, ra, rb in zip(printed14[key], a, b):
+            lines.append(f"| {r['pos']} | {r['point']} | {num(r['X'], 3)} | {num(ra['X'], 3)} | {num(rb['X'], 3)} | "
+                         f"{num(ra['prob_acum'], 3)} | {num(r['Z'], 2)} | {num(ra['Z'], 3)} |")
     lines += ["", "Tables 8-13 and Appendices 2.2 / 3.2 against this run: largest difference "
                   "(this run minus printed, errata applied) and its tolerance (printed precision, or the "
                   "GPS run's where the rounding of the published photo coordinates limits the reproduction).", "",

@@ -316,6 +316,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     if missing:  # a misprint named here must be one of errata.json (its evidence is shown)
         raise LidarcatError(f"{pub['errata']}: no entry for the erratum {missing}")
     doc = {"statistics": stats_rows, "tables": tables,
+           "tables_14_15": {k: printed[k] for k in ("table14", "table15")},
            "errata": {u: errata[u] for u in used},
            "table13_from_printed": from_printed, "table13_this_run": this_run,
            "settings": {"alpha": kw["alpha"], "plotting_position": "hazen", "scale": 2000,

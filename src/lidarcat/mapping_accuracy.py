@@ -1,0 +1,334 @@
+r"""Accuracy of mapped features as Cavassim (2005) judges it, and the paper's experiment on a synthetic town.
+
+:func:`assess_features` -- per feature class (``building``, ``road``): the
+mean and sd of dE, dN and of the resultant (Tables 06-08), K-S of the
+generalized squared distances (eq. 03,
+:func:`lidarcat.accuracy.ks_mahalanobis_test`), Hotelling's T^2 of a zero
+mean (eq. 04, :func:`lidarcat.accuracy.hotelling_t2_test`), the radius holding
+90 % of the points (Table 09, :func:`lidarcat.accuracy.ce90`, empirical) and
+the planimetric PEC class (:func:`lidarcat.standards.classify_pec`; the paper
+uses 1:2000).  Discrepancies are reference minus measured.
+
+:func:`cavassim_experiment` -- the paper's three products on a synthetic scene
+of the paper's scale and density: a 1:6000 metric photo (c = 153.73 mm,
+scanned at 25.4 um: 0.15 m pixels, 922 m above ground) and first-return
+LiDAR of 2 points/m^2 (ALTM 2050: 1-4 points/m^2, 0.15 m height noise).  The
+features are the outline corners of large flat-roofed buildings (eave height
+6-12 m, up to 330 m from the nadir) and points on road edges; the reference
+is their true plan position (the paper's 1:2000 map base).
+
+* *monorestitution* -- each point projected into the photo, pointing noise
+  0.5 px, intersected (first hit) with the paper's surface, a DSM of the
+  highest first return per cell (1 m cells,
+  :func:`lidarcat.lidar.rasterize`), by the nearest neighbour (``nearest``:
+  the cell's value) or the triangular plane (``tin``: a TIN of the cell
+  centres); the photo's orientation carries the errors of an adjustment
+  (0.05 m, 10 arc seconds), drawn once per photo.  The same on the LiDAR
+  points themselves (``nearest_points``, ``tin_points``) shows why the paper's
+  gridded first-return DSM matters for roof outlines: a TIN of the points
+  ramps down from the last roof point to the first ground point, and a ray
+  through a roof corner that moves outwards as it descends (3 of the 4
+  corners of a roof seen off-nadir) runs off that ramp to the ground,
+  eave height x tan(off-nadir) away; the highest-return grid widens the roof
+  by up to a cell instead, so that such rays still meet the roof top;
+* *digitising on the LiDAR intensity image* -- the operator clicks on the
+  first-return intensity image rasterised at the point spacing
+  (``1/sqrt(density)``): the roof (bright) or road (dark) cells are the
+  cells whose mean intensity lies beyond the midpoint of the two materials;
+  a building corner is the cell corner of that region farthest out along the
+  building's diagonal within 3 m of the true corner, a road edge point is the
+  cell edge where the road region ends along the road's normal; then a
+  pointing noise of 0.3 cell.  The image is orthogonal but its edges are
+  only as sharp as its cells: the paper's explanation of why it is worse.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .accuracy import ce90, hotelling_t2_test, ks_mahalanobis_test
+from .errors import AssessmentError
+from .standards import classify_pec
+
+__all__ = ["assess_features", "cavassim_experiment", "CAVASSIM_TABLE_09", "paper_camera"]
+
+#: Cavassim (2005) Table 09: r90 (m) by product and class
+CAVASSIM_TABLE_09 = {
+    "intensity_image": {"building": 0.88, "road": 0.77},
+    "nearest": {"building": 0.60, "road": 0.38},
+    "tin": {"building": 0.43, "road": 0.29},
+}
+
+
+def assess_features(den_m: Any, classes: Sequence[str], *, scale: float = 2000.0,
+                    alpha: float = 0.05) -> dict[str, dict[str, Any]]:
+    """Per-class statistics of planimetric discrepancies (module docstring).
+
+    Parameters
+    ----------
+    den_m : (N, 2) array
+        dE, dN = reference - measured, m.
+    classes : sequence of N str
+    scale : float
+        Map scale denominator of the PEC classification.
+    alpha : float
+        Level of K-S and Hotelling's T^2 (the paper: 0.05).
+
+    Returns
+    -------
+    dict
+        ``{class: {"n", "mean_E", "sd_E", "mean_N", "sd_N", "mean_resultant",
+        "sd_resultant", "ks", "hotelling", "r90_m", "pec_class"}}``; tests as
+        :meth:`lidarcat.accuracy.TestResult.to_dict`.
+
+    Raises
+    ------
+    AssessmentError
+        Shapes disagree.
+    """
+    d = np.asarray(den_m, dtype=np.float64)
+    cls = np.asarray(list(classes), dtype=str)
+    if d.ndim != 2 or d.shape[1] != 2 or len(d) != len(cls):
+        raise AssessmentError(f"discrepancies must be (N, 2) with one class each; got {d.shape} and "
+                              f"{len(cls)} classes")
+    out: dict[str, dict[str, Any]] = {}
+    for c in dict.fromkeys(cls.tolist()):
+        x = d[cls == c]
+        x = x[np.isfinite(x).all(axis=1)]
+        r = np.hypot(x[:, 0], x[:, 1])
+        pec = classify_pec(np.column_stack([x, np.zeros(len(x))]), scale)
+        out[c] = {
+            "n": int(len(x)),
+            "mean_E": float(x[:, 0].mean()), "sd_E": float(x[:, 0].std(ddof=1)),
+            "mean_N": float(x[:, 1].mean()), "sd_N": float(x[:, 1].std(ddof=1)),
+            "mean_resultant": float(r.mean()), "sd_resultant": float(r.std(ddof=1)),
+            "ks": ks_mahalanobis_test(x, alpha).to_dict(),
+            "hotelling": hotelling_t2_test(x, alpha).to_dict(),
+            "r90_m": float(ce90(x, "empirical").statistic),
+            "pec_class": pec.classes["planimetric"],
+        }
+    return out
+
+
+def paper_camera() -> Any:
+    """The paper's photo: RC10, c = 153.73 mm, 23 x 23 cm scanned at 1000 dpi (25.4 um)."""
+    from .camera import Camera
+
+    return Camera("rc10", 153.73, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0254, 0.0254, 9055, 9055,
+                  model="Wild RC10 (Cavassim 2005), scanned at 1000 dpi", source="Cavassim (2005) section 5")
+
+
+def _town(rng: np.random.Generator, e0: float, n0: float, n_buildings: int, n_roads: int) -> Any:
+    from .scene import Building, Road, Scene
+
+    roads = []
+    for k in range(n_roads):
+        a = math.radians(rng.uniform(0, 180))
+        off = (k - (n_roads - 1) / 2) * 150.0
+        c = np.array([e0 - off * math.sin(a), n0 + off * math.cos(a)])
+        dvec = 350.0 * np.array([math.cos(a), math.sin(a)])
+        roads.append(Road(*(c - dvec), *(c + dvec), float(rng.uniform(7, 12))))
+    buildings: list[Any] = []
+    tries = 0
+    while len(buildings) < n_buildings and tries < 5000:
+        tries += 1
+        e, n = e0 + rng.uniform(-300, 300), n0 + rng.uniform(-300, 300)
+        b = Building("flat", e, n, length_m=float(rng.uniform(30, 60)), width_m=float(rng.uniform(15, 25)),
+                     eave_m=float(rng.uniform(6, 12)), azimuth_deg=float(rng.uniform(0, 90)))
+        fp = b.footprint()
+        near_road = any(r.contains(fp[:, 0], fp[:, 1]).any() or r.contains(np.array([e]), np.array([n]))[0]
+                        for r in roads)
+        far = all(math.hypot(e - o.e_m, n - o.n_m) > 45 + (b.length_m + o.length_m) / 2 for o in buildings)
+        if far and not near_road and not any(
+                np.hypot(*(fp - np.array([r.e0_m, r.n0_m])).T).min() < 0 for r in roads):
+            buildings.append(b)
+    return Scene(tuple(buildings), tuple(roads), seed=int(rng.integers(2**31)))
+
+
+def _road_points(scene: Any, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Points on road edges away from buildings and crossings, with the edge's outward normal."""
+    pts, normals = [], []
+    while len(pts) < n:
+        r = scene.roads[int(rng.integers(len(scene.roads)))]
+        a = np.array([r.e0_m, r.n0_m])
+        u = np.array([r.e1_m, r.n1_m]) - a
+        u /= np.linalg.norm(u)
+        nrm = np.array([-u[1], u[0]]) * (1 if rng.uniform() < 0.5 else -1)
+        p = a + rng.uniform(150, 550) * u + nrm * r.width_m / 2
+        # keep edges whose neighbourhood (6 m) is this road and bare ground only
+        probe = p + np.outer(np.linspace(-6, 6, 13), nrm)
+        _, lab = scene.surface(probe[:, 0], probe[:, 1])
+        if lab.max() > 1 or sum(o.contains(probe[:, 0], probe[:, 1]).any() for o in scene.roads) > 1:
+            continue
+        pts.append(p)
+        normals.append(nrm)
+    return np.array(pts), np.array(normals)
+
+
+def _image_digitise(scene: Any, lidar: dict, corners: np.ndarray, outward: np.ndarray, road_pts: np.ndarray,
+                    road_nrm: np.ndarray, cell: float, rng: np.random.Generator) -> np.ndarray:
+    """Positions an operator digitises on the intensity image (module docstring), (N, 2)."""
+    xyz, inten = lidar["xyz"], lidar["intensity"].astype(np.float64)
+    x0, y0 = xyz[:, 0].min(), xyz[:, 1].max()
+    col = np.floor((xyz[:, 0] - x0) / cell).astype(np.int64)
+    row = np.floor((y0 - xyz[:, 1]) / cell).astype(np.int64)
+    shape = (row.max() + 1, col.max() + 1)
+    flat = row * shape[1] + col
+    s = np.bincount(flat, inten, shape[0] * shape[1])
+    c = np.bincount(flat, None, shape[0] * shape[1])
+    with np.errstate(invalid="ignore"):
+        img = (s / c).reshape(shape)
+    roof = img > (900.0 + 2200.0) / 2           # bright first returns: roofs
+    road = img < (250.0 + 900.0) / 2            # dark: asphalt
+    out = []
+    for p, o in zip(corners, outward):
+        r0, c0 = int((y0 - p[1]) / cell), int((p[0] - x0) / cell)
+        k = int(math.ceil(3.0 / cell))
+        rr, cc = np.mgrid[r0 - k:r0 + k + 1, c0 - k:c0 + k + 1]
+        m = roof[np.clip(rr, 0, shape[0] - 1), np.clip(cc, 0, shape[1] - 1)]
+        # the corners of the roof cells; the operator's corner: farthest out along the diagonal
+        ce = np.concatenate([x0 + (cc[m] + dx) * cell for dx in (0, 1, 0, 1)])
+        cn = np.concatenate([y0 - (rr[m] + dy) * cell for dy in (0, 0, 1, 1)])
+        if ce.size == 0:
+            out.append([np.nan, np.nan])
+            continue
+        score = (ce - p[0]) * o[0] + (cn - p[1]) * o[1]
+        best = np.flatnonzero(score >= score.max() - 1e-9)
+        j = best[np.argmin(np.hypot(ce[best] - p[0], cn[best] - p[1]))]
+        out.append([ce[j], cn[j]])
+    for p, nrm in zip(road_pts, road_nrm):
+        t = np.arange(-4.0, 4.0, cell / 8)
+        q = p + np.outer(t, nrm)
+        r = np.floor((y0 - q[:, 1]) / cell).astype(np.int64)
+        cidx = np.floor((q[:, 0] - x0) / cell).astype(np.int64)
+        on = road[np.clip(r, 0, shape[0] - 1), np.clip(cidx, 0, shape[1] - 1)]
+        # the last road sample going outwards from inside the road, before the first non-road one
+        inside = np.flatnonzero(on & (t < 0))
+        if inside.size == 0:
+            out.append([np.nan, np.nan])
+            continue
+        j = inside[-1]
+        while j + 1 < len(on) and on[j + 1]:
+            j += 1
+        out.append(q[j] + nrm * cell / 16)
+    return np.asarray(out) + rng.normal(0, 0.3 * cell, (len(out), 2))
+
+
+def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: int = 9, n_road_points: int = 27,
+                        image_sd_px: float = 0.5, inward_px: float = 0.0, lidar_noise_m: float = 0.15,
+                        dsm_cell_m: float | None = 1.0, scale: float = 2000.0,
+                        e0: float = 680_400.0, n0: float = 7_184_200.0) -> dict[str, Any]:
+    """The paper's comparison on a synthetic town (module docstring).
+
+    Parameters
+    ----------
+    seed : int
+    density_m2 : float
+        LiDAR points per m^2.
+    n_buildings : int
+        Buildings (4 outline corners each: the paper has 36 building points).
+    n_road_points : int
+        Road edge points (the paper: 27).
+    image_sd_px : float
+        Pointing sd on the photo, px.
+    inward_px : float
+        The operator's click on a building corner moved this far (px) into the
+        roof along the corner's diagonal (0: on the corner; docs/mapping.md
+        shows how much the building figures depend on it).
+    lidar_noise_m : float
+        LiDAR height noise, m.
+    scale : float
+        Map scale of the PEC class.
+    dsm_cell_m : float, optional
+        Cell of the first-return DSM (default 1 m; None: the point spacing).
+    e0, n0 : float
+        Centre of the synthetic town, m.
+
+    Returns
+    -------
+    dict
+        ``tables``: ``{product: assess_features(...)}`` for ``intensity_image``,
+        ``nearest``, ``tin``, ``nearest_points``, ``tin_points``; ``r90``:
+        ``{product: {class: r90}}`` (Table 09); ``status``: monoplot status
+        counts per surface; ``setup``: the numbers used.
+    """
+    from .monoplot import PointSurface, monoplot
+    from ._collinearity import project
+
+    rng = np.random.default_rng(seed)
+    scene = _town(rng, e0, n0, n_buildings, 3)
+    cam = paper_camera()
+    h_ground = float(scene.terrain(np.array([e0]), np.array([n0]))[0])
+    eo_true = np.array([e0 + rng.normal(0, 20), n0 + rng.normal(0, 20), h_ground + 922.0,
+                        math.radians(rng.normal(0, 1)), math.radians(rng.normal(0, 1)), rng.uniform(0, 2 * np.pi)])
+    eo_err = np.concatenate([rng.normal(0, 0.05, 3), rng.normal(0, math.radians(10 / 3600), 3)])
+    # features: building outline corners (eave height) and road edge points
+    corners, outward, cls = [], [], []
+    for i, b in enumerate(scene.buildings):
+        c = b.eave_corners(scene.base_height(i))
+        ctr = np.array([b.e_m, b.n_m])
+        for p in c:
+            corners.append(p)
+            o = p[:2] - ctr
+            outward.append(o / np.linalg.norm(o))
+            cls.append("building")
+    corners_a, outward_a = np.array(corners), np.array(outward)
+    road_pts, road_nrm = _road_points(scene, rng, n_road_points)
+    road_h = scene.terrain(road_pts[:, 0], road_pts[:, 1])
+    truth = np.vstack([corners_a, np.column_stack([road_pts, road_h])])
+    cls += ["road"] * len(road_pts)
+    # LiDAR in 50 m squares around the features (the surface is only needed there)
+    parts = [scene.lidar_points((p[0] - 25, p[1] - 25, p[0] + 25, p[1] + 25), density_m2, noise_m=lidar_noise_m,
+                                seed=seed + 1 + k) for k, p in enumerate(truth)]
+    lidar = {key: np.concatenate([q[key] for q in parts]) for key in parts[0]}
+    xy, _ = project(np.broadcast_to(eo_true, (len(truth), 6)), truth, np.full(len(truth), cam.focal_length_mm))
+    px = cam.photo_to_pixel(xy)
+    # the operator clicks on the roof: building corners inward along their diagonal by inward_px
+    if inward_px:
+        inner = truth[:len(corners_a)].copy()
+        inner[:, :2] -= outward_a * 0.01
+        xy_in, _ = project(np.broadcast_to(eo_true, (len(inner), 6)), inner, np.full(len(inner), cam.focal_length_mm))
+        dirn = px[:len(inner)] - cam.photo_to_pixel(xy_in)
+        dirn /= np.linalg.norm(dirn, axis=1, keepdims=True)
+        px[:len(inner)] -= inward_px * dirn
+    px = px + rng.normal(0, image_sd_px, (len(truth), 2))
+    eo_used = eo_true + eo_err
+    cov = np.diag(np.r_[np.full(3, 0.05), np.full(3, math.radians(10 / 3600))] ** 2)
+    tables, r90, measured = {}, {}, {}
+    cell = 1.0 / math.sqrt(density_m2)
+    # the paper's surface: a DSM of the highest first return per cell (cell = point spacing)
+    from .lidar import PointCloud
+    from .lidar.raster import rasterize
+    from .monoplot import GridSurface
+
+    cloud = PointCloud(lidar["xyz"], {k: lidar[k] for k in ("intensity", "return_number", "number_of_returns",
+                                                               "classification")})
+    grid, gt = rasterize(cloud, dsm_cell_m or cell, "dsm", fill="small")
+    rr, cc = np.nonzero(np.isfinite(grid))
+    ce, cn = gt.xy(rr, cc)
+    dsm_points = np.column_stack([ce, cn, grid[rr, cc]])
+    surfaces = {
+        "nearest": GridSurface(grid, gt, "nearest", sd_m=lidar_noise_m),          # paper: vizinho mais proximo
+        "tin": PointSurface(dsm_points, "tin", sd_m=lidar_noise_m),               # paper: superficie plana
+        "nearest_points": PointSurface(lidar["xyz"], "nearest", sd_m=lidar_noise_m),
+        "tin_points": PointSurface(lidar["xyz"], "tin", sd_m=lidar_noise_m),
+    }
+    status = {}
+    for name, surf in surfaces.items():
+        res = monoplot(px, cam, eo_used, surf, image_sd_px=image_sd_px, eo_cov=cov)
+        measured[name] = res.enh[:, :2]
+        status[name] = res.counts()
+    measured["intensity_image"] = _image_digitise(scene, lidar, corners_a, outward_a, road_pts, road_nrm, cell, rng)
+    for prod in ("intensity_image", "nearest", "tin", "nearest_points", "tin_points"):
+        d = truth[:, :2] - measured[prod]
+        tables[prod] = assess_features(d, cls, scale=scale)
+        r90[prod] = {c: t["r90_m"] for c, t in tables[prod].items()}
+    gsd = cam.pixel_size_x_mm * 922.0 / cam.focal_length_mm
+    return {"tables": tables, "r90": r90, "status": status, "setup": {
+        "seed": seed, "density_m2": density_m2, "lidar_noise_m": lidar_noise_m, "n_buildings": len(scene.buildings),
+        "n_building_points": int(len(corners_a)), "n_road_points": int(len(road_pts)), "photo_gsd_m": gsd,
+        "image_sd_px": image_sd_px, "intensity_cell_m": cell, "flying_height_m": 922.0, "scale": scale}}
