@@ -10,6 +10,7 @@ border (every few bases) and a few inside.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -17,7 +18,8 @@ from ._collinearity import project
 from ._frozen import frozen_array
 from .bundle import BundleProblem
 
-__all__ = ["SyntheticBlock", "synthetic_block", "aerial_block", "AERIAL_LAYOUTS", "resimulated"]
+__all__ = ["SyntheticBlock", "synthetic_block", "aerial_block", "AERIAL_LAYOUTS", "resimulated", "SelfCalBlock",
+           "selfcal_block"]
 
 #: photos -> (strips, photos per strip) of the benchmark blocks (about 1 : 2, strips growing)
 AERIAL_LAYOUTS = {100: (7, 15), 1000: (22, 46), 5000: (50, 100), 10000: (70, 143)}
@@ -194,6 +196,105 @@ def resimulated(problem: BundleProblem, eo: np.ndarray, points_m: np.ndarray,
                                constraint_enh_m=enh + rng.normal(0, 1, enh.shape) * sd_con)
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class SelfCalBlock:
+    """A synthetic block whose camera departs from its certificate and whose control has two sources.
+
+    Attributes
+    ----------
+    block : SyntheticBlock
+        The geometry and truth (its ``problem`` is replaced by :attr:`problem`).
+    problem : BundleProblem
+        Observations corrected with the *certificate* :attr:`camera`; control
+        rows of source ``lidar`` observed in a frame shifted by ``-shift_m``.
+    camera : Camera
+        The certificate (no sds: every parameter free when switched on).
+    true_corrections : dict
+        ``c``, ``x0``, ``y0``, ``k1``: truth minus certificate (mm, mm^-2).
+    shift_m : (3,) array
+        X_reference - X_source of the ``lidar`` control (E, N, h).
+    control_source : (k,) str
+        ``gps`` or ``lidar`` for every control row (alternating).
+    """
+
+    block: SyntheticBlock
+    problem: BundleProblem
+    camera: Any
+    true_corrections: dict
+    shift_m: np.ndarray
+    control_source: tuple
+
+
+def selfcal_block(
+    seed: int = 0,
+    *,
+    dc_mm: float = 0.08,
+    dx0_mm: float = 0.03,
+    dy0_mm: float = -0.02,
+    dk1: float = 5e-6,
+    shift_m: tuple[float, float, float] = (0.3, -0.2, 0.4),
+    gnss_sd_m: float | None = 0.05,
+    ins_sd_deg: float | None = 0.003,
+    n_strips: int = 3,
+    photos_per_strip: int = 8,
+    image_sd_mm: float = 0.004,
+    control_sd_m: float = 0.08,
+    noise: bool = True,
+) -> SelfCalBlock:
+    """The acceptance block of self-calibration (issue 13): see :class:`SelfCalBlock`.
+
+    Geometry from :func:`synthetic_block` (seed *seed*); the true camera has
+    focal length ``50 + dc_mm``, principal point ``(dx0_mm, dy0_mm)`` and radial
+    ``K1 = dk1`` (mm^-2), the certificate 50 / (0, 0) / 0.  Image noise is added
+    to the measured (uncorrected) coordinates.  Camera positions are
+    constrained by GNSS with *gnss_sd_m* (None: no camera constraints; then a
+    flat-ish nadir block cannot separate focal length from flying height), the
+    attitudes by INS with *ins_sd_deg* (None: free; then the principal point
+    across the strips trades against omega, r ~ 0.96).
+    Control rows alternate between the sources ``gps`` and ``lidar``.
+    """
+    from .camera import Camera
+
+    rng = np.random.default_rng(seed + 7919)
+    base = synthetic_block(n_strips, photos_per_strip, seed=seed, noise=False, image_sd_mm=image_sd_mm,
+                           tilt_sd_deg=2.0)
+    p = base.problem
+    cert = Camera("cam", 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.006, 0.006, 6000, 4000,
+                  model="synthetic")
+    true = Camera("cam", 50.0 + dc_mm, dx0_mm, dy0_mm, dk1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.006, 0.006, 6000, 4000)
+    ei, pj = p.photo_index, p.point_index
+    xy_true, _ = project(base.true_eo[ei], base.true_points_m[pj], np.full(len(ei), true.focal_length_mm))
+    fot = true.photo_to_fot(xy_true)                                    # distorted, true principal point
+    pfid = fot + np.array([dx0_mm, dy0_mm])
+    if noise:
+        pfid = pfid + rng.normal(0.0, image_sd_mm, pfid.shape)
+    fot_cert = pfid                                                    # certificate principal point 0, 0
+    xy_obs = fot_cert - cert._total_distortion(fot_cert)
+    k = len(p.constraint_point_index)
+    source = tuple("gps" if i % 2 == 0 else "lidar" for i in range(k))
+    shift = np.asarray(shift_m, dtype=float)
+    cobs = base.true_points_m[p.constraint_point_index].copy()
+    if noise:
+        cobs = cobs + rng.normal(0.0, control_sd_m, cobs.shape)
+    cobs[np.array(source) == "lidar"] -= shift
+    extra: dict[str, Any] = {}
+    if gnss_sd_m is not None:
+        gnss = base.true_eo.copy()
+        if noise:
+            gnss[:, :3] += rng.normal(0.0, gnss_sd_m, (len(gnss), 3))
+        sd = np.full((len(gnss), 6), np.inf)
+        sd[:, :3] = gnss_sd_m
+        if ins_sd_deg is not None:
+            sd[:, 3:] = np.radians(ins_sd_deg)
+            if noise:
+                gnss[:, 3:] += rng.normal(0.0, np.radians(ins_sd_deg), (len(gnss), 3))
+        extra = {"eo_constraint_photo_index": np.arange(len(gnss)), "eo_constraint_params": gnss,
+                 "eo_constraint_sd": sd}
+    problem = dataclasses.replace(p, xy_mm=xy_obs, sd_mm=np.full_like(xy_obs, image_sd_mm),
+                                  constraint_enh_m=cobs,
+                                  constraint_sd_m=np.full((k, 3), control_sd_m), **extra)
+    return SelfCalBlock(base, problem, cert, {"c": dc_mm, "x0": dx0_mm, "y0": dy0_mm, "k1": dk1},
+                        frozen_array(shift), source)
 def aerial_block(n_photos: int, *, seed: int = 1) -> SyntheticBlock:
     """A production-like aerial block of about *n_photos* photos (benchmarks, issue 11).
 

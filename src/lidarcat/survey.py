@@ -77,6 +77,10 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
     # orthophotos / mosaic of lidarcat run: read by lidarcat.pipeline.stages.mapping
     "mapping": {"orthophotos": False, "surface": False, "gsd_m": False, "cell_m": False, "mosaic": False,
                 "images": False, "photos": False},
+    # read by lidarcat.bundle.selfcal_survey (additional parameters, issue 13)
+    "self_calibration": {"parameters": False, "use_priors": False, "frame_offset": False,
+                         "similarity": False, "control": False, "alpha": False, "gnss_lines": False,
+                         "gnss_drift": False},
 }
 _REQUIRED_TABLES = ("survey", "files")
 _OBSERVATION_KINDS = ("corrected", "pixel")

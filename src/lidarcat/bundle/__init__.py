@@ -21,6 +21,11 @@ The package, one concern per module, in the order a step runs:
                     :func:`adjust_survey`, :func:`read_point_covariance`
 ==================  ==========================================================
 
+Additional parameters (issue 13): ``additional`` (self-calibration, GNSS
+line offsets), ``frame_offset`` (shift / similarity of a control source),
+``selfcal`` (the bordered adjustment :func:`adjust_with_parameters`, tests of
+significance and determinability).
+
 Every name importable from ``lidarcat.bundle`` before the split still is.
 """
 
@@ -31,12 +36,21 @@ from .linear import _inv3, _observation_pairs, _Schur, _Singular
 from .model import _constraint_terms, _cost, _System
 from .precision import PRECISION_LEVELS, covariance_blocks, joint_point_covariance, observation_blocks
 from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
+from .additional import GnssLineOffsets, SelfCalibration
+from .frame_offset import FrameOffset, frame_offset_from_sources
+from .selfcal import SelfCalResult, adjust_with_parameters
 from .solve import STATUS_MESSAGES, BundleResult, adjust
 from .survey_io import (COVARIANCE_COLUMNS, EOP_COLUMNS, MAX_JOINT_COVARIANCE_POINTS, POINT_COLUMNS,
                         RESIDUAL_COLUMNS, adjust_survey, problem_from_survey, read_point_covariance,
                         write_adjustment)
 
 __all__ = [
+    "SelfCalibration",
+    "GnssLineOffsets",
+    "FrameOffset",
+    "frame_offset_from_sources",
+    "SelfCalResult",
+    "adjust_with_parameters",
     "adjust_survey",
     "write_adjustment",
     "EOP_COLUMNS",

@@ -56,8 +56,8 @@ def problem_from_survey(
     Parameters
     ----------
     survey : lidarcat.Survey
-    control : str, optional
-        Control set name (default: the survey's default set).
+    control : str or ControlSet, optional
+        Control set name (default: the survey's default set), or a set itself.
     observations : {"corrected", "pixel"}, optional
         Printed corrected photo coordinates or pixel coordinates through the
         interior orientation (default: the survey setting).
@@ -70,7 +70,7 @@ def problem_from_survey(
     listed as ``control_unmeasured`` in the summary).  Check points of the set
     are free points with role ``check``; every other point has role ``tie``.
     """
-    cset = survey.control_set(control)
+    cset = survey.control_set(control) if control is None or isinstance(control, str) else control
     obs = survey.photo_observations(observations)
     photos = survey.photos
     photo_ids = [ph.id for ph in photos]

@@ -128,10 +128,22 @@ def exit_status(summary: dict) -> tuple[int, str]:
                    "B-method levels with the same power).")
 @click.option("--robust", type=click.Choice(["none", "danish", "huber"]), default="none", show_default=True,
               help="Iteratively re-weighted least squares before snooping (many blunders, large blocks).")
+@click.option("--self-calibrate", metavar="PARAMS", default=None,
+              help="Estimate interior-orientation corrections per camera: a comma list of c, x0, y0, "
+                   "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free). "
+                   "Each gets estimate, sd, t-test and its largest correlations; a warning names a "
+                   "parameter the block cannot determine (|r| > 0.95).")
+@click.option("--frame-offset", metavar="SOURCE:REFERENCE", default=None,
+              help="Estimate the 3-D shift to add to the control of ground-point source SOURCE to put it "
+                   "in the frame of REFERENCE (e.g. lidar:gps with --control gps+lidar), with its sd and "
+                   "a joint chi-square test.")
+@click.option("--similarity", is_flag=True, default=None,
+              help="With --frame-offset: a 7-parameter similarity (shift, scale ppm, rotations urad).")
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
            variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str,
-           snooping_level: float, robust: str, as_json: bool) -> None:
+           snooping_level: float, robust: str, self_calibrate: str | None, frame_offset: str | None,
+           similarity: bool | None, as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
     Unknowns: X0, Y0, Z0 (m) and omega, phi, kappa (deg; M = R3(kappa) R2(phi)
@@ -165,13 +177,30 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
       lidarcat adjust my_survey --json
       lidarcat adjust big_block --precision photos
       lidarcat adjust my_survey --snooping remove --robust danish
+      lidarcat adjust --control gps+lidar --frame-offset lidar:gps --self-calibrate c,x0,y0,k1
+
+    With --self-calibrate / --frame-offset (or a [self_calibration] table in
+    survey.toml) summary.json gains additional_parameters, frame_offset,
+    parameter_groups, parameters_off/parameters_on (v'Pv without and with them)
+    and warnings; a control set 'a+b' joins two sets of control_sets.csv. Data
+    snooping and --robust apply to the plain adjustment only.
     """
     from ..bundle import adjust_survey
+    from ..bundle.selfcal_survey import adjust_survey_with_parameters, format_parameters, wants_parameters
+    from ..survey import Survey
 
-    result, out = adjust_survey(survey, control=control, observations=observations, outdir=outdir,
-                                variance_factor=variance_factor, eo_constraints=eo_constraints,
-                                max_iter=max_iter, snooping=snooping, snooping_level=snooping_level,
-                                robust=robust, precision=precision)
+    loaded = Survey.load(survey)  # once, for both paths
+    if wants_parameters(loaded, self_calibrate, frame_offset):
+        _, out = adjust_survey_with_parameters(
+            loaded, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
+            similarity=similarity, observations=observations, outdir=outdir,
+            variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter,
+            precision=precision)
+    else:
+        _, out = adjust_survey(loaded, control=control, observations=observations, outdir=outdir,
+                               variance_factor=variance_factor, eo_constraints=eo_constraints,
+                               max_iter=max_iter, snooping=snooping, snooping_level=snooping_level,
+                               robust=robust, precision=precision)
     # what was written is what is shown
     summary = {**json.loads((Path(out) / "summary.json").read_text(encoding="utf-8")), "outdir": str(out)}
     code, verdict = exit_status(summary)
@@ -179,6 +208,8 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
         echo_json(summary)
     else:
         click.echo(format_report(summary, str(out)))
+        if "additional_parameters" in summary:
+            click.echo(format_parameters(summary))
     if code:
         click.echo(f"Warning: {verdict}.", err=True)
         sys.exit(code)

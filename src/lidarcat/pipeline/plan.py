@@ -32,7 +32,7 @@ from .runner import (
     run_stages,
     safe_name,
 )
-from .stages import adjust, assess, camera, compare, extract, mapping, report, thesis
+from .stages import adjust, assess, camera, compare, extract, mapping, report, selfcal, thesis
 from .stages.report import results
 
 __all__ = ["FROM_SURVEY", "plan_pipeline", "run_pipeline"]
@@ -165,6 +165,9 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
             description="thesis section 4.4 (Tables 8-15) beside this run"))
     if "mapping" in survey_tables(survey):   # only surveys that ask for map products get the stage
         stages.append(_mapping_stage(survey, runs, files_lidar))
+    if selfcal.planned(survey):
+        stages.append(Stage("selfcal", "selfcal", selfcal.run, inputs=lambda ctx: files,
+                            description="adjustment with additional parameters ([self_calibration])"))
     upstream = tuple(s.name for s in stages)
     stages.append(Stage("report", "report", report.run, uses=upstream,
                         inputs=lambda ctx: files, description="HTML / Markdown / JSON report"))

@@ -28,7 +28,7 @@ def results(records: Iterable[StageRecord]) -> dict[str, Any]:
     """``runs``, ``comparison``, ``extraction`` and ``thesis`` of the done stages (summary.json, report)."""
     runs: dict[str, Any] = {}
     comparison: dict[str, Any] = {}
-    extraction = thesis = None
+    extraction = thesis = selfcal = None
     for r in records:
         if not r.done:
             continue
@@ -47,7 +47,10 @@ def results(records: Iterable[StageRecord]) -> dict[str, Any]:
             extraction = dict(r.result)
         elif r.name == "thesis":
             thesis = dict(r.result)
-    return {"runs": runs, "comparison": comparison, "extraction": extraction, "thesis": thesis}
+        elif r.name == "selfcal":
+            selfcal = dict(r.result)
+    return {"runs": runs, "comparison": comparison, "extraction": extraction, "thesis": thesis,
+            **({"selfcal": selfcal} if selfcal else {})}
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -164,6 +167,10 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                               + {"below": " (smaller discrepancies than claimed: the precision is pessimistic).",
                                  "above": " (larger discrepancies than claimed: look for blunders, model "
                                           "errors or optimistic control sds)."}.get(cons.get("side"), ".")]
+    if doc.get("selfcal"):
+        from .selfcal import markdown as selfcal_markdown
+
+        lines += selfcal_markdown(doc["selfcal"])
     for pair, cmp_ in doc["comparison"].items():
         pts = cmp_.get("points", {})
         lines += ["", f"## Comparison {cmp_.get('sign', pair)}", "",
