@@ -96,7 +96,7 @@ def tin_heights(xyz: np.ndarray, q: np.ndarray, max_edge_m: float | None = None)
     Examples
     --------
     >>> xyz = np.array([[0, 0, 0.0], [10, 0, 10.0], [0, 10, 0.0], [10, 10, 10.0]])
-    >>> tin_heights(xyz, np.array([[5.0, 5.0], [2.5, 7.0], [20.0, 0.0]])).tolist()
+    >>> np.round(tin_heights(xyz, np.array([[5.0, 5.0], [2.5, 7.0], [20.0, 0.0]])), 9).tolist()
     [5.0, 2.5, nan]
     """
     from scipy.spatial import Delaunay, QhullError
