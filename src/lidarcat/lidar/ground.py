@@ -268,7 +268,7 @@ def _locate(tri: Any, q: np.ndarray, max_steps: int = 10_000) -> np.ndarray:
         b = np.where(np.isnan(b), -np.inf, b)
         k = np.argmin(b, axis=1)
         bk = b[np.arange(len(k)), k]
-        found = bk >= -1e-12
+        found = bk >= -1e-9
         out[active[found]] = c[found]
         nxt = nbr[c, k]
         go = ~found & (nxt >= 0)
