@@ -116,6 +116,34 @@ def _read_with_buffer(job: TileJob) -> tuple[Any, int]:
     return PointCloud.concat([own_k, extra_k]), len(own)
 
 
+def _raster_job(job: TileJob, cloud: Any, out: Path) -> None:
+    """DTM or DSM of the tile's area (grid snapped to multiples of the cell), plus extras.
+
+    Extras by ``job.params``: ``text`` (the report's E N H text grid, ``.txt``),
+    ``hillshade`` (``<stem>_hillshade.tif``), ``ndsm`` (DSM jobs: ``<stem>_ndsm.tif``).
+    """
+    from .terrain import dsm_grid, dtm_grid, hillshade, ndsm, write_product, write_text_grid
+
+    cell = float(job.params.get("cell_m", 1.0))
+    max_edge = job.params.get("max_edge_m", 50.0)
+    if job.kind == "dtm":
+        res = dtm_grid(cloud, cell, job.bounds, max_edge_m=max_edge)
+        grid, transform = res.grid, res.transform
+        log.info("%s: DTM %d x %d cells, %d gap cells (%.1f %%)", job.tile, *grid.shape, res.gap_cells,
+                 100 * res.gap_fraction)
+    else:
+        grid, transform = dsm_grid(cloud, cell, job.bounds)
+    stem = out.with_suffix("")
+    if job.params.get("hillshade"):
+        write_product(Path(f"{stem}_hillshade.tif"), hillshade(grid, cell), transform, cloud.crs)
+    if job.kind == "dsm" and job.params.get("ndsm"):
+        dtm = dtm_grid(cloud, cell, job.bounds, max_edge_m=max_edge)
+        write_product(Path(f"{stem}_ndsm.tif"), ndsm(grid, dtm.grid), transform, cloud.crs)
+    if job.params.get("text"):
+        write_text_grid(out.with_suffix(".txt"), grid, transform)
+    write_product(out, grid, transform, cloud.crs)
+
+
 def run_tile_job(job: TileJob) -> str:
     """Compute one tile and write its output (atomically) and done-marker; return the output path.
 
@@ -142,15 +170,7 @@ def run_tile_job(job: TileJob) -> str:
                                 params=params_from_dict(method, job.params))
             write_classified_copy(job.tile, out, g[:n_own])
         else:
-            from .terrain import dsm_grid, dtm_grid, write_product
-
-            cell = float(job.params.get("cell_m", 1.0))
-            if job.kind == "dtm":
-                res = dtm_grid(cloud, cell, job.bounds, max_edge_m=job.params.get("max_edge_m", 50.0))
-                grid, transform = res.grid, res.transform
-            else:
-                grid, transform = dsm_grid(cloud, cell, job.bounds)
-            write_product(out, grid, transform, cloud.crs)
+            _raster_job(job, cloud, out)
         write_json_atomic(_marker(job), job.signature())
     except LidarcatError:
         raise
