@@ -132,3 +132,41 @@ def test_dask_local_cluster_gives_the_serial_results(tmp_path):
             with rasterio.open(a) as x, rasterio.open(b) as y:
                 np.testing.assert_array_equal(x.read(1), y.read(1))
                 assert x.transform == y.transform
+
+
+def test_sheets_cut_products_and_write_the_index(classified, tmp_path):
+    rasterio = pytest.importorskip("rasterio")
+    r = run("dtm", str(classified), "-o", str(tmp_path / "dtm.tif"), "--crs", "EPSG:7415")
+    assert r.exit_code == 0, r.output
+    r = run("contours", str(classified), "-o", str(tmp_path / "c.geojson"), "--crs", "EPSG:7415")
+    assert r.exit_code == 0, r.output
+    r = run("sheets", str(tmp_path / "dtm.tif"), str(tmp_path / "c.geojson"), "-o", str(tmp_path / "folhas"),
+            "--size-m", "50")
+    assert r.exit_code == 0, r.output
+    index = json.loads((tmp_path / "folhas" / "sheets.geojson").read_text())
+    names = [f["properties"]["name"] for f in index["features"]]
+    assert "urn:ogc:def:crs:EPSG::7415" in json.dumps(index["crs"]) or "Amersfoort" in json.dumps(index["crs"])
+    with rasterio.open(tmp_path / "dtm.tif") as ds:
+        whole = ds.read(1)
+        t = ds.transform
+    seen = 0
+    for f in index["features"]:
+        ring = f["geometry"]["coordinates"][0]
+        assert ring[0] == ring[-1] and len(ring) == 5
+        p = tmp_path / "folhas" / f["properties"]["name"] / "dtm.tif"
+        if not p.exists():
+            continue
+        with rasterio.open(p) as ds:
+            part = ds.read(1)
+            c0 = round((ds.transform.c - t.c) / t.a)
+            r0 = round((t.f - ds.transform.f) / t.a)
+            np.testing.assert_array_equal(part, whole[r0:r0 + part.shape[0], c0:c0 + part.shape[1]])
+            assert ds.bounds.left >= f["properties"]["xmin"] and ds.bounds.right <= f["properties"]["xmax"]
+            seen += part.size
+    assert seen == whole.size and len(names) == len(set(names))
+    for f in index["features"]:
+        c = tmp_path / "folhas" / f["properties"]["name"] / "c.geojson"
+        if c.exists():
+            for line in json.loads(c.read_text())["features"]:
+                xy = np.asarray(line["geometry"]["coordinates"])
+                assert (xy[:, 0] >= f["properties"]["xmin"] - 1e-6).all() and (xy[:, 0] <= f["properties"]["xmax"] + 1e-6).all()

@@ -6,11 +6,12 @@ from pathlib import Path
 from typing import Any
 
 import click
+import numpy as np
 
 from .lidar import _crs_opt, _sources
 from .options import progress_bar
 
-__all__ = ["ground", "dtm", "dsm", "contours_cmd", "hypsometry", "PRODUCT_COMMANDS"]
+__all__ = ["ground", "dtm", "dsm", "contours_cmd", "hypsometry", "sheets", "PRODUCT_COMMANDS"]
 
 _workers_opt = click.option(
     "--workers", type=click.IntRange(1), default=None, metavar="N",
@@ -231,3 +232,78 @@ def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: floa
 
 #: commands added to the ``lidar`` group
 PRODUCT_COMMANDS = [ground, dtm, dsm, contours_cmd, hypsometry]
+
+
+@click.command()
+@click.argument("products", nargs=-1, required=True, metavar="PRODUCT...")
+@click.option("-o", "--output", required=True, metavar="FOLDER",
+              help="Receives <sheet>/<product> for every sheet holding data, and sheets.geojson (the index).")
+@click.option("--size-m", type=float, default=1000.0, show_default=True,
+              help="Sheet width (and height, unless --height-m), metres; sheets are aligned to multiples of it.")
+@click.option("--height-m", type=float, default=None, help="Sheet height, metres (default: --size-m).")
+@click.option("--crs", default=None, metavar="CRS", help="CRS of the index layer (default: the first GeoTIFF's).")
+def sheets(products: tuple[str, ...], output: str, size_m: float, height_m: float | None, crs: str | None) -> None:
+    """Cut GeoTIFF products (.tif) and contour GeoJSON (.geojson) along a regular sheet grid.
+
+    The sheet index layer (polygons named by their south-west corner,
+    E<easting>_N<northing>) is written as FOLDER/sheets.geojson.
+
+    \b
+    Examples:
+      lidarcat lidar sheets dtm.tif dsm.tif curvas.geojson -o folhas/ --size-m 500
+    """
+    import json
+
+    import rasterio
+
+    from ..lidar.contours import write_geojson
+    from ..lidar.raster import GeoTransform
+    from ..lidar.sheets import cut_contours, cut_raster, sheet_grid, sheet_index_features
+    from ..lidar.terrain import write_product
+
+    rasters, vectors = [], []
+    lo = [np.inf, np.inf]
+    hi = [-np.inf, -np.inf]
+    for p in map(Path, products):
+        if p.suffix.lower() in (".tif", ".tiff"):
+            with rasterio.open(p) as ds:
+                arr = ds.read()
+                arr = arr[0] if arr.shape[0] == 1 else np.moveaxis(arr, 0, 2)
+                t = GeoTransform(ds.transform.c, ds.transform.f, ds.transform.a)
+                crs = crs or (ds.crs.to_wkt() if ds.crs else None)
+                b = ds.bounds
+            rasters.append((p, arr, t))
+        elif p.suffix.lower() in (".geojson", ".json"):
+            feats = json.loads(p.read_text(encoding="utf-8"))["features"]
+            vectors.append((p, feats))
+            xy = np.vstack([np.asarray(f["geometry"]["coordinates"], dtype=float).reshape(-1, 2) for f in feats]) \
+                if feats else np.zeros((0, 2))
+            if len(xy):
+                b = type("B", (), {"left": xy[:, 0].min(), "bottom": xy[:, 1].min(),
+                                   "right": xy[:, 0].max(), "top": xy[:, 1].max()})
+        else:
+            raise click.BadParameter(f"{p}: give .tif or .geojson products", param_hint="PRODUCT")
+        lo = [min(lo[0], b.left), min(lo[1], b.bottom)]
+        hi = [max(hi[0], b.right), max(hi[1], b.top)]
+    grid = sheet_grid((lo[0], lo[1], hi[0], hi[1]), size_m, height_m)
+    out = Path(output)
+    used = []
+    for s in grid:
+        wrote = False
+        for p, arr, t in rasters:
+            cut = cut_raster(arr, t, s)
+            if cut is not None and np.isfinite(cut[0].astype(float)).any():
+                write_product(out / s.name / p.name, cut[0], cut[1], crs)
+                wrote = True
+        for p, feats in vectors:
+            part = cut_contours([f for f in feats if f["geometry"]["type"] == "LineString"], s)
+            if part:
+                write_geojson(out / s.name / p.name, part, crs)
+                wrote = True
+        if wrote:
+            used.append(s)
+    write_geojson(out / "sheets.geojson", sheet_index_features(used), crs)
+    click.echo(f"wrote {len(used)} sheets of {size_m:g} m and the index {out / 'sheets.geojson'}")
+
+
+PRODUCT_COMMANDS.append(sheets)
