@@ -113,3 +113,28 @@ def test_option_choices_are_the_library_ones():
 
     choices = {p.name: tuple(p.type.choices) for p in assess.params if hasattr(p.type, "choices")}
     assert choices == {"standards": STANDARD_NAMES, "plotting_position": PLOTTING_POSITIONS, "sign": SIGNS}
+
+
+def test_assess_and_run_share_one_contour_interval_default(tmp_path):
+    """The same adjustment gets the same PEC classes from `assess` and from `run` without options:
+    one default (2 m at 1:2000, the thesis's), stated in both --help texts and in the report."""
+    from lidarcat.survey import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE, AssessmentSettings
+
+    assert (AssessmentSettings().scale, AssessmentSettings().contour_interval_m) == (DEFAULT_SCALE,
+                                                                                   DEFAULT_CONTOUR_INTERVAL_M)
+    assert (DEFAULT_SCALE, DEFAULT_CONTOUR_INTERVAL_M) == (2000.0, 2.0)
+    for cmd, text in (("assess", "Default: 2 m (the thesis's; the same default as `lidarcat run`"),
+                      ("run", "else 2 m (the thesis's; the same default as `lidarcat assess`)")):
+        out = " ".join(CliRunner().invoke(cli, [cmd, "--help"], terminal_width=200).output.split())
+        assert text in out, cmd
+    r = _run([str(POINTS), str(THESIS_SURVEY), "--json", "-o", str(tmp_path / "rep")])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.output)
+    assert doc["settings"]["contour_interval_m"] == 2.0 and doc["settings"]["scale"] == 2000
+    # at 1:2000 the altimetric class of the thesis's GPS run depends on the interval: 2 m gives A, 1 m B or worse
+    assert doc["standards"]["pec"]["class"]["altimetric"] == "A"
+    one = json.loads(_run([str(POINTS), str(THESIS_SURVEY), "--json", "--contour-interval", "1"]).output)
+    assert one["standards"]["pec"]["class"]["altimetric"] != "A"
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert ("Map scale 1:2000, contour interval 2 m for the altimetric classes. `lidarcat assess` and "
+            "`lidarcat run` share the defaults 1:2000 and 2 m") in md

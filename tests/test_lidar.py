@@ -281,7 +281,7 @@ def test_corrupt_las_header_names_file(tmp_path):
     data[94:96] = struct.pack("<H", 17)  # header size
     p = tmp_path / "badhdr.las"
     p.write_bytes(bytes(data))
-    with pytest.raises(LidarFormatError, match=r"badhdr\.las: not a valid LAS/LAZ file: corrupt header"):
+    with pytest.raises(LidarFormatError, match=r"badhdr\.las: corrupt LAS header: header size 17 bytes \(at least 227"):
         read_points(p)
     q = tmp_path / "notlas.laz"
     q.write_bytes(b"hello world" * 50)
@@ -408,6 +408,10 @@ def test_unwritable_index_cache_named(tmp_path):
 
 def test_query_touches_only_needed_tiles(monkeypatch):
     idx = TileIndex.build([AHN1, AHN2], crs=RD)
+    assert not any(t.bounds_verified for t in idx.tiles)   # header bounds: a claim, not used to skip
+    assert idx.verify_bounds() == 2 and all(t.bounds_verified for t in idx.tiles)
+    assert idx.tiles[1].bounds.xmin == pytest.approx(85000.001, abs=5e-4)
+    idx.clear_cache()
     opened = []
     import lidarcat.lidar.tileindex as ti
 

@@ -212,7 +212,7 @@ def test_thesis_run_stages_and_summary(thesis_run):
     status = {s.name: s.status for s in r.stages}
     assert status == {"camera": "ran", "extract": "skipped", "adjust-gps": "ran",
                       "adjust-lidar": "ran", "assess-gps": "ran", "assess-lidar": "ran",
-                      "compare-gps-lidar": "ran", "report": "ran"}
+                      "compare-gps-lidar": "ran", "thesis": "ran", "report": "ran"}
     assert "no LiDAR tiles" in r.stage("extract").reason
     summary = json.loads((r.outdir / "summary.json").read_text())
     assert summary["ok"] is True and summary["failed"] == []
@@ -351,12 +351,13 @@ def test_plan_for_a_survey_with_one_control_set_and_no_pixels(survey_copy):
     (survey / "image_points.csv").write_text("\n".join(out) + "\n")
     plan = plan_pipeline(Survey.load(survey))
     names = [s.name for s in plan]
-    assert names == ["camera", "extract", "adjust-gps", "assess-gps", "compare", "report"]
+    assert names == ["camera", "extract", "adjust-gps", "assess-gps", "compare", "thesis", "report"]
     skipped = {s.name: s.skip_reason for s in plan if s.skip_reason}
     assert skipped == {
         "camera": "image_points has no pixel coordinates (col_px, row_px)",
         "extract": "the survey has no LiDAR tiles ([files] lidar) and no extraction jobs",
         "compare": "needs two control sets (runs) to compare; the survey has 1",
+        "thesis": "needs the control sets gps and lidar of the thesis",
     }
 
 
@@ -371,7 +372,7 @@ def test_only_the_extraction_hashes_the_lidar_tiles(survey_copy):
     plan = {s.name: s for s in plan_pipeline(Survey.load(survey))}
     assert list(plan) == ["camera", "extract", "adjust-gps", "adjust-lidar", "adjust-lidar-extracted",
                           "assess-gps", "assess-lidar", "assess-lidar-extracted",
-                          "compare-gps-lidar", "compare-gps-lidar-extracted", "report"]
+                          "compare-gps-lidar", "compare-gps-lidar-extracted", "thesis", "report"]
     assert plan["extract"].skip_reason is None
     tile = (survey / "tile.xyz").resolve()
     assert tile in {Path(p).resolve() for p in plan["extract"].inputs(None)}
@@ -407,7 +408,8 @@ def test_a_second_run_on_the_same_output_folder_is_refused(tmp_path):
 def test_assessment_table_of_survey_toml_sets_scale_and_level(tmp_path, survey_copy):
     survey = survey_copy
     toml = survey / "survey.toml"
-    toml.write_text(toml.read_text() + '\n[assessment]\nscale = 5000\ncontour_interval_m = 5.0\n'
+    text = toml.read_text()  # the thesis's own [assessment] table is replaced
+    toml.write_text(text[:text.index("\n[assessment]")] + '\n[assessment]\nscale = 5000\ncontour_interval_m = 5.0\n'
                                         'alpha = 0.05\npec_class = "B"\n')
     s = Survey.load(survey)
     assert (s.assessment.scale, s.assessment.contour_interval_m, s.assessment.alpha,

@@ -304,6 +304,9 @@ ONE_EDIT_ERRORS = [
      "must be positive"),
     ("survey.toml", "image_sd_mm = 0.006", "image_sd_mm = nan", "image_sd_mm =", "image_sd_mm",
      "must be a finite number"),
+    ("survey.toml", "image_sd_mm = 0.006", "image_sd_mm = 1e300", "image_sd_mm =", "image_sd_mm",
+     r"1e\+300 mm is outside the sane range 1e-06\.\.10 mm$"),
+    ("survey.toml", 'crs = "EPSG:29192"', 'crs = "EPSG:99999999"', "crs =", "crs", r"unknown CRS 'EPSG:99999999'"),
     ("survey.toml", 'variance_factor = "a_priori"', 'variance_factor = "posterior"',
      "variance_factor =", "variance_factor", "not one of 'a_priori', 'a_posteriori'"),
     ("survey.toml", "chi2_level = 0.05", "chi2_level = 5", "chi2_level =", "chi2_level",
@@ -322,16 +325,18 @@ ONE_EDIT_ERRORS = [
     ("survey.toml", 'control_sets = "control_sets.csv"',
      'control_sets = "control_sets.csv"\nlidar = "t.laz"', "lidar =", "lidar",
      "LiDAR file 't.laz' not found"),
-    # survey.toml [assessment] (the thesis block has none: insert one before [files])
-    ("survey.toml", "[files]", "[assessment]\nscale = -2\n\n[files]", "scale =", "scale",
+    # survey.toml [assessment] (the thesis block states the thesis's settings)
+    ("survey.toml", "scale = 2000\n", "scale = -2\n", "scale =", "scale",
      r"must be a positive scale denominator \(2000 for 1:2000\), got -2$"),
-    ("survey.toml", "[files]", "[assessment]\ncontour_interval_m = 0\n\n[files]", "contour_interval_m =",
+    ("survey.toml", "contour_interval_m = 2.0", "contour_interval_m = 0", "contour_interval_m =",
      "contour_interval_m", r"must be positive \(metres\), got 0$"),
-    ("survey.toml", "[files]", "[assessment]\nalpha = 1.5\n\n[files]", "alpha =", "alpha",
+    ("survey.toml", "alpha = 0.10", "alpha = 1.5", "alpha =", "alpha",
      "must lie between 0 and 1, got 1.5$"),
-    ("survey.toml", "[files]", '[assessment]\npec_class = "Z"\n\n[files]', "pec_class =", "pec_class",
+    ("survey.toml", 'pec_class = "A"', 'pec_class = "Z"', "pec_class =", "pec_class",
      "'Z' is not one of A, B, C$"),
-    ("survey.toml", "[files]", "[assessment]\ncolour = 1\n\n[files]", "colour =", "colour",
+    ("survey.toml", 'plotting_position = "hazen"', 'plotting_position = "weibull"', "plotting_position =",
+     "plotting_position", "'weibull' is not one of filliben, hazen, blom$"),
+    ("survey.toml", 'pec_class = "A"', 'pec_class = "A"\ncolour = 1', "colour =", "colour",
      r"unknown key 'colour' in \[assessment\]"),
     # camera.toml of a survey
     ("camera.toml", "k3 = 0.0", "k3 = 0.0\nk4 = 1.0", "k4 =", "k4", "unknown key"),
@@ -628,3 +633,5 @@ def test_survey_knows_the_pec_classes_of_the_standards_tables():
 def test_assessment_defaults_are_the_thesis_settings(thesis):
     a = thesis.assessment
     assert (a.scale, a.contour_interval_m, a.alpha, a.pec_class) == (2000.0, 2.0, 0.10, "A")
+    # Tables 14/15 print Z_i for the cumulative probabilities (i - 0.5)/n (Hazen positions)
+    assert a.plotting_position == "hazen"

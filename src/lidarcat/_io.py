@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import hashlib
 import io
 import json
 import math
@@ -19,7 +20,7 @@ import re
 import shutil
 import tempfile
 import tomllib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -34,12 +35,15 @@ __all__ = [
     "write_text_atomic",
     "write_csv",
     "write_csv_atomic",
+    "file_sha256",
+    "provenance",
     "write_json_atomic",
     "read_bytes",
     "read_text",
     "read_toml",
     "toml_line",
     "read_csv_table",
+    "parse_float",
     "csv_sidecar_path",
     "CsvTable",
     "to_json",
@@ -173,27 +177,64 @@ def write_csv_atomic(
     rows: Sequence[Sequence[Any]],
     *,
     comments: Sequence[str] = (),
+    provenance: Mapping[str, Any] | None = None,
 ) -> Path:
     """Write a CSV file atomically, header on the first line (cells as in :func:`write_csv`).
 
     *comments* (units, provenance, conventions) do not go into the CSV, where
     pandas, QGIS and GDAL/OGR would take them for the header: they are written
-    to a sidecar ``<name>.csv.json`` (``{"file", "notes", "lidarcat_version"}``),
-    see :func:`csv_sidecar_path`.  Without comments no sidecar is written and a
-    stale one is removed.
+    to a sidecar ``<name>.csv.json`` (``{"file", "notes", "lidarcat_version"}``,
+    and ``"provenance"`` when given: what the file was made from, e.g.
+    :func:`provenance`), see :func:`csv_sidecar_path`.  Without comments and
+    provenance no sidecar is written and a stale one is removed.
     """
     path = Path(path)
     with atomic_write(path, "w") as fh:
         write_csv(fh, header, rows)
     side = csv_sidecar_path(path)
-    if comments:
+    if comments or provenance:
         from . import __version__
 
-        write_json_atomic(side, {"file": path.name, "notes": list(comments),
-                                 "lidarcat_version": __version__})
+        doc: dict[str, Any] = {"file": path.name, "notes": list(comments), "lidarcat_version": __version__}
+        if provenance:
+            doc["provenance"] = dict(provenance)
+        write_json_atomic(side, doc)
     elif side.exists():
         side.unlink()
     return path
+
+
+def file_sha256(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
+    """SHA-256 (hex) of a file's content, read in chunks of *chunk* bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def provenance(inputs: Mapping[str, str | os.PathLike], parameters: Mapping[str, Any],
+               root: str | os.PathLike | None = None) -> dict[str, Any]:
+    """What an output was made from: ``{"lidarcat_version", "inputs", "parameters"}``.
+
+    *inputs* maps a role (``photos``, ``survey.toml``, ...) to a file read;
+    each becomes ``{"path", "sha256"}`` with the path relative to *root* when
+    it lies inside it (outputs do not change with the folder they are made
+    in).  No clock time: a rerun writes the same bytes.
+    """
+    from . import __version__
+
+    files = {}
+    for role, p in sorted(inputs.items()):
+        p = Path(p)
+        shown = p
+        if root is not None:
+            try:
+                shown = p.resolve().relative_to(Path(root).resolve())
+            except ValueError:
+                pass
+        files[str(role)] = {"path": shown.as_posix(), "sha256": file_sha256(p)}
+    return {"lidarcat_version": __version__, "inputs": files, "parameters": dict(parameters)}
 
 
 def csv_sidecar_path(path: str | os.PathLike) -> Path:
@@ -376,6 +417,42 @@ def toml_line(text: str, table: str | None, key: str | None = None) -> int | Non
     return header_line
 
 
+_ASCII_FLOAT_RE = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+                             r"|[+-]?(?:inf|infinity|nan)", re.IGNORECASE)
+
+
+def parse_float(text: str, *, decimal_comma: bool = False) -> float:
+    """A number written in ASCII decimal notation (``-12.5``, ``1e-3``, ``inf``, ``nan``).
+
+    Python's ``float`` also reads Arabic-Indic and other Unicode digits,
+    ``1_000`` and surrounding Unicode spaces; input files must not depend on
+    that, so only ASCII digits, one ``.`` (or, with *decimal_comma*, one ``,``),
+    a sign and an exponent are accepted.
+
+    Raises
+    ------
+    ValueError
+        Not such a number; the message says why (non-ASCII digits named).
+
+    >>> parse_float(" 677757.80 "), parse_float("905,12", decimal_comma=True)
+    (677757.8, 905.12)
+    >>> parse_float("\u0661\u0662\u0663")
+    Traceback (most recent call last):
+    ...
+    ValueError: '١٢٣' is not a number: only ASCII digits 0-9 are read
+    """
+    s = text.strip(" \t\r\n")
+    if decimal_comma and "." not in s:
+        s = s.replace(",", ".", 1)
+    if _ASCII_FLOAT_RE.fullmatch(s):
+        return float(s)
+    if any(ch.isdigit() and not ch.isascii() for ch in s):
+        raise ValueError(f"{text!r} is not a number: only ASCII digits 0-9 are read")
+    if "," in s and _ASCII_FLOAT_RE.fullmatch(s.replace(",", ".", 1)):
+        raise ValueError(f"{text!r} is not a number: write the decimal separator as a point")
+    raise ValueError(f"{text!r} is not a number")
+
+
 @dataclasses.dataclass(frozen=True)
 class CsvTable:
     """A CSV file read as strings, each row remembering its physical line number."""
@@ -410,9 +487,9 @@ class CsvTable:
                 out[k] = default
                 continue
             try:
-                v = float(cell)
-            except ValueError:
-                raise SurveyError(f"{location(self.path, line, name)}: {cell!r} is not a number") from None
+                v = parse_float(cell)
+            except ValueError as ex:
+                raise SurveyError(f"{location(self.path, line, name)}: {ex}") from None
             if not math.isfinite(v) and not allow_nan:
                 raise SurveyError(f"{location(self.path, line, name)}: {cell!r} is not a finite number")
             out[k] = v

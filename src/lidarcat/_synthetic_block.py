@@ -17,7 +17,10 @@ from ._collinearity import project
 from ._frozen import frozen_array
 from .bundle import BundleProblem
 
-__all__ = ["SyntheticBlock", "synthetic_block"]
+__all__ = ["SyntheticBlock", "synthetic_block", "aerial_block", "AERIAL_LAYOUTS"]
+
+#: photos -> (strips, photos per strip) of the benchmark blocks (about 1 : 2, strips growing)
+AERIAL_LAYOUTS = {100: (7, 15), 1000: (22, 46), 5000: (50, 100), 10000: (70, 143)}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -171,3 +174,21 @@ def synthetic_block(
         constraint_point_index=ctrl, constraint_enh_m=cobs, constraint_sd_m=np.broadcast_to(csd, (len(ctrl), 3)),
     )
     return SyntheticBlock(problem, eo, pts, image_sd_mm, csd)
+
+
+def aerial_block(n_photos: int, *, seed: int = 1) -> SyntheticBlock:
+    """A production-like aerial block of about *n_photos* photos (benchmarks, issue 11).
+
+    60 % / 30 % overlap at 1,200 m with a 50 mm camera on a 36 x 24 mm format,
+    object points every 88 m (about 58 observations per photo, 3-4 rays per
+    point), 0.5 px noise (5 um pixels: 0.0025 mm), control at the border every
+    second base and across the block.  Layouts of :data:`AERIAL_LAYOUTS` (other
+    sizes: 1 : 2 strips).  Seeded: the same block every time.
+    """
+    if n_photos in AERIAL_LAYOUTS:
+        strips, per = AERIAL_LAYOUTS[n_photos]
+    else:
+        strips = max(2, int(round((n_photos / 2) ** 0.5)))
+        per = max(3, int(round(n_photos / strips)))
+    return synthetic_block(strips, per, seed=seed, flying_height_m=1200.0, point_spacing_m=88.0,
+                           image_sd_mm=0.0025)

@@ -83,6 +83,16 @@ CAMERA_KEYS: tuple[str, ...] = _STR_KEYS + _FLOAT_KEYS + _INT_KEYS
 #: the optional standard-deviation keys: ``sd_`` + a calibration key
 SD_KEYS: tuple[str, ...] = tuple(f"sd_{k}" for k in _FLOAT_KEYS)
 _POSITIVE = ("focal_length_mm", "pixel_size_x_mm", "pixel_size_y_mm")
+#: sane ranges of interior orientation values (anything outside is a typo or a unit mix-up):
+#: focal lengths from phone cameras (a few mm) to long aerial lenses, pixels from 0.1 um to
+#: 1 mm, frames up to a million pixels a side, the principal point within the frame
+SANE_RANGES: dict[str, tuple[float, float]] = {
+    "focal_length_mm": (0.5, 5000.0),
+    "pixel_size_x_mm": (1e-4, 1.0),
+    "pixel_size_y_mm": (1e-4, 1.0),
+    "columns_px": (1, 1_000_000),
+    "rows_px": (1, 1_000_000),
+}
 
 
 def _camera_error(field_name: str, message: str) -> CameraError:
@@ -171,6 +181,10 @@ class Camera:
                 raise _camera_error(name, f"must be finite, got {v!r}")
             if name in _POSITIVE and v <= 0:
                 raise _camera_error(name, f"must be positive, got {v!r}")
+            if name in SANE_RANGES and not SANE_RANGES[name][0] <= v <= SANE_RANGES[name][1]:
+                lo, hi = SANE_RANGES[name]
+                raise _camera_error(name, f"{v!r} is outside the sane range {lo:g}..{hi:g} (mm); "
+                                          "check the value and its unit")
             object.__setattr__(self, name, v)
         for name in _INT_KEYS:
             raw = getattr(self, name)
@@ -181,7 +195,14 @@ class Camera:
                     raise _camera_error(name, f"must be a whole number of pixels, got {raw!r}")
             if raw < 1:
                 raise _camera_error(name, f"must be at least 1 pixel, got {raw!r}")
+            if raw > SANE_RANGES[name][1]:
+                raise _camera_error(name, f"{raw!r} pixels is outside the sane range 1..{SANE_RANGES[name][1]:,}")
             object.__setattr__(self, name, int(raw))
+        w, h = self.columns_px * self.pixel_size_x_mm, self.rows_px * self.pixel_size_y_mm
+        for name, half in (("principal_point_x_mm", w / 2), ("principal_point_y_mm", h / 2)):
+            if abs(getattr(self, name)) > half:
+                raise _camera_error(name, f"{getattr(self, name)!r} mm lies outside the frame "
+                                          f"(+-{half:g} mm from its centre); check the value and its unit")
         for name in _STR_KEYS:
             if not isinstance(getattr(self, name), str):
                 raise _camera_error(name, f"must be text, got {getattr(self, name)!r}")

@@ -20,6 +20,7 @@ __all__ = [
     "DatumError",
     "ExtractionError",
     "AssessmentError",
+    "FormatError",
     "location",
 ]
 
@@ -62,6 +63,11 @@ class ExtractionError(LidarcatError, ValueError):
 
 class AssessmentError(LidarcatError, ValueError):
     """Accuracy-assessment inputs are inconsistent (names the file or point)."""
+
+
+class FormatError(LidarcatError, ValueError):
+    """A file of another program (COLMAP, OpenSfM, ODM, Metashape, OPK, GNSS) is malformed
+    or cannot be represented (names the file, line and field)."""
 
 
 def location(path: object, line: int | None = None, field: str | None = None) -> str:

@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from ._io import atomic_dir, write_csv_atomic, write_json_atomic, read_csv_table
+from ._io import atomic_dir, parse_float, read_csv_table, write_csv_atomic, write_json_atomic
 from .control import ROW_FIELDS, Candidate, ControlPoint, extract_roof
 from .errors import ClipError, ExtractionError, LidarcatError, location
 from .facets import ExtractionParams, get_params
@@ -89,6 +89,9 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
             if len(bad):
                 raise ExtractionError(f"{location(path, t.lines[bad[0]], col)}: must be positive "
                                       f"(got {vals[bad[0]]:g}); leave it empty for the default")
+        for i, (pid, line) in enumerate(zip(t.column("point"), t.lines)):
+            if not pid:
+                raise ExtractionError(f"{location(path, line, 'point')}: empty point id; name the point")
         files = t.column("file") if t.has("file") else [""] * len(t.rows)
         return [Job(p, float(e[i]), float(n[i]),
                     None if math.isnan(thr[i]) else float(thr[i]),
@@ -110,9 +113,12 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
         vals = []
         for k in (2, 3, 4, 5):
             try:
-                vals.append(float(f[k].replace(",", ".")))
-            except ValueError:
-                raise ExtractionError(f"{location(path, lineno, names[k])}: {f[k]!r} is not a number") from None
+                v = parse_float(f[k], decimal_comma=True)
+            except ValueError as ex:
+                raise ExtractionError(f"{location(path, lineno, names[k])}: {ex}") from None
+            if not math.isfinite(v):
+                raise ExtractionError(f"{location(path, lineno, names[k])}: {f[k]!r} is not a finite number")
+            vals.append(v)
         for k, v in ((4, vals[2]), (5, vals[3])):
             if not v > 0:
                 raise ExtractionError(f"{location(path, lineno, names[k])}: must be positive (got {v:g})")
@@ -226,17 +232,44 @@ def write_planes_csv(path: str | os.PathLike, points: Sequence[ControlPoint]) ->
 
 
 def write_candidates(path: str | os.PathLike, candidates: Sequence[Candidate], crs: Any = None) -> Path:
-    """Candidates as GeoJSON (``.geojson``/``.json``) or CSV (anything else)."""
+    """Candidates as GeoJSON (``.geojson``/``.json``) or CSV (anything else).
+
+    With a CRS (the tiles' own, or the one given), the GeoJSON carries a
+    ``"crs"`` member naming it (``urn:ogc:def:crs:EPSG::7415``; GDAL, QGIS and
+    GeoPandas read it) and a ``.prj`` file with its WKT is written next to
+    the output (both atomically), so the metres are never read as WGS 84.
+    """
+    from .lidar.crs import resolve_crs
+
     path = Path(path)
+    crs_obj = resolve_crs(crs)
     if path.suffix.lower() in (".geojson", ".json"):
         fc: dict[str, Any] = {"type": "FeatureCollection",
                               "features": [c.to_feature() for c in candidates]}
-        if crs is not None:
-            fc["crs"] = {"type": "name", "properties": {"name": str(crs)}}
+        if crs_obj is not None:
+            code = crs_obj.to_epsg(min_confidence=90)
+            name = f"urn:ogc:def:crs:EPSG::{code}" if code else crs_obj.to_wkt()
+            fc["crs"] = {"type": "name", "properties": {"name": name}}
+            from ._io import write_text_atomic
+
+            write_text_atomic(path.with_suffix(".prj"), _esri_wkt(crs_obj))
         return write_json_atomic(path, fc)
     fields = ROW_FIELDS + ["score"]
     rows = [[c.point.to_row()[k] for k in ROW_FIELDS] + [c.score] for c in candidates]
     return write_csv_atomic(path, fields, rows)
+
+
+def _esri_wkt(crs: Any) -> str:
+    """The ESRI WKT a ``.prj`` holds (the horizontal part), or WKT2 when pyproj cannot write it."""
+    parts = [crs] + [c for c in (crs.sub_crs_list or []) if not c.is_vertical]
+    for c in parts:
+        try:
+            text = c.to_wkt("WKT1_ESRI")
+        except Exception:  # pyproj.exceptions.CRSError for CRSs ESRI WKT cannot express
+            text = None
+        if text:
+            return text
+    return crs.to_wkt()
 
 
 # ------------------------------------------------------------------ figures

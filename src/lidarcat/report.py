@@ -713,6 +713,14 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
     # notes -------------------------------------------------------------------------------------------
     b = doc.section("notes")
     if a:
+        from .survey import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
+
+        ci, sc = a.settings.get("contour_interval_m"), a.settings.get("scale")
+        _para(b, f"Map scale {f'1:{sc:g}' if sc else 'not given'}, contour interval "
+                 f"{f'{ci:g} m' if ci else 'not given'} "
+                 f"for the altimetric classes. `lidarcat assess` and `lidarcat run` share the defaults "
+                 f"1:{DEFAULT_SCALE:g} and {DEFAULT_CONTOUR_INTERVAL_M:g} m (the thesis's); a survey sets its own "
+                 "in survey.toml [assessment].")
         for note in a.notes:
             _para(b, f"Note: {note}", "note")
         _table(b, ["setting", "value"], [[k, _f(v)] for k, v in a.settings.items()], "Settings of the assessment.")

@@ -70,7 +70,10 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
     "adjustment": {"observations": False, "image_sd_mm": False, "exclude_points": False,
                    "variance_factor": False, "chi2_level": False},
     "lidar": {"crs": False},
-    "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False},
+    "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False,
+                   "plotting_position": False},
+    # height datum per source and the geoid grid: read by lidarcat.interop.heights
+    "heights": {"sources": False, "geoid_grid": False},
 }
 _REQUIRED_TABLES = ("survey", "files")
 _OBSERVATION_KINDS = ("corrected", "pixel")
@@ -354,6 +357,13 @@ class AdjustmentSettings:
                 "variance_factor": self.variance_factor, "chi2_level": self.chi2_level}
 
 
+#: default map scale denominator of the check-point classification (the thesis's 1:2000); shared by
+#: survey.toml [assessment], ``lidarcat run`` and ``lidarcat assess``
+DEFAULT_SCALE = 2000.0
+#: default contour interval of the altimetric classes, m (the thesis's 2 m); shared likewise
+DEFAULT_CONTOUR_INTERVAL_M = 2.0
+
+
 @dataclass(frozen=True)
 class AssessmentSettings:
     """The ``[assessment]`` table of survey.toml: how ``lidarcat run`` judges check points.
@@ -369,16 +379,21 @@ class AssessmentSettings:
         Level of every test (thesis: 0.10).
     pec_class : str
         Decreto 89.817 class whose EP is the chi-square sigma0 ("A" in the thesis).
+    plotting_position : str
+        Positions of the Filliben normal-probability test: ``filliben``
+        (Filliben 1975, matches its critical-value table), ``hazen``
+        ``(i - 0.5)/n`` (the thesis's Z_i, Tables 14/15) or ``blom``.
     """
 
-    scale: float = 2000.0
-    contour_interval_m: float = 2.0
+    scale: float = DEFAULT_SCALE
+    contour_interval_m: float = DEFAULT_CONTOUR_INTERVAL_M
     alpha: float = 0.10
     pec_class: str = "A"
+    plotting_position: str = "filliben"
 
     def to_dict(self) -> dict[str, Any]:
         return {"scale": self.scale, "contour_interval_m": self.contour_interval_m, "alpha": self.alpha,
-                "pec_class": self.pec_class}
+                "pec_class": self.pec_class, "plotting_position": self.plotting_position}
 
 
 # ---------------------------------------------------------------------- loading helpers
@@ -420,6 +435,8 @@ class _Toml:
 #: classes of Decreto 89.817 (lidarcat.standards has the tolerances; importing it here would pull
 #: scipy into every survey load)
 PEC_CLASSES = ("A", "B", "C")
+#: Filliben plotting positions (lidarcat.accuracy.PLOTTING_POSITIONS, not imported for the same reason)
+PLOTTING_POSITIONS = ("filliben", "hazen", "blom")
 
 
 def _assessment_settings(t: _Toml) -> AssessmentSettings:
@@ -437,7 +454,10 @@ def _assessment_settings(t: _Toml) -> AssessmentSettings:
     pec = t.get("assessment", "pec_class", str, d.pec_class)
     if pec not in PEC_CLASSES:
         raise t.err("assessment", "pec_class", f"{pec!r} is not one of {', '.join(PEC_CLASSES)}")
-    return AssessmentSettings(float(scale), float(ci), float(alpha), pec)
+    pp = t.get("assessment", "plotting_position", str, d.plotting_position)
+    if pp not in PLOTTING_POSITIONS:
+        raise t.err("assessment", "plotting_position", f"{pp!r} is not one of {', '.join(PLOTTING_POSITIONS)}")
+    return AssessmentSettings(float(scale), float(ci), float(alpha), pec, pp)
 
 
 def _check_keys(t: _Toml) -> None:
@@ -495,13 +515,62 @@ def _optional_triple(table: CsvTable, names: Sequence[str], what: str) -> np.nda
     return arr
 
 
-def _positive(table: CsvTable, arr: np.ndarray, names: Sequence[str]) -> None:
+#: sane ranges of standard deviations by unit (a value outside is a typo or a unit mix-up)
+SD_BOUNDS = {"m": (1e-6, 1e3), "mm": (1e-6, 10.0), "deg": (1e-8, 90.0)}
+
+
+def _positive(table: CsvTable, arr: np.ndarray, names: Sequence[str], unit: str = "m") -> None:
+    """Refuse standard deviations that are not positive or lie outside :data:`SD_BOUNDS` of *unit*
+    (NaN entries are absent values and pass); the message names file, line, field and the row's id."""
+    lo, hi = SD_BOUNDS[unit]
     for j, n in enumerate(names):
-        bad = np.flatnonzero(arr[:, j] <= 0)
+        col = arr[:, j]
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~np.isnan(col) & ~((col >= lo) & (col <= hi)))
         if bad.size:
             i = int(bad[0])
-            raise SurveyError(f"{location(table.path, table.lines[i], n)}: standard deviation "
-                              f"must be positive, got {arr[i, j]!r}")
+            who = next((f" ({key} {table.rows[i][table.header.index(key)]!r})"
+                        for key in ("point", "photo") if table.has(key)), "")
+            what = "must be positive" if not col[i] > 0 else "is outside the sane range"
+            raise SurveyError(f"{location(table.path, table.lines[i], n)}{who}: standard deviation "
+                              f"{what}, got {float(col[i])!r} {unit}; sane values lie in {lo:g}..{hi:g} {unit}")
+
+
+def is_local_crs(crs: str) -> bool:
+    """True for a survey CRS declared as a local (not georeferenced) frame: ``"local"`` or
+    ``"local: <description>"`` (what ``lidarcat import`` writes for a COLMAP or OpenSfM model
+    without georeference).  Such a frame is taken to be in metres; products that need a real CRS
+    (GIS layers, LiDAR control) refuse it.
+
+    >>> is_local_crs("local: COLMAP model frame"), is_local_crs("EPSG:31983")
+    (True, False)
+    """
+    s = crs.strip().lower()
+    return s == "local" or s.startswith(("local:", "local "))
+
+
+def _check_crs(t: _Toml, table: str, crs: str, coords: Sequence[tuple[Path | None, np.ndarray, np.ndarray]]
+               ) -> None:
+    """``[table] crs`` must be a CRS pyproj knows, in metres, and hold the coordinates of
+    *coords* ((file, (n, 2) E N, ids) triples) inside its area of use."""
+    from .errors import CRSError
+    from .lidar.crs import check_area_of_use, require_metres, resolve_crs
+
+    if table == "survey" and is_local_crs(crs):
+        return  # a local model frame (e.g. an imported SfM model): metres by declaration, no area of use
+    try:
+        c = resolve_crs(crs)
+        require_metres(c, "the adjustment" if table == "survey" else "LiDAR control")
+    except CRSError as ex:
+        raise t.err(table, "crs", str(ex)) from None
+    for path, en, ids in coords:
+        en = np.asarray(en, dtype=np.float64).reshape(-1, 2)
+        if path is None or len(en) == 0:
+            continue
+        try:
+            check_area_of_use(c, en, ids=ids)
+        except CRSError as ex:
+            raise t.err(table, "crs", f"{path}: {ex}") from None
 
 
 def _expand_lidar(t: _Toml, root: Path) -> tuple[Path, ...]:
@@ -666,8 +735,11 @@ class Survey:
                         f"{obs!r} is not one of {', '.join(map(repr, _OBSERVATION_KINDS))}")
         sd_default = max(max(c.pixel_size_x_mm, c.pixel_size_y_mm) for c in cameras.values())
         image_sd = t.get("adjustment", "image_sd_mm", (int, float), DEFAULT_SD_PIXELS * sd_default)
-        if image_sd <= 0:
-            raise t.err("adjustment", "image_sd_mm", f"must be positive, got {image_sd!r}")
+        lo_mm, hi_mm = SD_BOUNDS["mm"]
+        if not lo_mm <= image_sd <= hi_mm:
+            raise t.err("adjustment", "image_sd_mm",
+                        f"must be positive, got {image_sd!r}" if not image_sd > 0 else
+                        f"{image_sd!r} mm is outside the sane range {lo_mm:g}..{hi_mm:g} mm")
         excl_raw = t.get("adjustment", "exclude_points", list, [])
         exclude: set[str] = set()
         measured = set(image_points.point.tolist())
@@ -701,6 +773,11 @@ class Survey:
 
         lidar_paths = _expand_lidar(t, root)
         lidar_crs = t.get("lidar", "crs", str, None)
+        _check_crs(t, "survey", crs, [(gp_path, ground.enh_m[:, :2], ground.point)]
+                   + [(photos_path, np.array([p.position_m[:2] for p in photos if p.position_m is not None]),
+                       np.array([p.id for p in photos if p.position_m is not None]))])
+        if lidar_crs is not None:
+            _check_crs(t, "lidar", lidar_crs, [])
 
         survey = cls(root=root, toml_path=toml_path, name=name, description=description,
                      crs=crs, height_system=height_system, default_control=default_control,
@@ -864,8 +941,8 @@ def _load_photos(path: Path, cameras: dict[str, Camera], camera_path: Path) -> t
     att = _optional_triple(t, ("omega_deg", "phi_deg", "kappa_deg"), "an attitude")
     sdp = _optional_triple(t, ("sd_X0", "sd_Y0", "sd_Z0"), "a position sd")
     sda = _optional_triple(t, ("sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"), "an attitude sd")
-    _positive(t, np.nan_to_num(sdp, nan=1.0), ("sd_X0", "sd_Y0", "sd_Z0"))
-    _positive(t, np.nan_to_num(sda, nan=1.0), ("sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"))
+    _positive(t, sdp, ("sd_X0", "sd_Y0", "sd_Z0"), "m")
+    _positive(t, sda, ("sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"), "deg")
     photos = []
     for i, line in enumerate(t.lines):
         def opt(a: np.ndarray) -> np.ndarray | None:
@@ -914,7 +991,7 @@ def _load_image_points(path: Path, photo_ids: set[str], photos_path: Path) -> tu
             fld = "x_mm" if has_xy else "col_px"
             raise SurveyError(f"{location(path, line, fld)}: no coordinates; give col_px, row_px "
                               f"or x_mm, y_mm")
-    _positive(t, np.nan_to_num(sd, nan=1.0), ("sd_x_mm", "sd_y_mm"))
+    _positive(t, sd, ("sd_x_mm", "sd_y_mm"), "mm")
     if n == 0:
         raise SurveyError(f"{path}: no image measurements")
     return ImagePoints(np.array(photo, dtype=str), np.array(point, dtype=str), px, xy, sd,
@@ -946,7 +1023,7 @@ def _load_control_sets(path: Path, ground: GroundPoints, exclude: set[str]) -> d
     _no_duplicates(t, ("set", "point"), "point in this control set")
     sd_cols = ("sd_E", "sd_N", "sd_h")
     over = _optional_triple(t, sd_cols, "an sd override")
-    _positive(t, np.nan_to_num(over, nan=1.0), sd_cols)
+    _positive(t, over, sd_cols, "m")
     gp_file = ground.path.name if ground.path else "ground_points.csv"
     for p, r, line in zip(points, roles, t.lines):
         if r not in ("control", "check"):

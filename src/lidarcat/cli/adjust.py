@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -9,7 +10,7 @@ import click
 
 from .options import echo_json, json_opt, survey_arg
 
-__all__ = ["adjust", "format_report"]
+__all__ = ["adjust", "format_report", "format_blunders", "exit_status"]
 
 
 def format_report(summary: dict, outdir: str | None = None) -> str:
@@ -46,10 +47,45 @@ def format_report(summary: dict, outdir: str | None = None) -> str:
         + ("accepted" if s["chi2_pass"] else "REJECTED"),
         f"Parameter sds use the {s['variance_factor'].replace('_', ' ')} variance factor",
     ]
+    lines += format_blunders(s)
     if outdir is not None:
         lines.append(f"Results: {outdir}/eop.csv, points.csv, residuals.csv, summary.json"
                      + (", check_covariance.csv" if (Path(outdir) / "check_covariance.csv").is_file() else ""))
     return "\n".join(lines)
+
+
+def format_blunders(summary: dict) -> list[str]:
+    """Lines of the data-snooping result (empty when snooping was off)."""
+    sn = summary.get("snooping") or {}
+    if not sn or sn.get("mode") == "off":
+        return []
+    blunders = summary.get("blunders") or []
+    crit = ", ".join(f"{v:.2f} (q={k})" for k, v in (sn.get("critical_w") or {}).items())
+    lines = ["", f"Data snooping ({sn['mode']}, alpha {sn.get('level', float('nan')):g}, power "
+                 f"{sn.get('power', float('nan')):g}; critical w {crit}): "
+                 + (f"{len(blunders)} blunder(s)" if blunders else "no blunder found")]
+    for b in blunders:
+        what = (f"image  photo {b['photo']} point {b['point']}" if b["kind"] == "image" else
+                f"control point {b['point']}" if b["kind"] == "control" else f"eo     photo {b['photo']}")
+        err = ", ".join(f"{k} {v:+.4g}" for k, v in b["estimated_error"].items() if v == v)
+        lines.append(f"  {what:<28} w {b['w']:6.2f}  r {b['redundancy']:.2f}  error {err} {b['unit']}"
+                     f"  {'removed' if b['removed'] else 'KEPT'}" + (f"  ({b['note']})" if b.get("note") else ""))
+    return lines
+
+
+def exit_status(summary: dict) -> tuple[int, str]:
+    """Exit code and the one-line verdict: 1 not converged, 3 global test rejected or blunders remain."""
+    if not summary["converged"]:
+        return 1, f"the adjustment did not converge ({summary['status']})"
+    problems = []
+    if not summary["chi2_pass"]:
+        problems.append("the global chi-square test of the variance factor REJECTED")
+    sn = summary.get("snooping") or {}
+    if sn.get("blunders_remain"):
+        kept = sum(not b["removed"] for b in summary.get("blunders") or [])
+        problems.append(f"{kept} blunder(s) remain in the adjustment" if kept else
+                        "data snooping stopped with tests still rejecting")
+    return (3, "; ".join(problems)) if problems else (0, "")
 
 
 @click.command(short_help="Bundle adjustment with weighted position constraints.")
@@ -71,9 +107,25 @@ def format_report(summary: dict, outdir: str | None = None) -> str:
               help="Use photo positions/attitudes of photos.csv that carry sd_* as weighted constraints.")
 @click.option("--max-iter", type=click.IntRange(1), default=50, show_default=True,
               help="Maximum number of Gauss-Newton / Levenberg-Marquardt iterations.")
+@click.option("--precision", type=click.Choice(["all", "photos", "none"]), default="all", show_default=True,
+              help="Standard deviations to compute: of every photo and point ('all'), of the photos only "
+                   "('photos': point sd_* empty), or none (fastest on blocks of thousands of photos; "
+                   "no check_covariance.csv).")
+@click.option("--snooping", type=click.Choice(["off", "report", "remove"]), default="report",
+              show_default=True,
+              help="Baarda's data snooping: test every image observation, control point and GNSS/INS "
+                   "constraint (w-test), one rejection per re-adjustment. 'report' names the blunders "
+                   "and keeps them in the adjustment; 'remove' adjusts without them.")
+@click.option("--snooping-level", type=click.FloatRange(1e-9, 0.5, min_open=True, max_open=True),
+              default=0.001, show_default=True,
+              help="alpha of the one-dimensional w-test (power 0.80; 2-D and 3-D tests use the "
+                   "B-method levels with the same power).")
+@click.option("--robust", type=click.Choice(["none", "danish", "huber"]), default="none", show_default=True,
+              help="Iteratively re-weighted least squares before snooping (many blunders, large blocks).")
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
-           variance_factor: str | None, eo_constraints: bool, max_iter: int, as_json: bool) -> None:
+           variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str,
+           snooping_level: float, robust: str, as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
     Unknowns: X0, Y0, Z0 (m) and omega, phi, kappa (deg; M = R3(kappa) R2(phi)
@@ -86,25 +138,41 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     (adjusted minus observed), check_covariance.csv (joint covariance of the
     check points, m^2, for the consistency test of `lidarcat assess`) and
     summary.json (dof, v'Pv, sigma0^2, the two-sided chi-square test of the
-    variance factor, iterations). Exit code 1
-    when the adjustment did not converge (results are still written).
+    variance factor, iterations, blunders, provenance: lidarcat version, SHA-256
+    of every survey file read, parameters). With --snooping report|remove also
+    blunders.csv (w, redundancy number, estimated error of every blunder) and
+    reliability.csv (redundancy number, w-test, minimal detectable bias and its
+    effect on the orientations for every observation).
+
+    \b
+    Exit codes:
+      0  converged, global test accepted, no blunder left
+      1  the adjustment did not converge (results are still written)
+      2  bad input (the error names the file, line or point)
+      3  converged, but the global chi-square test rejected or blunders remain
+         (--snooping report, or a blunder that could not be removed)
 
     \b
     Examples:
       lidarcat adjust --control gps -o out/gps
       lidarcat adjust data/thesis --control lidar --observations pixel -o out/lidar
       lidarcat adjust my_survey --json
+      lidarcat adjust big_block --precision photos
+      lidarcat adjust my_survey --snooping remove --robust danish
     """
     from ..bundle import adjust_survey
 
     result, out = adjust_survey(survey, control=control, observations=observations, outdir=outdir,
                                 variance_factor=variance_factor, eo_constraints=eo_constraints,
-                                max_iter=max_iter)
-    summary = {**result.summary(), "outdir": str(out)}
+                                max_iter=max_iter, snooping=snooping, snooping_level=snooping_level,
+                                robust=robust, precision=precision)
+    # what was written is what is shown
+    summary = {**json.loads((Path(out) / "summary.json").read_text(encoding="utf-8")), "outdir": str(out)}
+    code, verdict = exit_status(summary)
     if as_json:
         echo_json(summary)
     else:
         click.echo(format_report(summary, str(out)))
-    if not result.success:
-        click.echo(f"Warning: the adjustment did not converge ({result.status}).", err=True)
-        sys.exit(1)
+    if code:
+        click.echo(f"Warning: {verdict}.", err=True)
+        sys.exit(code)

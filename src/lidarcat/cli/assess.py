@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from ..survey import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
 from .options import echo_json, json_opt
 
 __all__ = ["assess"]
@@ -24,11 +25,15 @@ def _split(values: tuple[str, ...]) -> list[str] | None:
 @click.option("--points", "points", multiple=True, metavar="ID[,ID...]",
               help="Check points to assess (repeat or comma-separate). Default: role=check points of "
                    "ADJUSTED_POINTS, else every reference point that is not a control point.")
-@click.option("--scale", type=float, default=2000, show_default=True,
-              help="Map scale denominator for PEC / PEC-PCD, the chi-square sigma0 and the CE90 limit.")
-@click.option("--contour-interval", "contour_interval", type=float, default=None, metavar="METRES",
-              help="Contour interval Eq (m) for the altimetric PEC classes (thesis: 2). "
-                   "Default: the standard's table value for the scale, if any.")
+@click.option("--scale", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_SCALE,
+              help=f"Map scale denominator for PEC / PEC-PCD, the chi-square sigma0 and the CE90 limit. "
+                   f"Default: {DEFAULT_SCALE:g} (the thesis's 1:{DEFAULT_SCALE:g}; the same default as "
+                   "`lidarcat run` and survey.toml [assessment]).")
+@click.option("--contour-interval", "contour_interval", type=click.FloatRange(min=0, min_open=True),
+              default=DEFAULT_CONTOUR_INTERVAL_M, metavar="METRES",
+              help=f"Contour interval Eq (m) for the altimetric PEC classes. Default: "
+                   f"{DEFAULT_CONTOUR_INTERVAL_M:g} m (the thesis's; the same default as `lidarcat run` and "
+                   "survey.toml [assessment]).")
 @click.option("--standard", "standards", multiple=True, type=click.Choice(_STANDARDS, case_sensitive=False),
               help="Standard(s) to classify by (repeatable). Default: all.")
 @click.option("--alpha", type=float, default=0.10, show_default=True, help="Level of every test.")
@@ -51,7 +56,7 @@ def _split(values: tuple[str, ...]) -> list[str] | None:
 @click.option("-o", "--output", type=click.Path(), default=None,
               help="Write the report: NAME.html (+ .md, .json, NAME_figures/) or a folder.")
 @json_opt
-def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float, contour_interval: float | None,
+def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float, contour_interval: float,
            standards: tuple[str, ...], alpha: float, plotting_position: str, sign: str, pec_class: str,
            adjustment_dir: str | None, covariance: str | None, survey: str | None, output: str | None,
            as_json: bool) -> None:

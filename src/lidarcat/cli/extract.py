@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import click
 
 from .options import echo_json, progress_bar
@@ -11,6 +13,7 @@ __all__ = ["extract"]
 _EPILOG = """\b
 Examples:
   lidarcat extract jobs.txt -o control.csv --planes planes.csv
+  lidarcat extract --at 84996.5 447473.5 ahn3_1.laz ahn3_2.laz --crs EPSG:7415
   lidarcat extract jobs.txt --preset thesis --figures figs/
   lidarcat extract --lidar ahn3_1.laz --lidar ahn3_2.laz --crs EPSG:7415 --at 84996.5 447473.5 --json
   lidarcat extract --find --lidar ahn3_1.laz --classes 6 -o candidates.geojson
@@ -21,13 +24,46 @@ or a CSV with columns point,E,N[,threshold_m,radius_m,file,sd_en_m,sd_h_m]
 (sd_*: LiDAR point noise in plan / height, m; empty = the preset value).
 Units: metres, degrees. A roof that cannot give a point is a row with a
 status (two_planes, flat_roof, no_vertex, ...) and a reason; the batch goes on.
+\b
+Tiles: as in `lidarcat lidar clip`, point files (.las .laz .xyz .asc .pts)
+may follow as arguments, or be given with --lidar (repeatable); both forms
+work, so `--lidar A B` takes B as a tile too. A .txt/.csv argument is the
+job file (with --at or --find, where there is no job file, it is a tile).
+\b
+Exit status: 0 when at least one roof gave a control point (or --find ran),
+1 when no roof did (the rows with their reasons are still printed and
+written), 2 for invalid input.
 """
 
 
+_TILE_ONLY_SUFFIXES = (".las", ".laz", ".xyz", ".asc", ".pts")
+
+
+def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bool
+                     ) -> tuple[str | None, list[str]]:
+    """(job file, tiles) from the positional arguments: point files are tiles (the convention of
+    ``lidarcat lidar clip``); one .txt/.csv is the job file unless there is none to give."""
+    from pathlib import Path
+
+    jobs: list[str] = []
+    tiles = list(lidar)
+    for a in args:
+        if not Path(a).exists():
+            raise click.BadParameter(f"{a!r}: no such file or folder", param_hint="ARGS")
+        if Path(a).is_dir() or Path(a).suffix.lower() in _TILE_ONLY_SUFFIXES or not job_mode:
+            tiles.append(a)
+        else:
+            jobs.append(a)
+    if len(jobs) > 1:
+        raise click.UsageError(f"one job file, got {len(jobs)}: {', '.join(jobs)}")
+    return (jobs[0] if jobs else None), tiles
+
+
 @click.command(name="extract", epilog=_EPILOG)
-@click.argument("jobs", required=False, type=click.Path(exists=True, dir_okay=False))
+@click.argument("args", nargs=-1, metavar="[JOBS] [TILE...]")
 @click.option("--lidar", "lidar", multiple=True, type=click.Path(exists=True),
-              help="LiDAR tile(s) (LAS/LAZ/text); repeat for several. Default: each job's own file.")
+              help="LiDAR tile(s) or folders (LAS/LAZ/text); repeat for several, or list the tiles as "
+                   "arguments. Default: each job's own file.")
 @click.option("--crs", default=None, help="CRS of tiles that carry none, e.g. EPSG:7415 (AHN3).")
 @click.option("--at", "at", nargs=2, type=float, default=None, metavar="E N",
               help="Extract one roof at this approximate position (m).")
@@ -52,10 +88,16 @@ status (two_planes, flat_roof, no_vertex, ...) and a reason; the batch goes on.
                    "from `lidarcat lidar index --blocks`: later clips decode only the parts of a LAZ "
                    "tile they need.")
 @click.option("--json", "as_json", is_flag=True, help="Print results as JSON (with --at: one object).")
-def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, planes_out, figures,
+def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, planes_out, figures,
             spec_sd, index_cache, as_json) -> None:
-    """Roof planes to control points (Delaunay facets + plane intersection)."""
+    """Roof planes to control points (Delaunay facets + plane intersection).
+
+    Exit status 1 when no roof gave a control point (see below).
+    """
     from ..facets import get_params
+
+    jobs, tiles = _split_arguments(args, lidar, job_mode=at is None and not find)
+    lidar = tuple(tiles)
 
     if radius is not None and not radius > 0:
         raise click.BadParameter(f"must be positive (m), got {radius:g}", param_hint="--radius")
@@ -92,6 +134,8 @@ def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, pl
             echo_json(points[0].to_dict())
         else:
             echo_json({"points": [cp.to_dict() for cp in points]})
+        if not any(points):
+            sys.exit(1)
         return
     if not output:
         click.echo(f"{'point':<10} {'E':>12} {'N':>13} {'h':>9} {'sd_E':>6} {'sd_N':>6} {'sd_h':>6} "
@@ -104,6 +148,10 @@ def extract(jobs, lidar, crs, at, radius, find, box, classes, preset, output, pl
     n_ok = sum(bool(cp) for cp in points)
     click.echo(f"{n_ok} of {len(points)} roofs gave a control point"
                + (f"; written to {output}" if output else ""))
+    if n_ok == 0:
+        click.echo("no roof gave a control point (exit status 1); see the status and reason of each row",
+                   err=True)
+        sys.exit(1)
 
 
 def _find(lidar, crs, box, classes, params, output, as_json, index_cache) -> None:
@@ -112,6 +160,8 @@ def _find(lidar, crs, box, classes, params, output, as_json, index_cache) -> Non
     from ..lidar import TileIndex
 
     index = TileIndex.build(list(lidar), crs=crs, cache_path=index_cache)
+    if not box:
+        index.verify_bounds()  # the area is the points' own extent, not the headers' claim
     b = index.bounds
     area = box if box else (b.xmin, b.ymin, b.xmax, b.ymax)
     cloud = index.query_box(*area)
@@ -123,7 +173,7 @@ def _find(lidar, crs, box, classes, params, output, as_json, index_cache) -> Non
             raise click.BadParameter(f"{classes!r}: expected a comma list of integers", param_hint="--classes")
     cands = find_candidates(cloud, box=area, params=params, classes=cls)
     if output:
-        write_candidates(output, cands, crs=crs)
+        write_candidates(output, cands, crs=index.crs)  # the tiles' own CRS, else --crs
     if as_json:
         echo_json({"candidates": [c.to_feature() for c in cands]})
         return

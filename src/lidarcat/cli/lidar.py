@@ -133,6 +133,8 @@ def _info_text(f: dict[str, Any]) -> str:
         if f.get("first_return_density_pts_m2"):
             dens += f" ({f['first_return_density_pts_m2']:.2f} first returns/m2)"
         lines.append(f"  density    {dens}")
+    elif f.get("density_note"):
+        lines.append(f"  density    - ({f['density_note']})")
     lines.append(f"  classes    {_fmt_counts(f.get('classes'))}")
     lines.append(f"  returns    {_fmt_counts(f.get('returns'))}")
     return "\n".join(lines)
@@ -140,34 +142,49 @@ def _info_text(f: dict[str, Any]) -> str:
 
 # ----------------------------------------------------------------------------- index
 @lidar.command()
-@click.argument("survey", type=click.Path(exists=True, file_okay=False))
+@click.argument("paths", nargs=-1, required=True, metavar="SURVEY|PATH...")
+@_crs_opt
+@click.option("--index-file", "index_file", type=click.Path(dir_okay=False), default=None,
+              help="Where to keep the index (JSON). Default: SURVEY/lidar_index.json, or "
+                   "lidar_index.json in the folder of the first tile.")
 @click.option("--rebuild", is_flag=True, help="Ignore the cached index and read every tile again.")
 @click.option("--blocks", is_flag=True,
-              help="Also index every LAS/LAZ tile by blocks (plan box of every 5 000 points; one full "
-                   "read per tile, once): later clips of a tile not in memory decode only the blocks "
-                   "they touch. Worth it before extracting many roofs from big tiles.")
+              help="Also index every LAS/LAZ tile by blocks (plan box of every 5 000 points): later "
+                   "clips of a tile not in memory decode only the blocks they touch. The full read "
+                   "that measures a tile's bounds makes it anyway; kept for scripts.")
 @json_opt
-def index(survey: str, rebuild: bool, blocks: bool, as_json: bool) -> None:
-    """Index the survey's LiDAR tiles: bounds and point counts per tile.
+def index(paths: tuple[str, ...], crs: str | None, index_file: str | None, rebuild: bool, blocks: bool,
+          as_json: bool) -> None:
+    """Index LiDAR tiles: bounds and point counts per tile.
 
-    Uses [files] lidar (files or globs) and [lidar] crs of SURVEY/survey.toml.
-    The index is cached in SURVEY/lidar_index.json and refreshed for tiles whose
-    size or modification time changed, so later clips read only the tiles
-    they need.
+    SURVEY is a survey folder (its [files] lidar and [lidar] crs are used);
+    otherwise give the tiles as files, folders or quoted globs, as for
+    `lidar info` and `lidar clip`. Every tile is read once: the bounds in a
+    LAS header are often wrong, so the index records the bounds of the points
+    themselves (and the block index of LAS/LAZ tiles). The index is cached and
+    refreshed for tiles whose size or modification time changed, so later
+    clips read only the tiles they need.
 
     \b
-    Example:
+    Examples:
       lidarcat lidar index my_survey/
-      lidarcat lidar index my_survey/ --blocks   # + block index for fast cold clips
+      lidarcat lidar index 'tiles/*.laz' --crs EPSG:7415 --index-file tiles/index.json
     """
     from ..lidar import TileIndex
 
-    files, crs, root = _survey_lidar(Path(survey))
-    cache = Path(root) / "lidar_index.json"
+    files, crs, root = _sources(paths, crs)
+    if index_file is not None:
+        cache = Path(index_file)
+    elif root is not None and len(paths) == 1:
+        cache = Path(root) / "lidar_index.json"
+    else:
+        cache = files[0].parent / "lidar_index.json"
     if rebuild and cache.exists():
         cache.unlink()
     with _progress("Indexing", files) as progress:
         idx = TileIndex.build(files, crs=crs, cache_path=cache, progress=progress, blocks=blocks)
+    with _progress("Measuring", [t.path for t in idx.tiles if not t.bounds_verified]) as progress:
+        idx.verify_bounds(progress=progress)
     if as_json:
         echo_json({"index": str(cache), **idx.to_dict()})
         return
@@ -285,6 +302,7 @@ def raster(paths: tuple[str, ...], cell_m: float, what: str, bounds: tuple[float
 
     files, crs, _ = _sources(paths, crs)
     idx = TileIndex.build(files, crs=crs, columns=columns, delimiter=delimiter, max_cached_points=0)
+    idx.verify_bounds()  # header bounds are claims: measure them before choosing tiles or the box
     box = tuple(bounds) if bounds else tuple(idx.bounds[:4])
     if not np.all(np.isfinite(box)):
         raise click.UsageError("the files hold no points")

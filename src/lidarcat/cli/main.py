@@ -24,12 +24,16 @@ __all__ = ["cli", "main", "COMMANDS"]
 
 #: (name, "module:attribute", one-line summary), in pipeline order.
 COMMANDS: list[tuple[str, str, str]] = [
+    ("import", "lidarcat.cli.interop:import_cmd", "Read COLMAP, OpenSfM, Metashape, ODM, OPK, GNSS files into a survey."),
     ("camera", "lidarcat.cli.camera:camera", "Interior orientation: pixel to corrected photo coordinates."),
     ("lidar", "lidarcat.cli.lidar:lidar", "LiDAR tiles: info, index, clip, raster views."),
     ("extract", "lidarcat.cli.extract:extract", "Roof planes to control points (Delaunay facets + plane intersection)."),
     ("adjust", "lidarcat.cli.adjust:adjust", "Bundle adjustment with weighted position constraints."),
     ("assess", "lidarcat.cli.assess:assess", "Check-point accuracy: Filliben, t, chi-square, PEC, ASPRS, NSSDA."),
+    ("monoplot", "lidarcat.cli.monoplot:monoplot", "Monorestitution: features on one photo to the LiDAR surface."),
+    ("ortho", "lidarcat.cli.ortho:ortho", "Orthophotos (standard or true) and a mosaic of adjusted photos."),
     ("run", "lidarcat.cli.run:run", "The whole pipeline on a survey folder (default: the thesis block)."),
+    ("export", "lidarcat.cli.interop:export_cmd", "Write an adjusted block as COLMAP, OpenSfM, OPK or GIS layers."),
     ("demo", "lidarcat.cli.demo:demo", "Write demonstration surveys (synthetic block with known truth)."),
 ]
 

@@ -7,6 +7,7 @@ from typing import Any
 
 import click
 
+from ..survey import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
 from .options import echo_json, json_opt
 
 __all__ = ["run"]
@@ -24,11 +25,13 @@ __all__ = ["run"]
 @click.option("--scale", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Map scale denominator for classifying the check points (PEC classes, the "
                    "chi-square sigma0, the CE90 limit). Default: survey.toml [assessment] scale, "
-                   "else 2000 (the thesis's 1:2000).")
+                   f"else {DEFAULT_SCALE:g} (the thesis's 1:{DEFAULT_SCALE:g}; the same default as "
+                   "`lidarcat assess`).")
 @click.option("--contour-interval", "contour_interval_m", type=click.FloatRange(min=0, min_open=True),
               default=None,
               help="Contour interval for the altimetric classes, metres. Default: survey.toml "
-                   "[assessment] contour_interval_m, else 2.")
+                   f"[assessment] contour_interval_m, else {DEFAULT_CONTOUR_INTERVAL_M:g} m (the thesis's; the "
+                   "same default as `lidarcat assess`).")
 @click.option("--figures", is_flag=True,
               help="Also draw one figure per extracted roof (points by face, planes, vertex; thesis "
                    "Figure 19) into OUTDIR/extract/figures/.")
@@ -45,6 +48,7 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
       adjust-SET  bundle adjustment for every control set (thesis: gps, lidar)
       assess-SET  check-point accuracy of each run
       compare     differences of the runs: orientations, points free in both
+      thesis      the thesis's printed section 4.4 beside this run (embedded block)
       report      HTML / Markdown / JSON report in OUTDIR/report/
 
     OUTDIR gets one folder per stage, summary.json (status ran / reused /
@@ -102,7 +106,9 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
 
 
 def _text(result) -> str:
-    from ..pipeline import _num as _f  # the report's number format: '-' for a missing value
+    from ..pipeline.stages.report import (
+        num as _f,  # the report's number format: '-' for a missing value
+    )
 
     lines = [f"lidarcat run: {result.summary.get('survey', {}).get('name', '?')} -> {result.outdir}"]
     for s in result.stages:
@@ -132,6 +138,17 @@ def _text(result) -> str:
                            "above": "above its interval: errors larger than claimed"}.get(cons.get("side"), "pass")
                 parts.append(f"d'C^-1d {_f(cons['chi2'], 1)} on {cons['df']} dof {verdict}")
         lines.append(f"  run {name}: " + ", ".join(parts))
+    th = result.summary.get("thesis")
+    if th:
+        for src, label in (("printed", "recomputed from its printed values"), ("this_run", "from this run")):
+            s = th["table13"][src]
+            lines.append(f"  thesis Table 13, {label}: Filliben r plan/h {_f(s['r_plan'], 3)}/"
+                         f"{_f(s['r_altim'], 3)} (critical {_f(s['r_tab'], 3)}), t E/N/h "
+                         + "/".join(_f(s[f"t_{a}"], 2) for a in "ENh"))
+        odd = th["statistics_discrepant"] + th["tables_discrepant"]
+        lines.append(f"  thesis section 4.4: {th['statistics_agree']} of {th['statistics']} statistics and "
+                     f"{th['tables_agree']} of {th['tables']} table comparisons reproduced"
+                     + (f"; not reproduced (errata, see the report): {', '.join(odd)}" if odd else ""))
     report = result.summary.get("report")
     if report:
         lines.append(f"  report: {report}")

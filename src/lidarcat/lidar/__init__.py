@@ -3,7 +3,7 @@
 ==================  ===========================================================
 :mod:`.cloud`       :class:`PointCloud` (E, N, h in metres + attributes + CRS)
 :mod:`.readers`     :func:`read_points`, :func:`iter_points`, :func:`write_points`
-:mod:`.crs`         :func:`resolve_crs`, :func:`transform_points`
+:mod:`.crs`         :func:`resolve_crs`, :func:`transform_points`, units and area-of-use checks
 :mod:`.tileindex`   :class:`TileIndex`: bounds per tile, radius/box/polygon queries
 :mod:`.clipping`    :func:`clip`: points around a roof with height pre-filters
 :mod:`.raster`      :func:`rasterize` (intensity, DSM, DTM), GeoTIFF and PNG output
@@ -27,7 +27,8 @@ from __future__ import annotations
 
 from .cloud import STANDARD_ATTRIBUTES, Bounds, PointCloud
 from .clipping import HEIGHT_FILTERS, clip, height_window_mask
-from .crs import common_crs, crs_compatible, crs_label, resolve_crs, transform_points
+from .crs import (check_area_of_use, common_crs, crs_compatible, crs_label, horizontal_unit, require_metres,
+                  resolve_crs, transform_points, units_are_metres)
 from .info import describe
 from .raster import GeoTransform, rasterize, write_geotiff, write_png_preview, write_raster
 from .readers import FileHeader, iter_points, read_header, read_points, write_points
@@ -37,6 +38,7 @@ __all__ = [
     "PointCloud", "Bounds", "STANDARD_ATTRIBUTES",
     "read_points", "iter_points", "write_points", "read_header", "FileHeader",
     "resolve_crs", "transform_points", "crs_compatible", "common_crs", "crs_label",
+    "horizontal_unit", "units_are_metres", "require_metres", "check_area_of_use",
     "TileIndex", "Tile", "BlockIndex", "expand_paths", "in_radius", "in_box", "in_polygon",
     "clip", "height_window_mask", "HEIGHT_FILTERS",
     "rasterize", "GeoTransform", "write_geotiff", "write_png_preview", "write_raster",

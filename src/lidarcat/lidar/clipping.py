@@ -42,7 +42,7 @@ import numpy as np
 
 from ..errors import ClipError, CRSError, LidarFormatError
 from .cloud import PointCloud
-from .crs import crs_compatible, crs_label, resolve_crs, transform_points
+from .crs import crs_compatible, crs_label, require_metres, resolve_crs, transform_points
 from .tileindex import TileIndex, expand_paths, in_radius
 
 __all__ = ["clip", "height_window_mask", "HEIGHT_FILTERS"]
@@ -176,6 +176,7 @@ def clip(source: PointCloud | TileIndex | str | os.PathLike | Iterable[str | os.
     q_crs = resolve_crs(crs)
     if isinstance(source, PointCloud):
         data_crs = source.crs
+        require_metres(data_crs, f"a clip radius of {radius_m:g} m")
         c = center
         if q_crs is not None and not crs_compatible(q_crs, data_crs):
             if data_crs is None:

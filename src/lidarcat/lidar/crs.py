@@ -21,7 +21,8 @@ from pyproj.exceptions import CRSError as _PyprojCRSError
 
 from ..errors import CRSError
 
-__all__ = ["resolve_crs", "crs_compatible", "common_crs", "transform_points", "crs_label"]
+__all__ = ["resolve_crs", "crs_compatible", "common_crs", "transform_points", "crs_label", "horizontal_unit",
+           "units_are_metres", "require_metres", "check_area_of_use"]
 
 
 def resolve_crs(value: Any, *, what: str = "CRS") -> pyproj.CRS | None:
@@ -192,3 +193,108 @@ def transform_points(xy: Any, from_crs: Any, to_crs: Any) -> np.ndarray:
     except pyproj.exceptions.ProjError as ex:
         raise CRSError(f"cannot transform points from {crs_label(src)} to {crs_label(dst)}: {ex}") from ex
     return out[0] if single else out
+
+
+# --------------------------------------------------------------------------- units and area of use
+def horizontal_unit(crs: pyproj.CRS | None) -> tuple[str, float]:
+    """Name and size in metres of the horizontal unit of *crs* (``("metre", 1.0)`` when None).
+
+    Geographic CRSs give ``("degree", nan)``: a degree has no fixed length in metres.
+
+    >>> horizontal_unit(resolve_crs("EPSG:2236"))   # NAD83 / Florida East (ftUS)
+    ('US survey foot', 0.30480060960121924)
+    >>> horizontal_unit(resolve_crs("EPSG:4326"))
+    ('degree', nan)
+    """
+    if crs is None:
+        return "metre", 1.0
+    horiz, _ = _parts(crs)
+    if horiz is None:
+        return "metre", 1.0
+    if horiz.is_geographic:
+        return "degree", float("nan")
+    axes = horiz.axis_info
+    if not axes:
+        return "metre", 1.0
+    return axes[0].unit_name, float(axes[0].unit_conversion_factor)
+
+
+def units_are_metres(crs: pyproj.CRS | None) -> bool:
+    """True when the horizontal coordinates of *crs* are metres (None: assumed metres)."""
+    return horizontal_unit(crs)[1] == 1.0
+
+
+def require_metres(crs: pyproj.CRS | None, what: str, where: str = "") -> None:
+    """Refuse a CRS whose horizontal unit is not the metre for a method that needs metres.
+
+    Raises
+    ------
+    CRSError
+        Naming *where* (a file), the CRS, its unit and *what* needs metres.
+    """
+    name, factor = horizontal_unit(crs)
+    if factor == 1.0:
+        return
+    prefix = f"{where}: " if where else ""
+    raise CRSError(f"{prefix}{what} needs coordinates in metres but {crs_label(crs)} uses the unit {name!r}"
+                   + ("" if factor != factor else f" (1 {name} = {factor:.10g} m)")
+                   + "; reproject the data to a projected CRS in metres (e.g. the UTM zone) first")
+
+
+def check_area_of_use(crs: pyproj.CRS | None, en: Any, where: str = "", *, margin_deg: float = 1.0,
+                      ids: Any = None) -> None:
+    """Refuse plan coordinates that lie far outside the area of use of *crs*.
+
+    The points are transformed to longitude/latitude and compared with the
+    CRS's area of use widened by *margin_deg* degrees (projections stay usable
+    a little beyond their official area).  A CRS with no area of use is not
+    checked.
+
+    Parameters
+    ----------
+    crs : pyproj.CRS or None
+    en : array_like, shape (N, 2)
+        E, N in the units of *crs* (lon, lat for a geographic CRS).
+    where : str
+        Prefix of the message (file, line, point).
+    ids : sequence, optional
+        Names of the points, for the message.
+
+    Raises
+    ------
+    CRSError
+        The first point outside, with its coordinates and the area of use.
+    """
+    if crs is None:
+        return
+    aou = crs.area_of_use
+    pts = np.atleast_2d(np.asarray(en, dtype=np.float64))[:, :2]
+    if aou is None or len(pts) == 0:
+        return
+    horiz, _ = _parts(crs)
+    horiz = horiz or crs
+    prefix = f"{where}: " if where else ""
+    if horiz.is_geographic:
+        lon, lat = pts[:, 0], pts[:, 1]
+    else:
+        geo = horiz.geodetic_crs
+        tr = _transformer(horiz.to_wkt(), geo.to_wkt())
+        with np.errstate(all="ignore"):
+            lon, lat = tr.transform(pts[:, 0], pts[:, 1])
+        lon, lat = np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)
+    m = margin_deg
+    west, east = aou.west - m, aou.east + m
+    if aou.west > aou.east:  # crosses the antimeridian
+        lon_ok = (lon >= west) | (lon <= east)
+    else:
+        lon_ok = (lon >= west) & (lon <= east)
+    ok = np.isfinite(lon) & np.isfinite(lat) & lon_ok & (lat >= aou.south - m) & (lat <= aou.north + m)
+    if ok.all():
+        return
+    i = int(np.flatnonzero(~ok)[0])
+    geo_txt = (f"lon {lon[i]:.4f}, lat {lat[i]:.4f}" if np.isfinite(lon[i]) and np.isfinite(lat[i])
+               else "not a place on Earth")
+    who = f"point {str(ids[i])!r}: " if ids is not None else ""
+    raise CRSError(f"{prefix}{who}coordinates {pts[i, 0]:.3f}, {pts[i, 1]:.3f} ({geo_txt}) lie outside the "
+                   f"area of use of {crs_label(crs)} ({aou.name[:60]}: lon {aou.west:g}..{aou.east:g}, "
+                   f"lat {aou.south:g}..{aou.north:g}); wrong CRS, or easting/northing swapped?")

@@ -28,6 +28,19 @@ many decimals.
 
 **Memory.** :func:`iter_points` streams a file in chunks of ``chunk_size``
 points, so memory stays bounded whatever the file size.
+
+**Broken files.** Before laspy sees a LAS/LAZ file its fixed header is read
+with :mod:`struct` and checked against the file size (:func:`_precheck_las`):
+the header size, the offset to the points, the VLR count (each VLR takes at
+least 54 bytes between the header and the points, so a count of 3.5 billion in
+a 1 MB file is refused before anything is allocated), the extended VLRs of LAS
+1.4, the point count against the bytes left (uncompressed files), scales and
+offsets finite and non-zero.  The header's bounds are never used to select
+points (they are often wrong); coordinates read must lie within
+:data:`MAX_ABS_COORD_M` of zero.  Decoder failures -- including the Rust
+``PanicException`` of lazrs, which derives from ``BaseException`` -- become a
+:class:`~lidarcat.errors.LidarFormatError` naming the file.  See
+``docs/robustness.md``.
 """
 
 from __future__ import annotations
@@ -38,6 +51,7 @@ import logging
 import math
 import os
 import re
+import struct
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -46,7 +60,7 @@ from typing import Any
 
 import numpy as np
 
-from .._io import atomic_write
+from .._io import atomic_write, parse_float
 from ..errors import CRSError, LidarFormatError, TileIOError, location
 from .cloud import STANDARD_ATTRIBUTES, Bounds, PointCloud
 from .crs import crs_compatible, crs_label, resolve_crs
@@ -63,6 +77,7 @@ __all__ = [
     "DEFAULT_CHUNK_SIZE",
     "iter_las_ranges",
     "las_chunk_points",
+    "MAX_ABS_COORD_M",
 ]
 
 log = logging.getLogger(__name__)
@@ -71,6 +86,16 @@ LAS_SUFFIXES = (".las", ".laz")
 ASCII_SUFFIXES = (".xyz", ".txt", ".csv", ".asc", ".pts")
 #: points per chunk when streaming (78 MB of coordinates + the six LAS attributes, 39 bytes a point)
 DEFAULT_CHUNK_SIZE = 2_000_000
+
+#: largest absolute coordinate accepted, metres (or degrees): the Earth fits well inside it
+MAX_ABS_COORD_M = 1e9
+#: bytes of a LAS VLR header / LAS 1.4 extended VLR header (a record is at least this long)
+_VLR_HEADER_BYTES = 54
+_EVLR_HEADER_BYTES = 60
+_NOT_CAUGHT = (KeyboardInterrupt, SystemExit, GeneratorExit)
+#: upper bound of LAZ points per byte of compressed data (a chunk of 50 000 points starts with one
+#: raw point of 20+ bytes: 2 500 points a byte; 10 000 leaves room for any real compressor)
+_MAX_LAZ_POINTS_PER_BYTE = 10_000
 
 #: progress callback: receives the number of bytes of the file just processed
 Progress = Callable[[int], Any]
@@ -97,8 +122,8 @@ _DEFAULT_COLUMNS = {
     5: ("E", "N", "H", "intensity", "return_number"),
     6: ("E", "N", "H", "intensity", "return_number", "classification"),
 }
-_NUMBER_RE = re.compile(r"^[+-]?(\d+\.?\d*([eE][+-]?\d+)?|\.\d+([eE][+-]?\d+)?|nan|inf)$", re.I)
-_DECIMAL_COMMA_RE = re.compile(r"^[+-]?\d+(,\d+)?([eE][+-]?\d+)?$")
+_NUMBER_RE = re.compile(r"^[+-]?([0-9]+\.?[0-9]*([eE][+-]?[0-9]+)?|\.[0-9]+([eE][+-]?[0-9]+)?|nan|inf)$", re.I)
+_DECIMAL_COMMA_RE = re.compile(r"^[+-]?[0-9]+(,[0-9]+)?([eE][+-]?[0-9]+)?$")
 
 
 def file_kind(path: str | os.PathLike) -> str:
@@ -175,9 +200,79 @@ def _open_error(path: Path, ex: OSError, expected: str) -> TileIOError:
 
 
 # --------------------------------------------------------------------------- LAS
+def _precheck_las(path: Path) -> None:
+    """Check the fixed LAS header against the file size before laspy allocates anything.
+
+    Raises
+    ------
+    TileIOError
+        Missing or unreadable file.
+    LidarFormatError
+        Not a LAS file, or a header field that cannot be true for a file of
+        this size (names the field and both numbers).
+    """
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            head = fh.read(375)
+    except OSError as ex:
+        raise _open_error(path, ex, "a LAS/LAZ file") from ex
+    if len(head) < 4 or head[:4] != b"LASF":
+        raise LidarFormatError(f"{path}: not a valid LAS/LAZ file (it does not start with 'LASF')")
+    if len(head) < 227:
+        raise LidarFormatError(f"{path}: truncated: {size} bytes, shorter than a LAS header (227 bytes)")
+    major, minor = head[24], head[25]
+    header_size, offset, n_vlr = struct.unpack_from("<HII", head, 94)
+    fmt_byte, rec_len, legacy_count = struct.unpack_from("<BHI", head, 104)
+    scales = struct.unpack_from("<3d", head, 131)
+    offsets = struct.unpack_from("<3d", head, 155)
+
+    def bad(what: str) -> LidarFormatError:
+        return LidarFormatError(f"{path}: corrupt LAS header: {what}")
+
+    if major != 1 or minor > 4:
+        raise bad(f"version {major}.{minor}; LAS 1.0-1.4 are read")
+    if not 227 <= header_size <= size:
+        raise bad(f"header size {header_size} bytes (at least 227, at most the file's {size})")
+    if not header_size <= offset <= size:
+        raise bad(f"offset to the point data {offset} is outside the header size {header_size}.."
+                  f"file size {size}")
+    room = offset - header_size
+    if n_vlr * _VLR_HEADER_BYTES > room:
+        raise bad(f"{n_vlr:,} variable-length records announced (at least {_VLR_HEADER_BYTES} bytes "
+                  f"each) but only {room:,} bytes lie between the header and the point data")
+    count = legacy_count
+    if minor >= 4 and header_size >= 375 and len(head) >= 375:
+        evlr_start, n_evlr, count64 = struct.unpack_from("<QIQ", head, 235)
+        count = count64 or legacy_count
+        if n_evlr and (evlr_start < offset or evlr_start + n_evlr * _EVLR_HEADER_BYTES > size):
+            raise bad(f"{n_evlr:,} extended VLRs announced at byte {evlr_start:,} but the file has "
+                      f"{size:,} bytes")
+    compressed = bool(fmt_byte & 0xC0)
+    if compressed and count > _MAX_LAZ_POINTS_PER_BYTE * max(size - offset, 0):
+        raise LidarFormatError(f"{path}: corrupt LAS header: {count:,} points announced but the "
+                               f"{max(size - offset, 0):,} bytes of compressed point data cannot hold more "
+                               f"than {_MAX_LAZ_POINTS_PER_BYTE * max(size - offset, 0):,}")
+    if not compressed and rec_len and count * rec_len > size - offset:
+        raise LidarFormatError(f"{path}: truncated: the header announces {count} points "
+                               f"({count * rec_len + offset} bytes) but the file has {size} bytes")
+    for axis, sc, off in zip("XYZ", scales, offsets):
+        if not (math.isfinite(sc) and sc != 0.0 and math.isfinite(off)):
+            raise bad(f"{axis} scale {sc!r} / offset {off!r}; a finite non-zero scale and a finite "
+                      "offset are required")
+
+
+def _decoder_error(path: Path, ex: BaseException, what: str) -> LidarFormatError:
+    """The located error for a failure inside laspy/lazrs (a Rust panic included)."""
+    if isinstance(ex, _NOT_CAUGHT):
+        raise ex
+    return LidarFormatError(f"{path}: {what} ({type(ex).__name__}: {str(ex)[:200]})")
+
+
 def _open_las(path: Path, serial: bool = False):
     import laspy
 
+    _precheck_las(path)
     backend = None
     if serial and laspy.LazBackend.Lazrs.is_available():
         backend = laspy.LazBackend.Lazrs
@@ -185,15 +280,22 @@ def _open_las(path: Path, serial: bool = False):
         return laspy.open(path, laz_backend=backend)
     except (FileNotFoundError, IsADirectoryError, PermissionError) as ex:
         raise _open_error(path, ex, "a LAS/LAZ file") from ex
-    except Exception as ex:  # laspy raises LaspyException, ValueError, struct.error...
-        raise LidarFormatError(f"{path}: not a valid LAS/LAZ file: corrupt header ({ex})") from ex
+    except BaseException as ex:  # LaspyException, ValueError, struct.error, a lazrs PanicException...
+        raise _decoder_error(path, ex, "not a valid LAS/LAZ file: corrupt header") from ex
 
 
-def _las_crs(path: Path, header: Any) -> Any:
+def _las_crs(path: Path, header: Any, given: Any = None) -> Any:
+    """The CRS record of the file; when *given* is set, an unreadable record is ignored."""
     try:
         return header.parse_crs()
-    except Exception as ex:
-        raise CRSError(f"{path}: cannot parse the CRS record of the file ({ex}); "
+    except BaseException as ex:
+        if isinstance(ex, _NOT_CAUGHT):
+            raise
+        if given is not None:
+            log.warning("%s: unreadable CRS record ignored, using the given %s (%s)", path,
+                        crs_label(given), str(ex)[:120])
+            return None
+        raise CRSError(f"{path}: cannot parse the CRS record of the file ({str(ex)[:200]}); "
                        "give the CRS with --crs") from ex
 
 
@@ -217,9 +319,10 @@ def _check_las_size(path: Path, header: Any) -> None:
 def _open_checked(path: Path, crs: Any, serial: bool = False) -> tuple[Any, Any, bool]:
     """An open laspy reader whose header was checked (CRS record, size against the point
     count), the CRS of its points (the file's, else *crs*) and whether it is the file's."""
+    given = resolve_crs(crs)  # the caller's CRS first: it decides what an unreadable record means
     reader = _open_las(path, serial)
     try:
-        crs_out, from_file = _settle_crs(path, _las_crs(path, reader.header), crs)
+        crs_out, from_file = _settle_crs(path, _las_crs(path, reader.header, given), given)
         _check_las_size(path, reader.header)
     except BaseException:
         reader.close()
@@ -236,10 +339,26 @@ def _scale_coords(raw: np.ndarray, scale: float, offset: float) -> np.ndarray:
     return raw.astype(np.float64) * scale + offset
 
 
-def _las_record_cloud(rec: Any, header: Any, crs: Any) -> PointCloud:
+def _check_coords(path: Path, xyz: np.ndarray, first: int, lines: np.ndarray | None = None) -> None:
+    """Refuse coordinates beyond :data:`MAX_ABS_COORD_M` (a corrupt scale, offset or value)."""
+    with np.errstate(invalid="ignore"):
+        ok = np.abs(xyz) <= MAX_ABS_COORD_M
+    if ok.all():
+        return
+    i, k = map(int, np.argwhere(~ok)[0])
+    name = "ENH"[k]
+    where = (location(path, int(lines[i]), name) if lines is not None
+             else f"{path}: point {first + i} (counting from 0), {name}")
+    raise LidarFormatError(f"{where}: coordinate {float(xyz[i, k])!r} is outside the sane range "
+                           f"+-{MAX_ABS_COORD_M:g} m; the file (or its scale/offset) is corrupt")
+
+
+def _las_record_cloud(rec: Any, header: Any, crs: Any, first: int = 0, path: Path | None = None) -> PointCloud:
     xyz = np.empty((len(rec), 3))
     for k, dim in enumerate(("X", "Y", "Z")):
         xyz[:, k] = _scale_coords(np.asarray(rec[dim]), float(header.scales[k]), float(header.offsets[k]))
+    if path is not None:
+        _check_coords(path, xyz, first)
     names = set(rec.point_format.dimension_names)
     attrs = {name: np.array(rec[name]) for name in _LAS_ATTRIBUTES if name in names}
     return PointCloud._owned(xyz, attrs, crs)
@@ -256,16 +375,16 @@ def _iter_las(path: Path, chunk_size: int, crs: Any, progress: Progress | None) 
             for rec in reader.chunk_iterator(chunk_size):
                 if len(rec) == 0:
                     break
-                cloud = _las_record_cloud(rec, header, file_crs)
+                cloud = _las_record_cloud(rec, header, file_crs, done, path)
                 done += len(rec)
                 if progress is not None and total:
                     progress(int(size * len(rec) / total))
                 yield cloud
         except (LidarFormatError, CRSError):
             raise
-        except Exception as ex:  # lazrs.LazrsError, ValueError on a short buffer, ...
-            raise LidarFormatError(f"{path}: truncated or corrupt point data after {done} of "
-                                   f"{total} points ({type(ex).__name__}: {ex})") from ex
+        except BaseException as ex:  # lazrs.LazrsError, a Rust panic, ValueError on a short buffer...
+            raise _decoder_error(path, ex, f"truncated or corrupt point data after {done} of "
+                                           f"{total} points") from ex
         if done != total:
             raise LidarFormatError(f"{path}: truncated: read {done} of the {total} points "
                                    "the header announces")
@@ -293,8 +412,8 @@ def las_chunk_points(path: str | os.PathLike) -> int | None:
             if lv.uses_variable_size_chunks():
                 return None
             return int(lv.chunk_size())
-        except Exception as ex:  # missing or corrupt LasZip record
-            raise LidarFormatError(f"{path}: cannot read the LAZ chunk record ({ex})") from ex
+        except BaseException as ex:  # missing or corrupt LasZip record (lazrs may panic)
+            raise _decoder_error(path, ex, "cannot read the LAZ chunk record") from ex
 
 
 def iter_las_ranges(path: str | os.PathLike, ranges: Sequence[tuple[int, int]], *, crs: Any = None,
@@ -365,13 +484,13 @@ def iter_las_ranges(path: str | os.PathLike, ranges: Sequence[tuple[int, int]], 
                                                f"from point {pos}")
                     for a in range(0, n, piece):
                         b = min(a + piece, n)
-                        yield pos + a, _las_record_cloud(rec[a:b], header, file_crs)
+                        yield pos + a, _las_record_cloud(rec[a:b], header, file_crs, pos + a, path)
                     pos += n
             except (LidarFormatError, CRSError):
                 raise
-            except Exception as ex:  # lazrs.LazrsError, ValueError on a short buffer, ...
-                raise LidarFormatError(f"{path}: truncated or corrupt point data reading points "
-                                       f"{pos}..{stop} of {total} ({type(ex).__name__}: {ex})") from ex
+            except BaseException as ex:  # lazrs.LazrsError, a Rust panic, a short buffer...
+                raise _decoder_error(path, ex, f"truncated or corrupt point data reading points "
+                                               f"{pos}..{stop} of {total}") from ex
 
 
 def _las_header(path: Path, crs: Any) -> FileHeader:
@@ -524,9 +643,9 @@ def _locate_bad_line(path: Path, lines: list[str], first_line_no: int, layout: _
                 continue
             t = tok.replace(",", ".") if layout.decimal_comma else tok
             try:
-                v = float(t)
-            except ValueError:
-                raise LidarFormatError(f"{location(path, line_no, name)}: {tok!r} is not a number") from None
+                v = parse_float(t)
+            except ValueError as ex:
+                raise LidarFormatError(f"{location(path, line_no, name)}: {ex}") from None
             if not math.isfinite(v):
                 raise LidarFormatError(f"{location(path, line_no, name)}: {tok!r} is not a finite number")
 
@@ -557,6 +676,8 @@ def _ascii_chunk_cloud(path: Path, lines: list[str], first_line_no: int, layout:
         _locate_bad_line(path, lines, first_line_no, layout)
     cols = {name: arr[:, k] for k, name in enumerate(layout.names) if name is not None}
     xyz = np.column_stack([cols.pop("E"), cols.pop("N"), cols.pop("H")])
+    if not (np.abs(xyz) <= MAX_ABS_COORD_M).all():
+        _check_coords(path, xyz, 0, _data_line_numbers(lines, first_line_no))
     attrs: dict[str, np.ndarray] = {}
     for name, values in cols.items():
         dtype = STANDARD_ATTRIBUTES.get(name)

@@ -6,6 +6,13 @@ text files.  The index can be cached as JSON (``cache_path=``; the CLI puts it
 in the survey folder as ``lidar_index.json``); an entry is reused while the
 file's size and modification time are unchanged and rebuilt otherwise.
 
+**Header bounds are never trusted for selection.**  Writers get them wrong
+(laspy's ``simple1_3.las`` claims bounds that miss its points), so the bounds
+of a LAS/LAZ tile count as *unverified* until its points have been read once
+(any whole read, the block index, or :meth:`TileIndex.verify_bounds`); a
+query reads every unverified tile, and from then on uses the measured bounds,
+which the JSON cache keeps.
+
 Queries (:meth:`~TileIndex.query_radius`, :meth:`~TileIndex.query_box`,
 :meth:`~TileIndex.query_polygon`) open only the tiles whose bounds meet the
 query, stream them chunk by chunk and return one :class:`PointCloud` with the
@@ -54,10 +61,11 @@ import base64
 import glob as _glob
 import json
 import logging
+import math
 import os
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +75,7 @@ import pyproj
 from .._io import write_json_atomic
 from ..errors import ClipError, CRSError, TileIOError
 from .cloud import Bounds, PointCloud
-from .crs import common_crs, crs_compatible, crs_label, resolve_crs, transform_points
+from .crs import common_crs, crs_compatible, crs_label, require_metres, resolve_crs, transform_points
 from .readers import (ASCII_SUFFIXES, LAS_SUFFIXES, file_kind, iter_las_ranges, iter_points,
                       las_chunk_points, read_header)
 
@@ -195,6 +203,10 @@ class Tile:
         Format description, e.g. ``"LAZ 1.2, point format 1"``.
     attributes : tuple of str
         Attribute names.
+    bounds_verified : bool
+        True when *bounds* were measured on the points (text files, or a LAS/LAZ
+        tile read once); False while they are the LAS header's claim, which is
+        never used to leave a tile out of a query.
     """
 
     path: Path
@@ -205,6 +217,13 @@ class Tile:
     file_crs_wkt: str | None
     description: str
     attributes: tuple[str, ...]
+    bounds_verified: bool = False
+
+    def may_meet(self, xmin: float, ymin: float, xmax: float, ymax: float) -> bool:
+        """False only when the tile's points certainly miss the plan box (edges included)."""
+        if self.count <= 0:
+            return False
+        return not self.bounds_verified or self.bounds.intersects_box(xmin, ymin, xmax, ymax)
 
     def to_dict(self, relative_to: Path | None = None) -> dict[str, Any]:
         path = str(self.path)
@@ -212,7 +231,8 @@ class Tile:
             path = self.path.relative_to(relative_to).as_posix()
         return {"path": path, "size": self.size, "mtime_ns": self.mtime_ns, "count": self.count,
                 "bounds": list(self.bounds), "file_crs_wkt": self.file_crs_wkt,
-                "description": self.description, "attributes": list(self.attributes)}
+                "description": self.description, "attributes": list(self.attributes),
+                "bounds_verified": self.bounds_verified}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], base: Path) -> Tile:
@@ -220,8 +240,8 @@ class Tile:
         if not path.is_absolute():
             path = (base / path).resolve()
         return cls(path, int(d["size"]), int(d["mtime_ns"]), int(d["count"]),
-                   Bounds(*map(float, d["bounds"])), d.get("file_crs_wkt"), str(d["description"]),
-                   tuple(d.get("attributes", ())))
+                   Bounds(*(math.nan if v is None else float(v) for v in d["bounds"])), d.get("file_crs_wkt"), str(d["description"]),
+                   tuple(d.get("attributes", ())), bool(d.get("bounds_verified", False)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -322,6 +342,27 @@ class BlockIndex:
                    int(d.get("cell_points", 0)))
 
 
+def _verified_by_blocks(tile: Tile, blocks: BlockIndex | None) -> Tile:
+    """*tile* with plan bounds measured by its block index (the exact boxes of its points)."""
+    if tile.bounds_verified or blocks is None or blocks.count == 0:
+        return tile
+    b = blocks.boxes
+    return _with_bounds(tile, (float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()),
+                               float(b[:, 3].max()), tile.bounds.zmin, tile.bounds.zmax))
+
+
+def _with_bounds(tile: Tile, measured: Sequence[float]) -> Tile:
+    """*tile* with bounds measured on its points (a warning when the header's claim missed them)."""
+    old, new = tile.bounds, Bounds(*map(float, measured))
+    tol = 1e-3  # m: headers round their bounds
+    if not (old.xmin - tol <= new.xmin and old.ymin - tol <= new.ymin and old.xmax + tol >= new.xmax
+            and old.ymax + tol >= new.ymax):
+        log.warning("%s: the header's bounds E %.3f..%.3f N %.3f..%.3f do not hold the points "
+                    "(E %.3f..%.3f N %.3f..%.3f); the points' bounds are used", tile.path, old.xmin,
+                    old.xmax, old.ymin, old.ymax, new.xmin, new.xmax, new.ymin, new.ymax)
+    return replace(tile, bounds=new, bounds_verified=True)
+
+
 def _cell_points_for(block_points: int, cell_points: int) -> int:
     """The largest divisor of *block_points* not above *cell_points*."""
     for c in range(min(int(cell_points), block_points), 0, -1):
@@ -337,11 +378,17 @@ class _BlockBoxes:
         self.block_points = int(block_points)
         self.cell_points = int(cell_points)
         self.count = int(count)
-        k = -(-self.count // self.cell_points)
-        self.boxes = np.empty((k, 4))
-        self.boxes[:, :2] = np.inf
-        self.boxes[:, 2:] = -np.inf
+        self.cells = -(-self.count // self.cell_points)
+        # grown as points arrive: a header's count is a claim and must not size an allocation
+        self.boxes = self._empty(min(self.cells, 1024))
         self.seen = 0
+
+    @staticmethod
+    def _empty(k: int) -> np.ndarray:
+        boxes = np.empty((k, 4))
+        boxes[:, :2] = np.inf
+        boxes[:, 2:] = -np.inf
+        return boxes
 
     def add(self, xyz: np.ndarray) -> None:
         m = len(xyz)
@@ -351,6 +398,10 @@ class _BlockBoxes:
             raise ValueError("more points than the tile holds")
         cp = self.cell_points
         first, last = self.seen // cp, (self.seen + m - 1) // cp
+        if last >= len(self.boxes):
+            grown = self._empty(min(self.cells, max(last + 1, 2 * len(self.boxes))))
+            grown[:len(self.boxes)] = self.boxes
+            self.boxes = grown
         edges = np.concatenate([[0], np.arange(first + 1, last + 1) * cp - self.seen]).astype(np.intp)
         x, y = xyz[:, 0], xyz[:, 1]
         box = self.boxes[first:last + 1]
@@ -463,6 +514,7 @@ class TileIndex:
         self._grids: dict[Path, _CellGrid] = {}
         self._cached_points = 0
         self._block_decoded: dict[Path, int] = {}  # points of each tile decoded by block reads
+        self._metres_checked = False
         by_path = {t.path: t for t in self.tiles}
         self._blocks: dict[Path, BlockIndex] = {
             p: b for p, b in (blocks or {}).items() if p in by_path and b.count == by_path[p].count}
@@ -534,15 +586,16 @@ class TileIndex:
                 if progress is not None:
                     progress(st.st_size)
                 continue
-            h = read_header(p, crs=None if file_kind(p) == "las" else given, columns=columns,
+            h = read_header(p, crs=given, columns=columns,
                             delimiter=delimiter, progress=progress)
             wkt = h.crs.to_wkt() if (h.crs is not None and h.crs_from_file) else None
             tiles.append(Tile(p, st.st_size, st.st_mtime_ns, h.count, h.bounds, wkt,
-                              h.description, h.attributes))
+                              h.description, h.attributes, bounds_verified=h.kind != "las"))
             changed = True
             log.debug("indexed %s: %d points", p, h.count)
         known_blocks = {t.path: cached_blocks[t.path] for t in tiles
                         if t.path in cached_blocks and cached.get(t.path) is t}
+        tiles = [_verified_by_blocks(t, known_blocks.get(t.path)) for t in tiles]
         if cache_path is not None and (changed or set(cached) != set(paths)):
             cls._save_cache(Path(cache_path), tiles, known_blocks)
         tile_crs = []
@@ -639,9 +692,22 @@ class TileIndex:
         """Total number of points."""
         return sum(t.count for t in self.tiles)
 
+    def verify_bounds(self, progress: Callable[[int], Any] | None = None) -> int:
+        """Read every tile whose bounds are the header's unverified claim (one full read each,
+        which also records its block index); returns the number of tiles read.  After it
+        :attr:`bounds` is the bounds of the points themselves."""
+        todo = [t for t in self.tiles if not t.bounds_verified and t.count > 0]
+        for t in todo:
+            for _ in self._decode_tile(t, progress=progress, save=False):
+                pass
+        if todo:
+            self._save_blocks()
+        return len(todo)
+
     @property
     def bounds(self) -> Bounds:
-        """Union of the tile bounds (NaN when there are no points)."""
+        """Union of the tile bounds (NaN when there are no points); a tile not read yet counts
+        with its header's bounds (see :meth:`verify_bounds`)."""
         return Bounds.union(t.bounds for t in self.tiles if t.count > 0)
 
     def to_dict(self) -> dict[str, Any]:
@@ -649,8 +715,9 @@ class TileIndex:
                 "bounds": self.bounds._asdict(), "tiles": [t.to_dict() for t in self.tiles]}
 
     def tiles_in_box(self, xmin: float, ymin: float, xmax: float, ymax: float) -> list[Tile]:
-        """Tiles whose bounds meet the plan box (edges included)."""
-        return [t for t in self.tiles if t.count > 0 and t.bounds.intersects_box(xmin, ymin, xmax, ymax)]
+        """Tiles whose points may meet the plan box (edges included): those whose measured
+        bounds meet it, and every tile whose bounds are still the header's unverified claim."""
+        return [t for t in self.tiles if t.may_meet(xmin, ymin, xmax, ymax)]
 
     # ---------------------------------------------------------------- reading
     def _check_unchanged(self, tile: Tile) -> None:
@@ -681,12 +748,22 @@ class TileIndex:
         if self._wants_blocks(tile):
             bp = las_chunk_points(tile.path) or self.block_points
             acc = _BlockBoxes(bp, _cell_points_for(bp, self.cell_points), tile.count)
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         for chunk in iter_points(tile.path, self._chunk_size, crs=self._file_crs_kw(tile),
                                  columns=self._columns, delimiter=self._delimiter, progress=progress):
             self.decoded_points += len(chunk)
             if acc is not None:
                 acc.add(chunk.xyz)
+            if not tile.bounds_verified and len(chunk):
+                lo = np.minimum(lo, chunk.xyz.min(axis=0))
+                hi = np.maximum(hi, chunk.xyz.max(axis=0))
             yield chunk
+        if not tile.bounds_verified and np.isfinite(lo).all():
+            k = next(i for i, t in enumerate(self.tiles) if t.path == tile.path)
+            self.tiles = self.tiles[:k] + (_with_bounds(tile, (lo[0], lo[1], hi[0], hi[1], lo[2], hi[2])),) \
+                + self.tiles[k + 1:]
+            if save and acc is None:
+                self._save_blocks()
         if acc is not None:
             blocks = acc.finish()
             if blocks is not None:
@@ -884,6 +961,10 @@ class TileIndex:
         """
         if not radius_m > 0:
             raise ValueError(f"radius_m must be positive, got {radius_m}")
+        if not self._metres_checked:
+            require_metres(self.crs, f"a clip radius of {radius_m:g} m",
+                           str(self.tiles[0].path) if self.tiles else "")
+            self._metres_checked = True
         c = self._to_index_crs(np.asarray(center_en[:2], dtype=np.float64), crs)
         r = float(radius_m)
         return self._query((c[0] - r, c[1] - r, c[0] + r, c[1] + r), lambda xyz: in_radius(xyz, c, r))

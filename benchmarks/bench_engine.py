@@ -1,0 +1,175 @@
+"""Production-size bundle blocks: lidarcat's engine against Ceres in the same run (issue 11).
+
+Run from the repository root::
+
+    python benchmarks/bench_engine.py [--photos 100 1000 5000 10000] [--no-peer] [--json out.json]
+                                      [--plot docs/figures/bundle_scaling.png]
+
+For every size, the seeded block of :func:`lidarcat._synthetic_block.aerial_block`
+(60 % / 30 % overlap, about 58 observations per photo, 0.5 px noise) gets its
+approximations once (timed, not part of the comparison), then each solver runs
+in its own process from those same values (so ``max RSS`` is each solver's peak,
+problem included):
+
+* lidarcat: ``adjust(problem, initial=..., precision=...)`` -- default ``all``:
+  the sd of every photo and every point -- with the share of each phase
+  (``BundleResult.phases_s``), and BLAS pinned to one thread;
+* Ceres 2.2 SPARSE_SCHUR (SuiteSparse), 2 threads, through pycolmap's bundle
+  adjuster (``benchmarks/_ceres_peer.py``; the ``bench`` extra), no covariance.
+
+Both reach the same minimum (the table prints 0.5 v'Pv of both).  Timings on a
+shared machine: note the load printed with the table.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import resource  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+
+
+def _child(args) -> None:
+    from lidarcat._synthetic_block import aerial_block
+
+    block = aerial_block(args.photos[0])
+    init = np.load(args.init)
+    eo, pts = init["eo"], init["pts"]
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    if args.child == "lidarcat":
+        from lidarcat.bundle import adjust
+
+        t0 = time.perf_counter()
+        r = adjust(block.problem, initial=(eo, pts), precision=args.precision, solver=args.solver)
+        out = {"seconds": time.perf_counter() - t0, "iterations": r.n_iter, "cost": 0.5 * r.vtpv,
+               "status": r.status, "phases": r.phases_s,
+               "finite_sd": bool(np.isfinite(r.point_sd_m).all() and np.isfinite(r.eo_sd).all())}
+    else:
+        sys.path.insert(0, str(HERE))
+        from _ceres_peer import solve_with_ceres
+
+        c = solve_with_ceres(block.problem, eo, pts, threads=args.threads)
+        out = {"seconds": c["seconds"], "iterations": c["iterations"], "cost": c["final_cost"],
+               "status": c["report"].split("Termination: ")[-1]}
+    out["maxrss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    out["rss_before_mb"] = rss0
+    print("RESULT " + json.dumps(out))
+
+
+def _run_child(kind: str, n: int, init: str, args) -> dict:
+    cmd = [sys.executable, __file__, "--child", kind, "--photos", str(n), "--init", init,
+           "--precision", args.precision, "--solver", args.solver, "--threads", str(args.threads)]
+    res = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "GLOG_minloglevel": "2"})
+    for line in res.stdout.splitlines():
+        if line.startswith("RESULT "):
+            return json.loads(line[7:])
+    return {"error": (res.stderr or res.stdout)[-400:]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--photos", type=int, nargs="+", default=[100, 1000, 5000, 10000])
+    ap.add_argument("--precision", default="all", choices=["all", "photos", "none"])
+    ap.add_argument("--solver", default="auto", choices=["auto", "direct", "pcg"])
+    ap.add_argument("--threads", type=int, default=2, help="Ceres threads")
+    ap.add_argument("--no-peer", action="store_true")
+    ap.add_argument("--json", help="write the rows to this file")
+    ap.add_argument("--plot", help="PNG of time against photos")
+    ap.add_argument("--child", choices=["lidarcat", "ceres"], help=argparse.SUPPRESS)
+    ap.add_argument("--init", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        _child(args)
+        return
+
+    from lidarcat._approx import approximations
+    from lidarcat._synthetic_block import aerial_block
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in args.photos:
+            block = aerial_block(n)
+            p = block.problem
+            t0 = time.perf_counter()
+            eo, pts = approximations(p)
+            approx_s = time.perf_counter() - t0
+            init = str(Path(tmp) / f"init{n}.npz")
+            np.savez(init, eo=eo, pts=pts)
+            load = os.getloadavg()[0]
+            row = {"photos": p.n_photos, "observations": len(p.photo_index), "points": p.n_points,
+                   "approx_s": approx_s, "load": load, "lidarcat": _run_child("lidarcat", n, init, args)}
+            if not args.no_peer:
+                row["ceres"] = _run_child("ceres", n, init, args)
+            row["load_after"] = os.getloadavg()[0]
+            rows.append(row)
+            _print_row(row, header=len(rows) == 1)
+    print(f"machine: 2 cores, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; lidarcat precision="
+          f"{args.precision}, solver={args.solver}; Ceres {args.threads} threads")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1, sort_keys=True))
+    if args.plot:
+        _plot(rows, args.plot)
+
+
+def _print_row(row: dict, header: bool) -> None:
+    if header:
+        print(f"{'photos':>7}{'obs':>9}{'load':>6}{'approx s':>9} | {'lidarcat s':>10}{'it':>4}{'RSS MB':>8}"
+              f"{'model':>7}{'assem':>7}{'factor':>7}{'prec':>7} | {'ceres s':>8}{'it':>4}{'RSS MB':>8} | "
+              f"{'ratio':>6}  cost lidarcat / ceres")
+    lc, ce = row["lidarcat"], row.get("ceres", {})
+    if "error" in lc:
+        print(f"{row['photos']:>7} lidarcat failed: {lc['error']}")
+        return
+    ph = lc["phases"]
+    tot = lc["seconds"]
+    share = {k: 100 * ph.get(k, 0.0) / tot for k in ("model", "solve_assemble", "solve_factor", "precision")}
+    line = (f"{row['photos']:>7}{row['observations']:>9}{row['load']:>6.1f}{row['approx_s']:>9.1f} | "
+            f"{tot:>10.2f}{lc['iterations']:>4}{lc['maxrss_mb']:>8.0f}"
+            f"{share['model']:>6.0f}%{share['solve_assemble']:>6.0f}%{share['solve_factor']:>6.0f}%"
+            f"{share['precision']:>6.0f}% | ")
+    if ce and "error" not in ce:
+        line += (f"{ce['seconds']:>8.2f}{ce['iterations']:>4}{ce['maxrss_mb']:>8.0f} | "
+                 f"{tot / ce['seconds']:>6.2f}  {lc['cost']:.6g} / {ce['cost']:.6g}")
+    elif ce:
+        line += f"ceres failed: {ce['error'][-200:]}"
+    print(line, flush=True)
+
+
+def _plot(rows: list[dict], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = [r["photos"] for r in rows]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.loglog(n, [r["lidarcat"].get("seconds", np.nan) for r in rows], "o-",
+              label="lidarcat adjust (sd of every photo and point)")
+    if any("ceres" in r for r in rows):
+        ax.loglog(n, [r.get("ceres", {}).get("seconds", np.nan) for r in rows], "s--",
+                  label="Ceres SPARSE_SCHUR, 2 threads (no covariance)")
+    ax.set_xlabel("photos")
+    ax.set_ylabel("seconds")
+    ax.set_title(f"Bundle adjustment time, 2 cores, load {np.mean([r['load'] for r in rows]):.1f}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+if __name__ == "__main__":
+    main()

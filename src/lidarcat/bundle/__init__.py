@@ -1,0 +1,60 @@
+"""Bundle adjustment with weighted position constraints (thesis section 2.1.2, eq. 08-22).
+
+The package, one concern per module, in the order a step runs:
+
+==================  ==========================================================
+``problem``         :class:`BundleProblem` (the block as arrays),
+                    :class:`ExteriorOrientation`, :func:`check_datum`,
+                    :func:`chi2_bounds`
+``model``           collinearity residuals, Jacobians and constraints assembled
+                    into the normal-equation blocks U, V, W (``_System``)
+``linear``          the reduced camera system S = U - W V^-1 W^T: pattern,
+                    chunked assembly, solution
+``cholesky``        supernodal sparse Cholesky (nested dissection) and its
+                    selected inverse
+``solve``           the Levenberg-Marquardt loop: :func:`adjust`,
+                    :class:`BundleResult`
+``precision``       blocks of N^-1 (photo 6x6, point 3x3, photo-point per
+                    observation) by selected inversion, :func:`joint_point_covariance`
+``survey_io``       survey folder -> problem, result -> output folder:
+                    :func:`problem_from_survey`, :func:`write_adjustment`,
+                    :func:`adjust_survey`, :func:`read_point_covariance`
+==================  ==========================================================
+
+Every name importable from ``lidarcat.bundle`` before the split still is.
+"""
+
+from __future__ import annotations
+
+# private names kept importable from here for code written against the single module
+from .linear import _inv3, _observation_pairs, _Schur, _Singular
+from .model import _constraint_terms, _cost, _System
+from .precision import PRECISION_LEVELS, covariance_blocks, joint_point_covariance, observation_blocks
+from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
+from .solve import STATUS_MESSAGES, BundleResult, adjust
+from .survey_io import (COVARIANCE_COLUMNS, EOP_COLUMNS, MAX_JOINT_COVARIANCE_POINTS, POINT_COLUMNS,
+                        RESIDUAL_COLUMNS, adjust_survey, problem_from_survey, read_point_covariance,
+                        write_adjustment)
+
+__all__ = [
+    "adjust_survey",
+    "write_adjustment",
+    "EOP_COLUMNS",
+    "POINT_COLUMNS",
+    "RESIDUAL_COLUMNS",
+    "COVARIANCE_COLUMNS",
+    "ExteriorOrientation",
+    "BundleProblem",
+    "BundleResult",
+    "adjust",
+    "check_datum",
+    "problem_from_survey",
+    "chi2_bounds",
+    "covariance_blocks",
+    "observation_blocks",
+    "PRECISION_LEVELS",
+    "joint_point_covariance",
+    "read_point_covariance",
+    "STATUS_MESSAGES",
+    "MAX_JOINT_COVARIANCE_POINTS",
+]

@@ -1,0 +1,259 @@
+r"""The Bundle Adjustment in the Large (BAL) camera model over the same solver core.
+
+BAL problems (Agarwal, Snavely, Seitz and Szeliski, *Bundle Adjustment in the
+Large*, ECCV 2010; https://grail.cs.washington.edu/projects/bal/) give 9
+parameters per camera, all free: a Rodrigues rotation vector r, a translation t,
+a focal length f and two radial distortion coefficients k1, k2.  A point X
+projects as
+
+    P = R(r) X + t,      p = -P_xy / P_z,      s = p . p,
+    x = f (1 + k1 s + k2 s^2) p                 (pixels, origin at the centre)
+
+and the cost is ``0.5 sum |x - x_obs|^2`` (what Ceres reports).
+
+Jacobians (analytic).  With ``d = 1 + k1 s + k2 s^2``:
+``dx/dp = f (d I + 2 (k1 + 2 k2 s) p p^T)``,
+``dp/dP = -[[1/P_z, 0, -P_x/P_z^2], [0, 1/P_z, -P_y/P_z^2]]``,
+``dP/dX = R``, ``dP/dt = I``, and for the additive rotation vector
+``dP/dr = -R [X]_x J_r(r)`` with the right Jacobian of SO(3)
+``J_r(r) = I - (1 - cos a)/a^2 [r]_x + (a - sin a)/a^3 [r]_x^2`` (a = |r|);
+``dx/df = d p``, ``dx/dk1 = f s p``, ``dx/dk2 = f s^2 p``.
+
+Solver.  The normal-equation blocks (9 x 9 per camera, 3 x 3 per point, 9 x 3 per
+observation) go to the reduced camera system of :mod:`.linear` (camera size 9,
+supernodal Cholesky); the step control is Ceres's Levenberg-Marquardt trust
+region: ``(N + D / radius) delta = -g`` with ``D = diag(N)`` clamped to
+[1e-6, 1e32], the gain ratio ``rho`` of actual to predicted decrease, radius
+``/= max(1/3, 1 - (2 rho - 1)^3)`` after a success, halved (then quartered, ...)
+after a failure; stop when the cost changes by less than ``function_tolerance``
+(relative), as Ceres does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import LidarcatError
+from .linear import _Schur, _Singular
+
+__all__ = ["BalProblem", "BalResult", "read_bal", "solve_bal", "bal_project"]
+
+
+class BalFormatError(LidarcatError, ValueError):
+    """A BAL file that cannot be read (file and line named)."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class BalProblem:
+    """A BAL problem.
+
+    Attributes
+    ----------
+    camera_index, point_index : (n,) int
+    observations_px : (n, 2) float
+        Observed image coordinates (pixels, origin at the image centre).
+    cameras : (C, 9) float
+        Initial r (rad, Rodrigues), t, f (px), k1, k2.
+    points : (Q, 3) float
+        Initial points.
+    """
+
+    camera_index: np.ndarray
+    point_index: np.ndarray
+    observations_px: np.ndarray
+    cameras: np.ndarray
+    points: np.ndarray
+
+    @property
+    def n_cameras(self) -> int:
+        return len(self.cameras)
+
+    @property
+    def n_points(self) -> int:
+        return len(self.points)
+
+
+def read_bal(path) -> BalProblem:
+    """Read a BAL text file (``problem-*.txt``).
+
+    Raises
+    ------
+    BalFormatError
+        A short or non-numeric file, or indices out of range (file and line named).
+    """
+    path = Path(path)
+    text = path.read_text()
+    lines = text.split("\n", 1)
+    try:
+        n_cam, n_pt, n_obs = (int(v) for v in lines[0].split())
+    except ValueError as ex:
+        raise BalFormatError(f"{path}:1: expected 'cameras points observations', got {lines[0][:60]!r}") from ex
+    try:
+        vals = np.array((lines[1] if len(lines) > 1 else "").split(), dtype=float)
+    except ValueError as ex:
+        raise BalFormatError(f"{path}: a value that is not a number ({ex})") from ex
+    need = 4 * n_obs + 9 * n_cam + 3 * n_pt
+    if len(vals) < need:
+        raise BalFormatError(f"{path}: {len(vals)} values after line 1, the header announces {need}")
+    obs = vals[:4 * n_obs].reshape(n_obs, 4)
+    cam_i, pt_i = obs[:, 0].astype(np.int64), obs[:, 1].astype(np.int64)
+    for idx, n, what in ((cam_i, n_cam, "camera"), (pt_i, n_pt, "point")):
+        bad = np.flatnonzero((idx < 0) | (idx >= n))
+        if len(bad):
+            raise BalFormatError(f"{path}:{bad[0] + 2}: {what} index {idx[bad[0]]} out of range (there are {n})")
+    cams = vals[4 * n_obs:4 * n_obs + 9 * n_cam].reshape(n_cam, 9)
+    pts = vals[4 * n_obs + 9 * n_cam:need].reshape(n_pt, 3)
+    return BalProblem(cam_i, pt_i, obs[:, 2:4].copy(), cams, pts)
+
+
+def _rodrigues(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation matrices R(r) (m, 3, 3) and right Jacobians J_r(r) (m, 3, 3)."""
+    a = np.linalg.norm(r, axis=1)
+    small = a < 1e-8
+    a_ = np.where(small, 1.0, a)
+    K = np.zeros((len(r), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = r[:, 2], -r[:, 1], r[:, 0]
+    K2 = K @ K
+    s1 = np.where(small, 1.0, np.sin(a_) / a_)
+    c1 = np.where(small, 0.5, (1 - np.cos(a_)) / a_**2)
+    c2 = np.where(small, 1.0 / 6.0, (a_ - np.sin(a_)) / a_**3)
+    eye = np.eye(3)[None]
+    R = eye + s1[:, None, None] * K + c1[:, None, None] * K2
+    J = eye - c1[:, None, None] * K + c2[:, None, None] * K2
+    return R, J
+
+
+def bal_project(cameras: np.ndarray, points: np.ndarray, cam_i: np.ndarray, pt_i: np.ndarray,
+                jacobians: bool = False):
+    """Predicted pixels (n, 2); with *jacobians* also d/dcamera (n, 2, 9) and d/dpoint (n, 2, 3)."""
+    R, J = _rodrigues(cameras[:, :3])
+    X = points[pt_i]
+    Ri = R[cam_i]
+    P = (Ri @ X[:, :, None])[:, :, 0] + cameras[cam_i, 3:6]
+    z = P[:, 2]
+    p = -P[:, :2] / z[:, None]
+    s = np.einsum("ni,ni->n", p, p)
+    f, k1, k2 = cameras[cam_i, 6], cameras[cam_i, 7], cameras[cam_i, 8]
+    d = 1 + k1 * s + k2 * s * s
+    x = (f * d)[:, None] * p
+    if not jacobians:
+        return x
+    n = len(cam_i)
+    dx_dp = (f * d)[:, None, None] * np.eye(2)[None] + (2 * f * (k1 + 2 * k2 * s))[:, None, None] * (
+        p[:, :, None] * p[:, None, :])
+    dp_dP = np.zeros((n, 2, 3))
+    dp_dP[:, 0, 0] = dp_dP[:, 1, 1] = -1.0 / z
+    dp_dP[:, :, 2] = P[:, :2] / (z * z)[:, None]
+    A = dx_dp @ dp_dP                                   # dx/dP (n, 2, 3)
+    Xx = np.zeros((n, 3, 3))
+    Xx[:, 0, 1], Xx[:, 0, 2], Xx[:, 1, 2] = -X[:, 2], X[:, 1], -X[:, 0]
+    Xx[:, 1, 0], Xx[:, 2, 0], Xx[:, 2, 1] = X[:, 2], -X[:, 1], X[:, 0]
+    jc = np.empty((n, 2, 9))
+    jc[:, :, 0:3] = -(A @ Ri) @ Xx @ J[cam_i]
+    jc[:, :, 3:6] = A
+    jc[:, :, 6] = d[:, None] * p
+    jc[:, :, 7] = (f * s)[:, None] * p
+    jc[:, :, 8] = (f * s * s)[:, None] * p
+    jp = A @ Ri
+    return x, jc, jp
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class BalResult:
+    """Outcome of :func:`solve_bal`: ``final_cost`` = 0.5 sum r^2 (px^2), ``initial_cost``,
+    ``iterations`` (accepted + rejected steps, as Ceres counts), ``seconds``, the
+    adjusted ``cameras`` (C, 9) and ``points`` (Q, 3), ``status``."""
+
+    final_cost: float
+    initial_cost: float
+    iterations: int
+    seconds: float
+    cameras: np.ndarray
+    points: np.ndarray
+    status: str
+
+
+def solve_bal(problem: BalProblem, *, max_iter: int = 50, function_tolerance: float = 1e-6,
+              initial_radius: float = 1e4) -> BalResult:
+    """Levenberg-Marquardt on a BAL problem (see the module docstring).
+
+    Parameters
+    ----------
+    problem : BalProblem
+    max_iter : int
+        Maximum number of steps (accepted or rejected).
+    function_tolerance : float
+        Stop when an accepted step changes the cost by less than this (relative).
+    initial_radius : float
+        Initial trust-region radius (Ceres's default 1e4).
+    """
+    t0 = time.perf_counter()
+    p = problem
+    ci, pj = p.camera_index, p.point_index
+    cams, pts = p.cameras.astype(float).copy(), p.points.astype(float).copy()
+    schur = _Schur(ci, pj, p.n_cameras, p.n_points, camera_size=9)
+
+    def linearise(c, x):
+        pred, jc, jp = bal_project(c, x, ci, pj, jacobians=True)
+        r = pred - p.observations_px
+        jct = np.ascontiguousarray(np.transpose(jc, (0, 2, 1)))
+        jpt = np.ascontiguousarray(np.transpose(jp, (0, 2, 1)))
+        U = schur.by_camera(jct @ jc)
+        V = schur.by_point(jpt @ jp)
+        W = jct @ jp
+        g_c = schur.by_camera((jct @ r[:, :, None])[:, :, 0])
+        g_p = schur.by_point((jpt @ r[:, :, None])[:, :, 0])
+        return 0.5 * float(np.sum(r * r)), U, V, W, g_c, g_p
+
+    def cost_at(c, x):
+        r = bal_project(c, x, ci, pj) - p.observations_px
+        val = 0.5 * float(np.sum(r * r))
+        return val if math.isfinite(val) else math.inf
+
+    cost, U, V, W, g_c, g_p = linearise(cams, pts)
+    initial = cost
+    radius, nu = initial_radius, 2.0
+    status = "max_iterations"
+    it = 0
+    iu, iv = np.arange(9), np.arange(3)
+    while it < max_iter:
+        it += 1
+        dU = np.clip(U[:, iu, iu], 1e-6, 1e32)
+        dV = np.clip(V[:, iv, iv], 1e-6, 1e32)
+        Ud, Vd = U.copy(), V.copy()
+        Ud[:, iu, iu] += dU / radius
+        Vd[:, iv, iv] += dV / radius
+        try:
+            dc, dp = schur.solve(Ud, Vd, W, g_c, g_p)
+        except _Singular:
+            radius /= nu
+            nu *= 2
+            continue
+        new_cost = cost_at(cams + dc, pts + dp)
+        # predicted decrease of the quadratic model: -g'd/2 + d'(D/radius)d/2
+        pred = 0.5 * (-(np.sum(g_c * dc) + np.sum(g_p * dp))
+                      + np.sum(dU / radius * dc * dc) + np.sum(dV / radius * dp * dp))
+        rho = (cost - new_cost) / pred if pred > 0 else -1.0
+        if rho > 1e-3 and math.isfinite(new_cost):
+            cams, pts = cams + dc, pts + dp
+            change = (cost - new_cost) / cost
+            radius = min(radius / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e16)
+            nu = 2.0
+            cost, U, V, W, g_c, g_p = linearise(cams, pts)
+            if change < function_tolerance:
+                status = "converged"
+                break
+        else:
+            radius /= nu
+            nu *= 2.0
+            if radius < 1e-32:
+                status = "stalled"
+                break
+    return BalResult(final_cost=cost, initial_cost=initial, iterations=it, seconds=time.perf_counter() - t0,
+                     cameras=cams, points=pts, status=status)

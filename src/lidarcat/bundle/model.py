@@ -1,0 +1,115 @@
+r"""The collinearity model with weighted constraints: residuals and normal-equation blocks.
+
+For every image observation (photo i, point j) :func:`lidarcat._collinearity.project_with_jacobians`
+gives the residual ``r = x(eo_i, X_j) - x_obs`` (mm) and its Jacobians ``A_eo`` (2x6)
+and ``A_pt`` (2x3); with the weights ``w = 1 / sd^2`` the blocks of the normal
+equations are
+
+    U_i = sum_obs A_eo^T w A_eo,   V_j = sum_obs A_pt^T w A_pt,   W_ij = A_eo^T w A_pt,
+    g_c = sum_obs A_eo^T w r,      g_p = sum_obs A_pt^T w r.
+
+The position constraints of control points add ``1 / sd^2`` to the diagonal of
+``V_j`` and ``w (X_j - X_obs)`` to ``g_p``; camera constraints (GNSS/INS) do the
+same to ``U_i`` and ``g_c`` (angle residuals wrapped to (-pi, pi]).  ``v'Pv`` is
+the weighted sum of squares of all of them.  :class:`_System` holds one
+linearisation; :func:`_cost` evaluates ``v'Pv`` only (infinite when a point is
+behind a camera).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._collinearity import project, project_with_jacobians
+from .linear import _Schur
+from .problem import BundleProblem
+
+__all__: list[str] = []
+
+
+def _constraint_terms(p: BundleProblem, eo: np.ndarray, pts: np.ndarray):
+    """Residuals (adjusted - observed) and weights of the point and camera constraints.
+
+    Returns ``(r_con (k, 3), w_con (k, 3), r_eo (e, 6) or None, w_eo (e, 6) or None)``;
+    angle residuals wrapped to (-pi, pi], weight 0 on a free axis.
+    """
+    w_con = np.where(np.isfinite(p.constraint_sd_m), 1.0 / p.constraint_sd_m**2, 0.0)
+    r_con = pts[p.constraint_point_index] - p.constraint_enh_m
+    if p.eo_constraint_photo_index is None or not len(p.eo_constraint_photo_index):
+        return r_con, w_con, None, None
+    w_eo = np.where(np.isfinite(p.eo_constraint_sd), 1.0 / p.eo_constraint_sd**2, 0.0)
+    r_eo = eo[p.eo_constraint_photo_index] - p.eo_constraint_params
+    r_eo[:, 3:] = (r_eo[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+    return r_con, w_con, r_eo, w_eo
+
+
+class _System:
+    """Normal-equation blocks of one linearisation.
+
+    *schur* (:class:`lidarcat.bundle.linear._Schur`) is the analysed pattern of
+    the reduced camera system, shared by every linearisation of one problem
+    (built here when not given).
+    """
+
+    def __init__(self, problem: BundleProblem, eo: np.ndarray, pts: np.ndarray, schur: _Schur | None = None):
+        p = problem
+        self.p = p
+        self.schur = schur if schur is not None else _Schur(p.photo_index, p.point_index, p.n_photos,
+                                                            p.n_points)
+        ei, pj = p.photo_index, p.point_index
+        xy, a_eo, a_pt, u3 = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
+        self.u3 = u3
+        r = xy - p.xy_mm                                 # residual (adjusted - observed)
+        w = 1.0 / p.sd_mm**2                             # (n, 2)
+        self.r_obs = r
+        aw_eo = a_eo * w[:, :, None]
+        aw_pt = a_pt * w[:, :, None]
+        by_cam, by_pt = self.schur.by_camera, self.schur.by_point
+        aw_eo_t = np.ascontiguousarray(np.transpose(aw_eo, (0, 2, 1)))
+        self.U = by_cam(aw_eo_t @ a_eo)
+        self.V = by_pt(np.ascontiguousarray(np.transpose(aw_pt, (0, 2, 1))) @ a_pt)
+        self.W = aw_eo_t @ a_pt                            # (n, 6, 3)
+        self.g_c = by_cam((aw_eo_t @ r[:, :, None])[:, :, 0])
+        self.g_p = by_pt((np.transpose(aw_pt, (0, 2, 1)) @ r[:, :, None])[:, :, 0])
+        vtpv = float(np.sum(r**2 * w))
+        # point and exterior-orientation constraints
+        rc, wc, re, we = _constraint_terms(p, eo, pts)
+        self.r_con, self.r_eo = rc, re
+        ci = p.constraint_point_index
+        idx = np.arange(3)
+        np.add.at(self.V, (ci[:, None], idx[None, :], idx[None, :]), wc)
+        np.add.at(self.g_p, ci, wc * rc)
+        vtpv += float(np.sum(wc * rc**2))
+        if re is not None:
+            k = p.eo_constraint_photo_index
+            i6 = np.arange(6)
+            np.add.at(self.U, (k[:, None], i6[None, :], i6[None, :]), we)
+            np.add.at(self.g_c, k, we * re)
+            vtpv += float(np.sum(we * re**2))
+        self.vtpv = vtpv
+
+    def solve(self, lam: float, method: str = "direct") -> tuple[np.ndarray, np.ndarray]:
+        """Corrections (P, 6), (Q, 3) of the damped normal equations (``N + lam diag(N)``);
+        *method* ``direct`` or ``pcg`` (:meth:`lidarcat.bundle.linear._Schur.solve`)."""
+        U, V = self.U.copy(), self.V.copy()
+        if lam > 0:
+            iu, iv = np.arange(6), np.arange(3)
+            U[:, iu, iu] *= 1.0 + lam
+            V[:, iv, iv] *= 1.0 + lam
+        return self.schur.solve(U, V, self.W, self.g_c, self.g_p, method)
+
+
+def _cost(problem: BundleProblem, eo: np.ndarray, pts: np.ndarray) -> float:
+    p = problem
+    ei, pj = p.photo_index, p.point_index
+    xy, u3 = project(eo, pts[pj], p.focal_length_mm[ei], ei)
+    if np.any(u3 >= 0) or not np.all(np.isfinite(xy)):
+        return math.inf  # a point behind (or in the plane of) a camera
+    c = float(np.sum(((xy - p.xy_mm) / p.sd_mm) ** 2))
+    rc, wc, re, we = _constraint_terms(p, eo, pts)
+    c += float(np.sum(wc * rc**2))
+    if re is not None:
+        c += float(np.sum(we * re**2))
+    return c

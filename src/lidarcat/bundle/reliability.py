@@ -1,0 +1,874 @@
+r"""Reliability of the adjustment: redundancy numbers, data snooping, robust re-weighting.
+
+Gross errors (a mis-measured image point, a swapped point id, a control point
+with a wrong digit) are found by testing every observation against the model
+(Baarda 1968; Teunissen, *Testing theory*, 2006).  Notation: observations
+``l`` with cofactor ``Q_ll`` (``sigma0^2 = 1`` a priori, so ``P = Q_ll^-1``),
+design ``A``, ``Q_xx = N^-1``; residuals ``e = l - A x`` (observed minus
+adjusted; the result files hold ``v = -e``).
+
+Cofactor of the residuals, blockwise
+------------------------------------
+``Q_vv = Q_ll - A Q_xx A^T``.  Only its diagonal blocks are needed, one per
+observation group ``a``:
+
+* image point (photo i, point j), 2 x 2:  ``Q_ll,a - A_a S_a A_a^T`` with
+  ``A_a = [A_eo (2x6), A_pt (2x3)]`` the collinearity Jacobian and ``S_a`` the
+  9 x 9 covariance of ``[eo_i, X_j]``
+  (:func:`lidarcat.bundle.precision.observation_blocks`: the selected inverse of
+  the sparse factorisation, never a dense inverse);
+* control point j (its constrained axes, up to 3 x 3):  ``diag(sd^2) - Cov(X_j)``;
+* GNSS/INS constraint of photo i (its constrained parameters, up to 6 x 6):
+  ``diag(sd^2) - Cov(eo_i)``.
+
+The redundancy number of a scalar observation is ``r_k = (Q_vv P)_kk =
+q_vv,kk / sd_k^2`` (0 <= r <= 1; their sum over all observations and
+constraints is the degrees of freedom): the share of an error in ``l_k`` that
+shows in its own residual.  ``r ~ 0`` means an error cannot be seen at all
+(e.g. a control axis no image ray checks).
+
+The test: multi-dimensional, per observation group
+--------------------------------------------------
+A 2-D image observation and a 3-D control point are each *one* measurement
+event: a mis-identified point or a wrong coordinate moves the whole group in an
+unknown direction.  The alternative hypothesis is therefore a bias ``nabla``
+(q-vector) in group ``a`` only, ``H_a: E(l) = A x + C_a nabla``, and the
+uniformly most powerful invariant test statistic is (P block diagonal)
+
+.. math::  T_a = e_a^T Q_{vv,a}^{-1} e_a \sim \chi^2(q, \lambda),
+           \qquad \lambda = \nabla^T P_a Q_{vv,a} P_a \nabla
+
+(for q = 1 this is ``w^2``, Baarda's w-test).  We report ``w = sqrt(T_a)`` and
+its critical value ``sqrt(chi2_{1-alpha_q}(q))``, and the per-component
+``w_k = e_k / sqrt(q_vv,kk)`` for orientation.  The per-component test alone
+was not used because it tests a bias along one axis only: the bias of a
+swapped point has both components and would be split between two tests of
+lower power.
+
+Levels: Baarda's B-method.  The user chooses ``alpha_1`` (one-dimensional,
+default 0.001) and the power ``beta0`` (default 0.80); that fixes the
+noncentrality ``lambda0`` with ``P(chi2(1, lambda0) > chi2_{1-alpha_1}(1)) =
+beta0`` (``lambda0 = 17.07`` for the defaults); each q-dimensional test uses
+the ``alpha_q`` with the same power at the same ``lambda0`` (``alpha_2 =
+0.0028``, ``alpha_3 = 0.0055``, ``alpha_6 = 0.0177`` for the defaults, critical
+``w`` 3.29, 3.42, 3.55 and 3.92), so every test detects the
+same size of error with the same probability.
+
+Estimated error, internal and external reliability
+--------------------------------------------------
+The least-squares estimate of the bias is ``nabla_a = Q_ll,a Q_vv,a^-1 e_a``
+(with one blunder ``e_a = Q_vv,a P_a nabla``, so it recovers ``nabla`` exactly).
+The minimal detectable bias (internal reliability) along component k is
+
+.. math::  \mathrm{MDB}_k = \sqrt{\lambda_0 / (P Q_{vv} P)_{kk}}
+                          = \sigma_k \sqrt{\lambda_0 / r_k}
+
+and its effect on the unknowns (external reliability) is ``dx = Q_xx A_a^T
+P_a nabla``.  Its size for any function of the unknowns is bounded by the
+bias-to-noise ratio ``sqrt(lambda_x) = sqrt(lambda0 (1 - r_k) / r_k)`` (in
+units of that function's own sd); the shift of the orientation of the photo
+itself (image observation, GNSS/INS constraint) or of the photos that see the
+point (control), in metres and radians, comes from the same 9 x 9 blocks.
+
+Data snooping and robust re-weighting
+-------------------------------------
+:func:`snoop` adjusts, tests, removes the single group with the largest test
+ratio ``T_a / chi2_{1-alpha_q}(q)`` when it exceeds 1, re-adjusts from the
+previous solution, and repeats (Baarda: one rejection per iteration, because
+one blunder raises the w of its neighbours).  ``robust="danish"`` or
+``"huber"`` first runs iteratively re-weighted least squares: the weight of
+group a is multiplied by ``f(w_a / c_a)`` with ``c_a`` its critical value,
+``f(u) = 1`` for ``u <= 1`` and ``exp(1 - u^2)`` (Danish type) or ``1 / u``
+(Huber) beyond; groups whose factor falls below 0.1 are removed together and
+snooping cleans what is left, so the final result and its covariance come from
+the original weights.  All tests use the a priori variance factor (sigma0 = 1:
+the sigmas are trusted, which the global chi-square test checks).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import logging
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from scipy import optimize, stats
+
+from .._collinearity import project_with_jacobians
+from ..errors import DatumError
+from .linear import _Singular
+from .model import _System
+from .precision import observation_blocks
+from .problem import BundleProblem
+from .solve import BundleResult, adjust
+
+__all__ = ["Blunder", "Reliability", "SnoopingResult", "SNOOPING_MODES", "ROBUST_METHODS",
+           "noncentrality", "critical_values", "reliability", "snoop"]
+
+log = logging.getLogger(__name__)
+
+#: values of the ``snooping`` switch
+SNOOPING_MODES = ("off", "report", "remove")
+#: values of the ``robust`` switch
+ROBUST_METHODS = ("none", "danish", "huber")
+#: names of the components of each kind of observation group, and their units
+COMPONENTS = {"image": ("x", "y"), "control": ("E", "N", "h"),
+              "eo": ("X0", "Y0", "Z0", "omega", "phi", "kappa")}
+#: a group whose smallest redundancy is below this cannot be tested (its error would not show)
+MIN_REDUNDANCY = 1e-3
+#: IRLS: groups whose weight factor ends below this are removed before snooping
+ROBUST_CUT = 0.1
+
+
+# ---------------------------------------------------------------------------
+# levels of the B-method
+# ---------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=64)
+def noncentrality(alpha: float = 0.001, power: float = 0.80) -> float:
+    """lambda0 of the one-dimensional w-test: P(chi2(1, lambda0) > chi2_{1-alpha}(1)) = power.
+
+    >>> round(noncentrality(0.001, 0.80), 2)
+    17.07
+    """
+    _check_level(alpha, power)
+    k = stats.chi2.isf(alpha, 1)
+    return float(optimize.brentq(lambda lam: stats.ncx2.sf(k, 1, lam) - power, 1e-9, 1e4, xtol=1e-12))
+
+
+@functools.lru_cache(maxsize=64)
+def critical_values(alpha: float = 0.001, power: float = 0.80, q: int = 1) -> tuple[float, float]:
+    """``(alpha_q, chi2_{1-alpha_q}(q))`` of the q-dimensional test with the power of the 1-D one.
+
+    Baarda's B-method: the same noncentrality :func:`noncentrality` is detected
+    with the same *power* whatever the dimension.
+
+    >>> a, k = critical_values(0.001, 0.80, 1)
+    >>> a, round(k, 3)
+    (0.001, 10.828)
+    >>> round(critical_values(0.001, 0.80, 2)[0], 4)
+    0.0028
+    """
+    lam = noncentrality(alpha, power)
+    if q == 1:
+        return alpha, float(stats.chi2.isf(alpha, 1))
+
+    def gap(log_a: float) -> float:
+        return stats.ncx2.sf(stats.chi2.isf(math.exp(log_a), q), q, lam) - power
+
+    a = math.exp(optimize.brentq(gap, math.log(1e-15), math.log(0.5), xtol=1e-12))
+    return a, float(stats.chi2.isf(a, q))
+
+
+def _check_level(alpha: float, power: float) -> None:
+    if not 0 < alpha < 0.5:
+        raise ValueError(f"`level` (alpha of the w-test) must be in (0, 0.5), got {alpha!r}")
+    if not 0.5 < power < 1:
+        raise ValueError(f"`power` must be in (0.5, 1), got {power!r}")
+
+
+# ---------------------------------------------------------------------------
+# value types
+# ---------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Blunder:
+    """One observation group flagged by data snooping (or removed by the robust step).
+
+    Attributes
+    ----------
+    kind : str
+        ``image`` (photo and point), ``control`` (point) or ``eo`` (photo).
+    photo, point : str or None
+        Ids; ``photo`` is None for control, ``point`` None for eo.
+    w : float
+        ``sqrt(T)`` of the q-dimensional test when it was found (= |w| for q = 1).
+    w_critical : float
+        Its critical value.
+    redundancy : float
+        Mean redundancy number of the group's components (0..1).
+    estimated_error : tuple of float
+        Estimated bias of each component (observed minus true): mm for image,
+        m for control, m and rad for eo.
+    removed : bool
+        Removed from the final adjustment.
+    found_by : str
+        ``snooping`` or the robust method.
+    iteration : int
+        Snooping iteration (1 = the first test).
+    note : str
+        Why it was not removed, when it was not.
+    """
+
+    kind: str
+    photo: str | None
+    point: str | None
+    w: float
+    w_critical: float
+    redundancy: float
+    estimated_error: tuple[float, ...]
+    removed: bool
+    found_by: str = "snooping"
+    iteration: int = 1
+    note: str = ""
+
+    @property
+    def unit(self) -> str:
+        return {"image": "mm", "control": "m", "eo": "m, rad"}[self.kind]
+
+    def label(self) -> str:
+        """``image photo 3 point 405`` / ``control point 619`` / ``eo photo 2``."""
+        if self.kind == "image":
+            return f"image observation photo {self.photo} point {self.point}"
+        if self.kind == "control":
+            return f"control point {self.point}"
+        return f"GNSS/INS constraint of photo {self.photo}"
+
+    def to_dict(self) -> dict[str, Any]:
+        comps = COMPONENTS[self.kind]
+        return {"kind": self.kind, "photo": self.photo, "point": self.point, "w": self.w,
+                "w_critical": self.w_critical, "redundancy": self.redundancy,
+                "estimated_error": dict(zip(comps, self.estimated_error)), "unit": self.unit,
+                "removed": self.removed, "found_by": self.found_by, "iteration": self.iteration,
+                **({"note": self.note} if self.note else {})}
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Reliability:
+    """Tests and reliability of every observation group of one adjustment.
+
+    Groups are the image observations (in the problem's order), then the
+    control points, then the GNSS/INS constraints.  Per-component arrays have
+    ``width = 6`` columns, NaN beyond the group's components (2 for image, 3
+    for control, 6 for eo) and on free axes.
+
+    Attributes
+    ----------
+    kind : (m,) str
+    photo, point : (m,) str ('' where not applicable)
+    q : (m,) int
+        Dimension of the test (components with a finite sigma).
+    redundancy : (m, 6)
+        Redundancy numbers r_k.
+    w_component : (m, 6)
+        Per-component w_k = e_k / sqrt(q_vv,kk).
+    w : (m,)
+        sqrt(T) of the group test; NaN when untestable.
+    w_critical : (m,)
+    estimated_error : (m, 6)
+        Estimated bias (observed minus true), mm / m / m and rad.
+    mdb : (m, 6)
+        Minimal detectable bias per component (same units).
+    bnr : (m, 6)
+        Bias-to-noise ratio sqrt(lambda0 (1 - r) / r) of that MDB.
+    eo_effect : (m, 6)
+        Shift of X0, Y0, Z0 (m), omega, phi, kappa (rad) of photo
+        ``eo_effect_photo`` by the component MDB with the largest BNR.
+    eo_effect_photo : (m,) str
+    alpha, power, lam0 : float
+        Level of the 1-D test, power and noncentrality (B-method).
+    dof : int
+    """
+
+    kind: np.ndarray
+    photo: np.ndarray
+    point: np.ndarray
+    q: np.ndarray
+    redundancy: np.ndarray
+    w_component: np.ndarray
+    w: np.ndarray
+    w_critical: np.ndarray
+    estimated_error: np.ndarray
+    mdb: np.ndarray
+    bnr: np.ndarray
+    eo_effect: np.ndarray
+    eo_effect_photo: np.ndarray
+    alpha: float
+    power: float
+    lam0: float
+    dof: int
+
+    @property
+    def ratio(self) -> np.ndarray:
+        """(m,) T / critical value; > 1 is rejected, NaN untestable."""
+        return (self.w / self.w_critical) ** 2
+
+    @property
+    def testable(self) -> np.ndarray:
+        return np.isfinite(self.w)
+
+    @property
+    def n_rejected(self) -> int:
+        """Groups whose test rejects (several of them may be caused by one blunder)."""
+        return int(np.sum(np.nan_to_num(self.ratio) > 1))
+
+    def worst(self) -> int | None:
+        """Index of the group with the largest test ratio, or None when none is testable."""
+        r = np.where(self.testable, self.ratio, -np.inf)
+        return int(np.argmax(r)) if len(r) and np.isfinite(r.max()) else None
+
+    def blunder(self, g: int, *, removed: bool, iteration: int = 1, found_by: str = "snooping",
+                note: str = "") -> Blunder:
+        kind = str(self.kind[g])
+        nc = len(COMPONENTS[kind])
+        return Blunder(kind=kind, photo=str(self.photo[g]) if kind != "control" else None,
+                       point=str(self.point[g]) if kind != "eo" else None, w=float(self.w[g]),
+                       w_critical=float(self.w_critical[g]),
+                       redundancy=float(np.nanmean(self.redundancy[g, :nc])),
+                       estimated_error=tuple(float(v) for v in self.estimated_error[g, :nc]),
+                       removed=removed, found_by=found_by, iteration=iteration, note=note)
+
+    def rows(self) -> list[list[Any]]:
+        """One row per scalar observation for ``reliability.csv`` (:data:`RELIABILITY_COLUMNS`)."""
+        out: list[list[Any]] = []
+        for g in range(len(self.kind)):
+            kind = str(self.kind[g])
+            rejected = bool(np.nan_to_num(self.ratio[g]) > 1)
+            for k, comp in enumerate(COMPONENTS[kind]):
+                ang = kind == "eo" and k >= 3
+                scale = math.degrees(1.0) if ang else 1.0
+                unit = "mm" if kind == "image" else ("deg" if ang else "m")
+                if not np.isfinite(self.redundancy[g, k]) and kind != "image":
+                    continue                                   # a free axis: no observation
+                eff = self.eo_effect[g]
+                out.append([kind, self.photo[g], self.point[g], comp, unit, self.redundancy[g, k],
+                            self.w_component[g, k], self.estimated_error[g, k] * scale,
+                            self.mdb[g, k] * scale, self.bnr[g, k], self.w[g], self.w_critical[g], rejected,
+                            self.eo_effect_photo[g], *eff[:3], *np.degrees(eff[3:])])
+        return out
+
+
+#: columns of ``reliability.csv``
+RELIABILITY_COLUMNS = ("kind", "photo", "point", "component", "unit", "redundancy", "w_component",
+                       "estimated_error", "mdb", "bnr", "w", "w_critical", "rejected", "effect_photo",
+                       "effect_X0_m", "effect_Y0_m", "effect_Z0_m", "effect_omega_deg", "effect_phi_deg",
+                       "effect_kappa_deg")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SnoopingResult:
+    """Outcome of :func:`snoop`.
+
+    Attributes
+    ----------
+    result : BundleResult
+        The final adjustment: all observations (``report``, ``off``) or
+        without the removed ones (``remove``).
+    reliability : Reliability or None
+        Tests of *result* (None for ``off`` or when it did not converge).
+    blunders : tuple of Blunder
+        In the order found.
+    mode, robust : str
+    more_remain : bool
+        Snooping stopped (rejection limit, datum, non-convergence) with a
+        rejected test left.
+    n_adjustments : int
+    """
+
+    result: BundleResult
+    reliability: Reliability | None
+    blunders: tuple[Blunder, ...]
+    mode: str
+    robust: str
+    more_remain: bool
+    n_adjustments: int
+
+    @property
+    def blunders_remain(self) -> bool:
+        """Blunders are left in the final result (reported only, or not removable)."""
+        return self.more_remain or any(not b.removed for b in self.blunders)
+
+    def summary(self) -> dict[str, Any]:
+        """``snooping`` and ``blunders`` of ``summary.json``."""
+        rel = self.reliability
+        snoop_info: dict[str, Any] = {"mode": self.mode, "robust": self.robust,
+                                      "n_adjustments": self.n_adjustments,
+                                      "n_blunders": len(self.blunders),
+                                      "n_removed": sum(b.removed for b in self.blunders),
+                                      "blunders_remain": self.blunders_remain}
+        if rel is not None:
+            snoop_info.update({
+                "level": rel.alpha, "power": rel.power, "noncentrality": rel.lam0,
+                "critical_w": {str(q): math.sqrt(critical_values(rel.alpha, rel.power, q)[1])
+                               for q in sorted(set(int(v) for v in rel.q if v > 0))},
+                "test": "multi-dimensional chi-square per observation group (B-method), a priori "
+                        "variance factor",
+                "n_untestable": int(np.sum(~rel.testable)),
+                "sum_redundancy": float(np.nansum(rel.redundancy)),
+                "min_redundancy_image": float(np.nanmin(rel.redundancy[rel.kind == "image"]))
+                if np.any(rel.kind == "image") else math.nan,
+                "max_mdb_image_mm": float(np.nanmax(rel.mdb[rel.kind == "image"]))
+                if np.any(rel.kind == "image") else math.nan,
+                "max_bnr": float(np.nanmax(rel.bnr)) if np.isfinite(rel.bnr).any() else math.nan,
+            })
+        return {"snooping": snoop_info, "blunders": [b.to_dict() for b in self.blunders]}
+
+
+# ---------------------------------------------------------------------------
+# the tests of one adjustment
+# ---------------------------------------------------------------------------
+
+
+def _observation_covariance(system: _System) -> np.ndarray:
+    """(n, 9, 9) a priori covariance of [eo_i, X_j] of every image observation (selected inverse)."""
+    return observation_blocks(system)
+
+
+def _group_tests(e: np.ndarray, sd: np.ndarray, qy: np.ndarray, lam0: float):
+    """Tests of m groups of q components (free components: sd inf).
+
+    Parameters
+    ----------
+    e : (m, q) residuals observed minus adjusted.
+    sd : (m, q) sigmas (inf where free).
+    qy : (m, q, q) covariance of the adjusted observations A S A^T.
+
+    Returns
+    -------
+    r, w_comp, T, nabla, mdb, bnr, qdim : arrays; T is NaN for untestable groups.
+    """
+    m, q = e.shape
+    free = ~np.isfinite(sd)
+    sd1 = np.where(free, 1.0, sd)
+    e = np.where(free, 0.0, e)
+    qvv = -qy.copy()
+    idx = np.arange(q)
+    qvv[:, idx, idx] += sd1**2
+    both = free[:, :, None] | free[:, None, :]
+    qvv[both] = 0.0
+    qvv[:, idx, idx] = np.where(free, -1.0, qvv[:, idx, idx])     # eigenvalue -1: outside the test
+    dq = np.diagonal(qvv, axis1=1, axis2=2)
+    r = np.where(free, np.nan, dq / sd1**2)
+    dq = np.where(free, np.nan, dq)
+    # whitened cofactor P^1/2 Qvv P^1/2 = U diag(lam) U^T: the test lives in the span of the
+    # eigenvectors with lam > MIN_REDUNDANCY (an error along the others does not show at all, e.g.
+    # the x-parallax of a point on two photos); T = sum (u^T P^1/2 e)^2 / lam over that span
+    white = qvv / (sd1[:, :, None] * sd1[:, None, :])
+    lam, U = np.linalg.eigh(white) if m else (np.zeros((0, q)), np.zeros((0, q, q)))
+    keep = lam > MIN_REDUNDANCY
+    ew = e / sd1
+    proj = np.einsum("mji,mj->mi", U, ew)                  # u_i^T P^1/2 e
+    inv_lam = np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)
+    T = np.sum(proj**2 * inv_lam, axis=1)
+    qdim = keep.sum(axis=1)
+    T[qdim == 0] = np.nan
+    nabla = sd1 * np.einsum("mij,mj->mi", U, proj * inv_lam)
+    nabla[free | (qdim == 0)[:, None]] = np.nan
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w_comp = np.where(free, np.nan, e / np.sqrt(np.clip(dq, 0, None)))
+        rc = np.clip(r, 0, 1)
+        mdb = sd1 * np.sqrt(lam0 / rc)
+        bnr = np.sqrt(lam0 * (1 - rc) / rc)
+    mdb[free] = np.nan
+    bnr[free] = np.nan
+    return r, w_comp, T, nabla, mdb, bnr, qdim
+
+
+def reliability(result: BundleResult, *, level: float = 0.001, power: float = 0.80) -> Reliability:
+    """Redundancy numbers, tests and reliability of every observation group of *result*.
+
+    Parameters
+    ----------
+    result : BundleResult
+        A converged adjustment.
+    level : float
+        alpha of the one-dimensional w-test (two-sided); the q-dimensional
+        tests use the B-method levels of :func:`critical_values`.
+    power : float
+        beta0, power of the tests against the noncentrality lambda0.
+
+    Returns
+    -------
+    Reliability
+
+    Raises
+    ------
+    DatumError
+        The normal equations at the solution are singular.
+    """
+    _check_level(level, power)
+    p = result.problem
+    lam0 = noncentrality(level, power)
+    eo, pts = np.asarray(result.eo_params), np.asarray(result.points_m)
+    system = _System(p, eo, pts)
+    try:
+        S = _observation_covariance(system)                 # (n, 9, 9), a priori
+    except _Singular as ex:
+        raise DatumError(f"reliability: {ex}") from ex
+    ei, pj = p.photo_index, p.point_index
+    n = len(ei)
+    _, a_eo, a_pt, _ = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
+    A = np.concatenate([a_eo, a_pt], axis=2)                # (n, 2, 9)
+    parts: list[dict[str, Any]] = []
+
+    # image observations
+    e_img = -np.asarray(result.residuals_mm)
+    out = _group_tests(e_img, p.sd_mm, A @ S @ np.transpose(A, (0, 2, 1)), lam0)
+    # external: effect of the component MDBs on [eo_i, X_j]
+    eff = _effects(S, A, p.sd_mm, out[4], out[5])           # (n, 6)
+    parts.append(dict(kind="image", photo=p.photo_ids[ei], point=p.point_ids[pj], out=out, eff=eff,
+                      eff_photo=p.photo_ids[ei]))
+
+    # covariances of points and photos from the observation blocks
+    first_obs_pt = np.full(p.n_points, -1)
+    first_obs_pt[pj[::-1]] = np.arange(n)[::-1]
+    first_obs_ph = np.full(p.n_photos, -1)
+    first_obs_ph[ei[::-1]] = np.arange(n)[::-1]
+
+    # control points
+    ci = p.constraint_point_index
+    if len(ci):
+        cov_pt = S[first_obs_pt[ci], 6:, 6:]
+        e_con = -np.asarray(result.constraint_residuals_m)
+        out = _group_tests(e_con, p.constraint_sd_m, cov_pt, lam0)
+        eff, eff_ph = _control_effects(p, S, ci, out[4], out[5])
+        parts.append(dict(kind="control", photo=np.full(len(ci), "", dtype=object), point=p.point_ids[ci],
+                          out=out, eff=eff, eff_photo=eff_ph))
+    # GNSS/INS constraints
+    if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
+        k = p.eo_constraint_photo_index
+        cov_eo = S[first_obs_ph[k], :6, :6]
+        out = _group_tests(-np.asarray(result.eo_constraint_residuals), p.eo_constraint_sd, cov_eo, lam0)
+        sd = p.eo_constraint_sd
+        best = _best_component(out[5])
+        nab = np.zeros((len(k), 6))
+        rows = np.arange(len(k))
+        nab[rows, best] = np.nan_to_num(out[4][rows, best])
+        pw = np.where(np.isfinite(sd), 1.0 / np.where(np.isfinite(sd), sd, 1.0) ** 2, 0.0)
+        eff = np.einsum("mij,mj->mi", cov_eo, pw * nab)
+        parts.append(dict(kind="eo", photo=p.photo_ids[k], point=np.full(len(k), "", dtype=object), out=out,
+                          eff=eff, eff_photo=p.photo_ids[k]))
+
+    def cat(i: int, width: int = 6) -> np.ndarray:
+        blocks = []
+        for part in parts:
+            a = part["out"][i]
+            if a.ndim == 2:
+                a = np.pad(a, ((0, 0), (0, width - a.shape[1])), constant_values=np.nan)
+            blocks.append(a)
+        return np.concatenate(blocks)
+
+    qdim = np.concatenate([part["out"][6] for part in parts]).astype(int)
+    T = cat(2)
+    crit = np.array([math.sqrt(critical_values(level, power, int(q))[1]) if q > 0 else math.nan
+                     for q in qdim])
+    return Reliability(
+        kind=np.concatenate([np.full(len(part["photo"]), part["kind"], dtype=object) for part in parts]),
+        photo=np.concatenate([np.asarray(part["photo"], dtype=object) for part in parts]),
+        point=np.concatenate([np.asarray(part["point"], dtype=object) for part in parts]),
+        q=qdim, redundancy=cat(0), w_component=cat(1), w=np.sqrt(T), w_critical=crit,
+        estimated_error=cat(3), mdb=cat(4), bnr=cat(5),
+        eo_effect=np.concatenate([part["eff"] for part in parts]),
+        eo_effect_photo=np.concatenate([np.asarray(part["eff_photo"], dtype=object) for part in parts]),
+        alpha=float(level), power=float(power), lam0=lam0, dof=int(p.dof))
+
+
+def _best_component(bnr: np.ndarray) -> np.ndarray:
+    """Index of the component with the largest finite BNR of every group."""
+    return np.argmax(np.where(np.isfinite(bnr), bnr, -1.0), axis=1)
+
+
+def _effects(S: np.ndarray, A: np.ndarray, sd: np.ndarray, mdb: np.ndarray, bnr: np.ndarray) -> np.ndarray:
+    """(n, 6) shift of the photo's orientation by the image MDB of the component with the largest BNR:
+    dx = S_a A_a^T P_a nabla."""
+    n = len(A)
+    best = _best_component(bnr)
+    rows = np.arange(n)
+    nab = np.zeros((n, 2))
+    nab[rows, best] = np.nan_to_num(mdb[rows, best], posinf=0.0)
+    g = np.einsum("nki,nk->ni", A, nab / sd**2)              # A^T P nabla, (n, 9)
+    return np.einsum("nij,nj->ni", S[:, :6, :], g)
+
+
+def _control_effects(p: BundleProblem, S: np.ndarray, ci: np.ndarray, mdb: np.ndarray, bnr: np.ndarray):
+    """Shift of the orientation of the photo (among those seeing the point) moved most by the control
+    MDB with the largest BNR: dx_i = Cov(eo_i, X_j) P nabla."""
+    k = len(ci)
+    sd = p.constraint_sd_m
+    best = _best_component(bnr)
+    rows = np.arange(k)
+    nab = np.zeros((k, 3))
+    nab[rows, best] = np.nan_to_num(mdb[rows, best], posinf=0.0)
+    pw = np.where(np.isfinite(sd), 1.0 / np.where(np.isfinite(sd), sd, 1.0) ** 2, 0.0)
+    row_of = np.full(p.n_points, -1)
+    row_of[ci] = rows
+    obs = np.flatnonzero(row_of[p.point_index] >= 0)
+    r_obs = row_of[p.point_index[obs]]
+    d = np.einsum("nij,nj->ni", S[obs, :6, 6:], (pw * nab)[r_obs])     # (n_obs_ctrl, 6)
+    size = np.linalg.norm(d[:, :3], axis=1)
+    eff = np.zeros((k, 6))
+    eff_ph = np.full(k, "", dtype=object)
+    best_size = np.full(k, -1.0)
+    for t in range(len(obs)):                               # a few rays per control point
+        r = r_obs[t]
+        if size[t] > best_size[r]:
+            best_size[r] = size[t]
+            eff[r] = d[t]
+            eff_ph[r] = p.photo_ids[p.photo_index[obs[t]]]
+    return eff, eff_ph
+
+
+# ---------------------------------------------------------------------------
+# removing observation groups
+# ---------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class _Subset:
+    """Which observation groups of the original problem are still in."""
+
+    obs: np.ndarray       # (n,) bool
+    con: np.ndarray       # (k,) bool
+    eo: np.ndarray        # (e,) bool
+
+    def problem(self, p: BundleProblem) -> tuple[BundleProblem, np.ndarray, np.ndarray]:
+        """The reduced problem, its photo and point positions in *p* (points with no ray dropped)."""
+        keep_pt = np.zeros(p.n_points, dtype=bool)
+        keep_pt[p.point_index[self.obs]] = True
+        pt_new = np.cumsum(keep_pt) - 1
+        ci = p.constraint_point_index
+        con = self.con & keep_pt[ci]
+        eo_kw: dict[str, Any] = {}
+        if p.eo_constraint_photo_index is not None and self.eo.any():
+            eo_kw = dict(eo_constraint_photo_index=p.eo_constraint_photo_index[self.eo],
+                         eo_constraint_params=p.eo_constraint_params[self.eo],
+                         eo_constraint_sd=p.eo_constraint_sd[self.eo])
+        sub = BundleProblem(
+            photo_ids=p.photo_ids, point_ids=p.point_ids[keep_pt], focal_length_mm=p.focal_length_mm,
+            photo_index=p.photo_index[self.obs], point_index=pt_new[p.point_index[self.obs]],
+            xy_mm=p.xy_mm[self.obs], sd_mm=p.sd_mm[self.obs],
+            constraint_point_index=pt_new[ci[con]], constraint_enh_m=p.constraint_enh_m[con],
+            constraint_sd_m=p.constraint_sd_m[con], initial_eo=p.initial_eo,
+            point_role=p.point_role[keep_pt], info=p.info, **eo_kw)
+        return sub, np.arange(p.n_photos), np.flatnonzero(keep_pt)
+
+    def remove(self, p: BundleProblem, kind: str, photo: str | None, point: str | None) -> list[str]:
+        """Remove one group.  A free point left with one ray loses it too: the two rays of a point
+        seen on two photos cannot be told apart by any test.  Returns the photos of such rays."""
+        partners = []
+        if kind == "image":
+            hit = self.obs & (p.photo_ids[p.photo_index] == photo) & (p.point_ids[p.point_index] == point)
+            self.obs &= ~hit
+            j = int(np.flatnonzero(p.point_ids == point)[0])
+            rays = self.obs & (p.point_index == j)
+            con_j = self.con & (p.constraint_point_index == j)
+            full = bool(con_j.any() and np.isfinite(p.constraint_sd_m[con_j][0]).all())
+            if rays.sum() == 1 and not full:
+                self.obs &= ~rays
+                partners.append(str(p.photo_ids[p.photo_index[rays]][0]))
+        elif kind == "control":
+            self.con &= p.point_ids[p.constraint_point_index] != point
+            j = int(np.flatnonzero(p.point_ids == point)[0])
+            rays = self.obs & (p.point_index == j)
+            if rays.sum() == 1:              # a control point on one photo: nothing left to fix it
+                self.obs &= ~rays
+                partners.append(str(p.photo_ids[p.photo_index[rays]][0]))
+        else:
+            self.eo &= p.photo_ids[p.eo_constraint_photo_index] != photo
+        return partners
+
+
+# ---------------------------------------------------------------------------
+# data snooping
+# ---------------------------------------------------------------------------
+
+
+def snoop(
+    problem: BundleProblem,
+    *,
+    mode: str = "remove",
+    level: float = 0.001,
+    power: float = 0.80,
+    robust: str = "none",
+    max_rejections: int = 100,
+    on_rejection: Callable[[Blunder], None] | None = None,
+    **adjust_kwargs: Any,
+) -> SnoopingResult:
+    """Adjust *problem* with blunder detection (Baarda's data snooping).
+
+    Parameters
+    ----------
+    problem : BundleProblem
+    mode : {"off", "report", "remove"}
+        ``off``: adjust only.  ``report``: find the blunders as ``remove`` does
+        but return the adjustment of all observations, the blunders listed with
+        ``removed=False``.  ``remove``: return the adjustment without them.
+    level, power : float
+        alpha of the one-dimensional w-test and the power (B-method, see the
+        module docstring); the defaults 0.001 / 0.80 give critical w 3.29
+        (q = 1), 3.42 (q = 2), 3.55 (q = 3), 3.92 (q = 6).
+    robust : {"none", "danish", "huber"}
+        Run iteratively re-weighted least squares first and remove the groups
+        it weights down below :data:`ROBUST_CUT` in one go (large blocks with
+        many blunders); snooping then tests the rest.
+    max_rejections : int
+        Stop after this many one-at-a-time rejections (``more_remain`` tells).
+    on_rejection : callable(Blunder), optional
+        Called after every rejection.
+    **adjust_kwargs
+        Passed to every :func:`lidarcat.bundle.adjust` (``variance_factor``,
+        ``chi2_level``, ``max_iter``, ``progress``, ``precision`` -- the
+        intermediate adjustments skip the covariances).
+
+    Returns
+    -------
+    SnoopingResult
+
+    Raises
+    ------
+    ValueError
+        An unknown *mode* or *robust*, a bad *level* or *power*.
+    DatumError
+        From the first adjustment.
+    """
+    if mode not in SNOOPING_MODES:
+        raise ValueError(f"`snooping` must be one of {', '.join(SNOOPING_MODES)}, got {mode!r}")
+    if robust not in ROBUST_METHODS:
+        raise ValueError(f"`robust` must be one of {', '.join(ROBUST_METHODS)}, got {robust!r}")
+    _check_level(level, power)
+    final_precision = adjust_kwargs.pop("precision", "all")
+    first = adjust(problem, precision=final_precision, **adjust_kwargs)
+    if mode == "off":
+        return SnoopingResult(first, None, (), mode, robust, False, 1)
+    p = problem
+    n_adj = 1
+    sub = _Subset(np.ones(len(p.photo_index), bool), np.ones(len(p.constraint_point_index), bool),
+                  np.ones(0 if p.eo_constraint_photo_index is None else len(p.eo_constraint_photo_index), bool))
+    blunders: list[Blunder] = []
+    res, cur = first, p
+    rel_first = reliability(first, level=level, power=power) if first.success else None
+    rel = rel_first
+    more = False
+    if robust != "none" and first.success:
+        res, cur, rel, found, k = _robust(p, sub, first, rel, robust, level, power, adjust_kwargs)
+        blunders += found
+        n_adj += k
+    iteration = 0
+    while rel is not None:
+        g = rel.worst()
+        if g is None or rel.ratio[g] <= 1:
+            break
+        if iteration >= max_rejections:
+            more = True
+            log.warning("data snooping stopped after %d rejections; tests still reject", iteration)
+            break
+        iteration += 1
+        bl = rel.blunder(g, removed=True, iteration=iteration)
+        saved = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
+        partners = sub.remove(p, bl.kind, bl.photo, bl.point)
+        try:
+            nxt, ph_map, pt_map = sub.problem(p)
+            warm = (np.asarray(res.eo_params), _warm_points(res, nxt))
+            res_new = adjust(nxt, initial=warm, precision="none", **adjust_kwargs)
+            n_adj += 1
+            if not res_new.success:
+                raise DatumError(f"the adjustment without it did not converge ({res_new.status})")
+            rel_new = reliability(res_new, level=level, power=power)
+        except (DatumError, ValueError) as ex:
+            sub = saved
+            blunders.append(dataclasses.replace(bl, removed=False, note=f"not removed: {ex}"))
+            more = True
+            log.warning("data snooping: %s not removed: %s", bl.label(), ex)
+            break
+        blunders.append(bl)
+        for ph in partners if bl.kind == "control" else ():
+            blunders[-1] = dataclasses.replace(bl, note=f"its only ray (photo {ph}) removed with it")
+        for ph in partners if bl.kind == "image" else ():   # a two-ray point: the rays are not separable
+            other = np.flatnonzero((rel.kind == "image") & (rel.photo == ph) & (rel.point == bl.point))
+            note = (f"point {bl.point} is on two photos only: its rays on photos {bl.photo} and {ph} "
+                    "cannot be told apart; both removed")
+            blunders[-1] = dataclasses.replace(bl, note=note)
+            if len(other):
+                blunders.append(rel.blunder(int(other[0]), removed=True, iteration=iteration, note=note))
+        log.info("data snooping: rejected %s (w %.2f > %.2f)", bl.label(), bl.w, bl.w_critical)
+        res, cur, rel = res_new, nxt, rel_new
+        if on_rejection is not None:
+            on_rejection(bl)
+    if mode == "report" or res is first:
+        final, final_rel = first, rel_first
+        blunders = [dataclasses.replace(b, removed=False) for b in blunders] if mode == "report" else blunders
+    else:  # the intermediate adjustments skipped the covariances: once more with them
+        final = adjust(cur, initial=(np.asarray(res.eo_params), np.asarray(res.points_m)),
+                       precision=final_precision, **adjust_kwargs)
+        final_rel = rel
+        n_adj += 1
+    return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj)
+
+
+def _warm_points(res: BundleResult, nxt: BundleProblem) -> np.ndarray:
+    """Adjusted coordinates of *res* for the points of *nxt* (by id)."""
+    pos = {str(q): i for i, q in enumerate(res.point_ids)}
+    return np.asarray(res.points_m)[[pos[str(q)] for q in nxt.point_ids]]
+
+
+def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int = 20):
+    """IRLS with the Danish or Huber weight function on the group tests; returns the state after
+    removing the groups weighted below :data:`ROBUST_CUT`."""
+    n_img = len(p.photo_index)
+    k_con = len(p.constraint_point_index)
+    factor = np.ones(len(rel.kind))
+    cur = p
+    n_adj = 0
+    r_cur, rel_cur = res, rel
+    for _ in range(max_iter):
+        u = np.nan_to_num(rel_cur.w / rel_cur.w_critical, nan=0.0)
+        f_new = np.ones_like(u)
+        big = u > 1
+        f_new[big] = np.exp(1 - u[big] ** 2) if method == "danish" else 1.0 / u[big]
+        new = np.maximum(f_new * factor, 1e-12)
+        # the weights multiply: w of a down-weighted group is computed with its current weight
+        if np.allclose(new, factor, rtol=1e-3, atol=1e-6):
+            break
+        factor = new
+        cur = _reweighted(p, factor, n_img, k_con)
+        r_cur = adjust(cur, initial=(np.asarray(r_cur.eo_params), np.asarray(r_cur.points_m)),
+                       precision="none", **adjust_kwargs)
+        n_adj += 1
+        if not r_cur.success:
+            log.warning("robust %s: the re-weighted adjustment did not converge; stopped", method)
+            break
+        rel_cur = reliability(r_cur, level=level, power=power)
+    # remove the groups weighted down (tests of the original weights follow in snooping)
+    found: list[Blunder] = []
+    cut = np.flatnonzero(factor < ROBUST_CUT)
+    for g in cut:
+        kind = str(rel_cur.kind[g])
+        photo = str(rel_cur.photo[g]) if kind != "control" else None
+        point = str(rel_cur.point[g]) if kind != "eo" else None
+        b = rel_cur.blunder(int(g), removed=True, iteration=0, found_by=method)
+        # w and the estimated error of the original weights: e / sd relative to the critical value
+        partners = sub.remove(p, kind, photo, point)
+        found.append(dataclasses.replace(b, w=float(rel_cur.w[g] / math.sqrt(factor[g])),
+                                         note="; ".join([f"weight factor {factor[g]:.1e}",
+                                                         *(f"the other ray (photo {ph}) removed with it"
+                                                           for ph in partners)])))
+    if not found:
+        return res, p, rel, [], n_adj
+    try:
+        nxt, _, _ = sub.problem(p)
+        r2 = adjust(nxt, initial=(np.asarray(r_cur.eo_params), _warm_points(r_cur, nxt)), precision="none",
+                    **adjust_kwargs)
+    except (DatumError, ValueError) as ex:
+        log.warning("robust %s: removing the %d down-weighted group(s) leaves %s; snooping alone", method,
+                    len(found), ex)
+        sub.obs[:], sub.con[:], sub.eo[:] = True, True, True
+        return res, p, rel, [], n_adj
+    n_adj += 1
+    rel2 = reliability(r2, level=level, power=power) if r2.success else None
+    log.info("robust %s: %d group(s) removed", method, len(found))
+    return r2, nxt, rel2, found, n_adj
+
+
+def _reweighted(p: BundleProblem, factor: np.ndarray, n_img: int, k_con: int) -> BundleProblem:
+    """*p* with the sigmas of every group divided by sqrt(factor)."""
+    s = 1.0 / np.sqrt(factor)
+    kw: dict[str, Any] = {}
+    if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
+        kw = dict(eo_constraint_sd=p.eo_constraint_sd * s[n_img + k_con:, None])
+    return dataclasses.replace(p, sd_mm=p.sd_mm * s[:n_img, None],
+                               constraint_sd_m=p.constraint_sd_m * s[n_img:n_img + k_con, None], **kw)

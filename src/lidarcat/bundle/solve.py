@@ -1,0 +1,435 @@
+r"""The adjustment: Levenberg-Marquardt iteration and its result.
+
+Gauss-Newton with Levenberg-Marquardt damping (``N + lambda diag(N)``) on the
+normal equations of :mod:`.model`, each step solved through the reduced camera
+system of :mod:`.linear`.  A step is accepted when v'Pv does not grow (else
+lambda grows tenfold); lambda shrinks tenfold after an accepted step.  Iteration
+stops when the largest correction is below ``tol_m`` / ``tol_rad`` and v'Pv
+changes by less than ``tol_vtpv`` (relative).  The covariance blocks
+(:mod:`.precision`) come from the normal equations linearised at the solution.
+Non-convergence is a ``status`` of :class:`BundleResult`, not an exception.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from .._approx import approximations, intersect_points
+from .._frozen import frozen_array
+from .model import _cost, _System
+from .linear import _Schur, _Singular
+from .precision import PRECISION_LEVELS, covariance_blocks
+from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
+
+__all__ = ["BundleResult", "adjust", "STATUS_MESSAGES", "PCG_MIN_PHOTOS"]
+
+#: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below)
+PCG_MIN_PHOTOS = 2000
+
+log = logging.getLogger(__name__)
+
+#: status -> message of :class:`BundleResult`
+STATUS_MESSAGES: dict[str, str] = {
+    "converged": "converged: corrections and v'Pv change below tolerance",
+    "max_iterations": "maximum number of iterations reached before convergence",
+    "stalled": "no further decrease of v'Pv is possible (damping grew without bound)",
+    "singular": "normal equations are singular (datum defect or degenerate geometry)",
+}
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class BundleResult:
+    """Outcome of :func:`adjust`. Non-convergence is a ``status``, not an exception.
+
+    Attributes
+    ----------
+    status : str
+        ``converged``, ``max_iterations``, ``stalled`` or ``singular``.
+    message : str
+    success : bool
+        True when ``status == "converged"``.
+    n_iter : int
+    vtpv : float
+        v'Pv of image observations and constraints (a priori weights).
+    dof : int
+        observations - unknowns + constraints.
+    sigma0_sq : float
+        A posteriori variance factor v'Pv / dof.
+    variance_factor : float
+        Factor applied to N^-1 for the covariances (1 for ``a_priori``).
+    variance_factor_kind : str
+    chi2 : dict
+        ``statistic`` (v'Pv / sigma0^2 a priori), ``level``, ``lower``, ``upper``
+        (exact quantiles), ``lower_fisher``, ``upper_fisher`` (approximation the
+        thesis printed) and ``passed`` (exact interval).
+    photo_ids : (P,) str
+    eo_params : (P, 6)
+        X0, Y0, Z0 (m), omega, phi, kappa (rad).
+    eo_cov : (P, 6, 6)
+    point_ids : (Q,) str
+    points_m : (Q, 3)
+        Adjusted E, N, h.
+    point_cov : (Q, 3, 3)
+    point_role : (Q,) str
+    residuals_mm : (n, 2)
+        Image residuals, adjusted minus observed (mm), in the order of the problem.
+    constraint_residuals_m : (k, 3)
+        Adjusted minus observed coordinates of the constrained points (m).
+    eo_constraint_residuals : (e, 6) or None
+    history : tuple of float
+        v'Pv after every accepted iteration (index 0: approximations).
+    problem : BundleProblem
+    initial_eo : (P, 6), initial_points_m : (Q, 3)
+        The approximations the iteration started from.
+    elapsed_s : float
+    precision : str
+        Which covariance blocks were computed (``all``, ``photos``, ``none``;
+        the others are NaN).
+    phases_s : dict
+        Wall time (s) of the phases: ``check``, ``approximations``, ``analysis``
+        (pattern and symbolic factorisation), ``model`` (residuals, Jacobians,
+        normal-equation blocks), ``solve`` (of it ``solve_assemble`` and
+        ``solve_factor``, or ``solve_pcg``), ``precision``.
+    """
+
+    status: str
+    message: str
+    success: bool
+    n_iter: int
+    vtpv: float
+    dof: int
+    sigma0_sq: float
+    variance_factor: float
+    variance_factor_kind: str
+    chi2: dict
+    photo_ids: np.ndarray
+    eo_params: np.ndarray
+    eo_cov: np.ndarray
+    point_ids: np.ndarray
+    points_m: np.ndarray
+    point_cov: np.ndarray
+    point_role: np.ndarray
+    residuals_mm: np.ndarray
+    constraint_residuals_m: np.ndarray
+    eo_constraint_residuals: np.ndarray | None
+    history: tuple
+    problem: BundleProblem
+    initial_eo: np.ndarray
+    initial_points_m: np.ndarray
+    elapsed_s: float = 0.0
+    precision: str = "all"
+    phases_s: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray):
+                object.__setattr__(self, f.name, frozen_array(v, dtype=None))
+
+    @property
+    def eo_sd(self) -> np.ndarray:
+        """(P, 6) standard deviations of X0, Y0, Z0 (m), omega, phi, kappa (rad)."""
+        return np.sqrt(np.clip(np.diagonal(self.eo_cov, axis1=1, axis2=2), 0, None))
+
+    @property
+    def point_sd_m(self) -> np.ndarray:
+        """(Q, 3) standard deviations of E, N, h (m)."""
+        return np.sqrt(np.clip(np.diagonal(self.point_cov, axis1=1, axis2=2), 0, None))
+
+    @property
+    def exterior_orientations(self) -> tuple[ExteriorOrientation, ...]:
+        """One :class:`ExteriorOrientation` (with covariance) per photo."""
+        return tuple(ExteriorOrientation.from_params(p, photo=i, cov=c)
+                     for i, p, c in zip(self.photo_ids, self.eo_params, self.eo_cov))
+
+    def eo(self, photo: str) -> ExteriorOrientation:
+        """Exterior orientation of *photo*.
+
+        Raises
+        ------
+        ValueError
+            *photo* is not in the adjustment (named).
+        """
+        i = _position(self.photo_ids, photo, "photo")
+        return ExteriorOrientation.from_params(self.eo_params[i], photo=self.photo_ids[i], cov=self.eo_cov[i])
+
+    def point(self, point: str) -> np.ndarray:
+        """Adjusted E, N, h of *point* (3,).
+
+        Raises
+        ------
+        ValueError
+            *point* is not in the adjustment (named).
+        """
+        return self.points_m[_position(self.point_ids, point, "point")]
+
+    def rms_residuals_per_photo(self) -> np.ndarray:
+        """(P, 2) RMS image residual in x and y per photo (mm) (Appendix 2 'desvio padrao medio')."""
+        pi = self.problem.photo_index
+        cnt = np.bincount(pi, minlength=len(self.photo_ids)).astype(float)
+        out = np.full((len(self.photo_ids), 2), np.nan)
+        for k in range(2):
+            ss = np.bincount(pi, weights=self.residuals_mm[:, k] ** 2, minlength=len(self.photo_ids))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                out[:, k] = np.sqrt(ss / cnt)
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        """Plain-dict summary (keys as in ``summary.json``)."""
+        p = self.problem
+        sd = self.point_sd_m
+        role = self.point_role
+        ctrl = role == "control"
+        free = ~ctrl
+        rms = self.rms_residuals_per_photo()
+        cres = self.constraint_residuals_m
+        finite = np.isfinite(p.constraint_sd_m)
+        rms_con = [float(np.sqrt(np.mean(cres[finite[:, k], k] ** 2))) if finite[:, k].any() else math.nan
+                   for k in range(3)]
+        # Appendix 2 "desvio padrao medio dos pontos fixos": sqrt(sum v^2 / (n - 1))
+        sd_con = [float(np.sqrt(np.sum(cres[finite[:, k], k] ** 2) / (finite[:, k].sum() - 1)))
+                  if finite[:, k].sum() > 1 else math.nan for k in range(3)]
+        return {
+            **{k: v for k, v in p.info.items()},
+            "status": self.status,
+            "message": self.message,
+            "converged": bool(self.success),
+            "n_iterations": int(self.n_iter),
+            "vtpv": float(self.vtpv),
+            "dof": int(self.dof),
+            "sigma0_sq": float(self.sigma0_sq),
+            "sigma0_sq_a_priori": 1.0,
+            "variance_factor": self.variance_factor_kind,
+            "chi2_statistic": float(self.chi2["statistic"]),
+            "chi2_level": float(self.chi2["level"]),
+            "chi2_lower": float(self.chi2["lower"]),
+            "chi2_upper": float(self.chi2["upper"]),
+            "chi2_lower_fisher": float(self.chi2["lower_fisher"]),
+            "chi2_upper_fisher": float(self.chi2["upper_fisher"]),
+            "chi2_pass": bool(self.chi2["passed"]),
+            "n_photos": int(p.n_photos),
+            "n_points": int(p.n_points),
+            "n_observations": int(p.n_observations),
+            "n_unknowns": int(p.n_unknowns),
+            "n_constraints": int(p.n_constraints),
+            "rms_image_residuals_mm": {str(i): {"x": float(r[0]), "y": float(r[1])}
+                                       for i, r in zip(self.photo_ids, rms)},
+            "rms_control_residuals_m": dict(zip("ENh", rms_con)),
+            "sd_control_residuals_m": dict(zip("ENh", sd_con)),
+            "mean_sd_control_m": dict(zip("ENh", (float(v) for v in sd[ctrl].mean(axis=0))))
+            if ctrl.any() else {},
+            "mean_sd_free_m": dict(zip("ENh", (float(v) for v in sd[free].mean(axis=0))))
+            if free.any() else {},
+            # Appendix 2 "desvio padrao medio dos pontos livres" is reproduced (to its printed
+            # precision) by the RMS of the sds over all adjusted points, control included
+            "rms_sd_points_m": dict(zip("ENh", (float(v) for v in np.sqrt(np.mean(sd**2, axis=0)))))
+            if len(sd) else {},
+            "elapsed_s": float(self.elapsed_s),
+            "precision": self.precision,
+        }
+
+
+def _position(ids: np.ndarray, wanted: Any, what: str) -> int:
+    hit = np.flatnonzero(ids == str(wanted))
+    if not len(hit):
+        raise ValueError(f"{what} {str(wanted)!r} is not in the adjustment")
+    return int(hit[0])
+
+
+def _tiny(dc: np.ndarray, dp: np.ndarray, tol_m: float, tol_rad: float) -> bool:
+    lin = max(np.abs(dc[:, :3]).max(initial=0.0), np.abs(dp).max(initial=0.0))
+    ang = np.abs(dc[:, 3:]).max(initial=0.0)
+    return bool(lin < tol_m and ang < tol_rad)
+
+
+def adjust(
+    problem: BundleProblem,
+    *,
+    initial: tuple[np.ndarray, np.ndarray | None] | None = None,
+    max_iter: int = 50,
+    tol_m: float = 1e-4,
+    tol_rad: float = 1e-8,
+    tol_vtpv: float = 1e-8,
+    variance_factor: str = "a_priori",
+    chi2_level: float = 0.05,
+    damping: bool = True,
+    check: bool = True,
+    precision: str = "all",
+    solver: str = "auto",
+    progress: Callable[[int, float], None] | None = None,
+) -> BundleResult:
+    """Simultaneous bundle adjustment with weighted position constraints.
+
+    Parameters
+    ----------
+    problem : BundleProblem
+    initial : (eo (P, 6), points (Q, 3) or None), optional
+        Approximate values (m, rad).  Default: computed by
+        :func:`lidarcat._approx.approximations` from control points, image
+        measurements and ``problem.initial_eo`` (a planimetric block adjustment,
+        then sweeps of intersection and space resection).  With points ``None``
+        they are intersected from the given orientations.
+    max_iter : int
+    tol_m, tol_rad : float
+        Convergence threshold on the largest correction of a coordinate (m) and of
+        an angle (rad).
+    tol_vtpv : float
+        Convergence threshold on the relative change of v'Pv.
+    variance_factor : {"a_priori", "a_posteriori"}
+        Factor of N^-1 in the covariances: 1 (the thesis tables) or v'Pv / dof.
+    chi2_level : float
+        Level of the two-sided chi-square test of the variance factor.
+    damping : bool
+        Levenberg-Marquardt damping (needed from poor approximations); False is
+        plain Gauss-Newton.
+    check : bool
+        Run :func:`check_datum` first.
+    precision : {"all", "photos", "none"}
+        Covariance blocks to compute at the solution: of every photo and point,
+        of the photos only (``point_cov`` NaN), or none (both NaN; the fastest).
+    solver : {"auto", "direct", "pcg"}
+        Linear solver of the reduced camera system in the iterations: the
+        supernodal Cholesky (exact steps), or block-Jacobi preconditioned
+        conjugate gradients truncated as inexact Newton (cheaper steps on large
+        blocks); ``auto``: ``pcg`` from :data:`PCG_MIN_PHOTOS` photos.  The
+        covariance always uses the Cholesky factor.
+    progress : callable(iteration, vtpv), optional
+
+    Returns
+    -------
+    BundleResult
+
+    Raises
+    ------
+    DatumError
+        From :func:`check_datum`, or when approximations cannot be computed.
+    ValueError
+        Bad parameter values.
+    """
+    if variance_factor not in ("a_priori", "a_posteriori"):
+        raise ValueError("`variance_factor` must be 'a_priori' or 'a_posteriori'")
+    if not 0 < chi2_level < 1:
+        raise ValueError("`chi2_level` must be in (0, 1)")
+    if precision not in PRECISION_LEVELS:
+        raise ValueError(f"`precision` must be one of {', '.join(PRECISION_LEVELS)}, got {precision!r}")
+    if solver not in ("auto", "direct", "pcg"):
+        raise ValueError(f"`solver` must be one of auto, direct, pcg, got {solver!r}")
+    t0 = time.perf_counter()
+    p = problem
+    phases = dict.fromkeys(("check", "approximations", "analysis", "model", "solve", "precision"), 0.0)
+
+    @contextlib.contextmanager
+    def phase(name: str):
+        t = time.perf_counter()
+        yield
+        phases[name] += time.perf_counter() - t
+
+    if check:
+        with phase("check"):
+            check_datum(p)
+    if initial is None:
+        with phase("approximations"):
+            eo, pts = approximations(p)
+    else:
+        eo = np.array(initial[0], dtype=float).reshape(p.n_photos, 6)
+        if initial[1] is None:
+            pts = intersect_points(p, eo)
+        else:
+            pts = np.array(initial[1], dtype=float).reshape(p.n_points, 3)
+    eo0, pts0 = eo.copy(), pts.copy()
+
+    lam = 1e-3 if damping else 0.0
+    status = "max_iterations"
+    n_iter = 0
+    history: list[float] = []
+    system = None
+    with phase("analysis"):
+        schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points)   # pattern of S, analysed once
+    method = solver if solver != "auto" else ("pcg" if p.n_photos >= PCG_MIN_PHOTOS else "direct")
+    try:
+        with phase("model"):
+            system = _System(p, eo, pts, schur)
+            cost = system.vtpv if np.all(system.u3 < 0) else _cost(p, eo, pts)
+        history.append(cost)
+        while n_iter < max_iter:
+            n_iter += 1
+            accepted = False
+            while True:
+                with phase("solve"):
+                    dc, dp = system.solve(lam, method)
+                eo_new, pts_new = eo + dc, pts + dp
+                with phase("model"):
+                    new_cost = _cost(p, eo_new, pts_new)
+                if not damping or new_cost <= cost * (1 + 1e-12) or _tiny(dc, dp, tol_m, tol_rad):
+                    accepted = True
+                    break
+                lam = max(lam, 1e-6) * 10.0
+                if lam > 1e12:
+                    break
+            if not accepted:
+                status = "stalled"
+                break
+            small = _tiny(dc, dp, tol_m, tol_rad)
+            dcost = abs(cost - new_cost) / max(cost, 1.0)
+            eo, pts = eo_new, pts_new
+            eo[:, 3:] = (eo[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+            cost = new_cost
+            history.append(cost)
+            if progress is not None:
+                progress(n_iter, cost)
+            log.debug("iteration %d: v'Pv %.6g, lambda %.1e, max|dX| %.3g m", n_iter, cost, lam,
+                      np.abs(np.concatenate([dc[:, :3].ravel(), dp.ravel()])).max())
+            if not math.isfinite(cost):
+                status = "stalled"
+                break
+            if damping:
+                lam = lam / 10.0 if lam > 1e-12 else 0.0
+            with phase("model"):
+                system = _System(p, eo, pts, schur)
+            if small and dcost < tol_vtpv:
+                status = "converged"
+                break
+        with phase("precision"):
+            eo_cov, point_cov = covariance_blocks(system, precision)  # linearised at (eo, pts)
+    except _Singular as ex:
+        status = "singular"
+        log.warning("bundle adjustment: %s", ex)
+        eo_cov = np.full((p.n_photos, 6, 6), np.nan)
+        point_cov = np.full((p.n_points, 3, 3), np.nan)
+        if system is None:
+            system = _System(p, eo, pts, schur)
+        message_extra = f": {ex}"
+    else:
+        message_extra = ""
+
+    vtpv = system.vtpv
+    dof = p.dof
+    sigma0_sq = vtpv / dof if dof > 0 else math.nan
+    factor = 1.0 if variance_factor == "a_priori" else sigma0_sq
+    eo_cov = eo_cov * factor
+    point_cov = point_cov * factor
+    bounds = chi2_bounds(dof, chi2_level)
+    chi2 = {"statistic": vtpv, "level": chi2_level, **bounds,
+            "passed": bool(dof > 0 and bounds["lower"] <= vtpv <= bounds["upper"])}
+    msg = STATUS_MESSAGES[status] + message_extra
+    if status == "converged":
+        msg += f" after {n_iter} iteration(s)"
+    return BundleResult(
+        status=status, message=msg, success=status == "converged", n_iter=n_iter,
+        vtpv=vtpv, dof=dof, sigma0_sq=sigma0_sq, variance_factor=factor,
+        variance_factor_kind=variance_factor, chi2=chi2,
+        photo_ids=p.photo_ids, eo_params=eo, eo_cov=eo_cov,
+        point_ids=p.point_ids, points_m=pts, point_cov=point_cov, point_role=p.point_role,
+        residuals_mm=system.r_obs, constraint_residuals_m=system.r_con,
+        eo_constraint_residuals=system.r_eo, history=tuple(history), problem=p,
+        initial_eo=eo0, initial_points_m=pts0, elapsed_s=time.perf_counter() - t0, precision=precision,
+        phases_s={**phases, **{f"solve_{k}": v for k, v in schur.timings.items()}},
+    )

@@ -1,0 +1,417 @@
+r"""COLMAP text models (``cameras.txt``, ``images.txt``, ``points3D.txt``): read and write.
+
+Conventions (COLMAP documentation, "Output format")
+---------------------------------------------------
+* ``images.txt``: ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` then a line of
+  ``X Y POINT3D_ID`` triples.  ``x_cam = R(q) X + t`` maps **world to camera**,
+  camera x right, **y down, z forward**; ``q`` is a Hamilton quaternion, scalar
+  first.  In lidarcat's convention (:mod:`lidarcat.interop.rotations`)
+  ``M = F R`` with ``F = diag(1, -1, -1)`` and the projection centre is
+  ``X0 = -R^T t``.
+* Pixel coordinates have the **upper-left image corner** at (0, 0): the centre of
+  the top-left pixel is (0.5, 0.5).  lidarcat counts from the pixel centre, so
+  ``col_px = X - 0.5``, ``row_px = Y - 0.5``.
+* Camera models map onto lidarcat's camera (pixel pitch ``t`` chosen by the
+  caller, default 0.001 mm, since COLMAP knows none): ``focal_length_mm = fx t``,
+  ``pixel_size_y_mm = t fx / fy`` (non-square pixels reproduce fx != fy
+  exactly), principal point ``dx = t (cx - W/2)``, ``dy = -t_y (cy - H/2)``
+  (eq. 01-02 with the corner origin above).  Distortion (``SIMPLE_RADIAL``,
+  ``RADIAL``, ``OPENCV``, ``FULL_OPENCV``) is of the forward kind, which
+  lidarcat's correction polynomial cannot represent: the observations are
+  undistorted exactly on import (:mod:`lidarcat.interop._distortion`) and enter
+  as corrected photo coordinates ``x_mm = f x_u``, ``y_mm = -f y_u``; the camera
+  keeps zero distortion and its ``source`` records the original model.
+* Export writes the lidarcat block as a ``PINHOLE`` (``SIMPLE_PINHOLE`` for square
+  pixels) model of the **undistorted** images: 2D points are the corrected photo
+  coordinates in ideal pixels, ``X = cx + x_mm / t_x``, ``Y = cy - y_mm / t_y``,
+  so COLMAP re-projects them with exactly lidarcat's residuals.
+
+The model is not georeferenced: the survey gets ``crs = "local: COLMAP model
+frame"`` unless the caller gives the CRS it was aligned to.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .._io import atomic_dir, read_text, write_text_atomic
+from ..camera import Camera
+from ..errors import FormatError
+from ._distortion import is_identity
+from ._text import format_error
+from .block import Block, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
+from .rotations import matrix_to_quaternion_wxyz, opk_to_world_to_cv, quaternion_wxyz_to_matrix, world_to_cv_to_opk
+
+__all__ = ["read_colmap", "write_colmap", "COLMAP_MODELS", "LOCAL_CRS"]
+
+log = logging.getLogger(__name__)
+
+#: model name -> parameter names (COLMAP src/colmap/sensor/models.h)
+COLMAP_MODELS: dict[str, tuple[str, ...]] = {
+    "SIMPLE_PINHOLE": ("f", "cx", "cy"),
+    "PINHOLE": ("fx", "fy", "cx", "cy"),
+    "SIMPLE_RADIAL": ("f", "cx", "cy", "k1"),
+    "RADIAL": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+    "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+}
+#: crs written for a model that is not georeferenced
+LOCAL_CRS = "local: COLMAP model frame (not georeferenced)"
+_FILES = ("cameras.txt", "images.txt", "points3D.txt")
+
+
+def _lines(path: Path):
+    """(line number, text) of every line that is no comment (blank lines kept)."""
+    for no, raw in enumerate(read_text(path, FormatError).splitlines(), start=1):
+        if raw.lstrip().startswith("#"):
+            continue
+        yield no, raw
+
+
+def _num(path: Path, line: int, field: str, cell: str) -> float:
+    try:
+        v = float(cell)
+    except ValueError:
+        raise format_error(path, line, field, f"{cell!r} is not a number") from None
+    if not math.isfinite(v):
+        raise format_error(path, line, field, f"{cell!r} is not a finite number")
+    return v
+
+
+def _int(path: Path, line: int, field: str, cell: str) -> int:
+    try:
+        return int(cell)
+    except ValueError:
+        raise format_error(path, line, field, f"{cell!r} is not a whole number") from None
+
+
+def _read_cameras(path: Path, pixel_size_mm: float):
+    cams: dict[str, tuple[Camera, dict]] = {}
+    for no, raw in _lines(path):
+        f = raw.split()
+        if not f:
+            continue
+        if len(f) < 4:
+            raise format_error(path, no, "MODEL" if len(f) < 2 else "WIDTH" if len(f) < 3 else "HEIGHT",
+                               "missing: a camera line is CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]")
+        cid = str(_int(path, no, "CAMERA_ID", f[0]))
+        model = f[1]
+        if model not in COLMAP_MODELS:
+            raise format_error(path, no, "MODEL", f"camera model {model!r} is not supported "
+                               f"(supported: {', '.join(COLMAP_MODELS)}); fisheye models have no "
+                               f"lidarcat equivalent")
+        names = COLMAP_MODELS[model]
+        w, h = _int(path, no, "WIDTH", f[2]), _int(path, no, "HEIGHT", f[3])
+        if w < 1 or h < 1:
+            raise format_error(path, no, "WIDTH" if w < 1 else "HEIGHT", "must be at least 1 pixel")
+        if len(f) != 4 + len(names):
+            raise format_error(path, no, "PARAMS", f"model {model} has {len(names)} parameters "
+                               f"({' '.join(names)}), the line has {len(f) - 4}")
+        p = {n: _num(path, no, n, c) for n, c in zip(names, f[4:])}
+        fx = p.get("fx", p.get("f"))
+        fy = p.get("fy", p.get("f"))
+        if fx <= 0 or fy <= 0:  # type: ignore[operator]
+            raise format_error(path, no, "fx" if "fx" in p else "f", "focal length must be positive")
+        if cid in cams:
+            raise format_error(path, no, "CAMERA_ID", f"camera {cid} defined twice")
+        dist = {k: v for k, v in p.items() if k[0] in "kp"}
+        cam, model_dict = pinhole_camera(
+            cid, fx, fy, p["cx"], p["cy"], w, h, pixel_size_mm=pixel_size_mm, model=f"COLMAP {model}",
+            source=f"{path.parent.name}/{path.name}:{no}: {model} " + " ".join(f"{n}={v!r}" for n, v in p.items())
+            + ("" if is_identity(dist) else "; distortion removed from the observations on import"),
+            dist=dist)
+        cams[cid] = (cam, model_dict)
+    if not cams:
+        raise FormatError(f"{path}: no camera defined")
+    return cams
+
+
+def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str | None = None,
+                crs: str = LOCAL_CRS, height_system: str = "unspecified (model frame)") -> Block:
+    """Read a COLMAP text model (``cameras.txt``, ``images.txt``, ``points3D.txt``).
+
+    Parameters
+    ----------
+    folder : path
+        The model folder.
+    pixel_size_mm : float
+        Pixel pitch given to the cameras, mm (COLMAP works in pixels only; any
+        value gives the same geometry, 0.001 makes ``x_mm = px / 1000``).
+    name, crs, height_system : str
+        Survey name (default: the folder name), CRS of the model frame and its heights.
+
+    Returns
+    -------
+    Block
+        Photo ids are the image NAMEs, point ids the POINT3D_IDs; only 2D points
+        with a 3D point are kept (id -1 = not triangulated).
+
+    Raises
+    ------
+    FormatError
+        A missing file, a malformed line (``FILE:LINE: field 'NAME': ...``), an
+        unknown camera model, an image naming an unknown camera, a 2D point naming
+        an unknown 3D point.
+    """
+    folder = Path(folder)
+    for fname in _FILES:
+        if not (folder / fname).is_file():
+            raise FormatError(f"{folder / fname}: file not found (a COLMAP text model has "
+                              f"{', '.join(_FILES)}; convert a binary model with "
+                              f"'colmap model_converter --output_type TXT')")
+    if not (pixel_size_mm > 0 and math.isfinite(pixel_size_mm)):
+        raise FormatError(f"pixel_size_mm must be a positive number, got {pixel_size_mm!r}")
+    cams = _read_cameras(folder / "cameras.txt", pixel_size_mm)
+
+    ppath = folder / "points3D.txt"
+    pids: list[str] = []
+    pxyz: list[list[float]] = []
+    seen: set[str] = set()
+    for no, raw in _lines(ppath):
+        f = raw.split()
+        if not f:
+            continue
+        if len(f) < 8:
+            raise format_error(ppath, no, ("POINT3D_ID", "X", "Y", "Z", "R", "G", "B", "ERROR")[len(f)],
+                               "missing: POINT3D_ID X Y Z R G B ERROR TRACK[]")
+        pid = str(_int(ppath, no, "POINT3D_ID", f[0]))
+        if pid in seen:
+            raise format_error(ppath, no, "POINT3D_ID", f"point {pid} listed twice")
+        seen.add(pid)
+        pids.append(pid)
+        pxyz.append([_num(ppath, no, n, c) for n, c in zip("XYZ", f[1:4])])
+
+    ipath = folder / "images.txt"
+    photo, pcam, eo = [], [], []
+    o_photo: list[str] = []
+    o_point: list[str] = []
+    o_xy: list[np.ndarray] = []
+    o_cam: list[str] = []
+    names: set[str] = set()
+    lines = list(_lines(ipath))
+    i = 0
+    while i < len(lines):
+        no, raw = lines[i]
+        f = raw.split()
+        if not f:
+            i += 1
+            continue
+        if len(f) < 10:
+            fields = ("IMAGE_ID", "QW", "QX", "QY", "QZ", "TX", "TY", "TZ", "CAMERA_ID", "NAME")
+            raise format_error(ipath, no, fields[len(f)],
+                               "missing: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME")
+        _int(ipath, no, "IMAGE_ID", f[0])
+        q = np.array([_num(ipath, no, n, c) for n, c in zip(("QW", "QX", "QY", "QZ"), f[1:5])])
+        tt = np.array([_num(ipath, no, n, c) for n, c in zip(("TX", "TY", "TZ"), f[5:8])])
+        if not 0.5 < np.linalg.norm(q) < 2.0:
+            raise format_error(ipath, no, "QW", f"quaternion of norm {np.linalg.norm(q):.3g} is no rotation")
+        cid = str(_int(ipath, no, "CAMERA_ID", f[8]))
+        if cid not in cams:
+            raise format_error(ipath, no, "CAMERA_ID", f"camera {cid} is not in cameras.txt")
+        img = " ".join(f[9:])
+        if img in names:
+            raise format_error(ipath, no, "NAME", f"image {img!r} listed twice")
+        names.add(img)
+        r = quaternion_wxyz_to_matrix(q)
+        photo.append(img)
+        pcam.append(cid)
+        eo.append(np.concatenate([-r.T @ tt, world_to_cv_to_opk(r)]))
+        pts_no, pts_raw = lines[i + 1] if i + 1 < len(lines) else (no + 1, "")
+        cells = pts_raw.split()
+        if len(cells) % 3:
+            raise format_error(ipath, pts_no, "POINTS2D", f"{len(cells)} values; POINTS2D are "
+                               f"(X, Y, POINT3D_ID) triples")
+        if cells:
+            try:
+                arr = np.array(cells, dtype=float).reshape(-1, 3)
+            except ValueError:
+                bad = next(k for k, c in enumerate(cells) if not _is_float(c))
+                raise format_error(ipath, pts_no, ("X", "Y", "POINT3D_ID")[bad % 3],
+                                   f"{cells[bad]!r} (value {bad + 1}) is not a number") from None
+            if not np.isfinite(arr).all():
+                bad = int(np.flatnonzero(~np.isfinite(arr.ravel()))[0])
+                raise format_error(ipath, pts_no, ("X", "Y", "POINT3D_ID")[bad % 3],
+                                   f"{cells[bad]!r} (value {bad + 1}) is not finite")
+            use = arr[:, 2] >= 0
+            ids = [str(int(v)) for v in arr[use, 2]]
+            unknown = [p for p in ids if p not in seen]
+            if unknown:
+                raise format_error(ipath, pts_no, "POINT3D_ID", f"point {unknown[0]} is not in points3D.txt")
+            o_photo += [img] * len(ids)
+            o_point += ids
+            o_xy.append(arr[use, :2])
+            o_cam += [cid] * len(ids)
+        i += 2
+    if not photo:
+        raise FormatError(f"{ipath}: no image")
+    xy = np.vstack(o_xy) if o_xy else np.empty((0, 2))
+    keys = np.char.add(np.char.add(np.array(o_photo, dtype=str), "\x00"), np.array(o_point, dtype=str))
+    _, first = np.unique(keys, return_index=True)
+    if len(first) < len(keys):
+        log.warning("%s: %d 2D point(s) repeat a 3D point already measured on the same image; "
+                    "the first measurement is kept", ipath, len(keys) - len(first))
+        first = np.sort(first)
+        xy = xy[first]
+        o_photo = [o_photo[k] for k in first]
+        o_point = [o_point[k] for k in first]
+        o_cam = [o_cam[k] for k in first]
+    cam_arr = np.array(o_cam, dtype=str)
+    obs_px = xy - 0.5
+    obs_mm = np.empty_like(xy)
+    for cid, (cam, model_dict) in cams.items():
+        rows = cam_arr == cid
+        if rows.any():
+            obs_mm[rows] = undistorted_mm(xy[rows], cam, model_dict)
+    return Block(
+        name=name or folder.name, crs=crs, height_system=height_system,
+        cameras={c: v[0] for c, v in cams.items()}, photo_ids=np.array(photo, dtype=str),
+        photo_camera=np.array(pcam, dtype=str), eo=np.array(eo), obs_photo=np.array(o_photo, dtype=str),
+        obs_point=np.array(o_point, dtype=str), obs_px=obs_px, obs_mm=obs_mm,
+        point_ids=np.array(pids, dtype=str), points_m=np.array(pxyz).reshape(-1, 3),
+        description=f"imported from the COLMAP model {folder}",
+        source_models={c: v[1] for c, v in cams.items()})
+
+
+def _r(v: float) -> str:
+    """Shortest text that reads back to the same float64."""
+    return repr(float(v))
+
+
+def _colmap_model(m: dict | None):
+    """(COLMAP model name, params, dict) reproducing a source model exactly, or None."""
+    if m is None or m.get("kind") != "brown" or not np.isfinite(m.get("w", np.nan)):
+        return None
+    d = {k: v for k, v in m["dist"].items() if v != 0.0}
+    fx, fy, cx, cy = m["fx"], m["fy"], m["cx"], m["cy"]
+    g = lambda k: m["dist"].get(k, 0.0)  # noqa: E731
+    if not d and fx == fy:
+        return "SIMPLE_PINHOLE", [fx, cx, cy], m
+    if not d:
+        return "PINHOLE", [fx, fy, cx, cy], m
+    if fx == fy and set(d) <= {"k1"}:
+        return "SIMPLE_RADIAL", [fx, cx, cy, g("k1")], m
+    if fx == fy and set(d) <= {"k1", "k2"}:
+        return "RADIAL", [fx, cx, cy, g("k1"), g("k2")], m
+    if set(d) <= {"k1", "k2", "p1", "p2"}:
+        return "OPENCV", [fx, fy, cx, cy, g("k1"), g("k2"), g("p1"), g("p2")], m
+    return "FULL_OPENCV", [fx, fy, cx, cy] + [g(k) for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")], m
+
+
+def _is_float(c: str) -> bool:
+    try:
+        float(c)
+        return True
+    except ValueError:
+        return False
+
+
+def _int_ids(ids: list[str]) -> list[int]:
+    """The ids as COLMAP integers: themselves when all are distinct whole numbers >= 0 (>= 1
+    for images and cameras), else 1..n in order."""
+    try:
+        vals = [int(i) for i in ids]
+        if len(set(vals)) == len(vals) and all(v >= 1 for v in vals) and all(str(v) == i for v, i in zip(vals, ids)):
+            return vals
+    except ValueError:
+        pass
+    return list(range(1, len(ids) + 1))
+
+
+def write_colmap(block: Block, folder: str | Path) -> Path:
+    """Write *block* as a COLMAP text model, atomically.
+
+    A camera read from COLMAP/OpenSfM (``block.source_models``, Brown-type) is
+    written back as the COLMAP model that reproduces it, with the measured pixels;
+    any other camera (lidarcat's correction polynomial, Metashape's) as the
+    ``PINHOLE`` camera of the undistorted image with the corrected photo
+    coordinates in ideal pixels.
+
+    Photo ids become image NAMEs (and IMAGE_IDs when they are whole numbers),
+    point ids POINT3D_IDs when whole numbers (else 1..n, in block order; the
+    mapping is in the header comment of points3D.txt).  Points without
+    coordinates are left out; their 2D points get POINT3D_ID -1.
+
+    Raises
+    ------
+    FormatError
+        A photo without a complete orientation.
+    """
+    folder = Path(folder)
+    require_orientations(block, "COLMAP")
+    cam_ids = list(block.cameras)
+    cam_num = dict(zip(cam_ids, range(1, len(cam_ids) + 1)))
+    cam_lines, kmat = [], {}
+    for cid in cam_ids:
+        c = block.cameras[cid]
+        src = _colmap_model(block.source_models.get(cid))
+        if src is not None:
+            model, params, m = src
+            kmat[cid] = (m, None)
+            cam_lines.append(f"{cam_num[cid]} {model} {m['w']} {m['h']} {' '.join(_r(v) for v in params)}")
+            continue
+        fx, fy = c.focal_length_mm / c.pixel_size_x_mm, c.focal_length_mm / c.pixel_size_y_mm
+        cx = c.columns_px / 2 + c.principal_point_x_mm / c.pixel_size_x_mm
+        cy = c.rows_px / 2 - c.principal_point_y_mm / c.pixel_size_y_mm
+        kmat[cid] = (None, (cx, cy, c))
+        if fx == fy:
+            cam_lines.append(f"{cam_num[cid]} SIMPLE_PINHOLE {c.columns_px} {c.rows_px} {_r(fx)} {_r(cx)} {_r(cy)}")
+        else:
+            cam_lines.append(f"{cam_num[cid]} PINHOLE {c.columns_px} {c.rows_px} {_r(fx)} {_r(fy)} {_r(cx)} {_r(cy)}")
+    has_xyz = np.isfinite(block.points_m).all(axis=1)
+    pt_ids = block.point_ids[has_xyz].tolist()
+    pt_num = dict(zip(pt_ids, _int_ids(pt_ids)))
+    img_ids = dict(zip(block.photo_ids.tolist(), _int_ids(block.photo_ids.tolist())))
+    mm = photo_coordinates_mm(block)
+    tracks: dict[str, list[tuple[int, int]]] = {p: [] for p in pt_ids}
+    img_lines = []
+    r_all = opk_to_world_to_cv(block.eo[:, 3:])
+    for i, pid in enumerate(block.photo_ids.tolist()):
+        r = r_all[i]
+        q = matrix_to_quaternion_wxyz(r)
+        t = -r @ block.eo[i, :3]
+        src, ideal = kmat[block.photo_camera[i]]
+        rows = np.flatnonzero(block.obs_photo == pid)
+        pts = []
+        for k, j in enumerate(rows):
+            pnt = block.obs_point[j]
+            num = pt_num.get(pnt, -1)
+            if num >= 0:
+                tracks[pnt].append((img_ids[pid], k))
+            if src is not None:  # the source model: the measured pixels, corner origin
+                x, y = block.obs_px[j] + 0.5
+            else:  # the undistorted pinhole: corrected photo coordinates in ideal pixels
+                cx, cy, c = ideal
+                x, y = cx + mm[j, 0] / c.pixel_size_x_mm, cy - mm[j, 1] / c.pixel_size_y_mm
+            pts.append(f"{_r(x)} {_r(y)} {num}")
+        img_lines.append(f"{img_ids[pid]} {' '.join(_r(v) for v in q)} "
+                         f"{' '.join(_r(v) for v in t)} {cam_num[block.photo_camera[i]]} {pid}")
+        img_lines.append(" ".join(pts))
+    pt_lines = []
+    for pnt, xyz in zip(pt_ids, block.points_m[has_xyz]):
+        tr = " ".join(f"{a} {b}" for a, b in tracks[pnt])
+        pt_lines.append(f"{pt_num[pnt]} {_r(xyz[0])} {_r(xyz[1])} {_r(xyz[2])} 128 128 128 -1 {tr}".rstrip())
+    renamed = [f"{n}={p}" for p, n in pt_num.items() if str(n) != p]
+    with atomic_dir(folder) as tmp:
+        write_text_atomic(tmp / "cameras.txt", (
+            "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+            f"# Number of cameras: {len(cam_lines)}\n# written by lidarcat: pinhole models of the "
+            f"undistorted images (cameras {', '.join(f'{n}={c}' for c, n in cam_num.items())})\n"
+            + "\n".join(cam_lines) + "\n"))
+        write_text_atomic(tmp / "images.txt", (
+            "# Image list with two lines of data per image:\n"
+            "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n"
+            f"# Number of images: {len(img_ids)}\n# written by lidarcat from survey {block.name!r}, "
+            f"CRS {block.crs}, heights {block.height_system}\n" + "\n".join(img_lines) + "\n"))
+        write_text_atomic(tmp / "points3D.txt", (
+            "# 3D point list with one line of data per point:\n"
+            "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
+            f"# Number of points: {len(pt_lines)}\n"
+            + (f"# lidarcat point ids: {' '.join(renamed)}\n" if renamed else "")
+            + "\n".join(pt_lines) + ("\n" if pt_lines else "")))
+    log.info("wrote COLMAP model %s: %d cameras, %d images, %d points", folder, len(cam_lines),
+             len(img_ids), len(pt_lines))
+    return folder

@@ -1,0 +1,429 @@
+r"""OpenSfM ``reconstruction.json`` + ``tracks.csv`` and ``ground_control_points.json``: read and write.
+
+Conventions (OpenSfM ``doc/source/geometry.rst``)
+-------------------------------------------------
+* A shot's ``rotation`` is an **angle-axis** vector and, with ``translation``,
+  maps world to camera, ``x_cam = R x_world + t``; camera x right, **y down,
+  z forward**.  So lidarcat's ``M = F R`` (``F = diag(1, -1, -1)``) and
+  ``X0 = -R^T t`` (:mod:`lidarcat.interop.rotations`).
+* The world frame is a local **topocentric ENU** frame (x east, y north, z up) at
+  ``reference_lla`` on the WGS84 ellipsoid; the survey gets it as a PROJ
+  pipeline description in ``crs`` and heights are ``ellipsoidal`` (OpenSfM
+  converts lat/lon/alt with the WGS84 ellipsoid, ``geo.ecef_from_lla``).
+* Image points are **normalised**: origin at the image centre, x right, y down,
+  divided by ``S = max(width, height)``.  In lidarcat pixels (origin at the centre
+  of the top-left pixel) ``col = (W - 1)/2 + S x_n``, and the COLMAP-style corner
+  pixel is ``col + 0.5``.
+* Cameras: ``perspective`` (``focal``, ``k1``, ``k2``: ``x_n = f d(r) x``,
+  ``d = 1 + k1 r^2 + k2 r^4``) and ``brown`` (``focal_x``, ``focal_y``,
+  ``c_x``, ``c_y``, ``k1``, ``k2``, ``k3``, ``p1``, ``p2``: ``x_n = f_x x_d + c_x``
+  with OpenCV's distortion), focal and principal point in units of ``S``.
+  Both map onto lidarcat's camera as in :mod:`lidarcat.interop.colmap`
+  (pixels ``fx = f S``, ``cx = W/2 + c_x S``); distortion is kept as the source
+  model and removed from the observations exactly.  Other projection types
+  (fisheye, spherical, ...) are refused with a located error.
+
+Writing produces one reconstruction with the block's cameras (``perspective`` or
+``brown`` when the block came from a Brown-type model, else the undistorted
+``brown`` pinhole), shots, points and a ``tracks.csv`` (``OPENSFM_TRACKS_VERSION_v2``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .._io import atomic_dir, read_text, write_text_atomic
+from ..errors import FormatError
+from ._text import format_error
+from .block import Block, GroundControl, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
+from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
+
+__all__ = ["read_opensfm", "read_opensfm_gcp", "read_opensfm_config", "gcp_sd_from_config", "write_opensfm",
+           "topocentric_crs", "OPENSFM_PROJECTIONS"]
+
+log = logging.getLogger(__name__)
+
+OPENSFM_PROJECTIONS = ("perspective", "brown")
+
+
+def topocentric_crs(lat_deg: float, lon_deg: float, alt_m: float) -> str:
+    """Description of OpenSfM's topocentric frame as a PROJ pipeline from WGS84 lon/lat/h (deg, m).
+
+    >>> topocentric_crs(52.5, 13.4, 0.0)[:40]
+    'local ENU (OpenSfM reference_lla): +proj'
+    """
+    return (f"local ENU (OpenSfM reference_lla): {_pipeline(lat_deg, lon_deg, alt_m)}")
+
+
+def _pipeline(lat: float, lon: float, alt: float) -> str:
+    return ("+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad +step +proj=cart "
+            f"+ellps=WGS84 +step +proj=topocentric +ellps=WGS84 +lat_0={lat!r} +lon_0={lon!r} +h_0={alt!r}")
+
+
+def _load_json(path: Path) -> Any:
+    text = read_text(path, FormatError)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as ex:
+        raise format_error(path, ex.lineno, None, f"invalid JSON: {ex.msg} (column {ex.colno})") from None
+
+
+def _json_line(text: str, key: str) -> int | None:
+    """Line of the first occurrence of ``"key"`` in a JSON text (for messages)."""
+    i = text.find(json.dumps(key))
+    return None if i < 0 else text.count("\n", 0, i) + 1
+
+
+def _num(path: Path, text: str, where: str, name: str, v: Any) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise format_error(path, _json_line(text, where), name, f"{v!r} is not a finite number ({where})")
+    return float(v)
+
+
+def _vec(path: Path, text: str, where: str, name: str, v: Any, n: int) -> np.ndarray:
+    if not isinstance(v, list) or len(v) != n:
+        raise format_error(path, _json_line(text, where), name, f"expected a list of {n} numbers ({where})")
+    return np.array([_num(path, text, where, name, x) for x in v])
+
+
+def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float):
+    if not isinstance(c, dict):
+        raise format_error(path, _json_line(text, cid), "cameras", f"camera {cid!r} is not an object")
+    kind = c.get("projection_type")
+    if kind not in OPENSFM_PROJECTIONS:
+        raise format_error(path, _json_line(text, cid), "projection_type",
+                           f"camera {cid!r}: projection {kind!r} is not supported "
+                           f"(supported: {', '.join(OPENSFM_PROJECTIONS)})")
+    num = lambda k, d=None: _num(path, text, cid, k, c.get(k, d))  # noqa: E731
+    w, h = int(num("width")), int(num("height"))
+    if w < 1 or h < 1:
+        raise format_error(path, _json_line(text, cid), "width", f"camera {cid!r}: image size {w}x{h}")
+    s = max(w, h)
+    if kind == "perspective":
+        fx = fy = num("focal") * s
+        cx, cy = w / 2, h / 2
+        dist = {"k1": num("k1", 0.0), "k2": num("k2", 0.0)}
+    else:
+        fx, fy = num("focal_x") * s, num("focal_y") * s
+        cx, cy = w / 2 + num("c_x", 0.0) * s, h / 2 + num("c_y", 0.0) * s
+        dist = {k: num(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}
+    if fx <= 0 or fy <= 0:
+        raise format_error(path, _json_line(text, cid), "focal", f"camera {cid!r}: focal must be positive")
+    cam, model = pinhole_camera(cid, fx, fy, cx, cy, w, h, pixel_size_mm=pixel_size_mm,
+                                model=f"OpenSfM {kind}", source=f"{path.name}: camera {cid!r} ({kind})",
+                                dist=dist)
+    model["opensfm"] = kind
+    return cam, model
+
+
+def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *, index: int = 0,
+                 pixel_size_mm: float = 0.001, name: str | None = None) -> Block:
+    """Read one reconstruction of an OpenSfM ``reconstruction.json`` and its ``tracks.csv``.
+
+    Parameters
+    ----------
+    reconstruction : path
+    tracks : path, optional
+        ``tracks.csv`` (default: ``tracks.csv`` next to the reconstruction, if any).
+        Only observations of shots and points of the reconstruction are kept.
+    index : int
+        Which reconstruction of the list (OpenSfM writes one per connected component).
+    pixel_size_mm : float
+        Pixel pitch given to the cameras (OpenSfM knows none).
+
+    Raises
+    ------
+    FormatError
+        Invalid JSON (line, column), a missing or non-numeric field (the line of
+        the shot/camera/point id and the field), an unsupported projection, a
+        malformed tracks.csv line (``FILE:LINE: field``).
+    """
+    path = Path(reconstruction)
+    text = read_text(path, FormatError)
+    data = _load_json(path)
+    if not isinstance(data, list) or not data:
+        raise format_error(path, 1, None, "expected a JSON list of reconstructions")
+    if not 0 <= index < len(data):
+        raise FormatError(f"{path}: reconstruction {index} requested, the file has {len(data)}")
+    rec = data[index]
+    for key in ("cameras", "shots", "points"):
+        if not isinstance(rec.get(key), dict):
+            raise format_error(path, _json_line(text, key) or 1, key,
+                               f"missing or not an object in reconstruction {index}")
+    cams, models = {}, {}
+    for cid, c in rec["cameras"].items():
+        cams[cid], models[cid] = _camera(path, text, cid, c, pixel_size_mm)
+    photo, pcam, eo = [], [], []
+    for sid, sh in rec["shots"].items():
+        if not isinstance(sh, dict):
+            raise format_error(path, _json_line(text, sid), "shots", f"shot {sid!r} is not an object")
+        rv = _vec(path, text, sid, "rotation", sh.get("rotation"), 3)
+        tv = _vec(path, text, sid, "translation", sh.get("translation"), 3)
+        cid = sh.get("camera")
+        if cid not in cams:
+            raise format_error(path, _json_line(text, sid), "camera", f"shot {sid!r}: camera {cid!r} is not defined")
+        r = Rotation.from_rotvec(rv).as_matrix()
+        photo.append(sid)
+        pcam.append(cid)
+        eo.append(np.concatenate([-r.T @ tv, world_to_cv_to_opk(r)]))
+    pids, pxyz = [], []
+    for pid, pt in rec["points"].items():
+        pids.append(str(pid))
+        pxyz.append(_vec(path, text, pid, "coordinates", pt.get("coordinates") if isinstance(pt, dict) else None, 3))
+    lla = rec.get("reference_lla")
+    if isinstance(lla, dict):
+        lat, lon, alt = (_num(path, text, "reference_lla", k, lla.get(k))
+                         for k in ("latitude", "longitude", "altitude"))
+        crs, hs = topocentric_crs(lat, lon, alt), "ellipsoidal"
+    else:
+        crs, hs = "local: OpenSfM reconstruction frame (no reference_lla)", "unspecified"
+    o_ph: list[str] = []
+    o_pt: list[str] = []
+    o_xy: list[list[float]] = []
+    tpath = Path(tracks) if tracks is not None else path.with_name("tracks.csv")
+    if tracks is not None or tpath.is_file():
+        o_ph, o_pt, o_xy = _read_tracks(tpath, set(photo), set(pids))
+    cam_of = dict(zip(photo, pcam))
+    xy_n = np.array(o_xy, dtype=float).reshape(-1, 2)
+    corner = np.empty_like(xy_n)
+    mm = np.empty_like(xy_n)
+    oc = np.array([cam_of[p] for p in o_ph], dtype=object)
+    for cid, m in models.items():
+        rows = oc == cid
+        if rows.any():
+            s = max(m["w"], m["h"])
+            corner[rows] = xy_n[rows] * s + [m["w"] / 2, m["h"] / 2]
+            mm[rows] = undistorted_mm(corner[rows], cams[cid], m)
+    return Block(name=name or path.stem, crs=crs, height_system=hs, cameras=cams,
+                 photo_ids=np.array(photo, dtype=str), photo_camera=np.array(pcam, dtype=str),
+                 eo=np.array(eo).reshape(-1, 6), obs_photo=np.array(o_ph, dtype=str),
+                 obs_point=np.array(o_pt, dtype=str), obs_px=corner - 0.5, obs_mm=mm,
+                 point_ids=np.array(pids, dtype=str), points_m=np.array(pxyz).reshape(-1, 3),
+                 description=f"imported from OpenSfM {path.name} (reconstruction {index})",
+                 source_models=models)
+
+
+def _read_tracks(path: Path, shots: set[str], points: set[str]):
+    text = read_text(path, FormatError)
+    lines = text.splitlines()
+    start = 1 if lines and lines[0].startswith("OPENSFM_TRACKS_VERSION") else 0
+    o_ph, o_pt, o_xy = [], [], []
+    seen = set()
+    for no, raw in enumerate(lines[start:], start=start + 1):
+        if not raw.strip():
+            continue
+        f = raw.split("\t")
+        names = ("image", "track_id", "feature_id", "x", "y")
+        if len(f) < 5:
+            raise format_error(path, no, names[len(f)], "missing: image track_id feature_id x y ... (tab-separated)")
+        xy = []
+        for k, n in ((3, "x"), (4, "y")):
+            try:
+                v = float(f[k])
+            except ValueError:
+                raise format_error(path, no, n, f"{f[k]!r} is not a number") from None
+            if not math.isfinite(v):
+                raise format_error(path, no, n, f"{f[k]!r} is not a finite number")
+            xy.append(v)
+        im, tr = f[0], f[1].strip()
+        if im in shots and tr in points and (im, tr) not in seen:
+            seen.add((im, tr))
+            o_ph.append(im)
+            o_pt.append(tr)
+            o_xy.append(xy)
+    return o_ph, o_pt, o_xy
+
+
+def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "ellipsoidal") -> GroundControl:
+    """OpenSfM ``ground_control_points.json`` in the frame of *block* (read by :func:`read_opensfm`).
+
+    Positions (latitude, longitude, altitude on WGS84) go to the block's
+    topocentric frame with PROJ (the ``+proj=topocentric`` pipeline of its
+    ``crs``); points without ``position`` are kept with NaN coordinates (their
+    measurements are still tie observations).  Normalised projections become
+    pixels with the shot's camera.  Point ids get the prefix ``gcp`` (OpenSfM keeps
+    GCP ids apart from track ids, which are the survey's tie-point ids).
+
+    Raises
+    ------
+    FormatError
+        The block has no reference_lla, invalid JSON, a missing field, a shot not
+        in the block (``FILE:LINE: field``).
+    """
+    from pyproj import Transformer
+
+    path = Path(path)
+    text = read_text(path, FormatError)
+    data = _load_json(path)
+    if "proj=topocentric" not in block.crs:
+        raise FormatError(f"{path}: the block {block.name!r} has no OpenSfM reference_lla frame; "
+                          f"GCPs in lat/lon cannot be placed")
+    tr = Transformer.from_pipeline(block.crs.split(": ", 1)[1])
+    pts = data.get("points") if isinstance(data, dict) else None
+    if not isinstance(pts, list):
+        raise format_error(path, 1, "points", "expected an object with a list 'points'")
+    ids, enh, o_pt, o_ph, o_px = [], [], [], [], []
+    cam_of = dict(zip(block.photo_ids.tolist(), block.photo_camera.tolist()))
+    for p in pts:
+        line = _json_line(text, str(p.get("id"))) if p.get("id") is not None else None
+        pid = f"gcp{p.get('id')}"  # GCP ids are their own namespace in OpenSfM, apart from track ids
+        pos = p.get("position")
+        xyz = np.full(3, np.nan)
+        if pos is not None:
+            lat, lon, alt = (_num(path, text, pid, k, pos.get(k)) for k in ("latitude", "longitude", "altitude"))
+            xyz = np.array(tr.transform(lon, lat, alt))
+        ids.append(pid)
+        enh.append(xyz)
+        for ob in p.get("observations", []):
+            sid = ob.get("shot_id")
+            if sid not in cam_of:
+                raise format_error(path, line, "shot_id", f"GCP {pid!r}: shot {sid!r} is not in the reconstruction")
+            xy = _vec(path, text, pid, "projection", ob.get("projection"), 2)
+            m = block.source_models[cam_of[sid]]
+            s = max(m["w"], m["h"])
+            o_pt.append(pid)
+            o_ph.append(sid)
+            o_px.append(xy * s + [m["w"] / 2, m["h"] / 2] - 0.5)
+    return GroundControl(np.array(ids, dtype=str), np.array(enh).reshape(-1, 3), block.crs, height_system,
+                         np.array(o_pt, dtype=str), np.array(o_ph, dtype=str), np.array(o_px).reshape(-1, 2),
+                         f"{path} (OpenSfM GCPs, WGS84 lat/lon/alt -> topocentric ENU)")
+
+
+def _opensfm_camera(cam, m: dict | None) -> tuple[dict, dict | None]:
+    """OpenSfM camera dict and the pixel model it implies (None: undistorted pinhole of *cam*)."""
+    if m is not None and m.get("kind") == "brown" and not any(m["dist"].get(k, 0.0) for k in ("k4", "k5", "k6")):
+        w, h = m["w"], m["h"]
+        s = max(w, h)
+        d = m["dist"]
+        if m["fx"] == m["fy"] and m["cx"] == w / 2 and m["cy"] == h / 2 and not any(
+                d.get(k, 0.0) for k in ("k3", "p1", "p2")):
+            return {"projection_type": "perspective", "width": w, "height": h, "focal": m["fx"] / s,
+                    "k1": d.get("k1", 0.0), "k2": d.get("k2", 0.0)}, m
+        return {"projection_type": "brown", "width": w, "height": h, "focal_x": m["fx"] / s,
+                "focal_y": m["fy"] / s, "c_x": (m["cx"] - w / 2) / s, "c_y": (m["cy"] - h / 2) / s,
+                **{k: d.get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}}, m
+    w, h = cam.columns_px, cam.rows_px
+    s = max(w, h)
+    fx, fy = cam.focal_length_mm / cam.pixel_size_x_mm, cam.focal_length_mm / cam.pixel_size_y_mm
+    cx = w / 2 + cam.principal_point_x_mm / cam.pixel_size_x_mm
+    cy = h / 2 - cam.principal_point_y_mm / cam.pixel_size_y_mm
+    return {"projection_type": "brown", "width": w, "height": h, "focal_x": fx / s, "focal_y": fy / s,
+            "c_x": (cx - w / 2) / s, "c_y": (cy - h / 2) / s, "k1": 0.0, "k2": 0.0, "k3": 0.0,
+            "p1": 0.0, "p2": 0.0}, None
+
+
+def write_opensfm(block: Block, folder: str | Path) -> Path:
+    """Write *block* as ``reconstruction.json`` + ``tracks.csv`` in *folder*, atomically.
+
+    Observations are written in normalised coordinates of the camera model
+    written (the measured pixels for a Brown-type source model, else the
+    corrected photo coordinates in the undistorted pinhole).  Only points with
+    coordinates get a ``points`` entry and tracks.
+
+    Raises
+    ------
+    FormatError
+        A photo without a complete orientation.
+    """
+    folder = Path(folder)
+    require_orientations(block, "OpenSfM")
+    cams, used = {}, {}
+    for cid, cam in block.cameras.items():
+        cams[cid], used[cid] = _opensfm_camera(cam, block.source_models.get(cid))
+    r = opk_to_world_to_cv(block.eo[:, 3:]).reshape(-1, 3, 3)
+    shots = {}
+    for i, pid in enumerate(block.photo_ids.tolist()):
+        shots[pid] = {"rotation": Rotation.from_matrix(r[i]).as_rotvec().tolist(),
+                      "translation": (-r[i] @ block.eo[i, :3]).tolist(), "camera": block.photo_camera[i]}
+    ok = np.isfinite(block.points_m).all(axis=1)
+    points = {p: {"coordinates": x.tolist(), "color": [128.0, 128.0, 128.0]}
+              for p, x in zip(block.point_ids[ok].tolist(), block.points_m[ok])}
+    mm = photo_coordinates_mm(block)
+    cam_of = dict(zip(block.photo_ids.tolist(), block.photo_camera.tolist()))
+    lines = ["OPENSFM_TRACKS_VERSION_v2"]
+    for k, (ph, pt) in enumerate(zip(block.obs_photo.tolist(), block.obs_point.tolist())):
+        if pt not in points:
+            continue
+        cid = cam_of[ph]
+        c = cams[cid]
+        s = max(c["width"], c["height"])
+        if used[cid] is not None:
+            corner = block.obs_px[k] + 0.5
+        else:
+            cam = block.cameras[cid]
+            cx = cam.columns_px / 2 + cam.principal_point_x_mm / cam.pixel_size_x_mm
+            cy = cam.rows_px / 2 - cam.principal_point_y_mm / cam.pixel_size_y_mm
+            corner = np.array([cx + mm[k, 0] / cam.pixel_size_x_mm, cy - mm[k, 1] / cam.pixel_size_y_mm])
+        xn = (corner - [c["width"] / 2, c["height"] / 2]) / s
+        lines.append(f"{ph}\t{pt}\t{k}\t{float(xn[0])!r}\t{float(xn[1])!r}\t0.004\t128\t128\t128\t-1\t-1")
+    rec = [{"cameras": cams, "shots": shots, "points": points}]
+    with atomic_dir(folder) as tmp:
+        write_text_atomic(tmp / "reconstruction.json", json.dumps(rec, indent=1) + "\n")
+        write_text_atomic(tmp / "tracks.csv", "\n".join(lines) + "\n")
+    log.info("wrote OpenSfM reconstruction %s: %d shots, %d points (CRS %s, heights %s)", folder,
+             len(shots), len(points), block.crs, block.height_system)
+    return folder
+
+
+def read_opensfm_config(path: str | Path) -> dict[str, Any]:
+    """An OpenSfM dataset ``config.yaml``: flat ``key: value`` lines (``#`` comments).
+
+    Values become bool (``yes``/``no``/``true``/``false``), int, float or text.
+    Only the flat subset of YAML that OpenSfM configs use is read (no PyYAML needed).
+
+    Raises
+    ------
+    FormatError
+        A line that is no ``key: value`` pair, or a key given twice (``FILE:LINE: field``).
+    """
+    path = Path(path)
+    out: dict[str, Any] = {}
+    lines: dict[str, int] = {}
+    for no, raw in enumerate(read_text(path, FormatError).splitlines(), start=1):
+        s = raw.split("#", 1)[0].strip()
+        if not s:
+            continue
+        if ":" not in s:
+            raise format_error(path, no, None, f"{s!r} is no 'key: value' line")
+        key, val = (x.strip() for x in s.split(":", 1))
+        if not key or not val:
+            raise format_error(path, no, key or None, "expected 'key: value' with both parts")
+        if key in out:
+            raise format_error(path, no, key, f"given twice (also line {lines[key]})")
+        low = val.lower()
+        v: Any
+        if low in ("yes", "true", "on"):
+            v = True
+        elif low in ("no", "false", "off"):
+            v = False
+        else:
+            try:
+                v = int(val)
+            except ValueError:
+                try:
+                    v = float(val)
+                except ValueError:
+                    v = val.strip("'\"")
+        out[key] = v
+        lines[key] = no
+    return out
+
+
+def gcp_sd_from_config(config: dict[str, Any], default: float) -> tuple[float, float, float]:
+    """(sd_E, sd_N, sd_h) of GCPs from OpenSfM's ``gcp_horizontal_sd``/``gcp_vertical_sd`` (m).
+
+    Keys missing from the dataset's config take *default*; a config with
+    ``bundle_use_gcp: no`` is logged (OpenSfM would not have used the GCPs).
+    """
+    if config.get("bundle_use_gcp") is False:
+        log.warning("the OpenSfM config says bundle_use_gcp: no; the GCPs are imported anyway")
+    hz = float(config.get("gcp_horizontal_sd", default))
+    vt = float(config.get("gcp_vertical_sd", default))
+    return hz, hz, vt

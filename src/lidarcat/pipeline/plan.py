@@ -1,0 +1,255 @@
+"""The lidarcat stages in pipeline order for a survey (:func:`plan_pipeline`) and ``lidarcat run``.
+
+:func:`plan_pipeline` turns a loaded survey into the list of stages (one
+adjust/assess pair per control set, plus the extracted LiDAR set when the
+survey has tiles and extraction jobs; one comparison per pair with the default
+set); :func:`run_pipeline` loads the survey, runs the plan with
+:func:`lidarcat.pipeline.runner.run_stages` under a folder lock with the log in
+``OUTDIR/lidarcat.log``, and writes ``OUTDIR/summary.json``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import __version__
+from .._io import folder_lock, write_json_atomic
+from ..errors import LidarcatError, SurveyError
+from .runner import (
+    PipelineResult,
+    ProgressCallback,
+    Stage,
+    StageRecord,
+    log_to,
+    run_stages,
+    safe_name,
+)
+from .stages import adjust, assess, camera, compare, extract, report, thesis
+from .stages.report import results
+
+__all__ = ["FROM_SURVEY", "plan_pipeline", "run_pipeline"]
+
+log = logging.getLogger(__name__)
+
+
+def _survey_files(survey: Any, *, lidar: bool = True) -> list[Path]:
+    """survey.toml and every file it names (LiDAR tiles when *lidar*), for hashing."""
+    return [survey.toml_path, *survey.files.values(), *(survey.lidar_paths if lidar else ())]
+
+
+#: default of ``scale`` / ``contour_interval_m``: take them from survey.toml [assessment]
+FROM_SURVEY = "survey"
+
+
+def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | None | str = FROM_SURVEY,
+                  contour_interval_m: float | None | str = FROM_SURVEY, figures: bool = False) -> list[Stage]:
+    """The stages ``lidarcat run`` executes for a loaded survey, in order.
+
+    Parameters
+    ----------
+    survey : lidarcat.Survey
+    extracted_set : str
+        Name of the control set made of the extracted LiDAR points (renamed
+        ``<name>-extracted`` when the survey already has a set of that name).
+    scale, contour_interval_m : float, None or FROM_SURVEY
+        Map scale denominator and contour interval (m) of the check-point
+        classification (PEC, the chi-square sigma0, the CE90 limit); default:
+        survey.toml ``[assessment]`` (1:2000 and 2 m, as the thesis, when the
+        table does not say); None: not applicable.
+    figures : bool
+        The extract stage also draws one figure per roof (``extract/figures/``:
+        points by face, fitted planes, the vertex; thesis Figure 19).
+
+    Returns
+    -------
+    list of Stage
+        camera, extract, one adjust-SET and assess-SET per control set, one
+        compare stage per pair (default set vs each other set), report.
+
+    Raises
+    ------
+    SurveyError
+        Two control sets whose names map to the same output folder.
+    """
+    files = _survey_files(survey, lidar=False)  # only the extraction reads the tiles
+    judged = survey.assessment
+    if scale == FROM_SURVEY:
+        scale = judged.scale
+    if contour_interval_m == FROM_SURVEY:
+        contour_interval_m = judged.contour_interval_m
+    files_lidar = _survey_files(survey)
+    stages: list[Stage] = []
+
+    has_pixels = bool(np.isfinite(survey.image_points.pixel_px).all(axis=1).any())
+    stages.append(Stage(
+        "camera", "camera", camera.run, inputs=lambda ctx: files,
+        skip_reason=None if has_pixels else "image_points has no pixel coordinates (col_px, row_px)",
+        description="interior orientation (eq. 01-07)"))
+
+    can_extract = bool(survey.lidar_paths) and survey.extraction_jobs is not None
+    if not can_extract:
+        why = ("the survey has no LiDAR tiles ([files] lidar) and no extraction jobs"
+               if not survey.lidar_paths and survey.extraction_jobs is None else
+               "the survey has no LiDAR tiles ([files] lidar)" if not survey.lidar_paths else
+               "the survey has no extraction jobs ([files] extraction_jobs)")
+    set_names = list(survey.control_sets)
+    default = survey.default_control or (set_names[0] if set_names else None)
+    if default in set_names:
+        set_names.remove(default)
+        set_names.insert(0, default)
+    ext_name = extracted_set if extracted_set not in survey.control_sets else f"{extracted_set}-extracted"
+    stages.append(Stage(
+        "extract", "extract", extract.run, inputs=lambda ctx: files_lidar,
+        params={"set": ext_name, "figures": bool(figures)},
+        skip_reason=None if can_extract else why,
+        description="LiDAR roof vertices -> control points"))
+
+    runs: list[tuple[str, bool]] = [(name, False) for name in set_names]
+    if can_extract:
+        runs.append((ext_name, True))
+    folder_of: dict[str, str] = {}
+    for name, _ in runs:  # every run needs folders (and stage records) of its own
+        other = folder_of.setdefault(safe_name(name), name)
+        if other != name:
+            raise SurveyError(f"{survey.files.get('control_sets', survey.toml_path)}: control sets "
+                              f"{other!r} and {name!r} would share the output folder "
+                              f"adjust-{safe_name(name)}; rename one (letters, digits, _ . - are kept)")
+    if not runs:
+        stages.append(Stage("adjust", "adjust", adjust.run,
+                            skip_reason="the survey defines no control set (control_sets.csv)"))
+    for name, derived in runs:
+        stages.append(Stage(
+            f"adjust-{name}", f"adjust-{safe_name(name)}", adjust.run,
+            requires=("extract",) if derived else (),
+            inputs=lambda ctx: files,
+            params={"control": name, "derived": derived},
+            description=f"bundle adjustment, control set {name}"))
+    for name, derived in runs:
+        n_check = None if derived else len(survey.control_sets[name].check)
+        stages.append(Stage(
+            f"assess-{name}", f"assess-{safe_name(name)}", assess.run,
+            requires=(f"adjust-{name}",) + (("extract",) if derived else ()),
+            inputs=lambda ctx: files,
+            params={"control": name, "derived": derived, "scale": scale,
+                    "contour_interval_m": contour_interval_m, "alpha": judged.alpha,
+                    "pec_class": judged.pec_class,
+                    "plotting_position": judged.plotting_position},
+            skip_reason=f"control set {name} has no check points" if n_check == 0 else None,
+            description=f"check-point accuracy, control set {name}"))
+    pairs = [(runs[0][0], other) for other, _ in runs[1:]]
+    for a, b in pairs:
+        stages.append(Stage(
+            f"compare-{a}-{b}", f"compare-{safe_name(a)}-{safe_name(b)}", compare.run,
+            requires=(f"adjust-{a}", f"adjust-{b}"), params={"first": a, "second": b},
+            description=f"differences of the runs {a} and {b}"))
+    if len(runs) < 2:
+        stages.append(Stage("compare", "compare", compare.run,
+                            skip_reason="needs two control sets (runs) to compare; the survey has "
+                                        f"{len(runs)}"))
+    published = survey.root / thesis.PUBLISHED
+    if published.is_dir():  # a survey that reproduces the thesis (the embedded block)
+        has_runs = all(r in dict(runs) for r in thesis.RUNS)
+        stages.append(Stage(
+            "thesis", "thesis", thesis.run, requires=tuple(f"adjust-{r}" for r in thesis.RUNS) if has_runs else (),
+            inputs=lambda ctx: [*files, *thesis.published_files(published).values()],
+            params={"alpha": judged.alpha},
+            skip_reason=None if has_runs else f"needs the control sets {' and '.join(thesis.RUNS)} of the thesis",
+            description="thesis section 4.4 (Tables 8-15) beside this run"))
+    upstream = tuple(s.name for s in stages)
+    stages.append(Stage("report", "report", report.run, uses=upstream,
+                        inputs=lambda ctx: files, description="HTML / Markdown / JSON report"))
+    return stages
+
+
+def run_pipeline(
+    survey_path: str | os.PathLike | None = None,
+    outdir: str | os.PathLike | None = None,
+    *,
+    force: bool = False,
+    progress: ProgressCallback | None = None,
+    scale: float | None | str = FROM_SURVEY,
+    contour_interval_m: float | None | str = FROM_SURVEY,
+    figures: bool = False,
+) -> PipelineResult:
+    """Run the whole pipeline on a survey folder (``lidarcat run``).
+
+    Parameters
+    ----------
+    survey_path : path or None
+        The survey folder; None runs the embedded thesis block.
+    outdir : path or None
+        Output folder; default ``Survey.output_dir()`` (``SURVEY/out``, or
+        ``./lidarcat-out`` for the embedded block).
+    force : bool
+        Recompute every stage even when its inputs are unchanged.
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+    scale, contour_interval_m : float, None or FROM_SURVEY
+        Map scale denominator and contour interval (m) for the classification
+        of the check points; default: survey.toml ``[assessment]`` (1:2000 and
+        2 m, as the thesis, when it does not say); None: not applicable.
+    figures : bool
+        Write one extraction figure per roof into ``OUTDIR/extract/figures/``.
+
+    Returns
+    -------
+    PipelineResult
+        ``result.ok`` is False when a stage failed; ``OUTDIR/summary.json``
+        holds ``result.summary``.
+
+    Raises
+    ------
+    SurveyError
+        The survey folder is invalid (nothing is run).
+    """
+    from ..survey import Survey
+
+    survey = Survey.load(survey_path)
+    out = Path(survey.output_dir(outdir))
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "lidarcat.log").touch()
+    except OSError as ex:
+        raise LidarcatError(f"{out}: cannot write the output folder ({ex.strerror or ex}); "
+                            f"choose another with -o/--outdir") from ex
+    with folder_lock(out), log_to(out / "lidarcat.log"):
+        log.info("lidarcat %s run: survey %r (%s) -> %s%s", __version__, survey.name, survey.root,
+                 out, " (forced)" if force else "")
+        stages = plan_pipeline(survey, scale=scale, contour_interval_m=contour_interval_m, figures=figures)
+        t0 = time.perf_counter()
+        records = run_stages(stages, out, force=force, progress=progress,
+                             values={"survey": survey, "plan": stages})
+        summary = _summary(survey, out, records, time.perf_counter() - t0)
+        write_json_atomic(out / "summary.json", summary)
+        failed = [r.name for r in records if r.status == "failed"]
+        if failed:
+            log.error("run finished with failed stage(s): %s", ", ".join(failed))
+        else:
+            log.info("run finished: %s", ", ".join(f"{r.name} {r.status}" for r in records))
+    return PipelineResult(out, tuple(records), summary)
+
+
+def _summary(survey: Any, out: Path, records: Sequence[StageRecord], seconds: float) -> dict:
+    report = next((r.result.get("index") for r in records if r.name == "report" and r.done), None)
+    return {
+        "lidarcat_version": __version__,
+        "survey": {"name": survey.name, "root": str(survey.root), "crs": survey.crs,
+                   "embedded": bool(survey.embedded)},
+        "outdir": str(out),
+        "ok": not any(r.status == "failed" for r in records),
+        "failed": [r.name for r in records if r.status == "failed"],
+        "stages": [r.to_dict() for r in records],
+        "stages_ran": [r.name for r in records if r.status == "ran"],
+        "stages_reused": [r.name for r in records if r.status == "reused"],
+        "stages_skipped": [r.name for r in records if r.status == "skipped"],
+        "seconds": round(seconds, 3),
+        **results(records),
+        "report": report,
+    }

@@ -1,0 +1,109 @@
+"""What the mapping products need from an adjusted survey: orientations, photo files, surfaces.
+
+* adjusted orientations -- ``eop.csv`` of ``lidarcat adjust``/``lidarcat run``
+  (default ``<survey output>/adjust-<default control set>/eop.csv``); a photo
+  of the survey that is not in it was not adjusted: a located error;
+* photo files -- ``<images>/<photo id>.<png|tif|tiff|jpg|jpeg>`` (default
+  ``images/`` in the survey folder; ``lidarcat demo synthetic --images`` writes
+  them there), grey or RGB, the size of the photo's camera;
+* surfaces -- a DSM/DTM GeoTIFF (``lidarcat lidar raster``) or the LiDAR points
+  around the area (:class:`lidarcat.monoplot.PointSurface`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import SurveyError
+
+__all__ = ["default_eop_path", "adjusted_orientation", "photo_image", "IMAGE_SUFFIXES", "lidar_surface"]
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+
+
+def default_eop_path(survey: Any) -> Path:
+    """``<output dir>/adjust-<default control set>/eop.csv`` of a survey (may not exist)."""
+    name = survey.default_control or (next(iter(survey.control_sets)) if survey.control_sets else "gps")
+    return survey.output_dir() / f"adjust-{name}" / "eop.csv"
+
+
+def adjusted_orientation(survey: Any, photo_id: str, eop_path: str | os.PathLike | None = None) -> Any:
+    """The adjusted :class:`~lidarcat.bundle.ExteriorOrientation` of a photo of the survey.
+
+    Raises
+    ------
+    SurveyError
+        The photo is not in the survey, the orientation file is missing, or the
+        photo is not in it (not adjusted).
+    """
+    from .monoplot import read_orientations
+
+    if photo_id not in survey.photo_ids:
+        raise SurveyError(f"{survey.root / 'photos.csv'}: no photo {photo_id!r} in the survey "
+                          f"(photos: {', '.join(survey.photo_ids[:10])}{' ...' if len(survey.photo_ids) > 10 else ''})")
+    path = Path(eop_path) if eop_path is not None else default_eop_path(survey)
+    if not path.is_file():
+        raise SurveyError(f"{path}: no adjusted orientations; run `lidarcat run {survey.root}` first or "
+                          f"give the eop.csv of an adjustment (--eop)")
+    eos = read_orientations(path)
+    if photo_id not in eos:
+        raise SurveyError(f"{path}: photo {photo_id!r} was not adjusted (it is not in this file); "
+                          f"adjusted photos: {', '.join(list(eos)[:10])}")
+    return eos[photo_id]
+
+
+def photo_image(photo_id: str, images_dir: str | os.PathLike, camera: Any) -> np.ndarray:
+    """Read ``<images_dir>/<photo_id>.<suffix>`` as a grey (rows, cols) or RGB (rows, cols, 3) uint8/uint16 array.
+
+    Raises
+    ------
+    SurveyError
+        No such file, an unreadable image, or a size that is not the camera's.
+    """
+    import cv2
+
+    folder = Path(images_dir)
+    cands = [folder / f"{photo_id}{s}" for s in IMAGE_SUFFIXES]
+    path = next((p for p in cands if p.is_file()), None)
+    if path is None:
+        raise SurveyError(f"{folder}: no image of photo {photo_id!r} (looked for {photo_id}.png, .tif, "
+                          f".jpg); write them with `lidarcat demo synthetic --images` or give --images DIR")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise SurveyError(f"{path}: cannot read the image (not a PNG/TIFF/JPEG OpenCV can decode)")
+    if img.ndim == 3:
+        img = img[:, :, 2::-1] if img.shape[2] >= 3 else img[:, :, 0]   # BGR(A) -> RGB
+    if img.shape[:2] != (camera.rows_px, camera.columns_px):
+        raise SurveyError(f"{path}: image is {img.shape[1]} x {img.shape[0]} px but camera {camera.id!r} "
+                          f"is {camera.columns_px} x {camera.rows_px} px")
+    return np.ascontiguousarray(img)
+
+
+def lidar_surface(paths: Sequence[str | os.PathLike], bounds: Sequence[float], interpolator: str = "tin",
+                  sd_m: float = 0.15, crs: Any = None) -> Any:
+    """A :class:`~lidarcat.monoplot.PointSurface` of the LiDAR points in *bounds* (m).
+
+    Raises
+    ------
+    SurveyError
+        No LiDAR point in the area.
+    """
+    from .lidar import TileIndex
+    from .monoplot import PointSurface
+
+    index = TileIndex.build(list(paths), crs=crs)
+    cloud = index.query_box(*bounds)
+    xyz = np.asarray(cloud.xyz)
+    if len(xyz) < 3:
+        raise SurveyError(f"no LiDAR points in E {bounds[0]:.1f}..{bounds[2]:.1f}, N {bounds[1]:.1f}.."
+                          f"{bounds[3]:.1f} (tiles: {', '.join(str(p) for p in paths)[:200]})")
+    log.info("%d LiDAR points in the area for the surface", len(xyz))
+    return PointSurface(xyz, interpolator, sd_m)

@@ -1,0 +1,138 @@
+"""The production-size engine: supernodal Cholesky, selected inversion, precision switch (issue 11)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from lidarcat._synthetic_block import synthetic_block
+from lidarcat.bundle import _System, adjust, covariance_blocks, observation_blocks
+from lidarcat.bundle.cholesky import SingularError, SupernodalCholesky
+
+
+def _grid_matrix(nx: int, ny: int, k_global: int, seed: int):
+    """A random SPD matrix of 6 x 6 units on an nx x ny grid graph (with diagonal and
+    skip-one neighbours), plus one global unit of size *k_global* bordering every unit."""
+    rng = np.random.default_rng(seed)
+    P = nx * ny
+    edges = []
+    for i in range(nx):
+        for j in range(ny):
+            for di, dj in ((1, 0), (0, 1), (1, 1), (2, 0)):
+                if i + di < nx and j + dj < ny:
+                    edges.append((i * ny + j, (i + di) * ny + j + dj))
+    sizes = np.r_[np.full(P, 6), [k_global] if k_global else []].astype(int)
+    off = np.r_[0, np.cumsum(sizes)]
+    pairs = edges + ([(u, P) for u in range(P)] if k_global else [])
+    rows, cols, vals = [], [], []
+    for a, b in pairs:
+        B = rng.normal(size=(sizes[a], sizes[b]))
+        R, C = np.meshgrid(np.arange(off[a], off[a + 1]), np.arange(off[b], off[b + 1]), indexing="ij")
+        rows += [R.ravel(), C.ravel()]
+        cols += [C.ravel(), R.ravel()]
+        vals += [B.ravel(), B.ravel()]
+    n = off[-1]
+    A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    A = (A + sp.diags(np.abs(A).sum(axis=1).A1 + 1.0)).tocsr()
+    A.sort_indices()
+    return A, sizes, off, np.array(edges)
+
+
+@pytest.mark.parametrize("k_global", [0, 4])
+def test_supernodal_cholesky_solve_and_selected_inverse_equal_dense(k_global):
+    A, sizes, off, edges = _grid_matrix(14, 9, k_global, seed=2)
+    P = 14 * 9
+    sym = SupernodalCholesky(A, sizes, root_units=[P] if k_global else (), leaf=6)
+    assert sym.n_nodes > 10                      # a real tree, not one dense front
+    f = sym.factor(A.data)
+    b = np.random.default_rng(1).normal(size=(A.shape[0], 2))
+    np.testing.assert_allclose(A @ f.solve(b), b, rtol=0, atol=1e-10)
+    D = np.linalg.inv(A.toarray())
+    Z = f.selected_inverse()
+    ui = np.r_[np.arange(P), edges[:, 0], edges[:, 1]]
+    uk = np.r_[np.arange(P), edges[:, 1], edges[:, 0]]
+    ref = np.stack([D[off[i]:off[i + 1], off[k]:off[k + 1]] for i, k in zip(ui, uk)])
+    np.testing.assert_allclose(Z.blocks(ui, uk), ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    if k_global:
+        g = Z.blocks(np.arange(P), np.full(P, P))          # camera x global cross blocks (6 x k)
+        ref = np.stack([D[off[i]:off[i + 1], off[P]:] for i in range(P)])
+        np.testing.assert_allclose(g, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+        np.testing.assert_allclose(Z.blocks([P], [P])[0], D[off[P]:, off[P]:], rtol=1e-10)
+    leaves = [k for k in range(sym.n_nodes) if not sym.kids[k]]
+    u0 = np.flatnonzero(sym.node_of_unit == leaves[0])[0]
+    u1 = np.flatnonzero(sym.node_of_unit == leaves[-1])[0]   # two leaves: never on each other's pattern
+    with pytest.raises(ValueError, match="outside the pattern of the factor"):
+        Z.blocks([u0], [u1])
+
+
+def test_supernodal_cholesky_reports_an_indefinite_matrix():
+    A, sizes, _, _ = _grid_matrix(6, 5, 0, seed=3)
+    A = A.tolil()
+    A[10, 10] = -1.0
+    A = A.tocsr()
+    A.sort_indices()
+    with pytest.raises(SingularError):
+        SupernodalCholesky(A, sizes, leaf=4).factor(A.data)
+
+
+@pytest.fixture(scope="module")
+def block100():
+    """A 10 x 10 photo block linearised at its truth."""
+    b = synthetic_block(10, 10, seed=3, point_spacing_m=150.0)
+    return b, _System(b.problem, b.true_eo, b.true_points_m)
+
+
+def test_precision_blocks_equal_dense_inverse_on_100_photos(block100):
+    """Photo 6x6, point 3x3 and photo-point blocks equal a dense inverse to 1e-9 (relative)."""
+    b, system = block100
+    p = b.problem
+    n_ph, n_pt = p.n_photos, p.n_points
+    assert n_ph == 100
+    schur = system.schur
+    from lidarcat.bundle.linear import _inv3
+
+    vinv = _inv3(system.V)
+    data, T = schur.assemble(system.U, vinv, system.W)
+    S = sp.csr_matrix((data, schur.pattern.indices, schur.pattern.indptr), shape=schur.pattern.shape).toarray()
+    # the assembled S equals the dense Schur complement U - W V^-1 W^T
+    W = np.zeros((6 * n_ph, 3 * n_pt))
+    for a, (i, j) in enumerate(zip(p.photo_index, p.point_index)):
+        W[6 * i:6 * i + 6, 3 * j:3 * j + 3] = system.W[a]
+    Vi = sp.block_diag(list(vinv)).toarray()
+    U = sp.block_diag(list(system.U)).toarray()
+    S_dense = U - W @ Vi @ W.T
+    np.testing.assert_allclose(S, S_dense, rtol=0, atol=1e-12 * np.abs(S_dense).max())
+    d = 1.0 / np.sqrt(np.diag(S_dense))               # equilibrate (m and rad differ by 1e6)
+    Z = d[:, None] * np.linalg.inv(d[:, None] * S_dense * d[None, :]) * d[None, :]
+    cam_cov, point_cov = covariance_blocks(system, "all")
+    ref_cam = np.stack([Z[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(n_ph)])
+    rel = np.abs(cam_cov - ref_cam).max(axis=(1, 2)) / np.abs(ref_cam).max(axis=(1, 2))
+    assert rel.max() < 1e-9
+    TZ = Vi @ W.T @ Z                                  # (3Q, 6P): -Cov(X, c)
+    M = TZ @ W @ Vi
+    ref_pt = np.stack([vinv[j] + M[3 * j:3 * j + 3, 3 * j:3 * j + 3] for j in range(n_pt)])
+    rel = np.abs(point_cov - ref_pt).max(axis=(1, 2)) / np.abs(ref_pt).max(axis=(1, 2))
+    assert rel.max() < 1e-9
+    ob = observation_blocks(system)
+    cross = np.stack([-TZ[3 * j:3 * j + 3, 6 * i:6 * i + 6].T for i, j in zip(p.photo_index, p.point_index)])
+    rel = np.abs(ob[:, :6, 6:] - cross).max(axis=(1, 2)) / np.abs(cross).max(axis=(1, 2))
+    assert rel.max() < 1e-9
+    np.testing.assert_array_equal(ob[:, :6, :6], cam_cov[p.photo_index])
+    np.testing.assert_allclose(ob[:, 6:, 6:], point_cov[p.point_index], rtol=1e-12)
+    np.testing.assert_array_equal(ob[:, 6:, :6], np.transpose(ob[:, :6, 6:], (0, 2, 1)))
+
+
+def test_precision_switch():
+    b = synthetic_block(3, 5, seed=4, point_spacing_m=120.0)
+    init = (b.true_eo, b.true_points_m)
+    full = adjust(b.problem, initial=init)
+    photos = adjust(b.problem, initial=init, precision="photos")
+    none = adjust(b.problem, initial=init, precision="none")
+    np.testing.assert_array_equal(photos.eo_params, full.eo_params)
+    np.testing.assert_allclose(photos.eo_cov, full.eo_cov, rtol=1e-12)
+    assert np.isnan(photos.point_cov).all() and np.isfinite(full.point_cov).all()
+    assert np.isnan(none.eo_cov).all() and np.isnan(none.point_cov).all()
+    assert none.vtpv == full.vtpv and none.success
+    with pytest.raises(ValueError, match="`precision` must be one of none, photos, all, got 'some'"):
+        adjust(b.problem, initial=init, precision="some")
