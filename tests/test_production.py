@@ -170,3 +170,39 @@ def test_sheets_cut_products_and_write_the_index(classified, tmp_path):
             for line in json.loads(c.read_text())["features"]:
                 xy = np.asarray(line["geometry"]["coordinates"])
                 assert (xy[:, 0] >= f["properties"]["xmin"] - 1e-6).all() and (xy[:, 0] <= f["properties"]["xmax"] + 1e-6).all()
+
+
+@pytest.mark.slow
+def test_a_killed_worker_gives_its_tile_to_another(tmp_path):
+    """SIGKILL one of two workers mid-run: the scheduler reruns its tile; outputs equal the serial ones."""
+    distributed = pytest.importorskip("dask.distributed")
+    import signal
+    import threading
+    import time
+
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    client = distributed.Client(cluster)
+    try:
+        pids = list(client.run(os.getpid).values())
+        jobs = tile_jobs("ground", [AHN1, AHN2], tmp_path / "dask", crs="EPSG:7415", params={"method": "smrf"},
+                         overlap_m=36.0)
+        box: dict = {}
+
+        def go():
+            try:
+                box["out"] = run_jobs(jobs, scheduler=cluster.scheduler_address)
+            except BaseException as ex:  # noqa: BLE001 - handed to the test thread
+                box["error"] = ex
+        th = threading.Thread(target=go)
+        th.start()
+        time.sleep(2.0)                        # both workers are inside a tile (each takes seconds)
+        os.kill(pids[0], signal.SIGKILL)
+        th.join(600)
+        assert "error" not in box, box.get("error")
+    finally:
+        client.close()
+        cluster.close()
+    serial = run_jobs(tile_jobs("ground", [AHN1, AHN2], tmp_path / "serial", crs="EPSG:7415",
+                                params={"method": "smrf"}, overlap_m=36.0))
+    for a, b in zip(serial, box["out"]):
+        np.testing.assert_array_equal(laspy.read(a).classification, laspy.read(b).classification)
