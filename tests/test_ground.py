@@ -133,13 +133,14 @@ def test_copy_keeps_other_classes_and_input_and_ignores_input_classes(tmp_path):
         write_classified_copy(src, src, c1 == 2)
 
 
-def test_tile_seams_do_not_change_the_result(tmp_path):
+@pytest.mark.parametrize("method", ["smrf", pytest.param("ptd", marks=pytest.mark.slow)])
+def test_tile_seams_do_not_change_the_result(tmp_path, method):
     """Two tiles classified with their overlap give what the merged area gives."""
     whole = _crop(tmp_path, "whole.laz", (85000, 447412, 85072.3, 447540))
     west = _crop(tmp_path, "west.laz", (85000, 447412, 85036, 447540))
     east = _crop(tmp_path, "east.laz", (85036, 447412, 85072.3, 447540))
-    ref = classify_tiles([whole], tmp_path / "ref.laz", crs="EPSG:7415", method="smrf")[0]
-    outs = classify_tiles([west, east], tmp_path / "tiles", crs="EPSG:7415", method="smrf")
+    ref = classify_tiles([whole], tmp_path / "ref.laz", crs="EPSG:7415", method=method)[0]
+    outs = classify_tiles([west, east], tmp_path / "tiles", crs="EPSG:7415", method=method)
     def keyed(lasses):
         cols = [np.concatenate([np.asarray(getattr(las, f)) for las in lasses])
                 for f in ("X", "Y", "Z", "gps_time", "return_number", "classification")]

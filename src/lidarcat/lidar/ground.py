@@ -20,9 +20,11 @@ vertex :math:`V`,
 
 A point is accepted when :math:`|d| \\le` ``iteration_distance_m`` (no big jumps
 under large triangles) and :math:`\\alpha \\le` ``iteration_angle_deg``.  Per
-iteration each triangle accepts its one candidate of smallest angle (Axelsson's
-rule: the TIN bends towards the terrain one point at a time); the TIN is
-re-triangulated and the test repeated until no point is accepted.  Candidates
+iteration each triangle may accept only its candidate of smallest angle (Axelsson's
+rule, ``one_per_triangle=True``; by default every point that passes is
+accepted at once, which converges in far fewer iterations and measured better
+on AHN3); the TIN is re-triangulated and the test repeated until no point is
+accepted.  Candidates
 outside the TIN's hull are tested against the nearest ground point as if it
 carried a level triangle.  All of one iteration is vectorised:
 :class:`scipy.spatial.Delaunay` and ``find_simplex`` locate the candidates,
@@ -117,6 +119,12 @@ class PTDParameters:
         Neighbours looked at for the low-outlier test.
     max_iterations : int
         Safety stop for the densification loop.
+    one_per_triangle : bool
+        Accept at most one point (the smallest angle) per triangle and
+        iteration, as Axelsson's description reads; default False: every
+        point that passes is accepted at once.  On AHN3 tile 2 the strict rule
+        needs more than 200 iterations and stops at 12.6 % total error, the
+        default converges in a few dozen and reaches 5.05 %.
     """
 
     max_building_m: float = 60.0
@@ -125,7 +133,7 @@ class PTDParameters:
     low_outlier_m: float = 1.0
     outlier_neighbours: int = 8
     max_iterations: int = 200
-    one_per_triangle: bool = True
+    one_per_triangle: bool = False
 
     def __post_init__(self) -> None:
         for name in ("max_building_m", "iteration_angle_deg", "iteration_distance_m", "low_outlier_m"):
