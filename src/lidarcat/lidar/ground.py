@@ -476,8 +476,8 @@ def classify_ground(xyz: np.ndarray, return_number: Any = None, number_of_return
     """Ground mask of points by *method* ``"smrf"`` (default) or ``"ptd"``.
 
     SMRF is the default because it holds on the AHN3 reference (2.6-3.0 % total
-    error) where PTD with TerraScan's default parameters stays at about 5 %
-    (5.05 % on tile 2, docs/production.md).
+    error) where PTD with TerraScan's default parameters stays just above 5 %
+    (5.55 % and 5.05 %, docs/production.md).
 
     See :func:`ptd_ground` and :func:`smrf_ground`.
     """
