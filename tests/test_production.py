@@ -22,6 +22,18 @@ AHN1 = LIDAR_DATA / "ahn3_cropped_1.laz"
 AHN2 = LIDAR_DATA / "ahn3_cropped_2.laz"
 
 
+def _halves(tmp_path):
+    """AHN3 tile 2 cut at E 85036 into two adjacent tiles (keeps the Dask tests quick)."""
+    las = laspy.read(str(AHN2))
+    out = []
+    for name, m in (("west.laz", np.asarray(las.x) < 85036), ("east.laz", np.asarray(las.x) >= 85036)):
+        part = laspy.LasData(las.header)
+        part.points = las.points[m]
+        part.write(str(tmp_path / name))
+        out.append(tmp_path / name)
+    return out
+
+
 def run(*args: str):
     return CliRunner().invoke(cli, ["lidar", *args], catch_exceptions=False)
 
@@ -111,11 +123,11 @@ def test_corrupt_and_missing_tiles_and_full_disk_are_located(tmp_path, monkeypat
 
 @pytest.mark.slow
 def test_dask_local_cluster_gives_the_serial_results(tmp_path):
-    """Ground classification and DSM of both AHN3 tiles: serial == LocalCluster(2 workers), bit for bit."""
+    """Ground classification and DSM of two AHN3 tiles: serial == LocalCluster(2 workers), bit for bit."""
     pytest.importorskip("dask.distributed")
     import rasterio
 
-    tiles = [AHN1, AHN2]
+    tiles = _halves(tmp_path)
 
     def jobs(root):
         return (tile_jobs("ground", tiles, root / "ground", crs="EPSG:7415", params={"method": "smrf"},
@@ -183,8 +195,8 @@ def test_a_killed_worker_gives_its_tile_to_another(tmp_path):
     cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
     client = distributed.Client(cluster)
     try:
-        pids = list(client.run(os.getpid).values())
-        jobs = tile_jobs("ground", [AHN1, AHN2], tmp_path / "dask", crs="EPSG:7415", params={"method": "smrf"},
+        tiles = _halves(tmp_path)
+        jobs = tile_jobs("ground", tiles, tmp_path / "dask", crs="EPSG:7415", params={"method": "smrf"},
                          overlap_m=36.0)
         box: dict = {}
 
@@ -195,14 +207,20 @@ def test_a_killed_worker_gives_its_tile_to_another(tmp_path):
                 box["error"] = ex
         th = threading.Thread(target=go)
         th.start()
-        time.sleep(2.0)                        # both workers are inside a tile (each takes seconds)
-        os.kill(pids[0], signal.SIGKILL)
+        busy: list = []
+        deadline = time.monotonic() + 120
+        while not busy and time.monotonic() < deadline:   # a worker inside a tile (each takes seconds)
+            busy = [w for w, tasks in client.processing().items() if tasks]
+            time.sleep(0.05)
+        assert busy, "no tile ever started"
+        pid = client.run(os.getpid, workers=busy[:1])[busy[0]]
+        os.kill(pid, signal.SIGKILL)
         th.join(600)
         assert "error" not in box, box.get("error")
     finally:
         client.close()
         cluster.close()
-    serial = run_jobs(tile_jobs("ground", [AHN1, AHN2], tmp_path / "serial", crs="EPSG:7415",
+    serial = run_jobs(tile_jobs("ground", tiles, tmp_path / "serial", crs="EPSG:7415",
                                 params={"method": "smrf"}, overlap_m=36.0))
     for a, b in zip(serial, box["out"]):
         np.testing.assert_array_equal(laspy.read(a).classification, laspy.read(b).classification)
