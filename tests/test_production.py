@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from conftest import LIDAR_DATA
 from lidarcat.cli.main import cli
 from lidarcat.errors import TileIOError
-from lidarcat.lidar import PointCloud, read_points
+from lidarcat.lidar import read_points
 from lidarcat.lidar.parallel import run_jobs, tile_jobs
 from lidarcat.lidar.terrain import tin_heights
 
