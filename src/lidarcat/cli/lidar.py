@@ -27,7 +27,7 @@ _delimiter_opt = click.option(
     help="Text files: field separator (default: detected from the first data line).")
 
 
-@click.group(short_help="LiDAR tiles: info, index, clip, raster views.")
+@click.group(short_help="LiDAR tiles: info, index, clip, raster views; ground, DTM/DSM, contours.")
 def lidar() -> None:
     """LiDAR point files: LAS 1.0-1.4, LAZ, COPC and ASCII (.xyz .txt .csv .asc .pts).
 
@@ -334,3 +334,10 @@ def raster(paths: tuple[str, ...], cell_m: float, what: str, bounds: tuple[float
                f"{100 * filled:.1f} % valued")
     for p in written:
         click.echo(f"written {p}")
+
+
+# production chain (ground, dtm, dsm, contours, hypsometry) lives in its own module
+from .lidar_products import PRODUCT_COMMANDS as _PRODUCTS  # noqa: E402
+
+for _cmd in _PRODUCTS:
+    lidar.add_command(_cmd)

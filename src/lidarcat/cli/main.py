@@ -26,7 +26,7 @@ __all__ = ["cli", "main", "COMMANDS"]
 COMMANDS: list[tuple[str, str, str]] = [
     ("import", "lidarcat.cli.interop:import_cmd", "Read COLMAP, OpenSfM, Metashape, ODM, OPK, GNSS files into a survey."),
     ("camera", "lidarcat.cli.camera:camera", "Interior orientation: pixel to corrected photo coordinates."),
-    ("lidar", "lidarcat.cli.lidar:lidar", "LiDAR tiles: info, index, clip, raster views."),
+    ("lidar", "lidarcat.cli.lidar:lidar", "LiDAR tiles: info, index, clip, raster views; ground, DTM/DSM, contours."),
     ("extract", "lidarcat.cli.extract:extract", "Roof planes to control points (Delaunay facets + plane intersection)."),
     ("adjust", "lidarcat.cli.adjust:adjust", "Bundle adjustment with weighted position constraints."),
     ("assess", "lidarcat.cli.assess:assess", "Check-point accuracy: Filliben, t, chi-square, PEC, ASPRS, NSSDA."),

@@ -8,6 +8,11 @@
 :mod:`.clipping`    :func:`clip`: points around a roof with height pre-filters
 :mod:`.raster`      :func:`rasterize` (intensity, DSM, DTM), GeoTIFF and PNG output
 :mod:`.info`        :func:`describe`: counts, bounds, density, classes, returns
+:mod:`.ground`      ground classification: PTD (TerraScan's), SMRF; Type I/II, kappa
+:mod:`.terrain`     TIN DTM (gaps reported), DSM, nDSM, hillshade, hypsometric image
+:mod:`.contours`    contours from the ground TIN, master curves, spot heights
+:mod:`.sheets`      regular sheet grid, sheet index layer, products cut per sheet
+:mod:`.parallel`    tile jobs with overlap: serial or on Dask, resumable
 ==================  ===========================================================
 
 Examples

@@ -94,9 +94,21 @@ def _grid_for(bounds: tuple[float, float, float, float], cell_m: float) -> tuple
     xmin, ymin, xmax, ymax = map(float, bounds[:4])
     x0 = np.floor(xmin / cell_m) * cell_m
     y0 = np.ceil(ymax / cell_m) * cell_m
-    ncols = int(np.floor((xmax - x0) / cell_m)) + 1
-    nrows = int(np.floor((y0 - ymin) / cell_m)) + 1
+    # ceil, not floor + 1: bounds on a cell edge (e.g. --bounds 0 0 10 10, cell 1) give exactly
+    # 10 x 10 cells; points on the east/south edge fall in the last cell (see _edge_rowcol)
+    ncols = max(1, int(np.ceil((xmax - x0) / cell_m - 1e-9)))
+    nrows = max(1, int(np.ceil((y0 - ymin) / cell_m - 1e-9)))
     return GeoTransform(float(x0), float(y0), float(cell_m)), nrows, ncols
+
+
+def _edge_rowcol(transform: GeoTransform, x: Any, y: Any, nrows: int, ncols: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cell indices; a point exactly on the grid's east or south edge goes to the last cell."""
+    row, col = transform.rowcol(x, y)
+    x_east = transform.x0 + ncols * transform.cell_m
+    y_south = transform.y0 - nrows * transform.cell_m
+    col = np.where((col == ncols) & (np.asarray(x) <= x_east), ncols - 1, col)
+    row = np.where((row == nrows) & (np.asarray(y) >= y_south), nrows - 1, row)
+    return row, col
 
 
 def _fill_small_holes(grid: np.ndarray, iterations: int, min_neighbours: int = 5) -> np.ndarray:
@@ -218,7 +230,7 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
             sel = c.first_returns()
         else:
             sel = c.last_returns()
-        row, col = transform.rowcol(c.x, c.y)
+        row, col = _edge_rowcol(transform, c.x, c.y, nrows, ncols)
         inside = (row >= 0) & (row < nrows) & (col >= 0) & (col < ncols)
         flat = row * ncols + col
         m = inside & sel

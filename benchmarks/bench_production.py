@@ -1,0 +1,108 @@
+"""Benchmark of the production chain: ground classification and rasters, serial vs Dask workers.
+
+Generates the synthetic tile set of ``bench_lidar.py`` (terrain + gable-roof
+houses + returns, 10 pts/m2) and runs, each mode in a fresh subprocess,
+
+``ground``  SMRF classification into LAZ copies (overlap 36 m)
+``dsm``     1 m DSM GeoTIFF per tile (overlap 50 m)
+``dtm``     1 m TIN DTM GeoTIFF per tile from the tiles' class 2 (overlap 50 m)
+
+on the serial path, then on a LocalCluster of 1 and 2 single-threaded workers,
+printing points/s and the peak resident memory of the process (serial) or of
+each worker (Dask: VmHWM read on the workers).  Note the machine load
+(``uptime``) next to the figures.
+
+Usage::
+
+    python benchmarks/bench_production.py                  # 2 million points in 4 tiles (minutes)
+    python benchmarks/bench_production.py --full           # the 50 M-point set of bench_lidar --full
+    python benchmarks/bench_production.py --points 1e7 --tiles 9
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_lidar import _peak_mb, generate  # noqa: E402
+
+KINDS = {"ground": ({"method": "smrf"}, 36.0, ".laz"), "dsm": ({"cell_m": 1.0}, 50.0, ".tif"),
+         "dtm": ({"cell_m": 1.0}, 50.0, ".tif")}
+
+
+def _mode(folder: Path, kind: str, workers: int) -> dict:
+    from lidarcat.lidar.parallel import run_jobs, tile_jobs
+
+    params, overlap, suffix = KINDS[kind]
+    tiles = sorted(folder.glob("tile_*.laz"))
+    out = folder / f"out_{kind}_{workers}"
+    jobs = tile_jobs(kind, tiles, out, params=params, overlap_m=overlap, suffix=suffix)
+    t = time.perf_counter()
+    if workers == 0:
+        run_jobs(jobs, resume=False)
+        peaks = [_peak_mb()]
+    else:
+        from dask.distributed import Client, LocalCluster
+
+        from lidarcat.lidar import parallel
+
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        client = Client(cluster)
+        t = time.perf_counter()
+        futs = client.map(parallel.run_tile_job, jobs, pure=False)
+        client.gather(futs)
+        peaks = list(client.run(_peak_mb).values())
+        client.close()
+        cluster.close()
+    dt = time.perf_counter() - t
+    shutil.rmtree(out, ignore_errors=True)
+    return {"seconds": dt, "peak_mb": peaks}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--points", type=float, default=2e6)
+    ap.add_argument("--tiles", type=int, default=4)
+    ap.add_argument("--full", action="store_true", help="50 million points in 25 tiles")
+    ap.add_argument("--kinds", default="ground,dsm,dtm")
+    ap.add_argument("--mode", help=argparse.SUPPRESS)
+    ap.add_argument("--dir", type=Path, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.mode:
+        kind, workers = args.mode.split(":")
+        print(json.dumps(_mode(args.dir, kind, int(workers))))
+        return
+    points, tiles = (50_000_000, 25) if args.full else (int(args.points), args.tiles)
+    with tempfile.TemporaryDirectory(prefix="bench_production_") as tmp:
+        folder = Path(tmp)
+        info = generate(folder, points, tiles, "laz")
+        n = info["points"]
+        load = os.getloadavg()
+        print(f"{n:,} points in {info['tiles']} LAZ tiles of {info['tile_side_m']:.0f} m; "
+              f"load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f} on {os.cpu_count()} cores")
+        print(f"{'task':8} {'mode':10} {'seconds':>9} {'points/s':>12} {'peak MB per process/worker':>28}")
+        for kind in args.kinds.split(","):
+            for workers, label in ((0, "serial"), (1, "1 worker"), (2, "2 workers")):
+                r = subprocess.run([sys.executable, __file__, "--mode", f"{kind}:{workers}", "--dir", str(folder)],
+                                   capture_output=True, text=True, check=True)
+                res = json.loads(r.stdout.strip().splitlines()[-1])
+                peaks = ", ".join(f"{p:.0f}" for p in res["peak_mb"])
+                print(f"{kind:8} {label:10} {res['seconds']:9.1f} {n / res['seconds']:12,.0f} {peaks:>28}",
+                      flush=True)
+        print(f"load average after: {' '.join(f'{v:.1f}' for v in os.getloadavg())}")
+
+
+if __name__ == "__main__":
+    main()

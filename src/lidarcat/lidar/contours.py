@@ -1,0 +1,200 @@
+"""Contour lines from the ground TIN, master/intermediate curves, spot heights, GeoJSON.
+
+The report (section 11.5) triangulates the ground points (Delaunay) and draws
+contours every metre, classified as master (every ``master_every``-th level)
+and intermediate curves, with spot heights.  On a TIN a contour at level
+:math:`L` crosses edge :math:`(P_i, P_j)` with :math:`h_i < L \\le h_j` at
+
+.. math:: P = P_i + \\frac{L - h_i}{h_j - h_i} (P_j - P_i),
+
+so every vertex lies exactly on the TIN at its level and two contours never
+cross; inside one triangle a level gives at most one segment, so the chained
+lines do not intersect themselves.  matplotlib's TIN contour generator does the
+chaining (closed rings end with the first vertex repeated).  Triangles with an
+edge longer than ``max_edge_m`` are masked (gaps: no contour is invented
+there).
+
+Smoothing (optional, ``smooth_iterations``): Chaikin's corner cutting replaces
+each segment :math:`(A, B)` by the points at 1/4 and 3/4 of it; closed rings
+stay closed and open lines keep their end points.  Smoothed vertices leave the
+TIN (by less than the curvature of the line allows); leave it off when the
+contours must honour the TIN exactly.
+
+Spot heights: the highest and the lowest ground point in every
+``spot_spacing_m`` square (aligned to multiples of it).
+
+GeoJSON output carries the CRS as the (GDAL/QGIS-read) ``crs`` member.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._io import dumps_json, write_text_atomic
+
+__all__ = ["Contour", "contours", "spot_heights", "write_geojson", "contour_features", "spot_features"]
+
+
+@dataclass(frozen=True, eq=False)
+class Contour:
+    """One contour line.
+
+    Attributes
+    ----------
+    level_m : float
+        Height, metres.
+    xy : ndarray, shape (K, 2)
+        Vertices E, N in metres (a closed ring repeats its first vertex).
+    master : bool
+        A master (index) curve.
+    closed : bool
+    """
+
+    level_m: float
+    xy: np.ndarray
+    master: bool
+    closed: bool
+
+
+def _chaikin(xy: np.ndarray, closed: bool, iterations: int) -> np.ndarray:
+    for _ in range(iterations):
+        if len(xy) < 3:
+            return xy
+        pts = xy[:-1] if closed else xy
+        a = pts
+        b = np.roll(pts, -1, axis=0) if closed else pts[1:]
+        a = a if closed else pts[:-1]
+        q = 0.75 * a + 0.25 * b
+        r = 0.25 * a + 0.75 * b
+        new = np.empty((2 * len(q), 2))
+        new[0::2], new[1::2] = q, r
+        xy = np.vstack([new, new[:1]]) if closed else np.vstack([pts[:1], new, pts[-1:]])
+    return xy
+
+
+def contours(ground_xyz: np.ndarray, interval_m: float = 1.0, *, master_every: int = 5,
+             max_edge_m: float | None = 50.0, smooth_iterations: int = 0,
+             base_m: float = 0.0) -> list[Contour]:
+    """Contours of the TIN of *ground_xyz* every *interval_m* metres.
+
+    Parameters
+    ----------
+    ground_xyz : ndarray, shape (N, 3)
+        Ground points, E, N, h in metres.
+    interval_m : float
+        Contour interval (equidistance), metres (the report: 1 m).
+    master_every : int
+        Every this-th level (counted from *base_m*) is a master curve.
+    max_edge_m : float or None
+        Triangles with a longer edge are gaps.
+    smooth_iterations : int
+        Chaikin passes (0: none; the vertices then lie on the TIN).
+    base_m : float
+        Levels are ``base_m + k * interval_m``.
+
+    Returns
+    -------
+    list of Contour
+        Ordered by level.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> xy = rng.uniform(-10, 10, (2000, 2))
+    >>> cone = np.column_stack([xy, 10 - np.hypot(*xy.T)])
+    >>> cs = contours(cone, 2.0, master_every=2)
+    >>> [(c.level_m, c.master, c.closed) for c in cs if c.level_m >= 4]
+    [(4.0, True, True), (6.0, False, True), (8.0, True, True)]
+    """
+    import matplotlib.tri as mtri
+    from matplotlib._tri import TriContourGenerator
+
+    if not interval_m > 0:
+        raise ValueError(f"interval_m must be positive, got {interval_m}")
+    if master_every < 1:
+        raise ValueError(f"master_every must be at least 1, got {master_every}")
+    xyz = np.asarray(ground_xyz, dtype=np.float64)
+    if len(xyz) < 3:
+        return []
+    origin = xyz[:, :2].min(axis=0)
+    local = xyz[:, :2] - origin
+    tri = mtri.Triangulation(local[:, 0], local[:, 1])
+    if max_edge_m is not None:
+        p = local[tri.triangles]
+        edges = np.stack([np.hypot(*(p[:, i] - p[:, (i + 1) % 3]).T) for i in range(3)], axis=1)
+        tri.set_mask(edges.max(axis=1) > max_edge_m)
+    gen = TriContourGenerator(tri.get_cpp_triangulation(), xyz[:, 2])
+    k0 = math.ceil((xyz[:, 2].min() - base_m) / interval_m)
+    k1 = math.floor((xyz[:, 2].max() - base_m) / interval_m)
+    out: list[Contour] = []
+    for k in range(k0, k1 + 1):
+        level = base_m + k * interval_m
+        segs, codes = gen.create_contour(level)
+        for seg, code in zip(segs, codes):
+            # split at MOVETO codes (1): one path can hold several lines
+            starts = list(np.flatnonzero(np.asarray(code) == 1)) + [len(seg)]
+            for a, b in zip(starts[:-1], starts[1:]):
+                line = np.asarray(seg[a:b], dtype=np.float64)
+                if len(line) < 2:
+                    continue
+                closed = bool(np.asarray(code)[b - 1] == 79) or bool(np.all(line[0] == line[-1]))
+                if closed and not np.all(line[0] == line[-1]):
+                    line = np.vstack([line, line[:1]])
+                if smooth_iterations:
+                    line = _chaikin(line, closed, smooth_iterations)
+                out.append(Contour(float(level), line + origin, k % master_every == 0, closed))
+    return out
+
+
+def spot_heights(ground_xyz: np.ndarray, spacing_m: float = 100.0) -> np.ndarray:
+    """Highest and lowest ground point of each *spacing_m* square: (M, 4) E, N, h, is_high (1/0)."""
+    xyz = np.asarray(ground_xyz, dtype=np.float64)
+    if len(xyz) == 0:
+        return np.zeros((0, 4))
+    cx = np.floor(xyz[:, 0] / spacing_m).astype(np.int64)
+    cy = np.floor(xyz[:, 1] / spacing_m).astype(np.int64)
+    rows = []
+    for sign, flag in ((-1.0, 1.0), (1.0, 0.0)):
+        order = np.lexsort((sign * xyz[:, 2], cy, cx))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = (cx[order][1:] != cx[order][:-1]) | (cy[order][1:] != cy[order][:-1])
+        sel = order[first]
+        rows.append(np.column_stack([xyz[sel], np.full(len(sel), flag)]))
+    return np.vstack(rows)
+
+
+def contour_features(cs: list[Contour], decimals: int = 3) -> list[dict[str, Any]]:
+    """GeoJSON features: LineString per contour, properties level_m, type (master/intermediate), closed."""
+    return [{"type": "Feature",
+             "properties": {"level_m": c.level_m, "type": "master" if c.master else "intermediate",
+                            "closed": c.closed},
+             "geometry": {"type": "LineString", "coordinates": np.round(c.xy, decimals).tolist()}}
+            for c in cs]
+
+
+def spot_features(spots: np.ndarray, decimals: int = 3) -> list[dict[str, Any]]:
+    """GeoJSON features: Point per spot height, properties h_m and kind (high/low)."""
+    return [{"type": "Feature", "properties": {"h_m": round(float(s[2]), decimals),
+                                               "kind": "high" if s[3] else "low"},
+             "geometry": {"type": "Point", "coordinates": [round(float(s[0]), decimals),
+                                                           round(float(s[1]), decimals)]}}
+            for s in spots]
+
+
+def write_geojson(path: str | os.PathLike, features: list[dict[str, Any]], crs: Any = None) -> Path:
+    """Write a FeatureCollection with a ``crs`` member (EPSG URN or WKT name), atomically."""
+    from .crs import resolve_crs
+
+    fc: dict[str, Any] = {"type": "FeatureCollection", "features": features}
+    c = resolve_crs(crs)
+    if c is not None:
+        code = c.to_epsg(min_confidence=90)
+        name = f"urn:ogc:def:crs:EPSG::{code}" if code else c.to_wkt()
+        fc["crs"] = {"type": "name", "properties": {"name": name}}
+    return write_text_atomic(Path(path), dumps_json(fc, indent=None) + "\n")
