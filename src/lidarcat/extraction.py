@@ -92,6 +92,8 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
         for i, (pid, line) in enumerate(zip(t.column("point"), t.lines)):
             if not pid:
                 raise ExtractionError(f"{location(path, line, 'point')}: empty point id; name the point")
+            for col, v in (("E", e[i]), ("N", n[i])):
+                _check_coordinate(path, line, col, float(v))
         files = t.column("file") if t.has("file") else [""] * len(t.rows)
         return [Job(p, float(e[i]), float(n[i]),
                     None if math.isnan(thr[i]) else float(thr[i]),
@@ -118,6 +120,8 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
                 raise ExtractionError(f"{location(path, lineno, names[k])}: {ex}") from None
             if not math.isfinite(v):
                 raise ExtractionError(f"{location(path, lineno, names[k])}: {f[k]!r} is not a finite number")
+            if k in (2, 3):
+                _check_coordinate(path, lineno, names[k], v)
             vals.append(v)
         for k, v in ((4, vals[2]), (5, vals[3])):
             if not v > 0:
@@ -127,6 +131,15 @@ def read_jobs(path: str | os.PathLike) -> list[Job]:
         raise ExtractionError(f"{path}: no jobs (expected lines like "
                               f"'faixa.xyz P704 677757.8 7183482.0 0.15 5.0')")
     return jobs
+
+
+def _check_coordinate(path: Path, line: int, name: str, value: float) -> None:
+    """A job position beyond the sane range of the point readers (+-1e9 m) is a located error."""
+    from .lidar.readers import MAX_ABS_COORD_M
+
+    if abs(value) > MAX_ABS_COORD_M:
+        raise ExtractionError(f"{location(path, line, name)}: {value!r} is outside the sane range "
+                              f"+-{MAX_ABS_COORD_M:g} m")
 
 
 class _Source:

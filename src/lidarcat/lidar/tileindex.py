@@ -108,7 +108,8 @@ def in_radius(xy: np.ndarray, center_en: Sequence[float], radius_m: float) -> np
     """
     dx = xy[:, 0] - float(center_en[0])
     dy = xy[:, 1] - float(center_en[1])
-    return dx * dx + dy * dy <= float(radius_m) ** 2
+    with np.errstate(over="ignore"):  # a centre far outside (1e308): inf, outside the circle
+        return dx * dx + dy * dy <= float(radius_m) ** 2
 
 
 def in_box(xy: np.ndarray, xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
