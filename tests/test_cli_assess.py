@@ -147,3 +147,21 @@ def test_text_output_explains_the_confidence_labels():
     legend = next(ln for ln in r.output.splitlines() if ln.startswith("  confidence / tags like [K]:"))
     assert "K domain knowledge, not confirmed against the standard" in legend
     assert "STANDARDS.md: docs/standards.md, installed as lidarcat/standards_data/STANDARDS.md" in legend
+
+
+def test_without_the_covariance_file_the_output_says_why_the_consistency_test_did_not_run(tmp_path):
+    # e.g. an adjustment with more check points than lidarcat adjust writes check_covariance.csv for
+    from lidarcat.bundle import MAX_JOINT_COVARIANCE_POINTS, adjust_survey
+    from lidarcat.survey import Survey
+
+    adjust_survey(Survey.load(THESIS_SURVEY), control="gps", outdir=tmp_path / "gps")
+    (tmp_path / "gps" / "check_covariance.csv").unlink()
+    r = _run([str(tmp_path / "gps"), str(THESIS_SURVEY)])
+    assert r.exit_code == 0, r.output
+    assert r.output.splitlines()[-1] == (
+        f"note: consistency test (d'C^-1d) not run: {tmp_path / 'gps' / 'check_covariance.csv'} does not exist "
+        f"(lidarcat adjust writes it for 1 to {MAX_JOINT_COVARIANCE_POINTS} check points with --precision all; "
+        "lidarcat run computes the test in memory for any number of check points)")
+    doc = json.loads(_run([str(tmp_path / "gps"), str(THESIS_SURVEY), "--json"]).output)
+    assert doc["consistency_not_run"].startswith("consistency test (d'C^-1d) not run")
+    assert "consistency" not in doc["tests"]

@@ -95,6 +95,13 @@ def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float,
     if covariance is None and (adj_dir / "check_covariance.csv").is_file():
         covariance = str(adj_dir / "check_covariance.csv")
     cov = None
+    no_cov = None
+    if covariance is None and adjustment_dir is not None:
+        from ..bundle import MAX_JOINT_COVARIANCE_POINTS
+
+        no_cov = (f"consistency test (d'C^-1d) not run: {adj_dir / 'check_covariance.csv'} does not exist "
+                  f"(lidarcat adjust writes it for 1 to {MAX_JOINT_COVARIANCE_POINTS} check points with "
+                  "--precision all; lidarcat run computes the test in memory for any number of check points)")
     if covariance is not None:
         from ..bundle import read_point_covariance
 
@@ -110,11 +117,15 @@ def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float,
                              title=f"lidarcat accuracy report: {adj_path.name} vs {ref_path.name}")
     if as_json:
         doc = a.to_dict()
+        if no_cov:
+            doc["consistency_not_run"] = no_cov
         if paths is not None:
             doc["report"] = {k: (str(v) if not isinstance(v, list) else [str(p) for p in v]) for k, v in paths.items()}
         echo_json(doc)
         return
     _print_text(a)
+    if no_cov:
+        click.echo(f"note: {no_cov}")
     if paths is not None:
         click.echo(f"report: {paths['html']} (+ {paths['markdown'].name}, {paths['json'].name})")
 
