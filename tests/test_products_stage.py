@@ -38,6 +38,17 @@ def _raster(path):
                 ds.crs.to_epsg() if ds.crs else None)
 
 
+def _work(root, tmp_path, toml):
+    """A copy of the fixture survey (files linked) whose survey.toml is *toml*."""
+    work = tmp_path / "s"
+    work.mkdir()
+    for p in root.iterdir():
+        if p.name != "survey.toml":
+            (work / p.name).symlink_to(p)
+    (work / "survey.toml").write_text(toml)
+    return work
+
+
 @pytest.fixture(scope="module")
 def survey(tmp_path_factory):
     """A survey with two LiDAR tiles of the synthetic scene whose classes are all 1 (unclassified)."""
@@ -64,12 +75,7 @@ def test_without_products_table_the_plan_is_unchanged(survey, tmp_path):
     root, _, _ = survey
     without = [st.name for st in plan_pipeline(Survey.load(root))]
     assert "products" not in without
-    (tmp_path / "s").mkdir()
-    for p in root.iterdir():
-        (tmp_path / "s" / p.name).symlink_to(p)
-    (tmp_path / "s" / "survey.toml").unlink()
-    (tmp_path / "s" / "survey.toml").write_text(BASE + "\n[products]\ndsm = true\n")
-    with_table = [st.name for st in plan_pipeline(Survey.load(tmp_path / "s"))]
+    with_table = [st.name for st in plan_pipeline(Survey.load(_work(root, tmp_path, BASE + "\n[products]\n")))]
     assert [n for n in with_table if n != "products"] == without
     assert with_table.index("products") == len(with_table) - 2          # before the report
 
@@ -83,12 +89,7 @@ def test_without_products_table_the_plan_is_unchanged(survey, tmp_path):
 ])
 def test_bad_products_table_is_a_located_error(survey, tmp_path, extra, message):
     root, _, _ = survey
-    work = tmp_path / "s"
-    work.mkdir()
-    for p in root.iterdir():
-        if p.name != "survey.toml":
-            (work / p.name).symlink_to(p)
-    (work / "survey.toml").write_text(BASE + "\n[products]\n" + extra)
+    work = _work(root, tmp_path, BASE + "\n[products]\n" + extra)
     with pytest.raises(SurveyError, match=message):
         plan_pipeline(Survey.load(work))
 
@@ -96,14 +97,9 @@ def test_bad_products_table_is_a_located_error(survey, tmp_path, extra, message)
 def test_products_stage_writes_what_is_asked_with_crs(survey, tmp_path):
     """ground + DTM + DSM + nDSM + contours + sheets on two tiles; checked against the scene's truth."""
     root, scene, truth = survey
-    work = tmp_path / "s"
-    work.mkdir()
-    for p in root.iterdir():
-        if p.name != "survey.toml":
-            (work / p.name).symlink_to(p)
-    (work / "survey.toml").write_text(BASE + "\n[products]\ncell_m = 2.0\nndsm = true\ncontour_interval_m = 1.0\n"
-                                             "master_every = 5\nhypsometry = true\nhypsometry_cell_m = 2.0\n"
-                                             "sheet_size_m = 100\n")
+    work = _work(root, tmp_path, BASE + "\n[products]\ncell_m = 2.0\nndsm = true\ncontour_interval_m = 1.0\n"
+                                  "master_every = 5\nhypsometry = true\nhypsometry_cell_m = 2.0\n"
+                                  "sheet_size_m = 100\n")
     s = Survey.load(work)
     stage = next(st for st in plan_pipeline(s) if st.name == "products")
     assert stage.skip_reason is None
@@ -118,12 +114,12 @@ def test_products_stage_writes_what_is_asked_with_crs(survey, tmp_path):
     for name, ref in truth.items():
         got = np.asarray(read_points(folder / "ground" / f"{name}.laz").attributes["classification"]) == 2
         assert got.shape == ref.shape
-        assert np.mean(got != ref) < 0.05, name                       # total error below 5 %
+        assert np.mean(got != ref) < 0.01, name     # total error below 1 % (0.0 on this scene, 2026-11-24)
         assert np.all(np.asarray(read_points(root / "lidar" / f"{name}.laz")
                                  .attributes["classification"]) == 1)  # inputs untouched
     assert not list((folder / "ground").glob("*.json"))
     # DTM against the scene's terrain at the cell centres, DSM against its surface; CRS on each
-    for what, tol in (("dtm", 0.15), ("dsm", 0.3)):
+    for what, tol in (("dtm", 0.06), ("dsm", 0.3)):          # DTM RMSE measured 0.035 m
         grid, t, epsg = _raster(folder / f"{what}.tif")
         assert epsg == 31982
         rows, cols = np.nonzero(np.isfinite(grid))
@@ -160,19 +156,18 @@ def test_products_stage_writes_what_is_asked_with_crs(survey, tmp_path):
         assert e0 - 1e-6 <= t.x0 and t.x0 + g.shape[1] * t.cell_m <= e0 + 100 + 1e-6
         assert n0 + 100 + 1e-6 >= t.y0 and t.y0 - g.shape[0] * t.cell_m >= n0 - 1e-6
     # the same inputs and [products]: reused, not redone
-    again = run_stages([next(st for st in plan_pipeline(Survey.load(work)) if st.name == "products")], out,
-                       values={"survey": Survey.load(work)})[0]
-    assert again.status == "reused"
+    plan = plan_pipeline(Survey.load(work))
+    again, report = run_stages([st for st in plan if st.name in ("products", "report")], out,
+                               values={"survey": Survey.load(work), "plan": plan})
+    assert again.status == "reused" and report.status == "ran", report.reason
+    md = (out / "report" / "index.md").read_text()
+    assert ("## LiDAR products\n\nIn ../products/ (CRS EPSG:31982): ground/east.laz, ground/west.laz, dtm.tif, "
+            "dsm.tif, ndsm.tif, contours.geojson, spot_heights.geojson, hypsometry.png") in md
 
 
 def test_settings_defaults_and_skip_without_tiles(survey, tmp_path):
     root, _, _ = survey
-    work = tmp_path / "s"
-    work.mkdir()
-    for p in root.iterdir():
-        if p.name not in ("survey.toml", "lidar"):
-            (work / p.name).symlink_to(p)
-    (work / "survey.toml").write_text(BASE.replace('lidar = ["lidar/*.laz"]\n', "") + "\n[products]\n")
+    work = _work(root, tmp_path, BASE.replace('lidar = ["lidar/*.laz"]\n', "") + "\n[products]\n")
     s = Survey.load(work)
     assert products.settings(s) == products.PRODUCTS_KEYS
     stage = next(st for st in plan_pipeline(s) if st.name == "products")
