@@ -172,3 +172,22 @@ def test_settings_defaults_and_skip_without_tiles(survey, tmp_path):
     assert products.settings(s) == products.PRODUCTS_KEYS
     stage = next(st for st in plan_pipeline(s) if st.name == "products")
     assert stage.skip_reason == "the survey has no LiDAR tiles ([files] lidar)"
+
+
+def test_ground_false_uses_the_tiles_classes(survey, tmp_path):
+    """ground = false: no classification; a DTM then needs class 2 in the tiles (these have none)."""
+    root, _, _ = survey
+    work = _work(root, tmp_path, BASE + "\n[products]\nground = false\ncontours = false\ncell_m = 4.0\n")
+    s = Survey.load(work)
+    rec = run_stages([st for st in plan_pipeline(s) if st.name == "products"], tmp_path / "out",
+                     values={"survey": s})[0]
+    assert rec.status == "failed"
+    assert rec.reason == (f"{work / 'survey.toml'}: [products] dtm/contours need ground points (class 2) and "
+                          "the tiles have none; set ground = true")
+    assert not (tmp_path / "out" / "products").exists()                  # nothing half-written
+    (work / "survey.toml").write_text(BASE + "\n[products]\nground = false\ndtm = false\ncontours = false\n"
+                                             "cell_m = 4.0\n")
+    s = Survey.load(work)
+    rec = run_stages([st for st in plan_pipeline(s) if st.name == "products"], tmp_path / "out",
+                     values={"survey": s})[0]
+    assert rec.status == "ran" and rec.result["files"] == ["dsm.tif"] and "ground" not in rec.result
