@@ -72,7 +72,8 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     -------
     list of Stage
         camera, extract, one adjust-SET and assess-SET per control set, one
-        compare stage per pair (default set vs each other set), report.
+        compare stage per pair (default set vs each other set), thesis /
+        mapping / products / selfcal when the survey asks for them, report.
 
     Raises
     ------
