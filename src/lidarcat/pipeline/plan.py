@@ -32,7 +32,7 @@ from .runner import (
     run_stages,
     safe_name,
 )
-from .stages import adjust, assess, camera, compare, extract, mapping, report, selfcal, thesis
+from .stages import adjust, assess, camera, compare, extract, mapping, products, report, selfcal, thesis
 from .stages.report import results
 
 __all__ = ["FROM_SURVEY", "plan_pipeline", "run_pipeline"]
@@ -72,7 +72,8 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     -------
     list of Stage
         camera, extract, one adjust-SET and assess-SET per control set, one
-        compare stage per pair (default set vs each other set), report.
+        compare stage per pair (default set vs each other set), thesis /
+        mapping / products / selfcal when the survey asks for them, report.
 
     Raises
     ------
@@ -165,6 +166,8 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
             description="thesis section 4.4 (Tables 8-15) beside this run"))
     if "mapping" in survey_tables(survey):   # only surveys that ask for map products get the stage
         stages.append(_mapping_stage(survey, runs, files_lidar))
+    if "products" in survey_tables(survey):  # only surveys that ask for LiDAR products get the stage
+        stages.append(_products_stage(survey, files_lidar))
     if selfcal.planned(survey):
         stages.append(Stage("selfcal", "selfcal", selfcal.run, inputs=lambda ctx: files,
                             description="adjustment with additional parameters ([self_calibration])"))
@@ -197,6 +200,16 @@ def _mapping_stage(survey: Any, runs: Sequence[tuple[str, bool]], files_lidar: l
                  inputs=lambda ctx: [*files_lidar, *sorted(p for p in images.glob("*") if p.is_file())],
                  params={"adjust": f"adjust-{first}", **{k: v for k, v in cfg.items()}},
                  skip_reason=why, description="orthophotos and mosaic of the adjusted photos ([mapping])")
+
+
+def _products_stage(survey: Any, files_lidar: list[Path]) -> Stage:
+    """Ground, DTM/DSM, contours, hypsometry, sheets of the LiDAR tiles when survey.toml's [products] asks."""
+    cfg = products.settings(survey)
+    what = products.asked(cfg)
+    why = ("the survey has no LiDAR tiles ([files] lidar)" if not survey.lidar_paths else
+           "[products] asks for nothing (every product false)" if not what else None)
+    return Stage("products", "products", products.run, inputs=lambda ctx: files_lidar, params=dict(cfg),
+                 skip_reason=why, description=f"LiDAR products ({', '.join(what) or 'none'}) ([products])")
 
 
 def run_pipeline(

@@ -8,6 +8,7 @@
 ``compare``    run A minus run B (section 4.4)
 ``thesis``     the thesis's printed section 4.4 beside this run
 ``mapping``    orthophotos and mosaic of the adjusted photos ([mapping])
+``products``   LiDAR ground, DTM/DSM, contours, hypsometry, sheets ([products])
 ``selfcal``    adjustment with additional parameters (issue 13), when planned
 ``report``     index.html / index.md / report.json of the whole run
 =============  ======================================================
@@ -17,6 +18,6 @@ Each module has ``run(ctx, tmpdir) -> dict`` (see
 orders them for a survey.
 """
 
-from . import adjust, assess, camera, compare, extract, mapping, report, selfcal, thesis
+from . import adjust, assess, camera, compare, extract, mapping, products, report, selfcal, thesis
 
-__all__ = ["camera", "extract", "adjust", "assess", "compare", "thesis", "mapping", "selfcal", "report"]
+__all__ = ["camera", "extract", "adjust", "assess", "compare", "thesis", "mapping", "products", "selfcal", "report"]

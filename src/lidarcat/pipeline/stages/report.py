@@ -28,7 +28,7 @@ def results(records: Iterable[StageRecord]) -> dict[str, Any]:
     """``runs``, ``comparison``, ``extraction`` and ``thesis`` of the done stages (summary.json, report)."""
     runs: dict[str, Any] = {}
     comparison: dict[str, Any] = {}
-    extraction = thesis = selfcal = None
+    extraction = thesis = selfcal = lidar_products = None
     for r in records:
         if not r.done:
             continue
@@ -49,8 +49,11 @@ def results(records: Iterable[StageRecord]) -> dict[str, Any]:
             thesis = dict(r.result)
         elif r.name == "selfcal":
             selfcal = dict(r.result)
+        elif r.name == "products":
+            lidar_products = dict(r.result)
     return {"runs": runs, "comparison": comparison, "extraction": extraction, "thesis": thesis,
-            **({"selfcal": selfcal} if selfcal else {})}
+            **({"selfcal": selfcal} if selfcal else {}),
+            **({"products": lidar_products} if lidar_products else {})}
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -129,6 +132,10 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
             sd = e.get("sd_m") or [None] * 3
             lines.append(f"| {pid} | {e['status']} | {e['n_planes']} | "
                          + " | ".join(num(v, 3) for v in sd) + " |")
+    prod = doc.get("products")
+    if prod:
+        lines += ["", "## LiDAR products", "",
+                  f"In ../products/ (CRS {prod['crs']}): " + ", ".join(prod["files"]) + "."]
     if doc.get("reports"):
         lines += ["", "## Accuracy reports", ""]
         lines += [f"- [control set {k}]({v})" for k, v in doc["reports"].items()]

@@ -1,0 +1,242 @@
+"""Stage ``products``: the LiDAR products of the LACTEC chain, when survey.toml asks for them.
+
+survey.toml::
+
+    [products]
+    ground = true               # classify ground (class 2) into copies of the tiles (false: use their class 2)
+    filter = "smrf"             # "smrf" (simple morphological filter) or "ptd" (TerraScan's TIN densification)
+    dtm = true                  # dtm.tif: TIN of the ground sampled at cell centres (gaps stay NaN)
+    dsm = true                  # dsm.tif: highest first return per cell
+    ndsm = false                # ndsm.tif: DSM - DTM (needs dtm and dsm)
+    hillshade = false           # <model>_hillshade.tif of each model written
+    text_grid = false           # <model>.txt: the report's E N H text grid
+    cell_m = 1.0                # cell of the models, m
+    max_edge_m = 50.0           # TIN triangles with a longer edge are gaps, m
+    contours = true             # contours.geojson (+ spot_heights.geojson) from the ground TIN
+    contour_interval_m = 1.0    # equidistance, m (the report: 1 m)
+    master_every = 5            # every N-th level is a master curve
+    smooth = 0                  # Chaikin passes (0: vertices exactly on the TIN)
+    spots_m = 100.0             # spot heights: highest and lowest ground point per square, m
+    hypsometry = false          # hypsometry.png (+ .tif with rasterio): heights coloured, shaded by intensity
+    hypsometry_cell_m = 0.45    # its cell, m (the report: 45 cm)
+    sheet_size_m = 0            # > 0: also cut every product along a sheet grid (sheets/, sheets.geojson)
+
+The stage is planned only for a survey with a ``[products]`` table (skipped,
+with the reason, when the survey has no LiDAR tiles).  Ground classification
+runs tile by tile with the neighbours' points within two filter windows
+(:func:`lidarcat.lidar.ground.classify_tiles`), so the classified copies
+``ground/<tile>.laz`` do not depend on where the tiles are cut.  The models,
+contours and hypsometric image are then made over the whole survey area in
+one piece (:mod:`lidarcat.lidar.terrain`, :mod:`lidarcat.lidar.contours`):
+a survey too large for one machine's memory is better served by the
+tile-parallel commands ``lidarcat lidar ground|dtm|dsm --workers N``
+(docs/production.md).  Everything carries the LiDAR CRS; the stage writes
+into its temporary folder and the runner moves it into ``OUTDIR/products/``
+only when it succeeded.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ..runner import Context
+
+__all__ = ["run", "settings", "PRODUCTS_KEYS", "asked"]
+
+#: keys of the [products] table and their defaults
+PRODUCTS_KEYS: dict[str, Any] = {
+    "ground": True, "filter": "smrf", "dtm": True, "dsm": True, "ndsm": False, "hillshade": False,
+    "text_grid": False, "cell_m": 1.0, "max_edge_m": 50.0, "contours": True, "contour_interval_m": 1.0,
+    "master_every": 5, "smooth": 0, "spots_m": 100.0, "hypsometry": False, "hypsometry_cell_m": 0.45,
+    "sheet_size_m": 0.0,
+}
+_NUM = (int, float)
+_KINDS: dict[str, Any] = {
+    "ground": bool, "filter": str, "dtm": bool, "dsm": bool, "ndsm": bool, "hillshade": bool, "text_grid": bool,
+    "cell_m": _NUM, "max_edge_m": _NUM, "contours": bool, "contour_interval_m": _NUM, "master_every": int,
+    "smooth": int, "spots_m": _NUM, "hypsometry": bool, "hypsometry_cell_m": _NUM, "sheet_size_m": _NUM,
+}
+
+
+def settings(survey: Any) -> dict[str, Any]:
+    """The ``[products]`` table of the survey with its defaults (``{}`` when there is none).
+
+    Raises
+    ------
+    SurveyError
+        A value of the wrong type or out of range (file, line and key).
+    """
+    from ...lidar.ground import GROUND_METHODS
+    from ...survey import _Toml
+
+    t = _Toml(survey.toml_path)
+    if "products" not in t.data:
+        return {}
+    out = {key: t.get("products", key, kind, PRODUCTS_KEYS[key]) for key, kind in _KINDS.items()}
+    if out["filter"] not in GROUND_METHODS:
+        raise t.err("products", "filter", f"{out['filter']!r} is not one of {', '.join(map(repr, GROUND_METHODS))}")
+    for key in ("cell_m", "max_edge_m", "contour_interval_m", "spots_m", "hypsometry_cell_m"):
+        if not out[key] > 0:
+            raise t.err("products", key, f"must be positive (metres), got {out[key]!r}")
+    if out["master_every"] < 1:
+        raise t.err("products", "master_every", f"must be 1 or more, got {out['master_every']!r}")
+    if out["smooth"] < 0:
+        raise t.err("products", "smooth", f"must be 0 or more, got {out['smooth']!r}")
+    if out["sheet_size_m"] < 0:
+        raise t.err("products", "sheet_size_m", f"must be 0 (no sheets) or positive (metres), got "
+                                                f"{out['sheet_size_m']!r}")
+    if out["ndsm"] and not (out["dtm"] and out["dsm"]):
+        raise t.err("products", "ndsm", "needs dtm = true and dsm = true")
+    for key in ("cell_m", "max_edge_m", "contour_interval_m", "spots_m", "hypsometry_cell_m", "sheet_size_m"):
+        out[key] = float(out[key])
+    return out
+
+
+def asked(cfg: dict[str, Any]) -> list[str]:
+    """The products a ``[products]`` table asks for, in the order the stage makes them."""
+    return [k for k in ("ground", "dtm", "dsm", "ndsm", "contours", "hypsometry") if cfg.get(k)]
+
+
+def run(ctx: Context, tmp: Path) -> dict:
+    """Ground classification, DTM, DSM, nDSM, contours, hypsometric image and sheets of the survey's tiles."""
+    import numpy as np
+
+    from ...errors import SurveyError
+    from ...lidar import read_points
+    from ...lidar.cloud import PointCloud
+    from ...lidar.contours import contour_features, contours, spot_features, spot_heights, write_geojson
+    from ...lidar.ground import classify_tiles, params_from_dict
+    from ...lidar.terrain import dsm_grid, dtm_grid, hillshade, ndsm, write_product, write_text_grid
+
+    survey = ctx["survey"]
+    cfg = {k: ctx.params[k] for k in PRODUCTS_KEYS}
+    crs = survey.lidar_crs or survey.crs
+    tiles = [Path(p) for p in survey.lidar_paths]
+    steps = len(asked(cfg)) + (1 if cfg["sheet_size_m"] > 0 else 0)
+    step = 0
+
+    def tick() -> None:
+        nonlocal step
+        step += 1
+        ctx.progress(step, steps)
+
+    done: dict[str, Any] = {"crs": str(crs), "files": []}
+    if cfg["ground"]:
+        method = cfg["filter"]
+        params = params_from_dict(method, {})
+        outs = classify_tiles(tiles, tmp / "ground", crs=crs, method=method, params=params, resume=False)
+        for m in (tmp / "ground").glob("*.done.json"):   # resume markers of the tile runner: not products
+            m.unlink()
+        tiles = sorted(outs)
+        done["ground"] = {"filter": method, "tiles": [f"ground/{p.name}" for p in tiles]}
+        done["files"] += done["ground"]["tiles"]
+        tick()
+    cloud = PointCloud.concat([read_points(p, crs=crs) for p in tiles])
+    cls = np.asarray(cloud.attributes["classification"]) if cloud.has("classification") else None
+    gmask = cls == 2 if cls is not None else np.zeros(len(cloud), bool)
+    if (cfg["dtm"] or cfg["contours"]) and not gmask.any():
+        raise SurveyError(f"{survey.toml_path}: [products] dtm/contours need ground points (class 2) and the "
+                          f"tiles have none; set ground = true")
+    b = cloud.bounds
+    area = (float(b.xmin), float(b.ymin), float(b.xmax), float(b.ymax))
+    cell = cfg["cell_m"]
+    rasters: dict[str, tuple[Any, Any]] = {}
+
+    def model(name: str, grid: Any, transform: Any) -> None:
+        write_product(tmp / f"{name}.tif", grid, transform, crs)
+        done["files"].append(f"{name}.tif")
+        rasters[f"{name}.tif"] = (grid, transform)
+        if cfg["hillshade"] and name != "ndsm":
+            write_product(tmp / f"{name}_hillshade.tif", hillshade(grid, cell), transform, crs)
+            done["files"].append(f"{name}_hillshade.tif")
+        if cfg["text_grid"]:
+            write_text_grid(tmp / f"{name}.txt", grid, transform)
+            done["files"].append(f"{name}.txt")
+
+    if cfg["dtm"]:
+        res = dtm_grid(cloud, cell, area, max_edge_m=cfg["max_edge_m"], ground=gmask)
+        model("dtm", res.grid, res.transform)
+        done["dtm"] = {"cell_m": cell, "rows": int(res.grid.shape[0]), "cols": int(res.grid.shape[1]),
+                       "gap_cells": int(res.gap_cells), "gap_fraction": round(float(res.gap_fraction), 6)}
+        tick()
+    if cfg["dsm"]:
+        grid, transform = dsm_grid(cloud, cell, area)
+        model("dsm", grid, transform)
+        done["dsm"] = {"cell_m": cell, "rows": int(grid.shape[0]), "cols": int(grid.shape[1]),
+                       "empty_cells": int(np.isnan(grid).sum())}
+        tick()
+    if cfg["ndsm"]:
+        model("ndsm", ndsm(rasters["dsm.tif"][0], rasters["dtm.tif"][0]), rasters["dsm.tif"][1])
+        tick()
+    features: list[dict[str, Any]] = []
+    if cfg["contours"]:
+        g = cloud.xyz[gmask]
+        cs = contours(g, cfg["contour_interval_m"], master_every=cfg["master_every"],
+                      max_edge_m=cfg["max_edge_m"], smooth_iterations=cfg["smooth"])
+        features = contour_features(cs)
+        write_geojson(tmp / "contours.geojson", features, crs)
+        spots = spot_heights(g, cfg["spots_m"])
+        write_geojson(tmp / "spot_heights.geojson", spot_features(spots), crs)
+        done["files"] += ["contours.geojson", "spot_heights.geojson"]
+        done["contours"] = {"interval_m": cfg["contour_interval_m"], "master_every": cfg["master_every"],
+                            "lines": len(cs), "master_lines": sum(1 for c in cs if c.master),
+                            "spot_heights": int(len(spots))}
+        tick()
+    if cfg["hypsometry"]:
+        done["hypsometry"] = _hypsometry(cloud, cfg["hypsometry_cell_m"], area, crs, tmp)
+        done["files"] += done["hypsometry"]["files"]
+        tick()
+    if cfg["sheet_size_m"] > 0:
+        done["sheets"] = _sheets(rasters, features, area, cfg["sheet_size_m"], crs, tmp)
+        done["files"].append("sheets.geojson")
+        tick()
+    return done
+
+
+def _hypsometry(cloud: Any, cell_m: float, area: tuple[float, float, float, float], crs: Any,
+                tmp: Path) -> dict[str, Any]:
+    """hypsometry.png (and .tif when rasterio is installed): DSM heights coloured, shaded by intensity."""
+    import matplotlib.image
+
+    from ..._io import atomic_write
+    from ...lidar import rasterize
+    from ...lidar.terrain import HAVE_RASTERIO, hypsometric_image, write_product
+
+    h, t = rasterize(cloud, cell_m, "dsm", area)
+    inten = rasterize(cloud, cell_m, "intensity", area)[0] if cloud.has("intensity") else None
+    img = hypsometric_image(h, inten)
+    files = ["hypsometry.png"]
+    with atomic_write(tmp / "hypsometry.png", "wb") as fh:
+        matplotlib.image.imsave(fh, img, format="png")
+    if HAVE_RASTERIO:   # RGB GeoTIFFs need rasterio (lidarcat[geo])
+        write_product(tmp / "hypsometry.tif", img, t, crs)
+        files.append("hypsometry.tif")
+    return {"cell_m": cell_m, "intensity": inten is not None, "files": files}
+
+
+def _sheets(rasters: dict[str, tuple[Any, Any]], features: list[dict[str, Any]],
+            area: tuple[float, float, float, float], size_m: float, crs: Any, tmp: Path) -> dict[str, Any]:
+    """Every model and the contours cut along a regular sheet grid; the index of the sheets holding data."""
+    import numpy as np
+
+    from ...lidar.contours import write_geojson
+    from ...lidar.sheets import cut_contours, cut_raster, sheet_grid, sheet_index_features
+    from ...lidar.terrain import write_product
+
+    used = []
+    for s in sheet_grid(area, size_m):
+        wrote = False
+        for name, (grid, transform) in rasters.items():
+            cut = cut_raster(grid, transform, s)
+            if cut is not None and np.isfinite(cut[0].astype(float)).any():
+                write_product(tmp / "sheets" / s.name / name, cut[0], cut[1], crs)
+                wrote = True
+        part = cut_contours(features, s) if features else []
+        if part:
+            write_geojson(tmp / "sheets" / s.name / "contours.geojson", part, crs)
+            wrote = True
+        if wrote:
+            used.append(s)
+    write_geojson(tmp / "sheets.geojson", sheet_index_features(used), crs)
+    return {"size_m": size_m, "sheets": [s.name for s in used]}
