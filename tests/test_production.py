@@ -192,7 +192,7 @@ def test_a_killed_worker_gives_its_tile_to_another(tmp_path):
     import threading
     import time
 
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
     client = distributed.Client(cluster)
     try:
         tiles = _halves(tmp_path)

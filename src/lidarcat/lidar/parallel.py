@@ -251,7 +251,7 @@ def run_jobs(jobs: Sequence[TileJob], *, workers: int | None = None, scheduler: 
         if workers is None or workers < 1:
             raise ValueError(f"workers must be at least 1, got {workers}")
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+                               dashboard_address=":0")  # any free port: runs side by side
         client = Client(cluster)
     try:
         futures = client.map(run_tile_job, todo, retries=retries, pure=False,
