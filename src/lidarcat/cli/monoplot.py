@@ -62,7 +62,7 @@ def monoplot(survey, photo_id, features_path, surface_path, lidar, interpolator,
     from ..monoplot import GridSurface
     from ..monoplot import monoplot as run_monoplot
     from ..monoplot import ray_directions
-    from ..products import adjusted_orientation, lidar_surface
+    from ..mapping_inputs import adjusted_orientation, lidar_surface
     from ..survey import Survey
 
     if surface_path and lidar:

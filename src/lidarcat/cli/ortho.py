@@ -52,7 +52,7 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
     from ..monoplot import GridSurface, read_orientations
     from ..mosaic import mosaic
     from ..ortho import PhotoModel, orthophoto
-    from ..products import adjusted_orientation, default_eop_path, photo_image
+    from ..mapping_inputs import adjusted_orientation, default_eop_path, photo_image
     from ..survey import Survey
 
     if bool(dtm) == bool(dsm):

@@ -76,7 +76,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     from ...monoplot import GridSurface, read_orientations
     from ...mosaic import mosaic
     from ...ortho import PhotoModel, orthophoto
-    from ...products import photo_image
+    from ...mapping_inputs import photo_image
 
     survey = ctx["survey"]
     par = ctx.params
