@@ -71,6 +71,7 @@ def test_gps_run_values_in_files(gps_run):
     assert abs(s["vtpv"] - 148.35) < 0.5
     assert abs(s["sigma0_sq"] - 1.16) < 0.01
     assert (s["survey"], s["control_set"], s["observations"]) == ("thesis-fierro-2007", "gps", "corrected")
+    assert (s["crs"], s["height_system"]) == ("EPSG:29192", "orthometric")  # the datum of every height written
     eop = _read(out / "eop.csv")
     t6 = _read(THESIS_TABLES / "table6_eop_gps.csv")
     h = t6[0]

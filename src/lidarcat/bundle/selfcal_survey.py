@@ -270,7 +270,8 @@ def adjust_survey_with_parameters(
                   additional_parameters=list(res.names), alpha=res.alpha)
     out = survey.output_dir(outdir)
     with atomic_dir(out) as tmp:
-        write_selfcal(res, tmp, extra={"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs},
+        write_selfcal(res, tmp, extra={"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs,
+                                                   "height_system": survey.height_system},
                       provenance=survey_provenance(survey, params))
     return res, out
 

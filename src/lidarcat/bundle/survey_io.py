@@ -403,7 +403,7 @@ def adjust_survey(
     out = survey.output_dir(outdir)
     with atomic_dir(out) as tmp:
         write_adjustment(sres.result, tmp, extra={"elapsed_total_s": time.perf_counter() - t0,
-                                                  "crs": survey.crs},
+                                                  "crs": survey.crs, "height_system": survey.height_system},
                          snooping=sres, provenance=survey_provenance(survey, params))
     return sres.result, out
 

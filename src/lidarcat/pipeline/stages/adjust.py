@@ -50,7 +50,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     # data snooping, report only: the run keeps every observation and names the blunders
     sres = snoop(problem, mode="report", progress=prog, **kw)
     result = sres.result
-    write_adjustment(result, tmp, extra={"crs": survey.crs, "survey": survey.name,
+    write_adjustment(result, tmp, extra={"crs": survey.crs, "height_system": survey.height_system, "survey": survey.name,
                                          "control_set": par["control"],
                                          "observations": survey.settings.observations},
                      snooping=sres, provenance=survey_provenance(survey, {

@@ -32,7 +32,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     from ...bundle.selfcal_survey import selfcal_adjust, write_selfcal
 
     survey, res = selfcal_adjust(ctx["survey"])
-    summary = write_selfcal(res, tmp, extra={"crs": survey.crs})
+    summary = write_selfcal(res, tmp, extra={"crs": survey.crs, "height_system": survey.height_system})
     keep = ("additional_parameters", "frame_offset", "parameter_groups", "parameters_off", "parameters_on",
             "warnings", "control_set", "status")
     return {k: summary.get(k) for k in keep}
