@@ -49,8 +49,10 @@ def test_cli_two_workers_equal_serial(serial, tmp_path):
             "--box", *(str(v) for v in AREA)]
     r = CliRunner().invoke(cli, [*base, "-o", str(tmp_path / "s.geojson")])
     assert r.exit_code == 0, r.output
-    r = CliRunner().invoke(cli, [*base, "--workers", "2", "-o", str(tmp_path / "p.geojson")])
+    r = CliRunner().invoke(cli, [*base, "--workers", "2", "--work-dir", str(tmp_path / "blocks"),
+                                 "-o", str(tmp_path / "p.geojson")])
     assert r.exit_code == 0, r.output
+    assert len(list((tmp_path / "blocks").glob("find_*.pkl.done.json"))) == 1  # 60 m = one block of 3 x 3 cells
     s = json.loads((tmp_path / "s.geojson").read_text())
     p = json.loads((tmp_path / "p.geojson").read_text())
     assert p == s and len(p["features"]) == len(ref)
@@ -60,4 +62,6 @@ def test_cli_two_workers_equal_serial(serial, tmp_path):
 def test_workers_only_for_find(tmp_path):
     r = CliRunner().invoke(cli, ["extract", "--at", "85036.9", "447493.7", "--lidar", TILES[1],
                                  "--crs", "EPSG:7415", "--workers", "2"])
-    assert r.exit_code == 2 and "--workers and --scheduler: for --find, not jobs or --at" in r.output
+    assert r.exit_code == 2 and "--workers, --scheduler and --work-dir: for --find, not jobs or --at" in r.output
+    r = CliRunner().invoke(cli, ["extract", "--find", "--lidar", TILES[1], "--work-dir", str(tmp_path)])
+    assert r.exit_code == 2 and "--work-dir: for --find with --workers or --scheduler" in r.output

@@ -91,8 +91,12 @@ def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bo
 @click.option("--json", "as_json", is_flag=True, help="Print results as JSON (with --at: one object).")
 @workers_option
 @scheduler_option
+@click.option("--work-dir", "work_dir", type=click.Path(file_okay=False), default=None,
+              help="--find with --workers/--scheduler: keep each block's result and done-marker here, so a "
+                   "rerun skips finished blocks (with --scheduler, a folder every worker sees). "
+                   "Default: a temporary folder.")
 def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, planes_out, figures,
-            spec_sd, index_cache, as_json, workers, scheduler) -> None:
+            spec_sd, index_cache, as_json, workers, scheduler, work_dir) -> None:
     """Roof planes to control points (Delaunay facets + plane intersection).
 
     Exit status 1 when no roof gave a control point (see below).
@@ -117,10 +121,12 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
         unused = [opt for opt, v in (("--planes", planes_out), ("--figures", figures), ("--spec-sd", spec_sd)) if v]
         if unused:
             raise click.UsageError(f"{', '.join(unused)}: for jobs and --at, not --find")
-        _find(lidar, crs, box, classes, params, output, as_json, index_cache, workers, scheduler)
+        if work_dir and workers is None and scheduler is None:
+            raise click.UsageError("--work-dir: for --find with --workers or --scheduler")
+        _find(lidar, crs, box, classes, params, output, as_json, index_cache, workers, scheduler, work_dir)
         return
-    if workers is not None or scheduler is not None:
-        raise click.UsageError("--workers and --scheduler: for --find, not jobs or --at")
+    if workers is not None or scheduler is not None or work_dir:
+        raise click.UsageError("--workers, --scheduler and --work-dir: for --find, not jobs or --at")
     from ..extraction import Job, extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
 
     job_list = [Job("P1", at[0], at[1])] if at is not None else read_jobs(jobs)
@@ -159,7 +165,7 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
         sys.exit(1)
 
 
-def _find(lidar, crs, box, classes, params, output, as_json, index_cache, workers, scheduler) -> None:
+def _find(lidar, crs, box, classes, params, output, as_json, index_cache, workers, scheduler, work_dir) -> None:
     from ..extraction import write_candidates
     from ..control import find_candidates
     from ..lidar import TileIndex, require_metres
@@ -183,7 +189,8 @@ def _find(lidar, crs, box, classes, params, output, as_json, index_cache, worker
 
         with progress_bar(n_blocks(index, area, params=params), "Searching blocks") as bar:
             cands = find_candidates_tiles(index, area, params=params, classes=cls, crs=crs, workers=workers,
-                                          scheduler=scheduler, progress=bar.update if bar is not None else None)
+                                          scheduler=scheduler, work_dir=work_dir,
+                                          progress=bar.update if bar is not None else None)
     if output:
         write_candidates(output, cands, crs=index.crs)  # the tiles' own CRS, else --crs
     if as_json:
