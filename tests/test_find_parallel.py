@@ -33,7 +33,10 @@ def test_blocks_equal_serial_and_resume(serial, tmp_path):
     assert len(ref) >= 3
     jobs = find_jobs(idx, AREA, tmp_path, crs="EPSG:7415", classes=[6], block_cells=1)
     assert len(jobs) == 9  # 3 x 3 cells of 20 m
-    assert all(set((j.tile, *j.neighbours)) <= set(TILES) for j in jobs)
+    # each block reads only the tiles within its margin (13 m) of it: crop 1 ends at E 85000
+    reads = {j.bounds[0]: {Path(p).name for p in (j.tile, *j.neighbours)} for j in jobs}
+    assert reads == {84990.0: {"ahn3_cropped_1.laz", "ahn3_cropped_2.laz"},
+                     85010.0: {"ahn3_cropped_1.laz", "ahn3_cropped_2.laz"}, 85030.0: {"ahn3_cropped_2.laz"}}
     got = find_candidates_tiles(idx, AREA, classes=[6], block_cells=1, crs="EPSG:7415", work_dir=tmp_path)
     assert [_key(c) for c in got] == [_key(c) for c in ref]
     assert all(Path(j.output + ".done.json").is_file() for j in jobs)
