@@ -617,6 +617,17 @@ def find_candidates(
     """
 
     p = get_params(params)
+    xyz, box = _search_points(cloud, box, p, classes)
+    if xyz is None:
+        return []
+    nx, ny = _cell_counts(box, cell_m)
+    found = _search_cells(xyz, box, [(i, j) for i in range(nx) for j in range(ny)], p, cell_m, min_score,
+                          progress=progress)
+    return merge_candidates([c for _, c in found])
+
+
+def _search_points(cloud: Any, box: Any, p: ExtractionParams, classes: Any) -> tuple[np.ndarray | None, tuple]:
+    """The points the search sees (class filter, box + radius) and the box; ``(None, box)`` when empty."""
     xyz = _as_xyz(cloud)
     if classes is not None:
         from .errors import LidarFormatError
@@ -627,57 +638,89 @@ def find_candidates(
                                    "drop --classes or use LAS/LAZ tiles with classes")
         xyz = xyz[np.isin(np.asarray(cls), np.asarray(classes))]
     if len(xyz) == 0:
-        return []
+        return None, box
     if box is None:
         box = (*xyz[:, :2].min(axis=0), *xyz[:, :2].max(axis=0))
     xmin, ymin, xmax, ymax = (float(v) for v in box)
     inbox = (xyz[:, 0] >= xmin - p.radius_m) & (xyz[:, 0] <= xmax + p.radius_m) & \
             (xyz[:, 1] >= ymin - p.radius_m) & (xyz[:, 1] <= ymax + p.radius_m)
     xyz = xyz[inbox]
-    if len(xyz) == 0:
-        return []
+    return (xyz if len(xyz) else None), (xmin, ymin, xmax, ymax)
+
+
+def _cell_counts(box: Any, cell_m: float) -> tuple[int, int]:
+    """Number of search cells along E and N (the last ones may be narrower)."""
+    xmin, ymin, xmax, ymax = (float(v) for v in box)
+    return (max(1, int(math.ceil((xmax - xmin) / cell_m))), max(1, int(math.ceil((ymax - ymin) / cell_m))))
+
+
+def search_margin_m(p: ExtractionParams, cell_m: float) -> float:
+    """Points a block of cells needs beyond its own area (m).
+
+    A cell is segmented in a square of half-side ``max(w, h)/2 + 2`` about its
+    centre (at most ``cell_m/2 + 2`` beyond an edge), and each seed is refined
+    with the points within ``radius_m`` of it.
+    """
+    return max(cell_m / 2.0 + 2.0, float(p.radius_m)) + 1.0
+
+
+def _search_cells(xyz: np.ndarray, box: Any, cells: Sequence[tuple[int, int]], p: ExtractionParams,
+                  cell_m: float, min_score: float, progress: Callable[[int], None] | None = None
+                  ) -> list[tuple[tuple[int, int, int], Candidate]]:
+    """Candidates found in *cells* (``(i, j)`` indices), each tagged ``(i, j, k)`` with its seed's order.
+
+    The result depends only on the points within :func:`search_margin_m` of
+    the cells, in their given order, so a block of cells computed from a
+    subset of the points (same order) gives the same candidates as the whole.
+    """
     from scipy.spatial import cKDTree
 
+    xmin, ymin, xmax, ymax = (float(v) for v in box)
     tree = cKDTree(xyz[:, :2])
-    seeds: list[np.ndarray] = []
-    nx = max(1, int(math.ceil((xmax - xmin) / cell_m)))
-    ny = max(1, int(math.ceil((ymax - ymin) / cell_m)))
-    for i in range(nx):
-        for j in range(ny):
-            x0, y0 = xmin + i * cell_m, ymin + j * cell_m
-            x1, y1 = min(x0 + cell_m, xmax), min(y0 + cell_m, ymax)
-            c = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
-            half = max(x1 - x0, y1 - y0) / 2 + 2.0
-            idx = tree.query_ball_point(c, r=half * math.sqrt(2))
-            sub = xyz[idx]
-            sub = sub[(np.abs(sub[:, 0] - c[0]) <= half) & (np.abs(sub[:, 1] - c[1]) <= half)]
-            if len(sub) >= 3 * p.min_points:
-                try:
-                    planes, labels, _ = segment_faces(sub, p.replace(max_planes=60))
-                except ValueError:
-                    planes, labels = [], None
-                for v in candidate_vertices(planes, sub, labels, p):
-                    if x0 <= v[0] < x1 and y0 <= v[1] < y1:
-                        seeds.append(v)
-            if progress is not None:
-                progress(1)
-    cands: list[Candidate] = []
-    for k, v in enumerate(seeds):
-        cp = extract_roof(xyz, v[:2], params=p, point_id=f"C{k + 1:04d}")
+    seeds: list[tuple[tuple[int, int, int], np.ndarray]] = []
+    for i, j in cells:
+        x0, y0 = xmin + i * cell_m, ymin + j * cell_m
+        x1, y1 = min(x0 + cell_m, xmax), min(y0 + cell_m, ymax)
+        c = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+        half = max(x1 - x0, y1 - y0) / 2 + 2.0
+        # sorted: the points' order (hence the segmentation) must not depend on the tree's layout
+        idx = tree.query_ball_point(c, r=half * math.sqrt(2), return_sorted=True)
+        sub = xyz[idx]
+        sub = sub[(np.abs(sub[:, 0] - c[0]) <= half) & (np.abs(sub[:, 1] - c[1]) <= half)]
+        if len(sub) >= 3 * p.min_points:
+            try:
+                planes, labels, _ = segment_faces(sub, p.replace(max_planes=60))
+            except ValueError:
+                planes, labels = [], None
+            k = 0
+            for v in candidate_vertices(planes, sub, labels, p):
+                if x0 <= v[0] < x1 and y0 <= v[1] < y1:
+                    seeds.append(((i, j, k), v))
+                    k += 1
+        if progress is not None:
+            progress(1)
+    found = []
+    for tag, v in seeds:
+        cp = extract_roof(xyz, v[:2], params=p, point_id="C{:d}_{:d}_{:d}".format(*tag))
         if not cp:
             continue
         if np.hypot(*(cp.enh_m[:2] - v[:2])) > 1.0:
             continue
         s = _score(cp)
         if s >= min_score:
-            cands.append(Candidate(cp, s))
-    cands.sort(key=lambda c: -c.score)
+            found.append((tag, Candidate(cp, s)))
+    return found
+
+
+def merge_candidates(cands: Sequence[Candidate]) -> list[Candidate]:
+    """Best-first, duplicates (closer than 1 m in plan) dropped, renumbered ``C0001``...
+
+    *cands* in seed order (cell ``i`` then ``j``, then the seed within the
+    cell): ties of score keep that order, so the merge is deterministic.
+    """
+    cands = sorted(cands, key=lambda c: -c.score)
     kept: list[Candidate] = []
     for c in cands:
         if all(np.hypot(*(c.point.enh_m[:2] - k.point.enh_m[:2])) > 1.0 for k in kept):
             kept.append(c)
-    # renumber in order of score
-    out = []
-    for k, c in enumerate(kept):
-        out.append(Candidate(replace(c.point, point_id=f"C{k + 1:04d}"), c.score))
-    return out
+    return [Candidate(replace(c.point, point_id=f"C{k + 1:04d}"), c.score) for k, c in enumerate(kept)]

@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from .options import echo_json, progress_bar
+from .options import echo_json, progress_bar, scheduler_option, workers_option
 
 __all__ = ["extract"]
 
@@ -17,6 +17,7 @@ Examples:
   lidarcat extract jobs.txt --preset thesis --figures figs/
   lidarcat extract --lidar ahn3_1.laz --lidar ahn3_2.laz --crs EPSG:7415 --at 84996.5 447473.5 --json
   lidarcat extract --find --lidar ahn3_1.laz --classes 6 -o candidates.geojson
+  lidarcat extract --find --lidar ahn3_1.laz ahn3_2.laz --classes 6 --workers 2 -o c.geojson
 \b
 A job line (thesis section 4.2.2): file point E N threshold radius, e.g.
   faixa.xyz P704 677757.8 7183482.0 0.15 5.0
@@ -88,8 +89,14 @@ def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bo
                    "from `lidarcat lidar index --blocks`: later clips decode only the parts of a LAZ "
                    "tile they need.")
 @click.option("--json", "as_json", is_flag=True, help="Print results as JSON (with --at: one object).")
+@workers_option
+@scheduler_option
+@click.option("--work-dir", "work_dir", type=click.Path(file_okay=False), default=None,
+              help="--find with --workers/--scheduler: keep each block's result and done-marker here, so a "
+                   "rerun skips finished blocks (with --scheduler, a folder every worker sees). "
+                   "Default: a temporary folder.")
 def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, planes_out, figures,
-            spec_sd, index_cache, as_json) -> None:
+            spec_sd, index_cache, as_json, workers, scheduler, work_dir) -> None:
     """Roof planes to control points (Delaunay facets + plane intersection).
 
     Exit status 1 when no roof gave a control point (see below).
@@ -114,8 +121,12 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
         unused = [opt for opt, v in (("--planes", planes_out), ("--figures", figures), ("--spec-sd", spec_sd)) if v]
         if unused:
             raise click.UsageError(f"{', '.join(unused)}: for jobs and --at, not --find")
-        _find(lidar, crs, box, classes, params, output, as_json, index_cache)
+        if work_dir and workers is None and scheduler is None:
+            raise click.UsageError("--work-dir: for --find with --workers or --scheduler")
+        _find(lidar, crs, box, classes, params, output, as_json, index_cache, workers, scheduler, work_dir)
         return
+    if workers is not None or scheduler is not None or work_dir:
+        raise click.UsageError("--workers, --scheduler and --work-dir: for --find, not jobs or --at")
     from ..extraction import Job, extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
 
     job_list = [Job("P1", at[0], at[1])] if at is not None else read_jobs(jobs)
@@ -154,7 +165,7 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
         sys.exit(1)
 
 
-def _find(lidar, crs, box, classes, params, output, as_json, index_cache) -> None:
+def _find(lidar, crs, box, classes, params, output, as_json, index_cache, workers, scheduler, work_dir) -> None:
     from ..extraction import write_candidates
     from ..control import find_candidates
     from ..lidar import TileIndex, require_metres
@@ -165,14 +176,21 @@ def _find(lidar, crs, box, classes, params, output, as_json, index_cache) -> Non
         index.verify_bounds()  # the area is the points' own extent, not the headers' claim
     b = index.bounds
     area = box if box else (b.xmin, b.ymin, b.xmax, b.ymax)
-    cloud = index.query_box(*area)
     cls = None
     if classes:
         try:
             cls = [int(c) for c in classes.split(",")]
         except ValueError:
             raise click.BadParameter(f"{classes!r}: expected a comma list of integers", param_hint="--classes")
-    cands = find_candidates(cloud, box=area, params=params, classes=cls)
+    if workers is None and scheduler is None:
+        cands = find_candidates(index.query_box(*area), box=area, params=params, classes=cls)
+    else:  # blocks of cells on Dask; the same candidates (lidarcat.find_tiles)
+        from ..find_tiles import find_candidates_tiles, n_blocks
+
+        with progress_bar(n_blocks(index, area, params=params), "Searching blocks") as bar:
+            cands = find_candidates_tiles(index, area, params=params, classes=cls, crs=crs, workers=workers,
+                                          scheduler=scheduler, work_dir=work_dir,
+                                          progress=bar.update if bar is not None else None)
     if output:
         write_candidates(output, cands, crs=index.crs)  # the tiles' own CRS, else --crs
     if as_json:

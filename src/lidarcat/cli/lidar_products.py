@@ -10,17 +10,11 @@ import numpy as np
 
 from .lidar import _crs_opt, _sources
 from .options import progress_bar
+from .options import scheduler_option as _scheduler_opt
+from .options import workers_option as _workers_opt
 
 __all__ = ["ground", "dtm", "dsm", "contours_cmd", "hypsometry", "sheets", "PRODUCT_COMMANDS"]
 
-_workers_opt = click.option(
-    "--workers", type=click.IntRange(1), default=None, metavar="N",
-    help="Run tile by tile on a local Dask cluster of N worker processes (pip install "
-         "'lidarcat[cluster]'). Default: serial, in this process. Results are identical.")
-_scheduler_opt = click.option(
-    "--scheduler", default=None, metavar="ADDRESS",
-    help="Run on an existing Dask cluster, e.g. tcp://10.0.0.5:8786 (every worker must see the "
-         "same paths). Wins over --workers.")
 _resume_opt = click.option(
     "--resume/--no-resume", default=True, show_default=True,
     help="Skip tiles whose output and <output>.done.json marker match the inputs and parameters.")

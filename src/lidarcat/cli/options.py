@@ -11,7 +11,7 @@ import click
 
 from .._io import dumps_json
 
-__all__ = ["json_opt", "survey_arg", "echo_json", "progress_bar"]
+__all__ = ["json_opt", "survey_arg", "echo_json", "progress_bar", "workers_option", "scheduler_option"]
 
 json_opt = click.option("--json", "as_json", is_flag=True,
                         help="Print results as one JSON object (sorted keys) instead of text.")
@@ -38,3 +38,14 @@ def progress_bar(length: int, label: str, *, enabled: bool = True, **kw: Any) ->
         return
     with click.progressbar(length=max(int(length), 1), label=label, file=sys.stderr, **kw) as bar:
         yield bar
+
+
+# Dask options of the tile-parallel commands (lidar ground/dtm/dsm, extract --find)
+workers_option = click.option(
+    "--workers", type=click.IntRange(1), default=None, metavar="N",
+    help="Run tile by tile (--find: block by block) on a local Dask cluster of N worker processes (pip install "
+         "'lidarcat[cluster]'). Default: serial, in this process. Results are identical.")
+scheduler_option = click.option(
+    "--scheduler", default=None, metavar="ADDRESS",
+    help="Run on an existing Dask cluster, e.g. tcp://10.0.0.5:8786 (every worker must see the "
+         "same paths). Wins over --workers.")

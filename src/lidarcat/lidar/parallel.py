@@ -37,7 +37,7 @@ __all__ = ["TileJob", "run_jobs", "run_tile_job", "tile_jobs", "JOB_KINDS"]
 
 log = logging.getLogger(__name__)
 
-JOB_KINDS = ("ground", "dtm", "dsm")
+JOB_KINDS = ("ground", "dtm", "dsm", "find")
 
 
 @dataclass(frozen=True)
@@ -46,8 +46,10 @@ class TileJob:
 
     Attributes
     ----------
-    kind : {"ground", "dtm", "dsm"}
-        What to make.
+    kind : {"ground", "dtm", "dsm", "find"}
+        What to make (``"find"``: a block of the roof-vertex search, see
+        :mod:`lidarcat.find_tiles`; ``bounds`` is the block, ``tile`` and
+        ``neighbours`` the tiles it meets).
     tile : str
         Input tile path.
     bounds : (xmin, ymin, xmax, ymax)
@@ -158,10 +160,17 @@ def run_tile_job(job: TileJob) -> str:
 
     if job.kind not in JOB_KINDS:
         raise ValueError(f"unknown job kind {job.kind!r}; use one of {', '.join(JOB_KINDS)}")
-    cloud, n_own = _read_with_buffer(job)
     out = Path(job.output)
+    if job.kind == "find":
+        from ..find_tiles import run_find_block, write_block
+
+        found = run_find_block(job)
+    else:
+        cloud, n_own = _read_with_buffer(job)
     try:
-        if job.kind == "ground":
+        if job.kind == "find":
+            write_block(out, found)
+        elif job.kind == "ground":
             from .ground import classify_ground, params_from_dict, write_classified_copy
 
             method = job.params.get("method", "smrf")
