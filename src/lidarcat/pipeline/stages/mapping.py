@@ -43,16 +43,13 @@ def settings(survey: Any) -> dict[str, Any]:
     SurveyError
         A value of the wrong type or out of range (file, line and key).
     """
-    from ...survey import _Toml
+    from ._settings import optional_table
 
-    t = _Toml(survey.toml_path)
-    if "mapping" not in t.data:
-        return {}
-    out = dict(MAPPING_KEYS)
     kinds = {"orthophotos": bool, "surface": str, "gsd_m": (int, float), "cell_m": (int, float), "mosaic": bool,
              "images": str, "photos": list}
-    for key, kind in kinds.items():
-        out[key] = t.get("mapping", key, kind, MAPPING_KEYS[key])
+    out, t = optional_table(survey, "mapping", kinds, MAPPING_KEYS)
+    if not out:
+        return {}
     if out["surface"] not in ("dsm", "dtm"):
         raise t.err("mapping", "surface", f"{out['surface']!r} is not 'dsm' (true orthophotos) or 'dtm'")
     for key in ("gsd_m", "cell_m"):

@@ -68,12 +68,11 @@ def settings(survey: Any) -> dict[str, Any]:
         A value of the wrong type or out of range (file, line and key).
     """
     from ...lidar.ground import GROUND_METHODS
-    from ...survey import _Toml
+    from ._settings import optional_table
 
-    t = _Toml(survey.toml_path)
-    if "products" not in t.data:
+    out, t = optional_table(survey, "products", _KINDS, PRODUCTS_KEYS)
+    if not out:
         return {}
-    out = {key: t.get("products", key, kind, PRODUCTS_KEYS[key]) for key, kind in _KINDS.items()}
     if out["filter"] not in GROUND_METHODS:
         raise t.err("products", "filter", f"{out['filter']!r} is not one of {', '.join(map(repr, GROUND_METHODS))}")
     for key in ("cell_m", "max_edge_m", "contour_interval_m", "spots_m", "hypsometry_cell_m"):
