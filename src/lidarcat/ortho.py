@@ -278,7 +278,7 @@ class GeoTiffStream:
         self._fh: Any = None
 
     def __enter__(self) -> GeoTiffStream:
-        from .lidar.raster import _DOUBLE, _LONG, _SHORT, _ASCII, _geokeys  # same tags as write_geotiff
+        from .lidar.raster import _geotiff_ifd  # the same tags as write_geotiff
 
         row_bytes = self.cols * self.bands * 4
         data_bytes = self.rows * row_bytes
@@ -288,38 +288,10 @@ class GeoTiffStream:
         nstrips = (self.rows + self.rps - 1) // self.rps
         offsets = [8 + k * self.rps * row_bytes for k in range(nstrips)]
         counts = [min(self.rps, self.rows - k * self.rps) * row_bytes for k in range(nstrips)]
-        geokeys, geo_ascii, self._sidecar = _geokeys(self.crs)
-        t = self.transform
-        entries: list[tuple[int, int, Any]] = [
-            (256, _LONG, [self.cols]), (257, _LONG, [self.rows]), (258, _SHORT, [32] * self.bands),
-            (259, _SHORT, [1]), (262, _SHORT, [2 if self.bands == 3 else 1]), (273, _LONG, offsets),
-            (277, _SHORT, [self.bands]), (278, _LONG, [self.rps]), (279, _LONG, counts), (284, _SHORT, [1]),
-            (339, _SHORT, [3] * self.bands),
-            (33550, _DOUBLE, [t.cell_m, t.cell_m, 0.0]),
-            (33922, _DOUBLE, [0.0, 0.0, 0.0, t.x0, t.y0, 0.0]),
-            (34735, _SHORT, geokeys),
-        ]
-        if geo_ascii:
-            entries.append((34737, _ASCII, geo_ascii.encode("ascii", "replace") + b"\x00"))
-        entries.append((42113, _ASCII, b"nan\x00"))
-        entries.sort(key=lambda e: e[0])
-        fmt = {_SHORT: "H", _LONG: "I", _DOUBLE: "d"}
         ifd_offset = 8 + data_bytes + (data_bytes % 2)
-        extra_offset = ifd_offset + 2 + 12 * len(entries) + 4
-        ifd = bytearray(struct.pack("<H", len(entries)))
-        extra = bytearray()
-        for tag, typ, values in entries:
-            if typ == _ASCII:
-                payload, count = bytes(values), len(values)
-            else:
-                payload, count = struct.pack(f"<{len(values)}{fmt[typ]}", *values), len(values)
-            if len(payload) <= 4:
-                ifd += struct.pack("<HHI", tag, typ, count) + payload.ljust(4, b"\x00")
-            else:
-                ifd += struct.pack("<HHII", tag, typ, count, extra_offset + len(extra))
-                extra += payload + (b"\x00" if len(payload) % 2 else b"")
-        ifd += struct.pack("<I", 0)
-        self._tail = (b"\x00" * (data_bytes % 2)) + bytes(ifd) + bytes(extra)
+        ifd, self._sidecar = _geotiff_ifd(self.cols, self.rows, self.bands, self.rps, offsets, counts,
+                                          self.transform, self.crs, ifd_offset)
+        self._tail = (b"\x00" * (data_bytes % 2)) + ifd
         self._cm = atomic_write(self.path, "wb")
         self._fh = self._cm.__enter__()
         self._fh.write(b"II" + struct.pack("<HI", 42, ifd_offset))

@@ -302,24 +302,23 @@ def _geokeys(crs: Any) -> tuple[list[int], str, bool]:
     return directory, ascii_params, sidecar
 
 
-def _tiff_bytes(grid: np.ndarray, transform: GeoTransform, crs: Any) -> tuple[bytes, bool]:
-    data = np.ascontiguousarray(grid, dtype="<f4")
-    nrows, ncols = data.shape
-    row_bytes = ncols * 4
-    rows_per_strip = max(1, min(nrows, (256 * 1024) // max(row_bytes, 1)))
-    nstrips = (nrows + rows_per_strip - 1) // rows_per_strip
-    data_offset = 8
-    strip_offsets = [data_offset + k * rows_per_strip * row_bytes for k in range(nstrips)]
-    strip_counts = [min(rows_per_strip, nrows - k * rows_per_strip) * row_bytes for k in range(nstrips)]
-    image_end = data_offset + data.nbytes
-    if image_end > 2**32 - 2**20:
-        raise ValueError("grid too large for a classic TIFF (4 GB); use a coarser cell")
+def _geotiff_ifd(cols: int, rows: int, bands: int, rows_per_strip: int, strip_offsets: list[int],
+                 strip_counts: list[int], transform: GeoTransform, crs: Any, ifd_offset: int
+                 ) -> tuple[bytes, bool]:
+    """The image file directory (and its out-of-line values) of a float32 strip GeoTIFF.
+
+    Shared by :func:`write_geotiff` and the streaming writer of :mod:`lidarcat.ortho`:
+    tags 256-339 (1 or 3 float32 bands, chunky, no compression), ModelPixelScale,
+    ModelTiepoint, GeoKeys (+ GeoAscii) and GDAL_NODATA ``nan``.  *ifd_offset* is the
+    (even) byte offset the directory will be written at.  Returns the bytes and
+    whether the CRS needs a ``.aux.xml`` sidecar (see :func:`_geokeys`).
+    """
     geokeys, geo_ascii, sidecar = _geokeys(crs)
     entries: list[tuple[int, int, list[Any] | bytes]] = [
-        (256, _LONG, [ncols]), (257, _LONG, [nrows]), (258, _SHORT, [32]), (259, _SHORT, [1]),
-        (262, _SHORT, [1]), (273, _LONG, strip_offsets), (277, _SHORT, [1]),
+        (256, _LONG, [cols]), (257, _LONG, [rows]), (258, _SHORT, [32] * bands), (259, _SHORT, [1]),
+        (262, _SHORT, [2 if bands == 3 else 1]), (273, _LONG, strip_offsets), (277, _SHORT, [bands]),
         (278, _LONG, [rows_per_strip]), (279, _LONG, strip_counts), (284, _SHORT, [1]),
-        (339, _SHORT, [3]),
+        (339, _SHORT, [3] * bands),
         (33550, _DOUBLE, [transform.cell_m, transform.cell_m, 0.0]),
         (33922, _DOUBLE, [0.0, 0.0, 0.0, transform.x0, transform.y0, 0.0]),
         (34735, _SHORT, geokeys),
@@ -328,9 +327,7 @@ def _tiff_bytes(grid: np.ndarray, transform: GeoTransform, crs: Any) -> tuple[by
         entries.append((34737, _ASCII, geo_ascii.encode("ascii", "replace") + b"\x00"))
     entries.append((42113, _ASCII, b"nan\x00"))
     entries.sort(key=lambda e: e[0])
-    ifd_offset = image_end + (image_end % 2)
-    ifd_size = 2 + 12 * len(entries) + 4
-    extra_offset = ifd_offset + ifd_size
+    extra_offset = ifd_offset + 2 + 12 * len(entries) + 4
     ifd = bytearray(struct.pack("<H", len(entries)))
     extra = bytearray()
     for tag, typ, values in entries:
@@ -343,15 +340,32 @@ def _tiff_bytes(grid: np.ndarray, transform: GeoTransform, crs: Any) -> tuple[by
         if len(payload) <= 4:
             ifd += struct.pack("<HHI", tag, typ, count) + payload.ljust(4, b"\x00")
         else:
-            off = extra_offset + len(extra)
-            ifd += struct.pack("<HHII", tag, typ, count, off)
+            ifd += struct.pack("<HHII", tag, typ, count, extra_offset + len(extra))
             extra += payload
             if len(extra) % 2:
                 extra += b"\x00"
     ifd += struct.pack("<I", 0)
+    return bytes(ifd) + bytes(extra), sidecar
+
+
+def _tiff_bytes(grid: np.ndarray, transform: GeoTransform, crs: Any) -> tuple[bytes, bool]:
+    data = np.ascontiguousarray(grid, dtype="<f4")
+    nrows, ncols = data.shape
+    row_bytes = ncols * 4
+    rows_per_strip = max(1, min(nrows, (256 * 1024) // max(row_bytes, 1)))
+    nstrips = (nrows + rows_per_strip - 1) // rows_per_strip
+    data_offset = 8
+    strip_offsets = [data_offset + k * rows_per_strip * row_bytes for k in range(nstrips)]
+    strip_counts = [min(rows_per_strip, nrows - k * rows_per_strip) * row_bytes for k in range(nstrips)]
+    image_end = data_offset + data.nbytes
+    if image_end > 2**32 - 2**20:
+        raise ValueError("grid too large for a classic TIFF (4 GB); use a coarser cell")
+    ifd_offset = image_end + (image_end % 2)
+    ifd, sidecar = _geotiff_ifd(ncols, nrows, 1, rows_per_strip, strip_offsets, strip_counts,
+                                transform, crs, ifd_offset)
     head = b"II" + struct.pack("<HI", 42, ifd_offset)
     pad = b"\x00" * (ifd_offset - image_end)
-    return head + data.tobytes() + pad + bytes(ifd) + bytes(extra), sidecar
+    return head + data.tobytes() + pad + ifd, sidecar
 
 
 def write_geotiff(path: str | os.PathLike, grid: np.ndarray, transform: GeoTransform, crs: Any = None) -> Path:
