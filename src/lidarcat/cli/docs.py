@@ -7,7 +7,6 @@ misses a command or an option, so the reference cannot drift from the code.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
