@@ -207,3 +207,133 @@ def test_run_mapping_stage_when_the_survey_asks(survey, tmp_path):
         "ortho_B.tif", "seamlines.geojson"]
     assert [o["photo"] for o in res["orthophotos"]] == ["A", "B"] and res["mosaic"]["gsd_m"] == 1.0
     assert all(o["true_ortho"] for o in res["orthophotos"])
+
+
+def test_run_mapping_stage_monoplots_and_judges_features_per_interpolator(survey, tmp_path):
+    """[mapping] features + reference: the stage monorestitutes by each interpolator, writes the paper's
+    Tables 07-09 (accuracy.csv, the stage result for summary.json) and the run report shows one table per
+    interpolator and the r90 table; vertices not ok or without reference are counted, not judged."""
+    import shutil
+    from types import SimpleNamespace
+
+    from lidarcat.errors import SurveyError
+    from lidarcat.pipeline.plan import plan_pipeline
+    from lidarcat.pipeline.runner import Context, StageRecord
+    from lidarcat.pipeline.stages import mapping, report
+    from lidarcat.survey import Survey
+
+    root, scene, verts = survey
+    work = tmp_path / "s"
+    shutil.copytree(root, work)
+    g = np.array([[E0 + e, N0 + n] for e in (-10.0, 0.0, 10.0) for n in (-8.0, 8.0)])
+    ground = np.column_stack([g, scene.terrain(g[:, 0], g[:, 1])])
+    # a ground point is kept only where no building stands on it
+    _, lab = scene.surface(ground[:, 0], ground[:, 1])
+    ground = ground[lab <= 1]
+    truth = {}
+    for pid, eo in (("A", EO_A), ("B", EO_B)):
+        pv, pg = _px(verts, eo), _px(ground, eo)
+        feats = [{"type": "Feature", "properties": {"id": f"{pid}V{i}", "class": "building"},
+                  "geometry": {"type": "Point", "coordinates": p.tolist()}} for i, p in enumerate(pv)]
+        feats.append({"type": "Feature", "properties": {"id": f"{pid}G", "class": "road"},
+                      "geometry": {"type": "LineString", "coordinates": pg.tolist()}})
+        truth.update({(f"{pid}V{i}", 0): v[:2] for i, v in enumerate(verts)})
+        truth.update({(f"{pid}G", k): v[:2] for k, v in enumerate(ground)})
+        if pid == "A":   # one vertex outside the photo (status), one feature the reference does not list
+            k_in = int(np.flatnonzero(CAM.contains(pg))[0])
+            feats.append({"type": "Feature", "properties": {"id": "off", "class": "road"},
+                          "geometry": {"type": "LineString", "coordinates": [pg[k_in].tolist(), [-20.0, 10.0]]}})
+            truth.update({("off", 0): ground[k_in, :2], ("off", 1): ground[k_in, :2]})
+            feats.append({"type": "Feature", "properties": {"id": "free", "class": "road"},
+                          "geometry": {"type": "Point", "coordinates": [500.0, 400.0]}})
+        (work / f"f{pid}.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": feats}))
+    (work / "ref.csv").write_text("feature,vertex,E,N\n" + "".join(
+        f"{f},{v},{p[0]:.4f},{p[1]:.4f}\n" for (f, v), p in truth.items()))
+    toml = work / "survey.toml"
+    base = toml.read_text()
+    cfg = ('\n[mapping]\nfeatures = { A = "fA.geojson", B = "fB.geojson" }\nreference = "ref.csv"\n'
+           'interpolators = ["nearest", "tin", "bilinear"]\ncell_m = 0.25\n')
+    for bad, msg in (('interpolators = ["idw"]', r"field 'interpolators': idw: use nearest, tin, bilinear"),
+                     ('features = { Z = "fA.geojson" }', r"field 'features': photo\(s\) Z are not in the survey"),
+                     ('method = "newton"', r"field 'method': 'newton' is not 'exact' \(first hit\) or 'iterate'")):
+        toml.write_text(base + "\n[mapping]\n" + bad + ("" if "features" in bad else '\nfeatures = { A = "f.csv" }')
+                        + "\n")
+        with pytest.raises(SurveyError, match=r"survey\.toml:\d+: " + msg):
+            mapping.settings(Survey.load(work))
+    toml.write_text(base + cfg)
+    s = Survey.load(work)
+    stage = next(st for st in plan_pipeline(s) if st.name == "mapping")
+    assert stage.skip_reason == "no adjustment (control set) to take the orientations from"   # planned w/o orthos
+    ctx = Context(work, values={"survey": s})
+    ctx.records["adjust-gps"] = SimpleNamespace(folder="out/adjust-gps")
+    ctx.stage = SimpleNamespace(params={"adjust": "adjust-gps"})
+    out = tmp_path / "mapping"
+    out.mkdir()
+    res = mapping.run(ctx, out)
+    assert sorted(p.name for p in out.iterdir()) == ["accuracy.csv", "accuracy.csv.json"] + sorted(
+        f"monoplot_{p}_{i}.geojson" for p in "AB" for i in ("bilinear", "nearest", "tin"))
+    assert "orthophotos" not in res
+    gsd = CAM.pixel_size_x_mm * 250 / CAM.focal_length_mm
+    nv = 2 * len(verts)
+    # vertices outside a photo's frame (status outside_photo, not judged): roofs, ground points
+    out_b, out_g = (sum(int((~np.asarray(CAM.contains(_px(p, eo)))).sum()) for eo in (EO_A, EO_B))
+                    for p in (verts, ground))
+    for interp in ("nearest", "tin", "bilinear"):
+        a = res["accuracy"][interp]
+        assert (a["n_vertices"], a["n_not_ok"], a["n_no_reference"]) == (nv + 2 * len(ground) + 3,
+                                                                          1 + out_b + out_g, 1), res["photos"]
+        assert a["classes"]["building"]["n"] == nv - out_b and a["classes"]["road"]["n"] == 2 * len(ground) + 1 - out_g
+        # r90 recomputed from the written GeoJSON files against the truth: the smallest radius holding 90 %
+        radii = {"building": [], "road": []}
+        for pid in "AB":
+            doc = json.loads((out / f"monoplot_{pid}_{interp}.geojson").read_text())
+            assert doc["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::31982"
+            for f in doc["features"]:
+                fid, geom = f["properties"]["id"], f["geometry"]
+                if geom is None or fid == "free":
+                    continue
+                pts = [geom["coordinates"]] if geom["type"] == "Point" else geom["coordinates"]
+                radii[f["properties"]["class"]] += [float(np.hypot(*(truth[(fid, k)] - np.array(p[:2]))))
+                                                    for k, p in enumerate(pts)]
+        road_a = json.loads((out / f"monoplot_A_{interp}.geojson").read_text())["features"]
+        assert [f["properties"]["status"] for f in road_a if f["properties"]["id"] == "off"] == ["outside_photo"]
+        # the 'off' line's first vertex is ok and judged (rounded to 0.1 mm in the file)
+        for c in ("building", "road"):
+            r = np.sort(radii[c])
+            want = a["classes"][c]["r90_m"]
+            if c == "road":
+                assert len(r) == 2 * len(ground) - out_g and want >= r[int(np.ceil(0.9 * len(r))) - 1] - 1e-3
+            else:
+                assert want == pytest.approx(r[int(np.ceil(0.9 * len(r))) - 1], abs=2e-4)
+        assert res["table_09"][interp] == {c: t["r90_m"] for c, t in a["classes"].items()}
+    # the acceptance of issue 14: TIN of the LiDAR within 1.5 ground pixels on roof vertices and ground
+    assert res["table_09"]["tin"]["building"] < 1.5 * gsd and res["table_09"]["tin"]["road"] < 1.5 * gsd
+    rows = (out / "accuracy.csv").read_text().splitlines()
+    assert rows[0] == ",".join(mapping.ACCURACY_COLUMNS) and len(rows) == 1 + 3 * 2
+    # summary.json and the report: the stage's result goes in as it is
+    rec = StageRecord("mapping", "mapping", "ran", result=res)
+    doc = report.results([rec])
+    assert doc["mapping"]["table_09"] == res["table_09"]
+    md = report._report_markdown({"survey": "s", "stages": [], **doc})
+    for interp in ("nearest", "tin", "bilinear"):
+        assert f"### Interpolator {interp} (" in md
+        assert (f"| {interp} | {res['table_09'][interp]['building']:.2f} | {res['table_09'][interp]['road']:.2f} |"
+                in md)
+    t = res["accuracy"]["tin"]["classes"]["building"]
+    assert f"| building | {nv - out_b} | {t['mean_E']:.3f} | {t['sd_E']:.3f} |" in md
+    assert "Radius holding 90 % of the points, m (Cavassim Table 09)" in md
+
+
+@pytest.mark.parametrize("text, message", [
+    ("feature,vertex,E\nA,0,1\n", "ref.csv:1: missing column 'N' (header is feature, vertex, E)"),
+    ("feature,vertex,E,N\nA,x,1,2\n", "ref.csv:2: field 'vertex': 'x' is not a vertex number (0, 1, ...)"),
+    ("feature,vertex,E,N\nA,0,1,2\nA,0,3,4\n", "ref.csv:3: field 'feature': feature 'A' vertex 0 is given twice"),
+])
+def test_reference_file_errors_are_located(tmp_path, text, message):
+    from lidarcat.errors import SurveyError
+    from lidarcat.mapping_accuracy import read_reference
+
+    (tmp_path / "ref.csv").write_text(text)
+    with pytest.raises(SurveyError) as ei:
+        read_reference(tmp_path / "ref.csv")
+    assert str(ei.value).startswith(f"{tmp_path}/{message}")

@@ -7,7 +7,10 @@
   ``images/`` in the survey folder; ``lidarcat demo synthetic --images`` writes
   them there), grey or RGB, the size of the photo's camera;
 * surfaces -- a DSM/DTM GeoTIFF (``lidarcat lidar raster``) or the LiDAR points
-  around the area (:class:`lidarcat.monoplot.PointSurface`).
+  around the area (:class:`lidarcat.monoplot.PointSurface`; first returns only,
+  the paper's surface model: a last return under a tree or through a roof edge
+  is not what the photo shows), the area being where the rays of the
+  digitised pixels cross the tiles' height range (:func:`ray_area`).
 """
 
 from __future__ import annotations
@@ -22,7 +25,8 @@ import numpy as np
 
 from .errors import SurveyError
 
-__all__ = ["default_eop_path", "adjusted_orientation", "photo_image", "IMAGE_SUFFIXES", "lidar_surface"]
+__all__ = ["default_eop_path", "adjusted_orientation", "photo_image", "IMAGE_SUFFIXES", "lidar_surface",
+           "ray_area"]
 
 log = logging.getLogger(__name__)
 
@@ -87,9 +91,32 @@ def photo_image(photo_id: str, images_dir: str | os.PathLike, camera: Any) -> np
     return np.ascontiguousarray(img)
 
 
+def ray_area(camera: Any, eo_params: Any, colrow_px: Any, zmin_m: float, zmax_m: float,
+             margin_m: float = 5.0) -> tuple[float, float, float, float]:
+    """Box (E min, N min, E max, N max; m) the rays of *colrow_px* cross between two heights.
+
+    The heights are widened by *margin_m* (the LiDAR's height range: every
+    first hit lies in it); pixels outside the frame are ignored (their status
+    says so), the photo centre stands in when none is inside.
+    """
+    from .monoplot import ray_directions
+
+    px = np.asarray(colrow_px, dtype=np.float64).reshape(-1, 2)
+    inside = np.asarray(camera.contains(px), dtype=bool)
+    d = ray_directions(camera, eo_params, px[inside] if inside.any() else np.array([[0.0, 0.0]]))
+    p = np.asarray(eo_params, dtype=np.float64)
+    ends = np.vstack([p[:2] + ((h - p[2]) / d[:, 2])[:, None] * d[:, :2]
+                      for h in (zmin_m - margin_m, zmax_m + margin_m)])
+    return (float(ends[:, 0].min() - margin_m), float(ends[:, 1].min() - margin_m),
+            float(ends[:, 0].max() + margin_m), float(ends[:, 1].max() + margin_m))
+
+
 def lidar_surface(paths: Sequence[str | os.PathLike], bounds: Sequence[float], interpolator: str = "tin",
-                  sd_m: float = 0.15, crs: Any = None) -> Any:
+                  sd_m: float = 0.15, crs: Any = None, first_returns: bool = True) -> Any:
     """A :class:`~lidarcat.monoplot.PointSurface` of the LiDAR points in *bounds* (m).
+
+    With *first_returns* (default) only first (or only) returns: the surface
+    the photo sees (Cavassim 2005, section 6.2: a DSM of the first return).
 
     Raises
     ------
@@ -102,6 +129,8 @@ def lidar_surface(paths: Sequence[str | os.PathLike], bounds: Sequence[float], i
     index = TileIndex.build(list(paths), crs=crs)
     cloud = index.query_box(*bounds)
     xyz = np.asarray(cloud.xyz)
+    if first_returns:
+        xyz = xyz[cloud.first_returns()]
     if len(xyz) < 3:
         raise SurveyError(f"no LiDAR points in E {bounds[0]:.1f}..{bounds[2]:.1f}, N {bounds[1]:.1f}.."
                           f"{bounds[3]:.1f} (tiles: {', '.join(str(p) for p in paths)[:200]})")

@@ -61,8 +61,7 @@ def monoplot(survey, photo_id, features_path, surface_path, lidar, interpolator,
     from ..features import FEATURE_CSV_COLUMNS, features_geojson, features_rows, read_features
     from ..monoplot import GridSurface
     from ..monoplot import monoplot as run_monoplot
-    from ..monoplot import ray_directions
-    from ..mapping_inputs import adjusted_orientation, lidar_surface
+    from ..mapping_inputs import adjusted_orientation, lidar_surface, ray_area
     from ..survey import Survey
 
     if surface_path and lidar:
@@ -81,16 +80,10 @@ def monoplot(survey, photo_id, features_path, surface_path, lidar, interpolator,
         paths = list(lidar) or [str(p) for p in s.lidar_paths]
         if not paths:
             raise click.UsageError("the survey has no LiDAR tiles; give --lidar TILES or --surface DSM.tif")
-        # the area the rays cross between 50 m below and 80 m above the projection centre's ground
-        inside = np.asarray(camera.contains(px))
-        d = ray_directions(camera, eo.params, px[inside] if inside.any() else np.array([[0.0, 0.0]]))
-        z0 = eo.params[2]
         from ..lidar import TileIndex
 
         b = TileIndex.build(paths, crs=s.lidar_crs).bounds
-        ends = [eo.params[:2] + ((h - z0) / d[:, 2])[:, None] * d[:, :2] for h in (b.zmin - 5, b.zmax + 5)]
-        ends = np.vstack(ends)
-        box = (ends[:, 0].min() - 5, ends[:, 1].min() - 5, ends[:, 0].max() + 5, ends[:, 1].max() + 5)
+        box = ray_area(camera, eo.params, px, b.zmin, b.zmax)
         surface = lidar_surface(paths, box, interpolator or "tin", surface_sd_m, crs=s.lidar_crs)
     with progress_bar(2, "monoplot", enabled=not as_json) as bar:
         res = run_monoplot(px, camera, eo, surface, method=method, image_sd_px=image_sd_px,

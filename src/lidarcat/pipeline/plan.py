@@ -191,15 +191,19 @@ def _mapping_stage(survey: Any, runs: Sequence[tuple[str, bool]], files_lidar: l
     """Orthophotos / mosaic of the default run when survey.toml's [mapping] asks (stages/mapping.py)."""
     cfg = mapping.settings(survey)
     first = runs[0][0] if runs else None
-    why = ("[mapping] orthophotos = false" if not cfg["orthophotos"] else
+    why = ("[mapping] asks for neither orthophotos (orthophotos = false) nor features"
+           if not cfg["orthophotos"] and not cfg["features"] else
            "the survey has no LiDAR tiles ([files] lidar) for the surface model" if not survey.lidar_paths else
            "no adjustment (control set) to take the orientations from" if first is None else None)
     images = survey.root / (cfg.get("images") or "images")
+    mapped = [survey.root / f for f in [*(cfg.get("features") or {}).values(), cfg.get("reference")] if f]
     return Stage("mapping", "mapping", mapping.run,
                  requires=(f"adjust-{first}",) if why is None else (),
-                 inputs=lambda ctx: [*files_lidar, *sorted(p for p in images.glob("*") if p.is_file())],
+                 inputs=lambda ctx: [*files_lidar, *sorted(p for p in images.glob("*") if p.is_file()),
+                                     *(p for p in mapped if p.is_file())],
                  params={"adjust": f"adjust-{first}", **{k: v for k, v in cfg.items()}},
-                 skip_reason=why, description="orthophotos and mosaic of the adjusted photos ([mapping])")
+                 skip_reason=why,
+                 description="orthophotos, mosaic and monorestituted features of the adjusted photos ([mapping])")
 
 
 def _products_stage(survey: Any, files_lidar: list[Path]) -> Stage:

@@ -7,7 +7,7 @@
 ``assess``     check-point accuracy of one run (section 3.3.4)
 ``compare``    run A minus run B (section 4.4)
 ``thesis``     the thesis's printed section 4.4 beside this run
-``mapping``    orthophotos and mosaic of the adjusted photos ([mapping])
+``mapping``    orthophotos, mosaic and monorestituted features of the adjusted photos ([mapping])
 ``products``   LiDAR ground, DTM/DSM, contours, hypsometry, sheets ([products])
 ``selfcal``    adjustment with additional parameters (issue 13), when planned
 ``report``     index.html / index.md / report.json of the whole run

@@ -28,7 +28,7 @@ def results(records: Iterable[StageRecord]) -> dict[str, Any]:
     """``runs``, ``comparison``, ``extraction`` and ``thesis`` of the done stages (summary.json, report)."""
     runs: dict[str, Any] = {}
     comparison: dict[str, Any] = {}
-    extraction = thesis = selfcal = lidar_products = None
+    extraction = thesis = selfcal = lidar_products = mapping = None
     for r in records:
         if not r.done:
             continue
@@ -51,9 +51,12 @@ def results(records: Iterable[StageRecord]) -> dict[str, Any]:
             selfcal = dict(r.result)
         elif r.name == "products":
             lidar_products = dict(r.result)
+        elif r.name == "mapping":
+            mapping = dict(r.result)
     return {"runs": runs, "comparison": comparison, "extraction": extraction, "thesis": thesis,
             **({"selfcal": selfcal} if selfcal else {}),
-            **({"products": lidar_products} if lidar_products else {})}
+            **({"products": lidar_products} if lidar_products else {}),
+            **({"mapping": mapping} if mapping else {})}
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -136,6 +139,10 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
     if prod:
         lines += ["", "## LiDAR products", "",
                   f"In ../products/ (CRS {prod['crs']}): " + ", ".join(prod["files"]) + "."]
+    if doc.get("mapping"):
+        from .mapping import markdown as mapping_markdown
+
+        lines += mapping_markdown(doc["mapping"])
     if doc.get("reports"):
         lines += ["", "## Accuracy reports", ""]
         lines += [f"- [control set {k}]({v})" for k, v in doc["reports"].items()]
