@@ -162,6 +162,29 @@ def test_iteration_oscillates_on_a_wall_exact_finds_it():
     np.testing.assert_allclose(ex.enh[0], wall[0], atol=1e-3)
 
 
+def test_iteration_from_the_ground_lands_behind_a_roof_edge_from_the_top_on_it():
+    """A roof point 0.3 m inside the far edge of a 10 m box, its ray leaving the roof as it descends:
+    the paper's iteration started on the ground below the camera converges on the ground behind the
+    building (a fixed point the ray never reaches: flagged occluded); started at the top of the surface
+    it comes down onto the roof, where the first hit is."""
+    g = np.zeros((40, 160))
+    g[10:30, 60:80] = 10.0                              # E 0..20, N 10..30, roof at 10 m
+    surf = GridSurface(g, GeoTransform(-60.0, 40.0, 1.0), "nearest")
+    cam = Camera("c", 50.0, 0, 0, 0, 0, 0, 0, 0, 0, 0.01, 0.01, 1001, 1001)
+    eo = np.array([-5.0, 20.0, 300.0, 0.0, 0.0, 0.0])   # vertical photo, nadir on the ground west of it
+    roof = np.array([[19.7, 20.0, 10.0]])
+    px = _pixels(roof, eo, cam)
+    ground = monoplot(px, cam, eo, surf, method="iterate")
+    assert ground.status.tolist() == ["occluded"] and np.isnan(ground.enh).all()
+    top = monoplot(px, cam, eo, surf, method="iterate", start="top")
+    ex = monoplot(px, cam, eo, surf, method="exact", tol_m=1e-5)
+    assert top.status.tolist() == ex.status.tolist() == ["ok"]
+    np.testing.assert_allclose(top.enh[0], roof[0], atol=1e-6)
+    np.testing.assert_allclose(ex.enh[0], roof[0], atol=1e-3)
+    with pytest.raises(MonoplotError, match="start must be 'nadir' or 'top', got 'roof'"):
+        monoplot(px, cam, eo, surf, method="iterate", start="roof")
+
+
 def test_propagated_sd_matches_the_closed_form_on_a_flat_ground():
     """Vertical photo over a plane h = 0 from 1000 m, c = 50 mm, 10 um pixels (0.2 m GSD):
     a pixel sd of 0.5 px is 0.1 m on the ground; an sd of Z0 moves a point r metres from

@@ -261,7 +261,7 @@ def _road_points(scene: Any, rng: np.random.Generator, n: int) -> tuple[np.ndarr
 
 def _image_digitise(scene: Any, lidar: dict, corners: np.ndarray, outward: np.ndarray, road_pts: np.ndarray,
                     road_nrm: np.ndarray, cell: float, rng: np.random.Generator) -> np.ndarray:
-    """Positions an operator digitises on the intensity image (module docstring), (N, 2)."""
+    """Positions an operator digitises on the LiDAR images (module docstring), (N, 2)."""
     xyz, inten = lidar["xyz"], lidar["intensity"].astype(np.float64)
     x0, y0 = xyz[:, 0].min(), xyz[:, 1].max()
     col = np.floor((xyz[:, 0] - x0) / cell).astype(np.int64)
@@ -272,14 +272,21 @@ def _image_digitise(scene: Any, lidar: dict, corners: np.ndarray, outward: np.nd
     c = np.bincount(flat, None, shape[0] * shape[1])
     with np.errstate(invalid="ignore"):
         img = (s / c).reshape(shape)
-    roof = img > (900.0 + 2200.0) / 2           # bright first returns: roofs
-    road = img < (250.0 + 900.0) / 2            # dark: asphalt
+    # the first-pulse altimetry image (highest first return per cell; Table 03: large buildings are
+    # digitised on it, "aparencia clara em relacao a vizinhanca")
+    top = np.full(shape[0] * shape[1], -np.inf)
+    np.maximum.at(top, flat, xyz[:, 2])
+    top = top.reshape(shape)
+    road = img < (250.0 + 900.0) / 2            # dark on the first-pulse intensity image: asphalt (Table 04)
     out = []
     for p, o in zip(corners, outward):
         r0, c0 = int((y0 - p[1]) / cell), int((p[0] - x0) / cell)
         k = int(math.ceil(3.0 / cell))
         rr, cc = np.mgrid[r0 - k:r0 + k + 1, c0 - k:c0 + k + 1]
-        m = roof[np.clip(rr, 0, shape[0] - 1), np.clip(cc, 0, shape[1] - 1)]
+        win = top[np.clip(rr, 0, shape[0] - 1), np.clip(cc, 0, shape[1] - 1)]
+        seen = win[np.isfinite(win)]
+        # bright = higher than halfway between the lowest and the highest cell around the corner
+        m = win > 0.5 * (seen.min() + seen.max()) if seen.size else np.zeros(win.shape, dtype=bool)
         # the corners of the roof cells; the operator's corner: farthest out along the diagonal
         ce = np.concatenate([x0 + (cc[m] + dx) * cell for dx in (0, 1, 0, 1)])
         cn = np.concatenate([y0 - (rr[m] + dy) * cell for dy in (0, 0, 1, 1)])
@@ -310,6 +317,7 @@ def _image_digitise(scene: Any, lidar: dict, corners: np.ndarray, outward: np.nd
 
 def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: int = 9, n_road_points: int = 27,
                         image_sd_px: float = 0.5, inward_px: float = 0.0, lidar_noise_m: float = 0.15,
+                        lidar_plan_sd_m: float = 0.0,
                         dsm_cell_m: float | None = 1.0, scale: float = 2000.0,
                         e0: float = 680_400.0, n0: float = 7_184_200.0) -> dict[str, Any]:
     """The paper's comparison on a synthetic town (module docstring).
@@ -331,6 +339,12 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         shows how much the building figures depend on it).
     lidar_noise_m : float
         LiDAR height noise, m.
+    lidar_plan_sd_m : float
+        LiDAR planimetric error (m, the sd of the horizontal position error,
+        sd / sqrt(2) per axis, independent per point): the point is recorded
+        this far from where its height was measured (Table 01 states "50 cm
+        na planimetria" for the ALTM 2050; default 0: docs/mapping.md shows
+        the sensitivity).
     scale : float
         Map scale of the PEC class.
     dsm_cell_m : float, optional
@@ -375,6 +389,8 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
     parts = [scene.lidar_points((p[0] - 25, p[1] - 25, p[0] + 25, p[1] + 25), density_m2, noise_m=lidar_noise_m,
                                 seed=seed + 1 + k) for k, p in enumerate(truth)]
     lidar = {key: np.concatenate([q[key] for q in parts]) for key in parts[0]}
+    if lidar_plan_sd_m:
+        lidar["xyz"][:, :2] += rng.normal(0, lidar_plan_sd_m / math.sqrt(2), (len(lidar["xyz"]), 2))
     xy, _ = project(np.broadcast_to(eo_true, (len(truth), 6)), truth, np.full(len(truth), cam.focal_length_mm))
     px = cam.photo_to_pixel(xy)
     # the operator clicks on the roof: building corners inward along their diagonal by inward_px
@@ -407,18 +423,63 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         "nearest_points": PointSurface(lidar["xyz"], "nearest", sd_m=lidar_noise_m),
         "tin_points": PointSurface(lidar["xyz"], "tin", sd_m=lidar_noise_m),
     }
-    status = {}
-    for name, surf in surfaces.items():
-        res = monoplot(px, cam, eo_used, surf, image_sd_px=image_sd_px, eo_cov=cov)
+    status, heights = {}, {}
+    runs = [(name, surf, "exact", "nadir") for name, surf in surfaces.items()]
+    runs += [(f"{name}_iterate{'_top' if start == 'top' else ''}", surfaces[name], "iterate", start)
+             for start in ("nadir", "top") for name in ("nearest", "tin")]
+    for name, surf, method, start in runs:
+        res = monoplot(px, cam, eo_used, surf, method=method, image_sd_px=image_sd_px, eo_cov=cov, start=start)
         measured[name] = res.enh[:, :2]
+        heights[name] = res.enh[:, 2]
         status[name] = res.counts()
     measured["intensity_image"] = _image_digitise(scene, lidar, corners_a, outward_a, road_pts, road_nrm, cell, rng)
-    for prod in ("intensity_image", "nearest", "tin", "nearest_points", "tin_points"):
+    products = ("intensity_image", *(r[0] for r in runs))
+    for prod in products:
         d = truth[:, :2] - measured[prod]
         tables[prod] = assess_features(d, cls, scale=scale)
         r90[prod] = {c: t["r90_m"] for c, t in tables[prod].items()}
+    corners_info = _corner_geometry(scene, eo_true, corners_a)
+    nb = len(corners_a)
+    diagnosis = {}
+    for prod in products:
+        err = np.hypot(*(truth[:nb, :2] - measured[prod][:nb]).T)
+        on_roof = (np.abs(heights[prod][:nb] - truth[:nb, 2]) < 1.0) if prod in heights else None
+        diagnosis[prod] = {}
+        for key, sel in (("leaving", corners_info["leaving"]), ("entering", ~corners_info["leaving"])):
+            e = err[sel]
+            diagnosis[prod][key] = {
+                "n": int(sel.sum()), "median_error_m": float(np.nanmedian(e)) if e.size else math.nan,
+                "max_error_m": float(np.nanmax(e)) if e.size else math.nan,
+                "on_roof": None if on_roof is None else int(on_roof[sel].sum())}
     gsd = cam.pixel_size_x_mm * 922.0 / cam.focal_length_mm
-    return {"tables": tables, "r90": r90, "status": status, "setup": {
+    return {"tables": tables, "r90": r90, "status": status, "diagnosis": diagnosis, "corners": {
+        "leaving": corners_info["leaving"], "lean_m": corners_info["lean_m"], "off_nadir_deg":
+        corners_info["off_nadir_deg"], "error_m": {p: np.hypot(*(truth[:nb, :2] - measured[p][:nb]).T)
+                                                  for p in products},
+        "h_error_m": {p: heights[p][:nb] - truth[:nb, 2] for p in heights}}, "setup": {
         "seed": seed, "density_m2": density_m2, "lidar_noise_m": lidar_noise_m, "n_buildings": len(scene.buildings),
         "n_building_points": int(len(corners_a)), "n_road_points": int(len(road_pts)), "photo_gsd_m": gsd,
-        "image_sd_px": image_sd_px, "intensity_cell_m": cell, "flying_height_m": 922.0, "scale": scale}}
+        "image_sd_px": image_sd_px, "intensity_cell_m": cell, "flying_height_m": 922.0, "scale": scale,
+        "lidar_plan_sd_m": lidar_plan_sd_m}}
+
+
+def _corner_geometry(scene: Any, eo: np.ndarray, corners: np.ndarray) -> dict[str, np.ndarray]:
+    """Per roof-outline corner: does the ray leave the roof below the corner, the lean, the off-nadir angle.
+
+    ``leaving``: 0.5 m below the corner along the ray from the projection
+    centre the ray is outside the building's footprint -- it can only meet the
+    roof AT the corner and otherwise falls to the ground ``lean_m`` further
+    out (eave height above the base x the ray's horizontal / vertical ratio);
+    ``entering``: it passes under the roof and meets the (visible) wall.
+    """
+    out_leave, lean, off = [], [], []
+    for k, p in enumerate(corners):
+        b = scene.buildings[k // 4]
+        d = p - eo[:3]
+        ratio = math.hypot(d[0], d[1]) / abs(d[2])
+        q = p + d * (0.5 / abs(d[2]))
+        u, v = b.to_local(np.array([q[0]]), np.array([q[1]]))
+        out_leave.append(not (abs(u[0]) < b.length_m / 2 and abs(v[0]) < b.width_m / 2))
+        lean.append(b.eave_m * ratio)
+        off.append(math.degrees(math.atan(ratio)))
+    return {"leaving": np.array(out_leave), "lean_m": np.array(lean), "off_nadir_deg": np.array(off)}

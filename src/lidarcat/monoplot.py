@@ -516,7 +516,7 @@ def _first_hit(surface: _Surface, c: np.ndarray, d: np.ndarray, tol_m: float,
 
 
 def _iterate(surface: _Surface, c: np.ndarray, d: np.ndarray, tol_m: float,
-             max_iter: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             max_iter: int, start: str = "nadir") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The paper's height iteration; returns t, status code (0, 2, 3, 4) and iterations used."""
     n = len(d)
     code = np.zeros(n, dtype=np.int8)
@@ -524,7 +524,8 @@ def _iterate(surface: _Surface, c: np.ndarray, d: np.ndarray, tol_m: float,
     t = np.full(n, np.nan)
     down = d[:, 2] < 0
     code[~down] = 2
-    h0 = surface.height(np.array([c[0]]), np.array([c[1]]))[0]
+    h0 = (surface.height(np.array([c[0]]), np.array([c[1]]))[0] if start == "nadir"
+          else float(surface.h_range[1]))
     if not np.isfinite(h0):
         h0 = float(np.mean(surface.h_range))
     h = np.full(n, h0)
@@ -601,7 +602,7 @@ class MonoplotResult:
 # ---------------------------------------------------------------------------- main entry
 def monoplot(colrow_px: Any, camera: Camera, eo: Any, surface: _Surface, *, method: str = "exact",
              image_sd_px: float = 0.5, eo_cov: Any = None, tol_m: float = 1e-3, max_iter: int = 50,
-             progress: Callable[[int, int], None] | None = None) -> MonoplotResult:
+             start: str = "nadir", progress: Callable[[int, int], None] | None = None) -> MonoplotResult:
     """Intersect the image rays of pixels with a surface (see the module docstring).
 
     Parameters
@@ -626,6 +627,14 @@ def monoplot(colrow_px: Any, camera: Camera, eo: Any, surface: _Surface, *, meth
         Convergence: plan change (iteration) or bracket length (exact), m.
     max_iter : int
         Iterations of ``method="iterate"`` before ``not_converged``.
+    start : {"nadir", "top"}
+        First height of ``method="iterate"``: the surface below the projection
+        centre (``nadir``, default: the local ground, as the paper's first
+        position from a plane projective transformation) or the highest
+        height of the surface (``top``: the iteration comes down onto a roof
+        from above; from the ground, the ray through a roof corner that
+        leaves the roof as it descends converges on the ground behind the
+        building even where the surface holds the roof: flagged ``occluded``).
     progress : callable, optional
         ``progress(done, total)`` after each stage.
 
@@ -640,6 +649,8 @@ def monoplot(colrow_px: Any, camera: Camera, eo: Any, surface: _Surface, *, meth
     """
     if method not in ("exact", "iterate"):
         raise MonoplotError(f"method must be 'exact' or 'iterate', got {method!r}")
+    if start not in ("nadir", "top"):
+        raise MonoplotError(f"start must be 'nadir' or 'top', got {start!r}")
     if not (image_sd_px >= 0 and tol_m > 0 and max_iter >= 1):
         raise MonoplotError("image_sd_px must be >= 0, tol_m > 0 and max_iter >= 1 "
                             f"(got {image_sd_px}, {tol_m}, {max_iter})")
@@ -668,7 +679,7 @@ def monoplot(colrow_px: Any, camera: Camera, eo: Any, surface: _Surface, *, meth
     if method == "exact":
         t, code = _first_hit(surface, c, d, tol_m)
     else:
-        t, code, it = _iterate(surface, c, d, tol_m, max_iter)
+        t, code, it = _iterate(surface, c, d, tol_m, max_iter, start)
         n_iter[idx] = it
         ok = code == 0
         if ok.any():   # is the converged point the first thing the ray meets?

@@ -28,8 +28,8 @@ ok, outside_photo, no_intersection, outside_surface, not_converged, occluded.
 @click.option("--surface", "surface_path", type=click.Path(dir_okay=False), default=None,
               help="Surface model GeoTIFF (DSM; `lidarcat lidar raster --what dsm`).")
 @click.option("--lidar", "lidar", multiple=True,
-              help="LiDAR tiles (paths or globs; repeat) as the surface, no grid. Default with neither "
-                   "option: the survey's tiles.")
+              help="LiDAR tiles (paths or globs; repeat) as the surface, no grid: their first returns "
+                   "around the rays. Default with neither option: the survey's tiles.")
 @click.option("--interpolator", type=click.Choice(["tin", "nearest", "bilinear"]), default=None,
               help="Surface height between samples: tin (LiDAR points; default), nearest, bilinear "
                    "(grids; default with --surface).")
