@@ -31,15 +31,27 @@ is their true plan position (the paper's 1:2000 map base).
   corners of a roof seen off-nadir) runs off that ramp to the ground,
   eave height x tan(off-nadir) away; the highest-return grid widens the roof
   by up to a cell instead, so that such rays still meet the roof top;
-* *digitising on the LiDAR intensity image* -- the operator clicks on the
-  first-return intensity image rasterised at the point spacing
-  (``1/sqrt(density)``): the roof (bright) or road (dark) cells are the
-  cells whose mean intensity lies beyond the midpoint of the two materials;
-  a building corner is the cell corner of that region farthest out along the
-  building's diagonal within 3 m of the true corner, a road edge point is the
-  cell edge where the road region ends along the road's normal; then a
-  pointing noise of 0.3 cell.  The image is orthogonal but its edges are
-  only as sharp as its cells: the paper's explanation of why it is worse.
+* *digitising on the LiDAR images* -- the operator clicks on images
+  rasterised at the point spacing (``1/sqrt(density)``): building corners on
+  the first-pulse altimetry image (the paper's Table 03: the highest first
+  return per cell; the roof cells are those above halfway between the lowest
+  and the highest cell within 3 m), road edges on the first-pulse intensity
+  image (Table 04: cells whose mean intensity is below the midpoint of
+  asphalt and ground); a building corner is the cell corner of the roof
+  region farthest out along the building's diagonal within 3 m of the true
+  corner, a road edge point is the cell edge where the road region ends along
+  the road's normal; then a pointing noise of 0.3 cell.  The image is
+  orthogonal but its edges are only as sharp as its cells: the paper's
+  explanation of why it is worse.
+
+Also returned, per outline corner (``corners``, ``diagnosis``): whether its
+ray leaves the roof as it descends (it then meets the roof only if the
+surface holds the roof at the corner, else it falls to the ground one *lean*
+= eave height x tan(off-nadir) further out), the lean, the off-nadir angle,
+the plan and height errors of every product -- why the building figures are
+what they are (docs/mapping.md).  The paper's iteration is run too, from the
+ground below the camera (``*_iterate``) and from the top of the surface
+(``*_iterate_top``).
 """
 
 from __future__ import annotations
@@ -356,9 +368,16 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
     -------
     dict
         ``tables``: ``{product: assess_features(...)}`` for ``intensity_image``,
-        ``nearest``, ``tin``, ``nearest_points``, ``tin_points``; ``r90``:
-        ``{product: {class: r90}}`` (Table 09); ``status``: monoplot status
-        counts per surface; ``setup``: the numbers used.
+        ``nearest``, ``tin``, ``nearest_points``, ``tin_points``,
+        ``nearest_iterate``, ``tin_iterate``, ``nearest_iterate_top``,
+        ``tin_iterate_top``; ``r90``: ``{product: {class: r90}}`` (Table 09);
+        ``status``: monoplot status counts per product; ``corners``: per
+        building corner ``leaving`` (bool), ``lean_m``, ``off_nadir_deg``,
+        ``error_m`` and ``h_error_m`` (m, per product; NaN where not placed);
+        ``diagnosis``: per product and corner kind (``leaving``,
+        ``entering``) n, median and max plan error (m) and the corners whose
+        hit is within 1 m of the roof height (``on_roof``); ``setup``: the
+        numbers used.
     """
     from .monoplot import PointSurface, monoplot
     from ._collinearity import project
