@@ -185,6 +185,25 @@ def test_iteration_from_the_ground_lands_behind_a_roof_edge_from_the_top_on_it()
         monoplot(px, cam, eo, surf, method="iterate", start="roof")
 
 
+def test_tin_point_location_walk_agrees_with_scipy_find_simplex():
+    """The vectorised walk finds the triangle scipy's find_simplex finds, inside and outside the hull
+    (NaN), and the TIN height is the plane of that triangle."""
+    rng = np.random.default_rng(5)
+    xyz = np.column_stack([rng.uniform(E0, E0 + 60, 3000), rng.uniform(N0, N0 + 40, 3000), rng.normal(900, 3, 3000)])
+    surf = PointSurface(xyz, "tin")
+    q = np.column_stack([rng.uniform(-40, 40, 20000), rng.uniform(-30, 30, 20000)])   # centred; ~1/3 outside
+    q[:3] = np.nan
+    found, w = surf._locate(q)
+    want = surf._tri.find_simplex(np.where(np.isfinite(q), q, 1e9))
+    assert (want < 0).sum() > 5000 and np.array_equal(found, want)
+    ins = found >= 0
+    np.testing.assert_allclose(w[ins].sum(axis=1), 1.0, atol=1e-12)
+    v = surf._tri.points[surf._tri.simplices[found[ins]]]                    # (m, 3, 2) plan vertices
+    np.testing.assert_allclose(np.einsum("mk,mkj->mj", w[ins], v), q[ins], atol=1e-9)
+    h = surf.height(q[:, 0] + surf._origin[0], q[:, 1] + surf._origin[1])
+    assert np.isnan(h[~ins]).all() and np.isfinite(h[ins]).all()
+
+
 def test_propagated_sd_matches_the_closed_form_on_a_flat_ground():
     """Vertical photo over a plane h = 0 from 1000 m, c = 50 mm, 10 um pixels (0.2 m GSD):
     a pixel sd of 0.5 px is 0.1 m on the ground; an sd of Z0 moves a point r metres from

@@ -279,6 +279,8 @@ class PointSurface(_Surface):
     _v3: np.ndarray = field(init=False, repr=False)
     _ctree: Any = field(init=False, repr=False)
     _area: float = field(init=False, repr=False)
+    _guess: np.ndarray = field(init=False, repr=False)
+    _guess_grid: tuple[float, float, float, int, int] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         from scipy.spatial import Delaunay, QhullError, cKDTree
@@ -315,6 +317,15 @@ class PointSurface(_Surface):
         object.__setattr__(self, "_v3", v[:, 2].copy())
         object.__setattr__(self, "_ctree", cKDTree(v.mean(axis=1)))
         object.__setattr__(self, "_area", float(0.5 * np.abs(det).sum()))
+        # the walk's starting triangles: the nearest centroid to each cell centre of a grid of one
+        # point spacing (int32, about one cell per point)
+        cell = self.resolution_m
+        lo, hi = en.min(axis=0), en.max(axis=0)
+        cols, rows = int((hi[0] - lo[0]) / cell) + 1, int((hi[1] - lo[1]) / cell) + 1
+        ce, cn = np.meshgrid(lo[0] + (np.arange(cols) + 0.5) * cell, lo[1] + (np.arange(rows) + 0.5) * cell)
+        _, guess = self._ctree.query(np.column_stack([ce.ravel(), cn.ravel()]))
+        object.__setattr__(self, "_guess", guess.astype(np.int32))
+        object.__setattr__(self, "_guess_grid", (float(lo[0]), float(lo[1]), cell, cols, rows))
 
     @property
     def resolution_m(self) -> float:
@@ -349,11 +360,49 @@ class PointSurface(_Surface):
         """Triangle containing each (centred) plan position (-1: none) and its barycentric weights.
 
         ``Delaunay.find_simplex`` first builds LAPACK-checked transforms of every
-        triangle (tens of seconds for a million triangles); here the candidates
-        are the triangles with the 3 (then 12, then 96) nearest centroids, tested with
-        closed-form 2 x 2 inverses.  A position in no candidate is outside the
-        hull (or in a sliver far from it): NaN.
+        triangle (tens of seconds for a million triangles).  Here a visibility
+        walk, vectorised over the positions: start at the triangle of the nearest
+        centroid to the position's grid cell (one point spacing), compute the
+        barycentric weights (closed-form 2 x 2 inverses), step to the neighbour
+        across the edge of the most negative weight until none is negative (a
+        Delaunay triangulation has no cycles for this walk); an edge of the
+        hull to cross means outside (NaN).  Positions still walking after 48
+        steps or on a degenerate triangle go to :meth:`_locate_candidates`.
         """
+        found = np.full(len(q), -1, dtype=np.int64)
+        w = np.zeros((len(q), 3))
+        idx = np.flatnonzero(np.isfinite(q).all(axis=1))
+        x0, y0, cell, cols, rows = self._guess_grid
+        c = np.clip(((q[idx, 0] - x0) / cell).astype(np.int64), 0, cols - 1)
+        r = np.clip(((q[idx, 1] - y0) / cell).astype(np.int64), 0, rows - 1)
+        tri = self._guess[r * cols + c].astype(np.int64)
+        nb = self._tri.neighbors
+        left = []
+        for _ in range(48):
+            if idx.size == 0:
+                break
+            rel = q[idx] - self._v3[tri]
+            b = np.einsum("mij,mj->mi", self._inv[tri], rel)
+            bb = np.column_stack([b, 1.0 - b.sum(axis=1)])
+            j = np.argmin(bb, axis=1)
+            low = bb[np.arange(len(idx)), j]
+            bad = ~np.isfinite(low)
+            inside = low >= -1e-9
+            found[idx[inside]] = tri[inside]
+            w[idx[inside]] = bb[inside]
+            nxt = nb[tri, j]
+            move = ~inside & ~bad & (nxt >= 0)            # nxt < 0: across the hull, outside
+            left.append(idx[bad])
+            idx, tri = idx[move], nxt[move]
+        left.append(idx)
+        rest = np.concatenate(left)
+        if rest.size:
+            f2, w2 = self._locate_candidates(q[rest])
+            found[rest], w[rest] = f2, w2
+        return found, w
+
+    def _locate_candidates(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_locate` by the triangles of the 3 (then 12, then 96) nearest centroids."""
         found = np.full(len(q), -1, dtype=np.int64)
         w = np.zeros((len(q), 3))
         todo = np.flatnonzero(np.isfinite(q).all(axis=1))
