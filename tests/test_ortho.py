@@ -225,3 +225,36 @@ def test_mosaic_takes_the_most_nadir_visible_photo(tmp_path, scene, photo_a, pho
     assert sum(areas) == pytest.approx((ref.size - res.n_nodata) * GSD**2)
     ring = np.array(gj["features"][0]["geometry"]["coordinates"][0][0])
     assert ring[:, 0].min() >= BOUNDS[0] - GSD and ring[:, 0].max() <= BOUNDS[2] + GSD
+
+
+def test_mosaic_feathering_blends_across_seams_only_and_does_not_depend_on_tiles(models, photo_a, photo_b):
+    """feather_m = 2 m: a darker photo B blends into A over the seam band; cells farther than 2 m from
+    every seam keep the hard mosaic's value; tiles of 17 px give the same output as one tile."""
+    import cv2
+
+    dsm, _ = models
+    dark_b = PhotoModel("B", (photo_b.image * 0.6).astype(np.uint8), CAM, EO_B)
+    hard = mosaic([photo_a, dark_b], dsm, GSD, bounds=BOUNDS)
+    soft = mosaic([photo_a, dark_b], dsm, GSD, bounds=BOUNDS, feather_m=2.0, tile_px=4096)
+    tiled = mosaic([photo_a, dark_b], dsm, GSD, bounds=BOUNDS, feather_m=2.0, tile_px=17)
+    np.testing.assert_allclose(tiled.array, soft.array, atol=1e-4)
+    assert np.array_equal(soft.labels, hard.labels)
+    lab = hard.labels
+    a, s = hard.array[..., 0], soft.array[..., 0]
+    # cells whose every neighbour within 2 m + a cell (the seam lies half a cell off a centre) has their
+    # label: untouched
+    k = 2 * (int(np.ceil(2.0 / GSD)) + 1) + 1
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    far = np.zeros(lab.shape, dtype=bool)
+    for i in (0, 1):
+        far |= cv2.erode((lab == i).astype(np.uint8), disk, borderType=cv2.BORDER_REPLICATE) > 0
+    assert far.mean() > 0.5
+    np.testing.assert_allclose(s[far], a[far], atol=1e-3)
+    # across the seam (A west, B east on a row) the step between neighbours shrinks
+    across = (lab[:, :-1] >= 0) & (lab[:, 1:] >= 0) & (lab[:, :-1] != lab[:, 1:])
+    assert across.sum() > 20
+    step_hard = np.nanmean(np.abs(a[:, 1:] - a[:, :-1])[across])
+    step_soft = np.nanmean(np.abs(s[:, 1:] - s[:, :-1])[across])
+    assert step_soft < 0.5 * step_hard
+    with pytest.raises(OrthoError, match=r"mosaic: feather_m must be >= 0 \(metres\), got -1"):
+        mosaic([photo_a, dark_b], dsm, GSD, bounds=BOUNDS, feather_m=-1)

@@ -11,6 +11,21 @@ tangent
 the least building lean and the least relief displacement; hidden cells thus
 come from a photo that sees them.  A cell no photo sees stays nodata.
 
+Feathering (``feather_m`` > 0, optional; default hard seams): across a seam
+the photos are blended over a band of ``2 feather_m``.  With ``s_i`` the
+signed distance (m) of a cell to the boundary of photo *i*'s region (positive
+inside, negative outside; ``cv2.distanceTransform``, exact), each photo that
+sees the cell weighs
+
+.. math::  w_i = \mathrm{clip}\left(\tfrac12 + \frac{s_i}{2 f}, 0, 1\right),
+
+and the cell is :math:`\sum w_i v_i / \sum w_i`: half and half on the seam,
+the chosen photo alone from ``f`` inside its region on.  A cell's distances up
+to ``f`` depend only on the choice within ``f`` of it, so every tile is
+computed with a margin of ``f`` and the result does not depend on the tiling.
+Occluded cells of a true orthomosaic get no weight from the photo that does not
+see them.  The seamlines and the labels stay those of the hard choice.
+
 Seamlines
 ---------
 The choice is kept on a label grid (one label per ``k x k`` cells, ``k`` so
@@ -96,7 +111,7 @@ def _union_bounds(photos: Sequence[PhotoModel], surface: Any) -> tuple[float, fl
 def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str | os.PathLike | None = None, *,
            seams_path: str | os.PathLike | None = None, bounds: Sequence[float] | None = None,
            true_ortho: bool = True, crs: Any = None, tile_px: int = 1024, preview: bool = True,
-           progress: Callable[[int, int], None] | None = None) -> MosaicResult:
+           feather_m: float = 0.0, progress: Callable[[int, int], None] | None = None) -> MosaicResult:
     """Mosaic orthorectified photos, the most nadir visible view per cell (module docstring).
 
     Parameters
@@ -118,6 +133,8 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
     crs : CRS-like, optional
     tile_px : int
     preview : bool
+    feather_m : float
+        Half width of the blend across seamlines, m (0: hard seams; module docstring).
     progress : callable, optional
         ``progress(done_rows, total_rows)``.
 
@@ -141,6 +158,8 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
         raise OrthoError("mosaic: a photo id is given twice")
     if not isinstance(surface, GridSurface):
         raise OrthoError("mosaics need a gridded DTM/DSM (GridSurface)")
+    if not (math.isfinite(feather_m) and feather_m >= 0):
+        raise OrthoError(f"mosaic: feather_m must be >= 0 (metres), got {feather_m!r}")
     if surface.interpolator != "bilinear":
         surface = GridSurface(surface.grid, surface.transform, "bilinear", surface.sd_m)
     bounds = _union_bounds(photos, surface) if bounds is None else bounds
@@ -152,21 +171,30 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
     labels = np.full(((rows + k - 1) // k, (cols + k - 1) // k), -1, dtype=np.int16)
     counts = np.zeros(len(photos) + 1, dtype=np.int64)
     tile_px = max(16, int(tile_px))
+    margin = int(math.ceil(feather_m / gsd_m)) if feather_m > 0 else 0
 
     def compute(r0: int, r1: int) -> np.ndarray:
         band = np.full((r1 - r0, cols, bands), np.nan, dtype=np.float32)
         for c0 in range(0, cols, tile_px):
             c1 = min(cols, c0 + tile_px)
-            e, n = _tile_cells(transform, r0, r1, c0, c1)
+            b = margin
+            e, n = _tile_cells(transform, r0 - b, r1 + b, c0 - b, c1 + b)
             best = np.full(e.shape, np.inf)
             choice = np.full(e.shape, -1, dtype=np.int16)
             vals_out = np.full(e.shape + (bands,), np.nan, dtype=np.float32)
+            seen = []
             for i, (p, zb) in enumerate(zip(photos, zbufs)):
                 vals, ok, _, tan = sample_photo(p, surface, e, n, zb)
                 better = ok & (tan < best)
                 best[better] = tan[better]
                 choice[better] = i
                 vals_out[better] = vals[better]
+                if b:
+                    seen.append((i, vals, ok))
+            if b:
+                vals_out = _feather(seen, choice, vals_out, feather_m / gsd_m)
+                inner = (slice(b, b + r1 - r0), slice(b, b + c1 - c0))
+                choice, vals_out = choice[inner], vals_out[inner]
             band[:, c0:c1] = vals_out
             counts[:-1] += np.bincount(choice[choice >= 0].ravel(), minlength=len(photos))
             counts[-1] += int((choice < 0).sum())
@@ -186,6 +214,32 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
     per = {p.photo_id: int(c) for p, c in zip(photos, counts[:-1])}
     log.info("mosaic of %d photos: %d x %d cells of %.3g m; %s", len(photos), cols, rows, gsd_m, per)
     return MosaicResult(Path(path) if path is not None else None, seams_path, out_arr, labels, k, transform, (rows, cols), per, int(counts[-1]))
+
+
+def _feather(seen: Sequence[tuple[int, np.ndarray, np.ndarray]], choice: np.ndarray, hard: np.ndarray,
+             f_px: float) -> np.ndarray:
+    """Blend across seams (module docstring): *seen* = (photo index, values (h, w, bands), sees-the-cell mask)."""
+    import cv2
+
+    num = np.zeros(hard.shape, dtype=np.float64)
+    den = np.zeros(choice.shape, dtype=np.float64)
+    for i, vals, ok in seen:
+        if not ok.any():
+            continue
+        m = (choice == i).astype(np.uint8)
+        if m.any():
+            d_in = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            d_out = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) if not m.all() else None
+            s = d_in - 0.5 if d_out is None else np.where(m > 0, d_in - 0.5, 0.5 - d_out)
+        else:
+            continue                        # no cell of the tile (+ margin) chose it: beyond every seam
+        w = np.clip(0.5 + s / (2.0 * f_px), 0.0, 1.0) * ok
+        num += w[..., None] * np.nan_to_num(vals.astype(np.float64))
+        den += w
+    out = hard.copy()
+    blend = den > 0
+    out[blend] = (num[blend] / den[blend, None]).astype(np.float32)
+    return out
 
 
 def seam_polygons(labels: np.ndarray, transform: Any, photo_ids: Sequence[str], crs: Any = None) -> dict:

@@ -77,7 +77,7 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
     # orthophotos / mosaic / monoplot of lidarcat run: read by lidarcat.pipeline.stages.mapping
     "mapping": {"orthophotos": False, "surface": False, "gsd_m": False, "cell_m": False, "mosaic": False,
                 "images": False, "photos": False, "features": False, "reference": False, "interpolators": False,
-                "method": False, "image_sd_px": False, "surface_sd_m": False},
+                "method": False, "image_sd_px": False, "surface_sd_m": False, "feather_m": False},
     # LiDAR products of lidarcat run: read by lidarcat.pipeline.stages.products
     "products": {k: False for k in ("ground", "filter", "dtm", "dsm", "ndsm", "hillshade", "text_grid", "cell_m",
                                     "max_edge_m", "contours", "contour_interval_m", "master_every", "smooth",

@@ -40,12 +40,14 @@ mosaic fills them from another photo.
               help="Folder of the photo files <photo>.png/.tif/.jpg. Default: SURVEY/images.")
 @click.option("--mosaic", "make_mosaic", is_flag=True,
               help="Also mosaic the photos: the most nadir photo that sees each cell; seamlines as GeoJSON.")
+@click.option("--feather", "feather_m", type=click.FloatRange(min=0), default=0.0, show_default=True,
+              help="Mosaic: blend the photos across each seamline over +- this many metres (0: hard seams).")
 @click.option("--tile", "tile_px", type=click.IntRange(16), default=1024, show_default=True,
               help="Rows/columns computed at once (memory ~ 40 bytes x tile x output width).")
 @click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON.")
-def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, images_dir, make_mosaic, tile_px,
-          outdir, as_json) -> None:
+def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, images_dir, make_mosaic, feather_m,
+          tile_px, outdir, as_json) -> None:
     """Orthophotos of adjusted photos over a DTM or DSM, and their mosaic."""
     from pathlib import Path
 
@@ -86,7 +88,7 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
     if make_mosaic:
         with progress_bar(1000, "mosaic", enabled=not as_json) as bar:
             m = mosaic(photos, surface, gsd_m, out / "mosaic.tif", seams_path=out / "seamlines.geojson",
-                       bounds=bounds, true_ortho=bool(dsm), crs=s.crs, tile_px=tile_px,
+                       bounds=bounds, true_ortho=bool(dsm), crs=s.crs, tile_px=tile_px, feather_m=feather_m,
                        progress=(lambda d, n: bar.update(int(1000 * d / n) - bar.pos)) if bar else None)
         summary["mosaic"] = m.to_dict()
         if not as_json:

@@ -8,6 +8,7 @@ survey.toml::
     gsd_m = 0.2               # output cell, m
     cell_m = 0.5              # cell of the surface model rasterised from the LiDAR tiles, m
     mosaic = true             # also the mosaic and its seamlines
+    feather_m = 0.0           # mosaic: blend across seamlines over +- this many metres (0: hard seams)
     images = "images"         # folder of the photo files <photo>.png/.tif/.jpg
     photos = ["1", "2"]       # optional: a subset (default: every adjusted photo)
     features = { "3" = "features/p3.geojson" }   # photo -> features digitised on it (pixels)
@@ -55,7 +56,7 @@ __all__ = ["run", "settings", "markdown", "MAPPING_KEYS", "INTERPOLATORS", "ACCU
 MAPPING_KEYS: dict[str, Any] = {"orthophotos": False, "surface": "dsm", "gsd_m": 0.2, "cell_m": 0.5,
                                 "mosaic": True, "images": "images", "photos": None, "features": None,
                                 "reference": None, "interpolators": ["nearest", "tin"], "method": "exact",
-                                "image_sd_px": 0.5, "surface_sd_m": 0.15}
+                                "image_sd_px": 0.5, "surface_sd_m": 0.15, "feather_m": 0.0}
 #: interpolators of the monorestitution: surface of each
 INTERPOLATORS = {"nearest": "first returns, nearest point", "tin": "first returns, triangular plane (TIN)",
                  "bilinear": "highest-first-return DSM of cell_m (empty cells interpolated), bilinear"}
@@ -77,7 +78,7 @@ def settings(survey: Any) -> dict[str, Any]:
 
     kinds = {"orthophotos": bool, "surface": str, "gsd_m": (int, float), "cell_m": (int, float), "mosaic": bool,
              "images": str, "photos": list, "features": dict, "reference": str, "interpolators": list,
-             "method": str, "image_sd_px": (int, float), "surface_sd_m": (int, float)}
+             "method": str, "image_sd_px": (int, float), "surface_sd_m": (int, float), "feather_m": (int, float)}
     out, t = optional_table(survey, "mapping", kinds, MAPPING_KEYS)
     if not out:
         return {}
@@ -108,7 +109,7 @@ def settings(survey: Any) -> dict[str, Any]:
         raise t.err("mapping", "method", f"{out['method']!r} is not 'exact' (first hit) or 'iterate'")
     if out["reference"] is not None and not out["features"]:
         raise t.err("mapping", "reference", "a reference needs the features to judge ([mapping] features)")
-    for key in ("image_sd_px", "surface_sd_m"):
+    for key in ("image_sd_px", "surface_sd_m", "feather_m"):
         if not out[key] >= 0:
             raise t.err("mapping", key, f"must not be negative, got {out[key]!r}")
     return out
@@ -176,7 +177,7 @@ def _orthophotos(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: 
         ctx.progress(k + 1, total)
     if cfg["mosaic"] and len(photos) > 1:
         m = mosaic(photos, surface, float(cfg["gsd_m"]), tmp / "mosaic.tif", seams_path=tmp / "seamlines.geojson",
-                   true_ortho=true, crs=survey.crs)
+                   true_ortho=true, crs=survey.crs, feather_m=float(cfg["feather_m"]))
         done["mosaic"] = m.to_dict() | {"path": "mosaic.tif", "seams": "seamlines.geojson"}
         ctx.progress(total, total)
     return done
