@@ -168,15 +168,34 @@ def test_feature_file_errors_are_located(tmp_path, name, text, message):
     assert str(ei.value).startswith(f"{tmp_path}/{message}")      # file (and line) first, exact text
 
 
+def _run_mapping_stage(work, tmp_path):
+    """Plan the survey at *work* (the mapping stage waits for an adjustment), then run the stage itself on
+    the fixture's adjustment folder out/adjust-gps; (result, output folder)."""
+    from types import SimpleNamespace
+
+    from lidarcat.pipeline.plan import plan_pipeline
+    from lidarcat.pipeline.runner import Context
+    from lidarcat.pipeline.stages import mapping
+    from lidarcat.survey import Survey
+
+    s = Survey.load(work)
+    stage = next(st for st in plan_pipeline(s) if st.name == "mapping")
+    assert stage.skip_reason == "no adjustment (control set) to take the orientations from"
+    ctx = Context(work, values={"survey": s})
+    ctx.records["adjust-gps"] = SimpleNamespace(folder="out/adjust-gps")
+    ctx.stage = SimpleNamespace(params={"adjust": "adjust-gps"})
+    out = tmp_path / "mapping"
+    out.mkdir()
+    return mapping.run(ctx, out), out
+
+
 def test_run_mapping_stage_when_the_survey_asks(survey, tmp_path):
     """The [mapping] table: parsed with located errors, planned as a stage of lidarcat run,
     and the stage writes the surface model, the true orthophotos and the mosaic."""
     import shutil
-    from types import SimpleNamespace
 
     from lidarcat.errors import SurveyError
     from lidarcat.pipeline.plan import plan_pipeline
-    from lidarcat.pipeline.runner import Context
     from lidarcat.pipeline.stages import mapping
     from lidarcat.survey import Survey
 
@@ -192,16 +211,7 @@ def test_run_mapping_stage_when_the_survey_asks(survey, tmp_path):
                                           r"orthophotos\) or 'dtm'"):
         mapping.settings(Survey.load(work))
     toml.write_text(base + '\n[mapping]\northophotos = true\ngsd_m = 1.0\ncell_m = 0.5\n')
-    s = Survey.load(work)
-    stage = next(st for st in plan_pipeline(s) if st.name == "mapping")
-    assert stage.skip_reason == "no adjustment (control set) to take the orientations from"
-    # run the stage itself on the adjustment folder out/adjust-gps of the fixture
-    ctx = Context(work, values={"survey": s})
-    ctx.records["adjust-gps"] = SimpleNamespace(folder="out/adjust-gps")
-    ctx.stage = SimpleNamespace(params={"adjust": "adjust-gps"})
-    out = tmp_path / "mapping"
-    out.mkdir()
-    res = mapping.run(ctx, out)
+    res, out = _run_mapping_stage(work, tmp_path)
     assert sorted(p.name for p in out.iterdir()) == [
         "dsm.png", "dsm.tif", "mosaic.png", "mosaic.tif", "ortho_A.png", "ortho_A.tif", "ortho_B.png",
         "ortho_B.tif", "seamlines.geojson"]
@@ -214,11 +224,9 @@ def test_run_mapping_stage_monoplots_and_judges_features_per_interpolator(survey
     Tables 07-09 (accuracy.csv, the stage result for summary.json) and the run report shows one table per
     interpolator and the r90 table; vertices not ok or without reference are counted, not judged."""
     import shutil
-    from types import SimpleNamespace
 
     from lidarcat.errors import SurveyError
-    from lidarcat.pipeline.plan import plan_pipeline
-    from lidarcat.pipeline.runner import Context, StageRecord
+    from lidarcat.pipeline.runner import StageRecord
     from lidarcat.pipeline.stages import mapping, report
     from lidarcat.survey import Survey
 
@@ -261,15 +269,7 @@ def test_run_mapping_stage_monoplots_and_judges_features_per_interpolator(survey
         with pytest.raises(SurveyError, match=r"survey\.toml:\d+: " + msg):
             mapping.settings(Survey.load(work))
     toml.write_text(base + cfg)
-    s = Survey.load(work)
-    stage = next(st for st in plan_pipeline(s) if st.name == "mapping")
-    assert stage.skip_reason == "no adjustment (control set) to take the orientations from"   # planned w/o orthos
-    ctx = Context(work, values={"survey": s})
-    ctx.records["adjust-gps"] = SimpleNamespace(folder="out/adjust-gps")
-    ctx.stage = SimpleNamespace(params={"adjust": "adjust-gps"})
-    out = tmp_path / "mapping"
-    out.mkdir()
-    res = mapping.run(ctx, out)
+    res, out = _run_mapping_stage(work, tmp_path)     # planned without orthophotos
     assert sorted(p.name for p in out.iterdir()) == ["accuracy.csv", "accuracy.csv.json"] + sorted(
         f"monoplot_{p}_{i}.geojson" for p in "AB" for i in ("bilinear", "nearest", "tin"))
     assert "orthophotos" not in res
