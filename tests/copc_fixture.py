@@ -2,10 +2,11 @@
 
 laspy cannot write COPC, and no COPC file is shipped in ../shared.  Here the
 octree is built by hand: the cube is the points' bounding cube (centre =
-centre of the bounds, half-size = half the largest extent + 1 m); every 16th
-point lives in the root node (depth 0), every other 4th in a depth-1 node,
-the rest in the depth-``depth`` node holding it; within a node the points keep
-their input order.  The points are packed as LAS point format 6 records by
+centre of the bounds, half-size = half the largest extent + 1 m); point ``i``
+lives at depth ``depth - k`` where ``4**k`` is the largest power of 4 (up to
+``4**depth``) dividing ``i`` -- with ``depth=2`` every 16th point in the root,
+every other 4th at depth 1, the rest at depth 2 -- in the node holding it;
+within a node the points keep their input order.  The points are packed as LAS point format 6 records by
 laspy (X/Y/Z integers of ``scale``), and copc-lib compresses one LAZ chunk per
 node and writes the COPC info VLR and the hierarchy EVLR.  Each file is
 checked by the tests with laspy's own :class:`laspy.CopcReader`.
@@ -59,7 +60,10 @@ def write_copc(path, xyz, *, classification=None, intensity=None, scale=0.01, de
     info.halfsize = halfsize
     info.spacing = 2 * halfsize / 64
     idx = np.arange(n)
-    level = np.where(idx % 16 == 0, 0, np.where(idx % 4 == 0, min(1, depth), depth))
+    # depth d - k for the points whose index 4**k divides (k <= d): every level is populated
+    level = np.full(n, depth)
+    for k in range(1, depth + 1):
+        level[idx % 4 ** k == 0] = depth - k
     rec = laspy.ScaleAwarePointRecord.zeros(n, point_format=laspy.PointFormat(6), scales=np.full(3, scale),
                                             offsets=offset)
     for k, dim in enumerate("XYZ"):

@@ -166,3 +166,29 @@ def test_garbage_in_a_node_chunk_is_a_located_error(copc, tmp_path):
     bad.write_bytes(bytes(data))
     with pytest.raises(LidarFormatError, match=rf"^{str(bad).replace('.', '[.]')}: "):
         read_copc_box(bad, (500000.0, 7500000.0, 500400.0, 7500300.0), crs=CRS)
+
+
+def test_random_damage_to_the_hierarchy_gives_points_or_a_located_error(copc, tmp_path):
+    """Bytes of the hierarchy pages overwritten at random (40 cases): the reader returns points or raises
+    LidarFormatError naming the file; never another exception, a crash or a huge allocation."""
+    fx, _ = copc
+    clean = fx.path.read_bytes()
+    off, size = _root_page(clean)
+    rng = np.random.default_rng(11)
+    bad = tmp_path / "fuzz.copc.laz"
+    outcomes = {"points": 0, "error": 0}
+    for _ in range(40):
+        data = bytearray(clean)
+        for _ in range(int(rng.integers(1, 4))):
+            k = int(rng.integers(off, off + size))
+            data[k] = int(rng.integers(0, 256))
+        bad.write_bytes(bytes(data))
+        try:
+            res = read_copc_box(bad, (500150.5, 7500080.5, 500260.5, 7500230.5), crs=CRS)
+        except LidarFormatError as ex:
+            assert str(ex).startswith(f"{bad}: "), ex
+            outcomes["error"] += 1
+        else:
+            assert res.points_decoded <= N
+            outcomes["points"] += 1
+    assert outcomes["error"] > 0 and outcomes["points"] > 0

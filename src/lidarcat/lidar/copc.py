@@ -45,9 +45,11 @@ the LAS/LAZ path, COPC being valid LAZ.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -149,6 +151,19 @@ class _Guarded(io.RawIOBase):
         return k
 
 
+@contextlib.contextmanager
+def _located(path: Path, what: str) -> Iterator[None]:
+    """Turn any failure inside laspy/lazrs (a Rust panic included) into a LidarFormatError naming *path*."""
+    from .readers import _decoder_error
+
+    try:
+        yield
+    except LidarFormatError:
+        raise
+    except BaseException as ex:  # LaspyException, struct.error, ValueError, lazrs errors and panics
+        raise _decoder_error(path, ex, what) from ex   # re-raises KeyboardInterrupt & co. unchanged
+
+
 def _node_name(key: Any) -> str:
     return f"{key.level}-{key.x}-{key.y}-{key.z}"
 
@@ -216,7 +231,7 @@ def read_copc_box(path: str | os.PathLike, box: tuple[float, float, float, float
     import laspy
     from laspy.copc import Bounds, load_octree_for_query
 
-    from .readers import _NOT_CAUGHT, _check_coords, _decoder_error, _las_record_cloud, _open_checked
+    from .readers import _check_coords, _las_record_cloud, _open_checked
 
     path = Path(path)
     xmin, ymin, xmax, ymax = map(float, box)
@@ -227,14 +242,8 @@ def read_copc_box(path: str | os.PathLike, box: tuple[float, float, float, float
     size = path.stat().st_size
     with open(path, "rb") as raw:
         stream = _Guarded(raw, size, path)
-        try:
+        with _located(path, "not a valid COPC file (COPC info or hierarchy unreadable)"):
             copc = laspy.CopcReader(stream, close_fd=False)
-        except LidarFormatError:
-            raise
-        except BaseException as ex:
-            if isinstance(ex, _NOT_CAUGHT):
-                raise
-            raise _decoder_error(path, ex, "not a valid COPC file (COPC info or hierarchy unreadable)") from ex
         info = copc.copc_info
         if not (np.isfinite(info.center).all() and np.isfinite(info.halfsize) and info.halfsize > 0):
             raise LidarFormatError(f"{path}: corrupt COPC info VLR: centre {info.center.tolist()}, half-size "
@@ -245,17 +254,11 @@ def read_copc_box(path: str | os.PathLike, box: tuple[float, float, float, float
         lo = np.maximum([xmin - abs(scales[0]), ymin - abs(scales[1]), lo_rep[2]], lo_rep)
         hi = np.minimum([xmax + abs(scales[0]), ymax + abs(scales[1]), hi_rep[2]], hi_rep)
         query = Bounds(lo, hi)
-        try:
+        with _located(path, "corrupt COPC hierarchy or point chunk"):
             nodes = load_octree_for_query(stream, info, copc.root_page, query_bounds=query)
             _check_entries(path, copc.root_page.entries.values())
             _check_nodes(path, nodes, copc.header, size)
             rec = copc.query(bounds=query) if nodes else None
-        except LidarFormatError:
-            raise
-        except BaseException as ex:
-            if isinstance(ex, _NOT_CAUGHT):
-                raise
-            raise _decoder_error(path, ex, "corrupt COPC hierarchy or point chunk") from ex
         known = len(copc.root_page.entries)
         bytes_read = stream.bytes_read
     if rec is None or len(rec) == 0:

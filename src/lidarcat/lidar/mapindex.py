@@ -67,6 +67,7 @@ share their edges exactly.
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import dataclass
 from typing import Any
@@ -297,7 +298,9 @@ def geographic_crs_of(crs: Any) -> Any:
     return g
 
 
+@functools.lru_cache(maxsize=16)
 def _transformer(src: Any, dst: Any) -> Any:
+    """A lon/lat-ordered pyproj transformer (kept: building one costs milliseconds, a survey has thousands of sheets)."""
     from pyproj import Transformer
 
     return Transformer.from_crs(src, dst, always_xy=True)
@@ -343,7 +346,7 @@ def sheets_covering(bounds: tuple[float, float, float, float], crs: Any, scale: 
     from pyproj import CRS
 
     from .crs import resolve_crs
-    from .sheets import Sheet, _clip_polyline
+    from .sheets import Sheet
     from .tileindex import in_polygon
 
     _check_scale(scale)
@@ -373,9 +376,25 @@ def sheets_covering(bounds: tuple[float, float, float, float], crs: Any, scale: 
             sheet = sheet_at((u + w / 2) / _U - 180.0, (q + h / 2) / _U, scale, geo_name)
             ring = sheet_outline(sheet, src, per_edge)
             # the outline crosses or lies in the area, or the area lies inside the outline
-            if _clip_polyline(ring, area) or in_polygon(corner, ring[:-1])[0]:
+            if _ring_meets_box(ring, area) or in_polygon(corner, ring[:-1])[0]:
                 out.append(sheet)
     return out
+
+
+def _ring_meets_box(ring: np.ndarray, box: Any) -> bool:
+    """True when a segment of the polyline *ring* meets the rectangle *box* (Liang-Barsky, vectorised)."""
+    a, d = ring[:-1], np.diff(ring, axis=0)
+    t0, t1 = np.zeros(len(a)), np.ones(len(a))
+    ok = np.ones(len(a), bool)
+    for p, q in ((-d[:, 0], a[:, 0] - box.xmin), (d[:, 0], box.xmax - a[:, 0]),
+                 (-d[:, 1], a[:, 1] - box.ymin), (d[:, 1], box.ymax - a[:, 1])):
+        zero = p == 0
+        ok &= ~(zero & (q < 0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(zero, 0.0, q / np.where(zero, 1.0, p))
+        t0 = np.where(p < 0, np.maximum(t0, t), t0)
+        t1 = np.where(p > 0, np.minimum(t1, t), t1)
+    return bool(np.any(ok & (t0 <= t1)))
 
 
 def cut_raster_geo(grid: np.ndarray, transform: Any, sheet: MapSheet, crs: Any) -> tuple[np.ndarray, Any] | None:
