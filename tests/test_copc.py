@@ -192,3 +192,39 @@ def test_random_damage_to_the_hierarchy_gives_points_or_a_located_error(copc, tm
             assert res.points_decoded <= N
             outcomes["points"] += 1
     assert outcomes["error"] > 0 and outcomes["points"] > 0
+
+
+def test_tile_parallel_dsm_on_copc_tiles_equals_the_laz_run(tmp_path):
+    """lidarcat lidar dsm over two COPC tiles (the neighbour's overlap read by the octree) writes the same
+    rasters as over the same points in plain LAZ tiles."""
+    pytest.importorskip("rasterio")
+    import rasterio
+    from click.testing import CliRunner
+
+    from lidarcat.cli.main import cli
+    from lidarcat.lidar import PointCloud, resolve_crs, write_points
+
+    rng = np.random.default_rng(5)
+    n = 12_000
+    xy = np.column_stack([rng.uniform(600000, 600200, n), rng.uniform(7400000, 7400100, n)])
+    z = 50 + 0.05 * (xy[:, 0] - 600000) + 3 * np.sin(xy[:, 1] / 15.0) + rng.normal(0, 0.05, n)
+    xyz = np.column_stack([xy, z])
+    for fmt in ("copc", "laz"):
+        (tmp_path / fmt).mkdir()
+    for name, sel in (("west", xy[:, 0] < 600100), ("east", xy[:, 0] >= 600100)):
+        write_copc(tmp_path / "copc" / f"{name}.laz", xyz[sel])
+        write_points(tmp_path / "laz" / f"{name}.laz", PointCloud(np.round(xyz[sel], 2), {}, crs=resolve_crs(CRS)),
+                     scale_m=0.01)
+    assert is_copc(tmp_path / "copc" / "west.laz") and not is_copc(tmp_path / "laz" / "west.laz")
+    grids = {}
+    for fmt in ("copc", "laz"):
+        res = CliRunner().invoke(cli, ["lidar", "dsm", str(tmp_path / fmt), "-o", str(tmp_path / f"dsm_{fmt}"),
+                                       "--crs", CRS, "--cell-m", "2", "--overlap-m", "20"])
+        assert res.exit_code == 0, res.output
+        for name in ("west", "east"):
+            with rasterio.open(tmp_path / f"dsm_{fmt}" / f"{name}.tif") as ds:
+                grids[fmt, name] = (ds.read(1), tuple(ds.transform))
+    for name in ("west", "east"):
+        np.testing.assert_array_equal(grids["copc", name][0], grids["laz", name][0])
+        assert grids["copc", name][1] == grids["laz", name][1]
+        assert np.isfinite(grids["copc", name][0]).mean() > 0.9

@@ -58,8 +58,8 @@ many points were decoded from files.
 by its octree (:mod:`lidarcat.lidar.copc`, laspy's COPC reader): a query
 not served from memory decodes only the nodes whose cube meets the query box
 (``decode="whole"`` turns this off).  Its header bounds are not trusted
-either: the octree is read for every query until the tile's points have been
-read once.
+either: every query consults the octree of such a tile until its points have
+been read once (only hierarchy pages are read when the query misses the tile).
 """
 
 from __future__ import annotations
