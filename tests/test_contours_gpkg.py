@@ -76,3 +76,21 @@ def test_cli_contours_to_geopackage_on_ahn3(tmp_path):
     res = CliRunner().invoke(cli, ["lidar", "contours", str(LIDAR_DATA / "ahn3_cropped_2.laz"), "-o",
                                    str(tmp_path / "curvas.dxf"), "--crs", "EPSG:7415"])
     assert res.exit_code == 2 and "give a file ending in .geojson, .json, .gpkg" in res.output
+
+
+def test_read_line_layer_round_trips_and_refuses_a_file_without_lines(tmp_path):
+    from lidarcat.errors import FormatError
+    from lidarcat.lidar.contours import contour_features, read_line_layer, spot_features
+
+    cone = _cone()
+    feats = contour_features(contours(cone, 2.0, master_every=2))
+    write_layers(tmp_path / "c.gpkg", {"spot_heights": spot_features(spot_heights(cone, 5.0)), "contours": feats},
+                 "EPSG:31983")
+    got, crs = read_line_layer(tmp_path / "c.gpkg")
+    assert crs.to_epsg() == 31983 and got == feats                      # the contours layer, exactly
+    write_layers(tmp_path / "p.gpkg", {"spot_heights": spot_features(spot_heights(cone, 5.0))}, "EPSG:31983")
+    with pytest.raises(FormatError, match=r"p\.gpkg: no LineString layer \(layers: spot_heights\)"):
+        read_line_layer(tmp_path / "p.gpkg")
+    (tmp_path / "bad.geojson").write_text("{not json")
+    with pytest.raises(FormatError, match=r"bad\.geojson: not a readable GeoJSON FeatureCollection"):
+        read_line_layer(tmp_path / "bad.geojson")

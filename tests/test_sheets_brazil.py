@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -257,6 +259,20 @@ def test_cli_sheets_brazil_index_as_geopackage(tmp_path):
     assert one.crs.to_epsg() == 31983 and len(one) > 0
     assert set(one["level_m"]) <= {f["properties"]["level_m"] for f in feats}
     assert (tmp_path / "folhas" / f"{parent}-1" / "dtm.tif").is_file()
-    res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "curvas.geojson"), "-o",
+    # contours given as GeoPackage (the CRS read from the layer), cut to GeoJSON
+    from lidarcat.lidar.contours import write_layers
+
+    write_layers(tmp_path / "curvas.gpkg", {"contours": feats}, "EPSG:31983")
+    res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "curvas.gpkg"), "-o", str(tmp_path / "f3"),
+                                   "--index", "brazil-5000"])
+    assert res.exit_code == 0, res.output
+    idx = json.loads((tmp_path / "f3" / "sheets.geojson").read_text())
+    assert idx["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::31983"
+    assert parent in [f["properties"]["name"] for f in idx["features"]]
+    cut = json.loads((tmp_path / "f3" / parent / "curvas.geojson").read_text())["features"]
+    assert cut and cut == cut_contours(feats, sheet_from_name(parent), "EPSG:31983")
+    # no CRS anywhere: the Brazilian index cannot be placed
+    write_geojson(tmp_path / "nocrs.geojson", feats, None)
+    res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "nocrs.geojson"), "-o",
                                    str(tmp_path / "f2"), "--index", "brazil-5000"])
     assert res.exit_code == 2 and "needs the products' CRS: give --crs" in res.output

@@ -260,7 +260,7 @@ def _sheet_index_choice() -> click.Choice:
                    "gpkg needs lidarcat[gis].")
 def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, height_m: float | None,
            crs: str | None, geographic_crs: str | None, layer_format: str) -> None:
-    """Cut GeoTIFF products (.tif) and contour GeoJSON (.geojson) along a sheet index.
+    """Cut GeoTIFF products (.tif) and contour lines (.geojson, .gpkg) along a sheet index.
 
     The sheet index layer (one polygon per sheet holding data, with its
     name; a Brazilian sheet as its outline densified in the products' CRS)
@@ -270,13 +270,11 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
     Examples:
       lidarcat lidar sheets dtm.tif dsm.tif curvas.geojson -o folhas/ --size-m 500
       lidarcat lidar sheets dtm.tif curvas.geojson -o folhas/ --index brazil-5000 --crs EPSG:31983
-      lidarcat lidar sheets dtm.tif -o folhas/ --index brazil-2000 --layer-format gpkg
+      lidarcat lidar sheets dtm.tif curvas.gpkg -o folhas/ --index brazil-2000 --layer-format gpkg
     """
-    import json
-
     import rasterio
 
-    from ..lidar.contours import write_layers
+    from ..lidar.contours import read_line_layer, write_layers
     from ..lidar.raster import GeoTransform
     from ..lidar.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
     from ..lidar.terrain import write_product
@@ -293,18 +291,21 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
                 crs = crs or (ds.crs.to_wkt() if ds.crs else None)
                 b = ds.bounds
             rasters.append((p, arr, t))
-        elif p.suffix.lower() in (".geojson", ".json"):
-            feats = json.loads(p.read_text(encoding="utf-8"))["features"]
+        elif p.suffix.lower() in (".geojson", ".json", ".gpkg"):
+            feats, vcrs = read_line_layer(p)
+            crs = crs or (vcrs.to_wkt() if vcrs is not None else None)
             vectors.append((p, feats))
-            xy = np.vstack([np.asarray(f["geometry"]["coordinates"], dtype=float).reshape(-1, 2) for f in feats]) \
-                if feats else np.zeros((0, 2))
-            if len(xy):
-                b = type("B", (), {"left": xy[:, 0].min(), "bottom": xy[:, 1].min(),
-                                   "right": xy[:, 0].max(), "top": xy[:, 1].max()})
+            if not feats:
+                continue
+            xy = np.vstack([np.asarray(f["geometry"]["coordinates"], dtype=float).reshape(-1, 2) for f in feats])
+            b = type("B", (), {"left": xy[:, 0].min(), "bottom": xy[:, 1].min(),
+                               "right": xy[:, 0].max(), "top": xy[:, 1].max()})
         else:
-            raise click.BadParameter(f"{p}: give .tif or .geojson products", param_hint="PRODUCT")
+            raise click.BadParameter(f"{p}: give .tif, .geojson or .gpkg products", param_hint="PRODUCT")
         lo = [min(lo[0], b.left), min(lo[1], b.bottom)]
         hi = [max(hi[0], b.right), max(hi[1], b.top)]
+    if not np.isfinite(lo + hi).all():
+        raise click.UsageError("the products hold no data (no raster, no line): nothing to cut")
     if index != "grid" and crs is None:
         raise click.UsageError(f"--index {index} needs the products' CRS: give --crs (e.g. EPSG:31983)")
     grid = index_sheets((lo[0], lo[1], hi[0], hi[1]), index, crs=crs, size_m=size_m, height_m=height_m,

@@ -44,7 +44,7 @@ import numpy as np
 from .._io import dumps_json, write_text_atomic
 
 __all__ = ["Contour", "contours", "spot_heights", "write_geojson", "contour_features", "spot_features",
-           "write_contours", "write_layers", "CONTOUR_FORMATS"]
+           "write_contours", "write_layers", "read_line_layer", "CONTOUR_FORMATS"]
 
 #: output formats of :func:`write_contours`, by file suffix
 CONTOUR_FORMATS = {".geojson": "GeoJSON", ".json": "GeoJSON", ".gpkg": "GeoPackage"}
@@ -293,3 +293,73 @@ def write_layers(path: str | os.PathLike, layers: dict[str, list[dict[str, Any]]
         keys = list(feats[0]["properties"]) if feats else []
         out.append(Layer(name, kind, geoms, {k: [f["properties"][k] for f in feats] for k in keys}))
     return write_gpkg(path, out, c)
+
+
+def read_line_layer(path: str | os.PathLike, layer: str | None = None) -> tuple[list[dict[str, Any]], Any]:
+    """The LineString features of a GeoJSON file or of a GeoPackage layer, and the layer's CRS.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.geojson``/``.json`` (the ``crs`` member, if any, gives the CRS) or ``.gpkg``.
+    layer : str, optional
+        GeoPackage layer (default ``contours`` when present, else the first LineString layer).
+
+    Returns
+    -------
+    (features, crs)
+        GeoJSON-like LineString features (other geometries are left out) and a
+        :class:`pyproj.CRS` or ``None``.
+
+    Raises
+    ------
+    lidarcat.errors.FormatError
+        Unreadable file, no LineString layer, a geometry that is not 2-D WKB
+        LineString (feature named), or a GeoPackage without pyogrio.
+    """
+    import json
+    import struct
+
+    from ..errors import FormatError
+    from .crs import resolve_crs
+
+    path = Path(path)
+    if path.suffix.lower() != ".gpkg":
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+            feats = [f for f in doc["features"] if (f.get("geometry") or {}).get("type") == "LineString"]
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as ex:
+            raise FormatError(f"{path}: not a readable GeoJSON FeatureCollection ({ex})") from ex
+        name = ((doc.get("crs") or {}).get("properties") or {}).get("name")
+        return feats, resolve_crs(name) if name else None
+    try:
+        import pyogrio
+        from pyogrio.raw import read
+    except ImportError:
+        raise FormatError(f"{path}: reading GeoPackage needs pyogrio (pip install 'lidarcat[gis]')") from None
+    try:
+        layers = [(str(n), str(g)) for n, g in pyogrio.list_layers(path)]
+        if layer is None:
+            names = [n for n, g in layers if g in ("LineString", "MultiLineString")]
+            layer = "contours" if ("contours", "LineString") in layers else (names[0] if names else None)
+        if layer is None:
+            raise FormatError(f"{path}: no LineString layer (layers: {', '.join(n for n, _ in layers) or 'none'})")
+        meta, _, geoms, values = read(path, layer=layer)
+    except FormatError:
+        raise
+    except Exception as ex:  # pyogrio.errors.DataSourceError, DataLayerError...
+        raise FormatError(f"{path}: cannot read layer {layer!r} ({ex})") from ex
+    names = [str(n) for n in meta["fields"]]
+    feats = []
+    for i, g in enumerate(geoms):
+        g = bytes(g) if g is not None else b""
+        if len(g) < 9 or g[0] != 1 or struct.unpack_from("<I", g, 1)[0] != 2:
+            raise FormatError(f"{path}: layer {layer!r}, feature {i}: not a 2-D LineString")
+        n = struct.unpack_from("<I", g, 5)[0]
+        if len(g) != 9 + 16 * n:
+            raise FormatError(f"{path}: layer {layer!r}, feature {i}: {n} vertices announced in {len(g)} bytes")
+        xy = np.frombuffer(g, dtype="<f8", offset=9).reshape(n, 2)
+        props = {k: (v.item() if hasattr(v, "item") else v) for k, v in zip(names, (col[i] for col in values))}
+        feats.append({"type": "Feature", "properties": props,
+                      "geometry": {"type": "LineString", "coordinates": xy.tolist()}})
+    return feats, resolve_crs(meta["crs"]) if meta.get("crs") else None
