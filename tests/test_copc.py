@@ -121,6 +121,12 @@ def _entries(data: bytes) -> dict[tuple, int]:
     return out
 
 
+def _other_chunk(data: bytearray, entry_at: int) -> bytes:
+    """Offset and size (12 bytes) of a depth-2 node's chunk, to be written over another entry's."""
+    other = next(at for key, at in _entries(bytes(data)).items() if key[0] == 2)
+    return bytes(data[other + 16:other + 28])
+
+
 @pytest.mark.parametrize("what, patch, message", [
     ("chunk offset past the end", lambda d, e: struct.pack_into("<Q", d, e + 16, len(d) + 1000),
      r"corrupt COPC hierarchy: node 0-0-0-0: its chunk \(byte [\d,]+, [\d,]+ bytes\) lies outside the point data"),
@@ -130,6 +136,9 @@ def _entries(data: bytes) -> dict[tuple, int]:
      r"corrupt COPC hierarchy: node 0-0-0-0 claims 2,000,000,000 points in [\d,]+ compressed bytes"),
     ("child page past the end", lambda d, e: struct.pack_into("<Qii", d, e + 16, len(d) - 8, 64, -1),
      r"corrupt COPC hierarchy: a read of 64 bytes at byte [\d,]+ lies outside the file"),
+    ("offset of another node's chunk", lambda d, e: d.__setitem__(slice(e + 16, e + 28), _other_chunk(d, e)),
+     r"corrupt COPC hierarchy: node 0-0-0-0 \(chunk at byte [\d,]+\): the chunk holds [\d,]+ points, the "
+     r"hierarchy says 1,250"),
 ])
 def test_corrupt_hierarchy_is_a_located_error(copc, tmp_path, what, patch, message):
     fx, _ = copc
@@ -169,7 +178,7 @@ def test_garbage_in_a_node_chunk_is_a_located_error(copc, tmp_path):
 
 
 def test_random_damage_to_the_hierarchy_gives_points_or_a_located_error(copc, tmp_path):
-    """Bytes of the hierarchy pages overwritten at random (40 cases): the reader returns points or raises
+    """Bytes of the hierarchy pages overwritten at random (60 cases): the reader returns points or raises
     LidarFormatError naming the file; never another exception, a crash or a huge allocation."""
     fx, _ = copc
     clean = fx.path.read_bytes()
@@ -177,7 +186,7 @@ def test_random_damage_to_the_hierarchy_gives_points_or_a_located_error(copc, tm
     rng = np.random.default_rng(11)
     bad = tmp_path / "fuzz.copc.laz"
     outcomes = {"points": 0, "error": 0}
-    for _ in range(40):
+    for _ in range(60):
         data = bytearray(clean)
         for _ in range(int(rng.integers(1, 4))):
             k = int(rng.integers(off, off + size))

@@ -93,6 +93,8 @@ def test_bad_names_are_refused_naming_the_part():
         sheet_from_name("SF-23-X-D-VI-1-SE-G")
     with pytest.raises(ValueError, match=r"1:3000"):
         sheet_names([-42.0], [-21.0], 3000)
+    with pytest.raises(ValueError, match=r"point 1: longitude -42\.0, latitude 88\.0 deg is outside the index"):
+        sheet_names([-42.0, -42.0], [-21.0, 88.0], 5000)
 
 
 def test_itaocara_control_points_get_their_1_5000_and_1_2000_sheets():

@@ -27,7 +27,10 @@ LAS/LAZ readers (:mod:`lidarcat.lidar.readers`):
   of a short read or a huge allocation;
 * each selected node's entry is checked (chunk inside the point data, point
   count positive and at most what its bytes can hold, the sum at most the
-  header's count) before anything is decompressed;
+  header's count) and so is the head of its chunk (the count the chunk stores
+  after its first point equals the entry's; for point format 6 its 9 layer
+  sizes fit in the chunk)
+  before anything is decompressed;
 * decoder failures, a lazrs ``PanicException`` included, become a
   :class:`~lidarcat.errors.LidarFormatError` naming the file;
 * the header's bounds are never used: the query asks laspy for the box
@@ -69,12 +72,17 @@ _VLR_HEADER = 54
 def is_copc(path: str | os.PathLike) -> bool:
     """True when *path* is a LAS 1.4 file whose first VLR is the COPC info record (user "copc", id 1).
 
-    Reads 430 bytes; a file that cannot be read, or is no LAS file, is not COPC
-    (the LAS/LAZ reader reports what is wrong with it).
+    Reads the header and the first VLR header (429 bytes for a plain LAS 1.4
+    header); a file that cannot be read, or is no LAS file, is not COPC (the
+    LAS/LAZ reader reports what is wrong with it).
     """
     try:
         with open(path, "rb") as fh:
             head = fh.read(512)
+            if len(head) >= 96 and head[:4] == b"LASF":
+                need = struct.unpack_from("<H", head, 94)[0] + _VLR_HEADER
+                if need > len(head):
+                    head += fh.read(need - len(head))
     except OSError:
         return False
     if len(head) < 227 or head[:4] != b"LASF" or (head[24], head[25]) != (1, 4):
@@ -176,6 +184,31 @@ def _check_entries(path: Path, entries: Any) -> None:
                                    f"{e.point_count:,} points in a chunk of {e.byte_size:,} bytes")
 
 
+def _check_chunk_heads(path: Path, stream: Any, nodes: list[Any], rec_len: int, point14_only: bool) -> None:
+    """Each selected chunk starts as its entry says: a LAS 1.4 (layered) LAZ chunk opens with its
+    first point raw, then its point count (4 bytes) and, for point format 6 alone, 9 layer sizes
+    that must fit in the chunk (LASzip's LASreadPoint::read).  A hierarchy entry pointing into
+    another chunk is caught here, before lazrs decodes garbage (which can take seconds, or
+    allocate from a garbage layer size)."""
+    for nd in nodes:
+        n, off, nb = int(nd.point_count), int(nd.offset), int(nd.byte_size)
+        if n <= 0:
+            continue
+        head = 4 + rec_len + (36 if point14_only else 0)
+        where = f"{path}: corrupt COPC hierarchy: node {_node_name(nd.key)} (chunk at byte {off:,})"
+        if nb < head:
+            raise LidarFormatError(f"{where}: {nb:,} bytes cannot hold a chunk of {n:,} points")
+        stream.seek(off)
+        raw = stream.read(head)
+        own = struct.unpack_from("<I", raw, rec_len)[0]
+        if own != n:
+            raise LidarFormatError(f"{where}: the chunk holds {own:,} points, the hierarchy says {n:,}")
+        if point14_only:
+            layers = sum(struct.unpack_from("<9I", raw, 4 + rec_len))
+            if layers > nb - head:
+                raise LidarFormatError(f"{where}: its layers take {layers:,} bytes, the chunk has {nb - head:,}")
+
+
 def _check_nodes(path: Path, nodes: list[Any], header: Any, size: int) -> None:
     """Every selected node's chunk lies in the point data and holds a believable number of points."""
     from .readers import _MAX_LAZ_POINTS_PER_BYTE
@@ -231,7 +264,7 @@ def read_copc_box(path: str | os.PathLike, box: tuple[float, float, float, float
     import laspy
     from laspy.copc import Bounds, load_octree_for_query
 
-    from .readers import _check_coords, _las_record_cloud, _open_checked
+    from .readers import _check_coords, _las_record_cloud, _layered_items_only_point14, _open_checked
 
     path = Path(path)
     xmin, ymin, xmax, ymax = map(float, box)
@@ -258,6 +291,8 @@ def read_copc_box(path: str | os.PathLike, box: tuple[float, float, float, float
             nodes = load_octree_for_query(stream, info, copc.root_page, query_bounds=query)
             _check_entries(path, copc.root_page.entries.values())
             _check_nodes(path, nodes, copc.header, size)
+            _check_chunk_heads(path, stream, nodes, int(copc.header.point_format.size),
+                               _layered_items_only_point14(copc.laszip_vlr.record_data))
             rec = copc.query(bounds=query) if nodes else None
         known = len(copc.root_page.entries)
         bytes_read = stream.bytes_read

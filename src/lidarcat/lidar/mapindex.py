@@ -203,11 +203,11 @@ def sheet_names(lon: Any, lat: Any, scale: int) -> np.ndarray:
     lon_a, lat_a = np.atleast_1d(np.asarray(lon, np.float64)), np.atleast_1d(np.asarray(lat, np.float64))
     if lon_a.shape != lat_a.shape:
         raise ValueError(f"lon and lat differ in shape: {lon_a.shape} and {lat_a.shape}")
-    bad = ~(np.isfinite(lon_a) & np.isfinite(lat_a) & (np.abs(lat_a) <= 88) & (np.abs(lon_a) <= 180))
+    bad = ~(np.isfinite(lon_a) & np.isfinite(lat_a) & (np.abs(lat_a) < 88) & (np.abs(lon_a) <= 180))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"point {i}: longitude {lon_a[i]!r}, latitude {lat_a[i]!r} deg is outside the "
-                         f"index (|lat| <= 88, |lon| <= 180)")
+        raise ValueError(f"point {i}: longitude {float(lon_a[i])!r}, latitude {float(lat_a[i])!r} deg is outside the "
+                         f"index (|lat| < 88, |lon| <= 180)")
     u, v = _units(lon_a, lat_a)
     u = np.minimum(u, 360 * _U - 1)
     w, h = _SIZE[1_000_000]
@@ -300,7 +300,8 @@ def geographic_crs_of(crs: Any) -> Any:
 
 @functools.lru_cache(maxsize=16)
 def _transformer(src: Any, dst: Any) -> Any:
-    """A lon/lat-ordered pyproj transformer (kept: building one costs milliseconds, a survey has thousands of sheets)."""
+    """A lon/lat-ordered pyproj transformer (cached: building one costs milliseconds, a survey has
+    thousands of sheets)."""
     from pyproj import Transformer
 
     return Transformer.from_crs(src, dst, always_xy=True)
