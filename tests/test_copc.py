@@ -237,3 +237,29 @@ def test_tile_parallel_dsm_on_copc_tiles_equals_the_laz_run(tmp_path):
         np.testing.assert_array_equal(grids["copc", name][0], grids["laz", name][0])
         assert grids["copc", name][1] == grids["laz", name][1]
         assert np.isfinite(grids["copc", name][0]).mean() > 0.9
+
+
+def test_many_queries_in_one_copc_tile_switch_to_one_whole_decode(copc):
+    """decode="auto": octree reads until they add up to a quarter of the tile, then the tile is decoded
+    once and kept in memory; the answers stay those of a whole read + filter."""
+    fx, _ = copc
+    whole = read_points(fx.path, crs=CRS)
+    idx = TileIndex.build([fx.path], crs=CRS)
+    rng = np.random.default_rng(3)
+    counts = []
+    for _ in range(12):
+        x, y = rng.uniform(500000, 500380), rng.uniform(7500000, 7500280)
+        box = (x, y, x + 20.0, y + 20.0)
+        got = idx.query_box(*box)
+        np.testing.assert_array_equal(got.xyz, whole.xyz[_inside(whole.xyz, box)])
+        counts.append(idx.decoded_points)
+    steps = np.diff([0] + counts)
+    switch = int(np.flatnonzero(steps == N)[0])                     # the one whole decode
+    assert switch >= 1 and counts[switch - 1] >= N / 4                # octree reads reached a quarter...
+    assert switch == 1 or counts[switch - 2] < N / 4                 # ...just before the switch
+    assert np.all(steps[:switch] < N) and np.all(steps[switch + 1:] == 0)   # octree reads before, memory after
+    only = TileIndex.build([fx.path], crs=CRS, decode="blocks")       # "blocks": always the octree
+    for _ in range(12):
+        only.query_box(500100.0, 7500100.0, 500120.0, 7500120.0)
+    assert only.decoded_points == 12 * read_copc_box(fx.path, (500100.0, 7500100.0, 500120.0, 7500120.0),
+                                                     crs=CRS).points_decoded

@@ -57,7 +57,9 @@ many points were decoded from files.
 **COPC tiles.**  A tile whose first VLR is the COPC info record is queried
 by its octree (:mod:`lidarcat.lidar.copc`, laspy's COPC reader): a query
 not served from memory decodes only the nodes whose cube meets the query box
-(``decode="whole"`` turns this off).  Its header bounds are not trusted
+(``decode="whole"`` turns this off; with ``"auto"`` a tile that fits in
+memory is decoded once and kept whole after its octree reads reach a quarter
+of its points, as for block reads).  Its header bounds are not trusted
 either: every query consults the octree of such a tile until its points have
 been read once (only hierarchy pages are read when the query misses the tile).
 """
@@ -928,12 +930,22 @@ class TileIndex:
             hit = self._copc[tile.path] = file_kind(tile.path) == "las" and is_copc(tile.path)
         return hit
 
+    def _copc_by_octree(self, tile: Tile) -> bool:
+        """Query *tile* by its octree: a COPC tile, unless ``decode="whole"``, or ``"auto"`` once its
+        octree reads reached a quarter of its points and it fits in memory (then it is decoded
+        once and kept whole, as for LAS/LAZ block reads)."""
+        if self.decode == "whole" or not self._is_copc(tile):
+            return False
+        return not (self.decode == "auto" and tile.count <= self.max_cached_points
+                    and self._block_decoded.get(tile.path, 0) >= _AUTO_SWITCH_FRACTION * tile.count)
+
     def _query_copc(self, tile: Tile, box: tuple[float, float, float, float],
                     mask_fn: Callable[[np.ndarray], np.ndarray]) -> list[PointCloud]:
         """Matching points of a COPC tile, decoding only the octree nodes that meet *box*."""
         self._check_unchanged(tile)
         res = read_copc_box(tile.path, box, crs=self._file_crs_kw(tile))
         self.decoded_points += res.points_decoded
+        self._block_decoded[tile.path] = self._block_decoded.get(tile.path, 0) + res.points_decoded
         log.debug("%s: COPC query read %d of %d known nodes (%d points)", tile.path, res.nodes_read,
                   res.nodes_known, res.points_decoded)
         cloud = self._in_index_crs(res.cloud)
@@ -957,7 +969,7 @@ class TileIndex:
                 if len(idx):
                     parts.append(cached.select(idx))
                 continue
-            if cached is None and self.decode != "whole" and self._is_copc(t):
+            if cached is None and self._copc_by_octree(t):
                 parts.extend(self._query_copc(t, box, mask_fn))
                 continue
             if cached is None:
