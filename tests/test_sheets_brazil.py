@@ -230,6 +230,14 @@ def test_index_sheets_and_index_layer():
     with pytest.raises(ValueError, match="unknown sheet index 'brazil-3000'"):
         index_sheets(area, "brazil-3000", crs="EPSG:31983")
     assert [s.name for s in index_sheets(area, "grid", size_m=1000)] == ["E778000_N7600000"]
+    from lidarcat.errors import CRSError
+
+    with pytest.raises(CRSError, match="'SIRGAS 2000 / UTM zone 23S' is not a geographic CRS"):
+        sheets_covering(area, "EPSG:31983", 5000, geographic_crs="EPSG:31983")
+    with pytest.raises(CRSError, match="unknown geographic CRS 'EPSG:999999'"):
+        sheets_covering(area, "EPSG:31983", 5000, geographic_crs="EPSG:999999")
+    in_sad69 = sheets_covering(area, "EPSG:31983", 5000, geographic_crs="EPSG:4618")    # another datum: its frame
+    assert all(s.geographic_crs == "EPSG:4618" for s in in_sad69)
 
 
 def test_cli_sheets_brazil_index_as_geopackage(tmp_path):

@@ -250,7 +250,7 @@ def _sheet_index_choice() -> click.Choice:
                    "multiples of it.")
 @click.option("--height-m", type=float, default=None, help="grid: sheet height, metres (default: --size-m).")
 @click.option("--crs", default=None, metavar="CRS",
-              help="CRS of the products and the index layer (default: the first GeoTIFF's); the Brazilian "
+              help="CRS of the products and the index layer (default: the first product's); the Brazilian "
                    "index needs it, e.g. EPSG:31983 (SIRGAS 2000 / UTM zone 23S).")
 @click.option("--geographic-crs", default=None, metavar="CRS",
               help="brazil-*: the geographic frame of the sheets (default: the datum of --crs, e.g. "

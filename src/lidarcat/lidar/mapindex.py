@@ -287,14 +287,15 @@ def sheet_from_name(name: str, geographic_crs: str = "EPSG:4674") -> MapSheet:
 
 def geographic_crs_of(crs: Any) -> Any:
     """The geographic CRS of the datum of *crs* (SIRGAS 2000 for SIRGAS 2000 / UTM zone 23S)."""
+    from ..errors import CRSError
     from .crs import resolve_crs
 
     c = resolve_crs(crs)
     if c is None:
-        raise ValueError("the Brazilian map index needs the CRS of the survey (e.g. EPSG:31983)")
+        raise CRSError("the Brazilian map index needs the CRS of the survey (e.g. EPSG:31983)")
     g = c.geodetic_crs
     if g is None:
-        raise ValueError(f"CRS {c.name!r} has no geodetic datum; the map index is geographic")
+        raise CRSError(f"CRS {c.name!r} has no geodetic datum; the map index is geographic")
     return g
 
 
@@ -344,14 +345,17 @@ def sheets_covering(bounds: tuple[float, float, float, float], crs: Any, scale: 
     list of MapSheet
         North to south, west to east.
     """
-    from pyproj import CRS
-
     from .crs import resolve_crs
     from .sheets import Sheet
     from .tileindex import in_polygon
 
     _check_scale(scale)
-    geo = CRS.from_user_input(geographic_crs) if geographic_crs is not None else geographic_crs_of(crs)
+    geo = resolve_crs(geographic_crs, what="geographic CRS") if geographic_crs is not None else geographic_crs_of(crs)
+    if not geo.is_geographic:
+        from ..errors import CRSError
+
+        raise CRSError(f"the sheets of the Brazilian index are geographic rectangles; {geo.name!r} is not a "
+                       f"geographic CRS (give e.g. EPSG:4674, SIRGAS 2000)")
     src = resolve_crs(crs)
     xmin, ymin, xmax, ymax = map(float, bounds)
     if not (xmax >= xmin and ymax >= ymin):
