@@ -41,8 +41,8 @@ parallel to the sheet north of it.
 **Sources and certainty.**  The levels down to 1:25,000 (V-Z, A-D, I-VI, 1-4,
 NO/NE/SO/SE and their sizes) are those of the IBGE's *Noções Básicas de
 Cartografia* (Manual Técnico, 1999, "Índice de nomenclatura") and the DSG's
-T34-700 technical norm, used on every printed IBGE/DSG sheet (the 1:250,000
-sheet of Juiz de Fora, SF-23-X-D, for instance).  The large-scale extension
+technical norms, used on the printed IBGE/DSG sheets (by this definition the
+1:250,000 sheet holding Juiz de Fora is SF-23-X-D).  The large-scale extension
 (1:10,000 A-F in 2 columns x 3 rows of 3'45" x 2'30"; 1:5,000 I-IV; 1:2,000
 1-6 in 3 columns x 2 rows) is the one municipal and utility mapping in
 Brazil commonly uses; it was reconstructed here without a normative text at
