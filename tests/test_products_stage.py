@@ -86,6 +86,10 @@ def test_without_products_table_the_plan_is_unchanged(survey, tmp_path):
     ('filter = "csf"\n', r"survey\.toml:\d+: field 'filter': 'csf' is not one of 'ptd', 'smrf'"),
     ("cell_m = 0\n", r"survey\.toml:\d+: field 'cell_m': must be positive \(metres\), got 0"),
     ("dtm = false\nndsm = true\n", r"survey\.toml:\d+: field 'ndsm': needs dtm = true and dsm = true"),
+    ('sheet_index = "brazil-1000"\n', r"survey\.toml:\d+: field 'sheet_index': 'brazil-1000' is not one of 'grid', "),
+    ('sheet_index = "brazil-5000"\nsheet_size_m = 500\n',
+     r"survey\.toml:\d+: field 'sheet_size_m': applies to sheet_index = 'grid' only"),
+    ('vector_format = "shp"\n', r"survey\.toml:\d+: field 'vector_format': 'shp' is not 'geojson' or 'gpkg'"),
 ])
 def test_bad_products_table_is_a_located_error(survey, tmp_path, extra, message):
     root, _, _ = survey
@@ -191,3 +195,36 @@ def test_ground_false_uses_the_tiles_classes(survey, tmp_path):
     rec = run_stages([st for st in plan_pipeline(s) if st.name == "products"], tmp_path / "out",
                      values={"survey": s})[0]
     assert rec.status == "ran" and rec.result["files"] == ["dsm.tif"] and "ground" not in rec.result
+
+
+def test_brazilian_sheets_and_geopackage_index(survey, tmp_path):
+    """sheet_index = "brazil-2000", vector_format = "gpkg": the DSM cut along the Brazilian 1:2,000 sheets
+    (named as the index names its cells' centres), the index layer a GeoPackage with the survey CRS."""
+    gpd = pytest.importorskip("geopandas")
+    from pyproj import Transformer
+
+    from lidarcat.lidar.mapindex import sheet_names
+
+    root, _, _ = survey
+    work = _work(root, tmp_path, BASE + '\n[products]\nground = false\ndtm = false\ncontours = false\ncell_m = 4.0\n'
+                                        'sheet_index = "brazil-2000"\nvector_format = "gpkg"\n')
+    s = Survey.load(work)
+    rec = run_stages([st for st in plan_pipeline(s) if st.name == "products"], tmp_path / "out",
+                     values={"survey": s})[0]
+    assert rec.status == "ran", rec.reason
+    folder = tmp_path / "out" / "products"
+    assert rec.result["files"] == ["dsm.tif", "sheets.gpkg"] and rec.result["sheets"]["index"] == "brazil-2000"
+    grid, t, _ = _raster(folder / "dsm.tif")
+    rows, cols = np.nonzero(np.isfinite(grid))
+    e, n = t.xy(rows, cols)
+    lon, lat = Transformer.from_crs(CRS, "EPSG:4674", always_xy=True).transform(e, n)
+    expected = sorted(set(sheet_names(lon, lat, 2000).tolist()))
+    assert sorted(rec.result["sheets"]["sheets"]) == expected
+    idx = gpd.read_file(folder / "sheets.gpkg", layer="sheets")
+    assert idx.crs.to_epsg() == 31982 and sorted(idx["name"]) == expected
+    cells = 0
+    for nm in expected:
+        g, _, epsg = _raster(folder / "sheets" / nm / "dsm.tif")
+        assert epsg == 31982
+        cells += int(np.isfinite(g).sum())
+    assert cells == len(rows)                    # every DSM cell in exactly one sheet

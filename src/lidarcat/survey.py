@@ -81,7 +81,8 @@ SURVEY_KEYS: dict[str, dict[str, bool]] = {
     # LiDAR products of lidarcat run: read by lidarcat.pipeline.stages.products
     "products": {k: False for k in ("ground", "filter", "dtm", "dsm", "ndsm", "hillshade", "text_grid", "cell_m",
                                     "max_edge_m", "contours", "contour_interval_m", "master_every", "smooth",
-                                    "spots_m", "hypsometry", "hypsometry_cell_m", "sheet_size_m")},
+                                    "spots_m", "hypsometry", "hypsometry_cell_m", "sheet_size_m",
+                                    "sheet_index", "vector_format")},
     # read by lidarcat.bundle.selfcal_survey (additional parameters, issue 13)
     "self_calibration": {"parameters": False, "use_priors": False, "frame_offset": False,
                          "similarity": False, "control": False, "alpha": False, "gnss_lines": False,

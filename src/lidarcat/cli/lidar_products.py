@@ -143,8 +143,9 @@ Examples:
 
 @click.command(name="contours")
 @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-@click.option("-o", "--output", required=True, metavar="OUT.geojson",
-              help="Contour lines (GeoJSON, CRS set); spot heights go to OUT_spots.geojson.")
+@click.option("-o", "--output", required=True, metavar="OUT.geojson|OUT.gpkg",
+              help="OUT.geojson: contour lines, spot heights in OUT_spots.geojson. OUT.gpkg: one "
+                   "GeoPackage with the layers contours and spot_heights (needs lidarcat[gis]). CRS set.")
 @click.option("--interval-m", type=float, default=1.0, show_default=True,
               help="Contour interval (equidistance), metres; the report used 1 m.")
 @click.option("--master-every", type=click.IntRange(1), default=5, show_default=True,
@@ -164,13 +165,17 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
     Examples:
       lidarcat lidar contours classified/tile.laz -o curvas.geojson --crs EPSG:7415
       lidarcat lidar contours classified/ -o curvas.geojson --interval-m 0.5 --master-every 10
+      lidarcat lidar contours classified/ -o curvas.gpkg
     """
     import numpy as np
 
     from ..lidar import read_points
     from ..lidar.cloud import PointCloud
-    from ..lidar.contours import contour_features, contours, spot_features, spot_heights, write_geojson
+    from ..lidar.contours import CONTOUR_FORMATS, contours, spot_heights, write_contours
 
+    if Path(output).suffix.lower() not in CONTOUR_FORMATS:
+        raise click.BadParameter(f"{output}: give a file ending in {', '.join(CONTOUR_FORMATS)}",
+                                 param_hint="-o/--output")
     files, crs, _ = _sources(paths, crs)
     clouds = [read_points(f, crs=crs) for f in files]
     pc = PointCloud.concat(clouds)
@@ -178,11 +183,8 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
         raise click.UsageError("no ground points (class 2); classify first with 'lidarcat lidar ground'")
     g = pc.xyz[np.asarray(pc.attributes["classification"]) == 2]
     cs = contours(g, interval_m, master_every=master_every, max_edge_m=max_edge_m, smooth_iterations=smooth)
-    out = Path(output)
-    write_geojson(out, contour_features(cs), pc.crs)
-    spots = out.with_name(out.stem + "_spots" + (out.suffix or ".geojson"))
-    write_geojson(spots, spot_features(spot_heights(g, spots_m)), pc.crs)
-    click.echo(f"wrote {len(cs)} contour lines to {out} and spot heights to {spots}")
+    written = write_contours(output, cs, spot_heights(g, spots_m), pc.crs)
+    click.echo(f"wrote {len(cs)} contour lines and the spot heights to {' and '.join(map(str, written))}")
 
 
 @click.command()
@@ -228,31 +230,53 @@ def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: floa
 PRODUCT_COMMANDS = [ground, dtm, dsm, contours_cmd, hypsometry]
 
 
+def _sheet_index_choice() -> click.Choice:
+    from ..lidar.sheets import SHEET_INDEXES
+
+    return click.Choice(list(SHEET_INDEXES))
+
+
 @click.command()
 @click.argument("products", nargs=-1, required=True, metavar="PRODUCT...")
 @click.option("-o", "--output", required=True, metavar="FOLDER",
               help="Receives <sheet>/<product> for every sheet holding data, and sheets.geojson (the index).")
+@click.option("--index", "index", type=_sheet_index_choice(), default="grid", show_default=True,
+              help="grid: a regular grid of --size-m in the products' CRS, sheets named E<east>_N<north>. "
+                   "brazil-5000, brazil-2000 (also brazil-10000, brazil-25000): the Brazilian systematic map "
+                   "index (Cartografia Sistematica), sheets such as SF-23-X-D-VI-1-SE-C-II (1:5,000), "
+                   "geographic rectangles in the datum of the CRS, cut in that frame.")
 @click.option("--size-m", type=float, default=1000.0, show_default=True,
-              help="Sheet width (and height, unless --height-m), metres; sheets are aligned to multiples of it.")
-@click.option("--height-m", type=float, default=None, help="Sheet height, metres (default: --size-m).")
-@click.option("--crs", default=None, metavar="CRS", help="CRS of the index layer (default: the first GeoTIFF's).")
-def sheets(products: tuple[str, ...], output: str, size_m: float, height_m: float | None, crs: str | None) -> None:
-    """Cut GeoTIFF products (.tif) and contour GeoJSON (.geojson) along a regular sheet grid.
+              help="grid: sheet width (and height, unless --height-m), metres; sheets are aligned to "
+                   "multiples of it.")
+@click.option("--height-m", type=float, default=None, help="grid: sheet height, metres (default: --size-m).")
+@click.option("--crs", default=None, metavar="CRS",
+              help="CRS of the products and the index layer (default: the first product's); the Brazilian "
+                   "index needs it, e.g. EPSG:31983 (SIRGAS 2000 / UTM zone 23S).")
+@click.option("--geographic-crs", default=None, metavar="CRS",
+              help="brazil-*: the geographic frame of the sheets (default: the datum of --crs, e.g. "
+                   "SIRGAS 2000 for EPSG:31983).")
+@click.option("--layer-format", type=click.Choice(["geojson", "gpkg"]), default="geojson", show_default=True,
+              help="Format of the index layer (sheets.geojson / sheets.gpkg) and of the contours cut per sheet; "
+                   "gpkg needs lidarcat[gis].")
+def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, height_m: float | None,
+           crs: str | None, geographic_crs: str | None, layer_format: str) -> None:
+    """Cut GeoTIFF products (.tif) and contour lines (.geojson, .gpkg) along a sheet index.
 
-    The sheet index layer (polygons named by their south-west corner,
-    E<easting>_N<northing>) is written as FOLDER/sheets.geojson.
+    The sheet index layer (one polygon per sheet holding data, with its
+    name; a Brazilian sheet as its outline densified in the products' CRS)
+    is written as FOLDER/sheets.geojson (or .gpkg).
 
     \b
     Examples:
       lidarcat lidar sheets dtm.tif dsm.tif curvas.geojson -o folhas/ --size-m 500
+      lidarcat lidar sheets dtm.tif curvas.geojson -o folhas/ --index brazil-5000 --crs EPSG:31983
+      lidarcat lidar sheets dtm.tif curvas.gpkg -o folhas/ --index brazil-2000 --layer-format gpkg
     """
-    import json
-
     import rasterio
 
-    from ..lidar.contours import write_geojson
+    from ..lidar.contours import read_line_layer, write_layers
     from ..lidar.raster import GeoTransform
-    from ..lidar.sheets import cut_contours, cut_raster, sheet_grid, sheet_index_features
+    from ..lidar.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
     from ..lidar.terrain import write_product
 
     rasters, vectors = [], []
@@ -267,37 +291,48 @@ def sheets(products: tuple[str, ...], output: str, size_m: float, height_m: floa
                 crs = crs or (ds.crs.to_wkt() if ds.crs else None)
                 b = ds.bounds
             rasters.append((p, arr, t))
-        elif p.suffix.lower() in (".geojson", ".json"):
-            feats = json.loads(p.read_text(encoding="utf-8"))["features"]
+        elif p.suffix.lower() in (".geojson", ".json", ".gpkg"):
+            feats, vcrs = read_line_layer(p)
+            crs = crs or (vcrs.to_wkt() if vcrs is not None else None)
             vectors.append((p, feats))
-            xy = np.vstack([np.asarray(f["geometry"]["coordinates"], dtype=float).reshape(-1, 2) for f in feats]) \
-                if feats else np.zeros((0, 2))
-            if len(xy):
-                b = type("B", (), {"left": xy[:, 0].min(), "bottom": xy[:, 1].min(),
-                                   "right": xy[:, 0].max(), "top": xy[:, 1].max()})
+            if not feats:
+                continue
+            xy = np.vstack([np.asarray(f["geometry"]["coordinates"], dtype=float).reshape(-1, 2) for f in feats])
+            b = type("B", (), {"left": xy[:, 0].min(), "bottom": xy[:, 1].min(),
+                               "right": xy[:, 0].max(), "top": xy[:, 1].max()})
         else:
-            raise click.BadParameter(f"{p}: give .tif or .geojson products", param_hint="PRODUCT")
+            raise click.BadParameter(f"{p}: give .tif, .geojson or .gpkg products", param_hint="PRODUCT")
         lo = [min(lo[0], b.left), min(lo[1], b.bottom)]
         hi = [max(hi[0], b.right), max(hi[1], b.top)]
-    grid = sheet_grid((lo[0], lo[1], hi[0], hi[1]), size_m, height_m)
+    if not np.isfinite(lo + hi).all():
+        raise click.UsageError("the products hold no data (no raster, no line): nothing to cut")
+    if index != "grid" and crs is None:
+        raise click.UsageError(f"--index {index} needs the products' CRS: give --crs (e.g. EPSG:31983)")
+    grid = index_sheets((lo[0], lo[1], hi[0], hi[1]), index, crs=crs, size_m=size_m, height_m=height_m,
+                        geographic_crs=geographic_crs)
     out = Path(output)
+    ext = "." + layer_format
     used = []
-    for s in grid:
-        wrote = False
-        for p, arr, t in rasters:
-            cut = cut_raster(arr, t, s)
-            if cut is not None and np.isfinite(cut[0].astype(float)).any():
-                write_product(out / s.name / p.name, cut[0], cut[1], crs)
-                wrote = True
-        for p, feats in vectors:
-            part = cut_contours([f for f in feats if f["geometry"]["type"] == "LineString"], s)
-            if part:
-                write_geojson(out / s.name / p.name, part, crs)
-                wrote = True
-        if wrote:
-            used.append(s)
-    write_geojson(out / "sheets.geojson", sheet_index_features(used), crs)
-    click.echo(f"wrote {len(used)} sheets of {size_m:g} m and the index {out / 'sheets.geojson'}")
+    with progress_bar(len(grid), "sheets") as bar:
+        for s in grid:
+            wrote = False
+            for p, arr, t in rasters:
+                cut = cut_raster(arr, t, s, crs)
+                if cut is not None and np.isfinite(cut[0].astype(float)).any():
+                    write_product(out / s.name / p.name, cut[0], cut[1], crs)
+                    wrote = True
+            for p, feats in vectors:
+                part = cut_contours([f for f in feats if f["geometry"]["type"] == "LineString"], s, crs)
+                if part:
+                    write_layers(out / s.name / (p.stem + ext), {"contours": part}, crs)
+                    wrote = True
+            if wrote:
+                used.append(s)
+            if bar is not None:
+                bar.update(1)
+    write_layers(out / ("sheets" + ext), {"sheets": sheet_index_features(used, crs)}, crs)
+    what = f"of {size_m:g} m" if index == "grid" else f"of the {index} index"
+    click.echo(f"wrote {len(used)} sheets {what} and the index {out / ('sheets' + ext)}")
 
 
 PRODUCT_COMMANDS.append(sheets)

@@ -37,7 +37,10 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
+import shutil
 import struct
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -49,7 +52,7 @@ from ..errors import FormatError
 from .block import Block, block_from_survey
 from .rotations import opk_to_matrix
 
-__all__ = ["Layer", "gis_layers", "write_gis", "LAYER_NAMES"]
+__all__ = ["Layer", "gis_layers", "write_gis", "write_gpkg", "LAYER_NAMES"]
 
 log = logging.getLogger(__name__)
 
@@ -218,6 +221,54 @@ def _have_pyogrio() -> bool:
     return True
 
 
+def _write_gpkg_layers(target: Path, layers: list[Layer], crs_wkt: str) -> None:
+    """Write *layers* into the (new) GeoPackage *target* with pyogrio."""
+    from pyogrio.raw import write
+
+    for lay in layers:
+        names = list(lay.fields)
+        data = [np.asarray(lay.fields[k], dtype=object if isinstance(
+            (lay.fields[k] or [""])[0], str) else None) for k in names]
+        geom = np.array([_wkb(lay.geometry_type, g) for g in lay.geoms], dtype=object)
+        write(str(target), geom, data, names, layer=lay.name, driver="GPKG",
+              geometry_type=lay.geometry_type, crs=crs_wkt, append=target.exists())
+
+
+def write_gpkg(path: str | Path, layers: list[Layer], crs: Any) -> Path:
+    """Write *layers* as one GeoPackage file *path* (atomically: a temporary sibling, then renamed).
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.gpkg`` file; an existing one is replaced whole once the new one is complete.
+    layers : list of Layer
+    crs : CRS-like
+        CRS of every layer (anything :class:`pyproj.CRS` accepts).
+
+    Raises
+    ------
+    FormatError
+        pyogrio is not installed.
+    """
+    from pyproj import CRS
+
+    if not _have_pyogrio():
+        raise FormatError(f"{path}: GeoPackage output needs pyogrio (pip install 'lidarcat[gis]'); "
+                          "or write GeoJSON")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    wkt = CRS.from_user_input(crs).to_wkt()
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent))
+    try:
+        part = tmp / path.name
+        _write_gpkg_layers(part, layers, wkt)
+        os.replace(part, path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    log.info("wrote %d layers to %s (GeoPackage)", len(layers), path)
+    return path
+
+
 def write_gis(layers: list[Layer], crs: str, folder: str | Path, *, fmt: str = "auto",
               name: str = "block") -> Path:
     """Write *layers* into *folder* (atomically): ``<name>.gpkg`` or ``<name>_<layer>.geojson``.
@@ -243,16 +294,7 @@ def write_gis(layers: list[Layer], crs: str, folder: str | Path, *, fmt: str = "
     folder = Path(folder)
     with atomic_dir(folder) as tmp:
         if use_gpkg:
-            from pyogrio.raw import write
-
-            target = tmp / f"{name}.gpkg"
-            for lay in layers:
-                names = list(lay.fields)
-                data = [np.asarray(lay.fields[k], dtype=object if isinstance(
-                    (lay.fields[k] or [""])[0], str) else None) for k in names]
-                geom = np.array([_wkb(lay.geometry_type, g) for g in lay.geoms], dtype=object)
-                write(str(target), geom, data, names, layer=lay.name, driver="GPKG",
-                      geometry_type=lay.geometry_type, crs=c.to_wkt(), append=target.exists())
+            _write_gpkg_layers(tmp / f"{name}.gpkg", layers, c.to_wkt())
         else:
             auth = c.to_authority()
             crs_name = f"urn:ogc:def:crs:{auth[0]}::{auth[1]}" if auth else c.to_wkt()

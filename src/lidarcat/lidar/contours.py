@@ -24,6 +24,11 @@ Spot heights: the highest and the lowest ground point in every
 ``spot_spacing_m`` square (aligned to multiples of it).
 
 GeoJSON output carries the CRS as the (GDAL/QGIS-read) ``crs`` member.
+GeoPackage output (:func:`write_contours` with a ``.gpkg`` path; needs the
+optional ``gis`` extra, pyogrio, whose wheels bundle GDAL) holds two layers,
+``contours`` (LineString: level_m, type, closed) and ``spot_heights`` (Point:
+h_m, kind), both with the CRS; it is written by the GIS writer of
+:mod:`lidarcat.interop.gis`.
 """
 
 from __future__ import annotations
@@ -38,7 +43,11 @@ import numpy as np
 
 from .._io import dumps_json, write_text_atomic
 
-__all__ = ["Contour", "contours", "spot_heights", "write_geojson", "contour_features", "spot_features"]
+__all__ = ["Contour", "contours", "spot_heights", "write_geojson", "contour_features", "spot_features",
+           "write_contours", "write_layers", "read_line_layer", "CONTOUR_FORMATS"]
+
+#: output formats of :func:`write_contours`, by file suffix
+CONTOUR_FORMATS = {".geojson": "GeoJSON", ".json": "GeoJSON", ".gpkg": "GeoPackage"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -198,3 +207,159 @@ def write_geojson(path: str | os.PathLike, features: list[dict[str, Any]], crs: 
         name = f"urn:ogc:def:crs:EPSG::{code}" if code else c.to_wkt()
         fc["crs"] = {"type": "name", "properties": {"name": name}}
     return write_text_atomic(Path(path), dumps_json(fc, indent=None) + "\n")
+
+
+def write_contours(path: str | os.PathLike, cs: list[Contour], spots: np.ndarray, crs: Any,
+                   decimals: int = 3) -> list[Path]:
+    """Write contours and spot heights; the format follows the suffix of *path*.
+
+    ``.gpkg``: one GeoPackage with the layers ``contours`` and ``spot_heights``.
+    ``.geojson`` (or ``.json``): *path* holds the contours and
+    ``<stem>_spots<suffix>`` the spot heights.  Coordinates are rounded to
+    *decimals* (metres) in both.
+
+    Parameters
+    ----------
+    path : path-like
+    cs : list of Contour
+    spots : ndarray, shape (M, 4)
+        E, N, h (metres), is_high, as :func:`spot_heights` returns.
+    crs : CRS-like
+        CRS of the coordinates, written into every layer.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+
+    Raises
+    ------
+    ValueError
+        An unknown suffix.
+    lidarcat.errors.FormatError
+        ``.gpkg`` without pyogrio installed.
+    lidarcat.errors.CRSError
+        ``.gpkg`` without a CRS.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in CONTOUR_FORMATS:
+        raise ValueError(f"{path}: contour output must end in {', '.join(CONTOUR_FORMATS)}, got "
+                         f"{path.suffix or '(no suffix)'!r}")
+    if suffix == ".gpkg":
+        return [write_layers(path, {"contours": contour_features(cs, decimals),
+                                    "spot_heights": spot_features(spots, decimals)}, crs)]
+    spots_path = path.with_name(path.stem + "_spots" + path.suffix)
+    return [write_geojson(path, contour_features(cs, decimals), crs),
+            write_geojson(spots_path, spot_features(spots, decimals), crs)]
+
+
+def write_layers(path: str | os.PathLike, layers: dict[str, list[dict[str, Any]]], crs: Any) -> Path:
+    """Write GeoJSON-like feature lists as named layers of one GeoPackage (``.gpkg``) or, for one
+    layer, a GeoJSON file (any other suffix).
+
+    Every feature of a layer has the geometry type of its first feature
+    (Point, LineString or Polygon with one ring) and the properties of its
+    first feature.  The GeoPackage goes through :func:`lidarcat.interop.gis.write_gpkg`
+    (pyogrio), atomically.
+
+    Raises
+    ------
+    ValueError
+        Several layers for a GeoJSON file.
+    lidarcat.errors.CRSError
+        A GeoPackage without a CRS.
+    lidarcat.errors.FormatError
+        A GeoPackage without pyogrio installed.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".gpkg":
+        if len(layers) != 1:
+            raise ValueError(f"{path}: a GeoJSON file holds one layer, got {len(layers)}")
+        return write_geojson(path, next(iter(layers.values())), crs)
+    from ..errors import CRSError
+    from ..interop.gis import Layer, write_gpkg
+    from .crs import resolve_crs
+
+    c = resolve_crs(crs)
+    if c is None:
+        raise CRSError(f"{path}: a GeoPackage needs the CRS of its layers; give the tiles' CRS (--crs)")
+    out = []
+    for name, feats in layers.items():
+        kind = feats[0]["geometry"]["type"] if feats else "LineString"
+        coords = [f["geometry"]["coordinates"] for f in feats]
+        geoms = [np.asarray(g[0] if kind == "Polygon" else [g] if kind == "Point" else g, dtype=np.float64)
+                 for g in coords]
+        keys = list(feats[0]["properties"]) if feats else []
+        out.append(Layer(name, kind, geoms, {k: [f["properties"][k] for f in feats] for k in keys}))
+    return write_gpkg(path, out, c)
+
+
+def read_line_layer(path: str | os.PathLike, layer: str | None = None) -> tuple[list[dict[str, Any]], Any]:
+    """The LineString features of a GeoJSON file or of a GeoPackage layer, and the layer's CRS.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.geojson``/``.json`` (the ``crs`` member, if any, gives the CRS) or ``.gpkg``.
+    layer : str, optional
+        GeoPackage layer (default ``contours`` when present, else the first LineString layer).
+
+    Returns
+    -------
+    (features, crs)
+        GeoJSON-like LineString features (other geometries are left out) and a
+        :class:`pyproj.CRS` or ``None``.
+
+    Raises
+    ------
+    lidarcat.errors.FormatError
+        Unreadable file, no LineString layer, a geometry that is not 2-D WKB
+        LineString (feature named), or a GeoPackage without pyogrio.
+    """
+    import json
+    import struct
+
+    from ..errors import FormatError
+    from .crs import resolve_crs
+
+    path = Path(path)
+    if path.suffix.lower() != ".gpkg":
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+            feats = [f for f in doc["features"] if (f.get("geometry") or {}).get("type") == "LineString"]
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as ex:
+            raise FormatError(f"{path}: not a readable GeoJSON FeatureCollection ({ex})") from ex
+        name = ((doc.get("crs") or {}).get("properties") or {}).get("name")
+        return feats, resolve_crs(name) if name else None
+    try:
+        import pyogrio
+        from pyogrio.raw import read
+    except ImportError:
+        raise FormatError(f"{path}: reading GeoPackage needs pyogrio (pip install 'lidarcat[gis]')") from None
+    try:
+        layers = [(str(n), str(g)) for n, g in pyogrio.list_layers(path)]
+        if layer is None:
+            names = [n for n, g in layers if g in ("LineString", "MultiLineString")]
+            layer = "contours" if ("contours", "LineString") in layers else (names[0] if names else None)
+        if layer is None:
+            raise FormatError(f"{path}: no LineString layer (layers: {', '.join(n for n, _ in layers) or 'none'})")
+        meta, _, geoms, values = read(path, layer=layer)
+    except FormatError:
+        raise
+    except Exception as ex:  # pyogrio.errors.DataSourceError, DataLayerError...
+        raise FormatError(f"{path}: cannot read layer {layer!r} ({ex})") from ex
+    names = [str(n) for n in meta["fields"]]
+    feats = []
+    for i, g in enumerate(geoms):
+        g = bytes(g) if g is not None else b""
+        if len(g) < 9 or g[0] != 1 or struct.unpack_from("<I", g, 1)[0] != 2:
+            raise FormatError(f"{path}: layer {layer!r}, feature {i}: not a 2-D LineString")
+        n = struct.unpack_from("<I", g, 5)[0]
+        if len(g) != 9 + 16 * n:
+            raise FormatError(f"{path}: layer {layer!r}, feature {i}: {n} vertices announced in {len(g)} bytes")
+        xy = np.frombuffer(g, dtype="<f8", offset=9).reshape(n, 2)
+        props = {k: (v.item() if hasattr(v, "item") else v) for k, v in zip(names, (col[i] for col in values))}
+        feats.append({"type": "Feature", "properties": props,
+                      "geometry": {"type": "LineString", "coordinates": xy.tolist()}})
+    return feats, resolve_crs(meta["crs"]) if meta.get("crs") else None

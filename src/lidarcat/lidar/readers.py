@@ -3,7 +3,8 @@
 Formats are chosen by file suffix:
 
 ==========================================  =========================================
-``.las``, ``.laz``, ``.copc.laz``           laspy + lazrs (COPC is read as LAZ 1.4)
+``.las``, ``.laz``, ``.copc.laz``           laspy + lazrs (COPC: whole reads as LAZ 1.4,
+                                            box queries by the octree, :mod:`.copc`)
 ``.xyz``, ``.txt``, ``.csv``, ``.asc``,     text: one point per line
 ``.pts``
 ==========================================  =========================================
@@ -65,6 +66,7 @@ import numpy as np
 from .._io import atomic_write, parse_float
 from ..errors import CRSError, LidarFormatError, TileIOError, location
 from .cloud import STANDARD_ATTRIBUTES, Bounds, PointCloud
+from .copc import is_copc
 from .crs import crs_compatible, crs_label, resolve_crs
 
 __all__ = [
@@ -407,7 +409,7 @@ def _las_crs(path: Path, header: Any, given: Any = None) -> Any:
 
 def _las_description(path: Path, header: Any) -> str:
     kind = "LAZ" if header.are_points_compressed else "LAS"
-    if path.name.lower().endswith(".copc.laz"):
+    if header.are_points_compressed and is_copc(path):   # the COPC info VLR, whatever the file name
         kind = "COPC"
     return f"{kind} {header.version}, point format {header.point_format.id}"
 

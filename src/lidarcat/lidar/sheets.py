@@ -13,8 +13,13 @@ gives the index layer (GeoJSON polygons, closed, counter-clockwise);
 sheet; the grid's cell must divide the sheet size for exact edges);
 :func:`cut_contours` keeps the contour pieces inside a sheet.
 
-The Brazilian systematic map index (MI numbers of 1:5,000 and 1:2,000 sheets)
-is not implemented.
+The Brazilian systematic map index (sheets such as ``SF-23-X-D-VI-1-SE-C-II``
+at 1:5,000 and ``...-II-6`` at 1:2,000) is in :mod:`lidarcat.lidar.mapindex`;
+its sheets are geographic rectangles, and the functions here accept them too
+(with the CRS of the products): :func:`index_sheets` lists the sheets of
+either index meeting an area, :func:`sheet_index_features` draws a Brazilian
+sheet as its densified projected outline, :func:`cut_raster` and
+:func:`cut_contours` cut in the sheet's geographic frame.
 """
 
 from __future__ import annotations
@@ -27,7 +32,11 @@ import numpy as np
 
 from .raster import GeoTransform
 
-__all__ = ["Sheet", "sheet_grid", "sheet_index_features", "cut_raster", "cut_contours"]
+__all__ = ["Sheet", "sheet_grid", "sheet_index_features", "cut_raster", "cut_contours", "index_sheets",
+           "SHEET_INDEXES"]
+
+#: sheet indexes of :func:`index_sheets` (``brazil-N``: the Brazilian index at 1:N)
+SHEET_INDEXES = ("grid", "brazil-25000", "brazil-10000", "brazil-5000", "brazil-2000")
 
 
 @dataclass(frozen=True)
@@ -64,17 +73,76 @@ def sheet_grid(bounds: tuple[float, float, float, float], width_m: float,
     return out
 
 
-def sheet_index_features(sheets: list[Sheet]) -> list[dict[str, Any]]:
-    """The sheet index layer: one closed counter-clockwise Polygon per sheet, with name and bounds."""
-    return [{"type": "Feature",
-             "properties": {"name": s.name, "xmin": s.xmin, "ymin": s.ymin, "xmax": s.xmax, "ymax": s.ymax},
-             "geometry": {"type": "Polygon", "coordinates": [[[s.xmin, s.ymin], [s.xmax, s.ymin], [s.xmax, s.ymax],
-                                                              [s.xmin, s.ymax], [s.xmin, s.ymin]]]}}
-            for s in sheets]
+def index_sheets(bounds: tuple[float, float, float, float], index: str = "grid", *, crs: Any = None,
+                 size_m: float = 1000.0, height_m: float | None = None,
+                 geographic_crs: Any = None) -> list[Any]:
+    """The sheets of *index* meeting the plan box *bounds* (metres, in *crs*).
+
+    Parameters
+    ----------
+    bounds : (xmin, ymin, xmax, ymax)
+    index : str
+        ``"grid"``: :func:`sheet_grid` of *size_m* x *height_m*;
+        ``"brazil-5000"``, ``"brazil-2000"`` (or another scale of
+        :data:`lidarcat.lidar.mapindex.SCALES`): the Brazilian systematic
+        index, :func:`lidarcat.lidar.mapindex.sheets_covering`.
+    crs : CRS-like
+        Projected CRS of *bounds* (needed by the Brazilian index).
+    geographic_crs : CRS-like, optional
+        Frame of the Brazilian index (default: the datum of *crs*).
+
+    Raises
+    ------
+    ValueError
+        An unknown index, or the Brazilian index without a CRS.
+    """
+    if index == "grid":
+        return sheet_grid(bounds, size_m, height_m)
+    from .mapindex import SCALES, sheets_covering
+
+    scale = index[len("brazil-"):] if index.startswith("brazil-") else ""
+    if not scale.isdigit() or int(scale) not in SCALES:
+        raise ValueError(f"unknown sheet index {index!r}; use grid or brazil-N with N one of "
+                         f"{', '.join(map(str, SCALES))}")
+    if crs is None:
+        raise ValueError(f"the {index} sheet index needs the CRS of the products")
+    return sheets_covering(bounds, crs, int(scale), geographic_crs=geographic_crs)
 
 
-def cut_raster(grid: np.ndarray, transform: GeoTransform, sheet: Sheet) -> tuple[np.ndarray, GeoTransform] | None:
+def sheet_index_features(sheets: list[Any], crs: Any = None) -> list[dict[str, Any]]:
+    """The sheet index layer: one closed counter-clockwise Polygon per sheet, with name and bounds.
+
+    A Brazilian sheet (:class:`lidarcat.lidar.mapindex.MapSheet`) is drawn in
+    the projected *crs* as its densified outline, with its scale and its
+    geographic bounds (degrees) as properties.
+    """
+    from .mapindex import MapSheet, sheet_outline
+
+    out = []
+    for s in sheets:
+        if isinstance(s, MapSheet):
+            if crs is None:
+                raise ValueError(f"sheet {s.name}: drawing a geographic sheet needs the CRS of the layer")
+            ring = np.round(sheet_outline(s, crs), 3)
+            out.append({"type": "Feature",
+                        "properties": {"name": s.name, "scale": s.scale, "west_deg": s.west, "south_deg": s.south,
+                                       "east_deg": s.east, "north_deg": s.north},
+                        "geometry": {"type": "Polygon", "coordinates": [ring.tolist()]}})
+            continue
+        out.append({"type": "Feature",
+                    "properties": {"name": s.name, "xmin": s.xmin, "ymin": s.ymin, "xmax": s.xmax, "ymax": s.ymax},
+                    "geometry": {"type": "Polygon", "coordinates": [[[s.xmin, s.ymin], [s.xmax, s.ymin],
+                                                                     [s.xmax, s.ymax], [s.xmin, s.ymax],
+                                                                     [s.xmin, s.ymin]]]}})
+    return out
+
+
+def cut_raster(grid: np.ndarray, transform: GeoTransform, sheet: Any,
+               crs: Any = None) -> tuple[np.ndarray, GeoTransform] | None:
     """The part of *grid* whose cell centres lie in *sheet* (None when empty).
+
+    A Brazilian sheet needs the grid's *crs*; cells of its bounding box
+    outside the sheet are NaN (see :func:`lidarcat.lidar.mapindex.cut_raster_geo`).
 
     Examples
     --------
@@ -83,6 +151,12 @@ def cut_raster(grid: np.ndarray, transform: GeoTransform, sheet: Sheet) -> tuple
     >>> sub.tolist(), t
     ([[10.0, 11.0], [14.0, 15.0]], GeoTransform(x0=2.0, y0=2.0, cell_m=1.0))
     """
+    from .mapindex import MapSheet, cut_raster_geo
+
+    if isinstance(sheet, MapSheet):
+        if crs is None:
+            raise ValueError(f"sheet {sheet.name}: cutting along a geographic sheet needs the grid's CRS")
+        return cut_raster_geo(grid, transform, sheet, crs)
     c = transform.cell_m
     nrows, ncols = grid.shape[:2]
     c0 = max(0, math.ceil((sheet.xmin - transform.x0) / c - 0.5))
@@ -94,12 +168,24 @@ def cut_raster(grid: np.ndarray, transform: GeoTransform, sheet: Sheet) -> tuple
     return grid[r0:r1, c0:c1], GeoTransform(transform.x0 + c0 * c, transform.y0 - r0 * c, c)
 
 
-def cut_contours(features: list[dict[str, Any]], sheet: Sheet) -> list[dict[str, Any]]:
+def cut_contours(features: list[dict[str, Any]], sheet: Any, crs: Any = None) -> list[dict[str, Any]]:
     """Contour LineStrings clipped to *sheet*: the runs of vertices inside it (edge crossings added).
 
     A line leaving and re-entering the sheet becomes several pieces; a closed
-    ring wholly inside stays closed.
+    ring wholly inside stays closed.  A Brazilian sheet needs the lines' *crs*
+    (they are clipped in the sheet's geographic frame).
     """
+    from .mapindex import MapSheet, cut_contours_geo
+
+    if isinstance(sheet, MapSheet):
+        if crs is None:
+            raise ValueError(f"sheet {sheet.name}: cutting along a geographic sheet needs the lines' CRS")
+        return cut_contours_geo(features, sheet, crs)
+    return _cut_lines(features, sheet)
+
+
+def _cut_lines(features: list[dict[str, Any]], sheet: Any) -> list[dict[str, Any]]:
+    """LineString features clipped to the rectangle xmin..xmax, ymin..ymax of *sheet* (any frame)."""
     out = []
     for f in features:
         xy = np.asarray(f["geometry"]["coordinates"], dtype=np.float64)

@@ -53,6 +53,15 @@ tile that fits add up to a quarter of its points: many clips in one tile);
 does.  Decoded blocks share the ``max_cached_points`` memory
 budget with whole tiles; the counter :attr:`TileIndex.decoded_points` tells how
 many points were decoded from files.
+
+**COPC tiles.**  A tile whose first VLR is the COPC info record is queried
+by its octree (:mod:`lidarcat.lidar.copc`, laspy's COPC reader): a query
+not served from memory decodes only the nodes whose cube meets the query box
+(``decode="whole"`` turns this off; with ``"auto"`` a tile that fits in
+memory is decoded once and kept whole after its octree reads reach a quarter
+of its points, as for block reads).  Its header bounds are not trusted
+either: every query consults the octree of such a tile until its points have
+been read once (only hierarchy pages are read when the query misses the tile).
 """
 
 from __future__ import annotations
@@ -75,6 +84,7 @@ import pyproj
 from .._io import write_json_atomic
 from ..errors import ClipError, CRSError, TileIOError
 from .cloud import Bounds, PointCloud
+from .copc import is_copc, read_copc_box
 from .crs import common_crs, crs_compatible, crs_label, require_metres, resolve_crs, transform_points
 from .readers import (ASCII_SUFFIXES, LAS_SUFFIXES, file_kind, iter_las_ranges, iter_points,
                       las_chunk_points, read_header)
@@ -515,6 +525,7 @@ class TileIndex:
         self._grids: dict[Path, _CellGrid] = {}
         self._cached_points = 0
         self._block_decoded: dict[Path, int] = {}  # points of each tile decoded by block reads
+        self._copc: dict[Path, bool] = {}  # tiles that are COPC files (queried by their octree)
         self._metres_checked = False
         by_path = {t.path: t for t in self.tiles}
         self._blocks: dict[Path, BlockIndex] = {
@@ -912,6 +923,35 @@ class TileIndex:
                 out.append(cloud.select(m))
         return out
 
+    def _is_copc(self, tile: Tile) -> bool:
+        """True for a COPC tile (checked once per path: the COPC info VLR, not the file name)."""
+        hit = self._copc.get(tile.path)
+        if hit is None:
+            hit = self._copc[tile.path] = file_kind(tile.path) == "las" and is_copc(tile.path)
+        return hit
+
+    def _copc_by_octree(self, tile: Tile) -> bool:
+        """Query *tile* by its octree: a COPC tile, unless ``decode="whole"``, or ``"auto"`` once its
+        octree reads reached a quarter of its points and it fits in memory (then it is decoded
+        once and kept whole, as for LAS/LAZ block reads)."""
+        if self.decode == "whole" or not self._is_copc(tile):
+            return False
+        return not (self.decode == "auto" and tile.count <= self.max_cached_points
+                    and self._block_decoded.get(tile.path, 0) >= _AUTO_SWITCH_FRACTION * tile.count)
+
+    def _query_copc(self, tile: Tile, box: tuple[float, float, float, float],
+                    mask_fn: Callable[[np.ndarray], np.ndarray]) -> list[PointCloud]:
+        """Matching points of a COPC tile, decoding only the octree nodes that meet *box*."""
+        self._check_unchanged(tile)
+        res = read_copc_box(tile.path, box, crs=self._file_crs_kw(tile))
+        self.decoded_points += res.points_decoded
+        self._block_decoded[tile.path] = self._block_decoded.get(tile.path, 0) + res.points_decoded
+        log.debug("%s: COPC query read %d of %d known nodes (%d points)", tile.path, res.nodes_read,
+                  res.nodes_known, res.points_decoded)
+        cloud = self._in_index_crs(res.cloud)
+        m = mask_fn(cloud.xyz)
+        return [cloud.select(m)] if m.any() else []
+
     def _query(self, box: tuple[float, float, float, float],
                mask_fn: Callable[[np.ndarray], np.ndarray]) -> PointCloud:
         parts: list[PointCloud] = []
@@ -928,6 +968,9 @@ class TileIndex:
                 idx = idx[mask_fn(cached.xyz[idx])]
                 if len(idx):
                     parts.append(cached.select(idx))
+                continue
+            if cached is None and self._copc_by_octree(t):
+                parts.extend(self._query_copc(t, box, mask_fn))
                 continue
             if cached is None:
                 from_blocks = self._query_blocks(t, box, mask_fn)

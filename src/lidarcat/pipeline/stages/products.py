@@ -20,6 +20,9 @@ survey.toml::
     hypsometry = false          # hypsometry.png (+ .tif with rasterio): heights coloured, shaded by intensity
     hypsometry_cell_m = 0.45    # its cell, m (the report: 45 cm)
     sheet_size_m = 0            # > 0: also cut every product along a sheet grid (sheets/, sheets.geojson)
+    sheet_index = "grid"        # or "brazil-5000" / "brazil-2000" (..-10000, -25000): the Brazilian systematic
+                                # map index (sheets like SF-23-X-D-VI-1-SE-C-II) instead of the grid
+    vector_format = "geojson"   # or "gpkg": contours, spot heights and the sheet index as GeoPackage (lidarcat[gis])
 
 The stage is planned only for a survey with a ``[products]`` table (skipped,
 with the reason, when the survey has no LiDAR tiles).  Ground classification
@@ -49,13 +52,14 @@ PRODUCTS_KEYS: dict[str, Any] = {
     "ground": True, "filter": "smrf", "dtm": True, "dsm": True, "ndsm": False, "hillshade": False,
     "text_grid": False, "cell_m": 1.0, "max_edge_m": 50.0, "contours": True, "contour_interval_m": 1.0,
     "master_every": 5, "smooth": 0, "spots_m": 100.0, "hypsometry": False, "hypsometry_cell_m": 0.45,
-    "sheet_size_m": 0.0,
+    "sheet_size_m": 0.0, "sheet_index": "grid", "vector_format": "geojson",
 }
 _NUM = (int, float)
 _KINDS: dict[str, Any] = {
     "ground": bool, "filter": str, "dtm": bool, "dsm": bool, "ndsm": bool, "hillshade": bool, "text_grid": bool,
     "cell_m": _NUM, "max_edge_m": _NUM, "contours": bool, "contour_interval_m": _NUM, "master_every": int,
     "smooth": int, "spots_m": _NUM, "hypsometry": bool, "hypsometry_cell_m": _NUM, "sheet_size_m": _NUM,
+    "sheet_index": str, "vector_format": str,
 }
 
 
@@ -85,6 +89,16 @@ def settings(survey: Any) -> dict[str, Any]:
     if out["sheet_size_m"] < 0:
         raise t.err("products", "sheet_size_m", f"must be 0 (no sheets) or positive (metres), got "
                                                 f"{out['sheet_size_m']!r}")
+    from ...lidar.sheets import SHEET_INDEXES
+
+    if out["sheet_index"] not in SHEET_INDEXES:
+        raise t.err("products", "sheet_index", f"{out['sheet_index']!r} is not one of "
+                                               f"{', '.join(map(repr, SHEET_INDEXES))}")
+    if out["sheet_index"] != "grid" and out["sheet_size_m"] > 0:
+        raise t.err("products", "sheet_size_m", f"applies to sheet_index = 'grid' only; the "
+                                                f"{out['sheet_index']} sheets have their own size (drop it)")
+    if out["vector_format"] not in ("geojson", "gpkg"):
+        raise t.err("products", "vector_format", f"{out['vector_format']!r} is not 'geojson' or 'gpkg'")
     if out["ndsm"] and not (out["dtm"] and out["dsm"]):
         raise t.err("products", "ndsm", "needs dtm = true and dsm = true")
     for key in ("cell_m", "max_edge_m", "contour_interval_m", "spots_m", "hypsometry_cell_m", "sheet_size_m"):
@@ -104,7 +118,8 @@ def run(ctx: Context, tmp: Path) -> dict:
     from ...errors import SurveyError
     from ...lidar import read_points
     from ...lidar.cloud import PointCloud
-    from ...lidar.contours import contour_features, contours, spot_features, spot_heights, write_geojson
+    from ...lidar.contours import (contour_features, contours, spot_features, spot_heights, write_geojson,
+                                   write_layers)
     from ...lidar.ground import classify_tiles, params_from_dict
     from ...lidar.terrain import dsm_grid, dtm_grid, hillshade, ndsm, write_product, write_text_grid
 
@@ -112,7 +127,9 @@ def run(ctx: Context, tmp: Path) -> dict:
     cfg = {k: ctx.params[k] for k in PRODUCTS_KEYS}
     crs = survey.lidar_crs or survey.crs
     tiles = [Path(p) for p in survey.lidar_paths]
-    steps = len(asked(cfg)) + (1 if cfg["sheet_size_m"] > 0 else 0)
+    want_sheets = cfg["sheet_size_m"] > 0 or cfg["sheet_index"] != "grid"
+    vext = "." + cfg["vector_format"]
+    steps = len(asked(cfg)) + (1 if want_sheets else 0)
     step = 0
 
     def tick() -> None:
@@ -174,10 +191,14 @@ def run(ctx: Context, tmp: Path) -> dict:
         cs = contours(g, cfg["contour_interval_m"], master_every=cfg["master_every"],
                       max_edge_m=cfg["max_edge_m"], smooth_iterations=cfg["smooth"])
         features = contour_features(cs)
-        write_geojson(tmp / "contours.geojson", features, crs)
         spots = spot_heights(g, cfg["spots_m"])
-        write_geojson(tmp / "spot_heights.geojson", spot_features(spots), crs)
-        done["files"] += ["contours.geojson", "spot_heights.geojson"]
+        if vext == ".gpkg":   # one GeoPackage, layers contours and spot_heights
+            write_layers(tmp / "contours.gpkg", {"contours": features, "spot_heights": spot_features(spots)}, crs)
+            done["files"].append("contours.gpkg")
+        else:
+            write_geojson(tmp / "contours.geojson", features, crs)
+            write_geojson(tmp / "spot_heights.geojson", spot_features(spots), crs)
+            done["files"] += ["contours.geojson", "spot_heights.geojson"]
         done["contours"] = {"interval_m": cfg["contour_interval_m"], "master_every": cfg["master_every"],
                             "lines": len(cs), "master_lines": sum(1 for c in cs if c.master),
                             "spot_heights": int(len(spots))}
@@ -186,9 +207,9 @@ def run(ctx: Context, tmp: Path) -> dict:
         done["hypsometry"] = _hypsometry(cloud, cfg["hypsometry_cell_m"], area, crs, tmp)
         done["files"] += done["hypsometry"]["files"]
         tick()
-    if cfg["sheet_size_m"] > 0:
-        done["sheets"] = _sheets(rasters, features, area, cfg["sheet_size_m"], crs, tmp)
-        done["files"].append("sheets.geojson")
+    if want_sheets:
+        done["sheets"] = _sheets(rasters, features, area, cfg, crs, tmp)
+        done["files"].append("sheets" + vext)
         tick()
     return done
 
@@ -215,27 +236,31 @@ def _hypsometry(cloud: Any, cell_m: float, area: tuple[float, float, float, floa
 
 
 def _sheets(rasters: dict[str, tuple[Any, Any]], features: list[dict[str, Any]],
-            area: tuple[float, float, float, float], size_m: float, crs: Any, tmp: Path) -> dict[str, Any]:
-    """Every model and the contours cut along a regular sheet grid; the index of the sheets holding data."""
+            area: tuple[float, float, float, float], cfg: dict[str, Any], crs: Any, tmp: Path) -> dict[str, Any]:
+    """Every model and the contours cut along the sheet index; the index of the sheets holding data."""
     import numpy as np
 
-    from ...lidar.contours import write_geojson
-    from ...lidar.sheets import cut_contours, cut_raster, sheet_grid, sheet_index_features
+    from ...lidar.contours import write_layers
+    from ...lidar.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
     from ...lidar.terrain import write_product
 
+    ext = "." + cfg["vector_format"]
     used = []
-    for s in sheet_grid(area, size_m):
+    for s in index_sheets(area, cfg["sheet_index"], crs=crs, size_m=cfg["sheet_size_m"] or 1000.0):
         wrote = False
         for name, (grid, transform) in rasters.items():
-            cut = cut_raster(grid, transform, s)
+            cut = cut_raster(grid, transform, s, crs)
             if cut is not None and np.isfinite(cut[0].astype(float)).any():
                 write_product(tmp / "sheets" / s.name / name, cut[0], cut[1], crs)
                 wrote = True
-        part = cut_contours(features, s) if features else []
+        part = cut_contours(features, s, crs) if features else []
         if part:
-            write_geojson(tmp / "sheets" / s.name / "contours.geojson", part, crs)
+            write_layers(tmp / "sheets" / s.name / ("contours" + ext), {"contours": part}, crs)
             wrote = True
         if wrote:
             used.append(s)
-    write_geojson(tmp / "sheets.geojson", sheet_index_features(used), crs)
-    return {"size_m": size_m, "sheets": [s.name for s in used]}
+    write_layers(tmp / ("sheets" + ext), {"sheets": sheet_index_features(used, crs)}, crs)
+    out: dict[str, Any] = {"index": cfg["sheet_index"], "sheets": [s.name for s in used]}
+    if cfg["sheet_index"] == "grid":
+        out["size_m"] = cfg["sheet_size_m"]
+    return out
