@@ -23,7 +23,7 @@ from conftest import THESIS_SURVEY, THESIS_TABLES
 from lidarcat._collinearity import project_with_jacobians
 from lidarcat._synthetic_block import resimulated, synthetic_block
 from lidarcat.bundle import adjust, problem_from_survey
-from lidarcat.bundle.reliability import MIN_REDUNDANCY, critical_values, noncentrality, reliability, snoop
+from lidarcat.bundle.reliability import MIN_REDUNDANCY, critical_values, family_alpha, noncentrality, reliability, snoop
 from lidarcat.cli.main import cli
 from lidarcat.survey import Survey
 
@@ -72,6 +72,49 @@ def test_b_method_levels_published_values():
         assert abs(stats.ncx2.sf(kq, q, noncentrality(0.001, 0.80)) - 0.80) < 1e-8
     with pytest.raises(ValueError, match=r"^`level` \(alpha of the w-test\) must be in \(0, 0.5\), got 0.7$"):
         noncentrality(0.7, 0.8)
+
+
+def test_family_level_solves_sidak_over_the_b_method_levels(gps):
+    """alpha_1 chosen so that 1 - prod (1 - alpha_q)^n_q = family over the block's tests."""
+    from scipy import stats
+
+    counts = {1: 26, 2: 125, 3: 8}
+    a1 = family_alpha(counts, 0.05)
+    none_reject = np.prod([(1 - critical_values(a1, 0.80, q)[0]) ** n for q, n in counts.items()])
+    assert abs((1 - none_reject) - 0.05) < 1e-9
+    assert family_alpha({1: 1}, 0.05) == pytest.approx(0.05, rel=1e-9)    # one 1-D test: its own level
+    # Bonferroni bound for one dimension: alpha_1 -> family / n
+    assert abs(family_alpha({1: 10_000}, 0.05) * 10_000 / 0.05 - 1) < 0.03
+    # the thesis block: the counts above are its testable groups; critical w of an image point 4.00
+    rel = reliability(gps)
+    assert dict(zip(*np.unique(rel.q, return_counts=True))) == counts
+    assert rel.family_level == 0.05 and rel.alpha == pytest.approx(a1, rel=1e-9)
+    crit2 = float(rel.w_critical[(rel.kind == "image") & (rel.q == 2)][0])
+    assert abs(crit2 - np.sqrt(stats.chi2.isf(critical_values(a1, 0.80, 2)[0], 2))) < 1e-9
+    assert 3.99 < crit2 < 4.01
+    # MDB follows the level: sd sqrt(lambda0 / r) with the family's lambda0
+    assert rel.lam0 == pytest.approx(noncentrality(a1, 0.80))
+    i = int(np.flatnonzero(rel.kind == "image")[0])
+    assert rel.mdb[i, 0] == pytest.approx(SD_IMG * np.sqrt(rel.lam0 / rel.redundancy[i, 0]), rel=1e-9)
+    with pytest.raises(ValueError, match=r"^`level` \(alpha of the w-test\) must be in \(0, 0.5\), got 0.0$"):
+        family_alpha(counts, 0.0)
+
+
+def test_family_level_false_alarms_on_clean_blocks(gps_problem, gps):
+    """Clean thesis geometry (simulated noise only): at the family level at most ~5 % of the
+    blocks have any test rejecting; at a fixed 0.001 per test about n * alpha_q good
+    observations are flagged per block (151 image tests x 0.0028)."""
+    rng = np.random.default_rng(21)
+    n, any_family, flagged_fixed = 150, 0, 0
+    start = (np.asarray(gps.eo_params), np.asarray(gps.points_m))
+    for _ in range(n):
+        q = _simulated(gps_problem, gps, rng)
+        r = adjust(q, initial=start, precision="none")
+        any_family += reliability(r).n_rejected > 0
+        flagged_fixed += reliability(r, level=0.001).n_rejected
+    # binomial(150, 0.05): mean 7.5, P(X >= 15) < 0.01; the tests are correlated, so fewer
+    assert any_family <= 14, any_family
+    assert flagged_fixed / n > 0.2, flagged_fixed
 
 
 # --------------------------------------------------------------------------- redundancy numbers
@@ -155,7 +198,7 @@ def test_control_height_error_below_mdb_is_not_detectable_above_it_named(gps_pro
     rel = reliability(gps)
     g = int(np.flatnonzero((rel.kind == "control") & (rel.point == "619"))[0])
     assert 0.04 < rel.redundancy[g, 2] < 0.08
-    assert abs(rel.mdb[g, 2] - SD_CON * np.sqrt(noncentrality() / rel.redundancy[g, 2])) < 1e-9
+    assert abs(rel.mdb[g, 2] - SD_CON * np.sqrt(rel.lam0 / rel.redundancy[g, 2])) < 1e-9
     assert rel.mdb[g, 2] > 4.0
     small = snoop(_with_control_error(gps_problem, "619", [0.0, 0.0, 1.0]), mode="report")
     assert all(b.kind == "image" for b in small.blunders)
@@ -256,7 +299,7 @@ def test_snooping_trials_thesis_geometry(gps_problem, gps):
             err = size[:, None] * np.c_[np.cos(ang), np.sin(ang)] * q.sd_mm[idx]
             # detectability of each blunder: lambda = nabla^T P Q_vv P nabla >= lambda0
             lam = [_noncentrality_of(rel0, q, i, d) for i, d in zip(idx, err)]
-            if min(lam) < noncentrality():
+            if min(lam) < rel0.lam0:
                 continue
             xy = np.array(q.xy_mm)
             xy[idx] += err
@@ -391,15 +434,25 @@ def test_run_adjust_stage_and_run_line_name_the_blunders(tmp_path):
 
     out = stage.run(_Ctx(Survey.load(THESIS_SURVEY), "gps"), tmp_path)
     bl = out["adjustment"]["blunders"]
-    assert [(b["kind"], b["photo"], b["point"], b["removed"]) for b in bl] == [
-        ("image", "3", "407", False), ("image", "2", "702", False), ("image", "5", "709", False)]
+    # family-wise 0.05 over the block's 159 tests: only photo 3 point 407 (w 4.26 > 4.00)
+    assert [(b["kind"], b["photo"], b["point"], b["removed"]) for b in bl] == [("image", "3", "407", False)]
     assert (tmp_path / "blunders.csv").is_file() and (tmp_path / "reliability.csv").is_file()
     assert json.loads((tmp_path / "eop.csv.json").read_text())["provenance"]["parameters"]["snooping"] == "report"
     fake = SimpleNamespace(summary={"survey": {"name": "thesis"}, "runs": {"gps": out}}, stages=(),
                            outdir=tmp_path, ok=True, failed=(), tests_failed=())
     line = [t for t in _text(fake).splitlines() if t.startswith("  run gps:")][0]
-    assert line.endswith("3 blunder(s) remain (w-test): image photo 3 point 407; image photo 2 point 702; "
-                         "image photo 5 point 709")
+    assert line.endswith("1 blunder(s) remain (w-test): image photo 3 point 407")
+
+
+def test_thesis_block_at_a_fixed_level_flags_three_groups(gps_problem):
+    """At 0.001 per test (critical w 3.42) the thesis data hold three rejected groups; at the
+    family level 0.05 (critical w 4.00) only the first, w 4.26."""
+    fixed = snoop(gps_problem, mode="report", level=0.001)
+    assert [(b.photo, b.point, round(b.w, 2)) for b in fixed.blunders] == [
+        ("3", "407", 4.26), ("2", "702", 3.88), ("5", "709", 3.56)]
+    fam = snoop(gps_problem, mode="report")
+    assert [(b.photo, b.point, round(b.w, 2), round(b.w_critical, 2)) for b in fam.blunders] == [
+        ("3", "407", 4.26, 4.0)]
 
 
 def test_report_lists_the_blunders(tmp_path):
@@ -411,10 +464,9 @@ def test_report_lists_the_blunders(tmp_path):
     paths = write_report(tmp_path / "rep", adjustment_dir={"eop": adj["eop"], "points": adj["points"],
                                                            "summary": adj["summary"]})
     md = paths["markdown"].read_text()
-    assert "Data snooping (report, alpha 0.001)" in md
-    for photo, point in (("3", "407"), ("2", "702"), ("5", "709")):
-        assert f"| image | {photo} | {point} |" in md
-    assert md.count("no (kept)") == 3
+    assert "Data snooping (report, alpha 0.000104, family-wise 0.05)" in md
+    assert "| image | 3 | 407 |" in md
+    assert md.count("no (kept)") == 1
 
 
 def test_io_provenance_paths_and_hashes(tmp_path):

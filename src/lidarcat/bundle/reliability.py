@@ -109,7 +109,7 @@ from .problem import BundleProblem
 from .solve import BundleResult, adjust
 
 __all__ = ["Blunder", "Reliability", "SnoopingResult", "SNOOPING_MODES", "ROBUST_METHODS",
-           "noncentrality", "critical_values", "reliability", "snoop"]
+           "FAMILY_LEVEL", "noncentrality", "critical_values", "family_alpha", "reliability", "snoop"]
 
 log = logging.getLogger(__name__)
 
@@ -124,6 +124,8 @@ COMPONENTS = {"image": ("x", "y"), "control": ("E", "N", "h"),
 MIN_REDUNDANCY = 1e-3
 #: IRLS: groups whose weight factor ends below this are removed before snooping
 ROBUST_CUT = 0.1
+#: default family-wise level: probability that a block without blunders has any test rejecting
+FAMILY_LEVEL = 0.05
 #: IRLS: smallest weight factor (sigma x 100: a point keeps a regular normal-equation block)
 ROBUST_FLOOR = 1e-4
 
@@ -165,8 +167,43 @@ def critical_values(alpha: float = 0.001, power: float = 0.80, q: int = 1) -> tu
     def gap(log_a: float) -> float:
         return stats.ncx2.sf(stats.chi2.isf(math.exp(log_a), q), q, lam) - power
 
-    a = math.exp(optimize.brentq(gap, math.log(1e-15), math.log(0.5), xtol=1e-12))
+    a = math.exp(optimize.brentq(gap, math.log(1e-100), math.log(0.5), xtol=1e-12))
     return a, float(stats.chi2.isf(a, q))
+
+
+def family_alpha(n_tests: dict[int, int], family: float = FAMILY_LEVEL, power: float = 0.80) -> float:
+    """alpha_1 of the B-method whose tests together reject a block without blunders with probability *family*.
+
+    Sidak over the tests: with ``n_q`` tests of dimension q, each at the B-method level
+    ``alpha_q(alpha_1)`` of :func:`critical_values`, ``1 - prod_q (1 - alpha_q)^n_q = family``
+    is solved for ``alpha_1``.  The tests of one block are positively correlated, so the
+    true family-wise rate is at most *family* (exactly *family* for independent tests).
+
+    Parameters
+    ----------
+    n_tests : dict q -> number of q-dimensional tests
+    family : float
+        Family-wise level, in (0, 0.5).
+    power : float
+
+    >>> a = family_alpha({2: 1000}, 0.05)
+    >>> round(1 - (1 - critical_values(a, 0.80, 2)[0]) ** 1000, 6)
+    0.05
+    """
+    _check_level(family, power)
+    n_tests = {int(q): int(n) for q, n in n_tests.items() if n > 0 and q > 0}
+    if not n_tests:
+        return family
+    target = -math.log1p(-family)
+
+    def gap(log_a: float) -> float:
+        a = math.exp(log_a)
+        return sum(n * -math.log1p(-critical_values(a, power, q)[0]) for q, n in n_tests.items()) - target
+
+    hi = math.log(min(family, 0.49))
+    if gap(hi) <= 0:               # a single 1-D test: alpha_1 = family
+        return min(family, 0.49)
+    return math.exp(optimize.brentq(gap, math.log(1e-14), hi, xtol=1e-10))
 
 
 def _check_level(alpha: float, power: float) -> None:
@@ -280,6 +317,9 @@ class Reliability:
     alpha, power, lam0 : float
         Level of the 1-D test, power and noncentrality (B-method).
     dof : int
+    family_level : float
+        The family-wise level *alpha* was derived from (:func:`family_alpha`); NaN when
+        *alpha* was given.
     """
 
     kind: np.ndarray
@@ -299,6 +339,7 @@ class Reliability:
     power: float
     lam0: float
     dof: int
+    family_level: float = math.nan
 
     @property
     def ratio(self) -> np.ndarray:
@@ -401,6 +442,8 @@ class SnoopingResult:
         if rel is not None:
             snoop_info.update({
                 "level": rel.alpha, "power": rel.power, "noncentrality": rel.lam0,
+                "family_level": None if math.isnan(rel.family_level) else rel.family_level,
+                "n_tests": int(np.sum(rel.testable)),
                 "critical_w": {str(q): math.sqrt(critical_values(rel.alpha, rel.power, q)[1])
                                for q in sorted(set(int(v) for v in rel.q if v > 0))},
                 "test": "multi-dimensional chi-square per observation group (B-method), a priori "
@@ -476,18 +519,22 @@ def _group_tests(e: np.ndarray, sd: np.ndarray, qy: np.ndarray, lam0: float):
     return r, w_comp, T, nabla, mdb, bnr, qdim
 
 
-def reliability(result: BundleResult, *, level: float = 0.001, power: float = 0.80) -> Reliability:
+def reliability(result: BundleResult, *, level: float | None = None, power: float = 0.80,
+                family_level: float = FAMILY_LEVEL) -> Reliability:
     """Redundancy numbers, tests and reliability of every observation group of *result*.
 
     Parameters
     ----------
     result : BundleResult
         A converged adjustment.
-    level : float
+    level : float, optional
         alpha of the one-dimensional w-test (two-sided); the q-dimensional
-        tests use the B-method levels of :func:`critical_values`.
+        tests use the B-method levels of :func:`critical_values`.  Default:
+        :func:`family_alpha` of this block's tests at *family_level*.
     power : float
         beta0, power of the tests against the noncentrality lambda0.
+    family_level : float
+        Family-wise level used when *level* is None.
 
     Returns
     -------
@@ -498,9 +545,10 @@ def reliability(result: BundleResult, *, level: float = 0.001, power: float = 0.
     DatumError
         The normal equations at the solution are singular.
     """
-    _check_level(level, power)
+    if level is not None:
+        _check_level(level, power)
     p = result.problem
-    lam0 = noncentrality(level, power)
+    lam0 = 1.0                         # MDB and BNR scale with sqrt(lambda0): set once the level is known
     eo, pts = np.asarray(result.eo_params), np.asarray(result.points_m)
     system = _System(p, eo, pts)
     try:
@@ -551,16 +599,23 @@ def reliability(result: BundleResult, *, level: float = 0.001, power: float = 0.
         parts.append(dict(kind="eo", photo=p.photo_ids[k], point=np.full(len(k), "", dtype=object), out=out,
                           eff=eff, eff_photo=p.photo_ids[k]))
 
+    qdim = np.concatenate([part["out"][6] for part in parts]).astype(int)
+    family = math.nan
+    if level is None:
+        family = float(family_level)
+        level = family_alpha(dict(zip(*np.unique(qdim[qdim > 0], return_counts=True))), family, power)
+    lam0 = noncentrality(level, power)
+    scale = math.sqrt(lam0)
+
     def cat(i: int, width: int = 6) -> np.ndarray:
         blocks = []
         for part in parts:
-            a = part["out"][i]
+            a = part["out"][i] * (scale if i in (4, 5) else 1.0)
             if a.ndim == 2:
                 a = np.pad(a, ((0, 0), (0, width - a.shape[1])), constant_values=np.nan)
             blocks.append(a)
         return np.concatenate(blocks)
 
-    qdim = np.concatenate([part["out"][6] for part in parts]).astype(int)
     T = cat(2)
     crit = np.array([math.sqrt(critical_values(level, power, int(q))[1]) if q > 0 else math.nan
                      for q in qdim])
@@ -570,9 +625,9 @@ def reliability(result: BundleResult, *, level: float = 0.001, power: float = 0.
         point=np.concatenate([np.asarray(part["point"], dtype=object) for part in parts]),
         q=qdim, redundancy=cat(0), w_component=cat(1), w=np.sqrt(T), w_critical=crit,
         estimated_error=cat(3), mdb=cat(4), bnr=cat(5),
-        eo_effect=np.concatenate([part["eff"] for part in parts]),
+        eo_effect=scale * np.concatenate([part["eff"] for part in parts]),
         eo_effect_photo=np.concatenate([np.asarray(part["eff_photo"], dtype=object) for part in parts]),
-        alpha=float(level), power=float(power), lam0=lam0, dof=int(p.dof))
+        alpha=float(level), power=float(power), lam0=lam0, dof=int(p.dof), family_level=family)
 
 
 def _best_component(bnr: np.ndarray) -> np.ndarray:
@@ -689,8 +744,9 @@ def snoop(
     problem: BundleProblem,
     *,
     mode: str = "remove",
-    level: float = 0.001,
+    level: float | None = None,
     power: float = 0.80,
+    family_level: float = FAMILY_LEVEL,
     robust: str = "none",
     max_rejections: int = 100,
     backward: bool = True,
@@ -706,10 +762,18 @@ def snoop(
         ``off``: adjust only.  ``report``: find the blunders as ``remove`` does
         but return the adjustment of all observations, the blunders listed with
         ``removed=False``.  ``remove``: return the adjustment without them.
-    level, power : float
-        alpha of the one-dimensional w-test and the power (B-method, see the
-        module docstring); the defaults 0.001 / 0.80 give critical w 3.29
-        (q = 1), 3.42 (q = 2), 3.55 (q = 3), 3.92 (q = 6).
+    level : float, optional
+        alpha of the one-dimensional w-test (B-method, see the module docstring);
+        e.g. 0.001 gives critical w 3.29 (q = 1), 3.42 (q = 2), 3.55 (q = 3), 3.92
+        (q = 6).  Default: :func:`family_alpha` of the tests of the first adjustment
+        at *family_level*, kept for every re-adjustment (the family is the block's
+        tests); on the thesis block (159 tests) alpha_1 = 1.04e-4, critical w 4.00
+        for q = 2.
+    power : float
+        Power of the tests (0.80).
+    family_level : float
+        Probability that a block without blunders has any test rejecting, when *level*
+        is None (0.05).
     robust : {"none", "danish", "huber"}
         Run iteratively re-weighted least squares first and remove the groups
         it weights down below :data:`ROBUST_CUT` in one go (large blocks with
@@ -742,7 +806,9 @@ def snoop(
         raise ValueError(f"`snooping` must be one of {', '.join(SNOOPING_MODES)}, got {mode!r}")
     if robust not in ROBUST_METHODS:
         raise ValueError(f"`robust` must be one of {', '.join(ROBUST_METHODS)}, got {robust!r}")
-    _check_level(level, power)
+    if level is not None:
+        _check_level(level, power)
+    _check_level(family_level, power)
     final_precision = adjust_kwargs.pop("precision", "all")
     first = adjust(problem, precision=final_precision, **adjust_kwargs)
     if mode == "off":
@@ -753,7 +819,9 @@ def snoop(
                   np.ones(0 if p.eo_constraint_photo_index is None else len(p.eo_constraint_photo_index), bool))
     blunders: list[Blunder] = []
     res, cur = first, p
-    rel_first = reliability(first, level=level, power=power) if first.success else None
+    rel_first = reliability(first, level=level, power=power, family_level=family_level) if first.success else None
+    if rel_first is not None:
+        level = rel_first.alpha          # the family is the first adjustment's tests
     rel = rel_first
     more = False
     if robust != "none" and first.success:
@@ -818,6 +886,8 @@ def snoop(
                        precision=final_precision, **adjust_kwargs)
         final_rel = rel
         n_adj += 1
+    if final_rel is not None and rel_first is not None:
+        final_rel = dataclasses.replace(final_rel, family_level=rel_first.family_level)
     return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj)
 
 

@@ -65,7 +65,8 @@ def format_blunders(summary: dict) -> list[str]:
         return []
     blunders = summary.get("blunders") or []
     crit = ", ".join(f"{v:.2f} (q={k})" for k, v in (sn.get("critical_w") or {}).items())
-    lines = ["", f"Data snooping ({sn['mode']}, alpha {sn.get('level', float('nan')):g}, power "
+    fam = f"family-wise {sn['family_level']:g} over {sn.get('n_tests')} tests, " if sn.get("family_level") else ""
+    lines = ["", f"Data snooping ({sn['mode']}, {fam}alpha {sn.get('level', float('nan')):.3g}, power "
                  f"{sn.get('power', float('nan')):g}; critical w {crit}): "
                  + (f"{len(blunders)} blunder(s)" if blunders else "no blunder found")]
     for b in blunders[:MAX_LISTED]:
@@ -122,10 +123,17 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="Baarda's data snooping: test every image observation, control point and GNSS/INS "
                    "constraint (w-test), one rejection per re-adjustment. 'report' names the blunders "
                    "and keeps them in the adjustment; 'remove' adjusts without them.")
-@click.option("--snooping-level", type=click.FloatRange(1e-9, 0.5, min_open=True, max_open=True),
-              default=0.001, show_default=True,
-              help="alpha of the one-dimensional w-test (power 0.80; 2-D and 3-D tests use the "
-                   "B-method levels with the same power).")
+@click.option("--family-level", type=click.FloatRange(0, 0.5, min_open=True, max_open=True),
+              default=0.05, show_default=True,
+              help="Probability that a block without blunders has any test rejecting: the level of each "
+                   "test follows from the number of tests (Sidak over the B-method levels), so a clean "
+                   "block of any size ends with about this many false alarms. On the thesis block "
+                   "(159 tests) this is alpha 1.0e-4 per 1-D test, critical w 4.00 for an image point.")
+@click.option("--snooping-level", type=click.FloatRange(1e-12, 0.5, min_open=True, max_open=True),
+              default=None,
+              help="Fix the alpha of the one-dimensional w-test instead (power 0.80; 2-D and 3-D tests use "
+                   "the B-method levels with the same power); e.g. 0.001, critical w 3.29. Each test then "
+                   "rejects a good observation with about this probability: n x alpha false alarms.")
 @click.option("--robust", type=click.Choice(["none", "danish", "huber"]), default="none", show_default=True,
               help="Iteratively re-weighted least squares before snooping (many blunders, large blocks).")
 @click.option("--self-calibrate", metavar="PARAMS", default=None,
@@ -142,7 +150,7 @@ def exit_status(summary: dict) -> tuple[int, str]:
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
            variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str,
-           snooping_level: float, robust: str, self_calibrate: str | None, frame_offset: str | None,
+           family_level: float, snooping_level: float | None, robust: str, self_calibrate: str | None, frame_offset: str | None,
            similarity: bool | None, as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
@@ -200,6 +208,7 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
         _, out = adjust_survey(loaded, control=control, observations=observations, outdir=outdir,
                                variance_factor=variance_factor, eo_constraints=eo_constraints,
                                max_iter=max_iter, snooping=snooping, snooping_level=snooping_level,
+                               family_level=family_level,
                                robust=robust, precision=precision)
     # what was written is what is shown
     summary = {**json.loads((Path(out) / "summary.json").read_text(encoding="utf-8")), "outdir": str(out)}
