@@ -7,7 +7,7 @@ Part 1 -- the thesis geometry (6 photos, 151 image observations, 8 GPS control p
 observations are simulated from the adjusted thesis solution (the truth) with Gaussian noise of
 the stated sigmas, so every observation except the injected ones is good by construction.  Each
 trial puts 1, 3 or 5 blunders of 10-50 sigma in random directions on random image observations and
-runs ``snoop(mode="remove")`` (alpha 0.001, power 0.80).  Printed per blunder count: share of the
+runs ``snoop(mode="remove")`` (``--level``: family-wise 0.05 by default, power 0.80).  Printed per blunder count: share of the
 trials in which every injected blunder was named, the same over the trials in which every blunder
 is above its minimal detectable bias in its direction (lambda >= lambda0; below it no test can see
 it), and the mean number of good observations named per trial.
@@ -56,17 +56,19 @@ def _whitened_qvv(p, res):
     return qvv / (p.sd_mm[:, :, None] * p.sd_mm[:, None, :])
 
 
-def thesis_trials(n_trials: int) -> list[dict]:
+def thesis_trials(n_trials: int, level: float | None = None, robust: str = "none",
+                  counts: tuple[int, ...] = (1, 3, 5)) -> list[dict]:
     from lidarcat.bundle import adjust, problem_from_survey
-    from lidarcat.bundle.reliability import noncentrality, snoop
+    from lidarcat.bundle.reliability import reliability, snoop
     from lidarcat.survey import Survey
 
     p = problem_from_survey(Survey.load(), control="gps", observations="corrected")
     truth = adjust(p)
     wq = _whitened_qvv(p, truth)
-    lam0 = noncentrality()
+    rel = reliability(truth, level=level)        # None: the family-wise level of the block's 159 tests
+    lam0 = rel.lam0
     rows = []
-    for n_bl in (1, 3, 5):
+    for n_bl in counts:
         rng = np.random.default_rng(1000 + n_bl)
         found = found_det = n_det = wrong = 0
         t0 = time.perf_counter()
@@ -79,7 +81,7 @@ def thesis_trials(n_trials: int) -> list[dict]:
             detectable = all(float(v @ wq[i] @ v) >= lam0 for i, v in zip(idx, d))
             xy = np.array(q.xy_mm)
             xy[idx] += d * q.sd_mm[idx]
-            sr = snoop(dataclasses.replace(q, xy_mm=xy), mode="remove")
+            sr = snoop(dataclasses.replace(q, xy_mm=xy), mode="remove", level=level, robust=robust)
             injected = {(q.photo_ids[q.photo_index[i]], q.point_ids[q.point_index[i]]) for i in idx}
             named = {(b.photo, b.point) for b in sr.blunders}
             ok = injected <= named
@@ -87,7 +89,7 @@ def thesis_trials(n_trials: int) -> list[dict]:
             n_det += detectable
             found_det += ok and detectable
             wrong += len(named - injected)
-        rows.append({"blunders": n_bl, "trials": n_trials, "all_named_%": 100 * found / n_trials,
+        rows.append({"level": f"{rel.alpha:.3g}", "robust": robust, "blunders": n_bl, "trials": n_trials, "all_named_%": 100 * found / n_trials,
                      "detectable_trials": n_det, "named_if_detectable_%": 100 * found_det / max(n_det, 1),
                      "good_named_per_trial": wrong / n_trials, "s_per_trial": (time.perf_counter() - t0) / n_trials})
     return rows
@@ -163,11 +165,18 @@ def main() -> None:
     ap.add_argument("--per-strip", type=int, default=50)
     ap.add_argument("--skip-trials", action="store_true")
     ap.add_argument("--skip-large", action="store_true")
+    ap.add_argument("--level", default="family",
+                    help="alpha_1 of the w-tests of the thesis trials, or 'family' (family-wise 0.05, default), "
+                         "or 'both' (family and 0.001 side by side)")
+    ap.add_argument("--robust", default="none", help="robust start of the thesis trials (none, danish, huber)")
+    ap.add_argument("--counts", default="1,3,5", help="numbers of blunders per trial")
     a = ap.parse_args()
     print(f"load average at start: {os.getloadavg()[0]:.2f}")
     if not a.skip_trials:
-        print("\nThesis geometry, simulated noise, blunders of 10-50 sigma (snoop remove, alpha 0.001):")
-        print(_table(thesis_trials(a.trials)), flush=True)
+        levels = {"family": [None], "both": [None, 0.001]}.get(a.level) or [float(a.level)]
+        counts = tuple(int(c) for c in a.counts.split(","))
+        print("\nThesis geometry, simulated noise, blunders of 10-50 sigma (snoop remove):")
+        print(_table([r for lv in levels for r in thesis_trials(a.trials, lv, a.robust, counts)]), flush=True)
     if not a.skip_large:
         print(f"\nSynthetic block {a.strips} x {a.per_strip}, 1 % of the image observations corrupted:")
         print(_table([large_block(a.strips, a.per_strip)]))

@@ -215,3 +215,27 @@ def test_precision_option(tmp_path, gps_run):
     assert not (out / "check_covariance.csv").exists() and (full / "check_covariance.csv").exists()
     bad = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--precision", "some"])
     assert bad.exit_code == 2 and "'some' is not one of 'all', 'photos', 'none'" in bad.output
+
+
+def test_snooping_with_additional_parameters_refused_or_off(tmp_path):
+    """Data snooping needs the plain adjustment: with --self-calibrate / --frame-offset an explicit
+    --snooping report|remove or --robust is refused (exit 2, nothing written); by default it is off
+    and the output says why."""
+    from lidarcat.bundle.selfcal_survey import SNOOPING_WITH_PARAMETERS
+
+    for extra, opt in ((["--snooping", "remove"], "--snooping remove"), (["--snooping", "report"],
+                       "--snooping report"), (["--robust", "danish"], "--robust danish")):
+        r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--self-calibrate", "c", *extra,
+                                     "-o", str(tmp_path / "x")])
+        assert r.exit_code == 2, r.output
+        assert r.output.endswith(f"Error: {opt}: {SNOOPING_WITH_PARAMETERS}\n")
+        assert not (tmp_path / "x").exists()
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--self-calibrate", "c", "--snooping", "off",
+                                 "-o", str(tmp_path / "off")])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--self-calibrate", "c", "-o", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    assert r.output.endswith(f"Note: {SNOOPING_WITH_PARAMETERS}.\n")
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert s["snooping"] == {"mode": "off", "reason": SNOOPING_WITH_PARAMETERS}
+    assert "blunders" not in s and not (tmp_path / "o" / "blunders.csv").exists()

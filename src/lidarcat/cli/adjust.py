@@ -118,11 +118,12 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="Standard deviations to compute: of every photo and point ('all'), of the photos only "
                    "('photos': point sd_* empty), or none (fastest on blocks of thousands of photos; "
                    "no check_covariance.csv).")
-@click.option("--snooping", type=click.Choice(["off", "report", "remove"]), default="report",
-              show_default=True,
+@click.option("--snooping", type=click.Choice(["off", "report", "remove"]), default=None,
               help="Baarda's data snooping: test every image observation, control point and GNSS/INS "
-                   "constraint (w-test), one rejection per re-adjustment. 'report' names the blunders "
-                   "and keeps them in the adjustment; 'remove' adjusts without them.")
+                   "constraint (w-test), one rejection per re-adjustment. 'report' (the default) names the "
+                   "blunders and keeps them in the adjustment; 'remove' adjusts without them. Not available "
+                   "with --self-calibrate/--frame-offset (there the default is off and report/remove are "
+                   "refused).")
 @click.option("--family-level", type=click.FloatRange(0, 0.5, min_open=True, max_open=True),
               default=0.05, show_default=True,
               help="Probability that a block without blunders has any test rejecting: the level of each "
@@ -191,14 +192,21 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     survey.toml) summary.json gains additional_parameters, frame_offset,
     parameter_groups, parameters_off/parameters_on (v'Pv without and with them)
     and warnings; a control set 'a+b' joins two sets of control_sets.csv. Data
-    snooping and --robust apply to the plain adjustment only.
+    snooping and --robust apply to the plain adjustment only: with parameters
+    they are refused (exit 2) and the default is off; find the blunders first
+    without the parameters.
     """
     from ..bundle import adjust_survey
-    from ..bundle.selfcal_survey import adjust_survey_with_parameters, format_parameters, wants_parameters
+    from ..bundle.selfcal_survey import (SNOOPING_WITH_PARAMETERS, adjust_survey_with_parameters, format_parameters,
+                                         wants_parameters)
     from ..survey import Survey
 
     loaded = Survey.load(survey)  # once, for both paths
-    if wants_parameters(loaded, self_calibrate, frame_offset):
+    with_parameters = wants_parameters(loaded, self_calibrate, frame_offset)
+    if with_parameters and (snooping not in (None, "off") or robust != "none"):
+        opt = f"--snooping {snooping}" if snooping not in (None, "off") else f"--robust {robust}"
+        raise click.UsageError(f"{opt}: {SNOOPING_WITH_PARAMETERS}")
+    if with_parameters:
         _, out = adjust_survey_with_parameters(
             loaded, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
             similarity=similarity, observations=observations, outdir=outdir,
@@ -207,7 +215,7 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     else:
         _, out = adjust_survey(loaded, control=control, observations=observations, outdir=outdir,
                                variance_factor=variance_factor, eo_constraints=eo_constraints,
-                               max_iter=max_iter, snooping=snooping, snooping_level=snooping_level,
+                               max_iter=max_iter, snooping=snooping or "report", snooping_level=snooping_level,
                                family_level=family_level,
                                robust=robust, precision=precision)
     # what was written is what is shown
@@ -219,6 +227,8 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
         click.echo(format_report(summary, str(out)))
         if "additional_parameters" in summary:
             click.echo(format_parameters(summary))
+        if (summary.get("snooping") or {}).get("reason"):
+            click.echo(f"Note: {summary['snooping']['reason']}.")
     if code:
         click.echo(f"Warning: {verdict}.", err=True)
         sys.exit(code)
