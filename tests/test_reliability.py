@@ -447,9 +447,14 @@ def test_run_adjust_stage_and_run_line_name_the_blunders(tmp_path):
 def test_thesis_block_at_a_fixed_level_flags_three_groups(gps_problem):
     """At 0.001 per test (critical w 3.42) the thesis data hold three rejected groups; at the
     family level 0.05 (critical w 4.00) only the first, w 4.26."""
-    fixed = snoop(gps_problem, mode="report", level=0.001)
+    fixed = snoop(gps_problem, mode="report", level=0.001, multiple=False)
     assert [(b.photo, b.point, round(b.w, 2)) for b in fixed.blunders] == [
         ("3", "407", 4.26), ("2", "702", 3.88), ("5", "709", 3.56)]
+    # several per round: every point of this block is seen from photos that share points with
+    # all the others, so no two groups are separate: the classic one per round
+    both = snoop(gps_problem, mode="report", level=0.001)
+    assert [(b.photo, b.point, b.w, b.iteration) for b in both.blunders] == [
+        (b.photo, b.point, b.w, b.iteration) for b in fixed.blunders]
     fam = snoop(gps_problem, mode="report")
     assert [(b.photo, b.point, round(b.w, 2), round(b.w_critical, 2)) for b in fam.blunders] == [
         ("3", "407", 4.26, 4.0)]
@@ -486,3 +491,39 @@ def test_io_provenance_paths_and_hashes(tmp_path):
     assert json.loads(csv_sidecar_path(out).read_text())["provenance"] == prov
     write_csv_atomic(out, ["x"], [[1]])                               # neither: the stale sidecar goes
     assert not csv_sidecar_path(out).exists()
+
+
+def test_several_rejections_per_round_only_when_separate():
+    """Blunders on photos far apart are removed in one round; two on neighbouring photos (which
+    share points) in two rounds; the result is the one of one-at-a-time snooping."""
+    b = synthetic_block(3, 8, seed=3)
+    p = b.problem
+    from lidarcat.bundle.reliability import _Neighbours
+
+    near = _Neighbours(p)
+    adj = near.adj.toarray() > 0
+    ph = p.photo_index
+    # one blunder on photo 0, one on a photo sharing no point with it, one on a neighbour of photo 0
+    # (each on its own point seen on three or more photos)
+    far = int(np.flatnonzero(~adj[0])[-1])
+    neighbour = int(np.flatnonzero(adj[0])[1])
+    rays = np.bincount(p.point_index)[p.point_index]
+    idx, used = [], set()
+    for k in (0, far, neighbour):
+        i = next(int(i) for i in np.flatnonzero((ph == k) & (rays >= 3)) if p.point_index[i] not in used)
+        used.add(p.point_index[i])
+        idx.append(i)
+    xy = np.array(p.xy_mm)
+    xy[idx] += np.array([[40.0, 0.0], [0.0, -40.0], [30.0, 30.0]]) * p.sd_mm[idx]
+    bad = dataclasses.replace(p, xy_mm=xy)
+    one = snoop(bad, mode="remove", multiple=False, backward=False)
+    several = snoop(bad, mode="remove", backward=False)
+    named = [(x.photo, x.point) for x in one.blunders]
+    assert len(named) == 3 and {(x.photo, x.point) for x in several.blunders} == set(named)
+    assert [x.iteration for x in one.blunders] == [1, 2, 3]
+    rounds = {(x.photo, x.point): x.iteration for x in several.blunders}
+    assert sorted(rounds.values()) == [1, 1, 2]             # three blunders, two rounds
+    far_key = (p.photo_ids[far], p.point_ids[p.point_index[idx[1]]])
+    assert rounds[far_key] == 1                             # the separate one goes with the first
+    assert several.n_adjustments == one.n_adjustments - 1
+    np.testing.assert_allclose(several.result.eo_params, one.result.eo_params, atol=1e-9)

@@ -750,6 +750,7 @@ def snoop(
     robust: str = "none",
     max_rejections: int = 100,
     backward: bool = True,
+    multiple: bool = True,
     on_rejection: Callable[[Blunder], None] | None = None,
     **adjust_kwargs: Any,
 ) -> SnoopingResult:
@@ -779,7 +780,13 @@ def snoop(
         it weights down below :data:`ROBUST_CUT` in one go (large blocks with
         many blunders); snooping then tests the rest.
     max_rejections : int
-        Stop after this many one-at-a-time rejections (``more_remain`` tells).
+        Stop after this many rejections (``more_remain`` tells).
+    multiple : bool
+        Remove in one round, besides the group with the largest test ratio, every other
+        rejected group that is *separate* from those already picked in that round: no
+        photo that sees its point is, or shares a point with, such a photo of a picked
+        group (:func:`_round_picks`).  On a block whose photos all share points (the thesis
+        block) this is the classic one rejection per round.
     backward : bool
         After snooping stops, put back a rejected image observation when every test passes
         with it, or exchange it for another ray of its point when that lowers v'Pv
@@ -828,20 +835,24 @@ def snoop(
         res, cur, rel, found, k = _robust(p, sub, first, rel, robust, level, power, adjust_kwargs)
         blunders += found
         n_adj += k
-    iteration = 0
+    iteration = n_rej = 0
+    near = _Neighbours(p) if multiple else None
+    single = False                 # after a failed multiple round: one group at a time
     for _round in range(20):
         while rel is not None:
             g = rel.worst()
             if g is None or rel.ratio[g] <= 1:
                 break
-            if iteration >= max_rejections:
+            if n_rej >= max_rejections:
                 more = True
-                log.warning("data snooping stopped after %d rejections; tests still reject", iteration)
+                log.warning("data snooping stopped after %d rejections; tests still reject", n_rej)
                 break
+            picks = [g] if near is None or single else _round_picks(rel, near, max_rejections - n_rej)
             iteration += 1
-            bl = rel.blunder(g, removed=True, iteration=iteration)
             saved = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
-            partners = sub.remove(p, bl.kind, bl.photo, bl.point)
+            found: list[Blunder] = []
+            for gg in picks:
+                found += _remove_group(p, sub, rel, gg, iteration)
             try:
                 nxt, _, _ = sub.problem(p)
                 warm = (np.asarray(res.eo_params), _warm_points(res, nxt))
@@ -852,24 +863,22 @@ def snoop(
                 rel_new = reliability(res_new, level=level, power=power)
             except (DatumError, ValueError) as ex:
                 sub = saved
-                blunders.append(dataclasses.replace(bl, removed=False, note=f"not removed: {ex}"))
+                if len(picks) > 1:          # try again with the largest ratio alone
+                    iteration -= 1
+                    single = True
+                    continue
+                blunders.append(dataclasses.replace(found[0], removed=False, note=f"not removed: {ex}"))
                 more = True
-                log.warning("data snooping: %s not removed: %s", bl.label(), ex)
+                log.warning("data snooping: %s not removed: %s", found[0].label(), ex)
                 break
-            blunders.append(bl)
-            for ph in partners if bl.kind == "control" else ():
-                blunders[-1] = dataclasses.replace(bl, note=f"its only ray (photo {ph}) removed with it")
-            for ph in partners if bl.kind == "image" else ():   # a two-ray point: the rays are not separable
-                other = np.flatnonzero((rel.kind == "image") & (rel.photo == ph) & (rel.point == bl.point))
-                note = (f"point {bl.point} is on two photos only: its rays on photos {bl.photo} and {ph} "
-                        "cannot be told apart; both removed")
-                blunders[-1] = dataclasses.replace(bl, note=note)
-                if len(other):
-                    blunders.append(rel.blunder(int(other[0]), removed=True, iteration=iteration, note=note))
-            log.info("data snooping: rejected %s (w %.2f > %.2f)", bl.label(), bl.w, bl.w_critical)
+            single = False
+            blunders += found
+            n_rej += len(picks)
+            for bl in found:
+                log.info("data snooping: rejected %s (w %.2f > %.2f)", bl.label(), bl.w, bl.w_critical)
+                if on_rejection is not None:
+                    on_rejection(bl)
             res, cur, rel = res_new, nxt, rel_new
-            if on_rejection is not None:
-                on_rejection(bl)
         if more or rel is None or not backward:
             break
         # backward step: re-insert or exchange a rejected observation when the data prefer it
@@ -889,6 +898,77 @@ def snoop(
     if final_rel is not None and rel_first is not None:
         final_rel = dataclasses.replace(final_rel, family_level=rel_first.family_level)
     return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj)
+
+
+def _remove_group(p: BundleProblem, sub: _Subset, rel: Reliability, g: int, iteration: int) -> list[Blunder]:
+    """Remove group *g* of *rel* from *sub*; its :class:`Blunder` records (two for a two-ray point)."""
+    bl = rel.blunder(g, removed=True, iteration=iteration)
+    partners = sub.remove(p, bl.kind, bl.photo, bl.point)
+    out = [bl]
+    for ph in partners if bl.kind == "control" else ():
+        out[0] = dataclasses.replace(bl, note=f"its only ray (photo {ph}) removed with it")
+    for ph in partners if bl.kind == "image" else ():   # a two-ray point: the rays are not separable
+        other = np.flatnonzero((rel.kind == "image") & (rel.photo == ph) & (rel.point == bl.point))
+        note = (f"point {bl.point} is on two photos only: its rays on photos {bl.photo} and {ph} "
+                "cannot be told apart; both removed")
+        out[0] = dataclasses.replace(bl, note=note)
+        if len(other):
+            out.append(rel.blunder(int(other[0]), removed=True, iteration=iteration, note=note))
+    return out
+
+
+class _Neighbours:
+    """Photos of the original problem that share a point (or are the same photo), and the photos of
+    every point: the footprint of a group for :func:`_round_picks`."""
+
+    def __init__(self, p: BundleProblem) -> None:
+        from scipy import sparse
+
+        inc = sparse.csr_matrix((np.ones(len(p.photo_index)), (p.photo_index, p.point_index)),
+                                shape=(p.n_photos, p.n_points))
+        self.adj = (inc @ inc.T + sparse.identity(p.n_photos, format="csr")).tocsr()
+        self.of_point = inc.T.tocsr()
+        self.photo_pos = {str(q): i for i, q in enumerate(p.photo_ids)}
+        self.point_pos = {str(q): i for i, q in enumerate(p.point_ids)}
+
+    def footprint(self, kind: str, photo: str, point: str) -> np.ndarray:
+        """Photos whose unknowns the group's test depends on most: every photo that sees its point
+        (image observation, control point), or its photo (GNSS/INS constraint)."""
+        if kind != "eo":
+            j = self.point_pos[point]
+            return self.of_point.indices[self.of_point.indptr[j]:self.of_point.indptr[j + 1]]
+        return np.array([self.photo_pos[photo]])
+
+    def around(self, photos: np.ndarray) -> np.ndarray:
+        return np.unique(np.concatenate([self.adj.indices[self.adj.indptr[i]:self.adj.indptr[i + 1]]
+                                         for i in photos])) if len(photos) else photos
+
+
+def _round_picks(rel: Reliability, near: _Neighbours, limit: int) -> list[int]:
+    """Rejected groups removed together in one round, largest test ratio first.
+
+    Rule: a group is picked when none of its photos (an image observation or a control
+    point: every photo that sees its point; a GNSS/INS constraint: its photo) is a photo of
+    a group picked before it in this round or shares a point with one.  Two such groups
+    share no unknown and no observation, and neither do the other rays of their points, so
+    their residuals are correlated only through the rest of the network (weakly): one
+    cannot be the reason the other's test rejects, and both are what one-at-a-time snooping
+    would find in two rounds.
+    """
+    ratio = np.where(rel.testable, np.nan_to_num(rel.ratio, nan=-np.inf), -np.inf)
+    cand = np.flatnonzero(ratio > 1)
+    cand = cand[np.argsort(-ratio[cand], kind="stable")]
+    blocked = np.zeros(near.adj.shape[0], dtype=bool)
+    picks: list[int] = []
+    for g in cand:
+        if len(picks) >= limit:
+            break
+        fp = near.footprint(str(rel.kind[g]), str(rel.photo[g]), str(rel.point[g]))
+        if blocked[fp].any():
+            continue
+        picks.append(int(g))
+        blocked[near.around(fp)] = True
+    return picks
 
 
 def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs):
