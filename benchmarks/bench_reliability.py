@@ -56,6 +56,76 @@ def _whitened_qvv(p, res):
     return qvv / (p.sd_mm[:, :, None] * p.sd_mm[:, None, :])
 
 
+def _dense_qvv(p, res):
+    """Dense (2n + 3k)^2 cofactor of the residuals Q_ll - A N^-1 A^T (small blocks only: the thesis)."""
+    from lidarcat._collinearity import project_with_jacobians
+
+    eo, pts = np.asarray(res.eo_params), np.asarray(res.points_m)
+    ei, pj = p.photo_index, p.point_index
+    _, a_eo, a_pt, _ = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
+    n, k = len(ei), len(p.constraint_point_index)
+    u = 6 * p.n_photos + 3 * p.n_points
+    A = np.zeros((2 * n + 3 * k, u))
+    for a in range(n):
+        A[2 * a:2 * a + 2, 6 * ei[a]:6 * ei[a] + 6] = a_eo[a]
+        A[2 * a:2 * a + 2, 6 * p.n_photos + 3 * pj[a]:6 * p.n_photos + 3 * pj[a] + 3] = a_pt[a]
+    for c, j in enumerate(p.constraint_point_index):
+        A[2 * n + 3 * c:2 * n + 3 * c + 3, 6 * p.n_photos + 3 * j:6 * p.n_photos + 3 * j + 3] = np.eye(3)
+    qll = np.r_[p.sd_mm.ravel() ** 2, p.constraint_sd_m.ravel() ** 2]
+    N = A.T @ (A / qll[:, None])
+    return np.diag(qll) - A @ np.linalg.solve(N, A.T), qll
+
+
+class _Identification:
+    """Probability that one-at-a-time snooping names a single blunder first (its own test has the
+    largest ratio and rejects; for a two-ray point either ray), by Monte Carlo over the noise:
+    e ~ N(Q_vv P C nabla, Q_vv) with the dense Q_vv of the thesis block.  The max-ratio rule is the
+    maximum-likelihood choice among the single-blunder alternatives, so this is the ceiling of the
+    found-rate for that blunder; with several blunders the product over them is used as an
+    approximate ceiling (it ignores their interaction)."""
+
+    def __init__(self, p, res, level, power, draws=2000, seed=99):
+        from lidarcat.bundle.reliability import critical_values
+
+        self.p, self.draws = p, draws
+        self.qvv, self.qll = _dense_qvv(p, res)
+        w, v = np.linalg.eigh(self.qvv)
+        self.L = v * np.sqrt(np.clip(w, 0, None))
+        self.n, self.k = len(p.photo_index), len(p.constraint_point_index)
+        blocks = [self.qvv[2 * a:2 * a + 2, 2 * a:2 * a + 2] for a in range(self.n)]
+        self.qy_img = np.array([np.diag(p.sd_mm[a] ** 2) - blocks[a] for a in range(self.n)])
+        cb = [self.qvv[2 * self.n + 3 * c:2 * self.n + 3 * c + 3, 2 * self.n + 3 * c:2 * self.n + 3 * c + 3]
+              for c in range(self.k)]
+        self.qy_con = np.array([np.diag(p.constraint_sd_m[c] ** 2) - cb[c] for c in range(self.k)])
+        self.crit = {q: critical_values(level, power, q)[1] for q in (1, 2, 3)}
+        self.rng = np.random.default_rng(seed)
+        rays = np.bincount(p.point_index)
+        self.partner = np.full(self.n, -1)
+        for a in range(self.n):
+            if rays[p.point_index[a]] == 2:
+                self.partner[a] = next(b for b in np.flatnonzero(p.point_index == p.point_index[a]) if b != a)
+
+    def probability(self, a, nabla_mm):
+        from lidarcat.bundle.reliability import _group_tests
+
+        d = np.zeros(len(self.qll))
+        d[2 * a:2 * a + 2] = nabla_mm
+        mean = self.qvv @ (d / self.qll)
+        e = mean + self.rng.standard_normal((self.draws, len(self.qll))) @ self.L.T
+        m = self.draws
+        ei = e[:, :2 * self.n].reshape(m * self.n, 2)
+        out = _group_tests(ei, np.tile(self.p.sd_mm, (m, 1)), np.tile(self.qy_img, (m, 1, 1)), 1.0)
+        T_img, q_img = out[2].reshape(m, self.n), out[6].reshape(m, self.n)
+        ec = e[:, 2 * self.n:].reshape(m * self.k, 3)
+        out = _group_tests(ec, np.tile(self.p.constraint_sd_m, (m, 1)), np.tile(self.qy_con, (m, 1, 1)), 1.0)
+        T_con, q_con = out[2].reshape(m, self.k), out[6].reshape(m, self.k)
+        kq = np.vectorize(lambda q: self.crit.get(int(q), np.inf))
+        ratio = np.nan_to_num(np.c_[T_img / kq(q_img), T_con / kq(q_con)], nan=-1.0)
+        best = np.argmax(ratio, axis=1)
+        hit = (best == a) | ((self.partner[a] >= 0) & (best == self.partner[a]))
+        return float(np.mean(hit & (ratio[np.arange(m), best] > 1)))
+
+
 def thesis_trials(n_trials: int, level: float | None = None, robust: str = "none",
                   counts: tuple[int, ...] = (1, 3, 5)) -> list[dict]:
     from lidarcat.bundle import adjust, problem_from_survey
@@ -67,10 +137,12 @@ def thesis_trials(n_trials: int, level: float | None = None, robust: str = "none
     wq = _whitened_qvv(p, truth)
     rel = reliability(truth, level=level)        # None: the family-wise level of the block's 159 tests
     lam0 = rel.lam0
+    ident = _Identification(p, truth, rel.alpha, rel.power)
     rows = []
     for n_bl in counts:
         rng = np.random.default_rng(1000 + n_bl)
         found = found_det = n_det = wrong = 0
+        ceiling = []
         t0 = time.perf_counter()
         for _ in range(n_trials):
             q = _truth_sim(p, truth, rng)
@@ -79,6 +151,8 @@ def thesis_trials(n_trials: int, level: float | None = None, robust: str = "none
             ang = rng.uniform(0, 2 * np.pi, n_bl)
             d = size[:, None] * np.c_[np.cos(ang), np.sin(ang)]        # in sigmas
             detectable = all(float(v @ wq[i] @ v) >= lam0 for i, v in zip(idx, d))
+            if detectable:
+                ceiling.append(np.prod([ident.probability(int(i), v * q.sd_mm[i]) for i, v in zip(idx, d)]))
             xy = np.array(q.xy_mm)
             xy[idx] += d * q.sd_mm[idx]
             sr = snoop(dataclasses.replace(q, xy_mm=xy), mode="remove", level=level, robust=robust)
@@ -91,11 +165,13 @@ def thesis_trials(n_trials: int, level: float | None = None, robust: str = "none
             wrong += len(named - injected)
         rows.append({"level": f"{rel.alpha:.3g}", "robust": robust, "blunders": n_bl, "trials": n_trials, "all_named_%": 100 * found / n_trials,
                      "detectable_trials": n_det, "named_if_detectable_%": 100 * found_det / max(n_det, 1),
+                     "identification_ceiling_%": 100 * float(np.mean(ceiling)) if ceiling else float("nan"),
                      "good_named_per_trial": wrong / n_trials, "s_per_trial": (time.perf_counter() - t0) / n_trials})
     return rows
 
 
-def large_block(strips: int, per_strip: int, share: float = 0.01) -> dict:
+def large_block(strips: int, per_strip: int, share: float = 0.01, *, robust: str = "danish",
+                multiple: bool = True, max_rejections: int = 1000, clean_run: dict | None = None) -> dict:
     from lidarcat._synthetic_block import synthetic_block
     from lidarcat.bundle import adjust
     from lidarcat.bundle.reliability import snoop
@@ -103,9 +179,14 @@ def large_block(strips: int, per_strip: int, share: float = 0.01) -> dict:
     b = synthetic_block(strips, per_strip, seed=1)
     p = b.problem
     n = len(p.photo_index)
-    t0 = time.perf_counter()
-    clean = adjust(p, precision="photos")
-    t_clean = time.perf_counter() - t0
+    if clean_run is None or not clean_run:
+        t0 = time.perf_counter()
+        clean = adjust(p, precision="photos")
+        t_clean = time.perf_counter() - t0
+        if clean_run is not None:
+            clean_run.update(result=clean, seconds=t_clean)
+    else:
+        clean, t_clean = clean_run["result"], clean_run["seconds"]
     rng = np.random.default_rng(7)
     idx = rng.choice(n, int(round(share * n)), replace=False)
     ang = rng.uniform(0, 2 * np.pi, len(idx))
@@ -116,11 +197,11 @@ def large_block(strips: int, per_strip: int, share: float = 0.01) -> dict:
     t0 = time.perf_counter()
     raw = adjust(bad, precision="photos")
     t_raw = time.perf_counter() - t0
-    level = 0.05 / n
     t0 = time.perf_counter()
-    sr = snoop(bad, mode="remove", robust="danish", level=level, precision="photos", max_rejections=50,
-               backward=False)
+    sr = snoop(bad, mode="remove", robust=robust, precision="photos", max_rejections=max_rejections,
+               backward=False, multiple=multiple)
     t_snoop = time.perf_counter() - t0
+    level = sr.reliability.alpha
     injected = {(p.photo_ids[p.photo_index[i]], p.point_ids[p.point_index[i]]) for i in idx}
     removed = {(x.photo, x.point) for x in sr.blunders if x.removed}
 
@@ -136,9 +217,10 @@ def large_block(strips: int, per_strip: int, share: float = 0.01) -> dict:
     d = size[:, None] * np.c_[np.cos(ang), np.sin(ang)]
     det = np.einsum("ni,nij,nj->n", d, wq[idx], d) >= noncentrality(level)
     det_ids = {(p.photo_ids[p.photo_index[i]], p.point_ids[p.point_index[i]]) for i in idx[det]}
-    row = {"photos": p.n_photos, "image_obs": n, "corrupted": len(idx), "detectable": int(det.sum()),
-           "level": level, "clean_s": t_clean, "corrupted_plain_s": t_raw, "robust_snoop_s": t_snoop,
-           "adjustments": sr.n_adjustments, "found": len(injected & removed),
+    row = {"robust": robust, "multiple": multiple, "photos": p.n_photos, "image_obs": n, "corrupted": len(idx),
+           "detectable": int(det.sum()), "level": level, "clean_s": t_clean, "corrupted_plain_s": t_raw,
+           "snoop_s": t_snoop, "adjustments": sr.n_adjustments,
+           "rounds": max((x.iteration for x in sr.blunders), default=0), "found": len(injected & removed),
            "found_detectable": len(det_ids & removed), "good_removed": len(removed - injected)}
     for name, res in (("clean", clean), ("plain", raw), ("cleaned", sr.result)):
         x = dev(res)
@@ -170,6 +252,8 @@ def main() -> None:
                          "or 'both' (family and 0.001 side by side)")
     ap.add_argument("--robust", default="none", help="robust start of the thesis trials (none, danish, huber)")
     ap.add_argument("--counts", default="1,3,5", help="numbers of blunders per trial")
+    ap.add_argument("--large", default="danish:multiple,none:multiple",
+                    help="runs of the large block, comma list of ROBUST:multiple|single")
     a = ap.parse_args()
     print(f"load average at start: {os.getloadavg()[0]:.2f}")
     if not a.skip_trials:
@@ -178,8 +262,16 @@ def main() -> None:
         print("\nThesis geometry, simulated noise, blunders of 10-50 sigma (snoop remove):")
         print(_table([r for lv in levels for r in thesis_trials(a.trials, lv, a.robust, counts)]), flush=True)
     if not a.skip_large:
-        print(f"\nSynthetic block {a.strips} x {a.per_strip}, 1 % of the image observations corrupted:")
-        print(_table([large_block(a.strips, a.per_strip)]))
+        print(f"\nSynthetic block {a.strips} x {a.per_strip}, 1 % of the image observations corrupted "
+              "(family-wise level 0.05):", flush=True)
+        clean: dict = {}
+        rows = []
+        for spec in a.large.split(","):
+            robust, multiple = spec.split(":")
+            rows.append(large_block(a.strips, a.per_strip, robust=robust, multiple=multiple == "multiple",
+                                    clean_run=clean))
+            print(_table(rows[-1:]), flush=True)
+        print(_table(rows))
     print(f"load average at end: {os.getloadavg()[0]:.2f}")
 
 

@@ -126,6 +126,8 @@ MIN_REDUNDANCY = 1e-3
 ROBUST_CUT = 0.1
 #: default family-wise level: probability that a block without blunders has any test rejecting
 FAMILY_LEVEL = 0.05
+#: IRLS: stop when the set of groups below ROBUST_CUT is the same after this many re-weightings
+ROBUST_STABLE = 2
 #: IRLS: smallest weight factor (sigma x 100: a point keeps a regular normal-equation block)
 ROBUST_FLOOR = 1e-4
 
@@ -856,7 +858,7 @@ def snoop(
             try:
                 nxt, _, _ = sub.problem(p)
                 warm = (np.asarray(res.eo_params), _warm_points(res, nxt))
-                res_new = adjust(nxt, initial=warm, precision="none", **adjust_kwargs)
+                res_new = _readjust(nxt, warm, adjust_kwargs)
                 n_adj += 1
                 if not res_new.success:
                     raise DatumError(f"the adjustment without it did not converge ({res_new.status})")
@@ -996,8 +998,7 @@ def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs):
                 trial.obs[h] = False
             try:
                 prob, _, _ = trial.problem(p)
-                r = adjust(prob, initial=(np.asarray(res.eo_params), _warm_points(res, prob)),
-                           precision="none", **adjust_kwargs)
+                r = _readjust(prob, (np.asarray(res.eo_params), _warm_points(res, prob)), adjust_kwargs)
                 n_adj += 1
                 if not r.success:
                     continue
@@ -1030,6 +1031,17 @@ def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs):
     return False, sub, res, cur, rel, blunders, n_adj
 
 
+def _readjust(problem: BundleProblem, initial: tuple[np.ndarray, np.ndarray], adjust_kwargs: dict) -> BundleResult:
+    """Re-adjustment from a nearby solution, without covariances: plain Gauss-Newton first (it
+    converges in a few steps from there; the damped path took about twice as many), the damped
+    one when that fails or when the caller chose ``damping``."""
+    if "damping" not in adjust_kwargs:
+        r = adjust(problem, initial=initial, precision="none", damping=False, **adjust_kwargs)
+        if r.success:
+            return r
+    return adjust(problem, initial=initial, precision="none", **adjust_kwargs)
+
+
 def _warm_points(res: BundleResult, nxt: BundleProblem) -> np.ndarray:
     """Adjusted coordinates of *res* for the points of *nxt* (by id)."""
     pos = {str(q): i for i, q in enumerate(res.point_ids)}
@@ -1047,6 +1059,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     r_cur, rel_cur = res, rel
     crit = {q: critical_values(level, power, q)[1] for q in (1, 2, 3, 6)}
     kq = np.array([crit[{"image": 2, "control": 3, "eo": 6}[str(k)]] for k in rel.kind])
+    same_cut = 0
     for _ in range(max_iter):
         # normalised residuals with the original sigmas (not the re-weighted ones: a group weighted
         # down must keep its large residual, or it would get its weight back the next time)
@@ -1056,11 +1069,16 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
         new[big] = np.maximum(np.exp(1 - u[big] ** 2) if method == "danish" else 1.0 / u[big], ROBUST_FLOOR)
         if np.allclose(new, factor, rtol=1e-3, atol=1e-6):
             break
+        # only the groups cut below ROBUST_CUT leave the re-weighting (snooping with the original weights
+        # tests the rest): stop when that set has not changed in ROBUST_STABLE re-weightings
+        same_cut = same_cut + 1 if np.array_equal(new < ROBUST_CUT, factor < ROBUST_CUT) else 0
+        if same_cut >= ROBUST_STABLE:
+            factor = new
+            break
         factor = new
         cur = _reweighted(p, factor, n_img, k_con)
         prev = r_cur
-        r_cur = adjust(cur, initial=(np.asarray(r_cur.eo_params), np.asarray(r_cur.points_m)),
-                       precision="none", **adjust_kwargs)
+        r_cur = _readjust(cur, (np.asarray(r_cur.eo_params), np.asarray(r_cur.points_m)), adjust_kwargs)
         n_adj += 1
         if not r_cur.success:
             r_cur = prev
@@ -1088,8 +1106,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
         return res, p, rel, [], n_adj
     try:
         nxt, _, _ = sub.problem(p)
-        r2 = adjust(nxt, initial=(np.asarray(r_cur.eo_params), _warm_points(r_cur, nxt)), precision="none",
-                    **adjust_kwargs)
+        r2 = _readjust(nxt, (np.asarray(r_cur.eo_params), _warm_points(r_cur, nxt)), adjust_kwargs)
     except (DatumError, ValueError) as ex:
         log.warning("robust %s: removing the %d down-weighted group(s) leaves %s; snooping alone", method,
                     len(found), ex)
