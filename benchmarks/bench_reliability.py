@@ -56,26 +56,6 @@ def _whitened_qvv(p, res):
     return qvv / (p.sd_mm[:, :, None] * p.sd_mm[:, None, :])
 
 
-def _dense_qvv(p, res):
-    """Dense (2n + 3k)^2 cofactor of the residuals Q_ll - A N^-1 A^T (small blocks only: the thesis)."""
-    from lidarcat._collinearity import project_with_jacobians
-
-    eo, pts = np.asarray(res.eo_params), np.asarray(res.points_m)
-    ei, pj = p.photo_index, p.point_index
-    _, a_eo, a_pt, _ = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
-    n, k = len(ei), len(p.constraint_point_index)
-    u = 6 * p.n_photos + 3 * p.n_points
-    A = np.zeros((2 * n + 3 * k, u))
-    for a in range(n):
-        A[2 * a:2 * a + 2, 6 * ei[a]:6 * ei[a] + 6] = a_eo[a]
-        A[2 * a:2 * a + 2, 6 * p.n_photos + 3 * pj[a]:6 * p.n_photos + 3 * pj[a] + 3] = a_pt[a]
-    for c, j in enumerate(p.constraint_point_index):
-        A[2 * n + 3 * c:2 * n + 3 * c + 3, 6 * p.n_photos + 3 * j:6 * p.n_photos + 3 * j + 3] = np.eye(3)
-    qll = np.r_[p.sd_mm.ravel() ** 2, p.constraint_sd_m.ravel() ** 2]
-    N = A.T @ (A / qll[:, None])
-    return np.diag(qll) - A @ np.linalg.solve(N, A.T), qll
-
-
 class _Identification:
     """Probability that one-at-a-time snooping names a single blunder first (its own test has the
     largest ratio and rejects; for a two-ray point either ray), by Monte Carlo over the noise:
@@ -88,7 +68,9 @@ class _Identification:
         from lidarcat.bundle.reliability import critical_values
 
         self.p, self.draws = p, draws
-        self.qvv, self.qll = _dense_qvv(p, res)
+        from lidarcat.bundle.reliability import _dense_cofactor
+
+        self.qvv, self.qll = _dense_cofactor(res)
         w, v = np.linalg.eigh(self.qvv)
         self.L = v * np.sqrt(np.clip(w, 0, None))
         self.n, self.k = len(p.photo_index), len(p.constraint_point_index)

@@ -20,7 +20,6 @@ import pytest
 from click.testing import CliRunner
 from conftest import THESIS_SURVEY, THESIS_TABLES
 
-from lidarcat._collinearity import project_with_jacobians
 from lidarcat._synthetic_block import resimulated, synthetic_block
 from lidarcat.bundle import adjust, problem_from_survey
 from lidarcat.bundle.reliability import MIN_REDUNDANCY, critical_values, family_alpha, noncentrality, reliability, snoop
@@ -134,20 +133,10 @@ def test_blockwise_cofactor_equals_dense():
     p = b.problem
     res = adjust(p)
     rel = reliability(res)
-    eo, pts = np.asarray(res.eo_params), np.asarray(res.points_m)
-    ei, pj = p.photo_index, p.point_index
-    _, a_eo, a_pt, _ = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
-    n, k = len(ei), len(p.constraint_point_index)
-    u = 6 * p.n_photos + 3 * p.n_points
-    A = np.zeros((2 * n + 3 * k, u))
-    for a in range(n):
-        A[2 * a:2 * a + 2, 6 * ei[a]:6 * ei[a] + 6] = a_eo[a]
-        A[2 * a:2 * a + 2, 6 * p.n_photos + 3 * pj[a]:6 * p.n_photos + 3 * pj[a] + 3] = a_pt[a]
-    for c, j in enumerate(p.constraint_point_index):
-        A[2 * n + 3 * c:2 * n + 3 * c + 3, 6 * p.n_photos + 3 * j:6 * p.n_photos + 3 * j + 3] = np.eye(3)
-    qll = np.r_[p.sd_mm.ravel() ** 2, p.constraint_sd_m.ravel() ** 2]
-    N = A.T @ (A / qll[:, None])
-    qvv = np.diag(qll) - A @ np.linalg.solve(N, A.T)
+    from lidarcat.bundle.reliability import _dense_cofactor
+
+    qvv, qll = _dense_cofactor(res)           # Q_ll - A N^-1 A^T with a dense N^-1
+    n = len(p.photo_index)
     r_dense = np.diag(qvv) / qll
     np.testing.assert_allclose(rel.redundancy[:n, :2].ravel(), r_dense[:2 * n], atol=1e-9)
     np.testing.assert_allclose(rel.redundancy[n:, :3].ravel(), r_dense[2 * n:], atol=1e-9)

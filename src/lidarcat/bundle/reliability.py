@@ -45,14 +45,31 @@ was not used because it tests a bias along one axis only: the bias of a
 swapped point has both components and would be split between two tests of
 lower power.
 
-Levels: Baarda's B-method.  The user chooses ``alpha_1`` (one-dimensional,
-default 0.001) and the power ``beta0`` (default 0.80); that fixes the
-noncentrality ``lambda0`` with ``P(chi2(1, lambda0) > chi2_{1-alpha_1}(1)) =
-beta0`` (``lambda0 = 17.07`` for the defaults); each q-dimensional test uses
-the ``alpha_q`` with the same power at the same ``lambda0`` (``alpha_2 =
-0.0028``, ``alpha_3 = 0.0055``, ``alpha_6 = 0.0177`` for the defaults, critical
-``w`` 3.29, 3.42, 3.55 and 3.92), so every test detects the
-same size of error with the same probability.
+Levels: Baarda's B-method.  A one-dimensional level ``alpha_1`` and the power
+``beta0`` (default 0.80) fix the noncentrality ``lambda0`` with
+``P(chi2(1, lambda0) > chi2_{1-alpha_1}(1)) = beta0`` (``lambda0 = 17.07`` for
+alpha_1 = 0.001); each q-dimensional test uses the ``alpha_q`` with the same
+power at the same ``lambda0`` (for alpha_1 = 0.001: ``alpha_2 = 0.0028``,
+``alpha_3 = 0.0055``, ``alpha_6 = 0.0177``, critical ``w`` 3.29, 3.42, 3.55 and
+3.92), so every test detects the same size of error with the same probability.
+
+Levels of a family of tests.  A block without blunders and ``n_q`` tests of
+dimension q, each at ``alpha_q``, has on average ``sum n_q alpha_q`` rejections
+(0.28 % of its image points at alpha_1 = 0.001: 9 on a clean 200-photo block,
+about 240 on 86,000 observations).  So by default ``alpha_1`` is chosen from the
+number of tests (:func:`family_alpha`): the probability that *any* test of a
+clean block rejects is ``alpha_F`` (``family_level``, 0.05),
+
+.. math::  1 - \prod_q (1 - \alpha_q(\alpha_1))^{n_q} = \alpha_F
+
+(Sidak; the tests of one block are positively correlated, which makes the true
+family-wise rate smaller, 2.5 % measured on the thesis geometry).  This is
+Bonferroni's ``alpha_F / n`` for large n.  The B-method then fixes ``lambda0`` from
+that ``alpha_1``, so the minimal detectable bias grows slowly with the block:
+``lambda0`` 22.3 for the thesis block (159 tests, alpha_1 = 1.04e-4, critical w
+4.00 for an image point), 33.5 for 16,757 tests, 37.3 for 85,834 tests (MDB
+x 1.14, 1.40, 1.48 against alpha_1 = 0.001).  The level is computed once, from
+the tests of the first adjustment, and kept for every re-adjustment.
 
 Estimated error, internal and external reliability
 --------------------------------------------------
@@ -75,7 +92,13 @@ Data snooping and robust re-weighting
 :func:`snoop` adjusts, tests, removes the single group with the largest test
 ratio ``T_a / chi2_{1-alpha_q}(q)`` when it exceeds 1, re-adjusts from the
 previous solution, and repeats (Baarda: one rejection per iteration, because
-one blunder raises the w of its neighbours).  A backward step then puts back a
+one blunder raises the w of its neighbours).  On large blocks a round also
+removes every other rejected group that is *separate* from those already picked
+(:func:`_round_picks`: no photo that sees its point is, or shares a point with,
+such a photo of a picked group), because a blunder raises the tests of the
+groups that share its photo, its point or a neighbouring photo, not of groups
+far away; on the thesis block no two groups are separate, so it is the classic
+one per round.  A backward step then puts back a
 rejected observation when every test passes with it, or exchanges it for
 another ray of its point when that lowers v'Pv (the tests of the rays of one
 point are correlated), and snooping resumes.  ``robust="danish"`` or
@@ -630,6 +653,35 @@ def reliability(result: BundleResult, *, level: float | None = None, power: floa
         eo_effect=scale * np.concatenate([part["eff"] for part in parts]),
         eo_effect_photo=np.concatenate([np.asarray(part["eff_photo"], dtype=object) for part in parts]),
         alpha=float(level), power=float(power), lam0=lam0, dof=int(p.dof), family_level=family)
+
+
+def _dense_cofactor(result: BundleResult) -> tuple[np.ndarray, np.ndarray]:
+    """Dense ``Q_vv = Q_ll - A N^-1 A^T`` of the image observations and control points, and ``diag Q_ll``.
+
+    A reference for checks on small blocks only (``(2n + 3k)^2`` memory, a dense solve): the
+    tests compare :func:`reliability` with it, the benchmark draws residuals from it.  Rows:
+    x, y of every image observation, then E, N, h of every control point.
+    """
+    p = result.problem
+    eo, pts = np.asarray(result.eo_params), np.asarray(result.points_m)
+    ei, pj = p.photo_index, p.point_index
+    _, a_eo, a_pt, _ = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
+    n, k = len(ei), len(p.constraint_point_index)
+    u = 6 * p.n_photos + 3 * p.n_points
+    A = np.zeros((2 * n + 3 * k, u))
+    rows = np.arange(n)[:, None] * 2 + np.arange(2)
+    for c in range(6):
+        A[rows, (6 * ei + c)[:, None]] = a_eo[:, :, c]
+    for c in range(3):
+        A[rows, (6 * p.n_photos + 3 * pj + c)[:, None]] = a_pt[:, :, c]
+    ci = p.constraint_point_index
+    for c in range(3):
+        A[2 * n + 3 * np.arange(k) + c, 6 * p.n_photos + 3 * ci + c] = 1.0
+    qll = np.r_[p.sd_mm.ravel() ** 2, p.constraint_sd_m.ravel() ** 2]
+    keep = np.isfinite(qll)
+    w = np.where(keep, 1.0 / np.where(keep, qll, 1.0), 0.0)
+    N = A.T @ (A * w[:, None])
+    return np.diag(np.where(keep, qll, 0.0)) - A @ np.linalg.solve(N, A.T), qll
 
 
 def _best_component(bnr: np.ndarray) -> np.ndarray:
