@@ -63,7 +63,8 @@ clean block rejects is ``alpha_F`` (``family_level``, 0.05),
 .. math::  1 - \prod_q (1 - \alpha_q(\alpha_1))^{n_q} = \alpha_F
 
 (Sidak; the tests of one block are positively correlated, which makes the true
-family-wise rate smaller, 2.5 % measured on the thesis geometry).  This is
+family-wise rate smaller: 3.7 % measured over 350 simulated clean copies of the
+thesis block).  This is
 Bonferroni's ``alpha_F / n`` for large n.  The B-method then fixes ``lambda0`` from
 that ``alpha_1``, so the minimal detectable bias grows slowly with the block:
 ``lambda0`` 22.3 for the thesis block (159 tests, alpha_1 = 1.04e-4, critical w
@@ -345,6 +346,8 @@ class Reliability:
     family_level : float
         The family-wise level *alpha* was derived from (:func:`family_alpha`); NaN when
         *alpha* was given.
+    family_tests : int
+        Number of tests of that family (0 when *alpha* was given).
     """
 
     kind: np.ndarray
@@ -365,6 +368,7 @@ class Reliability:
     lam0: float
     dof: int
     family_level: float = math.nan
+    family_tests: int = 0
 
     @property
     def ratio(self) -> np.ndarray:
@@ -469,6 +473,7 @@ class SnoopingResult:
                 "level": rel.alpha, "power": rel.power, "noncentrality": rel.lam0,
                 "family_level": None if math.isnan(rel.family_level) else rel.family_level,
                 "n_tests": int(np.sum(rel.testable)),
+                "family_tests": rel.family_tests or None,
                 "critical_w": {str(q): math.sqrt(critical_values(rel.alpha, rel.power, q)[1])
                                for q in sorted(set(int(v) for v in rel.q if v > 0))},
                 "test": "multi-dimensional chi-square per observation group (B-method), a priori "
@@ -625,9 +630,9 @@ def reliability(result: BundleResult, *, level: float | None = None, power: floa
                           eff=eff, eff_photo=p.photo_ids[k]))
 
     qdim = np.concatenate([part["out"][6] for part in parts]).astype(int)
-    family = math.nan
+    family, n_family = math.nan, 0
     if level is None:
-        family = float(family_level)
+        family, n_family = float(family_level), int(np.sum(qdim > 0))
         level = family_alpha(dict(zip(*np.unique(qdim[qdim > 0], return_counts=True))), family, power)
     lam0 = noncentrality(level, power)
     scale = math.sqrt(lam0)
@@ -652,7 +657,8 @@ def reliability(result: BundleResult, *, level: float | None = None, power: floa
         estimated_error=cat(3), mdb=cat(4), bnr=cat(5),
         eo_effect=scale * np.concatenate([part["eff"] for part in parts]),
         eo_effect_photo=np.concatenate([np.asarray(part["eff_photo"], dtype=object) for part in parts]),
-        alpha=float(level), power=float(power), lam0=lam0, dof=int(p.dof), family_level=family)
+        alpha=float(level), power=float(power), lam0=lam0, dof=int(p.dof), family_level=family,
+        family_tests=n_family)
 
 
 def _dense_cofactor(result: BundleResult) -> tuple[np.ndarray, np.ndarray]:
@@ -950,7 +956,8 @@ def snoop(
         final_rel = rel
         n_adj += 1
     if final_rel is not None and rel_first is not None:
-        final_rel = dataclasses.replace(final_rel, family_level=rel_first.family_level)
+        final_rel = dataclasses.replace(final_rel, family_level=rel_first.family_level,
+                                        family_tests=rel_first.family_tests)
     return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj)
 
 

@@ -65,7 +65,8 @@ def format_blunders(summary: dict) -> list[str]:
         return []
     blunders = summary.get("blunders") or []
     crit = ", ".join(f"{v:.2f} (q={k})" for k, v in (sn.get("critical_w") or {}).items())
-    fam = f"family-wise {sn['family_level']:g} over {sn.get('n_tests')} tests, " if sn.get("family_level") else ""
+    fam = (f"family-wise {sn['family_level']:g} over {sn.get('family_tests')} tests, "
+           if sn.get("family_level") else "")
     lines = ["", f"Data snooping ({sn['mode']}, {fam}alpha {sn.get('level', float('nan')):.3g}, power "
                  f"{sn.get('power', float('nan')):g}; critical w {crit}): "
                  + (f"{len(blunders)} blunder(s)" if blunders else "no blunder found")]
