@@ -65,47 +65,41 @@ class _Identification:
     approximate ceiling (it ignores their interaction)."""
 
     def __init__(self, p, res, level, power, draws=2000, seed=99):
-        from lidarcat.bundle.reliability import critical_values
+        from lidarcat.bundle.reliability import MIN_REDUNDANCY, _dense_cofactor, critical_values
 
         self.p, self.draws = p, draws
-        from lidarcat.bundle.reliability import _dense_cofactor
-
         self.qvv, self.qll = _dense_cofactor(res)
         w, v = np.linalg.eigh(self.qvv)
         self.L = v * np.sqrt(np.clip(w, 0, None))
-        self.n, self.k = len(p.photo_index), len(p.constraint_point_index)
-        blocks = [self.qvv[2 * a:2 * a + 2, 2 * a:2 * a + 2] for a in range(self.n)]
-        self.qy_img = np.array([np.diag(p.sd_mm[a] ** 2) - blocks[a] for a in range(self.n)])
-        cb = [self.qvv[2 * self.n + 3 * c:2 * self.n + 3 * c + 3, 2 * self.n + 3 * c:2 * self.n + 3 * c + 3]
-              for c in range(self.k)]
-        self.qy_con = np.array([np.diag(p.constraint_sd_m[c] ** 2) - cb[c] for c in range(self.k)])
-        self.crit = {q: critical_values(level, power, q)[1] for q in (1, 2, 3)}
+        self.n, self.k = n, k = len(p.photo_index), len(p.constraint_point_index)
+        # whitened blocks P^1/2 Q_vv,a P^1/2 = U diag(lam) U^T; tested span lam > MIN_REDUNDANCY
+        # (as reliability._group_tests); the same for every draw, so computed once
+        sd = np.r_[p.sd_mm.ravel(), p.constraint_sd_m.ravel()]
+        self.sd = sd
+        idx = [np.arange(2 * a, 2 * a + 2) for a in range(n)] + [2 * n + np.arange(3 * c, 3 * c + 3) for c in range(k)]
+        self.groups = []
+        for g in idx:
+            lam, U = np.linalg.eigh(self.qvv[np.ix_(g, g)] / np.outer(sd[g], sd[g]))
+            keep = lam > MIN_REDUNDANCY
+            q = int(keep.sum())
+            crit = critical_values(level, power, q)[1] if q else np.inf
+            self.groups.append((g, U[:, keep] / np.sqrt(lam[keep]), crit))
         self.rng = np.random.default_rng(seed)
         rays = np.bincount(p.point_index)
-        self.partner = np.full(self.n, -1)
-        for a in range(self.n):
+        self.partner = np.full(n, -1)
+        for a in range(n):
             if rays[p.point_index[a]] == 2:
                 self.partner[a] = next(b for b in np.flatnonzero(p.point_index == p.point_index[a]) if b != a)
 
     def probability(self, a, nabla_mm):
-        from lidarcat.bundle.reliability import _group_tests
-
         d = np.zeros(len(self.qll))
         d[2 * a:2 * a + 2] = nabla_mm
         mean = self.qvv @ (d / self.qll)
-        e = mean + self.rng.standard_normal((self.draws, len(self.qll))) @ self.L.T
-        m = self.draws
-        ei = e[:, :2 * self.n].reshape(m * self.n, 2)
-        out = _group_tests(ei, np.tile(self.p.sd_mm, (m, 1)), np.tile(self.qy_img, (m, 1, 1)), 1.0)
-        T_img, q_img = out[2].reshape(m, self.n), out[6].reshape(m, self.n)
-        ec = e[:, 2 * self.n:].reshape(m * self.k, 3)
-        out = _group_tests(ec, np.tile(self.p.constraint_sd_m, (m, 1)), np.tile(self.qy_con, (m, 1, 1)), 1.0)
-        T_con, q_con = out[2].reshape(m, self.k), out[6].reshape(m, self.k)
-        kq = np.vectorize(lambda q: self.crit.get(int(q), np.inf))
-        ratio = np.nan_to_num(np.c_[T_img / kq(q_img), T_con / kq(q_con)], nan=-1.0)
+        ew = (mean + self.rng.standard_normal((self.draws, len(self.qll))) @ self.L.T) / self.sd
+        ratio = np.column_stack([np.sum((ew[:, g] @ W) ** 2, axis=1) / crit for g, W, crit in self.groups])
         best = np.argmax(ratio, axis=1)
         hit = (best == a) | ((self.partner[a] >= 0) & (best == self.partner[a]))
-        return float(np.mean(hit & (ratio[np.arange(m), best] > 1)))
+        return float(np.mean(hit & (ratio[np.arange(self.draws), best] > 1)))
 
 
 def thesis_trials(n_trials: int, level: float | None = None, robust: str = "none",

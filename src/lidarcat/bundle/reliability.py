@@ -55,8 +55,8 @@ power at the same ``lambda0`` (for alpha_1 = 0.001: ``alpha_2 = 0.0028``,
 
 Levels of a family of tests.  A block without blunders and ``n_q`` tests of
 dimension q, each at ``alpha_q``, has on average ``sum n_q alpha_q`` rejections
-(0.28 % of its image points at alpha_1 = 0.001: 9 on a clean 200-photo block,
-about 240 on 86,000 observations).  So by default ``alpha_1`` is chosen from the
+(0.28 % of its image points at alpha_1 = 0.001: 9 on the clean 200-photo demo
+block, 201 on a clean block of 85,834 observations).  So by default ``alpha_1`` is chosen from the
 number of tests (:func:`family_alpha`): the probability that *any* test of a
 clean block rejects is ``alpha_F`` (``family_level``, 0.05),
 
@@ -68,8 +68,9 @@ thesis block).  This is
 Bonferroni's ``alpha_F / n`` for large n.  The B-method then fixes ``lambda0`` from
 that ``alpha_1``, so the minimal detectable bias grows slowly with the block:
 ``lambda0`` 22.3 for the thesis block (159 tests, alpha_1 = 1.04e-4, critical w
-4.00 for an image point), 33.5 for 16,757 tests, 37.3 for 85,834 tests (MDB
-x 1.14, 1.40, 1.48 against alpha_1 = 0.001).  The level is computed once, from
+4.00 for an image point), 30.2 for the 5,086 tests of the 200-photo demo, 36.8
+for a 1,000-photo block (alpha_1 = 1.73e-7; MDB x 1.14, 1.33, 1.47 against
+alpha_1 = 0.001).  The level is computed once, from
 the tests of the first adjustment, and kept for every re-adjustment.
 
 Estimated error, internal and external reliability
