@@ -1,25 +1,31 @@
 """Blunder detection: seeded trials on the thesis block and a corrupted 1,000-photo block (issue 12).
 
-Run:  python benchmarks/bench_reliability.py [--trials 100] [--strips 20 --per-strip 50]
+Run:  python benchmarks/bench_reliability.py [--trials 100] [--level family|both|ALPHA]
+                                             [--robust none|danish] [--counts 1,3,5]
+                                             [--strips 20 --per-strip 50]
+                                             [--large danish:multiple,none:multiple]
                                              [--skip-trials] [--skip-large]
 
 Part 1 -- the thesis geometry (6 photos, 151 image observations, 8 GPS control points): the
 observations are simulated from the adjusted thesis solution (the truth) with Gaussian noise of
 the stated sigmas, so every observation except the injected ones is good by construction.  Each
-trial puts 1, 3 or 5 blunders of 10-50 sigma in random directions on random image observations and
-runs ``snoop(mode="remove")`` (``--level``: family-wise 0.05 by default, power 0.80).  Printed per blunder count: share of the
-trials in which every injected blunder was named, the same over the trials in which every blunder
-is above its minimal detectable bias in its direction (lambda >= lambda0; below it no test can see
-it), and the mean number of good observations named per trial.
+trial puts 1, 3 or 5 blunders of 10-50 sigma in random directions on random image observations
+and runs ``snoop(mode="remove")`` (``--level``: family-wise 0.05 by default, power 0.80).
+Printed per blunder count: share of the trials in which every injected blunder was named, the
+same over the trials in which every blunder is above its minimal detectable bias in its
+direction (lambda >= lambda0 of the level; below it no test can see it), the identification
+ceiling over those trials (:class:`_Identification`: the Monte Carlo probability, with the
+dense Q_vv, that the max-ratio rule names each blunder; product over the blunders), and the
+mean number of good observations named per trial.
 
 Part 2 -- a synthetic block (``lidarcat._synthetic_block``, default 20 strips x 50 photos) with
 1 % of its image observations corrupted by 10-50 sigma: the clean adjustment, then
-``snoop(robust="danish", mode="remove", backward=False)`` at alpha = 0.05 / n (a family-wise level: 0.001 per
-test would reject ~0.3 % of 86,000 good observations), timed side by side; printed: the largest
+``snoop(mode="remove", robust=..., multiple=..., backward=False)`` at the family-wise level 0.05
+for each ``--large`` run, timed beside the clean adjustment; printed: the largest
 |orientation - truth| / sd (sd of the clean run), the share of the 6 P parameters within 3 sd
 (99.73 % expected) and the RMS of those normalised deviations (1 expected) for the clean, the
-corrupted and the cleaned run; blunders found / injected (and among those above their MDB) and
-good observations removed.
+corrupted and the cleaned run; blunders found / injected (and among those above their MDB),
+good observations removed, adjustments and snooping rounds.
 """
 
 from __future__ import annotations
@@ -139,7 +145,8 @@ def thesis_trials(n_trials: int, level: float | None = None, robust: str = "none
             n_det += detectable
             found_det += ok and detectable
             wrong += len(named - injected)
-        rows.append({"level": f"{rel.alpha:.3g}", "robust": robust, "blunders": n_bl, "trials": n_trials, "all_named_%": 100 * found / n_trials,
+        rows.append({"level": f"{rel.alpha:.3g}", "robust": robust, "blunders": n_bl, "trials": n_trials,
+                     "all_named_%": 100 * found / n_trials,
                      "detectable_trials": n_det, "named_if_detectable_%": 100 * found_det / max(n_det, 1),
                      "identification_ceiling_%": 100 * float(np.mean(ceiling)) if ceiling else float("nan"),
                      "good_named_per_trial": wrong / n_trials, "s_per_trial": (time.perf_counter() - t0) / n_trials})

@@ -153,9 +153,9 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="With --frame-offset: a 7-parameter similarity (shift, scale ppm, rotations urad).")
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
-           variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str,
-           family_level: float, snooping_level: float | None, robust: str, self_calibrate: str | None, frame_offset: str | None,
-           similarity: bool | None, as_json: bool) -> None:
+           variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str | None,
+           family_level: float, snooping_level: float | None, robust: str, self_calibrate: str | None,
+           frame_offset: str | None, similarity: bool | None, as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
     Unknowns: X0, Y0, Z0 (m) and omega, phi, kappa (deg; M = R3(kappa) R2(phi)
@@ -200,8 +200,12 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     without the parameters.
     """
     from ..bundle import adjust_survey
-    from ..bundle.selfcal_survey import (SNOOPING_WITH_PARAMETERS, adjust_survey_with_parameters, format_parameters,
-                                         wants_parameters)
+    from ..bundle.selfcal_survey import (
+        SNOOPING_WITH_PARAMETERS,
+        adjust_survey_with_parameters,
+        format_parameters,
+        wants_parameters,
+    )
     from ..survey import Survey
 
     loaded = Survey.load(survey)  # once, for both paths
