@@ -516,3 +516,19 @@ def test_several_rejections_per_round_only_when_separate():
     assert rounds[far_key] == 1                             # the separate one goes with the first
     assert several.n_adjustments == one.n_adjustments - 1
     np.testing.assert_allclose(several.result.eo_params, one.result.eo_params, atol=1e-9)
+
+
+def test_rejection_limit_stops_and_says_so():
+    """A limit on the rejections leaves the rest reported as remaining (exit 3 on the CLI)."""
+    b = synthetic_block(3, 8, seed=3)
+    p = b.problem
+    rays = np.bincount(p.point_index)[p.point_index]
+    idx = np.flatnonzero(rays >= 3)[[0, 200, 400]]
+    xy = np.array(p.xy_mm)
+    xy[idx] += 40 * p.sd_mm[idx]
+    bad = dataclasses.replace(p, xy_mm=xy)
+    sr = snoop(bad, mode="remove", max_rejections=1, backward=False)
+    assert sr.more_remain and sr.blunders_remain and len([x for x in sr.blunders if x.removed]) == 1
+    assert sr.summary()["snooping"]["blunders_remain"] is True
+    full = snoop(bad, mode="remove", backward=False)            # default limit: max(100, 5 % of the tests)
+    assert not full.more_remain and len(full.blunders) >= 3

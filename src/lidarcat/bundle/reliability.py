@@ -151,6 +151,8 @@ MIN_REDUNDANCY = 1e-3
 ROBUST_CUT = 0.1
 #: default family-wise level: probability that a block without blunders has any test rejecting
 FAMILY_LEVEL = 0.05
+#: snooping stops (blunders remain) after this share of the tested groups is rejected, or 100
+MAX_REJECTED_SHARE = 0.05
 #: IRLS: stop when the set of groups below ROBUST_CUT is the same after this many re-weightings
 ROBUST_STABLE = 2
 #: IRLS: smallest weight factor (sigma x 100: a point keeps a regular normal-equation block)
@@ -809,7 +811,7 @@ def snoop(
     power: float = 0.80,
     family_level: float = FAMILY_LEVEL,
     robust: str = "none",
-    max_rejections: int = 100,
+    max_rejections: int | None = None,
     backward: bool = True,
     multiple: bool = True,
     on_rejection: Callable[[Blunder], None] | None = None,
@@ -840,8 +842,10 @@ def snoop(
         Run iteratively re-weighted least squares first and remove the groups
         it weights down below :data:`ROBUST_CUT` in one go (large blocks with
         many blunders); snooping then tests the rest.
-    max_rejections : int
-        Stop after this many rejections (``more_remain`` tells).
+    max_rejections : int, optional
+        Stop after this many rejections (``more_remain`` tells).  Default: 100, or
+        :data:`MAX_REJECTED_SHARE` of the groups tested in the first adjustment when that is
+        more (a large block with several rejections per round).
     multiple : bool
         Remove in one round, besides the group with the largest test ratio, every other
         rejected group that is *separate* from those already picked in that round: no
@@ -890,6 +894,9 @@ def snoop(
     rel_first = reliability(first, level=level, power=power, family_level=family_level) if first.success else None
     if rel_first is not None:
         level = rel_first.alpha          # the family is the first adjustment's tests
+    if max_rejections is None:
+        n_groups = 0 if rel_first is None else int(np.sum(rel_first.testable))
+        max_rejections = max(100, math.ceil(MAX_REJECTED_SHARE * n_groups))
     rel = rel_first
     more = False
     if robust != "none" and first.success:
