@@ -239,3 +239,22 @@ def test_snooping_with_additional_parameters_refused_or_off(tmp_path):
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert s["snooping"] == {"mode": "off", "reason": SNOOPING_WITH_PARAMETERS}
     assert "blunders" not in s and not (tmp_path / "o" / "blunders.csv").exists()
+
+
+def test_snooping_level_options(tmp_path):
+    """--family-level 0.01 (critical w 4.39 on the thesis block): no test rejects, exit 0;
+    a fixed --snooping-level 0.001 (critical w 3.42): the three groups, exit 3."""
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--family-level", "0.01", "-o", str(tmp_path / "a"),
+                                 "--json"])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.output)
+    assert s["blunders"] == [] and s["snooping"]["family_level"] == 0.01 and s["snooping"]["family_tests"] == 159
+    assert abs(s["snooping"]["critical_w"]["2"] - 4.386) < 0.0015
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--snooping-level", "0.001", "-o", str(tmp_path / "b")])
+    assert r.exit_code == 3
+    assert "Data snooping (report, alpha 0.001, power 0.8; critical w 3.29 (q=1), 3.42 (q=2), 3.55 (q=3)): " \
+           "3 blunder(s)" in r.output
+    s = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert s["snooping"]["family_level"] is None and s["provenance"]["parameters"]["snooping_level"] == 0.001
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--family-level", "0.7", "-o", str(tmp_path / "c")])
+    assert r.exit_code == 2 and "--family-level" in r.output
