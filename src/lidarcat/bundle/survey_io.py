@@ -19,7 +19,7 @@ import numpy as np
 
 from .precision import joint_point_covariance
 from .problem import BundleProblem
-from .reliability import SnoopingResult, snoop
+from .reliability import FAMILY_LEVEL, SnoopingResult, snoop
 from .solve import BundleResult
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -344,7 +344,7 @@ def adjust_survey(
     progress: Callable[[int, float], None] | None = None,
     snooping: str = "report",
     snooping_level: float | None = None,
-    family_level: float = 0.05,
+    family_level: float = FAMILY_LEVEL,
     robust: str = "none",
 ) -> tuple[BundleResult, Any]:
     """Load a survey, adjust it and write the result folder (``lidarcat adjust``).
