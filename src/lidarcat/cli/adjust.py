@@ -121,7 +121,8 @@ def exit_status(summary: dict) -> tuple[int, str]:
                    "no check_covariance.csv).")
 @click.option("--snooping", type=click.Choice(["off", "report", "remove"]), default=None,
               help="Baarda's data snooping: test every image observation, control point and GNSS/INS "
-                   "constraint (w-test), one rejection per re-adjustment. 'report' (the default) names the "
+                   "constraint (w-test) at the --family-level; one rejection per re-adjustment, or several when "
+                   "they are far apart (no shared or neighbouring photo). 'report' (the default) names the "
                    "blunders and keeps them in the adjustment; 'remove' adjusts without them. Not available "
                    "with --self-calibrate/--frame-offset (there the default is off and report/remove are "
                    "refused).")
@@ -188,7 +189,8 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
       lidarcat adjust data/thesis --control lidar --observations pixel -o out/lidar
       lidarcat adjust my_survey --json
       lidarcat adjust big_block --precision photos
-      lidarcat adjust my_survey --snooping remove --robust danish
+      lidarcat adjust big_block --snooping remove
+      lidarcat adjust my_survey --family-level 0.01
       lidarcat adjust --control gps+lidar --frame-offset lidar:gps --self-calibrate c,x0,y0,k1
 
     With --self-calibrate / --frame-offset (or a [self_calibration] table in
