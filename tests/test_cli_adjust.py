@@ -33,9 +33,11 @@ def gps_run(tmp_path_factory):
 
 def test_gps_run_writes_its_files(gps_run):
     result, out = gps_run
-    # the thesis measurements hold three observations the w-tests reject (default --snooping report)
+    # the thesis measurements hold one observation the w-tests reject at the family-wise level 0.05
+    # (photo 3 point 407, w 4.26 > 4.00; default --snooping report)
     assert result.exit_code == 3, result.output
-    assert result.output.endswith("Warning: 3 blunder(s) remain in the adjustment.\n")
+    assert "family-wise 0.05 over 159 tests" in result.output
+    assert result.output.endswith("Warning: 1 blunder(s) remain in the adjustment.\n")
     assert sorted(p.name for p in out.iterdir() if not p.name.endswith(".csv.json")) == [
         "blunders.csv", "check_covariance.csv", "eop.csv", "points.csv", "reliability.csv", "residuals.csv",
         "summary.json"]
@@ -213,3 +215,46 @@ def test_precision_option(tmp_path, gps_run):
     assert not (out / "check_covariance.csv").exists() and (full / "check_covariance.csv").exists()
     bad = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--precision", "some"])
     assert bad.exit_code == 2 and "'some' is not one of 'all', 'photos', 'none'" in bad.output
+
+
+def test_snooping_with_additional_parameters_refused_or_off(tmp_path):
+    """Data snooping needs the plain adjustment: with --self-calibrate / --frame-offset an explicit
+    --snooping report|remove or --robust is refused (exit 2, nothing written); by default it is off
+    and the output says why."""
+    from lidarcat.bundle.selfcal_survey import SNOOPING_WITH_PARAMETERS
+
+    for extra, opt in ((["--snooping", "remove"], "--snooping remove"), (["--snooping", "report"],
+                       "--snooping report"), (["--robust", "danish"], "--robust danish")):
+        r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--self-calibrate", "c", *extra,
+                                     "-o", str(tmp_path / "x")])
+        assert r.exit_code == 2, r.output
+        assert r.output.endswith(f"Error: {opt}: {SNOOPING_WITH_PARAMETERS}\n")
+        assert not (tmp_path / "x").exists()
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--self-calibrate", "c", "--snooping", "off",
+                                 "-o", str(tmp_path / "off")])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--self-calibrate", "c", "-o", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    assert r.output.endswith(f"Note: {SNOOPING_WITH_PARAMETERS}.\n")
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert s["snooping"] == {"mode": "off", "reason": SNOOPING_WITH_PARAMETERS}
+    assert "blunders" not in s and not (tmp_path / "o" / "blunders.csv").exists()
+
+
+def test_snooping_level_options(tmp_path):
+    """--family-level 0.01 (critical w 4.39 on the thesis block): no test rejects, exit 0;
+    a fixed --snooping-level 0.001 (critical w 3.42): the three groups, exit 3."""
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--family-level", "0.01", "-o", str(tmp_path / "a"),
+                                 "--json"])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.output)
+    assert s["blunders"] == [] and s["snooping"]["family_level"] == 0.01 and s["snooping"]["family_tests"] == 159
+    assert abs(s["snooping"]["critical_w"]["2"] - 4.386) < 0.0015
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--snooping-level", "0.001", "-o", str(tmp_path / "b")])
+    assert r.exit_code == 3
+    assert "Data snooping (report, alpha 0.001, power 0.8; critical w 3.29 (q=1), 3.42 (q=2), 3.55 (q=3)): " \
+           "3 blunder(s)" in r.output
+    s = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert s["snooping"]["family_level"] is None and s["provenance"]["parameters"]["snooping_level"] == 0.001
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--family-level", "0.7", "-o", str(tmp_path / "c")])
+    assert r.exit_code == 2 and "--family-level" in r.output

@@ -20,10 +20,9 @@ import pytest
 from click.testing import CliRunner
 from conftest import THESIS_SURVEY, THESIS_TABLES
 
-from lidarcat._collinearity import project_with_jacobians
 from lidarcat._synthetic_block import resimulated, synthetic_block
 from lidarcat.bundle import adjust, problem_from_survey
-from lidarcat.bundle.reliability import MIN_REDUNDANCY, critical_values, noncentrality, reliability, snoop
+from lidarcat.bundle.reliability import MIN_REDUNDANCY, critical_values, family_alpha, noncentrality, reliability, snoop
 from lidarcat.cli.main import cli
 from lidarcat.survey import Survey
 
@@ -74,6 +73,49 @@ def test_b_method_levels_published_values():
         noncentrality(0.7, 0.8)
 
 
+def test_family_level_solves_sidak_over_the_b_method_levels(gps):
+    """alpha_1 chosen so that 1 - prod (1 - alpha_q)^n_q = family over the block's tests."""
+    from scipy import stats
+
+    counts = {1: 26, 2: 125, 3: 8}
+    a1 = family_alpha(counts, 0.05)
+    none_reject = np.prod([(1 - critical_values(a1, 0.80, q)[0]) ** n for q, n in counts.items()])
+    assert abs((1 - none_reject) - 0.05) < 1e-9
+    assert family_alpha({1: 1}, 0.05) == pytest.approx(0.05, rel=1e-9)    # one 1-D test: its own level
+    # Bonferroni bound for one dimension: alpha_1 -> family / n
+    assert abs(family_alpha({1: 10_000}, 0.05) * 10_000 / 0.05 - 1) < 0.03
+    # the thesis block: the counts above are its testable groups; critical w of an image point 4.00
+    rel = reliability(gps)
+    assert dict(zip(*np.unique(rel.q, return_counts=True))) == counts
+    assert rel.family_level == 0.05 and rel.alpha == pytest.approx(a1, rel=1e-9)
+    crit2 = float(rel.w_critical[(rel.kind == "image") & (rel.q == 2)][0])
+    assert abs(crit2 - np.sqrt(stats.chi2.isf(critical_values(a1, 0.80, 2)[0], 2))) < 1e-9
+    assert 3.99 < crit2 < 4.01
+    # MDB follows the level: sd sqrt(lambda0 / r) with the family's lambda0
+    assert rel.lam0 == pytest.approx(noncentrality(a1, 0.80))
+    i = int(np.flatnonzero(rel.kind == "image")[0])
+    assert rel.mdb[i, 0] == pytest.approx(SD_IMG * np.sqrt(rel.lam0 / rel.redundancy[i, 0]), rel=1e-9)
+    with pytest.raises(ValueError, match=r"^`level` \(alpha of the w-test\) must be in \(0, 0.5\), got 0.0$"):
+        family_alpha(counts, 0.0)
+
+
+def test_family_level_false_alarms_on_clean_blocks(gps_problem, gps):
+    """Clean thesis geometry (simulated noise only): at the family level at most ~5 % of the
+    blocks have any test rejecting; at a fixed 0.001 per test about n * alpha_q good
+    observations are flagged per block (151 image tests x 0.0028)."""
+    rng = np.random.default_rng(21)
+    n, any_family, flagged_fixed = 150, 0, 0
+    start = (np.asarray(gps.eo_params), np.asarray(gps.points_m))
+    for _ in range(n):
+        q = _simulated(gps_problem, gps, rng)
+        r = adjust(q, initial=start, precision="none")
+        any_family += reliability(r).n_rejected > 0
+        flagged_fixed += reliability(r, level=0.001).n_rejected
+    # binomial(150, 0.05): mean 7.5, P(X >= 15) < 0.01; the tests are correlated, so fewer
+    assert any_family <= 14, any_family
+    assert flagged_fixed / n > 0.2, flagged_fixed
+
+
 # --------------------------------------------------------------------------- redundancy numbers
 
 
@@ -91,20 +133,10 @@ def test_blockwise_cofactor_equals_dense():
     p = b.problem
     res = adjust(p)
     rel = reliability(res)
-    eo, pts = np.asarray(res.eo_params), np.asarray(res.points_m)
-    ei, pj = p.photo_index, p.point_index
-    _, a_eo, a_pt, _ = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
-    n, k = len(ei), len(p.constraint_point_index)
-    u = 6 * p.n_photos + 3 * p.n_points
-    A = np.zeros((2 * n + 3 * k, u))
-    for a in range(n):
-        A[2 * a:2 * a + 2, 6 * ei[a]:6 * ei[a] + 6] = a_eo[a]
-        A[2 * a:2 * a + 2, 6 * p.n_photos + 3 * pj[a]:6 * p.n_photos + 3 * pj[a] + 3] = a_pt[a]
-    for c, j in enumerate(p.constraint_point_index):
-        A[2 * n + 3 * c:2 * n + 3 * c + 3, 6 * p.n_photos + 3 * j:6 * p.n_photos + 3 * j + 3] = np.eye(3)
-    qll = np.r_[p.sd_mm.ravel() ** 2, p.constraint_sd_m.ravel() ** 2]
-    N = A.T @ (A / qll[:, None])
-    qvv = np.diag(qll) - A @ np.linalg.solve(N, A.T)
+    from lidarcat.bundle.reliability import _dense_cofactor
+
+    qvv, qll = _dense_cofactor(res)           # Q_ll - A N^-1 A^T with a dense N^-1
+    n = len(p.photo_index)
     r_dense = np.diag(qvv) / qll
     np.testing.assert_allclose(rel.redundancy[:n, :2].ravel(), r_dense[:2 * n], atol=1e-9)
     np.testing.assert_allclose(rel.redundancy[n:, :3].ravel(), r_dense[2 * n:], atol=1e-9)
@@ -155,7 +187,7 @@ def test_control_height_error_below_mdb_is_not_detectable_above_it_named(gps_pro
     rel = reliability(gps)
     g = int(np.flatnonzero((rel.kind == "control") & (rel.point == "619"))[0])
     assert 0.04 < rel.redundancy[g, 2] < 0.08
-    assert abs(rel.mdb[g, 2] - SD_CON * np.sqrt(noncentrality() / rel.redundancy[g, 2])) < 1e-9
+    assert abs(rel.mdb[g, 2] - SD_CON * np.sqrt(rel.lam0 / rel.redundancy[g, 2])) < 1e-9
     assert rel.mdb[g, 2] > 4.0
     small = snoop(_with_control_error(gps_problem, "619", [0.0, 0.0, 1.0]), mode="report")
     assert all(b.kind == "image" for b in small.blunders)
@@ -256,7 +288,7 @@ def test_snooping_trials_thesis_geometry(gps_problem, gps):
             err = size[:, None] * np.c_[np.cos(ang), np.sin(ang)] * q.sd_mm[idx]
             # detectability of each blunder: lambda = nabla^T P Q_vv P nabla >= lambda0
             lam = [_noncentrality_of(rel0, q, i, d) for i, d in zip(idx, err)]
-            if min(lam) < noncentrality():
+            if min(lam) < rel0.lam0:
                 continue
             xy = np.array(q.xy_mm)
             xy[idx] += err
@@ -391,15 +423,30 @@ def test_run_adjust_stage_and_run_line_name_the_blunders(tmp_path):
 
     out = stage.run(_Ctx(Survey.load(THESIS_SURVEY), "gps"), tmp_path)
     bl = out["adjustment"]["blunders"]
-    assert [(b["kind"], b["photo"], b["point"], b["removed"]) for b in bl] == [
-        ("image", "3", "407", False), ("image", "2", "702", False), ("image", "5", "709", False)]
+    # family-wise 0.05 over the block's 159 tests: only photo 3 point 407 (w 4.26 > 4.00)
+    assert [(b["kind"], b["photo"], b["point"], b["removed"]) for b in bl] == [("image", "3", "407", False)]
     assert (tmp_path / "blunders.csv").is_file() and (tmp_path / "reliability.csv").is_file()
     assert json.loads((tmp_path / "eop.csv.json").read_text())["provenance"]["parameters"]["snooping"] == "report"
     fake = SimpleNamespace(summary={"survey": {"name": "thesis"}, "runs": {"gps": out}}, stages=(),
                            outdir=tmp_path, ok=True, failed=(), tests_failed=())
     line = [t for t in _text(fake).splitlines() if t.startswith("  run gps:")][0]
-    assert line.endswith("3 blunder(s) remain (w-test): image photo 3 point 407; image photo 2 point 702; "
-                         "image photo 5 point 709")
+    assert line.endswith("1 blunder(s) remain (w-test): image photo 3 point 407")
+
+
+def test_thesis_block_at_a_fixed_level_flags_three_groups(gps_problem):
+    """At 0.001 per test (critical w 3.42) the thesis data hold three rejected groups; at the
+    family level 0.05 (critical w 4.00) only the first, w 4.26."""
+    fixed = snoop(gps_problem, mode="report", level=0.001, multiple=False)
+    assert [(b.photo, b.point, round(b.w, 2)) for b in fixed.blunders] == [
+        ("3", "407", 4.26), ("2", "702", 3.88), ("5", "709", 3.56)]
+    # several per round: every point of this block is seen from photos that share points with
+    # all the others, so no two groups are separate: the classic one per round
+    both = snoop(gps_problem, mode="report", level=0.001)
+    assert [(b.photo, b.point, b.w, b.iteration) for b in both.blunders] == [
+        (b.photo, b.point, b.w, b.iteration) for b in fixed.blunders]
+    fam = snoop(gps_problem, mode="report")
+    assert [(b.photo, b.point, round(b.w, 2), round(b.w_critical, 2)) for b in fam.blunders] == [
+        ("3", "407", 4.26, 4.0)]
 
 
 def test_report_lists_the_blunders(tmp_path):
@@ -411,10 +458,9 @@ def test_report_lists_the_blunders(tmp_path):
     paths = write_report(tmp_path / "rep", adjustment_dir={"eop": adj["eop"], "points": adj["points"],
                                                            "summary": adj["summary"]})
     md = paths["markdown"].read_text()
-    assert "Data snooping (report, alpha 0.001)" in md
-    for photo, point in (("3", "407"), ("2", "702"), ("5", "709")):
-        assert f"| image | {photo} | {point} |" in md
-    assert md.count("no (kept)") == 3
+    assert "Data snooping (report, alpha 0.000104, family-wise 0.05)" in md
+    assert "| image | 3 | 407 |" in md
+    assert md.count("no (kept)") == 1
 
 
 def test_io_provenance_paths_and_hashes(tmp_path):
@@ -434,3 +480,55 @@ def test_io_provenance_paths_and_hashes(tmp_path):
     assert json.loads(csv_sidecar_path(out).read_text())["provenance"] == prov
     write_csv_atomic(out, ["x"], [[1]])                               # neither: the stale sidecar goes
     assert not csv_sidecar_path(out).exists()
+
+
+def test_several_rejections_per_round_only_when_separate():
+    """Blunders on photos far apart are removed in one round; two on neighbouring photos (which
+    share points) in two rounds; the result is the one of one-at-a-time snooping."""
+    b = synthetic_block(3, 8, seed=3)
+    p = b.problem
+    from lidarcat.bundle.reliability import _Neighbours
+
+    near = _Neighbours(p)
+    adj = near.adj.toarray() > 0
+    ph = p.photo_index
+    # one blunder on photo 0, one on a photo sharing no point with it, one on a neighbour of photo 0
+    # (each on its own point seen on three or more photos)
+    far = int(np.flatnonzero(~adj[0])[-1])
+    neighbour = int(np.flatnonzero(adj[0])[1])
+    rays = np.bincount(p.point_index)[p.point_index]
+    idx, used = [], set()
+    for k in (0, far, neighbour):
+        i = next(int(i) for i in np.flatnonzero((ph == k) & (rays >= 3)) if p.point_index[i] not in used)
+        used.add(p.point_index[i])
+        idx.append(i)
+    xy = np.array(p.xy_mm)
+    xy[idx] += np.array([[40.0, 0.0], [0.0, -40.0], [30.0, 30.0]]) * p.sd_mm[idx]
+    bad = dataclasses.replace(p, xy_mm=xy)
+    one = snoop(bad, mode="remove", multiple=False, backward=False)
+    several = snoop(bad, mode="remove", backward=False)
+    named = [(x.photo, x.point) for x in one.blunders]
+    assert len(named) == 3 and {(x.photo, x.point) for x in several.blunders} == set(named)
+    assert [x.iteration for x in one.blunders] == [1, 2, 3]
+    rounds = {(x.photo, x.point): x.iteration for x in several.blunders}
+    assert sorted(rounds.values()) == [1, 1, 2]             # three blunders, two rounds
+    far_key = (p.photo_ids[far], p.point_ids[p.point_index[idx[1]]])
+    assert rounds[far_key] == 1                             # the separate one goes with the first
+    assert several.n_adjustments == one.n_adjustments - 1
+    np.testing.assert_allclose(several.result.eo_params, one.result.eo_params, atol=1e-9)
+
+
+def test_rejection_limit_stops_and_says_so():
+    """A limit on the rejections leaves the rest reported as remaining (exit 3 on the CLI)."""
+    b = synthetic_block(3, 8, seed=3)
+    p = b.problem
+    rays = np.bincount(p.point_index)[p.point_index]
+    idx = np.flatnonzero(rays >= 3)[[0, 200, 400]]
+    xy = np.array(p.xy_mm)
+    xy[idx] += 40 * p.sd_mm[idx]
+    bad = dataclasses.replace(p, xy_mm=xy)
+    sr = snoop(bad, mode="remove", max_rejections=1, backward=False)
+    assert sr.more_remain and sr.blunders_remain and len([x for x in sr.blunders if x.removed]) == 1
+    assert sr.summary()["snooping"]["blunders_remain"] is True
+    full = snoop(bad, mode="remove", backward=False)            # default limit: max(100, 5 % of the tests)
+    assert not full.more_remain and len(full.blunders) >= 3

@@ -574,7 +574,9 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
                      ", ".join(f"{k} {_f(_num(v), 4)}" for k, v in (x.get("estimated_error") or {}).items())
                      + f" {x.get('unit', '')}", "yes" if x.get("removed") else "no (kept)"] for x in bl]
                    or [["none", "", "", "", "", "", "", ""]],
-                   f"Data snooping ({sn.get('mode')}, alpha {sn.get('level')}): observations whose w-test "
+                   f"Data snooping ({sn.get('mode')}, alpha {_num(sn.get('level')) or float('nan'):.3g}"
+                   + (f", family-wise {_num(sn.get('family_level')):g}" if _num(sn.get("family_level")) else "")
+                   + "): observations whose w-test "
                    "rejects (blunders.csv; every observation's redundancy and MDB in reliability.csv).")
     if pts_adj and not (summ and ("mean_sd_control_m" in summ or "mean_sd_free_m" in summ)):
         groups: dict[str, list[list[float]]] = {}

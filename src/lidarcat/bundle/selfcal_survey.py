@@ -47,7 +47,7 @@ from .selfcal import SelfCalResult, adjust_with_parameters
 
 __all__ = ["SelfCalSettings", "self_calibration_settings", "combined_control_set", "components_from_survey",
            "adjust_survey_with_parameters", "selfcal_adjust", "write_selfcal", "format_parameters",
-           "wants_parameters"]
+           "wants_parameters", "SNOOPING_WITH_PARAMETERS"]
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +59,13 @@ def _keys() -> tuple[str, ...]:
 
 #: keys of the [self_calibration] table of survey.toml (validated by lidarcat.survey)
 SELF_CALIBRATION_KEYS = _keys()
+
+#: why the adjustment with additional parameters is not tested for blunders (summary.json, CLI)
+SNOOPING_WITH_PARAMETERS = (
+    "data snooping is not available with additional parameters (--self-calibrate, --frame-offset or "
+    "[self_calibration]): the w-tests would need the residual cofactors with the parameters' covariance. "
+    "Find the blunders first with `lidarcat adjust SURVEY --snooping remove` (same control, no "
+    "parameters) and correct or delete them in the survey files")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -267,11 +274,12 @@ def adjust_survey_with_parameters(
     params = dict(control=info.get("control_set"), observations=info.get("observations"),
                   variance_factor=res.bundle.variance_factor_kind, chi2_level=float(res.bundle.chi2["level"]),
                   eo_constraints=bool(info.get("eo_constraints")), max_iter=int(max_iter), precision=precision,
-                  additional_parameters=list(res.names), alpha=res.alpha)
+                  additional_parameters=list(res.names), alpha=res.alpha, snooping="off")
     out = survey.output_dir(outdir)
     with atomic_dir(out) as tmp:
         write_selfcal(res, tmp, extra={"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs,
-                                                   "height_system": survey.height_system},
+                                       "height_system": survey.height_system,
+                                       "snooping": {"mode": "off", "reason": SNOOPING_WITH_PARAMETERS}},
                       provenance=survey_provenance(survey, params))
     return res, out
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from .precision import joint_point_covariance
 from .problem import BundleProblem
-from .reliability import SnoopingResult, snoop
+from .reliability import FAMILY_LEVEL, SnoopingResult, snoop
 from .solve import BundleResult
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -343,7 +343,8 @@ def adjust_survey(
     precision: str = "all",
     progress: Callable[[int, float], None] | None = None,
     snooping: str = "report",
-    snooping_level: float = 0.001,
+    snooping_level: float | None = None,
+    family_level: float = FAMILY_LEVEL,
     robust: str = "none",
 ) -> tuple[BundleResult, Any]:
     """Load a survey, adjust it and write the result folder (``lidarcat adjust``).
@@ -364,8 +365,11 @@ def adjust_survey(
     snooping : {"off", "report", "remove"}
         Baarda's data snooping (:func:`lidarcat.bundle.reliability.snoop`): list the
         blunders (``report``, the result keeps every observation) or remove them.
-    snooping_level : float
-        alpha of the one-dimensional w-test (B-method, power 0.80).
+    snooping_level : float, optional
+        alpha of the one-dimensional w-test (B-method, power 0.80); default: from
+        *family_level* and the number of tests (:func:`lidarcat.bundle.reliability.family_alpha`).
+    family_level : float
+        Probability that a block without blunders has any test rejecting (0.05).
     robust : {"none", "danish", "huber"}
         Re-weighting before snooping (large blocks with many blunders).
     precision : {"all", "photos", "none"}
@@ -396,8 +400,10 @@ def adjust_survey(
                   variance_factor=variance_factor or settings.variance_factor,
                   chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
                   eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
-                  snooping_level=float(snooping_level), robust=robust, precision=precision)
-    sres = snoop(problem, mode=snooping, level=snooping_level, robust=robust, max_iter=max_iter,
+                  snooping_level=None if snooping_level is None else float(snooping_level),
+                  family_level=float(family_level), robust=robust, precision=precision)
+    sres = snoop(problem, mode=snooping, level=snooping_level, family_level=family_level, robust=robust,
+                 max_iter=max_iter,
                  precision=precision, variance_factor=params["variance_factor"],
                  chi2_level=params["chi2_level"], progress=progress)
     out = survey.output_dir(outdir)

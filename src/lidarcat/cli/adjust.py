@@ -65,7 +65,9 @@ def format_blunders(summary: dict) -> list[str]:
         return []
     blunders = summary.get("blunders") or []
     crit = ", ".join(f"{v:.2f} (q={k})" for k, v in (sn.get("critical_w") or {}).items())
-    lines = ["", f"Data snooping ({sn['mode']}, alpha {sn.get('level', float('nan')):g}, power "
+    fam = (f"family-wise {sn['family_level']:g} over {sn.get('family_tests')} tests, "
+           if sn.get("family_level") else "")
+    lines = ["", f"Data snooping ({sn['mode']}, {fam}alpha {sn.get('level', float('nan')):.3g}, power "
                  f"{sn.get('power', float('nan')):g}; critical w {crit}): "
                  + (f"{len(blunders)} blunder(s)" if blunders else "no blunder found")]
     for b in blunders[:MAX_LISTED]:
@@ -117,17 +119,28 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="Standard deviations to compute: of every photo and point ('all'), of the photos only "
                    "('photos': point sd_* empty), or none (fastest on blocks of thousands of photos; "
                    "no check_covariance.csv).")
-@click.option("--snooping", type=click.Choice(["off", "report", "remove"]), default="report",
-              show_default=True,
+@click.option("--snooping", type=click.Choice(["off", "report", "remove"]), default=None,
               help="Baarda's data snooping: test every image observation, control point and GNSS/INS "
-                   "constraint (w-test), one rejection per re-adjustment. 'report' names the blunders "
-                   "and keeps them in the adjustment; 'remove' adjusts without them.")
-@click.option("--snooping-level", type=click.FloatRange(1e-9, 0.5, min_open=True, max_open=True),
-              default=0.001, show_default=True,
-              help="alpha of the one-dimensional w-test (power 0.80; 2-D and 3-D tests use the "
-                   "B-method levels with the same power).")
+                   "constraint (w-test) at the --family-level; one rejection per re-adjustment, or several when "
+                   "they are far apart (no shared or neighbouring photo). 'report' (the default) names the "
+                   "blunders and keeps them in the adjustment; 'remove' adjusts without them. Not available "
+                   "with --self-calibrate/--frame-offset (there the default is off and report/remove are "
+                   "refused).")
+@click.option("--family-level", type=click.FloatRange(0, 0.5, min_open=True, max_open=True),
+              default=0.05, show_default=True,
+              help="Probability that a block without blunders has any test rejecting: the level of each "
+                   "test follows from the number of tests (Sidak over the B-method levels), so a clean "
+                   "block of any size ends with about this many false alarms. On the thesis block "
+                   "(159 tests) this is alpha 1.0e-4 per 1-D test, critical w 4.00 for an image point.")
+@click.option("--snooping-level", type=click.FloatRange(1e-12, 0.5, min_open=True, max_open=True),
+              default=None,
+              help="Fix the alpha of the one-dimensional w-test instead (power 0.80; 2-D and 3-D tests use "
+                   "the B-method levels with the same power); e.g. 0.001, critical w 3.29. Each test then "
+                   "rejects a good observation with about this probability: n x alpha false alarms.")
 @click.option("--robust", type=click.Choice(["none", "danish", "huber"]), default="none", show_default=True,
-              help="Iteratively re-weighted least squares before snooping (many blunders, large blocks).")
+              help="Iteratively re-weighted least squares before snooping. Measured: plain snooping (several "
+                   "separate rejections per round) names more of the blunders of a large block in about the "
+                   "same time, and more on small blocks; see docs/reliability.md.")
 @click.option("--self-calibrate", metavar="PARAMS", default=None,
               help="Estimate interior-orientation corrections per camera: a comma list of c, x0, y0, "
                    "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free). "
@@ -141,9 +154,9 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="With --frame-offset: a 7-parameter similarity (shift, scale ppm, rotations urad).")
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
-           variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str,
-           snooping_level: float, robust: str, self_calibrate: str | None, frame_offset: str | None,
-           similarity: bool | None, as_json: bool) -> None:
+           variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str | None,
+           family_level: float, snooping_level: float | None, robust: str, self_calibrate: str | None,
+           frame_offset: str | None, similarity: bool | None, as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
     Unknowns: X0, Y0, Z0 (m) and omega, phi, kappa (deg; M = R3(kappa) R2(phi)
@@ -176,21 +189,33 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
       lidarcat adjust data/thesis --control lidar --observations pixel -o out/lidar
       lidarcat adjust my_survey --json
       lidarcat adjust big_block --precision photos
-      lidarcat adjust my_survey --snooping remove --robust danish
+      lidarcat adjust big_block --snooping remove
+      lidarcat adjust my_survey --family-level 0.01
       lidarcat adjust --control gps+lidar --frame-offset lidar:gps --self-calibrate c,x0,y0,k1
 
     With --self-calibrate / --frame-offset (or a [self_calibration] table in
     survey.toml) summary.json gains additional_parameters, frame_offset,
     parameter_groups, parameters_off/parameters_on (v'Pv without and with them)
     and warnings; a control set 'a+b' joins two sets of control_sets.csv. Data
-    snooping and --robust apply to the plain adjustment only.
+    snooping and --robust apply to the plain adjustment only: with parameters
+    they are refused (exit 2) and the default is off; find the blunders first
+    without the parameters.
     """
     from ..bundle import adjust_survey
-    from ..bundle.selfcal_survey import adjust_survey_with_parameters, format_parameters, wants_parameters
+    from ..bundle.selfcal_survey import (
+        SNOOPING_WITH_PARAMETERS,
+        adjust_survey_with_parameters,
+        format_parameters,
+        wants_parameters,
+    )
     from ..survey import Survey
 
     loaded = Survey.load(survey)  # once, for both paths
-    if wants_parameters(loaded, self_calibrate, frame_offset):
+    with_parameters = wants_parameters(loaded, self_calibrate, frame_offset)
+    if with_parameters and (snooping not in (None, "off") or robust != "none"):
+        opt = f"--snooping {snooping}" if snooping not in (None, "off") else f"--robust {robust}"
+        raise click.UsageError(f"{opt}: {SNOOPING_WITH_PARAMETERS}")
+    if with_parameters:
         _, out = adjust_survey_with_parameters(
             loaded, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
             similarity=similarity, observations=observations, outdir=outdir,
@@ -199,7 +224,8 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     else:
         _, out = adjust_survey(loaded, control=control, observations=observations, outdir=outdir,
                                variance_factor=variance_factor, eo_constraints=eo_constraints,
-                               max_iter=max_iter, snooping=snooping, snooping_level=snooping_level,
+                               max_iter=max_iter, snooping=snooping or "report", snooping_level=snooping_level,
+                               family_level=family_level,
                                robust=robust, precision=precision)
     # what was written is what is shown
     summary = {**json.loads((Path(out) / "summary.json").read_text(encoding="utf-8")), "outdir": str(out)}
@@ -210,6 +236,8 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
         click.echo(format_report(summary, str(out)))
         if "additional_parameters" in summary:
             click.echo(format_parameters(summary))
+        if (summary.get("snooping") or {}).get("reason"):
+            click.echo(f"Note: {summary['snooping']['reason']}.")
     if code:
         click.echo(f"Warning: {verdict}.", err=True)
         sys.exit(code)

@@ -35,7 +35,7 @@ CONSISTENCY_MEMORY_BYTES = 1 << 30
 def run(ctx: Context, tmp: Path) -> dict:
     """Bundle adjustment of one control set -> eop.csv, points.csv, residuals.csv, summary.json."""
     from ...bundle import problem_from_survey, write_adjustment
-    from ...bundle.reliability import snoop
+    from ...bundle.reliability import FAMILY_LEVEL, snoop
     from ...bundle.survey_io import survey_provenance
     from ...survey import Survey
 
@@ -54,7 +54,7 @@ def run(ctx: Context, tmp: Path) -> dict:
                                          "control_set": par["control"],
                                          "observations": survey.settings.observations},
                      snooping=sres, provenance=survey_provenance(survey, {
-                         "control": par["control"], "snooping": "report", "snooping_level": 0.001, **kw}))
+                         "control": par["control"], "snooping": "report", "family_level": FAMILY_LEVEL, **kw}))
     summ = result.summary()
     if not result.success:
         raise LidarcatError(f"adjustment with control set {par['control']!r} did not converge: "
