@@ -131,25 +131,54 @@ def project_with_jacobians(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarr
         d(x, y)/d(E, N, h), mm per m.
     u3 : (n,)
     """
+    xy, a_pt, a_ang, u3 = _project_jacobian_parts(eo, xyz_m, focal_mm, index)
+    return xy, np.concatenate([-a_pt, a_ang], axis=2), a_pt, u3
+
+
+def _project_jacobian_parts(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
+                            index: np.ndarray | None = None):
+    r"""Photo coordinates, d(x, y)/d(point) and d(x, y)/d(angles) of every ray.
+
+    The position part of the exterior-orientation Jacobian is ``-a_pt``
+    (``du/dX0 = -M``).  Vectorised without per-ray 3 x 3 products: with
+    :math:`q = c/u_3`, :math:`\xi = -u_1/u_3 = x/c`, :math:`\eta = -u_2/u_3`,
+
+    .. math::  \partial x/\partial v = -q\,(v_1 + \xi v_3), \qquad
+               \partial y/\partial v = -q\,(v_2 + \eta v_3)
+
+    for a change ``v`` of u; ``v = M e_j`` for the point coordinate j, and for an
+    angle ``v = (dM/d\theta) (X - X_0) = G u`` with ``G = (dM/d\theta) M^T``
+    skew-symmetric (``M M^T = I``), i.e. a cross product ``g \times u`` with a
+    3-vector per photo and angle.
+
+    Returns ``(xy (n, 2), a_pt (n, 2, 3), a_ang (n, 2, 3), u3 (n,))``.
+    """
     eo = np.asarray(eo, dtype=float)
     m, dm = rotation_and_derivatives(eo[:, 3:6])
+    G = dm @ np.transpose(m, (0, 2, 1))[:, None]             # (P, 3 angles, 3, 3), skew
+    g = np.stack([G[:, :, 2, 1], G[:, :, 0, 2], G[:, :, 1, 0]], axis=2)   # (P, angle, component)
+    x0 = eo[:, :3]
     if index is not None:
-        m, dm, eo = m[index], dm[index], eo[index]
-    d = np.asarray(xyz_m, dtype=float) - eo[:, :3]
-    u = (m @ d[:, :, None])[:, :, 0]                # batched matmul: several times einsum's speed
+        m, g, x0 = m[index], g[index], x0[index]
+    d = np.asarray(xyz_m, dtype=float) - x0
+    u = np.einsum("nij,nj->ni", m, d)
     c = np.asarray(focal_mm, dtype=float)
     inv3 = 1.0 / u[:, 2]
-    xy = -c[:, None] * u[:, :2] * inv3[:, None]
-    n = len(eo)
-    dxy_du = np.zeros((n, 2, 3))
-    dxy_du[:, 0, 0] = -c * inv3
-    dxy_du[:, 1, 1] = -c * inv3
-    dxy_du[:, 0, 2] = c * u[:, 0] * inv3**2
-    dxy_du[:, 1, 2] = c * u[:, 1] * inv3**2
-    a_pt = dxy_du @ m                               # (n, 2, 3)
-    du_dang = np.transpose((dm @ d[:, None, :, None])[..., 0], (0, 2, 1))   # (n, 3, 3): u component x angle
-    a_eo = np.concatenate([-a_pt, dxy_du @ du_dang], axis=2)
-    return xy, a_eo, a_pt, u[:, 2]
+    xi = -u[:, 0] * inv3
+    eta = -u[:, 1] * inv3
+    q = (-c * inv3)[:, None]                                   # -q of the docstring
+    xy = np.column_stack([c * xi, c * eta])
+    a_pt = np.empty((len(d), 2, 3))
+    a_pt[:, 0] = q * (m[:, 0] + xi[:, None] * m[:, 2])
+    a_pt[:, 1] = q * (m[:, 1] + eta[:, None] * m[:, 2])
+    # v = g x u for the three angles at once: (n, angle)
+    v1 = g[:, :, 1] * u[:, 2:3] - g[:, :, 2] * u[:, 1:2]
+    v2 = g[:, :, 2] * u[:, 0:1] - g[:, :, 0] * u[:, 2:3]
+    v3 = g[:, :, 0] * u[:, 1:2] - g[:, :, 1] * u[:, 0:1]
+    a_ang = np.empty((len(d), 2, 3))
+    a_ang[:, 0] = q * (v1 + xi[:, None] * v3)
+    a_ang[:, 1] = q * (v2 + eta[:, None] * v3)
+    return xy, a_pt, a_ang, u[:, 2]
 
 
 def block_sum(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
