@@ -20,9 +20,10 @@ Assembly (:class:`_Schur`).  The pattern of S, the list of the pairs (a, b),
 a < b, of observations of the same point, the slot of every pair in the block
 pattern and the gather from blocks to the CSR order of the scalar matrix are
 computed once per problem; every step then evaluates ``T_a = W_a V_j^-1`` and
-the pair products ``T_a W_b^T`` in chunks of fixed size (memory bounded
-whatever the block), summed into their slots by a sparse matrix of ones built
-once per chunk (:class:`_Aggregator`; no ``np.add.at``).  The factorisation is the supernodal
+the sum of the pair products ``T_a W_b^T`` of every slot as one matrix product
+``[T_a1 | T_a2 | ...] [W_b1 | W_b2 | ...]^T`` -- slots with the same number of pairs
+batched, in chunks of fixed size (memory bounded whatever the block), the
+diagonal blocks (pairs a = a) included.  The factorisation is the supernodal
 Cholesky of :mod:`.cholesky`, its ordering and symbolic analysis reused in
 every step.
 
@@ -159,8 +160,8 @@ class _Schur:
         s_up = _slots(bpat, ia, ib)
         order = np.argsort(s_up, kind="stable")          # pairs sorted by slot (chunks touch few slots)
         self.oa, self.ob, self.s_up = oa[order], ob[order], s_up[order]
-        self._chunks = [(c0, min(len(oa), c0 + CHUNK_PAIRS)) for c0 in range(0, len(oa), CHUNK_PAIRS)]
-        self._chunk_sum = [_Aggregator(self.s_up[c0:c1], self.n_slots) for c0, c1 in self._chunks]
+        self._groups = _slot_groups(np.r_[self.s_up, self.slot_diag[ei]], np.r_[self.oa, np.arange(len(ei))],
+                                    np.r_[self.ob, np.arange(len(ei))])
         self.up_slots = np.unique(self.s_up)
         ui, uk = _slot_rc(bpat, self.up_slots)
         self.lo_slots = _slots(bpat, uk, ui)
@@ -198,15 +199,26 @@ class _Schur:
         return self._dg
 
     def assemble(self, U: np.ndarray, vinv: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """CSR data of S (pattern :attr:`pattern`) and T = W V^-1 (n, cb, 3)."""
-        T = W @ vinv[self.pj]                                   # (n, cb, 3)
-        Wt = np.ascontiguousarray(np.transpose(W, (0, 2, 1)))   # (n, 3, cb)
-        blocks = np.zeros((self.n_slots, self.cb, self.cb))
-        blocks[self.slot_diag] = U - self.by_camera(T @ Wt)
-        for (c0, c1), agg in zip(self._chunks, self._chunk_sum):
-            blocks -= agg(T[self.oa[c0:c1]] @ Wt[self.ob[c0:c1]])
+        """CSR data of S (pattern :attr:`pattern`) and T = W V^-1 (n, cb, 3).
+
+        Every block of S is one matrix product over the observation pairs of its
+        slot: ``sum_pairs T_a W_b^T = A B^T`` with ``A = [T_a1 | T_a2 | ...]``
+        (cb x 3k) and ``B = [W_b1 | ...]``; slots with the same number k of pairs
+        form one batched product (BLAS per slot), in chunks of at most
+        :data:`CHUNK_PAIRS` pairs (memory bounded whatever the block).
+        """
+        cb = self.cb
+        Wt = np.ascontiguousarray(np.transpose(W, (0, 2, 1)))   # (n, 3, cb); free when W is a view
+        Tt = np.matmul(np.transpose(vinv[self.pj], (0, 2, 1)), Wt)   # T^T = V^-T W^T (n, 3, cb)
+        blocks = np.zeros((self.n_slots, cb, cb))
+        blocks[self.slot_diag] = U
+        for slots, ia, ib in self._groups:
+            m, k = ia.shape
+            At = np.take(Tt, ia, axis=0).reshape(m, 3 * k, cb)   # A^T of every slot
+            Bt = np.take(Wt, ib, axis=0).reshape(m, 3 * k, cb)
+            blocks[slots] -= np.matmul(np.transpose(At, (0, 2, 1)), Bt)
         blocks[self.lo_slots] = np.transpose(blocks[self.up_slots], (0, 2, 1))
-        return blocks.ravel()[self.gather], T
+        return blocks.ravel()[self.gather], np.transpose(Tt, (0, 2, 1))
 
     def factor(self, data: np.ndarray):
         """Supernodal Cholesky of S with CSR *data*; :class:`_Singular` if not positive definite."""
@@ -287,6 +299,28 @@ def _pcg(S: sp.csr_matrix, b: np.ndarray, prec: np.ndarray, *, eta: float = 0.1,
         d = z + (rz_new / rz) * d
         rz = rz_new
     return x, i
+
+
+def _slot_groups(slot: np.ndarray, a: np.ndarray, b: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Observation pairs (a, b) grouped by their slot of S, slots grouped by pair count.
+
+    Returns ``[(slots (m,), a (m, k), b (m, k)), ...]``: m slots of k pairs each,
+    at most :data:`CHUNK_PAIRS` pairs per entry (slots distinct within an entry).
+    """
+    order = np.argsort(slot, kind="stable")
+    slot, a, b = slot[order], a[order], b[order]
+    n_slots = int(slot.max()) + 1 if len(slot) else 0
+    cnt = np.bincount(slot, minlength=n_slots)
+    starts = np.r_[0, np.cumsum(cnt)[:-1]]
+    groups = []
+    for k in np.unique(cnt[cnt > 0]):
+        slots = np.flatnonzero(cnt == k)
+        idx = starts[slots][:, None] + np.arange(k)[None, :]
+        step = max(1, CHUNK_PAIRS // int(k))
+        for c0 in range(0, len(slots), step):
+            sel = idx[c0:c0 + step]
+            groups.append((slots[c0:c0 + step], a[sel], b[sel]))
+    return groups
 
 
 def _slots(bpat: sp.csr_matrix, r: np.ndarray, c: np.ndarray) -> np.ndarray:

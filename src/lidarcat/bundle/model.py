@@ -74,9 +74,10 @@ class _System:
         Pap = wa_t @ a_pt                                  # a_ang' w a_pt
         Paa = wa_t @ a_ang
         n = len(r)
-        self.W = np.empty((n, 6, 3))                       # a_eo' w a_pt
-        np.negative(Ppp, out=self.W[:, :3])
-        self.W[:, 3:] = Pap
+        Wt = np.empty((n, 3, 6))                           # (a_eo' w a_pt)^T, stored contiguous
+        np.negative(Ppp, out=Wt[:, :, :3])                 # (Ppp symmetric)
+        np.matmul(wp_t, a_ang, out=Wt[:, :, 3:])           # Pap^T
+        self.W = np.transpose(Wt, (0, 2, 1))               # (n, 6, 3) view
         sums = by_cam(np.concatenate([Ppp.reshape(n, 9), Pap.reshape(n, 9), Paa.reshape(n, 9)], axis=1))
         self.U = np.empty((p.n_photos, 6, 6))
         self.U[:, :3, :3] = sums[:, :9].reshape(-1, 3, 3)
