@@ -65,25 +65,22 @@ class _System:
         r = xy - p.xy_mm                                 # residual (adjusted - observed)
         w = 1.0 / p.sd_mm**2                             # (n, 2)
         self.r_obs = r
-        # a_eo = [-a_pt, a_ang]: the 6 x 6, 6 x 3 and 3 x 3 products come from three 3 x 3 ones
+        # a_eo = [-a_pt, a_ang]: W and V from two 3 x 3 products per ray, U as per-photo Gram
+        # matrices of sqrt(w) a_eo (one BLAS product per photo)
         by_cam, by_pt = self.schur.by_camera, self.schur.by_point
         wr = w * r
         wp_t = np.transpose(a_pt * w[:, :, None], (0, 2, 1))     # (n, 3, 2)
-        wa_t = np.transpose(a_ang * w[:, :, None], (0, 2, 1))
         Ppp = wp_t @ a_pt                                  # a_pt' w a_pt (n, 3, 3)
-        Pap = wa_t @ a_pt                                  # a_ang' w a_pt
-        Paa = wa_t @ a_ang
         n = len(r)
         Wt = np.empty((n, 3, 6))                           # (a_eo' w a_pt)^T, stored contiguous
         np.negative(Ppp, out=Wt[:, :, :3])                 # (Ppp symmetric)
-        np.matmul(wp_t, a_ang, out=Wt[:, :, 3:])           # Pap^T
+        np.matmul(wp_t, a_ang, out=Wt[:, :, 3:])           # (a_ang' w a_pt)^T
         self.W = np.transpose(Wt, (0, 2, 1))               # (n, 6, 3) view
-        sums = by_cam(np.concatenate([Ppp.reshape(n, 9), Pap.reshape(n, 9), Paa.reshape(n, 9)], axis=1))
-        self.U = np.empty((p.n_photos, 6, 6))
-        self.U[:, :3, :3] = sums[:, :9].reshape(-1, 3, 3)
-        self.U[:, 3:, :3] = -sums[:, 9:18].reshape(-1, 3, 3)
-        self.U[:, :3, 3:] = np.transpose(self.U[:, 3:, :3], (0, 2, 1))
-        self.U[:, 3:, 3:] = sums[:, 18:].reshape(-1, 3, 3)
+        sw = np.sqrt(w)[:, :, None]
+        swa = np.empty((n, 2, 6))
+        np.multiply(a_pt, -sw, out=swa[:, :, :3])
+        np.multiply(a_ang, sw, out=swa[:, :, 3:])
+        self.U = self.schur.gram_by_camera(swa)
         self.V = by_pt(Ppp)
         gp_obs = np.einsum("nki,nk->ni", a_pt, wr)         # a_pt' w r (n, 3)
         ga_obs = np.einsum("nki,nk->ni", a_ang, wr)
