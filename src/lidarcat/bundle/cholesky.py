@@ -67,6 +67,9 @@ import numpy as np
 import scipy.linalg as sla
 from scipy.linalg.blas import dsymm as _dsymm
 from scipy.linalg.blas import dsyrk as _dsyrk
+from scipy.linalg.blas import dtrsm as _dtrsm
+from scipy.linalg.blas import dtrsv as _dtrsv
+from scipy.linalg.lapack import dpotrf as _dpotrf
 from scipy.linalg.lapack import dpotri as _dpotri
 import scipy.sparse as sp
 from scipy.sparse import csgraph
@@ -452,24 +455,31 @@ class _Factor:
                 Uc = updates.pop(c, None)
                 if Uc is not None and len(Uc):
                     _extend_add(F, Fbb, Uc, sym.nodes[c].runs, nc)
-            Fss = F[:nc]
-            try:
-                L = sla.cholesky(Fss, lower=True, check_finite=False)
-            except np.linalg.LinAlgError as ex:
-                raise SingularError(f"not positive definite ({ex})") from ex
-            piv = np.diag(L) ** 2
+            # LAPACK/BLAS straight on Fortran views of the C-ordered front (no copies, no
+            # wrapper overhead): F[:nc].T is upper-stored L^T, F[nc:].T = F_bs^T
+            Lt, info = _dpotrf(F[:nc].T, lower=0, clean=0, overwrite_a=1)
+            if info != 0:
+                raise SingularError(f"not positive definite (leading minor {info})")
+            if not np.shares_memory(Lt, F):  # pragma: no cover - f2py copied
+                F[:nc] = Lt.T
+            L = F[:nc]                                       # lower triangle valid
+            piv = np.diagonal(L) ** 2
             ref = diag[node.cols]
             ratio = piv / np.where(ref > 0, ref, 1.0)
             if not np.all(np.isfinite(piv)) or ratio.min() < PIVOT_RTOL:
                 raise SingularError(f"relative pivot {ratio.min():.1e}")
             self.Lss.append(L)
             if nb:
-                Lbs = sla.solve_triangular(L, F[nc:].T, lower=True, check_finite=False).T
+                # L_bs^T = L_ss^-1 F_bs^T in place
+                out = _dtrsm(1.0, L.T, F[nc:].T, side=0, lower=0, trans_a=1, overwrite_b=1)
+                if not np.shares_memory(out, F):  # pragma: no cover - f2py copied
+                    F[nc:] = out.T
+                Lbs = F[nc:]
                 self.Lbs.append(Lbs)
-                # Fbb - Lbs Lbs^T, lower triangle only (BLAS syrk on the Fortran view: half the
+                # Fbb - Lbs Lbs^T, lower triangle only (BLAS syrk on the Fortran views: half the
                 # flops of a product); every reader of an update reads its lower triangle
                 ft = Fbb.T
-                out = _dsyrk(-1.0, Lbs, beta=1.0, c=ft, trans=0, lower=0, overwrite_c=1)
+                out = _dsyrk(-1.0, Lbs.T, beta=1.0, c=ft, trans=1, lower=0, overwrite_c=1)
                 if out is not ft:  # pragma: no cover - f2py copied
                     Fbb = out.T
                 updates[k] = Fbb
@@ -480,9 +490,22 @@ class _Factor:
         """x with S x = b, b of shape (n,) or (n, m)."""
         sym = self.sym
         x = np.asarray(b, dtype=float)[sym.perm].copy()
+        if x.ndim == 1:
+            # L_ss^-1 and L_ss^-T by BLAS trsv on the Fortran view (upper-stored L^T)
+            def fwd(L, v):
+                return _dtrsv(L.T, v, lower=0, trans=1)
+
+            def bwd(L, v):
+                return _dtrsv(L.T, v, lower=0, trans=0)
+        else:
+            def fwd(L, v):
+                return sla.solve_triangular(L, v, lower=True, check_finite=False)
+
+            def bwd(L, v):
+                return sla.solve_triangular(L, v, lower=True, trans="T", check_finite=False)
         for k, node in enumerate(sym.nodes):
             c0, c1 = node.cols[0], node.cols[-1] + 1
-            xs = sla.solve_triangular(self.Lss[k], x[c0:c1], lower=True, check_finite=False)
+            xs = fwd(self.Lss[k], x[c0:c1])
             x[c0:c1] = xs
             if len(node.rows):
                 x[node.rows] -= self.Lbs[k] @ xs
@@ -492,7 +515,7 @@ class _Factor:
             xs = x[c0:c1]
             if len(node.rows):
                 xs = xs - self.Lbs[k].T @ x[node.rows]
-            x[c0:c1] = sla.solve_triangular(self.Lss[k], xs, lower=True, trans="T", check_finite=False)
+            x[c0:c1] = bwd(self.Lss[k], xs)
         return x[sym.iperm]
 
     def selected_inverse(self) -> SelectedInverse:
@@ -505,17 +528,17 @@ class _Factor:
             nc, nb = len(node.cols), len(node.rows)
             zk = flat[sym.z_offsets[k]:sym.z_offsets[k + 1]].reshape(nc + nb, nc)
             # L_ss^-T L_ss^-1 from the Cholesky factor (LAPACK potri: lower triangle)
-            inv, info = _dpotri(self.Lss[k], lower=1)
+            inv, info = _dpotri(self.Lss[k].T, lower=0)    # Fortran view: upper-stored L^T
             if info:  # pragma: no cover - the factor was checked
                 raise SingularError(f"potri failed ({info})")
+            inv = inv.T                                     # lower triangle valid
             inv = np.tril(inv) + np.tril(inv, -1).T
             if nb:
                 Zbb = np.empty((nb, nb))
                 for a, dr, dc, sr, sc, nr, ncl in node.zbb:
                     Zbb[dr:dr + nr, dc:dc + ncl] = Z[a][sr:sr + nr, sc:sc + ncl]
                 # X = L_bs L_ss^-1, i.e. X^T = L_ss^-T L_bs^T (one triangular solve)
-                X = sla.solve_triangular(self.Lss[k], self.Lbs[k].T, lower=True, trans="T",
-                                         check_finite=False).T
+                X = _dtrsm(1.0, self.Lss[k].T, self.Lbs[k].T, side=0, lower=0, trans_a=0).T
                 # Z_bs = -Z_bb X with only the lower triangle of Z_bb filled (BLAS symm; Z_bb.T
                 # is Fortran-ordered, its upper triangle is Z_bb's lower)
                 zbs = _dsymm(-1.0, Zbb.T, X, side=0, lower=0)
