@@ -35,6 +35,7 @@ observations.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 __all__ = ["block_sum", "rotation_matrix", "rotation_and_derivatives", "project", "project_with_jacobians"]
 
@@ -113,7 +114,7 @@ def project(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
     if index is not None:
         m, eo = m[index], eo[index]
     d = np.asarray(xyz_m, dtype=float) - eo[:, :3]
-    u = (m @ d[:, :, None])[:, :, 0]
+    u = np.einsum("nij,nj->ni", m, d)
     xy = -np.asarray(focal_mm, dtype=float)[:, None] * u[:, :2] / u[:, 2:3]
     return xy, u[:, 2]
 
@@ -182,7 +183,10 @@ def _project_jacobian_parts(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndar
 
 
 def block_sum(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
-    """Sum (m, ...) blocks into (n, ...) by *index* (a fast scatter-add with bincount).
+    """Sum (m, ...) blocks into (n, ...) by *index*.
+
+    One sparse (n x m) matrix of ones times the blocks flattened to (m, k): a
+    C loop over the m rows (several times ``np.bincount`` per component).
 
     >>> block_sum(np.array([0, 1, 0]), np.ones((3, 2, 2)), 2)[:, 0, 0]
     array([2., 1.])
@@ -191,5 +195,5 @@ def block_sum(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
     m = blocks.shape[0]
     tail = blocks.shape[1:]
     k = int(np.prod(tail)) if tail else 1
-    flat = (np.asarray(index)[:, None] * k + np.arange(k)).ravel()
-    return np.bincount(flat, weights=blocks.reshape(m * k), minlength=n * k).reshape((n,) + tail)
+    ones = sp.csr_matrix((np.ones(m), (np.asarray(index), np.arange(m))), shape=(n, m))
+    return np.asarray(ones @ blocks.reshape(m, k)).reshape((n,) + tail)
