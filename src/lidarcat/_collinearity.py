@@ -109,14 +109,18 @@ def project(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
     u3 : (n,) array
         Third image-space component (negative for a point in front of the camera).
     """
-    eo = np.asarray(eo, dtype=float)
-    m = rotation_matrix(eo[:, 3:6].reshape(-1, 3))
-    if index is not None:
-        m, eo = m[index], eo[index]
-    d = np.asarray(xyz_m, dtype=float) - eo[:, :3]
-    u = np.einsum("nij,nj->ni", m, d)
-    xy = -np.asarray(focal_mm, dtype=float)[:, None] * u[:, :2] / u[:, 2:3]
-    return xy, u[:, 2]
+    eo = np.asarray(eo, dtype=float).reshape(-1, 6)
+    m = rotation_matrix(eo[:, 3:6])
+    per_photo = np.concatenate([m.reshape(-1, 9), eo[:, :3]], axis=1).T     # (12, P), rows
+    rows = per_photo if index is None else np.take(per_photo, index, axis=1)
+    M, x0 = rows[0:9].reshape(3, 3, -1), rows[9:12]
+    d = np.asarray(xyz_m, dtype=float).reshape(-1, 3).T - x0  # (3, n)
+    u = M[:, 0] * d[0] + M[:, 1] * d[1] + M[:, 2] * d[2]
+    f = -np.asarray(focal_mm, dtype=float) / u[2]
+    xy = np.empty((u.shape[1], 2))
+    xy[:, 0] = f * u[0]
+    xy[:, 1] = f * u[1]
+    return xy, u[2]
 
 
 def project_with_jacobians(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
@@ -158,28 +162,33 @@ def _project_jacobian_parts(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndar
     m, dm = rotation_and_derivatives(eo[:, 3:6])
     G = dm @ np.transpose(m, (0, 2, 1))[:, None]             # (P, 3 angles, 3, 3), skew
     g = np.stack([G[:, :, 2, 1], G[:, :, 0, 2], G[:, :, 1, 0]], axis=2)   # (P, angle, component)
-    x0 = eo[:, :3]
-    if index is not None:
-        m, g, x0 = m[index], g[index], x0[index]
-    d = np.asarray(xyz_m, dtype=float) - x0
-    u = np.einsum("nij,nj->ni", m, d)
+    # per-photo quantities as rows (structure of arrays): every operation below runs on
+    # contiguous length-n rows
+    per_photo = np.concatenate([m.reshape(-1, 9), g.reshape(-1, 9), eo[:, :3]], axis=1).T   # (21, P)
+    rows = per_photo if index is None else np.take(per_photo, index, axis=1)                # (21, n)
+    M, gv, x0 = rows[0:9].reshape(3, 3, -1), rows[9:18].reshape(3, 3, -1), rows[18:21]
+    d = np.asarray(xyz_m, dtype=float).reshape(-1, 3).T - x0  # (3, n)
+    u = M[:, 0] * d[0] + M[:, 1] * d[1] + M[:, 2] * d[2]                                    # (3, n)
     c = np.asarray(focal_mm, dtype=float)
-    inv3 = 1.0 / u[:, 2]
-    xi = -u[:, 0] * inv3
-    eta = -u[:, 1] * inv3
-    q = (-c * inv3)[:, None]                                   # -q of the docstring
-    xy = np.column_stack([c * xi, c * eta])
-    a_pt = np.empty((len(d), 2, 3))
-    a_pt[:, 0] = q * (m[:, 0] + xi[:, None] * m[:, 2])
-    a_pt[:, 1] = q * (m[:, 1] + eta[:, None] * m[:, 2])
-    # v = g x u for the three angles at once: (n, angle)
-    v1 = g[:, :, 1] * u[:, 2:3] - g[:, :, 2] * u[:, 1:2]
-    v2 = g[:, :, 2] * u[:, 0:1] - g[:, :, 0] * u[:, 2:3]
-    v3 = g[:, :, 0] * u[:, 1:2] - g[:, :, 1] * u[:, 0:1]
-    a_ang = np.empty((len(d), 2, 3))
-    a_ang[:, 0] = q * (v1 + xi[:, None] * v3)
-    a_ang[:, 1] = q * (v2 + eta[:, None] * v3)
-    return xy, a_pt, a_ang, u[:, 2]
+    inv3 = 1.0 / u[2]
+    xi = -u[0] * inv3
+    eta = -u[1] * inv3
+    q = -c * inv3                                              # -q of the docstring
+    n = u.shape[1]
+    xy = np.empty((n, 2))
+    xy[:, 0] = c * xi
+    xy[:, 1] = c * eta
+    a_pt = np.empty((n, 2, 3))
+    a_pt[:, 0] = (q * (M[0] + xi * M[2])).T
+    a_pt[:, 1] = (q * (M[1] + eta * M[2])).T
+    # v = g x u for the three angles at once: (angle, n)
+    v1 = gv[:, 1] * u[2] - gv[:, 2] * u[1]
+    v2 = gv[:, 2] * u[0] - gv[:, 0] * u[2]
+    v3 = gv[:, 0] * u[1] - gv[:, 1] * u[0]
+    a_ang = np.empty((n, 2, 3))
+    a_ang[:, 0] = (q * (v1 + xi * v3)).T
+    a_ang[:, 1] = (q * (v2 + eta * v3)).T
+    return xy, a_pt, a_ang, u[2]
 
 
 def block_sum(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
