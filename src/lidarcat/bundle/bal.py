@@ -139,37 +139,47 @@ def bal_project(cameras: np.ndarray, points: np.ndarray, cam_i: np.ndarray, pt_i
     ``A [y]_x`` are ``a_k x y`` (cross products) and ``R J_r`` is one 3 x 3 per camera.
     """
     R, J = _rodrigues(cameras[:, :3])
-    X = points[pt_i]
-    Ri = R[cam_i]
-    RX = np.einsum("nij,nj->ni", Ri, X)
-    cam = cameras[cam_i]
-    P = RX + cam[:, 3:6]
-    inv_z = 1.0 / P[:, 2]
-    p = -P[:, :2] * inv_z[:, None]
-    s = np.einsum("ni,ni->n", p, p)
-    f, k1, k2 = cam[:, 6], cam[:, 7], cam[:, 8]
+    # per-camera quantities as rows (structure of arrays): R, R J_r, t, f, k1, k2 -> (24, n)
+    per_cam = np.concatenate([R.reshape(-1, 9), (R @ J).reshape(-1, 9), cameras[:, 3:9]], axis=1).T
+    rows = np.take(per_cam, cam_i, axis=1)
+    Rr, RJ = rows[0:9].reshape(3, 3, -1), rows[9:18].reshape(3, 3, -1)
+    f, k1, k2 = rows[21], rows[22], rows[23]
+    X = np.take(points.T, pt_i, axis=1)                        # (3, n)
+    RX = Rr[:, 0] * X[0] + Rr[:, 1] * X[1] + Rr[:, 2] * X[2]   # (3, n)
+    P = RX + rows[18:21]
+    inv_z = 1.0 / P[2]
+    p = -P[:2] * inv_z
+    s = p[0] * p[0] + p[1] * p[1]
     d = 1 + k1 * s + k2 * s * s
     fd = f * d
-    x = fd[:, None] * p
+    n = len(cam_i)
+    x = np.empty((n, 2))
+    x[:, 0] = fd * p[0]
+    x[:, 1] = fd * p[1]
     if not jacobians:
         return x
-    n = len(cam_i)
-    # dx/dp = f d I + 2 f (k1 + 2 k2 s) p p^T;  A = dx/dp dp/dP = -(1/z) [dx/dp | dx/dp p]
+    # dx/dp = f d I + e p p^T (e = 2 f (k1 + 2 k2 s));  A = dx/dp dp/dP = -(1/z) [dx/dp | dx/dp p]
     e = 2 * f * (k1 + 2 * k2 * s)
-    A = np.empty((n, 2, 3))
-    A[:, :, :2] = (e * -inv_z)[:, None, None] * (p[:, :, None] * p[:, None, :])
-    A[:, 0, 0] -= fd * inv_z
-    A[:, 1, 1] -= fd * inv_z
-    A[:, :, 2] = (-(fd + e * s) * inv_z)[:, None] * p
+    ez = -e * inv_z
+    fz = fd * inv_z
+    A = np.empty((2, 3, n))                                    # A[k, l]: row k, column l
+    A[0, 0] = ez * p[0] * p[0] - fz
+    A[0, 1] = ez * p[0] * p[1]
+    A[1, 0] = A[0, 1]
+    A[1, 1] = ez * p[1] * p[1] - fz
+    A[:, 2] = (-(fd + e * s) * inv_z) * p
     jc = np.empty((n, 2, 9))
-    jp = np.matmul(A, Ri)
-    # rows of A [RX]_x: a x RX
-    B = np.cross(A, RX[:, None, :])
-    np.matmul(-B, (R @ J)[cam_i], out=jc[:, :, 0:3])
-    jc[:, :, 3:6] = A
-    jc[:, :, 6] = d[:, None] * p
-    jc[:, :, 7] = (f * s)[:, None] * p
-    jc[:, :, 8] = (f * s * s)[:, None] * p
+    jp = np.empty((n, 2, 3))
+    for k in range(2):
+        a = A[k]
+        # dx_k/dX = a R;  dx_k/dr = -(a x RX) R J_r
+        jp[:, k] = (a[0] * Rr[0] + a[1] * Rr[1] + a[2] * Rr[2]).T
+        b = (a[1] * RX[2] - a[2] * RX[1], a[2] * RX[0] - a[0] * RX[2], a[0] * RX[1] - a[1] * RX[0])
+        jc[:, k, 0:3] = (-(b[0] * RJ[0] + b[1] * RJ[1] + b[2] * RJ[2])).T
+        jc[:, k, 3:6] = a.T
+        jc[:, k, 6] = d * p[k]
+        jc[:, k, 7] = f * s * p[k]
+        jc[:, k, 8] = f * s * s * p[k]
     return x, jc, jp
 
 
