@@ -265,7 +265,7 @@ class SupernodalCholesky:
         upos[uorder] = np.arange(n_units)
         new_sizes = sizes[uorder]
         new_off = np.r_[0, np.cumsum(new_sizes)]
-        perm = np.concatenate([np.arange(u_off[u], u_off[u + 1]) for u in uorder])  # new -> old scalar
+        perm = _ranges(u_off[uorder], sizes[uorder])          # new -> old scalar
         iperm = np.empty(self.n, dtype=np.int64)
         iperm[perm] = np.arange(self.n)
         self.perm, self.iperm = perm, iperm
@@ -284,16 +284,14 @@ class SupernodalCholesky:
                 kids[p_].append(k)
         for k, nd in enumerate(nodes_u):
             last = upos[nd].max()
-            nb = [upos[ugc.indices[ugc.indptr[u]:ugc.indptr[u + 1]]] for u in nd]
+            nb = [upos[ugc.indices[_ranges(ugc.indptr[nd], ugc.indptr[nd + 1] - ugc.indptr[nd])]]]
             nb += [bnd[c] for c in kids[k]]
             allb = np.unique(np.concatenate(nb)) if nb else np.zeros(0, dtype=np.int64)
             allb = allb[allb > last]               # ancestors only (nested dissection)
             bnd.append(allb)
         # scalar structure
         def scal(units_pos: np.ndarray) -> np.ndarray:
-            if not len(units_pos):
-                return np.zeros(0, dtype=np.int64)
-            return np.concatenate([np.arange(new_off[u], new_off[u + 1]) for u in units_pos])
+            return _ranges(new_off[units_pos], new_sizes[units_pos])
 
         self.nodes: list[_Node] = []
         for k, nd in enumerate(nodes_u):
@@ -395,13 +393,24 @@ class SupernodalCholesky:
         return _Factor(self, np.asarray(data, dtype=float))
 
 
+def _ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Concatenation of ``arange(s, s + l)`` for every (s, l), vectorised (int64)."""
+    starts = np.asarray(starts, dtype=np.int64)
+    lengths = np.asarray(lengths, dtype=np.int64)
+    total = int(lengths.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    first = np.cumsum(lengths) - lengths                 # position of each range in the output
+    return np.repeat(starts - first, lengths) + np.arange(total)
+
+
 def _pair_runs(dst: np.ndarray, src: np.ndarray) -> list[tuple[int, int, int]]:
     """Maximal runs where both *dst* and *src* advance by one: ``[(dst0, src0, length), ...]``."""
     if not len(dst):
         return []
     brk = np.flatnonzero((np.diff(dst) != 1) | (np.diff(src) != 1)) + 1
-    lo = np.r_[0, brk]
-    hi = np.r_[brk, len(dst)]
+    lo = np.concatenate([[0], brk])
+    hi = np.concatenate([brk, [len(dst)]])
     return [(int(dst[a]), int(src[a]), int(b - a)) for a, b in zip(lo, hi)]
 
 
@@ -414,8 +423,8 @@ def _runs(ext: np.ndarray, nc: int) -> tuple:
     if not len(ext):
         return ()
     brk = np.flatnonzero((np.diff(ext) != 1) | (ext[1:] == nc)) + 1
-    lo = np.r_[0, brk]
-    hi = np.r_[brk, len(ext)]
+    lo = np.concatenate([[0], brk])
+    hi = np.concatenate([brk, [len(ext)]])
     return tuple((int(a), int(b), int(ext[a])) for a, b in zip(lo, hi))
 
 
