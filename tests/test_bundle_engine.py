@@ -168,3 +168,87 @@ def test_pcg_truncation_and_exact_solution():
     y, it_trunc = _pcg(A, b, prec)
     assert 1 <= it_trunc < it_exact
     assert 0.5 * y @ (A @ y) - b @ y < 0
+
+
+def test_gram_sums_per_group_with_mixed_group_sizes():
+    """_Gram (per-camera U blocks): sum of X_a' X_a per group, groups of many sizes, empty groups zero."""
+    from lidarcat.bundle.linear import _Gram
+
+    rng = np.random.default_rng(11)
+    index = rng.integers(0, 40, 700) ** 2 // 40          # skewed sizes; some groups empty
+    X = rng.normal(size=(700, 2, 6))
+    out = _Gram(index, 41)(X)
+    ref = np.zeros((41, 6, 6))
+    for a, g in enumerate(index):
+        ref[g] += X[a].T @ X[a]
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    empty = np.setdiff1d(np.arange(41), index)
+    assert len(empty) and not out[empty].any()
+
+
+def test_slot_groups_cover_every_pair_once_and_pad_with_the_sentinel():
+    """The batched assembly plan: every (slot, a, b) exactly once; padding only in `a`, with the
+    sentinel; padded sizes from the ladder (at most ~20 % above the count)."""
+    from lidarcat.bundle.linear import _bucket, _slot_groups
+
+    rng = np.random.default_rng(12)
+    m = 5000
+    slot = rng.integers(0, 300, m) ** 2 // 300
+    a, b = np.arange(m), rng.permutation(m)
+    got = []
+    for slots, ga, gb in _slot_groups(slot, a, b, sentinel=m):
+        assert len(np.unique(slots)) == len(slots) and ga.shape == gb.shape == (len(slots), ga.shape[1])
+        real = ga != m
+        assert real[:, 0].all()                        # every slot has a real first pair
+        s = np.broadcast_to(slots[:, None], ga.shape)
+        got.append(np.stack([s[real], ga[real], gb[real]], axis=1))
+        assert np.isin(gb[~real], b).all()             # padding of b: real members (finite rows)
+    got = np.concatenate(got)
+    want = np.stack([slot, a, b], axis=1)
+    np.testing.assert_array_equal(got[np.lexsort(got.T[::-1])], want[np.lexsort(want.T[::-1])])
+    k = np.arange(1, 5000)
+    assert np.all(_bucket(k) >= k) and np.all(_bucket(k) <= np.ceil(1.2 * k) + 1)
+    np.testing.assert_array_equal(_bucket(np.arange(1, 9)), np.arange(1, 9))
+
+
+def test_jacobian_parts_with_a_photo_index_equal_the_gathered_form():
+    """project / project_with_jacobians with one row per photo and an index equal the same with
+    the rows gathered (the structure-of-arrays path), and a_eo = [-a_pt, a_ang]."""
+    from lidarcat._collinearity import _project_jacobian_parts, project, project_with_jacobians
+
+    rng = np.random.default_rng(13)
+    eo = np.c_[rng.normal(0, 50, (4, 2)), 1500 + rng.normal(0, 20, 4), rng.normal(0, 0.1, (4, 2)),
+               rng.uniform(-np.pi, np.pi, 4)]
+    idx = rng.integers(0, 4, 30)
+    xyz = np.c_[rng.normal(0, 300, (30, 2)), rng.normal(0, 30, 30)]
+    c = np.full(30, 51.902)
+    full = project_with_jacobians(eo[idx], xyz, c)
+    for got, want in zip(project_with_jacobians(eo, xyz, c, idx), full):
+        np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-12)
+    xy, a_pt, a_ang, u3 = _project_jacobian_parts(eo, xyz, c, idx)
+    np.testing.assert_array_equal(full[1][:, :, :3], -full[2])
+    np.testing.assert_allclose(a_ang, full[1][:, :, 3:], rtol=1e-13, atol=1e-12)
+    pxy, pu3 = project(eo, xyz, c, idx)
+    np.testing.assert_allclose(pxy, full[0], rtol=1e-14)
+    np.testing.assert_allclose(pu3, full[3], rtol=1e-14)
+
+
+def test_extend_add_runs_split_at_the_parents_columns():
+    """The extend-add plan: maximal runs of consecutive parent positions, never straddling the
+    parent's column / boundary split; the slice additions equal a fancy-indexed scatter (lower part)."""
+    from lidarcat.bundle.cholesky import _extend_add, _runs
+
+    ext = np.array([0, 1, 2, 5, 6, 7, 8, 11])
+    assert _runs(ext, 7) == ((0, 3, 0), (3, 5, 5), (5, 7, 7), (7, 8, 11))
+    nc, nb = 7, 5
+    rng = np.random.default_rng(14)
+    Uc = rng.normal(size=(8, 8))
+    F, Fbb = np.zeros((nc + nb, nc)), np.zeros((nb, nb))
+    _extend_add(F, Fbb, Uc, _runs(ext, nc), nc)
+    full = np.zeros((nc + nb, nc + nb))
+    full[np.ix_(ext, ext)] += Uc
+    low = np.tril(np.ones((nc + nb, nc + nb), dtype=bool))
+    got = np.zeros_like(full)
+    got[:, :nc] = F
+    got[nc:, nc:] = Fbb
+    np.testing.assert_array_equal(got[low], full[low])

@@ -57,9 +57,8 @@ def _intersect(problem, eo: np.ndarray, oriented: np.ndarray, targets: np.ndarra
     x0 = eo[ei, :3]
     A = block_sum(pj, proj, n_pt)
     b = block_sum(pj, np.einsum("nij,nj->ni", proj, x0), n_pt)
-    n_photos = np.zeros(n_pt, dtype=int)
-    uniq = np.unique(np.stack([pj, ei], axis=1), axis=0)
-    np.add.at(n_photos, uniq[:, 0], 1)
+    # distinct photos per point (one 1-D unique of pj * P + ei)
+    n_photos = np.bincount(np.unique(pj.astype(np.int64) * p.n_photos + ei) // p.n_photos, minlength=n_pt)
     At, bt = A[targets], b[targets]
     good = n_photos[targets] >= 2
     if good.any():
@@ -146,12 +145,20 @@ def planimetric_block(problem) -> np.ndarray:
     # centre the ground coordinates for conditioning
     centre = p.constraint_enh_m[full, :2].mean(axis=0) if k else np.zeros(2)
     rhs[2 * n_obs:] -= w * np.tile(centre, k)
-    N = (A.T @ A).tocsc()
+    N = (A.T @ A).tocsr()
+    b = A.T @ rhs
+    # the point block of N is diagonal (E and N of a point enter separate rows with
+    # coefficient 1): eliminate the points (Schur complement on the 4P photo unknowns),
+    # solve, back-substitute -- a sparse LU of 4P instead of 4P + 2Q unknowns
+    d_inv = 1.0 / N.diagonal()[off:]
+    N_cp = N[:off, off:]
+    S = (N[:off, :off] - N_cp @ sp.diags(d_inv) @ N_cp.T).tocsc()
     try:
-        sol = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                        options={"SymmetricMode": True}).solve(A.T @ rhs)
+        sol_c = spla.splu(S, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                          options={"SymmetricMode": True}).solve(b[:off] - N_cp @ (d_inv * b[off:]))
     except RuntimeError as ex:
         raise DatumError(f"approximations: the planimetric block is singular ({ex})") from ex
+    sol = np.concatenate([sol_c, d_inv * (b[off:] - N_cp.T @ sol_c)])
     if not np.all(np.isfinite(sol)):
         raise DatumError("approximations: the planimetric block is singular (too little control)")
     a = sol[0:off:4] + 1j * sol[1:off:4]
@@ -237,9 +244,9 @@ def resect_all(problem, eo: np.ndarray, pts: np.ndarray, mask: np.ndarray, max_i
     for _ in range(max_iter):
         xy, a_eo, _, _ = project_with_jacobians(eo, xyz, c, ei)
         r = xy - obs
-        aw = a_eo * w[:, :, None]
-        U = block_sum(ei, np.einsum("nki,nkj->nij", aw, a_eo), n_ph)
-        g = block_sum(ei, np.einsum("nki,nk->ni", aw, r), n_ph)
+        aw_t = np.transpose(a_eo * w[:, :, None], (0, 2, 1))
+        U = block_sum(ei, aw_t @ a_eo, n_ph)
+        g = block_sum(ei, np.einsum("nik,nk->ni", aw_t, r), n_ph)
         U[~active] = np.eye(6)
         g[~active] = 0.0
         for _inner in range(8):

@@ -35,6 +35,10 @@ observations.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
+
+#: rays per chunk of the vectorised projection (temporaries of ~40 rows of this length stay in cache)
+_CHUNK = 32768
 
 __all__ = ["block_sum", "rotation_matrix", "rotation_and_derivatives", "project", "project_with_jacobians"]
 
@@ -108,14 +112,28 @@ def project(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
     u3 : (n,) array
         Third image-space component (negative for a point in front of the camera).
     """
-    eo = np.asarray(eo, dtype=float)
-    m = rotation_matrix(eo[:, 3:6].reshape(-1, 3))
-    if index is not None:
-        m, eo = m[index], eo[index]
-    d = np.asarray(xyz_m, dtype=float) - eo[:, :3]
-    u = (m @ d[:, :, None])[:, :, 0]
-    xy = -np.asarray(focal_mm, dtype=float)[:, None] * u[:, :2] / u[:, 2:3]
-    return xy, u[:, 2]
+    eo = np.asarray(eo, dtype=float).reshape(-1, 6)
+    m = rotation_matrix(eo[:, 3:6])
+    per_photo = np.concatenate([m.reshape(-1, 9), eo[:, :3]], axis=1).T     # (12, P), rows
+    xyz = np.asarray(xyz_m, dtype=float).reshape(-1, 3)
+    c_all = np.broadcast_to(np.asarray(focal_mm, dtype=float), (len(xyz),))
+    n = len(xyz) if index is not None or per_photo.shape[1] == 1 else max(len(xyz), per_photo.shape[1])
+    xy = np.empty((n, 2))
+    u3 = np.empty(n)
+    for a in range(0, n, _CHUNK):                 # rows of at most _CHUNK rays: cache-resident
+        b = min(n, a + _CHUNK)
+        if index is not None:
+            rows = np.take(per_photo, index[a:b], axis=1)
+        else:
+            rows = per_photo if per_photo.shape[1] == 1 else per_photo[:, a:b]
+        M, x0 = rows[0:9].reshape(3, 3, -1), rows[9:12]
+        d = (xyz if len(xyz) == 1 else xyz[a:b]).T - x0                     # (3, k)
+        u = M[:, 0] * d[0] + M[:, 1] * d[1] + M[:, 2] * d[2]
+        f = -(c_all[a:b] if len(c_all) == n else c_all) / u[2]
+        xy[a:b, 0] = f * u[0]
+        xy[a:b, 1] = f * u[1]
+        u3[a:b] = u[2]
+    return xy, u3
 
 
 def project_with_jacobians(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
@@ -131,29 +149,75 @@ def project_with_jacobians(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarr
         d(x, y)/d(E, N, h), mm per m.
     u3 : (n,)
     """
+    xy, a_pt, a_ang, u3 = _project_jacobian_parts(eo, xyz_m, focal_mm, index)
+    return xy, np.concatenate([-a_pt, a_ang], axis=2), a_pt, u3
+
+
+def _project_jacobian_parts(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
+                            index: np.ndarray | None = None):
+    r"""Photo coordinates, d(x, y)/d(point) and d(x, y)/d(angles) of every ray.
+
+    The position part of the exterior-orientation Jacobian is ``-a_pt``
+    (``du/dX0 = -M``).  Vectorised without per-ray 3 x 3 products: with
+    :math:`q = c/u_3`, :math:`\xi = -u_1/u_3 = x/c`, :math:`\eta = -u_2/u_3`,
+
+    .. math::  \partial x/\partial v = -q\,(v_1 + \xi v_3), \qquad
+               \partial y/\partial v = -q\,(v_2 + \eta v_3)
+
+    for a change ``v`` of u; ``v = M e_j`` for the point coordinate j, and for an
+    angle ``v = (dM/d\theta) (X - X_0) = G u`` with ``G = (dM/d\theta) M^T``
+    skew-symmetric (``M M^T = I``), i.e. a cross product ``g \times u`` with a
+    3-vector per photo and angle.
+
+    Returns ``(xy (n, 2), a_pt (n, 2, 3), a_ang (n, 2, 3), u3 (n,))``.
+    """
     eo = np.asarray(eo, dtype=float)
     m, dm = rotation_and_derivatives(eo[:, 3:6])
-    if index is not None:
-        m, dm, eo = m[index], dm[index], eo[index]
-    d = np.asarray(xyz_m, dtype=float) - eo[:, :3]
-    u = (m @ d[:, :, None])[:, :, 0]                # batched matmul: several times einsum's speed
-    c = np.asarray(focal_mm, dtype=float)
-    inv3 = 1.0 / u[:, 2]
-    xy = -c[:, None] * u[:, :2] * inv3[:, None]
-    n = len(eo)
-    dxy_du = np.zeros((n, 2, 3))
-    dxy_du[:, 0, 0] = -c * inv3
-    dxy_du[:, 1, 1] = -c * inv3
-    dxy_du[:, 0, 2] = c * u[:, 0] * inv3**2
-    dxy_du[:, 1, 2] = c * u[:, 1] * inv3**2
-    a_pt = dxy_du @ m                               # (n, 2, 3)
-    du_dang = np.transpose((dm @ d[:, None, :, None])[..., 0], (0, 2, 1))   # (n, 3, 3): u component x angle
-    a_eo = np.concatenate([-a_pt, dxy_du @ du_dang], axis=2)
-    return xy, a_eo, a_pt, u[:, 2]
+    G = dm @ np.transpose(m, (0, 2, 1))[:, None]             # (P, 3 angles, 3, 3), skew
+    g = np.stack([G[:, :, 2, 1], G[:, :, 0, 2], G[:, :, 1, 0]], axis=2)   # (P, angle, component)
+    # per-photo quantities as rows (structure of arrays): every operation below runs on
+    # contiguous rows of at most _CHUNK rays (temporaries stay in cache on large blocks)
+    per_photo = np.concatenate([m.reshape(-1, 9), g.reshape(-1, 9), eo[:, :3]], axis=1).T   # (21, P)
+    xyz = np.asarray(xyz_m, dtype=float).reshape(-1, 3)
+    c_all = np.broadcast_to(np.asarray(focal_mm, dtype=float), (len(xyz),))
+    n = len(xyz) if index is not None or per_photo.shape[1] == 1 else max(len(xyz), per_photo.shape[1])
+    xy = np.empty((n, 2))
+    a_pt = np.empty((n, 2, 3))
+    a_ang = np.empty((n, 2, 3))
+    u3 = np.empty(n)
+    for a in range(0, n, _CHUNK):
+        b = min(n, a + _CHUNK)
+        if index is not None:
+            rows = np.take(per_photo, index[a:b], axis=1)                                 # (21, k)
+        else:
+            rows = per_photo if per_photo.shape[1] == 1 else per_photo[:, a:b]
+        M, gv, x0 = rows[0:9].reshape(3, 3, -1), rows[9:18].reshape(3, 3, -1), rows[18:21]
+        d = (xyz if len(xyz) == 1 else xyz[a:b]).T - x0                                    # (3, k)
+        u = M[:, 0] * d[0] + M[:, 1] * d[1] + M[:, 2] * d[2]                               # (3, k)
+        c = c_all[a:b] if len(c_all) == n else c_all
+        inv3 = 1.0 / u[2]
+        xi = -u[0] * inv3
+        eta = -u[1] * inv3
+        q = -c * inv3                                          # -q of the docstring
+        xy[a:b, 0] = c * xi
+        xy[a:b, 1] = c * eta
+        a_pt[a:b, 0] = (q * (M[0] + xi * M[2])).T
+        a_pt[a:b, 1] = (q * (M[1] + eta * M[2])).T
+        # v = g x u for the three angles at once: (angle, k)
+        v1 = gv[:, 1] * u[2] - gv[:, 2] * u[1]
+        v2 = gv[:, 2] * u[0] - gv[:, 0] * u[2]
+        v3 = gv[:, 0] * u[1] - gv[:, 1] * u[0]
+        a_ang[a:b, 0] = (q * (v1 + xi * v3)).T
+        a_ang[a:b, 1] = (q * (v2 + eta * v3)).T
+        u3[a:b] = u[2]
+    return xy, a_pt, a_ang, u3
 
 
 def block_sum(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
-    """Sum (m, ...) blocks into (n, ...) by *index* (a fast scatter-add with bincount).
+    """Sum (m, ...) blocks into (n, ...) by *index*.
+
+    One sparse (n x m) matrix of ones times the blocks flattened to (m, k): a
+    C loop over the m rows (several times ``np.bincount`` per component).
 
     >>> block_sum(np.array([0, 1, 0]), np.ones((3, 2, 2)), 2)[:, 0, 0]
     array([2., 1.])
@@ -162,5 +226,5 @@ def block_sum(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
     m = blocks.shape[0]
     tail = blocks.shape[1:]
     k = int(np.prod(tail)) if tail else 1
-    flat = (np.asarray(index)[:, None] * k + np.arange(k)).ravel()
-    return np.bincount(flat, weights=blocks.reshape(m * k), minlength=n * k).reshape((n,) + tail)
+    ones = sp.csr_matrix((np.ones(m), (np.asarray(index), np.arange(m))), shape=(n, m))
+    return np.asarray(ones @ blocks.reshape(m, k)).reshape((n,) + tail)

@@ -65,7 +65,12 @@ import dataclasses
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg.blas import dsymm as _dsymm
 from scipy.linalg.blas import dsyrk as _dsyrk
+from scipy.linalg.blas import dtrsm as _dtrsm
+from scipy.linalg.blas import dtrsv as _dtrsv
+from scipy.linalg.lapack import dpotrf as _dpotrf
+from scipy.linalg.lapack import dpotri as _dpotri
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
@@ -196,7 +201,10 @@ class _Node:
     ext: np.ndarray         # positions of `rows` within the parent's cols + rows
     s_src: np.ndarray       # positions in the S data array of the entries of this front
     s_dst: np.ndarray       # flat positions in the (nc + nb) x nc front
-    zbb: list = dataclasses.field(default_factory=list)  # (ancestor, row positions in b, col positions in b, rows in Z_a, cols in Z_a)
+    runs: tuple = ()        # extend-add plan: (child lo, child hi, parent lo) contiguous runs of `ext`
+    # selected-inverse gather plan: (ancestor a, row in Z_bb, col in Z_bb, row in Z_a, col in Z_a,
+    # rows, cols) rectangular copies that fill the lower triangle of Z_bb
+    zbb: list = dataclasses.field(default_factory=list)
 
 
 class SupernodalCholesky:
@@ -257,7 +265,7 @@ class SupernodalCholesky:
         upos[uorder] = np.arange(n_units)
         new_sizes = sizes[uorder]
         new_off = np.r_[0, np.cumsum(new_sizes)]
-        perm = np.concatenate([np.arange(u_off[u], u_off[u + 1]) for u in uorder])  # new -> old scalar
+        perm = _ranges(u_off[uorder], sizes[uorder])          # new -> old scalar
         iperm = np.empty(self.n, dtype=np.int64)
         iperm[perm] = np.arange(self.n)
         self.perm, self.iperm = perm, iperm
@@ -276,16 +284,14 @@ class SupernodalCholesky:
                 kids[p_].append(k)
         for k, nd in enumerate(nodes_u):
             last = upos[nd].max()
-            nb = [upos[ugc.indices[ugc.indptr[u]:ugc.indptr[u + 1]]] for u in nd]
+            nb = [upos[ugc.indices[_ranges(ugc.indptr[nd], ugc.indptr[nd + 1] - ugc.indptr[nd])]]]
             nb += [bnd[c] for c in kids[k]]
             allb = np.unique(np.concatenate(nb)) if nb else np.zeros(0, dtype=np.int64)
             allb = allb[allb > last]               # ancestors only (nested dissection)
             bnd.append(allb)
         # scalar structure
         def scal(units_pos: np.ndarray) -> np.ndarray:
-            if not len(units_pos):
-                return np.zeros(0, dtype=np.int64)
-            return np.concatenate([np.arange(new_off[u], new_off[u + 1]) for u in units_pos])
+            return _ranges(new_off[units_pos], new_sizes[units_pos])
 
         self.nodes: list[_Node] = []
         for k, nd in enumerate(nodes_u):
@@ -300,6 +306,7 @@ class SupernodalCholesky:
                 pn = self.nodes[node.parent]
                 allp = np.concatenate([pn.cols, pn.rows])
                 node.ext = np.searchsorted(allp, node.rows)
+                node.runs = _runs(node.ext, len(pn.cols))
         # S entries -> fronts: lower part, column in node cols, row in cols or rows
         r_new, c_new = iperm[coo.row], iperm[coo.col]
         # coo of a sorted csr has the csr data order
@@ -327,8 +334,9 @@ class SupernodalCholesky:
                 cpos = np.flatnonzero(rnode == a)          # b entries inside ancestor a: columns
                 rpos = np.flatnonzero(node.rows >= an.cols[0])  # b entries at or above a
                 alla = np.concatenate([an.cols, an.rows])
-                node.zbb.append((int(a), rpos, cpos, np.searchsorted(alla, node.rows[rpos]),
-                                 node.rows[cpos] - an.cols[0]))
+                rr = _pair_runs(rpos, np.searchsorted(alla, node.rows[rpos]))
+                cr = _pair_runs(cpos, node.rows[cpos] - an.cols[0])
+                node.zbb.extend((int(a), dr, dc, sr, sc, nr, ncl) for dr, sr, nr in rr for dc, sc, ncl in cr)
         self.diag_src = np.full(self.n, -1, dtype=np.int64)
         on = coo.row == coo.col
         self.diag_src[coo.row[on]] = np.flatnonzero(on)
@@ -385,6 +393,58 @@ class SupernodalCholesky:
         return _Factor(self, np.asarray(data, dtype=float))
 
 
+def _ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Concatenation of ``arange(s, s + l)`` for every (s, l), vectorised (int64)."""
+    starts = np.asarray(starts, dtype=np.int64)
+    lengths = np.asarray(lengths, dtype=np.int64)
+    total = int(lengths.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    first = np.cumsum(lengths) - lengths                 # position of each range in the output
+    return np.repeat(starts - first, lengths) + np.arange(total)
+
+
+def _pair_runs(dst: np.ndarray, src: np.ndarray) -> list[tuple[int, int, int]]:
+    """Maximal runs where both *dst* and *src* advance by one: ``[(dst0, src0, length), ...]``."""
+    if not len(dst):
+        return []
+    brk = np.flatnonzero((np.diff(dst) != 1) | (np.diff(src) != 1)) + 1
+    lo = np.concatenate([[0], brk])
+    hi = np.concatenate([brk, [len(dst)]])
+    return [(int(dst[a]), int(src[a]), int(b - a)) for a, b in zip(lo, hi)]
+
+
+def _runs(ext: np.ndarray, nc: int) -> tuple:
+    """Maximal runs of consecutive positions in *ext* (ascending), split at the parent's *nc*.
+
+    Returns ``((lo, hi, dest), ...)``: ``ext[lo:hi] == dest + arange(hi - lo)``, each run
+    entirely in the parent's columns (dest < nc) or entirely in its boundary.
+    """
+    if not len(ext):
+        return ()
+    brk = np.flatnonzero((np.diff(ext) != 1) | (ext[1:] == nc)) + 1
+    lo = np.concatenate([[0], brk])
+    hi = np.concatenate([brk, [len(ext)]])
+    return tuple((int(a), int(b), int(ext[a])) for a, b in zip(lo, hi))
+
+
+def _extend_add(F: np.ndarray, Fbb: np.ndarray, Uc: np.ndarray, runs: tuple, nc: int) -> None:
+    """Add a child's update matrix *Uc* (lower triangle valid) into the parent's front.
+
+    The front is ``F`` ((nc + nb) x nc: the parent's columns) and ``Fbb`` (nb x nb:
+    boundary x boundary).  The child's boundary maps onto few contiguous runs of the
+    parent's positions (units of 6 or 9 scalars, consecutive cameras), so the
+    scatter is a handful of rectangular slice additions (memory speed) instead of
+    fancy indexing of every entry; blocks above the diagonal are skipped.
+    """
+    for i, (r0, r1, pr) in enumerate(runs):
+        for c0, c1, pc in runs[:i + 1]:
+            if pc < nc:
+                F[pr:pr + r1 - r0, pc:pc + c1 - c0] += Uc[r0:r1, c0:c1]
+            else:
+                Fbb[pr - nc:pr - nc + r1 - r0, pc - nc:pc - nc + c1 - c0] += Uc[r0:r1, c0:c1]
+
+
 class _Factor:
     """A numeric supernodal factor ``P S P^T = L L^T``."""
 
@@ -402,36 +462,33 @@ class _Factor:
             Fbb = np.zeros((nb, nb)) if nb else None
             for c in sym.kids[k]:
                 Uc = updates.pop(c, None)
-                if Uc is None or not len(Uc):
-                    continue
-                e = sym.nodes[c].ext
-                inc = e < nc
-                ic, ib = np.flatnonzero(inc), np.flatnonzero(~inc)
-                ec, eb = e[inc], e[~inc] - nc
-                if len(ic):
-                    F[np.ix_(ec, ec)] += Uc[np.ix_(ic, ic)]
-                    if len(ib):
-                        F[np.ix_(nc + eb, ec)] += Uc[np.ix_(ib, ic)]
-                if len(ib):
-                    Fbb[np.ix_(eb, eb)] += Uc[np.ix_(ib, ib)]
-            Fss = F[:nc]
-            try:
-                L = sla.cholesky(Fss, lower=True, check_finite=False)
-            except np.linalg.LinAlgError as ex:
-                raise SingularError(f"not positive definite ({ex})") from ex
-            piv = np.diag(L) ** 2
+                if Uc is not None and len(Uc):
+                    _extend_add(F, Fbb, Uc, sym.nodes[c].runs, nc)
+            # LAPACK/BLAS straight on Fortran views of the C-ordered front (no copies, no
+            # wrapper overhead): F[:nc].T is upper-stored L^T, F[nc:].T = F_bs^T
+            Lt, info = _dpotrf(F[:nc].T, lower=0, clean=0, overwrite_a=1)
+            if info != 0:
+                raise SingularError(f"not positive definite (leading minor {info})")
+            if not np.shares_memory(Lt, F):  # pragma: no cover - f2py copied
+                F[:nc] = Lt.T
+            L = F[:nc]                                       # lower triangle valid
+            piv = np.diagonal(L) ** 2
             ref = diag[node.cols]
             ratio = piv / np.where(ref > 0, ref, 1.0)
             if not np.all(np.isfinite(piv)) or ratio.min() < PIVOT_RTOL:
                 raise SingularError(f"relative pivot {ratio.min():.1e}")
             self.Lss.append(L)
             if nb:
-                Lbs = sla.solve_triangular(L, F[nc:].T, lower=True, check_finite=False).T
+                # L_bs^T = L_ss^-1 F_bs^T in place
+                out = _dtrsm(1.0, L.T, F[nc:].T, side=0, lower=0, trans_a=1, overwrite_b=1)
+                if not np.shares_memory(out, F):  # pragma: no cover - f2py copied
+                    F[nc:] = out.T
+                Lbs = F[nc:]
                 self.Lbs.append(Lbs)
-                # Fbb - Lbs Lbs^T, lower triangle only (BLAS syrk on the Fortran view: half the
+                # Fbb - Lbs Lbs^T, lower triangle only (BLAS syrk on the Fortran views: half the
                 # flops of a product); every reader of an update reads its lower triangle
                 ft = Fbb.T
-                out = _dsyrk(-1.0, Lbs, beta=1.0, c=ft, trans=0, lower=0, overwrite_c=1)
+                out = _dsyrk(-1.0, Lbs.T, beta=1.0, c=ft, trans=1, lower=0, overwrite_c=1)
                 if out is not ft:  # pragma: no cover - f2py copied
                     Fbb = out.T
                 updates[k] = Fbb
@@ -442,9 +499,22 @@ class _Factor:
         """x with S x = b, b of shape (n,) or (n, m)."""
         sym = self.sym
         x = np.asarray(b, dtype=float)[sym.perm].copy()
+        if x.ndim == 1:
+            # L_ss^-1 and L_ss^-T by BLAS trsv on the Fortran view (upper-stored L^T)
+            def fwd(L, v):
+                return _dtrsv(L.T, v, lower=0, trans=1)
+
+            def bwd(L, v):
+                return _dtrsv(L.T, v, lower=0, trans=0)
+        else:
+            def fwd(L, v):
+                return sla.solve_triangular(L, v, lower=True, check_finite=False)
+
+            def bwd(L, v):
+                return sla.solve_triangular(L, v, lower=True, trans="T", check_finite=False)
         for k, node in enumerate(sym.nodes):
             c0, c1 = node.cols[0], node.cols[-1] + 1
-            xs = sla.solve_triangular(self.Lss[k], x[c0:c1], lower=True, check_finite=False)
+            xs = fwd(self.Lss[k], x[c0:c1])
             x[c0:c1] = xs
             if len(node.rows):
                 x[node.rows] -= self.Lbs[k] @ xs
@@ -454,40 +524,48 @@ class _Factor:
             xs = x[c0:c1]
             if len(node.rows):
                 xs = xs - self.Lbs[k].T @ x[node.rows]
-            x[c0:c1] = sla.solve_triangular(self.Lss[k], xs, lower=True, trans="T", check_finite=False)
+            x[c0:c1] = bwd(self.Lss[k], xs)
         return x[sym.iperm]
 
     def selected_inverse(self) -> SelectedInverse:
         """Z = S^-1 on the pattern of the factor (see the module docstring)."""
         sym = self.sym
+        flat = np.empty(sym.z_offsets[-1])
         Z: list[np.ndarray] = [np.zeros((0, 0))] * sym.n_nodes   # Z[cols + rows, cols] per supernode
         for k in range(sym.n_nodes - 1, -1, -1):
             node = sym.nodes[k]
             nc, nb = len(node.cols), len(node.rows)
-            Linv = sla.solve_triangular(self.Lss[k], np.eye(nc), lower=True, check_finite=False)
-            zk = np.empty((nc + nb, nc))
+            zk = flat[sym.z_offsets[k]:sym.z_offsets[k + 1]].reshape(nc + nb, nc)
+            # L_ss^-T L_ss^-1 from the Cholesky factor (LAPACK potri: lower triangle)
+            inv, info = _dpotri(self.Lss[k].T, lower=0)    # Fortran view: upper-stored L^T
+            if info:  # pragma: no cover - the factor was checked
+                raise SingularError(f"potri failed ({info})")
+            inv = inv.T                                     # lower triangle valid
+            inv = np.tril(inv) + np.tril(inv, -1).T
             if nb:
                 Zbb = np.empty((nb, nb))
-                for a, rpos, cpos, ra, ca in node.zbb:
-                    blk = Z[a][np.ix_(ra, ca)]
-                    Zbb[np.ix_(rpos, cpos)] = blk
-                    Zbb[np.ix_(cpos, rpos)] = blk.T
-                X = self.Lbs[k] @ Linv
-                zk[nc:] = -Zbb @ X
-                zss = Linv.T @ Linv - X.T @ zk[nc:]
+                for a, dr, dc, sr, sc, nr, ncl in node.zbb:
+                    Zbb[dr:dr + nr, dc:dc + ncl] = Z[a][sr:sr + nr, sc:sc + ncl]
+                # X = L_bs L_ss^-1, i.e. X^T = L_ss^-T L_bs^T (one triangular solve)
+                X = _dtrsm(1.0, self.Lss[k].T, self.Lbs[k].T, side=0, lower=0, trans_a=0).T
+                # Z_bs = -Z_bb X with only the lower triangle of Z_bb filled (BLAS symm; Z_bb.T
+                # is Fortran-ordered, its upper triangle is Z_bb's lower)
+                zbs = _dsymm(-1.0, Zbb.T, X, side=0, lower=0)
+                zk[nc:] = zbs
+                zss = inv - X.T @ zbs
+                zk[:nc] = 0.5 * (zss + zss.T)
             else:
-                zss = Linv.T @ Linv
-            zk[:nc] = 0.5 * (zss + zss.T)
+                zk[:nc] = inv
             Z[k] = zk
-        return SelectedInverse(sym, Z)
+        return SelectedInverse(sym, flat)
 
 
 class SelectedInverse:
     """Blocks of S^-1 on the pattern of its Cholesky factor (one flat array)."""
 
-    def __init__(self, sym: SupernodalCholesky, Z: list[np.ndarray]):
+    def __init__(self, sym: SupernodalCholesky, flat: np.ndarray):
         self.sym = sym
-        self.flat = np.concatenate([z.ravel() for z in Z]) if Z else np.zeros(0)
+        self.flat = flat
 
     def gather(self, loc: tuple[np.ndarray, np.ndarray, np.ndarray], a: int, b: int) -> np.ndarray:
         """Blocks (m, a, b) at the locations *loc* of :meth:`SupernodalCholesky.locate`."""

@@ -1,6 +1,7 @@
 r"""The collinearity model with weighted constraints: residuals and normal-equation blocks.
 
 For every image observation (photo i, point j) :func:`lidarcat._collinearity.project_with_jacobians`
+(its parts, :func:`~lidarcat._collinearity._project_jacobian_parts`)
 gives the residual ``r = x(eo_i, X_j) - x_obs`` (mm) and its Jacobians ``A_eo`` (2x6)
 and ``A_pt`` (2x3); with the weights ``w = 1 / sd^2`` the blocks of the normal
 equations are
@@ -22,7 +23,7 @@ import math
 
 import numpy as np
 
-from .._collinearity import project, project_with_jacobians
+from .._collinearity import _project_jacobian_parts, project
 from .linear import _Schur
 from .problem import BundleProblem
 
@@ -59,20 +60,32 @@ class _System:
         self.schur = schur if schur is not None else _Schur(p.photo_index, p.point_index, p.n_photos,
                                                             p.n_points, coords=np.asarray(eo)[:, :3])
         ei, pj = p.photo_index, p.point_index
-        xy, a_eo, a_pt, u3 = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
+        xy, a_pt, a_ang, u3 = _project_jacobian_parts(eo, pts[pj], p.focal_length_mm[ei], ei)
         self.u3 = u3
         r = xy - p.xy_mm                                 # residual (adjusted - observed)
         w = 1.0 / p.sd_mm**2                             # (n, 2)
         self.r_obs = r
-        aw_eo = a_eo * w[:, :, None]
-        aw_pt = a_pt * w[:, :, None]
+        # a_eo = [-a_pt, a_ang]: W and V from two 3 x 3 products per ray, U as per-photo Gram
+        # matrices of sqrt(w) a_eo (one BLAS product per photo)
         by_cam, by_pt = self.schur.by_camera, self.schur.by_point
-        aw_eo_t = np.ascontiguousarray(np.transpose(aw_eo, (0, 2, 1)))
-        self.U = by_cam(aw_eo_t @ a_eo)
-        self.V = by_pt(np.ascontiguousarray(np.transpose(aw_pt, (0, 2, 1))) @ a_pt)
-        self.W = aw_eo_t @ a_pt                            # (n, 6, 3)
-        self.g_c = by_cam((aw_eo_t @ r[:, :, None])[:, :, 0])
-        self.g_p = by_pt((np.transpose(aw_pt, (0, 2, 1)) @ r[:, :, None])[:, :, 0])
+        wr = w * r
+        wp_t = np.transpose(a_pt * w[:, :, None], (0, 2, 1))     # (n, 3, 2)
+        Ppp = wp_t @ a_pt                                  # a_pt' w a_pt (n, 3, 3)
+        n = len(r)
+        Wt = np.empty((n, 3, 6))                           # (a_eo' w a_pt)^T, stored contiguous
+        np.negative(Ppp, out=Wt[:, :, :3])                 # (Ppp symmetric)
+        np.matmul(wp_t, a_ang, out=Wt[:, :, 3:])           # (a_ang' w a_pt)^T
+        self.W = np.transpose(Wt, (0, 2, 1))               # (n, 6, 3) view
+        sw = np.sqrt(w)[:, :, None]
+        swa = np.empty((n, 2, 6))
+        np.multiply(a_pt, -sw, out=swa[:, :, :3])
+        np.multiply(a_ang, sw, out=swa[:, :, 3:])
+        self.U = self.schur.gram_by_camera(swa)
+        self.V = by_pt(Ppp)
+        gp_obs = np.einsum("nki,nk->ni", a_pt, wr)         # a_pt' w r (n, 3)
+        ga_obs = np.einsum("nki,nk->ni", a_ang, wr)
+        self.g_c = by_cam(np.concatenate([-gp_obs, ga_obs], axis=1))
+        self.g_p = by_pt(gp_obs)
         vtpv = float(np.sum(r**2 * w))
         # point and exterior-orientation constraints
         rc, wc, re, we = _constraint_terms(p, eo, pts)

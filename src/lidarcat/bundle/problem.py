@@ -342,15 +342,15 @@ def check_datum(problem: BundleProblem) -> None:
                          "are needed to determine its 6 orientation parameters (measure more points "
                          "or remove the photo)")
     # distinct photos per point
-    pairs = np.unique(np.stack([p.point_index, p.photo_index], axis=1), axis=0)
-    rays = np.bincount(pairs[:, 0], minlength=n_pt)
+    key = p.photo_index.astype(np.int64) * n_pt + p.point_index      # one integer per (photo, point)
+    ukey, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+    rays = np.bincount(ukey % n_pt, minlength=n_pt) if n_pt else np.zeros(0, dtype=np.int64)
     full = np.zeros(n_pt, dtype=bool)
     con_axes = np.zeros(n_pt, dtype=int)
     con_axes[p.constraint_point_index] = np.isfinite(p.constraint_sd_m).sum(axis=1)
     full[p.constraint_point_index] = con_axes[p.constraint_point_index] == 3
     if len(p.photo_index):
         raw = np.stack([p.photo_index, p.point_index], axis=1)
-        _, inv, cnt = np.unique(raw, axis=0, return_inverse=True, return_counts=True)
         twice = np.flatnonzero(cnt[inv.ravel()] > 1)
         if len(twice):
             k = int(twice[0])
