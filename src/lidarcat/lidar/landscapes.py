@@ -80,7 +80,7 @@ class Landscape:
 
 def _terrain(name: str, x: np.ndarray, y: np.ndarray, size: float) -> np.ndarray:
     if name == "steep":
-        return math.tan(math.radians(35.0)) * x + 6.0 * np.sin(2 * math.pi * y / 80.0) * (0.5 + x / size)
+        return math.tan(math.radians(35.0)) * x + 4.0 * np.sin(2 * math.pi * y / 80.0)
     if name == "forest":
         return math.tan(math.radians(25.0)) * x + 3.0 * np.sin(2 * math.pi * y / 120.0)
     if name == "bridge":
