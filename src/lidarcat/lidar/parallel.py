@@ -19,7 +19,7 @@ whole for every tile decodes the survey nine times over (LAZ decoding then
 dominated every production run).  So a run first makes one *edge buffer* per
 tile (``ring`` jobs, in the same scheduler): the tile is decoded once and its
 points inside any neighbour's buffered box are saved in file order as an
-uncompressed ``.npz`` under ``<output folder>/.buffers/``.  A tile job then
+uncompressed ``.npz`` per neighbour under ``<output folder>/.buffers/``.  A tile job then
 reads its own tile and the neighbours' buffers, keeping the points in its
 buffered box, in the order a :class:`TileIndex` query returns them: the same
 points as decoding the neighbours, so the outputs do not change.  The buffers
@@ -115,33 +115,39 @@ def _is_done(job: TileJob) -> bool:
 
 
 def _ring_path(job: TileJob, tile: str) -> Path:
-    """Edge buffer of *tile* for the run of *job* (next to the job's output)."""
-    return Path(job.output).parent / ".buffers" / f"{Path(tile).name}.{job.overlap_m:g}.npz"
+    """Manifest of the edge buffers of *tile* for the run of *job* (next to the job's output)."""
+    return Path(job.output).parent / ".buffers" / f"{Path(tile).name}.{job.overlap_m:g}.json"
+
+
+def _piece_path(job: TileJob, tile: str) -> Path:
+    """The points of neighbour *tile* that *job* needs (its strip of the edge buffer)."""
+    return Path(job.output).parent / ".buffers" / f"{Path(tile).name}.{job.overlap_m:g}.for.{Path(job.tile).name}.npz"
 
 
 def _write_ring(job: TileJob) -> None:
-    """The points of ``job.tile`` inside any of ``job.params["boxes"]``, file order, as .npz."""
+    """For each box of ``job.params["boxes"]``, the points of ``job.tile`` inside it (file order),
+    as the .npz ``job.params["pieces"][i]``; then the manifest ``job.output``."""
     import numpy as np
 
-    from .._io import atomic_write
+    from .._io import atomic_write, write_json_atomic
     from .crs import crs_label
     from .readers import read_points
     from .tileindex import in_box
 
     pc = read_points(job.tile, crs=job.crs)
-    keep = np.zeros(len(pc), dtype=bool)
-    for box in job.params["boxes"]:
-        keep |= in_box(pc.xyz, *box)
-    arrays = {"xyz": pc.xyz[keep]}
-    arrays.update({f"a_{k}": np.asarray(v)[keep] for k, v in pc.attributes.items()})
-    arrays["crs"] = np.array(crs_label(pc.crs) if pc.crs is not None else "")
-    with atomic_write(job.output, "wb") as fh:
-        np.savez(fh, **arrays)
+    label = np.array(crs_label(pc.crs) if pc.crs is not None else "")
+    for box, piece in zip(job.params["boxes"], job.params["pieces"]):
+        keep = in_box(pc.xyz, *box)
+        arrays = {"xyz": pc.xyz[keep], "crs": label}
+        arrays.update({f"a_{k}": np.asarray(v)[keep] for k, v in pc.attributes.items()})
+        with atomic_write(piece, "wb") as fh:
+            np.savez(fh, **arrays)
+    write_json_atomic(job.output, {"tile": job.tile, "pieces": list(job.params["pieces"])})
 
 
 def _ring_jobs(jobs: Sequence[TileJob]) -> list[TileJob]:
-    """One ``ring`` job per tile that is a neighbour of a buffered job (boxes: the jobs it serves)."""
-    boxes: dict[tuple[str, str, float, str | None], list[list[float]]] = {}
+    """One ``ring`` job per tile that is a neighbour of a buffered job (a box and a piece per job)."""
+    pieces: dict[tuple[str, str, float, str | None], list[tuple[list[float], str]]] = {}
     first: dict[tuple[str, str, float, str | None], TileJob] = {}
     for j in jobs:
         if j.kind not in _BUFFERED or j.overlap_m <= 0:
@@ -150,13 +156,14 @@ def _ring_jobs(jobs: Sequence[TileJob]) -> list[TileJob]:
         box = [j.bounds[0] - o, j.bounds[1] - o, j.bounds[2] + o, j.bounds[3] + o]
         for nb in j.neighbours:
             key = (nb, str(_ring_path(j, nb)), o, j.crs)
-            boxes.setdefault(key, []).append(box)
+            pieces.setdefault(key, []).append((box, str(_piece_path(j, nb))))
             first.setdefault(key, j)
     out = []
-    for key, bx in boxes.items():
+    for key, bp in pieces.items():
         nb, ring, o, crs = key
-        b = first[key]
-        out.append(TileJob("ring", nb, b.bounds, (), ring, {"boxes": sorted(bx)}, crs, o))
+        bp = sorted(bp, key=lambda t: t[1])
+        out.append(TileJob("ring", nb, first[key].bounds, (), ring,
+                           {"boxes": [b for b, _ in bp], "pieces": [p for _, p in bp]}, crs, o))
     return out
 
 
@@ -174,7 +181,7 @@ def _read_ring(path: Path, box: tuple[float, float, float, float], crs_label_own
             xyz = z["xyz"]
             m = in_box(xyz, *box)
             attrs = {k[2:]: z[k][m] for k in z.files if k.startswith("a_")}
-            return PointCloud(xyz[m], attrs, crs_label_own or None)
+            return PointCloud(xyz[m], attrs)  # the caller gives it the tile's CRS
     except (OSError, ValueError, KeyError):
         return None
 
@@ -201,7 +208,7 @@ def _read_with_buffer(job: TileJob) -> tuple[Any, int]:
     parts: list[Any] = []
     attrs: tuple[str, ...] | None = None
     for t in idx.tiles_in_box(*box):
-        part = _read_ring(_ring_path(job, str(t.path)), box, own_label)
+        part = _read_ring(_piece_path(job, str(t.path)), box, own_label)
         if part is None:
             parts = []
             break
@@ -412,7 +419,7 @@ def _drop_rings(jobs: Sequence[TileJob]) -> None:
     """Delete the edge buffers (and their markers) of a finished run."""
     folders = set()
     for r in _ring_jobs(jobs):
-        for p in (Path(r.output), _marker(r)):
+        for p in (Path(r.output), _marker(r), *map(Path, r.params["pieces"])):
             p.unlink(missing_ok=True)
         folders.add(Path(r.output).parent)
     for f in folders:
