@@ -20,6 +20,12 @@ Usage::
     python benchmarks/bench_production.py                  # 2 million points in 4 tiles (minutes)
     python benchmarks/bench_production.py --full           # the 50 M-point set of bench_lidar --full
     python benchmarks/bench_production.py --points 1e7 --tiles 9
+    python benchmarks/bench_production.py --kernels         # in memory, one 1 M-point tile, no I/O
+
+``--kernels`` times the computations alone on one tile of the same synthetic
+survey (points already in memory): SMRF, the TIN DTM (OpenCV triangulation,
+triangles rasterised) beside its peer, the same TIN from Qhull with every cell
+centre located (:func:`lidarcat.lidar.terrain.tin_heights`), and the DSM.
 """
 
 from __future__ import annotations
@@ -78,18 +84,58 @@ def _mode(folder: Path, kind: str, workers: int) -> dict:
     return {"seconds": dt, "peak_mb": peaks, "cpu_s": cpu}
 
 
+def _kernels(points: int) -> None:
+    import math
+
+    import numpy as np
+
+    from bench_lidar import _tile_cloud
+    from lidarcat.lidar.ground import smrf_ground
+    from lidarcat.lidar.raster import _grid_for
+    from lidarcat.lidar.terrain import dsm_grid, tin_grid, tin_heights
+
+    pc = _tile_cloud(0, 0, math.sqrt(points / 10.0), points, 1)
+    a = pc.attributes
+    g = a["classification"] == 2
+    b = pc.bounds[:4]
+
+    def qhull_dtm():
+        t, nr, nc = _grid_for(b, 1.0)
+        rr, cc = np.mgrid[0:nr, 0:nc]
+        return tin_heights(pc.xyz[g], np.column_stack(t.xy(rr.ravel(), cc.ravel())), 50.0)
+
+    runs = [("SMRF ground", lambda: smrf_ground(pc.xyz, a["return_number"], a["number_of_returns"])),
+            ("TIN DTM 1 m (OpenCV, rasterised)", lambda: tin_grid(pc.xyz[g], 1.0, b)),
+            ("TIN DTM 1 m (Qhull + walk, peer)", qhull_dtm),
+            ("DSM 1 m", lambda: dsm_grid(pc, 1.0, b))]
+    smrf_ground(pc.xyz[:2000], a["return_number"][:2000], a["number_of_returns"][:2000])  # imports
+    tin_grid(pc.xyz[:2000], 1.0)
+    print(f"{len(pc):,} points in memory ({int(g.sum()):,} ground); load average "
+          f"{' '.join(f'{v:.1f}' for v in os.getloadavg())} on {os.cpu_count()} cores")
+    print(f"{'kernel':34} {'wall s':>7} {'CPU s':>7} {'points/CPU-s':>13}")
+    for name, fn in runs:
+        t, c = time.perf_counter(), time.process_time()
+        fn()
+        dt, dc = time.perf_counter() - t, time.process_time() - c
+        print(f"{name:34} {dt:7.2f} {dc:7.2f} {len(pc) / dc:13,.0f}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--points", type=float, default=2e6)
     ap.add_argument("--tiles", type=int, default=4)
     ap.add_argument("--full", action="store_true", help="50 million points in 25 tiles")
     ap.add_argument("--kinds", default="ground,dsm,dtm")
+    ap.add_argument("--kernels", action="store_true", help="time the computations in memory (--points, 1 tile)")
     ap.add_argument("--mode", help=argparse.SUPPRESS)
     ap.add_argument("--dir", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.mode:
         kind, workers = args.mode.split(":")
         print(json.dumps(_mode(args.dir, kind, int(workers))))
+        return
+    if args.kernels:
+        _kernels(int(args.points) if args.points != 2e6 else 1_000_000)
         return
     points, tiles = (50_000_000, 25) if args.full else (int(args.points), args.tiles)
     with tempfile.TemporaryDirectory(prefix="bench_production_") as tmp:
