@@ -99,14 +99,14 @@ def _crop(tmp_path: Path, name: str, box: tuple[float, float, float, float]) -> 
 def test_ahn3_against_the_providers_ground_class():
     """AHN3 tile 2 (Delft): the Dutch provider's class 2 is the reference; total error < 5 %.
 
-    Measured (docs/production.md): SMRF 2.89 % total, kappa 0.941.  PTD with
+    Measured (docs/production.md): SMRF 2.90 % total, kappa 0.941.  PTD with
     TerraScan's defaults reaches 5.05 % there (Type I 5.1 %, Type II 5.0 %): not asserted.
     """
     pc = read_points(AHN2, crs="EPSG:7415")
     a = pc.attributes
     g = classify_ground(pc.xyz, a["return_number"], a["number_of_returns"], method="smrf")
     c = confusion(a["classification"] == 2, g)
-    assert c.total == pytest.approx(0.0289, abs=0.0015) and c.kappa == pytest.approx(0.941, abs=0.0015)
+    assert c.total == pytest.approx(0.0290, abs=0.0015) and c.kappa == pytest.approx(0.941, abs=0.0015)
 
 
 def test_copy_keeps_other_classes_and_input_and_ignores_input_classes(tmp_path):

@@ -53,10 +53,10 @@ def test_landscapes_are_what_they_claim():
 
 @pytest.mark.parametrize("name, total, type1, type2, kappa", [
     ("steep", 0.030, 0.032, 0.005, 0.82),          # measured 1.93-2.24 %, Type I 2.1-2.4 %, kappa 0.85-0.87
-    ("forest", 0.025, 0.032, 0.024, 0.92),         # measured 1.92-2.00 %, kappa 0.934-0.937
+    ("forest", 0.025, 0.032, 0.024, 0.92),         # measured 2.05-2.07 %, Type I 2.6-2.9 %, kappa 0.930-0.933
     ("bridge", 0.010, 0.005, 0.18, 0.90),          # measured 0.60-0.67 %, Type II 12-14 % (deck ends), kappa 0.92
     ("city", 0.005, 0.005, 0.005, 0.99),           # measured 0.00 %
-    ("low_outliers", 0.002, 0.002, 0.002, 0.995),  # measured 0.00-0.02 %
+    ("low_outliers", 0.001, 0.001, 0.001, 0.995),  # measured 0.00 % (Type II 0-0.01 %)
 ])
 def test_default_smrf_holds_on_each_landscape(name, total, type1, type2, kappa):
     ls, g, c = _smrf(name)
@@ -64,8 +64,9 @@ def test_default_smrf_holds_on_each_landscape(name, total, type1, type2, kappa):
     if name == "low_outliers":
         depth = _terrain(name, ls.xyz[:, 0], ls.xyz[:, 1], SIZE) - ls.xyz[:, 2]
         out = depth > 4.0
-        # pairs of outliers within 1 m of each other in one block stay (measured 0-4 of ~220)
-        assert out.sum() > 150 and g[out].sum() <= 0.03 * out.sum()
+        # measured 0-1 of ~220 accepted (before the pit test on the minimum surface: 0-4,
+        # with 6.8 % total error at 200 m around the surviving pairs)
+        assert out.sum() > 150 and g[out].sum() <= 0.01 * out.sum()
 
 
 def test_the_old_window_fails_the_city_and_the_new_one_does_not():

@@ -55,7 +55,9 @@ drops by more than ``slope * r * cell_m`` at one step is an object.  The ground
 cells are interpolated into a provisional DTM, and a point is ground when it
 lies within ``elevation_threshold_m + elevation_scaler * slope_of_dtm`` of it.
 Square windows (separable min/max filters) stand in for the paper's discs;
-low outliers are set aside first as for PTD.
+low outliers are set aside first as for PTD, and cells of the minimum surface
+lower than the second lowest of their 8 neighbours by ``low_outlier_m`` (pits
+left by outliers the point test missed) are dropped before the opening.
 The paper reports 2.97 % mean total error on the ISPRS filter test with tuned
 parameters and about 4.5 % with one parameter set.
 
@@ -475,6 +477,27 @@ def _fill_grid(grid: np.ndarray) -> np.ndarray:
     return out
 
 
+def _pit_cells(surface: np.ndarray, threshold_m: float) -> np.ndarray:
+    """Cells lower than the second lowest of their 8 neighbours by more than *threshold_m*.
+
+    Low outliers that survive the point test (two in one block within
+    ``low_outlier_m`` of each other) leave a pit of one or two cells in the
+    minimum surface; the opening keeps pits, and on a slope the cells within a
+    window of a pit lose their uphill side and are taken for objects (measured:
+    6.8 % total error on the low-outlier landscape, seeds 0-2, all of it
+    around such pairs).  The second lowest neighbour tolerates a pit of two
+    cells and a ditch one cell wide (two neighbours along it).
+    """
+    if min(surface.shape) < 3:
+        return np.zeros(surface.shape, dtype=bool)
+    p = np.pad(surface, 1, mode="edge")
+    nr, nc = surface.shape
+    nbrs = np.stack([p[1 + dr:1 + dr + nr, 1 + dc:1 + dc + nc] for dr in (-1, 0, 1) for dc in (-1, 0, 1)
+                     if dr or dc])
+    second = np.partition(nbrs, 1, axis=0)[1]
+    return surface < second - threshold_m
+
+
 def smrf_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: Any = None,
                 params: SMRFParameters | None = None) -> np.ndarray:
     """Ground mask by the simple morphological filter (see the module docstring).
@@ -511,6 +534,10 @@ def smrf_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: A
     np.minimum.at(zmin, (row * nc + col)[cand], xyz[cand, 2])
     zmin = np.where(np.isfinite(zmin), zmin, np.nan).reshape(nr, nc)
     surface = _fill_grid(zmin)
+    pits = _pit_cells(surface, params.low_outlier_m)
+    if pits.any():
+        zmin[pits] = np.nan
+        surface = _fill_grid(zmin)
     # the grid's edge continues level ("nearest"): on a slope the opening then cuts the band
     # within one window of the upper edge (all of the Type I on the synthetic 35 deg slope);
     # continuing the slope instead (odd reflection) raised objects cut by the edge and cost
