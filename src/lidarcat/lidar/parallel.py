@@ -215,7 +215,8 @@ def _read_with_buffer(job: TileJob) -> tuple[Any, int]:
         attrs = tuple(t.attributes) if attrs is None else tuple(a for a in attrs if a in t.attributes)
         parts.append(part)
     if parts:
-        extra = PointCloud.concat([PointCloud(p.xyz, {k: p.attributes[k] for k in attrs}, own.crs)
+        common = [k for k in (attrs or ()) if all(k in p.attributes for p in parts)]
+        extra = PointCloud.concat([PointCloud(p.xyz, {k: p.attributes[k] for k in common}, own.crs)
                                    for p in parts])
     else:
         extra = idx.query_box(*box)
