@@ -99,14 +99,14 @@ def _crop(tmp_path: Path, name: str, box: tuple[float, float, float, float]) -> 
 def test_ahn3_against_the_providers_ground_class():
     """AHN3 tile 2 (Delft): the Dutch provider's class 2 is the reference; total error < 5 %.
 
-    Measured (docs/production.md): SMRF 2.97 % total, kappa 0.939.  PTD with
+    Measured (docs/production.md): SMRF 2.90 % total, kappa 0.941.  PTD with
     TerraScan's defaults reaches 5.05 % there (Type I 5.1 %, Type II 5.0 %): not asserted.
     """
     pc = read_points(AHN2, crs="EPSG:7415")
     a = pc.attributes
     g = classify_ground(pc.xyz, a["return_number"], a["number_of_returns"], method="smrf")
     c = confusion(a["classification"] == 2, g)
-    assert c.total == pytest.approx(0.0297, abs=0.0015) and c.kappa == pytest.approx(0.939, abs=0.0015)
+    assert c.total == pytest.approx(0.0290, abs=0.0015) and c.kappa == pytest.approx(0.941, abs=0.0015)
 
 
 def test_copy_keeps_other_classes_and_input_and_ignores_input_classes(tmp_path):
@@ -153,3 +153,28 @@ def test_tile_seams_do_not_change_the_result(tmp_path, method):
         np.testing.assert_array_equal(a, b)                 # same points
     diff = np.mean((r[5] == 2) != (t[5] == 2))
     assert diff < 0.002, diff
+
+
+def test_low_outliers_single_pairs_and_a_ditch():
+    """Grid low-outlier test: an isolated low point, a pair of different depths in one block
+    (found by the repeated pass), and a one-cell-wide ditch left alone (it is ground)."""
+    from lidarcat.lidar.ground import _low_outliers
+
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(0, 60, (36000, 2))
+    z = 100 + 0.1 * xy[:, 0] + rng.normal(0, 0.03, len(xy))
+    ditch = np.abs(xy[:, 0] - 30.3) < 0.4  # 0.8 m wide, 1.5 m deep, along y
+    z[ditch] -= 1.5
+    xyz = np.column_stack([xy, z])
+    lone = np.array([[10.2, 10.2, 100.0 + 1.02 - 8.0]])  # 8 m below the terrain
+    pair = np.array([[45.3, 45.3, 100.0 + 4.53 - 12.0], [45.8, 45.6, 100.0 + 4.58 - 6.0]])
+    allp = np.vstack([xyz, lone, pair])
+    found = _low_outliers(allp, np.arange(len(allp)), 1.0, 1.0)
+    n = len(xyz)
+    assert set(found.tolist()) == {n, n + 1, n + 2}
+    g = classify_ground(allp)
+    assert not g[n:].any()
+    assert g[:n][ditch].mean() > 0.99  # the pit test leaves a ditch one cell wide alone
+    # measured 98.4 %: bank points in the 1 m cells the ditch shares are judged against the
+    # ditch's height (SMRF's minimum grid), all within 1 m west of it
+    assert g[:n][~ditch].mean() > 0.975

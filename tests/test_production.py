@@ -224,3 +224,38 @@ def test_a_killed_worker_gives_its_tile_to_another(tmp_path):
                                 params={"method": "smrf"}, overlap_m=36.0))
     for a, b in zip(serial, box["out"]):
         np.testing.assert_array_equal(laspy.read(a).classification, laspy.read(b).classification)
+
+
+def test_edge_buffers_give_the_points_of_the_neighbour_files_and_are_removed(tmp_path, monkeypatch):
+    """A tile job reads its neighbours' edge buffers: the very points (and order) of decoding them."""
+    from lidarcat.lidar.parallel import _read_with_buffer, _ring_jobs, run_tile_job
+    from lidarcat.lidar.tileindex import TileIndex
+
+    tiles = _halves(tmp_path)
+    jobs = tile_jobs("ground", tiles, tmp_path / "out", crs="EPSG:7415", params={"method": "smrf"},
+                     overlap_m=20.0, suffix=".laz")
+    direct = [_read_with_buffer(j) for j in jobs]  # no buffers yet: the neighbour files are decoded
+    rings = _ring_jobs(jobs)
+    assert sorted(r.tile for r in rings) == sorted(str(t) for t in tiles)
+    for r in rings:
+        run_tile_job(r)
+
+    def no_decoding(*a, **k):
+        raise AssertionError("a neighbour file was decoded although its edge buffer exists")
+
+    monkeypatch.setattr(TileIndex, "query_box", no_decoding)
+    for j, (a, na) in zip(jobs, direct):
+        b, nb = _read_with_buffer(j)
+        assert nb == na and len(b) > na  # the neighbour's strip is there
+        assert np.array_equal(a.xyz, b.xyz)
+        assert sorted(a.attributes) == sorted(b.attributes)
+        assert all(np.array_equal(a.attributes[k], b.attributes[k]) for k in a.attributes)
+        assert b.xyz[na:, 0].min() >= j.bounds[0] - 20.0 and b.xyz[na:, 0].max() <= j.bounds[2] + 20.0
+    out = run_jobs(jobs)
+    assert all(os.path.exists(p) for p in out)
+    assert not (tmp_path / "out" / ".buffers").exists()
+    from lidarcat.lidar.ground import classify_ground
+
+    for p, (a, na) in zip(out, direct):  # the outputs are those of the decoded neighbours' points
+        g = classify_ground(a.xyz, a.attributes["return_number"], a.attributes["number_of_returns"])[:na]
+        assert np.array_equal(read_points(p).attributes["classification"] == 2, g)

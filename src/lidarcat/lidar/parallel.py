@@ -12,6 +12,19 @@ the parameters.  :func:`run_jobs` runs them
 The same function computes each tile either way, so the outputs are identical.
 Memory per worker is bounded by one tile plus its overlap, not the survey.
 
+Edge buffers
+------------
+A tile's overlap comes from up to eight neighbours; decoding each of them
+whole for every tile decodes the survey nine times over (LAZ decoding then
+dominated every production run).  So a run first makes one *edge buffer* per
+tile (``ring`` jobs, in the same scheduler): the tile is decoded once and its
+points inside any neighbour's buffered box are saved in file order as an
+uncompressed ``.npz`` per neighbour under ``<output folder>/.buffers/``.  A tile job then
+reads its own tile and the neighbours' buffers, keeping the points in its
+buffered box, in the order a :class:`TileIndex` query returns them: the same
+points as decoding the neighbours, so the outputs do not change.  The buffers
+are resumable like the outputs and are deleted at the end of a run.
+
 Resumable: each finished output gets a ``<output>.done.json`` marker holding
 the input tiles' sizes and modification times and the job's parameters; a
 rerun skips a job whose output and matching marker exist.  Outputs are written
@@ -33,11 +46,12 @@ from typing import Any
 
 from ..errors import LidarcatError, TileIOError
 
-__all__ = ["TileJob", "run_jobs", "run_tile_job", "tile_jobs", "JOB_KINDS"]
+__all__ = ["TileJob", "run_jobs", "run_on_client", "run_tile_job", "tile_jobs", "JOB_KINDS"]
 
 log = logging.getLogger(__name__)
 
-JOB_KINDS = ("ground", "dtm", "dsm", "find")
+JOB_KINDS = ("ground", "dtm", "dsm", "find", "ring")
+_BUFFERED = ("ground", "dtm", "dsm")
 
 
 @dataclass(frozen=True)
@@ -46,10 +60,11 @@ class TileJob:
 
     Attributes
     ----------
-    kind : {"ground", "dtm", "dsm", "find"}
+    kind : {"ground", "dtm", "dsm", "find", "ring"}
         What to make (``"find"``: a block of the roof-vertex search, see
         :mod:`lidarcat.find_tiles`; ``bounds`` is the block, ``tile`` and
-        ``neighbours`` the tiles it meets).
+        ``neighbours`` the tiles it meets; ``"ring"``: the edge buffer of
+        ``tile``, the points inside the boxes ``params["boxes"]``).
     tile : str
         Input tile path.
     bounds : (xmin, ymin, xmax, ymax)
@@ -99,9 +114,86 @@ def _is_done(job: TileJob) -> bool:
         return False
 
 
-def _read_with_buffer(job: TileJob) -> tuple[Any, int]:
-    """Points of the tile followed by the neighbours' points within the overlap; tile count."""
+def _ring_path(job: TileJob, tile: str) -> Path:
+    """Manifest of the edge buffers of *tile* for the run of *job* (next to the job's output)."""
+    return Path(job.output).parent / ".buffers" / f"{Path(tile).name}.{job.overlap_m:g}.json"
+
+
+def _piece_path(job: TileJob, tile: str) -> Path:
+    """The points of neighbour *tile* that *job* needs (its strip of the edge buffer)."""
+    return Path(job.output).parent / ".buffers" / f"{Path(tile).name}.{job.overlap_m:g}.for.{Path(job.tile).name}.npz"
+
+
+def _write_ring(job: TileJob) -> None:
+    """For each box of ``job.params["boxes"]``, the points of ``job.tile`` inside it (file order),
+    as the .npz ``job.params["pieces"][i]``; then the manifest ``job.output``."""
+    import numpy as np
+
+    from .._io import atomic_write, write_json_atomic
+    from .crs import crs_label
+    from .readers import read_points
+    from .tileindex import in_box
+
+    pc = read_points(job.tile, crs=job.crs)
+    label = np.array(crs_label(pc.crs) if pc.crs is not None else "")
+    for box, piece in zip(job.params["boxes"], job.params["pieces"]):
+        keep = in_box(pc.xyz, *box)
+        arrays = {"xyz": pc.xyz[keep], "crs": label}
+        arrays.update({f"a_{k}": np.asarray(v)[keep] for k, v in pc.attributes.items()})
+        with atomic_write(piece, "wb") as fh:
+            np.savez(fh, **arrays)
+    write_json_atomic(job.output, {"tile": job.tile, "pieces": list(job.params["pieces"])})
+
+
+def _ring_jobs(jobs: Sequence[TileJob]) -> list[TileJob]:
+    """One ``ring`` job per tile that is a neighbour of a buffered job (a box and a piece per job)."""
+    pieces: dict[tuple[str, str, float, str | None], list[tuple[list[float], str]]] = {}
+    first: dict[tuple[str, str, float, str | None], TileJob] = {}
+    for j in jobs:
+        if j.kind not in _BUFFERED or j.overlap_m <= 0:
+            continue
+        o = j.overlap_m
+        box = [j.bounds[0] - o, j.bounds[1] - o, j.bounds[2] + o, j.bounds[3] + o]
+        for nb in j.neighbours:
+            key = (nb, str(_ring_path(j, nb)), o, j.crs)
+            pieces.setdefault(key, []).append((box, str(_piece_path(j, nb))))
+            first.setdefault(key, j)
+    out = []
+    for key, bp in pieces.items():
+        nb, ring, o, crs = key
+        bp = sorted(bp, key=lambda t: t[1])
+        out.append(TileJob("ring", nb, first[key].bounds, (), ring,
+                           {"boxes": [b for b, _ in bp], "pieces": [p for _, p in bp]}, crs, o))
+    return out
+
+
+def _read_ring(path: Path, box: tuple[float, float, float, float], crs_label_own: str) -> Any:
+    """Points of an edge buffer inside *box*, or None when it is missing or of another CRS."""
+    import numpy as np
+
     from .cloud import PointCloud
+    from .tileindex import in_box
+
+    try:
+        with np.load(path) as z:
+            if str(z["crs"]) != crs_label_own:
+                return None
+            xyz = z["xyz"]
+            m = in_box(xyz, *box)
+            attrs = {k[2:]: z[k][m] for k in z.files if k.startswith("a_")}
+            return PointCloud(xyz[m], attrs)  # the caller gives it the tile's CRS
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def _read_with_buffer(job: TileJob) -> tuple[Any, int]:
+    """Points of the tile followed by the neighbours' points within the overlap; tile count.
+
+    The neighbours' points come from their edge buffers when the run made them
+    (see the module docstring), else from the neighbour files themselves.
+    """
+    from .cloud import PointCloud
+    from .crs import crs_label
     from .readers import read_points
     from .tileindex import TileIndex
 
@@ -110,8 +202,24 @@ def _read_with_buffer(job: TileJob) -> tuple[Any, int]:
         return own, len(own)
     xmin, ymin, xmax, ymax = job.bounds
     o = job.overlap_m
+    box = (xmin - o, ymin - o, xmax + o, ymax + o)
     idx = TileIndex.build(list(job.neighbours), crs=job.crs)
-    extra = idx.query_box(xmin - o, ymin - o, xmax + o, ymax + o)
+    own_label = crs_label(own.crs) if own.crs is not None else ""
+    parts: list[Any] = []
+    attrs: tuple[str, ...] | None = None
+    for t in idx.tiles_in_box(*box):
+        part = _read_ring(_piece_path(job, str(t.path)), box, own_label)
+        if part is None:
+            parts = []
+            break
+        attrs = tuple(t.attributes) if attrs is None else tuple(a for a in attrs if a in t.attributes)
+        parts.append(part)
+    if parts:
+        common = [k for k in (attrs or ()) if all(k in p.attributes for p in parts)]
+        extra = PointCloud.concat([PointCloud(p.xyz, {k: p.attributes[k] for k in common}, own.crs)
+                                   for p in parts])
+    else:
+        extra = idx.query_box(*box)
     keep = [k for k in own.attributes if k in extra.attributes]
     own_k = PointCloud(own.xyz, {k: own.attributes[k] for k in keep}, own.crs)
     extra_k = PointCloud(extra.xyz, {k: extra.attributes[k] for k in keep}, own.crs)
@@ -161,6 +269,14 @@ def run_tile_job(job: TileJob) -> str:
     if job.kind not in JOB_KINDS:
         raise ValueError(f"unknown job kind {job.kind!r}; use one of {', '.join(JOB_KINDS)}")
     out = Path(job.output)
+    if job.kind == "ring":
+        try:
+            _write_ring(job)
+        except OSError as ex:
+            raise TileIOError(f"{out}: cannot write the edge buffer of tile {job.tile} "
+                              f"({ex.strerror or ex})") from ex
+        write_json_atomic(_marker(job), job.signature())
+        return str(out)
     if job.kind == "find":
         from ..find_tiles import run_find_block, write_block
 
@@ -243,14 +359,18 @@ def run_jobs(jobs: Sequence[TileJob], *, workers: int | None = None, scheduler: 
         log.info("%d of %d tiles already done; skipped", skipped, len(jobs))
         if progress is not None:
             progress(skipped)
+    rings = [r for r in _ring_jobs(todo) if not (resume and _is_done(r))]
     if workers is None and scheduler is None:
+        for r in rings:
+            run_tile_job(r)
         for j in todo:
             run_tile_job(j)
             if progress is not None:
                 progress(1)
+        _drop_rings(todo)
         return [j.output for j in jobs]
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import Client, LocalCluster
     except ImportError as ex:  # pragma: no cover - the extra is installed in CI
         raise RuntimeError("parallel runs need dask.distributed: pip install 'lidarcat[cluster]'") from ex
     cluster = None
@@ -263,14 +383,48 @@ def run_jobs(jobs: Sequence[TileJob], *, workers: int | None = None, scheduler: 
                                dashboard_address=":0")  # any free port: runs side by side
         client = Client(cluster)
     try:
-        futures = client.map(run_tile_job, todo, retries=retries, pure=False,
-                             key=[f"{j.kind}-{i}-{Path(j.tile).name}" for i, j in enumerate(todo)])
-        for fut in as_completed(futures):
-            fut.result()  # re-raises the worker's located error
-            if progress is not None:
-                progress(1)
+        run_on_client(client, todo, rings=rings, retries=retries, progress=progress)
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
     return [j.output for j in jobs]
+
+
+def run_on_client(client: Any, jobs: Sequence[TileJob], *, rings: Sequence[TileJob] | None = None,
+                  retries: int = 2, progress: Callable[[int], Any] | None = None) -> None:
+    """Run *jobs* on a connected ``dask.distributed.Client``: edge buffers first, then the tiles.
+
+    *rings* default to every edge buffer the jobs need (:func:`run_jobs` passes
+    only those not done yet).  The buffers are deleted when all jobs are done.
+    """
+    from dask.distributed import as_completed, wait
+
+    rings = _ring_jobs(jobs) if rings is None else rings
+    if rings:
+        rf = client.map(run_tile_job, rings, retries=retries, pure=False,
+                        key=[f"ring-{i}-{Path(r.tile).name}" for i, r in enumerate(rings)])
+        wait(rf)
+        for f in rf:
+            f.result()  # re-raises the worker's located error
+    futures = client.map(run_tile_job, jobs, retries=retries, pure=False,
+                         key=[f"{j.kind}-{i}-{Path(j.tile).name}" for i, j in enumerate(jobs)])
+    for fut in as_completed(futures):
+        fut.result()  # re-raises the worker's located error
+        if progress is not None:
+            progress(1)
+    _drop_rings(jobs)
+
+
+def _drop_rings(jobs: Sequence[TileJob]) -> None:
+    """Delete the edge buffers (and their markers) of a finished run."""
+    folders = set()
+    for r in _ring_jobs(jobs):
+        for p in (Path(r.output), _marker(r), *map(Path, r.params["pieces"])):
+            p.unlink(missing_ok=True)
+        folders.add(Path(r.output).parent)
+    for f in folders:
+        try:
+            f.rmdir()
+        except OSError:  # another run's buffers are still there
+            pass

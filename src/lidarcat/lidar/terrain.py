@@ -12,6 +12,14 @@ invented: a cell outside the triangulation, or inside a triangle with an edge
 longer than ``max_edge_m`` (a lake, a building larger than that, a hole in the
 data), is NaN and counted in :attr:`TinGrid.gap_cells`.
 
+:func:`tin_grid` triangulates with OpenCV (``cv2.Subdiv2D``, five to six times
+faster than Qhull on scattered points) and rasterises the triangles: each
+lists the cell centres in its bounding box and keeps those with non-negative
+barycentric coordinates, all at once in numpy.  :func:`tin_heights` (any
+query points) triangulates with Qhull and locates each point by a vectorised
+walk; both give the same heights except along the hull, where OpenCV drops a
+few slivers (gaps, never invented heights).
+
 DSM, nDSM
 ---------
 The DSM is the highest first (or only) return per cell
@@ -53,6 +61,7 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_write
+from .ground import _barycentric
 from .raster import GeoTransform, _grid_for, write_geotiff
 
 __all__ = ["TinGrid", "tin_grid", "dtm_grid", "dsm_grid", "ndsm", "hillshade", "hypsometric_image",
@@ -101,7 +110,7 @@ def tin_heights(xyz: np.ndarray, q: np.ndarray, max_edge_m: float | None = None)
     """
     from scipy.spatial import Delaunay, QhullError
 
-    from .ground import _barycentric, _locate
+    from .ground import _locate
 
     xyz = np.asarray(xyz, dtype=np.float64)
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
@@ -129,9 +138,49 @@ def tin_heights(xyz: np.ndarray, q: np.ndarray, max_edge_m: float | None = None)
     return out
 
 
+def _delaunay_simplices(xy: np.ndarray) -> np.ndarray:
+    """Delaunay triangles (m, 3) of plan points *xy* (N, 2), as indices into *xy*.
+
+    OpenCV's incremental Delaunay (:class:`cv2.Subdiv2D`, single precision, on
+    coordinates relative to the points' corner and inserted cell by cell) is
+    five to six times faster than Qhull on scattered points.  Its triangles
+    are mapped back to the input by their exact float32 coordinates; points
+    that coincide in float32 (closer than about 0.1 mm in a few-km tile) are
+    one vertex.  Triangles that touch OpenCV's enclosing virtual vertices are
+    dropped, so a few slivers along the convex hull are missing (gaps, never
+    invented heights).
+    """
+    import cv2
+
+    if len(xy) < 3:
+        return np.zeros((0, 3), dtype=np.int64)
+    lo = xy.min(axis=0)
+    p = np.ascontiguousarray(xy - lo, dtype=np.float32)
+    span = float(p.max()) + 1.0
+    cx = np.floor(p[:, 0] / 4.0).astype(np.int64)
+    cy = np.floor(p[:, 1] / 4.0).astype(np.int64)
+    order = np.argsort(cy * (int(cx.max()) + 1) + cx, kind="stable")  # spatial order: short walks
+    big = int(math.ceil(4 * span))
+    sub = cv2.Subdiv2D((-big, -big, 3 * big, 3 * big))
+    sub.insert(p[order])
+    corners = np.ascontiguousarray(sub.getTriangleList(), dtype=np.float32).reshape(-1, 3, 2)
+    key = p.view(np.uint64).ravel()
+    srt = np.argsort(key, kind="stable")
+    ks = key[srt]
+    tk = corners.view(np.uint64).reshape(-1, 3)
+    pos = np.minimum(np.searchsorted(ks, tk), len(ks) - 1)
+    hit = ks[pos] == tk
+    return srt[pos[hit[:, 0] & hit[:, 1] & hit[:, 2]]]
+
+
 def tin_grid(xyz: np.ndarray, cell_m: float, bounds: tuple[float, float, float, float] | None = None, *,
-             max_edge_m: float | None = 50.0) -> TinGrid:
+             max_edge_m: float | None = 50.0, chunk_cells: int = 4_000_000) -> TinGrid:
     """Grid the TIN of points *xyz* at cell centres (see the module docstring).
+
+    The triangles are rasterised rather than the cells located: each triangle
+    lists the cell centres inside its bounding box (a few per triangle), and
+    their barycentric coordinates, all computed at once with numpy, keep the
+    centres inside it and give their heights.
 
     Parameters
     ----------
@@ -143,6 +192,8 @@ def tin_grid(xyz: np.ndarray, cell_m: float, bounds: tuple[float, float, float, 
         Area, metres (default: the points' bounds); snapped to *cell_m*.
     max_edge_m : float or None
         Triangles with a longer edge are gaps (None: none).
+    chunk_cells : int
+        Candidate cells handled at once (bounds the memory, about 100 bytes each).
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     if bounds is None:
@@ -150,9 +201,49 @@ def tin_grid(xyz: np.ndarray, cell_m: float, bounds: tuple[float, float, float, 
             raise ValueError("cannot grid an empty point set without bounds")
         bounds = (*xyz[:, :2].min(axis=0), *xyz[:, :2].max(axis=0))
     transform, nrows, ncols = _grid_for(bounds, cell_m)
-    rr, cc = np.mgrid[0:nrows, 0:ncols]
-    ex, ny = transform.xy(rr.ravel(), cc.ravel())
-    h = tin_heights(xyz, np.column_stack([ex, ny]), max_edge_m).reshape(nrows, ncols).astype(np.float32)
+    out = np.full(nrows * ncols, np.nan)
+    simp = _delaunay_simplices(xyz[:, :2]) if len(xyz) >= 3 else np.zeros((0, 3), dtype=np.int64)
+    if len(simp):
+        # vertices in grid units: u = column, v = row of the cell whose centre they sit on
+        u = (xyz[:, 0] - transform.x0) / cell_m - 0.5
+        v = (transform.y0 - xyz[:, 1]) / cell_m - 0.5
+        tu, tv = u[simp], v[simp]
+        if max_edge_m is not None:
+            e = np.stack([np.hypot(tu[:, i] - tu[:, (i + 1) % 3], tv[:, i] - tv[:, (i + 1) % 3])
+                          for i in range(3)], axis=1) * cell_m
+            keep = (e[:, 0] <= max_edge_m) & (e[:, 1] <= max_edge_m) & (e[:, 2] <= max_edge_m)
+            simp, tu, tv = simp[keep], tu[keep], tv[keep]
+        def lo(a: np.ndarray) -> np.ndarray:
+            return np.minimum(np.minimum(a[:, 0], a[:, 1]), a[:, 2])
+
+        def hi(a: np.ndarray) -> np.ndarray:
+            return np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])
+
+        c0 = np.maximum(np.ceil(lo(tu)), 0).astype(np.int64)
+        c1 = np.minimum(np.floor(hi(tu)), ncols - 1).astype(np.int64)
+        r0 = np.maximum(np.ceil(lo(tv)), 0).astype(np.int64)
+        r1 = np.minimum(np.floor(hi(tv)), nrows - 1).astype(np.int64)
+        nx = np.maximum(c1 - c0 + 1, 0)
+        count = nx * np.maximum(r1 - r0 + 1, 0)
+        hit = np.flatnonzero(count)
+        cum = np.cumsum(count[hit])
+        start = 0
+        while start < len(hit):
+            stop = int(np.searchsorted(cum, (cum[start - 1] if start else 0) + chunk_cells, side="right"))
+            stop = max(stop, start + 1)
+            t = hit[start:stop]
+            cnt = count[t]
+            tri = np.repeat(np.arange(len(t)), cnt)
+            k = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            col = c0[t][tri] + k % nx[t][tri]
+            row = r0[t][tri] + k // nx[t][tri]
+            corners = np.stack([tu[t], tv[t]], axis=2)[tri]
+            lam = _barycentric(corners, np.column_stack([col, row]).astype(np.float64))
+            inside = (lam >= -1e-9).all(axis=1)
+            h = np.einsum("ij,ij->i", lam[inside], xyz[simp[t][tri[inside]], 2])
+            out[row[inside] * ncols + col[inside]] = h
+            start = stop
+    h = out.reshape(nrows, ncols).astype(np.float32)
     return TinGrid(h, transform, int(np.isnan(h).sum()))
 
 
