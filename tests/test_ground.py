@@ -178,3 +178,26 @@ def test_low_outliers_single_pairs_and_a_ditch():
     # measured 98.4 %: bank points in the 1 m cells the ditch shares are judged against the
     # ditch's height (SMRF's minimum grid), all within 1 m west of it
     assert g[:n][~ditch].mean() > 0.975
+
+
+def test_cli_ground_defaults_are_the_library_defaults():
+    """`lidarcat lidar ground` must classify as `classify_ground` does by default (the CLI once
+    kept an 18 m SMRF window after the library moved to 40 m and classified large roofs as ground)."""
+    import dataclasses
+
+    from lidarcat.cli.main import cli
+    from lidarcat.lidar.ground import PTDParameters, SMRFParameters
+
+    import click
+
+    ctx = click.Context(cli)
+    ground_cmd = cli.get_command(ctx, "lidar").get_command(ctx, "ground")
+    opts = {p.name: p.default for p in ground_cmd.params}
+    smrf, ptd = SMRFParameters(), PTDParameters()
+    assert opts["window_m"] == smrf.window_m
+    assert opts["slope"] == smrf.slope
+    assert opts["elevation_threshold_m"] == smrf.elevation_threshold_m
+    ptd_fields = {f.name for f in dataclasses.fields(ptd)}
+    for name in ("max_building_m", "iteration_angle_deg", "iteration_distance_m"):
+        assert name in ptd_fields
+        assert opts[name] == getattr(ptd, name), name
