@@ -261,26 +261,21 @@ def adjust_survey_with_parameters(
         Nothing to estimate, a bad switch, or an unknown control set (named).
     AdditionalParameterError, DatumError
     """
-    from .._io import atomic_dir
-
     t0 = time.perf_counter()
     survey, res = selfcal_adjust(survey, control=control, self_calibrate=self_calibrate,
                                  frame_offset=frame_offset, similarity=similarity, observations=observations,
                                  variance_factor=variance_factor, chi2_level=chi2_level,
                                  eo_constraints=eo_constraints, max_iter=max_iter, precision=precision)
-    from .survey_io import survey_provenance
+    from .survey_io import write_survey_folder
 
     info = res.bundle.problem.info
     params = dict(control=info.get("control_set"), observations=info.get("observations"),
                   variance_factor=res.bundle.variance_factor_kind, chi2_level=float(res.bundle.chi2["level"]),
                   eo_constraints=bool(info.get("eo_constraints")), max_iter=int(max_iter), precision=precision,
                   additional_parameters=list(res.names), alpha=res.alpha, snooping="off")
-    out = survey.output_dir(outdir)
-    with atomic_dir(out) as tmp:
-        write_selfcal(res, tmp, extra={"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs,
-                                       "height_system": survey.height_system,
-                                       "snooping": {"mode": "off", "reason": SNOOPING_WITH_PARAMETERS}},
-                      provenance=survey_provenance(survey, params))
+    out = write_survey_folder(survey, outdir, t0, params,
+                              lambda tmp, extra, prov: write_selfcal(res, tmp, extra=extra, provenance=prov),
+                              extra={"snooping": {"mode": "off", "reason": SNOOPING_WITH_PARAMETERS}})
     return res, out
 
 

@@ -387,7 +387,6 @@ def adjust_survey(
     ------
     SurveyError, DatumError
     """
-    from .._io import atomic_dir
     from ..survey import Survey
 
     t0 = time.perf_counter()
@@ -406,12 +405,29 @@ def adjust_survey(
                  max_iter=max_iter,
                  precision=precision, variance_factor=params["variance_factor"],
                  chi2_level=params["chi2_level"], progress=progress)
+    out = write_survey_folder(survey, outdir, t0, params,
+                              lambda tmp, extra, prov: write_adjustment(sres.result, tmp, extra=extra,
+                                                                        snooping=sres, provenance=prov))
+    return sres.result, out
+
+
+def write_survey_folder(survey: Survey, outdir, t0: float, parameters: dict,
+                        write: Callable[[Any, dict, dict], Any], extra: dict | None = None):
+    """Write a survey's result folder atomically; returns its path.
+
+    ``write(tmp, extra, provenance)`` fills the temporary folder; *extra* (summary keys)
+    gets the total elapsed time since *t0* (``time.perf_counter()``, s), the survey's CRS
+    and height system; provenance is :func:`survey_provenance` of *parameters*.  The
+    folder (default :meth:`Survey.output_dir`) is replaced only when ``write`` returns.
+    """
+    from .._io import atomic_dir
+
     out = survey.output_dir(outdir)
     with atomic_dir(out) as tmp:
-        write_adjustment(sres.result, tmp, extra={"elapsed_total_s": time.perf_counter() - t0,
-                                                  "crs": survey.crs, "height_system": survey.height_system},
-                         snooping=sres, provenance=survey_provenance(survey, params))
-    return sres.result, out
+        write(tmp, {"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs,
+                    "height_system": survey.height_system, **(extra or {})},
+              survey_provenance(survey, parameters))
+    return out
 
 
 def survey_provenance(survey: Survey, parameters: dict) -> dict:
