@@ -108,3 +108,12 @@ def test_read_bal_errors(tmp_path):
     bad.write_text("1 1 1\n0 3 1.0 2.0\n" + "0 " * 12)
     with pytest.raises(BalFormatError, match=r"bad.txt:2: point index 3 out of range \(there are 1\)"):
         read_bal(bad)
+    bad.write_text("1 1 1\n0 0 1.0 2.0\n0\n0\n0\n0\n0\n0\n1x\n" + "0\n" * 5)
+    with pytest.raises(BalFormatError, match=r"bad.txt:9: '1x' is not a finite number"):
+        read_bal(bad)
+    bad.write_text("1 1 1\n0 0 nan 2.0\n" + "0\n" * 12)
+    with pytest.raises(BalFormatError, match=r"bad.txt:2: 'nan' is not a finite number"):
+        read_bal(bad)
+    bad.write_text("1 -1 1\n")
+    with pytest.raises(BalFormatError, match=r"bad.txt:1: expected 'cameras points observations'"):
+        read_bal(bad)

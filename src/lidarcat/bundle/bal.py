@@ -84,19 +84,28 @@ def read_bal(path) -> BalProblem:
     Raises
     ------
     BalFormatError
-        A short or non-numeric file, or indices out of range (file and line named).
+        A short file, a negative count, a value that is not a finite number, or
+        indices out of range (file and line named).
     """
     path = Path(path)
     text = path.read_text()
     lines = text.split("\n", 1)
     try:
         n_cam, n_pt, n_obs = (int(v) for v in lines[0].split())
+        if min(n_cam, n_pt, n_obs) < 0:
+            raise ValueError("negative count")
     except ValueError as ex:
         raise BalFormatError(f"{path}:1: expected 'cameras points observations', got {lines[0][:60]!r}") from ex
+    body = lines[1] if len(lines) > 1 else ""
+    tokens = body.split()
     try:
-        vals = np.array((lines[1] if len(lines) > 1 else "").split(), dtype=float)
-    except ValueError as ex:
-        raise BalFormatError(f"{path}: a value that is not a number ({ex})") from ex
+        vals = np.array(tokens, dtype=float)
+        bad = np.flatnonzero(~np.isfinite(vals))
+    except ValueError:
+        bad = [next(k for k, v in enumerate(tokens) if not _finite(v))]
+    if len(bad):
+        line, token = _locate_token(body, int(bad[0]))
+        raise BalFormatError(f"{path}:{line + 2}: {token!r} is not a finite number")
     need = 4 * n_obs + 9 * n_cam + 3 * n_pt
     if len(vals) < need:
         raise BalFormatError(f"{path}: {len(vals)} values after line 1, the header announces {need}")
@@ -109,6 +118,24 @@ def read_bal(path) -> BalProblem:
     cams = vals[4 * n_obs:4 * n_obs + 9 * n_cam].reshape(n_cam, 9)
     pts = vals[4 * n_obs + 9 * n_cam:need].reshape(n_pt, 3)
     return BalProblem(cam_i, pt_i, obs[:, 2:4].copy(), cams, pts)
+
+
+def _finite(token: str) -> bool:
+    """True for a token that parses as a finite float."""
+    try:
+        return math.isfinite(float(token))
+    except ValueError:
+        return False
+
+
+def _locate_token(body: str, k: int) -> tuple[int, str]:
+    """(0-based line of *body*, text) of its k-th whitespace-separated token (error path only)."""
+    for i, line in enumerate(body.split("\n")):
+        words = line.split()
+        if k < len(words):
+            return i, words[k]
+        k -= len(words)
+    raise IndexError(k)
 
 
 def _rodrigues(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
