@@ -85,11 +85,20 @@ def test_gps_run_values_in_files(gps_run):
 
 
 def test_gps_run_report(gps_run):
+    """The report prints what summary.json holds; the published Appendix 2.1 figures agree."""
+    from scipy.stats import chi2
+
     result, out = gps_run
     text = result.output
-    assert "Degrees of freedom             128" in text
-    assert "Chi-square computed (v'Pv)     148.30" in text
-    assert "98.58 - 161.21" in text and "Fisher approx. 98.12 - 160.72" in text and "accepted" in text
+    s = json.loads((out / "summary.json").read_text())
+    app = json.loads((THESIS_SURVEY / "published" / "app2.json").read_text())["2.1_gps"]
+    assert "Degrees of freedom             128" in text and app["dof"] == 128
+    assert f"Chi-square computed (v'Pv)     {s['vtpv']:.2f}" in text
+    assert abs(s["vtpv"] - app["chi2_computed"]) < 0.5      # printed 148.35
+    lo, hi = chi2.ppf([0.025, 0.975], 128)                  # exact two-sided 5 % range
+    assert f"{lo:.2f} - {hi:.2f}" in text and "accepted" in text
+    flo, fhi = app["chi2_range_5pct"]                       # the thesis's Fisher approximation, 2 decimals
+    assert f"Fisher approx. {flo:.2f} - {fhi:.2f}" in text
     assert "Variance factor a posteriori   1.16" in text
     assert "RMS sd of all points (m)       E 0.264  N 0.215  h 1.057  (Appendix 2 'pontos livres')" in text
     assert str(out) in text
