@@ -114,6 +114,8 @@ def test_read_bal_errors(tmp_path):
     bad.write_text("1 1 1\n0 0 nan 2.0\n" + "0\n" * 12)
     with pytest.raises(BalFormatError, match=r"bad.txt:2: 'nan' is not a finite number"):
         read_bal(bad)
+    with pytest.raises(BalFormatError, match=r"missing.txt: file not found"):
+        read_bal(tmp_path / "missing.txt")
     bad.write_text("1 -1 1\n")
     with pytest.raises(BalFormatError, match=r"bad.txt:1: expected 'cameras points observations'"):
         read_bal(bad)

@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._io import read_text
 from ..errors import LidarcatError
 from .linear import _Gram, _Schur, _Singular
 
@@ -84,11 +85,11 @@ def read_bal(path) -> BalProblem:
     Raises
     ------
     BalFormatError
-        A short file, a negative count, a value that is not a finite number, or
+        A missing or unreadable file, a short file, a negative count, a value that is not a finite number, or
         indices out of range (file and line named).
     """
     path = Path(path)
-    text = path.read_text()
+    text = read_text(path, error=BalFormatError)
     lines = text.split("\n", 1)
     try:
         n_cam, n_pt, n_obs = (int(v) for v in lines[0].split())
