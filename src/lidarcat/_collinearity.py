@@ -115,25 +115,41 @@ def project(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
     eo = np.asarray(eo, dtype=float).reshape(-1, 6)
     m = rotation_matrix(eo[:, 3:6])
     per_photo = np.concatenate([m.reshape(-1, 9), eo[:, :3]], axis=1).T     # (12, P), rows
+    n, chunks = _ray_chunks(per_photo, xyz_m, focal_mm, index)
+    xy = np.empty((n, 2))
+    u3 = np.empty(n)
+    for sl, rows, d, c in chunks:
+        M = rows[0:9].reshape(3, 3, -1)
+        u = M[:, 0] * d[0] + M[:, 1] * d[1] + M[:, 2] * d[2]
+        f = -c / u[2]
+        xy[sl, 0] = f * u[0]
+        xy[sl, 1] = f * u[1]
+        u3[sl] = u[2]
+    return xy, u3
+
+
+def _ray_chunks(per_photo: np.ndarray, xyz_m, focal_mm, index: np.ndarray | None):
+    """The rays of :func:`project` in chunks of at most ``_CHUNK`` (temporaries stay in cache).
+
+    *per_photo* (r, P) holds one column per photo, its last three rows X0, Y0, Z0 (m).
+    Returns ``(n, iterator of (slice, rows (r, k), d (3, k) = X - X0 in m, c (k,) or (1,) mm))``;
+    a single photo, point or focal length is broadcast over the rays.
+    """
     xyz = np.asarray(xyz_m, dtype=float).reshape(-1, 3)
     c_all = np.broadcast_to(np.asarray(focal_mm, dtype=float), (len(xyz),))
     n = len(xyz) if index is not None or per_photo.shape[1] == 1 else max(len(xyz), per_photo.shape[1])
-    xy = np.empty((n, 2))
-    u3 = np.empty(n)
-    for a in range(0, n, _CHUNK):                 # rows of at most _CHUNK rays: cache-resident
-        b = min(n, a + _CHUNK)
-        if index is not None:
-            rows = np.take(per_photo, index[a:b], axis=1)
-        else:
-            rows = per_photo if per_photo.shape[1] == 1 else per_photo[:, a:b]
-        M, x0 = rows[0:9].reshape(3, 3, -1), rows[9:12]
-        d = (xyz if len(xyz) == 1 else xyz[a:b]).T - x0                     # (3, k)
-        u = M[:, 0] * d[0] + M[:, 1] * d[1] + M[:, 2] * d[2]
-        f = -(c_all[a:b] if len(c_all) == n else c_all) / u[2]
-        xy[a:b, 0] = f * u[0]
-        xy[a:b, 1] = f * u[1]
-        u3[a:b] = u[2]
-    return xy, u3
+
+    def chunks():
+        for a in range(0, n, _CHUNK):
+            b = min(n, a + _CHUNK)
+            if index is not None:
+                rows = np.take(per_photo, index[a:b], axis=1)
+            else:
+                rows = per_photo if per_photo.shape[1] == 1 else per_photo[:, a:b]
+            d = (xyz if len(xyz) == 1 else xyz[a:b]).T - rows[-3:]
+            yield slice(a, b), rows, d, (c_all[a:b] if len(c_all) == n else c_all)
+
+    return n, chunks()
 
 
 def project_with_jacobians(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
@@ -178,38 +194,29 @@ def _project_jacobian_parts(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndar
     # per-photo quantities as rows (structure of arrays): every operation below runs on
     # contiguous rows of at most _CHUNK rays (temporaries stay in cache on large blocks)
     per_photo = np.concatenate([m.reshape(-1, 9), g.reshape(-1, 9), eo[:, :3]], axis=1).T   # (21, P)
-    xyz = np.asarray(xyz_m, dtype=float).reshape(-1, 3)
-    c_all = np.broadcast_to(np.asarray(focal_mm, dtype=float), (len(xyz),))
-    n = len(xyz) if index is not None or per_photo.shape[1] == 1 else max(len(xyz), per_photo.shape[1])
+    n, chunks = _ray_chunks(per_photo, xyz_m, focal_mm, index)
     xy = np.empty((n, 2))
     a_pt = np.empty((n, 2, 3))
     a_ang = np.empty((n, 2, 3))
     u3 = np.empty(n)
-    for a in range(0, n, _CHUNK):
-        b = min(n, a + _CHUNK)
-        if index is not None:
-            rows = np.take(per_photo, index[a:b], axis=1)                                 # (21, k)
-        else:
-            rows = per_photo if per_photo.shape[1] == 1 else per_photo[:, a:b]
-        M, gv, x0 = rows[0:9].reshape(3, 3, -1), rows[9:18].reshape(3, 3, -1), rows[18:21]
-        d = (xyz if len(xyz) == 1 else xyz[a:b]).T - x0                                    # (3, k)
+    for sl, rows, d, c in chunks:
+        M, gv = rows[0:9].reshape(3, 3, -1), rows[9:18].reshape(3, 3, -1)
         u = M[:, 0] * d[0] + M[:, 1] * d[1] + M[:, 2] * d[2]                               # (3, k)
-        c = c_all[a:b] if len(c_all) == n else c_all
         inv3 = 1.0 / u[2]
         xi = -u[0] * inv3
         eta = -u[1] * inv3
         q = -c * inv3                                          # -q of the docstring
-        xy[a:b, 0] = c * xi
-        xy[a:b, 1] = c * eta
-        a_pt[a:b, 0] = (q * (M[0] + xi * M[2])).T
-        a_pt[a:b, 1] = (q * (M[1] + eta * M[2])).T
+        xy[sl, 0] = c * xi
+        xy[sl, 1] = c * eta
+        a_pt[sl, 0] = (q * (M[0] + xi * M[2])).T
+        a_pt[sl, 1] = (q * (M[1] + eta * M[2])).T
         # v = g x u for the three angles at once: (angle, k)
         v1 = gv[:, 1] * u[2] - gv[:, 2] * u[1]
         v2 = gv[:, 2] * u[0] - gv[:, 0] * u[2]
         v3 = gv[:, 0] * u[1] - gv[:, 1] * u[0]
-        a_ang[a:b, 0] = (q * (v1 + xi * v3)).T
-        a_ang[a:b, 1] = (q * (v2 + eta * v3)).T
-        u3[a:b] = u[2]
+        a_ang[sl, 0] = (q * (v1 + xi * v3)).T
+        a_ang[sl, 1] = (q * (v2 + eta * v3)).T
+        u3[sl] = u[2]
     return xy, a_pt, a_ang, u3
 
 
