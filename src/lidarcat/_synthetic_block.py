@@ -295,6 +295,8 @@ def selfcal_block(
                                   constraint_sd_m=np.full((k, 3), control_sd_m), **extra)
     return SelfCalBlock(base, problem, cert, {"c": dc_mm, "x0": dx0_mm, "y0": dy0_mm, "k1": dk1},
                         frozen_array(shift), source)
+
+
 def aerial_block(n_photos: int, *, seed: int = 1) -> SyntheticBlock:
     """A production-like aerial block of about *n_photos* photos (benchmarks, issue 11).
 
