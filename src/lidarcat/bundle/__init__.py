@@ -31,9 +31,8 @@ Every name importable from ``lidarcat.bundle`` before the split still is.
 
 from __future__ import annotations
 
-# private names kept importable from here for code written against the single module
-from .linear import _inv3, _observation_pairs, _Schur, _Singular
-from .model import _constraint_terms, _cost, _System
+# the normal-equation system stays importable from here (tests and benchmarks/bench_bundle.py use it)
+from .model import _System  # noqa: F401
 from .precision import PRECISION_LEVELS, covariance_blocks, joint_point_covariance, observation_blocks
 from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
 from .additional import GnssLineOffsets, SelfCalibration
