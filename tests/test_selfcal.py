@@ -25,6 +25,7 @@ from lidarcat._collinearity import project
 from lidarcat.bundle.selfcal import _BorderedSystem, _Globals, _State, adjust_with_parameters
 from lidarcat.camera import Camera
 
+
 def _components(b, params="c,x0,y0,k1", similarity=False):
     p = b.problem
     return [SelfCalibration({"cam": b.camera}, ["cam"] * p.n_photos, params),

@@ -33,6 +33,7 @@ __all__ = ["approximations", "intersect_points", "planimetric_block", "resect_al
 
 log = logging.getLogger(__name__)
 
+
 def _intersect(problem, eo: np.ndarray, oriented: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares intersection of the rays from oriented photos to *targets* (point indices).
 

@@ -290,6 +290,7 @@ class SupernodalCholesky:
             allb = allb[allb > last]               # ancestors only (nested dissection)
             bnd.append(allb)
         # scalar structure
+
         def scal(units_pos: np.ndarray) -> np.ndarray:
             return _ranges(new_off[units_pos], new_sizes[units_pos])
 

@@ -46,8 +46,6 @@ def _frozen_array(a: Any, shape_tail: tuple[int, ...], name: str, dtype=float) -
     return arr
 
 
-
-
 # ---------------------------------------------------------------------------
 # value types
 # ---------------------------------------------------------------------------
@@ -315,7 +313,6 @@ def chi2_bounds(dof: int, level: float = 0.05) -> dict[str, float]:
         "lower_fisher": 0.5 * max(root - z, 0.0) ** 2,
         "upper_fisher": 0.5 * (root + z) ** 2,
     }
-
 
 
 # ---------------------------------------------------------------------------

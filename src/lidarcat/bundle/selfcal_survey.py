@@ -51,6 +51,7 @@ __all__ = ["SelfCalSettings", "self_calibration_settings", "combined_control_set
 
 log = logging.getLogger(__name__)
 
+
 def _keys() -> tuple[str, ...]:
     from ..survey import SURVEY_KEYS
 
