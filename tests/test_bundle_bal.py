@@ -97,25 +97,18 @@ def test_ladybug_first_steps_decrease_the_cost_towards_the_published_minimum():
     assert 13344.3 * (1 - 1e-4) < r.final_cost < 13344.3 * 1.25
 
 
-def test_read_bal_errors(tmp_path):
+@pytest.mark.parametrize(("text", "message"), [
+    ("2 1 x\n", r"bad.txt:1: expected 'cameras points observations'"),
+    ("1 -1 1\n", r"bad.txt:1: expected 'cameras points observations'"),
+    ("1 1 1\n0 0 1.0 2.0\n" + "0 " * 5, r"bad.txt: 9 values after line 1, the header announces 16"),
+    ("1 1 1\n0 3 1.0 2.0\n" + "0 " * 12, r"bad.txt:2: point index 3 out of range \(there are 1\)"),
+    ("1 1 1\n0 0 1.0 2.0\n" + "0\n" * 6 + "1x\n" + "0\n" * 5, r"bad.txt:9: '1x' is not a finite number"),
+    ("1 1 1\n0 0 nan 2.0\n" + "0\n" * 12, r"bad.txt:2: 'nan' is not a finite number"),
+    (None, r"bad.txt: file not found"),
+])
+def test_read_bal_errors(tmp_path, text, message):
     bad = tmp_path / "bad.txt"
-    bad.write_text("2 1 x\n")
-    with pytest.raises(BalFormatError, match=r"bad.txt:1: expected 'cameras points observations'"):
-        read_bal(bad)
-    bad.write_text("1 1 1\n0 0 1.0 2.0\n" + "0 " * 5)
-    with pytest.raises(BalFormatError, match=r"9 values after line 1, the header announces 16"):
-        read_bal(bad)
-    bad.write_text("1 1 1\n0 3 1.0 2.0\n" + "0 " * 12)
-    with pytest.raises(BalFormatError, match=r"bad.txt:2: point index 3 out of range \(there are 1\)"):
-        read_bal(bad)
-    bad.write_text("1 1 1\n0 0 1.0 2.0\n0\n0\n0\n0\n0\n0\n1x\n" + "0\n" * 5)
-    with pytest.raises(BalFormatError, match=r"bad.txt:9: '1x' is not a finite number"):
-        read_bal(bad)
-    bad.write_text("1 1 1\n0 0 nan 2.0\n" + "0\n" * 12)
-    with pytest.raises(BalFormatError, match=r"bad.txt:2: 'nan' is not a finite number"):
-        read_bal(bad)
-    with pytest.raises(BalFormatError, match=r"missing.txt: file not found"):
-        read_bal(tmp_path / "missing.txt")
-    bad.write_text("1 -1 1\n")
-    with pytest.raises(BalFormatError, match=r"bad.txt:1: expected 'cameras points observations'"):
+    if text is not None:
+        bad.write_text(text)
+    with pytest.raises(BalFormatError, match=message):
         read_bal(bad)
