@@ -445,6 +445,28 @@ def test_run_report_shows_additional_parameters(tmp_path):
     assert s["frame_offset"]["shift_m"] == shift
 
 
+def test_survey_gnss_lines_without_camera_positions_named(tmp_path):
+    """[self_calibration] gnss_lines on a survey whose photos.csv has no camera positions with sds:
+    exit 2 with survey.toml's line and photos.csv named, nothing written."""
+    import shutil
+
+    from click.testing import CliRunner
+
+    from lidarcat.cli.main import cli
+    from lidarcat.survey import thesis_survey_path
+    folder = tmp_path / "s"
+    shutil.copytree(thesis_survey_path(), folder)
+    text = (folder / "survey.toml").read_text()
+    (folder / "survey.toml").write_text(text + '\n[self_calibration]\ngnss_lines = { a = ["1", "2", "3"] }\n')
+    line = text.count("\n") + 3
+    r = CliRunner().invoke(cli, ["adjust", str(folder), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 2, r.output
+    assert r.output == (f"Error: {folder / 'survey.toml'}:{line}: field 'gnss_lines': GNSS line offsets act on "
+                        f"constrained camera positions, but no photo of {folder / 'photos.csv'} has X0, Y0, Z0 "
+                        "with sd_X0, sd_Y0, sd_Z0\n")
+    assert not (tmp_path / "out").exists()
+
+
 def test_survey_gnss_lines_recover_an_antenna_offset(tmp_path):
     """The thesis block with GNSS camera positions (the GPS run's own, 0.10 m) whose second line
     (photos 4-6) is off by 0.5 / -0.4 / 0.6 m: [self_calibration.gnss_lines] finds it exactly (the

@@ -310,6 +310,13 @@ def selfcal_adjust(survey=None, *, control: str | None = None, self_calibrate: s
     # GNSS line offsets act on the camera-position constraints: switch them on
     problem = problem_from_survey(survey, control=cset, observations=observations,
                                   eo_constraints=eo_constraints or bool(st.gnss_lines))
+    held = problem.eo_constraint_photo_index
+    if st.gnss_lines and (held is None or not len(held)):
+        from ..survey import _Toml
+
+        raise _Toml(survey.toml_path).err(
+            "self_calibration", "gnss_lines", f"GNSS line offsets act on constrained camera positions, but no "
+            f"photo of {survey.files['photos']} has X0, Y0, Z0 with sd_X0, sd_Y0, sd_Z0")
     settings = survey.settings
     res = adjust_with_parameters(problem, components_from_survey(survey, problem, st), max_iter=max_iter,
                                  variance_factor=variance_factor or settings.variance_factor,
