@@ -24,9 +24,12 @@ The package, one concern per module, in the order a step runs:
 Additional parameters (issue 13): ``additional`` (self-calibration, GNSS
 line offsets), ``frame_offset`` (shift / similarity of a control source),
 ``selfcal`` (the bordered adjustment :func:`adjust_with_parameters`, tests of
-significance and determinability).
+significance and determinability), ``selfcal_survey`` (the ``[self_calibration]``
+table and the CLI switches).  Blunders: ``reliability`` (redundancy numbers,
+data snooping, robust re-weighting).  ``bal``: the Bundle Adjustment in the
+Large camera model over the same core.
 
-Every name importable from ``lidarcat.bundle`` before the split still is.
+Every public name importable from ``lidarcat.bundle`` before the split still is.
 """
 
 from __future__ import annotations
