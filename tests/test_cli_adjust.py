@@ -267,3 +267,29 @@ def test_snooping_level_options(tmp_path):
     assert s["snooping"]["family_level"] is None and s["provenance"]["parameters"]["snooping_level"] == 0.001
     r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--family-level", "0.7", "-o", str(tmp_path / "c")])
     assert r.exit_code == 2 and "--family-level" in r.output
+
+
+def test_progress_bar_ticks_once_per_iteration(tmp_path, monkeypatch):
+    """On a terminal the plain adjustment drives a progress bar through ``progress=``: one tick per
+    iteration (the bar itself is click's; here a recorder stands in for it)."""
+    import contextlib
+
+    import lidarcat.cli.adjust as cli_adjust
+
+    ticks, made = [], []
+
+    class _Bar:
+        def update(self, n):
+            ticks.append(n)
+
+    @contextlib.contextmanager
+    def fake_bar(length, label, *, enabled=True):
+        made.append((length, label, enabled))
+        yield _Bar()
+
+    monkeypatch.setattr(cli_adjust, "progress_bar", fake_bar)
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--snooping", "off", "-o", str(tmp_path / "a")])
+    assert r.exit_code == 0, r.output
+    s = json.loads((tmp_path / "a" / "summary.json").read_text())
+    assert made == [(50, "Adjusting (iterations)", True)]
+    assert ticks == [1] * s["n_iterations"] and s["n_iterations"] >= 2

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from .options import echo_json, json_opt, survey_arg
+from .options import echo_json, json_opt, progress_bar, survey_arg
 
 __all__ = ["adjust", "format_report", "format_blunders", "exit_status"]
 
@@ -222,11 +222,13 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
             variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter,
             precision=precision)
     else:
-        _, out = adjust_survey(loaded, control=control, observations=observations, outdir=outdir,
-                               variance_factor=variance_factor, eo_constraints=eo_constraints,
-                               max_iter=max_iter, snooping=snooping or "report", snooping_level=snooping_level,
-                               family_level=family_level,
-                               robust=robust, precision=precision)
+        # one tick per Levenberg-Marquardt iteration (re-adjustments of the snooping included)
+        with progress_bar(max_iter, "Adjusting (iterations)", enabled=not as_json) as bar:
+            _, out = adjust_survey(loaded, control=control, observations=observations, outdir=outdir,
+                                   variance_factor=variance_factor, eo_constraints=eo_constraints,
+                                   max_iter=max_iter, snooping=snooping or "report", snooping_level=snooping_level,
+                                   family_level=family_level, robust=robust, precision=precision,
+                                   progress=None if bar is None else lambda _it, _cost: bar.update(1))
     # what was written is what is shown
     summary = {**json.loads((Path(out) / "summary.json").read_text(encoding="utf-8")), "outdir": str(out)}
     code, verdict = exit_status(summary)
