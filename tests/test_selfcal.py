@@ -158,7 +158,7 @@ def test_bordered_step_and_covariance_equal_dense_inverse():
     eo, pts = np.array(r0.eo_params), np.array(r0.points_m)
     theta = np.array([0.05, 0.01, -0.01, 1e-6, 0.1, 0.1, 0.1])
     bs = _BorderedSystem(gl, eo, pts, theta, _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points))
-    P, Q, k = p.n_photos, p.n_points, gl.k
+    P, Q = p.n_photos, p.n_points
     o, og = 6 * P, 6 * P + 3 * Q
     N = _dense_normal(bs, p)
     g = np.r_[bs.sys.g_c.ravel(), bs.sys.g_p.ravel(), bs.gg]
