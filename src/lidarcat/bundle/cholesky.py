@@ -302,7 +302,7 @@ class SupernodalCholesky:
             self.nodes.append(_Node(cols=cols, rows=rows, parent=parent[k], ext=np.zeros(0, np.int64),
                                     s_src=np.zeros(0, np.int64), s_dst=np.zeros(0, np.int64)))
         self.kids = kids
-        for k, node in enumerate(self.nodes):
+        for node in self.nodes:
             if node.parent >= 0:
                 pn = self.nodes[node.parent]
                 allp = np.concatenate([pn.cols, pn.rows])
@@ -326,7 +326,7 @@ class SupernodalCholesky:
             node.s_src = src[a:b]
             node.s_dst = rp * len(node.cols) + cp
         # Z_bb gather plan for the selected inverse
-        for k, node in enumerate(self.nodes):
+        for node in self.nodes:
             if not len(node.rows):
                 continue
             rnode = node_of_unit[unit_of[perm[node.rows]]]
