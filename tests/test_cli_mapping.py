@@ -158,6 +158,12 @@ def test_ortho_cli_true_orthos_and_mosaic(survey, tmp_path):
     ("f.csv", "feature,col_px,row_px,geometry\nA,1,2,polygon\nA,3,4,polygon\n",
      "f.csv:2: field 'feature': feature 'A' is a polygon with 2 vertices"),
     ("g.txt", "x", "g.txt: unknown feature file type '.txt'; use .geojson or .csv"),
+    ("h.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"id": "p"}, '
+                  '"geometry": {"type": "Point", "coordinates": [1, 2]}}, null]}',
+     "h.geojson: feature 2 is not a GeoJSON Feature object (with object 'properties' and 'geometry')"),
+    ("i.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": ["p"], '
+                  '"geometry": {"type": "Point", "coordinates": [1, 2]}}]}',
+     "i.geojson: feature 1 is not a GeoJSON Feature object (with object 'properties' and 'geometry')"),
 ])
 def test_feature_file_errors_are_located(tmp_path, name, text, message):
     from lidarcat.features import FeatureError, read_features
