@@ -56,6 +56,10 @@ def test_run_reports_the_accuracy_tables_of_each_interpolator(tmp_path):
 @pytest.mark.parametrize("toml, message", [
     ('reference = "r.csv"', "field 'reference': a reference needs the features to judge ([mapping] features)"),
     ('features = { "1" = "" }', "field 'features': photo 1: expected the path of a feature file (.geojson or .csv)"),
+    ("gsd_m = nan", "field 'gsd_m': must be a finite number, got nan"),
+    ("feather_m = inf", "field 'feather_m': must be a finite number, got inf"),
+    ("gsd_m = 0", "field 'gsd_m': must be positive (metres), got 0"),
+    ("image_sd_px = -0.5", "field 'image_sd_px': must not be negative, got -0.5"),
 ])
 def test_mapping_table_errors_are_located(tmp_path, toml, message):
     from lidarcat.errors import SurveyError
