@@ -140,6 +140,10 @@ def test_ortho_cli_true_orthos_and_mosaic(survey, tmp_path):
     r = CliRunner().invoke(cli, ["ortho", str(root), "--photo", "A", "-o", str(tmp_path / "x")])
     assert r.exit_code == 2 and "give one of --dtm (standard orthophoto) or --dsm (true orthophoto)" in r.output
     assert not (tmp_path / "x").exists()
+    r = CliRunner().invoke(cli, ["ortho", str(root), "--photo", "A", "--dsm", str(root / "dsm.tif"), "--feather",
+                                 "2", "-o", str(tmp_path / "x")])
+    assert r.exit_code == 2 and "--feather blends the mosaic's seamlines: give it with --mosaic" in r.output
+    assert not (tmp_path / "x").exists()
     assert math.isfinite(float(np.nanmax(m)))
 
 

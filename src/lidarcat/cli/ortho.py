@@ -61,6 +61,8 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
         raise click.UsageError("give one of --dtm (standard orthophoto) or --dsm (true orthophoto)")
     if bool(photo_ids) == all_photos:
         raise click.UsageError("give --photo ID (repeatable) or --all")
+    if feather_m and not make_mosaic:
+        raise click.UsageError("--feather blends the mosaic's seamlines: give it with --mosaic")
     s = Survey.load(survey)
     if all_photos:
         eop = Path(eop_path) if eop_path else default_eop_path(s)
