@@ -347,3 +347,17 @@ def test_reference_file_errors_are_located(tmp_path, text, message):
     with pytest.raises(SurveyError) as ei:
         read_reference(tmp_path / "ref.csv")
     assert str(ei.value).startswith(f"{tmp_path}/{message}")
+
+
+def test_lidar_surface_of_an_empty_area_names_the_area_and_the_tiles(survey):
+    from lidarcat.errors import SurveyError
+    from lidarcat.lidar import TileIndex
+    from lidarcat.mapping_inputs import lidar_surface
+
+    root, _, _ = survey
+    index = TileIndex.build([str(root / "lidar" / "tile.laz")], crs=CRS)
+    s = lidar_surface(index, MODEL_BOUNDS, "nearest")
+    assert s.interpolator == "nearest"
+    with pytest.raises(SurveyError) as ei:
+        lidar_surface(index, (0.0, 0.0, 10.0, 10.0))
+    assert str(ei.value) == f"no LiDAR points in E 0.0..10.0, N 0.0..10.0 (tiles: {root / 'lidar' / 'tile.laz'})"

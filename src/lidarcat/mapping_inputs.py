@@ -111,28 +111,28 @@ def ray_area(camera: Any, eo_params: Any, colrow_px: Any, zmin_m: float, zmax_m:
             float(ends[:, 0].max() + margin_m), float(ends[:, 1].max() + margin_m))
 
 
-def lidar_surface(paths: Sequence[str | os.PathLike], bounds: Sequence[float], interpolator: str = "tin",
-                  sd_m: float = 0.15, crs: Any = None, first_returns: bool = True) -> Any:
+def lidar_surface(index: Any, bounds: Sequence[float], interpolator: str = "tin", sd_m: float = 0.15,
+                  first_returns: bool = True) -> Any:
     """A :class:`~lidarcat.monoplot.PointSurface` of the LiDAR points in *bounds* (m).
 
-    With *first_returns* (default) only first (or only) returns: the surface
-    the photo sees (Cavassim 2005, section 6.2: a DSM of the first return).
+    *index* is the :class:`~lidarcat.lidar.TileIndex` of the tiles (the caller
+    builds it once: its height range also gives :func:`ray_area`).  With
+    *first_returns* (default) only first (or only) returns: the surface the
+    photo sees (Cavassim 2005, section 6.2: a DSM of the first return).
 
     Raises
     ------
     SurveyError
         No LiDAR point in the area.
     """
-    from .lidar import TileIndex
     from .monoplot import PointSurface
 
-    index = TileIndex.build(list(paths), crs=crs)
     cloud = index.query_box(*bounds)
     xyz = np.asarray(cloud.xyz)
     if first_returns:
         xyz = xyz[cloud.first_returns()]
     if len(xyz) < 3:
         raise SurveyError(f"no LiDAR points in E {bounds[0]:.1f}..{bounds[2]:.1f}, N {bounds[1]:.1f}.."
-                          f"{bounds[3]:.1f} (tiles: {', '.join(str(p) for p in paths)[:200]})")
+                          f"{bounds[3]:.1f} (tiles: {', '.join(str(t.path) for t in index.tiles)[:200]})")
     log.info("%d LiDAR points in the area for the surface", len(xyz))
     return PointSurface(xyz, interpolator, sd_m)

@@ -82,9 +82,9 @@ def monoplot(survey, photo_id, features_path, surface_path, lidar, interpolator,
             raise click.UsageError("the survey has no LiDAR tiles; give --lidar TILES or --surface DSM.tif")
         from ..lidar import TileIndex
 
-        b = TileIndex.build(paths, crs=s.lidar_crs).bounds
-        box = ray_area(camera, eo.params, px, b.zmin, b.zmax)
-        surface = lidar_surface(paths, box, interpolator or "tin", surface_sd_m, crs=s.lidar_crs)
+        index = TileIndex.build(paths, crs=s.lidar_crs)
+        box = ray_area(camera, eo.params, px, index.bounds.zmin, index.bounds.zmax)
+        surface = lidar_surface(index, box, interpolator or "tin", surface_sd_m)
     with progress_bar(2, "monoplot", enabled=not as_json) as bar:
         res = run_monoplot(px, camera, eo, surface, method=method, image_sd_px=image_sd_px,
                            progress=(lambda i, n: bar.update(i - bar.pos)) if bar is not None else None)
