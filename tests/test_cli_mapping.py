@@ -361,3 +361,20 @@ def test_lidar_surface_of_an_empty_area_names_the_area_and_the_tiles(survey):
     with pytest.raises(SurveyError) as ei:
         lidar_surface(index, (0.0, 0.0, 10.0, 10.0))
     assert str(ei.value) == f"no LiDAR points in E 0.0..10.0, N 0.0..10.0 (tiles: {root / 'lidar' / 'tile.laz'})"
+
+
+def test_run_mapping_stage_a_missing_reference_stops_it_before_any_monoplot(survey, tmp_path):
+    import shutil
+
+    from lidarcat.errors import SurveyError
+
+    root, _, _ = survey
+    work = tmp_path / "s"
+    shutil.copytree(root, work)
+    (work / "f.csv").write_text("feature,col_px,row_px\np,600,400\n")
+    with open(work / "survey.toml", "a", encoding="utf-8") as f:
+        f.write('\n[mapping]\nfeatures = { A = "f.csv" }\nreference = "nowhere.csv"\n')
+    with pytest.raises(SurveyError) as ei:
+        _run_mapping_stage(work, tmp_path)
+    assert str(ei.value) == f"{work / 'nowhere.csv'}: file not found"
+    assert list((tmp_path / "mapping").iterdir()) == []
