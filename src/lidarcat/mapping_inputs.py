@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,12 +25,61 @@ import numpy as np
 
 from .errors import SurveyError
 
-__all__ = ["default_eop_path", "adjusted_orientation", "photo_image", "IMAGE_SUFFIXES", "lidar_surface",
+__all__ = ["read_orientations", "default_eop_path", "adjusted_orientation", "photo_image", "IMAGE_SUFFIXES", "lidar_surface",
            "ray_area"]
 
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+
+
+def read_orientations(path: str | os.PathLike) -> Mapping[str, Any]:
+    """Read the adjusted exterior orientations of an ``eop.csv`` (``lidarcat adjust``/``run``).
+
+    Parameters
+    ----------
+    path : path-like
+        ``eop.csv``: photo, X0, Y0, Z0 (m), omega, phi, kappa (deg) and
+        optionally ``sd_*`` of each (m, deg).
+
+    Returns
+    -------
+    dict[str, lidarcat.bundle.ExteriorOrientation]
+        By photo id; ``cov`` is diagonal (``sd**2``, m^2 and rad^2): the file
+        holds standard deviations only, not the correlations.  Without sd
+        columns ``cov`` is None.
+
+    Raises
+    ------
+    SurveyError
+        Missing file, missing column, non-numeric value, a photo given twice
+        (file, line, field).
+    """
+    from ._io import read_csv_table
+    from .bundle import ExteriorOrientation
+    from .errors import location
+
+    path = Path(path)
+    if not path.is_file():
+        raise SurveyError(f"{path}: no such orientation file (eop.csv of `lidarcat adjust` or `lidarcat run`)")
+    keys = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+    t = read_csv_table(path, required=("photo",) + keys, allow_extra=True)
+    vals = np.column_stack([t.floats(k) for k in keys])
+    has_sd = all(t.has(f"sd_{k}") for k in keys)
+    sds = np.column_stack([t.floats(f"sd_{k}") for k in keys]) if has_sd else None
+    out: dict[str, Any] = {}
+    for i, pid in enumerate(t.column("photo")):
+        if pid in out:
+            raise SurveyError(f"{location(path, t.lines[i], 'photo')}: photo {pid!r} is given twice")
+        p = vals[i].copy()
+        p[3:] = np.radians(p[3:])
+        cov = None
+        if sds is not None:
+            s = sds[i].copy()
+            s[3:] = np.radians(s[3:])
+            cov = np.diag(np.where(np.isfinite(s), s, 0.0) ** 2)
+        out[pid] = ExteriorOrientation.from_params(p, photo=pid, cov=cov)
+    return out
 
 
 def default_eop_path(survey: Any) -> Path:
@@ -48,8 +97,6 @@ def adjusted_orientation(survey: Any, photo_id: str, eop_path: str | os.PathLike
         The photo is not in the survey, the orientation file is missing, or the
         photo is not in it (not adjusted).
     """
-    from .monoplot import read_orientations
-
     if photo_id not in survey.photo_ids:
         raise SurveyError(f"{survey.root / 'photos.csv'}: no photo {photo_id!r} in the survey "
                           f"(photos: {', '.join(survey.photo_ids[:10])}{' ...' if len(survey.photo_ids) > 10 else ''})")

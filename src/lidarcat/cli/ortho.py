@@ -51,10 +51,10 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
     """Orthophotos of adjusted photos over a DTM or DSM, and their mosaic."""
     from pathlib import Path
 
-    from ..monoplot import GridSurface, read_orientations
+    from ..monoplot import GridSurface
     from ..mosaic import mosaic
     from ..ortho import PhotoModel, orthophoto
-    from ..mapping_inputs import adjusted_orientation, default_eop_path, photo_image
+    from ..mapping_inputs import adjusted_orientation, default_eop_path, photo_image, read_orientations
     from ..survey import Survey
 
     if bool(dtm) == bool(dsm):

@@ -119,7 +119,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     """Orthophotos (and the mosaic) and monorestituted features of the adjusted photos (module docstring)."""
     from ...errors import SurveyError
     from ...lidar import TileIndex
-    from ...monoplot import read_orientations
+    from ...mapping_inputs import read_orientations
 
     survey = ctx["survey"]
     par = ctx.params
