@@ -144,6 +144,10 @@ def test_ortho_cli_true_orthos_and_mosaic(survey, tmp_path):
                                  "2", "-o", str(tmp_path / "x")])
     assert r.exit_code == 2 and "--feather blends the mosaic's seamlines: give it with --mosaic" in r.output
     assert not (tmp_path / "x").exists()
+    r = CliRunner().invoke(cli, ["ortho", str(root), "--photo", "A", "--photo", "B", "--dsm", str(root / "dsm.tif"),
+                                 "--eop", str(root / "eop_only_a.csv"), "-o", str(tmp_path / "x")])
+    assert r.exit_code == 2 and f"{root / 'eop_only_a.csv'}: photo 'B' was not adjusted" in r.output
+    assert not (tmp_path / "x").exists()
     assert math.isfinite(float(np.nanmax(m)))
 
 

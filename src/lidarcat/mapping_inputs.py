@@ -25,8 +25,8 @@ import numpy as np
 
 from .errors import SurveyError
 
-__all__ = ["read_orientations", "default_eop_path", "adjusted_orientation", "photo_image", "IMAGE_SUFFIXES", "lidar_surface",
-           "ray_area"]
+__all__ = ["read_orientations", "default_eop_path", "adjusted_orientation", "adjusted_orientations",
+           "photo_image", "IMAGE_SUFFIXES", "lidar_surface", "ray_area"]
 
 log = logging.getLogger(__name__)
 
@@ -88,27 +88,45 @@ def default_eop_path(survey: Any) -> Path:
     return survey.output_dir() / f"adjust-{name}" / "eop.csv"
 
 
-def adjusted_orientation(survey: Any, photo_id: str, eop_path: str | os.PathLike | None = None) -> Any:
-    """The adjusted :class:`~lidarcat.bundle.ExteriorOrientation` of a photo of the survey.
+def adjusted_orientations(survey: Any, photo_ids: Sequence[str],
+                          eop_path: str | os.PathLike | None = None) -> dict[str, Any]:
+    """The adjusted :class:`~lidarcat.bundle.ExteriorOrientation` of photos of the survey, by photo id.
+
+    The orientation file is read once, however many photos are asked for.
+
+    Parameters
+    ----------
+    survey : lidarcat.survey.Survey
+    photo_ids : sequence of str
+    eop_path : path-like, optional
+        ``eop.csv`` of an adjustment (default :func:`default_eop_path`).
 
     Raises
     ------
     SurveyError
-        The photo is not in the survey, the orientation file is missing, or the
-        photo is not in it (not adjusted).
+        A photo is not in the survey, the orientation file is missing, or a
+        photo is not in it (not adjusted); the first such photo is named.
     """
-    if photo_id not in survey.photo_ids:
-        raise SurveyError(f"{survey.root / 'photos.csv'}: no photo {photo_id!r} in the survey "
-                          f"(photos: {', '.join(survey.photo_ids[:10])}{' ...' if len(survey.photo_ids) > 10 else ''})")
+    known = set(survey.photo_ids)
+    for pid in photo_ids:
+        if pid not in known:
+            raise SurveyError(f"{survey.root / 'photos.csv'}: no photo {pid!r} in the survey (photos: "
+                              f"{', '.join(survey.photo_ids[:10])}{' ...' if len(survey.photo_ids) > 10 else ''})")
     path = Path(eop_path) if eop_path is not None else default_eop_path(survey)
     if not path.is_file():
         raise SurveyError(f"{path}: no adjusted orientations; run `lidarcat run {survey.root}` first or "
                           f"give the eop.csv of an adjustment (--eop)")
     eos = read_orientations(path)
-    if photo_id not in eos:
-        raise SurveyError(f"{path}: photo {photo_id!r} was not adjusted (it is not in this file); "
-                          f"adjusted photos: {', '.join(list(eos)[:10])}")
-    return eos[photo_id]
+    for pid in photo_ids:
+        if pid not in eos:
+            raise SurveyError(f"{path}: photo {pid!r} was not adjusted (it is not in this file); "
+                              f"adjusted photos: {', '.join(list(eos)[:10])}")
+    return {pid: eos[pid] for pid in photo_ids}
+
+
+def adjusted_orientation(survey: Any, photo_id: str, eop_path: str | os.PathLike | None = None) -> Any:
+    """The adjusted orientation of one photo (:func:`adjusted_orientations`)."""
+    return adjusted_orientations(survey, [photo_id], eop_path)[photo_id]
 
 
 def photo_image(photo_id: str, images_dir: str | os.PathLike, camera: Any) -> np.ndarray:
