@@ -73,3 +73,13 @@ def test_mapping_table_errors_are_located(tmp_path, toml, message):
     with pytest.raises(SurveyError) as ei:
         mapping.settings(Survey.load(root))
     assert str(ei.value).startswith(f"{root / 'survey.toml'}:") and str(ei.value).endswith(message)
+
+
+def test_mapping_keys_of_the_survey_file_are_the_stages_keys():
+    """survey.toml's key check (survey.SURVEY_KEYS) and the stage's defaults list the same [mapping] keys:
+    a key added to one only would be refused as unknown, or accepted and never read."""
+    from lidarcat.pipeline.stages.mapping import MAPPING_KEYS
+    from lidarcat.survey import SURVEY_KEYS
+
+    assert sorted(SURVEY_KEYS["mapping"]) == sorted(MAPPING_KEYS)
+    assert not any(SURVEY_KEYS["mapping"].values())          # every key optional
