@@ -83,3 +83,21 @@ def test_mapping_keys_of_the_survey_file_are_the_stages_keys():
 
     assert sorted(SURVEY_KEYS["mapping"]) == sorted(MAPPING_KEYS)
     assert not any(SURVEY_KEYS["mapping"].values())          # every key optional
+
+
+@pytest.mark.parametrize("orthophotos", [False, True])
+def test_mapping_stage_inputs_hold_the_photos_only_when_it_makes_orthophotos(tmp_path, orthophotos):
+    from lidarcat.pipeline.plan import plan_pipeline
+    from lidarcat.survey import Survey
+
+    root = tmp_path / "d"
+    write_synthetic_survey(root, n_photos=2, lidar_density_m2=0.2)
+    (root / "images").mkdir()
+    (root / "images" / "1.png").write_bytes(b"")
+    (root / "f.csv").write_text("feature,col_px,row_px\np,600,400\n")
+    with open(root / "survey.toml", "a", encoding="utf-8") as f:
+        f.write(f'\n[mapping]\northophotos = {str(orthophotos).lower()}\nfeatures = {{ "1" = "f.csv" }}\n')
+    stage = next(st for st in plan_pipeline(Survey.load(root)) if st.name == "mapping")
+    inputs = stage.inputs(None)
+    assert (root / "images" / "1.png" in inputs) == orthophotos
+    assert root / "f.csv" in inputs
