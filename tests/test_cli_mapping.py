@@ -114,6 +114,16 @@ def test_monoplot_cli_dsm_csv_and_located_errors(survey, tmp_path):
     r = CliRunner().invoke(cli, ["monoplot", str(root), "--photo", "Z", "--features", str(tmp_path / "f.csv"),
                                  "--surface", str(root / "dsm.tif"), "-o", str(out2)])
     assert r.exit_code == 2 and "no photo 'Z' in the survey (photos: A, B)" in r.output
+    for extra, msg in ((["--surface", str(root / "dsm.tif"), "--interpolator", "tin"],
+                        "--interpolator tin triangulates LiDAR points (--lidar); a --surface grid takes nearest "
+                        "or bilinear"),
+                       (["--interpolator", "bilinear"],
+                        "--interpolator bilinear interpolates a grid (--surface DSM.tif); LiDAR points take tin "
+                        "or nearest")):
+        r = CliRunner().invoke(cli, ["monoplot", str(root), "--photo", "A", "--features", str(tmp_path / "f.csv"),
+                                     *extra, "-o", str(out2)])
+        assert r.exit_code == 2 and msg in " ".join(r.output.replace("│", " ").split()), r.output
+    assert not out2.exists()
 
 
 def test_ortho_cli_true_orthos_and_mosaic(survey, tmp_path):

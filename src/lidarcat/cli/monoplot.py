@@ -66,6 +66,12 @@ def monoplot(survey, photo_id, features_path, surface_path, lidar, interpolator,
 
     if surface_path and lidar:
         raise click.UsageError("give --surface or --lidar, not both")
+    if surface_path and interpolator == "tin":
+        raise click.UsageError("--interpolator tin triangulates LiDAR points (--lidar); a --surface grid "
+                               "takes nearest or bilinear")
+    if not surface_path and interpolator == "bilinear":
+        raise click.UsageError("--interpolator bilinear interpolates a grid (--surface DSM.tif); LiDAR points "
+                               "take tin or nearest")
     out = Path(output)
     if out.suffix.lower() not in (".geojson", ".json", ".csv"):
         raise click.BadParameter(f"{output}: use a .geojson or .csv file", param_hint="-o")
