@@ -370,7 +370,7 @@ def test_lidar_surface_of_an_empty_area_names_the_area_and_the_tiles(survey):
 
     root, _, _ = survey
     index = TileIndex.build([str(root / "lidar" / "tile.laz")], crs=CRS)
-    s = lidar_surface(index, MODEL_BOUNDS, "nearest")
+    s = lidar_surface(index, (E0 - 5, N0 - 5, E0 + 5, N0 + 5), "nearest")
     assert s.interpolator == "nearest"
     with pytest.raises(SurveyError) as ei:
         lidar_surface(index, (0.0, 0.0, 10.0, 10.0))
