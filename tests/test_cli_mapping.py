@@ -114,6 +114,16 @@ def test_monoplot_cli_dsm_csv_and_located_errors(survey, tmp_path):
     r = CliRunner().invoke(cli, ["monoplot", str(root), "--photo", "Z", "--features", str(tmp_path / "f.csv"),
                                  "--surface", str(root / "dsm.tif"), "-o", str(out2)])
     assert r.exit_code == 2 and "no photo 'Z' in the survey (photos: A, B)" in r.output
+    for extra, msg in ((["--surface", str(root / "dsm.tif"), "--interpolator", "tin"],
+                        "--interpolator tin triangulates LiDAR points (--lidar); a --surface grid takes nearest "
+                        "or bilinear"),
+                       (["--interpolator", "bilinear"],
+                        "--interpolator bilinear interpolates a grid (--surface DSM.tif); LiDAR points take tin "
+                        "or nearest")):
+        r = CliRunner().invoke(cli, ["monoplot", str(root), "--photo", "A", "--features", str(tmp_path / "f.csv"),
+                                     *extra, "-o", str(out2)])
+        assert r.exit_code == 2 and msg in " ".join(r.output.replace("│", " ").split()), r.output
+    assert not out2.exists()
 
 
 def test_ortho_cli_true_orthos_and_mosaic(survey, tmp_path):
@@ -140,6 +150,14 @@ def test_ortho_cli_true_orthos_and_mosaic(survey, tmp_path):
     r = CliRunner().invoke(cli, ["ortho", str(root), "--photo", "A", "-o", str(tmp_path / "x")])
     assert r.exit_code == 2 and "give one of --dtm (standard orthophoto) or --dsm (true orthophoto)" in r.output
     assert not (tmp_path / "x").exists()
+    r = CliRunner().invoke(cli, ["ortho", str(root), "--photo", "A", "--dsm", str(root / "dsm.tif"), "--feather",
+                                 "2", "-o", str(tmp_path / "x")])
+    assert r.exit_code == 2 and "--feather blends the mosaic's seamlines: give it with --mosaic" in r.output
+    assert not (tmp_path / "x").exists()
+    r = CliRunner().invoke(cli, ["ortho", str(root), "--photo", "A", "--photo", "B", "--dsm", str(root / "dsm.tif"),
+                                 "--eop", str(root / "eop_only_a.csv"), "-o", str(tmp_path / "x")])
+    assert r.exit_code == 2 and f"{root / 'eop_only_a.csv'}: photo 'B' was not adjusted" in r.output
+    assert not (tmp_path / "x").exists()
     assert math.isfinite(float(np.nanmax(m)))
 
 
@@ -158,6 +176,12 @@ def test_ortho_cli_true_orthos_and_mosaic(survey, tmp_path):
     ("f.csv", "feature,col_px,row_px,geometry\nA,1,2,polygon\nA,3,4,polygon\n",
      "f.csv:2: field 'feature': feature 'A' is a polygon with 2 vertices"),
     ("g.txt", "x", "g.txt: unknown feature file type '.txt'; use .geojson or .csv"),
+    ("h.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"id": "p"}, '
+                  '"geometry": {"type": "Point", "coordinates": [1, 2]}}, null]}',
+     "h.geojson: feature 2 is not a GeoJSON Feature object (with object 'properties' and 'geometry')"),
+    ("i.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": ["p"], '
+                  '"geometry": {"type": "Point", "coordinates": [1, 2]}}]}',
+     "i.geojson: feature 1 is not a GeoJSON Feature object (with object 'properties' and 'geometry')"),
 ])
 def test_feature_file_errors_are_located(tmp_path, name, text, message):
     from lidarcat.features import FeatureError, read_features
@@ -337,3 +361,34 @@ def test_reference_file_errors_are_located(tmp_path, text, message):
     with pytest.raises(SurveyError) as ei:
         read_reference(tmp_path / "ref.csv")
     assert str(ei.value).startswith(f"{tmp_path}/{message}")
+
+
+def test_lidar_surface_of_an_empty_area_names_the_area_and_the_tiles(survey):
+    from lidarcat.errors import SurveyError
+    from lidarcat.lidar import TileIndex
+    from lidarcat.mapping_inputs import lidar_surface
+
+    root, _, _ = survey
+    index = TileIndex.build([str(root / "lidar" / "tile.laz")], crs=CRS)
+    s = lidar_surface(index, (E0 - 5, N0 - 5, E0 + 5, N0 + 5), "nearest")
+    assert s.interpolator == "nearest"
+    with pytest.raises(SurveyError) as ei:
+        lidar_surface(index, (0.0, 0.0, 10.0, 10.0))
+    assert str(ei.value) == f"no LiDAR points in E 0.0..10.0, N 0.0..10.0 (tiles: {root / 'lidar' / 'tile.laz'})"
+
+
+def test_run_mapping_stage_a_missing_reference_stops_it_before_any_monoplot(survey, tmp_path):
+    import shutil
+
+    from lidarcat.errors import SurveyError
+
+    root, _, _ = survey
+    work = tmp_path / "s"
+    shutil.copytree(root, work)
+    (work / "f.csv").write_text("feature,col_px,row_px\np,600,400\n")
+    with open(work / "survey.toml", "a", encoding="utf-8") as f:
+        f.write('\n[mapping]\nfeatures = { A = "f.csv" }\nreference = "nowhere.csv"\n')
+    with pytest.raises(SurveyError) as ei:
+        _run_mapping_stage(work, tmp_path)
+    assert str(ei.value) == f"{work / 'nowhere.csv'}: file not found"
+    assert list((tmp_path / "mapping").iterdir()) == []

@@ -56,6 +56,10 @@ def test_run_reports_the_accuracy_tables_of_each_interpolator(tmp_path):
 @pytest.mark.parametrize("toml, message", [
     ('reference = "r.csv"', "field 'reference': a reference needs the features to judge ([mapping] features)"),
     ('features = { "1" = "" }', "field 'features': photo 1: expected the path of a feature file (.geojson or .csv)"),
+    ("gsd_m = nan", "field 'gsd_m': must be a finite number, got nan"),
+    ("feather_m = inf", "field 'feather_m': must be a finite number, got inf"),
+    ("gsd_m = 0", "field 'gsd_m': must be positive (metres), got 0"),
+    ("image_sd_px = -0.5", "field 'image_sd_px': must not be negative, got -0.5"),
 ])
 def test_mapping_table_errors_are_located(tmp_path, toml, message):
     from lidarcat.errors import SurveyError
@@ -69,3 +73,31 @@ def test_mapping_table_errors_are_located(tmp_path, toml, message):
     with pytest.raises(SurveyError) as ei:
         mapping.settings(Survey.load(root))
     assert str(ei.value).startswith(f"{root / 'survey.toml'}:") and str(ei.value).endswith(message)
+
+
+def test_mapping_keys_of_the_survey_file_are_the_stages_keys():
+    """survey.toml's key check (survey.SURVEY_KEYS) and the stage's defaults list the same [mapping] keys:
+    a key added to one only would be refused as unknown, or accepted and never read."""
+    from lidarcat.pipeline.stages.mapping import MAPPING_KEYS
+    from lidarcat.survey import SURVEY_KEYS
+
+    assert sorted(SURVEY_KEYS["mapping"]) == sorted(MAPPING_KEYS)
+    assert not any(SURVEY_KEYS["mapping"].values())          # every key optional
+
+
+@pytest.mark.parametrize("orthophotos", [False, True])
+def test_mapping_stage_inputs_hold_the_photos_only_when_it_makes_orthophotos(tmp_path, orthophotos):
+    from lidarcat.pipeline.plan import plan_pipeline
+    from lidarcat.survey import Survey
+
+    root = tmp_path / "d"
+    write_synthetic_survey(root, n_photos=2, lidar_density_m2=0.2)
+    (root / "images").mkdir()
+    (root / "images" / "1.png").write_bytes(b"")
+    (root / "f.csv").write_text("feature,col_px,row_px\np,600,400\n")
+    with open(root / "survey.toml", "a", encoding="utf-8") as f:
+        f.write(f'\n[mapping]\northophotos = {str(orthophotos).lower()}\nfeatures = {{ "1" = "f.csv" }}\n')
+    stage = next(st for st in plan_pipeline(Survey.load(root)) if st.name == "mapping")
+    inputs = stage.inputs(None)
+    assert (root / "images" / "1.png" in inputs) == orthophotos
+    assert root / "f.csv" in inputs

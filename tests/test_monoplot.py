@@ -13,7 +13,8 @@ from lidarcat.camera import Camera
 from lidarcat.demo import demo_camera
 from lidarcat.errors import LidarcatError, SurveyError
 from lidarcat.lidar import GeoTransform
-from lidarcat.monoplot import GridSurface, MonoplotError, PointSurface, monoplot, read_orientations
+from lidarcat.mapping_inputs import read_orientations
+from lidarcat.monoplot import GridSurface, MonoplotError, PointSurface, monoplot
 from lidarcat.scene import demo_scene
 
 E0, N0 = 680_400.0, 7_184_200.0
@@ -230,7 +231,7 @@ def test_propagated_sd_matches_the_closed_form_on_a_flat_ground():
     np.testing.assert_allclose(np.hypot(res.sd[:, 0], res.sd[:, 1]), 0.5 * r / 1000, atol=1e-7)
 
 
-def test_read_orientations_from_eop_csv_diagonal_covariance():
+def test_read_orientations_from_eop_csv_diagonal_covariance(tmp_path):
     eos = read_orientations(DATA / "report" / "eop.csv")
     e1 = eos["1"]
     np.testing.assert_allclose(e1.params[:3], [677344.86, 7183454.439, 2255.938])
@@ -240,6 +241,11 @@ def test_read_orientations_from_eop_csv_diagonal_covariance():
     assert np.count_nonzero(e1.cov - np.diag(np.diag(e1.cov))) == 0
     with pytest.raises(SurveyError, match=r"nope\.csv: no such orientation file"):
         read_orientations(DATA / "nope.csv")
+    (tmp_path / "eop.csv").write_text("photo,X0,Y0,Z0,omega,phi,kappa\nA,1,2,3,0,0,0\nB,1,2,3,0,0,0\n"
+                                      "A,1,2,3,0,0,0\n")
+    with pytest.raises(SurveyError) as ei:
+        read_orientations(tmp_path / "eop.csv")
+    assert str(ei.value) == f"{tmp_path / 'eop.csv'}:4: field 'photo': photo 'A' is given twice"
 
 
 def test_bad_inputs_are_located_errors():

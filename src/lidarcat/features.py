@@ -73,9 +73,13 @@ def _geojson_features(path: Path) -> list[ImageFeature]:
         raise FeatureError(f"{path}: not a GeoJSON FeatureCollection (no 'features' list)")
     out = []
     for i, f in enumerate(feats, start=1):
-        props = (f or {}).get("properties") or {}
+        props = f.get("properties") if isinstance(f, dict) else None
+        geom = f.get("geometry") if isinstance(f, dict) else None
+        if not (isinstance(f, dict) and isinstance(props or {}, dict) and isinstance(geom or {}, dict)):
+            raise FeatureError(f"{path}: feature {i} is not a GeoJSON Feature object (with object "
+                               f"'properties' and 'geometry')")
+        props, geom = props or {}, geom or {}
         fid = str(props.get("id", f.get("id", i)))
-        geom = (f or {}).get("geometry") or {}
         kind = geom.get("type")
         coords = geom.get("coordinates")
         where = f"{path}: feature {fid!r}"

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,12 +25,61 @@ import numpy as np
 
 from .errors import SurveyError
 
-__all__ = ["default_eop_path", "adjusted_orientation", "photo_image", "IMAGE_SUFFIXES", "lidar_surface",
-           "ray_area"]
+__all__ = ["read_orientations", "default_eop_path", "adjusted_orientation", "adjusted_orientations",
+           "photo_image", "IMAGE_SUFFIXES", "lidar_surface", "ray_area"]
 
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+
+
+def read_orientations(path: str | os.PathLike) -> Mapping[str, Any]:
+    """Read the adjusted exterior orientations of an ``eop.csv`` (``lidarcat adjust``/``run``).
+
+    Parameters
+    ----------
+    path : path-like
+        ``eop.csv``: photo, X0, Y0, Z0 (m), omega, phi, kappa (deg) and
+        optionally ``sd_*`` of each (m, deg).
+
+    Returns
+    -------
+    dict[str, lidarcat.bundle.ExteriorOrientation]
+        By photo id; ``cov`` is diagonal (``sd**2``, m^2 and rad^2): the file
+        holds standard deviations only, not the correlations.  Without sd
+        columns ``cov`` is None.
+
+    Raises
+    ------
+    SurveyError
+        Missing file, missing column, non-numeric value, a photo given twice
+        (file, line, field).
+    """
+    from ._io import read_csv_table
+    from .bundle import ExteriorOrientation
+    from .errors import location
+
+    path = Path(path)
+    if not path.is_file():
+        raise SurveyError(f"{path}: no such orientation file (eop.csv of `lidarcat adjust` or `lidarcat run`)")
+    keys = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+    t = read_csv_table(path, required=("photo",) + keys, allow_extra=True)
+    vals = np.column_stack([t.floats(k) for k in keys])
+    has_sd = all(t.has(f"sd_{k}") for k in keys)
+    sds = np.column_stack([t.floats(f"sd_{k}") for k in keys]) if has_sd else None
+    out: dict[str, Any] = {}
+    for i, pid in enumerate(t.column("photo")):
+        if pid in out:
+            raise SurveyError(f"{location(path, t.lines[i], 'photo')}: photo {pid!r} is given twice")
+        p = vals[i].copy()
+        p[3:] = np.radians(p[3:])
+        cov = None
+        if sds is not None:
+            s = sds[i].copy()
+            s[3:] = np.radians(s[3:])
+            cov = np.diag(np.where(np.isfinite(s), s, 0.0) ** 2)
+        out[pid] = ExteriorOrientation.from_params(p, photo=pid, cov=cov)
+    return out
 
 
 def default_eop_path(survey: Any) -> Path:
@@ -39,29 +88,45 @@ def default_eop_path(survey: Any) -> Path:
     return survey.output_dir() / f"adjust-{name}" / "eop.csv"
 
 
-def adjusted_orientation(survey: Any, photo_id: str, eop_path: str | os.PathLike | None = None) -> Any:
-    """The adjusted :class:`~lidarcat.bundle.ExteriorOrientation` of a photo of the survey.
+def adjusted_orientations(survey: Any, photo_ids: Sequence[str],
+                          eop_path: str | os.PathLike | None = None) -> dict[str, Any]:
+    """The adjusted :class:`~lidarcat.bundle.ExteriorOrientation` of photos of the survey, by photo id.
+
+    The orientation file is read once, however many photos are asked for.
+
+    Parameters
+    ----------
+    survey : lidarcat.survey.Survey
+    photo_ids : sequence of str
+    eop_path : path-like, optional
+        ``eop.csv`` of an adjustment (default :func:`default_eop_path`).
 
     Raises
     ------
     SurveyError
-        The photo is not in the survey, the orientation file is missing, or the
-        photo is not in it (not adjusted).
+        A photo is not in the survey, the orientation file is missing, or a
+        photo is not in it (not adjusted); the first such photo is named.
     """
-    from .monoplot import read_orientations
-
-    if photo_id not in survey.photo_ids:
-        raise SurveyError(f"{survey.root / 'photos.csv'}: no photo {photo_id!r} in the survey "
-                          f"(photos: {', '.join(survey.photo_ids[:10])}{' ...' if len(survey.photo_ids) > 10 else ''})")
+    known = set(survey.photo_ids)
+    for pid in photo_ids:
+        if pid not in known:
+            raise SurveyError(f"{survey.root / 'photos.csv'}: no photo {pid!r} in the survey (photos: "
+                              f"{', '.join(survey.photo_ids[:10])}{' ...' if len(survey.photo_ids) > 10 else ''})")
     path = Path(eop_path) if eop_path is not None else default_eop_path(survey)
     if not path.is_file():
         raise SurveyError(f"{path}: no adjusted orientations; run `lidarcat run {survey.root}` first or "
                           f"give the eop.csv of an adjustment (--eop)")
     eos = read_orientations(path)
-    if photo_id not in eos:
-        raise SurveyError(f"{path}: photo {photo_id!r} was not adjusted (it is not in this file); "
-                          f"adjusted photos: {', '.join(list(eos)[:10])}")
-    return eos[photo_id]
+    for pid in photo_ids:
+        if pid not in eos:
+            raise SurveyError(f"{path}: photo {pid!r} was not adjusted (it is not in this file); "
+                              f"adjusted photos: {', '.join(list(eos)[:10])}")
+    return {pid: eos[pid] for pid in photo_ids}
+
+
+def adjusted_orientation(survey: Any, photo_id: str, eop_path: str | os.PathLike | None = None) -> Any:
+    """The adjusted orientation of one photo (:func:`adjusted_orientations`)."""
+    return adjusted_orientations(survey, [photo_id], eop_path)[photo_id]
 
 
 def photo_image(photo_id: str, images_dir: str | os.PathLike, camera: Any) -> np.ndarray:
@@ -111,28 +176,28 @@ def ray_area(camera: Any, eo_params: Any, colrow_px: Any, zmin_m: float, zmax_m:
             float(ends[:, 0].max() + margin_m), float(ends[:, 1].max() + margin_m))
 
 
-def lidar_surface(paths: Sequence[str | os.PathLike], bounds: Sequence[float], interpolator: str = "tin",
-                  sd_m: float = 0.15, crs: Any = None, first_returns: bool = True) -> Any:
+def lidar_surface(index: Any, bounds: Sequence[float], interpolator: str = "tin", sd_m: float = 0.15,
+                  first_returns: bool = True) -> Any:
     """A :class:`~lidarcat.monoplot.PointSurface` of the LiDAR points in *bounds* (m).
 
-    With *first_returns* (default) only first (or only) returns: the surface
-    the photo sees (Cavassim 2005, section 6.2: a DSM of the first return).
+    *index* is the :class:`~lidarcat.lidar.TileIndex` of the tiles (the caller
+    builds it once: its height range also gives :func:`ray_area`).  With
+    *first_returns* (default) only first (or only) returns: the surface the
+    photo sees (Cavassim 2005, section 6.2: a DSM of the first return).
 
     Raises
     ------
     SurveyError
         No LiDAR point in the area.
     """
-    from .lidar import TileIndex
     from .monoplot import PointSurface
 
-    index = TileIndex.build(list(paths), crs=crs)
     cloud = index.query_box(*bounds)
     xyz = np.asarray(cloud.xyz)
     if first_returns:
         xyz = xyz[cloud.first_returns()]
     if len(xyz) < 3:
         raise SurveyError(f"no LiDAR points in E {bounds[0]:.1f}..{bounds[2]:.1f}, N {bounds[1]:.1f}.."
-                          f"{bounds[3]:.1f} (tiles: {', '.join(str(p) for p in paths)[:200]})")
+                          f"{bounds[3]:.1f} (tiles: {', '.join(str(t.path) for t in index.tiles)[:200]})")
     log.info("%d LiDAR points in the area for the surface", len(xyz))
     return PointSurface(xyz, interpolator, sd_m)

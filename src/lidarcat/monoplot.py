@@ -62,7 +62,8 @@ central differences of that closed form, and
 ``Sigma_EO`` is the 6 x 6 covariance of the photo's exterior orientation when
 the adjustment gives it (:class:`lidarcat.bundle.ExteriorOrientation` from a
 :class:`~lidarcat.bundle.BundleResult`); read from an ``eop.csv`` only the
-standard deviations are known (:func:`read_orientations`), so the correlations
+standard deviations are known
+(:func:`lidarcat.mapping_inputs.read_orientations`), so the correlations
 between the position and the angles are taken as zero there -- the usual case
 of a vertical photo, where X0 and phi are strongly correlated, then overstates
 the plan sd.  ``sigma_S`` is the height sd of the surface (LiDAR noise plus
@@ -81,9 +82,8 @@ from __future__ import annotations
 import logging
 import math
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -91,10 +91,10 @@ import numpy as np
 from ._collinearity import rotation_matrix
 from ._frozen import frozen_array
 from .camera import Camera
-from .errors import LidarcatError, SurveyError
+from .errors import LidarcatError
 
 __all__ = ["GridSurface", "PointSurface", "MonoplotResult", "monoplot", "ray_directions",
-           "read_orientations", "STATUSES", "INTERPOLATORS", "MonoplotError"]
+           "STATUSES", "INTERPOLATORS", "MonoplotError"]
 
 log = logging.getLogger(__name__)
 
@@ -790,49 +790,3 @@ def _propagate(camera: Camera, params: np.ndarray, cr: np.ndarray, hit: np.ndarr
     sigma[6, 6] = sigma[7, 7] = image_sd_px ** 2
     sigma[8, 8] = surface.sd_m ** 2
     return jac @ sigma @ np.swapaxes(jac, 1, 2)
-
-
-# ---------------------------------------------------------------------------- orientations
-def read_orientations(path: str | os.PathLike) -> Mapping[str, Any]:
-    """Read the adjusted exterior orientations of an ``eop.csv`` (``lidarcat adjust``/``run``).
-
-    Parameters
-    ----------
-    path : path-like
-        ``eop.csv``: photo, X0, Y0, Z0 (m), omega, phi, kappa (deg) and
-        optionally ``sd_*`` of each (m, deg).
-
-    Returns
-    -------
-    dict[str, lidarcat.bundle.ExteriorOrientation]
-        By photo id; ``cov`` is diagonal (``sd**2``, m^2 and rad^2): the file
-        holds standard deviations only, not the correlations.  Without sd
-        columns ``cov`` is None.
-
-    Raises
-    ------
-    SurveyError
-        Missing file, missing column, non-numeric value (file, line, field).
-    """
-    from ._io import read_csv_table
-    from .bundle import ExteriorOrientation
-
-    path = Path(path)
-    if not path.is_file():
-        raise SurveyError(f"{path}: no such orientation file (eop.csv of `lidarcat adjust` or `lidarcat run`)")
-    keys = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
-    t = read_csv_table(path, required=("photo",) + keys, allow_extra=True)
-    vals = np.column_stack([t.floats(k) for k in keys])
-    has_sd = all(t.has(f"sd_{k}") for k in keys)
-    sds = np.column_stack([t.floats(f"sd_{k}") for k in keys]) if has_sd else None
-    out: dict[str, Any] = {}
-    for i, pid in enumerate(t.column("photo")):
-        p = vals[i].copy()
-        p[3:] = np.radians(p[3:])
-        cov = None
-        if sds is not None:
-            s = sds[i].copy()
-            s[3:] = np.radians(s[3:])
-            cov = np.diag(np.where(np.isfinite(s), s, 0.0) ** 2)
-        out[pid] = ExteriorOrientation.from_params(p, photo=pid, cov=cov)
-    return out

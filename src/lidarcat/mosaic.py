@@ -224,15 +224,15 @@ def _feather(seen: Sequence[tuple[int, np.ndarray, np.ndarray]], choice: np.ndar
     num = np.zeros(hard.shape, dtype=np.float64)
     den = np.zeros(choice.shape, dtype=np.float64)
     for i, vals, ok in seen:
-        if not ok.any():
-            continue
         m = (choice == i).astype(np.uint8)
-        if m.any():
-            d_in = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-            d_out = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) if not m.all() else None
-            s = d_in - 0.5 if d_out is None else np.where(m > 0, d_in - 0.5, 0.5 - d_out)
-        else:
+        if not m.any():
             continue                        # no cell of the tile (+ margin) chose it: beyond every seam
+        d_in = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        if m.all():
+            s = d_in - 0.5
+        else:
+            d_out = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            s = np.where(m > 0, d_in - 0.5, 0.5 - d_out)
         w = np.clip(0.5 + s / (2.0 * f_px), 0.0, 1.0) * ok
         num += w[..., None] * np.nan_to_num(vals.astype(np.float64))
         den += w

@@ -66,6 +66,12 @@ def monoplot(survey, photo_id, features_path, surface_path, lidar, interpolator,
 
     if surface_path and lidar:
         raise click.UsageError("give --surface or --lidar, not both")
+    if surface_path and interpolator == "tin":
+        raise click.UsageError("--interpolator tin triangulates LiDAR points (--lidar); a --surface grid "
+                               "takes nearest or bilinear")
+    if not surface_path and interpolator == "bilinear":
+        raise click.UsageError("--interpolator bilinear interpolates a grid (--surface DSM.tif); LiDAR points "
+                               "take tin or nearest")
     out = Path(output)
     if out.suffix.lower() not in (".geojson", ".json", ".csv"):
         raise click.BadParameter(f"{output}: use a .geojson or .csv file", param_hint="-o")
@@ -82,9 +88,9 @@ def monoplot(survey, photo_id, features_path, surface_path, lidar, interpolator,
             raise click.UsageError("the survey has no LiDAR tiles; give --lidar TILES or --surface DSM.tif")
         from ..lidar import TileIndex
 
-        b = TileIndex.build(paths, crs=s.lidar_crs).bounds
-        box = ray_area(camera, eo.params, px, b.zmin, b.zmax)
-        surface = lidar_surface(paths, box, interpolator or "tin", surface_sd_m, crs=s.lidar_crs)
+        index = TileIndex.build(paths, crs=s.lidar_crs)
+        box = ray_area(camera, eo.params, px, index.bounds.zmin, index.bounds.zmax)
+        surface = lidar_surface(index, box, interpolator or "tin", surface_sd_m)
     with progress_bar(2, "monoplot", enabled=not as_json) as bar:
         res = run_monoplot(px, camera, eo, surface, method=method, image_sd_px=image_sd_px,
                            progress=(lambda i, n: bar.update(i - bar.pos)) if bar is not None else None)

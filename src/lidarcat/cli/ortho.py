@@ -51,16 +51,18 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
     """Orthophotos of adjusted photos over a DTM or DSM, and their mosaic."""
     from pathlib import Path
 
-    from ..monoplot import GridSurface, read_orientations
+    from ..monoplot import GridSurface
     from ..mosaic import mosaic
     from ..ortho import PhotoModel, orthophoto
-    from ..mapping_inputs import adjusted_orientation, default_eop_path, photo_image
+    from ..mapping_inputs import adjusted_orientations, default_eop_path, photo_image, read_orientations
     from ..survey import Survey
 
     if bool(dtm) == bool(dsm):
         raise click.UsageError("give one of --dtm (standard orthophoto) or --dsm (true orthophoto)")
     if bool(photo_ids) == all_photos:
         raise click.UsageError("give --photo ID (repeatable) or --all")
+    if feather_m and not make_mosaic:
+        raise click.UsageError("--feather blends the mosaic's seamlines: give it with --mosaic")
     s = Survey.load(survey)
     if all_photos:
         eop = Path(eop_path) if eop_path else default_eop_path(s)
@@ -68,11 +70,11 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
         photo_ids = tuple(p for p in s.photo_ids if p in adjusted) or s.photo_ids
     surface = GridSurface.from_geotiff(dsm or dtm)
     images = Path(images_dir) if images_dir else s.root / "images"
+    eos = adjusted_orientations(s, photo_ids, eop_path)
     photos = []
     for pid in photo_ids:
-        eo = adjusted_orientation(s, pid, eop_path)
         cam = s.camera_of(pid)
-        photos.append(PhotoModel(pid, photo_image(pid, images, cam), cam, eo.params))
+        photos.append(PhotoModel(pid, photo_image(pid, images, cam), cam, eos[pid].params))
     out = Path(outdir)
     results = []
     for ph in photos:

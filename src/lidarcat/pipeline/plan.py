@@ -195,13 +195,15 @@ def _mapping_stage(survey: Any, runs: Sequence[tuple[str, bool]], files_lidar: l
            if not cfg["orthophotos"] and not cfg["features"] else
            "the survey has no LiDAR tiles ([files] lidar) for the surface model" if not survey.lidar_paths else
            "no adjustment (control set) to take the orientations from" if first is None else None)
-    images = survey.root / (cfg.get("images") or "images")
+    images = survey.root / (cfg.get("images") or "images")      # read only for the orthophotos
     mapped = [survey.root / f for f in [*(cfg.get("features") or {}).values(), cfg.get("reference")] if f]
     return Stage("mapping", "mapping", mapping.run,
                  requires=(f"adjust-{first}",) if why is None else (),
-                 inputs=lambda ctx: [*files_lidar, *sorted(p for p in images.glob("*") if p.is_file()),
+                 inputs=lambda ctx: [*files_lidar,
+                                     *(sorted(p for p in images.glob("*") if p.is_file()) if cfg["orthophotos"]
+                                       else ()),
                                      *(p for p in mapped if p.is_file())],
-                 params={"adjust": f"adjust-{first}", **{k: v for k, v in cfg.items()}},
+                 params={"adjust": f"adjust-{first}", **cfg},
                  skip_reason=why,
                  description="orthophotos, mosaic and monorestituted features of the adjusted photos ([mapping])")
 

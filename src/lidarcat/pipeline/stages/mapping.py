@@ -119,7 +119,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     """Orthophotos (and the mosaic) and monorestituted features of the adjusted photos (module docstring)."""
     from ...errors import SurveyError
     from ...lidar import TileIndex
-    from ...monoplot import read_orientations
+    from ...mapping_inputs import read_orientations
 
     survey = ctx["survey"]
     par = ctx.params
@@ -198,6 +198,10 @@ def _monoplot(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: Any
     from ...monoplot import GridSurface, PointSurface, monoplot
 
     survey = ctx["survey"]
+    reference = None
+    if cfg["reference"]:                    # read first: a bad reference stops the stage before the monoplots
+        ref_path = Path(cfg["reference"])
+        reference = read_reference(ref_path if ref_path.is_absolute() else survey.root / ref_path)
     b = index.bounds
     out: dict[str, Any] = {"interpolators": list(cfg["interpolators"]), "method": cfg["method"], "photos": {}}
     collected: dict[str, list[tuple[list[Any], np.ndarray, np.ndarray]]] = {i: [] for i in cfg["interpolators"]}
@@ -228,10 +232,7 @@ def _monoplot(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: Any
             entry[interp] = {"path": name, "status": res.counts()}
             collected[interp].append((feats, res.enh, res.status))
         out["photos"][pid] = entry
-    if cfg["reference"]:
-        ref_path = Path(cfg["reference"])
-        ref_path = ref_path if ref_path.is_absolute() else survey.root / ref_path
-        reference = read_reference(ref_path)
+    if reference is not None:
         scale, alpha = survey.assessment.scale or 2000.0, survey.assessment.alpha
         acc: dict[str, Any] = {}
         for interp, parts in collected.items():
