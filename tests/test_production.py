@@ -101,6 +101,10 @@ def test_corrupt_and_missing_tiles_and_full_disk_are_located(tmp_path, monkeypat
     assert r.exit_code == 2 and "bad.laz" in r.output and not (tmp_path / "x.tif").exists()
     r = CliRunner().invoke(cli, ["lidar", "ground", str(tmp_path / "gone.laz"), "-o", str(tmp_path / "y.laz")])
     assert r.exit_code == 2 and "gone.laz" in r.output
+    # the PNG is written beside OUT.tif: a .png output would be a GeoTIFF overwritten by the PNG
+    r = CliRunner().invoke(cli, ["lidar", "hypsometry", str(AHN2), "-o", str(tmp_path / "h.png")])
+    assert r.exit_code == 2 and "h.png: give a .tif name (the .png is written beside it)" in r.output
+    assert not (tmp_path / "h.png").exists()
 
     small = tmp_path / "small.laz"
     las = laspy.read(str(AHN2))

@@ -213,12 +213,16 @@ def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: floa
     from ..lidar.cloud import PointCloud
     from ..lidar.terrain import hypsometric_image, write_product
 
+    out = Path(output)
+    if out.suffix.lower() not in (".tif", ".tiff"):
+        # the PNG goes beside OUT.tif: any other name would be overwritten by it (or hold a GeoTIFF)
+        raise click.BadParameter(f"{output}: give a .tif name (the .png is written beside it)",
+                                 param_hint="'-o' / '--output'")
     files, crs, _ = _sources(paths, crs)
     pc = PointCloud.concat([read_points(f, crs=crs) for f in files])
     h, t = rasterize(pc, cell_m, "dsm")
     inten, _ = rasterize(pc, cell_m, "intensity") if pc.has("intensity") else (None, None)
     img = hypsometric_image(h, inten, h_min_m, h_max_m, cmap=cmap)
-    out = Path(output)
     write_product(out, img, t, pc.crs)
     from .._io import atomic_write
 
