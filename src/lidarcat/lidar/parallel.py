@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import LidarcatError, TileIOError
+from ..errors import FormatError, LidarcatError, TileIOError
 
 __all__ = ["TileJob", "run_jobs", "run_on_client", "run_tile_job", "tile_jobs", "JOB_KINDS"]
 
@@ -372,7 +372,7 @@ def run_jobs(jobs: Sequence[TileJob], *, workers: int | None = None, scheduler: 
     try:
         from dask.distributed import Client, LocalCluster
     except ImportError as ex:  # pragma: no cover - the extra is installed in CI
-        raise RuntimeError("parallel runs need dask.distributed: pip install 'lidarcat[cluster]'") from ex
+        raise FormatError("parallel runs need dask.distributed: pip install 'lidarcat[cluster]'") from ex
     cluster = None
     if scheduler is not None:
         client = Client(scheduler)
