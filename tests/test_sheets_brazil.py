@@ -286,3 +286,33 @@ def test_cli_sheets_brazil_index_as_geopackage(tmp_path):
     res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "nocrs.geojson"), "-o",
                                    str(tmp_path / "f2"), "--index", "brazil-5000"])
     assert res.exit_code == 2 and "needs the products' CRS: give --crs" in res.output
+
+
+@pytest.mark.parametrize("name, text, args, message", [
+    ("bad.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {}, '
+                    '"geometry": {"type": "LineString", "coordinates": [[1, 2], [3]]}}]}', [],
+     "bad.geojson: feature 0: not a 2-D LineString (coordinates must be two or more [E, N] pairs of finite numbers)"),
+    ("nan.geojson", '{"type": "FeatureCollection", "features": [{"type": "Point"}, {"type": "Feature", '
+                    '"properties": {}, "geometry": {"type": "LineString", "coordinates": [[1, 2], [NaN, 4]]}}]}', [],
+     "nan.geojson: feature 1: not a 2-D LineString"),
+    ("empty.tif", "", [], "empty.tif: not a readable GeoTIFF ("),
+    ("c.geojson", None, ["--size-m", "-5"], "Error: sheet size must be positive and finite, got -5.0 x -5.0 m"),
+    ("c.geojson", None, ["--size-m", "inf"], "Error: sheet size must be positive and finite, got inf x inf m"),
+    ("c.geojson", None, ["--index", "brazil-5000", "--crs", "EPSG:4326"],
+     "Error: point 0: longitude 744000.0"),  # E, N taken for degrees: outside the index
+])
+def test_cli_sheets_bad_products_and_sizes_are_one_line_errors(tmp_path, name, text, args, message):
+    """A malformed line, an unreadable GeoTIFF, a bad sheet size or a wrong --crs: exit 2, no traceback, no output."""
+    from lidarcat.lidar.contours import write_geojson
+
+    if text is None:
+        write_geojson(tmp_path / name, [{"type": "Feature", "properties": {"level_m": 1.0},
+                                         "geometry": {"type": "LineString",
+                                                      "coordinates": [[744000.0, 7580000.0], [744500.0, 7580400.0]]}}],
+                      "EPSG:31983")
+    else:
+        (tmp_path / name).write_text(text)
+    res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / name), "-o", str(tmp_path / "out"), *args])
+    assert res.exit_code == 2 and message in res.output, res.output
+    assert res.exception is None or isinstance(res.exception, SystemExit)
+    assert not (tmp_path / "out").exists()

@@ -278,7 +278,9 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
       lidarcat lidar sheets dtm.tif curvas.gpkg -o folhas/ --index brazil-2000 --layer-format gpkg
     """
     import rasterio
+    import rasterio.errors
 
+    from ..errors import FormatError
     from ..lidar.contours import read_line_layer, write_layers
     from ..lidar.raster import GeoTransform
     from ..lidar.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
@@ -289,12 +291,15 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
     hi = [-np.inf, -np.inf]
     for p in map(Path, products):
         if p.suffix.lower() in (".tif", ".tiff"):
-            with rasterio.open(p) as ds:
-                arr = ds.read()
-                arr = arr[0] if arr.shape[0] == 1 else np.moveaxis(arr, 0, 2)
-                t = GeoTransform(ds.transform.c, ds.transform.f, ds.transform.a)
-                crs = crs or (ds.crs.to_wkt() if ds.crs else None)
-                b = ds.bounds
+            try:
+                with rasterio.open(p) as ds:
+                    arr = ds.read()
+                    arr = arr[0] if arr.shape[0] == 1 else np.moveaxis(arr, 0, 2)
+                    t = GeoTransform(ds.transform.c, ds.transform.f, ds.transform.a)
+                    crs = crs or (ds.crs.to_wkt() if ds.crs else None)
+                    b = ds.bounds
+            except rasterio.errors.RasterioError as ex:
+                raise FormatError(f"{p}: not a readable GeoTIFF ({ex})") from ex
             rasters.append((p, arr, t))
         elif p.suffix.lower() in (".geojson", ".json", ".gpkg"):
             feats, vcrs = read_line_layer(p)
@@ -313,8 +318,11 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
         raise click.UsageError("the products hold no data (no raster, no line): nothing to cut")
     if index != "grid" and crs is None:
         raise click.UsageError(f"--index {index} needs the products' CRS: give --crs (e.g. EPSG:31983)")
-    grid = index_sheets((lo[0], lo[1], hi[0], hi[1]), index, crs=crs, size_m=size_m, height_m=height_m,
-                        geographic_crs=geographic_crs)
+    try:
+        grid = index_sheets((lo[0], lo[1], hi[0], hi[1]), index, crs=crs, size_m=size_m, height_m=height_m,
+                            geographic_crs=geographic_crs)
+    except ValueError as ex:  # a bad --size-m / --height-m, or products outside the index in that --crs
+        raise click.UsageError(str(ex)) from ex
     out = Path(output)
     ext = "." + layer_format
     used = []
