@@ -125,6 +125,25 @@ def test_corrupt_and_missing_tiles_and_full_disk_are_located(tmp_path, monkeypat
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".part")]
 
 
+@pytest.mark.parametrize("args, message", [
+    (["dtm", "-o", "d.tif", "--cell-m", "0"], "Invalid value for '--cell-m': 0.0 is not in the range x>0."),
+    (["dsm", "-o", "d.tif", "--cell-m", "nan"], "Invalid value for '--cell-m': nan is not a finite number."),
+    (["contours", "-o", "c.geojson", "--interval-m", "-1"],
+     "Invalid value for '--interval-m': -1.0 is not in the range x>0."),
+    (["ground", "-o", "g.laz", "--slope", "inf"], "Invalid value for '--slope': inf is not a finite number."),
+    (["dtm", "-o", "d.tif", "--overlap-m", "-5"], "Invalid value for '--overlap-m': -5.0 is not in the range x>=0."),
+    (["hypsometry", "-o", "h.tif", "--cmap", "nope"],
+     "Invalid value for '--cmap': 'nope' is not a matplotlib colour map"),
+])
+def test_bad_numbers_and_names_are_refused_before_reading(tmp_path, args, message):
+    """Zero, negative, nan or inf sizes and an unknown colour map: exit 2 naming the option (they were
+    ZeroDivisionError / 'cannot convert float NaN to integer' / KeyError tracebacks), nothing written."""
+    r = CliRunner().invoke(cli, ["lidar", args[0], str(AHN2), "--crs", "EPSG:7415", args[1],
+                                 str(tmp_path / args[2]), *args[3:]])
+    assert r.exit_code == 2 and message in r.output, r.output
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.slow
 def test_dask_local_cluster_gives_the_serial_results(tmp_path):
     """Ground classification and DSM of two AHN3 tiles: serial == LocalCluster(2 workers), bit for bit."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -296,8 +297,8 @@ def test_cli_sheets_brazil_index_as_geopackage(tmp_path):
                     '"properties": {}, "geometry": {"type": "LineString", "coordinates": [[1, 2], [NaN, 4]]}}]}', [],
      "nan.geojson: feature 1: not a 2-D LineString"),
     ("empty.tif", "", [], "empty.tif: not a readable GeoTIFF ("),
-    ("c.geojson", None, ["--size-m", "-5"], "Error: sheet size must be positive and finite, got -5.0 x -5.0 m"),
-    ("c.geojson", None, ["--size-m", "inf"], "Error: sheet size must be positive and finite, got inf x inf m"),
+    ("c.geojson", None, ["--size-m", "-5"], "Error: Invalid value for '--size-m': -5.0 is not in the range x>0."),
+    ("c.geojson", None, ["--height-m", "nan"], "Error: Invalid value for '--height-m': nan is not a finite number."),
     ("c.geojson", None, ["--index", "brazil-5000", "--crs", "EPSG:4326"],
      "Error: point 0: longitude 744000.0"),  # E, N taken for degrees: outside the index
 ])
@@ -316,3 +317,11 @@ def test_cli_sheets_bad_products_and_sizes_are_one_line_errors(tmp_path, name, t
     assert res.exit_code == 2 and message in res.output, res.output
     assert res.exception is None or isinstance(res.exception, SystemExit)
     assert not (tmp_path / "out").exists()
+
+
+def test_sheet_grid_refuses_a_size_that_is_not_positive_and_finite():
+    from lidarcat.lidar.sheets import sheet_grid
+
+    for w, h in ((0.0, None), (100.0, -1.0), (math.inf, None), (100.0, math.nan)):
+        with pytest.raises(ValueError, match=r"sheet size must be positive and finite, got "):
+            sheet_grid((0, 0, 10, 10), w, h)
