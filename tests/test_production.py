@@ -132,6 +132,8 @@ def test_corrupt_and_missing_tiles_and_full_disk_are_located(tmp_path, monkeypat
      "Invalid value for '--interval-m': -1.0 is not in the range x>0."),
     (["ground", "-o", "g.laz", "--slope", "inf"], "Invalid value for '--slope': inf is not a finite number."),
     (["dtm", "-o", "d.tif", "--overlap-m", "-5"], "Invalid value for '--overlap-m': -5.0 is not in the range x>=0."),
+    (["ground", "-o", "g.laz", "--method", "ptd", "--iteration-angle-deg", "95"],
+     "Invalid value for '--iteration-angle-deg': 95.0 is not in the range 0<x<90."),
     (["raster", "-o", "r.tif", "--cell", "nan"], "Invalid value for '--cell': nan is not a finite number."),
     (["hypsometry", "-o", "h.tif", "--cmap", "nope"],
      "Invalid value for '--cmap': 'nope' is not a matplotlib colour map"),

@@ -82,7 +82,7 @@ def test_ndsm_and_outputs(tmp_path):
 
 
 def test_rgb_product_without_rasterio_is_a_located_lidarcat_error(tmp_path, monkeypatch):
-    import lidarcat.lidar.terrain as terrain
+    from lidarcat.lidar import terrain
     from lidarcat.errors import FormatError
 
     monkeypatch.setattr(terrain, "HAVE_RASTERIO", False)

@@ -9,7 +9,7 @@ import click
 import numpy as np
 
 from .lidar import _crs_opt, _sources
-from .options import NON_NEGATIVE, POSITIVE, progress_bar
+from .options import NON_NEGATIVE, POSITIVE, FiniteRange, progress_bar
 from .options import scheduler_option as _scheduler_opt
 from .options import workers_option as _workers_opt
 
@@ -46,7 +46,8 @@ def _run(kind: str, paths: tuple[str, ...], out: str, crs: str | None, params: d
 @click.option("--max-building-m", type=POSITIVE, default=60.0, show_default=True,
               help="PTD: size of the largest building, metres: one seed (the lowest last return) per "
                    "window of this size.")
-@click.option("--iteration-angle-deg", type=POSITIVE, default=6.0, show_default=True,
+@click.option("--iteration-angle-deg", type=FiniteRange(0, 90, min_open=True, max_open=True), default=6.0,
+              show_default=True,
               help="PTD: largest angle between a triangle's plane and the line from a point to the "
                    "triangle's nearest vertex, degrees (raise on steep terrain, lower on flat).")
 @click.option("--iteration-distance-m", type=POSITIVE, default=1.4, show_default=True,

@@ -13,7 +13,7 @@ import click
 from .._io import dumps_json
 
 __all__ = ["json_opt", "survey_arg", "echo_json", "progress_bar", "workers_option", "scheduler_option",
-           "POSITIVE", "NON_NEGATIVE"]
+           "FiniteRange", "POSITIVE", "NON_NEGATIVE"]
 
 json_opt = click.option("--json", "as_json", is_flag=True,
                         help="Print results as one JSON object (sorted keys) instead of text.")
@@ -28,7 +28,7 @@ def echo_json(obj) -> None:
     click.echo(dumps_json(obj))
 
 
-class _FiniteRange(click.FloatRange):
+class FiniteRange(click.FloatRange):
     """A click FloatRange that also refuses nan and inf (FloatRange lets nan through every bound)."""
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
@@ -39,9 +39,9 @@ class _FiniteRange(click.FloatRange):
 
 
 #: option type of sizes, distances and thresholds that must be > 0 (cells, windows, intervals), finite
-POSITIVE = _FiniteRange(min=0, min_open=True)
+POSITIVE = FiniteRange(min=0, min_open=True)
 #: option type of finite values >= 0 (overlaps, margins)
-NON_NEGATIVE = _FiniteRange(min=0)
+NON_NEGATIVE = FiniteRange(min=0)
 
 
 @contextlib.contextmanager
