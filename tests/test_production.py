@@ -285,3 +285,34 @@ def test_edge_buffers_give_the_points_of_the_neighbour_files_and_are_removed(tmp
     for p, (a, na) in zip(out, direct):  # the outputs are those of the decoded neighbours' points
         g = classify_ground(a.xyz, a.attributes["return_number"], a.attributes["number_of_returns"])[:na]
         assert np.array_equal(read_points(p).attributes["classification"] == 2, g)
+
+
+def test_edge_buffers_of_neighbours_with_other_attributes_keep_the_common_ones(tmp_path, monkeypatch):
+    """A tile whose neighbours differ in point format (one without GPS time): the buffer pieces are joined
+    on the attributes every piece carries and give what decoding the neighbour files gives."""
+    from lidarcat.lidar.parallel import _read_with_buffer, _ring_jobs, run_tile_job
+    from lidarcat.lidar.tileindex import TileIndex
+
+    las = laspy.read(str(AHN2))
+    x = np.asarray(las.x)
+    tiles = []
+    for name, m, fmt in (("a.laz", x < 85020, None), ("b.laz", (x >= 85020) & (x < 85045), None),
+                         ("c.laz", x >= 85045, 0)):
+        part = laspy.LasData(las.header)
+        part.points = las.points[m]
+        if fmt is not None:
+            part = laspy.convert(part, point_format_id=fmt, file_version="1.2")
+        part.write(str(tmp_path / name))
+        tiles.append(tmp_path / name)
+    assert "gps_time" in read_points(tiles[0]).attributes and "gps_time" not in read_points(tiles[2]).attributes
+    jobs = tile_jobs("dsm", tiles, tmp_path / "out", crs="EPSG:7415", params={"cell_m": 1.0}, overlap_m=30.0)
+    mid = next(j for j in jobs if j.tile == str(tiles[1]))
+    assert set(mid.neighbours) == {str(tiles[0]), str(tiles[2])}
+    direct, n_own = _read_with_buffer(mid)
+    for r in _ring_jobs(jobs):
+        run_tile_job(r)
+    monkeypatch.setattr(TileIndex, "query_box", lambda *a, **k: pytest.fail("a neighbour file was decoded"))
+    b, nb = _read_with_buffer(mid)
+    assert nb == n_own and len(b) == len(direct) > n_own
+    assert "gps_time" not in b.attributes and sorted(b.attributes) == sorted(direct.attributes)
+    np.testing.assert_array_equal(b.xyz, direct.xyz)
