@@ -307,7 +307,7 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
                     arr = arr[0] if arr.shape[0] == 1 else np.moveaxis(arr, 0, 2)
                     t = GeoTransform(ds.transform.c, ds.transform.f, ds.transform.a)
                     crs = crs or (ds.crs.to_wkt() if ds.crs else None)
-                    b = ds.bounds
+                    b = tuple(ds.bounds)  # left, bottom, right, top
             except rasterio.errors.RasterioError as ex:
                 raise FormatError(f"{p}: not a readable GeoTIFF ({ex})") from ex
             rasters.append((p, arr, t))
@@ -317,13 +317,12 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
             vectors.append((p, feats))
             if not feats:
                 continue
-            xy = np.vstack([np.asarray(f["geometry"]["coordinates"], dtype=float).reshape(-1, 2) for f in feats])
-            b = type("B", (), {"left": xy[:, 0].min(), "bottom": xy[:, 1].min(),
-                               "right": xy[:, 0].max(), "top": xy[:, 1].max()})
+            xy = np.vstack([np.asarray(f["geometry"]["coordinates"], dtype=float) for f in feats])
+            b = (*xy.min(axis=0), *xy.max(axis=0))
         else:
             raise click.BadParameter(f"{p}: give .tif, .geojson or .gpkg products", param_hint="PRODUCT")
-        lo = [min(lo[0], b.left), min(lo[1], b.bottom)]
-        hi = [max(hi[0], b.right), max(hi[1], b.top)]
+        lo = [min(lo[0], b[0]), min(lo[1], b[1])]
+        hi = [max(hi[0], b[2]), max(hi[1], b[3])]
     if not np.isfinite(lo + hi).all():
         raise click.UsageError("the products hold no data (no raster, no line): nothing to cut")
     if index != "grid" and crs is None:
