@@ -325,3 +325,32 @@ def test_sheet_grid_refuses_a_size_that_is_not_positive_and_finite():
     for w, h in ((0.0, None), (100.0, -1.0), (math.inf, None), (100.0, math.nan)):
         with pytest.raises(ValueError, match=r"sheet size must be positive and finite, got "):
             sheet_grid((0, 0, 10, 10), w, h)
+
+
+def test_cli_sheets_failing_midway_leaves_no_folder(tmp_path, monkeypatch):
+    """The sheets and the index are written into a temporary sibling: a full disk at the index leaves nothing."""
+    import errno
+
+    import lidarcat.lidar.contours as contours_mod
+
+    feats = [{"type": "Feature", "properties": {"level_m": 1.0},
+              "geometry": {"type": "LineString", "coordinates": [[744000.0, 7580000.0], [746500.0, 7580400.0]]}}]
+    contours_mod.write_geojson(tmp_path / "c.geojson", feats, "EPSG:31983")
+    real = contours_mod.write_layers
+
+    def full_disk_at_the_index(path, layers, crs):
+        if "sheets" in layers:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(path, layers, crs)
+
+    monkeypatch.setattr(contours_mod, "write_layers", full_disk_at_the_index)
+    res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "c.geojson"), "-o", str(tmp_path / "out"),
+                                   "--size-m", "1000"])
+    assert isinstance(res.exception, OSError)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.geojson"]  # no out/, no .out.*.part
+    monkeypatch.setattr(contours_mod, "write_layers", real)
+    res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "c.geojson"), "-o", str(tmp_path / "out"),
+                                   "--size-m", "1000"])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["E744000_N7580000", "E745000_N7580000",
+                                                                   "E746000_N7580000", "sheets.geojson"]

@@ -290,6 +290,7 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
     import rasterio
     import rasterio.errors
 
+    from .._io import atomic_dir
     from ..errors import FormatError
     from ..lidar.contours import read_line_layer, write_layers
     from ..lidar.raster import GeoTransform
@@ -335,24 +336,25 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
     out = Path(output)
     ext = "." + layer_format
     used = []
-    with progress_bar(len(grid), "sheets") as bar:
+    # the sheets and the index are built in a temporary sibling and moved in once all are written
+    with atomic_dir(out) as tmp, progress_bar(len(grid), "sheets") as bar:
         for s in grid:
             wrote = False
             for p, arr, t in rasters:
                 cut = cut_raster(arr, t, s, crs)
                 if cut is not None and np.isfinite(cut[0].astype(float)).any():
-                    write_product(out / s.name / p.name, cut[0], cut[1], crs)
+                    write_product(tmp / s.name / p.name, cut[0], cut[1], crs)
                     wrote = True
             for p, feats in vectors:
                 part = cut_contours([f for f in feats if f["geometry"]["type"] == "LineString"], s, crs)
                 if part:
-                    write_layers(out / s.name / (p.stem + ext), {"contours": part}, crs)
+                    write_layers(tmp / s.name / (p.stem + ext), {"contours": part}, crs)
                     wrote = True
             if wrote:
                 used.append(s)
             if bar is not None:
                 bar.update(1)
-    write_layers(out / ("sheets" + ext), {"sheets": sheet_index_features(used, crs)}, crs)
+        write_layers(tmp / ("sheets" + ext), {"sheets": sheet_index_features(used, crs)}, crs)
     what = f"of {size_m:g} m" if index == "grid" else f"of the {index} index"
     click.echo(f"wrote {len(used)} sheets {what} and the index {out / ('sheets' + ext)}")
 
