@@ -101,6 +101,10 @@ def test_corrupt_and_missing_tiles_and_full_disk_are_located(tmp_path, monkeypat
     assert r.exit_code == 2 and "bad.laz" in r.output and not (tmp_path / "x.tif").exists()
     r = CliRunner().invoke(cli, ["lidar", "ground", str(tmp_path / "gone.laz"), "-o", str(tmp_path / "y.laz")])
     assert r.exit_code == 2 and "gone.laz" in r.output
+    # the PNG is written beside OUT.tif: a .png output would be a GeoTIFF overwritten by the PNG
+    r = CliRunner().invoke(cli, ["lidar", "hypsometry", str(AHN2), "-o", str(tmp_path / "h.png")])
+    assert r.exit_code == 2 and "h.png: give a .tif name (the .png is written beside it)" in r.output
+    assert not (tmp_path / "h.png").exists()
 
     small = tmp_path / "small.laz"
     las = laspy.read(str(AHN2))
@@ -119,6 +123,28 @@ def test_corrupt_and_missing_tiles_and_full_disk_are_located(tmp_path, monkeypat
     monkeypatch.setattr(os, "replace", real_replace)
     assert not (tmp_path / "full.laz").exists()
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".part")]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["dtm", "-o", "d.tif", "--cell-m", "0"], "Invalid value for '--cell-m': 0.0 is not in the range x>0."),
+    (["dsm", "-o", "d.tif", "--cell-m", "nan"], "Invalid value for '--cell-m': nan is not a finite number."),
+    (["contours", "-o", "c.geojson", "--interval-m", "-1"],
+     "Invalid value for '--interval-m': -1.0 is not in the range x>0."),
+    (["ground", "-o", "g.laz", "--slope", "inf"], "Invalid value for '--slope': inf is not a finite number."),
+    (["dtm", "-o", "d.tif", "--overlap-m", "-5"], "Invalid value for '--overlap-m': -5.0 is not in the range x>=0."),
+    (["ground", "-o", "g.laz", "--method", "ptd", "--iteration-angle-deg", "95"],
+     "Invalid value for '--iteration-angle-deg': 95.0 is not in the range 0<x<90."),
+    (["raster", "-o", "r.tif", "--cell", "nan"], "Invalid value for '--cell': nan is not a finite number."),
+    (["hypsometry", "-o", "h.tif", "--cmap", "nope"],
+     "Invalid value for '--cmap': 'nope' is not a matplotlib colour map"),
+])
+def test_bad_numbers_and_names_are_refused_before_reading(tmp_path, args, message):
+    """Zero, negative, nan or inf sizes and an unknown colour map: exit 2 naming the option (they were
+    ZeroDivisionError / 'cannot convert float NaN to integer' / KeyError tracebacks), nothing written."""
+    r = CliRunner().invoke(cli, ["lidar", args[0], str(AHN2), "--crs", "EPSG:7415", args[1],
+                                 str(tmp_path / args[2]), *args[3:]])
+    assert r.exit_code == 2 and message in r.output, r.output
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.slow
@@ -259,3 +285,34 @@ def test_edge_buffers_give_the_points_of_the_neighbour_files_and_are_removed(tmp
     for p, (a, na) in zip(out, direct):  # the outputs are those of the decoded neighbours' points
         g = classify_ground(a.xyz, a.attributes["return_number"], a.attributes["number_of_returns"])[:na]
         assert np.array_equal(read_points(p).attributes["classification"] == 2, g)
+
+
+def test_edge_buffers_of_neighbours_with_other_attributes_keep_the_common_ones(tmp_path, monkeypatch):
+    """A tile whose neighbours differ in point format (one without GPS time): the buffer pieces are joined
+    on the attributes every piece carries and give what decoding the neighbour files gives."""
+    from lidarcat.lidar.parallel import _read_with_buffer, _ring_jobs, run_tile_job
+    from lidarcat.lidar.tileindex import TileIndex
+
+    las = laspy.read(str(AHN2))
+    x = np.asarray(las.x)
+    tiles = []
+    for name, m, fmt in (("a.laz", x < 85020, None), ("b.laz", (x >= 85020) & (x < 85045), None),
+                         ("c.laz", x >= 85045, 0)):
+        part = laspy.LasData(las.header)
+        part.points = las.points[m]
+        if fmt is not None:
+            part = laspy.convert(part, point_format_id=fmt, file_version="1.2")
+        part.write(str(tmp_path / name))
+        tiles.append(tmp_path / name)
+    assert "gps_time" in read_points(tiles[0]).attributes and "gps_time" not in read_points(tiles[2]).attributes
+    jobs = tile_jobs("dsm", tiles, tmp_path / "out", crs="EPSG:7415", params={"cell_m": 1.0}, overlap_m=30.0)
+    mid = next(j for j in jobs if j.tile == str(tiles[1]))
+    assert set(mid.neighbours) == {str(tiles[0]), str(tiles[2])}
+    direct, n_own = _read_with_buffer(mid)
+    for r in _ring_jobs(jobs):
+        run_tile_job(r)
+    monkeypatch.setattr(TileIndex, "query_box", lambda *a, **k: pytest.fail("a neighbour file was decoded"))
+    b, nb = _read_with_buffer(mid)
+    assert nb == n_own and len(b) == len(direct) > n_own
+    assert "gps_time" not in b.attributes and sorted(b.attributes) == sorted(direct.attributes)
+    np.testing.assert_array_equal(b.xyz, direct.xyz)

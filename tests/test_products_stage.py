@@ -85,6 +85,8 @@ def test_without_products_table_the_plan_is_unchanged(survey, tmp_path):
      r"survey\.toml:\d+: .*unknown key 'contour_step' in \[products\]; allowed: ground, filter, dtm"),
     ('filter = "csf"\n', r"survey\.toml:\d+: field 'filter': 'csf' is not one of 'ptd', 'smrf'"),
     ("cell_m = 0\n", r"survey\.toml:\d+: field 'cell_m': must be positive \(metres\), got 0"),
+    ("max_edge_m = inf\n", r"survey\.toml:\d+: field 'max_edge_m': must be a finite number, got inf"),
+    ("sheet_size_m = nan\n", r"survey\.toml:\d+: field 'sheet_size_m': must be a finite number, got nan"),
     ("dtm = false\nndsm = true\n", r"survey\.toml:\d+: field 'ndsm': needs dtm = true and dsm = true"),
     ('sheet_index = "brazil-1000"\n', r"survey\.toml:\d+: field 'sheet_index': 'brazil-1000' is not one of 'grid', "),
     ('sheet_index = "brazil-5000"\nsheet_size_m = 500\n',

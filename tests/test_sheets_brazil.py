@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -286,3 +287,70 @@ def test_cli_sheets_brazil_index_as_geopackage(tmp_path):
     res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "nocrs.geojson"), "-o",
                                    str(tmp_path / "f2"), "--index", "brazil-5000"])
     assert res.exit_code == 2 and "needs the products' CRS: give --crs" in res.output
+
+
+@pytest.mark.parametrize("name, text, args, message", [
+    ("bad.geojson", '{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {}, '
+                    '"geometry": {"type": "LineString", "coordinates": [[1, 2], [3]]}}]}', [],
+     "bad.geojson: feature 0: not a 2-D LineString (coordinates must be two or more [E, N] pairs of finite numbers)"),
+    ("nan.geojson", '{"type": "FeatureCollection", "features": [{"type": "Point"}, {"type": "Feature", '
+                    '"properties": {}, "geometry": {"type": "LineString", "coordinates": [[1, 2], [NaN, 4]]}}]}', [],
+     "nan.geojson: feature 1: not a 2-D LineString"),
+    ("empty.tif", "", [], "empty.tif: not a readable GeoTIFF ("),
+    ("c.geojson", None, ["--size-m", "-5"], "Error: Invalid value for '--size-m': -5.0 is not in the range x>0."),
+    ("c.geojson", None, ["--height-m", "nan"], "Error: Invalid value for '--height-m': nan is not a finite number."),
+    ("c.geojson", None, ["--index", "brazil-5000", "--crs", "EPSG:4326"],
+     "Error: point 0: longitude 744000.0"),  # E, N taken for degrees: outside the index
+])
+def test_cli_sheets_bad_products_and_sizes_are_one_line_errors(tmp_path, name, text, args, message):
+    """A malformed line, an unreadable GeoTIFF, a bad sheet size or a wrong --crs: exit 2, no traceback, no output."""
+    from lidarcat.lidar.contours import write_geojson
+
+    if text is None:
+        write_geojson(tmp_path / name, [{"type": "Feature", "properties": {"level_m": 1.0},
+                                         "geometry": {"type": "LineString",
+                                                      "coordinates": [[744000.0, 7580000.0], [744500.0, 7580400.0]]}}],
+                      "EPSG:31983")
+    else:
+        (tmp_path / name).write_text(text)
+    res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / name), "-o", str(tmp_path / "out"), *args])
+    assert res.exit_code == 2 and message in res.output, res.output
+    assert res.exception is None or isinstance(res.exception, SystemExit)
+    assert not (tmp_path / "out").exists()
+
+
+def test_sheet_grid_refuses_a_size_that_is_not_positive_and_finite():
+    from lidarcat.lidar.sheets import sheet_grid
+
+    for w, h in ((0.0, None), (100.0, -1.0), (math.inf, None), (100.0, math.nan)):
+        with pytest.raises(ValueError, match=r"sheet size must be positive and finite, got "):
+            sheet_grid((0, 0, 10, 10), w, h)
+
+
+def test_cli_sheets_failing_midway_leaves_no_folder(tmp_path, monkeypatch):
+    """The sheets and the index are written into a temporary sibling: a full disk at the index leaves nothing."""
+    import errno
+
+    import lidarcat.lidar.contours as contours_mod
+
+    feats = [{"type": "Feature", "properties": {"level_m": 1.0},
+              "geometry": {"type": "LineString", "coordinates": [[744000.0, 7580000.0], [746500.0, 7580400.0]]}}]
+    contours_mod.write_geojson(tmp_path / "c.geojson", feats, "EPSG:31983")
+    real = contours_mod.write_layers
+
+    def full_disk_at_the_index(path, layers, crs):
+        if "sheets" in layers:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(path, layers, crs)
+
+    monkeypatch.setattr(contours_mod, "write_layers", full_disk_at_the_index)
+    res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "c.geojson"), "-o", str(tmp_path / "out"),
+                                   "--size-m", "1000"])
+    assert isinstance(res.exception, OSError)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.geojson"]  # no out/, no .out.*.part
+    monkeypatch.setattr(contours_mod, "write_layers", real)
+    res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "c.geojson"), "-o", str(tmp_path / "out"),
+                                   "--size-m", "1000"])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["E744000_N7580000", "E745000_N7580000",
+                                                                   "E746000_N7580000", "sheets.geojson"]

@@ -81,6 +81,17 @@ def test_ndsm_and_outputs(tmp_path):
     assert txt.read_text().splitlines() == ["E N H", "85000.250 447499.750 4.000"]
 
 
+def test_rgb_product_without_rasterio_is_a_located_lidarcat_error(tmp_path, monkeypatch):
+    from lidarcat.lidar import terrain
+    from lidarcat.errors import FormatError
+
+    monkeypatch.setattr(terrain, "HAVE_RASTERIO", False)
+    rgb = np.zeros((2, 3, 3), dtype=np.uint8)
+    with pytest.raises(FormatError, match=r"h\.tif: writing RGB GeoTIFFs needs rasterio: pip install 'lidarcat\[geo\]'"):
+        write_product(tmp_path / "h.tif", rgb, GeoTransform(0.0, 2.0, 1.0), "EPSG:7415")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_tin_grid_needs_points():
     with pytest.raises(ValueError, match="empty point set"):
         tin_grid(np.zeros((0, 3)), 1.0)

@@ -10,7 +10,7 @@ from typing import Any
 
 import click
 
-from .options import echo_json, json_opt, progress_bar
+from .options import POSITIVE, echo_json, json_opt, progress_bar
 
 __all__ = ["lidar", "info", "index", "clip_cmd", "raster"]
 
@@ -206,7 +206,7 @@ def index(paths: tuple[str, ...], crs: str | None, index_file: str | None, rebui
 @click.argument("paths", nargs=-1, required=True, metavar="PATH...")
 @click.option("--at", "at", nargs=2, type=float, required=True, metavar="E N",
               help="Approximate plan position of the roof vertex, metres.")
-@click.option("--radius", type=click.FloatRange(min=0, min_open=True), required=True, metavar="R",
+@click.option("--radius", type=POSITIVE, required=True, metavar="R",
               help="Clip radius in metres (thesis: 2.5-5.0).")
 @_crs_opt
 @click.option("--at-crs", default=None, metavar="CRS",
@@ -215,7 +215,7 @@ def index(paths: tuple[str, ...], crs: str | None, index_file: str | None, rebui
               show_default=True,
               help="thesis: drop points more than WINDOW from the clip's mean height; robust: window "
                    "around the median of the upper half (the roof); none: no height filter.")
-@click.option("--window", "window_m", type=click.FloatRange(min=0, min_open=True), default=2.0,
+@click.option("--window", "window_m", type=POSITIVE, default=2.0,
               show_default=True, help="Half-width of the height window, metres.")
 @click.option("--first-returns", is_flag=True, help="Keep only first (or only) returns.")
 @click.option("--class", "classes", type=int, multiple=True, metavar="CODE",
@@ -267,7 +267,7 @@ def clip_cmd(paths: tuple[str, ...], at: tuple[float, float], radius: float, crs
 # ----------------------------------------------------------------------------- raster
 @lidar.command()
 @click.argument("paths", nargs=-1, required=True, metavar="PATH...")
-@click.option("--cell", "cell_m", type=click.FloatRange(min=0, min_open=True), default=0.5,
+@click.option("--cell", "cell_m", type=POSITIVE, default=0.5,
               show_default=True, help="Cell size, metres.")
 @click.option("--what", type=click.Choice(["intensity", "dsm", "dtm"]), default="intensity",
               show_default=True,

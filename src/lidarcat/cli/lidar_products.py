@@ -9,7 +9,7 @@ import click
 import numpy as np
 
 from .lidar import _crs_opt, _sources
-from .options import progress_bar
+from .options import NON_NEGATIVE, POSITIVE, FiniteRange, progress_bar
 from .options import scheduler_option as _scheduler_opt
 from .options import workers_option as _workers_opt
 
@@ -19,7 +19,7 @@ _resume_opt = click.option(
     "--resume/--no-resume", default=True, show_default=True,
     help="Skip tiles whose output and <output>.done.json marker match the inputs and parameters.")
 _overlap_opt = click.option(
-    "--overlap-m", type=float, default=None, metavar="M",
+    "--overlap-m", type=NON_NEGATIVE, default=None, metavar="M",
     help="Points of neighbouring tiles read around each tile, metres, so that seams do not show "
          "(default: two seed windows / two opening windows for ground, 50 m for rasters).")
 
@@ -43,20 +43,21 @@ def _run(kind: str, paths: tuple[str, ...], out: str, crs: str | None, params: d
 @click.option("--method", type=click.Choice(["smrf", "ptd"]), default="smrf", show_default=True,
               help="smrf: simple morphological filter (Pingel et al. 2013; 2.6-2.9 % total error on the "
                    "AHN3 tiles). ptd: progressive TIN densification as TerraScan does it (report 11.2).")
-@click.option("--max-building-m", type=float, default=60.0, show_default=True,
+@click.option("--max-building-m", type=POSITIVE, default=60.0, show_default=True,
               help="PTD: size of the largest building, metres: one seed (the lowest last return) per "
                    "window of this size.")
-@click.option("--iteration-angle-deg", type=float, default=6.0, show_default=True,
+@click.option("--iteration-angle-deg", type=FiniteRange(0, 90, min_open=True, max_open=True), default=6.0,
+              show_default=True,
               help="PTD: largest angle between a triangle's plane and the line from a point to the "
                    "triangle's nearest vertex, degrees (raise on steep terrain, lower on flat).")
-@click.option("--iteration-distance-m", type=float, default=1.4, show_default=True,
+@click.option("--iteration-distance-m", type=POSITIVE, default=1.4, show_default=True,
               help="PTD: largest distance of a point from the triangle's plane, metres.")
-@click.option("--window-m", type=float, default=40.0, show_default=True,
+@click.option("--window-m", type=POSITIVE, default=40.0, show_default=True,
               help="SMRF: largest object (opening radius), metres. 40 m keeps the inside of 40-60 m "
                    "flat roofs out of the ground; 18 m (Pingel's ISPRS value) classified them as ground.")
-@click.option("--slope", type=float, default=0.15, show_default=True,
+@click.option("--slope", type=POSITIVE, default=0.15, show_default=True,
               help="SMRF: terrain slope allowed (rise/run).")
-@click.option("--elevation-threshold-m", type=float, default=0.5, show_default=True,
+@click.option("--elevation-threshold-m", type=POSITIVE, default=0.5, show_default=True,
               help="SMRF: height above the provisional DTM still counted as ground, metres.")
 @_overlap_opt
 @_crs_opt
@@ -100,14 +101,14 @@ def _raster_command(kind: str, doc: str) -> click.Command:
     @click.option("-o", "--output", required=True, metavar="OUT",
                   help="One TILE and OUT ending in .tif: that file. Otherwise a folder receiving "
                        "<tile>.tif per tile (grids snapped to the cell, so they mosaic).")
-    @click.option("--cell-m", type=float, default=1.0, show_default=True, help="Cell size, metres.")
-    @click.option("--max-edge-m", type=float, default=50.0, show_default=True,
+    @click.option("--cell-m", type=POSITIVE, default=1.0, show_default=True, help="Cell size, metres.")
+    @click.option("--max-edge-m", type=POSITIVE, default=50.0, show_default=True,
                   help="TIN triangles with a longer edge are gaps (NaN, counted in the log), metres.")
     @click.option("--text", is_flag=True,
                   help="Also write the report's text grid (E N H per cell centre) as <output>.txt.")
     @click.option("--hillshade", is_flag=True, help="Also write <output>_hillshade.tif (sun NW, 45 deg).")
     @click.option("--ndsm", is_flag=True, help="dsm: also write <output>_ndsm.tif (DSM - DTM, needs class 2).")
-    @click.option("--overlap-m", type=float, default=50.0, show_default=True, metavar="M",
+    @click.option("--overlap-m", type=NON_NEGATIVE, default=50.0, show_default=True, metavar="M",
                   help="Points of neighbouring tiles read around each tile, metres.")
     @_crs_opt
     @_workers_opt
@@ -147,15 +148,15 @@ Examples:
 @click.option("-o", "--output", required=True, metavar="OUT.geojson|OUT.gpkg",
               help="OUT.geojson: contour lines, spot heights in OUT_spots.geojson. OUT.gpkg: one "
                    "GeoPackage with the layers contours and spot_heights (needs lidarcat[gis]). CRS set.")
-@click.option("--interval-m", type=float, default=1.0, show_default=True,
+@click.option("--interval-m", type=POSITIVE, default=1.0, show_default=True,
               help="Contour interval (equidistance), metres; the report used 1 m.")
 @click.option("--master-every", type=click.IntRange(1), default=5, show_default=True,
               help="Every N-th level is a master (index) curve, the others intermediate.")
 @click.option("--smooth", type=click.IntRange(0), default=0, show_default=True,
               help="Chaikin corner-cutting passes (0: vertices exactly on the TIN).")
-@click.option("--max-edge-m", type=float, default=50.0, show_default=True,
+@click.option("--max-edge-m", type=POSITIVE, default=50.0, show_default=True,
               help="TIN triangles with a longer edge are gaps: no contour there, metres.")
-@click.option("--spots-m", type=float, default=100.0, show_default=True,
+@click.option("--spots-m", type=POSITIVE, default=100.0, show_default=True,
               help="Spot heights: highest and lowest ground point per square of this size, metres.")
 @_crs_opt
 def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_every: int, smooth: int,
@@ -188,15 +189,24 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
     click.echo(f"wrote {len(cs)} contour lines and the spot heights to {' and '.join(map(str, written))}")
 
 
+def _colour_map(name: str) -> str:
+    import matplotlib
+
+    if name not in matplotlib.colormaps:
+        raise click.BadParameter(f"{name!r} is not a matplotlib colour map (e.g. terrain, gist_earth, viridis)")
+    return name
+
+
 @click.command()
 @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
 @click.option("-o", "--output", required=True, metavar="OUT.tif",
               help="RGB GeoTIFF (and OUT.png) of the area of all TILEs.")
-@click.option("--cell-m", type=float, default=0.45, show_default=True,
+@click.option("--cell-m", type=POSITIVE, default=0.45, show_default=True,
               help="Cell size, metres (the report: 45 cm, the photos' ground sample).")
 @click.option("--h-min-m", type=float, default=None, help="Height of the first colour, metres (default 2nd percentile).")
 @click.option("--h-max-m", type=float, default=None, help="Height of the last colour, metres (default 98th percentile).")
-@click.option("--cmap", default="terrain", show_default=True, help="matplotlib colour map.")
+@click.option("--cmap", default="terrain", show_default=True, callback=lambda ctx, param, v: _colour_map(v),
+              help="matplotlib colour map.")
 @_crs_opt
 def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: float | None, h_max_m: float | None,
                cmap: str, crs: str | None) -> None:
@@ -213,12 +223,16 @@ def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: floa
     from ..lidar.cloud import PointCloud
     from ..lidar.terrain import hypsometric_image, write_product
 
+    out = Path(output)
+    if out.suffix.lower() not in (".tif", ".tiff"):
+        # the PNG goes beside OUT.tif: any other name would be overwritten by it (or hold a GeoTIFF)
+        raise click.BadParameter(f"{output}: give a .tif name (the .png is written beside it)",
+                                 param_hint="'-o' / '--output'")
     files, crs, _ = _sources(paths, crs)
     pc = PointCloud.concat([read_points(f, crs=crs) for f in files])
     h, t = rasterize(pc, cell_m, "dsm")
     inten, _ = rasterize(pc, cell_m, "intensity") if pc.has("intensity") else (None, None)
     img = hypsometric_image(h, inten, h_min_m, h_max_m, cmap=cmap)
-    out = Path(output)
     write_product(out, img, t, pc.crs)
     from .._io import atomic_write
 
@@ -246,10 +260,10 @@ def _sheet_index_choice() -> click.Choice:
                    "brazil-5000, brazil-2000 (also brazil-10000, brazil-25000): the Brazilian systematic map "
                    "index (Cartografia Sistematica), sheets such as SF-23-X-D-VI-1-SE-C-II (1:5,000), "
                    "geographic rectangles in the datum of the CRS, cut in that frame.")
-@click.option("--size-m", type=float, default=1000.0, show_default=True,
+@click.option("--size-m", type=POSITIVE, default=1000.0, show_default=True,
               help="grid: sheet width (and height, unless --height-m), metres; sheets are aligned to "
                    "multiples of it.")
-@click.option("--height-m", type=float, default=None, help="grid: sheet height, metres (default: --size-m).")
+@click.option("--height-m", type=POSITIVE, default=None, help="grid: sheet height, metres (default: --size-m).")
 @click.option("--crs", default=None, metavar="CRS",
               help="CRS of the products and the index layer (default: the first product's); the Brazilian "
                    "index needs it, e.g. EPSG:31983 (SIRGAS 2000 / UTM zone 23S).")
@@ -274,7 +288,10 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
       lidarcat lidar sheets dtm.tif curvas.gpkg -o folhas/ --index brazil-2000 --layer-format gpkg
     """
     import rasterio
+    import rasterio.errors
 
+    from .._io import atomic_dir
+    from ..errors import FormatError
     from ..lidar.contours import read_line_layer, write_layers
     from ..lidar.raster import GeoTransform
     from ..lidar.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
@@ -285,12 +302,15 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
     hi = [-np.inf, -np.inf]
     for p in map(Path, products):
         if p.suffix.lower() in (".tif", ".tiff"):
-            with rasterio.open(p) as ds:
-                arr = ds.read()
-                arr = arr[0] if arr.shape[0] == 1 else np.moveaxis(arr, 0, 2)
-                t = GeoTransform(ds.transform.c, ds.transform.f, ds.transform.a)
-                crs = crs or (ds.crs.to_wkt() if ds.crs else None)
-                b = ds.bounds
+            try:
+                with rasterio.open(p) as ds:
+                    arr = ds.read()
+                    arr = arr[0] if arr.shape[0] == 1 else np.moveaxis(arr, 0, 2)
+                    t = GeoTransform(ds.transform.c, ds.transform.f, ds.transform.a)
+                    crs = crs or (ds.crs.to_wkt() if ds.crs else None)
+                    b = tuple(ds.bounds)  # left, bottom, right, top
+            except rasterio.errors.RasterioError as ex:
+                raise FormatError(f"{p}: not a readable GeoTIFF ({ex})") from ex
             rasters.append((p, arr, t))
         elif p.suffix.lower() in (".geojson", ".json", ".gpkg"):
             feats, vcrs = read_line_layer(p)
@@ -298,40 +318,43 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
             vectors.append((p, feats))
             if not feats:
                 continue
-            xy = np.vstack([np.asarray(f["geometry"]["coordinates"], dtype=float).reshape(-1, 2) for f in feats])
-            b = type("B", (), {"left": xy[:, 0].min(), "bottom": xy[:, 1].min(),
-                               "right": xy[:, 0].max(), "top": xy[:, 1].max()})
+            xy = np.vstack([np.asarray(f["geometry"]["coordinates"], dtype=float) for f in feats])
+            b = (*xy.min(axis=0), *xy.max(axis=0))
         else:
             raise click.BadParameter(f"{p}: give .tif, .geojson or .gpkg products", param_hint="PRODUCT")
-        lo = [min(lo[0], b.left), min(lo[1], b.bottom)]
-        hi = [max(hi[0], b.right), max(hi[1], b.top)]
+        lo = [min(lo[0], b[0]), min(lo[1], b[1])]
+        hi = [max(hi[0], b[2]), max(hi[1], b[3])]
     if not np.isfinite(lo + hi).all():
         raise click.UsageError("the products hold no data (no raster, no line): nothing to cut")
     if index != "grid" and crs is None:
         raise click.UsageError(f"--index {index} needs the products' CRS: give --crs (e.g. EPSG:31983)")
-    grid = index_sheets((lo[0], lo[1], hi[0], hi[1]), index, crs=crs, size_m=size_m, height_m=height_m,
-                        geographic_crs=geographic_crs)
+    try:
+        grid = index_sheets((lo[0], lo[1], hi[0], hi[1]), index, crs=crs, size_m=size_m, height_m=height_m,
+                            geographic_crs=geographic_crs)
+    except ValueError as ex:  # a bad --size-m / --height-m, or products outside the index in that --crs
+        raise click.UsageError(str(ex)) from ex
     out = Path(output)
     ext = "." + layer_format
     used = []
-    with progress_bar(len(grid), "sheets") as bar:
+    # the sheets and the index are built in a temporary sibling and moved in once all are written
+    with atomic_dir(out) as tmp, progress_bar(len(grid), "sheets") as bar:
         for s in grid:
             wrote = False
             for p, arr, t in rasters:
                 cut = cut_raster(arr, t, s, crs)
                 if cut is not None and np.isfinite(cut[0].astype(float)).any():
-                    write_product(out / s.name / p.name, cut[0], cut[1], crs)
+                    write_product(tmp / s.name / p.name, cut[0], cut[1], crs)
                     wrote = True
             for p, feats in vectors:
                 part = cut_contours([f for f in feats if f["geometry"]["type"] == "LineString"], s, crs)
                 if part:
-                    write_layers(out / s.name / (p.stem + ext), {"contours": part}, crs)
+                    write_layers(tmp / s.name / (p.stem + ext), {"contours": part}, crs)
                     wrote = True
             if wrote:
                 used.append(s)
             if bar is not None:
                 bar.update(1)
-    write_layers(out / ("sheets" + ext), {"sheets": sheet_index_features(used, crs)}, crs)
+        write_layers(tmp / ("sheets" + ext), {"sheets": sheet_index_features(used, crs)}, crs)
     what = f"of {size_m:g} m" if index == "grid" else f"of the {index} index"
     click.echo(f"wrote {len(used)} sheets {what} and the index {out / ('sheets' + ext)}")
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import sys
 from collections.abc import Iterator
 from typing import Any
@@ -11,7 +12,8 @@ import click
 
 from .._io import dumps_json
 
-__all__ = ["json_opt", "survey_arg", "echo_json", "progress_bar", "workers_option", "scheduler_option"]
+__all__ = ["json_opt", "survey_arg", "echo_json", "progress_bar", "workers_option", "scheduler_option",
+           "FiniteRange", "POSITIVE", "NON_NEGATIVE"]
 
 json_opt = click.option("--json", "as_json", is_flag=True,
                         help="Print results as one JSON object (sorted keys) instead of text.")
@@ -24,6 +26,22 @@ survey_arg = click.argument("survey", required=False, type=click.Path(exists=Tru
 def echo_json(obj) -> None:
     """Print *obj* as sorted, indented JSON on stdout."""
     click.echo(dumps_json(obj))
+
+
+class FiniteRange(click.FloatRange):
+    """A click FloatRange that also refuses nan and inf (FloatRange lets nan through every bound)."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        rv = super().convert(value, param, ctx)
+        if not math.isfinite(rv):
+            self.fail(f"{rv} is not a finite number.", param, ctx)
+        return rv
+
+
+#: option type of sizes, distances and thresholds that must be > 0 (cells, windows, intervals), finite
+POSITIVE = FiniteRange(min=0, min_open=True)
+#: option type of finite values >= 0 (overlaps, margins)
+NON_NEGATIVE = FiniteRange(min=0)
 
 
 @contextlib.contextmanager

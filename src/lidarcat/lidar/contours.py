@@ -314,8 +314,8 @@ def read_line_layer(path: str | os.PathLike, layer: str | None = None) -> tuple[
     Raises
     ------
     lidarcat.errors.FormatError
-        Unreadable file, no LineString layer, a geometry that is not 2-D WKB
-        LineString (feature named), or a GeoPackage without pyogrio.
+        Unreadable file, no LineString layer, a geometry that is not a 2-D
+        LineString of finite numbers (feature named), or a GeoPackage without pyogrio.
     """
     import json
     import struct
@@ -327,10 +327,20 @@ def read_line_layer(path: str | os.PathLike, layer: str | None = None) -> tuple[
     if path.suffix.lower() != ".gpkg":
         try:
             doc = json.loads(path.read_text(encoding="utf-8"))
-            feats = [f for f in doc["features"] if (f.get("geometry") or {}).get("type") == "LineString"]
+            feats = [(i, f) for i, f in enumerate(doc["features"])
+                     if (f.get("geometry") or {}).get("type") == "LineString"]
+            name = ((doc.get("crs") or {}).get("properties") or {}).get("name")
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as ex:
             raise FormatError(f"{path}: not a readable GeoJSON FeatureCollection ({ex})") from ex
-        name = ((doc.get("crs") or {}).get("properties") or {}).get("name")
+        for i, f in feats:
+            try:
+                xy = np.asarray(f["geometry"]["coordinates"], dtype=np.float64)
+            except (KeyError, TypeError, ValueError):
+                xy = np.zeros(0)
+            if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) < 2 or not np.isfinite(xy).all():
+                raise FormatError(f"{path}: feature {i}: not a 2-D LineString (coordinates must be two or "
+                                  f"more [E, N] pairs of finite numbers)")
+        feats = [f if isinstance(f.get("properties"), dict) else {**f, "properties": {}} for _, f in feats]
         return feats, resolve_crs(name) if name else None
     try:
         import pyogrio

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import LidarcatError, TileIOError
+from ..errors import FormatError, LidarcatError, TileIOError
 
 __all__ = ["TileJob", "run_jobs", "run_on_client", "run_tile_job", "tile_jobs", "JOB_KINDS"]
 
@@ -206,16 +206,14 @@ def _read_with_buffer(job: TileJob) -> tuple[Any, int]:
     idx = TileIndex.build(list(job.neighbours), crs=job.crs)
     own_label = crs_label(own.crs) if own.crs is not None else ""
     parts: list[Any] = []
-    attrs: tuple[str, ...] | None = None
     for t in idx.tiles_in_box(*box):
         part = _read_ring(_piece_path(job, str(t.path)), box, own_label)
         if part is None:
             parts = []
             break
-        attrs = tuple(t.attributes) if attrs is None else tuple(a for a in attrs if a in t.attributes)
         parts.append(part)
-    if parts:
-        common = [k for k in (attrs or ()) if all(k in p.attributes for p in parts)]
+    if parts:  # concatenated on the attributes every piece carries
+        common = [k for k in parts[0].attributes if all(k in p.attributes for p in parts)]
         extra = PointCloud.concat([PointCloud(p.xyz, {k: p.attributes[k] for k in common}, own.crs)
                                    for p in parts])
     else:
@@ -372,7 +370,7 @@ def run_jobs(jobs: Sequence[TileJob], *, workers: int | None = None, scheduler: 
     try:
         from dask.distributed import Client, LocalCluster
     except ImportError as ex:  # pragma: no cover - the extra is installed in CI
-        raise RuntimeError("parallel runs need dask.distributed: pip install 'lidarcat[cluster]'") from ex
+        raise FormatError("parallel runs need dask.distributed: pip install 'lidarcat[cluster]'") from ex
     cluster = None
     if scheduler is not None:
         client = Client(scheduler)

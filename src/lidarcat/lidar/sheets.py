@@ -60,8 +60,8 @@ def sheet_grid(bounds: tuple[float, float, float, float], width_m: float,
     ['E85000_N447500', 'E85100_N447500', 'E85000_N447400', 'E85100_N447400']
     """
     h = width_m if height_m is None else height_m
-    if not (width_m > 0 and h > 0):
-        raise ValueError(f"sheet size must be positive, got {width_m} x {h}")
+    if not (0 < width_m < math.inf and 0 < h < math.inf):
+        raise ValueError(f"sheet size must be positive and finite, got {width_m} x {h} m")
     xmin, ymin, xmax, ymax = map(float, bounds)
     i0, i1 = math.floor(xmin / width_m), max(math.ceil(xmax / width_m), math.floor(xmin / width_m) + 1)
     j0, j1 = math.floor(ymin / h), max(math.ceil(ymax / h), math.floor(ymin / h) + 1)

@@ -61,6 +61,7 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_write
+from ..errors import FormatError
 from .ground import _barycentric
 from .raster import GeoTransform, _grid_for, write_geotiff
 
@@ -359,7 +360,7 @@ def write_product(path: str | os.PathLike, array: np.ndarray, transform: GeoTran
     a = np.asarray(array)
     if not HAVE_RASTERIO:
         if a.ndim == 3:
-            raise RuntimeError("writing RGB GeoTIFFs needs rasterio: pip install 'lidarcat[geo]'")
+            raise FormatError(f"{path}: writing RGB GeoTIFFs needs rasterio: pip install 'lidarcat[geo]'")
         return write_geotiff(path, a, transform, crs)
     import rasterio
     from rasterio.transform import Affine
