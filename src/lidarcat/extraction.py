@@ -260,9 +260,9 @@ def write_candidates(path: str | os.PathLike, candidates: Sequence[Candidate], c
         fc: dict[str, Any] = {"type": "FeatureCollection",
                               "features": [c.to_feature() for c in candidates]}
         if crs_obj is not None:
-            code = crs_obj.to_epsg(min_confidence=90)
-            name = f"urn:ogc:def:crs:EPSG::{code}" if code else crs_obj.to_wkt()
-            fc["crs"] = {"type": "name", "properties": {"name": name}}
+            from .lidar.crs import geojson_crs_member
+
+            fc["crs"] = geojson_crs_member(crs_obj)
             from ._io import write_text_atomic
 
             write_text_atomic(path.with_suffix(".prj"), _esri_wkt(crs_obj))

@@ -203,12 +203,9 @@ def features_geojson(features: list[ImageFeature], result: Any, crs: Any = None,
     if extra:
         doc["lidarcat"] = extra
     if crs is not None:
-        from .lidar.crs import resolve_crs
+        from .lidar.crs import geojson_crs_member
 
-        c = resolve_crs(crs)
-        code = c.to_epsg(min_confidence=70)
-        doc["crs"] = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{code}" if code
-                                                     else c.to_wkt()}}
+        doc["crs"] = geojson_crs_member(crs)
     return doc
 
 

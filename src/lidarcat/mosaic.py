@@ -297,10 +297,7 @@ def seam_polygons(labels: np.ndarray, transform: Any, photo_ids: Sequence[str], 
         feats.append({"type": "Feature", "properties": {"photo": pid, "area_m2": area}, "geometry": geom})
     out: dict[str, Any] = {"type": "FeatureCollection", "name": "seamlines", "features": feats}
     if crs is not None:
-        from .lidar.crs import resolve_crs
+        from .lidar.crs import geojson_crs_member
 
-        c = resolve_crs(crs)
-        code = c.to_epsg(min_confidence=70)
-        name = f"urn:ogc:def:crs:EPSG::{code}" if code else c.to_wkt()
-        out["crs"] = {"type": "name", "properties": {"name": name}}
+        out["crs"] = geojson_crs_member(crs)
     return out

@@ -198,14 +198,12 @@ def spot_features(spots: np.ndarray, decimals: int = 3) -> list[dict[str, Any]]:
 
 def write_geojson(path: str | os.PathLike, features: list[dict[str, Any]], crs: Any = None) -> Path:
     """Write a FeatureCollection with a ``crs`` member (EPSG URN or WKT name), atomically."""
-    from .crs import resolve_crs
+    from .crs import geojson_crs_member
 
     fc: dict[str, Any] = {"type": "FeatureCollection", "features": features}
-    c = resolve_crs(crs)
-    if c is not None:
-        code = c.to_epsg(min_confidence=90)
-        name = f"urn:ogc:def:crs:EPSG::{code}" if code else c.to_wkt()
-        fc["crs"] = {"type": "name", "properties": {"name": name}}
+    member = geojson_crs_member(crs)
+    if member is not None:
+        fc["crs"] = member
     return write_text_atomic(Path(path), dumps_json(fc, indent=None) + "\n")
 
 

@@ -22,7 +22,7 @@ from pyproj.exceptions import CRSError as _PyprojCRSError
 from ..errors import CRSError
 
 __all__ = ["resolve_crs", "crs_compatible", "common_crs", "transform_points", "crs_label", "horizontal_unit",
-           "units_are_metres", "require_metres", "check_area_of_use"]
+           "units_are_metres", "require_metres", "check_area_of_use", "geojson_crs_member"]
 
 
 def resolve_crs(value: Any, *, what: str = "CRS") -> pyproj.CRS | None:
@@ -136,6 +136,21 @@ def crs_label(crs: pyproj.CRS | None) -> str:
         return "no CRS"
     code = crs.to_epsg(min_confidence=90)
     return f"EPSG:{code} ({crs.name})" if code else repr(crs.name)
+
+
+def geojson_crs_member(crs: Any) -> dict[str, Any] | None:
+    """The GeoJSON (2008) ``crs`` member naming *crs* (anything :func:`resolve_crs` takes),
+    which GDAL, QGIS and GeoPandas read: ``{"type": "name", "properties": {"name":
+    "urn:ogc:def:crs:EPSG::29192"}}``, the WKT when the CRS has no EPSG code; None without a CRS.
+
+    >>> geojson_crs_member("EPSG:29192")["properties"]["name"]
+    'urn:ogc:def:crs:EPSG::29192'
+    """
+    c = resolve_crs(crs)
+    if c is None:
+        return None
+    code = c.to_epsg(min_confidence=90)
+    return {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{code}" if code else c.to_wkt()}}
 
 
 @functools.lru_cache(maxsize=32)
