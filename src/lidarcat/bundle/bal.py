@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._heap import reusing_heap
 from .._io import read_text
 from ..errors import LidarcatError
 from .linear import _Gram, _Schur, _Singular
@@ -226,6 +227,7 @@ class BalResult:
     status: str
 
 
+@reusing_heap
 def solve_bal(problem: BalProblem, *, max_iter: int = 50, function_tolerance: float = 1e-6,
               initial_radius: float = 1e4) -> BalResult:
     """Levenberg-Marquardt on a BAL problem (see the module docstring).

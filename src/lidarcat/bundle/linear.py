@@ -49,6 +49,11 @@ __all__: list[str] = []
 #: observation pairs evaluated per chunk in the assembly of S
 CHUNK_PAIRS = 1 << 16
 
+#: a step solved with the previous factor as preconditioner must reach this relative residual...
+REUSE_RTOL = 1e-10
+#: ... within this many conjugate-gradient steps (each one triangular solve), else S is factored
+REUSE_MAX_ITER = 6
+
 
 class _Singular(Exception):
     pass
@@ -164,7 +169,9 @@ class _Schur:
         ei, pj = np.asarray(camera_index), np.asarray(point_index)
         self.ei, self.pj = ei, pj
         self.n_cameras, self.n_points, self.cb = n_cameras, n_points, camera_size
-        self.timings = {"assemble": 0.0, "factor": 0.0, "pcg": 0.0}    # seconds, accumulated by solve()
+        self.timings = {"assemble": 0.0, "factor": 0.0, "pcg": 0.0, "reuse": 0.0}  # s, accumulated by solve()
+        self._factor = None      # the last factor of S (reused by solve(reuse=True))
+        self.reuse_log: list[int] = []   # CG steps of every reuse attempt (negative: it failed)
         self.by_camera = _Aggregator(ei, n_cameras)
         self.by_point = _Aggregator(pj, n_points)
         self.gram_by_camera = _Gram(ei, n_cameras)
@@ -258,12 +265,17 @@ class _Schur:
             raise _Singular(f"reduced camera system is singular ({ex}: datum defect or a photo with "
                             "degenerate geometry)") from ex
 
-    def solve(self, U, V, W, g_c, g_p, method: str = "direct"):
+    def solve(self, U, V, W, g_c, g_p, method: str = "direct", reuse: bool = False):
         """Corrections (cameras (C, cb), points (Q, 3)) of the normal equations with gradient g.
 
         *method*: ``"direct"`` (supernodal Cholesky of S) or ``"pcg"`` (block-Jacobi
         preconditioned conjugate gradients on the explicit S, truncated as in
-        inexact Newton: :func:`_pcg`).
+        inexact Newton: :func:`_pcg`).  With *reuse* (direct only) the factor of
+        the previous direct step preconditions conjugate gradients on this S
+        (:func:`_pcg_factor`, to :data:`REUSE_RTOL`); when they do not get there
+        in :data:`REUSE_MAX_ITER` steps, S is factored afresh.  Worth it once
+        the iteration is in its quadratic phase: S hardly changes from step to
+        step and a few triangular solves cost less than a factorisation.
         """
         t0 = time.perf_counter()
         vinv = _inv3(V)
@@ -283,11 +295,60 @@ class _Schur:
             dc = dc.reshape(self.n_cameras, self.cb)
             self.timings["pcg"] += time.perf_counter() - t1
         else:
-            dc = self.factor(data).solve(rhs.reshape(-1)).reshape(self.n_cameras, self.cb)
-            self.timings["factor"] += time.perf_counter() - t1
+            x = None
+            if reuse and self._factor is not None:
+                S = sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr), shape=self.pattern.shape)
+                x, it = _pcg_factor(S, rhs.reshape(-1), self._factor)
+                self.reuse_log.append(it if x is not None else -it)
+                self.timings["reuse"] += time.perf_counter() - t1
+            if x is None:
+                t2 = time.perf_counter()
+                self._factor = self.factor(data)
+                x = self._factor.solve(rhs.reshape(-1))
+                self.timings["factor"] += time.perf_counter() - t2
+            dc = x.reshape(self.n_cameras, self.cb)
         bp = b_p - self.by_point(np.einsum("nij,ni->nj", W, dc[self.ei]))
         dp = np.einsum("qij,qj->qi", vinv, bp)
         return dc, dp
+
+
+def _pcg_factor(S: sp.csr_matrix, b: np.ndarray, factor, *, rtol: float | None = None,
+                max_iter: int | None = None) -> tuple[np.ndarray | None, int]:
+    """Conjugate gradients on S x = b preconditioned by the Cholesky *factor* of a nearby S.
+
+    Stops when ``|b - S x| <= rtol |b|`` (default :data:`REUSE_RTOL`: the step as
+    exact as a direct solve needs to be for the iteration) and returns
+    ``(x, iterations)``; ``(None, max_iter)`` when *max_iter* (default
+    :data:`REUSE_MAX_ITER`) steps do not get there (the preconditioner is
+    too far from S).
+    """
+    rtol = REUSE_RTOL if rtol is None else rtol
+    max_iter = REUSE_MAX_ITER if max_iter is None else max_iter
+    bnorm = float(np.linalg.norm(b))
+    if bnorm == 0.0:
+        return np.zeros_like(b), 0
+    x = factor.solve(b)
+    r = b - S @ x
+    for i in range(1, max_iter + 1):
+        if float(np.linalg.norm(r)) <= rtol * bnorm:
+            return x, i
+        z = factor.solve(r)
+        rz = float(r @ z)
+        if i == 1:
+            d = z
+        else:
+            d = z + (rz / rz_old) * d
+        sd = S @ d
+        dsd = float(d @ sd)
+        if not dsd > 0:
+            break
+        alpha = rz / dsd
+        x = x + alpha * d
+        r = r - alpha * sd
+        rz_old = rz
+    if float(np.linalg.norm(r)) <= rtol * bnorm:
+        return x, max_iter
+    return None, max_iter
 
 
 def _pcg(S: sp.csr_matrix, b: np.ndarray, prec: np.ndarray, *, eta: float = 0.1, max_iter: int = 500,

@@ -103,15 +103,16 @@ class _System:
             vtpv += float(np.sum(we * re**2))
         self.vtpv = vtpv
 
-    def solve(self, lam: float, method: str = "direct") -> tuple[np.ndarray, np.ndarray]:
+    def solve(self, lam: float, method: str = "direct", reuse: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Corrections (P, 6), (Q, 3) of the damped normal equations (``N + lam diag(N)``);
-        *method* ``direct`` or ``pcg`` (:meth:`lidarcat.bundle.linear._Schur.solve`)."""
+        *method* ``direct`` or ``pcg``, *reuse* the previous factor
+        (:meth:`lidarcat.bundle.linear._Schur.solve`)."""
         U, V = self.U.copy(), self.V.copy()
         if lam > 0:
             iu, iv = np.arange(6), np.arange(3)
             U[:, iu, iu] *= 1.0 + lam
             V[:, iv, iv] *= 1.0 + lam
-        return self.schur.solve(U, V, self.W, self.g_c, self.g_p, method)
+        return self.schur.solve(U, V, self.W, self.g_c, self.g_p, method, reuse)
 
 
 def _cost(problem: BundleProblem, eo: np.ndarray, pts: np.ndarray) -> float:

@@ -26,14 +26,21 @@ from .._approx import approximations, intersect_points
 from .._frozen import frozen_array
 from .model import _cost, _System
 from .linear import _Schur, _Singular
+from ._heap import reusing_heap
 from .precision import PRECISION_LEVELS, covariance_blocks
 from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
 
-__all__ = ["BundleResult", "adjust", "STATUS_MESSAGES", "PCG_MIN_PHOTOS"]
+__all__ = ["BundleResult", "adjust", "STATUS_MESSAGES", "PCG_MIN_PHOTOS", "FACTOR_REUSE_MIN_PHOTOS"]
 
 #: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below; on
 #: strip blocks block-Jacobi PCG lost to the supernodal factor at 1,000 photos: docs/bundle.md)
 PCG_MIN_PHOTOS = 20000
+
+#: the direct solver reuses its last factor (as the preconditioner of a few conjugate-gradient
+#: steps, :func:`lidarcat.bundle.linear._pcg_factor`) from this many photos ...
+FACTOR_REUSE_MIN_PHOTOS = 2000
+#: ... once an accepted step lowered v'Pv by less than this fraction (the quadratic phase)
+FACTOR_REUSE_BELOW = 1e-2
 
 log = logging.getLogger(__name__)
 
@@ -251,6 +258,7 @@ def _tiny(dc: np.ndarray, dp: np.ndarray, tol_m: float, tol_rad: float) -> bool:
     return bool(lin < tol_m and ang < tol_rad)
 
 
+@reusing_heap
 def adjust(
     problem: BundleProblem,
     *,
@@ -300,8 +308,13 @@ def adjust(
         Linear solver of the reduced camera system in the iterations: the
         supernodal Cholesky (exact steps), or block-Jacobi preconditioned
         conjugate gradients truncated as inexact Newton (cheaper steps on large
-        blocks); ``auto``: ``pcg`` from :data:`PCG_MIN_PHOTOS` photos.  The
-        covariance always uses the Cholesky factor.
+        blocks); ``auto``: ``pcg`` from :data:`PCG_MIN_PHOTOS` photos.  From
+        :data:`FACTOR_REUSE_MIN_PHOTOS` photos the direct solver, once a step
+        lowers v'Pv by less than :data:`FACTOR_REUSE_BELOW`, first tries the
+        previous factor as the preconditioner of a few conjugate-gradient steps
+        (to a relative residual of 1e-10) and factors only when they do not
+        converge.  The covariance always uses a fresh Cholesky factor at the
+        solution.
     progress : callable(iteration, vtpv), optional
 
     Returns
@@ -356,6 +369,8 @@ def adjust(
         # pattern of S and its ordering (camera positions of the approximations), analysed once
         schur = _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points, coords=eo[:, :3])
     method = solver if solver != "auto" else ("pcg" if p.n_photos >= PCG_MIN_PHOTOS else "direct")
+    may_reuse = method == "direct" and p.n_photos >= FACTOR_REUSE_MIN_PHOTOS
+    last_gain = math.inf          # relative decrease of v'Pv by the last accepted step
     try:
         with phase("model"):
             system = _System(p, eo, pts, schur)
@@ -366,7 +381,7 @@ def adjust(
             accepted = False
             while True:
                 with phase("solve"):
-                    dc, dp = system.solve(lam, method)
+                    dc, dp = system.solve(lam, method, reuse=may_reuse and last_gain < FACTOR_REUSE_BELOW)
                 eo_new, pts_new = eo + dc, pts + dp
                 with phase("model"):
                     new_cost = _cost(p, eo_new, pts_new)
@@ -381,6 +396,7 @@ def adjust(
                 break
             small = _tiny(dc, dp, tol_m, tol_rad)
             dcost = abs(cost - new_cost) / max(cost, 1.0)
+            last_gain = (cost - new_cost) / cost if cost > 0 else 0.0
             eo, pts = eo_new, pts_new
             eo[:, 3:] = (eo[:, 3:] + np.pi) % (2 * np.pi) - np.pi
             cost = new_cost
