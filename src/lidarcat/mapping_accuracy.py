@@ -224,7 +224,19 @@ def paper_camera() -> Any:
                   model="Wild RC10 (Cavassim 2005), scanned at 1000 dpi", source="Cavassim (2005) section 5")
 
 
-def _town(rng: np.random.Generator, e0: float, n0: float, n_buildings: int, n_roads: int) -> Any:
+def _town(rng: np.random.Generator, e0: float, n0: float, n_buildings: int, n_roads: int, *,
+          eave_m: tuple[float, float] = (6.0, 12.0), length_m: tuple[float, float] = (30.0, 60.0),
+          width_m: tuple[float, float] = (15.0, 25.0), max_corner_radius_m: float | None = None,
+          nadir_en: tuple[float, float] | None = None, gap_m: float = 10.0) -> Any:
+    """The synthetic town: *n_roads* straight roads through (e0, n0) and flat-roofed buildings off them.
+
+    ``max_corner_radius_m`` None (the default experiment): building centres
+    uniform in the 600 m square around (e0, n0), centres more than 45 m +
+    the mean of the two lengths apart.  A number: every footprint corner
+    within that distance of *nadir_en* (the camera's plan position), the
+    footprints at least *gap_m* apart (separating-axis test: a lower bound of
+    the distance between two rectangles).
+    """
     from .scene import Building, Road, Scene
 
     roads = []
@@ -236,19 +248,53 @@ def _town(rng: np.random.Generator, e0: float, n0: float, n_buildings: int, n_ro
         roads.append(Road(*(c - dvec), *(c + dvec), float(rng.uniform(7, 12))))
     buildings: list[Any] = []
     tries = 0
-    while len(buildings) < n_buildings and tries < 5000:
+    max_tries = 5000 if max_corner_radius_m is None else 50_000
+    while len(buildings) < n_buildings and tries < max_tries:
         tries += 1
-        e, n = e0 + rng.uniform(-300, 300), n0 + rng.uniform(-300, 300)
-        b = Building("flat", e, n, length_m=float(rng.uniform(30, 60)), width_m=float(rng.uniform(15, 25)),
-                     eave_m=float(rng.uniform(6, 12)), azimuth_deg=float(rng.uniform(0, 90)))
+        if max_corner_radius_m is None:
+            e, n = e0 + rng.uniform(-300, 300), n0 + rng.uniform(-300, 300)
+        else:
+            e = nadir_en[0] + rng.uniform(-max_corner_radius_m, max_corner_radius_m)   # type: ignore[index]
+            n = nadir_en[1] + rng.uniform(-max_corner_radius_m, max_corner_radius_m)   # type: ignore[index]
+        b = Building("flat", e, n, length_m=float(rng.uniform(*length_m)), width_m=float(rng.uniform(*width_m)),
+                     eave_m=float(rng.uniform(*eave_m)), azimuth_deg=float(rng.uniform(0, 90)))
         fp = b.footprint()
         near_road = any(r.contains(fp[:, 0], fp[:, 1]).any() or r.contains(np.array([e]), np.array([n]))[0]
                         for r in roads)
-        far = all(math.hypot(e - o.e_m, n - o.n_m) > 45 + (b.length_m + o.length_m) / 2 for o in buildings)
+        if max_corner_radius_m is None:
+            far = all(math.hypot(e - o.e_m, n - o.n_m) > 45 + (b.length_m + o.length_m) / 2 for o in buildings)
+        else:
+            far = all(_rect_gap(fp, o.footprint()) >= gap_m for o in buildings) and bool(
+                np.hypot(fp[:, 0] - nadir_en[0], fp[:, 1] - nadir_en[1]).max() <= max_corner_radius_m)  # type: ignore[index]
+            # a road must not pass under the building between its corners either
+            edge = fp[[0, 1, 2, 3, 0]]
+            t = np.linspace(0, 1, 41)[:, None, None]
+            probe = (edge[:-1] + t * (edge[1:] - edge[:-1])).reshape(-1, 2)
+            near_road = near_road or any(r.contains(probe[:, 0], probe[:, 1]).any() for r in roads)
         if far and not near_road and not any(
                 np.hypot(*(fp - np.array([r.e0_m, r.n0_m])).T).min() < 0 for r in roads):
             buildings.append(b)
+    if len(buildings) < n_buildings:
+        raise AssessmentError(f"the town holds only {len(buildings)} of {n_buildings} buildings of {length_m[0]:g}-"
+                         f"{length_m[1]:g} x {width_m[0]:g}-{width_m[1]:g} m within {max_corner_radius_m} m of "
+                         f"the nadir, {gap_m:g} m apart, off the roads: smaller buildings or a larger radius")
     return Scene(tuple(buildings), tuple(roads), seed=int(rng.integers(2**31)))
+
+
+def _rect_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest gap (m) between the projections of two convex polygons on their edge normals.
+
+    Zero or negative when they overlap; otherwise a lower bound of their
+    distance (the separating-axis theorem), exact when an edge faces the other
+    polygon.
+    """
+    gap = -math.inf
+    for p in (a, b):
+        d = np.roll(p, -1, axis=0) - p
+        nrm = np.column_stack([-d[:, 1], d[:, 0]]) / np.hypot(d[:, 0], d[:, 1])[:, None]
+        pa, pb = a @ nrm.T, b @ nrm.T
+        gap = max(gap, float(np.max(np.maximum(pb.min(axis=0) - pa.max(axis=0), pa.min(axis=0) - pb.max(axis=0)))))
+    return gap
 
 
 def _road_points(scene: Any, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -331,7 +377,11 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
                         image_sd_px: float = 0.5, inward_px: float = 0.0, lidar_noise_m: float = 0.15,
                         lidar_plan_sd_m: float = 0.0,
                         dsm_cell_m: float | None = 1.0, scale: float = 2000.0,
-                        e0: float = 680_400.0, n0: float = 7_184_200.0) -> dict[str, Any]:
+                        e0: float = 680_400.0, n0: float = 7_184_200.0,
+                        eave_m: tuple[float, float] = (6.0, 12.0), max_corner_radius_m: float | None = None,
+                        building_length_m: tuple[float, float] = (30.0, 60.0),
+                        building_width_m: tuple[float, float] = (15.0, 25.0),
+                        building_gap_m: float = 10.0) -> dict[str, Any]:
     """The paper's comparison on a synthetic town (module docstring).
 
     Parameters
@@ -363,6 +413,21 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         Cell of the first-return DSM (default 1 m; None: the point spacing).
     e0, n0 : float
         Centre of the synthetic town, m.
+    eave_m : (float, float)
+        Range of the buildings' eave heights above their base, m (uniform;
+        default 6-12 m).
+    max_corner_radius_m : float, optional
+        Largest horizontal distance (m) of a building outline corner from the
+        photo's nadir (the camera's plan position).  None (default): building
+        centres uniform in the 600 m square around (e0, n0), whose corners lie
+        up to ~330 m from the nadir.  A number: the camera is drawn first and
+        every corner placed within this radius of its nadir (a building's
+        lean at a corner, eave height x radius / flying height, is bounded by
+        ``eave_m[1] * max_corner_radius_m / (922 - eave_m[1])``).
+    building_length_m, building_width_m : (float, float)
+        Ranges of the flat roofs' footprint length and width, m.
+    building_gap_m : float
+        With *max_corner_radius_m*: the least distance between two footprints, m.
 
     Returns
     -------
@@ -373,7 +438,9 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         ``tin_iterate_top``; ``r90``: ``{product: {class: r90}}`` (Table 09);
         ``status``: monoplot status counts per product; ``corners``: per
         building corner ``leaving`` (bool), ``lean_m``, ``off_nadir_deg``,
-        ``error_m`` and ``h_error_m`` (m, per product; NaN where not placed);
+        ``error_m`` and ``h_error_m`` (m, per product; NaN where not placed),
+        ``eave_m`` (the building's eave height) and ``radius_m`` (horizontal
+        distance from the nadir);
         ``diagnosis``: per product and corner kind (``leaving``,
         ``entering``) n, median and max plan error (m) and the corners whose
         hit is within 1 m of the roof height (``on_roof``); ``setup``: the
@@ -382,12 +449,25 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
     from .monoplot import PointSurface, monoplot
     from ._collinearity import project
 
+    from .scene import Scene
+
     rng = np.random.default_rng(seed)
-    scene = _town(rng, e0, n0, n_buildings, 3)
+    town = {"eave_m": tuple(eave_m), "length_m": tuple(building_length_m), "width_m": tuple(building_width_m),
+            "gap_m": building_gap_m}
     cam = paper_camera()
-    h_ground = float(scene.terrain(np.array([e0]), np.array([n0]))[0])
-    eo_true = np.array([e0 + rng.normal(0, 20), n0 + rng.normal(0, 20), h_ground + 922.0,
-                        math.radians(rng.normal(0, 1)), math.radians(rng.normal(0, 1)), rng.uniform(0, 2 * np.pi)])
+    h_ground = float(Scene().terrain(np.array([e0]), np.array([n0]))[0])
+
+    def camera() -> np.ndarray:
+        return np.array([e0 + rng.normal(0, 20), n0 + rng.normal(0, 20), h_ground + 922.0,
+                         math.radians(rng.normal(0, 1)), math.radians(rng.normal(0, 1)), rng.uniform(0, 2 * np.pi)])
+
+    if max_corner_radius_m is None:            # the default experiment: the town first (its draws unchanged)
+        scene = _town(rng, e0, n0, n_buildings, 3, **town)
+        eo_true = camera()
+    else:                                      # the camera first, the buildings around its nadir
+        eo_true = camera()
+        scene = _town(rng, e0, n0, n_buildings, 3, max_corner_radius_m=max_corner_radius_m,
+                      nadir_en=(float(eo_true[0]), float(eo_true[1])), **town)
     eo_err = np.concatenate([rng.normal(0, 0.05, 3), rng.normal(0, math.radians(10 / 3600), 3)])
     # features: building outline corners (eave height) and road edge points
     corners, outward, cls = [], [], []
@@ -476,11 +556,14 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         "leaving": corners_info["leaving"], "lean_m": corners_info["lean_m"], "off_nadir_deg":
         corners_info["off_nadir_deg"], "error_m": {p: np.hypot(*(truth[:nb, :2] - measured[p][:nb]).T)
                                                   for p in products},
-        "h_error_m": {p: heights[p][:nb] - truth[:nb, 2] for p in heights}}, "setup": {
+        "h_error_m": {p: heights[p][:nb] - truth[:nb, 2] for p in heights},
+        "eave_m": np.repeat([b.eave_m for b in scene.buildings], 4),
+        "radius_m": np.hypot(corners_a[:, 0] - eo_true[0], corners_a[:, 1] - eo_true[1])}, "setup": {
         "seed": seed, "density_m2": density_m2, "lidar_noise_m": lidar_noise_m, "n_buildings": len(scene.buildings),
         "n_building_points": int(len(corners_a)), "n_road_points": int(len(road_pts)), "photo_gsd_m": gsd,
         "image_sd_px": image_sd_px, "intensity_cell_m": cell, "flying_height_m": 922.0, "scale": scale,
-        "lidar_plan_sd_m": lidar_plan_sd_m}}
+        "lidar_plan_sd_m": lidar_plan_sd_m, "eave_m": tuple(eave_m), "max_corner_radius_m": max_corner_radius_m,
+        "building_length_m": tuple(building_length_m), "building_width_m": tuple(building_width_m)}}
 
 
 def _corner_geometry(scene: Any, eo: np.ndarray, corners: np.ndarray) -> dict[str, np.ndarray]:
