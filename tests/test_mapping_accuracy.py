@@ -62,3 +62,12 @@ def test_on_the_paper_admitted_scene_both_monorestitutions_beat_the_image_but_ti
             t = r["tables"][p]["building"]
             assert t["n"] == 36 and t["pec_class"] == "A"
         assert r["status"]["tin"] == {"ok": 63} and r["status"]["nearest"] == {"ok": 63}
+
+
+def test_the_papers_products_alone_give_the_same_figures():
+    """all_products=False skips the extra surfaces and iterations, not a random draw."""
+    kw = {"seed": 4, "n_buildings": 2, "n_road_points": 4}
+    full, paper = cavassim_experiment(**kw), cavassim_experiment(all_products=False, **kw)
+    assert set(paper["r90"]) == {"intensity_image", "nearest", "tin"} and len(full["r90"]) == 9
+    for p in paper["r90"]:
+        assert paper["tables"][p] == full["tables"][p]

@@ -473,7 +473,7 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         With *max_corner_radius_m*: the least distance between two footprints, m.
     all_products : bool
         False: only the paper's three products (``intensity_image``,
-        ``nearest``, ``tin``; the same figures, in a third of the time).
+        ``nearest``, ``tin``; the same figures, in about a fifth of the time).
 
     Returns
     -------
