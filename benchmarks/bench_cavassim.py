@@ -2,7 +2,7 @@
 
     python benchmarks/bench_cavassim.py                 # seeds 0, 1, 2 (about 2 min at load 1)
     python benchmarks/bench_cavassim.py --seeds 0-5     # more seeds
-    python benchmarks/bench_cavassim.py --quick         # seed 0, a smoke run
+    python benchmarks/bench_cavassim.py --quick         # seed 0, a smoke run (one seed decides no verdict: "=")
     python benchmarks/bench_cavassim.py --tables --seeds 0-5   # Tables 06-09 of the paper-admitted scene
 
 :func:`lidarcat.mapping_accuracy.cavassim_experiment` (the paper's three
