@@ -1,7 +1,7 @@
 """Where does Cavassim's (2005) Table 09 building ordering exist?  A sweep of the synthetic town.
 
-    python benchmarks/bench_cavassim.py                 # seeds 0, 1, 2 (about 2 min at load 1)
-    python benchmarks/bench_cavassim.py --seeds 0-5     # more seeds
+    python benchmarks/bench_cavassim.py                 # seeds 0, 1, 2 (62 s at load 1.3)
+    python benchmarks/bench_cavassim.py --seeds 0-5     # more seeds (132 s at load 1.3-1.9)
     python benchmarks/bench_cavassim.py --quick         # seed 0, a smoke run (one seed decides no verdict: "=")
     python benchmarks/bench_cavassim.py --tables --seeds 0-5   # Tables 06-09 of the paper-admitted scene
 
