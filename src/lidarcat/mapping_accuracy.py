@@ -15,7 +15,16 @@ scanned at 25.4 um: 0.15 m pixels, 922 m above ground) and first-return
 LiDAR of 2 points/m^2 (ALTM 2050: 1-4 points/m^2, 0.15 m height noise).  The
 features are the outline corners of large flat-roofed buildings (eave height
 6-12 m, up to 330 m from the nadir) and points on road edges; the reference
-is their true plan position (the paper's 1:2000 map base).
+is their true plan position (the paper's 1:2000 map base).  The paper states
+neither the buildings' heights nor where they lie in the photo: they are
+arguments (``eave_m``, ``max_corner_radius_m``, building sizes).  A corner
+at eave height h and horizontal distance r from the nadir leans
+``L = h r / (H - h)`` (H = 922 m); a ray that leaves the roof there and is
+not held by the surface lands L further out, so the paper's building
+resultants (Tables 06-08: 0.24-0.44 m mean, 0.15 m sd; the largest of 36
+near mean + 3 sd, 0.7-0.9 m) bound ``h r`` to about 630 m^2 -- eaves of
+3-6 m within 100 m of the nadir (docs/mapping.md derives it and runs it;
+``benchmarks/bench_cavassim.py`` sweeps h and r).
 
 * *monorestitution* -- each point projected into the photo, pointing noise
   0.5 px, intersected (first hit) with the paper's surface, a DSM of the
@@ -67,7 +76,7 @@ from .errors import AssessmentError
 from .standards import classify_pec
 
 __all__ = ["assess_features", "assess_monoplot", "read_reference", "cavassim_experiment", "CAVASSIM_TABLE_09",
-           "paper_camera", "REFERENCE_CSV_COLUMNS"]
+           "CAVASSIM_TABLES_06_08", "paper_camera", "REFERENCE_CSV_COLUMNS"]
 
 #: columns of a reference file (map coordinates of the features' vertices; ``h`` optional)
 REFERENCE_CSV_COLUMNS = ("feature", "vertex", "E", "N")
@@ -77,6 +86,26 @@ CAVASSIM_TABLE_09 = {
     "intensity_image": {"building": 0.88, "road": 0.77},
     "nearest": {"building": 0.60, "road": 0.38},
     "tin": {"building": 0.43, "road": 0.29},
+}
+
+#: Cavassim (2005) Tables 06 (image), 07 (nearest neighbour), 08 (triangular plane), m: per product and
+#: class the mean and sd of dE, dN and of the resultant over the 36 building and 27 road points
+CAVASSIM_TABLES_06_08 = {
+    "intensity_image": {
+        "building": {"mean_E": -0.093, "sd_E": 0.314, "mean_N": -0.205, "sd_N": 0.499,
+                     "mean_resultant": 0.594, "sd_resultant": 0.194},
+        "road": {"mean_E": -0.048, "sd_E": 0.449, "mean_N": -0.023, "sd_N": 0.405,
+                 "mean_resultant": 0.564, "sd_resultant": 0.198}},
+    "nearest": {
+        "building": {"mean_E": 0.030, "sd_E": 0.329, "mean_N": 0.030, "sd_N": 0.331,
+                     "mean_resultant": 0.437, "sd_resultant": 0.151},
+        "road": {"mean_E": 0.007, "sd_E": 0.182, "mean_N": -0.015, "sd_N": 0.189,
+                 "mean_resultant": 0.182, "sd_resultant": 0.120}},
+    "tin": {
+        "building": {"mean_E": -0.015, "sd_E": 0.207, "mean_N": 0.020, "sd_N": 0.199,
+                     "mean_resultant": 0.244, "sd_resultant": 0.147},
+        "road": {"mean_E": 0.019, "sd_E": 0.138, "mean_N": -0.016, "sd_N": 0.160,
+                 "mean_resultant": 0.115, "sd_resultant": 0.100}},
 }
 
 
@@ -224,7 +253,19 @@ def paper_camera() -> Any:
                   model="Wild RC10 (Cavassim 2005), scanned at 1000 dpi", source="Cavassim (2005) section 5")
 
 
-def _town(rng: np.random.Generator, e0: float, n0: float, n_buildings: int, n_roads: int) -> Any:
+def _town(rng: np.random.Generator, e0: float, n0: float, n_buildings: int, n_roads: int, *,
+          eave_m: tuple[float, float] = (6.0, 12.0), length_m: tuple[float, float] = (30.0, 60.0),
+          width_m: tuple[float, float] = (15.0, 25.0), max_corner_radius_m: float | None = None,
+          nadir_en: tuple[float, float] | None = None, gap_m: float = 10.0) -> Any:
+    """The synthetic town: *n_roads* straight roads through (e0, n0) and flat-roofed buildings off them.
+
+    ``max_corner_radius_m`` None (the default experiment): building centres
+    uniform in the 600 m square around (e0, n0), centres more than 45 m +
+    the mean of the two lengths apart.  A number: every footprint corner
+    within that distance of *nadir_en* (the camera's plan position), the
+    footprints at least *gap_m* apart (separating-axis test: a lower bound of
+    the distance between two rectangles).
+    """
     from .scene import Building, Road, Scene
 
     roads = []
@@ -234,21 +275,69 @@ def _town(rng: np.random.Generator, e0: float, n0: float, n_buildings: int, n_ro
         c = np.array([e0 - off * math.sin(a), n0 + off * math.cos(a)])
         dvec = 350.0 * np.array([math.cos(a), math.sin(a)])
         roads.append(Road(*(c - dvec), *(c + dvec), float(rng.uniform(7, 12))))
+    if max_corner_radius_m is not None and math.hypot(length_m[0], width_m[0]) / 2 > max_corner_radius_m:
+        raise AssessmentError(f"no building of {length_m[0]:g}-{length_m[1]:g} x {width_m[0]:g}-{width_m[1]:g} m "
+                              f"fits within {max_corner_radius_m:g} m of the nadir (half its diagonal is "
+                              f"{math.hypot(length_m[0], width_m[0]) / 2:.1f} m at least)")
+    cx, cy = nadir_en if nadir_en is not None else (e0, n0)
     buildings: list[Any] = []
     tries = 0
-    while len(buildings) < n_buildings and tries < 5000:
+    # within a radius, random placement can jam (no room left for the last building): start again
+    restarts = 0 if max_corner_radius_m is None else 20
+    while len(buildings) < n_buildings and (tries < 5000 or restarts > 0):
+        if tries == 5000:
+            buildings, tries, restarts = [], 0, restarts - 1
         tries += 1
-        e, n = e0 + rng.uniform(-300, 300), n0 + rng.uniform(-300, 300)
-        b = Building("flat", e, n, length_m=float(rng.uniform(30, 60)), width_m=float(rng.uniform(15, 25)),
-                     eave_m=float(rng.uniform(6, 12)), azimuth_deg=float(rng.uniform(0, 90)))
+        if max_corner_radius_m is None:
+            e, n = e0 + rng.uniform(-300, 300), n0 + rng.uniform(-300, 300)
+        else:
+            e = cx + rng.uniform(-max_corner_radius_m, max_corner_radius_m)
+            n = cy + rng.uniform(-max_corner_radius_m, max_corner_radius_m)
+        b = Building("flat", e, n, length_m=float(rng.uniform(*length_m)), width_m=float(rng.uniform(*width_m)),
+                     eave_m=float(rng.uniform(*eave_m)), azimuth_deg=float(rng.uniform(0, 90)))
         fp = b.footprint()
+        if max_corner_radius_m is not None:
+            if np.hypot(fp[:, 0] - cx, fp[:, 1] - cy).max() > max_corner_radius_m:
+                continue
+            # a road must not pass under the building, at its corners, centre or between its corners
+            edge = fp[[0, 1, 2, 3, 0]]
+            t = np.linspace(0, 1, 41)[:, None, None]
+            probe = np.vstack([(edge[:-1] + t * (edge[1:] - edge[:-1])).reshape(-1, 2), [[e, n]]])
+            if any(r.contains(probe[:, 0], probe[:, 1]).any() for r in roads):
+                continue
+            # footprints gap_m apart (centres far enough apart for any orientation, or separated)
+            if all(math.hypot(e - o.e_m, n - o.n_m) >= (math.hypot(b.length_m, b.width_m) + math.hypot(
+                    o.length_m, o.width_m)) / 2 + gap_m or _rect_gap(fp, o.footprint()) >= gap_m for o in buildings):
+                buildings.append(b)
+            continue
         near_road = any(r.contains(fp[:, 0], fp[:, 1]).any() or r.contains(np.array([e]), np.array([n]))[0]
                         for r in roads)
         far = all(math.hypot(e - o.e_m, n - o.n_m) > 45 + (b.length_m + o.length_m) / 2 for o in buildings)
         if far and not near_road and not any(
                 np.hypot(*(fp - np.array([r.e0_m, r.n0_m])).T).min() < 0 for r in roads):
             buildings.append(b)
+    if max_corner_radius_m is not None and len(buildings) < n_buildings:
+        raise AssessmentError(f"the town holds only {len(buildings)} of {n_buildings} buildings of "
+                              f"{length_m[0]:g}-{length_m[1]:g} x {width_m[0]:g}-{width_m[1]:g} m within "
+                              f"{max_corner_radius_m:g} m of the nadir, {gap_m:g} m apart, off the roads: "
+                              "smaller buildings or a larger radius")
     return Scene(tuple(buildings), tuple(roads), seed=int(rng.integers(2**31)))
+
+
+def _rect_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest gap (m) between the projections of two convex polygons on their edge normals.
+
+    Zero or negative when they overlap; otherwise a lower bound of their
+    distance (the separating-axis theorem), exact when an edge faces the other
+    polygon.
+    """
+    gap = -math.inf
+    for p in (a, b):
+        d = np.roll(p, -1, axis=0) - p
+        nrm = np.column_stack([-d[:, 1], d[:, 0]]) / np.hypot(d[:, 0], d[:, 1])[:, None]
+        pa, pb = a @ nrm.T, b @ nrm.T
+        gap = max(gap, float(np.max(np.maximum(pb.min(axis=0) - pa.max(axis=0), pa.min(axis=0) - pb.max(axis=0)))))
+    return gap
 
 
 def _road_points(scene: Any, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -331,7 +420,11 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
                         image_sd_px: float = 0.5, inward_px: float = 0.0, lidar_noise_m: float = 0.15,
                         lidar_plan_sd_m: float = 0.0,
                         dsm_cell_m: float | None = 1.0, scale: float = 2000.0,
-                        e0: float = 680_400.0, n0: float = 7_184_200.0) -> dict[str, Any]:
+                        e0: float = 680_400.0, n0: float = 7_184_200.0,
+                        eave_m: tuple[float, float] = (6.0, 12.0), max_corner_radius_m: float | None = None,
+                        building_length_m: tuple[float, float] = (30.0, 60.0),
+                        building_width_m: tuple[float, float] = (15.0, 25.0),
+                        building_gap_m: float = 10.0, all_products: bool = True) -> dict[str, Any]:
     """The paper's comparison on a synthetic town (module docstring).
 
     Parameters
@@ -363,6 +456,24 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         Cell of the first-return DSM (default 1 m; None: the point spacing).
     e0, n0 : float
         Centre of the synthetic town, m.
+    eave_m : (float, float)
+        Range of the buildings' eave heights above their base, m (uniform;
+        default 6-12 m).
+    max_corner_radius_m : float, optional
+        Largest horizontal distance (m) of a building outline corner from the
+        photo's nadir (the camera's plan position).  None (default): building
+        centres uniform in the 600 m square around (e0, n0), whose corners lie
+        up to ~330 m from the nadir.  A number: the camera is drawn first and
+        every corner placed within this radius of its nadir (a building's
+        lean at a corner, eave height x radius / flying height, is bounded by
+        ``eave_m[1] * max_corner_radius_m / (922 - eave_m[1])``).
+    building_length_m, building_width_m : (float, float)
+        Ranges of the flat roofs' footprint length and width, m.
+    building_gap_m : float
+        With *max_corner_radius_m*: the least distance between two footprints, m.
+    all_products : bool
+        False: only the paper's three products (``intensity_image``,
+        ``nearest``, ``tin``; the same figures, in about a fifth of the time).
 
     Returns
     -------
@@ -373,21 +484,42 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         ``tin_iterate_top``; ``r90``: ``{product: {class: r90}}`` (Table 09);
         ``status``: monoplot status counts per product; ``corners``: per
         building corner ``leaving`` (bool), ``lean_m``, ``off_nadir_deg``,
-        ``error_m`` and ``h_error_m`` (m, per product; NaN where not placed);
+        ``error_m`` and ``h_error_m`` (m, per product; NaN where not placed),
+        ``eave_m`` (the building's eave height) and ``radius_m`` (horizontal
+        distance from the nadir);
         ``diagnosis``: per product and corner kind (``leaving``,
         ``entering``) n, median and max plan error (m) and the corners whose
         hit is within 1 m of the roof height (``on_roof``); ``setup``: the
         numbers used.
+
+    Raises
+    ------
+    AssessmentError
+        *n_buildings* buildings do not fit within *max_corner_radius_m* of
+        the nadir (the message names the sizes, radius and gap).
     """
     from .monoplot import PointSurface, monoplot
     from ._collinearity import project
 
+    from .scene import Scene
+
     rng = np.random.default_rng(seed)
-    scene = _town(rng, e0, n0, n_buildings, 3)
+    town = {"eave_m": tuple(eave_m), "length_m": tuple(building_length_m), "width_m": tuple(building_width_m),
+            "gap_m": building_gap_m}
     cam = paper_camera()
-    h_ground = float(scene.terrain(np.array([e0]), np.array([n0]))[0])
-    eo_true = np.array([e0 + rng.normal(0, 20), n0 + rng.normal(0, 20), h_ground + 922.0,
-                        math.radians(rng.normal(0, 1)), math.radians(rng.normal(0, 1)), rng.uniform(0, 2 * np.pi)])
+    h_ground = float(Scene().terrain(np.array([e0]), np.array([n0]))[0])
+
+    def camera() -> np.ndarray:
+        return np.array([e0 + rng.normal(0, 20), n0 + rng.normal(0, 20), h_ground + 922.0,
+                         math.radians(rng.normal(0, 1)), math.radians(rng.normal(0, 1)), rng.uniform(0, 2 * np.pi)])
+
+    if max_corner_radius_m is None:            # the default experiment: the town first (its draws unchanged)
+        scene = _town(rng, e0, n0, n_buildings, 3, **town)
+        eo_true = camera()
+    else:                                      # the camera first, the buildings around its nadir
+        eo_true = camera()
+        scene = _town(rng, e0, n0, n_buildings, 3, max_corner_radius_m=max_corner_radius_m,
+                      nadir_en=(float(eo_true[0]), float(eo_true[1])), **town)
     eo_err = np.concatenate([rng.normal(0, 0.05, 3), rng.normal(0, math.radians(10 / 3600), 3)])
     # features: building outline corners (eave height) and road edge points
     corners, outward, cls = [], [], []
@@ -439,13 +571,14 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
     surfaces = {
         "nearest": GridSurface(grid, gt, "nearest", sd_m=lidar_noise_m),          # paper: vizinho mais proximo
         "tin": PointSurface(dsm_points, "tin", sd_m=lidar_noise_m),               # paper: superficie plana
-        "nearest_points": PointSurface(lidar["xyz"], "nearest", sd_m=lidar_noise_m),
-        "tin_points": PointSurface(lidar["xyz"], "tin", sd_m=lidar_noise_m),
     }
+    if all_products:
+        surfaces["nearest_points"] = PointSurface(lidar["xyz"], "nearest", sd_m=lidar_noise_m)
+        surfaces["tin_points"] = PointSurface(lidar["xyz"], "tin", sd_m=lidar_noise_m)
     status, heights = {}, {}
     runs = [(name, surf, "exact", "nadir") for name, surf in surfaces.items()]
     runs += [(f"{name}_iterate{'_top' if start == 'top' else ''}", surfaces[name], "iterate", start)
-             for start in ("nadir", "top") for name in ("nearest", "tin")]
+             for start in ("nadir", "top") for name in ("nearest", "tin") if all_products]
     for name, surf, method, start in runs:
         res = monoplot(px, cam, eo_used, surf, method=method, image_sd_px=image_sd_px, eo_cov=cov, start=start)
         measured[name] = res.enh[:, :2]
@@ -476,11 +609,14 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         "leaving": corners_info["leaving"], "lean_m": corners_info["lean_m"], "off_nadir_deg":
         corners_info["off_nadir_deg"], "error_m": {p: np.hypot(*(truth[:nb, :2] - measured[p][:nb]).T)
                                                   for p in products},
-        "h_error_m": {p: heights[p][:nb] - truth[:nb, 2] for p in heights}}, "setup": {
+        "h_error_m": {p: heights[p][:nb] - truth[:nb, 2] for p in heights},
+        "eave_m": np.repeat([b.eave_m for b in scene.buildings], 4),
+        "radius_m": np.hypot(corners_a[:, 0] - eo_true[0], corners_a[:, 1] - eo_true[1])}, "setup": {
         "seed": seed, "density_m2": density_m2, "lidar_noise_m": lidar_noise_m, "n_buildings": len(scene.buildings),
         "n_building_points": int(len(corners_a)), "n_road_points": int(len(road_pts)), "photo_gsd_m": gsd,
         "image_sd_px": image_sd_px, "intensity_cell_m": cell, "flying_height_m": 922.0, "scale": scale,
-        "lidar_plan_sd_m": lidar_plan_sd_m}}
+        "lidar_plan_sd_m": lidar_plan_sd_m, "eave_m": tuple(eave_m), "max_corner_radius_m": max_corner_radius_m,
+        "building_length_m": tuple(building_length_m), "building_width_m": tuple(building_width_m)}}
 
 
 def _corner_geometry(scene: Any, eo: np.ndarray, corners: np.ndarray) -> dict[str, np.ndarray]:
