@@ -13,7 +13,9 @@ problem included):
 
 * lidarcat: ``adjust(problem, initial=..., precision=...)`` -- default ``all``:
   the sd of every photo and every point -- with the share of each phase
-  (``BundleResult.phases_s``), and BLAS pinned to one thread;
+  (``BundleResult.phases_s``); the engine pins BLAS to one thread and gives the
+  dense kernels of the big fronts of its factor ``--blas-threads`` threads
+  (default 2, the cores Ceres gets; 1: single-threaded throughout);
 * Ceres 2.2 SPARSE_SCHUR (SuiteSparse), 2 threads, through pycolmap's bundle
   adjuster (``benchmarks/_ceres_peer.py``; the ``bench`` extra), no covariance.
 
@@ -72,7 +74,11 @@ def _child(args) -> None:
 def _run_child(kind: str, n: int, init: str, args) -> dict:
     cmd = [sys.executable, __file__, "--child", kind, "--photos", str(n), "--init", init,
            "--precision", args.precision, "--solver", args.solver, "--threads", str(args.threads)]
-    res = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "GLOG_minloglevel": "2"})
+    env = {**os.environ, "GLOG_minloglevel": "2"}
+    if kind == "lidarcat":
+        env.update(dict.fromkeys(("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"),
+                                 str(args.blas_threads)))
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env)
     for line in res.stdout.splitlines():
         if line.startswith("RESULT "):
             return json.loads(line[7:])
@@ -85,6 +91,8 @@ def main() -> None:
     ap.add_argument("--precision", default="all", choices=["all", "photos", "none"])
     ap.add_argument("--solver", default="auto", choices=["auto", "direct", "pcg"])
     ap.add_argument("--threads", type=int, default=2, help="Ceres threads")
+    ap.add_argument("--blas-threads", type=int, default=2,
+                    help="BLAS threads of lidarcat's big dense kernels (the rest runs on one)")
     ap.add_argument("--no-peer", action="store_true")
     ap.add_argument("--json", help="write the rows to this file")
     ap.add_argument("--plot", help="PNG of time against photos")
@@ -117,7 +125,8 @@ def main() -> None:
             rows.append(row)
             _print_row(row, header=len(rows) == 1)
     print(f"machine: 2 cores, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; lidarcat precision="
-          f"{args.precision}, solver={args.solver}; Ceres {args.threads} threads")
+          f"{args.precision}, solver={args.solver}, BLAS threads for big fronts {args.blas_threads}; "
+          f"Ceres {args.threads} threads")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1, sort_keys=True))
     if args.plot:
@@ -127,7 +136,7 @@ def main() -> None:
 def _print_row(row: dict, header: bool) -> None:
     if header:
         print(f"{'photos':>7}{'obs':>9}{'load':>6}{'approx s':>9} | {'lidarcat s':>10}{'it':>4}{'RSS MB':>8}"
-              f"{'model':>7}{'assem':>7}{'factor':>7}{'prec':>7} | {'ceres s':>8}{'it':>4}{'RSS MB':>8} | "
+              f"{'model':>7}{'assem':>7}{'factor':>7}{'reuse':>7}{'prec':>7} | {'ceres s':>8}{'it':>4}{'RSS MB':>8} | "
               f"{'ratio':>6}  cost lidarcat / ceres")
     lc, ce = row["lidarcat"], row.get("ceres", {})
     if "error" in lc:
@@ -135,10 +144,12 @@ def _print_row(row: dict, header: bool) -> None:
         return
     ph = lc["phases"]
     tot = lc["seconds"]
-    share = {k: 100 * ph.get(k, 0.0) / tot for k in ("model", "solve_assemble", "solve_factor", "precision")}
+    share = {k: 100 * ph.get(k, 0.0) / tot for k in ("model", "solve_assemble", "solve_factor", "solve_reuse",
+                                                          "precision")}
     line = (f"{row['photos']:>7}{row['observations']:>9}{row['load']:>6.1f}{row['approx_s']:>9.1f} | "
             f"{tot:>10.2f}{lc['iterations']:>4}{lc['maxrss_mb']:>8.0f}"
             f"{share['model']:>6.0f}%{share['solve_assemble']:>6.0f}%{share['solve_factor']:>6.0f}%"
+            f"{share['solve_reuse']:>6.0f}%"
             f"{share['precision']:>6.0f}% | ")
     if ce and "error" not in ce:
         line += (f"{ce['seconds']:>8.2f}{ce['iterations']:>4}{ce['maxrss_mb']:>8.0f} | "

@@ -252,3 +252,93 @@ def test_extend_add_runs_split_at_the_parents_columns():
     got[:, :nc] = F
     got[nc:, nc:] = Fbb
     np.testing.assert_array_equal(got[low], full[low])
+
+
+# --- factor reuse (linear._pcg_factor) and BLAS threads per kernel (_blas) ---------------------
+
+def _spd_pattern_system(seed: int, n_units: int = 40):
+    """A random SPD block-tridiagonal-plus matrix on 6-units, its CSR pattern and analysis."""
+    import scipy.sparse as sp
+    from lidarcat.bundle.cholesky import SupernodalCholesky
+
+    rng = np.random.default_rng(seed)
+    n = 6 * n_units
+    A = sp.random(n, n, density=0.02, random_state=seed) + sp.eye(n, k=6) + sp.eye(n, k=12)
+    A = (A @ A.T + n * sp.eye(n)).tocsr()
+    A.sort_indices()
+    sym = SupernodalCholesky(A, np.full(n_units, 6), leaf=4)
+    return A, sym, rng
+
+
+def test_pcg_with_a_nearby_factor_reaches_the_direct_solution():
+    import scipy.sparse as sp
+    from lidarcat.bundle.linear import _pcg_factor
+
+    A, sym, rng = _spd_pattern_system(0)
+    # the factor of a matrix 1e-3 away (relative) on the same pattern preconditions A
+    B = A.copy()
+    B.data = B.data * (1 + 1e-3 * rng.standard_normal(B.nnz))
+    B = ((B + B.T) * 0.5).tocsr()
+    B.sort_indices()
+    fb = sym.factor(sp.csr_matrix(B).data)
+    b = rng.standard_normal(A.shape[0])
+    x, it = _pcg_factor(A, b, fb, rtol=1e-12, max_iter=10)
+    exact = np.linalg.solve(A.toarray(), b)
+    assert x is not None and 1 <= it <= 10
+    np.testing.assert_allclose(x, exact, rtol=1e-9, atol=1e-12 * np.abs(exact).max())
+    assert np.linalg.norm(b - A @ x) <= 1e-12 * np.linalg.norm(b)
+
+
+def test_pcg_with_a_far_factor_gives_up_so_the_caller_factors():
+    from lidarcat.bundle.linear import _pcg_factor
+
+    A, sym, rng = _spd_pattern_system(1)
+    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+    far = sym.factor(np.where(A.indices == rows, A.data, 0.0))   # the diagonal of A alone: far from A
+    b = rng.standard_normal(A.shape[0])
+    x, it = _pcg_factor(A, b, far, rtol=1e-12, max_iter=2)
+    assert x is None and it == 2
+
+
+def test_blas_threads_context_restores_and_pinned_keeps_the_configured_count():
+    from lidarcat.bundle import _blas
+
+    libs = _blas._controllers()
+    if not libs:
+        pytest.skip("threadpoolctl finds no BLAS")
+    before = [lc.num_threads for lc in libs]
+    with _blas.threads(3):
+        assert all(lc.num_threads == 3 for lc in libs)
+    assert [lc.num_threads for lc in libs] == before
+    configured = _blas.configured()
+    with _blas.threads(2):
+        with _blas.pinned():
+            assert all(lc.num_threads == 1 for lc in libs)
+            assert _blas.big() == 2            # big kernels get what was configured
+        assert _blas.configured() == 2
+    assert _blas.configured() == configured and _blas.big() == configured
+
+
+def test_factor_reuse_reaches_the_minimum_of_exact_steps(monkeypatch):
+    """On a block large enough to reuse (threshold lowered), the same minimum as exact steps."""
+    from lidarcat._synthetic_block import aerial_block
+    from lidarcat.bundle import adjust, linear as linear_mod, solve as solve_mod
+
+    block = aerial_block(100)
+    exact = adjust(block.problem, precision="photos")
+    monkeypatch.setattr(solve_mod, "FACTOR_REUSE_MIN_PHOTOS", 10)
+    calls = []
+    real = linear_mod._pcg_factor
+
+    def counting(*args, **kwargs):
+        out = real(*args, **kwargs)
+        calls.append(out[0] is not None)
+        return out
+
+    monkeypatch.setattr(linear_mod, "_pcg_factor", counting)
+    reused = adjust(block.problem, precision="photos")
+    assert any(calls)                          # steps were solved with the previous factor
+    assert reused.success and exact.success
+    assert reused.vtpv == pytest.approx(exact.vtpv, rel=1e-10)
+    np.testing.assert_allclose(reused.eo_params, exact.eo_params, atol=1e-6)
+    np.testing.assert_allclose(reused.eo_cov, exact.eo_cov, rtol=1e-6, atol=1e-14)

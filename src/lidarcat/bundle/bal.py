@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._blas import pinning
 from ._heap import reusing_heap
 from .._io import read_text
 from ..errors import LidarcatError
@@ -228,6 +229,7 @@ class BalResult:
 
 
 @reusing_heap
+@pinning
 def solve_bal(problem: BalProblem, *, max_iter: int = 50, function_tolerance: float = 1e-6,
               initial_radius: float = 1e4) -> BalResult:
     """Levenberg-Marquardt on a BAL problem (see the module docstring).

@@ -61,10 +61,12 @@ never a dense inverse.  Work equals a few factorisations.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg.blas import dgemm as _dgemm
 from scipy.linalg.blas import dsymm as _dsymm
 from scipy.linalg.blas import dsyrk as _dsyrk
 from scipy.linalg.blas import dtrsm as _dtrsm
@@ -73,6 +75,8 @@ from scipy.linalg.lapack import dpotrf as _dpotrf
 from scipy.linalg.lapack import dpotri as _dpotri
 import scipy.sparse as sp
 from scipy.sparse import csgraph
+
+from . import _blas
 
 __all__: list[str] = []
 
@@ -446,6 +450,14 @@ def _extend_add(F: np.ndarray, Fbb: np.ndarray, Uc: np.ndarray, runs: tuple, nc:
                 Fbb[pr - nc:pr - nc + r1 - r0, pc - nc:pc - nc + c1 - c0] += Uc[r0:r1, c0:c1]
 
 
+def _big_kernels(nc: int, nb: int, big: int):
+    """All *big* configured BLAS threads for a front whose kernels are big (:mod:`._blas`)."""
+    flops = nc * nb * (nc + nb) + nc**3 / 3.0
+    if big > 1 and flops >= _blas.BIG_KERNEL_FLOPS:
+        return _blas.threads(big)
+    return contextlib.nullcontext()
+
+
 class _Factor:
     """A numeric supernodal factor ``P S P^T = L L^T``."""
 
@@ -453,8 +465,13 @@ class _Factor:
         self.sym = sym
         self.Lss: list[np.ndarray] = []
         self.Lbs: list[np.ndarray] = []
-        updates: dict[int, np.ndarray] = {}
         diag = np.where(sym.diag_src >= 0, data[np.maximum(sym.diag_src, 0)], 0.0)[sym.perm]
+        big = _blas.big()
+        with _blas.threads(1):
+            self._factor_fronts(sym, data, diag, big)
+
+    def _factor_fronts(self, sym: SupernodalCholesky, data: np.ndarray, diag: np.ndarray, big: int) -> None:
+        updates: dict[int, np.ndarray] = {}
         for k, node in enumerate(sym.nodes):
             nc, nb = len(node.cols), len(node.rows)
             F = np.zeros((nc + nb) * nc)
@@ -465,36 +482,42 @@ class _Factor:
                 Uc = updates.pop(c, None)
                 if Uc is not None and len(Uc):
                     _extend_add(F, Fbb, Uc, sym.nodes[c].runs, nc)
-            # LAPACK/BLAS straight on Fortran views of the C-ordered front (no copies, no
-            # wrapper overhead): F[:nc].T is upper-stored L^T, F[nc:].T = F_bs^T
-            Lt, info = _dpotrf(F[:nc].T, lower=0, clean=0, overwrite_a=1)
-            if info != 0:
-                raise SingularError(f"not positive definite (leading minor {info})")
-            if not np.shares_memory(Lt, F):  # pragma: no cover - f2py copied
-                F[:nc] = Lt.T
-            L = F[:nc]                                       # lower triangle valid
-            piv = np.diagonal(L) ** 2
-            ref = diag[node.cols]
-            ratio = piv / np.where(ref > 0, ref, 1.0)
-            if not np.all(np.isfinite(piv)) or ratio.min() < PIVOT_RTOL:
-                raise SingularError(f"relative pivot {ratio.min():.1e}")
-            self.Lss.append(L)
-            if nb:
-                # L_bs^T = L_ss^-1 F_bs^T in place
-                out = _dtrsm(1.0, L.T, F[nc:].T, side=0, lower=0, trans_a=1, overwrite_b=1)
-                if not np.shares_memory(out, F):  # pragma: no cover - f2py copied
-                    F[nc:] = out.T
-                Lbs = F[nc:]
-                self.Lbs.append(Lbs)
-                # Fbb - Lbs Lbs^T, lower triangle only (BLAS syrk on the Fortran views: half the
-                # flops of a product); every reader of an update reads its lower triangle
-                ft = Fbb.T
-                out = _dsyrk(-1.0, Lbs.T, beta=1.0, c=ft, trans=1, lower=0, overwrite_c=1)
-                if out is not ft:  # pragma: no cover - f2py copied
-                    Fbb = out.T
-                updates[k] = Fbb
-            else:
-                self.Lbs.append(np.zeros((0, nc)))
+            with _big_kernels(nc, nb, big):
+                self._front(k, node, F, Fbb, nc, nb, diag, updates)
+
+    def _front(self, k: int, node: _Node, F: np.ndarray, Fbb: np.ndarray | None, nc: int, nb: int,
+               diag: np.ndarray, updates: dict[int, np.ndarray]) -> None:
+        """Partial factorisation of one assembled front (module docstring)."""
+        # LAPACK/BLAS straight on Fortran views of the C-ordered front (no copies, no
+        # wrapper overhead): F[:nc].T is upper-stored L^T, F[nc:].T = F_bs^T
+        Lt, info = _dpotrf(F[:nc].T, lower=0, clean=0, overwrite_a=1)
+        if info != 0:
+            raise SingularError(f"not positive definite (leading minor {info})")
+        if not np.shares_memory(Lt, F):  # pragma: no cover - f2py copied
+            F[:nc] = Lt.T
+        L = F[:nc]                                       # lower triangle valid
+        piv = np.diagonal(L) ** 2
+        ref = diag[node.cols]
+        ratio = piv / np.where(ref > 0, ref, 1.0)
+        if not np.all(np.isfinite(piv)) or ratio.min() < PIVOT_RTOL:
+            raise SingularError(f"relative pivot {ratio.min():.1e}")
+        self.Lss.append(L)
+        if nb:
+            # L_bs^T = L_ss^-1 F_bs^T in place
+            out = _dtrsm(1.0, L.T, F[nc:].T, side=0, lower=0, trans_a=1, overwrite_b=1)
+            if not np.shares_memory(out, F):  # pragma: no cover - f2py copied
+                F[nc:] = out.T
+            Lbs = F[nc:]
+            self.Lbs.append(Lbs)
+            # Fbb - Lbs Lbs^T, lower triangle only (BLAS syrk on the Fortran views: half the
+            # flops of a product); every reader of an update reads its lower triangle
+            ft = Fbb.T
+            out = _dsyrk(-1.0, Lbs.T, beta=1.0, c=ft, trans=1, lower=0, overwrite_c=1)
+            if out is not ft:  # pragma: no cover - f2py copied
+                Fbb = out.T
+            updates[k] = Fbb
+        else:
+            self.Lbs.append(np.zeros((0, nc)))
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """x with S x = b, b of shape (n,) or (n, m)."""
@@ -533,32 +556,41 @@ class _Factor:
         sym = self.sym
         flat = np.empty(sym.z_offsets[-1])
         Z: list[np.ndarray] = [np.zeros((0, 0))] * sym.n_nodes   # Z[cols + rows, cols] per supernode
-        for k in range(sym.n_nodes - 1, -1, -1):
-            node = sym.nodes[k]
-            nc, nb = len(node.cols), len(node.rows)
-            zk = flat[sym.z_offsets[k]:sym.z_offsets[k + 1]].reshape(nc + nb, nc)
-            # L_ss^-T L_ss^-1 from the Cholesky factor (LAPACK potri: lower triangle)
-            inv, info = _dpotri(self.Lss[k].T, lower=0)    # Fortran view: upper-stored L^T
-            if info:  # pragma: no cover - the factor was checked
-                raise SingularError(f"potri failed ({info})")
-            inv = inv.T                                     # lower triangle valid
-            inv = np.tril(inv) + np.tril(inv, -1).T
-            if nb:
-                Zbb = np.empty((nb, nb))
-                for a, dr, dc, sr, sc, nr, ncl in node.zbb:
-                    Zbb[dr:dr + nr, dc:dc + ncl] = Z[a][sr:sr + nr, sc:sc + ncl]
-                # X = L_bs L_ss^-1, i.e. X^T = L_ss^-T L_bs^T (one triangular solve)
-                X = _dtrsm(1.0, self.Lss[k].T, self.Lbs[k].T, side=0, lower=0, trans_a=0).T
-                # Z_bs = -Z_bb X with only the lower triangle of Z_bb filled (BLAS symm; Z_bb.T
-                # is Fortran-ordered, its upper triangle is Z_bb's lower)
-                zbs = _dsymm(-1.0, Zbb.T, X, side=0, lower=0)
-                zk[nc:] = zbs
-                zss = inv - X.T @ zbs
-                zk[:nc] = 0.5 * (zss + zss.T)
-            else:
-                zk[:nc] = inv
-            Z[k] = zk
+        big = _blas.big()
+        with _blas.threads(1):
+            for k in range(sym.n_nodes - 1, -1, -1):
+                node = sym.nodes[k]
+                nc, nb = len(node.cols), len(node.rows)
+                zk = flat[sym.z_offsets[k]:sym.z_offsets[k + 1]].reshape(nc + nb, nc)
+                with _big_kernels(nc, nb, big):
+                    self._inverse_front(k, node, zk, Z, nc, nb)
+                Z[k] = zk
         return SelectedInverse(sym, flat)
+
+    def _inverse_front(self, k: int, node: _Node, zk: np.ndarray, Z: list[np.ndarray], nc: int, nb: int) -> None:
+        """Z_ss and Z_bs of supernode k from the Z blocks of its ancestors (module docstring)."""
+        # L_ss^-T L_ss^-1 from the Cholesky factor (LAPACK potri: lower triangle)
+        inv, info = _dpotri(self.Lss[k].T, lower=0)    # Fortran view: upper-stored L^T
+        if info:  # pragma: no cover - the factor was checked
+            raise SingularError(f"potri failed ({info})")
+        inv = inv.T                                     # lower triangle valid
+        inv = np.tril(inv) + np.tril(inv, -1).T
+        if nb:
+            Zbb = np.empty((nb, nb))
+            for a, dr, dc, sr, sc, nr, ncl in node.zbb:
+                Zbb[dr:dr + nr, dc:dc + ncl] = Z[a][sr:sr + nr, sc:sc + ncl]
+            # X = L_bs L_ss^-1, i.e. X^T = L_ss^-T L_bs^T (one triangular solve)
+            Xt = _dtrsm(1.0, self.Lss[k].T, self.Lbs[k].T, side=0, lower=0, trans_a=0)
+            # Z_bs = -Z_bb X with only the lower triangle of Z_bb filled (BLAS symm; Z_bb.T
+            # is Fortran-ordered, its upper triangle is Z_bb's lower)
+            zbs = _dsymm(-1.0, Zbb.T, Xt.T, side=0, lower=0)
+            zk[nc:] = zbs
+            # Z_ss = inv - X^T Z_bs, by scipy's BLAS like every kernel here: numpy's own BLAS
+            # is a second library whose idle threads would spin against these (_blas)
+            zss = _dgemm(-1.0, Xt, zbs, beta=1.0, c=np.asfortranarray(inv), overwrite_c=1)
+            zk[:nc] = 0.5 * (zss + zss.T)
+        else:
+            zk[:nc] = inv
 
 
 class SelectedInverse:

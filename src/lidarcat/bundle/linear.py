@@ -50,7 +50,7 @@ __all__: list[str] = []
 CHUNK_PAIRS = 1 << 16
 
 #: a step solved with the previous factor as preconditioner must reach this relative residual...
-REUSE_RTOL = 1e-10
+REUSE_RTOL = 1e-8
 #: ... within this many conjugate-gradient steps (each one triangular solve), else S is factored
 REUSE_MAX_ITER = 6
 

@@ -26,6 +26,7 @@ from .._approx import approximations, intersect_points
 from .._frozen import frozen_array
 from .model import _cost, _System
 from .linear import _Schur, _Singular
+from ._blas import pinning
 from ._heap import reusing_heap
 from .precision import PRECISION_LEVELS, covariance_blocks
 from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
@@ -40,7 +41,7 @@ PCG_MIN_PHOTOS = 20000
 #: steps, :func:`lidarcat.bundle.linear._pcg_factor`) from this many photos ...
 FACTOR_REUSE_MIN_PHOTOS = 2000
 #: ... once an accepted step lowered v'Pv by less than this fraction (the quadratic phase)
-FACTOR_REUSE_BELOW = 1e-2
+FACTOR_REUSE_BELOW = 1e-4
 
 log = logging.getLogger(__name__)
 
@@ -259,6 +260,7 @@ def _tiny(dc: np.ndarray, dp: np.ndarray, tol_m: float, tol_rad: float) -> bool:
 
 
 @reusing_heap
+@pinning
 def adjust(
     problem: BundleProblem,
     *,
@@ -312,7 +314,7 @@ def adjust(
         :data:`FACTOR_REUSE_MIN_PHOTOS` photos the direct solver, once a step
         lowers v'Pv by less than :data:`FACTOR_REUSE_BELOW`, first tries the
         previous factor as the preconditioner of a few conjugate-gradient steps
-        (to a relative residual of 1e-10) and factors only when they do not
+        (to a relative residual of 1e-8) and factors only when they do not
         converge.  The covariance always uses a fresh Cholesky factor at the
         solution.
     progress : callable(iteration, vtpv), optional
