@@ -38,10 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ._blas import pinning
-from ._heap import reusing_heap
 from .._io import read_text
 from ..errors import LidarcatError
+from ._blas import pinning
+from ._heap import reusing_heap
 from .linear import _Gram, _Schur, _Singular
 
 __all__ = ["BalProblem", "BalResult", "read_bal", "solve_bal", "bal_project"]

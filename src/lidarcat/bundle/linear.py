@@ -223,6 +223,10 @@ class _Schur:
 
     # -----------------------------------------------------------------------
 
+    def release_factor(self) -> None:
+        """Drop the factor kept for reuse (before the precision makes its own)."""
+        self._factor = None
+
     def _diag_gather(self) -> np.ndarray:
         """Positions in the scalar CSR data of the diagonal blocks, (C * cb * cb,) in block order."""
         if self._dg is None:
@@ -303,6 +307,7 @@ class _Schur:
                 self.timings["reuse"] += time.perf_counter() - t1
             if x is None:
                 t2 = time.perf_counter()
+                self._factor = None                          # one factor in memory at a time
                 self._factor = self.factor(data)
                 x = self._factor.solve(rhs.reshape(-1))
                 self.timings["factor"] += time.perf_counter() - t2

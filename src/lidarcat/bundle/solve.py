@@ -24,10 +24,10 @@ import numpy as np
 
 from .._approx import approximations, intersect_points
 from .._frozen import frozen_array
-from .model import _cost, _System
-from .linear import _Schur, _Singular
 from ._blas import pinning
 from ._heap import reusing_heap
+from .model import _cost, _System
+from .linear import _Schur, _Singular
 from .precision import PRECISION_LEVELS, covariance_blocks
 from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
 
@@ -417,6 +417,7 @@ def adjust(
             if small and dcost < tol_vtpv:
                 status = "converged"
                 break
+        schur.release_factor()
         with phase("precision"):
             eo_cov, point_cov = covariance_blocks(system, precision)  # linearised at (eo, pts)
     except _Singular as ex:
