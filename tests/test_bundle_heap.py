@@ -54,7 +54,7 @@ def test_big_arrays_come_from_the_heap_inside_and_from_mmap_after():
 
 
 def test_nesting_counts_and_decorator_keeps_name_and_exceptions():
-    @_heap.reusing_heap
+    @_heap.heap_reuse()
     def f(x: int, *, y: int = 2) -> int:
         """Doc."""
         if x < 0:

@@ -6,7 +6,7 @@ photos.  Multithreaded BLAS stalls on the small ones (measured: two threads
 everywhere made a 5,000-photo adjustment 30 % slower) and pays on the big ones
 (on this 2-core machine a 468 x 900 front's trsm 6.8 -> 3.7 ms, syrk 7.7 ->
 4.2 ms, symm 15.7 -> 8.2 ms with two threads).  So the factor and its selected
-inverse -- and the whole adjustment (:func:`pinning`: numpy's batched small
+inverse -- and the whole adjustment (``@pinned()``: numpy's batched small
 products call BLAS too) -- run with BLAS pinned to one thread, and a kernel of at least
 :data:`BIG_KERNEL_FLOPS` floating-point operations runs with the number of
 threads the BLAS libraries were configured with when the factor started
@@ -22,9 +22,7 @@ everything runs as configured.
 from __future__ import annotations
 
 import contextlib
-import functools
-from collections.abc import Callable, Iterator
-from typing import TypeVar
+from collections.abc import Iterator
 
 __all__: list[str] = []
 
@@ -34,7 +32,6 @@ BIG_KERNEL_FLOPS = 2.0e6
 _libs: list | None = None
 _big: int | None = None          # threads for big kernels while pinned() is active
 
-F = TypeVar("F", bound=Callable)
 
 
 def _controllers() -> list:
@@ -81,7 +78,10 @@ def big() -> int:
 
 @contextlib.contextmanager
 def pinned() -> Iterator[None]:
-    """BLAS on one thread inside (big kernels excepted: :func:`big`), as configured after."""
+    """BLAS on one thread inside (big kernels excepted: :func:`big`), as configured after.
+
+    Also a decorator (``@pinned()``).
+    """
     global _big
     outer = _big
     _big = big()
@@ -91,13 +91,3 @@ def pinned() -> Iterator[None]:
     finally:
         _big = outer
 
-
-def pinning(func: F) -> F:
-    """Decorator: run *func* inside :func:`pinned`."""
-
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        with pinned():
-            return func(*args, **kwargs)
-
-    return wrapper  # type: ignore[return-value]

@@ -28,11 +28,9 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
-import functools
 import sys
 import threading
-from collections.abc import Callable, Iterator
-from typing import TypeVar
+from collections.abc import Iterator
 
 __all__: list[str] = []
 
@@ -46,9 +44,6 @@ _KEEP_BYTES = 2**31 - 1
 _lock = threading.Lock()
 _depth = 0
 _libc: ctypes.CDLL | None | bool = False     # False: not looked up yet
-
-F = TypeVar("F", bound=Callable)
-
 
 def _glibc() -> ctypes.CDLL | None:
     global _libc
@@ -70,7 +65,11 @@ def _glibc() -> ctypes.CDLL | None:
 
 @contextlib.contextmanager
 def heap_reuse() -> Iterator[None]:
-    """Freed blocks stay in the heap for reuse inside the block (module docstring)."""
+    """Freed blocks stay in the heap for reuse inside the block (module docstring).
+
+    Also a decorator (``@heap_reuse()``: a context manager made by
+    :func:`contextlib.contextmanager` decorates functions).
+    """
     global _depth
     lib = _glibc()
     if lib is None:
@@ -92,13 +91,3 @@ def heap_reuse() -> Iterator[None]:
                 lib.mallopt(_M_TRIM_THRESHOLD, _DEFAULT_THRESHOLD)
                 lib.malloc_trim(0)
 
-
-def reusing_heap(func: F) -> F:
-    """Decorator: run *func* inside :func:`heap_reuse`."""
-
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        with heap_reuse():
-            return func(*args, **kwargs)
-
-    return wrapper  # type: ignore[return-value]

@@ -40,8 +40,8 @@ import numpy as np
 
 from .._io import read_text
 from ..errors import LidarcatError
-from ._blas import pinning
-from ._heap import reusing_heap
+from ._blas import pinned
+from ._heap import heap_reuse
 from .linear import _Gram, _Schur, _Singular
 
 __all__ = ["BalProblem", "BalResult", "read_bal", "solve_bal", "bal_project"]
@@ -228,8 +228,8 @@ class BalResult:
     status: str
 
 
-@reusing_heap
-@pinning
+@heap_reuse()
+@pinned()
 def solve_bal(problem: BalProblem, *, max_iter: int = 50, function_tolerance: float = 1e-6,
               initial_radius: float = 1e4) -> BalResult:
     """Levenberg-Marquardt on a BAL problem (see the module docstring).

@@ -63,8 +63,8 @@ import scipy.linalg as sla
 
 from .._collinearity import block_sum, project_with_jacobians
 from ..errors import DatumError
-from ._blas import pinning
-from ._heap import reusing_heap
+from ._blas import pinned
+from ._heap import heap_reuse
 from .linear import CHUNK_PAIRS, _inv3, _Schur, _Singular
 from .model import _cost, _System
 from .precision import covariance_blocks
@@ -469,8 +469,8 @@ def _rms_con(res: BundleResult) -> dict[str, float]:
 # ---------------------------------------------------------------------------
 
 
-@reusing_heap
-@pinning
+@heap_reuse()
+@pinned()
 def adjust_with_parameters(
     problem: BundleProblem,
     components: Sequence[Any],

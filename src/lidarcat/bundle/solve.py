@@ -24,8 +24,8 @@ import numpy as np
 
 from .._approx import approximations, intersect_points
 from .._frozen import frozen_array
-from ._blas import pinning
-from ._heap import reusing_heap
+from ._blas import pinned
+from ._heap import heap_reuse
 from .model import _cost, _System
 from .linear import _Schur, _Singular
 from .precision import PRECISION_LEVELS, covariance_blocks
@@ -259,8 +259,8 @@ def _tiny(dc: np.ndarray, dp: np.ndarray, tol_m: float, tol_rad: float) -> bool:
     return bool(lin < tol_m and ang < tol_rad)
 
 
-@reusing_heap
-@pinning
+@heap_reuse()
+@pinned()
 def adjust(
     problem: BundleProblem,
     *,
