@@ -13,6 +13,10 @@ threads the BLAS libraries were configured with when the factor started
 (``OPENBLAS_NUM_THREADS`` and friends, or their default, the number of cores):
 with one configured thread -- what the benchmarks pin -- nothing changes.
 
+The thread counts are process-wide (BLAS has no other kind): adjustments
+running concurrently in threads of one process stay correct but may lose the
+pinning while another one exits.
+
 The libraries are driven through ``threadpoolctl`` (the package scikit-learn and
 numpy's own test suite use to set BLAS threads at run time: OpenBLAS, MKL and
 BLIS under every symbol prefix numpy and scipy wheels ship); without it
