@@ -37,6 +37,7 @@ no other change; the model supplies the per-observation blocks.
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -332,17 +333,16 @@ def _pcg_factor(S: sp.csr_matrix, b: np.ndarray, factor, *, rtol: float | None =
     bnorm = float(np.linalg.norm(b))
     if bnorm == 0.0:
         return np.zeros_like(b), 0
-    x = factor.solve(b)
+    x = factor.solve(b)                      # the preconditioner's own answer is the first iterate
     r = b - S @ x
+    d = np.zeros_like(b)
+    rz_old = math.inf                        # first direction: the preconditioned residual itself
     for i in range(1, max_iter + 1):
         if float(np.linalg.norm(r)) <= rtol * bnorm:
             return x, i
         z = factor.solve(r)
         rz = float(r @ z)
-        if i == 1:
-            d = z
-        else:
-            d = z + (rz / rz_old) * d
+        d = z + (rz / rz_old) * d
         sd = S @ d
         dsd = float(d @ sd)
         if not dsd > 0:
