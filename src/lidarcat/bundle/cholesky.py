@@ -57,6 +57,9 @@ above an ancestor a lies in ``a u b(a)``.  The result is Z on the whole pattern
 of L -- every camera's diagonal block and every pair of cameras sharing a point
 (they are adjacent in S, so one is in the other's supernode or boundary) --
 never a dense inverse.  Work equals a few factorisations.
+
+Threads: both run with BLAS on one thread, the kernels of a big front on the
+threads BLAS was configured with (:mod:`._blas`); every kernel is scipy's BLAS.
 """
 
 from __future__ import annotations
@@ -466,9 +469,8 @@ class _Factor:
         self.Lss: list[np.ndarray] = []
         self.Lbs: list[np.ndarray] = []
         diag = np.where(sym.diag_src >= 0, data[np.maximum(sym.diag_src, 0)], 0.0)[sym.perm]
-        big = _blas.big()
-        with _blas.threads(1):
-            self._factor_fronts(sym, data, diag, big)
+        with _blas.pinned():
+            self._factor_fronts(sym, data, diag, _blas.big())
 
     def _factor_fronts(self, sym: SupernodalCholesky, data: np.ndarray, diag: np.ndarray, big: int) -> None:
         updates: dict[int, np.ndarray] = {}
@@ -556,8 +558,8 @@ class _Factor:
         sym = self.sym
         flat = np.empty(sym.z_offsets[-1])
         Z: list[np.ndarray] = [np.zeros((0, 0))] * sym.n_nodes   # Z[cols + rows, cols] per supernode
-        big = _blas.big()
-        with _blas.threads(1):
+        with _blas.pinned():
+            big = _blas.big()
             for k in range(sym.n_nodes - 1, -1, -1):
                 node = sym.nodes[k]
                 nc, nb = len(node.cols), len(node.rows)
