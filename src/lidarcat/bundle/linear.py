@@ -37,6 +37,7 @@ no other change; the model supplies the per-observation blocks.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 
@@ -46,6 +47,8 @@ import scipy.sparse as sp
 from .cholesky import SingularError, SupernodalCholesky
 
 __all__: list[str] = []
+
+log = logging.getLogger(__name__)
 
 #: observation pairs evaluated per chunk in the assembly of S
 CHUNK_PAIRS = 1 << 16
@@ -172,7 +175,6 @@ class _Schur:
         self.n_cameras, self.n_points, self.cb = n_cameras, n_points, camera_size
         self.timings = {"assemble": 0.0, "factor": 0.0, "pcg": 0.0, "reuse": 0.0}  # s, accumulated by solve()
         self._factor = None      # the last factor of S (reused by solve(reuse=True))
-        self.reuse_log: list[int] = []   # CG steps of every reuse attempt (negative: it failed)
         self.by_camera = _Aggregator(ei, n_cameras)
         self.by_point = _Aggregator(pj, n_points)
         self.gram_by_camera = _Gram(ei, n_cameras)
@@ -304,7 +306,8 @@ class _Schur:
             if reuse and self._factor is not None:
                 S = sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr), shape=self.pattern.shape)
                 x, it = _pcg_factor(S, rhs.reshape(-1), self._factor)
-                self.reuse_log.append(it if x is not None else -it)
+                log.debug("step with the previous factor: %s after %d CG iterations",
+                          "converged" if x is not None else "no convergence, factoring", it)
                 self.timings["reuse"] += time.perf_counter() - t1
             if x is None:
                 t2 = time.perf_counter()
