@@ -4,6 +4,12 @@ Run from the repository root::
 
     python benchmarks/bench_engine.py [--photos 100 1000 5000 10000] [--no-peer] [--json out.json]
                                       [--plot docs/figures/bundle_scaling.png]
+    python benchmarks/bench_engine.py --photos 5000 10000 --pairs 8     # the scaling ratio
+
+With ``--pairs K`` (two sizes) lidarcat alone runs K times on each size, the two
+alternating, each in a fresh process from the same approximations, and the
+table prints every pair's ratio and the median: one run's ratio spreads by
+about +-15 % on this machine, the median is the figure to quote.
 
 For every size, the seeded block of :func:`lidarcat._synthetic_block.aerial_block`
 (60 % / 30 % overlap, about 58 observations per photo, 0.5 px noise) gets its
@@ -94,11 +100,17 @@ def main() -> None:
     ap.add_argument("--blas-threads", type=int, default=2,
                     help="BLAS threads of lidarcat's big dense kernels (the rest runs on one)")
     ap.add_argument("--no-peer", action="store_true")
+    ap.add_argument("--pairs", type=int, default=0,
+                    help="with two --photos sizes: K alternating lidarcat runs of each, every ratio and the median")
     ap.add_argument("--json", help="write the rows to this file")
     ap.add_argument("--plot", help="PNG of time against photos")
     ap.add_argument("--child", choices=["lidarcat", "ceres"], help=argparse.SUPPRESS)
     ap.add_argument("--init", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.blas_threads < 1 or args.threads < 1:
+        ap.error("--threads and --blas-threads must be at least 1")
+    if args.pairs and (args.pairs < 1 or len(args.photos) != 2):
+        ap.error("--pairs K needs K >= 1 and exactly two --photos sizes")
     if args.child:
         _child(args)
         return
@@ -108,6 +120,9 @@ def main() -> None:
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        if args.pairs:
+            _pairs(args, tmp)
+            return
         for n in args.photos:
             block = aerial_block(n)
             p = block.problem
@@ -131,6 +146,35 @@ def main() -> None:
         Path(args.json).write_text(json.dumps(rows, indent=1, sort_keys=True))
     if args.plot:
         _plot(rows, args.plot)
+
+
+def _pairs(args, tmp: str) -> None:
+    """K alternating runs of the two sizes: each pair's times and ratio, then the median ratio."""
+    from lidarcat._approx import approximations
+    from lidarcat._synthetic_block import aerial_block
+
+    inits = []
+    for n in args.photos:
+        eo, pts = approximations(aerial_block(n).problem)
+        inits.append(str(Path(tmp) / f"init{n}.npz"))
+        np.savez(inits[-1], eo=eo, pts=pts)
+    small, large = args.photos
+    print(f"{'pair':>4}{'load':>6} | {small:>7} photos s | {large:>7} photos s | ratio")
+    ratios = []
+    for k in range(args.pairs):
+        load = os.getloadavg()[0]
+        a = _run_child("lidarcat", small, inits[0], args)
+        b = _run_child("lidarcat", large, inits[1], args)
+        if "error" in a or "error" in b:
+            print(f"{k + 1:>4} failed: {(a.get('error') or b.get('error'))[-200:]}")
+            continue
+        ratios.append(b["seconds"] / a["seconds"])
+        print(f"{k + 1:>4}{load:>6.1f} | {a['seconds']:>16.2f} | {b['seconds']:>16.2f} | {ratios[-1]:.2f}",
+              flush=True)
+    if ratios:
+        print(f"median ratio {np.median(ratios):.2f} over {len(ratios)} pairs (range {min(ratios):.2f}-"
+              f"{max(ratios):.2f}); machine: 2 cores, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+              f"precision={args.precision}, BLAS threads for big fronts {args.blas_threads}")
 
 
 def _print_row(row: dict, header: bool) -> None:
