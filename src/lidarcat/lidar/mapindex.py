@@ -148,23 +148,12 @@ class MapSheet:
     north: float
     geographic_crs: str = "EPSG:4674"
 
-    # the rectangle protocol of lidarcat.lidar.sheets (clipping works in this frame)
-    @property
-    def xmin(self) -> float:
-        return self.west
-
-    @property
-    def ymin(self) -> float:
-        return self.south
-
-    @property
-    def xmax(self) -> float:
-        return self.east
-
-    @property
-    def ymax(self) -> float:
-        return self.north
-
+    # the rectangle protocol of lidarcat.lidar.sheets (clipping works in this frame: x longitude,
+    # y latitude, degrees)
+    xmin = property(lambda self: self.west, doc="West bound (degrees).")
+    ymin = property(lambda self: self.south, doc="South bound (degrees).")
+    xmax = property(lambda self: self.east, doc="East bound (degrees).")
+    ymax = property(lambda self: self.north, doc="North bound (degrees).")
 
 def _check_scale(scale: int) -> None:
     if scale not in _SIZE:
