@@ -43,6 +43,27 @@ def test_a_town_that_does_not_fit_is_refused():
         cavassim_experiment(seed=0, max_corner_radius_m=15.0)
 
 
+RANGE = "must be a range (low, high) of finite lengths in m with 0 < low <= high, got "
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"eave_m": (6.0, 3.0)}, "eave_m " + RANGE + "(6.0, 3.0)"),
+    ({"eave_m": (float("nan"), 6.0)}, "eave_m " + RANGE + "(nan, 6.0)"),
+    ({"building_length_m": (0.0, 5.0)}, "building_length_m " + RANGE + "(0.0, 5.0)"),
+    ({"building_width_m": 20.0}, "building_width_m " + RANGE + "20.0"),
+    ({"max_corner_radius_m": -5.0}, "max_corner_radius_m must be a finite distance > 0 m (or None), got -5.0"),
+    ({"max_corner_radius_m": float("nan")}, "max_corner_radius_m must be a finite distance > 0 m (or None), got nan"),
+    ({"building_gap_m": -1.0}, "building_gap_m must be a finite distance >= 0 m, got -1.0"),
+    ({"building_gap_m": float("inf")}, "building_gap_m must be a finite distance >= 0 m, got inf"),
+])
+def test_bad_scene_parameters_are_refused_by_name(kw, message):
+    """Before anything is drawn: a reversed range would otherwise reach numpy's uniform (an error naming
+    no parameter) and a NaN radius would place buildings at NaN coordinates."""
+    with pytest.raises(AssessmentError) as e:
+        cavassim_experiment(seed=0, n_buildings=2, n_road_points=3, all_products=False, **kw)
+    assert str(e.value) == message
+
+
 @pytest.mark.slow
 def test_on_the_paper_admitted_scene_both_monorestitutions_beat_the_image_but_tin_does_not_beat_nearest():
     """Seeds 0, 1, 2 of the scene docs/mapping.md derives from the paper's Tables 06-08 (eaves 3-6 m,
