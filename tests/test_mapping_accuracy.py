@@ -43,6 +43,17 @@ def test_a_town_that_does_not_fit_is_refused():
         cavassim_experiment(seed=0, max_corner_radius_m=15.0)
 
 
+def test_a_town_that_cannot_be_placed_is_refused():
+    """Two squares of side >= 40 m, 20 m apart, cannot both lie within 50 m of a point: a 20 m strip
+    separates them, leaving each at most a circular segment 40 m high, and a square of side 40 m in it
+    would need its far edge (40 m long) on the arc.  The placement must give up and say so."""
+    with pytest.raises(AssessmentError, match=r"^the town holds only [01] of 2 buildings of 40-45 x 40-45 m within "
+                                              r"50 m of the nadir, 20 m apart, off the roads: smaller buildings "
+                                              r"or a larger radius$"):
+        cavassim_experiment(seed=0, n_buildings=2, n_road_points=3, max_corner_radius_m=50.0,
+                            building_length_m=(40.0, 45.0), building_width_m=(40.0, 45.0), building_gap_m=20.0)
+
+
 RANGE = "must be a range (low, high) of finite lengths in m with 0 < low <= high, got "
 
 
