@@ -19,6 +19,10 @@ def test_scene_parameters_place_the_buildings_as_asked():
                             all_products=False)
     co = r["corners"]
     assert r["setup"]["n_building_points"] == 36
+    assert {k: r["setup"][k] for k in ("eave_m", "max_corner_radius_m", "building_length_m", "building_width_m",
+                                       "building_gap_m")} == {
+        "eave_m": (3.0, 6.0), "max_corner_radius_m": 100.0, "building_length_m": (30.0, 60.0),
+        "building_width_m": (15.0, 25.0), "building_gap_m": 10.0}
     assert co["eave_m"].min() >= 3.0 and co["eave_m"].max() <= 6.0 and np.ptp(co["eave_m"]) > 1.0
     assert co["radius_m"].max() <= 100.0 and co["radius_m"].max() > 80.0     # the disc is used, not a corner of it
     # the terrain stands within a few metres of the nadir's ground: 6 x 100 / (922 - 6 - 5) < 0.66

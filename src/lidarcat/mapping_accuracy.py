@@ -634,8 +634,9 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         "seed": seed, "density_m2": density_m2, "lidar_noise_m": lidar_noise_m, "n_buildings": len(scene.buildings),
         "n_building_points": int(len(corners_a)), "n_road_points": int(len(road_pts)), "photo_gsd_m": gsd,
         "image_sd_px": image_sd_px, "intensity_cell_m": cell, "flying_height_m": 922.0, "scale": scale,
-        "lidar_plan_sd_m": lidar_plan_sd_m, "eave_m": tuple(eave_m), "max_corner_radius_m": max_corner_radius_m,
-        "building_length_m": tuple(building_length_m), "building_width_m": tuple(building_width_m)}}
+        "lidar_plan_sd_m": lidar_plan_sd_m, "eave_m": town["eave_m"], "max_corner_radius_m": max_corner_radius_m,
+        "building_length_m": town["length_m"], "building_width_m": town["width_m"],
+        "building_gap_m": town["gap_m"]}}
 
 
 def _corner_geometry(scene: Any, eo: np.ndarray, corners: np.ndarray) -> dict[str, np.ndarray]:
