@@ -19,6 +19,10 @@ def test_scene_parameters_place_the_buildings_as_asked():
                             all_products=False)
     co = r["corners"]
     assert r["setup"]["n_building_points"] == 36
+    assert {k: r["setup"][k] for k in ("eave_m", "max_corner_radius_m", "building_length_m", "building_width_m",
+                                       "building_gap_m")} == {
+        "eave_m": (3.0, 6.0), "max_corner_radius_m": 100.0, "building_length_m": (30.0, 60.0),
+        "building_width_m": (15.0, 25.0), "building_gap_m": 10.0}
     assert co["eave_m"].min() >= 3.0 and co["eave_m"].max() <= 6.0 and np.ptp(co["eave_m"]) > 1.0
     assert co["radius_m"].max() <= 100.0 and co["radius_m"].max() > 80.0     # the disc is used, not a corner of it
     # the terrain stands within a few metres of the nadir's ground: 6 x 100 / (922 - 6 - 5) < 0.66
@@ -41,6 +45,38 @@ def test_a_town_that_does_not_fit_is_refused():
     with pytest.raises(AssessmentError, match=r"no building of 30-60 x 15-25 m fits within 15 m of the nadir "
                                               r"\(half its diagonal is 16.8 m at least\)"):
         cavassim_experiment(seed=0, max_corner_radius_m=15.0)
+
+
+def test_a_town_that_cannot_be_placed_is_refused():
+    """Two squares of side >= 40 m, 20 m apart, cannot both lie within 50 m of a point: a 20 m strip
+    separates them, leaving each at most a circular segment 40 m high, and a square of side 40 m in it
+    would need its far edge (40 m long) on the arc.  The placement must give up and say so."""
+    with pytest.raises(AssessmentError, match=r"^the town holds only [01] of 2 buildings of 40-45 x 40-45 m within "
+                                              r"50 m of the nadir, 20 m apart, off the roads: smaller buildings "
+                                              r"or a larger radius$"):
+        cavassim_experiment(seed=0, n_buildings=2, n_road_points=3, max_corner_radius_m=50.0,
+                            building_length_m=(40.0, 45.0), building_width_m=(40.0, 45.0), building_gap_m=20.0)
+
+
+RANGE = "must be a range (low, high) of finite lengths in m with 0 < low <= high, got "
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"eave_m": (6.0, 3.0)}, "eave_m " + RANGE + "(6.0, 3.0)"),
+    ({"eave_m": (float("nan"), 6.0)}, "eave_m " + RANGE + "(nan, 6.0)"),
+    ({"building_length_m": (0.0, 5.0)}, "building_length_m " + RANGE + "(0.0, 5.0)"),
+    ({"building_width_m": 20.0}, "building_width_m " + RANGE + "20.0"),
+    ({"max_corner_radius_m": -5.0}, "max_corner_radius_m must be a finite distance > 0 m (or None), got -5.0"),
+    ({"max_corner_radius_m": float("nan")}, "max_corner_radius_m must be a finite distance > 0 m (or None), got nan"),
+    ({"building_gap_m": -1.0}, "building_gap_m must be a finite distance >= 0 m, got -1.0"),
+    ({"building_gap_m": float("inf")}, "building_gap_m must be a finite distance >= 0 m, got inf"),
+])
+def test_bad_scene_parameters_are_refused_by_name(kw, message):
+    """Before anything is drawn: a reversed range would otherwise reach numpy's uniform (an error naming
+    no parameter) and a NaN radius would place buildings at NaN coordinates."""
+    with pytest.raises(AssessmentError) as e:
+        cavassim_experiment(seed=0, n_buildings=2, n_road_points=3, all_products=False, **kw)
+    assert str(e.value) == message
 
 
 @pytest.mark.slow

@@ -324,6 +324,18 @@ def _town(rng: np.random.Generator, e0: float, n0: float, n_buildings: int, n_ro
     return Scene(tuple(buildings), tuple(roads), seed=int(rng.integers(2**31)))
 
 
+def _range_m(name: str, value: Any) -> tuple[float, float]:
+    """*value* as a range (low, high) of lengths in m, 0 < low <= high; else an error naming *name*."""
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        lo = hi = math.nan
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+        raise AssessmentError(f"{name} must be a range (low, high) of finite lengths in m with 0 < low <= high, "
+                              f"got {value!r}")
+    return lo, hi
+
+
 def _rect_gap(a: np.ndarray, b: np.ndarray) -> float:
     """Largest gap (m) between the projections of two convex polygons on their edge normals.
 
@@ -496,16 +508,23 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
     ------
     AssessmentError
         *n_buildings* buildings do not fit within *max_corner_radius_m* of
-        the nadir (the message names the sizes, radius and gap).
+        the nadir (the message names the sizes, radius and gap); a scene
+        parameter is not as documented (a range reversed, not positive or
+        not finite; a radius <= 0; a gap < 0): the message names it.
     """
     from .monoplot import PointSurface, monoplot
     from ._collinearity import project
 
     from .scene import Scene
 
+    town = {"eave_m": _range_m("eave_m", eave_m), "length_m": _range_m("building_length_m", building_length_m),
+            "width_m": _range_m("building_width_m", building_width_m), "gap_m": float(building_gap_m)}
+    if not (math.isfinite(town["gap_m"]) and town["gap_m"] >= 0):
+        raise AssessmentError(f"building_gap_m must be a finite distance >= 0 m, got {building_gap_m!r}")
+    if max_corner_radius_m is not None and not (math.isfinite(max_corner_radius_m) and max_corner_radius_m > 0):
+        raise AssessmentError(f"max_corner_radius_m must be a finite distance > 0 m (or None), "
+                              f"got {max_corner_radius_m!r}")
     rng = np.random.default_rng(seed)
-    town = {"eave_m": tuple(eave_m), "length_m": tuple(building_length_m), "width_m": tuple(building_width_m),
-            "gap_m": building_gap_m}
     cam = paper_camera()
     h_ground = float(Scene().terrain(np.array([e0]), np.array([n0]))[0])
 
@@ -615,8 +634,9 @@ def cavassim_experiment(*, seed: int = 0, density_m2: float = 2.0, n_buildings: 
         "seed": seed, "density_m2": density_m2, "lidar_noise_m": lidar_noise_m, "n_buildings": len(scene.buildings),
         "n_building_points": int(len(corners_a)), "n_road_points": int(len(road_pts)), "photo_gsd_m": gsd,
         "image_sd_px": image_sd_px, "intensity_cell_m": cell, "flying_height_m": 922.0, "scale": scale,
-        "lidar_plan_sd_m": lidar_plan_sd_m, "eave_m": tuple(eave_m), "max_corner_radius_m": max_corner_radius_m,
-        "building_length_m": tuple(building_length_m), "building_width_m": tuple(building_width_m)}}
+        "lidar_plan_sd_m": lidar_plan_sd_m, "eave_m": town["eave_m"], "max_corner_radius_m": max_corner_radius_m,
+        "building_length_m": town["length_m"], "building_width_m": town["width_m"],
+        "building_gap_m": town["gap_m"]}}
 
 
 def _corner_geometry(scene: Any, eo: np.ndarray, corners: np.ndarray) -> dict[str, np.ndarray]:
