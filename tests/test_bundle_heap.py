@@ -3,6 +3,7 @@ arrays come from the heap (their freed pages are reused), after it glibc's defau
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -45,12 +46,18 @@ print(before, *inside, after, _heap._depth)
 def test_big_arrays_come_from_the_heap_inside_and_from_mmap_after():
     if not hasattr(_heap._glibc(), "mallinfo2"):
         pytest.skip("glibc < 2.33 has no mallinfo2")
-    out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, check=True).stdout
+    env = {k: v for k, v in os.environ.items() if k != "LIDARCAT_HEAP_REUSE"}
+    out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, check=True,
+                         env=env).stdout
     before, in1, in2, in3, after, depth = (int(v) for v in out.split())
     assert before >= 64                       # glibc's default: a 64 MiB block is mmapped
     assert (in1, in2, in3) == (0, 0, 0)       # inside: from the heap, the same pages each time
     assert after >= 128                       # defaults back
     assert depth == 0
+    # LIDARCAT_HEAP_REUSE=0: the policy is off, inside is like outside
+    out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, check=True,
+                         env={**env, "LIDARCAT_HEAP_REUSE": "0"}).stdout
+    assert all(int(v) >= 64 for v in out.split()[1:4])
 
 
 def test_nesting_counts_and_decorator_keeps_name_and_exceptions():
