@@ -32,9 +32,13 @@ D = np.diag([1.0, -1.0, -1.0])
 
 
 def solve_with_ceres(problem, eo: np.ndarray, pts: np.ndarray, *, threads: int = 2, max_iter: int = 50,
-                     linear_solver: str = "SPARSE_SCHUR") -> dict:
+                     linear_solver: str = "SPARSE_SCHUR", preconditioner: str | None = None) -> dict:
     """Adjust *problem* from (eo (P, 6), pts (Q, 3)) with Ceres; returns final_cost, iterations,
-    seconds (the solve only), eo, points, report."""
+    seconds (the solve only), eo, points, report.
+
+    *linear_solver* and *preconditioner* are Ceres enum names (``ITERATIVE_SCHUR`` with
+    ``SCHUR_JACOBI``, ``CLUSTER_JACOBI`` or ``CLUSTER_TRIDIAGONAL``: Ceres's step solvers whose
+    cost per step grows linearly with the block)."""
     import pyceres
     import pycolmap
     from scipy.spatial.transform import Rotation
@@ -93,6 +97,8 @@ def solve_with_ceres(problem, eo: np.ndarray, pts: np.ndarray, *, threads: int =
     opts.ceres.auto_select_solver_type = False
     so = opts.ceres.solver_options
     so.linear_solver_type = getattr(pyceres.LinearSolverType, linear_solver)
+    if preconditioner:
+        so.preconditioner_type = getattr(pyceres.PreconditionerType, preconditioner)
     so.num_threads = threads
     so.max_num_iterations = max_iter
     so.function_tolerance = 1e-8

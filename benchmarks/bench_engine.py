@@ -9,7 +9,11 @@ Run from the repository root::
 With ``--pairs K`` (two sizes) lidarcat alone runs K times on each size, the two
 alternating, each in a fresh process from the same approximations, and the
 table prints every pair's ratio and the median: one run's ratio spreads by
-about +-15 % on this machine, the median is the figure to quote.
+about +-15 % on this machine, the median is the figure to quote.  Each pair
+also splits its time: the factorisations, the reuse steps and the precision
+(work growing as photos^1.5 on a two-dimensional block) against the rest
+(model, assembly, analysis, checks: work growing linearly) -- the ratio of
+the rest is the floor the whole ratio cannot go below.
 
 For every size, the seeded block of :func:`lidarcat._synthetic_block.aerial_block`
 (60 % / 30 % overlap, about 58 observations per photo, 0.5 px noise) gets its
@@ -23,7 +27,10 @@ problem included):
   dense kernels of the big fronts of its factor ``--blas-threads`` threads
   (default 2, the cores Ceres gets; 1: single-threaded throughout);
 * Ceres 2.2 SPARSE_SCHUR (SuiteSparse), 2 threads, through pycolmap's bundle
-  adjuster (``benchmarks/_ceres_peer.py``; the ``bench`` extra), no covariance.
+  adjuster (``benchmarks/_ceres_peer.py``; the ``bench`` extra), no covariance;
+  ``--peer-solver iterative_schur:schur_jacobi`` (or ``cluster_jacobi``,
+  ``cluster_tridiagonal``) runs Ceres's iterative Schur solvers instead, whose
+  cost per step grows linearly with the block.
 
 Both reach the same minimum (the table prints 0.5 v'Pv of both).  Timings on a
 shared machine: note the load printed with the table.
@@ -48,6 +55,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
+#: Ceres step solvers the peer can run (``--peer-solver``)
+PEER_SOLVERS = ("sparse_schur", "iterative_schur:schur_jacobi", "iterative_schur:cluster_jacobi",
+                "iterative_schur:cluster_tridiagonal")
 
 
 def _child(args) -> None:
@@ -69,7 +79,9 @@ def _child(args) -> None:
         sys.path.insert(0, str(HERE))
         from _ceres_peer import solve_with_ceres
 
-        c = solve_with_ceres(block.problem, eo, pts, threads=args.threads)
+        solver, _, prec = args.peer_solver.upper().partition(":")
+        c = solve_with_ceres(block.problem, eo, pts, threads=args.threads, linear_solver=solver,
+                             preconditioner=prec or None)
         out = {"seconds": c["seconds"], "iterations": c["iterations"], "cost": c["final_cost"],
                "status": c["report"].split("Termination: ")[-1]}
     out["maxrss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -79,7 +91,8 @@ def _child(args) -> None:
 
 def _run_child(kind: str, n: int, init: str, args) -> dict:
     cmd = [sys.executable, __file__, "--child", kind, "--photos", str(n), "--init", init,
-           "--precision", args.precision, "--solver", args.solver, "--threads", str(args.threads)]
+           "--precision", args.precision, "--solver", args.solver, "--threads", str(args.threads),
+           "--peer-solver", args.peer_solver]
     env = {**os.environ, "GLOG_minloglevel": "2"}
     if kind == "lidarcat":
         env.update(dict.fromkeys(("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"),
@@ -100,6 +113,9 @@ def main() -> None:
     ap.add_argument("--blas-threads", type=int, default=2,
                     help="BLAS threads of lidarcat's big dense kernels (the rest runs on one)")
     ap.add_argument("--no-peer", action="store_true")
+    ap.add_argument("--peer-solver", default="sparse_schur", choices=PEER_SOLVERS,
+                    help="Ceres's linear solver (and preconditioner): the direct Schur solver, or its "
+                         "iterative Schur solvers, whose cost per step grows linearly with the block")
     ap.add_argument("--pairs", type=int, default=0,
                     help="with two --photos sizes: K alternating lidarcat runs of each, every ratio and the median")
     ap.add_argument("--json", help="write the rows to this file")
@@ -141,7 +157,7 @@ def main() -> None:
             _print_row(row, header=len(rows) == 1)
     print(f"machine: 2 cores, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; lidarcat precision="
           f"{args.precision}, solver={args.solver}, BLAS threads for big fronts {args.blas_threads}; "
-          f"Ceres {args.threads} threads")
+          f"Ceres {args.peer_solver.upper()}, {args.threads} threads")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1, sort_keys=True))
     if args.plot:
@@ -159,8 +175,9 @@ def _pairs(args, tmp: str) -> None:
         inits.append(str(Path(tmp) / f"init{n}.npz"))
         np.savez(inits[-1], eo=eo, pts=pts)
     small, large = args.photos
-    print(f"{'pair':>4}{'load':>6} | {small:>7} photos s | {large:>7} photos s | ratio")
-    ratios = []
+    print(f"{'pair':>4}{'load':>6} | {small:>7} photos s | {large:>7} photos s | ratio | factor+prec ratio | "
+          f"rest ratio")
+    ratios, rests = [], []
     for k in range(args.pairs):
         load = os.getloadavg()[0]
         a = _run_child("lidarcat", small, inits[0], args)
@@ -169,12 +186,24 @@ def _pairs(args, tmp: str) -> None:
             print(f"{k + 1:>4} failed: {(a.get('error') or b.get('error'))[-200:]}")
             continue
         ratios.append(b["seconds"] / a["seconds"])
-        print(f"{k + 1:>4}{load:>6.1f} | {a['seconds']:>16.2f} | {b['seconds']:>16.2f} | {ratios[-1]:.2f}",
-              flush=True)
+        sa, sb = _superlinear_s(a), _superlinear_s(b)
+        rests.append((b["seconds"] - sb) / (a["seconds"] - sa))
+        print(f"{k + 1:>4}{load:>6.1f} | {a['seconds']:>16.2f} | {b['seconds']:>16.2f} | {ratios[-1]:>5.2f} | "
+              f"{sb / sa:>17.2f} | {rests[-1]:>10.2f}", flush=True)
     if ratios:
         print(f"median ratio {np.median(ratios):.2f} over {len(ratios)} pairs (range {min(ratios):.2f}-"
-              f"{max(ratios):.2f}); machine: 2 cores, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-              f"precision={args.precision}, BLAS threads for big fronts {args.blas_threads}")
+              f"{max(ratios):.2f}); the phases that grow linearly alone: median {np.median(rests):.2f} "
+              f"(range {min(rests):.2f}-{max(rests):.2f}); machine: 2 cores, "
+              f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, precision={args.precision}, "
+              f"BLAS threads for big fronts {args.blas_threads}")
+
+
+def _superlinear_s(run: dict) -> float:
+    """Seconds of the phases whose work grows faster than the block: the factorisations, the
+    reuse steps' triangular solves and the precision (a factorisation and the selected inverse,
+    with the points' linear terms: counted here, so "the rest" is the linear work alone)."""
+    ph = run["phases"]
+    return ph.get("solve_factor", 0.0) + ph.get("solve_reuse", 0.0) + ph.get("precision", 0.0)
 
 
 def _print_row(row: dict, header: bool) -> None:

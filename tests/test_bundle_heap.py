@@ -76,3 +76,21 @@ def test_nesting_counts_and_decorator_keeps_name_and_exceptions():
     with pytest.raises(ValueError, match="negative"):
         f(-1)
     assert _heap._depth == 0
+
+
+def test_numpy_asks_for_no_huge_pages_inside_and_as_before_after():
+    switch = _heap._hugepage_switch()
+    if switch is None:
+        pytest.skip("this numpy has no huge-page switch")
+    original = switch(True)
+    for setting in (True, False):
+        switch(setting)
+        try:
+            with _heap.heap_reuse():
+                with _heap.heap_reuse():
+                    inner = switch(False)         # returns the setting in force
+                after_inner = switch(False)
+            assert (inner, after_inner) == (False, False)   # off inside, nested exits keep it off
+            assert switch(setting) is setting               # the caller's setting back after
+        finally:
+            switch(original)

@@ -1,4 +1,4 @@
-r"""Keep freed arrays in the process heap while an adjustment runs (glibc only).
+r"""Keep freed arrays in the process heap, and no huge pages, while an adjustment runs (glibc only).
 
 Why: every iteration builds arrays of the size of the block (the Jacobian
 parts and W of every ray, the fronts of the factor, the selected inverse): at
@@ -25,6 +25,17 @@ rest of the process, a documented side effect of any ``mallopt`` call) and
 concurrent uses count: the defaults come back when the last one exits.
 Elsewhere (macOS, Windows, musl), or with the environment variable
 ``LIDARCAT_HEAP_REUSE=0``, it does nothing.
+
+No huge pages asked for either.  numpy ``madvise``\ s 2 MiB transparent huge
+pages for every array of 4 MiB and more; where the kernel answers such a
+fault by compacting memory first (``/sys/kernel/mm/transparent_hugepage/defrag``
+= ``madvise``, the default of many distributions and of this machine), the
+fault stalls in the kernel.  Inside :func:`heap_reuse` numpy's switch for it
+(``_set_madvise_hugepage``) is off and set back on exit.  Measured, five
+alternating runs each, 10,010 photos: system time 1.83-1.95 -> 0.70-0.84 s,
+wall time median 13.40 -> 12.77 s; 5,000 photos: system time 0.72-1.01 ->
+0.32-0.38 s, wall median 5.74 -> 5.57 s (more 4 KiB faults: 53-61 thousand
+-> 306-323 thousand at 10,010 photos, each cheap).
 """
 
 from __future__ import annotations
@@ -49,6 +60,16 @@ _KEEP_BYTES = 2**31 - 1
 _lock = threading.Lock()
 _depth = 0
 _libc: ctypes.CDLL | None | bool = False     # False: not looked up yet
+_hugepage_before: bool | None = None          # numpy's huge-page setting when the outermost use began
+
+
+def _hugepage_switch():
+    """numpy's ``_set_madvise_hugepage(enabled) -> previous`` (private, stable since numpy 1.20), or None."""
+    try:
+        from numpy._core import multiarray           # numpy >= 2
+    except ImportError:  # pragma: no cover - numpy 1.26
+        from numpy.core import multiarray
+    return getattr(multiarray, "_set_madvise_hugepage", None)
 
 def _glibc() -> ctypes.CDLL | None:
     global _libc
@@ -75,15 +96,18 @@ def heap_reuse() -> Iterator[None]:
     Also a decorator (``@heap_reuse()``: a context manager made by
     :func:`contextlib.contextmanager` decorates functions).
     """
-    global _depth
+    global _depth, _hugepage_before
     lib = _glibc() if os.environ.get("LIDARCAT_HEAP_REUSE", "1") != "0" else None
     if lib is None:
         yield
         return
+    hugepage = _hugepage_switch()
     with _lock:
         if _depth == 0:
             lib.mallopt(_M_TRIM_THRESHOLD, _KEEP_BYTES)
             lib.mallopt(_M_MMAP_MAX, 0)
+            if hugepage is not None:
+                _hugepage_before = bool(hugepage(False))
         _depth += 1
     try:
         yield
@@ -95,4 +119,7 @@ def heap_reuse() -> Iterator[None]:
                 lib.mallopt(_M_MMAP_THRESHOLD, _DEFAULT_THRESHOLD)
                 lib.mallopt(_M_TRIM_THRESHOLD, _DEFAULT_THRESHOLD)
                 lib.malloc_trim(0)
+                if hugepage is not None and _hugepage_before is not None:
+                    hugepage(_hugepage_before)
+                    _hugepage_before = None
 

@@ -130,6 +130,13 @@ class _Gram:
         return out
 
 
+def _distinct(a: np.ndarray) -> np.ndarray:
+    """Sorted distinct values of an integer array, by sorting: numpy 2.4's hashed
+    ``np.unique`` takes about 9x as long on a million keys (measured)."""
+    s = np.sort(a, kind="stable")
+    return s[np.r_[True, s[1:] != s[:-1]]] if len(s) else s
+
+
 def _observation_pairs(pj: np.ndarray, n_pt: int, *, diagonal: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (a, b) of observations of the same point: all ordered pairs (a == b
     included) with *diagonal*, else the unordered pairs a < b (in point order)."""
@@ -137,7 +144,7 @@ def _observation_pairs(pj: np.ndarray, n_pt: int, *, diagonal: bool = True) -> t
     counts = np.bincount(pj, minlength=n_pt)
     starts = np.r_[0, np.cumsum(counts)[:-1]]
     a_list, b_list = [], []
-    for m in np.unique(counts):
+    for m in _distinct(counts):
         if m == 0 or (m == 1 and not diagonal):
             continue
         js = np.flatnonzero(counts == m)
@@ -199,7 +206,7 @@ class _Schur:
         self.oa, self.ob, self.s_up = oa[order], ob[order], s_up[order]
         self._groups = _slot_groups(np.r_[self.s_up, self.slot_diag[ei]], np.r_[self.oa, np.arange(len(ei))],
                                     np.r_[self.ob, np.arange(len(ei))], sentinel=len(ei))
-        self.up_slots = np.unique(self.s_up)
+        self.up_slots = _distinct(self.s_up)
         ui, uk = _slot_rc(bpat, self.up_slots)
         self.lo_slots = _slots(bpat, uk, ui)
         # scalar CSR pattern: row cb I + a holds, block after block of row I, its cb columns;
@@ -425,7 +432,7 @@ def _slot_groups(slot: np.ndarray, a: np.ndarray, b: np.ndarray,
     starts = np.r_[0, np.cumsum(cnt)[:-1]]
     size = cnt if sentinel is None else np.where(cnt > 0, _bucket(cnt), 0)
     groups = []
-    for k in np.unique(size[size > 0]):
+    for k in _distinct(size[size > 0]):
         slots = np.flatnonzero(size == k)
         t = np.arange(k)[None, :]
         real = t < cnt[slots][:, None]

