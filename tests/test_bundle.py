@@ -649,6 +649,14 @@ def test_datum_point_measured_twice_on_a_photo(gps_problem):
     with pytest.raises(DatumError, match=f"point '{p.point_ids[p.point_index[k]]}' is measured twice on "
                                          f"photo '{p.photo_ids[p.photo_index[k]]}'"):
         check_datum(q)
+    # two repeated pairs, the later observation's repeat first: the earliest observation is named
+    q = BundleProblem(p.photo_ids, p.point_ids, p.focal_length_mm, np.r_[p.photo_index, p.photo_index[[9, 3]]],
+                      np.r_[p.point_index, p.point_index[[9, 3]]], np.r_[p.xy_mm, p.xy_mm[[9, 3]]],
+                      np.r_[p.sd_mm, p.sd_mm[[9, 3]]], p.constraint_point_index, p.constraint_enh_m,
+                      p.constraint_sd_m)
+    with pytest.raises(DatumError, match=f"point '{p.point_ids[p.point_index[3]]}' is measured twice on "
+                                         f"photo '{p.photo_ids[p.photo_index[3]]}'"):
+        check_datum(q)
 
 
 def test_synthetic_100_photo_block_from_computed_approximations():

@@ -31,11 +31,13 @@ pages for every array of 4 MiB and more; where the kernel answers such a
 fault by compacting memory first (``/sys/kernel/mm/transparent_hugepage/defrag``
 = ``madvise``, the default of many distributions and of this machine), the
 fault stalls in the kernel.  Inside :func:`heap_reuse` numpy's switch for it
-(``_set_madvise_hugepage``) is off and set back on exit.  Measured, five
-alternating runs each, 10,010 photos: system time 1.83-1.95 -> 0.70-0.84 s,
-wall time median 13.40 -> 12.77 s; 5,000 photos: system time 0.72-1.01 ->
-0.32-0.38 s, wall median 5.74 -> 5.57 s (more 4 KiB faults: 53-61 thousand
--> 306-323 thousand at 10,010 photos, each cheap).
+(``_set_madvise_hugepage``) is off and set back on exit.  Measured before it
+was built in -- ``adjust`` from saved approximations in a fresh process, the
+switch on / off for the whole process, times and ``getrusage`` of ``adjust``
+alone, five alternating runs each: 10,010 photos system time 1.83-1.95 ->
+0.70-0.84 s, wall median 13.40 -> 12.77 s; 5,000 photos system time
+0.72-1.01 -> 0.32-0.38 s, wall median 5.74 -> 5.57 s (more 4 KiB faults,
+each cheap: 52-61 thousand -> 306-323 thousand at 10,010 photos).
 """
 
 from __future__ import annotations
@@ -64,12 +66,14 @@ _hugepage_before: bool | None = None          # numpy's huge-page setting when t
 
 
 def _hugepage_switch():
-    """numpy's ``_set_madvise_hugepage(enabled) -> previous`` (private, stable since numpy 1.20), or None."""
+    """numpy's ``_set_madvise_hugepage(enabled) -> previous``, or None (private numpy API: a numpy
+    without it makes :func:`heap_reuse` leave huge pages as they are)."""
     try:
         from numpy._core import multiarray           # numpy >= 2
     except ImportError:  # pragma: no cover - numpy 1.26
         from numpy.core import multiarray
     return getattr(multiarray, "_set_madvise_hugepage", None)
+
 
 def _glibc() -> ctypes.CDLL | None:
     global _libc

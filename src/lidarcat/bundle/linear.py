@@ -132,8 +132,8 @@ class _Gram:
 
 def _distinct(a: np.ndarray) -> np.ndarray:
     """Sorted distinct values of an integer array, by sorting: numpy 2.4's hashed
-    ``np.unique`` takes about 9x as long on a million keys (measured)."""
-    s = np.sort(a, kind="stable")
+    ``np.unique`` takes about 6x as long on a million keys (322 against 51 ms, quiet)."""
+    s = np.sort(a)
     return s[np.r_[True, s[1:] != s[:-1]]] if len(s) else s
 
 
