@@ -43,7 +43,7 @@ def solve_with_ceres(problem, eo: np.ndarray, pts: np.ndarray, *, threads: int =
     import pycolmap
     from scipy.spatial.transform import Rotation
 
-    from lidarcat._collinearity import rotation_matrix
+    from lidarcat.geometry.collinearity import rotation_matrix
 
     p = problem
     sd = np.unique(p.sd_mm)

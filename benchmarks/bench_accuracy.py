@@ -1,4 +1,4 @@
-"""Timing of lidarcat.accuracy.assess and the report for growing check-point sets.
+"""Timing of lidarcat.accuracy.checkpoints.assess and the report for growing check-point sets.
 
 Run: python benchmarks/bench_accuracy.py   (prints a table; BLAS pinned to one thread)
 
@@ -19,8 +19,8 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from lidarcat.accuracy import assess  # noqa: E402
-from lidarcat.report import write_report  # noqa: E402
+from lidarcat.accuracy.checkpoints import assess  # noqa: E402
+from lidarcat.report.document import write_report  # noqa: E402
 
 
 def main() -> None:

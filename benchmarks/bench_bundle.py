@@ -3,7 +3,7 @@
 Run:  python benchmarks/bench_bundle.py [--photos 500] [--repeat 3]
 
 Cases: the thesis block (6 photos, GPS and LiDAR control, from computed
-approximations) and seeded synthetic blocks (``lidarcat._synthetic_block``) up
+approximations) and seeded synthetic blocks (``lidarcat.synthetic.block``) up
 to 500 photos.  For each case: wall time of the approximations and of the whole
 ``adjust`` call (iterations + covariance blocks), iterations, peak Python/numpy
 memory traced by ``tracemalloc`` during ``adjust`` and the process max RSS.
@@ -23,7 +23,7 @@ import tracemalloc  # noqa: E402
 
 
 def _case(name, problem, repeat):
-    from lidarcat._approx import approximations
+    from lidarcat.bundle.approx import approximations
     from lidarcat.bundle import adjust
 
     best_a, best_t = float("inf"), float("inf")
@@ -64,9 +64,9 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
 
-    from lidarcat._synthetic_block import synthetic_block
-    from lidarcat.bundle import problem_from_survey
-    from lidarcat.survey import Survey
+    from lidarcat.synthetic.block import synthetic_block
+    from lidarcat.survey import problem_from_survey
+    from lidarcat.survey.folder import Survey
 
     survey = Survey.load()
     rows = [_case("thesis gps", problem_from_survey(survey, "gps"), args.repeat),

@@ -15,7 +15,7 @@ also splits its time: the factorisations, the reuse steps and the precision
 (model, assembly, analysis, checks: work growing linearly) -- the ratio of
 the rest is what the whole ratio would be if the photos^1.5 work cost nothing.
 
-For every size, the seeded block of :func:`lidarcat._synthetic_block.aerial_block`
+For every size, the seeded block of :func:`lidarcat.synthetic.block.aerial_block`
 (60 % / 30 % overlap, about 58 observations per photo, 0.5 px noise) gets its
 approximations once (timed, not part of the comparison), then each solver runs
 in its own process from those same values (so ``max RSS`` is each solver's peak,
@@ -61,7 +61,7 @@ PEER_SOLVERS = ("sparse_schur", "iterative_schur:schur_jacobi", "iterative_schur
 
 
 def _child(args) -> None:
-    from lidarcat._synthetic_block import aerial_block
+    from lidarcat.synthetic.block import aerial_block
 
     block = aerial_block(args.photos[0])
     init = np.load(args.init)
@@ -131,8 +131,8 @@ def main() -> None:
         _child(args)
         return
 
-    from lidarcat._approx import approximations
-    from lidarcat._synthetic_block import aerial_block
+    from lidarcat.bundle.approx import approximations
+    from lidarcat.synthetic.block import aerial_block
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -166,8 +166,8 @@ def main() -> None:
 
 def _pairs(args, tmp: str) -> None:
     """K alternating runs of the two sizes: each pair's times and ratio, then the median ratio."""
-    from lidarcat._approx import approximations
-    from lidarcat._synthetic_block import aerial_block
+    from lidarcat.bundle.approx import approximations
+    from lidarcat.synthetic.block import aerial_block
 
     inits = []
     for n in args.photos:

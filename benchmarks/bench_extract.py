@@ -17,8 +17,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from lidarcat.control import extract_roof, find_candidates  # noqa: E402
-from lidarcat.roofs import synthetic_roof  # noqa: E402
+from lidarcat.control.vertices import extract_roof, find_candidates  # noqa: E402
+from lidarcat.synthetic.roofs import synthetic_roof  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 LIDAR = ROOT / "tests" / "data" / "lidar"

@@ -21,9 +21,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from lidarcat.control import extract_roof  # noqa: E402
-from lidarcat.facets import get_params  # noqa: E402
-from lidarcat.roofs import synthetic_roof  # noqa: E402
+from lidarcat.control.vertices import extract_roof  # noqa: E402
+from lidarcat.control.facets import get_params  # noqa: E402
+from lidarcat.synthetic.roofs import synthetic_roof  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

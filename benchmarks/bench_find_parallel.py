@@ -13,8 +13,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 if __name__ == "__main__":
-    from lidarcat.control import find_candidates
-    from lidarcat.find_tiles import find_candidates_tiles
+    from lidarcat.control.vertices import find_candidates
+    from lidarcat.control.search import find_candidates_tiles
     from lidarcat.lidar import TileIndex
 
     lid = Path(__file__).resolve().parent.parent / "tests" / "data" / "lidar"

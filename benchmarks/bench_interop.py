@@ -70,7 +70,7 @@ def main() -> None:
         rows.append(("write COLMAP thesis (6 photos, 54 pts)", best(lambda: write_colmap(blk, Path(tmp) / "c"))))
         rows.append(("write OpenSfM thesis", best(lambda: write_opensfm(blk, Path(tmp) / "o"))))
         rows.append(("write OPK thesis", best(lambda: write_opk(blk, Path(tmp) / "t.opk"))))
-        from lidarcat.bundle import adjust_survey
+        from lidarcat.survey import adjust_survey
 
         _, out = adjust_survey(None, outdir=Path(tmp) / "adj")
         layers, crs, _ = gis_layers(None, out)

@@ -31,10 +31,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from lidarcat.camera import Camera  # noqa: E402
-from lidarcat.monoplot import GridSurface, PointSurface, monoplot  # noqa: E402
-from lidarcat.ortho import PhotoModel, orthophoto  # noqa: E402
-from lidarcat.scene import demo_scene  # noqa: E402
+from lidarcat.geometry.camera import Camera  # noqa: E402
+from lidarcat.mapping.monoplot import GridSurface, PointSurface, monoplot  # noqa: E402
+from lidarcat.mapping.ortho import PhotoModel, orthophoto  # noqa: E402
+from lidarcat.synthetic.scene import demo_scene  # noqa: E402
 
 E0, N0 = 680_400.0, 7_184_200.0
 
@@ -75,7 +75,7 @@ def main() -> None:
             mp = res.shape[0] * res.shape[1] / 1e6
             rows_out.append((name, f"{mp:.1f} MP out", dt, f"{mp / dt:.2f} MP/s", peak))
     lid = scene.lidar_points((E0 - 100, N0 - 100, E0 + 100, N0 + 100), 4.0, seed=1)
-    from lidarcat._collinearity import project
+    from lidarcat.geometry.collinearity import project
 
     pts = np.column_stack([rng.uniform(E0 - 95, E0 + 95, args.points), rng.uniform(N0 - 95, N0 + 95, args.points)])
     pts = np.column_stack([pts, scene.dsm(pts[:, 0], pts[:, 1])])

@@ -19,7 +19,7 @@ from pathlib import Path  # noqa: E402
 
 _CASE = r"""
 import json, resource, sys, time
-from lidarcat.demo import write_synthetic_survey
+from lidarcat.synthetic.survey import write_synthetic_survey
 from lidarcat.pipeline import run_pipeline
 kind, arg, out = sys.argv[1], sys.argv[2], sys.argv[3]
 t = time.perf_counter()

@@ -13,7 +13,7 @@ each worker and the points per CPU-second (what the code costs, whatever the
 load of a shared machine), and the peak resident memory of the process or of
 each worker (Dask: VmHWM read on the workers); the 1-minute load average is
 printed after each row.  Wall times include starting the cluster's work
-(not the cluster) and the edge-buffer pass (:mod:`lidarcat.lidar.parallel`).
+(not the cluster) and the edge-buffer pass (:mod:`lidarcat.lidar.jobs`).
 
 Usage::
 
@@ -25,7 +25,7 @@ Usage::
 ``--kernels`` times the computations alone on one tile of the same synthetic
 survey (points already in memory): SMRF, the TIN DTM (OpenCV triangulation,
 triangles rasterised) beside its peer, the same TIN from Qhull with every cell
-centre located (:func:`lidarcat.lidar.terrain.tin_heights`), and the DSM.
+centre located (:func:`lidarcat.production.terrain.tin_heights`), and the DSM.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ KINDS = {"ground": ({"method": "smrf"}, 80.0, ".laz"), "dsm": ({"cell_m": 1.0}, 
 
 
 def _mode(folder: Path, kind: str, workers: int) -> dict:
-    from lidarcat.lidar.parallel import run_jobs, tile_jobs
+    from lidarcat.lidar.jobs import run_jobs, tile_jobs
 
     params, overlap, suffix = KINDS[kind]
     tiles = sorted(folder.glob("tile_*.laz"))
@@ -67,7 +67,7 @@ def _mode(folder: Path, kind: str, workers: int) -> dict:
     else:
         from dask.distributed import Client, LocalCluster
 
-        from lidarcat.lidar import parallel
+        from lidarcat.lidar import jobs as parallel
 
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
         client = Client(cluster)
@@ -90,9 +90,9 @@ def _kernels(points: int) -> None:
     import numpy as np
 
     from bench_lidar import _tile_cloud
-    from lidarcat.lidar.ground import smrf_ground
+    from lidarcat.production.ground import smrf_ground
     from lidarcat.lidar.raster import _grid_for
-    from lidarcat.lidar.terrain import dsm_grid, tin_grid, tin_heights
+    from lidarcat.production.terrain import dsm_grid, tin_grid, tin_heights
 
     pc = _tile_cloud(0, 0, math.sqrt(points / 10.0), points, 1)
     a = pc.attributes

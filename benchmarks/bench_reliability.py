@@ -18,7 +18,7 @@ ceiling over those trials (:class:`_Identification`: the Monte Carlo probability
 dense Q_vv, that the max-ratio rule names each blunder; product over the blunders), and the
 mean number of good observations named per trial.
 
-Part 2 -- a synthetic block (``lidarcat._synthetic_block``, default 20 strips x 50 photos) with
+Part 2 -- a synthetic block (``lidarcat.synthetic.block``, default 20 strips x 50 photos) with
 1 % of its image observations corrupted by 10-50 sigma: the clean adjustment, then
 ``snoop(mode="remove", robust=..., multiple=..., backward=False)`` at the family-wise level 0.05
 for each ``--large`` run, timed beside the clean adjustment; printed: the largest
@@ -43,13 +43,13 @@ import numpy as np  # noqa: E402
 
 
 def _truth_sim(p, truth, rng):
-    from lidarcat._synthetic_block import resimulated
+    from lidarcat.synthetic.block import resimulated
 
     return resimulated(p, np.asarray(truth.eo_params), np.asarray(truth.points_m), rng)
 
 
 def _whitened_qvv(p, res):
-    from lidarcat._collinearity import project_with_jacobians
+    from lidarcat.geometry.collinearity import project_with_jacobians
     from lidarcat.bundle.model import _System
     from lidarcat.bundle.precision import observation_blocks
 
@@ -110,9 +110,10 @@ class _Identification:
 
 def thesis_trials(n_trials: int, level: float | None = None, robust: str = "none",
                   counts: tuple[int, ...] = (1, 3, 5)) -> list[dict]:
-    from lidarcat.bundle import adjust, problem_from_survey
+    from lidarcat.bundle import adjust
+    from lidarcat.survey import problem_from_survey
     from lidarcat.bundle.reliability import reliability, snoop
-    from lidarcat.survey import Survey
+    from lidarcat.survey.folder import Survey
 
     p = problem_from_survey(Survey.load(), control="gps", observations="corrected")
     truth = adjust(p)
@@ -155,7 +156,7 @@ def thesis_trials(n_trials: int, level: float | None = None, robust: str = "none
 
 def large_block(strips: int, per_strip: int, share: float = 0.01, *, robust: str = "danish",
                 multiple: bool = True, max_rejections: int = 1000, clean_run: dict | None = None) -> dict:
-    from lidarcat._synthetic_block import synthetic_block
+    from lidarcat.synthetic.block import synthetic_block
     from lidarcat.bundle import adjust
     from lidarcat.bundle.reliability import snoop
 

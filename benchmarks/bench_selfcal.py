@@ -2,7 +2,7 @@
 
 Run: python benchmarks/bench_selfcal.py [--seeds 50] [--skip-thesis]   (BLAS pinned to one thread)
 
-1. The acceptance block (:func:`lidarcat._synthetic_block.selfcal_block`, seed 1, 24 photos): every
+1. The acceptance block (:func:`lidarcat.synthetic.block.selfcal_block`, seed 1, 24 photos): every
    parameter's truth, estimate, sd and t; v'Pv, sigma0^2 and RMS image residuals with the parameters
    off and on; the radial residual pattern (t of the regression of the image residuals on x r^2).
 2. Monte Carlo over ``--seeds`` seeds (default 50) of the same geometry with fresh noise: the
@@ -28,9 +28,9 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from lidarcat._synthetic_block import selfcal_block  # noqa: E402
-from lidarcat.bundle import (SelfCalibration, adjust, adjust_with_parameters,  # noqa: E402
-                             frame_offset_from_sources, problem_from_survey)
+from lidarcat.synthetic.block import selfcal_block  # noqa: E402
+from lidarcat.bundle import SelfCalibration, adjust, adjust_with_parameters, frame_offset_from_sources
+from lidarcat.survey import problem_from_survey
 
 NAMES = ("cam.c", "cam.x0", "cam.y0", "cam.k1", "frame.lidar:gps.dE", "frame.lidar:gps.dN", "frame.lidar:gps.dh")
 
@@ -92,8 +92,8 @@ def thesis() -> None:
     import json
     from pathlib import Path
 
-    from lidarcat.bundle.selfcal_survey import combined_control_set, components_from_survey, SelfCalSettings
-    from lidarcat.survey import Survey
+    from lidarcat.survey.selfcal import combined_control_set, components_from_survey, SelfCalSettings
+    from lidarcat.survey.folder import Survey
 
     s = Survey.load()
     t12 = json.loads((Path(__file__).parents[1] / "tests/data/thesis/table12_free_points.json").read_text())

@@ -2,7 +2,7 @@
 
 Run: ``python benchmarks/demo_roofs.py [N_BUILDINGS] [WORKERS]`` (default 800
 buildings, 2 worker processes; about 25 s).  The buildings come from the demo's
-own generator (``lidarcat.demo._place_buildings``: pyramid and hip roofs with
+own generator (``lidarcat.synthetic.survey._place_buildings``: pyramid and hip roofs with
 facades and ground, 4 points/m^2, 0.03 m plan / 0.05 m height noise, the
 scanner 150 m east); each job starts 0.5-1.5 m off the vertex in a random
 direction and is extracted with the noise the demo states.  Prints, per roof
@@ -22,10 +22,10 @@ import numpy as np  # noqa: E402
 
 
 def _batch(args: tuple[int, int]) -> list[tuple[str, list[float]]]:
-    from lidarcat import roofs
-    from lidarcat.demo import _LIDAR_PLAN_SD_M, _place_buildings
-    from lidarcat.control import extract_roof
-    from lidarcat.facets import get_params
+    from lidarcat.synthetic import roofs
+    from lidarcat.synthetic.survey import _LIDAR_PLAN_SD_M, _place_buildings
+    from lidarcat.control.vertices import extract_roof
+    from lidarcat.control.facets import get_params
 
     seed, n = args
     rng = np.random.default_rng(seed)

@@ -24,7 +24,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
-from lidarcat.demo import compare_with_truth, write_synthetic_survey  # noqa: E402
+from lidarcat.synthetic.survey import compare_with_truth, write_synthetic_survey  # noqa: E402
 from lidarcat.pipeline import run_pipeline  # noqa: E402
 
 

@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from lidarcat.lidar import read_points
-from lidarcat.lidar.ground import classify_ground, confusion
+from lidarcat.production.ground import classify_ground, confusion
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "lidar"
 

@@ -1,6 +1,6 @@
 """Ground filters on synthetic landscapes with known ground (steep, forest, bridge, city, low outliers).
 
-For each landscape of :mod:`lidarcat.lidar.landscapes` and each method with
+For each landscape of :mod:`lidarcat.synthetic.landscapes` and each method with
 its default parameters, prints Type I (true ground rejected, % of the ground),
 Type II (objects accepted, % of the objects), total error (% of all points),
 Cohen's kappa and the time, and the total error of the points farther than
@@ -23,8 +23,8 @@ import time
 
 import numpy as np
 
-from lidarcat.lidar.ground import classify_ground, confusion
-from lidarcat.lidar.landscapes import LANDSCAPES, make_landscape
+from lidarcat.production.ground import classify_ground, confusion
+from lidarcat.synthetic.landscapes import LANDSCAPES, make_landscape
 
 
 def main() -> None:

@@ -79,12 +79,13 @@ def _has(obj, name: str) -> bool:
 
 def _resolve(token: str) -> bool:
     """True when `a.b` names a module attribute or a class attribute (or field) in lidarcat."""
-    modules = ["camera", "survey", "bundle", "_collinearity", "_approx", "lidar", "facets", "control",
-               "extraction", "accuracy", "standards", "report", "pipeline", "demo"]
+    modules = ["geometry.camera", "survey", "bundle", "geometry.collinearity", "bundle.approx", "lidar",
+               "control.facets", "control", "control.batch", "accuracy", "accuracy.standards", "report",
+               "pipeline", "stages", "synthetic.survey"]
     head, _, tail = token.partition(".")
     for m in modules:
         mod = importlib.import_module(f"lidarcat.{m}")
-        if m == head and hasattr(mod, tail.split(".")[0]):
+        if m.rsplit(".", 1)[-1] == head and hasattr(mod, tail.split(".")[0]):
             return True
         if hasattr(mod, head) and _has(getattr(mod, head), tail.split(".")[0]):
             return True

@@ -24,9 +24,9 @@ import pytest
 from click.testing import CliRunner
 from conftest import THESIS_TABLES
 
-from lidarcat.accuracy import read_points
+from lidarcat.accuracy.checkpoints import read_points
 from lidarcat.pipeline import run_pipeline
-from lidarcat.pipeline.stages.thesis import STATISTICS, table13_statistics
+from lidarcat.stages.thesis import STATISTICS, table13_statistics
 
 EOP = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 EOP_PRINTED = ("X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg")
@@ -76,7 +76,7 @@ def _points(run, name: str):
 
 
 def _reference() -> dict[str, np.ndarray]:
-    from lidarcat.survey import Survey
+    from lidarcat.survey.folder import Survey
 
     gp = Survey.load(None).ground_points
     return {str(q): e for q, e in zip(gp.point, gp.enh_m)}
@@ -106,7 +106,7 @@ TABLE3 = {
 
 
 def test_thesis_table3_point_types(run):
-    from lidarcat.survey import Survey
+    from lidarcat.survey.folder import Survey
 
     s = Survey.load(None)
     by_source = {src: sorted(str(q) for q, so in zip(s.ground_points.point, s.ground_points.source) if so == src)
@@ -119,8 +119,8 @@ def test_thesis_table3_point_types(run):
 def test_thesis_tables4_5_point_708_and_the_lidar_points():
     """Table 5's LiDAR coordinates are the survey's; Table 4's planes intersect in Table 5's point 708
     within the rounding of the printed plane parameters (0.39 / 0.52 / 0.055 m, see test_control)."""
-    from lidarcat.control import intersect_planes
-    from lidarcat.facets import Plane
+    from lidarcat.control.vertices import intersect_planes
+    from lidarcat.control.facets import Plane
 
     ref = _reference()
     rows = _csv("table5_lidar_points.csv")

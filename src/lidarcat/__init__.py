@@ -35,22 +35,22 @@ _EXPORTS: dict[str, str] = {
     "ClipError": "errors", "DatumError": "errors", "ExtractionError": "errors",
     "AssessmentError": "errors",
     # camera / survey
-    "Camera": "camera", "load_cameras": "camera",
+    "Camera": "geometry", "load_cameras": "geometry",
     "Survey": "survey", "thesis_survey_path": "survey", "example_camera_path": "survey",
     # bundle adjustment
     "ExteriorOrientation": "bundle", "BundleProblem": "bundle", "BundleResult": "bundle",
-    "adjust": "bundle", "adjust_survey": "bundle", "problem_from_survey": "bundle",
-    "check_datum": "bundle", "write_adjustment": "bundle",
+    "adjust": "bundle", "adjust_survey": "survey", "problem_from_survey": "survey",
+    "check_datum": "bundle", "write_adjustment": "survey",
     # lidar
     "PointCloud": "lidar", "read_points": "lidar", "TileIndex": "lidar",
     # roof facets and control points
-    "Plane": "facets", "extract_roof": "control", "find_candidates": "control",
+    "Plane": "control", "extract_roof": "control", "find_candidates": "control",
     "ControlPoint": "control", "intersect_planes": "control",
     # accuracy
     "assess": "accuracy", "Assessment": "accuracy", "write_report": "report",
     # the whole chain and the synthetic survey
     "run_pipeline": "pipeline", "PipelineResult": "pipeline",
-    "write_synthetic_survey": "demo",
+    "write_synthetic_survey": "synthetic",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]

@@ -16,20 +16,21 @@ The package, one concern per module, in the order a step runs:
                     :class:`BundleResult`
 ``precision``       blocks of N^-1 (photo 6x6, point 3x3, photo-point per
                     observation) by selected inversion, :func:`joint_point_covariance`
-``survey_io``       survey folder -> problem, result -> output folder:
-                    :func:`problem_from_survey`, :func:`write_adjustment`,
-                    :func:`adjust_survey`, :func:`read_point_covariance`
+``approx``          approximate values from the data alone (never from the answer)
 ==================  ==========================================================
 
 Additional parameters (issue 13): ``additional`` (self-calibration, GNSS
 line offsets), ``frame_offset`` (shift / similarity of a control source),
 ``selfcal`` (the bordered adjustment :func:`adjust_with_parameters`, tests of
-significance and determinability), ``selfcal_survey`` (the ``[self_calibration]``
-table and the CLI switches).  Blunders: ``reliability`` (redundancy numbers,
+significance and determinability; the ``[self_calibration]`` table is read in
+:mod:`lidarcat.survey.selfcal`).  Blunders: ``reliability`` (redundancy numbers,
 data snooping, robust re-weighting).  ``bal``: the Bundle Adjustment in the
 Large camera model over the same core.
 
-Every public name importable from ``lidarcat.bundle`` before the split still is.
+The engine knows no survey folder and no files: reading a survey into a
+:class:`BundleProblem` and writing the adjustment's tables live in
+:mod:`lidarcat.survey.adjustment` (``adjust_survey``, ``problem_from_survey``,
+``write_adjustment``, also importable from :mod:`lidarcat`).
 """
 
 from __future__ import annotations
@@ -42,9 +43,6 @@ from .additional import GnssLineOffsets, SelfCalibration
 from .frame_offset import FrameOffset, frame_offset_from_sources
 from .selfcal import SelfCalResult, adjust_with_parameters
 from .solve import STATUS_MESSAGES, BundleResult, adjust
-from .survey_io import (COVARIANCE_COLUMNS, EOP_COLUMNS, MAX_JOINT_COVARIANCE_POINTS, POINT_COLUMNS,
-                        RESIDUAL_COLUMNS, adjust_survey, problem_from_survey, read_point_covariance,
-                        write_adjustment)
 
 __all__ = [
     "SelfCalibration",
@@ -53,24 +51,15 @@ __all__ = [
     "frame_offset_from_sources",
     "SelfCalResult",
     "adjust_with_parameters",
-    "adjust_survey",
-    "write_adjustment",
-    "EOP_COLUMNS",
-    "POINT_COLUMNS",
-    "RESIDUAL_COLUMNS",
-    "COVARIANCE_COLUMNS",
     "ExteriorOrientation",
     "BundleProblem",
     "BundleResult",
     "adjust",
     "check_datum",
-    "problem_from_survey",
     "chi2_bounds",
     "covariance_blocks",
     "observation_blocks",
     "PRECISION_LEVELS",
     "joint_point_covariance",
-    "read_point_covariance",
     "STATUS_MESSAGES",
-    "MAX_JOINT_COVARIANCE_POINTS",
 ]

@@ -12,7 +12,7 @@ them.  :mod:`.selfcal` borders the normal equations with them.
 Self-calibration (thesis eq. 01-07)
 -----------------------------------
 The problem's observations are corrected photo coordinates ``x_fotc`` computed
-with the calibration certificate ``theta_0`` (:mod:`lidarcat.camera`).  With
+with the calibration certificate ``theta_0`` (:mod:`lidarcat.geometry.camera`).  With
 corrections ``delta`` to the calibration -- ``c`` (focal length, mm), ``x0, y0``
 (principal point dx, dy of eq. 02, mm), ``k1, k2, k3`` (mm^-2, mm^-4, mm^-6),
 ``p1, p2`` (mm^-1) -- the measured point gives
@@ -31,7 +31,7 @@ The residual ``v = x(eo, X, c + dc) - x_fotc(delta)`` has the derivatives
 
 (``r^2 = x_fot^2 + y_fot^2``, everything at the current ``x_fot(delta)``); the
 test suite checks them against finite differences.  ``x_fot0`` is recovered
-once from the problem's ``x_fotc`` by :meth:`lidarcat.camera.Camera.photo_to_fot`
+once from the problem's ``x_fotc`` by :meth:`lidarcat.geometry.camera.Camera.photo_to_fot`
 (Newton, 1e-10 mm).  Each switched-on parameter carries the calibration
 certificate's standard deviation as a weighted prior ``delta = 0 +- sd``; a
 parameter with no sd (or sd 0) is free.
@@ -65,7 +65,7 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import Camera
+from ..geometry.camera import Camera
 from ..errors import LidarcatError
 
 __all__ = ["IO_PARAMETERS", "IO_UNITS", "SelfCalibration", "GnssLineOffsets", "parse_parameters",

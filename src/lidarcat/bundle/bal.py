@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import read_text
+from .._util import read_text
 from ..errors import LidarcatError
 from ._blas import pinned
 from ._heap import heap_reuse

@@ -1,7 +1,7 @@
 r"""The collinearity model with weighted constraints: residuals and normal-equation blocks.
 
-For every image observation (photo i, point j) :func:`lidarcat._collinearity.project_with_jacobians`
-(its parts, :func:`~lidarcat._collinearity._project_jacobian_parts`)
+For every image observation (photo i, point j) :func:`lidarcat.geometry.collinearity.project_with_jacobians`
+(its parts, :func:`~lidarcat.geometry.collinearity._project_jacobian_parts`)
 gives the residual ``r = x(eo_i, X_j) - x_obs`` (mm) and its Jacobians ``A_eo`` (2x6)
 and ``A_pt`` (2x3); with the weights ``w = 1 / sd^2`` the blocks of the normal
 equations are
@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from .._collinearity import _project_jacobian_parts, project
+from ..geometry.collinearity import _project_jacobian_parts, project
 from .linear import _Schur
 from .problem import BundleProblem
 

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 
-from .._collinearity import block_sum
+from ..geometry.collinearity import block_sum
 from ..errors import DatumError
 from .linear import CHUNK_PAIRS, _inv3, _Singular
 from .model import _System
@@ -184,7 +184,7 @@ def joint_point_covariance(result: BundleResult, points: Sequence[str], *, batch
     point shares the errors of the photo orientations: points controlled by
     the same few constraints move together (a block tilt, a height offset).
     Tests on several points at once -- the check-point chi-square of
-    :func:`lidarcat.accuracy.covariance_consistency_test` -- need the whole
+    :func:`lidarcat.accuracy.checkpoints.covariance_consistency_test` -- need the whole
     matrix ``C[a, b] = V_a^-1 delta_ab + T_a^T S^-1 T_b`` (Schur complement
     of the point blocks: S the reduced camera system, T_a = W_a V_a^-1).
 

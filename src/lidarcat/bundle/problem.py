@@ -4,7 +4,7 @@ Model (thesis section 2.1.2, eq. 08-22)
 ---------------------------------------
 Unknowns are the exterior orientation of every photo, ``(X0, Y0, Z0)`` in metres
 and ``(omega, phi, kappa)`` in radians with ``M = R3(kappa) R2(phi) R1(omega)``
-(see :mod:`lidarcat._collinearity` for the convention and the derivation of the
+(see :mod:`lidarcat.geometry.collinearity` for the convention and the derivation of the
 Jacobians), and the object coordinates ``(E, N, h)`` of every point.  The
 observations are photo coordinates (x right, y up, mm, already corrected for the
 interior orientation, eq. 07) with a standard deviation per coordinate; control
@@ -30,8 +30,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy import stats
 
-from .._collinearity import project, rotation_matrix
-from .._frozen import frozen_array
+from ..geometry.collinearity import project, rotation_matrix
+from .._util.frozen import frozen_array
 from ..errors import DatumError
 
 __all__ = ["ExteriorOrientation", "BundleProblem", "check_datum", "chi2_bounds"]

@@ -125,7 +125,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, stats
 
-from .._collinearity import project_with_jacobians
+from ..geometry.collinearity import project_with_jacobians
 from ..errors import DatumError
 from .linear import _Singular
 from .model import _System

@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg as sla
 
-from .._collinearity import block_sum, project_with_jacobians
+from ..geometry.collinearity import block_sum, project_with_jacobians
 from ..errors import DatumError
 from ._blas import pinned
 from ._heap import heap_reuse

@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from .._approx import approximations, intersect_points
-from .._frozen import frozen_array
+from .approx import approximations, intersect_points
+from .._util.frozen import frozen_array
 from ._blas import pinned
 from ._heap import heap_reuse
 from .model import _cost, _System
@@ -284,7 +284,7 @@ def adjust(
     problem : BundleProblem
     initial : (eo (P, 6), points (Q, 3) or None), optional
         Approximate values (m, rad).  Default: computed by
-        :func:`lidarcat._approx.approximations` from control points, image
+        :func:`lidarcat.bundle.approx.approximations` from control points, image
         measurements and ``problem.initial_eo`` (a planimetric block adjustment,
         then sweeps of intersection and space resection).  With points ``None``
         they are intersected from the given orientations.

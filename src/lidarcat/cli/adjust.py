@@ -201,14 +201,14 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     they are refused (exit 2) and the default is off; find the blunders first
     without the parameters.
     """
-    from ..bundle import adjust_survey
-    from ..bundle.selfcal_survey import (
+    from ..survey import adjust_survey
+    from ..survey.selfcal import (
         SNOOPING_WITH_PARAMETERS,
         adjust_survey_with_parameters,
         format_parameters,
         wants_parameters,
     )
-    from ..survey import Survey
+    from ..survey.folder import Survey
 
     loaded = Survey.load(survey)  # once, for both paths
     with_parameters = wants_parameters(loaded, self_calibrate, frame_offset)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ..survey import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
+from ..survey.folder import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
 from .options import echo_json, json_opt
 
 __all__ = ["assess"]
@@ -80,7 +80,7 @@ def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float,
       lidarcat assess out/gps data/thesis/ground_points.csv --standard pec --json
       lidarcat assess adj.csv ref.csv --points 603,605,606 -o report.html
     """
-    from ..accuracy import assess as run_assess
+    from ..accuracy.checkpoints import assess as run_assess
 
     ref_path = Path(reference)
     if ref_path.is_dir():
@@ -97,13 +97,13 @@ def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float,
     cov = None
     no_cov = None
     if covariance is None and adjustment_dir is not None:
-        from ..bundle import MAX_JOINT_COVARIANCE_POINTS
+        from ..survey import MAX_JOINT_COVARIANCE_POINTS
 
         no_cov = (f"consistency test (d'C^-1d) not run: {adj_dir / 'check_covariance.csv'} does not exist "
                   f"(lidarcat adjust writes it for 1 to {MAX_JOINT_COVARIANCE_POINTS} check points with "
                   "--precision all; lidarcat run computes the test in memory for any number of check points)")
     if covariance is not None:
-        from ..bundle import read_point_covariance
+        from ..survey import read_point_covariance
 
         cov = read_point_covariance(covariance)
     a = run_assess(adj_path, ref_path, points=_split(points), sign=sign, scale=scale,
@@ -111,7 +111,7 @@ def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float,
                    alpha=alpha, plotting_position=plotting_position, pec_class=pec_class, adjusted_cov=cov)
     paths = None
     if output is not None:
-        from ..report import write_report
+        from ..report.document import write_report
 
         paths = write_report(output, assessment=a, adjustment_dir=adjustment_dir, survey=survey,
                              title=f"lidarcat accuracy report: {adj_path.name} vs {ref_path.name}")
@@ -151,7 +151,7 @@ def _print_text(a) -> None:
                 parts.append(f"{comp} not applicable ({t.reason})")
         click.echo(f"  {tname:15s} " + "; ".join(parts))
     if a.standards:
-        from ..standards import CONFIDENCE_LABELS
+        from ..accuracy.standards import CONFIDENCE_LABELS
 
         click.echo("\nstandards (confidence of the rules in brackets):")
         for name, s in a.standards.items():

@@ -49,7 +49,7 @@ def correct(source: str, camera_spec: str | None, output: str | None, as_json: b
       lidarcat camera correct points.csv --camera data/cameras/lactec_dcs14n_2008.toml
       lidarcat camera correct points.csv --camera cams.toml:dcs14n --json
     """
-    from ..survey import correct_measurements
+    from ..survey.folder import correct_measurements
 
     table = correct_measurements(source, camera_spec)
     if output is not None:
@@ -61,7 +61,7 @@ def correct(source: str, camera_spec: str | None, output: str | None, as_json: b
             out["points"] = table.records()
         echo_json(out)
     elif output is None:
-        from .._io import write_csv
+        from .._util import write_csv
 
         write_csv(sys.stdout, table.columns, table.rows())
     else:
@@ -86,7 +86,7 @@ def info(source: str | None, as_json: bool) -> None:
       lidarcat camera info
       lidarcat camera info data/cameras/lactec_dcs14n_2008.toml --json
     """
-    from ..survey import cameras_of
+    from ..survey.folder import cameras_of
 
     cams = cameras_of(source)
     summaries = {k: c.summary() for k, c in cams.items()}

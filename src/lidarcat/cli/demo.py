@@ -59,7 +59,7 @@ def synthetic(outdir: str, n_photos: int, seed: int, image_sd_px: float, gps_sd_
       lidarcat demo synthetic -o demo/ --images && lidarcat run demo/ -o demo/out
       lidarcat ortho demo/ --all --dsm dsm.tif --gsd 0.2 -o demo/ortho --mosaic
     """
-    from ..demo import write_synthetic_survey
+    from ..synthetic.survey import write_synthetic_survey
 
     with progress_bar(5, "demo survey", enabled=not as_json) as bar:
         result = write_synthetic_survey(
@@ -96,7 +96,7 @@ def compare(survey: str, outdir: str | None, as_json: bool) -> None:
     """
     from pathlib import Path
 
-    from ..demo import compare_with_truth
+    from ..synthetic.survey import compare_with_truth
 
     result = compare_with_truth(survey, outdir or Path(survey) / "out")
     if as_json:

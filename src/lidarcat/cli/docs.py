@@ -83,7 +83,7 @@ def render_cli_reference() -> str:
 
 def write_cli_reference(path: str | Path = DEFAULT_PATH) -> Path:
     """Write the reference to *path* atomically and return it."""
-    from .._io import write_text_atomic
+    from .._util import write_text_atomic
 
     return write_text_atomic(path, render_cli_reference())
 

@@ -101,7 +101,7 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
 
     Exit status 1 when no roof gave a control point (see below).
     """
-    from ..facets import get_params
+    from ..control.facets import get_params
 
     jobs, tiles = _split_arguments(args, lidar, job_mode=at is None and not find)
     lidar = tuple(tiles)
@@ -127,7 +127,7 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
         return
     if workers is not None or scheduler is not None or work_dir:
         raise click.UsageError("--workers, --scheduler and --work-dir: for --find, not jobs or --at")
-    from ..extraction import Job, extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
+    from ..control.batch import Job, extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
 
     job_list = [Job("P1", at[0], at[1])] if at is not None else read_jobs(jobs)
     with progress_bar(len(job_list), "Extracting roofs") as bar:
@@ -166,8 +166,8 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
 
 
 def _find(lidar, crs, box, classes, params, output, as_json, index_cache, workers, scheduler, work_dir) -> None:
-    from ..extraction import write_candidates
-    from ..control import find_candidates
+    from ..control.batch import write_candidates
+    from ..control.vertices import find_candidates
     from ..lidar import TileIndex, require_metres
 
     index = TileIndex.build(list(lidar), crs=crs, cache_path=index_cache)
@@ -184,8 +184,8 @@ def _find(lidar, crs, box, classes, params, output, as_json, index_cache, worker
             raise click.BadParameter(f"{classes!r}: expected a comma list of integers", param_hint="--classes")
     if workers is None and scheduler is None:
         cands = find_candidates(index.query_box(*area), box=area, params=params, classes=cls)
-    else:  # blocks of cells on Dask; the same candidates (lidarcat.find_tiles)
-        from ..find_tiles import find_candidates_tiles, n_blocks
+    else:  # blocks of cells on Dask; the same candidates (lidarcat.control.search)
+        from ..control.search import find_candidates_tiles, n_blocks
 
         with progress_bar(n_blocks(index, area, params=params), "Searching blocks") as bar:
             cands = find_candidates_tiles(index, area, params=params, classes=cls, crs=crs, workers=workers,

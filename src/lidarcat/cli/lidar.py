@@ -70,7 +70,7 @@ def _survey_lidar(folder: Path) -> tuple[list[Path], str | None, Path]:
     """(tile paths, [lidar] crs, root) of a survey folder."""
     from ..errors import SurveyError
     from ..lidar.readers import ASCII_SUFFIXES, LAS_SUFFIXES
-    from ..survey import Survey
+    from ..survey.folder import Survey
 
     s = Survey.load(folder)
     files = [f for f in s.lidar_paths if Path(f).suffix.lower() in LAS_SUFFIXES + ASCII_SUFFIXES]

@@ -26,7 +26,7 @@ _overlap_opt = click.option(
 
 def _run(kind: str, paths: tuple[str, ...], out: str, crs: str | None, params: dict[str, Any],
          overlap_m: float, workers: int | None, scheduler: str | None, resume: bool, suffix: str) -> list[str]:
-    from ..lidar.parallel import run_jobs, tile_jobs
+    from ..lidar.jobs import run_jobs, tile_jobs
 
     files, crs, _ = _sources(paths, crs)
     jobs = tile_jobs(kind, files, out, crs=crs, params=params, overlap_m=overlap_m, suffix=suffix)
@@ -80,7 +80,7 @@ def ground(paths: tuple[str, ...], output: str, method: str, max_building_m: flo
       lidarcat lidar ground 'tiles/*.laz' -o classified/ --workers 4
       lidarcat lidar ground tiles/ -o classified/ --method ptd --max-building-m 80
     """
-    from ..lidar.ground import PTDParameters, SMRFParameters, default_overlap_m
+    from ..production.ground import PTDParameters, SMRFParameters, default_overlap_m
 
     import dataclasses
 
@@ -173,7 +173,7 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
 
     from ..lidar import read_points
     from ..lidar.cloud import PointCloud
-    from ..lidar.contours import CONTOUR_FORMATS, contours, spot_heights, write_contours
+    from ..production.contours import CONTOUR_FORMATS, contours, spot_heights, write_contours
 
     if Path(output).suffix.lower() not in CONTOUR_FORMATS:
         raise click.BadParameter(f"{output}: give a file ending in {', '.join(CONTOUR_FORMATS)}",
@@ -221,7 +221,7 @@ def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: floa
 
     from ..lidar import read_points, rasterize
     from ..lidar.cloud import PointCloud
-    from ..lidar.terrain import hypsometric_image, write_product
+    from ..production.terrain import hypsometric_image, write_product
 
     out = Path(output)
     if out.suffix.lower() not in (".tif", ".tiff"):
@@ -234,7 +234,7 @@ def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: floa
     inten, _ = rasterize(pc, cell_m, "intensity") if pc.has("intensity") else (None, None)
     img = hypsometric_image(h, inten, h_min_m, h_max_m, cmap=cmap)
     write_product(out, img, t, pc.crs)
-    from .._io import atomic_write
+    from .._util import atomic_write
 
     with atomic_write(out.with_suffix(".png"), "wb") as fh:
         matplotlib.image.imsave(fh, img, format="png")
@@ -246,7 +246,7 @@ PRODUCT_COMMANDS = [ground, dtm, dsm, contours_cmd, hypsometry]
 
 
 def _sheet_index_choice() -> click.Choice:
-    from ..lidar.sheets import SHEET_INDEXES
+    from ..production.sheets import SHEET_INDEXES
 
     return click.Choice(list(SHEET_INDEXES))
 
@@ -290,12 +290,12 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
     import rasterio
     import rasterio.errors
 
-    from .._io import atomic_dir
+    from .._util import atomic_dir
     from ..errors import FormatError
-    from ..lidar.contours import read_line_layer, write_layers
+    from ..production.contours import read_line_layer, write_layers
     from ..lidar.raster import GeoTransform
-    from ..lidar.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
-    from ..lidar.terrain import write_product
+    from ..production.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
+    from ..production.terrain import write_product
 
     rasters, vectors = [], []
     lo = [np.inf, np.inf]

@@ -57,12 +57,12 @@ def monoplot(survey, photo_id, features_path, surface_path, lidar, interpolator,
 
     import numpy as np
 
-    from .._io import write_csv_atomic, write_text_atomic
-    from ..features import FEATURE_CSV_COLUMNS, features_geojson, features_rows, read_features
-    from ..monoplot import GridSurface
-    from ..monoplot import monoplot as run_monoplot
-    from ..mapping_inputs import adjusted_orientation, lidar_surface, ray_area
-    from ..survey import Survey
+    from .._util import write_csv_atomic, write_text_atomic
+    from ..mapping.features import FEATURE_CSV_COLUMNS, features_geojson, features_rows, read_features
+    from ..mapping.monoplot import GridSurface
+    from ..mapping.monoplot import monoplot as run_monoplot
+    from ..mapping.inputs import adjusted_orientation, lidar_surface, ray_area
+    from ..survey.folder import Survey
 
     if surface_path and lidar:
         raise click.UsageError("give --surface or --lidar, not both")

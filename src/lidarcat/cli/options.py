@@ -10,7 +10,7 @@ from typing import Any
 
 import click
 
-from .._io import dumps_json
+from .._util import dumps_json
 
 __all__ = ["json_opt", "survey_arg", "echo_json", "progress_bar", "workers_option", "scheduler_option",
            "FiniteRange", "POSITIVE", "NON_NEGATIVE"]

@@ -51,11 +51,11 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
     """Orthophotos of adjusted photos over a DTM or DSM, and their mosaic."""
     from pathlib import Path
 
-    from ..monoplot import GridSurface
-    from ..mosaic import mosaic
-    from ..ortho import PhotoModel, orthophoto
-    from ..mapping_inputs import adjusted_orientations, default_eop_path, photo_image, read_orientations
-    from ..survey import Survey
+    from ..mapping.monoplot import GridSurface
+    from ..mapping.mosaic import mosaic
+    from ..mapping.ortho import PhotoModel, orthophoto
+    from ..mapping.inputs import adjusted_orientations, default_eop_path, photo_image, read_orientations
+    from ..survey.folder import Survey
 
     if bool(dtm) == bool(dsm):
         raise click.UsageError("give one of --dtm (standard orthophoto) or --dsm (true orthophoto)")

@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from ..survey import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
+from ..survey.folder import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
 from .options import echo_json, json_opt
 
 __all__ = ["run"]
@@ -117,7 +117,7 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
 
 
 def _text(result) -> str:
-    from ..pipeline.stages.report import (
+    from ..stages.report import (
         num as _f,  # the report's number format: '-' for a missing value
     )
 

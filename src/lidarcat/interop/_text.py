@@ -1,7 +1,7 @@
 """Located parsing of the whitespace/CSV text files other programs write.
 
 Every reader of :mod:`lidarcat.interop` goes through :class:`TextLines`: it reads
-the file as UTF-8 (:func:`lidarcat._io.read_text`), numbers the physical lines
+the file as UTF-8 (:func:`lidarcat._util.read_text`), numbers the physical lines
 (comments and blank lines count, as in an editor) and turns a bad cell into a
 :class:`~lidarcat.errors.FormatError` ``FILE:LINE: field 'NAME': what is wrong``.
 """
@@ -14,7 +14,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from .._io import read_text
+from .._util import read_text
 from ..errors import FormatError, location
 
 __all__ = ["TextLines", "Row", "format_error"]

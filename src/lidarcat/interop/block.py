@@ -1,7 +1,7 @@
 """The in-memory block every reader fills and every writer drains, and its survey folder.
 
 A :class:`Block` holds what the formats have in common: cameras
-(:class:`lidarcat.camera.Camera`), photos with exterior orientations in
+(:class:`lidarcat.geometry.camera.Camera`), photos with exterior orientations in
 lidarcat's convention (:mod:`lidarcat.interop.rotations`), image observations
 (pixels with the origin at the centre of the top-left pixel, and/or corrected
 photo coordinates in mm, x right, y up), object points and ground control.
@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from .._frozen import frozen_array
-from .._io import atomic_dir, read_csv_table, read_text, write_csv_atomic, write_json_atomic, write_text_atomic
-from ..camera import Camera
+from .._util.frozen import frozen_array
+from .._util import atomic_dir, read_csv_table, read_text, write_csv_atomic, write_json_atomic, write_text_atomic
+from ..geometry.camera import Camera
 from ..errors import FormatError
 
 __all__ = ["Block", "Orientations", "GroundControl", "apply_orientations", "apply_ground_control",
@@ -297,7 +297,7 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
     SurveyError
         Invalid survey or adjustment files (located).
     """
-    from ..survey import Survey
+    from ..survey.folder import Survey
 
     if not isinstance(survey, Survey):
         survey = Survey.load(survey)
@@ -344,9 +344,9 @@ def reprojection_residuals_mm(block: Block) -> np.ndarray:
 
     Every observation is projected with its photo's orientation ``block.eo`` and
     its point's ``block.points_m`` through the collinearity equations
-    (:mod:`lidarcat._collinearity`); NaN where a photo or point is unknown.
+    (:mod:`lidarcat.geometry.collinearity`); NaN where a photo or point is unknown.
     """
-    from .._collinearity import project
+    from ..geometry.collinearity import project
 
     idx = block.photo_index()
     pi = np.array([idx[p] for p in block.obs_photo.tolist()], dtype=np.intp)
@@ -492,7 +492,7 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
 
 
 def _load_target(survey: Any, folder: str | Path, overwrite: bool):
-    from ..survey import Survey
+    from ..survey.folder import Survey
 
     if not isinstance(survey, Survey):
         survey = Survey.load(survey)

@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import atomic_dir, read_text, write_text_atomic
-from ..camera import Camera
+from .._util import atomic_dir, read_text, write_text_atomic
+from ..geometry.camera import Camera
 from ..errors import FormatError
 from ._distortion import is_identity
 from ._text import format_error

@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from .._io import atomic_dir, read_csv_table, write_text_atomic
+from .._util import atomic_dir, read_csv_table, write_text_atomic
 from ..errors import FormatError
 from .block import Block, block_from_survey
 from .rotations import opk_to_matrix
@@ -99,7 +99,7 @@ def gis_layers(survey: Any = None, adjustment: str | Path | None = None, *, elli
     from pyproj import CRS
     from pyproj.exceptions import CRSError
 
-    from ..bundle import read_point_covariance
+    from ..survey import read_point_covariance
 
     if adjustment is None:
         raise FormatError("GIS layers need an adjustment folder (eop.csv, points.csv, residuals.csv)")

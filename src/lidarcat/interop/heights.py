@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from .._io import read_toml, toml_line
+from .._util import read_toml, toml_line
 from ..errors import LidarcatError, location
 
 __all__ = ["HEIGHT_SYSTEMS", "HeightError", "HeightDeclarations", "height_system_of_crs",
@@ -107,7 +107,7 @@ def read_height_declarations(survey: Any) -> HeightDeclarations:
         A value that is not ellipsoidal/orthometric, a missing grid file, or a
         declaration that contradicts the survey CRS (``survey.toml:LINE: field``).
     """
-    from ..survey import Survey
+    from ..survey.folder import Survey
 
     if not isinstance(survey, Survey):
         survey = Survey.load(survey)
@@ -212,7 +212,7 @@ def harmonise_ground_points(survey: Any, to_system: str | None = None, geoid_gri
         The target is not ellipsoidal/orthometric, or a source needs converting
         and no grid is available (names the source, the count and what to add).
     """
-    from ..survey import GroundPoints, Survey
+    from ..survey.folder import GroundPoints, Survey
 
     if not isinstance(survey, Survey):
         survey = Survey.load(survey)
@@ -266,8 +266,8 @@ def write_harmonised_survey(survey: Any, folder: str | Path, *, to_system: str |
     """
     import re
 
-    from .._io import atomic_dir, write_csv_atomic, write_text_atomic
-    from ..survey import Survey
+    from .._util import atomic_dir, write_csv_atomic, write_text_atomic
+    from ..survey.folder import Survey
     from .block import _copy_survey
 
     if not isinstance(survey, Survey):

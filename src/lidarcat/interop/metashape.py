@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import read_bytes
+from .._util import read_bytes
 from ..errors import FormatError
 from ._text import format_error
 from .block import Block, pinhole_camera, undistorted_mm

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .._io import atomic_dir, read_text, write_text_atomic
+from .._util import atomic_dir, read_text, write_text_atomic
 from ..errors import FormatError
 from ._text import format_error
 from .block import Block, GroundControl, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import atomic_write, write_json_atomic
+from .._util import atomic_write, write_json_atomic
 from ..errors import FormatError
 from ._text import TextLines, format_error
 from .block import Block, Orientations, require_orientations
@@ -192,7 +192,7 @@ def read_borea_camera(path: str | Path, *, pixel_size_mm: float = 0.001):
     FormatError
         Missing or non-numeric key (``FILE:LINE: field 'KEY'``).
     """
-    from ..camera import Camera
+    from ..geometry.camera import Camera
 
     tl = TextLines(path, comment="#", split="ws")
     vals: dict[str, tuple[str, int]] = {}

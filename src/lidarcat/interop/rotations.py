@@ -1,6 +1,6 @@
 r"""Rotation conventions of the formats lidarcat reads and writes, and the conversions.
 
-lidarcat (thesis eq. 08, :mod:`lidarcat._collinearity`)
+lidarcat (thesis eq. 08, :mod:`lidarcat.geometry.collinearity`)
     ``M = R3(kappa) R2(phi) R1(omega)`` rotates **object to image**; the image
     frame is x right, **y up**, z backwards (the camera looks along -z), so
     ``x = -c u1/u3`` with ``u = M (X - X0)``.  The elementary rotations are the
@@ -41,7 +41,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .._collinearity import rotation_matrix
+from ..geometry.collinearity import rotation_matrix
 
 __all__ = [
     "FLIP",

@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .._frozen import frozen_array
+from .._util.frozen import frozen_array
 
 __all__ = ["PointCloud", "Bounds", "STANDARD_ATTRIBUTES"]
 

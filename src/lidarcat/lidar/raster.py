@@ -49,7 +49,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from .._io import atomic_write, read_bytes, write_text_atomic
+from .._util import atomic_write, read_bytes, write_text_atomic
 from ..errors import LidarcatError, LidarFormatError, TileIOError
 from .cloud import PointCloud
 from .crs import _parts, resolve_crs
@@ -307,7 +307,7 @@ def _geotiff_ifd(cols: int, rows: int, bands: int, rows_per_strip: int, strip_of
                  ) -> tuple[bytes, bool]:
     """The image file directory (and its out-of-line values) of a float32 strip GeoTIFF.
 
-    Shared by :func:`write_geotiff` and the streaming writer of :mod:`lidarcat.ortho`:
+    Shared by :func:`write_geotiff` and the streaming writer of :mod:`lidarcat.mapping.ortho`:
     tags 256-339 (1 or 3 float32 bands, chunky, no compression), ModelPixelScale,
     ModelTiepoint, GeoKeys (+ GeoAscii) and GDAL_NODATA ``nan``.  *ifd_offset* is the
     (even) byte offset the directory will be written at.  Returns the bytes and

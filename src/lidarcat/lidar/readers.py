@@ -63,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-from .._io import atomic_write, parse_float
+from .._util import atomic_write, parse_float
 from ..errors import CRSError, LidarFormatError, TileIOError, location
 from .cloud import STANDARD_ATTRIBUTES, Bounds, PointCloud
 from .copc import is_copc

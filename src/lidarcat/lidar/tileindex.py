@@ -81,7 +81,7 @@ from typing import Any
 import numpy as np
 import pyproj
 
-from .._io import write_json_atomic
+from .._util import write_json_atomic
 from ..errors import ClipError, CRSError, TileIOError
 from .cloud import Bounds, PointCloud
 from .copc import is_copc, read_copc_box

@@ -26,7 +26,7 @@ Every stage records the SHA-256 of its inputs (file contents, parameters,
 lidarcat version and source code, and the outputs of the stages it depends on) in
 ``OUTDIR/.stages/<stage>.json``; a later run with unchanged inputs reuses the
 stage (status ``reused``) instead of recomputing it, ``force=True`` recomputes
-everything.  A stage writes its folder through :func:`lidarcat._io.atomic_dir`
+everything.  A stage writes its folder through :func:`lidarcat._util.atomic_dir`
 and its record only afterwards, so an interrupted run (SIGINT) leaves no
 half-written file and the next run redoes exactly the unfinished stages
 (temporary ``.*.part`` leftovers of a killed run are removed first; two runs

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from .._io import folder_lock, write_json_atomic
+from .._util import folder_lock, write_json_atomic
 from ..errors import LidarcatError, SurveyError
 from .runner import (
     PipelineResult,
@@ -32,8 +32,8 @@ from .runner import (
     run_stages,
     safe_name,
 )
-from .stages import adjust, assess, camera, compare, extract, mapping, products, report, selfcal, thesis
-from .stages.report import results
+from ..stages import adjust, assess, camera, compare, extract, mapping, products, report, selfcal, thesis
+from ..stages.report import results
 
 __all__ = ["FROM_SURVEY", "plan_pipeline", "run_pipeline"]
 
@@ -179,7 +179,7 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
 
 def survey_tables(survey: Any) -> set[str]:
     """The top-level tables of the survey's survey.toml (none for the embedded block's missing file)."""
-    from .._io import read_toml
+    from .._util import read_toml
 
     try:
         return set(read_toml(survey.toml_path)[0])
@@ -262,7 +262,7 @@ def run_pipeline(
     SurveyError
         The survey folder is invalid (nothing is run).
     """
-    from ..survey import Survey
+    from ..survey.folder import Survey
 
     survey = Survey.load(survey_path)
     out = Path(survey.output_dir(outdir))

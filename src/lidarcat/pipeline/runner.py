@@ -7,14 +7,14 @@ SHA-256 of its inputs (file contents, parameters, lidarcat version and source
 code, and the output digests of the stages it depends on) in
 ``OUTDIR/.stages/<stage>.json``; a later run with unchanged inputs reuses the
 stage (status ``reused``), ``force=True`` recomputes everything.  A stage
-writes its folder through :func:`lidarcat._io.atomic_dir` and its record only
+writes its folder through :func:`lidarcat._util.atomic_dir` and its record only
 afterwards, so an interrupted run leaves no half-written file and the next run
 redoes exactly the unfinished stages (``.*.part`` leftovers of a killed run are
 removed first).  A failing stage does not stop the others; the stages that
 require it are skipped.
 
 Nothing here knows about photogrammetry: the lidarcat stages are in
-:mod:`lidarcat.pipeline.stages` and their order in :mod:`lidarcat.pipeline.plan`.
+:mod:`lidarcat.stages` and their order in :mod:`lidarcat.pipeline.plan`.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from .._io import atomic_dir, dumps_json, write_json_atomic
+from .._util import atomic_dir, dumps_json, write_json_atomic
 from ..errors import LidarcatError
 
 __all__ = ["STATUSES", "ProgressCallback", "Stage", "StageRecord", "PipelineResult", "Context",
@@ -454,7 +454,7 @@ def _run_one(stage: Stage, ctx: Context, force: bool) -> StageRecord:
 
 
 def _remove_parts(parent: Path, prefix: str) -> None:
-    """Remove temporary ``.<prefix>*.part`` files and folders in *parent* (see lidarcat._io)."""
+    """Remove temporary ``.<prefix>*.part`` files and folders in *parent* (see lidarcat._util)."""
     import shutil
 
     if not parent.is_dir():

@@ -1,0 +1,17 @@
+"""Shared helpers of every stage: files (atomic output, located input), tables (CSV/TOML/JSON), frozen value types.
+
+=================  =========================================================
+``files``          atomic writes, output-folder lock, located reads, SHA-256, provenance
+``tables``         CSV with the header first, TOML line numbers, JSON (sorted keys, NaN -> null)
+``frozen``         frozen value types holding read-only arrays
+=================  =========================================================
+"""
+
+from __future__ import annotations
+
+from .files import *  # noqa: F401,F403
+from .files import __all__ as _files_all
+from .tables import *  # noqa: F401,F403
+from .tables import __all__ as _tables_all
+
+__all__ = [*_files_all, *_tables_all]

@@ -1,0 +1,89 @@
+"""Stage ``extract``: LiDAR roof facets -> roof vertices -> control points (thesis 3.2, eq. 25-41).
+
+============  ============================================================
+``facets``    Roof facets from airborne LiDAR: Delaunay triangles, slope, grouping, plane fits.
+``vertices``  Control points from roof planes: intersection (eq. 38-41) with covariance.
+``batch``     Batch roof extraction: job files, tiles, output tables, operator figures.
+``search``    Tile-parallel roof-vertex search: :func:`~lidarcat.control.vertices.find_candidates` over blocks of cells.
+============  ============================================================
+"""
+
+from __future__ import annotations
+
+from .facets import (  # noqa: F401
+    Plane,
+    ExtractionParams,
+    PRESETS,
+    get_params,
+    triangle_planes,
+    triangle_slope_aspect,
+    delaunay_facets,
+    fit_plane,
+    PlaneFit,
+    segment_faces,
+)
+from .vertices import (  # noqa: F401
+    ControlPoint,
+    intersect_planes,
+    select_vertex,
+    candidate_vertices,
+    extract_roof,
+    find_candidates,
+    Candidate,
+    STATUSES,
+    ROW_FIELDS,
+)
+from .batch import (  # noqa: F401
+    Job,
+    read_jobs,
+    extract_batch,
+    write_control_csv,
+    write_planes_csv,
+    write_candidates,
+    plot_control_point,
+    write_figures,
+    PLANE_FIELDS,
+)
+from .search import (  # noqa: F401
+    find_candidates_tiles,
+    find_jobs,
+    n_blocks,
+    run_find_block,
+    write_block,
+)
+
+__all__ = [
+    'Plane',
+    'ExtractionParams',
+    'PRESETS',
+    'get_params',
+    'triangle_planes',
+    'triangle_slope_aspect',
+    'delaunay_facets',
+    'fit_plane',
+    'PlaneFit',
+    'segment_faces',
+    'ControlPoint',
+    'intersect_planes',
+    'select_vertex',
+    'candidate_vertices',
+    'extract_roof',
+    'find_candidates',
+    'Candidate',
+    'STATUSES',
+    'ROW_FIELDS',
+    'Job',
+    'read_jobs',
+    'extract_batch',
+    'write_control_csv',
+    'write_planes_csv',
+    'write_candidates',
+    'plot_control_point',
+    'write_figures',
+    'PLANE_FIELDS',
+    'find_candidates_tiles',
+    'find_jobs',
+    'n_blocks',
+    'run_find_block',
+    'write_block',
+]

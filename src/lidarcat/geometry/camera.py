@@ -1,0 +1,607 @@
+r"""Interior orientation of a non-metric digital camera (thesis section 2.1.1, eq. 01-07).
+
+A measured pixel position (column ``C``, row ``L``; origin at the *centre* of the
+top-left pixel, rows growing downwards) becomes a *corrected photo coordinate*
+in millimetres, x to the right and y up, in four steps:
+
+eq. 01, pixel -> image centre (no rotation between the two systems)::
+
+    x_pfid =  t_px * (C - (N_c - 1) / 2)
+    y_pfid = -t_py * (L - (N_L - 1) / 2)
+
+eq. 02, image centre -> photogrammetric system (principal-point offset dx, dy)::
+
+    x_fot = x_pfid - dx
+    y_fot = y_pfid - dy
+
+eq. 03-06, systematic errors, all evaluated at (x_fot, y_fot) with
+``r^2 = x_fot^2 + y_fot^2`` (eq. 04)::
+
+    dx_ra  = x_fot (K1 r^2 + K2 r^4 + K3 r^6)                  radial (03)
+    dx_des = P1 (r^2 + 2 x_fot^2) + 2 P2 x_fot y_fot             decentering (05)
+    dy_des = P2 (r^2 + 2 y_fot^2) + 2 P1 x_fot y_fot
+    dx_ref = x_fot (1 + r^2 / c^2) eps45                          refraction (06)
+
+eq. 07, the corrected photo coordinate::
+
+    x_fotc = x_fot - dx_ra - dx_des - dx_ref
+
+The thesis prints eq. 05 as ``P1 (r^2 + 2 x)``; its own Appendix 1 follows the
+usual Brown-Conrady form with ``2 x^2`` (153 of 153 rows agree with it, 65 disagree
+with the printed form), which is what is implemented here; the LACTEC calibration
+certificate of the same camera model (report P129, annex, section 5.0) prints
+``2 x^2`` too.  The corrections
+``dx_ra`` ... are the *distortion* values, subtracted in eq. 07; their signs are
+those printed in Appendix 1.
+
+The inverse, corrected photo coordinates -> pixel (:meth:`Camera.photo_to_pixel`),
+has no closed form: it solves ``x_fot - d(x_fot) = x_fotc`` by Newton's method with
+the analytic 2 x 2 Jacobian, vectorised over all points.
+
+Example
+-------
+>>> cam = Camera("c", focal_length_mm=50.0, principal_point_x_mm=0.0,
+...              principal_point_y_mm=0.0, k1=0.0, k2=0.0, k3=0.0, p1=0.0, p2=0.0,
+...              refraction_eps45=0.0, pixel_size_x_mm=0.01, pixel_size_y_mm=0.01,
+...              columns_px=101, rows_px=51)
+>>> cam.pixel_to_photo([[50.0, 25.0], [100.0, 0.0]])
+array([[0.  , 0.  ],
+       [0.5 , 0.25]])
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from .._util import read_toml, toml_line
+from ..errors import CameraError, SurveyError, location
+
+__all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS"]
+
+log = logging.getLogger(__name__)
+
+#: numeric calibration keys of a camera table, in file order
+_FLOAT_KEYS = (
+    "focal_length_mm", "principal_point_x_mm", "principal_point_y_mm",
+    "k1", "k2", "k3", "p1", "p2", "refraction_eps45",
+    "pixel_size_x_mm", "pixel_size_y_mm",
+)
+_INT_KEYS = ("columns_px", "rows_px")
+_STR_KEYS = ("model", "source")
+#: every key a camera table may hold (besides the ``sd_*`` keys)
+CAMERA_KEYS: tuple[str, ...] = _STR_KEYS + _FLOAT_KEYS + _INT_KEYS
+#: the optional standard-deviation keys: ``sd_`` + a calibration key
+SD_KEYS: tuple[str, ...] = tuple(f"sd_{k}" for k in _FLOAT_KEYS)
+_POSITIVE = ("focal_length_mm", "pixel_size_x_mm", "pixel_size_y_mm")
+#: sane ranges of interior orientation values (anything outside is a typo or a unit mix-up):
+#: focal lengths from phone cameras (a few mm) to long aerial lenses, pixels from 0.1 um to
+#: 1 mm, frames up to a million pixels a side, the principal point within the frame
+SANE_RANGES: dict[str, tuple[float, float]] = {
+    "focal_length_mm": (0.5, 5000.0),
+    "pixel_size_x_mm": (1e-4, 1.0),
+    "pixel_size_y_mm": (1e-4, 1.0),
+    "columns_px": (1, 1_000_000),
+    "rows_px": (1, 1_000_000),
+}
+
+
+def _camera_error(field_name: str, message: str) -> CameraError:
+    err = CameraError(f"field {field_name!r}: {message}")
+    err.field = field_name  # type: ignore[attr-defined]
+    return err
+
+
+def _as_points(a: Any, name: str) -> tuple[np.ndarray, bool]:
+    """Return *a* as a float64 (N, 2) array and whether the input was a single (2,) point."""
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.ndim == 1 and arr.shape[0] == 2:
+        return arr.reshape(1, 2), True
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise CameraError(f"{name} must have shape (N, 2) or (2,), got {arr.shape}")
+    return arr, False
+
+
+def _out(arr: np.ndarray, single: bool) -> np.ndarray:
+    return arr[0] if single else arr
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """Calibration of a frame camera: the interior orientation parameters.
+
+    Parameters
+    ----------
+    id : str
+        Camera id (the table name in ``camera.toml``).
+    focal_length_mm : float
+        Calibrated focal length c, mm (> 0).
+    principal_point_x_mm, principal_point_y_mm : float
+        Principal-point offset dx, dy of eq. 02 (``x_fot = x_pfid - dx``), mm.
+    k1, k2, k3 : float
+        Radial distortion coefficients, mm^-2, mm^-4, mm^-6 (eq. 03).
+    p1, p2 : float
+        Decentering distortion coefficients, mm^-1 (eq. 05).
+    refraction_eps45 : float
+        Photogrammetric refraction parameter eps45 (eq. 06), dimensionless.
+    pixel_size_x_mm, pixel_size_y_mm : float
+        Pixel pitch along columns and rows, mm (> 0).
+    columns_px, rows_px : int
+        Image size N_c (columns, along x) and N_L (rows, along y), pixels.
+    model, source : str
+        Free text: camera/lens model; citation of the calibration.
+    sd : Mapping[str, float]
+        Standard deviations of the calibration, keyed ``sd_<field>`` (e.g.
+        ``sd_focal_length_mm``, ``sd_k1``); all optional, each >= 0.
+
+    Raises
+    ------
+    CameraError
+        A value is not finite, a length that must be positive is not, an image
+        size is not a positive integer, or an ``sd`` key is unknown.  The message
+        names the field; ``err.field`` holds it.
+    """
+
+    id: str
+    focal_length_mm: float
+    principal_point_x_mm: float
+    principal_point_y_mm: float
+    k1: float
+    k2: float
+    k3: float
+    p1: float
+    p2: float
+    refraction_eps45: float
+    pixel_size_x_mm: float
+    pixel_size_y_mm: float
+    columns_px: int
+    rows_px: int
+    model: str = ""
+    source: str = ""
+    sd: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.id, str) or not self.id.strip():
+            raise _camera_error("id", f"camera id must be a non-empty string, got {self.id!r}")
+        for name in _FLOAT_KEYS:
+            raw = getattr(self, name)
+            if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)):
+                raise _camera_error(name, f"must be a number, got {raw!r} ({type(raw).__name__})")
+            v = float(raw)
+            if not math.isfinite(v):
+                raise _camera_error(name, f"must be finite, got {v!r}")
+            if name in _POSITIVE and v <= 0:
+                raise _camera_error(name, f"must be positive, got {v!r}")
+            if name in SANE_RANGES and not SANE_RANGES[name][0] <= v <= SANE_RANGES[name][1]:
+                lo, hi = SANE_RANGES[name]
+                raise _camera_error(name, f"{v!r} is outside the sane range {lo:g}..{hi:g} (mm); "
+                                          "check the value and its unit")
+            object.__setattr__(self, name, v)
+        for name in _INT_KEYS:
+            raw = getattr(self, name)
+            if isinstance(raw, bool) or not isinstance(raw, (int, np.integer)):
+                if isinstance(raw, float) and raw.is_integer():
+                    raw = int(raw)
+                else:
+                    raise _camera_error(name, f"must be a whole number of pixels, got {raw!r}")
+            if raw < 1:
+                raise _camera_error(name, f"must be at least 1 pixel, got {raw!r}")
+            if raw > SANE_RANGES[name][1]:
+                raise _camera_error(name, f"{raw!r} pixels is outside the sane range 1..{SANE_RANGES[name][1]:,}")
+            object.__setattr__(self, name, int(raw))
+        w, h = self.columns_px * self.pixel_size_x_mm, self.rows_px * self.pixel_size_y_mm
+        for name, half in (("principal_point_x_mm", w / 2), ("principal_point_y_mm", h / 2)):
+            if abs(getattr(self, name)) > half:
+                raise _camera_error(name, f"{getattr(self, name)!r} mm lies outside the frame "
+                                          f"(+-{half:g} mm from its centre); check the value and its unit")
+        for name in _STR_KEYS:
+            if not isinstance(getattr(self, name), str):
+                raise _camera_error(name, f"must be text, got {getattr(self, name)!r}")
+        sd: dict[str, float] = {}
+        for key, raw in dict(self.sd).items():
+            if key not in SD_KEYS:
+                raise _camera_error(key, f"unknown standard-deviation key; allowed: {', '.join(SD_KEYS)}")
+            if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)):
+                raise _camera_error(key, f"must be a number, got {raw!r}")
+            v = float(raw)
+            if not math.isfinite(v) or v < 0:
+                raise _camera_error(key, f"must be a finite number >= 0, got {v!r}")
+            sd[key] = v
+        object.__setattr__(self, "sd", MappingProxyType(sd))
+
+    # ------------------------------------------------------------------ repr / io
+    def __repr__(self) -> str:
+        return (f"Camera(id={self.id!r}, focal_length_mm={self.focal_length_mm}, "
+                f"{self.columns_px}x{self.rows_px} px of {self.pixel_size_x_mm} mm)")
+
+    @property
+    def frame_size_mm(self) -> tuple[float, float]:
+        """Sensor extent (width along x, height along y), mm."""
+        return self.columns_px * self.pixel_size_x_mm, self.rows_px * self.pixel_size_y_mm
+
+    def to_dict(self) -> dict[str, Any]:
+        """All parameters as a flat dict (the keys of a ``camera.toml`` table plus ``id``)."""
+        out: dict[str, Any] = {"id": self.id}
+        for name in CAMERA_KEYS:
+            out[name] = getattr(self, name)
+        out.update(self.sd)
+        return out
+
+    @classmethod
+    def from_dict(cls, camera_id: str, table: Mapping[str, Any]) -> Camera:
+        """Build a camera from a ``camera.toml`` table (flat ``sd_*`` keys).
+
+        Raises
+        ------
+        CameraError
+            Unknown or missing key, or an invalid value (names the field).
+        """
+        known = set(CAMERA_KEYS) | set(SD_KEYS)
+        for key in table:
+            if key not in known:
+                raise _camera_error(key, "unknown key; allowed: " + ", ".join(CAMERA_KEYS + SD_KEYS))
+        for key in _FLOAT_KEYS + _INT_KEYS:
+            if key not in table:
+                raise _camera_error(key, "missing (required)")
+        kwargs = {k: table[k] for k in CAMERA_KEYS if k in table}
+        sd = {k: table[k] for k in SD_KEYS if k in table}
+        return cls(camera_id, sd=sd, **kwargs)
+
+    def to_toml(self) -> str:
+        """The camera as a ``camera.toml`` table (round-trips through :func:`load_cameras`).
+
+        >>> cam = Camera("a", 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.01, 0.01, 10, 20)
+        >>> print(cam.to_toml().splitlines()[0])
+        [a]
+        """
+        key = self.id if re.fullmatch(r"[A-Za-z0-9_-]+", self.id) else _toml_str(self.id)
+        lines = [f"[{key}]"]
+        for name in _STR_KEYS:
+            if getattr(self, name):
+                lines.append(f"{name} = {_toml_str(getattr(self, name))}")
+        for name in _FLOAT_KEYS:
+            lines.append(f"{name} = {getattr(self, name)!r}")
+        for name in _INT_KEYS:
+            lines.append(f"{name} = {getattr(self, name)}")
+        for name in SD_KEYS:
+            if name in self.sd:
+                lines.append(f"{name} = {self.sd[name]!r}")
+        return "\n".join(lines) + "\n"
+
+    def summary(self) -> dict[str, Any]:
+        """Parameters plus derived figures: frame size (mm), half diagonal, and the
+        largest correction (eq. 03-06) over the frame border, mm and px.
+
+        >>> cam = Camera("a", 50.0, 0.0, 0.0, -1e-4, 0.0, 0.0, 0.0, 0.0, 0.0, 0.01, 0.01, 2001, 1001)
+        >>> round(cam.summary()["max_correction_mm"], 6)  # at the corner, r^2 = 125 mm^2
+        0.139754
+        """
+        border = np.concatenate([
+            np.column_stack([np.linspace(0, self.columns_px - 1, 201), np.zeros(201)]),
+            np.column_stack([np.linspace(0, self.columns_px - 1, 201),
+                             np.full(201, self.rows_px - 1.0)]),
+            np.column_stack([np.zeros(201), np.linspace(0, self.rows_px - 1, 201)]),
+            np.column_stack([np.full(201, self.columns_px - 1.0), np.linspace(0, self.rows_px - 1, 201)]),
+        ])
+        fot = np.asarray(self.pixel_to_fot(border))
+        corr = fot - np.asarray(self.pixel_to_photo(border))
+        mag = np.hypot(corr[:, 0], corr[:, 1])
+        w, h = self.frame_size_mm
+        out = self.to_dict()
+        out.update({
+            "frame_width_mm": w, "frame_height_mm": h,
+            "half_diagonal_mm": math.hypot(w, h) / 2,
+            "max_correction_mm": float(mag.max()),
+            "max_correction_px": float(mag.max() / min(self.pixel_size_x_mm, self.pixel_size_y_mm)),
+        })
+        return out
+
+    # ------------------------------------------------------------------ eq. 01-07
+    def pixel_to_image_centre(self, colrow_px: Any) -> np.ndarray:
+        """Eq. 01: pixel (column C, row L) -> image-centre coordinates x_pfid, y_pfid.
+
+        Parameters
+        ----------
+        colrow_px : array_like, shape (N, 2) or (2,)
+            Column and row, pixels; (0, 0) is the centre of the top-left pixel.
+
+        Returns
+        -------
+        ndarray, shape (N, 2) or (2,)
+            x_pfid (right), y_pfid (up), mm, origin at the geometric image centre.
+        """
+        cr, single = _as_points(colrow_px, "colrow_px")
+        out = np.empty_like(cr)
+        out[:, 0] = self.pixel_size_x_mm * (cr[:, 0] - (self.columns_px - 1) / 2.0)
+        out[:, 1] = self.pixel_size_y_mm * ((self.rows_px - 1) / 2.0 - cr[:, 1])
+        return _out(out, single)
+
+    def image_centre_to_pixel(self, xy_pfid_mm: Any) -> np.ndarray:
+        """Inverse of eq. 01: image-centre coordinates (mm) -> column, row (px)."""
+        xy, single = _as_points(xy_pfid_mm, "xy_pfid_mm")
+        out = np.empty_like(xy)
+        out[:, 0] = xy[:, 0] / self.pixel_size_x_mm + (self.columns_px - 1) / 2.0
+        out[:, 1] = -xy[:, 1] / self.pixel_size_y_mm + (self.rows_px - 1) / 2.0
+        return _out(out, single)
+
+    def pixel_to_fot(self, colrow_px: Any) -> np.ndarray:
+        """Eq. 01-02: pixel -> photogrammetric coordinates x_fot, y_fot (mm), uncorrected."""
+        xy = np.asarray(self.pixel_to_image_centre(colrow_px))
+        return xy - np.array([self.principal_point_x_mm, self.principal_point_y_mm])
+
+    def distortion_corrections(self, xy_fot_mm: Any) -> dict[str, np.ndarray]:
+        """Eq. 03-06: the systematic errors at photogrammetric coordinates x_fot, y_fot.
+
+        Parameters
+        ----------
+        xy_fot_mm : array_like, shape (N, 2) or (2,)
+            x_fot, y_fot (eq. 02), mm.
+
+        Returns
+        -------
+        dict of ndarray, each shape (N,) (or scalar arrays for a single point)
+            ``dx_ra, dy_ra`` radial (eq. 03), ``dx_des, dy_des`` decentering
+            (eq. 05, with ``2 x^2``), ``dx_ref, dy_ref`` refraction (eq. 06), mm;
+            the values subtracted in eq. 07, signs as printed in Appendix 1.
+        """
+        xy, single = _as_points(xy_fot_mm, "xy_fot_mm")
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        radial = r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        ref = (1.0 + r2 / self.focal_length_mm**2) * self.refraction_eps45
+        out = {
+            "dx_ra": x * radial,
+            "dy_ra": y * radial,
+            "dx_des": self.p1 * (r2 + 2 * x * x) + 2 * self.p2 * x * y,
+            "dy_des": self.p2 * (r2 + 2 * y * y) + 2 * self.p1 * x * y,
+            "dx_ref": x * ref,
+            "dy_ref": y * ref,
+        }
+        for v in out.values():  # no -0.0 in tables (in place: the inverse calls this per iteration)
+            v += 0.0
+        if single:
+            out = {k: v[0] for k, v in out.items()}
+        return out
+
+    def _total_distortion(self, xy: np.ndarray) -> np.ndarray:
+        d = self.distortion_corrections(xy)
+        return np.column_stack([d["dx_ra"] + d["dx_des"] + d["dx_ref"],
+                                d["dy_ra"] + d["dy_des"] + d["dy_ref"]])
+
+    def _distortion_jacobian(self, xy: np.ndarray) -> np.ndarray:
+        """d(total distortion)/d(x_fot, y_fot), shape (N, 2, 2)."""
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        radial = r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        dradial = self.k1 + r2 * (2 * self.k2 + 3 * self.k3 * r2)  # d radial / d r2
+        c2 = self.focal_length_mm**2
+        e = self.refraction_eps45
+        p1, p2 = self.p1, self.p2
+        jac = np.empty((len(x), 2, 2))
+        jac[:, 0, 0] = (radial + 2 * x * x * dradial + 6 * p1 * x + 2 * p2 * y
+                        + e * (1 + r2 / c2 + 2 * x * x / c2))
+        jac[:, 0, 1] = 2 * x * y * dradial + 2 * p1 * y + 2 * p2 * x + e * 2 * x * y / c2
+        jac[:, 1, 0] = 2 * x * y * dradial + 2 * p2 * x + 2 * p1 * y + e * 2 * x * y / c2
+        jac[:, 1, 1] = (radial + 2 * y * y * dradial + 6 * p2 * y + 2 * p1 * x
+                        + e * (1 + r2 / c2 + 2 * y * y / c2))
+        return jac
+
+    def pixel_to_photo(self, colrow_px: Any) -> np.ndarray:
+        """Eq. 01, 02, 07: pixel -> corrected photo coordinates x_fotc, y_fotc.
+
+        Parameters
+        ----------
+        colrow_px : array_like, shape (N, 2) or (2,)
+            Column C and row L, pixels (origin: centre of the top-left pixel).
+
+        Returns
+        -------
+        ndarray, shape (N, 2) or (2,)
+            x_fotc (right), y_fotc (up), mm, corrected for radial and decentering
+            distortion and refraction.
+        """
+        cr, single = _as_points(colrow_px, "colrow_px")
+        fot = self.pixel_to_fot(cr)
+        return _out(fot - self._total_distortion(fot), single)
+
+    def pixel_to_photo_jacobian(self, colrow_px: Any) -> np.ndarray:
+        """d(x_fotc, y_fotc)/d(C, L), shape (N, 2, 2), mm per pixel.
+
+        Use it to propagate a pixel measurement sd to photo coordinates:
+        ``J @ diag(sd_px**2) @ J.T``.
+        """
+        cr, _ = _as_points(colrow_px, "colrow_px")
+        fot = self.pixel_to_fot(cr)
+        j = np.eye(2)[None] - self._distortion_jacobian(fot)
+        return j * np.array([self.pixel_size_x_mm, -self.pixel_size_y_mm])[None, None, :]
+
+    def photo_to_fot(self, xy_mm: Any, *, tol_mm: float = 1e-10, max_iter: int = 50,
+                     on_fail: str = "raise") -> np.ndarray:
+        """Invert eq. 07: corrected photo coordinates -> x_fot, y_fot (Newton, vectorised).
+
+        Parameters
+        ----------
+        xy_mm : array_like, shape (N, 2) or (2,)
+            Corrected photo coordinates x_fotc, y_fotc, mm.
+        tol_mm : float
+            Convergence: ``|x_fot - d(x_fot) - x_fotc| <= tol_mm`` on both axes
+            (default 1e-10 mm, far below the required 1e-6 mm).
+        max_iter : int
+            Newton iterations before giving up.
+        on_fail : {"raise", "nan"}
+            What to do with points that do not converge (far outside the frame,
+            where the distortion polynomial folds over): raise, or return NaN.
+
+        Raises
+        ------
+        CameraError
+            A point does not converge (names its index and coordinates).
+        """
+        if on_fail not in ("raise", "nan"):
+            raise ValueError("on_fail must be 'raise' or 'nan'")
+        target, single = _as_points(xy_mm, "xy_mm")
+        fot = target.copy()
+        todo = np.isfinite(target).all(axis=1)
+        done = ~todo
+        with np.errstate(all="ignore"):
+            for _ in range(max_iter):
+                if not todo.any():
+                    break
+                idx = np.flatnonzero(todo)
+                cur = fot[idx]
+                resid = cur - self._total_distortion(cur) - target[idx]
+                ok = np.all(np.abs(resid) <= tol_mm, axis=1)
+                done[idx[ok]] = True
+                todo[idx[ok]] = False
+                if ok.all():
+                    break
+                idx, cur, resid = idx[~ok], cur[~ok], resid[~ok]
+                j = np.eye(2)[None] - self._distortion_jacobian(cur)
+                det = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0]  # explicit 2 x 2 solve
+                step = np.column_stack([j[:, 1, 1] * resid[:, 0] - j[:, 0, 1] * resid[:, 1],
+                                        j[:, 0, 0] * resid[:, 1] - j[:, 1, 0] * resid[:, 0]])
+                step /= det[:, None]
+                fot[idx] = cur - step
+                bad = ~np.isfinite(fot[idx]).all(axis=1)
+                todo[idx[bad]] = False
+        failed = ~done & np.isfinite(target).all(axis=1)
+        if failed.any():
+            if on_fail == "raise":
+                i = int(np.flatnonzero(failed)[0])
+                raise CameraError(
+                    f"camera {self.id!r}: photo coordinate point index {i} "
+                    f"({target[i, 0]:.6g}, {target[i, 1]:.6g}) mm did not converge to the pixel "
+                    f"grid within {max_iter} iterations ({int(failed.sum())} point(s) failed); "
+                    f"it probably lies far outside the {self.frame_size_mm[0]:.3g} x "
+                    f"{self.frame_size_mm[1]:.3g} mm frame")
+            fot[failed] = np.nan
+        fot[~np.isfinite(target).all(axis=1)] = np.nan
+        return _out(fot, single)
+
+    def photo_to_pixel(self, xy_mm: Any, *, tol_mm: float = 1e-10, max_iter: int = 50,
+                       on_fail: str = "raise") -> np.ndarray:
+        """Corrected photo coordinates -> pixel column, row: the inverse of :meth:`pixel_to_photo`.
+
+        Parameters
+        ----------
+        xy_mm : array_like, shape (N, 2) or (2,)
+            Corrected photo coordinates x_fotc, y_fotc, mm.
+        tol_mm, max_iter, on_fail
+            See :meth:`photo_to_fot`; the default tolerance 1e-10 mm gives a round
+            trip pixel -> photo -> pixel far inside 1e-6 px.
+
+        Returns
+        -------
+        ndarray, shape (N, 2) or (2,)
+            Column C and row L, pixels (may lie outside the frame; see
+            :meth:`contains`).
+
+        Raises
+        ------
+        CameraError
+            Newton's method does not converge for a point (names its index).
+
+        Examples
+        --------
+        >>> cam = Camera("c", 50.0, 0.01, -0.02, -4e-5, 1e-8, 0.0, -4e-6, 0.0, 0.0,
+        ...              0.008, 0.008, 3000, 2000)
+        >>> px = cam.photo_to_pixel(cam.pixel_to_photo([[10.0, 20.0]]))
+        >>> bool(np.all(np.abs(px - [[10.0, 20.0]]) < 1e-9))
+        True
+        """
+        xy, single = _as_points(xy_mm, "xy_mm")
+        fot = self.photo_to_fot(xy, tol_mm=tol_mm, max_iter=max_iter, on_fail=on_fail)
+        pfid = fot + np.array([self.principal_point_x_mm, self.principal_point_y_mm])
+        return _out(self.image_centre_to_pixel(pfid), single)
+
+    def contains(self, colrow_px: Any, margin_px: float = 0.0) -> np.ndarray:
+        """Boolean (N,): the pixel position lies on the sensor (pixel centres 0 .. N-1, +- 0.5 px + margin)."""
+        cr, single = _as_points(colrow_px, "colrow_px")
+        lo = -0.5 - margin_px
+        inside = ((cr[:, 0] >= lo) & (cr[:, 0] <= self.columns_px - 0.5 + margin_px)
+                  & (cr[:, 1] >= lo) & (cr[:, 1] <= self.rows_px - 0.5 + margin_px))
+        return _out(inside, single)
+
+
+# ---------------------------------------------------------------------- TOML
+def _toml_str(s: str) -> str:
+    """A TOML basic string (json's escaping is valid TOML for these characters)."""
+    return json.dumps(s, ensure_ascii=False)
+
+
+def load_cameras(path: str | Path) -> dict[str, Camera]:
+    """Read a ``camera.toml``: one table per camera id (format: docs/survey-format.md).
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+
+    Returns
+    -------
+    dict[str, Camera]
+        Cameras by id, in file order.
+
+    Raises
+    ------
+    SurveyError
+        Missing, unreadable or non-UTF-8 file, invalid TOML, no camera table, an
+        unknown or missing key, or an invalid value: the message names the file,
+        the line and the key.
+    """
+    path = Path(path)
+    data, text = read_toml(path)
+    cameras: dict[str, Camera] = {}
+    for cam_id, table in data.items():
+        if not isinstance(table, dict):
+            raise SurveyError(f"{location(path, toml_line(text, None, cam_id), cam_id)}: "
+                              f"top-level key outside a camera table; put each camera under "
+                              f"a [camera_id] header")
+        try:
+            cameras[cam_id] = Camera.from_dict(cam_id, table)
+        except CameraError as ex:
+            fld = getattr(ex, "field", None)
+            line = toml_line(text, cam_id, fld if fld in table else None)
+            msg = str(ex)
+            if fld is not None:
+                msg = msg.removeprefix(f"field {fld!r}: ")
+            raise SurveyError(f"{location(path, line, fld)}: camera [{cam_id}]: {msg}") from ex
+    if not cameras:
+        raise SurveyError(f"{path}: no camera defined; add a [camera_id] table "
+                          f"(see docs/survey-format.md)")
+    return cameras
+
+
+def load_camera(spec: str | Path) -> Camera:
+    """Load one camera from ``FILE`` or ``FILE:ID`` (ID needed when FILE holds several).
+
+    Raises
+    ------
+    SurveyError
+        The file is invalid, the id is unknown, or no id was given for a file
+        with several cameras.
+    """
+    text = str(spec)
+    path, cam_id = Path(text), None
+    if not path.exists() and ":" in text:
+        head, _, tail = text.rpartition(":")
+        path, cam_id = Path(head), tail
+    cameras = load_cameras(path)
+    if cam_id is None:
+        if len(cameras) > 1:
+            raise SurveyError(f"{path}: holds cameras {', '.join(cameras)}; name one as "
+                              f"{path}:ID")
+        return next(iter(cameras.values()))
+    if cam_id not in cameras:
+        raise SurveyError(f"{path}: no camera {cam_id!r}; defined: {', '.join(cameras)}")
+    return cameras[cam_id]
+

@@ -1,0 +1,428 @@
+"""Tile-parallel production runs: serial, or on a Dask cluster (``dask.distributed``).
+
+A run is a list of :class:`TileJob`: one input tile, the neighbour tiles whose
+points within ``overlap_m`` of it are needed (ground classification and
+rasters see across the tile edge, so seams do not show), one output file and
+the parameters.  :func:`run_jobs` runs them
+
+* serially in this process (``workers=None`` and no ``scheduler``), or
+* on a ``LocalCluster`` of ``workers`` single-threaded worker processes, or on
+  an existing cluster (``scheduler="tcp://host:8786"``).
+
+The same function computes each tile either way, so the outputs are identical.
+Memory per worker is bounded by one tile plus its overlap, not the survey.
+
+Edge buffers
+------------
+A tile's overlap comes from up to eight neighbours; decoding each of them
+whole for every tile decodes the survey nine times over (LAZ decoding then
+dominated every production run).  So a run first makes one *edge buffer* per
+tile (``ring`` jobs, in the same scheduler): the tile is decoded once and its
+points inside any neighbour's buffered box are saved in file order as an
+uncompressed ``.npz`` per neighbour under ``<output folder>/.buffers/``.  A tile job then
+reads its own tile and the neighbours' buffers, keeping the points in its
+buffered box, in the order a :class:`TileIndex` query returns them: the same
+points as decoding the neighbours, so the outputs do not change.  The buffers
+are resumable like the outputs and are deleted at the end of a run.
+
+Resumable: each finished output gets a ``<output>.done.json`` marker holding
+the input tiles' sizes and modification times and the job's parameters; a
+rerun skips a job whose output and matching marker exist.  Outputs are written
+atomically, so a killed run leaves whole files or none.  A worker that dies
+mid-tile: the scheduler gives its tile to another worker (``retries``).  A
+missing or corrupt tile, or an output that cannot be written (full disk), ends
+the run with an error naming the file; the finished tiles stay done.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import FormatError, LidarcatError, TileIOError
+
+__all__ = ["TileJob", "run_jobs", "run_on_client", "run_tile_job", "tile_jobs", "JOB_KINDS"]
+
+log = logging.getLogger(__name__)
+
+JOB_KINDS = ("ground", "dtm", "dsm", "find", "ring")
+_BUFFERED = ("ground", "dtm", "dsm")
+
+
+@dataclass(frozen=True)
+class TileJob:
+    """One tile of a production run.
+
+    Attributes
+    ----------
+    kind : {"ground", "dtm", "dsm", "find", "ring"}
+        What to make (``"find"``: a block of the roof-vertex search, see
+        :mod:`lidarcat.control.search`; ``bounds`` is the block, ``tile`` and
+        ``neighbours`` the tiles it meets; ``"ring"``: the edge buffer of
+        ``tile``, the points inside the boxes ``params["boxes"]``).
+    tile : str
+        Input tile path.
+    bounds : (xmin, ymin, xmax, ymax)
+        The tile's own area, metres (from its header).
+    neighbours : tuple of str
+        Tiles whose points within ``overlap_m`` are read too.
+    output : str
+        Output path (``.las``/``.laz`` for ground, ``.tif`` for rasters).
+    params : dict
+        Keyword parameters of the job (method, PTD/SMRF parameters, cell_m, ...).
+    crs : str or None
+        CRS for tiles that carry none.
+    overlap_m : float
+        Buffer read around the tile, metres.
+    """
+
+    kind: str
+    tile: str
+    bounds: tuple[float, float, float, float]
+    neighbours: tuple[str, ...]
+    output: str
+    params: dict[str, Any] = field(default_factory=dict)
+    crs: str | None = None
+    overlap_m: float = 0.0
+
+    def signature(self) -> dict[str, Any]:
+        """What makes the output stale: inputs (size, mtime) and parameters."""
+        def stamp(p: str) -> list[Any]:
+            st = os.stat(p)
+            return [p, st.st_size, st.st_mtime_ns]
+        return {"kind": self.kind, "inputs": [stamp(p) for p in (self.tile, *self.neighbours)],
+                "params": {k: v for k, v in sorted(self.params.items())}, "crs": self.crs,
+                "overlap_m": self.overlap_m}
+
+
+def _marker(job: TileJob) -> Path:
+    return Path(job.output + ".done.json")
+
+
+def _is_done(job: TileJob) -> bool:
+    m = _marker(job)
+    if not (m.is_file() and Path(job.output).is_file()):
+        return False
+    try:
+        return json.loads(m.read_text(encoding="utf-8")) == json.loads(json.dumps(job.signature()))
+    except (OSError, ValueError):
+        return False
+
+
+def _ring_path(job: TileJob, tile: str) -> Path:
+    """Manifest of the edge buffers of *tile* for the run of *job* (next to the job's output)."""
+    return Path(job.output).parent / ".buffers" / f"{Path(tile).name}.{job.overlap_m:g}.json"
+
+
+def _piece_path(job: TileJob, tile: str) -> Path:
+    """The points of neighbour *tile* that *job* needs (its strip of the edge buffer)."""
+    return Path(job.output).parent / ".buffers" / f"{Path(tile).name}.{job.overlap_m:g}.for.{Path(job.tile).name}.npz"
+
+
+def _write_ring(job: TileJob) -> None:
+    """For each box of ``job.params["boxes"]``, the points of ``job.tile`` inside it (file order),
+    as the .npz ``job.params["pieces"][i]``; then the manifest ``job.output``."""
+    import numpy as np
+
+    from .._util import atomic_write, write_json_atomic
+    from .crs import crs_label
+    from .readers import read_points
+    from .tileindex import in_box
+
+    pc = read_points(job.tile, crs=job.crs)
+    label = np.array(crs_label(pc.crs) if pc.crs is not None else "")
+    for box, piece in zip(job.params["boxes"], job.params["pieces"]):
+        keep = in_box(pc.xyz, *box)
+        arrays = {"xyz": pc.xyz[keep], "crs": label}
+        arrays.update({f"a_{k}": np.asarray(v)[keep] for k, v in pc.attributes.items()})
+        with atomic_write(piece, "wb") as fh:
+            np.savez(fh, **arrays)
+    write_json_atomic(job.output, {"tile": job.tile, "pieces": list(job.params["pieces"])})
+
+
+def _ring_jobs(jobs: Sequence[TileJob]) -> list[TileJob]:
+    """One ``ring`` job per tile that is a neighbour of a buffered job (a box and a piece per job)."""
+    pieces: dict[tuple[str, str, float, str | None], list[tuple[list[float], str]]] = {}
+    first: dict[tuple[str, str, float, str | None], TileJob] = {}
+    for j in jobs:
+        if j.kind not in _BUFFERED or j.overlap_m <= 0:
+            continue
+        o = j.overlap_m
+        box = [j.bounds[0] - o, j.bounds[1] - o, j.bounds[2] + o, j.bounds[3] + o]
+        for nb in j.neighbours:
+            key = (nb, str(_ring_path(j, nb)), o, j.crs)
+            pieces.setdefault(key, []).append((box, str(_piece_path(j, nb))))
+            first.setdefault(key, j)
+    out = []
+    for key, bp in pieces.items():
+        nb, ring, o, crs = key
+        bp = sorted(bp, key=lambda t: t[1])
+        out.append(TileJob("ring", nb, first[key].bounds, (), ring,
+                           {"boxes": [b for b, _ in bp], "pieces": [p for _, p in bp]}, crs, o))
+    return out
+
+
+def _read_ring(path: Path, box: tuple[float, float, float, float], crs_label_own: str) -> Any:
+    """Points of an edge buffer inside *box*, or None when it is missing or of another CRS."""
+    import numpy as np
+
+    from .cloud import PointCloud
+    from .tileindex import in_box
+
+    try:
+        with np.load(path) as z:
+            if str(z["crs"]) != crs_label_own:
+                return None
+            xyz = z["xyz"]
+            m = in_box(xyz, *box)
+            attrs = {k[2:]: z[k][m] for k in z.files if k.startswith("a_")}
+            return PointCloud(xyz[m], attrs)  # the caller gives it the tile's CRS
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def _read_with_buffer(job: TileJob) -> tuple[Any, int]:
+    """Points of the tile followed by the neighbours' points within the overlap; tile count.
+
+    The neighbours' points come from their edge buffers when the run made them
+    (see the module docstring), else from the neighbour files themselves.
+    """
+    from .cloud import PointCloud
+    from .crs import crs_label
+    from .readers import read_points
+    from .tileindex import TileIndex
+
+    own = read_points(job.tile, crs=job.crs)
+    if not job.neighbours or job.overlap_m <= 0:
+        return own, len(own)
+    xmin, ymin, xmax, ymax = job.bounds
+    o = job.overlap_m
+    box = (xmin - o, ymin - o, xmax + o, ymax + o)
+    idx = TileIndex.build(list(job.neighbours), crs=job.crs)
+    own_label = crs_label(own.crs) if own.crs is not None else ""
+    parts: list[Any] = []
+    for t in idx.tiles_in_box(*box):
+        part = _read_ring(_piece_path(job, str(t.path)), box, own_label)
+        if part is None:
+            parts = []
+            break
+        parts.append(part)
+    if parts:  # concatenated on the attributes every piece carries
+        common = [k for k in parts[0].attributes if all(k in p.attributes for p in parts)]
+        extra = PointCloud.concat([PointCloud(p.xyz, {k: p.attributes[k] for k in common}, own.crs)
+                                   for p in parts])
+    else:
+        extra = idx.query_box(*box)
+    keep = [k for k in own.attributes if k in extra.attributes]
+    own_k = PointCloud(own.xyz, {k: own.attributes[k] for k in keep}, own.crs)
+    extra_k = PointCloud(extra.xyz, {k: extra.attributes[k] for k in keep}, own.crs)
+    return PointCloud.concat([own_k, extra_k]), len(own)
+
+
+def _raster_job(job: TileJob, cloud: Any, out: Path) -> None:
+    """DTM or DSM of the tile's area (grid snapped to multiples of the cell), plus extras.
+
+    Extras by ``job.params``: ``text`` (the report's E N H text grid, ``.txt``),
+    ``hillshade`` (``<stem>_hillshade.tif``), ``ndsm`` (DSM jobs: ``<stem>_ndsm.tif``).
+    """
+    from ..production.terrain import dsm_grid, dtm_grid, hillshade, ndsm, write_product, write_text_grid
+
+    cell = float(job.params.get("cell_m", 1.0))
+    max_edge = job.params.get("max_edge_m", 50.0)
+    if job.kind == "dtm":
+        res = dtm_grid(cloud, cell, job.bounds, max_edge_m=max_edge)
+        grid, transform = res.grid, res.transform
+        log.info("%s: DTM %d x %d cells, %d gap cells (%.1f %%)", job.tile, *grid.shape, res.gap_cells,
+                 100 * res.gap_fraction)
+    else:
+        grid, transform = dsm_grid(cloud, cell, job.bounds)
+    stem = out.with_suffix("")
+    if job.params.get("hillshade"):
+        write_product(Path(f"{stem}_hillshade.tif"), hillshade(grid, cell), transform, cloud.crs)
+    if job.kind == "dsm" and job.params.get("ndsm"):
+        dtm = dtm_grid(cloud, cell, job.bounds, max_edge_m=max_edge)
+        write_product(Path(f"{stem}_ndsm.tif"), ndsm(grid, dtm.grid), transform, cloud.crs)
+    if job.params.get("text"):
+        write_text_grid(out.with_suffix(".txt"), grid, transform)
+    write_product(out, grid, transform, cloud.crs)
+
+
+def run_tile_job(job: TileJob) -> str:
+    """Compute one tile and write its output (atomically) and done-marker; return the output path.
+
+    Raises
+    ------
+    TileIOError
+        The output cannot be written (names it: full disk, permissions).
+    LidarFormatError, TileIOError
+        An input tile is corrupt or missing (names it).
+    """
+    from .._util import write_json_atomic
+
+    if job.kind not in JOB_KINDS:
+        raise ValueError(f"unknown job kind {job.kind!r}; use one of {', '.join(JOB_KINDS)}")
+    out = Path(job.output)
+    if job.kind == "ring":
+        try:
+            _write_ring(job)
+        except OSError as ex:
+            raise TileIOError(f"{out}: cannot write the edge buffer of tile {job.tile} "
+                              f"({ex.strerror or ex})") from ex
+        write_json_atomic(_marker(job), job.signature())
+        return str(out)
+    if job.kind == "find":
+        from ..control.search import run_find_block, write_block
+
+        found = run_find_block(job)
+    else:
+        cloud, n_own = _read_with_buffer(job)
+    try:
+        if job.kind == "find":
+            write_block(out, found)
+        elif job.kind == "ground":
+            from ..production.ground import classify_ground, params_from_dict, write_classified_copy
+
+            method = job.params.get("method", "smrf")
+            g = classify_ground(cloud.xyz, cloud.attributes.get("return_number"),
+                                cloud.attributes.get("number_of_returns"), method=method,
+                                params=params_from_dict(method, job.params))
+            write_classified_copy(job.tile, out, g[:n_own])
+        else:
+            _raster_job(job, cloud, out)
+        write_json_atomic(_marker(job), job.signature())
+    except LidarcatError:
+        raise
+    except OSError as ex:
+        raise TileIOError(f"{out}: cannot write the output of tile {job.tile} ({ex.strerror or ex})") from ex
+    return str(out)
+
+
+def tile_jobs(kind: str, paths: Sequence[str | os.PathLike], out: str | os.PathLike, *, crs: Any = None,
+              params: dict[str, Any] | None = None, overlap_m: float = 0.0, suffix: str | None = None) -> list[TileJob]:
+    """One :class:`TileJob` per tile; neighbours are the tiles within *overlap_m* of it.
+
+    *out* is a file when there is one tile and its suffix names a file type
+    (``.las``, ``.laz``, ``.tif``), else a folder receiving ``<tile stem><suffix>``.
+    """
+    from .crs import crs_label
+    from .tileindex import TileIndex
+
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise ValueError("no tiles given")
+    index = TileIndex.build(paths, crs=crs)
+    tiles = list(index.tiles)
+    out = Path(out)
+    single = len(tiles) == 1 and out.suffix.lower() in (".las", ".laz", ".tif", ".tiff")
+    crs_s = crs if crs is None or isinstance(crs, str) else crs_label(crs)
+    jobs = []
+    for t in tiles:
+        b = t.bounds
+        nb = tuple(str(u.path) for u in index.tiles_in_box(b.xmin - overlap_m, b.ymin - overlap_m,
+                                                           b.xmax + overlap_m, b.ymax + overlap_m)
+                   if Path(u.path) != Path(t.path))
+        dst = out if single else out / (Path(t.path).stem + (suffix or Path(t.path).suffix))
+        jobs.append(TileJob(kind, str(t.path), (b.xmin, b.ymin, b.xmax, b.ymax), nb, str(dst),
+                            dict(params or {}), crs_s, float(overlap_m)))
+    return jobs
+
+
+def run_jobs(jobs: Sequence[TileJob], *, workers: int | None = None, scheduler: str | None = None,
+             resume: bool = True, retries: int = 2,
+             progress: Callable[[int], Any] | None = None) -> list[str]:
+    """Run tile jobs serially (default) or on Dask; return the output paths in job order.
+
+    Parameters
+    ----------
+    jobs : sequence of TileJob
+    workers : int, optional
+        Start a ``LocalCluster`` with this many single-threaded worker processes.
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``); wins over *workers*.
+    resume : bool
+        Skip jobs whose output and done-marker match (finished tiles are not redone).
+    retries : int
+        Dask: times a tile is retried after a failure (e.g. its worker died).
+    progress : callable, optional
+        Called with 1 per finished (or skipped) tile.
+    """
+    todo = [j for j in jobs if not (resume and _is_done(j))]
+    skipped = len(jobs) - len(todo)
+    if skipped:
+        log.info("%d of %d tiles already done; skipped", skipped, len(jobs))
+        if progress is not None:
+            progress(skipped)
+    rings = [r for r in _ring_jobs(todo) if not (resume and _is_done(r))]
+    if workers is None and scheduler is None:
+        for r in rings:
+            run_tile_job(r)
+        for j in todo:
+            run_tile_job(j)
+            if progress is not None:
+                progress(1)
+        _drop_rings(todo)
+        return [j.output for j in jobs]
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as ex:  # pragma: no cover - the extra is installed in CI
+        raise FormatError("parallel runs need dask.distributed: pip install 'lidarcat[cluster]'") from ex
+    cluster = None
+    if scheduler is not None:
+        client = Client(scheduler)
+    else:
+        if workers is None or workers < 1:
+            raise ValueError(f"workers must be at least 1, got {workers}")
+        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                               dashboard_address=":0")  # any free port: runs side by side
+        client = Client(cluster)
+    try:
+        run_on_client(client, todo, rings=rings, retries=retries, progress=progress)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return [j.output for j in jobs]
+
+
+def run_on_client(client: Any, jobs: Sequence[TileJob], *, rings: Sequence[TileJob] | None = None,
+                  retries: int = 2, progress: Callable[[int], Any] | None = None) -> None:
+    """Run *jobs* on a connected ``dask.distributed.Client``: edge buffers first, then the tiles.
+
+    *rings* default to every edge buffer the jobs need (:func:`run_jobs` passes
+    only those not done yet).  The buffers are deleted when all jobs are done.
+    """
+    from dask.distributed import as_completed, wait
+
+    rings = _ring_jobs(jobs) if rings is None else rings
+    if rings:
+        rf = client.map(run_tile_job, rings, retries=retries, pure=False,
+                        key=[f"ring-{i}-{Path(r.tile).name}" for i, r in enumerate(rings)])
+        wait(rf)
+        for f in rf:
+            f.result()  # re-raises the worker's located error
+    futures = client.map(run_tile_job, jobs, retries=retries, pure=False,
+                         key=[f"{j.kind}-{i}-{Path(j.tile).name}" for i, j in enumerate(jobs)])
+    for fut in as_completed(futures):
+        fut.result()  # re-raises the worker's located error
+        if progress is not None:
+            progress(1)
+    _drop_rings(jobs)
+
+
+def _drop_rings(jobs: Sequence[TileJob]) -> None:
+    """Delete the edge buffers (and their markers) of a finished run."""
+    folders = set()
+    for r in _ring_jobs(jobs):
+        for p in (Path(r.output), _marker(r), *map(Path, r.params["pieces"])):
+            p.unlink(missing_ok=True)
+        folders.add(Path(r.output).parent)
+    for f in folders:
+        try:
+            f.rmdir()
+        except OSError:  # another run's buffers are still there
+            pass

@@ -1,0 +1,137 @@
+"""Stage ``products``: the LACTEC production chain -- ground, DTM/DSM, contours, hypsometry, map sheets.
+
+============  ============================================================
+``ground``    Ground classification: progressive TIN densification and a simple morphological filter.
+``terrain``   Terrain (DTM) and surface (DSM) models, nDSM, hillshade and the hypsometric image.
+``contours``  Contour lines from the ground TIN, master/intermediate curves, spot heights, GeoJSON.
+``sheets``    Map sheets: a regular sheet grid (the report's "articulação"), its index layer, products cut per sheet.
+``mapindex``  The Brazilian systematic map index (Cartografia Sistemática Brasileira) down to 1:5,000 and 1:2,000.
+============  ============================================================
+
+The functions named as their modules (``contours.contours``) are
+reached through the module: the package attribute is the module.
+"""
+
+from __future__ import annotations
+
+from .ground import (  # noqa: F401
+    PTDParameters,
+    SMRFParameters,
+    GroundMethod,
+    GROUND_METHODS,
+    classify_ground,
+    ptd_ground,
+    smrf_ground,
+    Confusion,
+    confusion,
+    write_classified_copy,
+    classify_tiles,
+    params_from_dict,
+    default_overlap_m,
+    GROUND_CLASS,
+    UNCLASSIFIED_CLASS,
+)
+from .terrain import (  # noqa: F401
+    TinGrid,
+    tin_grid,
+    dtm_grid,
+    dsm_grid,
+    ndsm,
+    hillshade,
+    hypsometric_image,
+    write_product,
+    write_text_grid,
+    tin_heights,
+    HAVE_RASTERIO,
+)
+from .contours import (  # noqa: F401
+    Contour,
+    spot_heights,
+    write_geojson,
+    contour_features,
+    spot_features,
+    write_contours,
+    write_layers,
+    read_line_layer,
+    CONTOUR_FORMATS,
+)
+from .sheets import (  # noqa: F401
+    Sheet,
+    sheet_grid,
+    sheet_index_features,
+    cut_raster,
+    cut_contours,
+    index_sheets,
+    SHEET_INDEXES,
+)
+from .mapindex import (  # noqa: F401
+    MapSheet,
+    Level,
+    LEVELS,
+    SCALES,
+    sheet_at,
+    sheet_names,
+    sheet_from_name,
+    sheets_covering,
+    sheet_outline,
+    cut_raster_geo,
+    cut_contours_geo,
+    geographic_crs_of,
+)
+
+__all__ = [
+    'PTDParameters',
+    'SMRFParameters',
+    'GroundMethod',
+    'GROUND_METHODS',
+    'classify_ground',
+    'ptd_ground',
+    'smrf_ground',
+    'Confusion',
+    'confusion',
+    'write_classified_copy',
+    'classify_tiles',
+    'params_from_dict',
+    'default_overlap_m',
+    'GROUND_CLASS',
+    'UNCLASSIFIED_CLASS',
+    'TinGrid',
+    'tin_grid',
+    'dtm_grid',
+    'dsm_grid',
+    'ndsm',
+    'hillshade',
+    'hypsometric_image',
+    'write_product',
+    'write_text_grid',
+    'tin_heights',
+    'HAVE_RASTERIO',
+    'Contour',
+    'spot_heights',
+    'write_geojson',
+    'contour_features',
+    'spot_features',
+    'write_contours',
+    'write_layers',
+    'read_line_layer',
+    'CONTOUR_FORMATS',
+    'Sheet',
+    'sheet_grid',
+    'sheet_index_features',
+    'cut_raster',
+    'cut_contours',
+    'index_sheets',
+    'SHEET_INDEXES',
+    'MapSheet',
+    'Level',
+    'LEVELS',
+    'SCALES',
+    'sheet_at',
+    'sheet_names',
+    'sheet_from_name',
+    'sheets_covering',
+    'sheet_outline',
+    'cut_raster_geo',
+    'cut_contours_geo',
+    'geographic_crs_of',
+]

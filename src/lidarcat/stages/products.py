@@ -1,0 +1,266 @@
+"""Stage ``products``: the LiDAR products of the LACTEC chain, when survey.toml asks for them.
+
+survey.toml::
+
+    [products]
+    ground = true               # classify ground (class 2) into copies of the tiles (false: use their class 2)
+    filter = "smrf"             # "smrf" (simple morphological filter) or "ptd" (TerraScan's TIN densification)
+    dtm = true                  # dtm.tif: TIN of the ground sampled at cell centres (gaps stay NaN)
+    dsm = true                  # dsm.tif: highest first return per cell
+    ndsm = false                # ndsm.tif: DSM - DTM (needs dtm and dsm)
+    hillshade = false           # <model>_hillshade.tif of each model written
+    text_grid = false           # <model>.txt: the report's E N H text grid
+    cell_m = 1.0                # cell of the models, m
+    max_edge_m = 50.0           # TIN triangles with a longer edge are gaps, m
+    contours = true             # contours.geojson (+ spot_heights.geojson) from the ground TIN
+    contour_interval_m = 1.0    # equidistance, m (the report: 1 m)
+    master_every = 5            # every N-th level is a master curve
+    smooth = 0                  # Chaikin passes (0: vertices exactly on the TIN)
+    spots_m = 100.0             # spot heights: highest and lowest ground point per square, m
+    hypsometry = false          # hypsometry.png (+ .tif with rasterio): heights coloured, shaded by intensity
+    hypsometry_cell_m = 0.45    # its cell, m (the report: 45 cm)
+    sheet_size_m = 0            # > 0: also cut every product along a sheet grid (sheets/, sheets.geojson)
+    sheet_index = "grid"        # or "brazil-5000" / "brazil-2000" (..-10000, -25000): the Brazilian systematic
+                                # map index (sheets like SF-23-X-D-VI-1-SE-C-II) instead of the grid
+    vector_format = "geojson"   # or "gpkg": contours, spot heights and the sheet index as GeoPackage (lidarcat[gis])
+
+The stage is planned only for a survey with a ``[products]`` table (skipped,
+with the reason, when the survey has no LiDAR tiles).  Ground classification
+runs tile by tile with the neighbours' points within two filter windows
+(:func:`lidarcat.production.ground.classify_tiles`), so the classified copies
+``ground/<tile>.laz`` do not depend on where the tiles are cut.  The models,
+contours and hypsometric image are then made over the whole survey area in
+one piece (:mod:`lidarcat.production.terrain`, :mod:`lidarcat.production.contours`):
+a survey too large for one machine's memory is better served by the
+tile-parallel commands ``lidarcat lidar ground|dtm|dsm --workers N``
+(docs/production.md).  Everything carries the LiDAR CRS; the stage writes
+into its temporary folder and the runner moves it into ``OUTDIR/products/``
+only when it succeeded.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ..pipeline.runner import Context
+
+__all__ = ["run", "settings", "PRODUCTS_KEYS", "asked"]
+
+#: keys of the [products] table and their defaults
+PRODUCTS_KEYS: dict[str, Any] = {
+    "ground": True, "filter": "smrf", "dtm": True, "dsm": True, "ndsm": False, "hillshade": False,
+    "text_grid": False, "cell_m": 1.0, "max_edge_m": 50.0, "contours": True, "contour_interval_m": 1.0,
+    "master_every": 5, "smooth": 0, "spots_m": 100.0, "hypsometry": False, "hypsometry_cell_m": 0.45,
+    "sheet_size_m": 0.0, "sheet_index": "grid", "vector_format": "geojson",
+}
+_NUM = (int, float)
+_KINDS: dict[str, Any] = {
+    "ground": bool, "filter": str, "dtm": bool, "dsm": bool, "ndsm": bool, "hillshade": bool, "text_grid": bool,
+    "cell_m": _NUM, "max_edge_m": _NUM, "contours": bool, "contour_interval_m": _NUM, "master_every": int,
+    "smooth": int, "spots_m": _NUM, "hypsometry": bool, "hypsometry_cell_m": _NUM, "sheet_size_m": _NUM,
+    "sheet_index": str, "vector_format": str,
+}
+
+
+def settings(survey: Any) -> dict[str, Any]:
+    """The ``[products]`` table of the survey with its defaults (``{}`` when there is none).
+
+    Raises
+    ------
+    SurveyError
+        A value of the wrong type or out of range (file, line and key).
+    """
+    from ..production.ground import GROUND_METHODS
+    from ._settings import optional_table
+
+    out, t = optional_table(survey, "products", _KINDS, PRODUCTS_KEYS)
+    if not out:
+        return {}
+    if out["filter"] not in GROUND_METHODS:
+        raise t.err("products", "filter", f"{out['filter']!r} is not one of {', '.join(map(repr, GROUND_METHODS))}")
+    for key in ("cell_m", "max_edge_m", "contour_interval_m", "spots_m", "hypsometry_cell_m"):
+        if not out[key] > 0:
+            raise t.err("products", key, f"must be positive (metres), got {out[key]!r}")
+    if out["master_every"] < 1:
+        raise t.err("products", "master_every", f"must be 1 or more, got {out['master_every']!r}")
+    if out["smooth"] < 0:
+        raise t.err("products", "smooth", f"must be 0 or more, got {out['smooth']!r}")
+    if out["sheet_size_m"] < 0:
+        raise t.err("products", "sheet_size_m", f"must be 0 (no sheets) or positive (metres), got "
+                                                f"{out['sheet_size_m']!r}")
+    from ..production.sheets import SHEET_INDEXES
+
+    if out["sheet_index"] not in SHEET_INDEXES:
+        raise t.err("products", "sheet_index", f"{out['sheet_index']!r} is not one of "
+                                               f"{', '.join(map(repr, SHEET_INDEXES))}")
+    if out["sheet_index"] != "grid" and out["sheet_size_m"] > 0:
+        raise t.err("products", "sheet_size_m", f"applies to sheet_index = 'grid' only; the "
+                                                f"{out['sheet_index']} sheets have their own size (drop it)")
+    if out["vector_format"] not in ("geojson", "gpkg"):
+        raise t.err("products", "vector_format", f"{out['vector_format']!r} is not 'geojson' or 'gpkg'")
+    if out["ndsm"] and not (out["dtm"] and out["dsm"]):
+        raise t.err("products", "ndsm", "needs dtm = true and dsm = true")
+    for key in ("cell_m", "max_edge_m", "contour_interval_m", "spots_m", "hypsometry_cell_m", "sheet_size_m"):
+        out[key] = float(out[key])
+    return out
+
+
+def asked(cfg: dict[str, Any]) -> list[str]:
+    """The products a ``[products]`` table asks for, in the order the stage makes them."""
+    return [k for k in ("ground", "dtm", "dsm", "ndsm", "contours", "hypsometry") if cfg.get(k)]
+
+
+def run(ctx: Context, tmp: Path) -> dict:
+    """Ground classification, DTM, DSM, nDSM, contours, hypsometric image and sheets of the survey's tiles."""
+    import numpy as np
+
+    from ..errors import SurveyError
+    from ..lidar import read_points
+    from ..lidar.cloud import PointCloud
+    from ..production.contours import (contour_features, contours, spot_features, spot_heights, write_geojson,
+                                   write_layers)
+    from ..production.ground import classify_tiles, params_from_dict
+    from ..production.terrain import dsm_grid, dtm_grid, hillshade, ndsm, write_product, write_text_grid
+
+    survey = ctx["survey"]
+    cfg = {k: ctx.params[k] for k in PRODUCTS_KEYS}
+    crs = survey.lidar_crs or survey.crs
+    tiles = [Path(p) for p in survey.lidar_paths]
+    want_sheets = cfg["sheet_size_m"] > 0 or cfg["sheet_index"] != "grid"
+    vext = "." + cfg["vector_format"]
+    steps = len(asked(cfg)) + (1 if want_sheets else 0)
+    step = 0
+
+    def tick() -> None:
+        nonlocal step
+        step += 1
+        ctx.progress(step, steps)
+
+    done: dict[str, Any] = {"crs": str(crs), "files": []}
+    if cfg["ground"]:
+        method = cfg["filter"]
+        params = params_from_dict(method, {})
+        outs = classify_tiles(tiles, tmp / "ground", crs=crs, method=method, params=params, resume=False)
+        for m in (tmp / "ground").glob("*.done.json"):   # resume markers of the tile runner: not products
+            m.unlink()
+        tiles = sorted(outs)
+        done["ground"] = {"filter": method, "tiles": [f"ground/{p.name}" for p in tiles]}
+        done["files"] += done["ground"]["tiles"]
+        tick()
+    cloud = PointCloud.concat([read_points(p, crs=crs) for p in tiles])
+    cls = np.asarray(cloud.attributes["classification"]) if cloud.has("classification") else None
+    gmask = cls == 2 if cls is not None else np.zeros(len(cloud), bool)
+    if (cfg["dtm"] or cfg["contours"]) and not gmask.any():
+        raise SurveyError(f"{survey.toml_path}: [products] dtm/contours need ground points (class 2) and the "
+                          f"tiles have none; set ground = true")
+    b = cloud.bounds
+    area = (float(b.xmin), float(b.ymin), float(b.xmax), float(b.ymax))
+    cell = cfg["cell_m"]
+    rasters: dict[str, tuple[Any, Any]] = {}
+
+    def model(name: str, grid: Any, transform: Any) -> None:
+        write_product(tmp / f"{name}.tif", grid, transform, crs)
+        done["files"].append(f"{name}.tif")
+        rasters[f"{name}.tif"] = (grid, transform)
+        if cfg["hillshade"] and name != "ndsm":
+            write_product(tmp / f"{name}_hillshade.tif", hillshade(grid, cell), transform, crs)
+            done["files"].append(f"{name}_hillshade.tif")
+        if cfg["text_grid"]:
+            write_text_grid(tmp / f"{name}.txt", grid, transform)
+            done["files"].append(f"{name}.txt")
+
+    if cfg["dtm"]:
+        res = dtm_grid(cloud, cell, area, max_edge_m=cfg["max_edge_m"], ground=gmask)
+        model("dtm", res.grid, res.transform)
+        done["dtm"] = {"cell_m": cell, "rows": int(res.grid.shape[0]), "cols": int(res.grid.shape[1]),
+                       "gap_cells": int(res.gap_cells), "gap_fraction": round(float(res.gap_fraction), 6)}
+        tick()
+    if cfg["dsm"]:
+        grid, transform = dsm_grid(cloud, cell, area)
+        model("dsm", grid, transform)
+        done["dsm"] = {"cell_m": cell, "rows": int(grid.shape[0]), "cols": int(grid.shape[1]),
+                       "empty_cells": int(np.isnan(grid).sum())}
+        tick()
+    if cfg["ndsm"]:
+        model("ndsm", ndsm(rasters["dsm.tif"][0], rasters["dtm.tif"][0]), rasters["dsm.tif"][1])
+        tick()
+    features: list[dict[str, Any]] = []
+    if cfg["contours"]:
+        g = cloud.xyz[gmask]
+        cs = contours(g, cfg["contour_interval_m"], master_every=cfg["master_every"],
+                      max_edge_m=cfg["max_edge_m"], smooth_iterations=cfg["smooth"])
+        features = contour_features(cs)
+        spots = spot_heights(g, cfg["spots_m"])
+        if vext == ".gpkg":   # one GeoPackage, layers contours and spot_heights
+            write_layers(tmp / "contours.gpkg", {"contours": features, "spot_heights": spot_features(spots)}, crs)
+            done["files"].append("contours.gpkg")
+        else:
+            write_geojson(tmp / "contours.geojson", features, crs)
+            write_geojson(tmp / "spot_heights.geojson", spot_features(spots), crs)
+            done["files"] += ["contours.geojson", "spot_heights.geojson"]
+        done["contours"] = {"interval_m": cfg["contour_interval_m"], "master_every": cfg["master_every"],
+                            "lines": len(cs), "master_lines": sum(1 for c in cs if c.master),
+                            "spot_heights": int(len(spots))}
+        tick()
+    if cfg["hypsometry"]:
+        done["hypsometry"] = _hypsometry(cloud, cfg["hypsometry_cell_m"], area, crs, tmp)
+        done["files"] += done["hypsometry"]["files"]
+        tick()
+    if want_sheets:
+        done["sheets"] = _sheets(rasters, features, area, cfg, crs, tmp)
+        done["files"].append("sheets" + vext)
+        tick()
+    return done
+
+
+def _hypsometry(cloud: Any, cell_m: float, area: tuple[float, float, float, float], crs: Any,
+                tmp: Path) -> dict[str, Any]:
+    """hypsometry.png (and .tif when rasterio is installed): DSM heights coloured, shaded by intensity."""
+    import matplotlib.image
+
+    from .._util import atomic_write
+    from ..lidar import rasterize
+    from ..production.terrain import HAVE_RASTERIO, hypsometric_image, write_product
+
+    h, t = rasterize(cloud, cell_m, "dsm", area)
+    inten = rasterize(cloud, cell_m, "intensity", area)[0] if cloud.has("intensity") else None
+    img = hypsometric_image(h, inten)
+    files = ["hypsometry.png"]
+    with atomic_write(tmp / "hypsometry.png", "wb") as fh:
+        matplotlib.image.imsave(fh, img, format="png")
+    if HAVE_RASTERIO:   # RGB GeoTIFFs need rasterio (lidarcat[geo])
+        write_product(tmp / "hypsometry.tif", img, t, crs)
+        files.append("hypsometry.tif")
+    return {"cell_m": cell_m, "intensity": inten is not None, "files": files}
+
+
+def _sheets(rasters: dict[str, tuple[Any, Any]], features: list[dict[str, Any]],
+            area: tuple[float, float, float, float], cfg: dict[str, Any], crs: Any, tmp: Path) -> dict[str, Any]:
+    """Every model and the contours cut along the sheet index; the index of the sheets holding data."""
+    import numpy as np
+
+    from ..production.contours import write_layers
+    from ..production.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
+    from ..production.terrain import write_product
+
+    ext = "." + cfg["vector_format"]
+    used = []
+    for s in index_sheets(area, cfg["sheet_index"], crs=crs, size_m=cfg["sheet_size_m"] or 1000.0):
+        wrote = False
+        for name, (grid, transform) in rasters.items():
+            cut = cut_raster(grid, transform, s, crs)
+            if cut is not None and np.isfinite(cut[0].astype(float)).any():
+                write_product(tmp / "sheets" / s.name / name, cut[0], cut[1], crs)
+                wrote = True
+        part = cut_contours(features, s, crs) if features else []
+        if part:
+            write_layers(tmp / "sheets" / s.name / ("contours" + ext), {"contours": part}, crs)
+            wrote = True
+        if wrote:
+            used.append(s)
+    write_layers(tmp / ("sheets" + ext), {"sheets": sheet_index_features(used, crs)}, crs)
+    out: dict[str, Any] = {"index": cfg["sheet_index"], "sheets": [s.name for s in used]}
+    if cfg["sheet_index"] == "grid":
+        out["size_m"] = cfg["sheet_size_m"]
+    return out

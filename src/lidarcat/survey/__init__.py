@@ -1,0 +1,86 @@
+"""The survey folder: ``survey.toml`` and its tables in, results out (the one home of folder I/O).
+
+==============  ============================================================
+``folder``      The survey folder: load, validate and locate a photogrammetric project.
+``adjustment``  The survey adapter: a survey folder in, the adjustment folder out.
+``selfcal``     Additional parameters from a survey folder: the ``[self_calibration]`` table and the CLI switches.
+==============  ============================================================
+"""
+
+from __future__ import annotations
+
+from .folder import (  # noqa: F401
+    AssessmentSettings,
+    Survey,
+    Photo,
+    ImagePoints,
+    GroundPoints,
+    ControlSet,
+    AdjustmentSettings,
+    CorrectedMeasurements,
+    thesis_survey_path,
+    example_camera_path,
+    correct_measurements,
+    cameras_of,
+    SURVEY_KEYS,
+)
+from .adjustment import (  # noqa: F401
+    adjust_survey,
+    write_adjustment,
+    problem_from_survey,
+    read_point_covariance,
+    EOP_COLUMNS,
+    POINT_COLUMNS,
+    RESIDUAL_COLUMNS,
+    COVARIANCE_COLUMNS,
+    MAX_JOINT_COVARIANCE_POINTS,
+    BLUNDER_COLUMNS,
+)
+from .selfcal import (  # noqa: F401
+    SelfCalSettings,
+    self_calibration_settings,
+    combined_control_set,
+    components_from_survey,
+    adjust_survey_with_parameters,
+    selfcal_adjust,
+    write_selfcal,
+    format_parameters,
+    wants_parameters,
+    SNOOPING_WITH_PARAMETERS,
+)
+
+__all__ = [
+    'AssessmentSettings',
+    'Survey',
+    'Photo',
+    'ImagePoints',
+    'GroundPoints',
+    'ControlSet',
+    'AdjustmentSettings',
+    'CorrectedMeasurements',
+    'thesis_survey_path',
+    'example_camera_path',
+    'correct_measurements',
+    'cameras_of',
+    'SURVEY_KEYS',
+    'adjust_survey',
+    'write_adjustment',
+    'problem_from_survey',
+    'read_point_covariance',
+    'EOP_COLUMNS',
+    'POINT_COLUMNS',
+    'RESIDUAL_COLUMNS',
+    'COVARIANCE_COLUMNS',
+    'MAX_JOINT_COVARIANCE_POINTS',
+    'BLUNDER_COLUMNS',
+    'SelfCalSettings',
+    'self_calibration_settings',
+    'combined_control_set',
+    'components_from_survey',
+    'adjust_survey_with_parameters',
+    'selfcal_adjust',
+    'write_selfcal',
+    'format_parameters',
+    'wants_parameters',
+    'SNOOPING_WITH_PARAMETERS',
+]

@@ -1,0 +1,438 @@
+"""The survey adapter: a survey folder in, the adjustment folder out.
+
+:func:`problem_from_survey` turns a :class:`lidarcat.Survey` and a control set
+into a :class:`BundleProblem`; :func:`write_adjustment` writes ``eop.csv``,
+``points.csv``, ``residuals.csv``, ``summary.json`` and ``check_covariance.csv``
+(the joint covariance of the check points, read back by
+:func:`read_point_covariance`); :func:`adjust_survey` is ``lidarcat adjust``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..bundle.precision import joint_point_covariance
+from ..bundle.problem import BundleProblem
+from ..bundle.reliability import FAMILY_LEVEL, SnoopingResult, snoop
+from ..bundle.solve import BundleResult
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .folder import Survey
+
+__all__ = ["adjust_survey", "write_adjustment", "problem_from_survey", "read_point_covariance",
+           "EOP_COLUMNS", "POINT_COLUMNS", "RESIDUAL_COLUMNS", "COVARIANCE_COLUMNS",
+           "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS"]
+
+log = logging.getLogger(__name__)
+
+#: ``write_adjustment`` writes the joint covariance of the check points
+#: (``check_covariance.csv``, k (k + 1) / 2 rows) up to this many check points
+MAX_JOINT_COVARIANCE_POINTS = 500
+#: columns of ``check_covariance.csv``: the 3 x 3 cross-covariance block of two points, m^2
+COVARIANCE_COLUMNS = ("point_a", "point_b", "c_EE", "c_EN", "c_Eh", "c_NE", "c_NN", "c_Nh",
+                      "c_hE", "c_hN", "c_hh")
+
+
+# ---------------------------------------------------------------------------
+# survey -> problem
+# ---------------------------------------------------------------------------
+
+
+def problem_from_survey(
+    survey: Survey,
+    control: str | None = None,
+    observations: str | None = None,
+    *,
+    eo_constraints: bool = False,
+) -> BundleProblem:
+    """Build the :class:`BundleProblem` of a survey.
+
+    Parameters
+    ----------
+    survey : lidarcat.Survey
+    control : str or ControlSet, optional
+        Control set name (default: the survey's default set), or a set itself.
+    observations : {"corrected", "pixel"}, optional
+        Printed corrected photo coordinates or pixel coordinates through the
+        interior orientation (default: the survey setting).
+    eo_constraints : bool
+        Use the photo positions / attitudes of ``photos.csv`` that carry sigmas as
+        weighted constraints.
+
+    Points excluded by the survey settings are left out; ground points measured on
+    no photo are ignored (control points among them with a logged warning and
+    listed as ``control_unmeasured`` in the summary).  Check points of the set
+    are free points with role ``check``; every other point has role ``tie``.
+    """
+    cset = survey.control_set(control) if control is None or isinstance(control, str) else control
+    obs = survey.photo_observations(observations)
+    photos = survey.photos
+    photo_ids = [ph.id for ph in photos]
+    focal = [survey.cameras[ph.camera].focal_length_mm for ph in photos]
+    ph_pos = {pid: i for i, pid in enumerate(photo_ids)}
+    point_ids: list[str] = []
+    pt_pos: dict[str, int] = {}
+    for q in obs.point:
+        if q not in pt_pos:
+            pt_pos[q] = len(point_ids)
+            point_ids.append(q)
+    gp = survey.ground_points
+    g_index = {str(q): i for i, q in enumerate(gp.point)}
+    ctrl_all = [str(c) for c in cset.control]
+    measured = [c in pt_pos for c in ctrl_all]
+    unmeasured = [c for c, m in zip(ctrl_all, measured) if not m]
+    if unmeasured:
+        log.warning("control set %r: point(s) %s measured on no photo; left out", cset.name,
+                    ", ".join(unmeasured))
+    ctrl = [c for c, m in zip(ctrl_all, measured) if m]
+    ci = np.array([pt_pos[c] for c in ctrl], dtype=np.int64)
+    cenh = np.array([gp.enh_m[g_index[c]] for c in ctrl], dtype=float).reshape(-1, 3)
+    csd = np.asarray(cset.sd_m, dtype=float).reshape(-1, 3)[np.asarray(measured, dtype=bool)]
+    role = np.full(len(point_ids), "tie", dtype=object)
+    for q in cset.check:
+        if str(q) in pt_pos:
+            role[pt_pos[str(q)]] = "check"
+    role[ci] = "control"
+    n_ph = len(photo_ids)
+    init = np.full((n_ph, 6), np.nan)
+    e_idx, e_val, e_sd = [], [], []
+    for i, ph in enumerate(photos):
+        if ph.position_m is not None and ph.attitude_deg is not None:
+            init[i, :3] = ph.position_m
+            init[i, 3:] = np.radians(ph.attitude_deg)
+        elif ph.position_m is not None:
+            init[i, :3] = ph.position_m
+        if eo_constraints and ph.position_m is not None:
+            val = np.full(6, np.nan)
+            sd = np.full(6, np.inf)
+            val[:3] = ph.position_m
+            if ph.sd_position_m is not None:
+                sd[:3] = ph.sd_position_m
+            if ph.attitude_deg is not None:
+                val[3:] = np.radians(ph.attitude_deg)
+                if ph.sd_attitude_deg is not None:
+                    sd[3:] = np.radians(ph.sd_attitude_deg)
+            val = np.where(np.isfinite(val), val, 0.0)
+            sd = np.where(np.isfinite(sd) & (sd > 0), sd, np.inf)
+            if np.isfinite(sd).any():
+                e_idx.append(i)
+                e_val.append(val)
+                e_sd.append(sd)
+    return BundleProblem(
+        photo_ids=photo_ids, point_ids=point_ids, focal_length_mm=np.asarray(focal, dtype=float),
+        photo_index=np.array([ph_pos[str(x)] for x in obs.photo], dtype=np.int64),
+        point_index=np.array([pt_pos[str(x)] for x in obs.point], dtype=np.int64),
+        xy_mm=obs.xy_mm, sd_mm=obs.sd_mm,
+        constraint_point_index=ci, constraint_enh_m=cenh, constraint_sd_m=csd,
+        eo_constraint_photo_index=np.array(e_idx, dtype=np.int64) if e_idx else None,
+        eo_constraint_params=np.array(e_val) if e_idx else None,
+        eo_constraint_sd=np.array(e_sd) if e_idx else None,
+        initial_eo=init if np.isfinite(init).any() else None,
+        point_role=role,
+        info={"survey": survey.name, "control_set": cset.name, "control_unmeasured": unmeasured,
+              "observations": observations or survey.settings.observations,
+              "eo_constraints": bool(eo_constraints and e_idx)},
+    )
+
+
+# ---------------------------------------------------------------------------
+# output files
+# ---------------------------------------------------------------------------
+
+
+def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[list[str], np.ndarray]:
+    """Read a ``check_covariance.csv`` written by :func:`write_adjustment`.
+
+    Parameters
+    ----------
+    path : path
+    points : sequence of str, optional
+        Point ids to return, in this order (default: the file's order).
+
+    Returns
+    -------
+    ids : list of str
+    C : (3k, 3k) array
+        Joint covariance of E, N, h, m^2.
+
+    Raises
+    ------
+    SurveyError
+        Missing or unreadable file, a missing column, a cell that is not a
+        number (file, line and field named).
+    AssessmentError
+        A requested point with no rows, a pair with no row or with two rows, a
+        point's own block with a variance that is not positive (file and line
+        or points named).
+    """
+    from .._util import read_csv_table
+    from ..errors import AssessmentError, location
+
+    t = read_csv_table(path, required=COVARIANCE_COLUMNS)
+    vals = np.column_stack([t.floats(c) for c in COVARIANCE_COLUMNS[2:]]).reshape(-1, 3, 3)
+    pa, pb = t.column("point_a"), t.column("point_b")
+    seen: dict[frozenset, int] = {}
+    for a, b, blk, line in zip(pa, pb, vals, t.lines):
+        first = seen.setdefault(frozenset((a, b)), line)
+        if first != line:
+            raise AssessmentError(f"{location(path, line)}: a second row for the pair {a}, {b} (first at "
+                                  f"line {first}); keep one row per pair")
+        if a == b and np.any(np.diag(blk) <= 0):
+            raise AssessmentError(f"{location(path, line)}: point {a}: the variances c_EE, c_NN, c_hh "
+                                  "must be positive")
+    order = list(dict.fromkeys(pa + pb))
+    ids = [str(q) for q in points] if points is not None else order
+    present = set(order)
+    missing = [q for q in ids if q not in present]
+    if missing:
+        raise AssessmentError(f"{path}: no covariance for point(s) {', '.join(missing[:10])}"
+                              + (" ..." if len(missing) > 10 else "")
+                              + f"; the file holds {len(order)} check point(s) of its adjustment")
+    pos = {q: i for i, q in enumerate(ids)}
+    k = len(ids)
+    C = np.full((3 * k, 3 * k), np.nan)
+    for a, b, blk in zip(pa, pb, vals):
+        if a in pos and b in pos:
+            i, j = pos[a], pos[b]
+            C[3 * i:3 * i + 3, 3 * j:3 * j + 3] = blk
+            C[3 * j:3 * j + 3, 3 * i:3 * i + 3] = blk.T
+    if np.isnan(C).any():
+        i, j = (int(v) // 3 for v in np.argwhere(np.isnan(C))[0])
+        raise AssessmentError(f"{path}: no row for the pair {ids[i]}, {ids[j]}; the file must hold one row "
+                              "per pair of its points")
+    return ids, C
+
+
+def _write_point_covariance(path, ids: Sequence[str], C: np.ndarray, comment: str,
+                            provenance: dict | None = None) -> None:
+    """Write the joint covariance *C* (3k, 3k) of points *ids* as :func:`read_point_covariance` reads it:
+    one row of the 3 x 3 block per pair a <= b, atomically."""
+    from .._util import write_csv_atomic
+
+    rows = [[a, b, *C[3 * i:3 * i + 3, 3 * j:3 * j + 3].ravel()]
+            for i, a in enumerate(ids) for j, b in enumerate(ids[i:], start=i)]
+    write_csv_atomic(path, COVARIANCE_COLUMNS, rows, comments=[comment], provenance=provenance)
+
+
+#: columns of eop.csv (metres and degrees)
+EOP_COLUMNS = ("photo", "X0", "Y0", "Z0", "omega", "phi", "kappa",
+               "sd_X0", "sd_Y0", "sd_Z0", "sd_omega", "sd_phi", "sd_kappa")
+#: columns of points.csv (metres); role is control, check or tie
+POINT_COLUMNS = ("point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "role")
+#: columns of residuals.csv: adjusted minus observed; image rows use vx_mm, vy_mm; control rows
+#: vE_m, vN_m, vh_m; camera-constraint rows (kind eo) vE_m, vN_m, vh_m for X0, Y0, Z0 and the angles
+RESIDUAL_COLUMNS = ("kind", "photo", "point", "vx_mm", "vy_mm", "vE_m", "vN_m", "vh_m",
+                    "vomega_deg", "vphi_deg", "vkappa_deg")
+
+
+def write_adjustment(result: BundleResult, folder, extra: dict | None = None, *,
+                     snooping: SnoopingResult | None = None, provenance: dict | None = None) -> dict:
+    """Write ``eop.csv``, ``points.csv``, ``residuals.csv`` and ``summary.json`` into *folder*,
+    and ``check_covariance.csv`` (:func:`read_point_covariance`) when the adjustment converged
+    with 1 to :data:`MAX_JOINT_COVARIANCE_POINTS` check points and ``precision="all"``.
+
+    With *snooping* (:func:`lidarcat.bundle.reliability.snoop`) also ``blunders.csv`` (every
+    group rejected, :data:`BLUNDER_COLUMNS`) and ``reliability.csv`` (redundancy number,
+    w-test, MDB and external reliability of every scalar observation), and the keys
+    ``snooping`` and ``blunders`` in the summary.  *provenance*
+    (:func:`lidarcat._util.provenance`) goes into every CSV sidecar and the summary.
+
+    Each file is written atomically; wrap the call in :func:`lidarcat._util.atomic_dir`
+    to make the whole folder appear at once.  Returns the summary dict written.
+    """
+    from functools import partial
+    from pathlib import Path
+
+    from .._util import write_csv_atomic as _write_csv
+    from .._util import write_json_atomic
+
+    write_csv_atomic = partial(_write_csv, provenance=provenance)
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    sd = result.eo_sd
+    write_csv_atomic(folder / "eop.csv", EOP_COLUMNS, [
+        [pid, *p[:3], *np.degrees(p[3:]), *s[:3], *np.degrees(s[3:])]
+        for pid, p, s in zip(result.photo_ids, result.eo_params, sd)],
+        comments=["exterior orientation: X0, Y0, Z0 (m), omega, phi, kappa (deg), "
+                  "M = R3(kappa) R2(phi) R1(omega); sd_* standard deviations "
+                  f"({result.variance_factor_kind.replace('_', ' ')} variance factor)"])
+    psd = result.point_sd_m
+    write_csv_atomic(folder / "points.csv", POINT_COLUMNS, [
+        [q, *x, *s, r] for q, x, s, r in zip(result.point_ids, result.points_m, psd, result.point_role)],
+        comments=["adjusted object points: E, N, h and standard deviations (m); "
+                  "role: control (weighted constraint), check (free, for assessment), tie (free)"])
+    pr = result.problem
+    nan = math.nan
+    rows: list[list[Any]] = [["image", pr.photo_ids[i], pr.point_ids[j], v[0], v[1], nan, nan, nan, nan, nan, nan]
+                             for i, j, v in zip(pr.photo_index, pr.point_index, result.residuals_mm)]
+    for j, v, sdc in zip(pr.constraint_point_index, result.constraint_residuals_m, pr.constraint_sd_m):
+        v = np.where(np.isfinite(sdc), v, nan)
+        rows.append(["control", "", pr.point_ids[j], nan, nan, *v, nan, nan, nan])
+    if result.eo_constraint_residuals is not None:
+        for i, v, sde in zip(pr.eo_constraint_photo_index, result.eo_constraint_residuals, pr.eo_constraint_sd):
+            v = np.where(np.isfinite(sde), v, nan)
+            rows.append(["eo", pr.photo_ids[i], "", nan, nan, *v[:3], *np.degrees(v[3:])])
+    write_csv_atomic(folder / "residuals.csv", RESIDUAL_COLUMNS, rows,
+                     comments=["residuals v = adjusted - observed"])
+    checks = [str(q) for q, r in zip(result.point_ids, result.point_role) if r == "check"]
+    if checks and result.success and result.precision == "all" and len(checks) <= MAX_JOINT_COVARIANCE_POINTS:
+        _write_point_covariance(
+            folder / "check_covariance.csv", checks, joint_point_covariance(result, checks),
+            "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances "
+            "included: c_XY = Cov(X of point_a, Y of point_b), one row per pair a <= b "
+            f"({result.variance_factor_kind.replace('_', ' ')} variance factor)", provenance)
+    elif len(checks) > MAX_JOINT_COVARIANCE_POINTS:
+        log.info("%d check points: joint covariance not written (limit %d)", len(checks),
+                 MAX_JOINT_COVARIANCE_POINTS)
+    summary = {**result.summary(), **(extra or {})}
+    if snooping is not None:
+        summary.update(_write_snooping(snooping, folder, write_csv_atomic))
+    if provenance is not None:
+        summary["provenance"] = provenance
+    write_json_atomic(folder / "summary.json", summary)
+    return summary
+
+
+#: columns of ``blunders.csv``: estimated errors in mm (image), m (control), m and deg (eo)
+BLUNDER_COLUMNS = ("kind", "photo", "point", "w", "w_critical", "redundancy", "estimated_error_1",
+                   "estimated_error_2", "estimated_error_3", "removed", "found_by", "iteration", "note")
+
+
+def _write_snooping(snooping: SnoopingResult, folder, write_csv) -> dict:
+    """blunders.csv and reliability.csv of the snooping hook; returns the summary keys."""
+    from ..bundle.reliability import RELIABILITY_COLUMNS
+
+    if snooping.mode == "off":
+        return snooping.summary()
+    rows = []
+    for b in snooping.blunders:
+        err = list(b.estimated_error[:3]) + [math.nan] * (3 - min(3, len(b.estimated_error)))
+        rows.append([b.kind, b.photo or "", b.point or "", b.w, b.w_critical, b.redundancy, *err,
+                     b.removed, b.found_by, b.iteration, b.note])
+    write_csv(folder / "blunders.csv", BLUNDER_COLUMNS, rows, comments=[
+        f"observation groups rejected by data snooping ({snooping.mode}; robust {snooping.robust}): "
+        "w = sqrt of the group's chi-square test statistic, w_critical its critical value, redundancy "
+        "the mean redundancy number, estimated_error_1..3 the estimated bias (observed minus true) of "
+        "x, y (mm, image), E, N, h (m, control) or X0, Y0, Z0 (m, eo)"])
+    if snooping.reliability is not None:
+        write_csv(folder / "reliability.csv", RELIABILITY_COLUMNS, snooping.reliability.rows(), comments=[
+            "one row per scalar observation: redundancy number r, component w-test, estimated error, "
+            "minimal detectable bias (mdb) in the unit given, bias-to-noise ratio (bnr) and the shift of "
+            "the orientation of effect_photo by that MDB (external reliability); w, w_critical: the "
+            "group's multi-dimensional test"])
+    return snooping.summary()
+
+
+def adjust_survey(
+    survey=None,
+    *,
+    control: str | None = None,
+    observations: str | None = None,
+    outdir=None,
+    variance_factor: str | None = None,
+    chi2_level: float | None = None,
+    eo_constraints: bool = False,
+    max_iter: int = 50,
+    precision: str = "all",
+    progress: Callable[[int, float], None] | None = None,
+    snooping: str = "report",
+    snooping_level: float | None = None,
+    family_level: float = FAMILY_LEVEL,
+    robust: str = "none",
+) -> tuple[BundleResult, Any]:
+    """Load a survey, adjust it and write the result folder (``lidarcat adjust``).
+
+    Parameters
+    ----------
+    survey : Survey, path or None
+        None: the embedded thesis block.
+    control, observations : str, optional
+        Control set and observation kind (default: the survey's settings).
+    outdir : path, optional
+        Output folder (default :meth:`Survey.output_dir`); written atomically,
+        files are replaced only when every file has been written.
+    variance_factor, chi2_level : optional
+        Default: the survey's ``[adjustment]`` settings.
+    eo_constraints : bool
+        Use photos.csv exterior orientations with sigmas as weighted constraints.
+    snooping : {"off", "report", "remove"}
+        Baarda's data snooping (:func:`lidarcat.bundle.reliability.snoop`): list the
+        blunders (``report``, the result keeps every observation) or remove them.
+    snooping_level : float, optional
+        alpha of the one-dimensional w-test (B-method, power 0.80); default: from
+        *family_level* and the number of tests (:func:`lidarcat.bundle.reliability.family_alpha`).
+    family_level : float
+        Probability that a block without blunders has any test rejecting (0.05).
+    robust : {"none", "danish", "huber"}
+        Re-weighting before snooping (large blocks with many blunders).
+    precision : {"all", "photos", "none"}
+        Covariance blocks to compute (see :func:`adjust`); the joint covariance of
+        the check points is written with ``"all"`` only.
+
+    Returns
+    -------
+    (BundleResult, Path of the output folder)
+        The final adjustment (without the removed groups for ``remove``); the
+        blunders are in ``summary.json`` (``blunders``, ``snooping``) and
+        ``blunders.csv``.
+
+    Raises
+    ------
+    SurveyError, DatumError
+    """
+    from .folder import Survey
+
+    t0 = time.perf_counter()
+    if not isinstance(survey, Survey):
+        survey = Survey.load(survey)
+    settings = survey.settings
+    problem = problem_from_survey(survey, control=control, observations=observations,
+                                  eo_constraints=eo_constraints)
+    params = dict(control=problem.info.get("control_set"), observations=problem.info.get("observations"),
+                  variance_factor=variance_factor or settings.variance_factor,
+                  chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
+                  eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
+                  snooping_level=None if snooping_level is None else float(snooping_level),
+                  family_level=float(family_level), robust=robust, precision=precision)
+    sres = snoop(problem, mode=snooping, level=snooping_level, family_level=family_level, robust=robust,
+                 max_iter=max_iter,
+                 precision=precision, variance_factor=params["variance_factor"],
+                 chi2_level=params["chi2_level"], progress=progress)
+    out = write_survey_folder(survey, outdir, t0, params,
+                              lambda tmp, extra, prov: write_adjustment(sres.result, tmp, extra=extra,
+                                                                        snooping=sres, provenance=prov))
+    return sres.result, out
+
+
+def write_survey_folder(survey: Survey, outdir, t0: float, parameters: dict,
+                        write: Callable[[Any, dict, dict], Any], extra: dict | None = None):
+    """Write a survey's result folder atomically; returns its path.
+
+    ``write(tmp, extra, provenance)`` fills the temporary folder; *extra* (summary keys)
+    gets the total elapsed time since *t0* (``time.perf_counter()``, s), the survey's CRS
+    and height system; provenance is :func:`survey_provenance` of *parameters*.  The
+    folder (default :meth:`Survey.output_dir`) is replaced only when ``write`` returns.
+    """
+    from .._util import atomic_dir
+
+    out = survey.output_dir(outdir)
+    with atomic_dir(out) as tmp:
+        write(tmp, {"elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs,
+                    "height_system": survey.height_system, **(extra or {})},
+              survey_provenance(survey, parameters))
+    return out
+
+
+def survey_provenance(survey: Survey, parameters: dict) -> dict:
+    """:func:`lidarcat._util.provenance` of the survey files an adjustment reads (SHA-256 each)."""
+    from .._util import provenance
+
+    files = {"survey.toml": survey.toml_path, **{k: v for k, v in survey.files.items() if k != "lidar"}}
+    return provenance(files, parameters, root=survey.root)

@@ -1,0 +1,392 @@
+r"""Additional parameters from a survey folder: the ``[self_calibration]`` table and the CLI switches.
+
+survey.toml (every key optional)::
+
+    [self_calibration]
+    parameters = "c,x0,y0,k1"     # interior orientation to estimate, per camera (or "all")
+    use_priors = true             # weight them by the sd_* of camera.toml (no sd: free)
+    frame_offset = "lidar:gps"    # SOURCE:REFERENCE -- shift the control of ground-point source
+                                  # SOURCE into the frame of REFERENCE (needs control of both)
+    similarity = false            # 7-parameter similarity instead of a 3-D shift
+    control = "gps+lidar"         # control set(s); "a+b" joins two sets of control_sets.csv
+    alpha = 0.05                  # level of the t-tests and group tests
+    gnss_drift = false            # GNSS lines: also a drift along each line (m/km)
+
+    [self_calibration.gnss_lines] # GNSS antenna offset per flight line (photos.csv X0, Y0, Z0 with
+    1 = ["1", "2", "3"]           # sd_X0.. become constraints): line label = its photo ids
+    2 = ["4", "5", "6"]
+
+``lidarcat adjust --self-calibrate c,x0,y0,k1 --frame-offset lidar:gps
+--control gps+lidar`` overrides them.  A control-set name ``a+b`` is the union of
+the sets' control points (each with its own set's sds) and of their check
+points that are control in neither.  With a frame offset and no control named,
+the default set is joined with every set that holds control of one of the two
+sources (``gps+lidar`` for the thesis block).
+
+:func:`adjust_survey_with_parameters` writes the usual adjustment folder
+(:func:`lidarcat.bundle.write_adjustment`) of the adjustment *with* the
+parameters; ``summary.json`` gains ``additional_parameters``, ``frame_offset``,
+``parameter_groups``, ``parameters_off`` / ``parameters_on`` (v'Pv, sigma0^2,
+RMS residuals without and with them) and ``warnings``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from typing import Any
+
+import numpy as np
+
+from ..errors import SurveyError
+from ..bundle.additional import GnssLineOffsets, SelfCalibration, parse_parameters
+from ..bundle.frame_offset import frame_offset_from_sources
+from ..bundle.problem import BundleProblem
+from ..bundle.selfcal import SelfCalResult, adjust_with_parameters
+
+__all__ = ["SelfCalSettings", "self_calibration_settings", "combined_control_set", "components_from_survey",
+           "adjust_survey_with_parameters", "selfcal_adjust", "write_selfcal", "format_parameters",
+           "wants_parameters", "SNOOPING_WITH_PARAMETERS"]
+
+log = logging.getLogger(__name__)
+
+
+def _keys() -> tuple[str, ...]:
+    from .folder import SURVEY_KEYS
+
+    return tuple(SURVEY_KEYS["self_calibration"])
+
+
+#: keys of the [self_calibration] table of survey.toml (validated by lidarcat.survey.folder)
+SELF_CALIBRATION_KEYS = _keys()
+
+#: why the adjustment with additional parameters is not tested for blunders (summary.json, CLI)
+SNOOPING_WITH_PARAMETERS = (
+    "data snooping is not available with additional parameters (--self-calibrate, --frame-offset or "
+    "[self_calibration]): the w-tests would need the residual cofactors with the parameters' covariance. "
+    "Find the blunders first with `lidarcat adjust SURVEY --snooping remove` (same control, no "
+    "parameters) and correct or delete them in the survey files")
+
+
+@dataclasses.dataclass(frozen=True)
+class SelfCalSettings:
+    """The ``[self_calibration]`` table (see the module docstring); None: not switched on."""
+
+    parameters: tuple[str, ...] | None = None
+    use_priors: bool = True
+    frame_offset: tuple[str, str] | None = None
+    similarity: bool = False
+    control: str | None = None
+    alpha: float = 0.05
+    gnss_lines: dict[str, str] | None = None        # photo id -> line label
+    gnss_drift: bool = False
+
+    @property
+    def active(self) -> bool:
+        return bool(self.parameters) or self.frame_offset is not None or bool(self.gnss_lines)
+
+
+def _split_offset(text: str) -> tuple[str, str]:
+    parts = [s.strip() for s in str(text).split(":")]
+    if len(parts) != 2 or not all(parts):
+        raise ValueError(f"frame offset {text!r} must be SOURCE:REFERENCE, e.g. lidar:gps")
+    return parts[0], parts[1]
+
+
+def self_calibration_settings(survey) -> SelfCalSettings:
+    """Read ``[self_calibration]`` of the survey's survey.toml.
+
+    Raises
+    ------
+    SurveyError
+        A bad value (file, line and key named).
+    """
+    from .folder import _Toml
+
+    t = _Toml(survey.toml_path)
+    if "self_calibration" not in t.data:
+        return SelfCalSettings()
+    d = SelfCalSettings()
+    params = t.get("self_calibration", "parameters", str, None)
+    try:
+        parsed = parse_parameters(params) if params is not None else None
+    except ValueError as ex:
+        raise t.err("self_calibration", "parameters", str(ex)) from ex
+    fo = t.get("self_calibration", "frame_offset", str, None)
+    try:
+        offset = _split_offset(fo) if fo is not None else None
+    except ValueError as ex:
+        raise t.err("self_calibration", "frame_offset", str(ex)) from ex
+    alpha = t.get("self_calibration", "alpha", (int, float), d.alpha)
+    if not 0 < alpha < 1:
+        raise t.err("self_calibration", "alpha", f"must lie between 0 and 1, got {alpha!r}")
+    lines_raw = t.get("self_calibration", "gnss_lines", dict, None)
+    lines: dict[str, str] | None = None
+    if lines_raw is not None:
+        lines = {}
+        for label, photos in lines_raw.items():
+            if not isinstance(photos, list) or not all(isinstance(v, str) for v in photos):
+                raise t.err("self_calibration", "gnss_lines", f"line {label!r} must be a list of photo ids "
+                            f"(strings), got {photos!r}")
+            for ph in photos:
+                if ph not in survey.photo_ids:
+                    raise t.err("self_calibration", "gnss_lines", f"line {label!r}: photo {ph!r} is not in "
+                                "photos.csv")
+                if ph in lines:
+                    raise t.err("self_calibration", "gnss_lines", f"photo {ph!r} is in lines {lines[ph]!r} "
+                                f"and {label!r}; a photo belongs to one line")
+                lines[ph] = str(label)
+    return SelfCalSettings(parsed, t.get("self_calibration", "use_priors", bool, True), offset,
+                           t.get("self_calibration", "similarity", bool, False),
+                           t.get("self_calibration", "control", str, None), float(alpha), lines,
+                           t.get("self_calibration", "gnss_drift", bool, False))
+
+
+def combined_control_set(survey, name: str | None):
+    """The control set *name*, or the union of ``a+b`` (see the module docstring).
+
+    Raises
+    ------
+    SurveyError
+        An unknown set (from :meth:`lidarcat.Survey.control_set`).
+    """
+    from .folder import ControlSet
+
+    if name is None or "+" not in name:
+        return survey.control_set(name)
+    sets = [survey.control_set(n.strip()) for n in name.split("+")]
+    ctrl, sd = [], []
+    for s in sets:
+        for q, v in zip(s.control.tolist(), s.sd_m):
+            if q not in ctrl:
+                ctrl.append(q)
+                sd.append(v)
+    chk, csd = [], []
+    for s in sets:
+        for q, v in zip(s.check.tolist(), s.check_sd_m):
+            if q not in ctrl and q not in chk:
+                chk.append(q)
+                csd.append(v)
+    return ControlSet(name, np.array(ctrl, dtype=str), np.array(chk, dtype=str),
+                      np.array(sd).reshape(-1, 3), np.array(csd).reshape(-1, 3))
+
+
+def _sets_with_sources(survey, sources: tuple[str, str]) -> str | None:
+    """``a+b``: the default control set and every other set holding control of the two sources
+    (the default control of a frame offset); None when the default alone holds both."""
+    gp = survey.ground_points
+    src_of = dict(zip(gp.point.tolist(), gp.source.tolist()))
+    names = list(survey.control_sets)
+    default = survey.default_control or (names[0] if names else None)
+    if default is None:
+        return None
+    order = [default] + [n for n in names if n != default]
+    chosen, seen = [], set()
+    for n in order:
+        got = {src_of.get(q) for q in survey.control_sets[n].control.tolist()} & set(sources)
+        if n == default or got - seen:
+            chosen.append(n)
+            seen |= got
+    if len(chosen) > 1:
+        log.info("frame offset %s:%s: control sets %s joined", *sources, "+".join(chosen))
+    return "+".join(chosen) if len(chosen) > 1 else None
+
+
+def components_from_survey(survey, problem: BundleProblem, settings: SelfCalSettings) -> list[Any]:
+    """The components (:class:`SelfCalibration`, :class:`FrameOffset`, :class:`GnssLineOffsets`) of
+    *settings* for *problem*.
+
+    Raises
+    ------
+    AdditionalParameterError
+        A frame-offset source without control in the problem (named).
+    """
+    comps: list[Any] = []
+    if settings.parameters:
+        photo_camera = [survey.photo(str(i)).camera for i in problem.photo_ids]
+        comps.append(SelfCalibration(survey.cameras, photo_camera, settings.parameters,
+                                     use_priors=settings.use_priors))
+    if settings.frame_offset is not None:
+        gp = survey.ground_points
+        src_of = dict(zip(gp.point.tolist(), gp.source.tolist()))
+        sources = [src_of.get(str(problem.point_ids[j]), "") for j in problem.constraint_point_index]
+        comps.append(frame_offset_from_sources(problem, sources, *settings.frame_offset,
+                                               similarity=settings.similarity))
+    if settings.gnss_lines:
+        comps.append(GnssLineOffsets([settings.gnss_lines.get(str(i)) for i in problem.photo_ids],
+                                     drift=settings.gnss_drift))
+    return comps
+
+
+def adjust_survey_with_parameters(
+    survey=None,
+    *,
+    control: str | None = None,
+    self_calibrate: str | None = None,
+    frame_offset: str | None = None,
+    similarity: bool | None = None,
+    observations: str | None = None,
+    outdir=None,
+    variance_factor: str | None = None,
+    chi2_level: float | None = None,
+    eo_constraints: bool = False,
+    max_iter: int = 50,
+    precision: str = "all",
+) -> tuple[SelfCalResult, Any]:
+    """``lidarcat adjust`` with additional parameters: adjust, test, write the result folder.
+
+    Parameters
+    ----------
+    survey : Survey, path or None
+        None: the embedded thesis block.
+    control : str, optional
+        Control set, ``a+b`` for a union (default: ``[self_calibration] control``,
+        else the survey's default).
+    self_calibrate : str, optional
+        ``"c,x0,y0,k1"`` (default: ``[self_calibration] parameters``).
+    frame_offset : str, optional
+        ``"SOURCE:REFERENCE"`` (default: ``[self_calibration] frame_offset``).
+    similarity : bool, optional
+        7-parameter similarity for the frame offset.
+    observations, outdir, variance_factor, chi2_level, eo_constraints, max_iter, precision
+        As :func:`lidarcat.bundle.adjust_survey`.
+
+    Returns
+    -------
+    (SelfCalResult, Path of the output folder)
+
+    Raises
+    ------
+    SurveyError
+        Nothing to estimate, a bad switch, or an unknown control set (named).
+    AdditionalParameterError, DatumError
+    """
+    t0 = time.perf_counter()
+    survey, res = selfcal_adjust(survey, control=control, self_calibrate=self_calibrate,
+                                 frame_offset=frame_offset, similarity=similarity, observations=observations,
+                                 variance_factor=variance_factor, chi2_level=chi2_level,
+                                 eo_constraints=eo_constraints, max_iter=max_iter, precision=precision)
+    from .adjustment import write_survey_folder
+
+    info = res.bundle.problem.info
+    params = dict(control=info.get("control_set"), observations=info.get("observations"),
+                  variance_factor=res.bundle.variance_factor_kind, chi2_level=float(res.bundle.chi2["level"]),
+                  eo_constraints=bool(info.get("eo_constraints")), max_iter=int(max_iter), precision=precision,
+                  additional_parameters=list(res.names), alpha=res.alpha, snooping="off")
+    out = write_survey_folder(survey, outdir, t0, params,
+                              lambda tmp, extra, prov: write_selfcal(res, tmp, extra=extra, provenance=prov),
+                              extra={"snooping": {"mode": "off", "reason": SNOOPING_WITH_PARAMETERS}})
+    return res, out
+
+
+def selfcal_adjust(survey=None, *, control: str | None = None, self_calibrate: str | None = None,
+                   frame_offset: str | None = None, similarity: bool | None = None,
+                   observations: str | None = None, variance_factor: str | None = None,
+                   chi2_level: float | None = None, eo_constraints: bool = False, max_iter: int = 50,
+                   precision: str = "all") -> tuple[Any, SelfCalResult]:
+    """The adjustment of :func:`adjust_survey_with_parameters` without writing: ``(survey, result)``."""
+    from .folder import Survey
+    from .adjustment import problem_from_survey
+
+    if not isinstance(survey, Survey):
+        survey = Survey.load(survey)
+    st = self_calibration_settings(survey)
+    try:
+        st = dataclasses.replace(
+            st,
+            parameters=parse_parameters(self_calibrate) if self_calibrate else st.parameters,
+            frame_offset=_split_offset(frame_offset) if frame_offset else st.frame_offset,
+            similarity=st.similarity if similarity is None else bool(similarity))
+    except ValueError as ex:
+        raise SurveyError(str(ex)) from ex
+    if not st.active:
+        raise SurveyError(f"{survey.toml_path}: no additional parameter switched on: give --self-calibrate "
+                          "and/or --frame-offset, or a [self_calibration] table")
+    control = control or st.control
+    if control is None and st.frame_offset is not None:
+        control = _sets_with_sources(survey, st.frame_offset)
+    cset = combined_control_set(survey, control)
+    # GNSS line offsets act on the camera-position constraints: switch them on
+    problem = problem_from_survey(survey, control=cset, observations=observations,
+                                  eo_constraints=eo_constraints or bool(st.gnss_lines))
+    held = problem.eo_constraint_photo_index
+    if st.gnss_lines and (held is None or not len(held)):
+        from .folder import _Toml
+
+        raise _Toml(survey.toml_path).err(
+            "self_calibration", "gnss_lines", f"GNSS line offsets act on constrained camera positions, but no "
+            f"photo of {survey.files['photos']} has X0, Y0, Z0 with sd_X0, sd_Y0, sd_Z0")
+    settings = survey.settings
+    res = adjust_with_parameters(problem, components_from_survey(survey, problem, st), max_iter=max_iter,
+                                 variance_factor=variance_factor or settings.variance_factor,
+                                 chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
+                                 alpha=st.alpha, precision=precision)
+    return survey, res
+
+
+def write_selfcal(res: SelfCalResult, folder, extra: dict | None = None, provenance: dict | None = None) -> dict:
+    """:func:`lidarcat.bundle.write_adjustment` of the adjustment with the parameters, summary.json with
+    :meth:`SelfCalResult.summary`, check_covariance.csv with the parameters' rank-k term (and the
+    *provenance* of :func:`lidarcat.survey.adjustment.survey_provenance`).  Returns the summary written."""
+    from pathlib import Path
+
+    from .adjustment import _write_point_covariance, write_adjustment
+
+    folder = Path(folder)
+    summary = write_adjustment(res.bundle, folder, extra={**(extra or {}), **res.summary()},
+                               provenance=provenance)
+    if (folder / "check_covariance.csv").is_file():       # add the additional parameters' rank-k term
+        checks = [str(q) for q, r in zip(res.bundle.point_ids, res.bundle.point_role) if r == "check"]
+        _write_point_covariance(
+            folder / "check_covariance.csv", checks, res.joint_point_covariance(checks),
+            "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances and the "
+            "uncertainty of the additional parameters included: c_XY = Cov(X of point_a, Y of "
+            f"point_b), one row per pair a <= b ({res.bundle.variance_factor_kind.replace('_', ' ')} "
+            "variance factor)", provenance=provenance)
+    return summary
+
+
+def wants_parameters(survey, self_calibrate: str | None = None, frame_offset: str | None = None) -> bool:
+    """True when switches are given or the survey's ``[self_calibration]`` switches something on."""
+    if self_calibrate or frame_offset:
+        return True
+    from .folder import Survey
+
+    if not isinstance(survey, Survey):
+        survey = Survey.load(survey)
+    return self_calibration_settings(survey).active
+
+
+def format_parameters(summary: dict) -> str:
+    """Text lines of the additional parameters and the frame offset of a ``summary.json``."""
+    lines = []
+    ap = summary.get("additional_parameters") or {}
+    if ap:
+        lines += ["", "Additional parameters (correction to the certificate)   estimate        sd       t  "
+                  "signif.  max |r| (with)"]
+        for name, t in ap.items():
+            e = t.get("max_correlation_eo") or {}
+            a = t.get("max_correlation_additional") or {}
+            r, w = (e.get("r", 0.0), f"{e.get('parameter')} photo {e.get('photo')}")
+            if a and abs(a.get("r", 0.0)) > abs(r):
+                r, w = a["r"], a["parameter"]
+            lines.append(f"  {name:<22} {t['unit']:<6} {t['estimate']:>+14.6g} {t['sd']:>10.3g} {t['t']:>7.2f}"
+                         f"  {'yes' if t['significant'] else 'no':<7}  {r:+.3f} ({w})")
+    fo = summary.get("frame_offset")
+    for f in ([fo] if isinstance(fo, dict) else fo or []):
+        s, sd, tt = f["shift_m"], f["sd_m"], f["t"]
+        lines += ["", f"Frame offset {f['source']} -> {f['reference']} (add to {f['source']} coordinates), m:",
+                  "  E {:+.3f} +- {:.3f} (t {:+.1f})   N {:+.3f} +- {:.3f} (t {:+.1f})   h {:+.3f} +- {:.3f} "
+                  "(t {:+.1f})".format(s[0], sd[0], tt[0], s[1], sd[1], tt[1], s[2], sd[2], tt[2]),
+                  f"  joint {f['test']['test']} test: statistic {f['test']['statistic']:.2f}, p = "
+                  f"{f['test']['p_value']:.2g}: " + ("significant" if f["significant"] else "not significant")
+                  + f" at {100 * f['alpha']:g} %"]
+    off, on = summary.get("parameters_off"), summary.get("parameters_on")
+    if off and on:
+        lines.append(f"v'Pv without / with the parameters: {off['vtpv']:.2f} (dof {off['dof']}) / "
+                     f"{on['vtpv']:.2f} (dof {on['dof']})")
+    for w in summary.get("warnings") or []:
+        lines.append(f"WARNING: {w}")
+    return "\n".join(lines)
+

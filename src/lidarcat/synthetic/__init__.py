@@ -1,0 +1,72 @@
+"""Synthetic data with known truth, for the demo, the tests and the benchmarks.
+
+==============  ============================================================
+``block``       Seeded synthetic aerial blocks with known truth, for tests and benchmarks.
+``survey``      A synthetic survey with known truth: ``lidarcat demo synthetic``.
+``roofs``       Synthetic buildings with known roof vertices, sampled like an airborne scanner.
+``scene``       A textured synthetic scene and aerial photos of it, rendered with known truth.
+``landscapes``  Synthetic landscapes with known ground, for judging ground filters beyond the AHN3 tiles.
+==============  ============================================================
+"""
+
+from __future__ import annotations
+
+from .block import (  # noqa: F401
+    SyntheticBlock,
+    synthetic_block,
+    aerial_block,
+    AERIAL_LAYOUTS,
+    resimulated,
+    SelfCalBlock,
+    selfcal_block,
+)
+from .survey import (  # noqa: F401
+    DemoSurvey,
+    write_synthetic_survey,
+    compare_with_truth,
+    demo_camera,
+    project_points,
+    DEMO_CRS,
+)
+from .roofs import (  # noqa: F401
+    SyntheticScene,
+    synthetic_roof,
+    KINDS,
+)
+from .scene import (  # noqa: F401
+    Building,
+    Road,
+    Scene,
+    demo_scene,
+)
+from .landscapes import (  # noqa: F401
+    Landscape,
+    make_landscape,
+    LANDSCAPES,
+)
+
+__all__ = [
+    'SyntheticBlock',
+    'synthetic_block',
+    'aerial_block',
+    'AERIAL_LAYOUTS',
+    'resimulated',
+    'SelfCalBlock',
+    'selfcal_block',
+    'DemoSurvey',
+    'write_synthetic_survey',
+    'compare_with_truth',
+    'demo_camera',
+    'project_points',
+    'DEMO_CRS',
+    'SyntheticScene',
+    'synthetic_roof',
+    'KINDS',
+    'Building',
+    'Road',
+    'Scene',
+    'demo_scene',
+    'Landscape',
+    'make_landscape',
+    'LANDSCAPES',
+]
