@@ -34,9 +34,9 @@ def _case(name, problem, repeat):
         t0 = time.perf_counter()
         r = adjust(problem)
         best_t = min(best_t, time.perf_counter() - t0)
-    from lidarcat.bundle import _System, covariance_blocks
+    from lidarcat.bundle import NormalSystem, covariance_blocks
 
-    system = _System(problem, r.eo_params, r.points_m)
+    system = NormalSystem(problem, r.eo_params, r.points_m)
     t0 = time.perf_counter()
     covariance_blocks(system)
     cov_s = time.perf_counter() - t0

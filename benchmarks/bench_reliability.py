@@ -50,11 +50,11 @@ def _truth_sim(p, truth, rng):
 
 def _whitened_qvv(p, res):
     from lidarcat.geometry.collinearity import project_with_jacobians
-    from lidarcat.bundle.model import _System
+    from lidarcat.bundle.model import NormalSystem
     from lidarcat.bundle.precision import observation_blocks
 
     eo, pts = np.asarray(res.eo_params), np.asarray(res.points_m)
-    S = observation_blocks(_System(p, eo, pts))
+    S = observation_blocks(NormalSystem(p, eo, pts))
     _, ae, ap, _ = project_with_jacobians(eo, pts[p.point_index], p.focal_length_mm[p.photo_index],
                                           p.photo_index)
     A = np.concatenate([ae, ap], axis=2)

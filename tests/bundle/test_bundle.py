@@ -406,10 +406,10 @@ def test_selected_inverse_equals_dense_inverse():
     r = adjust(p)
     n_ph, n_pt = p.n_photos, p.n_points
     Q = _dense_inverse(r)
-    from lidarcat.bundle import _System, observation_blocks
+    from lidarcat.bundle import NormalSystem, observation_blocks
 
     # the 9 x 9 blocks [eo_i, X_j] of every observation, photo-point cross blocks included
-    ob = observation_blocks(_System(p, r.eo_params, r.points_m))
+    ob = observation_blocks(NormalSystem(p, r.eo_params, r.points_m))
     for k, (i, j) in enumerate(zip(p.photo_index, p.point_index)):
         idx = np.r_[6 * i:6 * i + 6, 6 * n_ph + 3 * j:6 * n_ph + 3 * j + 3]
         ref = Q[np.ix_(idx, idx)]

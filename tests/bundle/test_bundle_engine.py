@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse as sp
 
 from lidarcat.synthetic.block import synthetic_block
-from lidarcat.bundle import _System, adjust, covariance_blocks, observation_blocks
+from lidarcat.bundle import NormalSystem, adjust, covariance_blocks, observation_blocks
 from lidarcat.bundle.cholesky import SingularError, SupernodalCholesky
 
 
@@ -80,7 +80,7 @@ def test_supernodal_cholesky_reports_an_indefinite_matrix():
 def block100():
     """A 10 x 10 photo block linearised at its truth."""
     b = synthetic_block(10, 10, seed=3, point_spacing_m=150.0)
-    return b, _System(b.problem, b.true_eo, b.true_points_m)
+    return b, NormalSystem(b.problem, b.true_eo, b.true_points_m)
 
 
 def test_precision_blocks_equal_dense_inverse_on_100_photos(block100):
@@ -90,9 +90,9 @@ def test_precision_blocks_equal_dense_inverse_on_100_photos(block100):
     n_ph, n_pt = p.n_photos, p.n_points
     assert n_ph == 100
     schur = system.schur
-    from lidarcat.bundle.linear import _inv3
+    from lidarcat.bundle.linear import inv3
 
-    vinv = _inv3(system.V)
+    vinv = inv3(system.V)
     data, T = schur.assemble(system.U, vinv, system.W)
     S = sp.csr_matrix((data, schur.pattern.indices, schur.pattern.indptr), shape=schur.pattern.shape).toarray()
     # the assembled S equals the dense Schur complement U - W V^-1 W^T
@@ -171,13 +171,13 @@ def test_pcg_truncation_and_exact_solution():
 
 
 def test_gram_sums_per_group_with_mixed_group_sizes():
-    """_Gram (per-camera U blocks): sum of X_a' X_a per group, groups of many sizes, empty groups zero."""
-    from lidarcat.bundle.linear import _Gram
+    """Gram (per-camera U blocks): sum of X_a' X_a per group, groups of many sizes, empty groups zero."""
+    from lidarcat.bundle.linear import Gram
 
     rng = np.random.default_rng(11)
     index = rng.integers(0, 40, 700) ** 2 // 40          # skewed sizes; some groups empty
     X = rng.normal(size=(700, 2, 6))
-    out = _Gram(index, 41)(X)
+    out = Gram(index, 41)(X)
     ref = np.zeros((41, 6, 6))
     for a, g in enumerate(index):
         ref[g] += X[a].T @ X[a]
@@ -214,7 +214,7 @@ def test_slot_groups_cover_every_pair_once_and_pad_with_the_sentinel():
 def test_jacobian_parts_with_a_photo_index_equal_the_gathered_form():
     """project / project_with_jacobians with one row per photo and an index equal the same with
     the rows gathered (the structure-of-arrays path), and a_eo = [-a_pt, a_ang]."""
-    from lidarcat.geometry.collinearity import _project_jacobian_parts, project, project_with_jacobians
+    from lidarcat.geometry.collinearity import project_jacobian_parts, project, project_with_jacobians
 
     rng = np.random.default_rng(13)
     eo = np.c_[rng.normal(0, 50, (4, 2)), 1500 + rng.normal(0, 20, 4), rng.normal(0, 0.1, (4, 2)),
@@ -225,7 +225,7 @@ def test_jacobian_parts_with_a_photo_index_equal_the_gathered_form():
     full = project_with_jacobians(eo[idx], xyz, c)
     for got, want in zip(project_with_jacobians(eo, xyz, c, idx), full):
         np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-12)
-    xy, a_pt, a_ang, u3 = _project_jacobian_parts(eo, xyz, c, idx)
+    xy, a_pt, a_ang, u3 = project_jacobian_parts(eo, xyz, c, idx)
     np.testing.assert_array_equal(full[1][:, :, :3], -full[2])
     np.testing.assert_allclose(a_ang, full[1][:, :, 3:], rtol=1e-13, atol=1e-12)
     pxy, pu3 = project(eo, xyz, c, idx)

@@ -20,7 +20,7 @@ from lidarcat.bundle import adjust
 from lidarcat.bundle.additional import (AdditionalParameterError, GnssLineOffsets, SelfCalibration,
                                         parse_parameters)
 from lidarcat.bundle.frame_offset import FrameOffset, frame_offset_from_sources
-from lidarcat.bundle.linear import _Schur
+from lidarcat.bundle.linear import Schur
 from lidarcat.geometry.collinearity import project
 from lidarcat.bundle.selfcal import _BorderedSystem, _Globals, _State, adjust_with_parameters
 from lidarcat.geometry.camera import Camera
@@ -50,7 +50,7 @@ def solved(block):
 def _residual_and_jacobian(gl, eo, pts, theta):
     """Stacked residuals (image, control, camera constraints) and their Jacobian wrt theta."""
     def resid(t):
-        bs = _BorderedSystem(gl, eo, pts, t, _Schur(gl.problem.photo_index, gl.problem.point_index,
+        bs = _BorderedSystem(gl, eo, pts, t, Schur(gl.problem.photo_index, gl.problem.point_index,
                                                     gl.problem.n_photos, gl.problem.n_points))
         parts = [bs.sys.r_obs.ravel(), bs.sys.r_con.ravel()]
         if bs.sys.r_eo is not None:
@@ -157,7 +157,7 @@ def test_bordered_step_and_covariance_equal_dense_inverse():
     r0 = adjust(p, precision="none")
     eo, pts = np.array(r0.eo_params), np.array(r0.points_m)
     theta = np.array([0.05, 0.01, -0.01, 1e-6, 0.1, 0.1, 0.1])
-    bs = _BorderedSystem(gl, eo, pts, theta, _Schur(p.photo_index, p.point_index, p.n_photos, p.n_points))
+    bs = _BorderedSystem(gl, eo, pts, theta, Schur(p.photo_index, p.point_index, p.n_photos, p.n_points))
     P, Q = p.n_photos, p.n_points
     o, og = 6 * P, 6 * P + 3 * Q
     N = _dense_normal(bs, p)
@@ -170,7 +170,7 @@ def test_bordered_step_and_covariance_equal_dense_inverse():
     # precision at the solution
     res = adjust_with_parameters(p, _components(b), without=r0)
     bs = _BorderedSystem(gl, np.array(res.bundle.eo_params), np.array(res.bundle.points_m), res.estimates,
-                         _Schur(p.photo_index, p.point_index, P, Q))
+                         Schur(p.photo_index, p.point_index, P, Q))
     N = _dense_normal(bs, p)
     Ninv = np.linalg.inv(N)
     np.testing.assert_allclose(res.cov, Ninv[og:, og:], rtol=1e-6)

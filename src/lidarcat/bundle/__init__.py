@@ -7,13 +7,13 @@ The package, one concern per module, in the order a step runs:
                     :class:`ExteriorOrientation`, :func:`check_datum`,
                     :func:`chi2_bounds`
 ``model``           collinearity residuals, Jacobians and constraints assembled
-                    into the normal-equation blocks U, V, W (``_System``)
+                    into the normal-equation blocks U, V, W (``NormalSystem``)
 ``linear``          the reduced camera system S = U - W V^-1 W^T: pattern,
                     chunked assembly, solution
 ``cholesky``        supernodal sparse Cholesky (nested dissection) and its
                     selected inverse
-``solve``           the Levenberg-Marquardt loop: :func:`adjust`,
-                    :class:`BundleResult`
+``solve``           the Levenberg-Marquardt loop: :func:`adjust`
+``result``          its outcome, :class:`BundleResult`
 ``precision``       blocks of N^-1 (photo 6x6, point 3x3, photo-point per
                     observation) by selected inversion, :func:`joint_point_covariance`
 ``approx``          approximate values from the data alone (never from the answer)
@@ -35,14 +35,15 @@ The engine knows no survey folder and no files: reading a survey into a
 
 from __future__ import annotations
 
-# the normal-equation system stays importable from here (tests and benchmarks/bench_bundle.py use it)
-from .model import _System  # noqa: F401
+# the normal-equation system is importable from here (tests and benchmarks/bench_bundle.py use it)
+from .model import NormalSystem
 from .precision import PRECISION_LEVELS, covariance_blocks, joint_point_covariance, observation_blocks
 from .problem import BundleProblem, ExteriorOrientation, check_datum, chi2_bounds
 from .additional import GnssLineOffsets, SelfCalibration
 from .frame_offset import FrameOffset, frame_offset_from_sources
 from .selfcal import SelfCalResult, adjust_with_parameters
-from .solve import STATUS_MESSAGES, BundleResult, adjust
+from .result import STATUS_MESSAGES, BundleResult
+from .solve import adjust
 
 __all__ = [
     "SelfCalibration",
@@ -62,4 +63,5 @@ __all__ = [
     "PRECISION_LEVELS",
     "joint_point_covariance",
     "STATUS_MESSAGES",
+    "NormalSystem",
 ]

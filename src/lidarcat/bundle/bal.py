@@ -42,7 +42,7 @@ from .._util import read_text
 from ..errors import LidarcatError
 from ._blas import pinned
 from ._heap import heap_reuse
-from .linear import _Gram, _Schur, _Singular
+from .linear import Gram, Schur, SingularSystem
 
 __all__ = ["BalProblem", "BalResult", "read_bal", "solve_bal", "bal_project"]
 
@@ -250,9 +250,9 @@ def solve_bal(problem: BalProblem, *, max_iter: int = 50, function_tolerance: fl
     cams, pts = p.cameras.astype(float).copy(), p.points.astype(float).copy()
     R, _ = _rodrigues(cams[:, :3])
     centres = -np.einsum("cji,cj->ci", R, cams[:, 3:6])          # C = -R^T t: ordering by position
-    schur = _Schur(ci, pj, p.n_cameras, p.n_points, camera_size=9, coords=centres)
+    schur = Schur(ci, pj, p.n_cameras, p.n_points, camera_size=9, coords=centres)
 
-    gram_by_point = _Gram(pj, p.n_points)
+    gram_by_point = Gram(pj, p.n_points)
 
     def linearise(c, x):
         pred, jc, jp = bal_project(c, x, ci, pj, jacobians=True)
@@ -284,7 +284,7 @@ def solve_bal(problem: BalProblem, *, max_iter: int = 50, function_tolerance: fl
         Vd[:, iv, iv] += dV / radius
         try:
             dc, dp = schur.solve(Ud, Vd, W, g_c, g_p)
-        except _Singular:
+        except SingularSystem:
             radius /= nu
             nu *= 2
             continue

@@ -16,7 +16,7 @@ complement, the reduced camera system
 (sparse: a block for every pair of cameras sharing a point), solved for
 ``Delta_c``; then ``Delta_p = V^-1 (b_p - W^T Delta_c)``.
 
-Assembly (:class:`_Schur`).  The pattern of S, the list of the pairs (a, b),
+Assembly (:class:`Schur`).  The pattern of S, the list of the pairs (a, b),
 a < b, of observations of the same point, the slot of every pair in the block
 pattern and the gather from blocks to the CSR order of the scalar matrix are
 computed once per problem; every step then evaluates ``T_a = W_a V_j^-1`` and
@@ -46,7 +46,7 @@ import scipy.sparse as sp
 
 from .cholesky import SingularError, SupernodalCholesky
 
-__all__: list[str] = []
+__all__ = ["CHUNK_PAIRS", "REUSE_RTOL", "REUSE_MAX_ITER", "SingularSystem", "inv3", "Gram", "Schur"]
 
 log = logging.getLogger(__name__)
 
@@ -59,11 +59,12 @@ REUSE_RTOL = 1e-8
 REUSE_MAX_ITER = 6
 
 
-class _Singular(Exception):
-    pass
+class SingularSystem(Exception):
+    """The reduced camera system is singular (internal: the callers turn it into a
+    ``singular`` status or a :class:`~lidarcat.errors.DatumError`)."""
 
 
-def _inv3(V: np.ndarray) -> np.ndarray:
+def inv3(V: np.ndarray) -> np.ndarray:
     """Inverses of (m, 3, 3) blocks by cofactors (vectorised; 20x numpy.linalg.inv on many blocks)."""
     a, b, c = V[:, 0, 0], V[:, 0, 1], V[:, 0, 2]
     d, e, f = V[:, 1, 0], V[:, 1, 1], V[:, 1, 2]
@@ -81,7 +82,7 @@ def _inv3(V: np.ndarray) -> np.ndarray:
     det = a * out[:, 0, 0] + b * out[:, 1, 0] + c * out[:, 2, 0]
     scale = np.abs(V).max(axis=(1, 2))
     if np.any(~np.isfinite(det)) or np.any(np.abs(det) <= 1e-12 * scale**3):
-        raise _Singular("a point block of the normal equations is singular")
+        raise SingularSystem("a point block of the normal equations is singular")
     return out / det[:, None, None]
 
 
@@ -104,7 +105,7 @@ class _Aggregator:
         return np.asarray(self.matrix @ blocks.reshape(len(blocks), -1)).reshape((self.n,) + tail)
 
 
-class _Gram:
+class Gram:
     """Per-group Gram matrices ``out[g] = sum_{a: index[a] == g} X_a^T X_a`` (grouping analysed once).
 
     The rows of a group stacked are one matrix ``X_g`` (k r x c); groups with the
@@ -160,7 +161,7 @@ def _observation_pairs(pj: np.ndarray, n_pt: int, *, diagonal: bool = True) -> t
     return np.concatenate(a_list), np.concatenate(b_list)
 
 
-class _Schur:
+class Schur:
     """The reduced camera system of one observation pattern (analysed once).
 
     Parameters
@@ -184,7 +185,7 @@ class _Schur:
         self._factor = None      # the last factor of S (reused by solve(reuse=True))
         self.by_camera = _Aggregator(ei, n_cameras)
         self.by_point = _Aggregator(pj, n_points)
-        self.gram_by_camera = _Gram(ei, n_cameras)
+        self.gram_by_camera = Gram(ei, n_cameras)
         cb = camera_size
         oa, ob = _observation_pairs(pj, n_points, diagonal=False)
         ia, ib = ei[oa], ei[ob]
@@ -272,11 +273,11 @@ class _Schur:
         return blocks.ravel()[self.gather], np.transpose(Tt[:n], (0, 2, 1))
 
     def factor(self, data: np.ndarray):
-        """Supernodal Cholesky of S with CSR *data*; :class:`_Singular` if not positive definite."""
+        """Supernodal Cholesky of S with CSR *data*; :class:`SingularSystem` if not positive definite."""
         try:
             return self.chol.factor(data)
         except SingularError as ex:
-            raise _Singular(f"reduced camera system is singular ({ex}: datum defect or a photo with "
+            raise SingularSystem(f"reduced camera system is singular ({ex}: datum defect or a photo with "
                             "degenerate geometry)") from ex
 
     def solve(self, U, V, W, g_c, g_p, method: str = "direct", reuse: bool = False):
@@ -292,7 +293,7 @@ class _Schur:
         step and a few triangular solves cost less than a factorisation.
         """
         t0 = time.perf_counter()
-        vinv = _inv3(V)
+        vinv = inv3(V)
         data, T = self.assemble(U, vinv, W)
         t1 = time.perf_counter()
         self.timings["assemble"] += t1 - t0
@@ -304,7 +305,7 @@ class _Schur:
             try:
                 prec = np.linalg.inv(diag_blocks)
             except np.linalg.LinAlgError as ex:
-                raise _Singular(f"reduced camera system is singular ({ex})") from ex
+                raise SingularSystem(f"reduced camera system is singular ({ex})") from ex
             dc, self.last_cg_iterations = _pcg(S, rhs.reshape(-1), prec)
             dc = dc.reshape(self.n_cameras, self.cb)
             self.timings["pcg"] += time.perf_counter() - t1

@@ -1,7 +1,7 @@
 r"""The collinearity model with weighted constraints: residuals and normal-equation blocks.
 
 For every image observation (photo i, point j) :func:`lidarcat.geometry.collinearity.project_with_jacobians`
-(its parts, :func:`~lidarcat.geometry.collinearity._project_jacobian_parts`)
+(its parts, :func:`~lidarcat.geometry.collinearity.project_jacobian_parts`)
 gives the residual ``r = x(eo_i, X_j) - x_obs`` (mm) and its Jacobians ``A_eo`` (2x6)
 and ``A_pt`` (2x3); with the weights ``w = 1 / sd^2`` the blocks of the normal
 equations are
@@ -12,8 +12,8 @@ equations are
 The position constraints of control points add ``1 / sd^2`` to the diagonal of
 ``V_j`` and ``w (X_j - X_obs)`` to ``g_p``; camera constraints (GNSS/INS) do the
 same to ``U_i`` and ``g_c`` (angle residuals wrapped to (-pi, pi]).  ``v'Pv`` is
-the weighted sum of squares of all of them.  :class:`_System` holds one
-linearisation; :func:`_cost` evaluates ``v'Pv`` only (infinite when a point is
+the weighted sum of squares of all of them.  :class:`NormalSystem` holds one
+linearisation; :func:`weighted_cost` evaluates ``v'Pv`` only (infinite when a point is
 behind a camera).
 """
 
@@ -23,11 +23,11 @@ import math
 
 import numpy as np
 
-from ..geometry.collinearity import _project_jacobian_parts, project
-from .linear import _Schur
+from ..geometry.collinearity import project, project_jacobian_parts
+from .linear import Schur
 from .problem import BundleProblem
 
-__all__: list[str] = []
+__all__ = ["NormalSystem", "weighted_cost"]
 
 
 def _constraint_terms(p: BundleProblem, eo: np.ndarray, pts: np.ndarray):
@@ -46,21 +46,21 @@ def _constraint_terms(p: BundleProblem, eo: np.ndarray, pts: np.ndarray):
     return r_con, w_con, r_eo, w_eo
 
 
-class _System:
+class NormalSystem:
     """Normal-equation blocks of one linearisation.
 
-    *schur* (:class:`lidarcat.bundle.linear._Schur`) is the analysed pattern of
+    *schur* (:class:`lidarcat.bundle.linear.Schur`) is the analysed pattern of
     the reduced camera system, shared by every linearisation of one problem
     (built here when not given).
     """
 
-    def __init__(self, problem: BundleProblem, eo: np.ndarray, pts: np.ndarray, schur: _Schur | None = None):
+    def __init__(self, problem: BundleProblem, eo: np.ndarray, pts: np.ndarray, schur: Schur | None = None):
         p = problem
         self.p = p
-        self.schur = schur if schur is not None else _Schur(p.photo_index, p.point_index, p.n_photos,
+        self.schur = schur if schur is not None else Schur(p.photo_index, p.point_index, p.n_photos,
                                                             p.n_points, coords=np.asarray(eo)[:, :3])
         ei, pj = p.photo_index, p.point_index
-        xy, a_pt, a_ang, u3 = _project_jacobian_parts(eo, pts[pj], p.focal_length_mm[ei], ei)
+        xy, a_pt, a_ang, u3 = project_jacobian_parts(eo, pts[pj], p.focal_length_mm[ei], ei)
         self.u3 = u3
         r = xy - p.xy_mm                                 # residual (adjusted - observed)
         w = 1.0 / p.sd_mm**2                             # (n, 2)
@@ -106,7 +106,7 @@ class _System:
     def solve(self, lam: float, method: str = "direct", reuse: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Corrections (P, 6), (Q, 3) of the damped normal equations (``N + lam diag(N)``);
         *method* ``direct`` or ``pcg``, *reuse* the previous factor
-        (:meth:`lidarcat.bundle.linear._Schur.solve`)."""
+        (:meth:`lidarcat.bundle.linear.Schur.solve`)."""
         U, V = self.U.copy(), self.V.copy()
         if lam > 0:
             iu, iv = np.arange(6), np.arange(3)
@@ -115,7 +115,9 @@ class _System:
         return self.schur.solve(U, V, self.W, self.g_c, self.g_p, method, reuse)
 
 
-def _cost(problem: BundleProblem, eo: np.ndarray, pts: np.ndarray) -> float:
+def weighted_cost(problem: BundleProblem, eo: np.ndarray, pts: np.ndarray) -> float:
+    """v'Pv of image observations and constraints at *eo* (P, 6), *pts* (Q, 3); infinite
+    when a point is behind (or in the plane of) a camera."""
     p = problem
     ei, pj = p.photo_index, p.point_index
     xy, u3 = project(eo, pts[pj], p.focal_length_mm[ei], ei)

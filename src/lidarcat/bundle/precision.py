@@ -13,7 +13,7 @@ of every pair of cameras sharing a point -- lies on the pattern of the Cholesky
 factor of ``S``, so the selected inversion of :mod:`.cholesky` (Takahashi
 recursion over supernodes) gives them without a dense inverse: its work is a
 few times that of the factorisation.  The pair sums run in chunks of fixed size
-over the observation pairs of :class:`lidarcat.bundle.linear._Schur`.
+over the observation pairs of :class:`lidarcat.bundle.linear.Schur`.
 
 Functions
 ---------
@@ -34,18 +34,15 @@ All are a priori (factor 1); :func:`lidarcat.bundle.adjust` scales its result.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.collinearity import block_sum
 from ..errors import DatumError
-from .linear import CHUNK_PAIRS, _inv3, _Singular
-from .model import _System
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .solve import BundleResult
+from .linear import CHUNK_PAIRS, inv3, SingularSystem
+from .model import NormalSystem
+from .result import BundleResult
 
 __all__ = ["PRECISION_LEVELS", "covariance_blocks", "observation_blocks", "joint_point_covariance"]
 
@@ -53,10 +50,10 @@ __all__ = ["PRECISION_LEVELS", "covariance_blocks", "observation_blocks", "joint
 PRECISION_LEVELS = ("none", "photos", "all")
 
 
-def _factorised(system: _System):
+def _factorised(system: NormalSystem):
     """Factor of the undamped S, V^-1 and T = W V^-1 of one linearisation."""
     schur = system.schur
-    vinv = _inv3(system.V)
+    vinv = inv3(system.V)
     data, T = schur.assemble(system.U, vinv, system.W)
     return schur.factor(data), vinv, T
 
@@ -64,7 +61,7 @@ def _factorised(system: _System):
 class _Blocks:
     """Selected inverse of S with the locations of the camera and pair blocks."""
 
-    def __init__(self, system: _System):
+    def __init__(self, system: NormalSystem):
         self.schur = schur = system.schur
         self.factor, self.vinv, self.T = _factorised(system)
         self.Z = self.factor.selected_inverse()
@@ -86,7 +83,7 @@ class _Blocks:
         return self.Z.gather((base[c0:c1], rs[c0:c1], cs[c0:c1]), cb, cb)
 
 
-def _point_terms(system: _System, blk: _Blocks, cam_cov: np.ndarray, *, cross: bool):
+def _point_terms(system: NormalSystem, blk: _Blocks, cam_cov: np.ndarray, *, cross: bool):
     """Point blocks ``V_j^-1 + sum_{a,b} T_a^T Z_{i_a i_b} T_b`` (Q, 3, 3) and, with *cross*, the
     photo-point blocks ``-sum_b Z_{i_a i_b} T_b`` of every observation (n, cb, 3), else None;
     the pairs a < b in chunks of :data:`CHUNK_PAIRS`."""
@@ -109,12 +106,12 @@ def _point_terms(system: _System, blk: _Blocks, cam_cov: np.ndarray, *, cross: b
     return 0.5 * (point_cov + np.transpose(point_cov, (0, 2, 1))), cr
 
 
-def covariance_blocks(system: _System, precision: str = "all") -> tuple[np.ndarray, np.ndarray]:
+def covariance_blocks(system: NormalSystem, precision: str = "all") -> tuple[np.ndarray, np.ndarray]:
     """Blocks of N^-1 (a priori): (P, 6, 6) per photo and (Q, 3, 3) per point.
 
     Parameters
     ----------
-    system : _System
+    system : NormalSystem
         A linearisation (normally at the solution).
     precision : {"all", "photos", "none"}
         What to compute; the rest is NaN.
@@ -123,7 +120,7 @@ def covariance_blocks(system: _System, precision: str = "all") -> tuple[np.ndarr
     ------
     ValueError
         An unknown *precision*.
-    _Singular
+    SingularSystem
         The normal equations are singular.
     """
     if precision not in PRECISION_LEVELS:
@@ -142,12 +139,12 @@ def covariance_blocks(system: _System, precision: str = "all") -> tuple[np.ndarr
     return cam_cov, point_cov
 
 
-def observation_blocks(system: _System) -> np.ndarray:
+def observation_blocks(system: NormalSystem) -> np.ndarray:
     """Joint covariance of ``[eo_i, X_j]`` for every image observation (photo i, point j), a priori.
 
     Parameters
     ----------
-    system : _System
+    system : NormalSystem
         A linearisation (normally at the solution).
 
     Returns
@@ -159,7 +156,7 @@ def observation_blocks(system: _System) -> np.ndarray:
 
     Raises
     ------
-    _Singular
+    SingularSystem
         The normal equations are singular.
     """
     p = system.p
@@ -223,10 +220,10 @@ def joint_point_covariance(result: BundleResult, points: Sequence[str], *, batch
         return np.zeros((0, 0))
     p = result.problem
     sel = np.array([index[q] for q in ids])
-    system = _System(p, np.asarray(result.eo_params), np.asarray(result.points_m))
+    system = NormalSystem(p, np.asarray(result.eo_params), np.asarray(result.points_m))
     try:
         lu, vinv, T = _factorised(system)
-    except _Singular as ex:
+    except SingularSystem as ex:
         raise DatumError(f"joint covariance: {ex}") from ex
     # B = the columns of T W^-1-style coupling of the selected points: (cb P, 3k), sparse
     col_of = np.full(p.n_points, -1)

@@ -127,11 +127,12 @@ from scipy import optimize, stats
 
 from ..geometry.collinearity import project_with_jacobians
 from ..errors import DatumError
-from .linear import _Singular
-from .model import _System
+from .linear import SingularSystem
+from .model import NormalSystem
 from .precision import observation_blocks
 from .problem import BundleProblem
-from .solve import BundleResult, adjust
+from .result import BundleResult
+from .solve import adjust
 
 __all__ = ["Blunder", "Reliability", "SnoopingResult", "SNOOPING_MODES", "ROBUST_METHODS",
            "FAMILY_LEVEL", "noncentrality", "critical_values", "family_alpha", "reliability", "snoop"]
@@ -497,7 +498,7 @@ class SnoopingResult:
 # ---------------------------------------------------------------------------
 
 
-def _observation_covariance(system: _System) -> np.ndarray:
+def _observation_covariance(system: NormalSystem) -> np.ndarray:
     """(n, 9, 9) a priori covariance of [eo_i, X_j] of every image observation (selected inverse)."""
     return observation_blocks(system)
 
@@ -583,10 +584,10 @@ def reliability(result: BundleResult, *, level: float | None = None, power: floa
     p = result.problem
     lam0 = 1.0                         # MDB and BNR scale with sqrt(lambda0): set once the level is known
     eo, pts = np.asarray(result.eo_params), np.asarray(result.points_m)
-    system = _System(p, eo, pts)
+    system = NormalSystem(p, eo, pts)
     try:
         S = _observation_covariance(system)                 # (n, 9, 9), a priori
-    except _Singular as ex:
+    except SingularSystem as ex:
         raise DatumError(f"reliability: {ex}") from ex
     ei, pj = p.photo_index, p.point_index
     n = len(ei)

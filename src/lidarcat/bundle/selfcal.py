@@ -45,7 +45,7 @@ residuals show the misfit the parameters remove), the parameters starting at
 0 (the calibration certificate / no offset).  The observations change with
 the parameters, so each linearisation works on an *effective problem* (the
 corrected photo coordinates under the current interior orientation, the
-source's control moved into the reference frame): :class:`._System` gives the
+source's control moved into the reference frame): :class:`.NormalSystem` gives the
 ordinary blocks, the components add the bordering.
 """
 
@@ -65,11 +65,12 @@ from ..geometry.collinearity import block_sum, project_with_jacobians
 from ..errors import DatumError
 from ._blas import pinned
 from ._heap import heap_reuse
-from .linear import CHUNK_PAIRS, _inv3, _Schur, _Singular
-from .model import _cost, _System
+from .linear import CHUNK_PAIRS, inv3, Schur, SingularSystem
+from .model import NormalSystem, weighted_cost
 from .precision import covariance_blocks
 from .problem import BundleProblem, chi2_bounds
-from .solve import STATUS_MESSAGES, BundleResult, _tiny, adjust
+from .result import STATUS_MESSAGES, BundleResult
+from .solve import adjust, step_below_tolerance
 
 __all__ = ["SelfCalResult", "adjust_with_parameters"]
 
@@ -114,12 +115,12 @@ class _Globals:
 class _BorderedSystem:
     """One linearisation of the bordered normal equations at (eo, pts, theta)."""
 
-    def __init__(self, gl: _Globals, eo: np.ndarray, pts: np.ndarray, theta: np.ndarray, schur: _Schur):
+    def __init__(self, gl: _Globals, eo: np.ndarray, pts: np.ndarray, theta: np.ndarray, schur: Schur):
         self.gl = gl
         self.theta = theta
         pe = gl.effective(theta)
         self.pe = pe
-        self.sys = sys = _System(pe, eo, pts, schur)
+        self.sys = sys = NormalSystem(pe, eo, pts, schur)
         self.vtpv = sys.vtpv + gl.prior_cost(theta)
         n_ph, n_pt, k = pe.n_photos, pe.n_points, gl.k
         ei, pj = pe.photo_index, pe.point_index
@@ -166,7 +167,7 @@ class _BorderedSystem:
             U[:, iu, iu] *= 1.0 + lam
             V[:, iv, iv] *= 1.0 + lam
             Ngg[np.diag_indices(k)] *= 1.0 + lam
-        vinv = _inv3(V)
+        vinv = inv3(V)
         schur = sys.schur
         data, T = schur.assemble(U, vinv, sys.W)
         F = schur.factor(data)
@@ -214,7 +215,7 @@ def _scatter(target: np.ndarray, index: np.ndarray, blocks: np.ndarray, cols: np
 
 def _solve_globals(G: np.ndarray, rhs: np.ndarray, names: Sequence[str],
                    n_diag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """H = G^-1 and G^-1 rhs by an equilibrated Cholesky; :class:`_Singular` names the worst parameter.
+    """H = G^-1 and G^-1 rhs by an equilibrated Cholesky; :class:`SingularSystem` names the worst parameter.
 
     *n_diag* is the diagonal of N_gg (before the elimination): a parameter with none has no
     observation; one whose diagonal the elimination cancels is absorbed by the other unknowns.
@@ -224,18 +225,18 @@ def _solve_globals(G: np.ndarray, rhs: np.ndarray, names: Sequence[str],
         return np.zeros((0, 0)), np.zeros(0)
     if np.any(n_diag <= 0):
         i = int(np.argmin(n_diag))
-        raise _Singular(f"additional parameter {names[i]!r} has no observation (zero normal-equation row)")
+        raise SingularSystem(f"additional parameter {names[i]!r} has no observation (zero normal-equation row)")
     d = np.sqrt(np.clip(np.diag(G), 0, None))
     if np.any(d <= 1e-6 * np.sqrt(n_diag)) or not np.all(np.isfinite(G)):
         i = int(np.argmin(d / np.sqrt(n_diag)))
-        raise _Singular(f"additional parameter {names[i]!r} cannot be determined: the exterior orientations "
+        raise SingularSystem(f"additional parameter {names[i]!r} cannot be determined: the exterior orientations "
                         "and points absorb it completely (a datum defect or a parameter the geometry "
                         "cannot see)")
     Gs = G / d[:, None] / d[None, :]
     w, vecs = np.linalg.eigh(0.5 * (Gs + Gs.T))
     if w[0] < 1e-12 * w[-1]:
         i = int(np.argmax(np.abs(vecs[:, 0])))
-        raise _Singular(f"additional parameter {names[i]!r} cannot be determined: the normal equations "
+        raise SingularSystem(f"additional parameter {names[i]!r} cannot be determined: the normal equations "
                         f"of the additional parameters are singular (smallest eigenvalue {w[0]:.1e})")
     cf = sla.cho_factor(Gs)
     Hs = sla.cho_solve(cf, np.eye(k))
@@ -526,7 +527,7 @@ def adjust_with_parameters(
         without = adjust(problem, variance_factor=variance_factor, chi2_level=chi2_level, precision="none")
     eo, pts = np.array(without.eo_params, dtype=float), np.array(without.points_m, dtype=float)
     theta = np.zeros(gl.k)
-    schur = _Schur(problem.photo_index, problem.point_index, problem.n_photos, problem.n_points, coords=eo[:, :3])
+    schur = Schur(problem.photo_index, problem.point_index, problem.n_photos, problem.n_points, coords=eo[:, :3])
     lam = 1e-6
     status, n_iter, history = "max_iterations", 0, []
     message_extra = singular = ""
@@ -540,8 +541,8 @@ def adjust_with_parameters(
             while True:
                 dc, dp, dg = bs.solve(lam)
                 eo_n, pts_n, th_n = eo + dc, pts + dp, theta + dg
-                new = _cost(gl.effective(th_n), eo_n, pts_n) + gl.prior_cost(th_n)
-                if new <= cost * (1 + 1e-12) or _tiny(dc, dp, tol_m, tol_rad):
+                new = weighted_cost(gl.effective(th_n), eo_n, pts_n) + gl.prior_cost(th_n)
+                if new <= cost * (1 + 1e-12) or step_below_tolerance(dc, dp, tol_m, tol_rad):
                     break
                 lam = max(lam, 1e-6) * 10.0
                 if lam > 1e12:
@@ -549,7 +550,7 @@ def adjust_with_parameters(
                     break
             if status == "stalled":
                 break
-            small = _tiny(dc, dp, tol_m, tol_rad)
+            small = step_below_tolerance(dc, dp, tol_m, tol_rad)
             dcost = abs(cost - new) / max(cost, 1.0)
             eo, pts, theta, cost = eo_n, pts_n, th_n, new
             eo[:, 3:] = (eo[:, 3:] + np.pi) % (2 * np.pi) - np.pi
@@ -562,7 +563,7 @@ def adjust_with_parameters(
                 break
         _, _, _, (X, H, T, vinv) = bs.solve(0.0, want_cov=True)
         eo_cov, point_cov = covariance_blocks(bs.sys, precision if precision != "none" else "photos")
-    except _Singular as ex:
+    except SingularSystem as ex:
         status = "singular"
         log.warning("adjustment with additional parameters: %s", ex)
         message_extra, singular = f": {ex}", str(ex)

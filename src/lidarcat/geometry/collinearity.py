@@ -40,7 +40,8 @@ import scipy.sparse as sp
 #: rays per chunk of the vectorised projection (temporaries of ~40 rows of this length stay in cache)
 _CHUNK = 32768
 
-__all__ = ["block_sum", "rotation_matrix", "rotation_and_derivatives", "project", "project_with_jacobians"]
+__all__ = ["block_sum", "rotation_matrix", "rotation_and_derivatives", "project", "project_with_jacobians",
+           "project_jacobian_parts"]
 
 
 def _elementary(angles_rad: np.ndarray):
@@ -165,11 +166,11 @@ def project_with_jacobians(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarr
         d(x, y)/d(E, N, h), mm per m.
     u3 : (n,)
     """
-    xy, a_pt, a_ang, u3 = _project_jacobian_parts(eo, xyz_m, focal_mm, index)
+    xy, a_pt, a_ang, u3 = project_jacobian_parts(eo, xyz_m, focal_mm, index)
     return xy, np.concatenate([-a_pt, a_ang], axis=2), a_pt, u3
 
 
-def _project_jacobian_parts(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
+def project_jacobian_parts(eo: np.ndarray, xyz_m: np.ndarray, focal_mm: np.ndarray,
                             index: np.ndarray | None = None):
     r"""Photo coordinates, d(x, y)/d(point) and d(x, y)/d(angles) of every ray.
 
