@@ -5,7 +5,7 @@
     python benchmarks/bench_cavassim.py --quick         # seed 0, a smoke run (one seed decides no verdict: "=")
     python benchmarks/bench_cavassim.py --tables --seeds 0-5   # Tables 06-09 of the paper-admitted scene
 
-:func:`lidarcat.mapping.accuracy.cavassim_experiment` (the paper's three
+:func:`lidarcat.synthetic.cavassim.cavassim_experiment` (the paper's three
 products: digitising on the LiDAR images, monorestitution with the nearest
 neighbour and with the triangular plane of a 1 m first-return DSM) on towns
 whose buildings all have one eave height h in {3, 6, 9} m with every roof
@@ -47,7 +47,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from lidarcat.mapping.accuracy import CAVASSIM_TABLE_09, CAVASSIM_TABLES_06_08, cavassim_experiment  # noqa: E402
+from lidarcat.synthetic.cavassim import CAVASSIM_TABLE_09, CAVASSIM_TABLES_06_08, cavassim_experiment  # noqa: E402
 
 PRODUCTS = ("intensity_image", "nearest", "tin")
 #: the scene the paper's Tables 06-08 admit (docs/mapping.md): its label and keyword arguments

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lidarcat.errors import AssessmentError
-from lidarcat.mapping.accuracy import cavassim_experiment
+from lidarcat.synthetic.cavassim import cavassim_experiment
 
 H_M = 922.0          # the paper's flying height above the ground (c = 153.73 mm x 6000)
 

@@ -121,7 +121,7 @@ def test_cavassim_experiment_roads_reproduce_the_papers_ordering():
     """A small run of the paper's comparison (3 buildings, 12 road points; docs/mapping.md has the
     full one): on road edges the TIN is at least as good as the nearest neighbour and both beat
     digitising on the LiDAR intensity image, as in Table 09."""
-    from lidarcat.mapping.accuracy import cavassim_experiment
+    from lidarcat.synthetic.cavassim import cavassim_experiment
 
     r = cavassim_experiment(seed=1, n_buildings=3, n_road_points=12)
     assert r["setup"]["n_building_points"] == 12 and r["setup"]["n_road_points"] == 12

@@ -6,7 +6,7 @@
 ``features``  Features digitised on a photo (pixels in) and their monorestituted versions (map coordinates out).
 ``ortho``     Orthophotos: a photo resampled onto a north-up ground grid over a terrain or surface model.
 ``mosaic``    Orthomosaic: per output cell, the most nadir photo that sees it; seamlines as polygons.
-``accuracy``  Accuracy of mapped features as Cavassim (2005) judges it, and the paper's experiment on a synthetic town.
+``accuracy``  Accuracy of mapped features as Cavassim (2005) judges it (the paper's experiment: :mod:`lidarcat.synthetic.cavassim`).
 ============  ============================================================
 
 The functions named as their modules (``monoplot.monoplot``, ``mosaic.mosaic``) are
@@ -59,10 +59,6 @@ from .accuracy import (  # noqa: F401
     assess_features,
     assess_monoplot,
     read_reference,
-    cavassim_experiment,
-    CAVASSIM_TABLE_09,
-    CAVASSIM_TABLES_06_08,
-    paper_camera,
     REFERENCE_CSV_COLUMNS,
 )
 
@@ -100,9 +96,5 @@ __all__ = [
     'assess_features',
     'assess_monoplot',
     'read_reference',
-    'cavassim_experiment',
-    'CAVASSIM_TABLE_09',
-    'CAVASSIM_TABLES_06_08',
-    'paper_camera',
     'REFERENCE_CSV_COLUMNS',
 ]

@@ -6,6 +6,7 @@
 ``roofs``       Synthetic buildings with known roof vertices, sampled like an airborne scanner.
 ``scene``       A textured synthetic scene and aerial photos of it, rendered with known truth.
 ``landscapes``  Synthetic landscapes with known ground, for judging ground filters beyond the AHN3 tiles.
+``cavassim``    The experiment of Cavassim (2005) on a synthetic town: three mapping products against known truth.
 ==============  ============================================================
 """
 
@@ -44,6 +45,12 @@ from .landscapes import (  # noqa: F401
     make_landscape,
     LANDSCAPES,
 )
+from .cavassim import (  # noqa: F401
+    cavassim_experiment,
+    CAVASSIM_TABLE_09,
+    CAVASSIM_TABLES_06_08,
+    paper_camera,
+)
 
 __all__ = [
     'SyntheticBlock',
@@ -69,4 +76,8 @@ __all__ = [
     'Landscape',
     'make_landscape',
     'LANDSCAPES',
+    'cavassim_experiment',
+    'CAVASSIM_TABLE_09',
+    'CAVASSIM_TABLES_06_08',
+    'paper_camera',
 ]

@@ -39,7 +39,7 @@ import numpy as np
 
 from .._util.frozen import frozen_array
 
-__all__ = ["SyntheticScene", "synthetic_roof", "LABELS", "KINDS"]
+__all__ = ["SyntheticScene", "synthetic_roof", "roof_height", "LABELS", "KINDS"]
 
 #: point labels of a scene
 LABELS = {"ground": 0, "roof": 1, "wall": 2, "chimney": 3, "tree": 4, "dormer": 5}
@@ -79,7 +79,7 @@ class SyntheticScene:
             object.__setattr__(self, name, frozen_array(getattr(self, name), dtype=None))
 
 
-def _roof_height(kind: str, u: np.ndarray, v: np.ndarray, L: float, W: float, t: float, eave: float):
+def roof_height(kind: str, u: np.ndarray, v: np.ndarray, L: float, W: float, t: float, eave: float):
     """Main roof height in the building frame; NaN outside the footprint."""
     z = np.full(u.shape, np.nan)
     if kind == "lgable":
@@ -209,7 +209,7 @@ def synthetic_roof(
     if chimney:
         cu = -0.25 * L if kind != "lgable" else 0.5 * L
         cv = -0.3 * W
-        chim = (cu, cv, 0.4, float(_roof_height(kind, np.array([cu]), np.array([cv]), L, W, t, eave)[0]) + 1.0)
+        chim = (cu, cv, 0.4, float(roof_height(kind, np.array([cu]), np.array([cv]), L, W, t, eave)[0]) + 1.0)
     dorm = None
     if dormer:
         # on the long face of the +v side (hip, pyramid: the middle of it, clear of the hips)
@@ -234,7 +234,7 @@ def synthetic_roof(
         vertices.append((du, v0, zr, 3))
 
     def height(u, v):
-        z = _roof_height(kind, u, v, L, W, t, eave)
+        z = roof_height(kind, u, v, L, W, t, eave)
         lab = np.where(np.isfinite(z), LABELS["roof"], LABELS["ground"])
         if dorm is not None:
             du, dw, v0, zr, td = dorm

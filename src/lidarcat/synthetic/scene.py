@@ -48,9 +48,9 @@ import numpy as np
 
 from ..geometry.camera import Camera
 from ..errors import LidarcatError
-from .roofs import _roof_height
+from .roofs import roof_height
 
-__all__ = ["Building", "Road", "Scene", "demo_scene", "LABELS"]
+__all__ = ["Building", "Road", "Scene", "demo_scene", "demo_terrain", "DEMO_ORIGIN_EN", "DEMO_GROUND_M", "LABELS"]
 
 #: surface labels of the scene
 LABELS = {"ground": 0, "road": 1, "roof": 2, "wall": 3}
@@ -117,7 +117,7 @@ class Building:
     def roof(self, e: np.ndarray, n: np.ndarray) -> np.ndarray:
         """Roof height above the footprint's base (m); NaN outside the footprint."""
         u, v = self.to_local(np.asarray(e, float), np.asarray(n, float))
-        return _roof_height(self.kind, u, v, self.length_m, self.width_m, self._t, self.eave_m)
+        return roof_height(self.kind, u, v, self.length_m, self.width_m, self._t, self.eave_m)
 
     @property
     def top_m(self) -> float:
@@ -168,10 +168,17 @@ class Road:
         return np.hypot(e - a[0] - s * ab[0], n - a[1] - s * ab[1]) <= self.width_m / 2
 
 
-def _demo_terrain(e: np.ndarray, n: np.ndarray) -> np.ndarray:
-    from .survey import _terrain
+#: plan origin (E, N, m) of the demo's terrain (and of the synthetic survey's block)
+DEMO_ORIGIN_EN = (680_000.0, 7_184_000.0)
+#: mean height of the demo's terrain, m
+DEMO_GROUND_M = 900.0
 
-    return _terrain(e, n)
+
+def demo_terrain(e: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Height of the rolling synthetic terrain of the demo (and of the synthetic survey), m."""
+    de, dn = np.asarray(e) - DEMO_ORIGIN_EN[0], np.asarray(n) - DEMO_ORIGIN_EN[1]
+    return (DEMO_GROUND_M + 6.0 * np.sin(2 * np.pi * de / 900.0) + 4.0 * np.cos(2 * np.pi * dn / 700.0)
+            + 0.002 * de)
 
 
 @dataclass(frozen=True, eq=False)
@@ -190,7 +197,7 @@ class Scene:
 
     buildings: tuple[Building, ...] = ()
     roads: tuple[Road, ...] = ()
-    terrain: Callable[[np.ndarray, np.ndarray], np.ndarray] = _demo_terrain
+    terrain: Callable[[np.ndarray, np.ndarray], np.ndarray] = demo_terrain
     seed: int = 0
     _waves: np.ndarray = field(init=False, repr=False)
     _base: np.ndarray = field(init=False, repr=False)

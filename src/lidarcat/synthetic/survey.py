@@ -52,6 +52,8 @@ from .._util import atomic_dir, write_csv_atomic, write_text_atomic
 from ..geometry.collinearity import project
 from ..geometry.camera import Camera
 from ..errors import LidarcatError
+from . import roofs as _roofs  # the roof generator of the roof-extraction issue
+from .scene import DEMO_GROUND_M, DEMO_ORIGIN_EN, Building, Scene, demo_terrain
 
 __all__ = ["DemoSurvey", "write_synthetic_survey", "compare_with_truth", "demo_camera", "project_points",
            "DEMO_CRS"]
@@ -61,10 +63,10 @@ log = logging.getLogger(__name__)
 #: SIRGAS 2000 / UTM zone 22 S, the CRS of the synthetic survey (and its tiles)
 DEMO_CRS = "EPSG:31982"
 
-_E0, _N0 = 680_000.0, 7_184_000.0
+_E0, _N0 = DEMO_ORIGIN_EN
 #: above this many LiDAR points the terrain is sampled around the buildings only
 _MAX_BLOCK_POINTS = 12_000_000
-_GROUND_M = 900.0
+_GROUND_M = DEMO_GROUND_M
 #: plan noise of the LiDAR points (m); written with the height noise into jobs.csv,
 #: so that the plane fits weight the points by the noise they really carry
 _LIDAR_PLAN_SD_M = 0.03
@@ -149,13 +151,6 @@ def project_points(points_m: np.ndarray, eo: Sequence[float], focal_length_mm: f
         xy, u3 = project(eo_rows, p, np.full(len(p), float(focal_length_mm)))
     xy[u3 >= 0] = np.nan  # behind (or in the plane of) the projection centre
     return xy
-
-
-def _terrain(e: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Height of the rolling synthetic terrain, m."""
-    de, dn = np.asarray(e) - _E0, np.asarray(n) - _N0
-    return (_GROUND_M + 6.0 * np.sin(2 * np.pi * de / 900.0) + 4.0 * np.cos(2 * np.pi * dn / 700.0)
-            + 0.002 * de)
 
 
 def _layout(n_photos: int, cam: Camera, height_m: float, rng: np.random.Generator):
@@ -285,7 +280,7 @@ def write_synthetic_survey(
     gn = np.arange(box[1] + step / 2, box[3], step)
     ee, nn = np.meshgrid(ge, gn)
     tie = np.column_stack([ee.ravel(), nn.ravel()]) + rng.uniform(-step / 4, step / 4, (ee.size, 2))
-    tie = np.column_stack([tie, _terrain(tie[:, 0], tie[:, 1])])
+    tie = np.column_stack([tie, demo_terrain(tie[:, 0], tie[:, 1])])
 
     # ---- GPS points: under the photo centres and between them, in every overlap
     nadir = eo[:n_first, 0]
@@ -297,11 +292,9 @@ def write_synthetic_survey(
         ns = [strip_n[0] - 0.3 * spacing, strip_n[0] + 0.3 * spacing]
     ge2, gn2 = np.meshgrid(es, ns)
     gps = np.column_stack([ge2.ravel(), gn2.ravel()]) + rng.normal(0, 10.0, (ge2.size, 2))
-    gps = np.column_stack([gps, _terrain(gps[:, 0], gps[:, 1])])
+    gps = np.column_stack([gps, demo_terrain(gps[:, 0], gps[:, 1])])
 
     # ---- buildings: between the GPS points
-    from . import roofs as _roofs  # the roof generator of the roof-extraction issue
-
     n_b = n_roofs if n_roofs is not None else min(1 + n_photos, 12)
     be = (es[:-1] + es[1:]) / 2
     bn = [(a + b) / 2 for a, b in zip(ns, ns[1:])] if len(ns) > 1 else ns
@@ -504,7 +497,7 @@ def _place_buildings(cand: np.ndarray, n: int, rng: np.random.Generator, roofs: 
                   "azimuth_deg": float(rng.uniform(0, 90))}
         scene = roofs.synthetic_roof(
             kind, **params, density_m2=density_m2, noise_h_m=noise_m,
-            noise_plan_m=_LIDAR_PLAN_SD_M, origin=(e, nn, float(_terrain(e, nn))), seed=int(rng.integers(2**31)))
+            noise_plan_m=_LIDAR_PLAN_SD_M, origin=(e, nn, float(demo_terrain(e, nn))), seed=int(rng.integers(2**31)))
         out.append({"id": f"R{k + 1:02d}", "kind": kind, "vertex": np.array(scene.vertices[0]),
                     "n_planes": int(scene.vertex_planes[0]), "scene": scene, "params": {**params, "e": e, "n": nn}})
     return out
@@ -539,7 +532,7 @@ def _write_lidar(folder: Path, box, buildings: list[dict], density_m2: float, no
     for x0, y0, x1, y1 in footprints:
         keep &= ~((en[:, 0] >= x0) & (en[:, 0] <= x1) & (en[:, 1] >= y0) & (en[:, 1] <= y1))
     en = en[keep]
-    ground = np.column_stack([en, _terrain(en[:, 0], en[:, 1]) + rng.normal(0, noise_m, len(en))])
+    ground = np.column_stack([en, demo_terrain(en[:, 0], en[:, 1]) + rng.normal(0, noise_m, len(en))])
     xyz = np.vstack([ground] + [c[0] for c in clouds])
     cls = np.concatenate([np.full(len(ground), 2, np.uint8)] + [c[1].astype(np.uint8) for c in clouds])
     attrs = _lidar_attributes(xyz, np.concatenate([np.full(len(ground), roofs.LABELS["ground"])]
@@ -583,8 +576,6 @@ def _lidar_attributes(xyz: np.ndarray, label: np.ndarray, roofs: Any) -> dict[st
 
 def demo_scene_of(buildings: Sequence[dict]) -> Any:
     """The :class:`lidarcat.synthetic.scene.Scene` of the demo's terrain and buildings (for rendering photos)."""
-    from .scene import Building, Scene
-
     return Scene(tuple(Building(b["kind"], b["params"]["e"], b["params"]["n"], **{
         k: v for k, v in b["params"].items() if k not in ("e", "n")}) for b in buildings))
 
