@@ -453,3 +453,46 @@ def test_bad_in_memory_points_are_named():
         read_points((["a", "b"], np.zeros((2, 2))))
     with pytest.raises(AssessmentError, match=r"^points: 2 ids for 3 coordinate rows$"):
         read_points((["a", "b"], np.zeros((3, 3))))
+
+
+def test_lilliefors_is_scipy_goodness_of_fit_and_matches_the_hand_written_monte_carlo():
+    """Issue 23: the Lilliefors test through scipy.stats.goodness_of_fit gives the D and p of the
+    hand-written Monte-Carlo test it replaced (reproduced here), to 4 decimals (in fact exactly:
+    the same seeded normal stream, the same statistic, the same p-value formula)."""
+    from scipy import stats
+
+    from lidarcat.accuracy.statistics import lilliefors_test
+
+    def d_rows(z):  # K-S distance to N(mean, s), s with divisor n - 1 (the replaced code)
+        n = z.shape[1]
+        zs = np.sort(z, axis=1)
+        u = (zs - zs.mean(axis=1, keepdims=True)) / zs.std(axis=1, ddof=1, keepdims=True)
+        f = stats.norm.cdf(u)
+        i = np.arange(1, n + 1)
+        return np.maximum(np.max(i / n - f, axis=1), np.max(f - (i - 1) / n, axis=1))
+
+    def hand_written(x, n_sim, seed):
+        n = len(x)
+        rng = np.random.default_rng(seed)
+        step = max(1, 2_000_000 // n)
+        sim = np.concatenate([d_rows(rng.standard_normal((min(step, n_sim - i), n))) for i in range(0, n_sim, step)])
+        d = float(d_rows(x[None, :])[0])
+        return d, float(np.quantile(sim, 0.90)), float((1 + np.sum(sim >= d - 1e-15)) / (n_sim + 1))
+
+    rng = np.random.default_rng(2023)
+    for x in (rng.normal(0.1, 0.3, 12), rng.exponential(1.0, 30), np.array([-1.2, -0.4, 0.1, 0.3, 0.9, 1.5])):
+        d, crit, p = hand_written(x, 5000, 11)
+        t = lilliefors_test(x, 0.10, n_sim=5000, seed=11)
+        assert round(t.statistic, 4) == round(d, 4) and round(t.details["p_value"], 4) == round(p, 4)
+        assert round(t.critical, 4) == round(crit, 4)
+    # and scipy's own call, spelled out: the statistic is Lilliefors' (sd divisor n - 1), not scipy's "ks"
+    x = np.array([-1.2, -0.4, 0.1, 0.3, 0.9, 1.5])
+    t = lilliefors_test(x, 0.10, n_sim=2000, seed=5)
+
+    def statistic(dist, data, axis):
+        z = np.moveaxis(data, axis, -1)
+        return d_rows(z.reshape(-1, z.shape[-1])).reshape(z.shape[:-1])
+
+    res = stats.goodness_of_fit(stats.norm, x, statistic=statistic, n_mc_samples=2000, rng=np.random.default_rng(5))
+    assert (t.statistic, t.details["p_value"]) == (float(res.statistic), float(res.pvalue))
+    assert round(t.statistic, 4) == 0.1248

@@ -2,6 +2,7 @@
 
 ===============  ============================================================
 ``checkpoints``  Accuracy assessment by check points: discrepancies, statistical tests, standards.
+``statistics``   The statistical tests of the check-point assessment (thesis section 3.3.4, Cavassim et al. 2005).
 ``standards``    Map-accuracy standards: PEC (Decreto 89.817), PEC-PCD, ASPRS 2014 / 2023, NSSDA.
 ===============  ============================================================
 """
@@ -10,14 +11,17 @@ from __future__ import annotations
 
 from .checkpoints import (  # noqa: F401
     COMPONENTS,
-    PLOTTING_POSITIONS,
     SIGNS,
     PointSet,
-    TestResult,
     Assessment,
     read_points,
     discrepancies,
     summarize,
+    assess,
+)
+from .statistics import (  # noqa: F401
+    PLOTTING_POSITIONS,
+    TestResult,
     plotting_positions,
     filliben_test,
     ks_test,
@@ -28,16 +32,15 @@ from .checkpoints import (  # noqa: F401
     chi2_precision_test,
     hotelling_t2_test,
     ce90,
-    assess,
+    filliben_critical_value,
+    filliben_table,
+    circular_error_radius,
 )
 from .standards import (  # noqa: F401
     STANDARD_NAMES,
     StandardResult,
     load_standard,
     pec_tolerances,
-    filliben_critical_value,
-    filliben_table,
-    circular_error_radius,
     asprs2023_product_rmse,
     nssda_horizontal_accuracy,
     classify_pec,

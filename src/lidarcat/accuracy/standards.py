@@ -35,9 +35,7 @@ Rules (details and sources in ``docs/accuracy.md``):
 
 from __future__ import annotations
 
-import csv
 import functools
-import io
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -48,9 +46,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import integrate, optimize
 
 from ..errors import AssessmentError
+from .statistics import chi2_precision_test, circular_error_radius, filliben_critical_value, filliben_table
 
 __all__ = [
     "STANDARD_NAMES",
@@ -131,45 +129,6 @@ def load_standard(name: str) -> dict[str, Any]:
     return data
 
 
-@functools.lru_cache(maxsize=1)
-def _filliben_rows() -> tuple[tuple[float, ...], np.ndarray, np.ndarray]:
-    text = _data_text("filliben1975_critical_values.csv")
-    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
-    rows = list(csv.reader(io.StringIO("\n".join(lines))))
-    alphas = tuple(float(h.split("_", 1)[1]) for h in rows[0][1:])
-    body = np.array([[float(c) for c in r] for r in rows[1:]])
-    return alphas, body[:, 0].astype(int), body[:, 1:]
-
-
-def filliben_table() -> tuple[tuple[float, ...], np.ndarray, np.ndarray]:
-    """The Filliben (1975) table: ``(alphas, n (K,), critical (K, len(alphas)))``."""
-    alphas, ns, crit = _filliben_rows()
-    return alphas, ns.copy(), crit.copy()
-
-
-def filliben_critical_value(n: int, alpha: float) -> float:
-    """Critical PPCC value r(n, alpha) from the Filliben (1975) table.
-
-    Normality is rejected when ``r < value``.  For an *n* between tabulated
-    rows the value is interpolated linearly (as normtest does).
-
-    Raises
-    ------
-    AssessmentError
-        *alpha* is not a column of the table (0.005, 0.01, 0.025, 0.05, 0.10,
-        0.25, 0.5) or *n* is outside 3..100 (use Monte-Carlo critical values).
-    """
-    alphas, ns, crit = _filliben_rows()
-    col = [i for i, a in enumerate(alphas) if abs(a - alpha) < 1e-12]
-    if not col:
-        raise AssessmentError(f"alpha={alpha} is not in the Filliben table "
-                              f"({', '.join(str(a) for a in alphas)}); use Monte-Carlo critical values")
-    if not ns[0] <= n <= ns[-1]:
-        raise AssessmentError(f"n={n} is outside the Filliben table (n = {ns[0]}..{ns[-1]}); "
-                              "use Monte-Carlo critical values")
-    return float(round(np.interp(n, ns, crit[:, col[0]]), 6))
-
-
 # ----------------------------------------------------------------------------- tolerances
 
 
@@ -225,70 +184,6 @@ def pec_tolerances(standard: str, scale: float, contour_interval_m: float | None
             "eq_source": eq_source,
         }
     return out
-
-
-# ----------------------------------------------------------------------------- circle radius
-
-
-def circular_error_radius(prob: float, mean: Sequence[float], cov: np.ndarray) -> float:
-    """Radius r with ``P(||e|| <= r) = prob`` for ``e ~ N(mean, cov)`` in 2-D.
-
-    Exact: the covariance is rotated to its principal axes, the probability of
-    the disc is one numerical integral, and r is found by root bracketing.
-
-    Parameters
-    ----------
-    prob : float
-        Probability in (0, 1), e.g. 0.90 (CE90) or 0.95 (NSSDA).
-    mean : (2,) array
-        Bias (m).
-    cov : (2, 2) array
-        Covariance (m^2), symmetric positive semi-definite.
-
-    >>> round(circular_error_radius(0.90, [0, 0], np.eye(2)), 4)
-    2.146
-    >>> round(circular_error_radius(0.95, [0, 0], np.eye(2)), 4)
-    2.4477
-    """
-    if not 0 < prob < 1:
-        raise AssessmentError(f"probability must be in (0, 1), got {prob}")
-    cov = np.asarray(cov, dtype=float).reshape(2, 2)
-    lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
-    lam = np.clip(lam[::-1], 0.0, None)
-    vec = vec[:, ::-1]
-    m = vec.T @ np.asarray(mean, dtype=float).reshape(2)
-    s1, s2 = math.sqrt(lam[0]), math.sqrt(lam[1])
-    mnorm = float(np.hypot(*m))
-    m0, m1 = float(m[0]), float(m[1])
-    if s1 <= 1e-9 * max(mnorm, 1e-6):
-        return mnorm  # no spread: every error is the bias
-    tiny = 1e-9 * s1
-
-    def p_disc(r: float) -> float:
-        if r <= 0:
-            return 0.0
-        lo, hi = max(-r, m[0] - 12 * s1), min(r, m[0] + 12 * s1)
-        if lo >= hi:
-            return 0.0
-
-        def f(x: float) -> float:
-            half = math.sqrt(max(r * r - x * x, 0.0))
-            if s2 <= tiny:
-                inner = 1.0 if abs(m1) <= half else 0.0
-            else:  # Phi(b) - Phi(a) with math.erfc (scipy.stats is 100x slower per scalar call)
-                inner = 0.5 * (math.erfc(-(half - m1) / (s2 * _SQRT2)) - math.erfc(-(-half - m1) / (s2 * _SQRT2)))
-            u = (x - m0) / s1
-            return math.exp(-0.5 * u * u) / (s1 * _SQRT2PI) * inner
-
-        pts = [p for p in (m[0], -math.sqrt(max(r * r - m[1] ** 2, 0)), math.sqrt(max(r * r - m[1] ** 2, 0)))
-               if lo < p < hi]
-        val, _ = integrate.quad(f, lo, hi, points=pts or None, limit=200, epsabs=1e-12, epsrel=1e-10)
-        return val
-
-    hi = mnorm + 12 * s1
-    while p_disc(hi) < prob:  # pragma: no cover - 12 sigma always holds prob < 1 - 1e-30
-        hi *= 2
-    return float(optimize.brentq(lambda r: p_disc(r) - prob, 0.0, hi, xtol=1e-12, rtol=1e-12))
 
 
 # ----------------------------------------------------------------------------- results
@@ -354,8 +249,6 @@ def _result(name: str, data: Mapping[str, Any], classes: dict[str, str | None], 
 
 def _chi2_row(x: np.ndarray, sigma0: float | None, alpha: float) -> dict[str, Any]:
     """The thesis chi-square precision test (eq. 46) as PEC evidence; None values when not applicable."""
-    from .checkpoints import chi2_precision_test  # the one implementation; accuracy imports this module
-
     t = chi2_precision_test(x, sigma0, alpha)
     return {"chi2": t.statistic, "chi2_critical": t.critical, "chi2_passed": t.passed}
 

@@ -3,9 +3,9 @@ r"""Accuracy of mapped features as Cavassim (2005) judges it.
 :func:`assess_features` -- per feature class (``building``, ``road``): the
 mean and sd of dE, dN and of the resultant (Tables 06-08), K-S of the
 generalized squared distances (eq. 03,
-:func:`lidarcat.accuracy.checkpoints.ks_mahalanobis_test`), Hotelling's T^2 of a zero
-mean (eq. 04, :func:`lidarcat.accuracy.checkpoints.hotelling_t2_test`), the radius holding
-90 % of the points (Table 09, :func:`lidarcat.accuracy.checkpoints.ce90`, empirical) and
+:func:`lidarcat.accuracy.statistics.ks_mahalanobis_test`), Hotelling's T^2 of a zero
+mean (eq. 04, :func:`lidarcat.accuracy.statistics.hotelling_t2_test`), the radius holding
+90 % of the points (Table 09, :func:`lidarcat.accuracy.statistics.ce90`, empirical) and
 the planimetric PEC class (:func:`lidarcat.accuracy.standards.classify_pec`; the paper
 uses 1:2000).  Discrepancies are reference minus measured.
 
@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ..accuracy.checkpoints import ce90, hotelling_t2_test, ks_mahalanobis_test
+from ..accuracy.statistics import ce90, hotelling_t2_test, ks_mahalanobis_test
 from ..errors import AssessmentError
 from ..accuracy.standards import classify_pec
 
@@ -49,7 +49,7 @@ def assess_features(den_m: Any, classes: Sequence[str], *, scale: float = 2000.0
     dict
         ``{class: {"n", "mean_E", "sd_E", "mean_N", "sd_N", "mean_resultant",
         "sd_resultant", "ks", "hotelling", "r90_m", "pec_class"}}``; tests as
-        :meth:`lidarcat.accuracy.checkpoints.TestResult.to_dict`.
+        :meth:`lidarcat.accuracy.statistics.TestResult.to_dict`.
 
     Raises
     ------

@@ -410,7 +410,7 @@ def _height_figure(a: Any) -> bytes:
 def _qq_figure(a: Any) -> bytes:
     from scipy import stats
 
-    from ..accuracy.checkpoints import plotting_positions
+    from ..accuracy.statistics import plotting_positions
 
     comps = [("E", a.d[:, 0]), ("N", a.d[:, 1]), ("h", a.d[:, 2]), ("planimetric", a.planimetric)]
     fig, axes = _new_fig(10.0, 9.0, 4, 2)

@@ -696,7 +696,7 @@ def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike)
             joint = float(cons["statistic"]) if cons["applicable"] else math.nan
             joint_why = "" if cons["applicable"] else str(cons["reason"])
         if checks and cov_path.is_file():
-            from ..accuracy.checkpoints import covariance_consistency_test
+            from ..accuracy.statistics import covariance_consistency_test
             from ..survey import read_point_covariance
 
             order = [q for q in pts_t.column("point") if q in checks]
