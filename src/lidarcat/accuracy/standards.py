@@ -47,6 +47,7 @@ from typing import Any
 
 import numpy as np
 
+from .._util.formatting import format_number
 from ..errors import AssessmentError
 from .statistics import chi2_precision_test, circular_error_radius, filliben_critical_value, filliben_table
 
@@ -406,7 +407,8 @@ def _class_cm(rmse_m: float, step_cm: float) -> float:
 
 
 def _fmt_cm(x: float) -> str:
-    return f"{x:.1f}-cm" if x >= 0.1 else f"{x:g}-cm"
+    """An ASPRS class name: ``7.5-cm``, ``0.05-cm`` (shortest form below 0.1 cm)."""
+    return format_number(x, 1 if x >= 0.1 else None, unit="-cm")
 
 
 def classify_asprs2014(d: np.ndarray, *, target_cm: Mapping[str, float] | None = None) -> StandardResult:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from .._util.formatting import format_number
 from ..survey.folder import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
 from .options import echo_json, json_opt
 
@@ -130,23 +131,19 @@ def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float,
         click.echo(f"report: {paths['html']} (+ {paths['markdown'].name}, {paths['json'].name})")
 
 
-def _fmt(x: object, nd: int = 3) -> str:
-    return "-" if x is None else f"{x:.{nd}f}" if isinstance(x, float) else str(x)
-
-
 def _print_text(a) -> None:
     click.echo(f"{a.n} check points; discrepancies {a.settings['sign'].replace('_', ' ')} (m)")
     click.echo(f"{'':12s}{'mean':>9s}{'sd':>9s}{'RMSE':>9s}{'max|d|':>9s}")
     for comp in ("E", "N", "h", "planimetric"):
         s = a.summary[comp]
-        click.echo(f"{comp:12s}" + "".join(f"{_fmt(s[k]):>9s}" for k in ("mean", "std", "rmse", "max_abs")))
+        click.echo(f"{comp:12s}" + "".join(f"{format_number(s[k]):>9s}" for k in ("mean", "std", "rmse", "max_abs")))
     click.echo(f"\ntests (alpha = {a.settings['alpha']:g}):")
     for tname, comps in a.tests.items():
         parts = []
         for comp, t in comps.items():
             if t.applicable:
-                parts.append(f"{comp} {t.statistic_name}={_fmt(t.statistic, 4)}"
-                             f"{'' if t.critical is None else '/' + _fmt(t.critical, 4)} {t.verdict}")
+                parts.append(f"{comp} {t.statistic_name}={format_number(t.statistic, 4)}"
+                             f"{'' if t.critical is None else '/' + format_number(t.critical, 4)} {t.verdict}")
             else:
                 parts.append(f"{comp} not applicable ({t.reason})")
         click.echo(f"  {tname:15s} " + "; ".join(parts))

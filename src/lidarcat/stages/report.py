@@ -14,9 +14,9 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from .._util import write_json_atomic, write_text_atomic
+from .._util.formatting import format_number
 from ..report.html import markdown_to_html
 from ..pipeline.runner import Context, Stage, StageRecord, failed_tests
 from .compare import EOP_DIFF, read_photo_rows
@@ -266,5 +266,6 @@ def _thesis_markdown(det: Mapping[str, Any] | None) -> list[str]:
 
 
 def num(v: Any, nd: int) -> str:
-    return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.{nd}f}"
+    """*v* with *nd* decimals, ``-`` when missing (:func:`lidarcat._util.formatting.format_number`)."""
+    return format_number(v, nd)
 
