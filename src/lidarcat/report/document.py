@@ -25,8 +25,6 @@ files next to it.
 
 from __future__ import annotations
 
-import base64
-import html
 import io
 import json
 import logging
@@ -41,7 +39,10 @@ import numpy as np
 from .. import __version__
 from ..geometry.collinearity import rotation_matrix
 from .._util import atomic_dir, dumps_json, read_csv_table
+from .._util.formatting import format_number
 from ..errors import AssessmentError, LidarcatError
+from .model import Document, Figure, Paragraph, Table
+from .render import figure_files, to_html, to_markdown
 
 __all__ = ["SECTIONS", "load_adjustment", "footprints", "write_report"]
 
@@ -440,49 +441,32 @@ def _qq_figure(a: Any) -> bytes:
 
 
 def _f(x: Any, nd: int = 3) -> str:
-    if x is None:
-        return "—"
-    if isinstance(x, bool):
-        return "yes" if x else "no"
-    if isinstance(x, (int, np.integer)):
-        return str(int(x))
-    if isinstance(x, (float, np.floating)):
-        if not math.isfinite(float(x)):
-            return "—"
-        return f"{float(x):.{nd}f}"
-    return str(x)
+    """A number of the report: *nd* decimals, an em dash when missing."""
+    return format_number(x, nd, missing="—")
 
 
-class _Doc:
-    """Collects sections as (id, title, blocks); renders HTML and Markdown."""
-
-    def __init__(self) -> None:
-        self.sections: list[tuple[str, str, list[tuple[str, Any]]]] = []
-
-    def section(self, sid: str) -> list[tuple[str, Any]]:
-        title = dict(SECTIONS)[sid]
-        blocks: list[tuple[str, Any]] = []
-        self.sections.append((sid, title, blocks))
-        return blocks
+def _section(doc: Document, sid: str) -> list:
+    """The blocks of a new section *sid* of :data:`SECTIONS`."""
+    return doc.section(dict(SECTIONS)[sid], sid).blocks
 
 
 def _para(blocks: list, text: str, cls: str = "") -> None:
-    blocks.append(("p", (text, cls)))
+    blocks.append(Paragraph(text, cls))
 
 
 def _table(blocks: list, header: Sequence[str], rows: Sequence[Sequence[Any]], caption: str = "") -> None:
-    blocks.append(("table", (list(header), [list(r) for r in rows], caption)))
+    blocks.append(Table(list(header), [list(r) for r in rows], caption))
 
 
 def _figure(blocks: list, name: str, png: bytes, caption: str) -> None:
-    blocks.append(("figure", (name, png, caption)))
+    blocks.append(Figure(caption, name, png, alt=name))
 
 
 def _verdict_cell(v: str) -> str:
     return {"passed": "PASSED", "failed": "FAILED"}.get(v, "not applicable")
 
 
-def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[str, Any],
+def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[str, Any],
            comparison: Any) -> dict[str, Any]:
     meta: dict[str, Any] = {"sections": {}}
     pts_adj = adj.get("points")
@@ -490,7 +474,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
     summ = adj.get("summary")
 
     # overview ------------------------------------------------------------------
-    b = doc.section("overview")
+    b = _section(doc, "overview")
     _para(b, f"lidarcat {__version__}. Discrepancy convention: "
              f"{a.settings['sign'].replace('_', ' ') if a else 'n/a'}. Units: metres, degrees.")
     avail = []
@@ -513,7 +497,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
                    "Classification at a glance.")
 
     # block layout ---------------------------------------------------------------
-    b = doc.section("block-layout")
+    b = _section(doc, "block-layout")
     pts: list[dict[str, Any]] = []
     if pts_adj:
         check_ids = set(a.points) if a else set()
@@ -546,7 +530,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
         _para(b, "Not available: neither adjusted points nor check points were given.", "na")
 
     # adjustment summary -------------------------------------------------------------
-    b = doc.section("adjustment-summary")
+    b = _section(doc, "adjustment-summary")
     if summ:
         order = {k: i for i, k in enumerate(_SUMMARY_LABELS)}
         keys = sorted((k for k, v in summ.items() if not isinstance(v, (dict, list))),
@@ -593,7 +577,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
         _para(b, "Not applicable: no adjustment output was given (assess-only run).", "na")
 
     # exterior orientation -------------------------------------------------------------
-    b = doc.section("exterior-orientation")
+    b = _section(doc, "exterior-orientation")
     if eop:
         keys = ["X0", "Y0", "Z0", "omega", "phi", "kappa"]
         rows = []
@@ -610,7 +594,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
         _para(b, "Not applicable: no exterior orientation was given (assess-only run).", "na")
 
     # discrepancies ------------------------------------------------------------------------
-    b = doc.section("discrepancies")
+    b = _section(doc, "discrepancies")
     if a:
         rows = [[r["point"], _f(r["dE"]), _f(r["dN"]), _f(r["dh"]), _f(r["dP"])] for r in a.point_rows()]
         for stat, key in (("mean", "mean"), ("std (n-1)", "std"), ("RMSE", "rmse"), ("max |d|", "max_abs")):
@@ -622,7 +606,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
         _para(b, "Not available: no check-point assessment was given.", "na")
 
     # plots --------------------------------------------------------------------------------
-    b = doc.section("discrepancy-plots")
+    b = _section(doc, "discrepancy-plots")
     if a and a.n >= 1:
         _figure(b, "planimetric_vectors.png", _vector_figure(a),
                 "Planimetric discrepancy vectors at the check points (thesis Figure 20).")
@@ -630,7 +614,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
                 "Height discrepancies (thesis Figure 21).")
     else:
         _para(b, "Not available: no check-point assessment was given.", "na")
-    b = doc.section("qq-plots")
+    b = _section(doc, "qq-plots")
     if a and a.n >= 3:
         _figure(b, "qq_plots.png", _qq_figure(a),
                 "Normal Q-Q plots of the discrepancies with the Filliben r (thesis Figure 22).")
@@ -639,7 +623,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
               "Not available: no check-point assessment was given.", "na")
 
     # tests -----------------------------------------------------------------------------------
-    b = doc.section("tests")
+    b = _section(doc, "tests")
     if a:
         for tname, comps in a.tests.items():
             rows = []
@@ -663,7 +647,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
         _para(b, "Not applicable: no check-point assessment was given.", "na")
 
     # standards ----------------------------------------------------------------------------------
-    b = doc.section("standards")
+    b = _section(doc, "standards")
     if a and a.standards:
         from ..accuracy.standards import CONFIDENCE_LABELS
 
@@ -701,7 +685,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
         _para(b, "Not applicable: no check-point assessment was given.", "na")
 
     # comparison ------------------------------------------------------------------------------------
-    b = doc.section("comparison")
+    b = _section(doc, "comparison")
     if comparison is None:
         _para(b, "Not applicable: no second run to compare with.", "na")
     else:
@@ -730,7 +714,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
             _para(b, f"Comparison of type {type(other).__name__} cannot be shown.", "na")
 
     # notes -------------------------------------------------------------------------------------------
-    b = doc.section("notes")
+    b = _section(doc, "notes")
     if a:
         from ..survey.folder import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
 
@@ -745,7 +729,7 @@ def _build(doc: _Doc, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[
         _table(b, ["setting", "value"], [[k, _f(v)] for k, v in a.settings.items()], "Settings of the assessment.")
     else:
         _para(b, "No assessment settings.", "na")
-    meta["sections"] = {sid: len(bl) for sid, _, bl in doc.sections}
+    meta["sections"] = {s.id: len(s.blocks) for s in doc.sections}
     return meta
 
 
@@ -759,101 +743,6 @@ def _flatten(obj: Any, prefix: str = "") -> list[tuple[str, Any]]:
     elif not isinstance(obj, (list, tuple)):
         out.append((prefix, obj))
     return out
-
-
-# ----------------------------------------------------------------------------- rendering
-
-_CSS = """
-body{font-family:-apple-system,Segoe UI,Helvetica,Arial,sans-serif;max-width:1100px;margin:2em auto;
-padding:0 1em;color:#222;line-height:1.45}
-h1{border-bottom:2px solid #1f5fa8;padding-bottom:.2em}h2{margin-top:1.8em;border-bottom:1px solid #ccc}
-table{border-collapse:collapse;margin:.6em 0 1.2em;font-size:.86em}
-th,td{border:1px solid #ccc;padding:.25em .55em;text-align:right;vertical-align:top}
-th{background:#eef2f7}td:first-child,th:first-child{text-align:left}
-caption{caption-side:top;text-align:left;font-style:italic;padding:.2em 0;color:#444}
-td.PASSED{background:#e3f4e1;color:#1d6b1d;font-weight:600}td.FAILED{background:#fbe3e1;color:#a02020;
-font-weight:600}td.na{color:#888}td.t{text-align:left}p.na{color:#777;font-style:italic}p.note{font-size:.9em;color:#5a4a00;
-background:#fff8e0;padding:.3em .6em;border-left:3px solid #e0b400}
-figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}figcaption{font-size:.9em;color:#444}
-nav a{margin-right:1em;font-size:.9em}
-"""
-
-
-def _md_inline(text: str) -> str:
-    return text.replace("|", "\\|")
-
-
-def _html_inline(text: str) -> str:
-    esc = html.escape(text)
-    parts = esc.split("**")
-    return "".join(f"<strong>{p}</strong>" if i % 2 else p for i, p in enumerate(parts))
-
-
-def _numeric(s: str) -> bool:
-    try:
-        float(s.split(" ")[0].rstrip("%"))
-    except ValueError:
-        return False
-    return True
-
-
-def _render_html(doc: _Doc, title: str) -> str:
-    out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
-           f"<title>{html.escape(title)}</title>", f"<style>{_CSS}</style></head><body>",
-           f"<h1>{html.escape(title)}</h1>", "<nav>"]
-    out += [f'<a href="#{sid}">{html.escape(t)}</a>' for sid, t, _ in doc.sections]
-    out.append("</nav>")
-    for sid, t, blocks in doc.sections:
-        out.append(f'<section id="{sid}"><h2>{html.escape(t)}</h2>')
-        for kind, val in blocks:
-            if kind == "p":
-                text, cls = val
-                out.append(f'<p class="{cls}">{_html_inline(text)}</p>' if cls else f"<p>{_html_inline(text)}</p>")
-            elif kind == "table":
-                header, rows, cap = val
-                out.append("<table>")
-                if cap:
-                    out.append(f"<caption>{_html_inline(cap)}</caption>")
-                out.append("<tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in header) + "</tr>")
-                for r in rows:
-                    cells = []
-                    for c in r:
-                        s = str(c)
-                        cls = {"PASSED": "PASSED", "FAILED": "FAILED", "not applicable": "na"}.get(s)
-                        if cls is None and len(s) > 14 and not _numeric(s):
-                            cls = "t"
-                        cells.append(f'<td class="{cls}">{_html_inline(s)}</td>' if cls else f"<td>{_html_inline(s)}</td>")
-                    out.append("<tr>" + "".join(cells) + "</tr>")
-                out.append("</table>")
-            elif kind == "figure":
-                name, png, cap = val
-                b64 = base64.b64encode(png).decode("ascii")
-                out.append(f'<figure><img alt="{html.escape(name)}" src="data:image/png;base64,{b64}">'
-                           f"<figcaption>{html.escape(cap)}</figcaption></figure>")
-        out.append("</section>")
-    out.append("</body></html>")
-    return "\n".join(out) + "\n"
-
-
-def _render_md(doc: _Doc, title: str, fig_dir: str) -> str:
-    out = [f"# {title}", ""]
-    for _sid, t, blocks in doc.sections:
-        out += [f"## {t}", ""]
-        for kind, val in blocks:
-            if kind == "p":
-                out += [val[0], ""]
-            elif kind == "table":
-                header, rows, cap = val
-                if cap:
-                    out += [f"*{cap}*", ""]
-                out.append("| " + " | ".join(_md_inline(str(h)) for h in header) + " |")
-                out.append("|" + "---|" * len(header))
-                out += ["| " + " | ".join(_md_inline(str(c)) for c in r) + " |" for r in rows]
-                out.append("")
-            elif kind == "figure":
-                name, _png, cap = val
-                out += [f"![{cap}]({fig_dir}/{name})", "", f"*{cap}*", ""]
-    return "\n".join(out).rstrip() + "\n"
 
 
 def write_report(outdir_or_path: str | os.PathLike, *, assessment: Any = None, adjustment_dir: Any = None,
@@ -901,14 +790,14 @@ def write_report(outdir_or_path: str | os.PathLike, *, assessment: Any = None, a
         folder, stem, fig_dir = target.parent, target.stem, f"{target.stem}_figures"
     else:
         folder, stem, fig_dir = target, "report", "figures"
-    doc = _Doc()
+    doc = Document(title)
     meta = _build(doc, title, assessment, adj, cams, comparison)
-    html_text = _render_html(doc, title)
-    md_text = _render_md(doc, title, fig_dir)
+    html_text = to_html(doc)
+    md_text = to_markdown(doc, fig_dir)
     payload = {
         "title": title,
         "lidarcat_version": __version__,
-        "sections": [sid for sid, _, _ in doc.sections],
+        "sections": [s.id for s in doc.sections],
         "assessment": assessment.to_dict() if assessment is not None else None,
         "adjustment": {"source": adj["source"], "summary": adj["summary"], "eop": adj["eop"],
                        "n_points": len(adj["points"]) if adj["points"] else 0},
@@ -916,7 +805,7 @@ def write_report(outdir_or_path: str | os.PathLike, *, assessment: Any = None, a
         "comparison": (comparison[1].to_dict() if isinstance(comparison, tuple) and hasattr(comparison[1], "to_dict")
                        else comparison.to_dict() if hasattr(comparison, "to_dict") else comparison),
     }
-    figures = [val[:2] for _, _, blocks in doc.sections for kind, val in blocks if kind == "figure"]  # (name, png)
+    figures = figure_files(doc)  # (name, png)
     with atomic_dir(folder) as tmp:
         (tmp / f"{stem}.html").write_text(html_text, encoding="utf-8")
         (tmp / f"{stem}.md").write_text(md_text, encoding="utf-8")

@@ -17,7 +17,7 @@ from typing import Any
 
 from .._util import write_json_atomic, write_text_atomic
 from .._util.formatting import format_number
-from ..report.html import markdown_to_html
+from ..report.render import markdown_to_html
 from ..pipeline.runner import Context, Stage, StageRecord, failed_tests
 from .compare import EOP_DIFF, read_photo_rows
 
