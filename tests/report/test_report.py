@@ -184,3 +184,39 @@ def test_standards_notes_the_report_cites_exist_in_the_repo_and_the_wheel(gps_re
     assert "K = domain knowledge, not confirmed against the standard" in html
     assert "STANDARDS.md (docs/standards.md; installed as lidarcat/standards_data/STANDARDS.md)" in html
     assert isinstance(notes, Path)
+
+
+def test_pipeline_markdown_goes_through_the_one_renderer(tmp_path):
+    """The pipeline's index.md is read into the report model and rendered by the same to_html as the
+    per-run report: its title, sections with anchors, tables with verdict cells, lists, links, and
+    figures embedded from their PNG files."""
+    from lidarcat.report.model import Bullets, Figure, Paragraph, Table, parse_markdown
+    from lidarcat.report.render import markdown_to_html, to_markdown
+
+    png = base64.b64decode("iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mP8/5+hHgAHggJ/PchI7wAAAABJRU5ErkJggg==")
+    (tmp_path / "f.png").write_bytes(png)
+    md = ("# lidarcat report: s\n\n**Statistical test failed**\n\n## Stages\n\n| stage | state |\n|---|---|\n"
+          "| adjust | FAILED |\n\n## Accuracy reports\n\n- [control set gps](../assess-gps/report.html)\n"
+          "- [control set lidar](../assess-lidar/report.html)\n\n## Run gps\n\n![Run gps: block layout](f.png)\n")
+    doc = parse_markdown(md)
+    assert doc.title == "lidarcat report: s"
+    assert [s.title for s in doc.sections] == ["", "Stages", "Accuracy reports", "Run gps"]
+    assert isinstance(doc.sections[0].blocks[0], Paragraph)
+    assert isinstance(doc.sections[1].blocks[0], Table) and doc.sections[1].blocks[0].rows == [["adjust", "FAILED"]]
+    assert isinstance(doc.sections[2].blocks[0], Bullets) and len(doc.sections[2].blocks[0].items) == 2
+    assert isinstance(doc.sections[3].blocks[0], Figure)
+    page = markdown_to_html(md, "ignored: the # heading is the title", base=tmp_path)
+    assert "<title>lidarcat report: s</title>" in page and "<h1>lidarcat report: s</h1>" in page
+    assert "<section id='stages'><h2>Stages</h2>" in page and "<a href='#run-gps'>Run gps</a>" in page
+    assert "<td class='FAILED'>FAILED</td>" in page and "<p><strong>Statistical test failed</strong></p>" in page
+    assert ("<ul><li><a href='../assess-gps/report.html'>control set gps</a></li>"
+            "<li><a href='../assess-lidar/report.html'>control set lidar</a></li></ul>") in page
+    b64 = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", page)
+    assert len(b64) == 1 and base64.b64decode(b64[0]) == png
+    assert "<figcaption>Run gps: block layout</figcaption>" in page
+    # a figure whose file is missing keeps its path
+    assert "src='g.png'" in markdown_to_html("# t\n\n![x](g.png)\n", "t", base=tmp_path)
+    # and back to Markdown: the same tables, lists and headings
+    back = to_markdown(doc)
+    assert "| adjust | FAILED |" in back and "- [control set gps](../assess-gps/report.html)" in back
+    assert back.startswith("# lidarcat report: s\n\n**Statistical test failed**\n\n## Stages\n")

@@ -4,6 +4,7 @@
 ``files``          atomic writes, output-folder lock, located reads, SHA-256, provenance
 ``tables``         CSV with the header first, TOML line numbers, JSON (sorted keys, NaN -> null)
 ``frozen``         frozen value types holding read-only arrays
+``formatting``     the one number formatter (``format_number``) of reports, CLI and standards
 =================  =========================================================
 """
 

@@ -98,6 +98,7 @@ def parse_markdown(md: str, title: str = "") -> Document:
     is its header; ``|---|`` rows are skipped.
     """
     doc = Document(title)
+    titled = False
     cur = Section("")
     doc.sections.append(cur)
     table: Table | None = None
@@ -116,8 +117,8 @@ def parse_markdown(md: str, title: str = "") -> Document:
         if line.startswith("#"):
             level = len(line) - len(line.lstrip("#"))
             text = line[level:].strip()
-            if level == 1 and not doc.title:
-                doc.title = text
+            if level == 1 and not titled:
+                doc.title, titled = text, True
             else:
                 cur = doc.section(text, level=max(level, 2))
         elif _FIGURE.match(line):

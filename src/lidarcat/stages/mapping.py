@@ -262,7 +262,7 @@ def _accuracy_rows(acc: dict[str, Any]) -> list[list[Any]]:
 
 def markdown(res: dict[str, Any]) -> list[str]:
     """Report section of the stage: products, and the per-interpolator accuracy tables (Cavassim Tables 07-09)."""
-    from .report import num
+    from .._util.formatting import format_number as num
 
     lines = ["", "## Mapping", ""]
     if res.get("orthophotos"):
