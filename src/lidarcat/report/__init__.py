@@ -3,6 +3,7 @@
 ============  ============================================================
 ``model``     The document model of every report: a title and sections of paragraphs, lists, tables and figures.
 ``render``    The one report renderer: a document as self-contained HTML or as Markdown.
+``figures``   The figures of the accuracy report, as PNG bytes (matplotlib, no display needed).
 ``document``  Accuracy report: one self-contained HTML file, plus Markdown and JSON.
 ============  ============================================================
 
