@@ -305,14 +305,11 @@ def _verdict_cell(v: str) -> str:
     return {"passed": "PASSED", "failed": "FAILED"}.get(v, "not applicable")
 
 
-def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[str, Any],
-           comparison: Any) -> dict[str, Any]:
-    meta: dict[str, Any] = {"sections": {}}
+def _overview(doc: Document, a: Any, adj: Mapping[str, Any]) -> None:
+    """Overview: versions, inputs, the verdicts and classes at a glance."""
     pts_adj = adj.get("points")
     eop = adj.get("eop")
     summ = adj.get("summary")
-
-    # overview ------------------------------------------------------------------
     b = _section(doc, "overview")
     _para(b, f"lidarcat {__version__}. Discrepancy convention: "
              f"{a.settings['sign'].replace('_', ' ') if a else 'n/a'}. Units: metres, degrees.")
@@ -335,7 +332,12 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
             _table(b, ["standard", "planimetric / horizontal", "altimetric / vertical"], srows,
                    "Classification at a glance.")
 
-    # block layout ---------------------------------------------------------------
+
+def _block_layout(doc: Document, a: Any, adj: Mapping[str, Any], cams: Mapping[str, Any],
+                  title: str) -> dict[str, np.ndarray]:
+    """Block layout: footprints and points by role (thesis Figures 8, 16, 17); returns the footprints."""
+    pts_adj = adj.get("points")
+    eop = adj.get("eop")
     b = _section(doc, "block-layout")
     pts: list[dict[str, Any]] = []
     if pts_adj:
@@ -354,7 +356,6 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
     fps: dict[str, np.ndarray] = {}
     if eop and cams and heights:
         fps = footprints(eop, cams, float(np.mean(heights)))
-    meta["footprints"] = {k: v.tolist() for k, v in fps.items()}
     if pts or fps:
         cap = ("Photo footprints on the mean terrain height "
                f"({np.mean(heights):.1f} m) and the points by role (thesis Figures 8, 16, 17)."
@@ -369,8 +370,13 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
         _table(b, ["role", "points"], sorted(counts.items()), "")
     else:
         _para(b, "Not available: neither adjusted points nor check points were given.", "na")
+    return fps
 
-    # adjustment summary -------------------------------------------------------------
+
+def _adjustment_summary(doc: Document, adj: Mapping[str, Any]) -> None:
+    """Adjustment summary (thesis Appendix 2), data snooping, mean point sds."""
+    pts_adj = adj.get("points")
+    summ = adj.get("summary")
     b = _section(doc, "adjustment-summary")
     if summ:
         order = {k: i for i, k in enumerate(_SUMMARY_LABELS)}
@@ -417,7 +423,10 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
     if not summ and not pts_adj:
         _para(b, "Not applicable: no adjustment output was given (assess-only run).", "na")
 
-    # exterior orientation -------------------------------------------------------------
+
+def _exterior_orientation(doc: Document, adj: Mapping[str, Any]) -> None:
+    """Exterior orientation and its sds (thesis Table 6)."""
+    eop = adj.get("eop")
     b = _section(doc, "exterior-orientation")
     if eop:
         keys = ["X0", "Y0", "Z0", "omega", "phi", "kappa"]
@@ -434,7 +443,9 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
     else:
         _para(b, "Not applicable: no exterior orientation was given (assess-only run).", "na")
 
-    # discrepancies ------------------------------------------------------------------------
+
+def _discrepancies(doc: Document, a: Any) -> None:
+    """Check-point discrepancies (thesis Table 7)."""
     b = _section(doc, "discrepancies")
     if a:
         rows = [[r["point"], _f(r["dE"]), _f(r["dN"]), _f(r["dh"]), _f(r["dP"])] for r in a.point_rows()]
@@ -446,7 +457,9 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
     else:
         _para(b, "Not available: no check-point assessment was given.", "na")
 
-    # plots --------------------------------------------------------------------------------
+
+def _plots(doc: Document, a: Any) -> None:
+    """Discrepancy plots (thesis Figures 20, 21) and Q-Q plots (Figure 22)."""
     b = _section(doc, "discrepancy-plots")
     if a and a.n >= 1:
         _figure(b, "planimetric_vectors.png", vector_figure(a),
@@ -463,7 +476,9 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
         _para(b, "Not applicable: fewer than 3 check points." if a else
               "Not available: no check-point assessment was given.", "na")
 
-    # tests -----------------------------------------------------------------------------------
+
+def _tests(doc: Document, a: Any) -> None:
+    """Every statistical test with its verdict."""
     b = _section(doc, "tests")
     if a:
         for tname, comps in a.tests.items():
@@ -487,7 +502,9 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
     else:
         _para(b, "Not applicable: no check-point assessment was given.", "na")
 
-    # standards ----------------------------------------------------------------------------------
+
+def _standards(doc: Document, a: Any) -> None:
+    """Classification by each standard, with its evidence and notes."""
     b = _section(doc, "standards")
     if a and a.standards:
         from ..accuracy.standards import CONFIDENCE_LABELS
@@ -525,7 +542,9 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
     else:
         _para(b, "Not applicable: no check-point assessment was given.", "na")
 
-    # comparison ------------------------------------------------------------------------------------
+
+def _comparison(doc: Document, a: Any, comparison: Any) -> None:
+    """A second run side by side."""
     b = _section(doc, "comparison")
     if comparison is None:
         _para(b, "Not applicable: no second run to compare with.", "na")
@@ -554,7 +573,9 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
         else:
             _para(b, f"Comparison of type {type(other).__name__} cannot be shown.", "na")
 
-    # notes -------------------------------------------------------------------------------------------
+
+def _notes(doc: Document, a: Any) -> None:
+    """Notes and settings of the assessment."""
     b = _section(doc, "notes")
     if a:
         from ..survey.folder import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
@@ -570,6 +591,24 @@ def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapp
         _table(b, ["setting", "value"], [[k, _f(v)] for k, v in a.settings.items()], "Settings of the assessment.")
     else:
         _para(b, "No assessment settings.", "na")
+
+
+def _build(doc: Document, title: str, a: Any, adj: Mapping[str, Any], cams: Mapping[str, Any],
+           comparison: Any) -> dict[str, Any]:
+    """Fill *doc* with the sections of :data:`SECTIONS`; returns ``footprints`` and ``sections``
+    (blocks per section) for the JSON."""
+    meta: dict[str, Any] = {"sections": {}}
+    _overview(doc, a, adj)
+    fps = _block_layout(doc, a, adj, cams, title)
+    _adjustment_summary(doc, adj)
+    _exterior_orientation(doc, adj)
+    _discrepancies(doc, a)
+    _plots(doc, a)
+    _tests(doc, a)
+    _standards(doc, a)
+    _comparison(doc, a, comparison)
+    _notes(doc, a)
+    meta["footprints"] = {k: v.tolist() for k, v in fps.items()}
     meta["sections"] = {s.id: len(s.blocks) for s in doc.sections}
     return meta
 
