@@ -171,7 +171,8 @@ def test_layout_page_names_every_package():
 
 def test_docs_name_existing_test_files():
     """Test files cited by the docs exist (tests moved into tests/<package>/ in issue 23)."""
-    pages = [*DOCS.rglob("*.md"), ROOT / "README.md", *(ROOT / "benchmarks").rglob("*.md")]
+    pages = [*DOCS.rglob("*.md"), ROOT / "README.md", *(ROOT / "benchmarks").rglob("*.md"),
+             *(ROOT / "tests" / "data").rglob("README.md")]
     stale = sorted({f"{p.relative_to(ROOT)}: {m}" for p in pages
                     for m in re.findall(r"tests/[A-Za-z0-9_/]*test_[A-Za-z0-9_]+\.py", p.read_text(encoding="utf-8"))
                     if not (ROOT / m).is_file()})
