@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import pkgutil
 import re
 
 import click
@@ -58,7 +59,7 @@ def test_generator_detects_a_missing_option(monkeypatch):
 
 
 @pytest.mark.parametrize("page", ["index.md", "method.md", "cli.md", "figures.md", "survey-format.md",
-                                  "accuracy.md", "extraction.md", "../README.md"])
+                                  "accuracy.md", "extraction.md", "layout.md", "../README.md"])
 def test_doc_pages_exist_and_links_resolve(page):
     path = DOCS / page
     assert path.is_file(), page
@@ -125,3 +126,54 @@ def test_notebook_executes():
     assert "mean +0.056 m" in text  # Table 7, dE
     assert any("image/png" in o.get("data", {}) for c in nb.cells if c.cell_type == "code"
                for o in c.outputs)
+
+
+def _packages() -> list[str]:
+    """``lidarcat`` and every package under it (a folder with ``__init__.py``)."""
+    import lidarcat
+
+    return ["lidarcat"] + sorted(f"lidarcat.{m.name}" for m in pkgutil.iter_modules(lidarcat.__path__) if m.ispkg)
+
+
+def _public_modules(package: str) -> list[str]:
+    pkg = importlib.import_module(package)
+    return sorted(m.name for m in pkgutil.iter_modules(pkg.__path__) if not m.name.startswith("_"))
+
+
+def _listed(doc: str) -> set[str]:
+    """Module names a package docstring lists: ````name```` (a table's first column or the text)
+    and ``:mod:`.name```/``:mod:`lidarcat.pkg.name```."""
+    names = set(re.findall(r"``([A-Za-z_][A-Za-z0-9_]*)/?``", doc))
+    names |= {m.rsplit(".", 1)[-1] for m in re.findall(r":mod:`~?\.?([A-Za-z_][A-Za-z0-9_.]*)`", doc)}
+    return names
+
+
+@pytest.mark.parametrize("package", _packages())
+def test_package_docstring_lists_every_module(package):
+    """A package face's docstring table names every public module (and package) it holds, and
+    every ``:mod:`.name``` it names exists (issue 23: the tables listed 6 and 9 of the real modules)."""
+    doc = importlib.import_module(package).__doc__ or ""
+    modules = _public_modules(package)
+    missing = sorted(set(modules) - _listed(doc))
+    assert not missing, f"{package}.__init__ docstring does not list {missing}"
+    stale = sorted(m for m in re.findall(r":mod:`\.([A-Za-z_][A-Za-z0-9_]*)`", doc) if m not in modules)
+    assert not stale, f"{package}.__init__ docstring names modules that do not exist: {stale}"
+
+
+def test_layout_page_names_every_package():
+    text = (DOCS / "layout.md").read_text(encoding="utf-8")
+    for package in _packages()[1:]:
+        name = package.split(".", 1)[1]
+        assert f"`{name}/`" in text, f"docs/layout.md does not name the package {name}/"
+    for name in _public_modules("lidarcat"):
+        assert f"`{name}" in text, f"docs/layout.md does not name {name}"
+
+
+def test_docs_name_existing_test_files():
+    """Test files cited by the docs exist (tests moved into tests/<package>/ in issue 23)."""
+    pages = [*DOCS.rglob("*.md"), ROOT / "README.md", *(ROOT / "benchmarks").rglob("*.md"),
+             *(ROOT / "tests" / "data").rglob("README.md")]
+    stale = sorted({f"{p.relative_to(ROOT)}: {m}" for p in pages
+                    for m in re.findall(r"tests/[A-Za-z0-9_/]*test_[A-Za-z0-9_]+\.py", p.read_text(encoding="utf-8"))
+                    if not (ROOT / m).is_file()})
+    assert not stale, f"docs cite test files that do not exist: {stale}"

@@ -1,20 +1,33 @@
 """lidarcat: LiDAR-controlled aerial triangulation.
 
-The pipeline, one module per stage:
+The house by stage, one package per stage of the pipeline (docs/layout.md):
 
-=================  =========================================================
-``camera``         interior orientation of a non-metric camera (eq. 01-07)
-``survey``         the survey folder: load, validate, write results
-``lidar``          LiDAR tiles (LAS/LAZ/COPC/ASCII), tile index, clips, rasters
-``facets``         Delaunay roof facets, slope filter, plane fitting (eq. 25-37)
-``control``        plane intersection into control points (eq. 38-41)
-``bundle``         bundle adjustment with weighted position constraints (eq. 08-22)
-``accuracy``       discrepancies, Filliben, t, chi-square, K-S, Hotelling; standards
-``report``         HTML / Markdown / JSON report
-``pipeline``       the whole chain (``lidarcat run``)
-=================  =========================================================
+===============  ============================================================
+``errors``       the exception hierarchy: :class:`LidarcatError` and its located subclasses
+``testing``      assertions for tests of code built on lidarcat
+``_util/``       atomic writes, located reads, CSV/TOML/JSON tables, frozen value types
+``geometry/``    the camera (interior orientation, eq. 01-07), collinearity equations
+``survey/``      the survey folder: load, validate; survey -> bundle problem, tables out
+``lidar/``       LiDAR data access (LAS/LAZ/COPC/ASCII, CRS, tile index, clips, rasters),
+                 the tile engine
+``control/``     stage extract: roof facets, plane intersection into control points
+                 (eq. 25-41)
+``bundle/``      the bundle adjustment engine with weighted constraints (eq. 08-22)
+``accuracy/``    stage assess: discrepancies, Filliben, t, chi-square, K-S, Hotelling;
+                 PEC, ASPRS, NSSDA
+``mapping/``     stage mapping: monorestitution, orthophotos, mosaics
+``production/``  stage products: ground, DTM/DSM, contours, hypsometry, map sheets
+``interop/``     other programs' files in and out (COLMAP, OpenSfM, ODM, Metashape, ...)
+``report/``      the accuracy report and the pipeline report (HTML, Markdown, JSON)
+``stages/``      one action per stage (survey folder in, stage folder out)
+``pipeline/``    the stage runner and the whole chain (``lidarcat run``)
+``synthetic/``   data with known truth for the demo, the tests and the benchmarks
+``cli/``         the ``lidarcat`` command line
+===============  ============================================================
 
-Public names are imported lazily so ``import lidarcat`` stays fast.
+The imports go one way: engines <- stage actions (``stages``) <- ``cli`` and ``pipeline``;
+the engine never imports ``survey``.  Public names are imported lazily so
+``import lidarcat`` stays fast.
 """
 
 from __future__ import annotations

@@ -80,12 +80,17 @@ def test_covariance_propagation_matches_simulation():
     planes = _pyramid_planes(slope_deg=25, sd_n=2e-3, sd_d=0.02)
     cp = intersect_planes(planes)
     rng = np.random.default_rng(0)
+    # each plane's covariance factored once, as rng.multivariate_normal does (SVD) on every call:
+    # the same standard normals in the same order, so the same sample, bit for bit
+    factors = []
+    for p in planes:
+        _, s, v = np.linalg.svd(p.cov_at(p.centroid_m))
+        factors.append(np.sqrt(s)[:, None] * v)
     xs = []
     for _ in range(4000):
         pert = []
-        for p in planes:
-            c = p.cov_at(p.centroid_m)
-            dv = rng.multivariate_normal(np.zeros(4), c)
+        for p, f in zip(planes, factors):
+            dv = rng.standard_normal(4) @ f
             n = p.n + dv[:3]
             d_c = dv[3]
             pert.append(Plane(n=n, d=d_c - float(n @ p.centroid_m), cov=p.cov, centroid_m=p.centroid_m))

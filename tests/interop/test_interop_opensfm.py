@@ -74,7 +74,9 @@ def test_model_reprojects_as_opensfm():
 
 def test_import_adjust_export_same_residuals(tmp_path):
     write_survey(read_opensfm(REC, TRACKS), tmp_path / "s", control_sd_m=0.05)
-    res, out = adjust_survey(tmp_path / "s", outdir=tmp_path / "adj")
+    # the round trip is the subject, not blunder detection: data snooping ('report' keeps every
+    # observation, so the adjusted block is the same) and the covariance blocks are not checked here
+    res, out = adjust_survey(tmp_path / "s", outdir=tmp_path / "adj", snooping="off", precision="none")
     assert res.success
     adjusted = block_from_survey(tmp_path / "s", out)
     assert adjusted.source_models  # the perspective k1, k2 model survives the survey folder

@@ -1,4 +1,4 @@
-"""LiDAR data access: tiles (LAS/LAZ/COPC/ASCII), CRS, tile index, clips, raster views.
+"""LiDAR data access: tiles (LAS/LAZ/COPC/ASCII), CRS, tile index, clips, raster views; the tile engine.
 
 ==================  ===========================================================
 :mod:`.cloud`       :class:`PointCloud` (E, N, h in metres + attributes + CRS)
@@ -8,11 +8,8 @@
 :mod:`.clipping`    :func:`clip`: points around a roof with height pre-filters
 :mod:`.raster`      :func:`rasterize` (intensity, DSM, DTM), GeoTIFF and PNG output
 :mod:`.info`        :func:`describe`: counts, bounds, density, classes, returns
-:mod:`.ground`      ground classification: PTD (TerraScan's), SMRF; Type I/II, kappa
-:mod:`.terrain`     TIN DTM (gaps reported), DSM, nDSM, hillshade, hypsometric image
-:mod:`.contours`    contours from the ground TIN, master curves, spot heights
-:mod:`.sheets`      regular sheet grid, sheet index layer, products cut per sheet
-:mod:`.parallel`    tile jobs with overlap: serial or on Dask, resumable
+:mod:`.copc`        COPC tiles read by their octree: only the nodes a query box meets
+:mod:`.jobs`        the tile engine: a function over tiles with overlap, serial or on Dask, resumable
 ==================  ===========================================================
 
 Examples

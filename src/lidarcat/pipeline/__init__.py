@@ -18,6 +18,14 @@ stage             what it does                                                 o
 ``compare-A-B``   run A (the default control set) minus run B, for every       ``compare-A-B/``
                   other run: exterior orientations and the points free
                   (not control) in both runs (thesis section 4.4)
+``thesis``        the thesis's section 4.4 (Tables 8-15) beside this run,      ``thesis/``
+                  when the survey holds the printed tables (``published/``)
+``mapping``       orthophotos, mosaic and monorestituted features of the       ``mapping/``
+                  default run, when survey.toml has ``[mapping]``
+``products``      LiDAR ground, DTM/DSM, contours, hypsometry, sheets, when    ``products/``
+                  survey.toml has ``[products]``
+``selfcal``       adjustment with the additional parameters of                 ``selfcal/``
+                  ``[self_calibration]``, when it switches one on
 ``report``        index.html / index.md / report.json: what ran, every run,    ``report/``
                   the comparison, links to the per-run HTML reports
 ================  ==========================================================  ========================
@@ -42,12 +50,10 @@ Modules
                  and can chain any stages
 ``plan``         :func:`plan_pipeline` (the lidarcat stages in order for a survey)
                  and :func:`run_pipeline`
-``stages/``      one module per stage (``camera``, ``extract``, ``adjust``,
-                 ``assess``, ``compare``, ``report``), each with
-                 ``run(ctx, tmpdir) -> dict``
 
-A new stage is a module in ``stages/`` plus its :class:`Stage` line in
-:func:`plan_pipeline`.
+The stages themselves are :mod:`lidarcat.stages`, one module per stage, each with
+``run(ctx, tmpdir) -> dict``; a new stage is a module there plus its :class:`Stage`
+line in :func:`plan_pipeline`.
 """
 
 from __future__ import annotations
