@@ -26,6 +26,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -132,8 +133,8 @@ class FilesTable:
 
 @dataclass(frozen=True)
 class AdjustmentTable:
-    """``[adjustment]`` as written; None: derived from the data by ``Survey.load``
-    (``survey.settings`` holds the resolved :class:`AdjustmentSettings`)."""
+    """``[adjustment]``: how the bundle adjustment weighs and tests (``observations`` and ``image_sd_mm``
+    default to values derived from the data; ``survey.settings`` holds the resolved :class:`AdjustmentSettings`)."""
 
     observations: str | None = _key(STRING, None, "\"corrected\" (x_mm, y_mm) or \"pixel\" (col_px, row_px "
                                                   "through eq. 01-07); default: \"corrected\" when "
@@ -308,8 +309,10 @@ class SelfCalSettings:
     similarity: bool = _key(BOOLEAN, False, "7-parameter similarity instead of the 3-D shift")
     control: str | None = _key(STRING, None, "control set(s); \"a+b\" joins two sets of control_sets.csv")
     alpha: float = _key(NUMBER, 0.05, "level of the t-tests and group tests (0 < alpha < 1)")
-    gnss_lines: Mapping[str, str] | None = _key(TABLE, None, "GNSS antenna offset per flight line: line label "
-                                                             "-> its photo ids (photo id -> label once parsed)")
+    gnss_lines: Mapping[str, str] | None = _key(TABLE, None, "GNSS antenna offset per flight line: the sub-table "
+                                                             "[self_calibration.gnss_lines] with a line per key, "
+                                                             "a = [\"1\", \"2\"] (its photo ids; photos.csv X0, "
+                                                             "Y0, Z0 with sd_X0.. become constraints)")
     gnss_drift: bool = _key(BOOLEAN, False, "with gnss_lines: also a drift along each line, m/km")
 
     @property
@@ -645,8 +648,9 @@ def render_reference() -> str:
     """The survey.toml reference of docs/survey-format.md: one Markdown table per survey.toml table."""
     out = []
     for table, cls in TABLES.items():
-        doc = (cls.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
-        doc = doc.split(":", 1)[1].strip() if doc.startswith("``[") else doc
+        doc = " ".join((cls.__doc__ or "").strip().split("\n\n")[0].split())
+        doc = re.sub(r"^(The )?``\[\w+\]``( table of survey.toml)?( \(required\))?:\s*", "", doc)
+        doc = re.sub(r"(:\w+:)?``?([^`]+)``?", r"`\2`", doc)      # reST literals and roles -> Markdown
         req = "required table" if table in REQUIRED_TABLES else "optional table"
         out += [f"### [{table}]", "", f"{req}: {doc}", "", "| key | type | default | meaning |", "|---|---|---|---|"]
         for f in keys_of(cls):
