@@ -139,7 +139,7 @@ def test_the_synthetic_demo_survey_loads(tmp_path):
 
 def test_survey_toml_is_read_once_per_run(tmp_path, monkeypatch):
     """`lidarcat run` on the thesis block: Survey.load reads survey.toml; no stage reads it again."""
-    import lidarcat._util.tables as tables
+    from lidarcat._util import tables
     from lidarcat.pipeline.plan import run_pipeline
 
     reads: list[str] = []
@@ -187,4 +187,4 @@ def test_survey_format_reference_is_generated_from_the_schema():
         assert f"### [{table}]" in body
         for f in keys_of(cls):
             assert re.search(rf"^\| `{f.name}` \| {re.escape(f.metadata['toml'].name)} \|", body.split(
-                f"### [{table}]")[1], re.M), f"{table}.{f.name} undocumented"
+                f"### [{table}]")[1], re.MULTILINE), f"{table}.{f.name} undocumented"

@@ -27,10 +27,11 @@ import copy
 import dataclasses
 import math
 import re
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Mapping
+from typing import Any
 
 from .._util import read_toml, toml_line
 from ..errors import SurveyError, location
@@ -367,21 +368,29 @@ class SurveyConfig:
     def line(self, table: str | None, key: str | None = None) -> int | None:
         """Line of *key* in ``[table]`` (a sub-table ``[table.key]`` too; the table's header line when the
         key is not written; a top-level key when *table* is None)."""
-        if table is None:
-            return toml_line(self.text, key) or toml_line(self.text, None, key)
-        line = toml_line(self.text, table, key)
-        if key is not None and (line is None or line == toml_line(self.text, table)):
-            line = toml_line(self.text, f"{table}.{key}") or line
-        return line
+        return _line(self.text, table, key)
 
     def error(self, table: str | None, key: str | None, message: str) -> SurveyError:
         """A :class:`SurveyError` located at *key* of ``[table]``: ``survey.toml:LINE: field 'key': message``."""
-        fld = key if key is not None else (f"[{table}]" if table else None)
-        return SurveyError(f"{location(self.path, self.line(table, key), fld)}: {message}")
+        return _error(self.path, self.text, table, key, message)
 
     def written(self, table: str) -> dict[str, Any]:
         """The keys of ``[table]`` the file gives, with their values as written (a copy)."""
         return copy.deepcopy(dict(self.data.get(table, {})))
+
+
+def _line(text: str, table: str | None, key: str | None) -> int | None:
+    if table is None:
+        return toml_line(text, key) or toml_line(text, None, key)
+    line = toml_line(text, table, key)
+    if key is not None and (line is None or line == toml_line(text, table)):
+        line = toml_line(text, f"{table}.{key}") or line
+    return line
+
+
+def _error(path: Path, text: str, table: str | None, key: str | None, message: str) -> SurveyError:
+    fld = key if key is not None else (f"[{table}]" if table else None)
+    return SurveyError(f"{location(path, _line(text, table, key), fld)}: {message}")
 
 
 # ---------------------------------------------------------------------- parsing
@@ -389,11 +398,10 @@ class _Reader:
     """The file being parsed: typed values of a table and located errors."""
 
     def __init__(self, path: Path, data: dict[str, Any], text: str):
-        self.cfg = SurveyConfig(path, *(None,) * 9, (), text, data)  # type: ignore[arg-type]
-        self.path, self.data = path, data
+        self.path, self.data, self.text = path, data, text
 
     def err(self, table: str | None, key: str | None, message: str) -> SurveyError:
-        return self.cfg.error(table, key, message)
+        return _error(self.path, self.text, table, key, message)
 
     def value(self, table: str, f: dataclasses.Field) -> Any:
         """The typed value of key *f* in ``[table]``, its default when absent."""
@@ -401,7 +409,7 @@ class _Reader:
         key, toml = f.name, f.metadata["toml"]
         if key not in tab:
             if f.metadata["required"]:
-                raise SurveyError(f"{location(self.path, self.cfg.line(table), key)}: missing required key "
+                raise SurveyError(f"{location(self.path, _line(self.text, table, None), key)}: missing required key "
                                   f"{key!r} in [{table}] (see docs/survey-format.md)")
             return f.default
         v = tab[key]
