@@ -41,7 +41,6 @@ from typing import Any
 
 import numpy as np
 
-from .._util import read_toml, toml_line
 from ..errors import LidarcatError, location
 
 __all__ = ["HEIGHT_SYSTEMS", "HeightError", "HeightDeclarations", "height_system_of_crs",
@@ -111,26 +110,22 @@ def read_height_declarations(survey: Any) -> HeightDeclarations:
 
     if not isinstance(survey, Survey):
         survey = Survey.load(survey)
-    data, text = read_toml(survey.toml_path)
-    tab = data.get("heights", {})
-    where = lambda key: location(survey.toml_path, toml_line(text, "heights", key), key)  # noqa: E731
-    sources = tab.get("sources", {})
-    if not isinstance(sources, dict):
-        raise HeightError(f"{where('sources')}: expected an inline table, e.g. "
-                          f"{{ gps = \"orthometric\", lidar = \"ellipsoidal\" }}")
+    cfg = survey.config   # survey.toml as Survey.load parsed and type-checked it
+    where = lambda key: location(survey.toml_path, cfg.line("heights", key), key)  # noqa: E731
+    sources = dict(cfg.heights.sources or {})
     for k, v in sources.items():
         if v not in HEIGHT_SYSTEMS:
             raise HeightError(f"{where('sources')}: source {k!r}: {v!r} is not one of {', '.join(HEIGHT_SYSTEMS)}")
     grid = None
-    if "geoid_grid" in tab:
-        g = Path(str(tab["geoid_grid"]))
+    if cfg.heights.geoid_grid is not None:
+        g = Path(cfg.heights.geoid_grid)
         grid = g if g.is_absolute() else survey.root / g
         if not grid.is_file():
-            raise HeightError(f"{where('geoid_grid')}: geoid grid {str(tab['geoid_grid'])!r} not found ({grid})")
+            raise HeightError(f"{where('geoid_grid')}: geoid grid {cfg.heights.geoid_grid!r} not found ({grid})")
     system = survey.height_system
     implied = height_system_of_crs(survey.crs)
     if implied is not None and system in HEIGHT_SYSTEMS and system != implied:
-        raise HeightError(f"{location(survey.toml_path, toml_line(text, 'survey', 'height_system'), 'height_system')}: "
+        raise HeightError(f"{location(survey.toml_path, cfg.line('survey', 'height_system'), 'height_system')}: "
                           f"{system!r} contradicts the CRS {survey.crs}, whose heights are {implied}")
     if system not in HEIGHT_SYSTEMS:
         system = implied or system

@@ -178,13 +178,8 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
 
 
 def survey_tables(survey: Any) -> set[str]:
-    """The top-level tables of the survey's survey.toml (none for the embedded block's missing file)."""
-    from .._util import read_toml
-
-    try:
-        return set(read_toml(survey.toml_path)[0])
-    except (OSError, LidarcatError):
-        return set()
+    """The top-level tables of the survey's survey.toml (as :meth:`lidarcat.Survey.load` parsed it)."""
+    return set(survey.config.tables)
 
 
 def _mapping_stage(survey: Any, runs: Sequence[tuple[str, bool]], files_lidar: list[Path]) -> Stage:

@@ -21,7 +21,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     from ..survey.folder import correct_measurements
 
     survey = ctx["survey"]
-    corrected = correct_measurements(survey.toml_path)
+    corrected = correct_measurements(survey)
     corrected.write_csv(tmp / "corrected.csv")
     result = dict(corrected.to_dict())
     # where the survey also gives corrected coordinates (the thesis prints them), compare

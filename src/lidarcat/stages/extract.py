@@ -101,12 +101,11 @@ def _write_derived_survey(survey: Any, points: Sequence[Any], set_name: str, fol
     Returns the ids of extracted points that no photo measures (they cannot control the block).
     """
     import shutil
-    import tomllib
 
     from .._util import read_csv_table, write_csv_atomic, write_text_atomic
 
     folder.mkdir(parents=True, exist_ok=True)
-    data = tomllib.loads(survey.toml_path.read_text(encoding="utf-8-sig"))
+    written = survey.config.written   # survey.toml as Survey.load read it (no second read)
     new_files: dict[str, str] = {}
     for key in ("camera", "photos", "image_points"):
         src = survey.files[key]
@@ -147,14 +146,14 @@ def _write_derived_survey(survey: Any, points: Sequence[Any], set_name: str, fol
                                         "roof vertices as control, every other ground point as check."])
     new_files["ground_points"] = "ground_points.csv"
     new_files["control_sets"] = "control_sets.csv"
-    sv = dict(data.get("survey", {}))
+    sv = written("survey")
     sv["description"] = (sv.get("description", "")
                          + " [with the LiDAR control extracted by lidarcat run]").strip()
     lines = ["# Derived by lidarcat run: the survey plus the extracted LiDAR control points.", "", "[survey]"]
     lines += [f"{k} = {_toml_value(v)}" for k, v in sv.items()]
     lines += ["", "[files]"] + [f"{k} = {_toml_value(v)}" for k, v in new_files.items()]
     for table in ("adjustment", "assessment"):  # [lidar] is left out with the tiles
-        if data.get(table):
-            lines += ["", f"[{table}]"] + [f"{k} = {_toml_value(v)}" for k, v in data[table].items()]
+        if written(table):
+            lines += ["", f"[{table}]"] + [f"{k} = {_toml_value(v)}" for k, v in written(table).items()]
     write_text_atomic(folder / "survey.toml", "\n".join(lines) + "\n")
     return [pid for pid in extracted if pid not in measured]

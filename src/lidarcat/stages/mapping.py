@@ -49,14 +49,12 @@ from pathlib import Path
 from typing import Any
 
 from ..pipeline.runner import Context
+from ..survey.schema import MappingSettings
 
 __all__ = ["run", "settings", "markdown", "MAPPING_KEYS", "INTERPOLATORS", "ACCURACY_COLUMNS"]
 
-#: keys of the [mapping] table and their defaults
-MAPPING_KEYS: dict[str, Any] = {"orthophotos": False, "surface": "dsm", "gsd_m": 0.2, "cell_m": 0.5,
-                                "mosaic": True, "images": "images", "photos": None, "features": None,
-                                "reference": None, "interpolators": ["nearest", "tin"], "method": "exact",
-                                "image_sd_px": 0.5, "surface_sd_m": 0.15, "feather_m": 0.0}
+#: keys of the [mapping] table and their defaults (lidarcat.survey.schema.MappingSettings)
+MAPPING_KEYS: dict[str, Any] = MappingSettings().to_dict()
 #: interpolators of the monorestitution: surface of each
 INTERPOLATORS = {"nearest": "first returns, nearest point", "tin": "first returns, triangular plane (TIN)",
                  "bilinear": "highest-first-return DSM of cell_m (empty cells interpolated), bilinear"}
@@ -67,52 +65,10 @@ ACCURACY_COLUMNS = ("interpolator", "class", "n", "mean_E", "sd_E", "mean_N", "s
 
 
 def settings(survey: Any) -> dict[str, Any]:
-    """The ``[mapping]`` table of the survey with its defaults (``{}`` when there is none).
-
-    Raises
-    ------
-    SurveyError
-        A value of the wrong type or out of range (file, line and key).
-    """
-    from ._settings import optional_table
-
-    kinds = {"orthophotos": bool, "surface": str, "gsd_m": (int, float), "cell_m": (int, float), "mosaic": bool,
-             "images": str, "photos": list, "features": dict, "reference": str, "interpolators": list,
-             "method": str, "image_sd_px": (int, float), "surface_sd_m": (int, float), "feather_m": (int, float)}
-    out, t = optional_table(survey, "mapping", kinds, MAPPING_KEYS)
-    if not out:
-        return {}
-    if out["surface"] not in ("dsm", "dtm"):
-        raise t.err("mapping", "surface", f"{out['surface']!r} is not 'dsm' (true orthophotos) or 'dtm'")
-    for key in ("gsd_m", "cell_m"):
-        if not out[key] > 0:
-            raise t.err("mapping", key, f"must be positive (metres), got {out[key]!r}")
-    if out["photos"] is not None:
-        unknown = [str(p) for p in out["photos"] if str(p) not in survey.photo_ids]
-        if unknown:
-            raise t.err("mapping", "photos", f"photo(s) {', '.join(unknown)} are not in the survey")
-        out["photos"] = [str(p) for p in out["photos"]]
-    if out["features"] is not None:
-        unknown = [str(p) for p in out["features"] if str(p) not in survey.photo_ids]
-        if unknown:
-            raise t.err("mapping", "features", f"photo(s) {', '.join(unknown)} are not in the survey")
-        bad = [str(p) for p, f in out["features"].items() if not isinstance(f, str) or not f.strip()]
-        if bad:
-            raise t.err("mapping", "features", f"photo {bad[0]}: expected the path of a feature file "
-                                               f"(.geojson or .csv)")
-        out["features"] = {str(p): f for p, f in out["features"].items()}
-    wrong = [str(i) for i in out["interpolators"] if i not in INTERPOLATORS]
-    if wrong or not out["interpolators"]:
-        raise t.err("mapping", "interpolators", f"{', '.join(wrong) or 'none given'}: use "
-                                                f"{', '.join(INTERPOLATORS)}")
-    if out["method"] not in ("exact", "iterate"):
-        raise t.err("mapping", "method", f"{out['method']!r} is not 'exact' (first hit) or 'iterate'")
-    if out["reference"] is not None and not out["features"]:
-        raise t.err("mapping", "reference", "a reference needs the features to judge ([mapping] features)")
-    for key in ("image_sd_px", "surface_sd_m", "feather_m"):
-        if not out[key] >= 0:
-            raise t.err("mapping", key, f"must not be negative, got {out[key]!r}")
-    return out
+    """The ``[mapping]`` table of the survey with its defaults (``{}`` when there is none); checked by
+    :meth:`lidarcat.Survey.load` (:class:`lidarcat.survey.schema.MappingSettings`)."""
+    cfg = survey.config.mapping
+    return {} if cfg is None else cfg.to_dict()
 
 
 def run(ctx: Context, tmp: Path) -> dict:

@@ -44,66 +44,19 @@ from pathlib import Path
 from typing import Any
 
 from ..pipeline.runner import Context
+from ..survey.schema import ProductsSettings
 
 __all__ = ["run", "settings", "PRODUCTS_KEYS", "asked"]
 
-#: keys of the [products] table and their defaults
-PRODUCTS_KEYS: dict[str, Any] = {
-    "ground": True, "filter": "smrf", "dtm": True, "dsm": True, "ndsm": False, "hillshade": False,
-    "text_grid": False, "cell_m": 1.0, "max_edge_m": 50.0, "contours": True, "contour_interval_m": 1.0,
-    "master_every": 5, "smooth": 0, "spots_m": 100.0, "hypsometry": False, "hypsometry_cell_m": 0.45,
-    "sheet_size_m": 0.0, "sheet_index": "grid", "vector_format": "geojson",
-}
-_NUM = (int, float)
-_KINDS: dict[str, Any] = {
-    "ground": bool, "filter": str, "dtm": bool, "dsm": bool, "ndsm": bool, "hillshade": bool, "text_grid": bool,
-    "cell_m": _NUM, "max_edge_m": _NUM, "contours": bool, "contour_interval_m": _NUM, "master_every": int,
-    "smooth": int, "spots_m": _NUM, "hypsometry": bool, "hypsometry_cell_m": _NUM, "sheet_size_m": _NUM,
-    "sheet_index": str, "vector_format": str,
-}
+#: keys of the [products] table and their defaults (lidarcat.survey.schema.ProductsSettings)
+PRODUCTS_KEYS: dict[str, Any] = ProductsSettings().to_dict()
 
 
 def settings(survey: Any) -> dict[str, Any]:
-    """The ``[products]`` table of the survey with its defaults (``{}`` when there is none).
-
-    Raises
-    ------
-    SurveyError
-        A value of the wrong type or out of range (file, line and key).
-    """
-    from ..production.ground import GROUND_METHODS
-    from ._settings import optional_table
-
-    out, t = optional_table(survey, "products", _KINDS, PRODUCTS_KEYS)
-    if not out:
-        return {}
-    if out["filter"] not in GROUND_METHODS:
-        raise t.err("products", "filter", f"{out['filter']!r} is not one of {', '.join(map(repr, GROUND_METHODS))}")
-    for key in ("cell_m", "max_edge_m", "contour_interval_m", "spots_m", "hypsometry_cell_m"):
-        if not out[key] > 0:
-            raise t.err("products", key, f"must be positive (metres), got {out[key]!r}")
-    if out["master_every"] < 1:
-        raise t.err("products", "master_every", f"must be 1 or more, got {out['master_every']!r}")
-    if out["smooth"] < 0:
-        raise t.err("products", "smooth", f"must be 0 or more, got {out['smooth']!r}")
-    if out["sheet_size_m"] < 0:
-        raise t.err("products", "sheet_size_m", f"must be 0 (no sheets) or positive (metres), got "
-                                                f"{out['sheet_size_m']!r}")
-    from ..production.sheets import SHEET_INDEXES
-
-    if out["sheet_index"] not in SHEET_INDEXES:
-        raise t.err("products", "sheet_index", f"{out['sheet_index']!r} is not one of "
-                                               f"{', '.join(map(repr, SHEET_INDEXES))}")
-    if out["sheet_index"] != "grid" and out["sheet_size_m"] > 0:
-        raise t.err("products", "sheet_size_m", f"applies to sheet_index = 'grid' only; the "
-                                                f"{out['sheet_index']} sheets have their own size (drop it)")
-    if out["vector_format"] not in ("geojson", "gpkg"):
-        raise t.err("products", "vector_format", f"{out['vector_format']!r} is not 'geojson' or 'gpkg'")
-    if out["ndsm"] and not (out["dtm"] and out["dsm"]):
-        raise t.err("products", "ndsm", "needs dtm = true and dsm = true")
-    for key in ("cell_m", "max_edge_m", "contour_interval_m", "spots_m", "hypsometry_cell_m", "sheet_size_m"):
-        out[key] = float(out[key])
-    return out
+    """The ``[products]`` table of the survey with its defaults (``{}`` when there is none); checked by
+    :meth:`lidarcat.Survey.load` (:class:`lidarcat.survey.schema.ProductsSettings`)."""
+    cfg = survey.config.products
+    return {} if cfg is None else cfg.to_dict()
 
 
 def asked(cfg: dict[str, Any]) -> list[str]:

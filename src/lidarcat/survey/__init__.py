@@ -3,6 +3,7 @@
 ==============  ============================================================
 ``folder``      The survey folder: load, validate and locate a photogrammetric project.
 ``adjustment``  The survey adapter: a survey folder in, the adjustment folder out.
+``schema``      The survey.toml schema: every table and key, typed, parsed once and validated at load.
 ``selfcal``     Additional parameters from a survey folder: the ``[self_calibration]`` table and the CLI switches.
 ==============  ============================================================
 """
@@ -23,6 +24,12 @@ from .folder import (  # noqa: F401
     correct_measurements,
     cameras_of,
     SURVEY_KEYS,
+)
+from .schema import (  # noqa: F401
+    SurveyConfig,
+    MappingSettings,
+    ProductsSettings,
+    parse_survey_toml,
 )
 from .adjustment import (  # noqa: F401
     adjust_survey,
@@ -63,6 +70,10 @@ __all__ = [
     'correct_measurements',
     'cameras_of',
     'SURVEY_KEYS',
+    'SurveyConfig',
+    'MappingSettings',
+    'ProductsSettings',
+    'parse_survey_toml',
     'adjust_survey',
     'write_adjustment',
     'problem_from_survey',

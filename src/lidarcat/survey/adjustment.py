@@ -27,7 +27,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["adjust_survey", "write_adjustment", "problem_from_survey", "read_point_covariance",
            "EOP_COLUMNS", "POINT_COLUMNS", "RESIDUAL_COLUMNS", "COVARIANCE_COLUMNS",
-           "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS"]
+           "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS", "write_point_covariance"]
 
 log = logging.getLogger(__name__)
 
@@ -209,7 +209,7 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
     return ids, C
 
 
-def _write_point_covariance(path, ids: Sequence[str], C: np.ndarray, comment: str,
+def write_point_covariance(path, ids: Sequence[str], C: np.ndarray, comment: str,
                             provenance: dict | None = None) -> None:
     """Write the joint covariance *C* (3k, 3k) of points *ids* as :func:`read_point_covariance` reads it:
     one row of the 3 x 3 block per pair a <= b, atomically."""
@@ -283,7 +283,7 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None, *,
                      comments=["residuals v = adjusted - observed"])
     checks = [str(q) for q, r in zip(result.point_ids, result.point_role) if r == "check"]
     if checks and result.success and result.precision == "all" and len(checks) <= MAX_JOINT_COVARIANCE_POINTS:
-        _write_point_covariance(
+        write_point_covariance(
             folder / "check_covariance.csv", checks, joint_point_covariance(result, checks),
             "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances "
             "included: c_XY = Cov(X of point_a, Y of point_b), one row per pair a <= b "

@@ -29,7 +29,6 @@ from __future__ import annotations
 import glob
 import importlib.resources
 import logging
-import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -38,10 +37,37 @@ from typing import Any
 
 import numpy as np
 
-from .._util.frozen import frozen_array as _frozen
-from .._util import CsvTable, read_csv_table, read_text, read_toml, toml_line, write_csv_atomic
+from .._util import read_csv_table, write_csv_atomic
 from ..geometry.camera import Camera, load_camera, load_cameras
 from ..errors import SurveyError, location
+from ._tables import (
+    ControlSet,
+    GroundPoints,
+    ImagePoints,
+    Photo,
+    check_single_photo_points,
+    column_ids,
+    job_tokens,
+    load_control_sets,
+    load_ground_points,
+    load_image_points,
+    load_photos,
+)
+from .schema import (
+    DEFAULT_CONTOUR_INTERVAL_M,
+    DEFAULT_SCALE,
+    DEFAULT_SD_PIXELS,
+    OBSERVATION_KINDS,
+    PEC_CLASSES,
+    PLOTTING_POSITIONS,
+    SD_BOUNDS,
+    SURVEY_KEYS,
+    AdjustmentSettings,
+    AssessmentSettings,
+    SurveyConfig,
+    check_photo_ids,
+    parse_survey_toml,
+)
 
 __all__ = [
     "AssessmentSettings",
@@ -57,42 +83,17 @@ __all__ = [
     "correct_measurements",
     "cameras_of",
     "SURVEY_KEYS",
+    "SurveyConfig",
+    "is_local_crs",
+    "DEFAULT_SD_PIXELS",
+    "DEFAULT_SCALE",
+    "DEFAULT_CONTOUR_INTERVAL_M",
+    "PEC_CLASSES",
+    "PLOTTING_POSITIONS",
+    "SD_BOUNDS",
 ]
 
 log = logging.getLogger(__name__)
-
-#: allowed keys of survey.toml, per table (True = required)
-SURVEY_KEYS: dict[str, dict[str, bool]] = {
-    "survey": {"name": True, "description": False, "crs": True, "height_system": False,
-               "default_control": False},
-    "files": {"camera": True, "photos": True, "image_points": True, "ground_points": False,
-              "control_sets": False, "lidar": False, "extraction_jobs": False},
-    "adjustment": {"observations": False, "image_sd_mm": False, "exclude_points": False,
-                   "variance_factor": False, "chi2_level": False},
-    "lidar": {"crs": False},
-    "assessment": {"scale": False, "contour_interval_m": False, "alpha": False, "pec_class": False,
-                   "plotting_position": False},
-    # height datum per source and the geoid grid: read by lidarcat.interop.heights
-    "heights": {"sources": False, "geoid_grid": False},
-    # orthophotos / mosaic / monoplot of lidarcat run: read by lidarcat.stages.mapping
-    "mapping": {"orthophotos": False, "surface": False, "gsd_m": False, "cell_m": False, "mosaic": False,
-                "images": False, "photos": False, "features": False, "reference": False, "interpolators": False,
-                "method": False, "image_sd_px": False, "surface_sd_m": False, "feather_m": False},
-    # LiDAR products of lidarcat run: read by lidarcat.stages.products
-    "products": {k: False for k in ("ground", "filter", "dtm", "dsm", "ndsm", "hillshade", "text_grid", "cell_m",
-                                    "max_edge_m", "contours", "contour_interval_m", "master_every", "smooth",
-                                    "spots_m", "hypsometry", "hypsometry_cell_m", "sheet_size_m",
-                                    "sheet_index", "vector_format")},
-    # read by lidarcat.survey.selfcal (additional parameters, issue 13)
-    "self_calibration": {"parameters": False, "use_priors": False, "frame_offset": False,
-                         "similarity": False, "control": False, "alpha": False, "gnss_lines": False,
-                         "gnss_drift": False},
-}
-_REQUIRED_TABLES = ("survey", "files")
-_OBSERVATION_KINDS = ("corrected", "pixel")
-_VARIANCE_FACTORS = ("a_priori", "a_posteriori")
-#: fraction of a pixel used as default image sd (thesis 3.3.1: 0.006 mm for a 7.9 um pixel)
-DEFAULT_SD_PIXELS = 0.75
 
 
 def _data_dir(name: str) -> Path:
@@ -141,414 +142,6 @@ def example_camera_path(name: str = "lactec_dcs14n_2008") -> Path:
     return path
 
 
-# ---------------------------------------------------------------------- value types
-@dataclass(frozen=True, eq=False)
-class Photo:
-    """One photo: its camera and optional approximate / GNSS-INS exterior orientation.
-
-    Attributes
-    ----------
-    id, camera : str
-        Photo id and camera id.
-    position_m : ndarray (3,) or None
-        Projection centre X0, Y0, Z0 in the survey CRS, m.
-    attitude_deg : ndarray (3,) or None
-        omega, phi, kappa, degrees; M = R3(kappa) R2(phi) R1(omega).
-    sd_position_m, sd_attitude_deg : ndarray (3,) or None
-        Standard deviations when the values may act as weighted constraints.
-    line : int
-        Line of photos.csv.
-    """
-
-    id: str
-    camera: str
-    position_m: np.ndarray | None = None
-    attitude_deg: np.ndarray | None = None
-    sd_position_m: np.ndarray | None = None
-    sd_attitude_deg: np.ndarray | None = None
-    line: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("position_m", "attitude_deg", "sd_position_m", "sd_attitude_deg"):
-            v = getattr(self, name)
-            if v is not None:
-                arr = _frozen(v)
-                if arr.shape != (3,):
-                    raise SurveyError(f"photo {self.id!r}: {name} must have 3 values, got {arr.shape}")
-                object.__setattr__(self, name, arr)
-
-
-@dataclass(frozen=True, eq=False)
-class ImagePoints:
-    """Image measurements, one row per (photo, point).
-
-    Attributes
-    ----------
-    photo, point : ndarray (n,) of str
-        Ids.
-    pixel_px : ndarray (n, 2)
-        Column, row in pixels; NaN where not given.
-    xy_mm : ndarray (n, 2)
-        Corrected photo coordinates x_fotc, y_fotc, mm; NaN where not given.
-    sd_mm : ndarray (n, 2)
-        Standard deviation of x and y, mm; NaN where not given.
-    line : ndarray (n,) of int
-        Line in the source file (0 for rows not from a file).
-    path : Path or None
-        Source file (for error messages).
-    """
-
-    photo: np.ndarray
-    point: np.ndarray
-    pixel_px: np.ndarray
-    xy_mm: np.ndarray
-    sd_mm: np.ndarray
-    line: np.ndarray
-    path: Path | None = None
-
-    def __post_init__(self) -> None:
-        n = len(self.photo)
-        object.__setattr__(self, "photo", _frozen(self.photo, str))
-        object.__setattr__(self, "point", _frozen(self.point, str))
-        object.__setattr__(self, "line", _frozen(self.line, np.int64))
-        for name in ("pixel_px", "xy_mm", "sd_mm"):
-            object.__setattr__(self, name, _frozen(getattr(self, name)).reshape(-1, 2))
-        for name in ("point", "pixel_px", "xy_mm", "sd_mm", "line"):
-            if len(getattr(self, name)) != n:
-                raise ValueError(f"ImagePoints.{name} has {len(getattr(self, name))} rows, expected {n}")
-
-    def __len__(self) -> int:
-        return len(self.photo)
-
-    def select(self, mask: Any) -> ImagePoints:
-        """The rows selected by a boolean mask or an index array."""
-        m = np.asarray(mask)
-        return ImagePoints(self.photo[m], self.point[m], self.pixel_px[m], self.xy_mm[m],
-                           self.sd_mm[m], self.line[m], self.path)
-
-    def where(self, line_index: int) -> str:
-        """``file:line`` of row *line_index*, for messages."""
-        return location(self.path or "image points", int(self.line[line_index]) or None)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"n": len(self), "photos": sorted(set(self.photo.tolist())),
-                "points": len(set(self.point.tolist()))}
-
-
-@dataclass(frozen=True, eq=False)
-class GroundPoints:
-    """Ground points with per-axis standard deviations.
-
-    Attributes
-    ----------
-    point : ndarray (m,) of str
-    enh_m : ndarray (m, 3)
-        E, N, h in the survey CRS, m.
-    sd_m : ndarray (m, 3)
-        Standard deviations of E, N, h, m.
-    source : ndarray (m,) of str
-        ``gps``, ``lidar``, ...
-    line : ndarray (m,) of int
-    path : Path or None
-    """
-
-    point: np.ndarray
-    enh_m: np.ndarray
-    sd_m: np.ndarray
-    source: np.ndarray
-    line: np.ndarray | None = None
-    path: Path | None = None
-
-    def __post_init__(self) -> None:
-        m = len(self.point)
-        object.__setattr__(self, "point", _frozen(self.point, str))
-        object.__setattr__(self, "source", _frozen(self.source, str))
-        object.__setattr__(self, "enh_m", _frozen(self.enh_m).reshape(m, 3))
-        object.__setattr__(self, "sd_m", _frozen(self.sd_m).reshape(m, 3))
-        line = np.zeros(m, np.int64) if self.line is None else self.line
-        object.__setattr__(self, "line", _frozen(line, np.int64))
-        object.__setattr__(self, "_pos", {p: i for i, p in enumerate(self.point.tolist())})
-
-    def __len__(self) -> int:
-        return len(self.point)
-
-    def __contains__(self, point_id: object) -> bool:
-        return point_id in self._pos  # type: ignore[attr-defined]
-
-    def index(self, ids: Any) -> np.ndarray:
-        """Row indices of the point ids *ids* (str or sequence of str).
-
-        Raises
-        ------
-        SurveyError
-            An id is not a ground point (names it).
-        """
-        single = isinstance(ids, str)
-        seq = [ids] if single else [str(i) for i in np.asarray(ids, dtype=str).ravel()]
-        pos = self._pos  # type: ignore[attr-defined]
-        missing = [i for i in seq if i not in pos]
-        if missing:
-            where = f"{self.path}: " if self.path else ""
-            raise SurveyError(f"{where}point(s) {', '.join(missing)} not among the ground points")
-        return np.array([pos[i] for i in seq], dtype=np.intp)
-
-    def select(self, mask: Any) -> GroundPoints:
-        m = np.asarray(mask)
-        return GroundPoints(self.point[m], self.enh_m[m], self.sd_m[m], self.source[m],
-                            self.line[m], self.path)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"n": len(self), "sources": dict(Counter(self.source.tolist()))}
-
-
-@dataclass(frozen=True, eq=False)
-class ControlSet:
-    """A named choice of control (weighted constraints) and check points.
-
-    Attributes
-    ----------
-    name : str
-    control : ndarray (k,) of str
-        Control point ids, file order.
-    check : ndarray (j,) of str
-        Check point ids, file order.
-    sd_m : ndarray (k, 3)
-        Standard deviations of E, N, h for each control point: the set's override
-        when given, else the ground point's own.
-    check_sd_m : ndarray (j, 3)
-        Same for the check points (the reference accuracy of the checks).
-    """
-
-    name: str
-    control: np.ndarray
-    check: np.ndarray
-    sd_m: np.ndarray
-    check_sd_m: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "control", _frozen(self.control, str))
-        object.__setattr__(self, "check", _frozen(self.check, str))
-        object.__setattr__(self, "sd_m", _frozen(self.sd_m).reshape(len(self.control), 3))
-        csd = np.full((len(self.check), 3), np.nan) if self.check_sd_m is None else self.check_sd_m
-        object.__setattr__(self, "check_sd_m", _frozen(csd).reshape(len(self.check), 3))
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "control": self.control.tolist(),
-                "check": self.check.tolist()}
-
-
-@dataclass(frozen=True)
-class AdjustmentSettings:
-    """The ``[adjustment]`` table of survey.toml, with defaults resolved.
-
-    Attributes
-    ----------
-    observations : {"corrected", "pixel"}
-        Which image coordinates the adjustment uses: the file's ``x_mm, y_mm``
-        or ``col_px, row_px`` run through the camera (eq. 01-07).  Default:
-        "corrected" when image_points.csv has x_mm/y_mm columns, else "pixel".
-    image_sd_mm : float
-        Default sd of a photo coordinate, mm.  Default: 3/4 of the largest pixel
-        of the survey's cameras (the thesis used 0.006 mm for 7.9 um pixels).
-    exclude_points : frozenset of str
-        Points left out of every adjustment.
-    variance_factor : {"a_priori", "a_posteriori"}
-        Parameter sds from sigma0^2 = 1 (as the thesis tables) or the estimate.
-    chi2_level : float
-        Level of the two-sided chi-square test of the variance factor (0 < a < 1).
-    """
-
-    observations: str = "corrected"
-    image_sd_mm: float = 0.006
-    exclude_points: frozenset[str] = field(default_factory=frozenset)
-    variance_factor: str = "a_priori"
-    chi2_level: float = 0.05
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"observations": self.observations, "image_sd_mm": self.image_sd_mm,
-                "exclude_points": sorted(self.exclude_points),
-                "variance_factor": self.variance_factor, "chi2_level": self.chi2_level}
-
-
-#: default map scale denominator of the check-point classification (the thesis's 1:2000); shared by
-#: survey.toml [assessment], ``lidarcat run`` and ``lidarcat assess``
-DEFAULT_SCALE = 2000.0
-#: default contour interval of the altimetric classes, m (the thesis's 2 m); shared likewise
-DEFAULT_CONTOUR_INTERVAL_M = 2.0
-
-
-@dataclass(frozen=True)
-class AssessmentSettings:
-    """The ``[assessment]`` table of survey.toml: how ``lidarcat run`` judges check points.
-
-    Attributes
-    ----------
-    scale : float
-        Map scale denominator of the product (PEC classes, the chi-square
-        sigma0, the CE90 limit).  Default 2000, the thesis's 1:2000.
-    contour_interval_m : float
-        Contour interval for the altimetric classes, m.  Default 2 (thesis).
-    alpha : float
-        Level of every test (thesis: 0.10).
-    pec_class : str
-        Decreto 89.817 class whose EP is the chi-square sigma0 ("A" in the thesis).
-    plotting_position : str
-        Positions of the Filliben normal-probability test: ``filliben``
-        (Filliben 1975, matches its critical-value table), ``hazen``
-        ``(i - 0.5)/n`` (the thesis's Z_i, Tables 14/15) or ``blom``.
-    """
-
-    scale: float = DEFAULT_SCALE
-    contour_interval_m: float = DEFAULT_CONTOUR_INTERVAL_M
-    alpha: float = 0.10
-    pec_class: str = "A"
-    plotting_position: str = "filliben"
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"scale": self.scale, "contour_interval_m": self.contour_interval_m, "alpha": self.alpha,
-                "pec_class": self.pec_class, "plotting_position": self.plotting_position}
-
-
-# ---------------------------------------------------------------------- loading helpers
-class _Toml:
-    """survey.toml content plus its text, for located errors."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self.data, self.text = read_toml(path)
-
-    def err(self, table: str | None, key: str | None, message: str) -> SurveyError:
-        """Error located at ``key`` of ``[table]`` (a top-level key/table when *table* is None)."""
-        if table is None:
-            line = toml_line(self.text, key) or toml_line(self.text, None, key)
-        else:
-            line = toml_line(self.text, table, key)
-        fld = key if key is not None else (f"[{table}]" if table else None)
-        return SurveyError(f"{location(self.path, line, fld)}: {message}")
-
-    def get(self, table: str, key: str, kind: type | tuple[type, ...], default: Any = None) -> Any:
-        tab = self.data.get(table, {})
-        if key not in tab:
-            if SURVEY_KEYS[table][key]:
-                line = toml_line(self.text, table)
-                raise SurveyError(f"{location(self.path, line, key)}: missing required key "
-                                  f"{key!r} in [{table}] (see docs/survey-format.md)")
-            return default
-        v = tab[key]
-        kinds = kind if isinstance(kind, tuple) else (kind,)
-        if not isinstance(v, kinds) or (isinstance(v, bool) and bool not in kinds):  # TOML true is no int
-            raise self.err(table, key, f"expected {'/'.join(k.__name__ for k in kinds)}, got {v!r}")
-        if isinstance(v, str) and not v.strip() and key != "description":
-            raise self.err(table, key, "must not be empty")
-        if isinstance(v, float) and not math.isfinite(v):
-            raise self.err(table, key, f"must be a finite number, got {v!r}")
-        return v
-
-
-#: classes of Decreto 89.817 (lidarcat.accuracy.standards has the tolerances; importing it here would pull
-#: scipy into every survey load)
-PEC_CLASSES = ("A", "B", "C")
-#: Filliben plotting positions (lidarcat.accuracy.checkpoints.PLOTTING_POSITIONS, not imported for the same reason)
-PLOTTING_POSITIONS = ("filliben", "hazen", "blom")
-
-
-def _assessment_settings(t: _Toml) -> AssessmentSettings:
-    """Read and check the ``[assessment]`` table (every key optional)."""
-    d = AssessmentSettings()
-    scale = t.get("assessment", "scale", (int, float), d.scale)
-    if not scale > 0:
-        raise t.err("assessment", "scale", f"must be a positive scale denominator (2000 for 1:2000), got {scale!r}")
-    ci = t.get("assessment", "contour_interval_m", (int, float), d.contour_interval_m)
-    if not ci > 0:
-        raise t.err("assessment", "contour_interval_m", f"must be positive (metres), got {ci!r}")
-    alpha = t.get("assessment", "alpha", (int, float), d.alpha)
-    if not 0 < alpha < 1:
-        raise t.err("assessment", "alpha", f"must lie between 0 and 1, got {alpha!r}")
-    pec = t.get("assessment", "pec_class", str, d.pec_class)
-    if pec not in PEC_CLASSES:
-        raise t.err("assessment", "pec_class", f"{pec!r} is not one of {', '.join(PEC_CLASSES)}")
-    pp = t.get("assessment", "plotting_position", str, d.plotting_position)
-    if pp not in PLOTTING_POSITIONS:
-        raise t.err("assessment", "plotting_position", f"{pp!r} is not one of {', '.join(PLOTTING_POSITIONS)}")
-    return AssessmentSettings(float(scale), float(ci), float(alpha), pec, pp)
-
-
-def _check_keys(t: _Toml) -> None:
-    for table, value in t.data.items():
-        if table not in SURVEY_KEYS:
-            raise t.err(None, table, f"unknown key/table {table!r}; allowed tables: "
-                        + ", ".join(f"[{k}]" for k in SURVEY_KEYS))
-        if not isinstance(value, dict):
-            raise t.err(None, table, f"{table!r} must be a table ([{table}])")
-        for key in value:
-            if key not in SURVEY_KEYS[table]:
-                raise t.err(table, key, f"unknown key {key!r} in [{table}]; allowed: "
-                            + ", ".join(SURVEY_KEYS[table]))
-    for table in _REQUIRED_TABLES:
-        if table not in t.data:
-            raise SurveyError(f"{t.path}: missing table [{table}] (see docs/survey-format.md)")
-
-
-def _ids(table: CsvTable, name: str) -> list[str]:
-    out = table.column(name)
-    for v, line in zip(out, table.lines):
-        if v == "":
-            raise SurveyError(f"{location(table.path, line, name)}: empty id")
-    return out
-
-
-def _no_duplicates(table: CsvTable, keys: Sequence[str], what: str) -> None:
-    seen: dict[tuple[str, ...], int] = {}
-    cols = [table.column(k) for k in keys]
-    for i, line in enumerate(table.lines):
-        key = tuple(c[i] for c in cols)
-        if key in seen:
-            shown = ", ".join(f"{k}={v!r}" for k, v in zip(keys, key))
-            raise SurveyError(f"{location(table.path, line, keys[-1])}: duplicate {what} ({shown}); "
-                              f"first defined on line {seen[key]}")
-        seen[key] = line
-
-
-def _optional_triple(table: CsvTable, names: Sequence[str], what: str) -> np.ndarray:
-    """(n, 3) from three optional columns: all or none present; per row all or none filled."""
-    present = [table.has(n) for n in names]
-    if not any(present):
-        return np.full((len(table.rows), 3), np.nan)
-    if not all(present):
-        missing = [n for n, p in zip(names, present) if not p]
-        raise SurveyError(f"{location(table.path, 1, missing[0])}: missing column {missing[0]!r}; "
-                          f"{what} needs all of {', '.join(names)}")
-    arr = np.column_stack([table.floats(n, required=False) for n in names])
-    for i, line in enumerate(table.lines):
-        filled = np.isfinite(arr[i])
-        if filled.any() and not filled.all():
-            n = names[int(np.flatnonzero(~filled)[0])]
-            raise SurveyError(f"{location(table.path, line, n)}: empty; fill all of "
-                              f"{', '.join(names)} or none")
-    return arr
-
-
-#: sane ranges of standard deviations by unit (a value outside is a typo or a unit mix-up)
-SD_BOUNDS = {"m": (1e-6, 1e3), "mm": (1e-6, 10.0), "deg": (1e-8, 90.0)}
-
-
-def _positive(table: CsvTable, arr: np.ndarray, names: Sequence[str], unit: str = "m") -> None:
-    """Refuse standard deviations that are not positive or lie outside :data:`SD_BOUNDS` of *unit*
-    (NaN entries are absent values and pass); the message names file, line, field and the row's id."""
-    lo, hi = SD_BOUNDS[unit]
-    for j, n in enumerate(names):
-        col = arr[:, j]
-        with np.errstate(invalid="ignore"):
-            bad = np.flatnonzero(~np.isnan(col) & ~((col >= lo) & (col <= hi)))
-        if bad.size:
-            i = int(bad[0])
-            who = next((f" ({key} {table.rows[i][table.header.index(key)]!r})"
-                        for key in ("point", "photo") if table.has(key)), "")
-            what = "must be positive" if not col[i] > 0 else "is outside the sane range"
-            raise SurveyError(f"{location(table.path, table.lines[i], n)}{who}: standard deviation "
-                              f"{what}, got {float(col[i])!r} {unit}; sane values lie in {lo:g}..{hi:g} {unit}")
-
-
 def is_local_crs(crs: str) -> bool:
     """True for a survey CRS declared as a local (not georeferenced) frame: ``"local"`` or
     ``"local: <description>"`` (what ``lidarcat import`` writes for a COLMAP or OpenSfM model
@@ -562,7 +155,7 @@ def is_local_crs(crs: str) -> bool:
     return s == "local" or s.startswith(("local:", "local "))
 
 
-def _check_crs(t: _Toml, table: str, crs: str, coords: Sequence[tuple[Path | None, np.ndarray, np.ndarray]]
+def _check_crs(t: SurveyConfig, table: str, crs: str, coords: Sequence[tuple[Path | None, np.ndarray, np.ndarray]]
                ) -> None:
     """``[table] crs`` must be a CRS pyproj knows, in metres, and hold the coordinates of
     *coords* ((file, (n, 2) E N, ids) triples) inside its area of use."""
@@ -575,7 +168,7 @@ def _check_crs(t: _Toml, table: str, crs: str, coords: Sequence[tuple[Path | Non
         c = resolve_crs(crs)
         require_metres(c, "the adjustment" if table == "survey" else "LiDAR control")
     except CRSError as ex:
-        raise t.err(table, "crs", str(ex)) from None
+        raise t.error(table, "crs", str(ex)) from None
     for path, en, ids in coords:
         en = np.asarray(en, dtype=np.float64).reshape(-1, 2)
         if path is None or len(en) == 0:
@@ -583,41 +176,24 @@ def _check_crs(t: _Toml, table: str, crs: str, coords: Sequence[tuple[Path | Non
         try:
             check_area_of_use(c, en, ids=ids)
         except CRSError as ex:
-            raise t.err(table, "crs", f"{path}: {ex}") from None
+            raise t.error(table, "crs", f"{path}: {ex}") from None
 
 
-def _expand_lidar(t: _Toml, root: Path) -> tuple[Path, ...]:
-    spec = t.get("files", "lidar", (str, list), default=[])
-    items = [spec] if isinstance(spec, str) else spec
+def _expand_lidar(t: SurveyConfig, root: Path) -> tuple[Path, ...]:
     out: set[Path] = set()
-    for item in items:
-        if not isinstance(item, str) or not item.strip():
-            raise t.err("files", "lidar", f"entries must be non-empty strings, got {item!r}")
+    for item in t.files.lidar:
         pattern = item if Path(item).is_absolute() else str(root / item)
         if glob.has_magic(item):
             matches = [Path(p) for p in glob.glob(pattern, recursive=True) if Path(p).is_file()]
             if not matches:
-                raise t.err("files", "lidar", f"pattern {item!r} matches no file in {root}")
+                raise t.error("files", "lidar", f"pattern {item!r} matches no file in {root}")
             out.update(matches)
         else:
             p = Path(pattern)
             if not p.is_file():
-                raise t.err("files", "lidar", f"LiDAR file {item!r} not found ({p})")
+                raise t.error("files", "lidar", f"LiDAR file {item!r} not found ({p})")
             out.add(p)
     return tuple(sorted(out))
-
-
-def _job_tokens(path: Path) -> set[str]:
-    """Every word of an extraction-jobs file (and the word without a leading 'P')."""
-    words: set[str] = set()
-    for raw in read_text(path).splitlines():
-        if raw.lstrip().startswith("#"):
-            continue
-        for w in raw.replace(",", " ").split():
-            words.add(w)
-            if w[:1] in "Pp" and len(w) > 1:
-                words.add(w[1:])
-    return words
 
 
 # ---------------------------------------------------------------------- Survey
@@ -653,6 +229,9 @@ class Survey:
     files : dict[str, Path]
         The input files named in ``[files]`` (``camera``, ``photos``, ...; the
         LiDAR tiles are ``lidar_paths``), resolved against the folder.
+    config : SurveyConfig
+        survey.toml parsed and checked (:mod:`lidarcat.survey.schema`), read once: every table,
+        e.g. ``config.mapping.gsd_m``; the stages read their tables here.
     """
 
     root: Path
@@ -674,6 +253,7 @@ class Survey:
     assessment: AssessmentSettings = field(default_factory=AssessmentSettings)
     embedded: bool = False
     files: dict[str, Path] = field(default_factory=dict)
+    config: SurveyConfig = field(default=None, repr=False)  # type: ignore[assignment]
 
     # ------------------------------------------------------------ load
     @classmethod
@@ -702,24 +282,20 @@ class Survey:
             if not toml_path.is_file():
                 raise SurveyError(f"{root}: no survey.toml in this folder (a survey folder "
                                   f"holds survey.toml plus CSV files; see docs/survey-format.md)")
-        t = _Toml(toml_path)
-        _check_keys(t)
-
-        name = t.get("survey", "name", str)
-        description = t.get("survey", "description", str, "")
-        crs = t.get("survey", "crs", str)
-        height_system = t.get("survey", "height_system", str, "unspecified")
-        default_control = t.get("survey", "default_control", str, None)
+        t = parse_survey_toml(toml_path)   # the one read of survey.toml: every table typed and checked
+        sv = t.survey
+        name, description, crs, height_system, default_control = (
+            sv.name, sv.description, sv.crs, sv.height_system, sv.default_control)
 
         files: dict[str, Path] = {}
 
         def file_of(key: str) -> Path | None:
-            rel = t.get("files", key, str, None)
+            rel = getattr(t.files, key)
             if rel is None:
                 return None
             p = Path(rel) if Path(rel).is_absolute() else root / rel
             if not p.is_file():
-                raise t.err("files", key, f"file {rel!r} not found ({p})")
+                raise t.error("files", key, f"file {rel!r} not found ({p})")
             files[key] = p
             return p
 
@@ -727,65 +303,46 @@ class Survey:
         assert camera_path is not None
         cameras = load_cameras(camera_path)
         photos_path = file_of("photos")
-        photos = _load_photos(photos_path, cameras, camera_path)  # type: ignore[arg-type]
+        photos = load_photos(photos_path, cameras, camera_path)  # type: ignore[arg-type]
         photo_ids = {p.id for p in photos}
 
         gp_path = file_of("ground_points")
-        ground = _load_ground_points(gp_path) if gp_path else GroundPoints(
+        ground = load_ground_points(gp_path) if gp_path else GroundPoints(
             np.empty(0, str), np.empty((0, 3)), np.empty((0, 3)), np.empty(0, str))
         ip_path = file_of("image_points")
-        image_points, has_xy = _load_image_points(ip_path, photo_ids, photos_path)  # type: ignore[arg-type]
+        image_points, has_xy = load_image_points(ip_path, photo_ids, photos_path)  # type: ignore[arg-type]
 
         jobs_path = file_of("extraction_jobs")
-        job_words = _job_tokens(jobs_path) if jobs_path else set()
+        job_words = job_tokens(jobs_path) if jobs_path else set()
 
-        # settings
-        obs = t.get("adjustment", "observations", str, None)
-        if obs is None:
-            obs = "corrected" if has_xy else "pixel"
-        elif obs not in _OBSERVATION_KINDS:
-            raise t.err("adjustment", "observations",
-                        f"{obs!r} is not one of {', '.join(map(repr, _OBSERVATION_KINDS))}")
-        sd_default = max(max(c.pixel_size_x_mm, c.pixel_size_y_mm) for c in cameras.values())
-        image_sd = t.get("adjustment", "image_sd_mm", (int, float), DEFAULT_SD_PIXELS * sd_default)
-        lo_mm, hi_mm = SD_BOUNDS["mm"]
-        if not lo_mm <= image_sd <= hi_mm:
-            raise t.err("adjustment", "image_sd_mm",
-                        f"must be positive, got {image_sd!r}" if not image_sd > 0 else
-                        f"{image_sd!r} mm is outside the sane range {lo_mm:g}..{hi_mm:g} mm")
-        excl_raw = t.get("adjustment", "exclude_points", list, [])
-        exclude: set[str] = set()
+        # settings: [adjustment] with the defaults that depend on the data
+        adj = t.adjustment
+        obs = adj.observations if adj.observations is not None else "corrected" if has_xy else "pixel"
+        image_sd = adj.image_sd_mm if adj.image_sd_mm is not None else DEFAULT_SD_PIXELS * max(
+            max(c.pixel_size_x_mm, c.pixel_size_y_mm) for c in cameras.values())
         measured = set(image_points.point.tolist())
-        for v in excl_raw:
-            if isinstance(v, bool) or not isinstance(v, (str, int)):
-                raise t.err("adjustment", "exclude_points", f"point ids must be strings, got {v!r}")
-            pid = str(v)
+        for pid in adj.exclude_points:
             if pid not in measured and pid not in ground:
-                raise t.err("adjustment", "exclude_points",
-                            f"point {pid!r} is defined nowhere (measured on no photo, not in "
-                            f"ground points); remove it or fix the id")
-            exclude.add(pid)
-        vf = t.get("adjustment", "variance_factor", str, "a_priori")
-        if vf not in _VARIANCE_FACTORS:
-            raise t.err("adjustment", "variance_factor",
-                        f"{vf!r} is not one of {', '.join(map(repr, _VARIANCE_FACTORS))}")
-        level = t.get("adjustment", "chi2_level", (int, float), 0.05)
-        if not 0 < level < 1:
-            raise t.err("adjustment", "chi2_level", f"must lie between 0 and 1, got {level!r}")
-        settings = AdjustmentSettings(obs, float(image_sd), frozenset(exclude), vf, float(level))
-        assessment = _assessment_settings(t)
+                raise t.error("adjustment", "exclude_points",
+                              f"point {pid!r} is defined nowhere (measured on no photo, not in "
+                              f"ground points); remove it or fix the id")
+        exclude = set(adj.exclude_points)
+        settings = AdjustmentSettings(obs, float(image_sd), frozenset(exclude), adj.variance_factor,
+                                      adj.chi2_level)
+        assessment = t.assessment
+        check_photo_ids(t, photo_ids)
 
-        _check_single_photo_points(image_points, ground, job_words, exclude)
+        check_single_photo_points(image_points, ground, job_words, exclude)
 
         cs_path = file_of("control_sets")
-        control_sets = _load_control_sets(cs_path, ground, exclude) if cs_path else {}
+        control_sets = load_control_sets(cs_path, ground, exclude) if cs_path else {}
         if default_control is not None and default_control not in control_sets:
             avail = ", ".join(control_sets) or "none defined"
-            raise t.err("survey", "default_control",
-                        f"control set {default_control!r} is not in control_sets ({avail})")
+            raise t.error("survey", "default_control",
+                          f"control set {default_control!r} is not in control_sets ({avail})")
 
         lidar_paths = _expand_lidar(t, root)
-        lidar_crs = t.get("lidar", "crs", str, None)
+        lidar_crs = t.lidar.crs
         _check_crs(t, "survey", crs, [(gp_path, ground.enh_m[:, :2], ground.point)]
                    + [(photos_path, np.array([p.position_m[:2] for p in photos if p.position_m is not None]),
                        np.array([p.id for p in photos if p.position_m is not None]))])
@@ -797,7 +354,7 @@ class Survey:
                      cameras=cameras, photos=photos, image_points=image_points,
                      ground_points=ground, control_sets=control_sets, lidar_paths=lidar_paths,
                      lidar_crs=lidar_crs, extraction_jobs=jobs_path, settings=settings,
-                     assessment=assessment, embedded=embedded, files=files)
+                     assessment=assessment, embedded=embedded, files=files, config=t)
         log.info("loaded survey %r: %d photos, %d measurements, %d ground points, control sets %s",
                  name, len(photos), len(image_points), len(ground), ", ".join(control_sets) or "-")
         return survey
@@ -845,9 +402,9 @@ class Survey:
             Bad *kind*, or a row lacks the requested coordinates (names file and line).
         """
         kind = self.settings.observations if kind is None else kind
-        if kind not in _OBSERVATION_KINDS:
+        if kind not in OBSERVATION_KINDS:
             raise SurveyError(f"observations kind {kind!r} is not one of "
-                              f"{', '.join(map(repr, _OBSERVATION_KINDS))}")
+                              f"{', '.join(map(repr, OBSERVATION_KINDS))}")
         ip = self.image_points
         keep = ~np.isin(ip.point, list(self.settings.exclude_points))
         ip = ip.select(keep)
@@ -927,154 +484,6 @@ class Survey:
             "settings": self.settings.to_dict(),
             "assessment": self.assessment.to_dict(),
         }
-
-
-# ---------------------------------------------------------------------- file readers
-_PHOTO_COLS = ("photo", "camera", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg",
-               "sd_X0", "sd_Y0", "sd_Z0", "sd_omega_deg", "sd_phi_deg", "sd_kappa_deg")
-
-
-def _load_photos(path: Path, cameras: dict[str, Camera], camera_path: Path) -> tuple[Photo, ...]:
-    t = read_csv_table(path, required=("photo",), optional=_PHOTO_COLS[1:])
-    ids = _ids(t, "photo")
-    _no_duplicates(t, ("photo",), "photo id")
-    if t.has("camera"):
-        cams = t.column("camera")
-        for c, line in zip(cams, t.lines):
-            if c not in cameras:
-                raise SurveyError(f"{location(path, line, 'camera')}: camera {c!r} is not defined "
-                                  f"in {camera_path.name} (defined: {', '.join(cameras)})")
-    else:
-        if len(cameras) > 1:
-            raise SurveyError(f"{location(path, 1, 'camera')}: missing column 'camera'; "
-                              f"{camera_path.name} defines {len(cameras)} cameras "
-                              f"({', '.join(cameras)}), so each photo must name one")
-        cams = [next(iter(cameras))] * len(ids)
-    pos = _optional_triple(t, ("X0", "Y0", "Z0"), "a position")
-    att = _optional_triple(t, ("omega_deg", "phi_deg", "kappa_deg"), "an attitude")
-    sdp = _optional_triple(t, ("sd_X0", "sd_Y0", "sd_Z0"), "a position sd")
-    sda = _optional_triple(t, ("sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"), "an attitude sd")
-    _positive(t, sdp, ("sd_X0", "sd_Y0", "sd_Z0"), "m")
-    _positive(t, sda, ("sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"), "deg")
-    photos = []
-    for i, line in enumerate(t.lines):
-        def opt(a: np.ndarray) -> np.ndarray | None:
-            return a[i] if np.isfinite(a[i]).all() else None
-        photos.append(Photo(ids[i], cams[i], opt(pos), opt(att), opt(sdp), opt(sda), line))
-    if not photos:
-        raise SurveyError(f"{path}: no photos")
-    return tuple(photos)
-
-
-def _load_image_points(path: Path, photo_ids: set[str], photos_path: Path) -> tuple[ImagePoints, bool]:
-    t = read_csv_table(path, required=("photo", "point"),
-                       optional=("col_px", "row_px", "x_mm", "y_mm", "sd_x_mm", "sd_y_mm"))
-    for a, b in (("col_px", "row_px"), ("x_mm", "y_mm"), ("sd_x_mm", "sd_y_mm")):
-        if t.has(a) != t.has(b):
-            missing = b if t.has(a) else a
-            raise SurveyError(f"{location(path, 1, missing)}: missing column {missing!r}; "
-                              f"columns {a}, {b} come as a pair")
-    has_px, has_xy = t.has("col_px"), t.has("x_mm")
-    if not (has_px or has_xy):
-        raise SurveyError(f"{location(path, 1, 'col_px')}: missing columns: give col_px, row_px "
-                          f"(pixels) and/or x_mm, y_mm (corrected photo coordinates)")
-    photo = _ids(t, "photo")
-    point = _ids(t, "point")
-    _no_duplicates(t, ("photo", "point"), "measurement of this point on this photo")
-    for ph, line in zip(photo, t.lines):
-        if ph not in photo_ids:
-            raise SurveyError(f"{location(path, line, 'photo')}: photo {ph!r} is not in "
-                              f"{photos_path.name}; add it there or fix the id")
-    n = len(t.rows)
-
-    def pair(a: str, b: str) -> np.ndarray:
-        if not t.has(a):
-            return np.full((n, 2), np.nan)
-        arr = np.column_stack([t.floats(a, required=False), t.floats(b, required=False)])
-        for i, line in enumerate(t.lines):
-            f = np.isfinite(arr[i])
-            if f.any() and not f.all():
-                raise SurveyError(f"{location(path, line, b if f[0] else a)}: empty; "
-                                  f"fill both {a} and {b} or neither")
-        return arr
-
-    px, xy, sd = pair("col_px", "row_px"), pair("x_mm", "y_mm"), pair("sd_x_mm", "sd_y_mm")
-    for i, line in enumerate(t.lines):
-        if not (np.isfinite(px[i]).all() or np.isfinite(xy[i]).all()):
-            fld = "x_mm" if has_xy else "col_px"
-            raise SurveyError(f"{location(path, line, fld)}: no coordinates; give col_px, row_px "
-                              f"or x_mm, y_mm")
-    _positive(t, sd, ("sd_x_mm", "sd_y_mm"), "mm")
-    if n == 0:
-        raise SurveyError(f"{path}: no image measurements")
-    return ImagePoints(np.array(photo, dtype=str), np.array(point, dtype=str), px, xy, sd,
-                       np.array(t.lines), path), has_xy
-
-
-def _load_ground_points(path: Path) -> GroundPoints:
-    cols = ("point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "source")
-    t = read_csv_table(path, required=cols)
-    point = _ids(t, "point")
-    _no_duplicates(t, ("point",), "ground point id")
-    enh = np.column_stack([t.floats(c) for c in ("E", "N", "h")])
-    sd = np.column_stack([t.floats(c) for c in ("sd_E", "sd_N", "sd_h")])
-    _positive(t, sd, ("sd_E", "sd_N", "sd_h"))
-    source = t.column("source")
-    for s, line in zip(source, t.lines):
-        if not s:
-            raise SurveyError(f"{location(path, line, 'source')}: empty; name the source "
-                              f"(gps, lidar, total_station, ...)")
-    return GroundPoints(np.array(point, dtype=str), enh, sd, np.array(source, dtype=str),
-                        np.array(t.lines), path)
-
-
-def _load_control_sets(path: Path, ground: GroundPoints, exclude: set[str]) -> dict[str, ControlSet]:
-    t = read_csv_table(path, required=("set", "point", "role"), optional=("sd_E", "sd_N", "sd_h"))
-    names = _ids(t, "set")
-    points = _ids(t, "point")
-    roles = t.column("role")
-    _no_duplicates(t, ("set", "point"), "point in this control set")
-    sd_cols = ("sd_E", "sd_N", "sd_h")
-    over = _optional_triple(t, sd_cols, "an sd override")
-    _positive(t, over, sd_cols, "m")
-    gp_file = ground.path.name if ground.path else "ground_points.csv"
-    for p, r, line in zip(points, roles, t.lines):
-        if r not in ("control", "check"):
-            raise SurveyError(f"{location(path, line, 'role')}: {r!r} is not 'control' or 'check'")
-        if p not in ground:
-            raise SurveyError(f"{location(path, line, 'point')}: point {p!r} is defined nowhere: "
-                              f"not in {gp_file}; add its coordinates there or fix the id")
-        if p in exclude:
-            raise SurveyError(f"{location(path, line, 'point')}: point {p!r} is excluded by "
-                              f"survey.toml [adjustment] exclude_points; drop one of the two")
-    out: dict[str, ControlSet] = {}
-    for name in dict.fromkeys(names):
-        rows = [i for i, n in enumerate(names) if n == name]
-        ctrl = [i for i in rows if roles[i] == "control"]
-        chk = [i for i in rows if roles[i] == "check"]
-
-        def sds(idx: list[int]) -> np.ndarray:
-            if not idx:
-                return np.empty((0, 3))
-            own = ground.sd_m[ground.index([points[i] for i in idx])]
-            o = over[idx]
-            return np.where(np.isfinite(o), o, own)
-
-        out[name] = ControlSet(name, np.array([points[i] for i in ctrl], dtype=str),
-                               np.array([points[i] for i in chk], dtype=str), sds(ctrl), sds(chk))
-    return out
-
-
-def _check_single_photo_points(ip: ImagePoints, ground: GroundPoints, job_words: set[str],
-                               exclude: set[str]) -> None:
-    counts = Counter(ip.point.tolist())
-    for i, p in enumerate(ip.point.tolist()):
-        if counts[p] == 1 and p not in ground and p not in job_words and p not in exclude:
-            raise SurveyError(
-                f"{location(ip.path, int(ip.line[i]), 'point')}: {p!r} is measured on photo "
-                f"{str(ip.photo[i])!r} only and defined nowhere (no ground point, no extraction job), "
-                f"so it is no tie point either (a tie point needs two photos); fix the id, "
-                f"add the point to ground_points.csv, or exclude it")
 
 
 def cameras_of(source: str | Path | None = None) -> dict[str, Camera]:
@@ -1158,13 +567,14 @@ class CorrectedMeasurements:
                 "max_correction_mm": float(mag.max()) if len(self) else 0.0}
 
 
-def correct_measurements(source: str | Path, camera: str | Path | Camera | None = None) -> CorrectedMeasurements:
+def correct_measurements(source: str | Path | Survey, camera: str | Path | Camera | None = None
+                         ) -> CorrectedMeasurements:
     """Correct pixel measurements to photo coordinates (``lidarcat camera correct``).
 
     Parameters
     ----------
-    source : str or Path
-        A survey folder (or its survey.toml): every image_points row with
+    source : str, Path or Survey
+        A survey folder (or its survey.toml, or a loaded Survey): every image_points row with
         col_px, row_px is corrected with its photo's camera; or a CSV with
         columns photo, point, col_px, row_px (other columns are ignored).
     camera : str, Path, Camera or None
@@ -1176,14 +586,15 @@ def correct_measurements(source: str | Path, camera: str | Path | Camera | None 
     SurveyError
         Unreadable input, no pixel coordinates, or a CSV without *camera*.
     """
-    src = Path(source)
+    loaded = source if isinstance(source, Survey) else None
+    src = loaded.toml_path if loaded is not None else Path(source)  # type: ignore[union-attr]
     cam_obj: Camera | None
     if camera is None or isinstance(camera, Camera):
         cam_obj = camera
     else:
         cam_obj = load_camera(camera)
     if src.is_dir() or src.suffix.lower() == ".toml":
-        survey = Survey.load(src)
+        survey = loaded or Survey.load(src)
         ip = survey.image_points
         has = np.isfinite(ip.pixel_px).all(axis=1)
         if not has.any():
@@ -1201,8 +612,8 @@ def correct_measurements(source: str | Path, camera: str | Path | Camera | None 
             raise SurveyError(f"{src}: a CSV of pixel measurements needs --camera FILE[:ID] "
                               f"(a survey folder brings its own camera)")
         t = read_csv_table(src, required=("photo", "point", "col_px", "row_px"), allow_extra=True)
-        photo = np.array(_ids(t, "photo"), dtype=str)
-        point = np.array(_ids(t, "point"), dtype=str)
+        photo = np.array(column_ids(t, "photo"), dtype=str)
+        point = np.array(column_ids(t, "point"), dtype=str)
         px = np.column_stack([t.floats("col_px"), t.floats("row_px")])
         if len(photo) == 0:
             raise SurveyError(f"{src}: no measurements")

@@ -44,6 +44,7 @@ from ..bundle.additional import GnssLineOffsets, SelfCalibration, parse_paramete
 from ..bundle.frame_offset import frame_offset_from_sources
 from ..bundle.problem import BundleProblem
 from ..bundle.selfcal import SelfCalResult, adjust_with_parameters
+from .schema import SURVEY_KEYS, SelfCalSettings, split_frame_offset
 
 __all__ = ["SelfCalSettings", "self_calibration_settings", "combined_control_set", "components_from_survey",
            "adjust_survey_with_parameters", "selfcal_adjust", "write_selfcal", "format_parameters",
@@ -52,14 +53,8 @@ __all__ = ["SelfCalSettings", "self_calibration_settings", "combined_control_set
 log = logging.getLogger(__name__)
 
 
-def _keys() -> tuple[str, ...]:
-    from .folder import SURVEY_KEYS
-
-    return tuple(SURVEY_KEYS["self_calibration"])
-
-
-#: keys of the [self_calibration] table of survey.toml (validated by lidarcat.survey.folder)
-SELF_CALIBRATION_KEYS = _keys()
+#: keys of the [self_calibration] table of survey.toml (validated by lidarcat.survey.schema)
+SELF_CALIBRATION_KEYS = tuple(SURVEY_KEYS["self_calibration"])
 
 #: why the adjustment with additional parameters is not tested for blunders (summary.json, CLI)
 SNOOPING_WITH_PARAMETERS = (
@@ -69,78 +64,9 @@ SNOOPING_WITH_PARAMETERS = (
     "parameters) and correct or delete them in the survey files")
 
 
-@dataclasses.dataclass(frozen=True)
-class SelfCalSettings:
-    """The ``[self_calibration]`` table (see the module docstring); None: not switched on."""
-
-    parameters: tuple[str, ...] | None = None
-    use_priors: bool = True
-    frame_offset: tuple[str, str] | None = None
-    similarity: bool = False
-    control: str | None = None
-    alpha: float = 0.05
-    gnss_lines: dict[str, str] | None = None        # photo id -> line label
-    gnss_drift: bool = False
-
-    @property
-    def active(self) -> bool:
-        return bool(self.parameters) or self.frame_offset is not None or bool(self.gnss_lines)
-
-
-def _split_offset(text: str) -> tuple[str, str]:
-    parts = [s.strip() for s in str(text).split(":")]
-    if len(parts) != 2 or not all(parts):
-        raise ValueError(f"frame offset {text!r} must be SOURCE:REFERENCE, e.g. lidar:gps")
-    return parts[0], parts[1]
-
-
 def self_calibration_settings(survey) -> SelfCalSettings:
-    """Read ``[self_calibration]`` of the survey's survey.toml.
-
-    Raises
-    ------
-    SurveyError
-        A bad value (file, line and key named).
-    """
-    from .folder import _Toml
-
-    t = _Toml(survey.toml_path)
-    if "self_calibration" not in t.data:
-        return SelfCalSettings()
-    d = SelfCalSettings()
-    params = t.get("self_calibration", "parameters", str, None)
-    try:
-        parsed = parse_parameters(params) if params is not None else None
-    except ValueError as ex:
-        raise t.err("self_calibration", "parameters", str(ex)) from ex
-    fo = t.get("self_calibration", "frame_offset", str, None)
-    try:
-        offset = _split_offset(fo) if fo is not None else None
-    except ValueError as ex:
-        raise t.err("self_calibration", "frame_offset", str(ex)) from ex
-    alpha = t.get("self_calibration", "alpha", (int, float), d.alpha)
-    if not 0 < alpha < 1:
-        raise t.err("self_calibration", "alpha", f"must lie between 0 and 1, got {alpha!r}")
-    lines_raw = t.get("self_calibration", "gnss_lines", dict, None)
-    lines: dict[str, str] | None = None
-    if lines_raw is not None:
-        lines = {}
-        for label, photos in lines_raw.items():
-            if not isinstance(photos, list) or not all(isinstance(v, str) for v in photos):
-                raise t.err("self_calibration", "gnss_lines", f"line {label!r} must be a list of photo ids "
-                            f"(strings), got {photos!r}")
-            for ph in photos:
-                if ph not in survey.photo_ids:
-                    raise t.err("self_calibration", "gnss_lines", f"line {label!r}: photo {ph!r} is not in "
-                                "photos.csv")
-                if ph in lines:
-                    raise t.err("self_calibration", "gnss_lines", f"photo {ph!r} is in lines {lines[ph]!r} "
-                                f"and {label!r}; a photo belongs to one line")
-                lines[ph] = str(label)
-    return SelfCalSettings(parsed, t.get("self_calibration", "use_priors", bool, True), offset,
-                           t.get("self_calibration", "similarity", bool, False),
-                           t.get("self_calibration", "control", str, None), float(alpha), lines,
-                           t.get("self_calibration", "gnss_drift", bool, False))
+    """The ``[self_calibration]`` table of the survey (parsed and checked by :meth:`Survey.load`)."""
+    return survey.config.self_calibration
 
 
 def combined_control_set(survey, name: str | None):
@@ -296,7 +222,7 @@ def selfcal_adjust(survey=None, *, control: str | None = None, self_calibrate: s
         st = dataclasses.replace(
             st,
             parameters=parse_parameters(self_calibrate) if self_calibrate else st.parameters,
-            frame_offset=_split_offset(frame_offset) if frame_offset else st.frame_offset,
+            frame_offset=split_frame_offset(frame_offset) if frame_offset else st.frame_offset,
             similarity=st.similarity if similarity is None else bool(similarity))
     except ValueError as ex:
         raise SurveyError(str(ex)) from ex
@@ -312,9 +238,7 @@ def selfcal_adjust(survey=None, *, control: str | None = None, self_calibrate: s
                                   eo_constraints=eo_constraints or bool(st.gnss_lines))
     held = problem.eo_constraint_photo_index
     if st.gnss_lines and (held is None or not len(held)):
-        from .folder import _Toml
-
-        raise _Toml(survey.toml_path).err(
+        raise survey.config.error(
             "self_calibration", "gnss_lines", f"GNSS line offsets act on constrained camera positions, but no "
             f"photo of {survey.files['photos']} has X0, Y0, Z0 with sd_X0, sd_Y0, sd_Z0")
     settings = survey.settings
@@ -331,14 +255,14 @@ def write_selfcal(res: SelfCalResult, folder, extra: dict | None = None, provena
     *provenance* of :func:`lidarcat.survey.adjustment.survey_provenance`).  Returns the summary written."""
     from pathlib import Path
 
-    from .adjustment import _write_point_covariance, write_adjustment
+    from .adjustment import write_adjustment, write_point_covariance
 
     folder = Path(folder)
     summary = write_adjustment(res.bundle, folder, extra={**(extra or {}), **res.summary()},
                                provenance=provenance)
     if (folder / "check_covariance.csv").is_file():       # add the additional parameters' rank-k term
         checks = [str(q) for q, r in zip(res.bundle.point_ids, res.bundle.point_role) if r == "check"]
-        _write_point_covariance(
+        write_point_covariance(
             folder / "check_covariance.csv", checks, res.joint_point_covariance(checks),
             "joint covariance of the check points' adjusted E, N, h (m^2), cross-covariances and the "
             "uncertainty of the additional parameters included: c_XY = Cov(X of point_a, Y of "
