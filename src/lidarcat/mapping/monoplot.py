@@ -195,10 +195,21 @@ class GridSurface(_Surface):
     @classmethod
     def from_geotiff(cls, path: str | os.PathLike, interpolator: str = "bilinear",
                      sd_m: float = 0.15) -> GridSurface:
-        """Read a float32 GeoTIFF written by :func:`lidarcat.lidar.write_geotiff` (``lidarcat lidar raster``)."""
-        from ..lidar.raster import read_geotiff
+        """Read a DSM/DTM GeoTIFF: any that GDAL reads (compressed, tiled, BigTIFF, any data type).
+
+        Through :func:`lidarcat.lidar.geotiff.read_geotiff`: the file's nodata
+        cells are NaN; heights in the file's vertical unit (metres expected).
+
+        Raises
+        ------
+        MonoplotError
+            The file holds more than one band (an image, not heights).
+        """
+        from ..lidar.geotiff import read_geotiff
 
         grid, transform, _ = read_geotiff(path)
+        if grid.ndim != 2:
+            raise MonoplotError(f"{path}: {grid.shape[2]} bands; a surface model has one band of heights")
         return cls(grid, transform, interpolator, sd_m)
 
     @property
