@@ -22,8 +22,8 @@ One profile for every writer (:func:`write_geotiff` for a whole array,
   every data type; the floating-point predictor (3) gives no smaller files on
   lidarcat's products (docs/production.md, "GeoTIFF files") and cannot be
   read by TIFF readers without its codec;
-- float grids as float32 (float64 kept), nodata NaN; 8- and 16-bit images
-  (the hypsometric RGB) as they are, without nodata; three bands are RGB;
+- float grids as float32, nodata NaN; integer images (the hypsometric RGB,
+  uint8) as they are, without nodata; three bands are RGB;
 - the CRS exactly as given: a CRS that *is* an EPSG code (pyproj finds it with
   full confidence) is written by its code, so a compound CRS such as
   EPSG:7415 (RD New + NAP height) keeps it (GeoKeys 28992 and 5709 that GDAL
@@ -140,14 +140,12 @@ def _profile(rows: int, cols: int, bands: int, dtype: np.dtype, transform: GeoTr
 
 
 def _values(array: np.ndarray) -> np.ndarray:
-    """(bands, rows, cols) in the written data type: floats as float32 (float64 kept), integers as they are."""
+    """(bands, rows, cols) in the written data type: floats (and booleans) as float32, integers as they are."""
     a = np.asarray(array)
     if a.ndim not in (2, 3) or a.size == 0:
         raise ValueError(f"grid must be a non-empty (rows, cols) or (rows, cols, bands) array, got shape {a.shape}")
-    if a.dtype.kind == "b" or a.dtype.kind not in "fiu":
-        a = a.astype(np.float32)
-    elif a.dtype.kind == "f" and a.dtype != np.float64:
-        a = a.astype(np.float32)
+    if a.dtype.kind not in "iu":
+        a = a.astype(np.float32, copy=False)
     return a[None] if a.ndim == 2 else np.moveaxis(a, 2, 0)
 
 
@@ -184,8 +182,8 @@ def write_geotiff(path: str | os.PathLike, grid: np.ndarray, transform: GeoTrans
     path : path-like
         Output ``.tif``.
     grid : ndarray, shape (rows, cols) or (rows, cols, bands)
-        Values; floats are written as float32 (float64 kept) with NaN as
-        nodata, integers (e.g. an RGB uint8 image) as they are.
+        Values; floats are written as float32 with NaN as nodata, integers
+        (e.g. an RGB uint8 image) as they are.
     transform : GeoTransform
     crs : CRS-like, optional
         Written as given (EPSG code kept, compound CRSs included).

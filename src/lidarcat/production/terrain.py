@@ -349,8 +349,7 @@ def write_product(path: str | os.PathLike, array: np.ndarray, transform: GeoTran
     512 x 512, DEFLATE, cloud-optimised, float grids as float32 with nodata
     NaN, the CRS as given (EPSG codes of compound CRSs kept).
     """
-    a = np.asarray(array)
-    return write_geotiff(path, a.astype(np.float32) if a.ndim == 2 else a, transform, crs)
+    return write_geotiff(path, array, transform, crs)
 
 
 def write_text_grid(path: str | os.PathLike, grid: np.ndarray, transform: GeoTransform, *,
