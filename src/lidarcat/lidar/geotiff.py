@@ -167,6 +167,9 @@ def _atomic_target(path: Path) -> Iterator[Path]:
         raise
 
 
+_CREATION_OPTIONS = ("driver", "compress", "predictor", "bigtiff", "blocksize")   # what a COG copy takes
+
+
 def _cog_options(profile: dict[str, Any]) -> dict[str, Any]:
     """The COG driver's spelling of the profile (it tiles by BLOCKSIZE and takes no PHOTOMETRIC)."""
     opts = {k: v for k, v in profile.items() if k not in ("photometric",)}
@@ -301,7 +304,8 @@ class GeoTiffWriter:
             import rasterio.shutil
 
             self._dst.close()
-            rasterio.shutil.copy(self._tiled, self._final, **_cog_options(self._profile))
+            opts = {k: v for k, v in _cog_options(self._profile).items() if k in _CREATION_OPTIONS}
+            rasterio.shutil.copy(self._tiled, self._final, **opts)
         except BaseException as ex:
             self._stack.__exit__(type(ex), ex, ex.__traceback__)
             raise
