@@ -111,3 +111,18 @@ def test_dem_of_another_program_is_read_by_ortho_and_monoplot(survey, tmp_path, 
     got_m, status = _monoplot_csv(root, tmp_path / name, _px(xyz, EO_A), tmp_path / "m.csv")
     assert status == ["ok"] * 3
     np.testing.assert_allclose(got_m, xyz, atol=0.02)
+
+
+def test_surface_in_another_crs_is_refused_when_a_crs_is_expected(tmp_path):
+    from lidarcat.lidar.geotiff import write_geotiff
+    from lidarcat.mapping.monoplot import MonoplotError
+
+    g = np.ones((4, 4), np.float32)
+    write_geotiff(tmp_path / "rd.tif", g, GeoTransform(85000.0, 447500.0, 1.0), "EPSG:7415")
+    assert GridSurface.from_geotiff(tmp_path / "rd.tif", crs="EPSG:28992").transform.x0 == 85000.0  # RD New + NAP
+    with pytest.raises(MonoplotError, match=r"rd\.tif: the surface model is in EPSG:7415 .*, not in EPSG:31982 "
+                                            r".*; reproject it"):
+        GridSurface.from_geotiff(tmp_path / "rd.tif", crs=CRS)
+    write_geotiff(tmp_path / "rgb.tif", np.zeros((4, 4, 3), np.uint8), GeoTransform(0.0, 4.0, 1.0), CRS)
+    with pytest.raises(MonoplotError, match=r"rgb\.tif: 3 bands; a surface model has one band of heights"):
+        GridSurface.from_geotiff(tmp_path / "rgb.tif")
