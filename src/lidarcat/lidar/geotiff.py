@@ -59,7 +59,7 @@ __all__ = ["GeoTransform", "write_geotiff", "read_geotiff", "GeoTiffWriter", "ge
 
 #: tile edge of every written GeoTIFF, pixels
 BLOCK_PX = 512
-_STREAM_CACHE_BYTES = 64 << 20   # GDAL block cache while streaming: full tiles go to disk, memory stays bounded
+_STREAM_CACHE_MB = 64   # GDAL block cache while streaming (MB): full tiles go to disk, memory stays bounded
 
 
 class GeoTransform(NamedTuple):
@@ -256,7 +256,7 @@ class GeoTiffWriter:
             os.close(fd)
             self._tiled = Path(name)
             stack.callback(self._tiled.unlink, missing_ok=True)
-            stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_STREAM_CACHE_BYTES))
+            stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_STREAM_CACHE_MB))
             self._dst = stack.enter_context(rasterio.open(
                 self._tiled, "w", driver="GTiff", tiled=True, blockxsize=BLOCK_PX, blockysize=BLOCK_PX,
                 interleave="pixel", **self._profile))
