@@ -30,7 +30,8 @@ from lidarcat.lidar import (
     write_geotiff,
     write_points,
 )
-from lidarcat.lidar.raster import read_geotiff, write_png_preview
+from lidarcat.lidar.geotiff import read_geotiff
+from lidarcat.lidar.raster import write_png_preview
 
 AHN1 = LIDAR_DATA / "ahn3_cropped_1.laz"
 AHN2 = LIDAR_DATA / "ahn3_cropped_2.laz"
@@ -549,7 +550,7 @@ def test_geotiff_round_trip_and_tags(tmp_path):
     PIL = pytest.importorskip("PIL.Image")
     im = PIL.open(p)  # an independent TIFF reader
     assert im.size == (4, 3) and im.mode == "F"
-    assert tuple(im.tag_v2[33550]) == (0.5, 0.5, 0.0)
+    assert tuple(im.tag_v2[33550]) == (0.5, 0.5, 1.0)   # GDAL: Z scale 1 with a vertical CRS (was 0)
     assert tuple(im.tag_v2[33922]) == (0.0, 0.0, 0.0, 84800.0, 447650.0, 0.0)
     keys = list(im.tag_v2[34735])
     assert [3072, 0, 1, 28992] == keys[keys.index(3072):keys.index(3072) + 4]
@@ -557,13 +558,14 @@ def test_geotiff_round_trip_and_tags(tmp_path):
     np.testing.assert_array_equal(np.asarray(im)[2], grid[2])
 
 
-def test_geotiff_without_epsg_writes_wkt_sidecar(tmp_path):
+def test_geotiff_without_epsg_keeps_the_crs_in_its_geokeys(tmp_path):
+    """A CRS without an EPSG code round-trips (GDAL's user-defined GeoKeys; no sidecar needed any more)."""
     crs = pyproj.CRS.from_proj4("+proj=tmerc +lat_0=0 +lon_0=-51 +k=0.9996 +x_0=500000 +y_0=10000000 "
                                 "+ellps=GRS80 +units=m +no_defs")
     from lidarcat.lidar import GeoTransform
 
     p = write_geotiff(tmp_path / "u.tif", np.ones((2, 2), np.float32), GeoTransform(0, 10, 1), crs)
-    assert (tmp_path / "u.tif.aux.xml").exists()
+    assert not (tmp_path / "u.tif.aux.xml").exists()
     assert read_geotiff(p)[2].equals(crs)
 
 

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from lidarcat.geometry.collinearity import project
 from lidarcat.cli.main import cli
 from lidarcat.lidar import PointCloud, resolve_crs, write_points
-from lidarcat.lidar.raster import write_geotiff
+from lidarcat.lidar.geotiff import write_geotiff
 from lidarcat.synthetic.scene import demo_scene
 
 from test_ortho import CAM, E0, EO_A, EO_B, MODEL_BOUNDS, N0  # noqa: I001  (same camera and photos)

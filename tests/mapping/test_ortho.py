@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lidarcat.geometry.camera import Camera
-from lidarcat.lidar.raster import read_geotiff
+from lidarcat.lidar.geotiff import read_geotiff
 from lidarcat.mapping.monoplot import GridSurface, PointSurface
 from lidarcat.mapping.mosaic import mosaic
 from lidarcat.mapping.ortho import OrthoError, PhotoModel, orthophoto

@@ -81,15 +81,17 @@ def test_ndsm_and_outputs(tmp_path):
     assert txt.read_text().splitlines() == ["E N H", "85000.250 447499.750 4.000"]
 
 
-def test_rgb_product_without_rasterio_is_a_located_lidarcat_error(tmp_path, monkeypatch):
-    from lidarcat.production import terrain
-    from lidarcat.errors import FormatError
+def test_rgb_product_is_an_rgb_geotiff_whatever_is_installed(tmp_path):
+    """One writer (rasterio, a core dependency): an RGB image is written, uint8, 3 bands, CRS kept."""
+    import rasterio
 
-    monkeypatch.setattr(terrain, "HAVE_RASTERIO", False)
-    rgb = np.zeros((2, 3, 3), dtype=np.uint8)
-    with pytest.raises(FormatError, match=r"h\.tif: writing RGB GeoTIFFs needs rasterio: pip install 'lidarcat\[geo\]'"):
-        write_product(tmp_path / "h.tif", rgb, GeoTransform(0.0, 2.0, 1.0), "EPSG:7415")
-    assert list(tmp_path.iterdir()) == []
+    rgb = np.arange(18, dtype=np.uint8).reshape(2, 3, 3)
+    p = write_product(tmp_path / "h.tif", rgb, GeoTransform(0.0, 2.0, 1.0), "EPSG:7415")
+    with rasterio.open(p) as d:
+        assert (d.count, d.dtypes, d.crs.to_epsg(), d.nodata) == (3, ("uint8",) * 3, 7415, None)
+        assert [c.name for c in d.colorinterp] == ["red", "green", "blue"]
+        np.testing.assert_array_equal(np.moveaxis(d.read(), 0, 2), rgb)
+    assert [q.name for q in tmp_path.iterdir()] == ["h.tif"]
 
 
 def test_tin_grid_needs_points():

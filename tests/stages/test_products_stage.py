@@ -9,7 +9,6 @@ import pytest
 
 from lidarcat.errors import SurveyError
 from lidarcat.lidar import PointCloud, read_points, resolve_crs, write_points
-from lidarcat.lidar.raster import read_geotiff
 from lidarcat.pipeline.plan import plan_pipeline
 from lidarcat.pipeline.runner import run_stages
 from lidarcat.stages import products
@@ -24,13 +23,9 @@ BASE = (f'[survey]\nname = "products"\ncrs = "{CRS}"\n\n[files]\ncamera = "camer
 
 
 def _raster(path):
-    """Grid, GeoTransform and EPSG code of a GeoTIFF (rasterio when installed: COG; else lidarcat's reader)."""
+    """Grid, GeoTransform and EPSG code of a GeoTIFF (read by rasterio: a COG)."""
     from lidarcat.lidar.raster import GeoTransform
-    from lidarcat.production.terrain import HAVE_RASTERIO
 
-    if not HAVE_RASTERIO:
-        grid, t, crs = read_geotiff(path)
-        return grid, t, crs.to_epsg() if crs is not None else None
     import rasterio
 
     with rasterio.open(path) as ds:

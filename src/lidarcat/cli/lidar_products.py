@@ -287,13 +287,10 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
       lidarcat lidar sheets dtm.tif curvas.geojson -o folhas/ --index brazil-5000 --crs EPSG:31983
       lidarcat lidar sheets dtm.tif curvas.gpkg -o folhas/ --index brazil-2000 --layer-format gpkg
     """
-    import rasterio
-    import rasterio.errors
-
     from .._util import atomic_dir
-    from ..errors import FormatError
+    from ..errors import FormatError, LidarcatError
+    from ..lidar.geotiff import read_geotiff
     from ..production.contours import read_line_layer, write_layers
-    from ..lidar.raster import GeoTransform
     from ..production.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
     from ..production.terrain import write_product
 
@@ -303,14 +300,11 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
     for p in map(Path, products):
         if p.suffix.lower() in (".tif", ".tiff"):
             try:
-                with rasterio.open(p) as ds:
-                    arr = ds.read()
-                    arr = arr[0] if arr.shape[0] == 1 else np.moveaxis(arr, 0, 2)
-                    t = GeoTransform(ds.transform.c, ds.transform.f, ds.transform.a)
-                    crs = crs or (ds.crs.to_wkt() if ds.crs else None)
-                    b = tuple(ds.bounds)  # left, bottom, right, top
-            except rasterio.errors.RasterioError as ex:
+                arr, t, rcrs = read_geotiff(p, raw=True)   # cut and written back as stored
+            except LidarcatError as ex:
                 raise FormatError(f"{p}: not a readable GeoTIFF ({ex})") from ex
+            crs = crs or (rcrs.to_wkt() if rcrs is not None else None)
+            b = (t.x0, t.y0 - arr.shape[0] * t.cell_m, t.x0 + arr.shape[1] * t.cell_m, t.y0)
             rasters.append((p, arr, t))
         elif p.suffix.lower() in (".geojson", ".json", ".gpkg"):
             feats, vcrs = read_line_layer(p)

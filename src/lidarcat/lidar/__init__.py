@@ -7,6 +7,7 @@
 :mod:`.tileindex`   :class:`TileIndex`: bounds per tile, radius/box/polygon queries
 :mod:`.clipping`    :func:`clip`: points around a roof with height pre-filters
 :mod:`.raster`      :func:`rasterize` (intensity, DSM, DTM), GeoTIFF and PNG output
+:mod:`.geotiff`     :func:`read_geotiff`, :func:`write_geotiff`: the one raster I/O (rasterio)
 :mod:`.info`        :func:`describe`: counts, bounds, density, classes, returns
 :mod:`.copc`        COPC tiles read by their octree: only the nodes a query box meets
 :mod:`.jobs`        the tile engine: a function over tiles with overlap, serial or on Dask, resumable
@@ -32,7 +33,8 @@ from .clipping import HEIGHT_FILTERS, clip, height_window_mask
 from .crs import (check_area_of_use, common_crs, crs_compatible, crs_label, horizontal_unit, require_metres,
                   resolve_crs, transform_points, units_are_metres)
 from .info import describe
-from .raster import GeoTransform, rasterize, write_geotiff, write_png_preview, write_raster
+from .geotiff import GeoTransform, read_geotiff, write_geotiff
+from .raster import rasterize, write_png_preview, write_raster
 from .readers import FileHeader, iter_points, read_header, read_points, write_points
 from .tileindex import BlockIndex, Tile, TileIndex, expand_paths, in_box, in_polygon, in_radius
 
@@ -43,6 +45,6 @@ __all__ = [
     "horizontal_unit", "units_are_metres", "require_metres", "check_area_of_use",
     "TileIndex", "Tile", "BlockIndex", "expand_paths", "in_radius", "in_box", "in_polygon",
     "clip", "height_window_mask", "HEIGHT_FILTERS",
-    "rasterize", "GeoTransform", "write_geotiff", "write_png_preview", "write_raster",
+    "rasterize", "GeoTransform", "write_geotiff", "read_geotiff", "write_png_preview", "write_raster",
     "describe",
 ]

@@ -19,7 +19,7 @@ a query decodes those chunks and nothing else.
 LAS/LAZ readers (:mod:`lidarcat.lidar.readers`):
 
 * the fixed header is checked against the file size first
-  (``readers._precheck_las``, through ``readers._open_checked``, which also
+  (``_las.precheck_las``, through ``_las.open_checked``, which also
   settles the CRS);
 * every byte laspy reads goes through a guard that refuses a read past the
   end of the file or a negative size, so a hierarchy entry pointing outside
@@ -60,6 +60,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import LidarFormatError
+from ._las import (LAS_ATTRIBUTES, MAX_LAZ_POINTS_PER_BYTE, check_coords, decoder_error, las_record_cloud,
+                   layered_items_only_point14, open_checked)
 from .cloud import PointCloud
 
 __all__ = ["is_copc", "read_copc_box", "CopcRead", "COPC_INFO_BYTES"]
@@ -162,14 +164,13 @@ class _Guarded(io.RawIOBase):
 @contextlib.contextmanager
 def _located(path: Path, what: str) -> Iterator[None]:
     """Turn any failure inside laspy/lazrs (a Rust panic included) into a LidarFormatError naming *path*."""
-    from .readers import _decoder_error
 
     try:
         yield
     except LidarFormatError:
         raise
     except BaseException as ex:  # LaspyException, struct.error, ValueError, lazrs errors and panics
-        raise _decoder_error(path, ex, what) from ex   # re-raises KeyboardInterrupt & co. unchanged
+        raise decoder_error(path, ex, what) from ex   # re-raises KeyboardInterrupt & co. unchanged
 
 
 def _node_name(key: Any) -> str:
@@ -211,7 +212,6 @@ def _check_chunk_heads(path: Path, stream: Any, nodes: list[Any], rec_len: int, 
 
 def _check_nodes(path: Path, nodes: list[Any], header: Any, size: int) -> None:
     """Every selected node's chunk lies in the point data and holds a believable number of points."""
-    from .readers import _MAX_LAZ_POINTS_PER_BYTE
 
     start = int(header.offset_to_point_data)
     end = int(header.start_of_first_evlr) if int(getattr(header, "number_of_evlrs", 0) or 0) else size
@@ -227,7 +227,7 @@ def _check_nodes(path: Path, nodes: list[Any], header: Any, size: int) -> None:
         if off < start or off + nb > end:
             raise LidarFormatError(f"{where}: its chunk (byte {off:,}, {nb:,} bytes) lies outside the point "
                                    f"data (bytes {start:,}..{end:,})")
-        if n > _MAX_LAZ_POINTS_PER_BYTE * nb:
+        if n > MAX_LAZ_POINTS_PER_BYTE * nb:
             raise LidarFormatError(f"{where} claims {n:,} points in {nb:,} compressed bytes")
         total += n
     if total > int(header.point_count):
@@ -264,11 +264,10 @@ def read_copc_box(path: str | os.PathLike, box: tuple[float, float, float, float
     import laspy
     from laspy.copc import Bounds, load_octree_for_query
 
-    from .readers import _check_coords, _las_record_cloud, _layered_items_only_point14, _open_checked
 
     path = Path(path)
     xmin, ymin, xmax, ymax = map(float, box)
-    reader, file_crs, _ = _open_checked(path, crs)    # header prechecks, CRS record
+    reader, file_crs, _ = open_checked(path, crs)    # header prechecks, CRS record
     with reader:
         header = reader.header
         scales, offsets = np.asarray(header.scales, float), np.asarray(header.offsets, float)
@@ -292,15 +291,15 @@ def read_copc_box(path: str | os.PathLike, box: tuple[float, float, float, float
             _check_entries(path, copc.root_page.entries.values())
             _check_nodes(path, nodes, copc.header, size)
             _check_chunk_heads(path, stream, nodes, int(copc.header.point_format.size),
-                               _layered_items_only_point14(copc.laszip_vlr.record_data))
+                               layered_items_only_point14(copc.laszip_vlr.record_data))
             rec = copc.query(bounds=query) if nodes else None
         known = len(copc.root_page.entries)
         bytes_read = stream.bytes_read
     if rec is None or len(rec) == 0:
         cloud = PointCloud.empty(_attributes(header), file_crs)
     else:
-        cloud = _las_record_cloud(rec, header, file_crs, 0, path)
-        _check_coords(path, cloud.xyz, 0)
+        cloud = las_record_cloud(rec, header, file_crs, 0, path)
+        check_coords(path, cloud.xyz, 0)
         x, y = cloud.xyz[:, 0], cloud.xyz[:, 1]
         keep = (x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax)
         if not keep.all():
@@ -310,7 +309,6 @@ def read_copc_box(path: str | os.PathLike, box: tuple[float, float, float, float
 
 
 def _attributes(header: Any) -> tuple[str, ...]:
-    from .readers import _LAS_ATTRIBUTES
 
     names = set(header.point_format.dimension_names)
-    return tuple(a for a in _LAS_ATTRIBUTES if a in names)
+    return tuple(a for a in LAS_ATTRIBUTES if a in names)

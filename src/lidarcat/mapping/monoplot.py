@@ -194,11 +194,30 @@ class GridSurface(_Surface):
 
     @classmethod
     def from_geotiff(cls, path: str | os.PathLike, interpolator: str = "bilinear",
-                     sd_m: float = 0.15) -> GridSurface:
-        """Read a float32 GeoTIFF written by :func:`lidarcat.lidar.write_geotiff` (``lidarcat lidar raster``)."""
-        from ..lidar.raster import read_geotiff
+                     sd_m: float = 0.15, *, crs: Any = None) -> GridSurface:
+        """Read a DSM/DTM GeoTIFF: any that GDAL reads (compressed, tiled, BigTIFF, any data type).
 
-        grid, transform, _ = read_geotiff(path)
+        Through :func:`lidarcat.lidar.geotiff.read_geotiff`: the file's nodata
+        cells are NaN; heights in the file's vertical unit (metres expected).
+        With *crs* (CRS-like, e.g. the survey's), a file labelled with another
+        CRS is refused (a file without a CRS is taken as in *crs*).
+
+        Raises
+        ------
+        MonoplotError
+            The file holds more than one band (an image, not heights), or its
+            CRS is not compatible with *crs*.
+        """
+        from ..lidar.crs import crs_compatible, crs_label, resolve_crs
+        from ..lidar.geotiff import read_geotiff
+
+        grid, transform, file_crs = read_geotiff(path)
+        if grid.ndim != 2:
+            raise MonoplotError(f"{path}: {grid.shape[2]} bands; a surface model has one band of heights")
+        want = resolve_crs(crs)
+        if want is not None and file_crs is not None and not crs_compatible(file_crs, want):
+            raise MonoplotError(f"{path}: the surface model is in {crs_label(file_crs)}, not in "
+                                f"{crs_label(want)}; reproject it (e.g. gdalwarp -t_srs)")
         return cls(grid, transform, interpolator, sd_m)
 
     @property

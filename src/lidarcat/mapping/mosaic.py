@@ -50,7 +50,8 @@ from typing import Any
 import numpy as np
 
 from .._util import write_text_atomic
-from .ortho import OrthoError, PhotoModel, _run_bands, _tile_cells, _ZBuffer, output_grid, sample_photo
+from ._raster_cells import ZBuffer, run_bands, tile_cells
+from .ortho import OrthoError, PhotoModel, output_grid, sample_photo
 
 __all__ = ["MosaicResult", "mosaic", "seam_polygons"]
 
@@ -165,7 +166,7 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
     bounds = _union_bounds(photos, surface) if bounds is None else bounds
     transform, rows, cols = output_grid(bounds, gsd_m)
     full = (transform.x0, transform.y0 - rows * gsd_m, transform.x0 + cols * gsd_m, transform.y0)
-    zbufs = [_ZBuffer(p, surface, full) if true_ortho else None for p in photos]
+    zbufs = [ZBuffer(p, surface, full) if true_ortho else None for p in photos]
     bands = photos[0].bands
     k = max(1, int(math.ceil(math.sqrt(rows * cols / _MAX_LABEL_CELLS))))
     labels = np.full(((rows + k - 1) // k, (cols + k - 1) // k), -1, dtype=np.int16)
@@ -178,7 +179,7 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
         for c0 in range(0, cols, tile_px):
             c1 = min(cols, c0 + tile_px)
             b = margin
-            e, n = _tile_cells(transform, r0 - b, r1 + b, c0 - b, c1 + b)
+            e, n = tile_cells(transform, r0 - b, r1 + b, c0 - b, c1 + b)
             best = np.full(e.shape, np.inf)
             choice = np.full(e.shape, -1, dtype=np.int16)
             vals_out = np.full(e.shape + (bands,), np.nan, dtype=np.float32)
@@ -204,10 +205,10 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
             labels[rr[sr][:, None] // k, cc[sc][None, :] // k] = choice[np.ix_(sr, sc)]
         return band
 
-    out_arr = _run_bands(compute, rows, cols, bands, tile_px, path, transform, crs, preview, progress)
+    out_arr = run_bands(compute, rows, cols, bands, tile_px, path, transform, crs, preview, progress)
     if seams_path is not None:
         seams_path = Path(seams_path)
-        from ..lidar.raster import GeoTransform
+        from ..lidar.geotiff import GeoTransform
 
         lt = GeoTransform(transform.x0, transform.y0, transform.cell_m * k)
         write_text_atomic(seams_path, json.dumps(seam_polygons(labels, lt, [p.photo_id for p in photos], crs)))

@@ -37,10 +37,10 @@ The output is computed in row bands of at most ``tile_px`` rows (and
 ``tile_px``-wide tiles within a band) and streamed into the GeoTIFF: the whole
 output grid is never in memory, only the photo, the z-buffer (one value per
 ``b x b`` photo pixels) and one band.  The GeoTIFF (float32, 1 or 3 bands,
-NaN = nodata, the GeoTIFF tags of :mod:`lidarcat.lidar.raster`) is written
-by a thin streaming helper here, because :func:`lidarcat.lidar.write_geotiff`
-takes the whole grid at once; its georeferencing keys are the same function's.
-A PNG preview (at most 2000 px on a side, nodata black) goes next to it.
+NaN = nodata) is written by :class:`lidarcat.lidar.geotiff.GeoTiffWriter`, the
+streaming form of the one raster writer (tiled, DEFLATE, cloud-optimised, the
+CRS as given).  A PNG preview (at most 2000 px on a side, nodata black) goes
+next to it.
 """
 
 from __future__ import annotations
@@ -48,8 +48,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-import struct
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -57,12 +56,16 @@ from typing import Any
 import numpy as np
 
 from ..geometry.collinearity import rotation_matrix
-from .._util import atomic_write
 from ..geometry.camera import Camera
 from ..errors import LidarcatError
+from ..lidar.geotiff import GeoTiffWriter
+from ._raster_cells import ZBuffer, run_bands, tile_cells
 
 __all__ = ["OrthoError", "PhotoModel", "OrthoResult", "orthophoto", "output_grid", "DistortionLUT",
-           "GeoTiffStream"]
+           "sample_photo", "GeoTiffStream"]
+
+#: the streaming GeoTIFF writer, by its name before issue 23 (:class:`lidarcat.lidar.geotiff.GeoTiffWriter`)
+GeoTiffStream = GeoTiffWriter
 
 log = logging.getLogger(__name__)
 
@@ -203,152 +206,10 @@ class PhotoModel:
         return out
 
 
-class _ZBuffer:
-    """Smallest depth per bin of photo pixels, from the DSM cells around the output area."""
-
-    def __init__(self, photo: PhotoModel, surface: Any, bounds: Sequence[float], tol_m: float | None = None):
-        import cv2
-
-        cell = float(surface.transform.cell_m)
-        cam = photo.camera
-        height = photo.eo_params[2] - float(np.nanmedian(surface.grid))
-        gsd_photo = cam.pixel_size_x_mm * height / cam.focal_length_mm
-        self.bin = max(1, int(math.ceil(cell / max(gsd_photo, 1e-9))))
-        self.tol = 3.0 * cell if tol_m is None else float(tol_m)
-        nb_r = cam.rows_px // self.bin + 3   # bins -1 .. N/bin + 1 (projections up to a bin off the frame)
-        nb_c = cam.columns_px // self.bin + 3
-        z = np.full(nb_r * nb_c, np.inf)
-        t = surface.transform
-        g = surface.grid
-        xmin, ymin, xmax, ymax = bounds
-        margin = 60.0
-        c0 = max(0, int((xmin - margin - t.x0) / cell))
-        c1 = min(g.shape[1], int(math.ceil((xmax + margin - t.x0) / cell)))
-        r0 = max(0, int((t.y0 - ymax - margin) / cell))
-        r1 = min(g.shape[0], int(math.ceil((t.y0 - ymin + margin) / cell)))
-        cols = np.arange(c0, c1)
-        for rs in range(r0, r1, 256):
-            rows = np.arange(rs, min(rs + 256, r1))
-            e, n = t.xy(rows[:, None], cols[None, :])
-            e, n = np.broadcast_arrays(e, n)
-            h = g[rows[:, None], cols[None, :]]
-            ok = np.isfinite(h)
-            col, row, depth = photo.project(e[ok], n[ok], h[ok])
-            keep = np.isfinite(col) & (col > -self.bin) & (row > -self.bin) \
-                & (col < cam.columns_px + self.bin) & (row < cam.rows_px + self.bin)
-            bi = (np.floor(row[keep] / self.bin).astype(np.int64) + 1) * nb_c \
-                + np.floor(col[keep] / self.bin).astype(np.int64) + 1
-            np.minimum.at(z, bi, depth[keep])
-        z = z.reshape(nb_r, nb_c).astype(np.float32)
-        filled = cv2.erode(np.where(np.isinf(z), np.float32(3e38), z), np.ones((3, 3), np.uint8))
-        self.z = np.where(np.isinf(z), filled, z)
-        self.nb_c = nb_c
-
-    def visible(self, col: np.ndarray, row: np.ndarray, depth: np.ndarray) -> np.ndarray:
-        r = np.floor(row / self.bin).astype(np.int64) + 1
-        c = np.floor(col / self.bin).astype(np.int64) + 1
-        r = np.clip(r, 0, self.z.shape[0] - 1)
-        c = np.clip(c, 0, self.z.shape[1] - 1)
-        return depth <= self.z[r, c] + self.tol
-
-
-# ---------------------------------------------------------------------------- GeoTIFF stream
-class GeoTiffStream:
-    """Write a float32 GeoTIFF band by band (rows top to bottom), atomically.
-
-    The layout and georeferencing tags are those of
-    :func:`lidarcat.lidar.write_geotiff` (which needs the whole grid at once),
-    plus ``SamplesPerPixel = bands`` (RGB photometric for 3 bands, pixel
-    interleaved).  Use as a context manager; :meth:`write_rows` must be
-    called with consecutive row blocks; the file appears only on a clean exit.
-    """
-
-    def __init__(self, path: str | os.PathLike, shape: tuple[int, int], bands: int, transform: Any,
-                 crs: Any = None, rows_per_strip: int = 256) -> None:
-        from ..lidar.crs import resolve_crs
-
-        self.path = Path(path)
-        self.rows, self.cols = (int(v) for v in shape)
-        self.bands = int(bands)
-        self.transform = transform
-        self.crs = resolve_crs(crs) if crs is not None else None
-        self.rps = max(1, int(rows_per_strip))
-        self._row = 0
-        self._cm: Any = None
-        self._fh: Any = None
-
-    def __enter__(self) -> GeoTiffStream:
-        from ..lidar.raster import _geotiff_ifd  # the same tags as write_geotiff
-
-        row_bytes = self.cols * self.bands * 4
-        data_bytes = self.rows * row_bytes
-        if data_bytes + 8 > 2**32 - 2**20:
-            raise OrthoError(f"{self.path}: {self.cols} x {self.rows} x {self.bands} float32 is too large "
-                             f"for a classic TIFF (4 GB); use a coarser --gsd or a smaller area")
-        nstrips = (self.rows + self.rps - 1) // self.rps
-        offsets = [8 + k * self.rps * row_bytes for k in range(nstrips)]
-        counts = [min(self.rps, self.rows - k * self.rps) * row_bytes for k in range(nstrips)]
-        ifd_offset = 8 + data_bytes + (data_bytes % 2)
-        ifd, self._sidecar = _geotiff_ifd(self.cols, self.rows, self.bands, self.rps, offsets, counts,
-                                          self.transform, self.crs, ifd_offset)
-        self._tail = (b"\x00" * (data_bytes % 2)) + ifd
-        self._cm = atomic_write(self.path, "wb")
-        self._fh = self._cm.__enter__()
-        self._fh.write(b"II" + struct.pack("<HI", 42, ifd_offset))
-        return self
-
-    def write_rows(self, block: np.ndarray) -> None:
-        """Append rows: (k, cols) or (k, cols, bands) values (cast to little-endian float32)."""
-        b = np.asarray(block, dtype="<f4")
-        if b.ndim == 2:
-            b = b[:, :, None]
-        if b.shape[1:] != (self.cols, self.bands) or self._row + b.shape[0] > self.rows:
-            raise OrthoError(f"{self.path}: row block of shape {b.shape} does not fit a "
-                             f"{self.rows} x {self.cols} x {self.bands} grid at row {self._row}")
-        self._fh.write(np.ascontiguousarray(b).tobytes())
-        self._row += b.shape[0]
-
-    def __exit__(self, et: Any, ev: Any, tb: Any) -> bool:
-        if et is None and self._row != self.rows:
-            et = OrthoError
-            ev = OrthoError(f"{self.path}: only {self._row} of {self.rows} rows written")
-            self._cm.__exit__(et, ev, None)          # removes the temporary file
-            raise ev
-        if et is None:
-            self._fh.write(self._tail)
-        self._cm.__exit__(et, ev, tb)
-        if et is None and self._sidecar and self.crs is not None:
-            from xml.sax.saxutils import escape
-
-            from .._util import write_text_atomic
-
-            write_text_atomic(self.path.with_name(self.path.name + ".aux.xml"),
-                              f"<PAMDataset>\n  <SRS>{escape(self.crs.to_wkt())}</SRS>\n</PAMDataset>\n")
-        return False
-
-
-def _write_png(path: Path, grid: np.ndarray) -> Path:
-    """A plain 8-bit PNG preview of a float grid (nodata black; values clipped to 0-255)."""
-    import cv2
-
-    g = np.nan_to_num(grid, nan=0.0)
-    g = np.clip(g, 0, 255).astype(np.uint8)
-    if g.ndim == 3 and g.shape[2] == 3:
-        g = g[:, :, ::-1]              # RGB -> BGR for OpenCV
-    elif g.ndim == 3:
-        g = g[:, :, 0]
-    ok, buf = cv2.imencode(".png", g)
-    if not ok:  # pragma: no cover - OpenCV failure
-        raise OrthoError(f"{path}: PNG encoding failed")
-    with atomic_write(path, "wb") as fh:
-        fh.write(buf.tobytes())
-    return path
-
-
 # ---------------------------------------------------------------------------- grid and driver
 def output_grid(bounds: Sequence[float], gsd_m: float) -> tuple[Any, int, int]:
     """GeoTransform, rows and columns of a north-up grid covering *bounds* (snapped to *gsd_m*)."""
-    from ..lidar.raster import GeoTransform
+    from ..lidar.geotiff import GeoTransform
 
     if not gsd_m > 0:
         raise OrthoError(f"--gsd must be positive, got {gsd_m}")
@@ -409,13 +270,8 @@ def _default_bounds(photo: PhotoModel, surface: Any) -> tuple[float, float, floa
     return b
 
 
-def _tile_cells(transform: Any, r0: int, r1: int, c0: int, c1: int) -> tuple[np.ndarray, np.ndarray]:
-    e, n = transform.xy(np.arange(r0, r1)[:, None], np.arange(c0, c1)[None, :])
-    return np.broadcast_arrays(e, n)
-
-
 def sample_photo(photo: PhotoModel, surface: Any, e: np.ndarray, n: np.ndarray,
-                 zbuf: _ZBuffer | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 zbuf: ZBuffer | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Values (..., bands), valid mask, occluded mask and off-nadir tan of ground cells of one photo."""
     h = surface.height(e, n)
     col, row, depth = photo.project(e, n, h)
@@ -429,38 +285,6 @@ def sample_photo(photo: PhotoModel, surface: Any, e: np.ndarray, n: np.ndarray,
     with np.errstate(invalid="ignore", divide="ignore"):
         tan = np.hypot(e - p[0], n - p[1]) / (p[2] - h)
     return vals, ok, occl, tan
-
-
-def _bands(total_rows: int, cols: int, bands: int, tile_px: int) -> Iterator[tuple[int, int]]:
-    step = max(1, min(tile_px, (64 << 20) // max(cols * bands * 4, 1)))
-    for r0 in range(0, total_rows, step):
-        yield r0, min(total_rows, r0 + step)
-
-
-def _run_bands(compute: Callable[[int, int], np.ndarray], rows: int, cols: int, bands: int, tile_px: int,
-               path: str | os.PathLike | None, transform: Any, crs: Any, preview: bool,
-               progress: Callable[[int, int], None] | None) -> np.ndarray | None:
-    """Compute the output band by band: stream it into *path* (+ PNG preview), or return the array."""
-    if path is None:
-        out = np.full((rows, cols, bands), np.nan, dtype=np.float32)
-        for r0, r1 in _bands(rows, cols, bands, tile_px):
-            out[r0:r1] = compute(r0, r1)
-            if progress:
-                progress(r1, rows)
-        return out
-    path = Path(path)
-    step = max(1, int(math.ceil(max(rows, cols) / 2000)))
-    small: list[np.ndarray] = []
-    with GeoTiffStream(path, (rows, cols), bands, transform, crs) as tif:
-        for r0, r1 in _bands(rows, cols, bands, tile_px):
-            band = compute(r0, r1)
-            tif.write_rows(band)
-            small.append(band[np.arange(r0, r1) % step == 0][:, ::step])
-            if progress:
-                progress(r1, rows)
-    if preview:
-        _write_png(path.with_suffix(".png"), np.concatenate(small, axis=0))
-    return None
 
 
 def orthophoto(photo: PhotoModel, surface: Any, gsd_m: float, path: str | os.PathLike | None = None, *,
@@ -515,7 +339,7 @@ def orthophoto(photo: PhotoModel, surface: Any, gsd_m: float, path: str | os.Pat
         raise OrthoError(f"tile_px must be at least 16, got {tile_px}")
     bounds = _default_bounds(photo, surface) if bounds is None else bounds
     transform, rows, cols = output_grid(bounds, gsd_m)
-    zbuf = _ZBuffer(photo, surface, (transform.x0, transform.y0 - rows * gsd_m,
+    zbuf = ZBuffer(photo, surface, (transform.x0, transform.y0 - rows * gsd_m,
                                      transform.x0 + cols * gsd_m, transform.y0),
                     zbuffer_tol_m) if true_ortho else None
     bands = photo.bands
@@ -525,7 +349,7 @@ def orthophoto(photo: PhotoModel, surface: Any, gsd_m: float, path: str | os.Pat
         band = np.full((r1 - r0, cols, bands), np.nan, dtype=np.float32)
         for c0 in range(0, cols, tile_px):
             c1 = min(cols, c0 + tile_px)
-            e, n = _tile_cells(transform, r0, r1, c0, c1)
+            e, n = tile_cells(transform, r0, r1, c0, c1)
             vals, ok, occl, _ = sample_photo(photo, surface, e, n, zbuf)
             vals[~ok] = np.nan
             band[:, c0:c1] = vals
@@ -534,7 +358,7 @@ def orthophoto(photo: PhotoModel, surface: Any, gsd_m: float, path: str | os.Pat
             counts[2] += int((~ok & ~occl).sum())
         return band
 
-    out_arr = _run_bands(compute, rows, cols, bands, tile_px, path, transform, crs, preview, progress)
+    out_arr = run_bands(compute, rows, cols, bands, tile_px, path, transform, crs, preview, progress)
     log.info("orthophoto of photo %s: %d x %d cells of %.3g m, %d valid, %d occluded", photo.photo_id,
              cols, rows, gsd_m, counts[0], counts[1])
     return OrthoResult(Path(path) if path is not None else None, out_arr, transform, (rows, cols), int(counts[0]), int(counts[1]),

@@ -42,7 +42,6 @@ from .terrain import (  # noqa: F401
     write_product,
     write_text_grid,
     tin_heights,
-    HAVE_RASTERIO,
 )
 from .contours import (  # noqa: F401
     Contour,
@@ -105,7 +104,6 @@ __all__ = [
     'write_product',
     'write_text_grid',
     'tin_heights',
-    'HAVE_RASTERIO',
     'Contour',
     'spot_heights',
     'write_geojson',

@@ -43,9 +43,9 @@ by the normalised intensity, :math:`rgb = c(h)\\,(w_0 + (1 - w_0) I)` with
 
 Output
 ------
-:func:`write_product` writes GeoTIFF through rasterio when installed (tiled
-512 x 512, DEFLATE, CRS, cloud-optimised by GDAL's COG driver) and through
-lidarcat's own float32 writer otherwise; RGB images need rasterio.
+:func:`write_product` writes grids and RGB images as GeoTIFF through
+:func:`lidarcat.lidar.geotiff.write_geotiff`, the one raster writer (tiled
+512 x 512, DEFLATE, cloud-optimised, nodata NaN, the CRS as given).
 :func:`write_text_grid` writes the report's text format: one ``E N H`` line per
 valued cell centre (section 11.3: the MDT/MDS "formato de texto").
 """
@@ -61,19 +61,12 @@ from typing import Any
 import numpy as np
 
 from .._util import atomic_write
-from ..errors import FormatError
 from .ground import _barycentric
-from ..lidar.raster import GeoTransform, _grid_for, write_geotiff
+from ..lidar.geotiff import GeoTransform, write_geotiff
+from ..lidar.raster import _grid_for
 
 __all__ = ["TinGrid", "tin_grid", "dtm_grid", "dsm_grid", "ndsm", "hillshade", "hypsometric_image",
-           "write_product", "write_text_grid", "tin_heights", "HAVE_RASTERIO"]
-
-try:  # optional: tiled, compressed, cloud-optimised GeoTIFF
-    import rasterio  # noqa: F401
-
-    HAVE_RASTERIO = True
-except ImportError:  # pragma: no cover - exercised when the extra is absent
-    HAVE_RASTERIO = False
+           "write_product", "write_text_grid", "tin_heights"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -352,42 +345,11 @@ def hypsometric_image(height: np.ndarray, intensity: np.ndarray | None, h_min_m:
 def write_product(path: str | os.PathLike, array: np.ndarray, transform: GeoTransform, crs: Any = None) -> Path:
     """Write a grid (rows, cols) float or an RGB image (rows, cols, 3) uint8 as GeoTIFF, atomically.
 
-    With rasterio: tiled 512 x 512, DEFLATE, cloud-optimised (GDAL COG
-    driver), CRS and nodata (NaN) set.  Without: lidarcat's float32 writer
-    (:func:`lidarcat.lidar.raster.write_geotiff`); RGB then raises.
+    The one raster writer, :func:`lidarcat.lidar.geotiff.write_geotiff`: tiled
+    512 x 512, DEFLATE, cloud-optimised, float grids as float32 with nodata
+    NaN, the CRS as given (EPSG codes of compound CRSs kept).
     """
-    path = Path(path)
-    a = np.asarray(array)
-    if not HAVE_RASTERIO:
-        if a.ndim == 3:
-            raise FormatError(f"{path}: writing RGB GeoTIFFs needs rasterio: pip install 'lidarcat[geo]'")
-        return write_geotiff(path, a, transform, crs)
-    import rasterio
-    from rasterio.transform import Affine
-
-    from ..lidar.crs import resolve_crs
-
-    bands = a[None] if a.ndim == 2 else np.moveaxis(a, 2, 0)
-    crs_obj = resolve_crs(crs)
-    profile = {"driver": "COG", "width": a.shape[1], "height": a.shape[0], "count": bands.shape[0],
-               "dtype": "float32" if a.ndim == 2 else "uint8", "compress": "DEFLATE", "blocksize": 512,
-               "transform": Affine(transform.cell_m, 0.0, transform.x0, 0.0, -transform.cell_m, transform.y0),
-               "crs": crs_obj.to_wkt() if crs_obj is not None else None}
-    if a.ndim == 2:
-        profile["nodata"] = float("nan")
-        bands = bands.astype(np.float32)
-    else:
-        profile["photometric"] = "RGB"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.part")
-    try:
-        with rasterio.open(tmp, "w", **profile) as dst:
-            dst.write(bands)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return write_geotiff(path, array, transform, crs)
 
 
 def write_text_grid(path: str | os.PathLike, grid: np.ndarray, transform: GeoTransform, *,

@@ -17,7 +17,7 @@ survey.toml::
     master_every = 5            # every N-th level is a master curve
     smooth = 0                  # Chaikin passes (0: vertices exactly on the TIN)
     spots_m = 100.0             # spot heights: highest and lowest ground point per square, m
-    hypsometry = false          # hypsometry.png (+ .tif with rasterio): heights coloured, shaded by intensity
+    hypsometry = false          # hypsometry.png and .tif: heights coloured, shaded by intensity
     hypsometry_cell_m = 0.45    # its cell, m (the report: 45 cm)
     sheet_size_m = 0            # > 0: also cut every product along a sheet grid (sheets/, sheets.geojson)
     sheet_index = "grid"        # or "brazil-5000" / "brazil-2000" (..-10000, -25000): the Brazilian systematic
@@ -169,22 +169,20 @@ def run(ctx: Context, tmp: Path) -> dict:
 
 def _hypsometry(cloud: Any, cell_m: float, area: tuple[float, float, float, float], crs: Any,
                 tmp: Path) -> dict[str, Any]:
-    """hypsometry.png (and .tif when rasterio is installed): DSM heights coloured, shaded by intensity."""
+    """hypsometry.png and hypsometry.tif: DSM heights coloured, shaded by intensity."""
     import matplotlib.image
 
     from .._util import atomic_write
     from ..lidar import rasterize
-    from ..production.terrain import HAVE_RASTERIO, hypsometric_image, write_product
+    from ..production.terrain import hypsometric_image, write_product
 
     h, t = rasterize(cloud, cell_m, "dsm", area)
     inten = rasterize(cloud, cell_m, "intensity", area)[0] if cloud.has("intensity") else None
     img = hypsometric_image(h, inten)
-    files = ["hypsometry.png"]
+    files = ["hypsometry.png", "hypsometry.tif"]
     with atomic_write(tmp / "hypsometry.png", "wb") as fh:
         matplotlib.image.imsave(fh, img, format="png")
-    if HAVE_RASTERIO:   # RGB GeoTIFFs need rasterio (lidarcat[geo])
-        write_product(tmp / "hypsometry.tif", img, t, crs)
-        files.append("hypsometry.tif")
+    write_product(tmp / "hypsometry.tif", img, t, crs)
     return {"cell_m": cell_m, "intensity": inten is not None, "files": files}
 
 

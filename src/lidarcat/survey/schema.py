@@ -285,7 +285,7 @@ class ProductsSettings:
     master_every: int = _key(INTEGER, 5, "every N-th level is a master curve (>= 1)")
     smooth: int = _key(INTEGER, 0, "Chaikin passes (0: vertices exactly on the TIN)")
     spots_m: float = _key(NUMBER, 100.0, "spot heights: highest and lowest ground point per square, m (> 0)")
-    hypsometry: bool = _key(BOOLEAN, False, "hypsometry.png (+ .tif with rasterio)")
+    hypsometry: bool = _key(BOOLEAN, False, "hypsometry.png and .tif")
     hypsometry_cell_m: float = _key(NUMBER, 0.45, "cell of the hypsometric image, m (> 0)")
     sheet_size_m: float = _key(NUMBER, 0.0, "> 0: also cut every product along a sheet grid of this size, m")
     sheet_index: str = _key(STRING, "grid", "\"grid\" or the Brazilian systematic index \"brazil-25000\", "

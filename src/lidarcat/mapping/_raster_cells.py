@@ -1,0 +1,126 @@
+"""Shared by the orthophoto and the mosaic: z-buffer, cell centres, row bands streamed into a GeoTIFF.
+
+Private to :mod:`lidarcat.mapping` (imported by :mod:`.ortho` and :mod:`.mosaic`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._util import atomic_write
+from ..errors import LidarcatError
+from ..lidar.geotiff import GeoTiffWriter
+
+__all__ = ["ZBuffer", "tile_cells", "row_bands", "run_bands", "write_png"]
+
+
+class ZBuffer:
+    """Smallest depth per bin of photo pixels, from the DSM cells around the output area."""
+
+    def __init__(self, photo: Any, surface: Any, bounds: Sequence[float], tol_m: float | None = None):
+        import cv2
+
+        cell = float(surface.transform.cell_m)
+        cam = photo.camera
+        height = photo.eo_params[2] - float(np.nanmedian(surface.grid))
+        gsd_photo = cam.pixel_size_x_mm * height / cam.focal_length_mm
+        self.bin = max(1, int(math.ceil(cell / max(gsd_photo, 1e-9))))
+        self.tol = 3.0 * cell if tol_m is None else float(tol_m)
+        nb_r = cam.rows_px // self.bin + 3   # bins -1 .. N/bin + 1 (projections up to a bin off the frame)
+        nb_c = cam.columns_px // self.bin + 3
+        z = np.full(nb_r * nb_c, np.inf)
+        t = surface.transform
+        g = surface.grid
+        xmin, ymin, xmax, ymax = bounds
+        margin = 60.0
+        c0 = max(0, int((xmin - margin - t.x0) / cell))
+        c1 = min(g.shape[1], int(math.ceil((xmax + margin - t.x0) / cell)))
+        r0 = max(0, int((t.y0 - ymax - margin) / cell))
+        r1 = min(g.shape[0], int(math.ceil((t.y0 - ymin + margin) / cell)))
+        cols = np.arange(c0, c1)
+        for rs in range(r0, r1, 256):
+            rows = np.arange(rs, min(rs + 256, r1))
+            e, n = t.xy(rows[:, None], cols[None, :])
+            e, n = np.broadcast_arrays(e, n)
+            h = g[rows[:, None], cols[None, :]]
+            ok = np.isfinite(h)
+            col, row, depth = photo.project(e[ok], n[ok], h[ok])
+            keep = np.isfinite(col) & (col > -self.bin) & (row > -self.bin) \
+                & (col < cam.columns_px + self.bin) & (row < cam.rows_px + self.bin)
+            bi = (np.floor(row[keep] / self.bin).astype(np.int64) + 1) * nb_c \
+                + np.floor(col[keep] / self.bin).astype(np.int64) + 1
+            np.minimum.at(z, bi, depth[keep])
+        z = z.reshape(nb_r, nb_c).astype(np.float32)
+        filled = cv2.erode(np.where(np.isinf(z), np.float32(3e38), z), np.ones((3, 3), np.uint8))
+        self.z = np.where(np.isinf(z), filled, z)
+        self.nb_c = nb_c
+
+    def visible(self, col: np.ndarray, row: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        r = np.floor(row / self.bin).astype(np.int64) + 1
+        c = np.floor(col / self.bin).astype(np.int64) + 1
+        r = np.clip(r, 0, self.z.shape[0] - 1)
+        c = np.clip(c, 0, self.z.shape[1] - 1)
+        return depth <= self.z[r, c] + self.tol
+
+
+def write_png(path: Path, grid: np.ndarray) -> Path:
+    """A plain 8-bit PNG preview of a float grid (nodata black; values clipped to 0-255)."""
+    import cv2
+
+    g = np.nan_to_num(grid, nan=0.0)
+    g = np.clip(g, 0, 255).astype(np.uint8)
+    if g.ndim == 3 and g.shape[2] == 3:
+        g = g[:, :, ::-1]              # RGB -> BGR for OpenCV
+    elif g.ndim == 3:
+        g = g[:, :, 0]
+    ok, buf = cv2.imencode(".png", g)
+    if not ok:  # pragma: no cover - OpenCV failure
+        raise LidarcatError(f"{path}: PNG encoding failed")
+    with atomic_write(path, "wb") as fh:
+        fh.write(buf.tobytes())
+    return path
+
+
+def tile_cells(transform: Any, r0: int, r1: int, c0: int, c1: int) -> tuple[np.ndarray, np.ndarray]:
+    """E and N (m) of the cell centres of rows r0..r1-1 and columns c0..c1-1, each (rows, cols)."""
+    e, n = transform.xy(np.arange(r0, r1)[:, None], np.arange(c0, c1)[None, :])
+    return np.broadcast_arrays(e, n)
+
+
+def row_bands(total_rows: int, cols: int, bands: int, tile_px: int) -> Iterator[tuple[int, int]]:
+    """(first, past-last) rows of each band: at most *tile_px* rows and 64 MB of float32 values."""
+    step = max(1, min(tile_px, (64 << 20) // max(cols * bands * 4, 1)))
+    for r0 in range(0, total_rows, step):
+        yield r0, min(total_rows, r0 + step)
+
+
+def run_bands(compute: Callable[[int, int], np.ndarray], rows: int, cols: int, bands: int, tile_px: int,
+              path: str | os.PathLike | None, transform: Any, crs: Any, preview: bool,
+              progress: Callable[[int, int], None] | None) -> np.ndarray | None:
+    """Compute the output band by band: stream it into *path* (+ PNG preview), or return the array."""
+    if path is None:
+        out = np.full((rows, cols, bands), np.nan, dtype=np.float32)
+        for r0, r1 in row_bands(rows, cols, bands, tile_px):
+            out[r0:r1] = compute(r0, r1)
+            if progress:
+                progress(r1, rows)
+        return out
+    path = Path(path)
+    step = max(1, int(math.ceil(max(rows, cols) / 2000)))
+    small: list[np.ndarray] = []
+    with GeoTiffWriter(path, (rows, cols), bands, transform, crs) as tif:
+        for r0, r1 in row_bands(rows, cols, bands, tile_px):
+            band = compute(r0, r1)
+            tif.write_rows(band)
+            small.append(band[np.arange(r0, r1) % step == 0][:, ::step])
+            if progress:
+                progress(r1, rows)
+    if preview:
+        write_png(path.with_suffix(".png"), np.concatenate(small, axis=0))
+    return None
