@@ -36,3 +36,12 @@ def pytest_sessionfinish(session, exitstatus):
     if stray:
         session.config.get_terminal_writer().line(f"files named like an option after the tests: {stray}", red=True)
         session.exitstatus = 1
+
+
+def assert_one_line_error(result, *fragments: str) -> None:
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("Error: "), result.output
+    for f in fragments:
+        assert f in lines[0], (f, lines[0])

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from conftest import LIDAR_DATA, THESIS_SURVEY
+from conftest import LIDAR_DATA, THESIS_SURVEY, assert_one_line_error
 from lidarcat.cli.main import cli
 from lidarcat.lidar import read_points
 from lidarcat.lidar.raster import read_geotiff
@@ -21,15 +21,6 @@ PDAL = str(LIDAR_DATA / "pdal_sample_c.las")
 
 def run(*args: str):
     return CliRunner().invoke(cli, ["lidar", *args])
-
-
-def assert_one_line_error(result, *fragments: str) -> None:
-    assert result.exit_code == 2, result.output
-    assert "Traceback" not in result.output
-    lines = [ln for ln in result.output.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("Error: "), result.output
-    for f in fragments:
-        assert f in lines[0], (f, lines[0])
 
 
 def test_info_text_and_json():

@@ -19,7 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 from conftest import LIDAR_DATA, THESIS_SURVEY
-from test_cli_lidar import assert_one_line_error
+from conftest import assert_one_line_error
 from lidarcat._util import parse_float, read_csv_table
 from lidarcat.geometry.camera import load_cameras
 from lidarcat.cli.main import cli

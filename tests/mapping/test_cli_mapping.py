@@ -16,7 +16,7 @@ from lidarcat.lidar import PointCloud, resolve_crs, write_points
 from lidarcat.lidar.geotiff import write_geotiff
 from lidarcat.synthetic.scene import demo_scene
 
-from test_ortho import CAM, E0, EO_A, EO_B, MODEL_BOUNDS, N0  # noqa: I001  (same camera and photos)
+from ortho_scene import CAM, E0, EO_A, EO_B, MODEL_BOUNDS, N0  # noqa: I001  (same camera and photos)
 
 CRS = "EPSG:31982"
 

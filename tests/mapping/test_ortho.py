@@ -9,22 +9,13 @@ import cv2
 import numpy as np
 import pytest
 
-from lidarcat.geometry.camera import Camera
 from lidarcat.lidar.geotiff import read_geotiff
 from lidarcat.mapping.monoplot import GridSurface, PointSurface
 from lidarcat.mapping.mosaic import mosaic
 from lidarcat.mapping.ortho import OrthoError, PhotoModel, orthophoto
 from lidarcat.synthetic.scene import demo_scene
 
-E0, N0 = 680_400.0, 7_184_200.0
-#: a small camera with the demo's 36 x 24 mm frame: 1200 x 800 px of 30 um, c = 35 mm
-CAM = Camera("small", 35.0, 0.01, -0.02, -2.5e-5, 1e-8, 0.0, 2e-6, -1e-6, 0.0, 0.03, 0.03, 1200, 800)
-#: 250 m above the ground: 0.21 m photo pixels; nadir 40 m west of the scene centre
-EO_A = np.array([E0 - 40, N0 + 10, 910 + 250.0, math.radians(1.0), math.radians(-0.8), math.radians(20.0)])
-EO_B = np.array([E0 + 60, N0 - 5, 910 + 250.0, math.radians(-0.7), math.radians(0.9), math.radians(-10.0)])
-GSD = 0.25
-BOUNDS = (E0 - 100, N0 - 60, E0 + 100, N0 + 60)
-MODEL_BOUNDS = (E0 - 130, N0 - 90, E0 + 130, N0 + 90)
+from ortho_scene import BOUNDS, CAM, E0, EO_A, EO_B, GSD, MODEL_BOUNDS, N0  # noqa: I001  (tests/ortho_scene.py)
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from lidarcat.mapping.monoplot import GridSurface, monoplot
 from lidarcat.mapping.ortho import PhotoModel, orthophoto
 
 from test_cli_mapping import CRS, _px, survey  # noqa: F401,I001  (the fixture survey: camera, photos A and B, LiDAR, DSM)
-from test_ortho import CAM, E0, EO_A, N0  # noqa: I001
+from ortho_scene import CAM, E0, EO_A, N0  # noqa: I001
 
 BOUNDS = [E0 - 60, N0 - 40, E0 + 60, N0 + 40]
 

@@ -15,7 +15,7 @@ from lidarcat.stages import products
 from lidarcat.synthetic.scene import demo_scene
 from lidarcat.survey.folder import Survey
 
-from test_ortho import CAM, MODEL_BOUNDS  # noqa: I001  (the synthetic scene's camera and area)
+from ortho_scene import CAM, MODEL_BOUNDS  # noqa: I001  (the synthetic scene's camera and area)
 
 CRS = "EPSG:31982"
 BASE = (f'[survey]\nname = "products"\ncrs = "{CRS}"\n\n[files]\ncamera = "camera.toml"\nphotos = "photos.csv"\n'
