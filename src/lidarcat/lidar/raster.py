@@ -50,7 +50,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from .._util import atomic_write, read_bytes, write_text_atomic
-from ..errors import LidarcatError, LidarFormatError, TileIOError
+from ..errors import LidarcatError, LidarFormatError, ProductError, TileIOError
 from .cloud import PointCloud
 from .crs import _parts, resolve_crs
 
@@ -186,6 +186,8 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
         Bad *what*, *cell_m* or missing *bounds* for a stream.
     LidarFormatError
         ``"intensity"`` asked of points without intensity.
+    ProductError
+        An empty cloud without *bounds*, or a grid of more than 400 million cells.
 
     Examples
     --------
@@ -205,7 +207,7 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
         chunks = [cloud]
         if bounds is None:
             if len(cloud) == 0:
-                raise ValueError("cannot rasterize an empty point cloud without bounds")
+                raise ProductError("cannot rasterize an empty point cloud without bounds")
             bounds = cloud.bounds[:4]
     else:
         if bounds is None:
@@ -214,7 +216,7 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
     transform, nrows, ncols = _grid_for(bounds, cell_m)
     ncell = nrows * ncols
     if ncell > 400_000_000:
-        raise ValueError(f"grid of {nrows} x {ncols} cells is too large; use a coarser cell")
+        raise ProductError(f"grid of {nrows} x {ncols} cells is too large; use a coarser cell")
     acc = np.zeros(ncell) if what == "intensity" else np.full(ncell, -np.inf if what == "dsm" else np.inf)
     cnt = np.zeros(ncell, dtype=np.int64) if what == "intensity" else None
     ground = np.full(ncell, np.inf) if what == "dtm" else None
@@ -359,7 +361,7 @@ def _tiff_bytes(grid: np.ndarray, transform: GeoTransform, crs: Any) -> tuple[by
     strip_counts = [min(rows_per_strip, nrows - k * rows_per_strip) * row_bytes for k in range(nstrips)]
     image_end = data_offset + data.nbytes
     if image_end > 2**32 - 2**20:
-        raise ValueError("grid too large for a classic TIFF (4 GB); use a coarser cell")
+        raise ProductError("grid too large for a classic TIFF (4 GB); use a coarser cell")
     ifd_offset = image_end + (image_end % 2)
     ifd, sidecar = _geotiff_ifd(ncols, nrows, 1, rows_per_strip, strip_offsets, strip_counts,
                                 transform, crs, ifd_offset)
