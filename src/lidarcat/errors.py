@@ -21,6 +21,7 @@ __all__ = [
     "ExtractionError",
     "AssessmentError",
     "FormatError",
+    "ProductError",
     "location",
 ]
 
@@ -68,6 +69,12 @@ class AssessmentError(LidarcatError, ValueError):
 class FormatError(LidarcatError, ValueError):
     """A file of another program (COLMAP, OpenSfM, ODM, Metashape, OPK, GNSS) is malformed
     or cannot be represented (names the file, line and field)."""
+
+
+class ProductError(LidarcatError, ValueError):
+    """A product (raster, DTM, map sheets) cannot be made from the data or as asked: a tile
+    without ground points, an empty cloud, a grid too large, an area outside the sheet index
+    (names the tile, area or output)."""
 
 
 def location(path: object, line: int | None = None, field: str | None = None) -> str:

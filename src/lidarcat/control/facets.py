@@ -81,6 +81,7 @@ from typing import Any
 import numpy as np
 
 from .._util.frozen import frozen_array
+from ..errors import ClipError
 
 __all__ = [
     "Plane",
@@ -461,20 +462,20 @@ def delaunay_facets(xyz: np.ndarray, max_edge_m: float | None = None) -> _Facets
 
     Raises
     ------
-    ValueError
-        Fewer than 3 points or all points collinear in plan.
+    ClipError
+        Fewer than 3 points or all points collinear in plan (a ``ValueError``).
     """
     from scipy.spatial import Delaunay
     from scipy.spatial import QhullError
 
     xyz = np.asarray(xyz, dtype=np.float64)
     if len(xyz) < 3:
-        raise ValueError(f"{len(xyz)} points: a triangulation needs at least 3")
+        raise ClipError(f"{len(xyz)} points: a triangulation needs at least 3")
     xy = xyz[:, :2] - xyz[:, :2].mean(axis=0)
     try:
         tri = Delaunay(xy)
     except (QhullError, ValueError) as ex:
-        raise ValueError("points are collinear or coincident in plan; no triangulation") from ex
+        raise ClipError("points are collinear or coincident in plan; no triangulation") from ex
     simp = tri.simplices
     local = xyz - xyz.mean(axis=0)
     planes = triangle_planes(local, simp)

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import CameraError
+
 __all__ = ["distort", "undistort", "is_identity"]
 
 _KEYS = ("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2")
@@ -68,8 +70,9 @@ def undistort(xy_d, params: dict, *, metashape: bool = False, tol: float = 1e-15
 
     Raises
     ------
-    ValueError
-        No convergence within *max_iter* (a point far outside the calibrated field).
+    CameraError
+        No convergence within *max_iter* (a point far outside the calibrated field; names
+        the worst point's index and normalised coordinates).
     """
     d = np.asarray(xy_d, dtype=float).reshape(-1, 2)
     if is_identity(params) or len(d) == 0:
@@ -88,6 +91,9 @@ def undistort(xy_d, params: dict, *, metashape: bool = False, tol: float = 1e-15
         u = u - du
         if np.max(np.abs(du)) < tol:
             return u
-    if np.max(np.abs(distort(u, params, metashape=metashape) - d)) < 1e-12:
+    miss = np.abs(distort(u, params, metashape=metashape) - d).max(axis=1)
+    if np.max(miss) < 1e-12:
         return u
-    raise ValueError("undistortion did not converge (a point outside the calibrated field?)")
+    i = int(np.argmax(miss))  # a NaN counts as the worst
+    raise CameraError(f"undistortion did not converge at point index {i} (normalised {d[i, 0]:.6g}, {d[i, 1]:.6g}): "
+                      f"a point outside the calibrated field?")

@@ -30,7 +30,7 @@ from ..errors import FormatError
 __all__ = ["Block", "Orientations", "GroundControl", "apply_orientations", "apply_ground_control",
            "write_survey", "block_from_survey",
            "photo_coordinates_mm", "reprojection_residuals_mm", "reprojection_residuals_px",
-           "pinhole_camera", "undistorted_mm", "require_orientations", "SOURCE_CAMERAS"]
+           "pinhole_camera", "undistorted_mm", "require_orientations", "SOURCE_CAMERAS", "copy_survey_files"]
 
 log = logging.getLogger(__name__)
 
@@ -482,7 +482,7 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
         raise FormatError(f"{survey.files['photos']}: photos.csv lies outside the survey folder; "
                           f"copy it in first")
     with atomic_dir(folder) as tmp:
-        _copy_survey(survey, tmp, skip={photos_rel})
+        copy_survey_files(survey, tmp, skip={photos_rel})
         write_csv_atomic(tmp / photos_rel, cols, rows,
                          comments=[f"orientations from {orientations.source}; CRS {orientations.crs}, "
                                    f"heights {orientations.height_system}; omega, phi, kappa in degrees, "
@@ -502,8 +502,18 @@ def _load_target(survey: Any, folder: str | Path, overwrite: bool):
     return survey
 
 
-def _copy_survey(survey: Any, tmp: Path, skip: set[Path]) -> None:
-    """Copy the files of *survey*'s folder (not its ``out/``) into *tmp*, except *skip* (relative)."""
+def copy_survey_files(survey: Any, tmp: Path, skip: set[Path]) -> None:
+    """Copy the files of *survey*'s folder (not its ``out/``) into *tmp*, except *skip*.
+
+    Parameters
+    ----------
+    survey : Survey
+        The survey whose folder is copied.
+    tmp : Path
+        The new folder (the temporary of an :func:`~lidarcat._util.atomic_dir`).
+    skip : set of Path
+        Paths relative to the survey folder that the caller writes itself.
+    """
     import shutil
 
     for item in survey.root.rglob("*"):
@@ -627,7 +637,7 @@ def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
         if p.is_absolute():
             raise FormatError(f"{p}: {k} lies outside the survey folder; copy it in first")
     with atomic_dir(folder) as tmp:
-        _copy_survey(survey, tmp, skip=set(rel.values()) | {Path("survey.toml")})
+        copy_survey_files(survey, tmp, skip=set(rel.values()) | {Path("survey.toml")})
         write_csv_atomic(tmp / rel["image_points"], cols, rows)
         write_csv_atomic(tmp / rel["ground_points"], ["point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "source"],
                          g_rows, comments=[f"ground points; {gcp.source}: CRS {gcp.crs}, heights {gcp.height_system}"])

@@ -263,7 +263,7 @@ def write_harmonised_survey(survey: Any, folder: str | Path, *, to_system: str |
 
     from .._util import atomic_dir, write_csv_atomic, write_text_atomic
     from ..survey.folder import Survey
-    from .block import _copy_survey
+    from .block import copy_survey_files
 
     if not isinstance(survey, Survey):
         survey = Survey.load(survey)
@@ -280,7 +280,7 @@ def write_harmonised_survey(survey: Any, folder: str | Path, *, to_system: str |
     else:
         text = re.sub(r"(?m)^\[survey\]\s*$", f'[survey]\nheight_system = "{target}"', text, count=1)
     with atomic_dir(folder) as tmp:
-        _copy_survey(survey, tmp, skip={rel, Path("survey.toml")})
+        copy_survey_files(survey, tmp, skip={rel, Path("survey.toml")})
         write_csv_atomic(tmp / rel, ["point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "source"],
                          [[p, *x, *s, src] for p, x, s, src in zip(gp.point.tolist(), gp.enh_m, gp.sd_m,
                                                                    gp.source.tolist())],

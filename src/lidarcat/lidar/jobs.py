@@ -295,8 +295,10 @@ def run_tile_job(job: TileJob) -> str:
         else:
             _raster_job(job, cloud, out)
         write_json_atomic(_marker(job), job.signature())
-    except LidarcatError:
-        raise
+    except LidarcatError as ex:
+        if job.tile in str(ex):
+            raise
+        raise type(ex)(f"{job.tile}: {ex}") from ex  # a data condition of the tile (no ground...)
     except OSError as ex:
         raise TileIOError(f"{out}: cannot write the output of tile {job.tile} ({ex.strerror or ex})") from ex
     return str(out)

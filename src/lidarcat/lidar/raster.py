@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from .._util import atomic_write
-from ..errors import LidarFormatError
+from ..errors import LidarFormatError, ProductError
 from .cloud import PointCloud
 from .geotiff import GeoTransform, read_geotiff, write_geotiff
 
@@ -152,6 +152,8 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
         Bad *what*, *cell_m* or missing *bounds* for a stream.
     LidarFormatError
         ``"intensity"`` asked of points without intensity.
+    ProductError
+        An empty cloud without *bounds*, or a grid of more than 400 million cells.
 
     Examples
     --------
@@ -171,7 +173,7 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
         chunks = [cloud]
         if bounds is None:
             if len(cloud) == 0:
-                raise ValueError("cannot rasterize an empty point cloud without bounds")
+                raise ProductError("cannot rasterize an empty point cloud without bounds")
             bounds = cloud.bounds[:4]
     else:
         if bounds is None:
@@ -180,7 +182,7 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
     transform, nrows, ncols = _grid_for(bounds, cell_m)
     ncell = nrows * ncols
     if ncell > 400_000_000:
-        raise ValueError(f"grid of {nrows} x {ncols} cells is too large; use a coarser cell")
+        raise ProductError(f"grid of {nrows} x {ncols} cells is too large; use a coarser cell")
     acc = np.zeros(ncell) if what == "intensity" else np.full(ncell, -np.inf if what == "dsm" else np.inf)
     cnt = np.zeros(ncell, dtype=np.int64) if what == "intensity" else None
     ground = np.full(ncell, np.inf) if what == "dtm" else None

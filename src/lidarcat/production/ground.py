@@ -88,7 +88,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import LidarFormatError, TileIOError
+from ..errors import LidarFormatError, ProductError, TileIOError
 
 __all__ = ["PTDParameters", "SMRFParameters", "GroundMethod", "GROUND_METHODS", "classify_ground",
            "ptd_ground", "smrf_ground", "Confusion", "confusion", "write_classified_copy",
@@ -670,8 +670,10 @@ def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground
 
     Raises
     ------
+    ProductError
+        *dst* is *src*.
     ValueError
-        *dst* is *src*, or *ground* does not match the number of points.
+        *ground* does not match the number of points.
     TileIOError, LidarFormatError
         *src* cannot be read.
     """
@@ -681,7 +683,7 @@ def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground
 
     src, dst = Path(src), Path(dst)
     if dst.exists() and src.exists() and os.path.samefile(src, dst):
-        raise ValueError(f"{dst}: the output would overwrite the input; choose another name")
+        raise ProductError(f"{dst}: the output would overwrite the input; choose another name")
     try:
         las = laspy.read(str(src))
     except OSError as ex:
@@ -757,6 +759,6 @@ def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *
     jobs = tile_jobs("ground", paths, out, crs=crs, params=pdict, overlap_m=ov)
     for j in jobs:
         if Path(j.output).resolve() == Path(j.tile).resolve():
-            raise ValueError(f"{j.output}: the output would overwrite the input; choose another folder")
+            raise ProductError(f"{j.output}: the output would overwrite the input; choose another folder")
     return [Path(p) for p in run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume,
                                       progress=progress)]

@@ -74,6 +74,8 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import CRSError, ProductError
+
 __all__ = ["MapSheet", "Level", "LEVELS", "SCALES", "sheet_at", "sheet_names", "sheet_from_name",
            "sheets_covering", "sheet_outline", "cut_raster_geo", "cut_contours_geo", "geographic_crs_of"]
 
@@ -195,7 +197,7 @@ def sheet_names(lon: Any, lat: Any, scale: int) -> np.ndarray:
     bad = ~(np.isfinite(lon_a) & np.isfinite(lat_a) & (np.abs(lat_a) < 88) & (np.abs(lon_a) <= 180))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"point {i}: longitude {float(lon_a[i])!r}, latitude {float(lat_a[i])!r} deg is outside the "
+        raise ProductError(f"point {i}: longitude {float(lon_a[i])!r}, latitude {float(lat_a[i])!r} deg is outside the "
                          f"index (|lat| < 88, |lon| <= 180)")
     u, v = _units(lon_a, lat_a)
     u = np.minimum(u, 360 * _U - 1)
@@ -341,21 +343,19 @@ def sheets_covering(bounds: tuple[float, float, float, float], crs: Any, scale: 
     _check_scale(scale)
     geo = resolve_crs(geographic_crs, what="geographic CRS") if geographic_crs is not None else geographic_crs_of(crs)
     if not geo.is_geographic:
-        from ..errors import CRSError
-
         raise CRSError(f"the sheets of the Brazilian index are geographic rectangles; {geo.name!r} is not a "
                        f"geographic CRS (give e.g. EPSG:4674, SIRGAS 2000)")
     src = resolve_crs(crs)
     xmin, ymin, xmax, ymax = map(float, bounds)
     if not (xmax >= xmin and ymax >= ymin):
-        raise ValueError(f"empty area: E {xmin}..{xmax}, N {ymin}..{ymax}")
+        raise ProductError(f"empty area: E {xmin}..{xmax}, N {ymin}..{ymax}")
     # the area's outline, densified, in degrees: its bounding box bounds the candidate sheets
     k = np.linspace(0.0, 1.0, 33)
     ex = np.concatenate([xmin + (xmax - xmin) * k, np.full(33, xmax), xmax - (xmax - xmin) * k, np.full(33, xmin)])
     ny = np.concatenate([np.full(33, ymin), ymin + (ymax - ymin) * k, np.full(33, ymax), ymax - (ymax - ymin) * k])
     lon, lat = _transformer(src, geo).transform(ex, ny)
     if not (np.isfinite(lon).all() and np.isfinite(lat).all()):
-        raise ValueError(f"the area E {xmin}..{xmax}, N {ymin}..{ymax} does not transform to geographic "
+        raise CRSError(f"the area E {xmin}..{xmax}, N {ymin}..{ymax} does not transform to geographic "
                          f"coordinates in {geo.name}; is the CRS right?")
     w, h = _SIZE[scale]
     u0, v0 = _units(lon.min(), lat.min())

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import ProductError
 from ..lidar.raster import GeoTransform
 
 __all__ = ["Sheet", "sheet_grid", "sheet_index_features", "cut_raster", "cut_contours", "index_sheets",
@@ -61,7 +62,7 @@ def sheet_grid(bounds: tuple[float, float, float, float], width_m: float,
     """
     h = width_m if height_m is None else height_m
     if not (0 < width_m < math.inf and 0 < h < math.inf):
-        raise ValueError(f"sheet size must be positive and finite, got {width_m} x {h} m")
+        raise ProductError(f"sheet size must be positive and finite, got {width_m} x {h} m")
     xmin, ymin, xmax, ymax = map(float, bounds)
     i0, i1 = math.floor(xmin / width_m), max(math.ceil(xmax / width_m), math.floor(xmin / width_m) + 1)
     j0, j1 = math.floor(ymin / h), max(math.ceil(ymax / h), math.floor(ymin / h) + 1)
@@ -93,7 +94,7 @@ def index_sheets(bounds: tuple[float, float, float, float], index: str = "grid",
 
     Raises
     ------
-    ValueError
+    ProductError
         An unknown index, or the Brazilian index without a CRS.
     """
     if index == "grid":
@@ -102,10 +103,10 @@ def index_sheets(bounds: tuple[float, float, float, float], index: str = "grid",
 
     scale = index[len("brazil-"):] if index.startswith("brazil-") else ""
     if not scale.isdigit() or int(scale) not in SCALES:
-        raise ValueError(f"unknown sheet index {index!r}; use grid or brazil-N with N one of "
+        raise ProductError(f"unknown sheet index {index!r}; use grid or brazil-N with N one of "
                          f"{', '.join(map(str, SCALES))}")
     if crs is None:
-        raise ValueError(f"the {index} sheet index needs the CRS of the products")
+        raise ProductError(f"the {index} sheet index needs the CRS of the products")
     return sheets_covering(bounds, crs, int(scale), geographic_crs=geographic_crs)
 
 
@@ -122,7 +123,7 @@ def sheet_index_features(sheets: list[Any], crs: Any = None) -> list[dict[str, A
     for s in sheets:
         if isinstance(s, MapSheet):
             if crs is None:
-                raise ValueError(f"sheet {s.name}: drawing a geographic sheet needs the CRS of the layer")
+                raise ProductError(f"sheet {s.name}: drawing a geographic sheet needs the CRS of the layer")
             ring = np.round(sheet_outline(s, crs), 3)
             out.append({"type": "Feature",
                         "properties": {"name": s.name, "scale": s.scale, "west_deg": s.west, "south_deg": s.south,
@@ -155,7 +156,7 @@ def cut_raster(grid: np.ndarray, transform: GeoTransform, sheet: Any,
 
     if isinstance(sheet, MapSheet):
         if crs is None:
-            raise ValueError(f"sheet {sheet.name}: cutting along a geographic sheet needs the grid's CRS")
+            raise ProductError(f"sheet {sheet.name}: cutting along a geographic sheet needs the grid's CRS")
         return cut_raster_geo(grid, transform, sheet, crs)
     c = transform.cell_m
     nrows, ncols = grid.shape[:2]
@@ -179,7 +180,7 @@ def cut_contours(features: list[dict[str, Any]], sheet: Any, crs: Any = None) ->
 
     if isinstance(sheet, MapSheet):
         if crs is None:
-            raise ValueError(f"sheet {sheet.name}: cutting along a geographic sheet needs the lines' CRS")
+            raise ProductError(f"sheet {sheet.name}: cutting along a geographic sheet needs the lines' CRS")
         return cut_contours_geo(features, sheet, crs)
     return _cut_lines(features, sheet)
 

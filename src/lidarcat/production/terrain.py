@@ -61,6 +61,7 @@ from typing import Any
 import numpy as np
 
 from .._util import atomic_write
+from ..errors import ProductError
 from .ground import _barycentric
 from ..lidar.geotiff import GeoTransform, write_geotiff
 from ..lidar.raster import _grid_for
@@ -247,16 +248,16 @@ def dtm_grid(cloud: Any, cell_m: float = 1.0, bounds: tuple[float, float, float,
 
     Raises
     ------
-    ValueError
+    ProductError
         No ground points (classify first: ``lidarcat lidar ground``).
     """
     if ground is None:
         if not cloud.has("classification"):
-            raise ValueError("the points carry no classification; classify the ground first "
+            raise ProductError("the points carry no classification; classify the ground first "
                              "(lidarcat lidar ground)")
         ground = np.asarray(cloud.attributes["classification"]) == 2
     if not np.any(ground):
-        raise ValueError("no ground points (class 2); classify the ground first (lidarcat lidar ground)")
+        raise ProductError("no ground points (class 2); classify the ground first (lidarcat lidar ground)")
     return tin_grid(cloud.xyz[ground], cell_m, bounds if bounds is not None else cloud.bounds[:4],
                     max_edge_m=max_edge_m)
 
