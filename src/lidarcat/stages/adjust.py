@@ -24,7 +24,7 @@ import numpy as np
 
 from .._util import write_json_atomic
 from ..errors import LidarcatError
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
 __all__ = ["run", "CONSISTENCY_MEMORY_BYTES"]
 

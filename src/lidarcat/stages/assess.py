@@ -13,7 +13,7 @@ from typing import Any
 
 from .._util import write_json_atomic
 from ..errors import LidarcatError
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
 __all__ = ["run"]
 

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import LidarcatError
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
 __all__ = ["run"]
 

@@ -48,7 +48,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
 __all__ = ["run", "settings", "markdown", "MAPPING_KEYS", "INTERPOLATORS", "ACCURACY_COLUMNS"]
 
@@ -262,7 +262,7 @@ def _accuracy_rows(acc: dict[str, Any]) -> list[list[Any]]:
 
 def markdown(res: dict[str, Any]) -> list[str]:
     """Report section of the stage: products, and the per-interpolator accuracy tables (Cavassim Tables 07-09)."""
-    from .report import num
+    from ._format import num
 
     lines = ["", "## Mapping", ""]
     if res.get("orthophotos"):

@@ -43,7 +43,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
 __all__ = ["run", "settings", "PRODUCTS_KEYS", "asked"]
 
