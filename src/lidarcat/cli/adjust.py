@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from .options import echo_json, json_opt, progress_bar, survey_arg
+from .options import echo_json, json_opt, output_option, progress_bar, survey_arg
 
 __all__ = ["adjust", "format_report", "format_blunders", "exit_status"]
 
@@ -105,7 +105,7 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="Photo coordinates: 'corrected' (x_mm, y_mm of image_points.csv) or 'pixel' "
                    "(col_px, row_px through the interior orientation, eq. 01-07). "
                    "Default: the survey's setting.")
-@click.option("-o", "--outdir", type=click.Path(file_okay=False), default=None,
+@output_option(outdir=True, type=click.Path(file_okay=False), default=None,
               help="Output folder (default SURVEY/out, or ./lidarcat-out for the embedded block); "
                    "written atomically.")
 @click.option("--variance-factor", type=click.Choice(["a_priori", "a_posteriori"]), default=None,

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..survey.folder import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
-from .options import echo_json, json_opt
+from .options import echo_json, json_opt, output_option
 
 __all__ = ["assess"]
 
@@ -53,7 +53,7 @@ def _split(values: tuple[str, ...]) -> list[str] | None:
                    "ADJUSTED_POINTS when there is one.")
 @click.option("--survey", "survey", type=click.Path(exists=True, file_okay=False), default=None,
               help="Survey folder (camera format for photo footprints in the report).")
-@click.option("-o", "--output", type=click.Path(), default=None,
+@output_option(type=click.Path(), default=None,
               help="Write the report: NAME.html (+ .md, .json, NAME_figures/) or a folder.")
 @json_opt
 def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float, contour_interval: float,

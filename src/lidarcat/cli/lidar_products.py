@@ -8,8 +8,7 @@ from typing import Any
 import click
 import numpy as np
 
-from .lidar import _crs_opt, _sources
-from .options import NON_NEGATIVE, POSITIVE, FiniteRange, progress_bar
+from .options import NON_NEGATIVE, POSITIVE, FiniteRange, crs_option, output_option, progress_bar, tile_sources
 from .options import scheduler_option as _scheduler_opt
 from .options import workers_option as _workers_opt
 
@@ -28,7 +27,7 @@ def _run(kind: str, paths: tuple[str, ...], out: str, crs: str | None, params: d
          overlap_m: float, workers: int | None, scheduler: str | None, resume: bool, suffix: str) -> list[str]:
     from ..lidar.jobs import run_jobs, tile_jobs
 
-    files, crs, _ = _sources(paths, crs)
+    files, crs, _ = tile_sources(paths, crs)
     jobs = tile_jobs(kind, files, out, crs=crs, params=params, overlap_m=overlap_m, suffix=suffix)
     with progress_bar(len(jobs), f"{kind} tiles") as bar:
         return run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume,
@@ -37,7 +36,7 @@ def _run(kind: str, paths: tuple[str, ...], out: str, crs: str | None, params: d
 
 @click.command()
 @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-@click.option("-o", "--output", required=True, metavar="OUT",
+@output_option(required=True, metavar="OUT",
               help="One TILE and OUT ending in .las/.laz: that file. Otherwise a folder receiving a "
                    "classified copy of every tile under its own name. Inputs are never modified.")
 @click.option("--method", type=click.Choice(["smrf", "ptd"]), default="smrf", show_default=True,
@@ -60,7 +59,7 @@ def _run(kind: str, paths: tuple[str, ...], out: str, crs: str | None, params: d
 @click.option("--elevation-threshold-m", type=POSITIVE, default=0.5, show_default=True,
               help="SMRF: height above the provisional DTM still counted as ground, metres.")
 @_overlap_opt
-@_crs_opt
+@crs_option()
 @_workers_opt
 @_scheduler_opt
 @_resume_opt
@@ -98,7 +97,7 @@ def ground(paths: tuple[str, ...], output: str, method: str, max_building_m: flo
 def _raster_command(kind: str, doc: str) -> click.Command:
     @click.command(name=kind, help=doc)
     @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-    @click.option("-o", "--output", required=True, metavar="OUT",
+    @output_option(required=True, metavar="OUT",
                   help="One TILE and OUT ending in .tif: that file. Otherwise a folder receiving "
                        "<tile>.tif per tile (grids snapped to the cell, so they mosaic).")
     @click.option("--cell-m", type=POSITIVE, default=1.0, show_default=True, help="Cell size, metres.")
@@ -110,7 +109,7 @@ def _raster_command(kind: str, doc: str) -> click.Command:
     @click.option("--ndsm", is_flag=True, help="dsm: also write <output>_ndsm.tif (DSM - DTM, needs class 2).")
     @click.option("--overlap-m", type=NON_NEGATIVE, default=50.0, show_default=True, metavar="M",
                   help="Points of neighbouring tiles read around each tile, metres.")
-    @_crs_opt
+    @crs_option()
     @_workers_opt
     @_scheduler_opt
     @_resume_opt
@@ -145,7 +144,7 @@ Examples:
 
 @click.command(name="contours")
 @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-@click.option("-o", "--output", required=True, metavar="OUT.geojson|OUT.gpkg",
+@output_option(required=True, metavar="OUT.geojson|OUT.gpkg",
               help="OUT.geojson: contour lines, spot heights in OUT_spots.geojson. OUT.gpkg: one "
                    "GeoPackage with the layers contours and spot_heights (needs lidarcat[gis]). CRS set.")
 @click.option("--interval-m", type=POSITIVE, default=1.0, show_default=True,
@@ -158,7 +157,7 @@ Examples:
               help="TIN triangles with a longer edge are gaps: no contour there, metres.")
 @click.option("--spots-m", type=POSITIVE, default=100.0, show_default=True,
               help="Spot heights: highest and lowest ground point per square of this size, metres.")
-@_crs_opt
+@crs_option()
 def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_every: int, smooth: int,
                  max_edge_m: float, spots_m: float, crs: str | None) -> None:
     """Contour lines from the TIN of the ground points (class 2), with spot heights.
@@ -178,7 +177,7 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
     if Path(output).suffix.lower() not in CONTOUR_FORMATS:
         raise click.BadParameter(f"{output}: give a file ending in {', '.join(CONTOUR_FORMATS)}",
                                  param_hint="-o/--output")
-    files, crs, _ = _sources(paths, crs)
+    files, crs, _ = tile_sources(paths, crs)
     clouds = [read_points(f, crs=crs) for f in files]
     pc = PointCloud.concat(clouds)
     if not pc.has("classification") or not np.any(pc.attributes["classification"] == 2):
@@ -199,7 +198,7 @@ def _colour_map(name: str) -> str:
 
 @click.command()
 @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-@click.option("-o", "--output", required=True, metavar="OUT.tif",
+@output_option(required=True, metavar="OUT.tif",
               help="RGB GeoTIFF (and OUT.png) of the area of all TILEs.")
 @click.option("--cell-m", type=POSITIVE, default=0.45, show_default=True,
               help="Cell size, metres (the report: 45 cm, the photos' ground sample).")
@@ -207,7 +206,7 @@ def _colour_map(name: str) -> str:
 @click.option("--h-max-m", type=float, default=None, help="Height of the last colour, metres (default 98th percentile).")
 @click.option("--cmap", default="terrain", show_default=True, callback=lambda ctx, param, v: _colour_map(v),
               help="matplotlib colour map.")
-@_crs_opt
+@crs_option()
 def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: float | None, h_max_m: float | None,
                cmap: str, crs: str | None) -> None:
     """Hypsometric image: DSM heights as colours, shaded by the laser intensity (report 11.4).
@@ -228,7 +227,7 @@ def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: floa
         # the PNG goes beside OUT.tif: any other name would be overwritten by it (or hold a GeoTIFF)
         raise click.BadParameter(f"{output}: give a .tif name (the .png is written beside it)",
                                  param_hint="'-o' / '--output'")
-    files, crs, _ = _sources(paths, crs)
+    files, crs, _ = tile_sources(paths, crs)
     pc = PointCloud.concat([read_points(f, crs=crs) for f in files])
     h, t = rasterize(pc, cell_m, "dsm")
     inten, _ = rasterize(pc, cell_m, "intensity") if pc.has("intensity") else (None, None)
@@ -253,7 +252,7 @@ def _sheet_index_choice() -> click.Choice:
 
 @click.command()
 @click.argument("products", nargs=-1, required=True, metavar="PRODUCT...")
-@click.option("-o", "--output", required=True, metavar="FOLDER",
+@output_option(required=True, metavar="FOLDER",
               help="Receives <sheet>/<product> for every sheet holding data, and sheets.geojson (the index).")
 @click.option("--index", "index", type=_sheet_index_choice(), default="grid", show_default=True,
               help="grid: a regular grid of --size-m in the products' CRS, sheets named E<east>_N<north>. "
@@ -264,8 +263,7 @@ def _sheet_index_choice() -> click.Choice:
               help="grid: sheet width (and height, unless --height-m), metres; sheets are aligned to "
                    "multiples of it.")
 @click.option("--height-m", type=POSITIVE, default=None, help="grid: sheet height, metres (default: --size-m).")
-@click.option("--crs", default=None, metavar="CRS",
-              help="CRS of the products and the index layer (default: the first product's); the Brazilian "
+@crs_option(help="CRS of the products and the index layer (default: the first product's); the Brazilian "
                    "index needs it, e.g. EPSG:31983 (SIRGAS 2000 / UTM zone 23S).")
 @click.option("--geographic-crs", default=None, metavar="CRS",
               help="brazil-*: the geographic frame of the sheets (default: the datum of --crs, e.g. "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from .options import echo_json, progress_bar
+from .options import echo_json, json_option, output_option, progress_bar
 
 __all__ = ["ortho"]
 
@@ -44,8 +44,8 @@ mosaic fills them from another photo.
               help="Mosaic: blend the photos across each seamline over +- this many metres (0: hard seams).")
 @click.option("--tile", "tile_px", type=click.IntRange(16), default=1024, show_default=True,
               help="Rows/columns computed at once (memory ~ 40 bytes x tile x output width).")
-@click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False), help="Output folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON.")
+@output_option(outdir=True, required=True, type=click.Path(file_okay=False), help="Output folder.")
+@json_option(help="Print what was written as JSON.")
 def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, images_dir, make_mosaic, feather_m,
           tile_px, outdir, as_json) -> None:
     """Orthophotos of adjusted photos over a DTM or DSM, and their mosaic."""

@@ -8,7 +8,7 @@ from typing import Any
 import click
 
 from ..survey.folder import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
-from .options import echo_json, json_opt
+from .options import echo_json, json_opt, output_option
 
 __all__ = ["run"]
 
@@ -16,7 +16,7 @@ __all__ = ["run"]
 @click.command("run")
 @click.argument("survey", required=False, type=click.Path(exists=True, file_okay=False),
                 metavar="[SURVEY]")
-@click.option("-o", "--outdir", type=click.Path(file_okay=False), default=None,
+@output_option(outdir=True, type=click.Path(file_okay=False), default=None,
               help="Output folder (created; every file written atomically). "
                    "Default: SURVEY/out, or ./lidarcat-out for the embedded thesis block.")
 @click.option("--force", is_flag=True,
