@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import click
 import numpy as np
@@ -21,17 +20,6 @@ _overlap_opt = click.option(
     "--overlap-m", type=NON_NEGATIVE, default=None, metavar="M",
     help="Points of neighbouring tiles read around each tile, metres, so that seams do not show "
          "(default: two seed windows / two opening windows for ground, 50 m for rasters).")
-
-
-def _run(kind: str, paths: tuple[str, ...], out: str, crs: str | None, params: dict[str, Any],
-         overlap_m: float, workers: int | None, scheduler: str | None, resume: bool, suffix: str) -> list[str]:
-    from ..lidar.jobs import run_jobs, tile_jobs
-
-    files, crs, _ = tile_sources(paths, crs)
-    jobs = tile_jobs(kind, files, out, crs=crs, params=params, overlap_m=overlap_m, suffix=suffix)
-    with progress_bar(len(jobs), f"{kind} tiles") as bar:
-        return run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume,
-                        progress=bar.update if bar is not None else None)
 
 
 @click.command()
@@ -79,18 +67,16 @@ def ground(paths: tuple[str, ...], output: str, method: str, max_building_m: flo
       lidarcat lidar ground 'tiles/*.laz' -o classified/ --workers 4
       lidarcat lidar ground tiles/ -o classified/ --method ptd --max-building-m 80
     """
-    from ..production.ground import PTDParameters, SMRFParameters, default_overlap_m
+    from ..stages import lidar as actions
 
-    import dataclasses
-
-    if method == "ptd":
-        p: Any = PTDParameters(max_building_m=max_building_m, iteration_angle_deg=iteration_angle_deg,
-                               iteration_distance_m=iteration_distance_m)
-    else:
-        p = SMRFParameters(window_m=window_m, slope=slope, elevation_threshold_m=elevation_threshold_m)
-    params = {"method": method, **dataclasses.asdict(p)}
-    ov = default_overlap_m(method, p) if overlap_m is None else overlap_m
-    outs = _run("ground", paths, output, crs, params, ov, workers, scheduler, resume, "")
+    p = actions.ground_parameters(method, max_building_m=max_building_m, iteration_angle_deg=iteration_angle_deg,
+                                  iteration_distance_m=iteration_distance_m, window_m=window_m, slope=slope,
+                                  elevation_threshold_m=elevation_threshold_m)
+    files, crs, _ = tile_sources(paths, crs)
+    with progress_bar(len(files), "ground tiles") as bar:
+        outs = actions.ground(files, output, crs=crs, method=method, params=p, overlap_m=overlap_m,
+                              workers=workers, scheduler=scheduler, resume=resume,
+                              progress=bar.update if bar is not None else None)
     click.echo(f"wrote {len(outs)} classified file(s): {outs[0] if len(outs) == 1 else Path(output)}")
 
 
@@ -116,9 +102,14 @@ def _raster_command(kind: str, doc: str) -> click.Command:
     def cmd(paths: tuple[str, ...], output: str, cell_m: float, max_edge_m: float, text: bool, hillshade: bool,
             ndsm: bool, overlap_m: float, crs: str | None, workers: int | None, scheduler: str | None,
             resume: bool) -> None:
-        params = {"cell_m": cell_m, "max_edge_m": max_edge_m, "text": text, "hillshade": hillshade,
-                  "ndsm": ndsm}
-        outs = _run(kind, paths, output, crs, params, overlap_m, workers, scheduler, resume, ".tif")
+        from ..stages.lidar import terrain_model
+
+        files, crs, _ = tile_sources(paths, crs)
+        with progress_bar(len(files), f"{kind} tiles") as bar:
+            outs = terrain_model(kind, files, output, crs=crs, cell_m=cell_m, max_edge_m=max_edge_m, text=text,
+                                 hillshade=hillshade, ndsm=ndsm, overlap_m=overlap_m, workers=workers,
+                                 scheduler=scheduler, resume=resume,
+                                 progress=bar.update if bar is not None else None)
         click.echo(f"wrote {len(outs)} {kind.upper()} GeoTIFF(s): {outs[0] if len(outs) == 1 else Path(output)}")
     return cmd
 

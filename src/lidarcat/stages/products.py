@@ -120,7 +120,8 @@ def run(ctx: Context, tmp: Path) -> dict:
     from ..lidar.cloud import PointCloud
     from ..production.contours import (contour_features, contours, spot_features, spot_heights, write_geojson,
                                    write_layers)
-    from ..production.ground import classify_tiles, params_from_dict
+    from ..production.ground import params_from_dict
+    from .lidar import ground
     from ..production.terrain import dsm_grid, dtm_grid, hillshade, ndsm, write_product, write_text_grid
 
     survey = ctx["survey"]
@@ -141,7 +142,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     if cfg["ground"]:
         method = cfg["filter"]
         params = params_from_dict(method, {})
-        outs = classify_tiles(tiles, tmp / "ground", crs=crs, method=method, params=params, resume=False)
+        outs = [Path(p) for p in ground(tiles, tmp / "ground", crs=crs, method=method, params=params, resume=False)]
         for m in (tmp / "ground").glob("*.done.json"):   # resume markers of the tile runner: not products
             m.unlink()
         tiles = sorted(outs)
