@@ -17,6 +17,7 @@ beyond that the file says why the test was not computed.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -26,35 +27,86 @@ from .._util import write_json_atomic
 from ..errors import LidarcatError
 from .context import StageContext as Context
 
-__all__ = ["run", "CONSISTENCY_MEMORY_BYTES"]
+__all__ = ["adjust", "run", "CONSISTENCY_MEMORY_BYTES"]
 
 #: largest memory the in-memory consistency test may take (k check points: 2 x (3k)^2 x 8 bytes)
 CONSISTENCY_MEMORY_BYTES = 1 << 30
 
 
+def adjust(survey: Any, folder: Path, *, control: str | None = None, observations: str | None = None,
+           variance_factor: str | None = None, chi2_level: float | None = None, eo_constraints: bool = False,
+           max_iter: int = 50, precision: str = "all", snooping: str = "report", snooping_level: float | None = None,
+           family_level: float | None = None, robust: str = "none",
+           progress: Callable[[int, float], None] | None = None) -> Any:
+    """The action of ``lidarcat adjust`` and of the stage ``adjust-SET``: a survey in, the adjustment folder out.
+
+    Builds the bundle problem of *survey* (:func:`lidarcat.survey.problem_from_survey`),
+    adjusts it with Baarda's data snooping (:func:`lidarcat.bundle.reliability.snoop`) and
+    writes ``eop.csv``, ``points.csv``, ``residuals.csv``, ``summary.json`` (and
+    ``check_covariance.csv``, ``blunders.csv``, ``reliability.csv``;
+    :func:`lidarcat.survey.write_adjustment`) into *folder*, each file atomically (the
+    callers make the folder appear at once).
+
+    Parameters
+    ----------
+    survey : lidarcat.Survey
+    folder : Path
+        Output folder (created).
+    control, observations, variance_factor, chi2_level : optional
+        Control set, observation kind, variance factor and chi-square level (default:
+        the survey's settings).
+    eo_constraints : bool
+        Use photos.csv exterior orientations with sigmas as weighted constraints.
+    max_iter, precision, snooping, snooping_level, family_level, robust
+        See :func:`lidarcat.survey.adjust_survey` (family_level default
+        :data:`lidarcat.bundle.reliability.FAMILY_LEVEL`).
+    progress : callable, optional
+        ``progress(iteration, vtpv)``.
+
+    Returns
+    -------
+    SnoopingResult
+        ``.result`` is the final :class:`~lidarcat.bundle.BundleResult`.
+    """
+    import time
+
+    from ..bundle.reliability import FAMILY_LEVEL, snoop
+    from ..survey import problem_from_survey, write_adjustment
+    from ..survey.adjustment import survey_provenance
+
+    t0 = time.perf_counter()
+    settings = survey.settings
+    family_level = FAMILY_LEVEL if family_level is None else float(family_level)
+    problem = problem_from_survey(survey, control=control, observations=observations, eo_constraints=eo_constraints)
+    params = dict(control=problem.info.get("control_set"), observations=problem.info.get("observations"),
+                  variance_factor=variance_factor or settings.variance_factor,
+                  chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
+                  eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
+                  snooping_level=None if snooping_level is None else float(snooping_level),
+                  family_level=family_level, robust=robust, precision=precision)
+    sres = snoop(problem, mode=snooping, level=snooping_level, family_level=family_level, robust=robust,
+                 max_iter=max_iter, precision=precision, variance_factor=params["variance_factor"],
+                 chi2_level=params["chi2_level"], progress=progress)
+    write_adjustment(sres.result, folder, extra={
+        "elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs, "height_system": survey.height_system,
+        "survey": survey.name, "control_set": params["control"], "observations": params["observations"]},
+        snooping=sres, provenance=survey_provenance(survey, params))
+    return sres
+
+
 def run(ctx: Context, tmp: Path) -> dict:
     """Bundle adjustment of one control set -> eop.csv, points.csv, residuals.csv, summary.json."""
-    from ..survey import problem_from_survey, write_adjustment
-    from ..bundle.reliability import FAMILY_LEVEL, snoop
-    from ..survey.adjustment import survey_provenance
     from ..survey.folder import Survey
 
     par = ctx.params
     survey = Survey.load(ctx.folder("extract") / "survey") if par.get("derived") else ctx["survey"]
-    problem = problem_from_survey(survey, control=par["control"])
 
     def prog(iteration: int, vtpv: float) -> None:
         ctx.progress(min(iteration, 49), 50)
 
-    kw = dict(variance_factor=survey.settings.variance_factor, chi2_level=survey.settings.chi2_level)
     # data snooping, report only: the run keeps every observation and names the blunders
-    sres = snoop(problem, mode="report", progress=prog, **kw)
+    sres = adjust(survey, tmp, control=par["control"], snooping="report", progress=prog)
     result = sres.result
-    write_adjustment(result, tmp, extra={"crs": survey.crs, "height_system": survey.height_system, "survey": survey.name,
-                                         "control_set": par["control"],
-                                         "observations": survey.settings.observations},
-                     snooping=sres, provenance=survey_provenance(survey, {
-                         "control": par["control"], "snooping": "report", "family_level": FAMILY_LEVEL, **kw}))
     summ = result.summary()
     if not result.success:
         raise LidarcatError(f"adjustment with control set {par['control']!r} did not converge: "
