@@ -7,7 +7,7 @@ others from running.  The CLI never shows a traceback: library errors
 code 2 (bad input); any other exception but ``OSError`` (a bug: a data condition
 must raise a LidarcatError) becomes one line ``Error: internal error ...`` with exit
 code 70, its traceback only in the debug log (``-vv``).  Exit codes: 0 done, 1 stage
-or solver failed, 2 bad input, 3 statistical test rejected.
+or solver failed, 2 bad input, 3 statistical test rejected, 70 internal error.
 """
 
 from __future__ import annotations

@@ -75,6 +75,7 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
          failed its chi-square test of the variance factor (image or
          control sds, the model, or a blunder); summary.json has
          status "test failed" and the test in tests_failed
+     70  internal error (a bug): one line; the traceback with lidarcat -vv
 
     \b
     Examples:

@@ -40,18 +40,17 @@ def adjust(survey: Any, folder: Path, *, control: str | None = None, observation
            progress: Callable[[int, float], None] | None = None) -> Any:
     """The action of ``lidarcat adjust`` and of the stage ``adjust-SET``: a survey in, the adjustment folder out.
 
-    Builds the bundle problem of *survey* (:func:`lidarcat.survey.problem_from_survey`),
-    adjusts it with Baarda's data snooping (:func:`lidarcat.bundle.reliability.snoop`) and
-    writes ``eop.csv``, ``points.csv``, ``residuals.csv``, ``summary.json`` (and
-    ``check_covariance.csv``, ``blunders.csv``, ``reliability.csv``;
-    :func:`lidarcat.survey.write_adjustment`) into *folder*, each file atomically (the
-    callers make the folder appear at once).
+    :func:`lidarcat.survey.adjustment.adjust_survey_into`: builds the bundle problem of
+    *survey*, adjusts it with Baarda's data snooping (:func:`lidarcat.bundle.reliability.snoop`)
+    and writes ``eop.csv``, ``points.csv``, ``residuals.csv``, ``summary.json`` (and
+    ``check_covariance.csv``, ``blunders.csv``, ``reliability.csv``) into *folder*, each file
+    atomically (the callers make the folder appear at once).
 
     Parameters
     ----------
     survey : lidarcat.Survey
     folder : Path
-        Output folder (created).
+        Output folder.
     control, observations, variance_factor, chi2_level : optional
         Control set, observation kind, variance factor and chi-square level (default:
         the survey's settings).
@@ -68,30 +67,13 @@ def adjust(survey: Any, folder: Path, *, control: str | None = None, observation
     SnoopingResult
         ``.result`` is the final :class:`~lidarcat.bundle.BundleResult`.
     """
-    import time
+    from ..survey.adjustment import adjust_survey_into
 
-    from ..bundle.reliability import FAMILY_LEVEL, snoop
-    from ..survey import problem_from_survey, write_adjustment
-    from ..survey.adjustment import survey_provenance
-
-    t0 = time.perf_counter()
-    settings = survey.settings
-    family_level = FAMILY_LEVEL if family_level is None else float(family_level)
-    problem = problem_from_survey(survey, control=control, observations=observations, eo_constraints=eo_constraints)
-    params = dict(control=problem.info.get("control_set"), observations=problem.info.get("observations"),
-                  variance_factor=variance_factor or settings.variance_factor,
-                  chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
-                  eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
-                  snooping_level=None if snooping_level is None else float(snooping_level),
-                  family_level=family_level, robust=robust, precision=precision)
-    sres = snoop(problem, mode=snooping, level=snooping_level, family_level=family_level, robust=robust,
-                 max_iter=max_iter, precision=precision, variance_factor=params["variance_factor"],
-                 chi2_level=params["chi2_level"], progress=progress)
-    write_adjustment(sres.result, folder, extra={
-        "elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs, "height_system": survey.height_system,
-        "survey": survey.name, "control_set": params["control"], "observations": params["observations"]},
-        snooping=sres, provenance=survey_provenance(survey, params))
-    return sres
+    return adjust_survey_into(survey, folder, control=control, observations=observations,
+                              variance_factor=variance_factor, chi2_level=chi2_level,
+                              eo_constraints=eo_constraints, max_iter=max_iter, precision=precision,
+                              snooping=snooping, snooping_level=snooping_level, family_level=family_level,
+                              robust=robust, progress=progress)
 
 
 def run(ctx: Context, tmp: Path) -> dict:
