@@ -128,19 +128,15 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
         return
     if workers is not None or scheduler is not None or work_dir:
         raise click.UsageError("--workers, --scheduler and --work-dir: for --find, not jobs or --at")
-    from ..control.batch import Job, extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
+    from ..control.batch import Job, read_jobs
+    from ..stages.extract import extract as extract_action
 
     job_list = [Job("P1", at[0], at[1])] if at is not None else read_jobs(jobs)
     with progress_bar(len(job_list), "Extracting roofs") as bar:
-        points = extract_batch(job_list, lidar=lidar or None, crs=crs, params=params,
-                               spec_sd=tuple(spec_sd) if spec_sd else None,
-                               progress=bar.update if bar is not None else None, index_cache=index_cache)
-    if output:
-        write_control_csv(output, points, comments=[f"lidarcat extract, preset {preset}"])
-    if planes_out:
-        write_planes_csv(planes_out, points)
-    if figures:
-        write_figures(figures, points)
+        points = extract_action(jobs if at is None else job_list, lidar=lidar or None, crs=crs, preset=preset,
+                                radius_m=radius, spec_sd=tuple(spec_sd) if spec_sd else None,
+                                index_cache=index_cache, control_csv=output, planes_csv=planes_out,
+                                figures=figures, progress=bar.update if bar is not None else None)
     if as_json:
         if at is not None:
             echo_json(points[0].to_dict())

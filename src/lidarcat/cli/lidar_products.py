@@ -84,8 +84,9 @@ def _raster_command(kind: str, doc: str) -> click.Command:
     @click.command(name=kind, help=doc)
     @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
     @output_option(required=True, metavar="OUT",
-                  help="One TILE and OUT ending in .tif: that file. Otherwise a folder receiving "
-                       "<tile>.tif per tile (grids snapped to the cell, so they mosaic).")
+                  help="OUT ending in .tif: one GeoTIFF over all the TILEs (computed tile by tile, "
+                       "mosaicked). Otherwise a folder receiving <tile>.tif per tile (grids snapped to the "
+                       "cell, so they mosaic).")
     @click.option("--cell-m", type=POSITIVE, default=1.0, show_default=True, help="Cell size, metres.")
     @click.option("--max-edge-m", type=POSITIVE, default=50.0, show_default=True,
                   help="TIN triangles with a longer edge are gaps (NaN, counted in the log), metres.")
