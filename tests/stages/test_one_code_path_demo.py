@@ -69,6 +69,19 @@ def _files(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
+def _spy(monkeypatch: Any, module: Any, name: str) -> list[str]:
+    """Replace ``module.name`` by a wrapper recording each call; the list of calls."""
+    calls: list[str] = []
+    real = getattr(module, name)
+
+    def wrapper(*a: Any, **kw: Any) -> Any:
+        calls.append(name)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(module, name, wrapper)
+    return calls
+
+
 def _invoke(*args: Any) -> Any:
     r = CliRunner().invoke(cli, [str(a) for a in args])
     assert r.exit_code == 0, r.output
@@ -82,7 +95,8 @@ def demo(tmp_path_factory):
     return root
 
 
-def test_extract_cli_and_stage_write_the_same_files(demo, tmp_path):
+def test_extract_cli_and_stage_write_the_same_files(demo, tmp_path, monkeypatch):
+    calls = _spy(monkeypatch, extract_stage, "extract")
     survey = Survey.load(demo)
     out = tmp_path / "run" / "extract"
     out.mkdir(parents=True)
@@ -95,12 +109,14 @@ def test_extract_cli_and_stage_write_the_same_files(demo, tmp_path):
     assert sorted(cli_files) == ["control.csv", "control.csv.json", "planes.csv", "planes.csv.json"]  # + sidecars
     for name, data in cli_files.items():
         assert data == (out / name).read_bytes(), name
+    assert calls == ["extract", "extract"]                    # the stage, then the command
     assert json.loads(cli_files["control.csv.json"])["notes"] == [
         "Roof vertices extracted by lidarcat (preset default) at the jobs of jobs.csv; metres, sds propagated "
         "from the planes."]
 
 
-def test_ortho_cli_and_mapping_stage_write_the_same_files(demo, tmp_path):
+def test_ortho_cli_and_mapping_stage_write_the_same_files(demo, tmp_path, monkeypatch):
+    calls = _spy(monkeypatch, mapping_stage, "orthophotos")
     work = tmp_path / "s"
     shutil.copytree(demo, work, ignore=shutil.ignore_patterns("lidar"))
     (work / "lidar").symlink_to(demo / "lidar")
@@ -123,6 +139,7 @@ def test_ortho_cli_and_mapping_stage_write_the_same_files(demo, tmp_path):
     assert sorted(stage_files) == sorted([*cli_files, "dsm.png", "dsm.tif"])
     for name, data in cli_files.items():
         assert data == stage_files[name], name
+    assert calls == ["orthophotos", "orthophotos"]
 
 
 @pytest.fixture(scope="module")
@@ -131,7 +148,8 @@ def ground_tiles(demo):
     return sorted((demo / "lidar").glob("*.laz"))
 
 
-def test_lidar_dtm_dsm_cli_and_products_stage_write_the_same_files(demo, ground_tiles, tmp_path):
+def test_lidar_dtm_dsm_cli_and_products_stage_write_the_same_files(demo, ground_tiles, tmp_path, monkeypatch):
+    calls = _spy(monkeypatch, lidar_actions, "terrain_model")
     work = tmp_path / "s"
     work.mkdir()
     for name in ("camera.toml", "photos.csv", "image_points.csv"):
@@ -153,6 +171,7 @@ def test_lidar_dtm_dsm_cli_and_products_stage_write_the_same_files(demo, ground_
     _invoke("lidar", "dsm", *ground_tiles, "-o", cli / "dsm.tif", "--cell-m", 4, "--text", "--hillshade", "--ndsm")
     assert sorted(_files(cli)) == ["dsm.tif", "dsm.txt", "dsm_hillshade.tif", "dsm_ndsm.tif", "dtm.tif", "dtm.txt",
                                    "dtm_hillshade.tif"]                      # the tile grids are gone
+    assert calls == ["terrain_model"] * 4                     # dtm, dsm by the stage, then by the commands
     stage_files = _files(out)
     for name, data in _files(cli).items():
         assert data == stage_files[name.replace("dsm_ndsm", "ndsm")], name

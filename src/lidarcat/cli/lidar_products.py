@@ -124,6 +124,7 @@ reported, not invented. Classify first with 'lidarcat lidar ground'.
 Examples:
   lidarcat lidar dtm classified/tile.laz -o dtm.tif --crs EPSG:7415 --text
   lidarcat lidar dtm 'classified/*.laz' -o dtm/ --cell-m 0.5 --workers 2
+  lidarcat lidar dtm 'classified/*.laz' -o dtm.tif --workers 2    # one GeoTIFF of all tiles
 """)
 dsm = _raster_command("dsm", """Surface model (DSM): highest first return per cell (small holes closed).
 

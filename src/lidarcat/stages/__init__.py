@@ -17,9 +17,10 @@ Each module has ``run(ctx, tmpdir) -> dict`` (``ctx`` a
 :class:`~lidarcat.stages.context.StageContext`), run by :mod:`lidarcat.pipeline`,
 which orders them for a survey; the stages with a command of their own expose
 its action (one function, inputs in, files out), which the command in
-:mod:`lidarcat.cli` and the ``run`` function both call: :func:`adjust.adjust`,
-:func:`assess.assess`, :func:`lidar.ground` (``lidarcat lidar ground``, the products
-stage) and :func:`lidar.terrain_model` (``lidarcat lidar dtm|dsm``).  :data:`REGISTRY` lists the stages with their one-line
+:mod:`lidarcat.cli` and the ``run`` function both call: :func:`extract.extract`,
+:func:`adjust.adjust`, :func:`assess.assess`, :func:`mapping.orthophotos` (``lidarcat ortho``),
+:func:`lidar.ground` (``lidarcat lidar ground``) and :func:`lidar.terrain_model`
+(``lidarcat lidar dtm|dsm``; the products stage calls both).  :data:`REGISTRY` lists the stages with their one-line
 summaries (``lidarcat run --help`` is generated from it).
 
 Also here: ``context`` (:class:`~lidarcat.stages.context.StageContext`, what a
