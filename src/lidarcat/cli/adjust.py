@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from .options import echo_json, json_opt, progress_bar, survey_arg
+from .options import echo_json, json_opt, output_option, progress_bar, survey_arg
 
 __all__ = ["adjust", "format_report", "format_blunders", "exit_status"]
 
@@ -105,7 +105,7 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="Photo coordinates: 'corrected' (x_mm, y_mm of image_points.csv) or 'pixel' "
                    "(col_px, row_px through the interior orientation, eq. 01-07). "
                    "Default: the survey's setting.")
-@click.option("-o", "--outdir", type=click.Path(file_okay=False), default=None,
+@output_option(outdir=True, type=click.Path(file_okay=False), default=None,
               help="Output folder (default SURVEY/out, or ./lidarcat-out for the embedded block); "
                    "written atomically.")
 @click.option("--variance-factor", type=click.Choice(["a_priori", "a_posteriori"]), default=None,
@@ -201,7 +201,8 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     they are refused (exit 2) and the default is off; find the blunders first
     without the parameters.
     """
-    from ..survey import adjust_survey
+    from .._util import atomic_dir
+    from ..stages.adjust import adjust as adjust_action
     from ..survey.selfcal import (
         SNOOPING_WITH_PARAMETERS,
         adjust_survey_with_parameters,
@@ -224,11 +225,13 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     else:
         # one tick per Levenberg-Marquardt iteration (re-adjustments of the snooping included)
         with progress_bar(max_iter, "Adjusting (iterations)", enabled=not as_json) as bar:
-            _, out = adjust_survey(loaded, control=control, observations=observations, outdir=outdir,
-                                   variance_factor=variance_factor, eo_constraints=eo_constraints,
-                                   max_iter=max_iter, snooping=snooping or "report", snooping_level=snooping_level,
-                                   family_level=family_level, robust=robust, precision=precision,
-                                   progress=None if bar is None else lambda _it, _cost: bar.update(1))
+            out = loaded.output_dir(outdir)
+            with atomic_dir(out) as tmp:  # the folder appears when every file is written
+                adjust_action(loaded, tmp, control=control, observations=observations,
+                              variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter,
+                              snooping=snooping or "report", snooping_level=snooping_level,
+                              family_level=family_level, robust=robust, precision=precision,
+                              progress=None if bar is None else lambda _it, _cost: bar.update(1))
     # what was written is what is shown
     summary = {**json.loads((Path(out) / "summary.json").read_text(encoding="utf-8")), "outdir": str(out)}
     code, verdict = exit_status(summary)

@@ -8,7 +8,7 @@ import click
 
 from .._util.formatting import format_number
 from ..survey.folder import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
-from .options import echo_json, json_opt
+from .options import echo_json, json_opt, output_option
 
 __all__ = ["assess"]
 
@@ -54,8 +54,10 @@ def _split(values: tuple[str, ...]) -> list[str] | None:
                    "ADJUSTED_POINTS when there is one.")
 @click.option("--survey", "survey", type=click.Path(exists=True, file_okay=False), default=None,
               help="Survey folder (camera format for photo footprints in the report).")
-@click.option("-o", "--output", type=click.Path(), default=None,
-              help="Write the report: NAME.html (+ .md, .json, NAME_figures/) or a folder.")
+@output_option(type=click.Path(), default=None,
+              help="Write the report: NAME.html (+ .md, .json, NAME_figures/), or a folder (report.html, .md, "
+                   ".json, report_figures/, and assessment.json and discrepancies.csv as `lidarcat run` writes "
+                   "them).")
 @json_opt
 def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float, contour_interval: float,
            standards: tuple[str, ...], alpha: float, plotting_position: str, sign: str, pec_class: str,
@@ -81,7 +83,7 @@ def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float,
       lidarcat assess out/gps data/thesis/ground_points.csv --standard pec --json
       lidarcat assess adj.csv ref.csv --points 603,605,606 -o report.html
     """
-    from ..accuracy.checkpoints import assess as run_assess
+    from ..stages.assess import assess as run_assess
 
     ref_path = Path(reference)
     if ref_path.is_dir():
@@ -107,15 +109,17 @@ def assess(adjusted: str, reference: str, points: tuple[str, ...], scale: float,
         from ..survey import read_point_covariance
 
         cov = read_point_covariance(covariance)
-    a = run_assess(adj_path, ref_path, points=_split(points), sign=sign, scale=scale,
-                   contour_interval_m=contour_interval, standards=tuple(s.lower() for s in standards) or _STANDARDS,
-                   alpha=alpha, plotting_position=plotting_position, pec_class=pec_class, adjusted_cov=cov)
-    paths = None
-    if output is not None:
-        from ..report.document import write_report
+    control_set = None
+    if adjustment_dir is not None and (Path(adjustment_dir) / "summary.json").is_file():
+        import json
 
-        paths = write_report(output, assessment=a, adjustment_dir=adjustment_dir, survey=survey,
-                             title=f"lidarcat accuracy report: {adj_path.name} vs {ref_path.name}")
+        control_set = json.loads((Path(adjustment_dir) / "summary.json").read_text(encoding="utf-8")).get("control_set")
+    a, paths = run_assess(adj_path, ref_path, output, points=_split(points), sign=sign, scale=scale,
+                          contour_interval_m=contour_interval,
+                          standards=tuple(s.lower() for s in standards) or _STANDARDS, alpha=alpha,
+                          plotting_position=plotting_position, pec_class=pec_class, adjusted_cov=cov,
+                          control_set=control_set, adjustment_dir=adjustment_dir, survey=survey,
+                          title=f"lidarcat accuracy report: {adj_path.name} vs {ref_path.name}")
     if as_json:
         doc = a.to_dict()
         if no_cov:

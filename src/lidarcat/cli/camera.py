@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from .options import echo_json, json_opt
+from .options import echo_json, json_opt, output_option
 
 __all__ = ["camera", "correct", "info"]
 
@@ -28,7 +28,7 @@ def camera() -> None:
 @click.option("--camera", "camera_spec", metavar="FILE[:ID]",
               help="Camera calibration TOML (and the camera id when the file holds several). "
                    "Required for a CSV; for a survey folder it replaces the survey's own camera.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+@output_option(type=click.Path(dir_okay=False), default=None,
               help="Write the table to this CSV (atomically). Default: print CSV on stdout.")
 @json_opt
 def correct(source: str, camera_spec: str | None, output: str | None, as_json: bool) -> None:

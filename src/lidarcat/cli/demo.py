@@ -6,7 +6,7 @@ import math
 
 import click
 
-from .options import echo_json, json_opt, progress_bar
+from .options import echo_json, json_opt, output_option, progress_bar
 
 __all__ = ["demo"]
 
@@ -22,7 +22,7 @@ def demo() -> None:
 
 
 @demo.command("synthetic")
-@click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False),
+@output_option(outdir=True, required=True, type=click.Path(file_okay=False),
               help="Survey folder to write (created; files written atomically).")
 @click.option("--photos", "n_photos", type=click.IntRange(2, 200), default=6, show_default=True,
               help="Number of photos: one strip below 6, two strips (the second flown back) from 6.")

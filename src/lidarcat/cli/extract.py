@@ -6,7 +6,8 @@ import sys
 
 import click
 
-from .options import echo_json, progress_bar, scheduler_option, workers_option
+from .options import (crs_option, echo_json, json_option, output_option, progress_bar, scheduler_option,
+                      workers_option)
 
 __all__ = ["extract"]
 
@@ -65,7 +66,7 @@ def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bo
 @click.option("--lidar", "lidar", multiple=True, type=click.Path(exists=True),
               help="LiDAR tile(s) or folders (LAS/LAZ/text); repeat for several, or list the tiles as "
                    "arguments. Default: each job's own file.")
-@click.option("--crs", default=None, help="CRS of tiles that carry none, e.g. EPSG:7415 (AHN3).")
+@crs_option(help="CRS of tiles that carry none, e.g. EPSG:7415 (AHN3).")
 @click.option("--at", "at", nargs=2, type=float, default=None, metavar="E N",
               help="Extract one roof at this approximate position (m).")
 @click.option("--radius", type=float, default=None,
@@ -76,7 +77,7 @@ def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bo
 @click.option("--classes", default=None, help="Comma list of LAS classes kept for --find, e.g. 6 (buildings).")
 @click.option("--preset", type=click.Choice(["default", "thesis"]), default="default", show_default=True,
               help="Parameter preset: 'thesis' = 4-30 deg window, 0.15 m threshold, +-2 m heights.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+@output_option(type=click.Path(dir_okay=False), default=None,
               help="Output: control.csv (jobs), candidates.geojson or .csv (--find).")
 @click.option("--planes", "planes_out", type=click.Path(dir_okay=False), default=None,
               help="Also write the planes (a, b, c, d, sds, counts, RMS, slope, aspect) to this CSV.")
@@ -88,7 +89,7 @@ def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bo
               help="JSON tile index of the --lidar tiles to reuse and update, e.g. SURVEY/lidar_index.json "
                    "from `lidarcat lidar index --blocks`: later clips decode only the parts of a LAZ "
                    "tile they need.")
-@click.option("--json", "as_json", is_flag=True, help="Print results as JSON (with --at: one object).")
+@json_option(help="Print results as JSON (with --at: one object).")
 @workers_option
 @scheduler_option
 @click.option("--work-dir", "work_dir", type=click.Path(file_okay=False), default=None,
@@ -127,19 +128,15 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
         return
     if workers is not None or scheduler is not None or work_dir:
         raise click.UsageError("--workers, --scheduler and --work-dir: for --find, not jobs or --at")
-    from ..control.batch import Job, extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
+    from ..control.batch import Job, read_jobs
+    from ..stages.extract import extract as extract_action
 
     job_list = [Job("P1", at[0], at[1])] if at is not None else read_jobs(jobs)
     with progress_bar(len(job_list), "Extracting roofs") as bar:
-        points = extract_batch(job_list, lidar=lidar or None, crs=crs, params=params,
-                               spec_sd=tuple(spec_sd) if spec_sd else None,
-                               progress=bar.update if bar is not None else None, index_cache=index_cache)
-    if output:
-        write_control_csv(output, points, comments=[f"lidarcat extract, preset {preset}"])
-    if planes_out:
-        write_planes_csv(planes_out, points)
-    if figures:
-        write_figures(figures, points)
+        points = extract_action(jobs if at is None else job_list, lidar=lidar or None, crs=crs, preset=preset,
+                                radius_m=radius, spec_sd=tuple(spec_sd) if spec_sd else None,
+                                index_cache=index_cache, control_csv=output, planes_csv=planes_out,
+                                figures=figures, progress=bar.update if bar is not None else None)
     if as_json:
         if at is not None:
             echo_json(points[0].to_dict())

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .options import echo_json, json_opt
+from .options import crs_option, echo_json, json_opt, output_option, overwrite_option
 
 __all__ = ["import_cmd", "export_cmd", "IMPORT_FORMATS", "EXPORT_FORMATS"]
 
@@ -39,13 +39,12 @@ def _fmt_help(table: dict[str, str]) -> str:
 @click.command("import", short_help="Read COLMAP, OpenSfM, Metashape, ODM, OPK, GNSS files into a survey.")
 @click.argument("fmt", metavar="FORMAT", type=click.Choice(list(IMPORT_FORMATS)))
 @click.argument("source", type=click.Path(exists=True))
-@click.option("-o", "--output", "output", required=True, type=click.Path(file_okay=False),
+@output_option(required=True, type=click.Path(file_okay=False),
               help="Survey folder to write (atomically; refused if it holds a survey.toml, see --force).")
 @click.option("--survey", "base", type=click.Path(exists=True), default=None,
               help="Survey the orientations/GCPs are merged into (opk, gnss, odm-*, opensfm-gcp; default: "
                    "the embedded thesis block).")
-@click.option("--crs", default=None, help="Target CRS of the coordinates (pyproj string, e.g. EPSG:31982); "
-                                          "needed when the file is in lon/lat.")
+@crs_option(help="Target CRS of the coordinates (pyproj string, e.g. EPSG:31982); needed when the file is in lon/lat.")
 @click.option("--file-crs", default=None, help="gnss: CRS of the coordinates in the file.")
 @click.option("--height-system", default="unspecified", show_default=True,
               help="What the file's heights are: ellipsoidal or orthometric (reported in every output).")
@@ -73,7 +72,7 @@ def _fmt_help(table: dict[str, str]) -> str:
               help="heights: target height system (default: the survey's).")
 @click.option("--geoid", type=click.Path(exists=True, dir_okay=False), default=None,
               help="heights: geoid grid file (GTX, GeoTIFF...; overrides [heights] geoid_grid).")
-@click.option("--force", is_flag=True, help="Replace the files of an existing survey in OUTPUT.")
+@overwrite_option(help="Replace the files of an existing survey in OUTPUT.")
 @json_opt
 def import_cmd(fmt, source, output, base, crs, file_crs, height_system, pixel_size_mm, control_sd_m, tracks,
                frame, cameras, points, measurements, angle_unit, sd_position_m, sd_attitude_deg, gcp_sd_m,
@@ -186,7 +185,7 @@ import_cmd.help = import_cmd.help.replace("{formats}", _fmt_help(IMPORT_FORMATS)
 @click.argument("adjustment", type=click.Path(exists=True, file_okay=False))
 @click.option("--survey", type=click.Path(exists=True), default=None,
               help="The survey that was adjusted (default: the embedded thesis block).")
-@click.option("-o", "--output", required=True, type=click.Path(),
+@output_option(required=True, type=click.Path(),
               help="Output folder (colmap, opensfm, gis) or file (opk); written atomically.")
 @click.option("--angle-unit", type=click.Choice(["deg", "rad", "gon"]), default="deg", show_default=True,
               help="opk: unit of omega, phi, kappa.")

@@ -10,14 +10,10 @@ from typing import Any
 
 import click
 
-from .options import POSITIVE, echo_json, json_opt, progress_bar
+from .options import POSITIVE, crs_option, echo_json, json_opt, output_option, progress_bar, tile_sources
 
 __all__ = ["lidar", "info", "index", "clip_cmd", "raster"]
 
-_crs_opt = click.option(
-    "--crs", default=None, metavar="CRS",
-    help="CRS of files that carry none, e.g. EPSG:7415 (RD New + NAP, the AHN3 tiles) or "
-         "EPSG:31982 (SIRGAS 2000 / UTM 22S). Default: the file's own, or the survey's [lidar] crs.")
 _columns_opt = click.option(
     "--columns", default=None, metavar="'E N H ...'",
     help="Text files: column names in order (E N H intensity return class ...; '-' skips one). "
@@ -45,45 +41,10 @@ def _progress(label: str, paths: Sequence[Path]) -> Iterator[Any]:
         yield bar.update if bar is not None else None
 
 
-def _sources(paths: Sequence[str], crs: str | None) -> tuple[list[Path], str | None, Path | None]:
-    """Expand PATH arguments; a survey folder contributes its tiles and [lidar] crs."""
-    from ..lidar import expand_paths
-
-    out: list[Path] = []
-    survey_root: Path | None = None
-    plain: list[str] = []
-    for p in paths:
-        if Path(p).is_dir() and (Path(p) / "survey.toml").is_file():
-            files, survey_crs, survey_root = _survey_lidar(Path(p))
-            out.extend(files)
-            crs = crs or survey_crs
-        else:
-            plain.append(p)
-    if plain:
-        out.extend(expand_paths(plain))
-    if not out:
-        raise click.UsageError("no LiDAR files given")
-    return out, crs, survey_root
-
-
-def _survey_lidar(folder: Path) -> tuple[list[Path], str | None, Path]:
-    """(tile paths, [lidar] crs, root) of a survey folder."""
-    from ..errors import SurveyError
-    from ..lidar.readers import ASCII_SUFFIXES, LAS_SUFFIXES
-    from ..survey.folder import Survey
-
-    s = Survey.load(folder)
-    files = [f for f in s.lidar_paths if Path(f).suffix.lower() in LAS_SUFFIXES + ASCII_SUFFIXES]
-    if not files:
-        raise SurveyError(f"{folder / 'survey.toml'}: no LiDAR tiles; add lidar = [\"lidar/*.laz\"] "
-                          "to [files]")
-    return files, s.lidar_crs, Path(s.root)
-
-
 # ----------------------------------------------------------------------------- info
 @lidar.command()
 @click.argument("paths", nargs=-1, required=True, metavar="PATH...")
-@_crs_opt
+@crs_option()
 @_columns_opt
 @_delimiter_opt
 @json_opt
@@ -101,7 +62,7 @@ def info(paths: tuple[str, ...], crs: str | None, columns: str | None, delimiter
     """
     from ..lidar import describe
 
-    files, crs, _ = _sources(paths, crs)
+    files, crs, _ = tile_sources(paths, crs)
     with _progress("Reading", files) as progress:
         result = describe(files, crs=crs, columns=columns, delimiter=delimiter, progress=progress)
     if as_json:
@@ -143,7 +104,7 @@ def _info_text(f: dict[str, Any]) -> str:
 # ----------------------------------------------------------------------------- index
 @lidar.command()
 @click.argument("paths", nargs=-1, required=True, metavar="SURVEY|PATH...")
-@_crs_opt
+@crs_option()
 @click.option("--index-file", "index_file", type=click.Path(dir_okay=False), default=None,
               help="Where to keep the index (JSON). Default: SURVEY/lidar_index.json, or "
                    "lidar_index.json in the folder of the first tile.")
@@ -172,7 +133,7 @@ def index(paths: tuple[str, ...], crs: str | None, index_file: str | None, rebui
     """
     from ..lidar import TileIndex
 
-    files, crs, root = _sources(paths, crs)
+    files, crs, root = tile_sources(paths, crs)
     if index_file is not None:
         cache = Path(index_file)
     elif root is not None and len(paths) == 1:
@@ -208,7 +169,7 @@ def index(paths: tuple[str, ...], crs: str | None, index_file: str | None, rebui
               help="Approximate plan position of the roof vertex, metres.")
 @click.option("--radius", type=POSITIVE, required=True, metavar="R",
               help="Clip radius in metres (thesis: 2.5-5.0).")
-@_crs_opt
+@crs_option()
 @click.option("--at-crs", default=None, metavar="CRS",
               help="CRS of --at when it differs from the tiles' (it is transformed with pyproj).")
 @click.option("--height-filter", type=click.Choice(["thesis", "robust", "none"]), default="thesis",
@@ -222,7 +183,7 @@ def index(paths: tuple[str, ...], crs: str | None, index_file: str | None, rebui
               help="Keep only this LAS class (repeatable), e.g. --class 6 for buildings.")
 @click.option("--min-points", type=click.IntRange(min=1), default=10, show_default=True,
               help="Fewest points accepted.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+@output_option(type=click.Path(dir_okay=False), default=None,
               help="Write the clip to .laz/.las/.csv/.xyz/.txt (atomically).")
 @_columns_opt
 @_delimiter_opt
@@ -244,7 +205,7 @@ def clip_cmd(paths: tuple[str, ...], at: tuple[float, float], radius: float, crs
     """
     from ..lidar import TileIndex, clip, write_points
 
-    files, crs, _ = _sources(paths, crs)
+    files, crs, _ = tile_sources(paths, crs)
     idx = TileIndex.build(files, crs=crs, columns=columns, delimiter=delimiter)
     cloud = clip(idx, at, radius, height_filter=None if height_filter == "none" else height_filter,
                  height_window_m=window_m, first_returns_only=first_returns,
@@ -275,10 +236,10 @@ def clip_cmd(paths: tuple[str, ...], at: tuple[float, float], radius: float, crs
                    "ground (class 2) or last return, holes interpolated.")
 @click.option("--bounds", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
               help="Area to grid, metres (default: all the tiles).")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True,
+@output_option(type=click.Path(dir_okay=False), required=True,
               help="GeoTIFF to write (a PNG preview with a colour bar goes next to it).")
 @click.option("--no-preview", is_flag=True, help="Do not write the PNG preview.")
-@_crs_opt
+@crs_option()
 @_columns_opt
 @_delimiter_opt
 @json_opt
@@ -300,7 +261,7 @@ def raster(paths: tuple[str, ...], cell_m: float, what: str, bounds: tuple[float
 
     from ..lidar import TileIndex, rasterize, write_raster
 
-    files, crs, _ = _sources(paths, crs)
+    files, crs, _ = tile_sources(paths, crs)
     idx = TileIndex.build(files, crs=crs, columns=columns, delimiter=delimiter, max_cached_points=0)
     idx.verify_bounds()  # header bounds are claims: measure them before choosing tiles or the box
     box = tuple(bounds) if bounds else tuple(idx.bounds[:4])

@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import click
 import numpy as np
 
-from .lidar import _crs_opt, _sources
-from .options import NON_NEGATIVE, POSITIVE, FiniteRange, progress_bar
+from .options import NON_NEGATIVE, POSITIVE, FiniteRange, crs_option, output_option, progress_bar, tile_sources
 from .options import scheduler_option as _scheduler_opt
 from .options import workers_option as _workers_opt
 
@@ -24,20 +22,9 @@ _overlap_opt = click.option(
          "(default: two seed windows / two opening windows for ground, 50 m for rasters).")
 
 
-def _run(kind: str, paths: tuple[str, ...], out: str, crs: str | None, params: dict[str, Any],
-         overlap_m: float, workers: int | None, scheduler: str | None, resume: bool, suffix: str) -> list[str]:
-    from ..lidar.jobs import run_jobs, tile_jobs
-
-    files, crs, _ = _sources(paths, crs)
-    jobs = tile_jobs(kind, files, out, crs=crs, params=params, overlap_m=overlap_m, suffix=suffix)
-    with progress_bar(len(jobs), f"{kind} tiles") as bar:
-        return run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume,
-                        progress=bar.update if bar is not None else None)
-
-
 @click.command()
 @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-@click.option("-o", "--output", required=True, metavar="OUT",
+@output_option(required=True, metavar="OUT",
               help="One TILE and OUT ending in .las/.laz: that file. Otherwise a folder receiving a "
                    "classified copy of every tile under its own name. Inputs are never modified.")
 @click.option("--method", type=click.Choice(["smrf", "ptd"]), default="smrf", show_default=True,
@@ -60,7 +47,7 @@ def _run(kind: str, paths: tuple[str, ...], out: str, crs: str | None, params: d
 @click.option("--elevation-threshold-m", type=POSITIVE, default=0.5, show_default=True,
               help="SMRF: height above the provisional DTM still counted as ground, metres.")
 @_overlap_opt
-@_crs_opt
+@crs_option()
 @_workers_opt
 @_scheduler_opt
 @_resume_opt
@@ -80,27 +67,26 @@ def ground(paths: tuple[str, ...], output: str, method: str, max_building_m: flo
       lidarcat lidar ground 'tiles/*.laz' -o classified/ --workers 4
       lidarcat lidar ground tiles/ -o classified/ --method ptd --max-building-m 80
     """
-    from ..production.ground import PTDParameters, SMRFParameters, default_overlap_m
+    from ..stages import lidar as actions
 
-    import dataclasses
-
-    if method == "ptd":
-        p: Any = PTDParameters(max_building_m=max_building_m, iteration_angle_deg=iteration_angle_deg,
-                               iteration_distance_m=iteration_distance_m)
-    else:
-        p = SMRFParameters(window_m=window_m, slope=slope, elevation_threshold_m=elevation_threshold_m)
-    params = {"method": method, **dataclasses.asdict(p)}
-    ov = default_overlap_m(method, p) if overlap_m is None else overlap_m
-    outs = _run("ground", paths, output, crs, params, ov, workers, scheduler, resume, "")
+    p = actions.ground_parameters(method, max_building_m=max_building_m, iteration_angle_deg=iteration_angle_deg,
+                                  iteration_distance_m=iteration_distance_m, window_m=window_m, slope=slope,
+                                  elevation_threshold_m=elevation_threshold_m)
+    files, crs, _ = tile_sources(paths, crs)
+    with progress_bar(len(files), "ground tiles") as bar:
+        outs = actions.ground(files, output, crs=crs, method=method, params=p, overlap_m=overlap_m,
+                              workers=workers, scheduler=scheduler, resume=resume,
+                              progress=bar.update if bar is not None else None)
     click.echo(f"wrote {len(outs)} classified file(s): {outs[0] if len(outs) == 1 else Path(output)}")
 
 
 def _raster_command(kind: str, doc: str) -> click.Command:
     @click.command(name=kind, help=doc)
     @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-    @click.option("-o", "--output", required=True, metavar="OUT",
-                  help="One TILE and OUT ending in .tif: that file. Otherwise a folder receiving "
-                       "<tile>.tif per tile (grids snapped to the cell, so they mosaic).")
+    @output_option(required=True, metavar="OUT",
+                  help="OUT ending in .tif: one GeoTIFF over all the TILEs (computed tile by tile, "
+                       "mosaicked). Otherwise a folder receiving <tile>.tif per tile (grids snapped to the "
+                       "cell, so they mosaic).")
     @click.option("--cell-m", type=POSITIVE, default=1.0, show_default=True, help="Cell size, metres.")
     @click.option("--max-edge-m", type=POSITIVE, default=50.0, show_default=True,
                   help="TIN triangles with a longer edge are gaps (NaN, counted in the log), metres.")
@@ -110,16 +96,21 @@ def _raster_command(kind: str, doc: str) -> click.Command:
     @click.option("--ndsm", is_flag=True, help="dsm: also write <output>_ndsm.tif (DSM - DTM, needs class 2).")
     @click.option("--overlap-m", type=NON_NEGATIVE, default=50.0, show_default=True, metavar="M",
                   help="Points of neighbouring tiles read around each tile, metres.")
-    @_crs_opt
+    @crs_option()
     @_workers_opt
     @_scheduler_opt
     @_resume_opt
     def cmd(paths: tuple[str, ...], output: str, cell_m: float, max_edge_m: float, text: bool, hillshade: bool,
             ndsm: bool, overlap_m: float, crs: str | None, workers: int | None, scheduler: str | None,
             resume: bool) -> None:
-        params = {"cell_m": cell_m, "max_edge_m": max_edge_m, "text": text, "hillshade": hillshade,
-                  "ndsm": ndsm}
-        outs = _run(kind, paths, output, crs, params, overlap_m, workers, scheduler, resume, ".tif")
+        from ..stages.lidar import terrain_model
+
+        files, crs, _ = tile_sources(paths, crs)
+        with progress_bar(len(files), f"{kind} tiles") as bar:
+            outs = terrain_model(kind, files, output, crs=crs, cell_m=cell_m, max_edge_m=max_edge_m, text=text,
+                                 hillshade=hillshade, ndsm=ndsm, overlap_m=overlap_m, workers=workers,
+                                 scheduler=scheduler, resume=resume,
+                                 progress=bar.update if bar is not None else None)
         click.echo(f"wrote {len(outs)} {kind.upper()} GeoTIFF(s): {outs[0] if len(outs) == 1 else Path(output)}")
     return cmd
 
@@ -133,6 +124,7 @@ reported, not invented. Classify first with 'lidarcat lidar ground'.
 Examples:
   lidarcat lidar dtm classified/tile.laz -o dtm.tif --crs EPSG:7415 --text
   lidarcat lidar dtm 'classified/*.laz' -o dtm/ --cell-m 0.5 --workers 2
+  lidarcat lidar dtm 'classified/*.laz' -o dtm.tif --workers 2    # one GeoTIFF of all tiles
 """)
 dsm = _raster_command("dsm", """Surface model (DSM): highest first return per cell (small holes closed).
 
@@ -145,7 +137,7 @@ Examples:
 
 @click.command(name="contours")
 @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-@click.option("-o", "--output", required=True, metavar="OUT.geojson|OUT.gpkg",
+@output_option(required=True, metavar="OUT.geojson|OUT.gpkg",
               help="OUT.geojson: contour lines, spot heights in OUT_spots.geojson. OUT.gpkg: one "
                    "GeoPackage with the layers contours and spot_heights (needs lidarcat[gis]). CRS set.")
 @click.option("--interval-m", type=POSITIVE, default=1.0, show_default=True,
@@ -158,7 +150,7 @@ Examples:
               help="TIN triangles with a longer edge are gaps: no contour there, metres.")
 @click.option("--spots-m", type=POSITIVE, default=100.0, show_default=True,
               help="Spot heights: highest and lowest ground point per square of this size, metres.")
-@_crs_opt
+@crs_option()
 def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_every: int, smooth: int,
                  max_edge_m: float, spots_m: float, crs: str | None) -> None:
     """Contour lines from the TIN of the ground points (class 2), with spot heights.
@@ -178,7 +170,7 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
     if Path(output).suffix.lower() not in CONTOUR_FORMATS:
         raise click.BadParameter(f"{output}: give a file ending in {', '.join(CONTOUR_FORMATS)}",
                                  param_hint="-o/--output")
-    files, crs, _ = _sources(paths, crs)
+    files, crs, _ = tile_sources(paths, crs)
     clouds = [read_points(f, crs=crs) for f in files]
     pc = PointCloud.concat(clouds)
     if not pc.has("classification") or not np.any(pc.attributes["classification"] == 2):
@@ -199,7 +191,7 @@ def _colour_map(name: str) -> str:
 
 @click.command()
 @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-@click.option("-o", "--output", required=True, metavar="OUT.tif",
+@output_option(required=True, metavar="OUT.tif",
               help="RGB GeoTIFF (and OUT.png) of the area of all TILEs.")
 @click.option("--cell-m", type=POSITIVE, default=0.45, show_default=True,
               help="Cell size, metres (the report: 45 cm, the photos' ground sample).")
@@ -207,7 +199,7 @@ def _colour_map(name: str) -> str:
 @click.option("--h-max-m", type=float, default=None, help="Height of the last colour, metres (default 98th percentile).")
 @click.option("--cmap", default="terrain", show_default=True, callback=lambda ctx, param, v: _colour_map(v),
               help="matplotlib colour map.")
-@_crs_opt
+@crs_option()
 def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: float | None, h_max_m: float | None,
                cmap: str, crs: str | None) -> None:
     """Hypsometric image: DSM heights as colours, shaded by the laser intensity (report 11.4).
@@ -228,7 +220,7 @@ def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: floa
         # the PNG goes beside OUT.tif: any other name would be overwritten by it (or hold a GeoTIFF)
         raise click.BadParameter(f"{output}: give a .tif name (the .png is written beside it)",
                                  param_hint="'-o' / '--output'")
-    files, crs, _ = _sources(paths, crs)
+    files, crs, _ = tile_sources(paths, crs)
     pc = PointCloud.concat([read_points(f, crs=crs) for f in files])
     h, t = rasterize(pc, cell_m, "dsm")
     inten, _ = rasterize(pc, cell_m, "intensity") if pc.has("intensity") else (None, None)
@@ -253,7 +245,7 @@ def _sheet_index_choice() -> click.Choice:
 
 @click.command()
 @click.argument("products", nargs=-1, required=True, metavar="PRODUCT...")
-@click.option("-o", "--output", required=True, metavar="FOLDER",
+@output_option(required=True, metavar="FOLDER",
               help="Receives <sheet>/<product> for every sheet holding data, and sheets.geojson (the index).")
 @click.option("--index", "index", type=_sheet_index_choice(), default="grid", show_default=True,
               help="grid: a regular grid of --size-m in the products' CRS, sheets named E<east>_N<north>. "
@@ -264,8 +256,7 @@ def _sheet_index_choice() -> click.Choice:
               help="grid: sheet width (and height, unless --height-m), metres; sheets are aligned to "
                    "multiples of it.")
 @click.option("--height-m", type=POSITIVE, default=None, help="grid: sheet height, metres (default: --size-m).")
-@click.option("--crs", default=None, metavar="CRS",
-              help="CRS of the products and the index layer (default: the first product's); the Brazilian "
+@crs_option(help="CRS of the products and the index layer (default: the first product's); the Brazilian "
                    "index needs it, e.g. EPSG:31983 (SIRGAS 2000 / UTM zone 23S).")
 @click.option("--geographic-crs", default=None, metavar="CRS",
               help="brazil-*: the geographic frame of the sheets (default: the datum of --crs, e.g. "

@@ -2,8 +2,12 @@
 
 Subcommands are listed in pipeline order and imported lazily, so that
 ``lidarcat --help`` is fast and a broken optional stage never prevents the
-others from running.  Library errors (:class:`lidarcat.errors.LidarcatError`)
-become a one-line ``Error: ...`` message with exit code 2, never a traceback.
+others from running.  The CLI never shows a traceback: library errors
+(:class:`lidarcat.errors.LidarcatError`) become one line ``Error: ...`` with exit
+code 2 (bad input); any other exception but ``OSError`` (a bug: a data condition
+must raise a LidarcatError) becomes one line ``Error: internal error ...`` with exit
+code 70, its traceback only in the debug log (``-vv``).  Exit codes: 0 done, 1 stage
+or solver failed, 2 bad input, 3 statistical test rejected, 70 internal error.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import click  # noqa: E402
 
-__all__ = ["cli", "main", "COMMANDS"]
+__all__ = ["cli", "main", "COMMANDS", "one_line"]
 
 #: (name, "module:attribute", one-line summary), in pipeline order.
 COMMANDS: list[tuple[str, str, str]] = [
@@ -42,6 +46,13 @@ class CliLibraryError(click.ClickException):
     """A library error shown as one line, exit code 2."""
 
     exit_code = 2
+
+
+class CliInternalError(click.ClickException):
+    """An unexpected exception (a bug: every data condition is a LidarcatError) shown as one line,
+    exit code 70 (EX_SOFTWARE: outside the table of 0 done, 1 failed, 2 bad input, 3 test rejected)."""
+
+    exit_code = 70
 
 
 class CliInterrupted(click.ClickException):
@@ -93,11 +104,27 @@ class LazyGroup(click.Group):
 
         try:
             return super().invoke(ctx)
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort):
+            raise
         except LidarcatError as ex:
-            raise CliLibraryError(str(ex)) from ex
+            raise CliLibraryError(one_line(ex)) from ex
+        except OSError:  # an unreadable/unwritable file the library did not wrap: its own message
+            raise
         except KeyboardInterrupt:
             # click would print "Aborted!" and exit 1; say what state the output is in.
             raise CliInterrupted("Interrupted; no partial output was kept.") from None
+        except Exception as ex:  # a bug: one line, the traceback in the debug log only
+            logging.getLogger("lidarcat").debug("internal error", exc_info=True)
+            raise CliInternalError(f"internal error ({type(ex).__name__}: {one_line(ex)}); please report it "
+                                   "(-vv shows the traceback)") from ex
+
+
+def one_line(ex: BaseException) -> str:
+    """The message of *ex* on one line (an OSError with its file name)."""
+    if isinstance(ex, OSError) and not str(ex).strip():
+        return type(ex).__name__
+    text = str(ex) if str(ex).strip() else type(ex).__name__
+    return " ".join(text.split())
 
 
 def configure_logging(verbosity: int) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from .options import echo_json, progress_bar
+from .options import echo_json, json_option, output_option, progress_bar
 
 __all__ = ["monoplot"]
 
@@ -41,9 +41,9 @@ ok, outside_photo, no_intersection, outside_surface, not_converged, occluded.
               help="Pointing sd of the digitised pixels, px.")
 @click.option("--surface-sd", "surface_sd_m", type=click.FloatRange(min=0), default=0.15, show_default=True,
               help="Height sd of the surface, m (LiDAR noise + interpolation).")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@output_option(required=True, type=click.Path(dir_okay=False),
               help="Output .geojson (features) or .csv (one row per vertex).")
-@click.option("--json", "as_json", is_flag=True, help="Print the status counts as JSON.")
+@json_option(help="Print the status counts as JSON.")
 def monoplot(survey, photo_id, features_path, surface_path, lidar, interpolator, method, eop_path,
              image_sd_px, surface_sd_m, output, as_json) -> None:
     """Monorestitution: features digitised on ONE photo, intersected with the LiDAR surface.

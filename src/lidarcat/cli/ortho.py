@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from .options import echo_json, progress_bar
+from .options import echo_json, json_option, output_option, progress_bar
 
 __all__ = ["ortho"]
 
@@ -44,17 +44,16 @@ mosaic fills them from another photo.
               help="Mosaic: blend the photos across each seamline over +- this many metres (0: hard seams).")
 @click.option("--tile", "tile_px", type=click.IntRange(16), default=1024, show_default=True,
               help="Rows/columns computed at once (memory ~ 40 bytes x tile x output width).")
-@click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False), help="Output folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON.")
+@output_option(outdir=True, required=True, type=click.Path(file_okay=False), help="Output folder.")
+@json_option(help="Print what was written as JSON.")
 def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, images_dir, make_mosaic, feather_m,
           tile_px, outdir, as_json) -> None:
     """Orthophotos of adjusted photos over a DTM or DSM, and their mosaic."""
+    import contextlib
     from pathlib import Path
 
-    from ..mapping.monoplot import GridSurface
-    from ..mapping.mosaic import mosaic
-    from ..mapping.ortho import PhotoModel, orthophoto
-    from ..mapping.inputs import adjusted_orientations, default_eop_path, photo_image, read_orientations
+    from ..mapping.inputs import default_eop_path, read_orientations
+    from ..stages.mapping import orthophotos
     from ..survey.folder import Survey
 
     if bool(dtm) == bool(dsm):
@@ -68,33 +67,27 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
         eop = Path(eop_path) if eop_path else default_eop_path(s)
         adjusted = read_orientations(eop) if eop.is_file() else {}
         photo_ids = tuple(p for p in s.photo_ids if p in adjusted) or s.photo_ids
-    surface = GridSurface.from_geotiff(dsm or dtm)
-    images = Path(images_dir) if images_dir else s.root / "images"
-    eos = adjusted_orientations(s, photo_ids, eop_path)
-    photos = []
-    for pid in photo_ids:
-        cam = s.camera_of(pid)
-        photos.append(PhotoModel(pid, photo_image(pid, images, cam), cam, eos[pid].params))
-    out = Path(outdir)
-    results = []
-    for ph in photos:
-        with progress_bar(1000, f"ortho {ph.photo_id}", enabled=not as_json) as bar:
-            r = orthophoto(ph, surface, gsd_m, out / f"ortho_{ph.photo_id}.tif", bounds=bounds,
-                           true_ortho=bool(dsm), crs=s.crs, tile_px=tile_px,
-                           progress=(lambda d, n: bar.update(int(1000 * d / n) - bar.pos)) if bar else None)
-        results.append(r.to_dict() | {"photo": ph.photo_id})
-        if not as_json:
-            click.echo(f"photo {ph.photo_id}: {r.shape[1]} x {r.shape[0]} cells of {gsd_m:g} m, "
-                       f"{r.n_valid} valid, {r.n_occluded} occluded -> {r.path}")
-    summary = {"orthophotos": results}
-    if make_mosaic:
-        with progress_bar(1000, "mosaic", enabled=not as_json) as bar:
-            m = mosaic(photos, surface, gsd_m, out / "mosaic.tif", seams_path=out / "seamlines.geojson",
-                       bounds=bounds, true_ortho=bool(dsm), crs=s.crs, tile_px=tile_px, feather_m=feather_m,
-                       progress=(lambda d, n: bar.update(int(1000 * d / n) - bar.pos)) if bar else None)
-        summary["mosaic"] = m.to_dict()
-        if not as_json:
-            click.echo(f"mosaic of {len(photos)} photos: {m.shape[1]} x {m.shape[0]} cells, "
-                       f"{m.n_nodata} nodata -> {m.path}, seamlines {m.seams_path}")
+    with contextlib.ExitStack() as bars:
+        current: dict[str, object] = {}
+
+        def progress(step: str, done: int, total: int) -> None:
+            if current.get("step") != step:  # one bar per photo, then the mosaic's
+                bars.close()
+                current.update(step=step, bar=bars.enter_context(progress_bar(1000, step, enabled=not as_json)))
+            bar = current["bar"]
+            if bar is not None:
+                bar.update(int(1000 * done / total) - bar.pos)
+
+        summary = orthophotos(s, outdir, list(photo_ids), dsm or dtm, true_ortho=bool(dsm), gsd_m=gsd_m,
+                              eop=eop_path, images=images_dir, bounds=bounds, mosaic=make_mosaic,
+                              feather_m=feather_m, tile_px=tile_px, progress=progress)
     if as_json:
         echo_json(summary)
+        return
+    for r in summary["orthophotos"]:
+        click.echo(f"photo {r['photo']}: {r['cols']} x {r['rows']} cells of {gsd_m:g} m, {r['n_valid']} valid, "
+                   f"{r['n_occluded']} occluded -> {r['path']}")
+    if make_mosaic:
+        m = summary["mosaic"]
+        click.echo(f"mosaic of {len(summary['orthophotos'])} photos: {m['cols']} x {m['rows']} cells, "
+                   f"{m['n_nodata']} nodata -> {m['path']}, seamlines {m['seams']}")

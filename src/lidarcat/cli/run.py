@@ -8,15 +8,32 @@ from typing import Any
 import click
 
 from ..survey.folder import DEFAULT_CONTOUR_INTERVAL_M, DEFAULT_SCALE
-from .options import echo_json, json_opt
+from .options import echo_json, json_opt, output_option
 
 __all__ = ["run"]
+
+
+def _help(doc: str) -> str:
+    """The docstring of :func:`run` with the stage table of :data:`lidarcat.stages.REGISTRY`."""
+    import inspect
+
+    from ..stages import REGISTRY
+
+    width = max(len(n) for n, _ in REGISTRY) + 2
+    table = "\b\nStages, in order (each skipped when its inputs are absent):\n" + "\n".join(
+        f"  {name:<{width}}{what}" for name, what in REGISTRY) + "\n"
+    return inspect.cleandoc(doc).replace("{stages}", table)
+
+
+def _with_stages(f: Any) -> Any:
+    f.__doc__ = _help(f.__doc__ or "")
+    return f
 
 
 @click.command("run")
 @click.argument("survey", required=False, type=click.Path(exists=True, file_okay=False),
                 metavar="[SURVEY]")
-@click.option("-o", "--outdir", type=click.Path(file_okay=False), default=None,
+@output_option(outdir=True, type=click.Path(file_okay=False), default=None,
               help="Output folder (created; every file written atomically). "
                    "Default: SURVEY/out, or ./lidarcat-out for the embedded thesis block.")
 @click.option("--force", is_flag=True,
@@ -37,20 +54,12 @@ __all__ = ["run"]
                    "Figure 19) into OUTDIR/extract/figures/.")
 @json_opt
 @click.pass_context
+@_with_stages
 def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool, scale: float | None,
         contour_interval_m: float | None, figures: bool, as_json: bool) -> None:
     """Run the whole pipeline on SURVEY (default: the embedded thesis block).
 
-    \b
-    Stages, in order (each skipped when its inputs are absent):
-      camera      interior orientation, pixel -> corrected photo coordinates
-      extract     LiDAR roof vertices -> control points (survey with lidar + jobs)
-      adjust-SET  bundle adjustment for every control set (thesis: gps, lidar)
-      assess-SET  check-point accuracy of each run
-      compare     differences of the runs: orientations, points free in both
-      thesis      the thesis's printed section 4.4 beside this run (embedded block)
-      report      HTML / Markdown / JSON report in OUTDIR/report/
-
+    {stages}
     OUTDIR gets one folder per stage, summary.json (status ran / reused /
     skipped / failed of every stage and the key numbers) and lidarcat.log.
     Stages whose inputs (file contents, parameters, lidarcat version) did not
@@ -66,6 +75,7 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
          failed its chi-square test of the variance factor (image or
          control sds, the model, or a blunder); summary.json has
          status "test failed" and the test in tests_failed
+     70  internal error (a bug): one line; the traceback with lidarcat -vv
 
     \b
     Examples:

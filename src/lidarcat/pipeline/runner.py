@@ -35,6 +35,8 @@ from typing import Any
 from .. import __version__
 from .._util import atomic_dir, dumps_json, write_json_atomic
 from ..errors import LidarcatError
+from ..stages.context import ProgressCallback, failed_tests
+from ..stages.context import StageContext as Context
 
 __all__ = ["STATUSES", "ProgressCallback", "Stage", "StageRecord", "PipelineResult", "Context",
            "run_stages", "safe_name", "log_to", "failed_tests"]
@@ -44,10 +46,6 @@ log = logging.getLogger(__name__)
 #: the statuses a stage can end with
 STATUSES = ("ran", "reused", "skipped", "failed")
 
-#: ``progress(stage, done, total)``: called with ``done == 0`` when a stage
-#: starts and ``done == total`` when it ends; stages that know their size call
-#: it in between.
-ProgressCallback = Callable[[str, int, int], None]
 
 _RECORD_DIR = ".stages"
 _HASH_CHUNK = 1 << 20
@@ -194,48 +192,6 @@ class PipelineResult:
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.summary)
-
-
-def failed_tests(records: Iterable[StageRecord]) -> list[str]:
-    """``"stage: test"`` of every ``failed_tests`` entry in the results of the done *records*."""
-    return [f"{r.name}: {t}" for r in records if r.done for t in r.result.get("failed_tests", ())]
-
-
-class Context:
-    """What a stage sees: output folder, earlier records, shared values."""
-
-    def __init__(self, outdir: Path, values: Mapping[str, Any] | None = None,
-                 progress: ProgressCallback | None = None):
-        self.outdir = outdir
-        self.records: dict[str, StageRecord] = {}
-        self.values: dict[str, Any] = dict(values or {})
-        self._progress = progress
-        self.current: str | None = None
-        self.stage: Stage | None = None
-
-    def folder(self, stage: str) -> Path:
-        """Final output folder of an earlier stage."""
-        return self.outdir / self.records[stage].folder
-
-    @property
-    def params(self) -> Mapping[str, Any]:
-        """Parameters of the running stage (``Stage.params``)."""
-        assert self.stage is not None
-        return self.stage.params
-
-    def result(self, stage: str) -> Mapping[str, Any]:
-        return self.records[stage].result
-
-    def done(self, stage: str) -> bool:
-        return stage in self.records and self.records[stage].done
-
-    def progress(self, done: int, total: int) -> None:
-        """Report progress of the current stage."""
-        if self._progress is not None and self.current is not None:
-            self._progress(self.current, done, total)
-
-    def __getitem__(self, key: str) -> Any:
-        return self.values[key]
 
 
 # --------------------------------------------------------------------------- hashing
@@ -399,8 +355,8 @@ def _run_one(stage: Stage, ctx: Context, force: bool) -> StageRecord:
     if (not force and old and old.get("input_hash") == digest
             and old.get("status") in ("ran", "reused") and _outputs_intact(outdir, old)):
         log.info("stage %s: reused (inputs unchanged, %s)", stage.name, digest[:12])
-        if ctx._progress:
-            ctx._progress(stage.name, 1, 1)
+        if ctx.progress_callback:
+            ctx.progress_callback(stage.name, 1, 1)
         return StageRecord(stage.name, stage.folder, "reused", "inputs unchanged", 0.0, digest,
                            tuple(old.get("outputs", ())), old.get("result", {}))
 
@@ -409,8 +365,8 @@ def _run_one(stage: Stage, ctx: Context, force: bool) -> StageRecord:
     with contextlib.suppress(FileNotFoundError):
         _record_path(outdir, stage.name).unlink()
     log.info("stage %s: running", stage.name)
-    if ctx._progress:
-        ctx._progress(stage.name, 0, 1)
+    if ctx.progress_callback:
+        ctx.progress_callback(stage.name, 0, 1)
     t0 = time.perf_counter()
     target = outdir / stage.folder
     written: list[str] = []
@@ -448,8 +404,8 @@ def _run_one(stage: Stage, ctx: Context, force: bool) -> StageRecord:
     write_json_atomic(_record_path(outdir, stage.name),
                       {**rec.to_dict(), "output_digests": digests, "lidarcat": __version__})
     log.info("stage %s: ran in %.2f s", stage.name, seconds)
-    if ctx._progress:
-        ctx._progress(stage.name, 1, 1)
+    if ctx.progress_callback:
+        ctx.progress_callback(stage.name, 1, 1)
     return rec
 
 

@@ -13,11 +13,35 @@
 ``report``     index.html / index.md / report.json of the whole run
 =============  ======================================================
 
-Each module has ``run(ctx, tmpdir) -> dict`` (see
-:class:`lidarcat.pipeline.runner.Stage`); :mod:`lidarcat.pipeline.plan`
-orders them for a survey.
+Each module has ``run(ctx, tmpdir) -> dict`` (``ctx`` a
+:class:`~lidarcat.stages.context.StageContext`), run by :mod:`lidarcat.pipeline`,
+which orders them for a survey; the stages with a command of their own expose
+its action (one function, inputs in, files out), which the command in
+:mod:`lidarcat.cli` and the ``run`` function both call: :func:`extract.extract`,
+:func:`adjust.adjust`, :func:`assess.assess`, :func:`mapping.orthophotos` (``lidarcat ortho``),
+:func:`lidar.ground` (``lidarcat lidar ground``) and :func:`lidar.terrain_model`
+(``lidarcat lidar dtm|dsm``; the products stage calls both).  :data:`REGISTRY` lists the stages with their one-line
+summaries (``lidarcat run --help`` is generated from it).
+
+Also here: ``context`` (:class:`~lidarcat.stages.context.StageContext`, what a
+stage sees) and ``lidar`` (the actions of the LiDAR production commands).
 """
 
-from . import adjust, assess, camera, compare, extract, mapping, products, report, selfcal, thesis
+from . import adjust, assess, camera, compare, context, extract, lidar, mapping, products, report, selfcal, thesis
 
-__all__ = ["camera", "extract", "adjust", "assess", "compare", "thesis", "mapping", "products", "selfcal", "report"]
+__all__ = ["camera", "extract", "adjust", "assess", "compare", "thesis", "mapping", "products", "selfcal", "report",
+           "context", "lidar", "REGISTRY"]
+
+#: every stage of ``lidarcat run`` in pipeline order: (name, one-line summary); SET is a control set
+REGISTRY: tuple[tuple[str, str], ...] = (
+    ("camera", "interior orientation, pixel -> corrected photo coordinates"),
+    ("extract", "LiDAR roof vertices -> control points (survey with lidar + jobs)"),
+    ("adjust-SET", "bundle adjustment for every control set (thesis: gps, lidar)"),
+    ("assess-SET", "check-point accuracy of each run"),
+    ("compare", "differences of the runs: orientations, points free in both"),
+    ("thesis", "the thesis's printed section 4.4 beside this run (embedded block)"),
+    ("mapping", "orthophotos, mosaic, monorestituted features (survey.toml [mapping])"),
+    ("products", "LiDAR ground, DTM/DSM, contours, hypsometry, sheets ([products])"),
+    ("selfcal", "adjustment with additional parameters ([self_calibration])"),
+    ("report", "HTML / Markdown / JSON report in OUTDIR/report/"),
+)

@@ -17,6 +17,7 @@ beyond that the file says why the test was not computed.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -24,37 +25,70 @@ import numpy as np
 
 from .._util import write_json_atomic
 from ..errors import LidarcatError
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
-__all__ = ["run", "CONSISTENCY_MEMORY_BYTES"]
+__all__ = ["adjust", "run", "CONSISTENCY_MEMORY_BYTES"]
 
 #: largest memory the in-memory consistency test may take (k check points: 2 x (3k)^2 x 8 bytes)
 CONSISTENCY_MEMORY_BYTES = 1 << 30
 
 
+def adjust(survey: Any, folder: Path, *, control: str | None = None, observations: str | None = None,
+           variance_factor: str | None = None, chi2_level: float | None = None, eo_constraints: bool = False,
+           max_iter: int = 50, precision: str = "all", snooping: str = "report", snooping_level: float | None = None,
+           family_level: float | None = None, robust: str = "none",
+           progress: Callable[[int, float], None] | None = None) -> Any:
+    """The action of ``lidarcat adjust`` and of the stage ``adjust-SET``: a survey in, the adjustment folder out.
+
+    :func:`lidarcat.survey.adjustment.adjust_survey_into`: builds the bundle problem of
+    *survey*, adjusts it with Baarda's data snooping (:func:`lidarcat.bundle.reliability.snoop`)
+    and writes ``eop.csv``, ``points.csv``, ``residuals.csv``, ``summary.json`` (and
+    ``check_covariance.csv``, ``blunders.csv``, ``reliability.csv``) into *folder*, each file
+    atomically (the callers make the folder appear at once).
+
+    Parameters
+    ----------
+    survey : lidarcat.Survey
+    folder : Path
+        Output folder.
+    control, observations, variance_factor, chi2_level : optional
+        Control set, observation kind, variance factor and chi-square level (default:
+        the survey's settings).
+    eo_constraints : bool
+        Use photos.csv exterior orientations with sigmas as weighted constraints.
+    max_iter, precision, snooping, snooping_level, family_level, robust
+        See :func:`lidarcat.survey.adjust_survey` (family_level default
+        :data:`lidarcat.bundle.reliability.FAMILY_LEVEL`).
+    progress : callable, optional
+        ``progress(iteration, vtpv)``.
+
+    Returns
+    -------
+    SnoopingResult
+        ``.result`` is the final :class:`~lidarcat.bundle.BundleResult`.
+    """
+    from ..survey.adjustment import adjust_survey_into
+
+    return adjust_survey_into(survey, folder, control=control, observations=observations,
+                              variance_factor=variance_factor, chi2_level=chi2_level,
+                              eo_constraints=eo_constraints, max_iter=max_iter, precision=precision,
+                              snooping=snooping, snooping_level=snooping_level, family_level=family_level,
+                              robust=robust, progress=progress)
+
+
 def run(ctx: Context, tmp: Path) -> dict:
     """Bundle adjustment of one control set -> eop.csv, points.csv, residuals.csv, summary.json."""
-    from ..survey import problem_from_survey, write_adjustment
-    from ..bundle.reliability import FAMILY_LEVEL, snoop
-    from ..survey.adjustment import survey_provenance
     from ..survey.folder import Survey
 
     par = ctx.params
     survey = Survey.load(ctx.folder("extract") / "survey") if par.get("derived") else ctx["survey"]
-    problem = problem_from_survey(survey, control=par["control"])
 
     def prog(iteration: int, vtpv: float) -> None:
         ctx.progress(min(iteration, 49), 50)
 
-    kw = dict(variance_factor=survey.settings.variance_factor, chi2_level=survey.settings.chi2_level)
     # data snooping, report only: the run keeps every observation and names the blunders
-    sres = snoop(problem, mode="report", progress=prog, **kw)
+    sres = adjust(survey, tmp, control=par["control"], snooping="report", progress=prog)
     result = sres.result
-    write_adjustment(result, tmp, extra={"crs": survey.crs, "height_system": survey.height_system, "survey": survey.name,
-                                         "control_set": par["control"],
-                                         "observations": survey.settings.observations},
-                     snooping=sres, provenance=survey_provenance(survey, {
-                         "control": par["control"], "snooping": "report", "family_level": FAMILY_LEVEL, **kw}))
     summ = result.summary()
     if not result.success:
         raise LidarcatError(f"adjustment with control set {par['control']!r} did not converge: "

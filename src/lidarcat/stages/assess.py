@@ -8,20 +8,78 @@ the statistical tests and the classification by standard
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from .._util import write_json_atomic
 from ..errors import LidarcatError
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
-__all__ = ["run"]
+__all__ = ["assess", "run"]
+
+
+def assess(adjusted: Any, reference: Any, output: Any = None, *, points: Sequence[str] | None = None,
+           control_set: str | None = None, not_adjusted: Sequence[str] = (), adjustment_dir: Any = None,
+           survey: Any = None, title: str | None = None, **kw: Any) -> tuple[Any, dict | None]:
+    """The action of ``lidarcat assess`` and of the stage ``assess-SET``: check points in, tables and report out.
+
+    Parameters
+    ----------
+    adjusted, reference
+        Adjusted points (points.csv or its folder) and reference points (a CSV or
+        columns), as :func:`lidarcat.accuracy.checkpoints.assess` takes them.
+    output : path or None
+        A folder: ``assessment.json``, ``discrepancies.csv`` (reference minus adjusted,
+        m) and the report (``report.html``, ``.md``, ``.json``, ``report_figures/``;
+        :func:`lidarcat.report.document.write_report`) go into it.  ``NAME.html``: the
+        report only.  None: nothing is written.
+    points : sequence of str, optional
+        The check points, in this order.
+    control_set : str, optional
+        Name of the control set (recorded in assessment.json and the CSV comment).
+    not_adjusted : sequence of str
+        Check points of the control set that were not adjusted (recorded).
+    adjustment_dir, survey, title
+        For the report.
+    **kw
+        Further keywords of :func:`lidarcat.accuracy.checkpoints.assess` (scale,
+        contour_interval_m, standards, alpha, plotting_position, sign, pec_class,
+        adjusted_cov, consistency).
+
+    Returns
+    -------
+    (Assessment, dict or None)
+        The assessment and the report's paths (None without *output*).
+    """
+    from .._util import write_csv_atomic
+    from ..accuracy.checkpoints import assess as run_assess
+
+    a = run_assess(adjusted, reference, points=list(points) if points is not None else None, **kw)
+    if output is None:
+        return a, None
+    out = Path(output)
+    if out.suffix.lower() != ".html":
+        doc = a.to_dict()
+        doc["control_set"] = control_set
+        doc["check_points_not_adjusted"] = list(not_adjusted)
+        write_json_atomic(out / "assessment.json", doc)
+        rows = a.point_rows()
+        cols = ["point", "E_ref", "N_ref", "h_ref", "E_adj", "N_adj", "h_adj", "dE", "dN", "dh", "dP"]
+        of = f" of control set {control_set}" if control_set else ""
+        write_csv_atomic(out / "discrepancies.csv", cols, [[r[c] for c in cols] for r in rows],
+                         comments=[f"Check points{of}: discrepancies reference minus "
+                                   "adjusted (thesis Table 7 convention), metres."])
+    from ..report.document import write_report
+
+    paths = write_report(out if out.suffix.lower() == ".html" else out / "report.html", assessment=a,
+                         adjustment_dir=adjustment_dir, survey=survey, title=title)
+    return a, paths
 
 
 def run(ctx: Context, tmp: Path) -> dict:
     """Check points of one run against the survey's ground points -> assessment.json, discrepancies.csv."""
-    from .._util import write_csv_atomic
-    from ..accuracy.checkpoints import assess, read_points
+    from ..accuracy.checkpoints import read_points
     from ..survey.folder import Survey
 
     par = ctx.params
@@ -51,24 +109,13 @@ def run(ctx: Context, tmp: Path) -> dict:
         from ..survey import read_point_covariance
 
         cov = read_point_covariance(cov_path)
-    a = assess(adjusted, reference, points=checks, scale=par.get("scale"),
-               contour_interval_m=par.get("contour_interval_m"), alpha=par.get("alpha", 0.10),
-               pec_class=par.get("pec_class", "A"),
-               plotting_position=par.get("plotting_position", "filliben"), adjusted_cov=cov,
-               consistency=consistency)
+    a, _ = assess(adjusted, reference, tmp, points=checks, scale=par.get("scale"),
+                  contour_interval_m=par.get("contour_interval_m"), alpha=par.get("alpha", 0.10),
+                  pec_class=par.get("pec_class", "A"), plotting_position=par.get("plotting_position", "filliben"),
+                  adjusted_cov=cov, consistency=consistency, control_set=name, not_adjusted=missing,
+                  adjustment_dir=ctx.folder(f"adjust-{name}"), survey=survey,
+                  title=f"lidarcat: {survey.name}, control set {name}")
     doc = a.to_dict()
-    doc["control_set"] = name
-    doc["check_points_not_adjusted"] = missing
-    write_json_atomic(tmp / "assessment.json", doc)
-    rows = a.point_rows()
-    cols = ["point", "E_ref", "N_ref", "h_ref", "E_adj", "N_adj", "h_adj", "dE", "dN", "dh", "dP"]
-    write_csv_atomic(tmp / "discrepancies.csv", cols, [[r[c] for c in cols] for r in rows],
-                     comments=[f"Check points of control set {name}: discrepancies reference minus "
-                               "adjusted (thesis Table 7 convention), metres."])
-    from ..report.document import write_report
-
-    write_report(tmp / "report.html", assessment=a, adjustment_dir=ctx.folder(f"adjust-{name}"),
-                 survey=survey, title=f"lidarcat: {survey.name}, control set {name}")
     # the assessment's own summary, under the key names of _stats
     check: dict[str, Any] = {"n": len(checks)}
     for c in ("E", "N", "h", "planimetric"):

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
 __all__ = ["run"]
 

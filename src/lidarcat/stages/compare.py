@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .._util import write_json_atomic
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
 __all__ = ["run", "EOP", "EOP_DIFF", "read_photo_rows"]
 

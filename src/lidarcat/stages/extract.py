@@ -1,29 +1,90 @@
 """Stage ``extract``: roof planes -> LiDAR control points, and a derived survey.
 
-Runs the survey's extraction jobs on its LiDAR tiles
-(:func:`lidarcat.control.batch.extract_batch`) and writes ``control.csv``,
-``planes.csv`` and ``survey/``: a copy of the survey whose ground points
-include the extracted points (source ``lidar``, their propagated standard
-deviations) and a control set of them, in which every other ground point is a
-check point.
+:func:`extract` is the action of ``lidarcat extract`` (a job file or ``--at``)
+and of this stage: jobs and tiles in, ``control.csv``, ``planes.csv`` and the
+figures out (:func:`lidarcat.control.batch.extract_batch`).  The stage runs it
+on the survey's extraction jobs and LiDAR tiles and adds ``survey/``: a copy of
+the survey whose ground points include the extracted points (source ``lidar``,
+their propagated standard deviations) and a control set of them, in which every
+other ground point is a check point.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Sequence
+import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..errors import LidarcatError
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
-__all__ = ["run"]
+__all__ = ["extract", "run"]
 
 log = logging.getLogger(__name__)
+
+
+def extract(jobs: str | os.PathLike | Sequence[Any], *, lidar: Sequence[str | os.PathLike] | None = None,
+            crs: Any = None, preset: str = "default", radius_m: float | None = None,
+            spec_sd: tuple[float, float] | None = None, index_cache: str | os.PathLike | None = None,
+            control_csv: str | os.PathLike | None = None, planes_csv: str | os.PathLike | None = None,
+            figures: str | os.PathLike | None = None,
+            progress: Callable[[int], Any] | None = None) -> list[Any]:
+    """The action of ``lidarcat extract`` (jobs, ``--at``) and of the stage ``extract``: roofs to control points.
+
+    Parameters
+    ----------
+    jobs : path or sequence of Job
+        A job file (:func:`lidarcat.control.batch.read_jobs`) or the jobs themselves.
+    lidar : sequence of path, optional
+        Tiles for every job (default: each job's own file).
+    crs : CRS-like, optional
+        CRS of tiles that carry none.
+    preset : {"default", "thesis"}
+        Parameter preset (:func:`lidarcat.control.facets.get_params`).
+    radius_m : float, optional
+        Clip radius of the jobs without one, m (default: the preset's).
+    spec_sd : (plan, height), optional
+        Replace the propagated sds by these specification sds, m.
+    index_cache : path, optional
+        JSON tile index of *lidar*, reused and updated.
+    control_csv, planes_csv : path, optional
+        Write the control points (one row per job, failed ones with their status and
+        reason) and their planes there.
+    figures : path, optional
+        Folder receiving one operator figure per point (PNG).
+    progress : callable, optional
+        Called with 1 after each job.
+
+    Returns
+    -------
+    list of ControlPoint
+        One per job, in job order (failed jobs falsy, with a status).
+    """
+    from ..control.batch import extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
+    from ..control.facets import get_params
+
+    if isinstance(jobs, (str, os.PathLike)):
+        source, job_list = f"the jobs of {Path(jobs).name}", read_jobs(jobs)
+    else:
+        source, job_list = "the given positions", list(jobs)
+    points = extract_batch(job_list, lidar=list(lidar) if lidar else None, crs=crs,
+                           params=get_params(preset, radius_m=radius_m), spec_sd=spec_sd, progress=progress,
+                           index_cache=index_cache)
+    if control_csv:
+        sds = (f"specification sds {spec_sd[0]:g} m (plan), {spec_sd[1]:g} m (height)" if spec_sd
+               else "sds propagated from the planes")
+        write_control_csv(control_csv, points, comments=[
+            f"Roof vertices extracted by lidarcat (preset {preset}) at {source}; metres, {sds}."])
+    if planes_csv:
+        write_planes_csv(planes_csv, points)
+    if figures:
+        write_figures(figures, points)
+    return points
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -34,16 +95,24 @@ def run(ctx: Context, tmp: Path) -> dict:
     standard deviations) and a control set of them, in which every other
     ground point is a check point.
     """
-    from ..control.batch import write_control_csv, write_figures, write_planes_csv
+    from ..control.batch import read_jobs
 
     survey = ctx["survey"]
     par = ctx.params
     name = par["set"]
-    points = _extract_jobs(survey, ctx)
-    write_control_csv(tmp / "control.csv", points, comments=[
-        f"Roof vertices extracted from the LiDAR tiles of survey {survey.name} "
-        f"({survey.extraction_jobs.name}); metres, sds propagated from the planes."])
-    write_planes_csv(tmp / "planes.csv", points)
+    n_jobs = len(read_jobs(survey.extraction_jobs))
+    done = [0]
+
+    def tick(n: int = 1) -> None:
+        done[0] += n
+        ctx.progress(done[0], n_jobs + 1)
+
+    ctx.progress(0, n_jobs + 1)
+    # the tile index (with the block index of each LAZ tile) persists across runs
+    points = extract(survey.extraction_jobs, lidar=list(survey.lidar_paths), crs=survey.lidar_crs or survey.crs,
+                     index_cache=ctx.outdir / ".lidar_index.json", control_csv=tmp / "control.csv",
+                     planes_csv=tmp / "planes.csv", figures=tmp / "figures" if par.get("figures") else None,
+                     progress=tick)
     ok = [cp for cp in points if cp and np.all(np.isfinite(cp.sd_m)) and np.all(cp.sd_m > 0)]
     if not ok:
         raise LidarcatError(f"no roof vertex could be extracted from {survey.extraction_jobs} "
@@ -54,8 +123,6 @@ def run(ctx: Context, tmp: Path) -> dict:
         log.warning("extracted point(s) %s: measured on no photo (%s), so they cannot control the "
                     "block; check the ids in %s", ", ".join(unmeasured), survey.files["image_points"],
                     survey.extraction_jobs)
-    if par.get("figures"):
-        write_figures(tmp / "figures", points)
     status: dict[str, int] = {}
     for cp in points:
         status[cp.status] = status.get(cp.status, 0) + 1
@@ -63,24 +130,6 @@ def run(ctx: Context, tmp: Path) -> dict:
             "not_measured": unmeasured,
             "points": {cp.point_id: {"status": cp.status, "n_planes": int(cp.n_planes),
                                      "sd_m": [float(v) for v in cp.sd_m]} for cp in points}}
-
-
-def _extract_jobs(survey: Any, ctx: Context) -> list:
-    """ControlPoints of every extraction job of *survey* (failed jobs included, falsy)."""
-    from ..control.batch import extract_batch, read_jobs
-
-    jobs = read_jobs(survey.extraction_jobs)
-    done = [0]
-
-    def tick(n: int = 1) -> None:
-        done[0] += n
-        ctx.progress(done[0], len(jobs) + 1)
-
-    ctx.progress(0, len(jobs) + 1)
-    # the tile index (with the block index of each LAZ tile) persists across runs
-    return list(extract_batch(jobs, lidar=list(survey.lidar_paths),
-                              crs=survey.lidar_crs or survey.crs, progress=tick,
-                              index_cache=ctx.outdir / ".lidar_index.json"))
 
 
 def _toml_value(v: Any) -> str:

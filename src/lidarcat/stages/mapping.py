@@ -40,18 +40,22 @@ orientations are those of the default control set's adjustment
 LiDAR tiles over the photos' footprints (:func:`lidarcat.lidar.rasterize`,
 highest first return or lowest ground point) and written as ``dsm.tif`` /
 ``dtm.tif`` next to ``ortho_<photo>.tif``, ``mosaic.tif`` and
-``seamlines.geojson`` (:mod:`lidarcat.mapping.ortho`, :mod:`lidarcat.mapping.mosaic`).
+``seamlines.geojson`` (:mod:`lidarcat.mapping.ortho`, :mod:`lidarcat.mapping.mosaic`)
+by :func:`orthophotos`, the action of ``lidarcat ortho``, which reads that
+surface file as the command reads its ``--dsm``/``--dtm``.
 """
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..pipeline.runner import Context
 from ..survey.schema import MappingSettings
+from .context import StageContext as Context
 
-__all__ = ["run", "settings", "markdown", "MAPPING_KEYS", "INTERPOLATORS", "ACCURACY_COLUMNS"]
+__all__ = ["orthophotos", "run", "settings", "markdown", "MAPPING_KEYS", "INTERPOLATORS", "ACCURACY_COLUMNS"]
 
 #: keys of the [mapping] table and their defaults (lidarcat.survey.schema.MappingSettings)
 MAPPING_KEYS: dict[str, Any] = MappingSettings().to_dict()
@@ -69,6 +73,86 @@ def settings(survey: Any) -> dict[str, Any]:
     :meth:`lidarcat.Survey.load` (:class:`lidarcat.survey.schema.MappingSettings`)."""
     cfg = survey.config.mapping
     return {} if cfg is None else cfg.to_dict()
+
+
+def orthophotos(survey: Any, outdir: str | os.PathLike, photo_ids: Sequence[str], surface: str | os.PathLike, *,
+                true_ortho: bool, gsd_m: float = 0.2, eop: str | os.PathLike | None = None,
+                images: str | os.PathLike | None = None, bounds: Sequence[float] | None = None,
+                mosaic: bool = False, feather_m: float = 0.0, tile_px: int = 1024,
+                progress: Callable[[str, int, int], Any] | None = None) -> dict[str, Any]:
+    """The action of ``lidarcat ortho`` and of the stage's orthophotos: adjusted photos over a surface GeoTIFF.
+
+    Writes ``ortho_<photo>.tif`` (+ ``.png``) per photo
+    (:func:`lidarcat.mapping.ortho.orthophoto`) and, with *mosaic*, ``mosaic.tif``
+    (+ ``.png``) and ``seamlines.geojson`` (:func:`lidarcat.mapping.mosaic.mosaic`)
+    into *outdir*, in the survey CRS.
+
+    Parameters
+    ----------
+    survey : lidarcat.Survey
+    outdir : path
+        Output folder.
+    photo_ids : sequence of str
+        The photos, in this order.
+    surface : path
+        Terrain or surface model GeoTIFF (:meth:`lidarcat.mapping.monoplot.GridSurface.from_geotiff`,
+        bilinear).
+    true_ortho : bool
+        True: *surface* is a DSM and cells a photo does not see are nodata (z-buffer).
+    gsd_m : float
+        Output cell, m.
+    eop : path, optional
+        ``eop.csv`` of the adjustment (default :func:`lidarcat.mapping.inputs.default_eop_path`).
+    images : path, optional
+        Folder of the photo files ``<photo>.png/.tif/.jpg`` (default ``SURVEY/images``).
+    bounds : (xmin, ymin, xmax, ymax), optional
+        Output area, m (default: each photo's footprint; the mosaic: their union).
+    mosaic : bool
+        Also the mosaic of the photos and its seamlines.
+    feather_m : float
+        Mosaic: blend across each seamline over +- this many metres (0: hard seams).
+    tile_px : int
+        Rows/columns computed at once.
+    progress : callable, optional
+        ``progress(step, done, total)``; *step* is ``"ortho <photo>"`` or ``"mosaic"``.
+
+    Returns
+    -------
+    dict
+        ``orthophotos``: one :meth:`OrthoResult.to_dict` per photo with ``photo``;
+        ``mosaic``: :meth:`MosaicResult.to_dict` (with *mosaic*).
+
+    Raises
+    ------
+    SurveyError
+        A photo not in the survey or not adjusted, a missing or wrong-sized image.
+    """
+    from ..mapping.inputs import adjusted_orientations, photo_image
+    from ..mapping.monoplot import GridSurface
+    from ..mapping.mosaic import mosaic as mosaic_photos
+    from ..mapping.ortho import PhotoModel, orthophoto
+
+    grid = GridSurface.from_geotiff(surface)
+    folder = Path(images) if images is not None else survey.root / "images"
+    eos = adjusted_orientations(survey, list(photo_ids), eop)
+    photos = [PhotoModel(pid, photo_image(pid, folder, survey.camera_of(pid)), survey.camera_of(pid),
+                         eos[pid].params) for pid in photo_ids]
+    out = Path(outdir)
+
+    def step(name: str) -> Callable[[int, int], Any] | None:
+        return None if progress is None else (lambda done, total: progress(name, done, total))
+
+    done: dict[str, Any] = {"orthophotos": []}
+    for ph in photos:
+        r = orthophoto(ph, grid, gsd_m, out / f"ortho_{ph.photo_id}.tif", bounds=bounds, true_ortho=true_ortho,
+                       crs=survey.crs, tile_px=tile_px, progress=step(f"ortho {ph.photo_id}"))
+        done["orthophotos"].append(r.to_dict() | {"photo": ph.photo_id})
+    if mosaic:
+        m = mosaic_photos(photos, grid, gsd_m, out / "mosaic.tif", seams_path=out / "seamlines.geojson",
+                          bounds=bounds, true_ortho=true_ortho, crs=survey.crs, tile_px=tile_px,
+                          feather_m=feather_m, progress=step("mosaic"))
+        done["mosaic"] = m.to_dict()
+    return done
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -97,46 +181,43 @@ def run(ctx: Context, tmp: Path) -> dict:
 
 
 def _orthophotos(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: Any) -> dict[str, Any]:
+    """The surface model of the photos' footprints (``dsm.tif``/``dtm.tif``), then :func:`orthophotos` over it."""
     import numpy as np
 
     from ..lidar.raster import rasterize, write_raster
-    from ..mapping.inputs import photo_image
-    from ..mapping.monoplot import GridSurface
-    from ..mapping.mosaic import mosaic
-    from ..mapping.ortho import PhotoModel, orthophoto
+    from ..mapping.ortho import PhotoModel
 
     survey = ctx["survey"]
     ids = cfg["photos"] or [p for p in survey.photo_ids if p in eos]
     images = Path(cfg["images"])
     images = images if images.is_absolute() else survey.root / images
-    photos = []
-    for pid in ids:
-        cam = survey.camera_of(pid)
-        photos.append(PhotoModel(pid, photo_image(pid, images, cam), cam, eos[pid].params))
     b = index.bounds
     h_mid = 0.5 * (b.zmin + b.zmax)
-    fps = np.vstack([p.footprint(h_mid) for p in photos])
+    cams = {pid: survey.camera_of(pid) for pid in ids}
+    # the footprint needs the camera and orientation only: a blank frame (no memory) stands for the photo,
+    # which the action reads
+    fps = np.vstack([PhotoModel(pid, np.broadcast_to(np.uint8(0), (c.rows_px, c.columns_px)), c,
+                                eos[pid].params).footprint(h_mid) for pid, c in cams.items()])
     area = (max(fps[:, 0].min(), b.xmin), max(fps[:, 1].min(), b.ymin),
             min(fps[:, 0].max(), b.xmax), min(fps[:, 1].max(), b.ymax))
     what = cfg["surface"]
-    cloud = index.query_box(*area)
-    grid, transform = rasterize(cloud, float(cfg["cell_m"]), what, bounds=area)
+    grid, transform = rasterize(index.query_box(*area), float(cfg["cell_m"]), what, bounds=area)
     write_raster(tmp / f"{what}.tif", grid, transform, survey.crs, what)
-    surface = GridSurface(grid, transform, "bilinear")
-    true = what == "dsm"
-    done: dict[str, Any] = {"surface": f"{what}.tif", "orthophotos": []}
-    total = len(photos) + (1 if cfg["mosaic"] and len(photos) > 1 else 0)
-    for k, ph in enumerate(photos):
-        r = orthophoto(ph, surface, float(cfg["gsd_m"]), tmp / f"ortho_{ph.photo_id}.tif", true_ortho=true,
-                       crs=survey.crs)
-        done["orthophotos"].append(r.to_dict() | {"photo": ph.photo_id, "path": f"ortho_{ph.photo_id}.tif"})
-        ctx.progress(k + 1, total)
-    if cfg["mosaic"] and len(photos) > 1:
-        m = mosaic(photos, surface, float(cfg["gsd_m"]), tmp / "mosaic.tif", seams_path=tmp / "seamlines.geojson",
-                   true_ortho=true, crs=survey.crs, feather_m=float(cfg["feather_m"]))
-        done["mosaic"] = m.to_dict() | {"path": "mosaic.tif", "seams": "seamlines.geojson"}
-        ctx.progress(total, total)
-    return done
+    with_mosaic = bool(cfg["mosaic"]) and len(ids) > 1
+    steps = [f"ortho {pid}" for pid in ids] + (["mosaic"] if with_mosaic else [])
+
+    def prog(name: str, done: int, total: int) -> None:
+        if done >= total:
+            ctx.progress(steps.index(name) + 1, len(steps))
+
+    res = orthophotos(survey, tmp, ids, tmp / f"{what}.tif", true_ortho=what == "dsm", gsd_m=float(cfg["gsd_m"]),
+                      eop=ctx.folder(ctx.params["adjust"]) / "eop.csv", images=images, mosaic=with_mosaic,
+                      feather_m=float(cfg["feather_m"]), progress=prog)
+    out: dict[str, Any] = {"surface": f"{what}.tif", "orthophotos": [
+        r | {"path": f"ortho_{r['photo']}.tif"} for r in res["orthophotos"]]}
+    if with_mosaic:
+        out["mosaic"] = res["mosaic"] | {"path": "mosaic.tif", "seams": "seamlines.geojson"}
+    return out
 
 
 def _monoplot(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: Any) -> dict[str, Any]:

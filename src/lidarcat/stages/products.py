@@ -26,14 +26,15 @@ survey.toml::
 
 The stage is planned only for a survey with a ``[products]`` table (skipped,
 with the reason, when the survey has no LiDAR tiles).  Ground classification
-runs tile by tile with the neighbours' points within two filter windows
-(:func:`lidarcat.production.ground.classify_tiles`), so the classified copies
-``ground/<tile>.laz`` do not depend on where the tiles are cut.  The models,
-contours and hypsometric image are then made over the whole survey area in
-one piece (:mod:`lidarcat.production.terrain`, :mod:`lidarcat.production.contours`):
-a survey too large for one machine's memory is better served by the
-tile-parallel commands ``lidarcat lidar ground|dtm|dsm --workers N``
-(docs/production.md).  Everything carries the LiDAR CRS; the stage writes
+runs tile by tile with the neighbours' points within two filter windows, so the
+classified copies ``ground/<tile>.laz`` do not depend on where the tiles are
+cut.  The DTM, DSM and nDSM are made as ``lidarcat lidar dtm|dsm TILES -o
+dtm.tif`` makes them, by the same actions (:func:`lidarcat.stages.lidar.ground`,
+:func:`lidarcat.stages.lidar.terrain_model`): tile by tile with the neighbours'
+points within 50 m, mosaicked into one GeoTIFF over the survey.  Contours and
+the hypsometric image are made over the whole survey area in one piece
+(:mod:`lidarcat.production.contours`, :mod:`lidarcat.production.terrain`).
+Everything carries the LiDAR CRS; the stage writes
 into its temporary folder and the runner moves it into ``OUTDIR/products/``
 only when it succeeded.
 """
@@ -43,8 +44,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..pipeline.runner import Context
 from ..survey.schema import ProductsSettings
+from .context import StageContext as Context
 
 __all__ = ["run", "settings", "PRODUCTS_KEYS", "asked"]
 
@@ -73,8 +74,9 @@ def run(ctx: Context, tmp: Path) -> dict:
     from ..lidar.cloud import PointCloud
     from ..production.contours import (contour_features, contours, spot_features, spot_heights, write_geojson,
                                    write_layers)
-    from ..production.ground import classify_tiles, params_from_dict
-    from ..production.terrain import dsm_grid, dtm_grid, hillshade, ndsm, write_product, write_text_grid
+    from ..production.ground import params_from_dict
+    from ..production.terrain import write_text_grid
+    from .lidar import ground, read_grid, terrain_model
 
     survey = ctx["survey"]
     cfg = {k: ctx.params[k] for k in PRODUCTS_KEYS}
@@ -94,7 +96,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     if cfg["ground"]:
         method = cfg["filter"]
         params = params_from_dict(method, {})
-        outs = classify_tiles(tiles, tmp / "ground", crs=crs, method=method, params=params, resume=False)
+        outs = [Path(p) for p in ground(tiles, tmp / "ground", crs=crs, method=method, params=params, resume=False)]
         for m in (tmp / "ground").glob("*.done.json"):   # resume markers of the tile runner: not products
             m.unlink()
         tiles = sorted(outs)
@@ -112,31 +114,33 @@ def run(ctx: Context, tmp: Path) -> dict:
     cell = cfg["cell_m"]
     rasters: dict[str, tuple[Any, Any]] = {}
 
-    def model(name: str, grid: Any, transform: Any) -> None:
-        write_product(tmp / f"{name}.tif", grid, transform, crs)
-        done["files"].append(f"{name}.tif")
-        rasters[f"{name}.tif"] = (grid, transform)
-        if cfg["hillshade"] and name != "ndsm":
-            write_product(tmp / f"{name}_hillshade.tif", hillshade(grid, cell), transform, crs)
-            done["files"].append(f"{name}_hillshade.tif")
-        if cfg["text_grid"]:
-            write_text_grid(tmp / f"{name}.txt", grid, transform)
-            done["files"].append(f"{name}.txt")
+    def model(kind: str, **extra: bool) -> np.ndarray:
+        """The DTM or DSM of the tiles by the action of ``lidarcat lidar dtm|dsm TILES -o <kind>.tif``."""
+        terrain_model(kind, tiles, tmp / f"{kind}.tif", crs=crs, cell_m=cell, max_edge_m=cfg["max_edge_m"],
+                      text=cfg["text_grid"], hillshade=cfg["hillshade"], resume=False, **extra)
+        rasters[f"{kind}.tif"] = read_grid(tmp / f"{kind}.tif")
+        done["files"] += [f"{kind}.tif"] + [n for n, on in ((f"{kind}_hillshade.tif", cfg["hillshade"]),
+                                                             (f"{kind}.txt", cfg["text_grid"])) if on]
+        return rasters[f"{kind}.tif"][0]
 
     if cfg["dtm"]:
-        res = dtm_grid(cloud, cell, area, max_edge_m=cfg["max_edge_m"], ground=gmask)
-        model("dtm", res.grid, res.transform)
-        done["dtm"] = {"cell_m": cell, "rows": int(res.grid.shape[0]), "cols": int(res.grid.shape[1]),
-                       "gap_cells": int(res.gap_cells), "gap_fraction": round(float(res.gap_fraction), 6)}
+        grid = model("dtm")
+        gaps = int(np.isnan(grid).sum())
+        done["dtm"] = {"cell_m": cell, "rows": int(grid.shape[0]), "cols": int(grid.shape[1]),
+                       "gap_cells": gaps, "gap_fraction": round(gaps / grid.size if grid.size else 0.0, 6)}
         tick()
     if cfg["dsm"]:
-        grid, transform = dsm_grid(cloud, cell, area)
-        model("dsm", grid, transform)
+        grid = model("dsm", ndsm=cfg["ndsm"])
         done["dsm"] = {"cell_m": cell, "rows": int(grid.shape[0]), "cols": int(grid.shape[1]),
                        "empty_cells": int(np.isnan(grid).sum())}
         tick()
-    if cfg["ndsm"]:
-        model("ndsm", ndsm(rasters["dsm.tif"][0], rasters["dtm.tif"][0]), rasters["dsm.tif"][1])
+    if cfg["ndsm"]:   # the action's <output>_ndsm.tif of the DSM, DSM - DTM cell by cell
+        (tmp / "dsm_ndsm.tif").replace(tmp / "ndsm.tif")
+        rasters["ndsm.tif"] = read_grid(tmp / "ndsm.tif")
+        done["files"].append("ndsm.tif")
+        if cfg["text_grid"]:
+            write_text_grid(tmp / "ndsm.txt", *rasters["ndsm.tif"])
+            done["files"].append("ndsm.txt")
         tick()
     features: list[dict[str, Any]] = []
     if cfg["contours"]:

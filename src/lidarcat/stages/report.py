@@ -18,13 +18,14 @@ from typing import Any
 from .._util import write_json_atomic, write_text_atomic
 from .._util.formatting import format_number
 from ..report.render import markdown_to_html
-from ..pipeline.runner import Context, Stage, StageRecord, failed_tests
+from .context import StageContext as Context
+from .context import failed_tests
 from .compare import EOP_DIFF, read_photo_rows
 
 __all__ = ["run", "results", "num"]
 
 
-def results(records: Iterable[StageRecord]) -> dict[str, Any]:
+def results(records: Iterable[Any]) -> dict[str, Any]:
     """``runs``, ``comparison``, ``extraction`` and ``thesis`` of the done stages (summary.json, report)."""
     runs: dict[str, Any] = {}
     comparison: dict[str, Any] = {}
@@ -62,7 +63,7 @@ def results(records: Iterable[StageRecord]) -> dict[str, Any]:
 def run(ctx: Context, tmp: Path) -> dict:
     """The pipeline report: index.html / index.md / report.json (+ per-run reports)."""
     survey = ctx["survey"]
-    plan: list[Stage] = ctx["plan"]
+    plan: list[Any] = ctx["plan"]
     rows = []
     for st in plan:
         if st.name == "report":

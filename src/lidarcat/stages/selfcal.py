@@ -15,7 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 
 __all__ = ["run", "markdown", "planned"]
 

@@ -45,7 +45,7 @@ import numpy as np
 from .._util import write_json_atomic
 from ..accuracy.checkpoints import filliben_test, read_points
 from ..errors import LidarcatError
-from ..pipeline.runner import Context
+from .context import StageContext as Context
 from .compare import EOP, read_photo_rows
 
 __all__ = ["PUBLISHED", "RUNS", "STATISTICS", "run", "published_files", "table13_statistics",

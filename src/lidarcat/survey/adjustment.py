@@ -25,7 +25,7 @@ from ..bundle.solve import BundleResult
 if TYPE_CHECKING:  # pragma: no cover
     from .folder import Survey
 
-__all__ = ["adjust_survey", "write_adjustment", "problem_from_survey", "read_point_covariance",
+__all__ = ["adjust_survey", "adjust_survey_into", "write_adjustment", "problem_from_survey", "read_point_covariance",
            "EOP_COLUMNS", "POINT_COLUMNS", "RESIDUAL_COLUMNS", "COVARIANCE_COLUMNS",
            "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS", "write_point_covariance"]
 
@@ -387,12 +387,67 @@ def adjust_survey(
     ------
     SurveyError, DatumError
     """
+    from .._util import atomic_dir
     from .folder import Survey
 
-    t0 = time.perf_counter()
     if not isinstance(survey, Survey):
         survey = Survey.load(survey)
+    out = survey.output_dir(outdir)
+    with atomic_dir(out) as tmp:  # the folder is replaced only when every file is written
+        sres = adjust_survey_into(survey, tmp, control=control, observations=observations,
+                                  variance_factor=variance_factor, chi2_level=chi2_level,
+                                  eo_constraints=eo_constraints, max_iter=max_iter, precision=precision,
+                                  progress=progress, snooping=snooping, snooping_level=snooping_level,
+                                  family_level=family_level, robust=robust)
+    return sres.result, out
+
+
+def adjust_survey_into(
+    survey: Survey,
+    folder,
+    *,
+    control: str | None = None,
+    observations: str | None = None,
+    variance_factor: str | None = None,
+    chi2_level: float | None = None,
+    eo_constraints: bool = False,
+    max_iter: int = 50,
+    precision: str = "all",
+    progress: Callable[[int, float], None] | None = None,
+    snooping: str = "report",
+    snooping_level: float | None = None,
+    family_level: float | None = FAMILY_LEVEL,
+    robust: str = "none",
+) -> SnoopingResult:
+    """Adjust a loaded survey and write its adjustment tables into the existing *folder*.
+
+    The body of :func:`adjust_survey` (which gives it a temporary folder and
+    moves that into place): builds the bundle problem
+    (:func:`problem_from_survey`), adjusts it with data snooping
+    (:func:`lidarcat.bundle.reliability.snoop`) and writes ``eop.csv``,
+    ``points.csv``, ``residuals.csv``, ``summary.json`` (and
+    ``check_covariance.csv``, ``blunders.csv``, ``reliability.csv``) with
+    :func:`write_adjustment`, each file atomically.  ``summary.json`` names the
+    survey, control set and observations and holds the elapsed time (s), CRS,
+    height system and the provenance (:func:`survey_provenance`).
+
+    Parameters
+    ----------
+    survey : Survey
+    folder : path
+        Output folder.
+    control, observations, variance_factor, chi2_level, eo_constraints, max_iter, precision, progress,
+    snooping, snooping_level, family_level, robust
+        As :func:`adjust_survey` (``family_level=None``: :data:`lidarcat.bundle.reliability.FAMILY_LEVEL`).
+
+    Returns
+    -------
+    SnoopingResult
+        ``.result`` is the final :class:`~lidarcat.bundle.BundleResult`.
+    """
+    t0 = time.perf_counter()
     settings = survey.settings
+    family_level = FAMILY_LEVEL if family_level is None else float(family_level)
     problem = problem_from_survey(survey, control=control, observations=observations,
                                   eo_constraints=eo_constraints)
     params = dict(control=problem.info.get("control_set"), observations=problem.info.get("observations"),
@@ -400,15 +455,15 @@ def adjust_survey(
                   chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
                   eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
                   snooping_level=None if snooping_level is None else float(snooping_level),
-                  family_level=float(family_level), robust=robust, precision=precision)
+                  family_level=family_level, robust=robust, precision=precision)
     sres = snoop(problem, mode=snooping, level=snooping_level, family_level=family_level, robust=robust,
-                 max_iter=max_iter,
-                 precision=precision, variance_factor=params["variance_factor"],
+                 max_iter=max_iter, precision=precision, variance_factor=params["variance_factor"],
                  chi2_level=params["chi2_level"], progress=progress)
-    out = write_survey_folder(survey, outdir, t0, params,
-                              lambda tmp, extra, prov: write_adjustment(sres.result, tmp, extra=extra,
-                                                                        snooping=sres, provenance=prov))
-    return sres.result, out
+    write_adjustment(sres.result, folder, extra={
+        "elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs, "height_system": survey.height_system,
+        "survey": survey.name, "control_set": params["control"], "observations": params["observations"]},
+        snooping=sres, provenance=survey_provenance(survey, params))
+    return sres
 
 
 def write_survey_folder(survey: Survey, outdir, t0: float, parameters: dict,

@@ -1,0 +1,220 @@
+"""Actions of the LiDAR production commands: ground classification and terrain/surface models of tiles.
+
+``lidarcat lidar ground|dtm|dsm`` (:mod:`lidarcat.cli.lidar_products`) and the
+``products`` stage of ``lidarcat run`` (:mod:`lidarcat.stages.products`, ground)
+call these functions: tiles in, files written, their paths out.  Every tile is
+computed by the tile engine (:func:`lidarcat.lidar.jobs.run_jobs`) with the points
+of its neighbours within the overlap, serially or on Dask.
+
+A terrain or surface model asked as one ``.tif`` is computed the same way, tile
+by tile into a hidden folder ``.<name>.tiles/`` beside it (kept for a resumed
+run until the model is written), and the tile grids, snapped to multiples of
+the cell, are mosaicked without resampling (:func:`mosaic_grids`): each cell
+takes the value of the first tile whose own area holds the cell centre (else of
+the first tile whose grid covers it), so the DTM, DSM and nDSM of one run take
+every cell from the same tile.  Hillshade and text grid are then made from the
+mosaic, so they show no seam.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import LidarcatError
+
+__all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid"]
+
+
+def _jobs(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, **kw: Any) -> list[Any]:
+    """The tile jobs of product *kind* (``"ground"``, ``"dtm"``, ``"dsm"``): the one place that names them."""
+    from ..lidar.jobs import tile_jobs
+
+    return tile_jobs(kind, [Path(t) for t in tiles], output, **kw)
+
+
+def ground_parameters(method: str, **values: Any) -> Any:
+    """The :class:`~lidarcat.production.ground.SMRFParameters` or ``PTDParameters`` of *method*.
+
+    *values* may hold the parameters of both filters; those of the other one are ignored.
+    """
+    from ..production.ground import PTDParameters, SMRFParameters
+
+    cls = PTDParameters if method == "ptd" else SMRFParameters
+    names = {f.name for f in dataclasses.fields(cls)}
+    return cls(**{k: v for k, v in values.items() if k in names and v is not None})
+
+
+def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
+           method: str = "smrf", params: Any = None, overlap_m: float | None = None,
+           workers: int | None = None, scheduler: str | None = None, resume: bool = True,
+           progress: Callable[[int], Any] | None = None) -> list[str]:
+    """Classify ground (class 2) into LAS/LAZ copies of *tiles* (``lidarcat lidar ground``).
+
+    Parameters
+    ----------
+    tiles : sequence of path
+        Input tiles; never modified.
+    output : path
+        One tile and a ``.las``/``.laz`` name: that file; else a folder receiving a
+        classified copy of every tile under its own name.
+    crs : CRS, optional
+        CRS of tiles that carry none.
+    method : {"smrf", "ptd"}
+    params : SMRFParameters or PTDParameters, optional
+        Default: the method's defaults (:func:`ground_parameters`).
+    overlap_m : float, optional
+        Points of neighbouring tiles read around each tile, metres (default
+        :func:`lidarcat.production.ground.default_overlap_m`).
+    workers, scheduler, resume, progress
+        See :func:`lidarcat.lidar.jobs.run_jobs`.
+
+    Returns
+    -------
+    list of str
+        The written files, in tile order (each with its ``.done.json`` resume marker).
+    """
+    from ..lidar.jobs import run_jobs
+    from ..production.ground import default_overlap_m
+
+    p = ground_parameters(method) if params is None else params
+    pdict = {"method": method, **dataclasses.asdict(p)}
+    ov = default_overlap_m(method, p) if overlap_m is None else float(overlap_m)
+    jobs = _jobs("ground", tiles, output, crs=crs, params=pdict, overlap_m=ov, suffix="")
+    for j in jobs:
+        if Path(j.output).resolve() == Path(j.tile).resolve():
+            raise LidarcatError(f"{j.output}: the output would overwrite the input; choose another folder")
+    return run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
+
+
+def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
+                  cell_m: float = 1.0, max_edge_m: float = 50.0, text: bool = False, hillshade: bool = False,
+                  ndsm: bool = False, overlap_m: float = 50.0, workers: int | None = None,
+                  scheduler: str | None = None, resume: bool = True,
+                  progress: Callable[[int], Any] | None = None) -> list[str]:
+    """DTM (``kind="dtm"``: TIN of the ground) or DSM (``"dsm"``: highest first return) of tiles.
+
+    Parameters
+    ----------
+    kind : {"dtm", "dsm"}
+    tiles : sequence of path
+    output : path
+        Ending in ``.tif``/``.tiff``: one GeoTIFF over all the tiles (computed tile by tile,
+        mosaicked; see the module docstring).  Else a folder receiving ``<tile>.tif`` per tile
+        (grids snapped to the cell, so they mosaic).
+    cell_m, max_edge_m : float
+        Cell size and longest TIN edge (longer triangles are gaps), metres.
+    text, hillshade, ndsm : bool
+        Also write ``<output>.txt`` (E N H per cell centre), ``<output>_hillshade.tif``,
+        and for a DSM ``<output>_ndsm.tif`` (DSM - DTM).
+    overlap_m : float
+        Points of neighbouring tiles read around each tile, metres.
+    crs, workers, scheduler, resume, progress
+        See :func:`ground`; *resume* also keeps the tile grids of an interrupted
+        one-file model.
+
+    Returns
+    -------
+    list of str
+        The written GeoTIFFs (the model, or one per tile in tile order).
+    """
+    from ..lidar.jobs import run_jobs
+
+    if kind not in ("dtm", "dsm"):
+        raise ValueError(f"kind must be 'dtm' or 'dsm', got {kind!r}")
+    out = Path(output)
+    params = {"cell_m": cell_m, "max_edge_m": max_edge_m, "text": text, "hillshade": hillshade, "ndsm": ndsm}
+    if out.suffix.lower() not in (".tif", ".tiff"):
+        jobs = _jobs(kind, tiles, out, crs=crs, params=params, overlap_m=overlap_m, suffix=".tif")
+        return run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
+    import shutil
+
+    from ..lidar.tileindex import TileIndex
+    from ..production.terrain import hillshade as shade
+    from ..production.terrain import write_product, write_text_grid
+
+    parts = out.parent / f".{out.name}.tiles"
+    jobs = _jobs(kind, tiles, parts, crs=crs, params=params | {"text": False, "hillshade": False},
+                 overlap_m=overlap_m, suffix=".tif")
+    run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
+    out_crs = TileIndex.build([Path(t) for t in tiles], crs=crs).crs   # the CRS the tile jobs write
+    bounds = [j.bounds for j in jobs]
+    grid, transform = mosaic_grids([read_grid(j.output) for j in jobs], bounds)
+    stem = out.with_suffix("")
+    if hillshade:
+        write_product(Path(f"{stem}_hillshade.tif"), shade(grid, cell_m), transform, out_crs)
+    if kind == "dsm" and ndsm:
+        nd, _ = mosaic_grids([read_grid(Path(j.output).with_suffix("").as_posix() + "_ndsm.tif") for j in jobs],
+                             bounds)
+        write_product(Path(f"{stem}_ndsm.tif"), nd, transform, out_crs)
+    if text:
+        write_text_grid(out.with_suffix(".txt"), grid, transform)
+    write_product(out, grid, transform, out_crs)
+    shutil.rmtree(parts, ignore_errors=True)
+    return [str(out)]
+
+
+def read_grid(path: str | os.PathLike) -> tuple[np.ndarray, Any]:
+    """(grid, GeoTransform) of a one-band GeoTIFF written by :func:`lidarcat.production.terrain.write_product`."""
+    # TODO(issue 23, one raster I/O): lidarcat.lidar.raster.read_geotiff once it reads these COGs (h-raster)
+    import rasterio
+    import rasterio.errors
+
+    from ..errors import FormatError
+    from ..lidar.raster import GeoTransform
+
+    try:
+        with rasterio.open(path) as ds:
+            return ds.read(1), GeoTransform(ds.transform.c, ds.transform.f, ds.transform.a)
+    except rasterio.errors.RasterioError as ex:
+        raise FormatError(f"{path}: not a readable GeoTIFF ({ex})") from ex
+
+
+def mosaic_grids(grids: Sequence[tuple[np.ndarray, Any]],
+                 areas: Sequence[tuple[float, float, float, float]]) -> tuple[np.ndarray, Any]:
+    """One grid from tile grids on one lattice (origins multiples of the common cell), without resampling.
+
+    Parameters
+    ----------
+    grids : sequence of (grid, GeoTransform)
+        The tiles' grids, each snapped to multiples of the same cell.
+    areas : sequence of (xmin, ymin, xmax, ymax)
+        Each tile's own area, metres (a tile grid reaches beyond it by up to one cell).
+
+    Returns
+    -------
+    (grid, GeoTransform)
+        The union of the grids; a cell takes the value of the first tile whose area holds
+        its centre, else of the first tile whose grid covers it; NaN where none does.
+    """
+    from ..lidar.raster import GeoTransform
+
+    if len(grids) != len(areas) or not grids:
+        raise ValueError("give one area per grid, and at least one grid")
+    cell = float(grids[0][1].cell_m)
+    if any(abs(t.cell_m - cell) > 1e-9 * cell for _, t in grids):
+        raise ValueError("the grids have different cells")
+    x0 = min(t.x0 for _, t in grids)
+    y0 = max(t.y0 for _, t in grids)
+    cols = max(round((t.x0 - x0) / cell) + g.shape[1] for g, t in grids)
+    rows = max(round((y0 - t.y0) / cell) + g.shape[0] for g, t in grids)
+    dtype = np.result_type(*(g.dtype for g, _ in grids))
+    out = np.full((rows, cols), np.nan, dtype=dtype)
+    owned = np.zeros((rows, cols), bool)      # taken from the tile whose area holds the centre
+    filled = np.zeros((rows, cols), bool)
+    for (g, t), (xmin, ymin, xmax, ymax) in zip(grids, areas):
+        r0, c0 = round((y0 - t.y0) / cell), round((t.x0 - x0) / cell)
+        win = (slice(r0, r0 + g.shape[0]), slice(c0, c0 + g.shape[1]))
+        e = t.x0 + (np.arange(g.shape[1]) + 0.5) * cell
+        n = t.y0 - (np.arange(g.shape[0]) + 0.5) * cell
+        own = ((n >= ymin) & (n <= ymax))[:, None] & ((e >= xmin) & (e <= xmax))[None, :]
+        take = ~owned[win] & (own | ~filled[win])
+        out[win][take] = g[take]
+        owned[win] |= take & own
+        filled[win] |= take
+    return out, GeoTransform(float(x0), float(y0), cell)
