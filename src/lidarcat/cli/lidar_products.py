@@ -26,10 +26,11 @@ _overlap_opt = click.option(
 
 def _run(kind: str, paths: tuple[str, ...], out: str, crs: str | None, params: dict[str, Any],
          overlap_m: float, workers: int | None, scheduler: str | None, resume: bool, suffix: str) -> list[str]:
-    from ..lidar.jobs import run_jobs, tile_jobs
+    from ..lidar.jobs import run_jobs
+    from ..production.tiles import product_jobs
 
     files, crs, _ = _sources(paths, crs)
-    jobs = tile_jobs(kind, files, out, crs=crs, params=params, overlap_m=overlap_m, suffix=suffix)
+    jobs = product_jobs(kind, files, out, crs=crs, params=params, overlap_m=overlap_m, suffix=suffix)
     with progress_bar(len(jobs), f"{kind} tiles") as bar:
         return run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume,
                         progress=bar.update if bar is not None else None)
