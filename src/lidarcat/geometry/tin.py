@@ -26,11 +26,14 @@ vertex :math:`i`; the walk steps to the neighbour across the edge of the most
 negative :math:`\lambda_i` and repeats until none is negative (found), or the
 edge is on the convex hull (no neighbour: outside, -1).  On a Delaunay
 triangulation this walk never cycles (Edelsbrunner 1990).  It runs for all
-query points at once, each starting in the triangle whose centroid is nearest
-to the centre of the query's cell in a grid of one mean point spacing
-(:math:`\sqrt{\text{hull area} / N}`), so a walk is a few steps.  Points on a
-degenerate triangle, or still walking after ``max_steps``, are located among
-the triangles of their 3, 12 and 96 nearest centroids.
+query points at once, each starting in a triangle of its nearest vertex (a
+k-d tree query), so a walk is a few steps.  Points on a degenerate triangle,
+still walking after ``max_steps``, or whose nearest vertex is a duplicate
+point Qhull left out of the triangulation, are located among the triangles of
+their 3, 12 and 96 nearest centroids.  The triangles' :math:`A^{-1}` are
+computed for the triangles a step visits, or once for all triangles when the
+query points are many (at least a quarter of the triangles; the same numbers
+either way).
 
 ``scipy.spatial.Delaunay.find_simplex`` gives the same triangles but builds
 LAPACK-checked transforms of every triangle first and walks from the previous
@@ -96,10 +99,6 @@ class TinLocator:
     Attributes
     ----------
     triangulation : scipy.spatial.Delaunay
-    area : float
-        Area of the triangulation (its convex hull), squared plan units.
-    resolution : float
-        Mean point spacing :math:`\\sqrt{\\text{area} / N}`, plan units.
 
     Examples
     --------
@@ -111,11 +110,17 @@ class TinLocator:
     """
 
     def __init__(self, triangulation: Any) -> None:
-        from scipy.spatial import cKDTree
-
         self.triangulation = triangulation
-        pts = np.asarray(triangulation.points, dtype=np.float64)
-        v = pts[triangulation.simplices]                               # (T, 3, 2)
+        self._points = np.asarray(triangulation.points, dtype=np.float64)
+        self._simplices = np.asarray(triangulation.simplices)
+        self._inv_all: np.ndarray | None = None
+        self._tree: Any = None
+        self._ctree: Any = None
+        self._area: float | None = None
+
+    def _transforms(self, t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """:math:`A^{-1}` (m, 2, 2) and :math:`v_3` (m, 2) of triangles *t* (all: None); NaN when degenerate."""
+        v = self._points[self._simplices if t is None else self._simplices[t]]   # (m, 3, 2)
         a = np.stack([v[:, 0] - v[:, 2], v[:, 1] - v[:, 2]], axis=2)   # columns v1-v3, v2-v3
         det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
         keep = np.abs(det) > 1e-12
@@ -125,20 +130,28 @@ class TinLocator:
         inv[keep, 0, 1] = -a[keep, 0, 1] / det[keep]
         inv[keep, 1, 0] = -a[keep, 1, 0] / det[keep]
         inv[~keep] = np.nan                                            # degenerate: never contains
-        self._inv = inv
-        self._v3 = v[:, 2].copy()
-        self._ctree = cKDTree(v.mean(axis=1))
-        self.area = float(0.5 * np.abs(det).sum())
-        self.resolution = float(math.sqrt(self.area / len(pts))) if self.area > 0 else 1.0
-        # the walk's starting triangles: the nearest centroid to each cell centre of a grid of one
-        # point spacing (int32, about one cell per point)
-        cell = self.resolution
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        cols, rows = int((hi[0] - lo[0]) / cell) + 1, int((hi[1] - lo[1]) / cell) + 1
-        ce, cn = np.meshgrid(lo[0] + (np.arange(cols) + 0.5) * cell, lo[1] + (np.arange(rows) + 0.5) * cell)
-        _, guess = self._ctree.query(np.column_stack([ce.ravel(), cn.ravel()]))
-        self._guess = guess.astype(np.int32)
-        self._guess_grid = (float(lo[0]), float(lo[1]), cell, cols, rows)
+        return inv, v[:, 2]
+
+    def _step_transforms(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Transforms of triangles *t*: from the table of all of them once it pays (bitwise the same)."""
+        if self._inv_all is not None:
+            return self._inv_all[t], self._points[self._simplices[t, 2]]
+        return self._transforms(t)
+
+    @property
+    def area(self) -> float:
+        """Area of the triangulation (its convex hull), squared plan units."""
+        if self._area is None:
+            v = self._points[self._simplices]
+            det = (v[:, 0, 0] - v[:, 2, 0]) * (v[:, 1, 1] - v[:, 2, 1]) - \
+                  (v[:, 1, 0] - v[:, 2, 0]) * (v[:, 0, 1] - v[:, 2, 1])
+            self._area = float(0.5 * np.abs(det).sum())
+        return self._area
+
+    @property
+    def resolution(self) -> float:
+        """Mean point spacing :math:`\\sqrt{\\text{area} / N}`, plan units."""
+        return float(math.sqrt(self.area / len(self._points)))
 
     def locate(self, q: np.ndarray, max_steps: int = 10_000) -> tuple[np.ndarray, np.ndarray]:
         """Triangle holding each plan point and the point's barycentric coordinates in it.
@@ -159,21 +172,27 @@ class TinLocator:
             :math:`\\lambda` of the point for the triangle's vertices in
             ``simplices`` order (zeros outside).
         """
+        from scipy.spatial import cKDTree
+
         q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
         found = np.full(len(q), -1, dtype=np.int64)
         w = np.zeros((len(q), 3))
         idx = np.flatnonzero(np.isfinite(q).all(axis=1))
-        x0, y0, cell, cols, rows = self._guess_grid
-        c = np.clip(((q[idx, 0] - x0) / cell).astype(np.int64), 0, cols - 1)
-        r = np.clip(((q[idx, 1] - y0) / cell).astype(np.int64), 0, rows - 1)
-        tri = self._guess[r * cols + c].astype(np.int64)
+        if self._tree is None:
+            self._tree = cKDTree(self._points)
+        if self._inv_all is None and len(idx) >= len(self._simplices) // 4:
+            self._inv_all = self._transforms()[0]        # many points: one table of every triangle
+        _, v = self._tree.query(q[idx])
+        tri = self.triangulation.vertex_to_simplex[v].astype(np.int64)
+        nostart = tri < 0                                 # a duplicate point Qhull left out
+        left = [idx[nostart]]
+        idx, tri = idx[~nostart], tri[~nostart]
         nb = self.triangulation.neighbors
-        left = []
         for _ in range(max_steps):
             if idx.size == 0:
                 break
-            rel = q[idx] - self._v3[tri]
-            b = np.einsum("mij,mj->mi", self._inv[tri], rel)
+            inv, v3 = self._step_transforms(tri)
+            b = np.einsum("mij,mj->mi", inv, q[idx] - v3)
             bb = np.column_stack([b, 1.0 - b.sum(axis=1)])
             j = np.argmin(bb, axis=1)
             low = bb[np.arange(len(idx)), j]
@@ -194,17 +213,22 @@ class TinLocator:
 
     def _locate_among_nearest(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`locate` by the triangles of the 3 (then 12, then 96) nearest centroids."""
+        from scipy.spatial import cKDTree
+
         found = np.full(len(q), -1, dtype=np.int64)
         w = np.zeros((len(q), 3))
         todo = np.flatnonzero(np.isfinite(q).all(axis=1))
+        if todo.size and self._ctree is None:
+            self._ctree = cKDTree(self._points[self._simplices].mean(axis=1))
         for k in (3, 12, 96):
             if todo.size == 0:
                 break
-            k = min(k, len(self._inv))
+            k = min(k, len(self._simplices))
             _, cand = self._ctree.query(q[todo], k=k)
             cand = cand.reshape(len(todo), k)
-            rel = q[todo, None, :] - self._v3[cand]                         # (m, k, 2)
-            b = np.einsum("mkij,mkj->mki", self._inv[cand], rel)           # (m, k, 2)
+            inv, v3 = self._step_transforms(cand.ravel())
+            rel = q[todo, None, :] - v3.reshape(len(todo), k, 2)            # (m, k, 2)
+            b = np.einsum("mkij,mkj->mki", inv.reshape(len(todo), k, 2, 2), rel)   # (m, k, 2)
             b3 = 1.0 - b.sum(axis=2)
             inside = (b >= INSIDE_TOL).all(axis=2) & (b3 >= INSIDE_TOL)
             hit = inside.any(axis=1)
