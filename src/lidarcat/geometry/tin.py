@@ -27,7 +27,10 @@ negative :math:`\lambda_i` and repeats until none is negative (found), or the
 edge is on the convex hull (no neighbour: outside, -1).  On a Delaunay
 triangulation this walk never cycles (Edelsbrunner 1990).  It runs for all
 query points at once, each starting in a triangle of its nearest vertex (a
-k-d tree query), so a walk is a few steps.  Points on a degenerate triangle,
+k-d tree query), or, for a triangulation built to be queried many times
+(``start_grid=True``), in the triangle whose centroid is nearest to the centre
+of the point's cell in a grid of one mean point spacing
+(:math:`\sqrt{\text{hull area} / N}`); either way a walk is a few steps.  Points on a degenerate triangle,
 still walking after ``max_steps``, or whose nearest vertex is a duplicate
 point Qhull left out of the triangulation, are located among the triangles of
 their 3, 12 and 96 nearest centroids.  The triangles' :math:`A^{-1}` are
@@ -95,6 +98,12 @@ class TinLocator:
         A plane triangulation (``points`` (N, 2), ``simplices`` (T, 3),
         ``neighbors`` (T, 3)).  Coordinates should be local (a few km at
         most): UTM-size numbers lose digits in the inverses.
+    start_grid : bool
+        For a triangulation that locates many batches of points (a surface):
+        build once a grid of one mean point spacing holding the triangle of
+        the centroid nearest to each cell centre, and start each walk there
+        (no k-d tree query per point), with the transforms of every triangle.
+        Default: start at a triangle of the point's nearest vertex.
 
     Attributes
     ----------
@@ -109,7 +118,9 @@ class TinLocator:
     (True, -1, 1.0)
     """
 
-    def __init__(self, triangulation: Any) -> None:
+    def __init__(self, triangulation: Any, *, start_grid: bool = False) -> None:
+        from scipy.spatial import cKDTree
+
         self.triangulation = triangulation
         self._points = np.asarray(triangulation.points, dtype=np.float64)
         self._simplices = np.asarray(triangulation.simplices)
@@ -117,6 +128,19 @@ class TinLocator:
         self._tree: Any = None
         self._ctree: Any = None
         self._area: float | None = None
+        self._guess: np.ndarray | None = None
+        if start_grid:
+            # the nearest centroid to each cell centre of a grid of one point spacing (int32, about one
+            # cell per point): the walks start there, without a k-d tree query per point
+            self._inv_all, self._v3_all = self._transforms()
+            self._ctree = cKDTree(self._points[self._simplices].mean(axis=1))
+            cell = self.resolution
+            lo, hi = self._points.min(axis=0), self._points.max(axis=0)
+            cols, rows = int((hi[0] - lo[0]) / cell) + 1, int((hi[1] - lo[1]) / cell) + 1
+            ce, cn = np.meshgrid(lo[0] + (np.arange(cols) + 0.5) * cell, lo[1] + (np.arange(rows) + 0.5) * cell)
+            _, guess = self._ctree.query(np.column_stack([ce.ravel(), cn.ravel()]))
+            self._guess = guess.astype(np.int32)
+            self._guess_grid = (float(lo[0]), float(lo[1]), cell, cols, rows)
 
     def _transforms(self, t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """:math:`A^{-1}` (m, 2, 2) and :math:`v_3` (m, 2) of triangles *t* (all: None); NaN when degenerate."""
@@ -130,12 +154,12 @@ class TinLocator:
         inv[keep, 0, 1] = -a[keep, 0, 1] / det[keep]
         inv[keep, 1, 0] = -a[keep, 1, 0] / det[keep]
         inv[~keep] = np.nan                                            # degenerate: never contains
-        return inv, v[:, 2]
+        return inv, v[:, 2].copy()
 
     def _step_transforms(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Transforms of triangles *t*: from the table of all of them once it pays (bitwise the same)."""
         if self._inv_all is not None:
-            return self._inv_all[t], self._points[self._simplices[t, 2]]
+            return self._inv_all[t], self._v3_all[t]
         return self._transforms(t)
 
     @property
@@ -178,12 +202,18 @@ class TinLocator:
         found = np.full(len(q), -1, dtype=np.int64)
         w = np.zeros((len(q), 3))
         idx = np.flatnonzero(np.isfinite(q).all(axis=1))
-        if self._tree is None:
-            self._tree = cKDTree(self._points)
         if self._inv_all is None and len(idx) >= len(self._simplices) // 4:
-            self._inv_all = self._transforms()[0]        # many points: one table of every triangle
-        _, v = self._tree.query(q[idx])
-        tri = self.triangulation.vertex_to_simplex[v].astype(np.int64)
+            self._inv_all, self._v3_all = self._transforms()   # many points: one table of every triangle
+        if self._guess is not None:
+            x0, y0, cell, cols, rows = self._guess_grid
+            c = np.clip(((q[idx, 0] - x0) / cell).astype(np.int64), 0, cols - 1)
+            r = np.clip(((q[idx, 1] - y0) / cell).astype(np.int64), 0, rows - 1)
+            tri = self._guess[r * cols + c].astype(np.int64)
+        else:
+            if self._tree is None:
+                self._tree = cKDTree(self._points)
+            _, v = self._tree.query(q[idx])
+            tri = self.triangulation.vertex_to_simplex[v].astype(np.int64)
         nostart = tri < 0                                 # a duplicate point Qhull left out
         left = [idx[nostart]]
         idx, tri = idx[~nostart], tri[~nostart]

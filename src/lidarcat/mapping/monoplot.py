@@ -298,7 +298,7 @@ class PointSurface(_Surface):
         object.__setattr__(self, "_origin", origin)
         object.__setattr__(self, "_tri", tri)
         object.__setattr__(self, "_tree", cKDTree(en) if self.interpolator == "nearest" else None)
-        object.__setattr__(self, "_locator", TinLocator(tri))
+        object.__setattr__(self, "_locator", TinLocator(tri, start_grid=True))
 
     @property
     def resolution_m(self) -> float:
