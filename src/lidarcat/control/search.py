@@ -41,7 +41,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .facets import ExtractionParams, get_params
-from .vertices import cell_counts, merge_candidates, search_cells, search_margin_m, search_points
+from .vertices import (
+    cell_counts,
+    merge_candidates,
+    search_cells,
+    search_margin_m,
+    search_points,
+)
 
 if TYPE_CHECKING:
     from ..lidar.jobs import TileJob
@@ -69,7 +75,8 @@ def find_jobs(index: Any, area: Sequence[float], work_dir: str | os.PathLike, *,
     block_cells : int
         Cells per block side (a block covers ``block_cells * cell_m`` metres).
     """
-    from ..lidar.jobs import TileJob  # lazy: importing lidarcat.control does not load the LiDAR readers
+    # lazy: importing lidarcat.control does not load the LiDAR readers
+    from ..lidar.jobs import TileJob
 
     if block_cells < 1:
         raise ValueError(f"block_cells must be at least 1, got {block_cells}")
