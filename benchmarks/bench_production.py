@@ -52,12 +52,13 @@ KINDS = {"ground": ({"method": "smrf"}, 80.0, ".laz"), "dsm": ({"cell_m": 1.0}, 
 
 
 def _mode(folder: Path, kind: str, workers: int) -> dict:
-    from lidarcat.lidar.jobs import run_jobs, tile_jobs
+    from lidarcat.lidar.jobs import run_jobs
+    from lidarcat.production.tiles import product_jobs
 
     params, overlap, suffix = KINDS[kind]
     tiles = sorted(folder.glob("tile_*.laz"))
     out = folder / f"out_{kind}_{workers}"
-    jobs = tile_jobs(kind, tiles, out, params=params, overlap_m=overlap, suffix=suffix)
+    jobs = product_jobs(kind, tiles, out, params=params, overlap_m=overlap, suffix=suffix)
     t = time.perf_counter()
     if workers == 0:
         c = time.process_time()
@@ -91,7 +92,7 @@ def _kernels(points: int) -> None:
 
     from bench_lidar import _tile_cloud
     from lidarcat.production.ground import smrf_ground
-    from lidarcat.lidar.raster import _grid_for
+    from lidarcat.lidar.raster import grid_for
     from lidarcat.production.terrain import dsm_grid, tin_grid, tin_heights
 
     pc = _tile_cloud(0, 0, math.sqrt(points / 10.0), points, 1)
@@ -100,7 +101,7 @@ def _kernels(points: int) -> None:
     b = pc.bounds[:4]
 
     def qhull_dtm():
-        t, nr, nc = _grid_for(b, 1.0)
+        t, nr, nc = grid_for(b, 1.0)
         rr, cc = np.mgrid[0:nr, 0:nc]
         return tin_heights(pc.xyz[g], np.column_stack(t.xy(rr.ravel(), cc.ravel())), 50.0)
 

@@ -10,7 +10,8 @@ import pytest
 from scipy.spatial import Delaunay
 
 from lidarcat.lidar import read_points
-from lidarcat.production.ground import (PTDParameters, SMRFParameters, _locate, classify_ground, classify_tiles,
+from lidarcat.geometry.tin import find_simplex as _locate
+from lidarcat.production.ground import (PTDParameters, SMRFParameters, classify_ground, classify_tiles,
                                    confusion, ptd_ground, write_classified_copy)
 
 DATA = Path(__file__).parents[1] / "data" / "lidar"

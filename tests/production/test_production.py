@@ -15,7 +15,8 @@ from conftest import LIDAR_DATA
 from lidarcat.cli.main import cli
 from lidarcat.errors import TileIOError
 from lidarcat.lidar import read_points
-from lidarcat.lidar.jobs import run_jobs, tile_jobs
+from lidarcat.lidar.jobs import run_jobs
+from lidarcat.production.tiles import product_jobs as tile_jobs
 from lidarcat.production.terrain import tin_heights
 
 AHN1 = LIDAR_DATA / "ahn3_cropped_1.laz"
@@ -254,7 +255,9 @@ def test_a_killed_worker_gives_its_tile_to_another(tmp_path):
 
 def test_edge_buffers_give_the_points_of_the_neighbour_files_and_are_removed(tmp_path, monkeypatch):
     """A tile job reads its neighbours' edge buffers: the very points (and order) of decoding them."""
-    from lidarcat.lidar.jobs import _read_with_buffer, _ring_jobs, run_tile_job
+    from lidarcat.lidar.jobs import edge_buffer_jobs as _ring_jobs
+    from lidarcat.lidar.jobs import read_with_buffer as _read_with_buffer
+    from lidarcat.lidar.jobs import run_tile_job
     from lidarcat.lidar.tileindex import TileIndex
 
     tiles = _halves(tmp_path)
@@ -290,7 +293,9 @@ def test_edge_buffers_give_the_points_of_the_neighbour_files_and_are_removed(tmp
 def test_edge_buffers_of_neighbours_with_other_attributes_keep_the_common_ones(tmp_path, monkeypatch):
     """A tile whose neighbours differ in point format (one without GPS time): the buffer pieces are joined
     on the attributes every piece carries and give what decoding the neighbour files gives."""
-    from lidarcat.lidar.jobs import _read_with_buffer, _ring_jobs, run_tile_job
+    from lidarcat.lidar.jobs import edge_buffer_jobs as _ring_jobs
+    from lidarcat.lidar.jobs import read_with_buffer as _read_with_buffer
+    from lidarcat.lidar.jobs import run_tile_job
     from lidarcat.lidar.tileindex import TileIndex
 
     las = laspy.read(str(AHN2))

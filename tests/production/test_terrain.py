@@ -101,7 +101,7 @@ def test_tin_grid_needs_points():
 
 def test_tin_grid_rasterised_equals_the_qhull_tin_at_cell_centres():
     """The OpenCV triangles rasterised give the heights of the Qhull TIN located cell by cell."""
-    from lidarcat.lidar.raster import _grid_for
+    from lidarcat.lidar.raster import grid_for as _grid_for
     from lidarcat.production.terrain import tin_heights
 
     rng = np.random.default_rng(11)

@@ -182,7 +182,8 @@ def test_lidar_dtm_dsm_cli_and_products_stage_write_the_same_files(demo, ground_
 
 
 def test_one_tile_model_is_the_tile_engines_output(ground_tiles, tmp_path):
-    from lidarcat.lidar.jobs import run_jobs, tile_jobs
+    from lidarcat.lidar.jobs import run_jobs
+    from lidarcat.production.tiles import product_jobs as tile_jobs
 
     params = {"cell_m": 4.0, "max_edge_m": 50.0, "text": True, "hillshade": True, "ndsm": True}
     jobs = tile_jobs("dsm", ground_tiles, tmp_path / "engine", crs=CRS, params=params, overlap_m=50.0,

@@ -49,6 +49,7 @@ from .search import (  # noqa: F401
     find_jobs,
     n_blocks,
     run_find_block,
+    search_block,
     write_block,
 )
 
@@ -85,5 +86,6 @@ __all__ = [
     'find_jobs',
     'n_blocks',
     'run_find_block',
+    'search_block',
     'write_block',
 ]

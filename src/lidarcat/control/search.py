@@ -11,7 +11,7 @@ of it (:func:`~lidarcat.control.vertices.search_margin_m`; the ``cell_m/2`` cove
 square window of a narrower edge cell).  Here the cell grid, anchored at the
 area's lower-left corner exactly as in the serial run, is split into blocks of
 ``block_cells x block_cells`` cells; each block is one
-:class:`~lidarcat.lidar.jobs.TileJob` (kind ``"find"``) that reads from the
+:class:`~lidarcat.lidar.jobs.TileJob` running :func:`search_block`, that reads from the
 tiles only the points of its block plus the margin (clipped to the area, as the
 serial run reads the area), searches its cells and pickles its candidates,
 tagged ``(i, j, k)`` = cell and seed order.  The blocks run through
@@ -38,9 +38,21 @@ import pickle
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-__all__ = ["find_candidates_tiles", "find_jobs", "n_blocks", "run_find_block", "write_block"]
+from .facets import ExtractionParams, get_params
+from .vertices import (
+    cell_counts,
+    merge_candidates,
+    search_cells,
+    search_margin_m,
+    search_points,
+)
+
+if TYPE_CHECKING:
+    from ..lidar.jobs import TileJob
+
+__all__ = ["find_candidates_tiles", "find_jobs", "n_blocks", "run_find_block", "search_block", "write_block"]
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +60,7 @@ log = logging.getLogger(__name__)
 def find_jobs(index: Any, area: Sequence[float], work_dir: str | os.PathLike, *, crs: Any = None, params: Any = None,
               cell_m: float = 20.0, min_score: float = 0.2, classes: Sequence[int] | None = None,
               block_cells: int = 4) -> list:
-    """One ``"find"`` :class:`~lidarcat.lidar.jobs.TileJob` per block of cells that meets a tile.
+    """One :class:`~lidarcat.lidar.jobs.TileJob` (:func:`search_block`) per block of cells that meets a tile.
 
     Parameters
     ----------
@@ -63,15 +75,14 @@ def find_jobs(index: Any, area: Sequence[float], work_dir: str | os.PathLike, *,
     block_cells : int
         Cells per block side (a block covers ``block_cells * cell_m`` metres).
     """
-    from .vertices import _cell_counts, search_margin_m
-    from .facets import get_params
+    # lazy: importing lidarcat.control does not load the LiDAR readers
     from ..lidar.jobs import TileJob
 
     if block_cells < 1:
         raise ValueError(f"block_cells must be at least 1, got {block_cells}")
     p = get_params(params)
     xmin, ymin, xmax, ymax = (float(v) for v in area)
-    nx, ny = _cell_counts(area, cell_m)
+    nx, ny = cell_counts(area, cell_m)
     margin = search_margin_m(p, cell_m)
     jobs = []
     for i0 in range(0, nx, block_cells):
@@ -86,16 +97,14 @@ def find_jobs(index: Any, area: Sequence[float], work_dir: str | os.PathLike, *,
             job_params = {"cells": [i0, i1, j0, j1], "area": [xmin, ymin, xmax, ymax], "cell_m": float(cell_m),
                           "min_score": float(min_score), "classes": None if classes is None else list(classes),
                           "extraction": dataclasses.asdict(p)}
-            jobs.append(TileJob("find", tiles[0], (bx0, by0, bx1, by1), tuple(tiles[1:]),
+            jobs.append(TileJob(search_block, tiles[0], (bx0, by0, bx1, by1), tuple(tiles[1:]),
                                 str(Path(work_dir) / f"find_{i0:05d}_{j0:05d}.pkl"), job_params,
-                                None if crs is None else str(crs), margin))
+                                None if crs is None else str(crs), margin, buffered=False))
     return jobs
 
 
-def run_find_block(job: Any) -> list:
-    """Search the cells of one block; return ``[((i, j, k), Candidate), ...]`` (called by ``run_tile_job``)."""
-    from .vertices import _search_cells, _search_points
-    from .facets import ExtractionParams
+def run_find_block(job: TileJob) -> list:
+    """Search the cells of one block; return ``[((i, j, k), Candidate), ...]``."""
     from ..lidar.tileindex import TileIndex
 
     prm = job.params
@@ -105,12 +114,18 @@ def run_find_block(job: Any) -> list:
     m = job.overlap_m
     index = TileIndex.build([job.tile, *job.neighbours], crs=job.crs)
     cloud = index.query_box(max(bx0 - m, xmin), max(by0 - m, ymin), min(bx1 + m, xmax), min(by1 + m, ymax))
-    xyz, box = _search_points(cloud, (xmin, ymin, xmax, ymax), p, prm["classes"])
+    xyz, box = search_points(cloud, (xmin, ymin, xmax, ymax), p, prm["classes"])
     if xyz is None:
         return []
     i0, i1, j0, j1 = prm["cells"]
     cells = [(i, j) for i in range(i0, i1) for j in range(j0, j1)]
-    return _search_cells(xyz, box, cells, p, prm["cell_m"], prm["min_score"])
+    return search_cells(xyz, box, cells, p, prm["cell_m"], prm["min_score"])
+
+
+def search_block(job: TileJob) -> None:
+    """The tile function of the block search (for :mod:`lidarcat.lidar.jobs`): :func:`run_find_block`,
+    its tagged candidates pickled to ``job.output`` (:func:`write_block`)."""
+    write_block(Path(job.output), run_find_block(job))
 
 
 def write_block(path: Path, found: list) -> None:
@@ -153,7 +168,6 @@ def find_candidates_tiles(index: Any, area: Sequence[float], *, params: Any = No
     list of Candidate
         Sorted by decreasing score.
     """
-    from .vertices import merge_candidates
     from ..lidar.jobs import run_jobs
 
     def run(folder: str | os.PathLike) -> list:

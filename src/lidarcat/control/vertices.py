@@ -51,6 +51,11 @@ __all__ = [
     "extract_roof",
     "find_candidates",
     "Candidate",
+    "search_points",
+    "cell_counts",
+    "search_margin_m",
+    "search_cells",
+    "merge_candidates",
     "STATUSES",
     "ROW_FIELDS",
 ]
@@ -617,16 +622,16 @@ def find_candidates(
     """
 
     p = get_params(params)
-    xyz, box = _search_points(cloud, box, p, classes)
+    xyz, box = search_points(cloud, box, p, classes)
     if xyz is None:
         return []
-    nx, ny = _cell_counts(box, cell_m)
-    found = _search_cells(xyz, box, [(i, j) for i in range(nx) for j in range(ny)], p, cell_m, min_score,
+    nx, ny = cell_counts(box, cell_m)
+    found = search_cells(xyz, box, [(i, j) for i in range(nx) for j in range(ny)], p, cell_m, min_score,
                           progress=progress)
     return merge_candidates([c for _, c in found])
 
 
-def _search_points(cloud: Any, box: Any, p: ExtractionParams, classes: Any) -> tuple[np.ndarray | None, tuple]:
+def search_points(cloud: Any, box: Any, p: ExtractionParams, classes: Any) -> tuple[np.ndarray | None, tuple]:
     """The points the search sees (class filter, box + radius) and the box; ``(None, box)`` when empty."""
     xyz = _as_xyz(cloud)
     if classes is not None:
@@ -648,7 +653,7 @@ def _search_points(cloud: Any, box: Any, p: ExtractionParams, classes: Any) -> t
     return (xyz if len(xyz) else None), (xmin, ymin, xmax, ymax)
 
 
-def _cell_counts(box: Any, cell_m: float) -> tuple[int, int]:
+def cell_counts(box: Any, cell_m: float) -> tuple[int, int]:
     """Number of search cells along E and N (the last ones may be narrower)."""
     xmin, ymin, xmax, ymax = (float(v) for v in box)
     return (max(1, int(math.ceil((xmax - xmin) / cell_m))), max(1, int(math.ceil((ymax - ymin) / cell_m))))
@@ -664,7 +669,7 @@ def search_margin_m(p: ExtractionParams, cell_m: float) -> float:
     return max(cell_m / 2.0 + 2.0, float(p.radius_m)) + 1.0
 
 
-def _search_cells(xyz: np.ndarray, box: Any, cells: Sequence[tuple[int, int]], p: ExtractionParams,
+def search_cells(xyz: np.ndarray, box: Any, cells: Sequence[tuple[int, int]], p: ExtractionParams,
                   cell_m: float, min_score: float, progress: Callable[[int], None] | None = None
                   ) -> list[tuple[tuple[int, int, int], Candidate]]:
     """Candidates found in *cells* (``(i, j)`` indices), each tagged ``(i, j, k)`` with its seed's order.

@@ -1,9 +1,16 @@
-"""Tile-parallel production runs: serial, or on a Dask cluster (``dask.distributed``).
+"""The tile engine: a function run on every tile of a survey, serially or on a Dask cluster.
 
-A run is a list of :class:`TileJob`: one input tile, the neighbour tiles whose
-points within ``overlap_m`` of it are needed (ground classification and
-rasters see across the tile edge, so seams do not show), one output file and
-the parameters.  :func:`run_jobs` runs them
+As lidR's ``catalog_map(ctg, FUN)``, the engine knows no product: a run is a
+list of :class:`TileJob`, each naming the function that makes its output
+(``job.func(job)``: a module-level function, so Dask pickles it by name), one
+input tile, the neighbour tiles whose points within ``overlap_m`` of it are
+needed (ground classification and rasters see across the tile edge, so seams
+do not show), one output file and the parameters.  The products pass their own
+functions (:func:`lidarcat.production.ground.ground_tile`,
+:func:`lidarcat.production.terrain.dtm_tile` and ``dsm_tile``,
+:func:`lidarcat.control.search.search_block`); a function reads its tile and
+the neighbours' points with :func:`read_with_buffer` and writes
+``job.output``.  :func:`run_jobs` runs them
 
 * serially in this process (``workers=None`` and no ``scheduler``), or
 * on a ``LocalCluster`` of ``workers`` single-threaded worker processes, or on
@@ -19,14 +26,15 @@ whole for every tile decodes the survey nine times over (LAZ decoding then
 dominated every production run).  So a run first makes one *edge buffer* per
 tile (``ring`` jobs, in the same scheduler): the tile is decoded once and its
 points inside any neighbour's buffered box are saved in file order as an
-uncompressed ``.npz`` per neighbour under ``<output folder>/.buffers/``.  A tile job then
+uncompressed ``.npz`` per neighbour under ``<output folder>/.buffers/``, for the jobs that
+read through :func:`read_with_buffer` (``buffered=True``).  A tile job then
 reads its own tile and the neighbours' buffers, keeping the points in its
 buffered box, in the order a :class:`TileIndex` query returns them: the same
 points as decoding the neighbours, so the outputs do not change.  The buffers
 are resumable like the outputs and are deleted at the end of a run.
 
 Resumable: each finished output gets a ``<output>.done.json`` marker holding
-the input tiles' sizes and modification times and the job's parameters; a
+the function's name, the input tiles' sizes and modification times and the job's parameters; a
 rerun skips a job whose output and matching marker exist.  Outputs are written
 atomically, so a killed run leaves whole files or none.  A worker that dies
 mid-tile: the scheduler gives its tile to another worker (``retries``).  A
@@ -46,12 +54,13 @@ from typing import Any
 
 from ..errors import FormatError, LidarcatError, TileIOError
 
-__all__ = ["TileJob", "run_jobs", "run_on_client", "run_tile_job", "tile_jobs", "JOB_KINDS"]
+__all__ = ["TileJob", "TileFunction", "run_jobs", "run_on_client", "run_tile_job", "tile_jobs",
+           "read_with_buffer", "edge_buffer_jobs"]
 
 log = logging.getLogger(__name__)
 
-JOB_KINDS = ("ground", "dtm", "dsm", "find", "ring")
-_BUFFERED = ("ground", "dtm", "dsm")
+#: what a job runs: ``func(job)`` writes ``job.output`` (atomically); its return value is ignored
+TileFunction = Callable[["TileJob"], Any]
 
 
 @dataclass(frozen=True)
@@ -60,11 +69,12 @@ class TileJob:
 
     Attributes
     ----------
-    kind : {"ground", "dtm", "dsm", "find", "ring"}
-        What to make (``"find"``: a block of the roof-vertex search, see
-        :mod:`lidarcat.control.search`; ``bounds`` is the block, ``tile`` and
-        ``neighbours`` the tiles it meets; ``"ring"``: the edge buffer of
-        ``tile``, the points inside the boxes ``params["boxes"]``).
+    func : callable
+        ``func(job)`` makes the output: a module-level function (Dask
+        workers import it by name; the done-marker records that name).  E.g.
+        :func:`lidarcat.production.ground.ground_tile`; or
+        :func:`lidarcat.control.search.search_block`, whose ``bounds`` is a
+        block of search cells and ``tile`` and ``neighbours`` the tiles it meets.
     tile : str
         Input tile path.
     bounds : (xmin, ymin, xmax, ymax)
@@ -72,16 +82,20 @@ class TileJob:
     neighbours : tuple of str
         Tiles whose points within ``overlap_m`` are read too.
     output : str
-        Output path (``.las``/``.laz`` for ground, ``.tif`` for rasters).
+        Output path (e.g. ``.las``/``.laz`` for ground, ``.tif`` for rasters).
     params : dict
-        Keyword parameters of the job (method, PTD/SMRF parameters, cell_m, ...).
+        Keyword parameters of the job (method, PTD/SMRF parameters, cell_m, ...);
+        JSON-serialisable (they go into the done-marker).
     crs : str or None
         CRS for tiles that carry none.
     overlap_m : float
         Buffer read around the tile, metres.
+    buffered : bool
+        *func* reads the tile with :func:`read_with_buffer`, so the run makes
+        the neighbours' edge buffers first (see the module docstring).
     """
 
-    kind: str
+    func: TileFunction
     tile: str
     bounds: tuple[float, float, float, float]
     neighbours: tuple[str, ...]
@@ -89,13 +103,25 @@ class TileJob:
     params: dict[str, Any] = field(default_factory=dict)
     crs: str | None = None
     overlap_m: float = 0.0
+    buffered: bool = True
+
+    def __post_init__(self) -> None:
+        name = getattr(self.func, "__qualname__", "")
+        if not callable(self.func) or not name or "<" in name:
+            raise ValueError(f"a tile job's function must be a module-level function (Dask workers import "
+                             f"it by name), got {self.func!r}")
+
+    @property
+    def name(self) -> str:
+        """The function's import name, ``module.qualname``."""
+        return f"{self.func.__module__}.{self.func.__qualname__}"
 
     def signature(self) -> dict[str, Any]:
-        """What makes the output stale: inputs (size, mtime) and parameters."""
+        """What makes the output stale: the function, inputs (size, mtime) and parameters."""
         def stamp(p: str) -> list[Any]:
             st = os.stat(p)
             return [p, st.st_size, st.st_mtime_ns]
-        return {"kind": self.kind, "inputs": [stamp(p) for p in (self.tile, *self.neighbours)],
+        return {"function": self.name, "inputs": [stamp(p) for p in (self.tile, *self.neighbours)],
                 "params": {k: v for k, v in sorted(self.params.items())}, "crs": self.crs,
                 "overlap_m": self.overlap_m}
 
@@ -126,7 +152,13 @@ def _piece_path(job: TileJob, tile: str) -> Path:
 
 def _write_ring(job: TileJob) -> None:
     """For each box of ``job.params["boxes"]``, the points of ``job.tile`` inside it (file order),
-    as the .npz ``job.params["pieces"][i]``; then the manifest ``job.output``."""
+    as the .npz ``job.params["pieces"][i]``; then the manifest ``job.output``.
+
+    Raises
+    ------
+    TileIOError
+        A piece or the manifest cannot be written (names the manifest and the tile).
+    """
     import numpy as np
 
     from .._util import atomic_write, write_json_atomic
@@ -136,21 +168,29 @@ def _write_ring(job: TileJob) -> None:
 
     pc = read_points(job.tile, crs=job.crs)
     label = np.array(crs_label(pc.crs) if pc.crs is not None else "")
-    for box, piece in zip(job.params["boxes"], job.params["pieces"]):
-        keep = in_box(pc.xyz, *box)
-        arrays = {"xyz": pc.xyz[keep], "crs": label}
-        arrays.update({f"a_{k}": np.asarray(v)[keep] for k, v in pc.attributes.items()})
-        with atomic_write(piece, "wb") as fh:
-            np.savez(fh, **arrays)
-    write_json_atomic(job.output, {"tile": job.tile, "pieces": list(job.params["pieces"])})
+    try:
+        for box, piece in zip(job.params["boxes"], job.params["pieces"]):
+            keep = in_box(pc.xyz, *box)
+            arrays = {"xyz": pc.xyz[keep], "crs": label}
+            arrays.update({f"a_{k}": np.asarray(v)[keep] for k, v in pc.attributes.items()})
+            with atomic_write(piece, "wb") as fh:
+                np.savez(fh, **arrays)
+        write_json_atomic(job.output, {"tile": job.tile, "pieces": list(job.params["pieces"])})
+    except OSError as ex:
+        raise TileIOError(f"{job.output}: cannot write the edge buffer of tile {job.tile} "
+                          f"({ex.strerror or ex})") from ex
 
 
-def _ring_jobs(jobs: Sequence[TileJob]) -> list[TileJob]:
-    """One ``ring`` job per tile that is a neighbour of a buffered job (a box and a piece per job)."""
+def edge_buffer_jobs(jobs: Sequence[TileJob]) -> list[TileJob]:
+    """The edge-buffer jobs a run of *jobs* needs: one per tile that neighbours a buffered job.
+
+    Each writes, for every buffered job the tile neighbours, the tile's points
+    inside that job's buffered box (one ``.npz`` piece per job) and a manifest.
+    """
     pieces: dict[tuple[str, str, float, str | None], list[tuple[list[float], str]]] = {}
     first: dict[tuple[str, str, float, str | None], TileJob] = {}
     for j in jobs:
-        if j.kind not in _BUFFERED or j.overlap_m <= 0:
+        if not j.buffered or j.overlap_m <= 0:
             continue
         o = j.overlap_m
         box = [j.bounds[0] - o, j.bounds[1] - o, j.bounds[2] + o, j.bounds[3] + o]
@@ -162,8 +202,8 @@ def _ring_jobs(jobs: Sequence[TileJob]) -> list[TileJob]:
     for key, bp in pieces.items():
         nb, ring, o, crs = key
         bp = sorted(bp, key=lambda t: t[1])
-        out.append(TileJob("ring", nb, first[key].bounds, (), ring,
-                           {"boxes": [b for b, _ in bp], "pieces": [p for _, p in bp]}, crs, o))
+        out.append(TileJob(_write_ring, nb, first[key].bounds, (), ring,
+                           {"boxes": [b for b, _ in bp], "pieces": [p for _, p in bp]}, crs, o, buffered=False))
     return out
 
 
@@ -186,11 +226,20 @@ def _read_ring(path: Path, box: tuple[float, float, float, float], crs_label_own
         return None
 
 
-def _read_with_buffer(job: TileJob) -> tuple[Any, int]:
-    """Points of the tile followed by the neighbours' points within the overlap; tile count.
+def read_with_buffer(job: TileJob) -> tuple[Any, int]:
+    """The tile's points followed by the neighbours' points within the overlap, and the tile's count.
 
     The neighbours' points come from their edge buffers when the run made them
-    (see the module docstring), else from the neighbour files themselves.
+    (see the module docstring), else from the neighbour files themselves; the
+    same points in the same order either way.  Only the attributes that every
+    part carries are kept.
+
+    Returns
+    -------
+    cloud : PointCloud
+        ``n_own`` points of ``job.tile`` (file order), then those of the
+        neighbours inside the tile's box grown by ``job.overlap_m``.
+    n_own : int
     """
     from .cloud import PointCloud
     from .crs import crs_label
@@ -224,76 +273,22 @@ def _read_with_buffer(job: TileJob) -> tuple[Any, int]:
     return PointCloud.concat([own_k, extra_k]), len(own)
 
 
-def _raster_job(job: TileJob, cloud: Any, out: Path) -> None:
-    """DTM or DSM of the tile's area (grid snapped to multiples of the cell), plus extras.
-
-    Extras by ``job.params``: ``text`` (the report's E N H text grid, ``.txt``),
-    ``hillshade`` (``<stem>_hillshade.tif``), ``ndsm`` (DSM jobs: ``<stem>_ndsm.tif``).
-    """
-    from ..production.terrain import dsm_grid, dtm_grid, hillshade, ndsm, write_product, write_text_grid
-
-    cell = float(job.params.get("cell_m", 1.0))
-    max_edge = job.params.get("max_edge_m", 50.0)
-    if job.kind == "dtm":
-        res = dtm_grid(cloud, cell, job.bounds, max_edge_m=max_edge)
-        grid, transform = res.grid, res.transform
-        log.info("%s: DTM %d x %d cells, %d gap cells (%.1f %%)", job.tile, *grid.shape, res.gap_cells,
-                 100 * res.gap_fraction)
-    else:
-        grid, transform = dsm_grid(cloud, cell, job.bounds)
-    stem = out.with_suffix("")
-    if job.params.get("hillshade"):
-        write_product(Path(f"{stem}_hillshade.tif"), hillshade(grid, cell), transform, cloud.crs)
-    if job.kind == "dsm" and job.params.get("ndsm"):
-        dtm = dtm_grid(cloud, cell, job.bounds, max_edge_m=max_edge)
-        write_product(Path(f"{stem}_ndsm.tif"), ndsm(grid, dtm.grid), transform, cloud.crs)
-    if job.params.get("text"):
-        write_text_grid(out.with_suffix(".txt"), grid, transform)
-    write_product(out, grid, transform, cloud.crs)
-
-
 def run_tile_job(job: TileJob) -> str:
-    """Compute one tile and write its output (atomically) and done-marker; return the output path.
+    """Run ``job.func(job)`` and write the done-marker; return the output path.
 
     Raises
     ------
     TileIOError
         The output cannot be written (names it: full disk, permissions).
-    LidarFormatError, TileIOError
-        An input tile is corrupt or missing (names it).
+    LidarcatError
+        Whatever located error the function raises (e.g. a corrupt or
+        missing input tile), unchanged.
     """
     from .._util import write_json_atomic
 
-    if job.kind not in JOB_KINDS:
-        raise ValueError(f"unknown job kind {job.kind!r}; use one of {', '.join(JOB_KINDS)}")
     out = Path(job.output)
-    if job.kind == "ring":
-        try:
-            _write_ring(job)
-        except OSError as ex:
-            raise TileIOError(f"{out}: cannot write the edge buffer of tile {job.tile} "
-                              f"({ex.strerror or ex})") from ex
-        write_json_atomic(_marker(job), job.signature())
-        return str(out)
-    if job.kind == "find":
-        from ..control.search import run_find_block, write_block
-
-        found = run_find_block(job)
-    else:
-        cloud, n_own = _read_with_buffer(job)
     try:
-        if job.kind == "find":
-            write_block(out, found)
-        elif job.kind == "ground":
-            from ..production.ground import classify_ground, params_from_dict, write_classified_copy
-
-            method = job.params.get("method", "smrf")
-            g = classify_ground(cloud.xyz, cloud.attributes.get("return_number"),
-                                cloud.attributes.get("number_of_returns"), method=method,
-                                params=params_from_dict(method, job.params))
-            write_classified_copy(job.tile, out, g[:n_own])
-        else:
-            _raster_job(job, cloud, out)
+        job.func(job)
         write_json_atomic(_marker(job), job.signature())
     except LidarcatError as ex:
         if job.tile in str(ex):
@@ -304,12 +299,29 @@ def run_tile_job(job: TileJob) -> str:
     return str(out)
 
 
-def tile_jobs(kind: str, paths: Sequence[str | os.PathLike], out: str | os.PathLike, *, crs: Any = None,
-              params: dict[str, Any] | None = None, overlap_m: float = 0.0, suffix: str | None = None) -> list[TileJob]:
-    """One :class:`TileJob` per tile; neighbours are the tiles within *overlap_m* of it.
+def tile_jobs(func: TileFunction, paths: Sequence[str | os.PathLike], out: str | os.PathLike, *,
+              crs: Any = None, params: dict[str, Any] | None = None, overlap_m: float = 0.0,
+              suffix: str | None = None) -> list[TileJob]:
+    """One :class:`TileJob` running *func* per tile; neighbours are the tiles within *overlap_m* of it.
 
-    *out* is a file when there is one tile and its suffix names a file type
-    (``.las``, ``.laz``, ``.tif``), else a folder receiving ``<tile stem><suffix>``.
+    Parameters
+    ----------
+    func : callable
+        ``func(job)``, module-level (see :class:`TileJob`); it reads the tile
+        with :func:`read_with_buffer` (the jobs are ``buffered``).
+    paths : sequence of path-like
+        Input tiles.
+    out : path-like
+        A file when there is one tile and its suffix names a file type
+        (``.las``, ``.laz``, ``.tif``), else a folder receiving ``<tile stem><suffix>``.
+    crs : str or CRS, optional
+        CRS of tiles that carry none.
+    params : dict, optional
+        The jobs' parameters (JSON-serialisable).
+    overlap_m : float
+        Neighbour buffer, metres.
+    suffix : str, optional
+        Output suffix in a folder (default the tile's own).
     """
     from .crs import crs_label
     from .tileindex import TileIndex
@@ -329,7 +341,7 @@ def tile_jobs(kind: str, paths: Sequence[str | os.PathLike], out: str | os.PathL
                                                            b.xmax + overlap_m, b.ymax + overlap_m)
                    if Path(u.path) != Path(t.path))
         dst = out if single else out / (Path(t.path).stem + (suffix or Path(t.path).suffix))
-        jobs.append(TileJob(kind, str(t.path), (b.xmin, b.ymin, b.xmax, b.ymax), nb, str(dst),
+        jobs.append(TileJob(func, str(t.path), (b.xmin, b.ymin, b.xmax, b.ymax), nb, str(dst),
                             dict(params or {}), crs_s, float(overlap_m)))
     return jobs
 
@@ -359,7 +371,7 @@ def run_jobs(jobs: Sequence[TileJob], *, workers: int | None = None, scheduler: 
         log.info("%d of %d tiles already done; skipped", skipped, len(jobs))
         if progress is not None:
             progress(skipped)
-    rings = [r for r in _ring_jobs(todo) if not (resume and _is_done(r))]
+    rings = [r for r in edge_buffer_jobs(todo) if not (resume and _is_done(r))]
     if workers is None and scheduler is None:
         for r in rings:
             run_tile_job(r)
@@ -400,7 +412,7 @@ def run_on_client(client: Any, jobs: Sequence[TileJob], *, rings: Sequence[TileJ
     """
     from dask.distributed import as_completed, wait
 
-    rings = _ring_jobs(jobs) if rings is None else rings
+    rings = edge_buffer_jobs(jobs) if rings is None else rings
     if rings:
         rf = client.map(run_tile_job, rings, retries=retries, pure=False,
                         key=[f"ring-{i}-{Path(r.tile).name}" for i, r in enumerate(rings)])
@@ -408,7 +420,7 @@ def run_on_client(client: Any, jobs: Sequence[TileJob], *, rings: Sequence[TileJ
         for f in rf:
             f.result()  # re-raises the worker's located error
     futures = client.map(run_tile_job, jobs, retries=retries, pure=False,
-                         key=[f"{j.kind}-{i}-{Path(j.tile).name}" for i, j in enumerate(jobs)])
+                         key=[f"{j.func.__name__}-{i}-{Path(j.tile).name}" for i, j in enumerate(jobs)])
     for fut in as_completed(futures):
         fut.result()  # re-raises the worker's located error
         if progress is not None:
@@ -419,7 +431,7 @@ def run_on_client(client: Any, jobs: Sequence[TileJob], *, rings: Sequence[TileJ
 def _drop_rings(jobs: Sequence[TileJob]) -> None:
     """Delete the edge buffers (and their markers) of a finished run."""
     folders = set()
-    for r in _ring_jobs(jobs):
+    for r in edge_buffer_jobs(jobs):
         for p in (Path(r.output), _marker(r), *map(Path, r.params["pieces"])):
             p.unlink(missing_ok=True)
         folders.add(Path(r.output).parent)

@@ -56,7 +56,7 @@ RASTER_KINDS = ("intensity", "dsm", "dtm")
 
 
 # --------------------------------------------------------------------------- rasterize
-def _grid_for(bounds: tuple[float, float, float, float], cell_m: float) -> tuple[GeoTransform, int, int]:
+def grid_for(bounds: tuple[float, float, float, float], cell_m: float) -> tuple[GeoTransform, int, int]:
     xmin, ymin, xmax, ymax = map(float, bounds[:4])
     x0 = np.floor(xmin / cell_m) * cell_m
     y0 = np.ceil(ymax / cell_m) * cell_m
@@ -179,7 +179,7 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
         if bounds is None:
             raise ValueError("bounds are required when rasterizing a stream of chunks")
         chunks = cloud
-    transform, nrows, ncols = _grid_for(bounds, cell_m)
+    transform, nrows, ncols = grid_for(bounds, cell_m)
     ncell = nrows * ncols
     if ncell > 400_000_000:
         raise ProductError(f"grid of {nrows} x {ncols} cells is too large; use a coarser cell")

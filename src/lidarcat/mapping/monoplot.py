@@ -91,6 +91,7 @@ import numpy as np
 from ..geometry.collinearity import rotation_matrix
 from .._util.frozen import frozen_array
 from ..geometry.camera import Camera
+from ..geometry.tin import TinLocator
 from ..errors import LidarcatError
 
 __all__ = ["GridSurface", "PointSurface", "MonoplotResult", "monoplot", "ray_directions",
@@ -294,12 +295,7 @@ class PointSurface(_Surface):
     _origin: np.ndarray = field(init=False, repr=False)
     _tri: Any = field(init=False, repr=False)
     _tree: Any = field(init=False, repr=False)
-    _inv: np.ndarray = field(init=False, repr=False)
-    _v3: np.ndarray = field(init=False, repr=False)
-    _ctree: Any = field(init=False, repr=False)
-    _area: float = field(init=False, repr=False)
-    _guess: np.ndarray = field(init=False, repr=False)
-    _guess_grid: tuple[float, float, float, int, int] = field(init=False, repr=False)
+    _locator: TinLocator = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         from scipy.spatial import Delaunay, QhullError, cKDTree
@@ -321,35 +317,12 @@ class PointSurface(_Surface):
         object.__setattr__(self, "_origin", origin)
         object.__setattr__(self, "_tri", tri)
         object.__setattr__(self, "_tree", cKDTree(en) if self.interpolator == "nearest" else None)
-        # closed-form barycentric transforms: b = inv @ (q - v3), weights (b1, b2, 1 - b1 - b2)
-        v = en[tri.simplices]                                          # (T, 3, 2)
-        a = np.stack([v[:, 0] - v[:, 2], v[:, 1] - v[:, 2]], axis=2)   # columns v1-v3, v2-v3
-        det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
-        keep = np.abs(det) > 1e-12
-        inv = np.zeros_like(a)
-        inv[keep, 0, 0] = a[keep, 1, 1] / det[keep]
-        inv[keep, 1, 1] = a[keep, 0, 0] / det[keep]
-        inv[keep, 0, 1] = -a[keep, 0, 1] / det[keep]
-        inv[keep, 1, 0] = -a[keep, 1, 0] / det[keep]
-        inv[~keep] = np.nan                                            # degenerate: never contains
-        object.__setattr__(self, "_inv", inv)
-        object.__setattr__(self, "_v3", v[:, 2].copy())
-        object.__setattr__(self, "_ctree", cKDTree(v.mean(axis=1)))
-        object.__setattr__(self, "_area", float(0.5 * np.abs(det).sum()))
-        # the walk's starting triangles: the nearest centroid to each cell centre of a grid of one
-        # point spacing (int32, about one cell per point)
-        cell = self.resolution_m
-        lo, hi = en.min(axis=0), en.max(axis=0)
-        cols, rows = int((hi[0] - lo[0]) / cell) + 1, int((hi[1] - lo[1]) / cell) + 1
-        ce, cn = np.meshgrid(lo[0] + (np.arange(cols) + 0.5) * cell, lo[1] + (np.arange(rows) + 0.5) * cell)
-        _, guess = self._ctree.query(np.column_stack([ce.ravel(), cn.ravel()]))
-        object.__setattr__(self, "_guess", guess.astype(np.int32))
-        object.__setattr__(self, "_guess_grid", (float(lo[0]), float(lo[1]), cell, cols, rows))
+        object.__setattr__(self, "_locator", TinLocator(tri, start_grid=True))
 
     @property
     def resolution_m(self) -> float:
         """Mean point spacing: sqrt(hull area / N), m."""
-        return float(math.sqrt(self._area / len(self.xyz)))
+        return float(math.sqrt(self._locator.area / len(self.xyz)))
 
     def _make_bound(self) -> tuple[np.ndarray, tuple[float, float, float]]:
         """Highest point per cell of one resolution, max over 5 x 5 cells (triangles span ~2 cells)."""
@@ -378,71 +351,10 @@ class PointSurface(_Surface):
     def _locate(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Triangle containing each (centred) plan position (-1: none) and its barycentric weights.
 
-        ``Delaunay.find_simplex`` first builds LAPACK-checked transforms of every
-        triangle (tens of seconds for a million triangles).  Here a visibility
-        walk, vectorised over the positions: start at the triangle of the nearest
-        centroid to the position's grid cell (one point spacing), compute the
-        barycentric weights (closed-form 2 x 2 inverses), step to the neighbour
-        across the edge of the most negative weight until none is negative (a
-        Delaunay triangulation has no cycles for this walk); an edge of the
-        hull to cross means outside (NaN).  Positions still walking after 48
-        steps or on a degenerate triangle go to :meth:`_locate_candidates`.
+        :meth:`lidarcat.geometry.tin.TinLocator.locate`, walking at most 48
+        steps before the nearest triangles are searched.
         """
-        found = np.full(len(q), -1, dtype=np.int64)
-        w = np.zeros((len(q), 3))
-        idx = np.flatnonzero(np.isfinite(q).all(axis=1))
-        x0, y0, cell, cols, rows = self._guess_grid
-        c = np.clip(((q[idx, 0] - x0) / cell).astype(np.int64), 0, cols - 1)
-        r = np.clip(((q[idx, 1] - y0) / cell).astype(np.int64), 0, rows - 1)
-        tri = self._guess[r * cols + c].astype(np.int64)
-        nb = self._tri.neighbors
-        left = []
-        for _ in range(48):
-            if idx.size == 0:
-                break
-            rel = q[idx] - self._v3[tri]
-            b = np.einsum("mij,mj->mi", self._inv[tri], rel)
-            bb = np.column_stack([b, 1.0 - b.sum(axis=1)])
-            j = np.argmin(bb, axis=1)
-            low = bb[np.arange(len(idx)), j]
-            bad = ~np.isfinite(low)
-            inside = low >= -1e-9
-            found[idx[inside]] = tri[inside]
-            w[idx[inside]] = bb[inside]
-            nxt = nb[tri, j]
-            move = ~inside & ~bad & (nxt >= 0)            # nxt < 0: across the hull, outside
-            left.append(idx[bad])
-            idx, tri = idx[move], nxt[move]
-        left.append(idx)
-        rest = np.concatenate(left)
-        if rest.size:
-            f2, w2 = self._locate_candidates(q[rest])
-            found[rest], w[rest] = f2, w2
-        return found, w
-
-    def _locate_candidates(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`_locate` by the triangles of the 3 (then 12, then 96) nearest centroids."""
-        found = np.full(len(q), -1, dtype=np.int64)
-        w = np.zeros((len(q), 3))
-        todo = np.flatnonzero(np.isfinite(q).all(axis=1))
-        for k in (3, 12, 96):
-            if todo.size == 0:
-                break
-            k = min(k, len(self._inv))
-            _, cand = self._ctree.query(q[todo], k=k)
-            cand = cand.reshape(len(todo), k)
-            rel = q[todo, None, :] - self._v3[cand]                         # (m, k, 2)
-            b = np.einsum("mkij,mkj->mki", self._inv[cand], rel)           # (m, k, 2)
-            b3 = 1.0 - b.sum(axis=2)
-            inside = (b >= -1e-9).all(axis=2) & (b3 >= -1e-9)
-            hit = inside.any(axis=1)
-            j = np.argmax(inside, axis=1)
-            rows = np.flatnonzero(hit)
-            found[todo[rows]] = cand[rows, j[rows]]
-            w[todo[rows], :2] = b[rows, j[rows]]
-            w[todo[rows], 2] = b3[rows, j[rows]]
-            todo = todo[~hit]
-        return found, w
+        return self._locator.locate(q, max_steps=48)
 
     def height(self, e: Any, n: Any) -> np.ndarray:
         """Surface height (m) at plan positions; NaN outside the convex hull."""

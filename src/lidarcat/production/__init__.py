@@ -6,6 +6,7 @@
 ``contours``  Contour lines from the ground TIN, master/intermediate curves, spot heights, GeoJSON.
 ``sheets``    Map sheets: a regular sheet grid (the report's "articulação"), its index layer, products cut per sheet.
 ``mapindex``  The Brazilian systematic map index (Cartografia Sistemática Brasileira) down to 1:5,000 and 1:2,000.
+``tiles``     The products' tile functions by name (ground, dtm, dsm), as jobs of the tile engine ``lidar.jobs``.
 ============  ============================================================
 
 The functions named as their modules (``contours.contours``) are
@@ -26,6 +27,7 @@ from .ground import (  # noqa: F401
     confusion,
     write_classified_copy,
     classify_tiles,
+    ground_tile,
     params_from_dict,
     default_overlap_m,
     GROUND_CLASS,
@@ -42,7 +44,10 @@ from .terrain import (  # noqa: F401
     write_product,
     write_text_grid,
     tin_heights,
+    dtm_tile,
+    dsm_tile,
 )
+from .tiles import PRODUCT_TILE_FUNCTIONS, product_jobs  # noqa: F401
 from .contours import (  # noqa: F401
     Contour,
     spot_heights,
@@ -90,6 +95,7 @@ __all__ = [
     'confusion',
     'write_classified_copy',
     'classify_tiles',
+    'ground_tile',
     'params_from_dict',
     'default_overlap_m',
     'GROUND_CLASS',
@@ -104,6 +110,10 @@ __all__ = [
     'write_product',
     'write_text_grid',
     'tin_heights',
+    'dtm_tile',
+    'dsm_tile',
+    'PRODUCT_TILE_FUNCTIONS',
+    'product_jobs',
     'Contour',
     'spot_heights',
     'write_geojson',

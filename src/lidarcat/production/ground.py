@@ -27,7 +27,7 @@ on AHN3); the TIN is re-triangulated and the test repeated until no point is
 accepted.  Candidates
 outside the TIN's hull are tested against the nearest ground point as if it
 carried a level triangle.  All of one iteration is vectorised:
-:class:`scipy.spatial.Delaunay` and ``find_simplex`` locate the candidates,
+:class:`scipy.spatial.Delaunay` and :func:`lidarcat.geometry.tin.find_simplex` locate the candidates,
 numpy computes :math:`d` and :math:`\\alpha` for all of them, and a sort picks
 the best per triangle.  No per-point Python loop.
 
@@ -89,10 +89,13 @@ from typing import Any
 import numpy as np
 
 from ..errors import LidarFormatError, ProductError, TileIOError
+from ..geometry.tin import barycentric, find_simplex
+from ..lidar.jobs import TileJob, read_with_buffer, run_jobs, tile_jobs
 
 __all__ = ["PTDParameters", "SMRFParameters", "GroundMethod", "GROUND_METHODS", "classify_ground",
            "ptd_ground", "smrf_ground", "Confusion", "confusion", "write_classified_copy",
-           "classify_tiles", "params_from_dict", "default_overlap_m", "GROUND_CLASS", "UNCLASSIFIED_CLASS"]
+           "classify_tiles", "ground_tile", "params_from_dict", "default_overlap_m", "GROUND_CLASS",
+           "UNCLASSIFIED_CLASS"]
 
 log = logging.getLogger(__name__)
 
@@ -286,57 +289,6 @@ def _triangle_test(xyz: np.ndarray, cand: np.ndarray, verts: np.ndarray) -> tupl
     return d, ang
 
 
-def _barycentric(tri_xy: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Barycentric coordinates (m, 3) of points *q* (m, 2) in triangles *tri_xy* (m, 3, 2).
-
-    Degenerate (zero-area) triangles give NaN.
-    """
-    a = tri_xy[:, 0]
-    e1 = tri_xy[:, 1] - a
-    e2 = tri_xy[:, 2] - a
-    r = q - a
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = (r[:, 0] * e2[:, 1] - r[:, 1] * e2[:, 0]) / det
-        v = (e1[:, 0] * r[:, 1] - e1[:, 1] * r[:, 0]) / det
-    return np.column_stack([1.0 - u - v, u, v])
-
-
-def _locate(tri: Any, q: np.ndarray, max_steps: int = 10_000) -> np.ndarray:
-    """Triangle of the Delaunay triangulation *tri* holding each point of *q* (-1 outside).
-
-    A visibility walk run for all points at once: each starts in a triangle of
-    its nearest vertex (a k-d tree query) and steps across the edge opposite
-    its most negative barycentric coordinate until none is negative (found) or
-    the edge is on the hull (outside).  From the nearest vertex the walk is a
-    few steps; scipy's ``find_simplex`` walks from the previous point's
-    triangle and is orders of magnitude slower on points in scan order.
-    """
-    from scipy.spatial import cKDTree
-
-    pts = tri.points
-    simp = tri.simplices
-    nbr = tri.neighbors
-    _, v = cKDTree(pts).query(q)
-    cur = tri.vertex_to_simplex[v].astype(np.int64)
-    out = np.full(len(q), -1, dtype=np.int64)
-    active = np.flatnonzero(cur >= 0)
-    c = cur[active]
-    for _ in range(max_steps):
-        if len(active) == 0:
-            break
-        b = _barycentric(pts[simp[c]], q[active])
-        b = np.where(np.isnan(b), -np.inf, b)
-        k = np.argmin(b, axis=1)
-        bk = b[np.arange(len(k)), k]
-        found = bk >= -1e-9
-        out[active[found]] = c[found]
-        nxt = nbr[c, k]
-        go = ~found & (nxt >= 0)
-        active, c = active[go], nxt[go]
-    return out
-
-
 def ptd_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: Any = None,
                params: PTDParameters | None = None) -> np.ndarray:
     """Ground mask by progressive TIN densification (see the module docstring).
@@ -397,7 +349,7 @@ def ptd_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: An
         if len(g_idx) >= 3:
             try:
                 tri = Delaunay(local[g_idx, :2])
-                simplex = _locate(tri, local[rest, :2])
+                simplex = find_simplex(tri, local[rest, :2])
             except QhullError:
                 tri = None
         inside = simplex >= 0
@@ -466,10 +418,10 @@ def _fill_grid(grid: np.ndarray) -> np.ndarray:
         except QhullError:
             tri = None
         if tri is not None:
-            s = _locate(tri, holes)
+            s = find_simplex(tri, holes)
             ok = s >= 0
             simp = tri.simplices[s[ok]]
-            vals[ok] = np.einsum("ij,ij->i", _barycentric(tri.points[simp], holes[ok]), z[simp])
+            vals[ok] = np.einsum("ij,ij->i", barycentric(tri.points[simp], holes[ok]), z[simp])
     miss = ~np.isfinite(vals)
     if miss.any():
         vals[miss] = z[cKDTree(rc).query(holes[miss])[1]]
@@ -719,6 +671,21 @@ def default_overlap_m(method: str, params: PTDParameters | SMRFParameters | None
     return 2.0 * (params.max_building_m if isinstance(params, PTDParameters) else PTDParameters().max_building_m)
 
 
+def ground_tile(job: TileJob) -> None:
+    """The tile function of :func:`classify_tiles` (for :mod:`lidarcat.lidar.jobs`).
+
+    Classifies ``job.tile`` together with its neighbours' points within
+    ``job.overlap_m`` by ``job.params`` (``method`` and the parameters of
+    :func:`params_from_dict`) and writes the tile's classified copy to
+    ``job.output`` (:func:`write_classified_copy`).
+    """
+    cloud, n_own = read_with_buffer(job)
+    method = job.params.get("method", "smrf")
+    g = classify_ground(cloud.xyz, cloud.attributes.get("return_number"), cloud.attributes.get("number_of_returns"),
+                        method=method, params=params_from_dict(method, job.params))
+    write_classified_copy(job.tile, job.output, g[:n_own])
+
+
 def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *, crs: Any = None,
                    method: str = "smrf", params: PTDParameters | SMRFParameters | None = None,
                    overlap_m: float | None = None, workers: int | None = None, scheduler: str | None = None,
@@ -748,15 +715,13 @@ def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *
     """
     import dataclasses
 
-    from ..lidar.jobs import run_jobs, tile_jobs
-
     if method not in GROUND_METHODS:
         raise ValueError(f"unknown ground method {method!r}; use one of {', '.join(GROUND_METHODS)}")
     pdict: dict[str, Any] = {"method": method}
     if params is not None:
         pdict.update(dataclasses.asdict(params))
     ov = default_overlap_m(method, params) if overlap_m is None else float(overlap_m)
-    jobs = tile_jobs("ground", paths, out, crs=crs, params=pdict, overlap_m=ov)
+    jobs = tile_jobs(ground_tile, paths, out, crs=crs, params=pdict, overlap_m=ov)
     for j in jobs:
         if Path(j.output).resolve() == Path(j.tile).resolve():
             raise ProductError(f"{j.output}: the output would overwrite the input; choose another folder")

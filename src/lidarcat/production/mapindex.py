@@ -75,6 +75,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import CRSError, ProductError
+from ._clip import Box, clip_lines, cut_grid
 
 __all__ = ["MapSheet", "Level", "LEVELS", "SCALES", "sheet_at", "sheet_names", "sheet_from_name",
            "sheets_covering", "sheet_outline", "cut_raster_geo", "cut_contours_geo", "geographic_crs_of"]
@@ -337,7 +338,6 @@ def sheets_covering(bounds: tuple[float, float, float, float], crs: Any, scale: 
         North to south, west to east.
     """
     from ..lidar.crs import resolve_crs
-    from .sheets import Sheet
     from ..lidar.tileindex import in_polygon
 
     _check_scale(scale)
@@ -362,7 +362,7 @@ def sheets_covering(bounds: tuple[float, float, float, float], crs: Any, scale: 
     u1, v1 = _units(lon.max(), lat.max())
     q0, q1 = int(v0) - 90 * _U, int(v1) - 90 * _U   # latitude units from the equator: sheet edges at k h
     geo_name = geo.to_string()
-    area = Sheet("area", xmin, ymin, xmax, ymax)
+    area = Box(xmin, ymin, xmax, ymax)
     corner = np.array([[xmin, ymin]])
     out = []
     for q in range(q1 // h * h, q0 // h * h - 1, -h):          # rows of sheets, north first
@@ -399,12 +399,10 @@ def cut_raster_geo(grid: np.ndarray, transform: Any, sheet: MapSheet, crs: Any) 
     no cell centre lies in the sheet.
     """
     from ..lidar.raster import GeoTransform
-    from .sheets import Sheet, cut_raster
 
     ring = sheet_outline(sheet, crs)
-    box = Sheet(sheet.name, float(ring[:, 0].min()), float(ring[:, 1].min()), float(ring[:, 0].max()),
-                float(ring[:, 1].max()))
-    cut = cut_raster(grid, transform, box)
+    box = Box(float(ring[:, 0].min()), float(ring[:, 1].min()), float(ring[:, 0].max()), float(ring[:, 1].max()))
+    cut = cut_grid(grid, transform, box)
     if cut is None:
         return None
     sub, t = cut
@@ -437,8 +435,6 @@ def cut_contours_geo(features: list[dict[str, Any]], sheet: MapSheet, crs: Any) 
     transformed back; vertices move by the pyproj round trip only (well
     under a micrometre).
     """
-    from .sheets import _cut_lines
-
     if not features:
         return []
     fwd, back = _transformer(crs, sheet.geographic_crs), _transformer(sheet.geographic_crs, crs)
@@ -450,7 +446,7 @@ def cut_contours_geo(features: list[dict[str, Any]], sheet: MapSheet, crs: Any) 
                   "geometry": {"type": "LineString",
                                "coordinates": np.column_stack([lon[a:b], lat[a:b]])}}
                  for f, a, b in zip(features, lens[:-1], lens[1:])]
-    out = _cut_lines(geo_feats, sheet)
+    out = clip_lines(geo_feats, sheet)
     for f in out:
         ll = np.asarray(f["geometry"]["coordinates"], dtype=np.float64)
         x, y = back.transform(ll[:, 0], ll[:, 1])

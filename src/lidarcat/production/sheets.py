@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import ProductError
 from ..lidar.raster import GeoTransform
+from ._clip import clip_lines, cut_grid
 
 __all__ = ["Sheet", "sheet_grid", "sheet_index_features", "cut_raster", "cut_contours", "index_sheets",
            "SHEET_INDEXES"]
@@ -158,15 +159,7 @@ def cut_raster(grid: np.ndarray, transform: GeoTransform, sheet: Any,
         if crs is None:
             raise ProductError(f"sheet {sheet.name}: cutting along a geographic sheet needs the grid's CRS")
         return cut_raster_geo(grid, transform, sheet, crs)
-    c = transform.cell_m
-    nrows, ncols = grid.shape[:2]
-    c0 = max(0, math.ceil((sheet.xmin - transform.x0) / c - 0.5))
-    c1 = min(ncols, math.ceil((sheet.xmax - transform.x0) / c - 0.5))
-    r0 = max(0, math.ceil((transform.y0 - sheet.ymax) / c - 0.5))
-    r1 = min(nrows, math.ceil((transform.y0 - sheet.ymin) / c - 0.5))
-    if c1 <= c0 or r1 <= r0:
-        return None
-    return grid[r0:r1, c0:c1], GeoTransform(transform.x0 + c0 * c, transform.y0 - r0 * c, c)
+    return cut_grid(grid, transform, sheet)
 
 
 def cut_contours(features: list[dict[str, Any]], sheet: Any, crs: Any = None) -> list[dict[str, Any]]:
@@ -182,62 +175,4 @@ def cut_contours(features: list[dict[str, Any]], sheet: Any, crs: Any = None) ->
         if crs is None:
             raise ProductError(f"sheet {sheet.name}: cutting along a geographic sheet needs the lines' CRS")
         return cut_contours_geo(features, sheet, crs)
-    return _cut_lines(features, sheet)
-
-
-def _cut_lines(features: list[dict[str, Any]], sheet: Any) -> list[dict[str, Any]]:
-    """LineString features clipped to the rectangle xmin..xmax, ymin..ymax of *sheet* (any frame)."""
-    out = []
-    for f in features:
-        xy = np.asarray(f["geometry"]["coordinates"], dtype=np.float64)
-        pieces = _clip_polyline(xy, sheet)
-        for p in pieces:
-            props = dict(f["properties"])
-            props["closed"] = bool(props.get("closed")) and len(pieces) == 1 and len(p) == len(xy)
-            out.append({"type": "Feature", "properties": props,
-                        "geometry": {"type": "LineString", "coordinates": p.tolist()}})
-    return out
-
-
-def _clip_polyline(xy: np.ndarray, s: Sheet) -> list[np.ndarray]:
-    """Liang-Barsky clip of every segment, then chain consecutive visible pieces."""
-    pieces: list[list[np.ndarray]] = []
-    cur: list[np.ndarray] = []
-    for a, b in zip(xy[:-1], xy[1:]):
-        seg = _clip_segment(a, b, s)
-        if seg is None:
-            if cur:
-                pieces.append(cur)
-                cur = []
-            continue
-        p, q = seg
-        if cur and np.all(cur[-1] == p):
-            cur.append(q)
-        else:
-            if cur:
-                pieces.append(cur)
-            cur = [p, q]
-        if not np.all(q == b):  # left the sheet
-            pieces.append(cur)
-            cur = []
-    if cur:
-        pieces.append(cur)
-    return [np.array(p) for p in pieces if len(p) >= 2]
-
-
-def _clip_segment(a: np.ndarray, b: np.ndarray, s: Sheet) -> tuple[np.ndarray, np.ndarray] | None:
-    d = b - a
-    t0, t1 = 0.0, 1.0
-    for p, q in ((-d[0], a[0] - s.xmin), (d[0], s.xmax - a[0]), (-d[1], a[1] - s.ymin), (d[1], s.ymax - a[1])):
-        if p == 0:
-            if q < 0:
-                return None
-            continue
-        t = q / p
-        if p < 0:
-            t0 = max(t0, t)
-        else:
-            t1 = min(t1, t)
-        if t0 > t1:
-            return None
-    return (a if t0 == 0 else a + t0 * d), (b if t1 == 1 else a + t1 * d)
+    return clip_lines(features, sheet)

@@ -52,6 +52,7 @@ valued cell centre (section 11.3: the MDT/MDS "formato de texto").
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from dataclasses import dataclass
@@ -62,12 +63,15 @@ import numpy as np
 
 from .._util import atomic_write
 from ..errors import ProductError
-from .ground import _barycentric
+from ..geometry.tin import barycentric, find_simplex
 from ..lidar.geotiff import GeoTransform, write_geotiff
-from ..lidar.raster import _grid_for
+from ..lidar.jobs import TileJob, read_with_buffer
+from ..lidar.raster import grid_for
 
 __all__ = ["TinGrid", "tin_grid", "dtm_grid", "dsm_grid", "ndsm", "hillshade", "hypsometric_image",
-           "write_product", "write_text_grid", "tin_heights"]
+           "write_product", "write_text_grid", "tin_heights", "dtm_tile", "dsm_tile"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,7 +109,6 @@ def tin_heights(xyz: np.ndarray, q: np.ndarray, max_edge_m: float | None = None)
     """
     from scipy.spatial import Delaunay, QhullError
 
-    from .ground import _locate
 
     xyz = np.asarray(xyz, dtype=np.float64)
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
@@ -118,7 +121,7 @@ def tin_heights(xyz: np.ndarray, q: np.ndarray, max_edge_m: float | None = None)
     except QhullError:
         return out
     ql = q - origin
-    s = _locate(tri, ql)
+    s = find_simplex(tri, ql)
     ok = s >= 0
     simp = tri.simplices[s[ok]]
     if max_edge_m is not None:
@@ -128,7 +131,7 @@ def tin_heights(xyz: np.ndarray, q: np.ndarray, max_edge_m: float | None = None)
         idx = np.flatnonzero(ok)
         ok[idx[~short]] = False
         simp = simp[short]
-    lam = _barycentric(tri.points[simp], ql[ok])
+    lam = barycentric(tri.points[simp], ql[ok])
     out[ok] = np.einsum("ij,ij->i", lam, xyz[simp, 2])
     return out
 
@@ -195,7 +198,7 @@ def tin_grid(xyz: np.ndarray, cell_m: float, bounds: tuple[float, float, float, 
         if len(xyz) == 0:
             raise ValueError("cannot grid an empty point set without bounds")
         bounds = (*xyz[:, :2].min(axis=0), *xyz[:, :2].max(axis=0))
-    transform, nrows, ncols = _grid_for(bounds, cell_m)
+    transform, nrows, ncols = grid_for(bounds, cell_m)
     out = np.full(nrows * ncols, np.nan)
     simp = _delaunay_simplices(xyz[:, :2]) if len(xyz) >= 3 else np.zeros((0, 3), dtype=np.int64)
     if len(simp):
@@ -233,7 +236,7 @@ def tin_grid(xyz: np.ndarray, cell_m: float, bounds: tuple[float, float, float, 
             col = c0[t][tri] + k % nx[t][tri]
             row = r0[t][tri] + k // nx[t][tri]
             corners = np.stack([tu[t], tv[t]], axis=2)[tri]
-            lam = _barycentric(corners, np.column_stack([col, row]).astype(np.float64))
+            lam = barycentric(corners, np.column_stack([col, row]).astype(np.float64))
             inside = (lam >= -1e-9).all(axis=1)
             h = np.einsum("ij,ij->i", lam[inside], xyz[simp[t][tri[inside]], 2])
             out[row[inside] * ncols + col[inside]] = h
@@ -379,3 +382,53 @@ def write_text_grid(path: str | os.PathLike, grid: np.ndarray, transform: GeoTra
         fh.write(header + "\n")
         np.savetxt(fh, data, fmt=f"%.{decimals}f", delimiter=" ")
     return path
+
+
+# --------------------------------------------------------------------------- tile functions
+def _raster_tile(job: TileJob, kind: str) -> None:
+    """DTM or DSM of the tile's area (grid snapped to multiples of the cell), plus extras.
+
+    Extras by ``job.params``: ``text`` (the report's E N H text grid, ``.txt``),
+    ``hillshade`` (``<stem>_hillshade.tif``), ``ndsm`` (DSM jobs: ``<stem>_ndsm.tif``).
+    """
+    cloud, _ = read_with_buffer(job)
+    out = Path(job.output)
+    cell = float(job.params.get("cell_m", 1.0))
+    max_edge = job.params.get("max_edge_m", 50.0)
+    if kind == "dtm":
+        res = dtm_grid(cloud, cell, job.bounds, max_edge_m=max_edge)
+        grid, transform = res.grid, res.transform
+        log.info("%s: DTM %d x %d cells, %d gap cells (%.1f %%)", job.tile, *grid.shape, res.gap_cells,
+                 100 * res.gap_fraction)
+    else:
+        grid, transform = dsm_grid(cloud, cell, job.bounds)
+    stem = out.with_suffix("")
+    if job.params.get("hillshade"):
+        write_product(Path(f"{stem}_hillshade.tif"), hillshade(grid, cell), transform, cloud.crs)
+    if kind == "dsm" and job.params.get("ndsm"):
+        dtm = dtm_grid(cloud, cell, job.bounds, max_edge_m=max_edge)
+        write_product(Path(f"{stem}_ndsm.tif"), ndsm(grid, dtm.grid), transform, cloud.crs)
+    if job.params.get("text"):
+        write_text_grid(out.with_suffix(".txt"), grid, transform)
+    write_product(out, grid, transform, cloud.crs)
+
+
+def dtm_tile(job: TileJob) -> None:
+    """Tile function (for :mod:`lidarcat.lidar.jobs`): the DTM of ``job.tile``'s area from its and its
+    neighbours' ground points, as the GeoTIFF ``job.output``.
+
+    ``job.params``: ``cell_m`` (default 1), ``max_edge_m`` (50), ``text``
+    (also the E N H text grid ``<output>.txt``), ``hillshade`` (also
+    ``<stem>_hillshade.tif``).
+    """
+    _raster_tile(job, "dtm")
+
+
+def dsm_tile(job: TileJob) -> None:
+    """Tile function (for :mod:`lidarcat.lidar.jobs`): the DSM of ``job.tile``'s area, as the GeoTIFF
+    ``job.output``.
+
+    ``job.params`` as :func:`dtm_tile`, and ``ndsm`` (also the DSM minus the
+    DTM, ``<stem>_ndsm.tif``).
+    """
+    _raster_tile(job, "dsm")

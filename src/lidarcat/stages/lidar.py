@@ -33,9 +33,9 @@ __all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read
 
 def _jobs(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, **kw: Any) -> list[Any]:
     """The tile jobs of product *kind* (``"ground"``, ``"dtm"``, ``"dsm"``): the one place that names them."""
-    from ..lidar.jobs import tile_jobs
+    from ..production.tiles import product_jobs
 
-    return tile_jobs(kind, [Path(t) for t in tiles], output, **kw)
+    return product_jobs(kind, [Path(t) for t in tiles], output, **kw)
 
 
 def ground_parameters(method: str, **values: Any) -> Any:
@@ -161,18 +161,10 @@ def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | o
 
 def read_grid(path: str | os.PathLike) -> tuple[np.ndarray, Any]:
     """(grid, GeoTransform) of a one-band GeoTIFF written by :func:`lidarcat.production.terrain.write_product`."""
-    # TODO(issue 23, one raster I/O): lidarcat.lidar.raster.read_geotiff once it reads these COGs (h-raster)
-    import rasterio
-    import rasterio.errors
+    from ..lidar.geotiff import read_geotiff
 
-    from ..errors import FormatError
-    from ..lidar.raster import GeoTransform
-
-    try:
-        with rasterio.open(path) as ds:
-            return ds.read(1), GeoTransform(ds.transform.c, ds.transform.f, ds.transform.a)
-    except rasterio.errors.RasterioError as ex:
-        raise FormatError(f"{path}: not a readable GeoTIFF ({ex})") from ex
+    grid, transform, _crs = read_geotiff(path)
+    return grid, transform
 
 
 def mosaic_grids(grids: Sequence[tuple[np.ndarray, Any]],
