@@ -61,7 +61,7 @@ def test_cli_ground_onto_its_own_input_is_one_line(tmp_path):
     tile = _las(tmp_path / "tile.las", classification=1)
     res = CliRunner().invoke(cli, ["lidar", "ground", str(tile), "-o", str(tile), "--crs", "EPSG:31982"])
     assert res.exit_code == 2, res.output
-    assert res.stderr == f"Error: {tile}: the output would overwrite the input; choose another name\n"
+    assert res.stderr == f"Error: {tile}: the output would overwrite the input; choose another name or folder\n"
 
 
 # --------------------------------------------------------------------------- the library
@@ -237,7 +237,7 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("bundle/selfcal.py", "SelfCalResult.index", "ValueError", "no additional parameter {}; there are: {"):
         "lookup by name from Python code, like list.index",
     ("bundle/selfcal.py", "adjust_with_parameters", "ValueError", "`alpha` must be in (0, 1)"): _ARG,
-    ("bundle/solve.py", "_position", "ValueError", "{} {} is not in the adjustment"):
+    ("bundle/result.py", "_position", "ValueError", "{} {} is not in the adjustment"):
         "lookup by id from Python code (BundleResult.pose/point), like list.index",
     ("bundle/solve.py", "adjust", "ValueError", "`variance_factor` must be 'a_priori' or "): _ENUM,
     ("bundle/solve.py", "adjust", "ValueError", "`chi2_level` must be in (0, 1)"): _ARG,
@@ -274,7 +274,6 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("lidar/cloud.py", "PointCloud._owned", "ValueError", "xyz must have shape (N, 3), got {}"): _SHAPE,
     ("lidar/cloud.py", "PointCloud.select", "ValueError", "mask has shape {}, expected ({},)"): _SHAPE,
     ("lidar/crs.py", "transform_points", "ValueError", "xy must have 2 or 3 columns, got shape {"): _SHAPE,
-    ("lidar/jobs.py", "run_tile_job", "ValueError", "unknown job kind {}; use one of {}"): _ENUM,
     ("lidar/jobs.py", "tile_jobs", "ValueError", "no tiles given"):
         "argument check; the CLI expands TILE... and refuses a glob matching nothing",
     ("lidar/jobs.py", "run_jobs", "ValueError", "workers must be at least 1, got {}"): _ARG,
@@ -282,7 +281,6 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("lidar/raster.py", "rasterize", "ValueError", "cell_m must be positive, got {}"): _ARG,
     ("lidar/raster.py", "rasterize", "ValueError", "unknown fill {}"): _ENUM,
     ("lidar/raster.py", "rasterize", "ValueError", "bounds are required when rasterizing a s"): _ARG,
-    ("lidar/raster.py", "write_geotiff", "ValueError", "grid must be a non-empty 2-D array, got "): _SHAPE,
     ("lidar/readers.py", "iter_las_ranges", "ValueError", "piece_points and max_read_points must be"): _ARG,
     ("lidar/readers.py", "iter_points", "ValueError", "chunk_size must be positive, got {}"): _ARG,
     ("lidar/tileindex.py", "BlockIndex.__post_init__", "ValueError", "block_points ({}) must be a positive mul"):
@@ -334,19 +332,29 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
         "argument check: dtm_grid always passes bounds",
     ("production/terrain.py", "ndsm", "ValueError", "DSM and DTM grids differ: {} vs {}"): _SHAPE,
     ("stages/extract.py", "_toml_value", "TypeError", "cannot write {} to TOML"): _INTERNAL,
-    ("survey/folder.py", "ImagePoints.__post_init__", "ValueError", "ImagePoints.{} has {} rows, expected {}"):
+    ("survey/_tables.py", "ImagePoints.__post_init__", "ValueError", "ImagePoints.{} has {} rows, expected {}"):
         _SHAPE,
-    ("survey/selfcal.py", "_split_offset", "ValueError", "frame offset {} must be SOURCE:REFERENCE"):
+    ("survey/schema.py", "split_frame_offset", "ValueError", "frame offset {} must be SOURCE:REFERENCE"):
         "parser: its callers re-raise it as SurveyError at survey.toml:line",
     ("synthetic/landscapes.py", "make_landscape", "ValueError", "unknown landscape {}; use one of {}"): _ENUM,
     ("synthetic/landscapes.py", "make_landscape", "ValueError", "size_m and density must be positive"): _ARG,
-    ("synthetic/roofs.py", "_roof_height", "ValueError", "unknown roof kind {}; choose one of {}"): _ENUM,
+    ("synthetic/roofs.py", "roof_height", "ValueError", "unknown roof kind {}; choose one of {}"): _ENUM,
     ("synthetic/roofs.py", "synthetic_roof", "ValueError", "unknown roof kind {}; choose one of {}"): _ENUM,
     ("synthetic/roofs.py", "synthetic_roof", "ValueError", "density_m2 must be positive"): _ARG,
     ("synthetic/roofs.py", "synthetic_roof", "ValueError", "strips must be 1 or 2, got {}"): _ARG,
     ("synthetic/roofs.py", "synthetic_roof", "ValueError", "a hip roof needs length_m > width_m (equ"): _ARG,
     ("testing.py", "assert_poses_close", "AssertionError", "{}"):
         "an assertion helper for tests, like numpy.testing",
+    # added with the house-by-stage layout (issue 23)
+    ("lidar/geotiff.py", "GeoTiffWriter.write_rows", "ValueError", "{}: row block of shape {} does not fit a"): _SHAPE,
+    ("lidar/geotiff.py", "_values", "ValueError", "grid must be a non-empty (rows, cols) or"): _SHAPE,
+    ("lidar/jobs.py", "TileJob.__post_init__", "ValueError", "a tile job's function must be a module-l"): _ARG,
+    ("production/tiles.py", "product_jobs", "ValueError", "unknown product {}; use one of {}"): _ENUM,
+    ("report/render.py", "_html_block", "TypeError", "not a report block: {}"): _INTERNAL,
+    ("report/render.py", "_md_section", "TypeError", "not a report block: {}"): _INTERNAL,
+    ("stages/lidar.py", "mosaic_grids", "ValueError", "give one area per grid, and at least one"): _SHAPE,
+    ("stages/lidar.py", "mosaic_grids", "ValueError", "the grids have different cells"): _INTERNAL,
+    ("stages/lidar.py", "terrain_model", "ValueError", "kind must be 'dtm' or 'dsm', got {}"): _ENUM,
 }
 
 

@@ -39,11 +39,9 @@ def _one_line_error(args, code=2):
 
 
 def test_lidar_dtm_on_a_tile_without_ground_is_one_line(no_ground, tmp_path):
-    # production.terrain.dtm_grid raises a bare ValueError today: one line, exit 70 (a library bug to
-    # turn into a LidarcatError, then exit 2)
-    line = _one_line_error(["lidar", "dtm", no_ground, "--crs", "EPSG:31982", "-o", tmp_path / "dtm.tif"],
-                           code=70)
-    assert "no ground points (class 2)" in line
+    # a data condition (ProductError): one line naming the tile, exit 2
+    line = _one_line_error(["lidar", "dtm", no_ground, "--crs", "EPSG:31982", "-o", tmp_path / "dtm.tif"])
+    assert line == f"Error: {no_ground}: no ground points (class 2); classify the ground first (lidarcat lidar ground)"
 
 
 @pytest.mark.parametrize("args", [

@@ -19,7 +19,6 @@ A second test replaces each action by a recording wrapper and shows that both pa
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -33,40 +32,14 @@ from lidarcat.stages import adjust as adjust_stage
 from lidarcat.stages import assess as assess_stage
 from lidarcat.stages import lidar as lidar_actions
 from lidarcat.stages import products as products_stage
-from lidarcat.stages.context import StageContext
 from lidarcat.survey.folder import Survey, thesis_survey_path
+from stage_harness import StageStub as _Stage, folder_files, stage_context as _ctx  # noqa: I001
 
 TIMING = ("elapsed_s", "elapsed_total_s")
 
 
-@dataclass
-class _Stage:
-    name: str
-    folder: str
-    params: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass
-class _Record:
-    folder: str
-    status: str = "ran"
-    result: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def done(self) -> bool:
-        return True
-
-
-def _ctx(outdir: Path, stage: _Stage, survey: Any, records: dict[str, str] | None = None) -> StageContext:
-    ctx = StageContext(outdir, {"survey": survey})
-    ctx.stage, ctx.current = stage, stage.name
-    ctx.records = {k: _Record(v) for k, v in (records or {}).items()}
-    return ctx
-
-
 def _files(folder: Path, skip: tuple[str, ...] = ()) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
-            if p.is_file() and p.name not in skip and not p.name.endswith(".done.json")}
+    return folder_files(folder, skip, skip_suffix=(".done.json",))
 
 
 def _invoke(*args: Any) -> Any:

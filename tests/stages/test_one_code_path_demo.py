@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,40 +31,11 @@ from lidarcat.stages import extract as extract_stage
 from lidarcat.stages import lidar as lidar_actions
 from lidarcat.stages import mapping as mapping_stage
 from lidarcat.stages import products as products_stage
-from lidarcat.stages.context import StageContext
 from lidarcat.survey.folder import Survey
 from lidarcat.synthetic.survey import write_synthetic_survey
+from stage_harness import StageStub as _Stage, folder_files as _files, stage_context as _ctx  # noqa: I001
 
 CRS = "EPSG:31982"
-
-
-@dataclass
-class _Stage:
-    name: str
-    folder: str
-    params: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass
-class _Record:
-    folder: str
-    status: str = "ran"
-    result: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def done(self) -> bool:
-        return True
-
-
-def _ctx(outdir: Path, stage: _Stage, survey: Any, records: dict[str, str] | None = None) -> StageContext:
-    ctx = StageContext(outdir, {"survey": survey})
-    ctx.stage, ctx.current = stage, stage.name
-    ctx.records = {k: _Record(v) for k, v in (records or {}).items()}
-    return ctx
-
-
-def _files(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 def _spy(monkeypatch: Any, module: Any, name: str) -> list[str]:

@@ -50,7 +50,7 @@ from .cloud import PointCloud
 from .geotiff import GeoTransform, read_geotiff, write_geotiff
 
 __all__ = ["GeoTransform", "rasterize", "write_geotiff", "read_geotiff", "write_png_preview",
-           "write_raster", "RASTER_KINDS"]
+           "write_raster", "grid_for", "RASTER_KINDS"]
 
 RASTER_KINDS = ("intensity", "dsm", "dtm")
 

@@ -724,6 +724,6 @@ def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *
     jobs = tile_jobs(ground_tile, paths, out, crs=crs, params=pdict, overlap_m=ov)
     for j in jobs:
         if Path(j.output).resolve() == Path(j.tile).resolve():
-            raise ProductError(f"{j.output}: the output would overwrite the input; choose another folder")
+            raise ProductError(f"{j.output}: the output would overwrite the input; choose another name or folder")
     return [Path(p) for p in run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume,
                                       progress=progress)]

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import LidarcatError
+from ..errors import ProductError
 
 __all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid"]
 
@@ -88,7 +88,7 @@ def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs
     jobs = _jobs("ground", tiles, output, crs=crs, params=pdict, overlap_m=ov, suffix="")
     for j in jobs:
         if Path(j.output).resolve() == Path(j.tile).resolve():
-            raise LidarcatError(f"{j.output}: the output would overwrite the input; choose another folder")
+            raise ProductError(f"{j.output}: the output would overwrite the input; choose another name or folder")
     return run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
 
 
