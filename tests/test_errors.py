@@ -140,7 +140,10 @@ def _outside_the_index():
     (_dtm_unclassified, ProductError, "the points carry no classification; classify the ground first "
                                       "(lidarcat lidar ground)"),
     (_raster_empty, ProductError, "cannot rasterize an empty point cloud without bounds"),
-    (_raster_too_large, ProductError, "grid of 100000000 x 100000000 cells is too large; use a coarser cell"),
+    (_raster_too_large, ProductError, "the data ask for a grid of 100,000,000 x 100,000,000 cells over E 0..1e+06 "
+                                      "N 0..1e+06 at 0.01 m, more than the limit of 100,000,000; give the area "
+                                      "to grid (--bounds XMIN YMIN XMAX YMAX), a coarser cell, or a larger "
+                                      "--max-cells"),
     (_undistort_outside, CameraError, "undistortion did not converge at point index 1 (normalised 1, 0): "
                                       "a point outside the calibrated field?"),
     (_collinear_clip, ClipError, "points are collinear or coincident in plan; no triangulation"),

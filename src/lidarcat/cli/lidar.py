@@ -235,7 +235,10 @@ def clip_cmd(paths: tuple[str, ...], at: tuple[float, float], radius: float, crs
               help="intensity: mean of first returns; dsm: highest first return; dtm: lowest "
                    "ground (class 2) or last return, holes interpolated.")
 @click.option("--bounds", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
-              help="Area to grid, metres (default: all the tiles).")
+              help="Area to grid, metres (default: the extent of the points; points far outside "
+                   "their bulk are left out with a warning).")
+@click.option("--max-cells", type=click.IntRange(1), default=None, metavar="N",
+              help="Largest grid, cells (default 100,000,000); a larger one is refused.")
 @output_option(type=click.Path(dir_okay=False), required=True,
               help="GeoTIFF to write (a PNG preview with a colour bar goes next to it).")
 @click.option("--no-preview", is_flag=True, help="Do not write the PNG preview.")
@@ -244,7 +247,7 @@ def clip_cmd(paths: tuple[str, ...], at: tuple[float, float], radius: float, crs
 @_delimiter_opt
 @json_opt
 def raster(paths: tuple[str, ...], cell_m: float, what: str, bounds: tuple[float, ...] | None,
-           output: str, no_preview: bool, crs: str | None, columns: str | None,
+           max_cells: int | None, output: str, no_preview: bool, crs: str | None, columns: str | None,
            delimiter: str | None, as_json: bool) -> None:
     """Grid points into an intensity image, surface model or terrain model.
 
@@ -252,21 +255,40 @@ def raster(paths: tuple[str, ...], cell_m: float, what: str, bounds: tuple[float
     NaN = no data) and OUTPUT.png, a preview with a colour bar: the intensity
     image is where an operator picks roof vertices (thesis section 3.2.2).
 
+    Without --bounds the grid covers the points, not the files' headers; a
+    point far outside the bulk of the data (a displaced point kilometres
+    away) is left out with a warning that counts such points and names the
+    farthest; give --bounds to grid it anyway.  A grid above --max-cells is
+    refused before anything is allocated.
+
     \b
     Example:
       lidarcat lidar raster tests/data/lidar/ahn3_cropped_*.laz --crs EPSG:7415 \\
           --cell 0.5 --what intensity -o intensity.tif
     """
+    import logging
+
     import numpy as np
 
     from ..lidar import TileIndex, rasterize, write_raster
+    from ..lidar.raster import grid_for, stream_extent
 
     files, crs, _ = tile_sources(paths, crs)
     idx = TileIndex.build(files, crs=crs, columns=columns, delimiter=delimiter, max_cached_points=0)
     idx.verify_bounds()  # header bounds are claims: measure them before choosing tiles or the box
-    box = tuple(bounds) if bounds else tuple(idx.bounds[:4])
-    if not np.all(np.isfinite(box)):
-        raise click.UsageError("the files hold no points")
+    if bounds:
+        box = tuple(bounds)
+        grid_for(box, cell_m, max_cells=max_cells)   # a clear error before any point is read
+    else:
+        if not np.all(np.isfinite(tuple(idx.bounds[:4]))):
+            raise click.UsageError("the files hold no points")
+        ext = stream_extent(lambda: idx.iter_points(idx.tiles), cell_m, sum(t.count for t in idx.tiles))
+        if ext.empty:
+            raise click.UsageError("the files hold no points with finite coordinates")
+        if ext.n_out:
+            logging.getLogger("lidarcat.lidar.raster").warning(
+                "%s; left out of the grid (give --bounds to grid them)", ext.describe_outliers())
+        box = ext.bounds
     tiles = idx.tiles_in_box(*box)
     if not tiles:
         from ..errors import ClipError
@@ -282,7 +304,7 @@ def raster(paths: tuple[str, ...], cell_m: float, what: str, bounds: tuple[float
                 if progress is not None:
                     progress(t.size)
 
-        grid, transform = rasterize(stream(), cell_m, what, box)
+        grid, transform = rasterize(stream(), cell_m, what, box, max_cells=max_cells)
     written = write_raster(output, grid, transform, idx.crs, what, preview=not no_preview)
     filled = float(np.isfinite(grid).mean())
     result = {"what": what, "cell_m": cell_m, "rows": grid.shape[0], "cols": grid.shape[1],

@@ -94,6 +94,10 @@ def _raster_command(kind: str, doc: str) -> click.Command:
                   help="Also write the report's text grid (E N H per cell centre) as <output>.txt.")
     @click.option("--hillshade", is_flag=True, help="Also write <output>_hillshade.tif (sun NW, 45 deg).")
     @click.option("--ndsm", is_flag=True, help="dsm: also write <output>_ndsm.tif (DSM - DTM, needs class 2).")
+    @click.option("--bounds", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
+                  help="Grid only this area, metres (default: each tile's points).")
+    @click.option("--max-cells", type=click.IntRange(1), default=None, metavar="N",
+                  help="Largest grid, cells (default 100,000,000); a larger one is refused.")
     @click.option("--overlap-m", type=NON_NEGATIVE, default=50.0, show_default=True, metavar="M",
                   help="Points of neighbouring tiles read around each tile, metres.")
     @crs_option()
@@ -101,15 +105,15 @@ def _raster_command(kind: str, doc: str) -> click.Command:
     @_scheduler_opt
     @_resume_opt
     def cmd(paths: tuple[str, ...], output: str, cell_m: float, max_edge_m: float, text: bool, hillshade: bool,
-            ndsm: bool, overlap_m: float, crs: str | None, workers: int | None, scheduler: str | None,
-            resume: bool) -> None:
+            ndsm: bool, bounds: tuple[float, ...] | None, max_cells: int | None, overlap_m: float,
+            crs: str | None, workers: int | None, scheduler: str | None, resume: bool) -> None:
         from ..stages.lidar import terrain_model
 
         files, crs, _ = tile_sources(paths, crs)
         with progress_bar(len(files), f"{kind} tiles") as bar:
             outs = terrain_model(kind, files, output, crs=crs, cell_m=cell_m, max_edge_m=max_edge_m, text=text,
                                  hillshade=hillshade, ndsm=ndsm, overlap_m=overlap_m, workers=workers,
-                                 scheduler=scheduler, resume=resume,
+                                 scheduler=scheduler, resume=resume, bounds=bounds or None, max_cells=max_cells,
                                  progress=bar.update if bar is not None else None)
         click.echo(f"wrote {len(outs)} {kind.upper()} GeoTIFF(s): {outs[0] if len(outs) == 1 else Path(output)}")
     return cmd

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import io
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -50,20 +50,195 @@ from .cloud import PointCloud
 from .geotiff import GeoTransform, read_geotiff, write_geotiff
 
 __all__ = ["GeoTransform", "rasterize", "write_geotiff", "read_geotiff", "write_png_preview",
-           "write_raster", "grid_for", "RASTER_KINDS"]
+           "write_raster", "grid_for", "RASTER_KINDS", "MAX_CELLS", "Extent", "bulk_box", "robust_extent",
+           "check_grid_size", "stream_extent"]
 
 RASTER_KINDS = ("intensity", "dsm", "dtm")
 
+#: Default largest grid, cells (10 km x 10 km at 1 m: about 0.4 GB as float32, some 2 GB while
+#: it is computed); larger grids need an explicit ``max_cells`` (``--max-cells``).
+MAX_CELLS = 100_000_000
+
+#: Percentiles of the bulk of the data (see :func:`bulk_box`).
+_BULK_PERCENTILES = (1.0, 99.0)
+
+_ESCAPE = ("give the area to grid (--bounds XMIN YMIN XMAX YMAX), a coarser cell, or a larger --max-cells")
+
+
+# --------------------------------------------------------------------------- grid extents
+def bulk_box(x: np.ndarray, y: np.ndarray, cell_m: float) -> tuple[float, float, float, float]:
+    """The box beyond which a point lies far outside the bulk of the data.
+
+    The box of the 1st..99th percentiles of E and N grown on each side by its own
+    width and by 10 cells: every point of a tile, a strip or a block lies inside it;
+    a displaced point (a bird, a GNSS glitch, a byte flip) kilometres away does not.
+    Fewer than 100 points: their whole box (no percentile can tell an outlier).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if len(x) == 0:
+        return (np.inf, np.inf, -np.inf, -np.inf)
+    pad = 10.0 * float(cell_m)
+    out = []
+    for v in (x, y):
+        lo = float(np.percentile(v, _BULK_PERCENTILES[0], method="lower"))
+        hi = float(np.percentile(v, _BULK_PERCENTILES[1], method="higher"))
+        w = hi - lo
+        out.append((lo - w - pad, hi + w + pad))
+    return (out[0][0], out[1][0], out[0][1], out[1][1])
+
+
+class Extent:
+    """The extent of the points inside a :func:`bulk_box`, and what lies outside it.
+
+    Attributes
+    ----------
+    bounds : (xmin, ymin, xmax, ymax)
+        Extent of the kept points, metres (infinite when none).
+    box : (xmin, ymin, xmax, ymax)
+        The bulk box: points outside it are left out.
+    n_out : int
+        Points left out (outside the box, or with a non-finite coordinate).
+    farthest : (x, y) or None
+        The left-out point farthest from the bulk.
+    """
+
+    def __init__(self, box: tuple[float, float, float, float]) -> None:
+        self.box = tuple(map(float, box))
+        self.bounds = (np.inf, np.inf, -np.inf, -np.inf)
+        self.n_out = 0
+        self.farthest: tuple[float, float] | None = None
+        self._far_d = -2.0
+
+    def add(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Take points into the extent; return the mask of those inside the box."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        bx0, by0, bx1, by1 = self.box
+        with np.errstate(invalid="ignore"):
+            m = (x >= bx0) & (x <= bx1) & (y >= by0) & (y <= by1)
+        if m.any():
+            xs, ys = x[m], y[m]
+            b = self.bounds
+            self.bounds = (min(b[0], float(xs.min())), min(b[1], float(ys.min())),
+                           max(b[2], float(xs.max())), max(b[3], float(ys.max())))
+        out = ~m
+        if out.any():
+            self.n_out += int(out.sum())
+            cx, cy = (bx0 + bx1) / 2, (by0 + by1) / 2
+            with np.errstate(invalid="ignore", over="ignore"):
+                d = np.abs(x[out] - cx) + np.abs(y[out] - cy)
+            d = np.where(np.isnan(d), -1.0, d)   # name a finite point when there is one
+            k = int(np.argmax(d))
+            if float(d[k]) > self._far_d:
+                self._far_d = float(d[k])
+                self.farthest = (float(x[out][k]), float(y[out][k]))
+        return m
+
+    @property
+    def empty(self) -> bool:
+        return not self.bounds[0] <= self.bounds[2]
+
+    def describe_outliers(self, what: str = "points") -> str:
+        """``"N points far outside the bulk of the data (E..N..), the farthest at E x N y"``."""
+        bx0, by0, bx1, by1 = self.box
+        far = "" if self.farthest is None else f", the farthest at E {self.farthest[0]:.6g} N {self.farthest[1]:.6g}"
+        verb = "lie" if self.n_out != 1 else "lies"
+        if self.n_out == 1 and what.startswith("points"):
+            what = "point" + what[len("points"):]
+        return (f"{self.n_out} {what} {verb} far outside the bulk of the data (E {bx0:.3f}..{bx1:.3f} "
+                f"N {by0:.3f}..{by1:.3f}){far}")
+
+
+def robust_extent(x: np.ndarray, y: np.ndarray, cell_m: float) -> Extent:
+    """The :class:`Extent` of points *x*, *y* inside their :func:`bulk_box`."""
+    ext = Extent(bulk_box(x, y, cell_m))
+    ext.add(x, y)
+    return ext
+
+
+def stream_extent(chunks: Callable[[], Iterable[PointCloud]], cell_m: float, n_points: int,
+                  sample_points: int = 1_000_000) -> Extent:
+    """The :class:`Extent` of a stream of chunks, reading it once or, when points lie far out, twice.
+
+    Parameters
+    ----------
+    chunks : callable
+        Returns a fresh iterable of :class:`PointCloud` chunks each time it is called.
+    cell_m : float
+        Cell size, metres (pads the bulk box by 10 cells).
+    n_points : int
+        Points in the stream (about): the bulk box is taken from every k-th point,
+        at most *sample_points* of them, so memory stays bounded.
+    """
+    step = max(1, int(n_points) // int(sample_points))
+    xs, ys = [], []
+    lo = np.array([np.inf, np.inf])
+    hi = -lo
+    for c in chunks():
+        if len(c) == 0:
+            continue
+        x, y = c.x, c.y
+        xs.append(np.array(x[::step], dtype=np.float64))
+        ys.append(np.array(y[::step], dtype=np.float64))
+        with np.errstate(invalid="ignore"):
+            lo = np.fmin(lo, [np.min(x), np.min(y)])
+            hi = np.fmax(hi, [np.max(x), np.max(y)])
+    x = np.concatenate(xs) if xs else np.zeros(0)
+    y = np.concatenate(ys) if ys else np.zeros(0)
+    ext = Extent(bulk_box(x, y, cell_m))
+    b = ext.box
+    if lo[0] >= b[0] and lo[1] >= b[1] and hi[0] <= b[2] and hi[1] <= b[3]:
+        ext.bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+        return ext
+    for c in chunks():     # points far out (or non-finite): measure the bulk exactly
+        if len(c):
+            ext.add(c.x, c.y)
+    return ext
+
+
+def check_grid_size(nrows: int, ncols: int, max_cells: int | None = None, *, where: str = "",
+                    bounds: tuple[float, float, float, float] | None = None, cell_m: float | None = None) -> None:
+    """Raise :class:`ProductError` when a grid of *nrows* x *ncols* exceeds *max_cells* (default :data:`MAX_CELLS`)."""
+    limit = MAX_CELLS if max_cells is None else int(max_cells)
+    if nrows * ncols <= limit:
+        return
+    area = ""
+    if bounds is not None:
+        area = f" over E {bounds[0]:.6g}..{bounds[2]:.6g} N {bounds[1]:.6g}..{bounds[3]:.6g}"
+    cell = f" at {cell_m:g} m" if cell_m is not None else ""
+    raise ProductError(f"{where}{': ' if where else ''}the data ask for a grid of {nrows:,} x {ncols:,} cells"
+                       f"{area}{cell}, more than the limit of {limit:,}; {_ESCAPE}")
+
 
 # --------------------------------------------------------------------------- rasterize
-def grid_for(bounds: tuple[float, float, float, float], cell_m: float) -> tuple[GeoTransform, int, int]:
+def grid_for(bounds: tuple[float, float, float, float], cell_m: float, *,
+             max_cells: int | None = None) -> tuple[GeoTransform, int, int]:
+    """The transform and shape of the grid over *bounds*, snapped to multiples of *cell_m*.
+
+    Raises
+    ------
+    ProductError
+        Non-finite or inverted bounds, or a grid of more than *max_cells* cells
+        (default :data:`MAX_CELLS`), checked before anything is allocated.
+    """
     xmin, ymin, xmax, ymax = map(float, bounds[:4])
+    if not (np.isfinite([xmin, ymin, xmax, ymax]).all() and xmin <= xmax and ymin <= ymax):
+        raise ProductError(f"cannot grid the area E {xmin:.6g}..{xmax:.6g} N {ymin:.6g}..{ymax:.6g}: "
+                           "it is not a finite box")
+    with np.errstate(over="ignore", invalid="ignore"):
+        span = max((xmax - xmin) / cell_m, (ymax - ymin) / cell_m)
+    if not np.isfinite(span) or span > 1e15:   # beyond any int: the size check below needs numbers
+        check_grid_size(10 ** 16, 10 ** 16, max_cells, bounds=(xmin, ymin, xmax, ymax), cell_m=cell_m)
     x0 = np.floor(xmin / cell_m) * cell_m
     y0 = np.ceil(ymax / cell_m) * cell_m
     # ceil, not floor + 1: bounds on a cell edge (e.g. --bounds 0 0 10 10, cell 1) give exactly
     # 10 x 10 cells; points on the east/south edge fall in the last cell (see _edge_rowcol)
     ncols = max(1, int(np.ceil((xmax - x0) / cell_m - 1e-9)))
     nrows = max(1, int(np.ceil((y0 - ymin) / cell_m - 1e-9)))
+    check_grid_size(nrows, ncols, max_cells, bounds=(xmin, ymin, xmax, ymax), cell_m=cell_m)
     return GeoTransform(float(x0), float(y0), float(cell_m)), nrows, ncols
 
 
@@ -117,7 +292,8 @@ def _interpolate_holes(grid: np.ndarray) -> np.ndarray:
 
 def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str = "intensity",
               bounds: tuple[float, float, float, float] | None = None, *,
-              fill: str | None = "auto", fill_iterations: int = 2) -> tuple[np.ndarray, GeoTransform]:
+              fill: str | None = "auto", fill_iterations: int = 2,
+              max_cells: int | None = None) -> tuple[np.ndarray, GeoTransform]:
     """Grid a point cloud (or a stream of chunks) into an intensity, DSM or DTM raster.
 
     Parameters
@@ -139,6 +315,8 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
         ``"interpolate"`` for DTM and ``"small"`` otherwise.
     fill_iterations : int
         Passes of the small-hole filling.
+    max_cells : int, optional
+        Largest grid, cells (default :data:`MAX_CELLS`).
 
     Returns
     -------
@@ -153,7 +331,7 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
     LidarFormatError
         ``"intensity"`` asked of points without intensity.
     ProductError
-        An empty cloud without *bounds*, or a grid of more than 400 million cells.
+        An empty cloud without *bounds*, or a grid of more than *max_cells* cells.
 
     Examples
     --------
@@ -179,10 +357,8 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
         if bounds is None:
             raise ValueError("bounds are required when rasterizing a stream of chunks")
         chunks = cloud
-    transform, nrows, ncols = grid_for(bounds, cell_m)
+    transform, nrows, ncols = grid_for(bounds, cell_m, max_cells=max_cells)
     ncell = nrows * ncols
-    if ncell > 400_000_000:
-        raise ProductError(f"grid of {nrows} x {ncols} cells is too large; use a coarser cell")
     acc = np.zeros(ncell) if what == "intensity" else np.full(ncell, -np.inf if what == "dsm" else np.inf)
     cnt = np.zeros(ncell, dtype=np.int64) if what == "intensity" else None
     ground = np.full(ncell, np.inf) if what == "dtm" else None

@@ -20,6 +20,17 @@ query points) triangulates with Qhull and locates each point by a vectorised
 walk; both give the same heights except along the hull, where OpenCV drops a
 few slivers (gaps, never invented heights).
 
+Grid extent
+-----------
+A tile's grid covers its area (header bounds) clipped to the extent of its
+points, never the header alone: a header's bounds are a claim (-1e308, inf,
+or a 1 m box away from the points are all seen in the wild).  A point far
+outside the bulk of the tile (:func:`lidarcat.lidar.raster.bulk_box`) is left
+out with a warning that counts such points and names the farthest; a grid of
+more than ``max_cells`` (``--max-cells``, default
+:data:`lidarcat.lidar.raster.MAX_CELLS`) is refused before anything is
+allocated; ``bounds`` (``--bounds``) clips every tile to an area.
+
 DSM, nDSM
 ---------
 The DSM is the highest first (or only) return per cell
@@ -66,7 +77,7 @@ from ..errors import ProductError
 from ..geometry.tin import barycentric, find_simplex
 from ..lidar.geotiff import GeoTransform, write_geotiff
 from ..lidar.jobs import TileJob, read_with_buffer
-from ..lidar.raster import grid_for
+from ..lidar.raster import Extent, check_grid_size, grid_for, robust_extent
 
 __all__ = ["TinGrid", "tin_grid", "dtm_grid", "dsm_grid", "ndsm", "hillshade", "hypsometric_image",
            "write_product", "write_text_grid", "tin_heights", "dtm_tile", "dsm_tile"]
@@ -172,7 +183,8 @@ def _delaunay_simplices(xy: np.ndarray) -> np.ndarray:
 
 
 def tin_grid(xyz: np.ndarray, cell_m: float, bounds: tuple[float, float, float, float] | None = None, *,
-             max_edge_m: float | None = 50.0, chunk_cells: int = 4_000_000) -> TinGrid:
+             max_edge_m: float | None = 50.0, chunk_cells: int = 4_000_000,
+             max_cells: int | None = None) -> TinGrid:
     """Grid the TIN of points *xyz* at cell centres (see the module docstring).
 
     The triangles are rasterised rather than the cells located: each triangle
@@ -192,13 +204,20 @@ def tin_grid(xyz: np.ndarray, cell_m: float, bounds: tuple[float, float, float, 
         Triangles with a longer edge are gaps (None: none).
     chunk_cells : int
         Candidate cells handled at once (bounds the memory, about 100 bytes each).
+    max_cells : int, optional
+        Largest grid (default :data:`lidarcat.lidar.raster.MAX_CELLS`).
+
+    Raises
+    ------
+    ProductError
+        A grid larger than *max_cells*, or non-finite bounds.
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     if bounds is None:
         if len(xyz) == 0:
             raise ValueError("cannot grid an empty point set without bounds")
         bounds = (*xyz[:, :2].min(axis=0), *xyz[:, :2].max(axis=0))
-    transform, nrows, ncols = grid_for(bounds, cell_m)
+    transform, nrows, ncols = grid_for(bounds, cell_m, max_cells=max_cells)
     out = np.full(nrows * ncols, np.nan)
     simp = _delaunay_simplices(xyz[:, :2]) if len(xyz) >= 3 else np.zeros((0, 3), dtype=np.int64)
     if len(simp):
@@ -246,7 +265,8 @@ def tin_grid(xyz: np.ndarray, cell_m: float, bounds: tuple[float, float, float, 
 
 
 def dtm_grid(cloud: Any, cell_m: float = 1.0, bounds: tuple[float, float, float, float] | None = None, *,
-             max_edge_m: float | None = 50.0, ground: np.ndarray | None = None) -> TinGrid:
+             max_edge_m: float | None = 50.0, ground: np.ndarray | None = None,
+             max_cells: int | None = None) -> TinGrid:
     """DTM of a :class:`PointCloud` from its ground points (class 2, or the mask *ground*).
 
     Raises
@@ -262,15 +282,15 @@ def dtm_grid(cloud: Any, cell_m: float = 1.0, bounds: tuple[float, float, float,
     if not np.any(ground):
         raise ProductError("no ground points (class 2); classify the ground first (lidarcat lidar ground)")
     return tin_grid(cloud.xyz[ground], cell_m, bounds if bounds is not None else cloud.bounds[:4],
-                    max_edge_m=max_edge_m)
+                    max_edge_m=max_edge_m, max_cells=max_cells)
 
 
-def dsm_grid(cloud: Any, cell_m: float = 1.0,
-             bounds: tuple[float, float, float, float] | None = None) -> tuple[np.ndarray, GeoTransform]:
+def dsm_grid(cloud: Any, cell_m: float = 1.0, bounds: tuple[float, float, float, float] | None = None, *,
+             max_cells: int | None = None) -> tuple[np.ndarray, GeoTransform]:
     """DSM: highest first return per cell, small holes closed (metres)."""
     from ..lidar.raster import rasterize
 
-    return rasterize(cloud, cell_m, "dsm", bounds)
+    return rasterize(cloud, cell_m, "dsm", bounds, max_cells=max_cells)
 
 
 def ndsm(dsm: np.ndarray, dtm: np.ndarray) -> np.ndarray:
@@ -391,26 +411,81 @@ def _raster_tile(job: TileJob, kind: str) -> None:
     Extras by ``job.params``: ``text`` (the report's E N H text grid, ``.txt``),
     ``hillshade`` (``<stem>_hillshade.tif``), ``ndsm`` (DSM jobs: ``<stem>_ndsm.tif``).
     """
-    cloud, _ = read_with_buffer(job)
+    cloud, n_own = read_with_buffer(job)
     out = Path(job.output)
     cell = float(job.params.get("cell_m", 1.0))
     max_edge = job.params.get("max_edge_m", 50.0)
+    max_cells = job.params.get("max_cells")
+    cloud, area = _tile_area(job, cloud, n_own, cell, max_edge)
+    nrows = math.ceil((area[3] - area[1]) / cell) + 1
+    ncols = math.ceil((area[2] - area[0]) / cell) + 1
+    check_grid_size(nrows, ncols, max_cells, where=str(job.tile), bounds=area, cell_m=cell)
     if kind == "dtm":
-        res = dtm_grid(cloud, cell, job.bounds, max_edge_m=max_edge)
+        res = dtm_grid(cloud, cell, area, max_edge_m=max_edge, max_cells=max_cells)
         grid, transform = res.grid, res.transform
         log.info("%s: DTM %d x %d cells, %d gap cells (%.1f %%)", job.tile, *grid.shape, res.gap_cells,
                  100 * res.gap_fraction)
     else:
-        grid, transform = dsm_grid(cloud, cell, job.bounds)
+        grid, transform = dsm_grid(cloud, cell, area, max_cells=max_cells)
     stem = out.with_suffix("")
     if job.params.get("hillshade"):
         write_product(Path(f"{stem}_hillshade.tif"), hillshade(grid, cell), transform, cloud.crs)
     if kind == "dsm" and job.params.get("ndsm"):
-        dtm = dtm_grid(cloud, cell, job.bounds, max_edge_m=max_edge)
+        dtm = dtm_grid(cloud, cell, area, max_edge_m=max_edge, max_cells=max_cells)
         write_product(Path(f"{stem}_ndsm.tif"), ndsm(grid, dtm.grid), transform, cloud.crs)
     if job.params.get("text"):
         write_text_grid(out.with_suffix(".txt"), grid, transform)
     write_product(out, grid, transform, cloud.crs)
+
+
+def _tile_area(job: TileJob, cloud: Any, n_own: int, cell_m: float,
+               max_edge_m: float | None) -> tuple[Any, tuple[float, float, float, float]]:
+    """The points that may reach the tile's grid, and the grid's area (see "Grid extent").
+
+    The area is the tile's header bounds clipped to the extent of its own points
+    (the bulk: far outliers left out, with a warning), then to ``job.params["bounds"]``;
+    the points kept are those within the overlap (or the longest TIN edge) of the area.
+    """
+    bx = job.bounds
+    own = cloud.xyz[:n_own]
+    user = job.params.get("bounds")
+    if user is not None:   # the area asked for: nothing in it is an outlier
+        ext = Extent(user)
+        ext.add(own[:, 0], own[:, 1])
+    else:
+        ext = robust_extent(own[:, 0], own[:, 1], cell_m)
+        if ext.n_out:
+            log.warning("%s: %s; left out of the grid (give --bounds to grid them)", job.tile,
+                        ext.describe_outliers("points of the tile"))
+    header_ok = bool(np.isfinite(bx).all()) and bx[0] <= bx[2] and bx[1] <= bx[3]
+    if ext.empty:   # no point of its own: the header's area, if it is one
+        if not header_ok:
+            raise ProductError(f"{job.tile}: the tile holds no points and its header's bounds "
+                               f"({', '.join(f'{v:.6g}' for v in bx)}) are no area")
+        area = tuple(map(float, bx))
+    else:
+        e = ext.bounds
+        tol = 1e-3  # m: headers round their bounds
+        if header_ok and bx[0] - tol <= e[0] and bx[1] - tol <= e[1] and bx[2] + tol >= e[2] and bx[3] + tol >= e[3]:
+            area = (max(bx[0], e[0]), max(bx[1], e[1]), min(bx[2], e[2]), min(bx[3], e[3]))
+        else:
+            log.warning("%s: the header's bounds E %.3f..%.3f N %.3f..%.3f do not hold the points "
+                        "(E %.3f..%.3f N %.3f..%.3f); the points' extent is gridded", job.tile,
+                        bx[0], bx[2], bx[1], bx[3], e[0], e[2], e[1], e[3])
+            area = e
+    if user is not None:
+        area = (max(area[0], user[0]), max(area[1], user[1]), min(area[2], user[2]), min(area[3], user[3]))
+        if not (area[0] <= area[2] and area[1] <= area[3]):
+            raise ProductError(f"{job.tile}: no part of the tile lies in the bounds E {user[0]:.3f}..{user[2]:.3f} "
+                               f"N {user[1]:.3f}..{user[3]:.3f}")
+    margin = max(float(job.overlap_m), float(max_edge_m or 0.0), cell_m)
+    x, y = cloud.xyz[:, 0], cloud.xyz[:, 1]
+    with np.errstate(invalid="ignore"):
+        keep = ((x >= area[0] - margin) & (x <= area[2] + margin) & (y >= area[1] - margin)
+                & (y <= area[3] + margin))
+    if not keep.all():
+        cloud = cloud.select(keep)
+    return cloud, tuple(map(float, area))
 
 
 def dtm_tile(job: TileJob) -> None:
@@ -419,7 +494,8 @@ def dtm_tile(job: TileJob) -> None:
 
     ``job.params``: ``cell_m`` (default 1), ``max_edge_m`` (50), ``text``
     (also the E N H text grid ``<output>.txt``), ``hillshade`` (also
-    ``<stem>_hillshade.tif``).
+    ``<stem>_hillshade.tif``), ``bounds`` (clip to an area), ``max_cells``
+    (largest grid; see "Grid extent" in the module docstring).
     """
     _raster_tile(job, "dtm")
 

@@ -96,7 +96,8 @@ def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | o
                   cell_m: float = 1.0, max_edge_m: float = 50.0, text: bool = False, hillshade: bool = False,
                   ndsm: bool = False, overlap_m: float = 50.0, workers: int | None = None,
                   scheduler: str | None = None, resume: bool = True,
-                  progress: Callable[[int], Any] | None = None) -> list[str]:
+                  progress: Callable[[int], Any] | None = None,
+                  bounds: Sequence[float] | None = None, max_cells: int | None = None) -> list[str]:
     """DTM (``kind="dtm"``: TIN of the ground) or DSM (``"dsm"``: highest first return) of tiles.
 
     Parameters
@@ -117,6 +118,16 @@ def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | o
     crs, workers, scheduler, resume, progress
         See :func:`ground`; *resume* also keeps the tile grids of an interrupted
         one-file model.
+    bounds : (xmin, ymin, xmax, ymax), optional
+        Grid only this area, metres (tiles whose header bounds miss it are skipped).
+    max_cells : int, optional
+        Largest grid, per tile and for the one-file model (default
+        :data:`lidarcat.lidar.raster.MAX_CELLS`): a larger one is refused before it is made.
+
+    Raises
+    ------
+    ProductError
+        A grid larger than *max_cells*, no tile in *bounds*, or a tile without ground (DTM).
 
     Returns
     -------
@@ -129,8 +140,17 @@ def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | o
         raise ValueError(f"kind must be 'dtm' or 'dsm', got {kind!r}")
     out = Path(output)
     params = {"cell_m": cell_m, "max_edge_m": max_edge_m, "text": text, "hillshade": hillshade, "ndsm": ndsm}
+    if bounds is not None:
+        bounds = tuple(map(float, bounds))
+        if not (len(bounds) == 4 and np.isfinite(bounds).all() and bounds[0] < bounds[2] and bounds[1] < bounds[3]):
+            raise ProductError(f"bounds {' '.join(f'{v:.6g}' for v in bounds)} are not an area "
+                               "(give XMIN YMIN XMAX YMAX, finite, min < max)")
+        params["bounds"] = bounds
+    if max_cells is not None:
+        params["max_cells"] = int(max_cells)
     if out.suffix.lower() not in (".tif", ".tiff"):
-        jobs = _jobs(kind, tiles, out, crs=crs, params=params, overlap_m=overlap_m, suffix=".tif")
+        jobs = _in_bounds(_jobs(kind, tiles, out, crs=crs, params=params, overlap_m=overlap_m, suffix=".tif"),
+                          bounds)
         return run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
     import shutil
 
@@ -139,24 +159,38 @@ def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | o
     from ..production.terrain import write_product, write_text_grid
 
     parts = out.parent / f".{out.name}.tiles"
-    jobs = _jobs(kind, tiles, parts, crs=crs, params=params | {"text": False, "hillshade": False},
-                 overlap_m=overlap_m, suffix=".tif")
+    jobs = _in_bounds(_jobs(kind, tiles, parts, crs=crs, params=params | {"text": False, "hillshade": False},
+                            overlap_m=overlap_m, suffix=".tif"), bounds)
     run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
     out_crs = TileIndex.build([Path(t) for t in tiles], crs=crs).crs   # the CRS the tile jobs write
     bounds = [j.bounds for j in jobs]
-    grid, transform = mosaic_grids([read_grid(j.output) for j in jobs], bounds)
+    areas = [j.bounds for j in jobs]
+    grid, transform = mosaic_grids([read_grid(j.output) for j in jobs], areas, max_cells=max_cells)
     stem = out.with_suffix("")
     if hillshade:
         write_product(Path(f"{stem}_hillshade.tif"), shade(grid, cell_m), transform, out_crs)
     if kind == "dsm" and ndsm:
         nd, _ = mosaic_grids([read_grid(Path(j.output).with_suffix("").as_posix() + "_ndsm.tif") for j in jobs],
-                             bounds)
+                             areas, max_cells=max_cells)
         write_product(Path(f"{stem}_ndsm.tif"), nd, transform, out_crs)
     if text:
         write_text_grid(out.with_suffix(".txt"), grid, transform)
     write_product(out, grid, transform, out_crs)
     shutil.rmtree(parts, ignore_errors=True)
     return [str(out)]
+
+
+def _in_bounds(jobs: list[Any], bounds: tuple[float, ...] | None) -> list[Any]:
+    """The jobs whose tile's (header) area meets *bounds* (a non-finite header is kept: the tile decides)."""
+    if bounds is None:
+        return jobs
+    keep = [j for j in jobs if not np.isfinite(j.bounds).all()
+            or (j.bounds[0] <= bounds[2] and j.bounds[2] >= bounds[0] and j.bounds[1] <= bounds[3]
+                and j.bounds[3] >= bounds[1])]
+    if not keep:
+        raise ProductError(f"no tile lies in the bounds E {bounds[0]:.3f}..{bounds[2]:.3f} "
+                           f"N {bounds[1]:.3f}..{bounds[3]:.3f}")
+    return keep
 
 
 def read_grid(path: str | os.PathLike) -> tuple[np.ndarray, Any]:
@@ -168,7 +202,8 @@ def read_grid(path: str | os.PathLike) -> tuple[np.ndarray, Any]:
 
 
 def mosaic_grids(grids: Sequence[tuple[np.ndarray, Any]],
-                 areas: Sequence[tuple[float, float, float, float]]) -> tuple[np.ndarray, Any]:
+                 areas: Sequence[tuple[float, float, float, float]], *,
+                 max_cells: int | None = None) -> tuple[np.ndarray, Any]:
     """One grid from tile grids on one lattice (origins multiples of the common cell), without resampling.
 
     Parameters
@@ -177,6 +212,9 @@ def mosaic_grids(grids: Sequence[tuple[np.ndarray, Any]],
         The tiles' grids, each snapped to multiples of the same cell.
     areas : sequence of (xmin, ymin, xmax, ymax)
         Each tile's own area, metres (a tile grid reaches beyond it by up to one cell).
+    max_cells : int, optional
+        Largest mosaic (default :data:`lidarcat.lidar.raster.MAX_CELLS`): tiles far apart
+        are refused before the mosaic is allocated.
 
     Returns
     -------
@@ -184,7 +222,7 @@ def mosaic_grids(grids: Sequence[tuple[np.ndarray, Any]],
         The union of the grids; a cell takes the value of the first tile whose area holds
         its centre, else of the first tile whose grid covers it; NaN where none does.
     """
-    from ..lidar.raster import GeoTransform
+    from ..lidar.raster import GeoTransform, check_grid_size
 
     if len(grids) != len(areas) or not grids:
         raise ValueError("give one area per grid, and at least one grid")
@@ -195,6 +233,8 @@ def mosaic_grids(grids: Sequence[tuple[np.ndarray, Any]],
     y0 = max(t.y0 for _, t in grids)
     cols = max(round((t.x0 - x0) / cell) + g.shape[1] for g, t in grids)
     rows = max(round((y0 - t.y0) / cell) + g.shape[0] for g, t in grids)
+    check_grid_size(rows, cols, max_cells, where="mosaic of the tiles",
+                    bounds=(x0, y0 - rows * cell, x0 + cols * cell, y0), cell_m=cell)
     dtype = np.result_type(*(g.dtype for g, _ in grids))
     out = np.full((rows, cols), np.nan, dtype=dtype)
     owned = np.zeros((rows, cols), bool)      # taken from the tile whose area holds the centre
