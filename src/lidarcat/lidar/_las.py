@@ -24,7 +24,7 @@ __all__ = ["MAX_ABS_COORD_M", "VLR_HEADER_BYTES", "EVLR_HEADER_BYTES", "NOT_CAUG
            "MAX_LAZ_CHUNK_POINTS", "LAS_ATTRIBUTES", "settle_crs", "open_error", "precheck_las", "laszip_record",
            "precheck_laszip", "layered_items_only_point14", "precheck_layered_chunks", "precheck_laz_chunk_table",
            "decoder_error", "open_las", "las_crs", "check_las_size", "open_checked", "scale_coords",
-           "check_coords", "las_record_cloud"]
+           "check_coords", "las_record_cloud", "ascii_header_text"]
 
 log = logging.getLogger("lidarcat.lidar.readers")   # the readers' messages, under the readers' logger
 
@@ -322,3 +322,35 @@ def las_record_cloud(rec: Any, header: Any, crs: Any, first: int = 0, path: Path
     names = set(rec.point_format.dimension_names)
     attrs = {name: np.array(rec[name]) for name in LAS_ATTRIBUTES if name in names}
     return PointCloud._owned(xyz, attrs, crs)
+
+
+#: The header's free-text fields (LAS 1.0-1.4: 32 ASCII characters each, null-padded).
+HEADER_TEXT_FIELDS = ("system_identifier", "generating_software")
+
+
+def ascii_header_text(header: Any, path: Path | str) -> list[str]:
+    """Make the header's text fields ASCII, so that laspy can write a copy of the file.
+
+    The LAS specification makes them ASCII; files in the wild hold Latin-1 or UTF-8
+    bytes (a company name with an accent, a byte flip).  laspy reads them as raw
+    bytes and refuses to write them back (``UnicodeDecodeError``); every byte that
+    is not printable ASCII becomes ``?``, with a warning naming the file and the
+    field (the bytes escaped).  Returns the names of the fields changed.
+    """
+    changed = []
+    for name in HEADER_TEXT_FIELDS:
+        value = getattr(header, name, None)
+        raw = value.encode("utf-8", "surrogateescape") if isinstance(value, str) else value
+        if not isinstance(raw, (bytes, bytearray)):
+            continue
+        raw = bytes(raw).split(b"\0", 1)[0]
+        if all(32 <= b < 127 for b in raw):
+            if not isinstance(value, str):
+                setattr(header, name, raw.decode("ascii"))
+            continue
+        clean = "".join(chr(b) if 32 <= b < 127 else "?" for b in raw)
+        log.warning("%s: the header's %s %s is not ASCII (as LAS requires); written as %r", path,
+                    name.replace("_", " "), repr(raw[:32]), clean)
+        setattr(header, name, clean)
+        changed.append(name)
+    return changed

@@ -65,8 +65,8 @@ import numpy as np
 from .._util import atomic_write, parse_float
 from ..errors import CRSError, LidarFormatError, location
 from .cloud import STANDARD_ATTRIBUTES, Bounds, PointCloud
-from ._las import (LAS_ATTRIBUTES, MAX_ABS_COORD_M, check_coords, decoder_error, las_record_cloud, open_checked,
-                   open_error, open_las, settle_crs)
+from ._las import (LAS_ATTRIBUTES, MAX_ABS_COORD_M, ascii_header_text, check_coords, decoder_error, las_record_cloud,
+                   open_checked, open_error, open_las, settle_crs)
 from .copc import is_copc
 from .crs import resolve_crs
 
@@ -83,6 +83,7 @@ __all__ = [
     "iter_las_ranges",
     "las_chunk_points",
     "MAX_ABS_COORD_M",
+    "ascii_header_text",
 ]
 
 log = logging.getLogger(__name__)

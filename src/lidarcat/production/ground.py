@@ -632,6 +632,7 @@ def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground
     import laspy
 
     from .._util import atomic_write
+    from ..lidar.readers import ascii_header_text
 
     src, dst = Path(src), Path(dst)
     if dst.exists() and src.exists() and os.path.samefile(src, dst):
@@ -649,6 +650,7 @@ def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground
     cls[(cls == GROUND_CLASS) & ~ground] = UNCLASSIFIED_CLASS
     cls[ground] = GROUND_CLASS
     las.classification = cls
+    ascii_header_text(las.header, src)   # laspy writes no non-ASCII header text (issue 24)
     compress = dst.suffix.lower() == ".laz"
     with atomic_write(dst, "wb") as fh:
         las.write(fh, do_compress=compress)
