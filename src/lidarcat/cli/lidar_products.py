@@ -283,7 +283,7 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
       lidarcat lidar sheets dtm.tif curvas.gpkg -o folhas/ --index brazil-2000 --layer-format gpkg
     """
     from .._util import atomic_dir
-    from ..errors import FormatError, LidarcatError
+    from ..errors import FormatError, LidarcatError, ProductError
     from ..lidar.geotiff import read_geotiff
     from ..production.contours import read_line_layer, write_layers
     from ..production.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
@@ -292,6 +292,7 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
     rasters, vectors = [], []
     lo = [np.inf, np.inf]
     hi = [-np.inf, -np.inf]
+    edge = ["", "", "", ""]   # the product (and feature) that sets the west, south, east, north edge
     for p in map(Path, products):
         if p.suffix.lower() in (".tif", ".tiff"):
             try:
@@ -307,10 +308,19 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
             vectors.append((p, feats))
             if not feats:
                 continue
-            xy = np.vstack([np.asarray(f["geometry"]["coordinates"], dtype=float) for f in feats])
-            b = (*xy.min(axis=0), *xy.max(axis=0))
+            fb = np.array([[*c.min(axis=0), *c.max(axis=0)] for c in
+                           (np.asarray(f["geometry"]["coordinates"], dtype=float) for f in feats)])
+            k = [int(np.argmin(fb[:, 0])), int(np.argmin(fb[:, 1])), int(np.argmax(fb[:, 2])),
+                 int(np.argmax(fb[:, 3]))]
+            b = (fb[k[0], 0], fb[k[1], 1], fb[k[2], 2], fb[k[3], 3])
+            where = [f"{p}: feature {i}" for i in k]
         else:
             raise click.BadParameter(f"{p}: give .tif, .geojson or .gpkg products", param_hint="PRODUCT")
+        if p.suffix.lower() in (".tif", ".tiff"):
+            where = [str(p)] * 4
+        for i, (old, new, better) in enumerate(zip(lo + hi, b, (np.less, np.less, np.greater, np.greater))):
+            if better(new, old):
+                edge[i] = where[i]
         lo = [min(lo[0], b[0]), min(lo[1], b[1])]
         hi = [max(hi[0], b[2]), max(hi[1], b[3])]
     if not np.isfinite(lo + hi).all():
@@ -321,6 +331,12 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
         grid = index_sheets((lo[0], lo[1], hi[0], hi[1]), index, crs=crs, size_m=size_m, height_m=height_m,
                             geographic_crs=geographic_crs)
     except ValueError as ex:  # a bad --size-m / --height-m, or products outside the index in that --crs
+        if isinstance(ex, LidarcatError) and "sheets of" in str(ex):   # too many: name who stretches the area
+            by: dict[str, list[str]] = {}
+            for side, w in zip(("west", "south", "east", "north"), edge):
+                by.setdefault(w, []).append(side)
+            sides = "; ".join(f"{' and '.join(v)} edge{'s' if len(v) > 1 else ''} from {w}" for w, v in by.items())
+            raise ProductError(f"{ex} (the area's {sides})") from ex
         raise click.UsageError(str(ex)) from ex
     out = Path(output)
     ext = "." + layer_format

@@ -293,6 +293,18 @@ def write_layers(path: str | os.PathLike, layers: dict[str, list[dict[str, Any]]
     return write_gpkg(path, out, c)
 
 
+def _check_vertices(xy: np.ndarray, where: str) -> None:
+    """Refuse a vertex beyond any map (|E| or |N| above :data:`lidarcat.lidar.readers.MAX_ABS_COORD_M`)."""
+    from ..errors import FormatError
+    from ..lidar.readers import MAX_ABS_COORD_M
+
+    far = np.abs(xy).max(axis=1) > MAX_ABS_COORD_M if len(xy) else np.zeros(0, bool)
+    if far.any():
+        k = int(np.argmax(far))
+        raise FormatError(f"{where}: vertex {k}: E {xy[k, 0]:.6g} N {xy[k, 1]:.6g} is not a coordinate in "
+                          f"metres on the Earth (|E|, |N| <= {MAX_ABS_COORD_M:.0e})")
+
+
 def read_line_layer(path: str | os.PathLike, layer: str | None = None) -> tuple[list[dict[str, Any]], Any]:
     """The LineString features of a GeoJSON file or of a GeoPackage layer, and the layer's CRS.
 
@@ -313,7 +325,8 @@ def read_line_layer(path: str | os.PathLike, layer: str | None = None) -> tuple[
     ------
     lidarcat.errors.FormatError
         Unreadable file, no LineString layer, a geometry that is not a 2-D
-        LineString of finite numbers (feature named), or a GeoPackage without pyogrio.
+        LineString of finite numbers within 1e9 m of the origin (feature and vertex
+        named), or a GeoPackage without pyogrio.
     """
     import json
     import struct
@@ -338,6 +351,7 @@ def read_line_layer(path: str | os.PathLike, layer: str | None = None) -> tuple[
             if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) < 2 or not np.isfinite(xy).all():
                 raise FormatError(f"{path}: feature {i}: not a 2-D LineString (coordinates must be two or "
                                   f"more [E, N] pairs of finite numbers)")
+            _check_vertices(xy, f"{path}: feature {i}")
         feats = [f if isinstance(f.get("properties"), dict) else {**f, "properties": {}} for _, f in feats]
         return feats, resolve_crs(name) if name else None
     try:
@@ -367,6 +381,9 @@ def read_line_layer(path: str | os.PathLike, layer: str | None = None) -> tuple[
         if len(g) != 9 + 16 * n:
             raise FormatError(f"{path}: layer {layer!r}, feature {i}: {n} vertices announced in {len(g)} bytes")
         xy = np.frombuffer(g, dtype="<f8", offset=9).reshape(n, 2)
+        if not np.isfinite(xy).all():
+            raise FormatError(f"{path}: layer {layer!r}, feature {i}: a vertex is not a finite number")
+        _check_vertices(xy, f"{path}: layer {layer!r}, feature {i}")
         props = {k: (v.item() if hasattr(v, "item") else v) for k, v in zip(names, (col[i] for col in values))}
         feats.append({"type": "Feature", "properties": props,
                       "geometry": {"type": "LineString", "coordinates": xy.tolist()}})

@@ -77,8 +77,13 @@ import numpy as np
 from ..errors import CRSError, ProductError
 from ._clip import Box, clip_lines, cut_grid
 
+#: Largest number of sheets an index may make (316 km x 316 km in sheets of 1 km): counted first,
+#: so that one vertex far from the others is an error, not an hour of empty sheets.
+MAX_SHEETS = 100_000
+
 __all__ = ["MapSheet", "Level", "LEVELS", "SCALES", "sheet_at", "sheet_names", "sheet_from_name",
-           "sheets_covering", "sheet_outline", "cut_raster_geo", "cut_contours_geo", "geographic_crs_of"]
+           "sheets_covering", "sheet_outline", "cut_raster_geo", "cut_contours_geo", "geographic_crs_of",
+           "MAX_SHEETS"]
 
 #: units per degree: 1/8 arc-second
 _U = 3600 * 8
@@ -361,6 +366,12 @@ def sheets_covering(bounds: tuple[float, float, float, float], crs: Any, scale: 
     u0, v0 = _units(lon.min(), lat.min())
     u1, v1 = _units(lon.max(), lat.max())
     q0, q1 = int(v0) - 90 * _U, int(v1) - 90 * _U   # latitude units from the equator: sheet edges at k h
+    n = ((int(u1) - int(u0)) // w + 2) * ((q1 - q0) // h + 2)   # candidates, counted before any is made
+    inside = bool((np.abs(lat) < 88).all() and (np.abs(lon) <= 180).all())  # else sheet_at names the point
+    if n > MAX_SHEETS and inside:
+        raise ProductError(f"the area E {xmin:.6g}..{xmax:.6g} N {ymin:.6g}..{ymax:.6g} meets about {n:,} "
+                           f"sheets of the 1:{scale:,} index, more than {MAX_SHEETS:,}; a point far from the "
+                           "others, or a smaller scale?")
     geo_name = geo.to_string()
     area = Box(xmin, ymin, xmax, ymax)
     corner = np.array([[xmin, ymin]])

@@ -33,6 +33,7 @@ import numpy as np
 from ..errors import ProductError
 from ..lidar.raster import GeoTransform
 from ._clip import clip_lines, cut_grid
+from .mapindex import MAX_SHEETS
 
 __all__ = ["Sheet", "sheet_grid", "sheet_index_features", "cut_raster", "cut_contours", "index_sheets",
            "SHEET_INDEXES"]
@@ -65,6 +66,13 @@ def sheet_grid(bounds: tuple[float, float, float, float], width_m: float,
     if not (0 < width_m < math.inf and 0 < h < math.inf):
         raise ProductError(f"sheet size must be positive and finite, got {width_m} x {h} m")
     xmin, ymin, xmax, ymax = map(float, bounds)
+    if not (math.isfinite(xmin) and math.isfinite(ymin) and math.isfinite(xmax) and math.isfinite(ymax)):
+        raise ProductError(f"the area E {xmin:.6g}..{xmax:.6g} N {ymin:.6g}..{ymax:.6g} is not finite")
+    n = ((xmax - xmin) / width_m + 2) * ((ymax - ymin) / h + 2)   # counted before any is made
+    if n > MAX_SHEETS:
+        raise ProductError(f"the area E {xmin:.6g}..{xmax:.6g} N {ymin:.6g}..{ymax:.6g} holds about {n:.3g} "
+                           f"sheets of {width_m:g} x {h:g} m, more than {MAX_SHEETS:,}; a point far from "
+                           "the others, or a larger sheet size?")
     i0, i1 = math.floor(xmin / width_m), max(math.ceil(xmax / width_m), math.floor(xmin / width_m) + 1)
     j0, j1 = math.floor(ymin / h), max(math.ceil(ymax / h), math.floor(ymin / h) + 1)
     out = []
