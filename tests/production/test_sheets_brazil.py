@@ -346,7 +346,9 @@ def test_cli_sheets_failing_midway_leaves_no_folder(tmp_path, monkeypatch):
     monkeypatch.setattr(contours_mod, "write_layers", full_disk_at_the_index)
     res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "c.geojson"), "-o", str(tmp_path / "out"),
                                    "--size-m", "1000"])
-    assert isinstance(res.exception, OSError)
+    # issue 24: one Error line naming the file (it was an escaping OSError, a traceback)
+    assert res.exit_code == 2, res.output
+    assert res.output == f"Error: {tmp_path / 'out' / 'sheets.geojson'}: No space left on device\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.geojson"]  # no out/, no .out.*.part
     monkeypatch.setattr(contours_mod, "write_layers", real)
     res = CliRunner().invoke(cli, ["lidar", "sheets", str(tmp_path / "c.geojson"), "-o", str(tmp_path / "out"),

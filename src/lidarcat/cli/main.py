@@ -4,10 +4,15 @@ Subcommands are listed in pipeline order and imported lazily, so that
 ``lidarcat --help`` is fast and a broken optional stage never prevents the
 others from running.  The CLI never shows a traceback: library errors
 (:class:`lidarcat.errors.LidarcatError`) become one line ``Error: ...`` with exit
-code 2 (bad input); any other exception but ``OSError`` (a bug: a data condition
-must raise a LidarcatError) becomes one line ``Error: internal error ...`` with exit
-code 70, its traceback only in the debug log (``-vv``).  Exit codes: 0 done, 1 stage
-or solver failed, 2 bad input, 3 statistical test rejected, 70 internal error.
+code 2 (bad input); an ``OSError`` the library did not wrap (disk full, permission
+denied, a read-only output folder) becomes one line ``Error: FILE: reason`` with
+exit code 2, FILE being the output the command was writing (never its temporary
+``.NAME.*.part`` sibling: outputs are written atomically, so nothing half-written
+remains and an earlier output of that name is intact); any other exception (a bug:
+a data condition must raise a LidarcatError) becomes one line ``Error: internal
+error ...`` with exit code 70, its traceback only in the debug log (``-vv``).
+Exit codes: 0 done, 1 stage or solver failed, 2 bad input or an unusable file
+(unreadable, unwritable, disk full), 3 statistical test rejected, 70 internal error.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from __future__ import annotations
 import importlib
 import logging
 import os
+import re
 import sys
 
 # Small dense factorisations stall under OpenBLAS threading on 2-core machines;
@@ -24,7 +30,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import click  # noqa: E402
 
-__all__ = ["cli", "main", "COMMANDS", "one_line"]
+__all__ = ["cli", "main", "COMMANDS", "one_line", "os_error_line"]
 
 #: (name, "module:attribute", one-line summary), in pipeline order.
 COMMANDS: list[tuple[str, str, str]] = [
@@ -108,8 +114,9 @@ class LazyGroup(click.Group):
             raise
         except LidarcatError as ex:
             raise CliLibraryError(one_line(ex)) from ex
-        except OSError:  # an unreadable/unwritable file the library did not wrap: its own message
-            raise
+        except OSError as ex:  # an unreadable/unwritable file the library did not wrap: one line naming it
+            logging.getLogger("lidarcat").debug("OS error", exc_info=True)
+            raise CliLibraryError(os_error_line(ex)) from ex
         except KeyboardInterrupt:
             # click would print "Aborted!" and exit 1; say what state the output is in.
             raise CliInterrupted("Interrupted; no partial output was kept.") from None
@@ -124,6 +131,47 @@ def one_line(ex: BaseException) -> str:
     if isinstance(ex, OSError) and not str(ex).strip():
         return type(ex).__name__
     text = str(ex) if str(ex).strip() else type(ex).__name__
+    return " ".join(text.split())
+
+
+#: functions whose ``path`` local is the output being written (lidarcat's atomic writers)
+_WRITERS = ("atomic_write", "atomic_dir", "_atomic_target", "write_text_atomic")
+_PART = re.compile(r"^\.(.+)\.[A-Za-z0-9_]+\.part$")   # a temporary sibling: .NAME.<random>.part
+
+
+def _final_name(name: str) -> str:
+    """*name* with every temporary ``.NAME.<random>.part`` component mapped back to ``NAME``."""
+    parts = [(_PART.match(c).group(1) if _PART.match(c) else c) for c in name.split(os.sep)]
+    return os.sep.join(parts)
+
+
+def _file_being_written(tb: object) -> str | None:
+    """The ``path`` of the innermost atomic writer on the traceback, else of the innermost frame with one."""
+    frames = []
+    while tb is not None:
+        frames.append(tb.tb_frame)      # type: ignore[attr-defined]
+        tb = tb.tb_next                 # type: ignore[attr-defined]
+    found = None
+    for f in reversed(frames):
+        value = f.f_locals.get("path")
+        if isinstance(value, (str, os.PathLike)):
+            if f.f_code.co_name in _WRITERS:
+                return os.fspath(value)
+            found = found or os.fspath(value)
+    return found
+
+
+def os_error_line(ex: OSError) -> str:
+    """``FILE: reason`` for an OSError: the file it names (or the output being written), the reason
+    without the errno noise, on one line."""
+    name = ex.filename if isinstance(ex.filename, (str, os.PathLike)) else None
+    written = _file_being_written(ex.__traceback__)
+    if name is None or (written is not None and _PART.match(os.path.basename(os.fspath(name)))):
+        name = written or name
+    reason = ex.strerror or one_line(ex)
+    if ex.filename2 is not None and name is not None:
+        reason = f"{reason} ({_final_name(os.fspath(ex.filename))} -> {_final_name(os.fspath(ex.filename2))})"
+    text = f"{_final_name(os.fspath(name))}: {reason}" if name is not None else reason
     return " ".join(text.split())
 
 
