@@ -197,3 +197,23 @@ def test_a_failing_write_is_one_error_line_and_loses_nothing(written, command, f
     for log in [k for k in before if k.endswith("lidarcat.log")]:   # run's log records the failed run too
         assert after.pop(log).startswith(before.pop(log))
     assert after == before                                   # the earlier outputs intact
+
+
+def test_os_error_line_names_the_output_not_its_temporary_sibling(tmp_path):
+    from lidarcat.cli.main import os_error_line
+
+    part = tmp_path / ".out.k3j2h1.part" / "sub" / ".dtm.tif.abc_123.part"
+    assert os_error_line(OSError(errno.EACCES, "Permission denied", str(part))) == \
+        f"{tmp_path / 'out' / 'sub' / 'dtm.tif'}: Permission denied"
+    assert os_error_line(OSError(errno.ENOSPC, "No space left on device")) == "No space left on device"
+    ex = OSError(errno.EXDEV, "Invalid cross-device link", str(tmp_path / "a"), None, str(tmp_path / "b"))
+    assert os_error_line(ex) == (f"{tmp_path / 'a'}: Invalid cross-device link ({tmp_path / 'a'} -> "
+                                 f"{tmp_path / 'b'})")
+
+    def atomic_write(path):   # the name of lidarcat's writers: their ``path`` is the file named
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    try:
+        atomic_write(tmp_path / "x.csv")
+    except OSError as caught:
+        assert os_error_line(caught) == f"{tmp_path / 'x.csv'}: No space left on device"
