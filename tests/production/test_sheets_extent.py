@@ -57,3 +57,11 @@ def test_sheet_grid_limit():
     with pytest.raises(ProductError, match="is not finite"):
         sheet_grid((0, 0, float("inf"), 1), 1)
     assert MAX_SHEETS == 100_000
+
+
+def test_brazil_area_that_does_not_transform_is_one_line(tmp_path):
+    c = _contours(tmp_path / "c.geojson", 1e8)
+    r = CliRunner().invoke(cli, ["lidar", "sheets", str(c), "-o", str(tmp_path / "out"), "--index", "brazil-2000",
+                                 "--crs", "EPSG:31983"])
+    assert_one_line_error(r, "the area E 85000.0..100000000.0, N 447000.0..447027.0 does not transform to "
+                             "geographic coordinates in SIRGAS 2000; is the CRS right?")

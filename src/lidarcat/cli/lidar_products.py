@@ -337,6 +337,8 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
                 by.setdefault(w, []).append(side)
             sides = "; ".join(f"{' and '.join(v)} edge{'s' if len(v) > 1 else ''} from {w}" for w, v in by.items())
             raise ProductError(f"{ex} (the area's {sides})") from ex
+        if isinstance(ex, LidarcatError):   # a data condition: one Error line (issue 24), not a usage text
+            raise
         raise click.UsageError(str(ex)) from ex
     out = Path(output)
     ext = "." + layer_format
