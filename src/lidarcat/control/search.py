@@ -228,7 +228,10 @@ def read_block(data: bytes, path: str | os.PathLike = "<block>") -> list:
         return TileIOError(f"{path}: not a block file of the vertex search ({what}); delete it and its "
                            f".done.json marker to recompute the block")
 
-    a = read_npz(data, path)
+    try:
+        a = read_npz(data, path)
+    except TileIOError as ex:
+        raise bad(str(ex).removeprefix(f"{path}: ")) from None
     shapes = {"version": ("i", ()), "tag": ("i", (3,)), "score": ("f", ()), "point_id": ("U", ()),
               "enh_m": ("f", (3,)), "cov_m2": ("f", (3, 3)), "n_planes": ("i", ()), "misclosure_m": ("f", ()),
               "status": ("U", ()), "reason": ("U", ()), "approx_en": ("f", (2,)), "chi2": ("f", ()),
@@ -237,7 +240,7 @@ def read_block(data: bytes, path: str | os.PathLike = "<block>") -> list:
               "plane_n_rejected": ("i", ()), "plane_rms_m": ("f", ()), "plane_label": ("i", ()),
               "label_n": ("i", ()), "label_xyz": ("f", (3,)), "label_face": ("i", ())}
     if sorted(a) != sorted(shapes):
-        raise bad(f"arrays {', '.join(sorted(set(a) ^ set(shapes)))} missing or unknown")
+        raise bad(f"arrays {sorted(set(a) ^ set(shapes))!r:.80} missing or unknown")
     for k, (kind, shape) in shapes.items():
         if a[k].dtype.kind != kind or a[k].ndim != 1 + len(shape) or a[k].shape[1:] != shape:
             raise bad(f"array {k!r} is {a[k].dtype} {a[k].shape}")

@@ -219,8 +219,8 @@ def read_npz(data: bytes, path: str | os.PathLike) -> dict[str, Any]:
     """The arrays of the ``.npz`` *data* (the content of the work file *path*), read as data only.
 
     ``allow_pickle=False`` (an object array, which would unpickle, is refused)
-    and no member larger than the file itself (:func:`numpy.savez` stores its
-    arrays uncompressed, so a member inflating beyond that is a zip bomb).
+    and members adding up to no more than the file itself (:func:`numpy.savez`
+    stores its arrays uncompressed, so arrays inflating beyond that are a zip bomb).
 
     Raises
     ------
@@ -231,9 +231,10 @@ def read_npz(data: bytes, path: str | os.PathLike) -> dict[str, Any]:
 
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as zf:
-            big = [i.filename for i in zf.infolist() if i.file_size > len(data)]
-        if big:
-            raise TileIOError(f"{path}: not an uncompressed .npz (member {big[0]!r:.60} inflates beyond the file)")
+            inflated = sum(i.file_size for i in zf.infolist())
+        if inflated > len(data):
+            raise TileIOError(f"{path}: not an uncompressed .npz (its arrays inflate to {inflated} bytes, "
+                              f"beyond the file's {len(data)})")
         with np.load(io.BytesIO(data), allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as ex:
