@@ -230,8 +230,8 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
         "BundleProblem inputs: survey.folder refuses a point twice in a control set with file:line",
     ("bundle/problem.py", "BundleProblem.__post_init__", "ValueError",
      "`point_role` must have one entry per poi"): _SHAPE,
-    ("bundle/reliability.py", "_check_level", "ValueError", "`level` (alpha of the w-test) must be in"): _ARG,
-    ("bundle/reliability.py", "_check_level", "ValueError", "`power` must be in (0.5, 1), got {}"): _ARG,
+    ("bundle/redundancy.py", "check_level", "ValueError", "`level` (alpha of the w-test) must be in"): _ARG,
+    ("bundle/redundancy.py", "check_level", "ValueError", "`power` must be in (0.5, 1), got {}"): _ARG,
     ("bundle/reliability.py", "snoop", "ValueError", "`snooping` must be one of {}, got {}"): _ENUM,
     ("bundle/reliability.py", "snoop", "ValueError", "`robust` must be one of {}, got {}"): _ENUM,
     ("bundle/selfcal.py", "SelfCalResult.index", "ValueError", "no additional parameter {}; there are: {"):
