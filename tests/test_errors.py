@@ -243,17 +243,17 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("bundle/solve.py", "adjust", "ValueError", "`chi2_level` must be in (0, 1)"): _ARG,
     ("bundle/solve.py", "adjust", "ValueError", "`precision` must be one of {}, got {}"): _ENUM,
     ("bundle/solve.py", "adjust", "ValueError", "`solver` must be one of auto, direct, pc"): _ENUM,
-    ("control/facets.py", "Plane.__post_init__", "ValueError", "plane normal must be a finite non-zero v"):
+    ("control/planes.py", "Plane.__post_init__", "ValueError", "plane normal must be a finite non-zero v"):
         "constructor argument check; fitted planes always have a unit normal",
-    ("control/facets.py", "Plane.thesis_form", "ValueError", "plane passes through the origin; d canno"):
+    ("control/planes.py", "Plane.thesis_form", "ValueError", "plane passes through the origin; d canno"):
         "argument check of the datum form asked by Python code (a plane through the CRS origin)",
-    **{("control/facets.py", "ExtractionParams.__post_init__", "ValueError", head): _PARAMS for head in (
+    **{("control/params.py", "ExtractionParams.__post_init__", "ValueError", head): _PARAMS for head in (
         "method must be one of {}, got {}", "residual_kind must be one of {}, got {}",
         "height_filter must be None, 'thesis' or ", "slope window must satisfy 0 <= slope_min",
         "height_window_m must be positive, got {}", "radius_m must be positive, got {}",
         "min_points must be >= 4 (a plane has 3 d", "sd_en_m and sd_h_m must be positive",
         "residual_threshold_m must be positive, g", "max_offset_m must be positive, got {}")},
-    ("control/facets.py", "get_params", "ValueError", "unknown preset {}; choose one of {}"): _ENUM,
+    ("control/params.py", "get_params", "ValueError", "unknown preset {}; choose one of {}"): _ENUM,
     ("control/search.py", "find_jobs", "ValueError", "block_cells must be at least 1, got {}"): _ARG,
     ("control/vertices.py", "ControlPoint.__post_init__", "ValueError", "unknown status {}"): _INTERNAL,
     ("control/vertices.py", "_as_xyz", "ValueError", "points must be an (N, 3) array or a Poin"):

@@ -40,7 +40,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .facets import ExtractionParams, get_params
+from .params import ExtractionParams, get_params
 from .vertices import (
     cell_counts,
     merge_candidates,
