@@ -283,11 +283,11 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("lidar/raster.py", "rasterize", "ValueError", "bounds are required when rasterizing a s"): _ARG,
     ("lidar/readers.py", "iter_las_ranges", "ValueError", "piece_points and max_read_points must be"): _ARG,
     ("lidar/readers.py", "iter_points", "ValueError", "chunk_size must be positive, got {}"): _ARG,
-    ("lidar/tileindex.py", "BlockIndex.__post_init__", "ValueError", "block_points ({}) must be a positive mul"):
+    ("lidar/tiles.py", "BlockIndex.__post_init__", "ValueError", "block_points ({}) must be a positive mul"):
         _INTERNAL + " (the index cache is read through its own checked loader)",
-    ("lidar/tileindex.py", "BlockIndex.__post_init__", "ValueError", "{} boxes for {} points in cells of {}"):
+    ("lidar/tiles.py", "BlockIndex.__post_init__", "ValueError", "{} boxes for {} points in cells of {}"):
         _INTERNAL + " (the index cache is read through its own checked loader)",
-    ("lidar/tileindex.py", "_BlockBoxes.add", "ValueError", "more points than the tile holds"):
+    ("lidar/tiles.py", "BlockBoxes.add", "ValueError", "more points than the tile holds"):
         _INTERNAL + " (the reader streams the header's count; the file is checked unchanged)",
     ("lidar/tileindex.py", "TileIndex.__init__", "ValueError", "decode must be one of {}, got {}"): _ENUM,
     ("lidar/tileindex.py", "TileIndex.__init__", "ValueError", "block_points and cell_points must be pos"): _ARG,

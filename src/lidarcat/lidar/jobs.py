@@ -164,7 +164,7 @@ def _write_ring(job: TileJob) -> None:
     from .._util import atomic_write, write_json_atomic
     from .crs import crs_label
     from .readers import read_points
-    from .tileindex import in_box
+    from .membership import in_box
 
     pc = read_points(job.tile, crs=job.crs)
     label = np.array(crs_label(pc.crs) if pc.crs is not None else "")
@@ -212,7 +212,7 @@ def _read_ring(path: Path, box: tuple[float, float, float, float], crs_label_own
     import numpy as np
 
     from .cloud import PointCloud
-    from .tileindex import in_box
+    from .membership import in_box
 
     try:
         with np.load(path) as z:
