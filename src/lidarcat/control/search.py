@@ -48,7 +48,8 @@ import numpy as np
 
 from .._util.frozen import frozen_array
 from ..errors import TileIOError
-from .facets import ExtractionParams, Plane, get_params
+from .params import ExtractionParams, get_params
+from .planes import Plane
 from .vertices import (
     STATUSES,
     Candidate,

@@ -267,7 +267,7 @@ def _write_ring(job: TileJob) -> None:
     from .._util import atomic_write, write_json_atomic
     from .crs import crs_label
     from .readers import read_points
-    from .tileindex import in_box
+    from .membership import in_box
 
     pc = read_points(job.tile, crs=job.crs)
     label = np.array(crs_label(pc.crs) if pc.crs is not None else "")
@@ -316,7 +316,7 @@ def _read_ring(job: TileJob, tile: str, box: tuple[float, float, float, float], 
     import numpy as np
 
     from .cloud import PointCloud
-    from .tileindex import in_box
+    from .membership import in_box
 
     piece = _piece_path(job, tile)
     marker = _read_marker(Path(str(_ring_path(job, tile)) + ".done.json"))

@@ -19,7 +19,8 @@ import numpy as np
 
 from ..bundle.precision import joint_point_covariance
 from ..bundle.problem import BundleProblem
-from ..bundle.reliability import FAMILY_LEVEL, SnoopingResult, snoop
+from ..bundle.redundancy import FAMILY_LEVEL
+from ..bundle.reliability import SnoopingResult, snoop
 from ..bundle.solve import BundleResult
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -307,7 +308,7 @@ BLUNDER_COLUMNS = ("kind", "photo", "point", "w", "w_critical", "redundancy", "e
 
 def _write_snooping(snooping: SnoopingResult, folder, write_csv) -> dict:
     """blunders.csv and reliability.csv of the snooping hook; returns the summary keys."""
-    from ..bundle.reliability import RELIABILITY_COLUMNS
+    from ..bundle.redundancy import RELIABILITY_COLUMNS
 
     if snooping.mode == "off":
         return snooping.summary()
