@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from .._util import atomic_dir, dumps_json, write_json_atomic
+from .._util import atomic_dir, dumps_json, inside, output_root, remove_below, write_json_atomic
 from ..errors import LidarcatError
 from ..stages.context import ProgressCallback, failed_tests
 from ..stages.context import StageContext as Context
@@ -309,10 +309,19 @@ def run_stages(
     outdir.mkdir(parents=True, exist_ok=True)
     _DIGESTS.clear()  # file digests are memoised within one run only
     ctx = Context(outdir, values, progress)
-    records: list[StageRecord] = []
     names = [s.name for s in stages]
     if len(set(names)) != len(names):
         raise ValueError(f"duplicate stage names in {names}")
+    # the output folder is a boundary: no stage folder (nor the records) may leave it or be a link
+    # (a survey that ships out/<stage> as a link to elsewhere would have its target cleared)
+    for p in (*(outdir / st.folder for st in stages), outdir / _RECORD_DIR, outdir / "summary.json"):
+        inside(outdir, p)
+    with output_root(outdir):
+        return _run_all(stages, outdir, ctx, force)
+
+
+def _run_all(stages: Sequence[Stage], outdir: Path, ctx: Context, force: bool) -> list[StageRecord]:
+    records: list[StageRecord] = []
     # leftovers of a run that was killed (no cleanup possible after SIGKILL or a power cut)
     for st in stages:
         _remove_parts((outdir / st.folder).parent, f"{Path(st.folder).name}.")
@@ -392,7 +401,8 @@ def _run_one(stage: Stage, ctx: Context, force: bool) -> StageRecord:
                       traceback.format_exc())
         # results of an earlier run no longer match the inputs: remove them
         if stage.folder not in ("", "."):
-            _clear_folder(target, keep=())
+            with contextlib.suppress(LidarcatError):  # a link planted meanwhile: refused, never followed
+                _clear_folder(target, keep=())
         return StageRecord(stage.name, stage.folder, "failed", reason, seconds, digest)
     seconds = time.perf_counter() - t0
     # files of an earlier run of this stage that this run did not write
@@ -413,29 +423,21 @@ def _remove_parts(parent: Path, prefix: str) -> None:
     """Remove temporary ``.<prefix>*.part`` files and folders in *parent* (see lidarcat._util)."""
     import shutil
 
-    if not parent.is_dir():
-        return
+    if parent.is_symlink() or not parent.is_dir():
+        return  # a link is refused by run_stages' check; never glob through one
     for p in parent.glob(f".{prefix}*.part"):
-        if p.is_dir():
+        if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
-        else:
+        else:  # a file, or a link (removed as a name: its target is left alone)
             with contextlib.suppress(FileNotFoundError):
                 p.unlink()
 
 
 def _clear_folder(folder: Path, keep: Iterable[str]) -> None:
     """Remove files under *folder* (a stage's own output folder) except *keep* (relative paths)."""
-    if not folder.is_dir() or folder.name in ("", ".", ".."):
+    if folder.name in ("", ".", ".."):
         return
-    keep = set(keep)
-    for p in sorted(folder.rglob("*"), reverse=True):
-        rel = str(p.relative_to(folder))
-        if p.is_file() and rel not in keep and ".part" not in p.name:
-            p.unlink()
-        elif p.is_dir() and not any(p.iterdir()):
-            p.rmdir()
-    if not keep and folder.is_dir() and not any(folder.iterdir()):
-        folder.rmdir()
+    remove_below(folder, keep)  # checked against the output root; never follows a link
 
 
 def _rel(folder: str, names: Iterable[str]) -> list[str]:
@@ -446,6 +448,7 @@ def _rel(folder: str, names: Iterable[str]) -> list[str]:
 
 @contextlib.contextmanager
 def log_to(path: Path):
+    inside(Path(path).parent, path)  # the log of an output folder: never appended through a link
     handler = logging.FileHandler(path, encoding="utf-8")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     handler.setLevel(logging.INFO)
