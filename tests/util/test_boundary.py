@@ -305,3 +305,17 @@ def test_the_mapping_stage_of_run_refuses_a_path_like_photo_id(tmp_path):
     assert mapping["status"] == "failed"
     assert mapping["reason"] == (f"{survey / 'photos.csv'}: photo id {HOSTILE_ID!r} cannot name an output file: "
                                  f"it holds '/'; use letters, digits, '_', '-', '.' (not first)")
+
+
+def test_run_refuses_a_lock_file_shipped_as_a_link(tmp_path, synthetic):
+    survey = copy_survey(synthetic, tmp_path / "survey")
+    sib = sibling_with_files(tmp_path)
+    (sib / "lock").write_text(f"pid={os.getpid()} host=elsewhere SECRET=do-not-print\n")
+    (survey / "out").mkdir()
+    (survey / "out" / ".lidarcat.lock").symlink_to(sib / "lock")
+    before = snapshot(tmp_path, exclude=survey / "out")
+    res = CliRunner().invoke(cli, ["run", str(survey)])
+    assert_one_line_error(res, ".lidarcat.lock: a symbolic link in the output folder")
+    assert "SECRET" not in res.output
+    assert snapshot(tmp_path, exclude=survey / "out") == before
+    assert (survey / "out" / ".lidarcat.lock").is_symlink()

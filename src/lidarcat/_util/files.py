@@ -260,6 +260,7 @@ def folder_lock(folder: str | os.PathLike, what: str = "lidarcat run") -> Iterat
     from ..errors import LidarcatError
 
     lock = Path(folder) / ".lidarcat.lock"
+    inside(folder, lock)  # a lock shipped as a link is neither read through nor taken over
     host = socket.gethostname()
     me = f"pid={os.getpid()} host={host} started={datetime.datetime.now().isoformat(timespec='seconds')}\n"
     for _attempt in range(2):
