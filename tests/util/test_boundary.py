@@ -319,3 +319,29 @@ def test_run_refuses_a_lock_file_shipped_as_a_link(tmp_path, synthetic):
     assert "SECRET" not in res.output
     assert snapshot(tmp_path, exclude=survey / "out") == before
     assert (survey / "out" / ".lidarcat.lock").is_symlink()
+
+
+def test_a_stage_record_naming_files_outside_is_not_trusted(tmp_path):
+    """A record in out/.stages (shipped with a survey) whose outputs lie outside: the stage runs again."""
+    import json
+
+    from lidarcat.pipeline import runner
+
+    out, sib = tmp_path / "out", sibling_with_files(tmp_path)
+    calls = []
+
+    def run(ctx, tmp):
+        calls.append(1)
+        (tmp / "r.txt").write_text("r")
+        return {}
+
+    stage = Stage("s", "stage", run)
+    run_stages([stage], out)
+    rec_path = out / ".stages" / "s.json"
+    rec = json.loads(rec_path.read_text())
+    rel = os.path.relpath(sib / "precious.txt", out)
+    rec["output_digests"] = {rel: runner._file_digest_uncached(sib / "precious.txt")}
+    rec_path.write_text(json.dumps(rec))
+    before = snapshot(tmp_path, exclude=out)
+    assert [r.status for r in run_stages([stage], out)] == ["ran"] and len(calls) == 2
+    assert snapshot(tmp_path, exclude=out) == before
