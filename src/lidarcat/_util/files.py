@@ -74,7 +74,7 @@ def safe_component(text: object, what: str, source: object = None,
     >>> safe_component("x/../../pwn", "photo id", "photos.csv")
     Traceback (most recent call last):
     ...
-    lidarcat.errors.SurveyError: photos.csv: photo id 'x/../../pwn' cannot name an output file: it holds '/'; use letters, digits, '_', '-', '.' (not first)
+    lidarcat.errors.SurveyError: photos.csv: photo id 'x/../../pwn' cannot name an output file: it holds '/'; ...
     """
     name = str(text)
     why = None
