@@ -11,7 +11,11 @@ writes its folder through :func:`lidarcat._util.atomic_dir` and its record only
 afterwards, so an interrupted run leaves no half-written file and the next run
 redoes exactly the unfinished stages (``.*.part`` leftovers of a killed run are
 removed first).  A failing stage does not stop the others; the stages that
-require it are skipped.
+require it are skipped.  The output folder is a boundary: a stage folder, the
+records or the summary that is a symbolic link stops the run before anything is
+written, every write of a stage is checked to stay inside the folder
+(:func:`lidarcat._util.output_root`), and stale outputs are removed without
+following links (:func:`lidarcat._util.remove_below`).
 
 Nothing here knows about photogrammetry: the lidarcat stages are in
 :mod:`lidarcat.stages` and their order in :mod:`lidarcat.pipeline.plan`.
@@ -308,6 +312,12 @@ def run_stages(
         One per stage, in order.  A failing stage does not stop the others;
         stages that require it are skipped.  ``KeyboardInterrupt`` propagates
         (the interrupted stage's outputs are discarded).
+
+    Raises
+    ------
+    ProductError
+        A stage folder, ``.stages`` or ``summary.json`` is a symbolic link (or lies outside *outdir*):
+        nothing is run.
     """
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
