@@ -38,6 +38,24 @@ The inverse, corrected photo coordinates -> pixel (:meth:`Camera.photo_to_pixel`
 has no closed form: it solves ``x_fot - d(x_fot) = x_fotc`` by Newton's method with
 the analytic 2 x 2 Jacobian, vectorised over all points.
 
+A calibration is accepted only if this inverse exists over the image format.  With
+``u = r^2`` and ``R`` the distance from the principal point to the farthest frame
+corner, the radial part (eq. 03 with the radial refraction of eq. 06) maps a radius
+``r`` to the corrected radius::
+
+    rho(r) = r (1 - g(u)),   g(u) = eps45 + (K1 + eps45 / c^2) u + K2 u^2 + K3 u^3
+    rho'(r) = 1 - eps45 - 3 (K1 + eps45 / c^2) u - 5 K2 u^2 - 7 K3 u^3
+
+``rho'`` must stay positive on ``[0, R]`` (the corrected radius strictly increases:
+no fold-over), and ``|g|``, the radial correction as a share of the radius, at most
+:data:`MAX_RADIAL_SHARE` (a point is not moved by more than half its distance from
+the principal point: beyond that the polynomial no longer describes a lens, as
+``k3 = -1`` mm^-6, 604 km at the corner).  Both are cubics in ``u``: their extremes
+are found exactly (end points and roots of the derivative).  The decentering
+Jacobian (eq. 05) is symmetric and linear in ``x, y``; its largest eigenvalue
+magnitude over the frame (at a corner) must stay below half of ``min rho'``, so
+that the whole Jacobian ``I - d(d)/d(x, y)`` stays invertible.
+
 Example
 -------
 >>> cam = Camera("c", focal_length_mm=50.0, principal_point_x_mm=0.0,
@@ -66,7 +84,7 @@ import numpy as np
 from .._util import read_toml, toml_line
 from ..errors import CameraError, SurveyError, location
 
-__all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS"]
+__all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS", "MAX_RADIAL_SHARE"]
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +101,8 @@ CAMERA_KEYS: tuple[str, ...] = _STR_KEYS + _FLOAT_KEYS + _INT_KEYS
 #: the optional standard-deviation keys: ``sd_`` + a calibration key
 SD_KEYS: tuple[str, ...] = tuple(f"sd_{k}" for k in _FLOAT_KEYS)
 _POSITIVE = ("focal_length_mm", "pixel_size_x_mm", "pixel_size_y_mm")
+#: the largest radial correction accepted, as a share of the radius (see the module docstring)
+MAX_RADIAL_SHARE = 0.5
 #: sane ranges of interior orientation values (anything outside is a typo or a unit mix-up):
 #: focal lengths from phone cameras (a few mm) to long aerial lenses, pixels from 0.1 um to
 #: 1 mm, frames up to a million pixels a side, the principal point within the frame
@@ -217,6 +237,53 @@ class Camera:
                 raise _camera_error(key, f"must be a finite number >= 0, got {v!r}")
             sd[key] = v
         object.__setattr__(self, "sd", MappingProxyType(sd))
+        self._check_distortion()
+
+    def _check_distortion(self) -> None:
+        """Refuse a distortion model that cannot be inverted over the frame (module docstring)."""
+        w, h = self.frame_size_mm
+        cx = np.array([-w / 2, w / 2]) - self.principal_point_x_mm
+        cy = np.array([-h / 2, h / 2]) - self.principal_point_y_mm
+        big_r = math.hypot(np.abs(cx).max(), np.abs(cy).max())
+        big_u = big_r * big_r
+        e, c2 = self.refraction_eps45, self.focal_length_mm ** 2
+        k1 = self.k1 + e / c2
+        # coefficients of u^0..u^3: rho'(u) and g(u)
+        slope = np.array([1.0 - e, -3.0 * k1, -5.0 * self.k2, -7.0 * self.k3])
+        share = np.array([e, k1, self.k2, self.k3])
+        coeffs = "k1 = {:.6g}, k2 = {:.6g}, k3 = {:.6g}".format(self.k1, self.k2, self.k3)
+        if e:
+            coeffs += f", refraction_eps45 = {e:.6g}"
+        units = "check the values and their units (mm^-2, mm^-4, mm^-6)"
+
+        def culprit(u: float) -> str:  # the radial coefficient with the largest term at u
+            terms = {"k1": abs(self.k1) * u, "k2": abs(self.k2) * u * u, "k3": abs(self.k3) * u ** 3,
+                     "refraction_eps45": abs(e) * (1 + u / c2)}
+            return max(terms, key=terms.__getitem__)
+
+        lo_u, lo = _cubic_extreme(slope, big_u, min)
+        if not lo > 0:
+            u0 = _first_root(slope, big_u)
+            raise _camera_error(culprit(u0), (
+                f"radial distortion {coeffs} folds over within the frame: the corrected radius stops "
+                f"increasing at r = {math.sqrt(u0):.4g} mm from the principal point (the frame "
+                f"reaches {big_r:.4g} mm), so no pixel can be found for a corrected coordinate; {units}"))
+        hi_u, hi = _cubic_extreme(share, big_u, lambda v: max(v, key=abs))
+        if abs(hi) > MAX_RADIAL_SHARE:
+            r = math.sqrt(hi_u)
+            raise _camera_error(culprit(hi_u), (
+                f"radial distortion {coeffs} moves a point {r:.4g} mm from the principal point by "
+                f"{abs(hi) * r:.4g} mm, {abs(hi):.3g} times its radius (at most {MAX_RADIAL_SHARE:g} "
+                f"within the {w:.4g} x {h:.4g} mm frame): not a lens distortion; {units}"))
+        p1, p2 = self.p1, self.p2
+        x, y = np.meshgrid(cx, cy)
+        a, b, d = 6 * p1 * x + 2 * p2 * y, 2 * p1 * y + 2 * p2 * x, 6 * p2 * y + 2 * p1 * x
+        eig = np.abs((a + d) / 2) + np.hypot((a - d) / 2, b)  # largest |eigenvalue|, symmetric 2 x 2
+        if not eig.max() < lo / 2:
+            raise _camera_error("p1" if abs(p1) >= abs(p2) else "p2", (
+                f"decentering distortion p1 = {p1:.6g}, p2 = {p2:.6g} changes by {eig.max():.3g} mm per mm "
+                f"at a frame corner, not small against the radial d rho / dr >= {lo:.3g}: the correction cannot "
+                f"be inverted; check the values and their unit (mm^-1)"))
 
     # ------------------------------------------------------------------ repr / io
     def __repr__(self) -> str:
@@ -530,6 +597,29 @@ class Camera:
         inside = ((cr[:, 0] >= lo) & (cr[:, 0] <= self.columns_px - 0.5 + margin_px)
                   & (cr[:, 1] >= lo) & (cr[:, 1] <= self.rows_px - 0.5 + margin_px))
         return _out(inside, single)
+
+
+def _polyval(coef: np.ndarray, u: float) -> float:
+    return float(coef[0] + u * (coef[1] + u * (coef[2] + u * coef[3])))
+
+
+def _cubic_extreme(coef: np.ndarray, u_max: float, pick: Any) -> tuple[float, float]:
+    """(u, value) of the cubic ``coef[0] + coef[1] u + ... + coef[3] u^3`` on ``[0, u_max]`` chosen
+    by *pick* (``min``, or the largest magnitude) among the end points and stationary points."""
+    cands = [0.0, u_max]
+    for z in np.roots([3 * coef[3], 2 * coef[2], coef[1]]) if np.any(coef[1:]) else ():
+        if abs(z.imag) <= 1e-12 * max(1.0, abs(z.real)) and 0 < z.real < u_max:
+            cands.append(float(z.real))
+    vals = {_polyval(coef, u): u for u in cands}
+    v = pick(vals)
+    return vals[v], v
+
+
+def _first_root(coef: np.ndarray, u_max: float) -> float:
+    """The smallest u in ``[0, u_max]`` where the cubic *coef* is <= 0 (u_max if none is found)."""
+    roots = [float(z.real) for z in np.roots(coef[::-1]) if abs(z.imag) <= 1e-9 * max(1.0, abs(z.real))]
+    inside = [u for u in roots if 0 <= u <= u_max]
+    return min(inside) if inside else u_max
 
 
 # ---------------------------------------------------------------------- TOML
