@@ -406,3 +406,27 @@ def test_every_shipped_and_test_camera_still_loads():
     assert {c.id for c in cams} >= {"dcs14n", "lactec_dcs14n", "demo", "rc10"}
     b = selfcal_block(0)
     assert b is not None
+
+
+def test_huge_numbers_and_long_names_in_camera_toml_are_cut(tmp_path):
+    text = _thesis_cam_text().replace("columns_px = 3000", "columns_px = " + "9" * 400, 1)
+    with pytest.raises(SurveyError, match=rf"camera.toml:{_line_of(text, 'columns_px')}: field 'columns_px': camera "
+                                          rf"\[dcs14n\]: 9{{60}}\.\.\. \(400 characters\) pixels is outside the sane "
+                                          r"range 1\.\.1,000,000$"):
+        load_cameras(_write_cam(tmp_path, text))
+    text = _thesis_cam_text().replace("columns_px = 3000", "columns_px = " + "9" * 5000, 1)
+    with pytest.raises(SurveyError, match=rf"camera.toml:{_line_of(text, 'columns_px')}: a number of more than "
+                                          r"\d+ digits$"):
+        load_cameras(_write_cam(tmp_path, text))
+    long_id = "c" * 3000
+    text = _thesis_cam_text().replace("[dcs14n]", f"[{long_id}]", 1).replace("k3 = 0.0", "k3 = 0.0\n" + "k" * 3000 + " = 1")
+    with pytest.raises(SurveyError) as ei:
+        load_cameras(_write_cam(tmp_path, text))
+    assert str(ei.value).startswith(f"{tmp_path / 'camera.toml'}:{_line_of(text, 'k' * 3000)}: field "
+                                    f"'{'k' * 60}...': camera [{'c' * 60}...]: unknown key; allowed: model")
+    assert len(str(ei.value)) < 1000
+    text = _thesis_cam_text().replace('model = "Kodak DCS Pro 14n"', "model = 1", 1).replace(
+        "focal_length_mm = 51.902", 'focal_length_mm = "' + "\\u001b" * 100 + '"', 1)
+    with pytest.raises(SurveyError, match=r"field 'focal_length_mm': camera \[dcs14n\]: must be a number, got "
+                                          r"'(\\x1b){60}'\.\.\. \(100 characters\) \(str\)$"):
+        load_cameras(_write_cam(tmp_path, text))

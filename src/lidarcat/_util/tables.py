@@ -10,6 +10,7 @@ import math
 import os
 import re
 import stat
+import sys
 import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -163,7 +164,10 @@ def excerpt(value: Any, limit: int = 60, *, quote: bool = True) -> str:
     >>> excerpt("photo, E, N", quote=False), excerpt(0), excerpt([1.5, "a"])
     ('photo, E, N', '0', "[1.5, 'a']")
     """
-    text = value if isinstance(value, str) else repr(value)
+    try:
+        text = value if isinstance(value, str) else repr(value)
+    except ValueError:  # an int beyond Python's 4300-digit conversion limit
+        text = f"<a number of {value.bit_length() * 0.30103:.0f} digits>" if isinstance(value, int) else "<?>"
     shown = "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text[:limit])
     if quote and isinstance(value, str):
         shown = "'" + shown.replace("'", "\\'") + "'"
@@ -210,6 +214,11 @@ def read_toml(path: str | os.PathLike) -> tuple[dict[str, Any], str]:
         raise SurveyError(f"{location(path, line)}: invalid TOML: {ex}") from ex
     except RecursionError:  # a nesting the scan missed: refuse it all the same
         raise SurveyError(f"{path}: values nested too deep for a TOML settings file") from None
+    except ValueError:  # not a TOMLDecodeError: an integer beyond Python's conversion limit
+        m = re.search(r"\d{%d,}" % (sys.get_int_max_str_digits() + 1), text)
+        line = text.count("\n", 0, m.start()) + 1 if m else None
+        raise SurveyError(f"{location(path, line)}: a number of more than {sys.get_int_max_str_digits()} "
+                          f"digits") from None
     return data, text
 
 

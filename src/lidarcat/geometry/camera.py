@@ -81,7 +81,7 @@ from typing import Any
 
 import numpy as np
 
-from .._util import read_toml, toml_line
+from .._util import excerpt, read_toml, toml_line
 from ..errors import CameraError, SurveyError, location
 
 __all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS", "MAX_RADIAL_SHARE"]
@@ -115,9 +115,15 @@ SANE_RANGES: dict[str, tuple[float, float]] = {
 }
 
 
+def _short(name: str) -> str:
+    """A key or id from a file, cut for a message (the whole name stays in ``err.field``)."""
+    return name if len(name) <= 60 else name[:60] + "..."
+
+
 def _camera_error(field_name: str, message: str) -> CameraError:
-    err = CameraError(f"field {field_name!r}: {message}")
+    err = CameraError(f"field {_short(field_name)!r}: {message}")
     err.field = field_name  # type: ignore[attr-defined]
+    err.detail = message  # type: ignore[attr-defined]
     return err
 
 
@@ -191,11 +197,11 @@ class Camera:
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id.strip():
-            raise _camera_error("id", f"camera id must be a non-empty string, got {self.id!r}")
+            raise _camera_error("id", f"camera id must be a non-empty string, got {excerpt(self.id)}")
         for name in _FLOAT_KEYS:
             raw = getattr(self, name)
             if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)):
-                raise _camera_error(name, f"must be a number, got {raw!r} ({type(raw).__name__})")
+                raise _camera_error(name, f"must be a number, got {excerpt(raw)} ({type(raw).__name__})")
             v = float(raw)
             if not math.isfinite(v):
                 raise _camera_error(name, f"must be finite, got {v!r}")
@@ -212,11 +218,11 @@ class Camera:
                 if isinstance(raw, float) and raw.is_integer():
                     raw = int(raw)
                 else:
-                    raise _camera_error(name, f"must be a whole number of pixels, got {raw!r}")
+                    raise _camera_error(name, f"must be a whole number of pixels, got {excerpt(raw)}")
             if raw < 1:
-                raise _camera_error(name, f"must be at least 1 pixel, got {raw!r}")
+                raise _camera_error(name, f"must be at least 1 pixel, got {excerpt(raw)}")
             if raw > SANE_RANGES[name][1]:
-                raise _camera_error(name, f"{raw!r} pixels is outside the sane range 1..{SANE_RANGES[name][1]:,}")
+                raise _camera_error(name, f"{excerpt(raw)} pixels is outside the sane range 1..{SANE_RANGES[name][1]:,}")
             object.__setattr__(self, name, int(raw))
         w, h = self.columns_px * self.pixel_size_x_mm, self.rows_px * self.pixel_size_y_mm
         for name, half in (("principal_point_x_mm", w / 2), ("principal_point_y_mm", h / 2)):
@@ -225,13 +231,13 @@ class Camera:
                                           f"(+-{half:g} mm from its centre); check the value and its unit")
         for name in _STR_KEYS:
             if not isinstance(getattr(self, name), str):
-                raise _camera_error(name, f"must be text, got {getattr(self, name)!r}")
+                raise _camera_error(name, f"must be text, got {excerpt(getattr(self, name))}")
         sd: dict[str, float] = {}
         for key, raw in dict(self.sd).items():
             if key not in SD_KEYS:
                 raise _camera_error(key, f"unknown standard-deviation key; allowed: {', '.join(SD_KEYS)}")
             if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)):
-                raise _camera_error(key, f"must be a number, got {raw!r}")
+                raise _camera_error(key, f"must be a number, got {excerpt(raw)}")
             v = float(raw)
             if not math.isfinite(v) or v < 0:
                 raise _camera_error(key, f"must be a finite number >= 0, got {v!r}")
@@ -653,7 +659,7 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
     cameras: dict[str, Camera] = {}
     for cam_id, table in data.items():
         if not isinstance(table, dict):
-            raise SurveyError(f"{location(path, toml_line(text, None, cam_id), cam_id)}: "
+            raise SurveyError(f"{location(path, toml_line(text, None, cam_id), _short(cam_id))}: "
                               f"top-level key outside a camera table; put each camera under "
                               f"a [camera_id] header")
         try:
@@ -661,10 +667,9 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
         except CameraError as ex:
             fld = getattr(ex, "field", None)
             line = toml_line(text, cam_id, fld if fld in table else None)
-            msg = str(ex)
-            if fld is not None:
-                msg = msg.removeprefix(f"field {fld!r}: ")
-            raise SurveyError(f"{location(path, line, fld)}: camera [{cam_id}]: {msg}") from ex
+            msg = getattr(ex, "detail", str(ex))
+            raise SurveyError(f"{location(path, line, None if fld is None else _short(fld))}: "
+                              f"camera [{_short(cam_id)}]: {msg}") from ex
     if not cameras:
         raise SurveyError(f"{path}: no camera defined; add a [camera_id] table "
                           f"(see docs/survey-format.md)")
