@@ -430,3 +430,29 @@ def test_huge_numbers_and_long_names_in_camera_toml_are_cut(tmp_path):
     with pytest.raises(SurveyError, match=r"field 'focal_length_mm': camera \[dcs14n\]: must be a number, got "
                                           r"'(\\x1b){60}'\.\.\. \(100 characters\) \(str\)$"):
         load_cameras(_write_cam(tmp_path, text))
+
+
+def test_every_accepted_camera_round_trips_over_its_frame():
+    """Seeded: random calibrations over wide ranges; each one the load check accepts inverts over the
+    whole frame (the inverse starts from the corrected coordinate and finds the pixel it came from)."""
+    rng = np.random.default_rng(24)
+
+    def coef(lo, hi):
+        return float(rng.choice([-1.0, 1.0]) * 10 ** rng.uniform(lo, hi))
+
+    accepted = 0
+    for _ in range(600):
+        kw = dict(focal_length_mm=rng.uniform(5, 200), principal_point_x_mm=rng.uniform(-0.5, 0.5),
+                  principal_point_y_mm=rng.uniform(-0.5, 0.5), k1=coef(-8, -2), k2=coef(-12, -5),
+                  k3=coef(-16, -8), p1=coef(-8, -3), p2=coef(-8, -3), refraction_eps45=coef(-8, -2),
+                  pixel_size_x_mm=0.006, pixel_size_y_mm=0.006, columns_px=int(rng.integers(1000, 9000)),
+                  rows_px=int(rng.integers(1000, 9000)))
+        try:
+            cam = Camera("r", **kw)
+        except CameraError:
+            continue
+        accepted += 1
+        grid = _frame_grid(cam, 9)
+        np.testing.assert_allclose(cam.photo_to_pixel(cam.pixel_to_photo(grid)), grid, atol=1e-5, rtol=0,
+                                   err_msg=str(kw))
+    assert 200 < accepted < 600

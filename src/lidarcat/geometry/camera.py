@@ -47,7 +47,8 @@ corner, the radial part (eq. 03 with the radial refraction of eq. 06) maps a rad
     rho'(r) = 1 - eps45 - 3 (K1 + eps45 / c^2) u - 5 K2 u^2 - 7 K3 u^3
 
 ``rho'`` must stay positive on ``[0, R]`` (the corrected radius strictly increases:
-no fold-over), and ``|g|``, the radial correction as a share of the radius, at most
+no fold-over) and on to ``rho(R)`` (Newton's method starts from the corrected
+coordinate, so it must not meet a second pre-image there), and ``|g|``, the radial correction as a share of the radius, at most
 :data:`MAX_RADIAL_SHARE` (a point is not moved by more than half its distance from
 the principal point: beyond that the polynomial no longer describes a lens, as
 ``k3 = -1`` mm^-6, 604 km at the corner).  Both are cubics in ``u``: their extremes
@@ -173,8 +174,10 @@ class Camera:
     ------
     CameraError
         A value is not finite, a length that must be positive is not, an image
-        size is not a positive integer, or an ``sd`` key is unknown.  The message
-        names the field; ``err.field`` holds it.
+        size is not a positive integer, an ``sd`` key is unknown, or the
+        distortion cannot be inverted over the frame or is no lens distortion
+        (see the module docstring).  The message names the field; ``err.field``
+        holds it.
     """
 
     id: str
@@ -243,7 +246,8 @@ class Camera:
                 raise _camera_error(key, f"must be a finite number >= 0, got {v!r}")
             sd[key] = v
         object.__setattr__(self, "sd", MappingProxyType(sd))
-        self._check_distortion()
+        with np.errstate(all="ignore"):  # coefficients near the float maximum: inf/nan, refused below
+            self._check_distortion()
 
     def _check_distortion(self) -> None:
         """Refuse a distortion model that cannot be inverted over the frame (module docstring)."""
@@ -261,6 +265,9 @@ class Camera:
         if e:
             coeffs += f", refraction_eps45 = {e:.6g}"
         units = "check the values and their units (mm^-2, mm^-4, mm^-6)"
+        if not (np.isfinite(slope).all() and np.isfinite(share).all()):
+            raise _camera_error(max(("k1", "k2", "k3"), key=lambda k: abs(getattr(self, k))),
+                                f"radial distortion {coeffs} is beyond any lens; {units}")
 
         def culprit(u: float) -> str:  # the radial coefficient with the largest term at u
             terms = {"k1": abs(self.k1) * u, "k2": abs(self.k2) * u * u, "k3": abs(self.k3) * u ** 3,
@@ -275,12 +282,22 @@ class Camera:
                 f"increasing at r = {math.sqrt(u0):.4g} mm from the principal point (the frame "
                 f"reaches {big_r:.4g} mm), so no pixel can be found for a corrected coordinate; {units}"))
         hi_u, hi = _cubic_extreme(share, big_u, lambda v: max(v, key=abs))
-        if abs(hi) > MAX_RADIAL_SHARE:
+        if not abs(hi) <= MAX_RADIAL_SHARE:
             r = math.sqrt(hi_u)
             raise _camera_error(culprit(hi_u), (
                 f"radial distortion {coeffs} moves a point {r:.4g} mm from the principal point by "
                 f"{abs(hi) * r:.4g} mm, {abs(hi):.3g} times its radius (at most {MAX_RADIAL_SHARE:g} "
                 f"within the {w:.4g} x {h:.4g} mm frame): not a lens distortion; {units}"))
+        # the inverse starts from the corrected coordinate, which reaches rho(R): monotonic up to there too
+        rho_r = big_r * (1.0 - _polyval(share, big_u))
+        if rho_r > big_r:
+            if not _cubic_extreme(slope, rho_r * rho_r, min)[1] > 0:
+                u0 = _first_root(slope, rho_r * rho_r)
+                raise _camera_error(culprit(u0), (
+                    f"radial distortion {coeffs} folds over just outside the frame: the corrected radius "
+                    f"stops increasing at r = {math.sqrt(u0):.4g} mm, where corrected coordinates of the "
+                    f"frame reach {rho_r:.4g} mm (the frame {big_r:.4g} mm), so the inverse finds no unique "
+                    f"pixel; {units}"))
         p1, p2 = self.p1, self.p2
         x, y = np.meshgrid(cx, cy)
         a, b, d = 6 * p1 * x + 2 * p2 * y, 2 * p1 * y + 2 * p2 * x, 6 * p2 * y + 2 * p1 * x
@@ -612,10 +629,7 @@ def _polyval(coef: np.ndarray, u: float) -> float:
 def _cubic_extreme(coef: np.ndarray, u_max: float, pick: Any) -> tuple[float, float]:
     """(u, value) of the cubic ``coef[0] + coef[1] u + ... + coef[3] u^3`` on ``[0, u_max]`` chosen
     by *pick* (``min``, or the largest magnitude) among the end points and stationary points."""
-    cands = [0.0, u_max]
-    for z in np.roots([3 * coef[3], 2 * coef[2], coef[1]]) if np.any(coef[1:]) else ():
-        if abs(z.imag) <= 1e-12 * max(1.0, abs(z.real)) and 0 < z.real < u_max:
-            cands.append(float(z.real))
+    cands = [0.0, u_max] + [u for u in _real_roots([coef[1], 2 * coef[2], 3 * coef[3]], u_max) if 0 < u < u_max]
     vals = {_polyval(coef, u): u for u in cands}
     v = pick(vals)
     return vals[v], v
@@ -623,9 +637,22 @@ def _cubic_extreme(coef: np.ndarray, u_max: float, pick: Any) -> tuple[float, fl
 
 def _first_root(coef: np.ndarray, u_max: float) -> float:
     """The smallest u in ``[0, u_max]`` where the cubic *coef* is <= 0 (u_max if none is found)."""
-    roots = [float(z.real) for z in np.roots(coef[::-1]) if abs(z.imag) <= 1e-9 * max(1.0, abs(z.real))]
-    inside = [u for u in roots if 0 <= u <= u_max]
+    inside = [u for u in _real_roots(coef, u_max) if 0 <= u <= u_max]
     return min(inside) if inside else u_max
+
+
+def _real_roots(coef: Any, u_max: float) -> list[float]:
+    """Real roots of ``coef[0] + coef[1] u + ...``; where the companion matrix fails (coefficients
+    spanning more than the float range), the sign changes of 4097 samples on ``[0, u_max]``."""
+    if not np.any(coef[1:]):
+        return []
+    try:
+        return [float(z.real) for z in np.roots(np.asarray(coef, dtype=float)[::-1])
+                if abs(z.imag) <= 1e-9 * max(1.0, abs(z.real))]
+    except (np.linalg.LinAlgError, ValueError):
+        u = np.linspace(0.0, u_max, 4097)
+        v = np.polynomial.polynomial.polyval(u, coef)
+        return [float(x) for x in u[1:][np.sign(v[1:]) != np.sign(v[:-1])]]
 
 
 # ---------------------------------------------------------------------- TOML
