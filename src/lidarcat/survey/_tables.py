@@ -304,12 +304,12 @@ def load_photos(path: Path, cameras: dict[str, Camera], camera_path: Path) -> tu
         for c, line in zip(cams, t.lines):
             if c not in cameras:
                 raise SurveyError(f"{location(path, line, 'camera')}: camera {excerpt(c)} is not defined "
-                                  f"in {camera_path.name} (defined: {', '.join(cameras)})")
+                                  f"in {camera_path.name} (defined: {excerpt(', '.join(cameras), 200, quote=False)})")
     else:
         if len(cameras) > 1:
             raise SurveyError(f"{location(path, 1, 'camera')}: missing column 'camera'; "
                               f"{camera_path.name} defines {len(cameras)} cameras "
-                              f"({', '.join(cameras)}), so each photo must name one")
+                              f"({excerpt(', '.join(cameras), 200, quote=False)}), so each photo must name one")
         cams = [next(iter(cameras))] * len(ids)
     pos = optional_triple(t, ("X0", "Y0", "Z0"), "a position")
     att = optional_triple(t, ("omega_deg", "phi_deg", "kappa_deg"), "an attitude")

@@ -210,7 +210,7 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
     present = set(order)
     missing = [q for q in ids if q not in present]
     if missing:
-        raise AssessmentError(f"{path}: no covariance for point(s) {', '.join(missing[:10])}"
+        raise AssessmentError(f"{path}: no covariance for point(s) {excerpt(', '.join(missing[:10]), 200, quote=False)}"
                               + (" ..." if len(missing) > 10 else "")
                               + f"; the file holds {len(order)} check point(s) of its adjustment")
     pos = {q: i for i, q in enumerate(ids)}
@@ -236,7 +236,7 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
     try:
         np.linalg.cholesky(C + np.diag(np.full(len(C), 1e-12 * float(np.max(np.diag(C), initial=0.0)))))
     except np.linalg.LinAlgError:
-        raise AssessmentError(f"{path}: the joint covariance of {', '.join(ids[:5])}"
+        raise AssessmentError(f"{path}: the joint covariance of {excerpt(', '.join(ids[:5]), 200, quote=False)}"
                               + (" ..." if len(ids) > 5 else "") + " is not positive definite: not the "
                               "covariance of an adjustment (edited by hand?)") from None
     return ids, C

@@ -347,7 +347,7 @@ class Survey:
         cs_path = file_of("control_sets")
         control_sets = load_control_sets(cs_path, ground, exclude) if cs_path else {}
         if default_control is not None and default_control not in control_sets:
-            avail = ", ".join(control_sets) or "none defined"
+            avail = excerpt(", ".join(control_sets), 200, quote=False) or "none defined"
             raise t.error("survey", "default_control",
                           f"control set {default_control!r} is not in control_sets ({avail})")
 
@@ -379,7 +379,7 @@ class Survey:
         for p in self.photos:
             if p.id == photo_id:
                 return p
-        raise SurveyError(f"{self.root}: no photo {excerpt(photo_id)}; photos are {', '.join(self.photo_ids)}")
+        raise SurveyError(f"{self.root}: no photo {excerpt(photo_id)}; photos are {excerpt(', '.join(self.photo_ids), 200, quote=False)}")
 
     def camera_of(self, photo_id: str) -> Camera:
         """The camera of photo *photo_id*."""
@@ -450,7 +450,7 @@ class Survey:
         SurveyError
             Unknown name, or no name and no default (lists the available sets).
         """
-        avail = ", ".join(self.control_sets) or "none defined"
+        avail = excerpt(", ".join(self.control_sets), 200, quote=False) or "none defined"
         if name is None:
             name = self.default_control
             if name is None:
