@@ -33,12 +33,17 @@ __all__ = ["VALUE_RANGES", "value_problem", "parse_number", "parse_whole"]
 #: kind -> (low, high, unit) of a value as a file gives it.
 #: coordinate_m: E, N, X0, Y0 (and lon/lat); 10 x the largest projected coordinate (UTM northings
 #: 1e7 m), above any geocentric coordinate.  height_m: h, Z0, model Z; below any orbit, above any
-#: sea floor.  angle_deg: omega/phi/kappa, yaw/pitch/roll (a full turn).  pixel_px: image measurements and principal points, origin at a corner
-#: or the centre.  photo_mm: photo coordinates.  image_px: image width and height.
+#: sea floor.  angle_deg: omega/phi/kappa, yaw/pitch/roll (a full turn).  pixel_px: image
+#: measurements and principal points, origin at a corner or the centre.  normalised: OpenSfM image
+#: coordinates (x / max(w, h); +-0.5 at the edges).  photo_mm: photo coordinates.  image_px: image
+#: width and height.
 VALUE_RANGES: dict[str, tuple[float, float, str]] = {
     "coordinate_m": (-1e8, 1e8, "m"),
     "height_m": (-1e4, 1e5, "m"),
     "angle_deg": (-360.0, 360.0, "deg"),
+    "latitude_deg": (-90.0, 90.0, "deg"),
+    "longitude_deg": (-360.0, 360.0, "deg"),
+    "normalised": (-10.0, 10.0, "image widths"),
     "pixel_px": (-1e6, 1e6, "px"),
     "photo_mm": (-1e3, 1e3, "mm"),
     "image_px": (1, 1e6, "px"),

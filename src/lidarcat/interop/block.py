@@ -26,11 +26,13 @@ from .._util.frozen import frozen_array
 from .._util import atomic_dir, read_csv_table, read_text, write_csv_atomic, write_json_atomic, write_text_atomic
 from ..geometry.camera import Camera
 from ..errors import FormatError
+from ._text import format_error
 
 __all__ = ["Block", "Orientations", "GroundControl", "apply_orientations", "apply_ground_control",
            "write_survey", "block_from_survey",
            "photo_coordinates_mm", "reprojection_residuals_mm", "reprojection_residuals_px",
-           "pinhole_camera", "undistorted_mm", "require_orientations", "SOURCE_CAMERAS", "copy_survey_files"]
+           "pinhole_camera", "undistorted_mm", "require_orientations", "SOURCE_CAMERAS", "copy_survey_files",
+           "check_values", "PHOTO_COLUMNS_EO"]
 
 log = logging.getLogger(__name__)
 
@@ -177,6 +179,53 @@ def photo_coordinates_mm(block: Block) -> np.ndarray:
     return out
 
 
+def check_values(where: str, what: str, ids: Any, values: np.ndarray, kinds: tuple[str, ...],
+                 names: tuple[str, ...], lines: Any = None) -> None:
+    """Refuse a value outside the sane range of its kind (:data:`lidarcat._util.values.VALUE_RANGES`;
+    ``sd_m``/``sd_deg``: a standard deviation by the survey's :data:`~lidarcat.survey.schema.SD_BOUNDS`)
+    before it is written: what ``import`` writes, ``adjust`` reads.  NaN is an absent value.
+
+    Raises
+    ------
+    FormatError
+        ``WHERE[:LINE]: field 'NAME': WHAT 'ID': the problem`` for the first bad value.
+    """
+    from .._util.values import value_problem
+    from ._text import sd_problem
+
+    vals = np.asarray(values, dtype=float).reshape(len(values), len(kinds))
+    for j, (kind, name) in enumerate(zip(kinds, names)):
+        col = vals[:, j]
+        for i in np.flatnonzero(~np.isnan(col)):
+            v = float(col[i])
+            problem = (sd_problem(v, kind[3:]) if kind.startswith("sd_") else value_problem(v, kind))
+            if problem:
+                line = int(lines[i]) if lines is not None and int(lines[i]) > 0 else None
+                raise format_error(where, line, name, f"{what} {str(np.asarray(ids)[i])!r}: {problem}")
+
+
+def _check_block(block: Block) -> None:
+    """:func:`check_values` over a whole block (before :func:`write_survey` writes it)."""
+    w = block.name
+    eo = np.column_stack([block.eo[:, :3], np.degrees(block.eo[:, 3:])])
+    check_values(w, "photo", block.photo_ids, eo, _EO_KINDS, PHOTO_COLUMNS_EO)
+    if block.eo_sd is not None:
+        sd = np.column_stack([block.eo_sd[:, :3], np.degrees(block.eo_sd[:, 3:])])
+        check_values(w, "photo", block.photo_ids, sd, ("sd_m",) * 3 + ("sd_deg",) * 3,
+                     tuple(f"sd_{n}" for n in PHOTO_COLUMNS_EO))
+    obs = np.column_stack([block.obs_px, block.obs_mm])
+    check_values(w, "measurement of point", block.obs_point, obs, ("pixel_px",) * 2 + ("photo_mm",) * 2,
+                 ("col_px", "row_px", "x_mm", "y_mm"))
+    check_values(w, "point", block.ground_ids, block.ground_m, _ENH_KINDS, ("E", "N", "h"))
+    check_values(w, "point", block.ground_ids, block.ground_sd_m, ("sd_m",) * 3, ("sd_E", "sd_N", "sd_h"))
+
+
+#: the columns of photos.csv an orientation fills, and their sane ranges (degrees for the angles)
+PHOTO_COLUMNS_EO = ("X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg")
+_EO_KINDS = ("coordinate_m", "coordinate_m", "height_m", "angle_deg", "angle_deg", "angle_deg")
+_ENH_KINDS = ("coordinate_m", "coordinate_m", "height_m")
+
+
 def _toml_str(s: str) -> str:
     import json
 
@@ -218,6 +267,7 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
     if block.n_photos == 0 or len(block.obs_photo) == 0:
         raise FormatError(f"{block.name}: nothing to write: {block.n_photos} photos, "
                           f"{len(block.obs_photo)} observations")
+    _check_block(block)
     ground = set(block.ground_ids.tolist())
     counts = Counter(block.obs_point.tolist())
     keep = np.array([counts[p] >= 2 or p in ground for p in block.obs_point.tolist()], dtype=bool)
@@ -454,6 +504,13 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
         sd[:, :3] = sd_position_m
     if sd_attitude_deg is not None:
         sd[:, 3:] = np.radians(sd_attitude_deg)
+    where = orientations.source.split(" (", 1)[0]
+    check_values(where, "photo", orientations.photo,
+                 np.column_stack([orientations.eo[:, :3], np.degrees(orientations.eo[:, 3:])]), _EO_KINDS,
+                 PHOTO_COLUMNS_EO, orientations.line)
+    check_values(where, "photo", orientations.photo,
+                 np.column_stack([sd[:, :3], np.degrees(sd[:, 3:])]), ("sd_m",) * 3 + ("sd_deg",) * 3,
+                 tuple(f"sd_{n}" for n in PHOTO_COLUMNS_EO), orientations.line)
     row_of = {match[p]: i for i, p in enumerate(orientations.photo.tolist()) if p in match}
     eo, esd = _photo_eo(survey.photos)
     for k, ph in enumerate(survey.photos):
@@ -606,6 +663,11 @@ def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
                           f"(first image: {gcp.obs_photo[0] if len(gcp.obs_photo) else '-'!r})")
     if (~keep).any():
         log.warning("%s: %d measurement(s) on images not in the survey dropped", gcp.source, int((~keep).sum()))
+    where = gcp.source.split(" (", 1)[0]
+    check_values(where, "point", gcp.point, gcp.enh_m, _ENH_KINDS, ("E", "N", "h"))
+    check_values(where, "measurement of point", gcp.obs_point, gcp.obs_px, ("pixel_px",) * 2, ("col_px", "row_px"))
+    check_values(where, "point", np.array(["(all)"]), np.array([sd_m], dtype=float), ("sd_m",) * 3,
+                 ("sd_E", "sd_N", "sd_h"))
     has_pos = np.isfinite(gcp.enh_m).all(axis=1)
     ip = survey.image_points
     has_mm = bool(np.isfinite(ip.xy_mm).all(axis=1).any())
