@@ -268,6 +268,10 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
         raise FormatError(f"{block.name}: nothing to write: {block.n_photos} photos, "
                           f"{len(block.obs_photo)} observations")
     _check_block(block)
+    if block.crs.strip() in ("", "unspecified"):  # survey.toml needs a CRS or a local frame
+        log.warning("%s: no CRS given; the survey's frame is written as local (give --crs to georeference)",
+                    block.name)
+        block = block.with_(crs="local: unspecified frame (no CRS given on import)")
     ground = set(block.ground_ids.tolist())
     counts = Counter(block.obs_point.tolist())
     keep = np.array([counts[p] >= 2 or p in ground for p in block.obs_point.tolist()], dtype=bool)
