@@ -221,3 +221,20 @@ def test_import_then_load_and_adjust(tmp_path, name):
         return
     result, _ = adjust_survey(s, outdir=tmp_path / "adj")
     assert result.n_iter >= 1
+
+
+def test_opensfm_config_and_source_cameras(tmp_path):
+    base = _opensfm_survey(tmp_path)
+    gcp = tmp_path / "g" / "ground_control_points.json"
+    gcp.parent.mkdir()
+    shutil.copy(D / "opensfm" / "berlin_ground_control_points.json", gcp)
+    (gcp.parent / "config.yaml").write_text("processes: 4\ngcp_horizontal_sd: \u0661\n")
+    _refused(tmp_path, ["opensfm-gcp", str(gcp), "--survey", str(base)],
+             "config.yaml:2: field 'gcp_horizontal_sd': '١' is not a number (a standard deviation, m)")
+    (gcp.parent / "config.yaml").write_text("gcp_vertical_sd: 1e10\n")
+    _refused(tmp_path, ["opensfm-gcp", str(gcp), "--survey", str(base)],
+             "config.yaml:1: field 'gcp_vertical_sd': is outside the sane range, got 10000000000.0 m")
+    (gcp.parent / "config.yaml").unlink()
+    (base / "source_cameras.json").write_text("[" * 100_000 + "]" * 100_000)
+    _refused(tmp_path, ["opensfm-gcp", str(gcp), "--survey", str(base)],
+             "source_cameras.json: too many nested arrays/objects for a camera file")

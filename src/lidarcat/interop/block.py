@@ -380,9 +380,7 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
     source_models = {}
     side = survey.root / SOURCE_CAMERAS
     if side.is_file():
-        import json
-
-        source_models = {k: v for k, v in json.loads(read_text(side)).items() if k in survey.cameras}
+        source_models = _read_source_models(side, survey.cameras)
     return Block(
         name=survey.name, crs=survey.crs, height_system=survey.height_system,
         cameras=dict(survey.cameras), photo_ids=photo_ids,
@@ -391,6 +389,50 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
         obs_mm=obs_mm[keep], point_ids=point_ids, points_m=points,
         ground_ids=gp.point, ground_m=gp.enh_m, ground_sd_m=gp.sd_m, ground_source=gp.source,
         description=survey.description, source_models=source_models)
+
+
+def _read_source_models(path: Path, cameras: Any) -> dict[str, dict]:
+    """``source_cameras.json`` of a survey folder: camera id -> source model (:func:`pinhole_camera`),
+    for the cameras of the survey; every value checked (FormatError located at the camera)."""
+    import json
+
+    from .._util.values import value_problem
+
+    text = read_text(path, FormatError)
+    if text.count("[") + text.count("{") > 10 * max(len(cameras), 1) + 1000:  # a few levels per camera
+        raise FormatError(f"{path}: too many nested arrays/objects for a camera file")
+    try:
+        doc = json.loads(text)
+    except (ValueError, RecursionError) as ex:
+        raise FormatError(f"{path}: invalid JSON: {str(ex)[:120]}") from None
+    if not isinstance(doc, dict):
+        raise FormatError(f"{path}: expected an object camera id -> model")
+    out = {}
+    for cid, m in doc.items():
+        if cid not in cameras:
+            continue
+        bad = None
+        if not isinstance(m, dict) or not isinstance(m.get("dist", {}), dict):
+            bad = "not an object with fx, fy, cx, cy, w, h, dist"
+        else:
+            for k, kind in (("fx", "pixel_px"), ("fy", "pixel_px"), ("cx", "pixel_px"), ("cy", "pixel_px"),
+                            ("w", "image_px"), ("h", "image_px"), ("skew", None)):
+                v = m.get(k, 0.0 if k == "skew" else None)
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or \
+                        (isinstance(v, int) and abs(v) > 10 ** 18):
+                    bad = f"{k}: expected a number"
+                elif value_problem(float(v), kind) if kind else not np.isfinite(v):
+                    bad = f"{k}: {value_problem(float(v), kind) if kind else 'not finite'}"
+                if bad:
+                    break
+            for k, v in m.get("dist", {}).items():
+                if not bad and (isinstance(v, bool) or not isinstance(v, (int, float)) or
+                                (isinstance(v, int) and abs(v) > 10 ** 18) or not np.isfinite(v)):
+                    bad = f"dist {k}: expected a finite number"
+        if bad:
+            raise FormatError(f"{path}: camera {cid!r}: {bad}")
+        out[cid] = m
+    return out
 
 
 def reprojection_residuals_mm(block: Block) -> np.ndarray:

@@ -42,8 +42,9 @@ from scipy.spatial.transform import Rotation
 
 from .._util import atomic_dir, read_text, write_text_atomic
 from ..errors import FormatError
-from .._util.values import parse_number, value_problem
-from ._text import format_error
+from .._util.tables import parse_float
+from .._util.values import parse_number, parse_whole, value_problem
+from ._text import format_error, sd_problem
 from .block import Block, GroundControl, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
 from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
 
@@ -462,15 +463,22 @@ def read_opensfm_config(path: str | Path) -> dict[str, Any]:
         elif low in ("no", "false", "off"):
             v = False
         else:
-            try:
-                v = int(val)
+            try:  # ASCII numbers only (int() and float() read Unicode digits and 1_000)
+                v = parse_whole(val)
             except ValueError:
                 try:
-                    v = float(val)
+                    v = parse_float(val)
                 except ValueError:
                     v = val.strip("'\"")
         out[key] = v
         lines[key] = no
+    for key in ("gcp_horizontal_sd", "gcp_vertical_sd"):
+        if key in out:
+            v = out[key]
+            problem = (f"{_short(v)} is not a number" if isinstance(v, (bool, str))
+                       else sd_problem(float(v), "m"))
+            if problem:
+                raise format_error(path, lines[key], key, f"{problem} (a standard deviation, m)")
     return out
 
 
@@ -482,6 +490,11 @@ def gcp_sd_from_config(config: dict[str, Any], default: float) -> tuple[float, f
     """
     if config.get("bundle_use_gcp") is False:
         log.warning("the OpenSfM config says bundle_use_gcp: no; the GCPs are imported anyway")
-    hz = float(config.get("gcp_horizontal_sd", default))
-    vt = float(config.get("gcp_vertical_sd", default))
+    hz, vt = (config.get(k, default) for k in ("gcp_horizontal_sd", "gcp_vertical_sd"))
+    for k, v in (("gcp_horizontal_sd", hz), ("gcp_vertical_sd", vt)):
+        problem = (f"{_short(v)} is not a number" if isinstance(v, bool) or not isinstance(v, (int, float))
+                   else sd_problem(float(v), "m"))
+        if problem:
+            raise FormatError(f"OpenSfM config: field {k!r}: {problem} (a standard deviation, m)")
+    hz, vt = float(hz), float(vt)
     return hz, hz, vt
