@@ -238,3 +238,22 @@ def test_opensfm_config_and_source_cameras(tmp_path):
     (base / "source_cameras.json").write_text("[" * 100_000 + "]" * 100_000)
     _refused(tmp_path, ["opensfm-gcp", str(gcp), "--survey", str(base)],
              "source_cameras.json: too many nested arrays/objects for a camera file")
+
+
+def test_metashape_focal_1e300(tmp_path):
+    src = (D / "metashape" / "easyidp_wheat_tanashi_chunk.doc.xml").read_text()
+    i = src.index("<f>")
+    j = src.index("</f>", i)
+    p = tmp_path / "chunk.xml"
+    p.write_text(src[:i] + "<f>1e300" + src[j:])
+    _refused(tmp_path, ["metashape", str(p)], f"chunk.xml:{src[:i].count(chr(10)) + 1}: field 'f': 1e+300 px is "
+                                              "outside the sane range")
+
+
+def test_opensfm_focal_1e300(tmp_path):
+    doc = json.loads((D / "opensfm" / "berlin_reconstruction_example.json").read_text())
+    cam = next(iter(doc[0]["cameras"].values()))
+    cam["focal" if "focal" in cam else "focal_x"] = 1e300
+    p = tmp_path / "reconstruction.json"
+    p.write_text(json.dumps(doc))
+    _refused(tmp_path, ["opensfm", str(p)], "reconstruction.json:1: field 'focal", "is outside the sane range")

@@ -45,7 +45,7 @@ import numpy as np
 
 from .._util import read_bytes
 from .._util.tables import parse_float
-from .._util.values import parse_number
+from .._util.values import parse_number, value_problem
 from ..errors import FormatError
 from ._text import format_error
 from .block import Block, pinhole_camera, undistorted_mm
@@ -221,6 +221,10 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
                for k in ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2")}
         if val["f"] <= 0:
             raise format_error(path, cal.line, "f", "focal length must be positive")
+        for k in ("f", "cx", "cy", "b1", "b2"):
+            problem = value_problem(val[k], "pixel_px")
+            if problem:
+                raise format_error(path, cal.find(k).line, k, problem)
         t = pixel_size_mm
         if t is None:
             pw = next((p for p in s.findall("property") if p.attrs.get("name") == "pixel_width"), None)

@@ -159,6 +159,10 @@ def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float):
         dist = {k: num(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}
     if fx <= 0 or fy <= 0:
         raise format_error(path, _json_line(text, cid), "focal", f"camera {cid!r}: focal must be positive")
+    for k, v in (("focal", fx), ("focal", fy), ("c_x", cx), ("c_y", cy)):
+        problem = value_problem(v, "pixel_px")
+        if problem:
+            raise format_error(path, _json_line(text, cid), k, f"camera {cid!r}: {problem} (times the image size)")
     cam, model = pinhole_camera(cid, fx, fy, cx, cy, w, h, pixel_size_mm=pixel_size_mm,
                                 model=f"OpenSfM {kind}", source=f"{path.name}: camera {cid!r} ({kind})",
                                 dist=dist)
