@@ -64,7 +64,8 @@ def test_metashape_refuses_dtd_fast(tmp_path, text, line):
 def test_metashape_external_entity_in_frame(tmp_path):
     (tmp_path / "secret").write_text("x")
     p = tmp_path / "frame.xml"
-    p.write_text(f'<?xml version="1.0"?>\n<!DOCTYPE f [<!ENTITY e SYSTEM "{tmp_path / "secret"}">]>\n<frame>&e;</frame>\n')
+    p.write_text(f'<?xml version="1.0"?>\n<!DOCTYPE f [<!ENTITY e SYSTEM "{tmp_path / "secret"}">]>\n'
+                 '<frame>&e;</frame>\n')
     _refused(tmp_path, ["metashape", str(D / "metashape" / "easyidp_wheat_tanashi_chunk.doc.xml"),
                         "--frame", str(p)], "frame.xml:2:", "document type declaration")
 
@@ -89,7 +90,8 @@ def _gnss(tmp_path: Path, row: str) -> Path:
 
 
 @pytest.mark.parametrize("row, expect", [
-    (f"1,{ARABIC_12},7183500,2100,0,0,0", "gnss.csv:2: field 'E': '١٢' is not a number: only ASCII digits 0-9 are read"),
+    (f"1,{ARABIC_12},7183500,2100,0,0,0",
+     "gnss.csv:2: field 'E': '١٢' is not a number: only ASCII digits 0-9 are read"),
     ("1,677100,7183500,2100,0,-1e308,0", "gnss.csv:2: field 'phi': '-1e308' is outside the sane range of an angle"),
     ("1,-1e10,7183500,2100,0,0,0", "gnss.csv:2: field 'E': -10000000000.0 m is outside the sane range"),
     ("1,677100,7183500,1e10,0,0,0", "gnss.csv:2: field 'h': 10000000000.0 m is outside the sane range"),
