@@ -26,13 +26,13 @@ from .._util.frozen import frozen_array
 from .._util import atomic_dir, read_csv_table, read_text, write_csv_atomic, write_json_atomic, write_text_atomic
 from ..geometry.camera import Camera
 from ..errors import FormatError
-from ._text import format_error
+from ._checks import EO_KINDS, ENH_KINDS, PHOTO_COLUMNS_EO, check_block, check_values, read_source_models
 
 __all__ = ["Block", "Orientations", "GroundControl", "apply_orientations", "apply_ground_control",
            "write_survey", "block_from_survey",
            "photo_coordinates_mm", "reprojection_residuals_mm", "reprojection_residuals_px",
            "pinhole_camera", "undistorted_mm", "require_orientations", "SOURCE_CAMERAS", "copy_survey_files",
-           "check_values", "PHOTO_COLUMNS_EO"]
+           "check_values", "PHOTO_COLUMNS_EO"]  # the last two re-exported from _checks
 
 log = logging.getLogger(__name__)
 
@@ -179,53 +179,6 @@ def photo_coordinates_mm(block: Block) -> np.ndarray:
     return out
 
 
-def check_values(where: str, what: str, ids: Any, values: np.ndarray, kinds: tuple[str, ...],
-                 names: tuple[str, ...], lines: Any = None) -> None:
-    """Refuse a value outside the sane range of its kind (:data:`lidarcat._util.values.VALUE_RANGES`;
-    ``sd_m``/``sd_deg``: a standard deviation by the survey's :data:`~lidarcat.survey.schema.SD_BOUNDS`)
-    before it is written: what ``import`` writes, ``adjust`` reads.  NaN is an absent value.
-
-    Raises
-    ------
-    FormatError
-        ``WHERE[:LINE]: field 'NAME': WHAT 'ID': the problem`` for the first bad value.
-    """
-    from .._util.values import value_problem
-    from ._text import sd_problem
-
-    vals = np.asarray(values, dtype=float).reshape(len(values), len(kinds))
-    for j, (kind, name) in enumerate(zip(kinds, names)):
-        col = vals[:, j]
-        for i in np.flatnonzero(~np.isnan(col)):
-            v = float(col[i])
-            problem = (sd_problem(v, kind[3:]) if kind.startswith("sd_") else value_problem(v, kind))
-            if problem:
-                line = int(lines[i]) if lines is not None and int(lines[i]) > 0 else None
-                raise format_error(where, line, name, f"{what} {str(np.asarray(ids)[i])!r}: {problem}")
-
-
-def _check_block(block: Block) -> None:
-    """:func:`check_values` over a whole block (before :func:`write_survey` writes it)."""
-    w = block.name
-    eo = np.column_stack([block.eo[:, :3], np.degrees(block.eo[:, 3:])])
-    check_values(w, "photo", block.photo_ids, eo, _EO_KINDS, PHOTO_COLUMNS_EO)
-    if block.eo_sd is not None:
-        sd = np.column_stack([block.eo_sd[:, :3], np.degrees(block.eo_sd[:, 3:])])
-        check_values(w, "photo", block.photo_ids, sd, ("sd_m",) * 3 + ("sd_deg",) * 3,
-                     tuple(f"sd_{n}" for n in PHOTO_COLUMNS_EO))
-    obs = np.column_stack([block.obs_px, block.obs_mm])
-    check_values(w, "measurement of point", block.obs_point, obs, ("pixel_px",) * 2 + ("photo_mm",) * 2,
-                 ("col_px", "row_px", "x_mm", "y_mm"))
-    check_values(w, "point", block.ground_ids, block.ground_m, _ENH_KINDS, ("E", "N", "h"))
-    check_values(w, "point", block.ground_ids, block.ground_sd_m, ("sd_m",) * 3, ("sd_E", "sd_N", "sd_h"))
-
-
-#: the columns of photos.csv an orientation fills, and their sane ranges (degrees for the angles)
-PHOTO_COLUMNS_EO = ("X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg")
-_EO_KINDS = ("coordinate_m", "coordinate_m", "height_m", "angle_deg", "angle_deg", "angle_deg")
-_ENH_KINDS = ("coordinate_m", "coordinate_m", "height_m")
-
-
 def _toml_str(s: str) -> str:
     import json
 
@@ -267,7 +220,7 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
     if block.n_photos == 0 or len(block.obs_photo) == 0:
         raise FormatError(f"{block.name}: nothing to write: {block.n_photos} photos, "
                           f"{len(block.obs_photo)} observations")
-    _check_block(block)
+    check_block(block)
     if block.crs.strip() in ("", "unspecified"):  # survey.toml needs a CRS or a local frame
         log.warning("%s: no CRS given; the survey's frame is written as local (give --crs to georeference)",
                     block.name)
@@ -380,7 +333,7 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
     source_models = {}
     side = survey.root / SOURCE_CAMERAS
     if side.is_file():
-        source_models = _read_source_models(side, survey.cameras)
+        source_models = read_source_models(side, survey.cameras)
     return Block(
         name=survey.name, crs=survey.crs, height_system=survey.height_system,
         cameras=dict(survey.cameras), photo_ids=photo_ids,
@@ -389,50 +342,6 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
         obs_mm=obs_mm[keep], point_ids=point_ids, points_m=points,
         ground_ids=gp.point, ground_m=gp.enh_m, ground_sd_m=gp.sd_m, ground_source=gp.source,
         description=survey.description, source_models=source_models)
-
-
-def _read_source_models(path: Path, cameras: Any) -> dict[str, dict]:
-    """``source_cameras.json`` of a survey folder: camera id -> source model (:func:`pinhole_camera`),
-    for the cameras of the survey; every value checked (FormatError located at the camera)."""
-    import json
-
-    from .._util.values import value_problem
-
-    text = read_text(path, FormatError)
-    if text.count("[") + text.count("{") > 10 * max(len(cameras), 1) + 1000:  # a few levels per camera
-        raise FormatError(f"{path}: too many nested arrays/objects for a camera file")
-    try:
-        doc = json.loads(text)
-    except (ValueError, RecursionError) as ex:
-        raise FormatError(f"{path}: invalid JSON: {str(ex)[:120]}") from None
-    if not isinstance(doc, dict):
-        raise FormatError(f"{path}: expected an object camera id -> model")
-    out = {}
-    for cid, m in doc.items():
-        if cid not in cameras:
-            continue
-        bad = None
-        if not isinstance(m, dict) or not isinstance(m.get("dist", {}), dict):
-            bad = "not an object with fx, fy, cx, cy, w, h, dist"
-        else:
-            for k, kind in (("fx", "pixel_px"), ("fy", "pixel_px"), ("cx", "pixel_px"), ("cy", "pixel_px"),
-                            ("w", "image_px"), ("h", "image_px"), ("skew", None)):
-                v = m.get(k, 0.0 if k == "skew" else None)
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or \
-                        (isinstance(v, int) and abs(v) > 10 ** 18):
-                    bad = f"{k}: expected a number"
-                elif value_problem(float(v), kind) if kind else not np.isfinite(v):
-                    bad = f"{k}: {value_problem(float(v), kind) if kind else 'not finite'}"
-                if bad:
-                    break
-            for k, v in m.get("dist", {}).items():
-                if not bad and (isinstance(v, bool) or not isinstance(v, (int, float)) or
-                                (isinstance(v, int) and abs(v) > 10 ** 18) or not np.isfinite(v)):
-                    bad = f"dist {k}: expected a finite number"
-        if bad:
-            raise FormatError(f"{path}: camera {cid!r}: {bad}")
-        out[cid] = m
-    return out
 
 
 def reprojection_residuals_mm(block: Block) -> np.ndarray:
@@ -552,7 +461,7 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
         sd[:, 3:] = np.radians(sd_attitude_deg)
     where = orientations.source.split(" (", 1)[0]
     check_values(where, "photo", orientations.photo,
-                 np.column_stack([orientations.eo[:, :3], np.degrees(orientations.eo[:, 3:])]), _EO_KINDS,
+                 np.column_stack([orientations.eo[:, :3], np.degrees(orientations.eo[:, 3:])]), EO_KINDS,
                  PHOTO_COLUMNS_EO, orientations.line)
     check_values(where, "photo", orientations.photo,
                  np.column_stack([sd[:, :3], np.degrees(sd[:, 3:])]), ("sd_m",) * 3 + ("sd_deg",) * 3,
@@ -710,7 +619,7 @@ def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
     if (~keep).any():
         log.warning("%s: %d measurement(s) on images not in the survey dropped", gcp.source, int((~keep).sum()))
     where = gcp.source.split(" (", 1)[0]
-    check_values(where, "point", gcp.point, gcp.enh_m, _ENH_KINDS, ("E", "N", "h"))
+    check_values(where, "point", gcp.point, gcp.enh_m, ENH_KINDS, ("E", "N", "h"))
     check_values(where, "measurement of point", gcp.obs_point, gcp.obs_px, ("pixel_px",) * 2, ("col_px", "row_px"))
     check_values(where, "point", np.array(["(all)"]), np.array([sd_m], dtype=float), ("sd_m",) * 3,
                  ("sd_E", "sd_N", "sd_h"))
