@@ -202,6 +202,18 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
         "parser like float(): every caller re-raises it as a located error (SurveyError, ...)",
     ("_util/tables.py", "parse_float", "ValueError", "{} is not a number"):
         "parser like float(): every caller re-raises it as a located error (SurveyError, ...)",
+    ("_util/values.py", "parse_number", "ValueError", "{} is not a finite number"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
+    ("_util/values.py", "parse_number", "ValueError", "{}"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
+    ("_util/values.py", "parse_whole", "ValueError", "{} is not a whole number: only ASCII dig"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
+    ("_util/values.py", "parse_whole", "ValueError", "{} is not a whole number"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
+    ("_util/values.py", "parse_whole", "ValueError", "{} is outside the sane range {}..{} {}"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
+    ("_util/values.py", "parse_whole", "ValueError", "{} has more than 18 digits"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
     ("bundle/bal.py", "read_bal", "ValueError", "negative count"):
         "caught on the next line and re-raised as BalFormatError with file:line",
     ("bundle/bal.py", "_locate_token", "IndexError", "{}"): _INTERNAL,

@@ -5,6 +5,7 @@
 ``tables``         CSV with the header first, TOML line numbers, JSON (sorted keys, NaN -> null)
 ``frozen``         frozen value types holding read-only arrays
 ``formatting``     the one number formatter (``format_number``) of reports, CLI and standards
+``values``         sane ranges of input values (coordinates, heights, angles, pixels), ASCII number parsing
 =================  =========================================================
 """
 
