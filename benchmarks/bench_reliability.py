@@ -71,7 +71,7 @@ class _Identification:
     approximate ceiling (it ignores their interaction)."""
 
     def __init__(self, p, res, level, power, draws=2000, seed=99):
-        from lidarcat.bundle.reliability import MIN_REDUNDANCY, _dense_cofactor, critical_values
+        from lidarcat.bundle.redundancy import MIN_REDUNDANCY, _dense_cofactor, critical_values
 
         self.p, self.draws = p, draws
         self.qvv, self.qll = _dense_cofactor(res)
@@ -79,7 +79,7 @@ class _Identification:
         self.L = v * np.sqrt(np.clip(w, 0, None))
         self.n, self.k = n, k = len(p.photo_index), len(p.constraint_point_index)
         # whitened blocks P^1/2 Q_vv,a P^1/2 = U diag(lam) U^T; tested span lam > MIN_REDUNDANCY
-        # (as reliability._group_tests); the same for every draw, so computed once
+        # (as redundancy._group_tests); the same for every draw, so computed once
         sd = np.r_[p.sd_mm.ravel(), p.constraint_sd_m.ravel()]
         self.sd = sd
         idx = [np.arange(2 * a, 2 * a + 2) for a in range(n)] + [2 * n + np.arange(3 * c, 3 * c + 3) for c in range(k)]

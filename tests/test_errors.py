@@ -205,6 +205,18 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
         "parser like float(): every caller re-raises it as a located error (SurveyError, ...)",
     ("_util/tables.py", "parse_float", "ValueError", "{} is not a number"):
         "parser like float(): every caller re-raises it as a located error (SurveyError, ...)",
+    ("_util/values.py", "parse_number", "ValueError", "{} is not a finite number"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
+    ("_util/values.py", "parse_number", "ValueError", "{}"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
+    ("_util/values.py", "parse_whole", "ValueError", "{} is not a whole number: only ASCII dig"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
+    ("_util/values.py", "parse_whole", "ValueError", "{} is not a whole number"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
+    ("_util/values.py", "parse_whole", "ValueError", "{} is outside the sane range {}..{} {}"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
+    ("_util/values.py", "parse_whole", "ValueError", "{} has more than 18 digits"):
+        "parser like float(): every caller re-raises it as a located error (FormatError, ...)",
     ("bundle/bal.py", "read_bal", "ValueError", "negative count"):
         "caught on the next line and re-raised as BalFormatError with file:line",
     ("bundle/bal.py", "_locate_token", "IndexError", "{}"): _INTERNAL,
@@ -233,8 +245,8 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
         "BundleProblem inputs: survey.folder refuses a point twice in a control set with file:line",
     ("bundle/problem.py", "BundleProblem.__post_init__", "ValueError",
      "`point_role` must have one entry per poi"): _SHAPE,
-    ("bundle/reliability.py", "_check_level", "ValueError", "`level` (alpha of the w-test) must be in"): _ARG,
-    ("bundle/reliability.py", "_check_level", "ValueError", "`power` must be in (0.5, 1), got {}"): _ARG,
+    ("bundle/redundancy.py", "check_level", "ValueError", "`level` (alpha of the w-test) must be in"): _ARG,
+    ("bundle/redundancy.py", "check_level", "ValueError", "`power` must be in (0.5, 1), got {}"): _ARG,
     ("bundle/reliability.py", "snoop", "ValueError", "`snooping` must be one of {}, got {}"): _ENUM,
     ("bundle/reliability.py", "snoop", "ValueError", "`robust` must be one of {}, got {}"): _ENUM,
     ("bundle/selfcal.py", "SelfCalResult.index", "ValueError", "no additional parameter {}; there are: {"):
@@ -246,17 +258,17 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("bundle/solve.py", "adjust", "ValueError", "`chi2_level` must be in (0, 1)"): _ARG,
     ("bundle/solve.py", "adjust", "ValueError", "`precision` must be one of {}, got {}"): _ENUM,
     ("bundle/solve.py", "adjust", "ValueError", "`solver` must be one of auto, direct, pc"): _ENUM,
-    ("control/facets.py", "Plane.__post_init__", "ValueError", "plane normal must be a finite non-zero v"):
+    ("control/planes.py", "Plane.__post_init__", "ValueError", "plane normal must be a finite non-zero v"):
         "constructor argument check; fitted planes always have a unit normal",
-    ("control/facets.py", "Plane.thesis_form", "ValueError", "plane passes through the origin; d canno"):
+    ("control/planes.py", "Plane.thesis_form", "ValueError", "plane passes through the origin; d canno"):
         "argument check of the datum form asked by Python code (a plane through the CRS origin)",
-    **{("control/facets.py", "ExtractionParams.__post_init__", "ValueError", head): _PARAMS for head in (
+    **{("control/params.py", "ExtractionParams.__post_init__", "ValueError", head): _PARAMS for head in (
         "method must be one of {}, got {}", "residual_kind must be one of {}, got {}",
         "height_filter must be None, 'thesis' or ", "slope window must satisfy 0 <= slope_min",
         "height_window_m must be positive, got {}", "radius_m must be positive, got {}",
         "min_points must be >= 4 (a plane has 3 d", "sd_en_m and sd_h_m must be positive",
         "residual_threshold_m must be positive, g", "max_offset_m must be positive, got {}")},
-    ("control/facets.py", "get_params", "ValueError", "unknown preset {}; choose one of {}"): _ENUM,
+    ("control/params.py", "get_params", "ValueError", "unknown preset {}; choose one of {}"): _ENUM,
     ("control/search.py", "find_jobs", "ValueError", "block_cells must be at least 1, got {}"): _ARG,
     ("control/vertices.py", "ControlPoint.__post_init__", "ValueError", "unknown status {}"): _INTERNAL,
     ("control/vertices.py", "_as_xyz", "ValueError", "points must be an (N, 3) array or a Poin"):
@@ -286,11 +298,11 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("lidar/raster.py", "rasterize", "ValueError", "bounds are required when rasterizing a s"): _ARG,
     ("lidar/readers.py", "iter_las_ranges", "ValueError", "piece_points and max_read_points must be"): _ARG,
     ("lidar/readers.py", "iter_points", "ValueError", "chunk_size must be positive, got {}"): _ARG,
-    ("lidar/tileindex.py", "BlockIndex.__post_init__", "ValueError", "block_points ({}) must be a positive mul"):
+    ("lidar/tiles.py", "BlockIndex.__post_init__", "ValueError", "block_points ({}) must be a positive mul"):
         _INTERNAL + " (the index cache is read through its own checked loader)",
-    ("lidar/tileindex.py", "BlockIndex.__post_init__", "ValueError", "{} boxes for {} points in cells of {}"):
+    ("lidar/tiles.py", "BlockIndex.__post_init__", "ValueError", "{} boxes for {} points in cells of {}"):
         _INTERNAL + " (the index cache is read through its own checked loader)",
-    ("lidar/tileindex.py", "_BlockBoxes.add", "ValueError", "more points than the tile holds"):
+    ("lidar/tiles.py", "BlockBoxes.add", "ValueError", "more points than the tile holds"):
         _INTERNAL + " (the reader streams the header's count; the file is checked unchanged)",
     ("lidar/tileindex.py", "TileIndex.__init__", "ValueError", "decode must be one of {}, got {}"): _ENUM,
     ("lidar/tileindex.py", "TileIndex.__init__", "ValueError", "block_points and cell_points must be pos"): _ARG,

@@ -134,7 +134,7 @@ def test_blockwise_cofactor_equals_dense():
     p = b.problem
     res = adjust(p)
     rel = reliability(res)
-    from lidarcat.bundle.reliability import _dense_cofactor
+    from lidarcat.bundle.redundancy import _dense_cofactor
 
     qvv, qll = _dense_cofactor(res)           # Q_ll - A N^-1 A^T with a dense N^-1
     n = len(p.photo_index)

@@ -293,3 +293,50 @@ def test_progress_bar_ticks_once_per_iteration(tmp_path, monkeypatch):
     s = json.loads((tmp_path / "a" / "summary.json").read_text())
     assert made == [(50, "Adjusting (iterations)", True)]
     assert ticks == [1] * s["n_iterations"] and s["n_iterations"] >= 2
+
+
+@pytest.mark.parametrize("precision", ["none", "photos"])
+def test_report_of_sds_not_computed(tmp_path, gps_run, precision):
+    """The reproducer of issue 24: with --precision none (or photos) summary.json holds null point sds,
+    and the text report ended in a TypeError; a figure not computed is written as '-'."""
+    out = tmp_path / precision
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--control", "gps", "--observations", "corrected",
+                                 "--precision", precision, "-o", str(out)])
+    assert r.exit_code == 3, r.output  # the one blunder the thesis data holds (as in the full run)
+    assert "Traceback" not in r.output and "internal error" not in r.output
+    summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    assert summary["mean_sd_free_m"] == {"E": None, "N": None, "h": None}
+    assert "Mean sd of free points (m)     E -  N -  h -\n" in r.output
+    assert "RMS sd of all points (m)       E -  N -  h -  (Appendix 2 'pontos livres')\n" in r.output
+    # the figures that were computed read as in the full run
+    full = gps_run[0].output
+    for label in ("Control residuals sd (m)", "Variance factor a posteriori", "Chi-square range (5%)"):
+        assert next(ln for ln in r.output.splitlines() if ln.startswith(label)) == \
+            next(ln for ln in full.splitlines() if ln.startswith(label))
+
+
+def test_report_writes_every_missing_figure_as_a_dash(gps_run):
+    from lidarcat.cli.adjust import format_report
+    from lidarcat.survey.selfcal import format_parameters
+
+    _, out = gps_run
+    summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    for key in ("sd_control_residuals_m", "mean_sd_free_m", "rms_sd_points_m"):
+        summary[key] = {"E": None, "N": None, "h": None}
+    for key in ("sigma0_sq", "vtpv", "chi2_lower", "chi2_upper", "chi2_lower_fisher", "chi2_upper_fisher", "elapsed_s"):
+        summary[key] = None
+    summary["rms_image_residuals_mm"]["1"] = {"x": None, "y": None}
+    summary["snooping"].update(level=None, power=None)
+    for b in summary["blunders"]:
+        b.update(w=None, redundancy=None, estimated_error={"x": None, "y": 0.01})
+    text = format_report(summary)
+    assert "Control residuals sd (m)       E -  N -  h -" in text
+    assert "Chi-square range (5%)         - - -  (Fisher approx. - - -): accepted" in text
+    assert "alpha -, power -;" in text and "w      -  r -  error y +0.01 mm" in text
+    assert f"{'':31}    1        -        -" in text
+    doc = {"additional_parameters": {"dcs14n.k1": {"unit": "mm^-2", "estimate": None, "sd": None, "t": None,
+                                                   "significant": False}},
+           "parameters_off": {"vtpv": None, "dof": 128}, "parameters_on": {"vtpv": 1.5, "dof": 127}}
+    assert format_parameters(doc).splitlines()[2:] == [
+        "  dcs14n.k1              mm^-2               -          -       -  no       +0.000 (None photo None)",
+        "v'Pv without / with the parameters: - (dof 128) / 1.50 (dof 127)"]

@@ -165,3 +165,92 @@ def test_without_the_covariance_file_the_output_says_why_the_consistency_test_di
     doc = json.loads(_run([str(tmp_path / "gps"), str(THESIS_SURVEY), "--json"]).output)
     assert doc["consistency_not_run"].startswith("consistency test (d'C^-1d) not run")
     assert "consistency" not in doc["tests"]
+
+
+# ------------------------------------------------------------------ bad covariance and reference values (issue 24)
+@pytest.fixture(scope="module")
+def gps_adjustment(tmp_path_factory):
+    from lidarcat.survey import adjust_survey
+    from lidarcat.survey.folder import Survey
+
+    out = tmp_path_factory.mktemp("assess") / "gps"
+    adjust_survey(Survey.load(THESIS_SURVEY), control="gps", outdir=out)
+    return out
+
+
+def _with_cells(src, dest, name, edits):
+    """Copy the adjustment folder *src* to *dest*, setting cells {(row, column): text} of CSV *name*
+    (row 1 is the first data row); return the edited file."""
+    import csv
+    import io
+
+    shutil.copytree(src, dest)
+    rows = list(csv.reader(io.StringIO((dest / name).read_text(encoding="utf-8"))))
+    for (i, col), text in edits.items():
+        rows[i][rows[0].index(col)] = text
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows(rows)
+    (dest / name).write_text(buf.getvalue(), encoding="utf-8")
+    return dest / name
+
+
+def _sym(i, a, b, v):
+    return {(i, f"c_{a}{b}"): v, (i, f"c_{b}{a}"): v}
+
+
+@pytest.mark.parametrize("edits, message", [
+    # the reproducer: an entry near the float maximum overflowed to inf in the test (a traceback)
+    ({(1, "c_EE"): "1e308"}, ":2: field 'c_EE': 1e+308 m^2 is beyond any covariance of an adjusted point "
+                             "(|c| <= 1e+06 m^2, an sd of 1000 m)"),
+    ({(2, "c_hN"): "-1e308"}, ":3: field 'c_hN': -1e+308 m^2 is beyond any covariance of an adjusted point "
+                              "(|c| <= 1e+06 m^2, an sd of 1000 m)"),
+    ({(1, "c_EE"): "inf"}, ":2: field 'c_EE': 'inf' is not a finite number"),
+    ({(1, "c_NN"): "1e-300"}, ":2: field 'c_NN': point '603': variance 1e-300 m^2 is below any adjusted point's "
+                              "(1e-12 m^2, an sd of 1e-06 m)"),
+    ({(1, "c_EN"): "0.5"}, ":2: point '603': its own block is not symmetric (c_EN = c_NE, c_Eh = c_hE, c_Nh = c_hN)"),
+    (_sym(1, "E", "N", "0.5"), ":2: points '603', '603': covariance 0.5 m^2 exceeds the product of the two sds "
+                               "(0.0423183 m^2): not a covariance matrix"),
+    ({(2, "c_EE"): "0.5"}, ":3: points '603', '605': covariance 0.5 m^2 exceeds the product of the two sds "
+                           "(0.0388183 m^2): not a covariance matrix"),
+    # every |c_ij| <= sd_i sd_j, but correlations 0.99, 0.99, -0.99 have no positive definite matrix
+    ({**_sym(1, "E", "N", repr(0.99 * (0.05169242301552696 * 0.034644050428048564) ** 0.5)),
+      **_sym(1, "E", "h", repr(0.99 * (0.05169242301552696 * 1.0372325902840882) ** 0.5)),
+      **_sym(1, "N", "h", repr(-0.99 * (0.034644050428048564 * 1.0372325902840882) ** 0.5))},
+     ": the joint covariance of 603, 605, 606, 615, 616 ... is not positive definite: not the covariance of an "
+     "adjustment (edited by hand?)"),
+])
+def test_bad_covariance_entry_is_a_located_error(tmp_path, gps_adjustment, edits, message):
+    cov = _with_cells(gps_adjustment, tmp_path / "gps", "check_covariance.csv", edits)
+    r = _run([str(tmp_path / "gps"), str(THESIS_SURVEY)])
+    assert r.exit_code == 2, r.output
+    assert r.output == f"Error: {cov}{message}\n"
+
+
+@pytest.mark.parametrize("column, value, message", [
+    ("sd_E", "1e308", "field 'sd_E': 1e+308 m is not a standard deviation (sane values lie in 0..1000 m)"),
+    ("sd_h", "-0.1", "field 'sd_h': -0.1 m is not a standard deviation (sane values lie in 0..1000 m)"),
+    ("E", "1e300", "field 'E': 1e+300 m is not a coordinate (sane values lie in -4e+08..4e+08 m)"),
+])
+def test_reference_values_beyond_any_survey_are_located_errors(tmp_path, gps_adjustment, column, value, message):
+    ref = tmp_path / "ref.csv"
+    lines = (THESIS_SURVEY / "ground_points.csv").read_text(encoding="utf-8").splitlines()
+    header = next(ln for ln in lines if ln.startswith("point,")).split(",")
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("603,"))
+    row = lines[k].split(",")
+    row[header.index(column)] = value
+    lines[k] = ",".join(row)
+    ref.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    r = _run([str(gps_adjustment), str(ref)])
+    assert r.exit_code == 2, r.output
+    assert r.output == f"Error: {ref}:{k + 1}: {message}\n"
+
+
+def test_the_consistency_test_survives_entries_near_the_float_maximum():
+    import numpy as np
+
+    from lidarcat.accuracy.statistics import covariance_consistency_test
+
+    c = np.diag([1e308, 1e308, 1e308])
+    c[0, 1] = c[1, 0] = 1e308
+    r = covariance_consistency_test(np.array([[0.1, 0.1, 0.1]]), c)
+    assert not r.applicable

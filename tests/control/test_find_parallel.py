@@ -55,7 +55,7 @@ def test_cli_two_workers_equal_serial(serial, tmp_path):
     r = CliRunner().invoke(cli, [*base, "--workers", "2", "--work-dir", str(tmp_path / "blocks"),
                                  "-o", str(tmp_path / "p.geojson")])
     assert r.exit_code == 0, r.output
-    assert len(list((tmp_path / "blocks").glob("find_*.pkl.done.json"))) == 1  # 60 m = one block of 3 x 3 cells
+    assert len(list((tmp_path / "blocks").glob("find_*.npz.done.json"))) == 1  # 60 m = one block of 3 x 3 cells
     s = json.loads((tmp_path / "s.geojson").read_text())
     p = json.loads((tmp_path / "p.geojson").read_text())
     assert p == s and len(p["features"]) == len(ref)

@@ -322,3 +322,137 @@ def test_load_camera_spec(tmp_path, thesis_camera, lactec_camera):
     with pytest.raises(SurveyError, match="no camera 'x'; defined: dcs14n, lactec_dcs14n"):
         load_camera(f"{p}:x")
     assert load_camera(THESIS_SURVEY / "camera.toml").id == "dcs14n"
+
+
+# ------------------------------------------------------------------ an invertible, lens-sized distortion (issue 24)
+def test_k3_minus_one_is_refused_at_load_naming_file_line_and_parameters(tmp_path):
+    """The reproducer: k3 = -1 was accepted and `camera correct` reported a 604 km correction."""
+    text = _thesis_cam_text().replace("k3 = 0.0", "k3 = -1.0", 1)
+    p = _write_cam(tmp_path, text)
+    with pytest.raises(SurveyError, match=(
+            rf"^{p}:{_line_of(text, 'k3 =')}: field 'k3': camera \[dcs14n\]: radial distortion "
+            r"k1 = -3.84309e-05, k2 = 1.16955e-08, k3 = -1 moves a point 21.44 mm from the principal point "
+            r"by 2.082e\+09 mm, 9.71e\+07 times its radius \(at most 0.5 within the 23.7 x 35.55 mm frame\): "
+            r"not a lens distortion; check the values and their units \(mm\^-2, mm\^-4, mm\^-6\)$")):
+        load_cameras(p)
+
+
+def test_k3_minus_one_in_a_survey_is_one_error_line_for_camera_correct_and_info(tmp_path):
+    import shutil
+
+    from click.testing import CliRunner
+
+    from conftest import assert_one_line_error
+    from lidarcat.cli.main import cli
+
+    folder = tmp_path / "survey"
+    shutil.copytree(THESIS_SURVEY, folder, ignore=shutil.ignore_patterns("out", "published"))
+    text = (folder / "camera.toml").read_text(encoding="utf-8").replace("k3 = 0.0", "k3 = -1.0", 1)
+    (folder / "camera.toml").write_text(text, encoding="utf-8")
+    where = f"{folder / 'camera.toml'}:{_line_of(text, 'k3 =')}: field 'k3': camera [dcs14n]: radial distortion"
+    for args in (["camera", "correct", str(folder), "-o", str(tmp_path / "c.csv")],
+                 ["camera", "info", str(folder / "camera.toml")], ["adjust", str(folder), "-o", str(tmp_path / "o")]):
+        r = CliRunner().invoke(cli, args)
+        assert_one_line_error(r, where, "not a lens distortion")
+    assert not (tmp_path / "c.csv").exists() and not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("kw, fld, message", [
+    # a 36 x 24 mm frame, principal point (0.1, -0.1) mm: the far corner is R = 21.77 mm away
+    # rho'(r) = 1 - 7 k3 r^6 = 0 at r = (1/7)^(1/6) = 0.723 mm: the corrected radius folds over
+    (dict(k3=1.0), "k3", r"k3 = 1 folds over within the frame: the corrected radius stops increasing at r = 0.723 mm "
+                         r"from the principal point \(the frame reaches 21.77 mm\)"),
+    # 1 - 3 k1 r^2 = 0 at r = 12.91 mm
+    (dict(k1=2e-3), "k1", r"stops increasing at r = 12.91 mm"),
+    # monotonic (barrel), but g(R^2) = k1 R^2 = -0.948: the corner moves by 95 % of its radius
+    (dict(k1=-2e-3), "k1", r"moves a point 21.77 mm from the principal point by 20.64 mm, 0.948 times its radius "
+                           r"\(at most 0.5 within the 36 x 24 mm frame\): not a lens distortion"),
+    # g = eps (1 + R^2 / c^2) = 0.6 (1 + 474 / 2500) = 0.714
+    (dict(refraction_eps45=0.6), "refraction_eps45", r"refraction_eps45 = 0.6 moves a point 21.77 mm from the "
+                                                     r"principal point by 15.54 mm, 0.714 times its radius"),
+    # at the corner (-18.1, 12.1) mm: [[2 p2 y, 2 p2 x], [2 p2 x, 6 p2 y]] has |eigenvalue| 2.42 + 2.18 = 4.6
+    (dict(p2=0.05), "p2", r"decentering distortion p1 = 0, p2 = 0.05 changes by 4.6 mm per mm at a frame corner, "
+                          r"not small against the radial d rho / dr >= 1"),
+])
+def test_distortion_that_cannot_be_inverted_is_refused(kw, fld, message):
+    with pytest.raises(CameraError, match=rf"^field '{fld}': .*{message}") as ei:
+        _simple(**{**dict(columns_px=4500, rows_px=3000, pixel_size_x_mm=0.008, pixel_size_y_mm=0.008,
+                          principal_point_x_mm=0.1, principal_point_y_mm=-0.1), **kw})
+    assert ei.value.field == fld
+
+
+def test_a_strong_but_invertible_distortion_is_accepted_and_round_trips():
+    # pincushion: rho'(R) = 1 - 3 k1 R^2 = 0.2 at the far corner (R = 21.77 mm); correction 27 % of the radius
+    r2 = 18.1 ** 2 + 12.1 ** 2
+    cam = _simple(k1=0.8 / (3 * r2), columns_px=4500, rows_px=3000, pixel_size_x_mm=0.008, pixel_size_y_mm=0.008,
+                  principal_point_x_mm=0.1, principal_point_y_mm=-0.1, p1=2e-6, p2=-3e-6)
+    grid = _frame_grid(cam, 21)
+    np.testing.assert_allclose(cam.photo_to_pixel(cam.pixel_to_photo(grid)), grid, atol=1e-6, rtol=0)
+
+
+def test_every_shipped_and_test_camera_still_loads():
+    import glob
+
+    from lidarcat.synthetic.block import selfcal_block
+    from lidarcat.synthetic.cavassim import paper_camera
+    from lidarcat.synthetic.survey import demo_camera
+
+    tomls = [p for p in glob.glob(str(ROOT / "data" / "**" / "*.toml"), recursive=True)
+             + glob.glob(str(ROOT / "tests" / "data" / "**" / "*.toml"), recursive=True)
+             if not p.endswith("survey.toml")]
+    assert len(tomls) >= 2
+    cams = [c for p in tomls for c in load_cameras(p).values()]
+    cams += [demo_camera(), paper_camera()]
+    assert {c.id for c in cams} >= {"dcs14n", "lactec_dcs14n", "demo", "rc10"}
+    b = selfcal_block(0)
+    assert b is not None
+
+
+def test_huge_numbers_and_long_names_in_camera_toml_are_cut(tmp_path):
+    text = _thesis_cam_text().replace("columns_px = 3000", "columns_px = " + "9" * 400, 1)
+    with pytest.raises(SurveyError, match=rf"camera.toml:{_line_of(text, 'columns_px')}: field 'columns_px': camera "
+                                          rf"\[dcs14n\]: 9{{60}}\.\.\. \(400 characters\) pixels is outside the sane "
+                                          r"range 1\.\.1,000,000$"):
+        load_cameras(_write_cam(tmp_path, text))
+    text = _thesis_cam_text().replace("columns_px = 3000", "columns_px = " + "9" * 5000, 1)
+    with pytest.raises(SurveyError, match=rf"camera.toml:{_line_of(text, 'columns_px')}: a number of more than "
+                                          r"\d+ digits$"):
+        load_cameras(_write_cam(tmp_path, text))
+    long_id = "c" * 3000
+    text = _thesis_cam_text().replace("[dcs14n]", f"[{long_id}]", 1).replace("k3 = 0.0", "k3 = 0.0\n" + "k" * 3000 + " = 1")
+    with pytest.raises(SurveyError) as ei:
+        load_cameras(_write_cam(tmp_path, text))
+    assert str(ei.value).startswith(f"{tmp_path / 'camera.toml'}:{_line_of(text, 'k' * 3000)}: field "
+                                    f"'{'k' * 60}...': camera [{'c' * 60}...]: unknown key; allowed: model")
+    assert len(str(ei.value)) < 1000
+    text = _thesis_cam_text().replace('model = "Kodak DCS Pro 14n"', "model = 1", 1).replace(
+        "focal_length_mm = 51.902", 'focal_length_mm = "' + "\\u001b" * 100 + '"', 1)
+    with pytest.raises(SurveyError, match=r"field 'focal_length_mm': camera \[dcs14n\]: must be a number, got "
+                                          r"'(\\x1b){60}'\.\.\. \(100 characters\) \(str\)$"):
+        load_cameras(_write_cam(tmp_path, text))
+
+
+def test_every_accepted_camera_round_trips_over_its_frame():
+    """Seeded: random calibrations over wide ranges; each one the load check accepts inverts over the
+    whole frame (the inverse starts from the corrected coordinate and finds the pixel it came from)."""
+    rng = np.random.default_rng(24)
+
+    def coef(lo, hi):
+        return float(rng.choice([-1.0, 1.0]) * 10 ** rng.uniform(lo, hi))
+
+    accepted = 0
+    for _ in range(600):
+        kw = dict(focal_length_mm=rng.uniform(5, 200), principal_point_x_mm=rng.uniform(-0.5, 0.5),
+                  principal_point_y_mm=rng.uniform(-0.5, 0.5), k1=coef(-8, -2), k2=coef(-12, -5),
+                  k3=coef(-16, -8), p1=coef(-8, -3), p2=coef(-8, -3), refraction_eps45=coef(-8, -2),
+                  pixel_size_x_mm=0.006, pixel_size_y_mm=0.006, columns_px=int(rng.integers(1000, 9000)),
+                  rows_px=int(rng.integers(1000, 9000)))
+        try:
+            cam = Camera("r", **kw)
+        except CameraError:
+            continue
+        accepted += 1
+        grid = _frame_grid(cam, 9)
+        np.testing.assert_allclose(cam.photo_to_pixel(cam.pixel_to_photo(grid)), grid, atol=1e-5, rtol=0,
+                                   err_msg=str(kw))
+    assert 200 < accepted < 600

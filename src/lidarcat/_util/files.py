@@ -5,24 +5,185 @@ Every file lidarcat writes goes through :func:`atomic_write` (or
 file behind: content is written to a temporary file in the destination folder
 and renamed into place with :func:`os.replace`, which is atomic on POSIX.
 Inputs are read by :func:`read_bytes` / :func:`read_text`, whose errors name the file.
+
+The output folder is a boundary.  A name that comes from input data (a photo,
+point, sheet, tile or job id) becomes part of a path only through
+:func:`safe_component`, which refuses anything that is not one plain file name.
+Within :func:`output_root` every :func:`atomic_write`, :func:`atomic_dir` and
+:func:`remove_below` checks with :func:`inside` that its path stays in the
+output folder and that nothing below the folder on the way is a symbolic link:
+a link shipped in (or planted into) an output folder is refused, never followed.
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import hashlib
 import io
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 
-from ..errors import LidarcatError, SurveyError, location
+from ..errors import LidarcatError, ProductError, SurveyError, location
 
-__all__ = ['provenance', 'atomic_write', 'atomic_dir', 'folder_lock', 'write_text_atomic', 'file_sha256', 'read_bytes', 'read_text']
+__all__ = ['provenance', 'atomic_write', 'atomic_dir', 'folder_lock', 'write_text_atomic', 'file_sha256', 'read_bytes',
+           'read_text', 'safe_component', 'inside', 'output_root', 'remove_below']
+
+#: longest name :func:`safe_component` passes, in UTF-8 bytes: a prefix, a suffix and the ``.NAME.XXXX.part``
+#: of an atomic write still fit the 255 bytes of a file name
+MAX_COMPONENT_BYTES = 160
+
+_ROOT: contextvars.ContextVar[Path | None] = contextvars.ContextVar("lidarcat_output_root", default=None)
+
+
+def _excerpt(text: str, n: int = 40) -> str:
+    """A short, escaped excerpt of *text* for an error message (never the whole input)."""
+    shown = text if len(text) <= n else text[:n] + "..."
+    return repr(shown)
+
+
+def safe_component(text: object, what: str, source: object = None,
+                   error: type[LidarcatError] = SurveyError) -> str:
+    """*text* when it is one plain file name; otherwise an error naming the id and where it came from.
+
+    A name from input data (a photo, point, sheet, tile or job id) becomes part of an output path only
+    through here.  It must not be empty, ``.`` or ``..``, nor start with ``.`` (hidden files, and the
+    ``.stages``/``.part`` names of the output folder), nor hold ``/``, ``\\``, NUL or another control
+    character, and must fit :data:`MAX_COMPONENT_BYTES` bytes of UTF-8.  Such ids are refused rather
+    than mapped to another name: a mapped name would no longer be the id the user looks for, two ids
+    could map to one file, and an id like ``x/../../pwn`` is a mistake or an attack, never a photo name.
+
+    Parameters
+    ----------
+    text : str
+        The name.
+    what : str
+        What it is (``photo id``, ``sheet name``, ...), for the message.
+    source : path or str, optional
+        Where it was read (a file, ``file:line``), for the message.
+    error : LidarcatError subclass
+        The class raised (``SurveyError`` by default: the input is at fault).
+
+    >>> safe_component("IMG_0042", "photo id")
+    'IMG_0042'
+    >>> safe_component("x/../../pwn", "photo id", "photos.csv")
+    Traceback (most recent call last):
+    ...
+    lidarcat.errors.SurveyError: photos.csv: photo id 'x/../../pwn' cannot name an output file: it holds '/'; ...
+    """
+    name = str(text)
+    why = None
+    if name in ("", ".", ".."):
+        why = "it is empty" if not name else f"it is {name!r}"
+    elif name.startswith("."):
+        why = "it starts with '.'"
+    else:
+        bad = next((c for c in name if c in "/\\" or ord(c) < 32 or ord(c) == 127), None)
+        if bad is not None:
+            why = f"it holds {bad!r}"
+        elif len(name.encode("utf-8", "surrogatepass")) > MAX_COMPONENT_BYTES:
+            why = f"it is longer than {MAX_COMPONENT_BYTES} bytes"
+    if why is None:
+        return name
+    where = f"{source}: " if source is not None else ""
+    raise error(f"{where}{what} {_excerpt(name)} cannot name an output file: {why}; "
+                f"use letters, digits, '_', '-', '.' (not first)")
+
+
+def inside(root: str | os.PathLike, path: str | os.PathLike, *, error: type[LidarcatError] = ProductError) -> Path:
+    """*path*, checked to lie in the output folder *root* with no symbolic link below *root* on the way.
+
+    The check is lexical (``..`` is resolved on the text, links are not followed) and then looks at
+    every existing component from the first one below *root* down to *path* itself: a symbolic link
+    there would send a write, rename or delete elsewhere, so it is refused.  *root* itself may be a link
+    (the user chose it).
+
+    Raises
+    ------
+    LidarcatError
+        Of class *error*: ``PATH: outside the output folder ROOT`` or ``LINK: a symbolic link in the
+        output folder (to TARGET); lidarcat does not write through links: remove it``.
+    """
+    root_abs = Path(os.path.normpath(os.path.abspath(root)))
+    p = Path(os.path.normpath(os.path.abspath(path)))
+    try:
+        rel = p.relative_to(root_abs)
+    except ValueError:
+        raise error(f"{path}: outside the output folder {root}; lidarcat writes only inside it") from None
+    cur, shown = root_abs, Path(root)
+    for part in rel.parts:
+        cur, shown = cur / part, shown / part
+        if cur.is_symlink():
+            try:
+                target = os.readlink(cur)
+            except OSError:
+                target = "?"
+            raise error(f"{shown}: a symbolic link in the output folder {root} (to {target}); lidarcat does "
+                        f"not write or delete through links: remove it")
+        if not cur.exists():
+            break
+    return Path(path)
+
+
+def _check(path: Path) -> None:
+    root = _ROOT.get()
+    if root is not None:
+        inside(root, path)
+
+
+@contextlib.contextmanager
+def output_root(root: str | os.PathLike) -> Iterator[Path]:
+    """Within the block, every :func:`atomic_write`, :func:`atomic_dir` and :func:`remove_below` of this
+    thread checks (:func:`inside`) that its path stays in *root*; *root* itself is checked first."""
+    root = Path(root)
+    outer = _ROOT.get()
+    if outer is not None:
+        inside(outer, root)
+    token = _ROOT.set(root)
+    try:
+        yield root
+    finally:
+        _ROOT.reset(token)
+
+
+def remove_below(folder: str | os.PathLike, keep: Iterable[str] = (), *, skip_parts: bool = True) -> None:
+    """Remove the files under *folder* but those in *keep* (paths relative to *folder*), then empty folders.
+
+    Never follows a link: *folder* must not be one (:func:`inside` its output root); a link found below it
+    is removed as a name, its target is left alone.  ``*.part`` names (a concurrent atomic write) are kept
+    when *skip_parts*.  *folder* itself goes when it ends up empty and nothing was kept.
+    """
+    folder = Path(folder)
+    _check(folder)
+    if folder.is_symlink():
+        inside(folder.parent, folder)  # refuse even outside an output_root block
+    if not folder.is_dir():
+        return
+    keep = set(keep)
+
+    def walk(d: Path, rel: str) -> None:
+        with os.scandir(d) as it:
+            entries = list(it)
+        for e in entries:
+            r = f"{rel}{e.name}"
+            if e.is_dir(follow_symlinks=False):
+                walk(Path(e.path), r + "/")
+                with contextlib.suppress(OSError):
+                    if not any(os.scandir(e.path)):
+                        os.rmdir(e.path)
+            elif r not in keep and not (skip_parts and ".part" in e.name):
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(e.path)
+
+    walk(folder, "")
+    if not keep and not any(os.scandir(folder)):
+        with contextlib.suppress(OSError):
+            folder.rmdir()
 
 
 @contextlib.contextmanager
@@ -33,6 +194,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", **kwargs: Any) -> Ite
     removed and *path* is left untouched.
     """
     path = Path(path)
+    _check(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
     os.close(fd)
@@ -60,14 +222,17 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     does write replace the old ones only once every file has been written.
     """
     path = Path(path)
+    _check(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent))
     try:
         yield tmp
+        _check(path)  # again: the stage may have run long
         path.mkdir(parents=True, exist_ok=True)
         for item in sorted(tmp.rglob("*")):
-            if item.is_file():
+            if item.is_file() and not item.is_symlink():
                 dest = path / item.relative_to(tmp)
+                _check(dest)
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 os.replace(item, dest)
     finally:
@@ -95,6 +260,7 @@ def folder_lock(folder: str | os.PathLike, what: str = "lidarcat run") -> Iterat
     from ..errors import LidarcatError
 
     lock = Path(folder) / ".lidarcat.lock"
+    inside(folder, lock)  # a lock shipped as a link is neither read through nor taken over
     host = socket.gethostname()
     me = f"pid={os.getpid()} host={host} started={datetime.datetime.now().isoformat(timespec='seconds')}\n"
     for _attempt in range(2):

@@ -9,6 +9,8 @@ import json
 import math
 import os
 import re
+import stat
+import sys
 import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -19,7 +21,8 @@ import numpy as np
 from ..errors import SurveyError, location
 from .files import atomic_write, read_text, write_text_atomic
 
-__all__ = ['write_csv_atomic', 'csv_sidecar_path', 'write_csv', 'to_json', 'dumps_json', 'write_json_atomic', 'read_toml', 'toml_line', 'parse_float', 'CsvTable', 'read_csv_table']
+__all__ = ['write_csv_atomic', 'csv_sidecar_path', 'write_csv', 'to_json', 'dumps_json', 'write_json_atomic', 'read_toml', 'toml_line', 'parse_float', 'CsvTable', 'read_csv_table', 'excerpt',
+           'TOML_MAX_BYTES', 'TOML_MAX_DEPTH']
 
 
 def write_csv_atomic(
@@ -137,23 +140,118 @@ def write_json_atomic(path: str | os.PathLike, obj: Any) -> Path:
     return write_text_atomic(path, dumps_json(obj) + "\n")
 
 
+#: the largest TOML input read (survey.toml and camera.toml are a few kB)
+TOML_MAX_BYTES = 1_000_000
+#: the deepest nesting of arrays and inline tables accepted in a TOML input (tomllib recurses)
+TOML_MAX_DEPTH = 32
+
+
+def excerpt(value: Any, limit: int = 60, *, quote: bool = True) -> str:
+    r"""A short, quoted, escaped excerpt of *value* (file content) for an error message.
+
+    At most *limit* characters of the text are shown, non-printable characters
+    as Python escapes (``\x00``, ``\n``), and ``...`` marks a cut: an error
+    never echoes a file (say ``/proc/self/environ`` named as a table) into a
+    terminal or log.  Text is quoted unless ``quote=False`` (for a list such
+    as a header); other values are shown as their ``repr``, cut the same way.
+
+    >>> excerpt("701")
+    "'701'"
+    >>> excerpt("A=1\x00B=2")
+    "'A=1\\x00B=2'"
+    >>> excerpt("x" * 100, limit=5)
+    "'xxxxx'... (100 characters)"
+    >>> excerpt("photo, E, N", quote=False), excerpt(0), excerpt([1.5, "a"])
+    ('photo, E, N', '0', "[1.5, 'a']")
+    """
+    try:
+        text = value if isinstance(value, str) else repr(value)
+    except ValueError:  # an int beyond Python's 4300-digit conversion limit
+        text = f"<a number of {value.bit_length() * 0.30103:.0f} digits>" if isinstance(value, int) else "<?>"
+    shown = "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text[:limit])
+    if quote and isinstance(value, str):
+        shown = "'" + shown.replace("'", "\\'") + "'"
+    if len(text) > limit:
+        shown += f"... ({len(text)} characters)"
+    return shown
+
+
 def read_toml(path: str | os.PathLike) -> tuple[dict[str, Any], str]:
     """Parse a TOML input file; return its content and its text (for :func:`toml_line`).
+
+    Files over :data:`TOML_MAX_BYTES`, anything but a regular file (a FIFO, a
+    device) and arrays or inline tables nested deeper than
+    :data:`TOML_MAX_DEPTH` are refused before tomllib (which recurses) sees them.
 
     Raises
     ------
     SurveyError
-        As :func:`read_text`, or invalid TOML (names the line tomllib reports).
+        As :func:`read_text`, too large, not a regular file, nested too deep, or
+        invalid TOML (names the line tomllib reports).
     """
     path = Path(path)
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise SurveyError(f"{path}: file not found") from None
+    except OSError as ex:
+        raise SurveyError(f"{path}: cannot read ({ex.strerror})") from None
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):  # a folder: read_text says so
+        raise SurveyError(f"{path}: not a regular file (a pipe or a device); name a TOML file")
+    if st.st_size > TOML_MAX_BYTES:
+        raise SurveyError(f"{path}: {st.st_size:,} bytes is too large for a TOML settings file "
+                          f"(at most {TOML_MAX_BYTES:,})")
     text = read_text(path)
+    deep = _toml_too_deep(text, TOML_MAX_DEPTH)
+    if deep is not None:
+        raise SurveyError(f"{location(path, deep)}: arrays or inline tables nested more than "
+                          f"{TOML_MAX_DEPTH} deep; a settings file needs a few levels at most")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as ex:
         m = re.search(r"line (\d+)", str(ex))
         line = int(m.group(1)) if m else None
         raise SurveyError(f"{location(path, line)}: invalid TOML: {ex}") from ex
+    except RecursionError:  # a nesting the scan missed: refuse it all the same
+        raise SurveyError(f"{path}: values nested too deep for a TOML settings file") from None
+    except ValueError:  # not a TOMLDecodeError: an integer beyond Python's conversion limit
+        m = re.search(r"\d{%d,}" % (sys.get_int_max_str_digits() + 1), text)
+        line = text.count("\n", 0, m.start()) + 1 if m else None
+        raise SurveyError(f"{location(path, line)}: a number of more than {sys.get_int_max_str_digits()} "
+                          f"digits") from None
     return data, text
+
+
+def _toml_too_deep(text: str, limit: int) -> int | None:
+    """The 1-based line where ``[``/``{`` nesting outside strings and comments passes *limit*
+    (None if it never does).  A linear scan, not a parser: tomllib judges the syntax."""
+    depth, line, i, n = 0, 1, 0, len(text)
+    while i < n:
+        ch = text[i]
+        if ch == "\n":
+            line += 1
+        elif ch == "#":
+            j = text.find("\n", i)
+            i = n if j < 0 else j
+            continue
+        elif ch in "\"'":
+            quote = text[i:i + 3] if text[i:i + 3] in ('"""', "'''") else ch
+            j = i + len(quote)
+            while j < n and not text.startswith(quote, j):
+                if text[j] == "\n" and len(quote) == 1:
+                    break  # an unterminated string: tomllib reports it
+                j += 2 if text[j] == "\\" and ch == '"' else 1
+            line += text.count("\n", i, j)
+            i = j if j < n and text[j] == "\n" else j + len(quote)
+            continue
+        elif ch in "[{":
+            depth += 1
+            if depth > limit:
+                return line
+        elif ch in "]}":
+            depth = max(depth - 1, 0)
+        i += 1
+    return None
 
 
 _TOML_TABLE_RE = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")
@@ -221,10 +319,10 @@ def parse_float(text: str, *, decimal_comma: bool = False) -> float:
     if _ASCII_FLOAT_RE.fullmatch(s):
         return float(s)
     if any(ch.isdigit() and not ch.isascii() for ch in s):
-        raise ValueError(f"{text!r} is not a number: only ASCII digits 0-9 are read")
+        raise ValueError(f"{excerpt(text)} is not a number: only ASCII digits 0-9 are read")
     if "," in s and _ASCII_FLOAT_RE.fullmatch(s.replace(",", ".", 1)):
-        raise ValueError(f"{text!r} is not a number: write the decimal separator as a point")
-    raise ValueError(f"{text!r} is not a number")
+        raise ValueError(f"{excerpt(text)} is not a number: write the decimal separator as a point")
+    raise ValueError(f"{excerpt(text)} is not a number")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -249,7 +347,7 @@ class CsvTable:
         if not self.has(name):
             if required:
                 raise SurveyError(f"{location(self.path, 1)}: missing column {name!r} "
-                                  f"(header is {', '.join(self.header)})")
+                                  f"(header is {excerpt(', '.join(self.header), quote=False)})")
             return np.full(len(self.rows), default)
         i = self.header.index(name)
         out = np.empty(len(self.rows))
@@ -265,7 +363,7 @@ class CsvTable:
             except ValueError as ex:
                 raise SurveyError(f"{location(self.path, line, name)}: {ex}") from None
             if not math.isfinite(v) and not allow_nan:
-                raise SurveyError(f"{location(self.path, line, name)}: {cell!r} is not a finite number")
+                raise SurveyError(f"{location(self.path, line, name)}: {excerpt(cell)} is not a finite number")
             out[k] = v
         return out
 
@@ -291,6 +389,9 @@ def read_csv_table(
     """
     path = Path(path)
     text = read_text(path)
+    if "\x00" in text:  # a binary file (or /proc/self/environ) named as a table: say so, quote nothing
+        raise SurveyError(f"{location(path, text.count(chr(10), 0, text.index(chr(0))) + 1)}: "
+                          f"a NUL byte: this is not a CSV text file")
     header: tuple[str, ...] | None = None
     rows: list[tuple[str, ...]] = []
     lines: list[int] = []
@@ -304,7 +405,7 @@ def read_csv_table(
             continue
         if len(cells) != len(header):
             raise SurveyError(f"{location(path, lineno)}: {len(cells)} fields, expected "
-                              f"{len(header)} ({', '.join(header)})")
+                              f"{len(header)} ({excerpt(', '.join(header), quote=False)})")
         rows.append(cells)
         lines.append(lineno)
     if header is None:
@@ -315,15 +416,15 @@ def read_csv_table(
                           f"comma?); name it or delete it")
     dup = {h for h in header if h and header.count(h) > 1}
     if dup:
-        raise SurveyError(f"{location(path, hline)}: duplicate column(s) {', '.join(sorted(dup))}")
+        raise SurveyError(f"{location(path, hline)}: duplicate column(s) {excerpt(', '.join(sorted(dup)), quote=False)}")
     for name in required:
         if name not in header:
             raise SurveyError(f"{location(path, hline)}: missing column {name!r} "
-                              f"(header is {', '.join(header)})")
+                              f"(header is {excerpt(', '.join(header), quote=False)})")
     if not allow_extra:
         known = set(required) | set(optional)
         extra = [h for h in header if h not in known]
         if extra:
-            raise SurveyError(f"{location(path, hline)}: unknown column(s) {', '.join(extra)}; "
+            raise SurveyError(f"{location(path, hline)}: unknown column(s) {excerpt(', '.join(extra), quote=False)}; "
                               f"allowed: {', '.join(list(required) + list(optional))}")
     return CsvTable(path, header, tuple(rows), tuple(lines))

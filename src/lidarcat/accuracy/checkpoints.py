@@ -87,7 +87,7 @@ from .statistics import (
 )
 from .._util.frozen import frozen_array
 from .._util import read_csv_table
-from ..errors import AssessmentError
+from ..errors import AssessmentError, location
 
 __all__ = [
     "COMPONENTS",
@@ -106,6 +106,11 @@ log = logging.getLogger(__name__)
 COMPONENTS: tuple[str, ...] = ("E", "N", "h", "planimetric")
 SIGNS: tuple[str, ...] = ("reference_minus_adjusted", "adjusted_minus_reference")
 _CONTROL_ROLES = {"control", "fixed", "fixo"}
+#: the largest standard deviation of a point accepted, m (the survey's own bound, survey.schema.SD_BOUNDS)
+MAX_SD_M = 1e3
+#: the largest coordinate magnitude accepted, m (ten times the Earth's circumference: any projected
+#: or geocentric coordinate, any local frame; beyond it squares and sums lose all digits)
+MAX_COORDINATE_M = 4e8
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -178,9 +183,11 @@ def read_points(obj: Any, label: str = "points") -> PointSet:
             path = path / "points.csv"
         table = read_csv_table(path, ("point", "E", "N", "h"), allow_extra=True)
         xyz = np.column_stack([table.floats(c) for c in ("E", "N", "h")])
+        _check_range(table, xyz, ("E", "N", "h"), -MAX_COORDINATE_M, MAX_COORDINATE_M, "a coordinate")
         sd = None
         if all(table.has(c) for c in ("sd_E", "sd_N", "sd_h")):
             sd = np.column_stack([table.floats(c, required=False) for c in ("sd_E", "sd_N", "sd_h")])
+            _check_range(table, sd, ("sd_E", "sd_N", "sd_h"), 0.0, MAX_SD_M, "a standard deviation")
         roles = tuple(r.lower() for r in table.column("role")) if table.has("role") else None
         return PointSet(tuple(table.column("point")), xyz, sd, roles, str(path))
     if isinstance(obj, Mapping):
@@ -224,6 +231,17 @@ def read_points(obj: Any, label: str = "points") -> PointSet:
         bad = [ps.ids[i] for i in np.nonzero(~np.all(np.isfinite(ps.xyz), axis=1))[0]]
         raise AssessmentError(f"{ps.source}: non-finite coordinates for point(s) {', '.join(bad)}")
     return ps
+
+
+def _check_range(table: Any, arr: np.ndarray, names: Sequence[str], lo: float, hi: float, what: str) -> None:
+    """Refuse a value of the columns *names* outside ``[lo, hi]`` m, naming file, line and field
+    (NaN, an empty optional cell, passes)."""
+    with np.errstate(invalid="ignore"):
+        bad = np.argwhere((arr < lo) | (arr > hi))
+    if len(bad):
+        i, k = (int(v) for v in bad[0])
+        raise AssessmentError(f"{location(table.path, table.lines[i], names[k])}: {float(arr[i, k])!r} m is not "
+                              f"{what} (sane values lie in {lo:g}..{hi:g} m)")
 
 
 def _floats(values: Any, where: str) -> np.ndarray:

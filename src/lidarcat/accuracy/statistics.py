@@ -535,10 +535,12 @@ def covariance_consistency_test(d: Any, cov: Any, alpha: float = 0.10, *,
     if c.shape != (n, n):
         return not_applicable("consistency", "ENh", "chi2", alpha,
                    f"covariance has shape {c.shape}, expected ({n}, {n})")
-    if n == 0 or not np.all(np.isfinite(c)) or not np.all(np.isfinite(x)):
+    with np.errstate(over="ignore", invalid="ignore"):
+        sym = 0.5 * c + 0.5 * c.T  # halves first: no overflow for entries near the float maximum
+    if n == 0 or not np.all(np.isfinite(sym)) or not np.all(np.isfinite(x)):
         return not_applicable("consistency", "ENh", "chi2", alpha, "no discrepancies or a non-finite covariance")
     try:
-        L = np.linalg.cholesky(0.5 * (c + c.T))
+        L = np.linalg.cholesky(sym)
     except np.linalg.LinAlgError:
         return not_applicable("consistency", "ENh", "chi2", alpha, "covariance of the discrepancies is not positive definite")
     from scipy.linalg import solve_triangular

@@ -23,8 +23,9 @@ Additional parameters (issue 13): ``additional`` (self-calibration, GNSS
 line offsets), ``frame_offset`` (shift / similarity of a control source),
 ``selfcal`` (the bordered adjustment :func:`adjust_with_parameters`, tests of
 significance and determinability; the ``[self_calibration]`` table is read in
-:mod:`lidarcat.survey.selfcal`).  Blunders: ``reliability`` (redundancy numbers,
-data snooping, robust re-weighting).  ``bal``: the Bundle Adjustment in the
+:mod:`lidarcat.survey.selfcal`).  Blunders: ``redundancy`` (redundancy numbers,
+the group tests of one adjustment, minimal detectable bias) and ``reliability``
+(data snooping, robust re-weighting).  ``bal``: the Bundle Adjustment in the
 Large camera model over the same core.
 
 The engine knows no survey folder and no files: reading a survey into a

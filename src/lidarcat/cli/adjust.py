@@ -3,48 +3,59 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
 import click
 
+from .._util.formatting import format_number
 from .options import echo_json, json_opt, output_option, progress_bar, survey_arg
 
 __all__ = ["adjust", "format_report", "format_blunders", "exit_status"]
 
 
 def format_report(summary: dict, outdir: str | None = None) -> str:
-    """A short text report in the layout of the thesis Appendix 2."""
+    """A short text report in the layout of the thesis Appendix 2.
+
+    A figure that was not computed (``null`` in summary.json: sds with ``--precision
+    none``, a control sd from one point) is written as ``-``.
+    """
     s = summary
+    n = format_number
+
+    def enh(d: dict, digits: int = 3) -> str:
+        return "  ".join(f"{k} {n(d.get(k), digits)}" for k in "ENh")
+
     lines = [
         f"Bundle adjustment: survey {s.get('survey', '?')}, control set {s.get('control_set', '?')}, "
         f"{s.get('observations', '?')} photo coordinates",
-        f"{s['message']} ({s['elapsed_s']:.2f} s)",
+        f"{s['message']} ({n(s.get('elapsed_s'), 2)} s)",
         f"{s['n_photos']} photos, {s['n_points']} points, {s['n_observations']} observations, "
         f"{s['n_unknowns']} unknowns, {s['n_constraints']} constraints",
         "",
         "RMS image residuals (mm)       photo       x        y",
     ]
     for photo, v in s["rms_image_residuals_mm"].items():
-        lines.append(f"{'':31}{photo:>5}  {v['x']:7.4f}  {v['y']:7.4f}")
+        lines.append(f"{'':31}{photo:>5}  {n(v.get('x'), 4):>7}  {n(v.get('y'), 4):>7}")
     con = s.get("sd_control_residuals_m") or {}
     if con:
-        lines.append(f"Control residuals sd (m)       E {con['E']:.3f}  N {con['N']:.3f}  h {con['h']:.3f}")
+        lines.append(f"Control residuals sd (m)       {enh(con)}")
     free = s.get("mean_sd_free_m") or {}
     if free:
-        lines.append(f"Mean sd of free points (m)     E {free['E']:.3f}  N {free['N']:.3f}  h {free['h']:.3f}")
+        lines.append(f"Mean sd of free points (m)     {enh(free)}")
     rms = s.get("rms_sd_points_m") or {}
     if rms:
-        lines.append(f"RMS sd of all points (m)       E {rms['E']:.3f}  N {rms['N']:.3f}  h {rms['h']:.3f}"
+        lines.append(f"RMS sd of all points (m)       {enh(rms)}"
                      "  (Appendix 2 'pontos livres')")
     lines += [
-        f"Variance factor a priori       {s['sigma0_sq_a_priori']:.2f}",
-        f"Variance factor a posteriori   {s['sigma0_sq']:.2f}",
-        f"Degrees of freedom             {s['dof']}",
-        f"Chi-square computed (v'Pv)     {s['vtpv']:.2f}",
-        f"Chi-square range ({100 * s['chi2_level']:g}%)         {s['chi2_lower']:.2f} - {s['chi2_upper']:.2f}"
-        f"  (Fisher approx. {s['chi2_lower_fisher']:.2f} - {s['chi2_upper_fisher']:.2f}): "
-        + ("accepted" if s["chi2_pass"] else "REJECTED"),
+        f"Variance factor a priori       {n(s.get('sigma0_sq_a_priori'), 2)}",
+        f"Variance factor a posteriori   {n(s.get('sigma0_sq'), 2)}",
+        f"Degrees of freedom             {n(s.get('dof'))}",
+        f"Chi-square computed (v'Pv)     {n(s.get('vtpv'), 2)}",
+        f"Chi-square range ({100 * s['chi2_level']:g}%)         {n(s.get('chi2_lower'), 2)} - "
+        f"{n(s.get('chi2_upper'), 2)}  (Fisher approx. {n(s.get('chi2_lower_fisher'), 2)} - "
+        f"{n(s.get('chi2_upper_fisher'), 2)}): " + ("accepted" if s["chi2_pass"] else "REJECTED"),
         f"Parameter sds use the {s['variance_factor'].replace('_', ' ')} variance factor",
     ]
     lines += format_blunders(s)
@@ -64,21 +75,30 @@ def format_blunders(summary: dict) -> list[str]:
     if not sn or sn.get("mode") == "off":
         return []
     blunders = summary.get("blunders") or []
-    crit = ", ".join(f"{v:.2f} (q={k})" for k, v in (sn.get("critical_w") or {}).items())
+    crit = ", ".join(f"{format_number(v, 2)} (q={k})" for k, v in (sn.get("critical_w") or {}).items())
     fam = (f"family-wise {sn['family_level']:g} over {sn.get('family_tests')} tests, "
            if sn.get("family_level") else "")
-    lines = ["", f"Data snooping ({sn['mode']}, {fam}alpha {sn.get('level', float('nan')):.3g}, power "
-                 f"{sn.get('power', float('nan')):g}; critical w {crit}): "
+    lines = ["", f"Data snooping ({sn['mode']}, {fam}alpha {_sig(sn.get('level'), 3)}, power "
+                 f"{format_number(sn.get('power'), None)}; critical w {crit}): "
                  + (f"{len(blunders)} blunder(s)" if blunders else "no blunder found")]
     for b in blunders[:MAX_LISTED]:
         what = (f"image  photo {b['photo']} point {b['point']}" if b["kind"] == "image" else
                 f"control point {b['point']}" if b["kind"] == "control" else f"eo     photo {b['photo']}")
-        err = ", ".join(f"{k} {v:+.4g}" for k, v in b["estimated_error"].items() if v == v)
-        lines.append(f"  {what:<28} w {b['w']:6.2f}  r {b['redundancy']:.2f}  error {err} {b['unit']}"
+        err = ", ".join(f"{k} {v:+.4g}" for k, v in b["estimated_error"].items()
+                        if isinstance(v, (int, float)) and v == v)
+        lines.append(f"  {what:<28} w {format_number(b.get('w'), 2):>6}  r {format_number(b.get('redundancy'), 2)}"
+                     f"  error {err} {b['unit']}"
                      f"  {'removed' if b['removed'] else 'KEPT'}" + (f"  ({b['note']})" if b.get("note") else ""))
     if len(blunders) > MAX_LISTED:
         lines.append(f"  ... {len(blunders) - MAX_LISTED} more in blunders.csv")
     return lines
+
+
+def _sig(value: object, digits: int) -> str:
+    """*value* with *digits* significant digits; None or a non-finite number as ``-``."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        return f"{value:.{digits}g}"
+    return format_number(None)
 
 
 def exit_status(summary: dict) -> tuple[int, str]:

@@ -102,7 +102,7 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
 
     Exit status 1 when no roof gave a control point (see below).
     """
-    from ..control.facets import get_params
+    from ..control.params import get_params
 
     jobs, tiles = _split_arguments(args, lidar, job_mode=at is None and not find)
     lidar = tuple(tiles)

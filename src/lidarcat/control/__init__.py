@@ -1,7 +1,11 @@
 """Stage ``extract``: LiDAR roof facets -> roof vertices -> control points (thesis 3.2, eq. 25-41).
 
 ============  ============================================================
-``facets``    Roof facets from airborne LiDAR: Delaunay triangles, slope, grouping, plane fits.
+``facets``    Roof facets from airborne LiDAR: the chain triangles -> slope -> grouping -> plane fits.
+``params``    :class:`ExtractionParams`, the settings of one extraction, and its presets.
+``triangles`` Delaunay triangles of a clip with plane, slope and aspect (eq. 25-32).
+``segment``   Grouping the points into faces: thesis, RANSAC, region growing.
+``planes``    :class:`Plane` and its Gauss-Helmert fit with rejection (eq. 33-37).
 ``vertices``  Control points from roof planes: intersection (eq. 38-41) with covariance.
 ``batch``     Batch roof extraction: job files, tiles, output tables, operator figures.
 ``search``    Tile-parallel roof-vertex search: :func:`~lidarcat.control.vertices.find_candidates` over blocks of cells.
@@ -10,18 +14,10 @@
 
 from __future__ import annotations
 
-from .facets import (  # noqa: F401
-    Plane,
-    ExtractionParams,
-    PRESETS,
-    get_params,
-    triangle_planes,
-    triangle_slope_aspect,
-    delaunay_facets,
-    fit_plane,
-    PlaneFit,
-    segment_faces,
-)
+from .params import ExtractionParams, PRESETS, get_params  # noqa: F401
+from .planes import Plane, fit_plane, PlaneFit  # noqa: F401
+from .triangles import triangle_planes, triangle_slope_aspect, delaunay_facets  # noqa: F401
+from .facets import segment_faces  # noqa: F401
 from .vertices import (  # noqa: F401
     ControlPoint,
     intersect_planes,

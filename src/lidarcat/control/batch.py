@@ -9,7 +9,7 @@ line, whitespace separated::
 clip radius in m), or a CSV file with a header and the columns ``point, E, N``
 plus optional ``threshold_m, radius_m, file, sd_en_m, sd_h_m`` (the last two: the
 random noise of the points in plan and height, m, which sets the weights of the
-plane fits -- see :class:`~lidarcat.control.facets.ExtractionParams`).  Relative file names are
+plane fits -- see :class:`~lidarcat.control.params.ExtractionParams`).  Relative file names are
 relative to the job file's folder.  ``#`` starts a comment line.
 
 :func:`extract_batch` runs :func:`lidarcat.control.vertices.extract_roof` on every job;
@@ -31,7 +31,7 @@ import numpy as np
 from .._util import atomic_dir, parse_float, read_csv_table, write_csv_atomic, write_json_atomic
 from .vertices import ROW_FIELDS, Candidate, ControlPoint, extract_roof
 from ..errors import ClipError, ExtractionError, LidarcatError, location
-from .facets import ExtractionParams, get_params
+from .params import ExtractionParams, get_params
 
 __all__ = [
     "Job", "read_jobs", "extract_batch", "write_control_csv", "write_planes_csv",

@@ -41,7 +41,9 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .._util.frozen import frozen_array
-from .facets import ExtractionParams, Plane, get_params, segment_faces
+from .facets import segment_faces
+from .params import ExtractionParams, get_params
+from .planes import Plane
 
 __all__ = [
     "ControlPoint",

@@ -38,6 +38,25 @@ The inverse, corrected photo coordinates -> pixel (:meth:`Camera.photo_to_pixel`
 has no closed form: it solves ``x_fot - d(x_fot) = x_fotc`` by Newton's method with
 the analytic 2 x 2 Jacobian, vectorised over all points.
 
+A calibration is accepted only if this inverse exists over the image format.  With
+``u = r^2`` and ``R`` the distance from the principal point to the farthest frame
+corner, the radial part (eq. 03 with the radial refraction of eq. 06) maps a radius
+``r`` to the corrected radius::
+
+    rho(r) = r (1 - g(u)),   g(u) = eps45 + (K1 + eps45 / c^2) u + K2 u^2 + K3 u^3
+    rho'(r) = 1 - eps45 - 3 (K1 + eps45 / c^2) u - 5 K2 u^2 - 7 K3 u^3
+
+``rho'`` must stay positive on ``[0, R]`` (the corrected radius strictly increases:
+no fold-over) and on to ``rho(R)`` (Newton's method starts from the corrected
+coordinate, so it must not meet a second pre-image there), and ``|g|``, the radial correction as a share of the radius, at most
+:data:`MAX_RADIAL_SHARE` (a point is not moved by more than half its distance from
+the principal point: beyond that the polynomial no longer describes a lens, as
+``k3 = -1`` mm^-6, 604 km at the corner).  Both are cubics in ``u``: their extremes
+are found exactly (end points and roots of the derivative).  The decentering
+Jacobian (eq. 05) is symmetric and linear in ``x, y``; its largest eigenvalue
+magnitude over the frame (at a corner) must stay below half of ``min rho'``, so
+that the whole Jacobian ``I - d(d)/d(x, y)`` stays invertible.
+
 Example
 -------
 >>> cam = Camera("c", focal_length_mm=50.0, principal_point_x_mm=0.0,
@@ -63,10 +82,10 @@ from typing import Any
 
 import numpy as np
 
-from .._util import read_toml, toml_line
+from .._util import excerpt, read_toml, toml_line
 from ..errors import CameraError, SurveyError, location
 
-__all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS"]
+__all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS", "MAX_RADIAL_SHARE"]
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +102,8 @@ CAMERA_KEYS: tuple[str, ...] = _STR_KEYS + _FLOAT_KEYS + _INT_KEYS
 #: the optional standard-deviation keys: ``sd_`` + a calibration key
 SD_KEYS: tuple[str, ...] = tuple(f"sd_{k}" for k in _FLOAT_KEYS)
 _POSITIVE = ("focal_length_mm", "pixel_size_x_mm", "pixel_size_y_mm")
+#: the largest radial correction accepted, as a share of the radius (see the module docstring)
+MAX_RADIAL_SHARE = 0.5
 #: sane ranges of interior orientation values (anything outside is a typo or a unit mix-up):
 #: focal lengths from phone cameras (a few mm) to long aerial lenses, pixels from 0.1 um to
 #: 1 mm, frames up to a million pixels a side, the principal point within the frame
@@ -95,9 +116,15 @@ SANE_RANGES: dict[str, tuple[float, float]] = {
 }
 
 
+def _short(name: str) -> str:
+    """A key or id from a file, cut for a message (the whole name stays in ``err.field``)."""
+    return name if len(name) <= 60 else name[:60] + "..."
+
+
 def _camera_error(field_name: str, message: str) -> CameraError:
-    err = CameraError(f"field {field_name!r}: {message}")
+    err = CameraError(f"field {_short(field_name)!r}: {message}")
     err.field = field_name  # type: ignore[attr-defined]
+    err.detail = message  # type: ignore[attr-defined]
     return err
 
 
@@ -147,8 +174,10 @@ class Camera:
     ------
     CameraError
         A value is not finite, a length that must be positive is not, an image
-        size is not a positive integer, or an ``sd`` key is unknown.  The message
-        names the field; ``err.field`` holds it.
+        size is not a positive integer, an ``sd`` key is unknown, or the
+        distortion cannot be inverted over the frame or is no lens distortion
+        (see the module docstring).  The message names the field; ``err.field``
+        holds it.
     """
 
     id: str
@@ -171,11 +200,11 @@ class Camera:
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id.strip():
-            raise _camera_error("id", f"camera id must be a non-empty string, got {self.id!r}")
+            raise _camera_error("id", f"camera id must be a non-empty string, got {excerpt(self.id)}")
         for name in _FLOAT_KEYS:
             raw = getattr(self, name)
             if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)):
-                raise _camera_error(name, f"must be a number, got {raw!r} ({type(raw).__name__})")
+                raise _camera_error(name, f"must be a number, got {excerpt(raw)} ({type(raw).__name__})")
             v = float(raw)
             if not math.isfinite(v):
                 raise _camera_error(name, f"must be finite, got {v!r}")
@@ -192,11 +221,11 @@ class Camera:
                 if isinstance(raw, float) and raw.is_integer():
                     raw = int(raw)
                 else:
-                    raise _camera_error(name, f"must be a whole number of pixels, got {raw!r}")
+                    raise _camera_error(name, f"must be a whole number of pixels, got {excerpt(raw)}")
             if raw < 1:
-                raise _camera_error(name, f"must be at least 1 pixel, got {raw!r}")
+                raise _camera_error(name, f"must be at least 1 pixel, got {excerpt(raw)}")
             if raw > SANE_RANGES[name][1]:
-                raise _camera_error(name, f"{raw!r} pixels is outside the sane range 1..{SANE_RANGES[name][1]:,}")
+                raise _camera_error(name, f"{excerpt(raw)} pixels is outside the sane range 1..{SANE_RANGES[name][1]:,}")
             object.__setattr__(self, name, int(raw))
         w, h = self.columns_px * self.pixel_size_x_mm, self.rows_px * self.pixel_size_y_mm
         for name, half in (("principal_point_x_mm", w / 2), ("principal_point_y_mm", h / 2)):
@@ -205,18 +234,79 @@ class Camera:
                                           f"(+-{half:g} mm from its centre); check the value and its unit")
         for name in _STR_KEYS:
             if not isinstance(getattr(self, name), str):
-                raise _camera_error(name, f"must be text, got {getattr(self, name)!r}")
+                raise _camera_error(name, f"must be text, got {excerpt(getattr(self, name))}")
         sd: dict[str, float] = {}
         for key, raw in dict(self.sd).items():
             if key not in SD_KEYS:
                 raise _camera_error(key, f"unknown standard-deviation key; allowed: {', '.join(SD_KEYS)}")
             if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)):
-                raise _camera_error(key, f"must be a number, got {raw!r}")
+                raise _camera_error(key, f"must be a number, got {excerpt(raw)}")
             v = float(raw)
             if not math.isfinite(v) or v < 0:
                 raise _camera_error(key, f"must be a finite number >= 0, got {v!r}")
             sd[key] = v
         object.__setattr__(self, "sd", MappingProxyType(sd))
+        with np.errstate(all="ignore"):  # coefficients near the float maximum: inf/nan, refused below
+            self._check_distortion()
+
+    def _check_distortion(self) -> None:
+        """Refuse a distortion model that cannot be inverted over the frame (module docstring)."""
+        w, h = self.frame_size_mm
+        cx = np.array([-w / 2, w / 2]) - self.principal_point_x_mm
+        cy = np.array([-h / 2, h / 2]) - self.principal_point_y_mm
+        big_r = math.hypot(np.abs(cx).max(), np.abs(cy).max())
+        big_u = big_r * big_r
+        e, c2 = self.refraction_eps45, self.focal_length_mm ** 2
+        k1 = self.k1 + e / c2
+        # coefficients of u^0..u^3: rho'(u) and g(u)
+        slope = np.array([1.0 - e, -3.0 * k1, -5.0 * self.k2, -7.0 * self.k3])
+        share = np.array([e, k1, self.k2, self.k3])
+        coeffs = "k1 = {:.6g}, k2 = {:.6g}, k3 = {:.6g}".format(self.k1, self.k2, self.k3)
+        if e:
+            coeffs += f", refraction_eps45 = {e:.6g}"
+        units = "check the values and their units (mm^-2, mm^-4, mm^-6)"
+        if not (np.isfinite(slope).all() and np.isfinite(share).all()):
+            raise _camera_error(max(("k1", "k2", "k3"), key=lambda k: abs(getattr(self, k))),
+                                f"radial distortion {coeffs} is beyond any lens; {units}")
+
+        def culprit(u: float) -> str:  # the radial coefficient with the largest term at u
+            terms = {"k1": abs(self.k1) * u, "k2": abs(self.k2) * u * u, "k3": abs(self.k3) * u ** 3,
+                     "refraction_eps45": abs(e) * (1 + u / c2)}
+            return max(terms, key=terms.__getitem__)
+
+        lo_u, lo = _cubic_extreme(slope, big_u, min)
+        if not lo > 0:
+            u0 = _first_root(slope, big_u)
+            raise _camera_error(culprit(u0), (
+                f"radial distortion {coeffs} folds over within the frame: the corrected radius stops "
+                f"increasing at r = {math.sqrt(u0):.4g} mm from the principal point (the frame "
+                f"reaches {big_r:.4g} mm), so no pixel can be found for a corrected coordinate; {units}"))
+        hi_u, hi = _cubic_extreme(share, big_u, lambda v: max(v, key=abs))
+        if not abs(hi) <= MAX_RADIAL_SHARE:
+            r = math.sqrt(hi_u)
+            raise _camera_error(culprit(hi_u), (
+                f"radial distortion {coeffs} moves a point {r:.4g} mm from the principal point by "
+                f"{abs(hi) * r:.4g} mm, {abs(hi):.3g} times its radius (at most {MAX_RADIAL_SHARE:g} "
+                f"within the {w:.4g} x {h:.4g} mm frame): not a lens distortion; {units}"))
+        # the inverse starts from the corrected coordinate, which reaches rho(R): monotonic up to there too
+        rho_r = big_r * (1.0 - _polyval(share, big_u))
+        if rho_r > big_r:
+            if not _cubic_extreme(slope, rho_r * rho_r, min)[1] > 0:
+                u0 = _first_root(slope, rho_r * rho_r)
+                raise _camera_error(culprit(u0), (
+                    f"radial distortion {coeffs} folds over just outside the frame: the corrected radius "
+                    f"stops increasing at r = {math.sqrt(u0):.4g} mm, where corrected coordinates of the "
+                    f"frame reach {rho_r:.4g} mm (the frame {big_r:.4g} mm), so the inverse finds no unique "
+                    f"pixel; {units}"))
+        p1, p2 = self.p1, self.p2
+        x, y = np.meshgrid(cx, cy)
+        a, b, d = 6 * p1 * x + 2 * p2 * y, 2 * p1 * y + 2 * p2 * x, 6 * p2 * y + 2 * p1 * x
+        eig = np.abs((a + d) / 2) + np.hypot((a - d) / 2, b)  # largest |eigenvalue|, symmetric 2 x 2
+        if not eig.max() < lo / 2:
+            raise _camera_error("p1" if abs(p1) >= abs(p2) else "p2", (
+                f"decentering distortion p1 = {p1:.6g}, p2 = {p2:.6g} changes by {eig.max():.3g} mm per mm "
+                f"at a frame corner, not small against the radial d rho / dr >= {lo:.3g}: the correction cannot "
+                f"be inverted; check the values and their unit (mm^-1)"))
 
     # ------------------------------------------------------------------ repr / io
     def __repr__(self) -> str:
@@ -532,6 +622,39 @@ class Camera:
         return _out(inside, single)
 
 
+def _polyval(coef: np.ndarray, u: float) -> float:
+    return float(coef[0] + u * (coef[1] + u * (coef[2] + u * coef[3])))
+
+
+def _cubic_extreme(coef: np.ndarray, u_max: float, pick: Any) -> tuple[float, float]:
+    """(u, value) of the cubic ``coef[0] + coef[1] u + ... + coef[3] u^3`` on ``[0, u_max]`` chosen
+    by *pick* (``min``, or the largest magnitude) among the end points and stationary points."""
+    cands = [0.0, u_max] + [u for u in _real_roots([coef[1], 2 * coef[2], 3 * coef[3]], u_max) if 0 < u < u_max]
+    vals = {_polyval(coef, u): u for u in cands}
+    v = pick(vals)
+    return vals[v], v
+
+
+def _first_root(coef: np.ndarray, u_max: float) -> float:
+    """The smallest u in ``[0, u_max]`` where the cubic *coef* is <= 0 (u_max if none is found)."""
+    inside = [u for u in _real_roots(coef, u_max) if 0 <= u <= u_max]
+    return min(inside) if inside else u_max
+
+
+def _real_roots(coef: Any, u_max: float) -> list[float]:
+    """Real roots of ``coef[0] + coef[1] u + ...``; where the companion matrix fails (coefficients
+    spanning more than the float range), the sign changes of 4097 samples on ``[0, u_max]``."""
+    if not np.any(coef[1:]):
+        return []
+    try:
+        return [float(z.real) for z in np.roots(np.asarray(coef, dtype=float)[::-1])
+                if abs(z.imag) <= 1e-9 * max(1.0, abs(z.real))]
+    except (np.linalg.LinAlgError, ValueError):
+        u = np.linspace(0.0, u_max, 4097)
+        v = np.polynomial.polynomial.polyval(u, coef)
+        return [float(x) for x in u[1:][np.sign(v[1:]) != np.sign(v[:-1])]]
+
+
 # ---------------------------------------------------------------------- TOML
 def _toml_str(s: str) -> str:
     """A TOML basic string (json's escaping is valid TOML for these characters)."""
@@ -563,7 +686,7 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
     cameras: dict[str, Camera] = {}
     for cam_id, table in data.items():
         if not isinstance(table, dict):
-            raise SurveyError(f"{location(path, toml_line(text, None, cam_id), cam_id)}: "
+            raise SurveyError(f"{location(path, toml_line(text, None, cam_id), _short(cam_id))}: "
                               f"top-level key outside a camera table; put each camera under "
                               f"a [camera_id] header")
         try:
@@ -571,10 +694,9 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
         except CameraError as ex:
             fld = getattr(ex, "field", None)
             line = toml_line(text, cam_id, fld if fld in table else None)
-            msg = str(ex)
-            if fld is not None:
-                msg = msg.removeprefix(f"field {fld!r}: ")
-            raise SurveyError(f"{location(path, line, fld)}: camera [{cam_id}]: {msg}") from ex
+            msg = getattr(ex, "detail", str(ex))
+            raise SurveyError(f"{location(path, line, None if fld is None else _short(fld))}: "
+                              f"camera [{_short(cam_id)}]: {msg}") from ex
     if not cameras:
         raise SurveyError(f"{path}: no camera defined; add a [camera_id] table "
                           f"(see docs/survey-format.md)")

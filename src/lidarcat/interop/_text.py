@@ -15,11 +15,25 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .._util import read_text
+from .._util.values import parse_number, parse_whole
 from ..errors import FormatError, location
 
-__all__ = ["TextLines", "Row", "format_error"]
+__all__ = ["TextLines", "Row", "format_error", "sd_problem"]
 
 _SPLIT = re.compile(r"[\s,;]+")
+
+
+def sd_problem(value: float, unit: str) -> str | None:
+    """What is wrong with a standard deviation in *unit* (``m``, ``mm``, ``deg``) by the survey's
+    own rule (:data:`lidarcat.survey.schema.SD_BOUNDS`), or None."""
+    from ..survey.schema import SD_BOUNDS
+
+    lo, hi = SD_BOUNDS[unit]
+    if not value > 0:
+        return f"must be positive, got {value!r} {unit}"
+    if not lo <= value <= hi:
+        return f"is outside the sane range, got {value!r} {unit}; sane values lie in {lo:g}..{hi:g} {unit}"
+    return None
 
 
 def format_error(path: object, line: int | None, field: str | None, message: str) -> FormatError:
@@ -50,24 +64,41 @@ class Row:
             raise self.error(name, "missing")
         return self.fields[i]
 
-    def number(self, i: int, name: str) -> float:
-        """Field *i* as a finite float."""
+    def number(self, i: int, name: str, kind: str | None = None) -> float:
+        """Field *i* as a finite ASCII decimal number, in the sane range of *kind*
+        (:data:`lidarcat._util.values.VALUE_RANGES`) when given."""
         cell = self.text(i, name)
         try:
-            v = float(cell)
-        except ValueError:
-            hint = " (a decimal comma? write 1.5, not 1,5)" if "," in cell else ""
-            raise self.error(name, f"{cell!r} is not a number{hint}") from None
-        if not math.isfinite(v):
-            raise self.error(name, f"{cell!r} is not a finite number")
-        return v
+            return parse_number(cell, kind)
+        except ValueError as ex:
+            msg = str(ex)
+            if "," in cell and msg.endswith("is not a number: write the decimal separator as a point"):
+                msg = f"{cell!r} is not a number (a decimal comma? write 1.5, not 1,5)"
+            raise self.error(name, msg) from None
 
-    def integer(self, i: int, name: str) -> int:
+    def angle(self, i: int, name: str, unit_rad: float) -> float:
+        """Field *i*, an angle in the unit of *unit_rad* radians, in radians; at most a full turn."""
+        v = self.number(i, name)
+        if not abs(v * unit_rad) <= 2 * math.pi * (1 + 1e-12):
+            raise self.error(name, f"{self.fields[i]!r} is outside the sane range of an angle "
+                                   f"(at most a full turn: 360 deg, 400 gon, 2 pi rad)")
+        return v * unit_rad
+
+    def sd(self, i: int, name: str, unit: str, scale: float = 1.0) -> float:
+        """Field *i*, a standard deviation, times *scale*; refused unless positive and in
+        :data:`lidarcat.survey.schema.SD_BOUNDS` of *unit* (after scaling), as the survey refuses it."""
+        v = self.number(i, name)
+        problem = sd_problem(v * scale, unit)
+        if problem:
+            raise self.error(name, f"{problem} (a standard deviation; the file gives {self.fields[i]!r})")
+        return v * scale
+
+    def integer(self, i: int, name: str, kind: str | None = None) -> int:
         cell = self.text(i, name)
         try:
-            return int(cell)
-        except ValueError:
-            raise self.error(name, f"{cell!r} is not a whole number") from None
+            return parse_whole(cell, kind)
+        except ValueError as ex:
+            raise self.error(name, str(ex)) from None
 
 
 class TextLines:

@@ -26,11 +26,13 @@ from .._util.frozen import frozen_array
 from .._util import atomic_dir, read_csv_table, read_text, write_csv_atomic, write_json_atomic, write_text_atomic
 from ..geometry.camera import Camera
 from ..errors import FormatError
+from ._checks import EO_KINDS, ENH_KINDS, PHOTO_COLUMNS_EO, check_block, check_values, read_source_models
 
 __all__ = ["Block", "Orientations", "GroundControl", "apply_orientations", "apply_ground_control",
            "write_survey", "block_from_survey",
            "photo_coordinates_mm", "reprojection_residuals_mm", "reprojection_residuals_px",
-           "pinhole_camera", "undistorted_mm", "require_orientations", "SOURCE_CAMERAS", "copy_survey_files"]
+           "pinhole_camera", "undistorted_mm", "require_orientations", "SOURCE_CAMERAS", "copy_survey_files",
+           "check_values", "PHOTO_COLUMNS_EO"]  # the last two re-exported from _checks
 
 log = logging.getLogger(__name__)
 
@@ -218,6 +220,11 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
     if block.n_photos == 0 or len(block.obs_photo) == 0:
         raise FormatError(f"{block.name}: nothing to write: {block.n_photos} photos, "
                           f"{len(block.obs_photo)} observations")
+    check_block(block)
+    if block.crs.strip() in ("", "unspecified"):  # survey.toml needs a CRS or a local frame
+        log.warning("%s: no CRS given; the survey's frame is written as local (give --crs to georeference)",
+                    block.name)
+        block = block.with_(crs="local: unspecified frame (no CRS given on import)")
     ground = set(block.ground_ids.tolist())
     counts = Counter(block.obs_point.tolist())
     keep = np.array([counts[p] >= 2 or p in ground for p in block.obs_point.tolist()], dtype=bool)
@@ -326,9 +333,7 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
     source_models = {}
     side = survey.root / SOURCE_CAMERAS
     if side.is_file():
-        import json
-
-        source_models = {k: v for k, v in json.loads(read_text(side)).items() if k in survey.cameras}
+        source_models = read_source_models(side, survey.cameras)
     return Block(
         name=survey.name, crs=survey.crs, height_system=survey.height_system,
         cameras=dict(survey.cameras), photo_ids=photo_ids,
@@ -454,6 +459,13 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
         sd[:, :3] = sd_position_m
     if sd_attitude_deg is not None:
         sd[:, 3:] = np.radians(sd_attitude_deg)
+    where = orientations.source.split(" (", 1)[0]
+    check_values(where, "photo", orientations.photo,
+                 np.column_stack([orientations.eo[:, :3], np.degrees(orientations.eo[:, 3:])]), EO_KINDS,
+                 PHOTO_COLUMNS_EO, orientations.line)
+    check_values(where, "photo", orientations.photo,
+                 np.column_stack([sd[:, :3], np.degrees(sd[:, 3:])]), ("sd_m",) * 3 + ("sd_deg",) * 3,
+                 tuple(f"sd_{n}" for n in PHOTO_COLUMNS_EO), orientations.line)
     row_of = {match[p]: i for i, p in enumerate(orientations.photo.tolist()) if p in match}
     eo, esd = _photo_eo(survey.photos)
     for k, ph in enumerate(survey.photos):
@@ -606,6 +618,11 @@ def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
                           f"(first image: {gcp.obs_photo[0] if len(gcp.obs_photo) else '-'!r})")
     if (~keep).any():
         log.warning("%s: %d measurement(s) on images not in the survey dropped", gcp.source, int((~keep).sum()))
+    where = gcp.source.split(" (", 1)[0]
+    check_values(where, "point", gcp.point, gcp.enh_m, ENH_KINDS, ("E", "N", "h"))
+    check_values(where, "measurement of point", gcp.obs_point, gcp.obs_px, ("pixel_px",) * 2, ("col_px", "row_px"))
+    check_values(where, "point", np.array(["(all)"]), np.array([sd_m], dtype=float), ("sd_m",) * 3,
+                 ("sd_E", "sd_N", "sd_h"))
     has_pos = np.isfinite(gcp.enh_m).all(axis=1)
     ip = survey.image_points
     has_mm = bool(np.isfinite(ip.xy_mm).all(axis=1).any())

@@ -42,6 +42,7 @@ from .._util import atomic_dir, read_text, write_text_atomic
 from ..geometry.camera import Camera
 from ..errors import FormatError
 from ._distortion import is_identity
+from .._util.values import parse_number, parse_whole
 from ._text import format_error
 from .block import Block, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
 from .rotations import matrix_to_quaternion_wxyz, opk_to_world_to_cv, quaternion_wxyz_to_matrix, world_to_cv_to_opk
@@ -62,6 +63,8 @@ COLMAP_MODELS: dict[str, tuple[str, ...]] = {
 #: crs written for a model that is not georeferenced
 LOCAL_CRS = "local: COLMAP model frame (not georeferenced)"
 _FILES = ("cameras.txt", "images.txt", "points3D.txt")
+#: sane ranges of a model point's X, Y, Z (the projection centres' too)
+_XYZ_KINDS = ("coordinate_m", "coordinate_m", "height_m")
 
 
 def _lines(path: Path):
@@ -72,21 +75,19 @@ def _lines(path: Path):
         yield no, raw
 
 
-def _num(path: Path, line: int, field: str, cell: str) -> float:
+def _num(path: Path, line: int, field: str, cell: str, kind: str | None = None) -> float:
+    """A finite ASCII number in the sane range of *kind* (:data:`lidarcat._util.values.VALUE_RANGES`)."""
     try:
-        v = float(cell)
-    except ValueError:
-        raise format_error(path, line, field, f"{cell!r} is not a number") from None
-    if not math.isfinite(v):
-        raise format_error(path, line, field, f"{cell!r} is not a finite number")
-    return v
+        return parse_number(cell, kind)
+    except ValueError as ex:
+        raise format_error(path, line, field, str(ex)) from None
 
 
-def _int(path: Path, line: int, field: str, cell: str) -> int:
+def _int(path: Path, line: int, field: str, cell: str, kind: str | None = None) -> int:
     try:
-        return int(cell)
-    except ValueError:
-        raise format_error(path, line, field, f"{cell!r} is not a whole number") from None
+        return parse_whole(cell, kind)
+    except ValueError as ex:
+        raise format_error(path, line, field, str(ex)) from None
 
 
 def _read_cameras(path: Path, pixel_size_mm: float):
@@ -108,10 +109,12 @@ def _read_cameras(path: Path, pixel_size_mm: float):
         w, h = _int(path, no, "WIDTH", f[2]), _int(path, no, "HEIGHT", f[3])
         if w < 1 or h < 1:
             raise format_error(path, no, "WIDTH" if w < 1 else "HEIGHT", "must be at least 1 pixel")
+        w, h = _int(path, no, "WIDTH", f[2], "image_px"), _int(path, no, "HEIGHT", f[3], "image_px")
         if len(f) != 4 + len(names):
             raise format_error(path, no, "PARAMS", f"model {model} has {len(names)} parameters "
                                f"({' '.join(names)}), the line has {len(f) - 4}")
-        p = {n: _num(path, no, n, c) for n, c in zip(names, f[4:])}
+        p = {n: _num(path, no, n, c, "pixel_px" if n in ("f", "fx", "fy", "cx", "cy") else None)
+             for n, c in zip(names, f[4:])}
         fx = p.get("fx", p.get("f"))
         fy = p.get("fy", p.get("f"))
         if fx <= 0 or fy <= 0:  # type: ignore[operator]
@@ -183,7 +186,7 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
             raise format_error(ppath, no, "POINT3D_ID", f"point {pid} listed twice")
         seen.add(pid)
         pids.append(pid)
-        pxyz.append([_num(ppath, no, n, c) for n, c in zip("XYZ", f[1:4])])
+        pxyz.append([_num(ppath, no, n, c, k) for n, c, k in zip("XYZ", f[1:4], _XYZ_KINDS)])
 
     ipath = folder / "images.txt"
     photo, pcam, eo = [], [], []
@@ -206,7 +209,7 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
                                "missing: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME")
         _int(ipath, no, "IMAGE_ID", f[0])
         q = np.array([_num(ipath, no, n, c) for n, c in zip(("QW", "QX", "QY", "QZ"), f[1:5])])
-        tt = np.array([_num(ipath, no, n, c) for n, c in zip(("TX", "TY", "TZ"), f[5:8])])
+        tt = np.array([_num(ipath, no, n, c, "coordinate_m") for n, c in zip(("TX", "TY", "TZ"), f[5:8])])
         if not 0.5 < np.linalg.norm(q) < 2.0:
             raise format_error(ipath, no, "QW", f"quaternion of norm {np.linalg.norm(q):.3g} is no rotation")
         cid = str(_int(ipath, no, "CAMERA_ID", f[8]))
@@ -226,16 +229,8 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
             raise format_error(ipath, pts_no, "POINTS2D", f"{len(cells)} values; POINTS2D are "
                                f"(X, Y, POINT3D_ID) triples")
         if cells:
-            try:
-                arr = np.array(cells, dtype=float).reshape(-1, 3)
-            except ValueError:
-                bad = next(k for k, c in enumerate(cells) if not _is_float(c))
-                raise format_error(ipath, pts_no, ("X", "Y", "POINT3D_ID")[bad % 3],
-                                   f"{cells[bad]!r} (value {bad + 1}) is not a number") from None
-            if not np.isfinite(arr).all():
-                bad = int(np.flatnonzero(~np.isfinite(arr.ravel()))[0])
-                raise format_error(ipath, pts_no, ("X", "Y", "POINT3D_ID")[bad % 3],
-                                   f"{cells[bad]!r} (value {bad + 1}) is not finite")
+            arr = np.array([_num(ipath, pts_no, ("X", "Y", "POINT3D_ID")[k % 3], c,
+                                 "pixel_px" if k % 3 < 2 else None) for k, c in enumerate(cells)]).reshape(-1, 3)
             use = arr[:, 2] >= 0
             ids = [str(int(v)) for v in arr[use, 2]]
             unknown = [p for p in ids if p not in seen]
@@ -299,14 +294,6 @@ def _colmap_model(m: dict | None):
     if set(d) <= {"k1", "k2", "p1", "p2"}:
         return "OPENCV", [fx, fy, cx, cy, g("k1"), g("k2"), g("p1"), g("p2")], m
     return "FULL_OPENCV", [fx, fy, cx, cy] + [g(k) for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")], m
-
-
-def _is_float(c: str) -> bool:
-    try:
-        float(c)
-        return True
-    except ValueError:
-        return False
 
 
 def _int_ids(ids: list[str]) -> list[int]:

@@ -43,6 +43,8 @@ _POS = {"E": ("e", "x", "easting", "east", "x0", "lon", "longitude"),
         "N": ("n", "y", "northing", "north", "y0", "lat", "latitude"),
         "h": ("h", "z", "height", "altitude", "alt", "z0")}
 _OPK = ("omega", "phi", "kappa")
+#: sane range of each position column (lidarcat._util.values.VALUE_RANGES)
+_KIND = {"E": "coordinate_m", "N": "coordinate_m", "h": "height_m"}
 _YPR = ("roll", "pitch", "yaw")
 
 
@@ -130,17 +132,15 @@ def read_gnss(path: str | Path, *, file_crs: str, crs: str | None = None, height
         seen[name] = r.line
         v = np.full(6, np.nan)
         s = np.full(6, np.nan)
-        v[:3] = [r.number(col[k], head.fields[col[k]]) for k in _POS]
+        v[:3] = [r.number(col[k], head.fields[col[k]], _KIND[k]) for k in _POS]
         names = _OPK if all(has_opk) else _YPR if all(has_ypr) else ()
         if names:
-            a = np.array([r.number(col[k], head.fields[col[k]]) for k in names]) * unit
+            a = np.array([r.angle(col[k], head.fields[col[k]], unit) for k in names])
             v[3:] = a if names == _OPK else ypr_to_opk(a[::-1])
         for k, i in sds.items():
-            x = r.number(i, head.fields[i])
-            if x <= 0:
-                raise r.error(head.fields[i], f"must be positive, got {x!r}")
             j = list(_POS).index(k) if k in _POS else 3 + (_OPK.index(k) if k in _OPK else _YPR.index(k))
-            s[j] = x if k in _POS else x * unit
+            s[j] = (r.sd(i, head.fields[i], "m") if k in _POS
+                    else np.radians(r.sd(i, head.fields[i], "deg", unit * 180 / np.pi)))
         if all(has_ypr) and np.isfinite(s[3:]).any():
             s[3:] = np.nanmax(s[3:])  # roll/pitch/yaw sds mix into omega/phi/kappa: keep the largest
         photo.append(name)
@@ -178,8 +178,9 @@ def read_kapture_gnss(path: str | Path, *, crs: str | None = None,
     for r in tl.rows():
         r.need(7, names)
         v = np.full(6, np.nan)
-        v[:3] = [r.number(k, names[k]) for k in (2, 3, 4)]
-        dop = r.number(6, "dop")
+        v[:3] = [r.number(k, names[k], kind) for k, kind in ((2, "coordinate_m"), (3, "coordinate_m"),
+                                                               (4, "height_m"))]
+        dop = r.sd(6, "dop", "m")
         photo.append(r.fields[0])
         eo.append(v)
         sd.append([dop, dop, dop, np.nan, np.nan, np.nan])

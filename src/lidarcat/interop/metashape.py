@@ -37,7 +37,6 @@ disabled/unaligned cameras (no transform: no orientation).
 from __future__ import annotations
 
 import logging
-import math
 import xml.parsers.expat
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from .._util import read_bytes
+from .._util.tables import parse_float
+from .._util.values import parse_number, value_problem
 from ..errors import FormatError
 from ._text import format_error
 from .block import Block, pinhole_camera, undistorted_mm
@@ -60,8 +61,12 @@ class _El:
     tag: str
     attrs: dict
     line: int
-    text: str = ""
+    parts: list = field(default_factory=list)
     children: list = field(default_factory=list)
+
+    @property
+    def text(self) -> str:
+        return "".join(self.parts)
 
     def find(self, tag: str) -> _El | None:
         return next((c for c in self.children if c.tag == tag), None)
@@ -70,8 +75,23 @@ class _El:
         return [c for c in self.children if c.tag == tag]
 
 
+class _Refused(Exception):
+    """A construct Metashape never writes (a DTD, an entity declaration): the parse stops there."""
+
+    def __init__(self, line: int, column: int, what: str):
+        super().__init__(what)
+        self.line, self.column, self.what = line, column, what
+
+
 def _parse(path: Path) -> _El:
-    """The XML tree with the line of every element (expat)."""
+    """The XML tree with the line of every element (expat).
+
+    Metashape writes no DTD and no entity: a document type declaration, an entity
+    declaration or a reference to an external entity is refused where it starts, before
+    anything is expanded (entity expansion is how a small XML file asks for gigabytes or
+    quadratic time: "billion laughs"), so the parse is linear in the file size.  Element
+    text is collected in parts and joined once.
+    """
     data = read_bytes(path, FormatError)
     p = xml.parsers.expat.ParserCreate()
     stack: list[_El] = [_El("#root", {}, 0)]
@@ -85,11 +105,23 @@ def _parse(path: Path) -> _El:
         stack.pop()
 
     def chars(text):
-        stack[-1].text += text
+        stack[-1].parts.append(text)
+
+    def refuse(what):
+        def handler(*args):
+            raise _Refused(p.CurrentLineNumber, p.CurrentColumnNumber + 1, what)
+        return handler
 
     p.StartElementHandler, p.EndElementHandler, p.CharacterDataHandler = start, end, chars
+    p.StartDoctypeDeclHandler = refuse("a document type declaration (<!DOCTYPE>)")
+    p.EntityDeclHandler = refuse("an entity declaration (<!ENTITY>)")
+    p.ExternalEntityRefHandler = refuse("a reference to an external entity")
+    p.SetParamEntityParsing(xml.parsers.expat.XML_PARAM_ENTITY_PARSING_NEVER)
     try:
         p.Parse(data, True)
+    except _Refused as ex:
+        raise format_error(path, ex.line, None, f"{ex.what} (column {ex.column}): Metashape writes none, and "
+                           f"lidarcat reads no XML with one (entities can expand to gigabytes)") from None
     except xml.parsers.expat.ExpatError as ex:
         raise format_error(path, ex.lineno, None, f"invalid XML: {xml.parsers.expat.ErrorString(ex.code)} "
                            f"(column {ex.offset + 1})") from None
@@ -99,26 +131,27 @@ def _parse(path: Path) -> _El:
 def _floats(path: Path, el: _El | None, name: str, n: int | None = None, parent: _El | None = None) -> np.ndarray:
     if el is None:
         raise format_error(path, parent.line if parent else None, name, "missing")
+    cells = el.text.split()
     try:
-        v = np.array(el.text.split(), dtype=float)
+        v = np.array([parse_float(c) for c in cells], dtype=float)
     except ValueError:
-        raise format_error(path, el.line, name, f"{el.text.strip()[:40]!r} is not a list of numbers") from None
+        raise format_error(path, el.line, name, f"{el.text.strip()[:40]!r} is not a list of numbers "
+                           f"(ASCII digits 0-9)") from None
     if (n is not None and v.size != n) or not np.isfinite(v).all():
         raise format_error(path, el.line, name, f"expected {n or 'finite'} finite numbers, got "
                            f"{v.size}{'' if np.isfinite(v).all() else ' (not finite)'}")
     return v
 
 
-def _attr(path: Path, el: _El, name: str) -> float:
+def _attr(path: Path, el: _El, name: str, kind: str | None = None) -> float:
+    """Attribute *name* of *el*: a finite ASCII number in the sane range of *kind*
+    (:data:`lidarcat._util.values.VALUE_RANGES`)."""
     if name not in el.attrs:
         raise format_error(path, el.line, name, f"missing attribute of <{el.tag}>")
     try:
-        v = float(el.attrs[name])
-    except ValueError:
-        raise format_error(path, el.line, name, f"{el.attrs[name]!r} is not a number") from None
-    if not math.isfinite(v):
-        raise format_error(path, el.line, name, f"{el.attrs[name]!r} is not finite")
-    return v
+        return parse_number(el.attrs[name], kind)
+    except ValueError as ex:
+        raise format_error(path, el.line, name, str(ex)[:200]) from None
 
 
 def utm_crs_for(lon_deg: float, lat_deg: float) -> str:
@@ -183,15 +216,23 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
         if cal is None or res is None:
             log.warning("%s:%d: sensor %s has no calibration; its cameras are skipped", path, s.line, sid)
             continue
-        w, h = int(_attr(path, res, "width")), int(_attr(path, res, "height"))
+        w, h = int(_attr(path, res, "width", "image_px")), int(_attr(path, res, "height", "image_px"))
         val = {k: float(_floats(path, cal.find(k), k, 1, cal)[0]) if cal.find(k) is not None else 0.0
                for k in ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2")}
         if val["f"] <= 0:
             raise format_error(path, cal.line, "f", "focal length must be positive")
+        for k in ("f", "cx", "cy", "b1", "b2"):
+            problem = value_problem(val[k], "pixel_px")
+            if problem:
+                raise format_error(path, cal.find(k).line, k, problem)
         t = pixel_size_mm
         if t is None:
             pw = next((p for p in s.findall("property") if p.attrs.get("name") == "pixel_width"), None)
-            t = float(pw.attrs["value"]) if pw is not None and float(pw.attrs.get("value", 0) or 0) > 0 else 0.001
+            t = _attr(path, pw, "value") if pw is not None and pw.attrs.get("value", "").strip() else 0.0
+            t = t if t > 0 else 0.001  # Metashape writes 0 for an unknown pitch
+            if t > 1:
+                raise format_error(path, pw.line, "pixel_width", f"{pw.attrs['value'][:40]!r} mm is no pixel pitch "
+                                   f"(0 < pixel_width <= 1 mm)")
         fx, fy = val["f"] + val["b1"], val["f"]
         cam, model = pinhole_camera(
             sid, fx, fy, w / 2 + val["cx"], h / 2 + val["cy"], w, h, pixel_size_mm=t,
@@ -266,7 +307,8 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
         ref = m.find("reference")
         if ref is None or ref.attrs.get("enabled", "true") != "true" or chunk_crs is None:
             continue
-        x, y, z = (_attr(path, ref, k) for k in ("x", "y", "z"))
+        x, y, z = (_attr(path, ref, k, kind) for k, kind in (("x", "coordinate_m"), ("y", "coordinate_m"),
+                                                               ("z", "height_m")))
         gid.append(label)
         gxyz.append((x, y, z, m.line))
     g_m = np.empty((0, 3))
@@ -294,7 +336,7 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
                                        f"camera of the chunk {path.name}")
                 o_ph.append(num_of[cid])
                 o_pt.append(label)
-                o_xy.append([_attr(fpath, loc, "x"), _attr(fpath, loc, "y")])
+                o_xy.append([_attr(fpath, loc, "x", "pixel_px"), _attr(fpath, loc, "y", "pixel_px")])
     xy = np.array(o_xy, dtype=float).reshape(-1, 2)
     mm = np.empty_like(xy)
     cam_of = dict(zip(photo, pcam))

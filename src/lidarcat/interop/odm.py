@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError
-from ._text import Row, TextLines, format_error
+from ._text import sd_problem, Row, TextLines, format_error
 from .block import GroundControl, Orientations
 from .rotations import ypr_to_opk
 
@@ -128,8 +128,9 @@ def read_gcp_list(path: str | Path, *, crs: str | None = None,
     o_pt, o_im, o_px = [], [], []
     for r in rows:
         r.need(6, names)
-        xyz = (r.number(0, "geo_x"), r.number(1, "geo_y"), r.number(2, "geo_z"))
-        px = (r.number(3, "im_x"), r.number(4, "im_y"))
+        xyz = (r.number(0, "geo_x", "coordinate_m"), r.number(1, "geo_y", "coordinate_m"),
+               r.number(2, "geo_z", "height_m"))
+        px = (r.number(3, "im_x", "pixel_px"), r.number(4, "im_y", "pixel_px"))
         name = r.fields[6] if len(r.fields) > 6 else None
         if name is None:
             name = by_xyz.get(xyz) or f"gcp{len(by_xyz) + 1}"
@@ -159,6 +160,9 @@ def _register(r: Row, name: str, xyz, pts: dict, by_xyz: dict) -> None:
     by_xyz.setdefault(xyz, name)
 
 
+_GEO_KIND = {1: "coordinate_m", 2: "coordinate_m", 3: "height_m"}
+
+
 def read_geo_txt(path: str | Path, *, crs: str | None = None,
                  height_system: str = "unspecified") -> Orientations:
     """Read an ODM ``geo.txt`` (image positions, optional yaw/pitch/roll and accuracies).
@@ -185,7 +189,9 @@ def read_geo_txt(path: str | Path, *, crs: str | None = None,
         if im in seen:
             raise r.error("image", f"image {im!r} already on line {seen[im]}")
         seen[im] = r.line
-        v = [r.number(k, names[k]) for k in range(1, min(n, 10))]
+        v = [r.number(k, names[k], _GEO_KIND[k]) if k < 4 else
+             r.angle(k, names[k], np.pi / 180) * 180 / np.pi if k < 7 else r.number(k, names[k])
+             for k in range(1, min(n, 10))]
         row = np.full(6, np.nan)
         s = np.full(6, np.nan)
         row[:len(v[:3])] = v[:3]
@@ -194,6 +200,10 @@ def read_geo_txt(path: str | Path, *, crs: str | None = None,
         if n >= 9:
             if v[6] <= 0 or v[7] <= 0:
                 raise r.error("horiz_acc" if v[6] <= 0 else "vert_acc", "accuracy must be positive")
+            for k in (7, 8):
+                problem = sd_problem(v[k - 1], "m")
+                if problem:
+                    raise r.error(names[k], f"accuracy (a standard deviation) {problem}")
             s[:3] = [v[6], v[6], v[7]]
         photo.append(im)
         eo.append(row)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +42,9 @@ from scipy.spatial.transform import Rotation
 
 from .._util import atomic_dir, read_text, write_text_atomic
 from ..errors import FormatError
-from ._text import format_error
+from .._util.tables import parse_float
+from .._util.values import parse_number, parse_whole, value_problem
+from ._text import format_error, sd_problem
 from .block import Block, GroundControl, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
 from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
 
@@ -67,12 +70,46 @@ def _pipeline(lat: float, lon: float, alt: float) -> str:
             f"+ellps=WGS84 +step +proj=topocentric +ellps=WGS84 +lat_0={lat!r} +lon_0={lon!r} +h_0={alt!r}")
 
 
+#: deepest nesting of arrays/objects read from a JSON file (OpenSfM and ODM write 5 levels)
+MAX_JSON_DEPTH = 64
+_JSON_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
+
+
+def _json_depth_error(path: Path, text: str) -> FormatError | None:
+    """A located error when arrays/objects nest deeper than :data:`MAX_JSON_DEPTH` (one linear scan,
+    strings skipped), else None: the JSON parser would recurse into a RecursionError."""
+    depth = 0
+    for m in _JSON_TOKEN.finditer(text):
+        c = m.group()
+        if c in "[{":
+            depth += 1
+            if depth > MAX_JSON_DEPTH:
+                line = text.count("\n", 0, m.start()) + 1
+                col = m.start() - text.rfind("\n", 0, m.start())
+                return format_error(path, line, None, f"arrays/objects nested deeper than {MAX_JSON_DEPTH} "
+                                    f"levels (column {col}); OpenSfM and ODM files nest a few levels")
+        elif c in "]}":
+            depth -= 1
+    return None
+
+
 def _load_json(path: Path) -> Any:
     text = read_text(path, FormatError)
+    deep = _json_depth_error(path, text)
+    if deep is not None:
+        raise deep
     try:
         return json.loads(text)
     except json.JSONDecodeError as ex:
         raise format_error(path, ex.lineno, None, f"invalid JSON: {ex.msg} (column {ex.colno})") from None
+    except (ValueError, RecursionError) as ex:  # an integer of over 4,300 digits
+        raise format_error(path, None, None, f"invalid JSON: {str(ex)[:120]}") from None
+
+
+def _short(v: Any) -> str:
+    """*v* for a message: its repr, at most 40 characters."""
+    r = repr(v)
+    return r if len(r) <= 40 else r[:37] + "..."
 
 
 def _json_line(text: str, key: str) -> int | None:
@@ -81,16 +118,22 @@ def _json_line(text: str, key: str) -> int | None:
     return None if i < 0 else text.count("\n", 0, i) + 1
 
 
-def _num(path: Path, text: str, where: str, name: str, v: Any) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise format_error(path, _json_line(text, where), name, f"{v!r} is not a finite number ({where})")
+def _num(path: Path, text: str, where: str, name: str, v: Any, kind: str | None = None) -> float:
+    """*v* as a finite number in the sane range of *kind* (:data:`lidarcat._util.values.VALUE_RANGES`)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, int) and abs(v) > 10 ** 18) \
+            or not math.isfinite(v):
+        shown = repr(v) if not isinstance(v, (int, str)) or len(str(v)) <= 40 else f"{str(v)[:20]}..."
+        raise format_error(path, _json_line(text, where), name, f"{shown} is not a finite number ({where})")
+    problem = value_problem(float(v), kind) if kind else None
+    if problem:
+        raise format_error(path, _json_line(text, where), name, f"{problem} ({where})")
     return float(v)
 
 
-def _vec(path: Path, text: str, where: str, name: str, v: Any, n: int) -> np.ndarray:
+def _vec(path: Path, text: str, where: str, name: str, v: Any, n: int, kind: str | None = None) -> np.ndarray:
     if not isinstance(v, list) or len(v) != n:
         raise format_error(path, _json_line(text, where), name, f"expected a list of {n} numbers ({where})")
-    return np.array([_num(path, text, where, name, x) for x in v])
+    return np.array([_num(path, text, where, name, x, kind) for x in v])
 
 
 def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float):
@@ -102,7 +145,7 @@ def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float):
                            f"camera {cid!r}: projection {kind!r} is not supported "
                            f"(supported: {', '.join(OPENSFM_PROJECTIONS)})")
     num = lambda k, d=None: _num(path, text, cid, k, c.get(k, d))  # noqa: E731
-    w, h = int(num("width")), int(num("height"))
+    w, h = (int(_num(path, text, cid, k, c.get(k), "image_px")) for k in ("width", "height"))
     if w < 1 or h < 1:
         raise format_error(path, _json_line(text, cid), "width", f"camera {cid!r}: image size {w}x{h}")
     s = max(w, h)
@@ -116,6 +159,10 @@ def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float):
         dist = {k: num(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}
     if fx <= 0 or fy <= 0:
         raise format_error(path, _json_line(text, cid), "focal", f"camera {cid!r}: focal must be positive")
+    for k, v in (("focal", fx), ("focal", fy), ("c_x", cx), ("c_y", cy)):
+        problem = value_problem(v, "pixel_px")
+        if problem:
+            raise format_error(path, _json_line(text, cid), k, f"camera {cid!r}: {problem} (times the image size)")
     cam, model = pinhole_camera(cid, fx, fy, cx, cy, w, h, pixel_size_mm=pixel_size_mm,
                                 model=f"OpenSfM {kind}", source=f"{path.name}: camera {cid!r} ({kind})",
                                 dist=dist)
@@ -153,6 +200,8 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     if not 0 <= index < len(data):
         raise FormatError(f"{path}: reconstruction {index} requested, the file has {len(data)}")
     rec = data[index]
+    if not isinstance(rec, dict):
+        raise format_error(path, 1, None, f"reconstruction {index} is not an object")
     for key in ("cameras", "shots", "points"):
         if not isinstance(rec.get(key), dict):
             raise format_error(path, _json_line(text, key) or 1, key,
@@ -165,9 +214,9 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
         if not isinstance(sh, dict):
             raise format_error(path, _json_line(text, sid), "shots", f"shot {sid!r} is not an object")
         rv = _vec(path, text, sid, "rotation", sh.get("rotation"), 3)
-        tv = _vec(path, text, sid, "translation", sh.get("translation"), 3)
+        tv = _vec(path, text, sid, "translation", sh.get("translation"), 3, "coordinate_m")
         cid = sh.get("camera")
-        if cid not in cams:
+        if not isinstance(cid, str) or cid not in cams:
             raise format_error(path, _json_line(text, sid), "camera", f"shot {sid!r}: camera {cid!r} is not defined")
         r = Rotation.from_rotvec(rv).as_matrix()
         photo.append(sid)
@@ -176,11 +225,12 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     pids, pxyz = [], []
     for pid, pt in rec["points"].items():
         pids.append(str(pid))
-        pxyz.append(_vec(path, text, pid, "coordinates", pt.get("coordinates") if isinstance(pt, dict) else None, 3))
+        pxyz.append(_vec(path, text, pid, "coordinates", pt.get("coordinates") if isinstance(pt, dict) else None, 3,
+                         "coordinate_m"))
     lla = rec.get("reference_lla")
     if isinstance(lla, dict):
-        lat, lon, alt = (_num(path, text, "reference_lla", k, lla.get(k))
-                         for k in ("latitude", "longitude", "altitude"))
+        lat, lon, alt = (_num(path, text, "reference_lla", k, lla.get(k), kind) for k, kind in
+                         (("latitude", "latitude_deg"), ("longitude", "longitude_deg"), ("altitude", "height_m")))
         crs, hs = topocentric_crs(lat, lon, alt), "ellipsoidal"
     else:
         crs, hs = "local: OpenSfM reconstruction frame (no reference_lla)", "unspecified"
@@ -225,12 +275,10 @@ def _read_tracks(path: Path, shots: set[str], points: set[str]):
             raise format_error(path, no, names[len(f)], "missing: image track_id feature_id x y ... (tab-separated)")
         xy = []
         for k, n in ((3, "x"), (4, "y")):
-            try:
-                v = float(f[k])
-            except ValueError:
-                raise format_error(path, no, n, f"{f[k]!r} is not a number") from None
-            if not math.isfinite(v):
-                raise format_error(path, no, n, f"{f[k]!r} is not a finite number")
+            try:  # normalised image coordinates: |x|, |y| <= 0.5 inside the image
+                v = parse_number(f[k], "normalised")
+            except ValueError as ex:
+                raise format_error(path, no, n, str(ex)) from None
             xy.append(v)
         im, tr = f[0], f[1].strip()
         if im in shots and tr in points and (im, tr) not in seen:
@@ -271,21 +319,36 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
         raise format_error(path, 1, "points", "expected an object with a list 'points'")
     ids, enh, o_pt, o_ph, o_px = [], [], [], [], []
     cam_of = dict(zip(block.photo_ids.tolist(), block.photo_camera.tolist()))
-    for p in pts:
-        line = _json_line(text, str(p.get("id"))) if p.get("id") is not None else None
-        pid = f"gcp{p.get('id')}"  # GCP ids are their own namespace in OpenSfM, apart from track ids
+    for k, p in enumerate(pts):
+        if not isinstance(p, dict):
+            raise format_error(path, None, "points", f"point {k + 1} is not an object, got {_short(p)}")
+        if not isinstance(p.get("id"), (str, int)) or isinstance(p.get("id"), bool):
+            raise format_error(path, None, "id", f"point {k + 1}: expected a string id, got {_short(p.get('id'))}")
+        line = _json_line(text, str(p["id"]))
+        pid = f"gcp{p['id']}"  # GCP ids are their own namespace in OpenSfM, apart from track ids
         pos = p.get("position")
         xyz = np.full(3, np.nan)
         if pos is not None:
-            lat, lon, alt = (_num(path, text, pid, k, pos.get(k)) for k in ("latitude", "longitude", "altitude"))
+            if not isinstance(pos, dict):
+                raise format_error(path, line, "position", f"GCP {pid!r}: expected an object with latitude, "
+                                   f"longitude, altitude, got {_short(pos)}")
+            lat, lon, alt = (_num(path, text, str(p["id"]), k, pos.get(k), kind) for k, kind in
+                             (("latitude", "latitude_deg"), ("longitude", "longitude_deg"), ("altitude", "height_m")))
             xyz = np.array(tr.transform(lon, lat, alt))
         ids.append(pid)
         enh.append(xyz)
-        for ob in p.get("observations", []):
+        obs = p.get("observations", [])
+        if not isinstance(obs, list):
+            raise format_error(path, line, "observations", f"GCP {pid!r}: expected a list, got {_short(obs)}")
+        for ob in obs:
+            if not isinstance(ob, dict):
+                raise format_error(path, line, "observations", f"GCP {pid!r}: an observation is not an object, "
+                                   f"got {_short(ob)}")
             sid = ob.get("shot_id")
-            if sid not in cam_of:
-                raise format_error(path, line, "shot_id", f"GCP {pid!r}: shot {sid!r} is not in the reconstruction")
-            xy = _vec(path, text, pid, "projection", ob.get("projection"), 2)
+            if not isinstance(sid, str) or sid not in cam_of or cam_of[sid] not in block.source_models:
+                raise format_error(path, line, "shot_id", f"GCP {pid!r}: shot {_short(sid)} is not in the "
+                                   f"reconstruction")
+            xy = _vec(path, text, str(p["id"]), "projection", ob.get("projection"), 2, "normalised")
             m = block.source_models[cam_of[sid]]
             s = max(m["w"], m["h"])
             o_pt.append(pid)
@@ -404,15 +467,22 @@ def read_opensfm_config(path: str | Path) -> dict[str, Any]:
         elif low in ("no", "false", "off"):
             v = False
         else:
-            try:
-                v = int(val)
+            try:  # ASCII numbers only (int() and float() read Unicode digits and 1_000)
+                v = parse_whole(val)
             except ValueError:
                 try:
-                    v = float(val)
+                    v = parse_float(val)
                 except ValueError:
                     v = val.strip("'\"")
         out[key] = v
         lines[key] = no
+    for key in ("gcp_horizontal_sd", "gcp_vertical_sd"):
+        if key in out:
+            v = out[key]
+            problem = (f"{_short(v)} is not a number" if isinstance(v, (bool, str))
+                       else sd_problem(float(v), "m"))
+            if problem:
+                raise format_error(path, lines[key], key, f"{problem} (a standard deviation, m)")
     return out
 
 
@@ -424,6 +494,11 @@ def gcp_sd_from_config(config: dict[str, Any], default: float) -> tuple[float, f
     """
     if config.get("bundle_use_gcp") is False:
         log.warning("the OpenSfM config says bundle_use_gcp: no; the GCPs are imported anyway")
-    hz = float(config.get("gcp_horizontal_sd", default))
-    vt = float(config.get("gcp_vertical_sd", default))
+    hz, vt = (config.get(k, default) for k in ("gcp_horizontal_sd", "gcp_vertical_sd"))
+    for k, v in (("gcp_horizontal_sd", hz), ("gcp_vertical_sd", vt)):
+        problem = (f"{_short(v)} is not a number" if isinstance(v, bool) or not isinstance(v, (int, float))
+                   else sd_problem(float(v), "m"))
+        if problem:
+            raise FormatError(f"OpenSfM config: field {k!r}: {problem} (a standard deviation, m)")
+    hz, vt = float(hz), float(vt)
     return hz, hz, vt

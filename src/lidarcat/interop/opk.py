@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from .._util import atomic_write, write_json_atomic
+from .._util.values import parse_number
 from ..errors import FormatError
 from ._text import TextLines, format_error
 from .block import Block, Orientations, require_orientations
@@ -120,9 +121,11 @@ def read_opk(path: str | Path, *, angle_unit: str = "deg", crs: str = "unspecifi
         if name in seen:
             raise r.error(hdr["photo"], f"photo {name!r} already on line {seen[name]}")
         seen[name] = r.line
-        vals = [r.number(cols[k], hdr[k]) for k in ("X", "Y", "Z", "omega", "phi", "kappa")]
+        vals = ([r.number(cols[k], hdr[k], kind) for k, kind in (("X", "coordinate_m"), ("Y", "coordinate_m"),
+                                                                 ("Z", "height_m"))]
+                + [r.angle(cols[k], hdr[k], unit) for k in ("omega", "phi", "kappa")])
         photo.append(name)
-        eo.append(vals[:3] + [v * unit for v in vals[3:]])
+        eo.append(vals)
         cams.append(r.fields[cols["camera"]] if "camera" in cols else "")
         lines.append(r.line)
     if not photo:
@@ -210,10 +213,10 @@ def read_borea_camera(path: str | Path, *, pixel_size_mm: float = 0.001):
     def num(key: str) -> float:
         v, line = vals[key]
         try:
-            x = float(v)
-        except ValueError:
-            raise format_error(tl.path, line, key, f"{v!r} is not a number") from None
-        if not math.isfinite(x) or (key in ("focal", "width", "height") and x <= 0):
+            x = parse_number(v, "image_px" if key in ("width", "height") else "pixel_px")
+        except ValueError as ex:
+            raise format_error(tl.path, line, key, str(ex)) from None
+        if key in ("focal", "width", "height") and x <= 0:
             raise format_error(tl.path, line, key, f"{v!r} must be a positive finite number")
         return x
 
@@ -244,7 +247,7 @@ def read_borea_points(path: str | Path, *, sd_m: float = 0.05) -> tuple[np.ndarr
         r.need(5, ("name", "type", "X", "Y", "H"))
         ids.append(r.fields[0].strip('"'))
         kind.append(r.fields[1])
-        xyz.append([r.number(2, "X"), r.number(3, "Y"), r.number(4, "H")])
+        xyz.append([r.number(2, "X", "coordinate_m"), r.number(3, "Y", "coordinate_m"), r.number(4, "H", "height_m")])
     if not ids:
         raise FormatError(f"{tl.path}: no point")
     return np.array(ids, dtype=str), np.array(xyz), np.array(kind, dtype=str)
@@ -261,7 +264,7 @@ def read_borea_measurements(path: str | Path) -> tuple[np.ndarray, np.ndarray, n
         r.need(4, ("point", "image", "column", "row"))
         pt.append(r.fields[0].strip('"'))
         im.append(r.fields[1])
-        cr.append([r.number(2, "column"), r.number(3, "row")])
+        cr.append([r.number(2, "column", "pixel_px"), r.number(3, "row", "pixel_px")])
     return np.array(pt, dtype=str), np.array(im, dtype=str), np.array(cr).reshape(-1, 2)
 
 

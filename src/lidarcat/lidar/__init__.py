@@ -5,6 +5,8 @@
 :mod:`.readers`     :func:`read_points`, :func:`iter_points`, :func:`write_points`
 :mod:`.crs`         :func:`resolve_crs`, :func:`transform_points`, units and area-of-use checks
 :mod:`.tileindex`   :class:`TileIndex`: bounds per tile, radius/box/polygon queries
+:mod:`.tiles`       :class:`Tile`, :class:`BlockIndex` (cell boxes in file order), :func:`expand_paths`
+:mod:`.membership`  :func:`in_radius`, :func:`in_box`, :func:`in_polygon`: which points a query holds
 :mod:`.clipping`    :func:`clip`: points around a roof with height pre-filters
 :mod:`.raster`      :func:`rasterize` (intensity, DSM, DTM), GeoTIFF and PNG output
 :mod:`.geotiff`     :func:`read_geotiff`, :func:`write_geotiff`: the one raster I/O (rasterio)
@@ -36,7 +38,9 @@ from .info import describe
 from .geotiff import GeoTransform, read_geotiff, write_geotiff
 from .raster import rasterize, write_png_preview, write_raster
 from .readers import FileHeader, iter_points, read_header, read_points, write_points
-from .tileindex import BlockIndex, Tile, TileIndex, expand_paths, in_box, in_polygon, in_radius
+from .membership import in_box, in_polygon, in_radius
+from .tileindex import TileIndex
+from .tiles import BlockIndex, Tile, expand_paths
 
 __all__ = [
     "PointCloud", "Bounds", "STANDARD_ATTRIBUTES",

@@ -43,7 +43,9 @@ import numpy as np
 from ..errors import ClipError, CRSError, LidarFormatError
 from .cloud import PointCloud
 from .crs import crs_compatible, crs_label, require_metres, resolve_crs, transform_points
-from .tileindex import TileIndex, expand_paths, in_radius
+from .membership import in_radius
+from .tileindex import TileIndex
+from .tiles import expand_paths
 
 __all__ = ["clip", "height_window_mask", "HEIGHT_FILTERS"]
 

@@ -25,7 +25,7 @@ import numpy as np
 from .cloud import Bounds
 from .crs import common_crs, crs_label, units_are_metres
 from .readers import MAX_ABS_COORD_M, iter_points, read_header
-from .tileindex import expand_paths
+from .tiles import expand_paths
 
 __all__ = ["describe", "describe_file"]
 

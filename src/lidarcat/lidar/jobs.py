@@ -34,8 +34,16 @@ points as decoding the neighbours, so the outputs do not change.  The buffers
 are resumable like the outputs and are deleted at the end of a run.
 
 Resumable: each finished output gets a ``<output>.done.json`` marker holding
-the function's name, the input tiles' sizes and modification times and the job's parameters; a
-rerun skips a job whose output and matching marker exist.  Outputs are written
+the function's name, the input tiles' sizes and modification times, the job's
+parameters and the SHA-256 of every file it vouches for (the output; for an
+edge-buffer job also its ``.npz`` pieces); a rerun skips a job only when the
+marker matches and every file still has its recorded hash, so a changed,
+truncated or replaced output is made again, never trusted.  A tile job reads a
+neighbour's piece only when its bytes have the hash the edge-buffer marker
+recorded (else it decodes the neighbour itself), and
+:func:`read_done_output` gives a job's output only when it matches its marker.
+Work files are data (``.npz`` read with ``allow_pickle=False``, JSON), never a
+format that executes code when read (pickle).  Outputs are written
 atomically, so a killed run leaves whole files or none.  A worker that dies
 mid-tile: the scheduler gives its tile to another worker (``retries``).  A
 missing or corrupt tile, or an output that cannot be written (full disk), ends
@@ -44,9 +52,12 @@ the run with an error naming the file; the finished tiles stay done.
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 import logging
 import os
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,7 +66,7 @@ from typing import Any
 from ..errors import FormatError, LidarcatError, TileIOError
 
 __all__ = ["TileJob", "TileFunction", "run_jobs", "run_on_client", "run_tile_job", "tile_jobs",
-           "read_with_buffer", "edge_buffer_jobs"]
+           "read_with_buffer", "edge_buffer_jobs", "read_done_output", "read_npz"]
 
 log = logging.getLogger(__name__)
 
@@ -126,18 +137,110 @@ class TileJob:
                 "overlap_m": self.overlap_m}
 
 
+#: the largest done-marker read back, bytes (a marker holds a signature and hashes, never data)
+_MARKER_MAX_BYTES = 1 << 22
+
+
 def _marker(job: TileJob) -> Path:
     return Path(job.output + ".done.json")
 
 
+def _vouched(job: TileJob) -> list[str]:
+    """The files a job's done-marker vouches for: its output, and an edge-buffer job's pieces."""
+    return [job.output, *(job.params["pieces"] if job.func is _write_ring else ())]
+
+
+def _write_marker(job: TileJob) -> None:
+    """The done-marker of a finished job: its signature and the SHA-256 of every file it vouches for."""
+    from .._util import file_sha256, write_json_atomic
+
+    write_json_atomic(_marker(job), {**job.signature(), "sha256": {p: file_sha256(p) for p in _vouched(job)}})
+
+
+def _read_marker(path: Path) -> dict[str, Any] | None:
+    """A done-marker's content, or None when it is missing, too large or not a JSON object."""
+    try:
+        if not path.is_file() or path.stat().st_size > _MARKER_MAX_BYTES:
+            return None
+        content = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return None
+    return content if isinstance(content, dict) else None
+
+
+def _recorded_sha256(marker: dict[str, Any] | None, path: str) -> str | None:
+    """The SHA-256 a marker records for *path* (None when it records none)."""
+    files = marker.get("sha256") if marker is not None else None
+    sha = files.get(path) if isinstance(files, dict) else None
+    return sha if isinstance(sha, str) else None
+
+
 def _is_done(job: TileJob) -> bool:
-    m = _marker(job)
-    if not (m.is_file() and Path(job.output).is_file()):
+    """The job's marker matches its signature and every file it vouches for has the recorded hash."""
+    from .._util import file_sha256
+
+    marker = _read_marker(_marker(job))
+    if marker is None:
         return False
     try:
-        return json.loads(m.read_text(encoding="utf-8")) == json.loads(json.dumps(job.signature()))
-    except (OSError, ValueError):
+        signature = json.loads(json.dumps(job.signature()))
+        if {k: v for k, v in marker.items() if k != "sha256"} != signature:
+            return False
+        files = marker.get("sha256")
+        return (isinstance(files, dict) and sorted(files) == sorted(_vouched(job))
+                and all(Path(p).is_file() and file_sha256(p) == files[p] for p in _vouched(job)))
+    except OSError:  # an input or output vanished or cannot be read: redo the job (its errors name the file)
         return False
+
+
+def read_done_output(job: TileJob) -> bytes:
+    """The bytes of a finished job's output, checked against the SHA-256 its done-marker recorded.
+
+    Read once and hashed in memory, so what is returned is what was checked.
+
+    Raises
+    ------
+    TileIOError
+        The output cannot be read, or it (or its marker) changed since the job
+        finished: names the output and says how to recompute it.
+    """
+    out = Path(job.output)
+    try:
+        data = out.read_bytes()
+    except OSError as ex:
+        raise TileIOError(f"{out}: cannot read the output of tile {job.tile} ({ex.strerror or ex})") from ex
+    if hashlib.sha256(data).hexdigest() != _recorded_sha256(_read_marker(_marker(job)), job.output):
+        raise TileIOError(f"{out}: does not match the SHA-256 of its done-marker {_marker(job).name} (changed "
+                          f"after its job finished); delete both to recompute it")
+    return data
+
+
+def read_npz(data: bytes, path: str | os.PathLike) -> dict[str, Any]:
+    """The arrays of the ``.npz`` *data* (the content of the work file *path*), read as data only.
+
+    ``allow_pickle=False`` (an object array, which would unpickle, is refused)
+    and members adding up to no more than the file itself (:func:`numpy.savez`
+    stores its arrays uncompressed, so arrays inflating beyond that are a zip bomb).
+
+    Raises
+    ------
+    TileIOError
+        Not such an ``.npz`` (names *path*; the reason is a short escaped excerpt).
+    """
+    import numpy as np
+
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            inflated = sum(i.file_size for i in zf.infolist())
+        if inflated > len(data):
+            raise TileIOError(f"{path}: not an uncompressed .npz (its arrays inflate to {inflated} bytes, "
+                              f"beyond the file's {len(data)})")
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as ex:
+        if isinstance(ex, TileIOError):
+            raise
+        raise TileIOError(f"{path}: not a readable .npz ({str(ex)!r:.80})") from None
 
 
 def _ring_path(job: TileJob, tile: str) -> Path:
@@ -164,7 +267,7 @@ def _write_ring(job: TileJob) -> None:
     from .._util import atomic_write, write_json_atomic
     from .crs import crs_label
     from .readers import read_points
-    from .tileindex import in_box
+    from .membership import in_box
 
     pc = read_points(job.tile, crs=job.crs)
     label = np.array(crs_label(pc.crs) if pc.crs is not None else "")
@@ -207,22 +310,28 @@ def edge_buffer_jobs(jobs: Sequence[TileJob]) -> list[TileJob]:
     return out
 
 
-def _read_ring(path: Path, box: tuple[float, float, float, float], crs_label_own: str) -> Any:
-    """Points of an edge buffer inside *box*, or None when it is missing or of another CRS."""
+def _read_ring(job: TileJob, tile: str, box: tuple[float, float, float, float], crs_label_own: str) -> Any:
+    """Points of *tile*'s edge-buffer piece for *job* inside *box*, or None when the piece is missing, of
+    another CRS, or not the bytes its edge-buffer marker vouches for (then the caller decodes *tile*)."""
     import numpy as np
 
     from .cloud import PointCloud
-    from .tileindex import in_box
+    from .membership import in_box
 
+    piece = _piece_path(job, tile)
+    marker = _read_marker(Path(str(_ring_path(job, tile)) + ".done.json"))
     try:
-        with np.load(path) as z:
-            if str(z["crs"]) != crs_label_own:
-                return None
-            xyz = z["xyz"]
-            m = in_box(xyz, *box)
-            attrs = {k[2:]: z[k][m] for k in z.files if k.startswith("a_")}
-            return PointCloud(xyz[m], attrs)  # the caller gives it the tile's CRS
-    except (OSError, ValueError, KeyError):
+        data = piece.read_bytes()
+        if hashlib.sha256(data).hexdigest() != _recorded_sha256(marker, str(piece)):
+            return None
+        z = read_npz(data, piece)
+        if str(z["crs"]) != crs_label_own:
+            return None
+        xyz = z["xyz"]
+        m = in_box(xyz, *box)
+        attrs = {k[2:]: v[m] for k, v in z.items() if k.startswith("a_")}
+        return PointCloud(xyz[m], attrs)  # the caller gives it the tile's CRS
+    except (OSError, ValueError, KeyError, IndexError, TypeError):  # TileIOError is an OSError
         return None
 
 
@@ -256,7 +365,7 @@ def read_with_buffer(job: TileJob) -> tuple[Any, int]:
     own_label = crs_label(own.crs) if own.crs is not None else ""
     parts: list[Any] = []
     for t in idx.tiles_in_box(*box):
-        part = _read_ring(_piece_path(job, str(t.path)), box, own_label)
+        part = _read_ring(job, str(t.path), box, own_label)
         if part is None:
             parts = []
             break
@@ -284,12 +393,10 @@ def run_tile_job(job: TileJob) -> str:
         Whatever located error the function raises (e.g. a corrupt or
         missing input tile), unchanged.
     """
-    from .._util import write_json_atomic
-
     out = Path(job.output)
     try:
         job.func(job)
-        write_json_atomic(_marker(job), job.signature())
+        _write_marker(job)
     except LidarcatError as ex:
         if job.tile in str(ex):
             raise

@@ -22,22 +22,13 @@ boundary comes back whole.  Recently read tiles stay in memory up to
 ``max_cached_points`` points so that many clips in one survey read each tile
 once.
 
-Membership tests are the same whatever the tiling: a point is in a circle when
-``(x - e)**2 + (y - n)**2 <= r**2``, in a box when ``xmin <= x <= xmax`` and
-``ymin <= y <= ymax`` (edges included), in a polygon by the even-odd rule.
+Membership tests (:mod:`lidarcat.lidar.membership`) are the same whatever the tiling: a
+point is in a circle, a box (edges included) or a polygon (even-odd rule).
 
-**Block index (LAS/LAZ).**  A LAZ file is compressed in chunks (usually 50 000
-points) that can be decoded on their own.  A :class:`BlockIndex` cuts the points
-of a tile, in file order, into blocks (the LAZ chunk, or ``block_points`` points
-for LAS and variable-chunk LAZ) and cells (``cell_points``, default 5 000, a
-divisor of the block) and records the plan box of every cell.  With it, a query
-on a tile that is not in memory seeks to each block holding a cell whose box
-meets the query box and decodes it from its start to the end of the last such
-cell (touching ranges read in one go); it returns exactly the points,
-attributes and order a whole-tile decode returns.  Airborne scans store points
-in acquisition order, so a block covers a short piece of a strip and a roof clip
-decodes part of one or two blocks; in a file whose points are shuffled every
-cell spans the tile and the whole tile is decoded as before.
+**Block index (LAS/LAZ).**  A :class:`BlockIndex` (:mod:`lidarcat.lidar.tiles`) records the plan
+box of every cell of a tile's points in file order; a query on a tile that is not in
+memory decodes only the blocks holding a cell whose box meets the query box, and returns
+exactly the points, attributes and order a whole-tile decode returns.
 
 The block index of a tile is computed in one full pass: as a by-product of the
 first whole-tile read (any query or :meth:`TileIndex.iter_points`), by
@@ -66,15 +57,11 @@ been read once (only hierarchy pages are read when the query misses the tile).
 
 from __future__ import annotations
 
-import base64
-import glob as _glob
 import json
 import logging
-import math
 import os
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -86,8 +73,11 @@ from ..errors import ClipError, CRSError, TileIOError
 from .cloud import Bounds, PointCloud
 from .copc import is_copc, read_copc_box
 from .crs import common_crs, crs_compatible, crs_label, require_metres, resolve_crs, transform_points
-from .readers import (ASCII_SUFFIXES, LAS_SUFFIXES, file_kind, iter_las_ranges, iter_points,
+from .membership import CellGrid, in_box, in_polygon, in_radius
+from .readers import (file_kind, iter_las_ranges, iter_points,
                       las_chunk_points, read_header)
+from .tiles import (DEFAULT_BLOCK_POINTS, DEFAULT_CELL_POINTS, BlockBoxes, BlockIndex, Tile, cell_points_for,
+                    expand_paths, verified_by_blocks, with_bounds)
 
 __all__ = ["TileIndex", "Tile", "BlockIndex", "DECODE_MODES", "DEFAULT_BLOCK_POINTS", "DEFAULT_CELL_POINTS",
            "expand_paths", "in_radius", "in_box", "in_polygon"]
@@ -98,383 +88,10 @@ _CACHE_FORMAT = "lidarcat-tile-index"
 _CACHE_VERSION = 2  # 2: per-tile "blocks" (block index); version-1 files are read as absent
 #: how cold queries read LAS/LAZ tiles (see the module docstring)
 DECODE_MODES = ("auto", "blocks", "whole")
-#: points per block for LAS files and LAZ files with variable-size chunks
-DEFAULT_BLOCK_POINTS = 50_000
-#: points per cell (the unit of the recorded boxes; a divisor of the block size)
-DEFAULT_CELL_POINTS = 5_000
 #: "auto" uses the blocks when a query would decode less than this fraction of the tile's points
 _AUTO_BLOCK_FRACTION = 0.5
 #: ... and reads a tile that fits in memory whole once its block reads reach this fraction
 _AUTO_SWITCH_FRACTION = 0.25
-_GLOB_CHARS = set("*?[")
-
-
-# --------------------------------------------------------------------------- membership
-def in_radius(xy: np.ndarray, center_en: Sequence[float], radius_m: float) -> np.ndarray:
-    """Mask of points within *radius_m* (edge included) of *center_en* in plan.
-
-    >>> in_radius(np.array([[0.0, 0.0], [3.0, 4.0], [3.0, 4.1]]), (0.0, 0.0), 5.0).tolist()
-    [True, True, False]
-    """
-    dx = xy[:, 0] - float(center_en[0])
-    dy = xy[:, 1] - float(center_en[1])
-    with np.errstate(over="ignore"):  # a centre far outside (1e308): inf, outside the circle
-        return dx * dx + dy * dy <= float(radius_m) ** 2
-
-
-def in_box(xy: np.ndarray, xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
-    """Mask of points with ``xmin <= x <= xmax`` and ``ymin <= y <= ymax``."""
-    x, y = xy[:, 0], xy[:, 1]
-    return (x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax)
-
-
-def in_polygon(xy: np.ndarray, vertices: np.ndarray) -> np.ndarray:
-    """Mask of points inside a simple polygon (even-odd rule, vectorised over points).
-
-    Parameters
-    ----------
-    xy : ndarray, shape (N, 2+)
-    vertices : ndarray, shape (M, 2)
-        Polygon vertices in order; closing the ring is optional.
-
-    >>> sq = np.array([[0, 0], [2, 0], [2, 2], [0, 2]], float)
-    >>> in_polygon(np.array([[1.0, 1.0], [3.0, 1.0]]), sq).tolist()
-    [True, False]
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    x, y = xy[:, 0], xy[:, 1]
-    inside = np.zeros(len(xy), dtype=bool)
-    m = len(v)
-    for i in range(m):
-        x1, y1 = v[i]
-        x2, y2 = v[(i + 1) % m]
-        if y1 == y2:
-            continue
-        crosses = (y1 > y) != (y2 > y)
-        if not crosses.any():
-            continue
-        xint = x1 + (y - y1) * (x2 - x1) / (y2 - y1)
-        inside ^= crosses & (x < xint)
-    return inside
-
-
-class _CellGrid:
-    """Points of an in-memory tile bucketed into square cells, for fast box candidates.
-
-    Candidates come back as sorted indices, so that selecting them keeps the
-    file order (queries return exactly what a full scan returns).
-    """
-
-    def __init__(self, xyz: np.ndarray, points_per_cell: int = 64) -> None:
-        x, y = xyz[:, 0], xyz[:, 1]
-        self.x0, self.y0 = float(x.min()), float(y.min())
-        w = max(float(x.max()) - self.x0, 1e-9)
-        h = max(float(y.max()) - self.y0, 1e-9)
-        self.cell = max(float(np.sqrt(w * h * points_per_cell / max(len(xyz), 1))), 0.5)
-        self.nx = int(w // self.cell) + 1
-        self.ny = int(h // self.cell) + 1
-        cx, cy = self._cells(x, y)
-        key = cy * self.nx + cx
-        self.order = np.argsort(key, kind="stable")
-        self.starts = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=self.nx * self.ny))])
-
-    def _cells(self, x: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
-        cx = np.clip(np.floor((np.asarray(x, dtype=np.float64) - self.x0) / self.cell), 0, self.nx - 1)
-        cy = np.clip(np.floor((np.asarray(y, dtype=np.float64) - self.y0) / self.cell), 0, self.ny - 1)
-        return cx.astype(np.int64), cy.astype(np.int64)
-
-    def candidates(self, xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
-        (cx0, cx1), (cy0, cy1) = (self._cells([xmin, xmax], [ymin, ymax]))
-        segs = [self.order[self.starts[cy * self.nx + cx0]:self.starts[cy * self.nx + cx1 + 1]]
-                for cy in range(int(cy0), int(cy1) + 1)]
-        idx = np.concatenate(segs) if segs else np.empty(0, dtype=np.int64)
-        idx.sort()
-        return idx
-
-
-# --------------------------------------------------------------------------- tiles
-@dataclass(frozen=True)
-class Tile:
-    """One indexed file.
-
-    Attributes
-    ----------
-    path : Path
-    size : int
-        File size, bytes.
-    mtime_ns : int
-        Modification time, ns.
-    count : int
-        Points in the file.
-    bounds : Bounds
-        Bounds in metres.
-    file_crs_wkt : str or None
-        The CRS stored in the file (WKT), ``None`` when it has none.
-    description : str
-        Format description, e.g. ``"LAZ 1.2, point format 1"``.
-    attributes : tuple of str
-        Attribute names.
-    bounds_verified : bool
-        True when *bounds* were measured on the points (text files, or a LAS/LAZ
-        tile read once); False while they are the LAS header's claim, which is
-        never used to leave a tile out of a query.
-    """
-
-    path: Path
-    size: int
-    mtime_ns: int
-    count: int
-    bounds: Bounds
-    file_crs_wkt: str | None
-    description: str
-    attributes: tuple[str, ...]
-    bounds_verified: bool = False
-
-    def may_meet(self, xmin: float, ymin: float, xmax: float, ymax: float) -> bool:
-        """False only when the tile's points certainly miss the plan box (edges included)."""
-        if self.count <= 0:
-            return False
-        return not self.bounds_verified or self.bounds.intersects_box(xmin, ymin, xmax, ymax)
-
-    def to_dict(self, relative_to: Path | None = None) -> dict[str, Any]:
-        path = str(self.path)
-        if relative_to is not None and self.path.is_relative_to(relative_to):
-            path = self.path.relative_to(relative_to).as_posix()
-        return {"path": path, "size": self.size, "mtime_ns": self.mtime_ns, "count": self.count,
-                "bounds": list(self.bounds), "file_crs_wkt": self.file_crs_wkt,
-                "description": self.description, "attributes": list(self.attributes),
-                "bounds_verified": self.bounds_verified}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], base: Path) -> Tile:
-        path = Path(d["path"])
-        if not path.is_absolute():
-            path = (base / path).resolve()
-        return cls(path, int(d["size"]), int(d["mtime_ns"]), int(d["count"]),
-                   Bounds(*(math.nan if v is None else float(v) for v in d["bounds"])), d.get("file_crs_wkt"), str(d["description"]),
-                   tuple(d.get("attributes", ())), bool(d.get("bounds_verified", False)))
-
-
-@dataclass(frozen=True, eq=False)
-class BlockIndex:
-    """Plan boxes of the consecutive points of one LAS/LAZ tile, for partial decoding.
-
-    The points are cut, in file order, into *blocks* of ``block_points`` (the
-    unit a LAZ decoder starts from: its compressed chunk) and each block into
-    *cells* of ``cell_points``; ``boxes`` holds the exact minimum and maximum
-    of the coordinates of each cell as read.  A query decodes, in every block
-    holding a cell its box meets, the points from the block start to the end of
-    the last such cell.
-
-    Attributes
-    ----------
-    block_points : int
-        Points per block (the last block may hold fewer).
-    count : int
-        Points in the tile.
-    boxes : ndarray, shape (C, 4)
-        ``xmin, ymin, xmax, ymax`` of each cell, metres; ``C = ceil(count / cell_points)``.
-    cell_points : int
-        Points per cell, a divisor of *block_points* (default: *block_points*).
-
-    Examples
-    --------
-    >>> bi = BlockIndex(2, 5, np.array([[0, 0, 1, 1], [5, 0, 6, 1], [0.5, 0, 2, 1.0]]))
-    >>> bi.needs(bi.cells_in_box(0.9, 0.5, 1.5, 0.6))   # blocks 0 and 2, read to their ends
-    ([0, 2], [2, 5])
-    >>> bi.ranges([0, 2], [2, 5]), bi.ranges([0, 1], [2, 4])
-    ([(0, 2), (4, 5)], [(0, 4)])
-    >>> cells = BlockIndex(4, 7, np.array([[0, 0, 1, 1], [5, 0, 6, 1], [0, 0, 1, 1], [9, 9, 9, 9]]), 2)
-    >>> cells.needs(cells.cells_in_box(0, 0, 1, 1))     # blocks 0 and 1, each read up to point 2 / 6
-    ([0, 1], [2, 6])
-    """
-
-    block_points: int
-    count: int
-    boxes: np.ndarray
-    cell_points: int = 0
-
-    def __post_init__(self) -> None:
-        bp, count = int(self.block_points), int(self.count)
-        cp = int(self.cell_points) or bp
-        boxes = np.array(self.boxes, dtype=np.float64, copy=True).reshape(-1, 4)
-        if bp <= 0 or cp <= 0 or count < 0 or bp % cp:
-            raise ValueError(f"block_points ({bp}) must be a positive multiple of cell_points ({cp}) "
-                             f"and count ({count}) >= 0")
-        if len(boxes) != -(-count // cp):
-            raise ValueError(f"{len(boxes)} boxes for {count} points in cells of {cp}")
-        boxes.setflags(write=False)
-        object.__setattr__(self, "block_points", bp)
-        object.__setattr__(self, "cell_points", cp)
-        object.__setattr__(self, "count", count)
-        object.__setattr__(self, "boxes", boxes)
-
-    def __len__(self) -> int:
-        """Number of blocks."""
-        return -(-self.count // self.block_points)
-
-    def cells_in_box(self, xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
-        """Ascending indices of the cells whose box meets the plan box (edges included)."""
-        b = self.boxes
-        return np.flatnonzero((b[:, 0] <= xmax) & (b[:, 2] >= xmin) & (b[:, 1] <= ymax) & (b[:, 3] >= ymin))
-
-    def needs(self, cells: np.ndarray) -> tuple[list[int], list[int]]:
-        """Blocks holding the ascending *cells*, and per block the point index where reading
-        may stop (the end of its last cell among *cells*)."""
-        c = np.asarray(cells, dtype=np.int64)
-        if len(c) == 0:
-            return [], []
-        blk = c // (self.block_points // self.cell_points)
-        ends = np.minimum((c + 1) * self.cell_points, self.count)
-        last = np.flatnonzero(np.r_[blk[1:] != blk[:-1], True])  # cells ascend: last one per block
-        return blk[last].tolist(), ends[last].tolist()
-
-    def ranges(self, blocks: Iterable[int], stops: Iterable[int]) -> list[tuple[int, int]]:
-        """Point ranges ``[start, stop)`` of ascending *blocks*, each read from its start to
-        its entry of *stops* (see :meth:`needs`); ranges that touch are merged."""
-        out: list[tuple[int, int]] = []
-        for k, e in zip(map(int, blocks), map(int, stops)):
-            a = k * self.block_points
-            if out and out[-1][1] == a:
-                out[-1] = (out[-1][0], e)
-            else:
-                out.append((a, e))
-        return out
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON form: the boxes as base64 of little-endian float64 (exact round trip)."""
-        return {"block_points": self.block_points, "cell_points": self.cell_points, "count": self.count,
-                "boxes_f8le": base64.b64encode(self.boxes.astype("<f8").tobytes()).decode("ascii")}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> BlockIndex:
-        raw = base64.b64decode(d["boxes_f8le"], validate=True)
-        return cls(int(d["block_points"]), int(d["count"]), np.frombuffer(raw, dtype="<f8").reshape(-1, 4),
-                   int(d.get("cell_points", 0)))
-
-
-def _verified_by_blocks(tile: Tile, blocks: BlockIndex | None) -> Tile:
-    """*tile* with plan bounds measured by its block index (the exact boxes of its points)."""
-    if tile.bounds_verified or blocks is None or blocks.count == 0:
-        return tile
-    b = blocks.boxes
-    return _with_bounds(tile, (float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()),
-                               float(b[:, 3].max()), tile.bounds.zmin, tile.bounds.zmax))
-
-
-def _with_bounds(tile: Tile, measured: Sequence[float]) -> Tile:
-    """*tile* with bounds measured on its points (a warning when the header's claim missed them)."""
-    old, new = tile.bounds, Bounds(*map(float, measured))
-    tol = 1e-3  # m: headers round their bounds
-    if not (old.xmin - tol <= new.xmin and old.ymin - tol <= new.ymin and old.xmax + tol >= new.xmax
-            and old.ymax + tol >= new.ymax):
-        log.warning("%s: the header's bounds E %.3f..%.3f N %.3f..%.3f do not hold the points "
-                    "(E %.3f..%.3f N %.3f..%.3f); the points' bounds are used", tile.path, old.xmin,
-                    old.xmax, old.ymin, old.ymax, new.xmin, new.xmax, new.ymin, new.ymax)
-    return replace(tile, bounds=new, bounds_verified=True)
-
-
-def _cell_points_for(block_points: int, cell_points: int) -> int:
-    """The largest divisor of *block_points* not above *cell_points*."""
-    for c in range(min(int(cell_points), block_points), 0, -1):
-        if block_points % c == 0:
-            return c
-    return block_points
-
-
-class _BlockBoxes:
-    """Accumulates cell boxes from a stream of chunks in file order (any chunk sizes)."""
-
-    def __init__(self, block_points: int, cell_points: int, count: int) -> None:
-        self.block_points = int(block_points)
-        self.cell_points = int(cell_points)
-        self.count = int(count)
-        self.cells = -(-self.count // self.cell_points)
-        # grown as points arrive: a header's count is a claim and must not size an allocation
-        self.boxes = self._empty(min(self.cells, 1024))
-        self.seen = 0
-
-    @staticmethod
-    def _empty(k: int) -> np.ndarray:
-        boxes = np.empty((k, 4))
-        boxes[:, :2] = np.inf
-        boxes[:, 2:] = -np.inf
-        return boxes
-
-    def add(self, xyz: np.ndarray) -> None:
-        m = len(xyz)
-        if m == 0:
-            return
-        if self.seen + m > self.count:
-            raise ValueError("more points than the tile holds")
-        cp = self.cell_points
-        first, last = self.seen // cp, (self.seen + m - 1) // cp
-        if last >= len(self.boxes):
-            grown = self._empty(min(self.cells, max(last + 1, 2 * len(self.boxes))))
-            grown[:len(self.boxes)] = self.boxes
-            self.boxes = grown
-        edges = np.concatenate([[0], np.arange(first + 1, last + 1) * cp - self.seen]).astype(np.intp)
-        x, y = xyz[:, 0], xyz[:, 1]
-        box = self.boxes[first:last + 1]
-        np.minimum(box[:, 0], np.minimum.reduceat(x, edges), out=box[:, 0])
-        np.minimum(box[:, 1], np.minimum.reduceat(y, edges), out=box[:, 1])
-        np.maximum(box[:, 2], np.maximum.reduceat(x, edges), out=box[:, 2])
-        np.maximum(box[:, 3], np.maximum.reduceat(y, edges), out=box[:, 3])
-        self.seen += m
-
-    def finish(self) -> BlockIndex | None:
-        if self.seen != self.count:
-            return None
-        return BlockIndex(self.block_points, self.count, self.boxes, self.cell_points)
-
-
-def expand_paths(paths_or_globs: str | os.PathLike | Iterable[str | os.PathLike],
-                 root: str | os.PathLike | None = None) -> list[Path]:
-    """Files named by paths, folders (their point files) and globs, in order, without duplicates.
-
-    Relative entries are taken relative to *root* (default: the working folder).
-
-    Raises
-    ------
-    TileIOError
-        A named file does not exist, or a glob or folder matches no point file.
-    """
-    if isinstance(paths_or_globs, (str, os.PathLike)):
-        paths_or_globs = [paths_or_globs]
-    base = Path(root) if root is not None else Path.cwd()
-    out: list[Path] = []
-    seen: set[Path] = set()
-    suffixes = LAS_SUFFIXES + ASCII_SUFFIXES
-
-    def add(p: Path) -> None:
-        p = p.resolve()
-        if p not in seen:
-            seen.add(p)
-            out.append(p)
-
-    for entry in paths_or_globs:
-        text = os.fspath(entry)
-        p = Path(text)
-        full = p if p.is_absolute() else base / p
-        if _GLOB_CHARS & set(text):
-            matches = sorted(Path(m) for m in _glob.glob(str(full), recursive=True))
-            matches = [m for m in matches if m.is_file() and m.suffix.lower() in suffixes]
-            if not matches:
-                raise TileIOError(f"{text}: no LiDAR files match this pattern (looked in {base})")
-            for m in matches:
-                add(m)
-        elif full.is_dir():
-            matches = sorted(m for m in full.iterdir() if m.is_file() and m.suffix.lower() in suffixes)
-            if not matches:
-                raise TileIOError(f"{full}: folder holds no LiDAR files ({', '.join(suffixes)})")
-            for m in matches:
-                add(m)
-        else:
-            if not full.exists():
-                raise TileIOError(f"{full}: file not found")
-            file_kind(full)
-            add(full)
-    return out
 
 
 class TileIndex:
@@ -522,7 +139,7 @@ class TileIndex:
         self._cache_path = Path(cache_path) if cache_path is not None else None
         # whole tiles (key: path) and block prefixes (key: (path, block)), least recently used first
         self._cache: OrderedDict[Any, PointCloud] = OrderedDict()
-        self._grids: dict[Path, _CellGrid] = {}
+        self._grids: dict[Path, CellGrid] = {}
         self._cached_points = 0
         self._block_decoded: dict[Path, int] = {}  # points of each tile decoded by block reads
         self._copc: dict[Path, bool] = {}  # tiles that are COPC files (queried by their octree)
@@ -607,7 +224,7 @@ class TileIndex:
             log.debug("indexed %s: %d points", p, h.count)
         known_blocks = {t.path: cached_blocks[t.path] for t in tiles
                         if t.path in cached_blocks and cached.get(t.path) is t}
-        tiles = [_verified_by_blocks(t, known_blocks.get(t.path)) for t in tiles]
+        tiles = [verified_by_blocks(t, known_blocks.get(t.path)) for t in tiles]
         if cache_path is not None and (changed or set(cached) != set(paths)):
             cls._save_cache(Path(cache_path), tiles, known_blocks)
         tile_crs = []
@@ -759,7 +376,7 @@ class TileIndex:
         acc = None
         if self._wants_blocks(tile):
             bp = las_chunk_points(tile.path) or self.block_points
-            acc = _BlockBoxes(bp, _cell_points_for(bp, self.cell_points), tile.count)
+            acc = BlockBoxes(bp, cell_points_for(bp, self.cell_points), tile.count)
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         for chunk in iter_points(tile.path, self._chunk_size, crs=self._file_crs_kw(tile),
                                  columns=self._columns, delimiter=self._delimiter, progress=progress):
@@ -772,7 +389,7 @@ class TileIndex:
             yield chunk
         if not tile.bounds_verified and np.isfinite(lo).all():
             k = next(i for i, t in enumerate(self.tiles) if t.path == tile.path)
-            self.tiles = self.tiles[:k] + (_with_bounds(tile, (lo[0], lo[1], hi[0], hi[1], lo[2], hi[2])),) \
+            self.tiles = self.tiles[:k] + (with_bounds(tile, (lo[0], lo[1], hi[0], hi[1], lo[2], hi[2])),) \
                 + self.tiles[k + 1:]
             if save and acc is None:
                 self._save_blocks()
@@ -963,7 +580,7 @@ class TileIndex:
                 self._touch(t.path)
                 grid = self._grids.get(t.path)
                 if grid is None:
-                    grid = self._grids[t.path] = _CellGrid(cached.xyz)
+                    grid = self._grids[t.path] = CellGrid(cached.xyz)
                 idx = grid.candidates(*box)
                 idx = idx[mask_fn(cached.xyz[idx])]
                 if len(idx):

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from .._util import folder_lock, write_json_atomic
+from .._util import folder_lock, inside, write_json_atomic
 from ..errors import LidarcatError, SurveyError
 from .runner import (
     PipelineResult,
@@ -261,6 +261,9 @@ def run_pipeline(
 
     survey = Survey.load(survey_path)
     out = Path(survey.output_dir(outdir))
+    if outdir is None and not survey.embedded:  # SURVEY/out: chosen by the survey folder, so no link out of it
+        inside(survey.root, out)
+    inside(out, out / "lidarcat.log")  # a shipped link would be touched and appended to
     try:
         out.mkdir(parents=True, exist_ok=True)
         (out / "lidarcat.log").touch()

@@ -11,7 +11,11 @@ writes its folder through :func:`lidarcat._util.atomic_dir` and its record only
 afterwards, so an interrupted run leaves no half-written file and the next run
 redoes exactly the unfinished stages (``.*.part`` leftovers of a killed run are
 removed first).  A failing stage does not stop the others; the stages that
-require it are skipped.
+require it are skipped.  The output folder is a boundary: a stage folder, the
+records or the summary that is a symbolic link stops the run before anything is
+written, every write of a stage is checked to stay inside the folder
+(:func:`lidarcat._util.output_root`), and stale outputs are removed without
+following links (:func:`lidarcat._util.remove_below`).
 
 Nothing here knows about photogrammetry: the lidarcat stages are in
 :mod:`lidarcat.stages` and their order in :mod:`lidarcat.pipeline.plan`.
@@ -33,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from .._util import atomic_dir, dumps_json, write_json_atomic
+from .._util import atomic_dir, dumps_json, inside, output_root, remove_below, write_json_atomic
 from ..errors import LidarcatError
 from ..stages.context import ProgressCallback, failed_tests
 from ..stages.context import StageContext as Context
@@ -268,6 +272,10 @@ def _outputs_intact(outdir: Path, record: Mapping[str, Any]) -> bool:
     digests = record.get("output_digests") or {}
     for rel, digest in digests.items():
         p = outdir / rel
+        try:
+            inside(outdir, p)  # a record shipped with the survey may name files elsewhere: not ours
+        except LidarcatError:
+            return False
         if not p.is_file() or _file_digest(p) != digest:
             return False
     return True
@@ -304,15 +312,30 @@ def run_stages(
         One per stage, in order.  A failing stage does not stop the others;
         stages that require it are skipped.  ``KeyboardInterrupt`` propagates
         (the interrupted stage's outputs are discarded).
+
+    Raises
+    ------
+    ProductError
+        A stage folder, ``.stages`` or ``summary.json`` is a symbolic link (or lies outside *outdir*):
+        nothing is run.
     """
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     _DIGESTS.clear()  # file digests are memoised within one run only
     ctx = Context(outdir, values, progress)
-    records: list[StageRecord] = []
     names = [s.name for s in stages]
     if len(set(names)) != len(names):
         raise ValueError(f"duplicate stage names in {names}")
+    # the output folder is a boundary: no stage folder (nor the records) may leave it or be a link
+    # (a survey that ships out/<stage> as a link to elsewhere would have its target cleared)
+    for p in (*(outdir / st.folder for st in stages), outdir / _RECORD_DIR, outdir / "summary.json"):
+        inside(outdir, p)
+    with output_root(outdir):
+        return _run_all(stages, outdir, ctx, force)
+
+
+def _run_all(stages: Sequence[Stage], outdir: Path, ctx: Context, force: bool) -> list[StageRecord]:
+    records: list[StageRecord] = []
     # leftovers of a run that was killed (no cleanup possible after SIGKILL or a power cut)
     for st in stages:
         _remove_parts((outdir / st.folder).parent, f"{Path(st.folder).name}.")
@@ -392,7 +415,8 @@ def _run_one(stage: Stage, ctx: Context, force: bool) -> StageRecord:
                       traceback.format_exc())
         # results of an earlier run no longer match the inputs: remove them
         if stage.folder not in ("", "."):
-            _clear_folder(target, keep=())
+            with contextlib.suppress(LidarcatError):  # a link planted meanwhile: refused, never followed
+                _clear_folder(target, keep=())
         return StageRecord(stage.name, stage.folder, "failed", reason, seconds, digest)
     seconds = time.perf_counter() - t0
     # files of an earlier run of this stage that this run did not write
@@ -413,29 +437,21 @@ def _remove_parts(parent: Path, prefix: str) -> None:
     """Remove temporary ``.<prefix>*.part`` files and folders in *parent* (see lidarcat._util)."""
     import shutil
 
-    if not parent.is_dir():
-        return
+    if parent.is_symlink() or not parent.is_dir():
+        return  # a link is refused by run_stages' check; never glob through one
     for p in parent.glob(f".{prefix}*.part"):
-        if p.is_dir():
+        if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
-        else:
+        else:  # a file, or a link (removed as a name: its target is left alone)
             with contextlib.suppress(FileNotFoundError):
                 p.unlink()
 
 
 def _clear_folder(folder: Path, keep: Iterable[str]) -> None:
     """Remove files under *folder* (a stage's own output folder) except *keep* (relative paths)."""
-    if not folder.is_dir() or folder.name in ("", ".", ".."):
+    if folder.name in ("", ".", ".."):
         return
-    keep = set(keep)
-    for p in sorted(folder.rglob("*"), reverse=True):
-        rel = str(p.relative_to(folder))
-        if p.is_file() and rel not in keep and ".part" not in p.name:
-            p.unlink()
-        elif p.is_dir() and not any(p.iterdir()):
-            p.rmdir()
-    if not keep and folder.is_dir() and not any(folder.iterdir()):
-        folder.rmdir()
+    remove_below(folder, keep)  # checked against the output root; never follows a link
 
 
 def _rel(folder: str, names: Iterable[str]) -> list[str]:
@@ -446,6 +462,7 @@ def _rel(folder: str, names: Iterable[str]) -> list[str]:
 
 @contextlib.contextmanager
 def log_to(path: Path):
+    inside(Path(path).parent, path)  # the log of an output folder: never appended through a link
     handler = logging.FileHandler(path, encoding="utf-8")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     handler.setLevel(logging.INFO)

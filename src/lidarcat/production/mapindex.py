@@ -343,7 +343,7 @@ def sheets_covering(bounds: tuple[float, float, float, float], crs: Any, scale: 
         North to south, west to east.
     """
     from ..lidar.crs import resolve_crs
-    from ..lidar.tileindex import in_polygon
+    from ..lidar.membership import in_polygon
 
     _check_scale(scale)
     geo = resolve_crs(geographic_crs, what="geographic CRS") if geographic_crs is not None else geographic_crs_of(crs)

@@ -45,7 +45,7 @@ def extract(jobs: str | os.PathLike | Sequence[Any], *, lidar: Sequence[str | os
     crs : CRS-like, optional
         CRS of tiles that carry none.
     preset : {"default", "thesis"}
-        Parameter preset (:func:`lidarcat.control.facets.get_params`).
+        Parameter preset (:func:`lidarcat.control.params.get_params`).
     radius_m : float, optional
         Clip radius of the jobs without one, m (default: the preset's).
     spec_sd : (plan, height), optional
@@ -66,7 +66,7 @@ def extract(jobs: str | os.PathLike | Sequence[Any], *, lidar: Sequence[str | os
         One per job, in job order (failed jobs falsy, with a status).
     """
     from ..control.batch import extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
-    from ..control.facets import get_params
+    from ..control.params import get_params
 
     if isinstance(jobs, (str, os.PathLike)):
         source, job_list = f"the jobs of {Path(jobs).name}", read_jobs(jobs)

@@ -52,6 +52,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from .._util import output_root, safe_component
 from ..survey.schema import MappingSettings
 from .context import StageContext as Context
 
@@ -129,30 +130,42 @@ def orthophotos(survey: Any, outdir: str | os.PathLike, photo_ids: Sequence[str]
     """
     from ..mapping.inputs import adjusted_orientations, photo_image
     from ..mapping.monoplot import GridSurface
-    from ..mapping.mosaic import mosaic as mosaic_photos
-    from ..mapping.ortho import PhotoModel, orthophoto
+    from ..mapping.ortho import PhotoModel
 
+    out = Path(outdir)
+    photos_file = survey.files.get("photos", survey.toml_path)
+    names = {pid: f"ortho_{safe_component(pid, 'photo id', photos_file)}.tif" for pid in photo_ids}
     grid = GridSurface.from_geotiff(surface)
     folder = Path(images) if images is not None else survey.root / "images"
     eos = adjusted_orientations(survey, list(photo_ids), eop)
     photos = [PhotoModel(pid, photo_image(pid, folder, survey.camera_of(pid)), survey.camera_of(pid),
                          eos[pid].params) for pid in photo_ids]
-    out = Path(outdir)
 
     def step(name: str) -> Callable[[int, int], Any] | None:
         return None if progress is None else (lambda done, total: progress(name, done, total))
 
     done: dict[str, Any] = {"orthophotos": []}
+    with output_root(out):  # nothing written below leaves *outdir* nor goes through a link in it
+        _orthophotos_into(out, names, photos, grid, gsd_m, bounds, true_ortho, survey.crs, tile_px, mosaic,
+                          feather_m, step, done)
+    return done
+
+
+def _orthophotos_into(out: Path, names: dict[str, str], photos: list[Any], grid: Any, gsd_m: float, bounds: Any,
+                      true_ortho: bool, crs: Any, tile_px: int, mosaic: bool, feather_m: float,
+                      step: Callable[[str], Any], done: dict[str, Any]) -> None:
+    from ..mapping.mosaic import mosaic as mosaic_photos
+    from ..mapping.ortho import orthophoto
+
     for ph in photos:
-        r = orthophoto(ph, grid, gsd_m, out / f"ortho_{ph.photo_id}.tif", bounds=bounds, true_ortho=true_ortho,
-                       crs=survey.crs, tile_px=tile_px, progress=step(f"ortho {ph.photo_id}"))
+        r = orthophoto(ph, grid, gsd_m, out / names[ph.photo_id], bounds=bounds, true_ortho=true_ortho,
+                       crs=crs, tile_px=tile_px, progress=step(f"ortho {ph.photo_id}"))
         done["orthophotos"].append(r.to_dict() | {"photo": ph.photo_id})
     if mosaic:
         m = mosaic_photos(photos, grid, gsd_m, out / "mosaic.tif", seams_path=out / "seamlines.geojson",
-                          bounds=bounds, true_ortho=true_ortho, crs=survey.crs, tile_px=tile_px,
+                          bounds=bounds, true_ortho=true_ortho, crs=crs, tile_px=tile_px,
                           feather_m=feather_m, progress=step("mosaic"))
         done["mosaic"] = m.to_dict()
-    return done
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -189,6 +202,8 @@ def _orthophotos(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: 
 
     survey = ctx["survey"]
     ids = cfg["photos"] or [p for p in survey.photo_ids if p in eos]
+    for pid in ids:  # each names a file: refused before the surface model is computed
+        safe_component(pid, "photo id", survey.files.get("photos", survey.toml_path))
     images = Path(cfg["images"])
     images = images if images.is_absolute() else survey.root / images
     b = index.bounds
@@ -242,6 +257,8 @@ def _monoplot(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: Any
     b = index.bounds
     out: dict[str, Any] = {"interpolators": list(cfg["interpolators"]), "method": cfg["method"], "photos": {}}
     collected: dict[str, list[tuple[list[Any], np.ndarray, np.ndarray]]] = {i: [] for i in cfg["interpolators"]}
+    for pid in cfg["features"]:
+        safe_component(pid, "photo id", survey.toml_path)
     for pid, fpath in cfg["features"].items():
         path = Path(fpath) if Path(fpath).is_absolute() else survey.root / fpath
         feats = read_features(path)
@@ -261,7 +278,7 @@ def _monoplot(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: Any
             else:
                 surface = PointSurface(np.asarray(cloud.xyz)[first], interp, sd_m=float(cfg["surface_sd_m"]))
             res = monoplot(px, cam, eo, surface, method=cfg["method"], image_sd_px=float(cfg["image_sd_px"]))
-            name = f"monoplot_{pid}_{interp}.geojson"
+            name = f"monoplot_{pid}_{interp}.geojson"  # pid checked above
             doc = features_geojson(feats, res, crs=survey.crs, extra={
                 "photo": pid, "method": cfg["method"], "interpolator": interp, "surface": INTERPOLATORS[interp],
                 "image_sd_px": cfg["image_sd_px"], "surface_sd_m": cfg["surface_sd_m"]})

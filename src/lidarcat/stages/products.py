@@ -195,6 +195,8 @@ def _sheets(rasters: dict[str, tuple[Any, Any]], features: list[dict[str, Any]],
     """Every model and the contours cut along the sheet index; the index of the sheets holding data."""
     import numpy as np
 
+    from .._util import safe_component
+    from ..errors import ProductError
     from ..production.contours import write_layers
     from ..production.sheets import cut_contours, cut_raster, index_sheets, sheet_index_features
     from ..production.terrain import write_product
@@ -203,14 +205,15 @@ def _sheets(rasters: dict[str, tuple[Any, Any]], features: list[dict[str, Any]],
     used = []
     for s in index_sheets(area, cfg["sheet_index"], crs=crs, size_m=cfg["sheet_size_m"] or 1000.0):
         wrote = False
+        folder = tmp / "sheets" / safe_component(s.name, "sheet name", error=ProductError)
         for name, (grid, transform) in rasters.items():
             cut = cut_raster(grid, transform, s, crs)
             if cut is not None and np.isfinite(cut[0].astype(float)).any():
-                write_product(tmp / "sheets" / s.name / name, cut[0], cut[1], crs)
+                write_product(folder / name, cut[0], cut[1], crs)
                 wrote = True
         part = cut_contours(features, s, crs) if features else []
         if part:
-            write_layers(tmp / "sheets" / s.name / ("contours" + ext), {"contours": part}, crs)
+            write_layers(folder / ("contours" + ext), {"contours": part}, crs)
             wrote = True
         if wrote:
             used.append(s)

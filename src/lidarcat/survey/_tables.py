@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .._util import CsvTable, read_csv_table, read_text
+from .._util import CsvTable, excerpt, read_csv_table, read_text
 from .._util.frozen import frozen_array as _frozen
 from ..errors import SurveyError, location
 from ..geometry.camera import Camera
@@ -235,7 +235,7 @@ def no_duplicates(table: CsvTable, keys: Sequence[str], what: str) -> None:
     for i, line in enumerate(table.lines):
         key = tuple(c[i] for c in cols)
         if key in seen:
-            shown = ", ".join(f"{k}={v!r}" for k, v in zip(keys, key))
+            shown = ", ".join(f"{k}={excerpt(v)}" for k, v in zip(keys, key))
             raise SurveyError(f"{location(table.path, line, keys[-1])}: duplicate {what} ({shown}); "
                               f"first defined on line {seen[key]}")
         seen[key] = line
@@ -270,7 +270,7 @@ def check_sds(table: CsvTable, arr: np.ndarray, names: Sequence[str], unit: str 
             bad = np.flatnonzero(~np.isnan(col) & ~((col >= lo) & (col <= hi)))
         if bad.size:
             i = int(bad[0])
-            who = next((f" ({key} {table.rows[i][table.header.index(key)]!r})"
+            who = next((f" ({key} {excerpt(table.rows[i][table.header.index(key)])})"
                         for key in ("point", "photo") if table.has(key)), "")
             what = "must be positive" if not col[i] > 0 else "is outside the sane range"
             raise SurveyError(f"{location(table.path, table.lines[i], n)}{who}: standard deviation "
@@ -303,13 +303,13 @@ def load_photos(path: Path, cameras: dict[str, Camera], camera_path: Path) -> tu
         cams = t.column("camera")
         for c, line in zip(cams, t.lines):
             if c not in cameras:
-                raise SurveyError(f"{location(path, line, 'camera')}: camera {c!r} is not defined "
-                                  f"in {camera_path.name} (defined: {', '.join(cameras)})")
+                raise SurveyError(f"{location(path, line, 'camera')}: camera {excerpt(c)} is not defined "
+                                  f"in {camera_path.name} (defined: {excerpt(', '.join(cameras), 200, quote=False)})")
     else:
         if len(cameras) > 1:
             raise SurveyError(f"{location(path, 1, 'camera')}: missing column 'camera'; "
                               f"{camera_path.name} defines {len(cameras)} cameras "
-                              f"({', '.join(cameras)}), so each photo must name one")
+                              f"({excerpt(', '.join(cameras), 200, quote=False)}), so each photo must name one")
         cams = [next(iter(cameras))] * len(ids)
     pos = optional_triple(t, ("X0", "Y0", "Z0"), "a position")
     att = optional_triple(t, ("omega_deg", "phi_deg", "kappa_deg"), "an attitude")
@@ -344,7 +344,7 @@ def load_image_points(path: Path, photo_ids: set[str], photos_path: Path) -> tup
     no_duplicates(t, ("photo", "point"), "measurement of this point on this photo")
     for ph, line in zip(photo, t.lines):
         if ph not in photo_ids:
-            raise SurveyError(f"{location(path, line, 'photo')}: photo {ph!r} is not in "
+            raise SurveyError(f"{location(path, line, 'photo')}: photo {excerpt(ph)} is not in "
                               f"{photos_path.name}; add it there or fix the id")
     n = len(t.rows)
 
@@ -401,12 +401,12 @@ def load_control_sets(path: Path, ground: GroundPoints, exclude: set[str]) -> di
     gp_file = ground.path.name if ground.path else "ground_points.csv"
     for p, r, line in zip(points, roles, t.lines):
         if r not in ("control", "check"):
-            raise SurveyError(f"{location(path, line, 'role')}: {r!r} is not 'control' or 'check'")
+            raise SurveyError(f"{location(path, line, 'role')}: {excerpt(r)} is not 'control' or 'check'")
         if p not in ground:
-            raise SurveyError(f"{location(path, line, 'point')}: point {p!r} is defined nowhere: "
+            raise SurveyError(f"{location(path, line, 'point')}: point {excerpt(p)} is defined nowhere: "
                               f"not in {gp_file}; add its coordinates there or fix the id")
         if p in exclude:
-            raise SurveyError(f"{location(path, line, 'point')}: point {p!r} is excluded by "
+            raise SurveyError(f"{location(path, line, 'point')}: point {excerpt(p)} is excluded by "
                               f"survey.toml [adjustment] exclude_points; drop one of the two")
     out: dict[str, ControlSet] = {}
     for name in dict.fromkeys(names):
@@ -432,7 +432,7 @@ def check_single_photo_points(ip: ImagePoints, ground: GroundPoints, job_words: 
     for i, p in enumerate(ip.point.tolist()):
         if counts[p] == 1 and p not in ground and p not in job_words and p not in exclude:
             raise SurveyError(
-                f"{location(ip.path, int(ip.line[i]), 'point')}: {p!r} is measured on photo "
-                f"{str(ip.photo[i])!r} only and defined nowhere (no ground point, no extraction job), "
+                f"{location(ip.path, int(ip.line[i]), 'point')}: {excerpt(p)} is measured on photo "
+                f"{excerpt(str(ip.photo[i]))} only and defined nowhere (no ground point, no extraction job), "
                 f"so it is no tie point either (a tie point needs two photos); fix the id, "
                 f"add the point to ground_points.csv, or exclude it")

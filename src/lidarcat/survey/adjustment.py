@@ -19,7 +19,8 @@ import numpy as np
 
 from ..bundle.precision import joint_point_covariance
 from ..bundle.problem import BundleProblem
-from ..bundle.reliability import FAMILY_LEVEL, SnoopingResult, snoop
+from ..bundle.redundancy import FAMILY_LEVEL
+from ..bundle.reliability import SnoopingResult, snoop
 from ..bundle.solve import BundleResult
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -168,30 +169,49 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
         number (file, line and field named).
     AssessmentError
         A requested point with no rows, a pair with no row or with two rows, a
-        point's own block with a variance that is not positive (file and line
-        or points named).
+        point's own block with a variance that is not positive (or below an sd
+        of 1 um) or not symmetric, an entry beyond :data:`lidarcat.survey.schema.SD_BOUNDS`
+        squared (``|c| <= 1e6`` m^2) or larger than the two variances allow
+        (``|c_ij| > sqrt(c_ii c_jj)``), a matrix that is not positive definite
+        (file and line or points named).
     """
-    from .._util import read_csv_table
+    from .._util import excerpt, read_csv_table
     from ..errors import AssessmentError, location
+    from .schema import SD_BOUNDS
 
     t = read_csv_table(path, required=COVARIANCE_COLUMNS)
     vals = np.column_stack([t.floats(c) for c in COVARIANCE_COLUMNS[2:]]).reshape(-1, 3, 3)
     pa, pb = t.column("point_a"), t.column("point_b")
+    var_min, var_max = SD_BOUNDS["m"][0] ** 2, SD_BOUNDS["m"][1] ** 2
     seen: dict[frozenset, int] = {}
     for a, b, blk, line in zip(pa, pb, vals, t.lines):
         first = seen.setdefault(frozenset((a, b)), line)
         if first != line:
-            raise AssessmentError(f"{location(path, line)}: a second row for the pair {a}, {b} (first at "
-                                  f"line {first}); keep one row per pair")
+            raise AssessmentError(f"{location(path, line)}: a second row for the pair {excerpt(a)}, {excerpt(b)} "
+                                  f"(first at line {first}); keep one row per pair")
+        big = np.flatnonzero(np.abs(blk.ravel()) > var_max)
+        if big.size:
+            field = COVARIANCE_COLUMNS[2 + int(big[0])]
+            raise AssessmentError(f"{location(path, line, field)}: {blk.ravel()[big[0]]:g} m^2 is beyond any "
+                                  f"covariance of an adjusted point (|c| <= {var_max:g} m^2, an sd of "
+                                  f"{SD_BOUNDS['m'][1]:g} m)")
         if a == b and np.any(np.diag(blk) <= 0):
-            raise AssessmentError(f"{location(path, line)}: point {a}: the variances c_EE, c_NN, c_hh "
+            raise AssessmentError(f"{location(path, line)}: point {excerpt(a)}: the variances c_EE, c_NN, c_hh "
                                   "must be positive")
+        if a == b and np.any(np.diag(blk) < var_min):
+            field = ("c_EE", "c_NN", "c_hh")[int(np.argmin(np.diag(blk)))]
+            raise AssessmentError(f"{location(path, line, field)}: point {excerpt(a)}: variance "
+                                  f"{np.diag(blk).min():g} m^2 is below any adjusted point's ({var_min:g} m^2, "
+                                  f"an sd of {SD_BOUNDS['m'][0]:g} m)")
+        if a == b and np.any(np.abs(blk - blk.T) > 1e-9 * np.abs(np.diag(blk)).max()):
+            raise AssessmentError(f"{location(path, line)}: point {excerpt(a)}: its own block is not symmetric "
+                                  "(c_EN = c_NE, c_Eh = c_hE, c_Nh = c_hN)")
     order = list(dict.fromkeys(pa + pb))
     ids = [str(q) for q in points] if points is not None else order
     present = set(order)
     missing = [q for q in ids if q not in present]
     if missing:
-        raise AssessmentError(f"{path}: no covariance for point(s) {', '.join(missing[:10])}"
+        raise AssessmentError(f"{path}: no covariance for point(s) {excerpt(', '.join(missing[:10]), 200, quote=False)}"
                               + (" ..." if len(missing) > 10 else "")
                               + f"; the file holds {len(order)} check point(s) of its adjustment")
     pos = {q: i for i, q in enumerate(ids)}
@@ -206,6 +226,20 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
         i, j = (int(v) // 3 for v in np.argwhere(np.isnan(C))[0])
         raise AssessmentError(f"{path}: no row for the pair {ids[i]}, {ids[j]}; the file must hold one row "
                               "per pair of its points")
+    sd = np.sqrt(np.diag(C))
+    over = np.argwhere(np.abs(C) > np.outer(sd, sd) * (1 + 1e-9))  # |c_ij| <= sd_i sd_j (Cauchy-Schwarz)
+    if len(over):
+        i, j = (int(v) for v in over[0])
+        line = seen.get(frozenset((ids[i // 3], ids[j // 3])))
+        raise AssessmentError(f"{location(path, line)}: points {excerpt(ids[i // 3])}, {excerpt(ids[j // 3])}: "
+                              f"covariance {C[i, j]:g} m^2 exceeds the product of the two sds ({sd[i] * sd[j]:g} "
+                              "m^2): not a covariance matrix")
+    try:
+        np.linalg.cholesky(C + np.diag(np.full(len(C), 1e-12 * float(np.max(np.diag(C), initial=0.0)))))
+    except np.linalg.LinAlgError:
+        raise AssessmentError(f"{path}: the joint covariance of {excerpt(', '.join(ids[:5]), 200, quote=False)}"
+                              + (" ..." if len(ids) > 5 else "") + " is not positive definite: not the "
+                              "covariance of an adjustment (edited by hand?)") from None
     return ids, C
 
 
@@ -307,7 +341,7 @@ BLUNDER_COLUMNS = ("kind", "photo", "point", "w", "w_critical", "redundancy", "e
 
 def _write_snooping(snooping: SnoopingResult, folder, write_csv) -> dict:
     """blunders.csv and reliability.csv of the snooping hook; returns the summary keys."""
-    from ..bundle.reliability import RELIABILITY_COLUMNS
+    from ..bundle.redundancy import RELIABILITY_COLUMNS
 
     if snooping.mode == "off":
         return snooping.summary()

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from .._util import read_csv_table, write_csv_atomic
+from .._util import excerpt, read_csv_table, write_csv_atomic
 from ..geometry.camera import Camera, load_camera, load_cameras
 from ..errors import SurveyError, location
 from ._tables import (
@@ -179,19 +179,29 @@ def _check_crs(t: SurveyConfig, table: str, crs: str, coords: Sequence[tuple[Pat
             raise t.error(table, "crs", f"{path}: {ex}") from None
 
 
+def _is_file(t: SurveyConfig, key: str, rel: str, p: Path) -> bool:
+    """``p.is_file()``, with a path the system refuses (a name over 255 bytes, a NUL) as a
+    located error naming ``[files] key`` instead of an OSError."""
+    try:
+        return "\x00" not in str(p) and p.is_file()
+    except OSError as ex:
+        raise t.error("files", key, f"file {excerpt(rel)} cannot be used: {ex.strerror or ex}") from None
+
+
 def _expand_lidar(t: SurveyConfig, root: Path) -> tuple[Path, ...]:
     out: set[Path] = set()
     for item in t.files.lidar:
         pattern = item if Path(item).is_absolute() else str(root / item)
         if glob.has_magic(item):
-            matches = [Path(p) for p in glob.glob(pattern, recursive=True) if Path(p).is_file()]
+            matches = [Path(p) for p in glob.glob(pattern, recursive=True) if _is_file(t, "lidar", item, Path(p))]
             if not matches:
-                raise t.error("files", "lidar", f"pattern {item!r} matches no file in {root}")
+                raise t.error("files", "lidar", f"pattern {excerpt(item)} matches no file in {root}")
             out.update(matches)
         else:
             p = Path(pattern)
-            if not p.is_file():
-                raise t.error("files", "lidar", f"LiDAR file {item!r} not found ({p})")
+            if not _is_file(t, "lidar", item, p):
+                raise t.error("files", "lidar", f"LiDAR file {excerpt(item)} not found "
+                                                f"({excerpt(str(p), 200, quote=False)})")
             out.add(p)
     return tuple(sorted(out))
 
@@ -294,8 +304,8 @@ class Survey:
             if rel is None:
                 return None
             p = Path(rel) if Path(rel).is_absolute() else root / rel
-            if not p.is_file():
-                raise t.error("files", key, f"file {rel!r} not found ({p})")
+            if not _is_file(t, key, rel, p):
+                raise t.error("files", key, f"file {excerpt(rel)} not found ({excerpt(str(p), 200, quote=False)})")
             files[key] = p
             return p
 
@@ -324,7 +334,7 @@ class Survey:
         for pid in adj.exclude_points:
             if pid not in measured and pid not in ground:
                 raise t.error("adjustment", "exclude_points",
-                              f"point {pid!r} is defined nowhere (measured on no photo, not in "
+                              f"point {excerpt(pid)} is defined nowhere (measured on no photo, not in "
                               f"ground points); remove it or fix the id")
         exclude = set(adj.exclude_points)
         settings = AdjustmentSettings(obs, float(image_sd), frozenset(exclude), adj.variance_factor,
@@ -337,7 +347,7 @@ class Survey:
         cs_path = file_of("control_sets")
         control_sets = load_control_sets(cs_path, ground, exclude) if cs_path else {}
         if default_control is not None and default_control not in control_sets:
-            avail = ", ".join(control_sets) or "none defined"
+            avail = excerpt(", ".join(control_sets), 200, quote=False) or "none defined"
             raise t.error("survey", "default_control",
                           f"control set {default_control!r} is not in control_sets ({avail})")
 
@@ -369,7 +379,7 @@ class Survey:
         for p in self.photos:
             if p.id == photo_id:
                 return p
-        raise SurveyError(f"{self.root}: no photo {photo_id!r}; photos are {', '.join(self.photo_ids)}")
+        raise SurveyError(f"{self.root}: no photo {excerpt(photo_id)}; photos are {excerpt(', '.join(self.photo_ids), 200, quote=False)}")
 
     def camera_of(self, photo_id: str) -> Camera:
         """The camera of photo *photo_id*."""
@@ -414,15 +424,15 @@ class Survey:
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
                 raise SurveyError(f"{location(ip.path, int(ip.line[i]), 'x_mm')}: no corrected photo "
-                                  f"coordinates (x_mm, y_mm) for photo {str(ip.photo[i])!r} point "
-                                  f"{str(ip.point[i])!r}; give them or use observations = \"pixel\"")
+                                  f"coordinates (x_mm, y_mm) for photo {excerpt(str(ip.photo[i]))} point "
+                                  f"{excerpt(str(ip.point[i]))}; give them or use observations = \"pixel\"")
         else:
             bad = ~np.isfinite(ip.pixel_px).all(axis=1)
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
                 raise SurveyError(f"{location(ip.path, int(ip.line[i]), 'col_px')}: no pixel "
-                                  f"coordinates (col_px, row_px) for photo {str(ip.photo[i])!r} point "
-                                  f"{str(ip.point[i])!r}; give them or use observations = \"corrected\"")
+                                  f"coordinates (col_px, row_px) for photo {excerpt(str(ip.photo[i]))} point "
+                                  f"{excerpt(str(ip.point[i]))}; give them or use observations = \"corrected\"")
             xy = np.empty((len(ip), 2))
             for p in self.photos:
                 rows = ip.photo == p.id
@@ -440,7 +450,7 @@ class Survey:
         SurveyError
             Unknown name, or no name and no default (lists the available sets).
         """
-        avail = ", ".join(self.control_sets) or "none defined"
+        avail = excerpt(", ".join(self.control_sets), 200, quote=False) or "none defined"
         if name is None:
             name = self.default_control
             if name is None:

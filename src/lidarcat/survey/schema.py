@@ -33,7 +33,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from .._util import read_toml, toml_line
+from .._util import excerpt, read_toml, toml_line
 from ..errors import SurveyError, location
 
 __all__ = [
@@ -390,6 +390,8 @@ def _line(text: str, table: str | None, key: str | None) -> int | None:
 
 def _error(path: Path, text: str, table: str | None, key: str | None, message: str) -> SurveyError:
     fld = key if key is not None else (f"[{table}]" if table else None)
+    if fld is not None and len(fld) > 60:  # a key is file content: a short excerpt only
+        fld = fld[:60] + "..."
     return SurveyError(f"{location(path, _line(text, table, key), fld)}: {message}")
 
 
@@ -414,11 +416,11 @@ class _Reader:
             return f.default
         v = tab[key]
         if not isinstance(v, toml.kinds) or (isinstance(v, bool) and bool not in toml.kinds):  # true is no int
-            raise self.err(table, key, f"in [{table}], expected {toml.expected}, got {v!r}")
+            raise self.err(table, key, f"in [{table}], expected {toml.expected}, got {excerpt(v)}")
         if isinstance(v, str) and not v.strip() and key != "description":
             raise self.err(table, key, "must not be empty")
         if isinstance(v, float) and not math.isfinite(v):
-            raise self.err(table, key, f"must be a finite number, got {v!r}")
+            raise self.err(table, key, f"must be a finite number, got {excerpt(v)}")
         if toml is NUMBER:
             return float(v)
         return v
@@ -435,13 +437,13 @@ class _Reader:
 def _check_keys(r: _Reader) -> None:
     for table, value in r.data.items():
         if table not in SURVEY_KEYS:
-            raise r.err(None, table, f"unknown key/table {table!r}; allowed tables: "
+            raise r.err(None, table, f"unknown key/table {excerpt(table)}; allowed tables: "
                         + ", ".join(f"[{k}]" for k in SURVEY_KEYS))
         if not isinstance(value, dict):
-            raise r.err(None, table, f"{table!r} must be a table ([{table}])")
+            raise r.err(None, table, f"{excerpt(table)} must be a table ([{table}])")
         for key in value:
             if key not in SURVEY_KEYS[table]:
-                raise r.err(table, key, f"unknown key {key!r} in [{table}]; allowed: "
+                raise r.err(table, key, f"unknown key {excerpt(key)} in [{table}]; allowed: "
                             + ", ".join(SURVEY_KEYS[table]))
     for table in REQUIRED_TABLES:
         if table not in r.data:
@@ -450,14 +452,14 @@ def _check_keys(r: _Reader) -> None:
 
 def _one_of(r: _Reader, table: str, key: str, value: str, allowed: tuple[str, ...], quote: bool = True) -> None:
     if value not in allowed:
-        raise r.err(table, key, f"{value!r} is not one of {', '.join(map(repr, allowed) if quote else allowed)}")
+        raise r.err(table, key, f"{excerpt(value)} is not one of {', '.join(map(repr, allowed) if quote else allowed)}")
 
 
 def _files(r: _Reader, v: dict[str, Any]) -> FilesTable:
     items = [v["lidar"]] if isinstance(v["lidar"], str) else v["lidar"]
     for item in items:
         if not isinstance(item, str) or not item.strip():
-            raise r.err("files", "lidar", f"entries must be non-empty strings, got {item!r}")
+            raise r.err("files", "lidar", f"entries must be non-empty strings, got {excerpt(item)}")
     v["lidar"] = tuple(items)
     return FilesTable(**v)
 
@@ -469,26 +471,26 @@ def _adjustment(r: _Reader, v: dict[str, Any]) -> AdjustmentTable:
     lo_mm, hi_mm = SD_BOUNDS["mm"]
     if sd is not None and not lo_mm <= sd <= hi_mm:
         raise r.err("adjustment", "image_sd_mm",
-                    f"must be positive, got {sd!r}" if not sd > 0 else
-                    f"{sd!r} mm is outside the sane range {lo_mm:g}..{hi_mm:g} mm")
+                    f"must be positive, got {excerpt(sd)}" if not sd > 0 else
+                    f"{excerpt(sd)} mm is outside the sane range {lo_mm:g}..{hi_mm:g} mm")
     for p in v["exclude_points"]:
         if isinstance(p, bool) or not isinstance(p, (str, int)):
-            raise r.err("adjustment", "exclude_points", f"point ids must be strings, got {p!r}")
+            raise r.err("adjustment", "exclude_points", f"point ids must be strings, got {excerpt(p)}")
     v["exclude_points"] = tuple(str(p) for p in v["exclude_points"])
     _one_of(r, "adjustment", "variance_factor", v["variance_factor"], VARIANCE_FACTORS)
     if not 0 < v["chi2_level"] < 1:
-        raise r.err("adjustment", "chi2_level", f"must lie between 0 and 1, got {r.raw('adjustment', 'chi2_level')!r}")
+        raise r.err("adjustment", "chi2_level", f"must lie between 0 and 1, got {excerpt(r.raw('adjustment', 'chi2_level'))}")
     return AdjustmentTable(**v)
 
 
 def _assessment(r: _Reader, v: dict[str, Any]) -> AssessmentSettings:
     t = "assessment"
     if not v["scale"] > 0:
-        raise r.err(t, "scale", f"must be a positive scale denominator (2000 for 1:2000), got {r.raw(t, 'scale')!r}")
+        raise r.err(t, "scale", f"must be a positive scale denominator (2000 for 1:2000), got {excerpt(r.raw(t, 'scale'))}")
     if not v["contour_interval_m"] > 0:
-        raise r.err(t, "contour_interval_m", f"must be positive (metres), got {r.raw(t, 'contour_interval_m')!r}")
+        raise r.err(t, "contour_interval_m", f"must be positive (metres), got {excerpt(r.raw(t, 'contour_interval_m'))}")
     if not 0 < v["alpha"] < 1:
-        raise r.err(t, "alpha", f"must lie between 0 and 1, got {r.raw(t, 'alpha')!r}")
+        raise r.err(t, "alpha", f"must lie between 0 and 1, got {excerpt(r.raw(t, 'alpha'))}")
     _one_of(r, t, "pec_class", v["pec_class"], PEC_CLASSES, quote=False)
     _one_of(r, t, "plotting_position", v["plotting_position"], PLOTTING_POSITIONS, quote=False)
     return AssessmentSettings(**v)
@@ -498,8 +500,8 @@ def _heights(r: _Reader, v: dict[str, Any]) -> HeightsTable:
     if v["sources"] is not None:
         bad = [k for k, s in v["sources"].items() if not isinstance(s, str)]
         if bad:
-            raise r.err("heights", "sources", f"source {bad[0]!r}: expected a string (\"ellipsoidal\" or "
-                                              f"\"orthometric\"), got {v['sources'][bad[0]]!r}")
+            raise r.err("heights", "sources", f"source {excerpt(bad[0])}: expected a string (\"ellipsoidal\" or "
+                                              f"\"orthometric\"), got {excerpt(v['sources'][bad[0]])}")
         v["sources"] = MappingProxyType(dict(v["sources"]))
     return HeightsTable(**v)
 
@@ -507,10 +509,10 @@ def _heights(r: _Reader, v: dict[str, Any]) -> HeightsTable:
 def _mapping(r: _Reader, v: dict[str, Any]) -> MappingSettings:
     t = "mapping"
     if v["surface"] not in ("dsm", "dtm"):
-        raise r.err(t, "surface", f"{v['surface']!r} is not 'dsm' (true orthophotos) or 'dtm'")
+        raise r.err(t, "surface", f"{excerpt(v['surface'])} is not 'dsm' (true orthophotos) or 'dtm'")
     for key in ("gsd_m", "cell_m"):
         if not v[key] > 0:
-            raise r.err(t, key, f"must be positive (metres), got {r.raw(t, key)!r}")
+            raise r.err(t, key, f"must be positive (metres), got {excerpt(r.raw(t, key))}")
     if v["photos"] is not None:
         v["photos"] = tuple(str(p) for p in v["photos"])
     if v["features"] is not None:
@@ -523,12 +525,12 @@ def _mapping(r: _Reader, v: dict[str, Any]) -> MappingSettings:
         raise r.err(t, "interpolators", f"{', '.join(wrong) or 'none given'}: use {', '.join(MAPPING_INTERPOLATORS)}")
     v["interpolators"] = tuple(v["interpolators"])
     if v["method"] not in ("exact", "iterate"):
-        raise r.err(t, "method", f"{v['method']!r} is not 'exact' (first hit) or 'iterate'")
+        raise r.err(t, "method", f"{excerpt(v['method'])} is not 'exact' (first hit) or 'iterate'")
     if v["reference"] is not None and not v["features"]:
         raise r.err(t, "reference", "a reference needs the features to judge ([mapping] features)")
     for key in ("image_sd_px", "surface_sd_m", "feather_m"):
         if not v[key] >= 0:
-            raise r.err(t, key, f"must not be negative, got {r.raw(t, key)!r}")
+            raise r.err(t, key, f"must not be negative, got {excerpt(r.raw(t, key))}")
     return MappingSettings(**v)
 
 
@@ -540,19 +542,19 @@ def _products(r: _Reader, v: dict[str, Any]) -> ProductsSettings:
     _one_of(r, t, "filter", v["filter"], GROUND_METHODS)
     for key in ("cell_m", "max_edge_m", "contour_interval_m", "spots_m", "hypsometry_cell_m"):
         if not v[key] > 0:
-            raise r.err(t, key, f"must be positive (metres), got {r.raw(t, key)!r}")
+            raise r.err(t, key, f"must be positive (metres), got {excerpt(r.raw(t, key))}")
     if v["master_every"] < 1:
-        raise r.err(t, "master_every", f"must be 1 or more, got {v['master_every']!r}")
+        raise r.err(t, "master_every", f"must be 1 or more, got {excerpt(v['master_every'])}")
     if v["smooth"] < 0:
-        raise r.err(t, "smooth", f"must be 0 or more, got {v['smooth']!r}")
+        raise r.err(t, "smooth", f"must be 0 or more, got {excerpt(v['smooth'])}")
     if v["sheet_size_m"] < 0:
-        raise r.err(t, "sheet_size_m", f"must be 0 (no sheets) or positive (metres), got {r.raw(t, 'sheet_size_m')!r}")
+        raise r.err(t, "sheet_size_m", f"must be 0 (no sheets) or positive (metres), got {excerpt(r.raw(t, 'sheet_size_m'))}")
     _one_of(r, t, "sheet_index", v["sheet_index"], SHEET_INDEXES)
     if v["sheet_index"] != "grid" and v["sheet_size_m"] > 0:
         raise r.err(t, "sheet_size_m", f"applies to sheet_index = 'grid' only; the {v['sheet_index']} sheets have "
                                        f"their own size (drop it)")
     if v["vector_format"] not in ("geojson", "gpkg"):
-        raise r.err(t, "vector_format", f"{v['vector_format']!r} is not 'geojson' or 'gpkg'")
+        raise r.err(t, "vector_format", f"{excerpt(v['vector_format'])} is not 'geojson' or 'gpkg'")
     if v["ndsm"] and not (v["dtm"] and v["dsm"]):
         raise r.err(t, "ndsm", "needs dtm = true and dsm = true")
     return ProductsSettings(**v)
@@ -562,7 +564,7 @@ def split_frame_offset(text: str) -> tuple[str, str]:
     """``"lidar:gps"`` -> ``("lidar", "gps")`` (ValueError unless SOURCE:REFERENCE)."""
     parts = [s.strip() for s in str(text).split(":")]
     if len(parts) != 2 or not all(parts):
-        raise ValueError(f"frame offset {text!r} must be SOURCE:REFERENCE, e.g. lidar:gps")
+        raise ValueError(f"frame offset {excerpt(text)} must be SOURCE:REFERENCE, e.g. lidar:gps")
     return parts[0], parts[1]
 
 
@@ -576,15 +578,15 @@ def _self_calibration(r: _Reader, v: dict[str, Any]) -> SelfCalSettings:
         except ValueError as ex:
             raise r.err(t, key, str(ex)) from ex
     if not 0 < v["alpha"] < 1:
-        raise r.err(t, "alpha", f"must lie between 0 and 1, got {r.raw(t, 'alpha')!r}")
+        raise r.err(t, "alpha", f"must lie between 0 and 1, got {excerpt(r.raw(t, 'alpha'))}")
     if v["gnss_lines"] is not None:
         lines: dict[str, str] = {}
         for label, photos in v["gnss_lines"].items():
             if not isinstance(photos, list) or not all(isinstance(p, str) for p in photos):
-                raise r.err(t, "gnss_lines", f"line {label!r} must be a list of photo ids (strings), got {photos!r}")
+                raise r.err(t, "gnss_lines", f"line {excerpt(label)} must be a list of photo ids (strings), got {excerpt(photos)}")
             for ph in photos:
                 if ph in lines:
-                    raise r.err(t, "gnss_lines", f"photo {ph!r} is in lines {lines[ph]!r} and {label!r}; a photo "
+                    raise r.err(t, "gnss_lines", f"photo {excerpt(ph)} is in lines {excerpt(lines[ph])} and {excerpt(label)}; a photo "
                                                  "belongs to one line")
                 lines[ph] = str(label)
         v["gnss_lines"] = MappingProxyType(lines)
@@ -633,7 +635,7 @@ def check_photo_ids(config: SurveyConfig, photo_ids: set[str] | tuple[str, ...])
     lines = config.self_calibration.gnss_lines or {}
     for ph, label in lines.items():
         if ph not in photo_ids:
-            raise config.error("self_calibration", "gnss_lines", f"line {label!r}: photo {ph!r} is not in photos.csv")
+            raise config.error("self_calibration", "gnss_lines", f"line {excerpt(label)}: photo {excerpt(ph)} is not in photos.csv")
 
 
 # ---------------------------------------------------------------------- docs/survey-format.md

@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
+import re
 import time
 from typing import Any
 
@@ -282,8 +284,17 @@ def wants_parameters(survey, self_calibrate: str | None = None, frame_offset: st
     return self_calibration_settings(survey).active
 
 
+def _num(value: Any, spec: str) -> str:
+    """*value* formatted with *spec*; None (a ``null`` of summary.json) or a non-finite number as ``-``."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        return format(value, spec)
+    align, width = re.match(r"([<>^]?)[+ -]?(\d*)", spec).groups()  # type: ignore[union-attr]
+    return format("-", f"{align or '>'}{width}")
+
+
 def format_parameters(summary: dict) -> str:
-    """Text lines of the additional parameters and the frame offset of a ``summary.json``."""
+    """Text lines of the additional parameters and the frame offset of a ``summary.json``
+    (a figure not computed, ``null``, as ``-``)."""
     lines = []
     ap = summary.get("additional_parameters") or {}
     if ap:
@@ -293,24 +304,24 @@ def format_parameters(summary: dict) -> str:
             e = t.get("max_correlation_eo") or {}
             a = t.get("max_correlation_additional") or {}
             r, w = (e.get("r", 0.0), f"{e.get('parameter')} photo {e.get('photo')}")
-            if a and abs(a.get("r", 0.0)) > abs(r):
+            if a and abs(a.get("r") or 0.0) > abs(r or 0.0):
                 r, w = a["r"], a["parameter"]
-            lines.append(f"  {name:<22} {t['unit']:<6} {t['estimate']:>+14.6g} {t['sd']:>10.3g} {t['t']:>7.2f}"
-                         f"  {'yes' if t['significant'] else 'no':<7}  {r:+.3f} ({w})")
+            lines.append(f"  {name:<22} {t['unit']:<6} {_num(t.get('estimate'), '>+14.6g')} "
+                         f"{_num(t.get('sd'), '>10.3g')} {_num(t.get('t'), '>7.2f')}"
+                         f"  {'yes' if t.get('significant') else 'no':<7}  {_num(r, '+.3f')} ({w})")
     fo = summary.get("frame_offset")
     for f in ([fo] if isinstance(fo, dict) else fo or []):
         s, sd, tt = f["shift_m"], f["sd_m"], f["t"]
         lines += ["", f"Frame offset {f['source']} -> {f['reference']} (add to {f['source']} coordinates), m:",
-                  "  E {:+.3f} +- {:.3f} (t {:+.1f})   N {:+.3f} +- {:.3f} (t {:+.1f})   h {:+.3f} +- {:.3f} "
-                  "(t {:+.1f})".format(s[0], sd[0], tt[0], s[1], sd[1], tt[1], s[2], sd[2], tt[2]),
-                  f"  joint {f['test']['test']} test: statistic {f['test']['statistic']:.2f}, p = "
-                  f"{f['test']['p_value']:.2g}: " + ("significant" if f["significant"] else "not significant")
-                  + f" at {100 * f['alpha']:g} %"]
+                  "  " + "   ".join(f"{k} {_num(s[i], '+.3f')} +- {_num(sd[i], '.3f')} (t {_num(tt[i], '+.1f')})"
+                             for i, k in enumerate("ENh")),
+                  f"  joint {f['test']['test']} test: statistic {_num(f['test'].get('statistic'), '.2f')}, p = "
+                  f"{_num(f['test'].get('p_value'), '.2g')}: "
+                  + ("significant" if f["significant"] else "not significant") + f" at {100 * f['alpha']:g} %"]
     off, on = summary.get("parameters_off"), summary.get("parameters_on")
     if off and on:
-        lines.append(f"v'Pv without / with the parameters: {off['vtpv']:.2f} (dof {off['dof']}) / "
-                     f"{on['vtpv']:.2f} (dof {on['dof']})")
+        lines.append(f"v'Pv without / with the parameters: {_num(off.get('vtpv'), '.2f')} (dof {off['dof']}) / "
+                     f"{_num(on.get('vtpv'), '.2f')} (dof {on['dof']})")
     for w in summary.get("warnings") or []:
         lines.append(f"WARNING: {w}")
     return "\n".join(lines)
-
