@@ -377,6 +377,7 @@ TARGETS: tuple[Target, ...] = (
 
 # --------------------------------------------------------------------------- the corpus
 def _cli(*args: str, cwd: Path) -> None:
+    """Run lidarcat in ``cwd`` (a subprocess), failing on a non-zero exit."""
     subprocess.run([sys.executable, "-m", "lidarcat.cli.main", "-q", *args], cwd=cwd, check=True,
                    env=_env(), stdout=subprocess.DEVNULL)
 
@@ -394,8 +395,11 @@ def _csv_rows(path: Path) -> list[list[str]]:
     return [ln.split(",") for ln in path.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
 
 
-def build_corpus(root: Path) -> Path:
-    """Write the unmutated inputs of every target into ``root`` (once; reused when complete)."""
+def build_corpus(root: Path, cli=None) -> Path:
+    """Write the unmutated inputs of every target into ``root`` (once; reused when complete).
+
+    ``cli(*args, cwd=...)`` runs lidarcat (default: a subprocess; the CI test runs it in-process)."""
+    run = cli or _cli
     done = root / ".complete"
     if done.exists():
         return root
@@ -432,8 +436,8 @@ def build_corpus(root: Path) -> Path:
     (root / "px.csv").write_text("# two measurements\nphoto,point,col_px,row_px,comment,\n"
                                  "1,701,1715.7,636.9,a,\n5,662,2021.6,111.23,b,\n")
 
-    _cli("adjust", "thesis", "-o", "adj", "--snooping", "off", cwd=root)
-    _cli("export", "opk", "adj", "--survey", "thesis", "-o", "thesis.opk", cwd=root)
+    run("adjust", "thesis", "-o", "adj", "--snooping", "off", cwd=root)
+    run("export", "opk", "adj", "--survey", "thesis", "-o", "thesis.opk", cwd=root)
     eop = _csv_rows(root / "adj" / "eop.csv")
     (root / "gnss.csv").write_text("photo,E,N,h,omega,phi,kappa,sd_E,sd_N,sd_h\n" + "".join(
         ",".join(r[:7]) + ",0.1,0.1,0.2\n" for r in eop[1:]))
@@ -443,19 +447,19 @@ def build_corpus(root: Path) -> Path:
         for r in _csv_rows(root / "thesis" / "image_points.csv")[1:] if r[1] in gp))
     (root / "geo.txt").write_text("EPSG:29192\n" + "".join(
         f"{r[0]} {r[1]} {r[2]} {r[3]} 0 0 0 0.1 0.2\n" for r in eop[1:]))
-    _cli("import", "opensfm", "opensfm/reconstruction.json", "--tracks", "opensfm/tracks.csv", "-o", "osfm_survey",
+    run("import", "opensfm", "opensfm/reconstruction.json", "--tracks", "opensfm/tracks.csv", "-o", "osfm_survey",
          cwd=root)
 
-    _cli("demo", "synthetic", "-o", "demo", "--photos", "2", "--images", "--image-downsample", "8",
+    run("demo", "synthetic", "-o", "demo", "--photos", "2", "--images", "--image-downsample", "8",
          "--density", "2", cwd=root)
-    _cli("adjust", "demo", "-o", "demo_adj", "--snooping", "off", cwd=root)
-    _cli("lidar", "raster", "demo/lidar/*.laz", "--what", "dsm", "--cell", "1", "-o", "dsm_demo.tif",
+    run("adjust", "demo", "-o", "demo_adj", "--snooping", "off", cwd=root)
+    run("lidar", "raster", "demo/lidar/*.laz", "--what", "dsm", "--cell", "1", "-o", "dsm_demo.tif",
          "--no-preview", cwd=root)
     (root / "features.csv").write_text("feature,class,col_px,row_px\nP0,roof,300,300\nP1,roof,310,320\n"
                                        "P2,road,100,400\n")
-    _cli("lidar", "ground", "house.laz", *CRS, "-o", "ground.laz", cwd=root)
-    _cli("lidar", "dtm", "ground.laz", *CRS, "-o", "dtm.tif", cwd=root)
-    _cli("lidar", "contours", "ground.laz", *CRS, "-o", "contours.geojson", "--interval-m", "0.5", cwd=root)
+    run("lidar", "ground", "house.laz", *CRS, "-o", "ground.laz", cwd=root)
+    run("lidar", "dtm", "ground.laz", *CRS, "-o", "dtm.tif", cwd=root)
+    run("lidar", "contours", "ground.laz", *CRS, "-o", "contours.geojson", "--interval-m", "0.5", cwd=root)
     done.write_text("ok\n")
     return root
 
