@@ -22,7 +22,7 @@ from ..errors import SurveyError, location
 from .files import atomic_write, read_text, write_text_atomic
 
 __all__ = ['write_csv_atomic', 'csv_sidecar_path', 'write_csv', 'to_json', 'dumps_json', 'write_json_atomic', 'read_toml', 'toml_line', 'parse_float', 'CsvTable', 'read_csv_table', 'excerpt',
-           'TOML_MAX_BYTES', 'TOML_MAX_DEPTH']
+           'TOML_MAX_BYTES', 'TOML_MAX_DEPTH', 'JSON_MAX_DEPTH', 'json_too_deep', 'loads_json']
 
 
 def write_csv_atomic(
@@ -428,3 +428,48 @@ def read_csv_table(
             raise SurveyError(f"{location(path, hline)}: unknown column(s) {excerpt(', '.join(extra), quote=False)}; "
                               f"allowed: {', '.join(list(required) + list(optional))}")
     return CsvTable(path, header, tuple(rows), tuple(lines))
+
+
+#: deepest nesting of arrays/objects lidarcat reads from a JSON file (GeoJSON, OpenSfM and ODM nest a few levels)
+JSON_MAX_DEPTH = 64
+_JSON_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
+
+
+def json_too_deep(text: str, limit: int = JSON_MAX_DEPTH) -> tuple[int, int] | None:
+    """``(line, column)`` where arrays/objects first nest deeper than *limit*, else None.
+
+    One linear scan that skips strings: :func:`json.loads` would recurse once per
+    level into a ``RecursionError`` on a file nested 100,000 deep.
+
+    >>> json_too_deep('{"a": [[1, 2], "[[["]}', 2) is None
+    True
+    >>> json_too_deep('[[[1]]]', 2)
+    (1, 3)
+    """
+    depth = 0
+    for m in _JSON_TOKEN.finditer(text):
+        c = m.group()
+        if c in "[{":
+            depth += 1
+            if depth > limit:
+                line = text.count("\n", 0, m.start()) + 1
+                return line, m.start() - text.rfind("\n", 0, m.start())
+        elif c in "]}":
+            depth -= 1
+    return None
+
+
+def loads_json(text: str, path: str | os.PathLike, error: type[Exception] = SurveyError,
+               limit: int = JSON_MAX_DEPTH) -> Any:
+    """Parse the JSON *text* of *path*; *error* (a LidarcatError class) located at the line when it is not JSON
+    or nests deeper than *limit*."""
+    deep = json_too_deep(text, limit)
+    if deep is not None:
+        raise error(f"{location(path, deep[0])}: arrays/objects nested deeper than {limit} levels "
+                    f"(column {deep[1]})")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as ex:
+        raise error(f"{location(path, ex.lineno)}: invalid JSON: {ex.msg} (column {ex.colno})") from None
+    except (ValueError, RecursionError) as ex:  # an integer of over 4,300 digits
+        raise error(f"{location(path, None)}: invalid JSON: {excerpt(str(ex), quote=False)}") from None

@@ -33,7 +33,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import re
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +41,7 @@ from scipy.spatial.transform import Rotation
 
 from .._util import atomic_dir, read_text, write_text_atomic
 from ..errors import FormatError
-from .._util.tables import parse_float
+from .._util.tables import JSON_MAX_DEPTH as MAX_JSON_DEPTH, json_too_deep, parse_float
 from .._util.values import parse_number, parse_whole, value_problem
 from ._text import format_error, sd_problem
 from .block import Block, GroundControl, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
@@ -70,27 +69,13 @@ def _pipeline(lat: float, lon: float, alt: float) -> str:
             f"+ellps=WGS84 +step +proj=topocentric +ellps=WGS84 +lat_0={lat!r} +lon_0={lon!r} +h_0={alt!r}")
 
 
-#: deepest nesting of arrays/objects read from a JSON file (OpenSfM and ODM write 5 levels)
-MAX_JSON_DEPTH = 64
-_JSON_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
-
-
 def _json_depth_error(path: Path, text: str) -> FormatError | None:
-    """A located error when arrays/objects nest deeper than :data:`MAX_JSON_DEPTH` (one linear scan,
-    strings skipped), else None: the JSON parser would recurse into a RecursionError."""
-    depth = 0
-    for m in _JSON_TOKEN.finditer(text):
-        c = m.group()
-        if c in "[{":
-            depth += 1
-            if depth > MAX_JSON_DEPTH:
-                line = text.count("\n", 0, m.start()) + 1
-                col = m.start() - text.rfind("\n", 0, m.start())
-                return format_error(path, line, None, f"arrays/objects nested deeper than {MAX_JSON_DEPTH} "
-                                    f"levels (column {col}); OpenSfM and ODM files nest a few levels")
-        elif c in "]}":
-            depth -= 1
-    return None
+    """A located error when arrays/objects nest deeper than :data:`MAX_JSON_DEPTH`, else None."""
+    deep = json_too_deep(text, MAX_JSON_DEPTH)
+    if deep is None:
+        return None
+    return format_error(path, deep[0], None, f"arrays/objects nested deeper than {MAX_JSON_DEPTH} "
+                        f"levels (column {deep[1]}); OpenSfM and ODM files nest a few levels")
 
 
 def _load_json(path: Path) -> Any:

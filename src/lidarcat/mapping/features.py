@@ -20,7 +20,6 @@ null geometry and the first failing status -- never a half-placed outline.
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from .._util import read_csv_table, read_text
+from .._util import loads_json, read_csv_table, read_text
 from ..errors import LidarcatError, SurveyError, location
 
 __all__ = ["ImageFeature", "read_features", "features_geojson", "features_rows", "FEATURE_CSV_COLUMNS",
@@ -64,10 +63,7 @@ class ImageFeature:
 
 
 def _geojson_features(path: Path) -> list[ImageFeature]:
-    try:
-        doc = json.loads(read_text(path, FeatureError))
-    except json.JSONDecodeError as ex:
-        raise FeatureError(f"{location(path, ex.lineno)}: invalid JSON: {ex.msg}") from ex
+    doc = loads_json(read_text(path, FeatureError), path, FeatureError)
     feats = doc.get("features") if isinstance(doc, dict) else None
     if not isinstance(feats, list):
         raise FeatureError(f"{path}: not a GeoJSON FeatureCollection (no 'features' list)")

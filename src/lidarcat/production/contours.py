@@ -328,16 +328,16 @@ def read_line_layer(path: str | os.PathLike, layer: str | None = None) -> tuple[
         LineString of finite numbers within 1e9 m of the origin (feature and vertex
         named), or a GeoPackage without pyogrio.
     """
-    import json
     import struct
 
+    from .._util import loads_json, read_text
     from ..errors import FormatError
     from ..lidar.crs import resolve_crs
 
     path = Path(path)
     if path.suffix.lower() != ".gpkg":
         try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
+            doc = loads_json(read_text(path, FormatError), path, FormatError)
             feats = [(i, f) for i, f in enumerate(doc["features"])
                      if (f.get("geometry") or {}).get("type") == "LineString"]
             name = ((doc.get("crs") or {}).get("properties") or {}).get("name")

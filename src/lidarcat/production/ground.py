@@ -91,6 +91,7 @@ import numpy as np
 from ..errors import LidarFormatError, ProductError, TileIOError
 from ..geometry.tin import barycentric, find_simplex
 from ..lidar.jobs import TileJob, read_with_buffer, run_jobs, tile_jobs
+from ..lidar.raster import bulk_box
 
 __all__ = ["PTDParameters", "SMRFParameters", "GroundMethod", "GROUND_METHODS", "classify_ground",
            "ptd_ground", "smrf_ground", "Confusion", "confusion", "write_classified_copy",
@@ -526,8 +527,26 @@ def classify_ground(xyz: np.ndarray, return_number: Any = None, number_of_return
     default parameters reaches 5.00 % and 4.89 % on AHN3 but fails on the steep
     slope, the forest and the bridge's valley (12-68 %; docs/production.md).
 
+    Points far outside the bulk of the data in plan (:func:`lidarcat.lidar.raster.bulk_box`:
+    a displaced point kilometres away, a byte flip) are not ground and are left out of
+    the filter, with a warning that counts them: both filters grid the points' extent,
+    which one such point would blow up to gigabytes.
+
     See :func:`ptd_ground` and :func:`smrf_ground`.
     """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    x0, y0, x1, y1 = bulk_box(xyz[:, 0], xyz[:, 1], 1.0) if len(xyz) else (0.0, 0.0, 0.0, 0.0)
+    near = (xyz[:, 0] >= x0) & (xyz[:, 0] <= x1) & (xyz[:, 1] >= y0) & (xyz[:, 1] <= y1)
+    if len(xyz) and not near.all():
+        far = np.flatnonzero(~near)
+        log.warning("%d point(s) far outside the bulk of the data (E %.3f..%.3f N %.3f..%.3f), e.g. E %.3f "
+                    "N %.3f: not ground, left out of the ground filter", len(far), x0, x1, y0, y1,
+                    xyz[far[0], 0], xyz[far[0], 1])
+        keep = np.flatnonzero(near)
+        sub = [None if a is None else np.asarray(a)[keep] for a in (return_number, number_of_returns)]
+        g = np.zeros(len(xyz), dtype=bool)
+        g[keep] = classify_ground(xyz[keep], sub[0], sub[1], method=method, params=params)
+        return g
     if method == "ptd":
         if params is not None and not isinstance(params, PTDParameters):
             raise ValueError("method 'ptd' takes PTDParameters")
