@@ -114,8 +114,14 @@ def corpus(tmp_path_factory) -> Path:
     return fz.build_corpus(tmp_path_factory.mktemp("fuzz_corpus"), cli=_corpus_cli)
 
 
+#: cases of the same seed beyond the slice that the full run found failing once, kept as regressions:
+#: 100 (10^400 in reconstruction.json), 115 (`lidar ground` on a byte-flipped tile: a far point),
+#: 120 (a byte-flipped text tag of dtm.tif: UnicodeDecodeError in `lidar sheets`)
+REGRESSIONS = (100, 115, 120)
+
+
 @pytest.mark.parametrize("index", [pytest.param(k, marks=pytest.mark.xfail(strict=True, reason=KNOWN[k]))
-                                   if k in KNOWN else k for k in range(CASES)])
+                                   if k in KNOWN else k for k in (*range(CASES), *REGRESSIONS)])
 def test_fuzz_command_case(corpus, tmp_path, index):
     case = fz.make_case(SEED, index, corpus)
     work = fz.stage_case(case, corpus, tmp_path / "case")

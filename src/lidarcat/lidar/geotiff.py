@@ -373,6 +373,8 @@ def read_geotiff(path: str | os.PathLike, *, raw: bool = False) -> tuple[np.ndar
             crs = _pyproj_crs(ds.crs)
     except rasterio.errors.RasterioError as ex:
         raise LidarFormatError(f"{path}: truncated or incomplete GeoTIFF ({str(ex).splitlines()[0]})") from ex
+    except UnicodeDecodeError as ex:  # a text tag (CRS WKT, nodata, citation) that is not text
+        raise LidarFormatError(f"{path}: corrupt GeoTIFF: a text tag is not UTF-8 text (byte {ex.start})") from ex
     grid = data[0] if data.shape[0] == 1 else np.moveaxis(data, 0, 2)
     if not raw:
         stored = grid
