@@ -187,7 +187,7 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
     for a, b, blk, line in zip(pa, pb, vals, t.lines):
         first = seen.setdefault(frozenset((a, b)), line)
         if first != line:
-            raise AssessmentError(f"{location(path, line)}: a second row for the pair {excerpt(a)}, {excerpt(b)} "
+            raise AssessmentError(f"{location(path, line)}: a second row for the pair {excerpt(a, quote=False)}, {excerpt(b, quote=False)} "
                                   f"(first at line {first}); keep one row per pair")
         big = np.flatnonzero(np.abs(blk.ravel()) > var_max)
         if big.size:
