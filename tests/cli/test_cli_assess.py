@@ -205,12 +205,12 @@ def _sym(i, a, b, v):
     ({(2, "c_hN"): "-1e308"}, ":3: field 'c_hN': -1e+308 m^2 is beyond any covariance of an adjusted point "
                               "(|c| <= 1e+06 m^2, an sd of 1000 m)"),
     ({(1, "c_EE"): "inf"}, ":2: field 'c_EE': 'inf' is not a finite number"),
-    ({(1, "c_NN"): "1e-300"}, ":2: field 'c_NN': point '603': variance 1e-300 m^2 is below any adjusted point's "
+    ({(1, "c_NN"): "1e-300"}, ":2: field 'c_NN': point 603: variance 1e-300 m^2 is below any adjusted point's "
                               "(1e-12 m^2, an sd of 1e-06 m)"),
-    ({(1, "c_EN"): "0.5"}, ":2: point '603': its own block is not symmetric (c_EN = c_NE, c_Eh = c_hE, c_Nh = c_hN)"),
-    (_sym(1, "E", "N", "0.5"), ":2: points '603', '603': covariance 0.5 m^2 exceeds the product of the two sds "
+    ({(1, "c_EN"): "0.5"}, ":2: point 603: its own block is not symmetric (c_EN = c_NE, c_Eh = c_hE, c_Nh = c_hN)"),
+    (_sym(1, "E", "N", "0.5"), ":2: points 603, 603: covariance 0.5 m^2 exceeds the product of the two sds "
                                "(0.0423183 m^2): not a covariance matrix"),
-    ({(2, "c_EE"): "0.5"}, ":3: points '603', '605': covariance 0.5 m^2 exceeds the product of the two sds "
+    ({(2, "c_EE"): "0.5"}, ":3: points 603, 605: covariance 0.5 m^2 exceeds the product of the two sds "
                            "(0.0388183 m^2): not a covariance matrix"),
     # every |c_ij| <= sd_i sd_j, but correlations 0.99, 0.99, -0.99 have no positive definite matrix
     ({**_sym(1, "E", "N", repr(0.99 * (0.05169242301552696 * 0.034644050428048564) ** 0.5)),

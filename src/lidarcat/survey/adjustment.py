@@ -196,15 +196,15 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
                                   f"covariance of an adjusted point (|c| <= {var_max:g} m^2, an sd of "
                                   f"{SD_BOUNDS['m'][1]:g} m)")
         if a == b and np.any(np.diag(blk) <= 0):
-            raise AssessmentError(f"{location(path, line)}: point {excerpt(a)}: the variances c_EE, c_NN, c_hh "
+            raise AssessmentError(f"{location(path, line)}: point {excerpt(a, quote=False)}: the variances c_EE, c_NN, c_hh "
                                   "must be positive")
         if a == b and np.any(np.diag(blk) < var_min):
             field = ("c_EE", "c_NN", "c_hh")[int(np.argmin(np.diag(blk)))]
-            raise AssessmentError(f"{location(path, line, field)}: point {excerpt(a)}: variance "
+            raise AssessmentError(f"{location(path, line, field)}: point {excerpt(a, quote=False)}: variance "
                                   f"{np.diag(blk).min():g} m^2 is below any adjusted point's ({var_min:g} m^2, "
                                   f"an sd of {SD_BOUNDS['m'][0]:g} m)")
         if a == b and np.any(np.abs(blk - blk.T) > 1e-9 * np.abs(np.diag(blk)).max()):
-            raise AssessmentError(f"{location(path, line)}: point {excerpt(a)}: its own block is not symmetric "
+            raise AssessmentError(f"{location(path, line)}: point {excerpt(a, quote=False)}: its own block is not symmetric "
                                   "(c_EN = c_NE, c_Eh = c_hE, c_Nh = c_hN)")
     order = list(dict.fromkeys(pa + pb))
     ids = [str(q) for q in points] if points is not None else order
@@ -231,7 +231,7 @@ def read_point_covariance(path, points: Sequence[str] | None = None) -> tuple[li
     if len(over):
         i, j = (int(v) for v in over[0])
         line = seen.get(frozenset((ids[i // 3], ids[j // 3])))
-        raise AssessmentError(f"{location(path, line)}: points {excerpt(ids[i // 3])}, {excerpt(ids[j // 3])}: "
+        raise AssessmentError(f"{location(path, line)}: points {excerpt(ids[i // 3], quote=False)}, {excerpt(ids[j // 3], quote=False)}: "
                               f"covariance {C[i, j]:g} m^2 exceeds the product of the two sds ({sd[i] * sd[j]:g} "
                               "m^2): not a covariance matrix")
     try:
