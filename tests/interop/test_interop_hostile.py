@@ -221,7 +221,8 @@ def test_import_then_load_and_adjust(tmp_path, name):
             # (geometry, not a value: Survey.load accepted every value above)
             adjust_survey(s, outdir=tmp_path / "adj")
         return
-    result, _ = adjust_survey(s, outdir=tmp_path / "adj")
+    # adjust accepts what import wrote: no snooping or precision (not what this checks; 150 s on Berlin)
+    result, _ = adjust_survey(s, outdir=tmp_path / "adj", snooping="off", precision="none")
     assert result.n_iter >= 1
 
 

@@ -441,7 +441,7 @@ def json_too_deep(text: str, limit: int = JSON_MAX_DEPTH) -> tuple[int, int] | N
     One linear scan that skips strings: :func:`json.loads` would recurse once per
     level into a ``RecursionError`` on a file nested 100,000 deep.
 
-    >>> json_too_deep('{"a": [[1, 2], "[[["]}', 2) is None
+    >>> json_too_deep('{"a": [[1, 2], "[[["]}', 3) is None
     True
     >>> json_too_deep('[[[1]]]', 2)
     (1, 3)
