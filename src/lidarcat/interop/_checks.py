@@ -43,6 +43,40 @@ def check_values(where: str, what: str, ids: Any, values: np.ndarray, kinds: tup
                 raise format_error(where, line, name, f"{what} {str(np.asarray(ids)[i])!r}: {problem}")
 
 
+def check_area(where: str, what: str, crs: str, ids: Any, en: np.ndarray, lines: Any = None) -> None:
+    """Refuse E, N outside the area of use of the survey CRS *crs* (as :meth:`lidarcat.Survey.load`
+    does), before they are written; a local frame or an unknown CRS is left to the survey's own check.
+
+    Raises
+    ------
+    FormatError
+        ``WHERE[:LINE]: WHAT 'ID': ... outside the area of use of CRS``.
+    """
+    from ..errors import CRSError
+    from ..lidar.crs import check_area_of_use, resolve_crs
+    from ..survey.folder import is_local_crs
+
+    if not crs or crs in ("", "unspecified") or is_local_crs(crs):
+        return
+    en = np.asarray(en, dtype=float).reshape(-1, 2)
+    ok = np.isfinite(en).all(axis=1)
+    if not ok.any():
+        return
+    try:
+        c = resolve_crs(crs)
+    except CRSError:
+        return
+    ids = np.asarray(ids)
+    try:
+        check_area_of_use(c, en[ok], ids=[str(x) for x in ids[ok]])
+    except CRSError as ex:
+        line = None
+        if lines is not None:
+            bad = [i for i in np.flatnonzero(ok) if str(ids[i]) in str(ex)]
+            line = int(np.asarray(lines)[bad[0]]) if bad and int(np.asarray(lines)[bad[0]]) > 0 else None
+        raise format_error(where, line, None, f"{what}: {ex}") from None
+
+
 def check_block(block: Any) -> None:
     """:func:`check_values` over a whole block (before :func:`write_survey` writes it)."""
     w = block.name
@@ -57,6 +91,8 @@ def check_block(block: Any) -> None:
                  ("col_px", "row_px", "x_mm", "y_mm"))
     check_values(w, "point", block.ground_ids, block.ground_m, ENH_KINDS, ("E", "N", "h"))
     check_values(w, "point", block.ground_ids, block.ground_sd_m, ("sd_m",) * 3, ("sd_E", "sd_N", "sd_h"))
+    check_area(w, "photo", block.crs, block.photo_ids, block.eo[:, :2])
+    check_area(w, "point", block.crs, block.ground_ids, block.ground_m[:, :2])
 
 
 #: the columns of photos.csv an orientation fills, and their sane ranges (degrees for the angles)

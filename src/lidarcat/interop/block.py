@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 
 from .._util.frozen import frozen_array
-from .._util import atomic_dir, read_csv_table, read_text, write_csv_atomic, write_json_atomic, write_text_atomic
+from .._util import atomic_dir, read_csv_table, write_csv_atomic, write_json_atomic, write_text_atomic
 from ..geometry.camera import Camera
 from ..errors import FormatError
-from ._checks import EO_KINDS, ENH_KINDS, PHOTO_COLUMNS_EO, check_block, check_values, read_source_models
+from ._checks import EO_KINDS, ENH_KINDS, PHOTO_COLUMNS_EO, check_area, check_block, check_values, read_source_models
 
 __all__ = ["Block", "Orientations", "GroundControl", "apply_orientations", "apply_ground_control",
            "write_survey", "block_from_survey",
@@ -466,6 +466,7 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
     check_values(where, "photo", orientations.photo,
                  np.column_stack([sd[:, :3], np.degrees(sd[:, 3:])]), ("sd_m",) * 3 + ("sd_deg",) * 3,
                  tuple(f"sd_{n}" for n in PHOTO_COLUMNS_EO), orientations.line)
+    check_area(where, "photo", survey.crs, orientations.photo, orientations.eo[:, :2], orientations.line)
     row_of = {match[p]: i for i, p in enumerate(orientations.photo.tolist()) if p in match}
     eo, esd = _photo_eo(survey.photos)
     for k, ph in enumerate(survey.photos):
@@ -620,6 +621,7 @@ def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
         log.warning("%s: %d measurement(s) on images not in the survey dropped", gcp.source, int((~keep).sum()))
     where = gcp.source.split(" (", 1)[0]
     check_values(where, "point", gcp.point, gcp.enh_m, ENH_KINDS, ("E", "N", "h"))
+    check_area(where, "point", survey.crs, gcp.point, gcp.enh_m[:, :2])
     check_values(where, "measurement of point", gcp.obs_point, gcp.obs_px, ("pixel_px",) * 2, ("col_px", "row_px"))
     check_values(where, "point", np.array(["(all)"]), np.array([sd_m], dtype=float), ("sd_m",) * 3,
                  ("sd_E", "sd_N", "sd_h"))
