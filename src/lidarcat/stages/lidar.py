@@ -79,17 +79,13 @@ def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs
     list of str
         The written files, in tile order (each with its ``.done.json`` resume marker).
     """
-    from ..lidar.jobs import run_jobs
-    from ..production.ground import default_overlap_m
+    from ..production.ground import classify_tiles
 
     p = ground_parameters(method) if params is None else params
-    pdict = {"method": method, **dataclasses.asdict(p)}
-    ov = default_overlap_m(method, p) if overlap_m is None else float(overlap_m)
-    jobs = _jobs("ground", tiles, output, crs=crs, params=pdict, overlap_m=ov, suffix="")
-    for j in jobs:
-        if Path(j.output).resolve() == Path(j.tile).resolve():
-            raise ProductError(f"{j.output}: the output would overwrite the input; choose another name or folder")
-    return run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
+    written = classify_tiles([Path(t) for t in tiles], output, crs=crs, method=method, params=p,
+                             overlap_m=overlap_m, workers=workers, scheduler=scheduler, resume=resume,
+                             progress=progress)
+    return [str(w) for w in written]
 
 
 def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
