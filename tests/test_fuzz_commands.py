@@ -117,8 +117,10 @@ def corpus(tmp_path_factory) -> Path:
 #: cases of the same seed beyond the slice that the full run found failing once, kept as regressions:
 #: 100 (10^400 in reconstruction.json), 115 (`lidar ground` on a byte-flipped tile: a far point),
 #: 120 (a byte-flipped text tag of dtm.tif: UnicodeDecodeError in `lidar sheets`), 600 (`import odm-geo` wrote a
-#: photo outside the area of use of the survey CRS, which `Survey.load` refuses)
-REGRESSIONS = (100, 115, 120, 600)
+#: photo outside the area of use of the survey CRS, which `Survey.load` refuses), 898 and 964 (`import odm-gcp`
+#: wrote a point measured twice on one photo), 958 (`import opensfm` with a truncated tracks.csv wrote
+#: image_points.csv without measurement columns)
+REGRESSIONS = (100, 115, 120, 600, 898, 958, 964)
 
 
 @pytest.mark.parametrize("index", [pytest.param(k, marks=pytest.mark.xfail(strict=True, reason=KNOWN[k]))

@@ -100,3 +100,32 @@ def test_geo_txt_errors(tmp_path):
     p.write_text("EPSG:32617\na.jpg 1 2 3 4 5 6 0 1\n")
     with pytest.raises(FormatError, match=r"geo.txt:2: field 'horiz_acc': accuracy must be positive"):
         read_geo_txt(p)
+
+
+def test_gcp_measured_twice_on_one_photo(tmp_path):
+    """Fuzz cases 898/964: a point measured twice on one photo (here '2' and '2.jpg' are one photo)
+    is refused with the file line, the photo and the point (the survey would refuse it on load)."""
+    p = tmp_path / "gcp_list.txt"
+    p.write_text("EPSG:29192\n677300.0 7183400.0 910.0 1500.0 2200.0 1 G1\n"
+                 "677300.0 7183400.0 910.0 1400.0 2210.0 2 G1\n"
+                 "677300.0 7183400.0 910.0 1401.0 2211.0 2.jpg G1\n")
+    with pytest.raises(FormatError) as ei:
+        apply_ground_control(None, read_gcp_list(p), tmp_path / "s")
+    assert str(ei.value) == (f"{p}:4: point 'G1' is measured twice on photo '2' (also on line 3); keep one "
+                             f"measurement per photo and point, then import again")
+    assert not (tmp_path / "s").exists()
+
+
+def test_gcp_measured_again_on_a_survey_photo(tmp_path):
+    """A measurement of a (photo, point) that the survey measures already is refused, located (a
+    GroundControl whose measurements name a tie point of the survey)."""
+    from lidarcat.interop.block import GroundControl
+
+    s = Survey.load()
+    photo, point = str(s.image_points.photo[0]), str(s.image_points.point[0])
+    g = GroundControl(["N1"], [[677300.0, 7183400.0, 910.0]], "EPSG:29192", "orthometric",
+                      ["N1", point], ["1", photo], [[1500.0, 2200.0], [10.0, 10.0]], "g.txt (test)", [2, 3])
+    with pytest.raises(FormatError) as ei:
+        apply_ground_control(None, g, tmp_path / "s")
+    assert str(ei.value) == (f"g.txt:3: point {point!r} is already measured on photo {photo!r} in "
+                             f"{s.files['image_points']}; remove one of the two measurements, then import again")

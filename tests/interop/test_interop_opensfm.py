@@ -157,3 +157,19 @@ def test_dataset_config(tmp_path):
     p.write_text("processes: 8\n# again\nprocesses: 4\n")
     with pytest.raises(FormatError, match=r"config.yaml:3: field 'processes': given twice \(also line 1\)"):
         read_opensfm_config(p)
+
+
+def test_truncated_tracks_no_measurements(tmp_path):
+    """Fuzz case 958: a tracks.csv cut after the first shot measures no point on two shots: a located
+    error naming the next step (the survey would have image_points.csv without measurement columns)."""
+    lines = TRACKS.read_text().splitlines()
+    first = lines[1].split("\t")[0]
+    t = tmp_path / "tracks.csv"
+    t.write_text("\n".join(ln for ln in lines if ln.split("\t")[0] in (first, lines[0])) + "\n")
+    n = sum(1 for ln in lines[1:] if ln.split("\t")[0] == first and ln.split("\t")[1] in
+            json.loads(REC.read_text())[0]["points"])
+    with pytest.raises(FormatError) as ei:
+        read_opensfm(REC, t)
+    assert str(ei.value) == (f"{t}: no measurements: no point of {REC.name} is measured on two of its shots "
+                             f"({n} usable measurement(s) of 1430 points; is the file truncated?); write "
+                             f"tracks.csv again with OpenSfM, or remove it to import the orientations only")

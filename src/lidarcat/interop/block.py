@@ -551,6 +551,8 @@ class GroundControl:
     obs_px : ndarray (n, 2)
         Pixel column, row, origin at the centre of the top-left pixel.
     source : str
+    obs_line : ndarray (n,) of int or None
+        Line of each measurement in the file (0: unknown), for messages.
     """
 
     point: np.ndarray
@@ -561,12 +563,15 @@ class GroundControl:
     obs_photo: np.ndarray
     obs_px: np.ndarray
     source: str
+    obs_line: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in ("point", "obs_point", "obs_photo"):
             object.__setattr__(self, name, _arr(getattr(self, name), (), str))
         object.__setattr__(self, "enh_m", _arr(self.enh_m, (3,)))
         object.__setattr__(self, "obs_px", _arr(self.obs_px, (2,)))
+        line = np.zeros(len(self.obs_point), np.int64) if self.obs_line is None else self.obs_line
+        object.__setattr__(self, "obs_line", _arr(line, (), np.int64))
 
 
 def _toml_with_files(text: str, keys: dict[str, str]) -> str:
@@ -580,6 +585,32 @@ def _toml_with_files(text: str, keys: dict[str, str]) -> str:
     lines = text.splitlines()
     i = next(k for k, ln in enumerate(lines) if ln.strip().startswith("[files]"))
     return "\n".join(lines[:i + 1] + add + lines[i + 1:]) + "\n"
+
+
+def _check_duplicate_measurements(survey: Any, gcp: GroundControl, keep: np.ndarray, match: dict[str, str],
+                                  where: str) -> None:
+    """Raise :class:`FormatError` for a point measured twice on one photo: twice in the GCP file
+    (two image names of one survey photo count as one photo) or once there and once in the survey."""
+    def at(i: int) -> str:
+        line = int(gcp.obs_line[i])
+        return f"{where}:{line}" if line > 0 else where
+
+    first: dict[tuple[str, str], int] = {}
+    for i in np.flatnonzero(keep).tolist():
+        key = (match[str(gcp.obs_photo[i])], str(gcp.obs_point[i]))
+        if key in first:
+            j = first[key]
+            also = f"line {int(gcp.obs_line[j])}" if gcp.obs_line[j] > 0 else f"measurement {j + 1}"
+            raise FormatError(f"{at(i)}: point {key[1]!r} is measured twice on photo {key[0]!r} (also on "
+                              f"{also}); keep one measurement per photo and point, then import again")
+        first[key] = i
+    ip = survey.image_points
+    have = set(zip(ip.photo.tolist(), ip.point.tolist()))
+    for key, i in first.items():
+        if key in have:
+            raise FormatError(f"{at(i)}: point {key[1]!r} is already measured on photo {key[0]!r} in "
+                              f"{survey.files.get('image_points')}; remove one of the two measurements, "
+                              f"then import again")
 
 
 def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
@@ -598,7 +629,8 @@ def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
     ------
     FormatError
         CRS mismatch, a GCP id that is already a ground point, no measurement on a
-        survey photo, or *folder* holds a survey and *overwrite* is False.
+        survey photo, a point measured twice on one photo (in the file, or in the file
+        and the survey), or *folder* holds a survey and *overwrite* is False.
     """
     survey = _load_target(survey, folder, overwrite)
     if gcp.crs not in ("", "unspecified") and gcp.crs != survey.crs:
@@ -623,6 +655,7 @@ def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
     check_values(where, "point", gcp.point, gcp.enh_m, ENH_KINDS, ("E", "N", "h"))
     check_area(where, "point", survey.crs, gcp.point, gcp.enh_m[:, :2])
     check_values(where, "measurement of point", gcp.obs_point, gcp.obs_px, ("pixel_px",) * 2, ("col_px", "row_px"))
+    _check_duplicate_measurements(survey, gcp, keep, match, where)
     check_values(where, "point", np.array(["(all)"]), np.array([sd_m], dtype=float), ("sd_m",) * 3,
                  ("sd_E", "sd_N", "sd_h"))
     has_pos = np.isfinite(gcp.enh_m).all(axis=1)

@@ -125,7 +125,7 @@ def read_gcp_list(path: str | Path, *, crs: str | None = None,
     names = ("geo_x", "geo_y", "geo_z", "im_x", "im_y", "image_name")
     pts: dict[str, tuple[tuple[float, float, float], int]] = {}
     by_xyz: dict[tuple[float, float, float], str] = {}
-    o_pt, o_im, o_px = [], [], []
+    o_pt, o_im, o_px, o_line = [], [], [], []
     for r in rows:
         r.need(6, names)
         xyz = (r.number(0, "geo_x", "coordinate_m"), r.number(1, "geo_y", "coordinate_m"),
@@ -138,6 +138,7 @@ def read_gcp_list(path: str | Path, *, crs: str | None = None,
         o_pt.append(name)
         o_im.append(r.fields[5])
         o_px.append(px)
+        o_line.append(r.line)
     if not pts:
         raise FormatError(f"{tl.path}: no GCP after the CRS line")
     ids = list(pts)
@@ -147,7 +148,7 @@ def read_gcp_list(path: str | Path, *, crs: str | None = None,
         xyz = np.column_stack([e, n, xyz[:, 2]])
     return GroundControl(np.array(ids, dtype=str), xyz, crs_out, height_system,
                          np.array(o_pt, dtype=str), np.array(o_im, dtype=str), np.array(o_px).reshape(-1, 2),
-                         f"{tl.path} (ODM gcp_list, CRS {crs_in.name})")
+                         f"{tl.path} (ODM gcp_list, CRS {crs_in.name})", np.array(o_line, dtype=np.int64))
 
 
 def _register(r: Row, name: str, xyz, pts: dict, by_xyz: dict) -> None:

@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -175,7 +176,8 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     FormatError
         Invalid JSON (line, column), a missing or non-numeric field (the line of
         the shot/camera/point id and the field), an unsupported projection, a
-        malformed tracks.csv line (``FILE:LINE: field``).
+        malformed tracks.csv line (``FILE:LINE: field``), a tracks.csv that measures
+        no point of the reconstruction on two shots.
     """
     path = Path(reconstruction)
     text = read_text(path, FormatError)
@@ -225,6 +227,11 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     tpath = Path(tracks) if tracks is not None else path.with_name("tracks.csv")
     if tracks is not None or tpath.is_file():
         o_ph, o_pt, o_xy = _read_tracks(tpath, set(photo), set(pids))
+        if pids and (not o_pt or max(Counter(o_pt).values()) < 2):
+            raise FormatError(f"{tpath}: no measurements: no point of {path.name} is measured on two of its "
+                              f"shots ({len(o_pt)} usable measurement(s) of {len(pids)} points; is the file "
+                              f"truncated?); write tracks.csv again with OpenSfM, or remove it to import the "
+                              f"orientations only")
     cam_of = dict(zip(photo, pcam))
     xy_n = np.array(o_xy, dtype=float).reshape(-1, 2)
     corner = np.empty_like(xy_n)
