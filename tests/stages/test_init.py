@@ -187,3 +187,20 @@ def test_photos_inside_the_survey_folder(tmp_path):
     init_survey(root, photos)
     s = Survey.load(root)
     assert s.photo("IMG_0000").image == root / "photos" / "IMG_0000.jpg"
+
+
+def test_orientations_imported_later_keep_the_image_column(tmp_path):
+    """`lidarcat import gnss` onto an init survey (interop.block.apply_orientations) keeps each photo's image."""
+    from lidarcat.interop.block import apply_orientations
+    from lidarcat.interop.gnss import read_gnss
+
+    photos = _photos(tmp_path)
+    init_survey(tmp_path / "s", photos, crs="EPSG:31982")
+    gnss = tmp_path / "gnss.txt"
+    gnss.write_text("photo,E,N,h\n" + "".join(f"IMG_{k:04d},{677000 + 100 * k},7183000,1200\n" for k in range(3)))
+    apply_orientations(Survey.load(tmp_path / "s"), read_gnss(gnss, file_crs="EPSG:31982"), tmp_path / "s2",
+                       sd_position_m=1.0)
+    s2 = Survey.load(tmp_path / "s2")
+    assert [s2.image_path(p).resolve() for p in s2.photo_ids] == [(photos / f"IMG_{k:04d}.jpg").resolve()
+                                                                  for k in range(3)]
+    np.testing.assert_allclose(s2.photo("IMG_0002").position_m, [677200.0, 7183000.0, 1200.0])

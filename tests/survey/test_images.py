@@ -166,3 +166,32 @@ def test_adjust_command_on_a_survey_without_observations(tmp_path):
     r = CliRunner().invoke(cli, ["adjust", str(root), "-o", str(tmp_path / "out")])
     assert_one_line_error(r, "no image observations: run `lidarcat match", "image_points.csv")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_demo_synthetic_images_are_named_in_photos_csv(tmp_path):
+    """`lidarcat demo synthetic --images`: photos.csv names each rendered photo (11 s at load 9)."""
+    from lidarcat.synthetic.survey import write_synthetic_survey
+
+    write_synthetic_survey(tmp_path / "d", n_photos=2, images=True, image_downsample=20, lidar_density_m2=0.5)
+    s = Survey.load(tmp_path / "d")
+    assert [p.image for p in s.photos] == [tmp_path / "d" / "images" / "1.png", tmp_path / "d" / "images" / "2.png"]
+    assert s.image_path("2") == tmp_path / "d" / "images" / "2.png"
+    assert (tmp_path / "d" / "photos.csv").read_text().splitlines()[:2] == ["photo,camera,image", "1,demo,images/1.png"]
+
+
+def test_copy_photos_csv_keeps_the_images_of_a_derived_survey(tmp_path):
+    """The extract stage's derived survey (out/extract/survey) copies photos.csv elsewhere: the image paths are
+    rewritten relative to the copy, so the copy names the same files."""
+    import shutil
+
+    root = _survey(tmp_path, ["a,images/a.jpg", "b,"], images={"a.jpg": (W, H), "b.jpg": (W, H)})
+    s = Survey.load(root)
+    other = tmp_path / "out" / "extract" / "survey"
+    other.mkdir(parents=True)
+    for name in ("camera.toml", "image_points.csv", "survey.toml"):
+        shutil.copyfile(root / name, other / name)
+    s.copy_photos_csv(other / "photos.csv")
+    assert (other / "photos.csv").read_text().splitlines() == ["photo,image", "a,../../../s/images/a.jpg", "b,"]
+    d = Survey.load(other)
+    assert d.photo("a").image.resolve() == (root / "images" / "a.jpg").resolve() and d.photo("b").image is None

@@ -43,6 +43,7 @@ from ..errors import CRSError, SurveyError
 from ..geometry.camera import Camera, load_camera
 from ..photos import IMAGE_SUFFIXES, ExifInfo, exif_orientations, read_exif
 from ..photos.exif import utm_crs
+from ..survey.folder import relative_path
 
 __all__ = ["init_survey", "InitResult", "list_photos", "camera_from_exif", "DEFAULT_POSITION_SD_M",
            "DEFAULT_ATTITUDE_SD_DEG"]
@@ -210,14 +211,6 @@ def _expand_lidar(items: Sequence[str | os.PathLike]) -> list[Path]:
     return list(dict.fromkeys(p.resolve() for p in out))
 
 
-def _rel(path: Path, folder: Path) -> str:
-    """*path* relative to *folder* when they share a drive, else absolute; '/' separators."""
-    try:
-        return Path(os.path.relpath(path.resolve(), folder.resolve())).as_posix()
-    except ValueError:   # another drive (Windows)
-        return path.resolve().as_posix()
-
-
 def _check_target(folder: Path, inputs: Sequence[Path], overwrite: bool) -> None:
     """Refuse a folder that holds a survey.toml or files other than the inputs, unless *overwrite*."""
     if not folder.exists():
@@ -361,7 +354,7 @@ def init_survey(folder: str | os.PathLike, images: str | os.PathLike, *, camera:
                      f"{', '.join(without[:10])}{' ...' if len(without) > 10 else ''}")
 
     name = name or folder.resolve().name
-    lidar_rel = tuple(_rel(t, folder) for t in tiles)
+    lidar_rel = tuple(relative_path(t, folder) for t in tiles)
     with atomic_dir(folder) as tmp:
         write_text_atomic(tmp / "camera.toml", f"# written by lidarcat init; camera from {cam_source}\n"
                           + cam.to_toml())
@@ -376,7 +369,7 @@ def init_survey(folder: str | os.PathLike, images: str | os.PathLike, *, camera:
             cols += ["sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"]
         rows = []
         for k, (pid, p) in enumerate(photos):
-            r: list[Any] = [pid, cam.id, _rel(p, folder)]
+            r: list[Any] = [pid, cam.id, relative_path(p, folder)]
             for arr, ok, what, digits in ((pos, has_pos, "X0", 4), (att, has_att, "omega_deg", 7),
                                           (sdp, has_pos, "sd_X0", 0), (sda, has_att, "sd_omega_deg", 0)):
                 if what in cols:   # 0.1 mm, 1e-7 degree (sds: 6 digits)

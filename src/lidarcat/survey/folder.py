@@ -29,6 +29,7 @@ from __future__ import annotations
 import glob
 import importlib.resources
 import logging
+import os
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -41,6 +42,7 @@ from .._util import excerpt, read_csv_table, write_csv_atomic
 from ..geometry.camera import Camera, load_camera, load_cameras
 from ..errors import SurveyError, location
 from ._tables import (
+    PHOTO_COLUMNS,
     ControlSet,
     GroundPoints,
     ImagePoints,
@@ -79,6 +81,7 @@ __all__ = [
     "AdjustmentSettings",
     "CorrectedMeasurements",
     "thesis_survey_path",
+    "relative_path",
     "example_camera_path",
     "correct_measurements",
     "cameras_of",
@@ -94,6 +97,20 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+
+def relative_path(path: str | Path, folder: str | Path) -> str:
+    """*path* as written into a file of *folder*: relative to it (``../photos/a.jpg``, '/' separators) when
+    both are on one drive, else absolute.
+
+    >>> relative_path("/data/flight/photos/a.jpg", "/data/flight/survey")
+    '../photos/a.jpg'
+    """
+    p, f = Path(os.path.abspath(path)), Path(os.path.abspath(folder))
+    try:
+        return Path(os.path.relpath(p, f)).as_posix()
+    except ValueError:   # another drive (Windows)
+        return p.as_posix()
 
 
 def _data_dir(name: str) -> Path:
@@ -414,6 +431,28 @@ class Survey:
         raise SurveyError(f"{where}: photo {excerpt(p.id)} has no image: give its file in the column 'image' "
                           f"(relative to the survey folder) or put it in {excerpt(str(folder), 200, quote=False)} "
                           f"as {p.id}.jpg/.png/.tif")
+
+    def copy_photos_csv(self, dest: str | Path) -> Path:
+        """Copy photos.csv to *dest* (a derived survey elsewhere) with its ``image`` cells rewritten relative
+        to the folder of *dest*, so that the copy names the same files; written atomically.
+
+        A plain copy would break the relative paths (``../photos/IMG_1.jpg``) of ``lidarcat init``.
+        """
+        import shutil
+
+        dest = Path(dest)
+        src = self.files.get("photos", self.root / "photos.csv")
+        if not any(p.image is not None for p in self.photos):
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(src, dest)
+            return dest
+        t = read_csv_table(src, required=("photo",), optional=PHOTO_COLUMNS[1:])
+        k = t.header.index("image")
+        rows = [list(r) for r in t.rows]
+        for r, p in zip(rows, self.photos):
+            if p.image is not None:
+                r[k] = relative_path(p.image, dest.parent)
+        return write_csv_atomic(dest, t.header, rows)
 
     @property
     def has_images(self) -> bool:
