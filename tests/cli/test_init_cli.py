@@ -67,3 +67,24 @@ def test_a_truncated_photo_is_one_line_and_nothing_is_written(tmp_path):
     r = CliRunner().invoke(cli, ["init", str(tmp_path / "s"), "--images", str(photos)])
     assert_one_line_error(r, f"{bad}: truncated JPEG image")
     assert not (tmp_path / "s").exists()
+
+
+def test_run_accepts_a_survey_of_photos_gnss_and_lidar_tiles(tmp_path):
+    """`lidarcat run` on what `init` wrote (photos, approximate EO, LiDAR tiles, no image observation yet):
+    a valid survey; no stage fails (the match stage is helper-added; adjust waits for control and tie points)."""
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for k in range(2):
+        write_photo(photos / f"IMG_{k}.jpg", 52.0, 4.5 + 0.001 * k, 400.0)
+    tiles = Path(__file__).resolve().parents[1] / "data" / "lidar"
+    r = CliRunner().invoke(cli, ["init", str(tmp_path / "s"), "--images", str(photos), "--crs", "EPSG:28992",
+                                 "--lidar", str(tiles / "ahn3_cropped_*.laz")])
+    assert r.exit_code == 0, r.output
+    s = Survey.load(tmp_path / "s")
+    assert [p.name for p in s.lidar_paths] == ["ahn3_cropped_1.laz", "ahn3_cropped_2.laz"]
+    r = CliRunner().invoke(cli, ["run", str(tmp_path / "s"), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["ok"] is True and summary["failed"] == []
+    status = {st["name"]: st["status"] for st in summary["stages"]}
+    assert status["report"] == "ran" and "failed" not in status.values()
