@@ -110,3 +110,45 @@ def test_header_of_a_truncated_jpeg_is_one_line(tmp_path):
                              f"(the file was cut short; copy it again)")
     with pytest.raises(FormatError):
         read_header(p)
+
+
+@pytest.mark.parametrize("name, exif", [("a.jpg", True), ("a.png", True), ("b.png", False), ("a.tif", True)])
+def test_nothing_is_decoded(tmp_path, monkeypatch, name, exif):
+    """Header and EXIF come without decoding the pixels (a survey of hundreds of 100-MP photos is checked at
+    every load): Pillow's decoder is made to fail."""
+    from PIL import ImageFile, PngImagePlugin
+
+    p = tmp_path / name
+    if exif:
+        write_photo(p, 10.0, 20.0, 30.0)
+    else:
+        Image.new("L", (60, 40)).save(p)
+
+    def no_load(self, *a, **k):
+        raise AssertionError("pixels decoded")
+
+    monkeypatch.setattr(ImageFile.ImageFile, "load", no_load)
+    monkeypatch.setattr(PngImagePlugin.PngImageFile, "load", no_load, raising=False)
+    info = read_exif(p)
+    assert (info.columns_px, info.rows_px) == (60, 40)
+    assert info.has_exif is exif
+    assert info.has_position is (exif and not name.endswith(".tif"))   # Pillow writes no GPS IFD into a TIFF
+
+
+def test_a_jpeg_with_a_trailer_is_whole_a_cut_one_is_not(tmp_path):
+    """A motion photo (a video after the JPEG) ends in no FF D9 but is whole; the same cut inside its scan is
+    truncated, also when its EXIF thumbnail (with an EOI of its own) comes before the scan."""
+    p = write_photo(tmp_path / "a.jpg", 10.0, 20.0, 30.0)
+    whole = p.read_bytes()
+    p.write_bytes(whole + b"ftypmp42" + bytes(range(256)) * 8)
+    assert read_header(p).columns_px == 60
+    thumb = tmp_path / "t.jpg"
+    ex = Image.Exif()
+    ex.get_ifd(0x8769)[0x927C] = b"\xff\xd8 a thumbnail \xff\xd9"   # MakerNote: an EOI in APP1, before the scan
+    Image.fromarray(np.random.default_rng(2).integers(0, 255, (40, 60), dtype=np.uint8)).save(thumb, exif=ex)
+    assert b"a thumbnail \xff\xd9" in thumb.read_bytes()
+    for q in (p, thumb):
+        data = (whole if q == p else thumb.read_bytes())
+        q.write_bytes(data[:-30])
+        with pytest.raises(FormatError, match="truncated JPEG image"):
+            read_header(q)

@@ -169,6 +169,10 @@ def read_exif(path: str | Path) -> ExifInfo:
     path = head.path
     im = open_image(path)
     try:
+        if head.format == "PNG" and "exif" not in im.info:
+            # Pillow would decode the whole PNG looking for an eXIf chunk after the pixel data; writers put it
+            # before (PNG 1.2 extensions: "should appear before IDAT"): none there is no EXIF
+            return ExifInfo(path, head.columns_px, head.rows_px)
         ex = im.getexif()
         exif_ifd = ex.get_ifd(0x8769) if ex else {}
         gps = ex.get_ifd(0x8825) if ex else {}

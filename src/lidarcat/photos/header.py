@@ -5,7 +5,8 @@ every load, so nothing here decodes pixels.  Pillow's ``Image.open`` reads the h
 and the format); whether the file is *complete* is told by its end, without decoding:
 
 * JPEG: the last marker is EOI (``FF D9``); a transfer cut short ends in entropy-coded data instead
-  (trailing ``00`` padding some writers add is skipped);
+  (trailing ``00`` padding some writers add is skipped; a file with something after its image -- a
+  motion-photo video -- is whole when an EOI follows its first scan);
 * PNG: the last chunk is ``IEND``;
 * TIFF: every strip (tags 273/279) or tile (324/325) lies inside the file: ``max(offset + count) <=
   size``.
@@ -91,11 +92,37 @@ def _tail(path: Path, n: int) -> bytes:
         return fh.read()
 
 
+def _jpeg_has_eoi(path: Path) -> bool:
+    """An end-of-image marker after the first scan: the photo is whole even though something follows it
+    (a phone's motion-photo video, a maker's trailer).  Read only when the file's end is not FF D9.
+
+    Entropy-coded data never holds ``FF D9`` (a data byte FF is stuffed with 00, and only the restart
+    markers FF D0-D7 may appear), so the first ``FF D9`` after the first start-of-scan (``FF DA``) is the
+    primary image's end; the segments before the scan (APPn with an embedded thumbnail and its own EOI,
+    tables) are skipped by their lengths."""
+    data = path.read_bytes()
+    i = 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            return False
+        m = data[i + 1]
+        if m == 0xFF:           # fill byte
+            i += 1
+            continue
+        if m == 0xDA:           # start of scan
+            return data.find(b"\xff\xd9", i) >= 0
+        if 0xD0 <= m <= 0xD8 or m == 0x01:   # markers without a length
+            i += 2
+            continue
+        i += 2 + int.from_bytes(data[i + 2:i + 4], "big")
+    return False
+
+
 def _check_whole(path: Path, fmt: str, im) -> str | None:
     """Why the file is cut short, or None."""
     if fmt == "JPEG":
         tail = _tail(path, 4096).rstrip(b"\x00")
-        if not tail.endswith(b"\xff\xd9"):
+        if not tail.endswith(b"\xff\xd9") and not _jpeg_has_eoi(path):
             return "truncated JPEG image: it does not end with the end-of-image marker FF D9"
     elif fmt == "PNG":
         if b"IEND" not in _tail(path, 64):
