@@ -121,7 +121,7 @@ def test_no_exif_anywhere_needs_a_camera(tmp_path):
 
 
 @pytest.mark.parametrize("case", ["unreadable", "truncated", "other size", "listed twice", "no photos",
-                                  "not in gnss", "lidar missing"])
+                                  "not in gnss", "gnss metres as degrees", "lidar missing"])
 def test_bad_input_is_one_located_line_and_nothing_is_written(tmp_path, case):
     photos = _photos(tmp_path)
     kw = {}
@@ -152,6 +152,11 @@ def test_bad_input_is_one_located_line_and_nothing_is_written(tmp_path, case):
         kw["gnss_crs"] = "EPSG:31982"
         want = (f"{kw['gnss']}: photo 'IMG_0001' is not in this GNSS/IMU file (nor 1 other photo(s)); its first "
                 f"column must name each photo (its file name, with or without suffix)")
+    elif case == "gnss metres as degrees":
+        kw["gnss"] = tmp_path / "gnss.txt"
+        kw["gnss"].write_text("photo,E,N,h\n" + "".join(f"IMG_{k:04d},677000,7183000,1200\n" for k in range(3)))
+        want = (f"{kw['gnss']}:2: photo 'IMG_0000': 677000, 7.183e+06 is no longitude, latitude of EPSG:4326; give "
+                f"the file's CRS with --gnss-crs (e.g. EPSG:31982)")
     else:
         kw["lidar"] = [str(tmp_path / "nope.laz")]
         want = f"{tmp_path / 'nope.laz'}: LiDAR tile not found"

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from .._util import atomic_dir, excerpt, write_csv_atomic, write_text_atomic
-from ..errors import CRSError, SurveyError
+from ..errors import CRSError, SurveyError, location
 from ..geometry.camera import Camera, load_camera
 from ..photos import IMAGE_SUFFIXES, ExifInfo, exif_orientations, read_exif
 from ..photos.exif import utm_crs
@@ -187,6 +187,16 @@ def _gnss_orientations(path: Path, gnss_crs: str, ids: list[str]) -> tuple[np.nd
                           + (f" (nor {len(missing) - 1} other photo(s))" if len(missing) > 1 else "")
                           + "; its first column must name each photo (its file name, with or without suffix)")
     k = np.array([row[i] for i in ids], dtype=np.intp)
+    from pyproj import CRS
+
+    if CRS.from_user_input(gnss_crs).is_geographic:   # E, N are longitude, latitude: refuse metres read as degrees
+        lon, lat = o.eo[k, 0], o.eo[k, 1]
+        bad = np.flatnonzero(~((np.abs(lon) <= 180) & (np.abs(lat) <= 90)))
+        if bad.size:
+            j = int(k[bad[0]])
+            raise SurveyError(f"{location(path, int(o.line[j]))}: photo {excerpt(str(o.photo[j]))}: {lon[bad[0]]:g}, "
+                              f"{lat[bad[0]]:g} is no longitude, latitude of {gnss_crs}; give the file's CRS with "
+                              f"--gnss-crs (e.g. EPSG:31982)")
     eo, sd = o.eo[k], o.eo_sd[k]
     return eo[:, :3].copy(), np.degrees(eo[:, 3:]), sd[:, :3].copy(), np.degrees(sd[:, 3:]), o.source
 
@@ -323,6 +333,10 @@ def init_survey(folder: str | os.PathLike, images: str | os.PathLike, *, camera:
         if crs is None:
             crs = gnss_crs if _is_projected(gnss_crs) else utm_crs(*np.nanmean(pos[:, :2], axis=0))
         pos[:, :2] = _transform(pos[:, :2], src_crs, crs)
+        if not np.isfinite(pos).all():
+            i = int(np.flatnonzero(~np.isfinite(pos).all(axis=1))[0])
+            raise CRSError(f"{gnss}: photo {excerpt(ids[i])}: its position in {src_crs} has no place in {crs}; "
+                           f"check --gnss-crs and --crs")
         hsys = height_system or "ellipsoidal"
         notes.append(f"approximate orientation from {source}")
     else:
