@@ -209,3 +209,27 @@ def test_orientations_imported_later_keep_the_image_column(tmp_path):
     assert [s2.image_path(p).resolve() for p in s2.photo_ids] == [(photos / f"IMG_{k:04d}.jpg").resolve()
                                                                   for k in range(3)]
     np.testing.assert_allclose(s2.photo("IMG_0002").position_m, [677200.0, 7183000.0, 1200.0])
+
+
+@pytest.mark.slow
+def test_init_from_the_demos_rendered_photos_a_gnss_file_and_its_camera(tmp_path):
+    """The acceptance workflow's first step: rendered photos (PNG, no EXIF) + a GNSS/IMU file (truth here) + the
+    camera + the LiDAR tiles -> a survey whose approximate orientation is the file's (about 12 s at load 9)."""
+    from lidarcat.synthetic.survey import DEMO_CRS, write_synthetic_survey
+
+    demo = tmp_path / "demo"
+    write_synthetic_survey(demo, n_photos=2, images=True, image_downsample=20, lidar_density_m2=0.5)
+    truth = (demo / "truth" / "eop.csv").read_text().splitlines()
+    gnss = tmp_path / "gnss.csv"
+    gnss.write_text("photo,E,N,h,omega,phi,kappa,sd_E,sd_N,sd_h,sd_omega,sd_phi,sd_kappa\n"
+                    + "".join(f"{line},2,2,2,0.5,0.5,0.5\n" for line in truth if line[:1].isdigit()))
+    res = init_survey(tmp_path / "s", demo / "images", camera=demo / "camera.toml", gnss=gnss, gnss_crs=DEMO_CRS,
+                      lidar=[demo / "lidar"])
+    assert res.crs == DEMO_CRS and res.photos == ("1", "2") and len(res.lidar) >= 1
+    s = Survey.load(tmp_path / "s")
+    true = {r.split(",")[0]: [float(v) for v in r.split(",")[1:]] for r in truth if r[:1].isdigit()}
+    for ph in s.photos:
+        np.testing.assert_allclose([*ph.position_m, *ph.attitude_deg], true[ph.id], atol=1e-4)
+        np.testing.assert_allclose([*ph.sd_position_m, *ph.sd_attitude_deg], [2, 2, 2, 0.5, 0.5, 0.5])
+        assert s.image_path(ph.id).resolve() == (demo / "images" / f"{ph.id}.png").resolve()
+    assert s.cameras["demo"].columns_px == 6000
