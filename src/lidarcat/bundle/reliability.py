@@ -46,6 +46,7 @@ from .redundancy import (  # noqa: F401
     COMPONENTS, FAMILY_LEVEL, MIN_REDUNDANCY, RELIABILITY_COLUMNS, Blunder, Reliability,
     check_level, critical_values, family_alpha, noncentrality, reliability)
 from .result import BundleResult
+from .robust import START_MODES, put_back, robust_start, start_blunders
 from .solve import adjust
 
 __all__ = ["Blunder", "Reliability", "SnoopingResult", "SNOOPING_MODES", "ROBUST_METHODS",
@@ -202,6 +203,8 @@ def snoop(
     power: float = 0.80,
     family_level: float = FAMILY_LEVEL,
     robust: str = "none",
+    start: str = "robust",
+    loss: str = "cauchy",
     max_rejections: int | None = None,
     backward: bool = True,
     multiple: bool = True,
@@ -233,6 +236,14 @@ def snoop(
         Run iteratively re-weighted least squares first and remove the groups
         it weights down below :data:`ROBUST_CUT` in one go (large blocks with
         many blunders); snooping then tests the rest.
+    start : {"robust", "plain"}
+        ``robust`` (with ``report`` and ``remove``): screen the tie points by their intersection
+        geometry and re-weight with *loss* before any least-squares step
+        (:func:`lidarcat.bundle.robust.robust_start`); the observations it rejects are listed
+        as blunders (``found_by`` ``screening`` or the loss), and put back when their residual
+        at the solution of the rest passes the test.  ``plain``: least squares from the start.
+    loss : {"cauchy", "huber", "tukey", "none"}
+        Loss of the robust start's re-weighting.
     max_rejections : int, optional
         Stop after this many rejections (``more_remain`` tells).  Default: 100, or
         :data:`MAX_REJECTED_SHARE` of the groups tested in the first adjustment when that is
@@ -272,17 +283,36 @@ def snoop(
     if level is not None:
         check_level(level, power)
     check_level(family_level, power)
+    if start not in START_MODES:
+        raise ValueError(f"`start` must be one of {', '.join(START_MODES)}, got {start!r}")
     final_precision = adjust_kwargs.pop("precision", "all")
-    first = adjust(problem, precision=final_precision, **adjust_kwargs)
-    if mode == "off":
-        return SnoopingResult(first, None, (), mode, robust, False, 1)
     p = problem
-    n_adj = 1
     sub = _Subset(np.ones(len(p.photo_index), bool), np.ones(len(p.constraint_point_index), bool),
                   np.ones(0 if p.eo_constraint_photo_index is None else len(p.eo_constraint_photo_index), bool))
+    rs = None
+    if mode != "off" and start == "robust":
+        if "initial" in adjust_kwargs:
+            adjust_kwargs = dict(adjust_kwargs)
+            init = adjust_kwargs.pop("initial")
+            rs = robust_start(p, initial=init, loss=loss, **_tolerances(adjust_kwargs))
+        else:
+            rs = robust_start(p, loss=loss, **_tolerances(adjust_kwargs))
+    if rs is None or rs.n_rejected == 0:
+        kw = adjust_kwargs if rs is None else {**adjust_kwargs, "initial": (np.asarray(rs.eo), None)}
+        first = adjust(problem, precision=final_precision, **kw)
+        res, cur = first, p
+        rs = None
+    else:   # the least squares start without the rejected observations, from the robust estimate
+        sub.obs[:] = rs.keep
+        cur, _, kept = sub.problem(p)
+        first = None
+        res = adjust(cur, initial=(np.asarray(rs.eo), np.asarray(rs.points_m)[kept]), precision="none",
+                     **{k: v for k, v in adjust_kwargs.items() if k != "initial"})
+    if mode == "off":
+        return SnoopingResult(first, None, (), mode, robust, False, 1)
+    n_adj = 1
     blunders: list[Blunder] = []
-    res, cur = first, p
-    rel_first = reliability(first, level=level, power=power, family_level=family_level) if first.success else None
+    rel_first = reliability(res, level=level, power=power, family_level=family_level) if res.success else None
     if rel_first is not None:
         level = rel_first.alpha          # the family is the first adjustment's tests
     if max_rejections is None:
@@ -290,11 +320,12 @@ def snoop(
         max_rejections = max(100, math.ceil(MAX_REJECTED_SHARE * n_groups))
     rel = rel_first
     more = False
-    if robust != "none" and first.success:
-        res, cur, rel, found, k = _robust(p, sub, first, rel, robust, level, power, adjust_kwargs)
+    if robust != "none" and res.success:
+        res, cur, rel, found, k = _robust(p, sub, res, rel, robust, level, power, adjust_kwargs)
         blunders += found
         n_adj += k
     iteration = n_rej = 0
+    tried = np.zeros(len(p.photo_index), dtype=bool)      # robust-start rejections tested for putting back
     near = _Neighbours(p) if multiple else None
     single = False                 # after a failed multiple round: one group at a time
     for _round in range(20):
@@ -340,15 +371,56 @@ def snoop(
             res, cur, rel = res_new, nxt, rel_new
         if more or rel is None or not backward:
             break
+        if rs is not None:   # put back what the robust start rejected at a worse orientation
+            back = put_back(p, ~rs.keep & ~tried & ~sub.obs, np.asarray(res.eo_params), res.point_ids,
+                            np.asarray(res.points_m), math.sqrt(critical_values(level, power, 2)[1]))
+            tried |= ~rs.keep
+            if back.any():
+                trial = dataclasses.replace(sub, obs=sub.obs | back, con=sub.con.copy(), eo=sub.eo.copy())
+                try:
+                    prob, _, _ = trial.problem(p)
+                    r = _readjust(prob, (np.asarray(res.eo_params), _warm_points_or_new(res, prob, p)),
+                                  adjust_kwargs)
+                    n_adj += 1
+                    if r.success:
+                        log.info("robust start: %d observation(s) put back", int(back.sum()))
+                        sub, res, cur = trial, r, prob
+                        rel = reliability(r, level=level, power=power)
+                        continue
+                except (DatumError, ValueError):
+                    pass
         # backward step: re-insert or exchange a rejected observation when the data prefer it
         changed, sub, res, cur, rel, blunders, k = _refine(p, sub, blunders, res, cur, rel, level, power,
                                                             adjust_kwargs)
         n_adj += k
         if not changed:
             break
-    if mode == "report" or res is first:
+    adjust_kwargs = {k: v for k, v in adjust_kwargs.items() if k != "initial"}
+    if rs is not None:          # the robust start's rejections still out of the adjustment
+        rej = dataclasses.replace(rs, keep=rs.keep | sub.obs)
+        w_crit = math.sqrt(critical_values(level, power, 2)[1]) if level is not None else math.nan
+        blunders = start_blunders(p, rej, np.asarray(res.eo_params), res.point_ids, np.asarray(res.points_m),
+                                  w_crit) + blunders
+        if mode == "report":    # the adjustment of every observation, when it converges
+            from .approx import intersect_points
+
+            eo_r = np.asarray(res.eo_params)
+            first = adjust(p, initial=(eo_r, intersect_points(p, eo_r)), precision=final_precision,
+                           **adjust_kwargs)
+            n_adj += 1
+            if first.success:
+                rel_first = reliability(first, level=level, power=power, family_level=family_level)
+            else:
+                note = (f"removed: the adjustment with every observation does not converge ({first.status}) "
+                        "in report mode")
+                blunders = [dataclasses.replace(b, note="; ".join(x for x in (b.note, note) if x))
+                            if b.found_by != "snooping" else b for b in blunders]
+                first = None
+    if mode == "report" and first is not None:
         final, final_rel = first, rel_first
-        blunders = [dataclasses.replace(b, removed=False) for b in blunders] if mode == "report" else blunders
+        blunders = [dataclasses.replace(b, removed=False) for b in blunders]
+    elif res is first:
+        final, final_rel = first, rel_first
     else:  # the intermediate adjustments skipped the covariances: once more with them
         final = adjust(cur, initial=(np.asarray(res.eo_params), np.asarray(res.points_m)),
                        precision=final_precision, **adjust_kwargs)
@@ -498,6 +570,25 @@ def _readjust(problem: BundleProblem, initial: tuple[np.ndarray, np.ndarray], ad
         if r.success:
             return r
     return adjust(problem, initial=initial, precision="none", **adjust_kwargs)
+
+
+def _tolerances(adjust_kwargs: dict) -> dict:
+    """The keys of *adjust_kwargs* the robust start's re-weighted adjustments take."""
+    return {k: v for k, v in adjust_kwargs.items() if k in ("tol_m", "tol_rad", "tol_vtpv", "solver")}
+
+
+def _warm_points_or_new(res: BundleResult, nxt: BundleProblem, p: BundleProblem) -> np.ndarray:
+    """Adjusted coordinates of *res* for the points of *nxt*; a point new to *nxt* intersected from its
+    rays at the orientations of *res*."""
+    from .screening import intersect_rays
+
+    pos = {str(q): i for i, q in enumerate(res.point_ids)}
+    out = np.full((nxt.n_points, 3), np.nan)
+    have = np.array([str(q) in pos for q in nxt.point_ids], dtype=bool)
+    out[have] = np.asarray(res.points_m)[[pos[str(q)] for q in nxt.point_ids[have]]]
+    if not have.all():
+        out[~have] = intersect_rays(nxt, np.asarray(res.eo_params))[~have]
+    return out
 
 
 def _warm_points(res: BundleResult, nxt: BundleProblem) -> np.ndarray:

@@ -28,9 +28,12 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["adjust_survey", "adjust_survey_into", "write_adjustment", "problem_from_survey", "read_point_covariance",
            "EOP_COLUMNS", "POINT_COLUMNS", "RESIDUAL_COLUMNS", "COVARIANCE_COLUMNS",
-           "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS", "write_point_covariance"]
+           "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS", "write_point_covariance", "NO_CONTROL"]
 
 log = logging.getLogger(__name__)
+
+#: the control-set name of an adjustment whose only datum is the GNSS/INS orientation of the photos
+NO_CONTROL = "none"
 
 #: ``write_adjustment`` writes the joint covariance of the check points
 #: (``check_covariance.csv``, k (k + 1) / 2 rows) up to this many check points
@@ -71,7 +74,14 @@ def problem_from_survey(
     listed as ``control_unmeasured`` in the summary).  Check points of the set
     are free points with role ``check``; every other point has role ``tie``.
     """
-    cset = survey.control_set(control) if control is None or isinstance(control, str) else control
+    if control is None and survey.default_control is None and eo_constraints:
+        # no control set: the weighted GNSS/INS orientations of photos.csv are the datum
+        # (check_datum explains a defect when they are too weak)
+        from ._tables import ControlSet
+
+        cset = ControlSet(NO_CONTROL, np.zeros(0, dtype=str), np.zeros(0, dtype=str), np.zeros((0, 3)))
+    else:
+        cset = survey.control_set(control) if control is None or isinstance(control, str) else control
     obs = survey.photo_observations(observations)
     photos = survey.photos
     photo_ids = [ph.id for ph in photos]
