@@ -64,6 +64,12 @@ ROBUST_CUT = 0.1
 MAX_REJECTED_SHARE = 0.05
 #: IRLS: stop when the set of groups below ROBUST_CUT is the same after this many re-weightings
 ROBUST_STABLE = 2
+#: data snooping: a photo takes one more rejection per round per this many observations (besides the
+#: separate ones), the largest test of each point only
+OBS_PER_REJECTION = 50
+#: the backward step re-adjusts once per rejection up to this many rejections; beyond, the
+#: rejected image observations are put back together when their predicted residual passes
+REFINE_MAX = 20
 #: IRLS: smallest weight factor (sigma x 100: a point keeps a regular normal-equation block)
 ROBUST_FLOOR = 1e-4
 
@@ -321,11 +327,12 @@ def snoop(
     rel = rel_first
     more = False
     if robust != "none" and res.success:
-        res, cur, rel, found, k = _robust(p, sub, res, rel, robust, level, power, adjust_kwargs)
+        res, cur, rel, found, k = _robust(p, sub, res, rel, robust, level, power, adjust_kwargs, base=cur)
         blunders += found
         n_adj += k
     iteration = n_rej = 0
     tried = np.zeros(len(p.photo_index), dtype=bool)      # robust-start rejections tested for putting back
+    tried_snoop = np.zeros(len(p.photo_index), dtype=bool)  # snooping rejections tested (large blocks)
     near = _Neighbours(p) if multiple else None
     single = False                 # after a failed multiple round: one group at a time
     for _round in range(20):
@@ -389,6 +396,14 @@ def snoop(
                         continue
                 except (DatumError, ValueError):
                     pass
+        snooped = [b for b in blunders if b.found_by == "snooping" and b.removed and b.kind == "image"]
+        if len(snooped) > REFINE_MAX:   # a large block: put back together what passes at the solution
+            changed, sub, res, cur, rel, blunders, k = _put_back_many(p, sub, blunders, res, cur, rel, level,
+                                                                      power, adjust_kwargs, tried_snoop)
+            n_adj += k
+            if changed:
+                continue
+            break
         # backward step: re-insert or exchange a rejected observation when the data prefer it
         changed, sub, res, cur, rel, blunders, k = _refine(p, sub, blunders, res, cur, rel, level, power,
                                                             adjust_kwargs)
@@ -461,6 +476,10 @@ class _Neighbours:
         self.adj = (inc @ inc.T + sparse.identity(p.n_photos, format="csr")).tocsr()
         self.of_point = inc.T.tocsr()
         self.photo_pos = {str(q): i for i, q in enumerate(p.photo_ids)}
+        # rejections a photo may take in one round beside the separate ones (one per
+        # OBS_PER_REJECTION of its observations: a blunder moves the photo's orientation, and
+        # with it the tests of its other observations, by about 1 / their number)
+        self.budget = np.bincount(p.photo_index, minlength=p.n_photos) // OBS_PER_REJECTION
         self.point_pos = {str(q): i for i, q in enumerate(p.point_ids)}
 
     def footprint(self, kind: str, photo: str, point: str) -> np.ndarray:
@@ -491,15 +510,24 @@ def _round_picks(rel: Reliability, near: _Neighbours, limit: int) -> list[int]:
     cand = np.flatnonzero(ratio > 1)
     cand = cand[np.argsort(-ratio[cand], kind="stable")]
     blocked = np.zeros(near.adj.shape[0], dtype=bool)
+    budget = near.budget.copy()
+    points_hit: set[str] = set()
     picks: list[int] = []
     for g in cand:
         if len(picks) >= limit:
             break
-        fp = near.footprint(str(rel.kind[g]), str(rel.photo[g]), str(rel.point[g]))
-        if blocked[fp].any():
+        kind = str(rel.kind[g])
+        fp = near.footprint(kind, str(rel.photo[g]), str(rel.point[g]))
+        separate = not blocked[fp].any()
+        # on photos with many observations: the largest per point, a few per photo
+        crowded = kind == "image" and str(rel.point[g]) not in points_hit and bool(np.all(budget[fp] > 0))
+        if not (separate or crowded):
             continue
         picks.append(int(g))
         blocked[near.around(fp)] = True
+        budget[fp] -= 1
+        if kind != "eo":
+            points_hit.add(str(rel.point[g]))
     return picks
 
 
@@ -561,6 +589,37 @@ def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs):
     return False, sub, res, cur, rel, blunders, n_adj
 
 
+def _put_back_many(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs, tried):
+    """The backward step of a large block: every image observation rejected by snooping (not yet
+    tried) whose predicted residual at the current solution passes the test of a good observation
+    (:func:`lidarcat.bundle.robust.put_back`) goes back in one re-adjustment.  Returns
+    ``(changed, sub, res, cur, rel, blunders, n_adj)``; *tried* (n,) bool is updated."""
+    pid, qid = p.photo_ids[p.photo_index], p.point_ids[p.point_index]
+    key = {(str(a), str(b)): i for i, (a, b) in enumerate(zip(pid, qid))}
+    rej = np.zeros(len(p.photo_index), dtype=bool)
+    for b in blunders:
+        if b.found_by == "snooping" and b.removed and b.kind == "image" and not b.note:
+            rej[key[(b.photo, b.point)]] = True
+    rej &= ~tried & ~sub.obs
+    tried |= rej
+    back = put_back(p, rej, np.asarray(res.eo_params), res.point_ids, np.asarray(res.points_m),
+                    math.sqrt(critical_values(level, power, 2)[1]))
+    if not back.any():
+        return False, sub, res, cur, rel, blunders, 0
+    trial = dataclasses.replace(sub, obs=sub.obs | back, con=sub.con.copy(), eo=sub.eo.copy())
+    try:
+        prob, _, _ = trial.problem(p)
+        r = _readjust(prob, (np.asarray(res.eo_params), _warm_points_or_new(res, prob, p)), adjust_kwargs)
+    except (DatumError, ValueError):
+        return False, sub, res, cur, rel, blunders, 0
+    if not r.success:
+        return False, sub, res, cur, rel, blunders, 1
+    keys = {(str(pid[i]), str(qid[i])) for i in np.flatnonzero(back)}
+    out = [b for b in blunders if not (b.found_by == "snooping" and b.kind == "image" and (b.photo, b.point) in keys)]
+    log.info("data snooping: %d rejected observation(s) put back (they pass at the solution)", int(back.sum()))
+    return True, trial, r, prob, reliability(r, level=level, power=power), out, 1
+
+
 def _readjust(problem: BundleProblem, initial: tuple[np.ndarray, np.ndarray], adjust_kwargs: dict) -> BundleResult:
     """Re-adjustment from a nearby solution, without covariances: plain Gauss-Newton first (it
     converges in a few steps from there; the damped path took about twice as many), the damped
@@ -597,13 +656,16 @@ def _warm_points(res: BundleResult, nxt: BundleProblem) -> np.ndarray:
     return np.asarray(res.points_m)[[pos[str(q)] for q in nxt.point_ids]]
 
 
-def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int = 20):
+def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int = 20, base=None):
     """IRLS with the Danish or Huber weight function on the group tests; returns the state after
-    removing the groups weighted below :data:`ROBUST_CUT`."""
-    n_img = len(p.photo_index)
-    k_con = len(p.constraint_point_index)
+    removing the groups weighted below :data:`ROBUST_CUT`.  *base*: the problem *res* adjusted (the
+    groups of *sub* of *p*; default *p*)."""
+    base = p if base is None else base
+    n_img = len(base.photo_index)
+    k_con = len(base.constraint_point_index)
     factor = np.ones(len(rel.kind))
-    cur = p
+    cur = base
+    saved = (sub.obs.copy(), sub.con.copy(), sub.eo.copy())
     n_adj = 0
     r_cur, rel_cur = res, rel
     crit = {q: critical_values(level, power, q)[1] for q in (1, 2, 3, 6)}
@@ -612,7 +674,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     for _ in range(max_iter):
         # normalised residuals with the original sigmas (not the re-weighted ones: a group weighted
         # down must keep its large residual, or it would get its weight back the next time)
-        u = np.sqrt(_normalised_sq(p, r_cur) / kq)
+        u = np.sqrt(_normalised_sq(base, r_cur) / kq)
         new = np.ones_like(u)
         big = u > 1
         new[big] = np.maximum(np.exp(1 - u[big] ** 2) if method == "danish" else 1.0 / u[big], ROBUST_FLOOR)
@@ -625,7 +687,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
             factor = new
             break
         factor = new
-        cur = _reweighted(p, factor, n_img, k_con)
+        cur = _reweighted(base, factor, n_img, k_con)
         prev = r_cur
         r_cur = _readjust(cur, (np.asarray(r_cur.eo_params), np.asarray(r_cur.points_m)), adjust_kwargs)
         n_adj += 1
@@ -652,15 +714,15 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
                                                          *(f"the other ray (photo {ph}) removed with it"
                                                            for ph in partners)])))
     if not found:
-        return res, p, rel, [], n_adj
+        return res, base, rel, [], n_adj
     try:
         nxt, _, _ = sub.problem(p)
         r2 = _readjust(nxt, (np.asarray(r_cur.eo_params), _warm_points(r_cur, nxt)), adjust_kwargs)
     except (DatumError, ValueError) as ex:
         log.warning("robust %s: removing the %d down-weighted group(s) leaves %s; snooping alone", method,
                     len(found), ex)
-        sub.obs[:], sub.con[:], sub.eo[:] = True, True, True
-        return res, p, rel, [], n_adj
+        sub.obs[:], sub.con[:], sub.eo[:] = saved
+        return res, base, rel, [], n_adj
     n_adj += 1
     rel2 = reliability(r2, level=level, power=power) if r2.success else None
     log.info("robust %s: %d group(s) removed", method, len(found))

@@ -59,7 +59,7 @@ LOSSES: dict[str, float] = {"cauchy": 2.385, "huber": 1.345, "tukey": 4.685}
 #: values of the ``start`` switch of :func:`lidarcat.bundle.reliability.snoop`
 START_MODES = ("robust", "plain")
 #: observations whose final weight factor is below this are rejected after the re-weighting
-REJECT_BELOW = 0.1
+REJECT_BELOW = 0.01
 #: the first scale is 2^GRADUATION times the final one
 GRADUATION = 4
 #: smallest weight factor kept in a re-weighted adjustment (a regular normal-equation block)
@@ -276,7 +276,7 @@ def robust_start(
         for i in np.flatnonzero(lone):
             others = np.flatnonzero(~keep & (p.point_index == p.point_index[i]) & (found != ""))
             found[i] = found[others[0]] if len(others) else "screening"
-            reason[i] = "two-ray point: its other ray was rejected"
+            reason[i] = "its other ray rejected"
     has = np.zeros(p.n_points, dtype=bool)
     has[p.point_index[keep]] = True
     pts_full[~has] = np.nan
@@ -329,7 +329,7 @@ def start_blunders(problem: BundleProblem, rs: RobustStart, eo: np.ndarray, poin
         why = str(rs.reason[k])
         two = np.sum(p.point_index == p.point_index[k]) == 2
         text = why + ("; a point on two photos: its two rays cannot be told apart, both rejected"
-                      if two and "two-ray" not in why else "")
+                      if two else "")
         out.append(Blunder(kind="image", photo=str(p.photo_ids[p.photo_index[k]]),
                            point=str(p.point_ids[p.point_index[k]]),
                            w=float(w[i]) if np.isfinite(w[i]) else math.nan, w_critical=float(w_critical),

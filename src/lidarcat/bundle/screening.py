@@ -63,7 +63,7 @@ from .problem import BundleProblem
 __all__ = ["Screening", "screen", "photo_sd", "intersect_rays", "SCREEN_K", "SCREEN_REASONS"]
 
 #: default threshold of the screening, in (scaled) sds of a ray
-SCREEN_K = 5.0
+SCREEN_K = 10.0
 #: the reasons a ray is flagged
 SCREEN_REASONS = ("", "parallax", "ray", "behind", "no intersection", "last ray")
 #: rays are parallel when the smallest eigenvalue of sum P_s is below this share of the largest

@@ -104,7 +104,8 @@ def _sig(value: object, digits: int) -> str:
 def exit_status(summary: dict) -> tuple[int, str]:
     """Exit code and the one-line verdict: 1 not converged, 3 global test rejected or blunders remain."""
     if not summary["converged"]:
-        return 1, f"the adjustment did not converge ({summary['status']})"
+        return 1, (f"the adjustment did not converge ({summary['status']}): {summary.get('message', '')}; "
+                   "the tables hold its last iterate (eop.csv, points.csv and residuals.csv agree)")
     problems = []
     if not summary["chi2_pass"]:
         problems.append("the global chi-square test of the variance factor REJECTED")
@@ -198,7 +199,9 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     \b
     Exit codes:
       0  converged, global test accepted, no blunder left
-      1  the adjustment did not converge (results are still written)
+      1  the adjustment did not converge (the tables hold its last iterate: eop.csv,
+         points.csv and residuals.csv of the same state; the message names the
+         observations it fails on)
       2  bad input (the error names the file, line or point)
       3  converged, but the global chi-square test rejected or blunders remain
          (--snooping report, or a blunder that could not be removed)

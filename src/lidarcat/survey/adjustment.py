@@ -80,6 +80,14 @@ def problem_from_survey(
         from ._tables import ControlSet
 
         cset = ControlSet(NO_CONTROL, np.zeros(0, dtype=str), np.zeros(0, dtype=str), np.zeros((0, 3)))
+    elif control is None and survey.default_control is None and any(
+            ph.sd_position_m is not None for ph in survey.photos):
+        from ..errors import SurveyError
+
+        avail = ", ".join(survey.control_sets) or "none defined"
+        raise SurveyError(f"{survey.toml_path}: no control set named and no [survey] default_control "
+                          f"(available: {avail}); photos.csv carries sd_X0.. : adjust with the weighted "
+                          "GNSS/INS orientations alone as the datum (--eo-constraints)")
     else:
         cset = survey.control_set(control) if control is None or isinstance(control, str) else control
     obs = survey.photo_observations(observations)
