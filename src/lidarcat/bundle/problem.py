@@ -320,6 +320,11 @@ def chi2_bounds(dof: int, level: float = 0.05) -> dict[str, float]:
 # ---------------------------------------------------------------------------
 
 
+#: constrained photo positions (without attitudes) closer to their line than this many of their sds leave
+#: the rotation about it undetermined (its sd would be sd / distance rad: 0.05 rad at this limit)
+LINE_SDS = 20.0
+
+
 def _eo_datum_defect(p: BundleProblem, photos: np.ndarray) -> str | None:
     """What the weighted GNSS/INS constraints of *photos* leave undetermined of the 7 datum
     parameters (a phrase naming the defect), or None when they fix all of them.
@@ -345,7 +350,7 @@ def _eo_datum_defect(p: BundleProblem, photos: np.ndarray) -> str | None:
                 + ("" if att else " and no rotation"))
     sd_max = float(np.max(sd[pos_rows][:, :3]))
     off_line = sv[1] / math.sqrt(len(pos))               # RMS distance of the positions from their line
-    if att == 0 and (len(pos) == 2 or off_line < 3 * sd_max or sv[1] < 1e-3 * sv[0]):
+    if att == 0 and (len(pos) == 2 or off_line < LINE_SDS * sd_max or sv[1] < 1e-3 * sv[0]):
         return (f"a datum defect of 1 (rank deficiency: the rotation about the line through the "
                 f"{len(pos)} constrained photo positions ({listed}; {off_line:.3g} m off the line, their sd "
                 f"{sd_max:.3g} m) is not determined, no attitude is constrained)")

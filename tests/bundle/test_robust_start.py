@@ -1,0 +1,143 @@
+"""The robust start (screening + graduated IRLS) on a block of automatic matches with gross errors of
+the kind the NGI frames carry (8 mismatched two-ray points, 3.5-700 px, and one wrong ray of a
+three-ray point), the GNSS/INS orientation (1 m / 0.01 deg) as the only datum; the datum defect of
+too weak constraints; the screening on its own."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from lidarcat.bundle import BundleProblem, adjust, check_datum
+from lidarcat.bundle.reliability import snoop
+from lidarcat.bundle.robust import loss_weight, robust_start
+from lidarcat.bundle.screening import screen
+from lidarcat.errors import DatumError
+from lidarcat.synthetic.block import synthetic_block
+
+PIXEL_MM = 0.01
+SD_POS_M, SD_ANG_DEG = 1.0, 0.01
+#: planted mismatches of two-ray points (px, across the base: a y-parallax) and the wrong ray
+MISMATCH_PX = (3.5, 6.0, 12.0, 30.0, 80.0, 200.0, 400.0, 700.0)
+WRONG_RAY_PX = 242.0
+
+
+def matched_block(seed: int = 5):
+    """A 2 x 3 block (~1,500 observations) without control, the EO observed with 1 m / 0.01 deg, and
+    the planted gross observations; returns (problem, truth, planted (photo, point) set)."""
+    b = synthetic_block(2, 3, seed=seed, image_sd_mm=0.003, point_spacing_m=31.0)
+    p = b.problem
+    rng = np.random.default_rng(seed)
+    sd = np.r_[np.full(3, SD_POS_M), np.full(3, np.radians(SD_ANG_DEG))]
+    eo_obs = np.asarray(b.true_eo) + rng.normal(0.0, 1.0, (p.n_photos, 6)) * sd
+    xy = np.array(p.xy_mm)
+    rays = np.bincount(p.point_index)
+    strip = (np.arange(p.n_photos) // 3)[p.photo_index]
+    # two-ray points whose photos are in one strip (base along x): mismatch across it
+    same = np.bincount(p.point_index, weights=strip, minlength=p.n_points)
+    cand = np.flatnonzero((rays == 2) & ((same == 0) | (same == 2)))
+    pts2 = rng.choice(cand, len(MISMATCH_PX), replace=False)
+    planted = set()
+    for j, e_px in zip(pts2, MISMATCH_PX):
+        k = int(np.flatnonzero(p.point_index == j)[rng.integers(2)])
+        xy[k] += np.array([rng.uniform(-0.3, 0.3), rng.choice([-1.0, 1.0])]) * e_px * PIXEL_MM
+        planted |= {(p.photo_ids[p.photo_index[i]], p.point_ids[j]) for i in np.flatnonzero(p.point_index == j)}
+    j3 = int(rng.choice(np.flatnonzero(rays == 3)))
+    k3 = int(np.flatnonzero(p.point_index == j3)[0])
+    ang = rng.uniform(0, 2 * np.pi)
+    xy[k3] += WRONG_RAY_PX * PIXEL_MM * np.array([np.cos(ang), np.sin(ang)])
+    planted.add((p.photo_ids[p.photo_index[k3]], p.point_ids[j3]))
+    bad = dataclasses.replace(
+        p, xy_mm=xy, constraint_point_index=np.zeros(0, int), constraint_enh_m=np.zeros((0, 3)),
+        constraint_sd_m=np.zeros((0, 3)), eo_constraint_photo_index=np.arange(p.n_photos),
+        eo_constraint_params=eo_obs, eo_constraint_sd=np.broadcast_to(sd, (p.n_photos, 6)), initial_eo=eo_obs,
+        point_role=None)
+    return bad, b, planted
+
+
+@pytest.fixture(scope="module")
+def block():
+    return matched_block()
+
+
+def test_matched_block_is_what_the_test_says(block):
+    p, _, planted = block
+    assert 1300 <= len(p.photo_index) <= 1800
+    assert len(planted) == 17 and len(p.constraint_point_index) == 0
+
+
+def test_least_squares_alone_fails_and_says_where(block):
+    p, _, _ = block
+    r = adjust(p, precision="none")
+    assert not r.success
+    assert "point" in r.message and "photo" in r.message
+
+
+def test_robust_start_names_exactly_the_planted_gross_observations(block):
+    p, b, planted = block
+    sr = snoop(p, mode="remove")
+    res = sr.result
+    assert res.success
+    named = {(x.photo, x.point) for x in sr.blunders if x.removed}
+    assert named == planted
+    dev = np.abs(np.asarray(res.eo_params) - np.asarray(b.true_eo)) / res.eo_sd
+    assert dev.max() < 3.0
+    pairs = [x for x in sr.blunders if sum(y.point == x.point for y in sr.blunders) == 2]
+    assert len(pairs) == 16 and all("cannot be told apart" in x.note for x in pairs)
+
+
+def test_report_mode_with_gross_matches_removes_them_and_says_why(block):
+    """The adjustment of every observation does not converge with 700-px matches in it: report mode
+    returns the adjustment without them, each named, removed, and the note says why."""
+    p, _, planted = block
+    sr = snoop(p, mode="report")
+    assert sr.result.success and len(sr.result.residuals_mm) == len(p.photo_index) - len(planted)
+    assert {(x.photo, x.point) for x in sr.blunders} == planted and all(x.removed for x in sr.blunders)
+    assert all("the adjustment with every observation does not converge (max_iterations) in report mode"
+               in x.note for x in sr.blunders if x.found_by != "snooping")
+
+
+def test_screening_flags_the_gross_rays_at_the_approximate_orientation(block):
+    p, _, planted = block
+    s = screen(p, np.asarray(p.initial_eo))
+    flagged = {(p.photo_ids[p.photo_index[k]], p.point_ids[p.point_index[k]]) for k in np.flatnonzero(s.flagged)}
+    assert flagged <= planted and len(flagged) >= 9        # the few-px mismatches are left to snooping
+    rs = robust_start(p)
+    kept_out = {(p.photo_ids[p.photo_index[k]], p.point_ids[p.point_index[k]]) for k in np.flatnonzero(~rs.keep)}
+    assert kept_out <= planted
+
+
+def test_loss_weights():
+    t = np.array([0.0, 0.5, 1.0, 2.0])
+    np.testing.assert_allclose(loss_weight("cauchy", t), [1.0, 0.8, 0.5, 0.2])
+    np.testing.assert_allclose(loss_weight("huber", t), [1.0, 1.0, 1.0, 0.5])
+    np.testing.assert_allclose(loss_weight("tukey", t), [1.0, 0.5625, 0.0, 0.0])
+    with pytest.raises(ValueError, match="^`loss` must be one of cauchy, huber, tukey, got 'l1'$"):
+        loss_weight("l1", t)
+
+
+def _eo_only(p: BundleProblem, photos, sd) -> BundleProblem:
+    photos = np.asarray(photos)
+    return dataclasses.replace(p, eo_constraint_photo_index=photos,
+                               eo_constraint_params=np.asarray(p.eo_constraint_params)[photos],
+                               eo_constraint_sd=np.broadcast_to(sd, (len(photos), 6)))
+
+
+def test_datum_from_gnss_ins_alone_and_its_defects(block):
+    p, _, _ = block
+    check_datum(p)                                             # positions and attitudes of 6 photos
+    pos_only = np.r_[np.full(3, 1.0), np.full(3, np.inf)]
+    check_datum(_eo_only(p, [0, 1, 3], pos_only))              # three positions off a line
+    with pytest.raises(DatumError, match=r"^the block has no control points and its GNSS/INS constraints leave "
+                                         r"a datum defect of 1 \(rank deficiency: the rotation about the line "
+                                         r"through the 2 constrained photo positions \(0001, 0002; "):
+        check_datum(_eo_only(p, [0, 1], pos_only))
+    with pytest.raises(DatumError, match=r"a datum defect of 1 \(rank deficiency: the rotation about the line "
+                                         r"through the 3 constrained photo positions \(0001, 0002, 0003"):
+        check_datum(_eo_only(p, [0, 1, 2], pos_only))          # one strip: on a line
+    check_datum(_eo_only(p, [0, 1, 2], np.r_[np.full(3, 1.0), np.full(3, 1e-4)]))   # with attitudes
+    with pytest.raises(DatumError, match=r"a datum defect of 1: one constrained photo position \(0001\) fixes no "
+                                         r"scale; constrain"):
+        check_datum(_eo_only(p, [0], np.r_[np.full(3, 1.0), np.full(3, 1e-4)]))
