@@ -15,47 +15,7 @@ from lidarcat.bundle.reliability import snoop
 from lidarcat.bundle.robust import loss_weight, robust_start
 from lidarcat.bundle.screening import screen
 from lidarcat.errors import DatumError
-from lidarcat.synthetic.block import synthetic_block
-
-PIXEL_MM = 0.01
-SD_POS_M, SD_ANG_DEG = 1.0, 0.01
-#: planted mismatches of two-ray points (px, across the base: a y-parallax) and the wrong ray
-MISMATCH_PX = (3.5, 6.0, 12.0, 30.0, 80.0, 200.0, 400.0, 700.0)
-WRONG_RAY_PX = 242.0
-
-
-def matched_block(seed: int = 5):
-    """A 2 x 3 block (~1,500 observations) without control, the EO observed with 1 m / 0.01 deg, and
-    the planted gross observations; returns (problem, truth, planted (photo, point) set)."""
-    b = synthetic_block(2, 3, seed=seed, image_sd_mm=0.003, point_spacing_m=31.0)
-    p = b.problem
-    rng = np.random.default_rng(seed)
-    sd = np.r_[np.full(3, SD_POS_M), np.full(3, np.radians(SD_ANG_DEG))]
-    eo_obs = np.asarray(b.true_eo) + rng.normal(0.0, 1.0, (p.n_photos, 6)) * sd
-    xy = np.array(p.xy_mm)
-    rays = np.bincount(p.point_index)
-    strip = (np.arange(p.n_photos) // 3)[p.photo_index]
-    # two-ray points whose photos are in one strip (base along x): mismatch across it
-    same = np.bincount(p.point_index, weights=strip, minlength=p.n_points)
-    cand = np.flatnonzero((rays == 2) & ((same == 0) | (same == 2)))
-    pts2 = rng.choice(cand, len(MISMATCH_PX), replace=False)
-    planted = set()
-    for j, e_px in zip(pts2, MISMATCH_PX):
-        k = int(np.flatnonzero(p.point_index == j)[rng.integers(2)])
-        xy[k] += np.array([rng.uniform(-0.3, 0.3), rng.choice([-1.0, 1.0])]) * e_px * PIXEL_MM
-        planted |= {(p.photo_ids[p.photo_index[i]], p.point_ids[j]) for i in np.flatnonzero(p.point_index == j)}
-    j3 = int(rng.choice(np.flatnonzero(rays == 3)))
-    k3 = int(np.flatnonzero(p.point_index == j3)[0])
-    ang = rng.uniform(0, 2 * np.pi)
-    xy[k3] += WRONG_RAY_PX * PIXEL_MM * np.array([np.cos(ang), np.sin(ang)])
-    planted.add((p.photo_ids[p.photo_index[k3]], p.point_ids[j3]))
-    bad = dataclasses.replace(
-        p, xy_mm=xy, constraint_point_index=np.zeros(0, int), constraint_enh_m=np.zeros((0, 3)),
-        constraint_sd_m=np.zeros((0, 3)), eo_constraint_photo_index=np.arange(p.n_photos),
-        eo_constraint_params=eo_obs, eo_constraint_sd=np.broadcast_to(sd, (p.n_photos, 6)), initial_eo=eo_obs,
-        point_role=None)
-    return bad, b, planted
-
+from lidarcat.synthetic.matches import matched_block
 
 @pytest.fixture(scope="module")
 def block():

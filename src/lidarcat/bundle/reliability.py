@@ -101,6 +101,7 @@ class SnoopingResult:
     robust: str
     more_remain: bool
     n_adjustments: int
+    start: str = "plain"
 
     @property
     def blunders_remain(self) -> bool:
@@ -110,7 +111,9 @@ class SnoopingResult:
     def summary(self) -> dict[str, Any]:
         """``snooping`` and ``blunders`` of ``summary.json``."""
         rel = self.reliability
-        snoop_info: dict[str, Any] = {"mode": self.mode, "robust": self.robust,
+        snoop_info: dict[str, Any] = {"mode": self.mode, "robust": self.robust, "start": self.start,
+                                      "n_found_by": {k: sum(b.found_by == k for b in self.blunders)
+                                                     for k in sorted({b.found_by for b in self.blunders})},
                                       "n_adjustments": self.n_adjustments,
                                       "n_blunders": len(self.blunders),
                                       "n_removed": sum(b.removed for b in self.blunders),
@@ -315,7 +318,7 @@ def snoop(
         res = adjust(cur, initial=(np.asarray(rs.eo), np.asarray(rs.points_m)[kept]), precision="none",
                      **{k: v for k, v in adjust_kwargs.items() if k != "initial"})
     if mode == "off":
-        return SnoopingResult(first, None, (), mode, robust, False, 1)
+        return SnoopingResult(first, None, (), mode, robust, False, 1, "plain")
     n_adj = 1
     blunders: list[Blunder] = []
     rel_first = reliability(res, level=level, power=power, family_level=family_level) if res.success else None
@@ -444,7 +447,7 @@ def snoop(
     if final_rel is not None and rel_first is not None:
         final_rel = dataclasses.replace(final_rel, family_level=rel_first.family_level,
                                         family_tests=rel_first.family_tests)
-    return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj)
+    return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj, start)
 
 
 def _remove_group(p: BundleProblem, sub: _Subset, rel: Reliability, g: int, iteration: int) -> list[Blunder]:

@@ -398,6 +398,7 @@ def adjust_survey(
     snooping_level: float | None = None,
     family_level: float = FAMILY_LEVEL,
     robust: str = "none",
+    start: str = "robust",
 ) -> tuple[BundleResult, Any]:
     """Load a survey, adjust it and write the result folder (``lidarcat adjust``).
 
@@ -424,6 +425,10 @@ def adjust_survey(
         Probability that a block without blunders has any test rejecting (0.05).
     robust : {"none", "danish", "huber"}
         Re-weighting before snooping (large blocks with many blunders).
+    start : {"robust", "plain"}
+        With snooping ``report``/``remove``: screen the tie points by their intersection geometry
+        and re-weight with a graduated Cauchy loss before any least-squares step
+        (:func:`lidarcat.bundle.robust.robust_start`), or least squares from the start.
     precision : {"all", "photos", "none"}
         Covariance blocks to compute (see :func:`adjust`); the joint covariance of
         the check points is written with ``"all"`` only.
@@ -450,7 +455,7 @@ def adjust_survey(
                                   variance_factor=variance_factor, chi2_level=chi2_level,
                                   eo_constraints=eo_constraints, max_iter=max_iter, precision=precision,
                                   progress=progress, snooping=snooping, snooping_level=snooping_level,
-                                  family_level=family_level, robust=robust)
+                                  family_level=family_level, robust=robust, start=start)
     return sres.result, out
 
 
@@ -470,6 +475,7 @@ def adjust_survey_into(
     snooping_level: float | None = None,
     family_level: float | None = FAMILY_LEVEL,
     robust: str = "none",
+    start: str = "robust",
 ) -> SnoopingResult:
     """Adjust a loaded survey and write its adjustment tables into the existing *folder*.
 
@@ -489,7 +495,7 @@ def adjust_survey_into(
     folder : path
         Output folder.
     control, observations, variance_factor, chi2_level, eo_constraints, max_iter, precision, progress,
-    snooping, snooping_level, family_level, robust
+    snooping, snooping_level, family_level, robust, start
         As :func:`adjust_survey` (``family_level=None``: :data:`lidarcat.bundle.reliability.FAMILY_LEVEL`).
 
     Returns
@@ -507,8 +513,8 @@ def adjust_survey_into(
                   chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
                   eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
                   snooping_level=None if snooping_level is None else float(snooping_level),
-                  family_level=family_level, robust=robust, precision=precision)
-    sres = snoop(problem, mode=snooping, level=snooping_level, family_level=family_level, robust=robust,
+                  family_level=family_level, robust=robust, start=start, precision=precision)
+    sres = snoop(problem, mode=snooping, level=snooping_level, family_level=family_level, robust=robust, start=start,
                  max_iter=max_iter, precision=precision, variance_factor=params["variance_factor"],
                  chi2_level=params["chi2_level"], progress=progress)
     write_adjustment(sres.result, folder, extra={
