@@ -213,7 +213,7 @@ def snoop(
     family_level: float = FAMILY_LEVEL,
     robust: str = "none",
     start: str = "robust",
-    loss: str = "cauchy",
+    loss: str = "auto",
     max_rejections: int | None = None,
     backward: bool = True,
     multiple: bool = True,
@@ -251,8 +251,9 @@ def snoop(
         (:func:`lidarcat.bundle.robust.robust_start`); the observations it rejects are listed
         as blunders (``found_by`` ``screening`` or the loss), and put back when their residual
         at the solution of the rest passes the test.  ``plain``: least squares from the start.
-    loss : {"cauchy", "huber", "tukey", "none"}
-        Loss of the robust start's re-weighting.
+    loss : {"auto", "cauchy", "huber", "tukey", "none"}
+        Loss of the robust start's re-weighting (``auto``: Cauchy, when least squares on the
+        screened observations does not converge).
     max_rejections : int, optional
         Stop after this many rejections (``more_remain`` tells).  Default: 100, or
         :data:`MAX_REJECTED_SHARE` of the groups tested in the first adjustment when that is

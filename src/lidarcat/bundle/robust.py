@@ -9,7 +9,8 @@ least-squares step:
    orientation, or the planimetric block);
 2. :func:`lidarcat.bundle.screening.screen` flags the rays that do not meet the other rays of
    their point at those orientations; they leave the adjustment;
-3. iteratively re-weighted least squares (IRLS) on the rest.  With the normalised residual of
+3. least squares on the rest; when that does not converge (``loss="auto"``), or always with a
+   loss named, iteratively re-weighted least squares (IRLS).  With the normalised residual of
    an observation ``u = |v / sd| / sqrt(2)`` (v its 2-D residual, the root mean square of the two
    standardised coordinates) the weight is multiplied by ``f(u / c_t)``:
 
@@ -166,7 +167,7 @@ def robust_start(
     initial: tuple[np.ndarray, np.ndarray | None] | None = None,
     screening: bool = True,
     k: float = SCREEN_K,
-    loss: str = "cauchy",
+    loss: str = "auto",
     max_reweightings: int = 20,
     iterations_per_weighting: int = 5,
     **adjust_kwargs: Any,
@@ -182,8 +183,10 @@ def robust_start(
         Run :func:`lidarcat.bundle.screening.screen` first.
     k : float
         Its threshold (sds of a ray).
-    loss : {"cauchy", "huber", "tukey", "none"}
-        Loss of the re-weighting; ``none`` skips it.
+    loss : {"auto", "cauchy", "huber", "tukey", "none"}
+        Loss of the re-weighting; ``none`` skips it; ``auto`` (the default) re-weights with
+        ``cauchy`` only when least squares on the screened observations does not converge
+        (a block whose gross errors the screening took costs one adjustment, not a dozen).
     max_reweightings, iterations_per_weighting : int
         Limits of the IRLS loop (re-weightings, Levenberg-Marquardt iterations in each).
     **adjust_kwargs
@@ -199,8 +202,8 @@ def robust_start(
         From the approximations, or when the screening leaves a photo with fewer than 3
         points (the message names it).
     """
-    if loss != "none" and loss not in LOSSES:
-        raise ValueError(f"`loss` must be one of none, {', '.join(LOSSES)}, got {loss!r}")
+    if loss not in ("none", "auto") and loss not in LOSSES:
+        raise ValueError(f"`loss` must be one of none, auto, {', '.join(LOSSES)}, got {loss!r}")
     p = problem
     n = len(p.photo_index)
     if initial is None:
@@ -232,6 +235,15 @@ def robust_start(
     pts = intersect_points(sub, eo)
     scale = 1.0
     n_rw = 0
+    if loss == "auto":      # re-weight only when least squares on the screened block does not converge
+        kw = {k2: v for k2, v in adjust_kwargs.items() if k2 in ("tol_m", "tol_rad", "tol_vtpv", "solver")}
+        r = adjust(sub, initial=(eo, pts), check=False, precision="none", **kw)
+        n_rw = 1
+        if r.success:
+            eo, pts, loss = np.array(r.eo_params), np.array(r.points_m), "none"
+        else:
+            loss = "cauchy"
+            log.info("robust start: least squares on the screened block %s; re-weighting (cauchy)", r.status)
     converged = loss == "none"
     if loss != "none":
         c = LOSSES[loss]
