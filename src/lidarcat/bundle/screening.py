@@ -193,8 +193,8 @@ def screen(problem: BundleProblem, eo: np.ndarray, *, k: float = SCREEN_K, eo_sd
 
     Examples
     --------
-    Two photos 600 m apart at 1,000 m looking down, three points, the second measured 40 um off
-    in y on the first photo (a y-parallax):
+    Two photos 600 m apart at 1,000 m looking down, three points, the second measured 0.2 mm off
+    in y on the first photo (a y-parallax of 40 sds):
 
     >>> import numpy as np
     >>> from lidarcat.bundle import BundleProblem
@@ -203,7 +203,7 @@ def screen(problem: BundleProblem, eo: np.ndarray, *, k: float = SCREEN_K, eo_sd
     >>> X = np.array([[300., 0., 0.], [300., 200., 0.], [300., -200., 0.]])
     >>> pi, pj = np.repeat([0, 1], 3), np.tile([0, 1, 2], 2)
     >>> xy = project(eo, X[pj], np.full(6, 100.), pi)[0]
-    >>> xy[1, 1] += 0.04
+    >>> xy[1, 1] += 0.2
     >>> prob = BundleProblem(["a", "b"], ["p", "q", "r"], 100., pi, pj, xy, 0.005,
     ...                      np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3)))
     >>> s = screen(prob, eo)
@@ -319,6 +319,15 @@ def screen(problem: BundleProblem, eo: np.ndarray, *, k: float = SCREEN_K, eo_sd
     flagged[lone] = True
     reason[lone] = "last ray"
     X, ok, *_ = _intersect(pj[act & ~flagged], d[act & ~flagged], o[act & ~flagged], n_pt)
+    # the kept rays judged at the final intersection (a residual of n rays has about (n - 1) / n of
+    # the ray's variance)
+    kept = np.flatnonzero(act & ~flagged & ok[pj])
+    if len(kept):
+        res_k, rng_k = _image_residual(X[pj[kept]], d[kept], o[kept], c[kept])
+        sig_k = _sigma_ray(_sub(p, kept), sd, rng_k)
+        nr = np.bincount(pj[kept], minlength=n_pt)[pj[kept]].astype(float)
+        resid[kept] = res_k
+        ratio[kept] = res_k / sig_k * np.sqrt(nr / np.maximum(nr - 1, 1)) / thr
     return Screening(flagged=flagged, reason=reason, ratio=ratio, residual_mm=resid, points_m=X,
                      k=float(k), scale=float(scale))
 
