@@ -12,7 +12,7 @@ ratio ``T_a / chi2_{1-alpha_q}(q)`` when it exceeds 1, re-adjusts from the
 previous solution, and repeats (Baarda: one rejection per iteration, because
 one blunder raises the w of its neighbours).  On large blocks a round also
 removes every other rejected group that is *separate* from those already picked
-(:func:`_round_picks`: no photo that sees its point is, or shares a point with,
+(:func:`lidarcat.bundle._rounds.round_picks`: no photo that sees its point is, or shares a point with,
 such a photo of a picked group), because a blunder raises the tests of the
 groups that share its photo, its point or a neighbouring photo, not of groups
 far away; on the thesis block no two groups are separate, so it is the classic
@@ -46,6 +46,7 @@ from .redundancy import (  # noqa: F401
     COMPONENTS, FAMILY_LEVEL, MIN_REDUNDANCY, RELIABILITY_COLUMNS, Blunder, Reliability,
     check_level, critical_values, family_alpha, noncentrality, reliability)
 from .result import BundleResult
+from ._rounds import OBS_PER_REJECTION, Neighbours as _Neighbours, round_picks as _round_picks  # noqa: F401
 from .robust import START_MODES, put_back, robust_start, start_blunders
 from .solve import adjust
 
@@ -64,9 +65,6 @@ ROBUST_CUT = 0.1
 MAX_REJECTED_SHARE = 0.05
 #: IRLS: stop when the set of groups below ROBUST_CUT is the same after this many re-weightings
 ROBUST_STABLE = 2
-#: data snooping: a photo takes one more rejection per round per this many observations (besides the
-#: separate ones), the largest test of each point only
-OBS_PER_REJECTION = 50
 #: the backward step re-adjusts once per rejection up to this many rejections; beyond, the
 #: rejected image observations are put back together when their predicted residual passes
 REFINE_MAX = 20
@@ -262,7 +260,7 @@ def snoop(
         Remove in one round, besides the group with the largest test ratio, every other
         rejected group that is *separate* from those already picked in that round: no
         photo that sees its point is, or shares a point with, such a photo of a picked
-        group (:func:`_round_picks`).  On a block whose photos all share points (the thesis
+        group (:func:`lidarcat.bundle._rounds.round_picks`).  On a block whose photos all share points (the thesis
         block) this is the classic one rejection per round.
     backward : bool
         After snooping stops, put back a rejected image observation when every test passes
@@ -466,73 +464,6 @@ def _remove_group(p: BundleProblem, sub: _Subset, rel: Reliability, g: int, iter
         if len(other):
             out.append(rel.blunder(int(other[0]), removed=True, iteration=iteration, note=note))
     return out
-
-
-class _Neighbours:
-    """Photos of the original problem that share a point (or are the same photo), and the photos of
-    every point: the footprint of a group for :func:`_round_picks`."""
-
-    def __init__(self, p: BundleProblem) -> None:
-        from scipy import sparse
-
-        inc = sparse.csr_matrix((np.ones(len(p.photo_index)), (p.photo_index, p.point_index)),
-                                shape=(p.n_photos, p.n_points))
-        self.adj = (inc @ inc.T + sparse.identity(p.n_photos, format="csr")).tocsr()
-        self.of_point = inc.T.tocsr()
-        self.photo_pos = {str(q): i for i, q in enumerate(p.photo_ids)}
-        # rejections a photo may take in one round beside the separate ones (one per
-        # OBS_PER_REJECTION of its observations: a blunder moves the photo's orientation, and
-        # with it the tests of its other observations, by about 1 / their number)
-        self.budget = np.bincount(p.photo_index, minlength=p.n_photos) // OBS_PER_REJECTION
-        self.point_pos = {str(q): i for i, q in enumerate(p.point_ids)}
-
-    def footprint(self, kind: str, photo: str, point: str) -> np.ndarray:
-        """Photos whose unknowns the group's test depends on most: every photo that sees its point
-        (image observation, control point), or its photo (GNSS/INS constraint)."""
-        if kind != "eo":
-            j = self.point_pos[point]
-            return self.of_point.indices[self.of_point.indptr[j]:self.of_point.indptr[j + 1]]
-        return np.array([self.photo_pos[photo]])
-
-    def around(self, photos: np.ndarray) -> np.ndarray:
-        return np.unique(np.concatenate([self.adj.indices[self.adj.indptr[i]:self.adj.indptr[i + 1]]
-                                         for i in photos])) if len(photos) else photos
-
-
-def _round_picks(rel: Reliability, near: _Neighbours, limit: int) -> list[int]:
-    """Rejected groups removed together in one round, largest test ratio first.
-
-    Rule: a group is picked when none of its photos (an image observation or a control
-    point: every photo that sees its point; a GNSS/INS constraint: its photo) is a photo of
-    a group picked before it in this round or shares a point with one.  Two such groups
-    share no unknown and no observation, and neither do the other rays of their points, so
-    their residuals are correlated only through the rest of the network (weakly): one
-    cannot be the reason the other's test rejects, and both are what one-at-a-time snooping
-    would find in two rounds.
-    """
-    ratio = np.where(rel.testable, np.nan_to_num(rel.ratio, nan=-np.inf), -np.inf)
-    cand = np.flatnonzero(ratio > 1)
-    cand = cand[np.argsort(-ratio[cand], kind="stable")]
-    blocked = np.zeros(near.adj.shape[0], dtype=bool)
-    budget = near.budget.copy()
-    points_hit: set[str] = set()
-    picks: list[int] = []
-    for g in cand:
-        if len(picks) >= limit:
-            break
-        kind = str(rel.kind[g])
-        fp = near.footprint(kind, str(rel.photo[g]), str(rel.point[g]))
-        separate = not blocked[fp].any()
-        # on photos with many observations: the largest per point, a few per photo
-        crowded = kind == "image" and str(rel.point[g]) not in points_hit and bool(np.all(budget[fp] > 0))
-        if not (separate or crowded):
-            continue
-        picks.append(int(g))
-        blocked[near.around(fp)] = True
-        budget[fp] -= 1
-        if kind != "eo":
-            points_hit.add(str(rel.point[g]))
-    return picks
 
 
 def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs):
