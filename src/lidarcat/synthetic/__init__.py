@@ -7,6 +7,7 @@
 ``scene``       A textured synthetic scene and aerial photos of it, rendered with known truth.
 ``landscapes``  Synthetic landscapes with known ground, for judging ground filters beyond the AHN3 tiles.
 ``cavassim``    The experiment of Cavassim (2005) on a synthetic town: three mapping products against known truth.
+``matches``     A block of automatic tie-point matches with gross errors of known place (the NGI kind).
 ==============  ============================================================
 """
 
@@ -21,6 +22,7 @@ from .block import (  # noqa: F401
     SelfCalBlock,
     selfcal_block,
 )
+from .matches import matched_block, MISMATCH_PX, WRONG_RAY_PX, MATCH_PIXEL_MM  # noqa: F401
 from .survey import (  # noqa: F401
     DemoSurvey,
     write_synthetic_survey,
@@ -80,4 +82,8 @@ __all__ = [
     'CAVASSIM_TABLE_09',
     'CAVASSIM_TABLES_06_08',
     'paper_camera',
+    'matched_block',
+    'MISMATCH_PX',
+    'WRONG_RAY_PX',
+    'MATCH_PIXEL_MM',
 ]
