@@ -303,8 +303,10 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
     text = read_text(path, FormatError)
     data = _load_json(path)
     if "proj=topocentric" not in block.crs:
-        raise FormatError(f"{path}: the block {block.name!r} has no OpenSfM reference_lla frame; "
-                          f"GCPs in lat/lon cannot be placed")
+        raise FormatError(f"{path}: the block {block.name!r} has no OpenSfM reference_lla frame, so GCPs in "
+                          f"lat/lon cannot be placed; give --survey a survey imported from a georeferenced "
+                          f"OpenSfM reconstruction (with reference_lla), or write the GCPs as an ODM "
+                          f"gcp_list.txt in the survey CRS and use lidarcat import odm-gcp")
     tr = Transformer.from_pipeline(block.crs.split(": ", 1)[1])
     pts = data.get("points") if isinstance(data, dict) else None
     if not isinstance(pts, list):
@@ -339,7 +341,8 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
             sid = ob.get("shot_id")
             if not isinstance(sid, str) or sid not in cam_of or cam_of[sid] not in block.source_models:
                 raise format_error(path, line, "shot_id", f"GCP {pid!r}: shot {_short(sid)} is not in the "
-                                   f"reconstruction")
+                                   f"reconstruction of {block.name!r}: give --survey the survey imported "
+                                   f"from the reconstruction these GCPs were measured in")
             xy = _vec(path, text, str(p["id"]), "projection", ob.get("projection"), 2, "normalised")
             m = block.source_models[cam_of[sid]]
             s = max(m["w"], m["h"])

@@ -289,13 +289,15 @@ def read_borea(opk: str | Path, cameras: list[str | Path], *, points: str | Path
     for name, cam, line in zip(ori.photo.tolist(), ori.camera.tolist(), ori.line.tolist()):
         if cam not in cams:
             raise format_error(opk, line, "CAMERA", f"camera {cam!r} of photo {name!r} is not among the "
-                               f"camera files ({', '.join(cams) or 'none given'})")
+                               f"camera files ({', '.join(cams) or 'none given'}): give its camera file "
+                               f"(--camera)")
     o_pt, o_im, o_px = [np.empty(0, str)], [np.empty(0, str)], [np.empty((0, 2))]
     for m in measurements:
         p, i, c = read_borea_measurements(m)
         unknown = sorted(set(i.tolist()) - set(ori.photo.tolist()))
         if unknown:
-            raise FormatError(f"{m}: image {unknown[0]!r} is not in {opk}")
+            raise FormatError(f"{m}: image {unknown[0]!r} is not in {opk}: give the .mes files of the same "
+                              f"block, or add the photo to the .OPK file")
         o_pt.append(p)
         o_im.append(i)
         o_px.append(c)
