@@ -45,11 +45,12 @@ from ..errors import FormatError
 from .._util.tables import JSON_MAX_DEPTH as MAX_JSON_DEPTH, json_too_deep, parse_float
 from .._util.values import parse_number, parse_whole, value_problem
 from ._text import format_error, sd_problem
-from .block import Block, GroundControl, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
+from .block import Block, GroundControl, pinhole_camera, require_orientations, undistorted_mm
+from .lens import export_cameras, notes, observed_pixels
 from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
 
 __all__ = ["read_opensfm", "read_opensfm_gcp", "read_opensfm_config", "gcp_sd_from_config", "write_opensfm",
-           "topocentric_crs", "OPENSFM_PROJECTIONS"]
+           "topocentric_crs", "reference_lla", "OPENSFM_PROJECTIONS"]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +64,21 @@ def topocentric_crs(lat_deg: float, lon_deg: float, alt_m: float) -> str:
     'local ENU (OpenSfM reference_lla): +proj'
     """
     return (f"local ENU (OpenSfM reference_lla): {_pipeline(lat_deg, lon_deg, alt_m)}")
+
+
+def reference_lla(crs: str) -> dict[str, float] | None:
+    """OpenSfM's ``reference_lla`` of a topocentric CRS written by :func:`topocentric_crs` (None for
+    any other CRS).
+
+    >>> reference_lla(topocentric_crs(52.5, 13.4, 34.0))
+    {'latitude': 52.5, 'longitude': 13.4, 'altitude': 34.0}
+    """
+    import re
+
+    m = re.search(r"\+proj=topocentric \+ellps=WGS84 \+lat_0=(\S+) \+lon_0=(\S+) \+h_0=(\S+)", crs)
+    if m is None:
+        return None
+    return {"latitude": float(m.group(1)), "longitude": float(m.group(2)), "altitude": float(m.group(3))}
 
 
 def _pipeline(lat: float, lon: float, alt: float) -> str:
@@ -354,27 +370,19 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
                          f"{path} (OpenSfM GCPs, WGS84 lat/lon/alt -> topocentric ENU)")
 
 
-def _opensfm_camera(cam, m: dict | None) -> tuple[dict, dict | None]:
-    """OpenSfM camera dict and the pixel model it implies (None: undistorted pinhole of *cam*)."""
-    if m is not None and m.get("kind") == "brown" and not any(m["dist"].get(k, 0.0) for k in ("k4", "k5", "k6")):
-        w, h = m["w"], m["h"]
-        s = max(w, h)
-        d = m["dist"]
-        if m["fx"] == m["fy"] and m["cx"] == w / 2 and m["cy"] == h / 2 and not any(
-                d.get(k, 0.0) for k in ("k3", "p1", "p2")):
-            return {"projection_type": "perspective", "width": w, "height": h, "focal": m["fx"] / s,
-                    "k1": d.get("k1", 0.0), "k2": d.get("k2", 0.0)}, m
-        return {"projection_type": "brown", "width": w, "height": h, "focal_x": m["fx"] / s,
-                "focal_y": m["fy"] / s, "c_x": (m["cx"] - w / 2) / s, "c_y": (m["cy"] - h / 2) / s,
-                **{k: d.get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}}, m
-    w, h = cam.columns_px, cam.rows_px
+def _opensfm_camera(m: dict) -> dict:
+    """OpenSfM camera dict of a Brown model without k4..k6 (:func:`lidarcat.interop.lens.export_camera`):
+    ``perspective`` when it is one (fx = fy, centred, k1 and k2 only), else ``brown``."""
+    w, h = m["w"], m["h"]
     s = max(w, h)
-    fx, fy = cam.focal_length_mm / cam.pixel_size_x_mm, cam.focal_length_mm / cam.pixel_size_y_mm
-    cx = w / 2 + cam.principal_point_x_mm / cam.pixel_size_x_mm
-    cy = h / 2 - cam.principal_point_y_mm / cam.pixel_size_y_mm
-    return {"projection_type": "brown", "width": w, "height": h, "focal_x": fx / s, "focal_y": fy / s,
-            "c_x": (cx - w / 2) / s, "c_y": (cy - h / 2) / s, "k1": 0.0, "k2": 0.0, "k3": 0.0,
-            "p1": 0.0, "p2": 0.0}, None
+    d = m["dist"]
+    if m["fx"] == m["fy"] and m["cx"] == w / 2 and m["cy"] == h / 2 and not any(
+            d.get(k, 0.0) for k in ("k3", "p1", "p2")):
+        return {"projection_type": "perspective", "width": w, "height": h, "focal": m["fx"] / s,
+                "k1": d.get("k1", 0.0), "k2": d.get("k2", 0.0)}
+    return {"projection_type": "brown", "width": w, "height": h, "focal_x": m["fx"] / s,
+            "focal_y": m["fy"] / s, "c_x": (m["cx"] - w / 2) / s, "c_y": (m["cy"] - h / 2) / s,
+            **{k: d.get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}}
 
 
 def write_opensfm(block: Block, folder: str | Path) -> Path:
@@ -392,9 +400,8 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
     """
     folder = Path(folder)
     require_orientations(block, "OpenSfM")
-    cams, used = {}, {}
-    for cid, cam in block.cameras.items():
-        cams[cid], used[cid] = _opensfm_camera(cam, block.source_models.get(cid))
+    models = export_cameras(block, rational=False)
+    cams = {cid: _opensfm_camera(m) for cid, m in models.items()}
     r = opk_to_world_to_cv(block.eo[:, 3:]).reshape(-1, 3, 3)
     shots = {}
     for i, pid in enumerate(block.photo_ids.tolist()):
@@ -403,7 +410,7 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
     ok = np.isfinite(block.points_m).all(axis=1)
     points = {p: {"coordinates": x.tolist(), "color": [128.0, 128.0, 128.0]}
               for p, x in zip(block.point_ids[ok].tolist(), block.points_m[ok])}
-    mm = photo_coordinates_mm(block)
+    pix = observed_pixels(block)
     cam_of = dict(zip(block.photo_ids.tolist(), block.photo_camera.tolist()))
     lines = ["OPENSFM_TRACKS_VERSION_v2"]
     for k, (ph, pt) in enumerate(zip(block.obs_photo.tolist(), block.obs_point.tolist())):
@@ -412,19 +419,21 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
         cid = cam_of[ph]
         c = cams[cid]
         s = max(c["width"], c["height"])
-        if used[cid] is not None:
-            corner = block.obs_px[k] + 0.5
-        else:
-            cam = block.cameras[cid]
-            cx = cam.columns_px / 2 + cam.principal_point_x_mm / cam.pixel_size_x_mm
-            cy = cam.rows_px / 2 - cam.principal_point_y_mm / cam.pixel_size_y_mm
-            corner = np.array([cx + mm[k, 0] / cam.pixel_size_x_mm, cy - mm[k, 1] / cam.pixel_size_y_mm])
-        xn = (corner - [c["width"] / 2, c["height"] / 2]) / s
+        xn = (pix[k] - [c["width"] / 2, c["height"] / 2]) / s
         lines.append(f"{ph}\t{pt}\t{k}\t{float(xn[0])!r}\t{float(xn[1])!r}\t0.004\t128\t128\t128\t-1\t-1")
-    rec = [{"cameras": cams, "shots": shots, "points": points}]
+    rec: dict[str, Any] = {"cameras": cams, "shots": shots, "points": points}
+    lla = reference_lla(block.crs)
+    if lla is not None:
+        rec["reference_lla"] = lla
+    else:
+        log.warning("%s: CRS %s is not an OpenSfM topocentric frame: reconstruction.json gets no reference_lla "
+                    "(the CRS is in lidarcat_export.txt)", folder, block.crs)
     with atomic_dir(folder) as tmp:
-        write_text_atomic(tmp / "reconstruction.json", json.dumps(rec, indent=1) + "\n")
+        write_text_atomic(tmp / "reconstruction.json", json.dumps([rec], indent=1) + "\n")
         write_text_atomic(tmp / "tracks.csv", "\n".join(lines) + "\n")
+        write_text_atomic(tmp / "lidarcat_export.txt", "".join(
+            f"{line}\n" for line in [f"written by lidarcat from survey {block.name!r}: CRS {block.crs}, heights "
+                                      f"{block.height_system}", *notes(models)]))
     log.info("wrote OpenSfM reconstruction %s: %d shots, %d points (CRS %s, heights %s)", folder,
              len(shots), len(points), block.crs, block.height_system)
     return folder
