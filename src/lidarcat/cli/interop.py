@@ -216,9 +216,10 @@ import_cmd.help = import_cmd.help.replace("{formats}", _fmt_help(IMPORT_FORMATS)
               help="Output folder (colmap, opensfm, gis) or file (opk); written atomically.")
 @click.option("--angle-unit", type=click.Choice(["deg", "rad", "gon"]), default="deg", show_default=True,
               help="opk: unit of omega, phi, kappa.")
-@click.option("--flavour", type=click.Choice(["pix4d", "ign"]), default="pix4d", show_default=True,
-              help="opk: header 'imageName X Y Z Omega Phi Kappa' (Pix4D, Metashape) or "
-                   "'NOM X Y Z O P K CAMERA' (IGN).")
+@click.option("--flavour", type=click.Choice(["pix4d", "ign", "orthority"]), default="pix4d", show_default=True,
+              help="opk: header 'imageName X Y Z Omega Phi Kappa' (Pix4D, Metashape), "
+                   "'NOM X Y Z O P K CAMERA' (IGN) or orthority's CSV 'filename,x,y,z,omega,phi,kappa,camera' "
+                   "with a .prj (OUTPUT ending in .csv or .txt).")
 @click.option("--format", "gis_format", type=click.Choice(["auto", "gpkg", "geojson"]), default="auto",
               show_default=True, help="gis: GeoPackage (needs pyogrio) or GeoJSON.")
 @click.option("--ellipse-scale", type=float, default=1.0, show_default=True,
