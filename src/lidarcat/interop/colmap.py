@@ -136,6 +136,21 @@ def _read_cameras(path: Path, pixel_size_mm: float):
     return cams
 
 
+def _written_crs(path: Path, crs: str, height_system: str) -> tuple[str, str]:
+    """CRS and heights from the ``# written by lidarcat ..., CRS X, heights Y`` comment of a model
+    :func:`write_colmap` wrote (else the given ones)."""
+    import re
+
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for raw in fh:
+            if not raw.startswith("#"):
+                break
+            m = re.match(r"# written by lidarcat from survey .*, CRS (.+), heights (.+)$", raw.rstrip("\n"))
+            if m:
+                return m.group(1), m.group(2)
+    return crs, height_system
+
+
 def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str | None = None,
                 crs: str = LOCAL_CRS, height_system: str = "unspecified (model frame)") -> Block:
     """Read a COLMAP text model (``cameras.txt``, ``images.txt``, ``points3D.txt``).
@@ -148,7 +163,9 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
         Pixel pitch given to the cameras, mm (COLMAP works in pixels only; any
         value gives the same geometry, 0.001 makes ``x_mm = px / 1000``).
     name, crs, height_system : str
-        Survey name (default: the folder name), CRS of the model frame and its heights.
+        Survey name (default: the folder name), CRS of the model frame and its heights
+        (default: those :func:`write_colmap` wrote in the header of ``images.txt``, else a
+        local frame).
 
     Returns
     -------
@@ -192,6 +209,8 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
         pxyz.append([_num(ppath, no, n, c, k) for n, c, k in zip("XYZ", f[1:4], _XYZ_KINDS)])
 
     ipath = folder / "images.txt"
+    if crs == LOCAL_CRS:  # a model lidarcat wrote carries its CRS in a comment of images.txt
+        crs, height_system = _written_crs(ipath, crs, height_system)
     photo, pcam, eo = [], [], []
     o_photo: list[str] = []
     o_point: list[str] = []

@@ -181,7 +181,10 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     reconstruction : path
     tracks : path, optional
         ``tracks.csv`` (default: ``tracks.csv`` next to the reconstruction, if any).
-        Only observations of shots and points of the reconstruction are kept.
+        Only observations of shots and points of the reconstruction are kept.  A
+        reconstruction without ``points`` (orientation only, as OpenDroneMap writes) gives
+        a block of oriented photos without observations (:mod:`lidarcat.interop.convert`
+        writes it to every format but a survey folder).
     index : int
         Which reconstruction of the list (OpenSfM writes one per connected component).
     pixel_size_mm : float
@@ -205,6 +208,8 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     rec = data[index]
     if not isinstance(rec, dict):
         raise format_error(path, 1, None, f"reconstruction {index} is not an object")
+    if "points" not in rec:  # an orientation-only reconstruction (OpenDroneMap writes them)
+        rec = {**rec, "points": {}}
     for key in ("cameras", "shots", "points"):
         if not isinstance(rec.get(key), dict):
             raise format_error(path, _json_line(text, key) or 1, key,

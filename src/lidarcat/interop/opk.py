@@ -81,6 +81,24 @@ def _columns(header: tuple[str, ...], path: Path, line: int) -> dict[str, int]:
     return cols
 
 
+def _sidecar(path: Path, crs: str, height_system: str) -> tuple[str, str]:
+    """CRS and height system from the ``<file>.json`` sidecar :func:`write_opk` wrote (else the given)."""
+    import json
+
+    side = path.with_name(path.name + ".json")
+    if not side.is_file() or side.stat().st_size > 1_000_000:
+        return crs, height_system
+    try:
+        d = json.loads(side.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        log.warning("%s: not a sidecar lidarcat wrote; CRS not taken from it", side)
+        return crs, height_system
+    if not isinstance(d, dict) or not isinstance(d.get("crs"), str):
+        return crs, height_system
+    hs = d.get("height_system")
+    return d["crs"], hs if isinstance(hs, str) and height_system == "unspecified" else height_system
+
+
 def read_opk(path: str | Path, *, angle_unit: str = "deg", crs: str = "unspecified",
              height_system: str = "unspecified") -> Orientations:
     """Read an omega-phi-kappa orientation file.
@@ -91,7 +109,8 @@ def read_opk(path: str | Path, *, angle_unit: str = "deg", crs: str = "unspecifi
     angle_unit : {"deg", "rad", "gon"}
         Unit of omega, phi, kappa in the file (default degrees).
     crs, height_system : str
-        What X, Y, Z are (the file does not say).
+        What X, Y, Z are (the file does not say; with ``crs="unspecified"`` the
+        ``<file>.json`` sidecar :func:`write_opk` wrote gives them, when present).
 
     Returns
     -------
@@ -106,6 +125,8 @@ def read_opk(path: str | Path, *, angle_unit: str = "deg", crs: str = "unspecifi
     """
     if angle_unit not in ANGLE_UNITS:
         raise FormatError(f"angle unit {angle_unit!r} is not one of {', '.join(ANGLE_UNITS)}")
+    if crs == "unspecified":
+        crs, height_system = _sidecar(Path(path), crs, height_system)
     tl = TextLines(path, comment=None)
     first = next((ln for ln in tl.text.splitlines() if ln.strip()), "")
     tl.split = None if ("," in first or ";" in first) else "ws"  # blanks: a comma is no separator
