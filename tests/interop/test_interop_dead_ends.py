@@ -150,7 +150,7 @@ def test_metashape_block_names_the_next_step_and_exports(tmp_path):
     for fmt, name in (("colmap", "colmap"), ("opensfm", "opensfm"), ("opk", "b.opk"), ("gis", "gis")):
         res = _invoke("export", fmt, out, "-o", tmp_path / name)
         assert res.exit_code == 0, (fmt, res.output)
-        assert res.output.strip() == f"wrote {fmt} {tmp_path / name}: CRS EPSG:32654, heights ellipsoidal (WGS84)"
+        assert res.output.splitlines()[-1] == f"wrote {fmt} {tmp_path / name}: CRS EPSG:32654, heights ellipsoidal (WGS84)"
     images = (tmp_path / "colmap" / "images.txt").read_text().splitlines()
     assert sum(1 for ln in images if re.fullmatch(r"\d+( \S+){8} DJI_\d+", ln)) == 138  # every photo, oriented
 

@@ -389,8 +389,8 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
             "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
             f"# Number of cameras: {len(cam_lines)}\n# written by lidarcat (cameras "
             f"{', '.join(f'{n}={c}' for c, n in cam_num.items())})\n"
-            + "".join(f"# {line}\n" for line in notes(models))
-            + "\n".join(cam_lines) + "\n"))
+            + "\n".join(cam_lines) + "\n"
+            + "".join(f"# {line}\n" for line in notes(models))))  # after the cameras: lines keep their numbers
         write_text_atomic(tmp / "images.txt", (
             "# Image list with two lines of data per image:\n"
             "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n"
