@@ -123,4 +123,35 @@ def test_opensfm_export_of_a_distorted_camera(tmp_path):
     fit = export_camera(cam, rational=False)
     assert np.hypot(*(proj - corner).T).max() <= fit["fit_max_px"] + 1e-9
     notes = (tmp_path / "o" / "lidarcat_export.txt").read_text()
-    assert f"largest misfit {fit['fit_max_px']:.3g} px" in notes and "CRS EPSG:29192" in notes
+    assert f"largest misfit {fit['fit_max_px']:.3g} px" in notes
+    assert "coordinates converted from EPSG:29192 to OpenSfM's topocentric frame at reference_lla" in notes
+    assert "the block's heights (orthometric) were taken as ellipsoidal" in notes
+
+
+def test_map_crs_block_goes_to_opensfm_with_reference_lla(tmp_path):
+    """A block in a map CRS (Metashape -> UTM 54N) is written in OpenSfM's topocentric frame with a
+    reference_lla: the shot centres come back to UTM through PROJ to 1e-6 m, and with a scale-free
+    map CRS (transverse Mercator with k = 1 through the block) every marker reprojects as before to
+    0.05 px (the rotation follows the meridian convergence and the tangent-plane tilt)."""
+    from pyproj import Transformer
+
+    from lidarcat.interop.block import reprojection_residuals_px
+
+    tm = "+proj=tmerc +lat_0=35.7378 +lon_0=139.5404 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
+    for crs, name in (("EPSG:32654", "utm"), (tm, "tm")):
+        b = read_metashape(D / "metashape" / "easyidp_wheat_tanashi_chunk.doc.xml",
+                           D / "metashape" / "easyidp_wheat_tanashi_frame.doc.xml", crs=crs)
+        write_opensfm(b, tmp_path / name)
+        rec = json.loads((tmp_path / name / "reconstruction.json").read_text())[0]
+        assert set(rec["reference_lla"]) == {"latitude", "longitude", "altitude"}
+        back = read_opensfm(tmp_path / name / "reconstruction.json")
+        idx = b.photo_index()
+        order = [idx[p] for p in back.photo_ids.tolist()]
+        lon, lat, h = Transformer.from_pipeline(back.crs.split(": ", 1)[1]).transform(
+            *back.eo[:, :3].T, direction="INVERSE")
+        grid = np.column_stack(Transformer.from_crs("EPSG:4979", crs, always_xy=True).transform(lon, lat, h))
+        assert np.abs(grid - b.eo[order, :3]).max() < 1e-6
+        if name == "tm":
+            r0 = dict(zip(zip(b.obs_photo.tolist(), b.obs_point.tolist()), reprojection_residuals_px(b)))
+            r1 = dict(zip(zip(back.obs_photo.tolist(), back.obs_point.tolist()), reprojection_residuals_px(back)))
+            assert len(r1) == 23 and max(np.abs(r0[k] - r1[k]).max() for k in r1) < 0.05

@@ -50,7 +50,7 @@ from .lens import export_cameras, notes, observed_pixels
 from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
 
 __all__ = ["read_opensfm", "read_opensfm_gcp", "read_opensfm_config", "gcp_sd_from_config", "write_opensfm",
-           "topocentric_crs", "reference_lla", "OPENSFM_PROJECTIONS"]
+           "topocentric_crs", "reference_lla", "to_topocentric", "OPENSFM_PROJECTIONS"]
 
 log = logging.getLogger(__name__)
 
@@ -390,13 +390,75 @@ def _opensfm_camera(m: dict) -> dict:
             **{k: d.get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}}
 
 
+def to_topocentric(block: Block) -> tuple[Block, str] | None:
+    """*block* in OpenSfM's topocentric ENU frame at the mean photo centre, when its CRS is a map
+    CRS pyproj knows (None otherwise: a local frame).
+
+    Positions go through PROJ: map CRS -> its geographic 3D CRS -> ECEF -> topocentric (the
+    heights taken as ellipsoidal: an orthometric block lands N metres low, which the returned note
+    says).  A rotation ``R`` (world to camera) becomes ``R Q^T`` with ``Q`` the rotation part (polar
+    decomposition) of the Jacobian of the map -> topocentric mapping at the photo centre, taken by
+    central differences over 1 m: the meridian convergence, the tilt of the tangent plane and
+    the scale factor of the projection (which the rotation leaves out, as the map-frame
+    adjustment did) are all in it.
+
+    Returns
+    -------
+    (Block, str) or None
+        The converted block (``crs`` = :func:`topocentric_crs`, heights ellipsoidal) and a note.
+    """
+    from pyproj import CRS, Transformer
+    from pyproj.exceptions import CRSError
+
+    try:
+        crs = CRS.from_user_input(block.crs)
+    except CRSError:
+        return None
+    if not (crs.is_projected or crs.is_geographic):
+        return None
+    geo3d = crs.geodetic_crs.to_3d()
+    to_geo = Transformer.from_crs(crs.to_3d() if not crs.is_compound else crs, geo3d, always_xy=True)
+    c0 = np.nanmean(block.eo[:, :3], axis=0)
+    lon0, lat0, h0 = to_geo.transform(*c0)
+    pipe = Transformer.from_pipeline(_pipeline(float(lat0), float(lon0), float(h0)))
+
+    def fwd(xyz: np.ndarray) -> np.ndarray:
+        lon, lat, h = to_geo.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+        return np.column_stack(pipe.transform(lon, lat, h))
+
+    eo = np.array(block.eo, dtype=float)
+    centres = fwd(eo[:, :3])
+    steps = np.eye(3)
+    jac = np.stack([(fwd(eo[:, :3] + d) - fwd(eo[:, :3] - d)) / 2.0 for d in steps], axis=2)  # (P, 3, 3)
+    u, _, vt = np.linalg.svd(jac)
+    q = u @ vt
+    r = opk_to_world_to_cv(eo[:, 3:]).reshape(-1, 3, 3) @ np.transpose(q, (0, 2, 1))
+    eo = np.column_stack([centres, world_to_cv_to_opk(r)])
+    pts = np.array(block.points_m, dtype=float)
+    ok = np.isfinite(pts).all(axis=1)
+    if ok.any():
+        pts[ok] = fwd(pts[ok])
+    gm = np.array(block.ground_m, dtype=float)
+    okg = np.isfinite(gm).all(axis=1)
+    if okg.any():
+        gm[okg] = fwd(gm[okg])
+    hs = block.height_system
+    note = (f"coordinates converted from {block.crs} to OpenSfM's topocentric frame at reference_lla "
+            f"(lat {float(lat0)!r}, lon {float(lon0)!r}, alt {float(h0)!r})"
+            + ("" if hs.startswith("ellipsoidal") else f"; the block's heights ({hs}) were taken as "
+               f"ellipsoidal: the frame lies N (geoid undulation) metres low"))
+    return block.with_(crs=topocentric_crs(float(lat0), float(lon0), float(h0)), height_system="ellipsoidal",
+                       eo=eo, points_m=pts, ground_m=gm), note
+
+
 def write_opensfm(block: Block, folder: str | Path) -> Path:
     """Write *block* as ``reconstruction.json`` + ``tracks.csv`` in *folder*, atomically.
 
     Observations are written in normalised coordinates of the camera model
-    written (the measured pixels for a Brown-type source model, else the
-    corrected photo coordinates in the undistorted pinhole).  Only points with
-    coordinates get a ``points`` entry and tracks.
+    written (:mod:`lidarcat.interop.lens`).  Only points with coordinates get a
+    ``points`` entry and tracks.  A block in a map CRS is written in OpenSfM's
+    topocentric frame with its ``reference_lla`` (:func:`to_topocentric`); a local
+    frame gets no ``reference_lla``.
 
     Raises
     ------
@@ -405,6 +467,11 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
     """
     folder = Path(folder)
     require_orientations(block, "OpenSfM")
+    note = None
+    if reference_lla(block.crs) is None:
+        topo = to_topocentric(block)
+        if topo is not None:
+            block, note = topo
     models = export_cameras(block, rational=False)
     cams = {cid: _opensfm_camera(m) for cid, m in models.items()}
     r = opk_to_world_to_cv(block.eo[:, 3:]).reshape(-1, 3, 3)
@@ -431,14 +498,14 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
     if lla is not None:
         rec["reference_lla"] = lla
     else:
-        log.warning("%s: CRS %s is not an OpenSfM topocentric frame: reconstruction.json gets no reference_lla "
+        log.warning("%s: CRS %s is a local frame: reconstruction.json gets no reference_lla "
                     "(the CRS is in lidarcat_export.txt)", folder, block.crs)
     with atomic_dir(folder) as tmp:
         write_text_atomic(tmp / "reconstruction.json", json.dumps([rec], indent=1) + "\n")
         write_text_atomic(tmp / "tracks.csv", "\n".join(lines) + "\n")
         write_text_atomic(tmp / "lidarcat_export.txt", "".join(
             f"{line}\n" for line in [f"written by lidarcat from survey {block.name!r}: CRS {block.crs}, heights "
-                                      f"{block.height_system}", *notes(models)]))
+                                      f"{block.height_system}", *([note] if note else []), *notes(models)]))
     log.info("wrote OpenSfM reconstruction %s: %d shots, %d points (CRS %s, heights %s)", folder,
              len(shots), len(points), block.crs, block.height_system)
     return folder
