@@ -161,3 +161,16 @@ def test_export_survey_folder_and_survey_option_conflict(tmp_path):
     res = _invoke("export", "colmap", out, "--survey", out, "-o", tmp_path / "x")
     assert res.exit_code == 2 and (f"{out} is a survey folder; give either it or --survey with the output folder "
                                    f"of lidarcat adjust") in res.output
+
+
+def test_borea_duplicate_ground_point_refused(tmp_path):
+    """Found by the fuzz harness (import borea, GCP_test.app with a line repeated): import wrote a
+    ground_points.csv that Survey.load refuses; now a located error."""
+    app = tmp_path / "GCP.app"
+    lines = (BOREA / "borea_GCP_test.app").read_text().splitlines()
+    app.write_text("\n".join(lines + [lines[-1]]) + "\n")
+    res = _invoke("import", "borea", BOREA / "borea_23FD1305_alt_test.OPK", "--camera", BOREA / "borea_Camera1.txt",
+                  "--camera", BOREA / "borea_Camera2.txt", "--points", app, "--measurements",
+                  BOREA / "borea_terrain_test.mes", "--crs", "EPSG:2154", "-o", tmp_path / "out")
+    assert_one_line_error(res, f"{app}:4: field 'name': point '1006' already on line 3: keep one line per point")
+    assert not (tmp_path / "out").exists()

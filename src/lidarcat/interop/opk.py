@@ -325,9 +325,14 @@ def read_borea_points(path: str | Path, *, sd_m: float = 0.05) -> tuple[np.ndarr
     """
     tl = TextLines(path, comment="#", split="ws")
     ids, xyz, kind = [], [], []
+    seen: dict[str, int] = {}
     for r in tl.rows():
         r.need(5, ("name", "type", "X", "Y", "H"))
-        ids.append(r.fields[0].strip('"'))
+        name = r.fields[0].strip('"')
+        if name in seen:
+            raise r.error("name", f"point {name!r} already on line {seen[name]}: keep one line per point")
+        seen[name] = r.line
+        ids.append(name)
         kind.append(r.fields[1])
         xyz.append([r.number(2, "X", "coordinate_m"), r.number(3, "Y", "coordinate_m"), r.number(4, "H", "height_m")])
     if not ids:
