@@ -150,7 +150,8 @@ def from_metashape(camera_id: str, width_px: int, height_px: int, *, f: float, c
                    k3: float = 0.0, k4: float = 0.0, p1: float = 0.0, p2: float = 0.0) -> BrownCamera:
     """A Metashape frame calibration (pixels; ``cx, cy`` from the image centre) as a Brown camera.
 
-    >>> from_metashape("m", 100, 80, f=90.0, b1=1.0, p1=1e-3).fx, _.p2
+    >>> cam = from_metashape("m", 100, 80, f=90.0, b1=1.0, p1=1e-3)
+    >>> cam.fx, cam.p2
     (91.0, 0.001)
     """
     return BrownCamera(camera_id, width_px, height_px, fx=f + b1, fy=f, cx=width_px / 2 + cx - 0.5,
