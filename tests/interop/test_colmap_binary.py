@@ -9,7 +9,8 @@ import pytest
 
 from lidarcat.errors import FormatError
 from lidarcat.interop.colmap import read_colmap
-from lidarcat.interop.colmap_binary import read_colmap_binary
+from lidarcat.interop.colmap_binary import read_colmap_binary, read_colmap_rigs_binary
+from lidarcat.interop.rotations import quaternion_wxyz_to_matrix
 
 pycolmap = pytest.importorskip("pycolmap")
 
@@ -91,3 +92,36 @@ def test_fisheye_and_bad_values_are_refused(tmp_path):
     with pytest.raises(FormatError, match=re.escape(f"{b / 'cameras.bin'}: byte 32: field 'fx': nan is not a "
                                                     "finite number")):
         read_colmap_binary(b)
+
+
+def _rigid(pose):
+    return quaternion_wxyz_to_matrix(pose[:4]), np.asarray(pose[4:])
+
+
+def test_rigs_and_frames_compose_to_the_image_poses(tmp_path):
+    o = pycolmap.SyntheticDatasetOptions()
+    o.num_rigs, o.num_cameras_per_rig, o.num_frames_per_rig, o.num_points3D = 2, 3, 2, 10
+    rec = pycolmap.synthesize_dataset(o)
+    rec.write_binary(str(tmp_path))
+    rigs, frames = read_colmap_rigs_binary(tmp_path)
+    assert sorted(rigs) == [1, 2] and len(frames) == 4
+    assert all(len(r.sensors) == 2 and all(p is not None for p in r.sensors.values()) for r in rigs.values())
+    for fr in frames.values():
+        r_rig, t_rig = _rigid(fr.rig_from_world)
+        assert len(fr.data) == 3
+        for kind, sid, image_id in fr.data:
+            assert kind == "CAMERA"
+            img = rec.image(image_id)
+            assert img.camera_id == sid and img.frame_id == fr.frame_id
+            rig = rigs[fr.rig_id]
+            r_s, t_s = (np.eye(3), np.zeros(3)) if (kind, sid) == rig.ref_sensor else _rigid(rig.sensors[(kind, sid)])
+            want = img.cam_from_world().matrix()
+            np.testing.assert_allclose(r_s @ r_rig, want[:, :3], atol=1e-12)
+            np.testing.assert_allclose(r_s @ t_rig + t_s, want[:, 3], atol=1e-12)
+    (tmp_path / "frames.bin").write_bytes((tmp_path / "frames.bin").read_bytes()[:-3])
+    with pytest.raises(FormatError, match=re.escape(f"{tmp_path / 'frames.bin'}: byte ")):
+        read_colmap_rigs_binary(tmp_path)
+    (tmp_path / "rigs.bin").unlink()
+    with pytest.raises(FormatError, match=re.escape(f"{tmp_path / 'rigs.bin'}: file not found (COLMAP writes "
+                                                    "rigs.bin and frames.bin from version 3.12 on)")):
+        read_colmap_rigs_binary(tmp_path)

@@ -11,6 +11,18 @@ The binary files hold what the text files of :mod:`.colmap` hold, little-endian 
     points3D.bin  uint64 n; n x (uint64 POINT3D_ID, double X Y Z, uint8 R G B, double ERROR,
                   uint64 t, t x (uint32 IMAGE_ID, uint32 POINT2D_IDX))
 
+COLMAP 3.12 and later add the rigs and frames (``rigs.bin``, ``frames.bin``; read by
+:func:`read_colmap_rigs_binary`)::
+
+    rigs.bin      uint64 n; n x (uint32 RIG_ID, uint32 NUM_SENSORS, int32 REF_TYPE, uint32 REF_ID,
+                  (NUM_SENSORS - 1) x (int32 TYPE, uint32 ID, uint8 HAS_POSE,
+                  [double QW QX QY QZ TX TY TZ]  -- sensor_from_rig, when HAS_POSE)
+    frames.bin    uint64 n; n x (uint32 FRAME_ID, uint32 RIG_ID, double QW QX QY QZ TX TY TZ
+                  -- rig_from_world, uint32 m, m x (int32 TYPE, uint32 SENSOR_ID, uint64 DATA_ID))
+
+(sensor type 0 is a camera, 1 an IMU; a camera's DATA_ID is an IMAGE_ID).  An image's pose is
+``cam_from_world = sensor_from_rig * rig_from_world`` (rigid transforms ``x -> R x + t``).
+
 ``POINT3D_ID = 2^64 - 1`` marks a 2D point without a 3D point.  The conventions (world to
 camera, y down, corner pixel origin, the camera models and their undistortion on import) are
 those of :func:`lidarcat.interop.colmap.read_colmap`, and :func:`read_colmap_binary` returns the
@@ -24,6 +36,7 @@ from __future__ import annotations
 import logging
 import math
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +48,7 @@ from .block import Block, pinhole_camera, undistorted_mm
 from .colmap import COLMAP_MODELS, LOCAL_CRS
 from .rotations import quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
-__all__ = ["read_colmap_binary", "COLMAP_MODEL_IDS"]
+__all__ = ["read_colmap_binary", "read_colmap_rigs_binary", "ColmapRig", "ColmapFrame", "COLMAP_MODEL_IDS"]
 
 log = logging.getLogger(__name__)
 
@@ -258,3 +271,127 @@ def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float = 0.001, name
         point_ids=np.array(pids, dtype=str), points_m=pxyz.reshape(-1, 3),
         description=f"imported from the COLMAP binary model {folder}",
         source_models={c: v[1] for c, v in cams.items()})
+
+
+# ---------------------------------------------------------------------------------------
+# rigs and frames
+# ---------------------------------------------------------------------------------------
+
+#: COLMAP sensor types
+_SENSOR_TYPES = {0: "CAMERA", 1: "IMU"}
+
+
+@dataclass(frozen=True)
+class ColmapRig:
+    """A rig of ``rigs.bin``.
+
+    Attributes
+    ----------
+    rig_id : int
+    ref_sensor : tuple of (str, int)
+        Type and id of the reference sensor (its pose is the rig's).
+    sensors : dict of (str, int) to ndarray or None
+        Every other sensor: ``sensor_from_rig`` as (7,) ``QW QX QY QZ TX TY TZ``, or None when
+        the rig leaves it unknown.
+    """
+
+    rig_id: int
+    ref_sensor: tuple[str, int]
+    sensors: dict
+
+
+@dataclass(frozen=True)
+class ColmapFrame:
+    """A frame of ``frames.bin``: one exposure of a rig.
+
+    Attributes
+    ----------
+    frame_id, rig_id : int
+    rig_from_world : ndarray, (7,)
+        ``QW QX QY QZ TX TY TZ``.
+    data : tuple of (str, int, int)
+        (sensor type, sensor id, data id) of every measurement; a camera's data id is an IMAGE_ID.
+    """
+
+    frame_id: int
+    rig_id: int
+    rig_from_world: np.ndarray
+    data: tuple
+
+
+def _pose(rd: _Reader, field: str) -> np.ndarray:
+    start = rd.pos
+    pose = np.array([rd.number("d", f) for f in ("QW", "QX", "QY", "QZ")]
+                    + [rd.number("d", f, "coordinate_m") for f in ("TX", "TY", "TZ")])
+    if not 0.5 < np.linalg.norm(pose[:4]) < 2.0:
+        raise rd.error(field, f"quaternion of norm {np.linalg.norm(pose[:4]):.3g} is no rotation", start)
+    return pose
+
+
+def _sensor(rd: _Reader) -> tuple[str, int]:
+    start = rd.pos
+    kind, sid = rd.take("iI", "SENSOR_TYPE")
+    if kind not in _SENSOR_TYPES:
+        raise rd.error("SENSOR_TYPE", f"unknown sensor type {kind} (0 camera, 1 IMU)", start)
+    return _SENSOR_TYPES[kind], int(sid)
+
+
+def read_colmap_rigs_binary(folder: str | Path) -> tuple[dict[int, ColmapRig], dict[int, ColmapFrame]]:
+    """The rigs and frames of a COLMAP binary model (``rigs.bin``, ``frames.bin``).
+
+    Returns
+    -------
+    rigs : dict of int to ColmapRig
+    frames : dict of int to ColmapFrame
+
+    Raises
+    ------
+    FormatError
+        A missing or malformed file (``FILE: byte N: field 'NAME': ...``), a frame of an unknown
+        rig, a frame whose sensor is not in its rig.
+    """
+    folder = Path(folder)
+    for fname in ("rigs.bin", "frames.bin"):
+        if not (folder / fname).is_file():
+            raise FormatError(f"{folder / fname}: file not found (COLMAP writes rigs.bin and frames.bin "
+                              f"from version 3.12 on)")
+    rd = _Reader(folder / "rigs.bin")
+    rigs: dict[int, ColmapRig] = {}
+    for _ in range(rd.count("num_rigs", 16)):
+        start = rd.pos
+        rig_id, n = rd.take("II", "RIG_ID")
+        if rig_id in rigs:
+            raise rd.error("RIG_ID", f"rig {rig_id} defined twice", start)
+        if n < 1:
+            raise rd.error("NUM_SENSORS", "a rig has at least its reference sensor", start + 4)
+        ref = _sensor(rd)
+        sensors: dict = {}
+        for _ in range(n - 1):
+            key = _sensor(rd)
+            (has_pose,) = rd.take("B", "HAS_POSE")
+            sensors[key] = _pose(rd, "QW") if has_pose else None
+        rigs[rig_id] = ColmapRig(rig_id, ref, sensors)
+    rd.end()
+    rd = _Reader(folder / "frames.bin")
+    frames: dict[int, ColmapFrame] = {}
+    for _ in range(rd.count("num_frames", 68)):
+        start = rd.pos
+        frame_id, rig_id = rd.take("II", "FRAME_ID")
+        if frame_id in frames:
+            raise rd.error("FRAME_ID", f"frame {frame_id} defined twice", start)
+        if rig_id not in rigs:
+            raise rd.error("RIG_ID", f"rig {rig_id} is not in rigs.bin", start + 4)
+        pose = _pose(rd, "QW")
+        (m,) = rd.take("I", "NUM_DATA_IDS")
+        data = []
+        for _ in range(m):
+            at = rd.pos
+            kind, sid = _sensor(rd)
+            (data_id,) = rd.take("Q", "DATA_ID")
+            rig = rigs[rig_id]
+            if (kind, sid) != rig.ref_sensor and (kind, sid) not in rig.sensors:
+                raise rd.error("SENSOR_ID", f"{kind} {sid} is not a sensor of rig {rig_id}", at)
+            data.append((kind, sid, int(data_id)))
+        frames[frame_id] = ColmapFrame(frame_id, rig_id, pose, tuple(data))
+    rd.end()
+    return rigs, frames
