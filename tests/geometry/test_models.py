@@ -9,8 +9,8 @@ import pytest
 
 from lidarcat.errors import CameraError
 from lidarcat.geometry.camera import Camera
-from lidarcat.geometry.conversion import (convert, exact_conversion, from_colmap, from_metashape, to_colmap,
-                                          to_metashape)
+from lidarcat.geometry.conversion import (convert, exact_conversion, from_colmap, from_metashape,
+                                          image_plane_observations, to_colmap, to_metashape)
 from lidarcat.geometry.models import BrownCamera, FisheyeCamera, FrameModel, camera_model
 
 pycolmap = pytest.importorskip("pycolmap")
@@ -216,3 +216,35 @@ def test_models_are_frozen_values():
     with pytest.raises(AttributeError):
         b.fx = 1.0  # type: ignore[misc]
     assert b == _brown() and b.with_params(b.params()) == b
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_image_plane_observations_and_their_derivatives(name):
+    cam = MODELS[name]()
+    px = cam.grid_px(9)
+    if isinstance(cam, FisheyeCamera):
+        px = px[np.hypot(px[:, 0] - cam.cx, px[:, 1] - cam.cy) < 600]   # within 90 deg
+    n, dn_dt, dn_dpx = image_plane_observations(cam, px)
+    rays = cam.unproject(px)
+    np.testing.assert_allclose(n, rays[:, :2] / rays[:, 2:], rtol=1e-12, atol=1e-14)
+    p0 = cam.params()
+    for k, name_k in enumerate(cam.PARAMETERS):
+        h = 1e-5 * max(abs(p0[k]), 1e-3 if name_k[0] in "kps" else 1.0)
+        if isinstance(cam, FrameModel) and name_k[0] in "kp":
+            h = 1e-4 * max(abs(p0[k]), 1e-9)
+        up, dn = p0.copy(), p0.copy()
+        up[k] += h
+        dn[k] -= h
+        fd = (image_plane_observations(cam.with_params(up), px)[0]
+              - image_plane_observations(cam.with_params(dn), px)[0]) / (2 * h)
+        np.testing.assert_allclose(dn_dt[:, :, k], fd, rtol=1e-5, atol=1e-6 * max(np.abs(fd).max(), 1e-12),
+                                   err_msg=name_k)
+    for k in range(2):
+        d = np.zeros(2)
+        d[k] = 1e-3
+        fd = (image_plane_observations(cam, px + d)[0] - image_plane_observations(cam, px - d)[0]) / 2e-3
+        np.testing.assert_allclose(dn_dpx[:, :, k], fd, rtol=1e-6, atol=1e-9 * np.abs(fd).max())
+    if isinstance(cam, FisheyeCamera):
+        with pytest.raises(CameraError, match=re.escape("camera 'f': pixel index 0 sees a ray 92.37 deg from the "
+                                                        "optical axis; the image plane holds rays within 90 deg only")):
+            image_plane_observations(cam, cam.corners_px()[[1]])

@@ -28,7 +28,8 @@ from .collinearity import (  # noqa: F401
     project_with_jacobians,
 )
 from .models import BrownCamera, CameraModel, FisheyeCamera, FrameModel, MODELS, camera_model  # noqa: F401
-from .conversion import Conversion, convert, from_colmap, to_colmap, from_metashape, to_metashape  # noqa: F401
+from .conversion import (Conversion, convert, from_colmap, to_colmap, from_metashape, to_metashape,  # noqa: F401
+                         image_plane_observations)
 from .tin import TinLocator, barycentric, find_simplex  # noqa: F401
 
 __all__ = [
@@ -44,6 +45,7 @@ __all__ = [
     'to_colmap',
     'from_metashape',
     'to_metashape',
+    'image_plane_observations',
     'TinLocator',
     'barycentric',
     'find_simplex',

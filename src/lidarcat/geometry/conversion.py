@@ -30,6 +30,10 @@ parameter Jacobians of :mod:`lidarcat.geometry.models` (columns scaled to unit n
 from the source's pinhole.  The result carries its residual: the largest and the rms pixel
 difference on a denser check grid (101 x 101), so a caller can refuse a conversion that is not
 good enough.
+
+Observations (:func:`image_plane_observations`): measured pixels of any model as ideal
+image-plane coordinates ``n = (X/Z, Y/Z)`` with their derivatives by the intrinsics and by the
+pixel, the form in which the bundle (photo coordinates ``c_ref (n_x, -n_y)``) can take them.
 """
 
 from __future__ import annotations
@@ -43,10 +47,10 @@ import numpy as np
 
 from ..errors import CameraError
 from .camera import Camera
-from .models import MODELS, BrownCamera, CameraModel, FisheyeCamera, FrameModel
+from .models import MODELS, TOL_PX, BrownCamera, CameraModel, FisheyeCamera, FrameModel
 
 __all__ = ["Conversion", "convert", "exact_conversion", "from_colmap", "to_colmap", "from_metashape",
-           "to_metashape", "COLMAP_MODEL_PARAMETERS"]
+           "to_metashape", "COLMAP_MODEL_PARAMETERS", "image_plane_observations"]
 
 #: COLMAP model name -> its parameter names (COLMAP src/colmap/sensor/models.h)
 COLMAP_MODEL_PARAMETERS: dict[str, tuple[str, ...]] = {
@@ -314,3 +318,50 @@ def convert(model: CameraModel, kind: str, *, grid: int = 33, pixel_size_mm: flo
         if not improved or small:
             break
     return Conversion(cur, False, *_residual(model, cur, 101))
+
+
+def image_plane_observations(model: CameraModel, px: Any, *, tol_px: float = TOL_PX
+                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Measured pixels as ideal image-plane coordinates, with their derivatives (the bundle's hook).
+
+    The bundle observes ideal (undistorted) coordinates ``n = (X/Z, Y/Z)`` of the ray of each
+    measured pixel; with a model's intrinsics ``theta`` adjusted, ``n`` moves.  From
+    ``project((n, 1); theta) = px`` (implicit function)::
+
+        dn/dtheta = -(d px / d n)^-1 d px / d theta,     dn/dpx = (d px / d n)^-1
+
+    with ``d px / d n`` the first two columns of the model's ray Jacobian at the ray ``(n, 1)``.
+    The bundle's photo coordinates (mm, y up) are ``c_ref (n_x, -n_y)`` for any fixed ``c_ref``.
+
+    Parameters
+    ----------
+    model : CameraModel
+    px : array_like, (N, 2)
+        Measured pixels.
+
+    Returns
+    -------
+    n : ndarray, (N, 2)
+        Ideal image-plane coordinates (dimensionless).
+    dn_dtheta : ndarray, (N, 2, m)
+        Their derivatives by the model's :attr:`PARAMETERS`.
+    dn_dpx : ndarray, (N, 2, 2)
+        Their derivatives by the pixel (to carry a pixel sd to ``n``).
+
+    Raises
+    ------
+    CameraError
+        A pixel whose ray is not in front of the camera (a fisheye beyond 90 deg has no image
+        plane: such observations need a bundle on rays), or that does not converge.
+    """
+    rays = model.unproject(px, tol_px=tol_px)
+    behind = ~(rays[:, 2] > 1e-9)
+    if behind.any():
+        i = int(np.flatnonzero(behind)[0])
+        raise CameraError(f"camera {model.id!r}: pixel index {i} sees a ray "
+                          f"{math.degrees(math.acos(max(-1.0, min(1.0, rays[i, 2])))):.4g} deg from the optical "
+                          f"axis; the image plane holds rays within 90 deg only")
+    n = rays[:, :2] / rays[:, 2:]
+    _, j_ray, j_par = model.project_jacobians(np.column_stack([n, np.ones(len(n))]))
+    inv = np.linalg.inv(j_ray[:, :, :2])
+    return n, -inv @ j_par, inv

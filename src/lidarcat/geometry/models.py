@@ -75,7 +75,7 @@ from ..errors import CameraError
 from .camera import Camera
 
 __all__ = ["CameraModel", "BrownCamera", "FisheyeCamera", "FrameModel", "MODELS", "camera_model",
-           "as_rays", "as_pixels"]
+           "as_rays", "as_pixels", "TOL_PX"]
 
 #: default convergence tolerance of the inverses, pixels
 TOL_PX = 1e-11
@@ -721,3 +721,4 @@ def camera_model(kind: str, *args: Any, **kwargs: Any) -> CameraModel:
     if kind not in MODELS:
         raise CameraError(f"unknown camera model {kind!r}; known: {', '.join(MODELS)}")
     return MODELS[kind](*args, **kwargs)
+
