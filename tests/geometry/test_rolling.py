@@ -98,3 +98,68 @@ def test_bad_readout_is_refused():
     with pytest.raises(CameraError, match=re.escape("field 'readout_s': read-out time must be a finite number >= 0 s, "
                                                     "got -0.01")):
         _pose([10.0, 0.0, 0.0], readout=-0.01)
+
+
+def _resect(model, pts, meas, readout, start, estimate_velocity):
+    """Gauss-Newton resection: rotation increment, position (and velocity); returns pose, residuals, cov."""
+    r0, c, v = start
+    for _ in range(20):
+        pose = RollingShutterPose(r0, c, v, [0.0, 0.0, 0.0], readout)
+        px, jac = project_rolling_jacobians(model, pose, pts)
+        blocks = [jac["rotation"], jac["position"]] + ([jac["velocity"]] if estimate_velocity else [])
+        A = np.concatenate(blocks, axis=2).reshape(-1, 3 * len(blocks))
+        res = (meas - px).ravel()
+        N = A.T @ A
+        step = np.linalg.solve(N, A.T @ res)
+        r0 = rodrigues(step[:3])[0] @ r0
+        c = c + step[3:6]
+        if estimate_velocity:
+            v = v + step[6:9]
+        if np.abs(step).max() < 1e-12:
+            break
+    return (r0, c, v), meas - project_rolling(model, RollingShutterPose(r0, c, v, [0.0] * 3, readout), pts)[0], N
+
+
+def _rotation_error_mrad(a, b):
+    return 1e3 * np.linalg.norm(np.array([a[2, 1] - b[2, 1], a[0, 2] - b[0, 2], a[1, 0] - b[1, 0]]))
+
+
+def test_resection_with_the_model_is_as_good_as_a_global_shutter_and_without_it_leaves_a_row_trend():
+    """20 seeds of a drone photo at 10 m/s, 30 ms read-out, 0.5 px noise, 120 control points 0-20 m high.
+
+    ``rs_given``: the model on, the velocity from the neighbouring exposures (truth + N(0, 0.1 m/s):
+    RTK/PPK positions of the exposures 2 s apart; with N(0, 0.3 m/s) the rotation error is 1.22x
+    the global shutter's, measured);
+    ``rs_est``: the model on, the velocity estimated from the photo alone; ``rs_off``: no model.
+    """
+    v_true = np.array([10.0, 0.0, 0.0])
+    err: dict[str, list] = {"gs": [], "rs_given": [], "rs_est": [], "rs_off": []}
+    slopes_t, v_z = [], []
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        pts = np.column_stack([rng.uniform(-60, 60, 120), rng.uniform(-45, 45, 120), rng.uniform(0, 20, 120)])
+        truth = (NADIR, np.array([0.0, 0.0, Z]))
+        noise = rng.normal(0, 0.5, (len(pts), 2))
+        v_given = v_true + rng.normal(0, 0.1, 3)
+        gs_meas = project_rolling(PINHOLE, _pose(v_true, readout=0.0), pts)[0] + noise
+        rs_meas = project_rolling(PINHOLE, _pose(v_true), pts)[0] + noise
+        cases = {"gs": (gs_meas, 0.0, np.zeros(3), False), "rs_given": (rs_meas, 0.030, v_given, False),
+                 "rs_est": (rs_meas, 0.030, np.zeros(3), True), "rs_off": (rs_meas, 0.0, np.zeros(3), False)}
+        for name, (meas, readout, v0, est_v) in cases.items():
+            start = (rodrigues([0.002, -0.001, 0.003])[0] @ NADIR, np.array([0.3, -0.2, Z + 0.5]), v0)
+            (r, c, v), res, N = _resect(PINHOLE, pts, meas, readout, start, est_v)
+            err[name].append((np.linalg.norm(c - truth[1]), _rotation_error_mrad(r, truth[0])))
+            if est_v:
+                v_z.append((v - v_true) / (0.5 * np.sqrt(np.diag(np.linalg.inv(N))[6:])))
+            if name == "rs_off":
+                # the residual pattern: column residuals trend with the row (t-test of the slope)
+                row = meas[:, 1] - meas[:, 1].mean()
+                slope = (row @ res[:, 0]) / (row @ row)
+                resid = res[:, 0] - slope * row
+                slopes_t.append(slope / np.sqrt(resid @ resid / (len(row) - 2) / (row @ row)))
+    rms = {k: np.sqrt(np.mean(np.square(v), axis=0)) for k, v in err.items()}   # (position m, rotation mrad)
+    assert np.all(rms["rs_given"] <= 1.2 * rms["gs"]), rms
+    assert np.all(rms["rs_est"] <= 3.0 * rms["gs"]), rms          # one photo alone: the velocity costs 2-2.5x
+    assert 0.7 <= np.sqrt(np.mean(np.square(v_z))) <= 1.3 and np.abs(v_z).max() < 3.5, v_z
+    assert np.all(rms["rs_off"] > 5 * rms["gs"]), rms
+    assert min(np.abs(slopes_t)) > 5, slopes_t
