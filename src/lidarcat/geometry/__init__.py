@@ -7,6 +7,7 @@
 ``conversion``    Conversions between camera models (exact, or fitted with their residual); COLMAP and Metashape parameters.
 ``apsets``        Self-calibration parameter sets by name (thesis, brown, ebner, gruen) and their correction polynomials.
 ``rolling``       Rolling shutter: projection with the row's read-out time solved, and its Jacobians.
+``rigs``          Camera rigs: sensors with fixed relative poses moved as one body per exposure, and Jacobians.
 ``tin``           One Delaunay point locator (a walk) and barycentric weights, for every TIN surface.
 ================  ============================================================
 """
@@ -30,6 +31,7 @@ from .collinearity import (  # noqa: F401
 from .models import BrownCamera, CameraModel, FisheyeCamera, FrameModel, MODELS, camera_model  # noqa: F401
 from .conversion import (Conversion, convert, from_colmap, to_colmap, from_metashape, to_metashape,  # noqa: F401
                          image_plane_observations)
+from .rigs import Rig, project_rig  # noqa: F401
 from .tin import TinLocator, barycentric, find_simplex  # noqa: F401
 
 __all__ = [
@@ -46,6 +48,8 @@ __all__ = [
     'from_metashape',
     'to_metashape',
     'image_plane_observations',
+    'Rig',
+    'project_rig',
     'TinLocator',
     'barycentric',
     'find_simplex',
