@@ -85,3 +85,108 @@ def test_jacobian_xy_matches_finite_differences(name):
         d[k] = 1e-5
         fd = (s.corrections(xy + d, th, b) - s.corrections(xy - d, th, b)) / 2e-5
         np.testing.assert_allclose(j[:, :, k], fd, rtol=1e-6, atol=1e-9 * np.abs(fd).max())
+
+
+# ---------------------------------------------------------------- the bundle hook-up, in miniature
+def _dist(cam, fot):
+    d = cam.distortion_corrections(fot)
+    return np.column_stack([d["dx_ra"] + d["dx_des"] + d["dx_ref"], d["dy_ra"] + d["dy_des"] + d["dy_ref"]])
+
+
+def _i_minus_dd(cam, fot):
+    """I - dD/dx_fot from the public pixel Jacobian (eq. 01: d x_fot / d px = diag(t_x, -t_y))."""
+    px = cam.image_centre_to_pixel(fot + np.array([cam.principal_point_x_mm, cam.principal_point_y_mm]))
+    return cam.pixel_to_photo_jacobian(px) / np.array([cam.pixel_size_x_mm, -cam.pixel_size_y_mm])[None, None, :]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["ebner", "gruen"])
+def test_additional_parameters_calibrate_with_honest_sds(name):
+    """The hook-up of docs/cameras.md, as the bundle will do it: observations x_fotc = x_fot - D - A(theta),
+    v = c (X/Z, -Y/Z) - x_fotc, dv/dtheta_i = f_i(x_fot), dv/dx0 = (I - dD - dA) e_x; c, x0, y0 and the
+    set's parameters with 6 pose unknowns per photo; 12 photos of a 3-D test field, 0.005 mm noise on x_fot,
+    20 seeds: the standardised errors of the set's parameters have rms 0.8-1.25 (measured: Ebner 0.985,
+    largest 2.5; Grün 1.10 -- but the x components odd in u (g1, g7, g11, g27, g31, g41) reach rms
+    1.5-2.0, the same after 30 iterations: an open point, see docs/cameras.md; so the 1 % rule beyond
+    3 sd is asserted for Ebner only)."""
+    from lidarcat.geometry.camera import Camera
+    from lidarcat.geometry.rolling import rodrigues
+
+    cam = Camera("dcs", 28.0, 0.05, -0.03, -1.2e-4, 2e-7, 0.0, 3e-6, -2e-6, 0.0, 0.009, 0.009, 3000, 2000)
+    s = parameter_set(name)
+    b = s.scale_mm(*cam.frame_size_mm)
+    m = len(s.extra)
+    sigma = 0.005
+    z_all = []
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        noise = np.random.default_rng([seed, 1])
+        theta_true = rng.normal(0, 0.003, m)                          # mm at the grid unit
+        pts = np.column_stack([rng.uniform(-5, 5, 400), rng.uniform(-5, 5, 400), rng.uniform(0, 3, 400)])
+        poses = []
+        for k in range(12):
+            a = 2 * np.pi * k / 12
+            c = np.array([6 * np.cos(a), 6 * np.sin(a), 5.0 + (k % 3)])
+            zax = np.array([0.0, 0.0, 1.0]) - c
+            zax /= np.linalg.norm(zax)
+            xax = np.cross([0.0, 0.0, 1.0], zax)
+            xax /= np.linalg.norm(xax)
+            poses.append((rodrigues([0.0, 0.0, np.pi / 2 * (k % 4)])[0] @ np.array([xax, np.cross(zax, xax), zax]),
+                          c))
+        obs = []
+        for i, (r, c) in enumerate(poses):
+            xc = (pts - c) @ r.T
+            target = 28.0 * np.column_stack([xc[:, 0] / xc[:, 2], -xc[:, 1] / xc[:, 2]])
+            w, h = cam.frame_size_mm
+            j = np.flatnonzero((np.abs(target[:, 0]) < w / 2 - 0.3) & (np.abs(target[:, 1]) < h / 2 - 0.3)
+                               & (xc[:, 2] > 0))
+            fot = target[j].copy()                                     # invert x_fot - D - A = target
+            for _ in range(30):
+                f = fot - _dist(cam, fot) - s.corrections(fot, theta_true, b) - target[j]
+                if np.abs(f).max() < 1e-13:
+                    break
+                jac = _i_minus_dd(cam, fot) - s.jacobian_xy(fot, theta_true, b)
+                fot -= np.linalg.solve(jac, f[:, :, None])[:, :, 0]
+            obs.append((i, j, fot + noise.normal(0, sigma, fot.shape)))
+        nu = 6 * len(poses) + 3 + m
+        cur = [(rodrigues(rng.normal(0, 0.002, 3))[0] @ r, c + rng.normal(0, 0.01, 3)) for r, c in poses]
+        g = np.zeros(3 + m)                                           # dc, dx0, dy0, theta
+        for _ in range(10):
+            N = np.zeros((nu, nu))
+            rhs = np.zeros(nu)
+            for i, j, fot_meas in obs:
+                r, c = cur[i]
+                xc = (pts[j] - c) @ r.T
+                cc = 28.0 + g[0]
+                pred = cc * np.column_stack([xc[:, 0] / xc[:, 2], -xc[:, 1] / xc[:, 2]])
+                fot = fot_meas - g[1:3]
+                xf = fot - _dist(cam, fot) - s.corrections(fot, g[3:], b)
+                dpred = np.zeros((len(j), 2, 3))
+                dpred[:, 0, 0], dpred[:, 0, 2] = cc / xc[:, 2], -cc * xc[:, 0] / xc[:, 2] ** 2
+                dpred[:, 1, 1], dpred[:, 1, 2] = -cc / xc[:, 2], cc * xc[:, 1] / xc[:, 2] ** 2
+                A = np.zeros((len(j), 2, nu))
+                A[:, :, 6 * i:6 * i + 3] = -dpred @ np.stack([np.stack([np.zeros(len(j)), -xc[:, 2], xc[:, 1]], -1),
+                                                            np.stack([xc[:, 2], np.zeros(len(j)), -xc[:, 0]], -1),
+                                                            np.stack([-xc[:, 1], xc[:, 0], np.zeros(len(j))], -1)], -2)
+                A[:, :, 6 * i + 3:6 * i + 6] = -dpred @ r
+                o = 6 * len(poses)
+                A[:, :, o] = pred / cc
+                A[:, :, o + 1:o + 3] = _i_minus_dd(cam, fot) - s.jacobian_xy(fot, g[3:], b)
+                A[:, :, o + 3:] = s.jacobian(fot, b)
+                A = A.reshape(-1, nu)
+                N += A.T @ A
+                rhs -= A.T @ (pred - xf).ravel()
+            sc = 1 / np.sqrt(np.diag(N))
+            step = sc * np.linalg.solve(N * sc[:, None] * sc[None, :], rhs * sc)
+            cur = [(rodrigues(step[6 * i:6 * i + 3])[0] @ r, c + step[6 * i + 3:6 * i + 6]) for i, (r, c) in
+                   enumerate(cur)]
+            g = g + step[6 * len(poses):]
+            if np.abs(step * np.sqrt(np.diag(N))).max() < 1e-8:
+                break
+        sc = 1 / np.sqrt(np.diag(N))
+        sd = sigma * np.sqrt(np.diag(np.linalg.inv(N * sc[:, None] * sc[None, :]))) * sc
+        z_all.append((g[3:] - theta_true) / sd[6 * len(poses) + 3:])
+    z = np.array(z_all)
+    assert 0.8 <= np.sqrt(np.mean(z ** 2)) <= 1.25, np.sqrt(np.mean(z ** 2, axis=0))
+    if name == "ebner":
+        assert np.mean(np.abs(z) > 3) <= 0.01

@@ -184,7 +184,9 @@ class ParameterSet:
     def jacobian(self, xy_mm: Any, b_mm: float) -> np.ndarray:
         """d A / d theta = the functions ``f_i`` at *xy_mm* (N, 2), shape (N, 2, m) (mm per unit of theta)."""
         _, U, V = self._powers(xy_mm, b_mm)
-        return np.einsum("na,icab,nb->nci", U, self.coef, V)
+        mono = (U[:, :, None] * V[:, None, :]).reshape(len(U), -1)          # u^a v^b, (N, _DEG^2)
+        m = self.coef.shape[0]
+        return (mono @ self.coef.reshape(m * 2, -1).T).reshape(len(U), m, 2).transpose(0, 2, 1)
 
     def corrections(self, xy_mm: Any, theta: Any, b_mm: float) -> np.ndarray:
         """The correction ``A(x_fot; theta)`` (N, 2), mm, subtracted as in eq. 07."""
@@ -192,7 +194,9 @@ class ParameterSet:
         if th.shape != (len(self.extra),):
             raise CameraError(f"parameter set {self.name!r}: {len(self.extra)} values expected "
                               f"({', '.join(self.extra)}), got {th.size}")
-        return self.jacobian(xy_mm, b_mm) @ th
+        _, U, V = self._powers(xy_mm, b_mm)
+        c = np.tensordot(th, self.coef, axes=1).reshape(2, -1)
+        return (U[:, :, None] * V[:, None, :]).reshape(len(U), -1) @ c.T
 
     def jacobian_xy(self, xy_mm: Any, theta: Any, b_mm: float) -> np.ndarray:
         """d A / d x_fot (N, 2, 2), dimensionless: enters ``(I - dD/dx - dA/dx)`` of x0, y0 and the inverse."""
@@ -203,10 +207,10 @@ class ParameterSet:
         dU[:, 1:] = U[:, :-1] * k[1:]
         dV = np.zeros_like(V)
         dV[:, 1:] = V[:, :-1] * k[1:]
-        c = np.einsum("i,icab->cab", th, self.coef)
+        c = np.tensordot(th, self.coef, axes=1).reshape(2, -1)              # (2, _DEG^2)
         out = np.empty((len(U), 2, 2))
-        out[:, :, 0] = np.einsum("na,cab,nb->nc", dU, c, V) / b_mm
-        out[:, :, 1] = np.einsum("na,cab,nb->nc", U, c, dV) / b_mm
+        out[:, :, 0] = (dU[:, :, None] * V[:, None, :]).reshape(len(U), -1) @ c.T / b_mm
+        out[:, :, 1] = (U[:, :, None] * dV[:, None, :]).reshape(len(U), -1) @ c.T / b_mm
         return out
 
 
