@@ -56,8 +56,12 @@ def synthetic(outdir: str, n_photos: int, seed: int, image_sd_px: float, gps_sd_
     \b
     Example:
       lidarcat demo synthetic -o demo/ --photos 6 --seed 1
-      lidarcat demo synthetic -o demo/ --images && lidarcat run demo/ -o demo/out
+      lidarcat demo synthetic -o demo/ --images     # photos in demo/images/
+      lidarcat run demo/ -o demo/out                # orientations: adjust-gps/eop.csv
       lidarcat ortho demo/ --all --dsm dsm.tif --gsd 0.2 -o demo/ortho --mosaic
+    The photos are used by ortho and monoplot, and by run once survey.toml
+    has a [mapping] table (orthophotos = true: orthophotos and a mosaic in
+    OUTDIR/mapping/; docs/mapping.md).
     """
     from ..synthetic.survey import write_synthetic_survey
 
