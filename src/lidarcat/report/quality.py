@@ -447,7 +447,7 @@ def _thumb(path: Path) -> np.ndarray | None:
     with rasterio.open(path) as ds:
         k = max(1, int(np.ceil(max(ds.width, ds.height) / _THUMB_PX)))
         shape = (ds.count, max(1, ds.height // k), max(1, ds.width // k))
-        a = ds.read(out_shape=shape, resampling=Resampling.nearest, masked=True)
+        a = ds.read(out_shape=shape, resampling=Resampling.average, masked=True)   # no aliasing of texture
     a = np.ma.filled(a.astype(np.float32), np.nan) if a.dtype.kind == "f" else np.ma.filled(a, 0)
     if a.shape[0] >= 3:
         return np.moveaxis(a[:3], 0, 2).astype(np.uint8)
@@ -474,7 +474,7 @@ def _thumbnails(outdir: Path, products: Mapping[str, Any] | None, mapping: Mappi
     for title, path, kind in items:
         a = _thumb(path)
         if a is not None:
-            imgs.append((title, a, kind if not (kind == "rgb" and a.ndim == 2) else "shade"))
+            imgs.append((title, a, kind if not (kind == "rgb" and a.ndim == 2) else "photo"))
     extra = []
     if products:
         extra.append(f"Products in ../products/: {', '.join(products.get('files', []))}.")

@@ -268,8 +268,8 @@ def density_figure(density: np.ndarray, extent: tuple[float, float, float, float
 
 
 def thumbnails_figure(images: Sequence[tuple[str, np.ndarray, str]], ncols: int = 3) -> bytes:
-    """Thumbnails: ``(title, array, kind)`` with kind ``grey`` (heights, terrain colours), ``shade``
-    (hillshade, grey) or ``rgb`` ((rows, cols, 3) uint8 or (rows, cols) grey photo values)."""
+    """Thumbnails: ``(title, array, kind)`` with kind ``heights`` (terrain colours), ``shade``
+    (hillshade, grey, stretched), ``photo`` (grey photo values, 0-255) or ``rgb`` ((rows, cols, 3) uint8)."""
     n = len(images)
     ncols = min(ncols, n)
     nrows = -(-n // ncols)
@@ -279,6 +279,9 @@ def thumbnails_figure(images: Sequence[tuple[str, np.ndarray, str]], ncols: int 
     for ax, (title, a, kind) in zip(axes, images):
         if kind == "rgb" and a.ndim == 3:
             ax.imshow(a, interpolation="nearest")
+        elif kind == "photo":   # grey photo values as they are (a contrast stretch turns texture into noise)
+            top = 255.0 if np.nanmax(a) <= 255 else float(np.nanmax(a))
+            ax.imshow(a, cmap="gray", vmin=0, vmax=top, interpolation="antialiased")
         elif kind == "heights":
             lo, hi = np.nanpercentile(a, [2, 98]) if np.isfinite(a).any() else (0, 1)
             ax.imshow(a, cmap="terrain", vmin=lo, vmax=hi, interpolation="nearest")
