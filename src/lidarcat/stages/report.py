@@ -122,11 +122,11 @@ def run(ctx: Context, tmp: Path) -> dict:
 
 def _report_markdown(doc: Mapping[str, Any], quality: Sequence[str] = ()) -> str:
     lines = [f"# lidarcat report: {doc['survey']}", ""]
-    if doc.get("verdict"):
-        lines += ["## Verdict", "", doc["verdict"], ""]
     if doc.get("tests_failed"):
         lines += ["**Statistical test failed** (every stage ran; read the results with care): "
                   + "; ".join(doc["tests_failed"]), ""]
+    if doc.get("verdict"):   # the first section: one line (report.quality)
+        lines += ["## Verdict", "", doc["verdict"], ""]
     lines += ["## Stages", "",
              "| stage | what | state | reason |", "|---|---|---|---|"]
     for r in doc["stages"]:
