@@ -72,6 +72,10 @@ def test_run_report_holds_every_quality_section_with_its_figure(run_dir):
     links = re.findall(r"!\[[^\]]*\]\((quality/[^)]+)\)", md)
     assert len(links) >= 8 and all((out / "report" / link).is_file() for link in links)
     assert md.index("## Verdict") < md.index("## Stages")
+    # the run's own accuracy report has CE90 / LE90 beside the standards too
+    own = (out / "assess-gps" / "report.html").read_text(encoding="utf-8")
+    standards = own[own.index('<section id="standards">'):]
+    assert "<td>CE90 (plan)</td>" in standards and "<td>LE90 (height)</td>" in standards
 
 
 @pytest.mark.slow
