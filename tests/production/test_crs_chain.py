@@ -92,3 +92,23 @@ def test_production_chain_of_the_docs_keeps_epsg_7415(tmp_path, monkeypatch):
     assert kinds == {".laz", ".tif", ".geojson", ".gpkg"}
     assert len([k for k in found if k.endswith(".tif")]) == 7      # dtm, hillshade, dsm, ndsm, hipso, 2 per sheet
     assert {k: v for k, v in found.items() if v != 7415} == {}
+
+
+def test_add_las_crs_keeps_the_files_crs_and_fills_a_missing_one(tmp_path):
+    import io
+
+    import pyproj
+
+    from lidarcat.lidar.crs import add_las_crs
+
+    las = laspy.read(str(LIDAR_DATA / "ahn3_cropped_2.laz"))
+    assert add_las_crs(las.header, None) is False and las.header.parse_crs() is None
+    assert add_las_crs(las.header, "EPSG:7415") is True
+    buf = io.BytesIO()
+    las.write(buf)
+    buf.seek(0)
+    back = laspy.read(buf).header
+    assert back.parse_crs().to_epsg() == 7415
+    assert add_las_crs(back, "EPSG:28992") is False            # the file's CRS wins, as on reading
+    assert back.parse_crs().to_epsg() == 7415
+    assert pyproj.CRS(back.parse_crs()).is_compound
