@@ -537,10 +537,28 @@ def _standards(doc: Document, a: Any) -> None:
                 _table(b, ["quantity", "value"], rows, f"{name}: evidence")
             for note in s.notes:
                 _para(b, f"Note: {note}", "note")
+        _ce90_le90(b, a)
     elif a:
         _para(b, "Not applicable: no standard was requested or no map scale was given.", "na")
     else:
         _para(b, "Not applicable: no check-point assessment was given.", "na")
+
+
+def _ce90_le90(b: list, a: Any) -> None:
+    """CE90 / LE90 of the check points beside the standards (:func:`lidarcat.accuracy.standards.ce90_le90`)."""
+    from ..accuracy.standards import ce90_le90
+
+    d = np.array([[r["dE"], r["dN"], r["dh"]] for r in a.point_rows()], dtype=np.float64).reshape(-1, 3)
+    d = d[np.isfinite(d).all(axis=1)]
+    if not len(d):
+        return
+    ce = ce90_le90(d)
+    _table(b, ["quantity", "from the RMSE (m)", "empirical: 90th percentile (m)"],
+           [["CE90 (plan)", _f(ce["ce90_m"]), _f(ce["ce90_empirical_m"])],
+            ["LE90 (height)", _f(ce["le90_m"]), _f(ce["le90_empirical_m"])]],
+           f"CE90 / LE90 of the {len(d)} check points: the radius and the height error holding 90 % of the "
+           "errors, from the RMSE under normal errors (2.1460 RMSE per axis, 1.6449 RMSE_h) and from "
+           "the errors themselves.")
 
 
 def _comparison(doc: Document, a: Any, comparison: Any) -> None:

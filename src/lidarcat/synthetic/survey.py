@@ -265,7 +265,7 @@ def write_synthetic_survey(
                     ("height_m", height_m)):
         if not v > 0:
             raise LidarcatError(f"{name} must be positive (got {v})")
-    steps = 5
+    steps = 5 + (n_photos if images else 0)   # one step per rendered photo (about a minute each at 24 MP)
     tick = (lambda i: progress(i, steps)) if progress else (lambda i: None)
     rng = np.random.default_rng(seed)
     cam = demo_camera()
@@ -379,7 +379,8 @@ def write_synthetic_survey(
                                _roofs)
         tick(4)
         if images:
-            _render_photos(tmp / "images", demo_scene_of(buildings), cam, eo, photo_ids, image_downsample)
+            _render_photos(tmp / "images", demo_scene_of(buildings), cam, eo, photo_ids, image_downsample,
+                           lambda k: tick(4 + k))
         (tmp / "truth").mkdir()
         write_csv_atomic(
             tmp / "truth" / "eop.csv",
@@ -402,7 +403,7 @@ def write_synthetic_survey(
     for old in (outdir / "lidar").glob("*.laz"):
         if f"lidar/{old.name}" not in files:
             old.unlink()
-    tick(5)
+    tick(steps)
     log.info("demo survey written to %s: %d photos, %d observations", outdir, len(eo), len(obs_rows))
     return DemoSurvey(outdir, len(eo), kind_of.count("tie"), len(gps_ids), len(buildings), n_lidar,
                       seed, image_sd_px, gps_sd_m, files)
@@ -582,8 +583,10 @@ def demo_scene_of(buildings: Sequence[dict]) -> Any:
         k: v for k, v in b["params"].items() if k not in ("e", "n")}) for b in buildings))
 
 
-def _render_photos(folder: Path, scene: Any, cam: Camera, eo: np.ndarray, ids: Sequence[str], downsample: int) -> None:
-    """Render every photo into ``folder/<id>.png`` (at 1/downsample resolution, upsampled bilinearly)."""
+def _render_photos(folder: Path, scene: Any, cam: Camera, eo: np.ndarray, ids: Sequence[str], downsample: int,
+                   done: Callable[[int], None] = lambda k: None) -> None:
+    """Render every photo into ``folder/<id>.png`` (at 1/downsample resolution, upsampled bilinearly);
+    ``done(k)`` after the k-th photo."""
     import cv2
 
     from .._util import atomic_write
@@ -595,13 +598,14 @@ def _render_photos(folder: Path, scene: Any, cam: Camera, eo: np.ndarray, ids: S
                    cam.k2, cam.k3, cam.p1, cam.p2, cam.refraction_eps45, cam.pixel_size_x_mm * downsample,
                    cam.pixel_size_y_mm * downsample, cam.columns_px // downsample, cam.rows_px // downsample)
     folder.mkdir(parents=True, exist_ok=True)
-    for pid, e in zip(ids, eo):
+    for k, (pid, e) in enumerate(zip(ids, eo)):
         img = scene.render(small, e)
         if downsample > 1:   # pixel centres stay aligned: dst x <-> src (x + 0.5) / k - 0.5
             img = cv2.resize(img, (cam.columns_px, cam.rows_px), interpolation=cv2.INTER_LINEAR)
         ok, buf = cv2.imencode(".png", img)
         with atomic_write(folder / f"{pid}.png", "wb") as fh:
             fh.write(buf.tobytes())
+        done(k + 1)
 
 
 def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike) -> dict[str, Any]:
