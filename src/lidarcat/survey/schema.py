@@ -256,6 +256,8 @@ class MappingSettings:
     image_sd_px: float = _key(NUMBER, 0.5, "pointing sd of the digitised pixels, px (>= 0)")
     surface_sd_m: float = _key(NUMBER, 0.15, "height sd of the surface, m (>= 0)")
     feather_m: float = _key(NUMBER, 0.0, "mosaic: blend across seamlines over +- this many m (0: hard seams)")
+    equalize: bool = _key(BOOLEAN, False, "mosaic: balance the photos first, a gain and an offset per photo "
+                                          "from the overlaps")
 
     def to_dict(self) -> dict[str, Any]:
         """The table as the stage's parameters (lists and dicts, as in the file)."""
