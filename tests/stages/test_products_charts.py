@@ -124,3 +124,25 @@ def test_lidarcat_run_on_the_synthetic_demo_charts_every_sheet(tmp_path):
         text = pdf_text(tmp_path / "out" / "products" / "charts" / f"{name}.pdf")
         assert f"Sheet: {name}" in text and "Scale 1:5,000" in text and "Magnetic declination: not given" in text
         assert (tmp_path / "out" / "products" / "charts" / f"{name}.png").stat().st_size > 0
+
+
+def test_delivery_formats_of_the_run(survey, tmp_path):
+    ezdxf = pytest.importorskip("ezdxf")
+    toml = BASE + ('\n[products]\nground = false\ndtm = true\ndsm = false\ncell_m = 2.0\nsheet_size_m = 200\n'
+                   'delivery = ["tfw", "shp", "dxf"]\n')
+    s = _load(survey, tmp_path, toml)
+    rec = run_stages([st for st in plan_pipeline(s) if st.name == "products"], tmp_path / "out",
+                     values={"survey": s})[0]
+    assert rec.status == "ran", rec.reason
+    folder = tmp_path / "out" / "products"
+    files = rec.result["delivery"]["files"]
+    tifs = sorted(str(p.relative_to(folder)) for p in folder.rglob("*.tif"))
+    assert len(tifs) == 5       # dtm.tif and its cut for each of the 2 x 2 sheets
+    assert sorted(f for f in files if f.endswith(".tfw")) == sorted(t[:-4] + ".tfw" for t in tifs)
+    assert {"shp/contours.shp", "shp/spot_heights.shp", "shp/sheets.shp", "contours.dxf"} <= set(files)
+    assert all((folder / f).is_file() for f in files) and set(files) <= set(rec.result["files"])
+    doc = ezdxf.readfile(folder / "contours.dxf")
+    assert len(doc.modelspace().query('LWPOLYLINE[layer=="Prancha"]')) == 4
+    (tmp_path / "b").mkdir()
+    with pytest.raises(SurveyError, match=r"field 'delivery': 'dwg': use tfw, shp, dxf"):
+        _load(survey, tmp_path / "b", BASE + '\n[products]\ndelivery = ["dwg"]\n')

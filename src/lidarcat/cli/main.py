@@ -43,6 +43,7 @@ COMMANDS: list[tuple[str, str, str]] = [
     ("monoplot", "lidarcat.cli.monoplot:monoplot", "Monorestitution: features on one photo to the LiDAR surface."),
     ("ortho", "lidarcat.cli.ortho:ortho", "Orthophotos (standard or true) and a mosaic of adjusted photos."),
     ("chart", "lidarcat.cli.chart:chart", "Orthophoto charts: mosaic, contours, grid, legend, title block per sheet."),
+    ("deliver", "lidarcat.cli.deliver:deliver", "Products as TIFF + TFW world files, Shapefiles and DXF for CAD."),
     ("run", "lidarcat.cli.run:run", "The whole pipeline on a survey folder (default: the thesis block)."),
     ("export", "lidarcat.cli.interop:export_cmd", "Write an adjusted block as COLMAP, OpenSfM, OPK or GIS layers."),
     ("demo", "lidarcat.cli.demo:demo", "Write demonstration surveys (synthetic block with known truth)."),

@@ -9,6 +9,7 @@
 ``tiles``          The products' tile functions by name (ground, dtm, dsm), as jobs of the tile engine ``lidar.jobs``.
 ``conventions``    The cartographic conventions of the sheets (report Figure 27): layer names, colours, widths.
 ``charts``         Orthophoto charts (ortofotocartas): mosaic, contours, UTM grid, legend, title block, index map.
+``delivery``       Delivery formats: TIFF + TFW world files, Shapefile layers, DXF layers of the conventions.
 =================  ============================================================
 
 The functions named as their modules (``contours.contours``) are

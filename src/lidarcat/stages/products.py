@@ -27,6 +27,7 @@ survey.toml::
     chart_mosaic = "mosaic.tif" # their orthomosaic (default: the mapping stage's mosaic.tif)
     chart_scale = 5000          # 1:5,000 (the report)
     chart_declination_deg = -22.3   # magnetic declination, east positive (not computed; default "not given")
+    delivery = ["tfw", "shp", "dxf"]   # world files beside the GeoTIFFs, shp/ layers, contours.dxf
 
 Charts (:mod:`lidarcat.production.charts`): one PDF and PNG per sheet of the
 index that holds mosaic cells or contours (sheets outside the data get no
@@ -57,7 +58,7 @@ from typing import Any
 from ..survey.schema import ProductsSettings
 from .context import StageContext as Context
 
-__all__ = ["run", "settings", "PRODUCTS_KEYS", "asked", "chart_mosaic_path", "chart_sheets", "write_charts"]
+__all__ = ["run", "settings", "PRODUCTS_KEYS", "asked", "chart_mosaic_path", "chart_sheets", "write_charts", "deliver"]
 
 #: keys of the [products] table and their defaults (lidarcat.survey.schema.ProductsSettings)
 PRODUCTS_KEYS: dict[str, Any] = ProductsSettings().to_dict()
@@ -183,6 +184,10 @@ def run(ctx: Context, tmp: Path) -> dict:
         done["charts"] = chart_sheets(ctx, features, spots, area, cfg, crs, tmp)
         done["files"] += done["charts"]["files"]
         tick()
+    if cfg.get("delivery"):
+        done["delivery"] = deliver(tmp, list(cfg["delivery"]), features, spots, area, crs,
+                                   sheets=done.get("sheets", {}).get("sheets"))
+        done["files"] += done["delivery"]["files"]
     return done
 
 
@@ -370,3 +375,38 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
             progress(k + 1, len(todo))
     return {"sheets": [s.name for s in todo], "scale": int(title.scale), "mosaic": str(mosaic_path),
             "files": files}
+
+
+def deliver(folder: Path, formats: list[str], features: list[dict[str, Any]], spots: Any,
+            area: tuple[float, float, float, float], crs: Any, sheets: list[str] | None = None) -> dict[str, Any]:
+    """The delivery formats of the products in *folder* (:mod:`lidarcat.production.delivery`).
+
+    ``tfw``: a world file beside every GeoTIFF below *folder*; ``shp``: ``shp/contours.shp``,
+    ``shp/spot_heights.shp`` and ``shp/sheets.shp`` (the layers that hold features);
+    ``dxf``: ``contours.dxf`` with the contours, spot heights, the sheet frames and the mapped area.
+    Paths returned relative to *folder*.
+    """
+    import json
+
+    import numpy as np
+
+    from ..production.contours import spot_features
+    from ..production.delivery import write_dxf, write_shapefile, write_world_file
+
+    files: list[str] = []
+    index: list[dict[str, Any]] = []
+    if sheets is not None and (folder / "sheets.geojson").is_file():
+        index = json.loads((folder / "sheets.geojson").read_text(encoding="utf-8"))["features"]
+    sp = np.zeros((0, 4)) if spots is None else np.asarray(spots)
+    if "tfw" in formats:
+        for tif in sorted(folder.rglob("*.tif")):
+            files.append(str(write_world_file(tif).relative_to(folder)))
+    if "shp" in formats:
+        for name, feats in (("contours", features), ("spot_heights", spot_features(sp)), ("sheets", index)):
+            if feats:
+                shp = write_shapefile(folder / "shp" / f"{name}.shp", feats, crs)
+                files += [str(p.relative_to(folder)) for p in sorted(shp.parent.glob(f"{name}.*"))]
+    if "dxf" in formats:
+        write_dxf(folder / "contours.dxf", contours=features, spots=sp, sheets=index, area=area)
+        files.append("contours.dxf")
+    return {"formats": formats, "files": files}

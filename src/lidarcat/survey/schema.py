@@ -304,10 +304,15 @@ class ProductsSettings:
     chart_declination_date: str | None = _key(STRING, None, "date (epoch) of the declination value")
     chart_date: str | None = _key(STRING, None, "date in the title block (default: the day of the run, UTC)")
     chart_dpi: int = _key(INTEGER, 150, "resolution of the PNG charts, dots per inch")
+    delivery: tuple[str, ...] = _key(STRINGS, (), "delivery formats: \"tfw\" (world file beside every GeoTIFF), "
+                                                  "\"shp\" (shp/: Shapefile layers), \"dxf\" (contours.dxf, "
+                                                  "lidarcat[cad])")
 
     def to_dict(self) -> dict[str, Any]:
         """The table as the stage's parameters."""
-        return {f.name: getattr(self, f.name) for f in keys_of(type(self))}
+        out = {f.name: getattr(self, f.name) for f in keys_of(type(self))}
+        out["delivery"] = list(self.delivery)
+        return out
 
 
 @dataclass(frozen=True)
@@ -571,6 +576,10 @@ def _products(r: _Reader, v: dict[str, Any]) -> ProductsSettings:
     if v["ndsm"] and not (v["dtm"] and v["dsm"]):
         raise r.err(t, "ndsm", "needs dtm = true and dsm = true")
     _charts(r, v)
+    wrong = [str(x) for x in v["delivery"] if x not in ("tfw", "shp", "dxf")]
+    if wrong:
+        raise r.err(t, "delivery", f"{', '.join(map(excerpt, wrong))}: use tfw, shp, dxf")
+    v["delivery"] = tuple(dict.fromkeys(v["delivery"]))
     return ProductsSettings(**v)
 
 
