@@ -28,6 +28,9 @@ survey.toml::
     chart_scale = 5000          # 1:5,000 (the report)
     chart_declination_deg = -22.3   # magnetic declination, east positive (not computed; default "not given")
     delivery = ["tfw", "shp", "dxf"]   # world files beside the GeoTIFFs, shp/ layers, contours.dxf
+    contour_levels = [10.0, 12.5]      # fixed levels instead of the interval's
+    contour_min_ring_m = 5.0           # closed rings shorter than this are left out, m
+    contour_edge_peel = 3              # rings of triangles at the TIN's boundary left out of the contours
 
 Charts (:mod:`lidarcat.production.charts`): one PDF and PNG per sheet of the
 index that holds mosaic cells or contours (sheets outside the data get no
@@ -58,7 +61,8 @@ from typing import Any
 from ..survey.schema import ProductsSettings
 from .context import StageContext as Context
 
-__all__ = ["run", "settings", "PRODUCTS_KEYS", "asked", "chart_mosaic_path", "chart_sheets", "write_charts", "deliver"]
+__all__ = ["run", "settings", "PRODUCTS_KEYS", "asked", "chart_mosaic_path", "chart_sheets", "write_charts", "deliver",
+           "contour_options"]
 
 #: keys of the [products] table and their defaults (lidarcat.survey.schema.ProductsSettings)
 PRODUCTS_KEYS: dict[str, Any] = ProductsSettings().to_dict()
@@ -158,7 +162,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     if cfg["contours"]:
         g = cloud.xyz[gmask]
         cs = contours(g, cfg["contour_interval_m"], master_every=cfg["master_every"],
-                      max_edge_m=cfg["max_edge_m"], smooth_iterations=cfg["smooth"])
+                      max_edge_m=cfg["max_edge_m"], smooth_iterations=cfg["smooth"], **contour_options(cfg))
         features = contour_features(cs)
         spots = spot_heights(g, cfg["spots_m"])
         if vext == ".gpkg":   # one GeoPackage, layers contours and spot_heights
@@ -410,3 +414,10 @@ def deliver(folder: Path, formats: list[str], features: list[dict[str, Any]], sp
         write_dxf(folder / "contours.dxf", contours=features, spots=sp, sheets=index, area=area)
         files.append("contours.dxf")
     return {"formats": formats, "files": files}
+
+
+def contour_options(cfg: dict[str, Any]) -> dict[str, Any]:
+    """The keyword arguments of :func:`lidarcat.production.contours.contours` that ``[products]`` sets
+    beyond interval, master curves, gaps and smoothing (defaults when the keys are absent)."""
+    return {"levels": cfg.get("contour_levels"), "min_ring_m": float(cfg.get("contour_min_ring_m", 0.0)),
+            "edge_peel": int(cfg.get("contour_edge_peel", 3))}

@@ -66,6 +66,7 @@ BOOLEAN = TomlType("boolean", (bool,))
 INTEGER = TomlType("integer", (int,))
 NUMBER = TomlType("number", (int, float))
 STRINGS = TomlType("list of strings", (list,))
+NUMBERS = TomlType("list of numbers", (list,))
 STRING_OR_STRINGS = TomlType("string or list of strings", (str, list))
 TABLE = TomlType("table", (dict,))
 
@@ -304,6 +305,11 @@ class ProductsSettings:
     chart_declination_date: str | None = _key(STRING, None, "date (epoch) of the declination value")
     chart_date: str | None = _key(STRING, None, "date in the title block (default: the day of the run, UTC)")
     chart_dpi: int = _key(INTEGER, 150, "resolution of the PNG charts, dots per inch")
+    contour_levels: tuple[float, ...] | None = _key(NUMBERS, None, "fixed contour levels, m (instead of the "
+                                                                   "interval's)")
+    contour_min_ring_m: float = _key(NUMBER, 0.0, "closed contour rings shorter than this are left out, m")
+    contour_edge_peel: int = _key(INTEGER, 3, "rings of triangles at the TIN's boundary left out of the contours "
+                                              "(0: none)")
     delivery: tuple[str, ...] = _key(STRINGS, (), "delivery formats: \"tfw\" (world file beside every GeoTIFF), "
                                                   "\"shp\" (shp/: Shapefile layers), \"dxf\" (contours.dxf, "
                                                   "lidarcat[cad])")
@@ -312,6 +318,7 @@ class ProductsSettings:
         """The table as the stage's parameters."""
         out = {f.name: getattr(self, f.name) for f in keys_of(type(self))}
         out["delivery"] = list(self.delivery)
+        out["contour_levels"] = None if self.contour_levels is None else list(self.contour_levels)
         return out
 
 
@@ -576,6 +583,16 @@ def _products(r: _Reader, v: dict[str, Any]) -> ProductsSettings:
     if v["ndsm"] and not (v["dtm"] and v["dsm"]):
         raise r.err(t, "ndsm", "needs dtm = true and dsm = true")
     _charts(r, v)
+    if v["contour_levels"] is not None:
+        lv = v["contour_levels"]
+        if not lv or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                             for x in lv):
+            raise r.err(t, "contour_levels", f"expected a list of finite numbers (metres), got {excerpt(lv)}")
+        v["contour_levels"] = tuple(float(x) for x in lv)
+    if not v["contour_min_ring_m"] >= 0:
+        raise r.err(t, "contour_min_ring_m", f"must not be negative, got {excerpt(r.raw(t, 'contour_min_ring_m'))}")
+    if v["contour_edge_peel"] < 0:
+        raise r.err(t, "contour_edge_peel", f"must be 0 or more, got {excerpt(v['contour_edge_peel'])}")
     wrong = [str(x) for x in v["delivery"] if x not in ("tfw", "shp", "dxf")]
     if wrong:
         raise r.err(t, "delivery", f"{', '.join(map(excerpt, wrong))}: use tfw, shp, dxf")
