@@ -92,6 +92,9 @@ def test_charts_without_a_mosaic_fail_with_the_reason(survey, tmp_path):
     ("sheet_size_m = 0\n", r"field 'charts': one chart per sheet: give the sheet index"),
     ("chart_scale = 0\n", r"field 'chart_scale': must be a positive scale denominator, got 0"),
     ("chart_declination_deg = 200\n", r"field 'chart_declination_deg': must be -180 to 180 degrees"),
+    ("contour_levels = [1.0, \"a\"]\n", r"field 'contour_levels': expected a list of finite numbers \(metres\)"),
+    ("contour_edge_peel = -1\n", r"field 'contour_edge_peel': must be 0 or more, got -1"),
+    ("contour_min_ring_m = -2.0\n", r"field 'contour_min_ring_m': must not be negative, got -2\.0"),
 ])
 def test_bad_chart_keys_are_located_errors(survey, tmp_path, extra, message):
     key = extra.split(" = ")[0]
@@ -146,3 +149,24 @@ def test_delivery_formats_of_the_run(survey, tmp_path):
     (tmp_path / "b").mkdir()
     with pytest.raises(SurveyError, match=r"field 'delivery': 'dwg': use tfw, shp, dxf"):
         _load(survey, tmp_path / "b", BASE + '\n[products]\ndelivery = ["dwg"]\n')
+
+
+def test_contour_keys_reach_the_contours(survey, tmp_path):
+    import json
+
+    from lidarcat.lidar import read_points
+
+    h = read_points(survey / "lidar" / "tile.laz").xyz[:, 2]
+    level = float(np.round(np.median(h)))
+    toml = BASE + ('\n[products]\nground = false\ndtm = false\ndsm = false\n'
+                   f'contour_levels = [{level}, {level + 0.5}]\ncontour_min_ring_m = 5.0\n')
+    s = _load(survey, tmp_path, toml)
+    rec = run_stages([st for st in plan_pipeline(s) if st.name == "products"], tmp_path / "out",
+                     values={"survey": s})[0]
+    assert rec.status == "ran", rec.reason
+    feats = json.loads((tmp_path / "out" / "products" / "contours.geojson").read_text())["features"]
+    assert {f["properties"]["level_m"] for f in feats} == {level, level + 0.5}
+    for f in feats:
+        xy = np.asarray(f["geometry"]["coordinates"])
+        if f["properties"]["closed"]:
+            assert np.hypot(*np.diff(xy, axis=0).T).sum() >= 5.0
