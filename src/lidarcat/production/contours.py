@@ -63,7 +63,8 @@ import numpy as np
 
 from .._util import dumps_json, write_text_atomic
 
-__all__ = ["Contour", "contours", "raster_contours", "edge_fraction", "tin_mask", "boundary_edges", "spot_heights", "write_geojson", "contour_features", "spot_features",
+__all__ = ["Contour", "contours", "raster_contours", "edge_fraction", "tin_mask", "boundary_edges", "spot_heights",
+           "write_geojson", "contour_features", "spot_features",
            "write_contours", "write_layers", "read_line_layer", "CONTOUR_FORMATS"]
 
 #: output formats of :func:`write_contours`, by file suffix

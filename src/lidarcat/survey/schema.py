@@ -609,7 +609,8 @@ def _charts(r: _Reader, v: dict[str, Any]) -> None:
         raise r.err(t, "chart_dpi", f"must be 10 to 1200 dots per inch, got {excerpt(v['chart_dpi'])}")
     dec = v["chart_declination_deg"]
     if dec is not None and not -180 <= dec <= 180:
-        raise r.err(t, "chart_declination_deg", f"must be -180 to 180 degrees, got {excerpt(r.raw(t, 'chart_declination_deg'))}")
+        raise r.err(t, "chart_declination_deg",
+                    f"must be -180 to 180 degrees, got {excerpt(r.raw(t, 'chart_declination_deg'))}")
     if v["charts"]:
         if not v["contours"]:
             raise r.err(t, "charts", "an orthophoto chart shows the contours: needs contours = true")
