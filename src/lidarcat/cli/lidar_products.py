@@ -154,16 +154,27 @@ Examples:
               help="TIN triangles with a longer edge are gaps: no contour there, metres.")
 @click.option("--spots-m", type=POSITIVE, default=100.0, show_default=True,
               help="Spot heights: highest and lowest ground point per square of this size, metres.")
+@click.option("--levels", default=None, metavar="H1,H2,...",
+              help="Fixed contour levels, metres, comma-separated (instead of every --interval-m).")
+@click.option("--min-ring-m", type=NON_NEGATIVE, default=0.0, show_default=True,
+              help="Leave out closed rings shorter than this, metres (noise of the ground points).")
+@click.option("--edge-peel", type=click.IntRange(0), default=3, show_default=True,
+              help="Rings of triangles at the boundary of the ground TIN left out: the Delaunay slivers "
+                   "there make contours run along the edge (0: keep them).")
 @crs_option()
 def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_every: int, smooth: int,
-                 max_edge_m: float, spots_m: float, crs: str | None) -> None:
-    """Contour lines from the TIN of the ground points (class 2), with spot heights.
+                 max_edge_m: float, spots_m: float, levels: str | None, min_ring_m: float, edge_peel: int,
+                 crs: str | None) -> None:
+    """Contour lines from the TIN of the ground points (class 2), with spot heights; or of a DTM GeoTIFF.
+
+    One TILE ending in .tif is a gridded DTM: its cells are contoured (no spot heights).
 
     \b
     Examples:
       lidarcat lidar contours classified/tile.laz -o curvas.geojson --crs EPSG:7415
       lidarcat lidar contours classified/ -o curvas.geojson --interval-m 0.5 --master-every 10
-      lidarcat lidar contours classified/ -o curvas.gpkg
+      lidarcat lidar contours classified/ -o curvas.gpkg --min-ring-m 5
+      lidarcat lidar contours dtm.tif -o curvas.geojson --levels 10,12.5,15
     """
     import numpy as np
 
@@ -174,13 +185,33 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
     if Path(output).suffix.lower() not in CONTOUR_FORMATS:
         raise click.BadParameter(f"{output}: give a file ending in {', '.join(CONTOUR_FORMATS)}",
                                  param_hint="-o/--output")
+    try:
+        fixed = None if levels is None else [float(v) for v in levels.split(",") if v.strip()]
+    except ValueError:
+        raise click.BadParameter(f"{levels!r}: give numbers separated by commas", param_hint="--levels") from None
+    if fixed is not None and not (fixed and np.isfinite(fixed).all()):
+        raise click.BadParameter(f"{levels!r}: give finite numbers separated by commas", param_hint="--levels")
+    if len(paths) == 1 and Path(paths[0]).suffix.lower() in (".tif", ".tiff"):
+        from ..lidar.crs import resolve_crs
+        from ..lidar.geotiff import read_geotiff
+        from ..production.contours import raster_contours
+
+        grid, t, gcrs = read_geotiff(paths[0])
+        if grid.ndim != 2:
+            raise click.BadParameter(f"{paths[0]}: a DTM has one band, this has {grid.shape[2]}", param_hint="TILE")
+        cs = raster_contours(grid, t, interval_m, master_every=master_every, levels=fixed, min_ring_m=min_ring_m,
+                             smooth_iterations=smooth)
+        written = write_contours(output, cs, np.zeros((0, 4)), resolve_crs(crs) or gcrs)
+        click.echo(f"wrote {len(cs)} contour lines of {paths[0]} to {' and '.join(map(str, written))}")
+        return
     files, crs, _ = tile_sources(paths, crs)
     clouds = [read_points(f, crs=crs) for f in files]
     pc = PointCloud.concat(clouds)
     if not pc.has("classification") or not np.any(pc.attributes["classification"] == 2):
         raise click.UsageError("no ground points (class 2); classify first with 'lidarcat lidar ground'")
     g = pc.xyz[np.asarray(pc.attributes["classification"]) == 2]
-    cs = contours(g, interval_m, master_every=master_every, max_edge_m=max_edge_m, smooth_iterations=smooth)
+    cs = contours(g, interval_m, master_every=master_every, max_edge_m=max_edge_m, smooth_iterations=smooth,
+                  levels=fixed, min_ring_m=min_ring_m, edge_peel=edge_peel)
     written = write_contours(output, cs, spot_heights(g, spots_m), pc.crs)
     click.echo(f"wrote {len(cs)} contour lines and the spot heights to {' and '.join(map(str, written))}")
 

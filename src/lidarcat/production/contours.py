@@ -14,6 +14,25 @@ chaining (closed rings end with the first vertex repeated).  Triangles with an
 edge longer than ``max_edge_m`` are masked (gaps: no contour is invented
 there).
 
+Edge of the triangulation: along the TIN's boundary (the convex hull, and
+the rims of the gaps left by ``max_edge_m``) Delaunay makes slivers, long thin
+triangles whose contour segments run along the boundary for tens of metres
+(2.3-4.0 % of all contour length on AHN3 tiles, one run of 57 m; GDAL 0.1 %).
+``edge_peel`` passes (default 3) mask every triangle with a vertex on the
+boundary before contouring, so the contours stop about three point spacings
+inside the data (a raster's contours stop half a cell inside).  On the two
+AHN3 tiles the share along the edge falls from 3.2 and 4.5 % to 0.3 and
+0.6 % with one pass, 0.08 and 0.28 % with two, 0.000 % with three, for 7 and
+15 % less contour length (the rims of every building's gap); figures in
+docs/figures.md.  :func:`edge_fraction`
+measures what is left: the share of contour length within ``tol_m`` of the
+boundary of the unpeeled TIN.
+
+Small rings (``min_ring_m``): closed rings shorter than it are left out (on
+an AHN3 tile 3,258 of 3,693 rings are shorter than 5 m: noise of the ground
+points, not relief).  Fixed ``levels`` replace the interval.  A gridded DTM
+(a GeoTIFF) is contoured by :func:`raster_contours`.
+
 Smoothing (optional, ``smooth_iterations``): Chaikin's corner cutting replaces
 each segment :math:`(A, B)` by the points at 1/4 and 3/4 of it; closed rings
 stay closed and open lines keep their end points.  Smoothed vertices leave the
@@ -35,6 +54,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -43,7 +63,8 @@ import numpy as np
 
 from .._util import dumps_json, write_text_atomic
 
-__all__ = ["Contour", "contours", "spot_heights", "write_geojson", "contour_features", "spot_features",
+__all__ = ["Contour", "contours", "raster_contours", "edge_fraction", "tin_mask", "boundary_edges", "spot_heights",
+           "write_geojson", "contour_features", "spot_features",
            "write_contours", "write_layers", "read_line_layer", "CONTOUR_FORMATS"]
 
 #: output formats of :func:`write_contours`, by file suffix
@@ -89,7 +110,8 @@ def _chaikin(xy: np.ndarray, closed: bool, iterations: int) -> np.ndarray:
 
 def contours(ground_xyz: np.ndarray, interval_m: float = 1.0, *, master_every: int = 5,
              max_edge_m: float | None = 50.0, smooth_iterations: int = 0,
-             base_m: float = 0.0) -> list[Contour]:
+             base_m: float = 0.0, levels: Sequence[float] | None = None, min_ring_m: float = 0.0,
+             edge_peel: int = 3) -> list[Contour]:
     """Contours of the TIN of *ground_xyz* every *interval_m* metres.
 
     Parameters
@@ -106,6 +128,14 @@ def contours(ground_xyz: np.ndarray, interval_m: float = 1.0, *, master_every: i
         Chaikin passes (0: none; the vertices then lie on the TIN).
     base_m : float
         Levels are ``base_m + k * interval_m``.
+    levels : sequence of float, optional
+        Fixed levels instead (a level on the ``base_m + k * interval_m`` grid keeps its master flag;
+        others are intermediate).
+    min_ring_m : float
+        Closed rings shorter than this are left out, m (0: all kept).
+    edge_peel : int
+        Passes that mask the triangles touching the boundary of the TIN (module docstring, "Edge of
+        the triangulation"); 0 keeps them.
 
     Returns
     -------
@@ -134,16 +164,11 @@ def contours(ground_xyz: np.ndarray, interval_m: float = 1.0, *, master_every: i
     origin = xyz[:, :2].min(axis=0)
     local = xyz[:, :2] - origin
     tri = mtri.Triangulation(local[:, 0], local[:, 1])
-    if max_edge_m is not None:
-        p = local[tri.triangles]
-        edges = np.stack([np.hypot(*(p[:, i] - p[:, (i + 1) % 3]).T) for i in range(3)], axis=1)
-        tri.set_mask(edges.max(axis=1) > max_edge_m)
+    mask = tin_mask(local, tri.triangles, max_edge_m, edge_peel)
+    tri.set_mask(mask)
     gen = TriContourGenerator(tri.get_cpp_triangulation(), xyz[:, 2])
-    k0 = math.ceil((xyz[:, 2].min() - base_m) / interval_m)
-    k1 = math.floor((xyz[:, 2].max() - base_m) / interval_m)
     out: list[Contour] = []
-    for k in range(k0, k1 + 1):
-        level = base_m + k * interval_m
+    for level, k in _levels(xyz[:, 2], interval_m, base_m, levels):
         segs, codes = gen.create_contour(level)
         for seg, code in zip(segs, codes):
             # split at MOVETO codes (1): one path can hold several lines
@@ -155,9 +180,137 @@ def contours(ground_xyz: np.ndarray, interval_m: float = 1.0, *, master_every: i
                 closed = bool(np.asarray(code)[b - 1] == 79) or bool(np.all(line[0] == line[-1]))
                 if closed and not np.all(line[0] == line[-1]):
                     line = np.vstack([line, line[:1]])
+                if closed and min_ring_m > 0 and _length(line) < min_ring_m:
+                    continue
                 if smooth_iterations:
                     line = _chaikin(line, closed, smooth_iterations)
-                out.append(Contour(float(level), line + origin, k % master_every == 0, closed))
+                out.append(Contour(float(level), line + origin, k is not None and k % master_every == 0, closed))
+    return out
+
+
+def _length(xy: np.ndarray) -> float:
+    return float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0
+
+
+def _levels(h: np.ndarray, interval_m: float, base_m: float,
+            levels: Sequence[float] | None) -> list[tuple[float, int | None]]:
+    """(level, k) to contour: ``base_m + k interval_m`` within the heights, or the fixed *levels*
+    (k None when a level is off that grid)."""
+    h = h[np.isfinite(h)]
+    if not len(h):
+        return []
+    if levels is None:
+        k0 = math.ceil((h.min() - base_m) / interval_m)
+        k1 = math.floor((h.max() - base_m) / interval_m)
+        return [(base_m + k * interval_m, k) for k in range(k0, k1 + 1)]
+    out = []
+    for lv in sorted(set(float(x) for x in levels)):
+        k = round((lv - base_m) / interval_m)
+        out.append((lv, k if abs(base_m + k * interval_m - lv) < 1e-9 * max(1.0, abs(lv)) else None))
+    return out
+
+
+def boundary_edges(triangles: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """(M, 2) vertex pairs of the edges that belong to one kept triangle only: the TIN's boundary."""
+    t = triangles if mask is None else triangles[~mask]
+    e = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    u, c = np.unique(e, axis=0, return_counts=True)
+    return u[c == 1]
+
+
+def tin_mask(xy: np.ndarray, triangles: np.ndarray, max_edge_m: float | None, edge_peel: int = 1) -> np.ndarray:
+    """Triangles left out of the contouring: an edge longer than *max_edge_m*, then *edge_peel* passes of
+    every triangle with a vertex on the boundary (module docstring)."""
+    p = xy[triangles]
+    mask = np.zeros(len(triangles), bool)
+    if max_edge_m is not None:
+        edges = np.stack([np.hypot(*(p[:, i] - p[:, (i + 1) % 3]).T) for i in range(3)], axis=1)
+        mask = edges.max(axis=1) > max_edge_m
+    for _ in range(max(0, int(edge_peel))):
+        on = np.zeros(len(xy), bool)
+        on[boundary_edges(triangles, mask).ravel()] = True
+        peel = ~mask & on[triangles].any(axis=1)
+        if peel.all() or not peel.any():   # keep something: a TIN too small to peel stays whole
+            break
+        mask = mask | peel
+    return mask
+
+
+def edge_fraction(cs: Sequence[Contour], ground_xyz: np.ndarray, *, max_edge_m: float | None = 50.0,
+                  tol_m: float = 0.1) -> float:
+    """The fraction of the contours' length that runs along the boundary of the ground TIN.
+
+    A contour segment runs along it when both its ends and its middle lie within *tol_m* of the
+    boundary edges of the TIN (triangles with an edge longer than *max_edge_m* left out, none peeled).
+    """
+    import matplotlib.tri as mtri
+    from scipy.spatial import cKDTree
+
+    xyz = np.asarray(ground_xyz, dtype=np.float64)
+    origin = xyz[:, :2].min(axis=0)
+    local = xyz[:, :2] - origin
+    tri = mtri.Triangulation(local[:, 0], local[:, 1])
+    b = boundary_edges(tri.triangles, tin_mask(local, tri.triangles, max_edge_m, 0))
+    a, c = local[b[:, 0]], local[b[:, 1]]
+    # the boundary sampled every tol/2 along each edge: a point within tol/2 of a sample is within tol
+    n = np.maximum(1, np.ceil(np.hypot(*(c - a).T) / (tol_m / 2)).astype(int))
+    t = np.concatenate([np.arange(k + 1) / k for k in n])
+    i = np.repeat(np.arange(len(b)), n + 1)
+    samples = a[i] + t[:, None] * (c[i] - a[i])
+    tree = cKDTree(samples)
+    total = along = 0.0
+    for cn in cs:
+        xy = cn.xy - origin
+        if len(xy) < 2:
+            continue
+        seg = np.hypot(*np.diff(xy, axis=0).T)
+        near = tree.query(xy, distance_upper_bound=tol_m / 2)[0] < np.inf
+        mid = tree.query(0.5 * (xy[1:] + xy[:-1]), distance_upper_bound=tol_m / 2)[0] < np.inf
+        total += float(seg.sum())
+        along += float(seg[near[1:] & near[:-1] & mid].sum())
+    return along / total if total else 0.0
+
+
+def raster_contours(grid: np.ndarray, transform: Any, interval_m: float = 1.0, *, master_every: int = 5,
+                    base_m: float = 0.0, levels: Sequence[float] | None = None, min_ring_m: float = 0.0,
+                    smooth_iterations: int = 0) -> list[Contour]:
+    """Contours of a gridded DTM (a GeoTIFF's values; NaN cells are gaps), at the cell centres.
+
+    The grid is contoured by marching squares (contourpy, matplotlib's contour engine) on the
+    cell-centre lattice; NaN cells are masked.  Levels, master curves, ring filter and smoothing as
+    :func:`contours`.
+
+    Parameters
+    ----------
+    grid : (rows, cols) array
+        Heights, m (NaN: no data).
+    transform : GeoTransform
+        North-up: ``x0, y0`` the upper-left corner, ``cell_m``.
+    """
+    import contourpy
+
+    z = np.asarray(grid, dtype=np.float64)
+    if z.ndim != 2 or min(z.shape) < 2:
+        from ..errors import ProductError
+
+        raise ProductError(f"a DTM of {z.shape} cells cannot be contoured (needs 2 x 2 cells or more)")
+    rows, cols = z.shape
+    x = transform.x0 + (np.arange(cols) + 0.5) * transform.cell_m
+    y = transform.y0 - (np.arange(rows) + 0.5) * transform.cell_m
+    zm = np.ma.masked_invalid(z)
+    gen = contourpy.contour_generator(x, y, zm, line_type=contourpy.LineType.Separate)
+    out: list[Contour] = []
+    for level, k in _levels(z.ravel(), interval_m, base_m, levels):
+        for line in gen.lines(level):
+            line = np.asarray(line, dtype=np.float64)
+            if len(line) < 2:
+                continue
+            closed = bool(np.all(line[0] == line[-1])) and len(line) > 3
+            if closed and min_ring_m > 0 and _length(line) < min_ring_m:
+                continue
+            if smooth_iterations:
+                line = _chaikin(line, closed, smooth_iterations)
+            out.append(Contour(float(level), line, k is not None and k % master_every == 0, closed))
     return out
 
 
