@@ -313,7 +313,7 @@ class Survey:
         assert camera_path is not None
         cameras = load_cameras(camera_path)
         photos_path = file_of("photos")
-        photos = load_photos(photos_path, cameras, camera_path)  # type: ignore[arg-type]
+        photos = load_photos(photos_path, cameras, camera_path, root)  # type: ignore[arg-type]
         photo_ids = {p.id for p in photos}
 
         gp_path = file_of("ground_points")
@@ -380,6 +380,50 @@ class Survey:
             if p.id == photo_id:
                 return p
         raise SurveyError(f"{self.root}: no photo {excerpt(photo_id)}; photos are {excerpt(', '.join(self.photo_ids), 200, quote=False)}")
+
+    def image_path(self, photo_id: str) -> Path:
+        """The image file of photo *photo_id*.
+
+        The ``image`` cell of its photos.csv row (relative to the survey folder); a row without one
+        falls back to the folder convention of the orthophoto stage, ``images/<photo>.<png|tif|tiff|
+        jpg|jpeg>`` (``[mapping] images``, default ``images``) -- the layout ``lidarcat demo synthetic
+        --images`` wrote before the column existed.
+
+        Raises
+        ------
+        SurveyError
+            Unknown photo; or the photo has no image, or its file is gone since the load:
+            ``photos.csv:LINE: field 'image': ...``.
+        """
+        p = self.photo(photo_id)
+        where = location(self.files.get("photos", self.root / "photos.csv"), p.line, "image")
+        if p.image is not None:
+            if not p.image.is_file():
+                raise SurveyError(f"{where}: photo {excerpt(p.id)}: image {excerpt(str(p.image), 200, quote=False)} "
+                                  f"not found")
+            return p.image
+        from ..photos import IMAGE_SUFFIXES
+
+        folder = Path(self.config.mapping.images if self.config is not None and self.config.mapping is not None
+                      else "images")
+        folder = folder if folder.is_absolute() else self.root / folder
+        for suffix in IMAGE_SUFFIXES:
+            for name in (f"{p.id}{suffix}", f"{p.id}{suffix.upper()}"):
+                if (folder / name).is_file():
+                    return folder / name
+        raise SurveyError(f"{where}: photo {excerpt(p.id)} has no image: give its file in the column 'image' "
+                          f"(relative to the survey folder) or put it in {excerpt(str(folder), 200, quote=False)} "
+                          f"as {p.id}.jpg/.png/.tif")
+
+    @property
+    def has_images(self) -> bool:
+        """Every photo has an image file (:meth:`image_path` finds one)."""
+        try:
+            for pid in self.photo_ids:
+                self.image_path(pid)
+        except SurveyError:
+            return False
+        return True
 
     def camera_of(self, photo_id: str) -> Camera:
         """The camera of photo *photo_id*."""
@@ -481,6 +525,7 @@ class Survey:
             "default_control": self.default_control,
             "cameras": {k: c.to_dict() for k, c in self.cameras.items()},
             "photos": [p.id for p in self.photos],
+            "n_images": sum(p.image is not None for p in self.photos),
             "n_image_points": len(self.image_points),
             "n_observations": len(self.image_points) - int(
                 np.isin(self.image_points.point, list(self.settings.exclude_points)).sum()),
