@@ -16,12 +16,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..geometry.camera import Camera
 
-__all__ = ["TexturedGround", "small_camera", "strip_layout", "render_photo", "true_points"]
+__all__ = ["TexturedGround", "TexturedSurvey", "small_camera", "strip_layout", "render_photo", "true_points",
+           "write_textured_survey", "observation_errors"]
 
 
 def small_camera(columns_px: int = 800, rows_px: int = 600, *, focal_mm: float = 20.0, pixel_mm: float = 0.01,
@@ -169,3 +171,113 @@ def render_photo(ground: TexturedGround, camera: Camera, eo: Sequence[float], *,
     rng = np.random.default_rng(seed)
     out = 255.0 * (gain * img + offset) + rng.normal(0, noise, img.shape)
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+@dataclass(frozen=True, eq=False)
+class TexturedSurvey:
+    """A survey folder of rendered photos (:func:`write_textured_survey`) and its truth.
+
+    Attributes
+    ----------
+    folder : Path
+    ground : TexturedGround
+    camera : Camera
+    ids : tuple of str
+    true_eo, approx_eo : ndarray (n, 6)
+        X0, Y0, Z0 (m), omega, phi, kappa (rad): the truth and what photos.csv says.
+    """
+
+    folder: Any
+    ground: TexturedGround
+    camera: Camera
+    ids: tuple[str, ...]
+    true_eo: np.ndarray
+    approx_eo: np.ndarray
+
+
+def write_textured_survey(folder: Any, *, n_strips: int = 2, per_strip: int = 3, columns_px: int = 640,
+                          rows_px: int = 480, height_m: float = 600.0, sd_position_m: float = 2.0,
+                          sd_angle_deg: float = 0.5, seed: int = 0, forward: float = 0.6, side: float = 0.3,
+                          image_suffix: str = ".png") -> TexturedSurvey:
+    """Write a survey folder of rendered photos with approximate orientations (no image observations yet).
+
+    survey.toml (CRS ``local``), camera.toml, photos.csv with the ``image`` column and the true
+    orientation perturbed by ``N(0, sd)`` (and those sds), an image_points.csv with its header only,
+    ground_points.csv with four GPS points on the terrain (they give the mean ground height),
+    ``images/<photo>.png`` with an exposure of their own.
+    """
+    import cv2
+    from pathlib import Path
+
+    root = Path(folder)
+    (root / "images").mkdir(parents=True, exist_ok=True)
+    cam = small_camera(columns_px, rows_px)
+    eo = strip_layout(n_strips, per_strip, cam, height_m, forward=forward, side=side)
+    rng = np.random.default_rng(seed)
+    approx = eo + np.column_stack([rng.normal(0, sd_position_m, (len(eo), 3)),
+                                   np.deg2rad(rng.normal(0, sd_angle_deg, (len(eo), 3)))])
+    scale = (height_m - 100.0) / cam.focal_length_mm
+    half = 0.5 * np.array([cam.columns_px * cam.pixel_size_x_mm, cam.rows_px * cam.pixel_size_y_mm]) * scale
+    pad = float(np.hypot(*half)) + 60.0
+    bounds = (eo[:, 0].min() - pad, eo[:, 1].min() - pad, eo[:, 0].max() + pad, eo[:, 1].max() + pad)
+    ground = TexturedGround.make(bounds, seed=seed)
+    ids = tuple(f"{k + 1:02d}" for k in range(len(eo)))
+    rows = ["photo,camera,image,X0,Y0,Z0,omega_deg,phi_deg,kappa_deg,sd_X0,sd_Y0,sd_Z0,sd_omega_deg,sd_phi_deg,"
+            "sd_kappa_deg"]
+    for k, pid in enumerate(ids):
+        img = render_photo(ground, cam, eo[k], gain=float(rng.uniform(0.75, 1.0)), offset=float(rng.uniform(-0.05, 0.1)),
+                           noise=2.0, seed=seed * 1000 + k)
+        cv2.imwrite(str(root / "images" / f"{pid}{image_suffix}"), img)
+        p, a = approx[k, :3], np.rad2deg(approx[k, 3:])
+        rows.append(f"{pid},small,images/{pid}{image_suffix},{p[0]:.3f},{p[1]:.3f},{p[2]:.3f},{a[0]:.5f},{a[1]:.5f},"
+                    f"{a[2]:.5f},{sd_position_m},{sd_position_m},{sd_position_m},{sd_angle_deg},{sd_angle_deg},"
+                    f"{sd_angle_deg}")
+    (root / "photos.csv").write_text("\n".join(rows) + "\n")
+    (root / "camera.toml").write_text(cam.to_toml())
+    (root / "image_points.csv").write_text("photo,point,col_px,row_px\n")
+    c = eo[:, :2].mean(axis=0)
+    gp = ["point,E,N,h,sd_E,sd_N,sd_h,source"]
+    for k, (de, dn) in enumerate([(-40, -30), (40, -30), (40, 30), (-40, 30)]):
+        e, n = c[0] + de, c[1] + dn
+        gp.append(f"G{k + 1},{e:.3f},{n:.3f},{float(ground.height(np.array(e), np.array(n))):.3f},0.05,0.05,0.05,gps")
+    (root / "ground_points.csv").write_text("\n".join(gp) + "\n")
+    (root / "survey.toml").write_text(
+        '[survey]\nname = "textured"\ndescription = "rendered photos of a textured ground (lidarcat.synthetic.textured)"\n'
+        'crs = "local: synthetic textured ground"\nheight_system = "ellipsoidal"\n\n[files]\ncamera = "camera.toml"\n'
+        'photos = "photos.csv"\nimage_points = "image_points.csv"\nground_points = "ground_points.csv"\n\n'
+        '[adjustment]\nobservations = "pixel"\n')
+    return TexturedSurvey(root, ground, cam, ids, eo, approx)
+
+
+def observation_errors(ground: TexturedGround, camera: Camera, true_eo: np.ndarray, track: np.ndarray,
+                       photo: np.ndarray, xy_px: np.ndarray) -> np.ndarray:
+    """Distance (px) of every observation from the truth of its track, (n,).
+
+    Each observation's true object point is the ground behind its pixel (true orientation);
+    the track's true point is the median of those (robust to one wrong ray of three and more;
+    the mean of two), and an observation's error is its distance from that point's
+    projection with the true orientation.  A wrong match of a two-ray track shows as both
+    rays off by half the mismatch.
+    """
+    from ..match.rays import project_to_pixel
+
+    track = np.asarray(track, np.int64)
+    photo = np.asarray(photo, np.int64)
+    xyz = np.empty((len(track), 3))
+    for p in np.unique(photo):
+        sel = photo == p
+        xyz[sel] = true_points(ground, camera, true_eo[p], xy_px[sel])
+    order = np.argsort(track, kind="stable")
+    ts = track[order]
+    starts = np.flatnonzero(np.r_[True, ts[1:] != ts[:-1]])
+    centre = np.empty((len(starts), 3))
+    for k, (a, b) in enumerate(zip(starts, np.r_[starts[1:], len(ts)])):
+        centre[k] = np.median(xyz[order[a:b]], axis=0)
+    tid = np.empty(len(track), np.int64)
+    tid[order] = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(ts)]))
+    err = np.empty(len(track))
+    for p in np.unique(photo):
+        sel = photo == p
+        px, _ = project_to_pixel(camera, true_eo[p], centre[tid[sel]])
+        err[sel] = np.hypot(*(px - xy_px[sel]).T)
+    return err
