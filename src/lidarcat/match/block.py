@@ -40,7 +40,7 @@ from .guided import Matches, guided_match, match_descriptors, predict
 from .pairs import exhaustive_pairs, footprint, footprint_pairs
 from .rays import HeightSurface
 from .tracks import Tracks, build_tracks, distribute
-from .verify import ideal_pixels, verify_pair
+from .verify import ideal_pixels, local_consistency, verify_pair
 
 __all__ = ["MatchOptions", "PairReport", "BlockMatch", "MatchError", "match_block", "extract_features"]
 
@@ -73,6 +73,8 @@ class MatchOptions:
         Tracks with fewer observations are dropped (2: every verified match).
     max_exhaustive : int
         Largest block matched all-pairs when photos have no orientation.
+    max_local_px : float
+        Local consistency of the shifts (:func:`~lidarcat.match.verify.local_consistency`), px; 0: off.
     guided : bool
         Use the orientations to guide the search (False: descriptor matching over the whole photo
         for the footprint pairs).
@@ -89,6 +91,7 @@ class MatchOptions:
     min_rays: int = 2
     max_exhaustive: int = 30
     guided: bool = True
+    max_local_px: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -186,10 +189,12 @@ def _match_pair(a: int, b: int, overlap: float, cams: Sequence[Camera], eos: Seq
     ca, cb = cams[a], cams[b]
     guided = opt.guided and eos[a] is not None and eos[b] is not None
     n_cand = 0
+    pred_xy = None
     if guided:
         pred = predict(ca, eos[a], fa.xy_px, cb, eos[b], surface, sd_position_m=opt.sd_position_m,
                        sd_angle_deg=opt.sd_angle_deg, sd_feature_px=float(2 ** fa.level))
         m, n_cand = guided_match(pred, fa.descriptors, fb.xy_px, fb.descriptors, ratio=opt.ratio)
+        pred_xy = pred.xy_px
     else:
         m = match_descriptors(fa.descriptors, fb.descriptors, ratio=opt.ratio)
         n_cand = len(fa) * len(fb)
@@ -197,7 +202,11 @@ def _match_pair(a: int, b: int, overlap: float, cams: Sequence[Camera], eos: Seq
         return PairReport(a, b, overlap, 0, n_cand, 0, "no matches", time.perf_counter() - t0), m
     v = verify_pair(ideal_pixels(ca, fa.xy_px[m.i]), ideal_pixels(cb, fb.xy_px[m.j]),
                     threshold_px=opt.threshold_px, min_inliers=opt.min_inliers)
-    kept = m.select(v.inlier) if v.accepted else m.select(np.zeros(len(m), bool))
+    ok = v.inlier.copy()
+    if v.accepted and opt.max_local_px > 0:
+        base = pred_xy[m.i] if pred_xy is not None else fa.xy_px[m.i]
+        ok[ok] = local_consistency(fa.xy_px[m.i][ok], (fb.xy_px[m.j] - base)[ok], min_px=opt.max_local_px)
+    kept = m.select(ok) if v.accepted and ok.sum() >= opt.min_inliers else m.select(np.zeros(len(m), bool))
     return (PairReport(a, b, overlap, len(m), n_cand, len(kept), v.reason, time.perf_counter() - t0), kept)
 
 

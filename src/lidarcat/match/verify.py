@@ -15,10 +15,14 @@ fits a handful of random matches) is rejected as a whole: its matches are most l
 repeated texture.
 
 A match that lies on its epipolar line but at the wrong place along it (repeated texture
-parallel to the base) passes this test; on a block with approximate orientations the
-guided search has excluded most of them, and the adjustment's data snooping names the
-rest (a two-ray point's wrong match has no redundancy: the tracks of three and more rays
-are what make the block robust).
+parallel to the base) passes this test.  :func:`local_consistency` catches most of them: the
+shift ``s_k = b_k - p_k`` of a match from its prediction ``p_k`` (or from its own position in A
+without orientations) varies smoothly over the photo -- the orientation errors move whole
+regions, the relief the surface does not model moves a point by its parallax
+``c B dh / H²`` -- so a match whose shift departs from the median shift of its ``k`` nearest
+matched neighbours by more than ``max(min_px, 5 · 1.4826 MAD)`` of those neighbours is
+rejected.  The few that remain have no redundancy in a two-ray track; the adjustment's
+data snooping names them.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ import numpy as np
 
 from ..geometry.camera import Camera
 
-__all__ = ["Verification", "ideal_pixels", "verify_pair", "sampson_px"]
+__all__ = ["Verification", "ideal_pixels", "verify_pair", "sampson_px", "local_consistency"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,3 +109,23 @@ def verify_pair(a_px: Any, b_px: Any, *, threshold_px: float = 1.5, min_inliers:
     if inlier.sum() < min_inliers:
         return Verification(inlier, f, f"{int(inlier.sum())} inliers, fewer than {min_inliers}")
     return Verification(inlier, f)
+
+
+def local_consistency(a_px: Any, shift_px: Any, *, k: int = 8, min_px: float = 3.0) -> np.ndarray:
+    """Boolean (m,): the match's shift agrees with the median shift of its *k* nearest matched
+    neighbours in A within ``max(min_px, 5 sigma_MAD)`` (module docstring).  Fewer than ``k + 1``
+    matches: all True."""
+    from scipy.spatial import cKDTree
+
+    a = np.asarray(a_px, dtype=np.float64).reshape(-1, 2)
+    s = np.asarray(shift_px, dtype=np.float64).reshape(-1, 2)
+    m = len(a)
+    if m <= k:
+        return np.ones(m, bool)
+    _, nb = cKDTree(a).query(a, k=k + 1)
+    nb = nb[:, 1:]
+    med = np.median(s[nb], axis=1)                                  # (m, 2)
+    dev_nb = np.hypot(*(s[nb] - med[:, None, :]).transpose(2, 0, 1))  # (m, k)
+    sigma = 1.4826 * np.median(dev_nb, axis=1)
+    dev = np.hypot(*(s - med).T)
+    return dev <= np.maximum(min_px, 5.0 * sigma)
