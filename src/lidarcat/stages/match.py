@@ -36,7 +36,7 @@ from .._util import provenance, write_csv_atomic, write_json_atomic
 from ..errors import SurveyError, location
 from .context import StageContext as Context
 
-__all__ = ["match", "run", "MatchResult", "planned", "MIN_TIE_POINTS_PER_PHOTO", "DEFAULT_PREFIX"]
+__all__ = ["match", "run", "MatchResult", "planned", "default_options", "image_files", "survey_with", "MIN_TIE_POINTS_PER_PHOTO", "DEFAULT_PREFIX"]
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +93,32 @@ def planned(survey: Any) -> str | None:
         return (f"the survey has {n_tie} tie points (>= {MIN_TIE_POINTS_PER_PHOTO} per photo); "
                 f"`lidarcat match SURVEY` matches again")
     return None
+
+
+def image_files(survey: Any) -> list[Path]:
+    """The image file of every photo that has one (the inputs of the match stage)."""
+    out = []
+    for pid in survey.photo_ids:
+        try:
+            out.append(survey.image_path(pid))
+        except SurveyError:
+            pass
+    return out
+
+
+def default_options(survey: Any) -> Any:
+    """The engine's MatchOptions, with the search sds the largest of photos.csv when every photo gives them."""
+    import dataclasses
+
+    from ..match import MatchOptions
+
+    photos = survey.photos
+    sdp = [float(np.max(p.sd_position_m)) for p in photos if p.sd_position_m is not None]
+    sda = [float(np.max(p.sd_attitude_deg)) for p in photos if p.sd_attitude_deg is not None]
+    options = MatchOptions()
+    if len(sdp) == len(photos) and len(sda) == len(photos) and max(sdp) > 0 and max(sda) > 0:
+        options = dataclasses.replace(options, sd_position_m=max(sdp), sd_angle_deg=max(sda))
+    return options
 
 
 def _eo(photo: Any) -> np.ndarray | None:
@@ -205,7 +231,7 @@ def _coverage(xy: np.ndarray, cols: int, rows: int, grid: tuple[int, int]) -> fl
 
 def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = None, features: Any = None,
           workers: int = 1, height_m: float | None = None, prefix: str = DEFAULT_PREFIX, cache: bool = True,
-          progress: Callable[[str, int, int], None] | None = None) -> MatchResult:
+          table: str | Path | None = None, progress: Callable[[str, int, int], None] | None = None) -> MatchResult:
     """Tie points of a survey's photos into its image_points.csv (module docstring).
 
     Parameters
@@ -225,6 +251,9 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
         Id prefix of the tie points.
     cache : bool
         Keep the features in ``<outdir>/features/``.
+    table : path or None
+        Where the new image_points table goes; default the survey's own ``image_points.csv``
+        (``lidarcat run`` writes it into its stage folder instead: it writes nothing outside OUTDIR).
     progress : callable, optional
         ``progress(step, done, total)``, steps ``features``, ``pairs``.
 
@@ -238,7 +267,7 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     """
     import dataclasses
 
-    from ..match import FeatureCache, FeatureOptions, MatchOptions, match_block
+    from ..match import FeatureCache, FeatureOptions, match_block
     from ..survey.folder import Survey
 
     t_all = time.perf_counter()
@@ -251,12 +280,7 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
         raise SurveyError(f"{survey.files.get('photos', survey.toml_path)}: {len(photos)} photo; matching needs two")
     paths = [survey.image_path(p.id) for p in photos]           # a photo without image: located error first
     eos = [_eo(p) for p in photos]
-    if options is None:
-        sdp = [float(np.max(p.sd_position_m)) for p in photos if p.sd_position_m is not None]
-        sda = [float(np.max(p.sd_attitude_deg)) for p in photos if p.sd_attitude_deg is not None]
-        options = MatchOptions()
-        if len(sdp) == len(photos) and len(sda) == len(photos):
-            options = dataclasses.replace(options, sd_position_m=max(sdp), sd_angle_deg=max(sda))
+    options = default_options(survey) if options is None else options
     features = features or FeatureOptions()
     surface, surface_source = _surface(survey, eos, height_m)
     store = FeatureCache(out / "features" if cache else None, features)
@@ -310,8 +334,12 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
                      [list(r.values()) for r in pairs])
     write_csv_atomic(out / "match_photos.csv", list(per_photo[0]), [list(r.values()) for r in per_photo])
     write_json_atomic(out / "match_report.json", summary)
-    ip_path = survey.files.get("image_points", survey.root / survey.config.files.image_points)
-    _check_then_write(survey, ip_path, header, rows, summary, paths)
+    if table is None:
+        ip_path = Path(survey.files.get("image_points", survey.root / survey.config.files.image_points))
+        _check_then_write(survey, ip_path, header, rows, summary, paths)
+    else:
+        ip_path = Path(table)
+        write_csv_atomic(ip_path, header, rows)
     log.info("match: %d tie points, %d observations on %d photos (%d pairs verified of %d) -> %s",
              tr.n_tracks, len(tr), len(photos), summary["pairs_verified"], len(res.pairs), ip_path)
     return MatchResult(Path(ip_path), out, len(photos), len(res.pairs), summary["pairs_verified"], int(tr.n_tracks),
@@ -346,13 +374,39 @@ def _check_then_write(survey: Any, ip_path: Path, header: list[str], rows: list[
         raise
 
 
-def run(ctx: Context, tmp: Path) -> dict:
-    """Tie points of the photos into the survey's image_points.csv; the report into the stage folder."""
-    from ..survey.folder import Survey
+def survey_with(survey: Any, table: str | Path) -> Any:
+    """*survey* with its image observations taken from *table* (an image_points.csv :func:`match` wrote).
 
+    The table holds the survey's own rows plus the tie points, so the survey's settings stay valid.
+    """
+    import dataclasses
+
+    from .._util import read_csv_table
+    from ..survey.folder import ImagePoints
+
+    path = Path(table)
+    if Path(survey.files.get("image_points", "")) == path:
+        return survey
+    t = read_csv_table(path, required=("photo", "point", "col_px", "row_px"),
+                       optional=("x_mm", "y_mm", "sd_x_mm", "sd_y_mm"))
+    n = len(t.rows)
+
+    def pair(a: str, b: str) -> np.ndarray:
+        if not t.has(a):
+            return np.full((n, 2), np.nan)
+        return np.column_stack([t.floats(a, required=False), t.floats(b, required=False)])
+
+    ip = ImagePoints(np.array(t.column("photo"), dtype=str), np.array(t.column("point"), dtype=str),
+                     pair("col_px", "row_px"), pair("x_mm", "y_mm"), pair("sd_x_mm", "sd_y_mm"),
+                     np.array(t.lines), path)
+    return dataclasses.replace(survey, image_points=ip, files={**survey.files, "image_points": path})
+
+
+def run(ctx: Context, tmp: Path) -> dict:
+    """Tie points of the photos into ``match/image_points.csv`` (the survey's rows plus the tie points) and the
+    report; the later stages adjust that table (:func:`lidarcat.pipeline.plan` puts it into ``ctx["survey"]``)."""
     survey = ctx["survey"]
     res = match(survey, tmp, progress=lambda step, done, total: ctx.progress(done, total) if step == "pairs" else None,
-                cache=False)
-    ctx.values["survey"] = Survey.load(survey.root)     # the later stages adjust the new observations
+                cache=False, table=tmp / "image_points.csv")
     return {k: res.summary[k] for k in ("photos", "pairs", "pairs_verified", "tie_points", "observations",
                                          "replaced_rows", "surface", "pairing")}
