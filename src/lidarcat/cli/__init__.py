@@ -4,6 +4,7 @@
 ``main``            the ``lidarcat`` group: ``-v/-q``, one ``Error:`` line per library error
 ``options``         the one option registry (``-o/--output``, ``--crs``, ``--json``, ``--overwrite``)
 ``interop``         ``lidarcat import`` / ``export``: other programs' files in and out
+``match``           ``lidarcat match``: tie points from the photos
 ``camera``          ``lidarcat camera``: interior orientation
 ``lidar``           ``lidarcat lidar info|index|clip|raster``: LiDAR tiles
 ``lidar_products``  ``lidarcat lidar ground|dtm|dsm|contours|hypsometry|sheets``: the production chain

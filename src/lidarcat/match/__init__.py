@@ -7,6 +7,7 @@
 ``guided``         predicted position + covariance in the other photo, search in the ellipse, ratio + mutual
 ``verify``         robust fundamental matrix (MAGSAC++) on distortion-free pixels, inliers in px
 ``tracks``         union-find tracks (inconsistent ones dropped), Von Gruber-like distribution per photo
+``refine``         optional least-squares (ECC, affine) refinement of the observations; measured, off by default
 ``block``          the whole chain on a block (:func:`match_block`), threads for photos and pairs
 =================  =========================================================
 
@@ -21,6 +22,7 @@ from .features import FeatureCache, FeatureOptions, Features, detect, pyramid_le
 from .guided import Matches, Prediction, guided_match, match_descriptors, predict
 from .pairs import convex_overlap, exhaustive_pairs, footprint, footprint_pairs
 from .rays import HeightSurface, project_to_pixel, ray_to_surface, transfer
+from .refine import refine_observations
 from .tracks import Tracks, build_tracks, distribute
 from .verify import Verification, ideal_pixels, verify_pair
 
@@ -29,4 +31,4 @@ __all__ = ["BlockMatch", "MatchError", "MatchOptions", "PairReport", "extract_fe
            "Matches", "Prediction", "guided_match", "match_descriptors", "predict",
            "convex_overlap", "exhaustive_pairs", "footprint", "footprint_pairs",
            "HeightSurface", "project_to_pixel", "ray_to_surface", "transfer",
-           "Tracks", "build_tracks", "distribute", "Verification", "ideal_pixels", "verify_pair"]
+           "refine_observations", "Tracks", "build_tracks", "distribute", "Verification", "ideal_pixels", "verify_pair"]

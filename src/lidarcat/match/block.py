@@ -33,20 +33,15 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import LidarcatError
 from ..geometry.camera import Camera
 from .features import Features
 from .guided import Matches, guided_match, match_descriptors, predict
 from .pairs import exhaustive_pairs, footprint, footprint_pairs
-from .rays import HeightSurface
+from .rays import HeightSurface, MatchError
 from .tracks import Tracks, build_tracks, distribute
 from .verify import ideal_pixels, local_consistency, verify_pair
 
 __all__ = ["MatchOptions", "PairReport", "BlockMatch", "MatchError", "match_block", "extract_features"]
-
-
-class MatchError(LidarcatError, ValueError):
-    """The photos cannot be matched (no overlap, no orientation on a large block, no tie point)."""
 
 
 @dataclass(frozen=True)
@@ -246,7 +241,7 @@ def match_block(cameras: Sequence[Camera], eos: Sequence[np.ndarray | None], fea
     oriented = all(e is not None for e in eos)
     if oriented:
         if surface is None:
-            raise ValueError("photos with orientations need a surface (HeightSurface)")
+            raise MatchError("photos with orientations need a height surface (HeightSurface) for their footprints")
         polys = [footprint(cameras[i], eos[i], surface) for i in range(n)]
         pairs, overlap = footprint_pairs(polys, options.min_overlap)
     else:

@@ -32,10 +32,15 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import LidarcatError
 from ..geometry.camera import Camera
 from ..geometry.collinearity import project, rotation_matrix
 
-__all__ = ["HeightSurface", "ray_directions", "ray_to_surface", "project_to_pixel", "transfer"]
+__all__ = ["MatchError", "HeightSurface", "ray_directions", "ray_to_surface", "project_to_pixel", "transfer"]
+
+
+class MatchError(LidarcatError, ValueError):
+    """Photos that cannot be matched: no overlap, no orientation on a large block, no verified pair, no surface."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,7 +72,7 @@ class HeightSurface:
         if self.heights_m is not None:
             g = np.asarray(self.heights_m, dtype=np.float64)
             if g.ndim != 2:
-                raise ValueError(f"heights_m must be a 2-D grid, got shape {g.shape}")
+                raise MatchError(f"a height grid must be 2-D (rows, cols), got shape {g.shape}")
             object.__setattr__(self, "_filled", np.where(np.isfinite(g), g, self.mean_m))
 
     def height(self, e_m: Any, n_m: Any) -> np.ndarray:
