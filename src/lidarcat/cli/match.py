@@ -53,6 +53,7 @@ or has another size than its camera, no overlap, no pair verified); nothing is w
 @click.option("--local", "max_local_px", type=NON_NEGATIVE, default=3.0, show_default=True,
               help="Local consistency of the matches' shifts, px (0: off).")
 @click.option("--unguided", is_flag=True, help="Match descriptors over the whole photo even with orientations.")
+@click.option("--no-refine", is_flag=True, help="Keep the SIFT positions (no sub-pixel correlation refinement).")
 @click.option("--prefix", default="tp", show_default=True, help="Id prefix of the tie points.")
 @click.option("--workers", type=click.IntRange(1), default=1, show_default=True,
               help="Threads for the photos and the pairs.")
@@ -60,7 +61,7 @@ or has another size than its camera, no overlap, no pair verified); nothing is w
 @output_option(outdir=True, type=click.Path(file_okay=False), help="Report folder (default SURVEY/out/match).")
 @json_option(help="Print the matching report as JSON.")
 def match(survey, max_features, level, max_side_px, min_overlap, sd_position_m, sd_angle_deg, height_m, ratio,
-          threshold_px, per_cell, grid, max_local_px, unguided, prefix, workers, no_cache, outdir, as_json) -> None:
+          threshold_px, per_cell, grid, max_local_px, unguided, no_refine, prefix, workers, no_cache, outdir, as_json) -> None:
     """Tie points from the photos (SIFT, footprint pairs, guided matching) into image_points.csv."""
     import contextlib
     import dataclasses
@@ -91,7 +92,8 @@ def match(survey, max_features, level, max_side_px, min_overlap, sd_position_m, 
                 bar.update(done - bar.pos)
 
         res = match_action(s, outdir, options=opts, features=feats, workers=workers, height_m=height_m,
-                           prefix=prefix, cache=not no_cache, progress=progress)
+                           prefix=prefix, cache=not no_cache, refine=not no_refine,
+                           progress=progress)
     if as_json:
         echo_json(res.summary)
         return

@@ -7,7 +7,7 @@
 ``guided``         predicted position + covariance in the other photo, search in the ellipse, ratio + mutual
 ``verify``         robust fundamental matrix (MAGSAC++) on distortion-free pixels, inliers in px
 ``tracks``         union-find tracks (inconsistent ones dropped), Von Gruber-like distribution per photo
-``refine``         optional least-squares (ECC, affine) refinement of the observations; measured, off by default
+``refine``         sub-pixel refinement of the observations: correlation peak against the track's first observation
 ``block``          the whole chain on a block (:func:`match_block`), threads for photos and pairs
 =================  =========================================================
 

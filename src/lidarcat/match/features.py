@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Features", "FeatureOptions", "FeatureCache", "detect", "pyramid_level", "read_image"]
+__all__ = ["Features", "FeatureOptions", "FeatureCache", "detect", "pyramid_level", "read_image", "grey8"]
 
 _GRID = 8
 
@@ -108,7 +108,7 @@ def pyramid_level(columns_px: int, rows_px: int, max_side_px: int = 4000) -> int
     return max(0, int(math.ceil(math.log2(long_side / max_side_px)))) if long_side > max_side_px else 0
 
 
-def _grey8(image: np.ndarray) -> np.ndarray:
+def grey8(image: np.ndarray) -> np.ndarray:
     """A uint8 grey image from grey/RGB uint8/uint16/float input (contrast stretched for 16 bits)."""
     img = np.asarray(image)
     if img.ndim == 3:
@@ -135,7 +135,7 @@ def detect(image: np.ndarray, options: FeatureOptions = FeatureOptions()) -> Fea
     """
     import cv2
 
-    grey = _grey8(image)
+    grey = grey8(image)
     level = options.level if options.level is not None else pyramid_level(grey.shape[1], grey.shape[0],
                                                                            options.max_side_px)
     work = grey

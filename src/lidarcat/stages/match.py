@@ -231,7 +231,8 @@ def _coverage(xy: np.ndarray, cols: int, rows: int, grid: tuple[int, int]) -> fl
 
 def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = None, features: Any = None,
           workers: int = 1, height_m: float | None = None, prefix: str = DEFAULT_PREFIX, cache: bool = True,
-          table: str | Path | None = None, progress: Callable[[str, int, int], None] | None = None) -> MatchResult:
+          table: str | Path | None = None, refine: bool = True,
+          progress: Callable[[str, int, int], None] | None = None) -> MatchResult:
     """Tie points of a survey's photos into its image_points.csv (module docstring).
 
     Parameters
@@ -251,6 +252,9 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
         Id prefix of the tie points.
     cache : bool
         Keep the features in ``<outdir>/features/``.
+    refine : bool
+        Refine every observation to a fraction of a pixel against its track's first one
+        (:func:`lidarcat.match.refine_observations`: correlation peak, 15 x 15 px templates).
     table : path or None
         Where the new image_points table goes; default the survey's own ``image_points.csv``
         (``lidarcat run`` writes it into its stage folder instead: it writes nothing outside OUTDIR).
@@ -292,11 +296,28 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     res = match_block(cams, eos, feats, surface=surface, options=options, workers=workers,
                       ids=[p.id for p in photos], progress=progress)
     tr = res.tracks
+    xy_obs = res.xy_px
+    n_refined = 0
+    t_ref = time.perf_counter()
+    if refine and len(tr):
+        from functools import lru_cache
+
+        from ..match import refine_observations
+        from ..match.features import grey8
+
+        @lru_cache(maxsize=4)
+        def grey(i: int) -> np.ndarray:
+            return grey8(_load_image(survey, photos[i]))
+
+        xy_obs, moved = refine_observations(tr.track, tr.photo, res.xy_px, grey, half_px=7)
+        n_refined = int(moved.sum())
+        grey.cache_clear()
+    t_ref = time.perf_counter() - t_ref
     ids = np.array([p.id for p in photos], dtype=object)
     new_photo = ids[tr.photo].astype(str)
     width = max(6, len(str(tr.n_tracks)))
     new_point = np.array([f"{prefix}{t + 1:0{width}d}" for t in tr.track.tolist()], dtype=str)
-    header, rows, replaced = _table(survey, new_photo, new_point, res.xy_px, prefix)
+    header, rows, replaced = _table(survey, new_photo, new_point, xy_obs, prefix)
 
     # the report
     per_photo = []
@@ -306,7 +327,7 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
         sel = tr.photo == i
         per_photo.append({"photo": p.id, "keypoints": n_kp[i], "tie_points": int(len(np.unique(tr.track[sel]))),
                           "observations": int(sel.sum()),
-                          "coverage": round(_coverage(res.xy_px[sel], cams[i].columns_px, cams[i].rows_px,
+                          "coverage": round(_coverage(xy_obs[sel], cams[i].columns_px, cams[i].rows_px,
                                                       options.grid), 3)})
     pairs = [{"photo_a": photos[r.a].id, "photo_b": photos[r.b].id,
               "overlap": None if not np.isfinite(r.overlap) else round(r.overlap, 3), "matches": r.n_matches,
@@ -314,6 +335,7 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
               "seconds": round(r.seconds, 3)} for r in res.pairs]
     rays = tr.rays()
     seconds = {k: round(v, 3) for k, v in res.seconds.items()}
+    seconds["refine"] = round(t_ref, 3)
     seconds["total"] = round(time.perf_counter() - t_all, 3)
     summary = {
         "survey": str(survey.root), "photos": len(photos), "pairs": len(res.pairs),
@@ -322,10 +344,10 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
         "rays": {str(k): int(v) for k, v in enumerate(np.bincount(rays)) if v},
         "inconsistent_tracks_dropped": int(tr.n_inconsistent),
         "tracks_before_distribution": int(res.n_tracks_before),
-        "replaced_rows": replaced, "prefix": prefix, "surface": surface_source,
+        "refined_observations": n_refined, "replaced_rows": replaced, "prefix": prefix, "surface": surface_source,
         "pairing": "footprints" if all(e is not None for e in eos) else "exhaustive",
         "options": dataclasses.asdict(options), "features": dataclasses.asdict(features),
-        "workers": int(workers), "seconds": seconds,
+        "workers": int(workers), "refine": bool(refine), "seconds": seconds,
         "per_photo": per_photo,
         "image_points": str(survey.files.get("image_points", survey.root / "image_points.csv")),
     }
@@ -354,7 +376,7 @@ def _check_then_write(survey: Any, ip_path: Path, header: list[str], rows: list[
     from ..survey.folder import Survey
 
     prov = provenance({"survey.toml": survey.toml_path, **{f"image {p.name}": p for p in images}},
-                      {k: summary[k] for k in ("options", "features", "prefix", "surface", "pairing")},
+                      {k: summary[k] for k in ("options", "features", "prefix", "surface", "pairing", "refine")},
                       root=survey.root)
     side = csv_sidecar_path(ip_path)
     old = ip_path.read_bytes() if ip_path.is_file() else None
