@@ -51,42 +51,49 @@ def _truth(folder: Path):
 
     from types import SimpleNamespace
 
-    from lidarcat.synthetic.textured import small_camera
+    from lidarcat.geometry.camera import load_cameras
 
     with open(folder / "truth.pkl", "rb") as fh:
         d = pickle.load(fh)
-    return SimpleNamespace(camera=small_camera(*d.pop("size")), **d)
+    return SimpleNamespace(camera=next(iter(load_cameras(folder / "camera.toml").values())), **d)
 
 
 def _triangulated_rms(ts, track: np.ndarray, photo: np.ndarray, xy: np.ndarray) -> float:
     """RMS (px) of the observations reprojected from their track triangulated with the true orientations."""
+    return float(np.sqrt(np.mean(_residuals(ts, track, photo, xy) ** 2)))
+
+
+def _residuals(ts, track, photo, xy) -> np.ndarray:
+    """Reprojection residual (px) of each observation, its track triangulated with the given orientations."""
     from lidarcat.match.rays import project_to_pixel, ray_directions
 
     n_t = int(track.max()) + 1
     d = np.empty((len(track), 3))
-    c = ts.true_eo[photo, :3]
     for p in np.unique(photo):
         sel = photo == p
         d[sel] = ray_directions(ts.camera, ts.true_eo[p], xy[sel])
     d /= np.linalg.norm(d, axis=1)[:, None]
-    proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]          # (n, 3, 3)
+    proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
     a = np.zeros((n_t, 3, 3))
     b = np.zeros((n_t, 3))
     np.add.at(a, track, proj)
-    np.add.at(b, track, np.einsum("nij,nj->ni", proj, c))
-    x = np.linalg.solve(a, b[:, :, None])[:, :, 0]
+    np.add.at(b, track, np.einsum("nij,nj->ni", proj, ts.true_eo[photo, :3]))
+    x = np.linalg.solve(a + 1e-9 * np.eye(3)[None], b[:, :, None])[:, :, 0]
     res = np.empty(len(track))
     for p in np.unique(photo):
         sel = photo == p
         px, _ = project_to_pixel(ts.camera, ts.true_eo[p], x[track[sel]])
         res[sel] = np.hypot(*(px - xy[sel]).T)
-    return float(np.sqrt(np.mean(res ** 2)))
+    return res
 
 
 def _score(ts, track, photo, xy) -> dict:
     from lidarcat.synthetic.textured import observation_errors
 
-    err = observation_errors(ts.ground, ts.camera, ts.true_eo, track, photo, xy)
+    if ts.ground is not None:
+        err = observation_errors(ts.ground, ts.camera, ts.true_eo, track, photo, xy)
+    else:   # real photos: the published orientation is the reference
+        err = _residuals(ts, track, photo, xy)
     n_photos = len(ts.ids)
     per_photo = np.array([len(np.unique(track[photo == p])) for p in range(n_photos)])
     return {"tie_points_per_photo": float(per_photo.mean()), "observations": int(len(track)),
@@ -95,7 +102,7 @@ def _score(ts, track, photo, xy) -> dict:
 
 
 # ---------------------------------------------------------------------- children
-def child_lidarcat(folder: Path, threads: int, per_cell: int) -> dict:
+def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = None) -> dict:
     import dataclasses
 
     import cv2
@@ -107,7 +114,7 @@ def child_lidarcat(folder: Path, threads: int, per_cell: int) -> dict:
     s = Survey.load(folder)
     opts = dataclasses.replace(default_options(s), per_cell=per_cell)
     t0 = time.perf_counter()
-    res = match(s, folder / f"out-{per_cell}", options=opts, workers=threads, cache=False,
+    res = match(s, folder / f"out-{per_cell}", options=opts, workers=threads, cache=False, dem=dem,
                 table=folder / f"tie-{per_cell}.csv")
     seconds = time.perf_counter() - t0
     from lidarcat._util import read_csv_table
@@ -129,12 +136,12 @@ def child_pycolmap(folder: Path, threads: int) -> dict:
     ts = _truth(folder)
     db = folder / "colmap.db"
     db.unlink(missing_ok=True)
-    names = [f"{p}.png" for p in ts.ids]
+    names = list(ts.names)
     ext = pycolmap.FeatureExtractionOptions()
     ext.num_threads = threads
     ext.sift.max_num_features = 8000
     t0 = time.perf_counter()
-    pycolmap.extract_features(db, folder / "images", image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+    pycolmap.extract_features(db, ts.image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                               extraction_options=ext, device=pycolmap.Device.cpu)
     t1 = time.perf_counter()
     mopt = pycolmap.FeatureMatchingOptions()
@@ -189,9 +196,60 @@ def _render(folder: Path, **kw):
 
     ts = write_textured_survey(folder, **kw)
     with open(folder / "truth.pkl", "wb") as fh:   # the camera is rebuilt from its size (small_camera)
-        pickle.dump({"ground": ts.ground, "true_eo": ts.true_eo, "ids": ts.ids,
-                     "size": (ts.camera.columns_px, ts.camera.rows_px)}, fh)
+        pickle.dump({"ground": ts.ground, "true_eo": ts.true_eo, "ids": ts.ids, "image_dir": str(folder / "images"),
+                     "names": [f"{p}.png" for p in ts.ids]}, fh)
     return ts
+
+
+#: the NGI frames (evaluation only, never copied): ../shared/data/frames/ngi of the repository or of a parent folder
+NGI = next((p / "shared" / "data" / "frames" / "ngi" for p in Path(__file__).resolve().parents[1:]
+            if (p / "shared" / "data" / "frames" / "ngi").is_dir()), Path("../shared/data/frames/ngi"))
+
+
+def _ngi_survey(folder: Path, src: Path) -> None:
+    """A survey of the four NGI frames (read in place; published orientation with 1 m / 0.01 deg); dem.tif is the surface."""
+    import pickle
+
+    from lidarcat.geometry.camera import Camera
+
+    folder.mkdir(parents=True)
+    cam = Camera("dmc", 120.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 92.16 / 640, 165.888 / 1152, 640, 1152,
+                 model="Intergraph DMC (NGI, downsampled)", source="ngi_int_param.yaml")
+    (folder / "camera.toml").write_text(cam.to_toml())
+    lines = (src / "ngi_xyz_opk.csv").read_text().split()
+    rows = ["photo,camera,image,X0,Y0,Z0,omega_deg,phi_deg,kappa_deg,sd_X0,sd_Y0,sd_Z0,sd_omega_deg,sd_phi_deg,"
+            "sd_kappa_deg"]
+    ids, eo = [], []
+    for line in lines[1:]:
+        f = line.split(",")
+        ids.append(f[0])
+        eo.append([float(v) for v in f[1:7]])
+        rows.append(f"{f[0]},dmc,{src / (f[0] + '.tif')},{','.join(f[1:7])},1,1,1,0.01,0.01,0.01")
+    (folder / "photos.csv").write_text("\n".join(rows) + "\n")
+    (folder / "image_points.csv").write_text("photo,point,col_px,row_px\n")
+    (folder / "survey.toml").write_text(
+        '[survey]\nname = "ngi"\ndescription = "four NGI frames"\ncrs = "local: tmerc lon_0=25 WGS84"\n'
+        'height_system = "orthometric"\n\n[files]\ncamera = "camera.toml"\nphotos = "photos.csv"\n'
+        'image_points = "image_points.csv"\n')
+    eo = np.array(eo)
+    eo[:, 3:] = np.deg2rad(eo[:, 3:])
+    with open(folder / "truth.pkl", "wb") as fh:
+        pickle.dump({"ground": None, "true_eo": eo, "ids": tuple(ids), "image_dir": str(src),
+                     "names": [f"{p}.tif" for p in ids]}, fh)
+
+
+def _compare(folder: Path, threads: int, ref: str, *height: str) -> None:
+    rows_out = [("lidarcat (distribution 10/cell)", _child("lidarcat", str(folder), str(threads), "10", *height)),
+                ("lidarcat (every verified track)", _child("lidarcat", str(folder), str(threads), "0", *height)),
+                ("pycolmap (SIFT + exhaustive + verification)", _child("pycolmap", str(folder), str(threads)))]
+    print("| method | pairs | tie points / photo | observations | within 1 px | wrong (> 3 px) | "
+          f"RMS ({ref}) px | seconds (features + matching) | peak MB |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name, r in rows_out:
+        st = r["steps"]
+        print(f"| {name} | {r['pairs']} | {r['tie_points_per_photo']:.0f} | {r['observations']} | "
+              f"{100 * r['within_1px']:.2f} % | {100 * r['wrong_3px']:.2f} % | {r['rms_px']:.3f} | "
+              f"{r['seconds']:.1f} ({st['features']:.1f} + {st['matching']:.1f}) | {r['peak_mb']:.0f} |", flush=True)
 
 
 def main() -> None:
@@ -203,7 +261,8 @@ def main() -> None:
     a = ap.parse_args()
     if a.child:
         kind, folder, *rest = a.child
-        fn = {"lidarcat": lambda: child_lidarcat(Path(folder), int(rest[0]), int(rest[1])),
+        fn = {"lidarcat": lambda: child_lidarcat(Path(folder), int(rest[0]), int(rest[1]),
+                                                 rest[2] if len(rest) > 2 else None),
               "pycolmap": lambda: child_pycolmap(Path(folder), int(rest[0])),
               "big": lambda: child_big(Path(folder), int(rest[0]))}[kind]
         print(json.dumps(fn()))
@@ -215,17 +274,14 @@ def main() -> None:
         t0 = time.perf_counter()
         _render(folder, columns_px=cols, rows_px=rows, seed=3)
         print(f"\n## Part 1: 6 rendered photos of {cols} x {rows} px (rendered in {time.perf_counter() - t0:.0f} s)\n")
-        rows_out = [("lidarcat (distribution 10/cell)", _child("lidarcat", str(folder), str(a.threads), "10")),
-                    ("lidarcat (every verified track)", _child("lidarcat", str(folder), str(a.threads), "0")),
-                    ("pycolmap (SIFT + exhaustive + verification)", _child("pycolmap", str(folder), str(a.threads)))]
-        print("| method | pairs | tie points / photo | observations | within 1 px | wrong (> 3 px) | "
-              "RMS (true poses) px | seconds (features + matching) | peak MB |")
-        print("|---|---|---|---|---|---|---|---|---|")
-        for name, r in rows_out:
-            st = r["steps"]
-            print(f"| {name} | {r['pairs']} | {r['tie_points_per_photo']:.0f} | {r['observations']} | "
-                  f"{100 * r['within_1px']:.2f} % | {100 * r['wrong_3px']:.2f} % | {r['rms_px']:.3f} | "
-                  f"{r['seconds']:.1f} ({st['features']:.1f} + {st['matching']:.1f}) | {r['peak_mb']:.0f} |")
+        _compare(folder, a.threads, "true poses")
+        if NGI.is_dir():
+            ngi = Path(tmp) / "ngi"
+            _ngi_survey(ngi, NGI)
+            print(f"\n## Part 1b: the four NGI frames ({NGI}, 640 x 1152 px), published orientation as reference\n")
+            print("(\"within 1 px\" and \"wrong\": reprojection residual of the track triangulated with the "
+                  "published orientation, not truth)\n")
+            _compare(ngi, a.threads, "published EO", str(NGI / "dem.tif"))
         from lidarcat.match import HeightSurface, footprint, footprint_pairs
         from lidarcat.synthetic.textured import small_camera, strip_layout
 

@@ -42,9 +42,14 @@ or has another size than its camera, no overlap, no pair verified); nothing is w
               help="Sd of the approximate attitudes, deg. Default: photos.csv sd_omega_deg.., else 0.5.")
 @click.option("--height", "height_m", type=float, default=None,
               help="Mean ground height, m (no LiDAR tiles). Default: mean of the ground points.")
+@click.option("--dem", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="DEM/DSM GeoTIFF (survey CRS) as the surface of footprints and guided search.")
+@click.option("--height-sd", "height_sd_m", type=POSITIVE, default=None,
+              help="Sd of the surface heights, m (relief a mean height does not model). Default: 2 with --dem, 10 "
+                   "with --height.")
 @click.option("--ratio", type=click.FloatRange(0, 1, min_open=True), default=0.8, show_default=True,
               help="Lowe's ratio test of the nearest / second nearest descriptor.")
-@click.option("--threshold", "threshold_px", type=POSITIVE, default=1.5, show_default=True,
+@click.option("--threshold", "threshold_px", type=POSITIVE, default=1.0, show_default=True,
               help="Epipolar (Sampson) distance of an inlier, px.")
 @click.option("--per-cell", type=click.IntRange(0), default=10, show_default=True,
               help="Tie points kept per grid cell of each photo (0: all).")
@@ -60,7 +65,8 @@ or has another size than its camera, no overlap, no pair verified); nothing is w
 @click.option("--no-cache", is_flag=True, help="Do not keep the features in OUTDIR/features.")
 @output_option(outdir=True, type=click.Path(file_okay=False), help="Report folder (default SURVEY/out/match).")
 @json_option(help="Print the matching report as JSON.")
-def match(survey, max_features, level, max_side_px, min_overlap, sd_position_m, sd_angle_deg, height_m, ratio,
+def match(survey, max_features, level, max_side_px, min_overlap, sd_position_m, sd_angle_deg, height_m, dem,
+          height_sd_m, ratio,
           threshold_px, per_cell, grid, max_local_px, unguided, no_refine, prefix, workers, no_cache, outdir, as_json) -> None:
     """Tie points from the photos (SIFT, footprint pairs, guided matching) into image_points.csv."""
     import contextlib
@@ -91,7 +97,7 @@ def match(survey, max_features, level, max_side_px, min_overlap, sd_position_m, 
             if bar is not None:
                 bar.update(done - bar.pos)
 
-        res = match_action(s, outdir, options=opts, features=feats, workers=workers, height_m=height_m,
+        res = match_action(s, outdir, options=opts, features=feats, workers=workers, height_m=height_m, dem=dem, height_sd_m=height_sd_m,
                            prefix=prefix, cache=not no_cache, refine=not no_refine,
                            progress=progress)
     if as_json:

@@ -79,7 +79,7 @@ class MatchOptions:
     sd_position_m: float = 2.0
     sd_angle_deg: float = 0.5
     ratio: float = 0.8
-    threshold_px: float = 1.5
+    threshold_px: float = 1.0
     min_inliers: int = 15
     grid: tuple[int, int] = (6, 6)
     per_cell: int = 10

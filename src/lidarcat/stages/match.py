@@ -127,13 +127,25 @@ def _eo(photo: Any) -> np.ndarray | None:
     return np.r_[np.asarray(photo.position_m, float), np.deg2rad(np.asarray(photo.attitude_deg, float))]
 
 
-def _surface(survey: Any, eos: list[np.ndarray | None], height_m: float | None) -> tuple[Any, str]:
-    """The height surface: LiDAR DSM over the footprints, else mean ground height, else *height_m*."""
+def _surface(survey: Any, eos: list[np.ndarray | None], height_m: float | None, dem: Any = None,
+             height_sd_m: float | None = None) -> tuple[Any, str]:
+    """The height surface: a DEM/DSM GeoTIFF when given, else the LiDAR DSM over the footprints, else
+    *height_m*, else the mean height of the ground points."""
     from ..match import HeightSurface, footprint
+
+    if dem is not None:
+        from ..lidar.geotiff import read_geotiff
+
+        grid, t, _ = read_geotiff(dem)
+        g = np.asarray(grid if grid.ndim == 2 else grid[..., 0], float)
+        if not np.isfinite(g).any():
+            raise SurveyError(f"{dem}: the height model has no value")
+        return HeightSurface(float(np.nanmean(g)), g, float(t.x0), float(t.y0), float(t.cell_m),
+                             sd_m=height_sd_m if height_sd_m is not None else 2.0), f"dem {Path(dem).name}"
 
     gp = survey.ground_points
     if height_m is not None:
-        mean, sd, source = float(height_m), 10.0, "height_m"
+        mean, sd, source = float(height_m), 10.0 if height_sd_m is None else float(height_sd_m), "height_m"
     elif len(gp):
         h = np.asarray(gp.enh_m[:, 2], float)
         mean, sd, source = float(np.mean(h)), max(float(np.std(h)), 2.0), "ground points"
@@ -231,7 +243,8 @@ def _coverage(xy: np.ndarray, cols: int, rows: int, grid: tuple[int, int]) -> fl
 
 def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = None, features: Any = None,
           workers: int = 1, height_m: float | None = None, prefix: str = DEFAULT_PREFIX, cache: bool = True,
-          table: str | Path | None = None, refine: bool = True,
+          table: str | Path | None = None, refine: bool = True, dem: str | Path | None = None,
+          height_sd_m: float | None = None,
           progress: Callable[[str, int, int], None] | None = None) -> MatchResult:
     """Tie points of a survey's photos into its image_points.csv (module docstring).
 
@@ -248,6 +261,11 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
         Threads for the photos and the pairs.
     height_m : float or None
         Mean ground height, m, when the survey has no LiDAR tiles (default: mean of the ground points).
+    dem : path or None
+        A DEM/DSM GeoTIFF in the survey CRS: the surface instead of the LiDAR tiles or a mean height.
+    height_sd_m : float or None
+        Sd of a height read on the surface, m (default: 2 for a DEM, 10 for *height_m*, the spread of
+        the ground points for their mean): the search ellipse grows with it along the base.
     prefix : str
         Id prefix of the tie points.
     cache : bool
@@ -286,7 +304,7 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     eos = [_eo(p) for p in photos]
     options = default_options(survey) if options is None else options
     features = features or FeatureOptions()
-    surface, surface_source = _surface(survey, eos, height_m)
+    surface, surface_source = _surface(survey, eos, height_m, dem, height_sd_m)
     store = FeatureCache(out / "features" if cache else None, features)
     cams = [survey.camera_of(p.id) for p in photos]
 
