@@ -71,7 +71,7 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     Returns
     -------
     list of Stage
-        match (tie points, when the photos have images and the survey too few tie points), camera, extract, one adjust-SET and assess-SET per control set, one
+        match (tie points: only when the photos have images and the survey too few tie points), camera, extract, one adjust-SET and assess-SET per control set, one
         compare stage per pair (default set vs each other set), thesis /
         mapping / products / selfcal when the survey asks for them, report.
 
@@ -89,9 +89,10 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     files_lidar = _survey_files(survey)
     stages: list[Stage] = []
 
-    why_no_match = match.planned(survey)    # tie points from the photos first, when the survey has too few
-    stages.append(Stage("match", "match", match.run, inputs=lambda ctx: [*files, *match.image_files(survey)],
-                        skip_reason=why_no_match, description="tie points from the photos (SIFT, guided matching)"))
+    why_no_match = match.planned(survey)    # tie points from the photos first, only for a survey that needs them
+    if why_no_match is None:
+        stages.append(Stage("match", "match", match.run, inputs=lambda ctx: [*files, *match.image_files(survey)],
+                            description="tie points from the photos (SIFT, guided matching)"))
     has_pixels = bool(np.isfinite(survey.image_points.pixel_px).all(axis=1).any()) or why_no_match is None
     stages.append(Stage(
         "camera", "camera", camera.run, inputs=_after_match(files),
@@ -184,7 +185,7 @@ def _after_match(files: list[Path]) -> Any:
     """``inputs`` of a stage that adjusts the image observations: once the match stage is done (ran or
     reused), ``ctx["survey"]`` becomes the survey with ``match/image_points.csv`` and that table is an input."""
     def inputs(ctx: Any) -> list[Path]:
-        if not ctx.done("match"):
+        if ctx is None or not ctx.done("match"):
             return files
         table = ctx.folder("match") / "image_points.csv"
         ctx.values["survey"] = match.survey_with(ctx["survey"], table)
