@@ -102,3 +102,9 @@ def test_local_consistency_rejects_a_match_shifted_along_its_epipolar_line():
     ok = local_consistency(a, shift, min_px=3.0)
     assert not ok[planted].any()
     assert ok.sum() >= 300 - len(planted) - 3
+
+
+def test_degenerate_matches_reject_the_pair_without_an_opencv_error():
+    a = np.column_stack([np.linspace(0, 500, 40), np.full(40, 100.0)])     # all on one line
+    v = verify_pair(a, a + [10.0, 0.0])
+    assert not v.accepted and not v.inlier.any()

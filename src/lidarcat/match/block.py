@@ -8,7 +8,8 @@ orientations (or none), a height surface and a function that yields each photo's
    orientation, else :func:`~lidarcat.match.pairs.exhaustive_pairs` up to ``max_exhaustive``
    photos (a larger block without orientations is refused: its pairs would grow as n²).
 2. Per pair: guided matching (:mod:`~lidarcat.match.guided`) when both photos have an
-   orientation, else descriptor matching over all features; then the robust epipolar test
+   orientation -- in two passes: the strongest features in the full ellipses, then all of them in
+   the ellipses the first pass narrowed (:func:`_narrowed`) -- else descriptor matching over all features; then the robust epipolar test
    (:mod:`~lidarcat.match.verify`).  Only the features of A whose prediction falls inside B
    (with the ellipse's margin) are searched.
 3. Tracks by union-find, inconsistent ones dropped, then the distribution control
@@ -35,7 +36,7 @@ import numpy as np
 
 from ..geometry.camera import Camera
 from .features import Features
-from .guided import Matches, guided_match, match_descriptors, predict
+from .guided import Matches, Prediction, guided_match, match_descriptors, predict
 from .pairs import exhaustive_pairs, footprint, footprint_pairs
 from .rays import HeightSurface, MatchError
 from .tracks import Tracks, build_tracks, distribute
@@ -68,6 +69,10 @@ class MatchOptions:
         Tracks with fewer observations are dropped (2: every verified match).
     max_exhaustive : int
         Largest block matched all-pairs when photos have no orientation.
+    seed_features : int
+        Guided search in two passes (:func:`_narrowed`): this many strongest features of A first, in the
+        full ellipses; their verified shifts from the prediction correct it, and every feature is then
+        searched in the narrower ellipse of what is left.  0: one pass.
     max_local_px : float
         Local consistency of the shifts (:func:`~lidarcat.match.verify.local_consistency`), px; 0: off.
     guided : bool
@@ -87,6 +92,7 @@ class MatchOptions:
     max_exhaustive: int = 30
     guided: bool = True
     max_local_px: float = 3.0
+    seed_features: int = 0
 
 
 @dataclass(frozen=True)
@@ -177,6 +183,54 @@ def extract_features(n: int, get: Callable[[int], Features], *, workers: int = 1
     return out
 
 
+def _narrowed(pred: Prediction, fa: Features, fb: Features, ca: Camera, cb: Camera, opt: MatchOptions
+              ) -> Prediction:
+    """The prediction corrected by the first pass, with the covariance of what it leaves.
+
+    The orientation errors move a pair's predictions nearly affinely over the photo (a shift, a
+    rotation, a scale); the relief the surface misses adds a parallax.  The ``seed_features``
+    strongest features of A are matched in their full ellipses and verified; their shifts
+    ``r = b - p`` are fitted by ``r ≈ c0 + C a`` (least squares, refitted once without the
+    residuals over ``3 σ``), and every prediction becomes ``p + c0 + C a`` with the isotropic
+    covariance ``(σ² + σ_f²) I``, ``σ = 1.4826 MAD`` of the remaining residuals (at least 1 px).
+    Too few verified seeds (< 30) keep the first prediction.
+    """
+    n = len(fa)
+    if opt.seed_features <= 0 or n <= 2 * opt.seed_features:
+        return pred
+    seeds = np.argsort(-fa.response, kind="stable")[:opt.seed_features]
+    sub = Prediction(pred.xy_px[seeds], pred.cov_px2[seeds])
+    m, _ = guided_match(sub, fa.descriptors[seeds], fb.xy_px, fb.descriptors, ratio=opt.ratio)
+    if len(m) < 30:
+        return pred
+    ia = seeds[m.i]
+    v = verify_pair(ideal_pixels(ca, fa.xy_px[ia]), ideal_pixels(cb, fb.xy_px[m.j]),
+                    threshold_px=opt.threshold_px, min_inliers=30)
+    if not v.accepted:
+        return pred
+    ia, jb = ia[v.inlier], m.j[v.inlier]
+    scale = float(max(ca.columns_px, ca.rows_px))
+
+    def design(xy: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.ones(len(xy)), xy / scale])
+
+    r = fb.xy_px[jb] - pred.xy_px[ia]
+    d = design(fa.xy_px[ia])
+    keep = np.ones(len(r), bool)
+    for _ in range(2):
+        coef, *_ = np.linalg.lstsq(d[keep], r[keep], rcond=None)
+        e = np.hypot(*(r - d @ coef).T)
+        sigma = max(1.4826 * float(np.median(e[keep])), 1.0)
+        keep = e <= 3.0 * sigma
+    ok = np.isfinite(pred.xy_px).all(axis=1)
+    xy = pred.xy_px.copy()
+    xy[ok] += design(fa.xy_px[ok]) @ coef
+    sd_f = float(2 ** fa.level)
+    cov = np.tile(np.eye(2) * (sigma ** 2 + sd_f ** 2), (n, 1, 1))
+    cov[~ok] = pred.cov_px2[~ok]
+    return Prediction(xy, cov)
+
+
 def _match_pair(a: int, b: int, overlap: float, cams: Sequence[Camera], eos: Sequence[np.ndarray | None],
                 surface: HeightSurface, store: _Store, opt: MatchOptions) -> tuple[PairReport, Matches]:
     t0 = time.perf_counter()
@@ -188,6 +242,7 @@ def _match_pair(a: int, b: int, overlap: float, cams: Sequence[Camera], eos: Seq
     if guided:
         pred = predict(ca, eos[a], fa.xy_px, cb, eos[b], surface, sd_position_m=opt.sd_position_m,
                        sd_angle_deg=opt.sd_angle_deg, sd_feature_px=float(2 ** fa.level))
+        pred = _narrowed(pred, fa, fb, ca, cb, opt)
         m, n_cand = guided_match(pred, fa.descriptors, fb.xy_px, fb.descriptors, ratio=opt.ratio)
         pred_xy = pred.xy_px
     else:

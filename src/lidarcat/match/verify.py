@@ -98,8 +98,11 @@ def verify_pair(a_px: Any, b_px: Any, *, threshold_px: float = 1.5, min_inliers:
         return Verification(none, None, f"{m} matches, fewer than {max(min_inliers, 8)}")
     cv2.setRNGSeed(int(seed))
     o = np.vstack([a, b]).mean(axis=0)      # centred: the estimator's float32 arithmetic keeps precision
-    f, mask = cv2.findFundamentalMat((a - o).astype(np.float32), (b - o).astype(np.float32), cv2.USAC_MAGSAC,
-                                     float(threshold_px), float(confidence), int(max_iters))
+    try:
+        f, mask = cv2.findFundamentalMat((a - o).astype(np.float32), (b - o).astype(np.float32), cv2.USAC_MAGSAC,
+                                         float(threshold_px), float(confidence), int(max_iters))
+    except cv2.error:   # degenerate input (e.g. all matches on a line): OpenCV asserts instead of returning None
+        return Verification(none, None, "no fundamental matrix found (degenerate matches)")
     if f is None or mask is None or f.shape != (3, 3):
         return Verification(none, None, "no fundamental matrix found")
     # F of centred points -> F of the ideal pixels: b^T T^T F T a with T the shift by -o
