@@ -148,3 +148,18 @@ def test_a_large_block_without_orientation_is_refused():
                      np.empty(0, np.float32), 0)
     with pytest.raises(LidarcatError, match=r"a block of 31 photos is matched by footprints"):
         match_block([cam] * 31, [None] * 31, lambda i: empty, options=MatchOptions(max_exhaustive=30))
+
+
+def test_lidarcat_run_matches_first_and_writes_only_into_its_folder(survey):
+    from lidarcat.pipeline.plan import run_pipeline
+
+    before = (survey / "image_points.csv").read_bytes()
+    res = run_pipeline(survey)
+    ran = res.summary["stages_ran"]
+    assert ran[:2] == ["match", "camera"]
+    table = survey / "out" / "match" / "image_points.csv"
+    assert (survey / "image_points.csv").read_bytes() == before          # the survey folder is not written
+    n = len(table.read_text().splitlines()) - 1
+    assert n > 1000 and len((survey / "out" / "camera" / "corrected.csv").read_text().splitlines()) - 1 == n
+    again = run_pipeline(survey)
+    assert again.summary["stages_reused"][:2] == ["match", "camera"]
