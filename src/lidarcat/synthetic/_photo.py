@@ -45,10 +45,11 @@ import numpy as np
 from ..geometry.camera import Camera
 from ..geometry.collinearity import project, rotation_matrix
 from ..errors import LidarcatError
-from ._texture import albedo_lattice, bilinear, building_planes, sun_vector
+from ._texture import LUMA, albedo_lattice, bilinear, building_planes, sun_vector
 from .scene import Building, Road, demo_terrain
 
-__all__ = ["AerialScene", "Exposure", "RenderedPhoto", "render_photo", "project_to_pixels", "SURFACE"]
+__all__ = ["AerialScene", "Exposure", "RenderedPhoto", "render_photo", "project_to_pixels", "building_windows",
+           "SURFACE"]
 
 #: surface codes of :attr:`RenderedPhoto.surface`
 SURFACE = {"none": -1, "terrain": 0, "roof": 1, "wall": 2}
@@ -127,38 +128,44 @@ class AerialScene:
             idx[on] = k
         return h, idx
 
-    def albedo(self, e: Any, n: Any) -> np.ndarray:
-        """Linear RGB albedo (N, 3) seen from above at plan positions (the texture of roofs and ground).
+    def albedo(self, e: Any, n: Any, *, rgb: bool = True) -> np.ndarray:
+        """Linear albedo (N, 3) RGB, or (N,) grey, seen from above at plan positions (roofs and ground).
 
         The same bilinear interpolation of the same lattice as :func:`render_photo`: a pixel of
         ground or roof shows exactly this value (before the exposure).
         """
         e = np.asarray(e, dtype=np.float64).ravel()
         n = np.asarray(n, dtype=np.float64).ravel()
+        nch = 3 if rgb else 1
         if e.size == 0:
-            return np.zeros((0, 3), np.float32)
-        lat, i0, j0 = self._lattice_for(e, n)
-        col, row = self._lattice_coords(e, n, i0, j0)
+            return np.zeros((0, 3) if rgb else (0,), np.float32)
         w = 1024   # cv2.remap wants fewer than 32767 rows and columns: lay the points out in rows of w
         m = -(-e.size // w) * w
-        col = np.concatenate([col, np.zeros(m - e.size)]).reshape(-1, w)
-        row = np.concatenate([row, np.zeros(m - e.size)]).reshape(-1, w)
-        return bilinear(lat, col, row).reshape(m, 3)[:e.size]
+        pad = np.full(m - e.size, np.nan)
+        out = self._albedo_grid(np.concatenate([e, pad]).reshape(-1, w), np.concatenate([n, pad]).reshape(-1, w),
+                                rgb)
+        return out.reshape(m, nch)[:e.size] if rgb else out.reshape(m)[:e.size]
 
-    def _lattice_for(self, e: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, int, int]:
+    def _albedo_grid(self, e: np.ndarray, n: np.ndarray, rgb: bool) -> np.ndarray:
+        """Albedo at a 2-D grid of plan positions (NaN: none, albedo 0): (h, w, 3) RGB or (h, w) grey."""
         s = self.texel_m
-        i0 = int(math.floor(np.min(e) / s)) - 1
-        i1 = int(math.ceil(np.max(e) / s)) + 2
-        j0 = int(math.floor(-np.max(n) / s)) - 1
-        j1 = int(math.ceil(-np.min(n) / s)) + 2
+        ok = np.isfinite(e) & np.isfinite(n)
+        if not ok.any():
+            return np.zeros(e.shape + ((3,) if rgb else ()), np.float32)
+        ev, nv = e[ok], n[ok]
+        i0 = int(math.floor(ev.min() / s)) - 1
+        i1 = int(math.ceil(ev.max() / s)) + 2
+        j0 = int(math.floor(-nv.max() / s)) - 1
+        j1 = int(math.ceil(-nv.min() / s)) + 2
         if (i1 - i0) * (j1 - j0) > 60_000_000:
             raise LidarcatError(f"albedo: a plan box of {(i1 - i0) * s:.0f} x {(j1 - j0) * s:.0f} m at "
                                 f"{s} m texels is too large for one lattice; render in smaller tiles")
-        return albedo_lattice(self, i0, j0, i1 - i0, j1 - j0), i0, j0
-
-    def _lattice_coords(self, e: np.ndarray, n: np.ndarray, i0: int, j0: int) -> tuple[np.ndarray, np.ndarray]:
-        s = self.texel_m
-        return (e - i0 * s) / s, (-n - j0 * s) / s
+        lat = albedo_lattice(self, i0, j0, i1 - i0, j1 - j0, rgb=rgb)
+        if not rgb:
+            lat = lat[..., 0]
+        col = np.where(ok, (e - i0 * s) / s, -10.0)
+        row = np.where(ok, (-n - j0 * s) / s, -10.0)
+        return bilinear(lat, col, row)
 
     # ------------------------------------------------------------------ rays
     def hit(self, c: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -178,8 +185,14 @@ class AerialScene:
             self._building_hit(k, c, d, np.arange(len(d)), t, bidx, face)
         return t, bidx, face
 
-    def _terrain_hit(self, c: np.ndarray, d: np.ndarray, t0: np.ndarray | None = None) -> np.ndarray:
-        """Ray parameter of the terrain hit (fixed point, see the module docstring), from *t0* if given."""
+    def _terrain_hit(self, c: np.ndarray, d: np.ndarray, t0: np.ndarray | None = None,
+                     check_every: int = 1) -> np.ndarray:
+        """Ray parameter of the terrain hit (fixed point, see the module docstring), from *t0* if given.
+
+        Iterates until no ray's hit moves 0.1 mm.  With a start *t0* one iteration from convergence
+        (the terrain is smooth, so is the remaining move over a tile), ``check_every = k`` measures
+        the remaining move on every k-th ray only: one terrain evaluation per ray instead of two.
+        """
         dz = d[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             if t0 is None:
@@ -187,12 +200,17 @@ class AerialScene:
                 t = (h0 - c[2]) / dz
             else:
                 t = np.asarray(t0, dtype=np.float64)
-            # |dX| = |dt| |d| <= |dt| |d_z| / cos(90 deg - 60 deg): a cheap bound of the plan move
-            scale = float(np.nanmax(np.linalg.norm(d[:: max(1, len(d) // 1000)], axis=1))) if len(d) else 0.0
+            # the hit moves |dt| |d| (d is not a unit vector)
+            scale = float(np.nanmax(np.linalg.norm(d[:: max(1, len(d) // 1000)], axis=1))) * 1.01 if len(d) else 0.0
+            step = max(1, int(check_every))
             for _ in range(40):
-                h = self.terrain(c[0] + t * d[:, 0], c[1] + t * d[:, 1])
-                t_new = (h - c[2]) / dz
-                moved = float(np.nanmax(np.abs(t_new - t))) * scale * 1.01 if len(t) else 0.0
+                t_new = (self.terrain(c[0] + t * d[:, 0], c[1] + t * d[:, 1]) - c[2]) / dz
+                if step == 1:
+                    moved = float(np.nanmax(np.abs(t_new - t))) * scale if len(t) else 0.0
+                else:   # the remaining move of the new hits, on a sample
+                    ts = t_new[::step]
+                    again = (self.terrain(c[0] + ts * d[::step, 0], c[1] + ts * d[::step, 1]) - c[2]) / dz[::step]
+                    moved = float(np.nanmax(np.abs(again - ts))) * scale if len(ts) else 0.0
                 t = t_new
                 if moved < 1e-4:
                     break
@@ -284,6 +302,12 @@ class Exposure:
         return cls(float(rng.uniform(0.7, 1.4)), float(rng.uniform(1.8, 2.6)), float(rng.uniform(0.0, 0.04)),
                    vignetting, noise_sd, int(rng.integers(2**31)))
 
+    def lut(self, size: int = 65536) -> np.ndarray:
+        """Grey value (float32) of ``g k L`` at ``size`` steps over [0, 1]: :meth:`apply` as a table,
+        read at the nearest step (1/65535: within 0.15 grey value of the curve above ``g k L = 1e-4``)."""
+        x = np.linspace(0.0, 1.0, size, dtype=np.float64)
+        return (255.0 * (self.offset + (1.0 - self.offset) * x ** (1.0 / self.gamma))).astype(np.float32)
+
     def apply(self, radiance: np.ndarray, vignette: np.ndarray | float = 1.0) -> np.ndarray:
         """Linear radiance -> grey values (float32, 0..255, before noise and rounding)."""
         x = np.clip(radiance * np.float32(self.gain * _K) * vignette, 0.0, 1.0)
@@ -342,7 +366,7 @@ def project_to_pixels(camera: Camera, eo: Sequence[float], xyz_m: np.ndarray) ->
     return out
 
 
-def _building_windows(scene: AerialScene, camera: Camera, eo: np.ndarray) -> list[tuple[int, float, float, float, float]]:
+def building_windows(scene: AerialScene, camera: Camera, eo: np.ndarray) -> list[tuple[int, float, float, float, float]]:
     """(building, col0, col1, row0, row1) pixel boxes of the buildings' bounding boxes on the frame.
 
     The box corners are projected by the ideal pinhole (closed form) and the box widened by the
@@ -399,9 +423,56 @@ def _initial_t(scene: AerialScene, camera: Camera, m: np.ndarray, c: np.ndarray,
     return cv2.remap(tc, fcm, frm, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64).ravel()
 
 
+def _tile_directions(camera: Camera, m: np.ndarray, c0: int, c1: int, r0: int, r1: int) -> np.ndarray:
+    """Ray directions ``d = M^T (x, y, -c)`` (N, 3), row-major, of the pixels of a tile.
+
+    The corrected photo coordinates of eq. 01-07 (:meth:`Camera.pixel_to_photo`) evaluated on the
+    grid: ``x_fot`` depends on the column only and ``y_fot`` on the row only, so the affine part is
+    computed once per column and row and only the distortion terms per pixel (the test checks the
+    result against :meth:`Camera.pixel_to_photo` to 1e-12 mm).
+    """
+    cam = camera
+    x = (((np.arange(c0, c1, dtype=np.float64) - (cam.columns_px - 1) / 2.0) * cam.pixel_size_x_mm)
+         - cam.principal_point_x_mm)[None, :]
+    y = ((-(np.arange(r0, r1, dtype=np.float64) - (cam.rows_px - 1) / 2.0) * cam.pixel_size_y_mm)
+         - cam.principal_point_y_mm)[:, None]
+    x2, y2 = x * x, y * y
+    r2 = x2 + y2
+    radial = r2 * (cam.k1 + r2 * (cam.k2 + r2 * cam.k3))
+    if cam.refraction_eps45:
+        radial = radial + (1.0 + r2 / cam.focal_length_mm ** 2) * cam.refraction_eps45
+    xy = x * y
+    xc = x - (x * radial + cam.p1 * (r2 + 2 * x2) + 2 * cam.p2 * xy)
+    yc = y - (y * radial + cam.p2 * (r2 + 2 * y2) + 2 * cam.p1 * xy)
+    del x2, y2, r2, radial, xy
+    fc = cam.focal_length_mm
+    d = np.empty((xc.size, 3))
+    for k in range(3):
+        d[:, k] = (xc * m[0, k] + (yc * m[1, k] - fc * m[2, k])).ravel()
+    return d
+
+
+def _cast_tile(scene: AerialScene, camera: Camera, m: np.ndarray, c: np.ndarray, windows: list,
+               c0: int, c1: int, r0: int, r1: int):
+    """Rays of the pixels of a tile and their first hits: d (N, 3), t, building, face (row-major)."""
+    d = _tile_directions(camera, m, c0, c1, r0, r1)
+    t = scene._terrain_hit(c, d, _initial_t(scene, camera, m, c, c0, c1, r0, r1), check_every=7)
+    bidx = np.full(len(d), -1, np.int32)
+    face = np.full(len(d), -1, np.int16)
+    tw = c1 - c0
+    for k, x0, x1, y0, y1 in windows:
+        a0, a1 = max(c0, math.floor(x0)), min(c1, math.ceil(x1) + 1)
+        b0, b1 = max(r0, math.floor(y0)), min(r1, math.ceil(y1) + 1)
+        if a0 >= a1 or b0 >= b1:
+            continue
+        idx = ((np.arange(b0, b1) - r0)[:, None] * tw + (np.arange(a0, a1) - c0)[None, :]).ravel()
+        scene._building_hit(k, c, d, idx, t, bidx, face)
+    return d, t, bidx, face
+
+
 def render_photo(scene: AerialScene, camera: Camera, eo: Sequence[float], *,
                  exposure: Exposure | None = None, rgb: bool = False, truth: bool = True,
-                 tile_px: int = 512) -> RenderedPhoto:
+                 tile_px: int = 512, shade: bool = True) -> RenderedPhoto:
     """Render an aerial photo of *scene* (see the module docstring).
 
     Parameters
@@ -417,6 +488,8 @@ def render_photo(scene: AerialScene, camera: Camera, eo: Sequence[float], *,
         Also return the truth maps (``xyz``: 24 bytes per pixel).
     tile_px : int
         Tile size; memory ~ 300 bytes x tile_px^2.
+    shade : bool
+        False: the geometry only (the image stays black; for the truth maps).
 
     Returns
     -------
@@ -425,63 +498,53 @@ def render_photo(scene: AerialScene, camera: Camera, eo: Sequence[float], *,
     exposure = exposure or Exposure()
     eo = np.asarray(eo, dtype=np.float64)
     W, H = camera.columns_px, camera.rows_px
+    nch = 3 if rgb else 1
     img = np.zeros((H, W, 3) if rgb else (H, W), np.uint8)
     xyz = np.full((H, W, 3), np.nan) if truth else None
     surf = np.full((H, W), -1, np.int8) if truth else None
     bmap = np.full((H, W), -1, np.int32) if truth else None
     m = rotation_matrix(eo[3:6])
     c = eo[:3]
-    windows = _building_windows(scene, camera, eo)
+    windows = building_windows(scene, camera, eo)
     rng = np.random.default_rng(exposure.seed) if exposure.noise_sd > 0 else None
-    rc = math.hypot((W - 1) / 2, (H - 1) / 2)
-    luma = np.array([0.2126, 0.7152, 0.0722], np.float32)
+    lut = exposure.lut()
+    rc2 = ((W - 1) / 2) ** 2 + ((H - 1) / 2) ** 2
     for r0 in range(0, H, tile_px):
         r1 = min(H, r0 + tile_px)
         for c0 in range(0, W, tile_px):
             c1 = min(W, c0 + tile_px)
-            cc, rr = np.meshgrid(np.arange(c0, c1, dtype=np.float64), np.arange(r0, r1, dtype=np.float64))
-            cr = np.column_stack([cc.ravel(), rr.ravel()])
-            d = _directions(camera, m, cr)
-            t = scene._terrain_hit(c, d, _initial_t(scene, camera, m, c, c0, c1, r0, r1))
-            bidx = np.full(len(d), -1, np.int32)
-            face = np.full(len(d), -1, np.int16)
-            tw = c1 - c0
-            for k, x0, x1, y0, y1 in windows:
-                a0, a1 = max(c0, math.floor(x0)), min(c1, math.ceil(x1) + 1)
-                b0, b1 = max(r0, math.floor(y0)), min(r1, math.ceil(y1) + 1)
-                if a0 >= a1 or b0 >= b1:
-                    continue
-                idx = ((np.arange(b0, b1) - r0)[:, None] * tw + (np.arange(a0, a1) - c0)[None, :]).ravel()
-                scene._building_hit(k, c, d, idx, t, bidx, face)
-            p = c + t[:, None] * d
-            ok = np.isfinite(t)
-            wall = ok & (bidx >= 0) & (scene._face_kind(bidx, face) == 1)
-            lin = np.zeros((len(d), 3), np.float32)
-            flat = ok & ~wall
-            if flat.any():
-                lin[flat] = scene.albedo(p[flat, 0], p[flat, 1])
-            for k in np.unique(bidx[wall]):
-                sel = wall & (bidx == k)
-                lin[sel] = scene.wall_albedo(int(k), face[sel], p[sel])
-            vig = 1.0
+            th, tw = r1 - r0, c1 - c0
+            d, t, bidx, face = _cast_tile(scene, camera, m, c, windows, c0, c1, r0, r1)
+            wall = bidx >= 0
+            if wall.any():
+                wall[wall] = scene._face_kind(bidx[wall], face[wall]) == 1
+            if truth:
+                xyz[r0:r1, c0:c1] = (c + t[:, None] * d).reshape(th, tw, 3)
+                code = np.where(np.isfinite(t), np.where(bidx < 0, SURFACE["terrain"],
+                                                         np.where(wall, SURFACE["wall"], SURFACE["roof"])),
+                                SURFACE["none"])
+                surf[r0:r1, c0:c1] = code.reshape(th, tw)
+                bmap[r0:r1, c0:c1] = bidx.reshape(th, tw)
+            if not shade:
+                continue
+            e = (c[0] + t * d[:, 0]).reshape(th, tw)
+            n = (c[1] + t * d[:, 1]).reshape(th, tw)
+            lin = scene._albedo_grid(e, n, rgb).reshape(th * tw, nch)
+            if wall.any():
+                p = c + t[wall, None] * d[wall]
+                for k in np.unique(bidx[wall]):
+                    sel = bidx[wall] == k
+                    a = scene.wall_albedo(int(k), face[wall][sel], p[sel])
+                    lin[np.flatnonzero(wall)[sel]] = a if rgb else (a @ LUMA)[:, None]
             if exposure.vignetting:
-                r2 = ((cr[:, 0] - (W - 1) / 2) ** 2 + (cr[:, 1] - (H - 1) / 2) ** 2) / rc ** 2
-                vig = (1.0 - exposure.vignetting * r2).astype(np.float32)[:, None]
-            if not rgb:
-                lin = (lin[:, 0] * luma[0] + lin[:, 1] * luma[1] + lin[:, 2] * luma[2])[:, None]
-            val = exposure.apply(lin, vig)
+                r2 = (((np.arange(c0, c1, dtype=np.float32) - (W - 1) / 2) ** 2)[None, :]
+                      + ((np.arange(r0, r1, dtype=np.float32) - (H - 1) / 2) ** 2)[:, None]) / np.float32(rc2)
+                lin = lin * (1.0 - np.float32(exposure.vignetting) * r2).reshape(-1, 1)
+            val = lut[np.clip(lin * np.float32(exposure.gain * _K * (len(lut) - 1)) + np.float32(0.5), 0,
+                              len(lut) - 1).astype(np.int32)]
             if rng is not None:
                 val = val + rng.standard_normal(val.shape, dtype=np.float32) * np.float32(exposure.noise_sd)
-            val[~ok] = 0
+            val[~np.isfinite(t)] = 0
             out = np.clip(np.rint(val), 0, 255).astype(np.uint8)
-            if rgb:
-                img[r0:r1, c0:c1] = out.reshape(r1 - r0, c1 - c0, 3)
-            else:
-                img[r0:r1, c0:c1] = out.reshape(r1 - r0, c1 - c0)
-            if truth:
-                xyz[r0:r1, c0:c1] = p.reshape(r1 - r0, c1 - c0, 3)
-                s = np.where(ok, np.where(bidx < 0, SURFACE["terrain"],
-                                          np.where(wall, SURFACE["wall"], SURFACE["roof"])), SURFACE["none"])
-                surf[r0:r1, c0:c1] = s.reshape(r1 - r0, c1 - c0)
-                bmap[r0:r1, c0:c1] = bidx.reshape(r1 - r0, c1 - c0)
+            img[r0:r1, c0:c1] = out.reshape(th, tw, 3) if rgb else out.reshape(th, tw)
     return RenderedPhoto(img, xyz, surf, bmap)

@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["hash2", "unit_hash", "fractal_noise", "albedo_lattice", "bilinear", "sun_vector",
+__all__ = ["LUMA", "hash2", "unit_hash", "fractal_noise", "albedo_lattice", "bilinear", "sun_vector",
            "building_planes", "FIELD_KINDS"]
 
 _M1, _M2, _M3, _M4 = np.uint32(0x8DA6B343), np.uint32(0xD8163841), np.uint32(0x7FEB352D), np.uint32(0x846CA68B)
@@ -153,43 +153,73 @@ def building_planes(b: Any, base_m: float) -> tuple[np.ndarray, np.ndarray, np.n
 
 
 def bilinear(lattice: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """Bilinear interpolation of a (ny, nx[, C]) float32 lattice at fractional node positions (cv2.remap).
+    """Bilinear interpolation of a (ny, nx[, C]) float32 lattice at fractional node positions.
 
-    Positions outside the lattice give 0.
+    Exact weights (no fixed-point positions, unlike ``cv2.remap``): the same plan position gives the
+    same value whatever lattice crop holds it.  Positions outside the lattice give 0.
     """
-    import cv2
-
-    out = cv2.remap(lattice, np.asarray(col, np.float32), np.asarray(row, np.float32), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return out
+    ny, nx = lattice.shape[:2]
+    flat = lattice.reshape(ny * nx, -1)
+    col = np.asarray(col, dtype=np.float64)
+    row = np.asarray(row, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        c0 = np.floor(col)
+        r0 = np.floor(row)
+        valid = (c0 >= 0) & (c0 < nx - 1) & (r0 >= 0) & (r0 < ny - 1)
+    fc = np.where(valid, col - c0, 0.0).astype(np.float32)[..., None]
+    fr = np.where(valid, row - r0, 0.0).astype(np.float32)[..., None]
+    idx = np.where(valid, r0 * nx + c0, 0).astype(np.intp)
+    top = flat[idx] * (1 - fc) + flat[idx + 1] * fc
+    bottom = flat[idx + nx] * (1 - fc) + flat[idx + nx + 1] * fc
+    out = top * (1 - fr) + bottom * fr
+    out[~valid] = 0
+    return out.reshape(col.shape + lattice.shape[2:])
 
 
 def _parcels(e: np.ndarray, n: np.ndarray, field_m: float, salt: int):
-    """Voronoi fields at plan positions (broadcast): (cell i, cell j) of the nearest seed, d1, d2 (m)."""
+    """Voronoi fields at plan positions (broadcast): (cell i, cell j) of the nearest seed, d1, d2 (m).
+
+    The seeds of the cells around the positions are hashed once into a small table; each position
+    reads the 3 x 3 cells around its own.
+    """
     fe, fn = e / field_m, n / field_m
     ce, cn = np.floor(fe), np.floor(fn)
     fx, fy = (fe - ce).astype(np.float32), (fn - cn).astype(np.float32)
     ce, cn = ce.astype(np.int64), cn.astype(np.int64)
+    ia, ja = int(ce.min()) - 1, int(cn.min()) - 1
+    ti = np.arange(ia, int(ce.max()) + 2)[None, :]
+    tj = np.arange(ja, int(cn.max()) + 2)[:, None]
+    jx_t = 0.1 + 0.8 * unit_hash(ti, tj, salt)
+    jy_t = 0.1 + 0.8 * unit_hash(ti, tj, salt + 1)
+    li, lj = ce - ia, cn - ja
     shape = np.broadcast_shapes(fx.shape, fy.shape)
     d1 = np.full(shape, np.inf, np.float32)
     d2 = np.full(shape, np.inf, np.float32)
-    bi = np.zeros(shape, np.int64)
-    bj = np.zeros(shape, np.int64)
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            gi, gj = ce + dx, cn + dy
-            jx = 0.1 + 0.8 * unit_hash(gi, gj, salt)
-            jy = 0.1 + 0.8 * unit_hash(gi, gj, salt + 1)
-            d = (fx - dx - jx) ** 2 + (fy - dy - jy) ** 2
-            closer = d < d1
-            d2 = np.where(closer, d1, np.minimum(d2, d))
-            d1 = np.where(closer, d, d1)
-            bi = np.where(closer, gi, bi)
-            bj = np.where(closer, gj, bj)
-    return bi, bj, np.sqrt(d1) * field_m, np.sqrt(d2) * field_m
+    best = np.zeros(shape, np.int8)
+    for k, (dx, dy) in enumerate((dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)):
+        jx = jx_t[lj + dy, li + dx]
+        jy = jy_t[lj + dy, li + dx]
+        d = (fx - dx - jx) ** 2 + (fy - dy - jy) ** 2
+        closer = d < d1
+        d2 = np.where(closer, d1, np.minimum(d2, d))
+        d1 = np.where(closer, d, d1)
+        best = np.where(closer, np.int8(k), best)
+    bx = best // 3 - 1
+    by = best % 3 - 1
+    return ce + bx, cn + by, np.sqrt(d1) * field_m, np.sqrt(d2) * field_m
 
 
-def albedo_lattice(scene: Any, i0: int, j0: int, nx: int, ny: int) -> np.ndarray:
+#: Rec. 709 luminance of linear RGB: the grey albedo
+LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+
+
+def _col(rgb: Any, nch: int) -> np.ndarray:
+    """A colour (..., 3) as *nch* channels: itself (3) or its luminance (1)."""
+    c = np.asarray(rgb, np.float32)
+    return c if nch == 3 else (c @ LUMA)[..., None].astype(np.float32)
+
+
+def albedo_lattice(scene: Any, i0: int, j0: int, nx: int, ny: int, *, rgb: bool = True) -> np.ndarray:
     """Linear RGB albedo (with the fixed sun's shading and shadows) at lattice nodes (see module docstring).
 
     Parameters
@@ -198,9 +228,13 @@ def albedo_lattice(scene: Any, i0: int, j0: int, nx: int, ny: int) -> np.ndarray
     i0, j0, nx, ny : int
         Global index of the first node and crop size; node ``(i, j)`` is at ``E = i s, N = -j s``.
 
+    rgb : bool
+        Linear RGB (3 channels) or its luminance (1 channel: the same values as ``LUMA @ rgb``,
+        a third of the work).
+
     Returns
     -------
-    (ny, nx, 3) float32 array
+    (ny, nx, 3 or 1) float32 array
     """
     s = scene.texel_m
     seed = int(scene.seed) * 1000003
@@ -211,9 +245,9 @@ def albedo_lattice(scene: Any, i0: int, j0: int, nx: int, ny: int) -> np.ndarray
     y = (-(np.arange(ny, dtype=np.float32)) * np.float32(s))[:, None]
     e0, n0 = float(e1[0, 0]), float(n1[0, 0])
 
-    levels = max(2, int(math.ceil(math.log2(max(scene.field_m / 2, 4 * s) / s))))
-    grain = fractal_noise(i0, j0, nx, ny, [1.0, 0.7, 0.5, 0.35] + [0.0] * max(0, levels - 4), seed + 11)
-    patches = fractal_noise(i0, j0, nx, ny, [0.0] * 4 + [0.12] * max(1, levels - 4), seed + 13)
+    levels = max(5, int(math.ceil(math.log2(max(scene.field_m / 2, 4 * s) / s))))
+    # one fractal sum: grain at 1-8 texels, patches above
+    grain = fractal_noise(i0, j0, nx, ny, [0.25, 0.18, 0.12, 0.08] + [0.06] * (levels - 4), seed + 11)
 
     # the fields on a lattice 4x coarser (node centred on its 4 x 4 fine nodes), upsampled: the
     # field's colour, rows and boundary width by nearest neighbour, the distance to the boundary linearly
@@ -226,48 +260,48 @@ def albedo_lattice(scene: Any, i0: int, j0: int, nx: int, ny: int) -> np.ndarray
     nc = (-(np.arange(cj0, cj0 + nyc) * f + (f - 1) / 2) * s)[:, None]
     bi, bj, d1, d2 = _parcels(ec, nc, scene.field_m, seed + 17)
     kind = (hash2(bi, bj, seed + 19) % np.uint32(len(FIELD_KINDS))).astype(np.intp)
-    table = np.array([k[1] for k in FIELD_KINDS], np.float32)
-    tint = 0.75 + 0.5 * unit_hash(bi, bj, seed + 23)
+    nch = 3 if rgb else 1
+    table = _col([k[1] for k in FIELD_KINDS], nch)
+    tint = 0.6 + 0.8 * unit_hash(bi, bj, seed + 23)
     ang = np.float32(math.pi) * unit_hash(bi, bj, seed + 29)
     period = np.maximum(np.float32(3 * s), 0.6 + 1.6 * unit_hash(bi, bj, seed + 31))
     ca, sa = np.cos(ang), np.sin(ang)
     # row phase at the first fine node (float64), so that the fine phase is float32-exact
     phase0 = np.mod((e0 * ca.astype(np.float64) + n0 * sa.astype(np.float64)) / period, 1.0)
-    attrs = np.stack([np.array([k[2] for k in FIELD_KINDS], np.float32)[kind],
-                      np.array([k[3] for k in FIELD_KINDS], np.float32)[kind],
-                      ca / period, sa / period, phase0.astype(np.float32),
-                      0.6 + 0.8 * unit_hash(bi, bj, seed + 37)], axis=-1).astype(np.float32)
-    colour = (table[kind] * tint[..., None]).astype(np.float32)
     oi, oj = i0 - ci0 * f, j0 - cj0 * f
 
-    def up(a: np.ndarray, interp: int) -> np.ndarray:
-        big = cv2.resize(a, (nxc * f, nyc * f), interpolation=interp)
+    def up(a: np.ndarray, interp: int = cv2.INTER_NEAREST) -> np.ndarray:
+        big = cv2.resize(np.ascontiguousarray(a, dtype=np.float32), (nxc * f, nyc * f), interpolation=interp)
         return big[oj:oj + ny, oi:oi + nx]
 
-    at = up(attrs, cv2.INTER_NEAREST)
-    col = up(colour, cv2.INTER_NEAREST)
-    dd = up(((d2 - d1) / 2).astype(np.float32), cv2.INTER_LINEAR)
-    del bi, bj, d1, d2, kind, tint, ang, period, ca, sa, phase0, attrs, colour
-    rows = np.sin(np.float32(2 * math.pi) * (x * at[..., 2] + y * at[..., 3] + at[..., 4]))
-    lum = (1.0 + patches + at[..., 0] * grain * 0.5) * (1.0 + at[..., 1] * rows)
-    lum = np.where(dd < at[..., 5], lum * 0.55 * (1 + 0.3 * grain), lum)
-    alb = col * np.clip(lum, 0.05, None)[..., None]
-    del at, dd, rows, lum, col
+    row_amp = up(np.array([k[3] for k in FIELD_KINDS], np.float32)[kind])
+    phase = x * up(ca / period) + y * up(sa / period) + up(phase0)
+    edge = up(((d2 - d1) / 2).astype(np.float32), cv2.INTER_LINEAR) < up(0.6 + 0.8 * unit_hash(bi, bj, seed + 37))
+    col = up(table[kind] * tint[..., None]).reshape(ny, nx, nch)   # cv2 drops a single channel
+    del bi, bj, d1, d2, kind, tint, ang, period, ca, sa, phase0
+    lum = (1.0 + grain) * (1.0 + row_amp * np.sin(np.float32(2 * math.pi) * phase))
+    lum[edge] *= 0.55 * (1 + 1.2 * grain[edge])
+    np.clip(lum, 0.05, None, out=lum)
+    alb = col * lum[..., None]
+    del row_amp, phase, edge, lum, col
 
     ext = (e0, e0 + (nx - 1) * s, n0 - (ny - 1) * s, n0)
     for road in scene.roads:
         _paint_road(alb, road, e0, n0, s, grain)
-    shade = np.ones((ny, nx), np.float32)
     trees = _trees(scene, ext, seed)
     sun = sun_vector(scene.sun_azimuth_deg, scene.sun_elevation_deg)
     cot = 1.0 / math.tan(math.radians(scene.sun_elevation_deg))
     off = -cot * sun[:2] / np.hypot(*sun[:2])
+    # shadows: a node in any shadow is lit by the ambient light only (shadows do not darken twice)
+    lit = np.ones((ny, nx), bool)
     for te, tn, r, h in trees:   # shadows first, crowns over them
-        _disc_apply(shade, te + off[0] * h * 0.8, tn + off[1] * h * 0.8, r, e0, n0, s,
-                    lambda w, rho2: np.minimum(w, np.where(rho2 < 1, _AMBIENT, 1.0)))
+        w = _window(te + off[0] * h * 0.5, tn + off[1] * h * 0.5, r, e0, n0, s, (ny, nx))
+        if w is not None:
+            rs, cs, de, dn = w
+            lit[rs, cs] &= (de ** 2 + dn ** 2) >= r ** 2
     for k, b in enumerate(scene.buildings):
-        _building_shadow(shade, b, scene.base_height(k), off, e0, n0, s)
-    alb *= shade[..., None]
+        _building_shadow(lit, b, off, e0, n0, s)
+    alb[~lit] *= np.float32(_AMBIENT)
     for te, tn, r, h in trees:
         _paint_crown(alb, te, tn, r, e0, n0, s, sun, grain, seed)
     for k, b in enumerate(scene.buildings):
@@ -288,14 +322,6 @@ def _window(ce: float, cn: float, half: float, e0: float, n0: float, s: float, s
     de = (e0 - ce + np.arange(c0, c1) * s)[None, :]
     dn = (n0 - cn - np.arange(r0, r1) * s)[:, None]
     return slice(r0, r1), slice(c0, c1), de, dn
-
-
-def _disc_apply(arr, ce, cn, r, e0, n0, s, fn) -> None:
-    w = _window(ce, cn, r, e0, n0, s, arr.shape[:2])
-    if w is None:
-        return
-    rs, cs, de, dn = w
-    arr[rs, cs] = fn(arr[rs, cs], (de ** 2 + dn ** 2) / r ** 2)
 
 
 def _trees(scene: Any, ext: tuple[float, float, float, float], seed: int) -> list[tuple[float, float, float, float]]:
@@ -338,8 +364,8 @@ def _paint_crown(alb, te, tn, r, e0, n0, s, sun, grain, seed) -> None:
     lam = np.clip((de / r * sun[0] + dn / r * sun[1] + nz * sun[2]), 0, None)
     light = _AMBIENT + (1 - _AMBIENT) * lam / sun[2]
     tone = 0.8 + 0.4 * float(unit_hash(int(te * 10), int(tn * 10), seed + 63))
-    leaf = 1.0 + 0.6 * grain[rs, cs]
-    col = np.array([0.05, 0.10, 0.04], np.float32) * tone
+    leaf = 1.0 + 2.5 * grain[rs, cs]
+    col = _col([0.05, 0.10, 0.04], alb.shape[-1]) * np.float32(tone)
     val = col[None, None, :] * (light * leaf)[..., None]
     alb[rs, cs] = np.where(inside[..., None], val, alb[rs, cs])
 
@@ -376,22 +402,22 @@ def _paint_road(alb, road, e0, n0, s, grain) -> None:
     if not on.any():
         return
     g = grain[r0:r1, c0:c1]
-    lum = 0.09 * (1 + 0.15 * g)
+    lum = 0.09 * (1 + 0.6 * g)
     edge = (np.abs(np.abs(v) - (w2 - 0.35)) < 0.1)
     dash = (np.abs(v) < 0.08) & (np.mod(u, 9.0) < 3.0)
-    lum = np.where(edge | dash, 0.55 + 0.05 * g, lum)
+    lum = np.where(edge | dash, 0.55 + 0.2 * g, lum)
     shoulder = (np.abs(v) > w2 - 0.15)
-    lum = np.where(shoulder, 0.16 * (1 + 0.3 * g), lum)
-    val = np.repeat(lum[..., None], 3, axis=-1).astype(np.float32) * np.array([1.0, 1.0, 0.97], np.float32)
+    lum = np.where(shoulder, 0.16 * (1 + 1.2 * g), lum)
+    val = lum[..., None].astype(np.float32) * _col([1.0, 1.0, 0.97], alb.shape[-1])
     alb[r0:r1, c0:c1] = np.where(on[..., None], val, alb[r0:r1, c0:c1])
 
 
-def _building_shadow(shade, b, base, off, e0, n0, s) -> None:
+def _building_shadow(lit, b, off, e0, n0, s) -> None:
+    """Clear *lit* inside the shadow of building *b*: the convex hull of its vertices moved along the sun."""
     import cv2
 
     fp = b.footprint()
-    pts = [np.column_stack([fp, np.zeros(4)])]
-    pts.append(np.column_stack([fp, np.full(4, b.eave_m)]))
+    pts = [np.column_stack([fp, np.zeros(4)]), np.column_stack([fp, np.full(4, b.eave_m)])]
     v = b.vertices(0.0)
     if len(v):
         pts.append(v)
@@ -401,10 +427,15 @@ def _building_shadow(shade, b, base, off, e0, n0, s) -> None:
         pts.append(np.column_stack([ends, np.full(2, b.top_m)]))
     p = np.vstack(pts)
     sh = p[:, :2] + off[None, :] * p[:, 2:3]
-    hull = cv2.convexHull(np.column_stack([(sh[:, 0] - e0) / s, (n0 - sh[:, 1]) / s]).astype(np.float32))
-    mask = np.zeros(shade.shape, np.uint8)
-    cv2.fillConvexPoly(mask, np.round(hull * 16).astype(np.int32), 1, lineType=cv2.LINE_AA, shift=4)
-    shade[mask > 0] = np.minimum(shade[mask > 0], _AMBIENT)
+    cx, cy = (sh[:, 0] - e0) / s, (n0 - sh[:, 1]) / s
+    c0, c1 = max(0, int(math.floor(cx.min())) - 1), min(lit.shape[1], int(math.ceil(cx.max())) + 2)
+    r0, r1 = max(0, int(math.floor(cy.min())) - 1), min(lit.shape[0], int(math.ceil(cy.max())) + 2)
+    if c0 >= c1 or r0 >= r1:
+        return
+    hull = cv2.convexHull(np.column_stack([cx - c0, cy - r0]).astype(np.float32))
+    mask = np.zeros((r1 - r0, c1 - c0), np.uint8)
+    cv2.fillConvexPoly(mask, np.round(hull * 16).astype(np.int32), 1, lineType=cv2.LINE_8, shift=4)
+    lit[r0:r1, c0:c1] &= mask == 0
 
 
 def _paint_roof(alb, b, base, e0, n0, s, sun, grain, seed) -> None:
@@ -433,8 +464,8 @@ def _paint_roof(alb, b, base, e0, n0, s, sun, grain, seed) -> None:
     col, amp = mats[int(h) % len(mats)]
     # tile / panel courses along the slope (across v), period >= 3 texels
     period = max(4 * s, 0.35 + 0.5 * ((int(h) >> 8) % 100) / 100)
-    pattern = 1 + 0.5 * amp * np.sin(2 * np.pi * (np.abs(v) / period)) + 0.12 * grain[rs, cs]
-    val = np.array(col, np.float32)[None, None, :] * (light * pattern)[..., None].astype(np.float32)
+    pattern = 1 + 0.5 * amp * np.sin(2 * np.pi * (np.abs(v) / period)) + 0.5 * grain[rs, cs]
+    val = _col(col, alb.shape[-1])[None, None, :] * (light * pattern)[..., None].astype(np.float32)
     alb[rs, cs] = np.where(inside[..., None], val, alb[rs, cs])
 
 

@@ -54,7 +54,7 @@ from ..geometry.camera import Camera
 from ..geometry.collinearity import rotation_matrix
 from ..errors import LidarcatError
 from ._texture import road_distance
-from ._photo import SURFACE, AerialScene, Exposure, RenderedPhoto, project_to_pixels, render_photo
+from ._photo import SURFACE, AerialScene, Exposure, RenderedPhoto, building_windows, project_to_pixels, render_photo
 from .scene import DEMO_GROUND_M, DEMO_ORIGIN_EN, Building, Road, demo_terrain
 
 __all__ = ["AerialScene", "Exposure", "RenderedPhoto", "render_photo", "project_to_pixels", "SURFACE",
@@ -104,21 +104,21 @@ def ground_points(scene: AerialScene, camera: Camera, eo: Sequence[float], colro
     (N, 3) float64; NaN where the ray meets nothing.
     """
     eo = np.asarray(eo, dtype=np.float64)
-    d = _directions(camera, eo, colrow_px)
-    t, _, _ = scene.hit(eo[:3], d)
+    colrow = np.asarray(colrow_px, dtype=np.float64).reshape(-1, 2)
+    d = _directions(camera, eo, colrow)
+    t = scene._terrain_hit(eo[:3], d)
+    bidx = np.full(len(d), -1, np.int32)
+    face = np.full(len(d), -1, np.int16)
+    for k, x0, x1, y0, y1 in building_windows(scene, camera, eo):
+        idx = np.flatnonzero((colrow[:, 0] >= x0) & (colrow[:, 0] <= x1) & (colrow[:, 1] >= y0) & (colrow[:, 1] <= y1))
+        scene._building_hit(k, eo[:3], d, idx, t, bidx, face)
     return eo[:3] + t[:, None] * d
 
 
-def truth_map(scene: AerialScene, camera: Camera, eo: Sequence[float], *, tile_rows: int = 256) -> np.ndarray:
-    """(H, W, 3) float64 true E, N, h of every pixel centre (NaN where nothing); no shading, bands of rows."""
-    W, H = camera.columns_px, camera.rows_px
-    out = np.empty((H, W, 3))
-    cols = np.arange(W, dtype=np.float64)
-    for r0 in range(0, H, tile_rows):
-        r1 = min(H, r0 + tile_rows)
-        cc, rr = np.meshgrid(cols, np.arange(r0, r1, dtype=np.float64))
-        out[r0:r1] = ground_points(scene, camera, eo, np.column_stack([cc.ravel(), rr.ravel()])).reshape(r1 - r0, W, 3)
-    return out
+def truth_map(scene: AerialScene, camera: Camera, eo: Sequence[float], *, tile_px: int = 512) -> np.ndarray:
+    """(H, W, 3) float64 true E, N, h of every pixel centre (NaN where nothing): the geometry of
+    :func:`render_photo` without the shading."""
+    return render_photo(scene, camera, eo, truth=True, tile_px=tile_px, shade=False).xyz
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
