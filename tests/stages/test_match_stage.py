@@ -163,3 +163,26 @@ def test_lidarcat_run_matches_first_and_writes_only_into_its_folder(survey):
     assert n > 1000 and len((survey / "out" / "camera" / "corrected.csv").read_text().splitlines()) - 1 == n
     again = run_pipeline(survey)
     assert again.summary["stages_reused"][:2] == ["match", "camera"]
+
+
+@pytest.mark.slow
+def test_match_on_realistic_aerial_photos_with_lidar(tmp_path):
+    """synthetic.aerial (helper render's photos: fields, trees, shadows, roofs) with its LiDAR tiles as the
+    surface: every observation within 1 px of where its track's first observation truly appears."""
+    from lidarcat.synthetic.aerial import aerial_survey
+
+    a = aerial_survey(tmp_path / "aer", n_strips=2, photos_per_strip=3, image_size_px=(640, 480), image_column=True,
+                      seed=2)
+    res = match(tmp_path / "aer")
+    assert res.surface == "lidar dsm"
+    ip = Survey.load(tmp_path / "aer").image_points
+    auto = np.char.startswith(ip.point.astype(str), "tp")
+    pts, ph, xy = ip.point[auto], ip.photo[auto], ip.pixel_px[auto]
+    order = np.lexsort((ph, pts))
+    pts, ph, xy = pts[order], ph[order], xy[order]
+    first = np.r_[True, pts[1:] != pts[:-1]]
+    head = np.maximum.accumulate(np.where(first, np.arange(len(pts)), 0))
+    err = np.array([np.hypot(*(a.transfer(ph[head[k]], xy[head[k]][None], ph[k])[0] - xy[k]))
+                    for k in np.flatnonzero(~first)])
+    err = err[np.isfinite(err)]
+    assert len(err) > 300 and np.mean(err < 1.0) >= 0.99
