@@ -42,6 +42,7 @@ chunks, so memory grows with the candidates, never with ``n_A x n_B``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -256,10 +257,10 @@ def guided_match(pred: Prediction, desc_a: np.ndarray, xy_b_px: np.ndarray, desc
     lam = 0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - det, 0))
     radius = np.sqrt(lam * chi2)
     lists = cKDTree(xy_b).query_ball_point(pred.xy_px[qa], radius, return_sorted=False)
-    counts = np.fromiter((len(x) for x in lists), np.int64, len(lists))
+    counts = np.fromiter(map(len, lists), np.int64, len(lists))
     if counts.sum() == 0:
         return _decide(np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0), n_a, n_b, ratio), 0
-    jb = np.fromiter((j for x in lists for j in x), np.int64, int(counts.sum()))
+    jb = np.fromiter(chain.from_iterable(lists), np.int64, int(counts.sum()))     # no bytecode per candidate
     ia = np.repeat(qa, counts)
     d = xy_b[jb] - pred.xy_px[ia]
     inside = _mahalanobis2(d, pred.cov_px2[ia]) <= chi2
