@@ -331,10 +331,12 @@ def _scene_from_json(d: dict[str, Any]) -> AerialScene:
 def _gps_positions(eo: np.ndarray, n_strips: int, per_strip: int, base: float, spacing: float, depth_m: float,
                    n: int) -> np.ndarray:
     """Plan positions of the control targets: in the side overlap (one strip: across the strip), from
-    half a base inside the first photo to half a base inside the last, alternating sides."""
-    e_a, e_b = _E0 + 0.5 * base, _E0 + (per_strip - 1.5) * base
+    a base inside the first photo to a base inside the last (half a base in strips of 4 photos or
+    fewer), alternating sides."""
+    inset = 1.0 if per_strip > 4 else 0.5   # a base in: three photos of each strip see the target
+    e_a, e_b = _E0 + inset * base, _E0 + (per_strip - 1 - inset) * base
     mid = _N0 + (n_strips - 1) * spacing / 2
-    half = 0.12 * depth_m if n_strips > 1 else 0.25 * depth_m
+    half = 0.07 * depth_m if n_strips > 1 else 0.25 * depth_m
     ne = max(1, -(-n // 2))
     es = np.linspace(e_a, e_b, ne) if ne > 1 else np.array([(e_a + e_b) / 2])
     pts = [(es[k // 2], mid + (half if k % 2 == 0 else -half)) for k in range(n)]
