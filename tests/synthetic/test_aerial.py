@@ -199,6 +199,26 @@ def test_sift_finds_dense_keypoints_and_matches_land_within_a_pixel_of_truth(blo
     assert np.mean(err < 1.0) >= 0.99 and np.median(err) < 0.3 and err.max() < 5.0
 
 
+def test_observation_errors_score_a_tie_point_table_against_truth(block):
+    """True tracks (a ground point projected into three photos) score 0 px; a shifted observation
+    scores its shift."""
+    pts = block.ground_point("102", np.array([[240.0, 180.0], [100.5, 200.25], [300.0, 90.0]]))
+    rows = []
+    for k, X in enumerate(pts):
+        for ph in ("101", "102", "103"):
+            px = block.project(ph, X[None])[0]
+            if block.camera.contains(px[None])[0]:
+                rows.append((ph, f"T{k}", *px))
+    photo, point = [r[0] for r in rows], [r[1] for r in rows]
+    colrow = np.array([r[2:] for r in rows])
+    assert len(rows) >= 7
+    err = block.observation_errors(photo, point, colrow)
+    assert np.nanmax(err) < 1e-3 and np.isfinite(err).sum() >= len(rows) - 1
+    colrow[-1] += [3.0, 4.0]
+    err = block.observation_errors(photo, point, colrow)
+    assert err[-1] == pytest.approx(5.0, abs=1e-3) and np.nanmax(err[:-1]) < 1e-3
+
+
 def test_transfer_is_nan_off_the_frame_and_behind_a_building(scene):
     """A ground point just behind a wall (seen from A) is hidden from a camera on the other side."""
     from lidarcat.synthetic.aerial import AerialSurvey

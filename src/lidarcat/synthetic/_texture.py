@@ -29,7 +29,8 @@ Land cover (all seeded, all functions of position)
 * **roads**: asphalt strips with bright edge lines and a dashed centre line;
 * **trees**: one candidate per 10 m square, kept with a probability of the field kind (orchards
   dense, ploughed soil bare); the crown a disc shaded as a hemisphere ``n = ((p - c) / r, sqrt(1 -
-  rho^2))`` with leaf grain, its shadow the disc moved ``H cot(elevation)`` away from the sun;
+  rho^2))`` with leaf grain, its shadow the disc moved ``H cot(elevation)`` away from the sun
+  (``H``: the crown centre, half the tree height);
 * **buildings**: seen from above, each roof face coloured by its material and shaded
   ``ambient + (1 - ambient) max(0, n . sun) / sin(elevation)`` by its plane normal; the building's
   shadow is the convex hull of its vertices moved the same way (a convex solid casts a convex
@@ -155,20 +156,29 @@ def building_planes(b: Any, base_m: float) -> tuple[np.ndarray, np.ndarray, np.n
 def bilinear(lattice: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
     """Bilinear interpolation of a (ny, nx[, C]) float32 lattice at fractional node positions.
 
-    Exact weights (no fixed-point positions, unlike ``cv2.remap``): the same plan position gives the
-    same value whatever lattice crop holds it.  Positions outside the lattice give 0.
+    Explicit weights (no fixed-point positions, unlike ``cv2.remap``): the same plan position gives
+    the same value whatever lattice crop holds it (to float32 rounding).  Positions outside the
+    lattice give 0.
     """
     ny, nx = lattice.shape[:2]
     flat = lattice.reshape(ny * nx, -1)
-    col = np.asarray(col, dtype=np.float64)
-    row = np.asarray(row, dtype=np.float64)
+    col = np.asarray(col, dtype=np.float32)
+    row = np.asarray(row, dtype=np.float32)
     with np.errstate(invalid="ignore"):
         c0 = np.floor(col)
         r0 = np.floor(row)
         valid = (c0 >= 0) & (c0 < nx - 1) & (r0 >= 0) & (r0 < ny - 1)
-    fc = np.where(valid, col - c0, 0.0).astype(np.float32)[..., None]
-    fr = np.where(valid, row - r0, 0.0).astype(np.float32)[..., None]
-    idx = np.where(valid, r0 * nx + c0, 0).astype(np.intp)
+    fc = np.where(valid, col - c0, np.float32(0))
+    fr = np.where(valid, row - r0, np.float32(0))
+    idx = np.where(valid, r0.astype(np.int64) * nx + c0.astype(np.int64), 0)
+    if flat.shape[1] == 1:
+        v = flat[:, 0]
+        top = v[idx] + (v[idx + 1] - v[idx]) * fc
+        bottom = v[idx + nx] + (v[idx + nx + 1] - v[idx + nx]) * fc
+        out = top + (bottom - top) * fr
+        out[~valid] = 0
+        return out.reshape(col.shape + lattice.shape[2:])
+    fc, fr = fc[..., None], fr[..., None]
     top = flat[idx] * (1 - fc) + flat[idx + 1] * fc
     bottom = flat[idx + nx] * (1 - fc) + flat[idx + nx + 1] * fc
     out = top * (1 - fr) + bottom * fr

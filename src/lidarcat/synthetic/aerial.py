@@ -201,6 +201,46 @@ class AerialSurvey:
         px[~ok] = np.nan
         return px
 
+    def observation_errors(self, photo: Sequence[str], point: Sequence[str], colrow_px: Any) -> np.ndarray:
+        """Distance (px) of tie-point observations from their truth, track by track.
+
+        Each track's reference is its first observation (in the given order): its true ground point
+        (:meth:`ground_point`) is projected into the track's other photos; an observation's error is
+        its distance from that projection (0 for the reference; NaN where the point is hidden there
+        or off the frame).
+
+        Parameters
+        ----------
+        photo, point : (N,) photo and point ids of the observations
+        colrow_px : (N, 2) column, row, px
+
+        Returns
+        -------
+        (N,) float64, px
+        """
+        photo = np.asarray(photo, dtype=str)
+        point = np.asarray(point, dtype=str)
+        px = np.asarray(colrow_px, dtype=np.float64).reshape(-1, 2)
+        _, first, inverse = np.unique(point, return_index=True, return_inverse=True)
+        ref = first[inverse]                                   # index of each observation's reference
+        xyz = np.full((len(px), 3), np.nan)
+        for ph in np.unique(photo[first]):
+            sel = first[photo[first] == ph]
+            xyz[sel] = self.ground_point(str(ph), px[sel])
+        err = np.full(len(px), np.nan)
+        for ph in np.unique(photo):
+            sel = np.flatnonzero(photo == ph)
+            X = xyz[ref[sel]]
+            pred = self.project(str(ph), X)
+            ok = np.isfinite(pred).all(axis=1)
+            ok[ok] = self.camera.contains(pred[ok])
+            if ok.any():   # hidden on this photo: its own ray meets something else first
+                back = self.ground_point(str(ph), pred[ok])
+                ok[np.flatnonzero(ok)[np.linalg.norm(back - X[ok], axis=1) > 0.05]] = False
+            err[sel[ok]] = np.linalg.norm(pred[ok] - px[sel[ok]], axis=1)
+        err[ref == np.arange(len(px))] = 0.0
+        return err
+
     def xyz(self, photo: str) -> np.ndarray:
         """(H, W, 3) true E, N, h of every pixel of *photo* (recomputed: :func:`truth_map`)."""
         return truth_map(self.scene, self.camera, self.true_eo[self.index(photo)])
@@ -331,10 +371,12 @@ def _scene_from_json(d: dict[str, Any]) -> AerialScene:
 def _gps_positions(eo: np.ndarray, n_strips: int, per_strip: int, base: float, spacing: float, depth_m: float,
                    n: int) -> np.ndarray:
     """Plan positions of the control targets: in the side overlap (one strip: across the strip), from
-    half a base inside the first photo to half a base inside the last, alternating sides."""
-    e_a, e_b = _E0 + 0.5 * base, _E0 + (per_strip - 1.5) * base
+    a base inside the first photo to a base inside the last (half a base in strips of 4 photos or
+    fewer), alternating sides."""
+    inset = 1.0 if per_strip > 4 else 0.5   # a base in: three photos of each strip see the target
+    e_a, e_b = _E0 + inset * base, _E0 + (per_strip - 1 - inset) * base
     mid = _N0 + (n_strips - 1) * spacing / 2
-    half = 0.12 * depth_m if n_strips > 1 else 0.25 * depth_m
+    half = 0.07 * depth_m if n_strips > 1 else 0.25 * depth_m
     ne = max(1, -(-n // 2))
     es = np.linspace(e_a, e_b, ne) if ne > 1 else np.array([(e_a + e_b) / 2])
     pts = [(es[k // 2], mid + (half if k % 2 == 0 else -half)) for k in range(n)]
