@@ -37,8 +37,12 @@ defaults as above): ``compress="JPEG"`` (8-bit images; YCbCr for RGB, quality
 ``jpeg_quality``), ``mask=True`` -- an internal per-dataset mask (GDAL's
 ``.msk`` band inside the file, 1 bit per cell, DEFLATE) marks the valid cells
 of an integer image, so that every value 0..255 (0..65535) stays a value and
-lossy JPEG cannot blur the nodata edge -- and ``threads`` (GDAL's
-``NUM_THREADS``: tiles and overviews compressed in parallel).
+lossy JPEG cannot blur the nodata edge -- ``threads`` (GDAL's
+``NUM_THREADS``: tiles and overviews compressed in parallel) and ``cog=False``:
+the rows go straight into the final tiled GeoTIFF, the overviews (average,
+halving down to one tile) are added at the end -- no second compression pass
+(4x faster on a 14 MP RGB image), but the overviews follow the full-resolution
+tiles instead of preceding them (``gdal_translate -of COG`` reorders them).
 :func:`read_geotiff` returns NaN where a file's mask says nodata.
 
 Read files
@@ -258,11 +262,18 @@ class GeoTiffWriter:
         GDAL ``NUM_THREADS`` of the compression (default: one).
     jpeg_quality : int
         JPEG quality, 1-100 (GDAL's default 75).
+    cog : bool
+        Cloud-optimised layout (a copy at the end), or the tiled GeoTIFF written
+        directly with overviews added (module docstring).
+    deflate_level : int, optional
+        DEFLATE level 1-12 (default GDAL's 6; 1 writes a 14 MP RGB orthophoto
+        3.7x faster for a 6 % larger file).
     """
 
     def __init__(self, path: str | os.PathLike, shape: tuple[int, int], bands: int, transform: GeoTransform,
                  crs: Any = None, dtype: Any = np.float32, *, compress: str = "DEFLATE", mask: bool = False,
-                 threads: int | None = None, jpeg_quality: int = 75) -> None:
+                 threads: int | None = None, jpeg_quality: int = 75, cog: bool = True,
+                 deflate_level: int | None = None) -> None:
         self.path = Path(path)
         self.rows, self.cols = (int(v) for v in shape)
         self.bands = int(bands)
@@ -270,11 +281,14 @@ class GeoTiffWriter:
         self.transform = transform
         self._profile = _profile(self.rows, self.cols, self.bands, self.dtype, transform, crs, compress, mask)
         self._mask = bool(mask)
+        self._cog = bool(cog)
         self._extra: dict[str, Any] = {}
         if threads and threads > 1:
             self._extra["num_threads"] = str(int(threads))
         if self._profile["compress"] == "JPEG":
             self._extra["quality"] = int(jpeg_quality)
+        elif deflate_level is not None:
+            self._extra["level"] = int(deflate_level)
         self._row = 0
         self._pending: list[np.ndarray] = []
         self._pending_mask: list[np.ndarray] = []
@@ -286,6 +300,21 @@ class GeoTiffWriter:
         stack = self._stack
         try:
             self._final = stack.enter_context(_atomic_target(self.path))
+            if not self._cog:
+                stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_STREAM_CACHE_MB, GDAL_TIFF_INTERNAL_MASK=True))
+                direct = dict(self._profile)
+                if direct["compress"] == "JPEG":
+                    direct.update(photometric="YCbCr" if self.bands == 3 else "MINISBLACK",
+                                  jpeg_quality=self._extra["quality"])
+                elif "level" in self._extra:
+                    direct["zlevel"] = self._extra["level"]
+                    stack.enter_context(rasterio.Env(ZLEVEL_OVERVIEW=self._extra["level"]))
+                self._dst = stack.enter_context(rasterio.open(
+                    self._final, "w", driver="GTiff", tiled=True, blockxsize=BLOCK_PX, blockysize=BLOCK_PX,
+                    interleave="pixel", **direct, **{k: v for k, v in self._extra.items() if k == "num_threads"}))
+                if self.bands == 3 and direct["compress"] != "JPEG":
+                    self._dst.colorinterp = _rgb()
+                return self
             fd, name = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tiled", dir=self.path.parent)
             os.close(fd)
             self._tiled = Path(name)
@@ -350,6 +379,18 @@ class GeoTiffWriter:
         try:
             import rasterio.shutil
 
+            if not self._cog:
+                from rasterio.enums import Resampling
+
+                factors, f = [], 2
+                while max(self.rows, self.cols) / (f // 2) > BLOCK_PX:
+                    factors.append(f)
+                    f *= 2
+                if factors:
+                    self._dst.build_overviews(factors, Resampling.average)
+                self._dst.close()
+                self._stack.__exit__(None, None, None)
+                return False
             self._dst.close()
             opts = {k: v for k, v in _cog_options(self._profile).items() if k in _CREATION_OPTIONS}
             if self._profile["compress"] == "JPEG":
@@ -421,7 +462,7 @@ def read_geotiff(path: str | os.PathLike, *, raw: bool = False) -> tuple[np.ndar
             data = ds.read()
             nodata = ds.nodata
             masked = None
-            if not raw and nodata is None and any("per_dataset" in str(f) for f in ds.mask_flag_enums[0]):
+            if not raw and nodata is None and any(f.name == "per_dataset" for f in ds.mask_flag_enums[0]):
                 masked = ds.dataset_mask() == 0           # an internal mask (module docstring)
             crs = _pyproj_crs(ds.crs)
     except rasterio.errors.RasterioError as ex:

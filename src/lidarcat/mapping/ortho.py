@@ -29,8 +29,12 @@ Surface heights
 The output grid and the DSM/DTM grid are both north-up: the DSM column of an
 output cell depends on its column only, the row on its row.  Bilinear
 interpolation is therefore separable: per tile, one set of column weights and
-one of row weights, and two gathers of DSM rows (the values are those of
-:meth:`lidarcat.mapping.monoplot.GridSurface.height`, bilinear, to the bit).
+one of row weights; the DSM rows are interpolated first, over the columns the
+tile needs, then the columns (the values are those of
+:meth:`lidarcat.mapping.monoplot.GridSurface.height`, bilinear, to rounding).
+From the heights on, a tile is computed in float32 relative to the camera
+(1 mm over 10 km, a hundredth of a photo pixel; OpenCV's remap positions are
+quantised to 1/32 pixel anyway).
 
 Holes in the surface model
 --------------------------
@@ -65,8 +69,11 @@ in memory, only the photo, the z-buffer (one value per ``b x b`` photo
 pixels) and the tiles in flight.  The GeoTIFF keeps the photo's data type
 (uint8 or uint16; a float photo gives float32 with NaN as nodata) and marks
 the valid cells with an internal mask (every value stays a value), DEFLATE
-(lossless, default) or JPEG (uint8, lossy, YCbCr), cloud-optimised with
-overviews (:class:`lidarcat.lidar.geotiff.GeoTiffWriter`, the CRS as given).
+(lossless, level 1: the fastest, 6 % larger than level 6; default) or JPEG
+(uint8, lossy, YCbCr, quality 75), tiled, with overviews
+(average) written after the data -- or, with ``cog=True``, cloud-optimised
+at the price of a second compression pass
+(:class:`lidarcat.lidar.geotiff.GeoTiffWriter`, the CRS as given).
 A PNG preview (at most 2000 px on a side, nodata black) goes next to it.
 """
 
@@ -143,12 +150,15 @@ class DistortionLUT:
                          ).astype(np.float32)
 
     def __call__(self, x_mm: np.ndarray, y_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel column and row (float64) of ideal photo coordinates (any shape); NaN off the lattice."""
-        fx = (np.asarray(x_mm, dtype=np.float64) - self.x0) / self.step
-        fy = (np.asarray(y_mm, dtype=np.float64) - self.y0) / self.step
+        """Pixel column and row of ideal photo coordinates (any shape; float32 stays float32, else float64);
+        NaN off the lattice."""
+        x_mm, y_mm = np.asarray(x_mm), np.asarray(y_mm)
+        kind = np.float32 if x_mm.dtype == np.float32 and y_mm.dtype == np.float32 else np.float64
+        fx = (x_mm.astype(kind, copy=False) - self.x0) / self.step
+        fy = (y_mm.astype(kind, copy=False) - self.y0) / self.step
         fx, fy = np.broadcast_arrays(fx, fy)
         dc, dr = remap_points((self._res_col, self._res_row), fx, fy)
-        a = self._affine
+        a = self._affine.astype(kind)
         col = a[0, 0] + a[1, 0] * fx + a[2, 0] * fy
         col += dc
         row = a[0, 1] + a[1, 1] * fx + a[2, 1] * fy
@@ -254,8 +264,8 @@ class PhotoModel:
         import cv2
 
         src = self._source()
-        mx = np.where(np.isfinite(col), col, -10).astype(np.float32)
-        my = np.where(np.isfinite(row), row, -10).astype(np.float32)
+        mx = np.where(np.isfinite(col), col, np.float32(-10)).astype(np.float32, copy=False)
+        my = np.where(np.isfinite(row), row, np.float32(-10)).astype(np.float32, copy=False)
         bands = src.shape[2]
         if bands in (1, 3, 4):
             out = cv2.remap(src if bands > 1 else src[:, :, 0], mx, my, interpolation=cv2.INTER_LINEAR,
@@ -316,11 +326,15 @@ def grid_heights(surface: Any, e_m: np.ndarray, n_m: np.ndarray) -> np.ndarray:
     """Bilinear heights of a north-up grid at the cells ``(n_m[i], e_m[j])`` of a north-up lattice.
 
     Separable (module docstring): *e_m* (cols,) and *n_m* (rows,) cell-centre
-    coordinates, m; returns (rows, cols) heights, m, equal to
+    coordinates, m; returns (rows, cols) heights, m, those of
     ``surface.height(E, N)`` of the bilinear :class:`~lidarcat.mapping.monoplot.GridSurface`
-    (NaN outside the grid and next to its holes).
+    to rounding (NaN outside the grid and next to its holes).
     """
-    t, g = surface.transform, surface.grid
+    return _lattice_bilinear(surface.grid, surface.transform, e_m, n_m)
+
+
+def _lattice_bilinear(g: np.ndarray, t: Any, e_m: np.ndarray, n_m: np.ndarray) -> np.ndarray:
+    """:func:`grid_heights` of an array *g* (any float type, kept): rows first, over the columns needed only."""
     rows, cols = g.shape
     fc = (np.asarray(e_m, dtype=np.float64) - t.x0) / t.cell_m
     fr = (t.y0 - np.asarray(n_m, dtype=np.float64)) / t.cell_m
@@ -329,9 +343,12 @@ def grid_heights(surface: Any, e_m: np.ndarray, n_m: np.ndarray) -> np.ndarray:
     c0 = np.minimum(np.floor(x).astype(np.int64), max(cols - 2, 0))
     r0 = np.minimum(np.floor(y).astype(np.int64), max(rows - 2, 0))
     c1, r1 = np.minimum(c0 + 1, cols - 1), np.minimum(r0 + 1, rows - 1)
-    ax, ay = x - c0, (y - r0)[:, None]
-    g0, g1 = g[r0], g[r1]
-    out = (g0[:, c0] * (1 - ax) + g0[:, c1] * ax) * (1 - ay) + (g1[:, c0] * (1 - ax) + g1[:, c1] * ax) * ay
+    lo, hi = int(c0.min()), int(c1.max()) + 1
+    ay = (y - r0).astype(g.dtype)[:, None]
+    ax = (x - c0).astype(g.dtype)
+    sub = g[:, lo:hi]
+    between = sub[r0] * (1 - ay) + sub[r1] * ay            # (rows, needed columns)
+    out = between[:, c0 - lo] * (1 - ax) + between[:, c1 - lo] * ax
     out[~((fr >= 0) & (fr <= rows))] = np.nan
     out[:, ~((fc >= 0) & (fc <= cols))] = np.nan
     return out
@@ -428,15 +445,36 @@ def sample_photo(photo: PhotoModel, surface: Any, e: np.ndarray, n: np.ndarray,
     return vals, ok, occl, tan
 
 
-def _ortho_tile(photo: PhotoModel, surface: Any, zbuf: ZBuffer | None, transform: Any,
+def _ortho_tile(photo: PhotoModel, dh_grid: np.ndarray, surface: Any, zbuf: ZBuffer | None, transform: Any,
                 r0: int, r1: int, c0: int, c1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Values (photo's data type, (rows, cols, bands); 0 where not valid), valid and occluded cells of a tile."""
+    """Values (photo's data type, (rows, cols, bands); 0 where not valid), valid and occluded cells of a tile.
+
+    *dh_grid* is the surface's grid minus the camera height, float32: the collinearity equations in
+    float32 from there (coordinates relative to the camera, < 10 km: 1 mm, a hundredth of a pixel).
+    """
     cell = transform.cell_m
+    p = photo.eo_params
+    m = photo._m.astype(np.float32)  # type: ignore[attr-defined]  (numpy float64 scalars would promote)
     e = transform.x0 + (np.arange(c0, c1) + 0.5) * cell
     n = transform.y0 - (np.arange(r0, r1) + 0.5) * cell
-    h = grid_heights(surface, e, n)
-    col, row, depth = photo.project(e[None, :], n[:, None], h)
-    ok, occl = _visibility(photo, h, col, row, depth, zbuf)
+    dh = _lattice_bilinear(dh_grid, surface.transform, e, n)
+    de = (e - p[0]).astype(np.float32)[None, :]
+    dn = (n - p[1]).astype(np.float32)[:, None]
+    u1 = m[0, 0] * de + m[0, 1] * dn
+    u1 += m[0, 2] * dh
+    u2 = m[1, 0] * de + m[1, 1] * dn
+    u2 += m[1, 2] * dh
+    u3 = m[2, 0] * de + m[2, 1] * dn
+    u3 += m[2, 2] * dh
+    with np.errstate(divide="ignore", invalid="ignore"):
+        k = -photo.camera.focal_length_mm / u3
+    u1 *= k
+    u2 *= k
+    col, row = photo._lut(u1, u2)  # type: ignore[attr-defined]
+    bad = ~(u3 < 0)
+    col[bad] = np.nan
+    row[bad] = np.nan
+    ok, occl = _visibility(photo, dh, col, row, -u3, zbuf)
     vals = photo.remap_native(col, row)
     vals[~ok] = 0
     return vals, ok, occl
@@ -445,7 +483,7 @@ def _ortho_tile(photo: PhotoModel, surface: Any, zbuf: ZBuffer | None, transform
 def orthophoto(photo: PhotoModel, surface: Any, gsd_m: float, path: str | os.PathLike | None = None, *,
                bounds: Sequence[float] | None = None, true_ortho: bool = False, crs: Any = None,
                tile_px: int = 512, preview: bool = True, zbuffer_tol_m: float | None = None,
-               fill_m: float = 10.0, compress: str = "deflate", workers: int | None = None,
+               fill_m: float = 10.0, compress: str = "deflate", workers: int | None = None, cog: bool = False,
                progress: Callable[[int, int], None] | None = None) -> OrthoResult:
     """Orthorectify one photo over a terrain (standard) or surface model (true orthophoto).
 
@@ -479,6 +517,9 @@ def orthophoto(photo: PhotoModel, surface: Any, gsd_m: float, path: str | os.Pat
         GeoTIFF compression: lossless DEFLATE, or JPEG (uint8 photos, lossy).
     workers : int, optional
         Threads computing tiles (default: the CPU count).
+    cog : bool
+        Cloud-optimised layout (one more compression pass, ~4x the writing
+        time); default a tiled GeoTIFF with overviews after the data.
     progress : callable, optional
         ``progress(done_rows, total_rows)``.
 
@@ -516,11 +557,13 @@ def orthophoto(photo: PhotoModel, surface: Any, gsd_m: float, path: str | os.Pat
                                      transform.x0 + cols * gsd_m, transform.y0),
                     zbuffer_tol_m) if true_ortho else None
 
+    dh_grid = (surface.grid - photo.eo_params[2]).astype(np.float32)
+
     def compute(r0: int, r1: int, c0: int, c1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return _ortho_tile(photo, surface, zbuf, transform, r0, r1, c0, c1)
+        return _ortho_tile(photo, dh_grid, surface, zbuf, transform, r0, r1, c0, c1)
 
     out_arr, counts = run_tiles(compute, rows, cols, photo.bands, tile_px, path, transform, crs, preview, progress,
-                                dtype=dtype, compress=compress, workers=workers)
+                                dtype=dtype, compress=compress, workers=workers, cog=cog)
     log.info("orthophoto of photo %s: %d x %d cells of %.3g m, %d valid, %d occluded", photo.photo_id,
              cols, rows, gsd_m, counts[0], counts[1])
     return OrthoResult(Path(path) if path is not None else None, out_arr, transform, (rows, cols), int(counts[0]),
