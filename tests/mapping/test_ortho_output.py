@@ -91,8 +91,8 @@ def test_jpeg_rgb_is_ycbcr_close_to_the_lossless_one_and_smaller(tmp_path, image
     assert prof["compress"] == "jpeg" and prof["photometric"] == "ycbcr" and ovr == [2]
     np.testing.assert_array_equal(vd, vj)               # the mask is lossless
     err = np.abs(d.astype(np.int16) - j)[:, vd]
-    assert err.mean() < 4.0                             # measured 1.9-2.6 grey levels per band at quality 75
-    assert (tmp_path / "j.tif").stat().st_size < 0.5 * (tmp_path / "d.tif").stat().st_size
+    assert err.mean() < 4.0              # measured 2.6 (bands 2.3, 1.4, 4.2 grey levels) at quality 75
+    assert (tmp_path / "j.tif").stat().st_size < 0.5 * (tmp_path / "d.tif").stat().st_size   # measured 0.16
 
 
 def test_cog_layout_on_request(tmp_path, image, dsm):
@@ -146,11 +146,12 @@ def test_fill_holes_keeps_heights_fills_near_holes_only():
 
 
 def test_dsm_holes_do_not_speckle_the_orthophoto(scene, image):
-    """A 0.5 m DSM from 4 points/m^2 keeps empty cells; filled, the orthophoto keeps >= 99 % of its footprint."""
+    """A 0.5 m DSM from 4 points/m^2 keeps empty cells (after rasterize's own small-hole fill: issue 26's
+    case); filled, the orthophoto keeps >= 99 % of its footprint."""
     pts = scene.lidar_points(MODEL_BOUNDS, 4.0, seed=3)
-    grid, t = rasterize(PointCloud(pts["xyz"]), 0.5, "dsm", bounds=MODEL_BOUNDS, fill=None)
+    grid, t = rasterize(PointCloud(pts["xyz"]), 0.5, "dsm", bounds=MODEL_BOUNDS)
     holes = float(np.isnan(grid).mean())
-    assert holes > 0.02                                 # measured 3.7 % of the cells
+    assert holes > 0.02                                 # measured 4.5 % of the cells
     photo = PhotoModel("A", image, CAM, EO_A)
     exact = GridSurface(*scene.grid(MODEL_BOUNDS, 0.5, "dsm"))
     footprint = orthophoto(photo, exact, 0.25, bounds=B).n_valid          # cells the photo covers
@@ -158,10 +159,10 @@ def test_dsm_holes_do_not_speckle_the_orthophoto(scene, image):
     raw = orthophoto(photo, GridSurface(grid, t), 0.25, bounds=B, fill_m=0)
     assert filled.n_filled > 0 and raw.n_filled == 0
     assert filled.n_valid / footprint >= 0.99            # measured 100.0 %
-    assert raw.n_valid / footprint < 0.95                # measured 88 %: the speckle of the holes
+    assert raw.n_valid / footprint < 0.95                # measured 90.3 %: the speckle of the holes
     true_filled = orthophoto(photo, GridSurface(grid, t), 0.25, bounds=B, true_ortho=True)
     true_exact = orthophoto(photo, exact, 0.25, bounds=B, true_ortho=True)
-    assert true_filled.n_valid / true_exact.n_valid >= 0.99
+    assert true_filled.n_valid / true_exact.n_valid >= 0.99   # measured 99.999 % (90.4 % unfilled)
 
 
 def test_photo_image_takes_a_file_or_a_folder_with_upper_case_suffixes(tmp_path, image):
