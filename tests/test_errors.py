@@ -366,6 +366,10 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     # added with the house-by-stage layout (issue 23)
     ("lidar/geotiff.py", "GeoTiffWriter.write_rows", "ValueError", "{}: row block of shape {} does not fit a"): _SHAPE,
     ("lidar/geotiff.py", "_values", "ValueError", "grid must be a non-empty (rows, cols) or"): _SHAPE,
+    # orthophoto files (issue 26): the writer's options, chosen by code (the CLI offers a click.Choice)
+    ("lidar/geotiff.py", "_profile", "ValueError", "JPEG compression takes 1- or 3-band uint"): _ARG,
+    ("lidar/geotiff.py", "_profile", "ValueError", "compression must be DEFLATE or JPEG, got"): _ENUM,
+    ("lidar/geotiff.py", "GeoTiffWriter.write_rows", "ValueError", "{}: a masked GeoTIFF needs the valid cel"): _SHAPE,
     ("lidar/jobs.py", "TileJob.__post_init__", "ValueError", "a tile job's function must be a module-l"): _ARG,
     ("production/tiles.py", "product_jobs", "ValueError", "unknown product {}; use one of {}"): _ENUM,
     ("report/render.py", "_html_block", "TypeError", "not a report block: {}"): _INTERNAL,

@@ -56,7 +56,7 @@ def test_lidar_dsm_then_ortho_then_monoplot_on_the_compressed_dsm(survey, tmp_pa
     assert summary["orthophotos"][0]["true_ortho"] and summary["orthophotos"][0]["n_valid"] > 0
     with rasterio.open(out / "ortho_A.tif") as src:
         assert src.profile["compress"] == "deflate" and src.profile["tiled"] and src.crs.to_epsg() == 31982
-        ortho = src.read(1)
+        ortho = src.read(1, masked=True).astype(np.float32).filled(np.nan)   # uint8 + internal mask
     photo = PhotoModel("A", scene.render(CAM, EO_A), CAM, EO_A)
     same = orthophoto(photo, GridSurface(mem, tm), 0.5, bounds=BOUNDS, true_ortho=True).array[:, :, 0]
     np.testing.assert_array_equal(np.isnan(ortho), np.isnan(same))

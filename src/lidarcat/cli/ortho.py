@@ -15,10 +15,14 @@ Examples:
   lidarcat ortho demo/ --photo 3 --dtm dtm.tif --gsd 0.5 -o ortho/
 \b
 Writes DIR/ortho_<photo>.tif (+ .png preview) per photo, and with --mosaic
-DIR/mosaic.tif (+ .png) and DIR/seamlines.geojson. GeoTIFFs are float32
-(grey or RGB), NaN = nodata, in the survey CRS. Over a DSM the orthophotos are
-true orthophotos: cells the photo does not see (z-buffer) are nodata, and the
-mosaic fills them from another photo.
+DIR/mosaic.tif (+ .png) and DIR/seamlines.geojson, in the survey CRS.
+Orthophotos keep the photo's data type (uint8/uint16, grey or RGB) with an
+internal mask of the valid cells, tiled, DEFLATE or JPEG, with overviews; the
+mosaic is float32, NaN = nodata. Over a DSM the orthophotos are true
+orthophotos: cells the photo does not see (z-buffer) are nodata, and the
+mosaic fills them from another photo. Empty cells of the DTM/DSM are filled
+first (inverse distance, up to --fill metres). Photos are read from
+photos.csv's image column (else SURVEY/images/<photo>.<ext>) unless --images.
 """
 
 
@@ -37,7 +41,8 @@ mosaic fills them from another photo.
 @click.option("--eop", "eop_path", type=click.Path(dir_okay=False), default=None,
               help="Adjusted orientations (eop.csv). Default: SURVEY/out/adjust-<default control>/eop.csv.")
 @click.option("--images", "images_dir", type=click.Path(file_okay=False), default=None,
-              help="Folder of the photo files <photo>.png/.tif/.jpg. Default: SURVEY/images.")
+              help="Folder of the photo files <photo>.png/.tif/.jpg. Default: photos.csv's image column, "
+                   "else SURVEY/images.")
 @click.option("--mosaic", "make_mosaic", is_flag=True,
               help="Also mosaic the photos: the most nadir photo that sees each cell; seamlines as GeoJSON.")
 @click.option("--feather", "feather_m", type=click.FloatRange(min=0), default=0.0, show_default=True,
@@ -45,12 +50,20 @@ mosaic fills them from another photo.
 @click.option("--equalize", is_flag=True,
               help="Mosaic: balance the photos first, a gain and an offset per photo from the overlaps "
                    "(least squares, mean gain 1).")
-@click.option("--tile", "tile_px", type=click.IntRange(16), default=1024, show_default=True,
-              help="Rows/columns computed at once (memory ~ 40 bytes x tile x output width).")
+@click.option("--tile", "tile_px", type=click.IntRange(16), default=512, show_default=True,
+              help="Tile edge computed at once, cells (memory ~ threads x 120 bytes x tile^2).")
+@click.option("--fill", "fill_m", type=click.FloatRange(min=0), default=10.0, show_default=True,
+              help="Fill empty DTM/DSM cells from heights up to this far, m (0: no filling; holes become nodata).")
+@click.option("--compress", type=click.Choice(["deflate", "jpeg"]), default="deflate", show_default=True,
+              help="Orthophoto compression: lossless DEFLATE, or JPEG (8-bit photos; about 7x smaller, lossy).")
+@click.option("--threads", type=click.IntRange(1), default=None, metavar="N",
+              help="Threads per orthophoto. Default: the CPU count.")
+@click.option("--cog", is_flag=True,
+              help="Cloud-optimised orthophotos (overviews before the data; one more compression pass).")
 @output_option(outdir=True, required=True, type=click.Path(file_okay=False), help="Output folder.")
 @json_option(help="Print what was written as JSON.")
 def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, images_dir, make_mosaic, feather_m,
-          equalize, tile_px, outdir, as_json) -> None:
+          equalize, tile_px, fill_m, compress, threads, cog, outdir, as_json) -> None:
     """Orthophotos of adjusted photos over a DTM or DSM, and their mosaic."""
     import contextlib
     from pathlib import Path
@@ -85,8 +98,8 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
 
         summary = orthophotos(s, outdir, list(photo_ids), dsm or dtm, true_ortho=bool(dsm), gsd_m=gsd_m,
                               eop=eop_path, images=images_dir, bounds=bounds, mosaic=make_mosaic,
-                              feather_m=feather_m, tile_px=tile_px, equalize=equalize,
-                              progress=progress)
+                              feather_m=feather_m, tile_px=tile_px, fill_m=fill_m, compress=compress,
+                              threads=threads, cog=cog, equalize=equalize, progress=progress)
     if as_json:
         echo_json(summary)
         return

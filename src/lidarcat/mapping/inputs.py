@@ -145,8 +145,18 @@ def adjusted_orientation(survey: Any, photo_id: str, eop_path: str | os.PathLike
     return adjusted_orientations(survey, [photo_id], eop_path)[photo_id]
 
 
-def photo_image(photo_id: str, images_dir: str | os.PathLike, camera: Any) -> np.ndarray:
-    """Read ``<images_dir>/<photo_id>.<suffix>`` as a grey (rows, cols) or RGB (rows, cols, 3) uint8/uint16 array.
+def photo_image(photo_id: str, images: str | os.PathLike, camera: Any) -> np.ndarray:
+    """Read a photo as a grey (rows, cols) or RGB (rows, cols, 3) uint8/uint16 array.
+
+    Parameters
+    ----------
+    photo_id : str
+    images : path-like
+        The image file itself (e.g. :meth:`lidarcat.Survey.image_path`), or a
+        folder holding ``<photo_id>.<suffix>`` (suffix of :data:`IMAGE_SUFFIXES`,
+        lower or upper case: ``.jpg``, ``.JPG``).
+    camera : lidarcat.geometry.camera.Camera
+        The image must be its size.
 
     Raises
     ------
@@ -155,8 +165,9 @@ def photo_image(photo_id: str, images_dir: str | os.PathLike, camera: Any) -> np
     """
     import cv2
 
-    folder = Path(images_dir)
-    cands = [folder / f"{photo_id}{s}" for s in IMAGE_SUFFIXES]
+    folder = Path(images)
+    cands = [folder] if folder.is_file() else \
+        [folder / f"{photo_id}{c}" for s in IMAGE_SUFFIXES for c in (s, s.upper())]
     path = next((p for p in cands if p.is_file()), None)
     if path is None:
         raise SurveyError(f"{folder}: no image of photo {photo_id!r} (looked for {photo_id}.png, .tif, "

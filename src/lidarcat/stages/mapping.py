@@ -80,14 +80,20 @@ def settings(survey: Any) -> dict[str, Any]:
 def orthophotos(survey: Any, outdir: str | os.PathLike, photo_ids: Sequence[str], surface: str | os.PathLike, *,
                 true_ortho: bool, gsd_m: float = 0.2, eop: str | os.PathLike | None = None,
                 images: str | os.PathLike | None = None, bounds: Sequence[float] | None = None,
-                mosaic: bool = False, feather_m: float = 0.0, tile_px: int = 1024, equalize: bool = False,
+                mosaic: bool = False, feather_m: float = 0.0, tile_px: int = 512, fill_m: float = 10.0,
+                equalize: bool = False,
+                compress: str = "deflate", threads: int | None = None, cog: bool = False,
                 progress: Callable[[str, int, int], Any] | None = None) -> dict[str, Any]:
     """The action of ``lidarcat ortho`` and of the stage's orthophotos: adjusted photos over a surface GeoTIFF.
 
     Writes ``ortho_<photo>.tif`` (+ ``.png``) per photo
     (:func:`lidarcat.mapping.ortho.orthophoto`) and, with *mosaic*, ``mosaic.tif``
     (+ ``.png``) and ``seamlines.geojson`` (:func:`lidarcat.mapping.mosaic.mosaic`)
-    into *outdir*, in the survey CRS.
+    into *outdir*, in the survey CRS.  The photos are read from
+    :meth:`lidarcat.Survey.image_path` (photos.csv's ``image`` column, else
+    ``[mapping] images``/``<photo>.<ext>``) unless *images* names a folder.  The
+    surface's empty cells are filled once, for the orthophotos and the mosaic
+    (:func:`lidarcat.mapping.ortho.fill_holes`).
 
     Parameters
     ----------
@@ -106,7 +112,8 @@ def orthophotos(survey: Any, outdir: str | os.PathLike, photo_ids: Sequence[str]
     eop : path, optional
         ``eop.csv`` of the adjustment (default :func:`lidarcat.mapping.inputs.default_eop_path`).
     images : path, optional
-        Folder of the photo files ``<photo>.png/.tif/.jpg`` (default ``SURVEY/images``).
+        Folder of the photo files ``<photo>.png/.tif/.jpg`` (any case of the suffix); default: each
+        photo's :meth:`~lidarcat.Survey.image_path`.
     bounds : (xmin, ymin, xmax, ymax), optional
         Output area, m (default: each photo's footprint; the mosaic: their union).
     mosaic : bool
@@ -117,6 +124,14 @@ def orthophotos(survey: Any, outdir: str | os.PathLike, photo_ids: Sequence[str]
         Mosaic: a gain and an offset per photo from the overlaps first (:func:`lidarcat.mapping.mosaic.equalization_gains`).
     tile_px : int
         Rows/columns computed at once.
+    fill_m : float
+        Fill the surface's empty cells up to this far from a height, m (0: no filling).
+    compress : {"deflate", "jpeg"}
+        Orthophoto GeoTIFF compression (JPEG: 8-bit photos).
+    threads : int, optional
+        Threads per orthophoto (default: the CPU count).
+    cog : bool
+        Cloud-optimised orthophotos (slower to write).
     progress : callable, optional
         ``progress(step, done, total)``; *step* is ``"ortho <photo>"`` or ``"mosaic"``.
 
@@ -133,37 +148,39 @@ def orthophotos(survey: Any, outdir: str | os.PathLike, photo_ids: Sequence[str]
     """
     from ..mapping.inputs import adjusted_orientations, photo_image
     from ..mapping.monoplot import GridSurface
-    from ..mapping.ortho import PhotoModel
+    from ..mapping.ortho import PhotoModel, fill_holes
 
     out = Path(outdir)
     photos_file = survey.files.get("photos", survey.toml_path)
     names = {pid: f"ortho_{safe_component(pid, 'photo id', photos_file)}.tif" for pid in photo_ids}
-    grid = GridSurface.from_geotiff(surface)
-    folder = Path(images) if images is not None else survey.root / "images"
+    grid, n_filled = fill_holes(GridSurface.from_geotiff(surface), fill_m)
     eos = adjusted_orientations(survey, list(photo_ids), eop)
-    photos = [PhotoModel(pid, photo_image(pid, folder, survey.camera_of(pid)), survey.camera_of(pid),
-                         eos[pid].params) for pid in photo_ids]
+    photos = [PhotoModel(pid, photo_image(pid, Path(images) if images is not None else survey.image_path(pid),
+                                          survey.camera_of(pid)), survey.camera_of(pid), eos[pid].params)
+              for pid in photo_ids]
 
     def step(name: str) -> Callable[[int, int], Any] | None:
         return None if progress is None else (lambda done, total: progress(name, done, total))
 
-    done: dict[str, Any] = {"orthophotos": []}
+    done: dict[str, Any] = {"orthophotos": [], "surface_filled": n_filled}
+    opts = dict(compress=compress, workers=threads, cog=cog)
     with output_root(out):  # nothing written below leaves *outdir* nor goes through a link in it
         _orthophotos_into(out, names, photos, grid, gsd_m, bounds, true_ortho, survey.crs, tile_px, mosaic,
-                          feather_m, step, done, equalize)
+                          feather_m, step, done, opts, equalize)
     return done
 
 
 def _orthophotos_into(out: Path, names: dict[str, str], photos: list[Any], grid: Any, gsd_m: float, bounds: Any,
                       true_ortho: bool, crs: Any, tile_px: int, mosaic: bool, feather_m: float,
-                      step: Callable[[str], Any], done: dict[str, Any], equalize: bool = False) -> None:
+                      step: Callable[[str], Any], done: dict[str, Any], opts: dict[str, Any],
+                      equalize: bool = False) -> None:
     from ..mapping.mosaic import mosaic as mosaic_photos
     from ..mapping.ortho import orthophoto
 
     for ph in photos:
         r = orthophoto(ph, grid, gsd_m, out / names[ph.photo_id], bounds=bounds, true_ortho=true_ortho,
-                       crs=crs, tile_px=tile_px, progress=step(f"ortho {ph.photo_id}"))
-        done["orthophotos"].append(r.to_dict() | {"photo": ph.photo_id})
+                       crs=crs, tile_px=tile_px, fill_m=0.0, progress=step(f"ortho {ph.photo_id}"), **opts)
+        done["orthophotos"].append(r.to_dict() | {"photo": ph.photo_id, "surface_filled": done["surface_filled"]})
     if mosaic:
         m = mosaic_photos(photos, grid, gsd_m, out / "mosaic.tif", seams_path=out / "seamlines.geojson",
                           bounds=bounds, true_ortho=true_ortho, crs=crs, tile_px=tile_px,
@@ -207,8 +224,6 @@ def _orthophotos(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: 
     ids = cfg["photos"] or [p for p in survey.photo_ids if p in eos]
     for pid in ids:  # each names a file: refused before the surface model is computed
         safe_component(pid, "photo id", survey.files.get("photos", survey.toml_path))
-    images = Path(cfg["images"])
-    images = images if images.is_absolute() else survey.root / images
     b = index.bounds
     h_mid = 0.5 * (b.zmin + b.zmax)
     cams = {pid: survey.camera_of(pid) for pid in ids}
@@ -229,7 +244,7 @@ def _orthophotos(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: 
             ctx.progress(steps.index(name) + 1, len(steps))
 
     res = orthophotos(survey, tmp, ids, tmp / f"{what}.tif", true_ortho=what == "dsm", gsd_m=float(cfg["gsd_m"]),
-                      eop=ctx.folder(ctx.params["adjust"]) / "eop.csv", images=images, mosaic=with_mosaic,
+                      eop=ctx.folder(ctx.params["adjust"]) / "eop.csv", mosaic=with_mosaic,
                       feather_m=float(cfg["feather_m"]), equalize=bool(cfg.get("equalize")), progress=prog)
     out: dict[str, Any] = {"surface": f"{what}.tif", "orthophotos": [
         r | {"path": f"ortho_{r['photo']}.tif"} for r in res["orthophotos"]]}
