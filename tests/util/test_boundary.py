@@ -288,7 +288,8 @@ def test_the_mapping_stage_of_run_refuses_a_path_like_photo_id(tmp_path):
     write_synthetic_survey(survey, n_photos=2, lidar_density_m2=0.5, images=True, image_downsample=20)
     for name in ("photos.csv", "image_points.csv"):
         p = survey / name
-        p.write_text("".join(f"{HOSTILE_ID}," + ln[2:] if ln.startswith("1,") else ln
+        # the photo's image cell emptied: the hostile id then names its file by the images/<photo> rule
+        p.write_text("".join(f"{HOSTILE_ID}," + ln[2:].replace(",images/1.png", ",") if ln.startswith("1,") else ln
                              for ln in p.read_text().splitlines(keepends=True)))
     (survey / "images" / "x").mkdir()  # so that images/x/../../pwn.png is found: the old code read it
     os.replace(survey / "images" / "1.png", survey / "pwn.png")
