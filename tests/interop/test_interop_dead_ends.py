@@ -179,3 +179,22 @@ def test_borea_duplicate_ground_point_refused(tmp_path):
                   BOREA / "borea_terrain_test.mes", "--crs", "EPSG:2154", "-o", tmp_path / "out")
     assert_one_line_error(res, f"{app}:4: field 'name': point '1006' already on line 3: keep one line per point")
     assert not (tmp_path / "out").exists()
+
+
+def test_metashape_block_without_markers_imports_and_exports(tmp_path):
+    """A Metashape frame without marker projections (no image measurement at all) imports as a survey of
+    oriented photos (header-only image_points.csv) that loads and exports; next: names export or match."""
+    frame = tmp_path / "frame.doc.xml"
+    frame.write_text(re.sub(r"  <markers>.*?</markers>\n", "", FRAME.read_text(), flags=re.S))
+    out = tmp_path / "ms"
+    res = _invoke("import", "metashape", CHUNK, "--frame", frame, "-o", out)
+    assert res.exit_code == 0, res.output
+    assert res.output.splitlines()[-1] == (
+        f"next: the metashape file holds oriented photos but no image observations, so the block cannot be "
+        f"adjusted yet; export it as it is (lidarcat export colmap|opensfm|opk|gis {out} -o OUT), or give "
+        f"photos.csv an image column (each photo's image file) and run lidarcat match {out} first")
+    s = Survey.load(out)
+    assert len(s.image_points) == 0 and len(s.photos) == 138
+    res = _invoke("export", "opk", out, "-o", tmp_path / "b.opk")
+    assert res.exit_code == 0, res.output
+    assert len((tmp_path / "b.opk").read_text().splitlines()) == 1 + 138

@@ -119,7 +119,7 @@ def test_convert_equals_import_then_export(tmp_path):
 
 def test_orientation_only_opensfm_converts(tmp_path):
     """A reconstruction.json without points and tracks (as OpenDroneMap writes) is read as oriented
-    photos; it converts to COLMAP and OPK."""
+    photos; it converts to COLMAP, OPK and a survey folder."""
     rec = json.loads(REC.read_text())
     del rec[0]["points"]
     p = tmp_path / "reconstruction.json"
@@ -130,6 +130,8 @@ def test_orientation_only_opensfm_converts(tmp_path):
     assert "3 photos, 0 observations" in out
     _cli("convert", "opensfm", p, "opk", tmp_path / "o.opk")
     assert len((tmp_path / "o.opk").read_text().splitlines()) == 4
+    _cli("convert", "opensfm", p, "survey", tmp_path / "cs")          # a survey of oriented photos
+    assert len(Survey.load(tmp_path / "cs").photos) == 3
 
 
 def _orientation_only(tmp_path: Path) -> Path:
