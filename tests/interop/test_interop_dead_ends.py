@@ -16,6 +16,7 @@ from lidarcat.cli.main import cli
 from lidarcat.errors import FormatError
 from lidarcat.interop.metashape import read_metashape
 from lidarcat.interop.opensfm import read_opensfm
+from lidarcat.survey.folder import Survey
 from tests.conftest import assert_one_line_error
 
 D = Path(__file__).parents[1] / "data" / "interop"
@@ -94,11 +95,15 @@ def test_borea_errors_name_the_next_step(tmp_path):
                   "--crs", "EPSG:2154", "-o", tmp_path / "out")
     assert_one_line_error(res, "field 'CAMERA': camera 'UCE-M3-f120-s06' of photo '23FD1305x00026_01306' is not "
                           "among the camera files (UCE-M3-f120-s07): give its camera file (--camera)")
+    out = tmp_path / "out"
     res = _invoke("import", "borea", BOREA / "borea_23FD1305_alt_test.OPK", "--camera", BOREA / "borea_Camera1.txt",
-                  "--camera", BOREA / "borea_Camera2.txt", "--crs", "EPSG:2154", "-o", tmp_path / "out")
-    assert_one_line_error(res, "borea_23FD1305_alt_test: nothing to write: 7 photos, 0 observations; a survey needs "
-                          "image measurements (give them: colmap images.txt, opensfm tracks.csv, metashape --frame, "
-                          "borea --measurements), or write the orientations to another format with lidarcat convert")
+                  "--camera", BOREA / "borea_Camera2.txt", "--crs", "EPSG:2154", "-o", out)
+    assert res.exit_code == 0, res.output      # no .mes: the oriented photos, no observation yet
+    assert res.output.splitlines()[-1] == (
+        f"next: the borea file holds oriented photos but no image observations, so the block cannot be "
+        f"adjusted yet; export it as it is (lidarcat export colmap|opensfm|opk|gis {out} -o OUT), or give "
+        f"photos.csv an image column (each photo's image file) and run lidarcat match {out} first")
+    assert len(Survey.load(out).photos) == 7
 
 
 # ---------------------------------------------------------------------- Metashape
@@ -174,3 +179,22 @@ def test_borea_duplicate_ground_point_refused(tmp_path):
                   BOREA / "borea_terrain_test.mes", "--crs", "EPSG:2154", "-o", tmp_path / "out")
     assert_one_line_error(res, f"{app}:4: field 'name': point '1006' already on line 3: keep one line per point")
     assert not (tmp_path / "out").exists()
+
+
+def test_metashape_block_without_markers_imports_and_exports(tmp_path):
+    """A Metashape frame without marker projections (no image measurement at all) imports as a survey of
+    oriented photos (header-only image_points.csv) that loads and exports; next: names export or match."""
+    frame = tmp_path / "frame.doc.xml"
+    frame.write_text(re.sub(r"  <markers>.*?</markers>\n", "", FRAME.read_text(), flags=re.S))
+    out = tmp_path / "ms"
+    res = _invoke("import", "metashape", CHUNK, "--frame", frame, "-o", out)
+    assert res.exit_code == 0, res.output
+    assert res.output.splitlines()[-1] == (
+        f"next: the metashape file holds oriented photos but no image observations, so the block cannot be "
+        f"adjusted yet; export it as it is (lidarcat export colmap|opensfm|opk|gis {out} -o OUT), or give "
+        f"photos.csv an image column (each photo's image file) and run lidarcat match {out} first")
+    s = Survey.load(out)
+    assert len(s.image_points) == 0 and len(s.photos) == 138
+    res = _invoke("export", "opk", out, "-o", tmp_path / "b.opk")
+    assert res.exit_code == 0, res.output
+    assert len((tmp_path / "b.opk").read_text().splitlines()) == 1 + 138

@@ -40,7 +40,7 @@ def _assert_same_survey(a: Path, b: Path) -> None:
     kb = {(p, q): x for p, q, x in zip(sb.image_points.photo.tolist(), sb.image_points.point.tolist(),
                                       sb.image_points.pixel_px)}
     assert set(ka) == set(kb)
-    assert max(np.abs(ka[k] - kb[k]).max() for k in ka) < 1e-9
+    assert max((np.abs(ka[k] - kb[k]).max() for k in ka), default=0.0) < 1e-9
     ga, gb = sa.ground_points, sb.ground_points
     assert ga.point.tolist() == gb.point.tolist()
     np.testing.assert_allclose(gb.enh_m, ga.enh_m, rtol=0, atol=1e-8)
@@ -119,7 +119,7 @@ def test_convert_equals_import_then_export(tmp_path):
 
 def test_orientation_only_opensfm_converts(tmp_path):
     """A reconstruction.json without points and tracks (as OpenDroneMap writes) is read as oriented
-    photos; it converts to COLMAP and OPK, and import names the next step (convert)."""
+    photos; it converts to COLMAP, OPK and a survey folder."""
     rec = json.loads(REC.read_text())
     del rec[0]["points"]
     p = tmp_path / "reconstruction.json"
@@ -130,5 +130,53 @@ def test_orientation_only_opensfm_converts(tmp_path):
     assert "3 photos, 0 observations" in out
     _cli("convert", "opensfm", p, "opk", tmp_path / "o.opk")
     assert len((tmp_path / "o.opk").read_text().splitlines()) == 4
-    res = CliRunner().invoke(cli, ["import", "opensfm", str(p), "-o", str(tmp_path / "s")])
-    assert res.exit_code == 2 and "or write the orientations to another format with lidarcat convert" in res.output
+    _cli("convert", "opensfm", p, "survey", tmp_path / "cs")          # a survey of oriented photos
+    assert len(Survey.load(tmp_path / "cs").photos) == 3
+
+
+def _orientation_only(tmp_path: Path) -> Path:
+    """The Berlin reconstruction without its points: what OpenDroneMap's reconstruction.json holds."""
+    rec = json.loads(REC.read_text())
+    del rec[0]["points"]
+    p = tmp_path / "reconstruction.json"
+    p.write_text(json.dumps(rec))
+    return p
+
+
+def test_orientation_only_opensfm_imports_as_survey(tmp_path):
+    """import opensfm of an orientation-only reconstruction writes a survey: photos with their
+    orientations, a header-only image_points.csv; it loads, and adjust asks for match first."""
+    p = _orientation_only(tmp_path)
+    s = tmp_path / "s"
+    out = _cli("import", "opensfm", p, "-o", s)
+    assert out.splitlines()[-1] == (
+        f"next: the opensfm file holds oriented photos but no image observations, so the block cannot be "
+        f"adjusted yet; export it as it is (lidarcat export colmap|opensfm|opk|gis {s} -o OUT), or give "
+        f"photos.csv an image column (each photo's image file) and run lidarcat match {s} first")
+    assert (s / "image_points.csv").read_text() == "photo,point,col_px,row_px\n"
+    survey = Survey.load(s)
+    assert len(survey.photos) == 3 and len(survey.image_points) == 0
+    b = read_opensfm(p)
+    for ph, eo in zip(survey.photos, b.eo):
+        np.testing.assert_allclose(ph.position_m, eo[:3], rtol=0, atol=1e-8)
+        np.testing.assert_allclose(ph.attitude_deg, np.degrees(eo[3:]), rtol=0, atol=1e-9)
+    res = CliRunner().invoke(cli, ["adjust", str(s), "-o", str(tmp_path / "adj")])
+    assert res.exit_code != 0
+    assert f"image_points.csv: no image observations: run `lidarcat match {s}` first" in res.output
+
+
+def test_orientation_only_opensfm_survey_exports_again(tmp_path):
+    """The orientation-only survey exports to OpenSfM again: the same shots (rotation, translation),
+    reference_lla and cameras; importing that export gives the same survey."""
+    p = _orientation_only(tmp_path)
+    _cli("import", "opensfm", p, "-o", tmp_path / "s1")
+    _cli("export", "opensfm", tmp_path / "s1", "-o", tmp_path / "x")
+    a = json.loads(p.read_text())[0]
+    b = json.loads((tmp_path / "x" / "reconstruction.json").read_text())[0]
+    assert sorted(a["shots"]) == sorted(b["shots"]) and not b.get("points")
+    assert b["reference_lla"] == pytest.approx(a["reference_lla"], abs=1e-12)
+    for k in a["shots"]:
+        np.testing.assert_allclose(b["shots"][k]["rotation"], a["shots"][k]["rotation"], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(b["shots"][k]["translation"], a["shots"][k]["translation"], rtol=0, atol=1e-9)
+    _cli("import", "opensfm", tmp_path / "x" / "reconstruction.json", "-o", tmp_path / "s2")
+    _assert_same_survey(tmp_path / "s1", tmp_path / "s2")

@@ -193,6 +193,11 @@ def _next_step(fmt: str, blk, output: str, control_sd_m: float | None) -> str | 
 
     counts = Counter(blk.obs_point.tolist())
     ties = sum(1 for p, n in counts.items() if n >= 2 and p not in set(blk.ground_ids.tolist()))
+    if len(blk.obs_photo) == 0:
+        return (f"the {fmt} file holds oriented photos but no image observations, so the block cannot be "
+                f"adjusted yet; export it as it is (lidarcat export colmap|opensfm|opk|gis {output} -o OUT), "
+                f"or give photos.csv an image column (each photo's image file) and run lidarcat match "
+                f"{output} first")
     if fmt == "metashape" and ties == 0:
         return (f"the Metashape XML holds no tie points (Metashape keeps them in binary point clouds), so "
                 f"the block cannot be adjusted; export it as it is (lidarcat export colmap|opensfm|opk|gis "

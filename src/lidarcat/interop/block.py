@@ -199,13 +199,19 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
     give its model points as control with ``control_sd_m`` (sd of E, N and h, in
     model units): the re-adjustment then keeps the model's datum.  Observations of
     points seen on a single photo that are no
-    ground point are dropped (the survey format refuses them; logged).
+    ground point are dropped (the survey format refuses them; logged).  A block
+    without any observation (an orientation-only OpenSfM reconstruction as
+    OpenDroneMap writes it, a Metashape chunk without markers, a Borea block
+    without ``.mes``) is written with a header-only ``image_points.csv``, the state
+    ``lidarcat init`` leaves: it loads, exports, and ``lidarcat adjust`` asks for
+    ``lidarcat match`` first.
 
     Raises
     ------
     FormatError
-        *folder* exists and holds a survey.toml while *overwrite* is False, or the
-        block has no photo or no observation.
+        *folder* exists and holds a survey.toml while *overwrite* is False, the
+        block has no photo, or it has observations but none usable (of a ground
+        point or of a point on two photos).
     """
     folder = Path(folder)
     if control_sd_m is not None and len(block.ground_ids) == 0:
@@ -218,12 +224,9 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
     if (folder / "survey.toml").exists() and not overwrite:
         raise FormatError(f"{folder}: already holds a survey.toml; choose another folder or "
                           f"pass overwrite (--force)")
-    if block.n_photos == 0 or len(block.obs_photo) == 0:
-        raise FormatError(f"{block.name}: nothing to write: {block.n_photos} photos, "
-                          f"{len(block.obs_photo)} observations; a survey needs image measurements (give "
-                          f"them: colmap images.txt, opensfm tracks.csv, metashape --frame, borea "
-                          f"--measurements), or write the orientations to another format with lidarcat "
-                          f"convert")
+    if block.n_photos == 0:
+        raise FormatError(f"{block.name}: nothing to write: no photos; give the file that holds the photos' "
+                          f"orientations")
     check_block(block)
     if block.crs.strip() in ("", "unspecified"):  # survey.toml needs a CRS or a local frame
         log.warning("%s: no CRS given; the survey's frame is written as local (give --crs to georeference)",
@@ -234,11 +237,12 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
     keep = np.array([counts[p] >= 2 or p in ground for p in block.obs_point.tolist()], dtype=bool)
     if (~keep).any():
         log.info("%d observation(s) of points seen on one photo only dropped", int((~keep).sum()))
-    if not keep.any():
+    if len(keep) and not keep.any():
         raise FormatError(f"{block.name}: no measurements: none of its {len(keep)} image measurement(s) is of a "
                           f"ground point or of a point seen on two photos; give the complete measurement file")
-    has_px = bool(np.isfinite(block.obs_px[keep]).all(axis=1).any())
     has_mm = bool(np.isfinite(block.obs_mm[keep]).all(axis=1).any())
+    # no observation at all (an orientation-only model): the header of `lidarcat init`, pixel columns
+    has_px = bool(np.isfinite(block.obs_px[keep]).all(axis=1).any()) or not keep.any()
     cols = ["photo", "point"] + (["col_px", "row_px"] if has_px else []) + (["x_mm", "y_mm"] if has_mm else [])
     rows = []
     for i in np.flatnonzero(keep):

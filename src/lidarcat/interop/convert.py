@@ -6,7 +6,8 @@ lidarcat survey folder with, optionally, the output folder of ``lidarcat adjust`
 keeps and loses is in ``docs/formats/``; the cameras travel as
 :mod:`lidarcat.interop.lens` describes.  A block with orientations but no tie points (an
 orientation-only OpenSfM reconstruction as OpenDroneMap writes, a Metashape chunk) converts to
-every format but a survey folder, which needs image measurements.
+every format; as a survey folder its ``image_points.csv`` is the header only (``lidarcat match``
+measures the tie points).
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ def write_block(fmt: str, block: Block, out: str | Path, *, angle_unit: str = "d
     ------
     FormatError
         Unknown format, a photo without orientation (colmap, opensfm, opk), a block without
-        image measurements (survey), *out* holding a survey (survey, unless *overwrite*).
+        photos (survey), *out* holding a survey (survey, unless *overwrite*).
     """
     if fmt == "colmap":
         from .colmap import write_colmap
