@@ -46,7 +46,7 @@ import numpy as np
 
 from .._util.frozen import frozen_array
 from .approx import approximations
-from .problem import BundleProblem
+from .problem import BundleProblem, check_datum
 from .screening import SCREEN_K, Screening, screen
 from .solve import adjust
 
@@ -206,6 +206,7 @@ def robust_start(
         raise ValueError(f"`loss` must be one of none, auto, {', '.join(LOSSES)}, got {loss!r}")
     p = problem
     n = len(p.photo_index)
+    check_datum(p)   # a block short of points before any screening: the datum check's own message
     if initial is None:
         eo, _ = approximations(p)
     else:
