@@ -3,6 +3,7 @@
 ==================  ==================================================================
 ``main``            the ``lidarcat`` group: ``-v/-q``, one ``Error:`` line per library error
 ``options``         the one option registry (``-o/--output``, ``--crs``, ``--json``, ``--overwrite``)
+``init``            ``lidarcat init``: a survey folder from a folder of photos
 ``interop``         ``lidarcat import`` / ``export``: other programs' files in and out
 ``camera``          ``lidarcat camera``: interior orientation
 ``lidar``           ``lidarcat lidar info|index|clip|raster``: LiDAR tiles

@@ -34,6 +34,7 @@ __all__ = ["cli", "main", "COMMANDS", "one_line", "os_error_line"]
 
 #: (name, "module:attribute", one-line summary), in pipeline order.
 COMMANDS: list[tuple[str, str, str]] = [
+    ("init", "lidarcat.cli.init:init", "A survey folder from a folder of photos (+ GNSS/IMU file, LiDAR tiles)."),
     ("import", "lidarcat.cli.interop:import_cmd", "Read COLMAP, OpenSfM, Metashape, ODM, OPK, GNSS files into a survey."),
     ("camera", "lidarcat.cli.camera:camera", "Interior orientation: pixel to corrected photo coordinates."),
     ("lidar", "lidarcat.cli.lidar:lidar", "LiDAR tiles: info, index, clip, raster views; ground, DTM/DSM, contours."),

@@ -475,7 +475,13 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
             have = np.isfinite(orientations.eo[i])
             eo[k, have] = orientations.eo[i, have]
             esd[k, :] = np.where(np.isfinite(sd[i]), sd[i], esd[k])
-    cols = ["photo", "camera"]
+    photos_path = survey.files["photos"]
+    photos_rel = photos_path.relative_to(survey.root) if photos_path.is_relative_to(survey.root) else None
+    if photos_rel is None:
+        raise FormatError(f"{survey.files['photos']}: photos.csv lies outside the survey folder; "
+                          f"copy it in first")
+    images = any(ph.image is not None for ph in survey.photos)   # the photos.csv image column, kept
+    cols = ["photo", "camera"] + (["image"] if images else [])
     groups = [(["X0", "Y0", "Z0"], eo[:, :3], 1.0), (["omega_deg", "phi_deg", "kappa_deg"], eo[:, 3:], None),
               (["sd_X0", "sd_Y0", "sd_Z0"], esd[:, :3], 1.0),
               (["sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"], esd[:, 3:], None)]
@@ -485,15 +491,14 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
     rows = []
     for k, ph in enumerate(survey.photos):
         r: list[Any] = [ph.id, ph.camera]
+        if images:
+            from ..survey.folder import relative_path
+
+            r.append("" if ph.image is None else relative_path(ph.image, Path(folder) / photos_rel.parent))
         for _, vals, unit in used:
             v = vals[k] if np.isfinite(vals[k]).all() else np.full(3, np.nan)
             r += list(v if unit else np.degrees(v))
         rows.append(r)
-    photos_path = survey.files["photos"]
-    photos_rel = photos_path.relative_to(survey.root) if photos_path.is_relative_to(survey.root) else None
-    if photos_rel is None:
-        raise FormatError(f"{survey.files['photos']}: photos.csv lies outside the survey folder; "
-                          f"copy it in first")
     with atomic_dir(folder) as tmp:
         copy_survey_files(survey, tmp, skip={photos_rel})
         write_csv_atomic(tmp / photos_rel, cols, rows,

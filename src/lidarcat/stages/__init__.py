@@ -1,6 +1,7 @@
 """The lidarcat stages, one module per stage, in pipeline order.
 
 =============  ======================================================
+``init``       a survey folder from a folder of photos (``lidarcat init``; before ``lidarcat run``)
 ``camera``     interior orientation (eq. 01-07)
 ``extract``    LiDAR roof vertices -> control points, derived survey
 ``adjust``     bundle adjustment of one control set (eq. 08-22)
@@ -27,9 +28,9 @@ Also here: ``context`` (:class:`~lidarcat.stages.context.StageContext`, what a
 stage sees) and ``lidar`` (the actions of the LiDAR production commands).
 """
 
-from . import adjust, assess, camera, compare, context, extract, lidar, mapping, products, report, selfcal, thesis
+from . import adjust, assess, camera, compare, context, extract, init, lidar, mapping, products, report, selfcal, thesis
 
-__all__ = ["camera", "extract", "adjust", "assess", "compare", "thesis", "mapping", "products", "selfcal", "report",
+__all__ = ["init", "camera", "extract", "adjust", "assess", "compare", "thesis", "mapping", "products", "selfcal", "report",
            "context", "lidar", "REGISTRY"]
 
 #: every stage of ``lidarcat run`` in pipeline order: (name, one-line summary); SET is a control set

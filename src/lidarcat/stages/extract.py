@@ -158,7 +158,10 @@ def _write_derived_survey(survey: Any, points: Sequence[Any], set_name: str, fol
     new_files: dict[str, str] = {}
     for key in ("camera", "photos", "image_points"):
         src = survey.files[key]
-        shutil.copyfile(src, folder / f"{key}{src.suffix}")
+        if key == "photos":   # its image paths stay right from the new folder
+            survey.copy_photos_csv(folder / f"{key}{src.suffix}")
+        else:
+            shutil.copyfile(src, folder / f"{key}{src.suffix}")
         new_files[key] = f"{key}{src.suffix}"
     measured = set(survey.image_points.point.tolist())
     ids = []

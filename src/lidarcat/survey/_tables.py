@@ -22,7 +22,7 @@ from .schema import SD_BOUNDS
 
 __all__ = ["Photo", "ImagePoints", "GroundPoints", "ControlSet", "PHOTO_COLUMNS", "column_ids", "no_duplicates",
            "optional_triple", "check_sds", "job_tokens", "load_photos", "load_image_points", "load_ground_points",
-           "load_control_sets", "check_single_photo_points"]
+           "load_control_sets", "check_single_photo_points", "check_images"]
 
 
 # ---------------------------------------------------------------------- value types
@@ -42,6 +42,9 @@ class Photo:
         Standard deviations when the values may act as weighted constraints.
     line : int
         Line of photos.csv.
+    image : Path or None
+        The photo's image file (photos.csv column ``image``, resolved against the survey folder);
+        None when the row names none (:meth:`lidarcat.Survey.image_path` then looks in ``images/``).
     """
 
     id: str
@@ -51,6 +54,7 @@ class Photo:
     sd_position_m: np.ndarray | None = None
     sd_attitude_deg: np.ndarray | None = None
     line: int = 0
+    image: Path | None = None
 
     def __post_init__(self) -> None:
         for name in ("position_m", "attitude_deg", "sd_position_m", "sd_attitude_deg"):
@@ -291,11 +295,14 @@ def job_tokens(path: Path) -> set[str]:
 
 
 # ---------------------------------------------------------------------- file readers
-PHOTO_COLUMNS = ("photo", "camera", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg",
+PHOTO_COLUMNS = ("photo", "camera", "image", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg",
                "sd_X0", "sd_Y0", "sd_Z0", "sd_omega_deg", "sd_phi_deg", "sd_kappa_deg")
 
 
-def load_photos(path: Path, cameras: dict[str, Camera], camera_path: Path) -> tuple[Photo, ...]:
+def load_photos(path: Path, cameras: dict[str, Camera], camera_path: Path, root: Path | None = None
+                ) -> tuple[Photo, ...]:
+    """The photos of photos.csv; with an ``image`` column each named file is checked
+    (:func:`check_images`; paths relative to *root*, default the folder of *path*)."""
     t = read_csv_table(path, required=("photo",), optional=PHOTO_COLUMNS[1:])
     ids = column_ids(t, "photo")
     no_duplicates(t, ("photo",), "photo id")
@@ -317,14 +324,56 @@ def load_photos(path: Path, cameras: dict[str, Camera], camera_path: Path) -> tu
     sda = optional_triple(t, ("sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"), "an attitude sd")
     check_sds(t, sdp, ("sd_X0", "sd_Y0", "sd_Z0"), "m")
     check_sds(t, sda, ("sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"), "deg")
+    base = path.parent if root is None else root
+    images = [(base / v if v and not Path(v).is_absolute() else Path(v)) if v else None
+              for v in (t.column("image") if t.has("image") else [""] * len(ids))]
     photos = []
     for i, line in enumerate(t.lines):
         def opt(a: np.ndarray) -> np.ndarray | None:
             return a[i] if np.isfinite(a[i]).all() else None
-        photos.append(Photo(ids[i], cams[i], opt(pos), opt(att), opt(sdp), opt(sda), line))
+        photos.append(Photo(ids[i], cams[i], opt(pos), opt(att), opt(sdp), opt(sda), line, images[i]))
     if not photos:
         raise SurveyError(f"{path}: no photos")
+    check_images(photos, cameras, path, t.column("image") if t.has("image") else None)
     return tuple(photos)
+
+
+def check_images(photos: Sequence[Photo], cameras: dict[str, Camera], path: Path,
+                 written: Sequence[str] | None = None) -> None:
+    """The image files that photos.csv names: each exists, is a whole JPEG/PNG/TIFF (its header and end,
+    :func:`lidarcat.photos.read_header`, nothing decoded), has its camera's size, and belongs to one
+    photo only.  The first problem is a SurveyError ``photos.csv:LINE: field 'image': ...``."""
+    from ..errors import FormatError
+    from ..photos import read_header
+
+    seen: dict[Path, Photo] = {}
+    for k, p in enumerate(photos):
+        if p.image is None:
+            continue
+        shown = excerpt(written[k] if written is not None else str(p.image))
+        where = location(path, p.line, "image")
+        try:
+            is_file = "\x00" not in str(p.image) and p.image.is_file()
+            key = p.image.resolve()
+        except OSError as ex:
+            raise SurveyError(f"{where}: photo {excerpt(p.id)}: image {shown} cannot be used: "
+                              f"{ex.strerror or ex}") from None
+        if not is_file:
+            raise SurveyError(f"{where}: photo {excerpt(p.id)}: image {shown} not found "
+                              f"({excerpt(str(p.image), 200, quote=False)})")
+        if key in seen:
+            raise SurveyError(f"{where}: photo {excerpt(p.id)}: image {shown} is also the image of photo "
+                              f"{excerpt(seen[key].id)} (line {seen[key].line}); each photo has its own file")
+        seen[key] = p
+        try:
+            head = read_header(p.image)
+        except FormatError as ex:
+            raise SurveyError(f"{where}: photo {excerpt(p.id)}: {ex}") from None
+        cam = cameras[p.camera]
+        if (head.columns_px, head.rows_px) != (cam.columns_px, cam.rows_px):
+            raise SurveyError(f"{where}: photo {excerpt(p.id)}: image {shown} is {head.columns_px} x "
+                              f"{head.rows_px} px but camera {excerpt(cam.id)} is {cam.columns_px} x "
+                              f"{cam.rows_px} px; fix the camera of this photo or the image")
 
 
 def load_image_points(path: Path, photo_ids: set[str], photos_path: Path) -> tuple[ImagePoints, bool]:
@@ -366,8 +415,8 @@ def load_image_points(path: Path, photo_ids: set[str], photos_path: Path) -> tup
             raise SurveyError(f"{location(path, line, fld)}: no coordinates; give col_px, row_px "
                               f"or x_mm, y_mm")
     check_sds(t, sd, ("sd_x_mm", "sd_y_mm"), "mm")
-    if n == 0:
-        raise SurveyError(f"{path}: no image measurements")
+    # n == 0 is a valid state: a survey of photos without observations yet (`lidarcat init`); the
+    # adjustment refuses it (`lidarcat match SURVEY` first)
     return ImagePoints(np.array(photo, dtype=str), np.array(point, dtype=str), px, xy, sd,
                        np.array(t.lines), path), has_xy
 

@@ -22,13 +22,14 @@ from ..bundle.problem import BundleProblem
 from ..bundle.redundancy import FAMILY_LEVEL
 from ..bundle.reliability import SnoopingResult, snoop
 from ..bundle.solve import BundleResult
+from ..errors import SurveyError
 
 if TYPE_CHECKING:  # pragma: no cover
     from .folder import Survey
 
 __all__ = ["adjust_survey", "adjust_survey_into", "write_adjustment", "problem_from_survey", "read_point_covariance",
            "EOP_COLUMNS", "POINT_COLUMNS", "RESIDUAL_COLUMNS", "COVARIANCE_COLUMNS",
-           "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS", "write_point_covariance"]
+           "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS", "write_point_covariance", "require_observations"]
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +44,16 @@ COVARIANCE_COLUMNS = ("point_a", "point_b", "c_EE", "c_EN", "c_Eh", "c_NE", "c_N
 # ---------------------------------------------------------------------------
 # survey -> problem
 # ---------------------------------------------------------------------------
+
+
+def require_observations(survey: Survey) -> None:
+    """Refuse a survey without image observations (the state `lidarcat init` leaves: photos, no tie
+    points yet) with what to do: ``image_points.csv: no image observations: run `lidarcat match SURVEY`
+    first``."""
+    if len(survey.image_points) == 0:
+        where = survey.files.get("image_points", survey.root / "image_points.csv")
+        raise SurveyError(f"{where}: no image observations: run `lidarcat match {survey.root}` first "
+                          f"(or measure tie and control points into it)")
 
 
 def problem_from_survey(
@@ -71,6 +82,7 @@ def problem_from_survey(
     listed as ``control_unmeasured`` in the summary).  Check points of the set
     are free points with role ``check``; every other point has role ``tie``.
     """
+    require_observations(survey)
     cset = survey.control_set(control) if control is None or isinstance(control, str) else control
     obs = survey.photo_observations(observations)
     photos = survey.photos

@@ -29,6 +29,7 @@ from __future__ import annotations
 import glob
 import importlib.resources
 import logging
+import os
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -41,6 +42,7 @@ from .._util import excerpt, read_csv_table, write_csv_atomic
 from ..geometry.camera import Camera, load_camera, load_cameras
 from ..errors import SurveyError, location
 from ._tables import (
+    PHOTO_COLUMNS,
     ControlSet,
     GroundPoints,
     ImagePoints,
@@ -79,6 +81,7 @@ __all__ = [
     "AdjustmentSettings",
     "CorrectedMeasurements",
     "thesis_survey_path",
+    "relative_path",
     "example_camera_path",
     "correct_measurements",
     "cameras_of",
@@ -94,6 +97,20 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+
+def relative_path(path: str | Path, folder: str | Path) -> str:
+    """*path* as written into a file of *folder*: relative to it (``../photos/a.jpg``, '/' separators) when
+    both are on one drive, else absolute.
+
+    >>> relative_path("/data/flight/photos/a.jpg", "/data/flight/survey")
+    '../photos/a.jpg'
+    """
+    p, f = Path(os.path.abspath(path)), Path(os.path.abspath(folder))
+    try:
+        return Path(os.path.relpath(p, f)).as_posix()
+    except ValueError:   # another drive (Windows)
+        return p.as_posix()
 
 
 def _data_dir(name: str) -> Path:
@@ -313,7 +330,7 @@ class Survey:
         assert camera_path is not None
         cameras = load_cameras(camera_path)
         photos_path = file_of("photos")
-        photos = load_photos(photos_path, cameras, camera_path)  # type: ignore[arg-type]
+        photos = load_photos(photos_path, cameras, camera_path, root)  # type: ignore[arg-type]
         photo_ids = {p.id for p in photos}
 
         gp_path = file_of("ground_points")
@@ -380,6 +397,72 @@ class Survey:
             if p.id == photo_id:
                 return p
         raise SurveyError(f"{self.root}: no photo {excerpt(photo_id)}; photos are {excerpt(', '.join(self.photo_ids), 200, quote=False)}")
+
+    def image_path(self, photo_id: str) -> Path:
+        """The image file of photo *photo_id*.
+
+        The ``image`` cell of its photos.csv row (relative to the survey folder); a row without one
+        falls back to the folder convention of the orthophoto stage, ``images/<photo>.<png|tif|tiff|
+        jpg|jpeg>`` (``[mapping] images``, default ``images``) -- the layout ``lidarcat demo synthetic
+        --images`` wrote before the column existed.
+
+        Raises
+        ------
+        SurveyError
+            Unknown photo; or the photo has no image, or its file is gone since the load:
+            ``photos.csv:LINE: field 'image': ...``.
+        """
+        p = self.photo(photo_id)
+        where = location(self.files.get("photos", self.root / "photos.csv"), p.line, "image")
+        if p.image is not None:
+            if not p.image.is_file():
+                raise SurveyError(f"{where}: photo {excerpt(p.id)}: image {excerpt(str(p.image), 200, quote=False)} "
+                                  f"not found")
+            return p.image
+        from ..photos import IMAGE_SUFFIXES
+
+        folder = Path(self.config.mapping.images if self.config is not None and self.config.mapping is not None
+                      else "images")
+        folder = folder if folder.is_absolute() else self.root / folder
+        for suffix in IMAGE_SUFFIXES:
+            for name in (f"{p.id}{suffix}", f"{p.id}{suffix.upper()}"):
+                if (folder / name).is_file():
+                    return folder / name
+        raise SurveyError(f"{where}: photo {excerpt(p.id)} has no image: give its file in the column 'image' "
+                          f"(relative to the survey folder) or put it in {excerpt(str(folder), 200, quote=False)} "
+                          f"as {p.id}.jpg/.png/.tif")
+
+    def copy_photos_csv(self, dest: str | Path) -> Path:
+        """Copy photos.csv to *dest* (a derived survey elsewhere) with its ``image`` cells rewritten relative
+        to the folder of *dest*, so that the copy names the same files; written atomically.
+
+        A plain copy would break the relative paths (``../photos/IMG_1.jpg``) of ``lidarcat init``.
+        """
+        import shutil
+
+        dest = Path(dest)
+        src = self.files.get("photos", self.root / "photos.csv")
+        if not any(p.image is not None for p in self.photos):
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(src, dest)
+            return dest
+        t = read_csv_table(src, required=("photo",), optional=PHOTO_COLUMNS[1:])
+        k = t.header.index("image")
+        rows = [list(r) for r in t.rows]
+        for r, p in zip(rows, self.photos):
+            if p.image is not None:
+                r[k] = relative_path(p.image, dest.parent)
+        return write_csv_atomic(dest, t.header, rows)
+
+    @property
+    def has_images(self) -> bool:
+        """Every photo has an image file (:meth:`image_path` finds one)."""
+        try:
+            for pid in self.photo_ids:
+                self.image_path(pid)
+        except SurveyError:
+            return False
+        return True
 
     def camera_of(self, photo_id: str) -> Camera:
         """The camera of photo *photo_id*."""
@@ -481,6 +564,7 @@ class Survey:
             "default_control": self.default_control,
             "cameras": {k: c.to_dict() for k, c in self.cameras.items()},
             "photos": [p.id for p in self.photos],
+            "n_images": sum(p.image is not None for p in self.photos),
             "n_image_points": len(self.image_points),
             "n_observations": len(self.image_points) - int(
                 np.isin(self.image_points.point, list(self.settings.exclude_points)).sum()),

@@ -341,9 +341,11 @@ def write_synthetic_survey(
     with atomic_dir(outdir) as tmp:
         write_text_atomic(tmp / "camera.toml",
                           "# Synthetic camera of lidarcat.synthetic.survey (known truth).\n" + cam.to_toml())
-        write_csv_atomic(tmp / "photos.csv", ["photo", "camera"], [(p, cam.id) for p in photo_ids],
+        write_csv_atomic(tmp / "photos.csv", ["photo", "camera"] + (["image"] if images else []),
+                         [(p, cam.id) + ((f"images/{p}.png",) if images else ()) for p in photo_ids],
                          comments=["Synthetic block written by lidarcat.synthetic.survey; "
-                                   "true orientations in truth/eop.csv."])
+                                   "true orientations in truth/eop.csv."]
+                         + (["image: the rendered photo (lidarcat demo synthetic --images)"] if images else []))
         write_csv_atomic(tmp / "image_points.csv", ["photo", "point", "col_px", "row_px"], obs_rows,
                          comments=[f"Pixel measurements, noise sd {image_sd_px} px (seed {seed}); "
                                    "T* tie, G* GPS, R* roof vertices."])
