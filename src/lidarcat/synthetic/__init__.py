@@ -5,6 +5,7 @@
 ``survey``      A synthetic survey with known truth: ``lidarcat demo synthetic``.
 ``roofs``       Synthetic buildings with known roof vertices, sampled like an airborne scanner.
 ``scene``       A textured synthetic scene and aerial photos of it, rendered with known truth.
+``aerial``      A synthetic aerial block from photos: realistic rendered photos, approximate GNSS/IMU, GPS control, truth.
 ``landscapes``  Synthetic landscapes with known ground, for judging ground filters beyond the AHN3 tiles.
 ``cavassim``    The experiment of Cavassim (2005) on a synthetic town: three mapping products against known truth.
 ==============  ============================================================
@@ -40,6 +41,15 @@ from .scene import (  # noqa: F401
     Scene,
     demo_scene,
 )
+from .aerial import (  # noqa: F401
+    AerialScene,
+    AerialSurvey,
+    Exposure,
+    RenderedPhoto,
+    aerial_survey,
+    load_aerial_survey,
+    render_photo,
+)
 from .landscapes import (  # noqa: F401
     Landscape,
     make_landscape,
@@ -73,6 +83,13 @@ __all__ = [
     'Road',
     'Scene',
     'demo_scene',
+    'AerialScene',
+    'AerialSurvey',
+    'Exposure',
+    'RenderedPhoto',
+    'aerial_survey',
+    'load_aerial_survey',
+    'render_photo',
     'Landscape',
     'make_landscape',
     'LANDSCAPES',

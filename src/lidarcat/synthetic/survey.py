@@ -53,7 +53,8 @@ from ..geometry.collinearity import project
 from ..geometry.camera import Camera
 from ..errors import LidarcatError
 from . import roofs as _roofs  # the roof generator of the roof-extraction issue
-from .scene import DEMO_GROUND_M, DEMO_ORIGIN_EN, Building, Scene, demo_terrain
+from ._photo import AerialScene, Exposure, render_photo
+from .scene import DEMO_GROUND_M, DEMO_ORIGIN_EN, Building, demo_terrain
 
 __all__ = ["DemoSurvey", "write_synthetic_survey", "compare_with_truth", "demo_camera", "project_points",
            "DEMO_CRS"]
@@ -238,9 +239,9 @@ def write_synthetic_survey(
     n_roofs : int, optional
         Number of buildings (default: 1 + n_photos, at most 12).
     images : bool
-        Also render the photos of the block (:mod:`lidarcat.synthetic.scene`: the terrain
-        textured, the buildings' roofs shaded) into ``images/<photo>.png``, for
-        ``lidarcat monoplot`` and ``lidarcat ortho``.
+        Also render the photos of the block (:func:`lidarcat.synthetic.aerial.render_photo`:
+        fields, roads, trees and shadows, the buildings' roofs shaded by the sun, an exposure per
+        photo) into ``images/<photo>.png``, for ``lidarcat monoplot``, ``ortho`` and ``match``.
     image_downsample : int
         Render at 1/k of the resolution and upsample (faster; blurrier photos
         with the same geometry).
@@ -379,7 +380,7 @@ def write_synthetic_survey(
                                _roofs)
         tick(4)
         if images:
-            _render_photos(tmp / "images", demo_scene_of(buildings), cam, eo, photo_ids, image_downsample)
+            _render_photos(tmp / "images", buildings, cam, eo, photo_ids, image_downsample)
         (tmp / "truth").mkdir()
         write_csv_atomic(
             tmp / "truth" / "eop.csv",
@@ -576,14 +577,21 @@ def _lidar_attributes(xyz: np.ndarray, label: np.ndarray, roofs: Any) -> dict[st
             "return_number": ones, "number_of_returns": ones.copy()}
 
 
-def demo_scene_of(buildings: Sequence[dict]) -> Any:
-    """The :class:`lidarcat.synthetic.scene.Scene` of the demo's terrain and buildings (for rendering photos)."""
-    return Scene(tuple(Building(b["kind"], b["params"]["e"], b["params"]["n"], **{
-        k: v for k, v in b["params"].items() if k not in ("e", "n")}) for b in buildings))
+def demo_scene_of(buildings: Sequence[dict], texel_m: float = 0.12) -> Any:
+    """The :class:`lidarcat.synthetic.aerial.AerialScene` of the demo's terrain and buildings (for rendering
+    photos): fields, trees and shadows around them, albedo texels of *texel_m*."""
+    return AerialScene(demo_terrain, tuple(Building(b["kind"], b["params"]["e"], b["params"]["n"], **{
+        k: v for k, v in b["params"].items() if k not in ("e", "n")}) for b in buildings), texel_m=texel_m)
 
 
-def _render_photos(folder: Path, scene: Any, cam: Camera, eo: np.ndarray, ids: Sequence[str], downsample: int) -> None:
-    """Render every photo into ``folder/<id>.png`` (at 1/downsample resolution, upsampled bilinearly)."""
+def _render_photos(folder: Path, buildings: Sequence[dict], cam: Camera, eo: np.ndarray, ids: Sequence[str],
+                   downsample: int) -> None:
+    """Render every photo into ``folder/<id>.png`` (at 1/downsample resolution, upsampled bilinearly).
+
+    :func:`lidarcat.synthetic.aerial.render_photo`: an aerial-looking photo (fields, trees, shaded
+    roofs) with an exposure of its own per photo, seeded by the photo's position in the block (the
+    survey's random stream is left as it was: the other files do not change).
+    """
     import cv2
 
     from .._util import atomic_write
@@ -594,9 +602,12 @@ def _render_photos(folder: Path, scene: Any, cam: Camera, eo: np.ndarray, ids: S
     small = Camera(cam.id, cam.focal_length_mm, cam.principal_point_x_mm, cam.principal_point_y_mm, cam.k1,
                    cam.k2, cam.k3, cam.p1, cam.p2, cam.refraction_eps45, cam.pixel_size_x_mm * downsample,
                    cam.pixel_size_y_mm * downsample, cam.columns_px // downsample, cam.rows_px // downsample)
+    gsd = float(np.mean(eo[:, 2]) - _GROUND_M) * small.pixel_size_x_mm / small.focal_length_mm
+    scene = demo_scene_of(buildings, texel_m=gsd)
     folder.mkdir(parents=True, exist_ok=True)
-    for pid, e in zip(ids, eo):
-        img = scene.render(small, e)
+    for k, (pid, e) in enumerate(zip(ids, eo)):
+        img = render_photo(scene, small, e, exposure=Exposure.random(1000 + k, vignetting=0.1, noise_sd=1.0),
+                           truth=False).image
         if downsample > 1:   # pixel centres stay aligned: dst x <-> src (x + 0.5) / k - 0.5
             img = cv2.resize(img, (cam.columns_px, cam.rows_px), interpolation=cv2.INTER_LINEAR)
         ok, buf = cv2.imencode(".png", img)
