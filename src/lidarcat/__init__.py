@@ -9,6 +9,7 @@ The house by stage, one package per stage of the pipeline (docs/layout.md):
 ``geometry/``    the camera (interior orientation, eq. 01-07), collinearity equations
 ``survey/``      the survey folder: load, validate; survey -> bundle problem, tables out
 ``photos/``      photo files: header (size, truncation), EXIF focal length and GNSS position
+``match/``       stage match: automatic tie points (SIFT, footprint pairs, guided matching, tracks)
 ``lidar/``       LiDAR data access (LAS/LAZ/COPC/ASCII, CRS, tile index, clips, rasters),
                  the tile engine
 ``control/``     stage extract: roof facets, plane intersection into control points

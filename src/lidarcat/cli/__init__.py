@@ -5,6 +5,7 @@
 ``options``         the one option registry (``-o/--output``, ``--crs``, ``--json``, ``--overwrite``)
 ``init``            ``lidarcat init``: a survey folder from a folder of photos
 ``interop``         ``lidarcat import`` / ``export``: other programs' files in and out
+``match``           ``lidarcat match``: tie points from the photos
 ``camera``          ``lidarcat camera``: interior orientation
 ``lidar``           ``lidarcat lidar info|index|clip|raster``: LiDAR tiles
 ``lidar_products``  ``lidarcat lidar ground|dtm|dsm|contours|hypsometry|sheets``: the production chain

@@ -36,6 +36,7 @@ __all__ = ["cli", "main", "COMMANDS", "one_line", "os_error_line"]
 COMMANDS: list[tuple[str, str, str]] = [
     ("init", "lidarcat.cli.init:init", "A survey folder from a folder of photos (+ GNSS/IMU file, LiDAR tiles)."),
     ("import", "lidarcat.cli.interop:import_cmd", "Read COLMAP, OpenSfM, Metashape, ODM, OPK, GNSS files into a survey."),
+    ("match", "lidarcat.cli.match:match", "Tie points from the photos: SIFT, footprint pairs, guided matching."),
     ("camera", "lidarcat.cli.camera:camera", "Interior orientation: pixel to corrected photo coordinates."),
     ("lidar", "lidarcat.cli.lidar:lidar", "LiDAR tiles: info, index, clip, raster views; ground, DTM/DSM, contours."),
     ("extract", "lidarcat.cli.extract:extract", "Roof planes to control points (Delaunay facets + plane intersection)."),

@@ -32,7 +32,7 @@ from .runner import (
     run_stages,
     safe_name,
 )
-from ..stages import adjust, assess, camera, compare, extract, mapping, products, report, selfcal, thesis
+from ..stages import adjust, assess, camera, compare, extract, mapping, match, products, report, selfcal, thesis
 from ..stages.report import results
 
 __all__ = ["FROM_SURVEY", "plan_pipeline", "run_pipeline"]
@@ -71,7 +71,7 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     Returns
     -------
     list of Stage
-        camera, extract, one adjust-SET and assess-SET per control set, one
+        match (tie points: only when the photos have images and the survey too few tie points), camera, extract, one adjust-SET and assess-SET per control set, one
         compare stage per pair (default set vs each other set), thesis /
         mapping / products / selfcal when the survey asks for them, report.
 
@@ -89,9 +89,13 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     files_lidar = _survey_files(survey)
     stages: list[Stage] = []
 
-    has_pixels = bool(np.isfinite(survey.image_points.pixel_px).all(axis=1).any())
+    why_no_match = match.planned(survey)    # tie points from the photos first, only for a survey that needs them
+    if why_no_match is None:
+        stages.append(Stage("match", "match", match.run, inputs=lambda ctx: [*files, *match.image_files(survey)],
+                            description="tie points from the photos (SIFT, guided matching)"))
+    has_pixels = bool(np.isfinite(survey.image_points.pixel_px).all(axis=1).any()) or why_no_match is None
     stages.append(Stage(
-        "camera", "camera", camera.run, inputs=lambda ctx: files,
+        "camera", "camera", camera.run, inputs=_after_match(files),
         skip_reason=None if has_pixels else "image_points has no pixel coordinates (col_px, row_px)",
         description="interior orientation (eq. 01-07)"))
 
@@ -130,7 +134,7 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
         stages.append(Stage(
             f"adjust-{name}", f"adjust-{safe_name(name)}", adjust.run,
             requires=("extract",) if derived else (),
-            inputs=lambda ctx: files,
+            inputs=_after_match(files),
             params={"control": name, "derived": derived},
             description=f"bundle adjustment, control set {name}"))
     for name, derived in runs:
@@ -169,12 +173,24 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     if "products" in survey_tables(survey):  # only surveys that ask for LiDAR products get the stage
         stages.append(_products_stage(survey, files_lidar))
     if selfcal.planned(survey):
-        stages.append(Stage("selfcal", "selfcal", selfcal.run, inputs=lambda ctx: files,
+        stages.append(Stage("selfcal", "selfcal", selfcal.run, inputs=_after_match(files),
                             description="adjustment with additional parameters ([self_calibration])"))
     upstream = tuple(s.name for s in stages)
     stages.append(Stage("report", "report", report.run, uses=upstream,
                         inputs=lambda ctx: files, description="HTML / Markdown / JSON report"))
     return stages
+
+
+def _after_match(files: list[Path]) -> Any:
+    """``inputs`` of a stage that adjusts the image observations: once the match stage is done (ran or
+    reused), ``ctx["survey"]`` becomes the survey with ``match/image_points.csv`` and that table is an input."""
+    def inputs(ctx: Any) -> list[Path]:
+        if ctx is None or not ctx.done("match"):
+            return files
+        table = ctx.folder("match") / "image_points.csv"
+        ctx.values["survey"] = match.survey_with(ctx["survey"], table)
+        return [*files, table]
+    return inputs
 
 
 def survey_tables(survey: Any) -> set[str]:

@@ -2,6 +2,7 @@
 
 =============  ======================================================
 ``init``       a survey folder from a folder of photos (``lidarcat init``; before ``lidarcat run``)
+``match``      tie points from the photos into image_points.csv (issue 28)
 ``camera``     interior orientation (eq. 01-07)
 ``extract``    LiDAR roof vertices -> control points, derived survey
 ``adjust``     bundle adjustment of one control set (eq. 08-22)
@@ -18,7 +19,7 @@ Each module has ``run(ctx, tmpdir) -> dict`` (``ctx`` a
 :class:`~lidarcat.stages.context.StageContext`), run by :mod:`lidarcat.pipeline`,
 which orders them for a survey; the stages with a command of their own expose
 its action (one function, inputs in, files out), which the command in
-:mod:`lidarcat.cli` and the ``run`` function both call: :func:`extract.extract`,
+:mod:`lidarcat.cli` and the ``run`` function both call: :func:`match.match` (``lidarcat match``), :func:`extract.extract`,
 :func:`adjust.adjust`, :func:`assess.assess`, :func:`mapping.orthophotos` (``lidarcat ortho``),
 :func:`lidar.ground` (``lidarcat lidar ground``) and :func:`lidar.terrain_model`
 (``lidarcat lidar dtm|dsm``; the products stage calls both).  :data:`REGISTRY` lists the stages with their one-line
@@ -28,13 +29,14 @@ Also here: ``context`` (:class:`~lidarcat.stages.context.StageContext`, what a
 stage sees) and ``lidar`` (the actions of the LiDAR production commands).
 """
 
-from . import adjust, assess, camera, compare, context, extract, init, lidar, mapping, products, report, selfcal, thesis
+from . import adjust, assess, camera, compare, context, extract, init, lidar, mapping, match, products, report, selfcal, thesis
 
-__all__ = ["init", "camera", "extract", "adjust", "assess", "compare", "thesis", "mapping", "products", "selfcal", "report",
+__all__ = ["init", "match", "camera", "extract", "adjust", "assess", "compare", "thesis", "mapping", "products", "selfcal", "report",
            "context", "lidar", "REGISTRY"]
 
 #: every stage of ``lidarcat run`` in pipeline order: (name, one-line summary); SET is a control set
 REGISTRY: tuple[tuple[str, str], ...] = (
+    ("match", "tie points from the photos (survey with images and too few tie points)"),
     ("camera", "interior orientation, pixel -> corrected photo coordinates"),
     ("extract", "LiDAR roof vertices -> control points (survey with lidar + jobs)"),
     ("adjust-SET", "bundle adjustment for every control set (thesis: gps, lidar)"),

@@ -8,6 +8,7 @@
 ``aerial``      A synthetic aerial block from photos: realistic rendered photos, approximate GNSS/IMU, GPS control, truth.
 ``landscapes``  Synthetic landscapes with known ground, for judging ground filters beyond the AHN3 tiles.
 ``cavassim``    The experiment of Cavassim (2005) on a synthetic town: three mapping products against known truth.
+``textured``    Small photos of a textured rolling ground with the true point behind every pixel (matching tests).
 ==============  ============================================================
 """
 
