@@ -249,6 +249,9 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("bundle/redundancy.py", "check_level", "ValueError", "`power` must be in (0.5, 1), got {}"): _ARG,
     ("bundle/reliability.py", "snoop", "ValueError", "`snooping` must be one of {}, got {}"): _ENUM,
     ("bundle/reliability.py", "snoop", "ValueError", "`robust` must be one of {}, got {}"): _ENUM,
+    ("bundle/reliability.py", "snoop", "ValueError", "`start` must be one of {}, got {}"): _ENUM,
+    ("bundle/robust.py", "loss_weight", "ValueError", "`loss` must be one of {}, got {}"): _ENUM,
+    ("bundle/robust.py", "robust_start", "ValueError", "`loss` must be one of none, auto, {}, go"): _ENUM,
     ("bundle/selfcal.py", "SelfCalResult.index", "ValueError", "no additional parameter {}; there are: {"):
         "lookup by name from Python code, like list.index",
     ("bundle/selfcal.py", "adjust_with_parameters", "ValueError", "`alpha` must be in (0, 1)"): _ARG,

@@ -324,7 +324,7 @@ def test_robust_danish_recovers_orientations_within_3_sd():
     xy[idx] += rng.choice([-1, 1], (len(idx), 2)) * rng.uniform(20, 50, (len(idx), 2)) * b.image_sd_mm
     bad = dataclasses.replace(p, xy_mm=xy)
     for robust in ("danish", "huber"):
-        sr = snoop(bad, mode="remove", robust=robust)
+        sr = snoop(bad, mode="remove", robust=robust, start="plain")   # the IRLS of the group tests alone
         res = sr.result
         dev = np.abs(np.asarray(res.eo_params) - np.asarray(b.true_eo)) / res.eo_sd
         assert dev.max() < 3.0, (robust, dev.max())
@@ -506,8 +506,8 @@ def test_several_rejections_per_round_only_when_separate():
     xy = np.array(p.xy_mm)
     xy[idx] += np.array([[40.0, 0.0], [0.0, -40.0], [30.0, 30.0]]) * p.sd_mm[idx]
     bad = dataclasses.replace(p, xy_mm=xy)
-    one = snoop(bad, mode="remove", multiple=False, backward=False)
-    several = snoop(bad, mode="remove", backward=False)
+    one = snoop(bad, mode="remove", start="plain", multiple=False, backward=False)
+    several = snoop(bad, mode="remove", start="plain", backward=False)
     named = [(x.photo, x.point) for x in one.blunders]
     assert len(named) == 3 and {(x.photo, x.point) for x in several.blunders} == set(named)
     assert [x.iteration for x in one.blunders] == [1, 2, 3]
@@ -528,7 +528,7 @@ def test_rejection_limit_stops_and_says_so():
     xy = np.array(p.xy_mm)
     xy[idx] += 40 * p.sd_mm[idx]
     bad = dataclasses.replace(p, xy_mm=xy)
-    sr = snoop(bad, mode="remove", max_rejections=1, backward=False)
+    sr = snoop(bad, mode="remove", start="plain", max_rejections=1, backward=False)
     assert sr.more_remain and sr.blunders_remain and len([x for x in sr.blunders if x.removed]) == 1
     assert sr.summary()["snooping"]["blunders_remain"] is True
     full = snoop(bad, mode="remove", backward=False)            # default limit: max(100, 5 % of the tests)

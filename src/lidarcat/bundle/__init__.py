@@ -17,6 +17,10 @@ The package, one concern per module, in the order a step runs:
 ``precision``       blocks of N^-1 (photo 6x6, point 3x3, photo-point per
                     observation) by selected inversion, :func:`joint_point_covariance`
 ``approx``          approximate values from the data alone (never from the answer)
+``screening``       tie points screened by their intersection geometry at the
+                    approximate orientation (:func:`screen`)
+``robust``          the robust start: screening, graduated IRLS, the rejected
+                    observations named and put back (:func:`robust_start`)
 ==================  ==========================================================
 
 Additional parameters (issue 13): ``additional`` (self-calibration, GNSS

@@ -320,6 +320,43 @@ def chi2_bounds(dof: int, level: float = 0.05) -> dict[str, float]:
 # ---------------------------------------------------------------------------
 
 
+#: constrained photo positions (without attitudes) closer to their line than this many of their sds leave
+#: the rotation about it undetermined (its sd would be sd / distance rad: 0.05 rad at this limit)
+LINE_SDS = 20.0
+
+
+def _eo_datum_defect(p: BundleProblem, photos: np.ndarray) -> str | None:
+    """What the weighted GNSS/INS constraints of *photos* leave undetermined of the 7 datum
+    parameters (a phrase naming the defect), or None when they fix all of them.
+
+    Positions fix the translation (one photo) and the scale (two distinct photos); the rotation
+    needs three positions off a line, or two positions and one constrained attitude (a single
+    attitude fixes the rotation; without a second position the scale stays free).
+    """
+    eo_in = np.isin(p.eo_constraint_photo_index, photos)
+    sd = p.eo_constraint_sd[eo_in]
+    pos_rows = np.isfinite(sd[:, :3]).all(axis=1)
+    att = int(np.isfinite(sd[:, 3:]).all(axis=1).sum())
+    pos = p.eo_constraint_params[eo_in][pos_rows, :3]
+    ids = p.photo_ids[p.eo_constraint_photo_index[eo_in][pos_rows]]
+    listed = ", ".join(ids[:5]) + (" ..." if len(ids) > 5 else "")
+    if len(pos) == 0:
+        return ("a datum defect of " + ("4" if att else "7") + ": no photo position is constrained (position"
+                + (" and scale" if att else ", attitude and scale") + " free)")
+    distinct = pos - pos.mean(axis=0)
+    sv = np.linalg.svd(distinct, compute_uv=False) if len(pos) > 1 else np.zeros(3)
+    if len(pos) == 1 or sv[0] < 1e-6:
+        return (f"a datum defect of {1 if att else 4}: one constrained photo position ({listed}) fixes no scale"
+                + ("" if att else " and no rotation"))
+    sd_max = float(np.max(sd[pos_rows][:, :3]))
+    off_line = sv[1] / math.sqrt(len(pos))               # RMS distance of the positions from their line
+    if att == 0 and (len(pos) == 2 or off_line < LINE_SDS * sd_max or sv[1] < 1e-3 * sv[0]):
+        return (f"a datum defect of 1 (rank deficiency: the rotation about the line through the "
+                f"{len(pos)} constrained photo positions ({listed}; {off_line:.3g} m off the line, their sd "
+                f"{sd_max:.3g} m) is not determined, no attitude is constrained)")
+    return None
+
+
 def check_datum(problem: BundleProblem) -> None:
     """Detect what makes the normal equations singular, before solving.
 
@@ -378,19 +415,18 @@ def check_datum(problem: BundleProblem) -> None:
     row_of = {int(j): r for r, j in enumerate(p.constraint_point_index)}
     for c in comps:
         photos_c = np.flatnonzero(comp == c)
-        if has_eo:
-            eo_in = np.isin(p.eo_constraint_photo_index, photos_c)
-            if eo_in.any():
-                sd = p.eo_constraint_sd[eo_in]
-                n_pos = int(np.isfinite(sd[:, :3]).all(axis=1).sum())
-                n_att = int(np.isfinite(sd[:, 3:]).all(axis=1).sum())
-                if (n_pos >= 1 and n_att >= 1 and n_pos + n_att >= 3) or n_pos >= 3:
-                    continue
+        names = ", ".join(p.photo_ids[photos_c][:5]) + (" ..." if len(photos_c) > 5 else "")
+        where = "the block" if len(comps) == 1 else f"the part of the block with photo(s) {names}"
+        eo_defect = _eo_datum_defect(p, photos_c) if has_eo else "no GNSS/INS constraint"
+        if eo_defect is None:
+            continue
         in_c = np.zeros(n_pt, dtype=bool)                  # points seen from this part (a mask: linear)
         in_c[p.point_index[comp[p.photo_index] == c]] = True
         ctrl_c = np.unique(ctrl_idx[in_c[ctrl_idx]])
-        names = ", ".join(p.photo_ids[photos_c][:5]) + (" ..." if len(photos_c) > 5 else "")
-        where = "the block" if len(comps) == 1 else f"the part of the block with photo(s) {names}"
+        if len(ctrl_c) == 0 and has_eo and np.isin(p.eo_constraint_photo_index, photos_c).any():
+            raise DatumError(f"{where} has no control points and its GNSS/INS constraints leave {eo_defect}; "
+                             "constrain the attitudes too (sd_omega_deg, sd_phi_deg, sd_kappa_deg in photos.csv), "
+                             "the positions of more photos off a line, or add control points")
         if len(ctrl_c) == 0:
             raise DatumError(f"no control in {where}: datum defect of 7 (position, attitude, scale); "
                              "give at least 3 control points not on a line (or GNSS/INS constraints)")

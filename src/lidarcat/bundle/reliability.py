@@ -46,6 +46,7 @@ from .redundancy import (  # noqa: F401
     COMPONENTS, FAMILY_LEVEL, MIN_REDUNDANCY, RELIABILITY_COLUMNS, Blunder, Reliability,
     check_level, critical_values, family_alpha, noncentrality, reliability)
 from .result import BundleResult
+from .robust import START_MODES, put_back, robust_start, start_blunders
 from .solve import adjust
 
 __all__ = ["Blunder", "Reliability", "SnoopingResult", "SNOOPING_MODES", "ROBUST_METHODS",
@@ -63,6 +64,12 @@ ROBUST_CUT = 0.1
 MAX_REJECTED_SHARE = 0.05
 #: IRLS: stop when the set of groups below ROBUST_CUT is the same after this many re-weightings
 ROBUST_STABLE = 2
+#: data snooping: a photo takes one more rejection per round per this many observations (besides the
+#: separate ones), the largest test of each point only
+OBS_PER_REJECTION = 50
+#: the backward step re-adjusts once per rejection up to this many rejections; beyond, the
+#: rejected image observations are put back together when their predicted residual passes
+REFINE_MAX = 20
 #: IRLS: smallest weight factor (sigma x 100: a point keeps a regular normal-equation block)
 ROBUST_FLOOR = 1e-4
 
@@ -94,6 +101,7 @@ class SnoopingResult:
     robust: str
     more_remain: bool
     n_adjustments: int
+    start: str = "plain"
 
     @property
     def blunders_remain(self) -> bool:
@@ -103,7 +111,9 @@ class SnoopingResult:
     def summary(self) -> dict[str, Any]:
         """``snooping`` and ``blunders`` of ``summary.json``."""
         rel = self.reliability
-        snoop_info: dict[str, Any] = {"mode": self.mode, "robust": self.robust,
+        snoop_info: dict[str, Any] = {"mode": self.mode, "robust": self.robust, "start": self.start,
+                                      "n_found_by": {k: sum(b.found_by == k for b in self.blunders)
+                                                     for k in sorted({b.found_by for b in self.blunders})},
                                       "n_adjustments": self.n_adjustments,
                                       "n_blunders": len(self.blunders),
                                       "n_removed": sum(b.removed for b in self.blunders),
@@ -202,6 +212,8 @@ def snoop(
     power: float = 0.80,
     family_level: float = FAMILY_LEVEL,
     robust: str = "none",
+    start: str = "robust",
+    loss: str = "auto",
     max_rejections: int | None = None,
     backward: bool = True,
     multiple: bool = True,
@@ -233,6 +245,15 @@ def snoop(
         Run iteratively re-weighted least squares first and remove the groups
         it weights down below :data:`ROBUST_CUT` in one go (large blocks with
         many blunders); snooping then tests the rest.
+    start : {"robust", "plain"}
+        ``robust`` (with ``report`` and ``remove``): screen the tie points by their intersection
+        geometry and re-weight with *loss* before any least-squares step
+        (:func:`lidarcat.bundle.robust.robust_start`); the observations it rejects are listed
+        as blunders (``found_by`` ``screening`` or the loss), and put back when their residual
+        at the solution of the rest passes the test.  ``plain``: least squares from the start.
+    loss : {"auto", "cauchy", "huber", "tukey", "none"}
+        Loss of the robust start's re-weighting (``auto``: Cauchy, when least squares on the
+        screened observations does not converge).
     max_rejections : int, optional
         Stop after this many rejections (``more_remain`` tells).  Default: 100, or
         :data:`MAX_REJECTED_SHARE` of the groups tested in the first adjustment when that is
@@ -272,17 +293,36 @@ def snoop(
     if level is not None:
         check_level(level, power)
     check_level(family_level, power)
+    if start not in START_MODES:
+        raise ValueError(f"`start` must be one of {', '.join(START_MODES)}, got {start!r}")
     final_precision = adjust_kwargs.pop("precision", "all")
-    first = adjust(problem, precision=final_precision, **adjust_kwargs)
-    if mode == "off":
-        return SnoopingResult(first, None, (), mode, robust, False, 1)
     p = problem
-    n_adj = 1
     sub = _Subset(np.ones(len(p.photo_index), bool), np.ones(len(p.constraint_point_index), bool),
                   np.ones(0 if p.eo_constraint_photo_index is None else len(p.eo_constraint_photo_index), bool))
+    rs = None
+    if mode != "off" and start == "robust":
+        if "initial" in adjust_kwargs:
+            adjust_kwargs = dict(adjust_kwargs)
+            init = adjust_kwargs.pop("initial")
+            rs = robust_start(p, initial=init, loss=loss, **_tolerances(adjust_kwargs))
+        else:
+            rs = robust_start(p, loss=loss, **_tolerances(adjust_kwargs))
+    if rs is None or rs.n_rejected == 0:
+        kw = adjust_kwargs if rs is None else {**adjust_kwargs, "initial": (np.asarray(rs.eo), None)}
+        first = adjust(problem, precision=final_precision, **kw)
+        res, cur = first, p
+        rs = None
+    else:   # the least squares start without the rejected observations, from the robust estimate
+        sub.obs[:] = rs.keep
+        cur, _, kept = sub.problem(p)
+        first = None
+        res = adjust(cur, initial=(np.asarray(rs.eo), np.asarray(rs.points_m)[kept]), precision="none",
+                     **{k: v for k, v in adjust_kwargs.items() if k != "initial"})
+    if mode == "off":
+        return SnoopingResult(first, None, (), mode, robust, False, 1, "plain")
+    n_adj = 1
     blunders: list[Blunder] = []
-    res, cur = first, p
-    rel_first = reliability(first, level=level, power=power, family_level=family_level) if first.success else None
+    rel_first = reliability(res, level=level, power=power, family_level=family_level) if res.success else None
     if rel_first is not None:
         level = rel_first.alpha          # the family is the first adjustment's tests
     if max_rejections is None:
@@ -290,11 +330,13 @@ def snoop(
         max_rejections = max(100, math.ceil(MAX_REJECTED_SHARE * n_groups))
     rel = rel_first
     more = False
-    if robust != "none" and first.success:
-        res, cur, rel, found, k = _robust(p, sub, first, rel, robust, level, power, adjust_kwargs)
+    if robust != "none" and res.success:
+        res, cur, rel, found, k = _robust(p, sub, res, rel, robust, level, power, adjust_kwargs, base=cur)
         blunders += found
         n_adj += k
     iteration = n_rej = 0
+    tried = np.zeros(len(p.photo_index), dtype=bool)      # robust-start rejections tested for putting back
+    tried_snoop = np.zeros(len(p.photo_index), dtype=bool)  # snooping rejections tested (large blocks)
     near = _Neighbours(p) if multiple else None
     single = False                 # after a failed multiple round: one group at a time
     for _round in range(20):
@@ -340,15 +382,64 @@ def snoop(
             res, cur, rel = res_new, nxt, rel_new
         if more or rel is None or not backward:
             break
+        if rs is not None:   # put back what the robust start rejected at a worse orientation
+            back = put_back(p, ~rs.keep & ~tried & ~sub.obs, np.asarray(res.eo_params), res.point_ids,
+                            np.asarray(res.points_m), math.sqrt(critical_values(level, power, 2)[1]))
+            tried |= ~rs.keep
+            if back.any():
+                trial = dataclasses.replace(sub, obs=sub.obs | back, con=sub.con.copy(), eo=sub.eo.copy())
+                try:
+                    prob, _, _ = trial.problem(p)
+                    r = _readjust(prob, (np.asarray(res.eo_params), _warm_points_or_new(res, prob, p)),
+                                  adjust_kwargs)
+                    n_adj += 1
+                    if r.success:
+                        log.info("robust start: %d observation(s) put back", int(back.sum()))
+                        sub, res, cur = trial, r, prob
+                        rel = reliability(r, level=level, power=power)
+                        continue
+                except (DatumError, ValueError):
+                    pass
+        snooped = [b for b in blunders if b.found_by == "snooping" and b.removed and b.kind == "image"]
+        if len(snooped) > REFINE_MAX:   # a large block: put back together what passes at the solution
+            changed, sub, res, cur, rel, blunders, k = _put_back_many(p, sub, blunders, res, cur, rel, level,
+                                                                      power, adjust_kwargs, tried_snoop)
+            n_adj += k
+            if changed:
+                continue
+            break
         # backward step: re-insert or exchange a rejected observation when the data prefer it
         changed, sub, res, cur, rel, blunders, k = _refine(p, sub, blunders, res, cur, rel, level, power,
                                                             adjust_kwargs)
         n_adj += k
         if not changed:
             break
-    if mode == "report" or res is first:
+    adjust_kwargs = {k: v for k, v in adjust_kwargs.items() if k != "initial"}
+    if rs is not None:          # the robust start's rejections still out of the adjustment
+        rej = dataclasses.replace(rs, keep=rs.keep | sub.obs)
+        w_crit = math.sqrt(critical_values(level, power, 2)[1]) if level is not None else math.nan
+        blunders = start_blunders(p, rej, np.asarray(res.eo_params), res.point_ids, np.asarray(res.points_m),
+                                  w_crit) + blunders
+        if mode == "report":    # the adjustment of every observation, when it converges
+            from .approx import intersect_points
+
+            eo_r = np.asarray(res.eo_params)
+            first = adjust(p, initial=(eo_r, intersect_points(p, eo_r)), precision=final_precision,
+                           **adjust_kwargs)
+            n_adj += 1
+            if first.success:
+                rel_first = reliability(first, level=level, power=power, family_level=family_level)
+            else:
+                note = (f"removed: the adjustment with every observation does not converge ({first.status}) "
+                        "in report mode")
+                blunders = [dataclasses.replace(b, note="; ".join(x for x in (b.note, note) if x))
+                            if b.found_by != "snooping" else b for b in blunders]
+                first = None
+    if mode == "report" and first is not None:
         final, final_rel = first, rel_first
-        blunders = [dataclasses.replace(b, removed=False) for b in blunders] if mode == "report" else blunders
+        blunders = [dataclasses.replace(b, removed=False) for b in blunders]
+    elif res is first:
+        final, final_rel = first, rel_first
     else:  # the intermediate adjustments skipped the covariances: once more with them
         final = adjust(cur, initial=(np.asarray(res.eo_params), np.asarray(res.points_m)),
                        precision=final_precision, **adjust_kwargs)
@@ -357,7 +448,7 @@ def snoop(
     if final_rel is not None and rel_first is not None:
         final_rel = dataclasses.replace(final_rel, family_level=rel_first.family_level,
                                         family_tests=rel_first.family_tests)
-    return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj)
+    return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj, start)
 
 
 def _remove_group(p: BundleProblem, sub: _Subset, rel: Reliability, g: int, iteration: int) -> list[Blunder]:
@@ -389,6 +480,10 @@ class _Neighbours:
         self.adj = (inc @ inc.T + sparse.identity(p.n_photos, format="csr")).tocsr()
         self.of_point = inc.T.tocsr()
         self.photo_pos = {str(q): i for i, q in enumerate(p.photo_ids)}
+        # rejections a photo may take in one round beside the separate ones (one per
+        # OBS_PER_REJECTION of its observations: a blunder moves the photo's orientation, and
+        # with it the tests of its other observations, by about 1 / their number)
+        self.budget = np.bincount(p.photo_index, minlength=p.n_photos) // OBS_PER_REJECTION
         self.point_pos = {str(q): i for i, q in enumerate(p.point_ids)}
 
     def footprint(self, kind: str, photo: str, point: str) -> np.ndarray:
@@ -419,15 +514,24 @@ def _round_picks(rel: Reliability, near: _Neighbours, limit: int) -> list[int]:
     cand = np.flatnonzero(ratio > 1)
     cand = cand[np.argsort(-ratio[cand], kind="stable")]
     blocked = np.zeros(near.adj.shape[0], dtype=bool)
+    budget = near.budget.copy()
+    points_hit: set[str] = set()
     picks: list[int] = []
     for g in cand:
         if len(picks) >= limit:
             break
-        fp = near.footprint(str(rel.kind[g]), str(rel.photo[g]), str(rel.point[g]))
-        if blocked[fp].any():
+        kind = str(rel.kind[g])
+        fp = near.footprint(kind, str(rel.photo[g]), str(rel.point[g]))
+        separate = not blocked[fp].any()
+        # on photos with many observations: the largest per point, a few per photo
+        crowded = kind == "image" and str(rel.point[g]) not in points_hit and bool(np.all(budget[fp] > 0))
+        if not (separate or crowded):
             continue
         picks.append(int(g))
         blocked[near.around(fp)] = True
+        budget[fp] -= 1
+        if kind != "eo":
+            points_hit.add(str(rel.point[g]))
     return picks
 
 
@@ -489,6 +593,37 @@ def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs):
     return False, sub, res, cur, rel, blunders, n_adj
 
 
+def _put_back_many(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs, tried):
+    """The backward step of a large block: every image observation rejected by snooping (not yet
+    tried) whose predicted residual at the current solution passes the test of a good observation
+    (:func:`lidarcat.bundle.robust.put_back`) goes back in one re-adjustment.  Returns
+    ``(changed, sub, res, cur, rel, blunders, n_adj)``; *tried* (n,) bool is updated."""
+    pid, qid = p.photo_ids[p.photo_index], p.point_ids[p.point_index]
+    key = {(str(a), str(b)): i for i, (a, b) in enumerate(zip(pid, qid))}
+    rej = np.zeros(len(p.photo_index), dtype=bool)
+    for b in blunders:
+        if b.found_by == "snooping" and b.removed and b.kind == "image" and not b.note:
+            rej[key[(b.photo, b.point)]] = True
+    rej &= ~tried & ~sub.obs
+    tried |= rej
+    back = put_back(p, rej, np.asarray(res.eo_params), res.point_ids, np.asarray(res.points_m),
+                    math.sqrt(critical_values(level, power, 2)[1]))
+    if not back.any():
+        return False, sub, res, cur, rel, blunders, 0
+    trial = dataclasses.replace(sub, obs=sub.obs | back, con=sub.con.copy(), eo=sub.eo.copy())
+    try:
+        prob, _, _ = trial.problem(p)
+        r = _readjust(prob, (np.asarray(res.eo_params), _warm_points_or_new(res, prob, p)), adjust_kwargs)
+    except (DatumError, ValueError):
+        return False, sub, res, cur, rel, blunders, 0
+    if not r.success:
+        return False, sub, res, cur, rel, blunders, 1
+    keys = {(str(pid[i]), str(qid[i])) for i in np.flatnonzero(back)}
+    out = [b for b in blunders if not (b.found_by == "snooping" and b.kind == "image" and (b.photo, b.point) in keys)]
+    log.info("data snooping: %d rejected observation(s) put back (they pass at the solution)", int(back.sum()))
+    return True, trial, r, prob, reliability(r, level=level, power=power), out, 1
+
+
 def _readjust(problem: BundleProblem, initial: tuple[np.ndarray, np.ndarray], adjust_kwargs: dict) -> BundleResult:
     """Re-adjustment from a nearby solution, without covariances: plain Gauss-Newton first (it
     converges in a few steps from there; the damped path took about twice as many), the damped
@@ -500,19 +635,41 @@ def _readjust(problem: BundleProblem, initial: tuple[np.ndarray, np.ndarray], ad
     return adjust(problem, initial=initial, precision="none", **adjust_kwargs)
 
 
+def _tolerances(adjust_kwargs: dict) -> dict:
+    """The keys of *adjust_kwargs* the robust start's re-weighted adjustments take."""
+    return {k: v for k, v in adjust_kwargs.items() if k in ("tol_m", "tol_rad", "tol_vtpv", "solver")}
+
+
+def _warm_points_or_new(res: BundleResult, nxt: BundleProblem, p: BundleProblem) -> np.ndarray:
+    """Adjusted coordinates of *res* for the points of *nxt*; a point new to *nxt* intersected from its
+    rays at the orientations of *res*."""
+    from .screening import intersect_rays
+
+    pos = {str(q): i for i, q in enumerate(res.point_ids)}
+    out = np.full((nxt.n_points, 3), np.nan)
+    have = np.array([str(q) in pos for q in nxt.point_ids], dtype=bool)
+    out[have] = np.asarray(res.points_m)[[pos[str(q)] for q in nxt.point_ids[have]]]
+    if not have.all():
+        out[~have] = intersect_rays(nxt, np.asarray(res.eo_params))[~have]
+    return out
+
+
 def _warm_points(res: BundleResult, nxt: BundleProblem) -> np.ndarray:
     """Adjusted coordinates of *res* for the points of *nxt* (by id)."""
     pos = {str(q): i for i, q in enumerate(res.point_ids)}
     return np.asarray(res.points_m)[[pos[str(q)] for q in nxt.point_ids]]
 
 
-def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int = 20):
+def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int = 20, base=None):
     """IRLS with the Danish or Huber weight function on the group tests; returns the state after
-    removing the groups weighted below :data:`ROBUST_CUT`."""
-    n_img = len(p.photo_index)
-    k_con = len(p.constraint_point_index)
+    removing the groups weighted below :data:`ROBUST_CUT`.  *base*: the problem *res* adjusted (the
+    groups of *sub* of *p*; default *p*)."""
+    base = p if base is None else base
+    n_img = len(base.photo_index)
+    k_con = len(base.constraint_point_index)
     factor = np.ones(len(rel.kind))
-    cur = p
+    cur = base
+    saved = (sub.obs.copy(), sub.con.copy(), sub.eo.copy())
     n_adj = 0
     r_cur, rel_cur = res, rel
     crit = {q: critical_values(level, power, q)[1] for q in (1, 2, 3, 6)}
@@ -521,7 +678,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     for _ in range(max_iter):
         # normalised residuals with the original sigmas (not the re-weighted ones: a group weighted
         # down must keep its large residual, or it would get its weight back the next time)
-        u = np.sqrt(_normalised_sq(p, r_cur) / kq)
+        u = np.sqrt(_normalised_sq(base, r_cur) / kq)
         new = np.ones_like(u)
         big = u > 1
         new[big] = np.maximum(np.exp(1 - u[big] ** 2) if method == "danish" else 1.0 / u[big], ROBUST_FLOOR)
@@ -534,7 +691,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
             factor = new
             break
         factor = new
-        cur = _reweighted(p, factor, n_img, k_con)
+        cur = _reweighted(base, factor, n_img, k_con)
         prev = r_cur
         r_cur = _readjust(cur, (np.asarray(r_cur.eo_params), np.asarray(r_cur.points_m)), adjust_kwargs)
         n_adj += 1
@@ -561,15 +718,15 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
                                                          *(f"the other ray (photo {ph}) removed with it"
                                                            for ph in partners)])))
     if not found:
-        return res, p, rel, [], n_adj
+        return res, base, rel, [], n_adj
     try:
         nxt, _, _ = sub.problem(p)
         r2 = _readjust(nxt, (np.asarray(r_cur.eo_params), _warm_points(r_cur, nxt)), adjust_kwargs)
     except (DatumError, ValueError) as ex:
         log.warning("robust %s: removing the %d down-weighted group(s) leaves %s; snooping alone", method,
                     len(found), ex)
-        sub.obs[:], sub.con[:], sub.eo[:] = True, True, True
-        return res, p, rel, [], n_adj
+        sub.obs[:], sub.con[:], sub.eo[:] = saved
+        return res, base, rel, [], n_adj
     n_adj += 1
     rel2 = reliability(r2, level=level, power=power) if r2.success else None
     log.info("robust %s: %d group(s) removed", method, len(found))

@@ -23,6 +23,7 @@ STATUS_MESSAGES: dict[str, str] = {
     "max_iterations": "maximum number of iterations reached before convergence",
     "stalled": "no further decrease of v'Pv is possible (damping grew without bound)",
     "singular": "normal equations are singular (datum defect or degenerate geometry)",
+    "behind": "a point lies behind a camera at the approximate values: no step can be taken",
 }
 
 

@@ -20,6 +20,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..geometry.collinearity import project
 from .approx import approximations, intersect_points
 from ._blas import pinned
 from ._heap import heap_reuse
@@ -29,7 +30,7 @@ from .precision import PRECISION_LEVELS, covariance_blocks
 from .problem import BundleProblem, check_datum, chi2_bounds
 from .result import STATUS_MESSAGES, BundleResult
 
-__all__ = ["BundleResult", "adjust", "STATUS_MESSAGES", "PCG_MIN_PHOTOS", "FACTOR_REUSE_MIN_PHOTOS"]
+__all__ = ["BundleResult", "adjust", "where_it_fails", "STATUS_MESSAGES", "PCG_MIN_PHOTOS", "FACTOR_REUSE_MIN_PHOTOS"]
 
 #: ``adjust(solver="auto")`` iterates with PCG from this many photos (the direct solver below; on
 #: strip blocks block-Jacobi PCG lost to the supernodal factor at 1,000 photos: docs/bundle.md)
@@ -48,6 +49,25 @@ def step_below_tolerance(dc: np.ndarray, dp: np.ndarray, tol_m: float, tol_rad: 
     lin = max(np.abs(dc[:, :3]).max(initial=0.0), np.abs(dp).max(initial=0.0))
     ang = np.abs(dc[:, 3:]).max(initial=0.0)
     return bool(lin < tol_m and ang < tol_rad)
+
+
+def where_it_fails(p: BundleProblem, eo: np.ndarray, pts: np.ndarray, n: int = 3) -> str:
+    """``: ...`` naming the observations a failed adjustment ends on: points behind a camera, else the
+    largest normalised image residuals (photo, point, residual in sds)."""
+    ei, pj = p.photo_index, p.point_index
+    if not len(ei):
+        return ""
+    xy, u3 = project(eo, pts[pj], p.focal_length_mm[ei], ei)
+    behind = np.flatnonzero((u3 >= 0) | ~np.isfinite(xy).all(axis=1))
+    if len(behind):
+        names = ", ".join(f"point {p.point_ids[pj[k]]} on photo {p.photo_ids[ei[k]]}" for k in behind[:n])
+        return (f"; {len(behind)} observation(s) of points behind their camera ({names}"
+                + (" ..." if len(behind) > n else "") + "): gross matches; adjust with --snooping "
+                "report or remove (the robust start screens them)")
+    u = np.sqrt(np.sum(((xy - p.xy_mm) / p.sd_mm) ** 2, axis=1))
+    top = np.argsort(-u)[:n]
+    return "; largest image residuals: " + ", ".join(
+        f"point {p.point_ids[pj[k]]} on photo {p.photo_ids[ei[k]]} ({u[k]:.3g} sd)" for k in top)
 
 
 @heap_reuse()
@@ -169,6 +189,9 @@ def adjust(
             system = NormalSystem(p, eo, pts, schur)
             cost = system.vtpv if np.all(system.u3 < 0) else weighted_cost(p, eo, pts)
         history.append(cost)
+        if not math.isfinite(cost):
+            status = "behind"
+            max_iter = 0            # no step can be compared with an infinite v'Pv
         while n_iter < max_iter:
             n_iter += 1
             accepted = False
@@ -178,7 +201,8 @@ def adjust(
                 eo_new, pts_new = eo + dc, pts + dp
                 with phase("model"):
                     new_cost = weighted_cost(p, eo_new, pts_new)
-                if not damping or new_cost <= cost * (1 + 1e-12) or step_below_tolerance(dc, dp, tol_m, tol_rad):
+                if math.isfinite(new_cost) and (not damping or new_cost <= cost * (1 + 1e-12)
+                                                or step_below_tolerance(dc, dp, tol_m, tol_rad)):
                     accepted = True
                     break
                 lam = max(lam, 1e-6) * 10.0
@@ -198,9 +222,6 @@ def adjust(
                 progress(n_iter, cost)
             log.debug("iteration %d: v'Pv %.6g, lambda %.1e, max|dX| %.3g m", n_iter, cost, lam,
                       np.abs(np.concatenate([dc[:, :3].ravel(), dp.ravel()])).max())
-            if not math.isfinite(cost):
-                status = "stalled"
-                break
             if damping:
                 lam = lam / 10.0 if lam > 1e-12 else 0.0
             with phase("model"):
@@ -232,6 +253,8 @@ def adjust(
     chi2 = {"statistic": vtpv, "level": chi2_level, **bounds,
             "passed": bool(dof > 0 and bounds["lower"] <= vtpv <= bounds["upper"])}
     msg = STATUS_MESSAGES[status] + message_extra
+    if status in ("stalled", "behind", "max_iterations"):
+        msg += where_it_fails(p, eo, pts)
     if status == "converged":
         msg += f" after {n_iter} iteration(s)"
     return BundleResult(

@@ -104,7 +104,8 @@ def _sig(value: object, digits: int) -> str:
 def exit_status(summary: dict) -> tuple[int, str]:
     """Exit code and the one-line verdict: 1 not converged, 3 global test rejected or blunders remain."""
     if not summary["converged"]:
-        return 1, f"the adjustment did not converge ({summary['status']})"
+        return 1, (f"the adjustment did not converge ({summary['status']}): {summary.get('message', '')}; "
+                   "the tables hold its last iterate (eop.csv, points.csv and residuals.csv agree)")
     problems = []
     if not summary["chi2_pass"]:
         problems.append("the global chi-square test of the variance factor REJECTED")
@@ -161,6 +162,12 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="Iteratively re-weighted least squares before snooping. Measured: plain snooping (several "
                    "separate rejections per round) names more of the blunders of a large block in about the "
                    "same time, and more on small blocks; see docs/reliability.md.")
+@click.option("--start", type=click.Choice(["robust", "plain"]), default="robust", show_default=True,
+              help="With --snooping report/remove: 'robust' screens the tie points by their intersection "
+                   "geometry at the approximate orientation and re-weights with a graduated Cauchy loss before "
+                   "any least-squares step (automatic matches with gross errors); the observations it rejects "
+                   "are named in blunders.csv (found_by screening/cauchy) and put back when they pass at the "
+                   "solution. 'plain': least squares from the start.")
 @click.option("--self-calibrate", metavar="PARAMS", default=None,
               help="Estimate interior-orientation corrections per camera: a comma list of c, x0, y0, "
                    "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free). "
@@ -175,7 +182,7 @@ def exit_status(summary: dict) -> tuple[int, str]:
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
            variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str | None,
-           family_level: float, snooping_level: float | None, robust: str, self_calibrate: str | None,
+           family_level: float, snooping_level: float | None, robust: str, start: str, self_calibrate: str | None,
            frame_offset: str | None, similarity: bool | None, as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
@@ -198,7 +205,9 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     \b
     Exit codes:
       0  converged, global test accepted, no blunder left
-      1  the adjustment did not converge (results are still written)
+      1  the adjustment did not converge (the tables hold its last iterate: eop.csv,
+         points.csv and residuals.csv of the same state; the message names the
+         observations it fails on)
       2  bad input (the error names the file, line or point)
       3  converged, but the global chi-square test rejected or blunders remain
          (--snooping report, or a blunder that could not be removed)
@@ -250,7 +259,7 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
                 adjust_action(loaded, tmp, control=control, observations=observations,
                               variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter,
                               snooping=snooping or "report", snooping_level=snooping_level,
-                              family_level=family_level, robust=robust, precision=precision,
+                              family_level=family_level, robust=robust, start=start, precision=precision,
                               progress=None if bar is None else lambda _it, _cost: bar.update(1))
     # what was written is what is shown
     summary = {**json.loads((Path(out) / "summary.json").read_text(encoding="utf-8")), "outdir": str(out)}

@@ -29,9 +29,13 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["adjust_survey", "adjust_survey_into", "write_adjustment", "problem_from_survey", "read_point_covariance",
            "EOP_COLUMNS", "POINT_COLUMNS", "RESIDUAL_COLUMNS", "COVARIANCE_COLUMNS",
-           "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS", "write_point_covariance", "require_observations"]
+           "MAX_JOINT_COVARIANCE_POINTS", "BLUNDER_COLUMNS", "write_point_covariance", "require_observations",
+           "NO_CONTROL"]
 
 log = logging.getLogger(__name__)
+
+#: the control-set name of an adjustment whose only datum is the GNSS/INS orientation of the photos
+NO_CONTROL = "none"
 
 #: ``write_adjustment`` writes the joint covariance of the check points
 #: (``check_covariance.csv``, k (k + 1) / 2 rows) up to this many check points
@@ -83,7 +87,22 @@ def problem_from_survey(
     are free points with role ``check``; every other point has role ``tie``.
     """
     require_observations(survey)
-    cset = survey.control_set(control) if control is None or isinstance(control, str) else control
+    if control is None and survey.default_control is None and eo_constraints:
+        # no control set: the weighted GNSS/INS orientations of photos.csv are the datum
+        # (check_datum explains a defect when they are too weak)
+        from ._tables import ControlSet
+
+        cset = ControlSet(NO_CONTROL, np.zeros(0, dtype=str), np.zeros(0, dtype=str), np.zeros((0, 3)))
+    elif control is None and survey.default_control is None and any(
+            ph.sd_position_m is not None for ph in survey.photos):
+        from ..errors import SurveyError
+
+        avail = ", ".join(survey.control_sets) or "none defined"
+        raise SurveyError(f"{survey.toml_path}: no control set named and no [survey] default_control "
+                          f"(available: {avail}); photos.csv carries sd_X0.. : adjust with the weighted "
+                          "GNSS/INS orientations alone as the datum (--eo-constraints)")
+    else:
+        cset = survey.control_set(control) if control is None or isinstance(control, str) else control
     obs = survey.photo_observations(observations)
     photos = survey.photos
     photo_ids = [ph.id for ph in photos]
@@ -392,6 +411,7 @@ def adjust_survey(
     snooping_level: float | None = None,
     family_level: float = FAMILY_LEVEL,
     robust: str = "none",
+    start: str = "robust",
 ) -> tuple[BundleResult, Any]:
     """Load a survey, adjust it and write the result folder (``lidarcat adjust``).
 
@@ -418,6 +438,10 @@ def adjust_survey(
         Probability that a block without blunders has any test rejecting (0.05).
     robust : {"none", "danish", "huber"}
         Re-weighting before snooping (large blocks with many blunders).
+    start : {"robust", "plain"}
+        With snooping ``report``/``remove``: screen the tie points by their intersection geometry
+        and re-weight with a graduated Cauchy loss before any least-squares step
+        (:func:`lidarcat.bundle.robust.robust_start`), or least squares from the start.
     precision : {"all", "photos", "none"}
         Covariance blocks to compute (see :func:`adjust`); the joint covariance of
         the check points is written with ``"all"`` only.
@@ -444,7 +468,7 @@ def adjust_survey(
                                   variance_factor=variance_factor, chi2_level=chi2_level,
                                   eo_constraints=eo_constraints, max_iter=max_iter, precision=precision,
                                   progress=progress, snooping=snooping, snooping_level=snooping_level,
-                                  family_level=family_level, robust=robust)
+                                  family_level=family_level, robust=robust, start=start)
     return sres.result, out
 
 
@@ -464,6 +488,7 @@ def adjust_survey_into(
     snooping_level: float | None = None,
     family_level: float | None = FAMILY_LEVEL,
     robust: str = "none",
+    start: str = "robust",
 ) -> SnoopingResult:
     """Adjust a loaded survey and write its adjustment tables into the existing *folder*.
 
@@ -483,7 +508,7 @@ def adjust_survey_into(
     folder : path
         Output folder.
     control, observations, variance_factor, chi2_level, eo_constraints, max_iter, precision, progress,
-    snooping, snooping_level, family_level, robust
+    snooping, snooping_level, family_level, robust, start
         As :func:`adjust_survey` (``family_level=None``: :data:`lidarcat.bundle.reliability.FAMILY_LEVEL`).
 
     Returns
@@ -501,8 +526,8 @@ def adjust_survey_into(
                   chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
                   eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
                   snooping_level=None if snooping_level is None else float(snooping_level),
-                  family_level=family_level, robust=robust, precision=precision)
-    sres = snoop(problem, mode=snooping, level=snooping_level, family_level=family_level, robust=robust,
+                  family_level=family_level, robust=robust, start=start, precision=precision)
+    sres = snoop(problem, mode=snooping, level=snooping_level, family_level=family_level, robust=robust, start=start,
                  max_iter=max_iter, precision=precision, variance_factor=params["variance_factor"],
                  chi2_level=params["chi2_level"], progress=progress)
     write_adjustment(sres.result, folder, extra={

@@ -9,6 +9,7 @@
 ``landscapes``  Synthetic landscapes with known ground, for judging ground filters beyond the AHN3 tiles.
 ``cavassim``    The experiment of Cavassim (2005) on a synthetic town: three mapping products against known truth.
 ``textured``    Small photos of a textured rolling ground with the true point behind every pixel (matching tests).
+``matches``     A block of automatic tie-point matches with gross errors of known place (the NGI kind).
 ==============  ============================================================
 """
 
@@ -23,6 +24,7 @@ from .block import (  # noqa: F401
     SelfCalBlock,
     selfcal_block,
 )
+from .matches import matched_block, MISMATCH_PX, WRONG_RAY_PX, MATCH_PIXEL_MM  # noqa: F401
 from .survey import (  # noqa: F401
     DemoSurvey,
     write_synthetic_survey,
@@ -98,4 +100,8 @@ __all__ = [
     'CAVASSIM_TABLE_09',
     'CAVASSIM_TABLES_06_08',
     'paper_camera',
+    'matched_block',
+    'MISMATCH_PX',
+    'WRONG_RAY_PX',
+    'MATCH_PIXEL_MM',
 ]
