@@ -202,7 +202,7 @@ ROUND_TRIPS = {
                   "--frame", str(D / "metashape" / "easyidp_wheat_tanashi_frame.doc.xml")],
     "borea": ["borea", str(D / "opk" / "borea_23FD1305_alt_test.OPK"), "--camera", str(D / "opk" / "borea_Camera1.txt"),
               "--camera", str(D / "opk" / "borea_Camera2.txt"), "--points", str(D / "opk" / "borea_GCP_test.app"),
-              "--measurements", str(D / "opk" / "borea_liaisons_test.mes")],
+              "--measurements", str(D / "opk" / "borea_liaisons_test.mes"), "--crs", "EPSG:2154"],
 }
 
 

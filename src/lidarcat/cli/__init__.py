@@ -6,6 +6,7 @@
 ``init``            ``lidarcat init``: a survey folder from a folder of photos
 ``interop``         ``lidarcat import`` / ``export``: other programs' files in and out
 ``match``           ``lidarcat match``: tie points from the photos
+``convert``         ``lidarcat convert``: one format to another, without adjusting
 ``camera``          ``lidarcat camera``: interior orientation
 ``lidar``           ``lidarcat lidar info|index|clip|raster``: LiDAR tiles
 ``lidar_products``  ``lidarcat lidar ground|dtm|dsm|contours|hypsometry|sheets``: the production chain

@@ -100,6 +100,10 @@ def import_cmd(fmt, source, output, base, crs, file_crs, height_system, pixel_si
 
     px = pixel_size_mm if pixel_size_mm is not None else 0.001
     report: dict = {"format": fmt, "source": source, "survey": output}
+    B.check_crs(crs, local=fmt in ("colmap", "borea", "opk"))
+    if fmt == "borea" and not crs:
+        raise click.UsageError("borea needs --crs: the CRS of the .OPK and .app coordinates (IGN blocks: "
+                               "EPSG:2154, Lambert-93), or 'local: <description>' for a local frame")
     if fmt in ("colmap", "opensfm", "metashape", "borea"):
         if fmt == "colmap":
             from ..interop.colmap import LOCAL_CRS, read_colmap
@@ -125,6 +129,7 @@ def import_cmd(fmt, source, output, base, crs, file_crs, height_system, pixel_si
         report.update(photos=int(blk.n_photos), observations=int(len(blk.obs_photo)),
                       points=int(len(blk.point_ids)), ground_points=int(len(blk.ground_ids)),
                       crs=blk.crs, height_system=blk.height_system)
+        report["next"] = _next_step(fmt, blk, output, control_sd_m)
     elif fmt in ("opk", "gnss", "odm-geo"):
         if fmt == "opk":
             from ..interop.opk import read_opk
@@ -152,7 +157,9 @@ def import_cmd(fmt, source, output, base, crs, file_crs, height_system, pixel_si
             from ..interop.opensfm import read_opensfm_gcp
 
             if base is None:
-                raise click.UsageError("opensfm-gcp needs --survey (a survey imported from OpenSfM)")
+                raise click.UsageError("opensfm-gcp needs --survey, a survey imported from the same OpenSfM "
+                                       "reconstruction: lidarcat import opensfm reconstruction.json -o SURVEY, "
+                                       "then --survey SURVEY")
             gcp = read_opensfm_gcp(source, B.block_from_survey(base))
         sd = (gcp_sd_m,) * 3
         config = Path(source).with_name("config.yaml")
@@ -174,7 +181,27 @@ def import_cmd(fmt, source, output, base, crs, file_crs, height_system, pixel_si
         echo_json(report)
     elif fmt != "heights":
         click.echo(f"wrote survey {output} from {fmt} {source}: "
-                   + ", ".join(f"{k} {v}" for k, v in report.items() if k not in ("format", "source", "survey")))
+                   + ", ".join(f"{k} {v}" for k, v in report.items()
+                               if k not in ("format", "source", "survey", "next")))
+        if report.get("next"):
+            click.echo(f"next: {report['next']}")
+
+
+def _next_step(fmt: str, blk, output: str, control_sd_m: float | None) -> str | None:
+    """What the user does next with an imported block that `lidarcat adjust` cannot take as it is."""
+    from collections import Counter
+
+    counts = Counter(blk.obs_point.tolist())
+    ties = sum(1 for p, n in counts.items() if n >= 2 and p not in set(blk.ground_ids.tolist()))
+    if fmt == "metashape" and ties == 0:
+        return (f"the Metashape XML holds no tie points (Metashape keeps them in binary point clouds), so "
+                f"the block cannot be adjusted; export it as it is (lidarcat export colmap|opensfm|opk|gis "
+                f"{output} -o OUT) or add tie points before lidarcat adjust")
+    if len(blk.ground_ids) == 0 and control_sd_m is None:
+        return (f"the model has no control, which lidarcat adjust needs to fix its datum: import again with "
+                f"--control-sd-m 0.01 (the model points become control) or add ground control "
+                f"(lidarcat import odm-gcp gcp_list.txt --survey {output} -o {output}_gcp)")
+    return None
 
 
 import_cmd.help = import_cmd.help.replace("{formats}", _fmt_help(IMPORT_FORMATS))
@@ -189,9 +216,10 @@ import_cmd.help = import_cmd.help.replace("{formats}", _fmt_help(IMPORT_FORMATS)
               help="Output folder (colmap, opensfm, gis) or file (opk); written atomically.")
 @click.option("--angle-unit", type=click.Choice(["deg", "rad", "gon"]), default="deg", show_default=True,
               help="opk: unit of omega, phi, kappa.")
-@click.option("--flavour", type=click.Choice(["pix4d", "ign"]), default="pix4d", show_default=True,
-              help="opk: header 'imageName X Y Z Omega Phi Kappa' (Pix4D, Metashape) or "
-                   "'NOM X Y Z O P K CAMERA' (IGN).")
+@click.option("--flavour", type=click.Choice(["pix4d", "ign", "orthority"]), default="pix4d", show_default=True,
+              help="opk: header 'imageName X Y Z Omega Phi Kappa' (Pix4D, Metashape), "
+                   "'NOM X Y Z O P K CAMERA' (IGN) or orthority's CSV 'filename,x,y,z,omega,phi,kappa,camera' "
+                   "with a .prj (OUTPUT ending in .csv or .txt).")
 @click.option("--format", "gis_format", type=click.Choice(["auto", "gpkg", "geojson"]), default="auto",
               show_default=True, help="gis: GeoPackage (needs pyogrio) or GeoJSON.")
 @click.option("--ellipse-scale", type=float, default=1.0, show_default=True,
@@ -202,6 +230,9 @@ import_cmd.help = import_cmd.help.replace("{formats}", _fmt_help(IMPORT_FORMATS)
 def export_cmd(fmt, adjustment, survey, output, angle_unit, flavour, gis_format, ellipse_scale, vector_scale,
                as_json):
     """Write the adjusted block of ADJUSTMENT (a `lidarcat adjust` output folder) in FORMAT.
+
+    ADJUSTMENT may also be a survey folder (it holds a survey.toml): its own orientations
+    are written, unadjusted (a block imported from Metashape, which has no tie points).
 
     \b
     Formats:
@@ -221,14 +252,20 @@ def export_cmd(fmt, adjustment, survey, output, angle_unit, flavour, gis_format,
     from ..interop.block import block_from_survey
 
     report = {"format": fmt, "adjustment": adjustment, "output": output}
+    adj: str | None = adjustment
+    if (Path(adjustment) / "survey.toml").is_file():  # a survey folder: its own orientations
+        if survey is not None:
+            raise click.UsageError(f"{adjustment} is a survey folder; give either it or --survey with the "
+                                   f"output folder of lidarcat adjust")
+        survey, adj = adjustment, None
     if fmt == "gis":
         from ..interop.gis import gis_layers, write_gis
 
-        layers, crs, hs = gis_layers(survey, adjustment, ellipse_scale=ellipse_scale, vector_scale=vector_scale)
+        layers, crs, hs = gis_layers(survey, adj, ellipse_scale=ellipse_scale, vector_scale=vector_scale)
         write_gis(layers, crs, output, fmt=gis_format)
         report.update(layers=[lay.name for lay in layers], crs=crs, height_system=hs)
     else:
-        blk = block_from_survey(survey, adjustment)
+        blk = block_from_survey(survey, adj)
         if fmt == "colmap":
             from ..interop.colmap import write_colmap
 

@@ -46,6 +46,7 @@ COMMANDS: list[tuple[str, str, str]] = [
     ("ortho", "lidarcat.cli.ortho:ortho", "Orthophotos (standard or true) and a mosaic of adjusted photos."),
     ("run", "lidarcat.cli.run:run", "The whole pipeline on a survey folder (default: the thesis block)."),
     ("export", "lidarcat.cli.interop:export_cmd", "Write an adjusted block as COLMAP, OpenSfM, OPK or GIS layers."),
+    ("convert", "lidarcat.cli.convert:convert", "Convert a block between COLMAP, OpenSfM, Metashape, OPK and survey folders."),
     ("demo", "lidarcat.cli.demo:demo", "Write demonstration surveys (synthetic block with known truth)."),
 ]
 

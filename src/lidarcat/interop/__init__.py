@@ -15,6 +15,8 @@ module                    reads / writes
 :mod:`.gis`               GIS layer set of an adjusted block (GeoPackage or GeoJSON)
 :mod:`.heights`           ellipsoidal / orthometric heights per source, geoid grids
 :mod:`.rotations`         the rotation conventions and their conversions
+:mod:`.lens`              every camera as the Brown (OpenCV) model an export writes
+:mod:`.convert`           one format to another through the block, without adjusting
 :mod:`.block`             the common block, survey-folder writer and merger
 ========================  ==================================================================
 

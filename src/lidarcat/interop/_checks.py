@@ -15,7 +15,7 @@ from .._util import read_text
 from ..errors import FormatError
 from ._text import format_error
 
-__all__ = ["check_values", "check_block", "read_source_models", "PHOTO_COLUMNS_EO", "EO_KINDS", "ENH_KINDS"]
+__all__ = ["check_values", "check_crs", "check_block", "read_source_models", "PHOTO_COLUMNS_EO", "EO_KINDS", "ENH_KINDS"]
 
 
 def check_values(where: str, what: str, ids: Any, values: np.ndarray, kinds: tuple[str, ...],
@@ -41,6 +41,38 @@ def check_values(where: str, what: str, ids: Any, values: np.ndarray, kinds: tup
             if problem:
                 line = int(lines[i]) if lines is not None and int(lines[i]) > 0 else None
                 raise format_error(where, line, name, f"{what} {str(np.asarray(ids)[i])!r}: {problem}")
+
+
+def check_crs(crs: str | None, *, option: str = "--crs", local: bool = False) -> str | None:
+    """*crs* unchanged when pyproj knows it (or, with *local*, when it declares a local frame
+    ``local: <description>``); None stays None.
+
+    >>> check_crs("EPSG:31982")
+    'EPSG:31982'
+    >>> check_crs("not a crs")
+    Traceback (most recent call last):
+    ...
+    lidarcat.errors.FormatError: --crs 'not a crs' is not a CRS pyproj knows: give EPSG:nnnn (e.g. EPSG:31982), a WKT or a PROJ string
+
+    Raises
+    ------
+    FormatError
+        Names the option, the value and what to give instead.
+    """
+    from ..errors import CRSError
+    from ..lidar.crs import resolve_crs
+    from ..survey.folder import is_local_crs
+
+    if crs is None or (local and is_local_crs(crs)):
+        return crs
+    try:
+        if resolve_crs(crs) is not None:
+            return crs
+    except CRSError:
+        pass
+    raise FormatError(f"{option} {crs!r} is not a CRS pyproj knows: give EPSG:nnnn (e.g. EPSG:31982), a WKT or "
+                      f"a PROJ string" + (", or 'local: <description>' for a frame that is not georeferenced"
+                                          if local else ""))
 
 
 def check_area(where: str, what: str, crs: str, ids: Any, en: np.ndarray, lines: Any = None) -> None:

@@ -26,13 +26,14 @@ from .._util.frozen import frozen_array
 from .._util import atomic_dir, read_csv_table, write_csv_atomic, write_json_atomic, write_text_atomic
 from ..geometry.camera import Camera
 from ..errors import FormatError
-from ._checks import EO_KINDS, ENH_KINDS, PHOTO_COLUMNS_EO, check_area, check_block, check_values, read_source_models
+from ._checks import (EO_KINDS, ENH_KINDS, PHOTO_COLUMNS_EO, check_area, check_block, check_crs, check_values,
+                      read_source_models)
 
 __all__ = ["Block", "Orientations", "GroundControl", "apply_orientations", "apply_ground_control",
            "write_survey", "block_from_survey",
            "photo_coordinates_mm", "reprojection_residuals_mm", "reprojection_residuals_px",
            "pinhole_camera", "undistorted_mm", "require_orientations", "SOURCE_CAMERAS", "copy_survey_files",
-           "check_values", "PHOTO_COLUMNS_EO"]  # the last two re-exported from _checks
+           "check_values", "check_crs", "PHOTO_COLUMNS_EO"]  # the last three re-exported from _checks
 
 log = logging.getLogger(__name__)
 
@@ -219,7 +220,10 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
                           f"pass overwrite (--force)")
     if block.n_photos == 0 or len(block.obs_photo) == 0:
         raise FormatError(f"{block.name}: nothing to write: {block.n_photos} photos, "
-                          f"{len(block.obs_photo)} observations")
+                          f"{len(block.obs_photo)} observations; a survey needs image measurements (give "
+                          f"them: colmap images.txt, opensfm tracks.csv, metashape --frame, borea "
+                          f"--measurements), or write the orientations to another format with lidarcat "
+                          f"convert")
     check_block(block)
     if block.crs.strip() in ("", "unspecified"):  # survey.toml needs a CRS or a local frame
         log.warning("%s: no CRS given; the survey's frame is written as local (give --crs to georeference)",
@@ -230,6 +234,9 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
     keep = np.array([counts[p] >= 2 or p in ground for p in block.obs_point.tolist()], dtype=bool)
     if (~keep).any():
         log.info("%d observation(s) of points seen on one photo only dropped", int((~keep).sum()))
+    if not keep.any():
+        raise FormatError(f"{block.name}: no measurements: none of its {len(keep)} image measurement(s) is of a "
+                          f"ground point or of a point seen on two photos; give the complete measurement file")
     has_px = bool(np.isfinite(block.obs_px[keep]).all(axis=1).any())
     has_mm = bool(np.isfinite(block.obs_mm[keep]).all(axis=1).any())
     cols = ["photo", "point"] + (["col_px", "row_px"] if has_px else []) + (["x_mm", "y_mm"] if has_mm else [])

@@ -21,10 +21,12 @@ Conventions (COLMAP documentation, "Output format")
   undistorted exactly on import (:mod:`lidarcat.interop._distortion`) and enter
   as corrected photo coordinates ``x_mm = f x_u``, ``y_mm = -f y_u``; the camera
   keeps zero distortion and its ``source`` records the original model.
-* Export writes the lidarcat block as a ``PINHOLE`` (``SIMPLE_PINHOLE`` for square
-  pixels) model of the **undistorted** images: 2D points are the corrected photo
-  coordinates in ideal pixels, ``X = cx + x_mm / t_x``, ``Y = cy - y_mm / t_y``,
-  so COLMAP re-projects them with exactly lidarcat's residuals.
+* Export writes every camera as the COLMAP model of its Brown form
+  (:mod:`lidarcat.interop.lens`: a source model unchanged, a distortion-free camera
+  exactly, lidarcat's correction polynomial fitted, its largest misfit in px in the
+  header of ``cameras.txt``): ``SIMPLE_PINHOLE``/``PINHOLE`` without distortion,
+  ``OPENCV`` (k1, k2, p1, p2) or ``FULL_OPENCV``; 2D points are the measured pixels
+  (corner origin), so the exported model fits the original images.
 
 The model is not georeferenced: the survey gets ``crs = "local: COLMAP model
 frame"`` unless the caller gives the CRS it was aligned to.
@@ -44,7 +46,8 @@ from ..errors import FormatError
 from ._distortion import is_identity
 from .._util.values import parse_number, parse_whole
 from ._text import format_error
-from .block import Block, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
+from .block import Block, pinhole_camera, require_orientations, undistorted_mm
+from .lens import export_cameras, notes, observed_pixels
 from .rotations import matrix_to_quaternion_wxyz, opk_to_world_to_cv, quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
 __all__ = ["read_colmap", "write_colmap", "COLMAP_MODELS", "LOCAL_CRS"]
@@ -133,6 +136,21 @@ def _read_cameras(path: Path, pixel_size_mm: float):
     return cams
 
 
+def _written_crs(path: Path, crs: str, height_system: str) -> tuple[str, str]:
+    """CRS and heights from the ``# written by lidarcat ..., CRS X, heights Y`` comment of a model
+    :func:`write_colmap` wrote (else the given ones)."""
+    import re
+
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for raw in fh:
+            if not raw.startswith("#"):
+                break
+            m = re.match(r"# written by lidarcat from survey .*, CRS (.+), heights (.+)$", raw.rstrip("\n"))
+            if m:
+                return m.group(1), m.group(2)
+    return crs, height_system
+
+
 def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str | None = None,
                 crs: str = LOCAL_CRS, height_system: str = "unspecified (model frame)") -> Block:
     """Read a COLMAP text model (``cameras.txt``, ``images.txt``, ``points3D.txt``).
@@ -145,7 +163,9 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
         Pixel pitch given to the cameras, mm (COLMAP works in pixels only; any
         value gives the same geometry, 0.001 makes ``x_mm = px / 1000``).
     name, crs, height_system : str
-        Survey name (default: the folder name), CRS of the model frame and its heights.
+        Survey name (default: the folder name), CRS of the model frame and its heights
+        (default: those :func:`write_colmap` wrote in the header of ``images.txt``, else a
+        local frame).
 
     Returns
     -------
@@ -189,6 +209,8 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
         pxyz.append([_num(ppath, no, n, c, k) for n, c, k in zip("XYZ", f[1:4], _XYZ_KINDS)])
 
     ipath = folder / "images.txt"
+    if crs == LOCAL_CRS:  # a model lidarcat wrote carries its CRS in a comment of images.txt
+        crs, height_system = _written_crs(ipath, crs, height_system)
     photo, pcam, eo = [], [], []
     o_photo: list[str] = []
     o_point: list[str] = []
@@ -276,10 +298,8 @@ def _r(v: float) -> str:
     return repr(float(v))
 
 
-def _colmap_model(m: dict | None):
-    """(COLMAP model name, params, dict) reproducing a source model exactly, or None."""
-    if m is None or m.get("kind") != "brown" or not np.isfinite(m.get("w", np.nan)):
-        return None
+def _colmap_model(m: dict):
+    """(COLMAP model name, params, dict) reproducing a Brown model (:mod:`lidarcat.interop.lens`) exactly."""
     d = {k: v for k, v in m["dist"].items() if v != 0.0}
     fx, fy, cx, cy = m["fx"], m["fy"], m["cx"], m["cy"]
     g = lambda k: m["dist"].get(k, 0.0)  # noqa: E731
@@ -311,11 +331,10 @@ def _int_ids(ids: list[str]) -> list[int]:
 def write_colmap(block: Block, folder: str | Path) -> Path:
     """Write *block* as a COLMAP text model, atomically.
 
-    A camera read from COLMAP/OpenSfM (``block.source_models``, Brown-type) is
-    written back as the COLMAP model that reproduces it, with the measured pixels;
-    any other camera (lidarcat's correction polynomial, Metashape's) as the
-    ``PINHOLE`` camera of the undistorted image with the corrected photo
-    coordinates in ideal pixels.
+    Every camera is written as the COLMAP model of its Brown form
+    (:func:`lidarcat.interop.lens.export_camera`: a COLMAP/OpenSfM source model
+    unchanged, a distortion-free or Metashape camera exactly, lidarcat's correction
+    polynomial fitted), with the measured pixels.
 
     Photo ids become image NAMEs (and IMAGE_IDs when they are whole numbers),
     point ids POINT3D_IDs when whole numbers (else 1..n, in block order; the
@@ -329,30 +348,18 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
     """
     folder = Path(folder)
     require_orientations(block, "COLMAP")
+    models = export_cameras(block)
     cam_ids = list(block.cameras)
     cam_num = dict(zip(cam_ids, range(1, len(cam_ids) + 1)))
-    cam_lines, kmat = [], {}
+    cam_lines = []
     for cid in cam_ids:
-        c = block.cameras[cid]
-        src = _colmap_model(block.source_models.get(cid))
-        if src is not None:
-            model, params, m = src
-            kmat[cid] = (m, None)
-            cam_lines.append(f"{cam_num[cid]} {model} {m['w']} {m['h']} {' '.join(_r(v) for v in params)}")
-            continue
-        fx, fy = c.focal_length_mm / c.pixel_size_x_mm, c.focal_length_mm / c.pixel_size_y_mm
-        cx = c.columns_px / 2 + c.principal_point_x_mm / c.pixel_size_x_mm
-        cy = c.rows_px / 2 - c.principal_point_y_mm / c.pixel_size_y_mm
-        kmat[cid] = (None, (cx, cy, c))
-        if fx == fy:
-            cam_lines.append(f"{cam_num[cid]} SIMPLE_PINHOLE {c.columns_px} {c.rows_px} {_r(fx)} {_r(cx)} {_r(cy)}")
-        else:
-            cam_lines.append(f"{cam_num[cid]} PINHOLE {c.columns_px} {c.rows_px} {_r(fx)} {_r(fy)} {_r(cx)} {_r(cy)}")
+        model, params, m = _colmap_model(models[cid])
+        cam_lines.append(f"{cam_num[cid]} {model} {m['w']} {m['h']} {' '.join(_r(v) for v in params)}")
     has_xyz = np.isfinite(block.points_m).all(axis=1)
     pt_ids = block.point_ids[has_xyz].tolist()
     pt_num = dict(zip(pt_ids, _int_ids(pt_ids)))
     img_ids = dict(zip(block.photo_ids.tolist(), _int_ids(block.photo_ids.tolist())))
-    mm = photo_coordinates_mm(block)
+    pix = observed_pixels(block)
     tracks: dict[str, list[tuple[int, int]]] = {p: [] for p in pt_ids}
     img_lines = []
     r_all = opk_to_world_to_cv(block.eo[:, 3:])
@@ -360,7 +367,6 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
         r = r_all[i]
         q = matrix_to_quaternion_wxyz(r)
         t = -r @ block.eo[i, :3]
-        src, ideal = kmat[block.photo_camera[i]]
         rows = np.flatnonzero(block.obs_photo == pid)
         pts = []
         for k, j in enumerate(rows):
@@ -368,11 +374,7 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
             num = pt_num.get(pnt, -1)
             if num >= 0:
                 tracks[pnt].append((img_ids[pid], k))
-            if src is not None:  # the source model: the measured pixels, corner origin
-                x, y = block.obs_px[j] + 0.5
-            else:  # the undistorted pinhole: corrected photo coordinates in ideal pixels
-                cx, cy, c = ideal
-                x, y = cx + mm[j, 0] / c.pixel_size_x_mm, cy - mm[j, 1] / c.pixel_size_y_mm
+            x, y = pix[j]  # the measured pixels, corner origin
             pts.append(f"{_r(x)} {_r(y)} {num}")
         img_lines.append(f"{img_ids[pid]} {' '.join(_r(v) for v in q)} "
                          f"{' '.join(_r(v) for v in t)} {cam_num[block.photo_camera[i]]} {pid}")
@@ -385,9 +387,10 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
     with atomic_dir(folder) as tmp:
         write_text_atomic(tmp / "cameras.txt", (
             "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-            f"# Number of cameras: {len(cam_lines)}\n# written by lidarcat: pinhole models of the "
-            f"undistorted images (cameras {', '.join(f'{n}={c}' for c, n in cam_num.items())})\n"
-            + "\n".join(cam_lines) + "\n"))
+            f"# Number of cameras: {len(cam_lines)}\n# written by lidarcat (cameras "
+            f"{', '.join(f'{n}={c}' for c, n in cam_num.items())})\n"
+            + "\n".join(cam_lines) + "\n"
+            + "".join(f"# {line}\n" for line in notes(models))))  # after the cameras: lines keep their numbers
         write_text_atomic(tmp / "images.txt", (
             "# Image list with two lines of data per image:\n"
             "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n"

@@ -87,6 +87,9 @@ def gis_layers(survey: Any = None, adjustment: str | Path | None = None, *, elli
                vector_scale: float = 1.0) -> tuple[list[Layer], str, str]:
     """The layers of an adjusted block (survey folder + ``lidarcat adjust`` output folder).
 
+    Without *adjustment* the survey's own orientations and ground points (with their
+    reference sds) are written, and the residual and discrepancy layers are empty.
+
     Returns
     -------
     (layers, crs, height_system)
@@ -94,16 +97,14 @@ def gis_layers(survey: Any = None, adjustment: str | Path | None = None, *, elli
     Raises
     ------
     FormatError
-        No adjustment folder, or a non-georeferenced (local) CRS.
+        A non-georeferenced (local) CRS.
     """
     from pyproj import CRS
     from pyproj.exceptions import CRSError
 
     from ..survey import read_point_covariance
 
-    if adjustment is None:
-        raise FormatError("GIS layers need an adjustment folder (eop.csv, points.csv, residuals.csv)")
-    adj = Path(adjustment)
+    adj = Path(adjustment) if adjustment is not None else None
     blk: Block = block_from_survey(survey, adj)
     try:
         CRS.from_user_input(blk.crs)
@@ -111,9 +112,12 @@ def gis_layers(survey: Any = None, adjustment: str | Path | None = None, *, elli
         raise FormatError(f"survey CRS {blk.crs!r} is no CRS pyproj knows (a local model frame?); GIS "
                           f"layers need a georeferenced block") from None
     hs = blk.height_system
-    eop = read_csv_table(adj / "eop.csv", required=("photo",), allow_extra=True)
-    sd_cols = [c for c in ("sd_X0", "sd_Y0", "sd_Z0", "sd_omega", "sd_phi", "sd_kappa") if eop.has(c)]
-    sds = {c: dict(zip(eop.column("photo"), eop.floats(c, required=False))) for c in sd_cols}
+    sd_cols: list[str] = []
+    sds: dict[str, dict] = {}
+    if adj is not None:
+        eop = read_csv_table(adj / "eop.csv", required=("photo",), allow_extra=True)
+        sd_cols = [c for c in ("sd_X0", "sd_Y0", "sd_Z0", "sd_omega", "sd_phi", "sd_kappa") if eop.has(c)]
+        sds = {c: dict(zip(eop.column("photo"), eop.floats(c, required=False))) for c in sd_cols}
     cam_of = dict(zip(blk.photo_ids.tolist(), blk.photo_camera.tolist()))
     ok = np.isfinite(blk.eo).all(axis=1)
     pid = blk.photo_ids[ok].tolist()
@@ -127,12 +131,16 @@ def gis_layers(survey: Any = None, adjustment: str | Path | None = None, *, elli
     fields["height_system"] = [hs] * len(pid)
     layers = [Layer("photo_centres", "Point", [e[None, :2] for e in eo], fields)]
 
-    pts = read_csv_table(adj / "points.csv", required=("point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "role"),
-                         allow_extra=True)
-    p_ids = pts.column("point")
-    enh = np.column_stack([pts.floats(c) for c in ("E", "N", "h")])
-    psd = np.column_stack([pts.floats(c, required=False) for c in ("sd_E", "sd_N", "sd_h")])
-    role = pts.column("role")
+    if adj is not None:
+        pts = read_csv_table(adj / "points.csv", required=("point", "E", "N", "h", "sd_E", "sd_N", "sd_h", "role"),
+                             allow_extra=True)
+        p_ids = pts.column("point")
+        enh = np.column_stack([pts.floats(c) for c in ("E", "N", "h")])
+        psd = np.column_stack([pts.floats(c, required=False) for c in ("sd_E", "sd_N", "sd_h")])
+        role = pts.column("role")
+    else:  # an unadjusted survey: its ground points with their reference sds
+        p_ids, enh, psd = blk.ground_ids.tolist(), blk.ground_m.reshape(-1, 3), blk.ground_sd_m.reshape(-1, 3)
+        role = ["ground"] * len(p_ids)
     h_mean = float(np.mean(enh[:, 2])) if len(enh) else 0.0
     foot = []
     for p, e in zip(pid, eo):
@@ -151,7 +159,7 @@ def gis_layers(survey: Any = None, adjustment: str | Path | None = None, *, elli
     cov = np.zeros((len(p_ids), 2, 2))
     cov[:, 0, 0], cov[:, 1, 1] = np.nan_to_num(psd[:, 0]) ** 2, np.nan_to_num(psd[:, 1]) ** 2
     full = np.zeros(len(p_ids), bool)
-    if (adj / "check_covariance.csv").is_file():
+    if adj is not None and (adj / "check_covariance.csv").is_file():
         ids, c = read_point_covariance(adj / "check_covariance.csv")
         pos = {p: i for i, p in enumerate(p_ids)}
         for k, q in enumerate(ids):
@@ -163,13 +171,14 @@ def gis_layers(survey: Any = None, adjustment: str | Path | None = None, *, elli
         "correlated": [bool(f) for f in full],
         "semi_major_m": [float(np.sqrt(max(np.linalg.eigvalsh(cv)[1], 0))) for cv in cov],
         "semi_minor_m": [float(np.sqrt(max(np.linalg.eigvalsh(cv)[0], 0))) for cv in cov]}))
-    if (adj / "residuals.csv").is_file():
+    if adj is not None and (adj / "residuals.csv").is_file():
         res = read_csv_table(adj / "residuals.csv", required=("kind", "point", "vE_m", "vN_m", "vh_m"),
                              allow_extra=True)
         kinds, res_pts = res.column("kind"), res.column("point")
         v = np.column_stack([res.floats(c, required=False) for c in ("vE_m", "vN_m", "vh_m")])
     else:
-        log.warning("%s: no residuals.csv; the residual_vectors layer is empty", adj)
+        if adj is not None:
+            log.warning("%s: no residuals.csv; the residual_vectors layer is empty", adj)
         kinds, res_pts, v = [], [], np.empty((0, 3))
     sel = [i for i, k in enumerate(kinds) if k == "control"]
     rpts = [res_pts[i] for i in sel]

@@ -6,7 +6,9 @@ Read from the project-internal XML (schema 1.2.0, Metashape 1.x; the
 
 Conventions (Metashape manual, Appendix C "Camera models", and the files)
 -------------------------------------------------------------------------
-* ``<sensor><calibration>``: ``f, cx, cy, k1..k4, p1, p2, b1, b2`` in pixels;
+* ``<sensor><calibration>``: ``f, cx, cy, k1..k4, p1, p2, b1, b2`` in pixels (the
+  ``class="adjusted"`` calibration, else the ``initial`` one, in whatever order they stand;
+  a sensor whose ``type`` is not ``frame`` -- fisheye, spherical -- is refused);
   with ``x = X/Z``, ``y = Y/Z`` (camera x right, **y down, z forward**)::
 
       x' = x (1 + k1 r^2 + k2 r^4 + k3 r^6 + k4 r^8) + p1 (r^2 + 2 x^2) + 2 p2 x y
@@ -47,6 +49,7 @@ from .._util import read_bytes
 from .._util.tables import parse_float
 from .._util.values import parse_number, value_problem
 from ..errors import FormatError
+from ._checks import check_crs
 from ._text import format_error
 from .block import Block, pinhole_camera, undistorted_mm
 from .rotations import FLIP, matrix_to_opk
@@ -164,6 +167,17 @@ def utm_crs_for(lon_deg: float, lat_deg: float) -> str:
     return f"EPSG:{(32600 if lat_deg >= 0 else 32700) + zone}"
 
 
+def _calibration(sensor: _El) -> _El | None:
+    """The sensor's ``<calibration class="adjusted">`` wherever it stands, else its ``initial`` one,
+    else its first (Metashape writes ``initial`` before ``adjusted`` once a camera was optimised)."""
+    cals = sensor.findall("calibration")
+    for cls in ("adjusted", "initial"):
+        hit = next((c for c in cals if c.attrs.get("class") == cls), None)
+        if hit is not None:
+            return hit
+    return cals[0] if cals else None
+
+
 def _chunk_transform(path: Path, el: _El | None):
     if el is None:
         return None
@@ -207,11 +221,19 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
                            f"chunk doc.xml, unzipped from chunk.zip)")
     sensors_el = root.find("sensors")
     if sensors_el is None:
-        raise format_error(path, root.line, "sensors", "missing")
+        raise format_error(path, root.line, "sensors", "missing (a Metashape chunk doc.xml has <sensors>): "
+                           "give the doc.xml unzipped from the chunk's chunk.zip")
+    crs = check_crs(crs)
     cams, models = {}, {}
     for s in sensors_el.findall("sensor"):
         sid = s.attrs.get("id", "")
-        cal = s.find("calibration")
+        kind = s.attrs.get("type", "frame")
+        if kind != "frame":
+            raise format_error(path, s.line, "type", f"sensor {sid} ({s.attrs.get('label', 'no label')}) is a "
+                               f"{kind} camera; lidarcat models frame (pinhole) cameras only: remove or disable "
+                               f"its cameras in Metashape, or export undistorted frame images of them, then "
+                               f"import again")
+        cal = _calibration(s)
         res = (cal.find("resolution") if cal is not None else None) or s.find("resolution")
         if cal is None or res is None:
             log.warning("%s:%d: sensor %s has no calibration; its cameras are skipped", path, s.line, sid)
@@ -268,7 +290,9 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
         ct = comps.get(c.attrs.get("component_id")) or chunk_tr
         if ct is None:
             raise format_error(path, tr_el.line, "transform", "the chunk has no transform to geocentric "
-                               "coordinates (not georeferenced); lidarcat needs a georeferenced chunk")
+                               "coordinates (not georeferenced); lidarcat needs a georeferenced chunk: give its "
+                               "markers or cameras reference coordinates in Metashape, update the transform "
+                               "(Reference pane), save and import again")
         rot, tr, sc = ct
         centre = sc * rot @ m4[:3, 3] + tr
         r_c2e = rot @ m4[:3, :3]
@@ -278,7 +302,8 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
         rows.append((len(eo), centre, r_c2e))
         eo.append(np.full(6, np.nan))
     if not photo:
-        raise FormatError(f"{path}: no camera with a calibrated sensor")
+        raise FormatError(f"{path}: no camera with a calibrated sensor: align the photos in Metashape (the "
+                          f"sensors get a <calibration>), save and import again")
     eo_a = np.array(eo)
     if rows:
         xyz = np.array([r[1] for r in rows])
@@ -328,12 +353,13 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
             label = glabel.get(m.attrs.get("marker_id"))
             if label is None:
                 raise format_error(fpath, m.line, "marker_id", f"marker {m.attrs.get('marker_id')!r} is not "
-                                   f"in the chunk {path.name}")
+                                   f"in the chunk {path.name}: give the frame doc.xml of the same chunk (--frame)")
             for loc in m.findall("location"):
                 cid = loc.attrs.get("camera_id")
                 if cid not in num_of:
                     raise format_error(fpath, loc.line, "camera_id", f"camera {cid!r} is not a calibrated "
-                                       f"camera of the chunk {path.name}")
+                                       f"camera of the chunk {path.name}: give the frame doc.xml of the same "
+                                       f"chunk (--frame)")
                 o_ph.append(num_of[cid])
                 o_pt.append(label)
                 o_xy.append([_attr(fpath, loc, "x", "pixel_px"), _attr(fpath, loc, "y", "pixel_px")])

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError
+from ._checks import check_crs
 from ._text import sd_problem, Row, TextLines, format_error
 from .block import GroundControl, Orientations
 from .rotations import ypr_to_opk
@@ -85,7 +86,7 @@ def _target(crs_in, crs: str | None, path: Path):
             raise FormatError(f"{path}:1: field 'CRS': {crs_in.name} is geographic (lon/lat); give "
                               f"a projected target CRS (crs=, --crs EPSG:nnnn) to adjust in")
         return None, crs_in.to_string()
-    out = CRS.from_user_input(crs)
+    out = CRS.from_user_input(check_crs(crs))
     if out == crs_in:
         return None, crs
     return Transformer.from_crs(crs_in, out, always_xy=True), crs

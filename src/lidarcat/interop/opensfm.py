@@ -45,11 +45,12 @@ from ..errors import FormatError
 from .._util.tables import JSON_MAX_DEPTH as MAX_JSON_DEPTH, json_too_deep, parse_float
 from .._util.values import parse_number, parse_whole, value_problem
 from ._text import format_error, sd_problem
-from .block import Block, GroundControl, photo_coordinates_mm, pinhole_camera, require_orientations, undistorted_mm
+from .block import Block, GroundControl, pinhole_camera, require_orientations, undistorted_mm
+from .lens import export_cameras, notes, observed_pixels
 from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
 
 __all__ = ["read_opensfm", "read_opensfm_gcp", "read_opensfm_config", "gcp_sd_from_config", "write_opensfm",
-           "topocentric_crs", "OPENSFM_PROJECTIONS"]
+           "topocentric_crs", "reference_lla", "to_topocentric", "OPENSFM_PROJECTIONS"]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +64,21 @@ def topocentric_crs(lat_deg: float, lon_deg: float, alt_m: float) -> str:
     'local ENU (OpenSfM reference_lla): +proj'
     """
     return (f"local ENU (OpenSfM reference_lla): {_pipeline(lat_deg, lon_deg, alt_m)}")
+
+
+def reference_lla(crs: str) -> dict[str, float] | None:
+    """OpenSfM's ``reference_lla`` of a topocentric CRS written by :func:`topocentric_crs` (None for
+    any other CRS).
+
+    >>> reference_lla(topocentric_crs(52.5, 13.4, 34.0))
+    {'latitude': 52.5, 'longitude': 13.4, 'altitude': 34.0}
+    """
+    import re
+
+    m = re.search(r"\+proj=topocentric \+ellps=WGS84 \+lat_0=(\S+) \+lon_0=(\S+) \+h_0=(\S+)", crs)
+    if m is None:
+        return None
+    return {"latitude": float(m.group(1)), "longitude": float(m.group(2)), "altitude": float(m.group(3))}
 
 
 def _pipeline(lat: float, lon: float, alt: float) -> str:
@@ -165,7 +181,10 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     reconstruction : path
     tracks : path, optional
         ``tracks.csv`` (default: ``tracks.csv`` next to the reconstruction, if any).
-        Only observations of shots and points of the reconstruction are kept.
+        Only observations of shots and points of the reconstruction are kept.  A
+        reconstruction without ``points`` (orientation only, as OpenDroneMap writes) gives
+        a block of oriented photos without observations (:mod:`lidarcat.interop.convert`
+        writes it to every format but a survey folder).
     index : int
         Which reconstruction of the list (OpenSfM writes one per connected component).
     pixel_size_mm : float
@@ -189,6 +208,8 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     rec = data[index]
     if not isinstance(rec, dict):
         raise format_error(path, 1, None, f"reconstruction {index} is not an object")
+    if "points" not in rec:  # an orientation-only reconstruction (OpenDroneMap writes them)
+        rec = {**rec, "points": {}}
     for key in ("cameras", "shots", "points"):
         if not isinstance(rec.get(key), dict):
             raise format_error(path, _json_line(text, key) or 1, key,
@@ -303,8 +324,10 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
     text = read_text(path, FormatError)
     data = _load_json(path)
     if "proj=topocentric" not in block.crs:
-        raise FormatError(f"{path}: the block {block.name!r} has no OpenSfM reference_lla frame; "
-                          f"GCPs in lat/lon cannot be placed")
+        raise FormatError(f"{path}: the block {block.name!r} has no OpenSfM reference_lla frame, so GCPs in "
+                          f"lat/lon cannot be placed; give --survey a survey imported from a georeferenced "
+                          f"OpenSfM reconstruction (with reference_lla), or write the GCPs as an ODM "
+                          f"gcp_list.txt in the survey CRS and use lidarcat import odm-gcp")
     tr = Transformer.from_pipeline(block.crs.split(": ", 1)[1])
     pts = data.get("points") if isinstance(data, dict) else None
     if not isinstance(pts, list):
@@ -339,7 +362,8 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
             sid = ob.get("shot_id")
             if not isinstance(sid, str) or sid not in cam_of or cam_of[sid] not in block.source_models:
                 raise format_error(path, line, "shot_id", f"GCP {pid!r}: shot {_short(sid)} is not in the "
-                                   f"reconstruction")
+                                   f"reconstruction of {block.name!r}: give --survey the survey imported "
+                                   f"from the reconstruction these GCPs were measured in")
             xy = _vec(path, text, str(p["id"]), "projection", ob.get("projection"), 2, "normalised")
             m = block.source_models[cam_of[sid]]
             s = max(m["w"], m["h"])
@@ -351,36 +375,90 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
                          f"{path} (OpenSfM GCPs, WGS84 lat/lon/alt -> topocentric ENU)")
 
 
-def _opensfm_camera(cam, m: dict | None) -> tuple[dict, dict | None]:
-    """OpenSfM camera dict and the pixel model it implies (None: undistorted pinhole of *cam*)."""
-    if m is not None and m.get("kind") == "brown" and not any(m["dist"].get(k, 0.0) for k in ("k4", "k5", "k6")):
-        w, h = m["w"], m["h"]
-        s = max(w, h)
-        d = m["dist"]
-        if m["fx"] == m["fy"] and m["cx"] == w / 2 and m["cy"] == h / 2 and not any(
-                d.get(k, 0.0) for k in ("k3", "p1", "p2")):
-            return {"projection_type": "perspective", "width": w, "height": h, "focal": m["fx"] / s,
-                    "k1": d.get("k1", 0.0), "k2": d.get("k2", 0.0)}, m
-        return {"projection_type": "brown", "width": w, "height": h, "focal_x": m["fx"] / s,
-                "focal_y": m["fy"] / s, "c_x": (m["cx"] - w / 2) / s, "c_y": (m["cy"] - h / 2) / s,
-                **{k: d.get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}}, m
-    w, h = cam.columns_px, cam.rows_px
+def _opensfm_camera(m: dict) -> dict:
+    """OpenSfM camera dict of a Brown model without k4..k6 (:func:`lidarcat.interop.lens.export_camera`):
+    ``perspective`` when it is one (fx = fy, centred, k1 and k2 only), else ``brown``."""
+    w, h = m["w"], m["h"]
     s = max(w, h)
-    fx, fy = cam.focal_length_mm / cam.pixel_size_x_mm, cam.focal_length_mm / cam.pixel_size_y_mm
-    cx = w / 2 + cam.principal_point_x_mm / cam.pixel_size_x_mm
-    cy = h / 2 - cam.principal_point_y_mm / cam.pixel_size_y_mm
-    return {"projection_type": "brown", "width": w, "height": h, "focal_x": fx / s, "focal_y": fy / s,
-            "c_x": (cx - w / 2) / s, "c_y": (cy - h / 2) / s, "k1": 0.0, "k2": 0.0, "k3": 0.0,
-            "p1": 0.0, "p2": 0.0}, None
+    d = m["dist"]
+    if m["fx"] == m["fy"] and m["cx"] == w / 2 and m["cy"] == h / 2 and not any(
+            d.get(k, 0.0) for k in ("k3", "p1", "p2")):
+        return {"projection_type": "perspective", "width": w, "height": h, "focal": m["fx"] / s,
+                "k1": d.get("k1", 0.0), "k2": d.get("k2", 0.0)}
+    return {"projection_type": "brown", "width": w, "height": h, "focal_x": m["fx"] / s,
+            "focal_y": m["fy"] / s, "c_x": (m["cx"] - w / 2) / s, "c_y": (m["cy"] - h / 2) / s,
+            **{k: d.get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}}
+
+
+def to_topocentric(block: Block) -> tuple[Block, str] | None:
+    """*block* in OpenSfM's topocentric ENU frame at the mean photo centre, when its CRS is a map
+    CRS pyproj knows (None otherwise: a local frame).
+
+    Positions go through PROJ: map CRS -> its geographic 3D CRS -> ECEF -> topocentric (the
+    heights taken as ellipsoidal: an orthometric block lands N metres low, which the returned note
+    says).  A rotation ``R`` (world to camera) becomes ``R Q^T`` with ``Q`` the rotation part (polar
+    decomposition) of the Jacobian of the map -> topocentric mapping at the photo centre, taken by
+    central differences over 1 m: the meridian convergence, the tilt of the tangent plane and
+    the scale factor of the projection (which the rotation leaves out, as the map-frame
+    adjustment did) are all in it.
+
+    Returns
+    -------
+    (Block, str) or None
+        The converted block (``crs`` = :func:`topocentric_crs`, heights ellipsoidal) and a note.
+    """
+    from pyproj import CRS, Transformer
+    from pyproj.exceptions import CRSError
+
+    try:
+        crs = CRS.from_user_input(block.crs)
+    except CRSError:
+        return None
+    if not (crs.is_projected or crs.is_geographic):
+        return None
+    geo3d = crs.geodetic_crs.to_3d()
+    to_geo = Transformer.from_crs(crs.to_3d() if not crs.is_compound else crs, geo3d, always_xy=True)
+    c0 = np.nanmean(block.eo[:, :3], axis=0)
+    lon0, lat0, h0 = to_geo.transform(*c0)
+    pipe = Transformer.from_pipeline(_pipeline(float(lat0), float(lon0), float(h0)))
+
+    def fwd(xyz: np.ndarray) -> np.ndarray:
+        lon, lat, h = to_geo.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+        return np.column_stack(pipe.transform(lon, lat, h))
+
+    eo = np.array(block.eo, dtype=float)
+    centres = fwd(eo[:, :3])
+    steps = np.eye(3)
+    jac = np.stack([(fwd(eo[:, :3] + d) - fwd(eo[:, :3] - d)) / 2.0 for d in steps], axis=2)  # (P, 3, 3)
+    u, _, vt = np.linalg.svd(jac)
+    q = u @ vt
+    r = opk_to_world_to_cv(eo[:, 3:]).reshape(-1, 3, 3) @ np.transpose(q, (0, 2, 1))
+    eo = np.column_stack([centres, world_to_cv_to_opk(r)])
+    pts = np.array(block.points_m, dtype=float)
+    ok = np.isfinite(pts).all(axis=1)
+    if ok.any():
+        pts[ok] = fwd(pts[ok])
+    gm = np.array(block.ground_m, dtype=float)
+    okg = np.isfinite(gm).all(axis=1)
+    if okg.any():
+        gm[okg] = fwd(gm[okg])
+    hs = block.height_system
+    note = (f"coordinates converted from {block.crs} to OpenSfM's topocentric frame at reference_lla "
+            f"(lat {float(lat0)!r}, lon {float(lon0)!r}, alt {float(h0)!r})"
+            + ("" if hs.startswith("ellipsoidal") else f"; the block's heights ({hs}) were taken as "
+               f"ellipsoidal: the frame lies N (geoid undulation) metres low"))
+    return block.with_(crs=topocentric_crs(float(lat0), float(lon0), float(h0)), height_system="ellipsoidal",
+                       eo=eo, points_m=pts, ground_m=gm), note
 
 
 def write_opensfm(block: Block, folder: str | Path) -> Path:
     """Write *block* as ``reconstruction.json`` + ``tracks.csv`` in *folder*, atomically.
 
     Observations are written in normalised coordinates of the camera model
-    written (the measured pixels for a Brown-type source model, else the
-    corrected photo coordinates in the undistorted pinhole).  Only points with
-    coordinates get a ``points`` entry and tracks.
+    written (:mod:`lidarcat.interop.lens`).  Only points with coordinates get a
+    ``points`` entry and tracks.  A block in a map CRS is written in OpenSfM's
+    topocentric frame with its ``reference_lla`` (:func:`to_topocentric`); a local
+    frame gets no ``reference_lla``.
 
     Raises
     ------
@@ -389,9 +467,13 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
     """
     folder = Path(folder)
     require_orientations(block, "OpenSfM")
-    cams, used = {}, {}
-    for cid, cam in block.cameras.items():
-        cams[cid], used[cid] = _opensfm_camera(cam, block.source_models.get(cid))
+    note = None
+    if reference_lla(block.crs) is None:
+        topo = to_topocentric(block)
+        if topo is not None:
+            block, note = topo
+    models = export_cameras(block, rational=False)
+    cams = {cid: _opensfm_camera(m) for cid, m in models.items()}
     r = opk_to_world_to_cv(block.eo[:, 3:]).reshape(-1, 3, 3)
     shots = {}
     for i, pid in enumerate(block.photo_ids.tolist()):
@@ -400,7 +482,7 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
     ok = np.isfinite(block.points_m).all(axis=1)
     points = {p: {"coordinates": x.tolist(), "color": [128.0, 128.0, 128.0]}
               for p, x in zip(block.point_ids[ok].tolist(), block.points_m[ok])}
-    mm = photo_coordinates_mm(block)
+    pix = observed_pixels(block)
     cam_of = dict(zip(block.photo_ids.tolist(), block.photo_camera.tolist()))
     lines = ["OPENSFM_TRACKS_VERSION_v2"]
     for k, (ph, pt) in enumerate(zip(block.obs_photo.tolist(), block.obs_point.tolist())):
@@ -409,19 +491,21 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
         cid = cam_of[ph]
         c = cams[cid]
         s = max(c["width"], c["height"])
-        if used[cid] is not None:
-            corner = block.obs_px[k] + 0.5
-        else:
-            cam = block.cameras[cid]
-            cx = cam.columns_px / 2 + cam.principal_point_x_mm / cam.pixel_size_x_mm
-            cy = cam.rows_px / 2 - cam.principal_point_y_mm / cam.pixel_size_y_mm
-            corner = np.array([cx + mm[k, 0] / cam.pixel_size_x_mm, cy - mm[k, 1] / cam.pixel_size_y_mm])
-        xn = (corner - [c["width"] / 2, c["height"] / 2]) / s
+        xn = (pix[k] - [c["width"] / 2, c["height"] / 2]) / s
         lines.append(f"{ph}\t{pt}\t{k}\t{float(xn[0])!r}\t{float(xn[1])!r}\t0.004\t128\t128\t128\t-1\t-1")
-    rec = [{"cameras": cams, "shots": shots, "points": points}]
+    rec: dict[str, Any] = {"cameras": cams, "shots": shots, "points": points}
+    lla = reference_lla(block.crs)
+    if lla is not None:
+        rec["reference_lla"] = lla
+    else:
+        log.warning("%s: CRS %s is a local frame: reconstruction.json gets no reference_lla "
+                    "(the CRS is in lidarcat_export.txt)", folder, block.crs)
     with atomic_dir(folder) as tmp:
-        write_text_atomic(tmp / "reconstruction.json", json.dumps(rec, indent=1) + "\n")
+        write_text_atomic(tmp / "reconstruction.json", json.dumps([rec], indent=1) + "\n")
         write_text_atomic(tmp / "tracks.csv", "\n".join(lines) + "\n")
+        write_text_atomic(tmp / "lidarcat_export.txt", "".join(
+            f"{line}\n" for line in [f"written by lidarcat from survey {block.name!r}: CRS {block.crs}, heights "
+                                      f"{block.height_system}", *([note] if note else []), *notes(models)]))
     log.info("wrote OpenSfM reconstruction %s: %d shots, %d points (CRS %s, heights %s)", folder,
              len(shots), len(points), block.crs, block.height_system)
     return folder

@@ -31,16 +31,24 @@ from pathlib import Path
 
 import numpy as np
 
-from .._util import atomic_write, write_json_atomic
+from .._util import atomic_write, write_json_atomic, write_text_atomic
 from .._util.values import parse_number
 from ..errors import FormatError
 from ._text import TextLines, format_error
 from .block import Block, Orientations, require_orientations
 
 __all__ = ["read_opk", "write_opk", "read_borea", "read_borea_camera", "read_borea_points",
-           "read_borea_measurements", "ANGLE_UNITS"]
+           "read_borea_measurements", "orthority_int_param", "ANGLE_UNITS", "OPK_FLAVOURS"]
 
 log = logging.getLogger(__name__)
+
+#: OPK flavour -> header of :func:`write_opk`
+_HEADERS: dict[str, tuple[str, ...]] = {
+    "pix4d": ("imageName", "X", "Y", "Z", "Omega", "Phi", "Kappa"),
+    "ign": ("NOM", "X", "Y", "Z", "O", "P", "K", "CAMERA"),
+    "orthority": ("filename", "x", "y", "z", "omega", "phi", "kappa", "camera"),
+}
+OPK_FLAVOURS = tuple(_HEADERS)
 
 #: angle unit -> radians per unit
 ANGLE_UNITS: dict[str, float] = {"deg": math.pi / 180, "rad": 1.0, "gon": math.pi / 200}
@@ -73,6 +81,24 @@ def _columns(header: tuple[str, ...], path: Path, line: int) -> dict[str, int]:
     return cols
 
 
+def _sidecar(path: Path, crs: str, height_system: str) -> tuple[str, str]:
+    """CRS and height system from the ``<file>.json`` sidecar :func:`write_opk` wrote (else the given)."""
+    import json
+
+    side = path.with_name(path.name + ".json")
+    if not side.is_file() or side.stat().st_size > 1_000_000:
+        return crs, height_system
+    try:
+        d = json.loads(side.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        log.warning("%s: not a sidecar lidarcat wrote; CRS not taken from it", side)
+        return crs, height_system
+    if not isinstance(d, dict) or not isinstance(d.get("crs"), str):
+        return crs, height_system
+    hs = d.get("height_system")
+    return d["crs"], hs if isinstance(hs, str) and height_system == "unspecified" else height_system
+
+
 def read_opk(path: str | Path, *, angle_unit: str = "deg", crs: str = "unspecified",
              height_system: str = "unspecified") -> Orientations:
     """Read an omega-phi-kappa orientation file.
@@ -83,7 +109,8 @@ def read_opk(path: str | Path, *, angle_unit: str = "deg", crs: str = "unspecifi
     angle_unit : {"deg", "rad", "gon"}
         Unit of omega, phi, kappa in the file (default degrees).
     crs, height_system : str
-        What X, Y, Z are (the file does not say).
+        What X, Y, Z are (the file does not say; with ``crs="unspecified"`` the
+        ``<file>.json`` sidecar :func:`write_opk` wrote gives them, when present).
 
     Returns
     -------
@@ -98,6 +125,8 @@ def read_opk(path: str | Path, *, angle_unit: str = "deg", crs: str = "unspecifi
     """
     if angle_unit not in ANGLE_UNITS:
         raise FormatError(f"angle unit {angle_unit!r} is not one of {', '.join(ANGLE_UNITS)}")
+    if crs == "unspecified":
+        crs, height_system = _sidecar(Path(path), crs, height_system)
     tl = TextLines(path, comment=None)
     first = next((ln for ln in tl.text.splitlines() if ln.strip()), "")
     tl.split = None if ("," in first or ";" in first) else "ws"  # blanks: a comma is no separator
@@ -146,10 +175,14 @@ def write_opk(block: Block, path: str | Path, *, angle_unit: str = "deg", flavou
         Output file; a sidecar ``<path>.json`` records CRS, height system, angle
         unit and the rotation convention.
     angle_unit : {"deg", "rad", "gon"}
-    flavour : {"pix4d", "ign"}
+    flavour : {"pix4d", "ign", "orthority"}
         ``pix4d``: header ``imageName X Y Z Omega Phi Kappa`` tab-separated (what
         Pix4D and Metashape import); ``ign``: ``NOM X Y Z O P K CAMERA`` as IGN's
-        ``.OPK``.
+        ``.OPK``; ``orthority``: orthority's CSV exterior parameters
+        (``filename,x,y,z,omega,phi,kappa,camera``, comma-separated, degrees; the
+        file must end in ``.csv`` or ``.txt``) with the CRS as WKT in a ``.prj``
+        sidecar (orthority ``param_io.CsvReader``), when the CRS is a projected one, and
+        the cameras in ``<stem>_int_param.yaml`` (:func:`orthority_int_param`).
 
     Raises
     ------
@@ -158,21 +191,35 @@ def write_opk(block: Block, path: str | Path, *, angle_unit: str = "deg", flavou
     """
     if angle_unit not in ANGLE_UNITS:
         raise FormatError(f"angle unit {angle_unit!r} is not one of {', '.join(ANGLE_UNITS)}")
-    if flavour not in ("pix4d", "ign"):
-        raise FormatError(f"OPK flavour {flavour!r} is not 'pix4d' or 'ign'")
+    if flavour not in OPK_FLAVOURS:
+        raise FormatError(f"OPK flavour {flavour!r} is not one of {', '.join(OPK_FLAVOURS)}")
     require_orientations(block, "an OPK file")
     path = Path(path)
     unit = ANGLE_UNITS[angle_unit]
+    prj = None
+    if flavour == "orthority":
+        if path.suffix.lower() not in (".csv", ".txt"):
+            raise FormatError(f"{path}: orthority reads exterior parameters from a .csv or .txt file; give "
+                              f"-o {path.with_suffix('.csv').name}")
+        if angle_unit != "deg":
+            raise FormatError(f"orthority reads omega, phi, kappa in degrees; give --angle-unit deg, not "
+                              f"{angle_unit}")
+        prj = _projected_wkt(block.crs)
     bad = [p for p in block.photo_ids.tolist() if not p or any(ch.isspace() for ch in p)]
     if bad:
         raise FormatError(f"photo id {bad[0]!r} contains white space; OPK fields are white-space separated")
+    sep = "," if flavour == "orthority" else "\t"
     with atomic_write(path) as fh:
-        fh.write("imageName\tX\tY\tZ\tOmega\tPhi\tKappa\n" if flavour == "pix4d" else "NOM\tX\tY\tZ\tO\tP\tK\tCAMERA\n")
+        fh.write(sep.join(_HEADERS[flavour]) + "\n")
         for pid, cam, e in zip(block.photo_ids.tolist(), block.photo_camera.tolist(), block.eo):
             cells = [pid] + [repr(float(v)) for v in e[:3]] + [repr(float(v / unit)) for v in e[3:]]
-            if flavour == "ign":
+            if flavour != "pix4d":
                 cells.append(cam)
-            fh.write("\t".join(cells) + "\n")
+            fh.write(sep.join(cells) + "\n")
+    if prj is not None:
+        write_text_atomic(path.with_suffix(".prj"), prj)
+    if flavour == "orthority":
+        write_text_atomic(path.with_name(path.stem + "_int_param.yaml"), orthority_int_param(block))
     write_json_atomic(path.with_name(path.name + ".json"), {
         "file": path.name, "crs": block.crs, "height_system": block.height_system,
         "angle_unit": angle_unit, "survey": block.name,
@@ -180,6 +227,41 @@ def write_opk(block: Block, path: str | Path, *, angle_unit: str = "deg", flavou
                       "thesis eq. 08) = transpose of Pix4D's camera-to-world Rx(omega) Ry(phi) Rz(kappa)"})
     log.info("wrote %s: %d photos", path, len(block.photo_ids))
     return path
+
+
+def orthority_int_param(block: Block) -> str:
+    """orthority's interior parameter file (YAML; written as JSON, which YAML reads) of the block's
+    cameras in their Brown form (:func:`lidarcat.interop.lens.export_camera`): ``focal_len`` in
+    pixels with ``sensor_size`` = the image size, so focal lengths mean the same for portrait and
+    landscape images (an OpenSfM camera's normalised focal does not, for orthority, in portrait);
+    ``cx, cy`` as OpenSfM's ``c_x, c_y`` (pixels from the image centre over ``max(w, h)``)."""
+    import json
+
+    from .lens import export_cameras
+
+    out = {}
+    for cid, m in export_cameras(block, rational=False).items():
+        s = max(m["w"], m["h"])
+        out[cid] = {"type": "brown", "im_size": [m["w"], m["h"]], "focal_len": [m["fx"], m["fy"]],
+                    "sensor_size": [float(m["w"]), float(m["h"])], "cx": (m["cx"] - m["w"] / 2) / s,
+                    "cy": (m["cy"] - m["h"] / 2) / s, **{k: m["dist"].get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}}
+    return json.dumps(out, indent=1) + "\n"
+
+
+def _projected_wkt(crs: str) -> str | None:
+    """WKT of a projected *crs* (for orthority's ``.prj``), else None (logged)."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        c = CRS.from_user_input(crs)
+    except CRSError:
+        log.warning("CRS %r is no CRS pyproj knows: no .prj written (orthority then needs its --crs)", crs)
+        return None
+    if not c.is_projected:
+        log.warning("CRS %r is not projected: no .prj written (orthority needs a projected CRS)", crs)
+        return None
+    return c.to_wkt()
 
 
 # ---------------------------------------------------------------------- IGN Borea companions
@@ -289,13 +371,15 @@ def read_borea(opk: str | Path, cameras: list[str | Path], *, points: str | Path
     for name, cam, line in zip(ori.photo.tolist(), ori.camera.tolist(), ori.line.tolist()):
         if cam not in cams:
             raise format_error(opk, line, "CAMERA", f"camera {cam!r} of photo {name!r} is not among the "
-                               f"camera files ({', '.join(cams) or 'none given'})")
+                               f"camera files ({', '.join(cams) or 'none given'}): give its camera file "
+                               f"(--camera)")
     o_pt, o_im, o_px = [np.empty(0, str)], [np.empty(0, str)], [np.empty((0, 2))]
     for m in measurements:
         p, i, c = read_borea_measurements(m)
         unknown = sorted(set(i.tolist()) - set(ori.photo.tolist()))
         if unknown:
-            raise FormatError(f"{m}: image {unknown[0]!r} is not in {opk}")
+            raise FormatError(f"{m}: image {unknown[0]!r} is not in {opk}: give the .mes files of the same "
+                              f"block, or add the photo to the .OPK file")
         o_pt.append(p)
         o_im.append(i)
         o_px.append(c)

@@ -1,0 +1,173 @@
+r"""The camera an export writes: every camera of a block as a Brown (OpenCV) model in pixels.
+
+COLMAP (``OPENCV``, ``FULL_OPENCV``), OpenSfM (``brown``) and orthority (``brown``) project
+ideal normalised coordinates ``(x, y) = (X_c/Z_c, Y_c/Z_c)`` (y down) *forward* through the
+distortion (:func:`lidarcat.interop._distortion.distort`) and then
+``u = f_x x_d + c_x``, ``v = f_y y_d + c_y`` (pixels, image corner at the origin).  The
+cameras of a block come in three kinds:
+
+source
+    A Brown model read from COLMAP/OpenSfM (``block.source_models``): written back as it is.
+exact
+    A model that is algebraically a Brown model: a lidarcat camera without distortion
+    (``K_i = P_i = eps45 = 0``: the pinhole ``f_x = c/t_x``, ``c_x = N_c/2 + dx/t_x``,
+    ``f_y = c/t_y``, ``c_y = N_L/2 - dy/t_y``, eq. 01-02 with the corner origin), or a
+    Metashape frame model with ``k4 = b2 = 0`` (Metashape's p1, p2 are OpenCV's p2, p1;
+    ``f_x = f + b1``).
+fitted
+    lidarcat's camera with distortion (eq. 03-07) is the *inverse* kind of model: the
+    correction is a polynomial of the distorted coordinate, ``x_c = x_fot - d(x_fot)``, and
+    its inverse is no finite polynomial.  It is fitted: the pinhole is kept exact at the
+    principal point (``f_x = c / (t_x (1 - eps45))``, the slope of eq. 07 there; ``c_x, c_y``
+    as above) and on a grid of 41 x 31 pixel positions spanning the whole image (corners
+    included) each pixel ``(u, v)`` is taken through eq. 01-07 to its ideal normalised
+    coordinate ``(x_c/c, -y_c/c)``; the forward model is linear in ``k1, k2, k3, p1, p2``,
+    which linear least squares in pixels gives.  The largest misfit over the grid, in
+    pixels, travels with the model (``fit_max_px``) into the export's
+    notes.  Metashape models with ``k4`` or skew ``b2`` are fitted the same way.
+
+The observations an export writes (:func:`observed_pixels`) are the measured pixels for a
+camera with a source model, and for a lidarcat camera the corrected photo coordinates the
+adjustment used taken back to pixels through the camera
+(:meth:`lidarcat.geometry.camera.Camera.photo_to_pixel`), so that the exported camera
+reprojects them as lidarcat does (to within ``fit_max_px``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..geometry.camera import Camera
+from ._distortion import distort, undistort
+
+__all__ = ["ExportCamera", "export_camera", "export_cameras", "observed_pixels", "fit_brown", "notes", "GRID"]
+
+#: fitting grid: columns x rows of pixel positions over the whole image
+GRID = (41, 31)
+
+_BROWN = ("k1", "k2", "k3", "p1", "p2")
+
+
+def _pinhole(cam: Camera) -> tuple[float, float, float, float]:
+    fx, fy = cam.focal_length_mm / cam.pixel_size_x_mm, cam.focal_length_mm / cam.pixel_size_y_mm
+    cx = cam.columns_px / 2 + cam.principal_point_x_mm / cam.pixel_size_x_mm
+    cy = cam.rows_px / 2 - cam.principal_point_y_mm / cam.pixel_size_y_mm
+    return fx, fy, cx, cy
+
+
+def _has_distortion(cam: Camera) -> bool:
+    return any(getattr(cam, k) != 0.0 for k in ("k1", "k2", "k3", "p1", "p2", "refraction_eps45"))
+
+
+class ExportCamera(dict):
+    """A Brown model in pixels (the keys of :func:`lidarcat.interop.block.pinhole_camera`'s dict:
+    ``fx, fy, cx, cy, w, h, dist, kind="brown"``) plus ``how`` (``source``, ``exact`` or
+    ``fitted``) and ``fit_max_px`` (0 unless fitted)."""
+
+
+def _grid(w: int, h: int) -> np.ndarray:
+    """(n, 2) corner-origin pixel positions spanning the image, its corners included."""
+    u, v = np.meshgrid(np.linspace(0.0, w, GRID[0]), np.linspace(0.0, h, GRID[1]))
+    return np.column_stack([u.ravel(), v.ravel()])
+
+
+def fit_brown(corner_px: np.ndarray, ideal: np.ndarray, pinhole: tuple[float, float, float, float]
+              ) -> tuple[dict[str, float], float]:
+    """Brown distortion taking *ideal* (n, 2) normalised coordinates (y down) through the fixed
+    *pinhole* (fx, fy, cx, cy) to *corner_px* (n, 2): linear least squares in pixels (the model is
+    linear in k1, k2, k3, p1, p2); returns (dist, largest misfit px)."""
+    fx, fy, cx, cy = pinhole
+    x, y = ideal[:, 0], ideal[:, 1]
+    r2 = x * x + y * y
+    ax = np.column_stack([x * r2, x * r2**2, x * r2**3, 2 * x * y, r2 + 2 * x * x]) * fx
+    ay = np.column_stack([y * r2, y * r2**2, y * r2**3, r2 + 2 * y * y, 2 * x * y]) * fy
+    bx = corner_px[:, 0] - cx - fx * x
+    by = corner_px[:, 1] - cy - fy * y
+    sol, *_ = np.linalg.lstsq(np.vstack([ax, ay]), np.concatenate([bx, by]), rcond=None)
+    dist = dict(zip(_BROWN, (float(v) for v in sol)))
+    xd = distort(ideal, dist)
+    r = xd * [fx, fy] + [cx, cy] - corner_px
+    return dist, float(np.hypot(r[:, 0], r[:, 1]).max())
+
+
+def _fit_source(source: dict, metashape: bool) -> ExportCamera:
+    """A source-program model (Metashape's with k4/skew, a rational FULL_OPENCV one) fitted as Brown."""
+    corner = _grid(source["w"], source["h"])
+    yd = (corner[:, 1] - source["cy"]) / source["fy"]
+    xd = np.column_stack([(corner[:, 0] - source["cx"] - source.get("skew", 0.0) * yd) / source["fx"], yd])
+    ideal = undistort(xd, source["dist"], metashape=metashape)
+    fx, fy, cx, cy = source["fx"], source["fy"], source["cx"], source["cy"]
+    dist, worst = fit_brown(corner, ideal, (fx, fy, cx, cy))
+    return ExportCamera(w=source["w"], h=source["h"], fx=fx, fy=fy, cx=cx, cy=cy, dist=dist, kind="brown",
+                        how="fitted", fit_max_px=worst)
+
+
+def export_camera(cam: Camera, source: dict | None = None, *, rational: bool = True) -> ExportCamera:
+    """The Brown model an export writes for *cam* (and its source-program model, if any).
+
+    *rational* False: the target has no ``k4..k6`` (OpenSfM ``brown``), so a source model with
+    them is fitted.
+    """
+    if source is not None and source.get("kind") == "brown":
+        if rational or not any(source["dist"].get(k, 0.0) for k in ("k4", "k5", "k6")):
+            return ExportCamera(source, how="source", fit_max_px=0.0)
+        return _fit_source(source, metashape=False)
+    if source is not None and source.get("kind") == "metashape":
+        d = source["dist"]
+        if not d.get("k4", 0.0) and not source.get("skew", 0.0):
+            return ExportCamera({k: source[k] for k in ("fx", "fy", "cx", "cy", "w", "h")}, kind="brown",
+                                how="exact", fit_max_px=0.0,
+                                dist={"k1": d.get("k1", 0.0), "k2": d.get("k2", 0.0), "k3": d.get("k3", 0.0),
+                                      "p1": d.get("p2", 0.0), "p2": d.get("p1", 0.0)})
+        return _fit_source(source, metashape=True)
+    fx, fy, cx, cy = _pinhole(cam)
+    base = {"w": int(cam.columns_px), "h": int(cam.rows_px), "kind": "brown"}
+    if not _has_distortion(cam):
+        return ExportCamera(base, fx=fx, fy=fy, cx=cx, cy=cy, dist={k: 0.0 for k in _BROWN}, how="exact",
+                            fit_max_px=0.0)
+    corner = _grid(cam.columns_px, cam.rows_px)
+    xy_mm = np.asarray(cam.pixel_to_photo(corner - 0.5))
+    ideal = np.column_stack([xy_mm[:, 0], -xy_mm[:, 1]]) / cam.focal_length_mm
+    scale = 1.0 / (1.0 - cam.refraction_eps45)  # the slope of eq. 07 at the principal point
+    fx, fy = fx * scale, fy * scale
+    dist, worst = fit_brown(corner, ideal, (fx, fy, cx, cy))
+    return ExportCamera(base, fx=fx, fy=fy, cx=cx, cy=cy, dist=dist, how="fitted", fit_max_px=worst)
+
+
+def export_cameras(block: Any, *, rational: bool = True) -> dict[str, ExportCamera]:
+    """Camera id -> :func:`export_camera` for every camera of *block*."""
+    return {cid: export_camera(cam, block.source_models.get(cid), rational=rational)
+            for cid, cam in block.cameras.items()}
+
+
+def observed_pixels(block: Any) -> np.ndarray:
+    """Pixels (n, 2) of every observation, corner origin (COLMAP, OpenSfM), in the camera an export
+    writes: the measured pixels ``obs_px + 0.5`` for a camera with a source-program model; for a
+    lidarcat camera the corrected photo coordinates ``obs_mm`` (what the adjustment used) taken
+    back to pixels through the camera (:meth:`lidarcat.geometry.camera.Camera.photo_to_pixel`),
+    else ``obs_px + 0.5``."""
+    out = np.asarray(block.obs_px, dtype=float) + 0.5
+    cam_of = dict(zip(block.photo_ids.tolist(), block.photo_camera.tolist()))
+    cams = np.array([cam_of[p] for p in block.obs_photo.tolist()], dtype=str)
+    has_mm = np.isfinite(block.obs_mm).all(axis=1)
+    for cid in np.unique(cams):
+        rows = (cams == cid) & (has_mm if cid not in block.source_models else ~np.isfinite(out).all(axis=1))
+        if rows.any():
+            out[rows] = np.asarray(block.cameras[cid].photo_to_pixel(block.obs_mm[rows])).reshape(-1, 2) + 0.5
+    return out
+
+
+def notes(models: dict[str, ExportCamera]) -> list[str]:
+    """One line per camera: how its model was carried over (and the fit's largest misfit)."""
+    out = []
+    for cid, m in models.items():
+        if m["how"] == "fitted":
+            out.append(f"camera {cid}: distortion model converted to Brown (OpenCV) by a least-squares fit "
+                       f"over a {GRID[0]}x{GRID[1]} pixel grid, largest misfit {m['fit_max_px']:.3g} px")
+        elif m["how"] == "exact":
+            out.append(f"camera {cid}: converted to Brown (OpenCV) exactly")
+        else:
+            out.append(f"camera {cid}: the source program's Brown model, unchanged")
+    return out
