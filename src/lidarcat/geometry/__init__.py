@@ -1,8 +1,13 @@
-"""Shared geometry of every stage: the camera, the collinearity equations, the TIN locator.
+"""Shared geometry of every stage: the camera and its models, the collinearity equations, the TIN locator.
 
 ================  ============================================================
 ``camera``        Interior orientation of a non-metric digital camera (thesis section 2.1.1, eq. 01-07).
 ``collinearity``  Collinearity equations, rotation matrices and their analytic derivatives.
+``models``        Camera models as a family: frame (the thesis camera), normalised Brown, fisheye (Kannala-Brandt).
+``conversion``    Conversions between camera models (exact, or fitted with their residual); COLMAP and Metashape parameters.
+``apsets``        Self-calibration parameter sets by name (thesis, brown, ebner, gruen) and their correction polynomials.
+``rolling``       Rolling shutter: projection with the row's read-out time solved, and its Jacobians.
+``rigs``          Camera rigs: sensors with fixed relative poses moved as one body per exposure, and Jacobians.
 ``tin``           One Delaunay point locator (a walk) and barycentric weights, for every TIN surface.
 ================  ============================================================
 """
@@ -23,9 +28,28 @@ from .collinearity import (  # noqa: F401
     project,
     project_with_jacobians,
 )
+from .models import BrownCamera, CameraModel, FisheyeCamera, FrameModel, MODELS, camera_model  # noqa: F401
+from .conversion import (Conversion, convert, from_colmap, to_colmap, from_metashape, to_metashape,  # noqa: F401
+                         image_plane_observations)
+from .rigs import Rig, project_rig  # noqa: F401
 from .tin import TinLocator, barycentric, find_simplex  # noqa: F401
 
 __all__ = [
+    'BrownCamera',
+    'CameraModel',
+    'FisheyeCamera',
+    'FrameModel',
+    'MODELS',
+    'camera_model',
+    'Conversion',
+    'convert',
+    'from_colmap',
+    'to_colmap',
+    'from_metashape',
+    'to_metashape',
+    'image_plane_observations',
+    'Rig',
+    'project_rig',
     'TinLocator',
     'barycentric',
     'find_simplex',

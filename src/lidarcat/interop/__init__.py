@@ -7,6 +7,7 @@ One module per format, all going through :class:`~lidarcat.interop.block.Block`
 module                    reads / writes
 ========================  ==================================================================
 :mod:`.colmap`            COLMAP text models (cameras.txt, images.txt, points3D.txt)
+:mod:`.colmap_binary`     COLMAP binary models (cameras.bin, images.bin, points3D.bin), read
 :mod:`.opensfm`           OpenSfM reconstruction.json, tracks.csv, ground_control_points.json
 :mod:`.odm`               OpenDroneMap gcp_list.txt and geo.txt
 :mod:`.metashape`         Metashape project XML (chunk + frame doc.xml)
