@@ -61,6 +61,7 @@ __all__ = [
     "circular_error_radius",
     "asprs2023_product_rmse",
     "nssda_horizontal_accuracy",
+    "ce90_le90",
     "classify_pec",
     "classify_nssda",
     "classify_asprs2014",
@@ -364,6 +365,43 @@ def nssda_horizontal_accuracy(rmse_x: float, rmse_y: float) -> tuple[float, str]
             "case 2: 2.4477 * 0.5 * (RMSE_x + RMSE_y) (ratio >= 0.6)"
     r = circular_error_radius(0.95, (0.0, 0.0), np.diag([rmse_x ** 2, rmse_y ** 2]))
     return r, "ratio < 0.6: exact 95 % circle of N(0, diag(RMSE_x^2, RMSE_y^2))"
+
+
+def ce90_le90(d: Any) -> dict[str, Any]:
+    """CE90 and LE90 of check-point discrepancies: the 90 % circular (plan) and linear (height) errors.
+
+    Two readings, as the NGA/ASPRS practice reports them (CE90/LE90 of MIL-STD-600001):
+
+    * **empirical**: the 90th percentile of the radial errors ``sqrt(dE^2 + dN^2)`` and of
+      ``|dh|`` (numpy's linear interpolation between order statistics);
+    * **from the RMSE** under normal errors with zero mean: LE90 = 1.6449 RMSE_h (the
+      two-sided 90 % point of N(0, 1)); CE90 the radius of the 90 % circle of
+      N(0, diag(RMSE_E^2, RMSE_N^2)), which is 2.1460 RMSE_E (= 1.5174 RMSE_r) when the two
+      RMSEs are equal (:func:`circular_error_radius`, exact for any ratio).
+
+    Parameters
+    ----------
+    d : (n, 3) array
+        dE, dN, dh of the check points, m.
+
+    Returns
+    -------
+    dict
+        ``n``, ``ce90_m``, ``le90_m`` (from the RMSE), ``ce90_empirical_m``, ``le90_empirical_m``.
+
+    >>> r = ce90_le90(np.array([[1.0, 0, 1], [-1, 0, -1], [0, 1, 1], [0, -1, -1]]))
+    >>> round(r["ce90_m"], 4), round(r["le90_m"], 4), r["ce90_empirical_m"], r["le90_empirical_m"]
+    (1.5174, 1.6449, 1.0, 1.0)
+    """
+    d = _check_d(np.asarray(d, dtype=np.float64))
+    rx, ry, rh = _axis_rmse(d)
+    if rx == 0 and ry == 0:
+        ce = 0.0
+    else:
+        ce = circular_error_radius(0.90, (0.0, 0.0), np.diag([rx ** 2, ry ** 2]))
+    return {"n": int(len(d)), "ce90_m": float(ce), "le90_m": float(1.6448536269514722 * rh),
+            "ce90_empirical_m": float(np.percentile(np.hypot(d[:, 0], d[:, 1]), 90)),
+            "le90_empirical_m": float(np.percentile(np.abs(d[:, 2]), 90))}
 
 
 def _axis_rmse(d: np.ndarray) -> tuple[float, float, float]:

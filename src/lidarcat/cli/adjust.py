@@ -102,7 +102,12 @@ def _sig(value: object, digits: int) -> str:
 
 
 def exit_status(summary: dict) -> tuple[int, str]:
-    """Exit code and the one-line verdict: 1 not converged, 3 global test rejected or blunders remain."""
+    """Exit code and the one-line verdict: 1 not converged, 3 global test rejected.
+
+    Blunders that remain (data snooping in ``report`` mode keeps them) are named in the
+    verdict with exit code 0 when the global test passes: the code of ``lidarcat run`` for
+    the same block (issue 25: the quick-start block exited 3 here and 0 there).
+    """
     if not summary["converged"]:
         return 1, (f"the adjustment did not converge ({summary['status']}): {summary.get('message', '')}; "
                    "the tables hold its last iterate (eop.csv, points.csv and residuals.csv agree)")
@@ -114,7 +119,7 @@ def exit_status(summary: dict) -> tuple[int, str]:
         kept = sum(not b["removed"] for b in summary.get("blunders") or [])
         problems.append(f"{kept} blunder(s) remain in the adjustment" if kept else
                         "data snooping stopped with tests still rejecting")
-    return (3, "; ".join(problems)) if problems else (0, "")
+    return (3 if not summary["chi2_pass"] else 0), "; ".join(problems)
 
 
 @click.command(short_help="Bundle adjustment with weighted position constraints.")
@@ -204,13 +209,14 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
 
     \b
     Exit codes:
-      0  converged, global test accepted, no blunder left
+      0  converged, global test accepted (blunders that remain --
+         --snooping report, or one that could not be removed -- are
+         named on the last line, as lidarcat run names them)
       1  the adjustment did not converge (the tables hold its last iterate: eop.csv,
          points.csv and residuals.csv of the same state; the message names the
          observations it fails on)
       2  bad input (the error names the file, line or point)
-      3  converged, but the global chi-square test rejected or blunders remain
-         (--snooping report, or a blunder that could not be removed)
+      3  converged, but the global chi-square test rejected
 
     \b
     Examples:
@@ -272,6 +278,7 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
             click.echo(format_parameters(summary))
         if (summary.get("snooping") or {}).get("reason"):
             click.echo(f"Note: {summary['snooping']['reason']}.")
-    if code:
+    if verdict:
         click.echo(f"Warning: {verdict}.", err=True)
+    if code:
         sys.exit(code)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import click
 
@@ -56,8 +57,12 @@ def synthetic(outdir: str, n_photos: int, seed: int, image_sd_px: float, gps_sd_
     \b
     Example:
       lidarcat demo synthetic -o demo/ --photos 6 --seed 1
-      lidarcat demo synthetic -o demo/ --images && lidarcat run demo/ -o demo/out
+      lidarcat demo synthetic -o demo/ --images     # photos in demo/images/
+      lidarcat run demo/ -o demo/out                # orientations: adjust-gps/eop.csv
       lidarcat ortho demo/ --all --dsm dsm.tif --gsd 0.2 -o demo/ortho --mosaic
+    The photos are used by ortho and monoplot, and by run once survey.toml
+    has a [mapping] table (orthophotos = true: orthophotos and a mosaic in
+    OUTDIR/mapping/; docs/mapping.md).
     """
     from ..synthetic.survey import write_synthetic_survey
 
@@ -65,7 +70,7 @@ def synthetic(outdir: str, n_photos: int, seed: int, image_sd_px: float, gps_sd_
         result = write_synthetic_survey(
             outdir, n_photos=n_photos, seed=seed, image_sd_px=image_sd_px, gps_sd_m=gps_sd_m,
             lidar_density_m2=lidar_density_m2, images=images, image_downsample=image_downsample,
-            progress=(lambda done, total: bar.update(done - bar.pos)) if bar is not None else None)
+            progress=(lambda done, total: _advance(bar, done, total)) if bar is not None else None)
     if as_json:
         echo_json(result.to_dict())
         return
@@ -117,3 +122,9 @@ def compare(survey: str, outdir: str | None, as_json: bool) -> None:
         err = ", ".join(f"{v:+.3f}" for v in e["error_m"])
         z = ", ".join(f"{v:+.1f}" for v in e["z"])
         click.echo(f"roof {pid}: {e['status']}, error E, N, h ({err}) m, z ({z})")
+
+
+def _advance(bar: Any, done: int, total: int) -> None:
+    """Move *bar* to *done* of *total* (the total grows by one step per photo with --images)."""
+    bar.length = total
+    bar.update(done - bar.pos)

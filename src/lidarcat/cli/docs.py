@@ -57,6 +57,15 @@ def _walk(group: click.Group, ctx: click.Context, prefix: str):
             yield from _walk(cmd, sub, full)
 
 
+def _default_text(p: click.Option) -> str:
+    """The option's default as the reference shows it: blank for flags, none, callables and
+    click's "no default" sentinel (``Sentinel.UNSET`` since click 8.2, an enum member)."""
+    d = p.default
+    if p.is_flag or d is None or callable(d) or getattr(d, "name", None) == "UNSET":
+        return ""
+    return f"`{d}`"
+
+
 def render_cli_reference() -> str:
     """The Markdown CLI reference: a contents list, then each command's ``--help``."""
     entries = list(iter_commands())
@@ -75,7 +84,7 @@ def render_cli_reference() -> str:
             out.append("| option | default |\n|---|---|")
             for p in params:
                 opts = ", ".join(f"`{o}`" for o in (*p.opts, *p.secondary_opts))
-                default = "" if p.is_flag or p.default is None or callable(p.default) else f"`{p.default}`"
+                default = _default_text(p)
                 out.append(f"| {opts} | {default} |")
             out.append("")
     return "\n".join(out).rstrip() + "\n"

@@ -82,6 +82,10 @@ def run(ctx: click.Context, survey: str | None, outdir: str | None, force: bool,
       lidarcat run -o out/                    # the thesis block
       lidarcat demo synthetic -o demo/ && lidarcat run demo/ -o demo-out/
       lidarcat run demo/ -o demo-out/ --figures   # + one figure per roof
+    The mapping, products and selfcal stages run when survey.toml has a
+    [mapping] (orthophotos = true, features; photos in SURVEY/images/, e.g.
+    from `lidarcat demo synthetic --images`), [products] or
+    [self_calibration] table (docs/survey-format.md).
     """
     from ..pipeline import FROM_SURVEY, run_pipeline
 

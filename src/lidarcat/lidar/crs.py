@@ -22,7 +22,8 @@ from pyproj.exceptions import CRSError as _PyprojCRSError
 from ..errors import CRSError
 
 __all__ = ["resolve_crs", "crs_compatible", "common_crs", "transform_points", "crs_label", "horizontal_unit",
-           "units_are_metres", "require_metres", "check_area_of_use", "geojson_crs_member"]
+           "units_are_metres", "require_metres", "check_area_of_use", "geojson_crs_member",
+           "add_las_crs"]
 
 
 def resolve_crs(value: Any, *, what: str = "CRS") -> pyproj.CRS | None:
@@ -151,6 +152,32 @@ def geojson_crs_member(crs: Any) -> dict[str, Any] | None:
         return None
     code = c.to_epsg(min_confidence=90)
     return {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{code}" if code else c.to_wkt()}}
+
+
+def add_las_crs(header: Any, crs: Any) -> bool:
+    """Give a laspy header that carries no readable CRS the CRS *crs*; True when added.
+
+    A header with a readable CRS record keeps it (the file's CRS wins, as on
+    reading); without *crs* nothing changes.  laspy writes GeoTIFF keys for
+    LAS 1.0-1.3 and point formats 0-5 (EPSG:7415 as keys 28992 + 5709, read
+    back as the compound code) and a WKT record for point formats 6-10; a CRS
+    GeoTIFF keys cannot express (no EPSG code) goes into a WKT record there too.
+    """
+    c = resolve_crs(crs)
+    if c is None:
+        return False
+    try:
+        if header.parse_crs() is not None:
+            return False
+    except Exception:  # an unreadable record: replaced by the given CRS, as reading ignores it
+        pass
+    try:
+        header.add_crs(c)
+    except Exception:  # GeoTIFF keys cannot hold this CRS (laspy: "custom CRS"): a WKT record
+        from laspy.vlrs.known import WktCoordinateSystemVlr
+
+        header.vlrs.append(WktCoordinateSystemVlr(c.to_wkt()))
+    return True
 
 
 @functools.lru_cache(maxsize=32)

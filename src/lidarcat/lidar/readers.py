@@ -63,7 +63,7 @@ from typing import Any
 import numpy as np
 
 from .._util import atomic_write, parse_float
-from ..errors import CRSError, LidarFormatError, location
+from ..errors import CRSError, LidarFormatError, TileIOError, location
 from .cloud import STANDARD_ATTRIBUTES, Bounds, PointCloud
 from ._las import (LAS_ATTRIBUTES, MAX_ABS_COORD_M, ascii_header_text, check_coords, decoder_error, las_record_cloud,
                    open_checked, open_error, open_las, settle_crs)
@@ -71,6 +71,7 @@ from .copc import is_copc
 from .crs import resolve_crs
 
 __all__ = [
+    "is_foreign_table",
     "read_points",
     "iter_points",
     "write_points",
@@ -381,6 +382,27 @@ def _is_number(tok: str, decimal_comma: bool) -> bool:
     return bool(_NUMBER_RE.match(tok))
 
 
+_NO_COORDINATES = "no column for"
+
+
+def is_foreign_table(path: str | os.PathLike) -> bool:
+    """True for a text file whose header names no E, N, H columns: a table (a job list, a
+    control file) that is not a point file; folder and glob expansion of tiles skip it.
+
+    LAS/LAZ files, headerless text and tables that do name coordinates are not foreign.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in ASCII_SUFFIXES:
+        return False
+    try:
+        _ascii_layout(path, None, None)
+    except LidarFormatError as ex:
+        return _NO_COORDINATES in str(ex)
+    except TileIOError:
+        return False
+    return False
+
+
 def _ascii_layout(path: Path, columns: Sequence[str] | str | None, delimiter: str | None) -> _Layout:
     try:
         fh = open(path, encoding="utf-8-sig", errors="replace")
@@ -435,8 +457,9 @@ def _ascii_layout(path: Path, columns: Sequence[str] | str | None, delimiter: st
         raise LidarFormatError(f"{where}: column(s) {', '.join(dup)} given twice")
     missing = [n for n in ("E", "N", "H") if n not in real]
     if missing:
-        raise LidarFormatError(f"{where}: no column for {', '.join(missing)} among "
-                               f"{' '.join(n or '-' for n in names)}; name the columns with columns=")
+        raise LidarFormatError(f"{where}: {_NO_COORDINATES} {', '.join(missing)} among "
+                               f"{' '.join(n or '-' for n in names)}; not a point file? Name its columns "
+                               "(--columns of `lidarcat lidar`, columns= in Python) or move it out of the tiles")
     if len(names) != ntok:
         raise LidarFormatError(f"{location(path, data[0] + 1)}: {ntok} fields, expected {len(names)} "
                                f"({' '.join(n or '-' for n in names)})")

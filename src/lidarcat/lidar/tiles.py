@@ -45,7 +45,7 @@ import numpy as np
 
 from ..errors import TileIOError
 from .cloud import Bounds
-from .readers import ASCII_SUFFIXES, LAS_SUFFIXES, file_kind
+from .readers import ASCII_SUFFIXES, LAS_SUFFIXES, file_kind, is_foreign_table
 
 __all__ = ["Tile", "BlockIndex", "BlockBoxes", "DEFAULT_BLOCK_POINTS", "DEFAULT_CELL_POINTS",
            "cell_points_for", "verified_by_blocks", "with_bounds", "expand_paths"]
@@ -318,19 +318,27 @@ def expand_paths(paths_or_globs: str | os.PathLike | Iterable[str | os.PathLike]
             seen.add(p)
             out.append(p)
 
+    def points_only(matches: list[Path]) -> list[Path]:
+        """A folder's or a glob's files without the tables beside the tiles (a jobs.csv, a control file)."""
+        keep = [m for m in matches if not is_foreign_table(m)]
+        for m in matches:
+            if m not in keep:
+                log.warning("%s: skipped, a table that names no E, N, H columns (not a LiDAR tile)", m)
+        return keep
+
     for entry in paths_or_globs:
         text = os.fspath(entry)
         p = Path(text)
         full = p if p.is_absolute() else base / p
         if _GLOB_CHARS & set(text):
             matches = sorted(Path(m) for m in _glob.glob(str(full), recursive=True))
-            matches = [m for m in matches if m.is_file() and m.suffix.lower() in suffixes]
+            matches = points_only([m for m in matches if m.is_file() and m.suffix.lower() in suffixes])
             if not matches:
                 raise TileIOError(f"{text}: no LiDAR files match this pattern (looked in {base})")
             for m in matches:
                 add(m)
         elif full.is_dir():
-            matches = sorted(m for m in full.iterdir() if m.is_file() and m.suffix.lower() in suffixes)
+            matches = points_only(sorted(m for m in full.iterdir() if m.is_file() and m.suffix.lower() in suffixes))
             if not matches:
                 raise TileIOError(f"{full}: folder holds no LiDAR files ({', '.join(suffixes)})")
             for m in matches:

@@ -1,7 +1,8 @@
 """What the mapping products need from an adjusted survey: orientations, photo files, surfaces.
 
 * adjusted orientations -- ``eop.csv`` of ``lidarcat adjust``/``lidarcat run``
-  (default ``<survey output>/adjust-<default control set>/eop.csv``); a photo
+  (default ``<survey output>/adjust-<default control set>/eop.csv``) and their
+  full covariance, ``eop_covariance.csv`` beside it; a photo
   of the survey that is not in it was not adjusted: a located error;
 * photo files -- ``<images>/<photo id>.<png|tif|tiff|jpg|jpeg>`` (default
   ``images/`` in the survey folder; ``lidarcat demo synthetic --images`` writes
@@ -45,9 +46,12 @@ def read_orientations(path: str | os.PathLike) -> Mapping[str, Any]:
     Returns
     -------
     dict[str, lidarcat.bundle.ExteriorOrientation]
-        By photo id; ``cov`` is diagonal (``sd**2``, m^2 and rad^2): the file
-        holds standard deviations only, not the correlations.  Without sd
-        columns ``cov`` is None.
+        By photo id; ``cov`` is the full 6 x 6 covariance (m^2, m rad, rad^2)
+        of ``eop_covariance.csv`` beside the file when it is there (written
+        by the adjustment since issue 25; :mod:`lidarcat.survey.covariance`),
+        else diagonal (``sd**2``: an older folder holds standard deviations
+        only, the correlations taken as zero, which overstates the plan sd of
+        a monoplotted point many times).  Without either ``cov`` is None.
 
     Raises
     ------
@@ -67,19 +71,31 @@ def read_orientations(path: str | os.PathLike) -> Mapping[str, Any]:
     vals = np.column_stack([t.floats(k) for k in keys])
     has_sd = all(t.has(f"sd_{k}") for k in keys)
     sds = np.column_stack([t.floats(f"sd_{k}") for k in keys]) if has_sd else None
+    full = _full_covariance(path)
     out: dict[str, Any] = {}
     for i, pid in enumerate(t.column("photo")):
         if pid in out:
             raise SurveyError(f"{location(path, t.lines[i], 'photo')}: photo {pid!r} is given twice")
         p = vals[i].copy()
         p[3:] = np.radians(p[3:])
-        cov = None
-        if sds is not None:
+        cov = full.get(pid)
+        if cov is None and sds is not None:
             s = sds[i].copy()
             s[3:] = np.radians(s[3:])
             cov = np.diag(np.where(np.isfinite(s), s, 0.0) ** 2)
         out[pid] = ExteriorOrientation.from_params(p, photo=pid, cov=cov)
     return out
+
+
+def _full_covariance(eop_path: Path) -> dict[str, np.ndarray]:
+    """The 6 x 6 blocks of ``eop_covariance.csv`` beside *eop_path*, by photo ({} when absent)."""
+    from ..survey.covariance import EOP_COVARIANCE_FILE, read_eop_covariance
+
+    side = eop_path.with_name(EOP_COVARIANCE_FILE)
+    if not side.is_file():
+        log.info("%s: no %s beside it; orientation correlations taken as zero", eop_path, EOP_COVARIANCE_FILE)
+        return {}
+    return read_eop_covariance(side)
 
 
 def default_eop_path(survey: Any) -> Path:

@@ -90,6 +90,7 @@ import numpy as np
 
 from ..errors import LidarFormatError, ProductError, TileIOError
 from ..geometry.tin import barycentric, find_simplex
+from ..lidar.crs import add_las_crs
 from ..lidar.jobs import TileJob, read_with_buffer, run_jobs, tile_jobs
 from ..lidar.raster import bulk_box
 
@@ -632,12 +633,16 @@ def confusion(reference_ground: Any, classified_ground: Any) -> Confusion:
 
 
 # --------------------------------------------------------------------------- files
-def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground: np.ndarray) -> Path:
+def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground: np.ndarray,
+                          crs: Any = None) -> Path:
     """Copy the LAS/LAZ file *src* to *dst* with class 2 set on *ground* (atomically).
 
     Every other field, record and VLR is kept.  Points that were ground (2)
     in *src* but are not in *ground* become unclassified (1); the other classes
-    stay as they were.  *src* is never modified.
+    stay as they were.  *src* is never modified.  When *src* carries no CRS and
+    *crs* (CRS-like, e.g. the ``--crs`` given for such tiles) is given, the
+    copy carries it (GeoTIFF keys in LAS 1.2/1.3, WKT in LAS 1.4 with point
+    formats 6-10, laspy's ``add_crs``), so later stages read it from the copy.
 
     Raises
     ------
@@ -670,6 +675,7 @@ def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground
     cls[ground] = GROUND_CLASS
     las.classification = cls
     ascii_header_text(las.header, src)   # laspy writes no non-ASCII header text (issue 24)
+    add_las_crs(las.header, crs)
     compress = dst.suffix.lower() == ".laz"
     with atomic_write(dst, "wb") as fh:
         las.write(fh, do_compress=compress)
@@ -704,7 +710,7 @@ def ground_tile(job: TileJob) -> None:
     method = job.params.get("method", "smrf")
     g = classify_ground(cloud.xyz, cloud.attributes.get("return_number"), cloud.attributes.get("number_of_returns"),
                         method=method, params=params_from_dict(method, job.params))
-    write_classified_copy(job.tile, job.output, g[:n_own])
+    write_classified_copy(job.tile, job.output, g[:n_own], crs=cloud.crs)
 
 
 def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *, crs: Any = None,

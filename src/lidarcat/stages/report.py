@@ -10,19 +10,23 @@ consistency test) with a link to its own HTML report, and every comparison.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 
-from .._util import write_json_atomic, write_text_atomic
+from .._util import atomic_write, write_json_atomic, write_text_atomic
 from .._util.formatting import format_number
+from ..report.quality import quality_report
 from ..report.render import markdown_to_html
 from .context import StageContext as Context
 from .context import failed_tests
 from .compare import EOP_DIFF, read_photo_rows
 
-__all__ = ["run", "results", "num"]
+__all__ = ["run", "results", "num", "QUALITY_DIR"]
+
+#: folder of the quality report's figures in OUTDIR/report/
+QUALITY_DIR = "quality"
 
 
 def results(records: Iterable[Any]) -> dict[str, Any]:
@@ -99,16 +103,27 @@ def run(ctx: Context, tmp: Path) -> dict:
             cmp_["eop_per_photo"] = {p: v.tolist() for p, v in read_photo_rows(eo_path, EOP_DIFF).items()}
     if doc.get("thesis") and ctx.done("thesis"):
         doc["thesis_detail"] = json.loads((ctx.folder("thesis") / "thesis_4_4.json").read_text(encoding="utf-8"))
+    quality = quality_report(ctx.outdir, survey, doc["runs"], stages=rows, tests_failed=doc["tests_failed"],
+                             products=doc.get("products"), mapping=doc.get("mapping"), fig_dir=QUALITY_DIR,
+                             progress=lambda i, n: ctx.progress(i, n + 1))
+    doc["verdict"] = quality.verdict
+    if quality.figures:
+        (tmp / QUALITY_DIR).mkdir(exist_ok=True)
+    for fname, png in quality.figures.items():
+        with atomic_write(tmp / QUALITY_DIR / fname, "wb") as fh:
+            fh.write(png)
     write_json_atomic(tmp / "report.json", doc)
-    md = _report_markdown(doc)
+    md = _report_markdown(doc, quality.lines)
     write_text_atomic(tmp / "index.md", md)
     # figure paths in index.md are relative to OUTDIR/report; tmp is its sibling in OUTDIR
     write_text_atomic(tmp / "index.html", markdown_to_html(md, f"lidarcat report: {survey.name}", base=tmp))
     return {"index": "report/index.html", "n_stages_done": sum(r["state"] == "done" for r in rows)}
 
 
-def _report_markdown(doc: Mapping[str, Any]) -> str:
+def _report_markdown(doc: Mapping[str, Any], quality: Sequence[str] = ()) -> str:
     lines = [f"# lidarcat report: {doc['survey']}", ""]
+    if doc.get("verdict"):
+        lines += ["## Verdict", "", doc["verdict"], ""]
     if doc.get("tests_failed"):
         lines += ["**Statistical test failed** (every stage ran; read the results with care): "
                   + "; ".join(doc["tests_failed"]), ""]
@@ -182,6 +197,7 @@ def _report_markdown(doc: Mapping[str, Any]) -> str:
                               + {"below": " (smaller discrepancies than claimed: the precision is pessimistic).",
                                  "above": " (larger discrepancies than claimed: look for blunders, model "
                                           "errors or optimistic control sds)."}.get(cons.get("side"), ".")]
+    lines += list(quality)
     if doc.get("selfcal"):
         from .selfcal import markdown as selfcal_markdown
 

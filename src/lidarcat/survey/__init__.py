@@ -3,6 +3,7 @@
 ==============  ============================================================
 ``folder``      The survey folder: load, validate and locate a photogrammetric project.
 ``adjustment``  The survey adapter: a survey folder in, the adjustment folder out.
+``covariance``  ``eop_covariance.csv``: the full 6 x 6 covariance of every adjusted orientation.
 ``schema``      The survey.toml schema: every table and key, typed, parsed once and validated at load.
 ``selfcal``     Additional parameters from a survey folder: the ``[self_calibration]`` table and the CLI switches.
 ==============  ============================================================

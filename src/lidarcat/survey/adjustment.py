@@ -23,6 +23,7 @@ from ..bundle.redundancy import FAMILY_LEVEL
 from ..bundle.reliability import SnoopingResult, snoop
 from ..bundle.solve import BundleResult
 from ..errors import SurveyError
+from .covariance import write_result_eop_covariance
 
 if TYPE_CHECKING:  # pragma: no cover
     from .folder import Survey
@@ -328,6 +329,7 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None, *,
         comments=["exterior orientation: X0, Y0, Z0 (m), omega, phi, kappa (deg), "
                   "M = R3(kappa) R2(phi) R1(omega); sd_* standard deviations "
                   f"({result.variance_factor_kind.replace('_', ' ')} variance factor)"])
+    write_result_eop_covariance(result, folder, provenance)   # eop_covariance.csv: the full 6 x 6 blocks
     psd = result.point_sd_m
     write_csv_atomic(folder / "points.csv", POINT_COLUMNS, [
         [q, *x, *s, r] for q, x, s, r in zip(result.point_ids, result.points_m, psd, result.point_role)],

@@ -266,7 +266,7 @@ def write_synthetic_survey(
                     ("height_m", height_m)):
         if not v > 0:
             raise LidarcatError(f"{name} must be positive (got {v})")
-    steps = 5
+    steps = 5 + (n_photos if images else 0)   # one step per rendered photo (about a minute each at 24 MP)
     tick = (lambda i: progress(i, steps)) if progress else (lambda i: None)
     rng = np.random.default_rng(seed)
     cam = demo_camera()
@@ -380,7 +380,8 @@ def write_synthetic_survey(
                                _roofs)
         tick(4)
         if images:
-            _render_photos(tmp / "images", buildings, cam, eo, photo_ids, image_downsample)
+            _render_photos(tmp / "images", buildings, cam, eo, photo_ids, image_downsample,
+                           lambda k: tick(4 + k))
         (tmp / "truth").mkdir()
         write_csv_atomic(
             tmp / "truth" / "eop.csv",
@@ -403,7 +404,7 @@ def write_synthetic_survey(
     for old in (outdir / "lidar").glob("*.laz"):
         if f"lidar/{old.name}" not in files:
             old.unlink()
-    tick(5)
+    tick(steps)
     log.info("demo survey written to %s: %d photos, %d observations", outdir, len(eo), len(obs_rows))
     return DemoSurvey(outdir, len(eo), kind_of.count("tie"), len(gps_ids), len(buildings), n_lidar,
                       seed, image_sd_px, gps_sd_m, files)
@@ -585,12 +586,12 @@ def demo_scene_of(buildings: Sequence[dict], texel_m: float = 0.12) -> Any:
 
 
 def _render_photos(folder: Path, buildings: Sequence[dict], cam: Camera, eo: np.ndarray, ids: Sequence[str],
-                   downsample: int) -> None:
+                   downsample: int, done: Callable[[int], None] = lambda k: None) -> None:
     """Render every photo into ``folder/<id>.png`` (at 1/downsample resolution, upsampled bilinearly).
 
     :func:`lidarcat.synthetic.aerial.render_photo`: an aerial-looking photo (fields, trees, shaded
     roofs) with an exposure of its own per photo, seeded by the photo's position in the block (the
-    survey's random stream is left as it was: the other files do not change).
+    survey's random stream is left as it was: the other files do not change); ``done(k)`` after the k-th photo.
     """
     import cv2
 
@@ -613,6 +614,7 @@ def _render_photos(folder: Path, buildings: Sequence[dict], cam: Camera, eo: np.
         ok, buf = cv2.imencode(".png", img)
         with atomic_write(folder / f"{pid}.png", "wb") as fh:
             fh.write(buf.tobytes())
+        done(k + 1)
 
 
 def compare_with_truth(survey_dir: str | os.PathLike, outdir: str | os.PathLike) -> dict[str, Any]:
