@@ -15,6 +15,8 @@
 ``assess``          ``lidarcat assess``: check-point accuracy, statistical tests, standards
 ``monoplot``        ``lidarcat monoplot``: features digitised on one photo onto the LiDAR surface
 ``ortho``           ``lidarcat ortho``: orthophotos and a mosaic of adjusted photos
+``chart``           ``lidarcat chart``: orthophoto charts (ortofotocartas), one PDF + PNG per sheet
+``deliver``         ``lidarcat deliver``: TIFF + TFW world files, Shapefile layers, DXF for CAD
 ``run``             ``lidarcat run``: the whole pipeline on a survey folder
 ``demo``            ``lidarcat demo``: surveys with known truth
 ``docs``            generates ``docs/cli.md`` from the commands

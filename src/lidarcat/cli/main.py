@@ -44,6 +44,8 @@ COMMANDS: list[tuple[str, str, str]] = [
     ("assess", "lidarcat.cli.assess:assess", "Check-point accuracy: Filliben, t, chi-square, PEC, ASPRS, NSSDA."),
     ("monoplot", "lidarcat.cli.monoplot:monoplot", "Monorestitution: features on one photo to the LiDAR surface."),
     ("ortho", "lidarcat.cli.ortho:ortho", "Orthophotos (standard or true) and a mosaic of adjusted photos."),
+    ("chart", "lidarcat.cli.chart:chart", "Orthophoto charts: mosaic, contours, grid, legend, title block per sheet."),
+    ("deliver", "lidarcat.cli.deliver:deliver", "Products as TIFF + TFW world files, Shapefiles and DXF for CAD."),
     ("run", "lidarcat.cli.run:run", "The whole pipeline on a survey folder (default: the thesis block)."),
     ("export", "lidarcat.cli.interop:export_cmd", "Write an adjusted block as COLMAP, OpenSfM, OPK or GIS layers."),
     ("convert", "lidarcat.cli.convert:convert", "Convert a block between COLMAP, OpenSfM, Metashape, OPK and survey folders."),

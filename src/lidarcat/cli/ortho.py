@@ -42,12 +42,15 @@ mosaic fills them from another photo.
               help="Also mosaic the photos: the most nadir photo that sees each cell; seamlines as GeoJSON.")
 @click.option("--feather", "feather_m", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="Mosaic: blend the photos across each seamline over +- this many metres (0: hard seams).")
+@click.option("--equalize", is_flag=True,
+              help="Mosaic: balance the photos first, a gain and an offset per photo from the overlaps "
+                   "(least squares, mean gain 1).")
 @click.option("--tile", "tile_px", type=click.IntRange(16), default=1024, show_default=True,
               help="Rows/columns computed at once (memory ~ 40 bytes x tile x output width).")
 @output_option(outdir=True, required=True, type=click.Path(file_okay=False), help="Output folder.")
 @json_option(help="Print what was written as JSON.")
 def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, images_dir, make_mosaic, feather_m,
-          tile_px, outdir, as_json) -> None:
+          equalize, tile_px, outdir, as_json) -> None:
     """Orthophotos of adjusted photos over a DTM or DSM, and their mosaic."""
     import contextlib
     from pathlib import Path
@@ -62,6 +65,8 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
         raise click.UsageError("give --photo ID (repeatable) or --all")
     if feather_m and not make_mosaic:
         raise click.UsageError("--feather blends the mosaic's seamlines: give it with --mosaic")
+    if equalize and not make_mosaic:
+        raise click.UsageError("--equalize balances the mosaic's photos: give it with --mosaic")
     s = Survey.load(survey)
     if all_photos:
         eop = Path(eop_path) if eop_path else default_eop_path(s)
@@ -80,7 +85,8 @@ def ortho(survey, photo_ids, all_photos, dtm, dsm, gsd_m, bounds, eop_path, imag
 
         summary = orthophotos(s, outdir, list(photo_ids), dsm or dtm, true_ortho=bool(dsm), gsd_m=gsd_m,
                               eop=eop_path, images=images_dir, bounds=bounds, mosaic=make_mosaic,
-                              feather_m=feather_m, tile_px=tile_px, progress=progress)
+                              feather_m=feather_m, tile_px=tile_px, equalize=equalize,
+                              progress=progress)
     if as_json:
         echo_json(summary)
         return

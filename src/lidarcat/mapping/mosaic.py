@@ -26,6 +26,34 @@ computed with a margin of ``f`` and the result does not depend on the tiling.
 Occluded cells of a true orthomosaic get no weight from the photo that does not
 see them.  The seamlines and the labels stay those of the hard choice.
 
+Radiometric equalisation
+------------------------
+(``equalize=True``, optional; report 12.1: the photos are balanced to each
+other before mosaicking.)  Each photo *i* and band gets a gain and an offset,
+:math:`v' = g_i v + o_i`, estimated from the overlaps: at every cell of a
+regular sample of the output grid (at most ``max_samples`` cells) that photos
+*i* and *j* both see, the balanced values should agree,
+
+.. math::  g_i v_i + o_i - g_j v_j - o_j = 0,
+
+and the least-squares solution over all overlaps, with the datum
+:math:`\frac1n \sum g_i = 1`, :math:`\sum o_i = 0` (mean gain 1, mean
+offset 0: the block keeps its overall brightness; exact, by Lagrange
+multipliers), minimises the squared
+disagreements.  The normal equations need only the moments of each pair
+(:math:`\sum v_i^2, \sum v_i v_j, \sum v_j^2, \sum v_i, \sum v_j`, count),
+so they are :math:`2n \times 2n` whatever the overlaps hold.  A photo with no
+overlap keeps gain 1, offset 0 (a weak prior, 1e-9 of the data's weight).
+The balanced values then go into the choice and the feathering as the raw
+ones did.
+
+Seam contrast (:func:`seam_contrast`): for each pair of photos sharing a
+seamline, the mean over the neighbouring cell pairs straddling it (a cell of
+*i* beside a cell of *j*, rows and columns) of :math:`v_{side\,i} - v_{side\,j}`,
+its absolute value weighted by the number of such pairs, averaged over the
+bands.  Texture differences between neighbours average out in the signed mean;
+an exposure step between the photos does not.
+
 Seamlines
 ---------
 The choice is kept on a label grid (one label per ``k x k`` cells, ``k`` so
@@ -53,7 +81,7 @@ from .._util import write_text_atomic
 from ._raster_cells import ZBuffer, run_bands, tile_cells
 from .ortho import OrthoError, PhotoModel, output_grid, sample_photo
 
-__all__ = ["MosaicResult", "mosaic", "seam_polygons"]
+__all__ = ["MosaicResult", "mosaic", "seam_polygons", "equalization_gains", "seam_contrast"]
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +106,8 @@ class MosaicResult:
     shape : (rows, cols)
     cells_per_photo : dict[str, int]
     n_nodata : int
+    gains : ndarray or None
+        (photos, bands, 2) gain and offset of each photo and band (``equalize``), else None.
     """
 
     path: Path | None
@@ -89,13 +119,17 @@ class MosaicResult:
     shape: tuple[int, int]
     cells_per_photo: dict[str, int]
     n_nodata: int
+    gains: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"path": str(self.path) if self.path else None,
-                "seams": str(self.seams_path) if self.seams_path else None,
-                "x0": self.transform.x0, "y0": self.transform.y0, "gsd_m": self.transform.cell_m,
-                "rows": self.shape[0], "cols": self.shape[1], "cells_per_photo": self.cells_per_photo,
-                "n_nodata": self.n_nodata}
+        out = {"path": str(self.path) if self.path else None,
+               "seams": str(self.seams_path) if self.seams_path else None,
+               "x0": self.transform.x0, "y0": self.transform.y0, "gsd_m": self.transform.cell_m,
+               "rows": self.shape[0], "cols": self.shape[1], "cells_per_photo": self.cells_per_photo,
+               "n_nodata": self.n_nodata}
+        if self.gains is not None:   # per photo: [[gain, offset] per band]
+            out["gains"] = {pid: np.round(g, 6).tolist() for pid, g in zip(self.cells_per_photo, self.gains)}
+        return out
 
 
 def _union_bounds(photos: Sequence[PhotoModel], surface: Any) -> tuple[float, float, float, float]:
@@ -112,7 +146,8 @@ def _union_bounds(photos: Sequence[PhotoModel], surface: Any) -> tuple[float, fl
 def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str | os.PathLike | None = None, *,
            seams_path: str | os.PathLike | None = None, bounds: Sequence[float] | None = None,
            true_ortho: bool = True, crs: Any = None, tile_px: int = 1024, preview: bool = True,
-           feather_m: float = 0.0, progress: Callable[[int, int], None] | None = None) -> MosaicResult:
+           feather_m: float = 0.0, equalize: bool = False, max_samples: int = 250_000,
+           progress: Callable[[int, int], None] | None = None) -> MosaicResult:
     """Mosaic orthorectified photos, the most nadir visible view per cell (module docstring).
 
     Parameters
@@ -136,6 +171,11 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
     preview : bool
     feather_m : float
         Half width of the blend across seamlines, m (0: hard seams; module docstring).
+    equalize : bool
+        Balance the photos first: a gain and an offset per photo and band from the overlaps
+        (:func:`equalization_gains`, module docstring).
+    max_samples : int
+        Cells of the output grid sampled for the equalisation (a regular subsample).
     progress : callable, optional
         ``progress(done_rows, total_rows)``.
 
@@ -173,6 +213,8 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
     counts = np.zeros(len(photos) + 1, dtype=np.int64)
     tile_px = max(16, int(tile_px))
     margin = int(math.ceil(feather_m / gsd_m)) if feather_m > 0 else 0
+    gains = (equalization_gains(photos, surface, transform, rows, cols, zbufs, max_samples)
+             if equalize and len(photos) > 1 else None)
 
     def compute(r0: int, r1: int) -> np.ndarray:
         band = np.full((r1 - r0, cols, bands), np.nan, dtype=np.float32)
@@ -186,6 +228,8 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
             seen = []
             for i, (p, zb) in enumerate(zip(photos, zbufs)):
                 vals, ok, _, tan = sample_photo(p, surface, e, n, zb)
+                if gains is not None:
+                    vals = (vals * gains[i, :, 0] + gains[i, :, 1]).astype(np.float32)
                 better = ok & (tan < best)
                 best[better] = tan[better]
                 choice[better] = i
@@ -214,7 +258,110 @@ def mosaic(photos: Sequence[PhotoModel], surface: Any, gsd_m: float, path: str |
         write_text_atomic(seams_path, json.dumps(seam_polygons(labels, lt, [p.photo_id for p in photos], crs)))
     per = {p.photo_id: int(c) for p, c in zip(photos, counts[:-1])}
     log.info("mosaic of %d photos: %d x %d cells of %.3g m; %s", len(photos), cols, rows, gsd_m, per)
-    return MosaicResult(Path(path) if path is not None else None, seams_path, out_arr, labels, k, transform, (rows, cols), per, int(counts[-1]))
+    return MosaicResult(Path(path) if path is not None else None, seams_path, out_arr, labels, k, transform,
+                        (rows, cols), per, int(counts[-1]), gains)
+
+
+def equalization_gains(photos: Sequence[PhotoModel], surface: Any, transform: Any, rows: int, cols: int,
+                       zbufs: Sequence[Any], max_samples: int = 250_000) -> np.ndarray:
+    """Gain and offset of each photo and band from the overlaps (module docstring).
+
+    Parameters
+    ----------
+    photos : sequence of PhotoModel
+    surface : GridSurface
+    transform, rows, cols
+        The output grid.
+    zbufs : sequence of ZBuffer or None
+        Per photo (None: every cell of the frame counts as seen).
+    max_samples : int
+        At most this many output cells are sampled (every s-th row and column).
+
+    Returns
+    -------
+    ndarray, shape (photos, bands, 2)
+        ``[gain, offset]``; mean gain 1 and mean offset 0 over the photos, per band.
+    """
+    n, bands = len(photos), photos[0].bands
+    s = max(1, int(math.ceil(math.sqrt(rows * cols / max(1, max_samples)))))
+    rr, cc = np.arange(0, rows, s), np.arange(0, cols, s)
+    e = transform.x0 + (cc[None, :] + 0.5) * transform.cell_m + 0 * rr[:, None]
+    nn = transform.y0 - (rr[:, None] + 0.5) * transform.cell_m + 0 * cc[None, :]
+    vals, oks = [], []
+    for p, zb in zip(photos, zbufs):
+        v, ok, _, _ = sample_photo(p, surface, e, nn, zb)
+        ok &= np.isfinite(v).all(axis=-1)
+        vals.append(v.reshape(-1, bands).astype(np.float64))
+        oks.append(ok.ravel())
+    out = np.zeros((n, bands, 2))
+    for b in range(bands):
+        N = np.zeros((2 * n, 2 * n))
+        for i in range(n):
+            for j in range(i + 1, n):
+                both = oks[i] & oks[j]
+                if not both.any():
+                    continue
+                vi, vj = vals[i][both, b], vals[j][both, b]
+                # row r = [v_i at g_i, 1 at o_i, -v_j at g_j, -1 at o_j]: N += sum r r^T
+                idx = [i, n + i, j, n + j]
+                cols_ = [vi, np.ones_like(vi), -vj, -np.ones_like(vj)]
+                for a in range(4):
+                    for c in range(a, 4):
+                        m = float(np.dot(cols_[a], cols_[c]))
+                        N[idx[a], idx[c]] += m
+                        if a != c:
+                            N[idx[c], idx[a]] += m
+        w = max(float(np.trace(N)), 1.0)
+        cg = np.r_[np.ones(n), np.zeros(n)]
+        co = np.r_[np.zeros(n), np.ones(n)]
+        # weak prior gain 1, offset 0 (a photo without overlap), then the datum as exact constraints
+        # (Lagrange multipliers): sum g = n, sum o = 0
+        K = np.zeros((2 * n + 2, 2 * n + 2))
+        K[:2 * n, :2 * n] = N + 1e-9 * w * np.eye(2 * n)
+        K[:2 * n, 2 * n], K[:2 * n, 2 * n + 1] = cg, co
+        K[2 * n, :2 * n], K[2 * n + 1, :2 * n] = cg, co
+        rhs = np.r_[1e-9 * w * cg, n, 0.0]
+        x = np.linalg.solve(K, rhs)
+        out[:, b, 0], out[:, b, 1] = x[:n], x[n:2 * n]
+    return out
+
+
+def seam_contrast(array: np.ndarray, labels: np.ndarray, label_step: int = 1) -> float:
+    """Mean absolute step across the seamlines of a mosaic (module docstring), in the values' unit.
+
+    Parameters
+    ----------
+    array : (rows, cols[, bands]) array
+        The mosaic (NaN: nodata).
+    labels : (rows/k, cols/k) int array
+        Photo per label cell (-1: none), :attr:`MosaicResult.labels`.
+    label_step : int
+        k: the array is read at every k-th cell.
+    """
+    a = np.asarray(array, dtype=np.float64)
+    if a.ndim == 2:
+        a = a[..., None]
+    a = a[::label_step, ::label_step][:labels.shape[0], :labels.shape[1]]
+    lab = labels[:a.shape[0], :a.shape[1]]
+    n = int(lab.max()) + 1 if lab.size else 0
+    if n < 2:
+        return 0.0
+    keys, diffs = [], []
+    for l1, l2, v1, v2 in ((lab[:, :-1], lab[:, 1:], a[:, :-1], a[:, 1:]), (lab[:-1], lab[1:], a[:-1], a[1:])):
+        m = (l1 >= 0) & (l2 >= 0) & (l1 != l2) & np.isfinite(v1).all(-1) & np.isfinite(v2).all(-1)
+        lo, hi = np.minimum(l1[m], l2[m]), np.maximum(l1[m], l2[m])
+        d = np.where((l1[m] == lo)[:, None], v1[m] - v2[m], v2[m] - v1[m])   # side of lo minus side of hi
+        keys.append(lo * n + hi)
+        diffs.append(d)
+    key = np.concatenate(keys)
+    d = np.concatenate(diffs)
+    if not len(key):
+        return 0.0
+    uk, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+    sums = np.zeros((len(uk), d.shape[1]))
+    np.add.at(sums, inv, d)
+    step = np.abs(sums / cnt[:, None])                  # |mean step| per seam and band
+    return float((step * cnt[:, None]).sum(axis=0).mean() / cnt.sum())
 
 
 def _feather(seen: Sequence[tuple[int, np.ndarray, np.ndarray]], choice: np.ndarray, hard: np.ndarray,

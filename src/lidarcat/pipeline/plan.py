@@ -225,7 +225,10 @@ def _products_stage(survey: Any, files_lidar: list[Path]) -> Stage:
     what = products.asked(cfg)
     why = ("the survey has no LiDAR tiles ([files] lidar)" if not survey.lidar_paths else
            "[products] asks for nothing (every product false)" if not what else None)
-    return Stage("products", "products", products.run, inputs=lambda ctx: files_lidar, params=dict(cfg),
+    chart_mosaic = [survey.root / cfg["chart_mosaic"]] if cfg.get("chart_mosaic") else []
+    return Stage("products", "products", products.run,
+                 inputs=lambda ctx: [*files_lidar, *(p for p in chart_mosaic if p.is_file())], params=dict(cfg),
+                 uses=("mapping",) if cfg.get("charts") and "mapping" in survey_tables(survey) else (),
                  skip_reason=why, description=f"LiDAR products ({', '.join(what) or 'none'}) ([products])")
 
 

@@ -1,13 +1,16 @@
 """Stage ``products``: the LACTEC production chain -- ground, DTM/DSM, contours, hypsometry, map sheets.
 
-============  ============================================================
-``ground``    Ground classification: progressive TIN densification and a simple morphological filter.
-``terrain``   Terrain (DTM) and surface (DSM) models, nDSM, hillshade and the hypsometric image.
-``contours``  Contour lines from the ground TIN, master/intermediate curves, spot heights, GeoJSON.
-``sheets``    Map sheets: a regular sheet grid (the report's "articulação"), its index layer, products cut per sheet.
-``mapindex``  The Brazilian systematic map index (Cartografia Sistemática Brasileira) down to 1:5,000 and 1:2,000.
-``tiles``     The products' tile functions by name (ground, dtm, dsm), as jobs of the tile engine ``lidar.jobs``.
-============  ============================================================
+=================  ============================================================
+``ground``         Ground classification: progressive TIN densification and a simple morphological filter.
+``terrain``        Terrain (DTM) and surface (DSM) models, nDSM, hillshade and the hypsometric image.
+``contours``       Contour lines from the ground TIN, master/intermediate curves, spot heights, GeoJSON.
+``sheets``         Map sheets: a regular sheet grid (the report's "articulação"), its index layer, products cut per sheet.
+``mapindex``       The Brazilian systematic map index (Cartografia Sistemática Brasileira) down to 1:5,000 and 1:2,000.
+``tiles``          The products' tile functions by name (ground, dtm, dsm), as jobs of the tile engine ``lidar.jobs``.
+``conventions``    The cartographic conventions of the sheets (report Figure 27): layer names, colours, widths.
+``charts``         Orthophoto charts (ortofotocartas): mosaic, contours, UTM grid, legend, title block, index map.
+``delivery``       Delivery formats: TIFF + TFW world files, Shapefile layers, DXF layers of the conventions.
+=================  ============================================================
 
 The functions named as their modules (``contours.contours``) are
 reached through the module: the package attribute is the module.

@@ -9,6 +9,7 @@ survey.toml::
     cell_m = 0.5              # cell of the surface model rasterised from the LiDAR tiles, m
     mosaic = true             # also the mosaic and its seamlines
     feather_m = 0.0           # mosaic: blend across seamlines over +- this many metres (0: hard seams)
+    equalize = false          # mosaic: balance the photos first (gain/offset per photo from the overlaps)
     images = "images"         # folder of the photo files <photo>.png/.tif/.jpg
     photos = ["1", "2"]       # optional: a subset (default: every adjusted photo)
     features = { "3" = "features/p3.geojson" }   # photo -> features digitised on it (pixels)
@@ -79,7 +80,7 @@ def settings(survey: Any) -> dict[str, Any]:
 def orthophotos(survey: Any, outdir: str | os.PathLike, photo_ids: Sequence[str], surface: str | os.PathLike, *,
                 true_ortho: bool, gsd_m: float = 0.2, eop: str | os.PathLike | None = None,
                 images: str | os.PathLike | None = None, bounds: Sequence[float] | None = None,
-                mosaic: bool = False, feather_m: float = 0.0, tile_px: int = 1024,
+                mosaic: bool = False, feather_m: float = 0.0, tile_px: int = 1024, equalize: bool = False,
                 progress: Callable[[str, int, int], Any] | None = None) -> dict[str, Any]:
     """The action of ``lidarcat ortho`` and of the stage's orthophotos: adjusted photos over a surface GeoTIFF.
 
@@ -112,6 +113,8 @@ def orthophotos(survey: Any, outdir: str | os.PathLike, photo_ids: Sequence[str]
         Also the mosaic of the photos and its seamlines.
     feather_m : float
         Mosaic: blend across each seamline over +- this many metres (0: hard seams).
+    equalize : bool
+        Mosaic: a gain and an offset per photo from the overlaps first (:func:`lidarcat.mapping.mosaic.equalization_gains`).
     tile_px : int
         Rows/columns computed at once.
     progress : callable, optional
@@ -147,13 +150,13 @@ def orthophotos(survey: Any, outdir: str | os.PathLike, photo_ids: Sequence[str]
     done: dict[str, Any] = {"orthophotos": []}
     with output_root(out):  # nothing written below leaves *outdir* nor goes through a link in it
         _orthophotos_into(out, names, photos, grid, gsd_m, bounds, true_ortho, survey.crs, tile_px, mosaic,
-                          feather_m, step, done)
+                          feather_m, step, done, equalize)
     return done
 
 
 def _orthophotos_into(out: Path, names: dict[str, str], photos: list[Any], grid: Any, gsd_m: float, bounds: Any,
                       true_ortho: bool, crs: Any, tile_px: int, mosaic: bool, feather_m: float,
-                      step: Callable[[str], Any], done: dict[str, Any]) -> None:
+                      step: Callable[[str], Any], done: dict[str, Any], equalize: bool = False) -> None:
     from ..mapping.mosaic import mosaic as mosaic_photos
     from ..mapping.ortho import orthophoto
 
@@ -164,7 +167,7 @@ def _orthophotos_into(out: Path, names: dict[str, str], photos: list[Any], grid:
     if mosaic:
         m = mosaic_photos(photos, grid, gsd_m, out / "mosaic.tif", seams_path=out / "seamlines.geojson",
                           bounds=bounds, true_ortho=true_ortho, crs=crs, tile_px=tile_px,
-                          feather_m=feather_m, progress=step("mosaic"))
+                          feather_m=feather_m, equalize=equalize, progress=step("mosaic"))
         done["mosaic"] = m.to_dict()
 
 
@@ -227,7 +230,7 @@ def _orthophotos(ctx: Context, cfg: dict[str, Any], tmp: Path, eos: Any, index: 
 
     res = orthophotos(survey, tmp, ids, tmp / f"{what}.tif", true_ortho=what == "dsm", gsd_m=float(cfg["gsd_m"]),
                       eop=ctx.folder(ctx.params["adjust"]) / "eop.csv", images=images, mosaic=with_mosaic,
-                      feather_m=float(cfg["feather_m"]), progress=prog)
+                      feather_m=float(cfg["feather_m"]), equalize=bool(cfg.get("equalize")), progress=prog)
     out: dict[str, Any] = {"surface": f"{what}.tif", "orthophotos": [
         r | {"path": f"ortho_{r['photo']}.tif"} for r in res["orthophotos"]]}
     if with_mosaic:

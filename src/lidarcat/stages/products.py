@@ -23,6 +23,17 @@ survey.toml::
     sheet_index = "grid"        # or "brazil-5000" / "brazil-2000" (..-10000, -25000): the Brazilian systematic
                                 # map index (sheets like SF-23-X-D-VI-1-SE-C-II) instead of the grid
     vector_format = "geojson"   # or "gpkg": contours, spot heights and the sheet index as GeoPackage (lidarcat[gis])
+    charts = false              # charts/<sheet>.pdf + .png: orthophoto charts (ortofotocartas) of the sheets
+    chart_mosaic = "mosaic.tif" # their orthomosaic (default: the mapping stage's mosaic.tif)
+    chart_scale = 5000          # 1:5,000 (the report)
+    chart_declination_deg = -22.3   # magnetic declination, east positive (not computed; default "not given")
+    delivery = ["tfw", "shp", "dxf"]   # world files beside the GeoTIFFs, shp/ layers, contours.dxf
+
+Charts (:mod:`lidarcat.production.charts`): one PDF and PNG per sheet of the
+index that holds mosaic cells or contours (sheets outside the data get no
+chart); the orthomosaic is ``chart_mosaic`` (relative to the survey folder) or
+else the ``mapping`` stage's ``mosaic.tif`` of this run; without either the
+stage fails with the reason.
 
 The stage is planned only for a survey with a ``[products]`` table (skipped,
 with the reason, when the survey has no LiDAR tiles).  Ground classification
@@ -47,7 +58,7 @@ from typing import Any
 from ..survey.schema import ProductsSettings
 from .context import StageContext as Context
 
-__all__ = ["run", "settings", "PRODUCTS_KEYS", "asked"]
+__all__ = ["run", "settings", "PRODUCTS_KEYS", "asked", "chart_mosaic_path", "chart_sheets", "write_charts", "deliver"]
 
 #: keys of the [products] table and their defaults (lidarcat.survey.schema.ProductsSettings)
 PRODUCTS_KEYS: dict[str, Any] = ProductsSettings().to_dict()
@@ -62,7 +73,7 @@ def settings(survey: Any) -> dict[str, Any]:
 
 def asked(cfg: dict[str, Any]) -> list[str]:
     """The products a ``[products]`` table asks for, in the order the stage makes them."""
-    return [k for k in ("ground", "dtm", "dsm", "ndsm", "contours", "hypsometry") if cfg.get(k)]
+    return [k for k in ("ground", "dtm", "dsm", "ndsm", "contours", "hypsometry", "charts") if cfg.get(k)]
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -143,6 +154,7 @@ def run(ctx: Context, tmp: Path) -> dict:
             done["files"].append("ndsm.txt")
         tick()
     features: list[dict[str, Any]] = []
+    spots = np.zeros((0, 4))
     if cfg["contours"]:
         g = cloud.xyz[gmask]
         cs = contours(g, cfg["contour_interval_m"], master_every=cfg["master_every"],
@@ -168,6 +180,14 @@ def run(ctx: Context, tmp: Path) -> dict:
         done["sheets"] = _sheets(rasters, features, area, cfg, crs, tmp)
         done["files"].append("sheets" + vext)
         tick()
+    if cfg.get("charts"):
+        done["charts"] = chart_sheets(ctx, features, spots, area, cfg, crs, tmp)
+        done["files"] += done["charts"]["files"]
+        tick()
+    if cfg.get("delivery"):
+        done["delivery"] = deliver(tmp, list(cfg["delivery"]), features, spots, area, crs,
+                                   sheets=done.get("sheets", {}).get("sheets"))
+        done["files"] += done["delivery"]["files"]
     return done
 
 
@@ -222,3 +242,171 @@ def _sheets(rasters: dict[str, tuple[Any, Any]], features: list[dict[str, Any]],
     if cfg["sheet_index"] == "grid":
         out["size_m"] = cfg["sheet_size_m"]
     return out
+
+
+def chart_mosaic_path(ctx: Context, cfg: dict[str, Any]) -> Path:
+    """The orthomosaic of the charts: ``chart_mosaic`` (relative to the survey folder), else the mapping
+    stage's ``mosaic.tif`` of this run.
+
+    Raises
+    ------
+    SurveyError
+        Neither is there.
+    """
+    from ..errors import SurveyError
+
+    survey = ctx["survey"]
+    if cfg.get("chart_mosaic"):
+        p = survey.root / cfg["chart_mosaic"]
+        if not p.is_file():
+            raise SurveyError(f"{survey.toml_path}: [products] chart_mosaic: {p} does not exist")
+        return p
+    if ctx.done("mapping") and (ctx.folder("mapping") / "mosaic.tif").is_file():
+        return ctx.folder("mapping") / "mosaic.tif"
+    raise SurveyError(f"{survey.toml_path}: [products] charts need the orthomosaic: the mapping stage's "
+                      "mosaic.tif ([mapping] orthophotos = true, mosaic = true) or chart_mosaic = FILE.tif")
+
+
+def chart_sheets(ctx: Context, features: list[dict[str, Any]], spots: Any, area: tuple[float, float, float, float],
+                 cfg: dict[str, Any], crs: Any, tmp: Path) -> dict[str, Any]:
+    """charts/<sheet>.pdf and .png of the run (:func:`write_charts` with the ``[products]`` keys)."""
+    import datetime
+
+    from ..lidar.crs import crs_label, resolve_crs
+    from ..production.charts import TitleBlock
+
+    survey = ctx["survey"]
+    mosaic_path = chart_mosaic_path(ctx, cfg)
+    if not features:
+        from ..errors import ProductError
+
+        raise ProductError(f"{survey.toml_path}: [products] charts: the ground gave no contour line at "
+                           f"{cfg['contour_interval_m']:g} m")
+    title = TitleBlock(project=cfg.get("chart_project") or survey.config.survey.name,
+                       scale=int(cfg["chart_scale"]), datum_projection=crs_label(resolve_crs(crs)),
+                       declination_deg=cfg.get("chart_declination_deg"),
+                       declination_date=cfg.get("chart_declination_date") or "",
+                       date=cfg.get("chart_date") or datetime.datetime.now(datetime.timezone.utc).date().isoformat(),
+                       contour_interval_m=cfg["contour_interval_m"], master_every=cfg["master_every"])
+    out = write_charts(mosaic_path, features, spots, tmp / "charts", crs=crs, title=title,
+                       index=cfg["sheet_index"], size_m=cfg["sheet_size_m"] or 1000.0, area=area,
+                       dpi=int(cfg["chart_dpi"]))
+    out["files"] = [f"charts/{f}" for f in out["files"]]
+    return out
+
+
+def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, folder: Path, *, crs: Any,
+                 title: Any, index: str = "grid", size_m: float = 1000.0,
+                 area: tuple[float, float, float, float] | None = None, only: list[str] | None = None,
+                 dpi: int = 150, progress: Any = None) -> dict[str, Any]:
+    """The orthophoto chart of every sheet of *index* holding mosaic cells or contours: <sheet>.pdf and .png
+    in *folder* (the action of ``lidarcat chart`` and of ``[products] charts``).
+
+    Parameters
+    ----------
+    mosaic_path : Path
+        The orthomosaic GeoTIFF.
+    features : list of GeoJSON LineString features
+        The contours (properties ``level_m``, ``type``).
+    spots : (M, 3+) array or None
+        Spot heights E, N, h.
+    folder : Path
+        Receives the charts (written file by file, atomically).
+    crs, title, index, size_m, area, dpi
+        CRS of the products, :class:`lidarcat.production.charts.TitleBlock`, sheet index and grid size,
+        the mapped area (default: the mosaic and the contours), PNG resolution.
+    only : list of str, optional
+        Chart only these sheets (a name outside the data is an error).
+    progress : callable, optional
+        ``progress(done, total)`` per chart.
+
+    Returns
+    -------
+    dict
+        ``sheets`` (names charted), ``scale``, ``mosaic``, ``files`` (relative to *folder*).
+
+    Raises
+    ------
+    ProductError
+        No contour line; a sheet of *only* that is not in the index or holds no data.
+    """
+    import numpy as np
+
+    from .._util import safe_component
+    from ..errors import ProductError
+    from ..lidar.geotiff import read_geotiff
+    from ..production.charts import crop_image, draw_chart, sheet_extent, write_chart
+    from ..production.sheets import index_sheets
+
+    image, transform, _ = read_geotiff(mosaic_path)   # (rows, cols[, bands]), NaN = nodata
+    if not features:
+        raise ProductError("charts: no contour line given; an orthophoto chart shows the contours")
+    lines = [np.asarray(f["geometry"]["coordinates"], dtype=float) for f in features]
+    ib = (transform.x0, transform.y0 - image.shape[0] * transform.cell_m,
+          transform.x0 + image.shape[1] * transform.cell_m, transform.y0)
+    lb = (min(xy[:, 0].min() for xy in lines), min(xy[:, 1].min() for xy in lines),
+          max(xy[:, 0].max() for xy in lines), max(xy[:, 1].max() for xy in lines))
+    whole = (min(ib[0], lb[0]), min(ib[1], lb[1]), max(ib[2], lb[2]), max(ib[3], lb[3]))
+    grid = index_sheets(whole, index, crs=crs, size_m=size_m)
+
+    def holds_data(s: Any) -> bool:
+        box = sheet_extent(s, crs)[0]
+        return crop_image(image, transform, box) is not None or any(
+            ((xy[:, 0] >= box[0]) & (xy[:, 0] <= box[2]) & (xy[:, 1] >= box[1]) & (xy[:, 1] <= box[3])).any()
+            for xy in lines)
+
+    used = [s for s in grid if holds_data(s)]
+    todo = used
+    if only:
+        names = {s.name: s for s in used}
+        missing = [n for n in only if n not in names]
+        if missing:
+            raise ProductError(f"charts: sheet {missing[0]} holds no data of {mosaic_path} and the contours "
+                               f"(sheets with data: {', '.join(names) or 'none'})")
+        todo = [names[n] for n in only]
+    files = []
+    for k, s in enumerate(todo):
+        name = safe_component(s.name, "sheet name", error=ProductError)
+        fig = draw_chart(s, title, image=image, image_transform=transform, contours=features, spots=spots,
+                         sheets=used, area=area or lb, crs=crs)
+        write_chart(fig, folder / f"{name}.pdf", folder / f"{name}.png", dpi=dpi)
+        files += [f"{name}.pdf", f"{name}.png"]
+        if progress is not None:
+            progress(k + 1, len(todo))
+    return {"sheets": [s.name for s in todo], "scale": int(title.scale), "mosaic": str(mosaic_path),
+            "files": files}
+
+
+def deliver(folder: Path, formats: list[str], features: list[dict[str, Any]], spots: Any,
+            area: tuple[float, float, float, float], crs: Any, sheets: list[str] | None = None) -> dict[str, Any]:
+    """The delivery formats of the products in *folder* (:mod:`lidarcat.production.delivery`).
+
+    ``tfw``: a world file beside every GeoTIFF below *folder*; ``shp``: ``shp/contours.shp``,
+    ``shp/spot_heights.shp`` and ``shp/sheets.shp`` (the layers that hold features);
+    ``dxf``: ``contours.dxf`` with the contours, spot heights, the sheet frames and the mapped area.
+    Paths returned relative to *folder*.
+    """
+    import json
+
+    import numpy as np
+
+    from ..production.contours import spot_features
+    from ..production.delivery import write_dxf, write_shapefile, write_world_file
+
+    files: list[str] = []
+    index: list[dict[str, Any]] = []
+    if sheets is not None and (folder / "sheets.geojson").is_file():
+        index = json.loads((folder / "sheets.geojson").read_text(encoding="utf-8"))["features"]
+    sp = np.zeros((0, 4)) if spots is None else np.asarray(spots)
+    if "tfw" in formats:
+        for tif in sorted(folder.rglob("*.tif")):
+            files.append(str(write_world_file(tif).relative_to(folder)))
+    if "shp" in formats:
+        for name, feats in (("contours", features), ("spot_heights", spot_features(sp)), ("sheets", index)):
+            if feats:
+                shp = write_shapefile(folder / "shp" / f"{name}.shp", feats, crs)
+                files += [str(p.relative_to(folder)) for p in sorted(shp.parent.glob(f"{name}.*"))]
+    if "dxf" in formats:
+        write_dxf(folder / "contours.dxf", contours=features, spots=sp, sheets=index, area=area)
+        files.append("contours.dxf")
+    return {"formats": formats, "files": files}

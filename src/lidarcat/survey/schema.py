@@ -256,6 +256,8 @@ class MappingSettings:
     image_sd_px: float = _key(NUMBER, 0.5, "pointing sd of the digitised pixels, px (>= 0)")
     surface_sd_m: float = _key(NUMBER, 0.15, "height sd of the surface, m (>= 0)")
     feather_m: float = _key(NUMBER, 0.0, "mosaic: blend across seamlines over +- this many m (0: hard seams)")
+    equalize: bool = _key(BOOLEAN, False, "mosaic: balance the photos first, a gain and an offset per photo "
+                                          "from the overlaps")
 
     def to_dict(self) -> dict[str, Any]:
         """The table as the stage's parameters (lists and dicts, as in the file)."""
@@ -291,10 +293,26 @@ class ProductsSettings:
     sheet_index: str = _key(STRING, "grid", "\"grid\" or the Brazilian systematic index \"brazil-25000\", "
                                             "\"brazil-10000\", \"brazil-5000\", \"brazil-2000\"")
     vector_format: str = _key(STRING, "geojson", "\"geojson\" or \"gpkg\" (GeoPackage, lidarcat[gis])")
+    charts: bool = _key(BOOLEAN, False, "charts/<sheet>.pdf and .png: orthophoto charts of the sheets holding "
+                                        "data (needs contours, a sheet index and the orthomosaic)")
+    chart_mosaic: str | None = _key(STRING, None, "orthomosaic GeoTIFF of the charts (default: the mapping "
+                                                  "stage's mosaic.tif, [mapping] mosaic = true)")
+    chart_scale: int = _key(INTEGER, 5000, "scale denominator of the charts (the report: 1:5,000)")
+    chart_project: str | None = _key(STRING, None, "project name in the title block (default: [survey] name)")
+    chart_declination_deg: float | None = _key(NUMBER, None, "magnetic declination, degrees, east positive "
+                                                             "(not computed; default: \"not given\")")
+    chart_declination_date: str | None = _key(STRING, None, "date (epoch) of the declination value")
+    chart_date: str | None = _key(STRING, None, "date in the title block (default: the day of the run, UTC)")
+    chart_dpi: int = _key(INTEGER, 150, "resolution of the PNG charts, dots per inch")
+    delivery: tuple[str, ...] = _key(STRINGS, (), "delivery formats: \"tfw\" (world file beside every GeoTIFF), "
+                                                  "\"shp\" (shp/: Shapefile layers), \"dxf\" (contours.dxf, "
+                                                  "lidarcat[cad])")
 
     def to_dict(self) -> dict[str, Any]:
         """The table as the stage's parameters."""
-        return {f.name: getattr(self, f.name) for f in keys_of(type(self))}
+        out = {f.name: getattr(self, f.name) for f in keys_of(type(self))}
+        out["delivery"] = list(self.delivery)
+        return out
 
 
 @dataclass(frozen=True)
@@ -557,7 +575,30 @@ def _products(r: _Reader, v: dict[str, Any]) -> ProductsSettings:
         raise r.err(t, "vector_format", f"{excerpt(v['vector_format'])} is not 'geojson' or 'gpkg'")
     if v["ndsm"] and not (v["dtm"] and v["dsm"]):
         raise r.err(t, "ndsm", "needs dtm = true and dsm = true")
+    _charts(r, v)
+    wrong = [str(x) for x in v["delivery"] if x not in ("tfw", "shp", "dxf")]
+    if wrong:
+        raise r.err(t, "delivery", f"{', '.join(map(excerpt, wrong))}: use tfw, shp, dxf")
+    v["delivery"] = tuple(dict.fromkeys(v["delivery"]))
     return ProductsSettings(**v)
+
+
+def _charts(r: _Reader, v: dict[str, Any]) -> None:
+    """The chart keys of ``[products]``: a chart is the mosaic with the contours, cut along a sheet index."""
+    t = "products"
+    if v["chart_scale"] < 1:
+        raise r.err(t, "chart_scale", f"must be a positive scale denominator, got {excerpt(v['chart_scale'])}")
+    if not 10 <= v["chart_dpi"] <= 1200:
+        raise r.err(t, "chart_dpi", f"must be 10 to 1200 dots per inch, got {excerpt(v['chart_dpi'])}")
+    dec = v["chart_declination_deg"]
+    if dec is not None and not -180 <= dec <= 180:
+        raise r.err(t, "chart_declination_deg", f"must be -180 to 180 degrees, got {excerpt(r.raw(t, 'chart_declination_deg'))}")
+    if v["charts"]:
+        if not v["contours"]:
+            raise r.err(t, "charts", "an orthophoto chart shows the contours: needs contours = true")
+        if v["sheet_index"] == "grid" and not v["sheet_size_m"] > 0:
+            raise r.err(t, "charts", "one chart per sheet: give the sheet index (sheet_size_m > 0, or "
+                                     "sheet_index = 'brazil-5000')")
 
 
 def split_frame_offset(text: str) -> tuple[str, str]:
