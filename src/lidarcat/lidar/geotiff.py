@@ -32,6 +32,15 @@ One profile for every writer (:func:`write_geotiff` for a whole array,
 
 Files appear atomically: written to a temporary sibling, renamed on success.
 
+Images (orthophotos) may ask for more (keyword arguments of :class:`GeoTiffWriter`,
+defaults as above): ``compress="JPEG"`` (8-bit images; YCbCr for RGB, quality
+``jpeg_quality``), ``mask=True`` -- an internal per-dataset mask (GDAL's
+``.msk`` band inside the file, 1 bit per cell, DEFLATE) marks the valid cells
+of an integer image, so that every value 0..255 (0..65535) stays a value and
+lossy JPEG cannot blur the nodata edge -- and ``threads`` (GDAL's
+``NUM_THREADS``: tiles and overviews compressed in parallel).
+:func:`read_geotiff` returns NaN where a file's mask says nodata.
+
 Read files
 ----------
 :func:`read_geotiff` reads any GeoTIFF GDAL reads: compressed (DEFLATE, LZW,
@@ -124,7 +133,8 @@ def _pyproj_crs(rio_crs: Any) -> Any:
 
 
 # --------------------------------------------------------------------------- writing
-def _profile(rows: int, cols: int, bands: int, dtype: np.dtype, transform: GeoTransform, crs: Any) -> dict[str, Any]:
+def _profile(rows: int, cols: int, bands: int, dtype: np.dtype, transform: GeoTransform, crs: Any,
+             compress: str = "DEFLATE", mask: bool = False) -> dict[str, Any]:
     from rasterio.transform import Affine
 
     profile: dict[str, Any] = {
@@ -132,7 +142,14 @@ def _profile(rows: int, cols: int, bands: int, dtype: np.dtype, transform: GeoTr
         "transform": Affine(transform.cell_m, 0.0, transform.x0, 0.0, -transform.cell_m, transform.y0),
         "crs": geotiff_crs(crs), "compress": "DEFLATE", "predictor": 2, "bigtiff": "IF_SAFER",
     }
-    if dtype.kind == "f":
+    if compress.upper() == "JPEG":
+        if dtype != np.uint8 or bands not in (1, 3):
+            raise ValueError(f"JPEG compression takes 1- or 3-band uint8 images, not {bands} x {dtype.name}")
+        profile["compress"] = "JPEG"
+        del profile["predictor"]
+    elif compress.upper() != "DEFLATE":
+        raise ValueError(f"compression must be DEFLATE or JPEG, got {compress!r}")
+    if dtype.kind == "f" and not mask:
         profile["nodata"] = float("nan")
     if bands == 3:
         profile["photometric"] = "RGB"
@@ -232,18 +249,35 @@ class GeoTiffWriter:
     crs : CRS-like, optional
     dtype : numpy dtype
         Data type of the file (default float32, nodata NaN).
+    compress : {"DEFLATE", "JPEG"}
+        JPEG for 1- or 3-band uint8 images only (lossy; YCbCr for RGB).
+    mask : bool
+        Write an internal per-dataset mask: :meth:`write_rows` takes each
+        block's valid cells (module docstring).
+    threads : int, optional
+        GDAL ``NUM_THREADS`` of the compression (default: one).
+    jpeg_quality : int
+        JPEG quality, 1-100 (GDAL's default 75).
     """
 
     def __init__(self, path: str | os.PathLike, shape: tuple[int, int], bands: int, transform: GeoTransform,
-                 crs: Any = None, dtype: Any = np.float32) -> None:
+                 crs: Any = None, dtype: Any = np.float32, *, compress: str = "DEFLATE", mask: bool = False,
+                 threads: int | None = None, jpeg_quality: int = 75) -> None:
         self.path = Path(path)
         self.rows, self.cols = (int(v) for v in shape)
         self.bands = int(bands)
         self.dtype = np.dtype(dtype)
         self.transform = transform
-        self._profile = _profile(self.rows, self.cols, self.bands, self.dtype, transform, crs)
+        self._profile = _profile(self.rows, self.cols, self.bands, self.dtype, transform, crs, compress, mask)
+        self._mask = bool(mask)
+        self._extra: dict[str, Any] = {}
+        if threads and threads > 1:
+            self._extra["num_threads"] = str(int(threads))
+        if self._profile["compress"] == "JPEG":
+            self._extra["quality"] = int(jpeg_quality)
         self._row = 0
         self._pending: list[np.ndarray] = []
+        self._pending_mask: list[np.ndarray] = []
         self._stack = contextlib.ExitStack()
 
     def __enter__(self) -> GeoTiffWriter:
@@ -256,10 +290,12 @@ class GeoTiffWriter:
             os.close(fd)
             self._tiled = Path(name)
             stack.callback(self._tiled.unlink, missing_ok=True)
-            stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_STREAM_CACHE_MB))
+            stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_STREAM_CACHE_MB, GDAL_TIFF_INTERNAL_MASK=True))
+            tiled = dict(self._profile, compress="DEFLATE", predictor=2) if self._mask or \
+                self._profile["compress"] == "JPEG" else self._profile   # the temporary file: lossless
             self._dst = stack.enter_context(rasterio.open(
                 self._tiled, "w", driver="GTiff", tiled=True, blockxsize=BLOCK_PX, blockysize=BLOCK_PX,
-                interleave="pixel", **self._profile))
+                interleave="pixel", **tiled, **{k: v for k, v in self._extra.items() if k == "num_threads"}))
             if self.bands == 3:
                 self._dst.colorinterp = _rgb()
         except BaseException:
@@ -267,14 +303,20 @@ class GeoTiffWriter:
             raise
         return self
 
-    def write_rows(self, block: np.ndarray) -> None:
-        """Append rows: (k, cols) or (k, cols, bands) values (cast to the file's data type)."""
+    def write_rows(self, block: np.ndarray, valid: np.ndarray | None = None) -> None:
+        """Append rows: (k, cols) or (k, cols, bands) values (cast to the file's data type); with
+        ``mask=True`` also their (k, cols) valid cells (bool)."""
         b = np.asarray(block)
         if b.ndim == 2:
             b = b[:, :, None]
         if b.shape[1:] != (self.cols, self.bands) or self._row + b.shape[0] > self.rows:
             raise ValueError(f"{self.path}: row block of shape {b.shape} does not fit a "
                              f"{self.rows} x {self.cols} x {self.bands} grid at row {self._row}")
+        if self._mask:
+            if valid is None or np.shape(valid) != b.shape[:2]:
+                raise ValueError(f"{self.path}: a masked GeoTIFF needs the valid cells of each row block "
+                                 f"(shape {b.shape[:2]})")
+            self._pending_mask.append(np.asarray(valid, dtype=bool))
         self._pending.append(b.astype(self.dtype, copy=False))
         self._row += b.shape[0]
         self._flush(final=self._row == self.rows)
@@ -289,8 +331,13 @@ class GeoTiffWriter:
         if n - keep <= 0:
             return
         rows = np.concatenate(self._pending, axis=0)
-        self._dst.write(np.moveaxis(rows[:n - keep], 2, 0), window=Window(0, top, self.cols, n - keep))
+        win = Window(0, top, self.cols, n - keep)
+        self._dst.write(np.moveaxis(rows[:n - keep], 2, 0), window=win)
         self._pending = [rows[n - keep:]] if keep else []
+        if self._mask:
+            valid = np.concatenate(self._pending_mask, axis=0)
+            self._dst.write_mask(np.where(valid[:n - keep], np.uint8(255), np.uint8(0)), window=win)
+            self._pending_mask = [valid[n - keep:]] if keep else []
 
     def __exit__(self, et: Any, ev: Any, tb: Any) -> bool:
         if et is None and self._row != self.rows:
@@ -305,7 +352,10 @@ class GeoTiffWriter:
 
             self._dst.close()
             opts = {k: v for k, v in _cog_options(self._profile).items() if k in _CREATION_OPTIONS}
-            rasterio.shutil.copy(self._tiled, self._final, **opts)
+            if self._profile["compress"] == "JPEG":
+                opts.pop("predictor", None)
+            with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+                rasterio.shutil.copy(self._tiled, self._final, **opts, **self._extra)
         except BaseException as ex:
             self._stack.__exit__(type(ex), ex, ex.__traceback__)
             raise
@@ -370,6 +420,9 @@ def read_geotiff(path: str | os.PathLike, *, raw: bool = False) -> tuple[np.ndar
                                        "grid to square cells (e.g. gdalwarp -tr)")
             data = ds.read()
             nodata = ds.nodata
+            masked = None
+            if not raw and nodata is None and any("per_dataset" in str(f) for f in ds.mask_flag_enums[0]):
+                masked = ds.dataset_mask() == 0           # an internal mask (module docstring)
             crs = _pyproj_crs(ds.crs)
     except rasterio.errors.RasterioError as ex:
         raise LidarFormatError(f"{path}: truncated or incomplete GeoTIFF ({str(ex).splitlines()[0]})") from ex
@@ -381,4 +434,6 @@ def read_geotiff(path: str | os.PathLike, *, raw: bool = False) -> tuple[np.ndar
         grid = grid.astype(np.float64 if grid.dtype == np.float64 else np.float32)
         if nodata is not None and not math.isnan(nodata):
             grid[stored == nodata] = np.nan
+        if masked is not None:
+            grid[masked] = np.nan
     return grid, GeoTransform(float(c), float(f), float(a)), crs

@@ -1,10 +1,14 @@
 """Shared by the orthophoto and the mosaic: z-buffer, cell centres, row bands streamed into a GeoTIFF.
 
-Private to :mod:`lidarcat.mapping` (imported by :mod:`.ortho` and :mod:`.mosaic`).
+Private to :mod:`lidarcat.mapping` (imported by :mod:`.ortho` and :mod:`.mosaic`).  :func:`run_bands`
+computes row bands one after the other (float32, NaN = nodata); :func:`run_tiles` computes tiles in a
+thread pool and writes the photo's data type with an internal mask (:mod:`.ortho`, "Tiles, threads and
+the file").
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from collections.abc import Callable, Iterator, Sequence
@@ -17,7 +21,7 @@ from .._util import atomic_write
 from ..errors import LidarcatError
 from ..lidar.geotiff import GeoTiffWriter
 
-__all__ = ["ZBuffer", "tile_cells", "row_bands", "run_bands", "write_png"]
+__all__ = ["ZBuffer", "tile_cells", "row_bands", "run_bands", "run_tiles", "remap_points", "write_png"]
 
 
 class ZBuffer:
@@ -73,7 +77,7 @@ def write_png(path: Path, grid: np.ndarray) -> Path:
     """A plain 8-bit PNG preview of a float grid (nodata black; values clipped to 0-255)."""
     import cv2
 
-    g = np.nan_to_num(grid, nan=0.0)
+    g = np.nan_to_num(np.asarray(grid, dtype=np.float32), nan=0.0)
     g = np.clip(g, 0, 255).astype(np.uint8)
     if g.ndim == 3 and g.shape[2] == 3:
         g = g[:, :, ::-1]              # RGB -> BGR for OpenCV
@@ -124,3 +128,122 @@ def run_bands(compute: Callable[[int, int], np.ndarray], rows: int, cols: int, b
     if preview:
         write_png(path.with_suffix(".png"), np.concatenate(small, axis=0))
     return None
+
+
+def remap_points(grids: Sequence[np.ndarray], fx: np.ndarray, fy: np.ndarray) -> list[np.ndarray]:
+    """Bilinear values of float32 grids at fractional (column, row) positions of any shape (``cv2.remap``).
+
+    NaN where a position is off the grid (or a neighbour is NaN); ``cv2.remap`` quantises the
+    interpolation weights to 1/32 of a cell.  Positions are processed as 2-D blocks of at most
+    4096 columns (OpenCV's maps are limited in width).
+    """
+    import cv2
+
+    fx = np.asarray(fx)
+    shape = fx.shape
+    mx = np.where(np.isfinite(fx), fx, -10.0).astype(np.float32).reshape(-1)
+    my = np.where(np.isfinite(fy), fy, -10.0).astype(np.float32).reshape(-1)
+    n = mx.size
+    if len(shape) == 2 and 0 < shape[1] <= 4096:
+        mx, my = mx.reshape(shape), my.reshape(shape)
+    else:
+        w = 4096 if n > 4096 else max(n, 1)
+        pad = (-n) % w
+        mx = np.concatenate([mx, np.full(pad, -10.0, np.float32)]).reshape(-1, w)
+        my = np.concatenate([my, np.full(pad, -10.0, np.float32)]).reshape(-1, w)
+    out = []
+    for g in grids:
+        v = cv2.remap(g, mx, my, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                      borderValue=float("nan"))
+        out.append(v.reshape(-1)[:n].reshape(shape).astype(np.float64))
+    return out
+
+
+def run_tiles(compute: Callable[[int, int, int, int], tuple[np.ndarray, np.ndarray, np.ndarray]], rows: int,
+              cols: int, bands: int, tile_px: int, path: str | os.PathLike | None, transform: Any, crs: Any,
+              preview: bool, progress: Callable[[int, int], None] | None, *, dtype: Any, compress: str = "deflate",
+              workers: int | None = None) -> tuple[np.ndarray | None, np.ndarray]:
+    """Compute the output in tiles on a thread pool, write it in row bands (or return it as an array).
+
+    Parameters
+    ----------
+    compute : callable
+        ``compute(r0, r1, c0, c1) -> (values, valid, occluded)``: values (rows, cols, bands) of
+        *dtype*, valid and occluded cells (rows, cols) bool.  Called from the pool's threads.
+    dtype : numpy dtype
+        Of the file: integers get an internal mask of the valid cells, floats NaN.
+    compress, workers
+        GeoTIFF compression (``deflate``/``jpeg``), threads (default CPU count).
+
+    Returns
+    -------
+    array : (rows, cols, bands) float32 with NaN, or None (written to *path*)
+    counts : (3,) int64
+        Valid, occluded and other (off the photo or the surface) cells.
+    """
+    import collections
+    import concurrent.futures
+
+    import cv2
+
+    dtype = np.dtype(dtype)
+    workers = max(1, int(workers or os.cpu_count() or 1))
+    step = max(16, int(tile_px))
+    band_rows = [(r0, min(rows, r0 + step)) for r0 in range(0, rows, step)]
+    col_tiles = [(c0, min(cols, c0 + step)) for c0 in range(0, cols, step)]
+    ahead = max(2, -(-2 * workers // len(col_tiles)))          # bands in flight
+    counts = np.zeros(3, dtype=np.int64)
+    out = np.full((rows, cols, bands), np.nan, dtype=np.float32) if path is None else None
+    integer = dtype.kind in "iu"
+    small: list[np.ndarray] = []
+    pstep = max(1, int(math.ceil(max(rows, cols) / 2000)))
+    with contextlib.ExitStack() as stack:
+        tif = None
+        if path is not None:
+            tif = stack.enter_context(GeoTiffWriter(Path(path), (rows, cols), bands, transform, crs, dtype,
+                                                    compress=compress.upper(), mask=integer, threads=workers))
+        threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)                        # one OpenCV thread per pool thread
+        stack.callback(cv2.setNumThreads, threads)
+        pool = stack.enter_context(concurrent.futures.ThreadPoolExecutor(max_workers=workers))
+        stack.callback(pool.shutdown, wait=True, cancel_futures=True)   # on an error: drop what is queued
+        pending: collections.deque[tuple[int, int, list[Any]]] = collections.deque()
+        todo = iter(band_rows)
+
+        def submit() -> None:
+            nxt = next(todo, None)
+            if nxt is not None:
+                pending.append((*nxt, [pool.submit(compute, nxt[0], nxt[1], c0, c1) for c0, c1 in col_tiles]))
+
+        for _ in range(ahead):
+            submit()
+        while pending:
+            r0, r1, futs = pending.popleft()
+            submit()
+            vals = np.empty((r1 - r0, cols, bands), dtype=dtype)
+            valid = np.empty((r1 - r0, cols), dtype=bool)
+            for (c0, c1), f in zip(col_tiles, futs):
+                v, ok, occl = f.result()
+                vals[:, c0:c1] = v
+                valid[:, c0:c1] = ok
+                n_ok, n_occl = int(ok.sum()), int(occl.sum())
+                counts += (n_ok, n_occl, ok.size - n_ok - n_occl)
+            if out is not None or not integer or preview:
+                as_float = vals.astype(np.float32)
+                as_float[~valid] = np.nan
+            if out is not None:
+                out[r0:r1] = as_float
+            else:
+                assert tif is not None
+                if integer:
+                    tif.write_rows(vals, valid)
+                else:
+                    tif.write_rows(as_float)
+                if preview:
+                    keep = np.arange(r0, r1) % pstep == 0
+                    small.append(as_float[keep][:, ::pstep] / (257.0 if dtype == np.uint16 else 1.0))
+            if progress:
+                progress(r1, rows)
+    if path is not None and preview:
+        write_png(Path(path).with_suffix(".png"), np.concatenate(small, axis=0))
+    return out, counts
