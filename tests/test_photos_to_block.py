@@ -93,3 +93,24 @@ def test_acceptance_block_24_photos_two_seeds(tmp_path):
         z.append(sc["z_apriori"].ravel())
     rms_z = float(np.sqrt(np.mean(np.concatenate(z) ** 2)))
     assert 0.8 <= rms_z <= 1.25, rms_z                           # sds honest (empirical / predicted)
+
+
+def test_run_plans_match_then_an_adjustment_on_the_gnss_imu_datum(tmp_path):
+    """`lidarcat run` on photos + approximate GNSS/IMU (photos.csv sd_X0..) + LiDAR tiles: match first,
+    the adjustment after it with the GNSS/IMU constraints; with no control set they are its datum."""
+    from lidarcat.pipeline import plan_pipeline
+    from lidarcat.survey.folder import Survey
+
+    aerial_survey(tmp_path / "s", n_strips=1, photos_per_strip=2, image_size_px=(160, 120), seed=0)
+    plan = {st.name: st for st in plan_pipeline(Survey.load(tmp_path / "s"))}
+    names = list(plan)
+    assert names.index("match") < names.index("adjust-gps")
+    assert plan["adjust-gps"].requires == ("match",)          # a failed match skips the adjustment
+    assert plan["adjust-gps"].params == {"control": "gps", "derived": False, "eo_constraints": True}
+    toml = (tmp_path / "s" / "survey.toml").read_text()
+    toml = "\n".join(ln for ln in toml.splitlines() if not ln.startswith(("control_sets", "default_control")))
+    (tmp_path / "s" / "survey.toml").write_text(toml)
+    plan = {st.name: st for st in plan_pipeline(Survey.load(tmp_path / "s"))}
+    assert "adjust-gps" not in plan and plan["adjust-gnss"].skip_reason is None
+    assert plan["adjust-gnss"].params == {"control": None, "derived": False, "eo_constraints": True}
+    assert plan["assess-gnss"].skip_reason == "control set gnss has no check points"
