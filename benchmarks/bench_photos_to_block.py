@@ -313,6 +313,7 @@ def main() -> None:
         print(f"seed {seed}: {r['status']}, chi2 {'accepted' if r['chi2_pass'] else 'rejected'}, "
               f"max |d| {r['max_d_m']:.3f} m {r['max_d_deg']:.4f} deg, matched >3 px {r['over3']}, "
               f"named of them {r['named_over3']}", flush=True)
+        print(format_table([r]).splitlines()[-1], flush=True)   # the row now: a long run shows its seeds
     print(format_table(rows))
     print(f"uptime: {os.popen('uptime').read().strip()}")
 
