@@ -35,7 +35,7 @@ from .runner import (
 from ..stages import adjust, assess, camera, compare, extract, mapping, match, products, report, selfcal, thesis
 from ..stages.report import results
 
-__all__ = ["FROM_SURVEY", "plan_pipeline", "run_pipeline"]
+__all__ = ["FROM_SURVEY", "GNSS_RUN", "plan_pipeline", "run_pipeline"]
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +47,8 @@ def _survey_files(survey: Any, *, lidar: bool = True) -> list[Path]:
 
 #: default of ``scale`` / ``contour_interval_m``: take them from survey.toml [assessment]
 FROM_SURVEY = "survey"
+#: the run of a survey without control set whose photos.csv carries sd_X0.. (stage adjust-gnss)
+GNSS_RUN = "gnss"
 
 
 def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | None | str = FROM_SURVEY,
@@ -93,9 +95,11 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     if why_no_match is None:
         stages.append(Stage("match", "match", match.run, inputs=lambda ctx: [*files, *match.image_files(survey)],
                             description="tie points from the photos (SIFT, guided matching)"))
-    has_pixels = bool(np.isfinite(survey.image_points.pixel_px).all(axis=1).any()) or why_no_match is None
+    own_pixels = bool(np.isfinite(survey.image_points.pixel_px).all(axis=1).any())
+    has_pixels = own_pixels or why_no_match is None
+    after_match = ("match",) if why_no_match is None else ()   # a failed match skips what adjusts its table
     stages.append(Stage(
-        "camera", "camera", camera.run, inputs=_after_match(files),
+        "camera", "camera", camera.run, inputs=_after_match(files), requires=() if own_pixels else after_match,
         skip_reason=None if has_pixels else "image_points has no pixel coordinates (col_px, row_px)",
         description="interior orientation (eq. 01-07)"))
 
@@ -127,18 +131,26 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
             raise SurveyError(f"{survey.files.get('control_sets', survey.toml_path)}: control sets "
                               f"{other!r} and {name!r} would share the output folder "
                               f"adjust-{safe_name(name)}; rename one (letters, digits, _ . - are kept)")
+    # photos.csv sd_X0.. (GNSS/IMU): weighted constraints of every run; with no control set, the datum
+    eo = {"eo_constraints": True} if any(ph.sd_position_m is not None or ph.sd_attitude_deg is not None
+                                         for ph in survey.photos) else {}
+    gnss_only = not runs and bool(eo)
+    if gnss_only:
+        runs.append((GNSS_RUN, False))
     if not runs:
         stages.append(Stage("adjust", "adjust", adjust.run,
-                            skip_reason="the survey defines no control set (control_sets.csv)"))
+                            skip_reason="the survey defines no control set (control_sets.csv) and photos.csv "
+                                        "no sd_X0.. (GNSS/IMU orientations as the datum)"))
     for name, derived in runs:
         stages.append(Stage(
             f"adjust-{name}", f"adjust-{safe_name(name)}", adjust.run,
-            requires=("extract",) if derived else (),
+            requires=(("extract",) if derived else ()) + after_match,
             inputs=_after_match(files),
-            params={"control": name, "derived": derived},
-            description=f"bundle adjustment, control set {name}"))
+            params={"control": None if gnss_only else name, "derived": derived, **eo},
+            description=f"bundle adjustment, control set {name}" if not gnss_only else
+            "bundle adjustment, the GNSS/IMU orientations of photos.csv as the datum (no control set)"))
     for name, derived in runs:
-        n_check = None if derived else len(survey.control_sets[name].check)
+        n_check = None if derived else 0 if gnss_only else len(survey.control_sets[name].check)
         stages.append(Stage(
             f"assess-{name}", f"assess-{safe_name(name)}", assess.run,
             requires=(f"adjust-{name}",) + (("extract",) if derived else ()),

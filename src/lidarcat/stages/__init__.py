@@ -39,7 +39,8 @@ REGISTRY: tuple[tuple[str, str], ...] = (
     ("match", "tie points from the photos (survey with images and too few tie points)"),
     ("camera", "interior orientation, pixel -> corrected photo coordinates"),
     ("extract", "LiDAR roof vertices -> control points (survey with lidar + jobs)"),
-    ("adjust-SET", "bundle adjustment for every control set (thesis: gps, lidar)"),
+    ("adjust-SET", "bundle adjustment per control set (thesis: gps, lidar); photos.csv sd_X0..: GNSS/IMU "
+                   "constraints, the datum of adjust-gnss when there is no set"),
     ("assess-SET", "check-point accuracy of each run"),
     ("compare", "differences of the runs: orientations, points free in both"),
     ("thesis", "the thesis's printed section 4.4 beside this run (embedded block)"),

@@ -87,7 +87,8 @@ def run(ctx: Context, tmp: Path) -> dict:
         ctx.progress(min(iteration, 49), 50)
 
     # data snooping, report only: the run keeps every observation and names the blunders
-    sres = adjust(survey, tmp, control=par["control"], snooping="report", progress=prog)
+    sres = adjust(survey, tmp, control=par["control"], snooping="report", progress=prog,
+                  eo_constraints=bool(par.get("eo_constraints")))  # photos.csv sd_X0..: GNSS/IMU
     result = sres.result
     summ = result.summary()
     if not result.success:

@@ -1,0 +1,322 @@
+"""From photos to an oriented block, end to end (issue 28, the first acceptance line): one command, one table.
+
+Run:  python benchmarks/bench_photos_to_block.py [--seeds 0,1,2] [--per-strip 12] [--size 1000 750]
+      [--init] [--workers 1] [--keep DIR]
+
+Per seed, a realistic synthetic block (:func:`lidarcat.synthetic.aerial.aerial_survey`: two strips,
+60 %/30 % overlap, rendered photos, approximate orientation 2 m / 0.5 deg off with those sds in
+photos.csv, 4 GPS points, LiDAR tiles) goes through the real commands, each a subprocess of
+``python -m lidarcat.cli.main`` (PYTHONPATH=src), with no hand-made observation file:
+
+1. (``--init``) ``lidarcat init NEW --images S/images --camera S/camera.toml --gnss gnss.csv
+   --gnss-crs EPSG:31982 --lidar 'S/lidar/*.laz'`` (the GNSS/IMU file holds photos.csv's approximate
+   orientation and sds); the GPS survey (ground_points.csv, control_sets.csv and the 4 points'
+   image measurements) is then added to the new folder as a user adds a GPS survey. Without
+   ``--init`` the aerial_survey folder is used directly.
+2. ``lidarcat match S -o OUT/match`` (tie points into S/image_points.csv).
+3. ``lidarcat adjust S --eo-constraints --snooping remove -o OUT/adjust`` (GNSS/IMU constraints and
+   the control set "gps").
+
+Truth is used only to score (never as a starting value):
+
+* an observation's error: the tie point's track is scored against its *reference* observation --
+  the one whose true ground point (:meth:`AerialSurvey.ground_point`), projected into the other
+  photos (:meth:`AerialSurvey.project`), agrees within 1 px with the most of the track's other
+  observations (ties: the smaller median). Every other observation's error is its distance to that
+  projection; the reference's own error is its distance to the projection of its best partner's
+  ground point. A two-ray mismatch thus counts both its observations as off.
+* "kept": the tie-point observations in the final adjustment (residuals.csv, minus blunders.csv
+  rows removed); ">3 px not named": kept, more than 3 px off and not in blunders.csv.
+* residual RMS: per coordinate over the kept tie-point observations, px.
+* EO: |adjusted - true| / sd per element (6 per photo) with the written sds (a priori variance
+  factor 1, as ``lidarcat adjust`` writes them) and with them times sigma0 (what
+  ``--variance-factor a_posteriori`` writes); "rms z" is the root mean square of the normalised
+  errors, the empirical / predicted ratio (honest: 0.8-1.25).
+
+Columns: photos, tie points, observations, share within 1 px (all matched), kept share within
+1 px, kept > 3 px not named, named (blunders), residual RMS px, sigma0, max |z| and rms z
+(a priori / a posteriori), seconds per stage, load (``uptime``'s 1-minute average before/after).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import csv  # noqa: E402
+import json  # noqa: E402
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+__all__ = ["run_block", "score_tracks", "format_table"]
+
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / "src"
+EO_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+
+
+def _load() -> float:
+    return os.getloadavg()[0]
+
+
+def cli(*args: str) -> tuple[float, str]:
+    """Run ``python -m lidarcat.cli.main ARGS``; (seconds, stdout). Raises on a non-zero exit but 3."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")])}
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "lidarcat.cli.main", *args], capture_output=True, text=True,
+                       env=env, cwd=ROOT)
+    dt = time.perf_counter() - t0
+    if p.returncode not in (0, 3):   # 3: converged, global test rejected (reported in the table)
+        raise RuntimeError(f"lidarcat {' '.join(args)} exited {p.returncode}:\n{p.stdout[-3000:]}\n"
+                           f"{p.stderr[-3000:]}")
+    return dt, p.stdout
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def score_tracks(s: Any, photo: np.ndarray, point: np.ndarray, colrow_px: np.ndarray) -> np.ndarray:
+    """Truth error (px) of every tie-point observation (see the module docstring); inf = sees nothing.
+
+    Parameters
+    ----------
+    s : AerialSurvey
+    photo, point : (N,) str
+        Photo and tie-point id of each observation.
+    colrow_px : (N, 2) float
+        Observed pixel (col, row).
+
+    Returns
+    -------
+    (N,) float
+    """
+    n = len(photo)
+    ground = np.full((n, 3), np.nan)
+    for p in np.unique(photo):
+        k = photo == p
+        ground[k] = s.ground_point(str(p), colrow_px[k])
+    _, track = np.unique(point, return_inverse=True)
+    order = np.argsort(track, kind="stable")
+    # every ordered pair (i, j) of observations of one track, i != j: i scored from j's ground point
+    ii, jj = [], []
+    starts = np.flatnonzero(np.r_[True, np.diff(track[order]) != 0])
+    ends = np.r_[starts[1:], n]
+    sizes = ends - starts
+    for m in np.unique(sizes):
+        blocks = order[starts[sizes == m][:, None] + np.arange(m)]          # (T, m)
+        a, b = np.nonzero(~np.eye(m, dtype=bool))
+        ii.append(blocks[:, a].ravel())
+        jj.append(blocks[:, b].ravel())
+    i = np.concatenate(ii)
+    j = np.concatenate(jj)
+    e = np.full(len(i), np.inf)
+    for p in np.unique(photo[i]):
+        k = photo[i] == p
+        proj = s.project(str(p), ground[j[k]])
+        d = np.hypot(*(proj - colrow_px[i[k]]).T)
+        e[k] = np.where(np.isfinite(d), d, np.inf)
+    # the reference of each track: most partners within 1 px, then the smallest median
+    agree = np.bincount(j, weights=(e <= 1.0), minlength=n)
+    med = np.full(n, np.inf)
+    srt = np.lexsort((e, j))
+    js, es = j[srt], e[srt]
+    first = np.searchsorted(js, np.arange(n))
+    cnt = np.bincount(js, minlength=n)
+    has = cnt > 0
+    med[has] = es[first[has] + (cnt[has] - 1) // 2]
+    key = np.lexsort((med, -agree, track))                                  # best first within a track
+    ref_of_track = np.full(track.max() + 1, -1)
+    ref_of_track[track[key][::-1]] = key[::-1]                              # first occurrence wins
+    ref = ref_of_track[track]
+    err = np.full(n, np.inf)
+    from_ref = j == ref[i]
+    err[i[from_ref]] = e[from_ref]
+    is_ref = np.arange(n) == ref
+    best = np.full(n, np.inf)
+    np.minimum.at(best, i, e)
+    err[is_ref] = best[is_ref]
+    return err
+
+
+def _gps_into(init_dir: Path, survey_dir: Path) -> None:
+    """Add the GPS survey of an aerial_survey folder to a folder that ``lidarcat init`` wrote."""
+    for name in ("ground_points.csv", "control_sets.csv"):
+        shutil.copy(survey_dir / name, init_dir / name)
+    ctrl = _rows(survey_dir / "image_points.csv")
+    with open(init_dir / "image_points.csv", "a", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        for r in ctrl:
+            w.writerow([r["photo"], r["point"], r["col_px"], r["row_px"]])
+    toml = (init_dir / "survey.toml").read_text(encoding="utf-8")
+    toml = toml.replace('[files]\n', '[files]\nground_points = "ground_points.csv"\n'
+                        'control_sets = "control_sets.csv"\n', 1)
+    toml = toml.replace('[survey]\n', '[survey]\ndefault_control = "gps"\n', 1)
+    adj = (survey_dir / "survey.toml").read_text(encoding="utf-8")
+    sd = [ln for ln in adj.splitlines() if ln.startswith("image_sd_mm")]
+    toml += '\n[adjustment]\nobservations = "pixel"\n' + "".join(ln + "\n" for ln in sd)
+    (init_dir / "survey.toml").write_text(toml, encoding="utf-8")
+
+
+def run_block(work: Path, seed: int, *, per_strip: int = 12, size: tuple[int, int] = (1000, 750),
+              via_init: bool = False, match_args: tuple[str, ...] = (),
+              adjust_args: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Render, (init), match, adjust and score one block; one table row (dict)."""
+    from lidarcat.synthetic.aerial import aerial_survey
+
+    work = Path(work)
+    row: dict[str, Any] = {"seed": seed, "load_before": _load()}
+    t0 = time.perf_counter()
+    s = aerial_survey(work / "survey", n_strips=2, photos_per_strip=per_strip, forward_overlap=0.6,
+                      side_overlap=0.3, image_size_px=size, approx_position_sd_m=2.0,
+                      approx_angle_sd_deg=0.5, n_gps_points=4, seed=seed)
+    row["s_render"] = time.perf_counter() - t0
+    folder = work / "survey"
+    if via_init:
+        ph = _rows(folder / "photos.csv")
+        gnss = work / "gnss.csv"
+        with open(gnss, "w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(["photo", "E", "N", "h", "omega", "phi", "kappa", "sd_E", "sd_N", "sd_h",
+                        "sd_omega", "sd_phi", "sd_kappa"])
+            for r in ph:
+                w.writerow([r[c] for c in ("photo", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg",
+                                           "sd_X0", "sd_Y0", "sd_Z0", "sd_omega_deg", "sd_phi_deg",
+                                           "sd_kappa_deg")])
+        new = work / "block"
+        row["s_init"], _ = cli("init", str(new), "--images", str(folder / "images"), "--camera",
+                               str(folder / "camera.toml"), "--gnss", str(gnss), "--gnss-crs", "EPSG:31982",
+                               "--lidar", str(folder / "lidar" / "*.laz"))
+        _gps_into(new, folder)
+        folder = new
+    row["s_match"], _ = cli("match", str(folder), "-o", str(work / "match"), *match_args)
+    row["s_adjust"], _ = cli("adjust", str(folder), "--eo-constraints", "--snooping", "remove",
+                             "-o", str(work / "adjust"), *adjust_args)
+    row["load_after"] = _load()
+    row.update(score_block(s, folder, work / "adjust"))
+    return row
+
+
+def score_block(s: Any, folder: Path, adjust_dir: Path, prefix: str = "tp") -> dict[str, Any]:
+    """The table's scores of one matched and adjusted block (see the module docstring)."""
+    obs = [r for r in _rows(folder / "image_points.csv") if r["point"].startswith(prefix)]
+    photo = np.array([r["photo"] for r in obs])
+    point = np.array([r["point"] for r in obs])
+    colrow = np.array([[float(r["col_px"]), float(r["row_px"])] for r in obs])
+    err = score_tracks(s, photo, point, colrow)
+    key = np.char.add(np.char.add(photo, "\t"), point)
+    res = [r for r in _rows(adjust_dir / "residuals.csv") if r["kind"] == "image" and r["point"].startswith(prefix)]
+    named_rows = [r for r in _rows(adjust_dir / "blunders.csv") if r["kind"] == "image"] \
+        if (adjust_dir / "blunders.csv").exists() else []
+    named = {f"{r['photo']}\t{r['point']}" for r in named_rows}
+    removed = {f"{r['photo']}\t{r['point']}" for r in named_rows if r["removed"] == "True"}
+    res_key = np.array([f"{r['photo']}\t{r['point']}" for r in res])
+    kept = np.isin(key, res_key) & ~np.isin(key, list(removed))
+    pixel_mm = s.camera.pixel_size_x_mm if hasattr(s.camera, "pixel_size_x_mm") else None
+    if pixel_mm is None:
+        pixel_mm = float(next(ln.split("=")[1] for ln in (folder / "camera.toml").read_text().splitlines()
+                              if ln.startswith("pixel_size_x_mm")))
+    keep_res = np.array([[float(r["vx_mm"]), float(r["vy_mm"])] for r in res
+                         if f"{r['photo']}\t{r['point']}" not in removed]) / pixel_mm
+    summary = json.loads((adjust_dir / "summary.json").read_text(encoding="utf-8"))
+    eop = {r["photo"]: r for r in _rows(adjust_dir / "eop.csv")}
+    truth = np.asarray(s.true_eo, float).copy()
+    truth[:, 3:] = np.degrees(truth[:, 3:])
+    est = np.array([[float(eop[p][c]) for c in EO_NAMES] for p in s.photo_ids])
+    sd = np.array([[float(eop[p]["sd_" + c]) for c in EO_NAMES] for p in s.photo_ids])
+    d = est - truth
+    d[:, 3:] = (d[:, 3:] + 180.0) % 360.0 - 180.0
+    z = d / sd
+    sigma0 = float(np.sqrt(summary["sigma0_sq"]))
+    return {
+        "photos": len(s.photo_ids), "tie_points": len(np.unique(point)), "observations": len(obs),
+        "within1": float(np.mean(err <= 1.0)), "over3": int(np.sum(err > 3.0)),
+        "kept": int(kept.sum()), "kept_within1": float(np.mean(err[kept] <= 1.0)),
+        "kept_over3_unnamed": int(np.sum(kept & (err > 3.0) & ~np.isin(key, list(named)))),
+        "named": len(named_rows), "named_over3": int(np.sum(np.isin(key, list(named)) & (err > 3.0))),
+        "rms_px": float(np.sqrt(np.mean(keep_res ** 2))), "sigma0": sigma0,
+        "status": summary["status"], "chi2_pass": bool(summary["chi2_pass"]),
+        "z_apriori": z, "z_aposteriori": z / sigma0,
+        "max_z": float(np.abs(z).max()), "rms_z": float(np.sqrt(np.mean(z ** 2))),
+        "max_z_post": float(np.abs(z / sigma0).max()), "rms_z_post": float(np.sqrt(np.mean((z / sigma0) ** 2))),
+        "max_d_m": float(np.abs(d[:, :3]).max()), "max_d_deg": float(np.abs(d[:, 3:]).max()),
+    }
+
+
+def format_table(rows: list[dict[str, Any]]) -> str:
+    """The per-seed rows and the pooled row as a Markdown table."""
+    head = ("| seed | photos | tie pts | obs | within 1 px | kept | kept within 1 px | kept >3 px not named "
+            "| named | RMS px | sigma0 | max abs z / rms z (a priori) | (a posteriori) | s render | s init "
+            "| s match | s adjust | load |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for r in rows:
+        lines.append(
+            f"| {r['seed']} | {r['photos']} | {r['tie_points']} | {r['observations']} | {100 * r['within1']:.2f} % "
+            f"| {r['kept']} | {100 * r['kept_within1']:.2f} % | {r['kept_over3_unnamed']} | {r['named']} "
+            f"| {r['rms_px']:.3f} | {r['sigma0']:.3f} | {r['max_z']:.2f} / {r['rms_z']:.2f} "
+            f"| {r['max_z_post']:.2f} / {r['rms_z_post']:.2f} | {r['s_render']:.0f} | {r.get('s_init', 0):.0f} "
+            f"| {r['s_match']:.0f} | {r['s_adjust']:.0f} | {r['load_before']:.1f}/{r['load_after']:.1f} |")
+    if len(rows) > 1:
+        za = np.concatenate([r["z_apriori"].ravel() for r in rows])
+        zp = np.concatenate([r["z_aposteriori"].ravel() for r in rows])
+        obs = sum(r["observations"] for r in rows)
+        kept = sum(r["kept"] for r in rows)
+        w1 = sum(r["within1"] * r["observations"] for r in rows) / obs
+        k1 = sum(r["kept_within1"] * r["kept"] for r in rows) / kept
+        rms = np.sqrt(sum(r["rms_px"] ** 2 * r["kept"] for r in rows) / kept)
+        lines.append(
+            f"| pooled | {sum(r['photos'] for r in rows)} | {sum(r['tie_points'] for r in rows)} | {obs} "
+            f"| {100 * w1:.2f} % | {kept} | {100 * k1:.2f} % | {sum(r['kept_over3_unnamed'] for r in rows)} "
+            f"| {sum(r['named'] for r in rows)} | {rms:.3f} | - | {np.abs(za).max():.2f} / "
+            f"{np.sqrt(np.mean(za ** 2)):.2f} | {np.abs(zp).max():.2f} / {np.sqrt(np.mean(zp ** 2)):.2f} "
+            f"| {sum(r['s_render'] for r in rows):.0f} | {sum(r.get('s_init', 0) for r in rows):.0f} "
+            f"| {sum(r['s_match'] for r in rows):.0f} | {sum(r['s_adjust'] for r in rows):.0f} | - |")
+        per = np.sqrt(np.mean(za.reshape(-1, 6) ** 2, axis=0))
+        lines.append("\nrms z per element (a priori): " + ", ".join(f"{n} {v:.2f}" for n, v in zip(EO_NAMES, per)))
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--per-strip", type=int, default=12)
+    ap.add_argument("--size", type=int, nargs=2, default=(1000, 750))
+    ap.add_argument("--init", action="store_true", help="go through `lidarcat init` (else the folder directly)")
+    ap.add_argument("--workers", type=int, default=1, help="lidarcat match --workers")
+    ap.add_argument("--keep", type=Path, default=None, help="keep the folders here")
+    a = ap.parse_args()
+    print(f"uptime: {os.popen('uptime').read().strip()}")
+    rows = []
+    for seed in (int(x) for x in a.seeds.split(",")):
+        work = (a.keep / f"seed{seed}") if a.keep else Path(tempfile.mkdtemp(prefix=f"p2b{seed}-"))
+        if work.exists():
+            shutil.rmtree(work)
+        work.mkdir(parents=True)
+        try:
+            rows.append(run_block(work, seed, per_strip=a.per_strip, size=tuple(a.size), via_init=a.init,
+                                  match_args=("--workers", str(a.workers))))
+        finally:
+            if a.keep is None:
+                shutil.rmtree(work, ignore_errors=True)
+        r = rows[-1]
+        print(f"seed {seed}: {r['status']}, chi2 {'accepted' if r['chi2_pass'] else 'rejected'}, "
+              f"max |d| {r['max_d_m']:.3f} m {r['max_d_deg']:.4f} deg, matched >3 px {r['over3']}, "
+              f"named of them {r['named_over3']}", flush=True)
+        print(format_table([r]).splitlines()[-1], flush=True)   # the row now: a long run shows its seeds
+    print(format_table(rows))
+    print(f"uptime: {os.popen('uptime').read().strip()}")
+
+
+if __name__ == "__main__":
+    main()
