@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarcat.bundle.additional import AdditionalParameterError, SelfCalibration, parse_parameters
+from lidarcat.bundle.additional import GRUEN_CAVEAT, AdditionalParameterError, SelfCalibration, parse_parameters
 from lidarcat.bundle.selfcal import adjust_with_parameters
 from lidarcat.geometry.apsets import parameter_set
 from lidarcat.geometry.camera import Camera
@@ -71,12 +71,15 @@ def test_unknown_set_name_is_one_line_listing_the_names():
         parse_parameters("ebner,g5")
 
 
-def test_ebner_jacobian_matches_finite_differences():
+@pytest.mark.parametrize("params, extra", [("x0,y0,ebner", TRUE_EBNER),
+                                           ("x0,y0,k1,k4,b1,b2", [2e-5, 1e-13, 3e-4, -2e-4]),
+                                           ("x0,y0,g1,g7,g27,g44", [0.004, -0.003, 0.002, 0.001])])
+def test_set_jacobians_match_finite_differences(params, extra):
     """The extra columns and the x0/y0 columns with dA/dx, against differences of the effective
-    observations at a non-zero theta."""
+    observations at a non-zero theta (Ebner; Brown's k4, b1, b2; terms of Grün's set)."""
     problem, cam = ebner_block(0, noise=False)
-    comp = SelfCalibration({"cam": cam}, ["cam"] * problem.n_photos, "x0,y0,ebner").bind(problem)
-    theta = np.concatenate([[0.01, -0.02], TRUE_EBNER])
+    comp = SelfCalibration({"cam": cam}, ["cam"] * problem.n_photos, params).bind(problem)
+    theta = np.concatenate([[0.01, -0.02], extra])         # extra: every parameter after x0, y0
 
     class _S:  # the state the jacobians read (c is not switched on)
         pass
@@ -87,12 +90,11 @@ def test_ebner_jacobian_matches_finite_differences():
         return f["xy_mm"]
 
     (_, rows, J, cols), = comp.jacobians(theta, _S())
-    h = 1e-6
     for a in range(comp.n):
         d = np.zeros(comp.n)
-        d[a] = h
+        h = d[a] = 1e-6 / (cam.frame_size_mm[0] / 2) ** (2 * (comp.params[a] == "k1") + 8 * (comp.params[a] == "k4"))
         num = -(obs(theta + d) - obs(theta - d)) / (2 * h)     # v = x_pred - x_fotc
-        assert np.allclose(J[:, :, a], num, atol=1e-7, rtol=1e-6), comp.names[a]
+        assert np.allclose(J[:, :, a], num, atol=1e-7 * max(1.0, np.abs(num).max()), rtol=1e-6), comp.names[a]
 
 
 def test_ebner_distortion_recovered_within_3_sd_and_residuals_at_noise(ebner_solved):
@@ -128,3 +130,44 @@ def test_ebner_distortion_recovered_within_3_sd_and_residuals_at_noise(ebner_sol
     assert abs(rms["on"] / rms["ref"] - 1) < 0.03, rms
     assert rms["off"] > 1.15 * rms["ref"], rms
     assert res.bundle.chi2["passed"] and not res.without.chi2["passed"]
+
+
+def test_gruen_is_caveated_in_the_warnings():
+    problem, cam = ebner_block(0)
+    res = adjust_with_parameters(problem, [SelfCalibration({"cam": cam}, ["cam"] * problem.n_photos, "gruen")])
+    assert len(res.names) == 44
+    assert GRUEN_CAVEAT in res.warnings() and GRUEN_CAVEAT in res.summary()["warnings"]
+    assert GRUEN_CAVEAT.startswith("the gruen set's standard deviations are too small")
+
+
+def test_focal_length_against_flying_height_says_why():
+    """Flat terrain, nadir, no GNSS: c trades against Z0 and the warning gives the relief ratio."""
+    from lidarcat.synthetic.block import selfcal_block
+    b = selfcal_block(5, n_strips=2, photos_per_strip=6, gnss_sd_m=None)
+    p = b.problem
+    res = adjust_with_parameters(p, [SelfCalibration({"cam": b.camera}, ["cam"] * p.n_photos, "c")])
+    t = res.tests()[0]
+    assert not t["determinable"] and t["max_correlation_eo"]["parameter"] == "Z0"
+    h = np.asarray(res.bundle.points_m)[:, 2]
+    rel = np.std(h) / (np.mean(np.asarray(res.bundle.eo_params)[:, 2]) - np.mean(h))
+    assert t["why"].startswith("c scales the image as the flying height does and the terrain relief (sd of "
+                               f"the point heights) is {rel:.1%} of the flying height")
+    assert rel < 0.05
+    assert res.warnings()[0].endswith("Why: " + t["why"])
+
+
+def test_cli_adjust_self_calibrate_ebner(tmp_path):
+    import json
+    from click.testing import CliRunner
+    from lidarcat.cli.main import cli
+    r = CliRunner().invoke(cli, ["adjust", "--self-calibrate", "ebner", "-o", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert sorted(s["additional_parameters"]) == sorted(f"dcs14n.e{i}" for i in range(1, 13))
+    assert all(t["unit"] == "mm" and t["prior_sd"] is None for t in s["additional_parameters"].values())
+    assert "dcs14n.e12" in r.output
+    r = CliRunner().invoke(cli, ["adjust", "--self-calibrate", "c,x0,y0,ebnr", "-o", str(tmp_path / "x")])
+    assert r.exit_code == 2
+    lines = [ln for ln in r.output.splitlines() if "unknown self-calibration parameter" in ln]
+    assert len(lines) == 1 and "'ebnr'" in lines[0] and "the sets thesis, brown, ebner, gruen" in lines[0]
+    assert not (tmp_path / "x").exists()

@@ -70,7 +70,7 @@ from ..geometry.camera import Camera
 from ..errors import LidarcatError
 
 __all__ = ["IO_PARAMETERS", "IO_UNITS", "SelfCalibration", "GnssLineOffsets", "parse_parameters",
-           "extra_parameter_set", "AdditionalParameterError"]
+           "extra_parameter_set", "GRUEN_CAVEAT", "AdditionalParameterError"]
 
 
 class AdditionalParameterError(LidarcatError, ValueError):
@@ -87,6 +87,11 @@ _FIELD: dict[str, str] = {"c": "focal_length_mm", "x0": "principal_point_x_mm",
                           "y0": "principal_point_y_mm", "k1": "k1", "k2": "k2", "k3": "k3",
                           "p1": "p1", "p2": "p2"}
 
+
+#: the warning that goes with Grün's set (its sds are not honest yet: docs/cameras.md, "What remains")
+GRUEN_CAVEAT = ("the gruen set's standard deviations are too small: in simulation (docs/cameras.md) its x-terms "
+                "odd in u (g1, g7, g11, g27, g31, g41) scatter 1.4-2.0 times their sd; read its sds and t-tests "
+                "as optimistic (ebner's are honest)")
 
 #: the set each extra (non-IO) parameter belongs to: k4, b1, b2 (brown), e1-e12 (ebner), g1-g44 (gruen)
 _EXTRA_SET: dict[str, str] = {q: s.name for s in PARAMETER_SETS.values() for q in s.extra}
@@ -211,6 +216,7 @@ class _BoundIO:
         self.aps = extra_parameter_set(self.params)
         self.n_io = m - (len(self.aps.extra) if self.aps else 0)
         self.b_mm = [self.aps.scale_mm(*cam.frame_size_mm) if self.aps else 1.0 for cam in self.cams]
+        self.notes = [GRUEN_CAVEAT] if self.aps is not None and self.aps.name == "gruen" else []
         units = {**IO_UNITS, **(self.aps.units if self.aps else {})}
         self.names = [f"{cam.id}.{q}" for cam in self.cams for q in self.params]
         self.units = [units[q] for _ in self.cams for q in self.params]

@@ -279,6 +279,11 @@ class SelfCalResult:
         ``u_j`` of the module docstring: ``Cov(p_j, g) = u_j^T cov`` and the
         rank-k term of the joint point covariance, ``Cov(p_a, p_b) += u_a^T cov u_b``.
     frame_offsets : tuple of FrameOffset
+    explainers : tuple of callables
+        ``explain(name, partner, eo, points_m, eo_params) -> str | None`` of the components
+        (:meth:`why`: the reason a parameter cannot be told from its partner).
+    notes : tuple of str
+        Warnings of the components themselves (the ``gruen`` set's optimistic sds).
     alpha : float
         Level of the significance tests.
     """
@@ -299,6 +304,7 @@ class SelfCalResult:
     alpha: float = 0.05
     determinability_limit: float = 0.95
     explainers: tuple = ()
+    notes: tuple = ()
 
     def why(self, name: str, partner: str, eo: bool) -> str:
         """Why *name* cannot be told from *partner* (an exterior-orientation parameter name when
@@ -404,6 +410,7 @@ class SelfCalResult:
         or singular normal equations)."""
         out = [f"{self.singular}; the values written are those of the last iteration, without "
                "precision"] if self.singular else []
+        out += list(self.notes)
         for t in self.tests():
             if not t["determinable"]:
                 e, a = t["max_correlation_eo"], t["max_correlation_additional"]
@@ -639,6 +646,7 @@ def adjust_with_parameters(
         eo_correlation=np.nan_to_num(eo_corr), point_coupling=u, singular=singular, alpha=alpha,
         determinability_limit=determinability_limit,
         explainers=tuple(b.explain for b in gl.parts if hasattr(b, "explain")),
+        notes=tuple(dict.fromkeys(n for b in gl.parts for n in getattr(b, "notes", ()))),
         frame_offsets=tuple(c for c in components if isinstance(c, FrameOffset)))
     for w in out.warnings():
         log.warning(w)
