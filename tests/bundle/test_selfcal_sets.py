@@ -171,3 +171,22 @@ def test_cli_adjust_self_calibrate_ebner(tmp_path):
     lines = [ln for ln in r.output.splitlines() if "unknown self-calibration parameter" in ln]
     assert len(lines) == 1 and "'ebnr'" in lines[0] and "the sets thesis, brown, ebner, gruen" in lines[0]
     assert not (tmp_path / "x").exists()
+
+
+def test_survey_toml_parameter_set(tmp_path):
+    import shutil
+    from lidarcat.errors import SurveyError
+    from lidarcat.survey.folder import Survey, thesis_survey_path
+    from lidarcat.survey.selfcal import self_calibration_settings
+    folder = tmp_path / "s"
+    shutil.copytree(thesis_survey_path(), folder)
+    toml = folder / "survey.toml"
+    base = toml.read_text()
+    toml.write_text(base + '\n[self_calibration]\nparameters = "c,x0,y0,ebner"\n')
+    st = self_calibration_settings(Survey.load(folder))
+    assert st.parameters == ("c", "x0", "y0") + tuple(f"e{i}" for i in range(1, 13))
+    toml.write_text(base + '\n[self_calibration]\nparameters = "ebner,g3"\n')
+    n = len(base.splitlines()) + 3
+    with pytest.raises(SurveyError, match=rf"survey.toml:{n}: field 'parameters': self-calibration: the sets "
+                                          "'ebner' and 'gruen' cannot be combined"):
+        self_calibration_settings(Survey.load(folder))
