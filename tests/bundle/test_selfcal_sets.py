@@ -207,3 +207,19 @@ def test_ebner_sds_honest_over_20_seeds():
     n = np.size(z)
     assert stats.chi2(n).ppf(0.0005) < q < stats.chi2(n).ppf(0.9995), (q, n)
     assert np.abs(z).max() < 4
+
+
+def test_why_of_two_radial_terms_and_of_the_gruen_grid():
+    """Thesis block: with brown, k3 and k4 trade (successive powers of r); with gruen the grid is
+    [-2, 2] and the shorter side of the 23.7 x 35.6 mm frame spans only about u +-1.3 of it."""
+    from lidarcat.survey.selfcal import selfcal_adjust
+    _, res = selfcal_adjust(self_calibrate="brown")
+    t = {x["name"]: x for x in res.tests()}
+    assert not t["dcs14n.k4"]["determinable"] and t["dcs14n.k4"]["max_correlation_additional"]["parameter"] == "dcs14n.k3"
+    assert t["dcs14n.k4"]["why"].startswith("over the measured photo coordinates (up to 21.3 mm from the centre; "
+                                            "the frame corner is at 21.4 mm) the corrections of k4 and k3 are "
+                                            "nearly proportional; fix one of them")
+    _, res = selfcal_adjust(self_calibrate="gruen")
+    w = [m for m in res.warnings() if "Why: the gruen polynomials" in m]
+    assert w and all("orthogonal over the grid u, v in [-2, 2] (b = 8.89 mm), but the measured photo "
+                     "coordinates span u -1.25 .. +1.30" in m for m in w)

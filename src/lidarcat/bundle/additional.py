@@ -265,16 +265,20 @@ class _BoundIO:
         other = partner.split(".")[-1] if partner in self.names else None
         if other is None:
             return None
-        if self.aps is not None and (q in self.aps.extra or other in self.aps.extra):
+        if self.aps is not None and self.aps.grid and (q in self.aps.extra or other in self.aps.extra):
             b = self.b_mm[k]
             w, hgt = cam.frame_size_mm
-            return (f"the {self.aps.name} polynomials are orthogonal over the grid u, v in [-1, 1] (b = {b:.2f} mm), "
+            g = (self.aps.grid - 1) // 2
+            return (f"the {self.aps.name} polynomials are orthogonal over the grid u, v in [-{g}, {g}] "
+                    f"(b = {b:.2f} mm), "
                     f"but the measured photo coordinates span u {lo[0] / b:+.2f} .. {hi[0] / b:+.2f}, "
                     f"v {lo[1] / b:+.2f} .. {hi[1] / b:+.2f} (frame {w:.1f} x {hgt:.1f} mm): over that area "
                     f"{q} and {other} nearly coincide; fix one of them or measure points to the frame's edges")
         r_max = float(np.hypot(np.maximum(np.abs(lo), np.abs(hi))[0], np.maximum(np.abs(lo), np.abs(hi))[1]))
-        return (f"over the measured photo coordinates (up to {r_max:.1f} mm from the centre) the corrections of "
-                f"{q} and {other} are nearly proportional; fix one of them or measure points nearer the corners")
+        corner = float(np.hypot(*cam.frame_size_mm)) / 2
+        return (f"over the measured photo coordinates (up to {r_max:.1f} mm from the centre; the frame corner is at "
+                f"{corner:.1f} mm) the corrections of {q} and {other} are nearly proportional; fix one of them"
+                + (" or measure points nearer the corners" if r_max < 0.8 * corner else ""))
 
     def _camera(self, k: int, theta: np.ndarray) -> Camera:
         """Camera k with the corrections (refraction keeps the calibrated c)."""
