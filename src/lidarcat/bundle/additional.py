@@ -36,6 +36,22 @@ once from the problem's ``x_fotc`` by :meth:`lidarcat.geometry.camera.Camera.pho
 certificate's standard deviation as a weighted prior ``delta = 0 +- sd``; a
 parameter with no sd (or sd 0) is free.
 
+Named parameter sets (issue 27)
+-------------------------------
+``parameters`` may name a set of :mod:`lidarcat.geometry.apsets` (``thesis``, ``brown``,
+``ebner``, ``gruen``; alone or beside IO names, ``"c,x0,y0,ebner"``).  Its IO part is the above;
+its *extra* terms ``theta_e`` add a correction linear in them, ``A(x_fot; theta_e) = sum_i
+theta_i f_i(x_fot / b)`` (``b`` from the frame size), subtracted beside ``D``::
+
+    x_fotc = x_fot - D(x_fot) - A(x_fot; theta_e)
+    dv/dtheta_i = f_i(x_fot / b)
+    dv/d(x0)    = (I - dD/dx_fot - dA/dx_fot) e_x          (likewise y0)
+
+``gruen``'s sds are known to be optimistic (docs/cameras.md); the component carries
+:data:`GRUEN_CAVEAT` as a note the result repeats among its warnings.  ``explain`` gives the
+reason a parameter cannot be told from its most correlated partner (the relief ratio for ``c``
+against ``Z0``, the part of the set's grid the measurements span for two polynomial terms).
+
 GNSS flight-line offsets
 ------------------------
 Where camera positions are constrained by GNSS (``eo_constraint_*``), a line
@@ -54,7 +70,8 @@ effective-problem fields (a dict of arrays) for parameter values ``theta``;
 ``jacobians(theta, state)`` returns ``(kind, rows, J)`` with ``kind`` one of
 ``"obs"`` (image rows, J (r, 2, m)), ``"con"`` (point-constraint rows, (r, 3,
 m)) or ``"eo"`` (camera-constraint rows, (r, 6, m)), columns local to the
-component.
+component.  Optional: ``explain(name, partner, eo, points_m, eo_params) -> str | None`` and
+``notes`` (warnings of the component itself).
 """
 
 from __future__ import annotations
