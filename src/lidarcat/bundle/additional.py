@@ -36,6 +36,22 @@ once from the problem's ``x_fotc`` by :meth:`lidarcat.geometry.camera.Camera.pho
 certificate's standard deviation as a weighted prior ``delta = 0 +- sd``; a
 parameter with no sd (or sd 0) is free.
 
+Named parameter sets (issue 27)
+-------------------------------
+``parameters`` may name a set of :mod:`lidarcat.geometry.apsets` (``thesis``, ``brown``,
+``ebner``, ``gruen``; alone or beside IO names, ``"c,x0,y0,ebner"``).  Its IO part is the above;
+its *extra* terms ``theta_e`` add a correction linear in them, ``A(x_fot; theta_e) = sum_i
+theta_i f_i(x_fot / b)`` (``b`` from the frame size), subtracted beside ``D``::
+
+    x_fotc = x_fot - D(x_fot) - A(x_fot; theta_e)
+    dv/dtheta_i = f_i(x_fot / b)
+    dv/d(x0)    = (I - dD/dx_fot - dA/dx_fot) e_x          (likewise y0)
+
+``gruen``'s sds are known to be optimistic (docs/cameras.md); the component carries
+:data:`GRUEN_CAVEAT` as a note the result repeats among its warnings.  ``explain`` gives the
+reason a parameter cannot be told from its most correlated partner (the relief ratio for ``c``
+against ``Z0``, the part of the set's grid the measurements span for two polynomial terms).
+
 GNSS flight-line offsets
 ------------------------
 Where camera positions are constrained by GNSS (``eo_constraint_*``), a line
@@ -54,7 +70,8 @@ effective-problem fields (a dict of arrays) for parameter values ``theta``;
 ``jacobians(theta, state)`` returns ``(kind, rows, J)`` with ``kind`` one of
 ``"obs"`` (image rows, J (r, 2, m)), ``"con"`` (point-constraint rows, (r, 3,
 m)) or ``"eo"`` (camera-constraint rows, (r, 6, m)), columns local to the
-component.
+component.  Optional: ``explain(name, partner, eo, points_m, eo_params) -> str | None`` and
+``notes`` (warnings of the component itself).
 """
 
 from __future__ import annotations
@@ -65,11 +82,12 @@ from typing import Any
 
 import numpy as np
 
+from ..geometry.apsets import PARAMETER_SETS, ParameterSet
 from ..geometry.camera import Camera
 from ..errors import LidarcatError
 
 __all__ = ["IO_PARAMETERS", "IO_UNITS", "SelfCalibration", "GnssLineOffsets", "parse_parameters",
-           "AdditionalParameterError"]
+           "extra_parameter_set", "GRUEN_CAVEAT", "AdditionalParameterError"]
 
 
 class AdditionalParameterError(LidarcatError, ValueError):
@@ -87,30 +105,70 @@ _FIELD: dict[str, str] = {"c": "focal_length_mm", "x0": "principal_point_x_mm",
                           "p1": "p1", "p2": "p2"}
 
 
-def parse_parameters(text: str | Sequence[str]) -> tuple[str, ...]:
-    """Parameter names from ``"c,x0,y0,k1,k2"`` (or a sequence), validated, in :data:`IO_PARAMETERS` order.
+#: the warning that goes with Grün's set (its sds are not honest yet: docs/cameras.md, "What remains")
+GRUEN_CAVEAT = ("the gruen set's standard deviations are too small: in simulation (docs/cameras.md) its x-terms "
+                "odd in u (g1, g7, g11, g27, g31, g41) scatter 1.4-2.0 times their sd; read its sds and t-tests "
+                "as optimistic (ebner's are honest)")
 
-    ``"all"`` switches on every parameter.
+#: the set each extra (non-IO) parameter belongs to: k4, b1, b2 (brown), e1-e12 (ebner), g1-g44 (gruen)
+_EXTRA_SET: dict[str, str] = {q: s.name for s in PARAMETER_SETS.values() for q in s.extra}
+
+
+def parse_parameters(text: str | Sequence[str]) -> tuple[str, ...]:
+    """Parameter names from ``"c,x0,y0,k1,k2"``, set names (``"ebner"``, ``"c,x0,y0,ebner"``) or a sequence.
+
+    A set name of :data:`lidarcat.geometry.apsets.PARAMETER_SETS` (``thesis``, ``brown``,
+    ``ebner``, ``gruen``) stands for all its parameters; single extra parameters (``e3``,
+    ``k4``) are allowed too, all from one set.  The result is validated, the IO parameters in
+    :data:`IO_PARAMETERS` order, then the extras in their set's order.  ``"all"`` switches on
+    every IO parameter (the ``thesis`` set).
 
     >>> parse_parameters("k1, c,x0")
     ('c', 'x0', 'k1')
+    >>> parse_parameters("c,x0,y0,ebner")[:5]
+    ('c', 'x0', 'y0', 'e1', 'e2')
 
     Raises
     ------
     AdditionalParameterError
-        An unknown name (named, with the allowed ones), or an empty list.
+        An unknown name (named, with the allowed names and sets), extras of two sets, or an
+        empty list.
     """
     items = [s.strip().lower() for s in (text.split(",") if isinstance(text, str) else text)]
     items = [s for s in items if s]
     if items == ["all"]:
         return IO_PARAMETERS
-    bad = [s for s in items if s not in IO_PARAMETERS]
-    if bad:
-        raise AdditionalParameterError(f"unknown self-calibration parameter {bad[0]!r}; allowed: "
-                                       + ", ".join(IO_PARAMETERS) + " (or 'all')")
-    if not items:
-        raise AdditionalParameterError("no self-calibration parameter named; give e.g. c,x0,y0,k1")
-    return tuple(p for p in IO_PARAMETERS if p in items)
+    names: list[str] = []
+    for s in items:
+        if s in PARAMETER_SETS:
+            names += PARAMETER_SETS[s].parameters
+        elif s in IO_PARAMETERS or s in _EXTRA_SET:
+            names.append(s)
+        else:
+            raise AdditionalParameterError(
+                f"unknown self-calibration parameter {s!r}; allowed: " + ", ".join(IO_PARAMETERS)
+                + " (or 'all'), the sets " + ", ".join(PARAMETER_SETS) + ", or single terms of a set "
+                "(k4, b1, b2; e1-e12; g1-g44)")
+    if not names:
+        raise AdditionalParameterError("no self-calibration parameter named; give e.g. c,x0,y0,k1 or ebner")
+    sets = list(dict.fromkeys(_EXTRA_SET[q] for q in names if q in _EXTRA_SET))
+    if len(sets) > 1:
+        raise AdditionalParameterError(f"self-calibration: the sets {sets[0]!r} and {sets[1]!r} cannot be "
+                                       "combined (their corrections overlap); choose one")
+    extra = PARAMETER_SETS[sets[0]].extra if sets else ()
+    return tuple(p for p in IO_PARAMETERS if p in names) + tuple(q for q in extra if q in names)
+
+
+def extra_parameter_set(parameters: Sequence[str]) -> ParameterSet | None:
+    """The :class:`~lidarcat.geometry.apsets.ParameterSet` of the extra parameters among
+    *parameters* (parsed), reduced to those switched on; None when there are none."""
+    extra = [q for q in parameters if q in _EXTRA_SET]
+    if not extra:
+        return None
+    full = PARAMETER_SETS[_EXTRA_SET[extra[0]]]
+    idx = [full.extra.index(q) for q in extra]
+    return dataclasses.replace(full, extra=tuple(extra), coef=full.coef[idx],
+                               units={q: full.units[q] for q in extra})
 
 
 # ---------------------------------------------------------------------------
@@ -171,16 +229,23 @@ class _BoundIO:
         self.params = spec.parameters
         m = len(self.params)
         self.m = m
+        # the named set's own parameters (Ebner, Grün, Brown's k4/b1/b2): A(x_fot; theta) subtracted
+        self.aps = extra_parameter_set(self.params)
+        self.n_io = m - (len(self.aps.extra) if self.aps else 0)
+        self.b_mm = [self.aps.scale_mm(*cam.frame_size_mm) if self.aps else 1.0 for cam in self.cams]
+        self.notes = [GRUEN_CAVEAT] if self.aps is not None and self.aps.name == "gruen" else []
+        units = {**IO_UNITS, **(self.aps.units if self.aps else {})}
         self.names = [f"{cam.id}.{q}" for cam in self.cams for q in self.params]
-        self.units = [IO_UNITS[q] for _ in self.cams for q in self.params]
+        self.units = [units[q] for _ in self.cams for q in self.params]
         self.groups = [f"camera {cam.id}" for cam in self.cams for _ in self.params]
         sd = []
         for cam in self.cams:
             for q in self.params:
-                s = cam.sd.get(f"sd_{_FIELD[q]}", 0.0) if spec.use_priors else 0.0
+                s = cam.sd.get(f"sd_{_FIELD[q]}", 0.0) if spec.use_priors and q in _FIELD else 0.0
                 sd.append(s if s > 0 else np.inf)
         self.prior_sd = np.array(sd, dtype=float)
-        self.calibrated = np.array([getattr(cam, _FIELD[q]) for cam in self.cams for q in self.params])
+        self.calibrated = np.array([getattr(cam, _FIELD[q]) if q in _FIELD else 0.0
+                                    for cam in self.cams for q in self.params])
         self.n = m * len(self.cams)
         self.cols = (self.cam_of_obs * m)[:, None] + np.arange(m)[None, :]     # (n, m) local columns
         # x_fot of every observation under the certificate
@@ -189,13 +254,55 @@ class _BoundIO:
             sel = self.cam_of_obs == k
             self.fot0[sel] = cam.photo_to_fot(problem.xy_mm[sel])
         self.cam_of_photo = cam_of_photo
+        # the measured extent of every camera's photo coordinates (for the correlation "why")
+        self.extent_mm = [(self.fot0[self.cam_of_obs == k].min(axis=0), self.fot0[self.cam_of_obs == k].max(axis=0))
+                          if np.any(self.cam_of_obs == k) else (np.zeros(2), np.zeros(2)) for k in range(len(self.cams))]
+
+    def explain(self, name: str, partner: str, eo: bool, points_m: np.ndarray, eo_params: np.ndarray) -> str | None:
+        """Why parameter *name* of this component cannot be told from *partner* (an exterior-orientation
+        parameter when *eo*, else another additional parameter's name): one clause, or None if not ours."""
+        if name not in self.names:
+            return None
+        k, q = divmod(self.names.index(name), self.m)
+        q = self.params[q]
+        cam = self.cams[k]
+        lo, hi = self.extent_mm[k]
+        if eo and q == "c" and partner == "Z0":
+            h = points_m[:, 2]
+            rel = float(np.std(h) / max(np.mean(eo_params[:, 2]) - np.mean(h), 1e-9))
+            return (f"c scales the image as the flying height does and the terrain relief (sd of the point "
+                    f"heights) is {rel:.1%} of the flying height: flat terrain and near-nadir photos cannot "
+                    "separate them; GNSS camera heights or more relief can")
+        if eo and q in ("x0", "y0"):
+            return (f"a shift of the principal point moves the image as a shift or tilt of the camera "
+                    f"({partner}) does; camera positions/attitudes (GNSS/INS) or cross strips separate them")
+        if eo:
+            return (f"over the measured area (x {lo[0]:.1f} .. {hi[0]:.1f}, y {lo[1]:.1f} .. {hi[1]:.1f} mm) its "
+                    f"correction looks like a change of {partner}")
+        other = partner.split(".")[-1] if partner in self.names else None
+        if other is None:
+            return None
+        if self.aps is not None and self.aps.grid and (q in self.aps.extra or other in self.aps.extra):
+            b = self.b_mm[k]
+            w, hgt = cam.frame_size_mm
+            g = (self.aps.grid - 1) // 2
+            return (f"the {self.aps.name} polynomials are orthogonal over the grid u, v in [-{g}, {g}] "
+                    f"(b = {b:.2f} mm), "
+                    f"but the measured photo coordinates span u {lo[0] / b:+.2f} .. {hi[0] / b:+.2f}, "
+                    f"v {lo[1] / b:+.2f} .. {hi[1] / b:+.2f} (frame {w:.1f} x {hgt:.1f} mm): over that area "
+                    f"{q} and {other} nearly coincide; fix one of them or measure points to the frame's edges")
+        r_max = float(np.hypot(np.maximum(np.abs(lo), np.abs(hi))[0], np.maximum(np.abs(lo), np.abs(hi))[1]))
+        corner = float(np.hypot(*cam.frame_size_mm)) / 2
+        return (f"over the measured photo coordinates (up to {r_max:.1f} mm from the centre; the frame corner is at "
+                f"{corner:.1f} mm) the corrections of {q} and {other} are nearly proportional; fix one of them"
+                + (" or measure points nearer the corners" if r_max < 0.8 * corner else ""))
 
     def _camera(self, k: int, theta: np.ndarray) -> Camera:
         """Camera k with the corrections (refraction keeps the calibrated c)."""
         cam = self.cams[k]
         d = theta[k * self.m:(k + 1) * self.m]
         changes = {_FIELD[q]: getattr(cam, _FIELD[q]) + v for q, v in zip(self.params, d)
-                   if q not in ("c", "x0", "y0")}
+                   if q in _FIELD and q not in ("c", "x0", "y0")}
         return dataclasses.replace(cam, **changes) if changes else cam
 
     def _fot(self, theta: np.ndarray) -> np.ndarray:
@@ -206,6 +313,10 @@ class _BoundIO:
                     shift[k, a] = theta[k * self.m + self.params.index(q)]
         return self.fot0 - shift[self.cam_of_obs]
 
+    def _extra(self, k: int, theta: np.ndarray) -> np.ndarray:
+        """The set's extra parameters of camera k."""
+        return theta[k * self.m + self.n_io:(k + 1) * self.m]
+
     def apply(self, theta: np.ndarray, fields: dict[str, Any]) -> None:
         fot = self._fot(theta)
         xy = np.empty_like(fot)
@@ -213,6 +324,8 @@ class _BoundIO:
         for k in range(len(self.cams)):
             sel = self.cam_of_obs == k
             xy[sel] = fot[sel] - self._camera(k, theta)._total_distortion(fot[sel])
+            if self.aps is not None:
+                xy[sel] -= self.aps.corrections(fot[sel], self._extra(k, theta), self.b_mm[k])
             if "c" in self.params:
                 focal[self.cam_of_photo == k] = self.cams[k].focal_length_mm + theta[k * self.m
                                                                                    + self.params.index("c")]
@@ -234,6 +347,8 @@ class _BoundIO:
                 for k in range(len(self.cams)):
                     sel = self.cam_of_obs == k
                     jd[sel] = self._camera(k, theta)._distortion_jacobian(fot[sel])
+                    if self.aps is not None:
+                        jd[sel] += self.aps.jacobian_xy(fot[sel], self._extra(k, theta), self.b_mm[k])
                 e = 0 if q == "x0" else 1
                 J[:, :, a] = np.eye(2)[None, :, e] - jd[:, :, e]
             elif q in ("k1", "k2", "k3"):
@@ -241,8 +356,12 @@ class _BoundIO:
                 J[:, 0, a], J[:, 1, a] = x * power, y * power
             elif q == "p1":
                 J[:, 0, a], J[:, 1, a] = r2 + 2 * x * x, 2 * x * y
-            else:  # p2
+            elif q == "p2":
                 J[:, 0, a], J[:, 1, a] = 2 * x * y, r2 + 2 * y * y
+        if self.aps is not None:                          # dv/dtheta_i = f_i(x_fot / b)
+            for k in range(len(self.cams)):
+                sel = self.cam_of_obs == k
+                J[sel, :, self.n_io:] = self.aps.jacobian(fot[sel], self.b_mm[k])
         return [("obs", np.arange(n), J, self.cols)]
 
 

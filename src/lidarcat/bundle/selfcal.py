@@ -279,6 +279,11 @@ class SelfCalResult:
         ``u_j`` of the module docstring: ``Cov(p_j, g) = u_j^T cov`` and the
         rank-k term of the joint point covariance, ``Cov(p_a, p_b) += u_a^T cov u_b``.
     frame_offsets : tuple of FrameOffset
+    explainers : tuple of callables
+        ``explain(name, partner, eo, points_m, eo_params) -> str | None`` of the components
+        (:meth:`why`: the reason a parameter cannot be told from its partner).
+    notes : tuple of str
+        Warnings of the components themselves (the ``gruen`` set's optimistic sds).
     alpha : float
         Level of the significance tests.
     """
@@ -298,6 +303,17 @@ class SelfCalResult:
     frame_offsets: tuple = ()
     alpha: float = 0.05
     determinability_limit: float = 0.95
+    explainers: tuple = ()
+    notes: tuple = ()
+
+    def why(self, name: str, partner: str, eo: bool) -> str:
+        """Why *name* cannot be told from *partner* (an exterior-orientation parameter name when
+        *eo*, else an additional parameter): the first component that knows, else a general clause."""
+        for f in self.explainers:
+            text = f(name, partner, eo, np.asarray(self.bundle.points_m), np.asarray(self.bundle.eo_params))
+            if text:
+                return text
+        return "their effects on the observations are nearly the same in this block's geometry"
 
     @property
     def sd(self) -> np.ndarray:
@@ -364,6 +380,9 @@ class SelfCalResult:
                 "max_correlation_additional": {"parameter": self.names[best[0]], "r": r_ap} if best else None,
                 "determinable": bool(worst <= self.determinability_limit),
             })
+            if not out[-1]["determinable"]:
+                eo_worse = a is not None and abs(r_eo) >= (abs(r_ap) if math.isfinite(r_ap) else 0.0)
+                out[-1]["why"] = self.why(name, eo_names[a[1]] if eo_worse else self.names[best[0]], eo_worse)
         return out
 
     def group_tests(self) -> list[dict[str, Any]]:
@@ -391,6 +410,7 @@ class SelfCalResult:
         or singular normal equations)."""
         out = [f"{self.singular}; the values written are those of the last iteration, without "
                "precision"] if self.singular else []
+        out += list(self.notes)
         for t in self.tests():
             if not t["determinable"]:
                 e, a = t["max_correlation_eo"], t["max_correlation_additional"]
@@ -402,7 +422,7 @@ class SelfCalResult:
                 out.append(f"additional parameter {t['name']!r} is not determinable from this block: "
                            f"correlated with {' and '.join(parts)}; its estimate "
                            f"{t['estimate']:.4g} +- {t['sd']:.2g} {t['unit']} mostly trades against "
-                           "that parameter (fix it, give it a prior sd, or add geometry)")
+                           f"that parameter (fix it, give it a prior sd, or add geometry). Why: {t['why']}")
         return out
 
     def frame_offset_summary(self) -> list[dict[str, Any]]:
@@ -625,6 +645,8 @@ def adjust_with_parameters(
         estimates=theta, cov=cov_g, prior_sd=gl.prior_sd, calibrated=calibrated,
         eo_correlation=np.nan_to_num(eo_corr), point_coupling=u, singular=singular, alpha=alpha,
         determinability_limit=determinability_limit,
+        explainers=tuple(b.explain for b in gl.parts if hasattr(b, "explain")),
+        notes=tuple(dict.fromkeys(n for b in gl.parts for n in getattr(b, "notes", ()))),
         frame_offsets=tuple(c for c in components if isinstance(c, FrameOffset)))
     for w in out.warnings():
         log.warning(w)

@@ -175,9 +175,12 @@ def exit_status(summary: dict) -> tuple[int, str]:
                    "solution. 'plain': least squares from the start.")
 @click.option("--self-calibrate", metavar="PARAMS", default=None,
               help="Estimate interior-orientation corrections per camera: a comma list of c, x0, y0, "
-                   "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free). "
-                   "Each gets estimate, sd, t-test and its largest correlations; a warning names a "
-                   "parameter the block cannot determine (|r| > 0.95).")
+                   "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free), "
+                   "and/or a named set: thesis (those eight), brown (+ k4, affinity b1, shear b2), "
+                   "ebner (12 orthogonal polynomials), gruen (44; its sds come out too small, a "
+                   "warning says so), e.g. 'ebner' or 'c,x0,y0,ebner'. Each gets estimate, sd, t-test "
+                   "and its largest correlations; a warning names a parameter the block cannot "
+                   "determine (|r| > 0.95), its partner and why.")
 @click.option("--frame-offset", metavar="SOURCE:REFERENCE", default=None,
               help="Estimate the 3-D shift to add to the control of ground-point source SOURCE to put it "
                    "in the frame of REFERENCE (e.g. lidar:gps with --control gps+lidar), with its sd and "

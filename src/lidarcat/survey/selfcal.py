@@ -3,7 +3,8 @@ r"""Additional parameters from a survey folder: the ``[self_calibration]`` table
 survey.toml (every key optional)::
 
     [self_calibration]
-    parameters = "c,x0,y0,k1"     # interior orientation to estimate, per camera (or "all")
+    parameters = "c,x0,y0,k1"     # interior orientation to estimate, per camera (or "all"), or a
+                                  # named set: thesis, brown, ebner, gruen ("c,x0,y0,ebner")
     use_priors = true             # weight them by the sd_* of camera.toml (no sd: free)
     frame_offset = "lidar:gps"    # SOURCE:REFERENCE -- shift the control of ground-point source
                                   # SOURCE into the frame of REFERENCE (needs control of both)
@@ -172,7 +173,8 @@ def adjust_survey_with_parameters(
         Control set, ``a+b`` for a union (default: ``[self_calibration] control``,
         else the survey's default).
     self_calibrate : str, optional
-        ``"c,x0,y0,k1"`` (default: ``[self_calibration] parameters``).
+        ``"c,x0,y0,k1"``, a set name ``"ebner"`` or both ``"c,x0,y0,ebner"``
+        (:func:`lidarcat.bundle.additional.parse_parameters`; default: ``[self_calibration] parameters``).
     frame_offset : str, optional
         ``"SOURCE:REFERENCE"`` (default: ``[self_calibration] frame_offset``).
     similarity : bool, optional
@@ -300,7 +302,10 @@ def format_parameters(summary: dict) -> str:
     if ap:
         lines += ["", "Additional parameters (correction to the certificate)   estimate        sd       t  "
                   "signif.  max |r| (with)"]
-        for name, t in ap.items():
+        def natural(item):                       # e2 before e10 (summary.json keys come sorted as text)
+            return [int(x) if x.isdigit() else x for x in re.split(r"(\d+)", item[0])]
+
+        for name, t in sorted(ap.items(), key=natural):
             e = t.get("max_correlation_eo") or {}
             a = t.get("max_correlation_additional") or {}
             r, w = (e.get("r", 0.0), f"{e.get('parameter')} photo {e.get('photo')}")
