@@ -65,13 +65,15 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3)
     a = ap.parse_args()
     print(f"load {os.getloadavg()[0]:.2f}")
-    print("| tile | seed | n NVA | n VVA | NVA RMSE_z (cm) | NVA 95 % (cm) | VVA RMSE_z (cm) | VVA 95th pct (cm) | ASPRS 2023 class |")
+    print("| tile | seed | n NVA | n VVA | NVA RMSE_z (cm) | NVA 95 % (cm) | VVA RMSE_z (cm) | VVA 95th pct (cm) "
+          "| ASPRS 2023 class |")
     print("|---|---|---|---|---|---|---|---|---|")
     for tile in sorted(HERE.glob("ahn3_cropped_*.laz")):
         for seed in range(a.seeds):
             r = ahn3(tile, a.n, seed)
             print(f"| {r['tile']} | {seed} | {r['n_nonveg']} | {r['n_veg']} | {100 * r['nva_rmse_m']:.2f} | "
-                  f"{100 * r['nva_95_m']:.2f} | {100 * r['vva_rmse_m']:.2f} | {100 * r['vva_95_m']:.2f} | {r['class']} |")
+                  f"{100 * r['nva_95_m']:.2f} | {100 * r['vva_rmse_m']:.2f} | {100 * r['vva_95_m']:.2f} | "
+                  f"{r['class']} |")
     print()
     print("| seed | pulses | roll dev (sd) | pitch dev (sd) | scale dev (sd) | bias dev (sd) | sigma0 | s |")
     print("|---|---|---|---|---|---|---|---|")
