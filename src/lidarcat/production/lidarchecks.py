@@ -140,7 +140,10 @@ class PulseRecords:
     strip: np.ndarray
 
     def __post_init__(self) -> None:
-        n = np.asarray(self.range_m).shape[0] if np.ndim(self.range_m) == 1 else -1
+        if np.ndim(self.range_m) != 1:
+            raise ProductError(f"pulse records: range_m must be one-dimensional (N,), got shape "
+                               f"{np.shape(self.range_m)}")
+        n = np.shape(self.range_m)[0]
         shapes = {"gnss_m": (n, 3), "attitude_rad": (n, 3), "range_m": (n,), "scan_rad": (n,), "strip": (n,)}
         for name, shape in shapes.items():
             a = np.array(getattr(self, name), dtype=np.int64 if name == "strip" else np.float64)
