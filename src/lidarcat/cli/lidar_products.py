@@ -1,4 +1,4 @@
-"""``lidarcat lidar ground|dtm|dsm|contours|hypsometry``: the LiDAR production chain (LACTEC report 11.2-11.5)."""
+"""``lidarcat lidar ground|dtm|dsm|contours|hypsometry|sheets|check``: the LiDAR production chain (report 7.1, 11)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,12 @@ from pathlib import Path
 import click
 import numpy as np
 
-from .options import NON_NEGATIVE, POSITIVE, FiniteRange, crs_option, output_option, progress_bar, tile_sources
+from .options import (NON_NEGATIVE, POSITIVE, FiniteRange, crs_option, echo_json, json_option, output_option,
+                      progress_bar, tile_sources)
 from .options import scheduler_option as _scheduler_opt
 from .options import workers_option as _workers_opt
 
-__all__ = ["ground", "dtm", "dsm", "contours_cmd", "hypsometry", "sheets", "PRODUCT_COMMANDS"]
+__all__ = ["ground", "dtm", "dsm", "contours_cmd", "hypsometry", "sheets", "check", "PRODUCT_COMMANDS"]
 
 _resume_opt = click.option(
     "--resume/--no-resume", default=True, show_default=True,
@@ -398,3 +399,66 @@ def sheets(products: tuple[str, ...], output: str, index: str, size_m: float, he
 
 
 PRODUCT_COMMANDS.append(sheets)
+
+
+@click.command(name="check")
+@click.argument("paths", nargs=-1, required=True, metavar="TILE...")
+@click.option("--checkpoints", required=True, type=click.Path(exists=True, dir_okay=False), metavar="CSV",
+              help="Surveyed check points: id,E,N,H[,vegetated] (metres, CRS of the tiles; vegetated 1/0, "
+                   "default 0 = hard, open surface).")
+@output_option(required=True, metavar="OUT.json",
+               help="The report (JSON); the per-point discrepancies go beside it as OUT.csv.")
+@click.option("--method", type=click.Choice(["tin", "plane"]), default="tin", show_default=True,
+              help="LiDAR height at a check point: linear in the TIN of the points, or a plane fitted to "
+                   "the points within --radius-m.")
+@click.option("--radius-m", type=POSITIVE, default=1.0, show_default=True,
+              help="Plane method: radius of the points fitted, metres.")
+@click.option("--classes", default="2", show_default=True, metavar="C1,C2|all",
+              help="Point classes used (ground = 2); 'all': every last return.")
+@click.option("--checkpoint-sd-m", type=NON_NEGATIVE, default=None, metavar="M",
+              help="Vertical sd of the check-point survey (ASPRS 2023 product accuracy includes it).")
+@click.option("--scale", type=POSITIVE, default=None, metavar="DENOMINATOR",
+              help="Map scale for the PEC altimetric class (e.g. 5000; with --contour-interval-m).")
+@click.option("--contour-interval-m", type=POSITIVE, default=None, metavar="M",
+              help="Contour interval for the PEC altimetric class, metres.")
+@crs_option()
+@json_option()
+def check(paths: tuple[str, ...], checkpoints: str, output: str, method: str, radius_m: float, classes: str,
+          checkpoint_sd_m: float | None, scale: float | None, contour_interval_m: float | None,
+          crs: str | None, as_json: bool) -> None:
+    """Vertical accuracy of LiDAR tiles at surveyed check points (LACTEC report 7.1.1).
+
+    Prints and writes ASPRS 2023 NVA (RMSE_z of the non-vegetated points, and
+    1.96 RMSE_z), VVA (RMSE_z and 95th percentile of the vegetated points),
+    the ASPRS 2023 vertical class and, with --scale and --contour-interval-m,
+    the PEC altimetric class.
+    """
+    from ..stages.lidar import vertical_check
+
+    if classes.strip().lower() == "all":
+        cls = None
+    else:
+        try:
+            cls = [int(c) for c in classes.split(",") if c.strip()]
+        except ValueError:
+            raise click.BadParameter(f"{classes!r} is not a comma-separated list of integers or 'all'",
+                                     param_hint="--classes") from None
+    report = vertical_check(paths, checkpoints, output, crs=crs, classes=cls, method=method, radius_m=radius_m,
+                            checkpoint_sd_m=checkpoint_sd_m, scale=scale, contour_interval_m=contour_interval_m)
+    if as_json:
+        echo_json(report)
+        return
+    a = report["accuracy"]
+    click.echo(f"{a['n_nonveg']} non-vegetated check points: NVA RMSE_z {a['nva_rmse_m']:.3f} m, "
+               f"95 % {a['nva_95_m']:.3f} m, mean {a['mean_nonveg_m']:+.3f} m")
+    if a["n_veg"]:
+        click.echo(f"{a['n_veg']} vegetated check points: VVA RMSE_z {a['vva_rmse_m']:.3f} m, "
+                   f"95th percentile {a['vva_95th_percentile_m']:.3f} m")
+    click.echo(f"ASPRS 2023: {a['asprs2023']['label']}")
+    if a["pec"] is not None:
+        click.echo(f"PEC altimetric class: {a['pec']['class']['altimetric']}")
+    for p in report["files"]:
+        click.echo(f"written {p}")
+
+
+PRODUCT_COMMANDS.append(check)

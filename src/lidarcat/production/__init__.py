@@ -10,6 +10,7 @@
 ``conventions``    The cartographic conventions of the sheets (report Figure 27): layer names, colours, widths.
 ``charts``         Orthophoto charts (ortofotocartas): mosaic, contours, UTM grid, legend, title block, index map.
 ``delivery``       Delivery formats: TIFF + TFW world files, Shapefile layers, DXF layers of the conventions.
+``lidarchecks``    LiDAR system calibration checks: vertical accuracy (NVA/VVA, PEC), boresight, scale, bias.
 =================  ============================================================
 
 The functions named as their modules (``contours.contours``) are

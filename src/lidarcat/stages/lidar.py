@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import ProductError
 
-__all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid"]
+__all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid", "vertical_check"]
 
 
 def _jobs(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, **kw: Any) -> list[Any]:
@@ -246,3 +246,91 @@ def mosaic_grids(grids: Sequence[tuple[np.ndarray, Any]],
         owned[win] |= take & own
         filled[win] |= take
     return out, GeoTransform(float(x0), float(y0), cell)
+
+
+def vertical_check(tiles: Sequence[str | os.PathLike], checkpoints: str | os.PathLike, output: str | os.PathLike,
+                   *, crs: Any = None, classes: Sequence[int] | None = (2,), method: str = "tin",
+                   radius_m: float = 1.0, checkpoint_sd_m: float | None = None, scale: float | None = None,
+                   contour_interval_m: float | None = None) -> dict[str, Any]:
+    """Vertical accuracy of LiDAR tiles at surveyed check points (``lidarcat lidar check``, report 7.1.1).
+
+    Parameters
+    ----------
+    tiles : sequence of path
+        LiDAR tiles (LAS/LAZ or text).
+    checkpoints : path
+        CSV ``id,E,N,H`` and optionally ``vegetated`` (1/0, yes/no, true/false;
+        default 0: a hard, open surface), metres, in the CRS of the tiles.
+    output : path
+        ``<name>.json`` report; the per-point discrepancies go to ``<name>.csv``.
+    classes : sequence of int or None
+        Point classes used (default ground, 2); ``None``: all last returns.
+    method, radius_m
+        :func:`lidarcat.production.lidarchecks.lidar_heights_at`.
+    checkpoint_sd_m, scale, contour_interval_m
+        :func:`lidarcat.production.lidarchecks.vertical_accuracy`.
+
+    Returns
+    -------
+    dict
+        The report written (``accuracy``, ``points``, ``files``).
+
+    Raises
+    ------
+    SurveyError
+        A bad check-point file (names file, line and field).
+    ProductError
+        No LiDAR point of the classes, a check point outside the data (named).
+    """
+    from .._util.tables import read_csv_table, write_csv_atomic, write_json_atomic
+    from ..errors import SurveyError, location
+    from ..lidar.readers import read_points
+    from ..production.lidarchecks import lidar_heights_at, vertical_accuracy
+
+    table = read_csv_table(checkpoints, ("id", "E", "N", "H"), ("vegetated",))
+    if not table.rows:
+        raise SurveyError(f"{checkpoints}: no check points (a header and no rows)")
+    e, n, h = table.floats("E"), table.floats("N"), table.floats("H")
+    ids = table.column("id")
+    veg = np.zeros(len(ids), dtype=bool)
+    if table.has("vegetated"):
+        for k, (cell, line) in enumerate(zip(table.column("vegetated"), table.lines)):
+            word = cell.strip().lower()
+            if word not in ("", "0", "1", "yes", "no", "true", "false"):
+                raise SurveyError(f"{location(checkpoints, line, 'vegetated')}: {cell!r} is not 1/0, yes/no "
+                                  "or true/false")
+            veg[k] = word in ("1", "yes", "true")
+    if not np.any(~veg):
+        raise SurveyError(f"{checkpoints}: every check point is vegetated; NVA needs hard, open surfaces")
+    pad = 10.0 * radius_m + 50.0
+    lo, hi = np.array([e.min() - pad, n.min() - pad]), np.array([e.max() + pad, n.max() + pad])
+    parts = []
+    for t in tiles:
+        pc = read_points(t, crs=crs)
+        keep = np.all((pc.xyz[:, :2] >= lo) & (pc.xyz[:, :2] <= hi), axis=1)
+        a = pc.attributes
+        if classes is not None and "classification" in a:
+            keep &= np.isin(a["classification"], list(classes))
+        elif "return_number" in a and "number_of_returns" in a:
+            keep &= a["return_number"] == a["number_of_returns"]
+        parts.append(pc.xyz[keep])
+    pts = np.concatenate(parts) if parts else np.zeros((0, 3))
+    if pts.shape[0] < 3:
+        what = f"of classes {', '.join(map(str, classes))}" if classes is not None else "(last returns)"
+        raise ProductError(f"{len(pts)} LiDAR points {what} around the check points of {checkpoints}; "
+                           "at least 3 are needed")
+    z = lidar_heights_at(pts, np.column_stack([e, n]), method=method, radius_m=radius_m, ids=ids)
+    dz = z - h
+    acc = vertical_accuracy(dz[~veg], dz[veg], checkpoint_sd_m=checkpoint_sd_m, scale=scale,
+                            contour_interval_m=contour_interval_m)
+    out = Path(output)
+    csv_path = out.with_suffix(".csv")
+    write_csv_atomic(csv_path, ["id", "E", "N", "H", "vegetated", "lidar_h", "dz"],
+                     [[i, float(a), float(b), float(c), int(v), float(zz), float(d)]
+                      for i, a, b, c, v, zz, d in zip(ids, e, n, h, veg, z, dz)],
+                     comments=["metres; dz = lidar_h - H; lidar_h by " + method])
+    report = {"accuracy": acc.to_dict(), "points": int(len(pts)), "method": method, "radius_m": radius_m,
+              "classes": None if classes is None else list(classes), "checkpoints": str(checkpoints),
+              "tiles": [str(t) for t in tiles], "files": [str(out), str(csv_path)]}
+    write_json_atomic(out, report)
+    return report

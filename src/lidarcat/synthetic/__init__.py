@@ -10,6 +10,7 @@
 ``cavassim``    The experiment of Cavassim (2005) on a synthetic town: three mapping products against known truth.
 ``textured``    Small photos of a textured rolling ground with the true point behind every pixel (matching tests).
 ``matches``     A block of automatic tie-point matches with gross errors of known place (the NGI kind).
+``strips``      Overlapping LiDAR strips with a known boresight, scan-angle scale and elevation bias.
 ==============  ============================================================
 """
 
