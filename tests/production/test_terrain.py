@@ -122,3 +122,19 @@ def test_tin_grid_rasterised_equals_the_qhull_tin_at_cell_centres():
         dist_cells = np.minimum.reduce([odd[:, 0], odd[:, 1], nr - 1 - odd[:, 0], nc - 1 - odd[:, 1]])
         assert dist_cells.max() * 0.5 <= 3.0
     assert grid.gap_cells == int(np.isnan(grid.grid).sum())
+
+
+def test_text_grid_carries_its_crs_in_a_prj(tmp_path):
+    """Issue 25: the E N H text grid keeps the CRS as given (a ``.prj`` beside it, as for XYZ grids)."""
+    from pyproj import CRS
+
+    from lidarcat.production.terrain import GeoTransform, write_text_grid
+
+    p = write_text_grid(tmp_path / "dtm.txt", np.array([[1.0, np.nan]]), GeoTransform(100.0, 200.0, 2.0),
+                        crs="EPSG:28992")
+    assert p.read_text().splitlines() == ["E N H", "101.000 199.000 1.000"]
+    prj = CRS.from_wkt((tmp_path / "dtm.prj").read_text())
+    assert prj.equals(CRS.from_epsg(28992), ignore_axis_order=True)
+    assert prj.to_epsg(min_confidence=70) == 28992
+    write_text_grid(tmp_path / "none.txt", np.array([[1.0]]), GeoTransform(100.0, 200.0, 2.0))
+    assert not (tmp_path / "none.prj").exists()

@@ -377,8 +377,12 @@ def write_product(path: str | os.PathLike, array: np.ndarray, transform: GeoTran
 
 
 def write_text_grid(path: str | os.PathLike, grid: np.ndarray, transform: GeoTransform, *,
-                    extra: np.ndarray | None = None, extra_name: str = "intensity", decimals: int = 3) -> Path:
+                    extra: np.ndarray | None = None, extra_name: str = "intensity", decimals: int = 3,
+                    crs: Any = None) -> Path:
     """Write the report's text grid: a header, then ``E N H [extra]`` per valued cell centre (metres).
+
+    With *crs* (anything :class:`pyproj.CRS` takes), its CRS goes into ``<name>.prj`` beside it
+    (ESRI WKT, the sidecar GIS programs read for XYZ and ASCII grids), written first.
 
     Examples
     --------
@@ -398,6 +402,11 @@ def write_text_grid(path: str | os.PathLike, grid: np.ndarray, transform: GeoTra
         header += f" {extra_name}"
     data = np.column_stack(colsv)
     path = Path(path)
+    if crs is not None:
+        from pyproj import CRS
+
+        with atomic_write(path.with_suffix(".prj"), "w") as fh:
+            fh.write(CRS.from_user_input(crs).to_wkt("WKT1_ESRI"))
     with atomic_write(path, "w") as fh:
         fh.write(header + "\n")
         np.savetxt(fh, data, fmt=f"%.{decimals}f", delimiter=" ")
@@ -434,7 +443,7 @@ def _raster_tile(job: TileJob, kind: str) -> None:
         dtm = dtm_grid(cloud, cell, area, max_edge_m=max_edge, max_cells=max_cells)
         write_product(Path(f"{stem}_ndsm.tif"), ndsm(grid, dtm.grid), transform, cloud.crs)
     if job.params.get("text"):
-        write_text_grid(out.with_suffix(".txt"), grid, transform)
+        write_text_grid(out.with_suffix(".txt"), grid, transform, crs=cloud.crs)
     write_product(out, grid, transform, cloud.crs)
 
 

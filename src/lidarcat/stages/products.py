@@ -154,7 +154,7 @@ def run(ctx: Context, tmp: Path) -> dict:
         rasters["ndsm.tif"] = read_grid(tmp / "ndsm.tif")
         done["files"].append("ndsm.tif")
         if cfg["text_grid"]:
-            write_text_grid(tmp / "ndsm.txt", *rasters["ndsm.tif"])
+            write_text_grid(tmp / "ndsm.txt", *rasters["ndsm.tif"], crs=crs)
             done["files"].append("ndsm.txt")
         tick()
     features: list[dict[str, Any]] = []

@@ -559,8 +559,11 @@ def write_survey_folder(survey: Survey, outdir, t0: float, parameters: dict,
 
 
 def survey_provenance(survey: Survey, parameters: dict) -> dict:
-    """:func:`lidarcat._util.provenance` of the survey files an adjustment reads (SHA-256 each)."""
+    """:func:`lidarcat._util.provenance` of the survey files an adjustment reads (SHA-256 each), with the
+    survey's ``crs`` and ``height_system``."""
     from .._util import provenance
 
     files = {"survey.toml": survey.toml_path, **{k: v for k, v in survey.files.items() if k != "lidar"}}
-    return provenance(files, parameters, root=survey.root)
+    # the CRS and height system of every coordinate in the tables, in each CSV's sidecar (issue 25)
+    return provenance(files, parameters, root=survey.root) | {"crs": str(survey.crs),
+                                                              "height_system": survey.height_system}
