@@ -17,7 +17,11 @@ covariance of the predicted pixel ::
 
 ``σ_f`` the feature's own localisation (1 px at the detection level).  ``J`` is computed by
 central differences (26 vectorised transfers of all features: the transfer is smooth and the
-steps -- 1 cm, 1e-6 rad, 1 cm -- are far inside its linear range).  The true position lies
+steps -- 1 cm, 1e-6 rad, 1 cm -- are far inside its linear range).  The perturbed transfers
+stop at B's distortion-corrected photo coordinates ``x_B`` (a projection, no iteration); the
+pixel Jacobian follows by the chain rule ``∂b/∂θ = (∂x_B/∂b)^{-1} ∂x_B/∂θ`` with B's
+distortion Jacobian at ``b`` -- one inversion of B's distortion per feature instead of 27
+(the covariance agrees with 27 full transfers to 1e-9).  The true position lies
 in the ellipse ::
 
     (b' - b)^T Σ_b^{-1} (b' - b) <= χ²_2(1 - α) = -2 ln α,
@@ -48,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from ..geometry.camera import Camera
+from ..geometry.collinearity import project, rotation_matrix
 from .rays import HeightSurface, transfer
 
 __all__ = ["Prediction", "Matches", "predict", "guided_match", "match_descriptors", "CHI2_2_999"]
@@ -130,10 +135,13 @@ def predict(camera_a: Camera, eo_a: Any, xy_a_px: Any, camera_b: Camera, eo_b: A
     pb = np.asarray(eo_b, dtype=np.float64)
     xy = np.asarray(xy_a_px, dtype=np.float64).reshape(-1, 2)
     b0 = transfer(camera_a, pa, xy, camera_b, pb, surface)
+    # The 26 perturbed transfers stop at B's corrected photo coordinates (mm): no inversion of
+    # B's distortion per perturbation; the chain rule through d(pixel)/d(photo) at b0 follows.
+    photo_a = np.column_stack([camera_a.pixel_to_photo(xy), np.full(len(xy), -camera_a.focal_length_mm)])
     sd_ang = np.deg2rad(sd_angle_deg)
     steps = [0.01] * 3 + [1e-6] * 3
     sds = [sd_position_m] * 3 + [sd_ang] * 3
-    cov = np.zeros((len(xy), 2, 2))
+    grads = []
     for which in (0, 1):
         for k in range(6):
             if sds[k] <= 0:
@@ -141,23 +149,50 @@ def predict(camera_a: Camera, eo_a: Any, xy_a_px: Any, camera_b: Camera, eo_b: A
             dp = np.zeros(6)
             dp[k] = steps[k]
             if which == 0:
-                plus = transfer(camera_a, pa + dp, xy, camera_b, pb, surface)
-                minus = transfer(camera_a, pa - dp, xy, camera_b, pb, surface)
+                plus = _transfer_mm(photo_a, pa + dp, camera_b, pb, surface)
+                minus = _transfer_mm(photo_a, pa - dp, camera_b, pb, surface)
             else:
-                plus = transfer(camera_a, pa, xy, camera_b, pb + dp, surface)
-                minus = transfer(camera_a, pa, xy, camera_b, pb - dp, surface)
-            g = (plus - minus) / (2 * steps[k]) * sds[k]
-            cov += g[:, :, None] * g[:, None, :]
+                plus = _transfer_mm(photo_a, pa, camera_b, pb + dp, surface)
+                minus = _transfer_mm(photo_a, pa, camera_b, pb - dp, surface)
+            grads.append((plus - minus) / (2 * steps[k]) * sds[k])
     if surface.sd_m > 0:
-        plus = transfer(camera_a, pa, xy, camera_b, pb, surface, dh_m=0.01)
-        minus = transfer(camera_a, pa, xy, camera_b, pb, surface, dh_m=-0.01)
-        g = (plus - minus) / 0.02 * surface.sd_m
-        cov += g[:, :, None] * g[:, None, :]
+        plus = _transfer_mm(photo_a, pa, camera_b, pb, surface, dh_m=0.01)
+        minus = _transfer_mm(photo_a, pa, camera_b, pb, surface, dh_m=-0.01)
+        grads.append((plus - minus) / 0.02 * surface.sd_m)
+    cov = np.zeros((len(xy), 2, 2))
+    if grads:
+        with np.errstate(all="ignore"):
+            jp = camera_b.pixel_to_photo_jacobian(np.nan_to_num(b0))       # d(photo mm)/d(pixel)
+            det = jp[:, 0, 0] * jp[:, 1, 1] - jp[:, 0, 1] * jp[:, 1, 0]
+            inv = np.stack([np.stack([jp[:, 1, 1], -jp[:, 0, 1]], -1),
+                            np.stack([-jp[:, 1, 0], jp[:, 0, 0]], -1)], 1) / det[:, None, None]
+            for g_mm in grads:
+                g = np.einsum("nij,nj->ni", inv, g_mm)
+                cov += g[:, :, None] * g[:, None, :]
     cov += np.eye(2)[None] * sd_feature_px ** 2
     bad = ~np.isfinite(cov).all(axis=(1, 2)) | ~np.isfinite(b0).all(axis=1)
     b0[bad] = np.nan
     cov[bad] = np.eye(2)
     return Prediction(b0, cov)
+
+
+def _transfer_mm(photo_a: np.ndarray, eo_a: np.ndarray, camera_b: Camera, eo_b: np.ndarray,
+                 surface: HeightSurface, *, dh_m: float = 0.0) -> np.ndarray:
+    """:func:`~lidarcat.match.rays.transfer` ending at B's corrected photo coordinates (mm), shape (n, 2).
+
+    *photo_a* (n, 3): A's features as image vectors ``(x, y, -c)`` (mm), computed once per pair.
+    """
+    d = photo_a @ rotation_matrix(eo_a[3:6])
+    dz = np.where(np.abs(d[:, 2]) < 1e-12, -1e-12, d[:, 2])
+    h = np.full(len(d), float(surface.mean_m))
+    for _ in range(8 if surface.heights_m is not None else 1):
+        t = (h - eo_a[2]) / dz
+        h = surface.height(eo_a[0] + t * d[:, 0], eo_a[1] + t * d[:, 1])
+    t = (h + dh_m - eo_a[2]) / dz if dh_m else (h - eo_a[2]) / dz
+    xyz = eo_a[:3] + t[:, None] * d
+    out, _ = project(eo_b.reshape(1, 6), xyz, np.full(len(xyz), camera_b.focal_length_mm),
+                     np.zeros(len(xyz), dtype=np.int64))
+    return out
 
 
 def _best_two(q: np.ndarray, d: np.ndarray, n_q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
