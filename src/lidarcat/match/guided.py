@@ -38,7 +38,8 @@ is also the nearest among all features of A whose ellipses hold that feature of 
 Without orientations (:func:`match_descriptors`) the candidates are all features of B and the
 same ratio and mutual rules apply (OpenCV's brute-force matcher).
 
-The candidate search is a k-d tree query within each ellipse's major semi-axis followed by
+The candidate search takes B's features in the grid cells (sorted by cell) that cover each
+ellipse's bounding square ``b ± sqrt(λ_max χ²)``, all queries at once by ``np.repeat``, followed by
 the exact Mahalanobis test; the descriptor distances of the candidate pairs are computed in
 chunks, so memory grows with the candidates, never with ``n_A x n_B``.
 """
@@ -46,7 +47,6 @@ chunks, so memory grows with the candidates, never with ``n_A x n_B``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -60,8 +60,8 @@ __all__ = ["Prediction", "Matches", "predict", "guided_match", "match_descriptor
 #: χ²(2) quantile of probability 0.999: the search ellipse holds the true position with 99.9 %
 CHI2_2_999 = float(-2.0 * np.log(0.001))
 
-#: queries whose candidates are compared in one matrix product
-_BLOCK = 256
+#: candidate pairs whose descriptor distances are computed at once
+_CHUNK = 32768
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,6 +195,42 @@ def _transfer_mm(photo_a: np.ndarray, eo_a: np.ndarray, camera_b: Camera, eo_b: 
     return out
 
 
+def _expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For groups of sizes *counts*: each element's group and its rank inside the group."""
+    owner = np.repeat(np.arange(len(counts)), counts)
+    starts = np.cumsum(counts) - counts
+    return owner, np.arange(int(counts.sum())) - starts[owner]
+
+
+def _grid_candidates(centre: np.ndarray, radius: np.ndarray, xy_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (query, point of B) with the point in the query's bounding square ``centre ± radius``.
+
+    B's points are sorted by the cell of a square grid (cell = the median radius, at least 8 px);
+    each query's cells are enumerated and their points taken by the cell's range in the sorted
+    order -- all by ``np.repeat``, no Python loop over queries or points.
+    """
+    cell = max(8.0, float(np.median(radius)))
+    lo = np.floor(xy_b.min(axis=0) / cell)
+    cb = np.floor(xy_b / cell) - lo
+    ncol, nrow = int(cb[:, 0].max()) + 1, int(cb[:, 1].max()) + 1
+    cid = (cb[:, 1] * ncol + cb[:, 0]).astype(np.int64)
+    order = np.argsort(cid, kind="stable")
+    first = np.searchsorted(cid[order], np.arange(ncol * nrow + 1))
+    top = np.array([ncol - 1, nrow - 1])
+    c0 = np.maximum(np.floor((centre - radius[:, None]) / cell) - lo, 0).astype(np.int64)
+    c1 = np.minimum(np.floor((centre + radius[:, None]) / cell) - lo, top).astype(np.int64)
+    nx = np.maximum(c1[:, 0] - c0[:, 0] + 1, 0)
+    ny = np.maximum(c1[:, 1] - c0[:, 1] + 1, 0)
+    q, k = _expand(nx * ny)                                   # (query, cell of its square)
+    col = c0[q, 0] + k % nx[q]
+    row = c0[q, 1] + k // nx[q]
+    cells = row * ncol + col
+    start, n = first[cells], first[cells + 1] - first[cells]
+    g, r = _expand(n)
+    jb = order[start[g] + r]
+    return q[g], jb
+
+
 def _best_two(q: np.ndarray, d: np.ndarray, n_q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per query id in *q* (candidate pairs, distances *d*): the candidate index of its nearest,
     the nearest distance and the second nearest (inf when alone; -1 / inf for no candidate).
@@ -238,33 +274,20 @@ def _decide(ia: np.ndarray, jb: np.ndarray, dist: np.ndarray, n_a: int, n_b: int
     return Matches(i[ok].astype(np.int64), j[ok].astype(np.int64), d1a[i][ok], r[ok])
 
 
-def _distances(desc_a: np.ndarray, desc_b: np.ndarray, ia: np.ndarray, jb: np.ndarray,
-               key_a: np.ndarray) -> np.ndarray:
-    """Descriptor distances of candidate pairs (ia, jb).
+def _distances(desc_a: np.ndarray, desc_b: np.ndarray, ia: np.ndarray, jb: np.ndarray) -> np.ndarray:
+    """Descriptor distances of candidate pairs (ia, jb), shape (m,).
 
-    The queries are taken in chunks of :data:`_BLOCK` neighbours in image space (sorted by *key_a*,
-    their predicted position's cell): a chunk's candidates are a small set of B, and their distances
-    come from one matrix product ``|a|² + |b|² - 2 a·b`` (BLAS) instead of gathering 128 bytes per pair.
+    Gathered pair by pair in chunks of :data:`_CHUNK` pairs, differences squared and summed in
+    float32: SIFT descriptors are bytes, so every partial sum is an integer below 2^24 and the
+    distance is exact (a matrix product per block of queries would compute the distances of all
+    the block's neighbours, most of them outside any ellipse).
     """
     out = np.empty(len(ia), np.float32)
-    qa = np.unique(ia)
-    qa = qa[np.argsort(key_a[qa], kind="stable")]
-    fa = desc_a.astype(np.float32)
-    fb = desc_b.astype(np.float32)
-    na = np.einsum("ij,ij->i", fa, fa)
-    nb = np.einsum("ij,ij->i", fb, fb)
-    order = np.argsort(ia, kind="stable")
-    ia_s = ia[order]
-    for s in range(0, len(qa), _BLOCK):
-        chunk = np.sort(qa[s:s + _BLOCK])
-        lo = np.searchsorted(ia_s, chunk, side="left")
-        hi = np.searchsorted(ia_s, chunk, side="right")
-        rows = order[np.concatenate([np.arange(x, y) for x, y in zip(lo, hi)])]
-        ub, jloc = np.unique(jb[rows], return_inverse=True)
-        iloc = np.searchsorted(chunk, ia[rows])
-        g = fa[chunk] @ fb[ub].T
-        d2 = na[chunk][iloc] + nb[ub][jloc] - 2.0 * g[iloc, jloc]
-        out[rows] = np.sqrt(np.maximum(d2, 0.0))
+    fa = np.asarray(desc_a)
+    fb = np.asarray(desc_b)
+    for s in range(0, len(ia), _CHUNK):
+        d = fa[ia[s:s + _CHUNK]].astype(np.float32) - fb[jb[s:s + _CHUNK]]
+        out[s:s + _CHUNK] = np.sqrt(np.einsum("ij,ij->i", d, d))
     return out
 
 
@@ -278,8 +301,6 @@ def guided_match(pred: Prediction, desc_a: np.ndarray, xy_b_px: np.ndarray, desc
     n_candidates : int
         Candidate pairs examined (the search effort).
     """
-    from scipy.spatial import cKDTree
-
     xy_b = np.asarray(xy_b_px, dtype=np.float64).reshape(-1, 2)
     ok = np.isfinite(pred.xy_px).all(axis=1)
     n_a, n_b = len(pred.xy_px), len(xy_b)
@@ -291,18 +312,14 @@ def guided_match(pred: Prediction, desc_a: np.ndarray, xy_b_px: np.ndarray, desc
     det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2
     lam = 0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - det, 0))
     radius = np.sqrt(lam * chi2)
-    lists = cKDTree(xy_b).query_ball_point(pred.xy_px[qa], radius, return_sorted=False)
-    counts = np.fromiter(map(len, lists), np.int64, len(lists))
-    if counts.sum() == 0:
+    ia, jb = _grid_candidates(pred.xy_px[qa], radius, xy_b)
+    if len(ia) == 0:
         return _decide(np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0), n_a, n_b, ratio), 0
-    jb = np.fromiter(chain.from_iterable(lists), np.int64, int(counts.sum()))     # no bytecode per candidate
-    ia = np.repeat(qa, counts)
+    ia = qa[ia]
     d = xy_b[jb] - pred.xy_px[ia]
     inside = _mahalanobis2(d, pred.cov_px2[ia]) <= chi2
     ia, jb = ia[inside], jb[inside]
-    cell = np.floor(np.nan_to_num(pred.xy_px) / 64.0)
-    key = cell[:, 1] * 1e6 + cell[:, 0]
-    dist = _distances(desc_a, desc_b, ia, jb, key)
+    dist = _distances(desc_a, desc_b, ia, jb)
     return _decide(ia, jb, dist, n_a, n_b, ratio), int(len(ia))
 
 
