@@ -39,7 +39,7 @@ Without orientations (:func:`match_descriptors`) the candidates are all features
 same ratio and mutual rules apply (OpenCV's brute-force matcher).
 
 The candidate search takes B's features in the grid cells (sorted by cell) that cover each
-ellipse's bounding square ``b ± sqrt(λ_max χ²)``, all queries at once by ``np.repeat``, followed by
+ellipse's bounding box ``b ± sqrt(χ² diag Σ_b)``, all queries at once by ``np.repeat``, followed by
 the exact Mahalanobis test; the descriptor distances of the candidate pairs are computed in
 chunks, so memory grows with the candidates, never with ``n_A x n_B``.
 """
@@ -60,8 +60,8 @@ __all__ = ["Prediction", "Matches", "predict", "guided_match", "match_descriptor
 #: χ²(2) quantile of probability 0.999: the search ellipse holds the true position with 99.9 %
 CHI2_2_999 = float(-2.0 * np.log(0.001))
 
-#: candidate pairs whose descriptor distances are computed at once
-_CHUNK = 32768
+#: queries whose candidates' descriptor distances are computed together
+_BLOCK = 256
 
 
 @dataclass(frozen=True, eq=False)
@@ -202,14 +202,15 @@ def _expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return owner, np.arange(int(counts.sum())) - starts[owner]
 
 
-def _grid_candidates(centre: np.ndarray, radius: np.ndarray, xy_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs (query, point of B) with the point in the query's bounding square ``centre ± radius``.
+def _grid_candidates(centre: np.ndarray, half: np.ndarray, xy_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (query, point of B) with the point in the cells covering the query's box ``centre ± half``.
 
-    B's points are sorted by the cell of a square grid (cell = the median radius, at least 8 px);
+    *centre* (n, 2), *half* (n, 2) half-widths, px.  B's points are sorted by the cell of a square
+    grid (cell = the median half-width, at least 8 px);
     each query's cells are enumerated and their points taken by the cell's range in the sorted
     order -- all by ``np.repeat``, no Python loop over queries or points.
     """
-    cell = max(8.0, float(np.median(radius)))
+    cell = max(8.0, float(np.median(half)))
     lo = np.floor(xy_b.min(axis=0) / cell)
     cb = np.floor(xy_b / cell) - lo
     ncol, nrow = int(cb[:, 0].max()) + 1, int(cb[:, 1].max()) + 1
@@ -217,8 +218,8 @@ def _grid_candidates(centre: np.ndarray, radius: np.ndarray, xy_b: np.ndarray) -
     order = np.argsort(cid, kind="stable")
     first = np.searchsorted(cid[order], np.arange(ncol * nrow + 1))
     top = np.array([ncol - 1, nrow - 1])
-    c0 = np.maximum(np.floor((centre - radius[:, None]) / cell) - lo, 0).astype(np.int64)
-    c1 = np.minimum(np.floor((centre + radius[:, None]) / cell) - lo, top).astype(np.int64)
+    c0 = np.maximum(np.floor((centre - half) / cell) - lo, 0).astype(np.int64)
+    c1 = np.minimum(np.floor((centre + half) / cell) - lo, top).astype(np.int64)
     nx = np.maximum(c1[:, 0] - c0[:, 0] + 1, 0)
     ny = np.maximum(c1[:, 1] - c0[:, 1] + 1, 0)
     q, k = _expand(nx * ny)                                   # (query, cell of its square)
@@ -274,20 +275,44 @@ def _decide(ia: np.ndarray, jb: np.ndarray, dist: np.ndarray, n_a: int, n_b: int
     return Matches(i[ok].astype(np.int64), j[ok].astype(np.int64), d1a[i][ok], r[ok])
 
 
-def _distances(desc_a: np.ndarray, desc_b: np.ndarray, ia: np.ndarray, jb: np.ndarray) -> np.ndarray:
+def _distances(desc_a: np.ndarray, desc_b: np.ndarray, ia: np.ndarray, jb: np.ndarray,
+               key_a: np.ndarray) -> np.ndarray:
     """Descriptor distances of candidate pairs (ia, jb), shape (m,).
 
-    Gathered pair by pair in chunks of :data:`_CHUNK` pairs, differences squared and summed in
-    float32: SIFT descriptors are bytes, so every partial sum is an integer below 2^24 and the
-    distance is exact (a matrix product per block of queries would compute the distances of all
-    the block's neighbours, most of them outside any ellipse).
+    The queries are taken in blocks of :data:`_BLOCK` neighbours in image space (sorted by *key_a*,
+    their predicted position's cell).  A block whose candidates are dense (more than
+    ``|block| |B of the block| / 8`` pairs) gets its distances from one matrix product
+    ``|a|² + |b|² - 2 a·b`` (BLAS); a sparse one by gathering the pairs' differences.  Both are
+    exact for byte descriptors (every partial sum an integer below 2^24 in float32).
     """
     out = np.empty(len(ia), np.float32)
-    fa = np.asarray(desc_a)
-    fb = np.asarray(desc_b)
-    for s in range(0, len(ia), _CHUNK):
-        d = fa[ia[s:s + _CHUNK]].astype(np.float32) - fb[jb[s:s + _CHUNK]]
-        out[s:s + _CHUNK] = np.sqrt(np.einsum("ij,ij->i", d, d))
+    if len(ia) == 0:
+        return out
+    fa = desc_a.astype(np.float32)
+    fb = desc_b.astype(np.float32)
+    na = np.einsum("ij,ij->i", fa, fa)
+    nb = np.einsum("ij,ij->i", fb, fb)
+    order = np.argsort(ia, kind="stable")
+    ia_s = ia[order]
+    qa = ia_s[np.r_[True, ia_s[1:] != ia_s[:-1]]]
+    lo_all = np.searchsorted(ia_s, qa, side="left")
+    hi_all = np.searchsorted(ia_s, qa, side="right")
+    blocks = np.argsort(key_a[qa], kind="stable")
+    for s in range(0, len(qa), _BLOCK):
+        sel = np.sort(blocks[s:s + _BLOCK])
+        chunk = qa[sel]
+        lo, hi = lo_all[sel], hi_all[sel]
+        g_, r_ = _expand(hi - lo)
+        rows = order[lo[g_] + r_]
+        ub, jloc = np.unique(jb[rows], return_inverse=True)
+        if len(rows) * 8 < len(chunk) * len(ub):
+            d = fa[ia[rows]] - fb[jb[rows]]
+            out[rows] = np.sqrt(np.einsum("ij,ij->i", d, d))
+            continue
+        iloc = np.searchsorted(chunk, ia[rows])
+        g = fa[chunk] @ fb[ub].T
+        d2 = na[chunk][iloc] + nb[ub][jloc] - 2.0 * g[iloc, jloc]
+        out[rows] = np.sqrt(np.maximum(d2, 0.0))
     return out
 
 
@@ -308,18 +333,22 @@ def guided_match(pred: Prediction, desc_a: np.ndarray, xy_b_px: np.ndarray, desc
         return _decide(np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0), n_a, n_b, ratio), 0
     qa = np.flatnonzero(ok)
     cov = pred.cov_px2[qa]
-    tr = cov[:, 0, 0] + cov[:, 1, 1]
-    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2
-    lam = 0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - det, 0))
-    radius = np.sqrt(lam * chi2)
-    ia, jb = _grid_candidates(pred.xy_px[qa], radius, xy_b)
-    if len(ia) == 0:
+    a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    det = a * c - b * b
+    # the ellipse's bounding box: half-widths sqrt(χ² Σ_xx), sqrt(χ² Σ_yy)
+    half = np.sqrt(chi2 * np.column_stack([a, c]))
+    centre = pred.xy_px[qa]
+    iq, jb = _grid_candidates(centre, half, xy_b)
+    if len(iq) == 0:
         return _decide(np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0), n_a, n_b, ratio), 0
-    ia = qa[ia]
-    d = xy_b[jb] - pred.xy_px[ia]
-    inside = _mahalanobis2(d, pred.cov_px2[ia]) <= chi2
-    ia, jb = ia[inside], jb[inside]
-    dist = _distances(desc_a, desc_b, ia, jb)
+    with np.errstate(all="ignore"):
+        w = np.column_stack([c, -2.0 * b, a]) / det[:, None]         # Σ^-1 terms per query
+    d = xy_b[jb] - centre[iq]
+    wq = w[iq]
+    inside = wq[:, 0] * d[:, 0] ** 2 + wq[:, 1] * d[:, 0] * d[:, 1] + wq[:, 2] * d[:, 1] ** 2 <= chi2
+    ia, jb = qa[iq[inside]], jb[inside]
+    cell = np.floor(np.nan_to_num(pred.xy_px) / 64.0)
+    dist = _distances(desc_a, desc_b, ia, jb, cell[:, 1] * 1e6 + cell[:, 0])
     return _decide(ia, jb, dist, n_a, n_b, ratio), int(len(ia))
 
 
