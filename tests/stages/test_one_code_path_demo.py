@@ -123,6 +123,8 @@ def test_lidar_dtm_dsm_cli_and_products_stage_write_the_same_files(demo, ground_
     work.mkdir()
     for name in ("camera.toml", "photos.csv", "image_points.csv"):
         shutil.copyfile(demo / name, work / name)
+    if (demo / "images").is_dir():   # photos.csv names its image files (the demo's image column)
+        (work / "images").symlink_to(demo / "images")
     (work / "ground").symlink_to(ground_tiles[0].parent)
     (work / "survey.toml").write_text(
         f'[survey]\nname = "t"\ncrs = "{CRS}"\n\n[files]\ncamera = "camera.toml"\nphotos = "photos.csv"\n'
@@ -133,13 +135,13 @@ def test_lidar_dtm_dsm_cli_and_products_stage_write_the_same_files(demo, ground_
     out.mkdir(parents=True)
     res = products_stage.run(_ctx(tmp_path / "run", _Stage("products", "products", products_stage.settings(survey)),
                                   survey), out)
-    assert res["files"] == ["dtm.tif", "dtm_hillshade.tif", "dtm.txt", "dsm.tif", "dsm_hillshade.tif", "dsm.txt",
-                            "ndsm.tif", "ndsm.txt"]
+    assert res["files"] == ["dtm.tif", "dtm_hillshade.tif", "dtm.txt", "dtm.prj", "dsm.tif", "dsm_hillshade.tif",
+                            "dsm.txt", "dsm.prj", "ndsm.tif", "ndsm.txt", "ndsm.prj"]
     cli = tmp_path / "cli"
     _invoke("lidar", "dtm", *ground_tiles, "-o", cli / "dtm.tif", "--cell-m", 4, "--text", "--hillshade")
     _invoke("lidar", "dsm", *ground_tiles, "-o", cli / "dsm.tif", "--cell-m", 4, "--text", "--hillshade", "--ndsm")
-    assert sorted(_files(cli)) == ["dsm.tif", "dsm.txt", "dsm_hillshade.tif", "dsm_ndsm.tif", "dtm.tif", "dtm.txt",
-                                   "dtm_hillshade.tif"]                      # the tile grids are gone
+    assert sorted(_files(cli)) == ["dsm.prj", "dsm.tif", "dsm.txt", "dsm_hillshade.tif", "dsm_ndsm.tif", "dtm.prj",
+                                   "dtm.tif", "dtm.txt", "dtm_hillshade.tif"]   # the tile grids are gone
     assert calls == ["terrain_model"] * 4                     # dtm, dsm by the stage, then by the commands
     stage_files = _files(out)
     for name, data in _files(cli).items():

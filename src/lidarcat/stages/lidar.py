@@ -170,7 +170,7 @@ def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | o
                              areas, max_cells=max_cells)
         write_product(Path(f"{stem}_ndsm.tif"), nd, transform, out_crs)
     if text:
-        write_text_grid(out.with_suffix(".txt"), grid, transform)
+        write_text_grid(out.with_suffix(".txt"), grid, transform, crs=out_crs)
     write_product(out, grid, transform, out_crs)
     shutil.rmtree(parts, ignore_errors=True)
     return [str(out)]

@@ -135,7 +135,8 @@ def run(ctx: Context, tmp: Path) -> dict:
                       text=cfg["text_grid"], hillshade=cfg["hillshade"], resume=False, **extra)
         rasters[f"{kind}.tif"] = read_grid(tmp / f"{kind}.tif")
         done["files"] += [f"{kind}.tif"] + [n for n, on in ((f"{kind}_hillshade.tif", cfg["hillshade"]),
-                                                             (f"{kind}.txt", cfg["text_grid"])) if on]
+                                                             (f"{kind}.txt", cfg["text_grid"]),
+                                                             (f"{kind}.prj", cfg["text_grid"])) if on]
         return rasters[f"{kind}.tif"][0]
 
     if cfg["dtm"]:
@@ -155,7 +156,7 @@ def run(ctx: Context, tmp: Path) -> dict:
         done["files"].append("ndsm.tif")
         if cfg["text_grid"]:
             write_text_grid(tmp / "ndsm.txt", *rasters["ndsm.tif"], crs=crs)
-            done["files"].append("ndsm.txt")
+            done["files"] += ["ndsm.txt", "ndsm.prj"]
         tick()
     features: list[dict[str, Any]] = []
     spots = np.zeros((0, 4))

@@ -70,8 +70,8 @@ def aerial_camera(image_size_px: tuple[int, int] = (1000, 750)) -> Camera:
     """A frame camera 36 mm wide of ``image_size_px`` (columns, rows), c = 35 mm, with distortion.
 
     >>> cam = aerial_camera((1000, 750))
-    >>> cam.frame_size_mm, cam.columns_px, cam.rows_px
-    ((36.0, 27.0), 1000, 750)
+    >>> [round(v, 9) for v in cam.frame_size_mm], cam.columns_px, cam.rows_px
+    ([36.0, 27.0], 1000, 750)
     """
     cols, rows = (int(v) for v in image_size_px)
     if cols < 16 or rows < 16:
