@@ -37,6 +37,7 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -50,7 +51,7 @@ from .block import Block, pinhole_camera, require_orientations, undistorted_mm
 from .lens import export_cameras, notes, observed_pixels
 from .rotations import matrix_to_quaternion_wxyz, opk_to_world_to_cv, quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
-__all__ = ["read_colmap", "write_colmap", "COLMAP_MODELS", "LOCAL_CRS"]
+__all__ = ["read_colmap", "write_colmap", "block_from_model", "COLMAP_MODELS", "LOCAL_CRS"]
 
 log = logging.getLogger(__name__)
 
@@ -265,32 +266,46 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
         i += 2
     if not photo:
         raise FormatError(f"{ipath}: no image")
+    return block_from_model(ipath, cams, photo, pcam, eo, o_photo, o_point, o_xy, o_cam, pids, pxyz,
+                            name=name or folder.name, crs=crs, height_system=height_system,
+                            description=f"imported from the COLMAP model {folder}")
+
+
+def block_from_model(where: Path, cams: dict[str, tuple], photo: list[str], pcam: list[str], eo: list,
+                     o_photo: list[str], o_point: list[str], o_xy: list[np.ndarray], o_cam: list[str],
+                     pids: list[str], pxyz: Any, *, name: str, crs: str, height_system: str,
+                     description: str) -> Block:
+    """The :class:`Block` of a COLMAP model read by the text or the binary reader.
+
+    A 2D point that repeats a 3D point already measured on the same image keeps its first
+    measurement (logged, naming *where*); pixel positions (COLMAP: the corner of the first
+    pixel at 0, 0) become lidarcat's (centre of the first pixel at 0, 0) and corrected photo
+    coordinates through each camera's model.
+    """
     xy = np.vstack(o_xy) if o_xy else np.empty((0, 2))
     keys = np.char.add(np.char.add(np.array(o_photo, dtype=str), "\x00"), np.array(o_point, dtype=str))
     _, first = np.unique(keys, return_index=True)
     if len(first) < len(keys):
         log.warning("%s: %d 2D point(s) repeat a 3D point already measured on the same image; "
-                    "the first measurement is kept", ipath, len(keys) - len(first))
+                    "the first measurement is kept", where, len(keys) - len(first))
         first = np.sort(first)
         xy = xy[first]
         o_photo = [o_photo[k] for k in first]
         o_point = [o_point[k] for k in first]
         o_cam = [o_cam[k] for k in first]
     cam_arr = np.array(o_cam, dtype=str)
-    obs_px = xy - 0.5
     obs_mm = np.empty_like(xy)
     for cid, (cam, model_dict) in cams.items():
         rows = cam_arr == cid
         if rows.any():
             obs_mm[rows] = undistorted_mm(xy[rows], cam, model_dict)
     return Block(
-        name=name or folder.name, crs=crs, height_system=height_system,
+        name=name, crs=crs, height_system=height_system,
         cameras={c: v[0] for c, v in cams.items()}, photo_ids=np.array(photo, dtype=str),
         photo_camera=np.array(pcam, dtype=str), eo=np.array(eo), obs_photo=np.array(o_photo, dtype=str),
-        obs_point=np.array(o_point, dtype=str), obs_px=obs_px, obs_mm=obs_mm,
-        point_ids=np.array(pids, dtype=str), points_m=np.array(pxyz).reshape(-1, 3),
-        description=f"imported from the COLMAP model {folder}",
-        source_models={c: v[1] for c, v in cams.items()})
+        obs_point=np.array(o_point, dtype=str), obs_px=xy - 0.5, obs_mm=obs_mm,
+        point_ids=np.array(pids, dtype=str), points_m=np.array(pxyz, dtype=float).reshape(-1, 3),
+        description=description, source_models={c: v[1] for c, v in cams.items()})
 
 
 def _r(v: float) -> str:

@@ -44,8 +44,8 @@ import numpy as np
 from .._util.values import value_problem
 from ..errors import FormatError
 from ._distortion import is_identity
-from .block import Block, pinhole_camera, undistorted_mm
-from .colmap import COLMAP_MODELS, LOCAL_CRS
+from .block import Block, pinhole_camera
+from .colmap import COLMAP_MODELS, LOCAL_CRS, block_from_model
 from .rotations import quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
 __all__ = ["read_colmap_binary", "read_colmap_rigs_binary", "ColmapRig", "ColmapFrame", "COLMAP_MODEL_IDS"]
@@ -246,31 +246,9 @@ def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float = 0.001, name
     rd.end()
     if not photo:
         raise FormatError(f"{rd.path}: no image")
-    xy = np.vstack(o_xy) if o_xy else np.empty((0, 2))
-    keys = np.char.add(np.char.add(np.array(o_photo, dtype=str), "\x00"), np.array(o_point, dtype=str))
-    _, first = np.unique(keys, return_index=True)
-    if len(first) < len(keys):
-        log.warning("%s: %d 2D point(s) repeat a 3D point already measured on the same image; "
-                    "the first measurement is kept", rd.path, len(keys) - len(first))
-        first = np.sort(first)
-        xy = xy[first]
-        o_photo = [o_photo[k] for k in first]
-        o_point = [o_point[k] for k in first]
-        o_cam = [o_cam[k] for k in first]
-    cam_arr = np.array(o_cam, dtype=str)
-    obs_mm = np.empty_like(xy)
-    for cid, (cam, model_dict) in cams.items():
-        rows = cam_arr == cid
-        if rows.any():
-            obs_mm[rows] = undistorted_mm(xy[rows], cam, model_dict)
-    return Block(
-        name=name or folder.name, crs=crs, height_system=height_system,
-        cameras={c: v[0] for c, v in cams.items()}, photo_ids=np.array(photo, dtype=str),
-        photo_camera=np.array(pcam, dtype=str), eo=np.array(eo), obs_photo=np.array(o_photo, dtype=str),
-        obs_point=np.array(o_point, dtype=str), obs_px=xy - 0.5, obs_mm=obs_mm,
-        point_ids=np.array(pids, dtype=str), points_m=pxyz.reshape(-1, 3),
-        description=f"imported from the COLMAP binary model {folder}",
-        source_models={c: v[1] for c, v in cams.items()})
+    return block_from_model(rd.path, cams, photo, pcam, eo, o_photo, o_point, o_xy, o_cam, pids, pxyz,
+                            name=name or folder.name, crs=crs, height_system=height_system,
+                            description=f"imported from the COLMAP binary model {folder}")
 
 
 # ---------------------------------------------------------------------------------------
