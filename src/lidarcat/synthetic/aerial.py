@@ -404,7 +404,7 @@ def aerial_survey(
     vignetting: float = 0.15,
     rgb: bool = False,
     write_xyz: bool = False,
-    image_column: bool = False,
+    image_column: bool = True,
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
 ) -> AerialSurvey:
@@ -441,8 +441,8 @@ def aerial_survey(
     write_xyz : bool
         Also write ``truth/xyz/<photo>.npy`` (24 bytes per pixel).
     image_column : bool
-        Write the ``image`` column of photos.csv (path of the photo's file relative to the folder);
-        off until the survey schema reads it.
+        Write the ``image`` column of photos.csv (path of the photo's file relative to the folder,
+        read by :meth:`lidarcat.Survey.image_path`); off: the ``images/<photo>.png`` rule finds them.
     seed : int
     progress : callable, optional
         ``progress(done, total)`` over the photos rendered.
