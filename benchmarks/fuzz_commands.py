@@ -372,7 +372,27 @@ TARGETS: tuple[Target, ...] = (
            ("ortho", "demo", "--photo", "1", "--dsm", "dsm_demo.tif", "--eop", "demo_adj/eop.csv", "--gsd", "2",
             "-o", "ortho_out"), ("product", "ortho_out")),
     Target("run", ("thesis",), THESIS, ("run", "thesis", "-o", "run_out")),
+    # round 3: the commands of issues 25, 26 and 28
+    Target("init", ("demo", "init_gnss.csv"), ("demo/images/1.png", "demo/camera.toml", "init_gnss.csv"),
+           ("init", "new_survey", "--images", "demo/images", "--camera", "demo/camera.toml", "--gnss",
+            "init_gnss.csv", "--gnss-crs", "EPSG:31982"), ("survey", "new_survey")),
+    Target("match", ("demo",), ("demo/images/1.png", "demo/images/2.png", "demo/photos.csv", "demo/camera.toml",
+                                "demo/survey.toml", "demo/ground_points.csv"),
+           ("match", "demo", "--max-side", "1000"), ("survey", "demo")),
+    Target("convert", ("colmap",), ("colmap/cameras.txt", "colmap/images.txt", "colmap/points3D.txt"),
+           ("convert", "colmap", "colmap", "opensfm", "osfm_out"), ("product", "osfm_out")),
+    Target("deliver", ("dtm.tif", "contours.geojson", "contours_spots.geojson"),
+           ("dtm.tif", "contours.geojson", "contours_spots.geojson"),
+           ("deliver", "dtm.tif", "contours.geojson", "contours_spots.geojson", "-o", "delivery", "--format", "tfw",
+            "--format", "shp", "--format", "dxf", *CRS), ("product", "delivery")),
+    Target("chart", ("ortho_demo.tif", "contours_demo.geojson"), ("ortho_demo.tif", "contours_demo.geojson"),
+           ("chart", "ortho_demo.tif", "contours_demo.geojson", "-o", "charts", "--size-m", "500", "--dpi", "30"),
+           ("product", "charts")),
+    Target("lidar check", ("ground.laz", "checkpoints.csv"), ("ground.laz", "checkpoints.csv"),
+           ("lidar", "check", "ground.laz", "--checkpoints", "checkpoints.csv", "-o", "check.json", *CRS,
+            "--classes", "all", "--scale", "1000", "--contour-interval-m", "1")),
 )
+
 
 
 # --------------------------------------------------------------------------- the corpus
@@ -405,6 +425,8 @@ def build_corpus(root: Path, cli=None) -> Path:
         return root
     root.mkdir(parents=True, exist_ok=True)
     sys.path.insert(0, str(ROOT / "src"))
+    import numpy as np
+
     from lidarcat.lidar import read_points, write_points
     from lidarcat.survey import thesis_survey_path
 
@@ -460,6 +482,23 @@ def build_corpus(root: Path, cli=None) -> Path:
     run("lidar", "ground", "house.laz", *CRS, "-o", "ground.laz", cwd=root)
     run("lidar", "dtm", "ground.laz", *CRS, "-o", "dtm.tif", cwd=root)
     run("lidar", "contours", "ground.laz", *CRS, "-o", "contours.geojson", "--interval-m", "0.5", cwd=root)
+    # round 3: init (the demo's photos with a GNSS/IMU file), lidar check, chart (an orthophoto of the demo)
+    eop = _csv_rows(root / "demo_adj" / "eop.csv")
+    (root / "init_gnss.csv").write_text("photo,E,N,h,omega,phi,kappa\n" + "".join(
+        ",".join(r[:7]) + "\n" for r in eop[1:]))
+    g = read_points(root / "ground.laz", crs="EPSG:7415")
+    from scipy.spatial import Delaunay
+    hull = Delaunay(np.c_[g.x, g.y])                     # check points inside the ground triangulation, 0.2 m in
+    near = np.c_[g.x, g.y] + np.array([[0.2, 0.2], [0.2, -0.2], [-0.2, 0.2], [-0.2, -0.2]])[:, None]
+    inner = np.flatnonzero((hull.find_simplex(near.reshape(-1, 2)).reshape(4, -1) >= 0).all(axis=0))
+    inner = inner[:: max(1, len(inner) // 12)][:12]
+    (root / "checkpoints.csv").write_text("id,E,N,H,vegetated\n" + "".join(
+        f"c{k},{g.x[i]:.3f},{g.y[i]:.3f},{g.z[i] + 0.02 * (-1) ** k:.3f},{k % 2}\n" for k, i in enumerate(inner)))
+    run("ortho", "demo", "--photo", "1", "--dsm", "dsm_demo.tif", "--eop", "demo_adj/eop.csv", "--gsd", "2",
+        "-o", "ortho_c", cwd=root)
+    shutil.copy(next((root / "ortho_c").glob("*.tif")), root / "ortho_demo.tif")
+    run("lidar", "ground", "demo/lidar/tile_0_0.laz", "-o", "ground_demo.laz", cwd=root)
+    run("lidar", "contours", "ground_demo.laz", "-o", "contours_demo.geojson", "--interval-m", "2", cwd=root)
     done.write_text("ok\n")
     return root
 
@@ -479,9 +518,18 @@ def targets(only: str | None = None) -> tuple[Target, ...]:
     return tuple(t for t in TARGETS if only is None or t.name == only)
 
 
-def make_case(seed: int, index: int, corpus: Path, pool: tuple[Target, ...] = TARGETS) -> Case:
-    """Case ``index`` of seed ``seed``: a target (round robin) and one mutated file (seeded)."""
-    target = pool[index % len(pool)]
+def make_case(seed: int, index: int, corpus: Path, pool: tuple[Target, ...] = TARGETS,
+              target: str | None = None) -> Case:
+    """Case ``index`` of seed ``seed``: a target (round robin, or the one named *target*) and one
+    mutated file (seeded by seed and index alone, so a case numbered in a smaller pool of an
+    earlier round is re-made exactly by naming its target)."""
+    if target is None:
+        target = pool[index % len(pool)]
+    else:
+        named = [t for t in TARGETS if t.name == target]
+        if not named:
+            raise ValueError(f"no fuzz target {target!r}")
+        target = named[0]
     rng = random.Random(f"{seed}:{index}")
     rel = rng.choice(target.mutable)
     name, data = mutate((corpus / rel).read_bytes(), kind_of(rel), rng)

@@ -111,3 +111,27 @@ def test_deliver_command(layers, tmp_path):
                                  "--format", "dxf", "--crs", CRS])
     assert r.exit_code == 2 and "products.dxf: nothing to draw" in r.output
     assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.parametrize("text,message", [
+    ('{"type": "FeatureCollection", "features": ' + "[" * 100 + "]" * 100 + "}",
+     "pontos.geojson:1: arrays/objects nested deeper than 64 levels (column 106)"),
+    ('[1, 2]', "pontos.geojson: not a GeoJSON FeatureCollection (no 'features' list)"),
+    ('{"features": [{"geometry": {"type": "Point", "coordinates": [1, "x"]}}]}',
+     "pontos.geojson: feature 0: a Point needs coordinates [E, N] or [E, N, h] of finite numbers within 1e9 m"),
+    ('{"features": [{"geometry": {"type": "Point", "coordinates": [1, 2]}, "properties": {"h_m": "high"}}]}',
+     "pontos.geojson: feature 0: property 'h_m' is not a finite number: 'high'"),
+])
+def test_deliver_refuses_a_broken_spot_layer_by_location(tmp_path, text, message):
+    """A mutated spot-height layer (the command fuzz run found a RecursionError on deep nesting) is one
+    located error, and nothing is delivered."""
+    from click.testing import CliRunner
+
+    from lidarcat.cli.main import cli
+
+    (tmp_path / "pontos.geojson").write_text(text)
+    r = CliRunner().invoke(cli, ["deliver", str(tmp_path / "pontos.geojson"), "-o", str(tmp_path / "out"),
+                                 "--format", "shp", "--crs", CRS])
+    assert r.exit_code == 2, r.output
+    assert message in r.output
+    assert not (tmp_path / "out").exists()

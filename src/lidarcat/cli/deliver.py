@@ -33,14 +33,12 @@ def deliver(products: tuple[str, ...], outdir: str, formats: tuple[str, ...], cr
       lidarcat deliver dtm.tif hypsometry.tif -o entrega/ --format tfw
       lidarcat deliver curvas.geojson curvas_spots.geojson -o entrega/ --format shp --format dxf
     """
-    import json
-
     import numpy as np
 
     from .._util import atomic_dir
     from ..lidar.crs import resolve_crs
     from ..production.contours import read_line_layer
-    from ..production.delivery import write_dxf, write_shapefile, write_world_file
+    from ..production.delivery import read_point_layer, write_dxf, write_shapefile, write_world_file
 
     lines, spots, written = [], [], []
     c = resolve_crs(crs) if crs else None
@@ -54,14 +52,8 @@ def deliver(products: tuple[str, ...], outdir: str, formats: tuple[str, ...], cr
                 continue
             if suffix not in (".geojson", ".json", ".gpkg"):
                 raise click.BadParameter(f"{p}: give .tif, .geojson or .gpkg products", param_hint="PRODUCT")
-            pts = []
-            if suffix != ".gpkg":
-                doc = json.loads(p.read_text(encoding="utf-8"))
-                pts = [f for f in doc.get("features", []) if (f.get("geometry") or {}).get("type") == "Point"]
-            feats, lcrs = read_line_layer(p) if not pts else ([], None)
-            if pts and c is None:
-                name = ((doc.get("crs") or {}).get("properties") or {}).get("name")
-                lcrs = resolve_crs(name) if name else None
+            pts, lcrs = read_point_layer(p) if suffix != ".gpkg" else ([], None)
+            feats, lcrs = read_line_layer(p) if not pts else ([], lcrs)
             layer_crs = c or lcrs
             if layer_crs is None:
                 raise click.UsageError(f"{p}: the layer carries no CRS; give --crs")

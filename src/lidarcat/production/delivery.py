@@ -40,7 +40,8 @@ import numpy as np
 from ..errors import FormatError, ProductError
 from .conventions import convention
 
-__all__ = ["world_file_text", "write_world_file", "write_shapefile", "write_dxf", "DXF_LINEWEIGHTS"]
+__all__ = ["world_file_text", "write_world_file", "write_shapefile", "write_dxf", "read_point_layer",
+           "DXF_LINEWEIGHTS"]
 
 #: the line weights DXF allows, 1/100 mm
 DXF_LINEWEIGHTS = (0, 5, 9, 13, 15, 18, 20, 25, 30, 35, 40, 50, 53, 60, 70, 80, 90, 100, 106, 120, 140, 158, 200, 211)
@@ -219,3 +220,57 @@ def write_dxf(path: str | os.PathLike, *, contours: Sequence[dict[str, Any]] = (
     with atomic_write(path, "w", encoding="utf-8") as fh:
         doc.write(fh)
     return path
+
+
+def read_point_layer(path: str | os.PathLike) -> tuple[list[dict[str, Any]], Any]:
+    """The Point features of a GeoJSON file (spot heights, as ``lidarcat lidar contours`` writes
+    ``OUT_spots.geojson``) and the layer's CRS.
+
+    Returns
+    -------
+    (features, crs)
+        GeoJSON-like Point features (other geometries are left out; ``properties`` always a dict,
+        ``h_m`` a finite number or absent) and a :class:`pyproj.CRS` or ``None``.
+
+    Raises
+    ------
+    lidarcat.errors.FormatError
+        Not a GeoJSON FeatureCollection (nesting deeper than 64 levels included, located by line), or
+        a Point whose coordinates are not two or three finite numbers within 1e9 m of the origin,
+        or whose ``h_m`` is not a number (the feature named).
+    """
+    from .._util import loads_json, read_text
+    from ..lidar.crs import resolve_crs
+
+    path = Path(path)
+    doc = loads_json(read_text(path, FormatError), path, FormatError)
+    feats = doc.get("features") if isinstance(doc, dict) else None
+    if not isinstance(feats, list):
+        raise FormatError(f"{path}: not a GeoJSON FeatureCollection (no 'features' list)")
+    out = []
+    for i, f in enumerate(feats):
+        geom = f.get("geometry") if isinstance(f, dict) else None
+        if not isinstance(geom, dict) or geom.get("type") != "Point":
+            continue
+        xy = geom.get("coordinates")
+        ok = isinstance(xy, list) and len(xy) in (2, 3) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in xy)
+        if not ok or not np.isfinite(np.asarray(xy, dtype=np.float64)).all() or max(abs(v) for v in xy[:2]) > 1e9:
+            raise FormatError(f"{path}: feature {i}: a Point needs coordinates [E, N] or [E, N, h] of finite "
+                              f"numbers within 1e9 m of the origin")
+        props = f.get("properties") if isinstance(f.get("properties"), dict) else {}
+        h = props.get("h_m")
+        if h is not None and (isinstance(h, bool) or not isinstance(h, (int, float)) or not np.isfinite(h)):
+            raise FormatError(f"{path}: feature {i}: property 'h_m' is not a finite number: {h!r}")
+        out.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": list(xy)},
+                    "properties": props})
+    crs_member = doc.get("crs")
+    name = crs_member.get("properties", {}).get("name") if isinstance(crs_member, dict) and \
+        isinstance(crs_member.get("properties"), dict) else None
+    if name is not None and not isinstance(name, str):
+        raise FormatError(f"{path}: member 'crs': the name is not a string: {name!r}")
+    try:
+        crs = resolve_crs(name) if name else None
+    except Exception as ex:  # noqa: BLE001 -- the CRS resolver's own error, located here
+        raise FormatError(f"{path}: member 'crs': {ex}") from None
+    return out, crs
