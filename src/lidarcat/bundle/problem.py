@@ -183,6 +183,9 @@ class BundleProblem:
         ``control`` for constrained points, ``tie`` otherwise.
     info : dict, optional
         Free metadata copied into the summary (survey name, control set, ...).
+    rays : lidarcat.bundle.rays.ObservationRays, optional
+        Per-observation projection-centre offsets (rolling shutter) and sensor poses within a
+        rig (the photos are then rig exposures); None: the plain collinearity.
     """
 
     photo_ids: np.ndarray
@@ -201,6 +204,7 @@ class BundleProblem:
     initial_eo: np.ndarray | None = None
     point_role: np.ndarray | None = None
     info: dict = dataclasses.field(default_factory=dict)
+    rays: Any = None
 
     def __post_init__(self) -> None:
         s = object.__setattr__
@@ -254,6 +258,8 @@ class BundleProblem:
             if len(role) != n_pt:
                 raise ValueError("`point_role` must have one entry per point")
         s(self, "point_role", frozen_array(role, dtype=None))
+        if self.rays is not None:
+            self.rays.check(n)
 
     @property
     def n_photos(self) -> int:

@@ -20,11 +20,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..geometry.collinearity import project
 from .approx import approximations, intersect_points
 from ._blas import pinned
 from ._heap import heap_reuse
 from .model import NormalSystem, weighted_cost
+from .rays import observation_project
 from .linear import Schur, SingularSystem
 from .precision import PRECISION_LEVELS, covariance_blocks
 from .problem import BundleProblem, check_datum, chi2_bounds
@@ -57,7 +57,7 @@ def where_it_fails(p: BundleProblem, eo: np.ndarray, pts: np.ndarray, n: int = 3
     ei, pj = p.photo_index, p.point_index
     if not len(ei):
         return ""
-    xy, u3 = project(eo, pts[pj], p.focal_length_mm[ei], ei)
+    xy, u3 = observation_project(p, eo, pts)
     behind = np.flatnonzero((u3 >= 0) | ~np.isfinite(xy).all(axis=1))
     if len(behind):
         names = ", ".join(f"point {p.point_ids[pj[k]]} on photo {p.photo_ids[ei[k]]}" for k in behind[:n])
