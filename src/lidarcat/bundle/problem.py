@@ -382,7 +382,10 @@ def check_datum(problem: BundleProblem) -> None:
                          "are needed to determine its 6 orientation parameters (measure more points "
                          "or remove the photo)")
     # distinct photos per point
-    key = p.photo_index.astype(np.int64) * n_pt + p.point_index      # one integer per (photo, point)
+    view = p.photo_index.astype(np.int64)
+    if p.rays is not None and p.rays.has_sensors:     # a rig exposure: one view per sensor
+        view = view * len(p.rays.sensor_rotation) + p.rays.sensor_index
+    key = view * n_pt + p.point_index      # one integer per (photo, point)
     # a stable sort of the keys, not np.unique (numpy 2.4 hashes: 0.17-0.30 s for this check at
     # 10,010 photos, 0.02 s sorted); equal keys keep their input order
     korder = np.argsort(key, kind="stable")

@@ -32,7 +32,7 @@ from ..bundle.rays import ObservationRays
 from ..geometry.collinearity import project, rotation_matrix
 from ..geometry.rolling import rodrigues
 
-__all__ = ["DroneBlock", "drone_block", "RigBlock", "rig_block", "DRONE_CAMERA"]
+__all__ = ["DroneBlock", "drone_block", "rolling_pixels", "RigBlock", "rig_block", "DRONE_CAMERA"]
 
 #: the drone camera: focal length (px), image size (px), pixel pitch (mm)
 DRONE_CAMERA = {"focal_px": 3000.0, "width_px": 4000, "height_px": 3000, "pitch_mm": 0.004}
@@ -89,8 +89,9 @@ def _ground(e: np.ndarray, n: np.ndarray) -> np.ndarray:
     return 8.0 * np.sin(e / 60.0) * np.cos(n / 45.0) + 3.0 * np.sin((e + n) / 23.0)
 
 
-def _rolling_pixels(eo, vel, pts, focal_mm, pitch, w_px, h_px, readout_s, ei, pj):
-    """Exact rolling-shutter pixels (u, v) of the observations, the row solved (module docstring)."""
+def rolling_pixels(eo, vel, pts, focal_mm, pitch, w_px, h_px, readout_s, ei, pj):
+    """Exact rolling-shutter pixels (n, 2) (column, row) and u3 (n,) of observations (photo *ei*, point *pj*)
+    through *eo* (P, 6) moving at *vel* (P, 3) m/s, the row solved (module docstring)."""
     c = np.full(len(ei), focal_mm)
     v_row = None
     for _ in range(30):
@@ -175,7 +176,7 @@ def drone_block(seed: int = 0, *, readout_s: float = 0.03, speed_m_s: float = 10
     ei, pj = ei[sel], new[pj[sel]]
     pts = pts[keep]
     q = len(pts)
-    px, _ = _rolling_pixels(eo, vel, pts, focal_mm, pitch, w_px, h_px, readout_s, ei, pj)
+    px, _ = rolling_pixels(eo, vel, pts, focal_mm, pitch, w_px, h_px, readout_s, ei, pj)
     px = px + noise.normal(0, image_sd_px, px.shape)
     xy_obs = np.stack([(px[:, 0] - (w_px - 1) / 2) * pitch, ((h_px - 1) / 2 - px[:, 1]) * pitch], axis=1)
     # control at the four corners and the middle, check points spread over the rest
