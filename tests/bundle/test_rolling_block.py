@@ -8,6 +8,7 @@ camera with a located warning, and the row-trend pattern is reported per photo.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import numpy as np
@@ -152,3 +153,23 @@ def test_drone_block_acceptance_over_seeds():
     assert np.all(ratio <= 1.2), ratio
     assert min(t_val) > 10
     assert np.sqrt(np.mean(np.square(z))) < 1.6 and np.abs(z).max() < 3.5
+
+
+def test_camera_readout_time_key(tmp_path):
+    """camera.toml's ``readout_time_ms`` (default 0 = global shutter): read, written back, refused
+    with the file, line and field when out of range."""
+    from lidarcat.errors import SurveyError
+    from lidarcat.geometry.camera import Camera, load_cameras
+
+    cam = Camera("drone", 12.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.004, 0.004, 4000, 3000)
+    assert cam.readout_time_ms == 0.0 and "readout_time_ms" not in cam.to_toml()
+    fast = dataclasses.replace(cam, readout_time_ms=30)
+    path = tmp_path / "camera.toml"
+    path.write_text(fast.to_toml(), encoding="utf-8")
+    assert load_cameras(path)["drone"].readout_time_ms == 30.0
+    text = fast.to_toml().replace("readout_time_ms = 30.0", "readout_time_ms = -3")
+    path.write_text(text, encoding="utf-8")
+    line = text.splitlines().index("readout_time_ms = -3") + 1
+    with pytest.raises(SurveyError, match=rf"camera\.toml:{line}: field 'readout_time_ms': .*read-out time must be a "
+                                          r"number of ms in 0\.\.1000 \(0: a global shutter\), got -3"):
+        load_cameras(path)
