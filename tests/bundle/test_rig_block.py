@@ -177,3 +177,44 @@ def test_rig_relative_poses_are_honest_over_seeds():
     rms = float(np.sqrt(np.mean(z**2)))
     assert 0.8 < rms < 1.25, rms
     assert np.abs(z).max() < 3.5
+
+
+def test_exposure_problem_from_photos_gives_the_rig_block():
+    """A block of photos (one per sensor and exposure, as a survey lists them) turned into the
+    block of exposures equals the rig block; two photos of one sensor in an exposure are refused."""
+    from lidarcat.bundle import BundleProblem
+    from lidarcat.bundle.rig import exposure_problem
+
+    b = rig_block(2, n_strips=2, exposures_per_strip=4, n_points=800)
+    p = b.problem
+    r = p.rays
+    n_s = len(r.sensor_rotation)
+    pairs, inv = np.unique(p.photo_index * n_s + r.sensor_index, return_inverse=True)
+    ex, sensor = pairs // n_s, pairs % n_s
+    eo = photo_poses(p.initial_eo, r.sensor_rotation, r.sensor_translation_m, ex, sensor)
+    ref = np.flatnonzero(sensor == 0)
+    photos = BundleProblem(
+        photo_ids=[f"{p.photo_ids[e]}_{b.sensor_names[s]}" for e, s in zip(ex, sensor)], point_ids=p.point_ids,
+        focal_length_mm=p.focal_length_mm[ex], photo_index=inv, point_index=p.point_index, xy_mm=p.xy_mm,
+        sd_mm=p.sd_mm, constraint_point_index=p.constraint_point_index, constraint_enh_m=p.constraint_enh_m,
+        constraint_sd_m=p.constraint_sd_m, eo_constraint_photo_index=ref,
+        eo_constraint_params=p.eo_constraint_params[ex[ref]], eo_constraint_sd=p.eo_constraint_sd[ex[ref]],
+        initial_eo=eo)
+    out, index = exposure_problem(photos, [p.photo_ids[e] for e in ex], sensor, r.sensor_rotation,
+                                  r.sensor_translation_m, sensor_names=b.sensor_names)
+    np.testing.assert_array_equal(index, ex)
+    assert tuple(out.photo_ids) == tuple(p.photo_ids)
+    np.testing.assert_array_equal(out.photo_index, p.photo_index)
+    np.testing.assert_array_equal(out.rays.sensor_index, r.sensor_index)
+    np.testing.assert_allclose(out.initial_eo, p.initial_eo, atol=1e-9)
+    np.testing.assert_array_equal(out.eo_constraint_photo_index, p.eo_constraint_photo_index)
+    a = adjust(out, initial=(out.initial_eo, rig_initial_points(out, out.initial_eo)))
+    c = adjust(p, initial=(p.initial_eo, rig_initial_points(p, p.initial_eo)))
+    assert a.success and np.abs(np.asarray(a.eo_params) - np.asarray(c.eo_params)).max() < 1e-9
+    twice = list(ex)
+    twice[ref[1]] = twice[ref[0]]
+    with pytest.raises(CameraError, match=rf"rig exposure '{p.photo_ids[ex[ref[0]]]}': photos "
+                                          rf"'{photos.photo_ids[ref[0]]}' and '{photos.photo_ids[ref[1]]}' are both "
+                                          r"of sensor 'nadir'"):
+        exposure_problem(photos, [p.photo_ids[e] for e in twice], sensor, r.sensor_rotation, r.sensor_translation_m,
+                         sensor_names=b.sensor_names)

@@ -77,6 +77,9 @@ class ObservationRays:
     sensor_rotation_vector : (S, 3) array, optional
         ``eps_s`` of ``Q_s = exp([eps_s]x) Q_s0`` when the poses are being estimated (for the
         left Jacobian of :func:`sensor_jacobians`); zero by default.
+    sensor_focal_mm : (S,) array, optional
+        Focal length of every sensor, mm, when the sensors' cameras differ (default: the
+        problem's ``focal_length_mm`` of the exposure).
     """
 
     centre_offset_m: Any = None
@@ -84,6 +87,7 @@ class ObservationRays:
     sensor_rotation: Any = None
     sensor_translation_m: Any = None
     sensor_rotation_vector: Any = None
+    sensor_focal_mm: Any = None
 
     def __post_init__(self) -> None:
         s = object.__setattr__
@@ -110,6 +114,11 @@ class ObservationRays:
             s(self, "sensor_rotation", q)
             s(self, "sensor_translation_m", d)
             s(self, "sensor_rotation_vector", frozen_array(np.reshape(eps, (n_s, 3))))
+            if self.sensor_focal_mm is not None:
+                f = frozen_array(np.reshape(self.sensor_focal_mm, (n_s,)))
+                if not np.all(f > 0):
+                    raise CameraError("`sensor_focal_mm` must be positive")
+                s(self, "sensor_focal_mm", f)
 
     @property
     def has_sensors(self) -> bool:
@@ -129,6 +138,14 @@ def _shifted_points(p, pts: np.ndarray) -> np.ndarray:
     return x if r is None or r.centre_offset_m is None else x - r.centre_offset_m
 
 
+def _focal(p) -> np.ndarray:
+    """Focal length of every observation's camera (n,), mm."""
+    r = p.rays
+    if r is not None and r.has_sensors and r.sensor_focal_mm is not None:
+        return r.sensor_focal_mm[r.sensor_index]
+    return np.asarray(p.focal_length_mm)[p.photo_index]
+
+
 def _rig_state(p, eo: np.ndarray, pts: np.ndarray):
     """u_b (n, 3), u (n, 3), Q of each ray (n, 3, 3), J_u (n, 2, 3), M per photo, dM per photo."""
     r = p.rays
@@ -138,7 +155,7 @@ def _rig_state(p, eo: np.ndarray, pts: np.ndarray):
     ub = np.einsum("nij,nj->ni", m[ei], diff)
     q = r.sensor_rotation[r.sensor_index]
     u = np.einsum("nij,nj->ni", q, ub) + r.sensor_translation_m[r.sensor_index]
-    c = np.asarray(p.focal_length_mm)[ei]
+    c = _focal(p)
     inv = 1.0 / u[:, 2]
     ju = np.zeros((len(u), 2, 3))
     ju[:, 0, 0] = ju[:, 1, 1] = -c * inv
@@ -158,7 +175,7 @@ def observation_parts(p, eo: np.ndarray, pts: np.ndarray):
     if p.rays is None or not p.rays.has_sensors:
         return project_jacobian_parts(eo, _shifted_points(p, pts), p.focal_length_mm[ei], ei)
     ub, u, q, ju, m, dm = _rig_state(p, eo, pts)
-    c = np.asarray(p.focal_length_mm)[ei]
+    c = _focal(p)
     xy = -c[:, None] * u[:, :2] / u[:, 2:3]
     jq = ju @ q
     a_pt = jq @ m[ei]
@@ -174,7 +191,7 @@ def observation_project(p, eo: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray,
     if p.rays is None or not p.rays.has_sensors:
         return project(eo, _shifted_points(p, pts), p.focal_length_mm[ei], ei)
     _, u, _, _, _, _ = _rig_state(p, eo, pts)
-    c = np.asarray(p.focal_length_mm)[ei]
+    c = _focal(p)
     return -c[:, None] * u[:, :2] / u[:, 2:3], u[:, 2]
 
 

@@ -20,6 +20,12 @@ component of :func:`lidarcat.bundle.adjust_with_parameters`): ``Q_s = exp([eps_s
 sds (free by default) and the Jacobians of :func:`lidarcat.bundle.rays.sensor_jacobians`.
 The datum of the relative poses is the body: the reference sensor has none.
 
+From photos to exposures: :func:`exposure_problem` turns a block of photos (one per sensor and
+exposure, as a survey lists them) into the block of exposures: the observations keep their
+photo's sensor, the body pose starts from the reference photo (or from another sensor's photo
+through the inverse, ``M_b = Q_s^T M_s``, ``X0_b = X0_s + M_s^T d_s``), the GNSS constraints of
+the reference photos constrain the body, and the sensors' focal lengths ride along.
+
 Approximations: :func:`rig_initial_points` intersects the points from the sensors' photos
 composed from approximate body poses (GNSS and the nominal attitude) -- the data alone.
 """
@@ -39,8 +45,8 @@ from .approx import intersect_points
 from .problem import BundleProblem
 from .rays import ObservationRays, sensor_jacobians
 
-__all__ = ["rig_sensor_poses", "with_rig", "angles_from_matrix", "photo_poses", "rig_initial_points",
-           "RigRelativePoses", "rotation_log"]
+__all__ = ["rig_sensor_poses", "with_rig", "exposure_problem", "angles_from_matrix", "photo_poses", "body_poses",
+           "rig_initial_points", "RigRelativePoses", "rotation_log"]
 
 _D = np.diag([1.0, -1.0, -1.0])
 
@@ -103,6 +109,97 @@ def photo_poses(body_eo: Any, rotation: Any, translation_m: Any, exposure: Any, 
     return np.concatenate([x0, angles_from_matrix(q @ mb)], axis=1)
 
 
+def body_poses(photo_eo: Any, rotation: Any, translation_m: Any, sensor: Any) -> np.ndarray:
+    """Body poses (k, 6) from the photos (k, 6) of sensors *sensor* (k,): the inverse of
+    :func:`photo_poses`, ``M_b = Q_s^T M_s``, ``X0_b = X0_s + M_s^T d_s``."""
+    e = np.asarray(photo_eo, dtype=float).reshape(-1, 6)
+    s = np.asarray(sensor)
+    q = np.asarray(rotation, dtype=float)[s]
+    d = np.asarray(translation_m, dtype=float)[s]
+    ms = rotation_matrix(e[:, 3:])
+    x0 = e[:, :3] + np.einsum("nji,nj->ni", ms, d)
+    return np.concatenate([x0, angles_from_matrix(np.transpose(q, (0, 2, 1)) @ ms)], axis=1)
+
+
+def exposure_problem(problem: BundleProblem, exposure_of_photo: Sequence[Any], sensor_of_photo: Any,
+                     rotation: Any, translation_m: Any, *, sensor_focal_mm: Any = None,
+                     sensor_names: Sequence[str] | None = None) -> tuple[BundleProblem, np.ndarray]:
+    """The block of rig exposures from a block of photos (module docstring).
+
+    Parameters
+    ----------
+    problem : BundleProblem
+        One photo per sensor and exposure (as read from a survey).
+    exposure_of_photo : sequence, (P,)
+        Exposure label of every photo (e.g. photos.csv ``rig_exposure``).
+    sensor_of_photo : (P,) int array
+        Sensor of every photo (0 = the body).
+    rotation, translation_m : (S, 3, 3), (S, 3) arrays
+        The sensors' relative poses (thesis frame, :func:`rig_sensor_poses`).
+    sensor_focal_mm : (S,) array, optional
+        The sensors' focal lengths (default: the problem's, which must then agree per exposure).
+    sensor_names : sequence of str, optional
+        For the errors.
+
+    Returns
+    -------
+    problem : BundleProblem
+        Photos = exposures (ids the labels), ``rays`` with every observation's sensor.
+    exposure_index : (P,) int array
+        The exposure of every photo of *problem*.
+
+    Raises
+    ------
+    CameraError
+        Two photos of one sensor in one exposure (names the exposure and the photos).
+    """
+    p = problem
+    labels = [str(x) for x in exposure_of_photo]
+    sensor = np.asarray(sensor_of_photo, dtype=np.int64)
+    if len(labels) != p.n_photos or sensor.shape != (p.n_photos,):
+        raise CameraError(f"rig: {len(labels)} exposure label(s) and {sensor.shape[0]} sensor(s) for "
+                          f"{p.n_photos} photos")
+    names = list(sensor_names) if sensor_names is not None else [str(k) for k in range(len(rotation))]
+    ids = list(dict.fromkeys(labels))
+    ex = np.array([ids.index(x) for x in labels], dtype=np.int64)
+    seen: dict[tuple[int, int], int] = {}
+    for i, key in enumerate(zip(ex.tolist(), sensor.tolist())):
+        if key in seen:
+            raise CameraError(f"rig exposure {ids[key[0]]!r}: photos {p.photo_ids[seen[key]]!r} and "
+                              f"{p.photo_ids[i]!r} are both of sensor {names[key[1]]!r}")
+        seen[key] = i
+    n_ex = len(ids)
+    # the body pose's approximation and constraints: the reference photo, else the first photo's inverse
+    rep = np.full(n_ex, -1)
+    for i in np.argsort(sensor, kind="stable"):
+        if rep[ex[i]] < 0:
+            rep[ex[i]] = i
+    initial = None
+    if p.initial_eo is not None:
+        initial = body_poses(p.initial_eo[rep], rotation, translation_m, sensor[rep])
+    kw: dict[str, Any] = {}
+    if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
+        keep = sensor[p.eo_constraint_photo_index] == 0
+        kw = {"eo_constraint_photo_index": ex[p.eo_constraint_photo_index[keep]],
+              "eo_constraint_params": p.eo_constraint_params[keep], "eo_constraint_sd": p.eo_constraint_sd[keep]}
+    focal = np.asarray(p.focal_length_mm)
+    if sensor_focal_mm is None:
+        fs = np.full(len(rotation), np.nan)
+        for s_ in range(len(rotation)):
+            f_s = focal[sensor == s_]
+            if len(f_s) and np.ptp(f_s) > 0:
+                raise CameraError(f"rig: sensor {names[s_]!r}: its photos have different focal lengths")
+            if len(f_s):
+                fs[s_] = f_s[0]
+        sensor_focal_mm = np.where(np.isfinite(fs), fs, np.nanmax(fs))
+    out = dataclasses.replace(
+        p, photo_ids=ids, focal_length_mm=np.asarray(sensor_focal_mm, dtype=float)[sensor[rep]],
+        photo_index=ex[p.photo_index], initial_eo=initial, **kw,
+        rays=ObservationRays(sensor_index=sensor[p.photo_index], sensor_rotation=rotation,
+                             sensor_translation_m=translation_m, sensor_focal_mm=sensor_focal_mm))
+    return out, ex
+
+
 def rig_initial_points(problem: BundleProblem, body_eo: Any) -> np.ndarray:
     """Points (Q, 3) m intersected from the rays of every sensor photo composed from *body_eo* (P, 6)."""
     p = problem
@@ -113,8 +210,9 @@ def rig_initial_points(problem: BundleProblem, body_eo: Any) -> np.ndarray:
     key = p.photo_index * n_s + r.sensor_index
     pairs, inv = np.unique(key, return_inverse=True)
     eo = photo_poses(body_eo, r.sensor_rotation, r.sensor_translation_m, pairs // n_s, pairs % n_s)
+    focal = (p.focal_length_mm[pairs // n_s] if r.sensor_focal_mm is None else r.sensor_focal_mm[pairs % n_s])
     plain = BundleProblem(photo_ids=[str(k) for k in pairs], point_ids=p.point_ids,
-                          focal_length_mm=p.focal_length_mm[pairs // n_s], photo_index=inv, point_index=p.point_index,
+                          focal_length_mm=focal, photo_index=inv, point_index=p.point_index,
                           xy_mm=p.xy_mm, sd_mm=p.sd_mm, constraint_point_index=p.constraint_point_index,
                           constraint_enh_m=p.constraint_enh_m, constraint_sd_m=p.constraint_sd_m)
     return intersect_points(plain, eo)
