@@ -173,3 +173,65 @@ def test_camera_readout_time_key(tmp_path):
     with pytest.raises(SurveyError, match=rf"camera\.toml:{line}: field 'readout_time_ms': .*read-out time must be a "
                                           r"number of ms in 0\.\.1000 \(0: a global shutter\), got -3"):
         load_cameras(path)
+
+
+def _write_survey(folder, b, readout_ms: float, times: bool = True):
+    """The drone block as a survey folder: camera.toml with *readout_ms*, photos.csv with the GNSS
+    positions (sd) and exposure times, image_points.csv in pixels; the GNSS positions are the datum."""
+    import csv
+
+    folder.mkdir(parents=True)
+    (folder / "survey.toml").write_text(
+        '[survey]\nname = "drone"\ncrs = "local: synthetic"\n[files]\ncamera = "camera.toml"\n'
+        'photos = "photos.csv"\nimage_points = "image_points.csv"\n[adjustment]\nobservations = "pixel"\n'
+        f"image_sd_mm = {0.5 * b.pitch_mm}\n", encoding="utf-8")
+    (folder / "camera.toml").write_text(
+        f"[drone]\nfocal_length_mm = {b.focal_mm}\nprincipal_point_x_mm = 0.0\nprincipal_point_y_mm = 0.0\n"
+        "k1 = 0.0\nk2 = 0.0\nk3 = 0.0\np1 = 0.0\np2 = 0.0\nrefraction_eps45 = 0.0\n"
+        f"pixel_size_x_mm = {b.pitch_mm}\npixel_size_y_mm = {b.pitch_mm}\ncolumns_px = {b.width_px}\n"
+        f"rows_px = {b.height_px}\nreadout_time_ms = {readout_ms}\n", encoding="utf-8")
+    p = b.problem
+    with open(folder / "photos.csv", "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["photo", "camera", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg", "sd_X0", "sd_Y0",
+                    "sd_Z0"] + (["time_s"] if times else []))
+        for i, pid in enumerate(p.photo_ids):
+            w.writerow([pid, "drone", *b.gnss_m[i], *np.degrees(p.initial_eo[i, 3:]), 0.03, 0.03, 0.03]
+                       + ([b.exposure_time_s[i]] if times else []))
+    xy = np.asarray(p.xy_mm)
+    col = xy[:, 0] / b.pitch_mm + (b.width_px - 1) / 2
+    with open(folder / "image_points.csv", "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["photo", "point", "col_px", "row_px"])
+        for i, j, c, r in zip(p.photo_index, p.point_index, col, b.row_px):
+            w.writerow([p.photo_ids[i], p.point_ids[j], repr(float(c)), repr(float(r))])
+    return folder
+
+
+def test_survey_with_a_rolling_shutter_camera(tmp_path):
+    """camera.toml readout_time_ms + photos.csv time_s: the survey's bundle models the read-out (the
+    same problem as the engine's), and lidarcat adjust writes orientations as good as the model's."""
+    from lidarcat.errors import SurveyError
+    from lidarcat.survey import Survey, adjust_survey, problem_from_survey
+    from lidarcat.survey.motion import with_survey_motion
+
+    b = drone_block(0, readout_s=0.03)
+    s = Survey.load(_write_survey(tmp_path / "on", b, 30.0))
+    pe = with_survey_motion(s, problem_from_survey(s, eo_constraints=True))
+    assert pe.info["rolling_shutter"] == ["drone"]
+    on = with_rolling_shutter(b.problem, row_times(b.row_px, b.height_px, 0.03),
+                              neighbour_velocities(b.gnss_m, b.exposure_time_s, b.line))
+    np.testing.assert_allclose(pe.rays.centre_offset_m, on.rays.centre_offset_m, atol=1e-9)
+    res, out = adjust_survey(s, eo_constraints=True, snooping="off", outdir=tmp_path / "out_on")
+    off, _ = adjust_survey(Survey.load(_write_survey(tmp_path / "off", b, 0.0)), eo_constraints=True,
+                           snooping="off", outdir=tmp_path / "out_off")
+    err_on = np.sqrt(np.mean((np.asarray(res.eo_params)[:, :3] - b.true_eo[:, :3]) ** 2))
+    err_off = np.sqrt(np.mean((np.asarray(off.eo_params)[:, :3] - b.true_eo[:, :3]) ** 2))
+    assert res.problem.rays is not None and off.problem.rays is None
+    assert err_on < 0.5 * err_off
+    # a rolling-shutter photo without its exposure time: the file, line and field
+    bad = Survey.load(_write_survey(tmp_path / "bad", b, 30.0, times=False))
+    with pytest.raises(SurveyError, match=r"photos\.csv:2: field 'time_s': photo 'D001' of camera 'drone' "
+                                          r"\(readout_time_ms = 30\) has no time_s: the rolling shutter needs its "
+                                          r"exposure time for the velocity from its neighbours"):
+        with_survey_motion(bad, problem_from_survey(bad, eo_constraints=True))

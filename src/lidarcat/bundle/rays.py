@@ -124,6 +124,13 @@ class ObservationRays:
     def has_sensors(self) -> bool:
         return self.sensor_index is not None
 
+    def select(self, keep: Any) -> ObservationRays:
+        """The rays of the observations *keep* (a boolean mask or indices), for a reduced problem."""
+        k = np.asarray(keep)
+        return dataclasses.replace(
+            self, centre_offset_m=None if self.centre_offset_m is None else self.centre_offset_m[k],
+            sensor_index=None if self.sensor_index is None else self.sensor_index[k])
+
     def check(self, n: int) -> None:
         """Refuse arrays that do not hold one row per observation (*n* of them)."""
         for name in ("centre_offset_m", "sensor_index"):
