@@ -83,3 +83,43 @@ def test_rig_exposures_of_photos_csv(tmp_path):
     with pytest.raises(SurveyError, match=r"photos\.csv:7: field 'rig_exposure': photo 's' of rig exposure 'E3' is "
                                           r"of camera 'spare', a sensor of no rig"):
         rig_exposures(stray, rigs, tmp_path / "photos.csv")
+
+
+def _survey(folder, rigs_text: str | None, exposures=("E1", "E1", "E2", "E2")):
+    """A small survey of two rig exposures (nadir + forward camera), pixels on both."""
+    folder.mkdir(parents=True)
+    files = 'camera = "camera.toml"\nphotos = "photos.csv"\nimage_points = "image_points.csv"\n'
+    if rigs_text is not None:
+        files += 'rigs = "rigs.toml"\n'
+        (folder / "rigs.toml").write_text(rigs_text, encoding="utf-8")
+    (folder / "survey.toml").write_text(f'[survey]\nname = "rig"\ncrs = "local: synthetic"\n[files]\n{files}',
+                                        encoding="utf-8")
+    (folder / "camera.toml").write_text(CAMERAS["nadir"].to_toml() + dataclasses.replace(CAM, id="forward").to_toml(),
+                                        encoding="utf-8")
+    rows = ["photo,camera,rig_exposure"] + [f"p{i},{cam},{ex}" for i, (cam, ex) in
+                                            enumerate(zip(("nadir", "forward", "nadir", "forward"), exposures))]
+    (folder / "photos.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    pts = ["photo,point,col_px,row_px"] + [f"p{i},q{j},{1000 + 100 * j},{800 + 50 * i}" for i in range(4)
+                                          for j in range(4)]
+    (folder / "image_points.csv").write_text("\n".join(pts) + "\n", encoding="utf-8")
+    return folder
+
+
+RIG = '[r]\nsensors = ["nadir", "forward"]\n[r.forward]\nrotation_deg = [30, 0, 0]\ntranslation_m = [0, -0.1, 0]\n'
+
+
+def test_a_survey_with_rig_exposures_loads_and_is_checked(tmp_path):
+    from lidarcat.survey import Survey
+    from lidarcat.survey.rigs import survey_rigs
+
+    s = Survey.load(_survey(tmp_path / "ok", RIG))
+    rigs, exposure, sensor, rig_of = survey_rigs(s)
+    assert list(rigs) == ["r"] and exposure == ["E1", "E1", "E2", "E2"] and sensor.tolist() == [0, 1, 0, 1]
+    with pytest.raises(SurveyError, match=r"photos\.csv:2: field 'rig_exposure': photo 'p0' is in rig exposure 'E1' "
+                                          r"but survey\.toml \[files\] names no rigs file"):
+        Survey.load(_survey(tmp_path / "norig", None))
+    with pytest.raises(SurveyError, match=r"photos\.csv:4: field 'rig_exposure': photo 'p2': rig exposure 'E1' "
+                                          r"already has photo 'p0' of sensor 'nadir'"):
+        Survey.load(_survey(tmp_path / "twice", RIG, exposures=("E1", "E1", "E1", "E2")))
+    with pytest.raises(SurveyError, match=r"rigs\.toml:2: field 'sensors': rig 'r': camera 'side' is not defined"):
+        Survey.load(_survey(tmp_path / "cam", RIG.replace('"forward"]', '"forward", "side"]')))

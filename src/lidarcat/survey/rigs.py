@@ -39,7 +39,7 @@ from ..geometry.models import FrameModel
 from ..geometry.rigs import Rig
 from ..geometry.rolling import rodrigues
 
-__all__ = ["RIG_POSE_KEYS", "load_rigs", "rig_exposures"]
+__all__ = ["RIG_POSE_KEYS", "load_rigs", "rig_exposures", "check_rig_exposures", "survey_rigs"]
 
 #: the keys of a sensor's pose table
 RIG_POSE_KEYS = ("rotation_deg", "translation_m")
@@ -178,3 +178,32 @@ def rig_exposures(photos: Sequence[Any], rigs: Mapping[str, Rig], photos_path: s
         exposure.append(str(label))
         sensor[i] = s
     return exposure, sensor, rig_of
+
+
+def check_rig_exposures(photos: Sequence[Any], rigs_path: Path | None, cameras: Mapping[str, Camera],
+                        photos_path: Path) -> dict[str, Rig]:
+    """What :meth:`lidarcat.Survey.load` checks: the rig file and photos.csv's exposures agree.
+
+    Raises
+    ------
+    SurveyError
+        photos.csv has ``rig_exposure`` values and survey.toml names no rig file (the first such
+        line), or any error of :func:`load_rigs` and :func:`rig_exposures`.
+    """
+    if rigs_path is None:
+        ph = next(p for p in photos if p.rig_exposure)
+        raise SurveyError(f"{location(photos_path, ph.line, 'rig_exposure')}: photo {excerpt(ph.id)} is in rig "
+                          f"exposure {excerpt(ph.rig_exposure)} but survey.toml [files] names no rigs file")
+    rigs = load_rigs(rigs_path, cameras)
+    rig_exposures(photos, rigs, photos_path)
+    return rigs
+
+
+def survey_rigs(survey) -> tuple[dict[str, Rig], list[str], np.ndarray, dict[str, str]]:
+    """The rigs of a loaded survey and its photos' exposures (:func:`rig_exposures`); no rigs: ``{}``."""
+    path = survey.files.get("rigs")
+    if path is None:
+        return {}, [str(p.id) for p in survey.photos], np.zeros(len(survey.photos), dtype=np.int64), {}
+    rigs = load_rigs(path, survey.cameras)
+    where = survey.files.get("photos", survey.root / "photos.csv")
+    return (rigs, *rig_exposures(survey.photos, rigs, where))
