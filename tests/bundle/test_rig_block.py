@@ -138,6 +138,8 @@ def test_rig_block_recovers_the_relative_poses_within_3_sd():
     res = _adjust(b)
     assert res.bundle.success and res.singular == ""
     assert res.names[:6] == tuple(f"rig.forward.{c}" for c in ("rx", "ry", "rz", "tx", "ty", "tz"))
+    start = b.problem.rays.sensor_translation_m
+    assert res.calibrated["rig.forward.rx"] == 0.0 and res.calibrated["rig.backward.tz"] == start[2, 2]
     z = _relative_pose_z(b, res)
     assert np.abs(z).max() < 3
     # the start calibration was 0.5 deg / 5 cm off; the estimate is within 0.01 deg / 1 cm

@@ -235,3 +235,18 @@ def test_survey_with_a_rolling_shutter_camera(tmp_path):
                                           r"\(readout_time_ms = 30\) has no time_s: the rolling shutter needs its "
                                           r"exposure time for the velocity from its neighbours"):
         with_survey_motion(bad, problem_from_survey(bad, eo_constraints=True))
+
+
+def test_velocity_and_readout_components_report_their_start_values():
+    """SelfCalResult.calibrated holds the start of every rolling-shutter unknown (value = start + estimate)."""
+    b = drone_block(2, readout_s=0.03, photos_per_strip=5, n_points=600)
+    t = row_times(b.row_px, b.height_px, b.readout_s)
+    v0 = neighbour_velocities(b.gnss_m, b.exposure_time_s, b.line)
+    on = with_rolling_shutter(b.problem, t, v0)
+    res = adjust_with_parameters(on, [ReadoutTime(row_fractions(b.row_px, b.height_px), v0,
+                                                  ["drone"] * on.n_photos, readout_s={"drone": 0.03})])
+    assert res.calibrated == {"drone.readout_s": 0.03} and abs(res.estimates[0]) < 3 * res.sd[0]
+    vel = adjust_with_parameters(on, [VelocityCorrections(t, v0, sd_m_s=0.5, photos=[0, 3])])
+    assert vel.names == ("D001.vE", "D001.vN", "D001.vh", "D004.vE", "D004.vN", "D004.vh")
+    assert vel.calibrated["D004.vN"] == pytest.approx(v0[3, 1])
+    assert np.all(np.isfinite(vel.prior_sd)) and vel.prior_sd[0] == 0.5

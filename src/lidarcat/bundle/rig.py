@@ -273,6 +273,8 @@ class _BoundRig:
         self.groups = [f"rig {spec.rig_id} sensor {spec.sensor_names[s]}" for s in est for _ in comp]
         sd = [spec.sd_rad] * 3 + [spec.sd_m] * 3
         self.prior_sd = np.tile(np.where(np.asarray(sd, float) > 0, sd, np.inf), len(est))
+        # the start: rotation vector 0 about Q_s0, translation d_s0 (the result's "value" = start + estimate)
+        self.calibrated = np.concatenate([np.r_[np.zeros(3), self.d0[s]] for s in est]) if est else np.zeros(0)
         self.notes: list[str] = []
 
     def poses(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -217,6 +217,7 @@ class _BoundVelocity:
         self.groups = [f"photo {problem.photo_ids[i]}" for i in photos for _ in range(3)]
         sd = float(spec.sd_m_s)
         self.prior_sd = np.full(self.n, sd if sd > 0 else np.inf)
+        self.calibrated = np.asarray(self.v0)[photos].ravel()      # the start (the result's value = start + estimate)
         self.notes: list[str] = []
 
     def velocity(self, theta: np.ndarray) -> np.ndarray:
@@ -294,6 +295,7 @@ class _BoundReadout:
         self.groups = [f"camera {c}" for c in self.cams]
         sd = float(spec.sd_s)
         self.prior_sd = np.full(self.n, sd if sd > 0 else np.inf)
+        self.calibrated = self.t0                                  # the start (the result's value = start + estimate)
         self.notes: list[str] = []
 
     def apply(self, theta: np.ndarray, fields: dict[str, Any]) -> None:
