@@ -21,6 +21,13 @@ The package, one concern per module, in the order a step runs:
                     approximate orientation (:func:`screen`)
 ``robust``          the robust start: screening, graduated IRLS, the rejected
                     observations named and put back (:func:`robust_start`)
+``rays``            per-observation rays: a moving projection centre (rolling
+                    shutter) and the sensor of a rig exposure
+                    (:class:`~lidarcat.bundle.rays.ObservationRays`)
+``rolling``         rolling shutter: row times, velocities from the neighbouring
+                    exposures, velocity and read-out-time unknowns, the tests
+``rig``             rigs: one body pose per exposure, the sensors' relative
+                    poses given or estimated (:class:`~lidarcat.bundle.rig.RigRelativePoses`)
 ==================  ==========================================================
 
 Additional parameters (issue 13): ``additional`` (self-calibration, GNSS

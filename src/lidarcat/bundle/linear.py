@@ -205,8 +205,12 @@ class Schur:
         s_up = _slots(bpat, ia, ib)
         order = np.argsort(s_up, kind="stable")          # pairs sorted by slot (chunks touch few slots)
         self.oa, self.ob, self.s_up = oa[order], ob[order], s_up[order]
-        self._groups = _slot_groups(np.r_[self.s_up, self.slot_diag[ei]], np.r_[self.oa, np.arange(len(ei))],
-                                    np.r_[self.ob, np.arange(len(ei))], sentinel=len(ei))
+        # a point seen twice by one camera (two sensors of a rig exposure): its diagonal block needs
+        # T_b W_a^T beside T_a W_b^T (the pair is listed once, a < b, for the precision)
+        same = np.flatnonzero(ei[self.oa] == ei[self.ob])
+        self._groups = _slot_groups(np.r_[self.s_up, self.s_up[same], self.slot_diag[ei]],
+                                    np.r_[self.oa, self.ob[same], np.arange(len(ei))],
+                                    np.r_[self.ob, self.oa[same], np.arange(len(ei))], sentinel=len(ei))
         self.up_slots = _distinct(self.s_up)
         ui, uk = _slot_rc(bpat, self.up_slots)
         self.lo_slots = _slots(bpat, uk, ui)

@@ -12,7 +12,10 @@ equations are
 The position constraints of control points add ``1 / sd^2`` to the diagonal of
 ``V_j`` and ``w (X_j - X_obs)`` to ``g_p``; camera constraints (GNSS/INS) do the
 same to ``U_i`` and ``g_c`` (angle residuals wrapped to (-pi, pi]).  ``v'Pv`` is
-the weighted sum of squares of all of them.  :class:`NormalSystem` holds one
+the weighted sum of squares of all of them.  A problem with per-observation rays
+(``problem.rays``: rolling-shutter centre offsets, sensors of a rig) is projected by
+:func:`lidarcat.bundle.rays.observation_parts` with the same blocks (the body pose of a rig
+exposure takes the photo's place).  :class:`NormalSystem` holds one
 linearisation; :func:`weighted_cost` evaluates ``v'Pv`` only (infinite when a point is
 behind a camera).
 """
@@ -24,6 +27,7 @@ import math
 import numpy as np
 
 from ..geometry.collinearity import project, project_jacobian_parts
+from .rays import observation_parts, observation_project
 from .linear import Schur
 from .problem import BundleProblem
 
@@ -60,7 +64,10 @@ class NormalSystem:
         self.schur = schur if schur is not None else Schur(p.photo_index, p.point_index, p.n_photos,
                                                             p.n_points, coords=np.asarray(eo)[:, :3])
         ei, pj = p.photo_index, p.point_index
-        xy, a_pt, a_ang, u3 = project_jacobian_parts(eo, pts[pj], p.focal_length_mm[ei], ei)
+        if p.rays is None:
+            xy, a_pt, a_ang, u3 = project_jacobian_parts(eo, pts[pj], p.focal_length_mm[ei], ei)
+        else:
+            xy, a_pt, a_ang, u3 = observation_parts(p, eo, pts)
         self.u3 = u3
         r = xy - p.xy_mm                                 # residual (adjusted - observed)
         w = 1.0 / p.sd_mm**2                             # (n, 2)
@@ -120,7 +127,10 @@ def weighted_cost(problem: BundleProblem, eo: np.ndarray, pts: np.ndarray) -> fl
     when a point is behind (or in the plane of) a camera."""
     p = problem
     ei, pj = p.photo_index, p.point_index
-    xy, u3 = project(eo, pts[pj], p.focal_length_mm[ei], ei)
+    if p.rays is None:
+        xy, u3 = project(eo, pts[pj], p.focal_length_mm[ei], ei)
+    else:
+        xy, u3 = observation_project(p, eo, pts)
     if np.any(u3 >= 0) or not np.all(np.isfinite(xy)):
         return math.inf  # a point behind (or in the plane of) a camera
     c = float(np.sum(((xy - p.xy_mm) / p.sd_mm) ** 2))

@@ -183,6 +183,9 @@ class BundleProblem:
         ``control`` for constrained points, ``tie`` otherwise.
     info : dict, optional
         Free metadata copied into the summary (survey name, control set, ...).
+    rays : lidarcat.bundle.rays.ObservationRays, optional
+        Per-observation projection-centre offsets (rolling shutter) and sensor poses within a
+        rig (the photos are then rig exposures); None: the plain collinearity.
     """
 
     photo_ids: np.ndarray
@@ -201,6 +204,7 @@ class BundleProblem:
     initial_eo: np.ndarray | None = None
     point_role: np.ndarray | None = None
     info: dict = dataclasses.field(default_factory=dict)
+    rays: Any = None
 
     def __post_init__(self) -> None:
         s = object.__setattr__
@@ -254,6 +258,8 @@ class BundleProblem:
             if len(role) != n_pt:
                 raise ValueError("`point_role` must have one entry per point")
         s(self, "point_role", frozen_array(role, dtype=None))
+        if self.rays is not None:
+            self.rays.check(n)
 
     @property
     def n_photos(self) -> int:
@@ -376,7 +382,10 @@ def check_datum(problem: BundleProblem) -> None:
                          "are needed to determine its 6 orientation parameters (measure more points "
                          "or remove the photo)")
     # distinct photos per point
-    key = p.photo_index.astype(np.int64) * n_pt + p.point_index      # one integer per (photo, point)
+    view = p.photo_index.astype(np.int64)
+    if p.rays is not None and p.rays.has_sensors:     # a rig exposure: one view per sensor
+        view = view * len(p.rays.sensor_rotation) + p.rays.sensor_index
+    key = view * n_pt + p.point_index      # one integer per (photo, point)
     # a stable sort of the keys, not np.unique (numpy 2.4 hashes: 0.17-0.30 s for this check at
     # 10,010 photos, 0.02 s sorted); equal keys keep their input order
     korder = np.argsort(key, kind="stable")

@@ -103,7 +103,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, stats
 
-from ..geometry.collinearity import project_with_jacobians
+from .rays import observation_parts
 from ..errors import DatumError
 from .linear import SingularSystem
 from .model import NormalSystem
@@ -493,7 +493,8 @@ def reliability(result: BundleResult, *, level: float | None = None, power: floa
         raise DatumError(f"reliability: {ex}") from ex
     ei, pj = p.photo_index, p.point_index
     n = len(ei)
-    _, a_eo, a_pt, _ = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
+    _, a_pt, a_ang, _ = observation_parts(p, eo, pts)
+    a_eo = np.concatenate([-a_pt, a_ang], axis=2)
     A = np.concatenate([a_eo, a_pt], axis=2)                # (n, 2, 9)
     parts: list[dict[str, Any]] = []
 
@@ -577,7 +578,8 @@ def _dense_cofactor(result: BundleResult) -> tuple[np.ndarray, np.ndarray]:
     p = result.problem
     eo, pts = np.asarray(result.eo_params), np.asarray(result.points_m)
     ei, pj = p.photo_index, p.point_index
-    _, a_eo, a_pt, _ = project_with_jacobians(eo, pts[pj], p.focal_length_mm[ei], ei)
+    _, a_pt, a_ang, _ = observation_parts(p, eo, pts)
+    a_eo = np.concatenate([-a_pt, a_ang], axis=2)
     n, k = len(ei), len(p.constraint_point_index)
     u = 6 * p.n_photos + 3 * p.n_points
     A = np.zeros((2 * n + 3 * k, u))

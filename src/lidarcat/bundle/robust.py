@@ -143,7 +143,7 @@ def _reduced(p: BundleProblem, keep: np.ndarray) -> tuple[BundleProblem, np.ndar
         p, point_ids=p.point_ids[has], photo_index=p.photo_index[keep], point_index=new[p.point_index[keep]],
         xy_mm=p.xy_mm[keep], sd_mm=p.sd_mm[keep], constraint_point_index=new[ci[con]],
         constraint_enh_m=p.constraint_enh_m[con], constraint_sd_m=p.constraint_sd_m[con],
-        point_role=p.point_role[has])
+        point_role=p.point_role[has], rays=None if p.rays is None else p.rays.select(keep))
     return sub, np.flatnonzero(has)
 
 

@@ -61,13 +61,14 @@ from typing import Any
 import numpy as np
 import scipy.linalg as sla
 
-from ..geometry.collinearity import block_sum, project_with_jacobians
+from ..geometry.collinearity import block_sum
 from ..errors import DatumError
 from ._blas import pinned
 from ._heap import heap_reuse
 from .linear import CHUNK_PAIRS, inv3, Schur, SingularSystem
 from .model import NormalSystem, weighted_cost
 from .precision import covariance_blocks
+from .rays import observation_parts
 from .problem import BundleProblem, chi2_bounds
 from .result import STATUS_MESSAGES, BundleResult
 from .solve import adjust, step_below_tolerance
@@ -79,7 +80,7 @@ log = logging.getLogger(__name__)
 #: values (floats) of one chunk of per-observation products T_a N_pg[j_a] (32 MB)
 _CHUNK_VALUES = 1 << 22
 
-_FIELDS = ("focal_length_mm", "xy_mm", "constraint_enh_m", "eo_constraint_params")
+_FIELDS = ("focal_length_mm", "xy_mm", "constraint_enh_m", "eo_constraint_params", "rays")
 
 
 class _Globals:
@@ -124,8 +125,9 @@ class _BorderedSystem:
         self.vtpv = sys.vtpv + gl.prior_cost(theta)
         n_ph, n_pt, k = pe.n_photos, pe.n_points, gl.k
         ei, pj = pe.photo_index, pe.point_index
-        xy, a_eo, a_pt, _ = project_with_jacobians(eo, pts[pj], pe.focal_length_mm[ei], ei)
-        state = _State(pe, xy)
+        xy, a_pt, a_ang, _ = observation_parts(pe, eo, pts)
+        a_eo = np.concatenate([-a_pt, a_ang], axis=2)
+        state = _State(pe, xy, eo, pts, a_pt)
         w_obs = 1.0 / pe.sd_mm**2
         rc, re = sys.r_con, sys.r_eo
         wc = np.where(np.isfinite(pe.constraint_sd_m), 1.0 / pe.constraint_sd_m**2, 0.0)
@@ -199,10 +201,13 @@ class _BorderedSystem:
 class _State:
     """What the Jacobians of a component may read: the effective problem and the predictions."""
 
-    def __init__(self, pe: BundleProblem, xy_pred: np.ndarray):
+    def __init__(self, pe: BundleProblem, xy_pred: np.ndarray, eo: np.ndarray | None = None,
+                 pts: np.ndarray | None = None, a_pt: np.ndarray | None = None):
+        self.problem = pe
         self.focal_length_mm = pe.focal_length_mm
         self.photo_index = pe.photo_index
         self.xy_pred = xy_pred
+        self.eo, self.pts, self.a_pt = eo, pts, a_pt      # the linearisation (rolling shutter, rigs)
 
 
 def _scatter(target: np.ndarray, index: np.ndarray, blocks: np.ndarray, cols: np.ndarray) -> None:

@@ -20,14 +20,17 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..geometry.collinearity import project
+from ..errors import DatumError
+
 from .approx import approximations, intersect_points
 from ._blas import pinned
 from ._heap import heap_reuse
 from .model import NormalSystem, weighted_cost
+from .rays import observation_project
 from .linear import Schur, SingularSystem
 from .precision import PRECISION_LEVELS, covariance_blocks
 from .problem import BundleProblem, check_datum, chi2_bounds
+from .rig import rig_initial_points
 from .result import STATUS_MESSAGES, BundleResult
 
 __all__ = ["BundleResult", "adjust", "where_it_fails", "STATUS_MESSAGES", "PCG_MIN_PHOTOS", "FACTOR_REUSE_MIN_PHOTOS"]
@@ -57,7 +60,7 @@ def where_it_fails(p: BundleProblem, eo: np.ndarray, pts: np.ndarray, n: int = 3
     ei, pj = p.photo_index, p.point_index
     if not len(ei):
         return ""
-    xy, u3 = project(eo, pts[pj], p.focal_length_mm[ei], ei)
+    xy, u3 = observation_project(p, eo, pts)
     behind = np.flatnonzero((u3 >= 0) | ~np.isfinite(xy).all(axis=1))
     if len(behind):
         names = ", ".join(f"point {p.point_ids[pj[k]]} on photo {p.photo_ids[ei[k]]}" for k in behind[:n])
@@ -98,7 +101,9 @@ def adjust(
         :func:`lidarcat.bundle.approx.approximations` from control points, image
         measurements and ``problem.initial_eo`` (a planimetric block adjustment,
         then sweeps of intersection and space resection).  With points ``None``
-        they are intersected from the given orientations.
+        they are intersected from the given orientations.  A rig block
+        (``problem.rays`` with sensors) starts from ``problem.initial_eo`` (every
+        exposure's body pose) and :func:`lidarcat.bundle.rig.rig_initial_points`.
     max_iter : int
     tol_m, tol_rad : float
         Convergence threshold on the largest correction of a coordinate (m) and of
@@ -162,13 +167,19 @@ def adjust(
     if check:
         with phase("check"):
             check_datum(p)
+    rig = p.rays is not None and p.rays.has_sensors
+    if initial is None and rig:
+        if p.initial_eo is None or not np.isfinite(p.initial_eo).all():
+            raise DatumError("a rig block needs approximate body poses of every exposure (initial_eo): "
+                             "lidarcat.bundle.rig.exposure_problem takes them from the photos' approximations")
+        initial = (p.initial_eo, None)
     if initial is None:
         with phase("approximations"):
             eo, pts = approximations(p)
     else:
         eo = np.array(initial[0], dtype=float).reshape(p.n_photos, 6)
         if initial[1] is None:
-            pts = intersect_points(p, eo)
+            pts = rig_initial_points(p, eo) if rig else intersect_points(p, eo)
         else:
             pts = np.array(initial[1], dtype=float).reshape(p.n_points, 3)
     eo0, pts0 = eo.copy(), pts.copy()

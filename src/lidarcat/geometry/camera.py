@@ -85,7 +85,7 @@ import numpy as np
 from .._util import excerpt, read_toml, toml_line
 from ..errors import CameraError, SurveyError, location
 
-__all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS", "MAX_RADIAL_SHARE"]
+__all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS", "MOTION_KEYS", "MAX_RADIAL_SHARE"]
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +101,9 @@ _STR_KEYS = ("model", "source")
 CAMERA_KEYS: tuple[str, ...] = _STR_KEYS + _FLOAT_KEYS + _INT_KEYS
 #: the optional standard-deviation keys: ``sd_`` + a calibration key
 SD_KEYS: tuple[str, ...] = tuple(f"sd_{k}" for k in _FLOAT_KEYS)
+#: optional keys of the camera's motion during an exposure (issue 27): the rolling shutter's read-out
+#: time from the top to the bottom row, ms (0: a global shutter, the default)
+MOTION_KEYS: tuple[str, ...] = ("readout_time_ms",)
 _POSITIVE = ("focal_length_mm", "pixel_size_x_mm", "pixel_size_y_mm")
 #: the largest radial correction accepted, as a share of the radius (see the module docstring)
 MAX_RADIAL_SHARE = 0.5
@@ -169,6 +172,9 @@ class Camera:
     sd : Mapping[str, float]
         Standard deviations of the calibration, keyed ``sd_<field>`` (e.g.
         ``sd_focal_length_mm``, ``sd_k1``); all optional, each >= 0.
+    readout_time_ms : float
+        Rolling shutter: time to read the image out from the top to the bottom row, ms
+        (0, the default: a global shutter; :mod:`lidarcat.bundle.rolling`).
 
     Raises
     ------
@@ -197,6 +203,7 @@ class Camera:
     model: str = ""
     source: str = ""
     sd: Mapping[str, float] = field(default_factory=dict)
+    readout_time_ms: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id.strip():
@@ -246,6 +253,12 @@ class Camera:
                 raise _camera_error(key, f"must be a finite number >= 0, got {v!r}")
             sd[key] = v
         object.__setattr__(self, "sd", MappingProxyType(sd))
+        raw = self.readout_time_ms
+        if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)) \
+                or not (math.isfinite(float(raw)) and 0 <= float(raw) <= 1000):
+            raise _camera_error("readout_time_ms", f"read-out time must be a number of ms in 0..1000 "
+                                                   f"(0: a global shutter), got {excerpt(raw)}")
+        object.__setattr__(self, "readout_time_ms", float(raw))
         with np.errstate(all="ignore"):  # coefficients near the float maximum: inf/nan, refused below
             self._check_distortion()
 
@@ -324,6 +337,8 @@ class Camera:
         for name in CAMERA_KEYS:
             out[name] = getattr(self, name)
         out.update(self.sd)
+        if self.readout_time_ms:
+            out["readout_time_ms"] = self.readout_time_ms
         return out
 
     @classmethod
@@ -335,16 +350,16 @@ class Camera:
         CameraError
             Unknown or missing key, or an invalid value (names the field).
         """
-        known = set(CAMERA_KEYS) | set(SD_KEYS)
+        known = set(CAMERA_KEYS) | set(SD_KEYS) | set(MOTION_KEYS)
         for key in table:
             if key not in known:
-                raise _camera_error(key, "unknown key; allowed: " + ", ".join(CAMERA_KEYS + SD_KEYS))
+                raise _camera_error(key, "unknown key; allowed: " + ", ".join(CAMERA_KEYS + SD_KEYS + MOTION_KEYS))
         for key in _FLOAT_KEYS + _INT_KEYS:
             if key not in table:
                 raise _camera_error(key, "missing (required)")
         kwargs = {k: table[k] for k in CAMERA_KEYS if k in table}
         sd = {k: table[k] for k in SD_KEYS if k in table}
-        return cls(camera_id, sd=sd, **kwargs)
+        return cls(camera_id, sd=sd, **kwargs, **{k: table[k] for k in MOTION_KEYS if k in table})
 
     def to_toml(self) -> str:
         """The camera as a ``camera.toml`` table (round-trips through :func:`load_cameras`).
@@ -365,6 +380,8 @@ class Camera:
         for name in SD_KEYS:
             if name in self.sd:
                 lines.append(f"{name} = {self.sd[name]!r}")
+        if self.readout_time_ms:
+            lines.append(f"readout_time_ms = {self.readout_time_ms!r}")
         return "\n".join(lines) + "\n"
 
     def summary(self) -> dict[str, Any]:

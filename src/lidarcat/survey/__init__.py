@@ -6,6 +6,8 @@
 ``covariance``  ``eop_covariance.csv``: the full 6 x 6 covariance of every adjusted orientation.
 ``schema``      The survey.toml schema: every table and key, typed, parsed once and validated at load.
 ``selfcal``     Additional parameters from a survey folder: the ``[self_calibration]`` table and the CLI switches.
+``motion``      The camera's motion during an exposure: the rolling shutter of the survey's cameras in the bundle.
+``rigs``        Rigs from the survey: a rig TOML of cameras with fixed relative poses, and photos.csv's exposures.
 ==============  ============================================================
 """
 

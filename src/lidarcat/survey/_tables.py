@@ -45,6 +45,12 @@ class Photo:
     image : Path or None
         The photo's image file (photos.csv column ``image``, resolved against the survey folder);
         None when the row names none (:meth:`lidarcat.Survey.image_path` then looks in ``images/``).
+    time_s : float or None
+        Exposure time (photos.csv ``time_s``, s, any origin): the velocity of a rolling-shutter
+        camera from its neighbouring exposures (:mod:`lidarcat.survey.motion`).
+    rig_exposure : str or None
+        The rig exposure the photo belongs to (photos.csv ``rig_exposure``;
+        :mod:`lidarcat.survey.rigs`).
     """
 
     id: str
@@ -55,6 +61,8 @@ class Photo:
     sd_attitude_deg: np.ndarray | None = None
     line: int = 0
     image: Path | None = None
+    time_s: float | None = None
+    rig_exposure: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("position_m", "attitude_deg", "sd_position_m", "sd_attitude_deg"):
@@ -296,7 +304,7 @@ def job_tokens(path: Path) -> set[str]:
 
 # ---------------------------------------------------------------------- file readers
 PHOTO_COLUMNS = ("photo", "camera", "image", "X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg",
-               "sd_X0", "sd_Y0", "sd_Z0", "sd_omega_deg", "sd_phi_deg", "sd_kappa_deg")
+               "sd_X0", "sd_Y0", "sd_Z0", "sd_omega_deg", "sd_phi_deg", "sd_kappa_deg", "time_s", "rig_exposure")
 
 
 def load_photos(path: Path, cameras: dict[str, Camera], camera_path: Path, root: Path | None = None
@@ -327,11 +335,14 @@ def load_photos(path: Path, cameras: dict[str, Camera], camera_path: Path, root:
     base = path.parent if root is None else root
     images = [(base / v if v and not Path(v).is_absolute() else Path(v)) if v else None
               for v in (t.column("image") if t.has("image") else [""] * len(ids))]
+    times = t.floats("time_s", required=False) if t.has("time_s") else np.full(len(ids), np.nan)
+    rig_ex = t.column("rig_exposure") if t.has("rig_exposure") else [""] * len(ids)
     photos = []
     for i, line in enumerate(t.lines):
         def opt(a: np.ndarray) -> np.ndarray | None:
             return a[i] if np.isfinite(a[i]).all() else None
-        photos.append(Photo(ids[i], cams[i], opt(pos), opt(att), opt(sdp), opt(sda), line, images[i]))
+        photos.append(Photo(ids[i], cams[i], opt(pos), opt(att), opt(sdp), opt(sda), line, images[i],
+                            float(times[i]) if np.isfinite(times[i]) else None, rig_ex[i].strip() or None))
     if not photos:
         raise SurveyError(f"{path}: no photos")
     check_images(photos, cameras, path, t.column("image") if t.has("image") else None)

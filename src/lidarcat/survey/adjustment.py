@@ -24,6 +24,7 @@ from ..bundle.reliability import SnoopingResult, snoop
 from ..bundle.solve import BundleResult
 from ..errors import SurveyError
 from .covariance import write_result_eop_covariance
+from .motion import with_survey_motion
 
 if TYPE_CHECKING:  # pragma: no cover
     from .folder import Survey
@@ -521,8 +522,8 @@ def adjust_survey_into(
     t0 = time.perf_counter()
     settings = survey.settings
     family_level = FAMILY_LEVEL if family_level is None else float(family_level)
-    problem = problem_from_survey(survey, control=control, observations=observations,
-                                  eo_constraints=eo_constraints)
+    problem = with_survey_motion(survey, problem_from_survey(survey, control=control, observations=observations,
+                                                             eo_constraints=eo_constraints))
     params = dict(control=problem.info.get("control_set"), observations=problem.info.get("observations"),
                   variance_factor=variance_factor or settings.variance_factor,
                   chi2_level=settings.chi2_level if chi2_level is None else chi2_level,

@@ -55,6 +55,7 @@ from ._tables import (
     load_image_points,
     load_photos,
 )
+from .rigs import check_rig_exposures
 from .schema import (
     DEFAULT_CONTOUR_INTERVAL_M,
     DEFAULT_SCALE,
@@ -339,6 +340,9 @@ class Survey:
         ip_path = file_of("image_points")
         image_points, has_xy = load_image_points(ip_path, photo_ids, photos_path)  # type: ignore[arg-type]
 
+        rigs_path = file_of("rigs")
+        if rigs_path is not None or any(p.rig_exposure for p in photos):
+            check_rig_exposures(photos, rigs_path, cameras, photos_path)  # type: ignore[arg-type]
         jobs_path = file_of("extraction_jobs")
         job_words = job_tokens(jobs_path) if jobs_path else set()
 

@@ -131,6 +131,8 @@ class FilesTable:
     lidar: tuple[str, ...] = _key(STRING_OR_STRINGS, (), "LiDAR tile files or globs (LAS/LAZ/ASCII); a glob "
                                                          "matching nothing or a missing file is an error")
     extraction_jobs: str | None = _key(STRING, None, "roofs to extract (jobs.csv or the thesis job file)")
+    rigs: str | None = _key(STRING, None, "rig TOML: cameras with fixed relative poses, moved as one body per "
+                                          "photos.csv rig_exposure (docs/cameras.md, Rigs)")
 
 
 @dataclass(frozen=True)

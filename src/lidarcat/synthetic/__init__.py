@@ -11,6 +11,7 @@
 ``textured``    Small photos of a textured rolling ground with the true point behind every pixel (matching tests).
 ``matches``     A block of automatic tie-point matches with gross errors of known place (the NGI kind).
 ``strips``      Overlapping LiDAR strips with a known boresight, scan-angle scale and elevation bias.
+``drone``       Drone blocks with known truth: a rolling-shutter camera, and a rig of three cameras.
 ==============  ============================================================
 """
 
