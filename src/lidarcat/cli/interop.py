@@ -49,7 +49,8 @@ def _fmt_help(table: dict[str, str]) -> str:
 @click.option("--height-system", default="unspecified", show_default=True,
               help="What the file's heights are: ellipsoidal or orthometric (reported in every output).")
 @click.option("--pixel-size-mm", type=float, default=None,
-              help="Pixel pitch given to cameras that have none (COLMAP, OpenSfM, Borea; default 0.001 mm).")
+              help="Pixel pitch given to cameras that have none (COLMAP, OpenSfM, Borea; default 0.001 mm, "
+                   "0.01 mm for a COLMAP/OpenSfM focal length under 500 px).")
 @click.option("--control-sd-m", type=float, default=None,
               help="colmap/opensfm: model points become control with this sd (model units) so the "
                    "re-adjustment keeps the model's datum.")
@@ -108,12 +109,12 @@ def import_cmd(fmt, source, output, base, crs, file_crs, height_system, pixel_si
         if fmt == "colmap":
             from ..interop.colmap import LOCAL_CRS, read_colmap
 
-            blk = read_colmap(source, pixel_size_mm=px, crs=crs or LOCAL_CRS,
+            blk = read_colmap(source, pixel_size_mm=pixel_size_mm, crs=crs or LOCAL_CRS,
                               height_system=height_system if crs else "unspecified (model frame)")
         elif fmt == "opensfm":
             from ..interop.opensfm import read_opensfm
 
-            blk = read_opensfm(source, tracks, pixel_size_mm=px)
+            blk = read_opensfm(source, tracks, pixel_size_mm=pixel_size_mm)
         elif fmt == "metashape":
             from ..interop.metashape import read_metashape
 

@@ -14,6 +14,7 @@ import numpy as np
 from .._util import read_text
 from ..errors import FormatError
 from ._text import format_error
+from .cameras import SOURCE_KINDS, check_source_model
 
 __all__ = ["check_values", "check_crs", "check_block", "read_source_models", "PHOTO_COLUMNS_EO", "EO_KINDS", "ENH_KINDS"]
 
@@ -171,7 +172,11 @@ def read_source_models(path: Path, cameras: Any) -> dict[str, dict]:
                 if not bad and (isinstance(v, bool) or not isinstance(v, (int, float)) or
                                 (isinstance(v, int) and abs(v) > 10 ** 18) or not np.isfinite(v)):
                     bad = f"dist {k}: expected a finite number"
+        if not bad and m.get("kind", "brown") not in SOURCE_KINDS:
+            bad = f"kind: {str(m.get('kind'))[:40]!r} is not a camera model kind ({', '.join(SOURCE_KINDS)})"
         if bad:
             raise FormatError(f"{path}: camera {cid!r}: {bad}")
+        m = {**m, "kind": m.get("kind", "brown")}
+        check_source_model(cid, m, str(path))
         out[cid] = m
     return out

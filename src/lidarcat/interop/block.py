@@ -26,6 +26,7 @@ from .._util.frozen import frozen_array
 from .._util import atomic_dir, read_csv_table, write_csv_atomic, write_json_atomic, write_text_atomic
 from ..geometry.camera import Camera
 from ..errors import FormatError
+from .cameras import pinhole_camera, undistorted_mm
 from ._checks import (EO_KINDS, ENH_KINDS, PHOTO_COLUMNS_EO, check_area, check_block, check_crs, check_values,
                       read_source_models)
 
@@ -718,47 +719,13 @@ def apply_ground_control(survey: Any, gcp: GroundControl, folder: str | Path, *,
     return folder
 
 
-def pinhole_camera(camera_id: str, fx: float, fy: float, cx: float, cy: float, w: int, h: int, *,
-                   pixel_size_mm: float, model: str, source: str, dist: dict | None = None,
-                   kind: str = "brown") -> tuple[Camera, dict]:
-    """lidarcat's camera for a source-program camera given in pixels, and its source-model dict.
-
-    ``fx, fy`` focal lengths (px), ``cx, cy`` principal point (px, origin at the
-    upper-left image *corner*), ``w, h`` image size.  With pixel pitch ``t``:
-    ``focal_length_mm = fx t``, ``pixel_size_y_mm = t fx / fy``,
-    ``dx = t (cx - w/2)``, ``dy = -t_y (cy - h/2)`` (eq. 01-02).  The lidarcat
-    camera has no distortion: the source distortion stays in the dict.
-
-    >>> cam, _ = pinhole_camera("c", 1000.0, 1000.0, 50.0, 40.0, 100, 80, pixel_size_mm=0.01,
-    ...                         model="m", source="s")
-    >>> cam.focal_length_mm, cam.principal_point_x_mm, cam.principal_point_y_mm
-    (10.0, 0.0, -0.0)
-    """
-    t = float(pixel_size_mm)
-    cam = Camera(camera_id, focal_length_mm=fx * t, principal_point_x_mm=t * (cx - w / 2),
-                 principal_point_y_mm=-(t * fx / fy) * (cy - h / 2), k1=0.0, k2=0.0, k3=0.0,
-                 p1=0.0, p2=0.0, refraction_eps45=0.0, pixel_size_x_mm=t, pixel_size_y_mm=t * fx / fy,
-                 columns_px=int(w), rows_px=int(h), model=model, source=source)
-    return cam, {"fx": float(fx), "fy": float(fy), "cx": float(cx), "cy": float(cy), "w": int(w),
-                 "h": int(h), "dist": {k: float(v) for k, v in (dist or {}).items()}, "kind": kind}
-
-
-def undistorted_mm(xy_corner_px: np.ndarray, cam: Camera, model: dict) -> np.ndarray:
-    """Corrected photo coordinates (n, 2), mm, of source pixels (origin at the image corner)."""
-    from ._distortion import undistort
-
-    yd = (xy_corner_px[:, 1] - model["cy"]) / model["fy"]
-    xd = np.column_stack([(xy_corner_px[:, 0] - model["cx"] - model.get("skew", 0.0) * yd) / model["fx"], yd])
-    xu = undistort(xd, model["dist"], metashape=model.get("kind") == "metashape")
-    return cam.focal_length_mm * xu * [1.0, -1.0]
-
-
 def reprojection_residuals_px(block: Block) -> np.ndarray:
     """Image residuals (n, 2) in the source program's pixels: projected minus observed column,
-    row (y down), the projection going through the source camera model (distortion included)
-    where ``block.source_models`` has one, else through lidarcat's pinhole (``obs_mm`` in pixels).
+    row (y down), the projection going through the source camera model (distortion included, a
+    fisheye's too: :func:`lidarcat.interop.cameras.project_corner_px`) where ``block.source_models``
+    has one, else through lidarcat's pinhole (``obs_mm`` in pixels).
     """
-    from ._distortion import distort
+    from .cameras import project_corner_px
     from .rotations import opk_to_world_to_cv
 
     idx = block.photo_index()
@@ -766,7 +733,6 @@ def reprojection_residuals_px(block: Block) -> np.ndarray:
     cams = block.photo_camera[pi]
     r = opk_to_world_to_cv(block.eo[:, 3:])[pi]
     v = np.einsum("nij,nj->ni", r, block.point(block.obs_point) - block.eo[pi, :3])
-    xn = v[:, :2] / v[:, 2:3]
     out = np.full((len(pi), 2), np.nan)
     mm = photo_coordinates_mm(block)
     for cid in np.unique(cams):
@@ -775,10 +741,8 @@ def reprojection_residuals_px(block: Block) -> np.ndarray:
         if m is None:
             c = block.cameras[str(cid)]
             fx, fy = c.focal_length_mm / c.pixel_size_x_mm, c.focal_length_mm / c.pixel_size_y_mm
-            out[rows] = xn[rows] * [fx, fy] - mm[rows] / [c.pixel_size_x_mm, -c.pixel_size_y_mm]
+            xn = v[rows, :2] / v[rows, 2:3]
+            out[rows] = xn * [fx, fy] - mm[rows] / [c.pixel_size_x_mm, -c.pixel_size_y_mm]
             continue
-        xd = distort(xn[rows], m["dist"], metashape=m.get("kind") == "metashape")
-        proj = xd * [m["fx"], m["fy"]] + [m["cx"], m["cy"]]
-        proj[:, 0] += m.get("skew", 0.0) * xd[:, 1]
-        out[rows] = proj - (block.obs_px[rows] + 0.5)
+        out[rows] = project_corner_px(v[rows], m, str(cid)) - (block.obs_px[rows] + 0.5)
     return out

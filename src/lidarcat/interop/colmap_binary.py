@@ -43,9 +43,8 @@ import numpy as np
 
 from .._util.values import value_problem
 from ..errors import FormatError
-from ._distortion import is_identity
-from .block import Block, pinhole_camera
-from .colmap import COLMAP_MODELS, LOCAL_CRS, block_from_model
+from .block import Block
+from .colmap import COLMAP_MODELS, LOCAL_CRS, block_from_model, colmap_camera
 from .rotations import quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
 __all__ = ["read_colmap_binary", "read_colmap_rigs_binary", "ColmapRig", "ColmapFrame", "COLMAP_MODEL_IDS"]
@@ -119,7 +118,7 @@ class _Reader:
             raise self.error("end", f"{len(self.data) - self.pos} byte(s) after the last record")
 
 
-def _read_cameras(path: Path, pixel_size_mm: float) -> dict[str, tuple]:
+def _read_cameras(path: Path, pixel_size_mm: float | None) -> dict[str, tuple]:
     rd = _Reader(path)
     cams: dict[str, tuple] = {}
     for _ in range(rd.count("num_cameras", 24)):
@@ -130,8 +129,8 @@ def _read_cameras(path: Path, pixel_size_mm: float) -> dict[str, tuple]:
             raise rd.error("MODEL_ID", f"unknown COLMAP camera model id {model_id}", start + 4)
         model = COLMAP_MODEL_IDS[model_id][0]
         if model not in COLMAP_MODELS:
-            raise rd.error("MODEL_ID", f"camera model {model!r} is not supported (supported: "
-                           f"{', '.join(COLMAP_MODELS)}); fisheye models have no lidarcat equivalent", start + 4)
+            raise rd.error("MODEL_ID", f"camera {cid}: camera model {model!r} is not supported (supported: "
+                           f"{', '.join(COLMAP_MODELS)})", start + 4)
         w = int(rd.number("Q", "WIDTH", "image_px"))
         h = int(rd.number("Q", "HEIGHT", "image_px"))
         names = COLMAP_MODELS[model]
@@ -141,12 +140,8 @@ def _read_cameras(path: Path, pixel_size_mm: float) -> dict[str, tuple]:
             raise rd.error("fx" if "fx" in p else "f", "focal length must be positive", start)
         if cid in cams:
             raise rd.error("CAMERA_ID", f"camera {cid} defined twice", start)
-        dist = {n: v for n, v in p.items() if n[0] in "kp"}
-        cams[cid] = pinhole_camera(
-            cid, fx, fy, p["cx"], p["cy"], w, h, pixel_size_mm=pixel_size_mm, model=f"COLMAP {model}",
-            source=f"{path.parent.name}/{path.name}@{start}: {model} " + " ".join(f"{n}={v!r}" for n, v in p.items())
-            + ("" if is_identity(dist) else "; distortion removed from the observations on import"),
-            dist=dist)
+        cams[cid] = colmap_camera(cid, model, w, h, p, pixel_size_mm, f"{path.parent.name}/{path.name}@{start}",
+                                  f"{path}: byte {start}")
     rd.end()
     if not cams:
         raise FormatError(f"{path}: no camera defined")
@@ -175,7 +170,7 @@ def _read_points(path: Path) -> tuple[list[str], np.ndarray]:
     return ids, xyz
 
 
-def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str | None = None,
+def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float | None = None, name: str | None = None,
                        crs: str = LOCAL_CRS, height_system: str = "unspecified (model frame)") -> Block:
     """Read a COLMAP binary model (``cameras.bin``, ``images.bin``, ``points3D.bin``).
 
@@ -193,7 +188,7 @@ def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float = 0.001, name
         if not (folder / fname).is_file():
             raise FormatError(f"{folder / fname}: file not found (a COLMAP binary model has "
                               f"{', '.join(_FILES)})")
-    if not (pixel_size_mm > 0 and math.isfinite(pixel_size_mm)):
+    if pixel_size_mm is not None and not (pixel_size_mm > 0 and math.isfinite(pixel_size_mm)):
         raise FormatError(f"pixel_size_mm must be a positive number, got {pixel_size_mm!r}")
     cams = _read_cameras(folder / "cameras.bin", pixel_size_mm)
     pids, pxyz = _read_points(folder / "points3D.bin")

@@ -48,16 +48,15 @@ def read_block(fmt: str, path: str | Path, *, crs: str | None = None, pixel_size
     """
     from ._checks import check_crs
 
-    px = pixel_size_mm if pixel_size_mm is not None else 0.001
     check_crs(crs, local=fmt == "colmap")
     if fmt == "colmap":
         from .colmap import LOCAL_CRS, read_colmap
 
-        return read_colmap(path, pixel_size_mm=px, crs=crs or LOCAL_CRS)
+        return read_colmap(path, pixel_size_mm=pixel_size_mm, crs=crs or LOCAL_CRS)
     if fmt == "opensfm":
         from .opensfm import read_opensfm
 
-        return read_opensfm(path, tracks, pixel_size_mm=px)
+        return read_opensfm(path, tracks, pixel_size_mm=pixel_size_mm)
     if fmt == "metashape":
         from .metashape import read_metashape
 

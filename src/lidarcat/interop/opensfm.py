@@ -138,7 +138,7 @@ def _vec(path: Path, text: str, where: str, name: str, v: Any, n: int, kind: str
     return np.array([_num(path, text, where, name, x, kind) for x in v])
 
 
-def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float):
+def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float | None):
     if not isinstance(c, dict):
         raise format_error(path, _json_line(text, cid), "cameras", f"camera {cid!r} is not an object")
     kind = c.get("projection_type")
@@ -173,7 +173,7 @@ def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float):
 
 
 def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *, index: int = 0,
-                 pixel_size_mm: float = 0.001, name: str | None = None) -> Block:
+                 pixel_size_mm: float | None = None, name: str | None = None) -> Block:
     """Read one reconstruction of an OpenSfM ``reconstruction.json`` and its ``tracks.csv``.
 
     Parameters
