@@ -87,7 +87,11 @@ class Block:
         ``fx, fy, cx, cy`` (pixels, origin at the image *corner*), ``w, h``,
         ``dist`` (k1..k6, p1, p2) and ``kind`` (``"brown"`` or ``"metashape"``).
         Kept in the survey folder as ``source_cameras.json`` so that an export
-        writes the distortion model back.
+        writes the distortion model back.  A fisheye (``kind`` ``"fisheye"``,
+        ``"metashape_fisheye"``) the same way (:mod:`lidarcat.interop.cameras`).
+    rigs : RigSet or None
+        Multi-camera rigs and their exposures (:mod:`lidarcat.interop.rigs`), kept in the
+        survey folder as ``rigs.json``.
     """
 
     name: str
@@ -110,6 +114,7 @@ class Block:
     eo_sd: np.ndarray | None = None
     description: str = ""
     source_models: dict[str, dict] = field(default_factory=dict)
+    rigs: Any = None
 
     def __post_init__(self) -> None:
         for name in ("photo_ids", "photo_camera", "obs_photo", "obs_point", "point_ids",
@@ -257,6 +262,11 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
         write_text_atomic(tmp / "camera.toml", "\n".join(c.to_toml() for c in block.cameras.values()))
         if block.source_models:
             write_json_atomic(tmp / SOURCE_CAMERAS, block.source_models)
+        if block.rigs is not None:
+            from .rigs import RIGS_FILE, check_rigs, rigs_to_json
+
+            check_rigs(block.rigs, block, block.name)
+            write_json_atomic(tmp / RIGS_FILE, rigs_to_json(block.rigs))
         pcols = ["photo", "camera"]
         known = np.isfinite(block.eo)
         if known[:, :3].any():
@@ -346,14 +356,26 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
     side = survey.root / SOURCE_CAMERAS
     if side.is_file():
         source_models = read_source_models(side, survey.cameras)
-    return Block(
+    rigs = None
+    from .rigs import RIGS_FILE
+
+    if (survey.root / RIGS_FILE).is_file():
+        from .rigs import read_rigs_json
+
+        rigs = read_rigs_json(survey.root / RIGS_FILE)
+    blk = Block(
         name=survey.name, crs=survey.crs, height_system=survey.height_system,
         cameras=dict(survey.cameras), photo_ids=photo_ids,
         photo_camera=np.array([p.camera for p in survey.photos], dtype=str), eo=eo,
         obs_photo=ip.photo[keep], obs_point=ip.point[keep], obs_px=ip.pixel_px[keep],
         obs_mm=obs_mm[keep], point_ids=point_ids, points_m=points,
         ground_ids=gp.point, ground_m=gp.enh_m, ground_sd_m=gp.sd_m, ground_source=gp.source,
-        description=survey.description, source_models=source_models)
+        description=survey.description, source_models=source_models, rigs=rigs)
+    if rigs is not None:
+        from .rigs import check_rigs
+
+        check_rigs(rigs, blk, str(survey.root / RIGS_FILE))
+    return blk
 
 
 def reprojection_residuals_mm(block: Block) -> np.ndarray:

@@ -50,6 +50,7 @@ from ._text import format_error
 from .block import Block, require_orientations
 from .cameras import MAX_RAY_ANGLE_DEG, check_source_model, ideal_observations, pinhole_camera
 from .lens import export_cameras, notes, observed_pixels
+from .rigs import check_rigs, read_colmap_rigs_text, write_colmap_rigs
 from .rotations import matrix_to_quaternion_wxyz, opk_to_world_to_cv, quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
 __all__ = ["read_colmap", "write_colmap", "block_from_model", "colmap_camera", "COLMAP_MODELS", "LOCAL_CRS"]
@@ -243,6 +244,7 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float | None = None, name:
     o_xy: list[np.ndarray] = []
     o_cam: list[str] = []
     names: set[str] = set()
+    image_ids: dict[int, str] = {}
     lines = list(_lines(ipath))
     i = 0
     while i < len(lines):
@@ -257,7 +259,7 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float | None = None, name:
                                "missing: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME")
         # kapture writes "1, 0.95, ..." (COLMAP's own reader takes the leading number of each field)
         f = [c[:-1] if k < 9 and c.endswith(",") else c for k, c in enumerate(f)]
-        _int(ipath, no, "IMAGE_ID", f[0])
+        iid = _int(ipath, no, "IMAGE_ID", f[0])
         q = np.array([_num(ipath, no, n, c) for n, c in zip(("QW", "QX", "QY", "QZ"), f[1:5])])
         tt = np.array([_num(ipath, no, n, c, "coordinate_m") for n, c in zip(("TX", "TY", "TZ"), f[5:8])])
         if not 0.5 < np.linalg.norm(q) < 2.0:
@@ -271,6 +273,7 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float | None = None, name:
         names.add(img)
         r = quaternion_wxyz_to_matrix(q)
         photo.append(img)
+        image_ids[iid] = img
         pcam.append(cid)
         eo.append(np.concatenate([-r.T @ tt, world_to_cv_to_opk(r)]))
         pts_no, pts_raw = lines[i + 1] if i + 1 < len(lines) else (no + 1, "")
@@ -293,9 +296,14 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float | None = None, name:
         i += 2
     if not photo:
         raise FormatError(f"{ipath}: no image")
-    return block_from_model(ipath, cams, photo, pcam, eo, o_photo, o_point, o_xy, o_cam, pids, pxyz,
-                            name=name or folder.name, crs=crs, height_system=height_system,
-                            description=f"imported from the COLMAP model {folder}")
+    blk = block_from_model(ipath, cams, photo, pcam, eo, o_photo, o_point, o_xy, o_cam, pids, pxyz,
+                           name=name or folder.name, crs=crs, height_system=height_system,
+                           description=f"imported from the COLMAP model {folder}")
+    if (folder / "rigs.txt").is_file() and (folder / "frames.txt").is_file():
+        rigs = read_colmap_rigs_text(folder, image_ids, dict(zip(photo, pcam)))
+        check_rigs(rigs, blk, str(folder / "frames.txt"))
+        blk = blk.with_(rigs=rigs)
+    return blk
 
 
 def block_from_model(where: Path, cams: dict[str, tuple], photo: list[str], pcam: list[str], eo: list,
@@ -458,6 +466,10 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
             f"# Number of points: {len(pt_lines)}\n"
             + (f"# lidarcat point ids: {' '.join(renamed)}\n" if renamed else "")
             + "\n".join(pt_lines) + ("\n" if pt_lines else "")))
+        if block.rigs is not None:
+            rigs_txt, frames_txt = write_colmap_rigs(block, cam_num, img_ids)
+            write_text_atomic(tmp / "rigs.txt", rigs_txt)
+            write_text_atomic(tmp / "frames.txt", frames_txt)
     log.info("wrote COLMAP model %s: %d cameras, %d images, %d points", folder, len(cam_lines),
              len(img_ids), len(pt_lines))
     return folder

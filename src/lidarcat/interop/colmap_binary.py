@@ -45,6 +45,7 @@ from .._util.values import value_problem
 from ..errors import FormatError
 from .block import Block
 from .colmap import COLMAP_MODELS, LOCAL_CRS, block_from_model, colmap_camera
+from .rigs import check_rigs, rigs_from_colmap_binary
 from .rotations import quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
 __all__ = ["read_colmap_binary", "read_colmap_rigs_binary", "ColmapRig", "ColmapFrame", "COLMAP_MODEL_IDS"]
@@ -201,9 +202,10 @@ def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float | None = None
     o_xy: list[np.ndarray] = []
     o_cam: list[str] = []
     names: set[str] = set()
+    image_ids: dict[int, str] = {}
     for _ in range(rd.count("num_images", 64)):
         start = rd.pos
-        rd.take("I", "IMAGE_ID")
+        (iid,) = rd.take("I", "IMAGE_ID")
         q = np.array([rd.number("d", f) for f in ("QW", "QX", "QY", "QZ")])
         tt = np.array([rd.number("d", f, "coordinate_m") for f in ("TX", "TY", "TZ")])
         if not 0.5 < np.linalg.norm(q) < 2.0:
@@ -218,6 +220,7 @@ def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float | None = None
         names.add(img)
         r = quaternion_wxyz_to_matrix(q)
         photo.append(img)
+        image_ids[int(iid)] = img
         pcam.append(cid)
         eo.append(np.concatenate([-r.T @ tt, world_to_cv_to_opk(r)]))
         m = rd.count("NUM_POINTS2D", 24)
@@ -241,9 +244,14 @@ def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float | None = None
     rd.end()
     if not photo:
         raise FormatError(f"{rd.path}: no image")
-    return block_from_model(rd.path, cams, photo, pcam, eo, o_photo, o_point, o_xy, o_cam, pids, pxyz,
-                            name=name or folder.name, crs=crs, height_system=height_system,
-                            description=f"imported from the COLMAP binary model {folder}")
+    blk = block_from_model(rd.path, cams, photo, pcam, eo, o_photo, o_point, o_xy, o_cam, pids, pxyz,
+                           name=name or folder.name, crs=crs, height_system=height_system,
+                           description=f"imported from the COLMAP binary model {folder}")
+    if (folder / "rigs.bin").is_file() and (folder / "frames.bin").is_file():
+        rigs = rigs_from_colmap_binary(*read_colmap_rigs_binary(folder), image_ids, dict(zip(photo, pcam)), folder)
+        check_rigs(rigs, blk, str(folder / "frames.bin"))
+        blk = blk.with_(rigs=rigs)
+    return blk
 
 
 # ---------------------------------------------------------------------------------------
