@@ -18,10 +18,18 @@ Conventions (OpenSfM ``doc/source/geometry.rst``)
   ``d = 1 + k1 r^2 + k2 r^4``) and ``brown`` (``focal_x``, ``focal_y``,
   ``c_x``, ``c_y``, ``k1``, ``k2``, ``k3``, ``p1``, ``p2``: ``x_n = f_x x_d + c_x``
   with OpenCV's distortion), focal and principal point in units of ``S``.
-  Both map onto lidarcat's camera as in :mod:`lidarcat.interop.colmap`
-  (pixels ``fx = f S``, ``cx = W/2 + c_x S``); distortion is kept as the source
-  model and removed from the observations exactly.  Other projection types
-  (fisheye, spherical, ...) are refused with a located error.
+  ``fisheye`` (``focal``, ``k1``, ``k2``) and ``fisheye_opencv`` (``focal_x``, ``focal_y``,
+  ``c_x``, ``c_y``, ``k1``..``k4``) are the equidistant Kannala-Brandt fisheye
+  (``theta_d = theta (1 + k1 theta^2 + ...)``, ``x_n = f theta_d X / rho + c``).
+  All map onto lidarcat's camera as in :mod:`lidarcat.interop.colmap`
+  (pixels ``fx = f S``, ``cx = W/2 + c_x S``); the model is kept as the source
+  model and the observations are made ideal through it exactly
+  (:mod:`lidarcat.interop.cameras`).  Other projection types (spherical, dual,
+  fisheye62, ...) are refused with a located error.
+* Rigs: a reconstruction's ``rig_cameras`` (sensor from rig) and ``rig_instances``
+  (rig from world, ``rig_camera_ids`` shot -> rig camera), else the dataset's
+  ``rig_cameras.json`` and ``rig_assignments.json`` beside it, become the block's
+  rigs (:mod:`lidarcat.interop.rigs`); the export writes them back.
 
 Writing produces one reconstruction with the block's cameras (``perspective`` or
 ``brown`` when the block came from a Brown-type model, else the undistorted
@@ -45,8 +53,10 @@ from ..errors import FormatError
 from .._util.tables import JSON_MAX_DEPTH as MAX_JSON_DEPTH, json_too_deep, parse_float
 from .._util.values import parse_number, parse_whole, value_problem
 from ._text import format_error, sd_problem
-from .block import Block, GroundControl, pinhole_camera, require_orientations, undistorted_mm
+from .block import Block, GroundControl, require_orientations
+from .cameras import MAX_RAY_ANGLE_DEG, check_source_model, ideal_observations, pinhole_camera
 from .lens import export_cameras, notes, observed_pixels
+from .rigs import opensfm_rig_entries, rigs_from_opensfm
 from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
 
 __all__ = ["read_opensfm", "read_opensfm_gcp", "read_opensfm_config", "gcp_sd_from_config", "write_opensfm",
@@ -54,7 +64,7 @@ __all__ = ["read_opensfm", "read_opensfm_gcp", "read_opensfm_config", "gcp_sd_fr
 
 log = logging.getLogger(__name__)
 
-OPENSFM_PROJECTIONS = ("perspective", "brown")
+OPENSFM_PROJECTIONS = ("perspective", "brown", "fisheye", "fisheye_opencv")
 
 
 def topocentric_crs(lat_deg: float, lon_deg: float, alt_m: float) -> str:
@@ -151,10 +161,14 @@ def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float | None
     if w < 1 or h < 1:
         raise format_error(path, _json_line(text, cid), "width", f"camera {cid!r}: image size {w}x{h}")
     s = max(w, h)
-    if kind == "perspective":
+    if kind in ("perspective", "fisheye"):
         fx = fy = num("focal") * s
         cx, cy = w / 2, h / 2
         dist = {"k1": num("k1", 0.0), "k2": num("k2", 0.0)}
+    elif kind == "fisheye_opencv":
+        fx, fy = num("focal_x") * s, num("focal_y") * s
+        cx, cy = w / 2 + num("c_x", 0.0) * s, h / 2 + num("c_y", 0.0) * s
+        dist = {k: num(k, 0.0) for k in ("k1", "k2", "k3", "k4")}
     else:
         fx, fy = num("focal_x") * s, num("focal_y") * s
         cx, cy = w / 2 + num("c_x", 0.0) * s, h / 2 + num("c_y", 0.0) * s
@@ -165,9 +179,11 @@ def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float | None
         problem = value_problem(v, "pixel_px")
         if problem:
             raise format_error(path, _json_line(text, cid), k, f"camera {cid!r}: {problem} (times the image size)")
+    fisheye = kind.startswith("fisheye")
     cam, model = pinhole_camera(cid, fx, fy, cx, cy, w, h, pixel_size_mm=pixel_size_mm,
                                 model=f"OpenSfM {kind}", source=f"{path.name}: camera {cid!r} ({kind})",
-                                dist=dist)
+                                dist=dist, kind="fisheye" if fisheye else "brown")
+    check_source_model(cid, model, f"{path}:{_json_line(text, cid)}")
     model["opensfm"] = kind
     return cam, model
 
@@ -257,20 +273,60 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     xy_n = np.array(o_xy, dtype=float).reshape(-1, 2)
     corner = np.empty_like(xy_n)
     mm = np.empty_like(xy_n)
+    keep = np.ones(len(xy_n), dtype=bool)
     oc = np.array([cam_of[p] for p in o_ph], dtype=object)
     for cid, m in models.items():
         rows = oc == cid
         if rows.any():
             s = max(m["w"], m["h"])
             corner[rows] = xy_n[rows] * s + [m["w"] / 2, m["h"] / 2]
-            mm[rows] = undistorted_mm(corner[rows], cams[cid], m)
+            mm[rows], keep[rows] = ideal_observations(corner[rows], cams[cid], m, where=str(tpath))
+    description = f"imported from OpenSfM {path.name} (reconstruction {index})"
+    if not keep.all():
+        description += (f"; {int((~keep).sum())} observation(s) of rays beyond {MAX_RAY_ANGLE_DEG:g} deg from a "
+                        f"fisheye's axis skipped")
+        corner, mm = corner[keep], mm[keep]
+        o_ph = [p for p, k in zip(o_ph, keep) if k]
+        o_pt = [p for p, k in zip(o_pt, keep) if k]
+    rigs = _read_rigs(path, rec, cam_of, {c: (m["w"], m["h"]) for c, m in models.items()})
     return Block(name=name or path.stem, crs=crs, height_system=hs, cameras=cams,
                  photo_ids=np.array(photo, dtype=str), photo_camera=np.array(pcam, dtype=str),
                  eo=np.array(eo).reshape(-1, 6), obs_photo=np.array(o_ph, dtype=str),
                  obs_point=np.array(o_pt, dtype=str), obs_px=corner - 0.5, obs_mm=mm,
                  point_ids=np.array(pids, dtype=str), points_m=np.array(pxyz).reshape(-1, 3),
-                 description=f"imported from OpenSfM {path.name} (reconstruction {index})",
-                 source_models=models)
+                 description=description, source_models=models, rigs=rigs)
+
+
+def _read_rigs(path: Path, rec: dict, shot_cameras: dict[str, str], sizes: dict[str, tuple[int, int]]):
+    """The rigs of a reconstruction (``rig_cameras`` + ``rig_instances``), else of the dataset's
+    ``rig_cameras.json`` + ``rig_assignments.json`` beside it (:func:`lidarcat.interop.rigs.rigs_from_opensfm`);
+    None without rigs."""
+    if isinstance(rec.get("rig_instances"), dict) and rec.get("rig_cameras"):
+        inst = {}
+        for iid, ri in rec["rig_instances"].items():
+            ids = ri.get("rig_camera_ids") if isinstance(ri, dict) else None
+            if not isinstance(ids, dict) or not all(isinstance(v, str) for v in ids.values()):
+                raise FormatError(f"{path}: rig instance {str(iid)[:40]!r}: field 'rig_camera_ids': expected an object "
+                                  f"shot -> rig camera id")
+            inst[str(iid)] = list(ids.items())
+        rigs = rigs_from_opensfm(rec["rig_cameras"], inst, shot_cameras, sizes, str(path))
+    elif (path.parent / "rig_cameras.json").is_file() and (path.parent / "rig_assignments.json").is_file():
+        where = path.parent / "rig_assignments.json"
+        doc = _load_json(where)
+        if isinstance(doc, list):  # older OpenSfM: a list of instances without ids
+            doc = {str(i): v for i, v in enumerate(doc)}
+        inst = {}
+        for iid, pairs in (doc.items() if isinstance(doc, dict) else []):
+            if not isinstance(pairs, list) or not all(isinstance(p, list) and len(p) == 2 and all(
+                    isinstance(x, str) for x in p) for p in pairs):
+                raise FormatError(f"{where}: rig instance {str(iid)[:40]!r}: expected a list of [image, rig camera id]")
+            inst[str(iid)] = [tuple(p) for p in pairs]
+        if not isinstance(doc, dict):
+            raise FormatError(f"{where}: expected an object (or a list) of rig instances")
+        rigs = rigs_from_opensfm(_load_json(path.parent / "rig_cameras.json"), inst, shot_cameras, sizes, str(where))
+    else:
+        return None
+    return rigs if rigs.rigs else None
 
 
 def _read_tracks(path: Path, shots: set[str], points: set[str]):
@@ -381,6 +437,14 @@ def _opensfm_camera(m: dict) -> dict:
     w, h = m["w"], m["h"]
     s = max(w, h)
     d = m["dist"]
+    if m["kind"] == "fisheye":
+        if m["fx"] == m["fy"] and m["cx"] == w / 2 and m["cy"] == h / 2 and not any(
+                d.get(k, 0.0) for k in ("k3", "k4")):
+            return {"projection_type": "fisheye", "width": w, "height": h, "focal": m["fx"] / s,
+                    "k1": d.get("k1", 0.0), "k2": d.get("k2", 0.0)}
+        return {"projection_type": "fisheye_opencv", "width": w, "height": h, "focal_x": m["fx"] / s,
+                "focal_y": m["fy"] / s, "c_x": (m["cx"] - w / 2) / s, "c_y": (m["cy"] - h / 2) / s,
+                **{k: d.get(k, 0.0) for k in ("k1", "k2", "k3", "k4")}}
     if m["fx"] == m["fy"] and m["cx"] == w / 2 and m["cy"] == h / 2 and not any(
             d.get(k, 0.0) for k in ("k3", "p1", "p2")):
         return {"projection_type": "perspective", "width": w, "height": h, "focal": m["fx"] / s,
@@ -494,6 +558,10 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
         xn = (pix[k] - [c["width"] / 2, c["height"] / 2]) / s
         lines.append(f"{ph}\t{pt}\t{k}\t{float(xn[0])!r}\t{float(xn[1])!r}\t0.004\t128\t128\t128\t-1\t-1")
     rec: dict[str, Any] = {"cameras": cams, "shots": shots, "points": points}
+    if block.rigs is not None:
+        rig_cams, rig_inst = opensfm_rig_entries(block)
+        if rig_inst:
+            rec["rig_cameras"], rec["rig_instances"] = rig_cams, rig_inst
     lla = reference_lla(block.crs)
     if lla is not None:
         rec["reference_lla"] = lla

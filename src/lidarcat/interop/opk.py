@@ -240,7 +240,7 @@ def orthority_int_param(block: Block) -> str:
     from .lens import export_cameras
 
     out = {}
-    for cid, m in export_cameras(block, rational=False).items():
+    for cid, m in export_cameras(block, rational=False, fisheye=False).items():
         s = max(m["w"], m["h"])
         out[cid] = {"type": "brown", "im_size": [m["w"], m["h"]], "focal_len": [m["fx"], m["fy"]],
                     "sensor_size": [float(m["w"]), float(m["h"])], "cx": (m["cx"] - m["w"] / 2) / s,
