@@ -141,15 +141,23 @@ def test_metashape_fisheye_is_the_manuals_formula(tmp_path):
 def test_rays_beyond_89_deg_are_skipped_with_count_and_reason(caplog):
     cam, m = pinhole_camera("f", 250.0, 250.0, 512.0, 384.0, 1024, 768, pixel_size_mm=None, model="m", source="s",
                             dist={"k1": 0.01}, kind="fisheye")
-    ang = np.radians([10.0, 60.0, 88.0, 95.0, 120.0])
+    ang = np.radians([10.0, 60.0, 84.0, 95.0, 120.0])
     rays = np.column_stack([np.sin(ang), np.zeros(5), np.cos(ang)])
     px = project_corner_px(rays, m, "f")
     with caplog.at_level(logging.WARNING):
-        mm, keep = ideal_observations(px, cam, m, where="cameras.txt:4")
+        mm, keep, sd = ideal_observations(px, cam, m, where="cameras.txt:4")
     assert keep.tolist() == [True, True, True, False, False]
     np.testing.assert_allclose(mm[:3, 0], cam.focal_length_mm * np.tan(ang[:3]), rtol=1e-12)
+    # the sd of the image-plane point: 0.75 px through d(c tan theta)/d px = c / (cos^2 theta d u/d theta)
+    # along the radius, c tan(theta) / (sin(theta) d u/d theta ... ) across it (u = f theta_d(theta))
+    f, k1 = 250.0, 0.01
+    du = f * (1 + 3 * k1 * ang[:3] ** 2)
+    np.testing.assert_allclose(sd[:3, 0], cam.focal_length_mm * 0.75 / (np.cos(ang[:3]) ** 2 * du), rtol=1e-6)
+    rho = f * ang[:3] * (1 + k1 * ang[:3] ** 2)                 # the pixel's distance from the centre
+    np.testing.assert_allclose(sd[:3, 1], cam.focal_length_mm * 0.75 * np.tan(ang[:3]) / rho, rtol=1e-6)
+    assert np.isnan(sd[3:]).all()
     assert ("cameras.txt:4: camera 'f': 2 observation(s) skipped: their rays lie 95-120 deg from the optical axis, "
-            "beyond the 89 deg an image-plane (pinhole) observation of lidarcat's bundle can hold") in caplog.text
+            "beyond the 85 deg an image-plane (pinhole) observation of lidarcat's bundle can hold") in caplog.text
 
 
 @pytest.mark.parametrize("params,field,msg", [

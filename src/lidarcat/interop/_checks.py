@@ -122,6 +122,9 @@ def check_block(block: Any) -> None:
     obs = np.column_stack([block.obs_px, block.obs_mm])
     check_values(w, "measurement of point", block.obs_point, obs, ("pixel_px",) * 2 + ("photo_mm",) * 2,
                  ("col_px", "row_px", "x_mm", "y_mm"))
+    if block.obs_sd_mm is not None:
+        check_values(w, "measurement of point", block.obs_point, block.obs_sd_mm, ("sd_mm",) * 2,
+                     ("sd_x_mm", "sd_y_mm"))
     check_values(w, "point", block.ground_ids, block.ground_m, ENH_KINDS, ("E", "N", "h"))
     check_values(w, "point", block.ground_ids, block.ground_sd_m, ("sd_m",) * 3, ("sd_E", "sd_N", "sd_h"))
     check_area(w, "photo", block.crs, block.photo_ids, block.eo[:, :2])

@@ -89,6 +89,9 @@ class Block:
         Kept in the survey folder as ``source_cameras.json`` so that an export
         writes the distortion model back.  A fisheye (``kind`` ``"fisheye"``,
         ``"metashape_fisheye"``) the same way (:mod:`lidarcat.interop.cameras`).
+    obs_sd_mm : ndarray (n, 2) or None
+        Sds of ``obs_mm`` where the source camera gives them their own (a fisheye's image-plane
+        observations, :func:`lidarcat.interop.cameras.ideal_observations`); NaN: the survey's default.
     rigs : RigSet or None
         Multi-camera rigs and their exposures (:mod:`lidarcat.interop.rigs`), kept in the
         survey folder as ``rigs.json``.
@@ -115,6 +118,7 @@ class Block:
     description: str = ""
     source_models: dict[str, dict] = field(default_factory=dict)
     rigs: Any = None
+    obs_sd_mm: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in ("photo_ids", "photo_camera", "obs_photo", "obs_point", "point_ids",
@@ -125,6 +129,10 @@ class Block:
             object.__setattr__(self, name, _arr(getattr(self, name), tail))
         if self.eo_sd is not None:
             object.__setattr__(self, "eo_sd", _arr(self.eo_sd, (6,)))
+        if self.obs_sd_mm is not None:
+            object.__setattr__(self, "obs_sd_mm", _arr(self.obs_sd_mm, (2,)))
+            if len(self.obs_sd_mm) != len(self.obs_photo):
+                raise ValueError("Block: obs_* need one row per observation (obs_sd_mm)")
         if len(self.eo) != len(self.photo_ids) or len(self.photo_camera) != len(self.photo_ids):
             raise ValueError("Block: eo and photo_camera need one row per photo")
         n = len(self.obs_photo)
@@ -249,7 +257,9 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
     has_mm = bool(np.isfinite(block.obs_mm[keep]).all(axis=1).any())
     # no observation at all (an orientation-only model): the header of `lidarcat init`, pixel columns
     has_px = bool(np.isfinite(block.obs_px[keep]).all(axis=1).any()) or not keep.any()
-    cols = ["photo", "point"] + (["col_px", "row_px"] if has_px else []) + (["x_mm", "y_mm"] if has_mm else [])
+    has_sd = block.obs_sd_mm is not None and bool(np.isfinite(block.obs_sd_mm[keep]).any())
+    cols = (["photo", "point"] + (["col_px", "row_px"] if has_px else []) + (["x_mm", "y_mm"] if has_mm else [])
+            + (["sd_x_mm", "sd_y_mm"] if has_sd else []))
     rows = []
     for i in np.flatnonzero(keep):
         r: list[Any] = [block.obs_photo[i], block.obs_point[i]]
@@ -257,6 +267,8 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
             r += list(block.obs_px[i])
         if has_mm:
             r += list(block.obs_mm[i])
+        if has_sd:
+            r += list(block.obs_sd_mm[i])  # type: ignore[index]
         rows.append(r)
     with atomic_dir(folder) as tmp:
         write_text_atomic(tmp / "camera.toml", "\n".join(c.to_toml() for c in block.cameras.values()))

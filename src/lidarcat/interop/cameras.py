@@ -36,9 +36,14 @@ source's ``fx, fy, cx, cy``: a ray ``(X, Y, Z)`` meets its image plane at ``n = 
 corrected photo coordinate is ``x_mm = c n_x``, ``y_mm = -c n_y`` (``c`` the focal length in mm).
 A fisheye sees rays at 90 deg from the axis and beyond, which meet no image plane; near 90 deg the
 plane coordinate ``tan theta`` runs off (its sensitivity to the angle is ``1/cos^2 theta``).
-Rays farther than :data:`MAX_RAY_ANGLE_DEG` from the optical axis are therefore *skipped*: left
-out of the block with a warning that names the file, the camera, how many and the widest angle
-(the export writes the measured pixels of the observations it has).
+Rays farther than :data:`MAX_RAY_ANGLE_DEG` (85 deg) from the optical axis are therefore *skipped*:
+left out of the block with a warning that names the file, the camera, how many and the angles
+(the export writes the measured pixels of the observations it has).  The others get their own sd
+(``Block.obs_sd_mm``, written as ``sd_x_mm, sd_y_mm`` of ``image_points.csv``): a measured pixel's
+sd (:data:`FISHEYE_SD_PX`, the survey's default 0.75 px) carried through the derivative of the
+image-plane point by the pixel, which grows as ``1/cos^2 theta`` away from the axis.  With a pixel
+pitch ``t`` the sd is about ``t sd_px / cos^2 theta``: at 85 deg and the default pitches
+(``t <= 0.1`` mm) below the survey's 10 mm bound.
 """
 
 from __future__ import annotations
@@ -53,12 +58,15 @@ from ..errors import CameraError, FormatError
 from ..geometry.camera import Camera
 
 __all__ = ["pinhole_camera", "undistorted_mm", "ideal_observations", "project_corner_px", "fisheye_model", "source_rays",
-           "check_source_model", "default_pixel_size_mm", "FISHEYE_KINDS", "SOURCE_KINDS", "MAX_RAY_ANGLE_DEG"]
+           "check_source_model", "default_pixel_size_mm", "FISHEYE_KINDS", "FISHEYE_SD_PX", "SOURCE_KINDS", "MAX_RAY_ANGLE_DEG"]
 
 log = logging.getLogger(__name__)
 
 #: widest angle from the optical axis an observation may see to become an image-plane observation, deg
-MAX_RAY_ANGLE_DEG = 89.0
+MAX_RAY_ANGLE_DEG = 85.0
+#: sd of a measured pixel a fisheye observation's image-plane sd is propagated from (the survey's default,
+#: :data:`lidarcat.survey.schema.DEFAULT_SD_PIXELS`)
+FISHEYE_SD_PX = 0.75
 #: source-model kinds that are fisheyes
 FISHEYE_KINDS = ("fisheye", "metashape_fisheye")
 #: every source-model kind
@@ -188,8 +196,10 @@ def undistorted_mm(xy_corner_px: np.ndarray, cam: Camera, model: dict) -> np.nda
 
 
 def ideal_observations(xy_corner_px: np.ndarray, cam: Camera, model: dict, *, where: str = "",
-                       max_angle_deg: float = MAX_RAY_ANGLE_DEG) -> tuple[np.ndarray, np.ndarray]:
-    """Corrected photo coordinates (n, 2), mm, of source pixels (corner origin), and which to keep.
+                       max_angle_deg: float = MAX_RAY_ANGLE_DEG, sd_px: float = FISHEYE_SD_PX
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Corrected photo coordinates (n, 2), mm, of source pixels (corner origin), which to keep, and
+    their sds.
 
     Parameters
     ----------
@@ -203,6 +213,8 @@ def ideal_observations(xy_corner_px: np.ndarray, cam: Camera, model: dict, *, wh
         File (and line) of the camera, for the warning.
     max_angle_deg : float
         Rays farther from the optical axis are skipped (module docstring).
+    sd_px : float
+        Sd of a measured pixel (px) that a fisheye observation's sd is propagated from.
 
     Returns
     -------
@@ -210,21 +222,36 @@ def ideal_observations(xy_corner_px: np.ndarray, cam: Camera, model: dict, *, wh
         ``c (X/Z, -Y/Z)``; NaN where skipped.
     keep : ndarray of bool, (n,)
         False for the skipped observations (logged: count, widest angle, the reason).
+    sd_mm : ndarray, (n, 2)
+        For a fisheye, the sd of ``mm`` from *sd_px* per pixel axis through the derivative of the
+        image-plane point by the pixel (central differences of the unprojection over 1e-3 px):
+        ``sd_x = c sd_px sqrt((dn_x/du)^2 + (dn_x/dv)^2)``, as ``y``; the plane stretches a pixel by
+        up to ``1/cos^2 theta`` (11.5 times at 85 deg, whence :data:`MAX_RAY_ANGLE_DEG`).  NaN for a
+        frame model (the survey's default sd applies).
     """
+    px = np.asarray(xy_corner_px, dtype=float).reshape(-1, 2)
+    sd = np.full((len(px), 2), np.nan)
     if model["kind"] not in FISHEYE_KINDS:
-        mm = undistorted_mm(xy_corner_px, cam, model)
-        return mm, np.ones(len(mm), dtype=bool)
-    rays = source_rays(np.asarray(xy_corner_px, dtype=float).reshape(-1, 2), model, cam.id)
+        mm = undistorted_mm(px, cam, model)
+        return mm, np.ones(len(mm), dtype=bool), sd
+    rays = source_rays(px, model, cam.id)
     theta = np.degrees(np.arctan2(np.hypot(rays[:, 0], rays[:, 1]), rays[:, 2]))
     keep = theta <= max_angle_deg
     mm = np.full((len(rays), 2), np.nan)
     mm[keep] = cam.focal_length_mm * rays[keep, :2] / rays[keep, 2:] * [1.0, -1.0]
+    if keep.any():
+        h = 1e-3
+        jac = np.empty((int(keep.sum()), 2, 2))
+        for j, step in enumerate(([h, 0.0], [0.0, h])):
+            ra, rb = source_rays(px[keep] + step, model, cam.id), source_rays(px[keep] - step, model, cam.id)
+            jac[:, :, j] = (ra[:, :2] / ra[:, 2:] - rb[:, :2] / rb[:, 2:]) / (2 * h)
+        sd[keep] = cam.focal_length_mm * sd_px * np.sqrt((jac ** 2).sum(axis=2))
     if (~keep).any():
         log.warning("%s: camera %r: %d observation(s) skipped: their rays lie %.4g-%.4g deg from the optical "
                     "axis, beyond the %.4g deg an image-plane (pinhole) observation of lidarcat's bundle can hold",
                     where or "import", cam.id, int((~keep).sum()), float(theta[~keep].min()),
                     float(theta[~keep].max()), max_angle_deg)
-    return mm, keep
+    return mm, keep, sd
 
 
 def project_corner_px(rays: np.ndarray, model: dict, camera_id: str) -> np.ndarray:

@@ -330,15 +330,16 @@ def block_from_model(where: Path, cams: dict[str, tuple], photo: list[str], pcam
         o_cam = [o_cam[k] for k in first]
     cam_arr = np.array(o_cam, dtype=str)
     obs_mm = np.empty_like(xy)
+    sd = np.full_like(xy, np.nan)
     keep = np.ones(len(xy), dtype=bool)
     for cid, (cam, model_dict) in cams.items():
         rows = cam_arr == cid
         if rows.any():
-            obs_mm[rows], keep[rows] = ideal_observations(xy[rows], cam, model_dict, where=str(where))
+            obs_mm[rows], keep[rows], sd[rows] = ideal_observations(xy[rows], cam, model_dict, where=str(where))
     if not keep.all():
         description += (f"; {int((~keep).sum())} observation(s) of rays beyond {MAX_RAY_ANGLE_DEG:g} deg from a "
                         f"fisheye's axis skipped")
-        xy, obs_mm = xy[keep], obs_mm[keep]
+        xy, obs_mm, sd = xy[keep], obs_mm[keep], sd[keep]
         o_photo = [p for p, k in zip(o_photo, keep) if k]
         o_point = [p for p, k in zip(o_point, keep) if k]
     return Block(
@@ -347,7 +348,8 @@ def block_from_model(where: Path, cams: dict[str, tuple], photo: list[str], pcam
         photo_camera=np.array(pcam, dtype=str), eo=np.array(eo), obs_photo=np.array(o_photo, dtype=str),
         obs_point=np.array(o_point, dtype=str), obs_px=xy - 0.5, obs_mm=obs_mm,
         point_ids=np.array(pids, dtype=str), points_m=np.array(pxyz, dtype=float).reshape(-1, 3),
-        description=description, source_models={c: v[1] for c, v in cams.items()})
+        description=description, source_models={c: v[1] for c, v in cams.items()},
+        obs_sd_mm=sd if np.isfinite(sd).any() else None)
 
 
 def _r(v: float) -> str:

@@ -371,17 +371,18 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
     xy = np.array(o_xy, dtype=float).reshape(-1, 2)
     mm = np.empty_like(xy)
     keep = np.ones(len(xy), dtype=bool)
+    sd = np.full_like(xy, np.nan)
     cam_of = dict(zip(photo, pcam))
     oc = np.array([cam_of[p] for p in o_ph], dtype=object)
     for sid, mdl in models.items():
         sel = oc == sid
         if sel.any():
-            mm[sel], keep[sel] = ideal_observations(xy[sel], cams[sid], mdl, where=str(frame_xml))
+            mm[sel], keep[sel], sd[sel] = ideal_observations(xy[sel], cams[sid], mdl, where=str(frame_xml))
     description = f"imported from Metashape {path.name}"
     if not keep.all():
         description += (f"; {int((~keep).sum())} marker measurement(s) of rays beyond {MAX_RAY_ANGLE_DEG:g} deg from "
                         f"a fisheye's axis skipped")
-        xy, mm = xy[keep], mm[keep]
+        xy, mm, sd = xy[keep], mm[keep], sd[keep]
         o_ph = [p for p, k in zip(o_ph, keep) if k]
         o_pt = [p for p, k in zip(o_pt, keep) if k]
     return Block(name=root.attrs.get("label", path.stem), crs=crs, height_system="ellipsoidal (WGS84)",
@@ -391,4 +392,4 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
                  ground_ids=np.array(gid, dtype=str), ground_m=g_m,
                  ground_sd_m=np.full((len(gid), 3), float(marker_sd_m)),
                  ground_source=np.full(len(gid), "marker"),
-                 description=description, source_models=models)
+                 description=description, source_models=models, obs_sd_mm=sd if np.isfinite(sd).any() else None)

@@ -274,18 +274,19 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     corner = np.empty_like(xy_n)
     mm = np.empty_like(xy_n)
     keep = np.ones(len(xy_n), dtype=bool)
+    sd = np.full_like(xy_n, np.nan)
     oc = np.array([cam_of[p] for p in o_ph], dtype=object)
     for cid, m in models.items():
         rows = oc == cid
         if rows.any():
             s = max(m["w"], m["h"])
             corner[rows] = xy_n[rows] * s + [m["w"] / 2, m["h"] / 2]
-            mm[rows], keep[rows] = ideal_observations(corner[rows], cams[cid], m, where=str(tpath))
+            mm[rows], keep[rows], sd[rows] = ideal_observations(corner[rows], cams[cid], m, where=str(tpath))
     description = f"imported from OpenSfM {path.name} (reconstruction {index})"
     if not keep.all():
         description += (f"; {int((~keep).sum())} observation(s) of rays beyond {MAX_RAY_ANGLE_DEG:g} deg from a "
                         f"fisheye's axis skipped")
-        corner, mm = corner[keep], mm[keep]
+        corner, mm, sd = corner[keep], mm[keep], sd[keep]
         o_ph = [p for p, k in zip(o_ph, keep) if k]
         o_pt = [p for p, k in zip(o_pt, keep) if k]
     rigs = _read_rigs(path, rec, cam_of, {c: (m["w"], m["h"]) for c, m in models.items()})
@@ -294,7 +295,8 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
                  eo=np.array(eo).reshape(-1, 6), obs_photo=np.array(o_ph, dtype=str),
                  obs_point=np.array(o_pt, dtype=str), obs_px=corner - 0.5, obs_mm=mm,
                  point_ids=np.array(pids, dtype=str), points_m=np.array(pxyz).reshape(-1, 3),
-                 description=description, source_models=models, rigs=rigs)
+                 description=description, source_models=models, rigs=rigs,
+                 obs_sd_mm=sd if np.isfinite(sd).any() else None)
 
 
 def _read_rigs(path: Path, rec: dict, shot_cameras: dict[str, str], sizes: dict[str, tuple[int, int]]):
