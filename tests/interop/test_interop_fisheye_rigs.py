@@ -259,3 +259,31 @@ def test_real_t265_fisheye_model_imported_adjusted_exported(tmp_path):
     x0 = read_colmap(T265)
     assert np.abs(blk.eo[:, :3] - x0.eo[:, :3]).max() < 1e-4          # exact pixels: the poses come back
     assert math.isclose(blk.cameras["1"].focal_length_mm, 2.84468)
+
+
+def test_odm_cameras_json_round_trip_and_import(tmp_path):
+    from lidarcat.interop.odm import read_odm_cameras, write_odm_cameras
+
+    t, b, _ = _synthetic(tmp_path, *FISHEYES[0])
+    blk = read_colmap(t)
+    write_odm_cameras(blk, tmp_path / "cameras.json")
+    doc = json.loads((tmp_path / "cameras.json").read_text())
+    assert doc["1"]["projection_type"] == "fisheye_opencv" and doc["1"]["k4"] == -0.0005
+    back = read_odm_cameras(tmp_path / "cameras.json")
+    assert back["1"][1] == {**blk.source_models["1"], "opensfm": "fisheye_opencv"}
+    # the CLI: a binary COLMAP folder is read as such; OpenSfM observations made ideal through ODM's cameras
+    res = CliRunner().invoke(cli, ["import", "colmap", str(b), "-o", str(tmp_path / "s"), "--json"])
+    assert res.exit_code == 0, res.output
+    rep = json.loads(res.output)
+    assert rep["fisheye_cameras"] == ["1"] and rep["observations"] == len(blk.obs_point)
+    write_opensfm(blk.with_(source_models={"1": {**blk.source_models["1"], "dist": {}}}), tmp_path / "o")
+    plain = read_opensfm(tmp_path / "o" / "reconstruction.json")
+    odm = read_opensfm(tmp_path / "o" / "reconstruction.json", cameras=tmp_path / "cameras.json")
+    assert plain.source_models["1"]["dist"] == {"k1": 0.0, "k2": 0.0, "k3": 0.0, "k4": 0.0}
+    assert odm.source_models["1"]["dist"] == blk.source_models["1"]["dist"]
+    np.testing.assert_allclose(odm.obs_mm, blk.obs_mm, atol=1e-12, rtol=0)
+    doc["1"]["projection_type"] = "dual"
+    (tmp_path / "bad.json").write_text(json.dumps(doc, indent=1))
+    with pytest.raises(FormatError, match=re.escape(f"{tmp_path / 'bad.json'}:2: field 'projection_type': camera '1': "
+                                                    f"projection 'dual' is not supported")):
+        read_odm_cameras(tmp_path / "bad.json")

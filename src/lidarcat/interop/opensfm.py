@@ -38,6 +38,7 @@ Writing produces one reconstruction with the block's cameras (``perspective`` or
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -60,6 +61,7 @@ from .rigs import opensfm_rig_entries, rigs_from_opensfm
 from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
 
 __all__ = ["read_opensfm", "read_opensfm_gcp", "read_opensfm_config", "gcp_sd_from_config", "write_opensfm",
+           "opensfm_camera", "opensfm_camera_dict",
            "topocentric_crs", "reference_lla", "to_topocentric", "OPENSFM_PROJECTIONS"]
 
 log = logging.getLogger(__name__)
@@ -148,7 +150,16 @@ def _vec(path: Path, text: str, where: str, name: str, v: Any, n: int, kind: str
     return np.array([_num(path, text, where, name, x, kind) for x in v])
 
 
-def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float | None):
+def opensfm_camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float | None):
+    """lidarcat's stand-in camera and the source model of one OpenSfM camera dict *c* (``cameras`` of a
+    reconstruction.json, or an OpenDroneMap ``cameras.json``), errors located in *path* (its *text*).
+
+    Raises
+    ------
+    FormatError
+        ``FILE:LINE: field 'NAME': camera 'ID': ...``: an unsupported projection, a missing or
+        non-numeric field, a fisheye out of its valid range.
+    """
     if not isinstance(c, dict):
         raise format_error(path, _json_line(text, cid), "cameras", f"camera {cid!r} is not an object")
     kind = c.get("projection_type")
@@ -189,7 +200,8 @@ def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float | None
 
 
 def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *, index: int = 0,
-                 pixel_size_mm: float | None = None, name: str | None = None) -> Block:
+                 pixel_size_mm: float | None = None, name: str | None = None,
+                 cameras: str | Path | None = None) -> Block:
     """Read one reconstruction of an OpenSfM ``reconstruction.json`` and its ``tracks.csv``.
 
     Parameters
@@ -203,8 +215,13 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
         writes it to every format but a survey folder).
     index : int
         Which reconstruction of the list (OpenSfM writes one per connected component).
-    pixel_size_mm : float
-        Pixel pitch given to the cameras (OpenSfM knows none).
+    pixel_size_mm : float, optional
+        Pixel pitch given to the cameras (OpenSfM knows none; default
+        :func:`lidarcat.interop.cameras.default_pixel_size_mm`).
+    cameras : path, optional
+        An OpenDroneMap ``cameras.json`` (camera id without OpenSfM's ``v2 `` prefix -> OpenSfM
+        camera dict): its models replace the reconstruction's cameras of the same id, and the
+        observations are made ideal through them.
 
     Raises
     ------
@@ -231,8 +248,13 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
             raise format_error(path, _json_line(text, key) or 1, key,
                                f"missing or not an object in reconstruction {index}")
     cams, models = {}, {}
+    odm = {} if cameras is None else _odm_cameras(Path(cameras), rec["cameras"])
     for cid, c in rec["cameras"].items():
-        cams[cid], models[cid] = _camera(path, text, cid, c, pixel_size_mm)
+        if cid in odm:
+            cam, models[cid] = opensfm_camera(*odm[cid], pixel_size_mm)
+            cams[cid] = dataclasses.replace(cam, id=cid)
+        else:
+            cams[cid], models[cid] = opensfm_camera(path, text, cid, c, pixel_size_mm)
     photo, pcam, eo = [], [], []
     for sid, sh in rec["shots"].items():
         if not isinstance(sh, dict):
@@ -329,6 +351,24 @@ def _read_rigs(path: Path, rec: dict, shot_cameras: dict[str, str], sizes: dict[
     else:
         return None
     return rigs if rigs.rigs else None
+
+
+def _odm_cameras(path: Path, ids: dict) -> dict[str, tuple]:
+    """Reconstruction camera id -> (path, text, id in the file, dict) of an ODM ``cameras.json``."""
+    text = read_text(path, FormatError)
+    doc = _load_json(path)
+    if not isinstance(doc, dict):
+        raise format_error(path, 1, None, "expected an object camera id -> camera (an OpenDroneMap cameras.json)")
+    out = {}
+    for cid in ids:
+        bare = cid[3:] if cid.startswith("v2 ") else cid
+        key = cid if cid in doc else bare if bare in doc else None
+        if key is not None:
+            out[cid] = (path, text, key, doc[key])
+    if not out:
+        raise FormatError(f"{path}: none of its cameras ({', '.join(list(doc)[:3]) or 'none'}) is a camera of the "
+                          f"reconstruction ({', '.join(list(ids)[:3])}); give the cameras.json of the same ODM project")
+    return out
 
 
 def _read_tracks(path: Path, shots: set[str], points: set[str]):
@@ -433,7 +473,7 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
                          f"{path} (OpenSfM GCPs, WGS84 lat/lon/alt -> topocentric ENU)")
 
 
-def _opensfm_camera(m: dict) -> dict:
+def opensfm_camera_dict(m: dict) -> dict:
     """OpenSfM camera dict of a Brown model without k4..k6 (:func:`lidarcat.interop.lens.export_camera`):
     ``perspective`` when it is one (fx = fy, centred, k1 and k2 only), else ``brown``."""
     w, h = m["w"], m["h"]
@@ -539,7 +579,7 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
         if topo is not None:
             block, note = topo
     models = export_cameras(block, rational=False)
-    cams = {cid: _opensfm_camera(m) for cid, m in models.items()}
+    cams = {cid: opensfm_camera_dict(m) for cid, m in models.items()}
     r = opk_to_world_to_cv(block.eo[:, 3:]).reshape(-1, 3, 3)
     shots = {}
     for i, pid in enumerate(block.photo_ids.tolist()):
