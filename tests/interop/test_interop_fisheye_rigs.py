@@ -242,6 +242,18 @@ def test_real_t265_fisheye_model_imported_adjusted_exported(tmp_path):
     res = run(cli, ["import", "colmap", str(T265), "-o", str(s), "--control-sd-m", "0.001"])
     assert res.exit_code == 0, res.output
     assert json.loads((s / "source_cameras.json").read_text())["2"]["kind"] == "fisheye"
+    # the adjustment starts 5 cm and 0.5 deg away from the poses it has to find again
+    lines = (s / "photos.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    rng = np.random.default_rng(7)
+    for k in range(1, len(lines)):
+        cells = lines[k].split(",")
+        for c in ("X0", "Y0", "Z0"):
+            cells[head.index(c)] = repr(float(cells[head.index(c)]) + float(rng.choice([-0.05, 0.05])))
+        for c in ("omega_deg", "phi_deg", "kappa_deg"):
+            cells[head.index(c)] = repr(float(cells[head.index(c)]) + float(rng.choice([-0.5, 0.5])))
+        lines[k] = ",".join(cells)
+    (s / "photos.csv").write_text("\n".join(lines) + "\n")
     res = run(cli, ["adjust", str(s), "-o", str(adj)])
     # exact pixels: the variance factor is ~0 and the global test says so (exit 3), the results are written
     assert res.exit_code == 3 and "chi-square test of the variance factor REJECTED" in res.output, res.output
@@ -257,7 +269,8 @@ def test_real_t265_fisheye_model_imported_adjusted_exported(tmp_path):
     ours = np.abs(reprojection_residuals_px(blk)).max()
     assert worst < 1e-3 and abs(worst - ours) <= 1e-6
     x0 = read_colmap(T265)
-    assert np.abs(blk.eo[:, :3] - x0.eo[:, :3]).max() < 1e-4          # exact pixels: the poses come back
+    assert np.abs(blk.eo[:, :3] - x0.eo[:, :3]).max() < 1e-6          # exact pixels: the poses come back
+    assert np.abs(blk.eo[:, 3:] - x0.eo[:, 3:]).max() < 1e-6
     assert math.isclose(blk.cameras["1"].focal_length_mm, 2.84468)
 
 
