@@ -300,3 +300,39 @@ def test_odm_cameras_json_round_trip_and_import(tmp_path):
     with pytest.raises(FormatError, match=re.escape(f"{tmp_path / 'bad.json'}:2: field 'projection_type': camera '1': "
                                                     f"projection 'dual' is not supported")):
         read_odm_cameras(tmp_path / "bad.json")
+
+
+def test_colmap_import_skips_rays_beyond_85_deg_and_says_so(tmp_path, caplog):
+    """Two images of a wide fisheye (f 250 px, 1024 x 768; the corners 147 deg from the axis), five points:
+    one 95 deg from the first camera's axis (71 deg from the second's) is measured there, and that
+    measurement is skipped."""
+    from lidarcat.geometry.models import FisheyeCamera
+
+    fish = FisheyeCamera("1", 1024, 768, fx=250.0, fy=250.0, cx=511.5, cy=383.5)
+    ang = np.radians([0.0, 30.0, 60.0, 80.0, 95.0])
+    pts = np.column_stack([5 * np.sin(ang), np.zeros(5), 5 * np.cos(ang)])
+    cams = [np.zeros(3), np.array([0.5, 0.0, -2.0])]          # centres; both look along +Z
+    (tmp_path / "m").mkdir()
+    m = tmp_path / "m"
+    (m / "cameras.txt").write_text("1 SIMPLE_RADIAL_FISHEYE 1024 768 250.0 512.0 384.0 0.0\n")
+    lines, tracks = [], {k: [] for k in range(5)}
+    for i, c in enumerate(cams, start=1):
+        px = fish.project(pts - c) + 0.5
+        lines.append(f"{i} 1 0 0 0 {-float(c[0])!r} 0 {-float(c[2])!r} 1 img{i}.png")
+        lines.append(" ".join(f"{u!r} {v!r} {k + 1}" for k, (u, v) in enumerate(px.tolist())))
+        for k in range(5):
+            tracks[k].append((i, k))
+    (m / "images.txt").write_text("\n".join(lines) + "\n")
+    (m / "points3D.txt").write_text("".join(
+        f"{k + 1} {x!r} {y!r} {z!r} 0 0 0 0 " + " ".join(f"{a} {b}" for a, b in tracks[k]) + "\n"
+        for k, (x, y, z) in enumerate(pts.tolist())))
+    with caplog.at_level(logging.WARNING):
+        blk = read_colmap(m)
+    assert len(blk.obs_point) == 9 and ("img1.png", "5") not in set(zip(blk.obs_photo, blk.obs_point))
+    assert blk.description.endswith("; 1 observation(s) of rays beyond 85 deg from a fisheye's axis skipped")
+    assert re.search(r"images\.txt: camera '1': 1 observation\(s\) skipped: their rays lie 95-95 deg from the "
+                     r"optical axis", caplog.text)
+    assert np.abs(reprojection_residuals_px(blk)).max() < 1e-9
+    res = CliRunner().invoke(cli, ["import", "colmap", str(m), "-o", str(tmp_path / "s"), "--json"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["skipped"] == "1 observation(s) of rays beyond 85 deg from a fisheye's axis skipped"
