@@ -336,3 +336,48 @@ def test_colmap_import_skips_rays_beyond_85_deg_and_says_so(tmp_path, caplog):
     res = CliRunner().invoke(cli, ["import", "colmap", str(m), "-o", str(tmp_path / "s"), "--json"])
     assert res.exit_code == 0, res.output
     assert json.loads(res.stdout)["skipped"] == "1 observation(s) of rays beyond 85 deg from a fisheye's axis skipped"
+
+
+def test_bad_fisheye_and_rig_files_are_located_errors(tmp_path):
+    # a Metashape fisheye whose corners lie beyond 180 deg
+    p = tmp_path / "chunk.xml"
+    text = CHUNK.read_text().replace('label="FC550, DJI MFT 15mm F1.7 ASPH (15mm)" type="frame"',
+                                     'label="FC550, DJI MFT 15mm F1.7 ASPH (15mm)" type="fisheye"', 1)
+    p.write_text(text.replace("<f>4785.3046873759595</f>", "<f>900.0</f>", 1).replace(
+        "<k3>0.021610798069009122</k3>", "", 1))
+    with pytest.raises(FormatError, match=re.escape(f"{p}:16: camera '0': field 'k2': the fisheye polynomial folds "
+                                                    f"over at 107.1 deg from the optical axis (theta_d stops increasing at 1.472 rad) "
+                                                    f"before the image corner (0, 3456) px")):
+        read_metashape(p, FRAME)
+    p.write_text(text.replace("<f>4785.3046873759595</f>", "<f>800.0</f>", 1).replace(
+        "<k1>-0.0086161282569410177</k1>", "", 1).replace("<k2>-0.014935050703477608</k2>", "", 1).replace(
+        "<k3>0.021610798069009122</k3>", "", 1))
+    with pytest.raises(FormatError, match=re.escape(f"{p}:16: camera '0': field 'f': the image corner (0, 3456) px lies "
+                                                    f"beyond 180 deg from the optical axis")):
+        read_metashape(p, FRAME)
+    # a survey's source_cameras.json and rigs.json, edited by hand
+    t, _, _ = _synthetic(tmp_path, *FISHEYES[0], rigs=1, cams=2)
+    write_survey(read_colmap(t), tmp_path / "s", control_sd_m=0.01)
+    src = tmp_path / "s" / "source_cameras.json"
+    good = json.loads(src.read_text())
+    src.write_text(json.dumps({**good, "1": {**good["1"], "kind": "kannala"}}))
+    with pytest.raises(FormatError, match=re.escape(f"{src}: camera '1': kind: 'kannala' is not a camera model kind "
+                                                    f"(brown, metashape, fisheye, metashape_fisheye)")):
+        block_from_survey(tmp_path / "s")
+    src.write_text(json.dumps({**good, "1": {**good["1"], "fx": 150.0, "fy": 150.0}}))
+    with pytest.raises(FormatError, match=re.escape(f"{src}: camera '1': field 'fx': the image corner")):
+        block_from_survey(tmp_path / "s")
+    src.write_text(json.dumps(good))
+    rigs = tmp_path / "s" / "rigs.json"
+    doc = json.loads(rigs.read_text())
+    doc["rigs"][0]["sensors"][1]["sensor_from_rig"]["q_wxyz"] = [0.1, 0, 0, 0]
+    rigs.write_text(json.dumps(doc))
+    with pytest.raises(FormatError, match=re.escape(f"{rigs}: rig '1': sensor '2': field 'q_wxyz': a quaternion of "
+                                                    f"norm 0.1 is no rotation")):
+        block_from_survey(tmp_path / "s")
+    doc["rigs"][0]["sensors"][1]["sensor_from_rig"] = None
+    first = doc["exposures"][0]["photos"]["1"]
+    doc["exposures"][1]["photos"]["1"] = first
+    rigs.write_text(json.dumps(doc))
+    with pytest.raises(FormatError, match=re.escape(f"{rigs}: exposure '2': photo {first!r} is also in exposure '1'")):
+        block_from_survey(tmp_path / "s")

@@ -140,11 +140,39 @@ def check_source_model(camera_id: str, model: dict, where: str) -> None:
         except CameraError as ex:
             raise FormatError(f"{where}: {ex}") from None
     elif model["kind"] == "metashape_fisheye":
-        px = _grid(model)
-        try:
-            _metashape_fisheye_rays(px, model)
-        except CameraError as ex:
-            raise FormatError(f"{where}: camera {camera_id!r}: {ex}") from None
+        problem = _metashape_fisheye_problem(model)
+        if problem is None:
+            try:
+                _metashape_fisheye_rays(_grid(model), model)
+            except CameraError as ex:
+                problem = str(ex)
+        if problem:
+            raise FormatError(f"{where}: camera {camera_id!r}: {problem}")
+
+
+def _metashape_fisheye_problem(model: dict) -> str | None:
+    """Why a Metashape fisheye's radial map ``theta -> theta (1 + k1 theta^2 + ... + k4 theta^8)`` does not
+    reach the image corners while increasing (within 180 deg), or None."""
+    k = [float(model["dist"].get(n, 0.0)) for n in _FISHEYE_K]
+    t = np.linspace(0.0, math.pi, 4097)
+    u = t * t
+    slope = 1 + u * (3 * k[0] + u * (5 * k[1] + u * (7 * k[2] + u * 9 * k[3])))
+    stop = int(np.argmax(slope <= 0)) if (slope <= 0).any() else len(t) - 1
+    reach = float((t * (1 + u * (k[0] + u * (k[1] + u * (k[2] + u * k[3])))))[stop])
+    c = np.array([[0.0, 0.0], [model["w"], 0.0], [0.0, model["h"]], [model["w"], model["h"]]])
+    yd = (c[:, 1] - model["cy"]) / model["fy"]
+    rd = np.hypot((c[:, 0] - model["cx"] - model.get("skew", 0.0) * yd) / model["fx"], yd)
+    i = int(np.argmax(rd))
+    if rd[i] < reach:
+        return None
+    if stop == len(t) - 1:
+        return (f"field 'f': the image corner ({c[i, 0]:g}, {c[i, 1]:g}) px lies beyond 180 deg from the optical axis "
+                f"(theta_d = {rd[i]:.4g} rad, the model reaches {reach:.4g} rad at 180 deg); check f (px per "
+                f"radian) and k1..k4")
+    culprit = max(_FISHEYE_K, key=lambda n: abs(model["dist"].get(n, 0.0)) * t[stop] ** (2 * int(n[1])))
+    return (f"field {culprit!r}: the fisheye polynomial folds over at {math.degrees(t[stop]):.4g} deg from the "
+            f"optical axis (theta_d stops increasing at {reach:.4g} rad) before the image corner "
+            f"({c[i, 0]:g}, {c[i, 1]:g}) px (theta_d = {rd[i]:.4g} rad)")
 
 
 def _grid(model: dict, n: int = 21) -> np.ndarray:
