@@ -364,7 +364,7 @@ def test_bad_fisheye_and_rig_files_are_located_errors(tmp_path):
     with pytest.raises(FormatError, match=re.escape(f"{src}: camera '1': kind: 'kannala' is not a camera model kind "
                                                     f"(brown, metashape, fisheye, metashape_fisheye)")):
         block_from_survey(tmp_path / "s")
-    src.write_text(json.dumps({**good, "1": {**good["1"], "fx": 150.0, "fy": 150.0}}))
+    src.write_text(json.dumps({**good, "1": {**good["1"], "fx": 150.0, "fy": 150.0, "dist": {}}}))
     with pytest.raises(FormatError, match=re.escape(f"{src}: camera '1': field 'fx': the image corner")):
         block_from_survey(tmp_path / "s")
     src.write_text(json.dumps(good))
