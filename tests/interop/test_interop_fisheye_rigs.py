@@ -161,7 +161,8 @@ def test_rays_beyond_89_deg_are_skipped_with_count_and_reason(caplog):
 
 
 @pytest.mark.parametrize("params,field,msg", [
-    ("180.0 180.0 424.0 400.0 0 0 0 0", "fx", "the image corner (-0.5, -0.5) px lies beyond 180 deg from the optical axis"),
+    ("180.0 180.0 424.0 400.0 0 0 0 0", "fx",
+     "the image corner (-0.5, -0.5) px lies beyond 180 deg from the optical axis"),
     ("284.5 285.5 424.4 393.7 0.0008 0.031 -0.6 0.005", "k3", "the fisheye polynomial folds over at"),
 ])
 def test_fisheye_out_of_range_is_a_located_error(tmp_path, params, field, msg):
@@ -346,14 +347,15 @@ def test_bad_fisheye_and_rig_files_are_located_errors(tmp_path):
     p.write_text(text.replace("<f>4785.3046873759595</f>", "<f>900.0</f>", 1).replace(
         "<k3>0.021610798069009122</k3>", "", 1))
     with pytest.raises(FormatError, match=re.escape(f"{p}:16: camera '0': field 'k2': the fisheye polynomial folds "
-                                                    f"over at 107.1 deg from the optical axis (theta_d stops increasing at 1.472 rad) "
+                                                    f"over at 107.1 deg from the optical axis (theta_d stops increasing at "
+                                                    f"1.472 rad) "
                                                     f"before the image corner (0, 3456) px")):
         read_metashape(p, FRAME)
     p.write_text(text.replace("<f>4785.3046873759595</f>", "<f>800.0</f>", 1).replace(
         "<k1>-0.0086161282569410177</k1>", "", 1).replace("<k2>-0.014935050703477608</k2>", "", 1).replace(
         "<k3>0.021610798069009122</k3>", "", 1))
-    with pytest.raises(FormatError, match=re.escape(f"{p}:16: camera '0': field 'f': the image corner (0, 3456) px lies "
-                                                    f"beyond 180 deg from the optical axis")):
+    with pytest.raises(FormatError, match=re.escape(f"{p}:16: camera '0': field 'f': the image corner (0, 3456) px "
+                                                    f"lies beyond 180 deg from the optical axis")):
         read_metashape(p, FRAME)
     # a survey's source_cameras.json and rigs.json, edited by hand
     t, _, _ = _synthetic(tmp_path, *FISHEYES[0], rigs=1, cams=2)

@@ -57,8 +57,9 @@ import numpy as np
 from ..errors import CameraError, FormatError
 from ..geometry.camera import Camera
 
-__all__ = ["pinhole_camera", "undistorted_mm", "ideal_observations", "project_corner_px", "fisheye_model", "source_rays",
-           "check_source_model", "default_pixel_size_mm", "FISHEYE_KINDS", "FISHEYE_SD_PX", "SOURCE_KINDS", "MAX_RAY_ANGLE_DEG"]
+__all__ = ["pinhole_camera", "undistorted_mm", "ideal_observations", "project_corner_px", "fisheye_model",
+           "source_rays", "check_source_model", "default_pixel_size_mm", "FISHEYE_KINDS", "FISHEYE_SD_PX",
+           "SOURCE_KINDS", "MAX_RAY_ANGLE_DEG"]
 
 log = logging.getLogger(__name__)
 
@@ -190,7 +191,8 @@ def _metashape_fisheye_rays(corner_px: np.ndarray, model: dict) -> np.ndarray:
     theta = np.hypot(xy[:, 0], xy[:, 1])
     if not (theta < math.pi).all():
         i = int(np.argmax(np.where(np.isfinite(theta), theta, np.inf)))
-        raise CameraError(f"field 'f': pixel ({corner_px[i, 0]:g}, {corner_px[i, 1]:g}) lies {math.degrees(theta[i]):.4g} "
+        raise CameraError(f"field 'f': pixel ({corner_px[i, 0]:g}, {corner_px[i, 1]:g}) lies "
+                          f"{math.degrees(theta[i]):.4g} "
                           f"deg from the optical axis, beyond 180 deg; check f (px per radian) and k1..k4")
     with np.errstate(all="ignore"):
         unit = np.where((theta > 0)[:, None], xy / np.where(theta > 0, theta, 1.0)[:, None], 0.0)

@@ -1,4 +1,4 @@
-r"""The camera an export writes: every camera of a block as a Brown (OpenCV) model in pixels.
+r"""The camera an export writes: every camera of a block as a Brown (OpenCV) or fisheye model in pixels.
 
 COLMAP (``OPENCV``, ``FULL_OPENCV``), OpenSfM (``brown``) and orthority (``brown``) project
 ideal normalised coordinates ``(x, y) = (X_c/Z_c, Y_c/Z_c)`` (y down) *forward* through the
@@ -25,6 +25,13 @@ fitted
     which linear least squares in pixels gives.  The largest misfit over the grid, in
     pixels, travels with the model (``fit_max_px``) into the export's
     notes.  Metashape models with ``k4`` or skew ``b2`` are fitted the same way.
+
+Fisheyes (:mod:`lidarcat.interop.cameras`): a ``fisheye`` source model (Kannala-Brandt, COLMAP
+``OPENCV_FISHEYE``, OpenSfM ``fisheye_opencv``) is written as it is; a Metashape fisheye exactly as
+one when it has no tangential (p1, p2) and skew (b2) terms, else with ``k1..k4`` fitted by linear
+least squares in pixels over the grid (``theta_d`` is linear in them; :func:`fit_fisheye`).  A
+target without a fisheye model (OPK camera files, ``fisheye=False``) gets the fisheye fitted as
+Brown over the grid when the image lies within 90 deg of the axis, and a located refusal otherwise.
 
 The observations an export writes (:func:`observed_pixels`) are the measured pixels for a
 camera with a source model, and for a lidarcat camera the corrected photo coordinates the
@@ -220,12 +227,12 @@ def notes(models: dict[str, ExportCamera]) -> list[str]:
     """One line per camera: how its model was carried over (and the fit's largest misfit)."""
     out = []
     for cid, m in models.items():
+        name = "fisheye (Kannala-Brandt)" if m["kind"] == "fisheye" else "Brown (OpenCV)"
         if m["how"] == "fitted":
-            out.append(f"camera {cid}: distortion model converted to "
-                       f"{'fisheye (Kannala-Brandt)' if m['kind'] == 'fisheye' else 'Brown (OpenCV)'} by a least-squares fit "
+            out.append(f"camera {cid}: distortion model converted to {name} by a least-squares fit "
                        f"over a {GRID[0]}x{GRID[1]} pixel grid, largest misfit {m['fit_max_px']:.3g} px")
         elif m["how"] == "exact":
-            out.append(f"camera {cid}: converted to {'fisheye (Kannala-Brandt)' if m['kind'] == 'fisheye' else 'Brown (OpenCV)'} exactly")
+            out.append(f"camera {cid}: converted to {name} exactly")
         else:
             out.append(f"camera {cid}: the source program's {'fisheye' if m['kind'] == 'fisheye' else 'Brown'} model, "
                        f"unchanged")

@@ -448,14 +448,15 @@ def rigs_from_opensfm(rig_cameras: Any, instances: dict[str, list[tuple[str, str
                 missing += 1
                 continue
             if shot in seen:
-                raise FormatError(f"{where}: rig instance {iid!r}: shot {shot!r} is also in rig instance {seen[shot]!r}")
+                raise FormatError(f"{where}: rig instance {iid!r}: shot {shot!r} is also in rig instance "
+                                  f"{seen[shot]!r}")
             seen[shot] = iid
             cam = shot_cameras[shot]
             first = cam_of_sensor.setdefault(rc, cam)
             if camera_sizes[first] != camera_sizes[cam]:
                 (w0, h0), (w1, h1) = camera_sizes[first], camera_sizes[cam]
-                raise FormatError(f"{where}: rig instance {iid!r}: shot {shot!r} of rig camera {rc!r} is {w1} x {h1} px "
-                                  f"(camera {cam!r}), the rig camera's other shots {w0} x {h0} px (camera {first!r}): "
+                raise FormatError(f"{where}: rig instance {iid!r}: shot {shot!r} of rig camera {rc!r} is "
+                                  f"{w1} x {h1} px (camera {cam!r}), the rig camera's other shots {w0} x {h0} px (camera {first!r}): "
                                   f"the rig's cameras disagree in size")
             photos.append((rc, shot))
         if photos:
