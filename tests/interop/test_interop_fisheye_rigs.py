@@ -383,3 +383,45 @@ def test_bad_fisheye_and_rig_files_are_located_errors(tmp_path):
     rigs.write_text(json.dumps(doc))
     with pytest.raises(FormatError, match=re.escape(f"{rigs}: exposure '2': photo {first!r} is also in exposure '1'")):
         block_from_survey(tmp_path / "s")
+
+
+def test_the_survey_rig_file_holds_the_rig_poses(tmp_path):
+    """The rig TOML an import writes for the survey (:mod:`lidarcat.survey.rigs`: sensors are cameras, the
+    sensor_from_rig rotation a rotation vector in degrees): read back, the poses pycolmap holds."""
+    import tomllib
+    from types import SimpleNamespace
+
+    from lidarcat.geometry.rolling import rodrigues
+    from lidarcat.interop.rigs import rigs_from_survey, survey_reads_rig_files, survey_rig_file
+
+    t, _, rec = _synthetic(tmp_path, "OPENCV", (1280.0, 1270.0, 512.0, 384.0, 0.05, -0.01, 1e-3, -5e-4), rigs=2, cams=2)
+    blk = read_colmap(t)
+    text, labels = survey_rig_file(blk.rigs)
+    doc = tomllib.loads(text)
+    assert doc["1"]["sensors"] == ["1", "2"] and doc["2"]["sensors"] == ["3", "4"]
+    want = rec.rig(1).sensor_from_rig(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, 2)).matrix()
+    np.testing.assert_allclose(rodrigues(np.radians(doc["1"]["2"]["rotation_deg"]))[0], want[:, :3], atol=1e-12)
+    np.testing.assert_allclose(doc["1"]["2"]["translation_m"], want[:, 3], atol=1e-12)
+    assert len(labels) == 12 and len(set(labels.values())) == 6
+    # and back, as a survey made by hand gives it
+    (tmp_path / "rigs.toml").write_text(text)
+    cam_of = dict(zip(blk.photo_ids.tolist(), blk.photo_camera.tolist()))
+    fake = SimpleNamespace(files={"rigs": tmp_path / "rigs.toml"}, photos=[
+        SimpleNamespace(id=p, camera=cam_of[p], rig_exposure=labels.get(p, "")) for p in blk.photo_ids.tolist()])
+    back = rigs_from_survey(fake)
+    for a, b in zip(back.rigs, blk.rigs.rigs):
+        assert [s.camera for s in a.sensors] == [s.camera for s in b.sensors]
+        np.testing.assert_allclose(np.abs(a.sensors[1].sensor_from_rig), np.abs(b.sensors[1].sensor_from_rig),
+                                   atol=1e-12)
+    assert sorted(sorted(e.photos) for e in back.exposures) == sorted(sorted(e.photos) for e in blk.rigs.exposures)
+    # a rig OpenSfM leaves without a sensor at its frame, or with an unknown pose, has no such file
+    assert survey_rig_file(blk.rigs.__class__(blk.rigs.rigs[:1] + (blk.rigs.rigs[1].__class__(
+        "x", (blk.rigs.rigs[1].sensors[0], blk.rigs.rigs[1].sensors[1].__class__("4", "4", None))),),
+        ())) == "rig 'x': the pose of sensor '4' is unknown"
+    if survey_reads_rig_files():  # the survey format with rigs (issue 27's bundle side): a loaded survey
+        from lidarcat.survey.folder import Survey
+
+        write_survey(blk, tmp_path / "s", control_sd_m=0.01)
+        s = Survey.load(tmp_path / "s")
+        assert s.files["rigs"].name == "rigs.toml"
+        assert sum(bool(p.rig_exposure) for p in s.photos) == 12

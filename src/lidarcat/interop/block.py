@@ -274,11 +274,21 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
         write_text_atomic(tmp / "camera.toml", "\n".join(c.to_toml() for c in block.cameras.values()))
         if block.source_models:
             write_json_atomic(tmp / SOURCE_CAMERAS, block.source_models)
+        exposure_of: dict[str, str] = {}
+        rig_toml = False
         if block.rigs is not None:
-            from .rigs import RIGS_FILE, check_rigs, rigs_to_json
+            from .rigs import RIGS_FILE, RIGS_TOML, check_rigs, rigs_to_json, survey_reads_rig_files, survey_rig_file
 
             check_rigs(block.rigs, block, block.name)
             write_json_atomic(tmp / RIGS_FILE, rigs_to_json(block.rigs))
+            if survey_reads_rig_files():
+                made = survey_rig_file(block.rigs)
+                if isinstance(made, str):
+                    log.warning("%s: the rigs are kept in %s only, not as the survey's rig file: %s", block.name,
+                                RIGS_FILE, made)
+                else:
+                    write_text_atomic(tmp / RIGS_TOML, made[0])
+                    exposure_of, rig_toml = made[1], True
         pcols = ["photo", "camera"]
         known = np.isfinite(block.eo)
         if known[:, :3].any():
@@ -287,6 +297,8 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
             pcols += ["omega_deg", "phi_deg", "kappa_deg"]
         if block.eo_sd is not None:
             pcols += ["sd_X0", "sd_Y0", "sd_Z0", "sd_omega_deg", "sd_phi_deg", "sd_kappa_deg"]
+        if rig_toml:
+            pcols.append("rig_exposure")
         prow = []
         for i, pid in enumerate(block.photo_ids.tolist()):
             r = [pid, block.photo_camera[i]]
@@ -296,10 +308,14 @@ def write_survey(block: Block, folder: str | Path, *, image_sd_mm: float | None 
                 r += list(np.degrees(block.eo[i, 3:]))
             if block.eo_sd is not None:
                 r += list(block.eo_sd[i, :3]) + list(np.degrees(block.eo_sd[i, 3:]))
+            if rig_toml:
+                r.append(exposure_of.get(pid, ""))
             prow.append(r)
         write_csv_atomic(tmp / "photos.csv", pcols, prow)
         write_csv_atomic(tmp / "image_points.csv", cols, rows)
         files = ['camera = "camera.toml"', 'photos = "photos.csv"', 'image_points = "image_points.csv"']
+        if rig_toml:
+            files.append('rigs = "rigs.toml"')
         survey_extra = ""
         if len(block.ground_ids):
             write_csv_atomic(tmp / "ground_points.csv",
@@ -375,6 +391,10 @@ def block_from_survey(survey: Any = None, adjustment: str | Path | None = None) 
         from .rigs import read_rigs_json
 
         rigs = read_rigs_json(survey.root / RIGS_FILE)
+    else:  # a survey's own rig file (survey.toml [files] rigs), made by hand
+        from .rigs import rigs_from_survey
+
+        rigs = rigs_from_survey(survey)
     blk = Block(
         name=survey.name, crs=survey.crs, height_system=survey.height_system,
         cameras=dict(survey.cameras), photo_ids=photo_ids,
@@ -534,6 +554,12 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
     used = [g for g in groups if np.isfinite(g[1]).all(axis=1).any()]
     for names, _, _ in used:
         cols += names
+    # photos.csv's other columns (a rig exposure, an exposure time) stay as they are
+    old = read_csv_table(photos_path, required=("photo",), allow_extra=True)
+    written = {"photo", "camera", "image", *PHOTO_COLUMNS_EO} | {f"sd_{n}" for n in PHOTO_COLUMNS_EO}
+    keep_cols = [c for c in old.header if c not in written]
+    kept = {pid: [old.column(c)[i] for c in keep_cols] for i, pid in enumerate(old.column("photo"))}
+    cols += keep_cols
     rows = []
     for k, ph in enumerate(survey.photos):
         r: list[Any] = [ph.id, ph.camera]
@@ -544,6 +570,7 @@ def apply_orientations(survey: Any, orientations: Orientations, folder: str | Pa
         for _, vals, unit in used:
             v = vals[k] if np.isfinite(vals[k]).all() else np.full(3, np.nan)
             r += list(v if unit else np.degrees(v))
+        r += kept.get(ph.id, [""] * len(keep_cols))
         rows.append(r)
     with atomic_dir(folder) as tmp:
         copy_survey_files(survey, tmp, skip={photos_rel})

@@ -55,12 +55,14 @@ from .rotations import matrix_to_quaternion_wxyz, opk_to_world_to_cv, quaternion
 
 __all__ = ["RigSensor", "BlockRig", "Exposure", "RigSet", "read_colmap_rigs_text", "rigs_from_colmap_binary",
            "write_colmap_rigs", "rigs_from_opensfm", "opensfm_rig_entries", "rigs_to_json", "read_rigs_json",
-           "check_rigs", "geometry_rig", "RIGS_FILE"]
+           "check_rigs", "geometry_rig", "survey_reads_rig_files", "survey_rig_file", "rigs_from_survey", "RIGS_FILE", "RIGS_TOML"]
 
 log = logging.getLogger(__name__)
 
 #: file of a survey folder keeping the rigs of an imported block
 RIGS_FILE = "rigs.json"
+#: the survey's rig file (survey.toml ``[files] rigs``) an import writes beside it
+RIGS_TOML = "rigs.toml"
 
 
 @dataclass(frozen=True)
@@ -654,3 +656,83 @@ def geometry_rig(block: Any, rig_id: str) -> Any:
         return Rig(rig_id, models, np.array(rots), np.array(ts))
     except CameraError as ex:
         raise FormatError(str(ex)) from None
+
+
+# ---------------------------------------------------------------------- the survey's rig file
+def survey_reads_rig_files() -> bool:
+    """True when the survey format has the rig file (survey.toml ``[files] rigs`` and photos.csv
+    ``rig_exposure``, :mod:`lidarcat.survey.rigs`), which the bundle adjusts as one body per exposure."""
+    import dataclasses
+
+    from ..survey.schema import FilesTable
+
+    return "rigs" in {f.name for f in dataclasses.fields(FilesTable)}
+
+
+def survey_rig_file(rs: RigSet) -> tuple[str, dict[str, str]] | str:
+    """The survey's rig TOML of a :class:`RigSet` and every rig photo's ``rig_exposure`` label, or why it
+    has none (the survey's rig file needs each sensor a camera of its own, every pose known, a camera in
+    one rig).
+
+    The TOML (:mod:`lidarcat.survey.rigs`): one table per rig, ``sensors`` = the cameras (the reference
+    first), and per further sensor ``rotation_deg`` (the rotation vector of ``sensor_from_rig``, deg)
+    and ``translation_m``.
+    """
+    from scipy.spatial.transform import Rotation
+
+    lines: list[str] = ["# rigs imported by lidarcat (sensor_from_rig: x_sensor = R x_rig + t, COLMAP's convention)"]
+    rig_of_cam: dict[str, str] = {}
+    for r in rs.rigs:
+        cams = [s.camera for s in r.sensors]
+        if not all(cams) or len(set(cams)) < len(cams):
+            return f"rig {r.id!r}: its sensors do not each use a camera of their own"
+        unknown = [s.sensor for s in r.sensors[1:] if s.sensor_from_rig is None]
+        if unknown:
+            return f"rig {r.id!r}: the pose of sensor {unknown[0]!r} is unknown"
+        rr, tt = _rigid(r.sensors[0].sensor_from_rig or _pose7([1, 0, 0, 0], [0, 0, 0]))
+        if np.abs(rr - np.eye(3)).max() > 1e-12 or np.abs(tt).max() > 1e-12:
+            return f"rig {r.id!r}: no sensor is the rig frame (OpenSfM's rig frame is a rig camera's only by choice)"
+        for c in cams:
+            if c in rig_of_cam:
+                return f"camera {c!r} is a sensor of rigs {rig_of_cam[c]!r} and {r.id!r}"
+            rig_of_cam[c] = r.id
+        lines += ["", f"[{json.dumps(r.id)}]", f"sensors = {json.dumps(cams)}"]
+        for s in r.sensors[1:]:
+            rr, tt = _rigid(s.sensor_from_rig)  # type: ignore[arg-type]
+            rv = np.degrees(Rotation.from_matrix(rr).as_rotvec())
+            lines += ["", f"[{json.dumps(r.id)}.{json.dumps(s.camera)}]",
+                      f"rotation_deg = [{', '.join(repr(float(v)) for v in rv)}]",
+                      f"translation_m = [{', '.join(repr(float(v)) for v in tt)}]"]
+    ids = [e.id for e in rs.exposures]
+    unique = len(set(ids)) == len(ids)
+    labels = {p: (e.id if unique else f"{e.rig}/{e.id}") for e in rs.exposures for _, p in e.photos}
+    return "\n".join(lines) + "\n", labels
+
+
+def rigs_from_survey(survey: Any) -> RigSet | None:
+    """The :class:`RigSet` of a survey's rig file and photos.csv ``rig_exposure`` labels (a survey made by
+    hand, without ``rigs.json``), or None without them.  ``Survey.load`` has checked both."""
+    import tomllib
+
+    from scipy.spatial.transform import Rotation
+
+    path = getattr(survey, "files", {}).get("rigs")
+    if path is None:
+        return None
+    doc = tomllib.loads(read_text(Path(path), FormatError))
+    rigs = []
+    for rid, tab in doc.items():
+        sensors = [RigSensor(tab["sensors"][0], tab["sensors"][0], _pose7([1, 0, 0, 0], [0, 0, 0]))]
+        for cam in tab["sensors"][1:]:
+            q = matrix_to_quaternion_wxyz(Rotation.from_rotvec(np.radians(tab[cam]["rotation_deg"])).as_matrix())
+            sensors.append(RigSensor(cam, cam, _pose7(q, tab[cam]["translation_m"])))
+        rigs.append(BlockRig(str(rid), tuple(sensors)))
+    rig_of_cam = {s.camera: r.id for r in rigs for s in r.sensors}
+    groups: dict[str, list[tuple[str, str]]] = {}
+    rig_of: dict[str, str] = {}
+    for ph in survey.photos:
+        label = getattr(ph, "rig_exposure", None)
+        if label and ph.camera in rig_of_cam:
+            groups.setdefault(label, []).append((ph.camera, ph.id))
+            rig_of[label] = rig_of_cam[ph.camera]
+    return RigSet(tuple(rigs), tuple(Exposure(k, rig_of[k], tuple(v)) for k, v in groups.items()))
