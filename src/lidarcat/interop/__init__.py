@@ -20,7 +20,8 @@ module                    reads / writes
 :mod:`.cameras`           source cameras (Brown, fisheye): stand-in pinhole, ideal observations
 :mod:`.rigs`              multi-camera rigs: COLMAP rigs.txt/frames.txt, OpenSfM rig entries
 :mod:`.convert`           one format to another through the block, without adjusting
-:mod:`.block`             the common block, survey-folder writer and merger
+:mod:`.block`             the common block, survey-folder writer and reader
+:mod:`.merge`             orientation and ground-control files merged into a copy of a survey
 ========================  ==================================================================
 
 Errors are :class:`lidarcat.errors.FormatError` ``FILE:LINE: field 'NAME': ...``.

@@ -44,7 +44,7 @@ from .._util import read_text, write_text_atomic
 from ..errors import FormatError
 from ._checks import check_crs
 from ._text import sd_problem, Row, TextLines, format_error
-from .block import GroundControl, Orientations
+from .merge import GroundControl, Orientations
 from .rotations import ypr_to_opk
 
 __all__ = ["parse_crs_line", "read_gcp_list", "read_geo_txt", "read_odm_cameras", "write_odm_cameras"]

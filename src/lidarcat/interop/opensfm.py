@@ -54,7 +54,8 @@ from ..errors import FormatError
 from .._util.tables import JSON_MAX_DEPTH as MAX_JSON_DEPTH, json_too_deep, parse_float
 from .._util.values import parse_number, parse_whole, value_problem
 from ._text import format_error, sd_problem
-from .block import Block, GroundControl, require_orientations
+from .block import Block, require_orientations
+from .merge import GroundControl
 from .cameras import MAX_RAY_ANGLE_DEG, check_source_model, ideal_observations, pinhole_camera
 from .lens import export_cameras, notes, observed_pixels
 from .rigs import opensfm_rig_entries, rigs_from_opensfm

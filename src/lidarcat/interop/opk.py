@@ -35,7 +35,8 @@ from .._util import atomic_write, write_json_atomic, write_text_atomic
 from .._util.values import parse_number
 from ..errors import FormatError
 from ._text import TextLines, format_error
-from .block import Block, Orientations, require_orientations
+from .block import Block, require_orientations
+from .merge import Orientations
 
 __all__ = ["read_opk", "write_opk", "read_borea", "read_borea_camera", "read_borea_points",
            "read_borea_measurements", "orthority_int_param", "ANGLE_UNITS", "OPK_FLAVOURS"]
