@@ -425,3 +425,14 @@ def test_the_survey_rig_file_holds_the_rig_poses(tmp_path):
         s = Survey.load(tmp_path / "s")
         assert s.files["rigs"].name == "rigs.toml"
         assert sum(bool(p.rig_exposure) for p in s.photos) == 12
+
+
+def test_kaptures_own_t265_files_read_as_the_fixture_holds_them():
+    """kapture's samples/t265/colmap, byte for byte (``1, 0.95, ...`` with commas, no points): the real
+    cameras and poses the T265 fixture is built on."""
+    raw, fix = read_colmap(D / "colmap" / "t265_kapture"), read_colmap(T265)
+    assert raw.photo_ids.tolist() == fix.photo_ids.tolist() and len(raw.obs_point) == 0
+    assert raw.source_models == fix.source_models
+    assert raw.source_models["1"] == {"fx": 284.468, "fy": 285.51, "cx": 424.355, "cy": 393.742, "w": 848, "h": 800,
+                                      "dist": {"k1": 0.0008, "k2": 0.031, "k3": -0.03, "k4": 0.005}, "kind": "fisheye"}
+    np.testing.assert_allclose(raw.eo, fix.eo, atol=1e-12, rtol=0)

@@ -257,7 +257,7 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float | None = None, name:
             fields = ("IMAGE_ID", "QW", "QX", "QY", "QZ", "TX", "TY", "TZ", "CAMERA_ID", "NAME")
             raise format_error(ipath, no, fields[len(f)],
                                "missing: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME")
-        # kapture writes "1, 0.95, ..." (COLMAP's own reader takes the leading number of each field)
+        # kapture's COLMAP export writes "1, 0.95, ..., 2, NAME": the commas are dropped (pycolmap 4 refuses them)
         f = [c[:-1] if k < 9 and c.endswith(",") else c for k, c in enumerate(f)]
         iid = _int(ipath, no, "IMAGE_ID", f[0])
         q = np.array([_num(ipath, no, n, c) for n, c in zip(("QW", "QX", "QY", "QZ"), f[1:5])])
