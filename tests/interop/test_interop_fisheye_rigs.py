@@ -67,8 +67,16 @@ def _pycolmap_residuals(folder):
     return worst, rec
 
 
-@pytest.mark.parametrize("model,params", FISHEYES)
-def test_colmap_fisheye_import_export_keeps_pycolmap_projection(tmp_path, model, params):
+#: COLMAP 3.12's distortion-free fisheyes, written back as the models older COLMAP reads, zeros added
+PLAIN_FISHEYES = [
+    ("SIMPLE_FISHEYE", (450.0, 512.0, 384.0), "SIMPLE_RADIAL_FISHEYE", [450.0, 512.0, 384.0, 0.0]),
+    ("FISHEYE", (450.0, 451.0, 512.0, 384.0), "OPENCV_FISHEYE", [450.0, 451.0, 512.0, 384.0, 0.0, 0.0, 0.0, 0.0]),
+]
+
+
+@pytest.mark.parametrize("model,params,out_model,out_params",
+                         [(m, p, m, list(p)) for m, p in FISHEYES] + PLAIN_FISHEYES)
+def test_colmap_fisheye_import_export_keeps_pycolmap_projection(tmp_path, model, params, out_model, out_params):
     t, b, rec = _synthetic(tmp_path, model, params)
     blk = read_colmap(t, name="m")
     assert blk.source_models["1"]["kind"] == "fisheye"
@@ -78,10 +86,10 @@ def test_colmap_fisheye_import_export_keeps_pycolmap_projection(tmp_path, model,
     assert np.abs(reprojection_residuals_px(blk)).max() < 1e-9
     write_colmap(blk, tmp_path / "out")
     line = next(ln for ln in (tmp_path / "out" / "cameras.txt").read_text().splitlines() if ln[:1] == "1")
-    assert line.split()[1] == model and [float(v) for v in line.split()[4:]] == list(params)
+    assert line.split()[1] == out_model and [float(v) for v in line.split()[4:]] == out_params
     worst, back = _pycolmap_residuals(tmp_path / "out")
     assert worst <= 1e-6
-    assert back.cameras[1].params.tolist() == list(params)
+    assert back.cameras[1].params.tolist() == out_params
 
 
 def test_opensfm_fisheye_round_trip_is_pycolmaps_projection(tmp_path):
