@@ -444,3 +444,16 @@ def test_kaptures_own_t265_files_read_as_the_fixture_holds_them():
     assert raw.source_models["1"] == {"fx": 284.468, "fy": 285.51, "cx": 424.355, "cy": 393.742, "w": 848, "h": 800,
                                       "dist": {"k1": 0.0008, "k2": 0.031, "k3": -0.03, "k4": 0.005}, "kind": "fisheye"}
     np.testing.assert_allclose(raw.eo, fix.eo, atol=1e-12, rtol=0)
+
+
+def test_a_fisheye_for_a_brown_only_target_is_fitted_or_refused():
+    from lidarcat.interop.lens import export_camera
+
+    narrow = pinhole_camera("n", 900.0, 900.0, 512.0, 384.0, 1024, 768, pixel_size_mm=None, model="m", source="s",
+                            dist={"k1": 0.01}, kind="fisheye")
+    m = export_camera(narrow[0], narrow[1], fisheye=False)
+    assert m["kind"] == "brown" and m["how"] == "fitted" and 0 < m["fit_max_px"] < 0.5
+    t265 = read_colmap(T265)
+    with pytest.raises(FormatError, match=re.escape("camera '1': its fisheye image reaches 122.3 deg from the optical "
+                                                    "axis; the target format has Brown (OpenCV) cameras only")):
+        export_camera(t265.cameras["1"], t265.source_models["1"], fisheye=False)
