@@ -355,7 +355,8 @@ def test_bad_fisheye_and_rig_files_are_located_errors(tmp_path):
     p.write_text(text.replace("<f>4785.3046873759595</f>", "<f>900.0</f>", 1).replace(
         "<k3>0.021610798069009122</k3>", "", 1))
     with pytest.raises(FormatError, match=re.escape(f"{p}:16: camera '0': field 'k2': the fisheye polynomial folds "
-                                                    f"over at 107.1 deg from the optical axis (theta_d stops increasing at "
+                                                    f"over at 107.1 deg from the optical axis (theta_d stops "
+                                                    f"increasing at "
                                                     f"1.472 rad) "
                                                     f"before the image corner (0, 3456) px")):
         read_metashape(p, FRAME)

@@ -55,7 +55,8 @@ from .rotations import matrix_to_quaternion_wxyz, opk_to_world_to_cv, quaternion
 
 __all__ = ["RigSensor", "BlockRig", "Exposure", "RigSet", "read_colmap_rigs_text", "rigs_from_colmap_binary",
            "write_colmap_rigs", "rigs_from_opensfm", "opensfm_rig_entries", "rigs_to_json", "read_rigs_json",
-           "check_rigs", "geometry_rig", "survey_reads_rig_files", "survey_rig_file", "rigs_from_survey", "RIGS_FILE", "RIGS_TOML"]
+           "check_rigs", "geometry_rig", "survey_reads_rig_files", "survey_rig_file", "rigs_from_survey", "RIGS_FILE",
+           "RIGS_TOML"]
 
 log = logging.getLogger(__name__)
 
@@ -458,7 +459,8 @@ def rigs_from_opensfm(rig_cameras: Any, instances: dict[str, list[tuple[str, str
             if camera_sizes[first] != camera_sizes[cam]:
                 (w0, h0), (w1, h1) = camera_sizes[first], camera_sizes[cam]
                 raise FormatError(f"{where}: rig instance {iid!r}: shot {shot!r} of rig camera {rc!r} is "
-                                  f"{w1} x {h1} px (camera {cam!r}), the rig camera's other shots {w0} x {h0} px (camera {first!r}): "
+                                  f"{w1} x {h1} px (camera {cam!r}), the rig camera's other shots {w0} x {h0} px "
+                                  f"(camera {first!r}): "
                                   f"the rig's cameras disagree in size")
             photos.append((rc, shot))
         if photos:
