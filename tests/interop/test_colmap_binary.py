@@ -80,12 +80,14 @@ def test_missing_and_truncated_files(tmp_path):
         read_colmap_binary(b)
 
 
-def test_fisheye_and_bad_values_are_refused(tmp_path):
+def test_unsupported_models_and_bad_values_are_refused(tmp_path):
     b, _, _ = _model(tmp_path, "OPENCV_FISHEYE", (500.0, 501.0, 512.0, 384.0, 0.02, -0.01, 0.003, -0.0005), rigs=1)
-    with pytest.raises(FormatError, match=re.escape(f"{b / 'cameras.bin'}: byte 12: field 'MODEL_ID': camera model "
-                                                    "'OPENCV_FISHEYE' is not supported")):
-        read_colmap_binary(b)
     data = bytearray((b / "cameras.bin").read_bytes())
+    data[12] = 10                                  # THIN_PRISM_FISHEYE
+    (b / "cameras.bin").write_bytes(bytes(data))
+    with pytest.raises(FormatError, match=re.escape(f"{b / 'cameras.bin'}: byte 12: field 'MODEL_ID': camera 1: camera "
+                                                    "model 'THIN_PRISM_FISHEYE' is not supported")):
+        read_colmap_binary(b)
     data[12] = 4                                   # OPENCV
     data[32:40] = np.float64(np.nan).tobytes()      # fx
     (b / "cameras.bin").write_bytes(bytes(data))

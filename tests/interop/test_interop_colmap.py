@@ -147,7 +147,11 @@ def test_thesis_round_trip(tmp_path):
 
 
 @pytest.mark.parametrize("file,line_no,old,new,expect", [
-    ("cameras.txt", 4, "SIMPLE_PINHOLE", "OPENCV_FISHEYE", "cameras.txt:4: field 'MODEL': camera model 'OPENCV_FISHEYE' is not supported"),
+    ("cameras.txt", 4, "SIMPLE_PINHOLE", "FOV", "cameras.txt:4: field 'MODEL': camera 1: camera model 'FOV' is not "
+     "supported (supported: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV, "
+     "SIMPLE_RADIAL_FISHEYE, RADIAL_FISHEYE, OPENCV_FISHEYE, SIMPLE_FISHEYE, FISHEYE)"),
+    ("cameras.txt", 4, "SIMPLE_PINHOLE", "OPENCV_FISHEYE", "cameras.txt:4: field 'PARAMS': model OPENCV_FISHEYE has 8 "
+     "parameters (fx fy cx cy k1 k2 k3 k4), the line has 3"),
     ("cameras.txt", 4, "1847.53", "abc", "cameras.txt:4: field 'f': 'abc' is not a number"),
     ("cameras.txt", 4, " 539.5", "", "cameras.txt:4: field 'PARAMS': model SIMPLE_PINHOLE has 3 parameters (f cx cy), the line has 2"),
     ("images.txt", 5, " 1 03.jpg", " 7 03.jpg", "images.txt:5: field 'CAMERA_ID': camera 7 is not in cameras.txt"),

@@ -133,14 +133,14 @@ def test_metashape_initial_calibration_alone_is_used(tmp_path):
     assert read_metashape(p, FRAME).cameras["0"].focal_length_mm == pytest.approx(15.0, rel=1e-15)
 
 
-def test_metashape_fisheye_sensor_refused(tmp_path):
+def test_metashape_spherical_sensor_refused(tmp_path):
     p = tmp_path / "chunk.xml"
     p.write_text(CHUNK.read_text().replace('label="FC550, DJI MFT 15mm F1.7 ASPH (15mm)" type="frame"',
-                                           'label="FC550, DJI MFT 15mm F1.7 ASPH (15mm)" type="fisheye"', 1))
+                                           'label="FC550, DJI MFT 15mm F1.7 ASPH (15mm)" type="spherical"', 1))
     with pytest.raises(FormatError) as ei:
         read_metashape(p, FRAME)
-    assert str(ei.value) == (f"{p}:4: field 'type': sensor 0 (FC550, DJI MFT 15mm F1.7 ASPH (15mm)) is a fisheye "
-                             f"camera; lidarcat models frame (pinhole) cameras only: remove or disable its cameras "
+    assert str(ei.value) == (f"{p}:4: field 'type': sensor 0 (FC550, DJI MFT 15mm F1.7 ASPH (15mm)) is a spherical "
+                             f"camera; lidarcat reads frame and fisheye cameras: remove or disable its cameras "
                              f"in Metashape, or export undistorted frame images of them, then import again")
 
 

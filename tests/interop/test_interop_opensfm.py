@@ -109,8 +109,12 @@ def test_ground_control_points_json():
 
 
 @pytest.mark.parametrize("edit,expect", [
-    (lambda r: r[0]["cameras"][next(iter(r[0]["cameras"]))].update(projection_type="fisheye"),
-     "field 'projection_type': camera 'v2 apple iphone4,1 3264 2448 perspective 0.9722': projection 'fisheye' is not supported"),
+    (lambda r: r[0]["cameras"][next(iter(r[0]["cameras"]))].update(projection_type="spherical"),
+     "field 'projection_type': camera 'v2 apple iphone4,1 3264 2448 perspective 0.9722': projection 'spherical' is not "
+     "supported (supported: perspective, brown, fisheye, fisheye_opencv)"),
+    (lambda r: r[0]["cameras"][next(iter(r[0]["cameras"]))].update(projection_type="fisheye", focal=0.19, k1=0.0, k2=0.0),
+     "camera 'v2 apple iphone4,1 3264 2448 perspective 0.9722': field 'fx': the image corner (-0.5, -0.5) px lies "
+     "beyond 180 deg from the optical axis"),
     (lambda r: r[0]["shots"]["03.jpg"].update(rotation=[1.0, "a", 0.0]),
      "field 'rotation': 'a' is not a finite number (03.jpg)"),
     (lambda r: r[0]["shots"]["01.jpg"].update(translation=[1.0, 2.0]),

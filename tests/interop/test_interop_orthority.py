@@ -104,3 +104,26 @@ def test_opensfm_export_georeferenced_for_orthority(tmp_path):
     for pid, e in zip(b.photo_ids.tolist(), b.eo):
         lon, lat, h = to_ll(*e[:3], direction="INVERSE")
         assert np.allclose(ext[pid]["xyz"], to_utm(lon, lat, h), atol=1e-3)
+
+
+def test_fisheye_camera_through_orthority():
+    """The real T265 fisheye cameras (kapture, tests/data/README.md) in orthority's interior parameters: a
+    ``fisheye`` (OpenCV k1..k4) camera whose projection of every observed point equals lidarcat's (the
+    COLMAP model's, pycolmap-projected pixels) to 1e-6 px."""
+    from orthority.camera import create_camera
+
+    from lidarcat.interop.colmap import read_colmap
+    from lidarcat.interop.opk import orthority_int_param
+
+    b = read_colmap(D / "colmap" / "t265_points")
+    par = json.loads(orthority_int_param(b))
+    assert par["1"]["type"] == "fisheye" and (par["1"]["k3"], par["1"]["k4"]) == (-0.03, 0.005)
+    mine = reprojection_residuals_px(b) + b.obs_px  # projected, pixel centre origin
+    idx = b.photo_index()
+    px = []
+    for ph, pt in zip(b.obs_photo.tolist(), b.obs_point.tolist()):
+        e = b.eo[idx[ph]]
+        p = dict(par[b.photo_camera[idx[ph]]])
+        cam = create_camera(p.pop("type"), **p, xyz=tuple(e[:3]), opk=tuple(e[3:]))
+        px.append(cam.world_to_pixel(b.point([pt])[0].reshape(3, 1)).ravel())
+    assert len(px) == 480 and np.abs(np.array(px) - mine).max() <= 1e-6

@@ -12,7 +12,7 @@ __all__ = ["import_cmd", "export_cmd", "IMPORT_FORMATS", "EXPORT_FORMATS"]
 
 #: format -> what SOURCE is
 IMPORT_FORMATS = {
-    "colmap": "COLMAP text model folder (cameras.txt, images.txt, points3D.txt)",
+    "colmap": "COLMAP model folder (cameras, images, points3D as .txt or .bin; rigs, frames when present)",
     "opensfm": "OpenSfM reconstruction.json (tracks.csv beside it or --tracks)",
     "metashape": "Metashape chunk doc.xml (marker measurements: --frame frame doc.xml)",
     "borea": "IGN Borea .OPK with --camera files, --points .app and --measurements .mes",
@@ -28,6 +28,7 @@ EXPORT_FORMATS = {
     "opensfm": "OpenSfM reconstruction.json + tracks.csv folder",
     "opk": "omega-phi-kappa text file (+ .json sidecar with CRS and height system)",
     "gis": "GIS layer set: GeoPackage (pyogrio installed) or GeoJSON files",
+    "odm-cameras": "OpenDroneMap cameras.json (the cameras, fisheyes included, for odm --cameras)",
 }
 
 
@@ -49,11 +50,14 @@ def _fmt_help(table: dict[str, str]) -> str:
 @click.option("--height-system", default="unspecified", show_default=True,
               help="What the file's heights are: ellipsoidal or orthometric (reported in every output).")
 @click.option("--pixel-size-mm", type=float, default=None,
-              help="Pixel pitch given to cameras that have none (COLMAP, OpenSfM, Borea; default 0.001 mm).")
+              help="Pixel pitch given to cameras that have none (COLMAP, OpenSfM, Borea; default 0.001 mm, "
+                   "0.01 mm for a COLMAP/OpenSfM focal length under 500 px).")
 @click.option("--control-sd-m", type=float, default=None,
               help="colmap/opensfm: model points become control with this sd (model units) so the "
                    "re-adjustment keeps the model's datum.")
 @click.option("--tracks", type=click.Path(exists=True), default=None, help="opensfm: tracks.csv.")
+@click.option("--odm-cameras", "odm_cameras", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="opensfm: an OpenDroneMap cameras.json whose cameras replace the reconstruction's.")
 @click.option("--frame", type=click.Path(exists=True), default=None, help="metashape: frame doc.xml.")
 @click.option("--camera", "cameras", multiple=True, type=click.Path(exists=True), help="borea: camera file (repeat).")
 @click.option("--points", type=click.Path(exists=True), default=None, help="borea: ground points .app.")
@@ -75,7 +79,7 @@ def _fmt_help(table: dict[str, str]) -> str:
 @overwrite_option(help="Replace the files of an existing survey in OUTPUT.")
 @json_opt
 def import_cmd(fmt, source, output, base, crs, file_crs, height_system, pixel_size_mm, control_sd_m, tracks,
-               frame, cameras, points, measurements, angle_unit, sd_position_m, sd_attitude_deg, gcp_sd_m,
+               odm_cameras, frame, cameras, points, measurements, angle_unit, sd_position_m, sd_attitude_deg, gcp_sd_m,
                set_name, to_system, geoid, force, as_json):
     """Read SOURCE in FORMAT and write the survey folder OUTPUT.
 
@@ -107,13 +111,16 @@ def import_cmd(fmt, source, output, base, crs, file_crs, height_system, pixel_si
     if fmt in ("colmap", "opensfm", "metashape", "borea"):
         if fmt == "colmap":
             from ..interop.colmap import LOCAL_CRS, read_colmap
+            from ..interop.colmap_binary import read_colmap_binary
 
-            blk = read_colmap(source, pixel_size_mm=px, crs=crs or LOCAL_CRS,
-                              height_system=height_system if crs else "unspecified (model frame)")
+            binary = (Path(source) / "cameras.bin").is_file() and not (Path(source) / "cameras.txt").is_file()
+            blk = (read_colmap_binary if binary else read_colmap)(
+                source, pixel_size_mm=pixel_size_mm, crs=crs or LOCAL_CRS,
+                height_system=height_system if crs else "unspecified (model frame)")
         elif fmt == "opensfm":
             from ..interop.opensfm import read_opensfm
 
-            blk = read_opensfm(source, tracks, pixel_size_mm=px)
+            blk = read_opensfm(source, tracks, pixel_size_mm=pixel_size_mm, cameras=odm_cameras)
         elif fmt == "metashape":
             from ..interop.metashape import read_metashape
 
@@ -129,6 +136,14 @@ def import_cmd(fmt, source, output, base, crs, file_crs, height_system, pixel_si
         report.update(photos=int(blk.n_photos), observations=int(len(blk.obs_photo)),
                       points=int(len(blk.point_ids)), ground_points=int(len(blk.ground_ids)),
                       crs=blk.crs, height_system=blk.height_system)
+        fisheyes = sorted(c for c, m in blk.source_models.items() if m.get("kind", "").endswith("fisheye"))
+        if fisheyes:
+            report["fisheye_cameras"] = fisheyes
+        if "skipped" in blk.description:
+            report["skipped"] = blk.description.split("; ", 1)[1]
+        if blk.rigs is not None:
+            report["rigs"] = len(blk.rigs.rigs)
+            report["exposures"] = len(blk.rigs.exposures)
         report["next"] = _next_step(fmt, blk, output, control_sd_m)
     elif fmt in ("opk", "gnss", "odm-geo"):
         if fmt == "opk":
@@ -218,7 +233,7 @@ import_cmd.help = import_cmd.help.replace("{formats}", _fmt_help(IMPORT_FORMATS)
 @click.option("--survey", type=click.Path(exists=True), default=None,
               help="The survey that was adjusted (default: the embedded thesis block).")
 @output_option(required=True, type=click.Path(),
-              help="Output folder (colmap, opensfm, gis) or file (opk); written atomically.")
+              help="Output folder (colmap, opensfm, gis) or file (opk, odm-cameras); written atomically.")
 @click.option("--angle-unit", type=click.Choice(["deg", "rad", "gon"]), default="deg", show_default=True,
               help="opk: unit of omega, phi, kappa.")
 @click.option("--flavour", type=click.Choice(["pix4d", "ign", "orthority"]), default="pix4d", show_default=True,
@@ -279,6 +294,10 @@ def export_cmd(fmt, adjustment, survey, output, angle_unit, flavour, gis_format,
             from ..interop.opensfm import write_opensfm
 
             write_opensfm(blk, output)
+        elif fmt == "odm-cameras":
+            from ..interop.odm import write_odm_cameras
+
+            write_odm_cameras(blk, output)
         else:
             from ..interop.opk import write_opk
 

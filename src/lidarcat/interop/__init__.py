@@ -16,9 +16,12 @@ module                    reads / writes
 :mod:`.gis`               GIS layer set of an adjusted block (GeoPackage or GeoJSON)
 :mod:`.heights`           ellipsoidal / orthometric heights per source, geoid grids
 :mod:`.rotations`         the rotation conventions and their conversions
-:mod:`.lens`              every camera as the Brown (OpenCV) model an export writes
+:mod:`.lens`              every camera as the Brown (OpenCV) or fisheye model an export writes
+:mod:`.cameras`           source cameras (Brown, fisheye): stand-in pinhole, ideal observations
+:mod:`.rigs`              multi-camera rigs: COLMAP rigs.txt/frames.txt, OpenSfM rig entries
 :mod:`.convert`           one format to another through the block, without adjusting
-:mod:`.block`             the common block, survey-folder writer and merger
+:mod:`.block`             the common block, survey-folder writer and reader
+:mod:`.merge`             orientation and ground-control files merged into a copy of a survey
 ========================  ==================================================================
 
 Errors are :class:`lidarcat.errors.FormatError` ``FILE:LINE: field 'NAME': ...``.

@@ -1,7 +1,8 @@
 """The checks :mod:`lidarcat.interop.block` makes before it writes a survey folder: every value in
 its sane range (:data:`lidarcat._util.values.VALUE_RANGES`), every standard deviation within the
 survey's :data:`~lidarcat.survey.schema.SD_BOUNDS`, and a survey's ``source_cameras.json`` read with
-its values checked -- so that what ``lidarcat import`` writes, ``Survey.load`` and ``adjust`` accept.
+its values checked -- so that what ``lidarcat import`` writes, ``Survey.load`` and ``adjust`` accept;
+and the small helpers :mod:`lidarcat.interop.block` and :mod:`lidarcat.interop.merge` share.
 """
 
 from __future__ import annotations
@@ -14,8 +15,10 @@ import numpy as np
 from .._util import read_text
 from ..errors import FormatError
 from ._text import format_error
+from .cameras import SOURCE_KINDS, check_source_model
 
-__all__ = ["check_values", "check_crs", "check_block", "read_source_models", "PHOTO_COLUMNS_EO", "EO_KINDS", "ENH_KINDS"]
+__all__ = ["check_values", "check_crs", "check_block", "read_source_models", "frozen_rows", "photo_eo", "toml_string",
+           "PHOTO_COLUMNS_EO", "EO_KINDS", "ENH_KINDS"]
 
 
 def check_values(where: str, what: str, ids: Any, values: np.ndarray, kinds: tuple[str, ...],
@@ -121,6 +124,9 @@ def check_block(block: Any) -> None:
     obs = np.column_stack([block.obs_px, block.obs_mm])
     check_values(w, "measurement of point", block.obs_point, obs, ("pixel_px",) * 2 + ("photo_mm",) * 2,
                  ("col_px", "row_px", "x_mm", "y_mm"))
+    if block.obs_sd_mm is not None:
+        check_values(w, "measurement of point", block.obs_point, block.obs_sd_mm, ("sd_mm",) * 2,
+                     ("sd_x_mm", "sd_y_mm"))
     check_values(w, "point", block.ground_ids, block.ground_m, ENH_KINDS, ("E", "N", "h"))
     check_values(w, "point", block.ground_ids, block.ground_sd_m, ("sd_m",) * 3, ("sd_E", "sd_N", "sd_h"))
     check_area(w, "photo", block.crs, block.photo_ids, block.eo[:, :2])
@@ -171,7 +177,39 @@ def read_source_models(path: Path, cameras: Any) -> dict[str, dict]:
                 if not bad and (isinstance(v, bool) or not isinstance(v, (int, float)) or
                                 (isinstance(v, int) and abs(v) > 10 ** 18) or not np.isfinite(v)):
                     bad = f"dist {k}: expected a finite number"
+        if not bad and m.get("kind", "brown") not in SOURCE_KINDS:
+            bad = f"kind: {str(m.get('kind'))[:40]!r} is not a camera model kind ({', '.join(SOURCE_KINDS)})"
         if bad:
             raise FormatError(f"{path}: camera {cid!r}: {bad}")
+        m = {**m, "kind": m.get("kind", "brown")}
+        check_source_model(cid, m, str(path))
         out[cid] = m
     return out
+
+
+def frozen_rows(a: Any, shape_tail: tuple[int, ...], dtype: Any = float) -> np.ndarray:
+    """*a* as a read-only array of rows of shape *shape_tail* (``()``: a vector)."""
+    from .._util.frozen import frozen_array
+
+    out = frozen_array(a, dtype=dtype)
+    return out.reshape((-1, *shape_tail)) if shape_tail else out.reshape(-1)
+
+
+def photo_eo(photos: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 6) orientations and sds (m, rad; NaN where absent) of survey photos."""
+    eo = np.full((len(photos), 6), np.nan)
+    esd = np.full((len(photos), 6), np.nan)
+    for k, ph in enumerate(photos):
+        for arr, pos, att in ((eo, ph.position_m, ph.attitude_deg), (esd, ph.sd_position_m, ph.sd_attitude_deg)):
+            if pos is not None:
+                arr[k, :3] = pos
+            if att is not None:
+                arr[k, 3:] = np.radians(att)
+    return eo, esd
+
+
+def toml_string(s: str) -> str:
+    """*s* as a TOML basic string (JSON's escapes are TOML's)."""
+    import json
+
+    return json.dumps(s, ensure_ascii=False)

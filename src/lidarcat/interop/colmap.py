@@ -47,11 +47,13 @@ from ..errors import FormatError
 from ._distortion import is_identity
 from .._util.values import parse_number, parse_whole
 from ._text import format_error
-from .block import Block, pinhole_camera, require_orientations, undistorted_mm
+from .block import Block, require_orientations
+from .cameras import MAX_RAY_ANGLE_DEG, check_source_model, ideal_observations, pinhole_camera
 from .lens import export_cameras, notes, observed_pixels
+from .rigs import check_rigs, read_colmap_rigs_text, write_colmap_rigs
 from .rotations import matrix_to_quaternion_wxyz, opk_to_world_to_cv, quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
-__all__ = ["read_colmap", "write_colmap", "block_from_model", "COLMAP_MODELS", "LOCAL_CRS"]
+__all__ = ["read_colmap", "write_colmap", "block_from_model", "colmap_camera", "COLMAP_MODELS", "LOCAL_CRS"]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +65,11 @@ COLMAP_MODELS: dict[str, tuple[str, ...]] = {
     "RADIAL": ("f", "cx", "cy", "k1", "k2"),
     "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
     "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    "SIMPLE_RADIAL_FISHEYE": ("f", "cx", "cy", "k1"),
+    "RADIAL_FISHEYE": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV_FISHEYE": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+    "SIMPLE_FISHEYE": ("f", "cx", "cy"),
+    "FISHEYE": ("fx", "fy", "cx", "cy"),
 }
 #: crs written for a model that is not georeferenced
 LOCAL_CRS = "local: COLMAP model frame (not georeferenced)"
@@ -94,7 +101,7 @@ def _int(path: Path, line: int, field: str, cell: str, kind: str | None = None) 
         raise format_error(path, line, field, str(ex)) from None
 
 
-def _read_cameras(path: Path, pixel_size_mm: float):
+def _read_cameras(path: Path, pixel_size_mm: float | None):
     cams: dict[str, tuple[Camera, dict]] = {}
     for no, raw in _lines(path):
         f = raw.split()
@@ -106,9 +113,8 @@ def _read_cameras(path: Path, pixel_size_mm: float):
         cid = str(_int(path, no, "CAMERA_ID", f[0]))
         model = f[1]
         if model not in COLMAP_MODELS:
-            raise format_error(path, no, "MODEL", f"camera model {model!r} is not supported "
-                               f"(supported: {', '.join(COLMAP_MODELS)}); fisheye models have no "
-                               f"lidarcat equivalent")
+            raise format_error(path, no, "MODEL", f"camera {cid}: camera model {model!r} is not supported "
+                               f"(supported: {', '.join(COLMAP_MODELS)})")
         names = COLMAP_MODELS[model]
         w, h = _int(path, no, "WIDTH", f[2]), _int(path, no, "HEIGHT", f[3])
         if w < 1 or h < 1:
@@ -125,16 +131,36 @@ def _read_cameras(path: Path, pixel_size_mm: float):
             raise format_error(path, no, "fx" if "fx" in p else "f", "focal length must be positive")
         if cid in cams:
             raise format_error(path, no, "CAMERA_ID", f"camera {cid} defined twice")
-        dist = {k: v for k, v in p.items() if k[0] in "kp"}
-        cam, model_dict = pinhole_camera(
-            cid, fx, fy, p["cx"], p["cy"], w, h, pixel_size_mm=pixel_size_mm, model=f"COLMAP {model}",
-            source=f"{path.parent.name}/{path.name}:{no}: {model} " + " ".join(f"{n}={v!r}" for n, v in p.items())
-            + ("" if is_identity(dist) else "; distortion removed from the observations on import"),
-            dist=dist)
-        cams[cid] = (cam, model_dict)
+        cams[cid] = colmap_camera(cid, model, w, h, p, pixel_size_mm,
+                                  f"{path.parent.name}/{path.name}:{no}", f"{path}:{no}")
     if not cams:
         raise FormatError(f"{path}: no camera defined")
     return cams
+
+
+def colmap_camera(cid: str, model: str, w: int, h: int, p: dict[str, float], pixel_size_mm: float | None,
+                  label: str, where: str) -> tuple[Camera, dict]:
+    """lidarcat's stand-in camera and the source model of a COLMAP camera (:mod:`lidarcat.interop.cameras`).
+
+    *p* maps the parameter names of :data:`COLMAP_MODELS` to values; *label* goes into the camera's
+    ``source``, *where* (``FILE:LINE`` or ``FILE: byte N``) into errors.
+
+    Raises
+    ------
+    FormatError
+        A fisheye whose parameters are out of the model's valid range (``WHERE: camera 'ID': field ...``).
+    """
+    fx, fy = p.get("fx", p.get("f")), p.get("fy", p.get("f"))
+    dist = {k: v for k, v in p.items() if k[0] in "kp"}
+    fisheye = model.endswith("FISHEYE")
+    cam, model_dict = pinhole_camera(
+        cid, fx, fy, p["cx"], p["cy"], w, h, pixel_size_mm=pixel_size_mm, model=f"COLMAP {model}",
+        source=f"{label}: {model} " + " ".join(f"{n}={v!r}" for n, v in p.items())
+        + ("; observations made ideal through the fisheye model on import" if fisheye else
+           "" if is_identity(dist) else "; distortion removed from the observations on import"),
+        dist=dist, kind="fisheye" if fisheye else "brown")
+    check_source_model(cid, model_dict, where)
+    return cam, model_dict
 
 
 def _written_crs(path: Path, crs: str, height_system: str) -> tuple[str, str]:
@@ -152,7 +178,7 @@ def _written_crs(path: Path, crs: str, height_system: str) -> tuple[str, str]:
     return crs, height_system
 
 
-def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str | None = None,
+def read_colmap(folder: str | Path, *, pixel_size_mm: float | None = None, name: str | None = None,
                 crs: str = LOCAL_CRS, height_system: str = "unspecified (model frame)") -> Block:
     """Read a COLMAP text model (``cameras.txt``, ``images.txt``, ``points3D.txt``).
 
@@ -160,9 +186,11 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
     ----------
     folder : path
         The model folder.
-    pixel_size_mm : float
+    pixel_size_mm : float, optional
         Pixel pitch given to the cameras, mm (COLMAP works in pixels only; any
-        value gives the same geometry, 0.001 makes ``x_mm = px / 1000``).
+        value gives the same geometry, 0.001 makes ``x_mm = px / 1000``); default
+        :func:`lidarcat.interop.cameras.default_pixel_size_mm` (0.001, or 0.01 for a
+        focal length under 500 px).
     name, crs, height_system : str
         Survey name (default: the folder name), CRS of the model frame and its heights
         (default: those :func:`write_colmap` wrote in the header of ``images.txt``, else a
@@ -187,7 +215,7 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
             raise FormatError(f"{folder / fname}: file not found (a COLMAP text model has "
                               f"{', '.join(_FILES)}; convert a binary model with "
                               f"'colmap model_converter --output_type TXT')")
-    if not (pixel_size_mm > 0 and math.isfinite(pixel_size_mm)):
+    if pixel_size_mm is not None and not (pixel_size_mm > 0 and math.isfinite(pixel_size_mm)):
         raise FormatError(f"pixel_size_mm must be a positive number, got {pixel_size_mm!r}")
     cams = _read_cameras(folder / "cameras.txt", pixel_size_mm)
 
@@ -218,6 +246,7 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
     o_xy: list[np.ndarray] = []
     o_cam: list[str] = []
     names: set[str] = set()
+    image_ids: dict[int, str] = {}
     lines = list(_lines(ipath))
     i = 0
     while i < len(lines):
@@ -230,7 +259,9 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
             fields = ("IMAGE_ID", "QW", "QX", "QY", "QZ", "TX", "TY", "TZ", "CAMERA_ID", "NAME")
             raise format_error(ipath, no, fields[len(f)],
                                "missing: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME")
-        _int(ipath, no, "IMAGE_ID", f[0])
+        # kapture's COLMAP export writes "1, 0.95, ..., 2, NAME": the commas are dropped (pycolmap 4 refuses them)
+        f = [c[:-1] if k < 9 and c.endswith(",") else c for k, c in enumerate(f)]
+        iid = _int(ipath, no, "IMAGE_ID", f[0])
         q = np.array([_num(ipath, no, n, c) for n, c in zip(("QW", "QX", "QY", "QZ"), f[1:5])])
         tt = np.array([_num(ipath, no, n, c, "coordinate_m") for n, c in zip(("TX", "TY", "TZ"), f[5:8])])
         if not 0.5 < np.linalg.norm(q) < 2.0:
@@ -244,6 +275,7 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
         names.add(img)
         r = quaternion_wxyz_to_matrix(q)
         photo.append(img)
+        image_ids[iid] = img
         pcam.append(cid)
         eo.append(np.concatenate([-r.T @ tt, world_to_cv_to_opk(r)]))
         pts_no, pts_raw = lines[i + 1] if i + 1 < len(lines) else (no + 1, "")
@@ -266,9 +298,14 @@ def read_colmap(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str |
         i += 2
     if not photo:
         raise FormatError(f"{ipath}: no image")
-    return block_from_model(ipath, cams, photo, pcam, eo, o_photo, o_point, o_xy, o_cam, pids, pxyz,
-                            name=name or folder.name, crs=crs, height_system=height_system,
-                            description=f"imported from the COLMAP model {folder}")
+    blk = block_from_model(ipath, cams, photo, pcam, eo, o_photo, o_point, o_xy, o_cam, pids, pxyz,
+                           name=name or folder.name, crs=crs, height_system=height_system,
+                           description=f"imported from the COLMAP model {folder}")
+    if (folder / "rigs.txt").is_file() and (folder / "frames.txt").is_file():
+        rigs = read_colmap_rigs_text(folder, image_ids, dict(zip(photo, pcam)))
+        check_rigs(rigs, blk, str(folder / "frames.txt"))
+        blk = blk.with_(rigs=rigs)
+    return blk
 
 
 def block_from_model(where: Path, cams: dict[str, tuple], photo: list[str], pcam: list[str], eo: list,
@@ -295,17 +332,26 @@ def block_from_model(where: Path, cams: dict[str, tuple], photo: list[str], pcam
         o_cam = [o_cam[k] for k in first]
     cam_arr = np.array(o_cam, dtype=str)
     obs_mm = np.empty_like(xy)
+    sd = np.full_like(xy, np.nan)
+    keep = np.ones(len(xy), dtype=bool)
     for cid, (cam, model_dict) in cams.items():
         rows = cam_arr == cid
         if rows.any():
-            obs_mm[rows] = undistorted_mm(xy[rows], cam, model_dict)
+            obs_mm[rows], keep[rows], sd[rows] = ideal_observations(xy[rows], cam, model_dict, where=str(where))
+    if not keep.all():
+        description += (f"; {int((~keep).sum())} observation(s) of rays beyond {MAX_RAY_ANGLE_DEG:g} deg from a "
+                        f"fisheye's axis skipped")
+        xy, obs_mm, sd = xy[keep], obs_mm[keep], sd[keep]
+        o_photo = [p for p, k in zip(o_photo, keep) if k]
+        o_point = [p for p, k in zip(o_point, keep) if k]
     return Block(
         name=name, crs=crs, height_system=height_system,
         cameras={c: v[0] for c, v in cams.items()}, photo_ids=np.array(photo, dtype=str),
         photo_camera=np.array(pcam, dtype=str), eo=np.array(eo), obs_photo=np.array(o_photo, dtype=str),
         obs_point=np.array(o_point, dtype=str), obs_px=xy - 0.5, obs_mm=obs_mm,
         point_ids=np.array(pids, dtype=str), points_m=np.array(pxyz, dtype=float).reshape(-1, 3),
-        description=description, source_models={c: v[1] for c, v in cams.items()})
+        description=description, source_models={c: v[1] for c, v in cams.items()},
+        obs_sd_mm=sd if np.isfinite(sd).any() else None)
 
 
 def _r(v: float) -> str:
@@ -314,10 +360,17 @@ def _r(v: float) -> str:
 
 
 def _colmap_model(m: dict):
-    """(COLMAP model name, params, dict) reproducing a Brown model (:mod:`lidarcat.interop.lens`) exactly."""
+    """(COLMAP model name, params, dict) reproducing a Brown or fisheye model (:mod:`lidarcat.interop.lens`)
+    exactly: the simplest COLMAP model that holds its parameters."""
     d = {k: v for k, v in m["dist"].items() if v != 0.0}
     fx, fy, cx, cy = m["fx"], m["fy"], m["cx"], m["cy"]
     g = lambda k: m["dist"].get(k, 0.0)  # noqa: E731
+    if m["kind"] == "fisheye":
+        if fx == fy and set(d) <= {"k1"}:
+            return "SIMPLE_RADIAL_FISHEYE", [fx, cx, cy, g("k1")], m
+        if fx == fy and set(d) <= {"k1", "k2"}:
+            return "RADIAL_FISHEYE", [fx, cx, cy, g("k1"), g("k2")], m
+        return "OPENCV_FISHEYE", [fx, fy, cx, cy, g("k1"), g("k2"), g("k3"), g("k4")], m
     if not d and fx == fy:
         return "SIMPLE_PINHOLE", [fx, cx, cy], m
     if not d:
@@ -417,6 +470,10 @@ def write_colmap(block: Block, folder: str | Path) -> Path:
             f"# Number of points: {len(pt_lines)}\n"
             + (f"# lidarcat point ids: {' '.join(renamed)}\n" if renamed else "")
             + "\n".join(pt_lines) + ("\n" if pt_lines else "")))
+        if block.rigs is not None:
+            rigs_txt, frames_txt = write_colmap_rigs(block, cam_num, img_ids)
+            write_text_atomic(tmp / "rigs.txt", rigs_txt)
+            write_text_atomic(tmp / "frames.txt", frames_txt)
     log.info("wrote COLMAP model %s: %d cameras, %d images, %d points", folder, len(cam_lines),
              len(img_ids), len(pt_lines))
     return folder

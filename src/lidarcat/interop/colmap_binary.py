@@ -43,9 +43,9 @@ import numpy as np
 
 from .._util.values import value_problem
 from ..errors import FormatError
-from ._distortion import is_identity
-from .block import Block, pinhole_camera
-from .colmap import COLMAP_MODELS, LOCAL_CRS, block_from_model
+from .block import Block
+from .colmap import COLMAP_MODELS, LOCAL_CRS, block_from_model, colmap_camera
+from .rigs import check_rigs, rigs_from_colmap_binary
 from .rotations import quaternion_wxyz_to_matrix, world_to_cv_to_opk
 
 __all__ = ["read_colmap_binary", "read_colmap_rigs_binary", "ColmapRig", "ColmapFrame", "COLMAP_MODEL_IDS"]
@@ -57,6 +57,8 @@ COLMAP_MODEL_IDS: dict[int, tuple[str, int]] = {
     0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 3: ("RADIAL", 5), 4: ("OPENCV", 8),
     5: ("OPENCV_FISHEYE", 8), 6: ("FULL_OPENCV", 12), 7: ("FOV", 5), 8: ("SIMPLE_RADIAL_FISHEYE", 4),
     9: ("RADIAL_FISHEYE", 5), 10: ("THIN_PRISM_FISHEYE", 12), 11: ("RAD_TAN_THIN_PRISM_FISHEYE", 16),
+    12: ("SIMPLE_DIVISION", 4), 13: ("DIVISION", 5), 14: ("SIMPLE_FISHEYE", 3), 15: ("FISHEYE", 4), 16: ("EUCM", 6),
+    17: ("EQUIRECTANGULAR", 2),
 }
 _FILES = ("cameras.bin", "images.bin", "points3D.bin")
 _INVALID_ID = 2**64 - 1
@@ -119,7 +121,7 @@ class _Reader:
             raise self.error("end", f"{len(self.data) - self.pos} byte(s) after the last record")
 
 
-def _read_cameras(path: Path, pixel_size_mm: float) -> dict[str, tuple]:
+def _read_cameras(path: Path, pixel_size_mm: float | None) -> dict[str, tuple]:
     rd = _Reader(path)
     cams: dict[str, tuple] = {}
     for _ in range(rd.count("num_cameras", 24)):
@@ -130,8 +132,8 @@ def _read_cameras(path: Path, pixel_size_mm: float) -> dict[str, tuple]:
             raise rd.error("MODEL_ID", f"unknown COLMAP camera model id {model_id}", start + 4)
         model = COLMAP_MODEL_IDS[model_id][0]
         if model not in COLMAP_MODELS:
-            raise rd.error("MODEL_ID", f"camera model {model!r} is not supported (supported: "
-                           f"{', '.join(COLMAP_MODELS)}); fisheye models have no lidarcat equivalent", start + 4)
+            raise rd.error("MODEL_ID", f"camera {cid}: camera model {model!r} is not supported (supported: "
+                           f"{', '.join(COLMAP_MODELS)})", start + 4)
         w = int(rd.number("Q", "WIDTH", "image_px"))
         h = int(rd.number("Q", "HEIGHT", "image_px"))
         names = COLMAP_MODELS[model]
@@ -141,12 +143,8 @@ def _read_cameras(path: Path, pixel_size_mm: float) -> dict[str, tuple]:
             raise rd.error("fx" if "fx" in p else "f", "focal length must be positive", start)
         if cid in cams:
             raise rd.error("CAMERA_ID", f"camera {cid} defined twice", start)
-        dist = {n: v for n, v in p.items() if n[0] in "kp"}
-        cams[cid] = pinhole_camera(
-            cid, fx, fy, p["cx"], p["cy"], w, h, pixel_size_mm=pixel_size_mm, model=f"COLMAP {model}",
-            source=f"{path.parent.name}/{path.name}@{start}: {model} " + " ".join(f"{n}={v!r}" for n, v in p.items())
-            + ("" if is_identity(dist) else "; distortion removed from the observations on import"),
-            dist=dist)
+        cams[cid] = colmap_camera(cid, model, w, h, p, pixel_size_mm, f"{path.parent.name}/{path.name}@{start}",
+                                  f"{path}: byte {start}")
     rd.end()
     if not cams:
         raise FormatError(f"{path}: no camera defined")
@@ -175,7 +173,7 @@ def _read_points(path: Path) -> tuple[list[str], np.ndarray]:
     return ids, xyz
 
 
-def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float = 0.001, name: str | None = None,
+def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float | None = None, name: str | None = None,
                        crs: str = LOCAL_CRS, height_system: str = "unspecified (model frame)") -> Block:
     """Read a COLMAP binary model (``cameras.bin``, ``images.bin``, ``points3D.bin``).
 
@@ -193,7 +191,7 @@ def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float = 0.001, name
         if not (folder / fname).is_file():
             raise FormatError(f"{folder / fname}: file not found (a COLMAP binary model has "
                               f"{', '.join(_FILES)})")
-    if not (pixel_size_mm > 0 and math.isfinite(pixel_size_mm)):
+    if pixel_size_mm is not None and not (pixel_size_mm > 0 and math.isfinite(pixel_size_mm)):
         raise FormatError(f"pixel_size_mm must be a positive number, got {pixel_size_mm!r}")
     cams = _read_cameras(folder / "cameras.bin", pixel_size_mm)
     pids, pxyz = _read_points(folder / "points3D.bin")
@@ -206,9 +204,10 @@ def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float = 0.001, name
     o_xy: list[np.ndarray] = []
     o_cam: list[str] = []
     names: set[str] = set()
+    image_ids: dict[int, str] = {}
     for _ in range(rd.count("num_images", 64)):
         start = rd.pos
-        rd.take("I", "IMAGE_ID")
+        (iid,) = rd.take("I", "IMAGE_ID")
         q = np.array([rd.number("d", f) for f in ("QW", "QX", "QY", "QZ")])
         tt = np.array([rd.number("d", f, "coordinate_m") for f in ("TX", "TY", "TZ")])
         if not 0.5 < np.linalg.norm(q) < 2.0:
@@ -223,6 +222,7 @@ def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float = 0.001, name
         names.add(img)
         r = quaternion_wxyz_to_matrix(q)
         photo.append(img)
+        image_ids[int(iid)] = img
         pcam.append(cid)
         eo.append(np.concatenate([-r.T @ tt, world_to_cv_to_opk(r)]))
         m = rd.count("NUM_POINTS2D", 24)
@@ -246,9 +246,14 @@ def read_colmap_binary(folder: str | Path, *, pixel_size_mm: float = 0.001, name
     rd.end()
     if not photo:
         raise FormatError(f"{rd.path}: no image")
-    return block_from_model(rd.path, cams, photo, pcam, eo, o_photo, o_point, o_xy, o_cam, pids, pxyz,
-                            name=name or folder.name, crs=crs, height_system=height_system,
-                            description=f"imported from the COLMAP binary model {folder}")
+    blk = block_from_model(rd.path, cams, photo, pcam, eo, o_photo, o_point, o_xy, o_cam, pids, pxyz,
+                           name=name or folder.name, crs=crs, height_system=height_system,
+                           description=f"imported from the COLMAP binary model {folder}")
+    if (folder / "rigs.bin").is_file() and (folder / "frames.bin").is_file():
+        rigs = rigs_from_colmap_binary(*read_colmap_rigs_binary(folder), image_ids, dict(zip(photo, pcam)), folder)
+        check_rigs(rigs, blk, str(folder / "frames.bin"))
+        blk = blk.with_(rigs=rigs)
+    return blk
 
 
 # ---------------------------------------------------------------------------------------

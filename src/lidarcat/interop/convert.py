@@ -22,7 +22,7 @@ __all__ = ["read_block", "write_block", "convert", "READ_FORMATS", "WRITE_FORMAT
 
 #: format -> what IN is
 READ_FORMATS = {
-    "colmap": "COLMAP text model folder",
+    "colmap": "COLMAP model folder (text or binary)",
     "opensfm": "OpenSfM reconstruction.json (tracks.csv beside it, or --tracks)",
     "metashape": "Metashape chunk doc.xml (marker measurements: --frame)",
     "survey": "lidarcat survey folder (its orientations, or those of --adjustment)",
@@ -48,16 +48,17 @@ def read_block(fmt: str, path: str | Path, *, crs: str | None = None, pixel_size
     """
     from ._checks import check_crs
 
-    px = pixel_size_mm if pixel_size_mm is not None else 0.001
     check_crs(crs, local=fmt == "colmap")
     if fmt == "colmap":
         from .colmap import LOCAL_CRS, read_colmap
+        from .colmap_binary import read_colmap_binary
 
-        return read_colmap(path, pixel_size_mm=px, crs=crs or LOCAL_CRS)
+        binary = (Path(path) / "cameras.bin").is_file() and not (Path(path) / "cameras.txt").is_file()
+        return (read_colmap_binary if binary else read_colmap)(path, pixel_size_mm=pixel_size_mm, crs=crs or LOCAL_CRS)
     if fmt == "opensfm":
         from .opensfm import read_opensfm
 
-        return read_opensfm(path, tracks, pixel_size_mm=px)
+        return read_opensfm(path, tracks, pixel_size_mm=pixel_size_mm)
     if fmt == "metashape":
         from .metashape import read_metashape
 

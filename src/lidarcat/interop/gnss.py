@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ._text import TextLines, format_error
-from .block import Orientations
+from .merge import Orientations
 from .opk import ANGLE_UNITS
 from .rotations import ypr_to_opk
 

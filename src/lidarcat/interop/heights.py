@@ -263,7 +263,7 @@ def write_harmonised_survey(survey: Any, folder: str | Path, *, to_system: str |
 
     from .._util import atomic_dir, write_csv_atomic, write_text_atomic
     from ..survey.folder import Survey
-    from .block import copy_survey_files
+    from .merge import copy_survey_files
 
     if not isinstance(survey, Survey):
         survey = Survey.load(survey)

@@ -8,7 +8,9 @@ Conventions (Metashape manual, Appendix C "Camera models", and the files)
 -------------------------------------------------------------------------
 * ``<sensor><calibration>``: ``f, cx, cy, k1..k4, p1, p2, b1, b2`` in pixels (the
   ``class="adjusted"`` calibration, else the ``initial`` one, in whatever order they stand;
-  a sensor whose ``type`` is not ``frame`` -- fisheye, spherical -- is refused);
+  a sensor of ``type="fisheye"`` maps the ray to ``(x, y) = theta (X, Y) / rho`` first and then
+  distorts as below (kept as ``kind = "metashape_fisheye"``, :mod:`lidarcat.interop.cameras`);
+  spherical, cylindrical and RPC sensors are refused);
   with ``x = X/Z``, ``y = Y/Z`` (camera x right, **y down, z forward**)::
 
       x' = x (1 + k1 r^2 + k2 r^4 + k3 r^6 + k4 r^8) + p1 (r^2 + 2 x^2) + 2 p2 x y
@@ -51,7 +53,8 @@ from .._util.values import parse_number, value_problem
 from ..errors import FormatError
 from ._checks import check_crs
 from ._text import format_error
-from .block import Block, pinhole_camera, undistorted_mm
+from .block import Block
+from .cameras import MAX_RAY_ANGLE_DEG, check_source_model, ideal_observations, pinhole_camera
 from .rotations import FLIP, matrix_to_opk
 
 __all__ = ["read_metashape", "utm_crs_for"]
@@ -228,9 +231,9 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
     for s in sensors_el.findall("sensor"):
         sid = s.attrs.get("id", "")
         kind = s.attrs.get("type", "frame")
-        if kind != "frame":
+        if kind not in ("frame", "fisheye"):
             raise format_error(path, s.line, "type", f"sensor {sid} ({s.attrs.get('label', 'no label')}) is a "
-                               f"{kind} camera; lidarcat models frame (pinhole) cameras only: remove or disable "
+                               f"{kind} camera; lidarcat reads frame and fisheye cameras: remove or disable "
                                f"its cameras in Metashape, or export undistorted frame images of them, then "
                                f"import again")
         cal = _calibration(s)
@@ -259,10 +262,12 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
         cam, model = pinhole_camera(
             sid, fx, fy, w / 2 + val["cx"], h / 2 + val["cy"], w, h, pixel_size_mm=t,
             model=f"Metashape {s.attrs.get('label', '')}".strip(),
-            source=f"{path.name}:{cal.line}: Metashape frame calibration "
+            source=f"{path.name}:{cal.line}: Metashape {kind} calibration "
                    + " ".join(f"{k}={v!r}" for k, v in val.items() if v),
-            dist={k: val[k] for k in ("k1", "k2", "k3", "k4", "p1", "p2")}, kind="metashape")
+            dist={k: val[k] for k in ("k1", "k2", "k3", "k4", "p1", "p2")},
+            kind="metashape" if kind == "frame" else "metashape_fisheye")
         model["skew"] = val["b2"]
+        check_source_model(sid, model, f"{path}:{cal.line}")
         cams[sid], models[sid] = cam, model
     comps = {c.attrs.get("id"): _chunk_transform(path, c.find("transform"))
              for c in (root.find("components").findall("component") if root.find("components") else [])}
@@ -365,12 +370,21 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
                 o_xy.append([_attr(fpath, loc, "x", "pixel_px"), _attr(fpath, loc, "y", "pixel_px")])
     xy = np.array(o_xy, dtype=float).reshape(-1, 2)
     mm = np.empty_like(xy)
+    keep = np.ones(len(xy), dtype=bool)
+    sd = np.full_like(xy, np.nan)
     cam_of = dict(zip(photo, pcam))
     oc = np.array([cam_of[p] for p in o_ph], dtype=object)
     for sid, mdl in models.items():
         sel = oc == sid
         if sel.any():
-            mm[sel] = undistorted_mm(xy[sel], cams[sid], mdl)
+            mm[sel], keep[sel], sd[sel] = ideal_observations(xy[sel], cams[sid], mdl, where=str(frame_xml))
+    description = f"imported from Metashape {path.name}"
+    if not keep.all():
+        description += (f"; {int((~keep).sum())} marker measurement(s) of rays beyond {MAX_RAY_ANGLE_DEG:g} deg from "
+                        f"a fisheye's axis skipped")
+        xy, mm, sd = xy[keep], mm[keep], sd[keep]
+        o_ph = [p for p, k in zip(o_ph, keep) if k]
+        o_pt = [p for p, k in zip(o_pt, keep) if k]
     return Block(name=root.attrs.get("label", path.stem), crs=crs, height_system="ellipsoidal (WGS84)",
                  cameras=cams, photo_ids=np.array(photo, dtype=str), photo_camera=np.array(pcam, dtype=str),
                  eo=eo_a, obs_photo=np.array(o_ph, dtype=str), obs_point=np.array(o_pt, dtype=str),
@@ -378,4 +392,4 @@ def read_metashape(chunk_xml: str | Path, frame_xml: str | Path | None = None, *
                  ground_ids=np.array(gid, dtype=str), ground_m=g_m,
                  ground_sd_m=np.full((len(gid), 3), float(marker_sd_m)),
                  ground_source=np.full(len(gid), "marker"),
-                 description=f"imported from Metashape {path.name}", source_models=models)
+                 description=description, source_models=models, obs_sd_mm=sd if np.isfinite(sd).any() else None)

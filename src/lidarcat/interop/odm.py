@@ -20,6 +20,11 @@ r"""OpenDroneMap ``gcp_list.txt`` (ground control with image measurements) and `
     formula: nadir camera, no boresight, no meridian convergence); the
     accuracies become sds of X0, Y0 (horizontal) and Z0 (vertical).
 
+``cameras.json`` (ODM's cameras, ``odm --cameras``)
+    Camera id (OpenSfM's without the ``v2 `` prefix) -> OpenSfM camera dict, fisheyes included:
+    :func:`read_odm_cameras`, :func:`write_odm_cameras`; ``lidarcat import opensfm --cameras``
+    makes a reconstruction's observations ideal through them.
+
 Coordinates in a geographic CRS (``WGS84``) are projected to the target ``crs``
 the caller gives (lidarcat adjusts in a projected frame); heights are passed
 through unchanged and the caller declares whether they are ellipsoidal or
@@ -28,19 +33,21 @@ orthometric (:mod:`lidarcat.interop.heights` converts between them).
 
 from __future__ import annotations
 
+import json
 import logging
 import re
 from pathlib import Path
 
 import numpy as np
 
+from .._util import read_text, write_text_atomic
 from ..errors import FormatError
 from ._checks import check_crs
 from ._text import sd_problem, Row, TextLines, format_error
-from .block import GroundControl, Orientations
+from .merge import GroundControl, Orientations
 from .rotations import ypr_to_opk
 
-__all__ = ["parse_crs_line", "read_gcp_list", "read_geo_txt"]
+__all__ = ["parse_crs_line", "read_gcp_list", "read_geo_txt", "read_odm_cameras", "write_odm_cameras"]
 
 log = logging.getLogger(__name__)
 
@@ -220,3 +227,45 @@ def read_geo_txt(path: str | Path, *, crs: str | None = None,
     return Orientations(np.array(photo, dtype=str), eo_a, np.array(sd), crs_out, height_system,
                         f"{tl.path} (ODM geo.txt, CRS {crs_in.name}; yaw/pitch/roll -> omega/phi/kappa "
                         f"by the Pix4D formula, no meridian convergence)", line=np.array(lines))
+
+
+def read_odm_cameras(path: str | Path, *, pixel_size_mm: float | None = None) -> dict[str, tuple]:
+    """An OpenDroneMap ``cameras.json`` (camera id -> OpenSfM camera dict: ``perspective``, ``brown``,
+    ``fisheye``, ``fisheye_opencv``): camera id -> (lidarcat's stand-in camera, source model), as
+    :func:`lidarcat.interop.opensfm.opensfm_camera` reads a reconstruction's cameras.
+
+    Raises
+    ------
+    FormatError
+        Invalid JSON, an unsupported projection, a missing or non-numeric field, a fisheye out of
+        its valid range (``FILE:LINE: ... camera 'ID' ...``).
+    """
+    from .opensfm import opensfm_camera
+
+    path = Path(path)
+    text = read_text(path, FormatError)
+    try:
+        doc = json.loads(text)
+    except (ValueError, RecursionError) as ex:
+        raise format_error(path, getattr(ex, "lineno", None), None, f"invalid JSON: {str(ex)[:120]}") from None
+    if not isinstance(doc, dict) or not doc:
+        raise format_error(path, 1, None, "expected an object camera id -> camera (an OpenDroneMap cameras.json)")
+    return {cid: opensfm_camera(path, text, cid, c, pixel_size_mm) for cid, c in doc.items()}
+
+
+def write_odm_cameras(block, path: str | Path) -> Path:
+    """Write the cameras of *block* as an OpenDroneMap ``cameras.json`` (for ``odm --cameras``), atomically.
+
+    Each camera as :func:`lidarcat.interop.opensfm.write_opensfm` writes it (a fisheye as ``fisheye`` or
+    ``fisheye_opencv``), keyed by its id without OpenSfM's ``v2 `` prefix (ODM adds it back).  ODM's
+    ``--cameras`` reader (``get_opensfm_camera_models``) keeps the keys of ``brown`` and ``fisheye``
+    cameras but drops a ``fisheye_opencv`` camera's ``k4`` as an unknown key.
+    """
+    from .lens import export_cameras
+    from .opensfm import opensfm_camera_dict
+
+    out = {(cid[3:] if cid.startswith("v2 ") else cid): opensfm_camera_dict(m)
+           for cid, m in export_cameras(block, rational=False).items()}
+    path = Path(path)
+    write_text_atomic(path, json.dumps(out, indent=4) + "\n")
+    return path

@@ -18,10 +18,18 @@ Conventions (OpenSfM ``doc/source/geometry.rst``)
   ``d = 1 + k1 r^2 + k2 r^4``) and ``brown`` (``focal_x``, ``focal_y``,
   ``c_x``, ``c_y``, ``k1``, ``k2``, ``k3``, ``p1``, ``p2``: ``x_n = f_x x_d + c_x``
   with OpenCV's distortion), focal and principal point in units of ``S``.
-  Both map onto lidarcat's camera as in :mod:`lidarcat.interop.colmap`
-  (pixels ``fx = f S``, ``cx = W/2 + c_x S``); distortion is kept as the source
-  model and removed from the observations exactly.  Other projection types
-  (fisheye, spherical, ...) are refused with a located error.
+  ``fisheye`` (``focal``, ``k1``, ``k2``) and ``fisheye_opencv`` (``focal_x``, ``focal_y``,
+  ``c_x``, ``c_y``, ``k1``..``k4``) are the equidistant Kannala-Brandt fisheye
+  (``theta_d = theta (1 + k1 theta^2 + ...)``, ``x_n = f theta_d X / rho + c``).
+  All map onto lidarcat's camera as in :mod:`lidarcat.interop.colmap`
+  (pixels ``fx = f S``, ``cx = W/2 + c_x S``); the model is kept as the source
+  model and the observations are made ideal through it exactly
+  (:mod:`lidarcat.interop.cameras`).  Other projection types (spherical, dual,
+  fisheye62, ...) are refused with a located error.
+* Rigs: a reconstruction's ``rig_cameras`` (sensor from rig) and ``rig_instances``
+  (rig from world, ``rig_camera_ids`` shot -> rig camera), else the dataset's
+  ``rig_cameras.json`` and ``rig_assignments.json`` beside it, become the block's
+  rigs (:mod:`lidarcat.interop.rigs`); the export writes them back.
 
 Writing produces one reconstruction with the block's cameras (``perspective`` or
 ``brown`` when the block came from a Brown-type model, else the undistorted
@@ -30,6 +38,7 @@ Writing produces one reconstruction with the block's cameras (``perspective`` or
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -45,16 +54,20 @@ from ..errors import FormatError
 from .._util.tables import JSON_MAX_DEPTH as MAX_JSON_DEPTH, json_too_deep, parse_float
 from .._util.values import parse_number, parse_whole, value_problem
 from ._text import format_error, sd_problem
-from .block import Block, GroundControl, pinhole_camera, require_orientations, undistorted_mm
+from .block import Block, require_orientations
+from .merge import GroundControl
+from .cameras import MAX_RAY_ANGLE_DEG, check_source_model, ideal_observations, pinhole_camera
 from .lens import export_cameras, notes, observed_pixels
+from .rigs import opensfm_rig_entries, rigs_from_opensfm
 from .rotations import opk_to_world_to_cv, world_to_cv_to_opk
 
 __all__ = ["read_opensfm", "read_opensfm_gcp", "read_opensfm_config", "gcp_sd_from_config", "write_opensfm",
+           "opensfm_camera", "opensfm_camera_dict",
            "topocentric_crs", "reference_lla", "to_topocentric", "OPENSFM_PROJECTIONS"]
 
 log = logging.getLogger(__name__)
 
-OPENSFM_PROJECTIONS = ("perspective", "brown")
+OPENSFM_PROJECTIONS = ("perspective", "brown", "fisheye", "fisheye_opencv")
 
 
 def topocentric_crs(lat_deg: float, lon_deg: float, alt_m: float) -> str:
@@ -138,7 +151,16 @@ def _vec(path: Path, text: str, where: str, name: str, v: Any, n: int, kind: str
     return np.array([_num(path, text, where, name, x, kind) for x in v])
 
 
-def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float):
+def opensfm_camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float | None):
+    """lidarcat's stand-in camera and the source model of one OpenSfM camera dict *c* (``cameras`` of a
+    reconstruction.json, or an OpenDroneMap ``cameras.json``), errors located in *path* (its *text*).
+
+    Raises
+    ------
+    FormatError
+        ``FILE:LINE: field 'NAME': camera 'ID': ...``: an unsupported projection, a missing or
+        non-numeric field, a fisheye out of its valid range.
+    """
     if not isinstance(c, dict):
         raise format_error(path, _json_line(text, cid), "cameras", f"camera {cid!r} is not an object")
     kind = c.get("projection_type")
@@ -151,10 +173,14 @@ def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float):
     if w < 1 or h < 1:
         raise format_error(path, _json_line(text, cid), "width", f"camera {cid!r}: image size {w}x{h}")
     s = max(w, h)
-    if kind == "perspective":
+    if kind in ("perspective", "fisheye"):
         fx = fy = num("focal") * s
         cx, cy = w / 2, h / 2
         dist = {"k1": num("k1", 0.0), "k2": num("k2", 0.0)}
+    elif kind == "fisheye_opencv":
+        fx, fy = num("focal_x") * s, num("focal_y") * s
+        cx, cy = w / 2 + num("c_x", 0.0) * s, h / 2 + num("c_y", 0.0) * s
+        dist = {k: num(k, 0.0) for k in ("k1", "k2", "k3", "k4")}
     else:
         fx, fy = num("focal_x") * s, num("focal_y") * s
         cx, cy = w / 2 + num("c_x", 0.0) * s, h / 2 + num("c_y", 0.0) * s
@@ -165,15 +191,18 @@ def _camera(path: Path, text: str, cid: str, c: Any, pixel_size_mm: float):
         problem = value_problem(v, "pixel_px")
         if problem:
             raise format_error(path, _json_line(text, cid), k, f"camera {cid!r}: {problem} (times the image size)")
+    fisheye = kind.startswith("fisheye")
     cam, model = pinhole_camera(cid, fx, fy, cx, cy, w, h, pixel_size_mm=pixel_size_mm,
                                 model=f"OpenSfM {kind}", source=f"{path.name}: camera {cid!r} ({kind})",
-                                dist=dist)
+                                dist=dist, kind="fisheye" if fisheye else "brown")
+    check_source_model(cid, model, f"{path}:{_json_line(text, cid)}")
     model["opensfm"] = kind
     return cam, model
 
 
 def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *, index: int = 0,
-                 pixel_size_mm: float = 0.001, name: str | None = None) -> Block:
+                 pixel_size_mm: float | None = None, name: str | None = None,
+                 cameras: str | Path | None = None) -> Block:
     """Read one reconstruction of an OpenSfM ``reconstruction.json`` and its ``tracks.csv``.
 
     Parameters
@@ -187,8 +216,13 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
         writes it to every format but a survey folder).
     index : int
         Which reconstruction of the list (OpenSfM writes one per connected component).
-    pixel_size_mm : float
-        Pixel pitch given to the cameras (OpenSfM knows none).
+    pixel_size_mm : float, optional
+        Pixel pitch given to the cameras (OpenSfM knows none; default
+        :func:`lidarcat.interop.cameras.default_pixel_size_mm`).
+    cameras : path, optional
+        An OpenDroneMap ``cameras.json`` (camera id without OpenSfM's ``v2 `` prefix -> OpenSfM
+        camera dict): its models replace the reconstruction's cameras of the same id, and the
+        observations are made ideal through them.
 
     Raises
     ------
@@ -215,8 +249,13 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
             raise format_error(path, _json_line(text, key) or 1, key,
                                f"missing or not an object in reconstruction {index}")
     cams, models = {}, {}
+    odm = {} if cameras is None else _odm_cameras(Path(cameras), rec["cameras"])
     for cid, c in rec["cameras"].items():
-        cams[cid], models[cid] = _camera(path, text, cid, c, pixel_size_mm)
+        if cid in odm:
+            cam, models[cid] = opensfm_camera(*odm[cid], pixel_size_mm)
+            cams[cid] = dataclasses.replace(cam, id=cid)
+        else:
+            cams[cid], models[cid] = opensfm_camera(path, text, cid, c, pixel_size_mm)
     photo, pcam, eo = [], [], []
     for sid, sh in rec["shots"].items():
         if not isinstance(sh, dict):
@@ -257,20 +296,80 @@ def read_opensfm(reconstruction: str | Path, tracks: str | Path | None = None, *
     xy_n = np.array(o_xy, dtype=float).reshape(-1, 2)
     corner = np.empty_like(xy_n)
     mm = np.empty_like(xy_n)
+    keep = np.ones(len(xy_n), dtype=bool)
+    sd = np.full_like(xy_n, np.nan)
     oc = np.array([cam_of[p] for p in o_ph], dtype=object)
     for cid, m in models.items():
         rows = oc == cid
         if rows.any():
             s = max(m["w"], m["h"])
             corner[rows] = xy_n[rows] * s + [m["w"] / 2, m["h"] / 2]
-            mm[rows] = undistorted_mm(corner[rows], cams[cid], m)
+            mm[rows], keep[rows], sd[rows] = ideal_observations(corner[rows], cams[cid], m, where=str(tpath))
+    description = f"imported from OpenSfM {path.name} (reconstruction {index})"
+    if not keep.all():
+        description += (f"; {int((~keep).sum())} observation(s) of rays beyond {MAX_RAY_ANGLE_DEG:g} deg from a "
+                        f"fisheye's axis skipped")
+        corner, mm, sd = corner[keep], mm[keep], sd[keep]
+        o_ph = [p for p, k in zip(o_ph, keep) if k]
+        o_pt = [p for p, k in zip(o_pt, keep) if k]
+    rigs = _read_rigs(path, rec, cam_of, {c: (m["w"], m["h"]) for c, m in models.items()})
     return Block(name=name or path.stem, crs=crs, height_system=hs, cameras=cams,
                  photo_ids=np.array(photo, dtype=str), photo_camera=np.array(pcam, dtype=str),
                  eo=np.array(eo).reshape(-1, 6), obs_photo=np.array(o_ph, dtype=str),
                  obs_point=np.array(o_pt, dtype=str), obs_px=corner - 0.5, obs_mm=mm,
                  point_ids=np.array(pids, dtype=str), points_m=np.array(pxyz).reshape(-1, 3),
-                 description=f"imported from OpenSfM {path.name} (reconstruction {index})",
-                 source_models=models)
+                 description=description, source_models=models, rigs=rigs,
+                 obs_sd_mm=sd if np.isfinite(sd).any() else None)
+
+
+def _read_rigs(path: Path, rec: dict, shot_cameras: dict[str, str], sizes: dict[str, tuple[int, int]]):
+    """The rigs of a reconstruction (``rig_cameras`` + ``rig_instances``), else of the dataset's
+    ``rig_cameras.json`` + ``rig_assignments.json`` beside it (:func:`lidarcat.interop.rigs.rigs_from_opensfm`);
+    None without rigs."""
+    if isinstance(rec.get("rig_instances"), dict) and rec.get("rig_cameras"):
+        inst = {}
+        for iid, ri in rec["rig_instances"].items():
+            ids = ri.get("rig_camera_ids") if isinstance(ri, dict) else None
+            if not isinstance(ids, dict) or not all(isinstance(v, str) for v in ids.values()):
+                raise FormatError(f"{path}: rig instance {str(iid)[:40]!r}: field 'rig_camera_ids': expected an object "
+                                  f"shot -> rig camera id")
+            inst[str(iid)] = list(ids.items())
+        rigs = rigs_from_opensfm(rec["rig_cameras"], inst, shot_cameras, sizes, str(path))
+    elif (path.parent / "rig_cameras.json").is_file() and (path.parent / "rig_assignments.json").is_file():
+        where = path.parent / "rig_assignments.json"
+        doc = _load_json(where)
+        if isinstance(doc, list):  # older OpenSfM: a list of instances without ids
+            doc = {str(i): v for i, v in enumerate(doc)}
+        inst = {}
+        for iid, pairs in (doc.items() if isinstance(doc, dict) else []):
+            if not isinstance(pairs, list) or not all(isinstance(p, list) and len(p) == 2 and all(
+                    isinstance(x, str) for x in p) for p in pairs):
+                raise FormatError(f"{where}: rig instance {str(iid)[:40]!r}: expected a list of [image, rig camera id]")
+            inst[str(iid)] = [tuple(p) for p in pairs]
+        if not isinstance(doc, dict):
+            raise FormatError(f"{where}: expected an object (or a list) of rig instances")
+        rigs = rigs_from_opensfm(_load_json(path.parent / "rig_cameras.json"), inst, shot_cameras, sizes, str(where))
+    else:
+        return None
+    return rigs if rigs.rigs else None
+
+
+def _odm_cameras(path: Path, ids: dict) -> dict[str, tuple]:
+    """Reconstruction camera id -> (path, text, id in the file, dict) of an ODM ``cameras.json``."""
+    text = read_text(path, FormatError)
+    doc = _load_json(path)
+    if not isinstance(doc, dict):
+        raise format_error(path, 1, None, "expected an object camera id -> camera (an OpenDroneMap cameras.json)")
+    out = {}
+    for cid in ids:
+        bare = cid[3:] if cid.startswith("v2 ") else cid
+        key = cid if cid in doc else bare if bare in doc else None
+        if key is not None:
+            out[cid] = (path, text, key, doc[key])
+    if not out:
+        raise FormatError(f"{path}: none of its cameras ({', '.join(list(doc)[:3]) or 'none'}) is a camera of the "
+                          f"reconstruction ({', '.join(list(ids)[:3])}); give the cameras.json of the same ODM project")
+    return out
 
 
 def _read_tracks(path: Path, shots: set[str], points: set[str]):
@@ -375,12 +474,20 @@ def read_opensfm_gcp(path: str | Path, block: Block, *, height_system: str = "el
                          f"{path} (OpenSfM GCPs, WGS84 lat/lon/alt -> topocentric ENU)")
 
 
-def _opensfm_camera(m: dict) -> dict:
+def opensfm_camera_dict(m: dict) -> dict:
     """OpenSfM camera dict of a Brown model without k4..k6 (:func:`lidarcat.interop.lens.export_camera`):
     ``perspective`` when it is one (fx = fy, centred, k1 and k2 only), else ``brown``."""
     w, h = m["w"], m["h"]
     s = max(w, h)
     d = m["dist"]
+    if m["kind"] == "fisheye":
+        if m["fx"] == m["fy"] and m["cx"] == w / 2 and m["cy"] == h / 2 and not any(
+                d.get(k, 0.0) for k in ("k3", "k4")):
+            return {"projection_type": "fisheye", "width": w, "height": h, "focal": m["fx"] / s,
+                    "k1": d.get("k1", 0.0), "k2": d.get("k2", 0.0)}
+        return {"projection_type": "fisheye_opencv", "width": w, "height": h, "focal_x": m["fx"] / s,
+                "focal_y": m["fy"] / s, "c_x": (m["cx"] - w / 2) / s, "c_y": (m["cy"] - h / 2) / s,
+                **{k: d.get(k, 0.0) for k in ("k1", "k2", "k3", "k4")}}
     if m["fx"] == m["fy"] and m["cx"] == w / 2 and m["cy"] == h / 2 and not any(
             d.get(k, 0.0) for k in ("k3", "p1", "p2")):
         return {"projection_type": "perspective", "width": w, "height": h, "focal": m["fx"] / s,
@@ -473,7 +580,7 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
         if topo is not None:
             block, note = topo
     models = export_cameras(block, rational=False)
-    cams = {cid: _opensfm_camera(m) for cid, m in models.items()}
+    cams = {cid: opensfm_camera_dict(m) for cid, m in models.items()}
     r = opk_to_world_to_cv(block.eo[:, 3:]).reshape(-1, 3, 3)
     shots = {}
     for i, pid in enumerate(block.photo_ids.tolist()):
@@ -494,6 +601,10 @@ def write_opensfm(block: Block, folder: str | Path) -> Path:
         xn = (pix[k] - [c["width"] / 2, c["height"] / 2]) / s
         lines.append(f"{ph}\t{pt}\t{k}\t{float(xn[0])!r}\t{float(xn[1])!r}\t0.004\t128\t128\t128\t-1\t-1")
     rec: dict[str, Any] = {"cameras": cams, "shots": shots, "points": points}
+    if block.rigs is not None:
+        rig_cams, rig_inst = opensfm_rig_entries(block)
+        if rig_inst:
+            rec["rig_cameras"], rec["rig_instances"] = rig_cams, rig_inst
     lla = reference_lla(block.crs)
     if lla is not None:
         rec["reference_lla"] = lla

@@ -35,7 +35,8 @@ from .._util import atomic_write, write_json_atomic, write_text_atomic
 from .._util.values import parse_number
 from ..errors import FormatError
 from ._text import TextLines, format_error
-from .block import Block, Orientations, require_orientations
+from .block import Block, require_orientations
+from .merge import Orientations
 
 __all__ = ["read_opk", "write_opk", "read_borea", "read_borea_camera", "read_borea_points",
            "read_borea_measurements", "orthority_int_param", "ANGLE_UNITS", "OPK_FLAVOURS"]
@@ -231,7 +232,8 @@ def write_opk(block: Block, path: str | Path, *, angle_unit: str = "deg", flavou
 
 def orthority_int_param(block: Block) -> str:
     """orthority's interior parameter file (YAML; written as JSON, which YAML reads) of the block's
-    cameras in their Brown form (:func:`lidarcat.interop.lens.export_camera`): ``focal_len`` in
+    cameras in their Brown or fisheye form (:func:`lidarcat.interop.lens.export_camera`; orthority's
+    ``fisheye`` is OpenCV's, k1..k4): ``focal_len`` in
     pixels with ``sensor_size`` = the image size, so focal lengths mean the same for portrait and
     landscape images (an OpenSfM camera's normalised focal does not, for orthority, in portrait);
     ``cx, cy`` as OpenSfM's ``c_x, c_y`` (pixels from the image centre over ``max(w, h)``)."""
@@ -242,9 +244,12 @@ def orthority_int_param(block: Block) -> str:
     out = {}
     for cid, m in export_cameras(block, rational=False).items():
         s = max(m["w"], m["h"])
-        out[cid] = {"type": "brown", "im_size": [m["w"], m["h"]], "focal_len": [m["fx"], m["fy"]],
-                    "sensor_size": [float(m["w"]), float(m["h"])], "cx": (m["cx"] - m["w"] / 2) / s,
-                    "cy": (m["cy"] - m["h"] / 2) / s, **{k: m["dist"].get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")}}
+        fisheye = m["kind"] == "fisheye"  # orthority's fisheye is OpenCV's (Kannala-Brandt k1..k4)
+        keys = ("k1", "k2", "k3", "k4") if fisheye else ("k1", "k2", "k3", "p1", "p2")
+        out[cid] = {"type": "fisheye" if fisheye else "brown", "im_size": [m["w"], m["h"]],
+                    "focal_len": [m["fx"], m["fy"]], "sensor_size": [float(m["w"]), float(m["h"])],
+                    "cx": (m["cx"] - m["w"] / 2) / s, "cy": (m["cy"] - m["h"] / 2) / s,
+                    **{k: m["dist"].get(k, 0.0) for k in keys}}
     return json.dumps(out, indent=1) + "\n"
 
 
