@@ -52,6 +52,27 @@ theta_i f_i(x_fot / b)`` (``b`` from the frame size), subtracted beside ``D``::
 reason a parameter cannot be told from its most correlated partner (the relief ratio for ``c``
 against ``Z0``, the part of the set's grid the measurements span for two polynomial terms).
 
+Brown and fisheye cameras (issue 27)
+------------------------------------
+A camera of another model (:attr:`lidarcat.geometry.camera.Camera.lens`, a
+:class:`~lidarcat.geometry.brown.BrownCamera` or :class:`~lidarcat.geometry.fisheye.FisheyeCamera`)
+enters the problem as image-plane observations: the measured pixel ``px`` of a ray ``(n, 1)``,
+``project((n, 1); theta) = px``, is observed as ``x_fotc = c_ref (n_x, -n_y)`` with the camera's
+fixed reference focal length ``c_ref`` (:meth:`Camera.from_model`) and the collinearity
+prediction ``x = -c_ref u / w``.  Its parameters ``theta`` (``fx, fy, cx, cy, k1 ..``, named as
+in the model's ``PARAMETERS``; corrections to the calibration) move ``n``; by the implicit
+function (:func:`lidarcat.geometry.conversion.image_plane_observations`)::
+
+    dn/dtheta = -(d px / d n)^-1 d px / d theta
+    dv/dtheta = -d x_fotc / d theta = c_ref diag(1, -1) (d px / d n)^-1 d px / d theta
+
+with the model's analytic Jacobians at the current ``theta`` (exact for the fixed measured
+pixel; ``apply`` re-unprojects every pixel with the current parameters).  The weights stay those
+of the calibration (the pixel sd carried through the model once).  The names a camera takes are
+those of the switched-on list in its model's ``PARAMETERS``; ``all`` (and a model's own name,
+``fisheye``) switches on every parameter of its model.  Priors: ``sd_<parameter>`` of the camera
+table.  One self-calibration holds frame cameras or Brown/fisheye cameras, not both.
+
 GNSS flight-line offsets
 ------------------------
 Where camera positions are constrained by GNSS (``eo_constraint_*``), a line
@@ -83,11 +104,12 @@ from typing import Any
 import numpy as np
 
 from ..geometry.apsets import PARAMETER_SETS, ParameterSet
+from ..geometry.brown import BrownCamera
 from ..geometry.camera import Camera
-from ..errors import LidarcatError
+from ..errors import CameraError, LidarcatError
 
-__all__ = ["IO_PARAMETERS", "IO_UNITS", "SelfCalibration", "GnssLineOffsets", "parse_parameters",
-           "extra_parameter_set", "GRUEN_CAVEAT", "AdditionalParameterError"]
+__all__ = ["IO_PARAMETERS", "IO_UNITS", "LENS_PARAMETERS", "SelfCalibration", "GnssLineOffsets",
+           "parse_parameters", "extra_parameter_set", "lens_parameters", "GRUEN_CAVEAT", "AdditionalParameterError"]
 
 
 class AdditionalParameterError(LidarcatError, ValueError):
@@ -99,6 +121,11 @@ IO_PARAMETERS: tuple[str, ...] = ("c", "x0", "y0", "k1", "k2", "k3", "p1", "p2")
 #: their units (corrections to the calibration certificate)
 IO_UNITS: dict[str, str] = {"c": "mm", "x0": "mm", "y0": "mm", "k1": "mm^-2", "k2": "mm^-4",
                             "k3": "mm^-6", "p1": "mm^-1", "p2": "mm^-1"}
+#: the parameters of the Brown and fisheye models beyond the frame names (k1.., p1, p2 are shared),
+#: in the models' order (:attr:`lidarcat.geometry.brown.BrownCamera.PARAMETERS`)
+LENS_PARAMETERS: tuple[str, ...] = tuple(q for q in BrownCamera.PARAMETERS if q not in IO_PARAMETERS)
+#: units of the Brown and fisheye parameters
+_LENS_UNITS: dict[str, str] = {"fx": "px", "fy": "px", "cx": "px", "cy": "px", "skew": "px"}
 #: the Camera field of each parameter
 _FIELD: dict[str, str] = {"c": "focal_length_mm", "x0": "principal_point_x_mm",
                           "y0": "principal_point_y_mm", "k1": "k1", "k2": "k2", "k3": "k3",
@@ -139,16 +166,26 @@ def parse_parameters(text: str | Sequence[str]) -> tuple[str, ...]:
     if items == ["all"]:
         return IO_PARAMETERS
     names: list[str] = []
+    lens: list[str] = []
     for s in items:
         if s in PARAMETER_SETS:
             names += PARAMETER_SETS[s].parameters
         elif s in IO_PARAMETERS or s in _EXTRA_SET:
             names.append(s)
+        elif s in LENS_PARAMETERS:
+            lens.append(s)
+        elif s == "fisheye":
+            lens += ["fx", "fy", "cx", "cy"]
+            names += ["k1", "k2", "k3", "k4"]
         else:
             raise AdditionalParameterError(
                 f"unknown self-calibration parameter {s!r}; allowed: " + ", ".join(IO_PARAMETERS)
                 + " (or 'all'), the sets " + ", ".join(PARAMETER_SETS) + ", or single terms of a set "
                 "(k4, b1, b2; e1-e12; g1-g44)")
+    if lens:                                              # Brown/fisheye names: checked per camera at bind
+        return (tuple(p for p in IO_PARAMETERS if p in names) + tuple(q for q in ("k4",) if q in names)
+                + tuple(q for q in LENS_PARAMETERS if q in lens)
+                + tuple(q for q in names if q not in IO_PARAMETERS and q != "k4"))
     if not names:
         raise AdditionalParameterError("no self-calibration parameter named; give e.g. c,x0,y0,k1 or ebner")
     sets = list(dict.fromkeys(_EXTRA_SET[q] for q in names if q in _EXTRA_SET))
@@ -157,6 +194,19 @@ def parse_parameters(text: str | Sequence[str]) -> tuple[str, ...]:
                                        "combined (their corrections overlap); choose one")
     extra = PARAMETER_SETS[sets[0]].extra if sets else ()
     return tuple(p for p in IO_PARAMETERS if p in names) + tuple(q for q in extra if q in names)
+
+
+def lens_parameters(parameters: Sequence[str], kind_parameters: Sequence[str]) -> tuple[str, ...]:
+    """The names among *parameters* (parsed) a Brown/fisheye camera with *kind_parameters* takes.
+
+    ``all`` (the parsed :data:`IO_PARAMETERS`) stands for every parameter of the model.
+
+    >>> lens_parameters(("k1", "k2", "p1", "p2", "fx", "cx", "cy"), ("fx", "fy", "cx", "cy", "k1", "k2"))
+    ('fx', 'cx', 'cy', 'k1', 'k2')
+    """
+    if tuple(parameters) == IO_PARAMETERS:
+        return tuple(kind_parameters)
+    return tuple(q for q in kind_parameters if q in parameters)
 
 
 def extra_parameter_set(parameters: Sequence[str]) -> ParameterSet | None:
@@ -208,9 +258,29 @@ class SelfCalibration:
             raise AdditionalParameterError(f"self-calibration: camera {missing[0]!r} of a photo has no "
                                            "calibration")
 
-    def bind(self, problem) -> _BoundIO:
-        """The parameters of this switch for *problem* (see the module's component protocol)."""
-        return _BoundIO(self, problem)
+    def bind(self, problem) -> _BoundIO | _BoundLens:
+        """The parameters of this switch for *problem* (see the module's component protocol).
+
+        Raises
+        ------
+        AdditionalParameterError
+            Frame and Brown/fisheye cameras in one block, or a name no camera of the block has.
+        """
+        used = list(dict.fromkeys(self.photo_camera))
+        lens = [c for c in used if self.cameras[c].lens is not None]
+        if not lens:
+            odd = [q for q in self.parameters if q in LENS_PARAMETERS]
+            if odd:
+                raise AdditionalParameterError(
+                    f"self-calibration parameter {odd[0]!r} belongs to Brown/fisheye cameras; camera {used[0]!r} is "
+                    f"a frame camera ({', '.join(IO_PARAMETERS)}, or a set)")
+            return _BoundIO(self, problem)
+        if len(lens) < len(used):
+            frame = next(c for c in used if c not in lens)
+            raise AdditionalParameterError(
+                f"self-calibration of frame camera {frame!r} beside {self.cameras[lens[0]].model} camera "
+                f"{lens[0]!r} is not supported in one adjustment; calibrate one kind (the other fixed) at a time")
+        return _BoundLens(self, problem)
 
 
 class _BoundIO:
@@ -363,6 +433,84 @@ class _BoundIO:
                 sel = self.cam_of_obs == k
                 J[sel, :, self.n_io:] = self.aps.jacobian(fot[sel], self.b_mm[k])
         return [("obs", np.arange(n), J, self.cols)]
+
+
+class _BoundLens:
+    """Self-calibration of Brown/fisheye cameras bound to a problem (module docstring)."""
+
+    group_kind = "camera"
+
+    def __init__(self, spec: SelfCalibration, problem):
+        if len(spec.photo_camera) != problem.n_photos:
+            raise AdditionalParameterError(f"self-calibration: {len(spec.photo_camera)} photo camera(s) given "
+                                           f"for {problem.n_photos} photos")
+        used = list(dict.fromkeys(spec.photo_camera))
+        self.cams: list[Camera] = [spec.cameras[c] for c in used]
+        cam_of_photo = np.array([used.index(c) for c in spec.photo_camera], dtype=np.int64)
+        self.cam_of_obs = cam_of_photo[problem.photo_index]
+        self.params = [lens_parameters(spec.parameters, cam.lens.PARAMETERS) for cam in self.cams]
+        for q in spec.parameters:
+            if tuple(spec.parameters) != IO_PARAMETERS and not any(q in ps for ps in self.params):
+                kinds = "; ".join(f"{cam.id!r} ({cam.model}): {', '.join(cam.lens.PARAMETERS)}" for cam in self.cams)
+                raise AdditionalParameterError(f"self-calibration parameter {q!r} is no parameter of the block's "
+                                               f"cameras ({kinds}), or 'all'")
+        self.offsets = np.cumsum([0] + [len(ps) for ps in self.params])
+        self.n = int(self.offsets[-1])
+        self.names = [f"{cam.id}.{q}" for cam, ps in zip(self.cams, self.params) for q in ps]
+        self.units = [_LENS_UNITS.get(q, "1") for ps in self.params for q in ps]
+        self.groups = [f"camera {cam.id}" for cam, ps in zip(self.cams, self.params) for _ in ps]
+        sd = [cam.sd.get(f"sd_{q}", 0.0) if spec.use_priors else 0.0
+              for cam, ps in zip(self.cams, self.params) for q in ps]
+        self.prior_sd = np.array([s if s > 0 else np.inf for s in sd], dtype=float)
+        self.calibrated = np.array([getattr(cam.lens, q) for cam, ps in zip(self.cams, self.params) for q in ps])
+        self.notes: list[str] = []
+        # the measured pixels, recovered from the problem's photo coordinates under the calibration
+        self.rows = [np.flatnonzero(self.cam_of_obs == k) for k in range(len(self.cams))]
+        self.px = np.empty_like(np.asarray(problem.xy_mm, dtype=float))
+        for k, cam in enumerate(self.cams):
+            self.px[self.rows[k]] = cam.photo_to_pixel(problem.xy_mm[self.rows[k]])
+
+    def _lens(self, k: int, theta: np.ndarray):
+        cam = self.cams[k]
+        lens = cam.lens
+        d = theta[self.offsets[k]:self.offsets[k + 1]]
+        if not len(d):
+            return lens
+        values = lens.params()
+        idx = [lens.PARAMETERS.index(q) for q in self.params[k]]
+        values[idx] += d
+        try:
+            return lens.with_params(values)
+        except CameraError as ex:
+            raise AdditionalParameterError(f"self-calibration of camera {cam.id!r}: the corrected parameters left "
+                                           f"the model's valid range: {ex}") from ex
+
+    def _plane(self, k: int, theta: np.ndarray) -> tuple[np.ndarray, Any]:
+        lens = self._lens(k, theta)
+        rays = lens.unproject(self.px[self.rows[k]])
+        return rays[:, :2] / rays[:, 2:], lens
+
+    def apply(self, theta: np.ndarray, fields: dict[str, Any]) -> None:
+        xy = np.array(fields["xy_mm"], dtype=float)
+        for k, cam in enumerate(self.cams):
+            n, _ = self._plane(k, theta)
+            c = cam.focal_length_mm
+            xy[self.rows[k]] = np.column_stack([c * n[:, 0], -c * n[:, 1]])
+        fields["xy_mm"] = xy
+
+    def jacobians(self, theta: np.ndarray, state) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
+        out = []
+        for k, cam in enumerate(self.cams):
+            if not len(self.params[k]) or not len(self.rows[k]):
+                continue
+            n, lens = self._plane(k, theta)
+            _, j_ray, j_par = lens.project_jacobians(np.column_stack([n, np.ones(len(n))]))
+            idx = [lens.PARAMETERS.index(q) for q in self.params[k]]
+            J = np.linalg.solve(j_ray[:, :, :2], j_par[:, :, idx])         # -dn/dtheta
+            J *= np.array([cam.focal_length_mm, -cam.focal_length_mm])[None, :, None]
+            cols = np.broadcast_to(self.offsets[k] + np.arange(len(idx)), (len(n), len(idx)))
+            out.append(("obs", self.rows[k], J, cols))
+        return out
 
 
 # ---------------------------------------------------------------------------

@@ -696,6 +696,28 @@ class Camera:
         j = np.eye(2)[None] - self._distortion_jacobian(fot)
         return j * np.array([self.pixel_size_x_mm, -self.pixel_size_y_mm])[None, None, :]
 
+    def photo_sd(self, colrow_px: Any, sd_px: Any) -> np.ndarray:
+        """Per-axis sds (mm) of the corrected photo coordinates of pixels measured with sds *sd_px*.
+
+        ``Sigma_xy = J diag(sd_px^2) J^T`` with ``J`` = :meth:`pixel_to_photo_jacobian`; the square
+        roots of its diagonal (the bundle weighs per axis; the x-y correlation, which a Brown or
+        fisheye camera's anisotropic stretch brings in, is left out).
+
+        Parameters
+        ----------
+        colrow_px : array_like, (N, 2)
+        sd_px : array_like, (N, 2) or scalar
+            Column and row sds of the measurements, pixels.
+
+        Returns
+        -------
+        ndarray, (N, 2)
+        """
+        cr, _ = _as_points(colrow_px, "colrow_px")
+        j = np.asarray(self.pixel_to_photo_jacobian(cr)).reshape(-1, 2, 2)
+        s = np.broadcast_to(np.asarray(sd_px, dtype=float), (len(cr), 2))
+        return np.sqrt(np.einsum("nij,nj->ni", j * j, s * s))
+
     def photo_to_fot(self, xy_mm: Any, *, tol_mm: float = 1e-10, max_iter: int = 50,
                      on_fail: str = "raise") -> np.ndarray:
         """Invert eq. 07: corrected photo coordinates -> x_fot, y_fot (Newton, vectorised).
