@@ -121,9 +121,6 @@ IO_PARAMETERS: tuple[str, ...] = ("c", "x0", "y0", "k1", "k2", "k3", "p1", "p2")
 #: their units (corrections to the calibration certificate)
 IO_UNITS: dict[str, str] = {"c": "mm", "x0": "mm", "y0": "mm", "k1": "mm^-2", "k2": "mm^-4",
                             "k3": "mm^-6", "p1": "mm^-1", "p2": "mm^-1"}
-#: the parameters of the Brown and fisheye models beyond the frame names (k1.., p1, p2 are shared),
-#: in the models' order (:attr:`lidarcat.geometry.brown.BrownCamera.PARAMETERS`)
-LENS_PARAMETERS: tuple[str, ...] = tuple(q for q in BrownCamera.PARAMETERS if q not in IO_PARAMETERS)
 #: units of the Brown and fisheye parameters
 _LENS_UNITS: dict[str, str] = {"fx": "px", "fy": "px", "cx": "px", "cy": "px", "skew": "px"}
 #: the Camera field of each parameter
@@ -139,6 +136,10 @@ GRUEN_CAVEAT = ("the gruen set's standard deviations are too small: in simulatio
 
 #: the set each extra (non-IO) parameter belongs to: k4, b1, b2 (brown), e1-e12 (ebner), g1-g44 (gruen)
 _EXTRA_SET: dict[str, str] = {q: s.name for s in PARAMETER_SETS.values() for q in s.extra}
+#: the parameters of the Brown and fisheye models beyond the frame names (k1.., p1, p2 are shared, and k4
+#: with the ``brown`` set's), in the models' order (:attr:`lidarcat.geometry.brown.BrownCamera.PARAMETERS`)
+LENS_PARAMETERS: tuple[str, ...] = tuple(q for q in BrownCamera.PARAMETERS
+                                         if q not in IO_PARAMETERS and q not in _EXTRA_SET)
 
 
 def parse_parameters(text: str | Sequence[str]) -> tuple[str, ...]:
