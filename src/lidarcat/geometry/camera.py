@@ -532,7 +532,10 @@ class Camera:
         corr = fot - np.asarray(self.pixel_to_photo(border))
         mag = np.hypot(corr[:, 0], corr[:, 1])
         w, h = self.frame_size_mm
-        out = self.to_dict()
+        if self.lens is None:
+            out = self.to_dict()
+        else:                                  # the pinhole's frame keys, the model's table under "lens"
+            out = {"id": self.id, **{name: getattr(self, name) for name in CAMERA_KEYS}, "lens": self._lens_dict()}
         out.update({
             "frame_width_mm": w, "frame_height_mm": h,
             "half_diagonal_mm": math.hypot(w, h) / 2,
