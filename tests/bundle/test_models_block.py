@@ -116,3 +116,47 @@ def test_model_self_calibration_sds_honest_over_20_seeds(kind):
           "per parameter", np.round(np.sqrt(np.mean(z**2, axis=0)), 2))
     assert 0.8 <= rms <= 1.25
     assert np.mean(np.abs(z) > 3) <= 0.01
+
+
+def test_brown_priors_hold_a_parameter_the_block_cannot_see():
+    """``sd_<parameter>`` of the camera are weighted priors: k3 (r^6; the block's corners reach r = 1.7)
+    with sd 1e-4 and certificate 0 is pulled to about 0 +- its prior, the others still recovered."""
+    problem, cam, delta = model_block("brown", 0)
+    cam = Camera.from_model(cam.lens, pixel_size_mm=PITCH_MM, sd={"sd_k3": 1e-4})
+    comp = SelfCalibration({"cam": cam}, ["cam"] * problem.n_photos, "fx,fy,cx,cy,k1,k2,k3,p1,p2")
+    res = adjust_with_parameters(problem, [comp], precision="none")
+    i = res.index("cam.k3")
+    assert res.prior_sd[i] == 1e-4 and np.isinf(np.delete(res.prior_sd, i)).all()
+    assert res.sd[i] < 1e-4 and abs(res.estimates[i]) < 3 * res.sd[i]
+    for name, est, sd in zip(res.names, res.estimates, res.sd):
+        q = name.split(".", 1)[1]
+        assert abs(est - delta.get(q, 0.0)) < 3 * sd, (q, est, sd)
+    s = res.summary()["additional_parameters"]["cam.k3"]
+    assert s["prior_sd"] == 1e-4 and s["calibrated"] == 0.0 and s["unit"] == "1"
+    assert res.summary()["additional_parameters"]["cam.fx"]["unit"] == "px"
+
+
+def test_lens_parameter_names_are_checked_per_camera():
+    problem, cam, _ = model_block("fisheye", 0)
+    with pytest.raises(AdditionalParameterError) as ei:
+        adjust_with_parameters(problem, [SelfCalibration({"cam": cam}, ["cam"] * problem.n_photos, "fx,p1")])
+    assert str(ei.value) == ("self-calibration parameter 'p1' is no parameter of the block's cameras ('cam' "
+                             "(fisheye): fx, fy, cx, cy, k1, k2, k3, k4), or 'all'")
+    frame_problem, frame_cam, _ = model_block("frame", 0)
+    with pytest.raises(AdditionalParameterError) as ei:
+        adjust_with_parameters(frame_problem, [SelfCalibration({"cam": frame_cam}, ["cam"] * frame_problem.n_photos,
+                                                               "c,fx")])
+    assert str(ei.value) == ("self-calibration parameter 'fx' belongs to Brown/fisheye cameras; camera 'cam' is a "
+                             "frame camera (c, x0, y0, k1, k2, k3, p1, p2, or a set)")
+    assert parse_parameters("fisheye") == ("k1", "k2", "k3", "k4", "fx", "fy", "cx", "cy")
+    assert parse_parameters("fx,cx,cy,k1,k2,p1,p2") == ("k1", "k2", "p1", "p2", "fx", "cx", "cy")
+    assert parse_parameters("c,x0,k1") == ("c", "x0", "k1")                       # the frame path unchanged
+
+
+def test_frame_and_lens_cameras_are_not_calibrated_in_one_adjustment():
+    problem, cam, _ = model_block("brown", 0)
+    frame = dataclasses.replace(FRAME_CERT, id="old")
+    photo_cam = ["cam"] * (problem.n_photos - 1) + ["old"]
+    with pytest.raises(AdditionalParameterError, match="self-calibration of frame camera 'old' beside brown camera "
+                                                       "'cam' is not supported in one adjustment"):
+        SelfCalibration({"cam": cam, "old": frame}, photo_cam, "all").bind(problem)
