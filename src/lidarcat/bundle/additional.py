@@ -47,8 +47,11 @@ theta_i f_i(x_fot / b)`` (``b`` from the frame size), subtracted beside ``D``::
     dv/dtheta_i = f_i(x_fot / b)
     dv/d(x0)    = (I - dD/dx_fot - dA/dx_fot) e_x          (likewise y0)
 
-``gruen``'s sds are known to be optimistic (docs/cameras.md); the component carries
-:data:`GRUEN_CAVEAT` as a note the result repeats among its warnings.  ``explain`` gives the
+``gruen``'s sds were measured optimistic (docs/cameras.md); the component carries
+:data:`GRUEN_CAVEAT` as a note the result repeats among its warnings.  The cause is errors in
+variables: the terms ``f_i`` are evaluated at the measured ``x_fot``, whose noise the residual
+shares, which biases the estimate; :meth:`_BoundIO.score_bias` gives the expected gradient at the
+truth, ``-sum tr(G_i^T P M Sigma_e)``, and :mod:`.selfcal` removes the bias after convergence.  ``explain`` gives the
 reason a parameter cannot be told from its most correlated partner (the relief ratio for ``c``
 against ``Z0``, the part of the set's grid the measurements span for two polynomial terms).
 
@@ -402,6 +405,38 @@ class _BoundIO:
                                                                                    + self.params.index("c")]
         fields["xy_mm"] = xy
         fields["focal_length_mm"] = focal
+
+    def score_bias(self, theta: np.ndarray, problem, weight: np.ndarray) -> np.ndarray | None:
+        """The expected gradient at the truth of the set's extra terms (errors in variables).
+
+        The terms ``f_i`` are evaluated at the measured ``x_fot``, which carries the noise ``e`` the
+        residual carries (``v = -M e``, ``M = I - dD/dx - dA/dx``), so ``E[f_i(x + e)^T P v] =
+        -tr(G_i^T P M Sigma_e)`` per observation, ``G_i = d f_i / d x_fot``, ``Sigma_e = diag(sd^2)``,
+        ``P`` = *weight* (n, 2, 2): the weight less the part the observation's own point absorbs
+        (``W - W a V^-1 a^T W``, :mod:`.selfcal`).  None without a named set (the thesis terms are
+        left as they are).  :mod:`.selfcal` removes its effect from the converged estimate
+        (docs/cameras.md, "The cause").
+        """
+        if self.aps is None:
+            return None
+        fot = self._fot(theta)
+        sd2 = np.asarray(problem.sd_mm, dtype=float) ** 2
+        out = np.zeros(self.n)
+        n_extra = len(self.aps.extra)
+        for k in range(len(self.cams)):
+            sel = self.cam_of_obs == k
+            if not sel.any():
+                continue
+            f, extra = fot[sel], self._extra(k, theta)
+            mm = (np.eye(2)[None] - self._camera(k, theta)._distortion_jacobian(f)
+                  - self.aps.jacobian_xy(f, extra, self.b_mm[k]))
+            wms = (weight[sel] @ mm) * sd2[sel][:, None, :]                  # P M Sigma_e
+            for q in range(n_extra):
+                unit = np.zeros(n_extra)
+                unit[q] = 1.0
+                g = self.aps.jacobian_xy(f, unit, self.b_mm[k])                # d f_q / d x_fot (the set is linear)
+                out[k * self.m + self.n_io + q] = -float(np.einsum("nab,nab->", g, wms))
+        return out
 
     def jacobians(self, theta: np.ndarray, state) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
         fot = self._fot(theta)
