@@ -160,3 +160,14 @@ def test_frame_and_lens_cameras_are_not_calibrated_in_one_adjustment():
     with pytest.raises(AdditionalParameterError, match="self-calibration of frame camera 'old' beside brown camera "
                                                        "'cam' is not supported in one adjustment"):
         SelfCalibration({"cam": cam, "old": frame}, photo_cam, "all").bind(problem)
+
+
+def test_why_a_brown_radial_pair_is_not_determinable():
+    """k1 and k2 of the acceptance block correlate at r = -0.96: the warning says why, with the field measured."""
+    problem, cam, _ = model_block("brown", 0)
+    comp = SelfCalibration({"cam": cam}, ["cam"] * problem.n_photos, "fx,fy,cx,cy,k1,k2,p1,p2", use_priors=False)
+    res = adjust_with_parameters(problem, [comp], precision="none")
+    why = res.why("cam.k1", "cam.k2", False)
+    assert why.startswith("over the measured rays (up to ") and "the radial terms k1 and k2 change the image nearly" in why
+    assert any("cam.k1" in w and "Why: over the measured rays" in w for w in res.warnings())
+    assert res.why("cam.fx", "Z0", True).startswith("fx scales the image as the flying height does")

@@ -506,6 +506,32 @@ class _BoundLens:
         for k, cam in enumerate(self.cams):
             self.px[self.rows[k]] = cam.photo_to_pixel(problem.xy_mm[self.rows[k]])
 
+    def explain(self, name: str, partner: str, eo: bool, points_m: np.ndarray, eo_params: np.ndarray) -> str | None:
+        """Why parameter *name* cannot be told from *partner* (see :meth:`_BoundIO.explain`), or None."""
+        if name not in self.names:
+            return None
+        k = next(i for i in range(len(self.cams)) if self.offsets[i] <= self.names.index(name) < self.offsets[i + 1])
+        cam, q = self.cams[k], name.split(".")[-1]
+        if eo and q in ("fx", "fy") and partner == "Z0":
+            h = points_m[:, 2]
+            rel = float(np.std(h) / max(np.mean(eo_params[:, 2]) - np.mean(h), 1e-9))
+            return (f"{q} scales the image as the flying height does and the terrain relief (sd of the point heights) "
+                    f"is {rel:.1%} of the flying height: flat terrain and near-nadir photos cannot separate them; GNSS "
+                    "camera heights or more relief can")
+        if eo and q in ("cx", "cy"):
+            return (f"a shift of the principal point moves the image as a shift or tilt of the camera ({partner}) does; "
+                    "camera positions/attitudes (GNSS/INS) or cross strips separate them")
+        other = partner.split(".")[-1] if partner in self.names else None
+        radial = ("k1", "k2", "k3", "k4")
+        if not eo and q in radial and other in radial:
+            rays = cam.lens.unproject(self.px[self.rows[k]])
+            seen = float(np.degrees(np.arccos(np.clip(rays[:, 2], -1, 1))).max())
+            corner = float(np.degrees(np.arccos(np.clip(cam.lens.unproject(cam.lens.corners_px())[:, 2], -1, 1))).max())
+            return (f"over the measured rays (up to {seen:.1f} deg from the axis; the image corner at {corner:.1f} deg) the "
+                    f"radial terms {q} and {other} change the image nearly in proportion; fix one of them, give it a prior "
+                    "sd" + (" or measure points nearer the corners" if seen < 0.9 * corner else ""))
+        return None
+
     def _lens(self, k: int, theta: np.ndarray):
         cam = self.cams[k]
         lens = cam.lens
