@@ -47,10 +47,34 @@ theta_i f_i(x_fot / b)`` (``b`` from the frame size), subtracted beside ``D``::
     dv/dtheta_i = f_i(x_fot / b)
     dv/d(x0)    = (I - dD/dx_fot - dA/dx_fot) e_x          (likewise y0)
 
-``gruen``'s sds are known to be optimistic (docs/cameras.md); the component carries
-:data:`GRUEN_CAVEAT` as a note the result repeats among its warnings.  ``explain`` gives the
+``gruen``'s sds were measured optimistic (docs/cameras.md); the component carries
+:data:`GRUEN_CAVEAT` as a note the result repeats among its warnings.  The cause is errors in
+variables: the terms ``f_i`` are evaluated at the measured ``x_fot``, whose noise the residual
+shares, which biases the estimate; :meth:`_BoundIO.score_bias` gives the expected gradient at the
+truth, ``-sum tr(G_i^T P M Sigma_e)``, and :mod:`.selfcal` removes the bias after convergence.  ``explain`` gives the
 reason a parameter cannot be told from its most correlated partner (the relief ratio for ``c``
 against ``Z0``, the part of the set's grid the measurements span for two polynomial terms).
+
+Brown and fisheye cameras (issue 27)
+------------------------------------
+A camera of another model (:attr:`lidarcat.geometry.camera.Camera.lens`, a
+:class:`~lidarcat.geometry.brown.BrownCamera` or :class:`~lidarcat.geometry.fisheye.FisheyeCamera`)
+enters the problem as image-plane observations: the measured pixel ``px`` of a ray ``(n, 1)``,
+``project((n, 1); theta) = px``, is observed as ``x_fotc = c_ref (n_x, -n_y)`` with the camera's
+fixed reference focal length ``c_ref`` (:meth:`Camera.from_model`) and the collinearity
+prediction ``x = -c_ref u / w``.  Its parameters ``theta`` (``fx, fy, cx, cy, k1 ..``, named as
+in the model's ``PARAMETERS``; corrections to the calibration) move ``n``; by the implicit
+function (:func:`lidarcat.geometry.conversion.image_plane_observations`)::
+
+    dn/dtheta = -(d px / d n)^-1 d px / d theta
+    dv/dtheta = -d x_fotc / d theta = c_ref diag(1, -1) (d px / d n)^-1 d px / d theta
+
+with the model's analytic Jacobians at the current ``theta`` (exact for the fixed measured
+pixel; ``apply`` re-unprojects every pixel with the current parameters).  The weights stay those
+of the calibration (the pixel sd carried through the model once).  The names a camera takes are
+those of the switched-on list in its model's ``PARAMETERS``; ``all`` (and a model's own name,
+``fisheye``) switches on every parameter of its model.  Priors: ``sd_<parameter>`` of the camera
+table.  One self-calibration holds frame cameras or Brown/fisheye cameras, not both.
 
 GNSS flight-line offsets
 ------------------------
@@ -83,11 +107,12 @@ from typing import Any
 import numpy as np
 
 from ..geometry.apsets import PARAMETER_SETS, ParameterSet
+from ..geometry.brown import BrownCamera
 from ..geometry.camera import Camera
-from ..errors import LidarcatError
+from ..errors import CameraError, LidarcatError
 
-__all__ = ["IO_PARAMETERS", "IO_UNITS", "SelfCalibration", "GnssLineOffsets", "parse_parameters",
-           "extra_parameter_set", "GRUEN_CAVEAT", "AdditionalParameterError"]
+__all__ = ["IO_PARAMETERS", "IO_UNITS", "LENS_PARAMETERS", "SelfCalibration", "GnssLineOffsets",
+           "parse_parameters", "extra_parameter_set", "lens_parameters", "GRUEN_CAVEAT", "AdditionalParameterError"]
 
 
 class AdditionalParameterError(LidarcatError, ValueError):
@@ -99,6 +124,8 @@ IO_PARAMETERS: tuple[str, ...] = ("c", "x0", "y0", "k1", "k2", "k3", "p1", "p2")
 #: their units (corrections to the calibration certificate)
 IO_UNITS: dict[str, str] = {"c": "mm", "x0": "mm", "y0": "mm", "k1": "mm^-2", "k2": "mm^-4",
                             "k3": "mm^-6", "p1": "mm^-1", "p2": "mm^-1"}
+#: units of the Brown and fisheye parameters
+_LENS_UNITS: dict[str, str] = {"fx": "px", "fy": "px", "cx": "px", "cy": "px", "skew": "px"}
 #: the Camera field of each parameter
 _FIELD: dict[str, str] = {"c": "focal_length_mm", "x0": "principal_point_x_mm",
                           "y0": "principal_point_y_mm", "k1": "k1", "k2": "k2", "k3": "k3",
@@ -112,6 +139,10 @@ GRUEN_CAVEAT = ("the gruen set's standard deviations are too small: in simulatio
 
 #: the set each extra (non-IO) parameter belongs to: k4, b1, b2 (brown), e1-e12 (ebner), g1-g44 (gruen)
 _EXTRA_SET: dict[str, str] = {q: s.name for s in PARAMETER_SETS.values() for q in s.extra}
+#: the parameters of the Brown and fisheye models beyond the frame names (k1.., p1, p2 are shared, and k4
+#: with the ``brown`` set's), in the models' order (:attr:`lidarcat.geometry.brown.BrownCamera.PARAMETERS`)
+LENS_PARAMETERS: tuple[str, ...] = tuple(q for q in BrownCamera.PARAMETERS
+                                         if q not in IO_PARAMETERS and q not in _EXTRA_SET)
 
 
 def parse_parameters(text: str | Sequence[str]) -> tuple[str, ...]:
@@ -139,16 +170,26 @@ def parse_parameters(text: str | Sequence[str]) -> tuple[str, ...]:
     if items == ["all"]:
         return IO_PARAMETERS
     names: list[str] = []
+    lens: list[str] = []
     for s in items:
         if s in PARAMETER_SETS:
             names += PARAMETER_SETS[s].parameters
         elif s in IO_PARAMETERS or s in _EXTRA_SET:
             names.append(s)
+        elif s in LENS_PARAMETERS:
+            lens.append(s)
+        elif s == "fisheye":
+            lens += ["fx", "fy", "cx", "cy"]
+            names += ["k1", "k2", "k3", "k4"]
         else:
             raise AdditionalParameterError(
                 f"unknown self-calibration parameter {s!r}; allowed: " + ", ".join(IO_PARAMETERS)
                 + " (or 'all'), the sets " + ", ".join(PARAMETER_SETS) + ", or single terms of a set "
                 "(k4, b1, b2; e1-e12; g1-g44)")
+    if lens:                                              # Brown/fisheye names: checked per camera at bind
+        return (tuple(p for p in IO_PARAMETERS if p in names) + tuple(q for q in ("k4",) if q in names)
+                + tuple(q for q in LENS_PARAMETERS if q in lens)
+                + tuple(q for q in names if q not in IO_PARAMETERS and q != "k4"))
     if not names:
         raise AdditionalParameterError("no self-calibration parameter named; give e.g. c,x0,y0,k1 or ebner")
     sets = list(dict.fromkeys(_EXTRA_SET[q] for q in names if q in _EXTRA_SET))
@@ -157,6 +198,19 @@ def parse_parameters(text: str | Sequence[str]) -> tuple[str, ...]:
                                        "combined (their corrections overlap); choose one")
     extra = PARAMETER_SETS[sets[0]].extra if sets else ()
     return tuple(p for p in IO_PARAMETERS if p in names) + tuple(q for q in extra if q in names)
+
+
+def lens_parameters(parameters: Sequence[str], kind_parameters: Sequence[str]) -> tuple[str, ...]:
+    """The names among *parameters* (parsed) a Brown/fisheye camera with *kind_parameters* takes.
+
+    ``all`` (the parsed :data:`IO_PARAMETERS`) stands for every parameter of the model.
+
+    >>> lens_parameters(("k1", "k2", "p1", "p2", "fx", "cx", "cy"), ("fx", "fy", "cx", "cy", "k1", "k2"))
+    ('fx', 'cx', 'cy', 'k1', 'k2')
+    """
+    if tuple(parameters) == IO_PARAMETERS:
+        return tuple(kind_parameters)
+    return tuple(q for q in kind_parameters if q in parameters)
 
 
 def extra_parameter_set(parameters: Sequence[str]) -> ParameterSet | None:
@@ -208,9 +262,29 @@ class SelfCalibration:
             raise AdditionalParameterError(f"self-calibration: camera {missing[0]!r} of a photo has no "
                                            "calibration")
 
-    def bind(self, problem) -> _BoundIO:
-        """The parameters of this switch for *problem* (see the module's component protocol)."""
-        return _BoundIO(self, problem)
+    def bind(self, problem) -> _BoundIO | _BoundLens:
+        """The parameters of this switch for *problem* (see the module's component protocol).
+
+        Raises
+        ------
+        AdditionalParameterError
+            Frame and Brown/fisheye cameras in one block, or a name no camera of the block has.
+        """
+        used = list(dict.fromkeys(self.photo_camera))
+        lens = [c for c in used if self.cameras[c].lens is not None]
+        if not lens:
+            odd = [q for q in self.parameters if q in LENS_PARAMETERS]
+            if odd:
+                raise AdditionalParameterError(
+                    f"self-calibration parameter {odd[0]!r} belongs to Brown/fisheye cameras; camera {used[0]!r} is "
+                    f"a frame camera ({', '.join(IO_PARAMETERS)}, or a set)")
+            return _BoundIO(self, problem)
+        if len(lens) < len(used):
+            frame = next(c for c in used if c not in lens)
+            raise AdditionalParameterError(
+                f"self-calibration of frame camera {frame!r} beside {self.cameras[lens[0]].model} camera "
+                f"{lens[0]!r} is not supported in one adjustment; calibrate one kind (the other fixed) at a time")
+        return _BoundLens(self, problem)
 
 
 class _BoundIO:
@@ -332,6 +406,38 @@ class _BoundIO:
         fields["xy_mm"] = xy
         fields["focal_length_mm"] = focal
 
+    def score_bias(self, theta: np.ndarray, problem, weight: np.ndarray) -> np.ndarray | None:
+        """The expected gradient at the truth of the set's extra terms (errors in variables).
+
+        The terms ``f_i`` are evaluated at the measured ``x_fot``, which carries the noise ``e`` the
+        residual carries (``v = -M e``, ``M = I - dD/dx - dA/dx``), so ``E[f_i(x + e)^T P v] =
+        -tr(G_i^T P M Sigma_e)`` per observation, ``G_i = d f_i / d x_fot``, ``Sigma_e = diag(sd^2)``,
+        ``P`` = *weight* (n, 2, 2): the weight less the part the observation's own point absorbs
+        (``W - W a V^-1 a^T W``, :mod:`.selfcal`).  None without a named set (the thesis terms are
+        left as they are).  :mod:`.selfcal` removes its effect from the converged estimate
+        (docs/cameras.md, "The cause").
+        """
+        if self.aps is None:
+            return None
+        fot = self._fot(theta)
+        sd2 = np.asarray(problem.sd_mm, dtype=float) ** 2
+        out = np.zeros(self.n)
+        n_extra = len(self.aps.extra)
+        for k in range(len(self.cams)):
+            sel = self.cam_of_obs == k
+            if not sel.any():
+                continue
+            f, extra = fot[sel], self._extra(k, theta)
+            mm = (np.eye(2)[None] - self._camera(k, theta)._distortion_jacobian(f)
+                  - self.aps.jacobian_xy(f, extra, self.b_mm[k]))
+            wms = (weight[sel] @ mm) * sd2[sel][:, None, :]                  # P M Sigma_e
+            for q in range(n_extra):
+                unit = np.zeros(n_extra)
+                unit[q] = 1.0
+                g = self.aps.jacobian_xy(f, unit, self.b_mm[k])                # d f_q / d x_fot (the set is linear)
+                out[k * self.m + self.n_io + q] = -float(np.einsum("nab,nab->", g, wms))
+        return out
+
     def jacobians(self, theta: np.ndarray, state) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
         fot = self._fot(theta)
         x, y = fot[:, 0], fot[:, 1]
@@ -363,6 +469,110 @@ class _BoundIO:
                 sel = self.cam_of_obs == k
                 J[sel, :, self.n_io:] = self.aps.jacobian(fot[sel], self.b_mm[k])
         return [("obs", np.arange(n), J, self.cols)]
+
+
+class _BoundLens:
+    """Self-calibration of Brown/fisheye cameras bound to a problem (module docstring)."""
+
+    group_kind = "camera"
+
+    def __init__(self, spec: SelfCalibration, problem):
+        if len(spec.photo_camera) != problem.n_photos:
+            raise AdditionalParameterError(f"self-calibration: {len(spec.photo_camera)} photo camera(s) given "
+                                           f"for {problem.n_photos} photos")
+        used = list(dict.fromkeys(spec.photo_camera))
+        self.cams: list[Camera] = [spec.cameras[c] for c in used]
+        cam_of_photo = np.array([used.index(c) for c in spec.photo_camera], dtype=np.int64)
+        self.cam_of_obs = cam_of_photo[problem.photo_index]
+        self.params = [lens_parameters(spec.parameters, cam.lens.PARAMETERS) for cam in self.cams]
+        for q in spec.parameters:
+            if tuple(spec.parameters) != IO_PARAMETERS and not any(q in ps for ps in self.params):
+                kinds = "; ".join(f"{cam.id!r} ({cam.model}): {', '.join(cam.lens.PARAMETERS)}" for cam in self.cams)
+                raise AdditionalParameterError(f"self-calibration parameter {q!r} is no parameter of the block's "
+                                               f"cameras ({kinds}), or 'all'")
+        self.offsets = np.cumsum([0] + [len(ps) for ps in self.params])
+        self.n = int(self.offsets[-1])
+        self.names = [f"{cam.id}.{q}" for cam, ps in zip(self.cams, self.params) for q in ps]
+        self.units = [_LENS_UNITS.get(q, "1") for ps in self.params for q in ps]
+        self.groups = [f"camera {cam.id}" for cam, ps in zip(self.cams, self.params) for _ in ps]
+        sd = [cam.sd.get(f"sd_{q}", 0.0) if spec.use_priors else 0.0
+              for cam, ps in zip(self.cams, self.params) for q in ps]
+        self.prior_sd = np.array([s if s > 0 else np.inf for s in sd], dtype=float)
+        self.calibrated = np.array([getattr(cam.lens, q) for cam, ps in zip(self.cams, self.params) for q in ps])
+        self.notes: list[str] = []
+        # the measured pixels, recovered from the problem's photo coordinates under the calibration
+        self.rows = [np.flatnonzero(self.cam_of_obs == k) for k in range(len(self.cams))]
+        self.px = np.empty_like(np.asarray(problem.xy_mm, dtype=float))
+        for k, cam in enumerate(self.cams):
+            self.px[self.rows[k]] = cam.photo_to_pixel(problem.xy_mm[self.rows[k]])
+
+    def explain(self, name: str, partner: str, eo: bool, points_m: np.ndarray, eo_params: np.ndarray) -> str | None:
+        """Why parameter *name* cannot be told from *partner* (see :meth:`_BoundIO.explain`), or None."""
+        if name not in self.names:
+            return None
+        k = next(i for i in range(len(self.cams)) if self.offsets[i] <= self.names.index(name) < self.offsets[i + 1])
+        cam, q = self.cams[k], name.split(".")[-1]
+        if eo and q in ("fx", "fy") and partner == "Z0":
+            h = points_m[:, 2]
+            rel = float(np.std(h) / max(np.mean(eo_params[:, 2]) - np.mean(h), 1e-9))
+            return (f"{q} scales the image as the flying height does and the terrain relief (sd of the point heights) "
+                    f"is {rel:.1%} of the flying height: flat terrain and near-nadir photos cannot separate them; GNSS "
+                    "camera heights or more relief can")
+        if eo and q in ("cx", "cy"):
+            return (f"a shift of the principal point moves the image as a shift or tilt of the camera ({partner}) does; "
+                    "camera positions/attitudes (GNSS/INS) or cross strips separate them")
+        other = partner.split(".")[-1] if partner in self.names else None
+        radial = ("k1", "k2", "k3", "k4")
+        if not eo and q in radial and other in radial:
+            rays = cam.lens.unproject(self.px[self.rows[k]])
+            seen = float(np.degrees(np.arccos(np.clip(rays[:, 2], -1, 1))).max())
+            corner = float(np.degrees(np.arccos(np.clip(cam.lens.unproject(cam.lens.corners_px())[:, 2], -1, 1))).max())
+            return (f"over the measured rays (up to {seen:.1f} deg from the axis; the image corner at {corner:.1f} deg) the "
+                    f"radial terms {q} and {other} change the image nearly in proportion; fix one of them, give it a prior "
+                    "sd" + (" or measure points nearer the corners" if seen < 0.9 * corner else ""))
+        return None
+
+    def _lens(self, k: int, theta: np.ndarray):
+        cam = self.cams[k]
+        lens = cam.lens
+        d = theta[self.offsets[k]:self.offsets[k + 1]]
+        if not len(d):
+            return lens
+        values = lens.params()
+        idx = [lens.PARAMETERS.index(q) for q in self.params[k]]
+        values[idx] += d
+        try:
+            return lens.with_params(values)
+        except CameraError as ex:
+            raise AdditionalParameterError(f"self-calibration of camera {cam.id!r}: the corrected parameters left "
+                                           f"the model's valid range: {ex}") from ex
+
+    def _plane(self, k: int, theta: np.ndarray) -> tuple[np.ndarray, Any]:
+        lens = self._lens(k, theta)
+        rays = lens.unproject(self.px[self.rows[k]])
+        return rays[:, :2] / rays[:, 2:], lens
+
+    def apply(self, theta: np.ndarray, fields: dict[str, Any]) -> None:
+        xy = np.array(fields["xy_mm"], dtype=float)
+        for k, cam in enumerate(self.cams):
+            n, _ = self._plane(k, theta)
+            c = cam.focal_length_mm
+            xy[self.rows[k]] = np.column_stack([c * n[:, 0], -c * n[:, 1]])
+        fields["xy_mm"] = xy
+
+    def jacobians(self, theta: np.ndarray, state) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
+        out = []
+        for k, cam in enumerate(self.cams):
+            if not len(self.params[k]) or not len(self.rows[k]):
+                continue
+            n, lens = self._plane(k, theta)
+            _, j_ray, j_par = lens.project_jacobians(np.column_stack([n, np.ones(len(n))]))
+            idx = [lens.PARAMETERS.index(q) for q in self.params[k]]
+            J = np.linalg.solve(j_ray[:, :, :2], j_par[:, :, idx])         # -dn/dtheta
+            J *= np.array([cam.focal_length_mm, -cam.focal_length_mm])[None, :, None]
+            cols = np.broadcast_to(self.offsets[k] + np.arange(len(idx)), (len(n), len(idx)))
+            out.append(("obs", self.rows[k], J, cols))
+        return out
 
 
 # ---------------------------------------------------------------------------

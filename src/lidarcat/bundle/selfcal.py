@@ -47,6 +47,12 @@ the parameters, so each linearisation works on an *effective problem* (the
 corrected photo coordinates under the current interior orientation, the
 source's control moved into the reference frame): :class:`.NormalSystem` gives the
 ordinary blocks, the components add the bordering.
+
+Errors in variables.  A named set's terms are evaluated at the measured photo coordinates,
+whose noise the residuals share, so the gradient's expectation at the truth is not 0
+(``beta``, a component's ``score_bias``) and the least-squares estimate is biased by
+``-N^-1 beta``; after convergence one more solve removes it: ``x + N^-1 beta``
+(docs/cameras.md, "The cause").
 """
 
 from __future__ import annotations
@@ -127,6 +133,7 @@ class _BorderedSystem:
         ei, pj = pe.photo_index, pe.point_index
         xy, a_pt, a_ang, _ = observation_parts(pe, eo, pts)
         a_eo = np.concatenate([-a_pt, a_ang], axis=2)
+        self.a_pt = a_pt
         state = _State(pe, xy, eo, pts, a_pt)
         w_obs = 1.0 / pe.sd_mm**2
         rc, re = sys.r_con, sys.r_eo
@@ -196,6 +203,50 @@ class _BorderedSystem:
         if want_cov:
             return dc, dp, dg, (X.reshape(pe.n_photos, 6, k), H, T, vinv)
         return dc, dp, dg
+
+
+def _score_bias(gl: _Globals, theta: np.ndarray, bs: _BorderedSystem) -> np.ndarray | None:
+    """The components' expected gradients at the truth (``score_bias``), or None when none has one.
+
+    Each observation's weight less the part its own point absorbs, ``P = W - W a V_j^-1 a^T W``
+    (``a`` = d x / d point, ``V_j`` the point's normal block with its constraints): the residual
+    at the solution keeps ``(I - H)`` of the noise, and only the diagonal block of ``H`` enters a
+    trace per observation (the photos' share, 6 unknowns over hundreds of rays, is left out).
+    """
+    if not any(hasattr(b, "score_bias") for b in gl.parts):
+        return None
+    pe = bs.pe
+    w = 1.0 / np.asarray(pe.sd_mm, dtype=float) ** 2
+    wa = bs.a_pt * w[:, :, None]                                           # (n, 2, 3)
+    vinv = inv3(bs.sys.V)[pe.point_index]
+    weight = np.einsum("ij,ni->nij", np.eye(2), w) - wa @ vinv @ np.transpose(wa, (0, 2, 1))
+    parts, found = [], False
+    for b, o in zip(gl.parts, gl.offsets):
+        f = getattr(b, "score_bias", None)
+        v = f(theta[o:o + b.n], gl.problem, weight) if f is not None else None
+        found = found or v is not None
+        parts.append(np.zeros(b.n) if v is None else np.asarray(v, dtype=float))
+    return np.concatenate(parts) if found and parts else None
+
+
+def _bias_corrected(bs: _BorderedSystem, beta: np.ndarray, eo: np.ndarray, pts: np.ndarray,
+                    theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The converged estimate less its bias: ``x + N^-1 beta`` (one solve of the bordered system).
+
+    At the least-squares solution ``g(x) = 0 = g(x*) + N (x - x*)``, so ``E[x - x*] = -N^-1 E[g(x*)]
+    = -N^-1 beta`` where the gradient's expectation at the truth is not 0 (the errors-in-variables
+    terms of :meth:`lidarcat.bundle.additional.SelfCalibration`'s named sets).
+    """
+    sys = bs.sys
+    saved = sys.g_c, sys.g_p, bs.gg
+    sys.g_c, sys.g_p, bs.gg = np.zeros_like(sys.g_c), np.zeros_like(sys.g_p), -beta
+    try:
+        dc, dp, dg = bs.solve(0.0)
+    finally:
+        sys.g_c, sys.g_p, bs.gg = saved
+    eo = eo + dc
+    eo[:, 3:] = (eo[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+    return eo, pts + dp, theta + dg
 
 
 class _State:
@@ -586,6 +637,11 @@ def adjust_with_parameters(
             if small and dcost < tol_vtpv:
                 status = "converged"
                 break
+        beta = _score_bias(gl, theta, bs) if status == "converged" else None
+        if beta is not None:                       # errors in variables: remove the bias of the estimate
+            eo, pts, theta = _bias_corrected(bs, beta, eo, pts, theta)
+            bs = _BorderedSystem(gl, eo, pts, theta, schur)
+            history.append(bs.vtpv)
         _, _, _, (X, H, T, vinv) = bs.solve(0.0, want_cov=True)
         eo_cov, point_cov = covariance_blocks(bs.sys, precision if precision != "none" else "photos")
     except SingularSystem as ex:

@@ -100,8 +100,14 @@ def info(source: str | None, as_json: bool) -> None:
         click.echo(f"  focal length c          {s['focal_length_mm']:.4f} mm")
         click.echo(f"  principal point dx, dy  {s['principal_point_x_mm']:+.4f}, "
                    f"{s['principal_point_y_mm']:+.4f} mm")
-        click.echo(f"  k1, k2, k3              {s['k1']:.6e}, {s['k2']:.6e}, {s['k3']:.6e}")
-        click.echo(f"  p1, p2                  {s['p1']:.6e}, {s['p2']:.6e}")
+        if s.get("lens"):                      # a Brown/fisheye camera: its model's parameters (px, normalised)
+            lens = s["lens"]
+            click.echo(f"  {lens['model'] + ' model':<24}" + ", ".join(
+                f"{k} {v:.6g}" for k, v in lens.items() if k not in ("model", "source", "pixel_size_mm")
+                and not k.startswith("sd_")))
+        else:
+            click.echo(f"  k1, k2, k3              {s['k1']:.6e}, {s['k2']:.6e}, {s['k3']:.6e}")
+            click.echo(f"  p1, p2                  {s['p1']:.6e}, {s['p2']:.6e}")
         click.echo(f"  refraction eps45        {s['refraction_eps45']:g}")
         click.echo(f"  image                   {s['columns_px']} x {s['rows_px']} px of "
                    f"{s['pixel_size_x_mm'] * 1000:g} x {s['pixel_size_y_mm'] * 1000:g} um = "

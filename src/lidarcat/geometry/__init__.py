@@ -4,6 +4,9 @@
 ``camera``        Interior orientation of a non-metric digital camera (thesis section 2.1.1, eq. 01-07).
 ``collinearity``  Collinearity equations, rotation matrices and their analytic derivatives.
 ``models``        Camera models as a family: frame (the thesis camera), normalised Brown, fisheye (Kannala-Brandt).
+``modelbase``     What every camera model shares: the CameraModel interface, array shapes, value and ray checks.
+``brown``         The normalised Brown-Conrady camera (OpenCV, COLMAP, OpenSfM/ODM, Metashape).
+``fisheye``       The equidistant Kannala-Brandt fisheye (OpenCV fisheye, COLMAP OPENCV_FISHEYE, OpenSfM).
 ``conversion``    Conversions between camera models (exact, or fitted with their residual); COLMAP and Metashape parameters.
 ``apsets``        Self-calibration parameter sets by name (thesis, brown, ebner, gruen) and their correction polynomials.
 ``rolling``       Rolling shutter: projection with the row's read-out time solved, and its Jacobians.

@@ -66,6 +66,31 @@ Example
 >>> cam.pixel_to_photo([[50.0, 25.0], [100.0, 0.0]])
 array([[0.  , 0.  ],
        [0.5 , 0.25]])
+
+Cameras of other models (issue 27)
+----------------------------------
+A camera table with ``model = "brown"`` or ``model = "fisheye"`` holds a
+:class:`~lidarcat.geometry.brown.BrownCamera` or
+:class:`~lidarcat.geometry.fisheye.FisheyeCamera` (pixels: ``width_px, height_px, fx, fy, cx, cy``
+and the distortion, named as in the model's ``PARAMETERS``; ``sd_<parameter>`` beside them).
+The :class:`Camera` built from it (:meth:`Camera.from_model`) keeps the model as :attr:`Camera.lens`
+and is, for everything else, a frame camera without distortion -- the model's *pinhole*: with a
+nominal pixel pitch ``t`` (``pixel_size_mm``, default :data:`LENS_PIXEL_SIZE_MM`; only the unit
+of the photo coordinates, it changes no result) ::
+
+    c = fx t,   t_x = t,   t_y = c / fy,
+    dx = (cx - (N_c - 1)/2) t_x,   dy = -(cy - (N_L - 1)/2) t_y
+
+so ``x_fot`` of eq. 01-02 is the pixel's linear part.  Its "distortion" is the model's whole
+departure from that pinhole: the corrected photo coordinate of a pixel is the image-plane
+coordinate of its ray, ``x_fotc = c (X/Z, -Y/Z)`` with ``(X, Y, Z)`` = ``lens.unproject(pixel)``,
+so ``D(x_fot) = x_fot - x_fotc`` and ``dD/dx_fot = I - c diag(1, -1) (d px / d n)^-1 diag(1/t_x, -1/t_y)``
+(``n = (X/Z, Y/Z)``, ``d px / d n`` from the model's analytic ray Jacobian); the inverse
+(:meth:`Camera.photo_to_pixel`) is the model's projection of the ray ``(x/c, -y/c, 1)``.  The
+bundle, the mapping and every other user of :class:`Camera` so work on the model's exact
+geometry; :meth:`Camera.distortion_corrections` gives the whole correction as ``dx_ra, dy_ra``
+(decentering and refraction columns 0).  A ray at 90 deg or more from the axis (a fisheye's
+outer field) has no image-plane coordinate: its photo coordinate is NaN.
 """
 
 from __future__ import annotations
@@ -75,6 +100,7 @@ import logging
 import math
 import re
 from collections.abc import Mapping
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -84,8 +110,11 @@ import numpy as np
 
 from .._util import excerpt, read_toml, toml_line
 from ..errors import CameraError, SurveyError, location
+from .brown import BrownCamera
+from .fisheye import FisheyeCamera
 
-__all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS", "MOTION_KEYS", "MAX_RADIAL_SHARE"]
+__all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS", "MOTION_KEYS", "MAX_RADIAL_SHARE",
+           "LENS_MODELS", "LENS_PIXEL_SIZE_MM"]
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +146,15 @@ SANE_RANGES: dict[str, tuple[float, float]] = {
     "columns_px": (1, 1_000_000),
     "rows_px": (1, 1_000_000),
 }
+
+
+#: camera models a camera table may name besides the frame camera (``model = "brown"``)
+LENS_MODELS: dict[str, type] = {"brown": BrownCamera, "fisheye": FisheyeCamera}
+#: the nominal pixel pitch of a Brown or fisheye camera (mm): the unit of its photo coordinates only
+LENS_PIXEL_SIZE_MM = 0.005
+#: keys only a Brown or fisheye table holds (a frame table with one of them names no known model)
+_LENS_ONLY_KEYS = ("width_px", "height_px", "fx", "fy", "cx", "cy", "skew", "k4", "pixel_size_mm")
+_MODEL_NAMES = ("frame",) + tuple(LENS_MODELS)
 
 
 def _short(name: str) -> str:
@@ -171,7 +209,11 @@ class Camera:
         Free text: camera/lens model; citation of the calibration.
     sd : Mapping[str, float]
         Standard deviations of the calibration, keyed ``sd_<field>`` (e.g.
-        ``sd_focal_length_mm``, ``sd_k1``); all optional, each >= 0.
+        ``sd_focal_length_mm``, ``sd_k1``); all optional, each >= 0.  With a
+        *lens*: ``sd_<parameter>`` of the model (``sd_fx``, ``sd_k1``, ...).
+    lens : BrownCamera or FisheyeCamera, optional
+        A camera of another model (see "Cameras of other models" in the module
+        docstring; build it with :meth:`from_model`).  None: the thesis camera.
     readout_time_ms : float
         Rolling shutter: time to read the image out from the top to the bottom row, ms
         (0, the default: a global shutter; :mod:`lidarcat.bundle.rolling`).
@@ -204,6 +246,7 @@ class Camera:
     source: str = ""
     sd: Mapping[str, float] = field(default_factory=dict)
     readout_time_ms: float = 0.0
+    lens: BrownCamera | FisheyeCamera | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id.strip():
@@ -243,9 +286,15 @@ class Camera:
             if not isinstance(getattr(self, name), str):
                 raise _camera_error(name, f"must be text, got {excerpt(getattr(self, name))}")
         sd: dict[str, float] = {}
+        sd_keys = SD_KEYS
+        if self.lens is not None:
+            if not isinstance(self.lens, (BrownCamera, FisheyeCamera)):
+                raise _camera_error("model", f"a lens must be a BrownCamera or FisheyeCamera, got "
+                                             f"{type(self.lens).__name__}")
+            sd_keys = tuple(f"sd_{q}" for q in self.lens.PARAMETERS)
         for key, raw in dict(self.sd).items():
-            if key not in SD_KEYS:
-                raise _camera_error(key, f"unknown standard-deviation key; allowed: {', '.join(SD_KEYS)}")
+            if key not in sd_keys:
+                raise _camera_error(key, f"unknown standard-deviation key; allowed: {', '.join(sd_keys)}")
             if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)):
                 raise _camera_error(key, f"must be a number, got {excerpt(raw)}")
             v = float(raw)
@@ -333,6 +382,8 @@ class Camera:
 
     def to_dict(self) -> dict[str, Any]:
         """All parameters as a flat dict (the keys of a ``camera.toml`` table plus ``id``)."""
+        if self.lens is not None:
+            return {"id": self.id, **self._lens_dict()}
         out: dict[str, Any] = {"id": self.id}
         for name in CAMERA_KEYS:
             out[name] = getattr(self, name)
@@ -342,14 +393,110 @@ class Camera:
         return out
 
     @classmethod
+    def from_model(cls, lens: BrownCamera | FisheyeCamera, *, pixel_size_mm: float = LENS_PIXEL_SIZE_MM,
+                   source: str = "", sd: Mapping[str, float] | None = None,
+                   readout_time_ms: float = 0.0) -> Camera:
+        """The camera of a Brown or fisheye model: its pinhole as a frame camera, the model as :attr:`lens`.
+
+        Parameters
+        ----------
+        lens : BrownCamera or FisheyeCamera
+        pixel_size_mm : float
+            The nominal pixel pitch ``t`` (module docstring): the unit of the photo coordinates.
+        source : str
+            Citation of the calibration.
+        sd : mapping, optional
+            ``sd_<parameter>`` of the model (pixels, dimensionless), the priors of a self-calibration.
+        readout_time_ms : float
+            Rolling-shutter read-out time, ms (0: a global shutter).
+
+        >>> cam = Camera.from_model(BrownCamera("b", 4000, 3000, fx=3000.0, fy=3000.0, cx=1999.5, cy=1499.5))
+        >>> cam.focal_length_mm, cam.pixel_to_photo([2999.5, 1499.5])
+        (15.0, array([5., 0.]))
+        """
+        if not isinstance(lens, (BrownCamera, FisheyeCamera)):
+            raise _camera_error("model", f"a lens must be a BrownCamera or FisheyeCamera, got {type(lens).__name__}")
+        t = pixel_size_mm
+        if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not (
+                math.isfinite(float(t)) and float(t) > 0):
+            raise _camera_error("pixel_size_mm", f"must be a positive number, got {excerpt(t)}")
+        t = float(t)
+        c = lens.fx * t
+        ty = c / lens.fy
+        return cls(lens.id, focal_length_mm=c,
+                   principal_point_x_mm=(lens.cx - (lens.width_px - 1) / 2.0) * t,
+                   principal_point_y_mm=-(lens.cy - (lens.height_px - 1) / 2.0) * ty,
+                   k1=0.0, k2=0.0, k3=0.0, p1=0.0, p2=0.0, refraction_eps45=0.0,
+                   pixel_size_x_mm=t, pixel_size_y_mm=ty, columns_px=lens.width_px, rows_px=lens.height_px,
+                   model=lens.KIND, source=source, sd=dict(sd or {}), lens=lens, readout_time_ms=readout_time_ms)
+
+    @classmethod
+    def _lens_from_dict(cls, camera_id: str, kind: str, table: Mapping[str, Any]) -> Camera:
+        """A ``model = "brown"`` / ``"fisheye"`` table (module docstring)."""
+        model_cls = LENS_MODELS[kind]
+        params = model_cls.PARAMETERS
+        keys = ("model", "source", "width_px", "height_px", "pixel_size_mm") + params + tuple(
+            f"sd_{q}" for q in params) + MOTION_KEYS
+        for key in table:
+            if key not in keys:
+                raise _camera_error(key, f"unknown key of a {kind} camera; allowed: " + ", ".join(keys))
+        required = ("width_px", "height_px") + tuple(f for f in model_cls.__dataclass_fields__
+                                                     if f in params and model_cls.__dataclass_fields__[f].default
+                                                     is dataclasses.MISSING)
+        for key in required:
+            if key not in table:
+                raise _camera_error(key, f"missing (required for a {kind} camera)")
+        source = table.get("source", "")
+        if not isinstance(source, str):
+            raise _camera_error("source", f"must be text, got {excerpt(source)}")
+        try:
+            lens = model_cls(camera_id, **{k: table[k] for k in ("width_px", "height_px") + params if k in table})
+        except CameraError as ex:
+            m = re.search(r"field '(\w+)': (.*)$", str(ex), re.S)
+            if m is None:
+                raise _camera_error("model", str(ex)) from ex
+            raise _camera_error(m.group(1), m.group(2)) from ex
+        sd = {k: table[k] for k in table if k.startswith("sd_")}
+        return cls.from_model(lens, pixel_size_mm=table.get("pixel_size_mm", LENS_PIXEL_SIZE_MM), source=source,
+                              sd=sd, readout_time_ms=table.get("readout_time_ms", 0.0))
+
+    def _lens_dict(self) -> dict[str, Any]:
+        """The table of a Brown or fisheye camera (``model``, size, parameters, pitch, sds)."""
+        lens = self.lens
+        assert lens is not None
+        out: dict[str, Any] = {"model": lens.KIND}
+        if self.source:
+            out["source"] = self.source
+        out.update({"width_px": lens.width_px, "height_px": lens.height_px})
+        out.update({q: getattr(lens, q) for q in lens.PARAMETERS})
+        out["pixel_size_mm"] = self.pixel_size_x_mm
+        out.update(self.sd)
+        if self.readout_time_ms:
+            out["readout_time_ms"] = self.readout_time_ms
+        return out
+
+    @classmethod
     def from_dict(cls, camera_id: str, table: Mapping[str, Any]) -> Camera:
         """Build a camera from a ``camera.toml`` table (flat ``sd_*`` keys).
+
+        ``model = "brown"`` or ``"fisheye"`` makes a camera of that model (module docstring);
+        any other ``model`` text describes a frame camera (``"Kodak DCS Pro 14n"``).
 
         Raises
         ------
         CameraError
-            Unknown or missing key, or an invalid value (names the field).
+            Unknown or missing key, or an invalid value (names the field); a table with the keys
+            of a Brown/fisheye camera (``fx``, ``width_px``, ...) whose ``model`` is no known model.
         """
+        kind = table.get("model")
+        if isinstance(kind, str) and kind.strip().lower() in LENS_MODELS:
+            return cls._lens_from_dict(camera_id, kind.strip().lower(), table)
+        lens_keys = [k for k in _LENS_ONLY_KEYS if k in table]
+        if lens_keys and not any(k in table for k in _FLOAT_KEYS + _INT_KEYS):
+            if kind is None:
+                raise _camera_error(lens_keys[0], "a camera with " + ", ".join(lens_keys) + " needs model = "
+                                    "\"brown\" or \"fisheye\" (a frame camera has focal_length_mm, ...)")
+            raise _camera_error("model", f"unknown camera model {excerpt(kind)}; known: " + ", ".join(_MODEL_NAMES))
         known = set(CAMERA_KEYS) | set(SD_KEYS) | set(MOTION_KEYS)
         for key in table:
             if key not in known:
@@ -370,6 +517,10 @@ class Camera:
         """
         key = self.id if re.fullmatch(r"[A-Za-z0-9_-]+", self.id) else _toml_str(self.id)
         lines = [f"[{key}]"]
+        if self.lens is not None:
+            for name, v in self._lens_dict().items():
+                lines.append(f"{name} = {_toml_str(v) if isinstance(v, str) else repr(v)}")
+            return "\n".join(lines) + "\n"
         for name in _STR_KEYS:
             if getattr(self, name):
                 lines.append(f"{name} = {_toml_str(getattr(self, name))}")
@@ -403,7 +554,10 @@ class Camera:
         corr = fot - np.asarray(self.pixel_to_photo(border))
         mag = np.hypot(corr[:, 0], corr[:, 1])
         w, h = self.frame_size_mm
-        out = self.to_dict()
+        if self.lens is None:
+            out = self.to_dict()
+        else:                                  # the pinhole's frame keys, the model's table under "lens"
+            out = {"id": self.id, **{name: getattr(self, name) for name in CAMERA_KEYS}, "lens": self._lens_dict()}
         out.update({
             "frame_width_mm": w, "frame_height_mm": h,
             "half_diagonal_mm": math.hypot(w, h) / 2,
@@ -461,6 +615,12 @@ class Camera:
             the values subtracted in eq. 07, signs as printed in Appendix 1.
         """
         xy, single = _as_points(xy_fot_mm, "xy_fot_mm")
+        if self.lens is not None:                          # the model's whole correction (module docstring)
+            d = self._total_distortion(xy)
+            z = np.zeros(len(xy))
+            out = {"dx_ra": d[:, 0], "dy_ra": d[:, 1], "dx_des": z, "dy_des": z.copy(), "dx_ref": z.copy(),
+                   "dy_ref": z.copy()}
+            return {k: v[0] for k, v in out.items()} if single else out
         x, y = xy[:, 0], xy[:, 1]
         r2 = x * x + y * y
         radial = r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
@@ -479,13 +639,43 @@ class Camera:
             out = {k: v[0] for k, v in out.items()}
         return out
 
+    # -------------------------------------------------- a Brown or fisheye lens (module docstring)
+    def _fot_to_pixel(self, xy: np.ndarray) -> np.ndarray:
+        pfid = xy + np.array([self.principal_point_x_mm, self.principal_point_y_mm])
+        return np.asarray(self.image_centre_to_pixel(pfid)).reshape(-1, 2)
+
+    def _lens_plane(self, xy: np.ndarray) -> np.ndarray:
+        """Image-plane coordinates n = (X/Z, Y/Z) of the rays of the pixels at x_fot *xy*; NaN at or beyond 90 deg."""
+        assert self.lens is not None
+        rays = self.lens.unproject(self._fot_to_pixel(xy), on_fail="nan")
+        with np.errstate(all="ignore"):
+            n = rays[:, :2] / rays[:, 2:]
+        n[~(rays[:, 2] > 1e-9)] = np.nan
+        return n
+
     def _total_distortion(self, xy: np.ndarray) -> np.ndarray:
+        if self.lens is not None:
+            n = self._lens_plane(xy)
+            c = self.focal_length_mm
+            return xy - np.column_stack([c * n[:, 0], -c * n[:, 1]])
         d = self.distortion_corrections(xy)
         return np.column_stack([d["dx_ra"] + d["dx_des"] + d["dx_ref"],
                                 d["dy_ra"] + d["dy_des"] + d["dy_ref"]])
 
     def _distortion_jacobian(self, xy: np.ndarray) -> np.ndarray:
         """d(total distortion)/d(x_fot, y_fot), shape (N, 2, 2)."""
+        if self.lens is not None:
+            n = self._lens_plane(xy)
+            ok = np.isfinite(n).all(axis=1)
+            jac = np.full((len(xy), 2, 2), np.nan)
+            if ok.any():
+                _, j_ray, _ = self.lens.project_jacobians(np.column_stack([n[ok], np.ones(int(ok.sum()))]))
+                dn_dpx = np.linalg.inv(j_ray[:, :, :2])
+                c = self.focal_length_mm
+                d = (np.array([c, -c])[None, :, None] * dn_dpx
+                     * np.array([1 / self.pixel_size_x_mm, -1 / self.pixel_size_y_mm])[None, None, :])
+                jac[ok] = np.eye(2)[None] - d
+            return jac
         x, y = xy[:, 0], xy[:, 1]
         r2 = x * x + y * y
         radial = r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
@@ -531,6 +721,28 @@ class Camera:
         j = np.eye(2)[None] - self._distortion_jacobian(fot)
         return j * np.array([self.pixel_size_x_mm, -self.pixel_size_y_mm])[None, None, :]
 
+    def photo_sd(self, colrow_px: Any, sd_px: Any) -> np.ndarray:
+        """Per-axis sds (mm) of the corrected photo coordinates of pixels measured with sds *sd_px*.
+
+        ``Sigma_xy = J diag(sd_px^2) J^T`` with ``J`` = :meth:`pixel_to_photo_jacobian`; the square
+        roots of its diagonal (the bundle weighs per axis; the x-y correlation, which a Brown or
+        fisheye camera's anisotropic stretch brings in, is left out).
+
+        Parameters
+        ----------
+        colrow_px : array_like, (N, 2)
+        sd_px : array_like, (N, 2) or scalar
+            Column and row sds of the measurements, pixels.
+
+        Returns
+        -------
+        ndarray, (N, 2)
+        """
+        cr, _ = _as_points(colrow_px, "colrow_px")
+        j = np.asarray(self.pixel_to_photo_jacobian(cr)).reshape(-1, 2, 2)
+        s = np.broadcast_to(np.asarray(sd_px, dtype=float), (len(cr), 2))
+        return np.sqrt(np.einsum("nij,nj->ni", j * j, s * s))
+
     def photo_to_fot(self, xy_mm: Any, *, tol_mm: float = 1e-10, max_iter: int = 50,
                      on_fail: str = "raise") -> np.ndarray:
         """Invert eq. 07: corrected photo coordinates -> x_fot, y_fot (Newton, vectorised).
@@ -556,6 +768,8 @@ class Camera:
         if on_fail not in ("raise", "nan"):
             raise ValueError("on_fail must be 'raise' or 'nan'")
         target, single = _as_points(xy_mm, "xy_mm")
+        if self.lens is not None:
+            return _out(self._lens_photo_to_fot(target, on_fail), single)
         fot = target.copy()
         todo = np.isfinite(target).all(axis=1)
         done = ~todo
@@ -593,6 +807,25 @@ class Camera:
             fot[failed] = np.nan
         fot[~np.isfinite(target).all(axis=1)] = np.nan
         return _out(fot, single)
+
+    def _lens_photo_to_fot(self, xy: np.ndarray, on_fail: str) -> np.ndarray:
+        """x_fot of corrected photo coordinates through the lens's projection of the ray (x/c, -y/c, 1)."""
+        assert self.lens is not None
+        c = self.focal_length_mm
+        rays = np.column_stack([xy[:, 0] / c, -xy[:, 1] / c, np.ones(len(xy))])
+        good = np.isfinite(xy).all(axis=1)
+        px = np.full((len(xy), 2), np.nan)
+        try:
+            px[good] = self.lens.project(rays[good])
+        except CameraError:
+            if on_fail == "raise":
+                raise
+            for i in np.flatnonzero(good):                 # the rare failing call: point by point
+                try:
+                    px[i] = self.lens.project(rays[i])[0]
+                except CameraError:
+                    pass
+        return np.asarray(self.pixel_to_fot(px)).reshape(-1, 2)
 
     def photo_to_pixel(self, xy_mm: Any, *, tol_mm: float = 1e-10, max_iter: int = 50,
                        on_fail: str = "raise") -> np.ndarray:

@@ -95,9 +95,39 @@ __all__ = [
     "PEC_CLASSES",
     "PLOTTING_POSITIONS",
     "SD_BOUNDS",
+    "MAX_IMAGE_PLANE_ANGLE_DEG",
 ]
 
 log = logging.getLogger(__name__)
+
+#: a ray of a Brown or fisheye camera farther than this from the optical axis is refused as an observation:
+#: the bundle observes image-plane coordinates c (X/Z, -Y/Z), which grow as tan(angle) and whose sd grows as
+#: 1 / cos^2(angle) (sd x 33 at 80 deg); at 90 deg there is none (docs/cameras.md, "Cameras in the survey")
+MAX_IMAGE_PLANE_ANGLE_DEG = 80.0
+
+
+def _lens_observations(cam: Camera, px: np.ndarray, sd_mm: np.ndarray, path: Any, line: np.ndarray,
+                       photo: str) -> tuple[np.ndarray, np.ndarray]:
+    """Photo coordinates and their per-axis sds of the pixels *px* of a Brown/fisheye photo.
+
+    The sd (mm at the pixel, the pitch times the pixel sd) is carried through the model
+    (:meth:`~lidarcat.geometry.camera.Camera.photo_sd`: the per-axis sds of ``J Sigma_px J^T``).
+    """
+    xy = np.asarray(cam.pixel_to_photo(px)).reshape(-1, 2)
+    n = xy / cam.focal_length_mm
+    with np.errstate(all="ignore"):
+        angle = np.degrees(np.arctan(np.hypot(n[:, 0], n[:, 1])))
+    far = ~(angle <= MAX_IMAGE_PLANE_ANGLE_DEG)
+    if far.any():
+        i = int(np.flatnonzero(far)[0])
+        seen = "at 90 deg or more" if not np.isfinite(angle[i]) else f"{angle[i]:.1f} deg"
+        raise SurveyError(
+            f"{location(path, int(line[i]), 'col_px')}: photo {excerpt(photo)}: {int(far.sum())} measurement(s) "
+            f"of camera {excerpt(cam.id)} ({cam.model}) see rays more than {MAX_IMAGE_PLANE_ANGLE_DEG:g} deg from "
+            f"the optical axis (this one {seen}): the bundle observes image-plane coordinates, which do not "
+            f"exist at 90 deg and are too weak beyond; exclude those points ([adjustment] exclude_points) or "
+            f"crop the measurements to the central field")
+    return xy, cam.photo_sd(px, sd_mm / np.array([cam.pixel_size_x_mm, cam.pixel_size_y_mm]))
 
 
 def relative_path(path: str | Path, folder: str | Path) -> str:
@@ -523,10 +553,16 @@ class Survey:
             xy = np.empty((len(ip), 2))
             for p in self.photos:
                 rows = ip.photo == p.id
-                if rows.any():
+                if rows.any() and self.cameras[p.camera].lens is None:
                     xy[rows] = self.cameras[p.camera].pixel_to_photo(ip.pixel_px[rows])
         sd = ip.sd_mm.copy()
         sd[~np.isfinite(sd)] = self.settings.image_sd_mm
+        if kind == "pixel":                                 # Brown/fisheye photos: through the model
+            for p in self.photos:
+                rows = np.flatnonzero(ip.photo == p.id)
+                if len(rows) and self.cameras[p.camera].lens is not None:
+                    xy[rows], sd[rows] = _lens_observations(self.cameras[p.camera], ip.pixel_px[rows], sd[rows],
+                                                            ip.path, ip.line[rows], p.id)
         return ImagePoints(ip.photo, ip.point, ip.pixel_px, xy, sd, ip.line, ip.path)
 
     def control_set(self, name: str | None = None) -> ControlSet:
