@@ -105,6 +105,7 @@ __all__ = [
     "CalibrationResult",
     "georeference",
     "geolocation_partials",
+    "pulses_from_points",
     "lidar_heights_at",
     "vertical_accuracy",
     "estimate_system_parameters",
@@ -321,6 +322,50 @@ def geolocation_partials(pulses: PulseRecords, params: SystemParameters | None =
         jac[:, :, k] = np.einsum("nij,nj->ni", ins, c)
     jac[:, 2, 3] = 1.0
     return jac
+
+
+def pulses_from_points(points_m: np.ndarray, sensor_m: np.ndarray, attitude_rad: np.ndarray,
+                       strip: np.ndarray) -> tuple[PulseRecords, np.ndarray]:
+    """Rebuild pulse records from delivered points and the trajectory at their GPS times.
+
+    A LAS file holds the georeferenced point ``P``, not its range and scan
+    angle.  With the sensor position ``g`` and INS attitude at the point's GPS
+    time (:meth:`lidarcat.lidar.trajectory.Trajectory.at`), and the points taken
+    as the raw cloud (all four parameters zero, ``P = g + R_ins u``), the body
+    vector is ``u = R_ins^T (P - g)``, so::
+
+        rho = |u|,   theta = atan2(u_y, -u_z),   alpha = asin(u_x / rho)
+
+    ``alpha`` (the along-track angle) is zero for a scanner sweeping across
+    track; a non-zero ``alpha`` is the pitch already applied by the software
+    that made the points, or a trajectory that does not match them, and it is
+    returned for the report.
+
+    Parameters
+    ----------
+    points_m : (N, 3) float
+    sensor_m, attitude_rad : (N, 3) float
+        Trajectory at each point's time (map frame, module docstring convention).
+    strip : (N,) int
+        Flight line (LAS point source id).
+
+    Returns
+    -------
+    pulses : PulseRecords
+    along_track_rad : (N,) float
+    """
+    p = np.asarray(points_m, dtype=float)
+    g = np.asarray(sensor_m, dtype=float)
+    att = np.asarray(attitude_rad, dtype=float)
+    u = np.einsum("nji,nj->ni", _ins(att), p - g)    # R_ins^T (P - g)
+    rho = np.linalg.norm(u, axis=1)
+    if np.any(rho <= 0):
+        i = int(np.flatnonzero(rho <= 0)[0])
+        raise ProductError(f"point {i + 1}: at the sensor position (zero range); the trajectory does not "
+                           "match the points")
+    theta = np.arctan2(u[:, 1], -u[:, 2])
+    alpha = np.arcsin(np.clip(u[:, 0] / rho, -1.0, 1.0))
+    return PulseRecords(g, att, rho, theta, np.asarray(strip, dtype=np.int64)), alpha
 
 
 # ----------------------------------------------------------------------------- vertical accuracy

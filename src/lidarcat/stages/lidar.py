@@ -28,7 +28,8 @@ import numpy as np
 
 from ..errors import ProductError
 
-__all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid", "vertical_check"]
+__all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid", "vertical_check",
+           "system_calibration"]
 
 
 def _jobs(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, **kw: Any) -> list[Any]:
@@ -333,4 +334,104 @@ def vertical_check(tiles: Sequence[str | os.PathLike], checkpoints: str | os.Pat
               "classes": None if classes is None else list(classes), "checkpoints": str(checkpoints),
               "tiles": [str(t) for t in tiles], "files": [str(out), str(csv_path)]}
     write_json_atomic(out, report)
+    return report
+
+
+def _read_control(path: str | os.PathLike) -> np.ndarray:
+    """Surveyed control-surface points ``id,E,N,H`` (CSV) as an (M, 3) array."""
+    from .._util.tables import read_csv_table
+    from ..errors import SurveyError
+
+    table = read_csv_table(path, ("id", "E", "N", "H"), ("vegetated",))
+    if len(table.rows) < 3:
+        raise SurveyError(f"{path}: {len(table.rows)} control points; a control surface needs at least 3")
+    return np.column_stack([table.floats("E"), table.floats("N"), table.floats("H")])
+
+
+def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.PathLike,
+                       output: str | os.PathLike, *, crs: Any = None, control: str | os.PathLike | None = None,
+                       classes: Sequence[int] | None = None, stride: int = 1, sd_control_m: float = 0.05,
+                       sd_strip_m: float = 0.05, radius_m: float = 2.5, max_plane_rms_m: float = 0.15,
+                       progress: Callable[[int, int], Any] | None = None) -> dict[str, Any]:
+    """Roll/pitch boresight, scan-angle scale and elevation bias from LiDAR tiles and the flight's trajectory
+    (``lidarcat lidar calibrate``, report 7.1.2).
+
+    The points' GPS times are matched to the trajectory (SBET or CSV,
+    :mod:`lidarcat.lidar.trajectory`); range and scan angle are rebuilt from
+    point and sensor (:func:`lidarcat.production.lidarchecks.pulses_from_points`);
+    the flight lines are the points' ``point_source_id``; the parameters are
+    estimated by :func:`lidarcat.production.lidarchecks.estimate_system_parameters`.
+
+    Parameters
+    ----------
+    tiles : sequence of path
+        LAS/LAZ tiles with ``gps_time`` and ``point_source_id``.
+    trajectory : path
+        SBET (``.out``/``.sbet``) or CSV (``.csv``) trajectory.
+    output : path
+        The JSON report.
+    crs : CRS-like, optional
+        CRS of the tiles when they carry none (the SBET is projected into it).
+    control : path, optional
+        Surveyed control surface (the runway), CSV ``id,E,N,H``; without it the
+        elevation bias is not estimated.
+    classes : sequence of int, optional
+        Use only points of these classes (default: all).
+    stride : int
+        Use every ``stride``-th point of the tiles (thins large tiles).
+    sd_control_m, sd_strip_m, radius_m, max_plane_rms_m, progress
+        :func:`~lidarcat.production.lidarchecks.estimate_system_parameters`.
+
+    Raises
+    ------
+    ProductError
+        A tile without GPS times or point source ids, points outside the
+        trajectory (names the first), fewer than two flight lines without a
+        control surface, or a singular adjustment.
+    """
+    from .._util.tables import write_json_atomic
+    from ..lidar.crs import resolve_crs
+    from ..lidar.readers import read_points
+    from ..lidar.trajectory import match_time_base, read_trajectory
+    from ..production.lidarchecks import PARAMETER_NAMES, estimate_system_parameters, pulses_from_points
+
+    xyz, times, strips = [], [], []
+    tile_crs = resolve_crs(crs)
+    for t in tiles:
+        pc = read_points(t, crs=crs)
+        a = pc.attributes
+        for name in ("gps_time", "point_source_id"):
+            if name not in a:
+                raise ProductError(f"{t}: the points carry no {name}; the calibration joins points to the "
+                                   "trajectory by GPS time and to flight lines by point source id")
+        keep = np.ones(len(pc), dtype=bool)
+        if classes is not None and "classification" in a:
+            keep &= np.isin(a["classification"], list(classes))
+        idx = np.flatnonzero(keep)[::max(1, int(stride))]
+        xyz.append(pc.xyz[idx])
+        times.append(np.asarray(a["gps_time"])[idx])
+        strips.append(np.asarray(a["point_source_id"])[idx])
+        tile_crs = tile_crs or pc.crs
+    pts, gps, strip = np.concatenate(xyz), np.concatenate(times), np.concatenate(strips)
+    traj = read_trajectory(trajectory, tile_crs)
+    gps, time_note = match_time_base(gps, traj)
+    sensor, att = traj.at(gps)
+    pulses, along = pulses_from_points(pts, sensor, att, strip)
+    ctrl = _read_control(control) if control is not None else None
+    if ctrl is None and np.unique(strip).size < 2:
+        raise ProductError(f"{len(pts)} points of one flight line (point source id {int(strip[0])}) and no control "
+                           "surface: the calibration needs overlapping flight lines or a control surface")
+    res = estimate_system_parameters(pulses, ctrl, sd_control_m=sd_control_m, sd_strip_m=sd_strip_m,
+                                     radius_m=radius_m, max_plane_rms_m=max_plane_rms_m, progress=progress)
+    d = res.to_dict()
+    deg = {n.replace("_rad", "_deg"): (None if d["parameters"][n] is None else float(np.degrees(d["parameters"][n])))
+           for n in PARAMETER_NAMES if n.endswith("_rad")}
+    sd_deg = {n.replace("_rad", "_deg"): (None if d["sd"][n] is None else float(np.degrees(d["sd"][n])))
+              for n in PARAMETER_NAMES if n.endswith("_rad")}
+    report = {"calibration": d, "parameters_deg": deg, "sd_deg": sd_deg, "points": int(len(pts)),
+              "flight_lines": [int(x) for x in np.unique(strip)], "time_base": time_note,
+              "along_track_rms_deg": float(np.degrees(np.sqrt(np.mean(along * along)))),
+              "trajectory": str(trajectory), "control": None if control is None else str(control),
+              "tiles": [str(t) for t in tiles], "files": [str(output)]}
+    write_json_atomic(Path(output), report)
     return report
