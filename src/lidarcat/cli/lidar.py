@@ -12,7 +12,7 @@ import click
 
 from .options import POSITIVE, crs_option, echo_json, json_opt, output_option, progress_bar, tile_sources
 
-__all__ = ["lidar", "info", "index", "clip_cmd", "raster", "calibrate"]
+__all__ = ["lidar", "info", "index", "clip_cmd", "raster", "calibrate", "swath"]
 
 _columns_opt = click.option(
     "--columns", default=None, metavar="'E N H ...'",
@@ -386,6 +386,71 @@ def calibrate(paths: tuple[str, ...], trajectory: str, control: str | None, outp
     for note in c["notes"]:
         click.echo(f"note: {note}")
     click.echo(f"written {output}")
+
+
+# ----------------------------------------------------------------------------- swath
+@lidar.command()
+@click.argument("paths", nargs=-1, required=True, metavar="TILE...")
+@output_option(required=True, metavar="OUT.tif",
+               help="The difference image (GeoTIFF, metres, the tiles' CRS); OUT.png (coloured) and OUT.json "
+                    "(statistics) go beside it.")
+@click.option("--cell", "cell_m", type=POSITIVE, default=1.0, show_default=True, help="Cell size, metres.")
+@click.option("--quality-level", type=click.Choice(["QL0", "QL1", "QL2", "QL3"]), default="QL2", show_default=True,
+              help="USGS quality level whose interswath limits are applied (QL2: RMSDz <= 8 cm, max +-16 cm).")
+@click.option("--classes", default="auto", show_default=True, metavar="auto|all|C1,C2",
+              help="Last returns used: auto = ground (2) when the tiles are classified, else all; all; or "
+                   "a list of classes. Noise (7, 18) and withheld points are always left out.")
+@click.option("--smooth-rms-m", type=POSITIVE, default=0.05, show_default=True,
+              help="A cell counts in the statistics when both lines' planes fit within this rms, metres.")
+@click.option("--max-slope-deg", type=click.FloatRange(0, 90), default=10.0, show_default=True,
+              help="... and both planes are at most this steep.")
+@click.option("--no-preview", is_flag=True, help="Do not write the PNG.")
+@crs_option()
+@json_opt
+def swath(paths: tuple[str, ...], output: str, cell_m: float, quality_level: str, classes: str,
+          smooth_rms_m: float, max_slope_deg: float, no_preview: bool, crs: str | None, as_json: bool) -> None:
+    """Swath separation image: per cell, the difference between overlapping flight lines (USGS LBS).
+
+    Flight lines are the points' point source ids. Each line's last returns
+    in a cell are fitted by a plane; the cell holds the height difference
+    of the two best-sampled lines at its centre (lower id minus higher).
+    RMSDz and max |dz| over smooth, flat cells are checked against the
+    quality level's interswath limits.
+
+    \b
+    Example:
+      lidarcat lidar swath tests/data/lidar/ahn3_cropped_1.laz --crs EPSG:7415 -o swath.tif
+    """
+    from ..stages.lidar import swath_check
+
+    cls: Any = "auto"
+    word = classes.strip().lower()
+    if word == "all":
+        cls = None
+    elif word != "auto":
+        try:
+            cls = [int(c) for c in classes.split(",") if c.strip()]
+        except ValueError:
+            raise click.BadParameter(f"{classes!r} is not auto, all or a comma-separated list of integers",
+                                     param_hint="--classes") from None
+    files, crs, _ = tile_sources(paths, crs)
+    report = swath_check(files, output, crs=crs, cell_m=cell_m, quality_level=quality_level, classes=cls,
+                         smooth_rms_m=smooth_rms_m, max_slope_deg=max_slope_deg, preview=not no_preview)
+    if as_json:
+        echo_json(report)
+        return
+    st = report["swath"]
+    verdict = {True: "PASS", False: "FAIL", None: "no smooth overlap"}[st["pass"]]
+    click.echo(f"{st['overlap_cells']:,} overlap cells of {cell_m:g} m ({st['smooth_cells']:,} smooth), "
+               f"flight lines {', '.join(map(str, report['flight_lines']))}")
+    if st["smooth_cells"]:
+        click.echo(f"RMSDz {100 * st['rmsdz_m']:.1f} cm (limit {100 * st['rmsdz_limit_m']:g}), max |dz| "
+                   f"{100 * st['max_abs_dz_m']:.1f} cm (limit {100 * st['max_limit_m']:g}), 95 % "
+                   f"{100 * st['p95_abs_dz_m']:.1f} cm: {quality_level} {verdict}")
+    else:
+        click.echo(f"{quality_level}: {verdict}")
+    for p in report["files"]:
+        click.echo(f"written {p}")
 
 
 # production chain (ground, dtm, dsm, contours, hypsometry) lives in its own module

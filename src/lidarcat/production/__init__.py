@@ -11,6 +11,7 @@
 ``charts``         Orthophoto charts (ortofotocartas): mosaic, contours, UTM grid, legend, title block, index map.
 ``delivery``       Delivery formats: TIFF + TFW world files, Shapefile layers, DXF layers of the conventions.
 ``lidarchecks``    LiDAR system calibration checks: vertical accuracy (NVA/VVA, PEC), boresight, scale, bias.
+``swath``          Swath separation images: per-cell differences between overlapping flight lines (USGS LBS).
 =================  ============================================================
 
 The functions named as their modules (``contours.contours``) are

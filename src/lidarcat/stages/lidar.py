@@ -29,7 +29,7 @@ import numpy as np
 from ..errors import ProductError
 
 __all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid", "vertical_check",
-           "system_calibration"]
+           "system_calibration", "swath_check"]
 
 
 def _jobs(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, **kw: Any) -> list[Any]:
@@ -434,4 +434,87 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
               "trajectory": str(trajectory), "control": None if control is None else str(control),
               "tiles": [str(t) for t in tiles], "files": [str(output)]}
     write_json_atomic(Path(output), report)
+    return report
+
+
+def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
+                cell_m: float = 1.0, quality_level: str = "QL2", classes: Sequence[int] | None | str = "auto",
+                smooth_rms_m: float = 0.05, max_slope_deg: float = 10.0, preview: bool = True) -> dict[str, Any]:
+    """Swath separation image of LiDAR tiles (``lidarcat lidar swath``; USGS lidar base specification).
+
+    Parameters
+    ----------
+    tiles : sequence of path
+        LAS/LAZ tiles with ``point_source_id`` (the flight line).
+    output : path
+        ``<name>.tif``: the per-cell difference (float32, m, NaN outside the
+        overlap, the tiles' CRS); ``<name>.png`` the coloured image;
+        ``<name>.json`` the statistics against the quality level's limits.
+    cell_m, smooth_rms_m, max_slope_deg
+        :func:`lidarcat.production.swath.swath_separation`.
+    quality_level : {"QL0", "QL1", "QL2", "QL3"}
+    classes : sequence of int, None or "auto"
+        Points used, all last returns except noise (7, 18) and withheld
+        points, further limited to these classes; ``"auto"``: the ground
+        class (2) when the tiles hold ground points, else every class.
+
+    Raises
+    ------
+    ProductError
+        Points without point source ids, fewer than two flight lines, an unknown quality level.
+    """
+    import math
+
+    from .._util.tables import write_json_atomic
+    from ..lidar.crs import crs_label, resolve_crs
+    from ..lidar.geotiff import write_geotiff
+    from ..lidar.readers import read_points
+    from ..production.swath import INTERSWATH_LIMITS, swath_separation, write_swath_png
+
+    if quality_level not in INTERSWATH_LIMITS:
+        raise ProductError(f"quality level must be one of {', '.join(INTERSWATH_LIMITS)}, got {quality_level!r}")
+    xyz, ids, cls_all = [], [], []
+    out_crs = resolve_crs(crs)
+    for t in tiles:
+        pc = read_points(t, crs=crs)
+        a = pc.attributes
+        if "point_source_id" not in a:
+            raise ProductError(f"{t}: the points carry no point_source_id; swath separation compares flight lines")
+        keep = np.ones(len(pc), dtype=bool)
+        if "return_number" in a and "number_of_returns" in a:
+            keep &= np.asarray(a["return_number"]) == np.asarray(a["number_of_returns"])
+        if "withheld" in a:
+            keep &= ~np.asarray(a["withheld"], dtype=bool)
+        c = np.asarray(a["classification"]) if "classification" in a else np.zeros(len(pc), dtype=np.uint8)
+        keep &= ~np.isin(c, (7, 18))
+        xyz.append(pc.xyz[keep])
+        ids.append(np.asarray(a["point_source_id"])[keep])
+        cls_all.append(c[keep])
+        out_crs = out_crs or pc.crs
+    pts, lid, cls = np.concatenate(xyz), np.concatenate(ids), np.concatenate(cls_all)
+    used: list[int] | None
+    if isinstance(classes, str):
+        used = [2] if np.any(cls == 2) else None
+    else:
+        used = None if classes is None else [int(c) for c in classes]
+    if used is not None:
+        sel = np.isin(cls, used)
+        pts, lid = pts[sel], lid[sel]
+    if pts.shape[0] == 0:
+        raise ProductError(f"no last return{'' if used is None else ' of classes ' + ','.join(map(str, used))} "
+                           f"in {', '.join(map(str, tiles))}")
+    sep = swath_separation(pts, lid, cell_m, smooth_rms_m=smooth_rms_m,
+                           max_slope=math.tan(math.radians(max_slope_deg)))
+    out = Path(output)
+    files = [write_geotiff(out.with_suffix(".tif"), sep.dz_m.astype(np.float32), sep.transform, out_crs)]
+    if preview:
+        files.append(write_swath_png(out.with_suffix(".png"), sep, quality_level))
+    stats = sep.assess(quality_level)
+    report = {"swath": stats, "cell_m": cell_m, "classes": used, "points": int(pts.shape[0]),
+              "flight_lines": [int(x) for x in np.unique(lid)], "smooth_rms_m": smooth_rms_m,
+              "max_slope_deg": max_slope_deg, "crs": crs_label(out_crs) if out_crs is not None else None,
+              "tiles": [str(t) for t in tiles]}
+    json_path = out.with_suffix(".json")
+    report["files"] = [str(f) for f in files] + [str(json_path)]
+    write_json_atomic(json_path, report)
     return report
