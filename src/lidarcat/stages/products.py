@@ -303,7 +303,7 @@ def chart_sheets(ctx: Context, features: list[dict[str, Any]], spots: Any, area:
 def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, folder: Path, *, crs: Any,
                  title: Any, index: str = "grid", size_m: float = 1000.0,
                  area: tuple[float, float, float, float] | None = None, only: list[str] | None = None,
-                 dpi: int = 150, progress: Any = None) -> dict[str, Any]:
+                 dpi: int = 150, progress: Any = None, workers: int | None = None) -> dict[str, Any]:
     """The orthophoto chart of every sheet of *index* holding mosaic cells or contours: <sheet>.pdf and .png
     in *folder* (the action of ``lidarcat chart`` and of ``[products] charts``).
 
@@ -324,6 +324,8 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
         Chart only these sheets (a name outside the data is an error).
     progress : callable, optional
         ``progress(done, total)`` per chart.
+    workers : int, optional
+        Processes drawing the charts (:func:`lidarcat.production.charts.render_charts`; default one per core).
 
     Returns
     -------
@@ -340,7 +342,7 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
     from .._util import safe_component
     from ..errors import ProductError
     from ..lidar.geotiff import read_geotiff
-    from ..production.charts import crop_image, draw_chart, sheet_extent, write_chart
+    from ..production.charts import crop_image, render_charts, sheet_extent
     from ..production.sheets import index_sheets
 
     image, transform, _ = read_geotiff(mosaic_path)   # (rows, cols[, bands]), NaN = nodata
@@ -369,15 +371,10 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
             raise ProductError(f"charts: sheet {missing[0]} holds no data of {mosaic_path} and the contours "
                                f"(sheets with data: {', '.join(names) or 'none'})")
         todo = [names[n] for n in only]
-    files = []
-    for k, s in enumerate(todo):
-        name = safe_component(s.name, "sheet name", error=ProductError)
-        fig = draw_chart(s, title, image=image, image_transform=transform, contours=features, spots=spots,
-                         sheets=used, area=area or lb, crs=crs)
-        write_chart(fig, folder / f"{name}.pdf", folder / f"{name}.png", dpi=dpi)
-        files += [f"{name}.pdf", f"{name}.png"]
-        if progress is not None:
-            progress(k + 1, len(todo))
+    names = [safe_component(s.name, "sheet name", error=ProductError) for s in todo]
+    files = render_charts(todo, names, title, folder, image=image, image_transform=transform, contours=features,
+                          spots=spots, sheets=used, area=area or lb, crs=crs, dpi=dpi, workers=workers,
+                          progress=progress)
     return {"sheets": [s.name for s in todo], "scale": int(title.scale), "mosaic": str(mosaic_path),
             "files": files}
 
