@@ -119,3 +119,33 @@ def test_3d_lines_and_geopackage_types(tmp_path, wood):
     assert info["geometry_type"] == "LineString Z" and info["crs"] == "EPSG:31983"
     assert info["features"] == len(cs)
     assert pyogrio.read_info(path, layer="contour_bands")["geometry_type"] == "MultiPolygon"
+
+
+def test_contours_command_review_profiles_polygons_3d(tmp_path):
+    """AHN3 tile 2 (EPSG:7415): GeoJSON outputs beside the contours, and the refusal for a DTM raster."""
+    import json
+    from pathlib import Path
+
+    from click.testing import CliRunner
+
+    from lidarcat.cli.main import cli
+
+    tile = Path(__file__).resolve().parents[1] / "data" / "lidar" / "ahn3_cropped_2.laz"
+    out = tmp_path / "c.geojson"
+    res = CliRunner().invoke(cli, ["lidar", "contours", str(tile), "--crs", "EPSG:7415", "-o", str(out),
+                                   "--interval-m", "0.5", "--review", "--profiles", "1", "--polygons", "--3d"])
+    assert res.exit_code == 0, res.output
+    review = json.loads((tmp_path / "c_review.geojson").read_text())
+    assert review["crs"]["properties"]["name"].endswith("7415") and review["features"]
+    assert all(f["properties"]["review"] for f in review["features"])
+    bands = json.loads((tmp_path / "c_bands.geojson").read_text())
+    assert {f["geometry"]["type"] for f in bands["features"]} == {"MultiPolygon"}
+    lines = json.loads(out.read_text())["features"]
+    assert all(len(v) == 3 and v[2] == f["properties"]["level_m"] for f in lines for v in f["geometry"]["coordinates"])
+    assert len(list((tmp_path / "c_profiles").glob("*.png"))) == 1
+    dtm = tmp_path / "dtm.tif"
+    from lidarcat.lidar.geotiff import GeoTransform, write_geotiff
+
+    write_geotiff(dtm, np.zeros((4, 4), np.float32), GeoTransform(0, 4, 1), "EPSG:7415")
+    res = CliRunner().invoke(cli, ["lidar", "contours", str(dtm), "-o", str(tmp_path / "d.geojson"), "--review"])
+    assert res.exit_code != 0 and "--review and --polygons need the ground points" in res.output

@@ -162,10 +162,23 @@ Examples:
 @click.option("--edge-peel", type=click.IntRange(0), default=3, show_default=True,
               help="Rings of triangles at the boundary of the ground TIN left out: the Delaunay slivers "
                    "there make contours run along the edge (0: keep them).")
+@click.option("--review", is_flag=True,
+              help="Contour verification (report 13.2): flag the stretches over sparse ground (long TIN edges, "
+                   "e.g. dense vegetation) as the layer 'review' (OUT_review.geojson or a layer of OUT.gpkg).")
+@click.option("--sparse-edge-m", type=POSITIVE, default=None, metavar="M",
+              help="--review: a TIN edge longer than this is sparse ground (default 3 x the median edge).")
+@click.option("--review-min-m", type=NON_NEGATIVE, default=0.0, show_default=True,
+              help="--review: shorter stretches are not flagged, metres.")
+@click.option("--profiles", type=click.IntRange(0), default=0, show_default=True, metavar="N",
+              help="--review: profile plots (PNG) across the N longest stretches, in OUT_profiles/.")
+@click.option("--polygons", is_flag=True,
+              help="Also the filled bands between the levels (MultiPolygons; OUT_bands.geojson or a layer).")
+@click.option("--3d", "three_d", is_flag=True, help="Contour lines with the level as z (LineString Z).")
 @crs_option()
 def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_every: int, smooth: int,
                  max_edge_m: float, spots_m: float, levels: str | None, min_ring_m: float, edge_peel: int,
-                 crs: str | None) -> None:
+                 review: bool, sparse_edge_m: float | None, review_min_m: float, profiles: int, polygons: bool,
+                 three_d: bool, crs: str | None) -> None:
     """Contour lines from the TIN of the ground points (class 2), with spot heights; or of a DTM GeoTIFF.
 
     One TILE ending in .tif is a gridded DTM: its cells are contoured (no spot heights).
@@ -197,6 +210,9 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
         from ..lidar.geotiff import read_geotiff
         from ..production.contours import raster_contours
 
+        if review or polygons:
+            raise click.UsageError("--review and --polygons need the ground points (a LAS/LAZ tile), not a DTM "
+                                   "raster")
         grid, t, gcrs = read_geotiff(paths[0])
         if grid.ndim != 2:
             raise click.BadParameter(f"{paths[0]}: a DTM has one band, this has {grid.shape[2]}", param_hint="TILE")
@@ -213,8 +229,39 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
     g = pc.xyz[np.asarray(pc.attributes["classification"]) == 2]
     cs = contours(g, interval_m, master_every=master_every, max_edge_m=max_edge_m, smooth_iterations=smooth,
                   levels=fixed, min_ring_m=min_ring_m, edge_peel=edge_peel)
-    written = write_contours(output, cs, spot_heights(g, spots_m), pc.crs)
-    click.echo(f"wrote {len(cs)} contour lines and the spot heights to {' and '.join(map(str, written))}")
+    spots = spot_heights(g, spots_m)
+    if not (review or polygons or three_d):
+        written = write_contours(output, cs, spots, pc.crs)
+        click.echo(f"wrote {len(cs)} contour lines and the spot heights to {' and '.join(map(str, written))}")
+        return
+    from ..production.contourcheck import contour_features_3d
+    from ..production.contours import contour_features, spot_features, write_layers
+    from ..stages.lidar import contour_extras
+
+    cls = np.asarray(pc.attributes["classification"])
+    extra = contour_extras(output, cs, g, pc.crs, points_xyz=pc.xyz, ground_mask=cls == 2, review=review,
+                           sparse_edge_m=sparse_edge_m, review_min_m=review_min_m, profiles=profiles,
+                           polygons=polygons, band_kw={"interval_m": interval_m, "max_edge_m": max_edge_m,
+                                                       "levels": fixed, "edge_peel": edge_peel})
+    feats = contour_features_3d(cs) if three_d else contour_features(cs)
+    out = Path(output)
+    if out.suffix.lower() == ".gpkg":
+        written = [write_layers(out, {"contours": feats, "spot_heights": spot_features(spots),
+                                      **{k: v for k, v in extra.get("layers", {}).items() if v}}, pc.crs)]
+    else:
+        written = [write_layers(out, {"contours": feats}, pc.crs),
+                   write_layers(out.with_name(out.stem + "_spots" + out.suffix), {"spots": spot_features(spots)},
+                                pc.crs)]
+    click.echo(f"wrote {len(cs)} contour lines{' (3-D)' if three_d else ''} and the spot heights to "
+               f"{' and '.join(map(str, written))}")
+    if "review" in extra:
+        r = extra["review"]
+        click.echo(f"review: {r['stretches']} stretches over sparse ground (TIN edges above "
+                   f"{r['sparse_edge_m']:.2f} m), {r['length_m']:.1f} m of contour")
+    if "bands" in extra:
+        click.echo(f"{extra['bands']} filled bands")
+    for f in extra["files"]:
+        click.echo(f"written {f}")
 
 
 def _colour_map(name: str) -> str:

@@ -29,7 +29,7 @@ import numpy as np
 from ..errors import ProductError
 
 __all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid", "vertical_check",
-           "system_calibration", "swath_check"]
+           "system_calibration", "swath_check", "contour_extras"]
 
 
 def _jobs(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, **kw: Any) -> list[Any]:
@@ -518,3 +518,80 @@ def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *
     report["files"] = [str(f) for f in files] + [str(json_path)]
     write_json_atomic(json_path, report)
     return report
+
+
+def contour_extras(output: str | os.PathLike, cs: Sequence[Any], ground_xyz: np.ndarray, crs: Any, *,
+                   points_xyz: np.ndarray | None = None, ground_mask: np.ndarray | None = None,
+                   review: bool = False, sparse_edge_m: float | None = None, review_min_m: float = 0.0,
+                   profiles: int = 0, polygons: bool = False, band_kw: dict[str, Any] | None = None
+                   ) -> dict[str, Any]:
+    """The contour verification layer, its profiles and the filled bands beside the contours at *output*.
+
+    ``.gpkg``: the layers ``review`` and ``contour_bands`` are returned
+    (``layers``) for the caller to write with the contours; otherwise they are
+    written as ``<stem>_review.geojson`` and ``<stem>_bands.geojson``.  Profiles of the *profiles* longest stretches go
+    to ``<stem>_profiles/<k>_<level>m.png``
+    (:mod:`lidarcat.production.contourcheck`).
+
+    Parameters
+    ----------
+    output : path
+        The contours file already written.
+    cs : sequence of Contour
+    ground_xyz : (N, 3) float
+        The ground points the contours were drawn from.
+    crs : CRS-like
+    points_xyz, ground_mask : optional
+        Every point and which are ground, for the profiles (default: the ground alone).
+    review, sparse_edge_m, review_min_m
+        Flag stretches over sparse ground (threshold and shortest stretch, m).
+    profiles : int
+        Profile PNGs of the longest stretches (needs *review*).
+    polygons : bool
+        Filled bands between the levels.
+    band_kw : dict, optional
+        Keywords of :func:`lidarcat.production.contourcheck.contour_bands` (interval, levels, edges).
+
+    Returns
+    -------
+    dict
+        ``files`` written, ``review`` (stretch count, length, threshold), ``bands`` (count),
+        ``layers`` (GeoPackage output only).
+    """
+    from ..production.contourcheck import (contour_bands, sparse_stretches, stretch_features, stretch_profile,
+                                           write_profile_png)
+    from ..production.contours import write_layers
+
+    out = Path(output)
+    gpkg = out.suffix.lower() == ".gpkg"
+    files: list[str] = []
+    result: dict[str, Any] = {}
+    layers: dict[str, list[dict[str, Any]]] = {}
+    if review:
+        st, thr = sparse_stretches(cs, ground_xyz, sparse_edge_m=sparse_edge_m, min_length_m=review_min_m)
+        layers["review"] = stretch_features(st)
+        result["review"] = {"stretches": len(st), "length_m": float(sum(s.length_m for s in st)),
+                            "sparse_edge_m": thr}
+        if profiles and st:
+            pts = np.asarray(ground_xyz) if points_xyz is None else np.asarray(points_xyz)
+            gm = np.ones(len(pts), bool) if ground_mask is None else np.asarray(ground_mask, bool)
+            folder = out.with_name(out.stem + "_profiles")
+            folder.mkdir(parents=True, exist_ok=True)
+            for k, s in enumerate(sorted(st, key=lambda x: -x.length_m)[:profiles]):
+                png = folder / f"{k + 1:03d}_{s.level_m:g}m.png"
+                write_profile_png(png, stretch_profile(s, pts, gm))
+                files.append(str(png))
+    if polygons:
+        layers["contour_bands"] = contour_bands(ground_xyz, **(band_kw or {}))
+        result["bands"] = len(layers["contour_bands"])
+    if gpkg:
+        result["layers"] = layers          # the caller writes them into the GeoPackage with the contours
+    else:
+        for name, feats in layers.items():
+            if not feats:
+                continue
+            p = out.with_name(f"{out.stem}_{'review' if name == 'review' else 'bands'}{out.suffix}")
+            write_layers(p, {name: feats}, crs)
+            files.append(str(p))
+    result["files"] = files
+    return result
