@@ -450,9 +450,14 @@ PRODUCT_COMMANDS.append(sheets)
 
 @click.command(name="check")
 @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-@click.option("--checkpoints", required=True, type=click.Path(exists=True, dir_okay=False), metavar="CSV",
+@click.option("--checkpoints", default=None, type=click.Path(exists=True, dir_okay=False), metavar="CSV",
               help="Surveyed check points: id,E,N,H[,vegetated] (metres, CRS of the tiles; vegetated 1/0, "
                    "default 0 = hard, open surface).")
+@click.option("--outlines", default=None, type=click.Path(exists=True, dir_okay=False), metavar="FILE",
+              help="Surveyed building outlines (polygons: .gpkg/.shp/.geojson, CRS of the tiles): planimetric "
+                   "check of the LiDAR corners, OUT_planimetric.json and OUT_corners.csv (lidarcat[gis]).")
+@click.option("--roof-classes", default="6", show_default=True, metavar="C1,C2",
+              help="--outlines: classes of the roof points (without them: points 2 m above the local ground).")
 @output_option(required=True, metavar="OUT.json",
                help="The report (JSON); the per-point discrepancies go beside it as OUT.csv.")
 @click.option("--method", type=click.Choice(["tin", "plane"]), default="tin", show_default=True,
@@ -470,17 +475,37 @@ PRODUCT_COMMANDS.append(sheets)
               help="Contour interval for the PEC altimetric class, metres.")
 @crs_option()
 @json_option()
-def check(paths: tuple[str, ...], checkpoints: str, output: str, method: str, radius_m: float, classes: str,
-          checkpoint_sd_m: float | None, scale: float | None, contour_interval_m: float | None,
-          crs: str | None, as_json: bool) -> None:
-    """Vertical accuracy of LiDAR tiles at surveyed check points (LACTEC report 7.1.1).
+def check(paths: tuple[str, ...], checkpoints: str | None, outlines: str | None, roof_classes: str, output: str,
+          method: str, radius_m: float, classes: str, checkpoint_sd_m: float | None, scale: float | None,
+          contour_interval_m: float | None, crs: str | None, as_json: bool) -> None:
+    """Vertical and planimetric accuracy of LiDAR tiles (LACTEC report 7.1.1).
 
-    Prints and writes ASPRS 2023 NVA (RMSE_z of the non-vegetated points, and
-    1.96 RMSE_z), VVA (RMSE_z and 95th percentile of the vegetated points),
-    the ASPRS 2023 vertical class and, with --scale and --contour-interval-m,
-    the PEC altimetric class.
+    With --checkpoints: ASPRS 2023 NVA (RMSE_z of the non-vegetated points,
+    and 1.96 RMSE_z), VVA (RMSE_z and 95th percentile of the vegetated
+    points), the ASPRS 2023 vertical class and, with --scale and
+    --contour-interval-m, the PEC altimetric class.  With --outlines: the
+    building corners found from the LiDAR roof edges against the surveyed
+    ones, ASPRS 2023 horizontal RMSE and, with --scale, the PEC planimetric class.
     """
-    from ..stages.lidar import vertical_check
+    from ..stages.lidar import planimetric_check, vertical_check
+
+    if checkpoints is None and outlines is None:
+        raise click.UsageError("give --checkpoints (vertical check), --outlines (planimetric check) or both")
+    if outlines is not None:
+        try:
+            rc = [int(c) for c in roof_classes.split(",") if c.strip()]
+        except ValueError:
+            raise click.BadParameter(f"{roof_classes!r} is not a comma-separated list of integers",
+                                     param_hint="--roof-classes") from None
+        files, tcrs, _ = tile_sources(paths, crs)
+        plan = planimetric_check(files, outlines, output, crs=tcrs, roof_classes=rc,
+                                 checkpoint_sd_m=checkpoint_sd_m, scale=scale)
+        if checkpoints is None:
+            if as_json:
+                echo_json(plan)
+                return
+            _echo_planimetric(plan)
+            return
 
     if classes.strip().lower() == "all":
         cls = None
@@ -492,9 +517,13 @@ def check(paths: tuple[str, ...], checkpoints: str, output: str, method: str, ra
                                      param_hint="--classes") from None
     report = vertical_check(paths, checkpoints, output, crs=crs, classes=cls, method=method, radius_m=radius_m,
                             checkpoint_sd_m=checkpoint_sd_m, scale=scale, contour_interval_m=contour_interval_m)
+    if outlines is not None:
+        report = {**report, "planimetric_report": plan}
     if as_json:
         echo_json(report)
         return
+    if outlines is not None:
+        _echo_planimetric(plan)
     a = report["accuracy"]
     click.echo(f"{a['n_nonveg']} non-vegetated check points: NVA RMSE_z {a['nva_rmse_m']:.3f} m, "
                f"95 % {a['nva_95_m']:.3f} m, mean {a['mean_nonveg_m']:+.3f} m")
@@ -505,6 +534,18 @@ def check(paths: tuple[str, ...], checkpoints: str, output: str, method: str, ra
     if a["pec"] is not None:
         click.echo(f"PEC altimetric class: {a['pec']['class']['altimetric']}")
     for p in report["files"]:
+        click.echo(f"written {p}")
+
+
+def _echo_planimetric(plan: dict) -> None:
+    a = plan["planimetric"]
+    click.echo(f"{a['n_corners']} building corners ({a['n_missing']} not found): RMSE_x {a['rmse_x_m']:.3f} m, "
+               f"RMSE_y {a['rmse_y_m']:.3f} m, RMSE_r {a['rmse_r_m']:.3f} m, mean dE {a['mean_dE_m']:+.3f} m, "
+               f"dN {a['mean_dN_m']:+.3f} m")
+    click.echo(f"ASPRS 2023 horizontal class: {a['asprs2023']['class']['planimetric']}")
+    if a["pec"] is not None:
+        click.echo(f"PEC planimetric class: {a['pec']['class']['planimetric']}")
+    for p in plan["files"]:
         click.echo(f"written {p}")
 
 

@@ -29,7 +29,7 @@ import numpy as np
 from ..errors import ProductError
 
 __all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid", "vertical_check",
-           "system_calibration", "swath_check", "contour_extras"]
+           "system_calibration", "swath_check", "contour_extras", "read_outlines", "planimetric_check"]
 
 
 def _jobs(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, **kw: Any) -> list[Any]:
@@ -595,3 +595,158 @@ def contour_extras(output: str | os.PathLike, cs: Sequence[Any], ground_xyz: np.
             files.append(str(p))
     result["files"] = files
     return result
+
+
+def _wkb_rings(b: bytes) -> list[np.ndarray]:
+    """The exterior rings (2-D) of a WKB Polygon or MultiPolygon (ISO or EWKB Z/M flags)."""
+    import struct
+
+    out: list[np.ndarray] = []
+
+    def geom(o: int) -> int:
+        endian = "<" if b[o] == 1 else ">"
+        (code,) = struct.unpack_from(endian + "I", b, o + 1)
+        o += 5
+        base = code & 0xFFFF
+        dims = 2 + (1 if (code & 0x80000000) or base // 1000 in (1, 3) else 0) + \
+            (1 if (code & 0x40000000) or base // 1000 in (2, 3) else 0)
+        kind = base % 1000
+        if kind == 3:
+            (nr,) = struct.unpack_from(endian + "I", b, o)
+            o += 4
+            for r in range(nr):
+                (npt,) = struct.unpack_from(endian + "I", b, o)
+                o += 4
+                a = np.frombuffer(b, dtype=endian + "f8", count=npt * dims, offset=o).reshape(npt, dims)
+                o += 8 * npt * dims
+                if r == 0:
+                    out.append(a[:, :2].astype(float))
+            return o
+        if kind == 6:
+            (ng,) = struct.unpack_from(endian + "I", b, o)
+            o += 4
+            for _ in range(ng):
+                o = geom(o)
+            return o
+        raise ProductError(f"building outlines must be polygons; got WKB geometry type {code}")
+
+    geom(0)
+    return out
+
+
+def read_outlines(path: str | os.PathLike, crs: Any = None) -> tuple[list[str], list[np.ndarray], Any]:
+    """Surveyed building outlines (polygons; GeoPackage, Shapefile, GeoJSON, ... through pyogrio).
+
+    Returns the outline ids (the ``id`` or ``name`` field, else ``<file>#<n>``,
+    ``-k`` appended for the k-th part of a multipolygon), their exterior rings
+    (K, 2) and the layer's CRS.
+
+    Raises
+    ------
+    FormatError
+        pyogrio missing, or a file it cannot read.
+    ProductError
+        A geometry that is not a polygon; no outline; a CRS other than *crs* (names both).
+    """
+    from ..errors import FormatError
+    from ..lidar.crs import crs_compatible, crs_label, resolve_crs
+
+    try:
+        from pyogrio.raw import read
+    except ImportError:
+        raise FormatError(f"{path}: reading building outlines needs pyogrio (pip install 'lidarcat[gis]')") from None
+    try:
+        meta, _, geoms, fields = read(str(path))
+    except Exception as ex:   # pyogrio's DataSourceError and friends
+        raise FormatError(f"{path}: cannot read the building outlines: {ex}") from None
+    names = [str(n).lower() for n in meta.get("fields", [])]
+    col = next((names.index(k) for k in ("id", "name") if k in names), None)
+    ids, rings = [], []
+    for i, g in enumerate(geoms):
+        if g is None:
+            continue
+        parts = _wkb_rings(bytes(g))
+        base = str(fields[col][i]) if col is not None else f"{Path(path).name}#{i + 1}"
+        for k, r in enumerate(parts):
+            ids.append(base if len(parts) == 1 else f"{base}-{k + 1}")
+            rings.append(r)
+    if not rings:
+        raise ProductError(f"{path}: no building outline (polygon) in the file")
+    lcrs = resolve_crs(meta["crs"]) if meta.get("crs") else None
+    want = resolve_crs(crs)
+    if lcrs is not None and want is not None and not crs_compatible(lcrs, want):
+        raise ProductError(f"{path}: the outlines are in {crs_label(lcrs)}, the LiDAR tiles in {crs_label(want)}")
+    return ids, rings, lcrs
+
+
+def planimetric_check(tiles: Sequence[str | os.PathLike], outlines: str | os.PathLike, output: str | os.PathLike,
+                      *, crs: Any = None, roof_classes: Sequence[int] = (6,), ground_classes: Sequence[int] = (2,),
+                      min_height_m: float = 2.0, band_m: float = 2.0, bin_m: float = 1.0,
+                      checkpoint_sd_m: float | None = None, scale: float | None = None) -> dict[str, Any]:
+    """Planimetric accuracy of LiDAR tiles against surveyed building outlines (``lidarcat lidar check
+    --outlines``, report 7.1.1 Figure 5).
+
+    Each outline's corners are found in the points
+    (:func:`lidarcat.production.lidarchecks.lidar_outline_corners`) and compared
+    with the surveyed ones (:func:`~lidarcat.production.lidarchecks.planimetric_accuracy`).
+
+    Parameters
+    ----------
+    tiles : sequence of path
+    outlines : path
+        Polygons (GeoPackage, Shapefile, GeoJSON) of the surveyed outlines, in the tiles' CRS.
+    output : path
+        ``<stem>_planimetric.json`` (the report) and ``<stem>_corners.csv`` (every corner) are written
+        beside it.
+    roof_classes, ground_classes : sequence of int
+        Roof and low points; without points of the roof classes, the points more than *min_height_m*
+        above the 10th percentile of the heights near each outline are its roof.
+    band_m, bin_m
+        :func:`~lidarcat.production.lidarchecks.lidar_outline_corners`.
+    checkpoint_sd_m, scale
+        Survey sd of the corners (ASPRS 2023) and the scale of the PEC class.
+    """
+    from .._util.tables import write_csv_atomic, write_json_atomic
+    from ..lidar.readers import read_points
+    from ..production.lidarchecks import lidar_outline_corners, planimetric_accuracy
+
+    clouds = [read_points(t, crs=crs) for t in tiles]
+    tile_crs = next((c.crs for c in clouds if c.crs is not None), None) if crs is None else crs
+    ids, rings, _ = read_outlines(outlines, tile_crs)
+    xyz = np.concatenate([c.xyz for c in clouds])
+    cls = np.concatenate([np.asarray(c.attributes["classification"]) if "classification" in c.attributes
+                          else np.zeros(len(c), np.uint8) for c in clouds])
+    have_roof = bool(np.isin(cls, list(roof_classes)).any())
+    rows, d_all, per = [], [], []
+    for oid, ring in zip(ids, rings):
+        lo, hi = ring.min(axis=0) - band_m - 5.0, ring.max(axis=0) + band_m + 5.0
+        near = np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1)
+        p, c = xyz[near], cls[near]
+        if len(p) == 0:
+            raise ProductError(f"{outlines}: outline {oid} (E {ring[:, 0].mean():.1f}, N {ring[:, 1].mean():.1f}) "
+                               "has no LiDAR point around it")
+        if have_roof:
+            roof, low = p[np.isin(c, list(roof_classes))], p[np.isin(c, list(ground_classes))]
+        else:
+            base = np.percentile(p[:, 2], 10)
+            roof, low = p[p[:, 2] > base + min_height_m], p[p[:, 2] <= base + min_height_m]
+        res = lidar_outline_corners(ring, roof, low, band_m=band_m, bin_m=bin_m)
+        d = res.discrepancies_m
+        d_all.append(d)
+        per.append({"id": oid, "corners": len(ring), "found": int(np.isfinite(d).all(axis=1).sum()),
+                    "edge_offset_m": [None if not np.isfinite(x) else float(x) for x in res.edge_offset_m]})
+        for k, (sv, li, dd) in enumerate(zip(res.surveyed_m, res.lidar_m, d)):
+            rows.append([oid, k + 1, float(sv[0]), float(sv[1]), float(li[0]), float(li[1]), float(dd[0]),
+                         float(dd[1])])
+    acc = planimetric_accuracy(np.vstack(d_all), checkpoint_sd_m=checkpoint_sd_m, scale=scale)
+    out = Path(output)
+    csv_path = out.with_name(out.stem + "_corners.csv")
+    json_path = out.with_name(out.stem + "_planimetric.json")
+    write_csv_atomic(csv_path, ["outline", "corner", "E", "N", "lidar_E", "lidar_N", "dE", "dN"], rows,
+                     comments=["metres; dE, dN = LiDAR corner - surveyed corner (NaN: an edge not found)"])
+    report = {"planimetric": acc, "outlines": per, "roof": "classes " + ",".join(map(str, roof_classes))
+              if have_roof else f"points {min_height_m:g} m above the local ground", "band_m": band_m,
+              "bin_m": bin_m, "tiles": [str(t) for t in tiles], "outlines_file": str(outlines),
+              "files": [str(json_path), str(csv_path)]}
+    write_json_atomic(json_path, report)
+    return report
