@@ -127,7 +127,8 @@ def triangle_max_edges(xy: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 
 def _median_edge(xy: np.ndarray, triangles: np.ndarray) -> float:
     e = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
-    e = np.unique(e, axis=0)
+    key = np.unique(e[:, 0].astype(np.int64) * len(xy) + e[:, 1])      # each edge once (1-D: fast)
+    e = np.column_stack([key // len(xy), key % len(xy)])
     return float(np.median(np.hypot(*(xy[e[:, 0]] - xy[e[:, 1]]).T)))
 
 
@@ -178,9 +179,8 @@ def sparse_stretches(cs: Sequence[Contour], ground_xyz: np.ndarray, *, sparse_ed
     ends = np.r_[starts[1:], sparse.size]
     seglen = np.hypot(*(b - a).T)
     out = []
-    for s0, s1 in zip(starts, ends):
-        if not sparse[s0]:
-            continue
+    keep = sparse[starts]
+    for s0, s1 in zip(starts[keep], ends[keep]):
         length = float(seglen[s0:s1].sum())
         if length < min_length_m:
             continue
