@@ -50,6 +50,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--dpi", type=int, default=60)
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--start", choices=["fork", "spawn", "auto"], default="auto")
     a = ap.parse_args()
     feats, spots, img, t, sheets = block(a.sheets)
     title = TitleBlock("bench", 5000, "SIRGAS 2000 / UTM zone 23S (EPSG:31983)", -21.5, "2009-06-01", "2026-11-28",
@@ -67,7 +68,8 @@ def main() -> None:
                 out.mkdir(exist_ok=True)
                 t0 = time.perf_counter()
                 render_charts(sheets, names, title, out, image=img, image_transform=t, contours=feats, spots=spots,
-                              sheets=sheets, area=(E0, N0, E0 + 500.0 * a.sheets, N0 + 500), dpi=a.dpi, workers=w)
+                              sheets=sheets, area=(E0, N0, E0 + 500.0 * a.sheets, N0 + 500), dpi=a.dpi, workers=w,
+                              start_method=None if a.start == "auto" else a.start)
                 dt = time.perf_counter() - t0
                 outs[w] = out
                 print(f"| {r + 1} | {w} | {dt:.1f} | {dt / len(sheets):.2f} | {os.getloadavg()[0]:.2f} |")

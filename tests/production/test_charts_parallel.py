@@ -32,7 +32,8 @@ def block():
         (E0, N0, E0 + 1500, N0 + 500), 500)
 
 
-def test_parallel_charts_are_the_serial_charts(block, tmp_path):
+@pytest.mark.parametrize("start", ["spawn", None])
+def test_parallel_charts_are_the_serial_charts(block, tmp_path, start):
     feats, spots, img, t, sheets = block
     assert len(sheets) == 3
     names = [s.name for s in sheets]
@@ -40,7 +41,7 @@ def test_parallel_charts_are_the_serial_charts(block, tmp_path):
               area=(E0, N0, E0 + 1500, N0 + 500), dpi=30)
     seen = []
     (tmp_path / "par").mkdir()
-    files = render_charts(sheets, names, TITLE, tmp_path / "par", workers=2,
+    files = render_charts(sheets, names, TITLE, tmp_path / "par", workers=2, start_method=start,
                           progress=lambda d, n: seen.append((d, n)), **kw)
     assert files == [f"{n}.{e}" for n in names for e in ("pdf", "png")]
     assert seen == [(1, 3), (2, 3), (3, 3)]

@@ -44,9 +44,11 @@ threads would not help either).  Each task carries only what its sheet needs:
 the mosaic cells meeting the sheet (with their own transform, so
 :func:`crop_image` gives the same cells), the contours whose bounding box
 meets it and the spot heights inside; the index map's sheets and the title
-block go once per worker.  Workers are started with ``spawn`` (a fresh
-interpreter: safe beside Dask's threads); a chart is the same bytes drawn
-serially or in a worker (the tests compare them).
+block go once per worker.  Workers are forked when this process runs a single
+thread (cheap: matplotlib is already imported) and spawned otherwise (a fresh
+interpreter: forking beside Dask's or another library's threads can deadlock);
+a chart is the same bytes drawn serially or in a worker of either kind (the
+tests compare them).
 
 Nothing half-written: the PDF and PNG are written through
 :func:`lidarcat._util.atomic_write`.  The PDF embeds its fonts as TrueType
@@ -458,7 +460,8 @@ def render_charts(todo: Sequence[Any], names: Sequence[str], title: TitleBlock, 
                   image: np.ndarray, image_transform: GeoTransform, contours: Sequence[dict[str, Any]],
                   spots: np.ndarray | None = None, sheets: Sequence[Any] = (),
                   area: tuple[float, float, float, float] | None = None, crs: Any = None, dpi: int = 150,
-                  workers: int | None = None, progress: Callable[[int, int], Any] | None = None) -> list[str]:
+                  workers: int | None = None, progress: Callable[[int, int], Any] | None = None,
+                  start_method: str | None = None) -> list[str]:
     """Draw and write the chart of every sheet of *todo* as ``<name>.pdf`` and ``.png`` in *folder*.
 
     Parameters
@@ -475,6 +478,8 @@ def render_charts(todo: Sequence[Any], names: Sequence[str], title: TitleBlock, 
         1 draws in this process.
     progress : callable, optional
         ``progress(done, total)`` after each chart, in the calling process.
+    start_method : {"fork", "spawn", "forkserver"}, optional
+        How workers start (default: fork when this process runs one thread, else spawn).
 
     Returns
     -------
@@ -508,7 +513,12 @@ def render_charts(todo: Sequence[Any], names: Sequence[str], title: TitleBlock, 
         finally:
             _WORKER.clear()
         return [f for r in results for f in r]
-    ctx = multiprocessing.get_context("spawn")
+    import threading
+
+    if start_method is None:
+        single = threading.active_count() == 1 and "fork" in multiprocessing.get_all_start_methods()
+        start_method = "fork" if single else "spawn"
+    ctx = multiprocessing.get_context(start_method)
     with cf.ProcessPoolExecutor(max_workers=nw, mp_context=ctx, initializer=_init_worker,
                                 initargs=(common,)) as pool:
         # a window of 2 tasks per worker: the mosaic crops in flight stay a few sheets' worth
