@@ -439,7 +439,8 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
 
 def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
                 cell_m: float = 1.0, quality_level: str = "QL2", classes: Sequence[int] | None | str = "auto",
-                smooth_rms_m: float = 0.05, max_slope_deg: float = 10.0, preview: bool = True) -> dict[str, Any]:
+                smooth_rms_m: float = 0.05, max_slope_deg: float = 10.0, preview: bool = True,
+                progress: Callable[[int, int], Any] | None = None) -> dict[str, Any]:
     """Swath separation image of LiDAR tiles (``lidarcat lidar swath``; USGS lidar base specification).
 
     Parameters
@@ -457,6 +458,11 @@ def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *
         Points used, all last returns except noise (7, 18) and withheld
         points, further limited to these classes; ``"auto"``: the ground
         class (2) when the tiles hold ground points, else every class.
+    progress : callable, optional
+        ``progress(tiles_done, tiles)``.
+
+    Tiles are read one at a time; what is kept is the sums of the plane fits
+    per (cell, flight line) (:func:`lidarcat.production.swath.swath_sums`).
 
     Raises
     ------
@@ -469,13 +475,17 @@ def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *
     from ..lidar.crs import crs_label, resolve_crs
     from ..lidar.geotiff import write_geotiff
     from ..lidar.readers import read_points
-    from ..production.swath import INTERSWATH_LIMITS, swath_separation, write_swath_png
+    from ..production.swath import INTERSWATH_LIMITS, merge_sums, swath_from_sums, swath_sums, write_swath_png
 
     if quality_level not in INTERSWATH_LIMITS:
         raise ProductError(f"quality level must be one of {', '.join(INTERSWATH_LIMITS)}, got {quality_level!r}")
-    xyz, ids, cls_all = [], [], []
+    # tile by tile: the additive sums of the plane fits (production.swath, "Tile by tile")
+    parts: dict[str, list[Any]] = {"all": [], "ground": []}
+    npts = {"all": 0, "ground": 0}
+    fixed = None if isinstance(classes, str) or classes is None else [int(c) for c in classes]
     out_crs = resolve_crs(crs)
-    for t in tiles:
+    z_ref: float | None = None
+    for k, t in enumerate(tiles):
         pc = read_points(t, crs=crs)
         a = pc.attributes
         if "point_source_id" not in a:
@@ -487,30 +497,37 @@ def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *
             keep &= ~np.asarray(a["withheld"], dtype=bool)
         c = np.asarray(a["classification"]) if "classification" in a else np.zeros(len(pc), dtype=np.uint8)
         keep &= ~np.isin(c, (7, 18))
-        xyz.append(pc.xyz[keep])
-        ids.append(np.asarray(a["point_source_id"])[keep])
-        cls_all.append(c[keep])
+        if fixed is not None:
+            keep &= np.isin(c, fixed)
+        xyz, lid, cls = pc.xyz[keep], np.asarray(a["point_source_id"])[keep], c[keep]
+        if z_ref is None and len(xyz):
+            z_ref = float(np.median(xyz[:, 2]))
+        parts["all"].append(swath_sums(xyz, lid, cell_m, z_ref_m=z_ref or 0.0))
+        npts["all"] += len(xyz)
+        if isinstance(classes, str):
+            g = cls == 2
+            parts["ground"].append(swath_sums(xyz[g], lid[g], cell_m, z_ref_m=z_ref or 0.0))
+            npts["ground"] += int(g.sum())
         out_crs = out_crs or pc.crs
-    pts, lid, cls = np.concatenate(xyz), np.concatenate(ids), np.concatenate(cls_all)
-    used: list[int] | None
-    if isinstance(classes, str):
-        used = [2] if np.any(cls == 2) else None
-    else:
-        used = None if classes is None else [int(c) for c in classes]
-    if used is not None:
-        sel = np.isin(cls, used)
-        pts, lid = pts[sel], lid[sel]
-    if pts.shape[0] == 0:
+        if progress is not None:
+            progress(k + 1, len(tiles))
+    used: list[int] | None = fixed
+    key = "all"
+    if isinstance(classes, str) and npts["ground"] > 0:
+        used, key = [2], "ground"
+    if npts[key] == 0:
         raise ProductError(f"no last return{'' if used is None else ' of classes ' + ','.join(map(str, used))} "
                            f"in {', '.join(map(str, tiles))}")
-    sep = swath_separation(pts, lid, cell_m, smooth_rms_m=smooth_rms_m,
-                           max_slope=math.tan(math.radians(max_slope_deg)))
+    merged = merge_sums(parts[key])
+    sep = swath_from_sums(merged, smooth_rms_m=smooth_rms_m, max_slope=math.tan(math.radians(max_slope_deg)))
+    pts_n = npts[key]
+    lid = merged[0][:, 2]
     out = Path(output)
     files = [write_geotiff(out.with_suffix(".tif"), sep.dz_m.astype(np.float32), sep.transform, out_crs)]
     if preview:
         files.append(write_swath_png(out.with_suffix(".png"), sep, quality_level))
     stats = sep.assess(quality_level)
-    report = {"swath": stats, "cell_m": cell_m, "classes": used, "points": int(pts.shape[0]),
+    report = {"swath": stats, "cell_m": cell_m, "classes": used, "points": int(pts_n),
               "flight_lines": [int(x) for x in np.unique(lid)], "smooth_rms_m": smooth_rms_m,
               "max_slope_deg": max_slope_deg, "crs": crs_label(out_crs) if out_crs is not None else None,
               "tiles": [str(t) for t in tiles]}
