@@ -434,8 +434,10 @@ def swath(paths: tuple[str, ...], output: str, cell_m: float, quality_level: str
             raise click.BadParameter(f"{classes!r} is not auto, all or a comma-separated list of integers",
                                      param_hint="--classes") from None
     files, crs, _ = tile_sources(paths, crs)
-    report = swath_check(files, output, crs=crs, cell_m=cell_m, quality_level=quality_level, classes=cls,
-                         smooth_rms_m=smooth_rms_m, max_slope_deg=max_slope_deg, preview=not no_preview)
+    with progress_bar(len(files), "Tiles") as bar:
+        report = swath_check(files, output, crs=crs, cell_m=cell_m, quality_level=quality_level, classes=cls,
+                             smooth_rms_m=smooth_rms_m, max_slope_deg=max_slope_deg, preview=not no_preview,
+                             progress=(lambda d, n: bar.update(1)) if bar is not None else None)
     if as_json:
         echo_json(report)
         return
