@@ -35,11 +35,14 @@ __all__ = ["chart"]
 @click.option("--declination-date", default="", metavar="DATE", help="Date (epoch) of the declination value.")
 @click.option("--date", "date", default=None, metavar="DATE", help="Date in the title block (default: today, UTC).")
 @click.option("--dpi", type=click.IntRange(10, 1200), default=150, show_default=True, help="PNG resolution.")
+@click.option("--jobs", "jobs", type=click.IntRange(1), default=None, metavar="N",
+              help="Processes drawing charts at once (default: one per core; 1 = in this process). "
+                   "The charts are the same bytes either way.")
 @crs_option(help="CRS of the products (default: the mosaic's).")
 @json_opt
 def chart(mosaic: str, contours: str, outdir: str, spots: str | None, index: str, size_m: float,
           only: tuple[str, ...], scale: int, project: str, declination_deg: float | None, declination_date: str,
-          date: str | None, dpi: int, crs: str | None, as_json: bool) -> None:
+          date: str | None, dpi: int, jobs: int | None, crs: str | None, as_json: bool) -> None:
     """Orthophoto charts: the mosaic with contours, spot heights, UTM grid, legend, title block and index map.
 
     One printable sheet (PDF at true scale, and PNG) per sheet of the index
@@ -76,9 +79,13 @@ def chart(mosaic: str, contours: str, outdir: str, spots: str | None, index: str
                        date or datetime.datetime.now(datetime.timezone.utc).date().isoformat(),
                        _interval(feats), _master_every(feats))
     with atomic_dir(Path(outdir)) as tmp, progress_bar(len(only) or 1, "charts") as bar:
+        def tick(done: int, total: int) -> None:
+            bar.length = total          # the sheets holding data are known once the index is cut
+            bar.update(1)
+
         res = write_charts(Path(mosaic), feats, sp, tmp, crs=c, title=title, index=index, size_m=size_m,
-                           only=list(only) or None, dpi=dpi,
-                           progress=(lambda d, t: bar.update(1)) if bar is not None else None)
+                           only=list(only) or None, dpi=dpi, workers=jobs,
+                           progress=tick if bar is not None else None)
     if as_json:
         echo_json(res)
     else:

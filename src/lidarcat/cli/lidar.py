@@ -1,4 +1,4 @@
-"""``lidarcat lidar``: LiDAR tiles from the command line (info, index, clip, raster)."""
+"""``lidarcat lidar``: LiDAR tiles from the command line (info, index, clip, raster; calibrate, swath)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import click
 
 from .options import POSITIVE, crs_option, echo_json, json_opt, output_option, progress_bar, tile_sources
 
-__all__ = ["lidar", "info", "index", "clip_cmd", "raster"]
+__all__ = ["lidar", "info", "index", "clip_cmd", "raster", "calibrate", "swath"]
 
 _columns_opt = click.option(
     "--columns", default=None, metavar="'E N H ...'",
@@ -316,6 +316,142 @@ def raster(paths: tuple[str, ...], cell_m: float, what: str, bounds: tuple[float
     click.echo(f"{what}: {grid.shape[1]} x {grid.shape[0]} cells of {cell_m:g} m, "
                f"{100 * filled:.1f} % valued")
     for p in written:
+        click.echo(f"written {p}")
+
+
+# ----------------------------------------------------------------------------- calibrate
+@lidar.command()
+@click.argument("paths", nargs=-1, required=True, metavar="TILE...")
+@click.option("--trajectory", required=True, type=click.Path(exists=True, dir_okay=False),
+              metavar="SBET|CSV",
+              help="The flight's trajectory: an Applanix SBET (.out/.sbet, 17 doubles per record, WGS 84) or a "
+                   "CSV time,E,N,H,roll_deg,pitch_deg,heading_deg (map CRS; heading clockwise from grid north).")
+@click.option("--control", type=click.Path(exists=True, dir_okay=False), default=None, metavar="CSV",
+              help="Surveyed control surface (the runway): id,E,N,H. Without it the elevation bias is not "
+                   "estimated.")
+@output_option(required=True, metavar="OUT.json", help="The report (JSON).")
+@click.option("--classes", default=None, metavar="C1,C2",
+              help="Use only points of these classes (default: all; walls, trees and cars are rejected "
+                   "by the plane and 4-MAD tests).")
+@click.option("--stride", type=click.IntRange(1), default=1, show_default=True,
+              help="Use every N-th point (thins dense tiles).")
+@click.option("--radius-m", type=POSITIVE, default=2.5, show_default=True,
+              help="Strip planes: radius of the other line's points fitted, metres.")
+@click.option("--sd-control-m", type=POSITIVE, default=0.05, show_default=True,
+              help="A-priori sd of a LiDAR height against the control surface, metres.")
+@click.option("--sd-strip-m", type=POSITIVE, default=0.05, show_default=True,
+              help="A-priori sd of a point against the other flight line's plane, metres.")
+@crs_option()
+@json_opt
+def calibrate(paths: tuple[str, ...], trajectory: str, control: str | None, output: str, classes: str | None,
+              stride: int, radius_m: float, sd_control_m: float, sd_strip_m: float, crs: str | None,
+              as_json: bool) -> None:
+    """Boresight (roll, pitch), scan-angle scale and elevation bias from tiles + trajectory (report 7.1.2).
+
+    LAS points carry no range or scan angle: they are rebuilt from each
+    point and the trajectory at its GPS time (adjusted standard GPS time is
+    converted to seconds of the week for an SBET). Flight lines are the
+    points' point source ids; overlapping lines flown both ways over sloped
+    ground give roll, pitch and scale, the control surface the bias.
+
+    \b
+    Example:
+      lidarcat lidar calibrate strips/*.laz --trajectory sbet_001.out --control runway.csv -o calib.json
+    """
+    from ..stages.lidar import system_calibration
+
+    cls = None
+    if classes:
+        try:
+            cls = [int(c) for c in classes.split(",") if c.strip()]
+        except ValueError:
+            raise click.BadParameter(f"{classes!r} is not a comma-separated list of integers",
+                                     param_hint="--classes") from None
+    files, crs, _ = tile_sources(paths, crs)
+    with progress_bar(10, "Adjusting") as bar:
+        report = system_calibration(files, trajectory, output, crs=crs, control=control, classes=cls, stride=stride,
+                                    radius_m=radius_m, sd_control_m=sd_control_m, sd_strip_m=sd_strip_m,
+                                    progress=(lambda i, n: bar.update(1)) if bar is not None else None)
+    if as_json:
+        echo_json(report)
+        return
+    c, deg, sdd = report["calibration"], report["parameters_deg"], report["sd_deg"]
+    click.echo(f"{report['points']:,} points of flight lines {', '.join(map(str, report['flight_lines']))}; "
+               f"{report['time_base']}")
+    click.echo(f"roll  {deg['roll_deg']:+.5f} +/- {sdd['roll_deg']:.5f} deg")
+    click.echo(f"pitch {deg['pitch_deg']:+.5f} +/- {sdd['pitch_deg']:.5f} deg")
+    click.echo(f"scan-angle scale {c['parameters']['scale']:+.6f} +/- {c['sd']['scale']:.6f}")
+    if c["parameters"]["bias_m"] is not None:
+        click.echo(f"elevation bias {c['parameters']['bias_m']:+.3f} +/- {c['sd']['bias_m']:.3f} m")
+    for note in c["notes"]:
+        click.echo(f"note: {note}")
+    click.echo(f"written {output}")
+
+
+# ----------------------------------------------------------------------------- swath
+@lidar.command()
+@click.argument("paths", nargs=-1, required=True, metavar="TILE...")
+@output_option(required=True, metavar="OUT.tif",
+               help="The difference image (GeoTIFF, metres, the tiles' CRS); OUT.png (coloured) and OUT.json "
+                    "(statistics) go beside it.")
+@click.option("--cell", "cell_m", type=POSITIVE, default=1.0, show_default=True, help="Cell size, metres.")
+@click.option("--quality-level", type=click.Choice(["QL0", "QL1", "QL2", "QL3"]), default="QL2", show_default=True,
+              help="USGS quality level whose interswath limits are applied (QL2: RMSDz <= 8 cm, max +-16 cm).")
+@click.option("--classes", default="auto", show_default=True, metavar="auto|all|C1,C2",
+              help="Last returns used: auto = ground (2) when the tiles are classified, else all; all; or "
+                   "a list of classes. Noise (7, 18) and withheld points are always left out.")
+@click.option("--smooth-rms-m", type=POSITIVE, default=0.05, show_default=True,
+              help="A cell counts in the statistics when both lines' planes fit within this rms, metres.")
+@click.option("--max-slope-deg", type=click.FloatRange(0, 90), default=10.0, show_default=True,
+              help="... and both planes are at most this steep.")
+@click.option("--no-preview", is_flag=True, help="Do not write the PNG.")
+@crs_option()
+@json_opt
+def swath(paths: tuple[str, ...], output: str, cell_m: float, quality_level: str, classes: str,
+          smooth_rms_m: float, max_slope_deg: float, no_preview: bool, crs: str | None, as_json: bool) -> None:
+    """Swath separation image: per cell, the difference between overlapping flight lines (USGS LBS).
+
+    Flight lines are the points' point source ids. Each line's last returns
+    in a cell are fitted by a plane; the cell holds the height difference
+    of the two best-sampled lines at its centre (lower id minus higher).
+    RMSDz and max |dz| over smooth, flat cells are checked against the
+    quality level's interswath limits.
+
+    \b
+    Example:
+      lidarcat lidar swath tests/data/lidar/ahn3_cropped_1.laz --crs EPSG:7415 -o swath.tif
+    """
+    from ..stages.lidar import swath_check
+
+    cls: Any = "auto"
+    word = classes.strip().lower()
+    if word == "all":
+        cls = None
+    elif word != "auto":
+        try:
+            cls = [int(c) for c in classes.split(",") if c.strip()]
+        except ValueError:
+            raise click.BadParameter(f"{classes!r} is not auto, all or a comma-separated list of integers",
+                                     param_hint="--classes") from None
+    files, crs, _ = tile_sources(paths, crs)
+    with progress_bar(len(files), "Tiles") as bar:
+        report = swath_check(files, output, crs=crs, cell_m=cell_m, quality_level=quality_level, classes=cls,
+                             smooth_rms_m=smooth_rms_m, max_slope_deg=max_slope_deg, preview=not no_preview,
+                             progress=(lambda d, n: bar.update(1)) if bar is not None else None)
+    if as_json:
+        echo_json(report)
+        return
+    st = report["swath"]
+    verdict = {True: "PASS", False: "FAIL", None: "no smooth overlap"}[st["pass"]]
+    click.echo(f"{st['overlap_cells']:,} overlap cells of {cell_m:g} m ({st['smooth_cells']:,} smooth), "
+               f"flight lines {', '.join(map(str, report['flight_lines']))}")
+    if st["smooth_cells"]:
+        click.echo(f"RMSDz {100 * st['rmsdz_m']:.1f} cm (limit {100 * st['rmsdz_limit_m']:g}), max |dz| "
+                   f"{100 * st['max_abs_dz_m']:.1f} cm (limit {100 * st['max_limit_m']:g}), 95 % "
+                   f"{100 * st['p95_abs_dz_m']:.1f} cm: {quality_level} {verdict}")
+    else:
+        click.echo(f"{quality_level}: {verdict}")
+    for p in report["files"]:
         click.echo(f"written {p}")
 
 

@@ -162,10 +162,23 @@ Examples:
 @click.option("--edge-peel", type=click.IntRange(0), default=3, show_default=True,
               help="Rings of triangles at the boundary of the ground TIN left out: the Delaunay slivers "
                    "there make contours run along the edge (0: keep them).")
+@click.option("--review", is_flag=True,
+              help="Contour verification (report 13.2): flag the stretches over sparse ground (long TIN edges, "
+                   "e.g. dense vegetation) as the layer 'review' (OUT_review.geojson or a layer of OUT.gpkg).")
+@click.option("--sparse-edge-m", type=POSITIVE, default=None, metavar="M",
+              help="--review: a TIN edge longer than this is sparse ground (default 3 x the median edge).")
+@click.option("--review-min-m", type=NON_NEGATIVE, default=0.0, show_default=True,
+              help="--review: shorter stretches are not flagged, metres.")
+@click.option("--profiles", type=click.IntRange(0), default=0, show_default=True, metavar="N",
+              help="--review: profile plots (PNG) across the N longest stretches, in OUT_profiles/.")
+@click.option("--polygons", is_flag=True,
+              help="Also the filled bands between the levels (MultiPolygons; OUT_bands.geojson or a layer).")
+@click.option("--3d", "three_d", is_flag=True, help="Contour lines with the level as z (LineString Z).")
 @crs_option()
 def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_every: int, smooth: int,
                  max_edge_m: float, spots_m: float, levels: str | None, min_ring_m: float, edge_peel: int,
-                 crs: str | None) -> None:
+                 review: bool, sparse_edge_m: float | None, review_min_m: float, profiles: int, polygons: bool,
+                 three_d: bool, crs: str | None) -> None:
     """Contour lines from the TIN of the ground points (class 2), with spot heights; or of a DTM GeoTIFF.
 
     One TILE ending in .tif is a gridded DTM: its cells are contoured (no spot heights).
@@ -197,6 +210,9 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
         from ..lidar.geotiff import read_geotiff
         from ..production.contours import raster_contours
 
+        if review or polygons:
+            raise click.UsageError("--review and --polygons need the ground points (a LAS/LAZ tile), not a DTM "
+                                   "raster")
         grid, t, gcrs = read_geotiff(paths[0])
         if grid.ndim != 2:
             raise click.BadParameter(f"{paths[0]}: a DTM has one band, this has {grid.shape[2]}", param_hint="TILE")
@@ -213,8 +229,39 @@ def contours_cmd(paths: tuple[str, ...], output: str, interval_m: float, master_
     g = pc.xyz[np.asarray(pc.attributes["classification"]) == 2]
     cs = contours(g, interval_m, master_every=master_every, max_edge_m=max_edge_m, smooth_iterations=smooth,
                   levels=fixed, min_ring_m=min_ring_m, edge_peel=edge_peel)
-    written = write_contours(output, cs, spot_heights(g, spots_m), pc.crs)
-    click.echo(f"wrote {len(cs)} contour lines and the spot heights to {' and '.join(map(str, written))}")
+    spots = spot_heights(g, spots_m)
+    if not (review or polygons or three_d):
+        written = write_contours(output, cs, spots, pc.crs)
+        click.echo(f"wrote {len(cs)} contour lines and the spot heights to {' and '.join(map(str, written))}")
+        return
+    from ..production.contourcheck import contour_features_3d
+    from ..production.contours import contour_features, spot_features, write_layers
+    from ..stages.lidar import contour_extras
+
+    cls = np.asarray(pc.attributes["classification"])
+    extra = contour_extras(output, cs, g, pc.crs, points_xyz=pc.xyz, ground_mask=cls == 2, review=review,
+                           sparse_edge_m=sparse_edge_m, review_min_m=review_min_m, profiles=profiles,
+                           polygons=polygons, band_kw={"interval_m": interval_m, "max_edge_m": max_edge_m,
+                                                       "levels": fixed, "edge_peel": edge_peel})
+    feats = contour_features_3d(cs) if three_d else contour_features(cs)
+    out = Path(output)
+    if out.suffix.lower() == ".gpkg":
+        written = [write_layers(out, {"contours": feats, "spot_heights": spot_features(spots),
+                                      **{k: v for k, v in extra.get("layers", {}).items() if v}}, pc.crs)]
+    else:
+        written = [write_layers(out, {"contours": feats}, pc.crs),
+                   write_layers(out.with_name(out.stem + "_spots" + out.suffix), {"spots": spot_features(spots)},
+                                pc.crs)]
+    click.echo(f"wrote {len(cs)} contour lines{' (3-D)' if three_d else ''} and the spot heights to "
+               f"{' and '.join(map(str, written))}")
+    if "review" in extra:
+        r = extra["review"]
+        click.echo(f"review: {r['stretches']} stretches over sparse ground (TIN edges above "
+                   f"{r['sparse_edge_m']:.2f} m), {r['length_m']:.1f} m of contour")
+    if "bands" in extra:
+        click.echo(f"{extra['bands']} filled bands")
+    for f in extra["files"]:
+        click.echo(f"written {f}")
 
 
 def _colour_map(name: str) -> str:
@@ -403,9 +450,14 @@ PRODUCT_COMMANDS.append(sheets)
 
 @click.command(name="check")
 @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
-@click.option("--checkpoints", required=True, type=click.Path(exists=True, dir_okay=False), metavar="CSV",
+@click.option("--checkpoints", default=None, type=click.Path(exists=True, dir_okay=False), metavar="CSV",
               help="Surveyed check points: id,E,N,H[,vegetated] (metres, CRS of the tiles; vegetated 1/0, "
                    "default 0 = hard, open surface).")
+@click.option("--outlines", default=None, type=click.Path(exists=True, dir_okay=False), metavar="FILE",
+              help="Surveyed building outlines (polygons: .gpkg/.shp/.geojson, CRS of the tiles): planimetric "
+                   "check of the LiDAR corners, OUT_planimetric.json and OUT_corners.csv (lidarcat[gis]).")
+@click.option("--roof-classes", default="6", show_default=True, metavar="C1,C2",
+              help="--outlines: classes of the roof points (without them: points 2 m above the local ground).")
 @output_option(required=True, metavar="OUT.json",
                help="The report (JSON); the per-point discrepancies go beside it as OUT.csv.")
 @click.option("--method", type=click.Choice(["tin", "plane"]), default="tin", show_default=True,
@@ -423,17 +475,37 @@ PRODUCT_COMMANDS.append(sheets)
               help="Contour interval for the PEC altimetric class, metres.")
 @crs_option()
 @json_option()
-def check(paths: tuple[str, ...], checkpoints: str, output: str, method: str, radius_m: float, classes: str,
-          checkpoint_sd_m: float | None, scale: float | None, contour_interval_m: float | None,
-          crs: str | None, as_json: bool) -> None:
-    """Vertical accuracy of LiDAR tiles at surveyed check points (LACTEC report 7.1.1).
+def check(paths: tuple[str, ...], checkpoints: str | None, outlines: str | None, roof_classes: str, output: str,
+          method: str, radius_m: float, classes: str, checkpoint_sd_m: float | None, scale: float | None,
+          contour_interval_m: float | None, crs: str | None, as_json: bool) -> None:
+    """Vertical and planimetric accuracy of LiDAR tiles (LACTEC report 7.1.1).
 
-    Prints and writes ASPRS 2023 NVA (RMSE_z of the non-vegetated points, and
-    1.96 RMSE_z), VVA (RMSE_z and 95th percentile of the vegetated points),
-    the ASPRS 2023 vertical class and, with --scale and --contour-interval-m,
-    the PEC altimetric class.
+    With --checkpoints: ASPRS 2023 NVA (RMSE_z of the non-vegetated points,
+    and 1.96 RMSE_z), VVA (RMSE_z and 95th percentile of the vegetated
+    points), the ASPRS 2023 vertical class and, with --scale and
+    --contour-interval-m, the PEC altimetric class.  With --outlines: the
+    building corners found from the LiDAR roof edges against the surveyed
+    ones, ASPRS 2023 horizontal RMSE and, with --scale, the PEC planimetric class.
     """
-    from ..stages.lidar import vertical_check
+    from ..stages.lidar import planimetric_check, vertical_check
+
+    if checkpoints is None and outlines is None:
+        raise click.UsageError("give --checkpoints (vertical check), --outlines (planimetric check) or both")
+    if outlines is not None:
+        try:
+            rc = [int(c) for c in roof_classes.split(",") if c.strip()]
+        except ValueError:
+            raise click.BadParameter(f"{roof_classes!r} is not a comma-separated list of integers",
+                                     param_hint="--roof-classes") from None
+        files, tcrs, _ = tile_sources(paths, crs)
+        plan = planimetric_check(files, outlines, output, crs=tcrs, roof_classes=rc,
+                                 checkpoint_sd_m=checkpoint_sd_m, scale=scale)
+        if checkpoints is None:
+            if as_json:
+                echo_json(plan)
+                return
+            _echo_planimetric(plan)
+            return
 
     if classes.strip().lower() == "all":
         cls = None
@@ -445,9 +517,13 @@ def check(paths: tuple[str, ...], checkpoints: str, output: str, method: str, ra
                                      param_hint="--classes") from None
     report = vertical_check(paths, checkpoints, output, crs=crs, classes=cls, method=method, radius_m=radius_m,
                             checkpoint_sd_m=checkpoint_sd_m, scale=scale, contour_interval_m=contour_interval_m)
+    if outlines is not None:
+        report = {**report, "planimetric_report": plan}
     if as_json:
         echo_json(report)
         return
+    if outlines is not None:
+        _echo_planimetric(plan)
     a = report["accuracy"]
     click.echo(f"{a['n_nonveg']} non-vegetated check points: NVA RMSE_z {a['nva_rmse_m']:.3f} m, "
                f"95 % {a['nva_95_m']:.3f} m, mean {a['mean_nonveg_m']:+.3f} m")
@@ -458,6 +534,18 @@ def check(paths: tuple[str, ...], checkpoints: str, output: str, method: str, ra
     if a["pec"] is not None:
         click.echo(f"PEC altimetric class: {a['pec']['class']['altimetric']}")
     for p in report["files"]:
+        click.echo(f"written {p}")
+
+
+def _echo_planimetric(plan: dict) -> None:
+    a = plan["planimetric"]
+    click.echo(f"{a['n_corners']} building corners ({a['n_missing']} not found): RMSE_x {a['rmse_x_m']:.3f} m, "
+               f"RMSE_y {a['rmse_y_m']:.3f} m, RMSE_r {a['rmse_r_m']:.3f} m, mean dE {a['mean_dE_m']:+.3f} m, "
+               f"dN {a['mean_dN_m']:+.3f} m")
+    click.echo(f"ASPRS 2023 horizontal class: {a['asprs2023']['class']['planimetric']}")
+    if a["pec"] is not None:
+        click.echo(f"PEC planimetric class: {a['pec']['class']['planimetric']}")
+    for p in plan["files"]:
         click.echo(f"written {p}")
 
 

@@ -13,6 +13,7 @@
 :mod:`.info`        :func:`describe`: counts, bounds, density, classes, returns
 :mod:`.copc`        COPC tiles read by their octree: only the nodes a query box meets
 :mod:`.jobs`        the tile engine: a function over tiles with overlap, serial or on Dask, resumable
+:mod:`.trajectory`  :class:`Trajectory`: SBET and CSV flight trajectories, interpolated at GPS times
 ==================  ===========================================================
 
 Examples

@@ -4,6 +4,7 @@
 ``ground``         Ground classification: progressive TIN densification and a simple morphological filter.
 ``terrain``        Terrain (DTM) and surface (DSM) models, nDSM, hillshade and the hypsometric image.
 ``contours``       Contour lines from the ground TIN, master/intermediate curves, spot heights, GeoJSON.
+``contourcheck``   Contour verification over sparse ground (stretches, profiles), filled bands, 3-D lines.
 ``sheets``         Map sheets: a regular sheet grid (the report's "articulação"), its index layer, products cut per sheet.
 ``mapindex``       The Brazilian systematic map index (Cartografia Sistemática Brasileira) down to 1:5,000 and 1:2,000.
 ``tiles``          The products' tile functions by name (ground, dtm, dsm), as jobs of the tile engine ``lidar.jobs``.
@@ -11,6 +12,7 @@
 ``charts``         Orthophoto charts (ortofotocartas): mosaic, contours, UTM grid, legend, title block, index map.
 ``delivery``       Delivery formats: TIFF + TFW world files, Shapefile layers, DXF layers of the conventions.
 ``lidarchecks``    LiDAR system calibration checks: vertical accuracy (NVA/VVA, PEC), boresight, scale, bias.
+``swath``          Swath separation images: per-cell differences between overlapping flight lines (USGS LBS).
 =================  ============================================================
 
 The functions named as their modules (``contours.contours``) are

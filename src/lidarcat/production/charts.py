@@ -36,6 +36,20 @@ files.  It is a parameter (``declination_deg``, east positive, with the date
 of the value), printed as degrees and minutes E/W; without it the title
 block says "not given".
 
+In parallel
+-----------
+:func:`render_charts` draws the sheets in a pool of processes (matplotlib
+is not thread-safe, and one chart is a few seconds of pure-Python drawing, so
+threads would not help either).  Each task carries only what its sheet needs:
+the mosaic cells meeting the sheet (with their own transform, so
+:func:`crop_image` gives the same cells), the contours whose bounding box
+meets it and the spot heights inside; the index map's sheets and the title
+block go once per worker.  Workers are forked when this process runs a single
+thread (cheap: matplotlib is already imported) and spawned otherwise (a fresh
+interpreter: forking beside Dask's or another library's threads can deadlock);
+a chart is the same bytes drawn serially or in a worker of either kind (the
+tests compare them).
+
 Nothing half-written: the PDF and PNG are written through
 :func:`lidarcat._util.atomic_write`.  The PDF embeds its fonts as TrueType
 (``pdf.fonttype 42``), so its text stays text (searchable, and selectable in a
@@ -46,7 +60,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -58,7 +72,7 @@ from ..lidar.geotiff import GeoTransform
 from .conventions import convention
 
 __all__ = ["TitleBlock", "ChartFiles", "sheet_extent", "grid_interval", "crop_image", "draw_chart",
-           "write_chart", "format_declination"]
+           "write_chart", "format_declination", "render_charts"]
 
 _MM = 1.0 / 25.4   # inches per millimetre
 _PANEL_IN = 3.4     # width of the side panel, in
@@ -393,3 +407,141 @@ def write_chart(fig: Any, pdf_path: str | os.PathLike, png_path: str | os.PathLi
         with atomic_write(png_path, "wb") as fh:
             fig.savefig(fh, format="png", dpi=dpi, metadata={"Software": None})
     return pdf_path, png_path
+
+
+# ----------------------------------------------------------------------------- in parallel
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(common: dict[str, Any]) -> None:
+    _WORKER.clear()
+    _WORKER.update(common)
+
+
+def _draw_one(task: dict[str, Any]) -> list[str]:
+    """Draw and write one chart (in a worker or in-process); the file names written."""
+    c = _WORKER
+    fig = draw_chart(task["sheet"], c["title"], image=task["image"], image_transform=task["transform"],
+                     contours=task["contours"], spots=task["spots"], sheets=c["sheets"], area=c["area"],
+                     crs=c["crs"])
+    folder, name = Path(c["folder"]), task["name"]
+    write_chart(fig, folder / f"{name}.pdf", folder / f"{name}.png", dpi=c["dpi"])
+    return [f"{name}.pdf", f"{name}.png"]
+
+
+def _task(sheet: Any, name: str, image: np.ndarray, transform: GeoTransform,
+          contours: Sequence[dict[str, Any]], boxes: np.ndarray, spots: np.ndarray | None, crs: Any) -> dict[str, Any]:
+    """What one sheet's chart needs (module docstring, "In parallel")."""
+    box = sheet_extent(sheet, crs)[0]
+    rows, cols = image.shape[:2]
+    c = transform.cell_m
+    c0 = max(0, int(math.floor((box[0] - transform.x0) / c)))
+    c1 = min(cols, int(math.ceil((box[2] - transform.x0) / c)))
+    r0 = max(0, int(math.floor((transform.y0 - box[3]) / c)))
+    r1 = min(rows, int(math.ceil((transform.y0 - box[1]) / c)))
+    if c1 > c0 and r1 > r0:
+        sub = np.ascontiguousarray(image[r0:r1, c0:c1])
+        sub_t = GeoTransform(transform.x0 + c0 * c, transform.y0 - r0 * c, c)
+    else:
+        sub, sub_t = image[0:0, 0:0], transform
+    meet = np.flatnonzero((boxes[:, 0] <= box[2]) & (boxes[:, 2] >= box[0]) & (boxes[:, 1] <= box[3])
+                          & (boxes[:, 3] >= box[1]))
+    sp = None
+    if spots is not None and len(spots):
+        a = np.asarray(spots, dtype=np.float64)
+        sp = a[(a[:, 0] >= box[0]) & (a[:, 0] <= box[2]) & (a[:, 1] >= box[1]) & (a[:, 1] <= box[3])]
+    # none meeting the sheet: one that does not, so that draw_chart says "outside the data" as it would
+    feats = [contours[i] for i in meet] if meet.size else list(contours[:1])
+    return {"sheet": sheet, "name": name, "image": sub, "transform": sub_t, "contours": feats, "spots": sp}
+
+
+def render_charts(todo: Sequence[Any], names: Sequence[str], title: TitleBlock, folder: str | os.PathLike, *,
+                  image: np.ndarray, image_transform: GeoTransform, contours: Sequence[dict[str, Any]],
+                  spots: np.ndarray | None = None, sheets: Sequence[Any] = (),
+                  area: tuple[float, float, float, float] | None = None, crs: Any = None, dpi: int = 150,
+                  workers: int | None = None, progress: Callable[[int, int], Any] | None = None,
+                  start_method: str | None = None) -> list[str]:
+    """Draw and write the chart of every sheet of *todo* as ``<name>.pdf`` and ``.png`` in *folder*.
+
+    Parameters
+    ----------
+    todo : sequence of sheets
+    names : sequence of str
+        File name of each sheet's chart (safe path components), same length.
+    title, image, image_transform, contours, spots, sheets, area, crs
+        As :func:`draw_chart`.
+    dpi : int
+        PNG resolution.
+    workers : int, optional
+        Processes drawing charts; default ``min(len(todo), os.cpu_count())``;
+        1 draws in this process.
+    progress : callable, optional
+        ``progress(done, total)`` after each chart, in the calling process.
+    start_method : {"fork", "spawn", "forkserver"}, optional
+        How workers start (default: fork when this process runs one thread, else spawn).
+
+    Returns
+    -------
+    list of str
+        The files written, relative to *folder*, in the order of *todo*.
+
+    Raises
+    ------
+    ProductError
+        As :func:`draw_chart` (the first failing sheet's error, re-raised here).
+    """
+    import concurrent.futures as cf
+    import multiprocessing
+
+    if len(names) != len(todo):
+        raise ProductError(f"render_charts: {len(todo)} sheets and {len(names)} names")
+    boxes = np.array([[*np.min(np.asarray(f["geometry"]["coordinates"], dtype=float)[:, :2], axis=0),
+                       *np.max(np.asarray(f["geometry"]["coordinates"], dtype=float)[:, :2], axis=0)]
+                      for f in contours]).reshape(-1, 4)
+    common = {"title": title, "sheets": list(sheets), "area": area, "crs": crs, "dpi": dpi, "folder": str(folder)}
+    n = len(todo)
+    nw = min(n, os.cpu_count() or 1) if workers is None else max(1, min(int(workers), n))
+    results: list[list[str]] = [[] for _ in range(n)]
+    if nw <= 1:
+        _init_worker(common)
+        try:
+            for k, (s, name) in enumerate(zip(todo, names)):
+                results[k] = _draw_one(_task(s, name, image, image_transform, contours, boxes, spots, crs))
+                if progress is not None:
+                    progress(k + 1, n)
+        finally:
+            _WORKER.clear()
+        return [f for r in results for f in r]
+    import threading
+
+    if start_method is None:
+        single = threading.active_count() == 1 and "fork" in multiprocessing.get_all_start_methods()
+        start_method = "fork" if single else "spawn"
+    ctx = multiprocessing.get_context(start_method)
+    with cf.ProcessPoolExecutor(max_workers=nw, mp_context=ctx, initializer=_init_worker,
+                                initargs=(common,)) as pool:
+        # a window of 2 tasks per worker: the mosaic crops in flight stay a few sheets' worth
+        pending: dict[Any, int] = {}
+        queue = iter(enumerate(zip(todo, names)))
+        done = 0
+        try:
+            while True:
+                for k, (s, name) in queue:
+                    pending[pool.submit(_draw_one, _task(s, name, image, image_transform, contours, boxes,
+                                                         spots, crs))] = k
+                    if len(pending) >= 2 * nw:
+                        break
+                if not pending:
+                    break
+                finished, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                for fut in finished:
+                    results[pending.pop(fut)] = fut.result()
+                    done += 1
+                    if progress is not None:
+                        progress(done, n)
+        except BaseException:
+            for f in pending:
+                f.cancel()
+            raise
+    return [f for r in results for f in r]

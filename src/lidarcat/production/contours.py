@@ -63,7 +63,8 @@ import numpy as np
 
 from .._util import dumps_json, write_text_atomic
 
-__all__ = ["Contour", "contours", "raster_contours", "edge_fraction", "tin_mask", "boundary_edges", "spot_heights",
+__all__ = ["Contour", "contours", "contour_levels", "raster_contours", "edge_fraction", "tin_mask", "boundary_edges",
+           "spot_heights",
            "write_geojson", "contour_features", "spot_features",
            "write_contours", "write_layers", "read_line_layer", "CONTOUR_FORMATS"]
 
@@ -168,7 +169,7 @@ def contours(ground_xyz: np.ndarray, interval_m: float = 1.0, *, master_every: i
     tri.set_mask(mask)
     gen = TriContourGenerator(tri.get_cpp_triangulation(), xyz[:, 2])
     out: list[Contour] = []
-    for level, k in _levels(xyz[:, 2], interval_m, base_m, levels):
+    for level, k in contour_levels(xyz[:, 2], interval_m, base_m, levels):
         segs, codes = gen.create_contour(level)
         for seg, code in zip(segs, codes):
             # split at MOVETO codes (1): one path can hold several lines
@@ -192,7 +193,7 @@ def _length(xy: np.ndarray) -> float:
     return float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0
 
 
-def _levels(h: np.ndarray, interval_m: float, base_m: float,
+def contour_levels(h: np.ndarray, interval_m: float, base_m: float,
             levels: Sequence[float] | None) -> list[tuple[float, int | None]]:
     """(level, k) to contour: ``base_m + k interval_m`` within the heights, or the fixed *levels*
     (k None when a level is off that grid)."""
@@ -300,7 +301,7 @@ def raster_contours(grid: np.ndarray, transform: Any, interval_m: float = 1.0, *
     zm = np.ma.masked_invalid(z)
     gen = contourpy.contour_generator(x, y, zm, line_type=contourpy.LineType.Separate)
     out: list[Contour] = []
-    for level, k in _levels(z.ravel(), interval_m, base_m, levels):
+    for level, k in contour_levels(z.ravel(), interval_m, base_m, levels):
         for line in gen.lines(level):
             line = np.asarray(line, dtype=np.float64)
             if len(line) < 2:
@@ -435,6 +436,10 @@ def write_layers(path: str | os.PathLike, layers: dict[str, list[dict[str, Any]]
     c = resolve_crs(crs)
     if c is None:
         raise CRSError(f"{path}: a GeoPackage needs the CRS of its layers; give the tiles' CRS (--crs)")
+    if any(f["geometry"]["type"] == "MultiPolygon" or (f["geometry"]["type"] == "LineString"
+                                                       and len(f["geometry"]["coordinates"][0]) == 3)
+           for feats in layers.values() for f in feats[:1]):
+        return _write_gpkg_wkb(path, layers, c)
     out = []
     for name, feats in layers.items():
         kind = feats[0]["geometry"]["type"] if feats else "LineString"
@@ -444,6 +449,72 @@ def write_layers(path: str | os.PathLike, layers: dict[str, list[dict[str, Any]]
         keys = list(feats[0]["properties"]) if feats else []
         out.append(Layer(name, kind, geoms, {k: [f["properties"][k] for f in feats] for k in keys}))
     return write_gpkg(path, out, c)
+
+
+def _wkb(geom: dict[str, Any]) -> tuple[bytes, str]:
+    """ISO WKB of a GeoJSON geometry (Point, LineString, Polygon, MultiPolygon; 2-D or 3-D) and its OGR type name."""
+    import struct
+
+    kind, c = geom["type"], geom["coordinates"]
+
+    def dims(a: Any) -> int:
+        while isinstance(a[0], list):
+            a = a[0]
+        return len(a)
+
+    z = dims(c) == 3
+    add = 1000 if z else 0
+
+    def pts(a: Any) -> bytes:
+        arr = np.asarray(a, dtype="<f8").reshape(-1, 3 if z else 2)
+        return struct.pack("<I", len(arr)) + arr.tobytes()
+
+    def poly(rings: Any) -> bytes:
+        return struct.pack("<BII", 1, 3 + add, len(rings)) + b"".join(pts(r) for r in rings)
+
+    if kind == "Point":
+        return struct.pack("<BI", 1, 1 + add) + np.asarray(c, dtype="<f8").tobytes(), "Point Z" if z else "Point"
+    if kind == "LineString":
+        return struct.pack("<BI", 1, 2 + add) + pts(c), "LineString Z" if z else "LineString"
+    if kind == "Polygon":
+        return poly(c), "Polygon Z" if z else "Polygon"
+    if kind == "MultiPolygon":
+        return (struct.pack("<BII", 1, 6 + add, len(c)) + b"".join(poly(p) for p in c),
+                "MultiPolygon Z" if z else "MultiPolygon")
+    from ..errors import ProductError
+
+    raise ProductError(f"geometry type {kind!r} is not written to a GeoPackage here")
+
+
+def _write_gpkg_wkb(path: Path, layers: dict[str, list[dict[str, Any]]], crs: Any) -> Path:
+    """Layers of any geometry of :func:`_wkb` into one GeoPackage with pyogrio, atomically."""
+    import shutil
+    import tempfile
+
+    from ..errors import FormatError
+
+    try:
+        from pyogrio.raw import write
+    except ImportError:
+        raise FormatError(f"{path}: GeoPackage output needs pyogrio (pip install 'lidarcat[gis]'); "
+                          "or write GeoJSON") from None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent))
+    try:
+        part = tmp / path.name
+        for name, feats in layers.items():
+            enc = [_wkb(f["geometry"]) for f in feats]
+            gtype = enc[0][1] if enc else "LineString"
+            keys = list(feats[0]["properties"]) if feats else []
+            data = [np.asarray([f["properties"][k] for f in feats],
+                               dtype=object if feats and isinstance(feats[0]["properties"][k], str) else None)
+                    for k in keys]
+            write(str(part), np.array([e[0] for e in enc], dtype=object), data, keys, layer=name, driver="GPKG",
+                  geometry_type=gtype, crs=crs.to_wkt(), append=part.exists())
+        os.replace(part, path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return path
 
 
 def _check_vertices(xy: np.ndarray, where: str) -> None:

@@ -76,6 +76,28 @@ Observations (Gauss-Newton, re-linearised at each iteration)
 At each iteration observations of either kind with ``|v| > 4 x 1.4826 MAD``
 of their kind (a crease, a wall, a car on the runway) are left out.
 
+Planimetric check against surveyed building outlines (7.1.1, Figure 5)
+----------------------------------------------------------------------
+The report surveys the corners of a building and compares them with the
+building in the LiDAR.  Here each edge ``P_i -> P_i+1`` of a surveyed outline
+(made counter-clockwise, outward normal ``n = (u_y, -u_x)`` for the edge
+direction ``u``) is found in the points: roof points and low (ground) points
+within ``band_m`` of the edge, away from the corners (the middle 80 % of
+it), are binned every ``bin_m`` along the edge; in each bin the roof ends at
+the outermost roof point (offset ``o_r`` along ``n``) and the ground starts
+at the innermost low point beyond it (``o_g``), so the edge is at
+``(o_r + o_g) / 2``.  With no low point the edge is ``o_r + ln 2 / (rho w)``:
+for roof points of density ``rho`` (counted in the band inside the edge) the
+gap between the outermost point of a bin ``w`` wide and the edge is
+exponential (randomly spread points) with median ``ln 2 / (rho w)``.  The LiDAR edge is the line parallel to the surveyed one
+at the median offset of the bins (robust to the gaps' long tail): a free direction would turn short edges (an 8 m wing at 0.5 m
+spacing) by degrees, and the check is of a shift, not of the building's
+shape; each LiDAR corner is the intersection of its two edges, and its discrepancy ``(dE, dN) =
+corner_lidar - corner_surveyed``.  An edge with fewer than ``min_bins`` bins
+leaves its two corners out (NaN).  Reported as ASPRS 2023 horizontal
+accuracy (``RMSE_x``, ``RMSE_y``, ``RMSE_r = sqrt(RMSE_x^2 + RMSE_y^2)``)
+and the PEC planimetric class at a scale (:func:`planimetric_accuracy`).
+
 Normal equations ``N dq = A^T P v`` (with the sign of a correction:
 ``dq = -N^-1 A^T P v``), ``sigma0^2 = v^T P v / (n_control + n_strip / 2 - u)`` and sds
 ``sigma0 sqrt(diag N^-1)``.  A parameter with no observation (the bias
@@ -105,9 +127,13 @@ __all__ = [
     "CalibrationResult",
     "georeference",
     "geolocation_partials",
+    "pulses_from_points",
     "lidar_heights_at",
     "vertical_accuracy",
     "estimate_system_parameters",
+    "OutlineEdges",
+    "lidar_outline_corners",
+    "planimetric_accuracy",
 ]
 
 PARAMETER_NAMES = ("roll_rad", "pitch_rad", "scale", "bias_m")
@@ -321,6 +347,50 @@ def geolocation_partials(pulses: PulseRecords, params: SystemParameters | None =
         jac[:, :, k] = np.einsum("nij,nj->ni", ins, c)
     jac[:, 2, 3] = 1.0
     return jac
+
+
+def pulses_from_points(points_m: np.ndarray, sensor_m: np.ndarray, attitude_rad: np.ndarray,
+                       strip: np.ndarray) -> tuple[PulseRecords, np.ndarray]:
+    """Rebuild pulse records from delivered points and the trajectory at their GPS times.
+
+    A LAS file holds the georeferenced point ``P``, not its range and scan
+    angle.  With the sensor position ``g`` and INS attitude at the point's GPS
+    time (:meth:`lidarcat.lidar.trajectory.Trajectory.at`), and the points taken
+    as the raw cloud (all four parameters zero, ``P = g + R_ins u``), the body
+    vector is ``u = R_ins^T (P - g)``, so::
+
+        rho = |u|,   theta = atan2(u_y, -u_z),   alpha = asin(u_x / rho)
+
+    ``alpha`` (the along-track angle) is zero for a scanner sweeping across
+    track; a non-zero ``alpha`` is the pitch already applied by the software
+    that made the points, or a trajectory that does not match them, and it is
+    returned for the report.
+
+    Parameters
+    ----------
+    points_m : (N, 3) float
+    sensor_m, attitude_rad : (N, 3) float
+        Trajectory at each point's time (map frame, module docstring convention).
+    strip : (N,) int
+        Flight line (LAS point source id).
+
+    Returns
+    -------
+    pulses : PulseRecords
+    along_track_rad : (N,) float
+    """
+    p = np.asarray(points_m, dtype=float)
+    g = np.asarray(sensor_m, dtype=float)
+    att = np.asarray(attitude_rad, dtype=float)
+    u = np.einsum("nji,nj->ni", _ins(att), p - g)    # R_ins^T (P - g)
+    rho = np.linalg.norm(u, axis=1)
+    if np.any(rho <= 0):
+        i = int(np.flatnonzero(rho <= 0)[0])
+        raise ProductError(f"point {i + 1}: at the sensor position (zero range); the trajectory does not "
+                           "match the points")
+    theta = np.arctan2(u[:, 1], -u[:, 2])
+    alpha = np.arcsin(np.clip(u[:, 0] / rho, -1.0, 1.0))
+    return PulseRecords(g, att, rho, theta, np.asarray(strip, dtype=np.int64)), alpha
 
 
 # ----------------------------------------------------------------------------- vertical accuracy
@@ -624,3 +694,169 @@ def estimate_system_parameters(pulses: PulseRecords, control_m: np.ndarray | Non
         q[3] = math.nan
     return CalibrationResult(SystemParameters.from_array(q), SystemParameters.from_array(sd), sigma0,
                              int(vc.size), int(vs.size), n_iter, corr, before, after, tuple(notes))
+
+
+# ----------------------------------------------------------------------------- planimetric check
+
+
+@dataclass(frozen=True, eq=False)
+class OutlineEdges:
+    """The LiDAR corners of one surveyed outline (module docstring, "Planimetric check").
+
+    Attributes
+    ----------
+    surveyed_m : (K, 2) float
+        The outline's corners as given (without a closing repeat).
+    lidar_m : (K, 2) float
+        The corners from the LiDAR edges (NaN where an edge was not found).
+    edge_offset_m : (K,) float
+        Mean offset of the LiDAR edge from the surveyed edge ``i -> i+1`` along its outward normal (m).
+    edge_bins : (K,) int
+        Bins that fixed each edge.
+    """
+
+    surveyed_m: np.ndarray
+    lidar_m: np.ndarray
+    edge_offset_m: np.ndarray
+    edge_bins: np.ndarray
+
+    @property
+    def discrepancies_m(self) -> np.ndarray:
+        """(K, 2) ``lidar - surveyed`` (NaN rows where a corner was not found)."""
+        return self.lidar_m - self.surveyed_m
+
+
+def _spacing_m(xy: np.ndarray) -> float:
+    from scipy.spatial import cKDTree
+
+    if len(xy) < 2:
+        return math.nan
+    d, _ = cKDTree(xy).query(xy, k=2)
+    return float(np.median(d[:, 1]))
+
+
+def lidar_outline_corners(outline_m: np.ndarray, roof_xyz: np.ndarray, low_xyz: np.ndarray | None = None, *,
+                          band_m: float = 2.0, bin_m: float = 1.0, min_bins: int = 3,
+                          spacing_m: float | None = None) -> OutlineEdges:
+    """The corners of a surveyed building outline as the LiDAR sees them (module docstring).
+
+    Parameters
+    ----------
+    outline_m : (K, 2) float
+        Surveyed corners (E, N), K >= 3, in order (either way round; a closing repeat is dropped).
+    roof_xyz : (N, 3) float
+        Points on the roof (building class, or points well above the ground).
+    low_xyz : (L, 3) float, optional
+        Ground (low) points around the building: they bound the edge from outside.
+    band_m, bin_m, min_bins
+        Points within ``band_m`` of an edge, binned every ``bin_m`` along it; an edge needs ``min_bins``.
+    spacing_m : float, optional
+        Largest gap between the outermost roof point and the innermost low point that still brackets the
+        edge (default: the median nearest-neighbour distance of the roof points); 3 x this.
+
+    Raises
+    ------
+    ProductError
+        Fewer than 3 distinct corners.
+    """
+    q = np.asarray(outline_m, dtype=float)[:, :2]
+    if len(q) > 1 and np.allclose(q[0], q[-1]):
+        q = q[:-1]
+    if len(q) < 3:
+        raise ProductError(f"a building outline needs at least 3 corners, got {len(q)}")
+    xs, ys = q[:, 0], q[:, 1]
+    ccw = (np.dot(xs, np.roll(ys, -1)) - np.dot(np.roll(xs, -1), ys)) > 0
+    order = np.arange(len(q)) if ccw else np.arange(len(q))[::-1]
+    qq = q[order]
+    roof = np.asarray(roof_xyz, dtype=float)[:, :2]
+    low = np.zeros((0, 2)) if low_xyz is None else np.asarray(low_xyz, dtype=float)[:, :2]
+    s = spacing_m if spacing_m is not None else _spacing_m(roof)
+    k = len(qq)
+    lines = []
+    offs = np.full(k, np.nan)
+    nbins = np.zeros(k, dtype=int)
+    for i in range(k):
+        a, b = qq[i], qq[(i + 1) % k]
+        length = float(np.hypot(*(b - a)))
+        u = (b - a) / length
+        n = np.array([u[1], -u[0]])
+        nb = max(1, int(0.8 * length // bin_m))
+
+        def local(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            r = xy - a
+            return r @ u, r @ n
+
+        tr, orr = local(roof)
+        sel = (tr >= 0.1 * length) & (tr <= 0.9 * length) & (np.abs(orr) <= band_m)
+        tr, orr = tr[sel], orr[sel]
+        br = np.minimum(((tr - 0.1 * length) / (0.8 * length) * nb).astype(int), nb - 1)
+        o_r = np.full(nb, -np.inf)
+        np.maximum.at(o_r, br, orr)
+        tl, ol = local(low)
+        sel = (tl >= 0.1 * length) & (tl <= 0.9 * length) & (np.abs(ol) <= band_m)
+        tl, ol = tl[sel], ol[sel]
+        bl = np.minimum(((tl - 0.1 * length) / (0.8 * length) * nb).astype(int), nb - 1)
+        beyond = ol > o_r[bl]
+        o_g = np.full(nb, np.inf)
+        np.minimum.at(o_g, bl[beyond], ol[beyond])
+        have = np.isfinite(o_r)
+        inner = np.count_nonzero((orr <= -0.5) & (orr >= -band_m))
+        rho = inner / max(0.8 * length * (band_m - 0.5), 1e-9)
+        gap = math.log(2.0) / max(rho * (0.8 * length / nb), 1e-9) if rho > 0 else 0.5 * s
+        o_r, o_g = o_r[have], o_g[have]
+        bracket = np.isfinite(o_g) & (o_g - o_r <= 3 * s)
+        e_ok = np.where(bracket, 0.5 * (o_r + np.where(bracket, o_g, 0.0)), o_r + gap)
+        if e_ok.size < min_bins:
+            lines.append(None)
+            continue
+        offs[i] = float(np.median(e_ok))        # the edge parallel to the surveyed one
+        lines.append((a + offs[i] * n, u))
+        nbins[i] = int(e_ok.size)
+    corners = np.full((k, 2), np.nan)
+    for i in range(k):
+        l1, l2 = lines[i - 1], lines[i]           # edges into and out of corner i
+        if l1 is None or l2 is None:
+            continue
+        m = np.column_stack([l1[1], -l2[1]])
+        if abs(np.linalg.det(m)) < 1e-6:
+            continue
+        t = np.linalg.solve(m, l2[0] - l1[0])
+        corners[i] = l1[0] + t[0] * l1[1]
+    back = np.argsort(order)
+    # edge i of the given order runs from corner i to i+1: in reversed order it is edge (k - 2 - i) mod k
+    edge_map = np.arange(k) if ccw else (k - 2 - np.arange(k)) % k
+    return OutlineEdges(q, corners[back], offs[edge_map], nbins[edge_map])
+
+
+def planimetric_accuracy(d_en_m: np.ndarray, *, checkpoint_sd_m: float | None = None,
+                         scale: float | None = None) -> dict[str, Any]:
+    """ASPRS 2023 horizontal accuracy and the PEC planimetric class of corner discrepancies (M, 2), m.
+
+    Rows with NaN (corners not found) are left out and counted.
+
+    Raises
+    ------
+    AssessmentError
+        No finite discrepancy.
+    """
+    from ..errors import AssessmentError
+
+    d = np.asarray(d_en_m, dtype=float).reshape(-1, 2)
+    ok = np.all(np.isfinite(d), axis=1)
+    if not ok.any():
+        raise AssessmentError("planimetric check: no building corner was found in the LiDAR points")
+    dd = np.column_stack([d[ok], np.zeros(int(ok.sum()))])
+    sd = None if checkpoint_sd_m is None else np.array([checkpoint_sd_m, checkpoint_sd_m, 0.0])
+    asprs = classify_asprs2023(dd, checkpoint_sd_m=sd)
+    rx, ry = (float(np.sqrt(np.mean(dd[:, j] ** 2))) for j in (0, 1))
+    # the heights are not compared: only the planimetric classes are kept
+    a = asprs.to_dict()
+    a["class"] = {"planimetric": a["class"]["planimetric"]}
+    out = {"n_corners": int(ok.sum()), "n_missing": int((~ok).sum()), "rmse_x_m": rx, "rmse_y_m": ry,
+           "rmse_r_m": math.hypot(rx, ry), "mean_dE_m": float(np.mean(dd[:, 0])),
+           "mean_dN_m": float(np.mean(dd[:, 1])), "asprs2023": a, "pec": None}
+    if scale is not None:
+        p = classify_pec(dd, scale).to_dict()
+        p["class"] = {"planimetric": p["class"]["planimetric"]}
+        out["pec"] = p
+    return out

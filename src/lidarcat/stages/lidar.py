@@ -28,7 +28,8 @@ import numpy as np
 
 from ..errors import ProductError
 
-__all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid", "vertical_check"]
+__all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid", "vertical_check",
+           "system_calibration", "swath_check", "contour_extras", "read_outlines", "planimetric_check"]
 
 
 def _jobs(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, **kw: Any) -> list[Any]:
@@ -333,4 +334,436 @@ def vertical_check(tiles: Sequence[str | os.PathLike], checkpoints: str | os.Pat
               "classes": None if classes is None else list(classes), "checkpoints": str(checkpoints),
               "tiles": [str(t) for t in tiles], "files": [str(out), str(csv_path)]}
     write_json_atomic(out, report)
+    return report
+
+
+def _read_control(path: str | os.PathLike) -> np.ndarray:
+    """Surveyed control-surface points ``id,E,N,H`` (CSV) as an (M, 3) array."""
+    from .._util.tables import read_csv_table
+    from ..errors import SurveyError
+
+    table = read_csv_table(path, ("id", "E", "N", "H"), ("vegetated",))
+    if len(table.rows) < 3:
+        raise SurveyError(f"{path}: {len(table.rows)} control points; a control surface needs at least 3")
+    return np.column_stack([table.floats("E"), table.floats("N"), table.floats("H")])
+
+
+def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.PathLike,
+                       output: str | os.PathLike, *, crs: Any = None, control: str | os.PathLike | None = None,
+                       classes: Sequence[int] | None = None, stride: int = 1, sd_control_m: float = 0.05,
+                       sd_strip_m: float = 0.05, radius_m: float = 2.5, max_plane_rms_m: float = 0.15,
+                       progress: Callable[[int, int], Any] | None = None) -> dict[str, Any]:
+    """Roll/pitch boresight, scan-angle scale and elevation bias from LiDAR tiles and the flight's trajectory
+    (``lidarcat lidar calibrate``, report 7.1.2).
+
+    The points' GPS times are matched to the trajectory (SBET or CSV,
+    :mod:`lidarcat.lidar.trajectory`); range and scan angle are rebuilt from
+    point and sensor (:func:`lidarcat.production.lidarchecks.pulses_from_points`);
+    the flight lines are the points' ``point_source_id``; the parameters are
+    estimated by :func:`lidarcat.production.lidarchecks.estimate_system_parameters`.
+
+    Parameters
+    ----------
+    tiles : sequence of path
+        LAS/LAZ tiles with ``gps_time`` and ``point_source_id``.
+    trajectory : path
+        SBET (``.out``/``.sbet``) or CSV (``.csv``) trajectory.
+    output : path
+        The JSON report.
+    crs : CRS-like, optional
+        CRS of the tiles when they carry none (the SBET is projected into it).
+    control : path, optional
+        Surveyed control surface (the runway), CSV ``id,E,N,H``; without it the
+        elevation bias is not estimated.
+    classes : sequence of int, optional
+        Use only points of these classes (default: all).
+    stride : int
+        Use every ``stride``-th point of the tiles (thins large tiles).
+    sd_control_m, sd_strip_m, radius_m, max_plane_rms_m, progress
+        :func:`~lidarcat.production.lidarchecks.estimate_system_parameters`.
+
+    Raises
+    ------
+    ProductError
+        A tile without GPS times or point source ids, points outside the
+        trajectory (names the first), fewer than two flight lines without a
+        control surface, or a singular adjustment.
+    """
+    from .._util.tables import write_json_atomic
+    from ..lidar.crs import resolve_crs
+    from ..lidar.readers import read_points
+    from ..lidar.trajectory import match_time_base, read_trajectory
+    from ..production.lidarchecks import PARAMETER_NAMES, estimate_system_parameters, pulses_from_points
+
+    xyz, times, strips = [], [], []
+    tile_crs = resolve_crs(crs)
+    for t in tiles:
+        pc = read_points(t, crs=crs)
+        a = pc.attributes
+        for name in ("gps_time", "point_source_id"):
+            if name not in a:
+                raise ProductError(f"{t}: the points carry no {name}; the calibration joins points to the "
+                                   "trajectory by GPS time and to flight lines by point source id")
+        keep = np.ones(len(pc), dtype=bool)
+        if classes is not None and "classification" in a:
+            keep &= np.isin(a["classification"], list(classes))
+        idx = np.flatnonzero(keep)[::max(1, int(stride))]
+        xyz.append(pc.xyz[idx])
+        times.append(np.asarray(a["gps_time"])[idx])
+        strips.append(np.asarray(a["point_source_id"])[idx])
+        tile_crs = tile_crs or pc.crs
+    pts, gps, strip = np.concatenate(xyz), np.concatenate(times), np.concatenate(strips)
+    traj = read_trajectory(trajectory, tile_crs)
+    gps, time_note = match_time_base(gps, traj)
+    sensor, att = traj.at(gps)
+    pulses, along = pulses_from_points(pts, sensor, att, strip)
+    ctrl = _read_control(control) if control is not None else None
+    if ctrl is None and np.unique(strip).size < 2:
+        raise ProductError(f"{len(pts)} points of one flight line (point source id {int(strip[0])}) and no control "
+                           "surface: the calibration needs overlapping flight lines or a control surface")
+    res = estimate_system_parameters(pulses, ctrl, sd_control_m=sd_control_m, sd_strip_m=sd_strip_m,
+                                     radius_m=radius_m, max_plane_rms_m=max_plane_rms_m, progress=progress)
+    d = res.to_dict()
+    deg = {n.replace("_rad", "_deg"): (None if d["parameters"][n] is None else float(np.degrees(d["parameters"][n])))
+           for n in PARAMETER_NAMES if n.endswith("_rad")}
+    sd_deg = {n.replace("_rad", "_deg"): (None if d["sd"][n] is None else float(np.degrees(d["sd"][n])))
+              for n in PARAMETER_NAMES if n.endswith("_rad")}
+    report = {"calibration": d, "parameters_deg": deg, "sd_deg": sd_deg, "points": int(len(pts)),
+              "flight_lines": [int(x) for x in np.unique(strip)], "time_base": time_note,
+              "along_track_rms_deg": float(np.degrees(np.sqrt(np.mean(along * along)))),
+              "trajectory": str(trajectory), "control": None if control is None else str(control),
+              "tiles": [str(t) for t in tiles], "files": [str(output)]}
+    write_json_atomic(Path(output), report)
+    return report
+
+
+def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
+                cell_m: float = 1.0, quality_level: str = "QL2", classes: Sequence[int] | None | str = "auto",
+                smooth_rms_m: float = 0.05, max_slope_deg: float = 10.0, preview: bool = True,
+                progress: Callable[[int, int], Any] | None = None) -> dict[str, Any]:
+    """Swath separation image of LiDAR tiles (``lidarcat lidar swath``; USGS lidar base specification).
+
+    Parameters
+    ----------
+    tiles : sequence of path
+        LAS/LAZ tiles with ``point_source_id`` (the flight line).
+    output : path
+        ``<name>.tif``: the per-cell difference (float32, m, NaN outside the
+        overlap, the tiles' CRS); ``<name>.png`` the coloured image;
+        ``<name>.json`` the statistics against the quality level's limits.
+    cell_m, smooth_rms_m, max_slope_deg
+        :func:`lidarcat.production.swath.swath_separation`.
+    quality_level : {"QL0", "QL1", "QL2", "QL3"}
+    classes : sequence of int, None or "auto"
+        Points used, all last returns except noise (7, 18) and withheld
+        points, further limited to these classes; ``"auto"``: the ground
+        class (2) when the tiles hold ground points, else every class.
+    progress : callable, optional
+        ``progress(tiles_done, tiles)``.
+
+    Tiles are read one at a time; what is kept is the sums of the plane fits
+    per (cell, flight line) (:func:`lidarcat.production.swath.swath_sums`).
+
+    Raises
+    ------
+    ProductError
+        Points without point source ids, fewer than two flight lines, an unknown quality level.
+    """
+    import math
+
+    from .._util.tables import write_json_atomic
+    from ..lidar.crs import crs_label, resolve_crs
+    from ..lidar.geotiff import write_geotiff
+    from ..lidar.readers import read_points
+    from ..production.swath import INTERSWATH_LIMITS, merge_sums, swath_from_sums, swath_sums, write_swath_png
+
+    if quality_level not in INTERSWATH_LIMITS:
+        raise ProductError(f"quality level must be one of {', '.join(INTERSWATH_LIMITS)}, got {quality_level!r}")
+    # tile by tile: the additive sums of the plane fits (production.swath, "Tile by tile")
+    parts: dict[str, list[Any]] = {"all": [], "ground": []}
+    npts = {"all": 0, "ground": 0}
+    fixed = None if isinstance(classes, str) or classes is None else [int(c) for c in classes]
+    out_crs = resolve_crs(crs)
+    z_ref: float | None = None
+    for k, t in enumerate(tiles):
+        pc = read_points(t, crs=crs)
+        a = pc.attributes
+        if "point_source_id" not in a:
+            raise ProductError(f"{t}: the points carry no point_source_id; swath separation compares flight lines")
+        keep = np.ones(len(pc), dtype=bool)
+        if "return_number" in a and "number_of_returns" in a:
+            keep &= np.asarray(a["return_number"]) == np.asarray(a["number_of_returns"])
+        if "withheld" in a:
+            keep &= ~np.asarray(a["withheld"], dtype=bool)
+        c = np.asarray(a["classification"]) if "classification" in a else np.zeros(len(pc), dtype=np.uint8)
+        keep &= ~np.isin(c, (7, 18))
+        if fixed is not None:
+            keep &= np.isin(c, fixed)
+        xyz, lid, cls = pc.xyz[keep], np.asarray(a["point_source_id"])[keep], c[keep]
+        if z_ref is None and len(xyz):
+            z_ref = float(np.median(xyz[:, 2]))
+        parts["all"].append(swath_sums(xyz, lid, cell_m, z_ref_m=z_ref or 0.0))
+        npts["all"] += len(xyz)
+        if isinstance(classes, str):
+            g = cls == 2
+            parts["ground"].append(swath_sums(xyz[g], lid[g], cell_m, z_ref_m=z_ref or 0.0))
+            npts["ground"] += int(g.sum())
+        out_crs = out_crs or pc.crs
+        if progress is not None:
+            progress(k + 1, len(tiles))
+    used: list[int] | None = fixed
+    key = "all"
+    if isinstance(classes, str) and npts["ground"] > 0:
+        used, key = [2], "ground"
+    if npts[key] == 0:
+        raise ProductError(f"no last return{'' if used is None else ' of classes ' + ','.join(map(str, used))} "
+                           f"in {', '.join(map(str, tiles))}")
+    merged = merge_sums(parts[key])
+    sep = swath_from_sums(merged, smooth_rms_m=smooth_rms_m, max_slope=math.tan(math.radians(max_slope_deg)))
+    pts_n = npts[key]
+    lid = merged[0][:, 2]
+    out = Path(output)
+    files = [write_geotiff(out.with_suffix(".tif"), sep.dz_m.astype(np.float32), sep.transform, out_crs)]
+    if preview:
+        files.append(write_swath_png(out.with_suffix(".png"), sep, quality_level))
+    stats = sep.assess(quality_level)
+    report = {"swath": stats, "cell_m": cell_m, "classes": used, "points": int(pts_n),
+              "flight_lines": [int(x) for x in np.unique(lid)], "smooth_rms_m": smooth_rms_m,
+              "max_slope_deg": max_slope_deg, "crs": crs_label(out_crs) if out_crs is not None else None,
+              "tiles": [str(t) for t in tiles]}
+    json_path = out.with_suffix(".json")
+    report["files"] = [str(f) for f in files] + [str(json_path)]
+    write_json_atomic(json_path, report)
+    return report
+
+
+def contour_extras(output: str | os.PathLike, cs: Sequence[Any], ground_xyz: np.ndarray, crs: Any, *,
+                   points_xyz: np.ndarray | None = None, ground_mask: np.ndarray | None = None,
+                   review: bool = False, sparse_edge_m: float | None = None, review_min_m: float = 0.0,
+                   profiles: int = 0, polygons: bool = False, band_kw: dict[str, Any] | None = None
+                   ) -> dict[str, Any]:
+    """The contour verification layer, its profiles and the filled bands beside the contours at *output*.
+
+    ``.gpkg``: the layers ``review`` and ``contour_bands`` are returned
+    (``layers``) for the caller to write with the contours; otherwise they are
+    written as ``<stem>_review.geojson`` and ``<stem>_bands.geojson``.  Profiles of the *profiles* longest stretches go
+    to ``<stem>_profiles/<k>_<level>m.png``
+    (:mod:`lidarcat.production.contourcheck`).
+
+    Parameters
+    ----------
+    output : path
+        The contours file already written.
+    cs : sequence of Contour
+    ground_xyz : (N, 3) float
+        The ground points the contours were drawn from.
+    crs : CRS-like
+    points_xyz, ground_mask : optional
+        Every point and which are ground, for the profiles (default: the ground alone).
+    review, sparse_edge_m, review_min_m
+        Flag stretches over sparse ground (threshold and shortest stretch, m).
+    profiles : int
+        Profile PNGs of the longest stretches (needs *review*).
+    polygons : bool
+        Filled bands between the levels.
+    band_kw : dict, optional
+        Keywords of :func:`lidarcat.production.contourcheck.contour_bands` (interval, levels, edges).
+
+    Returns
+    -------
+    dict
+        ``files`` written, ``review`` (stretch count, length, threshold), ``bands`` (count),
+        ``layers`` (GeoPackage output only).
+    """
+    from ..production.contourcheck import (contour_bands, sparse_stretches, stretch_features, stretch_profile,
+                                           write_profile_png)
+    from ..production.contours import write_layers
+
+    out = Path(output)
+    gpkg = out.suffix.lower() == ".gpkg"
+    files: list[str] = []
+    result: dict[str, Any] = {}
+    layers: dict[str, list[dict[str, Any]]] = {}
+    if review:
+        st, thr = sparse_stretches(cs, ground_xyz, sparse_edge_m=sparse_edge_m, min_length_m=review_min_m)
+        layers["review"] = stretch_features(st)
+        result["review"] = {"stretches": len(st), "length_m": float(sum(s.length_m for s in st)),
+                            "sparse_edge_m": thr}
+        if profiles and st:
+            pts = np.asarray(ground_xyz) if points_xyz is None else np.asarray(points_xyz)
+            gm = np.ones(len(pts), bool) if ground_mask is None else np.asarray(ground_mask, bool)
+            folder = out.with_name(out.stem + "_profiles")
+            folder.mkdir(parents=True, exist_ok=True)
+            for k, s in enumerate(sorted(st, key=lambda x: -x.length_m)[:profiles]):
+                png = folder / f"{k + 1:03d}_{s.level_m:g}m.png"
+                write_profile_png(png, stretch_profile(s, pts, gm))
+                files.append(str(png))
+    if polygons:
+        layers["contour_bands"] = contour_bands(ground_xyz, **(band_kw or {}))
+        result["bands"] = len(layers["contour_bands"])
+    if gpkg:
+        result["layers"] = layers          # the caller writes them into the GeoPackage with the contours
+    else:
+        for name, feats in layers.items():
+            if not feats:
+                continue
+            p = out.with_name(f"{out.stem}_{'review' if name == 'review' else 'bands'}{out.suffix}")
+            write_layers(p, {name: feats}, crs)
+            files.append(str(p))
+    result["files"] = files
+    return result
+
+
+def _wkb_rings(b: bytes) -> list[np.ndarray]:
+    """The exterior rings (2-D) of a WKB Polygon or MultiPolygon (ISO or EWKB Z/M flags)."""
+    import struct
+
+    out: list[np.ndarray] = []
+
+    def geom(o: int) -> int:
+        endian = "<" if b[o] == 1 else ">"
+        (code,) = struct.unpack_from(endian + "I", b, o + 1)
+        o += 5
+        base = code & 0xFFFF
+        dims = 2 + (1 if (code & 0x80000000) or base // 1000 in (1, 3) else 0) + \
+            (1 if (code & 0x40000000) or base // 1000 in (2, 3) else 0)
+        kind = base % 1000
+        if kind == 3:
+            (nr,) = struct.unpack_from(endian + "I", b, o)
+            o += 4
+            for r in range(nr):
+                (npt,) = struct.unpack_from(endian + "I", b, o)
+                o += 4
+                a = np.frombuffer(b, dtype=endian + "f8", count=npt * dims, offset=o).reshape(npt, dims)
+                o += 8 * npt * dims
+                if r == 0:
+                    out.append(a[:, :2].astype(float))
+            return o
+        if kind == 6:
+            (ng,) = struct.unpack_from(endian + "I", b, o)
+            o += 4
+            for _ in range(ng):
+                o = geom(o)
+            return o
+        raise ProductError(f"building outlines must be polygons; got WKB geometry type {code}")
+
+    geom(0)
+    return out
+
+
+def read_outlines(path: str | os.PathLike, crs: Any = None) -> tuple[list[str], list[np.ndarray], Any]:
+    """Surveyed building outlines (polygons; GeoPackage, Shapefile, GeoJSON, ... through pyogrio).
+
+    Returns the outline ids (the ``id`` or ``name`` field, else ``<file>#<n>``,
+    ``-k`` appended for the k-th part of a multipolygon), their exterior rings
+    (K, 2) and the layer's CRS.
+
+    Raises
+    ------
+    FormatError
+        pyogrio missing, or a file it cannot read.
+    ProductError
+        A geometry that is not a polygon; no outline; a CRS other than *crs* (names both).
+    """
+    from ..errors import FormatError
+    from ..lidar.crs import crs_compatible, crs_label, resolve_crs
+
+    try:
+        from pyogrio.raw import read
+    except ImportError:
+        raise FormatError(f"{path}: reading building outlines needs pyogrio (pip install 'lidarcat[gis]')") from None
+    try:
+        meta, _, geoms, fields = read(str(path))
+    except Exception as ex:   # pyogrio's DataSourceError and friends
+        raise FormatError(f"{path}: cannot read the building outlines: {ex}") from None
+    names = [str(n).lower() for n in meta.get("fields", [])]
+    col = next((names.index(k) for k in ("id", "name") if k in names), None)
+    ids, rings = [], []
+    for i, g in enumerate(geoms):
+        if g is None:
+            continue
+        parts = _wkb_rings(bytes(g))
+        base = str(fields[col][i]) if col is not None else f"{Path(path).name}#{i + 1}"
+        for k, r in enumerate(parts):
+            ids.append(base if len(parts) == 1 else f"{base}-{k + 1}")
+            rings.append(r)
+    if not rings:
+        raise ProductError(f"{path}: no building outline (polygon) in the file")
+    lcrs = resolve_crs(meta["crs"]) if meta.get("crs") else None
+    want = resolve_crs(crs)
+    if lcrs is not None and want is not None and not crs_compatible(lcrs, want):
+        raise ProductError(f"{path}: the outlines are in {crs_label(lcrs)}, the LiDAR tiles in {crs_label(want)}")
+    return ids, rings, lcrs
+
+
+def planimetric_check(tiles: Sequence[str | os.PathLike], outlines: str | os.PathLike, output: str | os.PathLike,
+                      *, crs: Any = None, roof_classes: Sequence[int] = (6,), ground_classes: Sequence[int] = (2,),
+                      min_height_m: float = 2.0, band_m: float = 2.0, bin_m: float = 1.0,
+                      checkpoint_sd_m: float | None = None, scale: float | None = None) -> dict[str, Any]:
+    """Planimetric accuracy of LiDAR tiles against surveyed building outlines (``lidarcat lidar check
+    --outlines``, report 7.1.1 Figure 5).
+
+    Each outline's corners are found in the points
+    (:func:`lidarcat.production.lidarchecks.lidar_outline_corners`) and compared
+    with the surveyed ones (:func:`~lidarcat.production.lidarchecks.planimetric_accuracy`).
+
+    Parameters
+    ----------
+    tiles : sequence of path
+    outlines : path
+        Polygons (GeoPackage, Shapefile, GeoJSON) of the surveyed outlines, in the tiles' CRS.
+    output : path
+        ``<stem>_planimetric.json`` (the report) and ``<stem>_corners.csv`` (every corner) are written
+        beside it.
+    roof_classes, ground_classes : sequence of int
+        Roof and low points; without points of the roof classes, the points more than *min_height_m*
+        above the 10th percentile of the heights near each outline are its roof.
+    band_m, bin_m
+        :func:`~lidarcat.production.lidarchecks.lidar_outline_corners`.
+    checkpoint_sd_m, scale
+        Survey sd of the corners (ASPRS 2023) and the scale of the PEC class.
+    """
+    from .._util.tables import write_csv_atomic, write_json_atomic
+    from ..lidar.readers import read_points
+    from ..production.lidarchecks import lidar_outline_corners, planimetric_accuracy
+
+    clouds = [read_points(t, crs=crs) for t in tiles]
+    tile_crs = next((c.crs for c in clouds if c.crs is not None), None) if crs is None else crs
+    ids, rings, _ = read_outlines(outlines, tile_crs)
+    xyz = np.concatenate([c.xyz for c in clouds])
+    cls = np.concatenate([np.asarray(c.attributes["classification"]) if "classification" in c.attributes
+                          else np.zeros(len(c), np.uint8) for c in clouds])
+    have_roof = bool(np.isin(cls, list(roof_classes)).any())
+    rows, d_all, per = [], [], []
+    for oid, ring in zip(ids, rings):
+        lo, hi = ring.min(axis=0) - band_m - 5.0, ring.max(axis=0) + band_m + 5.0
+        near = np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1)
+        p, c = xyz[near], cls[near]
+        if len(p) == 0:
+            raise ProductError(f"{outlines}: outline {oid} (E {ring[:, 0].mean():.1f}, N {ring[:, 1].mean():.1f}) "
+                               "has no LiDAR point around it")
+        if have_roof:
+            roof, low = p[np.isin(c, list(roof_classes))], p[np.isin(c, list(ground_classes))]
+        else:
+            base = np.percentile(p[:, 2], 10)
+            roof, low = p[p[:, 2] > base + min_height_m], p[p[:, 2] <= base + min_height_m]
+        res = lidar_outline_corners(ring, roof, low, band_m=band_m, bin_m=bin_m)
+        d = res.discrepancies_m
+        d_all.append(d)
+        per.append({"id": oid, "corners": len(ring), "found": int(np.isfinite(d).all(axis=1).sum()),
+                    "edge_offset_m": [None if not np.isfinite(x) else float(x) for x in res.edge_offset_m]})
+        for k, (sv, li, dd) in enumerate(zip(res.surveyed_m, res.lidar_m, d)):
+            rows.append([oid, k + 1, float(sv[0]), float(sv[1]), float(li[0]), float(li[1]), float(dd[0]),
+                         float(dd[1])])
+    acc = planimetric_accuracy(np.vstack(d_all), checkpoint_sd_m=checkpoint_sd_m, scale=scale)
+    out = Path(output)
+    csv_path = out.with_name(out.stem + "_corners.csv")
+    json_path = out.with_name(out.stem + "_planimetric.json")
+    write_csv_atomic(csv_path, ["outline", "corner", "E", "N", "lidar_E", "lidar_N", "dE", "dN"], rows,
+                     comments=["metres; dE, dN = LiDAR corner - surveyed corner (NaN: an edge not found)"])
+    report = {"planimetric": acc, "outlines": per, "roof": "classes " + ",".join(map(str, roof_classes))
+              if have_roof else f"points {min_height_m:g} m above the local ground", "band_m": band_m,
+              "bin_m": bin_m, "tiles": [str(t) for t in tiles], "outlines_file": str(outlines),
+              "files": [str(json_path), str(csv_path)]}
+    write_json_atomic(json_path, report)
     return report

@@ -31,6 +31,13 @@ survey.toml::
     contour_levels = [10.0, 12.5]      # fixed levels instead of the interval's
     contour_min_ring_m = 5.0           # closed rings shorter than this are left out, m
     contour_edge_peel = 3              # rings of triangles at the TIN's boundary left out of the contours
+    contour_review = true              # contours_review.geojson: stretches over sparse ground (report 13.2)
+    contour_profiles = 5               # contours_profiles/*.png across the 5 longest of them
+    contour_polygons = true            # contours_bands.geojson: filled bands between the levels
+    contour_3d = true                  # contour lines with the level as z
+    swath = true                       # swath.tif/.png/.json: swath separation image (USGS LBS)
+    calibration_trajectory = "sbet.out"    # calibration.json: boresight, scan-angle scale (and bias with:)
+    calibration_control = "runway.csv"
 
 Charts (:mod:`lidarcat.production.charts`): one PDF and PNG per sheet of the
 index that holds mosaic cells or contours (sheets outside the data get no
@@ -62,7 +69,7 @@ from ..survey.schema import ProductsSettings
 from .context import StageContext as Context
 
 __all__ = ["run", "settings", "PRODUCTS_KEYS", "asked", "chart_mosaic_path", "chart_sheets", "write_charts", "deliver",
-           "contour_options"]
+           "contour_options", "contour_checks", "lidar_checks"]
 
 #: keys of the [products] table and their defaults (lidarcat.survey.schema.ProductsSettings)
 PRODUCTS_KEYS: dict[str, Any] = ProductsSettings().to_dict()
@@ -77,7 +84,8 @@ def settings(survey: Any) -> dict[str, Any]:
 
 def asked(cfg: dict[str, Any]) -> list[str]:
     """The products a ``[products]`` table asks for, in the order the stage makes them."""
-    return [k for k in ("ground", "dtm", "dsm", "ndsm", "contours", "hypsometry", "charts") if cfg.get(k)]
+    return ([k for k in ("ground", "dtm", "dsm", "ndsm", "contours", "hypsometry", "charts") if cfg.get(k)]
+            + (["swath"] if cfg.get("swath") else []) + (["calibration"] if cfg.get("calibration_trajectory") else []))
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -176,6 +184,9 @@ def run(ctx: Context, tmp: Path) -> dict:
         done["contours"] = {"interval_m": cfg["contour_interval_m"], "master_every": cfg["master_every"],
                             "lines": len(cs), "master_lines": sum(1 for c in cs if c.master),
                             "spot_heights": int(len(spots))}
+        if any(cfg.get(k) for k in ("contour_review", "contour_polygons", "contour_3d")):
+            done["contours"].update(contour_checks(cfg, cs, g, cloud.xyz, gmask, spots, crs, tmp, vext))
+            done["files"] += [f for f in done["contours"]["files"] if f not in done["files"]]
         tick()
     if cfg["hypsometry"]:
         done["hypsometry"] = _hypsometry(cloud, cfg["hypsometry_cell_m"], area, crs, tmp)
@@ -189,6 +200,12 @@ def run(ctx: Context, tmp: Path) -> dict:
         done["charts"] = chart_sheets(ctx, features, spots, area, cfg, crs, tmp)
         done["files"] += done["charts"]["files"]
         tick()
+    if cfg.get("swath") or cfg.get("calibration_trajectory"):
+        done.update(lidar_checks(ctx, cfg, crs, tmp))
+        done["files"] += done.get("swath", {}).get("files", []) + done.get("calibration", {}).get("files", [])
+        for _ in ("swath", "calibration"):
+            if _ in done:
+                tick()
     if cfg.get("delivery"):
         done["delivery"] = deliver(tmp, list(cfg["delivery"]), features, spots, area, crs,
                                    sheets=done.get("sheets", {}).get("sheets"))
@@ -303,7 +320,7 @@ def chart_sheets(ctx: Context, features: list[dict[str, Any]], spots: Any, area:
 def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, folder: Path, *, crs: Any,
                  title: Any, index: str = "grid", size_m: float = 1000.0,
                  area: tuple[float, float, float, float] | None = None, only: list[str] | None = None,
-                 dpi: int = 150, progress: Any = None) -> dict[str, Any]:
+                 dpi: int = 150, progress: Any = None, workers: int | None = None) -> dict[str, Any]:
     """The orthophoto chart of every sheet of *index* holding mosaic cells or contours: <sheet>.pdf and .png
     in *folder* (the action of ``lidarcat chart`` and of ``[products] charts``).
 
@@ -324,6 +341,8 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
         Chart only these sheets (a name outside the data is an error).
     progress : callable, optional
         ``progress(done, total)`` per chart.
+    workers : int, optional
+        Processes drawing the charts (:func:`lidarcat.production.charts.render_charts`; default one per core).
 
     Returns
     -------
@@ -340,7 +359,7 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
     from .._util import safe_component
     from ..errors import ProductError
     from ..lidar.geotiff import read_geotiff
-    from ..production.charts import crop_image, draw_chart, sheet_extent, write_chart
+    from ..production.charts import crop_image, render_charts, sheet_extent
     from ..production.sheets import index_sheets
 
     image, transform, _ = read_geotiff(mosaic_path)   # (rows, cols[, bands]), NaN = nodata
@@ -369,15 +388,10 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
             raise ProductError(f"charts: sheet {missing[0]} holds no data of {mosaic_path} and the contours "
                                f"(sheets with data: {', '.join(names) or 'none'})")
         todo = [names[n] for n in only]
-    files = []
-    for k, s in enumerate(todo):
-        name = safe_component(s.name, "sheet name", error=ProductError)
-        fig = draw_chart(s, title, image=image, image_transform=transform, contours=features, spots=spots,
-                         sheets=used, area=area or lb, crs=crs)
-        write_chart(fig, folder / f"{name}.pdf", folder / f"{name}.png", dpi=dpi)
-        files += [f"{name}.pdf", f"{name}.png"]
-        if progress is not None:
-            progress(k + 1, len(todo))
+    names = [safe_component(s.name, "sheet name", error=ProductError) for s in todo]
+    files = render_charts(todo, names, title, folder, image=image, image_transform=transform, contours=features,
+                          spots=spots, sheets=used, area=area or lb, crs=crs, dpi=dpi, workers=workers,
+                          progress=progress)
     return {"sheets": [s.name for s in todo], "scale": int(title.scale), "mosaic": str(mosaic_path),
             "files": files}
 
@@ -422,3 +436,58 @@ def contour_options(cfg: dict[str, Any]) -> dict[str, Any]:
     beyond interval, master curves, gaps and smoothing (defaults when the keys are absent)."""
     return {"levels": cfg.get("contour_levels"), "min_ring_m": float(cfg.get("contour_min_ring_m", 0.0)),
             "edge_peel": int(cfg.get("contour_edge_peel", 3))}
+
+
+def contour_checks(cfg: dict[str, Any], cs: Any, ground_xyz: Any, points_xyz: Any, ground_mask: Any, spots: Any,
+                   crs: Any, tmp: Path, vext: str) -> dict[str, Any]:
+    """``contour_review``, ``contour_profiles``, ``contour_polygons``, ``contour_3d`` of ``[products]``
+    (:func:`lidarcat.stages.lidar.contour_extras`): the contour file is rewritten with the 3-D lines and,
+    for a GeoPackage, the new layers."""
+    from ..production.contourcheck import contour_features_3d
+    from ..production.contours import contour_features, spot_features, write_layers
+    from .lidar import contour_extras
+
+    out = tmp / ("contours" + vext)
+    extra = contour_extras(out, cs, ground_xyz, crs, points_xyz=points_xyz, ground_mask=ground_mask,
+                           review=bool(cfg.get("contour_review")), sparse_edge_m=cfg.get("contour_sparse_edge_m"),
+                           profiles=int(cfg.get("contour_profiles") or 0), polygons=bool(cfg.get("contour_polygons")),
+                           band_kw={"interval_m": cfg["contour_interval_m"], "max_edge_m": cfg["max_edge_m"],
+                                    **{k: v for k, v in contour_options(cfg).items() if k != "min_ring_m"}})
+    feats = contour_features_3d(cs) if cfg.get("contour_3d") else contour_features(cs)
+    if vext == ".gpkg":
+        write_layers(out, {"contours": feats, "spot_heights": spot_features(spots),
+                           **{k: v for k, v in extra.pop("layers", {}).items() if v}}, crs)
+    elif cfg.get("contour_3d"):
+        write_layers(out, {"contours": feats}, crs)
+    files = [str(Path(f).relative_to(tmp)) for f in extra["files"]]
+    return {k: v for k, v in {**extra, "files": files, "three_d": bool(cfg.get("contour_3d"))}.items()}
+
+
+def lidar_checks(ctx: Context, cfg: dict[str, Any], crs: Any, tmp: Path) -> dict[str, Any]:
+    """``swath`` and ``calibration_trajectory`` of ``[products]``: the swath separation image and the
+    system calibration of the survey's tiles (:func:`lidarcat.stages.lidar.swath_check`,
+    :func:`~lidarcat.stages.lidar.system_calibration`)."""
+    from ..errors import SurveyError
+    from .lidar import swath_check, system_calibration
+
+    survey = ctx["survey"]
+    tiles = [Path(p) for p in survey.lidar_paths]
+    out: dict[str, Any] = {}
+    if cfg.get("swath"):
+        rep = swath_check(tiles, tmp / "swath.tif", crs=crs, cell_m=float(cfg["swath_cell_m"]),
+                          quality_level=cfg["swath_quality_level"])
+        rep["files"] = [str(Path(f).relative_to(tmp)) for f in rep["files"]]
+        out["swath"] = rep
+    if cfg.get("calibration_trajectory"):
+        paths = {}
+        for key in ("calibration_trajectory", "calibration_control"):
+            if cfg.get(key):
+                p = survey.root / cfg[key]
+                if not p.is_file():
+                    raise SurveyError(f"{survey.toml_path}: [products] {key}: {p} does not exist")
+                paths[key] = p
+        rep = system_calibration(tiles, paths["calibration_trajectory"], tmp / "calibration.json", crs=crs,
+                                 control=paths.get("calibration_control"))
+        rep["files"] = ["calibration.json"]
+        out["calibration"] = rep
+    return out

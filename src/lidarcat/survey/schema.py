@@ -312,6 +312,24 @@ class ProductsSettings:
     contour_min_ring_m: float = _key(NUMBER, 0.0, "closed contour rings shorter than this are left out, m")
     contour_edge_peel: int = _key(INTEGER, 3, "rings of triangles at the TIN's boundary left out of the contours "
                                               "(0: none)")
+    contour_review: bool = _key(BOOLEAN, False, "contour verification: stretches over sparse ground as the layer "
+                                                "review (contours_review.geojson or a layer of contours.gpkg)")
+    contour_sparse_edge_m: float | None = _key(NUMBER, None, "a TIN edge longer than this is sparse ground, m "
+                                                             "(default: 3 x the median edge)")
+    contour_profiles: int = _key(INTEGER, 0, "profile plots across the N longest review stretches "
+                                             "(contours_profiles/)")
+    contour_polygons: bool = _key(BOOLEAN, False, "filled bands between the levels (contours_bands.geojson or "
+                                                  "a layer of contours.gpkg)")
+    contour_3d: bool = _key(BOOLEAN, False, "contour lines with the level as z (LineString Z) in the contours file")
+    swath: bool = _key(BOOLEAN, False, "swath.tif/.png/.json: swath separation image of the flight lines "
+                                       "(point source ids), USGS interswath limits")
+    swath_cell_m: float = _key(NUMBER, 1.0, "cell of the swath separation image, m (> 0)")
+    swath_quality_level: str = _key(STRING, "QL2", "\"QL0\" .. \"QL3\": the USGS limits the swath image is "
+                                                   "checked against")
+    calibration_trajectory: str | None = _key(STRING, None, "SBET or CSV trajectory of the flight: calibration.json "
+                                                            "(boresight, scan-angle scale, elevation bias)")
+    calibration_control: str | None = _key(STRING, None, "control surface (runway) CSV id,E,N,H of the "
+                                                         "calibration (gives the elevation bias)")
     delivery: tuple[str, ...] = _key(STRINGS, (), "delivery formats: \"tfw\" (world file beside every GeoTIFF), "
                                                   "\"shp\" (shp/: Shapefile layers), \"dxf\" (contours.dxf, "
                                                   "lidarcat[cad])")
@@ -595,11 +613,32 @@ def _products(r: _Reader, v: dict[str, Any]) -> ProductsSettings:
         raise r.err(t, "contour_min_ring_m", f"must not be negative, got {excerpt(r.raw(t, 'contour_min_ring_m'))}")
     if v["contour_edge_peel"] < 0:
         raise r.err(t, "contour_edge_peel", f"must be 0 or more, got {excerpt(v['contour_edge_peel'])}")
+    _checks(r, v)
     wrong = [str(x) for x in v["delivery"] if x not in ("tfw", "shp", "dxf")]
     if wrong:
         raise r.err(t, "delivery", f"{', '.join(map(excerpt, wrong))}: use tfw, shp, dxf")
     v["delivery"] = tuple(dict.fromkeys(v["delivery"]))
     return ProductsSettings(**v)
+
+
+def _checks(r: _Reader, v: dict[str, Any]) -> None:
+    """The contour-verification, swath and calibration keys of ``[products]``."""
+    t = "products"
+    if v["contour_sparse_edge_m"] is not None and not v["contour_sparse_edge_m"] > 0:
+        raise r.err(t, "contour_sparse_edge_m", f"must be positive (metres), got "
+                                                f"{excerpt(r.raw(t, 'contour_sparse_edge_m'))}")
+    if v["contour_profiles"] < 0:
+        raise r.err(t, "contour_profiles", f"must be 0 or more, got {excerpt(v['contour_profiles'])}")
+    for k in ("contour_review", "contour_polygons", "contour_3d"):
+        if v[k] and not v["contours"]:
+            raise r.err(t, k, "needs contours = true")
+    if v["contour_profiles"] and not v["contour_review"]:
+        raise r.err(t, "contour_profiles", "needs contour_review = true (profiles are drawn across its stretches)")
+    if not v["swath_cell_m"] > 0:
+        raise r.err(t, "swath_cell_m", f"must be positive (metres), got {excerpt(r.raw(t, 'swath_cell_m'))}")
+    _one_of(r, t, "swath_quality_level", v["swath_quality_level"], ("QL0", "QL1", "QL2", "QL3"))
+    if v["calibration_control"] is not None and v["calibration_trajectory"] is None:
+        raise r.err(t, "calibration_control", "needs calibration_trajectory (the SBET or CSV trajectory)")
 
 
 def _charts(r: _Reader, v: dict[str, Any]) -> None:

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..lidar.trajectory import Trajectory
 from ..production.lidarchecks import PulseRecords, SystemParameters, georeference
 
 __all__ = ["SyntheticStrips", "synthetic_strips", "strip_terrain"]
@@ -47,6 +48,13 @@ class SyntheticStrips:
     true_points_m : (N, 3) float
         The terrain points hit (before range noise).
     range_sd_m : float
+    gps_time_s : (N,) float
+        GPS time of each pulse (s): strip ``s`` starts at ``1000 s``, scan lines
+        ``spacing_m / 60`` s apart (60 m/s); every pulse of a scan line shares
+        the line's time.
+    trajectory : Trajectory
+        The sensor positions and attitudes, one record per scan line (for the
+        trajectory readers and :func:`lidarcat.production.lidarchecks.pulses_from_points`).
     """
 
     pulses: PulseRecords
@@ -54,6 +62,8 @@ class SyntheticStrips:
     control_m: np.ndarray
     true_points_m: np.ndarray
     range_sd_m: float
+    gps_time_s: np.ndarray | None = None
+    trajectory: Trajectory | None = None
 
 
 def strip_terrain(e_m: np.ndarray, n_m: np.ndarray, *, h0_m: float = 100.0, slope: float = 0.25,
@@ -111,7 +121,7 @@ def synthetic_strips(seed: int = 0, *, truth: SystemParameters | None = None, he
         lines.append((np.array([0.0, off]), heading))
     if cross_strip:
         lines.append((np.array([0.0, -0.25 * length_m]), 0.5 * np.pi))
-    gn, att, scan, strip = [], [], [], []
+    gn, att, scan, strip, times, rec = [], [], [], [], [], []
     for s, (centre, heading) in enumerate(lines):
         fwd = np.array([np.cos(heading), np.sin(heading)])
         t = np.linspace(-0.5 * length_m, 0.5 * length_m, n_along)
@@ -120,6 +130,9 @@ def synthetic_strips(seed: int = 0, *, truth: SystemParameters | None = None, he
         pos = np.column_stack([xy, np.full(n_along, h0 + height_m)])
         a = np.column_stack([rng.normal(0, attitude_sd_rad, n_along), rng.normal(0, attitude_sd_rad, n_along),
                              np.full(n_along, heading)])
+        tt = 1000.0 * (s + 1) + np.arange(n_along) * spacing_m / 60.0
+        times.append(np.repeat(tt, n_across))
+        rec.append((tt, pos, a))
         gn.append(np.repeat(pos, n_across, axis=0))
         att.append(np.repeat(a, n_across, axis=0))
         scan.append(ang.ravel())
@@ -140,4 +153,6 @@ def synthetic_strips(seed: int = 0, *, truth: SystemParameters | None = None, he
     ce, cn = np.meshgrid(np.arange(-0.45 * length_m, 0.45 * length_m + 1e-9, 20.0),
                          np.arange(-0.45 * length_m, -0.25 * length_m + 1e-9, 20.0))
     control = np.column_stack([ce.ravel(), cn.ravel(), strip_terrain(ce.ravel(), cn.ravel())])
-    return SyntheticStrips(pulses, truth, control, true_pts, range_sd_m)
+    traj = Trajectory(np.concatenate([r[0] for r in rec]), np.concatenate([r[1] for r in rec]),
+                      np.concatenate([r[2] for r in rec]), source="synthetic strips")
+    return SyntheticStrips(pulses, truth, control, true_pts, range_sd_m, np.concatenate(times), traj)
