@@ -10,8 +10,14 @@ import pytest
 
 from lidarcat.bundle import adjust
 from lidarcat.bundle.line_tests import line_tests, snoop_lines
-from lidarcat.bundle.lines import (ControlLine, LineControl, LineObservation, line_cost, line_normal_terms,
-                                   line_terms)
+from lidarcat.bundle.lines import (
+    ControlLine,
+    LineControl,
+    LineObservation,
+    line_cost,
+    line_normal_terms,
+    line_terms,
+)
 from lidarcat.bundle.model import NormalSystem
 from lidarcat.errors import DatumError
 from lidarcat.synthetic.lines import line_block

@@ -22,7 +22,7 @@ from .lines import line_terms
 from .redundancy import critical_values, family_alpha
 from .solve import adjust
 
-__all__ = ["LineTests", "line_tests", "LineSnooping", "snoop_lines"]
+__all__ = ["LineSnooping", "LineTests", "line_tests", "snoop_lines"]
 
 
 # ---------------------------------------------------------------------------

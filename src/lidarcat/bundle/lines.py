@@ -93,12 +93,12 @@ from ..geometry.collinearity import project_jacobian_parts
 
 __all__ = [
     "ControlLine",
-    "LineObservation",
     "LineControl",
-    "line_terms",
-    "line_normal_terms",
+    "LineObservation",
     "line_cost",
+    "line_normal_terms",
     "line_residuals_mm",
+    "line_terms",
 ]
 
 #: a measured image segment shorter than this (mm) has no direction

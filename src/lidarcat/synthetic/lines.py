@@ -17,10 +17,10 @@ import dataclasses
 
 import numpy as np
 
+from .._util.frozen import frozen_array
 from ..bundle import BundleProblem
 from ..bundle.lines import ControlLine, LineControl, LineObservation
 from ..geometry.collinearity import project
-from .._util.frozen import frozen_array
 from .block import synthetic_block
 
 __all__ = ["LineBlock", "line_block"]
