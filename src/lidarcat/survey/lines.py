@@ -82,7 +82,7 @@ def read_line_control(path: str | Path, photo_ids: Iterable[str]) -> tuple[list[
     obs: list[tuple[int, LineObservation]] = []
     seen: dict[tuple[str, str], int] = {}
     for row, ln in zip(t.rows, t.lines):
-        def cell(name: str) -> str:
+        def cell(name: str, row: tuple[str, ...] = row) -> str:
             return row[col[name]] if name in col else ""
 
         lid, photo = cell("line"), cell("photo")
@@ -154,7 +154,7 @@ def write_line_residuals(result: Any, folder: Path, write_csv: Callable[..., Any
                 for k, i, v in zip(L.line_index, L.photo_index, r)]
         rejected, worst = [], math.nan
     write_csv(folder / "line_residuals.csv", LINE_RESIDUAL_COLUMNS, rows, comments=[
-        "line control: v_a, v_b = signed distances (adjusted - observed) of the projected 3-D end points A, B "
-        "from the measured image line (mm, px); redundancy numbers; w = sqrt of the 2-D group test, "
-        "rejected when above w_critical (B-method)"])
+        ("line control: v_a, v_b = signed distances (adjusted - observed) of the projected 3-D end points A, B "
+         "from the measured image line (mm, px); redundancy numbers; w = sqrt of the 2-D group test, "
+         "rejected when above w_critical (B-method)")])
     return {"line_control": {"observations": len(rows), "rejected": rejected, "max_w": worst}}
