@@ -57,8 +57,12 @@ class LineBlock:
 def line_block(n_lines: int = 12, *, seed: int = 0, n_strips: int = 2, photos_per_strip: int = 6,
                image_sd_mm: float = 0.005, line_image_sd_mm: float = 0.004, line_sd_m: float = 0.03,
                line_along_sd_m: float = 0.3, gnss_sd_m: float = 2.0, ins_sd_deg: float = 0.5,
-               noise: bool = True) -> LineBlock:
-    """Generate a line-controlled block; see the module docstring.  Seeded (reproducible)."""
+               n_control_points: int = 0, noise: bool = True) -> LineBlock:
+    """Generate a line-controlled block; see the module docstring.  Seeded (reproducible).
+
+    *n_control_points* of the base block's control points (spread over its list, sd 0.1 m) are
+    kept beside the lines (a block with few usable roof corners); 0: lines only.
+    """
     base = synthetic_block(n_strips, photos_per_strip, seed=seed, image_sd_mm=image_sd_mm, noise=noise)
     rng = np.random.default_rng(seed + 7919)
     eo, pts = base.true_eo, base.true_points_m
@@ -110,9 +114,11 @@ def line_block(n_lines: int = 12, *, seed: int = 0, n_strips: int = 2, photos_pe
     n_ph = len(eo)
     sd = np.r_[np.full(3, gnss_sd_m), np.radians(np.full(3, ins_sd_deg))]
     gnss = eo + (rng.normal(0, 1, eo.shape) * sd if noise else 0.0)
+    keep = np.unique(np.linspace(0, len(p0.constraint_point_index) - 1, n_control_points).round().astype(int)) \
+        if n_control_points > 0 else np.zeros(0, dtype=int)
     problem = dataclasses.replace(
-        p0, constraint_point_index=np.zeros(0, dtype=np.int64), constraint_enh_m=np.zeros((0, 3)),
-        constraint_sd_m=np.zeros((0, 3)), point_role=None,
+        p0, constraint_point_index=p0.constraint_point_index[keep], constraint_enh_m=p0.constraint_enh_m[keep],
+        constraint_sd_m=p0.constraint_sd_m[keep], point_role=None,
         eo_constraint_photo_index=np.arange(n_ph), eo_constraint_params=gnss,
         eo_constraint_sd=np.broadcast_to(sd, (n_ph, 6)), initial_eo=gnss, lines=lc)
     return LineBlock(problem, eo, pts, np.array(true_a), np.array(true_b), gnss)
