@@ -157,4 +157,5 @@ def write_line_residuals(result: Any, folder: Path, write_csv: Callable[..., Any
         ("line control: v_a, v_b = signed distances (adjusted - observed) of the projected 3-D end points A, B "
          "from the measured image line (mm, px); redundancy numbers; w = sqrt of the 2-D group test, "
          "rejected when above w_critical (B-method)")])
-    return {"line_control": {"observations": len(rows), "rejected": rejected, "max_w": worst}}
+    return {"line_control": {"observations": len(rows), "scalar_observations": 2 * len(rows),
+                             "rejected": rejected, "max_w": worst}}
