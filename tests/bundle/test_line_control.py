@@ -172,3 +172,16 @@ def test_bad_lines_raise_located_errors():
         LineControl.from_observations([line], [obs], ["0001", "0002"])
     with pytest.raises(DatumError, match=r"^line R2 on photo 0001: no control line R2$"):
         LineControl.from_observations([line], [LineObservation("R2", "0001", [0, 0], [1, 1], 0.004)], ["0001"])
+
+
+def test_redundancy_numbers_of_lines_points_and_constraints_sum_to_the_dof():
+    """sum r over image points, control points, GNSS/IMU (redundancy.reliability) and the line
+    observations (line_tests) = v'Pv's degrees of freedom: the lines' Q_vv is exact."""
+    from lidarcat.bundle.redundancy import reliability
+
+    b = line_block(seed=0, n_control_points=3)
+    res = adjust(b.problem, initial=(b.initial_eo, None))
+    total = np.nansum(reliability(res).redundancy) + line_tests(res).redundancy.sum()
+    assert total == pytest.approx(res.dof, abs=1e-6)
+    assert res.dof == b.problem.dof == (b.problem.n_observations + 2 * len(b.problem.lines.line_index)
+                                        - b.problem.n_unknowns + b.problem.n_constraints)
