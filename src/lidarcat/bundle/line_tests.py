@@ -99,7 +99,8 @@ def line_tests(result: Any, *, level: float | None = 0.001, power: float = 0.80,
         :func:`lidarcat.bundle.redundancy.family_alpha` over the line tests.
     power : float
     pixel_mm : float, optional
-        Pixel size (mm) for the residuals in pixels.
+        Pixel size (mm) for the residuals in pixels; default: the observations' own
+        ``LineControl.pixel_mm`` (NaN where unknown).
 
     Raises
     ------
@@ -126,7 +127,7 @@ def line_tests(result: Any, *, level: float | None = 0.001, power: float = 0.80,
         wc = e / np.sqrt(np.diagonal(qvv, axis1=1, axis2=2))
     alpha = family_alpha({2: max(m, 1)}, power=power) if level is None else level
     crit = math.sqrt(critical_values(alpha, power, 2)[1])
-    px = np.full_like(T.r, np.nan) if pixel_mm is None else T.r / pixel_mm
+    px = T.r / (L.pixel_mm[:, None] if pixel_mm is None else pixel_mm)
     return LineTests(
         labels=frozen_array(L.observation_labels(p.photo_ids), dtype=object),
         line_ids=frozen_array(L.line_ids[L.line_index], dtype=object),

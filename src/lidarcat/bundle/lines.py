@@ -168,6 +168,8 @@ class LineObservation:
         Two distinct points on the imaged edge (photo coordinates, mm, x right, y up).
     sd_mm : float
         Sd of each point across the edge (mm).
+    pixel_mm : float, optional
+        Pixel size of the photo (mm), for residuals in pixels; NaN: unknown.
     """
 
     line: str
@@ -175,6 +177,7 @@ class LineObservation:
     xy1_mm: np.ndarray
     xy2_mm: np.ndarray
     sd_mm: float
+    pixel_mm: float = math.nan
 
     def __post_init__(self) -> None:
         p1 = frozen_array(np.reshape(np.asarray(self.xy1_mm, dtype=float), 2))
@@ -184,6 +187,7 @@ class LineObservation:
         object.__setattr__(self, "xy1_mm", p1)
         object.__setattr__(self, "xy2_mm", p2)
         object.__setattr__(self, "sd_mm", float(self.sd_mm))
+        object.__setattr__(self, "pixel_mm", float(self.pixel_mm))
         where = f"line {self.line} on photo {self.photo}"
         if not (np.isfinite(p1).all() and np.isfinite(p2).all() and math.isfinite(self.sd_mm)):
             raise DatumError(f"{where}: image points and sd must be finite")
@@ -210,6 +214,8 @@ class LineControl:
         The two measured image points of every observation (mm).
     sd_mm : (m,) float
         Their sd across the edge (mm).
+    pixel_mm : (m,) float, optional
+        Pixel size of each observation's photo (mm; NaN: unknown), for residuals in pixels.
     """
 
     line_ids: np.ndarray
@@ -221,6 +227,7 @@ class LineControl:
     xy1_mm: np.ndarray
     xy2_mm: np.ndarray
     sd_mm: np.ndarray
+    pixel_mm: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         s = object.__setattr__
@@ -235,6 +242,8 @@ class LineControl:
         s(self, "xy1_mm", frozen_array(np.reshape(np.asarray(self.xy1_mm, dtype=float), (m, 2))))
         s(self, "xy2_mm", frozen_array(np.reshape(np.asarray(self.xy2_mm, dtype=float), (m, 2))))
         s(self, "sd_mm", frozen_array(np.broadcast_to(np.asarray(self.sd_mm, dtype=float), (m,))))
+        s(self, "pixel_mm", frozen_array(np.broadcast_to(
+            np.asarray(math.nan if self.pixel_mm is None else self.pixel_mm, dtype=float), (m,))))
         if len(self.photo_index) != m:
             raise DatumError("`line_index` and `photo_index` must have the same length")
         if m and (self.line_index.min() < 0 or self.line_index.max() >= n_l):
@@ -275,7 +284,8 @@ class LineControl:
             photo_index=np.array([pi[o.photo] for o in obs], dtype=np.int64),
             xy1_mm=np.array([o.xy1_mm for o in obs]).reshape(-1, 2),
             xy2_mm=np.array([o.xy2_mm for o in obs]).reshape(-1, 2),
-            sd_mm=np.array([o.sd_mm for o in obs], dtype=float))
+            sd_mm=np.array([o.sd_mm for o in obs], dtype=float),
+            pixel_mm=np.array([o.pixel_mm for o in obs], dtype=float))
 
     @property
     def n_observations(self) -> int:
@@ -285,7 +295,8 @@ class LineControl:
     def select(self, keep: Any) -> LineControl:
         """The same lines with the observations *keep* (mask or indices)."""
         return dataclasses.replace(self, line_index=self.line_index[keep], photo_index=self.photo_index[keep],
-                                   xy1_mm=self.xy1_mm[keep], xy2_mm=self.xy2_mm[keep], sd_mm=self.sd_mm[keep])
+                                   xy1_mm=self.xy1_mm[keep], xy2_mm=self.xy2_mm[keep], sd_mm=self.sd_mm[keep],
+                                   pixel_mm=self.pixel_mm[keep])
 
     def observation_labels(self, photo_ids: Sequence[str]) -> list[str]:
         """``line L on photo P`` of every observation."""

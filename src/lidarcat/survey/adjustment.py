@@ -181,9 +181,10 @@ def _survey_lines(survey: Survey, photo_ids: list[str]):
     if path is None:
         return None
     from ..bundle.lines import LineControl
-    from .lines import read_line_control
+    from .lines import photo_cameras, read_line_control
 
-    return LineControl.from_observations(*read_line_control(path, photo_ids), photo_ids)
+    cams = photo_cameras(survey.photos, survey.cameras)
+    return LineControl.from_observations(*read_line_control(path, photo_ids, cams), photo_ids)
 
 
 # ---------------------------------------------------------------------------
