@@ -185,3 +185,29 @@ def test_redundancy_numbers_of_lines_points_and_constraints_sum_to_the_dof():
     assert total == pytest.approx(res.dof, abs=1e-6)
     assert res.dof == b.problem.dof == (b.problem.n_observations + 2 * len(b.problem.lines.line_index)
                                         - b.problem.n_unknowns + b.problem.n_constraints)
+
+
+def test_edge_points_fit_is_exactly_two_points():
+    """n edge points with sd s: the two-point observation has the least-squares fit's offset variance
+    s^2 (1/n + u^2/S) at every position u along the line (checked through Sigma_r at s_A, s_B)."""
+    from lidarcat.bundle.lines import observation_from_edge_points
+
+    rng = np.random.default_rng(4)
+    u = np.sort(rng.uniform(-3, 4, 15))
+    t = np.array([np.cos(0.4), np.sin(0.4)])
+    nrm = np.array([-t[1], t[0]])
+    pts = np.array([1.0, -2.0]) + u[:, None] * t + rng.normal(0, 0.003, 15)[:, None] * nrm
+    o = observation_from_edge_points("x", "0001", pts, 0.003)
+    # the fit: offset variance along the line
+    c = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - c)
+    uu = (pts - c) @ vt[0]
+    S = np.sum(uu**2)
+    d = o.xy2_mm - o.xy1_mm
+    L = np.linalg.norm(d)
+    for q in (-5.0, -1.0, 0.0, 2.5, 7.0):              # positions along the line from the centroid
+        s_frac = (q - (o.xy1_mm - c) @ (d / L)) / L
+        two = o.sd_mm**2 * ((1 - s_frac) ** 2 + s_frac**2)
+        assert two == pytest.approx(0.003**2 * (1 / 15 + q**2 / S), rel=1e-9)
+    with pytest.raises(DatumError, match=r"^line x on photo 0001: the edge points coincide \(a line of zero length\)$"):
+        observation_from_edge_points("x", "0001", np.ones((4, 2)), 0.003)

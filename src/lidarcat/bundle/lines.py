@@ -8,7 +8,8 @@ observation of it is the edge measured in one photo: two image points ``p1, p2``
 (photo coordinates, mm, x right, y up, corrected like every image point), each with an
 isotropic sd ``s`` (mm) across the edge.  The in-memory forms are :class:`ControlLine`
 (one 3-D line), :class:`LineObservation` (one photo's measurement; what an automatic line
-measurement produces) and :class:`LineControl` (all of them as arrays, the ``lines`` field of
+measurement produces: :func:`observation_from_edge_points` turns n fitted edge points into the
+exactly equivalent two points) and :class:`LineControl` (all of them as arrays, the ``lines`` field of
 :class:`~lidarcat.bundle.problem.BundleProblem`).
 
 The condition: the 3-D line projects onto the image line
@@ -195,6 +196,34 @@ class LineObservation:
             raise DatumError(f"{where}: sd must be positive, got {self.sd_mm:g} mm")
         if np.linalg.norm(p2 - p1) < MIN_LENGTH_MM:
             raise DatumError(f"{where}: the two image points coincide (a line of zero length)")
+
+
+def observation_from_edge_points(line: str, photo: str, points_mm: np.ndarray, sd_mm: float,
+                                 pixel_mm: float = math.nan) -> LineObservation:
+    r"""The two-point observation equivalent to a least-squares line through *points_mm* (n, 2).
+
+    For n >= 2 edge points with independent sd ``s`` across the edge, the fitted line (the
+    principal axis) has, at the position ``u`` along it from the centroid, the offset variance
+    ``s^2 (1/n + u^2 / S)`` with ``S = sum u_i^2``.  Two independent points at ``u = +-h`` with
+    sd ``s_p`` give ``s_p^2 (1/2 + u^2 / (2 h^2))``; equal for every ``u`` when
+
+    .. math::  s_p = s \sqrt{2 / n}, \qquad h = \sqrt{S / n}
+
+    (the rms spread of the points): so an edge fitted from many points (an automatic
+    measurement) enters :class:`LineControl` exactly through this :class:`LineObservation`.
+    """
+    pts = np.asarray(points_mm, dtype=float).reshape(-1, 2)
+    where = f"line {line} on photo {photo}"
+    if len(pts) < 2 or not np.isfinite(pts).all():
+        raise DatumError(f"{where}: an edge needs at least 2 finite image points, got {len(pts)}")
+    c = pts.mean(axis=0)
+    _, sv, vt = np.linalg.svd(pts - c, full_matrices=False)
+    t = vt[0]
+    u = (pts - c) @ t
+    h = math.sqrt(float(np.sum(u**2)) / len(pts))
+    if h < MIN_LENGTH_MM:
+        raise DatumError(f"{where}: the edge points coincide (a line of zero length)")
+    return LineObservation(line, photo, c - h * t, c + h * t, sd_mm * math.sqrt(2.0 / len(pts)), pixel_mm)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
