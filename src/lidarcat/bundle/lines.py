@@ -217,7 +217,7 @@ def observation_from_edge_points(line: str, photo: str, points_mm: np.ndarray, s
     if len(pts) < 2 or not np.isfinite(pts).all():
         raise DatumError(f"{where}: an edge needs at least 2 finite image points, got {len(pts)}")
     c = pts.mean(axis=0)
-    _, sv, vt = np.linalg.svd(pts - c, full_matrices=False)
+    vt = np.linalg.svd(pts - c, full_matrices=False)[2]
     t = vt[0]
     u = (pts - c) @ t
     h = math.sqrt(float(np.sum(u**2)) / len(pts))
