@@ -28,6 +28,11 @@ The package, one concern per module, in the order a step runs:
                     exposures, velocity and read-out-time unknowns, the tests
 ``rig``             rigs: one body pose per exposure, the sensors' relative
                     poses given or estimated (:class:`~lidarcat.bundle.rig.RigRelativePoses`)
+``lines``           line control: image observations of LiDAR roof lines
+                    (:class:`~lidarcat.bundle.lines.LineControl`), their share of
+                    the camera blocks and v'Pv
+``line_tests``      the line observations' residuals, redundancy numbers,
+                    w-tests and data snooping (:func:`~lidarcat.bundle.line_tests.snoop_lines`)
 ==================  ==========================================================
 
 Additional parameters (issue 13): ``additional`` (self-calibration, GNSS

@@ -17,7 +17,9 @@ the weighted sum of squares of all of them.  A problem with per-observation rays
 :func:`lidarcat.bundle.rays.observation_parts` with the same blocks (the body pose of a rig
 exposure takes the photo's place).  :class:`NormalSystem` holds one
 linearisation; :func:`weighted_cost` evaluates ``v'Pv`` only (infinite when a point is
-behind a camera).
+behind a camera).  Line control (``problem.lines``, :mod:`lidarcat.bundle.lines`) adds
+``A^T P A`` and ``A^T P r`` of every line observation to its photo's ``U_i`` and ``g_c`` and
+``r^T P r`` to ``v'Pv`` (its residuals in ``NormalSystem.r_lines``).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import numpy as np
 
 from ..geometry.collinearity import project, project_jacobian_parts
 from .rays import observation_parts, observation_project
+from .lines import line_cost, line_normal_terms
 from .linear import Schur
 from .problem import BundleProblem
 
@@ -108,6 +111,15 @@ class NormalSystem:
             np.add.at(self.U, (k[:, None], i6[None, :], i6[None, :]), we)
             np.add.at(self.g_c, k, we * re)
             vtpv += float(np.sum(we * re**2))
+        self.r_lines = None
+        if p.lines is not None:
+            rl, ul, gl, vl, u3l = line_normal_terms(p.lines, eo, p.focal_length_mm, p.n_photos)
+            self.U += ul
+            self.g_c += gl
+            vtpv += vl
+            self.r_lines = rl
+            if np.any(u3l >= 0):
+                self.u3 = np.r_[self.u3, u3l.ravel()]      # an end point behind its camera
         self.vtpv = vtpv
 
     def solve(self, lam: float, method: str = "direct", reuse: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -138,4 +150,6 @@ def weighted_cost(problem: BundleProblem, eo: np.ndarray, pts: np.ndarray) -> fl
     c += float(np.sum(wc * rc**2))
     if re is not None:
         c += float(np.sum(we * re**2))
+    if p.lines is not None:
+        c += line_cost(p.lines, eo, p.focal_length_mm)
     return c

@@ -186,6 +186,10 @@ class BundleProblem:
     rays : lidarcat.bundle.rays.ObservationRays, optional
         Per-observation projection-centre offsets (rolling shutter) and sensor poses within a
         rig (the photos are then rig exposures); None: the plain collinearity.
+    lines : lidarcat.bundle.lines.LineControl, optional
+        Control lines (3-D segments, e.g. LiDAR roof ridges) and their image observations
+        (:mod:`lidarcat.bundle.lines`); each observation adds 2 to the observations.  None: no
+        line control (not combined with *rays*).
     """
 
     photo_ids: np.ndarray
@@ -205,6 +209,7 @@ class BundleProblem:
     point_role: np.ndarray | None = None
     info: dict = dataclasses.field(default_factory=dict)
     rays: Any = None
+    lines: Any = None
 
     def __post_init__(self) -> None:
         s = object.__setattr__
@@ -260,6 +265,11 @@ class BundleProblem:
         s(self, "point_role", frozen_array(role, dtype=None))
         if self.rays is not None:
             self.rays.check(n)
+        if self.lines is not None:
+            if self.rays is not None:
+                raise DatumError("line control is not combined with per-observation rays (rolling shutter, rigs)")
+            if len(self.lines.photo_index) and self.lines.photo_index.max(initial=0) >= n_ph:
+                raise DatumError("a line observation's photo index is out of range of `photo_ids`")
 
     @property
     def n_photos(self) -> int:
@@ -287,9 +297,14 @@ class BundleProblem:
         return 6 * self.n_photos + 3 * self.n_points
 
     @property
+    def n_line_observations(self) -> int:
+        """Number of scalar line observations (2 per line measured in a photo; 0 without lines)."""
+        return 0 if self.lines is None else self.lines.n_observations
+
+    @property
     def dof(self) -> int:
-        """Degrees of freedom: observations - unknowns + constraints."""
-        return self.n_observations - self.n_unknowns + self.n_constraints
+        """Degrees of freedom: observations (image points and lines) - unknowns + constraints."""
+        return self.n_observations + self.n_line_observations - self.n_unknowns + self.n_constraints
 
 
 # ---------------------------------------------------------------------------

@@ -168,7 +168,7 @@ class _Subset:
             xy_mm=p.xy_mm[self.obs], sd_mm=p.sd_mm[self.obs],
             constraint_point_index=pt_new[ci[con]], constraint_enh_m=p.constraint_enh_m[con],
             constraint_sd_m=p.constraint_sd_m[con], initial_eo=p.initial_eo,
-            point_role=p.point_role[keep_pt], info=p.info, **eo_kw,
+            point_role=p.point_role[keep_pt], info=p.info, lines=p.lines, **eo_kw,
             rays=None if p.rays is None else p.rays.select(self.obs))
         return sub, np.arange(p.n_photos), np.flatnonzero(keep_pt)
 

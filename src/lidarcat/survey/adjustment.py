@@ -168,11 +168,23 @@ def problem_from_survey(
         eo_constraint_params=np.array(e_val) if e_idx else None,
         eo_constraint_sd=np.array(e_sd) if e_idx else None,
         initial_eo=init if np.isfinite(init).any() else None,
-        point_role=role,
+        point_role=role, lines=_survey_lines(survey, photo_ids),
         info={"survey": survey.name, "control_set": cset.name, "control_unmeasured": unmeasured,
               "observations": observations or survey.settings.observations,
               "eo_constraints": bool(eo_constraints and e_idx)},
     )
+
+
+def _survey_lines(survey: Survey, photo_ids: list[str]):
+    """The survey's line control (``[files] line_control``) as arrays, or None."""
+    path = survey.files.get("line_control")
+    if path is None:
+        return None
+    from ..bundle.lines import LineControl
+    from .lines import photo_cameras, read_line_control
+
+    cams = photo_cameras(survey.photos, survey.cameras)
+    return LineControl.from_observations(*read_line_control(path, photo_ids, cams), photo_ids)
 
 
 # ---------------------------------------------------------------------------
@@ -360,6 +372,10 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None, *,
         log.info("%d check points: joint covariance not written (limit %d)", len(checks),
                  MAX_JOINT_COVARIANCE_POINTS)
     summary = {**result.summary(), **(extra or {})}
+    if getattr(pr, "lines", None) is not None:          # line_residuals.csv (survey/lines.py)
+        from .lines import write_line_residuals
+
+        summary.update(write_line_residuals(result, folder, write_csv_atomic))
     if snooping is not None:
         summary.update(_write_snooping(snooping, folder, write_csv_atomic))
     if provenance is not None:

@@ -55,6 +55,7 @@ from ._tables import (
     load_image_points,
     load_photos,
 )
+from .lines import photo_cameras, read_line_control
 from .rigs import check_rig_exposures
 from .schema import (
     DEFAULT_CONTOUR_INTERVAL_M,
@@ -373,6 +374,9 @@ class Survey:
         rigs_path = file_of("rigs")
         if rigs_path is not None or any(p.rig_exposure for p in photos):
             check_rig_exposures(photos, rigs_path, cameras, photos_path)  # type: ignore[arg-type]
+        lines_path = file_of("line_control")
+        if lines_path is not None:
+            read_line_control(lines_path, photo_ids, photo_cameras(photos, cameras))   # located errors at load
         jobs_path = file_of("extraction_jobs")
         job_words = job_tokens(jobs_path) if jobs_path else set()
 

@@ -133,6 +133,8 @@ class FilesTable:
     extraction_jobs: str | None = _key(STRING, None, "roofs to extract (jobs.csv or the thesis job file)")
     rigs: str | None = _key(STRING, None, "rig TOML: cameras with fixed relative poses, moved as one body per "
                                           "photos.csv rig_exposure (docs/cameras.md, Rigs)")
+    line_control: str | None = _key(STRING, None, "line_control.csv: control lines (LiDAR roof edges) and their "
+                                                  "measurements in the photos (docs/lines.md)")
 
 
 @dataclass(frozen=True)

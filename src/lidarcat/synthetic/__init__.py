@@ -12,6 +12,7 @@
 ``matches``     A block of automatic tie-point matches with gross errors of known place (the NGI kind).
 ``strips``      Overlapping LiDAR strips with a known boresight, scan-angle scale and elevation bias.
 ``drone``       Drone blocks with known truth: a rolling-shutter camera, and a rig of three cameras.
+``lines``       A block whose only control is roof lines measured in the photos (weak GNSS/IMU).
 ==============  ============================================================
 """
 

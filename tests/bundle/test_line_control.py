@@ -1,0 +1,213 @@
+"""Line control (lidarcat.bundle.lines): the model's Jacobians, a block controlled by roof lines
+only, data snooping of a wrong line observation, located errors of bad lines."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from lidarcat.bundle import adjust
+from lidarcat.bundle.line_tests import line_tests, snoop_lines
+from lidarcat.bundle.lines import (
+    ControlLine,
+    LineControl,
+    LineObservation,
+    line_cost,
+    line_normal_terms,
+    line_terms,
+)
+from lidarcat.bundle.model import NormalSystem
+from lidarcat.errors import DatumError
+from lidarcat.synthetic.lines import line_block
+
+PIXEL_MM = 0.006
+
+
+def _z(res, block):
+    d = res.eo_params - block.true_eo
+    d[:, 3:] = (d[:, 3:] + np.pi) % (2 * np.pi) - np.pi       # kappa near +-pi on the return strips
+    return d / res.eo_sd
+
+
+def test_jacobian_matches_finite_differences():
+    b = line_block(seed=3)
+    p = b.problem
+    eo = b.initial_eo.copy()
+    T = line_terms(p.lines, eo, p.focal_length_mm)
+    h = np.r_[np.full(3, 1e-4), np.full(3, 1e-8)]
+    num = np.empty_like(T.A)
+    for j in range(6):
+        d = np.zeros(6)
+        d[j] = h[j]
+        plus, minus = eo.copy(), eo.copy()
+        plus[p.lines.photo_index] += d        # a photo can have several line observations: each row its own photo
+        minus[p.lines.photo_index] -= d
+        rp = line_terms(p.lines, plus, p.focal_length_mm, jacobians=False).r
+        rm = line_terms(p.lines, minus, p.focal_length_mm, jacobians=False).r
+        num[:, :, j] = (rp - rm) / (2 * h[j])
+    np.testing.assert_allclose(T.A, num, rtol=1e-5, atol=1e-9 * np.abs(T.A).max())
+
+
+def test_residual_is_the_distance_of_the_projected_end_points_from_the_image_line():
+    """Exact observations: zero residuals; the image line moved across by 0.01 mm: residuals of 0.01 mm."""
+    b = line_block(seed=1, noise=False)
+    p = b.problem
+    T = line_terms(p.lines, b.true_eo, p.focal_length_mm)
+    np.testing.assert_allclose(T.r, 0.0, atol=1e-9)
+    L = p.lines
+    d = L.xy2_mm - L.xy1_mm
+    n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.linalg.norm(d, axis=1)[:, None]
+    moved = dataclasses.replace(L, xy1_mm=L.xy1_mm + 0.01 * n, xy2_mm=L.xy2_mm + 0.01 * n)
+    np.testing.assert_allclose(line_terms(moved, b.true_eo, p.focal_length_mm).r, -0.01, atol=1e-9)
+
+
+def test_weights_propagate_the_image_points_and_the_3d_line():
+    """Sigma_r of an exact 3-D line and end points projected onto the measured points is s^2 I; the
+    along-line sd of the end points drops out; an across-line sd adds (n' a_pt) Sigma (a_pt' n)."""
+    b = line_block(seed=1, noise=False, line_sd_m=0.0, line_along_sd_m=0.0)
+    L, f = b.problem.lines, b.problem.focal_length_mm
+    # end points A, B at the measured points: s_A = 0, s_B = 1
+    k = 0
+    i = int(L.photo_index[k])
+    one = LineControl.from_observations(
+        [ControlLine("x", b.true_a_m[0], b.true_b_m[0])],
+        [LineObservation("x", b.problem.photo_ids[i], *line_terms(L, b.true_eo, f).xy[k], sd_mm=0.004)],
+        b.problem.photo_ids)
+    np.testing.assert_allclose(line_terms(one, b.true_eo, f).cov[0], 0.004**2 * np.eye(2), rtol=1e-9, atol=1e-15)
+    along = ControlLine.from_sds("x", b.true_a_m[0], b.true_b_m[0], sd_across_m=0.0, sd_along_m=1.0)
+    one_along = dataclasses.replace(one, cov_m2=along.cov_m2[None])
+    np.testing.assert_allclose(line_terms(one_along, b.true_eo, f).cov[0], 0.004**2 * np.eye(2), rtol=1e-6, atol=1e-12)
+    across = ControlLine.from_sds("x", b.true_a_m[0], b.true_b_m[0], sd_across_m=0.05, sd_along_m=0.0)
+    c = line_terms(dataclasses.replace(one, cov_m2=across.cov_m2[None]), b.true_eo, f).cov[0]
+    assert c[0, 0] > 0.004**2 * 1.01 and abs(c[0, 1]) < 1e-12
+
+
+def test_normal_system_gets_the_lines_in_the_camera_blocks():
+    b = line_block(seed=2)
+    p = b.problem
+    eo = b.initial_eo
+    pts = b.true_points_m
+    with_lines = NormalSystem(p, eo, pts)
+    without = NormalSystem(dataclasses.replace(p, lines=None), eo, pts)
+    _, U, g, vtpv, _ = line_normal_terms(p.lines, eo, p.focal_length_mm, p.n_photos)
+    np.testing.assert_allclose(with_lines.U - without.U, U, atol=1e-9 * np.abs(U).max())
+    np.testing.assert_allclose(with_lines.g_c - without.g_c, g, atol=1e-9 * np.abs(g).max())
+    assert with_lines.vtpv == pytest.approx(without.vtpv + vtpv, rel=1e-12)
+    assert vtpv == pytest.approx(line_cost(p.lines, eo, p.focal_length_mm), rel=1e-12)
+    np.testing.assert_array_equal(with_lines.V, without.V)
+    assert p.dof == dataclasses.replace(p, lines=None).dof + 2 * len(p.lines.line_index)
+
+
+def test_line_controlled_block_is_oriented_within_its_sds():
+    """The fast case: one seed, 12 lines of 12 directions, GNSS 2 m / IMU 0.5 deg."""
+    b = line_block(seed=0)
+    res = adjust(b.problem, initial=(b.initial_eo, None))
+    assert res.success
+    z = _z(res, b)
+    assert np.abs(z).max() < 3.0
+    # the lines, not the GNSS (2 m), carry the block: the tie points' plan sd 0.09 m (1.5-2.2 m
+    # without the lines), their height sd 0.47 m (2.0 m); the camera heights 0.23 m (0.86 m)
+    weak = adjust(dataclasses.replace(b.problem, lines=None), initial=(b.initial_eo, None))
+    assert res.point_sd_m[:, :2].mean() < 0.1 * weak.point_sd_m[:, :2].mean()
+    assert res.point_sd_m[:, 2].mean() < 0.3 * weak.point_sd_m[:, 2].mean()
+    assert res.eo_sd[:, 2].mean() < 0.3 * weak.eo_sd[:, 2].mean()
+    assert np.sqrt(np.mean((res.points_m - b.true_points_m)[:, :2] ** 2)) < 0.2
+    t = line_tests(res, pixel_mm=PIXEL_MM)
+    # redundancy numbers of everything sum to the degrees of freedom: the lines' share is in (0, 2 m)
+    assert 0 < t.redundancy.sum() < 2 * len(t.labels)
+    assert np.all((t.redundancy > 0) & (t.redundancy < 1))
+    np.testing.assert_allclose(t.residuals_px, t.residuals_mm / PIXEL_MM)
+
+
+def test_line_control_sds_are_honest_over_seeds():
+    """20 seeds (3 s): the orientation errors over their sds and the line tests' statistics."""
+    zs, ts = [], []
+    for seed in range(20):
+        b = line_block(seed=seed)
+        res = adjust(b.problem, initial=(b.initial_eo, None))
+        assert res.success
+        zs.append(_z(res, b).ravel())
+        ts.append(line_tests(res).w ** 2)
+    z = np.concatenate(zs)
+    t = np.concatenate(ts)
+    assert 0.85 < z.std() < 1.15                    # 1440 normalised orientation errors
+    assert np.mean(np.abs(z) < 3) > 0.99
+    assert 1.7 < np.nanmean(t) < 2.3                 # the group statistics are chi2(2)
+
+
+def test_a_line_observation_3px_off_is_named_by_snooping():
+    b = line_block(seed=1)
+    p = b.problem
+    L = p.lines
+    k = int(np.argmax(np.bincount(L.line_index)))           # a line seen on several photos
+    k = int(np.flatnonzero(L.line_index == k)[0])
+    d = L.xy2_mm[k] - L.xy1_mm[k]
+    n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+    xy1, xy2 = L.xy1_mm.copy(), L.xy2_mm.copy()
+    xy1[k] += 3 * PIXEL_MM * n
+    xy2[k] += 3 * PIXEL_MM * n
+    bad = dataclasses.replace(p, lines=dataclasses.replace(L, xy1_mm=xy1, xy2_mm=xy2))
+    res = adjust(bad, initial=(b.initial_eo, None))
+    label = L.observation_labels(p.photo_ids)[k]
+    t = line_tests(res)
+    assert t.labels[t.rejected[0]] == label
+    out = snoop_lines(res)
+    assert out.removed == (label,)
+    assert len(out.tests.rejected) == 0
+    assert len(out.result.problem.lines.line_index) == len(L.line_index) - 1
+
+
+def test_bad_lines_raise_located_errors():
+    with pytest.raises(DatumError, match=r"^line R1 on photo 0003: the two image points coincide \(a line of zero length\)$"):
+        LineObservation("R1", "0003", [1.0, 2.0], [1.0, 2.0], 0.004)
+    with pytest.raises(DatumError, match=r"^line R1 on photo 0003: image points and sd must be finite$"):
+        LineObservation("R1", "0003", [np.nan, 2.0], [1.0, 2.0], 0.004)
+    with pytest.raises(DatumError, match=r"^control line R1: its end points coincide \(a line of zero length\)$"):
+        ControlLine("R1", [0, 0, 0], [0, 0, 0])
+    line = ControlLine("R1", [0, 0, 0], [10, 0, 0])
+    obs = LineObservation("R1", "9999", [0, 0], [1, 1], 0.004)
+    with pytest.raises(DatumError, match=r"^line R1 on photo 9999: no photo 9999 in the block$"):
+        LineControl.from_observations([line], [obs], ["0001", "0002"])
+    with pytest.raises(DatumError, match=r"^line R2 on photo 0001: no control line R2$"):
+        LineControl.from_observations([line], [LineObservation("R2", "0001", [0, 0], [1, 1], 0.004)], ["0001"])
+
+
+def test_redundancy_numbers_of_lines_points_and_constraints_sum_to_the_dof():
+    """sum r over image points, control points, GNSS/IMU (redundancy.reliability) and the line
+    observations (line_tests) = v'Pv's degrees of freedom: the lines' Q_vv is exact."""
+    from lidarcat.bundle.redundancy import reliability
+
+    b = line_block(seed=0, n_control_points=3)
+    res = adjust(b.problem, initial=(b.initial_eo, None))
+    total = np.nansum(reliability(res).redundancy) + line_tests(res).redundancy.sum()
+    assert total == pytest.approx(res.dof, abs=1e-6)
+    assert res.dof == b.problem.dof == (b.problem.n_observations + 2 * len(b.problem.lines.line_index)
+                                        - b.problem.n_unknowns + b.problem.n_constraints)
+
+
+def test_edge_points_fit_is_exactly_two_points():
+    """n edge points with sd s: the two-point observation has the least-squares fit's offset variance
+    s^2 (1/n + u^2/S) at every position u along the line (checked through Sigma_r at s_A, s_B)."""
+    from lidarcat.bundle.lines import observation_from_edge_points
+
+    rng = np.random.default_rng(4)
+    u = np.sort(rng.uniform(-3, 4, 15))
+    t = np.array([np.cos(0.4), np.sin(0.4)])
+    nrm = np.array([-t[1], t[0]])
+    pts = np.array([1.0, -2.0]) + u[:, None] * t + rng.normal(0, 0.003, 15)[:, None] * nrm
+    o = observation_from_edge_points("x", "0001", pts, 0.003)
+    # the fit: offset variance along the line
+    c = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - c)
+    uu = (pts - c) @ vt[0]
+    S = np.sum(uu**2)
+    d = o.xy2_mm - o.xy1_mm
+    L = np.linalg.norm(d)
+    for q in (-5.0, -1.0, 0.0, 2.5, 7.0):              # positions along the line from the centroid
+        s_frac = (q - (o.xy1_mm - c) @ (d / L)) / L
+        two = o.sd_mm**2 * ((1 - s_frac) ** 2 + s_frac**2)
+        assert two == pytest.approx(0.003**2 * (1 / 15 + q**2 / S), rel=1e-9)
+    with pytest.raises(DatumError, match=r"^line x on photo 0001: the edge points coincide \(a line of zero length\)$"):
+        observation_from_edge_points("x", "0001", np.ones((4, 2)), 0.003)
