@@ -317,6 +317,11 @@ def chart_sheets(ctx: Context, features: list[dict[str, Any]], spots: Any, area:
     return out
 
 
+#: the widest extent (m) the orthophoto charts of one run cover: 200 km is some 800 sheets of 1:5,000 (Itaocara: 66);
+#: wider is a vertex or a mosaic in the wrong place, and the sheet loop would run for hours
+MAX_CHART_SPAN_M = 200_000.0
+
+
 def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, folder: Path, *, crs: Any,
                  title: Any, index: str = "grid", size_m: float = 1000.0,
                  area: tuple[float, float, float, float] | None = None, only: list[str] | None = None,
@@ -352,7 +357,8 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
     Raises
     ------
     ProductError
-        No contour line; a sheet of *only* that is not in the index or holds no data.
+        No contour line; a sheet of *only* that is not in the index or holds no data; the mosaic and the
+        contours span more than :data:`MAX_CHART_SPAN_M`.
     """
     import numpy as np
 
@@ -371,6 +377,14 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
     lb = (min(xy[:, 0].min() for xy in lines), min(xy[:, 1].min() for xy in lines),
           max(xy[:, 0].max() for xy in lines), max(xy[:, 1].max() for xy in lines))
     whole = (min(ib[0], lb[0]), min(ib[1], lb[1]), max(ib[2], lb[2]), max(ib[3], lb[3]))
+    span = max(whole[2] - whole[0], whole[3] - whole[1])
+    if span > MAX_CHART_SPAN_M:
+        centre = np.array([(ib[0] + ib[2]) / 2, (ib[1] + ib[3]) / 2])
+        far = [float(np.abs(xy - centre).max()) for xy in lines]
+        k = int(np.argmax(far))
+        raise ProductError(f"charts: the mosaic and the contours span {span / 1000:.0f} km (at most "
+                           f"{MAX_CHART_SPAN_M / 1000:.0f} km charted); contour feature {k} reaches "
+                           f"{far[k] / 1000:.0f} km from the mosaic's centre: check its coordinates and CRS")
     grid = index_sheets(whole, index, crs=crs, size_m=size_m)
 
     def holds_data(s: Any) -> bool:
