@@ -67,6 +67,7 @@ STATUSES: dict[str, str] = {
     "measured": "measured and accepted",
     "rejected": "measured, then rejected (off the prediction or disagreeing with the other photos)",
     "not_visible": "the prediction is off the photo, behind the camera or occluded",
+    "no_vertex": "the LiDAR vertex could not be extracted again (or not where its coordinates say)",
     "no_edges": "fewer than two roof edges of the vertex found in the LiDAR or in the photo",
     "weak_geometry": "the edges found meet at too small an angle",
     "too_dark": "the window is too dark to measure",
