@@ -247,7 +247,7 @@ def _fit_edge(img: np.ndarray, origin: np.ndarray, u: np.ndarray, length_px: flo
     # count one per max(1, 2 smooth_px) px
     sig2 = max(float(r @ r) / dof, min_sd_px**2) * 2.0 * max(1.0, 2.0 * smooth_px)
     cov = sig2 * np.linalg.inv(a_mat[keep].T @ a_mat[keep])
-    return (coef, cov, t[keep]), ""
+    return (coef, cov, t[keep], float(np.median(peak)) / max(texture, 1e-9)), ""
 
 
 @dataclass(frozen=True)
@@ -260,9 +260,9 @@ class MeasureParams:
     #: after the photo's common shift: each vertex searched this far around it (px)
     local_search_px: int = 8
     #: edge profiles +- this (px); stations and inliers needed; contrast limits
-    band_px: float = 2.0
+    band_px: float = 1.5
     #: the first pass, from the coarse shift, profiles +- this (px)
-    wide_band_px: float = 4.5
+    wide_band_px: float = 3.5
     min_points: int = 8
     min_contrast: float = 2.0
     min_ratio: float = 2.5
@@ -271,6 +271,8 @@ class MeasureParams:
     smooth_px: float = 1.5
     #: floor of the edge points' sd (px)
     min_sd_px: float = 0.15
+    #: a vertex from two edges only (no redundancy) needs both this much stronger than the texture
+    two_line_ratio: float = 3.5
     #: sd of a line's position from what the fit cannot see (rendering, texture, blur), added (px)
     line_sd_px: float = 0.25
     #: the lines used must meet at least at this angle (deg)
@@ -394,7 +396,7 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
         return base.failed("no_edges", f"{len(fits)} of {len(ctx['edges'])} edges found in the photo"
                            + (f" ({'; '.join(why)})" if why else ""))
     lines, mm, cc, covs = [], [], [], []
-    for u, (coef, cov, tk) in fits:
+    for u, (coef, cov, tk, _) in fits:
         nvec = np.array([-u[1], u[0]])
         a, b = coef
         dirv = (u + b * nvec) / math.hypot(1.0, b)
@@ -432,6 +434,12 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
         why.append(f"edge of planes {fits_planes[drop][0] + 1}-{fits_planes[drop][1] + 1}: does not meet the "
                    f"other edges at one point ({max(res):.1f} px off)")
         use.remove(drop)
+    if len(use) == 2 and min(fits[i][1][3] for i in use) < p.two_line_ratio:
+        weak = min(use, key=lambda i: fits[i][1][3])
+        return base.failed("no_edges", f"two edges only, and the edge of planes {fits_planes[weak][0] + 1}-"
+                                       f"{fits_planes[weak][1] + 1} is weak (gradient {fits[weak][1][3]:.1f} x the "
+                                       f"texture's, < {p.two_line_ratio:g}): no check of it"
+                           + (f" ({'; '.join(why)})" if why else ""))
     angs = [math.degrees(math.acos(min(1.0, abs(float(mm[i] @ mm[j]))))) for i in use for j in use if i < j]
     if max(angs) < p.min_angle_deg:
         return base.failed("weak_geometry", f"the edges left meet at {max(angs):.0f} deg (< {p.min_angle_deg:g})")
@@ -570,6 +578,9 @@ def check_consistency(measurements: Sequence[Measurement], cameras: Sequence[Cam
     for k, m in enumerate(out):
         if not m:
             continue
+        if not (np.isfinite(m.px).all() and np.isfinite(m.cov_px2).all()):
+            out[k] = m.failed("rejected", "the measurement or its covariance is not finite")
+            continue
         d = np.asarray(m.px) - np.asarray(m.predicted_px)
         m2 = float(d @ np.linalg.solve(np.asarray(m.predicted_cov_px2) + np.asarray(m.cov_px2), d))
         if m2 > _CHI2_2:
@@ -615,7 +626,9 @@ def check_consistency(measurements: Sequence[Measurement], cameras: Sequence[Cam
         try:
             q = float(dv @ np.linalg.solve(np.linalg.inv(n_mat) + vc, dv))
         except np.linalg.LinAlgError:
-            q = 0.0
+            q = math.inf
+        if not math.isfinite(q):
+            q = math.inf
         if q > _CHI2_3:
             for k in live:
                 out[k] = out[k].failed("rejected", f"the forward intersection of the {len(live)} photos lies "
