@@ -155,7 +155,8 @@ def _read_decisions(path: Path) -> list[dict[str, Any]]:
     from .._util import read_csv_table
 
     t = read_csv_table(path, required=("photo", "point", "decision", "col_px", "row_px"),
-                       optional=("sd_col_px", "sd_row_px", "status", "reason"))
+                       optional=("sd_col_px", "sd_row_px", "status", "reason", "pred_col_px", "pred_row_px",
+                                 "pred_sd_px"))
     out = []
     photos, points, dec = t.column("photo"), t.column("point"), t.column("decision")
     cols, rows_ = t.floats("col_px", required=False), t.floats("row_px", required=False)
@@ -173,10 +174,15 @@ def _read_decisions(path: Path) -> list[dict[str, Any]]:
     return out
 
 
-def _table(survey: Any, new: list[dict[str, Any]], replace: bool) -> tuple[list[str], list[list[Any]]]:
-    """The new image_points.csv: the kept rows, then the accepted control observations."""
+def _table(survey: Any, new: list[dict[str, Any]], replace: bool, drop: set | None = None
+           ) -> tuple[list[str], list[list[Any]]]:
+    """The new image_points.csv: the kept rows, then the accepted control observations.
+
+    With *replace*, rows of the (photo, point) pairs of *new* and of *drop* go; without, a pair
+    already observed keeps its row and its new observation is not added.
+    """
     ip = survey.image_points
-    pairs = {(d["photo"], d["point"]) for d in new}
+    pairs = {(d["photo"], d["point"]) for d in new} | (drop or set())
     keep = np.array([not (replace and (str(a), str(b)) in pairs) for a, b in zip(ip.photo, ip.point)], bool)
     have = {(str(a), str(b)) for a, b, k in zip(ip.photo, ip.point, keep) if k}
     new = [d for d in new if (d["photo"], d["point"]) not in have]
@@ -279,7 +285,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     if decisions is not None:
         rows = _read_decisions(Path(decisions))
         accepted = [d for d in rows if d["accept"]]
-        header, table_rows = _table(survey, accepted, replace=True)
+        header, table_rows = _table(survey, accepted, replace=True, drop={(d["photo"], d["point"]) for d in rows})
         summary = {"decisions": str(decisions), "accepted": len(accepted), "rejected": len(rows) - len(accepted)}
         write_json_atomic(out / "measure_control.json", summary)
         comment = f"LiDAR control observations: lidarcat measure-control, decisions of {Path(decisions).name}"
