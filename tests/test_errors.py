@@ -276,6 +276,8 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("control/params.py", "get_params", "ValueError", "unknown preset {}; choose one of {}"): _ENUM,
     ("control/search.py", "find_jobs", "ValueError", "block_cells must be at least 1, got {}"): _ARG,
     ("control/vertices.py", "ControlPoint.__post_init__", "ValueError", "unknown status {}"): _INTERNAL,
+    ("photocontrol/measure.py", "Measurement.__post_init__", "ValueError", "unknown status {}"): _INTERNAL,
+    ("photocontrol/measure.py", "_scores", "ValueError", "coarse must be 'lines' or 'likelihood', "): _ENUM,
     ("control/vertices.py", "_as_xyz", "ValueError", "points must be an (N, 3) array or a Poin"):
         "shape check; extract_roof turns it into status 'bad_input'",
     ("control/vertices.py", "extract_roof", "ValueError", "center_en must be (E, N) in metres, got "): _SHAPE,
