@@ -103,3 +103,31 @@ def test_dsm_of_points_is_the_highest_point_per_cell():
     dsm = dsm_of_points(xyz, cell_m=0.5)
     h = dsm(np.array([0.15, 1.3, 0.7, 50.0]), np.array([0.2, 0.2, 0.2, 0.0]))
     assert h[0] == 7.0 and h[1] == 3.0 and np.isnan(h[2]) and np.isnan(h[3])
+
+
+@pytest.mark.slow
+def test_run_plans_measure_control_before_the_adjustments_and_they_read_its_table(survey, tmp_path):
+    """``lidarcat run``: the stage comes after match and before camera and the adjustments; run through the
+    runner (without the match), its table feeds the next stage's survey."""
+    from lidarcat.pipeline.plan import plan_pipeline
+    from lidarcat.pipeline.runner import run_stages
+
+    s, root, _ = survey
+    sv = Survey.load(root)
+    names = [st.name for st in plan_pipeline(sv)]
+    assert "measure-control" in names
+    k = names.index("measure-control")
+    assert names.index("match") < k < names.index("camera")
+    assert all(k < i for i, n in enumerate(names) if n.startswith("adjust"))
+    stages = {st.name: st for st in plan_pipeline(sv)}
+    import dataclasses
+
+    mc = dataclasses.replace(stages["measure-control"], requires=())   # no matching in this test: its table is the survey's
+    recs = run_stages([mc, stages["camera"]], tmp_path / "out", values={"survey": sv})
+    assert [r.status for r in recs] == ["ran", "ran"], [r.reason for r in recs]
+    table = tmp_path / "out" / "measure_control" / "image_points.csv"
+    rows = _rows(table)
+    assert len(rows) == len(sv.image_points.point) + recs[0].result["accepted"]   # observed pairs kept as they were
+    assert recs[0].result["accepted"] >= 1
+    # the camera stage corrected the measured table's observations, not the survey's
+    assert recs[1].result["n_points"] == len(rows)
