@@ -115,14 +115,14 @@ def test_run_plans_measure_control_before_the_adjustments_and_they_read_its_tabl
     s, root, _ = survey
     sv = Survey.load(root)
     names = [st.name for st in plan_pipeline(sv)]
-    assert "measure-control" in names
-    k = names.index("measure-control")
+    assert "measure_control" in names
+    k = names.index("measure_control")
     assert names.index("match") < k < names.index("camera")
     assert all(k < i for i, n in enumerate(names) if n.startswith("adjust"))
     stages = {st.name: st for st in plan_pipeline(sv)}
     import dataclasses
 
-    mc = dataclasses.replace(stages["measure-control"], requires=())   # no matching in this test: its table is the survey's
+    mc = dataclasses.replace(stages["measure_control"], requires=())   # no matching in this test: its table is the survey's
     recs = run_stages([mc, stages["camera"]], tmp_path / "out", values={"survey": sv})
     assert [r.status for r in recs] == ["ran", "ran"], [r.reason for r in recs]
     table = tmp_path / "out" / "measure_control" / "image_points.csv"

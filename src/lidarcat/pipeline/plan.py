@@ -73,7 +73,7 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     Returns
     -------
     list of Stage
-        match (tie points: only when the photos have images and the survey too few tie points), measure-control
+        match (tie points: only when the photos have images and the survey too few tie points), measure_control
         (only when LiDAR control vertices lack image observations), camera, extract, one adjust-SET and assess-SET per control set, one
         compare stage per pair (default set vs each other set), thesis /
         mapping / products / selfcal when the survey asks for them, report.
@@ -99,7 +99,7 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     # LiDAR control vertices measured in the photos (issue 29), after the tie points, before every adjustment;
     # a failed measurement skips nothing: the adjustments then take the match (or the survey's) table
     if measure_control.planned(survey) is None:
-        stages.append(Stage("measure-control", "measure_control", measure_control.run,
+        stages.append(Stage("measure_control", "measure_control", measure_control.run,
                             requires=after_match_of(why_no_match),
                             inputs=_after_match(_survey_files(survey), measured=False,
                                                 extra=lambda: match.image_files(survey)),
@@ -210,13 +210,13 @@ def after_match_of(why_no_match: str | None) -> tuple[str, ...]:
 def _after_match(files: list[Path], *, measured: bool = True, extra: Any = None) -> Any:
     """``inputs`` of a stage that adjusts the image observations: once the match stage is done (ran or
     reused), ``ctx["survey"]`` becomes the survey with ``match/image_points.csv`` and that table is an input;
-    once the measure-control stage is done (and *measured*), its table (the match's rows plus the LiDAR
+    once the measure_control stage is done (and *measured*), its table (the match's rows plus the LiDAR
     control observations) instead."""
     def inputs(ctx: Any) -> list[Path]:
         more = list(extra()) if extra is not None else []
         if ctx is None:
             return [*files, *more]
-        for stage in (("measure-control", "match") if measured else ("match",)):
+        for stage in (("measure_control", "match") if measured else ("match",)):
             if ctx.done(stage):
                 table = ctx.folder(stage) / "image_points.csv"
                 ctx.values["survey"] = match.survey_with(ctx["survey"], table)

@@ -39,7 +39,7 @@ __all__ = ["init", "match", "camera", "extract", "adjust", "assess", "compare", 
 #: every stage of ``lidarcat run`` in pipeline order: (name, one-line summary); SET is a control set
 REGISTRY: tuple[tuple[str, str], ...] = (
     ("match", "tie points from the photos (survey with images and too few tie points)"),
-    ("measure-control", "LiDAR control vertices measured in the photos (images, tiles, ground points of source "
+    ("measure_control", "LiDAR control vertices measured in the photos (images, tiles, ground points of source "
                         "lidar without observations)"),
     ("camera", "interior orientation, pixel -> corrected photo coordinates"),
     ("extract", "LiDAR roof vertices -> control points (survey with lidar + jobs)"),
