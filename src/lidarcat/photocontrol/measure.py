@@ -1,40 +1,61 @@
 r"""Measuring a LiDAR roof vertex in a photo: a label template for the shift, roof-edge lines for the pixel.
 
-**1. Coarse shift (template of faces).**  The LiDAR points of the vertex's faces
-(each labelled by its nearest plane) are projected with the approximate
-orientation; every pixel of a window around the prediction takes the label of
-the nearest projected point (none farther than 1.5 point spacings).  Shading
-by the sun is unknown, but inside one face the photo is nearly uniform and
-between faces it is not: for every shift :math:`s` inside the search ellipse
-the *correlation ratio*
+**1. Coarse shift (template of faces).**  The LiDAR points within ``template_m`` of
+the vertex are labelled by their nearest plane of the vertex (or "other surface")
+and projected with the approximate orientation; every pixel of a window around the
+prediction takes the label of the nearest projected point (none farther than two
+point spacings).  The sun's shading is unknown, but inside one face the photo is
+nearly uniform and between faces (and against the ground) it is not.  For every
+integer shift :math:`s` inside ``search_sigma`` of the prediction's ellipse the
+score is the log-likelihood ratio, per template pixel, of one normal grey-level
+distribution per label against one for the whole template,
 
-.. math:: \eta^2(s) = \frac{\sum_k S_k^2/N_k - S^2/N}{Q - S^2/N},
+.. math:: \Lambda(s) = \frac{1}{N}\Big(\tfrac{N}{2}\ln\hat\sigma^2(s)
+          - \sum_k \tfrac{N_k}{2}\ln\hat\sigma_k^2(s)\Big),
 
-(:math:`S_k` the sum of the photo over face *k*'s template pixels, :math:`N_k`
-their number, :math:`S, N` the totals and :math:`Q` the sum of squares) is the
-share of the photo's variance explained by the faces with the best grey value
-per face.  It is computed for all shifts at once by ``cv2.matchTemplate``
-(correlation of the photo with each face's mask); the largest :math:`\eta^2`
-within ``search_sigma`` of the prediction's ellipse gives the integer shift.
+with :math:`\hat\sigma_k^2 = Q_k/N_k - (S_k/N_k)^2` from the sums :math:`S_k` and
+:math:`Q_k` of the photo and its square over label *k*'s :math:`N_k` template
+pixels (one ``cv2.matchTemplate`` correlation each, for all shifts at once;
+1 grey level^2 added to every variance).  Uniform faces of different grey raise
+it; texture lowers it; a uniform area under the whole template leaves it at 0.
+The best shift is then refined within ``refine_px`` by the directional gradient
+across the predicted edges (``coarse = "lines"``: the mean of
+:math:`|\nabla I\cdot n_e|` along each edge's half-line from a candidate vertex,
+over its mean in the window, summed over the edges).  :func:`measure_photo` sums
+the normalised scores of all vertices of a photo over the common shift first
+(the orientation's error moves them alike), then searches each vertex within
+``local_search_px`` of it.
 
 **2. Edges (sub-pixel).**  Each roof edge (:func:`~lidarcat.photocontrol.predict.roof_edges`)
 is predicted as an image segment from the shifted vertex.  Across it, at
 stations every 0.5 px from ``t0`` (clear of the other edges at the vertex) to
-its end, a profile of ``+-band_px`` is sampled (bilinear); the edge point is
-the extremum of the profile's derivative of the edge's dominant sign, refined
-by a parabola through the three samples about it.  A line :math:`s = a + b\,t`
+its end, a profile of ``+-band_px`` is sampled (bilinear); the profiles'
+derivatives are averaged over ``smooth_px`` along the edge, and the edge point is
+the extremum of the derivative of the edge's dominant sign, refined by a
+parabola through the three samples about it.  A line :math:`s = a + b\,t`
 (offset across versus distance along) is fitted by least squares with
-rejection at 3 robust sigmas (MAD), twice; its covariance is
-:math:`\hat\sigma^2 (A^TA)^{-1}` with :math:`\hat\sigma` from the residuals
-(at least ``min_sd_px``).  An edge is dropped with fewer than ``min_points``
-inliers or a median gradient below ``min_contrast`` grey levels per pixel.
+rejection at 3 robust sigmas (MAD); its covariance is
+:math:`\hat\sigma^2 (A^TA)^{-1}\,k` with :math:`\hat\sigma` from the residuals
+(at least ``min_sd_px``) and :math:`k = 2\max(1, 2\,\mathrm{smooth})` for the
+correlation of stations 0.5 px apart.  An edge is dropped, with the reason, when
+it has fewer than ``min_points`` inliers, a median gradient below
+``min_contrast`` grey levels per pixel or below ``min_ratio`` times the texture's
+(the gradient off the edge), or its points scatter more than ``max_scatter_px``.
+The fit runs twice: from the coarse shift in a band of ``wide_band_px``, then
+from the vertex found in ``band_px``.
 
 **3. Vertex.**  Line *i* in the image: :math:`m_i^T x = c_i` (unit normal
 :math:`m_i`), with the variance :math:`w_i^{-1}` of its offset at the vertex.
-The vertex is the weighted least-squares point
-:math:`x = (\sum w_i m_i m_i^T)^{-1} \sum w_i m_i c_i` with covariance
-:math:`(\sum w_i m_i m_i^T)^{-1}` (two lines: their intersection); it needs
-two lines at least ``min_angle_deg`` apart.
+:math:`w_i^{-1}` adds ``line_sd_px``\ :sup:`2` for what the fit cannot see (rendering,
+blur, a face boundary off the geometric edge).  The vertex is the weighted
+least-squares point :math:`x = (\sum w_i m_i m_i^T)^{-1} \sum w_i m_i c_i` with
+covariance :math:`(\sum w_i m_i m_i^T)^{-1}` (two lines: their intersection).
+Of two edges found on one image line (less than ``min_angle_deg`` apart) the one
+turned farther from its predicted direction goes; with three or more lines, while
+:math:`\chi^2 = \sum w_i (m_i^T x - c_i)^2` exceeds the 99.9 % point of
+:math:`\chi^2_{n-2}`, the line farthest from the others' point goes.  Two lines
+alone have no check: both must be ``two_line_ratio`` times stronger than the
+texture.
 
 **4. Consistency over photos** (:func:`check_consistency`).  A measurement
 whose offset from the prediction is outside the 99.9 % ellipse of
