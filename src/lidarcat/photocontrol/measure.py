@@ -294,8 +294,10 @@ class MeasureParams:
     min_sd_px: float = 0.15
     #: a vertex from two edges only (no redundancy) needs both this much stronger than the texture
     two_line_ratio: float = 3.5
-    #: sd of a line's position from what the fit cannot see (rendering, texture, blur), added (px)
-    line_sd_px: float = 0.25
+    #: sd of a line's position from what the fit cannot see (rendering, texture, blur), added (px); 0.5 makes
+    #: the normalised errors' sd 0.9-1.9 on the synthetic.aerial renders, whose face boundaries lie up to a
+    #: texel off the geometric roof edge (the shading is painted into the plan albedo lattice)
+    line_sd_px: float = 0.5
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
