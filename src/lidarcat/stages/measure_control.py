@@ -137,6 +137,29 @@ def _approx(survey: Any, default_sd: tuple[float, float]) -> tuple[dict, dict]:
     return eos, covs
 
 
+_CHIP_HALF_PX = 32
+
+
+def _window(img: np.ndarray, m: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """The photo's window about the measured (else predicted) pixel that a chip shows, and its origin (col, row)."""
+    c = np.asarray(m.px if np.isfinite(m.px).all() else m.predicted_px, dtype=np.float64)
+    if not np.isfinite(c).all():
+        return np.zeros((2 * half + 4, 2 * half + 4), np.float32), np.zeros(2)
+    c0, r0 = int(round(c[0])) - half - 2, int(round(c[1])) - half - 2
+    h, w = img.shape[:2]
+    win = np.zeros((2 * half + 4, 2 * half + 4) + img.shape[2:], img.dtype)
+    rs, cs, re, ce = max(r0, 0), max(c0, 0), min(r0 + 2 * half + 4, h), min(c0 + 2 * half + 4, w)
+    if re > rs and ce > cs:
+        win[rs - r0:re - r0, cs - c0:ce - c0] = img[rs:re, cs:ce]
+    return win, np.array([c0, r0], dtype=np.float64)
+
+
+def _moved(m: Any, origin: np.ndarray) -> Any:
+    """*m* in the coordinates of a window whose top-left pixel is *origin* of the photo."""
+    return dataclasses.replace(m, px=np.asarray(m.px) - origin, predicted_px=np.asarray(m.predicted_px) - origin,
+                               lines=tuple((np.asarray(a) - origin, np.asarray(b) - origin) for a, b in m.lines))
+
+
 def _decision_rows(ms: Sequence[Any]) -> list[list[Any]]:
     rows = []
     for m in ms:
@@ -341,7 +364,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                                 dsm=dsm)[0]
             targets.setdefault(pid, []).append((vid, VertexTarget(cp.enh_m, cp.planes, xyz, pr)))
     per_vertex: dict[str, list[tuple[str, Any]]] = {}
-    images: dict[str, Any] = {}
+    images: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
     for j, pid in enumerate(photos):
         if progress is not None:
             progress(len(verts) + j, total)
@@ -353,8 +376,10 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         ms = measure_photo(img, survey.camera_of(pid), eos[pid], [t for _, t in targets[pid]], p)
         for (vid, _), m in zip(targets[pid], ms):
             per_vertex.setdefault(vid, []).append((pid, m))
-        if gallery:
-            images[pid] = img
+        if gallery:   # keep the windows of the chips, not the photos (a block's photos do not fit in memory)
+            for (vid, _), m in zip(targets[pid], ms):
+                if m.status != "not_visible":
+                    images[(pid, vid)] = _window(img, m, _CHIP_HALF_PX)
     for vid, lst in per_vertex.items():
         cp, _ = vertex_info[vid]
         pids = [pid for pid, _ in lst]
@@ -372,13 +397,14 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         "LiDAR vertices measured in the photos (lidarcat measure-control). Edit decision (accept/reject) and feed "
         "the file back with --decisions; pixels col_px, row_px; pred_sd_px = semi-major axis of the prediction's "
         "1-sigma ellipse."])
-    tried = [m for m in results if m.status not in ("not_visible",) and m.photo in images]
+    tried = [m for m in results if (m.photo, m.point) in images]
     pages = []
     if gallery and tried:
         per_page = 48
         for k0 in range(0, len(tried), per_page):
             chunk = tried[k0:k0 + per_page]
-            img = tile_gallery([chip_image(images[m.photo], m, half_px=32, zoom=3) for m in chunk],
+            img = tile_gallery([chip_image(images[(m.photo, m.point)][0], _moved(m, images[(m.photo, m.point)][1]),
+                                           half_px=_CHIP_HALF_PX, zoom=3) for m in chunk],
                                [f"{m.point} {m.photo} {m.status}" for m in chunk], columns=6)
             path = out / f"gallery_{k0 // per_page + 1:02d}.png"
             ok, buf = cv2.imencode(".png", img)
