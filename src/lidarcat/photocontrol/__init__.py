@@ -34,7 +34,7 @@ from .measure import (  # noqa: F401
     measure_photo,
     measure_vertex,
 )
-from .review import chip_image, gallery  # noqa: F401
+from .review import chip_centre, chip_image, gallery  # noqa: F401
 
 __all__ = [
     "Prediction",
@@ -56,6 +56,7 @@ __all__ = [
     "grey",
     "measure_photo",
     "measure_vertex",
+    "chip_centre",
     "chip_image",
     "gallery",
 ]

@@ -3,7 +3,7 @@
 A chip is a window of the photo around the measured (or predicted) vertex,
 magnified ``zoom`` times (nearest neighbour: the pixels stay visible), with
 
-* the prediction's ``k``-sigma ellipse (yellow) and its centre,
+* the prediction's ``k``-sigma ellipse (yellow) and its centre, the coarse shift's vertex (cyan ring),
 * the fitted roof-edge lines (green),
 * the measured vertex (red cross) and, when given, a reference position (magenta ring).
 
@@ -21,16 +21,25 @@ import numpy as np
 from .measure import Measurement, grey
 from .predict import ellipse_axes
 
-__all__ = ["chip_image", "gallery"]
+__all__ = ["chip_image", "chip_centre", "gallery"]
+
+
+def chip_centre(m: Measurement) -> np.ndarray:
+    """(2,) where a chip of *m* is centred: the measured pixel, else the prediction moved by the coarse shift
+    when there is one, else the prediction (px)."""
+    for c in (np.asarray(m.px, dtype=np.float64), np.asarray(m.predicted_px) + np.asarray(m.shift_px)):
+        if np.isfinite(c).all():
+            return c
+    return np.asarray(m.predicted_px, dtype=np.float64)
 
 
 def chip_image(image: Any, m: Measurement, *, half_px: int = 40, zoom: int = 4, k: float = 3.0,
                reference_px: Any = None) -> np.ndarray:
-    """(2 h z, 2 h z, 3) uint8 BGR chip of *m* on its photo (see the module docstring)."""
+    """(2 h z, 2 h z, 3) uint8 BGR chip of *m* on its photo, centred at :func:`chip_centre` (module docstring)."""
     import cv2
 
     img = grey(image)
-    centre = np.asarray(m.px if m else m.predicted_px, dtype=np.float64)
+    centre = chip_centre(m)
     if not np.isfinite(centre).all():
         return np.zeros((2 * half_px * zoom, 2 * half_px * zoom, 3), np.uint8)
     c0, r0 = int(round(centre[0])) - half_px, int(round(centre[1])) - half_px
@@ -58,6 +67,9 @@ def chip_image(image: Any, m: Measurement, *, half_px: int = 40, zoom: int = 4, 
         cv2.ellipse(out, to_chip(pp), (int(a * zoom * (1 << shift)), int(b * zoom * (1 << shift))), ang, 0, 360,
                     (0, 220, 255), 1, cv2.LINE_AA, shift)
         cv2.circle(out, to_chip(pp), 3 << shift, (0, 220, 255), 1, cv2.LINE_AA, shift)
+    sh = pp + np.asarray(m.shift_px, dtype=np.float64)
+    if np.isfinite(sh).all():
+        cv2.circle(out, to_chip(sh), 4 << shift, (255, 255, 0), 1, cv2.LINE_AA, shift)
     for p0, p1 in m.lines:
         cv2.line(out, to_chip(p0), to_chip(p1), (0, 200, 0), 1, cv2.LINE_AA, shift)
     if reference_px is not None and np.isfinite(np.asarray(reference_px, dtype=float)).all():

@@ -142,7 +142,9 @@ _CHIP_HALF_PX = 32
 
 def _window(img: np.ndarray, m: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
     """The photo's window about the measured (else predicted) pixel that a chip shows, and its origin (col, row)."""
-    c = np.asarray(m.px if np.isfinite(m.px).all() else m.predicted_px, dtype=np.float64)
+    from ..photocontrol import chip_centre
+
+    c = chip_centre(m)
     if not np.isfinite(c).all():
         return np.zeros((2 * half + 4, 2 * half + 4), np.float32), np.zeros(2)
     c0, r0 = int(round(c[0])) - half - 2, int(round(c[1])) - half - 2
