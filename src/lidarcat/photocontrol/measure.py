@@ -223,24 +223,27 @@ def _fit_edge(img: np.ndarray, origin: np.ndarray, u: np.ndarray, length_px: flo
     t = np.arange(t0, max(length_px - 1.0, t0), 0.5)
     if len(t) < min_points:
         return None, f"edge {length_px:.0f} px long: too short to fit"
-    s = np.arange(-band_px, band_px + 1e-9, 0.25)
-    cols = origin[0] + t[:, None] * u[0] + s[None] * nvec[0]
-    rows = origin[1] + t[:, None] * u[1] + s[None] * nvec[1]
+    # the profile reaches 3 px beyond the band: the texture is measured there, the edge searched in the band
+    s_all = np.arange(-band_px - 3.0, band_px + 3.0 + 1e-9, 0.25)
+    cols = origin[0] + t[:, None] * u[0] + s_all[None] * nvec[0]
+    rows = origin[1] + t[:, None] * u[1] + s_all[None] * nvec[1]
     prof = _sample(img, cols, rows)
-    g = np.gradient(prof, 0.25, axis=1)
+    g_all = np.gradient(prof, 0.25, axis=1)
     if smooth_px > 0 and len(t) > 3:   # along the edge: texture averages out, the edge does not
         from scipy.ndimage import uniform_filter1d
 
-        g = uniform_filter1d(g, size=max(1, int(round(2 * smooth_px))), axis=0, mode="nearest")
+        g_all = uniform_filter1d(g_all, size=max(1, int(round(2 * smooth_px))), axis=0, mode="nearest")
+    inner = np.abs(s_all) <= band_px + 1e-9
+    s, g = s_all[inner], g_all[:, inner]
     sign = 1.0 if np.median(g[np.arange(len(t)), np.argmax(np.abs(g), axis=1)]) >= 0 else -1.0
     gs = sign * g
     k = np.clip(np.argmax(gs, axis=1), 1, len(s) - 2)
     peak = gs[np.arange(len(t)), k]
     if float(np.median(peak)) < min_contrast:
         return None, f"median edge gradient {float(np.median(peak)):.1f} below {min_contrast:g} grey levels/px"
-    # texture: the gradient off the edge (more than 1.25 px from each station's peak)
-    off = np.abs(s[None, :] - s[k][:, None]) > 1.25
-    texture = float(np.median(np.abs(g[off]))) if off.any() else 0.0
+    # texture: the gradient off the edge (more than 2 px from each station's peak)
+    off = np.abs(s_all[None, :] - s[k][:, None]) > 2.0
+    texture = float(np.median(np.abs(g_all[off]))) if off.any() else 0.0
     if float(np.median(peak)) < min_ratio * texture:
         return None, (f"edge gradient {float(np.median(peak)):.1f} less than {min_ratio:g} x the texture's "
                       f"{texture:.1f}: no edge")
