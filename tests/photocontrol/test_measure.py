@@ -6,8 +6,8 @@ vertices extracted from it; the approximate orientation is 2 m / 0.5 deg off (``
 Truth: the true vertex projected with the true orientation.
 
 What it reaches here (seed 0, GSD 0.10 m, 1 strip of 4 photos of 1200 x 900 px, the LiDAR
-sampled at 12 points/m^2): 9 of the 20 vertex/photo pairs tried measured, median 0.82 px, 95th
-percentile 2.35 px, largest 2.58 px from truth.  Part of it is the renderer's: the roofs' shading
+sampled at 12 points/m^2): 10 of the 20 vertex/photo pairs tried measured, median 0.78 px, 95th
+percentile 2.32 px, largest 2.58 px from truth.  Part of it is the renderer's: the roofs' shading
 is painted into the plan albedo lattice (``texel_m`` = the GSD), so a face boundary in the photo
 lies up to about a texel off the geometric roof edge (with the true orientation, the fitted
 ridge lines are 0.7-1.2 px off the projected true ridge).  The assertions keep a margin.

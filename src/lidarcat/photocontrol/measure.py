@@ -374,8 +374,10 @@ def _setup(img: np.ndarray, camera: Camera, eo: Any, t: VertexTarget, p: Measure
     srch = int(min(p.max_search_px, math.ceil(p.search_sigma * pr.sd_max_px) + 2))
     H, W = img.shape
     m_edge = int(math.ceil(min(float(lens.max()), p.max_edge_px) + p.wide_band_px)) + 2
-    if c0 - m_edge - srch < 0 or r0 - m_edge - srch < 0 or c0 + m_edge + srch >= W or r0 + m_edge + srch >= H:
-        return base.failed("near_border", f"the vertex's edges, {m_edge} px, and the search, {srch} px, around "
+    # the search may reach past the border (the photo is continued by its edge values there, where no
+    # template fits); the vertex found must have its edges on the photo (checked in _refine)
+    if c0 - m_edge < 0 or r0 - m_edge < 0 or c0 + m_edge >= W or r0 + m_edge >= H:
+        return base.failed("near_border", f"the vertex's edges, {m_edge} px, around "
                                           f"column {c0}, row {r0} reach past the photo's border")
     # the template may reach past the border: the photo is continued by its edge values there
     import cv2
@@ -390,7 +392,7 @@ def _setup(img: np.ndarray, camera: Camera, eo: Any, t: VertexTarget, p: Measure
         return base.failed("saturated", f"{100 * float(np.mean(chip >= p.saturation)):.0f} % of the window "
                                         f"at or above {p.saturation:g}")
     return dict(base=base, edges=edges, units=units, lens=lens, t0s=t0s, half=half, srch=srch, chip=chip,
-                masks=masks, c0=c0, r0=r0, vpx=vpx)
+                masks=masks, c0=c0, r0=r0, vpx=vpx, m_edge=m_edge, size=(W, H))
 
 
 def _scores(ctx: dict, p: MeasureParams) -> np.ndarray:
@@ -408,6 +410,11 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
     """Edge lines from the shifted prediction and their intersection (module docstring, steps 2-3)."""
     base = replace(ctx["base"], shift_px=shift)
     origin = ctx["vpx"] + shift
+    W, H = ctx["size"]
+    me = ctx["m_edge"]
+    if not (me <= origin[0] < W - me and me <= origin[1] < H - me):
+        return base.failed("near_border", f"the vertex found at column {origin[0]:.0f}, row {origin[1]:.0f}: its "
+                                          f"edges, {me} px, reach past the photo's border")
     fits, why, fits_planes = [], [], []
     for k, e in enumerate(ctx["edges"]):
         fit, reason = _fit_edge(img, origin, ctx["units"][k], min(float(ctx["lens"][k]), p.max_edge_px),
