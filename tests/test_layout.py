@@ -141,6 +141,10 @@ def test_no_private_name_is_imported_from_another_module():
     ("lidarcat.geometry", "lidarcat.survey"),
     ("lidarcat.stages", "lidarcat.pipeline"),
     ("lidarcat.stages", "lidarcat.cli"),
+    ("lidarcat.photocontrol", "lidarcat.survey"),
+    ("lidarcat.photocontrol", "lidarcat.stages"),
+    ("lidarcat.photocontrol", "lidarcat.cli"),
+    ("lidarcat.photocontrol", "lidarcat.synthetic"),
 ])
 def test_dependencies_point_one_way(engine, forbidden):
     bad = [f"{_where(p, line)}: {importer} imports {target}"

@@ -2,30 +2,31 @@
 
 The house by stage, one package per stage of the pipeline (docs/layout.md):
 
-===============  ============================================================
-``errors``       the exception hierarchy: :class:`LidarcatError` and its located subclasses
-``testing``      assertions for tests of code built on lidarcat
-``_util/``       atomic writes, located reads, CSV/TOML/JSON tables, frozen value types
-``geometry/``    the camera (interior orientation, eq. 01-07), collinearity equations
-``survey/``      the survey folder: load, validate; survey -> bundle problem, tables out
-``photos/``      photo files: header (size, truncation), EXIF focal length and GNSS position
-``match/``       stage match: automatic tie points (SIFT, footprint pairs, guided matching, tracks)
-``lidar/``       LiDAR data access (LAS/LAZ/COPC/ASCII, CRS, tile index, clips, rasters),
-                 the tile engine
-``control/``     stage extract: roof facets, plane intersection into control points
-                 (eq. 25-41)
-``bundle/``      the bundle adjustment engine with weighted constraints (eq. 08-22)
-``accuracy/``    stage assess: discrepancies, Filliben, t, chi-square, K-S, Hotelling;
-                 PEC, ASPRS, NSSDA
-``mapping/``     stage mapping: monorestitution, orthophotos, mosaics
-``production/``  stage products: ground, DTM/DSM, contours, hypsometry, map sheets
-``interop/``     other programs' files in and out (COLMAP, OpenSfM, ODM, Metashape, ...)
-``report/``      the accuracy report and the pipeline report (HTML, Markdown, JSON)
-``stages/``      one action per stage (survey folder in, stage folder out)
-``pipeline/``    the stage runner and the whole chain (``lidarcat run``)
-``synthetic/``   data with known truth for the demo, the tests and the benchmarks
-``cli/``         the ``lidarcat`` command line
-===============  ============================================================
+=================  ============================================================
+``errors``         the exception hierarchy: :class:`LidarcatError` and its located subclasses
+``testing``        assertions for tests of code built on lidarcat
+``_util/``         atomic writes, located reads, CSV/TOML/JSON tables, frozen value types
+``geometry/``      the camera (interior orientation, eq. 01-07), collinearity equations
+``survey/``        the survey folder: load, validate; survey -> bundle problem, tables out
+``photos/``        photo files: header (size, truncation), EXIF focal length and GNSS position
+``match/``         stage match: automatic tie points (SIFT, footprint pairs, guided matching, tracks)
+``lidar/``         LiDAR data access (LAS/LAZ/COPC/ASCII, CRS, tile index, clips, rasters),
+                   the tile engine
+``control/``       stage extract: roof facets, plane intersection into control points
+                   (eq. 25-41)
+``photocontrol/``  stage measure-control: LiDAR roof vertices predicted and measured in the photos
+``bundle/``        the bundle adjustment engine with weighted constraints (eq. 08-22)
+``accuracy/``      stage assess: discrepancies, Filliben, t, chi-square, K-S, Hotelling;
+                   PEC, ASPRS, NSSDA
+``mapping/``       stage mapping: monorestitution, orthophotos, mosaics
+``production/``    stage products: ground, DTM/DSM, contours, hypsometry, map sheets
+``interop/``       other programs' files in and out (COLMAP, OpenSfM, ODM, Metashape, ...)
+``report/``        the accuracy report and the pipeline report (HTML, Markdown, JSON)
+``stages/``        one action per stage (survey folder in, stage folder out)
+``pipeline/``      the stage runner and the whole chain (``lidarcat run``)
+``synthetic/``     data with known truth for the demo, the tests and the benchmarks
+``cli/``           the ``lidarcat`` command line
+=================  ============================================================
 
 The imports go one way: engines <- stage actions (``stages``) <- ``cli`` and ``pipeline``;
 the engine never imports ``survey``.  Public names are imported lazily so

@@ -11,6 +11,7 @@
 ``lidar``           ``lidarcat lidar info|index|clip|raster``: LiDAR tiles
 ``lidar_products``  ``lidarcat lidar ground|dtm|dsm|contours|hypsometry|sheets``: the production chain
 ``extract``         ``lidarcat extract``: roof planes to control points
+``measure_control`` ``lidarcat measure-control``: LiDAR roof vertices measured in the photos
 ``adjust``          ``lidarcat adjust``: bundle adjustment of a survey
 ``assess``          ``lidarcat assess``: check-point accuracy, statistical tests, standards
 ``monoplot``        ``lidarcat monoplot``: features digitised on one photo onto the LiDAR surface

@@ -40,6 +40,8 @@ COMMANDS: list[tuple[str, str, str]] = [
     ("camera", "lidarcat.cli.camera:camera", "Interior orientation: pixel to corrected photo coordinates."),
     ("lidar", "lidarcat.cli.lidar:lidar", "LiDAR tiles: info, index, clip, raster views; ground, DTM/DSM, contours."),
     ("extract", "lidarcat.cli.extract:extract", "Roof planes to control points (Delaunay facets + plane intersection)."),
+    ("measure-control", "lidarcat.cli.measure_control:measure_control",
+     "LiDAR roof vertices found and measured in the photos, into image_points.csv."),
     ("adjust", "lidarcat.cli.adjust:adjust", "Bundle adjustment with weighted position constraints."),
     ("assess", "lidarcat.cli.assess:assess", "Check-point accuracy: Filliben, t, chi-square, PEC, ASPRS, NSSDA."),
     ("monoplot", "lidarcat.cli.monoplot:monoplot", "Monorestitution: features on one photo to the LiDAR surface."),

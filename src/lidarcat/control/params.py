@@ -78,6 +78,16 @@ class ExtractionParams:
     #: search radius: max plan distance (m) of the vertex from the approximate
     #: position; None = half the clip radius (4 m at the default 8 m, 2.5 m in the thesis preset)
     max_offset_m: float | None = None
+    #: the vertex asked for: when the chosen vertex lies farther than this (m) from the
+    #: approximate position, the clip is segmented again at smaller radii (``scales``) and
+    #: the vertex nearest the position over all scales wins; an ``ok`` vertex farther than
+    #: this says so in its reason
+    near_m: float = 1.0
+    #: clip radii of the retries, as fractions of ``radius_m`` (each at least 3 m)
+    scales: tuple = (0.65, 0.5)
+    #: two distinct vertices (> 0.5 m apart) whose distances from the position differ by
+    #: less than this (m) make the request "ambiguous" (both listed); 0 never
+    ambiguity_m: float = 0.3
     #: a vertex whose predicted 3-D sd exceeds this is "imprecise" (m)
     max_sd_m: float = 0.5
     #: extra planes join the vertex when their distance from it is below join_sigma x its
@@ -103,6 +113,12 @@ class ExtractionParams:
             raise ValueError("sd_en_m and sd_h_m must be positive")
         if self.residual_threshold_m is not None and not self.residual_threshold_m > 0:
             raise ValueError(f"residual_threshold_m must be positive, got {self.residual_threshold_m}")
+        if not self.near_m > 0:
+            raise ValueError(f"near_m must be positive, got {self.near_m}")
+        if any(not 0 < f < 1 for f in self.scales):
+            raise ValueError(f"scales must be fractions in (0, 1), got {self.scales!r}")
+        if self.ambiguity_m < 0:
+            raise ValueError(f"ambiguity_m must be >= 0, got {self.ambiguity_m}")
         if self.max_offset_m is not None and self.max_offset_m <= 0:
             raise ValueError(f"max_offset_m must be positive, got {self.max_offset_m}")
 

@@ -29,6 +29,17 @@ A survey may override it by specification standard deviations
 :func:`extract_roof` chains the stage: clip -> faces (:mod:`lidarcat.control.facets`)
 -> vertex; :func:`find_candidates` searches an area for every vertex of 3+
 touching faces.
+
+**The vertex asked for.**  A clip holds the faces of neighbouring roofs too;
+with more of them than ``max_planes`` (or when faces merge across a larger
+clip) the faces of a small corner may be lost, and the nearest surviving
+intersection lies metres away.  :func:`extract_roof` therefore segments the
+clip again at the smaller radii ``scales x radius_m`` while the vertex found
+lies farther than ``near_m`` from the position, and keeps the nearest over all
+scales.  Two distinct vertices (> 0.5 m apart) whose distances from the
+position differ by less than ``ambiguity_m`` give the status ``ambiguous``
+with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
+reason, and :attr:`ControlPoint.offset_m` is written with every point.
 """
 
 from __future__ import annotations
@@ -74,6 +85,7 @@ STATUSES: dict[str, str] = {
     "two_planes": "only two faces found: they meet in a line, not a point",
     "ill_conditioned": "planes nearly parallel or meeting at a grazing angle",
     "no_vertex": "faces found but no three meet near the position",
+    "ambiguous": "two distinct vertices about equally near the position (both in the reason)",
     "imprecise": "vertex found but its predicted standard deviation is too large",
     "bad_input": "input not understood",
 }
@@ -204,7 +216,13 @@ class ControlPoint:
         d["cov_m2"] = self.cov_m2
         d["cov_source"] = self.cov_source
         d["approx_E"], d["approx_N"] = (float(v) for v in self.approx_en)
+        d["offset_m"] = self.offset_m
         return d
+
+    @property
+    def offset_m(self) -> float:
+        """Plan distance of the vertex from the position it was searched at (m; NaN if unknown)."""
+        return float(np.hypot(*(self.enh_m[:2] - self.approx_en)))
 
 
 # ------------------------------------------------------------------- intersection
@@ -377,7 +395,8 @@ def _triples(planes: Sequence[Plane], xyz: np.ndarray, p: ExtractionParams,
 
 
 def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, center_en: Any,
-                  p: ExtractionParams, *, point_id: str = "", info: dict | None = None) -> ControlPoint:
+                  p: ExtractionParams, *, point_id: str = "", info: dict | None = None,
+                  others: list | None = None) -> ControlPoint:
     """Choose the vertex of 3+ planes nearest to *center_en* among the faces of a clip.
 
     A triple of faces qualifies when the faces touch, their intersection is
@@ -387,7 +406,8 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
     LiDAR surface.  Further faces join when their distance from the point is
     below ``join_sigma`` standard deviations plus half their RMS and they have
     a point within ``support_m``; the point is then re-intersected by least
-    squares.
+    squares.  *others*, when given, receives every qualifying vertex (E, N, h),
+    the chosen one included, so that a caller can test the choice for ambiguity.
     """
     center = np.asarray(center_en, dtype=np.float64).reshape(-1)[:2]
     info = info or {}
@@ -420,6 +440,8 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
         if off <= max_off:
             sd3 = float(np.sqrt(max(np.trace(cp.cov_m2), 0.0)))
             found.append((off + 3.0 * sd3, t, cp))
+            if others is not None:
+                others.append(np.array(cp.enh_m))
     if not found:
         if reasons and len(planes) == 3:
             return ControlPoint.failed(point_id, center, "ill_conditioned", reasons[0],
@@ -523,8 +545,6 @@ def extract_roof(
     >>> bool(np.all(np.abs(cp.enh_m - scene.vertices[0]) < 0.15))
     True
     """
-    from ..lidar.clipping import height_window_mask
-
     p = get_params(params, radius_m=radius_m)
     center = np.asarray(center_en, dtype=np.float64).reshape(-1)[:2]
     if center.shape != (2,):
@@ -534,9 +554,59 @@ def extract_roof(
     except ValueError as ex:
         return ControlPoint.failed(point_id, center, "bad_input", str(ex))
     if not clipped:
-        sel = np.sum((xyz[:, :2] - center) ** 2, axis=1) <= p.radius_m**2
-        xyz = xyz[sel]
+        xyz = xyz[np.sum((xyz[:, :2] - center) ** 2, axis=1) <= p.radius_m**2]
     xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+    # the vertex asked for: the clip at the full radius, then (while the vertex found
+    # is farther than near_m from the position) at the smaller radii of p.scales; a
+    # larger clip holds more faces, and the faces of the corner asked for may merge
+    # with others or fall below the max_planes largest
+    max_off = p.max_offset_m if p.max_offset_m is not None else 0.5 * p.radius_m
+    radii = [p.radius_m] + [f * p.radius_m for f in p.scales if f * p.radius_m >= 3.0]
+    first, best, others = None, None, []
+    for r in radii:
+        pr = p.replace(radius_m=r, max_offset_m=max_off)
+        sub = xyz if r == p.radius_m else xyz[np.sum((xyz[:, :2] - center) ** 2, axis=1) <= r * r]
+        cp = _extract_clip(sub, center, pr, point_id, others)
+        first = cp if first is None else first
+        if cp.status in ("ok", "imprecise"):
+            off = float(np.hypot(*(cp.enh_m[:2] - center)))
+            if best is None or off < best[0] - 0.05:
+                best = (off, cp)
+            if best[0] <= p.near_m:
+                break
+    if best is None:
+        return first
+    off, cp = best
+    return _check_choice(cp, off, center, others, p)
+
+
+def _check_choice(cp: ControlPoint, off: float, center: np.ndarray, others: list,
+                  p: ExtractionParams) -> ControlPoint:
+    """Say when the chosen vertex is far from the position, or another one is about as near."""
+    rivals = []
+    for v in others:
+        if np.hypot(*(v[:2] - cp.enh_m[:2])) <= 0.5:
+            continue
+        d = float(np.hypot(*(v[:2] - center)))
+        if d - off < p.ambiguity_m and all(np.hypot(*(v[:2] - w[:2])) > 0.5 for _, w in rivals):
+            rivals.append((d, v))
+    if rivals:
+        listed = "; ".join(f"{v[0]:.2f} {v[1]:.2f} {v[2]:.2f} at {d:.2f} m"
+                           for d, v in [(off, cp.enh_m)] + sorted(rivals, key=lambda r: r[0]))
+        return replace(cp, status="ambiguous",
+                       reason=f"{1 + len(rivals)} vertices about equally near the position "
+                              f"(E N h at plan distance): {listed}; give a nearer position")
+    if cp.status == "ok" and off > p.near_m:
+        return replace(cp, reason=f"the nearest vertex found is {off:.2f} m from the position "
+                                  f"(more than near_m = {p.near_m:g} m): check it is the one meant")
+    return cp
+
+
+def _extract_clip(xyz: np.ndarray, center: np.ndarray, p: ExtractionParams, point_id: str,
+                  others: list) -> ControlPoint:
+    """Height filter, faces and vertex of one clip (the points within ``p.radius_m``)."""
+    from ..lidar.clipping import height_window_mask
+
     if len(xyz) < 3 * p.min_points:
         return ControlPoint.failed(point_id, center, "too_few_points",
                                    f"{len(xyz)} points within {p.radius_m:g} m; 3 planes need at "
@@ -549,8 +619,7 @@ def extract_roof(
         planes, labels, info = segment_faces(xyz, p)
     except ValueError as ex:
         return ControlPoint.failed(point_id, center, "degenerate_points", str(ex))
-    cp = select_vertex(planes, xyz, labels, center, p, point_id=point_id, info=info)
-    return cp
+    return select_vertex(planes, xyz, labels, center, p, point_id=point_id, info=info, others=others)
 
 
 # --------------------------------------------------------------------------- candidates

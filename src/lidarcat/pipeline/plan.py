@@ -32,7 +32,7 @@ from .runner import (
     run_stages,
     safe_name,
 )
-from ..stages import adjust, assess, camera, compare, extract, mapping, match, products, report, selfcal, thesis
+from ..stages import adjust, assess, camera, compare, extract, mapping, match, measure_control, products, report, selfcal, thesis
 from ..stages.report import results
 
 __all__ = ["FROM_SURVEY", "GNSS_RUN", "plan_pipeline", "run_pipeline"]
@@ -73,7 +73,8 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     Returns
     -------
     list of Stage
-        match (tie points: only when the photos have images and the survey too few tie points), camera, extract, one adjust-SET and assess-SET per control set, one
+        match (tie points: only when the photos have images and the survey too few tie points), measure_control
+        (only when LiDAR control vertices lack image observations), camera, extract, one adjust-SET and assess-SET per control set, one
         compare stage per pair (default set vs each other set), thesis /
         mapping / products / selfcal when the survey asks for them, report.
 
@@ -95,6 +96,14 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     if why_no_match is None:
         stages.append(Stage("match", "match", match.run, inputs=lambda ctx: [*files, *match.image_files(survey)],
                             description="tie points from the photos (SIFT, guided matching)"))
+    # LiDAR control vertices measured in the photos (issue 29), after the tie points, before every adjustment;
+    # a failed measurement skips nothing: the adjustments then take the match (or the survey's) table
+    if measure_control.planned(survey) is None:
+        stages.append(Stage("measure_control", "measure_control", measure_control.run,
+                            requires=after_match_of(why_no_match),
+                            inputs=_after_match(_survey_files(survey), measured=False,
+                                                extra=lambda: match.image_files(survey)),
+                            description="LiDAR control vertices measured in the photos"))
     own_pixels = bool(np.isfinite(survey.image_points.pixel_px).all(axis=1).any())
     has_pixels = own_pixels or why_no_match is None
     after_match = ("match",) if why_no_match is None else ()   # a failed match skips what adjusts its table
@@ -193,15 +202,26 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     return stages
 
 
-def _after_match(files: list[Path]) -> Any:
+def after_match_of(why_no_match: str | None) -> tuple[str, ...]:
+    """``requires`` of a stage that reads the match stage's table when it is planned."""
+    return ("match",) if why_no_match is None else ()
+
+
+def _after_match(files: list[Path], *, measured: bool = True, extra: Any = None) -> Any:
     """``inputs`` of a stage that adjusts the image observations: once the match stage is done (ran or
-    reused), ``ctx["survey"]`` becomes the survey with ``match/image_points.csv`` and that table is an input."""
+    reused), ``ctx["survey"]`` becomes the survey with ``match/image_points.csv`` and that table is an input;
+    once the measure_control stage is done (and *measured*), its table (the match's rows plus the LiDAR
+    control observations) instead."""
     def inputs(ctx: Any) -> list[Path]:
-        if ctx is None or not ctx.done("match"):
-            return files
-        table = ctx.folder("match") / "image_points.csv"
-        ctx.values["survey"] = match.survey_with(ctx["survey"], table)
-        return [*files, table]
+        more = list(extra()) if extra is not None else []
+        if ctx is None:
+            return [*files, *more]
+        for stage in (("measure_control", "match") if measured else ("match",)):
+            if ctx.done(stage):
+                table = ctx.folder(stage) / "image_points.csv"
+                ctx.values["survey"] = match.survey_with(ctx["survey"], table)
+                return [*files, *more, table]
+        return [*files, *more]
     return inputs
 
 

@@ -5,6 +5,7 @@
 ``match``      tie points from the photos into image_points.csv (issue 28)
 ``camera``     interior orientation (eq. 01-07)
 ``extract``    LiDAR roof vertices -> control points, derived survey
+``measure_control``  LiDAR control vertices measured in the photos into image_points.csv (issue 29)
 ``adjust``     bundle adjustment of one control set (eq. 08-22)
 ``assess``     check-point accuracy of one run (section 3.3.4)
 ``compare``    run A minus run B (section 4.4)
@@ -30,13 +31,16 @@ stage sees) and ``lidar`` (the actions of the LiDAR production commands).
 """
 
 from . import adjust, assess, camera, compare, context, extract, init, lidar, mapping, match, products, report, selfcal, thesis
+from . import measure_control
 
 __all__ = ["init", "match", "camera", "extract", "adjust", "assess", "compare", "thesis", "mapping", "products", "selfcal", "report",
-           "context", "lidar", "REGISTRY"]
+           "context", "lidar", "measure_control", "REGISTRY"]
 
 #: every stage of ``lidarcat run`` in pipeline order: (name, one-line summary); SET is a control set
 REGISTRY: tuple[tuple[str, str], ...] = (
     ("match", "tie points from the photos (survey with images and too few tie points)"),
+    ("measure_control", "LiDAR control vertices measured in the photos (images, tiles, ground points of source "
+                        "lidar without observations)"),
     ("camera", "interior orientation, pixel -> corrected photo coordinates"),
     ("extract", "LiDAR roof vertices -> control points (survey with lidar + jobs)"),
     ("adjust-SET", "bundle adjustment per control set (thesis: gps, lidar); photos.csv sd_X0..: GNSS/IMU "

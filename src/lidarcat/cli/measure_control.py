@@ -1,0 +1,68 @@
+"""``lidarcat measure-control``: LiDAR roof vertices measured in the photos into the survey's image_points.csv."""
+
+from __future__ import annotations
+
+import click
+
+from .options import POSITIVE, echo_json, json_option, output_option, progress_bar
+
+__all__ = ["measure_control"]
+
+_EPILOG = """\b
+Examples:
+  lidarcat measure-control survey/
+  lidarcat measure-control survey/ --points L001,L002 --replace
+  lidarcat measure-control survey/ --decisions survey/out/measure_control/decisions.csv
+\b
+Every LiDAR control vertex (ground point of source lidar) is extracted again from the
+survey's tiles, predicted in every photo with its ellipse from the approximate orientation
+(photos.csv sds) and the vertex's covariance, tested for visibility on the LiDAR DSM, and
+measured: a template of its roof faces gives the shift, the roof edges fitted in the photo
+meet in the vertex. Measurements that disagree across photos are rejected. OUTDIR (default
+SURVEY/out/measure_control) gets decisions.csv (one row per vertex and photo, with status,
+reason and an editable decision accept/reject), gallery_NN.png (chips: prediction ellipse
+yellow, edges green, measurement red) and measure_control.json; the accepted observations
+go into image_points.csv last (pixels with their sds). Edit decisions.csv and pass it with
+--decisions to write exactly the accepted rows.
+\b
+Exit status: 0 done, 2 bad input (no LiDAR vertex, no tiles, no orientation, a bad
+decisions file); nothing is written to image_points.csv then.
+"""
+
+
+@click.command(name="measure-control", epilog=_EPILOG)
+@click.argument("survey", type=click.Path(exists=True, file_okay=False))
+@click.option("--points", default=None, metavar="ID,ID",
+              help="Measure these ground points (default: every ground point of source lidar).")
+@click.option("--decisions", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="An edited decisions.csv: write its accepted rows, measure nothing.")
+@click.option("--replace", is_flag=True, help="Measure again (and replace) vertex/photo pairs already observed.")
+@click.option("--no-gallery", is_flag=True, help="Do not write the PNG chips.")
+@click.option("--search-sigma", type=POSITIVE, default=3.5, show_default=True,
+              help="Search the vertex within this many sigmas of its predicted ellipse.")
+@click.option("--max-shift", "max_shift_m", type=POSITIVE, default=0.5, show_default=True,
+              help="Skip a vertex extracted again farther than this from its ground point, m.")
+@output_option(outdir=True, type=click.Path(file_okay=False),
+               help="Report folder (default SURVEY/out/measure_control).")
+@json_option(help="Print the counts as JSON.")
+def measure_control(survey, points, decisions, replace, no_gallery, search_sigma, max_shift_m, outdir,
+                    as_json) -> None:
+    """LiDAR roof vertices found and measured in the photos, into image_points.csv."""
+    from ..photocontrol import MeasureParams
+    from ..stages.measure_control import measure_control as action
+
+    ids = [p.strip() for p in points.split(",") if p.strip()] if points else None
+    with progress_bar(1, "Measuring LiDAR control", enabled=not as_json) as bar:
+        def progress(done: int, total: int) -> None:
+            if bar is not None:
+                bar.length = total
+                bar.update(done - bar.pos)
+
+        res = action(survey, outdir, points=ids, decisions=decisions, replace=replace, gallery=not no_gallery,
+                     params=MeasureParams(search_sigma=search_sigma), max_shift_m=max_shift_m, progress=progress)
+    if as_json:
+        echo_json({**res.to_dict(), "summary": res.summary})
+        return
+    counts = ", ".join(f"{v} {k}" for k, v in sorted(res.counts.items()))
+    click.echo(f"{res.accepted} control observations accepted ({counts})")
+    click.echo(f"-> {res.image_points}; decisions and gallery in {res.outdir}")

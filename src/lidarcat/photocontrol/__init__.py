@@ -1,0 +1,62 @@
+"""Stage ``measure-control``: LiDAR roof vertices predicted, found and measured in the photos (issue 29).
+
+============  ============================================================
+``predict``   Predicted pixel of a vertex (and its roof edges) with the ellipse propagated from the orientation's
+              and the vertex's covariance; visibility from the LiDAR DSM.
+``measure``   The vertex in the image: a face template for the shift, roof-edge lines for the pixel, their
+              intersection with its covariance; the multi-photo consistency test.
+``review``    Image chips with the predicted ellipse and the measured point and lines, and a gallery of them.
+============  ============================================================
+"""
+
+from __future__ import annotations
+
+from .predict import (  # noqa: F401
+    Prediction,
+    RoofEdge,
+    VISIBILITY,
+    ellipse_axes,
+    face_labels,
+    occluded,
+    pixel_jacobians,
+    pixel_positions,
+    predict_edges,
+    predict_points,
+    roof_edges,
+)
+from .measure import (  # noqa: F401
+    Measurement,
+    MeasureParams,
+    STATUSES,
+    VertexTarget,
+    check_consistency,
+    grey,
+    measure_photo,
+    measure_vertex,
+)
+from .review import chip_centre, chip_image, gallery  # noqa: F401
+
+__all__ = [
+    "Prediction",
+    "RoofEdge",
+    "VISIBILITY",
+    "ellipse_axes",
+    "face_labels",
+    "occluded",
+    "pixel_jacobians",
+    "pixel_positions",
+    "predict_edges",
+    "predict_points",
+    "roof_edges",
+    "Measurement",
+    "MeasureParams",
+    "STATUSES",
+    "VertexTarget",
+    "check_consistency",
+    "grey",
+    "measure_photo",
+    "measure_vertex",
+    "chip_centre",
+    "chip_image",
+    "gallery",
+]

@@ -1,0 +1,670 @@
+r"""Measuring a LiDAR roof vertex in a photo: a label template for the shift, roof-edge lines for the pixel.
+
+**1. Coarse shift (template of faces).**  The LiDAR points within ``template_m`` of
+the vertex are labelled by their nearest plane of the vertex (or "other surface")
+and projected with the approximate orientation; every pixel of a window around the
+prediction takes the label of the nearest projected point (none farther than two
+point spacings).  The sun's shading is unknown, but inside one face the photo is
+nearly uniform and between faces (and against the ground) it is not.  For every
+integer shift :math:`s` inside ``search_sigma`` of the prediction's ellipse the
+score is the log-likelihood ratio, per template pixel, of one normal grey-level
+distribution per label against one for the whole template,
+
+.. math:: \Lambda(s) = \frac{1}{N}\Big(\tfrac{N}{2}\ln\hat\sigma^2(s)
+          - \sum_k \tfrac{N_k}{2}\ln\hat\sigma_k^2(s)\Big),
+
+with :math:`\hat\sigma_k^2 = Q_k/N_k - (S_k/N_k)^2` from the sums :math:`S_k` and
+:math:`Q_k` of the photo and its square over label *k*'s :math:`N_k` template
+pixels (one ``cv2.matchTemplate`` correlation each, for all shifts at once;
+1 grey level^2 added to every variance).  Uniform faces of different grey raise
+it; texture lowers it; a uniform area under the whole template leaves it at 0.
+The best shift is then refined within ``refine_px`` by the directional gradient
+across the predicted edges (``coarse = "lines"``: the mean of
+:math:`|\nabla I\cdot n_e|` along each edge's half-line from a candidate vertex,
+over its mean in the window, summed over the edges).  :func:`measure_photo` sums
+the normalised scores of all vertices of a photo over the common shift first
+(the orientation's error moves them alike), then searches each vertex within
+``local_search_px`` of it.
+
+**2. Edges (sub-pixel).**  Each roof edge (:func:`~lidarcat.photocontrol.predict.roof_edges`)
+is predicted as an image segment from the shifted vertex.  Across it, at
+stations every 0.5 px from ``t0`` (clear of the other edges at the vertex) to
+its end, a profile of ``+-band_px`` is sampled (bilinear); the profiles'
+derivatives are averaged over ``smooth_px`` along the edge, and the edge point is
+the extremum of the derivative of the edge's dominant sign, refined by a
+parabola through the three samples about it.  A line :math:`s = a + b\,t`
+(offset across versus distance along) is fitted by least squares with
+rejection at 3 robust sigmas (MAD); its covariance is
+:math:`\hat\sigma^2 (A^TA)^{-1}\,k` with :math:`\hat\sigma` from the residuals
+(at least ``min_sd_px``) and :math:`k = 2\max(1, 2\,\mathrm{smooth})` for the
+correlation of stations 0.5 px apart.  An edge is dropped, with the reason, when
+it has fewer than ``min_points`` inliers, a median gradient below
+``min_contrast`` grey levels per pixel or below ``min_ratio`` times the texture's
+(the gradient off the edge), or its points scatter more than ``max_scatter_px``.
+The fit runs twice: from the coarse shift in a band of ``wide_band_px``, then
+from the vertex found in ``band_px``.
+
+**3. Vertex.**  Line *i* in the image: :math:`m_i^T x = c_i` (unit normal
+:math:`m_i`), with the variance :math:`w_i^{-1}` of its offset at the vertex.
+:math:`w_i^{-1}` adds ``line_sd_px``\ :sup:`2` for what the fit cannot see (rendering,
+blur, a face boundary off the geometric edge).  The vertex is the weighted
+least-squares point :math:`x = (\sum w_i m_i m_i^T)^{-1} \sum w_i m_i c_i` with
+covariance :math:`(\sum w_i m_i m_i^T)^{-1}` (two lines: their intersection).
+Of two edges found on one image line (less than ``min_angle_deg`` apart) the one
+turned farther from its predicted direction goes; with three or more lines, while
+:math:`\chi^2 = \sum w_i (m_i^T x - c_i)^2` exceeds the 99.9 % point of
+:math:`\chi^2_{n-2}`, the line farthest from the others' point goes.  Two lines
+alone have no check: both must be ``two_line_ratio`` times stronger than the
+texture.
+
+**4. Consistency over photos** (:func:`check_consistency`).  A measurement
+whose offset from the prediction is outside the 99.9 % ellipse of
+(prediction + measurement) covariance is rejected.  The remaining ones are
+intersected forward (each ray weighted by the measurement's covariance plus the
+orientation's share of the prediction covariance); the photo with the largest
+normalised residual beyond the 99.9 % point of :math:`\chi^2_2` is rejected and
+the intersection repeated; a forward intersection farther from the LiDAR vertex
+than the 99.9 % point of :math:`\chi^2_3` rejects all of that vertex's
+measurements.  Every decision is returned with its reason.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from .._util.frozen import frozen_array
+from ..geometry.camera import Camera
+from .predict import Prediction, face_labels, pixel_jacobians, pixel_positions, roof_edges
+
+__all__ = ["Measurement", "MeasureParams", "VertexTarget", "STATUSES", "measure_photo", "measure_vertex",
+           "check_consistency", "grey"]
+
+#: statuses of a measurement and their meaning
+STATUSES: dict[str, str] = {
+    "measured": "measured and accepted",
+    "rejected": "measured, then rejected (off the prediction or disagreeing with the other photos)",
+    "not_visible": "the prediction is off the photo, behind the camera or occluded",
+    "no_vertex": "the LiDAR vertex could not be extracted again (or not where its coordinates say)",
+    "no_edges": "fewer than two roof edges of the vertex found in the LiDAR or in the photo",
+    "weak_geometry": "the edges found meet at too small an angle",
+    "too_dark": "the window is too dark to measure",
+    "saturated": "the window is saturated",
+    "near_border": "the search window reaches past the photo's border",
+}
+
+_CHI2_2 = 13.815510557964274   # chi2(2) 99.9 %
+_CHI2_3 = 16.26623619623813    # chi2(3) 99.9 %
+_CHI2_1 = 10.827566170662733   # chi2(1) 99.9 %
+
+
+@dataclass(frozen=True, eq=False)
+class Measurement:
+    """A vertex measured (or not) on one photo.
+
+    Attributes
+    ----------
+    point, photo : str
+    px : (2,) float
+        Column, row (px); NaN unless measured.
+    cov_px2 : (2, 2) float
+    status : str
+        One of :data:`STATUSES`; ``bool(m)`` is ``status == "measured"``.
+    reason : str
+    lines : tuple of ((2,), (2,))
+        The fitted edge segments (px), for the review chips.
+    shift_px : (2,) float
+        The coarse shift from the prediction (px).
+    predicted_px : (2,) float
+    predicted_cov_px2 : (2, 2) float
+    """
+
+    point: str
+    photo: str
+    px: np.ndarray
+    cov_px2: np.ndarray
+    status: str
+    reason: str = ""
+    lines: tuple = ()
+    shift_px: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    predicted_px: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    predicted_cov_px2: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"unknown status {self.status!r}")
+        for name, shape in (("px", (2,)), ("cov_px2", (2, 2)), ("shift_px", (2,)), ("predicted_px", (2,)),
+                            ("predicted_cov_px2", (2, 2))):
+            object.__setattr__(self, name, frozen_array(getattr(self, name), shape=shape))
+
+    def __bool__(self) -> bool:
+        return self.status == "measured"
+
+    @property
+    def sd_px(self) -> np.ndarray:
+        """(2,) sds of column and row (px)."""
+        return np.sqrt(np.maximum(np.diag(self.cov_px2), 0.0))
+
+    def failed(self, status: str, reason: str) -> "Measurement":
+        return replace(self, status=status, reason=reason)
+
+
+def grey(image: Any) -> np.ndarray:
+    """The image as float32 grey values (RGB averaged; 16-bit scaled to 0..255)."""
+    a = np.asarray(image)
+    if a.ndim == 3:
+        a = a[..., :3].astype(np.float32).mean(axis=2)
+    a = a.astype(np.float32)
+    if np.asarray(image).dtype == np.uint16:
+        a = a / 257.0
+    return a
+
+
+def _llr(chip: np.ndarray, masks: list[np.ndarray]) -> np.ndarray:
+    """Per pixel of the template: the log-likelihood ratio of one grey level (mean, variance) per face vs one
+    for the whole template, for every shift."""
+    import cv2
+
+    eps = 1.0
+    n_tot, s_tot, q_tot, ll = 0.0, 0.0, 0.0, 0.0
+    sq = chip * chip
+    for m in masks:
+        nk = float(m.sum())
+        sk = cv2.matchTemplate(chip, m, cv2.TM_CCORR).astype(np.float64)
+        qk = cv2.matchTemplate(sq, m, cv2.TM_CCORR).astype(np.float64)
+        var = np.maximum(qk / nk - (sk / nk) ** 2, 0.0) + eps
+        ll = ll - 0.5 * nk * np.log(var)
+        n_tot, s_tot, q_tot = n_tot + nk, s_tot + sk, q_tot + qk
+    var_all = np.maximum(q_tot / n_tot - (s_tot / n_tot) ** 2, 0.0) + eps
+    return (ll + 0.5 * n_tot * np.log(var_all)) / n_tot
+
+
+def _line_score(chip: np.ndarray, units: np.ndarray, lens: np.ndarray, t0s: Sequence[float]) -> np.ndarray:
+    """Score of every chip pixel as the vertex: the directional gradient across each predicted edge,
+    averaged along the edge's half-line from the pixel and divided by its mean over the chip, summed."""
+    import cv2
+
+    sm = cv2.GaussianBlur(chip, (0, 0), 1.0)
+    gx = cv2.Sobel(sm, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(sm, cv2.CV_32F, 0, 1, ksize=3)
+    total = np.zeros_like(chip, dtype=np.float64)
+    for u, length, t0 in zip(units, lens, t0s):
+        r = np.abs(gx * float(-u[1]) + gy * float(u[0]))
+        L = int(math.ceil(length))
+        if L <= t0 + 2:
+            continue
+        ker = np.zeros((2 * L + 1, 2 * L + 1), np.uint8)
+        p1 = (int(round((L + u[0] * length) * 16)), int(round((L + u[1] * length) * 16)))
+        cv2.line(ker, (L * 16, L * 16), p1, 255, 1, cv2.LINE_AA, 4)
+        yy, xx = np.mgrid[-L:L + 1, -L:L + 1]
+        kf = ker.astype(np.float32) * (np.hypot(xx, yy) >= t0)
+        if kf.sum() <= 0:
+            continue
+        kf /= kf.sum()
+        total += cv2.filter2D(r, cv2.CV_32F, kf, anchor=(L, L), borderType=cv2.BORDER_REPLICATE) \
+            / max(float(r.mean()), 1e-6)
+    return total
+
+
+def _sample(img: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    from scipy.ndimage import map_coordinates
+
+    return map_coordinates(img, [rows.ravel(), cols.ravel()], order=1, mode="nearest").reshape(cols.shape)
+
+
+def _fit_edge(img: np.ndarray, origin: np.ndarray, u: np.ndarray, length_px: float, t0: float,
+              band_px: float, min_points: int, min_contrast: float, min_sd_px: float,
+              min_ratio: float = 2.5, max_scatter_px: float = 0.7, smooth_px: float = 1.5):
+    """Edge points across the predicted segment and a robust line s = a + b t; None if too weak."""
+    nvec = np.array([-u[1], u[0]])
+    t = np.arange(t0, max(length_px - 1.0, t0), 0.5)
+    if len(t) < min_points:
+        return None, f"edge {length_px:.0f} px long: too short to fit"
+    # the profile reaches 3 px beyond the band: the texture is measured there, the edge searched in the band
+    s_all = np.arange(-band_px - 3.0, band_px + 3.0 + 1e-9, 0.25)
+    cols = origin[0] + t[:, None] * u[0] + s_all[None] * nvec[0]
+    rows = origin[1] + t[:, None] * u[1] + s_all[None] * nvec[1]
+    prof = _sample(img, cols, rows)
+    g_all = np.gradient(prof, 0.25, axis=1)
+    if smooth_px > 0 and len(t) > 3:   # along the edge: texture averages out, the edge does not
+        from scipy.ndimage import uniform_filter1d
+
+        g_all = uniform_filter1d(g_all, size=max(1, int(round(2 * smooth_px))), axis=0, mode="nearest")
+    inner = np.abs(s_all) <= band_px + 1e-9
+    s, g = s_all[inner], g_all[:, inner]
+    sign = 1.0 if np.median(g[np.arange(len(t)), np.argmax(np.abs(g), axis=1)]) >= 0 else -1.0
+    gs = sign * g
+    k = np.clip(np.argmax(gs, axis=1), 1, len(s) - 2)
+    peak = gs[np.arange(len(t)), k]
+    if float(np.median(peak)) < min_contrast:
+        return None, f"median edge gradient {float(np.median(peak)):.1f} below {min_contrast:g} grey levels/px"
+    # texture: the gradient off the edge (more than 2 px from each station's peak)
+    off = np.abs(s_all[None, :] - s[k][:, None]) > 2.0
+    texture = float(np.median(np.abs(g_all[off]))) if off.any() else 0.0
+    if float(np.median(peak)) < min_ratio * texture:
+        return None, (f"edge gradient {float(np.median(peak)):.1f} less than {min_ratio:g} x the texture's "
+                      f"{texture:.1f}: no edge")
+    y0, y1, y2 = gs[np.arange(len(t)), k - 1], peak, gs[np.arange(len(t)), k + 1]
+    den = y0 - 2 * y1 + y2
+    frac = np.where(np.abs(den) > 1e-9, 0.5 * (y0 - y2) / np.where(np.abs(den) > 1e-9, den, 1.0), 0.0)
+    sp = s[k] + 0.25 * np.clip(frac, -0.5, 0.5)
+    keep = (np.argmax(gs, axis=1) > 0) & (np.argmax(gs, axis=1) < len(s) - 1) & (peak > 0.5 * np.median(peak))
+    a_mat = np.column_stack([np.ones_like(t), t])
+    for _ in range(3):
+        if keep.sum() < min_points:
+            return None, f"{int(keep.sum())} edge points (< {min_points})"
+        coef, *_ = np.linalg.lstsq(a_mat[keep], sp[keep], rcond=None)
+        r = sp - a_mat @ coef
+        mad = 1.4826 * float(np.median(np.abs(r[keep] - np.median(r[keep]))))
+        keep = keep & (np.abs(r) <= max(3.0 * mad, 0.3))
+    if keep.sum() < min_points:
+        return None, f"{int(keep.sum())} edge points (< {min_points})"
+    coef, *_ = np.linalg.lstsq(a_mat[keep], sp[keep], rcond=None)
+    r = sp[keep] - a_mat[keep] @ coef
+    dof = max(int(keep.sum()) - 2, 1)
+    if math.sqrt(float(r @ r) / dof) > max_scatter_px:
+        return None, f"edge points scatter {math.sqrt(float(r @ r) / dof):.2f} px about the line (> {max_scatter_px:g})"
+    # stations 0.5 px apart are not independent (bilinear sampling, the smoothing along the edge):
+    # count one per max(1, 2 smooth_px) px
+    sig2 = max(float(r @ r) / dof, min_sd_px**2) * 2.0 * max(1.0, 2.0 * smooth_px)
+    cov = sig2 * np.linalg.inv(a_mat[keep].T @ a_mat[keep])
+    return (coef, cov, t[keep], float(np.median(peak)) / max(texture, 1e-9)), ""
+
+
+@dataclass(frozen=True)
+class MeasureParams:
+    """Settings of the image measurement (see the module docstring)."""
+
+    #: the shift is searched within this many sigmas of the prediction's ellipse, at most max_search_px
+    search_sigma: float = 3.5
+    max_search_px: int = 150
+    #: after the photo's common shift: each vertex searched this far around it (px)
+    local_search_px: int = 8
+    #: edge profiles +- this (px); stations and inliers needed; contrast limits
+    band_px: float = 1.5
+    #: the first pass, from the coarse shift, profiles +- this (px)
+    wide_band_px: float = 3.5
+    min_points: int = 8
+    min_contrast: float = 2.0
+    min_ratio: float = 2.5
+    max_scatter_px: float = 1.2
+    #: the edge profiles' gradients are averaged over this length along the edge (px)
+    smooth_px: float = 1.5
+    #: floor of the edge points' sd (px)
+    min_sd_px: float = 0.15
+    #: a vertex from two edges only (no redundancy) needs both this much stronger than the texture
+    two_line_ratio: float = 3.5
+    #: sd of a line's position from what the fit cannot see (rendering, texture, blur), added (px); 0.5 makes
+    #: the normalised errors' sd 0.9-1.9 on the synthetic.aerial renders, whose face boundaries lie up to a
+    #: texel off the geometric roof edge (the shading is painted into the plan albedo lattice)
+    line_sd_px: float = 0.5
+    #: the lines used must meet at least at this angle (deg)
+    min_angle_deg: float = 20.0
+    #: edges used up to this far from the vertex (px)
+    max_edge_px: float = 60.0
+    #: faces' points within this plan distance make the template (m)
+    template_m: float = 8.0
+    #: coarse score: "likelihood" (faces' grey levels) or "lines" (directional gradient along the predicted edges)
+    coarse: str = "likelihood"
+    #: then the "lines" score within this many px of the coarse shift (0: not)
+    refine_px: float = 4.0
+    #: window median below *dark*: too dark; more than half of it at or above *saturation*: saturated
+    dark: float = 12.0
+    saturation: float = 250.0
+
+
+@dataclass(frozen=True, eq=False)
+class VertexTarget:
+    """One LiDAR vertex to measure on one photo: the vertex, its planes, the LiDAR around it, its prediction."""
+
+    vertex_m: np.ndarray
+    planes: tuple
+    xyz_m: np.ndarray
+    prediction: Prediction
+
+
+def _setup(img: np.ndarray, camera: Camera, eo: Any, t: VertexTarget, p: MeasureParams):
+    """Edges, template and search chip of one target; a failed Measurement instead when it cannot be measured."""
+    pr = t.prediction
+    base = Measurement(pr.point, pr.photo, np.full(2, np.nan), np.full((2, 2), np.nan), "not_visible",
+                       predicted_px=pr.px, predicted_cov_px2=pr.cov_px2)
+    if not pr:
+        return base.failed("not_visible", f"{pr.status}: {pr.reason}")
+    v = np.asarray(t.vertex_m, dtype=np.float64).reshape(3)
+    xyz = np.asarray(t.xyz_m, dtype=np.float64).reshape(-1, 3)
+    planes = list(t.planes)
+    edges = roof_edges(v, planes, xyz)
+    if len(edges) < 2:
+        return base.failed("no_edges", f"{len(edges)} roof edge(s) supported by the LiDAR at the vertex")
+    vpx = np.asarray(pr.px, dtype=np.float64)
+    seg = pixel_positions(camera, eo, np.array([e.end_m for e in edges])) - vpx
+    lens = np.linalg.norm(seg, axis=1)
+    units = seg / np.maximum(lens, 1e-9)[:, None]
+    t0s = []
+    for k in range(len(edges)):
+        u = units[k]
+        others = [units[j] for j in range(len(edges)) if j != k]
+        sin_min = min((abs(u[0] * o[1] - u[1] * o[0]) if u @ o > 0 else 1.0) for o in others)
+        t0s.append(max(4.0, (p.band_px + 1.5) / max(sin_min, 0.2)))
+    near = np.hypot(xyz[:, 0] - v[0], xyz[:, 1] - v[1]) <= p.template_m
+    pts = xyz[near]
+    tol = max(0.15, 3.0 * max(float(getattr(pl, "rms_m", 0.05) or 0.05) for pl in planes))
+    lab = face_labels(planes, pts, tol)
+    qpx = pixel_positions(camera, eo, pts)
+    ok = np.isfinite(qpx).all(axis=1)
+    qpx, lab = qpx[ok], lab[ok]
+    if int(np.sum(lab >= 0)) < 10:
+        return base.failed("no_edges", f"{int(np.sum(lab >= 0))} LiDAR points of the faces project onto the photo")
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(qpx)
+    spacing = float(np.median(tree.query(qpx, k=2)[0][:, 1]))
+    half = max(int(np.ceil(np.max(np.abs(qpx[lab >= 0] - vpx)))) + 1, int(math.ceil(min(lens.max(), p.max_edge_px))) + 1)
+    c0, r0 = (int(round(x)) for x in vpx)
+    gc, gr = np.meshgrid(np.arange(c0 - half, c0 + half + 1), np.arange(r0 - half, r0 + half + 1))
+    dist, idx = tree.query(np.column_stack([gc.ravel(), gr.ravel()]))
+    # every pixel takes its nearest point's label: faces, -1 other surfaces, -2 no point near
+    tl = np.where(dist <= 2.0 * max(spacing, 1.0), lab[idx], -2).reshape(gc.shape)
+    masks = [(tl == k).astype(np.float32) for k in range(len(planes)) if (tl == k).sum() >= 6]
+    if (tl == -1).sum() >= 6:
+        masks.append((tl == -1).astype(np.float32))
+    srch = int(min(p.max_search_px, math.ceil(p.search_sigma * pr.sd_max_px) + 2))
+    H, W = img.shape
+    m_edge = int(math.ceil(min(float(lens.max()), p.max_edge_px) + p.wide_band_px)) + 2
+    # the search may reach past the border (the photo is continued by its edge values there, where no
+    # template fits); the vertex found must have its edges on the photo (checked in _refine)
+    if c0 - m_edge < 0 or r0 - m_edge < 0 or c0 + m_edge >= W or r0 + m_edge >= H:
+        return base.failed("near_border", f"the vertex's edges, {m_edge} px, around "
+                                          f"column {c0}, row {r0} reach past the photo's border")
+    # the template may reach past the border: the photo is continued by its edge values there
+    import cv2
+
+    pad = half + srch
+    chip = cv2.copyMakeBorder(img, pad, pad, pad, pad, cv2.BORDER_REPLICATE)[r0:r0 + 2 * pad + 1,
+                                                                             c0:c0 + 2 * pad + 1]
+    chip = np.ascontiguousarray(chip, dtype=np.float32)
+    if float(np.median(chip)) < p.dark:
+        return base.failed("too_dark", f"median grey value {float(np.median(chip)):.0f} below {p.dark:g}")
+    if float(np.mean(chip >= p.saturation)) > 0.5:
+        return base.failed("saturated", f"{100 * float(np.mean(chip >= p.saturation)):.0f} % of the window "
+                                        f"at or above {p.saturation:g}")
+    return dict(base=base, edges=edges, units=units, lens=lens, t0s=t0s, half=half, srch=srch, chip=chip,
+                masks=masks, c0=c0, r0=r0, vpx=vpx, m_edge=m_edge, size=(W, H))
+
+
+def _scores(ctx: dict, p: MeasureParams) -> np.ndarray:
+    """(2 srch + 1, 2 srch + 1) coarse score of the integer shifts (row: dy, column: dx) from (c0, r0)."""
+    half, srch = ctx["half"], ctx["srch"]
+    if p.coarse == "lines":
+        full = _line_score(ctx["chip"], ctx["units"], np.minimum(ctx["lens"], p.max_edge_px), ctx["t0s"])
+        return full[half:half + 2 * srch + 1, half:half + 2 * srch + 1]
+    if p.coarse == "likelihood":
+        return _llr(ctx["chip"], ctx["masks"])
+    raise ValueError(f"coarse must be 'lines' or 'likelihood', got {p.coarse!r}")
+
+
+def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> Measurement:
+    """Edge lines from the shifted prediction and their intersection (module docstring, steps 2-3)."""
+    base = replace(ctx["base"], shift_px=shift)
+    origin = ctx["vpx"] + shift
+    W, H = ctx["size"]
+    me = ctx["m_edge"]
+    if not (me <= origin[0] < W - me and me <= origin[1] < H - me):
+        return base.failed("near_border", f"the vertex found at column {origin[0]:.0f}, row {origin[1]:.0f}: its "
+                                          f"edges, {me} px, reach past the photo's border")
+    fits, why, fits_planes = [], [], []
+    for k, e in enumerate(ctx["edges"]):
+        fit, reason = _fit_edge(img, origin, ctx["units"][k], min(float(ctx["lens"][k]), p.max_edge_px),
+                                ctx["t0s"][k], p.band_px, p.min_points, p.min_contrast, p.min_sd_px,
+                                p.min_ratio, p.max_scatter_px, p.smooth_px)
+        if fit is None:
+            why.append(f"edge of planes {e.planes[0] + 1}-{e.planes[1] + 1}: {reason}")
+            continue
+        fits.append((ctx["units"][k], fit))
+        fits_planes.append(e.planes)
+    if len(fits) < 2:
+        return base.failed("no_edges", f"{len(fits)} of {len(ctx['edges'])} edges found in the photo"
+                           + (f" ({'; '.join(why)})" if why else ""))
+    lines, mm, cc, covs = [], [], [], []
+    for u, (coef, cov, tk, _) in fits:
+        nvec = np.array([-u[1], u[0]])
+        a, b = coef
+        dirv = (u + b * nvec) / math.hypot(1.0, b)
+        m = np.array([-dirv[1], dirv[0]])
+        mm.append(m)
+        cc.append(float(m @ (origin + a * nvec)))
+        covs.append((cov, b))
+        lines.append((origin + tk[0] * u + (a + b * tk[0]) * nvec, origin + tk[-1] * u + (a + b * tk[-1]) * nvec))
+    mm = np.array(mm)
+    use = list(range(len(fits)))
+    # two edges on one image line: the one turned farther from its predicted direction goes
+    for i in range(len(fits)):
+        for j in range(i + 1, len(fits)):
+            if i in use and j in use and \
+                    math.degrees(math.acos(min(1.0, abs(float(mm[i] @ mm[j]))))) < p.min_angle_deg:
+                drop = i if abs(covs[i][1]) > abs(covs[j][1]) else j
+                why.append(f"edge of planes {fits_planes[drop][0] + 1}-{fits_planes[drop][1] + 1}: found on "
+                           f"the line of another edge")
+                use.remove(drop)
+    if len(use) < 2:
+        return base.failed("weak_geometry", "the edges found lie on one image line")
+    while True:
+        x, n_mat, chi2 = _intersect([fits[i] for i in use], mm[use], np.array(cc)[use], [covs[i] for i in use],
+                                    origin, p.line_sd_px)
+        if len(use) <= 2 or chi2 <= _CHI2_1 * (len(use) - 2):
+            break
+        # the line farthest (normalised) from the others' point goes
+        res = []
+        for i in use:
+            rest = [j for j in use if j != i]
+            xr, _, _ = _intersect([fits[j] for j in rest], mm[rest], np.array(cc)[rest], [covs[j] for j in rest],
+                                  origin, p.line_sd_px)
+            res.append(abs(float(mm[i] @ xr) - cc[i]))
+        drop = use[int(np.argmax(res))]
+        why.append(f"edge of planes {fits_planes[drop][0] + 1}-{fits_planes[drop][1] + 1}: does not meet the "
+                   f"other edges at one point ({max(res):.1f} px off)")
+        use.remove(drop)
+    if len(use) == 2 and min(fits[i][1][3] for i in use) < p.two_line_ratio:
+        weak = min(use, key=lambda i: fits[i][1][3])
+        return base.failed("no_edges", f"two edges only, and the edge of planes {fits_planes[weak][0] + 1}-"
+                                       f"{fits_planes[weak][1] + 1} is weak (gradient {fits[weak][1][3]:.1f} x the "
+                                       f"texture's, < {p.two_line_ratio:g}): no check of it"
+                           + (f" ({'; '.join(why)})" if why else ""))
+    angs = [math.degrees(math.acos(min(1.0, abs(float(mm[i] @ mm[j]))))) for i in use for j in use if i < j]
+    if max(angs) < p.min_angle_deg:
+        return base.failed("weak_geometry", f"the edges left meet at {max(angs):.0f} deg (< {p.min_angle_deg:g})")
+    lines = [lines[i] for i in use]
+    cov_x = np.linalg.inv(n_mat)
+    return replace(base, px=x, cov_px2=0.5 * (cov_x + cov_x.T), status="measured",
+                   reason="; ".join(why), lines=tuple(lines))
+
+
+def _intersect(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, origin: np.ndarray, line_sd_px: float):
+    """Weighted least-squares point of lines m^T x = c (module docstring, step 3): point, normal matrix, chi2."""
+    x = origin.copy()
+    for _ in range(3):
+        w = []
+        for (u, _), (cov, b) in zip(fits, covs):
+            jv = np.array([1.0, float((x - origin) @ u)])
+            w.append(1.0 / (max(float(jv @ cov @ jv), 1e-8) / (1.0 + b * b) + line_sd_px**2))
+        w = np.array(w)
+        n_mat = (mm * w[:, None]).T @ mm
+        x = np.linalg.solve(n_mat, (mm * w[:, None]).T @ cc)
+    r = mm @ x - cc
+    return x, n_mat, float(np.sum(w * r * r))
+
+
+def _masked_best(score: np.ndarray, ctx: dict, centre: np.ndarray, cinv: np.ndarray, radius2: float) -> np.ndarray:
+    srch = ctx["srch"]
+    dy, dx = np.mgrid[-srch:srch + 1, -srch:srch + 1]
+    d = np.stack([dx + (ctx["c0"] - ctx["vpx"][0]) - centre[0], dy + (ctx["r0"] - ctx["vpx"][1]) - centre[1]],
+                 axis=-1)
+    m2 = np.einsum("...i,ij,...j->...", d, cinv, d)
+    sc = np.where(m2 <= radius2, score, -np.inf)
+    iy, ix = np.unravel_index(int(np.argmax(sc)), sc.shape)
+    return np.array([float(dx[iy, ix] + ctx["c0"] - ctx["vpx"][0]), float(dy[iy, ix] + ctx["r0"] - ctx["vpx"][1])])
+
+
+def measure_photo(image: Any, camera: Camera, eo: Any, targets: Sequence[VertexTarget],
+                  params: MeasureParams | None = None) -> list[Measurement]:
+    """Measure the LiDAR vertices of one photo (module docstring); one Measurement per target, in order.
+
+    The orientation's error moves every vertex of a photo by nearly the same shift, so the
+    coarse scores of all vertices (each normalised: median 0, MAD 1) are summed over the
+    common shift; its best shift, searched within ``search_sigma`` of the mean prediction
+    ellipse, is each vertex's start, refined within ``local_search_px``.  A photo with a single
+    measurable vertex uses that vertex's own best shift.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) array
+        The photo (uint8, uint16 or float grey values 0..255).
+    camera : Camera
+    eo : (6,) the approximate orientation the predictions were made with (m, rad)
+    targets : sequence of VertexTarget
+    params : MeasureParams, optional
+
+    Returns
+    -------
+    list of Measurement
+    """
+    p = params or MeasureParams()
+    img = grey(image)
+    ctxs = [_setup(img, camera, eo, t, p) for t in targets]
+    live = [k for k, c in enumerate(ctxs) if isinstance(c, dict)]
+    out: list[Any] = [c if not isinstance(c, dict) else None for c in ctxs]
+    if not live:
+        return out
+    scores = {k: _scores(ctxs[k], p) for k in live}
+    # the common shift: normalised score maps summed on a shift grid centred on zero
+    srch = max(ctxs[k]["srch"] for k in live)
+    acc = np.zeros((2 * srch + 1, 2 * srch + 1))
+    cnt = np.zeros_like(acc)
+    for k in live:
+        sc = scores[k]
+        fin = np.isfinite(sc)
+        med = float(np.median(sc[fin]))
+        mad = 1.4826 * float(np.median(np.abs(sc[fin] - med))) or 1.0
+        z = np.where(fin, (sc - med) / mad, 0.0)
+        sk = ctxs[k]["srch"]
+        acc[srch - sk:srch + sk + 1, srch - sk:srch + sk + 1] += z
+        cnt[srch - sk:srch + sk + 1, srch - sk:srch + sk + 1] += 1
+    cov = np.mean([np.asarray(targets[k].prediction.cov_px2) for k in live], axis=0)
+    common = {"srch": srch, "c0": 0, "r0": 0, "vpx": np.zeros(2)}
+    cinv = np.linalg.inv(cov + np.eye(2) * 0.25)
+    shift0 = _masked_best(np.where(cnt > 0, acc / np.maximum(cnt, 1) * np.sqrt(np.maximum(cnt, 1)), -np.inf),
+                          common, np.zeros(2), cinv, p.search_sigma**2)
+    local = np.eye(2) / float(p.local_search_px) ** 2
+    for k in live:
+        ctx = ctxs[k]
+        start = shift0 if len(live) > 1 else np.zeros(2)
+        lim = 1.0 if len(live) > 1 else p.search_sigma**2
+        ci = local if len(live) > 1 else np.linalg.inv(np.asarray(targets[k].prediction.cov_px2) + np.eye(2) * 0.25)
+        best = _masked_best(scores[k], ctx, start, ci, lim)
+        if p.coarse != "lines" and p.refine_px > 0:
+            # the edges' directional gradient, near the coarse shift: the vertex to a pixel or so
+            lines = _scores(ctx, replace(p, coarse="lines"))
+            best = _masked_best(lines, ctx, best, np.eye(2) / float(p.refine_px) ** 2, 1.0)
+        # integer shift of the template's centre (c0, r0) = round(prediction)
+        shift = np.round(best + ctx["vpx"] - np.array([ctx["c0"], ctx["r0"]])) + np.array([ctx["c0"], ctx["r0"]]) \
+            - ctx["vpx"]
+        m = _refine(img, ctx, shift, replace(p, band_px=p.wide_band_px))
+        if m:   # again from the vertex found, in the narrow band
+            m2 = _refine(img, ctx, np.asarray(m.px) - ctx["vpx"], p)
+            m = replace(m2, shift_px=shift) if m2 else m
+        out[k] = m
+    return out
+
+
+def measure_vertex(image: Any, camera: Camera, eo: Any, vertex_m: Any, planes: Sequence[Any], xyz_m: Any,
+                   prediction: Prediction, params: MeasureParams | None = None) -> Measurement:
+    """Measure one LiDAR vertex on one photo by itself (:func:`measure_photo` with one target)."""
+    return measure_photo(image, camera, eo, [VertexTarget(np.asarray(vertex_m, dtype=np.float64), tuple(planes),
+                                                          np.asarray(xyz_m, dtype=np.float64), prediction)],
+                         params)[0]
+
+
+def check_consistency(measurements: Sequence[Measurement], cameras: Sequence[Camera], eos: Any, eo_covs: Any,
+                      vertex_m: Any, vertex_cov: Any) -> list[Measurement]:
+    """The multi-photo test of one vertex's measurements (module docstring, step 4).
+
+    Parameters
+    ----------
+    measurements : sequence of Measurement (one vertex, one per photo)
+    cameras : the photos' cameras (same order)
+    eos : (P, 6) approximate orientations; eo_covs : (P, 6, 6) their covariances
+    vertex_m : (3,) LiDAR vertex; vertex_cov : (3, 3)
+
+    Returns
+    -------
+    list of Measurement
+        The same, with rejected ones' status ``"rejected"`` and the reason.
+    """
+    out = list(measurements)
+    eos = np.asarray(eos, dtype=np.float64).reshape(-1, 6)
+    eo_covs = np.asarray(eo_covs, dtype=np.float64).reshape(-1, 6, 6)
+    v = np.asarray(vertex_m, dtype=np.float64).reshape(3)
+    vc = np.asarray(vertex_cov, dtype=np.float64).reshape(3, 3)
+    for k, m in enumerate(out):
+        if not m:
+            continue
+        if not (np.isfinite(m.px).all() and np.isfinite(m.cov_px2).all()):
+            out[k] = m.failed("rejected", "the measurement or its covariance is not finite")
+            continue
+        d = np.asarray(m.px) - np.asarray(m.predicted_px)
+        m2 = float(d @ np.linalg.solve(np.asarray(m.predicted_cov_px2) + np.asarray(m.cov_px2), d))
+        if m2 > _CHI2_2:
+            out[k] = m.failed("rejected", f"measured {float(np.hypot(*d)):.1f} px from the prediction: outside "
+                                          f"its 99.9 % ellipse (normalised {math.sqrt(m2):.1f})")
+    while True:
+        live = [k for k, m in enumerate(out) if m]
+        if len(live) < 2:
+            return out
+        jp, wts = {}, {}
+        for k in live:
+            jpk, _ = pixel_jacobians(cameras[k], eos[k], v[None])
+            jp[k] = jpk[0]
+            wts[k] = np.linalg.inv(np.asarray(out[k].cov_px2) + jp[k] @ eo_covs[k] @ jp[k].T)
+        x = v.copy()
+        for _ in range(5):
+            n_mat = np.zeros((3, 3))
+            rhs = np.zeros(3)
+            for k in live:
+                px = pixel_positions(cameras[k], eos[k], x[None])[0]
+                _, jx = pixel_jacobians(cameras[k], eos[k], x[None])
+                r = np.asarray(out[k].px) - px
+                n_mat += jx[0].T @ wts[k] @ jx[0]
+                rhs += jx[0].T @ wts[k] @ r
+            try:
+                dx = np.linalg.solve(n_mat + np.eye(3) * 1e-9, rhs)
+            except np.linalg.LinAlgError:
+                return out
+            x = x + dx
+            if np.linalg.norm(dx) < 1e-5:
+                break
+        norm = {}
+        for k in live:
+            r = np.asarray(out[k].px) - pixel_positions(cameras[k], eos[k], x[None])[0]
+            norm[k] = float(r @ wts[k] @ r)
+        worst = max(live, key=lambda k: norm[k])
+        if len(live) > 2 and norm[worst] > _CHI2_2:
+            out[worst] = out[worst].failed(
+                "rejected", f"disagrees with the other {len(live) - 1} photos: normalised residual "
+                            f"{math.sqrt(norm[worst]):.1f} of the forward intersection")
+            continue
+        dv = x - v
+        try:
+            q = float(dv @ np.linalg.solve(np.linalg.inv(n_mat) + vc, dv))
+        except np.linalg.LinAlgError:
+            q = math.inf
+        if not math.isfinite(q):
+            q = math.inf
+        if q > _CHI2_3:
+            for k in live:
+                out[k] = out[k].failed("rejected", f"the forward intersection of the {len(live)} photos lies "
+                                                   f"{float(np.linalg.norm(dv)):.2f} m from the LiDAR vertex "
+                                                   f"(normalised {math.sqrt(q):.1f}): not this vertex")
+        return out

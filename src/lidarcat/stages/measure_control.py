@@ -1,0 +1,442 @@
+"""Stage ``measure-control`` and the action of ``lidarcat measure-control``: LiDAR roof vertices measured in the photos.
+
+:func:`measure_control` reads the survey -- cameras, photos with their approximate orientation,
+sds and image files, the LiDAR tiles, and the LiDAR control vertices (ground points of source
+``lidar``) -- and for every vertex:
+
+1. reads the LiDAR within ``dsm_radius_m`` of it and extracts the vertex again
+   (:func:`lidarcat.control.vertices.extract_roof`: the planes and the points around it; a vertex
+   found more than ``max_shift_m`` from the ground point's coordinates is skipped with the reason);
+2. predicts it in every photo with its ellipse and its visibility over a DSM of those points
+   (:mod:`lidarcat.photocontrol.predict`);
+3. measures it photo by photo (:func:`lidarcat.photocontrol.measure.measure_photo`) and tests the
+   measurements of each vertex across the photos (:func:`~lidarcat.photocontrol.measure.check_consistency`).
+
+It writes, into the output folder first:
+
+* ``decisions.csv`` -- one row per vertex and photo: ``photo, point, status, reason, col_px, row_px,
+  sd_col_px, sd_row_px, pred_col_px, pred_row_px, pred_sd_px, decision``; ``decision`` is
+  ``accept`` for accepted measurements and ``reject`` otherwise.  A user may edit ``decision`` (and
+  the pixel) and feed the file back (``decisions=``): then nothing is measured, the accepted rows
+  are written;
+* ``gallery_NN.png`` -- the chips of every vertex and photo that was tried (predicted ellipse at
+  3 sigma in yellow, fitted edges green, measurement red; :mod:`lidarcat.photocontrol.review`);
+* ``measure_control.json`` -- counts and options;
+
+and then the accepted observations into the survey's ``image_points.csv`` (atomically; the
+survey is loaded again from the new table, and the old file restored if it does not load).  A
+vertex and photo that already has an observation there keeps it (``replace=True`` measures it
+again and replaces it).  Pixel sds go to ``sd_x_mm, sd_y_mm`` (times the camera's pixel size).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._util import write_csv_atomic, write_json_atomic
+from ..errors import LidarcatError, SurveyError
+from .context import StageContext as Context
+
+__all__ = ["measure_control", "run", "planned", "MeasureControlResult", "DECISION_FIELDS", "lidar_vertices",
+           "dsm_of_points"]
+
+log = logging.getLogger(__name__)
+
+#: columns of decisions.csv
+DECISION_FIELDS = ["photo", "point", "status", "reason", "col_px", "row_px", "sd_col_px", "sd_row_px",
+                   "pred_col_px", "pred_row_px", "pred_sd_px", "decision"]
+
+
+@dataclasses.dataclass(frozen=True)
+class MeasureControlResult:
+    """What :func:`measure_control` wrote: the tables, and counts by status."""
+
+    image_points: Path
+    outdir: Path
+    counts: dict
+    accepted: int
+    summary: dict
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"image_points": str(self.image_points), "outdir": str(self.outdir), "counts": self.counts,
+                "accepted": self.accepted}
+
+
+def lidar_vertices(survey: Any, points: Sequence[str] | None = None) -> list[tuple[str, np.ndarray]]:
+    """(id, E N h) of the survey's LiDAR control vertices (ground points of source ``lidar``), or of *points*."""
+    gp = survey.ground_points
+    src = np.asarray(gp.source, dtype=str)
+    ids = np.asarray(gp.point, dtype=str)
+    if points:
+        missing = sorted(set(points) - set(ids.tolist()))
+        if missing:
+            raise SurveyError(f"{gp.path}: no ground point {missing[0]!r} (asked for by points)")
+        sel = np.isin(ids, list(points))
+    else:
+        sel = np.char.lower(src) == "lidar"
+    return [(str(ids[i]), np.asarray(gp.enh_m[i], dtype=float)) for i in np.flatnonzero(sel)]
+
+
+def dsm_of_points(xyz: np.ndarray, cell_m: float = 0.5) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """The highest point of each *cell_m* cell as a surface ``dsm(e, n) -> h`` (NaN outside the points' cells)."""
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    if len(xyz) == 0:
+        return lambda e, n: np.full(np.shape(e), np.nan)
+    lo = xyz[:, :2].min(axis=0)
+    ij = np.floor((xyz[:, :2] - lo) / cell_m).astype(np.int64)
+    shape = ij.max(axis=0) + 1
+    grid = np.full(tuple(int(v) for v in shape), -np.inf)
+    np.maximum.at(grid, (ij[:, 0], ij[:, 1]), xyz[:, 2])
+    grid[~np.isfinite(grid)] = np.nan
+
+    def dsm(e: np.ndarray, n: np.ndarray) -> np.ndarray:
+        i = np.floor((np.asarray(e, dtype=np.float64) - lo[0]) / cell_m).astype(np.int64)
+        j = np.floor((np.asarray(n, dtype=np.float64) - lo[1]) / cell_m).astype(np.int64)
+        inside = (i >= 0) & (j >= 0) & (i < grid.shape[0]) & (j < grid.shape[1])
+        out = np.full(i.shape, np.nan)
+        out[inside] = grid[i[inside], j[inside]]
+        return out
+
+    return dsm
+
+
+def planned(survey: Any) -> str | None:
+    """Why ``lidarcat run`` skips the stage (None: planned): it needs images, LiDAR tiles and LiDAR vertices
+    of which some photo has no observation yet."""
+    if not getattr(survey, "has_images", False):
+        return "the photos have no image files"
+    if not survey.lidar_paths:
+        return "the survey has no LiDAR tiles"
+    verts = lidar_vertices(survey)
+    if not verts:
+        return "the survey has no LiDAR control vertices (ground points of source lidar)"
+    observed = set(np.asarray(survey.image_points.point, dtype=str).tolist())
+    if all(v in observed for v, _ in verts):
+        return "every LiDAR control vertex has image observations; `lidarcat measure-control` measures again"
+    return None
+
+
+def _approx(survey: Any, default_sd: tuple[float, float]) -> tuple[dict, dict]:
+    eos, covs = {}, {}
+    for ph in survey.photos:
+        if ph.position_m is None or ph.attitude_deg is None:
+            continue
+        eos[ph.id] = np.r_[np.asarray(ph.position_m, float), np.deg2rad(np.asarray(ph.attitude_deg, float))]
+        sp = np.asarray(ph.sd_position_m, float) if ph.sd_position_m is not None else np.full(3, default_sd[0])
+        sa = np.asarray(ph.sd_attitude_deg, float) if ph.sd_attitude_deg is not None else np.full(3, default_sd[1])
+        covs[ph.id] = np.diag(np.r_[sp**2, np.deg2rad(sa) ** 2])
+    return eos, covs
+
+
+_CHIP_HALF_PX = 32
+
+
+def _window(img: np.ndarray, m: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """The photo's window about the measured (else predicted) pixel that a chip shows, and its origin (col, row)."""
+    from ..photocontrol import chip_centre
+
+    c = chip_centre(m)
+    if not np.isfinite(c).all():
+        return np.zeros((2 * half + 4, 2 * half + 4), np.float32), np.zeros(2)
+    c0, r0 = int(round(c[0])) - half - 2, int(round(c[1])) - half - 2
+    h, w = img.shape[:2]
+    win = np.zeros((2 * half + 4, 2 * half + 4) + img.shape[2:], img.dtype)
+    rs, cs, re, ce = max(r0, 0), max(c0, 0), min(r0 + 2 * half + 4, h), min(c0 + 2 * half + 4, w)
+    if re > rs and ce > cs:
+        win[rs - r0:re - r0, cs - c0:ce - c0] = img[rs:re, cs:ce]
+    return win, np.array([c0, r0], dtype=np.float64)
+
+
+def _moved(m: Any, origin: np.ndarray) -> Any:
+    """*m* in the coordinates of a window whose top-left pixel is *origin* of the photo."""
+    return dataclasses.replace(m, px=np.asarray(m.px) - origin, predicted_px=np.asarray(m.predicted_px) - origin,
+                               lines=tuple((np.asarray(a) - origin, np.asarray(b) - origin) for a, b in m.lines))
+
+
+def _decision_rows(ms: Sequence[Any]) -> list[list[Any]]:
+    rows = []
+    for m in ms:
+        def f(v: float, nd: int = 3) -> Any:
+            return "" if not np.isfinite(v) else round(float(v), nd)
+
+        sd = m.sd_px if m else np.full(2, np.nan)
+        psd = math.sqrt(max(float(np.max(np.linalg.eigvalsh(np.asarray(m.predicted_cov_px2)))), 0.0)) \
+            if np.isfinite(np.asarray(m.predicted_cov_px2)).all() else math.nan
+        rows.append([m.photo, m.point, m.status, m.reason, f(m.px[0]), f(m.px[1]), f(sd[0]), f(sd[1]),
+                     f(m.predicted_px[0], 2), f(m.predicted_px[1], 2), f(psd, 2), "accept" if m else "reject"])
+    return rows
+
+
+def _read_decisions(path: Path) -> list[dict[str, Any]]:
+    from .._util import read_csv_table
+
+    t = read_csv_table(path, required=("photo", "point", "decision", "col_px", "row_px"),
+                       optional=("sd_col_px", "sd_row_px", "status", "reason", "pred_col_px", "pred_row_px",
+                                 "pred_sd_px"))
+    out = []
+    photos, points, dec = t.column("photo"), t.column("point"), t.column("decision")
+    cols, rows_ = t.floats("col_px", required=False), t.floats("row_px", required=False)
+    sdc = t.floats("sd_col_px", required=False) if t.has("sd_col_px") else np.full(len(t.rows), np.nan)
+    sdr = t.floats("sd_row_px", required=False) if t.has("sd_row_px") else np.full(len(t.rows), np.nan)
+    for k, line in enumerate(t.lines):
+        d = str(dec[k]).strip().lower()
+        if d not in ("accept", "reject"):
+            raise SurveyError(f"{path}:{line}: decision must be accept or reject, got {dec[k]!r}")
+        if d == "accept" and not (np.isfinite(cols[k]) and np.isfinite(rows_[k])):
+            raise SurveyError(f"{path}:{line}: decision accept needs col_px and row_px (photo {photos[k]!r}, "
+                              f"point {points[k]!r})")
+        out.append({"photo": str(photos[k]), "point": str(points[k]), "accept": d == "accept",
+                    "px": np.array([cols[k], rows_[k]]), "sd": np.array([sdc[k], sdr[k]])})
+    return out
+
+
+def _table(survey: Any, new: list[dict[str, Any]], replace: bool, drop: set | None = None
+           ) -> tuple[list[str], list[list[Any]]]:
+    """The new image_points.csv: the kept rows, then the accepted control observations.
+
+    With *replace*, rows of the (photo, point) pairs of *new* and of *drop* go; without, a pair
+    already observed keeps its row and its new observation is not added.
+    """
+    ip = survey.image_points
+    pairs = {(d["photo"], d["point"]) for d in new} | (drop or set())
+    keep = np.array([not (replace and (str(a), str(b)) in pairs) for a, b in zip(ip.photo, ip.point)], bool)
+    have = {(str(a), str(b)) for a, b, k in zip(ip.photo, ip.point, keep) if k}
+    new = [d for d in new if (d["photo"], d["point"]) not in have]
+    with_xy = bool(np.isfinite(ip.xy_mm).any()) or survey.settings.observations == "corrected" and len(ip) > 0
+    header = ["photo", "point", "col_px", "row_px"] + (["x_mm", "y_mm"] if with_xy else []) + ["sd_x_mm", "sd_y_mm"]
+
+    def num(v: float, nd: int = 6) -> Any:
+        return "" if not np.isfinite(v) else round(float(v), nd)
+
+    rows: list[list[Any]] = []
+    for i in np.flatnonzero(keep):
+        r = [ip.photo[i], ip.point[i], num(ip.pixel_px[i, 0], 3), num(ip.pixel_px[i, 1], 3)]
+        if with_xy:
+            r += [num(ip.xy_mm[i, 0]), num(ip.xy_mm[i, 1])]
+        rows.append(r + [num(ip.sd_mm[i, 0]), num(ip.sd_mm[i, 1])])
+    for d in new:
+        cam = survey.camera_of(d["photo"])
+        r = [d["photo"], d["point"], round(float(d["px"][0]), 3), round(float(d["px"][1]), 3)]
+        if with_xy:
+            xy = cam.pixel_to_photo(np.asarray(d["px"], float)[None])[0]
+            r += [round(float(xy[0]), 6), round(float(xy[1]), 6)]
+        sd = np.asarray(d["sd"], float) * np.array([cam.pixel_size_x_mm, cam.pixel_size_y_mm])
+        rows.append(r + [num(sd[0], 6), num(sd[1], 6)])
+    return header, rows
+
+
+def _write_checked(survey: Any, ip_path: Path, header: list[str], rows: list[list[Any]], comment: str) -> None:
+    """Replace image_points.csv atomically, then load the survey; put the old file back if it does not load."""
+    from .._util import atomic_write
+    from ..survey.folder import Survey
+
+    old = ip_path.read_bytes() if ip_path.is_file() else None
+    write_csv_atomic(ip_path, header, rows, comments=[comment])
+    try:
+        Survey.load(survey.root if not survey.embedded else survey.toml_path)
+    except SurveyError:
+        if old is None:
+            ip_path.unlink(missing_ok=True)
+        else:
+            with atomic_write(ip_path, "wb") as fh:
+                fh.write(old)
+        raise
+
+
+def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points: Sequence[str] | None = None,
+                    decisions: str | Path | None = None, params: Any = None, replace: bool = False,
+                    gallery: bool = True, table: str | Path | None = None, dsm_radius_m: float = 30.0,
+                    max_shift_m: float = 0.5, default_sd: tuple[float, float] = (2.0, 0.5),
+                    progress: Callable[[int, int], Any] | None = None) -> MeasureControlResult:
+    """LiDAR control vertices measured in the photos into image_points.csv (module docstring).
+
+    Parameters
+    ----------
+    survey_dir : path or Survey
+    outdir : path, optional
+        Report folder (default ``SURVEY/out/measure_control``).
+    points : ids, optional
+        Measure these ground points (default: every ground point of source ``lidar``).
+    decisions : path, optional
+        An edited decisions.csv: write its accepted rows, measure nothing.
+    params : MeasureParams, optional
+    replace : bool
+        Measure (and replace) vertex/photo pairs that already have an observation.
+    gallery : bool
+        Write the chips.
+    table : path, optional
+        Write the new image_points table there instead of the survey's own file (``lidarcat run``).
+    dsm_radius_m : float
+        LiDAR read around each vertex, m (the DSM of the visibility test).
+    max_shift_m : float
+        A vertex extracted farther than this from its ground point is not measured, m.
+    default_sd : (m, deg)
+        Sds of the approximate orientation where photos.csv gives none.
+    progress : callable(done, total), optional
+
+    Returns
+    -------
+    MeasureControlResult
+
+    Raises
+    ------
+    SurveyError
+        No LiDAR vertex, no LiDAR tiles, no approximate orientation, a bad decisions file.
+    """
+    import cv2
+
+    from ..control.vertices import extract_roof
+    from ..lidar.clipping import clip
+    from ..photocontrol import (VertexTarget, check_consistency, chip_image, gallery as tile_gallery,
+                                measure_photo, predict_points)
+    from ..photocontrol.measure import Measurement
+    from ..survey.folder import Survey
+
+    t_start = time.perf_counter()
+    survey = survey_dir if isinstance(survey_dir, Survey) else Survey.load(survey_dir)
+    out = Path(outdir) if outdir is not None else survey.output_dir() / "measure_control"
+    out.mkdir(parents=True, exist_ok=True)
+    ip_path = Path(table) if table is not None else \
+        Path(survey.files.get("image_points", survey.root / survey.config.files.image_points))
+    if decisions is not None:
+        rows = _read_decisions(Path(decisions))
+        accepted = [d for d in rows if d["accept"]]
+        header, table_rows = _table(survey, accepted, replace=True, drop={(d["photo"], d["point"]) for d in rows})
+        summary = {"decisions": str(decisions), "accepted": len(accepted), "rejected": len(rows) - len(accepted)}
+        write_json_atomic(out / "measure_control.json", summary)
+        comment = f"LiDAR control observations: lidarcat measure-control, decisions of {Path(decisions).name}"
+        if table is None:
+            _write_checked(survey, ip_path, header, table_rows, comment)
+        else:
+            write_csv_atomic(ip_path, header, table_rows, comments=[comment])
+        return MeasureControlResult(ip_path, out, {"accepted": len(accepted)}, len(accepted), summary)
+
+    verts = lidar_vertices(survey, points)
+    if not verts:
+        raise SurveyError(f"{survey.files.get('ground_points', survey.toml_path)}: no LiDAR control vertex (ground "
+                          f"points of source lidar): run `lidarcat extract` and add its points, or give points")
+    if not survey.lidar_paths:
+        raise SurveyError(f"{survey.toml_path}: no LiDAR tiles: the vertices' planes come from them")
+    eos, covs = _approx(survey, default_sd)
+    if not eos:
+        raise SurveyError(f"{survey.files.get('photos', survey.toml_path)}: no approximate orientation "
+                          f"(X0 .. kappa) of any photo: nothing to predict with")
+    p = params
+    observed = {(str(a), str(b)) for a, b in zip(survey.image_points.photo, survey.image_points.point)}
+    crs = survey.lidar_crs or survey.crs
+    results: list[Any] = []
+    targets: dict[str, list[tuple[str, Any]]] = {}
+    vertex_info: dict[str, tuple[Any, np.ndarray]] = {}
+    photos = [pid for pid in survey.photo_ids if pid in eos]
+    total = len(verts) + len(photos)
+    for i, (vid, enh) in enumerate(verts):
+        if progress is not None:
+            progress(i, total)
+        try:
+            cloud = clip(list(survey.lidar_paths), enh[:2], dsm_radius_m, height_filter=None, crs=crs)
+            xyz = np.asarray(cloud.xyz, dtype=np.float64)
+        except LidarcatError as ex:
+            results += [Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan), "no_vertex",
+                                    f"no LiDAR around the vertex: {ex}") for pid in photos]
+            continue
+        cp = extract_roof(xyz, enh[:2], point_id=vid)
+        if not cp or np.linalg.norm(cp.enh_m - enh) > max_shift_m:
+            why = (f"the vertex is not extracted again ({cp.status}: {cp.reason})" if not cp else
+                   f"the vertex extracted again lies {float(np.linalg.norm(cp.enh_m - enh)):.2f} m from the "
+                   f"ground point (> {max_shift_m:g} m)")
+            results += [Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan), "no_vertex", why)
+                        for pid in photos]
+            continue
+        vertex_info[vid] = (cp, xyz)
+        dsm = dsm_of_points(xyz)
+        for pid in photos:
+            if (pid, vid) in observed and not replace:
+                continue
+            cam = survey.camera_of(pid)
+            pr = predict_points(cam, eos[pid], covs[pid], cp.enh_m[None], cp.cov_m2[None], points=[vid], photo=pid,
+                                dsm=dsm)[0]
+            targets.setdefault(pid, []).append((vid, VertexTarget(cp.enh_m, cp.planes, xyz, pr)))
+    per_vertex: dict[str, list[tuple[str, Any]]] = {}
+    images: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
+    for j, pid in enumerate(photos):
+        if progress is not None:
+            progress(len(verts) + j, total)
+        if pid not in targets:
+            continue
+        from ..match import read_image
+
+        img = read_image(survey.image_path(pid), lambda msg, pid=pid: SurveyError(f"photo {pid!r}: {msg}"))
+        ms = measure_photo(img, survey.camera_of(pid), eos[pid], [t for _, t in targets[pid]], p)
+        for (vid, _), m in zip(targets[pid], ms):
+            per_vertex.setdefault(vid, []).append((pid, m))
+        if gallery:   # keep the windows of the chips, not the photos (a block's photos do not fit in memory)
+            for (vid, _), m in zip(targets[pid], ms):
+                if m.status != "not_visible":
+                    images[(pid, vid)] = _window(img, m, _CHIP_HALF_PX)
+    for vid, lst in per_vertex.items():
+        cp, _ = vertex_info[vid]
+        pids = [pid for pid, _ in lst]
+        checked = check_consistency([m for _, m in lst], [survey.camera_of(pid) for pid in pids],
+                                    np.array([eos[pid] for pid in pids]), np.array([covs[pid] for pid in pids]),
+                                    cp.enh_m, cp.cov_m2)
+        results += checked
+    order = {pid: k for k, pid in enumerate(survey.photo_ids)}
+    results.sort(key=lambda m: (m.point, order.get(m.photo, 0)))
+    counts: dict[str, int] = {}
+    for m in results:
+        counts[m.status] = counts.get(m.status, 0) + 1
+    # the report first
+    write_csv_atomic(out / "decisions.csv", DECISION_FIELDS, _decision_rows(results), comments=[
+        "LiDAR vertices measured in the photos (lidarcat measure-control). Edit decision (accept/reject) and feed "
+        "the file back with --decisions; pixels col_px, row_px; pred_sd_px = semi-major axis of the prediction's "
+        "1-sigma ellipse."])
+    tried = [m for m in results if (m.photo, m.point) in images]
+    pages = []
+    if gallery and tried:
+        per_page = 48
+        for k0 in range(0, len(tried), per_page):
+            chunk = tried[k0:k0 + per_page]
+            img = tile_gallery([chip_image(images[(m.photo, m.point)][0], _moved(m, images[(m.photo, m.point)][1]),
+                                           half_px=_CHIP_HALF_PX, zoom=3) for m in chunk],
+                               [f"{m.point} {m.photo} {m.status}" for m in chunk], columns=6)
+            path = out / f"gallery_{k0 // per_page + 1:02d}.png"
+            ok, buf = cv2.imencode(".png", img)
+            if ok:
+                from .._util import atomic_write
+
+                with atomic_write(path, "wb") as fh:
+                    fh.write(buf.tobytes())
+                pages.append(path.name)
+    accepted = [{"photo": m.photo, "point": m.point, "px": np.asarray(m.px), "sd": m.sd_px} for m in results if m]
+    summary = {"vertices": len(verts), "photos": len(photos), "counts": counts, "accepted": len(accepted),
+               "gallery": pages, "params": dataclasses.asdict(p) if p is not None else "default",
+               "seconds": round(time.perf_counter() - t_start, 2)}
+    write_json_atomic(out / "measure_control.json", json.loads(json.dumps(summary, default=str)))
+    header, table_rows = _table(survey, accepted, replace=replace)
+    comment = "LiDAR control observations: lidarcat measure-control (roof vertices measured in the photos, col_px, row_px)"
+    if table is None:
+        _write_checked(survey, ip_path, header, table_rows, comment)
+    else:
+        write_csv_atomic(ip_path, header, table_rows, comments=[comment])
+    if progress is not None:
+        progress(total, total)
+    log.info("measure-control: %d vertices, %d accepted observations -> %s", len(verts), len(accepted), ip_path)
+    return MeasureControlResult(ip_path, out, counts, len(accepted), summary)
+
+
+def run(ctx: Context, tmp: Path) -> dict:
+    """The LiDAR vertices measured into ``measure_control/image_points.csv`` (the survey's rows plus them) and the
+    report; the later stages adjust that table."""
+    survey = ctx["survey"]
+    res = measure_control(survey, tmp, table=tmp / "image_points.csv",
+                          progress=lambda done, total: ctx.progress(done, total))
+    return {"counts": res.counts, "accepted": res.accepted}
