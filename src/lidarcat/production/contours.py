@@ -570,9 +570,8 @@ def read_line_layer(path: str | os.PathLike, layer: str | None = None) -> tuple[
         for i, f in feats:
             try:
                 raw = f["geometry"]["coordinates"]
-                if any(isinstance(v, bool) for pair in raw for v in pair):   # JSON true is no coordinate
-                    raise TypeError("a boolean coordinate")
-                xy = np.asarray(raw, dtype=np.float64)
+                boolean = any(isinstance(v, bool) for pair in raw for v in pair)    # JSON true is no coordinate
+                xy = np.zeros(0) if boolean else np.asarray(raw, dtype=np.float64)
             except (KeyError, TypeError, ValueError):
                 xy = np.zeros(0)
             if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) < 2 or not np.isfinite(xy).all():
