@@ -103,7 +103,8 @@ def _score(ts, track, photo, xy) -> dict:
 
 
 # ---------------------------------------------------------------------- children
-def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = None) -> dict:
+def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = None,
+                   contrast: float | None = None) -> dict:
     import dataclasses
 
     import cv2
@@ -113,9 +114,12 @@ def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = 
     from lidarcat.survey.folder import Survey
 
     s = Survey.load(folder)
+    from lidarcat.match import FeatureOptions
+
     opts = dataclasses.replace(default_options(s), per_cell=per_cell)
+    feats = FeatureOptions() if contrast is None else FeatureOptions(contrast_threshold=contrast)
     t0 = time.perf_counter()
-    res = match(s, folder / f"out-{per_cell}", options=opts, workers=threads, cache=False, dem=dem,
+    res = match(s, folder / f"out-{per_cell}", options=opts, features=feats, workers=threads, cache=False, dem=dem,
                 table=folder / f"tie-{per_cell}.csv")
     seconds = time.perf_counter() - t0
     from lidarcat._util import read_csv_table
@@ -264,7 +268,8 @@ def main() -> None:
     if a.child:
         kind, folder, *rest = a.child
         fn = {"lidarcat": lambda: child_lidarcat(Path(folder), int(rest[0]), int(rest[1]),
-                                                 rest[2] if len(rest) > 2 else None),
+                                                 rest[2] if len(rest) > 2 and rest[2] != "-" else None,
+                                                 float(rest[3]) if len(rest) > 3 else None),
               "pycolmap": lambda: child_pycolmap(Path(folder), int(rest[0])),
               "big": lambda: child_big(Path(folder), int(rest[0]))}[kind]
         print(json.dumps(fn()))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarcat.match import FeatureCache, FeatureOptions, detect, pyramid_level, refine_observations
+from lidarcat.match import FeatureOptions, detect, pyramid_level, refine_observations
 
 
 def _texture(seed=0, shape=(240, 320)):
@@ -43,6 +43,8 @@ def test_pyramid_level_and_max_features():
 
 def test_cache_detects_once(tmp_path):
     import cv2
+
+    from lidarcat.stages._feature_cache import FeatureCache
 
     src = tmp_path / "a.png"
     cv2.imwrite(str(src), _texture(3))

@@ -2,7 +2,7 @@ r"""Tie points of a block: features -> pairs -> guided matching -> verification 
 
 :func:`match_block` runs the steps of :mod:`lidarcat.match` on arrays: cameras, approximate
 orientations (or none), a height surface and a function that yields each photo's features
-(the stage reads the images and caches the features, :class:`~lidarcat.match.features.FeatureCache`).
+(the stage reads the images and caches the features on disk; the engine writes no file).
 
 1. Pairs: :func:`~lidarcat.match.pairs.footprint_pairs` when every photo has an approximate
    orientation, else :func:`~lidarcat.match.pairs.exhaustive_pairs` up to ``max_exhaustive``

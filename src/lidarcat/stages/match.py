@@ -289,7 +289,8 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     """
     import dataclasses
 
-    from ..match import FeatureCache, FeatureOptions, match_block
+    from ..match import FeatureOptions, match_block
+    from ._feature_cache import FeatureCache
     from ..survey.folder import Survey
 
     t_all = time.perf_counter()
