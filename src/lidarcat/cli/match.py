@@ -108,6 +108,11 @@ def match(survey, max_features, level, max_side_px, min_overlap, sd_position_m, 
                f"{sm['pairs_verified']} of {sm['pairs']} pairs verified ({sm['pairing']}, surface: {sm['surface']})")
     rays = ", ".join(f"{v} with {k}" for k, v in sm["rays"].items())
     click.echo(f"rays: {rays}; inconsistent tracks dropped: {sm['inconsistent_tracks_dropped']}")
+    skipped = [r["photo"] for r in sm["per_photo"] if r["tie_points"] == 0]
+    if skipped:
+        more = f" and {len(skipped) - 5} more" if len(skipped) > 5 else ""
+        click.echo(f"no tie point on {len(skipped)} photo(s): {', '.join(skipped[:5])}{more} (no overlapping photo, "
+                   f"no features, or no pair verified: see {res.outdir / 'match_pairs.csv'})")
     worst = min(sm["per_photo"], key=lambda r: r["tie_points"])
     click.echo(f"fewest on photo {worst['photo']}: {worst['tie_points']} tie points, "
                f"coverage {worst['coverage']:.0%}; seconds {sm['seconds']['total']:.1f}")

@@ -125,6 +125,8 @@ class BlockMatch:
         Consistent tracks before the distribution control.
     seconds : dict
         Time of each step (features, matching, tracks).
+    unpaired : tuple of int
+        Photos whose footprint overlaps no other photo's (matched with none: a reported skip).
     """
 
     tracks: Tracks
@@ -133,6 +135,7 @@ class BlockMatch:
     pairs: tuple[PairReport, ...]
     n_tracks_before: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
+    unpaired: tuple[int, ...] = ()
 
 
 class _Store:
@@ -370,4 +373,5 @@ def match_block(cameras: Sequence[Camera], eos: Sequence[np.ndarray | None], fea
     rows = keep[tracks.track]
     final = tracks.select_tracks(keep)
     seconds["tracks"] = time.perf_counter() - t0
-    return BlockMatch(final, xy[rows], score[keep], pair_reports, n_before, seconds)
+    unpaired = tuple(int(i) for i in np.setdiff1d(np.arange(n), pairs.ravel()))
+    return BlockMatch(final, xy[rows], score[keep], pair_reports, n_before, seconds, unpaired)

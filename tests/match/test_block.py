@@ -1,0 +1,89 @@
+"""match_block on planted features: a blank photo and an isolated photo are reported skips, never errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lidarcat.match import Features, FeatureOptions, HeightSurface, MatchError, detect, match_block
+from lidarcat.match.rays import project_to_pixel
+from lidarcat.synthetic.textured import small_camera, strip_layout
+
+
+def _block(n_photos=3, n_points=1500, seed=0):
+    """Photos of a flat ground at 100 m; each ground point a random descriptor seen by every photo it projects in."""
+    rng = np.random.default_rng(seed)
+    cam = small_camera(400, 300)
+    eo = strip_layout(1, n_photos, cam, 600.0)
+    lo, hi = eo[:, :2].min(axis=0) - 150, eo[:, :2].max(axis=0) + 150
+    xyz = np.column_stack([rng.uniform(lo, hi, (n_points, 2)), np.full(n_points, 100.0)])
+    desc = rng.integers(0, 256, (n_points, 128))
+    feats = []
+    for p in range(n_photos):
+        px, front = project_to_pixel(cam, eo[p], xyz)
+        ok = np.flatnonzero(front & cam.contains(px))
+        d = np.clip(desc[ok] + rng.integers(-3, 4, (len(ok), 128)), 0, 255).astype(np.uint8)
+        feats.append(Features(px[ok] + rng.normal(0, 0.2, (len(ok), 2)), d, np.ones(len(ok), np.float32),
+                              np.full(len(ok), 4.0, np.float32), 0))
+    return cam, eo, feats
+
+
+def _empty() -> Features:
+    return Features(np.empty((0, 2)), np.empty((0, 128), np.uint8), np.empty(0, np.float32),
+                    np.empty(0, np.float32), 0)
+
+
+def test_planted_block_is_matched_exactly():
+    cam, eo, feats = _block()
+    res = match_block([cam] * 3, list(eo), lambda i: feats[i], surface=HeightSurface(100.0, sd_m=1.0))
+    assert len(res.pairs) == 3 and all(r.n_inliers > 15 for r in res.pairs)
+    # every observation of a track is the same ground point: same random descriptor -> same track
+    assert res.tracks.n_tracks > 100 and res.tracks.n_inconsistent == 0
+
+
+def test_a_blank_photo_is_a_reported_skip():
+    cam, eo, feats = _block()
+    feats[1] = _empty()
+    res = match_block([cam] * 3, list(eo), lambda i: feats[i], surface=HeightSurface(100.0, sd_m=1.0))
+    by_pair = {(r.a, r.b): r for r in res.pairs}
+    assert by_pair[(0, 1)].n_inliers == 0 and by_pair[(0, 1)].reason == "no matches"
+    assert by_pair[(1, 2)].n_inliers == 0 and by_pair[(1, 2)].reason == "no matches"
+    assert by_pair[(0, 2)].n_inliers > 15
+    assert not (res.tracks.photo == 1).any()
+
+
+def test_all_blank_photos_are_one_located_error():
+    cam, eo, _ = _block()
+    with pytest.raises(MatchError, match=r"^no pair of the 3 overlapping pairs has verified matches "
+                                         r"\(first: photos '0'-'1': no matches\)$"):
+        match_block([cam] * 3, list(eo), lambda i: _empty(), surface=HeightSurface(100.0, sd_m=1.0))
+
+
+def test_a_blank_image_has_no_features():
+    f = detect(np.zeros((300, 400), np.uint8), FeatureOptions())
+    assert len(f) == 0 and f.descriptors.shape == (0, 128) and f.xy_px.shape == (0, 2)
+
+
+def test_no_overlap_at_all_is_refused_before_any_feature_is_read():
+    cam, eo, feats = _block()
+    far = eo.copy()
+    far[:, 0] += 5000.0 * np.arange(3)
+    read = []
+
+    def get(i):
+        read.append(i)
+        return feats[i]
+
+    with pytest.raises(MatchError, match=r"^no two of the 3 photos overlap by 10% or more"):
+        match_block([cam] * 3, list(far), get, surface=HeightSurface(100.0, sd_m=1.0))
+    assert read == []
+
+
+def test_an_isolated_photo_is_a_reported_skip():
+    cam, eo, feats = _block(4)
+    eo = eo.copy()
+    eo[3, 0] += 5000.0                          # photo 3 flies 5 km away: its footprint meets no other
+    res = match_block([cam] * 4, list(eo), lambda i: feats[i], surface=HeightSurface(100.0, sd_m=1.0))
+    assert res.unpaired == (3,)
+    assert {(r.a, r.b) for r in res.pairs} == {(0, 1), (0, 2), (1, 2)}
+    assert not (res.tracks.photo == 3).any()
