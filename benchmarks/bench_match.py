@@ -46,6 +46,12 @@ def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _cpu_s() -> float:
+    """CPU seconds of this process, all its threads (user + system): steadier than wall time on a loaded machine."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
 def _truth(folder: Path):
     import pickle
 
@@ -118,10 +124,10 @@ def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = 
 
     opts = dataclasses.replace(default_options(s), per_cell=per_cell)
     feats = FeatureOptions() if contrast is None else FeatureOptions(contrast_threshold=contrast)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_s()
     res = match(s, folder / f"out-{per_cell}", options=opts, features=feats, workers=threads, cache=False, dem=dem,
                 table=folder / f"tie-{per_cell}.csv")
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, _cpu_s() - c0
     from lidarcat._util import read_csv_table
 
     t = read_csv_table(folder / f"tie-{per_cell}.csv", required=("photo", "point", "col_px", "row_px"))
@@ -129,7 +135,7 @@ def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = 
     photo = np.array([ids[p] for p in t.column("photo")])
     track = np.unique(np.array(t.column("point")), return_inverse=True)[1]
     xy = np.column_stack([t.floats("col_px"), t.floats("row_px")])
-    return {"seconds": seconds, "peak_mb": _peak_mb(), "pairs": res.n_pairs, "steps": res.seconds,
+    return {"seconds": seconds, "cpu_s": cpu, "peak_mb": _peak_mb(), "pairs": res.n_pairs, "steps": res.seconds,
             **_score(_truth(folder), track, photo, xy)}
 
 
@@ -145,7 +151,7 @@ def child_pycolmap(folder: Path, threads: int) -> dict:
     ext = pycolmap.FeatureExtractionOptions()
     ext.num_threads = threads
     ext.sift.max_num_features = 8000
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_s()
     pycolmap.extract_features(db, ts.image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                               extraction_options=ext, device=pycolmap.Device.cpu)
     t1 = time.perf_counter()
@@ -169,9 +175,9 @@ def child_pycolmap(folder: Path, threads: int) -> dict:
         pairs.append([index[i1], index[i2]])
         matches.append((m[:, 0], m[:, 1]))
     tr = build_tracks([len(kps[k]) for k in range(len(names))], np.array(pairs), matches)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, _cpu_s() - c0
     xy = np.array([kps[p][k] for p, k in zip(tr.photo, tr.keypoint)])
-    out = {"seconds": seconds, "peak_mb": _peak_mb(), "pairs": len(pairs),
+    out = {"seconds": seconds, "cpu_s": cpu, "peak_mb": _peak_mb(), "pairs": len(pairs),
            "steps": {"features": t1 - t0, "matching": t2 - t1, "tracks": seconds - (t2 - t0)},
            **_score(ts, tr.track, tr.photo, xy)}
     con.close()
@@ -325,13 +331,17 @@ def _compare(folder: Path, threads: int, ref: str, height: str = "-", contrast: 
         rows_out.append(("pycolmap, its tracks from `triangulate_points` with the true poses "
                          f"(+{tri['seconds']:.1f} s)", {**rows_out[-1][1], **tri, "seconds": rows_out[-1][1]["seconds"]}))
     print("| method | pairs | tie points / photo | observations | within 1 px | wrong (> 3 px) | "
-          f"RMS ({ref}) px | seconds (features + matching) | peak MB |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          f"RMS ({ref}) px | seconds (features + matching) | CPU s | peak MB |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for name, r in rows_out:
         st = r["steps"]
         print(f"| {name} | {r['pairs']} | {r['tie_points_per_photo']:.0f} | {r['observations']} | "
               f"{100 * r['within_1px']:.2f} % | {100 * r['wrong_3px']:.2f} % | {r['rms_px']:.3f} | "
-              f"{r['seconds']:.1f} ({st['features']:.1f} + {st['matching']:.1f}) | {r['peak_mb']:.0f} |", flush=True)
+              f"{r['seconds']:.1f} ({st['features']:.1f} + {st['matching']:.1f}) | {r['cpu_s']:.1f} | "
+              f"{r['peak_mb']:.0f} |", flush=True)
+    lc, pc = rows_out[1][1], rows_out[2][1]
+    print(f"\nlidarcat (every track) / pycolmap: time {lc['seconds'] / pc['seconds']:.2f}x, CPU "
+          f"{lc['cpu_s'] / pc['cpu_s']:.2f}x; tie points per photo {lc['tie_points_per_photo'] / pc['tie_points_per_photo']:.2f}x")
 
 
 def main() -> None:

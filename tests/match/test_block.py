@@ -87,3 +87,23 @@ def test_an_isolated_photo_is_a_reported_skip():
     assert res.unpaired == (3,)
     assert {(r.a, r.b) for r in res.pairs} == {(0, 1), (0, 2), (1, 2)}
     assert not (res.tracks.photo == 3).any()
+
+
+def test_threads_detect_each_photo_once_and_give_the_same_tie_points():
+    import threading
+    import time
+
+    cam, eo, feats = _block(4)
+    calls = []
+    lock = threading.Lock()
+
+    def get(i):
+        with lock:
+            calls.append(i)
+        time.sleep(0.01)            # a slow detection: the other thread asks for the same photo meanwhile
+        return feats[i]
+
+    one = match_block([cam] * 4, list(eo), lambda i: feats[i], surface=HeightSurface(100.0, sd_m=1.0))
+    two = match_block([cam] * 4, list(eo), get, surface=HeightSurface(100.0, sd_m=1.0), workers=2, lru=8)
+    assert sorted(calls) == [0, 1, 2, 3]
+    assert np.array_equal(one.tracks.track, two.tracks.track) and np.array_equal(one.xy_px, two.xy_px)

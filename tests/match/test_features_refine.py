@@ -58,6 +58,14 @@ def test_cache_detects_once(tmp_path):
     a = cache.get("a", src, load)
     b = cache.get("a", src, load)
     assert len(calls) == 1 and np.array_equal(a.xy_px, b.xy_px) and np.array_equal(a.descriptors, b.descriptors)
+    # without a folder the features spill to a temporary one: still detected once, removed on close
+    spill = FeatureCache(None)
+    c = spill.get("a", src, load)
+    d = spill.get("a", src, load)
+    folder = spill.folder
+    assert len(calls) == 2 and np.array_equal(c.descriptors, d.descriptors) and len(list(folder.iterdir())) == 1
+    spill.close()
+    assert not folder.exists()
 
 
 def test_refinement_recovers_a_subpixel_shift():

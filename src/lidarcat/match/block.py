@@ -139,23 +139,32 @@ class BlockMatch:
 
 
 class _Store:
-    """Features by photo index through a small LRU (thread-safe)."""
+    """Features by photo index through a small LRU (thread-safe; two threads asking for the same
+    photo at once wait for one ``get``, so no photo is detected twice in parallel)."""
 
     def __init__(self, get: Callable[[int], Features], size: int):
         self.get, self.size = get, max(2, size)
         self.items: OrderedDict[int, Features] = OrderedDict()
         self.lock = Lock()
+        self.loading: dict[int, Lock] = {}
 
     def __call__(self, i: int) -> Features:
         with self.lock:
             if i in self.items:
                 self.items.move_to_end(i)
                 return self.items[i]
-        f = self.get(i)
-        with self.lock:
-            self.items[i] = f
-            while len(self.items) > self.size:
-                self.items.popitem(last=False)
+            mine = self.loading.setdefault(i, Lock())
+        with mine:
+            with self.lock:
+                if i in self.items:
+                    self.items.move_to_end(i)
+                    return self.items[i]
+            f = self.get(i)
+            with self.lock:
+                self.items[i] = f
+                self.loading.pop(i, None)
+                while len(self.items) > self.size:
+                    self.items.popitem(last=False)
         return f
 
 

@@ -233,6 +233,22 @@ def _grid_candidates(centre: np.ndarray, half: np.ndarray, xy_b: np.ndarray) -> 
     return q[g], jb
 
 
+def _compact(idx: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(idx, return_inverse=True)`` for indices below *n*, by marks instead of a sort."""
+    mark = np.zeros(n, bool)
+    mark[idx] = True
+    used = np.flatnonzero(mark)
+    where = np.cumsum(mark) - 1
+    return used, where[idx]
+
+
+def _sort_order(q: np.ndarray) -> np.ndarray:
+    """A stable sorting order of *q*: ``arange`` when *q* is already sorted (the candidates come by query)."""
+    if len(q) < 2 or not (q[1:] < q[:-1]).any():
+        return np.arange(len(q))
+    return np.argsort(q, kind="stable")
+
+
 def _best_two(q: np.ndarray, d: np.ndarray, n_q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per query id in *q* (candidate pairs, distances *d*): the candidate index of its nearest,
     the nearest distance and the second nearest (inf when alone; -1 / inf for no candidate).
@@ -243,7 +259,7 @@ def _best_two(q: np.ndarray, d: np.ndarray, n_q: int) -> tuple[np.ndarray, np.nd
     d2 = np.full(n_q, np.inf)
     if len(q) == 0:
         return best, d1, d2
-    order = np.argsort(q, kind="stable")
+    order = _sort_order(q)
     qs, ds = q[order], d[order].astype(np.float64)
     starts = np.flatnonzero(np.r_[True, qs[1:] != qs[:-1]])
     counts = np.diff(np.r_[starts, len(qs)])
@@ -290,13 +306,13 @@ def _distances(desc_a: np.ndarray, desc_b: np.ndarray, ia: np.ndarray, jb: np.nd
     out = np.empty(len(ia), np.float32)
     if len(ia) == 0:
         return out
-    ua, ia_l = np.unique(ia, return_inverse=True)
-    ub, jb_l = np.unique(jb, return_inverse=True)
+    ua, ia_l = _compact(ia, len(desc_a))
+    ub, jb_l = _compact(jb, len(desc_b))
     fa = desc_a[ua].astype(np.float32)
     fbt = np.ascontiguousarray(desc_b[ub].astype(np.float32).T)
     na = np.einsum("ij,ij->i", fa, fa)
     nb = np.einsum("ji,ji->i", fbt, fbt)
-    order = np.argsort(ia_l, kind="stable")
+    order = _sort_order(ia_l)
     bounds = np.searchsorted(ia_l[order], np.arange(0, len(ua) + _BLOCK, _BLOCK))
     for k in range(len(bounds) - 1):
         lo, hi = bounds[k], bounds[k + 1]
@@ -335,10 +351,18 @@ def guided_match(pred: Prediction, desc_a: np.ndarray, xy_b_px: np.ndarray, desc
     if len(iq) == 0:
         return _decide(np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0), n_a, n_b, ratio), 0
     with np.errstate(all="ignore"):
-        w = np.column_stack([c, -2.0 * b, a]) / det[:, None]         # Σ^-1 terms per query
-    d = xy_b[jb] - centre[iq]
-    wq = w[iq]
-    inside = wq[:, 0] * d[:, 0] ** 2 + wq[:, 1] * d[:, 0] * d[:, 1] + wq[:, 2] * d[:, 1] ** 2 <= chi2
+        w = (np.column_stack([c, -2.0 * b, a]) / det[:, None]).astype(np.float32)   # Σ^-1 terms per query
+    # the Mahalanobis test of every box candidate, in float32 with np.take (4-5x faster than float64
+    # fancy indexing; 1e-3 px at 17,000 px)
+    cx, cy = centre[:, 0].astype(np.float32), centre[:, 1].astype(np.float32)
+    dx = np.take(xy_b[:, 0].astype(np.float32), jb)
+    dx -= np.take(cx, iq)
+    dy = np.take(xy_b[:, 1].astype(np.float32), jb)
+    dy -= np.take(cy, iq)
+    m2 = np.take(w[:, 0], iq) * dx * dx
+    m2 += np.take(w[:, 1], iq) * dx * dy
+    m2 += np.take(w[:, 2], iq) * dy * dy
+    inside = m2 <= chi2
     ia, jb = qa[iq[inside]], jb[inside]
     dist = _distances(desc_a, desc_b, ia, jb)
     return _decide(ia, jb, dist, n_a, n_b, ratio), int(len(ia))

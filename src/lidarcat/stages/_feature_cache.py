@@ -31,13 +31,28 @@ class FeatureCache:
     Parameters
     ----------
     folder : path or None
-        Where the files go; None keeps nothing (every :meth:`get` detects again).
+        Where the files go; None: a temporary folder removed by :meth:`close` or when the cache is
+        garbage-collected (the features of a block are never all in memory, and a photo the
+        matching's LRU dropped is read back, not detected again).
     options : FeatureOptions
     """
 
     def __init__(self, folder: str | os.PathLike | None, options: FeatureOptions = FeatureOptions()):
-        self.folder = Path(folder) if folder is not None else None
+        if folder is None:     # spill to a private temporary folder, removed with the cache object
+            import shutil
+            import tempfile
+            import weakref
+
+            folder = tempfile.mkdtemp(prefix="lidarcat-features-")
+            self._finalizer = weakref.finalize(self, shutil.rmtree, folder, True)
+        self.folder = Path(folder)
         self.options = options
+
+    def close(self) -> None:
+        """Remove the temporary folder of a cache made with ``folder=None`` (no-op otherwise)."""
+        fin = getattr(self, "_finalizer", None)
+        if fin is not None:
+            fin()
 
     def _file(self, photo_id: str, source: Path) -> Path | None:
         if self.folder is None:
