@@ -1,6 +1,6 @@
 """lidarcat match against pycolmap on the same rendered photos and threads; pairs of a large block.
 
-Run:  python benchmarks/bench_match.py [--size 1200x900] [--threads 2] [--big 200]
+Run:  python benchmarks/bench_match.py [--size 1200x900] [--threads 2] [--big 200] [--contrast 0.0175]
 
 Part 1 renders a block of 2 strips x 3 photos (60 % / 30 % overlap, orientations 2 m / 0.5 deg off,
 lidarcat.synthetic.textured) and matches it
@@ -11,8 +11,13 @@ lidarcat.synthetic.textured) and matches it
   exhaustive matching with its geometric verification (``match_exhaustive``); its verified
   inlier matches are read from the database and joined into tracks by the same union-find.
 
+A fourth row gives pycolmap's own tracks and 3-D points: ``pycolmap.triangulate_points`` with the
+true poses (keypoints made distortion-free in its database, a PINHOLE camera; its matches
+unchanged; two-view tracks kept), scored the same way, its RMS the reprojection of its own points.
+
 Each method runs in a child process (its peak RSS is the child's ``ru_maxrss``, imports included)
-with the same number of threads.  Every observation is scored against the truth: its distance from
+with the same number of threads; the CPU seconds (user + system of all the child's threads) are
+printed beside the wall seconds: on a machine shared with other work they are the steadier ratio.  Every observation is scored against the truth: its distance from
 the projection of its track's true point (``synthetic.textured.observation_errors``); "wrong" is an
 observation more than 3 px off.  The reprojection RMS is that of each track triangulated with the
 true orientations (least squares of its rays), the same computation for both methods.

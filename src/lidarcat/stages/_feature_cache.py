@@ -34,16 +34,22 @@ class FeatureCache:
         Where the files go; None: a temporary folder removed by :meth:`close` or when the cache is
         garbage-collected (the features of a block are never all in memory, and a photo the
         matching's LRU dropped is read back, not detected again).
+    spill_in : path or None
+        Where that temporary folder goes (default the system's temporary folder); the stage puts
+        it inside its output folder (``lidarcat run`` writes nothing outside OUTDIR).
     options : FeatureOptions
     """
 
-    def __init__(self, folder: str | os.PathLike | None, options: FeatureOptions = FeatureOptions()):
+    def __init__(self, folder: str | os.PathLike | None, options: FeatureOptions = FeatureOptions(), *,
+                 spill_in: str | os.PathLike | None = None):
         if folder is None:     # spill to a private temporary folder, removed with the cache object
             import shutil
             import tempfile
             import weakref
 
-            folder = tempfile.mkdtemp(prefix="lidarcat-features-")
+            if spill_in is not None:
+                Path(spill_in).mkdir(parents=True, exist_ok=True)
+            folder = tempfile.mkdtemp(prefix=".features-", dir=spill_in)
             self._finalizer = weakref.finalize(self, shutil.rmtree, folder, True)
         self.folder = Path(folder)
         self.options = options

@@ -306,7 +306,7 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     options = default_options(survey) if options is None else options
     features = features or FeatureOptions()
     surface, surface_source = _surface(survey, eos, height_m, dem, height_sd_m)
-    store = FeatureCache(out / "features" if cache else None, features)
+    store = FeatureCache(out / "features" if cache else None, features, spill_in=out)
     cams = [survey.camera_of(p.id) for p in photos]
 
     def feats(i: int) -> Any:
