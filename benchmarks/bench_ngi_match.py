@@ -101,7 +101,8 @@ def residuals_to_published(survey, photo: np.ndarray, point: np.ndarray, xy_px: 
     return res
 
 
-def run_one(tmp: Path, per_cell: int, threads: int, image_sd_px: float | None = None) -> dict:
+def run_one(tmp: Path, per_cell: int, threads: int, image_sd_px: float | None = None,
+            threshold_px: float | None = None) -> dict:
     import dataclasses
 
     import cv2
@@ -111,9 +112,11 @@ def run_one(tmp: Path, per_cell: int, threads: int, image_sd_px: float | None = 
     from lidarcat.stages.match import default_options, match
     from lidarcat.survey.folder import Survey
 
-    folder = build_survey(tmp / f"ngi-{per_cell}-{image_sd_px}", image_sd_px)
+    folder = build_survey(tmp / f"ngi-{per_cell}-{image_sd_px}-{threshold_px}", image_sd_px)
     s = Survey.load(folder)
     opts = dataclasses.replace(default_options(s), per_cell=per_cell)
+    if threshold_px:
+        opts = dataclasses.replace(opts, threshold_px=threshold_px)
     t0 = time.perf_counter()
     mres = match(s, folder / "out" / "match", options=opts, workers=threads, dem=NGI / "dem.tif", cache=False)
     t_match = time.perf_counter() - t0
@@ -148,7 +151,9 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--per-cell", type=int, nargs="+", default=[10, 0],
                     help="distribution control of each run (0: every verified track)")
-    ap.add_argument("--image-sd-px", type=float, nargs="+", default=[0.0, 0.3],
+    ap.add_argument("--threshold", type=float, nargs="+", default=[0.0],
+                    help="match --threshold (epipolar Sampson distance, px) of each run (0: the default, 0.5 px)")
+    ap.add_argument("--image-sd-px", type=float, nargs="+", default=[0.0],
                     help="survey.toml image_sd_mm of each run, in px (0: the survey default, 3/4 px)")
     a = ap.parse_args()
     load = os.getloadavg()
@@ -156,17 +161,18 @@ def main() -> None:
     if not (NGI / "camera_pos_ori.txt").is_file():
         print("skipped: the NGI frames (../shared/data/frames/ngi) are absent")
         return
-    print("\n| match | image sd | tie points | observations | pairs verified | obs. > 2 px off (published EO) | within 1 px | "
+    print("\n| match | epipolar threshold | image sd | tie points | observations | pairs verified | obs. > 2 px off (published EO) | within 1 px | "
           "adjust | named (removed) | > 2 px not named | max \\|EO - published\\| | image residual median / RMS | "
           "s match | s adjust |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     ok = True
     with tempfile.TemporaryDirectory() as tmp:
-        for pc, sd in ((pc, sd) for pc in a.per_cell for sd in a.image_sd_px):
-            r = run_one(Path(tmp), pc, a.threads, sd or None)
+        for th, pc, sd in ((th, pc, sd) for th in a.threshold for pc in a.per_cell for sd in a.image_sd_px):
+            r = run_one(Path(tmp), pc, a.threads, sd or None, th or None)
             within = r["success"] and r["dev_m"] <= 1.0 and r["dev_deg"] <= 0.01 and not r["missed"]
             ok &= within
-            print(f"| per cell {pc if pc else 'all'} | {f'{sd:g} px' if sd else 'default 0.75 px'} | "
+            print(f"| per cell {pc if pc else 'all'} | {f'{th:g} px' if th else 'default 0.5 px'} | "
+                  f"{f'{sd:g} px' if sd else 'default 0.75 px'} | "
                   f"{r['tie_points']:,} | {r['observations']:,} | {r['pairs']} | "
                   f"{r['over_2px']} | {100 * r['within_1px']:.2f} % | {r['status']} | {r['named']} | "
                   f"{len(r['missed'])}{' ' + ', '.join(f'{p[-9:]}/{q}' for p, q in r['missed'][:4]) if r['missed'] else ''} | "

@@ -49,8 +49,8 @@ or has another size than its camera, no overlap, no pair verified); nothing is w
                    "with --height.")
 @click.option("--ratio", type=click.FloatRange(0, 1, min_open=True), default=0.8, show_default=True,
               help="Lowe's ratio test of the nearest / second nearest descriptor.")
-@click.option("--threshold", "threshold_px", type=POSITIVE, default=1.0, show_default=True,
-              help="Epipolar (Sampson) distance of an inlier, px.")
+@click.option("--threshold", "threshold_px", type=POSITIVE, default=0.5, show_default=True,
+              help="Epipolar (Sampson) distance of an inlier, px of the detection level.")
 @click.option("--per-cell", type=click.IntRange(0), default=10, show_default=True,
               help="Tie points kept per grid cell of each photo (0: all).")
 @click.option("--grid", nargs=2, type=click.IntRange(1, 50), default=(6, 6), show_default=True,

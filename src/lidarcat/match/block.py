@@ -58,7 +58,11 @@ class MatchOptions:
     ratio : float
         Lowe's ratio test.
     threshold_px : float
-        Epipolar (Sampson) distance of an inlier, px.
+        Epipolar (Sampson) distance of an inlier, px of the detection level (``threshold_px 2^level``
+        in full-resolution pixels).  0.5: measured on the four NGI frames (every verified track), 1 px
+        kept 29 observations more than 2 px from the published orientation's reprojection (97.6 %
+        within 1 px), 0.5 px 6 (99.1 %) for 16 % fewer observations; on the rendered 1200 x 900 block
+        1.4 % fewer tie points, within 1 px 99.68 -> 99.74 %.
     min_inliers : int
         Fewer inliers reject a pair.
     grid : (rows, cols)
@@ -84,7 +88,7 @@ class MatchOptions:
     sd_position_m: float = 2.0
     sd_angle_deg: float = 0.5
     ratio: float = 0.8
-    threshold_px: float = 1.0
+    threshold_px: float = 0.5
     min_inliers: int = 15
     grid: tuple[int, int] = (6, 6)
     per_cell: int = 10
@@ -217,7 +221,7 @@ def _narrowed(pred: Prediction, fa: Features, fb: Features, ca: Camera, cb: Came
         return pred
     ia = seeds[m.i]
     v = verify_pair(ideal_pixels(ca, fa.xy_px[ia]), ideal_pixels(cb, fb.xy_px[m.j]),
-                    threshold_px=opt.threshold_px, min_inliers=30)
+                    threshold_px=opt.threshold_px * 2 ** max(fa.level, fb.level), min_inliers=30)
     if not v.accepted:
         return pred
     ia, jb = ia[v.inlier], m.j[v.inlier]
@@ -263,7 +267,7 @@ def _match_pair(a: int, b: int, overlap: float, cams: Sequence[Camera], eos: Seq
     if len(m) == 0:
         return PairReport(a, b, overlap, 0, n_cand, 0, "no matches", time.perf_counter() - t0), m
     v = verify_pair(ideal_pixels(ca, fa.xy_px[m.i]), ideal_pixels(cb, fb.xy_px[m.j]),
-                    threshold_px=opt.threshold_px, min_inliers=opt.min_inliers)
+                    threshold_px=opt.threshold_px * 2 ** max(fa.level, fb.level), min_inliers=opt.min_inliers)
     ok = v.inlier.copy()
     if v.accepted and opt.max_local_px > 0:
         base = pred_xy[m.i] if pred_xy is not None else fa.xy_px[m.i]
