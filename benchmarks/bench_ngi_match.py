@@ -131,8 +131,8 @@ def run_one(tmp: Path, per_cell: int, threads: int, image_sd_px: float | None = 
     r = sres.result
     pub = published()
     named = {(str(b.photo), str(b.point)) for b in sres.blunders if b.kind == "image" and b.removed}
-    gross = {(p, q) for p, q, e in zip(photo, point, off) if e > 2.0}
-    missed = sorted(gross - named)
+    gross = {(p, q): e for p, q, e in zip(photo, point, off) if e > 2.0}
+    missed = sorted((p, q, gross[p, q], int((point == q).sum())) for p, q in set(gross) - named)
     eo = np.asarray(r.eo_params)
     dev_m = max(float(np.abs(eo[i, :3] - pub[str(ph)][:3]).max()) for i, ph in enumerate(r.photo_ids))
     dev_deg = max(float(np.abs(np.degrees(eo[i, 3:]) - pub[str(ph)][3:]).max()) for i, ph in enumerate(r.photo_ids))
@@ -175,7 +175,7 @@ def main() -> None:
                   f"{f'{sd:g} px' if sd else 'default 0.75 px'} | "
                   f"{r['tie_points']:,} | {r['observations']:,} | {r['pairs']} | "
                   f"{r['over_2px']} | {100 * r['within_1px']:.2f} % | {r['status']} | {r['named']} | "
-                  f"{len(r['missed'])}{' ' + ', '.join(f'{p[-9:]}/{q}' for p, q in r['missed'][:4]) if r['missed'] else ''} | "
+                  f"{len(r['missed'])}{': ' + ', '.join(f'{q} on {p[-8:]} {e:.1f} px ({k} rays)' for p, q, e, k in r['missed'][:4]) if r['missed'] else ''} | "
                   f"{r['dev_m']:.3f} m / {r['dev_deg']:.4f} deg | {r['median_px']:.3f} / {r['rms_px']:.3f} px | "
                   f"{r['t_match']:.1f} | {r['t_adjust']:.1f} |", flush=True)
     print(f"\nacceptance (converges, every obs. > 2 px named, EO within 1 m / 0.01 deg): {'met' if ok else 'NOT met'}")
