@@ -19,9 +19,11 @@ def _block(n_photos=3, n_points=1500, seed=0):
     xyz = np.column_stack([rng.uniform(lo, hi, (n_points, 2)), np.full(n_points, 100.0)])
     desc = rng.integers(0, 256, (n_points, 128))
     feats = []
+    _block.seen = []            # the ground point of each keypoint, per photo (for the tests that plant errors)
     for p in range(n_photos):
         px, front = project_to_pixel(cam, eo[p], xyz)
         ok = np.flatnonzero(front & cam.contains(px))
+        _block.seen.append(ok)
         d = np.clip(desc[ok] + rng.integers(-3, 4, (len(ok), 128)), 0, 255).astype(np.uint8)
         feats.append(Features(px[ok] + rng.normal(0, 0.2, (len(ok), 2)), d, np.ones(len(ok), np.float32),
                               np.full(len(ok), 4.0, np.float32), 0))
@@ -107,3 +109,39 @@ def test_threads_detect_each_photo_once_and_give_the_same_tie_points():
     two = match_block([cam] * 4, list(eo), get, surface=HeightSurface(100.0, sd_m=1.0), workers=2, lru=8)
     assert sorted(calls) == [0, 1, 2, 3]
     assert np.array_equal(one.tracks.track, two.tracks.track) and np.array_equal(one.xy_px, two.xy_px)
+
+
+def test_a_track_whose_rays_do_not_meet_is_dropped_when_the_orientations_are_good():
+    from lidarcat.match import MatchOptions
+
+    cam, eo, feats = _block(3, n_points=1500, seed=2)
+    # photo 2 sees five points 30 px further along the strip: each pair's epipolar line (along the
+    # strip) holds them, so the pairs (0, 2) and (1, 2) verify them; the three rays meet nowhere
+    f2 = feats[2]
+    xy2 = f2.xy_px.copy()
+    desc2 = f2.descriptors
+    # five keypoints of photo 2 whose ground points photos 0 and 1 see too, away from the frame edge
+    seen = _block.seen
+    in_all = np.isin(seen[2], seen[0]) & np.isin(seen[2], seen[1])
+    inner = (xy2[:, 0] > 20) & (xy2[:, 0] < 380) & (xy2[:, 1] > 20) & (xy2[:, 1] < 280)
+    common = np.flatnonzero(in_all & inner)[:5]
+    xy2[common, 0] += 30.0
+    feats[2] = Features(xy2, desc2, f2.response, f2.size_px, 0)
+    surface = HeightSurface(100.0, sd_m=50.0)           # ellipses long along the base: the shifted rays are found
+    good = MatchOptions(sd_position_m=0.1, sd_angle_deg=0.01, max_local_px=0.0, per_cell=0)
+    loose = MatchOptions(sd_position_m=2.0, sd_angle_deg=0.5, max_local_px=0.0, per_cell=0)
+    r_good = match_block([cam] * 3, list(eo), lambda i: feats[i], surface=surface, options=good)
+    r_loose = match_block([cam] * 3, list(eo), lambda i: feats[i], surface=surface, options=loose)
+
+    def three_ray_tracks_with_a_shifted_ray(res):
+        t = res.tracks
+        hit = np.unique(t.track[(t.photo == 2) & np.isin(t.keypoint, common)])
+        return int((t.rays()[hit] >= 3).sum())
+
+    n_shifted = three_ray_tracks_with_a_shifted_ray(r_loose)
+    assert n_shifted >= 3 and r_loose.n_ray_inconsistent == 0              # 0.5 deg allows some 70 px
+    # 0.01 deg / 0.1 m: about 7 px allowed; three rays in one plane (a strip) take a 30-px shift as a
+    # height and leave about 10 px
+    assert r_good.n_ray_inconsistent == n_shifted
+    assert three_ray_tracks_with_a_shifted_ray(r_good) == 0
+    assert r_good.tracks.n_tracks == r_loose.tracks.n_tracks - n_shifted

@@ -12,7 +12,9 @@ orientations (or none), a height surface and a function that yields each photo's
    the ellipses the first pass narrowed (:func:`_narrowed`) -- else descriptor matching over all features; then the robust epipolar test
    (:mod:`~lidarcat.match.verify`).  Only the features of A whose prediction falls inside B
    (with the ellipse's margin) are searched.
-3. Tracks by union-find, inconsistent ones dropped, then the distribution control
+3. Tracks by union-find, inconsistent ones dropped (two keypoints on one photo; with orientations,
+   rays of a track of three or more that do not meet within what the orientations allow:
+   :func:`_inconsistent_rays`), then the distribution control
    (:mod:`~lidarcat.match.tracks`).
 
 Memory: the keypoint positions of all photos (16 bytes each) stay in memory; descriptors
@@ -131,6 +133,9 @@ class BlockMatch:
         Time of each step (features, matching, tracks).
     unpaired : tuple of int
         Photos whose footprint overlaps no other photo's (matched with none: a reported skip).
+    n_ray_inconsistent : int
+        Tracks of three rays or more dropped because their rays do not meet within what the
+        approximate orientations allow (:func:`_inconsistent_rays`).
     """
 
     tracks: Tracks
@@ -140,6 +145,7 @@ class BlockMatch:
     n_tracks_before: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
     unpaired: tuple[int, ...] = ()
+    n_ray_inconsistent: int = 0
 
 
 class _Store:
@@ -151,6 +157,7 @@ class _Store:
         self.items: OrderedDict[int, Features] = OrderedDict()
         self.lock = Lock()
         self.loading: dict[int, Lock] = {}
+        self.levels: dict[int, int] = {}
 
     def __call__(self, i: int) -> Features:
         with self.lock:
@@ -166,6 +173,7 @@ class _Store:
             f = self.get(i)
             with self.lock:
                 self.items[i] = f
+                self.levels[i] = int(f.level)
                 self.loading.pop(i, None)
                 while len(self.items) > self.size:
                     self.items.popitem(last=False)
@@ -245,6 +253,59 @@ def _narrowed(pred: Prediction, fa: Features, fb: Features, ca: Camera, cb: Came
     cov = np.tile(np.eye(2) * (sigma ** 2 + sd_f ** 2), (n, 1, 1))
     cov[~ok] = pred.cov_px2[~ok]
     return Prediction(xy, cov)
+
+
+def _inconsistent_rays(tracks: Tracks, xy: np.ndarray, cams: Sequence[Camera], eos: Sequence[np.ndarray],
+                       levels: np.ndarray, opt: MatchOptions) -> np.ndarray:
+    """Tracks of three rays or more whose rays do not meet within what the approximate orientations
+    allow, (n_tracks,) bool.
+
+    Every pair of a track passed its own epipolar test, but a track joined by union-find can still
+    hold rays that agree pairwise along their epipolar lines and meet nowhere together (two wrong
+    rays consistent with each other, one right).  The track is intersected with the approximate
+    orientations (least squares of its rays) and each ray reprojected; the residual an orientation
+    error can cause is about ``σ_o = f_px (σ_angle + σ_position / D)`` per photo (``D`` the distance
+    to the point), two photos' worth ``sqrt(2) σ_o``, plus the feature's ``2^level`` px.  A ray
+    more than ``3.7 sqrt(2) σ_o + 3 · 2^level`` px off (99.9 % for the orientation part) marks the
+    track inconsistent.  With orientations 2 m / 0.5 deg off this allows some 70 px and drops
+    nothing; with a published orientation at 1 m / 0.01 deg (the NGI frames) about 4 px.
+    """
+    from .rays import project_to_pixel, ray_directions
+
+    n_t = tracks.n_tracks
+    rays = tracks.rays()
+    use = rays[tracks.track] >= 3
+    bad = np.zeros(n_t, bool)
+    if not use.any():
+        return bad
+    t, ph, p_xy = tracks.track[use], tracks.photo[use], xy[use]
+    eo = np.array([eos[i] for i in range(len(eos))], dtype=np.float64)
+    d = np.empty((len(t), 3))
+    for p in np.unique(ph):
+        sel = ph == p
+        d[sel] = ray_directions(cams[p], eo[p], p_xy[sel])
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    a = np.zeros((n_t, 3, 3))
+    b = np.zeros((n_t, 3))
+    np.add.at(a, t, proj)
+    np.add.at(b, t, np.einsum("nij,nj->ni", proj, eo[ph, :3]))
+    live = np.unique(t)
+    x = np.zeros((n_t, 3))
+    x[live] = np.linalg.solve(a[live] + 1e-9 * np.eye(3)[None], b[live][:, :, None])[:, :, 0]
+    res = np.full(len(t), np.inf)
+    allow = np.empty(len(t))
+    for p in np.unique(ph):
+        sel = np.flatnonzero(ph == p)
+        px, front = project_to_pixel(cams[p], eo[p], x[t[sel]])
+        r = np.hypot(*(px - p_xy[sel]).T)
+        res[sel] = np.where(front & np.isfinite(r), r, np.inf)
+        dist = np.linalg.norm(x[t[sel]] - eo[p, :3], axis=1)
+        f_px = cams[p].focal_length_mm / cams[p].pixel_size_x_mm
+        sd_o = f_px * (np.deg2rad(opt.sd_angle_deg) + opt.sd_position_m / np.maximum(dist, 1e-6))
+        allow[sel] = 3.7 * np.sqrt(2.0) * sd_o + 3.0 * 2.0 ** levels[p]
+    bad[t[res > allow]] = True
+    return bad
 
 
 def _match_pair(a: int, b: int, overlap: float, cams: Sequence[Camera], eos: Sequence[np.ndarray | None],
@@ -380,11 +441,19 @@ def match_block(cameras: Sequence[Camera], eos: Sequence[np.ndarray | None], fea
     for p in np.unique(tracks.photo):
         rows = tracks.photo == p
         xy[rows] = xy_all[p][tracks.keypoint[rows]]
+    n_rays_dropped = 0
+    if oriented and options.guided:
+        levels = np.array([store.levels.get(i, 0) for i in range(n)])
+        inconsistent = _inconsistent_rays(tracks, xy, cameras, eos, levels, options)
+        n_rays_dropped = int(inconsistent.sum())
+        keep &= ~inconsistent
     n_before = int(keep.sum())
     frame = np.array([[c.columns_px, c.rows_px] for c in cameras], dtype=np.float64)
     keep &= distribute(tracks, xy, frame, score, grid=options.grid, per_cell=options.per_cell)
     rows = keep[tracks.track]
     final = tracks.select_tracks(keep)
+    if n_rays_dropped:       # the report's "inconsistent tracks dropped" counts both kinds
+        final = Tracks(final.track, final.photo, final.keypoint, final.n_inconsistent + n_rays_dropped)
     seconds["tracks"] = time.perf_counter() - t0
     unpaired = tuple(int(i) for i in np.setdiff1d(np.arange(n), pairs.ravel()))
-    return BlockMatch(final, xy[rows], score[keep], pair_reports, n_before, seconds, unpaired)
+    return BlockMatch(final, xy[rows], score[keep], pair_reports, n_before, seconds, unpaired, n_rays_dropped)
