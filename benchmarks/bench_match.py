@@ -1,6 +1,6 @@
 """lidarcat match against pycolmap on the same rendered photos and threads; pairs of a large block.
 
-Run:  python benchmarks/bench_match.py [--size 1200x900] [--threads 2] [--big 200]
+Run:  python benchmarks/bench_match.py [--size 1200x900] [--threads 2] [--big 200] [--contrast 0.0175]
 
 Part 1 renders a block of 2 strips x 3 photos (60 % / 30 % overlap, orientations 2 m / 0.5 deg off,
 lidarcat.synthetic.textured) and matches it
@@ -11,8 +11,13 @@ lidarcat.synthetic.textured) and matches it
   exhaustive matching with its geometric verification (``match_exhaustive``); its verified
   inlier matches are read from the database and joined into tracks by the same union-find.
 
+A fourth row gives pycolmap's own tracks and 3-D points: ``pycolmap.triangulate_points`` with the
+true poses (keypoints made distortion-free in its database, a PINHOLE camera; its matches
+unchanged; two-view tracks kept), scored the same way, its RMS the reprojection of its own points.
+
 Each method runs in a child process (its peak RSS is the child's ``ru_maxrss``, imports included)
-with the same number of threads.  Every observation is scored against the truth: its distance from
+with the same number of threads; the CPU seconds (user + system of all the child's threads) are
+printed beside the wall seconds: on a machine shared with other work they are the steadier ratio.  Every observation is scored against the truth: its distance from
 the projection of its track's true point (``synthetic.textured.observation_errors``); "wrong" is an
 observation more than 3 px off.  The reprojection RMS is that of each track triangulated with the
 true orientations (least squares of its rays), the same computation for both methods.
@@ -44,6 +49,12 @@ import numpy as np  # noqa: E402
 
 def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process, all its threads (user + system): steadier than wall time on a loaded machine."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
 
 def _truth(folder: Path):
@@ -103,7 +114,8 @@ def _score(ts, track, photo, xy) -> dict:
 
 
 # ---------------------------------------------------------------------- children
-def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = None) -> dict:
+def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = None,
+                   contrast: float | None = None) -> dict:
     import dataclasses
 
     import cv2
@@ -113,11 +125,14 @@ def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = 
     from lidarcat.survey.folder import Survey
 
     s = Survey.load(folder)
+    from lidarcat.match import FeatureOptions
+
     opts = dataclasses.replace(default_options(s), per_cell=per_cell)
-    t0 = time.perf_counter()
-    res = match(s, folder / f"out-{per_cell}", options=opts, workers=threads, cache=False, dem=dem,
+    feats = FeatureOptions() if contrast is None else FeatureOptions(contrast_threshold=contrast)
+    t0, c0 = time.perf_counter(), _cpu_s()
+    res = match(s, folder / f"out-{per_cell}", options=opts, features=feats, workers=threads, cache=False, dem=dem,
                 table=folder / f"tie-{per_cell}.csv")
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, _cpu_s() - c0
     from lidarcat._util import read_csv_table
 
     t = read_csv_table(folder / f"tie-{per_cell}.csv", required=("photo", "point", "col_px", "row_px"))
@@ -125,7 +140,7 @@ def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = 
     photo = np.array([ids[p] for p in t.column("photo")])
     track = np.unique(np.array(t.column("point")), return_inverse=True)[1]
     xy = np.column_stack([t.floats("col_px"), t.floats("row_px")])
-    return {"seconds": seconds, "peak_mb": _peak_mb(), "pairs": res.n_pairs, "steps": res.seconds,
+    return {"seconds": seconds, "cpu_s": cpu, "peak_mb": _peak_mb(), "pairs": res.n_pairs, "steps": res.seconds,
             **_score(_truth(folder), track, photo, xy)}
 
 
@@ -141,7 +156,7 @@ def child_pycolmap(folder: Path, threads: int) -> dict:
     ext = pycolmap.FeatureExtractionOptions()
     ext.num_threads = threads
     ext.sift.max_num_features = 8000
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_s()
     pycolmap.extract_features(db, ts.image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                               extraction_options=ext, device=pycolmap.Device.cpu)
     t1 = time.perf_counter()
@@ -165,11 +180,83 @@ def child_pycolmap(folder: Path, threads: int) -> dict:
         pairs.append([index[i1], index[i2]])
         matches.append((m[:, 0], m[:, 1]))
     tr = build_tracks([len(kps[k]) for k in range(len(names))], np.array(pairs), matches)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, _cpu_s() - c0
     xy = np.array([kps[p][k] for p, k in zip(tr.photo, tr.keypoint)])
-    return {"seconds": seconds, "peak_mb": _peak_mb(), "pairs": len(pairs),
-            "steps": {"features": t1 - t0, "matching": t2 - t1, "tracks": seconds - (t2 - t0)},
-            **_score(ts, tr.track, tr.photo, xy)}
+    out = {"seconds": seconds, "cpu_s": cpu, "peak_mb": _peak_mb(), "pairs": len(pairs),
+           "steps": {"features": t1 - t0, "matching": t2 - t1, "tracks": seconds - (t2 - t0)},
+           **_score(ts, tr.track, tr.photo, xy)}
+    con.close()
+    if ts.ground is not None:
+        out["triangulated"] = _pycolmap_triangulate(ts, db, names, index, kps, threads)
+    return out
+
+
+def _pycolmap_triangulate(ts, db: Path, names: list[str], index: dict, kps: dict, threads: int) -> dict:
+    """pycolmap's own tracks and points: ``triangulate_points`` with the true poses.
+
+    lidarcat's camera has a principal-point offset and distortion that COLMAP's models spell
+    differently; so the keypoints in the database become distortion-free pixels of a PINHOLE
+    camera (lidarcat's ``ideal_pixels`` + the frame centre; the matches are pycolmap's, unchanged),
+    and the true orientation ``M = R3(kappa) R2(phi) R1(omega)`` (object -> photo, photo z
+    backwards) becomes ``cam_from_world = diag(1, -1, -1) M``, ``t = -R X0``.  pycolmap builds,
+    completes and merges its tracks and filters them (reprojection 4 px, angle 1.5 deg; two-view
+    tracks kept).  Its observations are scored against the truth like lidarcat's; its RMS is the
+    reprojection of its own 3-D points.
+    """
+    import pycolmap
+
+    from lidarcat.geometry.collinearity import rotation_matrix
+    from lidarcat.match.rays import project_to_pixel
+    from lidarcat.match.verify import ideal_pixels
+
+    cam = ts.camera
+    w, h = cam.columns_px, cam.rows_px
+    f_px = cam.focal_length_mm / cam.pixel_size_x_mm
+    con = sqlite3.connect(db)
+    for iid, rows, cols, data in list(con.execute("SELECT image_id, rows, cols, data FROM keypoints")):
+        k = np.frombuffer(data, np.float32).reshape(rows, cols).copy()
+        k[:, :2] = ideal_pixels(cam, kps[index[iid]]) + [0.5 * w, 0.5 * h]
+        con.execute("UPDATE keypoints SET data = ? WHERE image_id = ?", (k.astype(np.float32).tobytes(), iid))
+    params = np.array([f_px, f_px * cam.pixel_size_x_mm / cam.pixel_size_y_mm, 0.5 * w, 0.5 * h])
+    con.execute("UPDATE cameras SET model = ?, params = ?", (int(pycolmap.CameraModelId.PINHOLE), params.tobytes()))
+    con.commit()
+    img = {name: iid for iid, name in con.execute("SELECT image_id, name FROM images")}
+    con.close()
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(model="PINHOLE", width=w, height=h, camera_id=1,
+                                                    params=params))
+    for k, name in enumerate(names):
+        r = np.diag([1.0, -1.0, -1.0]) @ rotation_matrix(ts.true_eo[k, 3:6])
+        pose = pycolmap.Rigid3d(np.column_stack([r, -r @ ts.true_eo[k, :3]]))
+        rec.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=1, image_id=img[name],
+                                                        keypoints=kps[k] * 0.0), pose)
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.num_threads = threads
+    opts.triangulation.ignore_two_view_tracks = False
+    t0 = time.perf_counter()
+    out_dir = db.parent / "colmap_tri"
+    out_dir.mkdir(exist_ok=True)
+    rec = pycolmap.triangulate_points(rec, db, ts.image_dir, out_dir, options=opts)
+    seconds = time.perf_counter() - t0
+    inv = {iid: k for k, (name, iid) in enumerate((n, img[n]) for n in names)}
+    track, photo, kp, xyz = [], [], [], []
+    for t_id, (pid, p3d) in enumerate(rec.points3D.items()):
+        for el in p3d.track.elements:
+            track.append(t_id)
+            photo.append(inv[el.image_id])
+            kp.append(el.point2D_idx)
+        xyz.append(p3d.xyz)
+    track, photo, kp, xyz = np.array(track), np.array(photo), np.array(kp), np.array(xyz)
+    xy = np.array([kps[p][k] for p, k in zip(photo, kp)])
+    res = np.empty(len(track))
+    for p in np.unique(photo):
+        sel = photo == p
+        px, _ = project_to_pixel(cam, ts.true_eo[p], xyz[track[sel]])
+        res[sel] = np.hypot(*(px - xy[sel]).T)
+    sc = _score(ts, track, photo, xy)
+    sc["rms_px"] = float(np.sqrt(np.mean(res ** 2)))
+    sc["seconds"] = seconds
+    return sc
 
 
 def child_big(folder: Path, threads: int) -> dict:
@@ -239,18 +326,27 @@ def _ngi_survey(folder: Path, src: Path) -> None:
                      "names": [f"{p}.tif" for p in ids]}, fh)
 
 
-def _compare(folder: Path, threads: int, ref: str, *height: str) -> None:
-    rows_out = [("lidarcat (distribution 10/cell)", _child("lidarcat", str(folder), str(threads), "10", *height)),
-                ("lidarcat (every verified track)", _child("lidarcat", str(folder), str(threads), "0", *height)),
+def _compare(folder: Path, threads: int, ref: str, height: str = "-", contrast: float | None = None) -> None:
+    extra = [height] + ([str(contrast)] if contrast is not None else [])
+    rows_out = [("lidarcat (distribution 10/cell)", _child("lidarcat", str(folder), str(threads), "10", *extra)),
+                ("lidarcat (every verified track)", _child("lidarcat", str(folder), str(threads), "0", *extra)),
                 ("pycolmap (SIFT + exhaustive + verification)", _child("pycolmap", str(folder), str(threads)))]
+    tri = rows_out[-1][1].get("triangulated")
+    if tri:
+        rows_out.append(("pycolmap, its tracks from `triangulate_points` with the true poses "
+                         f"(+{tri['seconds']:.1f} s)", {**rows_out[-1][1], **tri, "seconds": rows_out[-1][1]["seconds"]}))
     print("| method | pairs | tie points / photo | observations | within 1 px | wrong (> 3 px) | "
-          f"RMS ({ref}) px | seconds (features + matching) | peak MB |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          f"RMS ({ref}) px | seconds (features + matching) | CPU s | peak MB |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for name, r in rows_out:
         st = r["steps"]
         print(f"| {name} | {r['pairs']} | {r['tie_points_per_photo']:.0f} | {r['observations']} | "
               f"{100 * r['within_1px']:.2f} % | {100 * r['wrong_3px']:.2f} % | {r['rms_px']:.3f} | "
-              f"{r['seconds']:.1f} ({st['features']:.1f} + {st['matching']:.1f}) | {r['peak_mb']:.0f} |", flush=True)
+              f"{r['seconds']:.1f} ({st['features']:.1f} + {st['matching']:.1f}) | {r['cpu_s']:.1f} | "
+              f"{r['peak_mb']:.0f} |", flush=True)
+    lc, pc = rows_out[1][1], rows_out[2][1]
+    print(f"\nlidarcat (every track) / pycolmap: time {lc['seconds'] / pc['seconds']:.2f}x, CPU "
+          f"{lc['cpu_s'] / pc['cpu_s']:.2f}x; tie points per photo {lc['tie_points_per_photo'] / pc['tie_points_per_photo']:.2f}x")
 
 
 def main() -> None:
@@ -258,13 +354,16 @@ def main() -> None:
     ap.add_argument("--size", default="1200x900", help="photo size COLSxROWS of part 1")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--big", type=int, default=200, help="photos of the large block (0: skip)")
+    ap.add_argument("--contrast", type=float, default=None, help="lidarcat's SIFT contrast threshold "
+                    "(default: FeatureOptions' default)")
     ap.add_argument("--no-peer", action="store_true", help="skip part 1 (the comparison with pycolmap)")
     ap.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
         kind, folder, *rest = a.child
         fn = {"lidarcat": lambda: child_lidarcat(Path(folder), int(rest[0]), int(rest[1]),
-                                                 rest[2] if len(rest) > 2 else None),
+                                                 rest[2] if len(rest) > 2 and rest[2] != "-" else None,
+                                                 float(rest[3]) if len(rest) > 3 else None),
               "pycolmap": lambda: child_pycolmap(Path(folder), int(rest[0])),
               "big": lambda: child_big(Path(folder), int(rest[0]))}[kind]
         print(json.dumps(fn()))
@@ -278,14 +377,14 @@ def main() -> None:
             _render(folder, columns_px=cols, rows_px=rows, seed=3)
         if not a.no_peer:
             print(f"\n## Part 1: 6 rendered photos of {cols} x {rows} px (rendered in {time.perf_counter() - t0:.0f} s)\n")
-            _compare(folder, a.threads, "true poses")
+            _compare(folder, a.threads, "true poses", "-", a.contrast)
             if NGI.is_dir():
                 ngi = Path(tmp) / "ngi"
                 _ngi_survey(ngi, NGI)
                 print(f"\n## Part 1b: the four NGI frames ({NGI}, 640 x 1152 px), published orientation as reference\n")
                 print("(\"within 1 px\" and \"wrong\": reprojection residual of the track triangulated with the "
                       "published orientation, not truth)\n")
-                _compare(ngi, a.threads, "published EO", str(NGI / "dem.tif"))
+                _compare(ngi, a.threads, "published EO", str(NGI / "dem.tif"), a.contrast)
         from lidarcat.match import HeightSurface, footprint, footprint_pairs
         from lidarcat.synthetic.textured import small_camera, strip_layout
 

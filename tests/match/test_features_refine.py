@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarcat.match import FeatureCache, FeatureOptions, detect, pyramid_level, refine_observations
+from lidarcat.match import FeatureOptions, detect, pyramid_level, refine_observations
 
 
 def _texture(seed=0, shape=(240, 320)):
@@ -44,6 +44,8 @@ def test_pyramid_level_and_max_features():
 def test_cache_detects_once(tmp_path):
     import cv2
 
+    from lidarcat.stages._feature_cache import FeatureCache
+
     src = tmp_path / "a.png"
     cv2.imwrite(str(src), _texture(3))
     calls = []
@@ -56,6 +58,14 @@ def test_cache_detects_once(tmp_path):
     a = cache.get("a", src, load)
     b = cache.get("a", src, load)
     assert len(calls) == 1 and np.array_equal(a.xy_px, b.xy_px) and np.array_equal(a.descriptors, b.descriptors)
+    # without a folder the features spill to a temporary one: still detected once, removed on close
+    spill = FeatureCache(None)
+    c = spill.get("a", src, load)
+    d = spill.get("a", src, load)
+    folder = spill.folder
+    assert len(calls) == 2 and np.array_equal(c.descriptors, d.descriptors) and len(list(folder.iterdir())) == 1
+    spill.close()
+    assert not folder.exists()
 
 
 def test_refinement_recovers_a_subpixel_shift():

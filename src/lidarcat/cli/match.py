@@ -49,8 +49,8 @@ or has another size than its camera, no overlap, no pair verified); nothing is w
                    "with --height.")
 @click.option("--ratio", type=click.FloatRange(0, 1, min_open=True), default=0.8, show_default=True,
               help="Lowe's ratio test of the nearest / second nearest descriptor.")
-@click.option("--threshold", "threshold_px", type=POSITIVE, default=1.0, show_default=True,
-              help="Epipolar (Sampson) distance of an inlier, px.")
+@click.option("--threshold", "threshold_px", type=POSITIVE, default=0.5, show_default=True,
+              help="Epipolar (Sampson) distance of an inlier, px of the detection level.")
 @click.option("--per-cell", type=click.IntRange(0), default=10, show_default=True,
               help="Tie points kept per grid cell of each photo (0: all).")
 @click.option("--grid", nargs=2, type=click.IntRange(1, 50), default=(6, 6), show_default=True,
@@ -108,6 +108,11 @@ def match(survey, max_features, level, max_side_px, min_overlap, sd_position_m, 
                f"{sm['pairs_verified']} of {sm['pairs']} pairs verified ({sm['pairing']}, surface: {sm['surface']})")
     rays = ", ".join(f"{v} with {k}" for k, v in sm["rays"].items())
     click.echo(f"rays: {rays}; inconsistent tracks dropped: {sm['inconsistent_tracks_dropped']}")
+    skipped = [r["photo"] for r in sm["per_photo"] if r["tie_points"] == 0]
+    if skipped:
+        more = f" and {len(skipped) - 5} more" if len(skipped) > 5 else ""
+        click.echo(f"no tie point on {len(skipped)} photo(s): {', '.join(skipped[:5])}{more} (no overlapping photo, "
+                   f"no features, or no pair verified: see {res.outdir / 'match_pairs.csv'})")
     worst = min(sm["per_photo"], key=lambda r: r["tie_points"])
     click.echo(f"fewest on photo {worst['photo']}: {worst['tie_points']} tie points, "
                f"coverage {worst['coverage']:.0%}; seconds {sm['seconds']['total']:.1f}")

@@ -61,7 +61,7 @@ __all__ = ["Prediction", "Matches", "predict", "guided_match", "match_descriptor
 CHI2_2_999 = float(-2.0 * np.log(0.001))
 
 #: queries whose candidates' descriptor distances are computed together
-_BLOCK = 256
+_BLOCK = 1024
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,11 +206,12 @@ def _grid_candidates(centre: np.ndarray, half: np.ndarray, xy_b: np.ndarray) -> 
     """Pairs (query, point of B) with the point in the cells covering the query's box ``centre ± half``.
 
     *centre* (n, 2), *half* (n, 2) half-widths, px.  B's points are sorted by the cell of a square
-    grid (cell = the median half-width, at least 8 px);
+    grid (cell = half the median half-width, at least 8 px: the boxes' cells then hold 1.4 times the
+    ellipses' candidates instead of 2.7 with a cell of the whole half-width, at the same cost);
     each query's cells are enumerated and their points taken by the cell's range in the sorted
     order -- all by ``np.repeat``, no Python loop over queries or points.
     """
-    cell = max(8.0, float(np.median(half)))
+    cell = max(8.0, 0.5 * float(np.median(half)))
     lo = np.floor(xy_b.min(axis=0) / cell)
     cb = np.floor(xy_b / cell) - lo
     ncol, nrow = int(cb[:, 0].max()) + 1, int(cb[:, 1].max()) + 1
@@ -232,6 +233,22 @@ def _grid_candidates(centre: np.ndarray, half: np.ndarray, xy_b: np.ndarray) -> 
     return q[g], jb
 
 
+def _compact(idx: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(idx, return_inverse=True)`` for indices below *n*, by marks instead of a sort."""
+    mark = np.zeros(n, bool)
+    mark[idx] = True
+    used = np.flatnonzero(mark)
+    where = np.cumsum(mark) - 1
+    return used, where[idx]
+
+
+def _sort_order(q: np.ndarray) -> np.ndarray:
+    """A stable sorting order of *q*: ``arange`` when *q* is already sorted (the candidates come by query)."""
+    if len(q) < 2 or not (q[1:] < q[:-1]).any():
+        return np.arange(len(q))
+    return np.argsort(q, kind="stable")
+
+
 def _best_two(q: np.ndarray, d: np.ndarray, n_q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per query id in *q* (candidate pairs, distances *d*): the candidate index of its nearest,
     the nearest distance and the second nearest (inf when alone; -1 / inf for no candidate).
@@ -242,7 +259,7 @@ def _best_two(q: np.ndarray, d: np.ndarray, n_q: int) -> tuple[np.ndarray, np.nd
     d2 = np.full(n_q, np.inf)
     if len(q) == 0:
         return best, d1, d2
-    order = np.argsort(q, kind="stable")
+    order = _sort_order(q)
     qs, ds = q[order], d[order].astype(np.float64)
     starts = np.flatnonzero(np.r_[True, qs[1:] != qs[:-1]])
     counts = np.diff(np.r_[starts, len(qs)])
@@ -275,45 +292,37 @@ def _decide(ia: np.ndarray, jb: np.ndarray, dist: np.ndarray, n_a: int, n_b: int
     return Matches(i[ok].astype(np.int64), j[ok].astype(np.int64), d1a[i][ok], r[ok])
 
 
-def _distances(desc_a: np.ndarray, desc_b: np.ndarray, ia: np.ndarray, jb: np.ndarray,
-               key_a: np.ndarray) -> np.ndarray:
+def _distances(desc_a: np.ndarray, desc_b: np.ndarray, ia: np.ndarray, jb: np.ndarray) -> np.ndarray:
     """Descriptor distances of candidate pairs (ia, jb), shape (m,).
 
-    The queries are taken in blocks of :data:`_BLOCK` neighbours in image space (sorted by *key_a*,
-    their predicted position's cell).  A block whose candidates are dense (more than
-    ``|block| |B of the block| / 8`` pairs) gets its distances from one matrix product
-    ``|a|² + |b|² - 2 a·b`` (BLAS); a sparse one by gathering the pairs' differences.  Both are
-    exact for byte descriptors (every partial sum an integer below 2^24 in float32).
+    Only the features that have a candidate take part: ``A' = A[unique ia]``, ``B' = B[unique jb]``
+    (a pair of 15 % overlap keeps about 15 % of each).  The products ``A' B'^T`` are computed by
+    BLAS in tiles of :data:`_BLOCK` rows of ``A'`` (memory ``_BLOCK |B'|`` floats, never
+    ``n_A x n_B``), and each candidate's distance is ``sqrt(|a|^2 + |b|^2 - 2 a.b)``, gathered from
+    its tile.  Exact for byte descriptors (every partial sum an integer below 2^24 in float32).
+    Measured on a 1200 x 900 pair (5,891 x 5,517 features, 609 k candidates): 0.44 s against 0.89 s
+    for products per block of 256 neighbouring queries with their own candidates of B.
     """
     out = np.empty(len(ia), np.float32)
     if len(ia) == 0:
         return out
-    fa = desc_a.astype(np.float32)
-    fb = desc_b.astype(np.float32)
+    ua, ia_l = _compact(ia, len(desc_a))
+    ub, jb_l = _compact(jb, len(desc_b))
+    fa = desc_a[ua].astype(np.float32)
+    fbt = np.ascontiguousarray(desc_b[ub].astype(np.float32).T)
     na = np.einsum("ij,ij->i", fa, fa)
-    nb = np.einsum("ij,ij->i", fb, fb)
-    order = np.argsort(ia, kind="stable")
-    ia_s = ia[order]
-    qa = ia_s[np.r_[True, ia_s[1:] != ia_s[:-1]]]
-    lo_all = np.searchsorted(ia_s, qa, side="left")
-    hi_all = np.searchsorted(ia_s, qa, side="right")
-    blocks = np.argsort(key_a[qa], kind="stable")
-    for s in range(0, len(qa), _BLOCK):
-        sel = np.sort(blocks[s:s + _BLOCK])
-        chunk = qa[sel]
-        lo, hi = lo_all[sel], hi_all[sel]
-        g_, r_ = _expand(hi - lo)
-        rows = order[lo[g_] + r_]
-        ub, jloc = np.unique(jb[rows], return_inverse=True)
-        if len(rows) * 8 < len(chunk) * len(ub):
-            d = fa[ia[rows]] - fb[jb[rows]]
-            out[rows] = np.sqrt(np.einsum("ij,ij->i", d, d))
+    nb = np.einsum("ji,ji->i", fbt, fbt)
+    order = _sort_order(ia_l)
+    bounds = np.searchsorted(ia_l[order], np.arange(0, len(ua) + _BLOCK, _BLOCK))
+    for k in range(len(bounds) - 1):
+        lo, hi = bounds[k], bounds[k + 1]
+        if lo == hi:
             continue
-        iloc = np.searchsorted(chunk, ia[rows])
-        g = fa[chunk] @ fb[ub].T
-        d2 = na[chunk][iloc] + nb[ub][jloc] - 2.0 * g[iloc, jloc]
-        out[rows] = np.sqrt(np.maximum(d2, 0.0))
-    return out
+        rows = order[lo:hi]
+        r = ia_l[rows]
+        g = fa[k * _BLOCK:(k + 1) * _BLOCK] @ fbt
+        out[rows] = na[r] + nb[jb_l[rows]] - 2.0 * g[r - k * _BLOCK, jb_l[rows]]
+    return np.sqrt(np.maximum(out, 0.0))
 
 
 def guided_match(pred: Prediction, desc_a: np.ndarray, xy_b_px: np.ndarray, desc_b: np.ndarray, *,
@@ -342,13 +351,20 @@ def guided_match(pred: Prediction, desc_a: np.ndarray, xy_b_px: np.ndarray, desc
     if len(iq) == 0:
         return _decide(np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0), n_a, n_b, ratio), 0
     with np.errstate(all="ignore"):
-        w = np.column_stack([c, -2.0 * b, a]) / det[:, None]         # Σ^-1 terms per query
-    d = xy_b[jb] - centre[iq]
-    wq = w[iq]
-    inside = wq[:, 0] * d[:, 0] ** 2 + wq[:, 1] * d[:, 0] * d[:, 1] + wq[:, 2] * d[:, 1] ** 2 <= chi2
+        w = (np.column_stack([c, -2.0 * b, a]) / det[:, None]).astype(np.float32)   # Σ^-1 terms per query
+    # the Mahalanobis test of every box candidate, in float32 with np.take (4-5x faster than float64
+    # fancy indexing; 1e-3 px at 17,000 px)
+    cx, cy = centre[:, 0].astype(np.float32), centre[:, 1].astype(np.float32)
+    dx = np.take(xy_b[:, 0].astype(np.float32), jb)
+    dx -= np.take(cx, iq)
+    dy = np.take(xy_b[:, 1].astype(np.float32), jb)
+    dy -= np.take(cy, iq)
+    m2 = np.take(w[:, 0], iq) * dx * dx
+    m2 += np.take(w[:, 1], iq) * dx * dy
+    m2 += np.take(w[:, 2], iq) * dy * dy
+    inside = m2 <= chi2
     ia, jb = qa[iq[inside]], jb[inside]
-    cell = np.floor(np.nan_to_num(pred.xy_px) / 64.0)
-    dist = _distances(desc_a, desc_b, ia, jb, cell[:, 1] * 1e6 + cell[:, 0])
+    dist = _distances(desc_a, desc_b, ia, jb)
     return _decide(ia, jb, dist, n_a, n_b, ratio), int(len(ia))
 
 

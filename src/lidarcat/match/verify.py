@@ -9,7 +9,7 @@ distortion (eq. 01-07: :meth:`Camera.pixel_to_photo`) and scaled back to pixels,
 ``F`` is estimated by ``cv2.findFundamentalMat`` with MAGSAC++ (``cv2.USAC_MAGSAC``,
 Barath et al. 2020: a threshold-free scoring marginalised over the noise scale, then
 iteratively re-weighted least squares of the inliers); a match is an inlier when its
-symmetric epipolar (Sampson) distance is within ``threshold_px`` (1.0 px in :class:`~lidarcat.match.MatchOptions`).  A pair
+symmetric epipolar (Sampson) distance is within ``threshold_px`` (0.5 px of the detection level in :class:`~lidarcat.match.MatchOptions`).  A pair
 with fewer than ``min_inliers`` inliers (default 15; the 7-point solution needs 7, a wrong F
 fits a handful of random matches) is rejected as a whole: its matches are most likely
 repeated texture.

@@ -27,7 +27,8 @@ its action (one function, inputs in, files out), which the command in
 summaries (``lidarcat run --help`` is generated from it).
 
 Also here: ``context`` (:class:`~lidarcat.stages.context.StageContext`, what a
-stage sees) and ``lidar`` (the actions of the LiDAR production commands).
+stage sees), ``lidar`` (the actions of the LiDAR production commands) and the private
+``_feature_cache`` (the match stage's per-photo feature files).
 """
 
 from . import adjust, assess, camera, compare, context, extract, init, lidar, mapping, match, products, report, selfcal, thesis

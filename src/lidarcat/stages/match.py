@@ -289,7 +289,8 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     """
     import dataclasses
 
-    from ..match import FeatureCache, FeatureOptions, match_block
+    from ..match import FeatureOptions, match_block
+    from ._feature_cache import FeatureCache
     from ..survey.folder import Survey
 
     t_all = time.perf_counter()
@@ -305,7 +306,7 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     options = default_options(survey) if options is None else options
     features = features or FeatureOptions()
     surface, surface_source = _surface(survey, eos, height_m, dem, height_sd_m)
-    store = FeatureCache(out / "features" if cache else None, features)
+    store = FeatureCache(out / "features" if cache else None, features, spill_in=out)
     cams = [survey.camera_of(p.id) for p in photos]
 
     def feats(i: int) -> Any:
