@@ -189,6 +189,7 @@ class SMRFParameters:
     elevation_scaler: float = 1.25
     low_outlier_m: float = 1.0
     outlier_cell_m: float = 1.0
+    adaptive: bool = True
 
     def __post_init__(self) -> None:
         for name in ("cell_m", "window_m", "slope", "elevation_threshold_m", "low_outlier_m", "outlier_cell_m"):
@@ -452,6 +453,30 @@ def _pit_cells(surface: np.ndarray, threshold_m: float) -> np.ndarray:
     return surface < second - threshold_m
 
 
+def _point_spacing(xy: np.ndarray, cell_m: float = 5.0) -> float:
+    """Mean spacing of plan points, metres: 1/sqrt(density) over the occupied cells of *cell_m*."""
+    if len(xy) == 0:
+        return 0.0
+    k = np.floor((xy - xy.min(axis=0)) / cell_m).astype(np.int64)
+    occupied = len(np.unique(k[:, 0] * (int(k[:, 1].max()) + 1) + k[:, 1]))
+    return math.sqrt(occupied * cell_m * cell_m / len(xy))
+
+
+def _trend_plane(surface: np.ndarray, c: float, passes: int = 3) -> np.ndarray:
+    """Least-squares plane through the lower half of the cells of *surface* (grid of heights), iterated."""
+    nr, nc = surface.shape
+    rr, cc = np.mgrid[0:nr, 0:nc]
+    a = np.column_stack([np.ones(nr * nc), (cc.ravel() - nc / 2) * c, (rr.ravel() - nr / 2) * c])
+    z = surface.ravel()
+    use = np.ones(len(z), dtype=bool)
+    coef = np.zeros(3)
+    for _ in range(passes):
+        coef = np.linalg.lstsq(a[use], z[use], rcond=None)[0]
+        res = z - a @ coef
+        use = res <= np.median(res[use])
+    return (a @ coef).reshape(nr, nc)
+
+
 def smrf_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: Any = None,
                 params: SMRFParameters | None = None) -> np.ndarray:
     """Ground mask by the simple morphological filter (see the module docstring).
@@ -477,8 +502,10 @@ def smrf_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: A
     ground = np.zeros(n, dtype=bool)
     if not cand.any():
         return ground
-    cand[_low_outliers(xyz, np.flatnonzero(cand), params.low_outlier_m, params.outlier_cell_m)] = False
-    c = params.cell_m
+    spacing = _point_spacing(xyz[cand, :2]) if params.adaptive else 0.0
+    c = max(params.cell_m, 0.5 * round(2.0 * spacing))  # steps of 0.5 m: neighbouring tiles share a grid
+    ocell = max(params.outlier_cell_m, 2.0 * spacing)
+    cand[_low_outliers(xyz, np.flatnonzero(cand), params.low_outlier_m, ocell)] = False
     x0 = math.floor(xyz[:, 0].min() / c) * c
     y0 = math.floor(xyz[:, 1].min() / c) * c
     col = np.floor((xyz[:, 0] - x0) / c).astype(np.int64)
@@ -498,8 +525,9 @@ def smrf_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: A
     # more on AHN3 and the city blocks.  In a tiled run the overlap keeps that band outside
     # the tile; only a survey's own border shows it.
     obj = np.zeros((nr, nc), dtype=bool)
-    last = surface
-    for r in range(1, int(math.ceil(params.window_m / c)) + 1):
+    last = surface - _trend_plane(surface, c) if params.adaptive else surface
+    nwin = int(math.ceil(params.window_m / c))
+    for r in range(1, nwin + 1):
         size = 2 * r + 1
         opened = maximum_filter(minimum_filter(last, size=size, mode="nearest"), size=size, mode="nearest")
         obj |= (last - opened) > params.slope * r * c
