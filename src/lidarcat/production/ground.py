@@ -93,6 +93,7 @@ from ..geometry.tin import barycentric, find_simplex
 from ..lidar.crs import add_las_crs
 from ..lidar.jobs import TileJob, read_with_buffer, run_jobs, tile_jobs
 from ..lidar.raster import bulk_box
+from .csf import CSFParameters, csf_ground
 
 __all__ = ["PTDParameters", "SMRFParameters", "GroundMethod", "GROUND_METHODS", "classify_ground",
            "ptd_ground", "smrf_ground", "Confusion", "confusion", "write_classified_copy",
@@ -104,7 +105,7 @@ log = logging.getLogger(__name__)
 #: ASPRS class codes written by the classifier
 GROUND_CLASS = 2
 UNCLASSIFIED_CLASS = 1
-GROUND_METHODS = ("ptd", "smrf")
+GROUND_METHODS = ("ptd", "smrf", "csf")
 GroundMethod = str
 
 
@@ -547,8 +548,12 @@ def smrf_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: A
 
 
 def classify_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: Any = None, *,
-                    method: str = "smrf", params: PTDParameters | SMRFParameters | None = None) -> np.ndarray:
-    """Ground mask of points by *method* ``"smrf"`` (default) or ``"ptd"``.
+                    method: str = "smrf", params: PTDParameters | SMRFParameters | CSFParameters | None = None
+                    ) -> np.ndarray:
+    """Ground mask of points by *method* ``"smrf"`` (default), ``"ptd"`` or ``"csf"``.
+
+    CSF (:mod:`lidarcat.production.csf`) shapes its cloth from the last returns less
+    the low outliers of the SMRF test (cell twice the point spacing, at least 1 m).
 
     SMRF is the default because one parameter set holds on the AHN3 reference
     (2.59 % and 2.90 % total error) and on synthetic steep, forested, bridge,
@@ -584,6 +589,14 @@ def classify_ground(xyz: np.ndarray, return_number: Any = None, number_of_return
         if params is not None and not isinstance(params, SMRFParameters):
             raise ValueError("method 'smrf' takes SMRFParameters")
         return smrf_ground(xyz, return_number, number_of_returns, params)  # type: ignore[arg-type]
+    if method == "csf":
+        if params is not None and not isinstance(params, CSFParameters):
+            raise ValueError("method 'csf' takes CSFParameters")
+        cand = _candidates(len(xyz), return_number, number_of_returns)
+        if cand.any():
+            cand[_low_outliers(xyz, np.flatnonzero(cand), SMRFParameters().low_outlier_m,
+                               max(1.0, 2.0 * _point_spacing(xyz[cand, :2])))] = False
+        return csf_ground(xyz, cand, params)  # type: ignore[arg-type]
     raise ValueError(f"unknown ground method {method!r}; use one of {', '.join(GROUND_METHODS)}")
 
 
@@ -710,11 +723,11 @@ def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground
     return dst
 
 
-def params_from_dict(method: str, d: dict[str, Any]) -> PTDParameters | SMRFParameters:
+def params_from_dict(method: str, d: dict[str, Any]) -> PTDParameters | SMRFParameters | CSFParameters:
     """The parameter object of *method* from the matching keys of *d* (others ignored)."""
     import dataclasses
 
-    cls = PTDParameters if method == "ptd" else SMRFParameters
+    cls = {"ptd": PTDParameters, "csf": CSFParameters}.get(method, SMRFParameters)
     names = {f.name for f in dataclasses.fields(cls)}
     return cls(**{k: v for k, v in d.items() if k in names})
 
@@ -723,6 +736,8 @@ def default_overlap_m(method: str, params: PTDParameters | SMRFParameters | None
     """Neighbour buffer for tile runs, metres: two seed windows (PTD) or two opening windows (SMRF)."""
     if method == "smrf":
         return 2.0 * (params.window_m if isinstance(params, SMRFParameters) else SMRFParameters().window_m)
+    if method == "csf":
+        return 2.0 * SMRFParameters().window_m   # the cloth bridges objects about as wide as SMRF's window
     return 2.0 * (params.max_building_m if isinstance(params, PTDParameters) else PTDParameters().max_building_m)
 
 
