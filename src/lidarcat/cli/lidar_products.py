@@ -28,9 +28,16 @@ _overlap_opt = click.option(
 @output_option(required=True, metavar="OUT",
               help="One TILE and OUT ending in .las/.laz: that file. Otherwise a folder receiving a "
                    "classified copy of every tile under its own name. Inputs are never modified.")
-@click.option("--method", type=click.Choice(["smrf", "ptd"]), default="smrf", show_default=True,
+@click.option("--method", type=click.Choice(["smrf", "ptd", "csf"]), default="smrf", show_default=True,
               help="smrf: simple morphological filter (Pingel et al. 2013; 2.6-2.9 % total error on the "
-                   "AHN3 tiles). ptd: progressive TIN densification as TerraScan does it (report 11.2).")
+                   "AHN3 tiles; cell and outlier test follow the point spacing). ptd: progressive TIN "
+                   "densification as TerraScan does it (report 11.2). csf: cloth simulation filter "
+                   "(Zhang et al. 2016; flat and urban ground, not steep slopes).")
+@click.option("--noise", is_flag=True,
+              help="Class 7 on isolated points (statistical outlier test, PDAL's defaults: 8 neighbours, "
+                   "2 sd), left out of the ground filter.")
+@click.option("--hag", is_flag=True,
+              help="Write each point's height above the ground TIN as the extra dimension HeightAboveGround.")
 @click.option("--max-building-m", type=POSITIVE, default=60.0, show_default=True,
               help="PTD: size of the largest building, metres: one seed (the lowest last return) per "
                    "window of this size.")
@@ -52,7 +59,8 @@ _overlap_opt = click.option(
 @_workers_opt
 @_scheduler_opt
 @_resume_opt
-def ground(paths: tuple[str, ...], output: str, method: str, max_building_m: float, iteration_angle_deg: float,
+def ground(paths: tuple[str, ...], output: str, method: str, noise: bool, hag: bool, max_building_m: float,
+           iteration_angle_deg: float,
            iteration_distance_m: float, window_m: float, slope: float, elevation_threshold_m: float,
            overlap_m: float | None, crs: str | None, workers: int | None, scheduler: str | None,
            resume: bool) -> None:
@@ -67,6 +75,7 @@ def ground(paths: tuple[str, ...], output: str, method: str, max_building_m: flo
       lidarcat lidar ground tile.laz -o tile_ground.laz --crs EPSG:7415
       lidarcat lidar ground 'tiles/*.laz' -o classified/ --workers 4
       lidarcat lidar ground tiles/ -o classified/ --method ptd --max-building-m 80
+      lidarcat lidar ground tiles/ -o classified/ --noise --hag
     """
     from ..stages import lidar as actions
 
@@ -75,7 +84,8 @@ def ground(paths: tuple[str, ...], output: str, method: str, max_building_m: flo
                                   elevation_threshold_m=elevation_threshold_m)
     files, crs, _ = tile_sources(paths, crs)
     with progress_bar(len(files), "ground tiles") as bar:
-        outs = actions.ground(files, output, crs=crs, method=method, params=p, overlap_m=overlap_m,
+        outs = actions.ground(files, output, crs=crs, method=method, params=p, noise=noise, hag=hag,
+                              overlap_m=overlap_m,
                               workers=workers, scheduler=scheduler, resume=resume,
                               progress=bar.update if bar is not None else None)
     click.echo(f"wrote {len(outs)} classified file(s): {outs[0] if len(outs) == 1 else Path(output)}")

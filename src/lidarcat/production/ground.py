@@ -94,6 +94,7 @@ from ..lidar.crs import add_las_crs
 from ..lidar.jobs import TileJob, read_with_buffer, run_jobs, tile_jobs
 from ..lidar.raster import bulk_box
 from .csf import CSFParameters, csf_ground
+from .noise import NOISE_CLASS, height_above_ground, statistical_outliers
 
 __all__ = ["PTDParameters", "SMRFParameters", "GroundMethod", "GROUND_METHODS", "classify_ground",
            "ptd_ground", "smrf_ground", "Confusion", "confusion", "write_classified_copy",
@@ -675,8 +676,14 @@ def confusion(reference_ground: Any, classified_ground: Any) -> Confusion:
 
 # --------------------------------------------------------------------------- files
 def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground: np.ndarray,
-                          crs: Any = None) -> Path:
+                          crs: Any = None, *, noise: np.ndarray | None = None,
+                          hag_m: np.ndarray | None = None) -> Path:
     """Copy the LAS/LAZ file *src* to *dst* with class 2 set on *ground* (atomically).
+
+    With *noise* (bool, one per point) those points get class 7 (noise; a point
+    both noise and ground stays ground).  With *hag_m* (float, one per point,
+    metres) the copy carries the extra dimension ``HeightAboveGround`` (float32,
+    LAS extra bytes, as PDAL's ``filters.hag_*`` name it).
 
     Every other field, record and VLR is kept.  Points that were ground (2)
     in *src* but are not in *ground* become unclassified (1); the other classes
@@ -713,8 +720,21 @@ def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground
         raise ValueError(f"{src}: {len(las.points)} points but {len(ground)} ground flags")
     cls = np.array(las.classification, dtype=np.uint8)
     cls[(cls == GROUND_CLASS) & ~ground] = UNCLASSIFIED_CLASS
+    if noise is not None:
+        noise = np.asarray(noise, dtype=bool)
+        if len(noise) != len(las.points):
+            raise ValueError(f"{src}: {len(las.points)} points but {len(noise)} noise flags")
+        cls[noise & ~ground] = NOISE_CLASS
     cls[ground] = GROUND_CLASS
     las.classification = cls
+    if hag_m is not None:
+        hag_m = np.asarray(hag_m, dtype=np.float64)
+        if len(hag_m) != len(las.points):
+            raise ValueError(f"{src}: {len(las.points)} points but {len(hag_m)} heights above ground")
+        if "HeightAboveGround" not in las.point_format.extra_dimension_names:
+            las.add_extra_dim(laspy.ExtraBytesParams(name="HeightAboveGround", type=np.float32,
+                                                     description="height above ground, m"))
+        las.HeightAboveGround = hag_m.astype(np.float32)
     ascii_header_text(las.header, src)   # laspy writes no non-ASCII header text (issue 24)
     add_las_crs(las.header, crs)
     compress = dst.suffix.lower() == ".laz"
@@ -746,19 +766,29 @@ def ground_tile(job: TileJob) -> None:
 
     Classifies ``job.tile`` together with its neighbours' points within
     ``job.overlap_m`` by ``job.params`` (``method`` and the parameters of
-    :func:`params_from_dict`) and writes the tile's classified copy to
-    ``job.output`` (:func:`write_classified_copy`).
+    :func:`params_from_dict`; ``noise``: statistical outliers become class 7
+    first and are left out of the ground filter; ``hag``: the copy carries the
+    points' height above the ground TIN) and writes the tile's classified copy
+    to ``job.output`` (:func:`write_classified_copy`).
     """
     cloud, n_own = read_with_buffer(job)
     method = job.params.get("method", "smrf")
-    g = classify_ground(cloud.xyz, cloud.attributes.get("return_number"), cloud.attributes.get("number_of_returns"),
-                        method=method, params=params_from_dict(method, job.params))
-    write_classified_copy(job.tile, job.output, g[:n_own], crs=cloud.crs)
+    xyz = cloud.xyz
+    rn, nr = cloud.attributes.get("return_number"), cloud.attributes.get("number_of_returns")
+    noise = statistical_outliers(xyz) if job.params.get("noise") else np.zeros(len(xyz), dtype=bool)
+    keep = np.flatnonzero(~noise)
+    g = np.zeros(len(xyz), dtype=bool)
+    g[keep] = classify_ground(xyz[keep], None if rn is None else np.asarray(rn)[keep],
+                              None if nr is None else np.asarray(nr)[keep],
+                              method=method, params=params_from_dict(method, job.params))
+    hag = height_above_ground(xyz, g)[:n_own] if job.params.get("hag") else None
+    write_classified_copy(job.tile, job.output, g[:n_own], crs=cloud.crs,
+                          noise=noise[:n_own] if job.params.get("noise") else None, hag_m=hag)
 
 
 def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *, crs: Any = None,
-                   method: str = "smrf", params: PTDParameters | SMRFParameters | None = None,
-                   overlap_m: float | None = None, workers: int | None = None, scheduler: str | None = None,
+                   method: str = "smrf", params: PTDParameters | SMRFParameters | CSFParameters | None = None,
+                   noise: bool = False, hag: bool = False, overlap_m: float | None = None, workers: int | None = None, scheduler: str | None = None,
                    resume: bool = True, progress: Callable[[int], Any] | None = None) -> list[Path]:
     """Classify LAS/LAZ tiles into copies, each with the points of its neighbours.
 
@@ -769,8 +799,14 @@ def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *
     out : path-like
         A ``.las``/``.laz`` file when there is one input, else a folder that
         receives one copy per tile under the input's name.
-    method : {"smrf", "ptd"}
-    params : PTDParameters or SMRFParameters, optional
+    method : {"smrf", "ptd", "csf"}
+    params : PTDParameters, SMRFParameters or CSFParameters, optional
+    noise : bool
+        Statistical outliers (:func:`lidarcat.production.noise.statistical_outliers`)
+        become class 7 and stay out of the ground filter.
+    hag : bool
+        Write each point's height above the ground TIN as the extra dimension
+        ``HeightAboveGround`` (:func:`lidarcat.production.noise.height_above_ground`).
     overlap_m : float, optional
         Buffer of neighbour points, metres (default :func:`default_overlap_m`).
     workers, scheduler, resume
@@ -787,7 +823,7 @@ def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *
 
     if method not in GROUND_METHODS:
         raise ValueError(f"unknown ground method {method!r}; use one of {', '.join(GROUND_METHODS)}")
-    pdict: dict[str, Any] = {"method": method}
+    pdict: dict[str, Any] = {"method": method, "noise": bool(noise), "hag": bool(hag)}
     if params is not None:
         pdict.update(dataclasses.asdict(params))
     ov = default_overlap_m(method, params) if overlap_m is None else float(overlap_m)

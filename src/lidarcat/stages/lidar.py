@@ -43,17 +43,18 @@ def ground_parameters(method: str, **values: Any) -> Any:
 
     *values* may hold the parameters of both filters; those of the other one are ignored.
     """
+    from ..production.csf import CSFParameters
     from ..production.ground import PTDParameters, SMRFParameters
 
-    cls = PTDParameters if method == "ptd" else SMRFParameters
+    cls = {"ptd": PTDParameters, "csf": CSFParameters}.get(method, SMRFParameters)
     names = {f.name for f in dataclasses.fields(cls)}
     return cls(**{k: v for k, v in values.items() if k in names and v is not None})
 
 
 def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
-           method: str = "smrf", params: Any = None, overlap_m: float | None = None,
-           workers: int | None = None, scheduler: str | None = None, resume: bool = True,
-           progress: Callable[[int], Any] | None = None) -> list[str]:
+           method: str = "smrf", params: Any = None, noise: bool = False, hag: bool = False,
+           overlap_m: float | None = None, workers: int | None = None, scheduler: str | None = None,
+           resume: bool = True, progress: Callable[[int], Any] | None = None) -> list[str]:
     """Classify ground (class 2) into LAS/LAZ copies of *tiles* (``lidarcat lidar ground``).
 
     Parameters
@@ -65,9 +66,12 @@ def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs
         classified copy of every tile under its own name.
     crs : CRS, optional
         CRS of tiles that carry none.
-    method : {"smrf", "ptd"}
-    params : SMRFParameters or PTDParameters, optional
+    method : {"smrf", "ptd", "csf"}
+    params : SMRFParameters, PTDParameters or CSFParameters, optional
         Default: the method's defaults (:func:`ground_parameters`).
+    noise, hag : bool
+        Class 7 on statistical outliers; the extra dimension ``HeightAboveGround``
+        (:func:`lidarcat.production.ground.classify_tiles`).
     overlap_m : float, optional
         Points of neighbouring tiles read around each tile, metres (default
         :func:`lidarcat.production.ground.default_overlap_m`).
@@ -83,7 +87,7 @@ def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs
 
     p = ground_parameters(method) if params is None else params
     written = classify_tiles([Path(t) for t in tiles], output, crs=crs, method=method, params=p,
-                             overlap_m=overlap_m, workers=workers, scheduler=scheduler, resume=resume,
+                             noise=noise, hag=hag, overlap_m=overlap_m, workers=workers, scheduler=scheduler, resume=resume,
                              progress=progress)
     return [str(w) for w in written]
 

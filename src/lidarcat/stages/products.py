@@ -4,7 +4,10 @@ survey.toml::
 
     [products]
     ground = true               # classify ground (class 2) into copies of the tiles (false: use their class 2)
-    filter = "smrf"             # "smrf" (simple morphological filter) or "ptd" (TerraScan's TIN densification)
+    filter = "smrf"             # "smrf" (simple morphological filter), "ptd" (TerraScan's TIN densification)
+                                # or "csf" (cloth simulation filter)
+    noise = false               # ground: class 7 on isolated points (statistical outlier test)
+    hag = false                 # ground: extra dimension HeightAboveGround (m) in the classified copies
     dtm = true                  # dtm.tif: TIN of the ground sampled at cell centres (gaps stay NaN)
     dsm = true                  # dsm.tif: highest first return per cell
     ndsm = false                # ndsm.tif: DSM - DTM (needs dtm and dsm)
@@ -111,7 +114,8 @@ def run(ctx: Context, tmp: Path) -> dict:
     if cfg["ground"]:
         method = cfg["filter"]
         params = params_from_dict(method, {})
-        outs = [Path(p) for p in ground(tiles, tmp / "ground", crs=crs, method=method, params=params, resume=False)]
+        outs = [Path(p) for p in ground(tiles, tmp / "ground", crs=crs, method=method, params=params,
+                                        noise=cfg["noise"], hag=cfg["hag"], resume=False)]
         for m in (tmp / "ground").glob("*.done.json"):   # resume markers of the tile runner: not products
             m.unlink()
         tiles = sorted(outs)
