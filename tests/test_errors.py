@@ -337,6 +337,17 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("production/ground.py", "write_classified_copy", "ValueError", "{}: {} points but {} ground flags"):
         _SHAPE,
     ("production/ground.py", "classify_tiles", "ValueError", "unknown ground method {}; use one of {}"): _ENUM,
+    ("production/ground.py", "classify_ground", "ValueError", "method 'csf' takes CSFParameters"): _ARG,
+    ("production/ground.py", "write_classified_copy", "ValueError", "{}: {} points but {} noise flags"): _SHAPE,
+    ("production/ground.py", "write_classified_copy", "ValueError", "{}: {} points but {} heights above groun"):
+        _SHAPE,
+    ("production/csf.py", "CSFParameters.__post_init__", "ValueError", "{} must be a positive number, got {}"):
+        _PARAMS,
+    ("production/csf.py", "CSFParameters.__post_init__", "ValueError", "rigidness must be 1, 2 or 3, got {}"):
+        _PARAMS,
+    ("production/csf.py", "CSFParameters.__post_init__", "ValueError", "iterations must be at least 1"): _PARAMS,
+    ("production/noise.py", "statistical_outliers", "ValueError", "mean_k must be at least 1, got {}"): _ARG,
+    ("production/noise.py", "height_above_ground", "ValueError", "ground has shape {}, expected ({},)"): _SHAPE,
     ("production/mapindex.py", "_check_scale", "ValueError", "no Brazilian index sheet at 1:{}; use on"):
         _ENUM + "; index_sheets refuses a bad brazil-N with ProductError first",
     ("production/mapindex.py", "sheet_names", "ValueError", "lon and lat differ in shape: {} and {}"): _SHAPE,
