@@ -12,7 +12,7 @@ from .options import (NON_NEGATIVE, POSITIVE, FiniteRange, crs_option, echo_json
 from .options import scheduler_option as _scheduler_opt
 from .options import workers_option as _workers_opt
 
-__all__ = ["ground", "dtm", "dsm", "contours_cmd", "hypsometry", "sheets", "check", "PRODUCT_COMMANDS"]
+__all__ = ["ground", "dtm", "dsm", "stats", "contours_cmd", "hypsometry", "sheets", "check", "PRODUCT_COMMANDS"]
 
 _resume_opt = click.option(
     "--resume/--no-resume", default=True, show_default=True,
@@ -91,6 +91,11 @@ def ground(paths: tuple[str, ...], output: str, method: str, noise: bool, hag: b
     click.echo(f"wrote {len(outs)} classified file(s): {outs[0] if len(outs) == 1 else Path(output)}")
 
 
+_vrt_opt = click.option(
+    "--vrt/--no-vrt", default=False, show_default=True,
+    help="Folder OUT: also write OUT/mosaic.vrt, one virtual raster over the tile GeoTIFFs (GDAL VRT).")
+
+
 def _raster_command(kind: str, doc: str) -> click.Command:
     @click.command(name=kind, help=doc)
     @click.argument("paths", nargs=-1, required=True, metavar="TILE...")
@@ -111,12 +116,13 @@ def _raster_command(kind: str, doc: str) -> click.Command:
                   help="Largest grid, cells (default 100,000,000); a larger one is refused.")
     @click.option("--overlap-m", type=NON_NEGATIVE, default=50.0, show_default=True, metavar="M",
                   help="Points of neighbouring tiles read around each tile, metres.")
+    @_vrt_opt
     @crs_option()
     @_workers_opt
     @_scheduler_opt
     @_resume_opt
     def cmd(paths: tuple[str, ...], output: str, cell_m: float, max_edge_m: float, text: bool, hillshade: bool,
-            ndsm: bool, bounds: tuple[float, ...] | None, max_cells: int | None, overlap_m: float,
+            ndsm: bool, bounds: tuple[float, ...] | None, max_cells: int | None, overlap_m: float, vrt: bool,
             crs: str | None, workers: int | None, scheduler: str | None, resume: bool) -> None:
         from ..stages.lidar import terrain_model
 
@@ -125,7 +131,7 @@ def _raster_command(kind: str, doc: str) -> click.Command:
             outs = terrain_model(kind, files, output, crs=crs, cell_m=cell_m, max_edge_m=max_edge_m, text=text,
                                  hillshade=hillshade, ndsm=ndsm, overlap_m=overlap_m, workers=workers,
                                  scheduler=scheduler, resume=resume, bounds=bounds or None, max_cells=max_cells,
-                                 progress=bar.update if bar is not None else None)
+                                 progress=bar.update if bar is not None else None, vrt=vrt)
         click.echo(f"wrote {len(outs)} {kind.upper()} GeoTIFF(s): {outs[0] if len(outs) == 1 else Path(output)}")
     return cmd
 
@@ -280,7 +286,53 @@ def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: floa
 
 
 #: commands added to the ``lidar`` group
-PRODUCT_COMMANDS = [ground, dtm, dsm, contours_cmd, hypsometry]
+@click.command(name="stats")
+@click.argument("paths", nargs=-1, required=True, metavar="TILE...")
+@output_option(required=True, metavar="OUT",
+              help="OUT ending in .tif: one five-band GeoTIFF over all the TILEs. Otherwise a folder "
+                   "receiving <tile>.tif per tile (and mosaic.vrt over them, unless --no-vrt).")
+@click.option("--cell-m", type=POSITIVE, default=1.0, show_default=True, help="Cell size, metres.")
+@click.option("--values", default="z", show_default=True, metavar="z|ATTRIBUTE",
+              help="Statistics of the heights (z) or of a point attribute such as intensity.")
+@click.option("--classes", default=None, metavar="C1,C2,...",
+              help="Only points of these classes (default: all but noise, class 7).")
+@click.option("--bounds", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
+              help="Grid only this area, metres (default: each tile's points).")
+@click.option("--max-cells", type=click.IntRange(1), default=None, metavar="N",
+              help="Largest grid, cells (default 100,000,000); a larger one is refused.")
+@click.option("--vrt/--no-vrt", default=True, show_default=True,
+              help="Folder OUT: also write OUT/mosaic.vrt over the tile GeoTIFFs.")
+@crs_option()
+@_workers_opt
+@_scheduler_opt
+@_resume_opt
+def stats(paths: tuple[str, ...], output: str, cell_m: float, values: str, classes: str | None,
+          bounds: tuple[float, ...] | None, max_cells: int | None, vrt: bool, crs: str | None,
+          workers: int | None, scheduler: str | None, resume: bool) -> None:
+    """Point statistics per cell: min, max, mean, count and stdev bands (named), CRS set.
+
+    \b
+    Examples:
+      lidarcat lidar stats tile.laz -o stats.tif --crs EPSG:7415 --cell-m 2
+      lidarcat lidar stats 'tiles/*.laz' -o stats/ --values intensity
+      lidarcat lidar stats 'classified/*.laz' -o ground_stats.tif --classes 2
+    """
+    from ..stages.lidar import statistics_raster
+
+    try:
+        cls = None if classes is None else [int(c) for c in classes.split(",") if c.strip()]
+    except ValueError:
+        raise click.BadParameter(f"{classes!r} is not a comma-separated list of class codes",
+                                 param_hint="--classes") from None
+    files, crs, _ = tile_sources(paths, crs)
+    with progress_bar(len(files), "stats tiles") as bar:
+        outs = statistics_raster(files, output, crs=crs, cell_m=cell_m, values=values, classes=cls, vrt=vrt,
+                                 workers=workers, scheduler=scheduler, resume=resume, bounds=bounds or None,
+                                 max_cells=max_cells, progress=bar.update if bar is not None else None)
+    click.echo(f"wrote {len(outs)} file(s): {outs[0] if len(outs) == 1 else outs[-1]}")
+
+
+PRODUCT_COMMANDS = [ground, dtm, dsm, stats, contours_cmd, hypsometry]
 
 
 def _sheet_index_choice() -> click.Choice:

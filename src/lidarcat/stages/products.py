@@ -11,6 +11,7 @@ survey.toml::
     dtm = true                  # dtm.tif: TIN of the ground sampled at cell centres (gaps stay NaN)
     dsm = true                  # dsm.tif: highest first return per cell
     ndsm = false                # ndsm.tif: DSM - DTM (needs dtm and dsm)
+    stats = false               # stats.tif: min, max, mean, count, stdev of the point heights per cell (cell_m)
     hillshade = false           # <model>_hillshade.tif of each model written
     text_grid = false           # <model>.txt: the report's E N H text grid
     cell_m = 1.0                # cell of the models, m
@@ -80,7 +81,7 @@ def settings(survey: Any) -> dict[str, Any]:
 
 def asked(cfg: dict[str, Any]) -> list[str]:
     """The products a ``[products]`` table asks for, in the order the stage makes them."""
-    return [k for k in ("ground", "dtm", "dsm", "ndsm", "contours", "hypsometry", "charts") if cfg.get(k)]
+    return [k for k in ("ground", "dtm", "dsm", "ndsm", "stats", "contours", "hypsometry", "charts") if cfg.get(k)]
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -94,7 +95,7 @@ def run(ctx: Context, tmp: Path) -> dict:
                                    write_layers)
     from ..production.ground import params_from_dict
     from ..production.terrain import write_text_grid
-    from .lidar import ground, read_grid, terrain_model
+    from .lidar import ground, read_grid, statistics_raster, terrain_model
 
     survey = ctx["survey"]
     cfg = {k: ctx.params[k] for k in PRODUCTS_KEYS}
@@ -161,6 +162,11 @@ def run(ctx: Context, tmp: Path) -> dict:
         if cfg["text_grid"]:
             write_text_grid(tmp / "ndsm.txt", *rasters["ndsm.tif"], crs=crs)
             done["files"] += ["ndsm.txt", "ndsm.prj"]
+        tick()
+    if cfg["stats"]:   # the action of `lidarcat lidar stats TILES -o stats.tif`
+        statistics_raster(tiles, tmp / "stats.tif", crs=crs, cell_m=cell, resume=False)
+        done["files"].append("stats.tif")
+        done["stats"] = {"cell_m": cell, "bands": ["min", "max", "mean", "count", "stdev"]}
         tick()
     features: list[dict[str, Any]] = []
     spots = np.zeros((0, 4))

@@ -282,6 +282,7 @@ class ProductsSettings:
     dtm: bool = _key(BOOLEAN, True, "dtm.tif: TIN of the ground, gaps NaN")
     dsm: bool = _key(BOOLEAN, True, "dsm.tif: highest first return per cell")
     ndsm: bool = _key(BOOLEAN, False, "ndsm.tif = DSM - DTM (needs dtm and dsm)")
+    stats: bool = _key(BOOLEAN, False, "stats.tif: min, max, mean, count, stdev of the point heights per cell")
     hillshade: bool = _key(BOOLEAN, False, "<model>_hillshade.tif of each model")
     text_grid: bool = _key(BOOLEAN, False, "<model>.txt: the report's E N H text grid")
     cell_m: float = _key(NUMBER, 1.0, "cell of the models, m (> 0)")
