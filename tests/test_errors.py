@@ -377,6 +377,8 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     # added with the house-by-stage layout (issue 23)
     ("lidar/geotiff.py", "GeoTiffWriter.write_rows", "ValueError", "{}: row block of shape {} does not fit a"): _SHAPE,
     ("lidar/geotiff.py", "_values", "ValueError", "grid must be a non-empty (rows, cols) or"): _SHAPE,
+    ("lidar/geotiff.py", "write_bands", "ValueError", "give a (bands, rows, cols) stack and one"): _SHAPE,
+    ("lidar/geotiff.py", "write_vrt", "ValueError", "a VRT needs at least one source GeoTIFF"): _ARG,
     # orthophoto files (issue 26): the writer's options, chosen by code (the CLI offers a click.Choice)
     ("lidar/geotiff.py", "_profile", "ValueError", "JPEG compression takes 1- or 3-band uint"): _ARG,
     ("lidar/geotiff.py", "_profile", "ValueError", "compression must be DEFLATE or JPEG, got"): _ENUM,

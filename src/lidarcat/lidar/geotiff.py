@@ -65,7 +65,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..errors import LidarFormatError, TileIOError
+from ..errors import LidarFormatError, ProductError, TileIOError
 from .crs import resolve_crs
 
 __all__ = ["write_bands", "write_vrt", "GeoTransform", "write_geotiff", "read_geotiff", "GeoTiffWriter", "geotiff_crs", "BLOCK_PX"]
@@ -517,7 +517,9 @@ def write_vrt(path: str | os.PathLike, sources: Sequence[str | os.PathLike]) -> 
     Raises
     ------
     ValueError
-        No sources, or sources that differ in CRS, cell, bands or data type.
+        No sources.
+    ProductError
+        Sources that differ in CRS, cell, bands or data type.
     """
     import xml.etree.ElementTree as ET
 
@@ -538,7 +540,7 @@ def write_vrt(path: str | os.PathLike, sources: Sequence[str | os.PathLike]) -> 
     for src, crs, t, _, _, count, dtype, _, _ in meta[1:]:
         if crs != crs0 or abs(t.a - cell) > 1e-9 * abs(cell) or abs(t.e - t0.e) > 1e-9 * abs(cell) \
                 or count != count0 or dtype != dtype0:
-            raise ValueError(f"{src}: not on the lattice of {meta[0][0]} (CRS, cell, bands and data type must agree)")
+            raise ProductError(f"{src}: not on the lattice of {meta[0][0]} (CRS, cell, bands and data type must agree)")
     x0 = min(m[2].c for m in meta)
     y0 = max(m[2].f for m in meta)
     x1 = max(m[2].c + m[3] * cell for m in meta)
