@@ -12,7 +12,7 @@ from .options import (NON_NEGATIVE, POSITIVE, FiniteRange, crs_option, echo_json
 from .options import scheduler_option as _scheduler_opt
 from .options import workers_option as _workers_opt
 
-__all__ = ["ground", "dtm", "dsm", "stats", "contours_cmd", "hypsometry", "sheets", "check", "PRODUCT_COMMANDS"]
+__all__ = ["ground", "dtm", "dsm", "stats", "copc", "contours_cmd", "hypsometry", "sheets", "check", "PRODUCT_COMMANDS"]
 
 _resume_opt = click.option(
     "--resume/--no-resume", default=True, show_default=True,
@@ -332,7 +332,44 @@ def stats(paths: tuple[str, ...], output: str, cell_m: float, values: str, class
     click.echo(f"wrote {len(outs)} file(s): {outs[0] if len(outs) == 1 else outs[-1]}")
 
 
-PRODUCT_COMMANDS = [ground, dtm, dsm, stats, contours_cmd, hypsometry]
+@click.command(name="copc")
+@click.argument("paths", nargs=-1, required=True, metavar="TILE...")
+@output_option(required=True, metavar="OUT",
+              help="One TILE and OUT ending in .laz: that COPC file. Otherwise a folder receiving "
+                   "<tile>.copc.laz per tile. Inputs are never modified.")
+@click.option("--max-points", type=click.IntRange(1), default=100_000, show_default=True,
+              help="Largest number of points in a leaf node of the octree.")
+@crs_option()
+def copc(paths: tuple[str, ...], output: str, max_points: int, crs: str | None) -> None:
+    """Write LAS/LAZ tiles as COPC (Cloud Optimized Point Cloud, COPC 1.0): an octree of LAZ chunks.
+
+    Every point and field is kept; point formats 0-5 become 6, 7 or 8 (LAS 1.4).
+    The CRS is the tile's own or --crs (written as WKT).
+
+    \b
+    Examples:
+      lidarcat lidar copc tile.laz -o tile.copc.laz --crs EPSG:7415
+      lidarcat lidar copc 'classified/*.laz' -o copc/
+    """
+    from ..lidar.copc_write import write_copc
+
+    files, crs, _ = tile_sources(paths, crs)
+    out = Path(output)
+    if len(files) == 1 and out.suffix.lower() == ".laz":
+        targets = [out]
+    else:
+        targets = [out / (Path(f).name.split(".")[0] + ".copc.laz") for f in files]
+    with progress_bar(len(files), "copc tiles") as bar:
+        for f, t in zip(files, targets):
+            if Path(f).resolve() == t.resolve():
+                raise click.BadParameter(f"{t}: the output would overwrite the input", param_hint="-o/--output")
+            write_copc(f, t, crs=crs, max_points=max_points)
+            if bar is not None:
+                bar.update(1)
+    click.echo(f"wrote {len(targets)} COPC file(s): {targets[0] if len(targets) == 1 else out}")
+
+
+PRODUCT_COMMANDS = [ground, dtm, dsm, stats, copc, contours_cmd, hypsometry]
 
 
 def _sheet_index_choice() -> click.Choice:
