@@ -51,7 +51,12 @@ def test_csf_on_the_city_and_forest():
     forest = make_landscape("forest", size_m=SIZE, density=3.0, seed=1)
     f = confusion(forest.ground, classify_ground(forest.xyz, forest.return_number, forest.number_of_returns,
                                                  method="csf"))
-    assert f.total < 0.01  # measured 0.52-0.54 %
+    assert f.total < 0.01  # measured 0.31 %
+    steep = make_landscape("steep", size_m=SIZE, density=3.0, seed=1)
+    st = confusion(steep.ground, classify_ground(steep.xyz, steep.return_number, steep.number_of_returns,
+                                                 method="csf"))
+    assert st.total < 0.01  # measured 0.02 % (the cloth falls on the points less their trend plane;
+    # without it 65-80 %, as the reference code's wheel: 57-78 %)
 
 
 def test_cloth_rests_on_a_plane_and_bridges_a_pit():

@@ -31,15 +31,18 @@ three levels, each halving the resolution; a coarse particle's intersection
 height is the highest of its block): the coarsest cloth runs ``iterations``
 steps, and each finer cloth starts from the coarser one (bilinear, never below
 its own intersection heights) and runs 10 steps, enough to settle onto the
-detail and too few to fall through a roof.  On steep slopes the stiff cloth
-bridges the terrain (as the reference code does with ``rigidness`` 2 or 3):
-CSF suits flat and urban ground; SMRF is the default (docs/production.md).
+detail and too few to fall through a roof.
 
 Slope post-processing (``slope_smooth``, as the reference code's
 ``bSloopSmooth``): a movable particle next to an immovable one whose intersection
 height differs from that neighbour's by less than ``0.3`` m is set onto its own
 intersection height and made immovable; repeated until nothing changes.  This
 lets the cloth follow steep slopes that its stiffness would otherwise bridge.
+
+With ``adaptive`` (the default) the cloth falls on the lowest points less their
+trend plane (:func:`trend_plane`, least squares through the lower half of the
+cells, as SMRF's opening uses it): a stiff cloth bridges a 35 deg slope, but not
+the same slope levelled.  The plane is added back to the cloth.
 
 A point is ground when its real height is within ``class_threshold_m`` of the
 cloth (bilinear at the point).  Only the points of the *candidates* mask (last
@@ -54,7 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CSFParameters", "csf_ground", "cloth_surface"]
+__all__ = ["CSFParameters", "csf_ground", "cloth_surface", "trend_plane"]
 
 _DAMPING = 0.01
 _GRAVITY = 0.2
@@ -86,7 +89,8 @@ class CSFParameters:
     slope_smooth : bool
         The slope post-processing of the module docstring.
     adaptive : bool
-        Grow ``cloth_resolution_m`` to the mean point spacing.
+        Grow ``cloth_resolution_m`` to the mean point spacing, and drop the cloth
+        on the points less their trend plane.
     """
 
     cloth_resolution_m: float = 1.0
@@ -218,6 +222,36 @@ def cloth_surface(heights: np.ndarray, params: CSFParameters | None = None) -> n
     return -z
 
 
+def trend_plane(surface: np.ndarray, c: float, passes: int = 3) -> np.ndarray:
+    """Least-squares plane through the lower half of the valued cells of *surface*, iterated.
+
+    Parameters
+    ----------
+    surface : ndarray, shape (rows, cols)
+        Heights, metres; NaN cells are left out of the fit.
+    c : float
+        Cell size, metres.
+    passes : int
+        Fits; each after the first uses the cells at or below the median residual of the last.
+
+    Returns
+    -------
+    ndarray, shape (rows, cols)
+        The plane's height at every cell, metres.
+    """
+    nr, nc = surface.shape
+    rr, cc = np.mgrid[0:nr, 0:nc]
+    a = np.column_stack([np.ones(nr * nc), (cc.ravel() - nc / 2) * c, (rr.ravel() - nr / 2) * c])
+    z = surface.ravel()
+    use = np.isfinite(z)
+    coef = np.zeros(3)
+    for _ in range(passes):
+        coef = np.linalg.lstsq(a[use], z[use], rcond=None)[0]
+        res = z - a @ coef
+        use = np.isfinite(z) & (res <= np.median(res[use]))
+    return (a @ coef).reshape(nr, nc)
+
+
 def csf_ground(xyz: np.ndarray, candidates: np.ndarray | None = None,
                params: CSFParameters | None = None) -> np.ndarray:
     """Ground mask of points by the cloth simulation filter (see the module docstring).
@@ -267,7 +301,10 @@ def csf_ground(xyz: np.ndarray, candidates: np.ndarray | None = None,
     zmin = np.full(nr * nc, np.inf)
     np.minimum.at(zmin, (row * nc + col)[cand], xyz[cand, 2])
     zmin = np.where(np.isfinite(zmin), zmin, np.nan).reshape(nr, nc)
-    cloth = cloth_surface(zmin, params)
+    trend = np.zeros_like(zmin)
+    if params.adaptive and np.isfinite(zmin).sum() >= 3:
+        trend = trend_plane(np.where(np.isfinite(zmin), zmin, np.nan), res)
+    cloth = cloth_surface(zmin - trend, params) + trend
     zc = map_coordinates(cloth, np.vstack([(xyz[:, 1] - y0) / res, (xyz[:, 0] - x0) / res]), order=1,
                          mode="nearest")
     return cand & (np.abs(xyz[:, 2] - zc) <= params.class_threshold_m)

@@ -93,7 +93,7 @@ from ..geometry.tin import barycentric, find_simplex
 from ..lidar.crs import add_las_crs
 from ..lidar.jobs import TileJob, read_with_buffer, run_jobs, tile_jobs
 from ..lidar.raster import bulk_box
-from .csf import CSFParameters, csf_ground
+from .csf import CSFParameters, csf_ground, trend_plane
 from .noise import NOISE_CLASS, height_above_ground, statistical_outliers
 
 __all__ = ["PTDParameters", "SMRFParameters", "GroundMethod", "GROUND_METHODS", "classify_ground",
@@ -464,21 +464,6 @@ def _point_spacing(xy: np.ndarray, cell_m: float = 5.0) -> float:
     return math.sqrt(occupied * cell_m * cell_m / len(xy))
 
 
-def _trend_plane(surface: np.ndarray, c: float, passes: int = 3) -> np.ndarray:
-    """Least-squares plane through the lower half of the cells of *surface* (grid of heights), iterated."""
-    nr, nc = surface.shape
-    rr, cc = np.mgrid[0:nr, 0:nc]
-    a = np.column_stack([np.ones(nr * nc), (cc.ravel() - nc / 2) * c, (rr.ravel() - nr / 2) * c])
-    z = surface.ravel()
-    use = np.ones(len(z), dtype=bool)
-    coef = np.zeros(3)
-    for _ in range(passes):
-        coef = np.linalg.lstsq(a[use], z[use], rcond=None)[0]
-        res = z - a @ coef
-        use = res <= np.median(res[use])
-    return (a @ coef).reshape(nr, nc)
-
-
 def smrf_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: Any = None,
                 params: SMRFParameters | None = None) -> np.ndarray:
     """Ground mask by the simple morphological filter (see the module docstring).
@@ -527,7 +512,7 @@ def smrf_ground(xyz: np.ndarray, return_number: Any = None, number_of_returns: A
     # more on AHN3 and the city blocks.  In a tiled run the overlap keeps that band outside
     # the tile; only a survey's own border shows it.
     obj = np.zeros((nr, nc), dtype=bool)
-    last = surface - _trend_plane(surface, c) if params.adaptive else surface
+    last = surface - trend_plane(surface, c) if params.adaptive else surface
     nwin = int(math.ceil(params.window_m / c))
     for r in range(1, nwin + 1):
         size = 2 * r + 1
