@@ -277,12 +277,9 @@ class ProductsSettings:
                                        "class 2)")
     filter: str = _key(STRING, "smrf", "\"smrf\" (simple morphological filter), \"ptd\" (TIN densification) "
                                        "or \"csf\" (cloth simulation)")
-    noise: bool = _key(BOOLEAN, False, "ground: class 7 on isolated points (statistical outlier test)")
-    hag: bool = _key(BOOLEAN, False, "ground: extra dimension HeightAboveGround (m) in the classified copies")
     dtm: bool = _key(BOOLEAN, True, "dtm.tif: TIN of the ground, gaps NaN")
     dsm: bool = _key(BOOLEAN, True, "dsm.tif: highest first return per cell")
     ndsm: bool = _key(BOOLEAN, False, "ndsm.tif = DSM - DTM (needs dtm and dsm)")
-    stats: bool = _key(BOOLEAN, False, "stats.tif: min, max, mean, count, stdev of the point heights per cell")
     hillshade: bool = _key(BOOLEAN, False, "<model>_hillshade.tif of each model")
     text_grid: bool = _key(BOOLEAN, False, "<model>.txt: the report's E N H text grid")
     cell_m: float = _key(NUMBER, 1.0, "cell of the models, m (> 0)")
@@ -317,6 +314,9 @@ class ProductsSettings:
     delivery: tuple[str, ...] = _key(STRINGS, (), "delivery formats: \"tfw\" (world file beside every GeoTIFF), "
                                                   "\"shp\" (shp/: Shapefile layers), \"dxf\" (contours.dxf, "
                                                   "lidarcat[cad])")
+    noise: bool = _key(BOOLEAN, False, "ground: class 7 on isolated points (statistical outlier test)")
+    hag: bool = _key(BOOLEAN, False, "ground: extra dimension HeightAboveGround (m) in the classified copies")
+    stats: bool = _key(BOOLEAN, False, "stats.tif: min, max, mean, count, stdev of the point heights per cell")
 
     def to_dict(self) -> dict[str, Any]:
         """The table as the stage's parameters."""
