@@ -129,3 +129,14 @@ def test_ground_tiles_write_noise_class_and_height_above_ground(tmp_path):
     hag = np.asarray(got.HeightAboveGround)
     assert np.all(hag[cls == 2] == 0.0)
     assert np.all(hag[:5] > 50.0)
+
+
+def test_noise_points_stay_out_of_the_dsm():
+    from lidarcat.lidar.cloud import PointCloud
+    from lidarcat.lidar.raster import rasterize
+
+    xy = np.array([[0.5, 0.5], [0.5, 0.5], [1.5, 0.5]])
+    z = np.array([10.0, 90.0, 11.0])
+    pc = PointCloud(np.column_stack([xy, z]), attributes={"classification": np.array([1, 7, 1], np.uint8)})
+    grid, _ = rasterize(pc, 1.0, "dsm", (0.0, 0.0, 2.0, 1.0), fill=None)
+    assert grid.tolist() == [[10.0, 11.0]]   # the bird (class 7, 90 m) is no surface

@@ -305,7 +305,8 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
     cell_m : float
         Cell size, metres.
     what : {"intensity", "dsm", "dtm"}
-        See the module docstring.
+        See the module docstring.  Points of the noise classes (7 low, 18 high)
+        are left out of every grid.
     bounds : (xmin, ymin, xmax, ymax), optional
         Area to grid, metres (default: the cloud's bounds); the grid is
         snapped to multiples of *cell_m*.
@@ -374,6 +375,8 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
             sel = c.first_returns()
         else:
             sel = c.last_returns()
+        if c.has("classification"):   # noise (ASPRS 7 low, 18 high) is no surface
+            sel = sel & ~np.isin(c.attributes["classification"], (7, 18))
         row, col = _edge_rowcol(transform, c.x, c.y, nrows, ncols)
         inside = (row >= 0) & (row < nrows) & (col >= 0) & (col < ncols)
         flat = row * ncols + col
