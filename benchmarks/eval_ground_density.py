@@ -20,6 +20,8 @@ chosen on the tuning set only.  Methods (``--methods``):
 ``csf``       lidarcat's cloth simulation filter
 ``pysmrf``    PyPI ``pysmrf`` (Pingel's SMRF), its default parameters, all returns (bench extra; skipped
               when absent)
+``csfref``    PyPI ``cloth-simulation-filter`` (Zhang et al.'s C++ CSF), last returns, resolution 1 m,
+              rigidness 2, slope post-processing (bench extra; its stdout is silenced; skipped when absent)
 
 Usage::
 
@@ -60,7 +62,34 @@ def _run(method: str, xyz: np.ndarray, rn: np.ndarray, nr: np.ndarray) -> np.nda
         import pysmrf
 
         return np.asarray(pysmrf.classify(xyz[:, 0], xyz[:, 1], xyz[:, 2]).is_ground, dtype=bool)
+    if method == "csfref":
+        return _csf_reference(xyz, rn >= nr)
     return classify_ground(xyz, rn, nr, method=method)
+
+
+def _csf_reference(xyz: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """Ground mask by the reference CSF wheel on the last returns (its C++ prints: stdout silenced)."""
+    import CSF
+
+    c = CSF.CSF()
+    c.params.bSloopSmooth = True
+    c.params.cloth_resolution = 1.0
+    c.params.rigidness = 2
+    p = xyz[last]
+    c.setPointCloud(p - p.min(axis=0))
+    gi, ng = CSF.VecInt(), CSF.VecInt()
+    saved = os.dup(1)
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        c.do_filtering(gi, ng, exportCloth=False)
+    finally:
+        os.dup2(saved, 1)
+        os.close(null)
+        os.close(saved)
+    g = np.zeros(len(xyz), dtype=bool)
+    g[np.flatnonzero(last)[np.asarray(gi, dtype=np.int64)]] = True
+    return g
 
 
 def _samples(densities: list[float], size: float):
@@ -92,12 +121,13 @@ def main() -> None:
     ap.add_argument("--size", type=float, default=200.0, help="side of each landscape, metres")
     args = ap.parse_args()
     methods = args.methods.split(",")
-    if "pysmrf" in methods:
-        try:
-            import pysmrf  # noqa: F401
-        except ImportError:
-            print("pysmrf not installed (pip install pysmrf): left out")
-            methods.remove("pysmrf")
+    for peer, module in (("pysmrf", "pysmrf"), ("csfref", "CSF")):
+        if peer in methods:
+            try:
+                __import__(module)
+            except ImportError:
+                print(f"{peer} not installed (pip install lidarcat[bench]): left out")
+                methods.remove(peer)
     print(f"load average {' '.join(f'{v:.1f}' for v in os.getloadavg())} on {os.cpu_count()} cores; "
           f"{args.size:.0f} m squares; total error % per method")
     print(f"{'set':8} {'sample':15} {'pts/m2':>6} {'points':>7} " + " ".join(f"{m:>8}" for m in methods))
