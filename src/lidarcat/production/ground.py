@@ -199,6 +199,10 @@ class SMRFParameters:
         Extra height allowed per unit of DTM slope, metres.
     low_outlier_m, outlier_cell_m
         As :class:`PTDParameters` (low outliers are set aside first).
+    adaptive : bool
+        Grow the cell to the point spacing and the outlier cell to twice it,
+        and continue the terrain's trend beyond the grid's edge (the module
+        docstring, "Adaptive SMRF").  False: the fixed grid of Pingel et al.
     """
 
     cell_m: float = 1.0
