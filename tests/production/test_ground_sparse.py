@@ -140,3 +140,29 @@ def test_noise_points_stay_out_of_the_dsm():
     pc = PointCloud(np.column_stack([xy, z]), attributes={"classification": np.array([1, 7, 1], np.uint8)})
     grid, _ = rasterize(pc, 1.0, "dsm", (0.0, 0.0, 2.0, 1.0), fill=None)
     assert grid.tolist() == [[10.0, 11.0]]   # the bird (class 7, 90 m) is no surface
+
+
+def test_cli_fixed_grid_is_the_non_adaptive_smrf(tmp_path):
+    import laspy
+    from click.testing import CliRunner
+
+    from lidarcat.cli.main import cli
+
+    ls = make_landscape("steep", size_m=100.0, density=0.2, seed=5)
+    hdr = laspy.LasHeader(point_format=1, version="1.2")
+    hdr.scales = np.array([0.001, 0.001, 0.001])
+    hdr.offsets = np.array([500000.0, 7000000.0, 0.0])
+    las = laspy.LasData(hdr)
+    las.x, las.y, las.z = (np.array(ls.xyz) + [500000.0, 7000000.0, 0.0]).T
+    las.return_number, las.number_of_returns = ls.return_number, ls.number_of_returns
+    las.write(tmp_path / "t.las")
+    back = laspy.read(tmp_path / "t.las")
+    xyz = np.column_stack([back.x, back.y, back.z])
+    for flag, adaptive in (("--adaptive", True), ("--fixed-grid", False)):
+        out = tmp_path / f"g{flag}.las"
+        r = CliRunner().invoke(cli, ["lidar", "ground", str(tmp_path / "t.las"), "-o", str(out),
+                                     "--crs", "EPSG:31983", flag])
+        assert r.exit_code == 0, r.output
+        want = classify_ground(xyz, ls.return_number, ls.number_of_returns,
+                               params=SMRFParameters(adaptive=adaptive))
+        np.testing.assert_array_equal(np.asarray(laspy.read(out).classification) == 2, want)

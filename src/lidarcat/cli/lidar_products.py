@@ -54,13 +54,17 @@ _overlap_opt = click.option(
               help="SMRF: terrain slope allowed (rise/run).")
 @click.option("--elevation-threshold-m", type=POSITIVE, default=0.5, show_default=True,
               help="SMRF: height above the provisional DTM still counted as ground, metres.")
+@click.option("--adaptive/--fixed-grid", default=True, show_default=True,
+              help="SMRF: grow the cell to the point spacing and continue the terrain's trend beyond the "
+                   "edge (sparse points), or keep Pingel's fixed grid (on terraced, cliffy ground at "
+                   "0.1-0.3 pts/m2 the fixed grid measured better: docs/production.md).")
 @_overlap_opt
 @crs_option()
 @_workers_opt
 @_scheduler_opt
 @_resume_opt
 def ground(paths: tuple[str, ...], output: str, method: str, noise: bool, hag: bool, max_building_m: float,
-           iteration_angle_deg: float,
+           iteration_angle_deg: float, adaptive: bool,
            iteration_distance_m: float, window_m: float, slope: float, elevation_threshold_m: float,
            overlap_m: float | None, crs: str | None, workers: int | None, scheduler: str | None,
            resume: bool) -> None:
@@ -81,7 +85,8 @@ def ground(paths: tuple[str, ...], output: str, method: str, noise: bool, hag: b
 
     p = actions.ground_parameters(method, max_building_m=max_building_m, iteration_angle_deg=iteration_angle_deg,
                                   iteration_distance_m=iteration_distance_m, window_m=window_m, slope=slope,
-                                  elevation_threshold_m=elevation_threshold_m)
+                                  elevation_threshold_m=elevation_threshold_m,
+                                  adaptive=adaptive if method == "smrf" else None)
     files, crs, _ = tile_sources(paths, crs)
     with progress_bar(len(files), "ground tiles") as bar:
         outs = actions.ground(files, output, crs=crs, method=method, params=p, noise=noise, hag=hag,
