@@ -341,6 +341,17 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("production/ground.py", "write_classified_copy", "ValueError", "{}: {} points but {} ground flags"):
         _SHAPE,
     ("production/ground.py", "classify_tiles", "ValueError", "unknown ground method {}; use one of {}"): _ENUM,
+    ("production/ground.py", "classify_ground", "ValueError", "method 'csf' takes CSFParameters"): _ARG,
+    ("production/ground.py", "write_classified_copy", "ValueError", "{}: {} points but {} noise flags"): _SHAPE,
+    ("production/ground.py", "write_classified_copy", "ValueError", "{}: {} points but {} heights above groun"):
+        _SHAPE,
+    ("production/csf.py", "CSFParameters.__post_init__", "ValueError", "{} must be a positive number, got {}"):
+        _PARAMS,
+    ("production/csf.py", "CSFParameters.__post_init__", "ValueError", "rigidness must be 1, 2 or 3, got {}"):
+        _PARAMS,
+    ("production/csf.py", "CSFParameters.__post_init__", "ValueError", "iterations must be at least 1"): _PARAMS,
+    ("production/noise.py", "statistical_outliers", "ValueError", "mean_k must be at least 1, got {}"): _ARG,
+    ("production/noise.py", "height_above_ground", "ValueError", "ground has shape {}, expected ({},)"): _SHAPE,
     ("production/mapindex.py", "_check_scale", "ValueError", "no Brazilian index sheet at 1:{}; use on"):
         _ENUM + "; index_sheets refuses a bad brazil-N with ProductError first",
     ("production/mapindex.py", "sheet_names", "ValueError", "lon and lat differ in shape: {} and {}"): _SHAPE,
@@ -370,6 +381,8 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     # added with the house-by-stage layout (issue 23)
     ("lidar/geotiff.py", "GeoTiffWriter.write_rows", "ValueError", "{}: row block of shape {} does not fit a"): _SHAPE,
     ("lidar/geotiff.py", "_values", "ValueError", "grid must be a non-empty (rows, cols) or"): _SHAPE,
+    ("lidar/geotiff.py", "write_bands", "ValueError", "give a (bands, rows, cols) stack and one"): _SHAPE,
+    ("lidar/geotiff.py", "write_vrt", "ValueError", "a VRT needs at least one source GeoTIFF"): _ARG,
     # orthophoto files (issue 26): the writer's options, chosen by code (the CLI offers a click.Choice)
     ("lidar/geotiff.py", "_profile", "ValueError", "JPEG compression takes 1- or 3-band uint"): _ARG,
     ("lidar/geotiff.py", "_profile", "ValueError", "compression must be DEFLATE or JPEG, got"): _ENUM,

@@ -81,8 +81,8 @@ def test_bad_parameters_named():
         PTDParameters(max_building_m=0)
     with pytest.raises(ValueError, match="window_m must be a positive number"):
         SMRFParameters(window_m=-1)
-    with pytest.raises(ValueError, match="unknown ground method 'csf'"):
-        classify_ground(np.zeros((3, 3)), method="csf")
+    with pytest.raises(ValueError, match="unknown ground method 'tin'; use one of ptd, smrf, csf"):
+        classify_ground(np.zeros((3, 3)), method="tin")
 
 
 def _crop(tmp_path: Path, name: str, box: tuple[float, float, float, float]) -> Path:

@@ -78,7 +78,7 @@ def test_without_products_table_the_plan_is_unchanged(survey, tmp_path):
 @pytest.mark.parametrize("extra, message", [
     ("dtm = true\ncontour_step = 2\n",
      r"survey\.toml:\d+: .*unknown key 'contour_step' in \[products\]; allowed: ground, filter, dtm"),
-    ('filter = "csf"\n', r"survey\.toml:\d+: field 'filter': 'csf' is not one of 'ptd', 'smrf'"),
+    ('filter = "tin"\n', r"survey\.toml:\d+: field 'filter': 'tin' is not one of 'ptd', 'smrf', 'csf'"),
     ("cell_m = 0\n", r"survey\.toml:\d+: field 'cell_m': must be positive \(metres\), got 0"),
     ("max_edge_m = inf\n", r"survey\.toml:\d+: field 'max_edge_m': must be a finite number, got inf"),
     ("sheet_size_m = nan\n", r"survey\.toml:\d+: field 'sheet_size_m': must be a finite number, got nan"),

@@ -12,7 +12,7 @@ from .options import (NON_NEGATIVE, POSITIVE, FiniteRange, crs_option, echo_json
 from .options import scheduler_option as _scheduler_opt
 from .options import workers_option as _workers_opt
 
-__all__ = ["ground", "dtm", "dsm", "contours_cmd", "hypsometry", "sheets", "check", "PRODUCT_COMMANDS"]
+__all__ = ["ground", "dtm", "dsm", "stats", "copc", "contours_cmd", "hypsometry", "sheets", "check", "PRODUCT_COMMANDS"]
 
 _resume_opt = click.option(
     "--resume/--no-resume", default=True, show_default=True,
@@ -28,9 +28,16 @@ _overlap_opt = click.option(
 @output_option(required=True, metavar="OUT",
               help="One TILE and OUT ending in .las/.laz: that file. Otherwise a folder receiving a "
                    "classified copy of every tile under its own name. Inputs are never modified.")
-@click.option("--method", type=click.Choice(["smrf", "ptd"]), default="smrf", show_default=True,
+@click.option("--method", type=click.Choice(["smrf", "ptd", "csf"]), default="smrf", show_default=True,
               help="smrf: simple morphological filter (Pingel et al. 2013; 2.6-2.9 % total error on the "
-                   "AHN3 tiles). ptd: progressive TIN densification as TerraScan does it (report 11.2).")
+                   "AHN3 tiles; cell and outlier test follow the point spacing). ptd: progressive TIN "
+                   "densification as TerraScan does it (report 11.2). csf: cloth simulation filter "
+                   "(Zhang et al. 2016; flat and urban ground, not steep slopes).")
+@click.option("--noise", is_flag=True,
+              help="Class 7 on isolated points (statistical outlier test, PDAL's defaults: 8 neighbours, "
+                   "2 sd), left out of the ground filter.")
+@click.option("--hag", is_flag=True,
+              help="Write each point's height above the ground TIN as the extra dimension HeightAboveGround.")
 @click.option("--max-building-m", type=POSITIVE, default=60.0, show_default=True,
               help="PTD: size of the largest building, metres: one seed (the lowest last return) per "
                    "window of this size.")
@@ -47,12 +54,17 @@ _overlap_opt = click.option(
               help="SMRF: terrain slope allowed (rise/run).")
 @click.option("--elevation-threshold-m", type=POSITIVE, default=0.5, show_default=True,
               help="SMRF: height above the provisional DTM still counted as ground, metres.")
+@click.option("--adaptive/--fixed-grid", default=True, show_default=True,
+              help="SMRF: grow the cell to the point spacing and continue the terrain's trend beyond the "
+                   "edge (sparse points), or keep Pingel's fixed grid (on terraced, cliffy ground at "
+                   "0.1-0.3 pts/m2 the fixed grid measured better: docs/production.md).")
 @_overlap_opt
 @crs_option()
 @_workers_opt
 @_scheduler_opt
 @_resume_opt
-def ground(paths: tuple[str, ...], output: str, method: str, max_building_m: float, iteration_angle_deg: float,
+def ground(paths: tuple[str, ...], output: str, method: str, noise: bool, hag: bool, max_building_m: float,
+           iteration_angle_deg: float, adaptive: bool,
            iteration_distance_m: float, window_m: float, slope: float, elevation_threshold_m: float,
            overlap_m: float | None, crs: str | None, workers: int | None, scheduler: str | None,
            resume: bool) -> None:
@@ -67,18 +79,26 @@ def ground(paths: tuple[str, ...], output: str, method: str, max_building_m: flo
       lidarcat lidar ground tile.laz -o tile_ground.laz --crs EPSG:7415
       lidarcat lidar ground 'tiles/*.laz' -o classified/ --workers 4
       lidarcat lidar ground tiles/ -o classified/ --method ptd --max-building-m 80
+      lidarcat lidar ground tiles/ -o classified/ --noise --hag
     """
     from ..stages import lidar as actions
 
     p = actions.ground_parameters(method, max_building_m=max_building_m, iteration_angle_deg=iteration_angle_deg,
                                   iteration_distance_m=iteration_distance_m, window_m=window_m, slope=slope,
-                                  elevation_threshold_m=elevation_threshold_m)
+                                  elevation_threshold_m=elevation_threshold_m,
+                                  adaptive=adaptive if method == "smrf" else None)
     files, crs, _ = tile_sources(paths, crs)
     with progress_bar(len(files), "ground tiles") as bar:
-        outs = actions.ground(files, output, crs=crs, method=method, params=p, overlap_m=overlap_m,
+        outs = actions.ground(files, output, crs=crs, method=method, params=p, noise=noise, hag=hag,
+                              overlap_m=overlap_m,
                               workers=workers, scheduler=scheduler, resume=resume,
                               progress=bar.update if bar is not None else None)
     click.echo(f"wrote {len(outs)} classified file(s): {outs[0] if len(outs) == 1 else Path(output)}")
+
+
+_vrt_opt = click.option(
+    "--vrt/--no-vrt", default=False, show_default=True,
+    help="Folder OUT: also write OUT/mosaic.vrt, one virtual raster over the tile GeoTIFFs (GDAL VRT).")
 
 
 def _raster_command(kind: str, doc: str) -> click.Command:
@@ -101,12 +121,13 @@ def _raster_command(kind: str, doc: str) -> click.Command:
                   help="Largest grid, cells (default 100,000,000); a larger one is refused.")
     @click.option("--overlap-m", type=NON_NEGATIVE, default=50.0, show_default=True, metavar="M",
                   help="Points of neighbouring tiles read around each tile, metres.")
+    @_vrt_opt
     @crs_option()
     @_workers_opt
     @_scheduler_opt
     @_resume_opt
     def cmd(paths: tuple[str, ...], output: str, cell_m: float, max_edge_m: float, text: bool, hillshade: bool,
-            ndsm: bool, bounds: tuple[float, ...] | None, max_cells: int | None, overlap_m: float,
+            ndsm: bool, bounds: tuple[float, ...] | None, max_cells: int | None, overlap_m: float, vrt: bool,
             crs: str | None, workers: int | None, scheduler: str | None, resume: bool) -> None:
         from ..stages.lidar import terrain_model
 
@@ -115,7 +136,7 @@ def _raster_command(kind: str, doc: str) -> click.Command:
             outs = terrain_model(kind, files, output, crs=crs, cell_m=cell_m, max_edge_m=max_edge_m, text=text,
                                  hillshade=hillshade, ndsm=ndsm, overlap_m=overlap_m, workers=workers,
                                  scheduler=scheduler, resume=resume, bounds=bounds or None, max_cells=max_cells,
-                                 progress=bar.update if bar is not None else None)
+                                 progress=bar.update if bar is not None else None, vrt=vrt)
         click.echo(f"wrote {len(outs)} {kind.upper()} GeoTIFF(s): {outs[0] if len(outs) == 1 else Path(output)}")
     return cmd
 
@@ -317,7 +338,90 @@ def hypsometry(paths: tuple[str, ...], output: str, cell_m: float, h_min_m: floa
 
 
 #: commands added to the ``lidar`` group
-PRODUCT_COMMANDS = [ground, dtm, dsm, contours_cmd, hypsometry]
+@click.command(name="stats")
+@click.argument("paths", nargs=-1, required=True, metavar="TILE...")
+@output_option(required=True, metavar="OUT",
+              help="OUT ending in .tif: one five-band GeoTIFF over all the TILEs. Otherwise a folder "
+                   "receiving <tile>.tif per tile (and mosaic.vrt over them, unless --no-vrt).")
+@click.option("--cell-m", type=POSITIVE, default=1.0, show_default=True, help="Cell size, metres.")
+@click.option("--values", default="z", show_default=True, metavar="z|ATTRIBUTE",
+              help="Statistics of the heights (z) or of a point attribute such as intensity.")
+@click.option("--classes", default=None, metavar="C1,C2,...",
+              help="Only points of these classes (default: all but noise, class 7).")
+@click.option("--bounds", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
+              help="Grid only this area, metres (default: each tile's points).")
+@click.option("--max-cells", type=click.IntRange(1), default=None, metavar="N",
+              help="Largest grid, cells (default 100,000,000); a larger one is refused.")
+@click.option("--vrt/--no-vrt", default=True, show_default=True,
+              help="Folder OUT: also write OUT/mosaic.vrt over the tile GeoTIFFs.")
+@crs_option()
+@_workers_opt
+@_scheduler_opt
+@_resume_opt
+def stats(paths: tuple[str, ...], output: str, cell_m: float, values: str, classes: str | None,
+          bounds: tuple[float, ...] | None, max_cells: int | None, vrt: bool, crs: str | None,
+          workers: int | None, scheduler: str | None, resume: bool) -> None:
+    """Point statistics per cell: min, max, mean, count and stdev bands (named), CRS set.
+
+    \b
+    Examples:
+      lidarcat lidar stats tile.laz -o stats.tif --crs EPSG:7415 --cell-m 2
+      lidarcat lidar stats 'tiles/*.laz' -o stats/ --values intensity
+      lidarcat lidar stats 'classified/*.laz' -o ground_stats.tif --classes 2
+    """
+    from ..stages.lidar import statistics_raster
+
+    try:
+        cls = None if classes is None else [int(c) for c in classes.split(",") if c.strip()]
+    except ValueError:
+        raise click.BadParameter(f"{classes!r} is not a comma-separated list of class codes",
+                                 param_hint="--classes") from None
+    files, crs, _ = tile_sources(paths, crs)
+    with progress_bar(len(files), "stats tiles") as bar:
+        outs = statistics_raster(files, output, crs=crs, cell_m=cell_m, values=values, classes=cls, vrt=vrt,
+                                 workers=workers, scheduler=scheduler, resume=resume, bounds=bounds or None,
+                                 max_cells=max_cells, progress=bar.update if bar is not None else None)
+    click.echo(f"wrote {len(outs)} file(s): {outs[0] if len(outs) == 1 else outs[-1]}")
+
+
+@click.command(name="copc")
+@click.argument("paths", nargs=-1, required=True, metavar="TILE...")
+@output_option(required=True, metavar="OUT",
+              help="One TILE and OUT ending in .laz: that COPC file. Otherwise a folder receiving "
+                   "<tile>.copc.laz per tile. Inputs are never modified.")
+@click.option("--max-points", type=click.IntRange(1), default=100_000, show_default=True,
+              help="Largest number of points in a leaf node of the octree.")
+@crs_option()
+def copc(paths: tuple[str, ...], output: str, max_points: int, crs: str | None) -> None:
+    """Write LAS/LAZ tiles as COPC (Cloud Optimized Point Cloud, COPC 1.0): an octree of LAZ chunks.
+
+    Every point and field is kept; point formats 0-5 become 6, 7 or 8 (LAS 1.4).
+    The CRS is the tile's own or --crs (written as WKT).
+
+    \b
+    Examples:
+      lidarcat lidar copc tile.laz -o tile.copc.laz --crs EPSG:7415
+      lidarcat lidar copc 'classified/*.laz' -o copc/
+    """
+    from ..lidar.copc_write import write_copc
+
+    files, crs, _ = tile_sources(paths, crs)
+    out = Path(output)
+    if len(files) == 1 and out.suffix.lower() == ".laz":
+        targets = [out]
+    else:
+        targets = [out / (Path(f).name.split(".")[0] + ".copc.laz") for f in files]
+    with progress_bar(len(files), "copc tiles") as bar:
+        for f, t in zip(files, targets):
+            if Path(f).resolve() == t.resolve():
+                raise click.BadParameter(f"{t}: the output would overwrite the input", param_hint="-o/--output")
+            write_copc(f, t, crs=crs, max_points=max_points)
+            if bar is not None:
+                bar.update(1)
+    click.echo(f"wrote {len(targets)} COPC file(s): {targets[0] if len(targets) == 1 else out}")
+
+
+PRODUCT_COMMANDS = [ground, dtm, dsm, stats, copc, contours_cmd, hypsometry]
 
 
 def _sheet_index_choice() -> click.Choice:

@@ -12,6 +12,7 @@
 :mod:`.geotiff`     :func:`read_geotiff`, :func:`write_geotiff`: the one raster I/O (rasterio)
 :mod:`.info`        :func:`describe`: counts, bounds, density, classes, returns
 :mod:`.copc`        COPC tiles read by their octree: only the nodes a query box meets
+:mod:`.copc_write`  COPC writer: points into an octree of LAZ chunks (COPC 1.0), by hand with lazrs
 :mod:`.jobs`        the tile engine: a function over tiles with overlap, serial or on Dask, resumable
 :mod:`.trajectory`  :class:`Trajectory`: SBET and CSV flight trajectories, interpolated at GPS times
 ==================  ===========================================================

@@ -59,16 +59,16 @@ import contextlib
 import math
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..errors import LidarFormatError, TileIOError
+from ..errors import LidarFormatError, ProductError, TileIOError
 from .crs import resolve_crs
 
-__all__ = ["GeoTransform", "write_geotiff", "read_geotiff", "GeoTiffWriter", "geotiff_crs", "BLOCK_PX"]
+__all__ = ["write_bands", "write_vrt", "GeoTransform", "write_geotiff", "read_geotiff", "GeoTiffWriter", "geotiff_crs", "BLOCK_PX"]
 
 #: tile edge of every written GeoTIFF, pixels
 BLOCK_PX = 512
@@ -478,3 +478,100 @@ def read_geotiff(path: str | os.PathLike, *, raw: bool = False) -> tuple[np.ndar
         if masked is not None:
             grid[masked] = np.nan
     return grid, GeoTransform(float(c), float(f), float(a)), crs
+
+
+def write_bands(path: str | os.PathLike, bands: np.ndarray, transform: GeoTransform, crs: Any,
+                names: Sequence[str]) -> Path:
+    """Write a (bands, rows, cols) stack as one cloud-optimised GeoTIFF with named bands, atomically.
+
+    As :func:`write_geotiff` (floats as float32, NaN nodata, the CRS on the
+    file), and each band's description set to its name (``gdalinfo`` and
+    rasterio's ``descriptions`` show it).
+    """
+    import rasterio
+
+    path = Path(path)
+    a = np.asarray(bands)
+    if a.ndim != 3 or len(names) != a.shape[0]:
+        raise ValueError(f"give a (bands, rows, cols) stack and one name per band, got {a.shape} and {len(names)}")
+    vals = _values(np.moveaxis(a, 0, 2))
+    profile = _profile(vals.shape[1], vals.shape[2], vals.shape[0], vals.dtype, transform, crs)
+    with _atomic_target(path) as tmp:
+        with rasterio.open(tmp, "w", **_cog_options(profile)) as dst:
+            dst.write(vals)
+            for i, n in enumerate(names, start=1):
+                dst.set_band_description(i, str(n))
+    return path
+
+
+def write_vrt(path: str | os.PathLike, sources: Sequence[str | os.PathLike]) -> Path:
+    """A GDAL virtual mosaic (VRT) of GeoTIFFs on one lattice, atomically.
+
+    The sources must share CRS, cell size, band count and data type (the tile
+    GeoTIFFs of one product are on one lattice: origins at multiples of the
+    cell).  Each source is placed by its origin (no resampling); where tiles
+    overlap, the later one wins (GDAL draws sources in order).  Paths are
+    written relative to the VRT's folder when they lie below it.  rasterio and
+    GDAL open the VRT as one raster; the CRS is written into it.
+
+    Raises
+    ------
+    ValueError
+        No sources.
+    ProductError
+        Sources that differ in CRS, cell, bands or data type.
+    """
+    import xml.etree.ElementTree as ET
+
+    import rasterio
+
+    from .._util import atomic_write
+
+    path = Path(path)
+    if not sources:
+        raise ValueError("a VRT needs at least one source GeoTIFF")
+    meta = []
+    for src in sources:
+        with rasterio.open(src) as ds:
+            meta.append((Path(src), ds.crs, ds.transform, ds.width, ds.height, ds.count, ds.dtypes[0], ds.nodata,
+                         ds.descriptions))
+    _, crs0, t0, _, _, count0, dtype0, nodata0, desc0 = meta[0]
+    cell = t0.a
+    for src, crs, t, _, _, count, dtype, _, _ in meta[1:]:
+        if crs != crs0 or abs(t.a - cell) > 1e-9 * abs(cell) or abs(t.e - t0.e) > 1e-9 * abs(cell) \
+                or count != count0 or dtype != dtype0:
+            raise ProductError(f"{src}: not on the lattice of {meta[0][0]} (CRS, cell, bands and data type must agree)")
+    x0 = min(m[2].c for m in meta)
+    y0 = max(m[2].f for m in meta)
+    x1 = max(m[2].c + m[3] * cell for m in meta)
+    y1 = min(m[2].f + m[4] * t0.e for m in meta)
+    cols = int(round((x1 - x0) / cell))
+    rows = int(round((y1 - y0) / t0.e))
+    root = ET.Element("VRTDataset", rasterXSize=str(cols), rasterYSize=str(rows))
+    ET.SubElement(root, "SRS").text = crs0.to_wkt() if crs0 is not None else ""
+    ET.SubElement(root, "GeoTransform").text = f"{x0!r}, {cell!r}, 0.0, {y0!r}, 0.0, {t0.e!r}"
+    gdal_type = {"float32": "Float32", "float64": "Float64", "uint8": "Byte", "uint16": "UInt16",
+                 "int16": "Int16", "uint32": "UInt32", "int32": "Int32"}[dtype0]
+    for b in range(1, count0 + 1):
+        band = ET.SubElement(root, "VRTRasterBand", dataType=gdal_type, band=str(b))
+        if desc0[b - 1]:
+            ET.SubElement(band, "Description").text = desc0[b - 1]
+        if nodata0 is not None:
+            ET.SubElement(band, "NoDataValue").text = "nan" if np.isnan(nodata0) else repr(nodata0)
+        for src, _, t, w, h, _, _, _, _ in meta:
+            try:
+                name, rel = src.resolve().relative_to(path.parent.resolve()).as_posix(), "1"
+            except ValueError:
+                name, rel = str(src.resolve()), "0"
+            s = ET.SubElement(band, "ComplexSource" if nodata0 is not None else "SimpleSource")
+            ET.SubElement(s, "SourceFilename", relativeToVRT=rel).text = name
+            ET.SubElement(s, "SourceBand").text = str(b)
+            ET.SubElement(s, "SrcRect", xOff="0", yOff="0", xSize=str(w), ySize=str(h))
+            ET.SubElement(s, "DstRect", xOff=str(int(round((t.c - x0) / cell))),
+                          yOff=str(int(round((t.f - y0) / t0.e))), xSize=str(w), ySize=str(h))
+            if nodata0 is not None:
+                ET.SubElement(s, "NODATA").text = "nan" if np.isnan(nodata0) else repr(nodata0)
+    ET.indent(root)
+    with atomic_write(path, "w") as fh:
+        fh.write(ET.tostring(root, encoding="unicode") + "\n")
+    return path

@@ -49,7 +49,7 @@ from ..errors import LidarFormatError, ProductError
 from .cloud import PointCloud
 from .geotiff import GeoTransform, read_geotiff, write_geotiff
 
-__all__ = ["GeoTransform", "rasterize", "write_geotiff", "read_geotiff", "write_png_preview",
+__all__ = ["STAT_BANDS", "point_statistics", "GeoTransform", "rasterize", "write_geotiff", "read_geotiff", "write_png_preview",
            "write_raster", "grid_for", "RASTER_KINDS", "MAX_CELLS", "Extent", "bulk_box", "robust_extent",
            "check_grid_size", "stream_extent"]
 
@@ -305,7 +305,8 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
     cell_m : float
         Cell size, metres.
     what : {"intensity", "dsm", "dtm"}
-        See the module docstring.
+        See the module docstring.  Points of the noise classes (7 low, 18 high)
+        are left out of every grid.
     bounds : (xmin, ymin, xmax, ymax), optional
         Area to grid, metres (default: the cloud's bounds); the grid is
         snapped to multiples of *cell_m*.
@@ -374,6 +375,8 @@ def rasterize(cloud: PointCloud | Iterable[PointCloud], cell_m: float, what: str
             sel = c.first_returns()
         else:
             sel = c.last_returns()
+        if c.has("classification"):   # noise (ASPRS 7 low, 18 high) is no surface
+            sel = sel & ~np.isin(c.attributes["classification"], (7, 18))
         row, col = _edge_rowcol(transform, c.x, c.y, nrows, ncols)
         inside = (row >= 0) & (row < nrows) & (col >= 0) & (col < ncols)
         flat = row * ncols + col
@@ -462,3 +465,70 @@ def write_raster(path: str | os.PathLike, grid: np.ndarray, transform: GeoTransf
     if preview:
         out.append(write_png_preview(path.with_suffix(".png"), grid, transform, what))
     return out
+
+
+#: bands of :func:`point_statistics`, in order
+STAT_BANDS = ("min", "max", "mean", "count", "stdev")
+
+
+def point_statistics(xyz: np.ndarray, cell_m: float, bounds: tuple[float, float, float, float] | None = None,
+                     *, values: np.ndarray | None = None,
+                     max_cells: int | None = None) -> tuple[np.ndarray, GeoTransform]:
+    r"""Per-cell statistics of the points' heights (or *values*): min, max, mean, count, stdev.
+
+    The grid is :func:`grid_for` over *bounds* (default: the points' extent),
+    snapped to multiples of *cell_m*, so tile grids mosaic.  Per cell
+    :math:`c` with points :math:`v_1..v_n`: :math:`n`, :math:`\min v`,
+    :math:`\max v`, the mean :math:`\bar v` and the population standard
+    deviation :math:`\sqrt{\overline{(v - \bar v)^2}}` (two passes of
+    ``np.bincount``: no cancellation from :math:`\overline{v^2} - \bar v^2`).
+    Empty cells are NaN in every band but ``count`` (0).
+
+    Parameters
+    ----------
+    xyz : ndarray, shape (N, 3)
+        E, N, h, metres.
+    cell_m : float
+    bounds : (xmin, ymin, xmax, ymax), optional
+        Points outside are left out.
+    values : ndarray, shape (N,), optional
+        Statistics of these instead of the heights (e.g. intensity).
+    max_cells : int, optional
+
+    Returns
+    -------
+    (ndarray of float64, shape (5, rows, cols), GeoTransform)
+        Bands in the order of :data:`STAT_BANDS`.
+
+    Examples
+    --------
+    >>> pts = np.array([[0.5, 0.5, 1.0], [0.5, 0.5, 3.0], [1.5, 0.5, 7.0]])
+    >>> bands, t = point_statistics(pts, 1.0, (0.0, 0.0, 2.0, 1.0))
+    >>> bands[:, 0, :].tolist()
+    [[1.0, 7.0], [3.0, 7.0], [2.0, 7.0], [2.0, 1.0], [1.0, 0.0]]
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    v = xyz[:, 2] if values is None else np.asarray(values, dtype=np.float64)
+    if bounds is None:
+        if len(xyz) == 0:
+            raise ProductError("no points to grid (give the bounds)")
+        bounds = (float(xyz[:, 0].min()), float(xyz[:, 1].min()), float(xyz[:, 0].max()), float(xyz[:, 1].max()))
+    transform, nrows, ncols = grid_for(bounds, cell_m, max_cells=max_cells)
+    row, col = _edge_rowcol(transform, xyz[:, 0], xyz[:, 1], nrows, ncols)
+    ok = (row >= 0) & (row < nrows) & (col >= 0) & (col < ncols) & np.isfinite(v)
+    k = (row * ncols + col)[ok]
+    v = v[ok]
+    m = nrows * ncols
+    count = np.bincount(k, minlength=m).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.bincount(k, weights=v, minlength=m) / count
+        var = np.bincount(k, weights=(v - mean[k]) ** 2, minlength=m) / count
+    lo = np.full(m, np.inf)
+    hi = np.full(m, -np.inf)
+    np.minimum.at(lo, k, v)
+    np.maximum.at(hi, k, v)
+    empty = count == 0
+    out = np.stack([lo, hi, mean, count, np.sqrt(var)])
+    for b in (0, 1, 2, 4):
+        out[b, empty] = np.nan
+    return out.reshape(5, nrows, ncols), transform

@@ -2,6 +2,8 @@
 
 =================  ============================================================
 ``ground``         Ground classification: progressive TIN densification and a simple morphological filter.
+``csf``            Cloth simulation filter (Zhang et al. 2016), the third ground method.
+``noise``          Noise (class 7) by the statistical outlier test, and height above the ground TIN.
 ``terrain``        Terrain (DTM) and surface (DSM) models, nDSM, hillshade and the hypsometric image.
 ``contours``       Contour lines from the ground TIN, master/intermediate curves, spot heights, GeoJSON.
 ``contourcheck``   Contour verification over sparse ground (stretches, profiles), filled bands, 3-D lines.

@@ -79,7 +79,7 @@ from ..lidar.geotiff import GeoTransform, write_geotiff
 from ..lidar.jobs import TileJob, read_with_buffer
 from ..lidar.raster import Extent, check_grid_size, grid_for, robust_extent
 
-__all__ = ["TinGrid", "tin_grid", "dtm_grid", "dsm_grid", "ndsm", "hillshade", "hypsometric_image",
+__all__ = ["stats_tile", "TinGrid", "tin_grid", "dtm_grid", "dsm_grid", "ndsm", "hillshade", "hypsometric_image",
            "write_product", "write_text_grid", "tin_heights", "dtm_tile", "dsm_tile"]
 
 log = logging.getLogger(__name__)
@@ -517,3 +517,33 @@ def dsm_tile(job: TileJob) -> None:
     DTM, ``<stem>_ndsm.tif``).
     """
     _raster_tile(job, "dsm")
+
+
+def stats_tile(job: TileJob) -> None:
+    """Tile function (for :mod:`lidarcat.lidar.jobs`): per-cell statistics of the tile's own points
+    (:func:`lidarcat.lidar.raster.point_statistics`: min, max, mean, count, stdev bands), as the
+    GeoTIFF ``job.output`` with named bands and the tile's CRS.
+
+    ``job.params``: ``cell_m`` (default 1), ``values`` (``"z"``, default, or an attribute such as
+    ``"intensity"``), ``classes`` (only points of these classes; default all but noise, class 7),
+    ``bounds``, ``max_cells``.  The neighbours' points read within ``job.overlap_m`` (one cell)
+    fill the cells on the seams, so a cell counts every point in it whichever tile it is cut from.
+    """
+    from ..lidar.geotiff import write_bands
+    from ..lidar.raster import STAT_BANDS, point_statistics
+
+    cloud, n_own = read_with_buffer(job)
+    cell = float(job.params.get("cell_m", 1.0))
+    cloud, area = _tile_area(job, cloud, n_own, cell, None)
+    keep = np.ones(len(cloud), dtype=bool)
+    cls = cloud.attributes.get("classification")
+    classes = job.params.get("classes")
+    if cls is not None:
+        keep = np.isin(np.asarray(cls), classes) if classes else np.asarray(cls) != 7
+    what = job.params.get("values", "z")
+    if what != "z" and what not in cloud.attributes:
+        raise ProductError(f"{job.tile}: no attribute {what!r} to take statistics of")
+    vals = None if what == "z" else np.asarray(cloud.attributes[what], dtype=np.float64)[keep]
+    bands, transform = point_statistics(cloud.xyz[keep], cell, area, values=vals,
+                                        max_cells=job.params.get("max_cells"))
+    write_bands(job.output, bands, transform, cloud.crs, STAT_BANDS)

@@ -7,6 +7,7 @@ functions, for the ``lidarcat lidar ground|dtm|dsm`` commands and their stage:
 ``ground``  :func:`lidarcat.production.ground.ground_tile`         ``.las``/``.laz`` copy, class 2 set
 ``dtm``     :func:`lidarcat.production.terrain.dtm_tile`           GeoTIFF (and extras)
 ``dsm``     :func:`lidarcat.production.terrain.dsm_tile`           GeoTIFF (and extras)
+``stats``   :func:`lidarcat.production.terrain.stats_tile`         GeoTIFF: min, max, mean, count, stdev bands
 =========  =====================================================  ===========
 """
 
@@ -18,18 +19,19 @@ from typing import Any
 
 from ..lidar.jobs import TileFunction, TileJob, tile_jobs
 from .ground import ground_tile
-from .terrain import dsm_tile, dtm_tile
+from .terrain import dsm_tile, dtm_tile, stats_tile
 
 __all__ = ["PRODUCT_TILE_FUNCTIONS", "product_jobs"]
 
 #: product name -> its tile function
-PRODUCT_TILE_FUNCTIONS: dict[str, TileFunction] = {"ground": ground_tile, "dtm": dtm_tile, "dsm": dsm_tile}
+PRODUCT_TILE_FUNCTIONS: dict[str, TileFunction] = {"ground": ground_tile, "dtm": dtm_tile, "dsm": dsm_tile,
+                                                      "stats": stats_tile}
 
 
 def product_jobs(product: str, paths: Sequence[str | os.PathLike], out: str | os.PathLike, *, crs: Any = None,
                  params: dict[str, Any] | None = None, overlap_m: float = 0.0,
                  suffix: str | None = None) -> list[TileJob]:
-    """One tile job of *product* (``"ground"``, ``"dtm"`` or ``"dsm"``) per tile.
+    """One tile job of *product* (``"ground"``, ``"dtm"``, ``"dsm"`` or ``"stats"``) per tile.
 
     The other arguments as :func:`lidarcat.lidar.jobs.tile_jobs`.
 

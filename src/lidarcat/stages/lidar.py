@@ -28,12 +28,14 @@ import numpy as np
 
 from ..errors import ProductError
 
-__all__ = ["ground", "terrain_model", "ground_parameters", "mosaic_grids", "read_grid", "vertical_check",
-           "system_calibration", "swath_check", "contour_extras", "read_outlines", "planimetric_check"]
+__all__ = ["ground", "terrain_model", "statistics_raster", "ground_parameters", "mosaic_grids", "read_grid",
+           "vertical_check", "system_calibration", "swath_check", "contour_extras", "read_outlines",
+           "planimetric_check"]
 
 
 def _jobs(kind: str, tiles: Sequence[str | os.PathLike], output: str | os.PathLike, **kw: Any) -> list[Any]:
-    """The tile jobs of product *kind* (``"ground"``, ``"dtm"``, ``"dsm"``): the one place that names them."""
+    """The tile jobs of product *kind* (``"ground"``, ``"dtm"``, ``"dsm"``, ``"stats"``): the one place that names
+    them."""
     from ..production.tiles import product_jobs
 
     return product_jobs(kind, [Path(t) for t in tiles], output, **kw)
@@ -44,17 +46,18 @@ def ground_parameters(method: str, **values: Any) -> Any:
 
     *values* may hold the parameters of both filters; those of the other one are ignored.
     """
+    from ..production.csf import CSFParameters
     from ..production.ground import PTDParameters, SMRFParameters
 
-    cls = PTDParameters if method == "ptd" else SMRFParameters
+    cls = {"ptd": PTDParameters, "csf": CSFParameters}.get(method, SMRFParameters)
     names = {f.name for f in dataclasses.fields(cls)}
     return cls(**{k: v for k, v in values.items() if k in names and v is not None})
 
 
 def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
-           method: str = "smrf", params: Any = None, overlap_m: float | None = None,
-           workers: int | None = None, scheduler: str | None = None, resume: bool = True,
-           progress: Callable[[int], Any] | None = None) -> list[str]:
+           method: str = "smrf", params: Any = None, noise: bool = False, hag: bool = False,
+           overlap_m: float | None = None, workers: int | None = None, scheduler: str | None = None,
+           resume: bool = True, progress: Callable[[int], Any] | None = None) -> list[str]:
     """Classify ground (class 2) into LAS/LAZ copies of *tiles* (``lidarcat lidar ground``).
 
     Parameters
@@ -66,9 +69,12 @@ def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs
         classified copy of every tile under its own name.
     crs : CRS, optional
         CRS of tiles that carry none.
-    method : {"smrf", "ptd"}
-    params : SMRFParameters or PTDParameters, optional
+    method : {"smrf", "ptd", "csf"}
+    params : SMRFParameters, PTDParameters or CSFParameters, optional
         Default: the method's defaults (:func:`ground_parameters`).
+    noise, hag : bool
+        Class 7 on statistical outliers; the extra dimension ``HeightAboveGround``
+        (:func:`lidarcat.production.ground.classify_tiles`).
     overlap_m : float, optional
         Points of neighbouring tiles read around each tile, metres (default
         :func:`lidarcat.production.ground.default_overlap_m`).
@@ -84,7 +90,7 @@ def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs
 
     p = ground_parameters(method) if params is None else params
     written = classify_tiles([Path(t) for t in tiles], output, crs=crs, method=method, params=p,
-                             overlap_m=overlap_m, workers=workers, scheduler=scheduler, resume=resume,
+                             noise=noise, hag=hag, overlap_m=overlap_m, workers=workers, scheduler=scheduler, resume=resume,
                              progress=progress)
     return [str(w) for w in written]
 
@@ -94,7 +100,8 @@ def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | o
                   ndsm: bool = False, overlap_m: float = 50.0, workers: int | None = None,
                   scheduler: str | None = None, resume: bool = True,
                   progress: Callable[[int], Any] | None = None,
-                  bounds: Sequence[float] | None = None, max_cells: int | None = None) -> list[str]:
+                  bounds: Sequence[float] | None = None, max_cells: int | None = None,
+                  vrt: bool = False) -> list[str]:
     """DTM (``kind="dtm"``: TIN of the ground) or DSM (``"dsm"``: highest first return) of tiles.
 
     Parameters
@@ -120,6 +127,9 @@ def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | o
     max_cells : int, optional
         Largest grid, per tile and for the one-file model (default
         :data:`lidarcat.lidar.raster.MAX_CELLS`): a larger one is refused before it is made.
+    vrt : bool
+        Folder output: also write ``mosaic.vrt``, the tiles' virtual mosaic
+        (:func:`lidarcat.lidar.geotiff.write_vrt`), as the last file returned.
 
     Raises
     ------
@@ -148,7 +158,12 @@ def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | o
     if out.suffix.lower() not in (".tif", ".tiff"):
         jobs = _in_bounds(_jobs(kind, tiles, out, crs=crs, params=params, overlap_m=overlap_m, suffix=".tif"),
                           bounds)
-        return run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
+        written = run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
+        if vrt:
+            from ..lidar.geotiff import write_vrt
+
+            written = list(written) + [str(write_vrt(out / "mosaic.vrt", [Path(w) for w in written]))]
+        return written
     import shutil
 
     from ..lidar.tileindex import TileIndex
@@ -173,6 +188,80 @@ def terrain_model(kind: str, tiles: Sequence[str | os.PathLike], output: str | o
     if text:
         write_text_grid(out.with_suffix(".txt"), grid, transform, crs=out_crs)
     write_product(out, grid, transform, out_crs)
+    shutil.rmtree(parts, ignore_errors=True)
+    return [str(out)]
+
+
+def statistics_raster(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
+                      cell_m: float = 1.0, values: str = "z", classes: Sequence[int] | None = None,
+                      vrt: bool = True, workers: int | None = None, scheduler: str | None = None,
+                      resume: bool = True, progress: Callable[[int], Any] | None = None,
+                      bounds: Sequence[float] | None = None, max_cells: int | None = None) -> list[str]:
+    """Per-cell point statistics of tiles: min, max, mean, count and stdev bands (``lidarcat lidar stats``).
+
+    Parameters
+    ----------
+    tiles : sequence of path
+    output : path
+        Ending in ``.tif``/``.tiff``: one five-band GeoTIFF over all the tiles (each band
+        mosaicked as :func:`mosaic_grids` does).  Else a folder receiving ``<tile>.tif`` per
+        tile, and with *vrt* their virtual mosaic ``mosaic.vrt``
+        (:func:`lidarcat.lidar.geotiff.write_vrt`).
+    cell_m : float
+        Cell, metres.
+    values : str
+        ``"z"`` (heights, metres) or a point attribute (e.g. ``"intensity"``).
+    classes : sequence of int, optional
+        Only points of these classes (default: all but noise, class 7).
+    crs, workers, scheduler, resume, progress, bounds, max_cells
+        As :func:`terrain_model`.
+
+    Returns
+    -------
+    list of str
+        The written files (the GeoTIFF; or the tile GeoTIFFs, then the VRT).
+    """
+    import shutil
+
+    from ..lidar.geotiff import write_bands, write_vrt
+    from ..lidar.jobs import run_jobs
+    from ..lidar.raster import STAT_BANDS
+    from ..lidar.tileindex import TileIndex
+
+    out = Path(output)
+    params: dict[str, Any] = {"cell_m": float(cell_m), "values": values,
+                              "classes": None if classes is None else [int(c) for c in classes]}
+    if bounds is not None:
+        params["bounds"] = tuple(map(float, bounds))
+    if max_cells is not None:
+        params["max_cells"] = int(max_cells)
+    if out.suffix.lower() not in (".tif", ".tiff"):
+        jobs = _in_bounds(_jobs("stats", tiles, out, crs=crs, params=params, overlap_m=cell_m, suffix=".tif"), params.get("bounds"))
+        written = run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
+        if vrt:
+            written = list(written) + [str(write_vrt(out / "mosaic.vrt", [Path(w) for w in written]))]
+        return written
+    import rasterio
+
+    parts = out.parent / f".{out.name}.tiles"
+    jobs = _in_bounds(_jobs("stats", tiles, parts, crs=crs, params=params, overlap_m=cell_m, suffix=".tif"), params.get("bounds"))
+    run_jobs(jobs, workers=workers, scheduler=scheduler, resume=resume, progress=progress)
+    out_crs = TileIndex.build([Path(t) for t in tiles], crs=crs).crs
+    stacks = []
+    for j in jobs:
+        with rasterio.open(j.output) as ds:
+            stacks.append((ds.read().astype(np.float64), ds.transform))
+    from ..lidar.raster import GeoTransform
+
+    layers = []
+    transform = None
+    for b in range(len(STAT_BANDS)):
+        grids = [(a[b], GeoTransform(t.c, t.f, t.a)) for a, t in stacks]
+        g, transform = mosaic_grids(grids, [j.bounds for j in jobs], max_cells=max_cells)
+        if STAT_BANDS[b] == "count":
+            g = np.where(np.isnan(g), 0.0, g)
+        layers.append(g)
+    write_bands(out, np.stack(layers), transform, out_crs, STAT_BANDS)
     shutil.rmtree(parts, ignore_errors=True)
     return [str(out)]
 

@@ -4,10 +4,14 @@ survey.toml::
 
     [products]
     ground = true               # classify ground (class 2) into copies of the tiles (false: use their class 2)
-    filter = "smrf"             # "smrf" (simple morphological filter) or "ptd" (TerraScan's TIN densification)
+    filter = "smrf"             # "smrf" (simple morphological filter), "ptd" (TerraScan's TIN densification)
+                                # or "csf" (cloth simulation filter)
+    noise = false               # ground: class 7 on isolated points (statistical outlier test)
+    hag = false                 # ground: extra dimension HeightAboveGround (m) in the classified copies
     dtm = true                  # dtm.tif: TIN of the ground sampled at cell centres (gaps stay NaN)
     dsm = true                  # dsm.tif: highest first return per cell
     ndsm = false                # ndsm.tif: DSM - DTM (needs dtm and dsm)
+    stats = false               # stats.tif: min, max, mean, count, stdev of the point heights per cell (cell_m)
     hillshade = false           # <model>_hillshade.tif of each model written
     text_grid = false           # <model>.txt: the report's E N H text grid
     cell_m = 1.0                # cell of the models, m
@@ -84,7 +88,7 @@ def settings(survey: Any) -> dict[str, Any]:
 
 def asked(cfg: dict[str, Any]) -> list[str]:
     """The products a ``[products]`` table asks for, in the order the stage makes them."""
-    return ([k for k in ("ground", "dtm", "dsm", "ndsm", "contours", "hypsometry", "charts") if cfg.get(k)]
+    return ([k for k in ("ground", "dtm", "dsm", "ndsm", "stats", "contours", "hypsometry", "charts") if cfg.get(k)]
             + (["swath"] if cfg.get("swath") else []) + (["calibration"] if cfg.get("calibration_trajectory") else []))
 
 
@@ -99,7 +103,7 @@ def run(ctx: Context, tmp: Path) -> dict:
                                    write_layers)
     from ..production.ground import params_from_dict
     from ..production.terrain import write_text_grid
-    from .lidar import ground, read_grid, terrain_model
+    from .lidar import ground, read_grid, statistics_raster, terrain_model
 
     survey = ctx["survey"]
     cfg = {k: ctx.params[k] for k in PRODUCTS_KEYS}
@@ -119,7 +123,8 @@ def run(ctx: Context, tmp: Path) -> dict:
     if cfg["ground"]:
         method = cfg["filter"]
         params = params_from_dict(method, {})
-        outs = [Path(p) for p in ground(tiles, tmp / "ground", crs=crs, method=method, params=params, resume=False)]
+        outs = [Path(p) for p in ground(tiles, tmp / "ground", crs=crs, method=method, params=params,
+                                        noise=cfg["noise"], hag=cfg["hag"], resume=False)]
         for m in (tmp / "ground").glob("*.done.json"):   # resume markers of the tile runner: not products
             m.unlink()
         tiles = sorted(outs)
@@ -165,6 +170,11 @@ def run(ctx: Context, tmp: Path) -> dict:
         if cfg["text_grid"]:
             write_text_grid(tmp / "ndsm.txt", *rasters["ndsm.tif"], crs=crs)
             done["files"] += ["ndsm.txt", "ndsm.prj"]
+        tick()
+    if cfg["stats"]:   # the action of `lidarcat lidar stats TILES -o stats.tif`
+        statistics_raster(tiles, tmp / "stats.tif", crs=crs, cell_m=cell, resume=False)
+        done["files"].append("stats.tif")
+        done["stats"] = {"cell_m": cell, "bands": ["min", "max", "mean", "count", "stdev"]}
         tick()
     features: list[dict[str, Any]] = []
     spots = np.zeros((0, 4))

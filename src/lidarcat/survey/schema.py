@@ -279,7 +279,8 @@ class ProductsSettings:
 
     ground: bool = _key(BOOLEAN, True, "classify ground (class 2) into copies of the tiles (false: use their "
                                        "class 2)")
-    filter: str = _key(STRING, "smrf", "\"smrf\" (simple morphological filter) or \"ptd\" (TIN densification)")
+    filter: str = _key(STRING, "smrf", "\"smrf\" (simple morphological filter), \"ptd\" (TIN densification) "
+                                       "or \"csf\" (cloth simulation)")
     dtm: bool = _key(BOOLEAN, True, "dtm.tif: TIN of the ground, gaps NaN")
     dsm: bool = _key(BOOLEAN, True, "dsm.tif: highest first return per cell")
     ndsm: bool = _key(BOOLEAN, False, "ndsm.tif = DSM - DTM (needs dtm and dsm)")
@@ -335,6 +336,9 @@ class ProductsSettings:
     delivery: tuple[str, ...] = _key(STRINGS, (), "delivery formats: \"tfw\" (world file beside every GeoTIFF), "
                                                   "\"shp\" (shp/: Shapefile layers), \"dxf\" (contours.dxf, "
                                                   "lidarcat[cad])")
+    noise: bool = _key(BOOLEAN, False, "ground: class 7 on isolated points (statistical outlier test)")
+    hag: bool = _key(BOOLEAN, False, "ground: extra dimension HeightAboveGround (m) in the classified copies")
+    stats: bool = _key(BOOLEAN, False, "stats.tif: min, max, mean, count, stdev of the point heights per cell")
 
     def to_dict(self) -> dict[str, Any]:
         """The table as the stage's parameters."""
