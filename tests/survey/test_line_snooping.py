@@ -87,3 +87,10 @@ def test_snooping_report_keeps_the_wrong_line_observation(tmp_path):
     lc = json.loads((out / "summary.json").read_text())["line_control"]
     assert "removed" not in lc and lc["rejected"] == [f"line {line} on photo {photo}"]
     assert len(_table(out / "line_residuals.csv")) - 1 == n_obs
+
+
+def test_the_text_report_names_the_removed_line(tmp_path):
+    folder, (line, photo), _ = _demo_with_lines(tmp_path)
+    r = CliRunner().invoke(cli, ["adjust", str(folder), "-o", str(tmp_path / "rm"), "--snooping", "remove"])
+    assert r.exit_code == 0, r.output
+    assert f"Line snooping removed line {line} on photo {photo} (w 6." in r.output
