@@ -649,8 +649,10 @@ def _adjust_rig_block(problem: BundleProblem, plan, snoop_kw: dict) -> tuple[Sno
     kw = {k: snoop_kw[k] for k in ("max_iter", "variance_factor", "chi2_level")}
     comp = [RigRelativePoses(plan.sensor_names, estimate=plan.estimate, rig_id=plan.rig_id)]
     first = adjust_with_parameters(problem, comp, precision="none", **kw)
-    if not first.bundle.success:
-        return snoop(problem, **{**snoop_kw, "mode": "off"}), first
+    if not first.bundle.success:    # written as it stands (the status says why), the start poses as given
+        log.warning("rig %s: the estimation of the relative poses did not converge (%s)", plan.rig_id,
+                    first.bundle.message)
+        return snoop(problem, **{**snoop_kw, "mode": "off"}), None
     fixed = dataclasses.replace(problem, rays=first.bundle.problem.rays)   # the rig at its estimate
     sres = snoop(fixed, **snoop_kw)
     final = adjust_with_parameters(sres.result.problem, comp, without=sres.result, precision=snoop_kw["precision"],
