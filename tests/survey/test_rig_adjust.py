@@ -201,3 +201,11 @@ def test_photo_pose_covariance_is_the_propagated_joint_covariance():
     # 20000 draws: the sample sds within 2 % (5 sigma of their sampling error), correlations within 0.04
     np.testing.assert_allclose(np.sqrt(np.diag(emp)), sd, rtol=0.02)
     np.testing.assert_allclose(emp / np.outer(sd, sd), cov[1] / np.outer(sd, sd), atol=0.04)
+
+
+def test_self_calibration_of_a_rig_survey_is_refused(tmp_path):
+    b = rig_block(0, n_strips=2, exposures_per_strip=2, n_points=200)
+    _write_rig_survey(tmp_path / "s", b)
+    r = CliRunner().invoke(cli, ["adjust", str(tmp_path / "s"), "-o", str(tmp_path / "out"), "--self-calibrate", "c"])
+    assert r.exit_code == 2
+    assert "rigs.toml: additional parameters (self-calibration, frame offsets) in a rig survey are not supported" in r.output
