@@ -26,11 +26,11 @@ def _table(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(line for line in fh if not line.startswith("#")))
 
 
-def _rig_toml(block, rotation, translation, estimate: str | None) -> str:
+def _rig_toml(block, rotation, translation, estimate: str | None, poses: bool = True) -> str:
     lines = ["[oblique]", 'sensors = ["nadir", "forward", "backward"]']
     if estimate is not None:
         lines.append(f"estimate = {estimate}")
-    for k, name in enumerate(block.sensor_names[1:], start=1):
+    for k, name in enumerate(block.sensor_names[1:] if poses else (), start=1):
         rv = np.degrees(rotation_log(D @ rotation[k] @ D)[0])
         t = D @ translation[k]
         lines += [f"[oblique.{name}]", f"rotation_deg = [{', '.join(repr(float(v)) for v in rv)}]",
@@ -38,9 +38,12 @@ def _rig_toml(block, rotation, translation, estimate: str | None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _write_rig_survey(folder: Path, block, *, estimate: str | None = "true", given: str = "start") -> dict:
+def _write_rig_survey(folder: Path, block, *, estimate: str | None = "true", given: str = "start",
+                      imu_deg: float | None = None) -> dict:
     """The rig block as a survey folder: one photo per exposure and sensor, corrected photo
-    coordinates, GNSS on the nadir photos, the block's control points; returns photo -> (exposure, sensor)."""
+    coordinates, GNSS on the nadir photos, the block's control points; returns photo -> (exposure, sensor).
+    *imu_deg*: every photo gets its true position (3 cm noise) and attitude (*imu_deg* noise) and the rig
+    file no pose tables (the relative poses estimated from nothing but photos.csv)."""
     p = block.problem
     rays = p.rays
     folder.mkdir(parents=True)
@@ -51,14 +54,22 @@ def _write_rig_survey(folder: Path, block, *, estimate: str | None = "true", giv
                                         encoding="utf-8")
     rot, trans = ((rays.sensor_rotation, rays.sensor_translation_m) if given == "start"
                   else (block.true_rotation, block.true_translation_m))
-    (folder / "rigs.toml").write_text(_rig_toml(block, rot, trans, estimate), encoding="utf-8")
+    (folder / "rigs.toml").write_text(_rig_toml(block, rot, trans, estimate, poses=imu_deg is None), encoding="utf-8")
+    rng = np.random.default_rng(11)
+    truth = photo_poses(block.true_eo, block.true_rotation, block.true_translation_m,
+                        np.repeat(np.arange(len(p.photo_ids)), 3), np.tile(np.arange(3), len(p.photo_ids)))
     photos = ["photo,camera,rig_exposure,X0,Y0,Z0,omega_deg,phi_deg,kappa_deg,sd_X0,sd_Y0,sd_Z0"]
     which = {}
     for e, eid in enumerate(p.photo_ids):
         for s, name in enumerate(block.sensor_names):
             pid = f"{eid}{SUFFIX[s]}"
             which[pid] = (e, s)
-            if s == 0:
+            if imu_deg is not None:
+                x0 = [float(v) for v in truth[3 * e + s, :3] + rng.normal(0, 0.03, 3)]
+                ang = [float(v) for v in np.degrees(truth[3 * e + s, 3:]) + rng.normal(0, imu_deg, 3)]
+                sd = "0.03,0.03,0.03" if s == 0 else ",,"
+                photos.append(f"{pid},{name},{eid},{x0[0]!r},{x0[1]!r},{x0[2]!r},{ang[0]!r},{ang[1]!r},{ang[2]!r},{sd}")
+            elif s == 0:
                 x0 = p.eo_constraint_params[e, :3]
                 ang = np.degrees(p.initial_eo[e, 3:])
                 photos.append(f"{pid},{name},{eid},{float(x0[0])!r},{float(x0[1])!r},{float(x0[2])!r},{ang[0]},{ang[1]},{ang[2]},"
@@ -209,3 +220,37 @@ def test_self_calibration_of_a_rig_survey_is_refused(tmp_path):
     r = CliRunner().invoke(cli, ["adjust", str(tmp_path / "s"), "-o", str(tmp_path / "out"), "--self-calibrate", "c"])
     assert r.exit_code == 2
     assert "rigs.toml: additional parameters (self-calibration, frame offsets) in a rig survey are not supported" in r.output
+
+
+def test_relative_poses_without_pose_tables_start_from_photos_csv(tmp_path):
+    """estimate = true and no pose tables: the start from photos.csv's positions and attitudes (0.3 deg,
+    3 cm off per photo) converges to the truth, relative poses within 3 sd."""
+    b = rig_block(2, n_strips=2, exposures_per_strip=3, n_points=500)
+    which = _write_rig_survey(tmp_path / "s", b, imu_deg=0.3)
+    assert "[oblique.forward]" not in (tmp_path / "s" / "rigs.toml").read_text()
+    out = tmp_path / "out"
+    r = CliRunner().invoke(cli, ["adjust", str(tmp_path / "s"), "-o", str(out), "--eo-constraints", "--json"])
+    assert r.exit_code == 0, r.output
+    z = _photo_z(b, which, out)
+    assert np.abs(z).max() < 3
+    from lidarcat.geometry.rolling import rodrigues
+
+    for row in _table(out / "rig_poses.csv")[1:]:
+        k = b.sensor_names.index(row["sensor"])
+        r_est = rodrigues(np.radians([float(row[f"rotation_{c}_deg"]) for c in "xyz"]))[0]
+        dr = np.degrees(rotation_log(r_est @ (D @ b.true_rotation[k] @ D).T)[0])
+        dt = np.array([float(row[f"translation_{c}_m"]) for c in "xyz"]) - D @ b.true_translation_m[k]
+        sd = np.array([float(row[f"sd_rotation_{c}_deg"]) for c in "xyz"] +
+                      [float(row[f"sd_translation_{c}_m"]) for c in "xyz"])
+        assert np.all(np.abs(np.r_[dr, dt]) < 3 * sd), (row["sensor"], np.r_[dr, dt] / sd)
+
+
+def test_an_unposed_sensor_needs_attitudes_in_photos_csv(tmp_path):
+    b = rig_block(0, n_strips=2, exposures_per_strip=2, n_points=200)
+    _write_rig_survey(tmp_path / "s", b)
+    rigs = tmp_path / "s" / "rigs.toml"
+    rigs.write_text(rigs.read_text().split("[oblique.forward]")[0], encoding="utf-8")
+    r = CliRunner().invoke(cli, ["adjust", str(tmp_path / "s"), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 2, r.output
+    assert ("rigs.toml: rig 'oblique': sensor 'forward' has no pose table and no exposure gives both its photo and "
+            "the rig frame's photo with a position and attitude in photos.csv") in r.output

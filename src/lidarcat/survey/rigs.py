@@ -17,7 +17,11 @@ translation in metres::
 
 ``estimate = true`` (in the rig's table) makes ``lidarcat adjust`` estimate the relative poses of
 every sensor but the rig frame, starting at the given ones; ``estimate = ["forward"]`` those of the
-named sensors only (:func:`load_rig_estimates`; default: the poses are taken as given).
+named sensors only (:func:`load_rig_estimates`; default: the poses are taken as given).  An
+estimated sensor may have no pose table: its start is then the median over the exposures whose
+rig-frame photo and sensor photo both have a position and attitude in photos.csv of
+``Q_s = M_s M_b^T``, ``d_s = Q_s M_b (X0_b - X0_s)`` (the composition below solved for the
+relative pose; the rotation the projection of the mean onto a rotation).
 
 In ``lidarcat adjust`` (:func:`rig_plan`) the photos become their exposures
 (:func:`lidarcat.bundle.rig.exposure_problem`); eop.csv then holds every photo's pose, the
@@ -55,7 +59,7 @@ from ..geometry.rigs import Rig
 from ..geometry.rolling import rodrigues
 
 __all__ = ["RIG_POSE_KEYS", "load_rigs", "rig_exposures", "check_rig_exposures", "survey_rigs",
-           "load_rig_estimates", "RigPlan", "rig_plan", "rig_photo_poses", "rig_pose_rows", "RIG_POSE_COLUMNS"]
+           "load_rig_estimates", "unposed_sensors", "RigPlan", "rig_plan", "rig_photo_poses", "rig_pose_rows", "RIG_POSE_COLUMNS"]
 
 #: the keys of a sensor's pose table
 RIG_POSE_KEYS = ("rotation_deg", "translation_m")
@@ -118,6 +122,10 @@ def load_rigs(path: str | Path, cameras: Mapping[str, Camera]) -> dict[str, Rig]
         for k, c in enumerate(sensors[1:], start=1):
             sub = f"{rid}.{c}"
             pose = tab.get(c)
+            est = tab.get("estimate", False)
+            if pose is None and (est is True or (isinstance(est, list) and c in est)):
+                rot[k] = np.eye(3)
+                continue        # estimated from nothing: the approximation comes from photos.csv (rig_plan)
             if pose is None:
                 raise SurveyError(f"{where}: rig {excerpt(rid)}: sensor {excerpt(c)} has no pose table [{sub}] "
                                   "with rotation_deg and translation_m (sensor_from_rig)")
@@ -337,6 +345,9 @@ def rig_plan(survey: Any, problem: Any) -> tuple[Any, RigPlan | None]:
         raise SurveyError(f"{survey.files.get('camera', survey.toml_path)}: a rolling shutter (readout_time_ms) "
                           "in a rig block is not supported yet")
     q, d = rig_sensor_poses(rig)
+    unposed = unposed_sensors(path, rigs)[rid]
+    if unposed:
+        _photo_relative_poses(survey, np.asarray(sensor), exposure, unposed, names, rid, path, q, d)
     focal = np.array([survey.cameras[c].focal_length_mm for c in names], dtype=float)
     try:
         out, ex = exposure_problem(problem, exposure, sensor, q, d, sensor_focal_mm=focal, sensor_names=names)
@@ -453,3 +464,36 @@ def rig_pose_rows(plan: RigPlan, rotation: Any, translation_m: Any, params_cov: 
             sd[:3] = np.degrees(sd[:3])
         rows.append([plan.rig_id, name, *rv[s], *t[s], *sd, s in col])
     return rows
+
+
+def unposed_sensors(path: str | Path, rigs: Mapping[str, Rig]) -> dict[str, tuple[int, ...]]:
+    """The sensors (indices) of each rig that the rig file gives no pose table (estimated ones only,
+    :func:`load_rigs`)."""
+    data, _ = read_toml(Path(path))
+    return {rid: tuple(k for k, c in enumerate(rig.cameras) if k > 0 and c.id not in data.get(rid, {}))
+            for rid, rig in rigs.items()}
+
+
+def _photo_relative_poses(survey: Any, plan_sensor: np.ndarray, exposure: Sequence[str], sensors: Sequence[int],
+                          names: Sequence[str], rid: str, path: Any, q: np.ndarray, d: np.ndarray) -> None:
+    """Fill ``q[s]``, ``d[s]`` (thesis frame) of *sensors* from photos.csv (module docstring), in place."""
+    from ..geometry.collinearity import rotation_matrix
+
+    photos = survey.photos
+    ref = {exposure[i]: ph for i, ph in enumerate(photos) if plan_sensor[i] == 0 and ph.rig_exposure}
+    for s in sensors:
+        pairs = [(ref[exposure[i]], ph) for i, ph in enumerate(photos) if plan_sensor[i] == s and ph.rig_exposure
+                 and exposure[i] in ref]
+        pairs = [(b, p) for b, p in pairs
+                 if all(v is not None for v in (b.position_m, b.attitude_deg, p.position_m, p.attitude_deg))]
+        if not pairs:
+            raise SurveyError(f"{path}: rig {excerpt(rid)}: sensor {excerpt(names[s])} has no pose table and no "
+                              "exposure gives both its photo and the rig frame's photo with a position and attitude "
+                              "in photos.csv to start its estimate from")
+        mb = rotation_matrix(np.radians([b.attitude_deg for b, _ in pairs])).reshape(-1, 3, 3)
+        ms = rotation_matrix(np.radians([p.attitude_deg for _, p in pairs])).reshape(-1, 3, 3)
+        dx = np.array([b.position_m for b, _ in pairs], dtype=float) - np.array([p.position_m for _, p in pairs])
+        qs = ms @ np.transpose(mb, (0, 2, 1))
+        u, _, vt = np.linalg.svd(qs.sum(axis=0))
+        q[s] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+        d[s] = np.median(np.einsum("ij,njk,nk->ni", q[s], mb, dx), axis=0)
