@@ -281,6 +281,9 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
             click.echo(format_parameters(summary))
         if (summary.get("snooping") or {}).get("reason"):
             click.echo(f"Note: {summary['snooping']['reason']}.")
+        for gone in (summary.get("line_control") or {}).get("removed", ()):
+            click.echo(f"Line snooping removed line {gone['line']} on photo {gone['photo']} "
+                       f"(w {gone['w']:.2f} > {gone['w_critical']:.2f}; line_residuals.csv).")
     if verdict:
         click.echo(f"Warning: {verdict}.", err=True)
     if code:

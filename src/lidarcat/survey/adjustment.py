@@ -25,6 +25,7 @@ from ..bundle.solve import BundleResult
 from ..errors import SurveyError
 from .covariance import write_result_eop_covariance
 from .motion import with_survey_motion
+from .rigs import rig_plan
 
 if TYPE_CHECKING:  # pragma: no cover
     from .folder import Survey
@@ -540,20 +541,197 @@ def adjust_survey_into(
     family_level = FAMILY_LEVEL if family_level is None else float(family_level)
     problem = with_survey_motion(survey, problem_from_survey(survey, control=control, observations=observations,
                                                              eo_constraints=eo_constraints))
+    problem, plan = rig_plan(survey, problem)       # a rig block: photos -> exposures (survey/rigs.py)
     params = dict(control=problem.info.get("control_set"), observations=problem.info.get("observations"),
                   variance_factor=variance_factor or settings.variance_factor,
                   chi2_level=settings.chi2_level if chi2_level is None else chi2_level,
                   eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
                   snooping_level=None if snooping_level is None else float(snooping_level),
                   family_level=family_level, robust=robust, start=start, precision=precision)
-    sres = snoop(problem, mode=snooping, level=snooping_level, family_level=family_level, robust=robust, start=start,
-                 max_iter=max_iter, precision=precision, variance_factor=params["variance_factor"],
-                 chi2_level=params["chi2_level"], progress=progress)
+    snoop_kw = dict(mode=snooping, level=snooping_level, family_level=family_level, robust=robust, start=start,
+                    max_iter=max_iter, precision=precision, variance_factor=params["variance_factor"],
+                    chi2_level=params["chi2_level"], progress=progress)
+    selfcal = None
+    if plan is not None and plan.estimate:
+        sres, selfcal = _adjust_rig_block(problem, plan, snoop_kw)
+    else:
+        sres = snoop(problem, **snoop_kw)
+    sres, lines_removed = _snoop_line_control(sres, snoop_kw)
+    provenance = survey_provenance(survey, params)
     write_adjustment(sres.result, folder, extra={
         "elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs, "height_system": survey.height_system,
         "survey": survey.name, "control_set": params["control"], "observations": params["observations"]},
-        snooping=sres, provenance=survey_provenance(survey, params))
+        snooping=sres, provenance=provenance)
+    if lines_removed is not None:
+        _write_removed_lines(folder, sres.result, *lines_removed, provenance)
+    if plan is not None:
+        _write_rig_tables(folder, plan, sres.result, selfcal, provenance)
     return sres
+
+
+def _snoop_line_control(sres: SnoopingResult, snoop_kw: dict) -> tuple[SnoopingResult, Any]:
+    """With snooping ``remove``: data snooping over the line observations of line control
+    (:func:`lidarcat.bundle.line_tests.snoop_lines`, at the level of line_residuals.csv) after the
+    point snooping; returns the snooping result with the final adjustment (its point tests
+    recomputed) and ``(problem with every line observation, LineSnooping)``, or None when nothing
+    was removed, there are no lines, or no photo covariances (``precision`` none)."""
+    import dataclasses
+
+    from ..bundle.line_tests import snoop_lines
+    from ..bundle.redundancy import reliability
+
+    res = sres.result
+    if (snoop_kw["mode"] != "remove" or getattr(res.problem, "lines", None) is None or not res.success
+            or snoop_kw["precision"] == "none"):
+        return sres, None
+    kw = {k: snoop_kw[k] for k in ("max_iter", "variance_factor", "chi2_level", "precision")}
+    ls = snoop_lines(res, adjust_kwargs=kw)
+    if not ls.removed:
+        return sres, None
+    for label, w in zip(ls.removed, ls.removed_w):
+        log.info("line snooping: removed %s (w %.2f > %.2f)", label, w, ls.tests.critical_w)
+    rel = sres.reliability
+    if rel is not None and ls.result.success:
+        rel = reliability(ls.result, level=rel.alpha, power=rel.power)
+    return dataclasses.replace(sres, result=ls.result, reliability=rel), (res.problem, ls)
+
+
+def _write_removed_lines(folder, result: BundleResult, full: BundleProblem, ls, provenance: dict | None) -> None:
+    """The line observations line snooping removed: rows of line_residuals.csv (their residuals at the final
+    orientation, the w at their removal, ``rejected`` = ``removed``) and ``line_control.removed`` of
+    summary.json (line, photo, w, w_critical)."""
+    import csv
+    import json
+    from pathlib import Path
+
+    from .._util import write_csv_atomic, write_json_atomic
+    from ..bundle.lines import line_residuals_mm
+    from .lines import LINE_RESIDUAL_COLUMNS
+
+    folder = Path(folder)
+    L = full.lines
+    labels = L.observation_labels(full.photo_ids)
+    at = {lab: k for k, lab in enumerate(labels)}
+    pos = {pid: i for i, pid in enumerate(result.photo_ids)}
+    eo = np.asarray(result.eo_params)[[pos[str(p)] for p in full.photo_ids]]
+    v = line_residuals_mm(full, eo)
+    crit = ls.tests.critical_w
+    path = folder / "line_residuals.csv"
+    with open(path, encoding="utf-8", newline="") as fh:
+        text = fh.read().splitlines()
+    comments = [ln[1:].strip() for ln in text if ln.startswith("#")]
+    rows = list(csv.reader(ln for ln in text if not ln.startswith("#")))[1:]
+    removed = []
+    for label, w in zip(ls.removed, ls.removed_w):
+        k = at[label]
+        lid, ph = str(L.line_ids[L.line_index[k]]), str(full.photo_ids[L.photo_index[k]])
+        rows.append([lid, ph, *v[k], *(v[k] / L.pixel_mm[k]), math.nan, math.nan, w, crit, "removed"])
+        removed.append({"line": lid, "photo": ph, "w": float(w), "w_critical": float(crit)})
+    write_csv_atomic(path, LINE_RESIDUAL_COLUMNS, rows, comments=comments + [
+        "rejected 'removed': removed by line snooping (--snooping remove), w at its removal, residuals at the "
+        "final orientation"], provenance=provenance)
+    summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+    summary.setdefault("line_control", {})["removed"] = removed
+    write_json_atomic(folder / "summary.json", summary)
+
+
+def _adjust_rig_block(problem: BundleProblem, plan, snoop_kw: dict) -> tuple[SnoopingResult, Any]:
+    """A rig block whose relative poses are estimated (rig file ``estimate``): the relative poses
+    estimated from every observation (:class:`lidarcat.bundle.rig.RigRelativePoses` through
+    :func:`lidarcat.bundle.adjust_with_parameters`), data snooping with the rig fixed at that
+    estimate, then the estimation again without what snooping removed.  Returns the snooping
+    result (its ``result`` the final adjustment) and the final :class:`SelfCalResult`."""
+    import dataclasses
+
+    from ..bundle.rig import RigRelativePoses
+    from ..bundle.selfcal import adjust_with_parameters
+
+    kw = {k: snoop_kw[k] for k in ("max_iter", "variance_factor", "chi2_level")}
+    comp = [RigRelativePoses(plan.sensor_names, estimate=plan.estimate, rig_id=plan.rig_id)]
+    first = adjust_with_parameters(problem, comp, precision="none", **kw)
+    if not first.bundle.success:    # written as it stands (the status says why), the start poses as given
+        log.warning("rig %s: the estimation of the relative poses did not converge (%s)", plan.rig_id,
+                    first.bundle.message)
+        return snoop(problem, **{**snoop_kw, "mode": "off"}), None
+    fixed = dataclasses.replace(problem, rays=first.bundle.problem.rays)   # the rig at its estimate
+    sres = snoop(fixed, **snoop_kw)
+    final = adjust_with_parameters(sres.result.problem, comp, without=sres.result, precision=snoop_kw["precision"],
+                                   **kw)
+    return dataclasses.replace(sres, result=final.bundle), final
+
+
+def _write_rig_tables(folder, plan, result: BundleResult, selfcal, provenance: dict | None) -> None:
+    """The rig block's tables (:mod:`lidarcat.survey.rigs`): eop.csv, eop_covariance.csv and the image rows of
+    residuals.csv per photo (the exposures' body poses move to rig_exposures.csv), rig_poses.csv (the
+    relative poses, estimated or given) and the key ``rig`` of summary.json."""
+    import json
+    from functools import partial
+    from pathlib import Path
+
+    from .._util import write_csv_atomic as _write_csv
+    from .._util import write_json_atomic
+    from .covariance import EOP_COVARIANCE_FILE, write_eop_covariance
+    from .rigs import RIG_POSE_COLUMNS, rig_photo_poses, rig_pose_rows
+
+    write_csv = partial(_write_csv, provenance=provenance)
+    folder = Path(folder)
+    rays = result.problem.rays
+    q, d = rays.sensor_rotation, rays.sensor_translation_m
+    kw: dict[str, Any] = {}
+    pcov = None
+    if selfcal is not None:
+        pcov = np.asarray(selfcal.cov)
+        sd_g = np.sqrt(np.clip(np.diag(pcov), 0, None))
+        sd_c = np.sqrt(np.clip(np.diagonal(np.asarray(result.eo_cov), axis1=1, axis2=2), 0, None))
+        cross = np.einsum("kpi,k,pi->pik", np.asarray(selfcal.eo_correlation), sd_g, sd_c)   # Cov(body, g)
+        start_q = np.asarray(rays.sensor_rotation).copy()
+        eps = np.reshape(selfcal.estimates, (-1, 6))[:, :3]
+        from ..geometry.rolling import rodrigues
+
+        est = list(plan.estimate)
+        start_q[est] = np.transpose(rodrigues(eps), (0, 2, 1)) @ start_q[est]   # Q = exp([eps]x) Q0
+        kw = dict(params=np.asarray(selfcal.estimates), params_cov=pcov, cross_cov=cross, start_rotation=start_q)
+    eo, cov = rig_photo_poses(plan, result.eo_params, result.eo_cov, q, d, **kw)
+    sd = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
+    kind = result.variance_factor_kind.replace("_", " ")
+    body_sd = result.eo_sd
+    write_csv(folder / "rig_exposures.csv", ("exposure",) + EOP_COLUMNS[1:], [
+        [eid, *p[:3], *np.degrees(p[3:]), *s[:3], *np.degrees(s[3:])]
+        for eid, p, s in zip(result.photo_ids, result.eo_params, body_sd)],
+        comments=[f"rig {plan.rig_id}: the body pose (the rig frame, sensor {plan.sensor_names[0]}) of every "
+                  f"exposure: X0, Y0, Z0 (m), omega, phi, kappa (deg) and sds ({kind} variance factor)"])
+    write_csv(folder / "eop.csv", EOP_COLUMNS, [
+        [pid, *p[:3], *np.degrees(p[3:]), *s[:3], *np.degrees(s[3:])]
+        for pid, p, s in zip(plan.photo_ids, eo, sd)],
+        comments=["exterior orientation: X0, Y0, Z0 (m), omega, phi, kappa (deg), "
+                  "M = R3(kappa) R2(phi) R1(omega); sd_* standard deviations "
+                  f"({kind} variance factor); rig {plan.rig_id}: each photo its exposure's body pose composed "
+                  "with its sensor's relative pose, the sds propagated (rig_poses.csv)"])
+    if (folder / EOP_COVARIANCE_FILE).exists():
+        write_eop_covariance(folder / EOP_COVARIANCE_FILE, list(plan.photo_ids), cov, variance_factor=kind,
+                             provenance=provenance)
+    pr = result.problem
+    photo = plan.photo_of_observation(pr.photo_index, rays.sensor_index)
+    ref = {int(e): pid for pid, e, s in zip(plan.photo_ids, plan.exposure_index, plan.sensor) if s == 0}
+    nan = math.nan
+    rows: list[list[Any]] = [["image", ph, pr.point_ids[j], v[0], v[1], nan, nan, nan, nan, nan, nan]
+                             for ph, j, v in zip(photo, pr.point_index, result.residuals_mm)]
+    for j, v, sdc in zip(pr.constraint_point_index, result.constraint_residuals_m, pr.constraint_sd_m):
+        rows.append(["control", "", pr.point_ids[j], nan, nan, *np.where(np.isfinite(sdc), v, nan), nan, nan, nan])
+    if result.eo_constraint_residuals is not None:
+        for i, v, sde in zip(pr.eo_constraint_photo_index, result.eo_constraint_residuals, pr.eo_constraint_sd):
+            v = np.where(np.isfinite(sde), v, nan)
+            rows.append(["eo", ref.get(int(i), pr.photo_ids[i]), "", nan, nan, *v[:3], *np.degrees(v[3:])])
+    write_csv(folder / "residuals.csv", RESIDUAL_COLUMNS, rows, comments=["residuals v = adjusted - observed"])
+    prow = rig_pose_rows(plan, q, d, pcov)
+    write_csv(folder / "rig_poses.csv", RIG_POSE_COLUMNS, prow, comments=[
+        f"rig {plan.rig_id}: every sensor's pose relative to the rig frame (sensor_from_rig, as the rig file "
+        "writes it: rotation vector deg, translation m); estimated: adjusted with sds (of a small rotation "
+        "applied on the left), else the rig file's"])
+    summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+    summary["rig"] = {"rig": plan.rig_id, "exposures": len(plan.exposure_ids), "photos": len(plan.photo_ids),
+                      "sensors": [dict(zip(RIG_POSE_COLUMNS[1:], r[1:])) for r in prow]}
+    write_json_atomic(folder / "summary.json", summary)
 
 
 def write_survey_folder(survey: Survey, outdir, t0: float, parameters: dict,

@@ -233,6 +233,9 @@ def selfcal_adjust(survey=None, *, control: str | None = None, self_calibrate: s
     if not st.active:
         raise SurveyError(f"{survey.toml_path}: no additional parameter switched on: give --self-calibrate "
                           "and/or --frame-offset, or a [self_calibration] table")
+    if survey.files.get("rigs") is not None:   # the rig block is survey.adjustment's (survey.rigs.rig_plan)
+        raise SurveyError(f"{survey.files['rigs']}: additional parameters (self-calibration, frame offsets) in a rig "
+                          "survey are not supported yet; adjust it without them")
     control = control or st.control
     if control is None and st.frame_offset is not None:
         control = _sets_with_sources(survey, st.frame_offset)
