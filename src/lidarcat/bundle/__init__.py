@@ -21,6 +21,9 @@ The package, one concern per module, in the order a step runs:
                     approximate orientation (:func:`screen`)
 ``robust``          the robust start: screening, graduated IRLS, the rejected
                     observations named and put back (:func:`robust_start`)
+``variance``        variance components: one factor per observation group (tie
+                    points, targets, control, GNSS, IMU), Förstner's iterated
+                    estimate (:func:`iterate_components`)
 ==================  ==========================================================
 
 Additional parameters (issue 13): ``additional`` (self-calibration, GNSS
