@@ -58,7 +58,12 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-__all__ = ["run_block", "score_tracks", "format_table"]
+__all__ = ["run_block", "score_tracks", "score_block", "format_table", "plant_gross", "MISMATCH_PX", "WRONG_RAY_PX"]
+
+#: planted mismatches of two-ray points, px (across the epipolar line: the part two rays can reveal)
+MISMATCH_PX = (3.5, 5.0, 8.0, 12.0, 20.0, 35.0, 50.0)
+#: planted wrong rays of points with three or more rays, px (a random direction)
+WRONG_RAY_PX = (3.5, 6.0, 10.0, 25.0, 50.0)
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
@@ -148,6 +153,52 @@ def score_tracks(s: Any, photo: np.ndarray, point: np.ndarray, colrow_px: np.nda
     np.minimum.at(best, i, e)
     err[is_ref] = best[is_ref]
     return err
+
+
+def plant_gross(s: Any, folder: Path, seed: int = 0, prefix: str = "tp", mismatch_px=MISMATCH_PX,
+                wrong_ray_px=WRONG_RAY_PX) -> set[tuple[str, str]]:
+    """Plant gross matches into a matched survey's image_points.csv, of the kinds real matching makes:
+    a two-ray point mismatched (its second ray moved across the epipolar line by each of *mismatch_px*)
+    and one wrong ray of a point with three or more rays (moved by each of *wrong_ray_px* in a random
+    direction); the rows keep their sd columns.  Returns the (photo, point) of the moved observations.
+    """
+    path = Path(folder) / "image_points.csv"
+    with open(path, newline="", encoding="utf-8") as f:
+        lines = f.read().splitlines(keepends=True)
+    comments = [ln for ln in lines if ln.startswith("#")]
+    rows = list(csv.reader([ln for ln in lines if not ln.startswith("#")]))
+    head, body = rows[0], rows[1:]
+    ic, ir, iph, ipt = head.index("col_px"), head.index("row_px"), head.index("photo"), head.index("point")
+    pts: dict[str, list[int]] = {}
+    for k, r in enumerate(body):
+        if r[ipt].startswith(prefix):
+            pts.setdefault(r[ipt], []).append(k)
+    rng = np.random.default_rng(seed)
+    names = sorted(pts)
+    two = [q for q in names if len(pts[q]) == 2]
+    multi = [q for q in names if len(pts[q]) >= 3]
+    planted: set[tuple[str, str]] = set()
+    order = {p: i for i, p in enumerate(s.photo_ids)}
+    for q, e in zip(rng.choice(two, len(mismatch_px), replace=False), mismatch_px):
+        a, b = sorted(pts[str(q)], key=lambda k: order[body[k][iph]])
+        pa = np.array([[float(body[a][ic]), float(body[a][ir])]])
+        x = s.ground_point(body[a][iph], pa)
+        c = np.asarray(s.true_eo, float)[order[body[a][iph]], :3]
+        u = s.project(body[b][iph], x + 0.05 * (c - x))[0] - s.project(body[b][iph], x)[0]   # epipolar line
+        n = np.array([-u[1], u[0]]) / np.hypot(*u)
+        body[b][ic] = f"{float(body[b][ic]) + e * n[0]:.3f}"
+        body[b][ir] = f"{float(body[b][ir]) + e * n[1]:.3f}"
+        planted |= {(body[a][iph], str(q)), (body[b][iph], str(q))}
+    for q, e in zip(rng.choice(multi, len(wrong_ray_px), replace=False), wrong_ray_px):
+        k = int(rng.choice(pts[str(q)]))
+        t = rng.uniform(0, 2 * np.pi)
+        body[k][ic] = f"{float(body[k][ic]) + e * np.cos(t):.3f}"
+        body[k][ir] = f"{float(body[k][ir]) + e * np.sin(t):.3f}"
+        planted.add((body[k][iph], str(q)))
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        f.writelines(comments)
+        csv.writer(f, lineterminator="\n").writerows([head, *body])
+    return planted
 
 
 def _gps_into(init_dir: Path, survey_dir: Path) -> None:
