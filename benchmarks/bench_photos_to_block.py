@@ -1,7 +1,8 @@
 """From photos to an oriented block, end to end (issue 28, the first acceptance line): one command, one table.
 
 Run:  python benchmarks/bench_photos_to_block.py [--seeds 0,1,2] [--per-strip 12] [--size 1000 750]
-      [--init] [--workers 1] [--keep DIR]
+      [--init] [--workers 1] [--keep DIR] [--variance-components]
+      python benchmarks/bench_photos_to_block.py --rescore DIR/seed0 DIR/seed1 ...   (score kept folders)
 
 Per seed, a realistic synthetic block (:func:`lidarcat.synthetic.aerial.aerial_survey`: two strips,
 60 %/30 % overlap, rendered photos, approximate orientation 2 m / 0.5 deg off with those sds in
@@ -58,7 +59,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-__all__ = ["run_block", "score_tracks", "score_block", "format_table", "plant_gross", "MISMATCH_PX", "WRONG_RAY_PX"]
+__all__ = ["run_block", "score_tracks", "score_block", "format_table", "rescore", "plant_gross", "MISMATCH_PX", "WRONG_RAY_PX"]
 
 #: planted mismatches of two-ray points, px (across the epipolar line: the part two rays can reveal)
 MISMATCH_PX = (3.5, 5.0, 8.0, 12.0, 20.0, 35.0, 50.0)
@@ -388,6 +389,23 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def rescore(dirs: list[Path]) -> list[dict[str, Any]]:
+    """The table rows of seed folders kept by ``--keep`` (seconds and load not known: 0)."""
+    from lidarcat.synthetic.aerial import load_aerial_survey
+
+    rows = []
+    for d in dirs:
+        s = load_aerial_survey(d / "survey")
+        for variant, sub in (("", "adjust"), ("vce", "adjust_vc")):
+            if (d / sub / "summary.json").is_file():
+                seed = int("".join(ch for ch in d.name if ch.isdigit()) or -1)
+                row = {"seed": seed, "variant": variant, "load_before": 0.0, "load_after": 0.0, "s_render": 0.0,
+                       "s_match": 0.0, "s_adjust": 0.0}
+                row.update(score_block(s, d / "survey", d / sub))
+                rows.append(row)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0,1,2")
@@ -398,7 +416,12 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="keep the folders here")
     ap.add_argument("--variance-components", action="store_true",
                     help="adjust each matched block a second time with --variance-components")
+    ap.add_argument("--rescore", type=Path, nargs="+", default=None, metavar="SEED_DIR",
+                    help="only score folders kept by --keep (their adjust/ and adjust_vc/) and print the table")
     a = ap.parse_args()
+    if a.rescore:
+        print(format_table(rescore(a.rescore)))
+        return
     print(f"uptime: {os.popen('uptime').read().strip()}")
     rows = []
     for seed in (int(x) for x in a.seeds.split(",")):

@@ -228,3 +228,17 @@ def test_run_plans_match_then_an_adjustment_on_the_gnss_imu_datum(tmp_path):
     assert "adjust-gps" not in plan and plan["adjust-gnss"].skip_reason is None
     assert plan["adjust-gnss"].params == {"control": None, "derived": False, "eo_constraints": True}
     assert plan["assess-gnss"].skip_reason == "control set gnss has no check points"
+
+
+@pytest.mark.slow
+def test_run_on_photos_gnss_lidar_and_gps_exits_0(tmp_path):
+    """`lidarcat run` on a folder of photos + GNSS/IMU (photos.csv sds) + LiDAR tiles + GPS control: match,
+    then the adjustment with the matched sds, their variance components and the named matches removed --
+    exit 0 (it exited 3 on the chi-square test while the tie points had the targets' sd)."""
+    aerial_survey(tmp_path / "s", n_strips=2, photos_per_strip=3, forward_overlap=0.6, side_overlap=0.3,
+                  image_size_px=(480, 360), approx_position_sd_m=2.0, approx_angle_sd_deg=0.5, n_gps_points=4, seed=1)
+    r = CliRunner().invoke(cli, ["run", str(tmp_path / "s"), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((tmp_path / "out" / "adjust-gps" / "summary.json").read_text())
+    assert summary["chi2_pass"] and summary["variance_components"]["converged"]
+    assert summary["snooping"]["mode"] == "remove" and not summary["snooping"]["blunders_remain"]

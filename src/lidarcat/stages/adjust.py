@@ -87,9 +87,13 @@ def run(ctx: Context, tmp: Path) -> dict:
     def prog(iteration: int, vtpv: float) -> None:
         ctx.progress(min(iteration, 49), 50)
 
-    # data snooping, report only: the run keeps every observation and names the blunders
-    sres = adjust(survey, tmp, control=par["control"], snooping="report", progress=prog,
-                  eo_constraints=bool(par.get("eo_constraints")))  # photos.csv sd_X0..: GNSS/IMU
+    # data snooping, report only: the run keeps every observation and names the blunders.  Image observations
+    # with sds of their own -- the automatic tie points of `lidarcat match`, thousands of redundant machine
+    # measurements -- get their group factors estimated (lidarcat.bundle.variance) and the named ones removed
+    matched = bool(np.isfinite(np.asarray(survey.image_points.sd_mm, float)).any())
+    sres = adjust(survey, tmp, control=par["control"], snooping="remove" if matched else "report", progress=prog,
+                  eo_constraints=bool(par.get("eo_constraints")),  # photos.csv sd_X0..: GNSS/IMU
+                  variance_components=matched)
     result = sres.result
     summ = result.summary()
     if not result.success:
