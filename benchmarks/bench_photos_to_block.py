@@ -34,6 +34,16 @@ Truth is used only to score (never as a starting value):
   ``--variance-factor a_posteriori`` writes); "rms z" is the root mean square of the normalised
   errors, the empirical / predicted ratio (honest: 0.8-1.25).
 
+* with ``--variance-components`` the matched block is adjusted a second time with
+  ``lidarcat adjust ... --variance-components`` (row "vce": one variance factor per observation group,
+  :mod:`lidarcat.bundle.variance`); the summary line of each variant gives the rms z of the
+  orientations pooled over the seeds, per element, and of the adjusted tie points against the true
+  ground point behind their reference observation (E, N, h), the median sd that ``match`` wrote and
+  the sd factors the variance components applied.
+* :func:`plant_gross` moves matched observations as real matching goes wrong (a two-ray point
+  mismatched across its epipolar line, one wrong ray of a multi-ray point; 3.5-50 px) for the
+  tests of tests/test_photos_to_block.py.
+
 Columns: photos, tie points, observations, share within 1 px (all matched), kept share within
 1 px, kept > 3 px not named, named (blunders), residual RMS px, sigma0, max |z| and rms z
 (a priori / a posteriori), seconds per stage, load (``uptime``'s 1-minute average before/after).
