@@ -27,7 +27,10 @@ Truth is used only to score (never as a starting value):
   projection; the reference's own error is its distance to the projection of its best partner's
   ground point. A two-ray mismatch thus counts both its observations as off.
 * "kept": the tie-point observations in the final adjustment (residuals.csv, minus blunders.csv
-  rows removed); ">3 px not named": kept, more than 3 px off and not in blunders.csv.
+  rows removed), scored by the same rule among the kept observations of their track (the point the
+  adjustment sees is that of its kept rays: a track that joined two ground points, two rays each,
+  keeps one consistent pair when snooping names the other); ">3 px not named": kept, more than
+  3 px off so scored and not in blunders.csv.
 * residual RMS: per coordinate over the kept tie-point observations, px.
 * EO: |adjusted - true| / sd per element (6 per photo) with the written sds (a priori variance
   factor 1, as ``lidarcat adjust`` writes them) and with them times sigma0 (what
@@ -297,6 +300,11 @@ def score_block(s: Any, folder: Path, adjust_dir: Path, prefix: str = "tp") -> d
     removed = {f"{r['photo']}\t{r['point']}" for r in named_rows if r["removed"] == "True"}
     res_key = np.array([f"{r['photo']}\t{r['point']}" for r in res])
     kept = np.isin(key, res_key) & ~np.isin(key, list(removed))
+    # the kept observations scored among themselves: the point the adjustment sees is that of its kept rays
+    # (a track that joined two points, two rays each, keeps one consistent pair when the other is named)
+    err_kept = np.full(len(err), np.inf)
+    if kept.any():
+        err_kept[kept] = score_tracks(s, photo[kept], point[kept], colrow[kept])
     pixel_mm = s.camera.pixel_size_x_mm if hasattr(s.camera, "pixel_size_x_mm") else None
     if pixel_mm is None:
         pixel_mm = float(next(ln.split("=")[1] for ln in (folder / "camera.toml").read_text().splitlines()
@@ -317,8 +325,8 @@ def score_block(s: Any, folder: Path, adjust_dir: Path, prefix: str = "tp") -> d
     return {
         "photos": len(s.photo_ids), "tie_points": len(np.unique(point)), "observations": len(obs),
         "within1": float(np.mean(err <= 1.0)), "over3": int(np.sum(err > 3.0)),
-        "kept": int(kept.sum()), "kept_within1": float(np.mean(err[kept] <= 1.0)),
-        "kept_over3_unnamed": int(np.sum(kept & (err > 3.0) & ~np.isin(key, list(named)))),
+        "kept": int(kept.sum()), "kept_within1": float(np.mean(err_kept[kept] <= 1.0)),
+        "kept_over3_unnamed": int(np.sum(kept & (err_kept > 3.0) & ~np.isin(key, list(named)))),
         "named": len(named_rows), "named_over3": int(np.sum(np.isin(key, list(named)) & (err > 3.0))),
         "rms_px": float(np.sqrt(np.mean(keep_res ** 2))), "sigma0": sigma0,
         "status": summary["status"], "chi2_pass": bool(summary["chi2_pass"]),

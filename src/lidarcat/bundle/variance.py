@@ -277,6 +277,7 @@ def iterate_components(
     *,
     max_rounds: int = 8,
     tol: float = 0.03,
+    tol_min: float = 0.002,
     min_redundancy: float = MIN_REDUNDANCY,
     factors: dict[str, float] | None = None,
 ) -> VarianceComponents:
@@ -293,8 +294,11 @@ def iterate_components(
         leave out of the sums or None; *payload* is kept for the caller.
     max_rounds : int
         Adjustments at most.
-    tol : float
-        Converged when every estimated ``|sigma_g^2 - 1| <= tol``.
+    tol, tol_min : float
+        Converged when every estimated ``|sigma_g^2 - 1|`` is at most a quarter of the estimate's own
+        sd ``sqrt(2 / r_g)``, within ``[tol_min, tol]``: a group of 14,000 redundancy converges to
+        0.3 % (the global chi-square test of that block accepts sigma0^2 within about +-2.3 %), one
+        of 40 to 3 %.
     factors : dict, optional
         Starting factors (default 1).
 
@@ -322,7 +326,8 @@ def iterate_components(
         log.info("variance components, round %d: %s", rounds,
                  ", ".join(f"{c.group} {c.sigma0_sq:.3f}" + ("" if c.estimated else " (not estimated)")
                            for c in est))
-        if all(abs(c.sigma0_sq - 1.0) <= tol for c in est if c.estimated):
+        if all(abs(c.sigma0_sq - 1.0) <= max(tol_min, min(tol, 0.25 * math.sqrt(2.0 / c.redundancy)))
+               for c in est if c.estimated):
             converged = True
             break
         if rounds < max_rounds:
