@@ -72,7 +72,8 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-__all__ = ["run_block", "score_tracks", "score_block", "format_table", "rescore", "plant_gross", "MISMATCH_PX", "WRONG_RAY_PX"]
+__all__ = ["run_block", "score_tracks", "score_block", "format_table", "rescore", "plant_gross", "MISMATCH_PX",
+           "WRONG_RAY_PX"]
 
 #: planted mismatches of two-ray points, px (across the epipolar line: the part two rays can reveal)
 MISMATCH_PX = (3.5, 5.0, 8.0, 12.0, 20.0, 35.0, 50.0)
@@ -367,7 +368,8 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         lines.append(
-            f"| {r['seed']} | {r['variant'] or '-'} | {r['photos']} | {r['tie_points']} | {r['observations']} | {100 * r['within1']:.2f} % "
+            f"| {r['seed']} | {r['variant'] or '-'} | {r['photos']} | {r['tie_points']} | {r['observations']} "
+            f"| {100 * r['within1']:.2f} % "
             f"| {r['kept']} | {100 * r['kept_within1']:.2f} % | {r['kept_over3_unnamed']} | {r['named']} "
             f"| {r['rms_px']:.3f} | {r['sigma0']:.3f} | {r['max_z']:.2f} / {r['rms_z']:.2f} "
             f"| {r['max_z_post']:.2f} / {r['rms_z_post']:.2f} | {r['s_render']:.0f} | {r.get('s_init', 0):.0f} "

@@ -157,8 +157,8 @@ def _text(result) -> str:
                  f"chi2 {'pass' if adj.get('chi2_pass') else 'FAILED'}"]
         if adj.get("blunders"):
             gone = sum(bool(b.get("removed")) for b in adj["blunders"])
-            parts.append((f"{len(adj['blunders'])} blunder(s) named and removed (w-test): " if gone == len(adj["blunders"])
-                          else f"{len(adj['blunders'])} blunder(s) remain (w-test): ") + "; ".join(
+            verb = "named and removed" if gone == len(adj["blunders"]) else "remain"
+            parts.append(f"{len(adj['blunders'])} blunder(s) {verb} (w-test): " + "; ".join(
                 f"{b['kind']} {'photo ' + b['photo'] + ' ' if b.get('photo') else ''}point {b['point']}"
                 if b.get("point") else f"{b['kind']} photo {b['photo']}" for b in adj["blunders"][:5])
                 + (" ..." if len(adj["blunders"]) > 5 else ""))
