@@ -1,7 +1,8 @@
 """From photos to an oriented block, end to end (issue 28, the first acceptance line): one command, one table.
 
 Run:  python benchmarks/bench_photos_to_block.py [--seeds 0,1,2] [--per-strip 12] [--size 1000 750]
-      [--init] [--workers 1] [--keep DIR]
+      [--init] [--workers 1] [--keep DIR] [--variance-components]
+      python benchmarks/bench_photos_to_block.py --rescore DIR/seed0 DIR/seed1 ...   (score kept folders)
 
 Per seed, a realistic synthetic block (:func:`lidarcat.synthetic.aerial.aerial_survey`: two strips,
 60 %/30 % overlap, rendered photos, approximate orientation 2 m / 0.5 deg off with those sds in
@@ -26,12 +27,25 @@ Truth is used only to score (never as a starting value):
   projection; the reference's own error is its distance to the projection of its best partner's
   ground point. A two-ray mismatch thus counts both its observations as off.
 * "kept": the tie-point observations in the final adjustment (residuals.csv, minus blunders.csv
-  rows removed); ">3 px not named": kept, more than 3 px off and not in blunders.csv.
+  rows removed), scored by the same rule among the kept observations of their track (the point the
+  adjustment sees is that of its kept rays: a track that joined two ground points, two rays each,
+  keeps one consistent pair when snooping names the other); ">3 px not named": kept, more than
+  3 px off so scored and not in blunders.csv.
 * residual RMS: per coordinate over the kept tie-point observations, px.
 * EO: |adjusted - true| / sd per element (6 per photo) with the written sds (a priori variance
   factor 1, as ``lidarcat adjust`` writes them) and with them times sigma0 (what
   ``--variance-factor a_posteriori`` writes); "rms z" is the root mean square of the normalised
   errors, the empirical / predicted ratio (honest: 0.8-1.25).
+
+* with ``--variance-components`` the matched block is adjusted a second time with
+  ``lidarcat adjust ... --variance-components`` (row "vce": one variance factor per observation group,
+  :mod:`lidarcat.bundle.variance`); the summary line of each variant gives the rms z of the
+  orientations pooled over the seeds, per element, and of the adjusted tie points against the true
+  ground point behind their reference observation (E, N, h), the median sd that ``match`` wrote and
+  the sd factors the variance components applied.
+* :func:`plant_gross` moves matched observations as real matching goes wrong (a two-ray point
+  mismatched across its epipolar line, one wrong ray of a multi-ray point; 3.5-50 px) for the
+  tests of tests/test_photos_to_block.py.
 
 Columns: photos, tie points, observations, share within 1 px (all matched), kept share within
 1 px, kept > 3 px not named, named (blunders), residual RMS px, sigma0, max |z| and rms z
@@ -58,7 +72,13 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-__all__ = ["run_block", "score_tracks", "format_table"]
+__all__ = ["run_block", "score_tracks", "score_block", "format_table", "rescore", "plant_gross", "MISMATCH_PX",
+           "WRONG_RAY_PX"]
+
+#: planted mismatches of two-ray points, px (across the epipolar line: the part two rays can reveal)
+MISMATCH_PX = (3.5, 5.0, 8.0, 12.0, 20.0, 35.0, 50.0)
+#: planted wrong rays of points with three or more rays, px (a random direction)
+WRONG_RAY_PX = (3.5, 6.0, 10.0, 25.0, 50.0)
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
@@ -150,6 +170,52 @@ def score_tracks(s: Any, photo: np.ndarray, point: np.ndarray, colrow_px: np.nda
     return err
 
 
+def plant_gross(s: Any, folder: Path, seed: int = 0, prefix: str = "tp", mismatch_px=MISMATCH_PX,
+                wrong_ray_px=WRONG_RAY_PX) -> set[tuple[str, str]]:
+    """Plant gross matches into a matched survey's image_points.csv, of the kinds real matching makes:
+    a two-ray point mismatched (its second ray moved across the epipolar line by each of *mismatch_px*)
+    and one wrong ray of a point with three or more rays (moved by each of *wrong_ray_px* in a random
+    direction); the rows keep their sd columns.  Returns the (photo, point) of the moved observations.
+    """
+    path = Path(folder) / "image_points.csv"
+    with open(path, newline="", encoding="utf-8") as f:
+        lines = f.read().splitlines(keepends=True)
+    comments = [ln for ln in lines if ln.startswith("#")]
+    rows = list(csv.reader([ln for ln in lines if not ln.startswith("#")]))
+    head, body = rows[0], rows[1:]
+    ic, ir, iph, ipt = head.index("col_px"), head.index("row_px"), head.index("photo"), head.index("point")
+    pts: dict[str, list[int]] = {}
+    for k, r in enumerate(body):
+        if r[ipt].startswith(prefix):
+            pts.setdefault(r[ipt], []).append(k)
+    rng = np.random.default_rng(seed)
+    names = sorted(pts)
+    two = [q for q in names if len(pts[q]) == 2]
+    multi = [q for q in names if len(pts[q]) >= 3]
+    planted: set[tuple[str, str]] = set()
+    order = {p: i for i, p in enumerate(s.photo_ids)}
+    for q, e in zip(rng.choice(two, len(mismatch_px), replace=False), mismatch_px):
+        a, b = sorted(pts[str(q)], key=lambda k: order[body[k][iph]])
+        pa = np.array([[float(body[a][ic]), float(body[a][ir])]])
+        x = s.ground_point(body[a][iph], pa)
+        c = np.asarray(s.true_eo, float)[order[body[a][iph]], :3]
+        u = s.project(body[b][iph], x + 0.05 * (c - x))[0] - s.project(body[b][iph], x)[0]   # epipolar line
+        n = np.array([-u[1], u[0]]) / np.hypot(*u)
+        body[b][ic] = f"{float(body[b][ic]) + e * n[0]:.3f}"
+        body[b][ir] = f"{float(body[b][ir]) + e * n[1]:.3f}"
+        planted |= {(body[a][iph], str(q)), (body[b][iph], str(q))}
+    for q, e in zip(rng.choice(multi, len(wrong_ray_px), replace=False), wrong_ray_px):
+        k = int(rng.choice(pts[str(q)]))
+        t = rng.uniform(0, 2 * np.pi)
+        body[k][ic] = f"{float(body[k][ic]) + e * np.cos(t):.3f}"
+        body[k][ir] = f"{float(body[k][ir]) + e * np.sin(t):.3f}"
+        planted.add((body[k][iph], str(q)))
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        f.writelines(comments)
+        csv.writer(f, lineterminator="\n").writerows([head, *body])
+    return planted
+
+
 def _gps_into(init_dir: Path, survey_dir: Path) -> None:
     """Add the GPS survey of an aerial_survey folder to a folder that ``lidarcat init`` wrote."""
     for name in ("ground_points.csv", "control_sets.csv"):
@@ -171,12 +237,13 @@ def _gps_into(init_dir: Path, survey_dir: Path) -> None:
 
 def run_block(work: Path, seed: int, *, per_strip: int = 12, size: tuple[int, int] = (1000, 750),
               via_init: bool = False, match_args: tuple[str, ...] = (),
-              adjust_args: tuple[str, ...] = ()) -> dict[str, Any]:
-    """Render, (init), match, adjust and score one block; one table row (dict)."""
+              adjust_args: tuple[str, ...] = (), variance_components: bool = False) -> Any:
+    """Render, (init), match, adjust and score one block; one table row (dict), or two (a list: the
+    adjustment as given, then with ``--variance-components``) with *variance_components*."""
     from lidarcat.synthetic.aerial import aerial_survey
 
     work = Path(work)
-    row: dict[str, Any] = {"seed": seed, "load_before": _load()}
+    row: dict[str, Any] = {"seed": seed, "variant": "", "load_before": _load()}
     t0 = time.perf_counter()
     s = aerial_survey(work / "survey", n_strips=2, photos_per_strip=per_strip, forward_overlap=0.6,
                       side_overlap=0.3, image_size_px=size, approx_position_sd_m=2.0,
@@ -205,12 +272,23 @@ def run_block(work: Path, seed: int, *, per_strip: int = 12, size: tuple[int, in
                              "-o", str(work / "adjust"), *adjust_args)
     row["load_after"] = _load()
     row.update(score_block(s, folder, work / "adjust"))
+    if variance_components:     # the same matched block adjusted with --variance-components
+        vc = dict(row, variant="vce")
+        vc["s_adjust"], _ = cli("adjust", str(folder), "--eo-constraints", "--snooping", "remove",
+                                "--variance-components", "-o", str(work / "adjust_vc"), *adjust_args)
+        vc.update(score_block(s, folder, work / "adjust_vc"))
+        vc["load_after"] = _load()
+        return [row, vc]
     return row
 
 
 def score_block(s: Any, folder: Path, adjust_dir: Path, prefix: str = "tp") -> dict[str, Any]:
     """The table's scores of one matched and adjusted block (see the module docstring)."""
     obs = [r for r in _rows(folder / "image_points.csv") if r["point"].startswith(prefix)]
+    sd_obs = np.array([[float(r["sd_x_mm"]), float(r["sd_y_mm"])] for r in obs if r.get("sd_x_mm")]).reshape(-1, 2)
+    pixel_sd = float(next(ln.split("=")[1] for ln in (folder / "camera.toml").read_text().splitlines()
+                          if ln.startswith("pixel_size_x_mm")))
+    sd_obs = sd_obs / pixel_sd
     photo = np.array([r["photo"] for r in obs])
     point = np.array([r["point"] for r in obs])
     colrow = np.array([[float(r["col_px"]), float(r["row_px"])] for r in obs])
@@ -223,6 +301,11 @@ def score_block(s: Any, folder: Path, adjust_dir: Path, prefix: str = "tp") -> d
     removed = {f"{r['photo']}\t{r['point']}" for r in named_rows if r["removed"] == "True"}
     res_key = np.array([f"{r['photo']}\t{r['point']}" for r in res])
     kept = np.isin(key, res_key) & ~np.isin(key, list(removed))
+    # the kept observations scored among themselves: the point the adjustment sees is that of its kept rays
+    # (a track that joined two points, two rays each, keeps one consistent pair when the other is named)
+    err_kept = np.full(len(err), np.inf)
+    if kept.any():
+        err_kept[kept] = score_tracks(s, photo[kept], point[kept], colrow[kept])
     pixel_mm = s.camera.pixel_size_x_mm if hasattr(s.camera, "pixel_size_x_mm") else None
     if pixel_mm is None:
         pixel_mm = float(next(ln.split("=")[1] for ln in (folder / "camera.toml").read_text().splitlines()
@@ -230,6 +313,7 @@ def score_block(s: Any, folder: Path, adjust_dir: Path, prefix: str = "tp") -> d
     keep_res = np.array([[float(r["vx_mm"]), float(r["vy_mm"])] for r in res
                          if f"{r['photo']}\t{r['point']}" not in removed]) / pixel_mm
     summary = json.loads((adjust_dir / "summary.json").read_text(encoding="utf-8"))
+    vcs = {g["group"]: g for g in (summary.get("variance_components") or {}).get("groups", [])}
     eop = {r["photo"]: r for r in _rows(adjust_dir / "eop.csv")}
     truth = np.asarray(s.true_eo, float).copy()
     truth[:, 3:] = np.degrees(truth[:, 3:])
@@ -242,8 +326,8 @@ def score_block(s: Any, folder: Path, adjust_dir: Path, prefix: str = "tp") -> d
     return {
         "photos": len(s.photo_ids), "tie_points": len(np.unique(point)), "observations": len(obs),
         "within1": float(np.mean(err <= 1.0)), "over3": int(np.sum(err > 3.0)),
-        "kept": int(kept.sum()), "kept_within1": float(np.mean(err[kept] <= 1.0)),
-        "kept_over3_unnamed": int(np.sum(kept & (err > 3.0) & ~np.isin(key, list(named)))),
+        "kept": int(kept.sum()), "kept_within1": float(np.mean(err_kept[kept] <= 1.0)),
+        "kept_over3_unnamed": int(np.sum(kept & (err_kept > 3.0) & ~np.isin(key, list(named)))),
         "named": len(named_rows), "named_over3": int(np.sum(np.isin(key, list(named)) & (err > 3.0))),
         "rms_px": float(np.sqrt(np.mean(keep_res ** 2))), "sigma0": sigma0,
         "status": summary["status"], "chi2_pass": bool(summary["chi2_pass"]),
@@ -251,40 +335,95 @@ def score_block(s: Any, folder: Path, adjust_dir: Path, prefix: str = "tp") -> d
         "max_z": float(np.abs(z).max()), "rms_z": float(np.sqrt(np.mean(z ** 2))),
         "max_z_post": float(np.abs(z / sigma0).max()), "rms_z_post": float(np.sqrt(np.mean((z / sigma0) ** 2))),
         "max_d_m": float(np.abs(d[:, :3]).max()), "max_d_deg": float(np.abs(d[:, 3:]).max()),
+        "sd_scale": {k: v["sd_scale"] for k, v in vcs.items() if v["estimated"]},
+        "tie_sd_px": float(np.median(np.hypot(*sd_obs.T) / np.sqrt(2))) if len(sd_obs) else float("nan"),
+        "z_points": _point_z(s, photo, point, colrow, adjust_dir),
     }
+
+
+def _point_z(s: Any, photo: np.ndarray, point: np.ndarray, colrow: np.ndarray, adjust_dir: Path) -> np.ndarray:
+    """(k, 3) errors / sds (E, N, h) of the adjusted tie points against the true ground point behind
+    their reference observation (the one on the photo listed first: the refinement's reference)."""
+    pts = {r["point"]: r for r in _rows(adjust_dir / "points.csv") if r["role"] == "tie"}
+    order = {p: i for i, p in enumerate(s.photo_ids)}
+    rank = np.array([order[str(p)] for p in photo])
+    o = np.lexsort((rank, point))
+    first = o[np.r_[True, point[o][1:] != point[o][:-1]]]
+    first = first[np.isin(point[first], list(pts))]
+    truth = np.full((len(first), 3), np.nan)
+    for p in np.unique(photo[first]):
+        k = photo[first] == p
+        truth[k] = s.ground_point(str(p), colrow[first[k]])
+    est = np.array([[float(pts[q][c]) for c in "ENh"] for q in point[first]]).reshape(-1, 3)
+    sd = np.array([[float(pts[q]["sd_" + c]) for c in "ENh"] for q in point[first]]).reshape(-1, 3)
+    z = (est - truth) / sd
+    return z[np.isfinite(z).all(axis=1)]
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:
     """The per-seed rows and the pooled row as a Markdown table."""
-    head = ("| seed | photos | tie pts | obs | within 1 px | kept | kept within 1 px | kept >3 px not named "
+    head = ("| seed | variant | photos | tie pts | obs | within 1 px | kept | kept within 1 px | kept >3 px not named "
             "| named | RMS px | sigma0 | max abs z / rms z (a priori) | (a posteriori) | s render | s init "
             "| s match | s adjust | load |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         lines.append(
-            f"| {r['seed']} | {r['photos']} | {r['tie_points']} | {r['observations']} | {100 * r['within1']:.2f} % "
+            f"| {r['seed']} | {r['variant'] or '-'} | {r['photos']} | {r['tie_points']} | {r['observations']} "
+            f"| {100 * r['within1']:.2f} % "
             f"| {r['kept']} | {100 * r['kept_within1']:.2f} % | {r['kept_over3_unnamed']} | {r['named']} "
             f"| {r['rms_px']:.3f} | {r['sigma0']:.3f} | {r['max_z']:.2f} / {r['rms_z']:.2f} "
             f"| {r['max_z_post']:.2f} / {r['rms_z_post']:.2f} | {r['s_render']:.0f} | {r.get('s_init', 0):.0f} "
             f"| {r['s_match']:.0f} | {r['s_adjust']:.0f} | {r['load_before']:.1f}/{r['load_after']:.1f} |")
-    if len(rows) > 1:
-        za = np.concatenate([r["z_apriori"].ravel() for r in rows])
-        zp = np.concatenate([r["z_aposteriori"].ravel() for r in rows])
-        obs = sum(r["observations"] for r in rows)
-        kept = sum(r["kept"] for r in rows)
-        w1 = sum(r["within1"] * r["observations"] for r in rows) / obs
-        k1 = sum(r["kept_within1"] * r["kept"] for r in rows) / kept
-        rms = np.sqrt(sum(r["rms_px"] ** 2 * r["kept"] for r in rows) / kept)
+    for variant in dict.fromkeys(r["variant"] for r in rows):
+        rs = [r for r in rows if r["variant"] == variant]
+        if len(rs) < 2:
+            continue
+        za = np.concatenate([r["z_apriori"].ravel() for r in rs])
+        zp = np.concatenate([r["z_aposteriori"].ravel() for r in rs])
+        obs = sum(r["observations"] for r in rs)
+        kept = sum(r["kept"] for r in rs)
+        w1 = sum(r["within1"] * r["observations"] for r in rs) / obs
+        k1 = sum(r["kept_within1"] * r["kept"] for r in rs) / kept
+        rms = np.sqrt(sum(r["rms_px"] ** 2 * r["kept"] for r in rs) / kept)
         lines.append(
-            f"| pooled | {sum(r['photos'] for r in rows)} | {sum(r['tie_points'] for r in rows)} | {obs} "
-            f"| {100 * w1:.2f} % | {kept} | {100 * k1:.2f} % | {sum(r['kept_over3_unnamed'] for r in rows)} "
-            f"| {sum(r['named'] for r in rows)} | {rms:.3f} | - | {np.abs(za).max():.2f} / "
+            f"| pooled | {variant or '-'} | {sum(r['photos'] for r in rs)} | {sum(r['tie_points'] for r in rs)} "
+            f"| {obs} | {100 * w1:.2f} % | {kept} | {100 * k1:.2f} % | {sum(r['kept_over3_unnamed'] for r in rs)} "
+            f"| {sum(r['named'] for r in rs)} | {rms:.3f} | - | {np.abs(za).max():.2f} / "
             f"{np.sqrt(np.mean(za ** 2)):.2f} | {np.abs(zp).max():.2f} / {np.sqrt(np.mean(zp ** 2)):.2f} "
-            f"| {sum(r['s_render'] for r in rows):.0f} | {sum(r.get('s_init', 0) for r in rows):.0f} "
-            f"| {sum(r['s_match'] for r in rows):.0f} | {sum(r['s_adjust'] for r in rows):.0f} | - |")
-        per = np.sqrt(np.mean(za.reshape(-1, 6) ** 2, axis=0))
-        lines.append("\nrms z per element (a priori): " + ", ".join(f"{n} {v:.2f}" for n, v in zip(EO_NAMES, per)))
+            f"| {sum(r['s_render'] for r in rs):.0f} | {sum(r.get('s_init', 0) for r in rs):.0f} "
+            f"| {sum(r['s_match'] for r in rs):.0f} | {sum(r['s_adjust'] for r in rs):.0f} | - |")
+    for variant in dict.fromkeys(r["variant"] for r in rows):
+        rs = [r for r in rows if r["variant"] == variant]
+        za = np.concatenate([r["z_apriori"] for r in rs])
+        per = np.sqrt(np.mean(za ** 2, axis=0))
+        zq = np.concatenate([r["z_points"] for r in rs])
+        per_seed = ", ".join(f"{r['rms_z']:.2f}" for r in rs)
+        lines.append(f"\n{variant or 'as given'}: rms z of the orientations (empirical / predicted sd) "
+                     f"{np.sqrt(np.mean(za ** 2)):.2f} over {len(rs)} seed(s) (per seed {per_seed}); per element "
+                     + ", ".join(f"{n} {v:.2f}" for n, v in zip(EO_NAMES, per))
+                     + (f"; tie points E, N, h {', '.join(f'{v:.2f}' for v in np.sqrt(np.mean(zq ** 2, axis=0)))}"
+                        f" ({len(zq)} points)" if len(zq) else "")
+                     + f"; median tie sd written {np.nanmedian([r['tie_sd_px'] for r in rs]):.3f} px"
+                     + "".join(f"; {g} sd x {np.mean([r['sd_scale'][g] for r in rs if g in r['sd_scale']]):.3f}"
+                               for g in sorted({g for r in rs for g in r["sd_scale"]})))
     return "\n".join(lines)
+
+
+def rescore(dirs: list[Path]) -> list[dict[str, Any]]:
+    """The table rows of seed folders kept by ``--keep`` (seconds and load not known: 0)."""
+    from lidarcat.synthetic.aerial import load_aerial_survey
+
+    rows = []
+    for d in dirs:
+        s = load_aerial_survey(d / "survey")
+        for variant, sub in (("", "adjust"), ("vce", "adjust_vc")):
+            if (d / sub / "summary.json").is_file():
+                seed = int("".join(ch for ch in d.name if ch.isdigit()) or -1)
+                row = {"seed": seed, "variant": variant, "load_before": 0.0, "load_after": 0.0, "s_render": 0.0,
+                       "s_match": 0.0, "s_adjust": 0.0}
+                row.update(score_block(s, d / "survey", d / sub))
+                rows.append(row)
+    return rows
 
 
 def main() -> None:
@@ -295,7 +434,14 @@ def main() -> None:
     ap.add_argument("--init", action="store_true", help="go through `lidarcat init` (else the folder directly)")
     ap.add_argument("--workers", type=int, default=1, help="lidarcat match --workers")
     ap.add_argument("--keep", type=Path, default=None, help="keep the folders here")
+    ap.add_argument("--variance-components", action="store_true",
+                    help="adjust each matched block a second time with --variance-components")
+    ap.add_argument("--rescore", type=Path, nargs="+", default=None, metavar="SEED_DIR",
+                    help="only score folders kept by --keep (their adjust/ and adjust_vc/) and print the table")
     a = ap.parse_args()
+    if a.rescore:
+        print(format_table(rescore(a.rescore)))
+        return
     print(f"uptime: {os.popen('uptime').read().strip()}")
     rows = []
     for seed in (int(x) for x in a.seeds.split(",")):
@@ -304,16 +450,18 @@ def main() -> None:
             shutil.rmtree(work)
         work.mkdir(parents=True)
         try:
-            rows.append(run_block(work, seed, per_strip=a.per_strip, size=tuple(a.size), via_init=a.init,
-                                  match_args=("--workers", str(a.workers))))
+            out = run_block(work, seed, per_strip=a.per_strip, size=tuple(a.size), via_init=a.init,
+                            match_args=("--workers", str(a.workers)), variance_components=a.variance_components)
+            rows.extend(out if isinstance(out, list) else [out])
         finally:
             if a.keep is None:
                 shutil.rmtree(work, ignore_errors=True)
+        this = out if isinstance(out, list) else [out]
         r = rows[-1]
         print(f"seed {seed}: {r['status']}, chi2 {'accepted' if r['chi2_pass'] else 'rejected'}, "
               f"max |d| {r['max_d_m']:.3f} m {r['max_d_deg']:.4f} deg, matched >3 px {r['over3']}, "
               f"named of them {r['named_over3']}", flush=True)
-        print(format_table([r]).splitlines()[-1], flush=True)   # the row now: a long run shows its seeds
+        print("\n".join(format_table(this).splitlines()[2:2 + len(this)]), flush=True)   # the rows now
     print(format_table(rows))
     print(f"uptime: {os.popen('uptime').read().strip()}")
 

@@ -57,7 +57,7 @@ def test_match_end_to_end_within_a_pixel_of_truth(rendered, survey):
     assert len(list((out / "features").glob("*.npz"))) == 6
     side = json.loads((survey / "image_points.csv.json").read_text())
     assert side["provenance"]["parameters"]["prefix"] == "tp"
-    assert (survey / "image_points.csv").read_text().splitlines()[0] == "photo,point,col_px,row_px"
+    assert (survey / "image_points.csv").read_text().splitlines()[0] == "photo,point,col_px,row_px,sd_x_mm,sd_y_mm"
     # a second run replaces its own rows (features from the cache): the same table
     before = (survey / "image_points.csv").read_bytes()
     again = match(survey)

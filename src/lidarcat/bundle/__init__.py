@@ -33,6 +33,9 @@ The package, one concern per module, in the order a step runs:
                     the camera blocks and v'Pv
 ``line_tests``      the line observations' residuals, redundancy numbers,
                     w-tests and data snooping (:func:`~lidarcat.bundle.line_tests.snoop_lines`)
+``variance``        variance components: one factor per observation group (tie
+                    points, targets, control, GNSS, IMU), Förstner's iterated
+                    estimate (:func:`iterate_components`)
 ==================  ==========================================================
 
 Additional parameters (issue 13): ``additional`` (self-calibration, GNSS

@@ -12,7 +12,7 @@ import click
 from .._util.formatting import format_number
 from .options import echo_json, json_opt, output_option, progress_bar, survey_arg
 
-__all__ = ["adjust", "format_report", "format_blunders", "exit_status"]
+__all__ = ["adjust", "format_report", "format_blunders", "format_components", "exit_status"]
 
 
 def format_report(summary: dict, outdir: str | None = None) -> str:
@@ -58,6 +58,7 @@ def format_report(summary: dict, outdir: str | None = None) -> str:
         f"{n(s.get('chi2_upper_fisher'), 2)}): " + ("accepted" if s["chi2_pass"] else "REJECTED"),
         f"Parameter sds use the {s['variance_factor'].replace('_', ' ')} variance factor",
     ]
+    lines += format_components(s)
     lines += format_blunders(s)
     if outdir is not None:
         lines.append(f"Results: {outdir}/eop.csv, points.csv, residuals.csv, summary.json"
@@ -91,6 +92,22 @@ def format_blunders(summary: dict) -> list[str]:
                      f"  {'removed' if b['removed'] else 'KEPT'}" + (f"  ({b['note']})" if b.get("note") else ""))
     if len(blunders) > MAX_LISTED:
         lines.append(f"  ... {len(blunders) - MAX_LISTED} more in blunders.csv")
+    return lines
+
+
+def format_components(summary: dict) -> list[str]:
+    """Lines of the variance components (empty without --variance-components)."""
+    vc = summary.get("variance_components")
+    if not vc:
+        return []
+    lines = ["", f"Variance components ({vc['rounds']} round(s), "
+                 + ("converged" if vc["converged"] else "NOT converged") + "):  group  n  redundancy  sigma0 (last "
+                 "round)  sd factor applied"]
+    for g in vc["groups"]:
+        lines.append(f"  {g['group']:<8} {g['n']:>7}  {format_number(g['redundancy'], 1):>9}  "
+                     f"{format_number(g['sigma0'], 3):>6}  "
+                     + (f"{format_number(g['sd_scale'], 3)}" if g["estimated"] else "1 (not estimated: redundancy "
+                        f"< {format_number(vc['min_redundancy'], None)})"))
     return lines
 
 
@@ -173,6 +190,12 @@ def exit_status(summary: dict) -> tuple[int, str]:
                    "any least-squares step (automatic matches with gross errors); the observations it rejects "
                    "are named in blunders.csv (found_by screening/cauchy) and put back when they pass at the "
                    "solution. 'plain': least squares from the start.")
+@click.option("--variance-components", is_flag=True,
+              help="Estimate one variance factor per observation group -- tie-point and target image "
+                   "coordinates, control coordinates, GNSS positions, IMU attitudes -- from the block (Förstner, "
+                   "iterated with data snooping in every round) and adjust with them: for image sds that do "
+                   "not fit the measurements (automatic tie points are more precise than hand-measured "
+                   "targets). summary.json lists each group's sigma0, factor and redundancy.")
 @click.option("--self-calibrate", metavar="PARAMS", default=None,
               help="Estimate interior-orientation corrections per camera: a comma list of c, x0, y0, "
                    "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free), "
@@ -190,7 +213,8 @@ def exit_status(summary: dict) -> tuple[int, str]:
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
            variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str | None,
-           family_level: float, snooping_level: float | None, robust: str, start: str, self_calibrate: str | None,
+           family_level: float, snooping_level: float | None, robust: str, start: str, variance_components: bool,
+           self_calibrate: str | None,
            frame_offset: str | None, similarity: bool | None, as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
 
@@ -254,6 +278,9 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     if with_parameters and (snooping not in (None, "off") or robust != "none"):
         opt = f"--snooping {snooping}" if snooping not in (None, "off") else f"--robust {robust}"
         raise click.UsageError(f"{opt}: {SNOOPING_WITH_PARAMETERS}")
+    if with_parameters and variance_components:
+        raise click.UsageError("--variance-components: applies to the plain adjustment only (not with "
+                               "--self-calibrate/--frame-offset); estimate the components first without them")
     if with_parameters:
         _, out = adjust_survey_with_parameters(
             loaded, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
@@ -269,6 +296,7 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
                               variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter,
                               snooping=snooping or "report", snooping_level=snooping_level,
                               family_level=family_level, robust=robust, start=start, precision=precision,
+                              variance_components=variance_components,
                               progress=None if bar is None else lambda _it, _cost: bar.update(1))
     # what was written is what is shown
     summary = {**json.loads((Path(out) / "summary.json").read_text(encoding="utf-8")), "outdir": str(out)}

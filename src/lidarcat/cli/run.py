@@ -156,7 +156,9 @@ def _text(result) -> str:
                  f"sigma0^2 {_f(adj.get('sigma0_sq'), 3)}",
                  f"chi2 {'pass' if adj.get('chi2_pass') else 'FAILED'}"]
         if adj.get("blunders"):
-            parts.append(f"{len(adj['blunders'])} blunder(s) remain (w-test): " + "; ".join(
+            gone = sum(bool(b.get("removed")) for b in adj["blunders"])
+            verb = "named and removed" if gone == len(adj["blunders"]) else "remain"
+            parts.append(f"{len(adj['blunders'])} blunder(s) {verb} (w-test): " + "; ".join(
                 f"{b['kind']} {'photo ' + b['photo'] + ' ' if b.get('photo') else ''}point {b['point']}"
                 if b.get("point") else f"{b['kind']} photo {b['photo']}" for b in adj["blunders"][:5])
                 + (" ..." if len(adj["blunders"]) > 5 else ""))

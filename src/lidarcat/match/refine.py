@@ -24,15 +24,75 @@ resampled by one bilinear ``cv2.remap`` per 1,000 observations, ``ρ`` for all s
 offset eliminated -- was tried first: on 21 x 21 patches of smooth aerial texture it often
 diverged, so the correlation peak is used.)  Reference observations are not moved; the
 refinement is relative, which is what the adjustment needs.
+
+Precision of a refined observation (:func:`refine_with_precision`)
+-----------------------------------------------------------------
+The correlation peak is the least-squares match of the template ``f`` and the search image
+``g`` for a pure shift (with gain and offset free): linearised at the peak,
+``g(x + δ) - (a f(x) + b) = e``, the normal equations of ``δ`` are the structure tensor of the
+template's grey-value gradients ``∇f = (f_x, f_y)`` (central differences),
+
+.. math::  N = \sum_{\text{window}} \nabla f \, \nabla f^T , \qquad
+           \Sigma_\delta = \hat\sigma_e^2 \, N^{-1}
+
+(Förstner 1982; Ackermann 1984: the precision of least-squares matching).  The residual
+variance per pixel follows from the correlation itself: the regression of ``g`` on ``f`` leaves
+``σ_e² = (1 - ρ²) var(f)`` of the template's variance, so
+
+.. math::  \Sigma_\delta = (1 - \rho^2) \, \frac{\sum (f - \bar f)^2}{n} \, N^{-1} ,
+
+small for a high correlation and a template with strong gradients in both directions, large
+along an edge (``N`` nearly singular) or on smooth texture.  The sds written are the square
+roots of its diagonal, in pixels of the searched photo.  The white-noise model behind the
+formula ignores what the residuals of real patches are made of (resampling, relief inside the
+window, the parabola's bias), so :data:`PRECISION_SCALE` multiplies it and :data:`PRECISION_FLOOR_PX`
+is added in quadrature, both calibrated on rendered blocks against the true position
+(``benchmarks/bench_photos_to_block.py``, docs/match.md "Precision").
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["refine_observations"]
+__all__ = ["refine_observations", "refine_with_precision", "Refinement", "PRECISION_SCALE", "PRECISION_FLOOR_PX",
+           "SIFT_SD_PX", "REFERENCE_SHARE", "observation_sds"]
+
+#: factor of the least-squares-matching sd (module docstring), calibrated on rendered blocks: the rms
+#: truth error per axis of the refined observations over the rms of their formula sds, 2.7-2.85 in
+#: every sd class from 0.017 to 0.05 px (aerial_survey seed 0, 1000 x 750 px, 10,571 observations)
+PRECISION_SCALE = 2.8
+#: added in quadrature to every refined observation's sd, px (a correlation of 1 gives a formula sd of 0)
+PRECISION_FLOOR_PX = 0.01
+#: sd of an observation at its SIFT position (not refined), px (median SIFT error 0.15 px, docs/match.md)
+SIFT_SD_PX = 0.2
+#: a track's reference gets this share of the median sd of its refined partners (module docstring)
+REFERENCE_SHARE = 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class Refinement:
+    """Refined observations and their precision (:func:`refine_with_precision`).
+
+    Attributes
+    ----------
+    xy_px : (n, 2) float
+        Refined positions (the others as given).
+    moved : (n,) bool
+        Observations refined.
+    sd_px : (n, 2) float
+        Sd of the refined position relative to the track's reference, px (x = column, y = row);
+        NaN where not refined (references and the observations the refinement kept).
+    corr : (n,) float
+        Peak correlation (NaN where not refined).
+    """
+
+    xy_px: np.ndarray
+    moved: np.ndarray
+    sd_px: np.ndarray
+    corr: np.ndarray
 
 
 def _pair_affine(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -45,7 +105,16 @@ def _pair_affine(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 def refine_observations(track: np.ndarray, photo: np.ndarray, xy_px: np.ndarray,
                         image: Callable[[int], np.ndarray], *, half_px: int = 10, search_px: int = 3,
                         max_shift_px: float = 1.5, min_corr: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
-    """Refined pixel positions of the observations (module docstring).
+    """Refined pixel positions of the observations and which moved (:func:`refine_with_precision`)."""
+    r = refine_with_precision(track, photo, xy_px, image, half_px=half_px, search_px=search_px,
+                              max_shift_px=max_shift_px, min_corr=min_corr)
+    return r.xy_px, r.moved
+
+
+def refine_with_precision(track: np.ndarray, photo: np.ndarray, xy_px: np.ndarray,
+                          image: Callable[[int], np.ndarray], *, half_px: int = 10, search_px: int = 3,
+                          max_shift_px: float = 1.5, min_corr: float = 0.8) -> Refinement:
+    """Refined pixel positions of the observations and their sds (module docstring).
 
     Parameters
     ----------
@@ -60,9 +129,7 @@ def refine_observations(track: np.ndarray, photo: np.ndarray, xy_px: np.ndarray,
 
     Returns
     -------
-    xy : (n, 2) refined positions
-    moved : (n,) bool
-        Observations refined (others kept their position).
+    Refinement
     """
     import cv2
 
@@ -71,8 +138,10 @@ def refine_observations(track: np.ndarray, photo: np.ndarray, xy_px: np.ndarray,
     xy = np.asarray(xy_px, dtype=np.float64).copy()
     n = len(track)
     moved = np.zeros(n, bool)
+    sd = np.full((n, 2), np.nan)
+    corr = np.full(n, np.nan)
     if n == 0:
-        return xy, moved
+        return Refinement(xy, moved, sd, corr)
     order = np.lexsort((photo, track))
     first = order[np.r_[True, track[order][1:] != track[order][:-1]]]
     ref_of_track = np.full(track.max() + 1, -1, np.int64)
@@ -101,11 +170,32 @@ def refine_observations(track: np.ndarray, photo: np.ndarray, xy_px: np.ndarray,
             k = sel[s0:s0 + _CHUNK]
             tpl = _sample(f_img, xy[ref[k]], off_t, cv2.BORDER_CONSTANT)
             region = _sample(g_img, xy[k], off_g, cv2.BORDER_REPLICATE)
-            shift, ok = _ncc_peak(tpl, region, search_px, min_corr)
+            shift, ok, peak = _ncc_peak(tpl, region, search_px, min_corr)
             ok &= np.hypot(shift[:, 0], shift[:, 1]) <= max_shift_px
             xy[k[ok]] += shift[ok]
             moved[k[ok]] = True
-    return xy, moved
+            sd[k[ok]] = _lsm_sd(tpl[ok], peak[ok])
+            corr[k[ok]] = peak[ok]
+    return Refinement(xy, moved, sd, corr)
+
+
+def _lsm_sd(tpl: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """(K, 2) sds of the shift of each template (K, h, w) matched with correlation *rho* (module docstring):
+    ``sqrt(diag((1 - rho^2) var(f) N^-1)) * PRECISION_SCALE`` with the floor added in quadrature."""
+    if len(tpl) == 0:
+        return np.zeros((0, 2))
+    fy, fx = np.gradient(tpl, axis=(1, 2))
+    fx, fy = fx[:, 1:-1, 1:-1], fy[:, 1:-1, 1:-1]               # central differences only
+    nxx = np.einsum("kij,kij->k", fx, fx)
+    nyy = np.einsum("kij,kij->k", fy, fy)
+    nxy = np.einsum("kij,kij->k", fx, fy)
+    det = nxx * nyy - nxy * nxy
+    var = np.var(tpl, axis=(1, 2))
+    s2 = (1.0 - np.clip(rho, -1.0, 1.0) ** 2) * var
+    with np.errstate(all="ignore"):
+        cov = np.column_stack([nyy, nxx]) / det[:, None] * s2[:, None]
+    sd = np.sqrt(np.where(np.isfinite(cov) & (cov >= 0), cov, np.inf)) * PRECISION_SCALE
+    return np.sqrt(sd ** 2 + PRECISION_FLOOR_PX ** 2)
 
 
 #: observations resampled in one call (the remap of OpenCV takes fewer than 32,767 rows)
@@ -124,8 +214,9 @@ def _sample(img: np.ndarray, xy: np.ndarray, offsets: np.ndarray, border: int) -
 
 
 def _ncc_peak(tpl: np.ndarray, region: np.ndarray, search_px: int,
-              min_corr: float) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-pixel shift (K, 2) of the NCC peak of each template in its region, and where it is valid.
+              min_corr: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sub-pixel shift (K, 2) of the NCC peak of each template in its region, where it is valid, and the
+    peak correlation (K,) interpolated by the two parabolas.
 
     ``ρ`` for every integer shift at once (sliding windows, ``TM_CCOEFF_NORMED``); invalid: a flat
     template (sd < 2 grey levels), the peak on the window's border or below *min_corr*.
@@ -153,7 +244,11 @@ def _ncc_peak(tpl: np.ndarray, region: np.ndarray, search_px: int,
     kk = np.arange(len(rho))
     dq = _parabola_v(rho[kk, rc, qc - 1], rho[kk, rc, qc], rho[kk, rc, qc + 1])
     dr = _parabola_v(rho[kk, rc - 1, qc], rho[kk, rc, qc], rho[kk, rc + 1, qc])
-    return np.column_stack([q + dq, r + dr]) - search_px, ok
+    # the parabola's value at its vertex: rho_0 - (rho_- - rho_+) delta / 4, per axis
+    top = rho[kk, rc, qc] - 0.25 * ((rho[kk, rc, qc - 1] - rho[kk, rc, qc + 1]) * dq
+                                    + (rho[kk, rc - 1, qc] - rho[kk, rc + 1, qc]) * dr)
+    top = np.where(np.isfinite(top), np.minimum(top, 1.0), peak)
+    return np.column_stack([q + dq, r + dr]) - search_px, ok, top
 
 
 def _box_sums(x: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -175,3 +270,51 @@ def _parabola(v: np.ndarray) -> float:
     """Sub-sample offset of the maximum of a parabola through three samples (-1, 0, 1)."""
     den = v[0] - 2.0 * v[1] + v[2]
     return float(0.5 * (v[0] - v[2]) / den) if den < 0 else 0.0
+
+
+def observation_sds(track: np.ndarray, photo: np.ndarray, refined_sd_px: np.ndarray | None, *,
+                    sift_sd_px: float = SIFT_SD_PX) -> np.ndarray:
+    """The a priori sd (n, 2) of every observation of the tracks, px.
+
+    A refined observation: its least-squares-matching sd (:class:`Refinement`); one left at its
+    SIFT position: *sift_sd_px*; a track's reference (the template of its refined observations,
+    never moved itself): :data:`REFERENCE_SHARE` of the median sd of the refined observations of
+    its track, or *sift_sd_px* when none of them was refined.  The reference has no matching error
+    of its own relative to the ground point it defines (the refined errors are relative to it), so
+    its full partners' sd would count the matching error twice; a much smaller sd would make its
+    residual untestable (redundancy ~ 0), and a wrong reference could not be named.
+
+    Parameters
+    ----------
+    track, photo : (n,) int
+        As given to :func:`refine_with_precision` (the reference is a track's observation on the photo
+        of lowest index).
+    refined_sd_px : (n, 2) float or None
+        :attr:`Refinement.sd_px` (NaN where not refined); None: nothing refined.
+    """
+    track = np.asarray(track, np.int64)
+    n = len(track)
+    out = np.full((n, 2), float(sift_sd_px))
+    if refined_sd_px is None or n == 0:
+        return out
+    sd = np.asarray(refined_sd_px, float)
+    ok = np.isfinite(sd).all(axis=1)
+    out[ok] = sd[ok]
+    order = np.lexsort((np.asarray(photo, np.int64), track))
+    ref = order[np.r_[True, track[order][1:] != track[order][:-1]]]   # the references, as refined
+    is_ref = np.zeros(n, bool)
+    is_ref[ref] = ~ok[ref]
+    if ok.any() and is_ref.any():
+        # median of the refined sds of each track (per axis), by sorting within tracks
+        for axis in (0, 1):
+            t, v = track[ok], sd[ok, axis]
+            o = np.lexsort((v, t))
+            t, v = t[o], v[o]
+            start = np.searchsorted(t, np.unique(t))
+            cnt = np.diff(np.r_[start, len(t)])
+            med = 0.5 * (v[start + (cnt - 1) // 2] + v[start + cnt // 2])
+            pos = np.searchsorted(np.unique(t), track[is_ref])
+            has = (pos < len(start)) & (np.unique(t)[np.minimum(pos, len(start) - 1)] == track[is_ref])
+            rows = np.flatnonzero(is_ref)[has]
+            out[rows, axis] = REFERENCE_SHARE * med[pos[has]]
+    return out

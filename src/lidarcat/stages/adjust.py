@@ -37,7 +37,7 @@ def adjust(survey: Any, folder: Path, *, control: str | None = None, observation
            variance_factor: str | None = None, chi2_level: float | None = None, eo_constraints: bool = False,
            max_iter: int = 50, precision: str = "all", snooping: str = "report", snooping_level: float | None = None,
            family_level: float | None = None, robust: str = "none", start: str = "robust",
-           progress: Callable[[int, float], None] | None = None) -> Any:
+           variance_components: bool = False, progress: Callable[[int, float], None] | None = None) -> Any:
     """The action of ``lidarcat adjust`` and of the stage ``adjust-SET``: a survey in, the adjustment folder out.
 
     :func:`lidarcat.survey.adjustment.adjust_survey_into`: builds the bundle problem of
@@ -56,7 +56,7 @@ def adjust(survey: Any, folder: Path, *, control: str | None = None, observation
         the survey's settings).
     eo_constraints : bool
         Use photos.csv exterior orientations with sigmas as weighted constraints.
-    max_iter, precision, snooping, snooping_level, family_level, robust, start
+    max_iter, precision, snooping, snooping_level, family_level, robust, start, variance_components
         See :func:`lidarcat.survey.adjust_survey` (family_level default
         :data:`lidarcat.bundle.reliability.FAMILY_LEVEL`).
     progress : callable, optional
@@ -73,7 +73,8 @@ def adjust(survey: Any, folder: Path, *, control: str | None = None, observation
                               variance_factor=variance_factor, chi2_level=chi2_level,
                               eo_constraints=eo_constraints, max_iter=max_iter, precision=precision,
                               snooping=snooping, snooping_level=snooping_level, family_level=family_level,
-                              robust=robust, start=start, progress=progress)
+                              robust=robust, start=start, variance_components=variance_components,
+                              progress=progress)
 
 
 def run(ctx: Context, tmp: Path) -> dict:
@@ -86,9 +87,13 @@ def run(ctx: Context, tmp: Path) -> dict:
     def prog(iteration: int, vtpv: float) -> None:
         ctx.progress(min(iteration, 49), 50)
 
-    # data snooping, report only: the run keeps every observation and names the blunders
-    sres = adjust(survey, tmp, control=par["control"], snooping="report", progress=prog,
-                  eo_constraints=bool(par.get("eo_constraints")))  # photos.csv sd_X0..: GNSS/IMU
+    # data snooping, report only: the run keeps every observation and names the blunders.  Image observations
+    # with sds of their own -- the automatic tie points of `lidarcat match`, thousands of redundant machine
+    # measurements -- get their group factors estimated (lidarcat.bundle.variance) and the named ones removed
+    matched = bool(np.isfinite(np.asarray(survey.image_points.sd_mm, float)).any())
+    sres = adjust(survey, tmp, control=par["control"], snooping="remove" if matched else "report", progress=prog,
+                  eo_constraints=bool(par.get("eo_constraints")),  # photos.csv sd_X0..: GNSS/IMU
+                  variance_components=matched)
     result = sres.result
     summ = result.summary()
     if not result.success:

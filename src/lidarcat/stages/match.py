@@ -8,7 +8,9 @@ the guided search (a DSM of the tiles, else the mean height of the ground points
 * the tie-point observations into the survey's ``image_points.csv``: the rows of earlier
   automatic tie points (ids ``<prefix><number>``) are replaced, every other row is kept as it
   was; pixel coordinates ``col_px, row_px`` always, corrected photo coordinates ``x_mm, y_mm``
-  (eq. 01-07) too when the file has them or the survey adjusts corrected coordinates; the
+  (eq. 01-07) too when the file has them or the survey adjusts corrected coordinates, and each
+  observation's a priori sd ``sd_x_mm, sd_y_mm`` (:func:`lidarcat.match.refine.observation_sds`:
+  the least-squares-matching precision of a refined observation, else the SIFT sd); the
   provenance (inputs with SHA-256, options) in the sidecar ``image_points.csv.json``;
 * a matching report into the output folder: ``match_report.json`` (counts, options, seconds),
   ``match_pairs.csv`` (per pair: overlap, matches, candidates, inliers, why rejected) and
@@ -189,9 +191,13 @@ def _load_image(survey: Any, photo: Any) -> np.ndarray:
     return img
 
 
-def _table(survey: Any, new_photo: np.ndarray, new_point: np.ndarray, new_px: np.ndarray, prefix: str
-           ) -> tuple[list[str], list[list[Any]], int]:
-    """The rows of the new image_points.csv: kept rows, then the tie points; (header, rows, replaced)."""
+def _table(survey: Any, new_photo: np.ndarray, new_point: np.ndarray, new_px: np.ndarray, prefix: str,
+           new_sd_px: np.ndarray | None = None) -> tuple[list[str], list[list[Any]], int]:
+    """The rows of the new image_points.csv: kept rows, then the tie points; (header, rows, replaced).
+
+    *new_sd_px* (n, 2): the tie points' sds in pixels, written as ``sd_x_mm, sd_y_mm`` (times the
+    pixel size of each photo's camera); the kept rows without sd stay empty (the survey's
+    ``image_sd_mm``)."""
     ip = survey.image_points
     auto = np.array([bool(re.fullmatch(re.escape(prefix) + r"\d+", p)) for p in ip.point.tolist()], bool)
     auto &= ~np.isin(ip.point, survey.ground_points.point)
@@ -201,7 +207,7 @@ def _table(survey: Any, new_photo: np.ndarray, new_point: np.ndarray, new_px: np
         raise SurveyError(f"{ip.path}: point id {sorted(clash)[0]!r} of the new tie points is already used; "
                           f"choose another --prefix")
     with_xy = bool(np.isfinite(ip.xy_mm).any()) or survey.settings.observations == "corrected" and len(ip) > 0
-    with_sd = bool(np.isfinite(ip.sd_mm).any())
+    with_sd = bool(np.isfinite(ip.sd_mm).any()) or new_sd_px is not None
     header = ["photo", "point", "col_px", "row_px"] + (["x_mm", "y_mm"] if with_xy else []) + (
         ["sd_x_mm", "sd_y_mm"] if with_sd else [])
     rows: list[list[Any]] = []
@@ -217,16 +223,20 @@ def _table(survey: Any, new_photo: np.ndarray, new_point: np.ndarray, new_px: np
             r += [num(ip.sd_mm[i, 0]), num(ip.sd_mm[i, 1])]
         rows.append(r)
     xy = np.full((len(new_px), 2), np.nan)
-    if with_xy:
-        for pid in np.unique(new_photo):
-            sel = new_photo == pid
-            xy[sel] = survey.camera_of(str(pid)).pixel_to_photo(new_px[sel])
+    sd_mm = np.full((len(new_px), 2), np.nan)
+    for pid in np.unique(new_photo):
+        sel = new_photo == pid
+        cam = survey.camera_of(str(pid))
+        if with_xy:
+            xy[sel] = cam.pixel_to_photo(new_px[sel])
+        if new_sd_px is not None:
+            sd_mm[sel] = np.asarray(new_sd_px, float)[sel] * [cam.pixel_size_x_mm, cam.pixel_size_y_mm]
     for k in range(len(new_px)):
         r = [new_photo[k], new_point[k], round(float(new_px[k, 0]), 3), round(float(new_px[k, 1]), 3)]
         if with_xy:
             r += [round(float(xy[k, 0]), 6), round(float(xy[k, 1]), 6)]
         if with_sd:
-            r += ["", ""]
+            r += [num(float(f"{sd_mm[k, 0]:.3g}")), num(float(f"{sd_mm[k, 1]:.3g}"))]
         rows.append(r)
     return header, rows, int(auto.sum())
 
@@ -318,25 +328,30 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     xy_obs = res.xy_px
     n_refined = 0
     t_ref = time.perf_counter()
+    refined_sd = None
     if refine and len(tr):
         from functools import lru_cache
 
-        from ..match import refine_observations
         from ..match.features import grey8
+        from ..match.refine import refine_with_precision
 
         @lru_cache(maxsize=4)
         def grey(i: int) -> np.ndarray:
             return grey8(_load_image(survey, photos[i]))
 
-        xy_obs, moved = refine_observations(tr.track, tr.photo, res.xy_px, grey, half_px=7)
-        n_refined = int(moved.sum())
+        ref = refine_with_precision(tr.track, tr.photo, res.xy_px, grey, half_px=7)
+        xy_obs, refined_sd = ref.xy_px, ref.sd_px
+        n_refined = int(ref.moved.sum())
         grey.cache_clear()
     t_ref = time.perf_counter() - t_ref
+    from ..match.refine import observation_sds
+
+    sd_px = observation_sds(tr.track, tr.photo, refined_sd)
     ids = np.array([p.id for p in photos], dtype=object)
     new_photo = ids[tr.photo].astype(str)
     width = max(6, len(str(tr.n_tracks)))
     new_point = np.array([f"{prefix}{t + 1:0{width}d}" for t in tr.track.tolist()], dtype=str)
-    header, rows, replaced = _table(survey, new_photo, new_point, xy_obs, prefix)
+    header, rows, replaced = _table(survey, new_photo, new_point, xy_obs, prefix, sd_px)
 
     # the report
     per_photo = []
@@ -363,7 +378,10 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
         "rays": {str(k): int(v) for k, v in enumerate(np.bincount(rays)) if v},
         "inconsistent_tracks_dropped": int(tr.n_inconsistent),
         "tracks_before_distribution": int(res.n_tracks_before),
-        "refined_observations": n_refined, "replaced_rows": replaced, "prefix": prefix, "surface": surface_source,
+        "refined_observations": n_refined,
+        "sd_px": {"median": round(float(np.median(sd_px)), 4) if len(sd_px) else None,
+                  "p90": round(float(np.percentile(sd_px, 90)), 4) if len(sd_px) else None},
+        "replaced_rows": replaced, "prefix": prefix, "surface": surface_source,
         "pairing": "footprints" if all(e is not None for e in eos) else "exhaustive",
         "options": dataclasses.asdict(options), "features": dataclasses.asdict(features),
         "workers": int(workers), "refine": bool(refine), "seconds": seconds,

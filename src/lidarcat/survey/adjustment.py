@@ -432,6 +432,7 @@ def adjust_survey(
     family_level: float = FAMILY_LEVEL,
     robust: str = "none",
     start: str = "robust",
+    variance_components: bool = False,
 ) -> tuple[BundleResult, Any]:
     """Load a survey, adjust it and write the result folder (``lidarcat adjust``).
 
@@ -465,6 +466,10 @@ def adjust_survey(
     precision : {"all", "photos", "none"}
         Covariance blocks to compute (see :func:`adjust`); the joint covariance of
         the check points is written with ``"all"`` only.
+    variance_components : bool
+        Estimate one variance factor per observation group (tie points, targets, control,
+        GNSS, IMU) and adjust with them (:mod:`lidarcat.bundle.variance`; the snooping is
+        repeated in every round); ``summary.json`` gains ``variance_components``.
 
     Returns
     -------
@@ -488,7 +493,8 @@ def adjust_survey(
                                   variance_factor=variance_factor, chi2_level=chi2_level,
                                   eo_constraints=eo_constraints, max_iter=max_iter, precision=precision,
                                   progress=progress, snooping=snooping, snooping_level=snooping_level,
-                                  family_level=family_level, robust=robust, start=start)
+                                  family_level=family_level, robust=robust, start=start,
+                                  variance_components=variance_components)
     return sres.result, out
 
 
@@ -509,6 +515,7 @@ def adjust_survey_into(
     family_level: float | None = FAMILY_LEVEL,
     robust: str = "none",
     start: str = "robust",
+    variance_components: bool = False,
 ) -> SnoopingResult:
     """Adjust a loaded survey and write its adjustment tables into the existing *folder*.
 
@@ -528,7 +535,7 @@ def adjust_survey_into(
     folder : path
         Output folder.
     control, observations, variance_factor, chi2_level, eo_constraints, max_iter, precision, progress,
-    snooping, snooping_level, family_level, robust, start
+    snooping, snooping_level, family_level, robust, start, variance_components
         As :func:`adjust_survey` (``family_level=None``: :data:`lidarcat.bundle.reliability.FAMILY_LEVEL`).
 
     Returns
@@ -548,19 +555,32 @@ def adjust_survey_into(
                   eo_constraints=bool(eo_constraints), max_iter=int(max_iter), snooping=snooping,
                   snooping_level=None if snooping_level is None else float(snooping_level),
                   family_level=family_level, robust=robust, start=start, precision=precision)
+    params["variance_components"] = bool(variance_components)
     snoop_kw = dict(mode=snooping, level=snooping_level, family_level=family_level, robust=robust, start=start,
                     max_iter=max_iter, precision=precision, variance_factor=params["variance_factor"],
                     chi2_level=params["chi2_level"], progress=progress)
+
+    def fit(prob: BundleProblem) -> SnoopingResult:
+        return snoop(prob, **snoop_kw)
+
+    extra: dict[str, Any] = {}
     selfcal = None
+    if plan is not None and variance_components:
+        raise SurveyError(f"{survey.files['rigs']}: variance components in a rig block are not estimated yet; "
+                          "adjust it without --variance-components")
     if plan is not None and plan.estimate:
         sres, selfcal = _adjust_rig_block(problem, plan, snoop_kw)
+    elif variance_components:
+        vc = _with_variance_components(problem, fit)
+        sres = vc.payload
+        extra["variance_components"] = vc.summary()
     else:
-        sres = snoop(problem, **snoop_kw)
+        sres = fit(problem)
     sres, lines_removed = _snoop_line_control(sres, snoop_kw)
     provenance = survey_provenance(survey, params)
     write_adjustment(sres.result, folder, extra={
         "elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs, "height_system": survey.height_system,
-        "survey": survey.name, "control_set": params["control"], "observations": params["observations"]},
+        "survey": survey.name, "control_set": params["control"], "observations": params["observations"], **extra},
         snooping=sres, provenance=provenance)
     if lines_removed is not None:
         _write_removed_lines(folder, sres.result, *lines_removed, provenance)
@@ -732,6 +752,29 @@ def _write_rig_tables(folder, plan, result: BundleResult, selfcal, provenance: d
     summary["rig"] = {"rig": plan.rig_id, "exposures": len(plan.exposure_ids), "photos": len(plan.photo_ids),
                       "sensors": [dict(zip(RIG_POSE_COLUMNS[1:], r[1:])) for r in prow]}
     write_json_atomic(folder / "summary.json", summary)
+
+
+def _with_variance_components(problem: BundleProblem, fit: Callable[[BundleProblem], SnoopingResult]):
+    """:func:`lidarcat.bundle.variance.iterate_components` with *fit* (an adjustment with data snooping) in
+    every round; the redundancy numbers are the snooping's, the groups it named but kept (``report``) are
+    left out of the sums.  Returns the VarianceComponents, ``payload`` the last SnoopingResult."""
+    from ..bundle.redundancy import reliability
+    from ..bundle.variance import iterate_components
+
+    def one(prob: BundleProblem):
+        sres = fit(prob)
+        res = sres.result
+        if res is None or not res.success:
+            return res, None, None, sres
+        rel = sres.reliability if sres.reliability is not None else reliability(res)
+        kept = {(b.kind, b.photo or "", b.point or "") for b in sres.blunders if not b.removed}
+        exclude = None
+        if kept:
+            keys = list(zip(rel.kind.tolist(), [str(x) for x in rel.photo], [str(x) for x in rel.point]))
+            exclude = np.array([k in kept for k in keys], dtype=bool)
+        return res, np.asarray(rel.redundancy), exclude, sres
+
+    return iterate_components(problem, one)
 
 
 def write_survey_folder(survey: Survey, outdir, t0: float, parameters: dict,
