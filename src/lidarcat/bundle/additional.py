@@ -287,14 +287,15 @@ class SelfCalibration:
         return _BoundLens(self, problem)
 
 
-def _cameras_of_observations(spec: SelfCalibration, problem) -> tuple[list[Camera], np.ndarray]:
-    """The cameras the photos of *problem* use (in order of first use) and each observation's index into them."""
+def _cameras_of_observations(spec: SelfCalibration, problem) -> tuple[list[Camera], np.ndarray, np.ndarray]:
+    """The cameras the photos of *problem* use (in order of first use), each photo's and each observation's
+    index into them."""
     if len(spec.photo_camera) != problem.n_photos:
         raise AdditionalParameterError(f"self-calibration: {len(spec.photo_camera)} photo camera(s) given "
                                        f"for {problem.n_photos} photos")
     used = list(dict.fromkeys(spec.photo_camera))
     cam_of_photo = np.array([used.index(c) for c in spec.photo_camera], dtype=np.int64)
-    return [spec.cameras[c] for c in used], cam_of_photo[problem.photo_index]
+    return [spec.cameras[c] for c in used], cam_of_photo, cam_of_photo[problem.photo_index]
 
 
 class _BoundIO:
@@ -303,7 +304,7 @@ class _BoundIO:
     group_kind = "camera"
 
     def __init__(self, spec: SelfCalibration, problem):
-        self.cams, self.cam_of_obs = _cameras_of_observations(spec, problem)
+        self.cams, cam_of_photo, self.cam_of_obs = _cameras_of_observations(spec, problem)
         self.params = spec.parameters
         m = len(self.params)
         self.m = m
@@ -481,7 +482,7 @@ class _BoundLens:
     group_kind = "camera"
 
     def __init__(self, spec: SelfCalibration, problem):
-        self.cams, self.cam_of_obs = _cameras_of_observations(spec, problem)
+        self.cams, cam_of_photo, self.cam_of_obs = _cameras_of_observations(spec, problem)
         self.params = [lens_parameters(spec.parameters, cam.lens.PARAMETERS) for cam in self.cams]
         for q in spec.parameters:
             if tuple(spec.parameters) != IO_PARAMETERS and not any(q in ps for ps in self.params):
