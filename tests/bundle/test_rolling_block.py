@@ -250,3 +250,29 @@ def test_velocity_and_readout_components_report_their_start_values():
     assert vel.names == ("D001.vE", "D001.vN", "D001.vh", "D004.vE", "D004.vN", "D004.vh")
     assert vel.calibrated["D004.vN"] == pytest.approx(v0[3, 1])
     assert np.all(np.isfinite(vel.prior_sd)) and vel.prior_sd[0] == 0.5
+
+
+def test_lidarcat_adjust_tests_a_camera_without_its_rolling_shutter(tmp_path, caplog):
+    """A drone survey whose camera says readout_time_ms = 0 while the photos carry exposure times:
+    `lidarcat adjust` estimates the read-out time once more and names the camera (~30 ms, the truth);
+    the global-shutter block of the same geometry passes the test (summary.json keeps both)."""
+    import json
+    import logging
+
+    from lidarcat.survey import Survey, adjust_survey
+
+    b = drone_block(0, readout_s=0.03)
+    with caplog.at_level(logging.WARNING):
+        adjust_survey(Survey.load(_write_survey(tmp_path / "off", b, 0.0)), eo_constraints=True, snooping="off",
+                      outdir=tmp_path / "out_off")
+    test = json.loads((tmp_path / "out_off" / "summary.json").read_text())["rolling_shutter_test"]
+    cam = test["cameras"]["drone"]
+    assert abs(cam["readout_ms"] - 30.0) < 3 * cam["sd_ms"] and cam["t"] > 10
+    (warning,) = test["warnings"]
+    assert warning.startswith("camera 'drone': the image residuals show a rolling shutter: read-out time ")
+    assert warning in caplog.text
+    g = drone_block(0, readout_s=0.0)
+    adjust_survey(Survey.load(_write_survey(tmp_path / "gs", g, 0.0)), eo_constraints=True, snooping="off",
+                  outdir=tmp_path / "out_gs")
+    test = json.loads((tmp_path / "out_gs" / "summary.json").read_text())["rolling_shutter_test"]
+    assert test["warnings"] == [] and abs(test["cameras"]["drone"]["t"]) < 3.29

@@ -24,7 +24,7 @@ from ..bundle.reliability import SnoopingResult, snoop
 from ..bundle.solve import BundleResult
 from ..errors import SurveyError
 from .covariance import write_result_eop_covariance
-from .motion import with_survey_motion
+from .motion import rolling_shutter_test, with_survey_motion
 from .rigs import rig_plan
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -577,6 +577,12 @@ def adjust_survey_into(
     else:
         sres = fit(problem)
     sres, lines_removed = _snoop_line_control(sres, snoop_kw)
+    if sres.result is not None:
+        rs_test = rolling_shutter_test(survey, sres.result)   # drone photos with exposure times, no model
+        if rs_test is not None:
+            extra["rolling_shutter_test"] = rs_test
+            for w in rs_test["warnings"]:
+                log.warning("%s", w)
     provenance = survey_provenance(survey, params)
     write_adjustment(sres.result, folder, extra={
         "elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs, "height_system": survey.height_system,

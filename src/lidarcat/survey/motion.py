@@ -16,6 +16,16 @@ bundle then models each photo's linear motion during the read-out
 
 A photo of a rolling-shutter camera without ``time_s`` or a position is refused with its line
 of photos.csv.
+
+The test of a rolling shutter not modelled (:func:`rolling_shutter_test`): for a camera with
+``readout_time_ms = 0`` whose photos all carry ``time_s`` and a position (a drone block; aerial
+frame cameras come without exposure times), the adjusted block is adjusted once more with the
+camera's read-out time ``T_c`` as one additional unknown
+(:class:`lidarcat.bundle.rolling.ReadoutTime`, ``dx_a / dT_c = -A_pt,a V_i s_a``).  A global
+shutter leaves ``T_c`` within its sd of 0; a rolling one shows as ``|T_c / sd| > z_{0.9995}``
+(3.29): :func:`lidarcat.bundle.rolling.readout_warning` names the camera and the value to set.
+The trend of the residuals with the row is the weaker test (the orientations absorb some 99 % of
+the image motion, docs/cameras.md), so the read-out time itself is estimated.
 """
 
 from __future__ import annotations
@@ -30,7 +40,7 @@ from ..bundle import BundleProblem
 from ..bundle.rolling import neighbour_velocities, row_times, with_rolling_shutter
 from ..errors import SurveyError
 
-__all__ = ["LINE_GAP_FACTOR", "flight_lines", "with_survey_motion"]
+__all__ = ["LINE_GAP_FACTOR", "flight_lines", "with_survey_motion", "rolling_shutter_test"]
 
 #: a flight line ends where the time to the next exposure exceeds this many median steps
 LINE_GAP_FACTOR = 3.0
@@ -104,3 +114,60 @@ def with_survey_motion(survey, problem: BundleProblem) -> BundleProblem:
         time_s[obs] = row_times(rows, cam.rows_px, cam.readout_time_ms / 1000.0)
     out = with_rolling_shutter(p, time_s, velocity)
     return dataclasses.replace(out, info={**p.info, "rolling_shutter": sorted(rolling)})
+
+
+def rolling_shutter_test(survey, result, *, level: float = 0.001) -> dict | None:
+    """The read-out-time test of the global-shutter cameras of *survey* whose photos carry ``time_s``
+    (module docstring), from *result* (its adjustment without a rolling-shutter model).
+
+    Returns
+    -------
+    dict or None
+        ``{"cameras": {id: {"readout_ms", "sd_ms", "t"}}, "warnings": [...]}``; None when no camera
+        qualifies (every one modelled, photos without ``time_s`` or position, a rig or rolling block,
+        an adjustment that did not converge) or the extra adjustment fails.
+    """
+    from ..bundle.rolling import ReadoutTime, readout_warning, row_fractions
+    from ..bundle.selfcal import adjust_with_parameters
+
+    p = result.problem
+    if not result.success or p.rays is not None or getattr(p, "lines", None) is not None:
+        return None
+    by_id = {ph.id: ph for ph in survey.photos}
+    photos = [by_id.get(str(i)) for i in p.photo_ids]
+    if any(ph is None for ph in photos):             # exposures of a rig, not photos
+        return None
+    cam_of_photo = np.array([ph.camera for ph in photos], dtype=object)
+    tested = [c for c in dict.fromkeys(cam_of_photo.tolist()) if survey.cameras[c].readout_time_ms == 0
+              and all(photos[i].time_s is not None and photos[i].position_m is not None
+                      for i in np.flatnonzero(cam_of_photo == c))
+              and np.sum(cam_of_photo == c) >= 3]
+    if not tested:
+        return None
+    velocity = np.zeros((p.n_photos, 3))
+    fraction = np.zeros(len(p.photo_index))
+    cam_of_obs = cam_of_photo[p.photo_index]
+    for c in tested:
+        sel = np.flatnonzero(cam_of_photo == c)
+        t = np.array([photos[i].time_s for i in sel])
+        x = np.array([photos[i].position_m for i in sel])
+        velocity[sel] = neighbour_velocities(x, t, flight_lines(t).tolist())
+        obs = np.flatnonzero(cam_of_obs == c)
+        cam = survey.cameras[c]
+        fraction[obs] = row_fractions(cam.photo_to_pixel(np.asarray(p.xy_mm)[obs])[:, 1], cam.rows_px)
+    # photos of the other cameras keep velocity 0: their rows of dx/dT are zero whichever camera they name
+    cams = [c if c in tested else tested[0] for c in cam_of_photo.tolist()]
+    try:
+        res = adjust_with_parameters(p, [ReadoutTime(fraction, velocity, cams)], without=result, precision="all")
+    except Exception:   # noqa: BLE001 -- a test that cannot be made is no result, never a failed adjustment
+        return None
+    if not res.bundle.success:
+        return None
+    out = {}
+    for name, est, sd in zip(res.names, np.asarray(res.estimates), res.sd):
+        cam = name[:-len(".readout_s")]
+        if cam in tested:
+            out[cam] = {"readout_ms": float(est) * 1e3, "sd_ms": float(sd) * 1e3,
+                        "t": float(est / sd) if sd > 0 else None}
+    warnings = [w for w in readout_warning(res, level=level) if w.split("'")[1] in tested]
+    return {"cameras": out, "warnings": warnings, "level": level}
