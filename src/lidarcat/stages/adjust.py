@@ -27,7 +27,7 @@ from .._util import write_json_atomic
 from ..errors import LidarcatError
 from .context import StageContext as Context
 
-__all__ = ["adjust", "run", "CONSISTENCY_MEMORY_BYTES"]
+__all__ = ["adjust", "run", "auto_variance_components", "CONSISTENCY_MEMORY_BYTES"]
 
 #: largest memory the in-memory consistency test may take (k check points: 2 x (3k)^2 x 8 bytes)
 CONSISTENCY_MEMORY_BYTES = 1 << 30
@@ -77,6 +77,19 @@ def adjust(survey: Any, folder: Path, *, control: str | None = None, observation
                               progress=progress)
 
 
+def auto_variance_components(survey: Any) -> bool:
+    """Whether the ``adjust-SET`` stage of ``lidarcat run`` estimates variance components (and removes
+    the named observations): when image observations carry sds of their own -- the automatic tie
+    points of ``lidarcat match``, thousands of redundant machine measurements whose sds are relative
+    weights, their scale the block's to estimate (on the four NGI frames the written sds alone pull
+    the orientations 16 m off the published ones, the estimated factors keep them within 1.3 m).
+    Not in a rig block (its variance components are not estimated yet).  ``lidarcat adjust`` asks
+    for them with ``--variance-components``."""
+    if survey.files.get("rigs") is not None:    # not estimated in a rig block yet (survey.adjustment)
+        return False
+    return bool(np.isfinite(np.asarray(survey.image_points.sd_mm, float)).any())
+
+
 def run(ctx: Context, tmp: Path) -> dict:
     """Bundle adjustment of one control set -> eop.csv, points.csv, residuals.csv, summary.json."""
     from ..survey.folder import Survey
@@ -90,7 +103,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     # data snooping, report only: the run keeps every observation and names the blunders.  Image observations
     # with sds of their own -- the automatic tie points of `lidarcat match`, thousands of redundant machine
     # measurements -- get their group factors estimated (lidarcat.bundle.variance) and the named ones removed
-    matched = bool(np.isfinite(np.asarray(survey.image_points.sd_mm, float)).any())
+    matched = auto_variance_components(survey)
     sres = adjust(survey, tmp, control=par["control"], snooping="remove" if matched else "report", progress=prog,
                   eo_constraints=bool(par.get("eo_constraints")),  # photos.csv sd_X0..: GNSS/IMU
                   variance_components=matched)
