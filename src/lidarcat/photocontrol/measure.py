@@ -300,7 +300,7 @@ class MeasureParams:
     #: sd of a line's position from what the fit cannot see (rendering, texture, blur), added (px); 0.5 makes
     #: the normalised errors' sd 0.9-1.9 on the synthetic.aerial renders, whose face boundaries lie up to a
     #: texel off the geometric roof edge (the shading is painted into the plan albedo lattice)
-    line_sd_px: float = 0.5
+    line_sd_px: float = 0.25
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
