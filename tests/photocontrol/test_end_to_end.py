@@ -54,7 +54,7 @@ def test_match_measure_control_adjust_orients_the_block_on_lidar_control(tmp_pat
     r = CliRunner().invoke(cli, ["measure-control", str(root), "--json", "-o", str(tmp_path / "mc")])
     assert r.exit_code == 0, r.output
     mc = json.loads(r.output)
-    assert mc["accepted"] >= 6
+    assert mc["accepted"] >= 4                    # vertices accepted on two photos or more
     r = CliRunner().invoke(cli, ["adjust", str(root), "--control", "lidar", "--eo-constraints", "--snooping",
                                  "remove", "-o", str(tmp_path / "adjust")])
     assert r.exit_code in (0, 3), r.output
@@ -65,4 +65,4 @@ def test_match_measure_control_adjust_orients_the_block_on_lidar_control(tmp_pat
     assert sc["max_z"] <= 3.0, sc                   # every orientation within 3 sd of truth
     # the LiDAR control was used: its observations are in the adjustment's residuals
     res = (tmp_path / "adjust" / "residuals.csv").read_text()
-    assert sum(",L0" in ln for ln in res.splitlines()) >= 6
+    assert sum(",L0" in ln for ln in res.splitlines()) >= 4

@@ -29,7 +29,8 @@ the normalised scores of all vertices of a photo over the common shift first
 **2. Edges (sub-pixel).**  Each roof edge (:func:`~lidarcat.photocontrol.predict.roof_edges`)
 is predicted as an image segment from the shifted vertex.  Across it, at
 stations every 0.5 px from ``t0`` (clear of the other edges at the vertex) to
-its end, a profile of ``+-band_px`` is sampled (bilinear); the profiles'
+``t0`` short of its end (where a far vertex or an eave corner branches other edges off, which
+pull the peaks and tilt the line), a profile of ``+-band_px`` is sampled (bilinear); the profiles'
 derivatives are averaged over ``smooth_px`` along the edge, and the edge point is
 the extremum of the derivative of the edge's dominant sign, refined by a
 parabola through the three samples about it.  A line :math:`s = a + b\,t`
@@ -37,7 +38,12 @@ parabola through the three samples about it.  A line :math:`s = a + b\,t`
 rejection at 3 robust sigmas (MAD); its covariance is
 :math:`\hat\sigma^2 (A^TA)^{-1}\,k` with :math:`\hat\sigma` from the residuals
 (at least ``min_sd_px``) and :math:`k = 2\max(1, 2\,\mathrm{smooth})` for the
-correlation of stations 0.5 px apart.  An edge is dropped, with the reason, when
+correlation of stations 0.5 px apart.  The predicted direction is good to about the
+orientation's attitude error, while texture correlated over several pixels tilts a free line by
+a degree or two (seen on the renders: a ridge 2 deg off put the vertex 0.6 px off); so the slope
+is also observed, :math:`b = 0` with sd :math:`\tan` ``direction_sd_deg`` (1 deg): the normal
+matrix :math:`A^TA/\hat\sigma^2 k + \mathrm{diag}(0, \tan^{-2})`, its inverse the covariance.
+An edge is dropped, with the reason, when
 it has fewer than ``min_points`` inliers, a median gradient below
 ``min_contrast`` grey levels per pixel or below ``min_ratio`` times the texture's
 (the gradient off the edge), or its points scatter more than ``max_scatter_px``.
@@ -46,8 +52,9 @@ from the vertex found in ``band_px``.
 
 **3. Vertex.**  Line *i* in the image: :math:`m_i^T x = c_i` (unit normal
 :math:`m_i`), with the variance :math:`w_i^{-1}` of its offset at the vertex.
-:math:`w_i^{-1}` adds ``line_sd_px``\ :sup:`2` for what the fit cannot see (rendering,
-blur, a face boundary off the geometric edge).  The vertex is the weighted
+:math:`w_i^{-1}` adds ``line_sd_px``\ :sup:`2` (0.25 px) for what the fit cannot see
+(blur, the texture next to the edge; it makes the normalised errors' sd about 1 on the
+anti-aliased, per-ray shaded renders).  The vertex is the weighted
 least-squares point :math:`x = (\sum w_i m_i m_i^T)^{-1} \sum w_i m_i c_i` with
 covariance :math:`(\sum w_i m_i m_i^T)^{-1}` (two lines: their intersection).
 Of two edges found on one image line (less than ``min_angle_deg`` apart) the one
@@ -309,9 +316,9 @@ class MeasureParams:
     min_sd_px: float = 0.15
     #: a vertex from two edges only (no redundancy) needs both this much stronger than the texture
     two_line_ratio: float = 3.5
-    #: sd of a line's position from what the fit cannot see (rendering, texture, blur), added (px); 0.5 makes
-    #: the normalised errors' sd 0.9-1.9 on the synthetic.aerial renders, whose face boundaries lie up to a
-    #: texel off the geometric roof edge (the shading is painted into the plan albedo lattice)
+    #: sd of a line's position from what the fit cannot see (texture next to the edge, blur), added (px);
+    #: 0.25 makes the normalised errors' sd 1.0 over the benchmark's blocks (0.5 was needed while the
+    #: renders painted roof shading into the plan albedo lattice, a texel off the roof edge)
     line_sd_px: float = 0.25
     #: sd of the predicted edge direction in the photo (deg), an observation of each line's slope (0: free)
     direction_sd_deg: float = 1.0
