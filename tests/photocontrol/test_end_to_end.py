@@ -6,7 +6,10 @@ A rendered block (:func:`lidarcat.synthetic.aerial.aerial_survey`: two strips of
 and the roof vertices as ground points of source ``lidar`` (the true vertex plus 3 cm noise, sd
 3 cm: what ``lidarcat extract`` gives), no image coordinate of them given by hand.  The control set
 ``lidar`` holds the vertices as control and the four GPS targets as check points.  The truth scores
-the result only (``benchmarks/bench_photos_to_block.py``'s scoring).
+the result only (``benchmarks/bench_photos_to_block.py``'s scoring).  Then ``lidarcat run`` on the
+same survey.  Both slow (~35 s each at load 3); the fast cases of the modules are in
+tests/photocontrol/test_measure.py, tests/stages/test_measure_control.py and
+tests/synthetic/test_roof_edges.py.
 """
 
 from __future__ import annotations
@@ -66,3 +69,32 @@ def test_match_measure_control_adjust_orients_the_block_on_lidar_control(tmp_pat
     # the LiDAR control was used: its observations are in the adjustment's residuals
     res = (tmp_path / "adjust" / "residuals.csv").read_text()
     assert sum(",L0" in ln for ln in res.splitlines()) >= 4
+
+
+@pytest.mark.slow
+def test_lidarcat_run_measures_the_control_and_runs_every_stage(tmp_path):
+    """``lidarcat run`` on the same survey: match -> measure_control -> camera -> adjust-gps, adjust-lidar
+    -> assess -> compare -> report, none failed (a vertex accepted on one photo once made adjust-gps fail:
+    a free point of one ray); exit 3 = the variance factor's test (the synthetic survey's a-priori image
+    sd of 0.3 px against tie residuals of ~0.06 px), not a failed stage."""
+    root = tmp_path / "survey"
+    s, _ = lidar_controlled_survey(root)
+    r = CliRunner().invoke(cli, ["run", str(root), "-o", str(tmp_path / "run")])
+    assert r.exit_code in (0, 3), r.output
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    status = {st["name"]: st["status"] for st in summary["stages"]}
+    assert status["match"] == status["measure_control"] == "ran"
+    assert status["adjust-gps"] == status["adjust-lidar"] == "ran"
+    assert "failed" not in status.values()
+    # the LiDAR-controlled run: its orientation within 3 sd of truth
+    import csv
+
+    rows = {r["photo"]: r for r in csv.DictReader(ln for ln in open(tmp_path / "run" / "adjust-lidar" / "eop.csv")
+                                                   if not ln.startswith("#"))}
+    truth = np.asarray(s.true_eo, float).copy()
+    truth[:, 3:] = np.degrees(truth[:, 3:])
+    est = np.array([[float(rows[p][c]) for c in bench.EO_NAMES] for p in s.photo_ids])
+    sd = np.array([[float(rows[p]["sd_" + c]) for c in bench.EO_NAMES] for p in s.photo_ids])
+    d = est - truth
+    d[:, 3:] = (d[:, 3:] + 180.0) % 360.0 - 180.0
+    assert np.abs(d / sd).max() <= 3.0
