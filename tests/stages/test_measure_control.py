@@ -48,6 +48,10 @@ def test_measure_control_writes_observations_decisions_and_gallery(survey):
     acc = [r for r in dec if r["decision"] == "accept"]
     assert len(acc) == out["accepted"] >= 3
     assert all(r["reason"] for r in dec if r["decision"] == "reject")
+    per_point = {}
+    for r in acc:
+        per_point[r["point"]] = per_point.get(r["point"], 0) + 1
+    assert min(per_point.values()) >= 2                         # a vertex on one photo only: rejected
     for r in acc:   # against the true vertex's true projection
         d = np.array([float(r["col_px"]), float(r["row_px"])]) - s.project(r["photo"], truth[r["point"]][None])[0]
         assert np.hypot(*d) < 3.0, (r, d)

@@ -29,7 +29,8 @@ the normalised scores of all vertices of a photo over the common shift first
 **2. Edges (sub-pixel).**  Each roof edge (:func:`~lidarcat.photocontrol.predict.roof_edges`)
 is predicted as an image segment from the shifted vertex.  Across it, at
 stations every 0.5 px from ``t0`` (clear of the other edges at the vertex) to
-its end, a profile of ``+-band_px`` is sampled (bilinear); the profiles'
+``t0`` short of its end (where a far vertex or an eave corner branches other edges off, which
+pull the peaks and tilt the line), a profile of ``+-band_px`` is sampled (bilinear); the profiles'
 derivatives are averaged over ``smooth_px`` along the edge, and the edge point is
 the extremum of the derivative of the edge's dominant sign, refined by a
 parabola through the three samples about it.  A line :math:`s = a + b\,t`
@@ -37,7 +38,12 @@ parabola through the three samples about it.  A line :math:`s = a + b\,t`
 rejection at 3 robust sigmas (MAD); its covariance is
 :math:`\hat\sigma^2 (A^TA)^{-1}\,k` with :math:`\hat\sigma` from the residuals
 (at least ``min_sd_px``) and :math:`k = 2\max(1, 2\,\mathrm{smooth})` for the
-correlation of stations 0.5 px apart.  An edge is dropped, with the reason, when
+correlation of stations 0.5 px apart.  The predicted direction is good to about the
+orientation's attitude error, while texture correlated over several pixels tilts a free line by
+a degree or two (seen on the renders: a ridge 2 deg off put the vertex 0.6 px off); so the slope
+is also observed, :math:`b = 0` with sd :math:`\tan` ``direction_sd_deg`` (1 deg): the normal
+matrix :math:`A^TA/\hat\sigma^2 k + \mathrm{diag}(0, \tan^{-2})`, its inverse the covariance.
+An edge is dropped, with the reason, when
 it has fewer than ``min_points`` inliers, a median gradient below
 ``min_contrast`` grey levels per pixel or below ``min_ratio`` times the texture's
 (the gradient off the edge), or its points scatter more than ``max_scatter_px``.
@@ -46,8 +52,9 @@ from the vertex found in ``band_px``.
 
 **3. Vertex.**  Line *i* in the image: :math:`m_i^T x = c_i` (unit normal
 :math:`m_i`), with the variance :math:`w_i^{-1}` of its offset at the vertex.
-:math:`w_i^{-1}` adds ``line_sd_px``\ :sup:`2` for what the fit cannot see (rendering,
-blur, a face boundary off the geometric edge).  The vertex is the weighted
+:math:`w_i^{-1}` adds ``line_sd_px``\ :sup:`2` (0.25 px) for what the fit cannot see
+(blur, the texture next to the edge; it makes the normalised errors' sd about 1 on the
+anti-aliased, per-ray shaded renders).  The vertex is the weighted
 least-squares point :math:`x = (\sum w_i m_i m_i^T)^{-1} \sum w_i m_i c_i` with
 covariance :math:`(\sum w_i m_i m_i^T)^{-1}` (two lines: their intersection).
 Of two edges found on one image line (less than ``min_angle_deg`` apart) the one
@@ -217,10 +224,18 @@ def _sample(img: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
 
 def _fit_edge(img: np.ndarray, origin: np.ndarray, u: np.ndarray, length_px: float, t0: float,
               band_px: float, min_points: int, min_contrast: float, min_sd_px: float,
-              min_ratio: float = 2.5, max_scatter_px: float = 0.7, smooth_px: float = 1.5):
-    """Edge points across the predicted segment and a robust line s = a + b t; None if too weak."""
+              min_ratio: float = 2.5, max_scatter_px: float = 0.7, smooth_px: float = 1.5, end_px: float = 1.0,
+              direction_sd_deg: float = 0.0):
+    """Edge points across the predicted segment and a robust line s = a + b t; None if too weak.
+
+    Stations run from *t0* to ``length_px - end_px``: clear of the junctions at both ends (the vertex
+    measured, and the far vertex or eave corner where other edges branch off and pull the gradient
+    peaks, tilting the line).  ``direction_sd_deg > 0``: the slope ``b`` (0 along the predicted
+    direction) is observed 0 with sd ``tan(direction_sd_deg)`` as well (the prediction's direction
+    is good to about the orientation's attitude error; texture correlated over several pixels tilts
+    a free line by more)."""
     nvec = np.array([-u[1], u[0]])
-    t = np.arange(t0, max(length_px - 1.0, t0), 0.5)
+    t = np.arange(t0, max(length_px - end_px, t0), 0.5)
     if len(t) < min_points:
         return None, f"edge {length_px:.0f} px long: too short to fit"
     # the profile reaches 3 px beyond the band: the texture is measured there, the edge searched in the band
@@ -270,7 +285,11 @@ def _fit_edge(img: np.ndarray, origin: np.ndarray, u: np.ndarray, length_px: flo
     # stations 0.5 px apart are not independent (bilinear sampling, the smoothing along the edge):
     # count one per max(1, 2 smooth_px) px
     sig2 = max(float(r @ r) / dof, min_sd_px**2) * 2.0 * max(1.0, 2.0 * smooth_px)
-    cov = sig2 * np.linalg.inv(a_mat[keep].T @ a_mat[keep])
+    n_mat = a_mat[keep].T @ a_mat[keep] / sig2
+    if direction_sd_deg > 0:   # the predicted direction as an observation of the slope: b = 0
+        n_mat = n_mat + np.diag([0.0, 1.0 / math.tan(math.radians(direction_sd_deg)) ** 2])
+        coef = np.linalg.solve(n_mat, a_mat[keep].T @ sp[keep] / sig2)
+    cov = np.linalg.inv(n_mat)
     return (coef, cov, t[keep], float(np.median(peak)) / max(texture, 1e-9)), ""
 
 
@@ -297,10 +316,12 @@ class MeasureParams:
     min_sd_px: float = 0.15
     #: a vertex from two edges only (no redundancy) needs both this much stronger than the texture
     two_line_ratio: float = 3.5
-    #: sd of a line's position from what the fit cannot see (rendering, texture, blur), added (px); 0.5 makes
-    #: the normalised errors' sd 0.9-1.9 on the synthetic.aerial renders, whose face boundaries lie up to a
-    #: texel off the geometric roof edge (the shading is painted into the plan albedo lattice)
-    line_sd_px: float = 0.5
+    #: sd of a line's position from what the fit cannot see (texture next to the edge, blur), added (px);
+    #: 0.25 makes the normalised errors' sd 1.0 over the benchmark's blocks (0.5 was needed while the
+    #: renders painted roof shading into the plan albedo lattice, a texel off the roof edge)
+    line_sd_px: float = 0.25
+    #: sd of the predicted edge direction in the photo (deg), an observation of each line's slope (0: free)
+    direction_sd_deg: float = 1.0
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
@@ -417,9 +438,11 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                                           f"edges, {me} px, reach past the photo's border")
     fits, why, fits_planes = [], [], []
     for k, e in enumerate(ctx["edges"]):
+        # the edge's far end is a junction (a vertex, an eave corner) unless the edge is cut at max_edge_px
+        far = float(ctx["t0s"][k]) if float(ctx["lens"][k]) <= p.max_edge_px else 1.0
         fit, reason = _fit_edge(img, origin, ctx["units"][k], min(float(ctx["lens"][k]), p.max_edge_px),
                                 ctx["t0s"][k], p.band_px, p.min_points, p.min_contrast, p.min_sd_px,
-                                p.min_ratio, p.max_scatter_px, p.smooth_px)
+                                p.min_ratio, p.max_scatter_px, p.smooth_px, far, p.direction_sd_deg)
         if fit is None:
             why.append(f"edge of planes {e.planes[0] + 1}-{e.planes[1] + 1}: {reason}")
             continue

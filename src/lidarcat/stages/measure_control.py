@@ -256,6 +256,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                     decisions: str | Path | None = None, params: Any = None, replace: bool = False,
                     gallery: bool = True, table: str | Path | None = None, dsm_radius_m: float = 30.0,
                     max_shift_m: float = 0.5, default_sd: tuple[float, float] = (2.0, 0.5),
+                    min_photos: int = 2,
                     progress: Callable[[int, int], Any] | None = None) -> MeasureControlResult:
     """LiDAR control vertices measured in the photos into image_points.csv (module docstring).
 
@@ -281,6 +282,10 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         A vertex extracted farther than this from its ground point is not measured, m.
     default_sd : (m, deg)
         Sds of the approximate orientation where photos.csv gives none.
+    min_photos : int
+        A vertex measured (and accepted) on fewer photos is rejected there: one measurement has no
+        check across photos, and a point of one ray cannot be adjusted in a control set where it
+        is not control (``lidarcat run`` adjusts every set).
     progress : callable(done, total), optional
 
     Returns
@@ -388,6 +393,10 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         checked = check_consistency([m for _, m in lst], [survey.camera_of(pid) for pid in pids],
                                     np.array([eos[pid] for pid in pids]), np.array([covs[pid] for pid in pids]),
                                     cp.enh_m, cp.cov_m2)
+        n_ok = sum(bool(m) for m in checked)
+        if 0 < n_ok < min_photos:
+            checked = [m.failed("rejected", f"measured on {n_ok} photo(s) only (< {min_photos}): no check across "
+                                            f"photos, and a free point needs two rays") if m else m for m in checked]
         results += checked
     order = {pid: k for k, pid in enumerate(survey.photo_ids)}
     results.sort(key=lambda m: (m.point, order.get(m.photo, 0)))

@@ -23,9 +23,16 @@ The pixel (C, L) gives the corrected photo coordinates (eq. 01-07, closed form) 
   truth map.  It lies on the ray by construction, so it projects back onto the pixel centre
   exactly (up to the camera's Newton inverse, far below 0.01 px).
 
-Shading: ground and roofs take the albedo lattice bilinearly at the hit's (E, N) (the lattice holds
-the roofs seen from above, shaded by their plane normal); walls a plaster colour shaded by their
-normal, with windows.  The photo's exposure then maps the linear radiance ``L`` to grey values:
+Shading: the ground takes the albedo lattice bilinearly at the hit's (E, N); a roof is shaded per
+ray (:func:`lidarcat.synthetic._texture.roof_albedo`: its material, the tile courses and the
+lattice's grain at the hit, times the sun shading of the face the ray hits), so a ridge, a hip or
+an eave lies in the photo exactly where the geometry puts it, not up to a texel off as a roof
+painted into the lattice would; walls a plaster colour shaded by their normal, with windows.
+With ``supersample = s > 1`` a pixel whose hit surface (building and face, terrain, nothing)
+differs from one of its 4 neighbours' averages the radiance of ``s x s`` rays on a regular grid
+over the pixel (the sensor integrates over it): geometric edges are anti-aliased about their true
+position, while pixels inside a surface keep their one ray (a texture's aliasing is the lattice's,
+bounded by the texel ~ the GSD).  The photo's exposure then maps the linear radiance ``L`` to grey values:
 ``255 (o + (1 - o) min(1, g k L v(r))^(1/gamma))`` with gain ``g``, black level ``o``, gamma,
 vignetting ``v(r) = 1 - a (r / r_corner)^2`` and optional Gaussian noise; ``k = 1.2`` puts a
 mid-grey field near grey value 120 at ``g = 1``, ``gamma = 2.2``.
@@ -45,7 +52,7 @@ import numpy as np
 from ..geometry.camera import Camera
 from ..geometry.collinearity import project, rotation_matrix
 from ..errors import LidarcatError
-from ._texture import LUMA, albedo_lattice, bilinear, building_planes, sun_vector
+from ._texture import LUMA, albedo_lattice, bilinear, building_planes, roof_albedo, sun_vector
 from .scene import Building, Road, demo_terrain
 
 __all__ = ["AerialScene", "Exposure", "RenderedPhoto", "render_photo", "project_to_pixels", "building_windows",
@@ -131,27 +138,25 @@ class AerialScene:
     def albedo(self, e: Any, n: Any, *, rgb: bool = True) -> np.ndarray:
         """Linear albedo (N, 3) RGB, or (N,) grey, seen from above at plan positions (roofs and ground).
 
-        The same bilinear interpolation of the same lattice as :func:`render_photo`: a pixel of
-        ground or roof shows exactly this value (before the exposure).
+        The same lattice, interpolated the same way, and the same roofs (:func:`roof_albedo` at the
+        face below the point) as :func:`render_photo`: a pixel of ground or roof shows exactly this
+        value at its ground point (before the exposure; pixels supersampled at a geometric edge
+        average it over their sub-rays).
         """
         e = np.asarray(e, dtype=np.float64).ravel()
         n = np.asarray(n, dtype=np.float64).ravel()
-        nch = 3 if rgb else 1
         if e.size == 0:
             return np.zeros((0, 3) if rgb else (0,), np.float32)
-        w = 1024   # cv2.remap wants fewer than 32767 rows and columns: lay the points out in rows of w
-        m = -(-e.size // w) * w
-        pad = np.full(m - e.size, np.nan)
-        out = self._albedo_grid(np.concatenate([e, pad]).reshape(-1, w), np.concatenate([n, pad]).reshape(-1, w),
-                                rgb)
-        return out.reshape(m, nch)[:e.size] if rgb else out.reshape(m)[:e.size]
+        out = self._albedo_points(e, n, self.surface(e, n)[1], rgb)
+        return out if rgb else out[:, 0]
 
-    def _albedo_grid(self, e: np.ndarray, n: np.ndarray, rgb: bool) -> np.ndarray:
-        """Albedo at a 2-D grid of plan positions (NaN: none, albedo 0): (h, w, 3) RGB or (h, w) grey."""
+    def _albedo_points(self, e: np.ndarray, n: np.ndarray, building: np.ndarray, rgb: bool) -> np.ndarray:
+        """Albedo (N, 3 or 1) at plan positions (NaN: none, albedo 0); *building* >= 0: a roof point of it."""
         s = self.texel_m
+        nch = 3 if rgb else 1
         ok = np.isfinite(e) & np.isfinite(n)
         if not ok.any():
-            return np.zeros(e.shape + ((3,) if rgb else ()), np.float32)
+            return np.zeros((len(e), nch), np.float32)
         ev, nv = e[ok], n[ok]
         i0 = int(math.floor(ev.min() / s)) - 1
         i1 = int(math.ceil(ev.max() / s)) + 2
@@ -160,12 +165,22 @@ class AerialScene:
         if (i1 - i0) * (j1 - j0) > 60_000_000:
             raise LidarcatError(f"albedo: a plan box of {(i1 - i0) * s:.0f} x {(j1 - j0) * s:.0f} m at "
                                 f"{s} m texels is too large for one lattice; render in smaller tiles")
-        lat = albedo_lattice(self, i0, j0, i1 - i0, j1 - j0, rgb=rgb)
-        if not rgb:
-            lat = lat[..., 0]
+        lat, grain = albedo_lattice(self, i0, j0, i1 - i0, j1 - j0, rgb=rgb, with_grain=True)
         col = np.where(ok, (e - i0 * s) / s, -10.0)
         row = np.where(ok, (-n - j0 * s) / s, -10.0)
-        return bilinear(lat, col, row)
+        out = bilinear(lat, col, row).reshape(len(e), nch)
+        roof = ok & (building >= 0)
+        if roof.any():
+            sun = sun_vector(self.sun_azimuth_deg, self.sun_elevation_deg)
+            g = bilinear(grain, col[roof], row[roof])
+            bk = building[roof]
+            vals = np.empty((len(bk), nch), np.float32)
+            for k in np.unique(bk):
+                sel = bk == k
+                vals[sel] = roof_albedo(self.buildings[int(k)], float(self._base[int(k)]), self.seed, int(k),
+                                        s, e[roof][sel], n[roof][sel], g[sel], sun, nch)
+            out[roof] = vals
+        return out
 
     # ------------------------------------------------------------------ rays
     def hit(self, c: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -473,9 +488,61 @@ def _cast_tile(scene: AerialScene, camera: Camera, m: np.ndarray, c: np.ndarray,
     return d, t, bidx, face
 
 
+def _shade_rays(scene: AerialScene, c: np.ndarray, d: np.ndarray, t: np.ndarray, bidx: np.ndarray,
+                face: np.ndarray, rgb: bool) -> np.ndarray:
+    """Linear radiance (N, 3 or 1) of rays with their hits: ground and roofs by
+    :meth:`AerialScene._albedo_points` (a roof by the face under its hit, i.e. the face hit), walls
+    by :meth:`AerialScene.wall_albedo`."""
+    kind = np.full(len(bidx), -1, np.int8)
+    onb = bidx >= 0
+    if onb.any():
+        kind[onb] = scene._face_kind(bidx[onb], face[onb])
+    e = c[0] + t * d[:, 0]
+    n = c[1] + t * d[:, 1]
+    lin = scene._albedo_points(e, n, np.where(kind == 0, bidx, -1), rgb)
+    wall = kind == 1
+    if wall.any():
+        p = c + t[wall, None] * d[wall]
+        for k in np.unique(bidx[wall]):
+            sel = bidx[wall] == k
+            a = scene.wall_albedo(int(k), face[wall][sel], p[sel])
+            lin[np.flatnonzero(wall)[sel]] = a if rgb else (a @ LUMA)[:, None]
+    return lin
+
+
+def _edge_pixels(t: np.ndarray, bidx: np.ndarray, face: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Interior pixels (flat indices into the tile without its 1 px margin) whose hit surface --
+    building and face, terrain, or none -- differs from a 4-neighbour's: the geometric edges."""
+    th, tw = shape
+    key = np.where(np.isfinite(t), bidx.astype(np.int64) * 64 + face, -(1 << 40)).reshape(th + 2, tw + 2)
+    mid = key[1:-1, 1:-1]
+    edge = (mid != key[:-2, 1:-1]) | (mid != key[2:, 1:-1]) | (mid != key[1:-1, :-2]) | (mid != key[1:-1, 2:])
+    return np.flatnonzero(edge.ravel())
+
+
+def _supersample(scene: AerialScene, camera: Camera, m: np.ndarray, c: np.ndarray, windows: list,
+                 cols: np.ndarray, rows: np.ndarray, t0: np.ndarray, s: int):
+    """Sub-rays of pixels (cols, rows): ``s x s`` per pixel on a regular grid over the pixel,
+    their first hits: d (N s^2, 3), t, building, face, pixel-major."""
+    o = (np.arange(s) + 0.5) / s - 0.5
+    oc, orow = np.meshgrid(o, o)
+    colrow = np.column_stack([(cols[:, None] + oc.ravel()[None, :]).ravel(),
+                              (rows[:, None] + orow.ravel()[None, :]).ravel()])
+    d = _directions(camera, m, colrow)
+    start = np.repeat(np.where(np.isfinite(t0), t0, np.nanmean(t0) if np.isfinite(t0).any() else 0.0), s * s)
+    t = scene._terrain_hit(c, d, start)
+    bidx = np.full(len(d), -1, np.int32)
+    face = np.full(len(d), -1, np.int16)
+    for k, x0, x1, y0, y1 in windows:
+        idx = np.flatnonzero((colrow[:, 0] >= x0 - 1) & (colrow[:, 0] <= x1 + 1)
+                             & (colrow[:, 1] >= y0 - 1) & (colrow[:, 1] <= y1 + 1))
+        scene._building_hit(k, c, d, idx, t, bidx, face)
+    return d, t, bidx, face
+
+
 def render_photo(scene: AerialScene, camera: Camera, eo: Sequence[float], *,
                  exposure: Exposure | None = None, rgb: bool = False, truth: bool = True,
-                 tile_px: int = 512, shade: bool = True) -> RenderedPhoto:
+                 tile_px: int = 512, shade: bool = True, supersample: int = 1) -> RenderedPhoto:
     """Render an aerial photo of *scene* (see the module docstring).
 
     Parameters
@@ -493,6 +560,12 @@ def render_photo(scene: AerialScene, camera: Camera, eo: Sequence[float], *,
         Tile size; memory ~ 300 bytes x tile_px^2.
     shade : bool
         False: the geometry only (the image stays black; for the truth maps).
+    supersample : int
+        ``s > 1``: a pixel whose hit surface (building and face, terrain) differs from a
+        neighbour's -- an eave, a ridge, a hip, a wall's edge -- averages the radiance of ``s x s``
+        rays spread over it (the sensor integrates over the pixel), so that geometric edges are
+        anti-aliased where they lie; other pixels keep their one ray (the truth maps always hold
+        the pixel centre's ray).  1: one ray per pixel.
 
     Returns
     -------
@@ -512,12 +585,20 @@ def render_photo(scene: AerialScene, camera: Camera, eo: Sequence[float], *,
     rng = np.random.default_rng(exposure.seed) if exposure.noise_sd > 0 else None
     lut = exposure.lut()
     rc2 = ((W - 1) / 2) ** 2 + ((H - 1) / 2) ** 2
+    ss = int(supersample)
+    if ss < 1:
+        raise LidarcatError(f"supersample must be 1 or more, got {supersample}")
     for r0 in range(0, H, tile_px):
         r1 = min(H, r0 + tile_px)
         for c0 in range(0, W, tile_px):
             c1 = min(W, c0 + tile_px)
             th, tw = r1 - r0, c1 - c0
-            d, t, bidx, face = _cast_tile(scene, camera, m, c, windows, c0, c1, r0, r1)
+            mg = 1 if ss > 1 and shade else 0
+            d, t, bidx, face = _cast_tile(scene, camera, m, c, windows, c0 - mg, c1 + mg, r0 - mg, r1 + mg)
+            if mg:
+                edges = _edge_pixels(t, bidx, face, (th, tw))
+                keep = ((np.arange(th) + 1)[:, None] * (tw + 2) + (np.arange(tw) + 1)[None, :]).ravel()
+                d, t, bidx, face = d[keep], t[keep], bidx[keep], face[keep]
             wall = bidx >= 0
             if wall.any():
                 wall[wall] = scene._face_kind(bidx[wall], face[wall]) == 1
@@ -530,15 +611,15 @@ def render_photo(scene: AerialScene, camera: Camera, eo: Sequence[float], *,
                 bmap[r0:r1, c0:c1] = bidx.reshape(th, tw)
             if not shade:
                 continue
-            e = (c[0] + t * d[:, 0]).reshape(th, tw)
-            n = (c[1] + t * d[:, 1]).reshape(th, tw)
-            lin = scene._albedo_grid(e, n, rgb).reshape(th * tw, nch)
-            if wall.any():
-                p = c + t[wall, None] * d[wall]
-                for k in np.unique(bidx[wall]):
-                    sel = bidx[wall] == k
-                    a = scene.wall_albedo(int(k), face[wall][sel], p[sel])
-                    lin[np.flatnonzero(wall)[sel]] = a if rgb else (a @ LUMA)[:, None]
+            if mg and len(edges):
+                sd, st, sb, sf = _supersample(scene, camera, m, c, windows, (c0 + edges % tw).astype(np.float64),
+                                              (r0 + edges // tw).astype(np.float64), t[edges], ss)
+                lin_all = _shade_rays(scene, c, np.vstack([d.astype(np.float64), sd]), np.concatenate([t, st]),
+                                      np.concatenate([bidx, sb]), np.concatenate([face, sf]), rgb)
+                lin = lin_all[:len(t)]
+                lin[edges] = lin_all[len(t):].reshape(len(edges), ss * ss, nch).mean(axis=1)
+            else:
+                lin = _shade_rays(scene, c, d, t, bidx, face, rgb)
             if exposure.vignetting:
                 r2 = (((np.arange(c0, c1, dtype=np.float32) - (W - 1) / 2) ** 2)[None, :]
                       + ((np.arange(r0, r1, dtype=np.float32) - (H - 1) / 2) ** 2)[:, None]) / np.float32(rc2)

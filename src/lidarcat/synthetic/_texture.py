@@ -31,10 +31,14 @@ Land cover (all seeded, all functions of position)
   dense, ploughed soil bare); the crown a disc shaded as a hemisphere ``n = ((p - c) / r, sqrt(1 -
   rho^2))`` with leaf grain, its shadow the disc moved ``H cot(elevation)`` away from the sun
   (``H``: the crown centre, half the tree height);
-* **buildings**: seen from above, each roof face coloured by its material and shaded
-  ``ambient + (1 - ambient) max(0, n . sun) / sin(elevation)`` by its plane normal; the building's
-  shadow is the convex hull of its vertices moved the same way (a convex solid casts a convex
-  shadow);
+* **buildings**: each roof face coloured by its material, with tile courses along the slope and
+  the grain, and shaded ``ambient + (1 - ambient) max(0, n . sun) / sin(elevation)`` by its plane
+  normal (:func:`roof_albedo`).  Roofs are *not* painted into the lattice: the renderer evaluates
+  them per ray, at the hit point and for the face hit, so that a face boundary (ridge, hip) and
+  an eave lie exactly where the geometry puts them in a photo, not up to a texel off (the grain is
+  still the lattice's, interpolated at the hit; the courses are evaluated at the hit).  The
+  building's shadow is the convex hull of its vertices moved the same way (a convex solid casts a
+  convex shadow);
 * **targets**: a black square with a white cross at each ground control point.
 
 Values are linear reflectances (RGB, 0..1); a photo applies its own exposure.
@@ -49,7 +53,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["LUMA", "hash2", "unit_hash", "fractal_noise", "albedo_lattice", "bilinear", "sun_vector",
-           "building_planes", "FIELD_KINDS"]
+           "building_planes", "roof_albedo", "FIELD_KINDS"]
 
 _M1, _M2, _M3, _M4 = np.uint32(0x8DA6B343), np.uint32(0xD8163841), np.uint32(0x7FEB352D), np.uint32(0x846CA68B)
 
@@ -229,8 +233,12 @@ def _col(rgb: Any, nch: int) -> np.ndarray:
     return c if nch == 3 else (c @ LUMA)[..., None].astype(np.float32)
 
 
-def albedo_lattice(scene: Any, i0: int, j0: int, nx: int, ny: int, *, rgb: bool = True) -> np.ndarray:
+def albedo_lattice(scene: Any, i0: int, j0: int, nx: int, ny: int, *, rgb: bool = True,
+                   with_grain: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Linear RGB albedo (with the fixed sun's shading and shadows) at lattice nodes (see module docstring).
+
+    The ground only: roofs are evaluated per point by :func:`roof_albedo` (the lattice holds the
+    ground under them).
 
     Parameters
     ----------
@@ -242,9 +250,12 @@ def albedo_lattice(scene: Any, i0: int, j0: int, nx: int, ny: int, *, rgb: bool 
         Linear RGB (3 channels) or its luminance (1 channel: the same values as ``LUMA @ rgb``,
         a third of the work).
 
+    with_grain : bool
+        Also return the grain (fine fractal noise) lattice (ny, nx) that :func:`roof_albedo` reads.
+
     Returns
     -------
-    (ny, nx, 3 or 1) float32 array
+    (ny, nx, 3 or 1) float32 array [, (ny, nx) float32 grain]
     """
     s = scene.texel_m
     seed = int(scene.seed) * 1000003
@@ -314,11 +325,9 @@ def albedo_lattice(scene: Any, i0: int, j0: int, nx: int, ny: int, *, rgb: bool 
     alb[~lit] *= np.float32(_AMBIENT)
     for te, tn, r, h in trees:
         _paint_crown(alb, te, tn, r, e0, n0, s, sun, grain, seed)
-    for k, b in enumerate(scene.buildings):
-        _paint_roof(alb, b, scene.base_height(k), e0, n0, s, sun, grain, seed + 41 * k)
     for te, tn in scene.targets:
         _paint_target(alb, te, tn, e0, n0, s)
-    return alb
+    return (alb, grain) if with_grain else alb
 
 
 def _window(ce: float, cn: float, half: float, e0: float, n0: float, s: float, shape: tuple[int, int]):
@@ -448,35 +457,39 @@ def _building_shadow(lit, b, off, e0, n0, s) -> None:
     lit[r0:r1, c0:c1] &= mask == 0
 
 
-def _paint_roof(alb, b, base, e0, n0, s, sun, grain, seed) -> None:
-    half = math.hypot(b.length_m, b.width_m) / 2 + s
-    w = _window(b.e_m, b.n_m, half, e0, n0, s, alb.shape[:2])
-    if w is None:
-        return
-    rs, cs, de, dn = w
+_ROOF_MATERIALS = (((0.30, 0.10, 0.06), 0.25), ((0.18, 0.18, 0.19), 0.15), ((0.09, 0.09, 0.11), 0.2),
+                   ((0.40, 0.40, 0.38), 0.10), ((0.25, 0.12, 0.08), 0.3))
+
+
+def roof_albedo(b: Any, base_m: float, scene_seed: int, k: int, texel_m: float, e: np.ndarray, n: np.ndarray,
+                grain: np.ndarray, sun: np.ndarray, nch: int) -> np.ndarray:
+    """Linear albedo (N, nch) of roof points of building *b* (index *k*) at plan positions (E, N).
+
+    The face of a point is the lowest roof plane above it (the roof of a convex solid is the lower
+    envelope of its planes), so a point of the roof surface takes the face it lies on: the face a
+    ray hits.  Its value: the material's colour times the face's sun shading times the tile courses
+    ``1 + a/2 sin(2 pi |v| / p)`` (``v`` across the ridge) plus half the *grain* given at the points.
+    """
+    s_seed = int(scene_seed) * 1000003 + 41 * int(k)
+    de = np.asarray(e, np.float64) - b.e_m
+    dn = np.asarray(n, np.float64) - b.n_m
     ca, sa = math.cos(math.radians(b.azimuth_deg)), math.sin(math.radians(b.azimuth_deg))
-    u = ca * de + sa * dn
     v = -sa * de + ca * dn
-    inside = (np.abs(u) <= b.length_m / 2) & (np.abs(v) <= b.width_m / 2)
-    if not inside.any():
-        return
-    normals, offsets, kinds = building_planes(b, base)
+    normals, offsets, kinds = building_planes(b, base_m)
     roof = np.flatnonzero(kinds == 0)
-    # active face: the lowest roof plane above (u, v) -- heights z = (c - n_e de - n_n dn) / n_z
-    z = np.stack([(offsets[f] - normals[f, 0] * de - normals[f, 1] * dn) / normals[f, 2] for f in roof])
-    face = np.argmin(z, axis=0)
+    if len(roof) == 1:
+        face = np.zeros(de.shape, np.intp)
+    else:
+        z = np.stack([(offsets[f] - normals[f, 0] * de - normals[f, 1] * dn) / normals[f, 2] for f in roof])
+        face = np.argmin(z, axis=0)
     nn = normals[roof] / np.linalg.norm(normals[roof], axis=1, keepdims=True)
     lam = np.clip(nn @ sun, 0, None)
     light = (_AMBIENT + (1 - _AMBIENT) * lam / sun[2]).astype(np.float32)[face]
-    h = hash2(int(round(b.e_m)), int(round(b.n_m)), seed)
-    mats = (((0.30, 0.10, 0.06), 0.25), ((0.18, 0.18, 0.19), 0.15), ((0.09, 0.09, 0.11), 0.2),
-            ((0.40, 0.40, 0.38), 0.10), ((0.25, 0.12, 0.08), 0.3))
-    col, amp = mats[int(h) % len(mats)]
-    # tile / panel courses along the slope (across v), period >= 3 texels
-    period = max(4 * s, 0.35 + 0.5 * ((int(h) >> 8) % 100) / 100)
-    pattern = 1 + 0.5 * amp * np.sin(2 * np.pi * (np.abs(v) / period)) + 0.5 * grain[rs, cs]
-    val = _col(col, alb.shape[-1])[None, None, :] * (light * pattern)[..., None].astype(np.float32)
-    alb[rs, cs] = np.where(inside[..., None], val, alb[rs, cs])
+    h = hash2(int(round(b.e_m)), int(round(b.n_m)), s_seed)
+    col, amp = _ROOF_MATERIALS[int(h) % len(_ROOF_MATERIALS)]
+    period = max(4 * texel_m, 0.35 + 0.5 * ((int(h) >> 8) % 100) / 100)
+    pattern = 1 + 0.5 * amp * np.sin(2 * np.pi * (np.abs(v) / period)) + 0.5 * np.asarray(grain, np.float64)
+    return (_col(col, nch)[None, :] * (light * pattern)[:, None]).astype(np.float32)
 
 
 def _paint_target(alb, te, tn, e0, n0, s) -> None:

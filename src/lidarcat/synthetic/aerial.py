@@ -406,6 +406,7 @@ def aerial_survey(
     write_xyz: bool = False,
     image_column: bool = True,
     seed: int = 0,
+    supersample: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> AerialSurvey:
     """Write a synthetic aerial block with rendered photos and its truth (see the module docstring).
@@ -444,6 +445,8 @@ def aerial_survey(
         Write the ``image`` column of photos.csv (path of the photo's file relative to the folder,
         read by :meth:`lidarcat.Survey.image_path`); off: the ``images/<photo>.png`` rule finds them.
     seed : int
+    supersample : int
+        Rays per pixel side at geometric edges (eaves, ridges, hips; :func:`render_photo`).
     progress : callable, optional
         ``progress(done, total)`` over the photos rendered.
 
@@ -558,7 +561,8 @@ def aerial_survey(
 
         (tmp / "images").mkdir()
         for k, pid in enumerate(ids):
-            ph = render_photo(scene, cam, eo[k], exposure=exposures[k], rgb=rgb, truth=write_xyz)
+            ph = render_photo(scene, cam, eo[k], exposure=exposures[k], rgb=rgb, truth=write_xyz,
+                              supersample=supersample)
             ok, buf = cv2.imencode(".png", ph.image[..., ::-1] if rgb else ph.image)
             if not ok:
                 raise LidarcatError(f"{out_dir}: could not encode photo {pid}")
