@@ -55,7 +55,7 @@ def test_far_vertex_is_not_returned_silently_when_the_near_one_exists():
     assert old.status == "ok" and np.linalg.norm(old.enh_m - v) > 3.0  # the defect, as found
     # even without the retries, an ok vertex metres away now says so
     assert old.reason == (f"the nearest vertex found is {old.offset_m:.2f} m from the position (more than "
-                          f"near_m = 1 m): check it is the one meant") and old.offset_m > 2.5
+                          f"near_m = 1.5 m): check it is the one meant") and old.offset_m > 2.5
     cp = extract_roof(xyz, at)
     assert cp.status == "ok" and cp.reason == ""
     np.testing.assert_allclose(cp.enh_m, v, atol=0.10)

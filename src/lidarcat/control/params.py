@@ -81,8 +81,9 @@ class ExtractionParams:
     #: the vertex asked for: when the chosen vertex lies farther than this (m) from the
     #: approximate position, the clip is segmented again at smaller radii (``scales``) and
     #: the vertex nearest the position over all scales wins; an ``ok`` vertex farther than
-    #: this says so in its reason
-    near_m: float = 1.0
+    #: this says so in its reason (1.5 m: beyond the 1-m-per-axis uncertainty of a position
+    #: picked by hand or by ``--find``, so that the first clip's vertex is kept for them)
+    near_m: float = 1.5
     #: clip radii of the retries, as fractions of ``radius_m`` (each at least 3 m)
     scales: tuple = (0.65, 0.5)
     #: two distinct vertices (> 0.5 m apart) whose distances from the position differ by

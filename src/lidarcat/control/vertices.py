@@ -36,7 +36,9 @@ clip) the faces of a small corner may be lost, and the nearest surviving
 intersection lies metres away.  :func:`extract_roof` therefore segments the
 clip again at the smaller radii ``scales x radius_m`` while the vertex found
 lies farther than ``near_m`` from the position, and keeps the nearest over all
-scales.  Two distinct vertices (> 0.5 m apart) whose distances from the
+scales (a smaller clip's vertex replaces the first only when it is another
+corner, farther than ``max(0.5 m, 4 sd_plan)`` from it: the same corner is kept
+from the larger clip).  Two distinct vertices (as far apart) whose distances from the
 position differ by less than ``ambiguity_m`` give the status ``ambiguous``
 with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
 reason, and :attr:`ControlPoint.offset_m` is written with every point.
@@ -570,7 +572,10 @@ def extract_roof(
         first = cp if first is None else first
         if cp.status in ("ok", "imprecise"):
             off = float(np.hypot(*(cp.enh_m[:2] - center)))
-            if best is None or off < best[0] - 0.05:
+            # a smaller clip replaces the vertex only with ANOTHER corner nearer the position: the same
+            # corner again (within _apart_m of it) is kept from the larger clip, whose faces hold more points
+            if best is None or (off < best[0] - 0.05
+                                and np.hypot(*(cp.enh_m[:2] - best[1].enh_m[:2])) > _apart_m(best[1])):
                 best = (off, cp)
             if best[0] <= p.near_m:
                 break
@@ -580,15 +585,26 @@ def extract_roof(
     return _check_choice(cp, off, center, others, p)
 
 
+def _apart_m(cp: ControlPoint) -> float:
+    """Plan distance (m) beyond which another vertex is a distinct corner of *cp*: ``max(0.5, 4 sd_plan)``."""
+    sd = np.asarray(getattr(cp, "sd_m", (np.nan, np.nan)), dtype=float)[:2]
+    return max(0.5, 4.0 * float(np.hypot(*sd))) if np.all(np.isfinite(sd)) else 0.5
+
+
 def _check_choice(cp: ControlPoint, off: float, center: np.ndarray, others: list,
                   p: ExtractionParams) -> ControlPoint:
-    """Say when the chosen vertex is far from the position, or another one is about as near."""
+    """Say when the chosen vertex is far from the position, or another one is about as near.
+
+    Another vertex counts as distinct when it lies farther than ``max(0.5 m, 4 sd_plan)`` from the
+    chosen one (``sd_plan`` the chosen vertex's plan sd): the plane triples of one noisy corner (a
+    pyramid's apex meets four faces) scatter by about their sd and are the same vertex."""
+    apart = _apart_m(cp)
     rivals = []
     for v in others:
-        if np.hypot(*(v[:2] - cp.enh_m[:2])) <= 0.5:
+        if np.hypot(*(v[:2] - cp.enh_m[:2])) <= apart:
             continue
         d = float(np.hypot(*(v[:2] - center)))
-        if d - off < p.ambiguity_m and all(np.hypot(*(v[:2] - w[:2])) > 0.5 for _, w in rivals):
+        if d - off < p.ambiguity_m and all(np.hypot(*(v[:2] - w[:2])) > apart for _, w in rivals):
             rivals.append((d, v))
     if rivals:
         listed = "; ".join(f"{v[0]:.2f} {v[1]:.2f} {v[2]:.2f} at {d:.2f} m"
