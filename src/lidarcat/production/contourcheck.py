@@ -61,7 +61,7 @@ import numpy as np
 
 from ..errors import ProductError
 from ..geometry.tin import TinLocator
-from .contours import Contour, contour_levels, tin_mask
+from .contours import Contour, contour_generator, contour_levels
 
 __all__ = ["SparseStretch", "Profile", "triangle_max_edges", "sparse_stretches", "stretch_features",
            "stretch_profile", "write_profile_png", "contour_bands", "contour_features_3d"]
@@ -292,8 +292,6 @@ def contour_bands(ground_xyz: np.ndarray, interval_m: float = 1.0, *, max_edge_m
     Parameters are those of :func:`lidarcat.production.contours.contours`.
     Properties: ``lower_m``, ``upper_m``, ``area_m2``.
     """
-    import matplotlib.tri as mtri
-    from matplotlib._tri import TriContourGenerator
     from matplotlib.path import Path as MplPath
 
     if not interval_m > 0:
@@ -301,11 +299,7 @@ def contour_bands(ground_xyz: np.ndarray, interval_m: float = 1.0, *, max_edge_m
     xyz = np.asarray(ground_xyz, dtype=np.float64)
     if len(xyz) < 3:
         return []
-    origin = xyz[:, :2].min(axis=0)
-    local = xyz[:, :2] - origin
-    tri = mtri.Triangulation(local[:, 0], local[:, 1])
-    tri.set_mask(tin_mask(local, tri.triangles, max_edge_m, edge_peel))
-    gen = TriContourGenerator(tri.get_cpp_triangulation(), xyz[:, 2])
+    origin, gen = contour_generator(xyz, max_edge_m, edge_peel)
     lv = [x for x, _ in contour_levels(xyz[:, 2], interval_m, base_m, levels)]
     lo_h, hi_h = float(xyz[:, 2].min()), float(xyz[:, 2].max())
     edges = sorted(set([lo_h] + [x for x in lv if lo_h < x < hi_h] + [hi_h]))

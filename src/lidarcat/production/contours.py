@@ -63,7 +63,7 @@ import numpy as np
 
 from .._util import dumps_json, write_text_atomic
 
-__all__ = ["Contour", "contours", "contour_levels", "raster_contours", "edge_fraction", "tin_mask", "boundary_edges",
+__all__ = ["Contour", "contours", "contour_generator", "contour_levels", "raster_contours", "edge_fraction", "tin_mask", "boundary_edges",
            "spot_heights",
            "write_geojson", "contour_features", "spot_features",
            "write_contours", "write_layers", "read_line_layer", "CONTOUR_FORMATS"]
@@ -109,6 +109,22 @@ def _chaikin(xy: np.ndarray, closed: bool, iterations: int) -> np.ndarray:
     return xy
 
 
+
+def contour_generator(xyz: np.ndarray, max_edge_m: float | None, edge_peel: int) -> tuple[np.ndarray, Any]:
+    """The TIN of the ground points (N >= 3, E N h), masked by :func:`tin_mask`, and matplotlib's
+    contour generator on it; coordinates relative to ``origin`` (the points' lower-left corner, so
+    that float64 keeps millimetres).  Returns ``(origin (2,), generator)`` -- lines and filled
+    bands (:func:`lidarcat.production.contourcheck.contour_bands`) come from the same TIN."""
+    import matplotlib.tri as mtri
+    from matplotlib._tri import TriContourGenerator
+
+    origin = xyz[:, :2].min(axis=0)
+    local = xyz[:, :2] - origin
+    tri = mtri.Triangulation(local[:, 0], local[:, 1])
+    tri.set_mask(tin_mask(local, tri.triangles, max_edge_m, edge_peel))
+    return origin, TriContourGenerator(tri.get_cpp_triangulation(), xyz[:, 2])
+
+
 def contours(ground_xyz: np.ndarray, interval_m: float = 1.0, *, master_every: int = 5,
              max_edge_m: float | None = 50.0, smooth_iterations: int = 0,
              base_m: float = 0.0, levels: Sequence[float] | None = None, min_ring_m: float = 0.0,
@@ -152,9 +168,6 @@ def contours(ground_xyz: np.ndarray, interval_m: float = 1.0, *, master_every: i
     >>> [(c.level_m, c.master, c.closed) for c in cs if c.level_m >= 4]
     [(4.0, True, True), (6.0, False, True), (8.0, True, True)]
     """
-    import matplotlib.tri as mtri
-    from matplotlib._tri import TriContourGenerator
-
     if not interval_m > 0:
         raise ValueError(f"interval_m must be positive, got {interval_m}")
     if master_every < 1:
@@ -162,12 +175,7 @@ def contours(ground_xyz: np.ndarray, interval_m: float = 1.0, *, master_every: i
     xyz = np.asarray(ground_xyz, dtype=np.float64)
     if len(xyz) < 3:
         return []
-    origin = xyz[:, :2].min(axis=0)
-    local = xyz[:, :2] - origin
-    tri = mtri.Triangulation(local[:, 0], local[:, 1])
-    mask = tin_mask(local, tri.triangles, max_edge_m, edge_peel)
-    tri.set_mask(mask)
-    gen = TriContourGenerator(tri.get_cpp_triangulation(), xyz[:, 2])
+    origin, gen = contour_generator(xyz, max_edge_m, edge_peel)
     out: list[Contour] = []
     for level, k in contour_levels(xyz[:, 2], interval_m, base_m, levels):
         segs, codes = gen.create_contour(level)
