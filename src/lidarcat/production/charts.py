@@ -168,6 +168,17 @@ def grid_interval(width_m: float) -> float:
     return 50.0 * k   # pragma: no cover  (10^k <= width/10 < 10^(k+1): 20 x 10^k always does)
 
 
+
+def _cell_window(shape: tuple[int, ...], transform: GeoTransform,
+                 box: tuple[float, float, float, float]) -> tuple[int, int, int, int]:
+    """Rows ``r0:r1`` and columns ``c0:c1`` of a grid of *shape* (north-up *transform*) meeting *box*
+    (E0, N0, E1, N1); empty (``r1 <= r0`` or ``c1 <= c0``) when they do not meet."""
+    rows, cols = shape[:2]
+    c = transform.cell_m
+    return (max(0, int(math.floor((transform.y0 - box[3]) / c))), min(rows, int(math.ceil((transform.y0 - box[1]) / c))),
+            max(0, int(math.floor((box[0] - transform.x0) / c))), min(cols, int(math.ceil((box[2] - transform.x0) / c))))
+
+
 def crop_image(image: np.ndarray, transform: GeoTransform,
                box: tuple[float, float, float, float]) -> tuple[np.ndarray, tuple[float, float, float, float]] | None:
     """The cells of *image* (rows, cols[, bands]) meeting *box*, as RGBA in 0..1 and their extent.
@@ -175,12 +186,7 @@ def crop_image(image: np.ndarray, transform: GeoTransform,
     Floats above 1 are taken as 8-bit values (0..255), NaN cells are transparent.
     None when the image does not meet the box.
     """
-    rows, cols = image.shape[:2]
-    c = transform.cell_m
-    c0 = max(0, int(math.floor((box[0] - transform.x0) / c)))
-    c1 = min(cols, int(math.ceil((box[2] - transform.x0) / c)))
-    r0 = max(0, int(math.floor((transform.y0 - box[3]) / c)))
-    r1 = min(rows, int(math.ceil((transform.y0 - box[1]) / c)))
+    r0, r1, c0, c1 = _cell_window(image.shape, transform, box)
     if c1 <= c0 or r1 <= r0:
         return None
     sub = np.asarray(image[r0:r1, c0:c1], dtype=np.float64)
@@ -198,6 +204,7 @@ def crop_image(image: np.ndarray, transform: GeoTransform,
     elif rgb.shape[2] == 2:
         rgb = np.repeat(rgb[..., :1], 3, axis=2)
     rgba = np.concatenate([rgb, valid[..., None].astype(np.float64)], axis=2)
+    c = transform.cell_m
     ext = (transform.x0 + c0 * c, transform.x0 + c1 * c, transform.y0 - r1 * c, transform.y0 - r0 * c)
     return rgba, ext
 
@@ -434,12 +441,8 @@ def _task(sheet: Any, name: str, image: np.ndarray, transform: GeoTransform,
           contours: Sequence[dict[str, Any]], boxes: np.ndarray, spots: np.ndarray | None, crs: Any) -> dict[str, Any]:
     """What one sheet's chart needs (module docstring, "In parallel")."""
     box = sheet_extent(sheet, crs)[0]
-    rows, cols = image.shape[:2]
+    r0, r1, c0, c1 = _cell_window(image.shape, transform, box)
     c = transform.cell_m
-    c0 = max(0, int(math.floor((box[0] - transform.x0) / c)))
-    c1 = min(cols, int(math.ceil((box[2] - transform.x0) / c)))
-    r0 = max(0, int(math.floor((transform.y0 - box[3]) / c)))
-    r1 = min(rows, int(math.ceil((transform.y0 - box[1]) / c)))
     if c1 > c0 and r1 > r0:
         sub = np.ascontiguousarray(image[r0:r1, c0:c1])
         sub_t = GeoTransform(transform.x0 + c0 * c, transform.y0 - r0 * c, c)
