@@ -287,6 +287,22 @@ class SelfCalibration:
         return _BoundLens(self, problem)
 
 
+
+def _scale_note(q: str, points_m: np.ndarray, eo_params: np.ndarray) -> str:
+    """Why a focal length (*q*: c, fx, fy) and the camera heights cannot be told apart."""
+    h = points_m[:, 2]
+    rel = float(np.std(h) / max(np.mean(eo_params[:, 2]) - np.mean(h), 1e-9))
+    return (f"{q} scales the image as the flying height does and the terrain relief (sd of the point "
+            f"heights) is {rel:.1%} of the flying height: flat terrain and near-nadir photos cannot "
+            "separate them; GNSS camera heights or more relief can")
+
+
+def _shift_note(partner: str) -> str:
+    """Why a principal-point shift and the camera's shift/tilt (*partner*) cannot be told apart."""
+    return (f"a shift of the principal point moves the image as a shift or tilt of the camera "
+            f"({partner}) does; camera positions/attitudes (GNSS/INS) or cross strips separate them")
+
+
 def _cameras_of_observations(spec: SelfCalibration, problem) -> tuple[list[Camera], np.ndarray, np.ndarray]:
     """The cameras the photos of *problem* use (in order of first use), each photo's and each observation's
     index into them."""
@@ -347,14 +363,9 @@ class _BoundIO:
         cam = self.cams[k]
         lo, hi = self.extent_mm[k]
         if eo and q == "c" and partner == "Z0":
-            h = points_m[:, 2]
-            rel = float(np.std(h) / max(np.mean(eo_params[:, 2]) - np.mean(h), 1e-9))
-            return (f"c scales the image as the flying height does and the terrain relief (sd of the point "
-                    f"heights) is {rel:.1%} of the flying height: flat terrain and near-nadir photos cannot "
-                    "separate them; GNSS camera heights or more relief can")
+            return _scale_note(q, points_m, eo_params)
         if eo and q in ("x0", "y0"):
-            return (f"a shift of the principal point moves the image as a shift or tilt of the camera "
-                    f"({partner}) does; camera positions/attitudes (GNSS/INS) or cross strips separate them")
+            return _shift_note(partner)
         if eo:
             return (f"over the measured area (x {lo[0]:.1f} .. {hi[0]:.1f}, y {lo[1]:.1f} .. {hi[1]:.1f} mm) its "
                     f"correction looks like a change of {partner}")
@@ -512,14 +523,9 @@ class _BoundLens:
         k = next(i for i in range(len(self.cams)) if self.offsets[i] <= self.names.index(name) < self.offsets[i + 1])
         cam, q = self.cams[k], name.split(".")[-1]
         if eo and q in ("fx", "fy") and partner == "Z0":
-            h = points_m[:, 2]
-            rel = float(np.std(h) / max(np.mean(eo_params[:, 2]) - np.mean(h), 1e-9))
-            return (f"{q} scales the image as the flying height does and the terrain relief (sd of the point heights) "
-                    f"is {rel:.1%} of the flying height: flat terrain and near-nadir photos cannot separate them; GNSS "
-                    "camera heights or more relief can")
+            return _scale_note(q, points_m, eo_params)
         if eo and q in ("cx", "cy"):
-            return (f"a shift of the principal point moves the image as a shift or tilt of the camera ({partner}) does; "
-                    "camera positions/attitudes (GNSS/INS) or cross strips separate them")
+            return _shift_note(partner)
         other = partner.split(".")[-1] if partner in self.names else None
         radial = ("k1", "k2", "k3", "k4")
         if not eo and q in radial and other in radial:
