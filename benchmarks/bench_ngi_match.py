@@ -1,6 +1,6 @@
 """`lidarcat match` + `lidarcat adjust` on four real aerial frames (NGI), no control set: the issue-28 acceptance.
 
-Run:  python benchmarks/bench_ngi_match.py [--threads 2] [--per-cell 10 0]
+Run:  python benchmarks/bench_ngi_match.py [--threads 2] [--per-cell 10 0] [--variance-components]
 
 The four NGI frames (``../shared/data/frames/ngi``, evaluation only: read in place when present,
 the benchmark prints "skipped" when absent; nothing is copied) become a survey in a temporary
@@ -102,7 +102,7 @@ def residuals_to_published(survey, photo: np.ndarray, point: np.ndarray, xy_px: 
 
 
 def run_one(tmp: Path, per_cell: int, threads: int, image_sd_px: float | None = None,
-            threshold_px: float | None = None) -> dict:
+            threshold_px: float | None = None, variance_components: bool = False) -> dict:
     import dataclasses
 
     import cv2
@@ -126,7 +126,8 @@ def run_one(tmp: Path, per_cell: int, threads: int, image_sd_px: float | None = 
     photo, point, xy = ip.photo[auto].astype(str), ip.point[auto].astype(str), ip.pixel_px[auto]
     off = residuals_to_published(s, photo, point, xy)
     t0 = time.perf_counter()
-    sres = adjust(s, folder / "out" / "adjust", eo_constraints=True, snooping="remove")
+    sres = adjust(s, folder / "out" / "adjust", eo_constraints=True, snooping="remove",
+                  variance_components=variance_components)
     t_adj = time.perf_counter() - t0
     r = sres.result
     pub = published()
@@ -155,6 +156,8 @@ def main() -> None:
                     help="match --threshold (epipolar Sampson distance, px) of each run (0: the default, 0.5 px)")
     ap.add_argument("--image-sd-px", type=float, nargs="+", default=[0.0],
                     help="survey.toml image_sd_mm of each run, in px (0: the survey default, 3/4 px)")
+    ap.add_argument("--variance-components", action="store_true",
+                    help="adjust with --variance-components (one factor per observation group, estimated)")
     a = ap.parse_args()
     load = os.getloadavg()
     print(f"load: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; threads {a.threads}; frames {NGI}")
@@ -168,7 +171,7 @@ def main() -> None:
     ok = True
     with tempfile.TemporaryDirectory() as tmp:
         for th, pc, sd in ((th, pc, sd) for th in a.threshold for pc in a.per_cell for sd in a.image_sd_px):
-            r = run_one(Path(tmp), pc, a.threads, sd or None, th or None)
+            r = run_one(Path(tmp), pc, a.threads, sd or None, th or None, a.variance_components)
             within = r["success"] and r["dev_m"] <= 1.0 and r["dev_deg"] <= 0.01 and not r["missed"]
             ok &= within
             print(f"| per cell {pc if pc else 'all'} | {f'{th:g} px' if th else 'default 0.5 px'} | "
