@@ -10,7 +10,7 @@ import pytest
 from lidarcat.bundle.redundancy import reliability
 from lidarcat.bundle.solve import adjust
 from lidarcat.bundle.variance import (GROUPS, estimate_components, group_labels, iterate_components,
-                                      scaled_problem)
+                                      scaled_problem, snoop_with_components)
 from lidarcat.synthetic.block import resimulated, synthetic_block
 
 
@@ -94,3 +94,43 @@ def test_scaled_problem_scales_only_its_group(block):
     np.testing.assert_allclose(q.sd_mm[~tie], p.sd_mm[~tie])
     np.testing.assert_allclose(q.constraint_sd_m, 2.0 * p.constraint_sd_m)
     assert scaled_problem(p, {}) is p
+
+
+def _planted(p, tie, errors_mm, seed=0):
+    """*p* with one ray of distinct tie points of >= 3 rays moved by *errors_mm* (random direction)."""
+    rng = np.random.default_rng(seed)
+    rays = np.bincount(p.point_index, minlength=p.n_points)
+    cand = np.flatnonzero(tie & (rays[p.point_index] >= 3))
+    picks, seen = [], set()
+    for i in rng.permutation(cand):
+        if int(p.point_index[i]) not in seen:
+            seen.add(int(p.point_index[i]))
+            picks.append(int(i))
+        if len(picks) == len(errors_mm):
+            break
+    xy = np.array(p.xy_mm, float)
+    ang = rng.uniform(0, 2 * np.pi, len(picks))
+    xy[picks] += np.c_[np.cos(ang), np.sin(ang)] * np.asarray(errors_mm)[:, None]
+    return dataclasses.replace(p, xy_mm=xy), picks
+
+
+@pytest.mark.parametrize("mode", ["report", "remove"])
+def test_blunders_named_and_the_factor_unbiased_in_every_mode(block, mode):
+    """Gross tie observations: three of 10-15 true sds (4-6 declared sds: their w-tests pass at the a
+    priori weights) and two of 250.  In both modes every one is named, and the tie factor is the true
+    0.16 -- estimated from the adjustment without the named ones (kept in report mode, the large ones
+    spread into their points' other rays and inflate the factor)."""
+    p0, tie = block
+    p, picks = _planted(p0, tie, [0.02, 0.025, 0.03, 0.5, 0.5])
+    vc = snoop_with_components(p, mode=mode)
+    sres = vc.payload
+    assert vc.converged and sres.mode == mode
+    assert vc.factors()["tie"] == pytest.approx(0.16, abs=0.03)
+    named = {(b.photo, b.point) for b in sres.blunders if b.kind == "image"}
+    planted = {(str(p.photo_ids[p.photo_index[i]]), str(p.point_ids[p.point_index[i]])) for i in picks}
+    assert planted <= named
+    assert len(named - planted) <= 2
+    assert all(b.removed == (mode == "remove") for b in sres.blunders)
+    if mode == "report":            # the adjustment of every observation, at the converged factors
+        assert len(sres.result.problem.photo_index) == len(p.photo_index)
+        np.testing.assert_allclose(sres.result.problem.sd_mm[tie], 0.005 * np.sqrt(vc.factors()["tie"]))

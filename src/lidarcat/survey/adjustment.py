@@ -22,6 +22,7 @@ from ..bundle.problem import BundleProblem
 from ..bundle.redundancy import FAMILY_LEVEL
 from ..bundle.reliability import SnoopingResult, snoop
 from ..bundle.solve import BundleResult
+from ..bundle.variance import snoop_with_components
 from ..errors import SurveyError
 from .covariance import write_result_eop_covariance
 from .motion import rolling_shutter_test, with_survey_motion
@@ -571,7 +572,7 @@ def adjust_survey_into(
     if plan is not None and plan.estimate:
         sres, selfcal = _adjust_rig_block(problem, plan, snoop_kw)
     elif variance_components:
-        vc = _with_variance_components(problem, fit)
+        vc = snoop_with_components(problem, **snoop_kw)     # lidarcat.bundle.variance
         sres = vc.payload
         extra["variance_components"] = vc.summary()
     else:
@@ -758,29 +759,6 @@ def _write_rig_tables(folder, plan, result: BundleResult, selfcal, provenance: d
     summary["rig"] = {"rig": plan.rig_id, "exposures": len(plan.exposure_ids), "photos": len(plan.photo_ids),
                       "sensors": [dict(zip(RIG_POSE_COLUMNS[1:], r[1:])) for r in prow]}
     write_json_atomic(folder / "summary.json", summary)
-
-
-def _with_variance_components(problem: BundleProblem, fit: Callable[[BundleProblem], SnoopingResult]):
-    """:func:`lidarcat.bundle.variance.iterate_components` with *fit* (an adjustment with data snooping) in
-    every round; the redundancy numbers are the snooping's, the groups it named but kept (``report``) are
-    left out of the sums.  Returns the VarianceComponents, ``payload`` the last SnoopingResult."""
-    from ..bundle.redundancy import reliability
-    from ..bundle.variance import iterate_components
-
-    def one(prob: BundleProblem):
-        sres = fit(prob)
-        res = sres.result
-        if res is None or not res.success:
-            return res, None, None, sres
-        rel = sres.reliability if sres.reliability is not None else reliability(res)
-        kept = {(b.kind, b.photo or "", b.point or "") for b in sres.blunders if not b.removed}
-        exclude = None
-        if kept:
-            keys = list(zip(rel.kind.tolist(), [str(x) for x in rel.photo], [str(x) for x in rel.point]))
-            exclude = np.array([k in kept for k in keys], dtype=bool)
-        return res, np.asarray(rel.redundancy), exclude, sres
-
-    return iterate_components(problem, one)
 
 
 def write_survey_folder(survey: Survey, outdir, t0: float, parameters: dict,
