@@ -19,9 +19,10 @@ from lidarcat.geometry.collinearity import project
 from lidarcat.synthetic.matches import MATCH_PIXEL_MM, matched_block
 
 
-def _write(folder: Path, p, sd_rows=None) -> Path:
+def _write(folder: Path, p, sd_rows=None, obs_sd_mm=None) -> Path:
     """A survey folder of the problem: photos.csv with the observed EO and its sds (rows *sd_rows*
-    only, default all), image_points.csv in corrected mm, no ground points, no control set."""
+    only, default all), image_points.csv in corrected mm (with sd_x_mm, sd_y_mm = *obs_sd_mm* when
+    given: what `lidarcat match` writes), no ground points, no control set."""
     folder.mkdir(parents=True)
     (folder / "survey.toml").write_text(
         '[survey]\nname = "matches"\ncrs = "local: synthetic"\n[files]\ncamera = "camera.toml"\n'
@@ -43,9 +44,10 @@ def _write(folder: Path, p, sd_rows=None) -> Path:
             w.writerow([pid, "cam", *e[:3], *np.degrees(e[3:]), *sds])
     with open(folder / "image_points.csv", "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
-        w.writerow(["photo", "point", "x_mm", "y_mm"])
+        w.writerow(["photo", "point", "x_mm", "y_mm"] + (["sd_x_mm", "sd_y_mm"] if obs_sd_mm else []))
         for i, j, xy in zip(p.photo_index, p.point_index, p.xy_mm):
-            w.writerow([p.photo_ids[i], p.point_ids[j], repr(float(xy[0])), repr(float(xy[1]))])
+            w.writerow([p.photo_ids[i], p.point_ids[j], repr(float(xy[0])), repr(float(xy[1]))]
+                       + ([obs_sd_mm] * 2 if obs_sd_mm else []))
     return folder
 
 
@@ -74,6 +76,30 @@ def test_adjust_names_the_gross_matches_with_gnss_ins_as_the_datum(tmp_path, blo
         got = np.array([float(eop[pid][k]) for k in ("X0", "Y0", "Z0")])
         sd = np.array([float(eop[pid][k]) for k in ("sd_X0", "sd_Y0", "sd_Z0")])
         assert np.all(np.abs(got - truth.true_eo[i, :3]) < 3 * sd)
+
+
+def test_a_matched_survey_gets_variance_components_and_remove_by_default(tmp_path, block):
+    """image_points.csv with sds of its own (as `lidarcat match` writes them), here declared twice the
+    true 0.3 px: the default `lidarcat adjust` follows `lidarcat run` -- variance components and
+    snooping remove -- names exactly the 17 gross observations, finds the tie factor (1/2)^2 and
+    exits 0; --no-variance-components gives the plain report adjustment (the blunders kept)."""
+    p, truth, planted = block
+    s = _write(tmp_path / "s", p, obs_sd_mm=repr(0.6 * MATCH_PIXEL_MM))
+    r = CliRunner().invoke(cli, ["adjust", str(s), "--eo-constraints", "-o", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    assert "variance components estimated and the named observations removed" in r.output
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text(encoding="utf-8"))
+    assert summary["snooping"]["mode"] == "remove" and summary["provenance"]["parameters"]["variance_components"]
+    vc = {g["group"]: g for g in summary["variance_components"]["groups"]}
+    assert vc["tie"]["estimated"] and vc["tie"]["factor"] == pytest.approx(0.25, abs=0.04)
+    assert not vc["gnss"]["estimated"] and vc["gnss"]["factor"] == 1.0      # 6 photos: redundancy < 10
+    assert {(b["photo"], b["point"]) for b in _table(tmp_path / "out" / "blunders.csv")} == planted
+    r = CliRunner().invoke(cli, ["adjust", str(s), "--eo-constraints", "--no-variance-components", "-o",
+                                 str(tmp_path / "plain")])
+    assert r.exit_code == 3, r.output                     # report: the 17 blunders kept
+    summary = json.loads((tmp_path / "plain" / "summary.json").read_text(encoding="utf-8"))
+    assert summary["snooping"]["mode"] == "report" and "variance_components" not in summary
+    assert summary["provenance"]["parameters"]["variance_components"] is False
 
 
 def test_no_control_set_and_no_eo_constraints_says_what_to_do(tmp_path, block):

@@ -39,7 +39,12 @@ figures to judge.
 Precision.  ``v_g^T P_g v_g / sigma_g^2`` is about ``chi^2(r_g)``, so ``sd(sigma_g^2) ~
 sigma_g^2 sqrt(2 / r_g)``: a group of 4 control points (redundancy ~ 5) gives its factor to
 +-60 %.  Groups with less than :data:`MIN_REDUNDANCY` are therefore not estimated: their factor
-stays 1 (the survey's sds are trusted) and they are reported with ``estimated = False``.
+stays 1 (the survey's sds are trusted) and they are reported with ``estimated = False``.  The
+weighted orientations (GNSS positions, IMU attitudes) need more, :data:`MIN_DATUM_REDUNDANCY`
+(their factor to +-20 %): without a control set they are the datum, and a factor known to +-40 %
+would rescale the datum itself (the six-photo matched block: GNSS redundancy 13.8, estimated
+factor 0.69 against the true 1, the constraints tightened by 17 %; the four NGI frames: 5.4 and
+4.6, not estimated at either threshold; a 24-photo block: about 72, estimated).
 
 Blunders.  A gross error inflates its group's ``v^T P v``, and not only by its own square: the
 other rays of its point and the observations of its photos take up part of it.  The estimate
@@ -73,7 +78,7 @@ import numpy as np
 from .problem import BundleProblem
 from .result import BundleResult
 
-__all__ = ["GROUPS", "MIN_REDUNDANCY", "VarianceComponent", "VarianceComponents", "group_labels",
+__all__ = ["GROUPS", "MIN_REDUNDANCY", "MIN_DATUM_REDUNDANCY", "VarianceComponent", "VarianceComponents", "group_labels",
            "estimate_components", "scaled_problem", "iterate_components", "snoop_with_components"]
 
 log = logging.getLogger(__name__)
@@ -83,6 +88,11 @@ log = logging.getLogger(__name__)
 GROUPS = ("tie", "target", "control", "gnss", "imu")
 #: a group with less redundancy keeps its a priori factor (sd of the estimate ~ sqrt(2 / r) = 45 %)
 MIN_REDUNDANCY = 10.0
+#: the weighted orientations (GNSS, IMU groups), possibly the datum: estimated with at least this redundancy
+#: (sd of the factor sqrt(2 / 50) = 20 %)
+MIN_DATUM_REDUNDANCY = 50.0
+#: groups that need :data:`MIN_DATUM_REDUNDANCY`
+DATUM_GROUPS = ("gnss", "imu")
 #: factors are kept within these bounds (an sd scaled by 1/100 .. 100)
 FACTOR_BOUNDS = (1e-4, 1e4)
 
@@ -164,6 +174,7 @@ class VarianceComponents:
         """The ``variance_components`` entry of summary.json."""
         return {"method": "Förstner (iterated, redundancy numbers)", "rounds": self.rounds,
                 "converged": self.converged, "min_redundancy": MIN_REDUNDANCY,
+                "min_datum_redundancy": MIN_DATUM_REDUNDANCY,
                 "groups": [c.to_dict() for c in self.components],
                 "history": [{k: (None if not math.isfinite(v) else round(v, 6)) for k, v in h.items()}
                             for h in self.history]}
@@ -228,7 +239,8 @@ def estimate_components(result: BundleResult, redundancy: np.ndarray, *, exclude
         The factors already applied to the group's sds (reported as the component's ``factor``
         times the new estimate); default 1.
     min_redundancy : float
-        Groups with less are not estimated (``estimated=False``, factor unchanged).
+        Groups with less are not estimated (``estimated=False``, factor unchanged); the GNSS and IMU
+        groups need at least :data:`MIN_DATUM_REDUNDANCY` as well.
 
     Returns
     -------
@@ -253,7 +265,8 @@ def estimate_components(result: BundleResult, redundancy: np.ndarray, *, exclude
         vtpv = float(sq[m].sum())
         s2 = vtpv / r_g if r_g > 0 else math.nan
         old = 1.0 if factors is None else float(factors.get(name, 1.0))
-        est = r_g >= min_redundancy and math.isfinite(s2) and s2 > 0
+        need = max(min_redundancy, MIN_DATUM_REDUNDANCY) if name in DATUM_GROUPS else min_redundancy
+        est = r_g >= need and math.isfinite(s2) and s2 > 0
         new = float(np.clip(old * s2, *FACTOR_BOUNDS)) if est else old
         out.append(VarianceComponent(name, int(m.sum()), r_g, vtpv, s2, new, bool(est)))
     return tuple(out)

@@ -107,8 +107,13 @@ def format_components(summary: dict) -> list[str]:
         lines.append(f"  {g['group']:<8} {g['n']:>7}  {format_number(g['redundancy'], 1):>9}  "
                      f"{format_number(g['sigma0'], 3):>6}  "
                      + (f"{format_number(g['sd_scale'], 3)}" if g["estimated"] else "1 (not estimated: redundancy "
-                        f"< {format_number(vc['min_redundancy'], None)})"))
+                        f"< {format_number(_min_redundancy(vc, g['group']), None)})"))
     return lines
+
+
+def _min_redundancy(vc: dict, group: str) -> float:
+    """The redundancy a group needs to be estimated (summary.json ``variance_components``)."""
+    return (vc.get("min_datum_redundancy") or vc["min_redundancy"]) if group in ("gnss", "imu") else vc["min_redundancy"]
 
 
 def _sig(value: object, digits: int) -> str:
@@ -165,10 +170,11 @@ def exit_status(summary: dict) -> tuple[int, str]:
 @click.option("--snooping", type=click.Choice(["off", "report", "remove"]), default=None,
               help="Baarda's data snooping: test every image observation, control point and GNSS/INS "
                    "constraint (w-test) at the --family-level; one rejection per re-adjustment, or several when "
-                   "they are far apart (no shared or neighbouring photo). 'report' (the default) names the "
-                   "blunders and keeps them in the adjustment; 'remove' adjusts without them. Not available "
-                   "with --self-calibrate/--frame-offset (there the default is off and report/remove are "
-                   "refused).")
+                   "they are far apart (no shared or neighbouring photo). 'report' names the blunders and keeps "
+                   "them in the adjustment; 'remove' adjusts without them. Default 'report'; 'remove' on a "
+                   "matched survey (image observations with sds of their own, see --variance-components). Not "
+                   "available with --self-calibrate/--frame-offset (there the default is off and report/remove "
+                   "are refused).")
 @click.option("--family-level", type=click.FloatRange(0, 0.5, min_open=True, max_open=True),
               default=0.05, show_default=True,
               help="Probability that a block without blunders has any test rejecting: the level of each "
@@ -190,12 +196,17 @@ def exit_status(summary: dict) -> tuple[int, str]:
                    "any least-squares step (automatic matches with gross errors); the observations it rejects "
                    "are named in blunders.csv (found_by screening/cauchy) and put back when they pass at the "
                    "solution. 'plain': least squares from the start.")
-@click.option("--variance-components", is_flag=True,
+@click.option("--variance-components/--no-variance-components", default=None,
               help="Estimate one variance factor per observation group -- tie-point and target image "
                    "coordinates, control coordinates, GNSS positions, IMU attitudes -- from the block (Förstner, "
-                   "iterated with data snooping in every round) and adjust with them: for image sds that do "
-                   "not fit the measurements (automatic tie points are more precise than hand-measured "
-                   "targets). summary.json lists each group's sigma0, factor and redundancy.")
+                   "iterated with data snooping in every round, each factor from the adjustment without the "
+                   "observations snooping named) and adjust with them: for image sds that do not fit the "
+                   "measurements (automatic tie points are more precise than hand-measured targets; the "
+                   "simplified camera of real frames makes them less). Default: on when image_points.csv "
+                   "carries sds of its own (sd_x_mm, sd_y_mm: what `lidarcat match` writes) and the survey is "
+                   "no rig block -- the rule of `lidarcat run` -- with --snooping remove; off otherwise and with "
+                   "--self-calibrate/--frame-offset. summary.json lists each group's sigma0, factor and "
+                   "redundancy.")
 @click.option("--self-calibrate", metavar="PARAMS", default=None,
               help="Estimate interior-orientation corrections per camera: a comma list of c, x0, y0, "
                    "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free), "
@@ -213,7 +224,8 @@ def exit_status(summary: dict) -> tuple[int, str]:
 @json_opt
 def adjust(survey: str | None, control: str | None, observations: str | None, outdir: str | None,
            variance_factor: str | None, eo_constraints: bool, max_iter: int, precision: str, snooping: str | None,
-           family_level: float, snooping_level: float | None, robust: str, start: str, variance_components: bool,
+           family_level: float, snooping_level: float | None, robust: str, start: str,
+           variance_components: bool | None,
            self_calibrate: str | None,
            frame_offset: str | None, similarity: bool | None, as_json: bool) -> None:
     """Bundle adjustment of SURVEY (default: the embedded thesis block).
@@ -265,6 +277,7 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     """
     from .._util import atomic_dir
     from ..stages.adjust import adjust as adjust_action
+    from ..stages.adjust import auto_variance_components
     from ..survey.selfcal import (
         SNOOPING_WITH_PARAMETERS,
         adjust_survey_with_parameters,
@@ -281,6 +294,11 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     if with_parameters and variance_components:
         raise click.UsageError("--variance-components: applies to the plain adjustment only (not with "
                                "--self-calibrate/--frame-offset); estimate the components first without them")
+    auto = variance_components is None and not with_parameters and auto_variance_components(loaded)
+    if variance_components is None:     # the rule of `lidarcat run`: a matched survey
+        variance_components = auto
+    if snooping is None:
+        snooping = "remove" if auto else "report"
     if with_parameters:
         _, out = adjust_survey_with_parameters(
             loaded, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
@@ -294,7 +312,7 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
             with atomic_dir(out) as tmp:  # the folder appears when every file is written
                 adjust_action(loaded, tmp, control=control, observations=observations,
                               variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter,
-                              snooping=snooping or "report", snooping_level=snooping_level,
+                              snooping=snooping, snooping_level=snooping_level,
                               family_level=family_level, robust=robust, start=start, precision=precision,
                               variance_components=variance_components,
                               progress=None if bar is None else lambda _it, _cost: bar.update(1))
@@ -307,6 +325,10 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
         click.echo(format_report(summary, str(out)))
         if "additional_parameters" in summary:
             click.echo(format_parameters(summary))
+        if auto:
+            click.echo("Note: image_points.csv carries sds of its own (matched tie points): variance components "
+                       "estimated" + (" and the named observations removed" if snooping == "remove" else "")
+                       + " (--no-variance-components, --snooping report to change).")
         if (summary.get("snooping") or {}).get("reason"):
             click.echo(f"Note: {summary['snooping']['reason']}.")
         for gone in (summary.get("line_control") or {}).get("removed", ()):
