@@ -239,7 +239,9 @@ def selfcal_adjust(survey=None, *, control: str | None = None, self_calibrate: s
     control = control or st.control
     if control is None and st.frame_offset is not None:
         control = _sets_with_sources(survey, st.frame_offset)
-    cset = combined_control_set(survey, control)
+    # no control set: the weighted GNSS/INS orientations are the datum (as survey.adjustment.problem_from_survey)
+    cset = None if control is None and survey.default_control is None and eo_constraints else \
+        combined_control_set(survey, control)
     # GNSS line offsets act on the camera-position constraints: switch them on
     problem = problem_from_survey(survey, control=cset, observations=observations,
                                   eo_constraints=eo_constraints or bool(st.gnss_lines))

@@ -1,0 +1,65 @@
+"""A track that joined two ground points (automatic matching): snooping removes the whole track.
+
+Four rays of one tie point, two of them (on photos of the other strip) moved to the images of a
+second ground point 2 m away: each pair is consistent with itself, the split 2 against 2 has no
+majority.  Snooping rejects one ray, then its partner on the same side; the pair left passes every
+test, whichever side it is.  The rule of :data:`lidarcat.bundle.reliability.HALF_RAYS_RULE`: a free
+point that lost as many rays as it has left loses the rest too, named with a note.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from lidarcat.bundle import reliability as rel_mod
+from lidarcat.bundle.reliability import snoop
+from lidarcat.geometry.collinearity import project
+from lidarcat.synthetic.block import synthetic_block
+
+
+@pytest.fixture(scope="module")
+def merged():
+    """(problem, point id, photos of the moved rays): a 2 x 6 block, one four-ray tie point (two rays
+    per strip) whose rays on the second strip see a point 2 m east, 1 m north of the first."""
+    b = synthetic_block(2, 6, seed=3)
+    p = b.problem
+    role = np.asarray(p.point_role)
+    rays = np.bincount(p.point_index, minlength=p.n_points)
+    strip = np.asarray(p.photo_index) // 6
+    n2 = np.bincount(p.point_index, weights=strip, minlength=p.n_points)     # rays on the second strip
+    j = int(np.flatnonzero((role == "tie") & (rays == 4) & (n2 == 2))[0])
+    k = np.flatnonzero((p.point_index == j) & (strip == 1))
+    xyz = np.asarray(b.true_points_m)[j] + np.array([2.0, 1.0, 0.0])
+    eo = np.asarray(b.true_eo)[p.photo_index[k]]
+    xy_true, _ = project(eo, np.repeat(xyz[None], len(k), 0), np.asarray(p.focal_length_mm)[p.photo_index[k]])
+    noise = np.asarray(p.xy_mm)[k] - project(eo, np.repeat(np.asarray(b.true_points_m)[j][None], len(k), 0),
+                                             np.asarray(p.focal_length_mm)[p.photo_index[k]])[0]
+    xy = np.array(p.xy_mm, float)
+    xy[k] = xy_true + noise
+    return (dataclasses.replace(p, xy_mm=xy), str(p.point_ids[j]),
+            {str(x) for x in p.photo_ids[p.photo_index[k]]})
+
+
+def _named(sres, point):
+    return {b.photo: b for b in sres.blunders if b.kind == "image" and b.point == point}
+
+
+def test_a_track_of_two_ground_points_is_removed_whole(merged):
+    p, point, moved = merged
+    sres = snoop(p, mode="remove")
+    named = _named(sres, point)
+    assert len(named) == 4 and all(b.removed for b in named.values())
+    assert sum("lost 2 of its 4 rays" in b.note for b in named.values()) == 3   # the trigger and the two others
+    assert point not in set(sres.result.point_ids.tolist())
+    assert len(sres.blunders) <= 6                        # no good observation of the block pays for it
+
+
+def test_without_the_rule_a_self_consistent_pair_stays(merged, monkeypatch):
+    """What the rule is for: snooping alone names two rays, one pair of the two ground points stays."""
+    p, point, _ = merged
+    monkeypatch.setattr(rel_mod, "HALF_RAYS_RULE", False)
+    named = _named(snoop(p, mode="remove"), point)
+    assert len(named) == 2
