@@ -27,6 +27,21 @@ group a is multiplied by ``f(w_a / c_a)`` with ``c_a`` its critical value,
 snooping cleans what is left, so the final result and its covariance come from
 the original weights.  All tests use the a priori variance factor (sigma0 = 1:
 the sigmas are trusted, which the global chi-square test checks).
+
+Two rules for automatic tie points and a GNSS/INS datum
+-------------------------------------------------------
+* A free point that lost as many rays as it has left loses the rest too
+  (:data:`HALF_RAYS_RULE`; a two-ray point is the old case): a track that joined two
+  ground points splits 2 against 2 without a majority, and the pair that stays is
+  consistent with itself -- an error along an epipolar line passes every test.
+* When the weighted GNSS/INS orientations are the only datum (no control point,
+  :func:`eo_is_datum`), a photo's GNSS/INS group whose test rejects is named but
+  never removed (:data:`EO_DATUM_NOTE`): without it the photo's position and
+  attitude rest on its tie points alone, which hardly separate a shift from a tilt
+  of a narrow-angle camera.  On the four NGI frames the tie points, fitted with a
+  camera that lacks the principal point and distortion of the real one, rejected
+  the published orientation of photo 0182 (w 8-9.5); removing it let the photo
+  drift 14-16 m and 0.14-0.16 deg along that correlation.
 """
 
 from __future__ import annotations
@@ -73,6 +88,11 @@ REFINE_MAX = 20
 #: line has no majority, and the pair that stays is consistent with itself (w 1.7) -- a mismatch along the
 #: epipolar line is invisible to any test (the 24-photo block, seed 8)
 HALF_RAYS_RULE = True
+#: why a GNSS/INS group is named but not removed when the weighted orientations are the only datum
+EO_DATUM_NOTE = ("not removed: the weighted GNSS/INS orientations are the block's only datum (no control point); "
+                 "without its own, the photo's position and attitude rest on the tie points alone and trade "
+                 "along their correlation (the four NGI frames: 14-16 m against 0.14-0.16 deg). The tie points "
+                 "disagree with it: a model error of the camera (principal point, distortion) or a GNSS/INS blunder")
 #: IRLS: smallest weight factor (sigma x 100: a point keeps a regular normal-equation block)
 ROBUST_FLOOR = 1e-4
 
@@ -346,16 +366,18 @@ def snoop(
     tried_snoop = np.zeros(len(p.photo_index), dtype=bool)  # snooping rejections tested (large blocks)
     near = _Neighbours(p) if multiple else None
     single = False                 # after a failed multiple round: one group at a time
+    hold_eo = eo_is_datum(p)       # no control point: a photo's GNSS/INS group is named, never removed
     for _round in range(20):
         while rel is not None:
-            g = rel.worst()
-            if g is None or rel.ratio[g] <= 1:
+            pick = _pickable(rel, hold_eo)
+            g = pick.worst()
+            if g is None or pick.ratio[g] <= 1:
                 break
             if n_rej >= max_rejections:
                 more = True
                 log.warning("data snooping stopped after %d rejections; tests still reject", n_rej)
                 break
-            picks = [g] if near is None or single else _round_picks(rel, near, max_rejections - n_rej)
+            picks = [g] if near is None or single else _round_picks(pick, near, max_rejections - n_rej)
             iteration += 1
             saved = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
             found: list[Blunder] = []
@@ -417,10 +439,11 @@ def snoop(
             break
         # backward step: re-insert or exchange a rejected observation when the data prefer it
         changed, sub, res, cur, rel, blunders, k = _refine(p, sub, blunders, res, cur, rel, level, power,
-                                                            adjust_kwargs)
+                                                            adjust_kwargs, hold_eo)
         n_adj += k
         if not changed:
             break
+    blunders += _held_blunders(rel, hold_eo, iteration + 1)
     adjust_kwargs = {k: v for k, v in adjust_kwargs.items() if k != "initial"}
     if rs is not None:          # the robust start's rejections still out of the adjustment
         rej = dataclasses.replace(rs, keep=rs.keep | sub.obs)
@@ -458,6 +481,28 @@ def snoop(
     return SnoopingResult(final, final_rel, tuple(blunders), mode, robust, more, n_adj, start)
 
 
+def eo_is_datum(p: BundleProblem) -> bool:
+    """The weighted GNSS/INS orientations are the only datum: no control point with a finite sd."""
+    has_eo = p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index) > 0
+    return has_eo and not bool(np.isfinite(np.asarray(p.constraint_sd_m, float)).any())
+
+
+def _pickable(rel: Reliability | None, hold_eo: bool) -> Reliability | None:
+    """*rel* with the GNSS/INS groups untestable when they are held (:func:`eo_is_datum`): snooping names
+    them (:data:`EO_DATUM_NOTE`) but never removes one."""
+    if rel is None or not hold_eo:
+        return rel
+    return dataclasses.replace(rel, w=np.where(rel.kind == "eo", np.nan, rel.w))
+
+
+def _held_blunders(rel: Reliability | None, hold_eo: bool, iteration: int) -> list[Blunder]:
+    """The held GNSS/INS groups whose test rejects in *rel*, named with :data:`EO_DATUM_NOTE`."""
+    if rel is None or not hold_eo:
+        return []
+    bad = np.flatnonzero((rel.kind == "eo") & (np.nan_to_num(rel.ratio) > 1))
+    return [rel.blunder(int(g), removed=False, iteration=iteration, note=EO_DATUM_NOTE) for g in bad]
+
+
 def _remove_group(p: BundleProblem, sub: _Subset, rel: Reliability, g: int, iteration: int) -> list[Blunder]:
     """Remove group *g* of *rel* from *sub*; its :class:`Blunder` records (two for a two-ray point)."""
     bl = rel.blunder(g, removed=True, iteration=iteration)
@@ -482,7 +527,7 @@ def _remove_group(p: BundleProblem, sub: _Subset, rel: Reliability, g: int, iter
     return out
 
 
-def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs):
+def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs, hold_eo=False):
     """One backward step after snooping stopped; returns ``(changed, sub, res, cur, rel, blunders, n_adj)``.
 
     For each image observation removed by snooping (not a two-ray point): adjust with it put back;
@@ -515,8 +560,9 @@ def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs):
                     continue
                 if h is None:
                     relt = back = reliability(r, level=level, power=power)
-                    g = relt.worst()
-                    if g is None or relt.ratio[g] <= 1:
+                    pick = _pickable(relt, hold_eo)
+                    g = pick.worst()
+                    if g is None or pick.ratio[g] <= 1:
                         best = (None, trial, r, prob, relt)
                         break
                 elif r.vtpv < res.vtpv - 1e-9 * max(1.0, res.vtpv) and (best is None or r.vtpv < best[2].vtpv):

@@ -1,10 +1,16 @@
-"""A track that joined two ground points (automatic matching): snooping removes the whole track.
+"""Two rules of data snooping for automatic matches (lidarcat.bundle.reliability).
+
+1. A track that joined two ground points: snooping removes the whole track.
 
 Four rays of one tie point, two of them (on photos of the other strip) moved to the images of a
 second ground point 2 m away: each pair is consistent with itself, the split 2 against 2 has no
 majority.  Snooping rejects one ray, then its partner on the same side; the pair left passes every
 test, whichever side it is.  The rule of :data:`lidarcat.bundle.reliability.HALF_RAYS_RULE`: a free
 point that lost as many rays as it has left loses the rest too, named with a note.
+
+2. The weighted GNSS/INS orientations as the only datum (no control point): a photo's GNSS/INS group
+whose test rejects is named but never removed (:data:`lidarcat.bundle.reliability.EO_DATUM_NOTE`):
+without it the photo's position and attitude would rest on the tie points alone.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ from lidarcat.bundle import reliability as rel_mod
 from lidarcat.bundle.reliability import snoop
 from lidarcat.geometry.collinearity import project
 from lidarcat.synthetic.block import synthetic_block
+from lidarcat.synthetic.matches import matched_block
 
 
 @pytest.fixture(scope="module")
@@ -63,3 +70,20 @@ def test_without_the_rule_a_self_consistent_pair_stays(merged, monkeypatch):
     monkeypatch.setattr(rel_mod, "HALF_RAYS_RULE", False)
     named = _named(snoop(p, mode="remove"), point)
     assert len(named) == 2
+
+
+def test_a_gnss_blunder_is_named_not_removed_when_the_orientations_are_the_datum():
+    """The matched block (17 gross matches, GNSS/INS the only datum) with photo 2's X0 observed 10 m
+    (10 sd) off: its group is named, with the note, and stays in the adjustment; the 17 gross matches
+    are removed as before."""
+    p, truth, planted = matched_block()
+    assert rel_mod.eo_is_datum(p)
+    obs = np.array(p.eo_constraint_params, float)
+    i = int(np.flatnonzero(np.asarray(p.photo_ids) == "0002")[0])
+    obs[i, 0] += 10.0
+    sres = snoop(dataclasses.replace(p, eo_constraint_params=obs), mode="remove")
+    eo = [b for b in sres.blunders if b.kind == "eo"]
+    assert [(b.photo, b.removed, b.note) for b in eo] == [("0002", False, rel_mod.EO_DATUM_NOTE)]
+    assert eo[0].estimated_error[0] > 5.0
+    assert len(sres.result.problem.eo_constraint_photo_index) == p.n_photos
+    assert {(b.photo, b.point) for b in sres.blunders if b.kind == "image"} == planted
