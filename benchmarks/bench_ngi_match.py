@@ -139,7 +139,8 @@ def self_calibrated(folder: Path, sres, self_calibrate: str, scale: float) -> di
     r = res.bundle
     pub = published()
     eo = np.asarray(r.eo_params)
-    pars = {k.split(".", 1)[-1]: (v["estimate"] / PIXEL_MM if v["unit"] == "mm" else v["estimate"], v["t"])
+    pars = {k.split(".", 1)[-1]: (v["estimate"] / PIXEL_MM if v["unit"] == "mm" else v["estimate"], v["t"],
+                                  "px" if v["unit"] == "mm" else v["unit"])
             for k, v in res.summary()["additional_parameters"].items()}
     return {"sc_success": bool(r.success),
             "sc_dev_m": max(float(np.abs(eo[i, :3] - pub[str(ph)][:3]).max()) for i, ph in enumerate(r.photo_ids)),
@@ -225,7 +226,7 @@ def main() -> None:
         return
     print("\n| match | tie points | observations | obs. > 2 px off (published EO) | within 1 px | adjust | status | "
           "named (removed) | > 2 px not named | max \\|EO - published\\| | image residual median / RMS | "
-          f"with --self-calibrate {a.self_calibrate or '-'}: max \\|EO - published\\|, parameters (px, t) | s match | "
+          f"with --self-calibrate {a.self_calibrate or '-'}: max \\|EO - published\\|, parameters (t) | s match | "
           "s adjust |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     ok = True
@@ -240,7 +241,7 @@ def main() -> None:
             match = (f"per cell {pc if pc else 'all'}" + (f", threshold {th:g} px" if th else "")
                      + (f", image_sd {sd:g} px" if sd else ""))
             sc = (f"{r['sc_dev_m']:.3f} m / {r['sc_dev_deg']:.4f} deg; "
-                  + ", ".join(f"{k} {v:+.3f} ({t:+.1f})" for k, (v, t) in r["sc_params"].items())
+                  + ", ".join(f"{k} {v:+.3g} {u} (t {t:+.1f})" for k, (v, t, u) in r["sc_params"].items())
                   if r.get("sc_success") else "-")
             print(f"| {match} | {r['tie_points']:,} | {r['observations']:,} | "
                   f"{r['over_2px']} | {100 * r['within_1px']:.2f} % | {how} | {r['status']} | {r['named']} | "
