@@ -15,10 +15,12 @@ for each ``--per-cell`` (10: the default distribution control; 0: every verified
    is the rule of ``lidarcat run`` -- variance components (one factor per observation group, the
    weighted orientations of four photos too few to be estimated) and ``--snooping remove``;
    ``--no-variance-components``: the sds ``match`` wrote, as they are.
-3. (``--self-calibrate PARAMS``, default ``thesis`` = c, x0, y0, k1, k2, k3, p1, p2; ``''`` to skip) ``lidarcat adjust S2 --eo-constraints
-   --self-calibrate PARAMS`` on the observations step 2 kept, with its tie-point sds (written x the
-   estimated factor): the principal point and distortion the frames' camera (``ngi_int_param.yaml``:
-   principal point at the centre, no distortion) does not model.  The published values enter only as the weighted observations.
+3. (``--self-calibrate PARAMS``, default ``thesis`` = c, x0, y0, k1, k2, k3, p1, p2; ``''`` to skip)
+   ``lidarcat adjust S2 --eo-constraints --self-calibrate PARAMS`` on the observations step 2 kept,
+   with its tie-point sds (written x the estimated factor): the principal point and distortion the
+   frames' camera (``ngi_int_param.yaml``: principal point at the centre, no distortion) does not
+   model.  The published values enter only as the weighted observations.  The acceptance line
+   printed is step 2's (one command); step 3's orientation is in its own column.
 
 Acceptance of issue 28 ("NGI frames"): the adjustment converges, names every matched observation
 more than 2 px off, and every orientation stays within 1 m / 0.01 deg of the published one.  "Off"
@@ -235,8 +237,8 @@ def main() -> None:
             r = run_one(Path(tmp), pc, a.threads, sd or None, th or None, a.vc, a.self_calibrate)
             within = r["success"] and r["dev_m"] <= 1.0 and r["dev_deg"] <= 0.01 and not r["missed"]
             ok &= within
-            groups = ", ".join(f"{g} r {rr:g}{'' if est else ' (not estimated)'}" for g, (rr, est) in r["groups"].items()
-                               if g != "tie")
+            groups = ", ".join(f"{g} r {rr:g}{'' if est else ' (not estimated)'}"
+                               for g, (rr, est) in r["groups"].items() if g != "tie")
             how = (f"variance components: tie sd x {r['tie_scale']:.2f}; {groups}" if r["vc"] else "sds as written")
             match = (f"per cell {pc if pc else 'all'}" + (f", threshold {th:g} px" if th else "")
                      + (f", image_sd {sd:g} px" if sd else ""))

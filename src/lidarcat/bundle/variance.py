@@ -50,7 +50,8 @@ Blunders.  A gross error inflates its group's ``v^T P v``, and not only by its o
 other rays of its point and the observations of its photos take up part of it.  The estimate
 therefore always comes from the adjustment *without* what data snooping named
 (:func:`snoop_with_components` runs every round with snooping ``remove``, whatever mode was asked;
-a group named but not removable is left out of the sums), and the snooping is repeated in every
+a group named but kept -- not removable, or a GNSS/INS group that is the datum -- is left out of
+the sums), and the snooping is repeated in every
 round with the new weights -- the tighter weights of a precise group let its tests see smaller
 errors.  Only then, with the converged factors, does ``report`` mode adjust every observation once
 more and name the blunders in it.  Measured on the six-photo matched block with 19 planted gross
@@ -76,10 +77,12 @@ from typing import Any
 import numpy as np
 
 from .problem import BundleProblem
+from .redundancy import reliability
+from .reliability import snoop
 from .result import BundleResult
 
-__all__ = ["GROUPS", "MIN_REDUNDANCY", "MIN_DATUM_REDUNDANCY", "VarianceComponent", "VarianceComponents", "group_labels",
-           "estimate_components", "scaled_problem", "iterate_components", "snoop_with_components"]
+__all__ = ["GROUPS", "MIN_REDUNDANCY", "MIN_DATUM_REDUNDANCY", "VarianceComponent", "VarianceComponents",
+           "group_labels", "estimate_components", "scaled_problem", "iterate_components", "snoop_with_components"]
 
 log = logging.getLogger(__name__)
 
@@ -381,9 +384,6 @@ def snoop_with_components(problem: BundleProblem, *, mode: str = "remove", **sno
         ``payload``: the :class:`~lidarcat.bundle.reliability.SnoopingResult` in *mode* at the
         factors reported.
     """
-    from .redundancy import reliability
-    from .reliability import snoop
-
     round_mode = "off" if mode == "off" else "remove"
 
     def one(prob: BundleProblem):
@@ -394,7 +394,7 @@ def snoop_with_components(problem: BundleProblem, *, mode: str = "remove", **sno
         rel = sres.reliability if sres.reliability is not None else reliability(res)
         kept = {(b.kind, b.photo or "", b.point or "") for b in sres.blunders if not b.removed}
         exclude = None
-        if kept:     # named but not removable (the adjustment without it failed): out of the sums
+        if kept:     # named but kept (not removable, or a GNSS/INS group of the datum): out of the sums
             keys = zip(rel.kind.tolist(), [str(x) for x in rel.photo], [str(x) for x in rel.point])
             exclude = np.array([k in kept for k in keys], dtype=bool)
         return res, np.asarray(rel.redundancy), exclude, sres

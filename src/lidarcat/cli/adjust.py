@@ -113,7 +113,9 @@ def format_components(summary: dict) -> list[str]:
 
 def _min_redundancy(vc: dict, group: str) -> float:
     """The redundancy a group needs to be estimated (summary.json ``variance_components``)."""
-    return (vc.get("min_datum_redundancy") or vc["min_redundancy"]) if group in ("gnss", "imu") else vc["min_redundancy"]
+    if group in ("gnss", "imu"):
+        return vc.get("min_datum_redundancy") or vc["min_redundancy"]
+    return vc["min_redundancy"]
 
 
 def _sig(value: object, digits: int) -> str:
