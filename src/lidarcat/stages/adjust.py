@@ -81,10 +81,11 @@ def auto_variance_components(survey: Any) -> bool:
     """Whether the ``adjust-SET`` stage of ``lidarcat run`` estimates variance components (and removes
     the named observations): when image observations carry sds of their own -- the automatic tie
     points of ``lidarcat match``, thousands of redundant machine measurements whose sds are relative
-    weights, their scale the block's to estimate (on the four NGI frames the written sds alone pull
-    the orientations 16 m off the published ones, the estimated factors keep them within 1.3 m).
-    Not in a rig block (its variance components are not estimated yet).  ``lidarcat adjust`` asks
-    for them with ``--variance-components``."""
+    weights, their scale the block's to estimate (on the four NGI frames the tie points' residuals ask
+    for their written sds x 1.3-1.5; with them as written, 1.8 m instead of 1.3 m off the published
+    orientation).
+    Not in a rig block (its variance components are not estimated yet).  ``lidarcat adjust`` follows
+    the same rule by default (``--no-variance-components`` / ``--snooping report`` to change)."""
     if survey.files.get("rigs") is not None:    # not estimated in a rig block yet (survey.adjustment)
         return False
     return bool(np.isfinite(np.asarray(survey.image_points.sd_mm, float)).any())
