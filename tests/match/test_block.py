@@ -145,3 +145,26 @@ def test_a_track_whose_rays_do_not_meet_is_dropped_when_the_orientations_are_goo
     assert r_good.n_ray_inconsistent == n_shifted
     assert three_ray_tracks_with_a_shifted_ray(r_good) == 0
     assert r_good.tracks.n_tracks == r_loose.tracks.n_tracks - n_shifted
+
+
+def test_serial_threads_and_dask_processes_give_the_same_tie_points():
+    """The photo and pair tasks on the runner of lidar.jobs: the features callable and the shared data
+    go to the worker processes, only positions and matches come back; the tracks are the same."""
+    from lidarcat.lidar.jobs import dask_client, map_tasks
+    from lidarcat.match.block import serial_map
+
+    cam, eo, feats = _block(4)
+    surface = HeightSurface(100.0, sd_m=1.0)
+    one = match_block([cam] * 4, list(eo), lambda i: feats[i], surface=surface, mapper=serial_map)
+    for sched in ("threads", "processes"):
+        steps = []
+        with dask_client(2, sched) as client:
+            other = match_block([cam] * 4, list(eo), lambda i: feats[i], surface=surface,
+                                mapper=lambda f, s, items, p: map_tasks(f, s, items, workers=2, scheduler=sched,
+                                                                        client=client, progress=p),
+                                progress=lambda step, d, t: steps.append((step, d, t)))
+        assert np.array_equal(one.tracks.track, other.tracks.track) and np.array_equal(one.xy_px, other.xy_px)
+        assert np.array_equal(one.tracks.keypoint, other.tracks.keypoint)
+        assert [(r.a, r.b, r.n_inliers) for r in one.pairs] == [(r.a, r.b, r.n_inliers) for r in other.pairs]
+        assert other.n_keypoints == tuple(len(f) for f in feats)
+        assert steps[-1] == ("pairs", len(one.pairs), len(one.pairs)) and ("features", 4, 4) in steps

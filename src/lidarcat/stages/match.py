@@ -195,18 +195,19 @@ def _load_image(survey: Any, photo: Any) -> np.ndarray:
     return load_photo_image(_photo_image(survey, photo), SurveyError)
 
 
-def task_mapper(workers: int = 1, scheduler: str | None = None) -> Any:
+def task_mapper(workers: int = 1, scheduler: str | None = None, client: Any = None) -> Any:
     """The engine's task mapper (:data:`lidarcat.match.TaskMap`) on the runner of :mod:`lidarcat.lidar.jobs`.
 
     *scheduler*: ``threads`` (default; *workers* threads), ``synchronous``, ``processes`` (a local
-    Dask cluster of *workers* processes) or the address of a running Dask scheduler.
+    Dask cluster of *workers* processes) or the address of a running Dask scheduler; *client* one
+    :func:`lidarcat.lidar.jobs.dask_client` for all calls.
     """
     from ..lidar.jobs import map_tasks
 
     sched = scheduler or "threads"
 
     def mapper(task: Any, shared: Any, items: Any, progress: Any = None) -> list:
-        return map_tasks(task, shared, items, workers=workers, scheduler=sched, progress=progress)
+        return map_tasks(task, shared, items, workers=workers, scheduler=sched, client=client, progress=progress)
 
     return mapper
 
@@ -346,9 +347,13 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     cams = [survey.camera_of(p.id) for p in photos]
     feats = PhotoFeatures(store, [_photo_image(survey, p) for p in photos], SurveyError)
     sched = scheduler or "threads"
+    from ..lidar.jobs import dask_client
+
     try:
-        res = match_block(cams, eos, feats, surface=surface, options=options, workers=workers,
-                          ids=[p.id for p in photos], progress=progress, mapper=task_mapper(workers, sched))
+        with dask_client(workers, sched) as client:
+            res = match_block(cams, eos, feats, surface=surface, options=options, workers=workers,
+                              ids=[p.id for p in photos], progress=progress,
+                              mapper=task_mapper(workers, sched, client))
     finally:
         store.close()       # the spilled features of --no-cache (a kept cache stays)
     tr = res.tracks
