@@ -139,6 +139,14 @@ def test_cli_json_and_one_line_error(survey):
     assert r.output.count("\n") == 1 and r.output.startswith("Error: ") and "photos.csv:2: field 'image'" in r.output
 
 
+def test_cli_scheduler_names_the_choices(survey):
+    r = CliRunner().invoke(cli, ["match", str(survey), "--scheduler", "cluster"])
+    assert r.exit_code == 2
+    assert ("Invalid value for '--scheduler': 'cluster': one of synchronous, threads, processes, or a Dask "
+            "scheduler's address (tcp://host:8786)") in r.output
+    assert not (survey / "out").exists()
+
+
 def test_a_large_block_without_orientation_is_refused():
     from lidarcat.match import Features, MatchOptions, match_block
     from lidarcat.synthetic.textured import small_camera
