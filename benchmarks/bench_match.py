@@ -31,8 +31,8 @@ scheduler of :func:`lidarcat.lidar.jobs.map_tasks` with ``--threads`` workers, i
 per run: a block of 2 strips of ``--sched-block`` rendered photos (``--sched-size``), then blocks of
 4 strips of ``--sched-big`` small photos (256 x 192 px).  Per run: wall and CPU seconds (the child
 and, for ``processes``, its Dask worker processes: ``RUSAGE_CHILDREN`` after the cluster closed),
-the peak RSS of the child and of its largest worker process (``ru_maxrss`` of the children), and
-the SHA-256 of the tie-point table (the same for every scheduler).
+the peak RSS of the child (``VmHWM``: ``ru_maxrss`` would keep the benchmark's own peak across
+``fork + exec``) and of its largest worker process (sampled every 0.1 s), and the SHA-256 of the tie-point table (the same for every scheduler).
 """
 
 from __future__ import annotations
@@ -272,9 +272,46 @@ def child_big(folder: Path, threads: int) -> dict:
 
     t0 = time.perf_counter()
     res = match(folder, folder / "out", workers=threads, cache=True)
-    return {"seconds": time.perf_counter() - t0, "peak_mb": _peak_mb(), "photos": res.n_photos, "pairs": res.n_pairs,
+    return {"seconds": time.perf_counter() - t0, "peak_mb": _hwm_mb(), "photos": res.n_photos, "pairs": res.n_pairs,
             "pairs_verified": res.n_pairs_verified, "tie_points": res.n_tie_points,
             "observations": res.n_observations, "steps": res.seconds}
+
+
+def _hwm_mb() -> float:
+    """Peak RSS of this process since its ``exec`` (``VmHWM``; ``ru_maxrss`` keeps the parent's peak
+    across ``fork + exec``, so a child would report the RSS of the benchmark that rendered the photos)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return float(line.split()[1]) / 1024.0
+    return _peak_mb()
+
+
+class _TreeWatch:
+    """Samples the RSS of this process's descendants (the Dask workers) every 0.1 s: the largest one."""
+
+    def __init__(self) -> None:
+        import threading
+
+        import psutil
+
+        self.me, self.peak_mb, self.stop = psutil.Process(), 0.0, threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        import psutil
+
+        while not self.stop.wait(0.1):
+            for c in self.me.children(recursive=True):
+                try:
+                    self.peak_mb = max(self.peak_mb, c.memory_info().rss / 2 ** 20)
+                except psutil.Error:
+                    pass
+
+    def close(self) -> float:
+        self.stop.set()
+        self.thread.join()
+        return self.peak_mb
 
 
 def child_sched(folder: Path, scheduler: str, workers: int) -> dict:
@@ -287,13 +324,14 @@ def child_sched(folder: Path, scheduler: str, workers: int) -> dict:
     from lidarcat.stages.match import match
 
     tag = f"{scheduler}-{workers}"
+    watch = _TreeWatch()
     t0, c0 = time.perf_counter(), _cpu_s()
     res = match(folder, folder / f"out-{tag}", workers=workers, scheduler=scheduler, cache=False,
                 table=folder / f"tie-{tag}.csv")
     seconds = time.perf_counter() - t0
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
     return {"seconds": seconds, "cpu_s": _cpu_s() - c0, "cpu_workers_s": kids.ru_utime + kids.ru_stime,
-            "peak_mb": _peak_mb(), "peak_worker_mb": kids.ru_maxrss / 1024.0, "photos": res.n_photos,
+            "peak_mb": _hwm_mb(), "peak_worker_mb": watch.close(), "photos": res.n_photos,
             "pairs": res.n_pairs, "tie_points": res.n_tie_points, "observations": res.n_observations,
             "steps": res.seconds,
             "sha256": hashlib.sha256((folder / f"tie-{tag}.csv").read_bytes()).hexdigest()[:12]}
