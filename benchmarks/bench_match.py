@@ -15,7 +15,7 @@ A fourth row gives pycolmap's own tracks and 3-D points: ``pycolmap.triangulate_
 true poses (keypoints made distortion-free in its database, a PINHOLE camera; its matches
 unchanged; two-view tracks kept), scored the same way, its RMS the reprojection of its own points.
 
-Each method runs in a child process (its peak RSS is the child's ``ru_maxrss``, imports included)
+Each method runs in a child process (its peak RSS is the child's ``VmHWM``, imports included)
 with the same number of threads; the CPU seconds (user + system of all the child's threads) are
 printed beside the wall seconds: on a machine shared with other work they are the steadier ratio.  Every observation is scored against the truth: its distance from
 the projection of its track's true point (``synthetic.textured.observation_errors``); "wrong" is an
@@ -148,7 +148,7 @@ def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = 
     photo = np.array([ids[p] for p in t.column("photo")])
     track = np.unique(np.array(t.column("point")), return_inverse=True)[1]
     xy = np.column_stack([t.floats("col_px"), t.floats("row_px")])
-    return {"seconds": seconds, "cpu_s": cpu, "peak_mb": _peak_mb(), "pairs": res.n_pairs, "steps": res.seconds,
+    return {"seconds": seconds, "cpu_s": cpu, "peak_mb": _hwm_mb(), "pairs": res.n_pairs, "steps": res.seconds,
             **_score(_truth(folder), track, photo, xy)}
 
 
@@ -190,7 +190,7 @@ def child_pycolmap(folder: Path, threads: int) -> dict:
     tr = build_tracks([len(kps[k]) for k in range(len(names))], np.array(pairs), matches)
     seconds, cpu = time.perf_counter() - t0, _cpu_s() - c0
     xy = np.array([kps[p][k] for p, k in zip(tr.photo, tr.keypoint)])
-    out = {"seconds": seconds, "cpu_s": cpu, "peak_mb": _peak_mb(), "pairs": len(pairs),
+    out = {"seconds": seconds, "cpu_s": cpu, "peak_mb": _hwm_mb(), "pairs": len(pairs),
            "steps": {"features": t1 - t0, "matching": t2 - t1, "tracks": seconds - (t2 - t0)},
            **_score(ts, tr.track, tr.photo, xy)}
     con.close()
