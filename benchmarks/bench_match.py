@@ -15,7 +15,7 @@ A fourth row gives pycolmap's own tracks and 3-D points: ``pycolmap.triangulate_
 true poses (keypoints made distortion-free in its database, a PINHOLE camera; its matches
 unchanged; two-view tracks kept), scored the same way, its RMS the reprojection of its own points.
 
-Each method runs in a child process (its peak RSS is the child's ``ru_maxrss``, imports included)
+Each method runs in a child process (its peak RSS is the child's ``VmHWM``, imports included)
 with the same number of threads; the CPU seconds (user + system of all the child's threads) are
 printed beside the wall seconds: on a machine shared with other work they are the steadier ratio.  Every observation is scored against the truth: its distance from
 the projection of its track's true point (``synthetic.textured.observation_errors``); "wrong" is an
@@ -25,6 +25,14 @@ true orientations (least squares of its rays), the same computation for both met
 Part 2 lays out blocks of 4 strips of 12 ... 100 photos and counts the pairs chosen by footprints
 (they grow linearly), then renders a block of ``--big`` small photos (256 x 192 px) and matches it
 with footprint pairs in a child process: pairs, tie points, seconds, peak memory.
+
+Part 3 (``--schedulers synchronous,threads,processes``) runs ``stages.match.match`` on each
+scheduler of :func:`lidarcat.lidar.jobs.map_tasks` with ``--threads`` workers, in a child process
+per run: a block of 2 strips of ``--sched-block`` rendered photos (``--sched-size``), then blocks of
+4 strips of ``--sched-big`` small photos (256 x 192 px).  Per run: wall and CPU seconds (the child
+and, for ``processes``, its Dask worker processes: ``RUSAGE_CHILDREN`` after the cluster closed),
+the peak RSS of the child (``VmHWM``: ``ru_maxrss`` would keep the benchmark's own peak across
+``fork + exec``) and of its largest worker process (sampled every 0.1 s), and the SHA-256 of the tie-point table (the same for every scheduler).
 """
 
 from __future__ import annotations
@@ -140,7 +148,7 @@ def child_lidarcat(folder: Path, threads: int, per_cell: int, dem: str | None = 
     photo = np.array([ids[p] for p in t.column("photo")])
     track = np.unique(np.array(t.column("point")), return_inverse=True)[1]
     xy = np.column_stack([t.floats("col_px"), t.floats("row_px")])
-    return {"seconds": seconds, "cpu_s": cpu, "peak_mb": _peak_mb(), "pairs": res.n_pairs, "steps": res.seconds,
+    return {"seconds": seconds, "cpu_s": cpu, "peak_mb": _hwm_mb(), "pairs": res.n_pairs, "steps": res.seconds,
             **_score(_truth(folder), track, photo, xy)}
 
 
@@ -182,7 +190,7 @@ def child_pycolmap(folder: Path, threads: int) -> dict:
     tr = build_tracks([len(kps[k]) for k in range(len(names))], np.array(pairs), matches)
     seconds, cpu = time.perf_counter() - t0, _cpu_s() - c0
     xy = np.array([kps[p][k] for p, k in zip(tr.photo, tr.keypoint)])
-    out = {"seconds": seconds, "cpu_s": cpu, "peak_mb": _peak_mb(), "pairs": len(pairs),
+    out = {"seconds": seconds, "cpu_s": cpu, "peak_mb": _hwm_mb(), "pairs": len(pairs),
            "steps": {"features": t1 - t0, "matching": t2 - t1, "tracks": seconds - (t2 - t0)},
            **_score(ts, tr.track, tr.photo, xy)}
     con.close()
@@ -264,9 +272,94 @@ def child_big(folder: Path, threads: int) -> dict:
 
     t0 = time.perf_counter()
     res = match(folder, folder / "out", workers=threads, cache=True)
-    return {"seconds": time.perf_counter() - t0, "peak_mb": _peak_mb(), "photos": res.n_photos, "pairs": res.n_pairs,
+    return {"seconds": time.perf_counter() - t0, "peak_mb": _hwm_mb(), "photos": res.n_photos, "pairs": res.n_pairs,
             "pairs_verified": res.n_pairs_verified, "tie_points": res.n_tie_points,
             "observations": res.n_observations, "steps": res.seconds}
+
+
+def _hwm_mb() -> float:
+    """Peak RSS of this process since its ``exec`` (``VmHWM``; ``ru_maxrss`` keeps the parent's peak
+    across ``fork + exec``, so a child would report the RSS of the benchmark that rendered the photos)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return float(line.split()[1]) / 1024.0
+    return _peak_mb()
+
+
+class _TreeWatch:
+    """Samples the RSS of this process's descendants (the Dask workers) every 0.1 s: the largest one."""
+
+    def __init__(self) -> None:
+        import threading
+
+        import psutil
+
+        self.me, self.peak_mb, self.stop = psutil.Process(), 0.0, threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        import psutil
+
+        while not self.stop.wait(0.1):
+            for c in self.me.children(recursive=True):
+                try:
+                    self.peak_mb = max(self.peak_mb, c.memory_info().rss / 2 ** 20)
+                except psutil.Error:
+                    pass
+
+    def close(self) -> float:
+        self.stop.set()
+        self.thread.join()
+        return self.peak_mb
+
+
+def child_sched(folder: Path, scheduler: str, workers: int) -> dict:
+    """One run of ``match`` on *scheduler* (part 3): seconds, CPU, peaks, the table's hash."""
+    import hashlib
+
+    import cv2
+
+    cv2.setNumThreads(1)        # the workers are the parallelism (every scheduler alike)
+    from lidarcat.stages.match import match
+
+    tag = f"{scheduler}-{workers}"
+    watch = _TreeWatch()
+    t0, c0 = time.perf_counter(), _cpu_s()
+    res = match(folder, folder / f"out-{tag}", workers=workers, scheduler=scheduler, cache=False,
+                table=folder / f"tie-{tag}.csv")
+    seconds = time.perf_counter() - t0
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {"seconds": seconds, "cpu_s": _cpu_s() - c0, "cpu_workers_s": kids.ru_utime + kids.ru_stime,
+            "peak_mb": _hwm_mb(), "peak_worker_mb": watch.close(), "photos": res.n_photos,
+            "pairs": res.n_pairs, "tie_points": res.n_tie_points, "observations": res.n_observations,
+            "steps": res.seconds,
+            "sha256": hashlib.sha256((folder / f"tie-{tag}.csv").read_bytes()).hexdigest()[:12]}
+
+
+def _schedulers(tmp: Path, a: argparse.Namespace) -> None:
+    """Part 3: every scheduler on a block of rendered photos and on growing blocks of small photos."""
+    scheds = a.schedulers.split(",")
+    cols, rows = (int(v) for v in a.sched_size.split("x"))
+    blocks = [(f"{2 * a.sched_block} photos of {cols} x {rows} px (2 strips)",
+               dict(n_strips=2, per_strip=a.sched_block, columns_px=cols, rows_px=rows, seed=7))]
+    for n in (int(v) for v in a.sched_big.split(",") if v):
+        blocks.append((f"{4 * max(2, n // 4)} photos of 256 x 192 px (4 strips)",
+                       dict(n_strips=4, per_strip=max(2, n // 4), columns_px=256, rows_px=192, seed=5)))
+    print(f"\n## Part 3: schedulers ({a.threads} workers each; cv2 one thread)\n")
+    print("| block | scheduler | pairs | tie points | seconds (features + matching) | CPU s (child + workers) | "
+          "peak MB child | peak MB largest worker | table SHA-256 | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for k, (label, kw) in enumerate(blocks):
+        folder = tmp / f"sched-{k}"
+        _render(folder, **kw)
+        for sched in scheds:
+            r = _child("sched", str(folder), sched, str(a.threads))
+            st = r["steps"]
+            worker = f"{r['peak_worker_mb']:.0f}" if sched == "processes" else "-"
+            print(f"| {label} | {sched} | {r['pairs']} | {r['tie_points']} | {r['seconds']:.1f} "
+                  f"({st['features']:.1f} + {st['matching']:.1f}) | {r['cpu_s']:.1f} + {r['cpu_workers_s']:.1f} | "
+                  f"{r['peak_mb']:.0f} | {worker} | {r['sha256']} | {os.getloadavg()[0]:.1f} |", flush=True)
 
 
 def _child(kind: str, *args: str) -> dict:
@@ -357,6 +450,11 @@ def main() -> None:
     ap.add_argument("--contrast", type=float, default=None, help="lidarcat's SIFT contrast threshold "
                     "(default: FeatureOptions' default)")
     ap.add_argument("--no-peer", action="store_true", help="skip part 1 (the comparison with pycolmap)")
+    ap.add_argument("--schedulers", default="", help="part 3: comma-separated schedulers of lidar.jobs.map_tasks "
+                    "(synchronous,threads,processes); empty: skip")
+    ap.add_argument("--sched-block", type=int, default=12, help="part 3: photos per strip of the rendered block")
+    ap.add_argument("--sched-size", default="640x480", help="part 3: photo size of the rendered block")
+    ap.add_argument("--sched-big", default="48,100,200", help="part 3: photos of the blocks of small photos")
     ap.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
@@ -365,7 +463,8 @@ def main() -> None:
                                                  rest[2] if len(rest) > 2 and rest[2] != "-" else None,
                                                  float(rest[3]) if len(rest) > 3 else None),
               "pycolmap": lambda: child_pycolmap(Path(folder), int(rest[0])),
-              "big": lambda: child_big(Path(folder), int(rest[0]))}[kind]
+              "big": lambda: child_big(Path(folder), int(rest[0])),
+              "sched": lambda: child_sched(Path(folder), rest[0], int(rest[1]))}[kind]
         print(json.dumps(fn()))
         return
     cols, rows = (int(v) for v in a.size.split("x"))
@@ -385,6 +484,11 @@ def main() -> None:
                 print("(\"within 1 px\" and \"wrong\": reprojection residual of the track triangulated with the "
                       "published orientation, not truth)\n")
                 _compare(ngi, a.threads, "published EO", str(NGI / "dem.tif"), a.contrast)
+        if a.schedulers:
+            _schedulers(Path(tmp), a)
+            if a.no_peer and not a.big:
+                print(f"\nload after: {os.getloadavg()[0]:.2f}")
+                return
         from lidarcat.match import HeightSurface, footprint, footprint_pairs
         from lidarcat.synthetic.textured import small_camera, strip_layout
 

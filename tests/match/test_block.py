@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lidarcat.errors import SurveyError
 from lidarcat.match import Features, FeatureOptions, HeightSurface, MatchError, detect, match_block
 from lidarcat.match.rays import project_to_pixel
 from lidarcat.synthetic.textured import small_camera, strip_layout
@@ -145,3 +146,39 @@ def test_a_track_whose_rays_do_not_meet_is_dropped_when_the_orientations_are_goo
     assert r_good.n_ray_inconsistent == n_shifted
     assert three_ray_tracks_with_a_shifted_ray(r_good) == 0
     assert r_good.tracks.n_tracks == r_loose.tracks.n_tracks - n_shifted
+
+
+def test_serial_threads_and_dask_processes_give_the_same_tie_points():
+    """The photo and pair tasks on the runner of lidar.jobs: the features callable and the shared data
+    go to the worker processes, only positions and matches come back; the tracks are the same."""
+    from lidarcat.lidar.jobs import dask_client, map_tasks
+    from lidarcat.match.block import serial_map
+
+    cam, eo, feats = _block(4)
+    surface = HeightSurface(100.0, sd_m=1.0)
+    one = match_block([cam] * 4, list(eo), lambda i: feats[i], surface=surface, mapper=serial_map)
+    for sched in ("threads", "processes"):
+        steps = []
+        with dask_client(2, sched) as client:           # one cluster of 2 worker processes for both runs
+
+            def mapper(f, s, items, p):
+                return map_tasks(f, s, items, workers=2, scheduler=sched, client=client, progress=p)
+
+            other = match_block([cam] * 4, list(eo), lambda i: feats[i], surface=surface, mapper=mapper,
+                                progress=lambda step, d, t: steps.append((step, d, t)))
+            # a photo that cannot be read in a worker: its located error, unchanged, in this process
+            with pytest.raises(SurveyError, match=r"^photos.csv:3: field 'image': photo '2': cannot decode$"):
+                match_block([cam] * 4, list(eo), _unreadable(feats, 2), surface=surface, mapper=mapper)
+        assert np.array_equal(one.tracks.track, other.tracks.track) and np.array_equal(one.xy_px, other.xy_px)
+        assert np.array_equal(one.tracks.keypoint, other.tracks.keypoint)
+        assert [(r.a, r.b, r.n_inliers) for r in one.pairs] == [(r.a, r.b, r.n_inliers) for r in other.pairs]
+        assert other.n_keypoints == tuple(len(f) for f in feats)
+        assert steps[-1] == ("pairs", len(one.pairs), len(one.pairs)) and ("features", 4, 4) in steps
+
+
+def _unreadable(feats, bad):
+    def get(i):
+        if i == bad:
+            raise SurveyError("photos.csv:3: field 'image': photo '2': cannot decode")
+        return feats[i]
+    return get

@@ -139,6 +139,14 @@ def test_cli_json_and_one_line_error(survey):
     assert r.output.count("\n") == 1 and r.output.startswith("Error: ") and "photos.csv:2: field 'image'" in r.output
 
 
+def test_cli_scheduler_names_the_choices(survey):
+    r = CliRunner().invoke(cli, ["match", str(survey), "--scheduler", "cluster"])
+    assert r.exit_code == 2
+    assert ("Invalid value for '--scheduler': 'cluster': one of synchronous, threads, processes, or a Dask "
+            "scheduler's address (tcp://host:8786)") in r.output
+    assert not (survey / "out").exists()
+
+
 def test_a_large_block_without_orientation_is_refused():
     from lidarcat.match import Features, MatchOptions, match_block
     from lidarcat.synthetic.textured import small_camera
@@ -186,3 +194,27 @@ def test_match_on_realistic_aerial_photos_with_lidar(tmp_path):
                     for k in np.flatnonzero(~first)])
     err = err[np.isfinite(err)]
     assert len(err) > 300 and np.mean(err < 1.0) >= 0.99
+
+
+def test_the_scheduler_does_not_change_the_tie_points(tmp_path):
+    """Serial, 2 threads and 2 Dask worker processes (features through the on-disk cache, a pair task
+    reading only its two photos) write the same image_points.csv, byte for byte."""
+    small = write_textured_survey(tmp_path / "base", n_strips=1, per_strip=3, columns_px=480, rows_px=360, seed=3)
+    tables, reports = {}, {}
+    for sched in ("synchronous", "threads", "processes"):
+        folder = tmp_path / sched
+        shutil.copytree(small.folder, folder)
+        seen = []
+        res = match(folder, workers=2, scheduler=sched, cache=False,
+                    progress=lambda step, done, total: seen.append((step, done, total)))
+        tables[sched] = (folder / "image_points.csv").read_text()
+        reports[sched] = res.summary
+        # a progress call per photo, then per pair, ending at the totals
+        assert [s for s in seen if s[0] == "features"][-1] == ("features", 3, 3)
+        assert [s for s in seen if s[0] == "pairs"][-1] == ("pairs", res.n_pairs, res.n_pairs)
+        assert not list((folder / "out" / "match").glob(".features-*"))      # the spilled features are removed
+    assert reports["synchronous"]["tie_points"] > 100
+    assert tables["synchronous"] == tables["threads"] == tables["processes"]
+    assert [r["keypoints"] for r in reports["processes"]["per_photo"]] == \
+        [r["keypoints"] for r in reports["synchronous"]["per_photo"]]
+    assert reports["processes"]["scheduler"] == "processes"

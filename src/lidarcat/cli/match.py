@@ -12,6 +12,7 @@ _EPILOG = """\b
 Examples:
   lidarcat match survey/
   lidarcat match survey/ --max-features 12000 --per-cell 20 --workers 2
+  lidarcat match survey/ --workers 4 --scheduler processes
   lidarcat match survey/ --height 35 --sd-position 5 --sd-angle 1 --json
 \b
 Pairs come from the footprints of the approximate orientations of photos.csv on the LiDAR
@@ -24,6 +25,15 @@ and the feature cache go to OUTDIR (default SURVEY/out/match).
 Exit status: 0 done, 2 bad input (a photo without image, an image that cannot be decoded
 or has another size than its camera, no overlap, no pair verified); nothing is written then.
 """
+
+
+def _scheduler(ctx: click.Context, param: click.Parameter, value: str) -> str:
+    from ..lidar.jobs import SCHEDULERS
+
+    if value in SCHEDULERS or "://" in value:
+        return value
+    raise click.BadParameter(f"{value!r}: one of {', '.join(SCHEDULERS)}, or a Dask scheduler's address "
+                             f"(tcp://host:8786)", ctx=ctx, param=param)
 
 
 @click.command(name="match", epilog=_EPILOG)
@@ -60,14 +70,20 @@ or has another size than its camera, no overlap, no pair verified); nothing is w
 @click.option("--unguided", is_flag=True, help="Match descriptors over the whole photo even with orientations.")
 @click.option("--no-refine", is_flag=True, help="Keep the SIFT positions (no sub-pixel correlation refinement).")
 @click.option("--prefix", default="tp", show_default=True, help="Id prefix of the tie points.")
-@click.option("--workers", type=click.IntRange(1), default=1, show_default=True,
-              help="Threads for the photos and the pairs.")
+@click.option("--workers", type=click.IntRange(1), default=1, show_default=True, metavar="N",
+              help="Threads (or with --scheduler processes, Dask worker processes) for the photos and the pairs.")
+@click.option("--scheduler", default="threads", show_default=True, metavar="threads|processes|synchronous|ADDRESS",
+              callback=_scheduler,
+              help="Where the photo and pair tasks run: threads of this process, a local Dask cluster of --workers "
+                   "processes (pip install 'lidarcat[cluster]'), serially, or an existing Dask cluster, e.g. "
+                   "tcp://10.0.0.5:8786 (every worker must see the images and OUTDIR). The tie points are the same.")
 @click.option("--no-cache", is_flag=True, help="Do not keep the features in OUTDIR/features.")
 @output_option(outdir=True, type=click.Path(file_okay=False), help="Report folder (default SURVEY/out/match).")
 @json_option(help="Print the matching report as JSON.")
 def match(survey, max_features, level, max_side_px, min_overlap, sd_position_m, sd_angle_deg, height_m, dem,
           height_sd_m, ratio,
-          threshold_px, per_cell, grid, max_local_px, unguided, no_refine, prefix, workers, no_cache, outdir, as_json) -> None:
+          threshold_px, per_cell, grid, max_local_px, unguided, no_refine, prefix, workers, scheduler, no_cache, outdir,
+          as_json) -> None:
     """Tie points from the photos (SIFT, footprint pairs, guided matching) into image_points.csv."""
     import contextlib
     import dataclasses
@@ -97,7 +113,8 @@ def match(survey, max_features, level, max_side_px, min_overlap, sd_position_m, 
             if bar is not None:
                 bar.update(done - bar.pos)
 
-        res = match_action(s, outdir, options=opts, features=feats, workers=workers, height_m=height_m, dem=dem, height_sd_m=height_sd_m,
+        res = match_action(s, outdir, options=opts, features=feats, workers=workers, scheduler=scheduler,
+                           height_m=height_m, dem=dem, height_sd_m=height_sd_m,
                            prefix=prefix, cache=not no_cache, refine=not no_refine,
                            progress=progress)
     if as_json:

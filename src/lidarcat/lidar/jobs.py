@@ -52,13 +52,14 @@ the run with an error naming the file; the finished tiles stay done.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
 import logging
 import os
 import zipfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -66,7 +67,7 @@ from typing import Any
 from ..errors import FormatError, LidarcatError, TileIOError
 
 __all__ = ["TileJob", "TileFunction", "run_jobs", "run_on_client", "run_tile_job", "tile_jobs",
-           "read_with_buffer", "edge_buffer_jobs", "read_done_output", "read_npz"]
+           "read_with_buffer", "edge_buffer_jobs", "read_done_output", "read_npz", "map_tasks", "dask_client", "SCHEDULERS"]
 
 log = logging.getLogger(__name__)
 
@@ -547,3 +548,112 @@ def _drop_rings(jobs: Sequence[TileJob]) -> None:
             f.rmdir()
         except OSError:  # another run's buffers are still there
             pass
+
+
+#: the local schedulers of :func:`map_tasks` (anything else is the address of a running Dask scheduler)
+SCHEDULERS = ("synchronous", "threads", "processes")
+
+
+@contextlib.contextmanager
+def dask_client(workers: int = 1, scheduler: str = "threads") -> Iterator[Any]:
+    """The Dask client of :func:`map_tasks` for *scheduler*, closed on exit; None for ``synchronous``
+    and ``threads`` (no Dask cluster: this process).  ``processes`` starts a ``LocalCluster`` of
+    *workers* single-threaded worker processes, as :func:`run_jobs` does; else *scheduler* is the
+    address of a running scheduler.  One client serves several :func:`map_tasks` calls (the
+    processes start once)."""
+    if scheduler in ("synchronous", "threads"):
+        yield None
+        return
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as ex:  # pragma: no cover - the extra is installed in CI
+        raise FormatError("parallel runs need dask.distributed: pip install 'lidarcat[cluster]'") from ex
+    cluster = None
+    if scheduler == "processes":
+        cluster = LocalCluster(n_workers=max(int(workers), 1), threads_per_worker=1, processes=True,
+                               dashboard_address=":0")
+        client = Client(cluster)
+    else:
+        client = Client(scheduler)
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def map_tasks(func: Callable[[Any, Any], Any], shared: Any, items: Sequence[Any], *, workers: int = 1,
+              scheduler: str = "threads", client: Any = None, retries: int = 2,
+              progress: Callable[[int, int], Any] | None = None) -> list[Any]:
+    """``[func(shared, item) for item in items]`` on the runner of :func:`run_jobs`, in item order.
+
+    The tile runner's choice for tasks that are not tiles (the photos and pairs of
+    :func:`lidarcat.match.match_block`): ``synchronous`` in this process; ``threads``, a pool of
+    *workers* threads (for code that releases the GIL); ``processes``, a ``LocalCluster`` of
+    *workers* single-threaded worker processes as :func:`run_jobs` starts; else the address of a
+    running Dask scheduler (``tcp://host:8786``).  On Dask, *shared* is scattered once to every
+    worker (each task gets that worker's copy), *func* is pickled by cloudpickle, and each task's
+    result comes back to this process: keep results small.  A script that uses ``processes`` needs
+    the ``if __name__ == "__main__":`` guard (the workers are spawned).
+
+    Parameters
+    ----------
+    func : callable
+        ``func(shared, item)``.
+    shared : object
+        What every task needs (picklable for processes and a cluster).
+    items : sequence
+    workers : int
+        Threads or processes (a cluster brings its own).
+    scheduler : str
+        One of :data:`SCHEDULERS` or a scheduler's address.
+    client : dask.distributed.Client, optional
+        A client of :func:`dask_client` (for processes or a cluster): used, not closed; default one
+        for this call.
+    retries : int
+        Dask: times a task is retried after a failure (its worker died).
+    progress : callable, optional
+        ``progress(done, total)`` after each finished task.
+    """
+    items = list(items)
+    n = len(items)
+    out: list[Any] = [None] * n
+    if scheduler == "synchronous" or (scheduler == "threads" and workers <= 1) or n == 0:
+        for k, it in enumerate(items):
+            out[k] = func(shared, it)
+            if progress is not None:
+                progress(k + 1, n)
+        return out
+    if scheduler == "threads":
+        from concurrent.futures import ThreadPoolExecutor, as_completed as done_first
+
+        with ThreadPoolExecutor(int(workers)) as pool:
+            futures = {pool.submit(func, shared, it): k for k, it in enumerate(items)}
+            for d, fut in enumerate(done_first(futures), 1):
+                out[futures[fut]] = fut.result()
+                if progress is not None:
+                    progress(d, n)
+        return out
+    if client is None:
+        with dask_client(workers, scheduler) as own:
+            return map_tasks(func, shared, items, workers=workers, scheduler=scheduler, client=own,
+                             retries=retries, progress=progress)
+    import uuid
+
+    from dask.distributed import as_completed
+
+    ctx = client.scatter(shared, broadcast=True, hash=False)
+    name = f"{getattr(func, '__name__', 'task')}-{uuid.uuid4().hex[:8]}"   # unique on a shared cluster
+    futures = client.map(func, [ctx] * n, items, retries=retries, pure=False, key=[f"{name}-{k}" for k in range(n)])
+    index = {f.key: k for k, f in enumerate(futures)}
+    try:
+        for d, fut in enumerate(as_completed(futures), 1):
+            out[index[fut.key]] = fut.result()  # re-raises the worker's located error
+            fut.release()
+            if progress is not None:
+                progress(d, n)
+    finally:
+        client.cancel(futures)
+        ctx.release()
+    return out

@@ -17,11 +17,19 @@ orientations (or none), a height surface and a function that yields each photo's
    :func:`_inconsistent_rays`), then the distribution control
    (:mod:`~lidarcat.match.tracks`).
 
-Memory: the keypoint positions of all photos (16 bytes each) stay in memory; descriptors
-are fetched per pair through a small least-recently-used store of ``lru`` photos.  The pairs
-are processed sorted by their first photo, so a strip's photos are fetched about once.
-With ``workers > 1`` the pairs run on a thread pool (OpenCV and numpy release the GIL in
-their inner loops); the result does not depend on the number of workers.
+Parallel work and memory: the photos (features) and then the pairs (guided search and
+verification) are independent tasks, ``task(shared, item)`` with module-level functions, run by
+a *mapper* ``mapper(task, shared, items, progress) -> results in item order``: serially, on
+``workers`` threads (OpenCV and numpy release the GIL in their inner loops), or the caller's
+(:func:`lidarcat.lidar.jobs.map_tasks`: Dask worker processes or a cluster, where *shared* --
+cameras, orientations, surface, options and the ``features`` callable -- is sent once per worker).
+A photo task returns only the keypoint positions (n_i, 2), 16 bytes a keypoint, which stay in
+this process; a pair task fetches its two photos' descriptors through a small least-recently-used
+store of ``lru`` photos per process (``features(i)`` again when the store dropped a photo: the
+stage reads them from its feature cache) and returns only its verified matches.  The tracks are
+built here after all pairs.  So the memory of a worker is bounded by ``lru`` photos' features and
+that of this process by the keypoint positions and the matches, not by the photos' descriptors;
+the result does not depend on the mapper or the number of workers.
 """
 
 from __future__ import annotations
@@ -29,7 +37,6 @@ from __future__ import annotations
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from threading import Lock
 from typing import Any
@@ -44,7 +51,44 @@ from .rays import HeightSurface, MatchError
 from .tracks import Tracks, build_tracks, distribute
 from .verify import ideal_pixels, local_consistency, verify_pair
 
-__all__ = ["MatchOptions", "PairReport", "BlockMatch", "MatchError", "match_block", "extract_features"]
+__all__ = ["MatchOptions", "PairReport", "BlockMatch", "MatchError", "match_block", "extract_features", "TaskMap",
+           "serial_map", "thread_map"]
+
+#: ``mapper(task, shared, items, progress) -> [task(shared, item) for item in items]`` (item order);
+#: *progress* ``(done, total)`` or None
+TaskMap = Callable[[Callable[[Any, Any], Any], Any, Sequence[Any], "Callable[[int, int], None] | None"], list]
+
+
+def serial_map(task: Callable[[Any, Any], Any], shared: Any, items: Sequence[Any],
+               progress: Callable[[int, int], None] | None = None) -> list:
+    """The tasks one after the other in this thread (a :data:`TaskMap`)."""
+    out = []
+    for k, it in enumerate(items):
+        out.append(task(shared, it))
+        if progress:
+            progress(k + 1, len(items))
+    return out
+
+
+def thread_map(workers: int) -> TaskMap:
+    """A :data:`TaskMap` on a pool of *workers* threads (serial for one)."""
+    if workers <= 1:
+        return serial_map
+
+    def run(task: Callable[[Any, Any], Any], shared: Any, items: Sequence[Any],
+            progress: Callable[[int, int], None] | None = None) -> list:
+        from concurrent.futures import ThreadPoolExecutor, as_completed
+
+        out: list[Any] = [None] * len(items)
+        with ThreadPoolExecutor(workers) as pool:
+            futures = {pool.submit(task, shared, it): k for k, it in enumerate(items)}
+            for d, f in enumerate(as_completed(futures), 1):
+                out[futures[f]] = f.result()
+                if progress:
+                    progress(d, len(items))
+        return out
+
+    return run
 
 
 @dataclass(frozen=True)
@@ -136,6 +180,8 @@ class BlockMatch:
     n_ray_inconsistent : int
         Tracks of three rays or more dropped because their rays do not meet within what the
         approximate orientations allow (:func:`_inconsistent_rays`).
+    n_keypoints : tuple of int
+        Keypoints of each photo.
     """
 
     tracks: Tracks
@@ -146,6 +192,7 @@ class BlockMatch:
     seconds: dict[str, float] = field(default_factory=dict)
     unpaired: tuple[int, ...] = ()
     n_ray_inconsistent: int = 0
+    n_keypoints: tuple[int, ...] = ()
 
 
 class _Store:
@@ -179,32 +226,29 @@ class _Store:
                     self.items.popitem(last=False)
         return f
 
+    def __getstate__(self) -> dict[str, Any]:      # to a worker process: the function, an empty store
+        return {"get": self.get, "size": self.size}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["get"], state["size"])
+
+
+def _photo_task(store: _Store, i: int) -> tuple[np.ndarray, int]:
+    """One photo's task: its features (detected or read by ``store``), returned as positions and level."""
+    f = store(i)
+    return np.asarray(f.xy_px, np.float64), int(f.level)
+
 
 def extract_features(n: int, get: Callable[[int], Features], *, workers: int = 1,
-                     progress: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
+                     progress: Callable[[int, int], None] | None = None,
+                     mapper: TaskMap | None = None) -> list[np.ndarray]:
     """Run *get(i)* for every photo (detect or read the cache) and return the keypoint positions.
 
-    Photos run on *workers* threads; only the positions (n_i, 2) are kept in memory.
+    Photos run on *mapper* (default: *workers* threads); only the positions (n_i, 2) are kept.
     """
-    out: list[np.ndarray] = [np.empty((0, 2))] * n
-    done = 0
-
-    def one(i: int) -> tuple[int, np.ndarray]:
-        return i, get(i).xy_px
-
-    if workers > 1:
-        with ThreadPoolExecutor(workers) as pool:
-            for i, xy in pool.map(one, range(n)):
-                out[i] = xy
-                done += 1
-                if progress:
-                    progress(done, n)
-    else:
-        for i in range(n):
-            out[i] = one(i)[1]
-            if progress:
-                progress(i + 1, n)
-    return out
+    store = get if isinstance(get, _Store) else _Store(get, 8)
+    res = (mapper or thread_map(workers))(_photo_task, store, list(range(n)), progress)
+    return [xy for xy, _ in res]
 
 
 def _narrowed(pred: Prediction, fa: Features, fb: Features, ca: Camera, cb: Camera, opt: MatchOptions
@@ -308,6 +352,23 @@ def _inconsistent_rays(tracks: Tracks, xy: np.ndarray, cams: Sequence[Camera], e
     return bad
 
 
+@dataclass(frozen=True, eq=False)
+class _Shared:
+    """What every pair task needs (sent once to each worker process)."""
+
+    cameras: tuple[Camera, ...]
+    eos: tuple[np.ndarray | None, ...]
+    surface: HeightSurface
+    store: _Store
+    options: MatchOptions
+
+
+def _pair_task(shared: _Shared, pair: tuple[int, int, float]) -> tuple[PairReport, Matches]:
+    """One pair's task: guided search and verification of photos ``a, b`` (:func:`_match_pair`)."""
+    a, b, overlap = pair
+    return _match_pair(a, b, overlap, shared.cameras, shared.eos, shared.surface, shared.store, shared.options)
+
+
 def _match_pair(a: int, b: int, overlap: float, cams: Sequence[Camera], eos: Sequence[np.ndarray | None],
                 surface: HeightSurface, store: _Store, opt: MatchOptions) -> tuple[PairReport, Matches]:
     t0 = time.perf_counter()
@@ -340,7 +401,8 @@ def _match_pair(a: int, b: int, overlap: float, cams: Sequence[Camera], eos: Seq
 def match_block(cameras: Sequence[Camera], eos: Sequence[np.ndarray | None], features: Callable[[int], Features],
                 *, surface: HeightSurface | None = None, options: MatchOptions = MatchOptions(),
                 workers: int = 1, lru: int = 8, ids: Sequence[str] | None = None,
-                progress: Callable[[str, int, int], None] | None = None) -> BlockMatch:
+                progress: Callable[[str, int, int], None] | None = None,
+                mapper: TaskMap | None = None) -> BlockMatch:
     """Tie points of a block (module docstring).
 
     Parameters
@@ -351,16 +413,21 @@ def match_block(cameras: Sequence[Camera], eos: Sequence[np.ndarray | None], fea
         Approximate orientation of each photo: X0, Y0, Z0 (m), omega, phi, kappa (rad); None unknown.
     features : callable
         ``features(i) -> Features`` of photo *i* (cached by the caller: it is called again when the
-        LRU dropped a photo).
+        LRU dropped a photo, and in every worker process that matches a pair of photo *i*;
+        picklable for a process mapper).
     surface : HeightSurface or None
         Height model of the footprints and the guided search; needed when the photos have orientations.
     options : MatchOptions
     workers : int
-        Threads for the features and the pairs.
+        Threads for the features and the pairs (when no *mapper* is given).
+    lru : int
+        Photos' features kept in memory per process.
     ids : sequence of str, optional
         Photo ids for messages.
     progress : callable, optional
         ``progress(step, done, total)`` with step ``features``, ``pairs``.
+    mapper : TaskMap, optional
+        Runs the photo and pair tasks (module docstring); default :func:`thread_map` of *workers*.
 
     Raises
     ------
@@ -388,32 +455,19 @@ def match_block(cameras: Sequence[Camera], eos: Sequence[np.ndarray | None], fea
         raise MatchError(f"no two of the {n} photos overlap by {options.min_overlap:.0%} or more "
                          f"(approximate footprints on the surface); nothing to match")
     t0 = time.perf_counter()
+    mapper = mapper or thread_map(workers)
     store = _Store(features, lru)
-    xy_all = extract_features(n, store, workers=workers,
-                              progress=(lambda d, t: progress("features", d, t)) if progress else None)
+    photo_res = mapper(_photo_task, store, list(range(n)),
+                       (lambda d, t: progress("features", d, t)) if progress else None)
+    xy_all = [xy for xy, _ in photo_res]
+    levels = np.array([lv for _, lv in photo_res], dtype=np.int64)
     seconds["features"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    reports: list[PairReport | None] = [None] * len(pairs)
-    kept: list[Matches | None] = [None] * len(pairs)
-
-    def run(k: int) -> tuple[int, PairReport, Matches]:
-        a, b = int(pairs[k, 0]), int(pairs[k, 1])
-        r, m = _match_pair(a, b, float(overlap[k]), cameras, eos, surface or HeightSurface(0.0), store, options)
-        return k, r, m
-
-    done = 0
-    if workers > 1:
-        with ThreadPoolExecutor(workers) as pool:
-            for k, r, m in pool.map(run, range(len(pairs))):
-                reports[k], kept[k] = r, m
-                done += 1
-                if progress:
-                    progress("pairs", done, len(pairs))
-    else:
-        for k in range(len(pairs)):
-            _, reports[k], kept[k] = run(k)
-            if progress:
-                progress("pairs", k + 1, len(pairs))
+    shared = _Shared(tuple(cameras), tuple(eos), surface or HeightSurface(0.0), store, options)
+    items = [(int(pairs[k, 0]), int(pairs[k, 1]), float(overlap[k])) for k in range(len(pairs))]
+    pair_res = mapper(_pair_task, shared, items, (lambda d, t: progress("pairs", d, t)) if progress else None)
+    reports: list[PairReport] = [r for r, _ in pair_res]
+    kept: list[Matches] = [m for _, m in pair_res]
     seconds["matching"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     pair_reports = tuple(r for r in reports if r is not None)
@@ -443,7 +497,6 @@ def match_block(cameras: Sequence[Camera], eos: Sequence[np.ndarray | None], fea
         xy[rows] = xy_all[p][tracks.keypoint[rows]]
     n_rays_dropped = 0
     if oriented and options.guided:
-        levels = np.array([store.levels.get(i, 0) for i in range(n)])
         inconsistent = _inconsistent_rays(tracks, xy, cameras, eos, levels, options)
         n_rays_dropped = int(inconsistent.sum())
         keep &= ~inconsistent
@@ -456,4 +509,5 @@ def match_block(cameras: Sequence[Camera], eos: Sequence[np.ndarray | None], fea
         final = Tracks(final.track, final.photo, final.keypoint, final.n_inconsistent + n_rays_dropped)
     seconds["tracks"] = time.perf_counter() - t0
     unpaired = tuple(int(i) for i in np.setdiff1d(np.arange(n), pairs.ravel()))
-    return BlockMatch(final, xy[rows], score[keep], pair_reports, n_before, seconds, unpaired, n_rays_dropped)
+    return BlockMatch(final, xy[rows], score[keep], pair_reports, n_before, seconds, unpaired, n_rays_dropped,
+                      tuple(len(x) for x in xy_all))

@@ -7,6 +7,12 @@ edited image or other detection options miss the cache.  A damaged entry is dete
 Each entry is written atomically (``_util.atomic_write``).  The engine
 (:func:`lidarcat.match.detect`) takes an array and returns :class:`~lidarcat.match.Features`;
 only this stage-side helper touches files.
+
+:class:`PhotoFeatures` is the ``features(i)`` callable the stage gives
+:func:`lidarcat.match.match_block`: the cache and, per photo, its id, image file, size and the
+location of its photos.csv row for errors -- no survey object, so it pickles small and a Dask worker
+process reads or detects a photo's features from the same folder (on a cluster, a folder every
+worker sees).
 """
 
 from __future__ import annotations
@@ -14,15 +20,17 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .._util import atomic_write
 from ..match.features import FeatureOptions, Features, detect
 
-__all__ = ["FeatureCache"]
+__all__ = ["FeatureCache", "PhotoImage", "PhotoFeatures", "load_photo_image"]
 
 
 class FeatureCache:
@@ -53,6 +61,12 @@ class FeatureCache:
             self._finalizer = weakref.finalize(self, shutil.rmtree, folder, True)
         self.folder = Path(folder)
         self.options = options
+
+    def __getstate__(self) -> dict[str, Any]:   # to a worker process: the folder, not its removal
+        return {"folder": self.folder, "options": self.options}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.folder, self.options = state["folder"], state["options"]
 
     def close(self) -> None:
         """Remove the temporary folder of a cache made with ``folder=None`` (no-op otherwise)."""
@@ -86,3 +100,41 @@ class FeatureCache:
                 np.savez(fh, xy_px=feats.xy_px, descriptors=feats.descriptors, response=feats.response,
                          size_px=feats.size_px, level=np.int64(feats.level))
         return feats
+
+
+@dataclass(frozen=True)
+class PhotoImage:
+    """A photo's image file and what it must be: ``columns_px x rows_px``; *where* locates its row."""
+
+    photo_id: str
+    path: Path
+    columns_px: int
+    rows_px: int
+    camera_id: str
+    where: str
+
+
+def load_photo_image(p: PhotoImage, error: Callable[[str], Exception]) -> np.ndarray:
+    """The photo's image, decoded; ``error("<where>: photo 'ID': ...")`` for a file that cannot be
+    decoded or has another size than its camera."""
+    from ..match import read_image
+
+    img = read_image(p.path, lambda msg: error(f"{p.where}: photo {p.photo_id!r}: {msg}"))
+    if img.shape[:2] != (p.rows_px, p.columns_px):
+        raise error(f"{p.where}: photo {p.photo_id!r}: image {p.path} is {img.shape[1]} x {img.shape[0]} px but "
+                    f"camera {p.camera_id!r} is {p.columns_px} x {p.rows_px} px")
+    return img
+
+
+class PhotoFeatures:
+    """``features(i)``: the cached features of photo *i* of *photos* (module docstring); picklable.
+
+    *error* builds the exception of an unreadable image (a module-level class, e.g. SurveyError).
+    """
+
+    def __init__(self, cache: FeatureCache, photos: Sequence[PhotoImage], error: Callable[[str], Exception]):
+        self.cache, self.photos, self.error = cache, tuple(photos), error
+
+    def __call__(self, i: int) -> Features:
+        p = self.photos[i]
+        return self.cache.get(p.photo_id, p.path, lambda: load_photo_image(p, self.error))

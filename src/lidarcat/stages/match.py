@@ -38,7 +38,8 @@ from .._util import provenance, write_csv_atomic, write_json_atomic
 from ..errors import SurveyError, location
 from .context import StageContext as Context
 
-__all__ = ["match", "run", "MatchResult", "planned", "default_options", "image_files", "survey_with", "MIN_TIE_POINTS_PER_PHOTO", "DEFAULT_PREFIX"]
+__all__ = ["match", "run", "MatchResult", "planned", "default_options", "image_files", "survey_with", "task_mapper",
+           "MIN_TIE_POINTS_PER_PHOTO", "DEFAULT_PREFIX"]
 
 log = logging.getLogger(__name__)
 
@@ -177,18 +178,38 @@ def _surface(survey: Any, eos: list[np.ndarray | None], height_m: float | None, 
     return HeightSurface(mean, sd_m=sd), source
 
 
+def _photo_image(survey: Any, photo: Any) -> Any:
+    """What the feature cache needs to read *photo*'s image and check it (:class:`PhotoImage`)."""
+    from ._feature_cache import PhotoImage
+
+    cam = survey.camera_of(photo.id)
+    where = location(survey.files.get("photos", survey.toml_path), photo.line, "image")
+    return PhotoImage(photo.id, Path(survey.image_path(photo.id)), int(cam.columns_px), int(cam.rows_px),
+                      str(cam.id), where)
+
+
 def _load_image(survey: Any, photo: Any) -> np.ndarray:
     """The photo's image, decoded; a located SurveyError for a file that cannot be decoded or has another size."""
-    from ..match import read_image
+    from ._feature_cache import load_photo_image
 
-    path = survey.image_path(photo.id)
-    where = location(survey.files.get("photos", survey.toml_path), photo.line, "image")
-    img = read_image(path, lambda msg: SurveyError(f"{where}: photo {photo.id!r}: {msg}"))
-    cam = survey.camera_of(photo.id)
-    if img.shape[:2] != (cam.rows_px, cam.columns_px):
-        raise SurveyError(f"{where}: photo {photo.id!r}: image {path} is {img.shape[1]} x {img.shape[0]} px but "
-                          f"camera {cam.id!r} is {cam.columns_px} x {cam.rows_px} px")
-    return img
+    return load_photo_image(_photo_image(survey, photo), SurveyError)
+
+
+def task_mapper(workers: int = 1, scheduler: str | None = None, client: Any = None) -> Any:
+    """The engine's task mapper (:data:`lidarcat.match.TaskMap`) on the runner of :mod:`lidarcat.lidar.jobs`.
+
+    *scheduler*: ``threads`` (default; *workers* threads), ``synchronous``, ``processes`` (a local
+    Dask cluster of *workers* processes) or the address of a running Dask scheduler; *client* one
+    :func:`lidarcat.lidar.jobs.dask_client` for all calls.
+    """
+    from ..lidar.jobs import map_tasks
+
+    sched = scheduler or "threads"
+
+    def mapper(task: Any, shared: Any, items: Any, progress: Any = None) -> list:
+        return map_tasks(task, shared, items, workers=workers, scheduler=sched, client=client, progress=progress)
+
+    return mapper
 
 
 def _table(survey: Any, new_photo: np.ndarray, new_point: np.ndarray, new_px: np.ndarray, prefix: str,
@@ -252,7 +273,8 @@ def _coverage(xy: np.ndarray, cols: int, rows: int, grid: tuple[int, int]) -> fl
 
 
 def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = None, features: Any = None,
-          workers: int = 1, height_m: float | None = None, prefix: str = DEFAULT_PREFIX, cache: bool = True,
+          workers: int = 1, scheduler: str | None = None, height_m: float | None = None,
+          prefix: str = DEFAULT_PREFIX, cache: bool = True,
           table: str | Path | None = None, refine: bool = True, dem: str | Path | None = None,
           height_sd_m: float | None = None,
           progress: Callable[[str, int, int], None] | None = None) -> MatchResult:
@@ -268,7 +290,12 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
         sds of photos.csv when it gives them.
     features : lidarcat.match.FeatureOptions or None
     workers : int
-        Threads for the photos and the pairs.
+        Threads (or worker processes) for the photos and the pairs.
+    scheduler : str or None
+        ``threads`` (default), ``synchronous``, ``processes`` (a local Dask cluster of *workers*
+        single-threaded processes) or the address of a running Dask scheduler (``tcp://host:8786``;
+        every worker must see the survey's images and *outdir*): :func:`lidarcat.lidar.jobs.map_tasks`.
+        The tie points do not depend on it.
     height_m : float or None
         Mean ground height, m, when the survey has no LiDAR tiles (default: mean of the ground points).
     dem : path or None
@@ -300,7 +327,7 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     import dataclasses
 
     from ..match import FeatureOptions, match_block
-    from ._feature_cache import FeatureCache
+    from ._feature_cache import FeatureCache, PhotoFeatures
     from ..survey.folder import Survey
 
     t_all = time.perf_counter()
@@ -318,12 +345,17 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
     surface, surface_source = _surface(survey, eos, height_m, dem, height_sd_m)
     store = FeatureCache(out / "features" if cache else None, features, spill_in=out)
     cams = [survey.camera_of(p.id) for p in photos]
+    feats = PhotoFeatures(store, [_photo_image(survey, p) for p in photos], SurveyError)
+    sched = scheduler or "threads"
+    from ..lidar.jobs import dask_client
 
-    def feats(i: int) -> Any:
-        return store.get(photos[i].id, paths[i], lambda: _load_image(survey, photos[i]))
-
-    res = match_block(cams, eos, feats, surface=surface, options=options, workers=workers,
-                      ids=[p.id for p in photos], progress=progress)
+    try:
+        with dask_client(workers, sched) as client:
+            res = match_block(cams, eos, feats, surface=surface, options=options, workers=workers,
+                              ids=[p.id for p in photos], progress=progress,
+                              mapper=task_mapper(workers, sched, client))
+    finally:
+        store.close()       # the spilled features of --no-cache (a kept cache stays)
     tr = res.tracks
     xy_obs = res.xy_px
     n_refined = 0
@@ -355,8 +387,7 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
 
     # the report
     per_photo = []
-    n_kp = [len(store.get(p.id, paths[i], lambda i=i: _load_image(survey, photos[i])).xy_px)
-            if cache else None for i, p in enumerate(photos)]
+    n_kp = list(res.n_keypoints)
     for i, p in enumerate(photos):
         sel = tr.photo == i
         per_photo.append({"photo": p.id, "keypoints": n_kp[i], "tie_points": int(len(np.unique(tr.track[sel]))),
@@ -384,7 +415,7 @@ def match(survey_dir: Any, outdir: str | Path | None = None, *, options: Any = N
         "replaced_rows": replaced, "prefix": prefix, "surface": surface_source,
         "pairing": "footprints" if all(e is not None for e in eos) else "exhaustive",
         "options": dataclasses.asdict(options), "features": dataclasses.asdict(features),
-        "workers": int(workers), "refine": bool(refine), "seconds": seconds,
+        "workers": int(workers), "scheduler": sched, "refine": bool(refine), "seconds": seconds,
         "per_photo": per_photo,
         "image_points": str(survey.files.get("image_points", survey.root / "image_points.csv")),
     }
