@@ -8,7 +8,7 @@
 ``verify``         robust fundamental matrix (MAGSAC++) on distortion-free pixels, inliers in px
 ``tracks``         union-find tracks (inconsistent ones dropped), Von Gruber-like distribution per photo
 ``refine``         sub-pixel refinement of the observations: correlation peak against the track's first observation
-``block``          the whole chain on a block (:func:`match_block`), threads for photos and pairs
+``block``          the whole chain on a block (:func:`match_block`), photos and pairs as tasks (threads, or Dask through ``lidar.jobs.map_tasks``)
 =================  =========================================================
 
 The engine knows no survey folder: :mod:`lidarcat.stages.match` reads the survey, the images
