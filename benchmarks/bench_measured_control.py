@@ -139,9 +139,10 @@ def score(s: Any, truth_points: Path, adjust_dir: Path, assess_dir: Path | None 
            "line_observations": (summ.get("line_control") or {}).get("observations", 0),
            "lidar_observations": sum(1 for r in _rows(adjust_dir / "residuals.csv")
                                      if r.get("kind") == "image" and r["point"].startswith("C"))}
-    if assess_dir is not None and (assess_dir / "summary.json").is_file():
-        a = json.loads((assess_dir / "summary.json").read_text())
-        out["pec"] = a.get("pec") or a.get("pec_class") or {k: a[k] for k in a if "pec" in k.lower()}
+    if assess_dir is not None and (assess_dir / "assessment.json").is_file():
+        pec = json.loads((assess_dir / "assessment.json").read_text())["standards"]["pec"]
+        out["pec"] = {"planimetric": pec["class"]["planimetric"], "altimetric": pec["class"]["altimetric"],
+                      "label": pec.get("label", "")}
     return out
 
 
