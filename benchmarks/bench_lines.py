@@ -186,7 +186,8 @@ def measured(seeds: list[int], size: tuple[int, int], keep=None) -> None:
         lz = np.concatenate(a["lz"]) if a["lz"] else np.zeros(0)
         print(f"{name:56s} {np.sqrt(np.mean(dd[:, :3] ** 2)):6.3f} {np.sqrt(np.mean(dd[:, 3:] ** 2)):7.4f} "
               f"{np.sqrt(np.mean(z**2)):6.2f} {np.abs(z).max():6.2f} {sum(a['n']):5d} "
-              f"{np.median(ld) if len(ld) else float('nan'):7.2f} {np.sqrt(np.mean(lz**2)) if len(lz) else float('nan'):6.2f}")
+              f"{np.median(ld) if len(ld) else float('nan'):7.2f} "
+              f"{np.sqrt(np.mean(lz**2)) if len(lz) else float('nan'):6.2f}")
     print(f"# seeds {seeds}, load {load0:.1f} -> {os.getloadavg()[0]:.1f}; folders in {base}")
 
 

@@ -129,8 +129,8 @@ def score(s: Any, truth_points: Path, adjust_dir: Path, assess_dir: Path | None 
     d[:, 3:] = (d[:, 3:] + 180.0) % 360.0 - 180.0
     z = d / sd
     tp = {r["point"]: np.array([float(r[c]) for c in ("E", "N", "h")]) for r in _rows(truth_points)}
-    e = np.array([[float(r["E"]), float(r["N"]), float(r["h"])] - tp[r["point"]]
-                  for r in _rows(adjust_dir / "points.csv") if r["role"] == "check" and r["point"] in tp]).reshape(-1, 3)
+    chk = [r for r in _rows(adjust_dir / "points.csv") if r["role"] == "check" and r["point"] in tp]
+    e = np.array([[float(r["E"]), float(r["N"]), float(r["h"])] - tp[r["point"]] for r in chk]).reshape(-1, 3)
     summ = json.loads((adjust_dir / "summary.json").read_text())
     out = {"pos_rms_m": float(np.sqrt(np.mean(d[:, :3] ** 2))), "att_rms_deg": float(np.sqrt(np.mean(d[:, 3:] ** 2))),
            "max_z": float(np.abs(z).max()), "rms_z": float(np.sqrt(np.mean(z**2))),

@@ -96,7 +96,8 @@ class MeasureControlResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {"image_points": str(self.image_points), "outdir": str(self.outdir), "counts": self.counts,
-                "accepted": self.accepted, "line_control": None if self.line_control is None else str(self.line_control),
+                "accepted": self.accepted,
+                "line_control": None if self.line_control is None else str(self.line_control),
                 "line_observations": self.lines_written}
 
 

@@ -42,8 +42,8 @@ from .._util.tables import parse_float, read_csv_table
 from ..bundle.lines import ControlLine, LineObservation
 from ..errors import DatumError, SurveyError, location
 
-__all__ = ["LINE_COLUMNS", "LINE_EXTRA_COLUMNS", "LINE_RESIDUAL_COLUMNS", "photo_cameras", "read_line_control", "write_line_residuals",
-           "cov6_cell"]
+__all__ = ["LINE_COLUMNS", "LINE_EXTRA_COLUMNS", "LINE_RESIDUAL_COLUMNS", "photo_cameras", "read_line_control",
+           "write_line_residuals", "cov6_cell"]
 
 #: columns of ``line_control.csv``
 LINE_COLUMNS = ("line", "photo", "e1_m", "n1_m", "h1_m", "e2_m", "n2_m", "h2_m", "sd_across_m", "sd_along_m",
