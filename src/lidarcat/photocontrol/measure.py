@@ -117,7 +117,8 @@ class EdgeLine:
     along it; *not* the direction-observed fit the vertex uses, which leans on the approximate
     orientation) has the offset variance :math:`v(t) = C_{aa} + 2 C_{ab} t + C_{bb} t^2 +
     \sigma_\ell^2 + \sigma_\theta^2 t^2` (``line_sd_px`` and ``line_direction_sd_deg`` the floors
-    of what the fit cannot see).  Its minimum :math:`v_0` lies at :math:`t^* = -C_{ab}/C_{bb}'`;
+    of what the fit cannot see; :math:`C'` the covariance with them added).  Its minimum
+    :math:`v_0` lies at :math:`t^* = -C_{ab}/C_{bb}'`;
     two independent points at :math:`t^* \pm h` with sd :math:`s_p` across give
     :math:`s_p^2 (1/2 + (t - t^*)^2 / 2h^2)`: the same for every *t* when :math:`s_p^2 = 2 v_0`,
     :math:`h^2 = v_0 / C_{bb}'` (:func:`lidarcat.bundle.lines.observation_from_edge_points` is the
