@@ -3,6 +3,7 @@
 Usage::
 
     PYTHONPATH=src python benchmarks/bench_lines.py [--seeds 20]
+    PYTHONPATH=src python benchmarks/bench_lines.py --measured [--seeds 2] [--size 1000 750] [--keep DIR]
 
 On :func:`lidarcat.synthetic.lines.line_block` (2 strips x 6 photos, f = 50 mm, 1000 m, image sd
 5 um, 12 roof lines seen on 2-3 photos each, GNSS 2 m / IMU 0.5 deg as weak constraints) prints per
@@ -11,6 +12,18 @@ of the tie points (plan, height, m), the sd of the normalised orientation errors
 3 sd, and the mean of the line tests' chi2(2) statistic; then the data-snooping hit rate of one line
 observation moved 3 px (18 um) across its edge.  The tests (tests/bundle/test_line_control.py)
 assert the same quantities on fewer seeds.
+
+``--measured``: the lines *measured automatically* in rendered photos (``lidarcat measure-control``)
+instead of simulated observations.  Per seed the block of ``benchmarks/bench_measured_control.py``
+(two strips of three photos, 0.1 m GSD, GNSS/IMU 2 m / 0.5 deg, the LiDAR vertices from ``lidarcat
+extract --find``), ``lidarcat match``, then three variants of ``measure-control`` into copies of the
+survey, each adjusted with ``lidarcat adjust --control lidar --eo-constraints --snooping remove``:
+``--lines none`` (the vertices as points only), ``--lines add`` (plus the roof edges of the photos
+where a vertex's point was not measured: the block's roofs give few usable corners) and ``--lines
+only`` (every photo's edges as lines, no point).  Printed per variant, pooled over the seeds: the
+orientation's rms errors (position m, attitude deg) against truth, the sd and max of the normalised
+errors, the line observations written and their errors against the true projection of the LiDAR
+line (median px across, rms of the normalised error: honest near 1).
 """
 
 from __future__ import annotations
@@ -90,5 +103,104 @@ def main() -> None:
     print(f"{time.perf_counter() - t0:.1f} s")
 
 
+def _line_errors(s, root) -> tuple[np.ndarray, np.ndarray]:
+    """Per written line observation of *root*/line_control.csv: the true projections of its 3-D end points'
+    distances from the measured image line (px) and over their sds (normalised)."""
+    import csv
+
+    with open(root / "line_control.csv", newline="") as fh:
+        rows = list(csv.DictReader(ln for ln in fh if not ln.startswith("#")))
+    lines = {r["line"]: np.array([[float(r[c]) for c in ("e1_m", "n1_m", "h1_m")],
+                                  [float(r[c]) for c in ("e2_m", "n2_m", "h2_m")]]) for r in rows if not r["photo"]}
+    dist, z = [], []
+    for r in rows:
+        if not r["photo"]:
+            continue
+        p1 = np.array([float(r["col1_px"]), float(r["row1_px"])])
+        p2 = np.array([float(r["col2_px"]), float(r["row2_px"])])
+        sd = float(r["sd_px"])
+        t = (p2 - p1) / np.linalg.norm(p2 - p1)
+        n = np.array([-t[1], t[0]])
+        for x in s.project(r["photo"], lines[r["line"]]):
+            sa = float((x - p1) @ t) / float(np.linalg.norm(p2 - p1))
+            d = float((x - p1) @ n)
+            dist.append(d)
+            z.append(d / (sd * np.sqrt((1 - sa) ** 2 + sa**2)))
+    return np.array(dist), np.array(z)
+
+
+def measured(seeds: list[int], size: tuple[int, int], keep=None) -> None:
+    """The ``--measured`` rows (module docstring)."""
+    import json
+    import os
+    import shutil
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_measured_control as mc
+
+    base = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="bench_lines_measured_"))
+    load0 = os.getloadavg()[0]
+    variants = {"points (vertices measured), no lines": "none",
+                "+ roof edges where the vertex's point was not measured": "add",
+                "roof edges instead of points": "only"}
+    acc: dict[str, dict[str, list]] = {v: {"d": [], "z": [], "ld": [], "lz": [], "n": []} for v in variants}
+    for seed in seeds:
+        d = base / f"seed{seed}"
+        shutil.rmtree(d, ignore_errors=True)
+        s, _ = mc.build(d / "survey", seed, size)
+        r = mc._cli("match", str(d / "survey"), "-o", str(d / "match"))
+        assert r.returncode == 0, r.stderr[-2000:]
+        for name, mode in variants.items():
+            root = d / f"survey-{mode}"
+            shutil.copytree(d / "survey", root)
+            r = mc._cli("measure-control", str(root), "--lines", mode, "--no-gallery", "-o", str(d / f"mc-{mode}"))
+            assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+            r = mc._cli("adjust", str(root), "--control", "lidar", "--eo-constraints", "--snooping", "remove",
+                        "-o", str(d / f"adjust-{mode}"))
+            assert r.returncode in (0, 3), r.stdout[-2000:] + r.stderr[-2000:]
+            sc = mc.score(s, root / "truth" / "points.csv", d / f"adjust-{mode}")
+            eop = {q["photo"]: q for q in mc._rows(d / f"adjust-{mode}" / "eop.csv")}
+            truth = np.asarray(s.true_eo, float).copy()
+            truth[:, 3:] = np.degrees(truth[:, 3:])
+            est = np.array([[float(eop[p][c]) for c in mc.EO_NAMES] for p in s.photo_ids])
+            sd = np.array([[float(eop[p]["sd_" + c]) for c in mc.EO_NAMES] for p in s.photo_ids])
+            dd = est - truth
+            dd[:, 3:] = (dd[:, 3:] + 180.0) % 360.0 - 180.0
+            acc[name]["d"].append(dd)
+            acc[name]["z"].append((dd / sd).ravel())
+            acc[name]["n"].append(sc["line_observations"])
+            if (root / "line_control.csv").is_file():
+                ld, lz = _line_errors(s, root)
+                acc[name]["ld"].append(ld)
+                acc[name]["lz"].append(lz)
+            print(json.dumps({"seed": seed, "variant": mode, **sc}, default=float), flush=True)
+    print(f"{'variant':56s} {'pos m':>6s} {'att deg':>7s} {'rms z':>6s} {'max|z|':>6s} {'lines':>5s} "
+          f"{'line px':>7s} {'line z':>6s}")
+    for name, a in acc.items():
+        dd = np.concatenate(a["d"])
+        z = np.concatenate(a["z"])
+        ld = np.abs(np.concatenate(a["ld"])) if a["ld"] else np.zeros(0)
+        lz = np.concatenate(a["lz"]) if a["lz"] else np.zeros(0)
+        print(f"{name:56s} {np.sqrt(np.mean(dd[:, :3] ** 2)):6.3f} {np.sqrt(np.mean(dd[:, 3:] ** 2)):7.4f} "
+              f"{np.sqrt(np.mean(z**2)):6.2f} {np.abs(z).max():6.2f} {sum(a['n']):5d} "
+              f"{np.median(ld) if len(ld) else float('nan'):7.2f} "
+              f"{np.sqrt(np.mean(lz**2)) if len(lz) else float('nan'):6.2f}")
+    print(f"# seeds {seeds}, load {load0:.1f} -> {os.getloadavg()[0]:.1f}; folders in {base}")
+
+
 if __name__ == "__main__":
-    main()
+    import sys as _sys
+
+    if "--measured" in _sys.argv:
+        _ap = argparse.ArgumentParser()
+        _ap.add_argument("--measured", action="store_true")
+        _ap.add_argument("--seeds", default="1")
+        _ap.add_argument("--size", nargs=2, type=int, default=(1000, 750))
+        _ap.add_argument("--keep", default=None)
+        _a = _ap.parse_args()
+        measured([int(x) for x in str(_a.seeds).split(",")], tuple(_a.size), _a.keep)
+    else:
+        main()

@@ -51,7 +51,21 @@ def test_measure_control_writes_observations_decisions_and_gallery(survey):
     per_point = {}
     for r in acc:
         per_point[r["point"]] = per_point.get(r["point"], 0) + 1
-    assert min(per_point.values()) >= 2                         # a vertex on one photo only: rejected
+    # a vertex accepted on one photo is kept (good control; a set where it is not control leaves it out)
+    assert all(per_point[v] == sum(r["point"] == v and r["decision"] == "accept" for r in dec) for v in per_point)
+    # the roof edges: one row per edge and photo tried, every written one in line_control.csv, every other with
+    # its reason; survey.toml names the file; no edge both in a point and as a line on one photo
+    ldec = _rows(folder / "line_decisions.csv")
+    assert ldec and all(r["reason"] for r in ldec if r["status"] != "written")
+    assert not any(r["status"] == "written" and (r["photo"], r["point"]) in {(a["photo"], a["point"]) for a in acc}
+                   for r in ldec)
+    written = {(r["line"], r["photo"]) for r in ldec if r["status"] == "written"}
+    assert len(written) == out["line_observations"]
+    if written:
+        lc = _rows(root / "line_control.csv")
+        assert {(r["line"], r["photo"]) for r in lc if r["photo"]} == written
+        assert all(r["cov_m2"] and r["point"] for r in lc if not r["photo"])
+        assert Survey.load(root).files["line_control"] == root / "line_control.csv"
     for r in acc:   # against the true vertex's true projection
         d = np.array([float(r["col_px"]), float(r["row_px"])]) - s.project(r["photo"], truth[r["point"]][None])[0]
         assert np.hypot(*d) < 3.0, (r, d)

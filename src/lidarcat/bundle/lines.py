@@ -74,9 +74,10 @@ as ``w = sqrt(T)`` against the B-method critical value of :mod:`lidarcat.bundle.
 re-adjusts, and repeats (Baarda's data snooping over the line group).
 
 Limits: photos of the plain collinearity (a problem with ``rays`` (rolling shutter, rigs) and
-lines is rejected by :class:`~lidarcat.bundle.problem.BundleProblem`).  Lines do not fix a
-datum in :func:`~lidarcat.bundle.problem.check_datum`: a lines-only block needs GNSS/INS
-constraints (weak ones suffice: the lines then carry the accuracy), or ``check=False``.
+lines is rejected by :class:`~lidarcat.bundle.problem.BundleProblem`).  In
+:func:`~lidarcat.bundle.problem.check_datum` a part of the block with control lines in two
+directions or more counts them as control when the lines and control points number 3 or more (a
+line fixes 4 of the 7 datum parameters; two lines of one roof corner leave the scale about it).
 """
 
 from __future__ import annotations

@@ -378,6 +378,26 @@ def _eo_datum_defect(p: BundleProblem, photos: np.ndarray) -> str | None:
     return None
 
 
+def _line_points(p: BundleProblem, photos: np.ndarray) -> np.ndarray:
+    """(2k, 3) end points of the k control lines observed on *photos*, when they fix a datum with the
+    control points: lines in >= 2 directions (one direction leaves the turn about it), whose end
+    points are not on one line; else (0, 3).  A line fixes 4 of the 7 datum parameters (the shifts
+    across it, the turns about the axes across it); so lines count as control here when the lines
+    plus control points number 3 or more (the caller's test), two lines of a corner alone do not
+    fix the scale about it."""
+    L = p.lines
+    if L is None or not len(L.photo_index):
+        return np.zeros((0, 3))
+    k = np.unique(L.line_index[np.isin(L.photo_index, photos)])
+    if len(k) == 0:
+        return np.zeros((0, 3))
+    d = L.b_m[k] - L.a_m[k]
+    d = d / np.linalg.norm(d, axis=1)[:, None]
+    if np.max(np.linalg.norm(np.cross(d[0], d), axis=1)) < 0.1:       # all parallel (< 6 deg)
+        return np.zeros((0, 3))
+    return np.concatenate([L.a_m[k], L.b_m[k]])
+
+
 def check_datum(problem: BundleProblem) -> None:
     """Detect what makes the normal equations singular, before solving.
 
@@ -447,6 +467,9 @@ def check_datum(problem: BundleProblem) -> None:
         in_c = np.zeros(n_pt, dtype=bool)                  # points seen from this part (a mask: linear)
         in_c[p.point_index[comp[p.photo_index] == c]] = True
         ctrl_c = np.unique(ctrl_idx[in_c[ctrl_idx]])
+        lpts = _line_points(p, photos_c)   # control lines observed in this part: their end points count (E, N, h)
+        if len(lpts) and len(ctrl_c) + len(lpts) // 2 >= 3:
+            continue
         if len(ctrl_c) == 0 and has_eo and np.isin(p.eo_constraint_photo_index, photos_c).any():
             raise DatumError(f"{where} has no control points and its GNSS/INS constraints leave {eo_defect}; "
                              "constrain the attitudes too (sd_omega_deg, sd_phi_deg, sd_kappa_deg in photos.csv), "

@@ -23,7 +23,9 @@ SURVEY/out/measure_control) gets decisions.csv (one row per vertex and photo, wi
 reason and an editable decision accept/reject), gallery_NN.png (chips: prediction ellipse
 yellow, edges green, measurement red) and measure_control.json; the accepted observations
 go into image_points.csv last (pixels with their sds). Edit decisions.csv and pass it with
---decisions to write exactly the accepted rows.
+--decisions to write exactly the accepted rows. Roof edges fitted in the photos go to
+line_control.csv as line control (--lines; line_decisions.csv says per edge and photo why
+one was not written); survey.toml gets [files] line_control when it has none.
 \b
 Exit status: 0 done, 2 bad input (no LiDAR vertex, no tiles, no orientation, a bad
 decisions file); nothing is written to image_points.csv then.
@@ -38,6 +40,9 @@ decisions file); nothing is written to image_points.csv then.
               help="An edited decisions.csv: write its accepted rows, measure nothing.")
 @click.option("--replace", is_flag=True, help="Measure again (and replace) vertex/photo pairs already observed.")
 @click.option("--no-gallery", is_flag=True, help="Do not write the PNG chips.")
+@click.option("--lines", "lines", type=click.Choice(["add", "only", "none"]), default="add", show_default=True,
+              help="Roof edges as line control (line_control.csv): add = the edges of photos where the vertex's "
+                   "point was not measured; only = every photo's edges, no points; none.")
 @click.option("--search-sigma", type=POSITIVE, default=3.5, show_default=True,
               help="Search the vertex within this many sigmas of its predicted ellipse.")
 @click.option("--max-shift", "max_shift_m", type=POSITIVE, default=0.5, show_default=True,
@@ -45,7 +50,7 @@ decisions file); nothing is written to image_points.csv then.
 @output_option(outdir=True, type=click.Path(file_okay=False),
                help="Report folder (default SURVEY/out/measure_control).")
 @json_option(help="Print the counts as JSON.")
-def measure_control(survey, points, decisions, replace, no_gallery, search_sigma, max_shift_m, outdir,
+def measure_control(survey, points, decisions, replace, no_gallery, lines, search_sigma, max_shift_m, outdir,
                     as_json) -> None:
     """LiDAR roof vertices found and measured in the photos, into image_points.csv."""
     from ..photocontrol import MeasureParams
@@ -59,10 +64,13 @@ def measure_control(survey, points, decisions, replace, no_gallery, search_sigma
                 bar.update(done - bar.pos)
 
         res = action(survey, outdir, points=ids, decisions=decisions, replace=replace, gallery=not no_gallery,
-                     params=MeasureParams(search_sigma=search_sigma), max_shift_m=max_shift_m, progress=progress)
+                     params=MeasureParams(search_sigma=search_sigma), max_shift_m=max_shift_m, lines=lines,
+                     progress=progress)
     if as_json:
         echo_json({**res.to_dict(), "summary": res.summary})
         return
     counts = ", ".join(f"{v} {k}" for k, v in sorted(res.counts.items()))
     click.echo(f"{res.accepted} control observations accepted ({counts})")
     click.echo(f"-> {res.image_points}; decisions and gallery in {res.outdir}")
+    if res.line_control is not None:
+        click.echo(f"{res.lines_written} roof-edge line observations -> {res.line_control}")

@@ -2,9 +2,10 @@
 
 ============  ============================================================
 ``predict``   Predicted pixel of a vertex (and its roof edges) with the ellipse propagated from the orientation's
-              and the vertex's covariance; visibility from the LiDAR DSM.
+              and the vertex's covariance; visibility from the LiDAR DSM; a roof edge as a control line (end
+              points and covariance from the two plane fits).
 ``measure``   The vertex in the image: a face template for the shift, roof-edge lines for the pixel, their
-              intersection with its covariance; the multi-photo consistency test.
+              intersection with its covariance; the fitted edges as line observations; the multi-photo test.
 ``review``    Image chips with the predicted ellipse and the measured point and lines, and a gallery of them.
 ============  ============================================================
 """
@@ -15,6 +16,7 @@ from .predict import (  # noqa: F401
     Prediction,
     RoofEdge,
     VISIBILITY,
+    edge_line_m,
     ellipse_axes,
     face_labels,
     occluded,
@@ -25,6 +27,7 @@ from .predict import (  # noqa: F401
     roof_edges,
 )
 from .measure import (  # noqa: F401
+    EdgeLine,
     Measurement,
     MeasureParams,
     STATUSES,
@@ -40,6 +43,7 @@ __all__ = [
     "Prediction",
     "RoofEdge",
     "VISIBILITY",
+    "edge_line_m",
     "ellipse_axes",
     "face_labels",
     "occluded",
@@ -48,6 +52,7 @@ __all__ = [
     "predict_edges",
     "predict_points",
     "roof_edges",
+    "EdgeLine",
     "Measurement",
     "MeasureParams",
     "STATUSES",

@@ -87,7 +87,7 @@ from .._util.frozen import frozen_array
 from ..geometry.camera import Camera
 from .predict import Prediction, face_labels, pixel_jacobians, pixel_positions, roof_edges
 
-__all__ = ["Measurement", "MeasureParams", "VertexTarget", "STATUSES", "measure_photo", "measure_vertex",
+__all__ = ["Measurement", "MeasureParams", "VertexTarget", "STATUSES", "EdgeLine", "measure_photo", "measure_vertex",
            "check_consistency", "grey"]
 
 #: statuses of a measurement and their meaning
@@ -109,6 +109,68 @@ _CHI2_1 = 10.827566170662733   # chi2(1) 99.9 %
 
 
 @dataclass(frozen=True, eq=False)
+class EdgeLine:
+    r"""A roof edge fitted in one photo, as the two-point line observation of
+    :class:`lidarcat.bundle.lines.LineObservation` (pixels).
+
+    The free fit :math:`s = a + b\,t` (offset across the predicted direction against the distance
+    along it; *not* the direction-observed fit the vertex uses, which leans on the approximate
+    orientation) has the offset variance :math:`v(t) = C_{aa} + 2 C_{ab} t + C_{bb} t^2 +
+    \sigma_\ell^2 + \sigma_\theta^2 t^2` (``line_sd_px`` and ``line_direction_sd_deg`` the floors
+    of what the fit cannot see; :math:`C'` the covariance with them added).  Its minimum
+    :math:`v_0` lies at :math:`t^* = -C_{ab}/C_{bb}'`;
+    two independent points at :math:`t^* \pm h` with sd :math:`s_p` across give
+    :math:`s_p^2 (1/2 + (t - t^*)^2 / 2h^2)`: the same for every *t* when :math:`s_p^2 = 2 v_0`,
+    :math:`h^2 = v_0 / C_{bb}'` (:func:`lidarcat.bundle.lines.observation_from_edge_points` is the
+    case of independent points).
+
+    Attributes
+    ----------
+    planes : (2,) int
+        The two planes of the vertex that meet in the edge.
+    p1_px, p2_px : (2,) float
+        Column, row of the two equivalent points (px).
+    sd_px : float
+        Sd of each across the edge (px).
+    ratio : float
+        Edge gradient over the texture's.
+    """
+
+    planes: tuple
+    p1_px: np.ndarray
+    p2_px: np.ndarray
+    sd_px: float
+    ratio: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "planes", tuple(int(v) for v in self.planes))
+        object.__setattr__(self, "p1_px", frozen_array(self.p1_px, shape=(2,)))
+        object.__setattr__(self, "p2_px", frozen_array(self.p2_px, shape=(2,)))
+
+
+def _edge_line(planes: Sequence[int], origin: np.ndarray, u: np.ndarray, free: tuple, ratio: float,
+               line_sd_px: float, direction_sd_deg: float) -> EdgeLine | None:
+    """The two-point equivalent (:class:`EdgeLine`) of a free edge fit ``(coef, cov)`` (px)."""
+    coef, cov = free
+    c = np.asarray(cov, dtype=np.float64) + np.diag([line_sd_px**2, math.tan(math.radians(direction_sd_deg)) ** 2])
+    if not (np.isfinite(c).all() and c[1, 1] > 0):
+        return None
+    ts = -c[0, 1] / c[1, 1]
+    v0 = c[0, 0] - c[0, 1] ** 2 / c[1, 1]
+    if v0 <= 0:
+        return None
+    h = math.sqrt(v0 / c[1, 1])
+    a, b = float(coef[0]), float(coef[1])
+    nvec = np.array([-u[1], u[0]])
+
+    def at(t: float) -> np.ndarray:
+        return origin + t * u + (a + b * t) * nvec
+
+    # the points lie on the fitted line; their spacing along it is 2 h sqrt(1 + b^2) (h measured along u)
+    return EdgeLine(tuple(planes), at(ts - h), at(ts + h), math.sqrt(2.0 * v0), ratio)
+
+
+@dataclass(frozen=True, eq=False)
 class Measurement:
     """A vertex measured (or not) on one photo.
 
@@ -127,6 +189,10 @@ class Measurement:
         The coarse shift from the prediction (px).
     predicted_px : (2,) float
     predicted_cov_px2 : (2, 2) float
+    edge_lines : tuple of EdgeLine
+        The roof edges fitted in the photo as line observations (:class:`EdgeLine`): of a measured
+        vertex the edges its point was intersected from; of a vertex not measured (``no_edges``,
+        ``weak_geometry``) its edges found strong (``two_line_ratio`` times the texture).
     """
 
     point: str
@@ -139,6 +205,7 @@ class Measurement:
     shift_px: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     predicted_px: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     predicted_cov_px2: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
+    edge_lines: tuple = ()
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -286,11 +353,12 @@ def _fit_edge(img: np.ndarray, origin: np.ndarray, u: np.ndarray, length_px: flo
     # count one per max(1, 2 smooth_px) px
     sig2 = max(float(r @ r) / dof, min_sd_px**2) * 2.0 * max(1.0, 2.0 * smooth_px)
     n_mat = a_mat[keep].T @ a_mat[keep] / sig2
+    free = (coef.copy(), np.linalg.inv(n_mat))   # the line alone (EdgeLine): no direction observed
     if direction_sd_deg > 0:   # the predicted direction as an observation of the slope: b = 0
         n_mat = n_mat + np.diag([0.0, 1.0 / math.tan(math.radians(direction_sd_deg)) ** 2])
         coef = np.linalg.solve(n_mat, a_mat[keep].T @ sp[keep] / sig2)
     cov = np.linalg.inv(n_mat)
-    return (coef, cov, t[keep], float(np.median(peak)) / max(texture, 1e-9)), ""
+    return (coef, cov, t[keep], float(np.median(peak)) / max(texture, 1e-9), free), ""
 
 
 @dataclass(frozen=True)
@@ -322,6 +390,9 @@ class MeasureParams:
     line_sd_px: float = 0.25
     #: sd of the predicted edge direction in the photo (deg), an observation of each line's slope (0: free)
     direction_sd_deg: float = 1.0
+    #: a roof edge as a line observation (EdgeLine): sd of its direction from what the fit cannot see (deg),
+    #: added to the free fit's (texture correlated along the edge tilts a fitted line)
+    line_direction_sd_deg: float = 0.5
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
@@ -448,11 +519,24 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
             continue
         fits.append((ctx["units"][k], fit))
         fits_planes.append(e.planes)
+    def edge_lines(idx: Sequence[int], strong: bool) -> tuple:
+        out = []
+        for i in idx:
+            u, fit = fits[i]
+            if strong and fit[3] < p.two_line_ratio:
+                continue
+            el = _edge_line(fits_planes[i], origin, u, fit[4], fit[3], p.line_sd_px, p.line_direction_sd_deg)
+            if el is not None:
+                out.append(el)
+        return tuple(out)
+
+    base = replace(base, edge_lines=())
     if len(fits) < 2:
-        return base.failed("no_edges", f"{len(fits)} of {len(ctx['edges'])} edges found in the photo"
-                           + (f" ({'; '.join(why)})" if why else ""))
+        return replace(base.failed("no_edges", f"{len(fits)} of {len(ctx['edges'])} edges found in the photo"
+                                   + (f" ({'; '.join(why)})" if why else "")),
+                       edge_lines=edge_lines(range(len(fits)), True))
     lines, mm, cc, covs = [], [], [], []
-    for u, (coef, cov, tk, _) in fits:
+    for u, (coef, cov, tk, *_) in fits:
         nvec = np.array([-u[1], u[0]])
         a, b = coef
         dirv = (u + b * nvec) / math.hypot(1.0, b)
@@ -473,7 +557,8 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                            f"the line of another edge")
                 use.remove(drop)
     if len(use) < 2:
-        return base.failed("weak_geometry", "the edges found lie on one image line")
+        return replace(base.failed("weak_geometry", "the edges found lie on one image line"),
+                       edge_lines=edge_lines(use, True))
     while True:
         x, n_mat, chi2 = _intersect([fits[i] for i in use], mm[use], np.array(cc)[use], [covs[i] for i in use],
                                     origin, p.line_sd_px)
@@ -492,17 +577,18 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
         use.remove(drop)
     if len(use) == 2 and min(fits[i][1][3] for i in use) < p.two_line_ratio:
         weak = min(use, key=lambda i: fits[i][1][3])
-        return base.failed("no_edges", f"two edges only, and the edge of planes {fits_planes[weak][0] + 1}-"
-                                       f"{fits_planes[weak][1] + 1} is weak (gradient {fits[weak][1][3]:.1f} x the "
-                                       f"texture's, < {p.two_line_ratio:g}): no check of it"
-                           + (f" ({'; '.join(why)})" if why else ""))
+        return replace(base.failed("no_edges", f"two edges only, and the edge of planes {fits_planes[weak][0] + 1}-"
+                                               f"{fits_planes[weak][1] + 1} is weak (gradient {fits[weak][1][3]:.1f} x "
+                                               f"the texture's, < {p.two_line_ratio:g}): no check of it"
+                                   + (f" ({'; '.join(why)})" if why else "")), edge_lines=edge_lines(use, True))
     angs = [math.degrees(math.acos(min(1.0, abs(float(mm[i] @ mm[j]))))) for i in use for j in use if i < j]
     if max(angs) < p.min_angle_deg:
-        return base.failed("weak_geometry", f"the edges left meet at {max(angs):.0f} deg (< {p.min_angle_deg:g})")
+        return replace(base.failed("weak_geometry", f"the edges left meet at {max(angs):.0f} deg "
+                                                    f"(< {p.min_angle_deg:g})"), edge_lines=edge_lines(use, True))
     lines = [lines[i] for i in use]
     cov_x = np.linalg.inv(n_mat)
     return replace(base, px=x, cov_px2=0.5 * (cov_x + cov_x.T), status="measured",
-                   reason="; ".join(why), lines=tuple(lines))
+                   reason="; ".join(why), lines=tuple(lines), edge_lines=edge_lines(use, False))
 
 
 def _intersect(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, origin: np.ndarray, line_sd_px: float):

@@ -26,6 +26,18 @@ candidate half-lines); it is clipped where either face's points end (at most
 ``max_length_m``).  Its image is the segment between the projections of its
 ends, each with the ellipse above.
 
+**The edge as a control line** (:func:`edge_line_m`).  Its end points ``A, B`` are the points
+of the line :math:`n_i \cdot x + d_i = 0 = n_j \cdot x + d_j` nearest the edge's ends ``P``
+(the third condition :math:`t \cdot x = t \cdot P`, exact, with :math:`t = n_i \times n_j`
+normalised).  A plane's error moves its distance :math:`e_i(x) = \tilde x^T \delta(n_i, d_i)`,
+:math:`\tilde x = (x, 1)`, with :math:`\mathrm{cov}(e_i(x), e_i(y)) = \tilde x^T C_i \tilde y`
+(the planes' 4 x 4 covariances, independent fits); with :math:`M = [n_i; n_j; t]`,
+:math:`\delta x = -M^{-1} (e_i(x), e_j(x), 0)^T`, so the 6 x 6 covariance of ``(A, B)`` is
+:math:`G\,\Sigma_e\,G^T` with :math:`G = \mathrm{blockdiag}(M^{-1}[:, :2], M^{-1}[:, :2])` and
+:math:`\Sigma_e` the 4 x 4 covariance of :math:`(e_i(A), e_j(A), e_i(B), e_j(B))`: the cross
+terms between ``A`` and ``B`` (one plane tilted moves both) included.  Along the line it is
+0 (``A, B`` are defined by their position along it; the observation does not see it).
+
 **Visibility.**  A vertex is *outside* when its predicted pixel lies off the
 frame (a margin keeps the measuring window on the photo), *behind* when it is
 behind the camera, and *occluded* when the LiDAR surface model rises above the
@@ -48,7 +60,7 @@ from ..geometry.camera import Camera
 from ..geometry.collinearity import project
 
 __all__ = ["Prediction", "RoofEdge", "pixel_positions", "pixel_jacobians", "predict_points", "occluded",
-           "roof_edges", "predict_edges", "ellipse_axes", "face_labels", "VISIBILITY"]
+           "roof_edges", "predict_edges", "ellipse_axes", "face_labels", "edge_line_m", "VISIBILITY"]
 
 #: visibility statuses of a prediction and their meaning
 VISIBILITY: dict[str, str] = {
@@ -347,3 +359,53 @@ def predict_edges(camera: Camera, eo: Any, eo_cov: Any, edges: Sequence[RoofEdge
     pr = predict_points(camera, eo, eo_cov, ends, covs)
     return [{"planes": e.planes, "px0": pr[2 * k].px, "px1": pr[2 * k + 1].px,
              "cov0": pr[2 * k].cov_px2, "cov1": pr[2 * k + 1].cov_px2} for k, e in enumerate(edges)]
+
+
+def edge_line_m(plane_i: Any, plane_j: Any, ends_m: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The intersection line of two fitted planes as a control line: end points and their covariance.
+
+    Parameters
+    ----------
+    plane_i, plane_j : :class:`~lidarcat.control.planes.Plane`
+        With ``n``, ``d``, ``cov`` (4 x 4 of ``(n, d)``) and ``cov_at``.
+    ends_m : (2, 3)
+        Two points near the line (e.g. the vertex and the edge's far end, m).
+
+    Returns
+    -------
+    a_m, b_m : (3,) the points of the line nearest *ends_m* (m)
+    cov_m2 : (6, 6) covariance of ``(A, B)`` (module docstring; m^2)
+
+    Examples
+    --------
+    >>> from lidarcat.control.planes import Plane
+    >>> c = np.diag([1e-6, 1e-6, 1e-6, 1e-4])
+    >>> pi = Plane(n=[0.5, 0, 0.866], d=-8.66, cov=c, centroid_m=[0, 0, 10])
+    >>> pj = Plane(n=[-0.5, 0, 0.866], d=-8.66, cov=c, centroid_m=[0, 0, 10])
+    >>> a, b, cov = edge_line_m(pi, pj, [[0.1, 0, 10], [0.1, 4, 10.2]])
+    >>> np.round(a, 6).tolist(), np.round(b, 6).tolist(), round(float(cov[1, 1]), 12)
+    ([0.0, 0.0, 10.0], [0.0, 4.0, 10.0], 0.0)
+    """
+    ends = np.asarray(ends_m, dtype=np.float64).reshape(2, 3)
+    origin = 0.5 * (np.asarray(plane_i.centroid_m, float) + np.asarray(plane_j.centroid_m, float))
+    ni, nj = np.asarray(plane_i.n, float), np.asarray(plane_j.n, float)
+    t = np.cross(ni, nj)
+    t = t / max(float(np.linalg.norm(t)), 1e-12)
+    ci, cj = plane_i.cov_at(origin), plane_j.cov_at(origin)
+    di, dj = plane_i.offset_at(origin), plane_j.offset_at(origin)
+    m_mat = np.array([ni, nj, t])
+    minv = np.linalg.inv(m_mat)
+    rel = ends - origin
+    pts = np.array([minv @ np.array([-di, -dj, float(t @ r)]) for r in rel])     # (2, 3) relative to origin
+    xh = np.column_stack([pts, np.ones(2)])                                         # (2, 4)
+    # (e_i(A), e_j(A), e_i(B), e_j(B)): the planes independent, each shared by A and B
+    se = np.zeros((4, 4))
+    for k in range(2):
+        for m in range(2):
+            se[2 * k, 2 * m] = xh[k] @ ci @ xh[m]
+            se[2 * k + 1, 2 * m + 1] = xh[k] @ cj @ xh[m]
+    g = np.zeros((6, 4))
+    g[:3, :2] = -minv[:, :2]
+    g[3:, 2:] = -minv[:, :2]
+    cov = g @ se @ g.T
+    return pts[0] + origin, pts[1] + origin, 0.5 * (cov + cov.T)

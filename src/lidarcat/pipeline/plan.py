@@ -10,6 +10,8 @@ set); :func:`run_pipeline` loads the survey, runs the plan with
 
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 import os
 import time
@@ -220,6 +222,11 @@ def _after_match(files: list[Path], *, measured: bool = True, extra: Any = None)
             if ctx.done(stage):
                 table = ctx.folder(stage) / "image_points.csv"
                 ctx.values["survey"] = match.survey_with(ctx["survey"], table)
+                lines = ctx.folder(stage) / "line_control.csv"    # measure_control's roof edges (line control)
+                if stage == "measure_control" and lines.is_file():
+                    sv = ctx.values["survey"]
+                    ctx.values["survey"] = dataclasses.replace(sv, files={**sv.files, "line_control": lines})
+                    return [*files, *more, table, lines]
                 return [*files, *more, table]
         return [*files, *more]
     return inputs

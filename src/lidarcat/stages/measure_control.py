@@ -23,10 +23,31 @@ It writes, into the output folder first:
   3 sigma in yellow, fitted edges green, measurement red; :mod:`lidarcat.photocontrol.review`);
 * ``measure_control.json`` -- counts and options;
 
+* ``line_decisions.csv`` -- one row per roof edge (the intersection line of two of the vertex's
+  planes) and photo tried: ``line, point, photo, status, reason, col1_px .. row2_px, sd_px,
+  ratio, decision``; ``written`` edges went to line_control.csv, the others say why not (the
+  vertex's own status where the photo was not measured, ``no image edge`` where the edge was not
+  found, ``in the point`` where the vertex's point observation already carries it);
+
 and then the accepted observations into the survey's ``image_points.csv`` (atomically; the
 survey is loaded again from the new table, and the old file restored if it does not load).  A
 vertex and photo that already has an observation there keeps it (``replace=True`` measures it
 again and replaces it).  Pixel sds go to ``sd_x_mm, sd_y_mm`` (times the camera's pixel size).
+
+**Line control** (``lines``).  Each roof edge fitted in a photo (:class:`~lidarcat.photocontrol.measure.EdgeLine`,
+the two-point equivalent of the free line fit) is a line observation of the control line of its two
+planes (:func:`~lidarcat.photocontrol.predict.edge_line_m`: end points and their 6 x 6 covariance from
+the plane fits), written to ``line_control.csv`` (``[files] line_control``, added to survey.toml when
+missing; rows of lines this run measured replaced, others kept) with the vertex as the line's
+``point`` (the line is control where the vertex is).  A vertex's point and its edges on one photo
+come from the same fits, so one photo never gives both: ``lines="add"`` (default) writes the
+points, and the edges of the photos where the vertex's point was not measured (two edges of which
+one is weak, edges on one image line: the strong ones alone); ``"only"`` writes every photo's
+edges and no points; ``"none"`` no lines.  A line file that does not load leaves both tables as they were.
+
+**Sds of the edge fits.**  The predicted direction of an edge observes the fitted slope
+(``direction_sd_deg``): taken from the photo's kappa sd (the image turns with kappa; omega and phi
+turn a near-nadir photo's lines by far less), at least 0.1 deg (``direction_from_kappa``).
 """
 
 from __future__ import annotations
@@ -46,14 +67,19 @@ from .._util import write_csv_atomic, write_json_atomic
 from ..errors import LidarcatError, SurveyError
 from .context import StageContext as Context
 
-__all__ = ["measure_control", "run", "planned", "MeasureControlResult", "DECISION_FIELDS", "lidar_vertices",
-           "dsm_of_points"]
+__all__ = ["measure_control", "run", "planned", "MeasureControlResult", "DECISION_FIELDS", "LINE_DECISION_FIELDS",
+           "LINE_MODES", "lidar_vertices", "dsm_of_points", "line_id"]
 
 log = logging.getLogger(__name__)
 
 #: columns of decisions.csv
 DECISION_FIELDS = ["photo", "point", "status", "reason", "col_px", "row_px", "sd_col_px", "sd_row_px",
                    "pred_col_px", "pred_row_px", "pred_sd_px", "decision"]
+#: columns of line_decisions.csv
+LINE_DECISION_FIELDS = ["line", "point", "photo", "status", "reason", "col1_px", "row1_px", "col2_px", "row2_px",
+                        "sd_px", "ratio", "decision"]
+#: values of ``lines``
+LINE_MODES = ("add", "only", "none")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,10 +91,19 @@ class MeasureControlResult:
     counts: dict
     accepted: int
     summary: dict
+    line_control: Path | None = None
+    lines_written: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return {"image_points": str(self.image_points), "outdir": str(self.outdir), "counts": self.counts,
-                "accepted": self.accepted}
+                "accepted": self.accepted,
+                "line_control": None if self.line_control is None else str(self.line_control),
+                "line_observations": self.lines_written}
+
+
+def line_id(point: str, planes: Sequence[int]) -> str:
+    """Id of the control line of a vertex's planes *planes* (0-based): ``POINT/i-j`` (1-based)."""
+    return f"{point}/{int(planes[0]) + 1}-{int(planes[1]) + 1}"
 
 
 def lidar_vertices(survey: Any, points: Sequence[str] | None = None) -> list[tuple[str, np.ndarray]]:
@@ -234,29 +269,102 @@ def _table(survey: Any, new: list[dict[str, Any]], replace: bool, drop: set | No
     return header, rows
 
 
-def _write_checked(survey: Any, ip_path: Path, header: list[str], rows: list[list[Any]], comment: str) -> None:
-    """Replace image_points.csv atomically, then load the survey; put the old file back if it does not load."""
+def _write_checked(survey: Any, ip_path: Path, header: list[str], rows: list[list[Any]], comment: str,
+                   lines: tuple[Path, list[str], list[list[Any]], str] | None = None) -> None:
+    """Replace image_points.csv (and line_control.csv, survey.toml's ``[files] line_control`` when it has none)
+    atomically, then load the survey; put the old files back if it does not load."""
     from .._util import atomic_write
     from ..survey.folder import Survey
 
-    old = ip_path.read_bytes() if ip_path.is_file() else None
-    write_csv_atomic(ip_path, header, rows, comments=[comment])
+    paths = [ip_path]
+    if lines is not None:
+        paths.append(lines[0])
+        if survey.files.get("line_control") is None and not survey.embedded:
+            paths.append(survey.toml_path)
+    paths += [q.with_name(q.name + ".json") for q in paths if q.suffix == ".csv"]   # the tables' metadata
+    old = {q: (q.read_bytes() if q.is_file() else None) for q in paths}
     try:
+        if lines is not None:
+            write_csv_atomic(lines[0], lines[1], lines[2], comments=[lines[3]])
+            if survey.toml_path in paths[2:]:
+                _add_line_control_key(survey.toml_path, lines[0])
+        write_csv_atomic(ip_path, header, rows, comments=[comment])
         Survey.load(survey.root if not survey.embedded else survey.toml_path)
-    except SurveyError:
-        if old is None:
-            ip_path.unlink(missing_ok=True)
-        else:
-            with atomic_write(ip_path, "wb") as fh:
-                fh.write(old)
+    except (SurveyError, OSError):
+        for q, data in old.items():
+            if data is None:
+                q.unlink(missing_ok=True)
+            else:
+                with atomic_write(q, "wb") as fh:
+                    fh.write(data)
         raise
+
+
+def _add_line_control_key(toml_path: Path, lines_path: Path) -> None:
+    """survey.toml with ``line_control = "..."`` in its ``[files]`` table (appended when it has none)."""
+    from .._util import atomic_write
+    from .._util.tables import toml_line
+
+    text = toml_path.read_text(encoding="utf-8")
+    try:
+        rel = lines_path.resolve().relative_to(toml_path.parent.resolve()).as_posix()
+    except ValueError:
+        rel = lines_path.resolve().as_posix()
+    entry = f'line_control = "{rel}"'
+    at = toml_line(text, "files")
+    lines = text.splitlines()
+    if at is None:
+        lines += ["", "[files]", entry]
+    else:
+        lines.insert(at, entry)
+    with atomic_write(toml_path, "w") as fh:
+        fh.write("\n".join(lines) + "\n")
+
+
+def _line_rows(survey: Any, path: Path | None, new_lines: dict[str, tuple[str, Any, Any, Any]],
+               new_obs: list[tuple[str, str, Any]], replace_points: set[str]) -> tuple[list[str], list[list[Any]]]:
+    """The new line_control.csv: the kept rows of *path* (lines of other points, their observations), then the
+    lines measured now (``id -> (point, A, B, cov)``) and their observations ``(line, photo, EdgeLine)``."""
+    from .._util import read_csv_table
+    from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS, cov6_cell
+
+    header = list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS)
+    rows: list[list[Any]] = []
+    if path is not None and path.is_file():
+        t = read_csv_table(path, required=("line",), optional=tuple(c for c in header if c != "line"))
+        col = {h: i for i, h in enumerate(t.header)}
+        for r in t.rows:
+            lid = r[col["line"]]
+            if lid in new_lines or lid.split("/")[0] in replace_points:
+                continue
+            rows.append([r[col[c]] if c in col else "" for c in header])
+
+    def rnd(v: float, nd: int) -> float:
+        return round(float(v), nd)
+
+    for lid, (pt, a, b, cov) in new_lines.items():
+        c = np.asarray(cov, float)
+        t_ = (np.asarray(b, float) - np.asarray(a, float)) / float(np.linalg.norm(np.subtract(b, a)))
+        across = np.eye(3) - np.outer(t_, t_)
+        sd_across = math.sqrt(max(float(np.max(np.linalg.eigvalsh(across @ c[:3, :3] @ across))),
+                                  float(np.max(np.linalg.eigvalsh(across @ c[3:, 3:] @ across))), 1e-8))
+        row = {"line": lid, "point": pt, "e1_m": rnd(a[0], 4), "n1_m": rnd(a[1], 4), "h1_m": rnd(a[2], 4),
+               "e2_m": rnd(b[0], 4), "n2_m": rnd(b[1], 4), "h2_m": rnd(b[2], 4), "sd_across_m": rnd(sd_across, 5),
+               "cov_m2": cov6_cell(c)}
+        rows.append([row.get(h, "") for h in header])
+    for lid, pid, el in new_obs:
+        row = {"line": lid, "photo": pid, "col1_px": rnd(el.p1_px[0], 3), "row1_px": rnd(el.p1_px[1], 3),
+               "col2_px": rnd(el.p2_px[0], 3), "row2_px": rnd(el.p2_px[1], 3), "sd_px": rnd(el.sd_px, 4)}
+        rows.append([row.get(h, "") for h in header])
+    return header, rows
 
 
 def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points: Sequence[str] | None = None,
                     decisions: str | Path | None = None, params: Any = None, replace: bool = False,
                     gallery: bool = True, table: str | Path | None = None, dsm_radius_m: float = 30.0,
                     max_shift_m: float = 0.5, default_sd: tuple[float, float] = (2.0, 0.5),
-                    min_photos: int = 2,
+                    min_photos: int = 1, lines: str = "add", line_table: str | Path | None = None,
+                    direction_from_kappa: bool = True,
                     progress: Callable[[int, int], Any] | None = None) -> MeasureControlResult:
     """LiDAR control vertices measured in the photos into image_points.csv (module docstring).
 
@@ -283,9 +391,15 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     default_sd : (m, deg)
         Sds of the approximate orientation where photos.csv gives none.
     min_photos : int
-        A vertex measured (and accepted) on fewer photos is rejected there: one measurement has no
-        check across photos, and a point of one ray cannot be adjusted in a control set where it
-        is not control (``lidarcat run`` adjusts every set).
+        A vertex measured (and accepted) on fewer photos is rejected there (default 1: a vertex on
+        one photo is good control; the adjustment of a set where it is not control leaves it out,
+        :func:`lidarcat.survey.adjustment.problem_from_survey`).
+    lines : {"add", "only", "none"}
+        Roof edges as line control (module docstring).
+    line_table : path, optional
+        Write the line control there instead of the survey's line_control.csv (``lidarcat run``).
+    direction_from_kappa : bool
+        ``direction_sd_deg`` of each photo from its kappa sd (module docstring); False: *params*'.
     progress : callable(done, total), optional
 
     Returns
@@ -299,11 +413,14 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     """
     import cv2
 
+    if lines not in LINE_MODES:
+        raise SurveyError(f"lines must be one of {', '.join(LINE_MODES)}, got {lines!r}")
     from ..control.vertices import extract_roof
     from ..lidar.clipping import clip
     from ..photocontrol import (VertexTarget, check_consistency, chip_image, gallery as tile_gallery,
                                 measure_photo, predict_points)
-    from ..photocontrol.measure import Measurement
+    from ..photocontrol import edge_line_m, roof_edges
+    from ..photocontrol.measure import Measurement, MeasureParams
     from ..survey.folder import Survey
 
     t_start = time.perf_counter()
@@ -361,7 +478,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
             results += [Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan), "no_vertex", why)
                         for pid in photos]
             continue
-        vertex_info[vid] = (cp, xyz)
+        vertex_info[vid] = (cp, xyz, {e.planes: e for e in roof_edges(cp.enh_m, cp.planes, xyz)})
         dsm = dsm_of_points(xyz)
         for pid in photos:
             if (pid, vid) in observed and not replace:
@@ -380,7 +497,10 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         from ..match import read_image
 
         img = read_image(survey.image_path(pid), lambda msg, pid=pid: SurveyError(f"photo {pid!r}: {msg}"))
-        ms = measure_photo(img, survey.camera_of(pid), eos[pid], [t for _, t in targets[pid]], p)
+        # the predicted edge directions are good to the photo's kappa sd (module docstring)
+        p_ph = p if not direction_from_kappa else dataclasses.replace(
+            p or MeasureParams(), direction_sd_deg=max(0.1, math.degrees(math.sqrt(max(float(covs[pid][5, 5]), 0.0)))))
+        ms = measure_photo(img, survey.camera_of(pid), eos[pid], [t for _, t in targets[pid]], p_ph)
         for (vid, _), m in zip(targets[pid], ms):
             per_vertex.setdefault(vid, []).append((pid, m))
         if gallery:   # keep the windows of the chips, not the photos (a block's photos do not fit in memory)
@@ -388,7 +508,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                 if m.status != "not_visible":
                     images[(pid, vid)] = _window(img, m, _CHIP_HALF_PX)
     for vid, lst in per_vertex.items():
-        cp, _ = vertex_info[vid]
+        cp = vertex_info[vid][0]
         pids = [pid for pid, _ in lst]
         checked = check_consistency([m for _, m in lst], [survey.camera_of(pid) for pid in pids],
                                     np.array([eos[pid] for pid in pids]), np.array([covs[pid] for pid in pids]),
@@ -425,27 +545,86 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                 with atomic_write(path, "wb") as fh:
                     fh.write(buf.tobytes())
                 pages.append(path.name)
-    accepted = [{"photo": m.photo, "point": m.point, "px": np.asarray(m.px), "sd": m.sd_px} for m in results if m]
+    # line control: the roof edges of the vertices tried, per photo (module docstring)
+    new_lines: dict[str, tuple[str, Any, Any, Any]] = {}
+    new_obs: list[tuple[str, str, Any]] = []
+    line_rows: list[list[Any]] = []
+    if lines != "none":
+        for m in results:
+            if m.point not in vertex_info:
+                continue
+            cp, _, edges = vertex_info[m.point]
+            found = {tuple(el.planes): el for el in m.edge_lines}
+            for planes, e in edges.items():
+                lid = line_id(m.point, planes)
+                el = found.get(tuple(planes))
+                status, reason = "not_written", ""
+                if m.status == "not_visible" or m.status in ("too_dark", "saturated", "near_border", "no_vertex"):
+                    reason = f"{m.status}: {m.reason}"
+                elif m.status == "rejected":
+                    reason = f"the vertex's measurement was rejected: {m.reason}"
+                elif el is None:
+                    reason = "no image edge found (or too weak for a line without its vertex)"
+                elif m and lines == "add":
+                    status, reason = "in_point", "the vertex's point observation carries this edge (not written twice)"
+                else:
+                    status = "written"
+                    if lid not in new_lines:
+                        pi, pj = cp.planes[planes[0]], cp.planes[planes[1]]
+                        a, b, cov = edge_line_m(pi, pj, np.array([e.start_m, e.end_m]))
+                        new_lines[lid] = (m.point, a, b, cov)
+                    new_obs.append((lid, m.photo, el))
+
+                def f(v: float, nd: int = 3) -> Any:
+                    return "" if v is None or not np.isfinite(v) else round(float(v), nd)
+
+                line_rows.append([lid, m.point, m.photo, status, reason,
+                                  *(f(v) for v in (el.p1_px if el else (None, None))),
+                                  *(f(v) for v in (el.p2_px if el else (None, None))),
+                                  f(el.sd_px if el else None, 4), f(el.ratio if el else None, 2),
+                                  "accept" if status == "written" else "reject"])
+        write_csv_atomic(out / "line_decisions.csv", LINE_DECISION_FIELDS, line_rows, comments=[
+            "LiDAR roof edges measured in the photos as line control (lidarcat measure-control): one row per edge "
+            "(line = POINT/plane-plane) and photo tried; written rows went to line_control.csv."])
+    written_points = {m.point for m in results if m and lines != "only"}
+    accepted = [{"photo": m.photo, "point": m.point, "px": np.asarray(m.px), "sd": m.sd_px} for m in results
+                if m and lines != "only"]
     summary = {"vertices": len(verts), "photos": len(photos), "counts": counts, "accepted": len(accepted),
+               "lines": lines, "control_lines": len(new_lines), "line_observations": len(new_obs),
+               "points_written": len(written_points),
                "gallery": pages, "params": dataclasses.asdict(p) if p is not None else "default",
                "seconds": round(time.perf_counter() - t_start, 2)}
     write_json_atomic(out / "measure_control.json", json.loads(json.dumps(summary, default=str)))
     header, table_rows = _table(survey, accepted, replace=replace)
     comment = "LiDAR control observations: lidarcat measure-control (roof vertices measured in the photos, col_px, row_px)"
+    lines_out = None
+    if new_obs:
+        own = survey.files.get("line_control")
+        lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
+            survey.root / "line_control.csv"
+        lh, lrows = _line_rows(survey, Path(own) if own is not None else None, new_lines, new_obs,
+                               set(vertex_info))
+        lines_out = (lp, lh, lrows, "LiDAR roof edges as control lines: lidarcat measure-control (line = POINT/"
+                                    "plane-plane; end points and cov_m2 from the two plane fits; observations: the "
+                                    "edge fits' two equivalent points, px)")
     if table is None:
-        _write_checked(survey, ip_path, header, table_rows, comment)
+        _write_checked(survey, ip_path, header, table_rows, comment, lines_out)
     else:
+        if lines_out is not None:
+            write_csv_atomic(lines_out[0], lines_out[1], lines_out[2], comments=[lines_out[3]])
         write_csv_atomic(ip_path, header, table_rows, comments=[comment])
     if progress is not None:
         progress(total, total)
-    log.info("measure-control: %d vertices, %d accepted observations -> %s", len(verts), len(accepted), ip_path)
-    return MeasureControlResult(ip_path, out, counts, len(accepted), summary)
+    log.info("measure-control: %d vertices, %d accepted observations -> %s; %d line observations", len(verts),
+             len(accepted), ip_path, len(new_obs))
+    return MeasureControlResult(ip_path, out, counts, len(accepted), summary,
+                                None if lines_out is None else lines_out[0], len(new_obs))
 
 
 def run(ctx: Context, tmp: Path) -> dict:
     """The LiDAR vertices measured into ``measure_control/image_points.csv`` (the survey's rows plus them) and the
     report; the later stages adjust that table."""
     survey = ctx["survey"]
-    res = measure_control(survey, tmp, table=tmp / "image_points.csv",
+    res = measure_control(survey, tmp, table=tmp / "image_points.csv", line_table=tmp / "line_control.csv",
                           progress=lambda done, total: ctx.progress(done, total))
-    return {"counts": res.counts, "accepted": res.accepted}
+    return {"counts": res.counts, "accepted": res.accepted, "line_observations": res.lines_written}

@@ -108,6 +108,7 @@ def problem_from_survey(
     else:
         cset = survey.control_set(control) if control is None or isinstance(control, str) else control
     obs = survey.photo_observations(observations)
+    obs, one_ray = _drop_one_ray_ground_points(survey, obs, cset)
     photos = survey.photos
     photo_ids = [ph.id for ph in photos]
     focal = [survey.cameras[ph.camera].focal_length_mm for ph in photos]
@@ -170,15 +171,31 @@ def problem_from_survey(
         eo_constraint_params=np.array(e_val) if e_idx else None,
         eo_constraint_sd=np.array(e_sd) if e_idx else None,
         initial_eo=init if np.isfinite(init).any() else None,
-        point_role=role, lines=_survey_lines(survey, photo_ids),
+        point_role=role, lines=_survey_lines(survey, photo_ids, ctrl_all),
         info={"survey": survey.name, "control_set": cset.name, "control_unmeasured": unmeasured,
+              **({"one_ray_dropped": one_ray} if one_ray else {}),
               "observations": observations or survey.settings.observations,
               "eo_constraints": bool(eo_constraints and e_idx)},
     )
 
 
-def _survey_lines(survey: Survey, photo_ids: list[str]):
-    """The survey's line control (``[files] line_control``) as arrays, or None."""
+def _drop_one_ray_ground_points(survey: Survey, obs: Any, cset: Any) -> tuple[Any, list[str]]:
+    """The observations without ground points seen on one photo that are not control of *cset*: a LiDAR
+    vertex measured on one photo (``lidarcat measure-control``) is control in its set, but a free point of
+    one ray in another (GPS) set cannot be adjusted; it is left out there (logged, ``one_ray_dropped``)."""
+    ground = {str(q) for q in survey.ground_points.point} - {str(c) for c in cset.control}
+    pts, cnt = np.unique(np.asarray(obs.point, dtype=str), return_counts=True)
+    one = sorted(set(pts[cnt == 1].tolist()) & ground)
+    if not one:
+        return obs, []
+    log.warning("control set %r: ground point(s) %s seen on one photo only and not control: left out",
+                cset.name, ", ".join(one))
+    return obs.select(~np.isin(np.asarray(obs.point, dtype=str), one)), one
+
+
+def _survey_lines(survey: Survey, photo_ids: list[str], control_points: Any = None):
+    """The survey's line control (``[files] line_control``) as arrays, or None; lines measured at a LiDAR
+    point (their ``point``) only where *control_points* hold it."""
     path = survey.files.get("line_control")
     if path is None:
         return None
@@ -186,7 +203,7 @@ def _survey_lines(survey: Survey, photo_ids: list[str]):
     from .lines import photo_cameras, read_line_control
 
     cams = photo_cameras(survey.photos, survey.cameras)
-    return LineControl.from_observations(*read_line_control(path, photo_ids, cams), photo_ids)
+    return LineControl.from_observations(*read_line_control(path, photo_ids, cams, control_points), photo_ids)
 
 
 # ---------------------------------------------------------------------------

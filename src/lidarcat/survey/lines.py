@@ -5,12 +5,19 @@ One file, two kinds of row (``[files] line_control`` in survey.toml):
 * a **line** (``photo`` empty): its two end points ``e1_m, n1_m, h1_m, e2_m, n2_m, h2_m`` (survey
   CRS, m; any two distinct points of the 3-D line, e.g. the plane intersection clipped to the
   roof) and the sds of those end points ``sd_across_m`` (across the line) and ``sd_along_m``
-  (along it; empty: the same);
+  (along it; empty: the same), or their full 6 x 6 covariance ``cov_m2`` (the upper triangle's
+  21 numbers, row by row, separated by spaces; it replaces the sds: a line from two fitted
+  planes has correlated ends);
 * an **observation** (``photo`` given): two points on the edge in that photo, either ``x1_mm,
   y1_mm, x2_mm, y2_mm`` (corrected photo coordinates, mm, x right, y up, as ``x_mm, y_mm`` of
   image_points.csv) with their sd across the edge ``sd_mm``, or ``col1_px, row1_px, col2_px,
   row2_px`` (pixels, as ``col_px, row_px``; run through the photo's camera, eq. 01-07) with
   ``sd_px``.
+
+A line row may name the LiDAR control ``point`` it was measured at (``lidarcat measure-control``
+writes the roof edges of a vertex so, with the vertex's id): such a line is control only in the
+adjustments where that point is control (a control set without it -- the GPS targets' -- does not
+use it, nor its observations); a line without ``point`` is control in every adjustment.
 
 Columns a row does not use stay empty.  Every error names the file and line: an unknown photo,
 an observation of a line the file does not define, a line defined twice or measured twice on one
@@ -35,11 +42,14 @@ from .._util.tables import parse_float, read_csv_table
 from ..bundle.lines import ControlLine, LineObservation
 from ..errors import DatumError, SurveyError, location
 
-__all__ = ["LINE_COLUMNS", "LINE_RESIDUAL_COLUMNS", "photo_cameras", "read_line_control", "write_line_residuals"]
+__all__ = ["LINE_COLUMNS", "LINE_EXTRA_COLUMNS", "LINE_RESIDUAL_COLUMNS", "photo_cameras", "read_line_control",
+           "write_line_residuals", "cov6_cell"]
 
 #: columns of ``line_control.csv``
 LINE_COLUMNS = ("line", "photo", "e1_m", "n1_m", "h1_m", "e2_m", "n2_m", "h2_m", "sd_across_m", "sd_along_m",
                 "x1_mm", "y1_mm", "x2_mm", "y2_mm", "sd_mm", "col1_px", "row1_px", "col2_px", "row2_px", "sd_px")
+#: the optional columns (``lidarcat measure-control`` writes them): the line's LiDAR point, its 6 x 6 covariance
+LINE_EXTRA_COLUMNS = ("point", "cov_m2")
 _LINE = ("e1_m", "n1_m", "h1_m", "e2_m", "n2_m", "h2_m", "sd_across_m")
 _OBS = ("x1_mm", "y1_mm", "x2_mm", "y2_mm", "sd_mm")
 _PX = ("col1_px", "row1_px", "col2_px", "row2_px", "sd_px")
@@ -64,6 +74,7 @@ def _number(path: Path, line: int, name: str, cell: str, *, positive: bool = Fal
 
 
 def read_line_control(path: str | Path, photo_ids: Iterable[str], cameras: Mapping[str, Any] | None = None,
+                      control_points: Iterable[str] | None = None,
                       ) -> tuple[list[ControlLine], list[LineObservation]]:
     """The control lines and their observations of *path* (``line_control.csv``).
 
@@ -74,6 +85,9 @@ def read_line_control(path: str | Path, photo_ids: Iterable[str], cameras: Mappi
     cameras : photo id -> :class:`lidarcat.geometry.camera.Camera`, optional
         For pixel coordinates (``col1_px`` ...) and the observations' pixel size; without it a
         pixel row is an error.
+    control_points : ids, optional
+        The adjustment's control points: a line whose ``point`` is not among them is left out with
+        its observations (None: every line).
 
     Raises
     ------
@@ -81,13 +95,15 @@ def read_line_control(path: str | Path, photo_ids: Iterable[str], cameras: Mappi
         With ``file:line: ...`` (see the module docstring).
     """
     path = Path(path)
-    t = read_csv_table(path, required=("line", "photo", *_LINE), optional=("sd_along_m", *_OBS, *_PX))
+    t = read_csv_table(path, required=("line", "photo", *_LINE), optional=("point", "sd_along_m", "cov_m2", *_OBS,
+                                                                            *_PX))
     col = {h: i for i, h in enumerate(t.header)}
     photos = {str(p) for p in photo_ids}
     lines: dict[str, ControlLine] = {}
     defined_at: dict[str, int] = {}
     obs: list[tuple[int, LineObservation]] = []
     seen: dict[tuple[str, str], int] = {}
+    of_point: dict[str, str] = {}
     for row, ln in zip(t.rows, t.lines):
         def cell(name: str, row: tuple[str, ...] = row) -> str:
             return row[col[name]] if name in col else ""
@@ -111,6 +127,10 @@ def read_line_control(path: str | Path, photo_ids: Iterable[str], cameras: Mappi
                 raise SurveyError(f"{location(path, ln)}: line {excerpt(lid)}: its end points coincide "
                                   "(a line of zero length)")
             lines[lid] = ControlLine.from_sds(lid, v[:3], v[3:], sd_across, sd_along)
+            if cell("cov_m2"):
+                lines[lid] = ControlLine(lid, v[:3], v[3:], _cov6(path, ln, cell("cov_m2")))
+            if cell("point"):
+                of_point[lid] = cell("point")
             defined_at[lid] = ln
             continue
         stray = [c for c in _LINE if cell(c)]
@@ -148,7 +168,33 @@ def read_line_control(path: str | Path, photo_ids: Iterable[str], cameras: Mappi
         if o.line not in lines:
             raise SurveyError(f"{location(path, ln, 'line')}: observation of line {excerpt(o.line)}, which no row "
                               "defines (a row with this line id and photo empty)")
+    if control_points is not None:
+        ctrl = {str(q) for q in control_points}
+        lines = {k: v for k, v in lines.items() if k not in of_point or of_point[k] in ctrl}
+        obs = [(ln, o) for ln, o in obs if o.line in lines]
     return list(lines.values()), [o for _, o in obs]
+
+
+def _cov6(path: Path, line: int, cell: str) -> np.ndarray:
+    """The ``cov_m2`` cell: the 21 numbers of the upper triangle (row by row) of the 6 x 6 covariance of
+    the end points (E1 N1 h1 E2 N2 h2, m^2), separated by spaces."""
+    parts = cell.split()
+    if len(parts) != 21:
+        raise SurveyError(f"{location(path, line, 'cov_m2')}: 21 numbers (the upper triangle of the 6 x 6 "
+                          f"covariance, row by row) separated by spaces, got {len(parts)}")
+    vals = [_number(path, line, "cov_m2", c) for c in parts]
+    cov = np.zeros((6, 6))
+    cov[np.triu_indices(6)] = vals
+    cov = cov + np.triu(cov, 1).T
+    if np.min(np.linalg.eigvalsh(cov)) < -1e-6 * max(float(np.max(np.abs(np.diag(cov)))), 1e-30):
+        raise SurveyError(f"{location(path, line, 'cov_m2')}: not a covariance (not positive semi-definite)")
+    return cov
+
+
+def cov6_cell(cov_m2: Any) -> str:
+    """The ``cov_m2`` cell of a 6 x 6 covariance (m^2): its upper triangle, row by row."""
+    c = np.asarray(cov_m2, dtype=np.float64).reshape(6, 6)
+    return " ".join(f"{v:.8g}" for v in c[np.triu_indices(6)])
 
 
 def photo_cameras(photos: Iterable[Any], cameras: Mapping[str, Any]) -> dict[str, Any]:
