@@ -10,7 +10,17 @@ from typing import Any
 
 import click
 
-from .options import POSITIVE, crs_option, echo_json, json_opt, output_option, progress_bar, tile_sources
+from .options import (
+    POSITIVE,
+    crs_option,
+    echo_json,
+    json_opt,
+    output_option,
+    progress_bar,
+    scheduler_option,
+    tile_sources,
+    workers_option,
+)
 
 __all__ = ["lidar", "info", "index", "clip_cmd", "raster", "calibrate", "swath"]
 
@@ -39,6 +49,16 @@ def _progress(label: str, paths: Sequence[Path]) -> Iterator[Any]:
     total = sum(p.stat().st_size for p in paths if p.exists()) if sys.stderr.isatty() else 0
     with progress_bar(total, label) as bar:
         yield bar.update if bar is not None else None
+
+
+def _advance(bar: Any) -> Any:
+    """A ``progress(done, total)`` callback moving *bar* to *done* (None without a bar)."""
+    if bar is None:
+        return None
+
+    def update(done: int, total: int) -> None:
+        bar.update(max(0, done - bar.pos))
+    return update
 
 
 # ----------------------------------------------------------------------------- info
@@ -405,10 +425,13 @@ def calibrate(paths: tuple[str, ...], trajectory: str, control: str | None, outp
 @click.option("--max-slope-deg", type=click.FloatRange(0, 90), default=10.0, show_default=True,
               help="... and both planes are at most this steep.")
 @click.option("--no-preview", is_flag=True, help="Do not write the PNG.")
+@workers_option
+@scheduler_option
 @crs_option()
 @json_opt
 def swath(paths: tuple[str, ...], output: str, cell_m: float, quality_level: str, classes: str,
-          smooth_rms_m: float, max_slope_deg: float, no_preview: bool, crs: str | None, as_json: bool) -> None:
+          smooth_rms_m: float, max_slope_deg: float, no_preview: bool, workers: int | None, scheduler: str | None,
+          crs: str | None, as_json: bool) -> None:
     """Swath separation image: per cell, the difference between overlapping flight lines (USGS LBS).
 
     Flight lines are the points' point source ids. Each line's last returns
@@ -417,9 +440,14 @@ def swath(paths: tuple[str, ...], output: str, cell_m: float, quality_level: str
     RMSDz and max |dz| over smooth, flat cells are checked against the
     quality level's interswath limits.
 
+    Tile by tile: each tile's sums of the plane fits are a task (serial, or
+    on Dask with --workers/--scheduler; the same image either way), merged
+    once.
+
     \b
     Example:
       lidarcat lidar swath tests/data/lidar/ahn3_cropped_1.laz --crs EPSG:7415 -o swath.tif
+      lidarcat lidar swath 'strips/*.laz' -o swath.tif --workers 4
     """
     from ..stages.lidar import swath_check
 
@@ -437,7 +465,7 @@ def swath(paths: tuple[str, ...], output: str, cell_m: float, quality_level: str
     with progress_bar(len(files), "Tiles") as bar:
         report = swath_check(files, output, crs=crs, cell_m=cell_m, quality_level=quality_level, classes=cls,
                              smooth_rms_m=smooth_rms_m, max_slope_deg=max_slope_deg, preview=not no_preview,
-                             progress=(lambda d, n: bar.update(1)) if bar is not None else None)
+                             workers=workers, scheduler=scheduler, progress=_advance(bar))
     if as_json:
         echo_json(report)
         return

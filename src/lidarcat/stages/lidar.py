@@ -529,6 +529,7 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
 def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
                 cell_m: float = 1.0, quality_level: str = "QL2", classes: Sequence[int] | None | str = "auto",
                 smooth_rms_m: float = 0.05, max_slope_deg: float = 10.0, preview: bool = True,
+                workers: int | None = None, scheduler: str | None = None,
                 progress: Callable[[int, int], Any] | None = None) -> dict[str, Any]:
     """Swath separation image of LiDAR tiles (``lidarcat lidar swath``; USGS lidar base specification).
 
@@ -547,11 +548,17 @@ def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *
         Points used, all last returns except noise (7, 18) and withheld
         points, further limited to these classes; ``"auto"``: the ground
         class (2) when the tiles hold ground points, else every class.
+    workers, scheduler
+        The tile engine (:func:`lidarcat.lidar.jobs.run_jobs`): serial by
+        default, else a local Dask cluster of *workers* processes or the
+        cluster at *scheduler*; the same result either way.
     progress : callable, optional
         ``progress(tiles_done, tiles)``.
 
-    Tiles are read one at a time; what is kept is the sums of the plane fits
-    per (cell, flight line) (:func:`lidarcat.production.swath.swath_sums`).
+    A map-reduce on the tile engine: each tile's sums of the plane fits per
+    (cell, flight line) are a task (:func:`lidarcat.production.swath.swath_tile`,
+    written into ``.<name>.swath-tiles/`` beside the output, removed at the
+    end); the parent merges them in tile order and fits the planes once.
 
     Raises
     ------
@@ -559,70 +566,64 @@ def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *
         Points without point source ids, fewer than two flight lines, an unknown quality level.
     """
     import math
+    import shutil
 
     from .._util.tables import write_json_atomic
-    from ..lidar.crs import crs_label, resolve_crs
+    from ..lidar.crs import crs_label
     from ..lidar.geotiff import write_geotiff
-    from ..lidar.readers import read_points
-    from ..production.swath import INTERSWATH_LIMITS, merge_sums, swath_from_sums, swath_sums, write_swath_png
+    from ..lidar.jobs import read_done_output, read_npz, run_jobs, tile_jobs
+    from ..lidar.tileindex import TileIndex
+    from ..production.swath import (INTERSWATH_LIMITS, merge_sums, read_swath_partial, swath_from_sums,
+                                    swath_tile, write_swath_png)
 
     if quality_level not in INTERSWATH_LIMITS:
         raise ProductError(f"quality level must be one of {', '.join(INTERSWATH_LIMITS)}, got {quality_level!r}")
-    # tile by tile: the additive sums of the plane fits (production.swath, "Tile by tile")
-    parts: dict[str, list[Any]] = {"all": [], "ground": []}
-    npts = {"all": 0, "ground": 0}
     fixed = None if isinstance(classes, str) or classes is None else [int(c) for c in classes]
-    out_crs = resolve_crs(crs)
-    z_ref: float | None = None
-    for k, t in enumerate(tiles):
-        pc = read_points(t, crs=crs)
-        a = pc.attributes
-        if "point_source_id" not in a:
-            raise ProductError(f"{t}: the points carry no point_source_id; swath separation compares flight lines")
-        keep = np.ones(len(pc), dtype=bool)
-        if "return_number" in a and "number_of_returns" in a:
-            keep &= np.asarray(a["return_number"]) == np.asarray(a["number_of_returns"])
-        if "withheld" in a:
-            keep &= ~np.asarray(a["withheld"], dtype=bool)
-        c = np.asarray(a["classification"]) if "classification" in a else np.zeros(len(pc), dtype=np.uint8)
-        keep &= ~np.isin(c, (7, 18))
-        if fixed is not None:
-            keep &= np.isin(c, fixed)
-        xyz, lid, cls = pc.xyz[keep], np.asarray(a["point_source_id"])[keep], c[keep]
-        if z_ref is None and len(xyz):
-            z_ref = float(np.median(xyz[:, 2]))
-        parts["all"].append(swath_sums(xyz, lid, cell_m, z_ref_m=z_ref or 0.0))
-        npts["all"] += len(xyz)
-        if isinstance(classes, str):
-            g = cls == 2
-            parts["ground"].append(swath_sums(xyz[g], lid[g], cell_m, z_ref_m=z_ref or 0.0))
-            npts["ground"] += int(g.sum())
-        out_crs = out_crs or pc.crs
+    out = Path(output)
+    work = out.parent / f".{out.stem}.swath-tiles"
+    out_crs = TileIndex.build([Path(t) for t in tiles], crs=crs).crs
+    jobs = tile_jobs(swath_tile, tiles, work, crs=crs, suffix=".swath.npz",
+                     params={"cell_m": float(cell_m), "classes": "auto" if isinstance(classes, str) else fixed})
+    jobs = [dataclasses.replace(j, buffered=False) for j in jobs]      # a tile's own points only: sums add
+    done = [0]
+
+    def tick(k: int) -> None:
+        done[0] += k
         if progress is not None:
-            progress(k + 1, len(tiles))
+            progress(done[0], len(jobs))
+
+    run_jobs(jobs, workers=workers, scheduler=scheduler, progress=tick)
+    # the reduce: the tiles' sums in job order (the same bytes serially or on Dask)
+    parts: dict[str, list[Any]] = {"": [], "_ground": []}
+    npts = {"": 0, "_ground": 0}
+    for j in jobs:
+        z = read_npz(read_done_output(j), j.output)
+        for which in (("", "_ground") if isinstance(classes, str) else ("",)):
+            sums, n = read_swath_partial(z, which)
+            parts[which].append(sums)
+            npts[which] += n
     used: list[int] | None = fixed
-    key = "all"
-    if isinstance(classes, str) and npts["ground"] > 0:
-        used, key = [2], "ground"
+    key = ""
+    if isinstance(classes, str) and npts["_ground"] > 0:
+        used, key = [2], "_ground"
     if npts[key] == 0:
         raise ProductError(f"no last return{'' if used is None else ' of classes ' + ','.join(map(str, used))} "
                            f"in {', '.join(map(str, tiles))}")
     merged = merge_sums(parts[key])
     sep = swath_from_sums(merged, smooth_rms_m=smooth_rms_m, max_slope=math.tan(math.radians(max_slope_deg)))
-    pts_n = npts[key]
     lid = merged[0][:, 2]
-    out = Path(output)
     files = [write_geotiff(out.with_suffix(".tif"), sep.dz_m.astype(np.float32), sep.transform, out_crs)]
     if preview:
         files.append(write_swath_png(out.with_suffix(".png"), sep, quality_level))
     stats = sep.assess(quality_level)
-    report = {"swath": stats, "cell_m": cell_m, "classes": used, "points": int(pts_n),
+    report = {"swath": stats, "cell_m": cell_m, "classes": used, "points": int(npts[key]),
               "flight_lines": [int(x) for x in np.unique(lid)], "smooth_rms_m": smooth_rms_m,
               "max_slope_deg": max_slope_deg, "crs": crs_label(out_crs) if out_crs is not None else None,
               "tiles": [str(t) for t in tiles]}
     json_path = out.with_suffix(".json")
     report["files"] = [str(f) for f in files] + [str(json_path)]
     write_json_atomic(json_path, report)
+    shutil.rmtree(work, ignore_errors=True)
     return report
 
 
