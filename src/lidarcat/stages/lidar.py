@@ -441,6 +441,8 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
                        output: str | os.PathLike, *, crs: Any = None, control: str | os.PathLike | None = None,
                        classes: Sequence[int] | None = None, stride: int = 1, sd_control_m: float = 0.05,
                        sd_strip_m: float = 0.05, radius_m: float = 2.5, max_plane_rms_m: float = 0.15,
+                       max_observations: int | None = 200_000, workers: int | None = None,
+                       scheduler: str | None = None,
                        progress: Callable[[int, int], Any] | None = None) -> dict[str, Any]:
     """Roll/pitch boresight, scan-angle scale and elevation bias from LiDAR tiles and the flight's trajectory
     (``lidarcat lidar calibrate``, report 7.1.2).
@@ -449,7 +451,15 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
     :mod:`lidarcat.lidar.trajectory`); range and scan angle are rebuilt from
     point and sensor (:func:`lidarcat.production.lidarchecks.pulses_from_points`);
     the flight lines are the points' ``point_source_id``; the parameters are
-    estimated by :func:`lidarcat.production.lidarchecks.estimate_system_parameters`.
+    estimated as :func:`lidarcat.production.lidarchecks.estimate_system_parameters`
+    does, tile by tile on the tile engine (module docstring of
+    :mod:`lidarcat.production.lidarchecks`, "Tile by tile"): two passes of
+    :func:`~lidarcat.production.lidarchecks.calibration_tile` (observations
+    chosen at the delivered points, then at the first step), each tile with
+    its neighbours' points within the planes' reach; the parent merges the
+    tiles' observations (at most *max_observations* of each kind) and
+    iterates.  Work files go to ``.<name>.calibration-tiles/`` beside the
+    output and are removed at the end.
 
     Parameters
     ----------
@@ -467,9 +477,18 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
     classes : sequence of int, optional
         Use only points of these classes (default: all).
     stride : int
-        Use every ``stride``-th point of the tiles (thins large tiles).
-    sd_control_m, sd_strip_m, radius_m, max_plane_rms_m, progress
+        Use one point in ``stride`` (chosen by a hash of the point, the same in
+        every tile that reads it).
+    max_observations : int or None
+        Keep at most this many control and this many strip observations (the
+        smallest point hashes of the survey); None: all.
+    workers, scheduler
+        The tile engine (:func:`lidarcat.lidar.jobs.run_jobs`): serial by
+        default; the same estimate either way.
+    sd_control_m, sd_strip_m, radius_m, max_plane_rms_m
         :func:`~lidarcat.production.lidarchecks.estimate_system_parameters`.
+    progress : callable, optional
+        ``progress(done, total)``: the tiles of both passes, then the iterations.
 
     Raises
     ------
@@ -478,51 +497,85 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
         trajectory (names the first), fewer than two flight lines without a
         control surface, or a singular adjustment.
     """
-    from .._util.tables import write_json_atomic
-    from ..lidar.crs import resolve_crs
-    from ..lidar.readers import read_points
-    from ..lidar.trajectory import match_time_base, read_trajectory
-    from ..production.lidarchecks import PARAMETER_NAMES, estimate_system_parameters, pulses_from_points
+    import shutil
 
-    xyz, times, strips = [], [], []
-    tile_crs = resolve_crs(crs)
-    for t in tiles:
-        pc = read_points(t, crs=crs)
-        a = pc.attributes
-        for name in ("gps_time", "point_source_id"):
-            if name not in a:
-                raise ProductError(f"{t}: the points carry no {name}; the calibration joins points to the "
-                                   "trajectory by GPS time and to flight lines by point source id")
-        keep = np.ones(len(pc), dtype=bool)
-        if classes is not None and "classification" in a:
-            keep &= np.isin(a["classification"], list(classes))
-        idx = np.flatnonzero(keep)[::max(1, int(stride))]
-        xyz.append(pc.xyz[idx])
-        times.append(np.asarray(a["gps_time"])[idx])
-        strips.append(np.asarray(a["point_source_id"])[idx])
-        tile_crs = tile_crs or pc.crs
-    pts, gps, strip = np.concatenate(xyz), np.concatenate(times), np.concatenate(strips)
-    traj = read_trajectory(trajectory, tile_crs)
-    gps, time_note = match_time_base(gps, traj)
-    sensor, att = traj.at(gps)
-    pulses, along = pulses_from_points(pts, sensor, att, strip)
+    from .._util import file_sha256
+    from .._util.tables import write_json_atomic
+    from ..lidar.jobs import read_done_output, read_npz, run_jobs, tile_jobs
+    from ..production.lidarchecks import (
+        PARAMETER_NAMES,
+        CalibrationObservations,
+        calibration_tile,
+        estimate_from_observations,
+        merge_observations,
+    )
+
+    tiles = [Path(t) for t in tiles]
     ctrl = _read_control(control) if control is not None else None
-    if ctrl is None and np.unique(strip).size < 2:
-        raise ProductError(f"{len(pts)} points of one flight line (point source id {int(strip[0])}) and no control "
-                           "surface: the calibration needs overlapping flight lines or a control surface")
-    res = estimate_system_parameters(pulses, ctrl, sd_control_m=sd_control_m, sd_strip_m=sd_strip_m,
-                                     radius_m=radius_m, max_plane_rms_m=max_plane_rms_m, progress=progress)
+    out = Path(output)
+    work = out.parent / f".{out.stem}.calibration-tiles"
+    max_iter = 10
+    cap = None if max_observations is None else int(max_observations)
+    params = {"trajectory": str(trajectory), "trajectory_sha256": file_sha256(trajectory),
+              "control": None if ctrl is None else ctrl.tolist(),
+              "classes": None if classes is None else [int(c) for c in classes], "stride": int(stride),
+              "radius_m": float(radius_m), "k": 6, "max_plane_rms_m": float(max_plane_rms_m),
+              "max_control": cap, "max_strip": cap}
+    # the neighbours within the plane radius of a point at the first step, which moves it by < 1 m + radius
+    overlap = 2.0 * float(radius_m) + 1.0
+    n_tiles = len(tiles)
+    total = 2 * n_tiles + max_iter
+    done = [0]
+
+    def tick(k: int) -> None:
+        done[0] += k
+        if progress is not None:
+            progress(done[0], total)
+
+    def one_pass(name: str, at: Any) -> tuple[Any, list[dict[str, Any]]]:
+        jobs = tile_jobs(calibration_tile, tiles, work / name, crs=crs, overlap_m=overlap, suffix=".obs.npz",
+                         params={**params, "at": None if at is None else [float(x) for x in np.nan_to_num(
+                             at.as_array())]})
+        run_jobs(jobs, workers=workers, scheduler=scheduler, progress=tick)
+        zs = [read_npz(read_done_output(j), j.output) for j in jobs]   # in job order: serial == Dask
+        obs = merge_observations([CalibrationObservations.from_arrays(z) for z in zs], max_control=cap,
+                                 max_strip=cap)
+        return obs, zs
+
+    obs1, zs = one_pass("first", None)
+    lines = np.unique(np.concatenate([z["lines"] for z in zs]))
+    n_points = int(sum(int(z["n_points"]) for z in zs))
+    if ctrl is None and lines.size < 2:
+        raise ProductError(f"{n_points} points of one flight line (point source id "
+                           f"{int(lines[0]) if lines.size else '-'}) and no control surface: the calibration "
+                           "needs overlapping flight lines or a control surface")
+    step = estimate_from_observations(obs1, ctrl, sd_control_m=sd_control_m, sd_strip_m=sd_strip_m, max_iter=1)
+    del obs1
+    obs2, _ = one_pass("second", step.parameters)
+    base = 2 * n_tiles
+    res = estimate_from_observations(obs2, ctrl, start=step.parameters, sd_control_m=sd_control_m,
+                                     sd_strip_m=sd_strip_m, max_iter=max_iter - 1,
+                                     progress=lambda i, n: progress(base + 1 + i, total) if progress else None)
+    res = dataclasses.replace(res, n_iter=res.n_iter + 1, rms_before_m=step.rms_before_m)
+    if progress is not None:
+        progress(total, total)
     d = res.to_dict()
     deg = {n.replace("_rad", "_deg"): (None if d["parameters"][n] is None else float(np.degrees(d["parameters"][n])))
            for n in PARAMETER_NAMES if n.endswith("_rad")}
     sd_deg = {n.replace("_rad", "_deg"): (None if d["sd"][n] is None else float(np.degrees(d["sd"][n])))
               for n in PARAMETER_NAMES if n.endswith("_rad")}
-    report = {"calibration": d, "parameters_deg": deg, "sd_deg": sd_deg, "points": int(len(pts)),
-              "flight_lines": [int(x) for x in np.unique(strip)], "time_base": time_note,
-              "along_track_rms_deg": float(np.degrees(np.sqrt(np.mean(along * along)))),
+    along_ss = sum(float(z["along_ss"]) for z in zs)
+    notes = sorted({str(z["time_note"]) for z in zs if int(z["n_points"])})
+    report = {"calibration": d, "parameters_deg": deg, "sd_deg": sd_deg, "points": n_points,
+              "flight_lines": [int(x) for x in lines], "time_base": "; ".join(notes),
+              "along_track_rms_deg": float(np.degrees(np.sqrt(along_ss / max(n_points, 1)))),
+              "observations": {"control": int(obs2.control.size), "strip": int(obs2.point.size),
+                               "control_found": obs2.seen_control, "strip_found": obs2.seen_strip,
+                               "max_observations": cap},
               "trajectory": str(trajectory), "control": None if control is None else str(control),
               "tiles": [str(t) for t in tiles], "files": [str(output)]}
-    write_json_atomic(Path(output), report)
+    write_json_atomic(out, report)
+    shutil.rmtree(work, ignore_errors=True)
     return report
 
 
