@@ -59,8 +59,8 @@ def test_swath_serial_and_dask_give_the_same_image(tmp_path, strips):
 
 def test_swath_of_four_tiles_equals_the_points_at_once(tmp_path, strips):
     """The tiles' sums, merged, give the image of all points at once (the cut is at no cell boundary)."""
-    from lidarcat.lidar.geotiff import read_geotiff
     from lidarcat.lidar import read_points
+    from lidarcat.lidar.geotiff import read_geotiff
     from lidarcat.stages.lidar import swath_check
 
     tiles = _quadrant_tiles(tmp_path, strips)
@@ -85,8 +85,12 @@ def _four_owners(xy: np.ndarray) -> list[np.ndarray]:
 def test_two_passes_over_tiles_give_the_estimate_of_all_points_at_once():
     """Observations chosen tile by tile (each tile's own points against all), merged, in two passes: the
     estimate of :func:`estimate_system_parameters` on all pulses, to rounding."""
-    from lidarcat.production.lidarchecks import (estimate_from_observations, estimate_system_parameters,
-                                                 merge_observations, select_observations)
+    from lidarcat.production.lidarchecks import (
+        estimate_from_observations,
+        estimate_system_parameters,
+        merge_observations,
+        select_observations,
+    )
 
     s = synthetic_strips(0, length_m=200.0, spacing_m=2.0)
     ref = estimate_system_parameters(s.pulses, s.control_m)

@@ -76,6 +76,38 @@ Observations (Gauss-Newton, re-linearised at each iteration)
 At each iteration observations of either kind with ``|v| > 4 x 1.4826 MAD``
 of their kind (a crease, a wall, a car on the runway) are left out.
 
+Tile by tile (bounded memory, on the tile engine)
+-------------------------------------------------
+Every quantity above needs only the pulses of the observations, and each
+observation only a point and its ``k`` neighbours within ``radius_m``.  So a
+survey is calibrated tile by tile (:func:`calibration_tile`, a task of
+:mod:`lidarcat.lidar.jobs`): a tile's own points, with its neighbours' points
+within the planes' reach, give the observations whose point lies in the tile
+(:func:`select_observations`: the control candidates inside the control TIN,
+the strip pairs by the plane tests); the parent merges them
+(:func:`merge_observations`) and iterates (:func:`estimate_from_observations`).
+The iteration above chooses the observations at the first two iterations
+(at ``q = 0`` and at the first step ``q1``) and freezes them from the third;
+so the tiles are read in two passes: observations chosen at the delivered
+points give ``q1`` (one step, robust rejection included); observations chosen
+at the points georeferenced with ``q1`` are rejected once, frozen and iterated
+from ``q1`` to convergence.  Pairs chosen only at ``q = 0`` would not do: a
+pitch misalignment of 0.08 deg moves a point ~0.7 m along track at 500 m, the
+neighbours chosen around the wrong place put curved terrain into the plane
+differences (measured: pitch 9 sd off; two passes: the in-memory estimate to
+1e-6 sd, test).
+
+Memory: a worker holds one tile with its buffer and the trajectory; the
+parent holds the merged observations, at most ``max_control`` and
+``max_strip`` of them (each with its pulses).  The sample is *bottom-k* by a
+hash of the point (:func:`point_keys`: its coordinates and GPS time, the same
+in every tile or buffer that reads it): each tile keeps its smallest keys and
+the merge the smallest of all, which are the smallest keys of the survey; so
+the sample does not depend on the tiling, nor on the order the tasks finish
+(test).  A sample of ``m`` of ``n`` observations widens the sds by about
+``sqrt(n / m)``.  The tiles are merged in job order, so a serial run and a
+Dask run give the same bits.
+
 Planimetric check against surveyed building outlines (7.1.1, Figure 5)
 ----------------------------------------------------------------------
 The report surveys the corners of a building and compares them with the
@@ -821,7 +853,9 @@ def _compact(pulses: PulseRecords, control: np.ndarray, point: np.ndarray, neigh
              control_key: np.ndarray, strip_key: np.ndarray, seen: tuple[int, int]) -> CalibrationObservations:
     """Keep only the pulses the observations refer to; renumber."""
     used = np.unique(np.concatenate([control, point, neighbours.ravel()]).astype(np.int64))
-    remap = lambda i: np.searchsorted(used, i).astype(np.int64)  # noqa: E731
+
+    def remap(i: np.ndarray) -> np.ndarray:
+        return np.searchsorted(used, i).astype(np.int64)
     return CalibrationObservations(pulses.subset(used), remap(control), remap(point),
                                    remap(neighbours).reshape(neighbours.shape), control_key, strip_key, *seen)
 
@@ -896,7 +930,9 @@ def merge_observations(parts: Sequence[CalibrationObservations], *, max_control:
     if len(ks) != 1:
         raise ProductError(f"system calibration: tile observations of different plane sizes k {sorted(ks)}")
     off = np.cumsum([0] + [len(o.pulses) for o in parts])
-    cat = lambda name: np.concatenate([getattr(o.pulses, name) for o in parts])  # noqa: E731
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(o.pulses, name) for o in parts])
     pulses = PulseRecords(cat("gnss_m"), cat("attitude_rad"), cat("range_m"), cat("scan_rad"), cat("strip"))
     control = np.concatenate([o.control + d for o, d in zip(parts, off)])
     point = np.concatenate([o.point + d for o, d in zip(parts, off)])
