@@ -18,8 +18,8 @@ planimetric check on synthetic buildings with a planted shift, and the contour r
 
 Session 4 (``--only parallel``): the swath image and the calibration tile by tile on the tile
 engine, serial against a local Dask cluster of 2 workers, on the synthetic strips written as
-100 m tiles (LAS + SBET + runway CSV) and, for the swath image, on the two AHN3 tiles; and the
-calibration's peak memory for 1x and 4x the points (strips 4x as long, the same 100 m tiles),
+200 m tiles (LAS + SBET + runway CSV) and, for the swath image, on the two AHN3 tiles; and the
+calibration's peak memory for 1x and 4x the points (strips 4x as long, the same 200 m tiles),
 tile by tile against all points in memory (the way of session 3: every point read, the pulses
 rebuilt, :func:`estimate_system_parameters`).  Each run is a child process of its own: wall
 seconds, CPU seconds (the child's and its reaped children's, the Dask workers), peak RSS of the
@@ -177,7 +177,7 @@ OFF = np.array([680000.0, 7480000.0, 0.0])
 CRS = "EPSG:31983"
 
 
-def write_strip_tiles(folder: Path, length_m: float, seed: int = 1, spacing_m: float = 3.0, tile_m: float = 100.0
+def write_strip_tiles(folder: Path, length_m: float, seed: int = 1, spacing_m: float = 3.0, tile_m: float = 200.0
                       ) -> tuple[list[Path], Path, Path, int]:
     """Synthetic strips (raw, GPS time in week seconds) as LAS tiles of *tile_m*, an SBET and a runway CSV."""
     from lidarcat.lidar import PointCloud, write_points
@@ -260,7 +260,7 @@ def session4(work: Path) -> None:
     four = write_strip_tiles(work / "x4", 1600.0)
     runs = work / "runs"
     print(f"synthetic strips: 1x {one[3]:,} points in {len(one[0])} tiles; 4x {four[3]:,} points in "
-          f"{len(four[0])} tiles (100 m)")
+          f"{len(four[0])} tiles (200 m)")
     print()
     print("| data | product | engine | points | wall s | CPU s | driver peak MB | largest worker MB | result |")
     print("|---|---|---|---|---|---|---|---|---|")

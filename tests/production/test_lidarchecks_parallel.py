@@ -135,6 +135,29 @@ def _survey_files(tmp: Path, s, tiles: list[Path]) -> tuple[Path, Path]:
     return traj, ctrl
 
 
+def test_calibration_stage_on_tiles_equals_the_in_memory_estimate(tmp_path):
+    """The stage's two passes over four tiles (LAS + SBET) give the estimate of all the files' points at once
+    (the pulses rebuilt from the points and the trajectory, :func:`estimate_system_parameters`)."""
+    from lidarcat.lidar import read_points
+    from lidarcat.lidar.trajectory import read_trajectory
+    from lidarcat.production.lidarchecks import estimate_system_parameters, pulses_from_points
+    from lidarcat.stages.lidar import system_calibration
+
+    s = synthetic_strips(2, length_m=160.0, spacing_m=2.5)
+    tiles = _quadrant_tiles(tmp_path, s, gps=True)
+    traj, ctrl = _survey_files(tmp_path, s, tiles)
+    rep = system_calibration(tiles, traj, tmp_path / "four.json", control=ctrl)
+    pc = PointCloud.concat([read_points(t) for t in tiles])
+    sensor, att = read_trajectory(traj, CRS).at(pc.attributes["gps_time"])
+    pulses, _ = pulses_from_points(pc.xyz, sensor, att, pc.attributes["point_source_id"])
+    ref = estimate_system_parameters(pulses, s.control_m + OFF)
+    names = ("roll_rad", "pitch_rad", "scale", "bias_m")
+    est = np.array([rep["calibration"]["parameters"][n] for n in names])
+    dev = (est - ref.parameters.as_array()) / ref.sd.as_array()
+    assert np.all(np.abs(dev) < 1e-3), dev          # the runway CSV is written to 0.1 mm
+    assert rep["calibration"]["n_strip"] == ref.n_strip and rep["calibration"]["n_control"] == ref.n_control
+
+
 @pytest.mark.slow
 def test_calibration_on_tiles_serial_equals_dask_equals_one_file(tmp_path):
     """Four tiles serially, on two Dask workers, and one file (~60 s at load 6, 17 s CPU; the engine's

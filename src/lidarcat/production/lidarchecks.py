@@ -142,6 +142,7 @@ without control points) is left out and reported as NaN.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -976,6 +977,22 @@ def estimate_from_observations(obs: CalibrationObservations, control_m: np.ndarr
     return dataclasses.replace(res, notes=tuple(notes))
 
 
+@functools.lru_cache(maxsize=1)
+def _trajectory_of(path: str, sha256: str | None, crs_wkt: str | None) -> Any:
+    from ..lidar.trajectory import read_trajectory
+
+    return read_trajectory(path, crs_wkt)
+
+
+def _trajectory(path: str, sha256: str | None, crs: Any) -> Any:
+    """The trajectory *path* in *crs*, read once per process for the tiles of a run (keyed by its hash)."""
+    from ..lidar.crs import resolve_crs
+
+    c = resolve_crs(crs)
+    return _trajectory_of(str(path), sha256 if sha256 else None, None if c is None else c.to_wkt()) \
+        if sha256 else _trajectory_of.__wrapped__(str(path), None, None if c is None else c.to_wkt())
+
+
 def calibration_tile(job: TileJob) -> None:
     """The map step of the system calibration on the tile engine (module docstring, "Tile by tile").
 
@@ -996,7 +1013,7 @@ def calibration_tile(job: TileJob) -> None:
     """
     from .._util import atomic_write
     from ..lidar.jobs import read_with_buffer
-    from ..lidar.trajectory import match_time_base, read_trajectory
+    from ..lidar.trajectory import match_time_base
 
     cloud, n_own = read_with_buffer(job)
     a = cloud.attributes
@@ -1015,7 +1032,8 @@ def calibration_tile(job: TileJob) -> None:
         keep &= (keys % np.uint64(stride)) == 0
     idx = np.flatnonzero(keep)
     own = idx < n_own
-    traj = read_trajectory(prm["trajectory"], cloud.crs if cloud.crs is not None else job.crs)
+    traj = _trajectory(prm["trajectory"], prm.get("trajectory_sha256"), cloud.crs if cloud.crs is not None
+                       else job.crs)
     gps, note = match_time_base(gps_all[idx], traj)
     strip = np.asarray(a["point_source_id"])[idx]
     if idx.size:
@@ -1025,7 +1043,8 @@ def calibration_tile(job: TileJob) -> None:
         pulses = PulseRecords(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0))
         along = np.zeros(0)
     ctrl = None if prm.get("control") is None else np.asarray(prm["control"], dtype=float)
-    obs = select_observations(pulses, ctrl, own=own, keys=keys[idx], radius_m=float(prm.get("radius_m", 2.5)),
+    at = None if prm.get("at") is None else SystemParameters.from_array(prm["at"])
+    obs = select_observations(pulses, ctrl, own=own, keys=keys[idx], at=at, radius_m=float(prm.get("radius_m", 2.5)),
                               k=int(prm.get("k", 6)), max_plane_rms_m=float(prm.get("max_plane_rms_m", 0.15)),
                               max_control=prm.get("max_control"), max_strip=prm.get("max_strip"))
     arrays = obs.to_arrays()
