@@ -23,7 +23,8 @@ calibration's peak memory for 1x and 4x the points (strips 4x as long, the same 
 tile by tile against all points in memory (the way of session 3: every point read, the pulses
 rebuilt, :func:`estimate_system_parameters`).  Each run is a child process of its own: wall
 seconds, CPU seconds (the child's and its reaped children's, the Dask workers), peak RSS of the
-child (the driver) and of its largest child (a Dask worker).
+child (the driver, ``VmHWM``) and ``ru_maxrss`` of its largest child (a Dask worker; an upper
+bound: Linux keeps the forking process's peak across ``exec``).
 
 Run::
 
@@ -239,8 +240,17 @@ def child(spec: dict) -> dict:
     wall = time.perf_counter() - t0
     me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     out.update(wall_s=wall, cpu_s=me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime,
-               driver_mb=me.ru_maxrss / 1024, worker_mb=kids.ru_maxrss / 1024)
+               driver_mb=vm_hwm_mb(), worker_mb=kids.ru_maxrss / 1024)
     return out
+
+
+def vm_hwm_mb() -> float:
+    """Peak RSS of this process's own memory map (``VmHWM``), MB.  Not ``ru_maxrss``: Linux carries that
+    across ``exec`` from the forking parent, so a child would report at least its parent's size."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
 
 
 def measure(spec: dict) -> dict:

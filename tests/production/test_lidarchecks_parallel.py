@@ -177,7 +177,7 @@ def test_calibration_on_tiles_serial_equals_dask_equals_one_file(tmp_path):
     dask = system_calibration(tiles, traj, tmp_path / "dask.json", control=ctrl, stride=2, workers=2)
     one = system_calibration([whole], traj, tmp_path / "one.json", control=ctrl, stride=2)
     assert four["calibration"] == dask["calibration"]                    # bit for bit
-    assert seen[:8] == [(i, 18) for i in range(1, 9)] and seen[-1] == (18, 18)
+    assert seen[:12] == [(i, 22) for i in range(1, 13)] and seen[-1] == (22, 22)
     p4, p1, sd = (np.array([r["calibration"][k][n] for n in ("roll_rad", "pitch_rad", "scale", "bias_m")])
                   for r, k in ((four, "parameters"), (one, "parameters"), (one, "sd")))
     assert np.all(np.abs(p4 - p1) < 1e-6 * sd), (p4 - p1) / sd          # tiles: the same observations

@@ -399,7 +399,7 @@ def calibrate(paths: tuple[str, ...], trajectory: str, control: str | None, outp
             raise click.BadParameter(f"{classes!r} is not a comma-separated list of integers",
                                      param_hint="--classes") from None
     files, crs, _ = tile_sources(paths, crs)
-    with progress_bar(2 * len(files) + 10, "Tiles (2 passes), adjusting") as bar:
+    with progress_bar(3 * len(files) + 10, "Tiles (bounds, 2 passes), adjusting") as bar:
         report = system_calibration(files, trajectory, output, crs=crs, control=control, classes=cls, stride=stride,
                                     radius_m=radius_m, sd_control_m=sd_control_m, sd_strip_m=sd_strip_m,
                                     max_observations=max_observations or None, workers=workers,

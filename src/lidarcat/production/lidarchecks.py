@@ -174,6 +174,7 @@ __all__ = [
     "merge_observations",
     "estimate_from_observations",
     "calibration_tile",
+    "bounds_tile",
     "OutlineEdges",
     "lidar_outline_corners",
     "planimetric_accuracy",
@@ -975,6 +976,19 @@ def estimate_from_observations(obs: CalibrationObservations, control_m: np.ndarr
         if kept < seen:
             notes.append(f"{what} observations: a sample of {kept:,} of {seen:,} (the smallest point keys)")
     return dataclasses.replace(res, notes=tuple(notes))
+
+
+def bounds_tile(job: TileJob) -> None:
+    """The plan bounds of ``job.tile``'s points, measured (``.npz`` ``bounds`` = xmin, ymin, xmax, ymax; NaN
+    without points): the tile engine takes LAS header bounds for unverified and makes every tile a neighbour
+    of every other; the calibration's passes take their neighbours from these."""
+    from .._util import atomic_write
+    from ..lidar.readers import read_points
+
+    xy = read_points(job.tile, crs=job.crs).xyz[:, :2]
+    b = np.r_[xy.min(axis=0), xy.max(axis=0)] if len(xy) else np.full(4, np.nan)
+    with atomic_write(job.output, "wb") as fh:
+        np.savez(fh, bounds=b)
 
 
 @functools.lru_cache(maxsize=1)

@@ -453,7 +453,9 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
     the flight lines are the points' ``point_source_id``; the parameters are
     estimated as :func:`lidarcat.production.lidarchecks.estimate_system_parameters`
     does, tile by tile on the tile engine (module docstring of
-    :mod:`lidarcat.production.lidarchecks`, "Tile by tile"): two passes of
+    :mod:`lidarcat.production.lidarchecks`, "Tile by tile"): the tiles'
+    measured bounds (:func:`~lidarcat.production.lidarchecks.bounds_tile`,
+    which give each tile its neighbours), then two passes of
     :func:`~lidarcat.production.lidarchecks.calibration_tile` (observations
     chosen at the delivered points, then at the first step), each tile with
     its neighbours' points within the planes' reach; the parent merges the
@@ -488,7 +490,7 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
     sd_control_m, sd_strip_m, radius_m, max_plane_rms_m
         :func:`~lidarcat.production.lidarchecks.estimate_system_parameters`.
     progress : callable, optional
-        ``progress(done, total)``: the tiles of both passes, then the iterations.
+        ``progress(done, total)``: the tiles of the three passes, then the iterations.
 
     Raises
     ------
@@ -505,6 +507,7 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
     from ..production.lidarchecks import (
         PARAMETER_NAMES,
         CalibrationObservations,
+        bounds_tile,
         calibration_tile,
         estimate_from_observations,
         merge_observations,
@@ -524,7 +527,7 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
     # the neighbours within the plane radius of a point at the first step, which moves it by < 1 m + radius
     overlap = 2.0 * float(radius_m) + 1.0
     n_tiles = len(tiles)
-    total = 2 * n_tiles + max_iter
+    total = 3 * n_tiles + max_iter
     done = [0]
 
     def tick(k: int) -> None:
@@ -532,14 +535,32 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
         if progress is not None:
             progress(done[0], total)
 
+    # the tiles' measured bounds first: header bounds are unverified, so the engine would make every tile a
+    # neighbour of every other (n^2 edge-buffer pieces)
+    bjobs = [dataclasses.replace(j, neighbours=(), buffered=False)
+             for j in tile_jobs(bounds_tile, tiles, work / "bounds", crs=crs, suffix=".bounds.npz")]
+    run_jobs(bjobs, workers=workers, scheduler=scheduler, progress=tick)
+    measured = {j.tile: read_npz(read_done_output(j), j.output)["bounds"] for j in bjobs}
+
+    def near(b: np.ndarray, c: np.ndarray) -> bool:
+        return bool(np.all(np.isfinite(c)) and c[0] <= b[2] + overlap and c[2] >= b[0] - overlap
+                    and c[1] <= b[3] + overlap and c[3] >= b[1] - overlap)
+
     def one_pass(name: str, at: Any) -> tuple[Any, list[dict[str, Any]]]:
         jobs = tile_jobs(calibration_tile, tiles, work / name, crs=crs, overlap_m=overlap, suffix=".obs.npz",
                          params={**params, "at": None if at is None else [float(x) for x in np.nan_to_num(
                              at.as_array())]})
+        jobs = [dataclasses.replace(j, bounds=tuple(float(x) for x in measured[j.tile]), neighbours=tuple(
+            t for t, c in measured.items() if t != j.tile and near(measured[j.tile], c)))
+            if np.all(np.isfinite(measured[j.tile])) else dataclasses.replace(j, neighbours=()) for j in jobs]
         run_jobs(jobs, workers=workers, scheduler=scheduler, progress=tick)
-        zs = [read_npz(read_done_output(j), j.output) for j in jobs]   # in job order: serial == Dask
-        obs = merge_observations([CalibrationObservations.from_arrays(z) for z in zs], max_control=cap,
-                                 max_strip=cap)
+        obs, zs = None, []
+        for j in jobs:      # in job order (serial == Dask), merged as they are read: at most the cap held
+            z = read_npz(read_done_output(j), j.output)
+            part = CalibrationObservations.from_arrays(z)
+            obs = part if obs is None else merge_observations([obs, part], max_control=cap, max_strip=cap)
+            zs.append({k: z[k] for k in ("lines", "n_points", "along_ss", "time_note")})
+        obs = merge_observations([obs], max_control=cap, max_strip=cap)
         return obs, zs
 
     obs1, zs = one_pass("first", None)
@@ -552,7 +573,7 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
     step = estimate_from_observations(obs1, ctrl, sd_control_m=sd_control_m, sd_strip_m=sd_strip_m, max_iter=1)
     del obs1
     obs2, _ = one_pass("second", step.parameters)
-    base = 2 * n_tiles
+    base = 3 * n_tiles
     res = estimate_from_observations(obs2, ctrl, start=step.parameters, sd_control_m=sd_control_m,
                                      sd_strip_m=sd_strip_m, max_iter=max_iter - 1,
                                      progress=lambda i, n: progress(base + 1 + i, total) if progress else None)
