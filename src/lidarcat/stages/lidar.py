@@ -658,7 +658,7 @@ def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *
     out_crs = TileIndex.build([Path(t) for t in tiles], crs=crs).crs
     jobs = tile_jobs(swath_tile, tiles, work, crs=crs, suffix=".swath.npz",
                      params={"cell_m": float(cell_m), "classes": "auto" if isinstance(classes, str) else fixed})
-    jobs = [dataclasses.replace(j, buffered=False) for j in jobs]      # a tile's own points only: sums add
+    jobs = [dataclasses.replace(j, buffered=False, neighbours=()) for j in jobs]   # own points only: sums add
     done = [0]
 
     def tick(k: int) -> None:
