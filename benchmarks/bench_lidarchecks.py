@@ -16,15 +16,29 @@ adjusted GPS time + an SBET, ``stages.lidar.system_calibration``), swath separat
 synthetic strips (raw and calibrated) and on the AHN3 tiles (ground last returns, 1 m), the
 planimetric check on synthetic buildings with a planted shift, and the contour review on AHN3.
 
+Session 4 (``--only parallel``): the swath image and the calibration tile by tile on the tile
+engine, serial against a local Dask cluster of 2 workers, on the synthetic strips written as
+200 m tiles (LAS + SBET + runway CSV) and, for the swath image, on the two AHN3 tiles; and the
+calibration's peak memory for 1x and 4x the points (strips 4x as long, the same 200 m tiles),
+tile by tile against all points in memory (the way of session 3: every point read, the pulses
+rebuilt, :func:`estimate_system_parameters`).  Each run is a child process of its own: wall
+seconds, CPU seconds (the child's and its reaped children's, the Dask workers), peak RSS of the
+child (the driver, ``VmHWM``) and ``ru_maxrss`` of its largest child (a Dask worker; an upper
+bound: Linux keeps the forking process's peak across ``exec``).
+
 Run::
 
-    PYTHONPATH=src python benchmarks/bench_lidarchecks.py [--n 100] [--seeds 3] [--only new]
+    PYTHONPATH=src python benchmarks/bench_lidarchecks.py [--n 100] [--seeds 3] [--only new|parallel]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import resource
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -32,7 +46,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from lidarcat.lidar.readers import read_points
-from lidarcat.production.lidarchecks import estimate_system_parameters, lidar_heights_at, vertical_accuracy
+from lidarcat.production.lidarchecks import (
+    estimate_system_parameters,
+    lidar_heights_at,
+    vertical_accuracy,
+)
 from lidarcat.synthetic.strips import synthetic_strips
 
 HERE = Path(__file__).resolve().parent.parent / "tests" / "data" / "lidar"
@@ -73,7 +91,11 @@ def session3() -> None:
     from lidarcat.lidar.trajectory import Trajectory, write_sbet
     from lidarcat.production.contourcheck import sparse_stretches
     from lidarcat.production.contours import contours
-    from lidarcat.production.lidarchecks import georeference, lidar_outline_corners, planimetric_accuracy
+    from lidarcat.production.lidarchecks import (
+        georeference,
+        lidar_outline_corners,
+        planimetric_accuracy,
+    )
     from lidarcat.production.swath import swath_separation
     from lidarcat.stages.lidar import swath_check, system_calibration
 
@@ -152,13 +174,160 @@ def session3() -> None:
               f"{thr:.2f} | {dt:.1f} |")
 
 
+OFF = np.array([680000.0, 7480000.0, 0.0])
+CRS = "EPSG:31983"
+
+
+def write_strip_tiles(folder: Path, length_m: float, seed: int = 1, spacing_m: float = 3.0, tile_m: float = 200.0
+                      ) -> tuple[list[Path], Path, Path, int]:
+    """Synthetic strips (raw, GPS time in week seconds) as LAS tiles of *tile_m*, an SBET and a runway CSV."""
+    from lidarcat.lidar import PointCloud, write_points
+    from lidarcat.lidar.trajectory import Trajectory, write_sbet
+    from lidarcat.production.lidarchecks import georeference
+
+    folder.mkdir(parents=True, exist_ok=True)
+    s = synthetic_strips(seed, length_m=length_m, spacing_m=spacing_m)
+    raw = georeference(s.pulses) + OFF
+    attrs = {"gps_time": s.gps_time_s, "point_source_id": s.pulses.strip + 1,
+             "classification": np.full(len(raw), 2, np.uint8)}
+    key = np.floor(raw[:, 0] / tile_m).astype(np.int64) * 100_000 + np.floor(raw[:, 1] / tile_m).astype(np.int64)
+    tiles = []
+    for k in np.unique(key):
+        sel = key == k
+        p = folder / f"tile_{k}.las"
+        write_points(p, PointCloud(raw[sel], {n: v[sel] for n, v in attrs.items()}, crs=CRS))
+        tiles.append(p)
+    t = s.trajectory
+    sbet = write_sbet(folder / "sbet.out", Trajectory(t.time_s, t.position_m + OFF, t.attitude_rad, crs=CRS))
+    ctrl = folder / "runway.csv"
+    c = s.control_m + OFF
+    ctrl.write_text("id,E,N,H\n" + "".join(f"r{i},{x:.4f},{y:.4f},{z:.4f}\n" for i, (x, y, z) in enumerate(c)))
+    return tiles, sbet, ctrl, len(raw)
+
+
+def child(spec: dict) -> dict:
+    """One measured run (in its own process): returns its numbers."""
+    from lidarcat.stages.lidar import swath_check, system_calibration
+
+    d = Path(spec["out"])
+    tiles = [Path(p) for p in spec["tiles"]]
+    t0 = time.perf_counter()
+    out: dict = {}
+    if spec["kind"] == "swath":
+        rep = swath_check(tiles, d / "sw.tif", crs=spec.get("crs"), cell_m=spec["cell_m"], preview=False,
+                          workers=spec.get("workers"))
+        st = rep["swath"]
+        out = {"points": rep["points"], "rmsdz_cm": 100 * st["rmsdz_m"], "smooth": st["smooth_cells"]}
+    elif spec["kind"] == "calib":
+        rep = system_calibration(tiles, spec["sbet"], d / "c.json", control=spec["ctrl"], workers=spec.get("workers"))
+        out = {"points": rep["points"], "parameters": rep["calibration"]["parameters"], "sd": rep["calibration"]["sd"],
+               "strip_obs": rep["observations"]["strip"]}
+    else:   # "memory": session 3's way, every point in memory
+        from lidarcat.lidar import PointCloud
+        from lidarcat.lidar.trajectory import read_trajectory
+        from lidarcat.production.lidarchecks import (
+            estimate_system_parameters,
+            pulses_from_points,
+        )
+
+        pc = PointCloud.concat([read_points(t) for t in tiles])
+        traj = read_trajectory(spec["sbet"], pc.crs)
+        sensor, att = traj.at(pc.attributes["gps_time"])
+        pulses, _ = pulses_from_points(pc.xyz, sensor, att, pc.attributes["point_source_id"])
+        ctrl = np.loadtxt(spec["ctrl"], delimiter=",", skiprows=1, usecols=(1, 2, 3))
+        res = estimate_system_parameters(pulses, ctrl)
+        out = {"points": len(pc), "parameters": vars(res.parameters), "sd": vars(res.sd), "strip_obs": res.n_strip}
+    wall = time.perf_counter() - t0
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    out.update(wall_s=wall, cpu_s=me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime,
+               driver_mb=vm_hwm_mb(), worker_mb=kids.ru_maxrss / 1024)
+    return out
+
+
+def vm_hwm_mb() -> float:
+    """Peak RSS of this process's own memory map (``VmHWM``), MB.  Not ``ru_maxrss``: Linux carries that
+    across ``exec`` from the forking parent, so a child would report at least its parent's size."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def measure(spec: dict) -> dict:
+    """Run :func:`child` in a fresh interpreter (its own peak memory and CPU)."""
+    res = subprocess.run([sys.executable, __file__, "--child", json.dumps(spec)], capture_output=True, text=True,
+                         env={**os.environ, "PYTHONWARNINGS": "ignore"}, check=False)
+    if res.returncode:
+        raise SystemExit(res.stderr[-3000:])
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def session4(work: Path) -> None:
+    """Serial vs Dask (2 workers) and peak memory at 1x / 4x the points (module docstring)."""
+    import shutil
+
+    one = write_strip_tiles(work / "x1", 400.0)
+    four = write_strip_tiles(work / "x4", 1600.0)
+    runs = work / "runs"
+    print(f"synthetic strips: 1x {one[3]:,} points in {len(one[0])} tiles; 4x {four[3]:,} points in "
+          f"{len(four[0])} tiles (200 m)")
+    print()
+    print("| data | product | engine | points | wall s | CPU s | driver peak MB | largest worker MB | result |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    ahn = sorted(HERE.glob("ahn3_cropped_*.laz"))
+    name1 = f"synthetic strips 1x ({len(one[0])} tiles)"
+    cases = [(name1, "swath 5 m",
+              {"kind": "swath", "tiles": [str(p) for p in one[0]], "cell_m": 5.0}),
+             ("AHN3 tiles 1+2", "swath 1 m",
+              {"kind": "swath", "tiles": [str(p) for p in ahn], "cell_m": 1.0, "crs": "EPSG:7415"}),
+             (name1, "calibration",
+              {"kind": "calib", "tiles": [str(p) for p in one[0]], "sbet": str(one[1]), "ctrl": str(one[2])})]
+    for data, product, spec in cases:
+        for workers in (None, 2):
+            shutil.rmtree(runs, ignore_errors=True)
+            runs.mkdir(parents=True)
+            load = os.getloadavg()[0]
+            r = measure({**spec, "workers": workers, "out": str(runs)})
+            res = (f"RMSDz {r['rmsdz_cm']:.2f} cm, {r['smooth']} smooth cells" if spec["kind"] == "swath" else
+                   f"roll {np.degrees(r['parameters']['roll_rad']):+.5f} deg, {r['strip_obs']:,} strip obs")
+            print(f"| {data} | {product} | {'serial' if workers is None else 'Dask, 2 workers'} | {r['points']:,} | "
+                  f"{r['wall_s']:.1f} | {r['cpu_s']:.1f} | {r['driver_mb']:.0f} | "
+                  f"{r['worker_mb']:.0f} | {res} (load {load:.1f}) |")
+    print()
+    print("| points | calibration | wall s | CPU s | peak MB | strip obs | roll dev (sd) | pitch dev (sd) |")
+    print("|---|---|---|---|---|---|---|---|")
+    truth = {"roll_rad": np.radians(0.05), "pitch_rad": np.radians(-0.08)}
+    for name, data in (("1x", one), ("4x", four)):
+        for how in ("calib", "memory"):
+            shutil.rmtree(runs, ignore_errors=True)
+            runs.mkdir(parents=True)
+            load = os.getloadavg()[0]
+            r = measure({"kind": how, "tiles": [str(p) for p in data[0]], "sbet": str(data[1]),
+                         "ctrl": str(data[2]), "out": str(runs)})
+            dev = [(r["parameters"][k] - v) / r["sd"][k] for k, v in truth.items()]
+            print(f"| {name} ({r['points']:,}) | {'tile by tile' if how == 'calib' else 'all in memory'} | "
+                  f"{r['wall_s']:.1f} | {r['cpu_s']:.1f} | {r['driver_mb']:.0f} | {r['strip_obs']:,} | "
+                  f"{dev[0]:+.2f} | {dev[1]:+.2f} (load {load:.1f}) |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=100)
     ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--only", choices=["all", "new"], default="all")
+    ap.add_argument("--only", choices=["all", "new", "parallel"], default="all")
+    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
+    if a.child is not None:
+        print(json.dumps(child(json.loads(a.child))))
+        return
     print(f"load {os.getloadavg()[0]:.2f}")
+    if a.only == "parallel":
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as d:
+            session4(Path(d))
+        print(f"load {os.getloadavg()[0]:.2f} at the end")
+        return
     if a.only == "new":
         session3()
         print(f"load {os.getloadavg()[0]:.2f} at the end")

@@ -91,3 +91,31 @@ def test_products_stage_writes_checks(survey, tmp_path):
     cal = json.loads((folder / "calibration.json").read_text())["calibration"]
     for name, true in vars(s.truth).items():
         assert abs(cal["parameters"][name] - true) < 3 * cal["sd"][name], name
+
+
+@pytest.mark.parametrize("edited", ["sbet.out", "runway.csv"])
+def test_editing_the_trajectory_or_control_reruns_the_stage(survey, tmp_path, edited):
+    """The products stage's fingerprint holds the content of the calibration's SBET and control files:
+    the same survey.toml with an edited file runs the stage again (its action is a stub here)."""
+    import dataclasses
+    import shutil
+
+    root, _ = survey
+    work = _work(root, tmp_path, BASE + "\n[products]\nground = false\ndtm = false\ndsm = false\n"
+                                  "contours = false\n"
+                                  'calibration_trajectory = "sbet.out"\ncalibration_control = "runway.csv"\n')
+    calls = []
+    stage = next(st for st in plan_pipeline(Survey.load(work)) if st.name == "products")
+    stage = dataclasses.replace(stage, run=lambda ctx, tmp: calls.append(1) or {})
+    out = tmp_path / "out"
+    status = []
+    for _ in range(2):
+        status.append(run_stages([stage], out, values={"survey": Survey.load(work)})[0].status)
+    target = work / edited
+    target.unlink()                                          # a symlink to the shared fixture: copy, then edit
+    shutil.copyfile(root / edited, target)
+    data = bytearray(target.read_bytes())
+    data[-9] ^= 0x01                                         # one bit of the last record / line
+    target.write_bytes(bytes(data))
+    status.append(run_stages([stage], out, values={"survey": Survey.load(work)})[0].status)
+    assert status == ["ran", "reused", "ran"] and len(calls) == 2

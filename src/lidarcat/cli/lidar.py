@@ -10,7 +10,17 @@ from typing import Any
 
 import click
 
-from .options import POSITIVE, crs_option, echo_json, json_opt, output_option, progress_bar, tile_sources
+from .options import (
+    POSITIVE,
+    crs_option,
+    echo_json,
+    json_opt,
+    output_option,
+    progress_bar,
+    scheduler_option,
+    tile_sources,
+    workers_option,
+)
 
 __all__ = ["lidar", "info", "index", "clip_cmd", "raster", "calibrate", "swath"]
 
@@ -39,6 +49,16 @@ def _progress(label: str, paths: Sequence[Path]) -> Iterator[Any]:
     total = sum(p.stat().st_size for p in paths if p.exists()) if sys.stderr.isatty() else 0
     with progress_bar(total, label) as bar:
         yield bar.update if bar is not None else None
+
+
+def _advance(bar: Any) -> Any:
+    """A ``progress(done, total)`` callback moving *bar* to *done* (None without a bar)."""
+    if bar is None:
+        return None
+
+    def update(done: int, total: int) -> None:
+        bar.update(max(0, done - bar.pos))
+    return update
 
 
 # ----------------------------------------------------------------------------- info
@@ -334,18 +354,23 @@ def raster(paths: tuple[str, ...], cell_m: float, what: str, bounds: tuple[float
               help="Use only points of these classes (default: all; walls, trees and cars are rejected "
                    "by the plane and 4-MAD tests).")
 @click.option("--stride", type=click.IntRange(1), default=1, show_default=True,
-              help="Use every N-th point (thins dense tiles).")
+              help="Use one point in N (chosen by a hash of the point; thins dense tiles).")
+@click.option("--max-observations", type=click.IntRange(0), default=200_000, show_default=True, metavar="N",
+              help="At most N control and N strip observations (a sample by point hash, the same however the "
+                   "survey is tiled); 0: all.")
 @click.option("--radius-m", type=POSITIVE, default=2.5, show_default=True,
               help="Strip planes: radius of the other line's points fitted, metres.")
 @click.option("--sd-control-m", type=POSITIVE, default=0.05, show_default=True,
               help="A-priori sd of a LiDAR height against the control surface, metres.")
 @click.option("--sd-strip-m", type=POSITIVE, default=0.05, show_default=True,
               help="A-priori sd of a point against the other flight line's plane, metres.")
+@workers_option
+@scheduler_option
 @crs_option()
 @json_opt
 def calibrate(paths: tuple[str, ...], trajectory: str, control: str | None, output: str, classes: str | None,
-              stride: int, radius_m: float, sd_control_m: float, sd_strip_m: float, crs: str | None,
-              as_json: bool) -> None:
+              stride: int, max_observations: int, radius_m: float, sd_control_m: float, sd_strip_m: float,
+              workers: int | None, scheduler: str | None, crs: str | None, as_json: bool) -> None:
     """Boresight (roll, pitch), scan-angle scale and elevation bias from tiles + trajectory (report 7.1.2).
 
     LAS points carry no range or scan angle: they are rebuilt from each
@@ -353,6 +378,12 @@ def calibrate(paths: tuple[str, ...], trajectory: str, control: str | None, outp
     converted to seconds of the week for an SBET). Flight lines are the
     points' point source ids; overlapping lines flown both ways over sloped
     ground give roll, pitch and scale, the control surface the bias.
+
+    Tile by tile (serial, or on Dask with --workers/--scheduler; the same
+    estimate either way): each tile, with its neighbours' points within the
+    planes' reach, gives its observations in two passes; one tile at a time
+    is in memory per worker, and the merged observations are bounded by
+    --max-observations.
 
     \b
     Example:
@@ -368,10 +399,11 @@ def calibrate(paths: tuple[str, ...], trajectory: str, control: str | None, outp
             raise click.BadParameter(f"{classes!r} is not a comma-separated list of integers",
                                      param_hint="--classes") from None
     files, crs, _ = tile_sources(paths, crs)
-    with progress_bar(10, "Adjusting") as bar:
+    with progress_bar(3 * len(files) + 10, "Tiles (bounds, 2 passes), adjusting") as bar:
         report = system_calibration(files, trajectory, output, crs=crs, control=control, classes=cls, stride=stride,
                                     radius_m=radius_m, sd_control_m=sd_control_m, sd_strip_m=sd_strip_m,
-                                    progress=(lambda i, n: bar.update(1)) if bar is not None else None)
+                                    max_observations=max_observations or None, workers=workers,
+                                    scheduler=scheduler, progress=_advance(bar))
     if as_json:
         echo_json(report)
         return
@@ -405,10 +437,13 @@ def calibrate(paths: tuple[str, ...], trajectory: str, control: str | None, outp
 @click.option("--max-slope-deg", type=click.FloatRange(0, 90), default=10.0, show_default=True,
               help="... and both planes are at most this steep.")
 @click.option("--no-preview", is_flag=True, help="Do not write the PNG.")
+@workers_option
+@scheduler_option
 @crs_option()
 @json_opt
 def swath(paths: tuple[str, ...], output: str, cell_m: float, quality_level: str, classes: str,
-          smooth_rms_m: float, max_slope_deg: float, no_preview: bool, crs: str | None, as_json: bool) -> None:
+          smooth_rms_m: float, max_slope_deg: float, no_preview: bool, workers: int | None, scheduler: str | None,
+          crs: str | None, as_json: bool) -> None:
     """Swath separation image: per cell, the difference between overlapping flight lines (USGS LBS).
 
     Flight lines are the points' point source ids. Each line's last returns
@@ -417,9 +452,14 @@ def swath(paths: tuple[str, ...], output: str, cell_m: float, quality_level: str
     RMSDz and max |dz| over smooth, flat cells are checked against the
     quality level's interswath limits.
 
+    Tile by tile: each tile's sums of the plane fits are a task (serial, or
+    on Dask with --workers/--scheduler; the same image either way), merged
+    once.
+
     \b
     Example:
       lidarcat lidar swath tests/data/lidar/ahn3_cropped_1.laz --crs EPSG:7415 -o swath.tif
+      lidarcat lidar swath 'strips/*.laz' -o swath.tif --workers 4
     """
     from ..stages.lidar import swath_check
 
@@ -437,7 +477,7 @@ def swath(paths: tuple[str, ...], output: str, cell_m: float, quality_level: str
     with progress_bar(len(files), "Tiles") as bar:
         report = swath_check(files, output, crs=crs, cell_m=cell_m, quality_level=quality_level, classes=cls,
                              smooth_rms_m=smooth_rms_m, max_slope_deg=max_slope_deg, preview=not no_preview,
-                             progress=(lambda d, n: bar.update(1)) if bar is not None else None)
+                             workers=workers, scheduler=scheduler, progress=_advance(bar))
     if as_json:
         echo_json(report)
         return

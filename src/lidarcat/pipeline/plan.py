@@ -265,8 +265,11 @@ def _products_stage(survey: Any, files_lidar: list[Path]) -> Stage:
     why = ("the survey has no LiDAR tiles ([files] lidar)" if not survey.lidar_paths else
            "[products] asks for nothing (every product false)" if not what else None)
     chart_mosaic = [survey.root / cfg["chart_mosaic"]] if cfg.get("chart_mosaic") else []
+    # the calibration's trajectory (SBET) and control surface: their content, not only their names
+    checks = [survey.root / cfg[k] for k in ("calibration_trajectory", "calibration_control") if cfg.get(k)]
     return Stage("products", "products", products.run,
-                 inputs=lambda ctx: [*files_lidar, *(p for p in chart_mosaic if p.is_file())], params=dict(cfg),
+                 inputs=lambda ctx: [*files_lidar, *(p for p in [*chart_mosaic, *checks] if p.is_file())],
+                 params=dict(cfg),
                  uses=("mapping",) if cfg.get("charts") and "mapping" in survey_tables(survey) else (),
                  skip_reason=why, description=f"LiDAR products ({', '.join(what) or 'none'}) ([products])")
 

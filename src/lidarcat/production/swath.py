@@ -41,6 +41,15 @@ parts), :func:`merge_sums` adds the tiles' sums and :func:`swath_from_sums`
 fits the planes.  Memory grows with the number of (cell, line) groups, not
 with the points; the result equals the one of all points at once (test).
 
+On the tile engine (:mod:`lidarcat.lidar.jobs`) this is a map-reduce:
+:func:`swath_tile` is the map (one tile read, its points selected, its sums
+written as an ``.npz``), the parent merges the tiles' sums in job order and
+fits the planes once (:func:`lidarcat.stages.lidar.swath_check`).  Each tile
+refers its heights to its own median (``z_ref_m``, which :func:`merge_sums`
+reconciles), and the same function computes each tile serially or on Dask,
+so both give the same bytes.  A worker holds one tile; the parent holds the
+(cell, line) sums of the survey (10 numbers per group) and the image.
+
 Smooth, flat cells (the statistics)
 -----------------------------------
 A cell counts towards ``RMSDz`` and the maximum when both planes fit their
@@ -64,17 +73,21 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import ProductError
 from ..lidar.geotiff import GeoTransform
 
+if TYPE_CHECKING:
+    from ..lidar.jobs import TileJob
+
 __all__ = ["INTERSWATH_LIMITS", "SwathSeparation", "swath_separation", "swath_sums", "merge_sums", "swath_from_sums",
-           "SUM_NAMES", "write_swath_png"]
+           "SUM_NAMES", "write_swath_png", "swath_tile", "select_last_returns", "read_swath_partial"]
 
 #: USGS Lidar Base Specification, interswath smooth-surface repeatability: QL -> (RMSDz, max |dz|), metres
 INTERSWATH_LIMITS: dict[str, tuple[float, float]] = {
@@ -242,6 +255,7 @@ def merge_sums(parts: list[tuple[np.ndarray, np.ndarray, float, float]]) -> tupl
     """Add the sums of several :func:`swath_sums` (same cell; their z references reconciled)."""
     if not parts:
         raise ProductError("swath separation: no points")
+    parts = [q for q in parts if len(q[0])] or parts[:1]     # an empty part's z reference is no height
     cell, z0 = parts[0][2], parts[0][3]
     gs, ss = [], []
     for groups, sums, c, zr in parts:
@@ -386,3 +400,66 @@ def write_swath_png(path: str | os.PathLike, sep: SwathSeparation, quality_level
     with atomic_write(out, "wb") as fh:
         fig.savefig(fh, format="png", dpi=dpi)
     return out
+
+
+def select_last_returns(attributes: dict[str, Any], n: int, classes: Sequence[int] | None = None) -> np.ndarray:
+    """Mask (n,) of the points a swath image uses: last returns, not withheld, not noise (7, 18), and of
+    *classes* when given (module docstring)."""
+    a = attributes
+    keep = np.ones(n, dtype=bool)
+    if "return_number" in a and "number_of_returns" in a:
+        keep &= np.asarray(a["return_number"]) == np.asarray(a["number_of_returns"])
+    if "withheld" in a:
+        keep &= ~np.asarray(a["withheld"], dtype=bool)
+    c = np.asarray(a["classification"]) if "classification" in a else np.zeros(n, dtype=np.uint8)
+    keep &= ~np.isin(c, (7, 18))
+    if classes is not None:
+        keep &= np.isin(c, list(classes))
+    return keep
+
+
+def swath_tile(job: TileJob) -> None:
+    """The map step of the swath image on the tile engine: the sums of one tile (module docstring).
+
+    ``job.params``: ``cell_m``; ``classes`` (a list, None for every class, or
+    ``"auto"``: the sums of all selected points *and* of the ground class, so
+    the parent can choose).  Writes ``job.output`` (``.npz``, atomically):
+    ``groups``/``sums``/``n`` of all selected points, ``groups_ground``/
+    ``sums_ground``/``n_ground`` and ``z_ref``, ``cell``.
+
+    Raises
+    ------
+    ProductError
+        The tile's points carry no ``point_source_id`` (names the tile).
+    """
+    from .._util import atomic_write
+    from ..lidar.readers import read_points
+
+    pc = read_points(job.tile, crs=job.crs)
+    a = pc.attributes
+    if "point_source_id" not in a:
+        raise ProductError(f"{job.tile}: the points carry no point_source_id; swath separation compares "
+                           "flight lines")
+    cell = float(job.params["cell_m"])
+    classes = job.params.get("classes")
+    fixed = None if isinstance(classes, str) or classes is None else [int(c) for c in classes]
+    keep = select_last_returns(a, len(pc), fixed)
+    xyz, lid = pc.xyz[keep], np.asarray(a["point_source_id"])[keep]
+    z_ref = float(np.median(xyz[:, 2])) if len(xyz) else 0.0
+    g, s, _, _ = swath_sums(xyz, lid, cell, z_ref_m=z_ref)
+    arrays: dict[str, Any] = {"groups": g, "sums": s, "n": np.int64(len(xyz)), "z_ref": np.float64(z_ref),
+                              "cell": np.float64(cell)}
+    if isinstance(classes, str):
+        cls = np.asarray(a["classification"])[keep] if "classification" in a else np.zeros(len(xyz), np.uint8)
+        gr = cls == 2
+        gg, sg, _, _ = swath_sums(xyz[gr], lid[gr], cell, z_ref_m=z_ref)
+        arrays.update(groups_ground=gg, sums_ground=sg, n_ground=np.int64(gr.sum()))
+    with atomic_write(job.output, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def read_swath_partial(z: dict[str, Any], which: str = "") -> tuple[tuple[np.ndarray, np.ndarray, float, float], int]:
+    """The sums of one tile from the arrays of its :func:`swath_tile` output (``which``: ``""`` for all
+    selected points, ``"_ground"`` for the ground class) and their point count."""
+    return ((np.asarray(z["groups" + which]).reshape(-1, 3), np.asarray(z["sums" + which]).reshape(-1, 10),
+             float(z["cell"]), float(z["z_ref"])), int(z["n" + which]))

@@ -441,6 +441,8 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
                        output: str | os.PathLike, *, crs: Any = None, control: str | os.PathLike | None = None,
                        classes: Sequence[int] | None = None, stride: int = 1, sd_control_m: float = 0.05,
                        sd_strip_m: float = 0.05, radius_m: float = 2.5, max_plane_rms_m: float = 0.15,
+                       max_observations: int | None = 200_000, workers: int | None = None,
+                       scheduler: str | None = None,
                        progress: Callable[[int, int], Any] | None = None) -> dict[str, Any]:
     """Roll/pitch boresight, scan-angle scale and elevation bias from LiDAR tiles and the flight's trajectory
     (``lidarcat lidar calibrate``, report 7.1.2).
@@ -449,7 +451,17 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
     :mod:`lidarcat.lidar.trajectory`); range and scan angle are rebuilt from
     point and sensor (:func:`lidarcat.production.lidarchecks.pulses_from_points`);
     the flight lines are the points' ``point_source_id``; the parameters are
-    estimated by :func:`lidarcat.production.lidarchecks.estimate_system_parameters`.
+    estimated as :func:`lidarcat.production.lidarchecks.estimate_system_parameters`
+    does, tile by tile on the tile engine (module docstring of
+    :mod:`lidarcat.production.lidarchecks`, "Tile by tile"): the tiles'
+    measured bounds (:func:`~lidarcat.production.lidarchecks.bounds_tile`,
+    which give each tile its neighbours), then two passes of
+    :func:`~lidarcat.production.lidarchecks.calibration_tile` (observations
+    chosen at the delivered points, then at the first step), each tile with
+    its neighbours' points within the planes' reach; the parent merges the
+    tiles' observations (at most *max_observations* of each kind) and
+    iterates.  Work files go to ``.<name>.calibration-tiles/`` beside the
+    output and are removed at the end.
 
     Parameters
     ----------
@@ -467,9 +479,18 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
     classes : sequence of int, optional
         Use only points of these classes (default: all).
     stride : int
-        Use every ``stride``-th point of the tiles (thins large tiles).
-    sd_control_m, sd_strip_m, radius_m, max_plane_rms_m, progress
+        Use one point in ``stride`` (chosen by a hash of the point, the same in
+        every tile that reads it).
+    max_observations : int or None
+        Keep at most this many control and this many strip observations (the
+        smallest point hashes of the survey); None: all.
+    workers, scheduler
+        The tile engine (:func:`lidarcat.lidar.jobs.run_jobs`): serial by
+        default; the same estimate either way.
+    sd_control_m, sd_strip_m, radius_m, max_plane_rms_m
         :func:`~lidarcat.production.lidarchecks.estimate_system_parameters`.
+    progress : callable, optional
+        ``progress(done, total)``: the tiles of the three passes, then the iterations.
 
     Raises
     ------
@@ -478,57 +499,111 @@ def system_calibration(tiles: Sequence[str | os.PathLike], trajectory: str | os.
         trajectory (names the first), fewer than two flight lines without a
         control surface, or a singular adjustment.
     """
-    from .._util.tables import write_json_atomic
-    from ..lidar.crs import resolve_crs
-    from ..lidar.readers import read_points
-    from ..lidar.trajectory import match_time_base, read_trajectory
-    from ..production.lidarchecks import PARAMETER_NAMES, estimate_system_parameters, pulses_from_points
+    import shutil
 
-    xyz, times, strips = [], [], []
-    tile_crs = resolve_crs(crs)
-    for t in tiles:
-        pc = read_points(t, crs=crs)
-        a = pc.attributes
-        for name in ("gps_time", "point_source_id"):
-            if name not in a:
-                raise ProductError(f"{t}: the points carry no {name}; the calibration joins points to the "
-                                   "trajectory by GPS time and to flight lines by point source id")
-        keep = np.ones(len(pc), dtype=bool)
-        if classes is not None and "classification" in a:
-            keep &= np.isin(a["classification"], list(classes))
-        idx = np.flatnonzero(keep)[::max(1, int(stride))]
-        xyz.append(pc.xyz[idx])
-        times.append(np.asarray(a["gps_time"])[idx])
-        strips.append(np.asarray(a["point_source_id"])[idx])
-        tile_crs = tile_crs or pc.crs
-    pts, gps, strip = np.concatenate(xyz), np.concatenate(times), np.concatenate(strips)
-    traj = read_trajectory(trajectory, tile_crs)
-    gps, time_note = match_time_base(gps, traj)
-    sensor, att = traj.at(gps)
-    pulses, along = pulses_from_points(pts, sensor, att, strip)
+    from .._util import file_sha256
+    from .._util.tables import write_json_atomic
+    from ..lidar.jobs import read_done_output, read_npz, run_jobs, tile_jobs
+    from ..production.lidarchecks import (
+        PARAMETER_NAMES,
+        CalibrationObservations,
+        bounds_tile,
+        calibration_tile,
+        estimate_from_observations,
+        merge_observations,
+    )
+
+    tiles = [Path(t) for t in tiles]
     ctrl = _read_control(control) if control is not None else None
-    if ctrl is None and np.unique(strip).size < 2:
-        raise ProductError(f"{len(pts)} points of one flight line (point source id {int(strip[0])}) and no control "
-                           "surface: the calibration needs overlapping flight lines or a control surface")
-    res = estimate_system_parameters(pulses, ctrl, sd_control_m=sd_control_m, sd_strip_m=sd_strip_m,
-                                     radius_m=radius_m, max_plane_rms_m=max_plane_rms_m, progress=progress)
+    out = Path(output)
+    work = out.parent / f".{out.stem}.calibration-tiles"
+    max_iter = 10
+    cap = None if max_observations is None else int(max_observations)
+    params = {"trajectory": str(trajectory), "trajectory_sha256": file_sha256(trajectory),
+              "control": None if ctrl is None else ctrl.tolist(),
+              "classes": None if classes is None else [int(c) for c in classes], "stride": int(stride),
+              "radius_m": float(radius_m), "k": 6, "max_plane_rms_m": float(max_plane_rms_m),
+              "max_control": cap, "max_strip": cap}
+    # the neighbours within the plane radius of a point at the first step, which moves it by < 1 m + radius
+    overlap = 2.0 * float(radius_m) + 1.0
+    n_tiles = len(tiles)
+    total = 3 * n_tiles + max_iter
+    done = [0]
+
+    def tick(k: int) -> None:
+        done[0] += k
+        if progress is not None:
+            progress(done[0], total)
+
+    # the tiles' measured bounds first: header bounds are unverified, so the engine would make every tile a
+    # neighbour of every other (n^2 edge-buffer pieces)
+    bjobs = [dataclasses.replace(j, neighbours=(), buffered=False)
+             for j in tile_jobs(bounds_tile, tiles, work / "bounds", crs=crs, suffix=".bounds.npz")]
+    run_jobs(bjobs, workers=workers, scheduler=scheduler, progress=tick)
+    measured = {j.tile: read_npz(read_done_output(j), j.output)["bounds"] for j in bjobs}
+
+    def near(b: np.ndarray, c: np.ndarray) -> bool:
+        return bool(np.all(np.isfinite(c)) and c[0] <= b[2] + overlap and c[2] >= b[0] - overlap
+                    and c[1] <= b[3] + overlap and c[3] >= b[1] - overlap)
+
+    def one_pass(name: str, at: Any) -> tuple[Any, list[dict[str, Any]]]:
+        jobs = tile_jobs(calibration_tile, tiles, work / name, crs=crs, overlap_m=overlap, suffix=".obs.npz",
+                         params={**params, "at": None if at is None else [float(x) for x in np.nan_to_num(
+                             at.as_array())]})
+        jobs = [dataclasses.replace(j, bounds=tuple(float(x) for x in measured[j.tile]), neighbours=tuple(
+            t for t, c in measured.items() if t != j.tile and near(measured[j.tile], c)))
+            if np.all(np.isfinite(measured[j.tile])) else dataclasses.replace(j, neighbours=()) for j in jobs]
+        run_jobs(jobs, workers=workers, scheduler=scheduler, progress=tick)
+        obs, zs = None, []
+        for j in jobs:      # in job order (serial == Dask), merged as they are read: at most the cap held
+            z = read_npz(read_done_output(j), j.output)
+            part = CalibrationObservations.from_arrays(z)
+            obs = part if obs is None else merge_observations([obs, part], max_control=cap, max_strip=cap)
+            zs.append({k: z[k] for k in ("lines", "n_points", "along_ss", "time_note")})
+        obs = merge_observations([obs], max_control=cap, max_strip=cap)
+        return obs, zs
+
+    obs1, zs = one_pass("first", None)
+    lines = np.unique(np.concatenate([z["lines"] for z in zs]))
+    n_points = int(sum(int(z["n_points"]) for z in zs))
+    if ctrl is None and lines.size < 2:
+        raise ProductError(f"{n_points} points of one flight line (point source id "
+                           f"{int(lines[0]) if lines.size else '-'}) and no control surface: the calibration "
+                           "needs overlapping flight lines or a control surface")
+    step = estimate_from_observations(obs1, ctrl, sd_control_m=sd_control_m, sd_strip_m=sd_strip_m, max_iter=1)
+    del obs1
+    obs2, _ = one_pass("second", step.parameters)
+    base = 3 * n_tiles
+    res = estimate_from_observations(obs2, ctrl, start=step.parameters, sd_control_m=sd_control_m,
+                                     sd_strip_m=sd_strip_m, max_iter=max_iter - 1,
+                                     progress=lambda i, n: progress(base + 1 + i, total) if progress else None)
+    res = dataclasses.replace(res, n_iter=res.n_iter + 1, rms_before_m=step.rms_before_m)
+    if progress is not None:
+        progress(total, total)
     d = res.to_dict()
     deg = {n.replace("_rad", "_deg"): (None if d["parameters"][n] is None else float(np.degrees(d["parameters"][n])))
            for n in PARAMETER_NAMES if n.endswith("_rad")}
     sd_deg = {n.replace("_rad", "_deg"): (None if d["sd"][n] is None else float(np.degrees(d["sd"][n])))
               for n in PARAMETER_NAMES if n.endswith("_rad")}
-    report = {"calibration": d, "parameters_deg": deg, "sd_deg": sd_deg, "points": int(len(pts)),
-              "flight_lines": [int(x) for x in np.unique(strip)], "time_base": time_note,
-              "along_track_rms_deg": float(np.degrees(np.sqrt(np.mean(along * along)))),
+    along_ss = sum(float(z["along_ss"]) for z in zs)
+    notes = sorted({str(z["time_note"]) for z in zs if int(z["n_points"])})
+    report = {"calibration": d, "parameters_deg": deg, "sd_deg": sd_deg, "points": n_points,
+              "flight_lines": [int(x) for x in lines], "time_base": "; ".join(notes),
+              "along_track_rms_deg": float(np.degrees(np.sqrt(along_ss / max(n_points, 1)))),
+              "observations": {"control": int(obs2.control.size), "strip": int(obs2.point.size),
+                               "control_found": obs2.seen_control, "strip_found": obs2.seen_strip,
+                               "max_observations": cap},
               "trajectory": str(trajectory), "control": None if control is None else str(control),
               "tiles": [str(t) for t in tiles], "files": [str(output)]}
-    write_json_atomic(Path(output), report)
+    write_json_atomic(out, report)
+    shutil.rmtree(work, ignore_errors=True)
     return report
 
 
 def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
                 cell_m: float = 1.0, quality_level: str = "QL2", classes: Sequence[int] | None | str = "auto",
                 smooth_rms_m: float = 0.05, max_slope_deg: float = 10.0, preview: bool = True,
+                workers: int | None = None, scheduler: str | None = None,
                 progress: Callable[[int, int], Any] | None = None) -> dict[str, Any]:
     """Swath separation image of LiDAR tiles (``lidarcat lidar swath``; USGS lidar base specification).
 
@@ -547,11 +622,17 @@ def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *
         Points used, all last returns except noise (7, 18) and withheld
         points, further limited to these classes; ``"auto"``: the ground
         class (2) when the tiles hold ground points, else every class.
+    workers, scheduler
+        The tile engine (:func:`lidarcat.lidar.jobs.run_jobs`): serial by
+        default, else a local Dask cluster of *workers* processes or the
+        cluster at *scheduler*; the same result either way.
     progress : callable, optional
         ``progress(tiles_done, tiles)``.
 
-    Tiles are read one at a time; what is kept is the sums of the plane fits
-    per (cell, flight line) (:func:`lidarcat.production.swath.swath_sums`).
+    A map-reduce on the tile engine: each tile's sums of the plane fits per
+    (cell, flight line) are a task (:func:`lidarcat.production.swath.swath_tile`,
+    written into ``.<name>.swath-tiles/`` beside the output, removed at the
+    end); the parent merges them in tile order and fits the planes once.
 
     Raises
     ------
@@ -559,70 +640,64 @@ def swath_check(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *
         Points without point source ids, fewer than two flight lines, an unknown quality level.
     """
     import math
+    import shutil
 
     from .._util.tables import write_json_atomic
-    from ..lidar.crs import crs_label, resolve_crs
+    from ..lidar.crs import crs_label
     from ..lidar.geotiff import write_geotiff
-    from ..lidar.readers import read_points
-    from ..production.swath import INTERSWATH_LIMITS, merge_sums, swath_from_sums, swath_sums, write_swath_png
+    from ..lidar.jobs import read_done_output, read_npz, run_jobs, tile_jobs
+    from ..lidar.tileindex import TileIndex
+    from ..production.swath import (INTERSWATH_LIMITS, merge_sums, read_swath_partial, swath_from_sums,
+                                    swath_tile, write_swath_png)
 
     if quality_level not in INTERSWATH_LIMITS:
         raise ProductError(f"quality level must be one of {', '.join(INTERSWATH_LIMITS)}, got {quality_level!r}")
-    # tile by tile: the additive sums of the plane fits (production.swath, "Tile by tile")
-    parts: dict[str, list[Any]] = {"all": [], "ground": []}
-    npts = {"all": 0, "ground": 0}
     fixed = None if isinstance(classes, str) or classes is None else [int(c) for c in classes]
-    out_crs = resolve_crs(crs)
-    z_ref: float | None = None
-    for k, t in enumerate(tiles):
-        pc = read_points(t, crs=crs)
-        a = pc.attributes
-        if "point_source_id" not in a:
-            raise ProductError(f"{t}: the points carry no point_source_id; swath separation compares flight lines")
-        keep = np.ones(len(pc), dtype=bool)
-        if "return_number" in a and "number_of_returns" in a:
-            keep &= np.asarray(a["return_number"]) == np.asarray(a["number_of_returns"])
-        if "withheld" in a:
-            keep &= ~np.asarray(a["withheld"], dtype=bool)
-        c = np.asarray(a["classification"]) if "classification" in a else np.zeros(len(pc), dtype=np.uint8)
-        keep &= ~np.isin(c, (7, 18))
-        if fixed is not None:
-            keep &= np.isin(c, fixed)
-        xyz, lid, cls = pc.xyz[keep], np.asarray(a["point_source_id"])[keep], c[keep]
-        if z_ref is None and len(xyz):
-            z_ref = float(np.median(xyz[:, 2]))
-        parts["all"].append(swath_sums(xyz, lid, cell_m, z_ref_m=z_ref or 0.0))
-        npts["all"] += len(xyz)
-        if isinstance(classes, str):
-            g = cls == 2
-            parts["ground"].append(swath_sums(xyz[g], lid[g], cell_m, z_ref_m=z_ref or 0.0))
-            npts["ground"] += int(g.sum())
-        out_crs = out_crs or pc.crs
+    out = Path(output)
+    work = out.parent / f".{out.stem}.swath-tiles"
+    out_crs = TileIndex.build([Path(t) for t in tiles], crs=crs).crs
+    jobs = tile_jobs(swath_tile, tiles, work, crs=crs, suffix=".swath.npz",
+                     params={"cell_m": float(cell_m), "classes": "auto" if isinstance(classes, str) else fixed})
+    jobs = [dataclasses.replace(j, buffered=False, neighbours=()) for j in jobs]   # own points only: sums add
+    done = [0]
+
+    def tick(k: int) -> None:
+        done[0] += k
         if progress is not None:
-            progress(k + 1, len(tiles))
+            progress(done[0], len(jobs))
+
+    run_jobs(jobs, workers=workers, scheduler=scheduler, progress=tick)
+    # the reduce: the tiles' sums in job order (the same bytes serially or on Dask)
+    parts: dict[str, list[Any]] = {"": [], "_ground": []}
+    npts = {"": 0, "_ground": 0}
+    for j in jobs:
+        z = read_npz(read_done_output(j), j.output)
+        for which in (("", "_ground") if isinstance(classes, str) else ("",)):
+            sums, n = read_swath_partial(z, which)
+            parts[which].append(sums)
+            npts[which] += n
     used: list[int] | None = fixed
-    key = "all"
-    if isinstance(classes, str) and npts["ground"] > 0:
-        used, key = [2], "ground"
+    key = ""
+    if isinstance(classes, str) and npts["_ground"] > 0:
+        used, key = [2], "_ground"
     if npts[key] == 0:
         raise ProductError(f"no last return{'' if used is None else ' of classes ' + ','.join(map(str, used))} "
                            f"in {', '.join(map(str, tiles))}")
     merged = merge_sums(parts[key])
     sep = swath_from_sums(merged, smooth_rms_m=smooth_rms_m, max_slope=math.tan(math.radians(max_slope_deg)))
-    pts_n = npts[key]
     lid = merged[0][:, 2]
-    out = Path(output)
     files = [write_geotiff(out.with_suffix(".tif"), sep.dz_m.astype(np.float32), sep.transform, out_crs)]
     if preview:
         files.append(write_swath_png(out.with_suffix(".png"), sep, quality_level))
     stats = sep.assess(quality_level)
-    report = {"swath": stats, "cell_m": cell_m, "classes": used, "points": int(pts_n),
+    report = {"swath": stats, "cell_m": cell_m, "classes": used, "points": int(npts[key]),
               "flight_lines": [int(x) for x in np.unique(lid)], "smooth_rms_m": smooth_rms_m,
               "max_slope_deg": max_slope_deg, "crs": crs_label(out_crs) if out_crs is not None else None,
               "tiles": [str(t) for t in tiles]}
     json_path = out.with_suffix(".json")
     report["files"] = [str(f) for f in files] + [str(json_path)]
     write_json_atomic(json_path, report)
+    shutil.rmtree(work, ignore_errors=True)
     return report
 
 
