@@ -412,6 +412,10 @@ def tile_jobs(func: TileFunction, paths: Sequence[str | os.PathLike], out: str |
               suffix: str | None = None) -> list[TileJob]:
     """One :class:`TileJob` running *func* per tile; neighbours are the tiles within *overlap_m* of it.
 
+    With several tiles, each tile's bounds are first measured from its points (one read per
+    tile, :meth:`TileIndex.verify_bounds`): header bounds are unverified claims, and a tile with
+    unverified bounds would be every other tile's neighbour.
+
     Parameters
     ----------
     func : callable
@@ -438,6 +442,11 @@ def tile_jobs(func: TileFunction, paths: Sequence[str | os.PathLike], out: str |
     if not paths:
         raise ValueError("no tiles given")
     index = TileIndex.build(paths, crs=crs)
+    if len(index.tiles) > 1:
+        # A LAS header's bounds are a claim; an unverified tile "may meet" every box, so each
+        # job would read every other tile as its neighbour (n^2 reads).  One read per tile
+        # measures them instead (n reads).
+        index.verify_bounds()
     tiles = list(index.tiles)
     out = Path(out)
     single = len(tiles) == 1 and out.suffix.lower() in (".las", ".laz", ".tif", ".tiff")
