@@ -228,18 +228,24 @@ def test_precision_option(tmp_path, gps_run):
 
 
 def test_snooping_with_additional_parameters_refused_or_off(tmp_path):
-    """Data snooping needs the plain adjustment: with --self-calibrate / --frame-offset an explicit
-    --snooping report|remove or --robust is refused (exit 2, nothing written); by default it is off
-    and the output says why."""
-    from lidarcat.survey.selfcal import SNOOPING_WITH_PARAMETERS
+    """With --self-calibrate / --frame-offset --robust is refused (exit 2, nothing written); data snooping
+    runs on the adjustment without the parameters when asked (blunders.csv, no reliability.csv); by
+    default on a survey without matched tie points it is off and the output says why."""
+    from lidarcat.survey.selfcal import ROBUST_WITH_PARAMETERS, SNOOPED_WITHOUT_PARAMETERS, SNOOPING_WITH_PARAMETERS
 
-    for extra, opt in ((["--snooping", "remove"], "--snooping remove"), (["--snooping", "report"],
-                       "--snooping report"), (["--robust", "danish"], "--robust danish")):
-        r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--self-calibrate", "c", *extra,
-                                     "-o", str(tmp_path / "x")])
-        assert r.exit_code == 2, r.output
-        assert r.output.endswith(f"Error: {opt}: {SNOOPING_WITH_PARAMETERS}\n")
-        assert not (tmp_path / "x").exists()
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--self-calibrate", "c", "--robust", "danish",
+                                 "-o", str(tmp_path / "x")])
+    assert r.exit_code == 2, r.output
+    assert r.output.endswith(f"Error: --robust danish: {ROBUST_WITH_PARAMETERS}\n")
+    assert not (tmp_path / "x").exists()
+    r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--self-calibrate", "c", "--snooping", "report",
+                                 "--snooping-level", "0.001", "-o", str(tmp_path / "rep")])
+    assert r.exit_code == 0, r.output
+    assert f"Note: {SNOOPED_WITHOUT_PARAMETERS}." in r.output
+    s = json.loads((tmp_path / "rep" / "summary.json").read_text())
+    assert s["snooping"]["mode"] == "report" and s["snooping"]["reason"] == SNOOPED_WITHOUT_PARAMETERS
+    assert len(s["blunders"]) == 3 and not any(b["removed"] for b in s["blunders"])   # as without parameters
+    assert (tmp_path / "rep" / "blunders.csv").exists() and not (tmp_path / "rep" / "reliability.csv").exists()
     r = CliRunner().invoke(cli, ["adjust", str(THESIS_SURVEY), "--self-calibrate", "c", "--snooping", "off",
                                  "-o", str(tmp_path / "off")])
     assert r.exit_code == 0, r.output

@@ -174,9 +174,10 @@ def exit_status(summary: dict) -> tuple[int, str]:
                    "constraint (w-test) at the --family-level; one rejection per re-adjustment, or several when "
                    "they are far apart (no shared or neighbouring photo). 'report' names the blunders and keeps "
                    "them in the adjustment; 'remove' adjusts without them. Default 'report'; 'remove' on a "
-                   "matched survey (image observations with sds of their own, see --variance-components). Not "
-                   "available with --self-calibrate/--frame-offset (there the default is off and report/remove "
-                   "are refused).")
+                   "matched survey (image observations with sds of their own, see --variance-components). With "
+                   "--self-calibrate/--frame-offset the tests are made in the adjustment without the parameters, "
+                   "which are then estimated from the observations kept (default there: off, 'remove' on a "
+                   "matched survey).")
 @click.option("--family-level", type=click.FloatRange(0, 0.5, min_open=True, max_open=True),
               default=0.05, show_default=True,
               help="Probability that a block without blunders has any test rejecting: the level of each "
@@ -206,9 +207,10 @@ def exit_status(summary: dict) -> tuple[int, str]:
                    "measurements (automatic tie points are more precise than hand-measured targets; the "
                    "simplified camera of real frames makes them less). Default: on when image_points.csv "
                    "carries sds of its own (sd_x_mm, sd_y_mm: what `lidarcat match` writes) and the survey is "
-                   "no rig block -- the rule of `lidarcat run` -- with --snooping remove; off otherwise and with "
-                   "--self-calibrate/--frame-offset. summary.json lists each group's sigma0, factor and "
-                   "redundancy.")
+                   "no rig block -- the rule of `lidarcat run` -- with --snooping remove; off otherwise. With "
+                   "--self-calibrate/--frame-offset the factors are estimated without the parameters and the "
+                   "adjustment with them uses the sds times the factors. summary.json lists each group's "
+                   "sigma0, factor and redundancy.")
 @click.option("--self-calibrate", metavar="PARAMS", default=None,
               help="Estimate interior-orientation corrections per camera: a comma list of c, x0, y0, "
                    "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free), "
@@ -272,16 +274,17 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
     With --self-calibrate / --frame-offset (or a [self_calibration] table in
     survey.toml) summary.json gains additional_parameters, frame_offset,
     parameter_groups, parameters_off/parameters_on (v'Pv without and with them)
-    and warnings; a control set 'a+b' joins two sets of control_sets.csv. Data
-    snooping and --robust apply to the plain adjustment only: with parameters
-    they are refused (exit 2) and the default is off; find the blunders first
-    without the parameters.
+    and warnings; a control set 'a+b' joins two sets of control_sets.csv. With
+    parameters, data snooping and the variance components run on the adjustment
+    without them, in the same command, and the parameters are estimated from the
+    observations kept (on a matched survey by default: `lidarcat adjust S
+    --eo-constraints --self-calibrate thesis`); --robust is refused (exit 2).
     """
     from .._util import atomic_dir
     from ..stages.adjust import adjust as adjust_action
     from ..stages.adjust import auto_variance_components
     from ..survey.selfcal import (
-        SNOOPING_WITH_PARAMETERS,
+        ROBUST_WITH_PARAMETERS,
         adjust_survey_with_parameters,
         format_parameters,
         wants_parameters,
@@ -290,23 +293,22 @@ def adjust(survey: str | None, control: str | None, observations: str | None, ou
 
     loaded = Survey.load(survey)  # once, for both paths
     with_parameters = wants_parameters(loaded, self_calibrate, frame_offset)
-    if with_parameters and (snooping not in (None, "off") or robust != "none"):
-        opt = f"--snooping {snooping}" if snooping not in (None, "off") else f"--robust {robust}"
-        raise click.UsageError(f"{opt}: {SNOOPING_WITH_PARAMETERS}")
-    if with_parameters and variance_components:
-        raise click.UsageError("--variance-components: applies to the plain adjustment only (not with "
-                               "--self-calibrate/--frame-offset); estimate the components first without them")
-    auto = variance_components is None and not with_parameters and auto_variance_components(loaded)
+    if with_parameters and robust != "none":
+        raise click.UsageError(f"--robust {robust}: {ROBUST_WITH_PARAMETERS}")
+    auto = variance_components is None and auto_variance_components(loaded)
     if variance_components is None:     # the rule of `lidarcat run`: a matched survey
         variance_components = auto
     if snooping is None:
-        snooping = "remove" if auto else "report"
+        snooping = "remove" if auto else ("off" if with_parameters else "report")
     if with_parameters:
-        _, out = adjust_survey_with_parameters(
-            loaded, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
-            similarity=similarity, observations=observations, outdir=outdir,
-            variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter,
-            precision=precision)
+        with progress_bar(max_iter, "Adjusting (iterations)", enabled=not as_json and snooping != "off") as bar:
+            _, out = adjust_survey_with_parameters(
+                loaded, control=control, self_calibrate=self_calibrate, frame_offset=frame_offset,
+                similarity=similarity, observations=observations, outdir=outdir,
+                variance_factor=variance_factor, eo_constraints=eo_constraints, max_iter=max_iter,
+                precision=precision, snooping=snooping, snooping_level=snooping_level,
+                family_level=family_level, start=start, variance_components=variance_components,
+                progress=None if bar is None else lambda _it, _cost: bar.update(1))
     else:
         # one tick per Levenberg-Marquardt iteration (re-adjustments of the snooping included)
         with progress_bar(max_iter, "Adjusting (iterations)", enabled=not as_json) as bar:
