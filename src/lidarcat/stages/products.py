@@ -342,7 +342,8 @@ MAX_CHART_SPAN_M = 200_000.0
 def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, folder: Path, *, crs: Any,
                  title: Any, index: str = "grid", size_m: float = 1000.0,
                  area: tuple[float, float, float, float] | None = None, only: list[str] | None = None,
-                 dpi: int = 150, progress: Any = None, workers: int | None = None) -> dict[str, Any]:
+                 dpi: int = 150, progress: Any = None, workers: int | None = None,
+                 scheduler: str | None = None) -> dict[str, Any]:
     """The orthophoto chart of every sheet of *index* holding mosaic cells or contours: <sheet>.pdf and .png
     in *folder* (the action of ``lidarcat chart`` and of ``[products] charts``).
 
@@ -363,8 +364,9 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
         Chart only these sheets (a name outside the data is an error).
     progress : callable, optional
         ``progress(done, total)`` per chart.
-    workers : int, optional
-        Processes drawing the charts (:func:`lidarcat.production.charts.render_charts`; default one per core).
+    workers, scheduler : optional
+        The tile runner's (:func:`lidarcat.production.charts.render_charts`): default serially in this
+        process, else a local Dask cluster of *workers* processes or the Dask scheduler at *scheduler*.
 
     Returns
     -------
@@ -422,7 +424,7 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
     names = [safe_component(s.name, "sheet name", error=ProductError) for s in todo]
     files = render_charts(todo, names, title, folder, image=image, image_transform=transform, contours=features,
                           spots=spots, sheets=used, area=area or lb, crs=crs, dpi=dpi, workers=workers,
-                          progress=progress)
+                          scheduler=scheduler, progress=progress)
     return {"sheets": [s.name for s in todo], "scale": int(title.scale), "mosaic": str(mosaic_path),
             "files": files}
 
