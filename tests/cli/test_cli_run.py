@@ -53,10 +53,7 @@ def test_run_thesis_json_then_reuse(tmp_path):
     assert json.loads(res.output)["stages_ran"] == ["assess-gps", "assess-lidar", "report"]
     assessment = json.loads((tmp_path / "out" / "assess-gps" / "assessment.json").read_text())
     assert assessment["settings"]["scale"] == 5000
-
-    res = runner.invoke(cli, ["run", "-o", str(tmp_path / "out"), "--force", "--json"])
-    assert res.exit_code == 0
-    assert "adjust-gps" in json.loads(res.output)["stages_ran"]
+    # --force: test_run_default_outdir_of_a_survey_folder (a gps-only run, a third cheaper)
 
 
 def _gps_only(survey: Path) -> None:
@@ -102,6 +99,9 @@ def test_run_default_outdir_of_a_survey_folder(tmp_path, survey_copy):
     assert res.exit_code == 0, res.output
     assert json.loads(res.output)["outdir"] == str(survey / "out")
     assert json.loads((survey / "out" / "summary.json").read_text())["runs"]["gps"]["adjustment"]["dof"] == 128
+    res = CliRunner().invoke(cli, ["run", str(survey), "--force", "--json"])   # --force: every stage again
+    assert res.exit_code == 0
+    assert "adjust-gps" in json.loads(res.output)["stages_ran"]
 
 
 @pytest.mark.slow
