@@ -1,9 +1,9 @@
-"""Orthophoto charts drawn serially and in a process pool (``production.charts.render_charts``).
+"""Orthophoto charts drawn serially and on the tile runner's Dask cluster (``production.charts.render_charts``).
 
 A synthetic block of ``--sheets`` sheets of 500 m in a row (contours every 1 m of a smooth
 terrain, an RGB uint8 mosaic of 1 m cells, spot heights); the same charts are drawn with
-``workers=1`` (in this process) and ``workers=N``, alternately, and the files compared
-byte for byte.  Timings depend on the load of the machine: it is printed.
+``workers=None`` (serially, in this process) and ``workers=N`` (a Dask ``LocalCluster`` of N
+processes, started inside the timing), alternately, and the files compared byte for byte.  Timings depend on the load of the machine: it is printed.
 
 Run::
 
@@ -50,7 +50,6 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--dpi", type=int, default=60)
     ap.add_argument("--repeats", type=int, default=1)
-    ap.add_argument("--start", choices=["fork", "spawn", "auto"], default="auto")
     a = ap.parse_args()
     feats, spots, img, t, sheets = block(a.sheets)
     title = TitleBlock("bench", 5000, "SIRGAS 2000 / UTM zone 23S (EPSG:31983)", -21.5, "2009-06-01", "2026-11-28",
@@ -63,17 +62,16 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         outs = {}
         for r in range(a.repeats):
-            for w in (1, a.workers):
+            for w in (None, a.workers):
                 out = Path(d) / f"w{w}"
                 out.mkdir(exist_ok=True)
                 t0 = time.perf_counter()
                 render_charts(sheets, names, title, out, image=img, image_transform=t, contours=feats, spots=spots,
-                              sheets=sheets, area=(E0, N0, E0 + 500.0 * a.sheets, N0 + 500), dpi=a.dpi, workers=w,
-                              start_method=None if a.start == "auto" else a.start)
+                              sheets=sheets, area=(E0, N0, E0 + 500.0 * a.sheets, N0 + 500), dpi=a.dpi, workers=w)
                 dt = time.perf_counter() - t0
                 outs[w] = out
-                print(f"| {r + 1} | {w} | {dt:.1f} | {dt / len(sheets):.2f} | {os.getloadavg()[0]:.2f} |")
-        same = all((outs[1] / f"{n}.{e}").read_bytes() == (outs[a.workers] / f"{n}.{e}").read_bytes()
+                print(f"| {r + 1} | {w or 'serial'} | {dt:.1f} | {dt / len(sheets):.2f} | {os.getloadavg()[0]:.2f} |")
+        same = all((outs[None] / f"{n}.{e}").read_bytes() == (outs[a.workers] / f"{n}.{e}").read_bytes()
                    for n in names for e in ("pdf", "png"))
         print(f"serial and parallel charts byte-identical: {same}")
 

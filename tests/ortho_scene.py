@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -17,3 +18,15 @@ EO_B = np.array([E0 + 60, N0 - 5, 910 + 250.0, math.radians(-0.7), math.radians(
 GSD = 0.25
 BOUNDS = (E0 - 100, N0 - 60, E0 + 100, N0 + 60)
 MODEL_BOUNDS = (E0 - 130, N0 - 90, E0 + 130, N0 + 90)
+
+
+@functools.lru_cache(maxsize=None)
+def rendered(which: str) -> np.ndarray:
+    """The demo scene photographed by CAM from EO_A (``"A"``) or EO_B (``"B"``), rendered once per test
+    process (about 10 s each at load 17; seven test files use them) and read-only, so no test can
+    change another's photo."""
+    from lidarcat.synthetic.scene import demo_scene
+
+    img = demo_scene().render(CAM, {"A": EO_A, "B": EO_B}[which])
+    img.setflags(write=False)
+    return img

@@ -298,7 +298,7 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("lidar/crs.py", "transform_points", "ValueError", "xy must have 2 or 3 columns, got shape {"): _SHAPE,
     ("lidar/jobs.py", "tile_jobs", "ValueError", "no tiles given"):
         "argument check; the CLI expands TILE... and refuses a glob matching nothing",
-    ("lidar/jobs.py", "run_jobs", "ValueError", "workers must be at least 1, got {}"): _ARG,
+    ("lidar/jobs.py", "_client", "ValueError", "workers must be at least 1, got {}"): _ARG,
     ("lidar/raster.py", "rasterize", "ValueError", "unknown raster {}; use one of {}"): _ENUM,
     ("lidar/raster.py", "rasterize", "ValueError", "cell_m must be positive, got {}"): _ARG,
     ("lidar/raster.py", "rasterize", "ValueError", "unknown fill {}"): _ENUM,

@@ -100,10 +100,12 @@ def test_family_level_solves_sidak_over_the_b_method_levels(gps):
         family_alpha(counts, 0.0)
 
 
+@pytest.mark.slow
 def test_family_level_false_alarms_on_clean_blocks(gps_problem, gps):
     """Clean thesis geometry (simulated noise only): at the family level at most ~5 % of the
     blocks have any test rejecting; at a fixed 0.001 per test about n * alpha_q good
-    observations are flagged per block (151 image tests x 0.0028)."""
+    observations are flagged per block (151 image tests x 0.0028).  Slow (150 adjustments, 58 s at
+    load 15); the family level's fast cases are the blunder tests of this file."""
     rng = np.random.default_rng(21)
     n, any_family, flagged_fixed = 150, 0, 0
     start = (np.asarray(gps.eo_params), np.asarray(gps.points_m))

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarcat.bundle.additional import GRUEN_CAVEAT, AdditionalParameterError, SelfCalibration, parse_parameters
+from lidarcat.bundle.additional import AdditionalParameterError, SelfCalibration, parse_parameters
 from lidarcat.bundle.selfcal import adjust_with_parameters
 from lidarcat.geometry.apsets import parameter_set
 from lidarcat.geometry.camera import Camera
@@ -132,12 +132,18 @@ def test_ebner_distortion_recovered_within_3_sd_and_residuals_at_noise(ebner_sol
     assert res.bundle.chi2["passed"] and not res.without.chi2["passed"]
 
 
-def test_gruen_is_caveated_in_the_warnings():
+def test_gruen_carries_no_caveat_since_its_bias_is_removed():
+    """The gruen set's warning ("its standard deviations are too small", GRUEN_CAVEAT) predated the
+    bias correction of the bundle; with it the six terms' mean standardised error is -0.03 and all 44
+    have rms 0.98 over 20 seeds (tests/bundle/test_models_block_gruen.py, slow), so the set adds no
+    warning of its own: what is left are the block's parameters it cannot determine."""
     problem, cam = ebner_block(0)
     res = adjust_with_parameters(problem, [SelfCalibration({"cam": cam}, ["cam"] * problem.n_photos, "gruen")])
-    assert len(res.names) == 44
-    assert GRUEN_CAVEAT in res.warnings() and GRUEN_CAVEAT in res.summary()["warnings"]
-    assert GRUEN_CAVEAT.startswith("the gruen set's standard deviations are too small")
+    assert len(res.names) == 44 and res.notes == ()
+    w = res.warnings()
+    assert w and all(x.startswith("additional parameter 'cam.g") and "is not determinable from this block" in x
+                     for x in w)
+    assert not any("too small" in x or "optimistic" in x for x in res.summary()["warnings"])
 
 
 def test_focal_length_against_flying_height_says_why():

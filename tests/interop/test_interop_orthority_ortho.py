@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from ortho_scene import CAM, EO_A, GSD, MODEL_BOUNDS
+from ortho_scene import CAM, EO_A, GSD, MODEL_BOUNDS, rendered
 
 from lidarcat.cli.main import cli
 from lidarcat.interop.block import Block, write_survey
@@ -116,7 +116,7 @@ def test_orthority_camera_from_export_projects_as_lidarcat(tmp_path):
 
 def test_orthority_orthophoto_from_export_agrees_with_lidarcat(tmp_path):
     scene = demo_scene()
-    image = scene.render(CAM, EO_A)
+    image = rendered("A")
     dsm, t = scene.grid(MODEL_BOUNDS, 0.25, "dsm")
     write_geotiff(tmp_path / "dsm.tif", dsm, t, CRS)
     cv2.imwrite(str(tmp_path / "A.png"), image)

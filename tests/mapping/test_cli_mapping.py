@@ -16,7 +16,7 @@ from lidarcat.lidar import PointCloud, resolve_crs, write_points
 from lidarcat.lidar.geotiff import write_geotiff
 from lidarcat.synthetic.scene import demo_scene
 
-from ortho_scene import CAM, E0, EO_A, EO_B, MODEL_BOUNDS, N0  # noqa: I001  (same camera and photos)
+from ortho_scene import CAM, E0, EO_A, EO_B, MODEL_BOUNDS, N0, rendered  # noqa: I001  (same camera and photos)
 
 CRS = "EPSG:31982"
 
@@ -39,7 +39,7 @@ def survey(tmp_path_factory):
                                       f'"image_points.csv"\nlidar = ["lidar/*.laz"]\n\n[lidar]\ncrs = "{CRS}"\n')
     (root / "images").mkdir()
     for pid, eo in (("A", EO_A), ("B", EO_B)):
-        cv2.imwrite(str(root / "images" / f"{pid}.png"), scene.render(CAM, eo))
+        cv2.imwrite(str(root / "images" / f"{pid}.png"), rendered(pid))
     eop = root / "out" / "adjust-gps"
     eop.mkdir(parents=True)
     rows = ["photo,X0,Y0,Z0,omega,phi,kappa,sd_X0,sd_Y0,sd_Z0,sd_omega,sd_phi,sd_kappa"]

@@ -10,15 +10,15 @@ from lidarcat.mapping.mosaic import mosaic, seam_contrast
 from lidarcat.mapping.ortho import PhotoModel
 from lidarcat.synthetic.scene import demo_scene
 
-from ortho_scene import BOUNDS, CAM, EO_A, EO_B, GSD, MODEL_BOUNDS  # noqa: I001
+from ortho_scene import BOUNDS, CAM, EO_A, EO_B, GSD, MODEL_BOUNDS, rendered  # noqa: I001
 
 
 @pytest.fixture(scope="module")
 def block():
     """The two rendered photos of the synthetic scene, B exposed darker with a lifted black level."""
     scene = demo_scene()
-    a = PhotoModel("A", scene.render(CAM, EO_A), CAM, EO_A)
-    img_b = scene.render(CAM, EO_B).astype(np.float64)
+    a = PhotoModel("A", rendered("A"), CAM, EO_A)
+    img_b = rendered("B").astype(np.float64)
     b = PhotoModel("B", np.clip(0.6 * img_b + 25.0, 0, 255).astype(np.uint8), CAM, EO_B)
     return a, b, GridSurface(*scene.grid(MODEL_BOUNDS, 0.25, "dsm"))
 

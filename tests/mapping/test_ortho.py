@@ -15,7 +15,7 @@ from lidarcat.mapping.mosaic import mosaic
 from lidarcat.mapping.ortho import OrthoError, PhotoModel, orthophoto
 from lidarcat.synthetic.scene import demo_scene
 
-from ortho_scene import BOUNDS, CAM, E0, EO_A, EO_B, GSD, MODEL_BOUNDS, N0  # noqa: I001  (tests/ortho_scene.py)
+from ortho_scene import BOUNDS, CAM, E0, EO_A, EO_B, GSD, MODEL_BOUNDS, N0, rendered  # noqa: I001  (tests/ortho_scene.py)
 
 
 @pytest.fixture(scope="module")
@@ -25,12 +25,12 @@ def scene():
 
 @pytest.fixture(scope="module")
 def photo_a(scene):
-    return PhotoModel("A", scene.render(CAM, EO_A), CAM, EO_A)
+    return PhotoModel("A", rendered("A"), CAM, EO_A)
 
 
 @pytest.fixture(scope="module")
 def photo_b(scene):
-    return PhotoModel("B", scene.render(CAM, EO_B), CAM, EO_B)
+    return PhotoModel("B", rendered("B"), CAM, EO_B)
 
 
 @pytest.fixture(scope="module")

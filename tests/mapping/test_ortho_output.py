@@ -20,7 +20,7 @@ from lidarcat.mapping.ortho import OrthoError, PhotoModel, fill_holes, grid_heig
 from lidarcat.synthetic.scene import demo_scene
 from lidarcat.errors import SurveyError
 
-from ortho_scene import CAM, E0, EO_A, MODEL_BOUNDS, N0  # noqa: I001  (tests/ortho_scene.py)
+from ortho_scene import CAM, E0, EO_A, MODEL_BOUNDS, N0, rendered  # noqa: I001  (tests/ortho_scene.py)
 
 CRS = "EPSG:31982"
 B = (E0 - 40, N0 - 30, E0 + 40, N0 + 30)
@@ -33,7 +33,7 @@ def scene():
 
 @pytest.fixture(scope="module")
 def image(scene):
-    return scene.render(CAM, EO_A)
+    return rendered("A")
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from lidarcat.mapping.monoplot import GridSurface, monoplot
 from lidarcat.mapping.ortho import PhotoModel, orthophoto
 
 from test_cli_mapping import CRS, _px, survey  # noqa: F401,I001  (the fixture survey: camera, photos A and B, LiDAR, DSM)
-from ortho_scene import CAM, E0, EO_A, N0  # noqa: I001
+from ortho_scene import CAM, E0, EO_A, N0, rendered  # noqa: I001
 
 BOUNDS = [E0 - 60, N0 - 40, E0 + 60, N0 + 40]
 
@@ -57,7 +57,7 @@ def test_lidar_dsm_then_ortho_then_monoplot_on_the_compressed_dsm(survey, tmp_pa
     with rasterio.open(out / "ortho_A.tif") as src:
         assert src.profile["compress"] == "deflate" and src.profile["tiled"] and src.crs.to_epsg() == 31982
         ortho = src.read(1, masked=True).astype(np.float32).filled(np.nan)   # uint8 + internal mask
-    photo = PhotoModel("A", scene.render(CAM, EO_A), CAM, EO_A)
+    photo = PhotoModel("A", rendered("A"), CAM, EO_A)
     same = orthophoto(photo, GridSurface(mem, tm), 0.5, bounds=BOUNDS, true_ortho=True).array[:, :, 0]
     np.testing.assert_array_equal(np.isnan(ortho), np.isnan(same))
     np.testing.assert_allclose(np.nan_to_num(ortho), np.nan_to_num(same), atol=0.5)   # 8-bit photo, re-read
@@ -100,7 +100,7 @@ def test_dem_of_another_program_is_read_by_ortho_and_monoplot(survey, tmp_path, 
     assert surface.transform == GeoTransform(t.x0, t.y0, 0.5)
     out = tmp_path / "o"
     _run("ortho", root, "--photo", "A", "--dsm", tmp_path / name, "--gsd", "0.5", "--bounds", *BOUNDS, "-o", out)
-    photo = PhotoModel("A", scene.render(CAM, EO_A), CAM, EO_A)
+    photo = PhotoModel("A", rendered("A"), CAM, EO_A)
     same = orthophoto(photo, GridSurface(grid, t), 0.5, bounds=BOUNDS, true_ortho=True).array[:, :, 0]
     got, ot, _ = read_geotiff(out / "ortho_A.tif")
     assert ot == GeoTransform(BOUNDS[0], BOUNDS[3], 0.5)

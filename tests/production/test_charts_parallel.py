@@ -1,4 +1,5 @@
-"""Charts drawn in a process pool: the same bytes as drawn serially, progress per chart, errors re-raised."""
+"""Charts drawn on the tile runner (a Dask LocalCluster): the same bytes as drawn serially, progress per chart,
+errors re-raised."""
 
 from __future__ import annotations
 
@@ -32,8 +33,7 @@ def block():
         (E0, N0, E0 + 1500, N0 + 500), 500)
 
 
-@pytest.mark.parametrize("start", ["spawn", None])
-def test_parallel_charts_are_the_serial_charts(block, tmp_path, start):
+def test_parallel_charts_are_the_serial_charts(block, tmp_path):
     feats, spots, img, t, sheets = block
     assert len(sheets) == 3
     names = [s.name for s in sheets]
@@ -41,10 +41,12 @@ def test_parallel_charts_are_the_serial_charts(block, tmp_path, start):
               area=(E0, N0, E0 + 1500, N0 + 500), dpi=30)
     seen = []
     (tmp_path / "par").mkdir()
-    files = render_charts(sheets, names, TITLE, tmp_path / "par", workers=2, start_method=start,
+    files = render_charts(sheets, names, TITLE, tmp_path / "par", workers=2,
                           progress=lambda d, n: seen.append((d, n)), **kw)
     assert files == [f"{n}.{e}" for n in names for e in ("pdf", "png")]
     assert seen == [(1, 3), (2, 3), (3, 3)]
+    (tmp_path / "ser").mkdir()
+    assert render_charts(sheets, names, TITLE, tmp_path / "ser", **kw) == files   # serially, in this process
     # the reference: draw_chart on the whole mosaic, in this process
     for s in sheets:
         fig = draw_chart(s, TITLE, image=img, image_transform=t, contours=feats, spots=spots, sheets=sheets,
@@ -52,6 +54,8 @@ def test_parallel_charts_are_the_serial_charts(block, tmp_path, start):
         pdf, png = write_chart(fig, tmp_path / f"{s.name}.pdf", tmp_path / f"{s.name}.png", dpi=30)
         assert (tmp_path / "par" / f"{s.name}.pdf").read_bytes() == pdf.read_bytes(), s.name
         assert (tmp_path / "par" / f"{s.name}.png").read_bytes() == png.read_bytes(), s.name
+        for f in (pdf, png):
+            assert (tmp_path / "ser" / f.name).read_bytes() == f.read_bytes(), f.name
 
 
 def test_a_worker_error_is_raised_in_the_caller(block, tmp_path):

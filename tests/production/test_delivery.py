@@ -135,3 +135,30 @@ def test_deliver_refuses_a_broken_spot_layer_by_location(tmp_path, text, message
     assert r.exit_code == 2, r.output
     assert message in r.output
     assert not (tmp_path / "out").exists()
+
+
+def test_deliver_command_and_the_stage_run_one_action(layers, tmp_path, monkeypatch):
+    """``lidarcat deliver`` calls the action of ``[products] delivery`` (stages.products.deliver), whose
+    in-memory layers and product files give the same Shapefile."""
+    import pyogrio
+    from click.testing import CliRunner
+
+    import lidarcat.stages.products as sp
+    from lidarcat.cli.main import cli
+    from lidarcat.production.contours import write_geojson
+
+    feats, _ = layers
+    write_geojson(tmp_path / "contours.geojson", feats, CRS)
+    (tmp_path / "mem").mkdir()
+    out = sp.deliver(tmp_path / "mem", ["shp"], layers={"contours": feats}, crs=CRS)
+    assert out["files"] == [f"shp/contours.{x}" for x in ("cpg", "dbf", "prj", "shp", "shx")]
+    calls = []
+    action = sp.deliver
+    monkeypatch.setattr(sp, "deliver", lambda *a, **k: calls.append(k) or action(*a, **k))
+    r = CliRunner().invoke(cli, ["deliver", str(tmp_path / "contours.geojson"), "-o", str(tmp_path / "out"),
+                                 "--format", "shp"])
+    assert r.exit_code == 0, r.output
+    assert len(calls) == 1 and calls[0]["products"] == [tmp_path / "contours.geojson"]
+    a = pyogrio.read_dataframe(tmp_path / "mem" / "shp" / "contours.shp")
+    b = pyogrio.read_dataframe(tmp_path / "out" / "contours.shp")
+    assert a.sort_index(axis=1).equals(b.sort_index(axis=1)) and len(a) == len(feats)

@@ -116,6 +116,25 @@ def test_bad_decisions_file_and_no_vertices_leave_image_points_alone(survey, tmp
     assert ip_file.read_bytes() == old
 
 
+def test_bad_input_is_a_located_error_on_the_thesis_block(tmp_path):
+    """The fast case of the command (the cases above are slow): a point the survey does not have and a bad
+    decisions file are one located error each, and image_points.csv is left alone."""
+    import shutil
+
+    from lidarcat.survey.folder import thesis_survey_path
+
+    root = tmp_path / "s"
+    shutil.copytree(thesis_survey_path(), root)
+    old = (root / "image_points.csv").read_bytes()
+    res = CliRunner().invoke(cli, ["measure-control", str(root), "--points", "G9"])
+    assert res.exit_code == 2 and "ground_points.csv: no ground point 'G9' (asked for by points)" in res.output
+    bad = tmp_path / "bad.csv"
+    bad.write_text("photo,point,decision,col_px,row_px\nx,L001,maybe,1,2\n")
+    res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(bad)])
+    assert res.exit_code == 2 and "bad.csv:2: decision must be accept or reject, got 'maybe'" in res.output
+    assert (root / "image_points.csv").read_bytes() == old
+
+
 def test_dsm_of_points_is_the_highest_point_per_cell():
     xyz = np.array([[0.1, 0.1, 5.0], [0.2, 0.3, 7.0], [1.2, 0.1, 3.0]])
     dsm = dsm_of_points(xyz, cell_m=0.5)

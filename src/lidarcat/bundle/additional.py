@@ -47,11 +47,12 @@ theta_i f_i(x_fot / b)`` (``b`` from the frame size), subtracted beside ``D``::
     dv/dtheta_i = f_i(x_fot / b)
     dv/d(x0)    = (I - dD/dx_fot - dA/dx_fot) e_x          (likewise y0)
 
-``gruen``'s sds were measured optimistic (docs/cameras.md); the component carries
-:data:`GRUEN_CAVEAT` as a note the result repeats among its warnings.  The cause is errors in
-variables: the terms ``f_i`` are evaluated at the measured ``x_fot``, whose noise the residual
-shares, which biases the estimate; :meth:`_BoundIO.score_bias` gives the expected gradient at the
-truth, ``-sum tr(G_i^T P M Sigma_e)``, and :mod:`.selfcal` removes the bias after convergence.  ``explain`` gives the
+The terms ``f_i`` are evaluated at the measured ``x_fot``, whose noise the residual shares:
+errors in variables, which biased the least-squares estimate of ``gruen``'s terms odd in ``u``
+(docs/cameras.md); :meth:`_BoundIO.score_bias` gives the expected gradient at the truth,
+``-sum tr(G_i^T P M Sigma_e)``, and :mod:`.selfcal` removes the bias after convergence (its
+standardised errors then have mean -0.03 and rms 0.98 over 20 seeds, so the set carries no
+warning).  ``explain`` gives the
 reason a parameter cannot be told from its most correlated partner (the relief ratio for ``c``
 against ``Z0``, the part of the set's grid the measurements span for two polynomial terms).
 
@@ -112,7 +113,7 @@ from ..geometry.camera import Camera
 from ..errors import CameraError, LidarcatError
 
 __all__ = ["IO_PARAMETERS", "IO_UNITS", "LENS_PARAMETERS", "SelfCalibration", "GnssLineOffsets",
-           "parse_parameters", "extra_parameter_set", "lens_parameters", "GRUEN_CAVEAT", "AdditionalParameterError"]
+           "parse_parameters", "extra_parameter_set", "lens_parameters", "AdditionalParameterError"]
 
 
 class AdditionalParameterError(LidarcatError, ValueError):
@@ -131,11 +132,6 @@ _FIELD: dict[str, str] = {"c": "focal_length_mm", "x0": "principal_point_x_mm",
                           "y0": "principal_point_y_mm", "k1": "k1", "k2": "k2", "k3": "k3",
                           "p1": "p1", "p2": "p2"}
 
-
-#: the warning that goes with Grün's set (its sds are not honest yet: docs/cameras.md, "What remains")
-GRUEN_CAVEAT = ("the gruen set's standard deviations are too small: in simulation (docs/cameras.md) its x-terms "
-                "odd in u (g1, g7, g11, g27, g31, g41) scatter 1.4-2.0 times their sd; read its sds and t-tests "
-                "as optimistic (ebner's are honest)")
 
 #: the set each extra (non-IO) parameter belongs to: k4, b1, b2 (brown), e1-e12 (ebner), g1-g44 (gruen)
 _EXTRA_SET: dict[str, str] = {q: s.name for s in PARAMETER_SETS.values() for q in s.extra}
@@ -328,7 +324,7 @@ class _BoundIO:
         self.aps = extra_parameter_set(self.params)
         self.n_io = m - (len(self.aps.extra) if self.aps else 0)
         self.b_mm = [self.aps.scale_mm(*cam.frame_size_mm) if self.aps else 1.0 for cam in self.cams]
-        self.notes = [GRUEN_CAVEAT] if self.aps is not None and self.aps.name == "gruen" else []
+        self.notes: list[str] = []
         units = {**IO_UNITS, **(self.aps.units if self.aps else {})}
         self.names = [f"{cam.id}.{q}" for cam in self.cams for q in self.params]
         self.units = [units[q] for _ in self.cams for q in self.params]

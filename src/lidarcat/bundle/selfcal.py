@@ -339,7 +339,7 @@ class SelfCalResult:
         ``explain(name, partner, eo, points_m, eo_params) -> str | None`` of the components
         (:meth:`why`: the reason a parameter cannot be told from its partner).
     notes : tuple of str
-        Warnings of the components themselves (the ``gruen`` set's optimistic sds).
+        Warnings of the components themselves (none of the present components has one).
     alpha : float
         Level of the significance tests.
     """

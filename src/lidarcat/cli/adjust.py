@@ -215,8 +215,8 @@ def exit_status(summary: dict) -> tuple[int, str]:
               help="Estimate interior-orientation corrections per camera: a comma list of c, x0, y0, "
                    "k1, k2, k3, p1, p2 (or 'all'), weighted by the sd_* of camera.toml (no sd: free), "
                    "and/or a named set: thesis (those eight), brown (+ k4, affinity b1, shear b2), "
-                   "ebner (12 orthogonal polynomials), gruen (44; its sds come out too small, a "
-                   "warning says so), e.g. 'ebner' or 'c,x0,y0,ebner'. Each gets estimate, sd, t-test "
+                   "ebner (12 orthogonal polynomials), gruen (44), e.g. 'ebner' or 'c,x0,y0,ebner'. "
+                   "Each gets estimate, sd, t-test "
                    "and its largest correlations; a warning names a parameter the block cannot "
                    "determine (|r| > 0.95), its partner and why.")
 @click.option("--frame-offset", metavar="SOURCE:REFERENCE", default=None,

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from .options import POSITIVE, FiniteRange, crs_option, echo_json, json_opt, output_option, progress_bar
+from .options import (POSITIVE, FiniteRange, crs_option, echo_json, json_opt, output_option, progress_bar,
+                      scheduler_option, workers_option)
 
 __all__ = ["chart"]
 
@@ -35,14 +36,14 @@ __all__ = ["chart"]
 @click.option("--declination-date", default="", metavar="DATE", help="Date (epoch) of the declination value.")
 @click.option("--date", "date", default=None, metavar="DATE", help="Date in the title block (default: today, UTC).")
 @click.option("--dpi", type=click.IntRange(10, 1200), default=150, show_default=True, help="PNG resolution.")
-@click.option("--jobs", "jobs", type=click.IntRange(1), default=None, metavar="N",
-              help="Processes drawing charts at once (default: one per core; 1 = in this process). "
-                   "The charts are the same bytes either way.")
+@workers_option
+@scheduler_option
 @crs_option(help="CRS of the products (default: the mosaic's).")
 @json_opt
 def chart(mosaic: str, contours: str, outdir: str, spots: str | None, index: str, size_m: float,
           only: tuple[str, ...], scale: int, project: str, declination_deg: float | None, declination_date: str,
-          date: str | None, dpi: int, jobs: int | None, crs: str | None, as_json: bool) -> None:
+          date: str | None, dpi: int, workers: int | None, scheduler: str | None, crs: str | None,
+          as_json: bool) -> None:
     """Orthophoto charts: the mosaic with contours, spot heights, UTM grid, legend, title block and index map.
 
     One printable sheet (PDF at true scale, and PNG) per sheet of the index
@@ -84,7 +85,7 @@ def chart(mosaic: str, contours: str, outdir: str, spots: str | None, index: str
             bar.update(1)
 
         res = write_charts(Path(mosaic), feats, sp, tmp, crs=c, title=title, index=index, size_m=size_m,
-                           only=list(only) or None, dpi=dpi, workers=jobs,
+                           only=list(only) or None, dpi=dpi, workers=workers, scheduler=scheduler,
                            progress=tick if bar is not None else None)
     if as_json:
         echo_json(res)

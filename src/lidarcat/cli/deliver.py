@@ -1,8 +1,8 @@
-"""``lidarcat deliver``: products in the delivery formats of the LACTEC report (TIFF + TFW, Shapefile, DXF)."""
+"""``lidarcat deliver``: products in the delivery formats of the LACTEC report (TIFF + TFW, Shapefile, DXF);
+the action of ``[products] delivery`` (:func:`lidarcat.stages.products.deliver`)."""
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import click
@@ -33,39 +33,15 @@ def deliver(products: tuple[str, ...], outdir: str, formats: tuple[str, ...], cr
       lidarcat deliver dtm.tif hypsometry.tif -o entrega/ --format tfw
       lidarcat deliver curvas.geojson curvas_spots.geojson -o entrega/ --format shp --format dxf
     """
-    import numpy as np
-
     from .._util import atomic_dir
-    from ..lidar.crs import resolve_crs
-    from ..production.contours import read_line_layer
-    from ..production.delivery import read_point_layer, write_dxf, write_shapefile, write_world_file
+    from ..stages.products import deliver as deliver_action
 
-    lines, spots, written = [], [], []
-    c = resolve_crs(crs) if crs else None
+    bad = [p for p in products if Path(p).suffix.lower() not in (".tif", ".tiff", ".geojson", ".json", ".gpkg")]
+    if bad:
+        raise click.BadParameter(f"{bad[0]}: give .tif, .geojson or .gpkg products", param_hint="PRODUCT")
     with atomic_dir(Path(outdir)) as tmp:
-        for p in map(Path, products):
-            suffix = p.suffix.lower()
-            if suffix in (".tif", ".tiff"):
-                if "tfw" in formats:
-                    shutil.copyfile(p, tmp / p.name)
-                    written += [p.name, write_world_file(tmp / p.name).name]
-                continue
-            if suffix not in (".geojson", ".json", ".gpkg"):
-                raise click.BadParameter(f"{p}: give .tif, .geojson or .gpkg products", param_hint="PRODUCT")
-            pts, lcrs = read_point_layer(p) if suffix != ".gpkg" else ([], None)
-            feats, lcrs = read_line_layer(p) if not pts else ([], lcrs)
-            layer_crs = c or lcrs
-            if layer_crs is None:
-                raise click.UsageError(f"{p}: the layer carries no CRS; give --crs")
-            c = c or layer_crs
-            lines += feats
-            spots += [(*f["geometry"]["coordinates"][:2], f["properties"].get("h_m", np.nan)) for f in pts]
-            if "shp" in formats:
-                shp = write_shapefile(tmp / f"{p.stem}.shp", feats or pts, layer_crs)
-                written += sorted(q.name for q in tmp.glob(f"{shp.stem}.*"))
-        if "dxf" in formats:
-            write_dxf(tmp / "products.dxf", contours=lines, spots=np.asarray(spots, dtype=float).reshape(-1, 3))
-            written.append("products.dxf")
+        written = deliver_action(tmp, formats, products=[Path(p) for p in products], crs=crs, shp_folder="",
+                                 dxf_name="products.dxf")["files"]
     if as_json:
         echo_json({"files": written})
     else:

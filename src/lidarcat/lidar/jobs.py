@@ -48,6 +48,14 @@ atomically, so a killed run leaves whole files or none.  A worker that dies
 mid-tile: the scheduler gives its tile to another worker (``retries``).  A
 missing or corrupt tile, or an output that cannot be written (full disk), ends
 the run with an error naming the file; the finished tiles stay done.
+
+Work that is not a tile of points runs on the same schedulers through two mappers:
+:func:`run_tasks` (``func(task)``, tasks made lazily with a few in flight per worker, for
+tasks that carry data: the charts' mosaic crops) and :func:`map_tasks`
+(``func(shared, item)``, *shared* scattered once to every worker and also a thread pool, for
+many small tasks over one large context: the photos and pairs of ``match``).  Both return the
+results in task order and re-raise the first worker's error; :func:`dask_client` and
+``run_jobs`` start their clusters through one private helper.
 """
 
 from __future__ import annotations
@@ -58,8 +66,9 @@ import io
 import json
 import logging
 import os
+import uuid
 import zipfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -67,7 +76,8 @@ from typing import Any
 from ..errors import FormatError, LidarcatError, TileIOError
 
 __all__ = ["TileJob", "TileFunction", "run_jobs", "run_on_client", "run_tile_job", "tile_jobs",
-           "read_with_buffer", "edge_buffer_jobs", "read_done_output", "read_npz", "map_tasks", "dask_client", "SCHEDULERS"]
+           "read_with_buffer", "edge_buffer_jobs", "read_done_output", "read_npz", "run_tasks",
+           "map_tasks", "dask_client", "SCHEDULERS"]
 
 log = logging.getLogger(__name__)
 
@@ -498,6 +508,15 @@ def run_jobs(jobs: Sequence[TileJob], *, workers: int | None = None, scheduler: 
                 progress(1)
         _drop_rings(todo)
         return [j.output for j in jobs]
+    with _client(workers, scheduler) as client:
+        run_on_client(client, todo, rings=rings, retries=retries, progress=progress)
+    return [j.output for j in jobs]
+
+
+@contextlib.contextmanager
+def _client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
+    """A ``dask.distributed.Client`` of the scheduler at *scheduler*, else of a ``LocalCluster`` of
+    *workers* single-threaded processes (closed on exit)."""
     try:
         from dask.distributed import Client, LocalCluster
     except ImportError as ex:  # pragma: no cover - the extra is installed in CI
@@ -512,12 +531,85 @@ def run_jobs(jobs: Sequence[TileJob], *, workers: int | None = None, scheduler: 
                                dashboard_address=":0")  # any free port: runs side by side
         client = Client(cluster)
     try:
-        run_on_client(client, todo, rings=rings, retries=retries, progress=progress)
+        yield client
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
-    return [j.output for j in jobs]
+
+
+def run_tasks(func: Callable[[Any], Any], tasks: Iterable[Any], *, workers: int | None = None,
+              scheduler: str | None = None, retries: int = 2, window: int = 2,
+              progress: Callable[[int], Any] | None = None) -> list[Any]:
+    """``[func(t) for t in tasks]``, serially (default) or on Dask as :func:`run_jobs` runs tiles.
+
+    For work that grows with the survey but is not a tile of points (the orthophoto charts of a sheet
+    index): the engine knows no product, the caller passes a module-level *func* and picklable tasks.
+    The same *func* computes each task either way, so the results are identical.
+
+    Parameters
+    ----------
+    func : callable
+        Module-level (Dask workers import it by name).
+    tasks : iterable
+        Made lazily: at most ``window`` tasks per worker are in flight at once, so tasks that carry data
+        (a mosaic crop) hold a few tasks' worth of it, not the survey's.
+    workers, scheduler, retries
+        As :func:`run_jobs`.
+    window : int
+        Tasks in flight per worker (Dask).
+    progress : callable, optional
+        Called with 1 per finished task, in the calling process.
+
+    Returns
+    -------
+    list
+        ``func(task)`` of each task, in task order.
+
+    Raises
+    ------
+    Exception
+        The first failing task's error, re-raised in the caller (unfinished tasks are cancelled).
+    """
+    if workers is None and scheduler is None:
+        out = []
+        for t in tasks:
+            out.append(func(t))
+            if progress is not None:
+                progress(1)
+        return out
+    from dask.distributed import as_completed
+
+    with _client(workers, scheduler) as client:
+        limit = max(1, window) * max(1, len(client.scheduler_info().get("workers", {})) or int(workers or 1))
+        it = iter(enumerate(tasks))
+        results: dict[int, Any] = {}
+        order: dict[Any, int] = {}   # the futures in flight and their task numbers
+        name, run = getattr(func, "__name__", "task"), uuid.uuid4().hex[:12]   # keys unique on a shared scheduler
+
+        def submit(queue: Any) -> bool:
+            for k, t in it:
+                fut = client.submit(func, t, retries=retries, pure=False, key=f"{name}-{run}-{k}")
+                order[fut] = k
+                queue.add(fut)
+                return True
+            return False
+
+        pending = as_completed([])
+        for _ in range(limit):
+            if not submit(pending):
+                break
+        try:
+            for fut in pending:
+                results[order.pop(fut)] = fut.result()  # re-raises the worker's error
+                fut.release()
+                if progress is not None:
+                    progress(1)
+                submit(pending)
+        except BaseException:
+            client.cancel(list(order))
+            raise
+    return [results[k] for k in range(len(results))]
 
 
 def run_on_client(client: Any, jobs: Sequence[TileJob], *, rings: Sequence[TileJob] | None = None,
@@ -573,23 +665,9 @@ def dask_client(workers: int = 1, scheduler: str = "threads") -> Iterator[Any]:
     if scheduler in ("synchronous", "threads"):
         yield None
         return
-    try:
-        from dask.distributed import Client, LocalCluster
-    except ImportError as ex:  # pragma: no cover - the extra is installed in CI
-        raise FormatError("parallel runs need dask.distributed: pip install 'lidarcat[cluster]'") from ex
-    cluster = None
-    if scheduler == "processes":
-        cluster = LocalCluster(n_workers=max(int(workers), 1), threads_per_worker=1, processes=True,
-                               dashboard_address=":0")
-        client = Client(cluster)
-    else:
-        client = Client(scheduler)
-    try:
+    processes = scheduler == "processes"
+    with _client(max(int(workers), 1) if processes else None, None if processes else scheduler) as client:
         yield client
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
 
 
 def map_tasks(func: Callable[[Any, Any], Any], shared: Any, items: Sequence[Any], *, workers: int = 1,

@@ -38,16 +38,17 @@ block says "not given".
 
 In parallel
 -----------
-:func:`render_charts` draws the sheets in a pool of processes (matplotlib
-is not thread-safe, and one chart is a few seconds of pure-Python drawing, so
-threads would not help either).  Each task carries only what its sheet needs:
-the mosaic cells meeting the sheet (with their own transform, so
-:func:`crop_image` gives the same cells), the contours whose bounding box
-meets it and the spot heights inside; the index map's sheets and the title
-block go once per worker.  Workers are forked when this process runs a single
-thread (cheap: matplotlib is already imported) and spawned otherwise (a fresh
-interpreter: forking beside Dask's or another library's threads can deadlock);
-a chart is the same bytes drawn serially or in a worker of either kind (the
+:func:`render_charts` draws the sheets on the project's tile runner
+(:func:`lidarcat.lidar.jobs.run_tasks`: serially in this process by default, or
+on a Dask ``LocalCluster`` of ``workers`` single-threaded processes, or on a
+running scheduler, as the tile commands run their tiles; matplotlib is not
+thread-safe, and one chart is a few seconds of pure-Python drawing, so threads
+would not help either).  Each task carries only what its sheet needs: the
+mosaic cells meeting the sheet (with their own transform, so
+:func:`crop_image` gives the same cells), the contours whose bounding box meets
+it and the spot heights inside, with the index map's sheets and the title
+block; at most two tasks per worker are in flight, so the crops held are a few
+sheets' worth.  A chart is the same bytes drawn serially or on a worker (the
 tests compare them).
 
 Nothing half-written: the PDF and PNG are written through
@@ -418,17 +419,10 @@ def write_chart(fig: Any, pdf_path: str | os.PathLike, png_path: str | os.PathLi
 
 # ----------------------------------------------------------------------------- in parallel
 
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(common: dict[str, Any]) -> None:
-    _WORKER.clear()
-    _WORKER.update(common)
-
 
 def _draw_one(task: dict[str, Any]) -> list[str]:
-    """Draw and write one chart (in a worker or in-process); the file names written."""
-    c = _WORKER
+    """Draw and write one chart (on a runner's worker or in-process); the file names written."""
+    c = task["common"]
     fig = draw_chart(task["sheet"], c["title"], image=task["image"], image_transform=task["transform"],
                      contours=task["contours"], spots=task["spots"], sheets=c["sheets"], area=c["area"],
                      crs=c["crs"])
@@ -438,7 +432,8 @@ def _draw_one(task: dict[str, Any]) -> list[str]:
 
 
 def _task(sheet: Any, name: str, image: np.ndarray, transform: GeoTransform,
-          contours: Sequence[dict[str, Any]], boxes: np.ndarray, spots: np.ndarray | None, crs: Any) -> dict[str, Any]:
+          contours: Sequence[dict[str, Any]], boxes: np.ndarray, spots: np.ndarray | None, crs: Any,
+          common: dict[str, Any]) -> dict[str, Any]:
     """What one sheet's chart needs (module docstring, "In parallel")."""
     box = sheet_extent(sheet, crs)[0]
     r0, r1, c0, c1 = _cell_window(image.shape, transform, box)
@@ -456,15 +451,16 @@ def _task(sheet: Any, name: str, image: np.ndarray, transform: GeoTransform,
         sp = a[(a[:, 0] >= box[0]) & (a[:, 0] <= box[2]) & (a[:, 1] >= box[1]) & (a[:, 1] <= box[3])]
     # none meeting the sheet: one that does not, so that draw_chart says "outside the data" as it would
     feats = [contours[i] for i in meet] if meet.size else list(contours[:1])
-    return {"sheet": sheet, "name": name, "image": sub, "transform": sub_t, "contours": feats, "spots": sp}
+    return {"sheet": sheet, "name": name, "image": sub, "transform": sub_t, "contours": feats, "spots": sp,
+            "common": common}
 
 
 def render_charts(todo: Sequence[Any], names: Sequence[str], title: TitleBlock, folder: str | os.PathLike, *,
                   image: np.ndarray, image_transform: GeoTransform, contours: Sequence[dict[str, Any]],
                   spots: np.ndarray | None = None, sheets: Sequence[Any] = (),
                   area: tuple[float, float, float, float] | None = None, crs: Any = None, dpi: int = 150,
-                  workers: int | None = None, progress: Callable[[int, int], Any] | None = None,
-                  start_method: str | None = None) -> list[str]:
+                  workers: int | None = None, scheduler: str | None = None,
+                  progress: Callable[[int, int], Any] | None = None) -> list[str]:
     """Draw and write the chart of every sheet of *todo* as ``<name>.pdf`` and ``.png`` in *folder*.
 
     Parameters
@@ -476,13 +472,12 @@ def render_charts(todo: Sequence[Any], names: Sequence[str], title: TitleBlock, 
         As :func:`draw_chart`.
     dpi : int
         PNG resolution.
-    workers : int, optional
-        Processes drawing charts; default ``min(len(todo), os.cpu_count())``;
-        1 draws in this process.
+    workers, scheduler : optional
+        As the tile runner (:func:`lidarcat.lidar.jobs.run_tasks`): default serially in this process;
+        *workers* processes of a local Dask cluster; or the running Dask scheduler at *scheduler*
+        (its workers must see *folder*).
     progress : callable, optional
         ``progress(done, total)`` after each chart, in the calling process.
-    start_method : {"fork", "spawn", "forkserver"}, optional
-        How workers start (default: fork when this process runs one thread, else spawn).
 
     Returns
     -------
@@ -494,8 +489,7 @@ def render_charts(todo: Sequence[Any], names: Sequence[str], title: TitleBlock, 
     ProductError
         As :func:`draw_chart` (the first failing sheet's error, re-raised here).
     """
-    import concurrent.futures as cf
-    import multiprocessing
+    from ..lidar.jobs import run_tasks
 
     if len(names) != len(todo):
         raise ProductError(f"render_charts: {len(todo)} sheets and {len(names)} names")
@@ -504,47 +498,17 @@ def render_charts(todo: Sequence[Any], names: Sequence[str], title: TitleBlock, 
                       for f in contours]).reshape(-1, 4)
     common = {"title": title, "sheets": list(sheets), "area": area, "crs": crs, "dpi": dpi, "folder": str(folder)}
     n = len(todo)
-    nw = min(n, os.cpu_count() or 1) if workers is None else max(1, min(int(workers), n))
-    results: list[list[str]] = [[] for _ in range(n)]
-    if nw <= 1:
-        _init_worker(common)
-        try:
-            for k, (s, name) in enumerate(zip(todo, names)):
-                results[k] = _draw_one(_task(s, name, image, image_transform, contours, boxes, spots, crs))
-                if progress is not None:
-                    progress(k + 1, n)
-        finally:
-            _WORKER.clear()
-        return [f for r in results for f in r]
-    import threading
+    done = 0
 
-    if start_method is None:
-        single = threading.active_count() == 1 and "fork" in multiprocessing.get_all_start_methods()
-        start_method = "fork" if single else "spawn"
-    ctx = multiprocessing.get_context(start_method)
-    with cf.ProcessPoolExecutor(max_workers=nw, mp_context=ctx, initializer=_init_worker,
-                                initargs=(common,)) as pool:
-        # a window of 2 tasks per worker: the mosaic crops in flight stay a few sheets' worth
-        pending: dict[Any, int] = {}
-        queue = iter(enumerate(zip(todo, names)))
-        done = 0
-        try:
-            while True:
-                for k, (s, name) in queue:
-                    pending[pool.submit(_draw_one, _task(s, name, image, image_transform, contours, boxes,
-                                                         spots, crs))] = k
-                    if len(pending) >= 2 * nw:
-                        break
-                if not pending:
-                    break
-                finished, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-                for fut in finished:
-                    results[pending.pop(fut)] = fut.result()
-                    done += 1
-                    if progress is not None:
-                        progress(done, n)
-        except BaseException:
-            for f in pending:
-                f.cancel()
-            raise
+    def tick(k: int) -> None:
+        nonlocal done
+        done += k
+        if progress is not None:
+            progress(done, n)
+
+    tasks = (_task(s, name, image, image_transform, contours, boxes, spots, crs, common)
+             for s, name in zip(todo, names))
+    if workers is not None:
+        workers = max(1, min(int(workers), n))
+    results = run_tasks(_draw_one, tasks, workers=workers, scheduler=scheduler, progress=tick)
     return [f for r in results for f in r]

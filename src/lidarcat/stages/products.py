@@ -66,6 +66,7 @@ only when it succeeded.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +95,8 @@ def asked(cfg: dict[str, Any]) -> list[str]:
 
 def run(ctx: Context, tmp: Path) -> dict:
     """Ground classification, DTM, DSM, nDSM, contours, hypsometric image and sheets of the survey's tiles."""
+    import json
+
     import numpy as np
 
     from ..errors import SurveyError
@@ -217,8 +220,12 @@ def run(ctx: Context, tmp: Path) -> dict:
             if _ in done:
                 tick()
     if cfg.get("delivery"):
-        done["delivery"] = deliver(tmp, list(cfg["delivery"]), features, spots, area, crs,
-                                   sheets=done.get("sheets", {}).get("sheets"))
+        index = []   # the sheet frames of the DXF and shp/sheets.shp (a GeoJSON index only, as before)
+        if want_sheets and (tmp / "sheets.geojson").is_file():
+            index = json.loads((tmp / "sheets.geojson").read_text(encoding="utf-8"))["features"]
+        done["delivery"] = deliver(tmp, list(cfg["delivery"]), products=sorted(tmp.rglob("*.tif")),
+                                   layers={"contours": features, "spot_heights": spot_features(spots),
+                                           "sheets": index}, crs=crs, area=area)
         done["files"] += done["delivery"]["files"]
     return done
 
@@ -335,7 +342,8 @@ MAX_CHART_SPAN_M = 200_000.0
 def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, folder: Path, *, crs: Any,
                  title: Any, index: str = "grid", size_m: float = 1000.0,
                  area: tuple[float, float, float, float] | None = None, only: list[str] | None = None,
-                 dpi: int = 150, progress: Any = None, workers: int | None = None) -> dict[str, Any]:
+                 dpi: int = 150, progress: Any = None, workers: int | None = None,
+                 scheduler: str | None = None) -> dict[str, Any]:
     """The orthophoto chart of every sheet of *index* holding mosaic cells or contours: <sheet>.pdf and .png
     in *folder* (the action of ``lidarcat chart`` and of ``[products] charts``).
 
@@ -356,8 +364,9 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
         Chart only these sheets (a name outside the data is an error).
     progress : callable, optional
         ``progress(done, total)`` per chart.
-    workers : int, optional
-        Processes drawing the charts (:func:`lidarcat.production.charts.render_charts`; default one per core).
+    workers, scheduler : optional
+        The tile runner's (:func:`lidarcat.production.charts.render_charts`): default serially in this
+        process, else a local Dask cluster of *workers* processes or the Dask scheduler at *scheduler*.
 
     Returns
     -------
@@ -415,44 +424,102 @@ def write_charts(mosaic_path: Path, features: list[dict[str, Any]], spots: Any, 
     names = [safe_component(s.name, "sheet name", error=ProductError) for s in todo]
     files = render_charts(todo, names, title, folder, image=image, image_transform=transform, contours=features,
                           spots=spots, sheets=used, area=area or lb, crs=crs, dpi=dpi, workers=workers,
-                          progress=progress)
+                          scheduler=scheduler, progress=progress)
     return {"sheets": [s.name for s in todo], "scale": int(title.scale), "mosaic": str(mosaic_path),
             "files": files}
 
 
-def deliver(folder: Path, formats: list[str], features: list[dict[str, Any]], spots: Any,
-            area: tuple[float, float, float, float], crs: Any, sheets: list[str] | None = None) -> dict[str, Any]:
-    """The delivery formats of the products in *folder* (:mod:`lidarcat.production.delivery`).
+def deliver(folder: Path, formats: Sequence[str], *, products: Sequence[Path] = (),
+            layers: dict[str, list[dict[str, Any]]] | None = None, crs: Any = None,
+            area: tuple[float, float, float, float] | None = None, shp_folder: str = "shp",
+            dxf_name: str = "contours.dxf") -> dict[str, Any]:
+    """The delivery formats of products (:mod:`lidarcat.production.delivery`): the action of ``lidarcat deliver``
+    and of ``[products] delivery``.
 
-    ``tfw``: a world file beside every GeoTIFF below *folder*; ``shp``: ``shp/contours.shp``,
-    ``shp/spot_heights.shp`` and ``shp/sheets.shp`` (the layers that hold features);
-    ``dxf``: ``contours.dxf`` with the contours, spot heights, the sheet frames and the mapped area.
-    Paths returned relative to *folder*.
+    ``tfw``: every GeoTIFF of *products* with its world file in *folder* (copied in when it lies elsewhere;
+    the stage's own GeoTIFFs get theirs beside them); ``shp``: one Shapefile ``<shp_folder>/<name>.shp`` per
+    layer that holds features; ``dxf``: one drawing *dxf_name* of every LineString (contours), Point (spot
+    heights, property ``h_m``) and Polygon (sheet frames) of the layers, and the mapped *area*.
+
+    Parameters
+    ----------
+    folder : Path
+        Receives the files (the stage's temporary folder, or the command's).
+    formats : sequence of {"tfw", "shp", "dxf"}
+    products : sequence of Path
+        Product files: ``.tif``/``.tiff``, and ``.geojson``/``.json`` (Point layer, else LineString layer)
+        or ``.gpkg`` (its LineString layer), each a layer named by its stem.
+    layers : dict, optional
+        More layers by name: GeoJSON features already in memory (the stage's contours, spot heights, sheets).
+    crs : optional
+        CRS of the layers (default: that of the first layer read that carries one).
+    area : (xmin, ymin, xmax, ymax), optional
+        The mapped area, drawn in the DXF.
+    shp_folder, dxf_name : str
+        Where the Shapefiles go below *folder* (``""``: *folder* itself) and the DXF's file name.
+
+    Returns
+    -------
+    dict
+        ``formats`` and ``files`` (relative to *folder*, in the order written).
+
+    Raises
+    ------
+    ProductError
+        A product that is not a GeoTIFF or a vector layer; no CRS for the layers; nothing to draw in the DXF.
+    FormatError
+        A layer that cannot be read (located by file and feature).
     """
-    import json
+    import shutil
 
     import numpy as np
 
-    from ..production.contours import spot_features
-    from ..production.delivery import write_dxf, write_shapefile, write_world_file
+    from ..errors import ProductError
+    from ..lidar.crs import resolve_crs
+    from ..production.contours import read_line_layer
+    from ..production.delivery import read_point_layer, write_dxf, write_shapefile, write_world_file
 
+    folder = Path(folder)
+    c = resolve_crs(crs) if crs is not None else None
+    rasters: list[Path] = []
+    named: list[tuple[str, list[dict[str, Any]]]] = []
+    for p in map(Path, products):
+        suffix = p.suffix.lower()
+        if suffix in (".tif", ".tiff"):
+            rasters.append(p)
+            continue
+        if suffix not in (".geojson", ".json", ".gpkg"):
+            raise ProductError(f"{p}: give .tif, .geojson or .gpkg products")
+        pts, lcrs = read_point_layer(p) if suffix != ".gpkg" else ([], None)
+        feats, lcrs = read_line_layer(p) if not pts else (pts, lcrs)
+        if (c or lcrs) is None:
+            raise ProductError(f"{p}: the layer carries no CRS; give it (lidarcat deliver --crs)")
+        c = c or lcrs
+        named.append((p.stem, feats))
+    named += list((layers or {}).items())
     files: list[str] = []
-    index: list[dict[str, Any]] = []
-    if sheets is not None and (folder / "sheets.geojson").is_file():
-        index = json.loads((folder / "sheets.geojson").read_text(encoding="utf-8"))["features"]
-    sp = np.zeros((0, 4)) if spots is None else np.asarray(spots)
     if "tfw" in formats:
-        for tif in sorted(folder.rglob("*.tif")):
+        for tif in rasters:
+            if not tif.resolve().is_relative_to(folder.resolve()):   # a product from elsewhere: copied in
+                shutil.copyfile(tif, folder / tif.name)
+                tif = folder / tif.name
+                files.append(tif.name)
             files.append(str(write_world_file(tif).relative_to(folder)))
     if "shp" in formats:
-        for name, feats in (("contours", features), ("spot_heights", spot_features(sp)), ("sheets", index)):
+        for name, feats in named:
             if feats:
-                shp = write_shapefile(folder / "shp" / f"{name}.shp", feats, crs)
-                files += [str(p.relative_to(folder)) for p in sorted(shp.parent.glob(f"{name}.*"))]
+                shp = write_shapefile(folder / shp_folder / f"{name}.shp", feats, c)
+                files += [str(q.relative_to(folder)) for q in sorted(shp.parent.glob(f"{name}.*"))]
     if "dxf" in formats:
-        write_dxf(folder / "contours.dxf", contours=features, spots=sp, sheets=index, area=area)
-        files.append("contours.dxf")
-    return {"formats": formats, "files": files}
+        def geometry(kind: str) -> list[dict[str, Any]]:
+            return [f for _, feats in named for f in feats if (f.get("geometry") or {}).get("type") == kind]
+
+        spots = np.asarray([(*f["geometry"]["coordinates"][:2], (f.get("properties") or {}).get("h_m", np.nan))
+                            for f in geometry("Point")], dtype=float).reshape(-1, 3)
+        write_dxf(folder / dxf_name, contours=geometry("LineString"), spots=spots, sheets=geometry("Polygon"),
+                  area=area)
+        files.append(dxf_name)
+    return {"formats": list(formats), "files": files}
 
 
 def contour_options(cfg: dict[str, Any]) -> dict[str, Any]:
