@@ -168,6 +168,74 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
                 decisions=decisions)
 
 
+def look_at(centre_m: np.ndarray, target_m: np.ndarray, kappa: float = 0.0) -> np.ndarray:
+    """(6,) orientation at *centre_m* whose camera axis points at *target_m* (omega, phi solved, kappa given)."""
+    from lidarcat.geometry.collinearity import rotation_matrix
+
+    u = (target_m - centre_m) / np.linalg.norm(target_m - centre_m)
+    for om, ph in [(math.atan2(u[1], -u[2]), math.asin(-u[0])), (math.atan2(-u[1], -u[2]), math.asin(u[0]))]:
+        eo = np.array([*centre_m, om, ph, kappa])
+        m = rotation_matrix(eo[3:])
+        if np.allclose(m.T @ np.array([0.0, 0.0, -1.0]), u, atol=1e-9):
+            return eo
+    raise AssertionError("no look-at solution")
+
+
+def occlusion_block(data: Ahn3, gsd: float = 0.10, off_nadir_deg: float = 60.0, seed: int = 0, *,
+                    size: tuple[int, int] = (800, 600), focal_mm: float = 100.0, max_photos: int = 6) -> dict:
+    """Oblique photos aimed at the vertices from azimuths where the real surface hides them.
+
+    For each vertex, cameras at *off_nadir_deg* from 12 azimuths (the distance giving *gsd* at
+    the vertex) are tested with :func:`~lidarcat.synthetic.lidarphoto.vertex_visible`; up to
+    *max_photos* of the hidden views are rendered and every vertex is predicted (approximate
+    orientation, the stage's DSM) and measured on them.  Returns ``hidden`` (vertex-photo
+    pairs in the frame but hidden), ``measured_hidden`` (of them measured by ``measure_photo``,
+    before any test across photos), ``statuses`` of the hidden pairs.
+    """
+    from lidarcat.photocontrol import VertexTarget, measure_photo, predict_points
+    from lidarcat.stages.measure_control import dsm_of_points
+    from lidarcat.synthetic._photo import Exposure, project_to_pixels
+    from lidarcat.synthetic.aerial import aerial_camera
+    from lidarcat.synthetic.lidarphoto import render_lidar_photo, vertex_visible
+
+    cam = dataclasses.replace(aerial_camera(size), focal_length_mm=float(focal_mm))
+    dist = gsd * cam.focal_length_mm / cam.pixel_size_x_mm
+    rng = np.random.default_rng(2000 + seed)
+    V = np.array([cp.enh_m for _, cp, _ in data.vertices])
+    covs = np.array([cp.cov_m2 for _, cp, _ in data.vertices])
+    ids = [pid for pid, _, _ in data.vertices]
+    dsms = [dsm_of_points(clip) for _, _, clip in data.vertices]
+    eo_cov = np.diag([2.0**2] * 3 + [math.radians(0.5) ** 2] * 3)
+    views = []
+    for i, v in enumerate(V):
+        for az in np.radians(np.arange(0, 360, 30) + rng.uniform(0, 30)):
+            off = math.radians(off_nadir_deg)
+            c = v + dist * np.array([math.sin(off) * math.sin(az), math.sin(off) * math.cos(az), math.cos(off)])
+            eo = look_at(c, v, kappa=float(rng.uniform(-math.pi, math.pi)))
+            if not vertex_visible(data.surface, eo, v[None])[0]:
+                views.append((i, eo))
+    rng.shuffle(views)
+    hidden, measured_hidden, statuses = 0, 0, {}
+    for k, (i0, eo) in enumerate(views[:max_photos]):
+        tp = project_to_pixels(cam, eo, V)
+        inside = np.isfinite(tp).all(axis=1) & (tp[:, 0] >= 0) & (tp[:, 1] >= 0) \
+            & (tp[:, 0] <= cam.columns_px - 1) & (tp[:, 1] <= cam.rows_px - 1)
+        vis = vertex_visible(data.surface, eo, V)
+        approx = eo + np.r_[rng.normal(0, 2.0, 3), np.radians(rng.normal(0, 0.5, 3))]
+        prs = [predict_points(cam, approx, eo_cov, V[i:i + 1], covs[i:i + 1], points=ids[i:i + 1], photo=f"o{k}",
+                              dsm=dsms[i])[0] for i in range(len(V))]
+        img = render_lidar_photo(data.surface, cam, eo, exposure=Exposure.random(300 + k, noise_sd=1.0),
+                                 sun_azimuth_deg=float(rng.uniform(120, 240)), sun_elevation_deg=40.0).image
+        ms = measure_photo(img, cam, approx, [VertexTarget(cp.enh_m, cp.planes, clip, pr)
+                                              for (_, cp, clip), pr in zip(data.vertices, prs)])
+        for i, m in enumerate(ms):
+            if inside[i] and not vis[i]:
+                hidden += 1
+                measured_hidden += int(m.status == "measured")
+                statuses[m.status] = statuses.get(m.status, 0) + 1
+    return dict(hidden=hidden, measured_hidden=measured_hidden, statuses=statuses, views=len(views))
+
+
 def summary(e: np.ndarray, nz: np.ndarray) -> tuple[int, float, float, float, float]:
     """n, median, 95 %, max (px), sd of the normalised errors."""
     if not len(e):
@@ -182,6 +250,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0],
                     help="the block's seed is 100 seed + 10 flight + GSD index")
     ap.add_argument("--supersample", type=int, default=4, help="rays per pixel side at edges")
+    ap.add_argument("--occlusion-photos", type=int, default=6, help="oblique photos of hidden vertices")
     a = ap.parse_args()
     t = time.perf_counter()
     data = load_ahn3()
@@ -206,6 +275,11 @@ def main() -> None:
                       f"{r['occluded_pairs']:4d} {r['occluded_accepted']:7d} {time.perf_counter() - t:5.0f}  "
                       f"{r['statuses']}", flush=True)
     n, med, p95, mx, sd = summary(np.concatenate(all_e), np.concatenate(all_n))
+    t = time.perf_counter()
+    o = occlusion_block(data, max_photos=a.occlusion_photos)
+    print(f"occlusion: {o['views']} hidden views found (60 deg off nadir, GSD 0.10 at the vertex), {o['hidden']} hidden vertex-photo "
+          f"pairs on {a.occlusion_photos} photos, measured {o['measured_hidden']} ({o['statuses']}; "
+          f"{time.perf_counter() - t:.0f} s)")
     print(f"pooled: {n} measurements, median {med:.2f} px, 95 % {p95:.2f} px, max {mx:.2f} px, normalised sd "
           f"{sd:.2f}; occluded vertex-photo pairs {occ}, of them accepted {occ_acc}")
 

@@ -587,11 +587,15 @@ def render_lidar_photo(surf: LidarSurface, camera: Camera, eo: Any, *, exposure:
 
 
 def vertex_visible(surf: LidarSurface, eo: Any, vertex_m: Any, *, tol_m: float = 0.05) -> np.ndarray:
-    """(N,) bool: the ray from the projection centre to each vertex first meets the surface at the vertex."""
+    """(N,) bool: the ray from the projection centre to each vertex meets the surface no sooner than
+    *tol_m* before the vertex (a ray that only touches the roof at the vertex -- a silhouette -- and
+    goes on sees it)."""
     v = np.asarray(vertex_m, dtype=np.float64).reshape(-1, 3)
     c = np.asarray(eo, dtype=np.float64)[:3]
     xyz, _ = cast_rays(surf, c, v - c, step_m=0.05)
-    return np.linalg.norm(xyz - v, axis=1) <= tol_m
+    dist = np.linalg.norm(v - c, axis=1)
+    along = np.einsum("ij,ij->i", xyz - c, (v - c) / dist[:, None])
+    return ~(along < dist - tol_m)     # no hit (NaN) or a hit at or beyond the vertex
 
 
 def flight_poses(centre_en: Any, ground_m: float, gsd_m: float, camera: Camera, *, n_strips: int = 2,
