@@ -43,3 +43,22 @@ def test_a_photo_pair_over_real_roofs(crop):
     assert n >= 2, r["statuses"]
     assert mx < 1.0, r["rows"]
     assert r["occluded_accepted"] == 0
+
+
+@pytest.mark.slow
+def test_acceptance_over_real_roofs():
+    """Issue 29's acceptance on a block of the benchmark (flight F1, GSD 0.10 m, seed 1: 6 photos of
+    800 x 600 px over A01 A11 A10 A14 ...) and on oblique photos of hidden vertices (~10 min)."""
+    from bench_photocontrol_ahn3 import FLIGHTS, occlusion_block
+
+    data = load_ahn3()
+    centre, heading = FLIGHTS["F1"]
+    r = score_block(data, centre, heading, 0.10, 1)
+    n, med, p95, mx, sd = summary(r["errors"], r["normalised"])
+    assert n >= 5, r["statuses"]
+    assert med <= 0.3 and p95 <= 1.0 and mx <= 3.0, r["rows"]
+    assert 0.8 <= sd <= 1.25
+    assert r["occluded_accepted"] == 0
+    o = occlusion_block(data, max_photos=2)
+    assert o["hidden"] >= 1
+    assert o["measured_hidden"] == 0, o["statuses"]
