@@ -274,6 +274,8 @@ def main() -> None:
                 print(f"{f:>6} {g:5.2f} {seed:4d} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f} "
                       f"{r['occluded_pairs']:4d} {r['occluded_accepted']:7d} {time.perf_counter() - t:5.0f}  "
                       f"{r['statuses']}", flush=True)
+                n, med, p95, mx, sd = summary(np.concatenate(all_e), np.concatenate(all_n))
+                print(f"{'so far':>6} {'':>5} {'':>4} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f}", flush=True)
     n, med, p95, mx, sd = summary(np.concatenate(all_e), np.concatenate(all_n))
     t = time.perf_counter()
     o = occlusion_block(data, max_photos=a.occlusion_photos)
