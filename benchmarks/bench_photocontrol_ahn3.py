@@ -103,7 +103,7 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     """
     from lidarcat.photocontrol import VertexTarget, check_consistency, measure_photo, predict_points
     from lidarcat.stages.measure_control import dsm_of_points
-    from lidarcat.synthetic._photo import Exposure, project_to_pixels
+    from lidarcat.synthetic.aerial import Exposure, project_to_pixels
     from lidarcat.synthetic.aerial import aerial_camera
     from lidarcat.synthetic.lidarphoto import flight_poses, render_lidar_photo, vertex_visible
 
@@ -194,7 +194,7 @@ def occlusion_block(data: Ahn3, gsd: float = 0.10, off_nadir_deg: float = 60.0, 
     """
     from lidarcat.photocontrol import VertexTarget, measure_photo, predict_points
     from lidarcat.stages.measure_control import dsm_of_points
-    from lidarcat.synthetic._photo import Exposure, project_to_pixels
+    from lidarcat.synthetic.aerial import Exposure, project_to_pixels
     from lidarcat.synthetic.aerial import aerial_camera
     from lidarcat.synthetic.lidarphoto import render_lidar_photo, vertex_visible
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from lidarcat.synthetic._photo import Exposure, project_to_pixels
+from lidarcat.synthetic.aerial import Exposure, project_to_pixels
 from lidarcat.synthetic.aerial import aerial_camera
 from lidarcat.synthetic.lidarphoto import (cast_rays, flight_poses, lidar_surface, rasterise_tin, render_lidar_photo,
                                            roof_patch, vertex_visible)
