@@ -46,9 +46,11 @@ def test_a_photo_pair_over_real_roofs(crop):
 
 
 @pytest.mark.slow
-def test_acceptance_over_real_roofs():
-    """Issue 29's acceptance on a block of the benchmark (flight F1, GSD 0.10 m, seed 1: 6 photos of
-    800 x 600 px over A01 A11 A10 A14 ...) and on oblique photos of hidden vertices (~10 min)."""
+def test_acceptance_on_block_f1_and_hidden_vertices():
+    """Issue 29's acceptance numbers on ONE block of the benchmark (flight F1, GSD 0.10 m, seed 1: 6
+    photos of 800 x 600 px over A01 A11 A10 A14 ...), and no hidden vertex measured on oblique photos
+    (~10 min quiet, 23 min at load 20).  The whole benchmark does not meet them: at GSD 0.15 m gross
+    errors are accepted (docs/figures.md), so this block is a floor, not the acceptance."""
     from bench_photocontrol_ahn3 import FLIGHTS, occlusion_block
 
     data = load_ahn3()
