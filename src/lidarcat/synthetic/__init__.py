@@ -13,6 +13,7 @@
 ``strips``      Overlapping LiDAR strips with a known boresight, scan-angle scale and elevation bias.
 ``drone``       Drone blocks with known truth: a rolling-shutter camera, and a rig of three cameras.
 ``lines``       A block whose only control is roof lines measured in the photos (weak GNSS/IMU).
+``lidarphoto``  Aerial photos rendered over a real LiDAR surface (exact planes at its roof vertices), with truth.
 ==============  ============================================================
 """
 

@@ -1,0 +1,66 @@
+"""LiDAR roof vertices measured in photos rendered over the real AHN3 roofs (issue 29, step 5).
+
+The scene, the flights and the scoring are benchmarks/bench_photocontrol_ahn3.py's: the vertices
+of tests/data/extract/ahn3_vertices.csv extracted again from tests/data/lidar (as
+``measure-control`` does), rendered as exact roof patches in the TIN of the first returns
+(lidarcat.synthetic.lidarphoto), predicted, measured and tested across photos with the public
+photocontrol functions, scored against the true projection and the occlusion truth.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_photocontrol_ahn3 import load_ahn3, score_block, summary  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def crop():
+    """A 50 x 40 m crop of both tiles about the vertices A01 and A11 (the hip roofs at the tile boundary)."""
+    return load_ahn3((84980.0, 447455.0, 85030.0, 447495.0), only=["A01", "A11"])
+
+
+def test_the_crop_has_both_vertices_as_exact_patches(crop):
+    assert [pid for pid, _, _ in crop.vertices] == ["A01", "A11"]
+    for (pid, cp, _), p in zip(crop.vertices, crop.surface.patches):
+        assert np.array_equal(p.vertex_m, cp.enh_m)
+        h, face = p.height(cp.enh_m[:1] + 0.3, cp.enh_m[1:2])
+        assert face[0] >= 0 and abs(h[0] - cp.enh_m[2]) < 0.3 * 1.1     # a roof face next to the vertex (<= 48 deg)
+
+
+def test_a_photo_pair_over_real_roofs(crop):
+    # one pair: a vertex measured on one photo counts here (the stage would reject it for want of a check)
+    r = score_block(crop, (85003.0, 447474.0), 0.0, 0.10, 0, size=(480, 360), n_strips=1, per_strip=2, min_photos=1)
+    n, med, p95, mx, sd = summary(r["errors"], r["normalised"])
+    assert r["n_photos"] == 2
+    assert n >= 2, r["statuses"]
+    assert mx < 1.0, r["rows"]
+    assert r["occluded_accepted"] == 0
+
+
+@pytest.mark.slow
+def test_acceptance_on_block_f1_and_hidden_vertices():
+    """Issue 29's acceptance numbers on ONE block of the benchmark (flight F1, GSD 0.10 m, seed 1: 6
+    photos of 800 x 600 px over A01 A11 A10 A14 ...), and no hidden vertex measured on oblique photos
+    (~10 min quiet, 23 min at load 20).  The whole benchmark does not meet them: at GSD 0.15 m gross
+    errors are accepted (docs/figures.md), so this block is a floor, not the acceptance."""
+    from bench_photocontrol_ahn3 import FLIGHTS, occlusion_block
+
+    data = load_ahn3()
+    centre, heading = FLIGHTS["F1"]
+    r = score_block(data, centre, heading, 0.10, 1)
+    n, med, p95, mx, sd = summary(r["errors"], r["normalised"])
+    assert n >= 5, r["statuses"]
+    assert med <= 0.3 and p95 <= 1.0 and mx <= 3.0, r["rows"]
+    assert 0.8 <= sd <= 1.25
+    assert r["occluded_accepted"] == 0
+    o = occlusion_block(data, max_photos=2)
+    assert o["hidden"] >= 1
+    assert o["measured_hidden"] == 0, o["statuses"]
