@@ -16,7 +16,7 @@ from lidarcat.synthetic.survey import compare_with_truth, demo_camera, project_p
 from lidarcat.errors import LidarcatError
 from lidarcat.survey.folder import Survey
 
-# demo synthetic + run end to end (about 15 s): slow, but still run in CI
+# demo synthetic + run end to end (about 15 s): slow-marked (run with -m slow)
 pytestmark = pytest.mark.slow
 
 
