@@ -404,14 +404,8 @@ def write_copc(las: Any, path: str | os.PathLike, *, crs: Any = None, max_points
         shutil.rmtree(work, ignore_errors=True)
 
 
-def _write(src: _Source, path: Path, work: Path, cube: _Cube, spill: int, n: int, lo: np.ndarray,
-           hi: np.ndarray, gps: list[float], by_ret: np.ndarray, crs: Any, max_points: int, grid_bits: int,
-           page_entries: int, atomic_write: Any) -> Path:
-    """Pass 2 (spill), the two sweeps over the buckets, the hierarchy and the header (see :func:`write_copc`)."""
-    import lazrs
-
-    dtype = src.dtype
-    # pass 2: every record to its bucket's file, in file order
+def _spill(src: _Source, cube: _Cube, spill: int, work: Path) -> list[int]:
+    """Pass 2: every record appended to its bucket's file ``b<key>.bin`` in *work*, in file order; the keys."""
     for arr in src.chunks():
         b = _pack(_cells(cube.rel(src.xyz(arr)), spill))
         order = np.argsort(b, kind="stable")
@@ -420,16 +414,15 @@ def _write(src: _Source, path: Path, work: Path, cube: _Cube, spill: int, n: int
         for a, e in zip(np.concatenate([[0], cut]), np.concatenate([cut, [len(bs)]])):
             with open(work / f"b{int(bs[a])}.bin", "ab") as fh:
                 fh.write(arr[order[a:e]].tobytes())
-    buckets = sorted(int(p.stem[1:]) for p in work.glob("b*.bin"))
+    return sorted(int(p.stem[1:]) for p in work.glob("b*.bin"))
 
-    def load(key: int) -> tuple[np.ndarray, np.ndarray]:
-        arr = np.fromfile(work / f"b{key}.bin", dtype=dtype)
-        return arr, cube.rel(src.xyz(arr))
 
-    # sweep 1: the points each node of depth <= spill has left
+def _upper_leaves(buckets: list[int], load: Callable[[int], tuple[np.ndarray, np.ndarray]], spill: int,
+                  grid_bits: int, max_points: int) -> list[np.ndarray]:
+    """Sweep 1: the keys of the leaf nodes of each depth 0 .. *spill* (from the points each has left)."""
     left: list[dict[int, int]] = [{} for _ in range(spill + 1)]
     for bk in buckets:
-        arr, rel = load(bk)
+        _, rel = load(bk)
         _, cnt = _place(rel, grid_bits, max_points, spill, None)
         cell = _unpack(np.array([bk]))[0]
         for d in range(spill + 1):
@@ -438,15 +431,51 @@ def _write(src: _Source, path: Path, work: Path, cube: _Cube, spill: int, n: int
     leaves: list[set[int]] = [set() for _ in range(spill + 1)]
     for d in range(spill + 1):
         for k, c in left[d].items():
-            parent_leaf = False
             cell = _unpack(np.array([k]))[0]
-            for u in range(d):
-                if int(_pack((cell >> (d - u))[None, :])[0]) in leaves[u]:
-                    parent_leaf = True
-                    break
+            parent_leaf = any(int(_pack((cell >> (d - u))[None, :])[0]) in leaves[u] for u in range(d))
             if not parent_leaf and (c <= max_points or d >= MAX_DEPTH):
                 leaves[d].add(k)
-    leaf_arrays = [np.fromiter(s, dtype=np.int64, count=len(s)) for s in leaves]
+    return [np.fromiter(s, dtype=np.int64, count=len(s)) for s in leaves]
+
+
+def _hierarchy(entries: dict[tuple[int, int, int, int], tuple[int, int, int]], page_entries: int,
+               data_start: int) -> tuple[bytes, tuple[int, int]]:
+    """The hierarchy EVLR's payload starting at file offset *data_start*, and the root page's (offset, size).
+
+    Adds the empty nodes above nodes with points to *entries* (in place) first.
+    """
+    for d, x, y, z in list(entries):
+        while d > 0:
+            d, x, y, z = d - 1, x // 2, y // 2, z // 2
+            if (d, x, y, z) in entries:
+                break
+            entries[(d, x, y, z)] = (0, 0, 0)
+    entries.setdefault((0, 0, 0, 0), (0, 0, 0))
+    pages = hierarchy_pages(entries, page_entries)
+    page_at: dict[tuple[int, int, int, int], tuple[int, int]] = {}
+    at = data_start
+    for root, page in pages:
+        page_at[root] = (at, 32 * len(page))
+        at += 32 * len(page)
+    blob = b"".join(_ENTRY.pack(*k, *(page_at[k] if cnt == -1 else (off, size)), cnt)
+                    for _, page in pages for k, off, size, cnt in page)
+    return blob, page_at[(0, 0, 0, 0)]
+
+
+def _write(src: _Source, path: Path, work: Path, cube: _Cube, spill: int, n: int, lo: np.ndarray,
+           hi: np.ndarray, gps: list[float], by_ret: np.ndarray, crs: Any, max_points: int, grid_bits: int,
+           page_entries: int, atomic_write: Any) -> Path:
+    """Pass 2 (spill), the two sweeps over the buckets, the hierarchy and the header (see :func:`write_copc`)."""
+    import lazrs
+
+    dtype = src.dtype
+    buckets = _spill(src, cube, spill, work)
+
+    def load(key: int) -> tuple[np.ndarray, np.ndarray]:
+        arr = np.fromfile(work / f"b{key}.bin", dtype=dtype)
+        return arr, cube.rel(src.xyz(arr))
+
+    leaf_arrays = _upper_leaves(buckets, load, spill, grid_bits, max_points)
 
     def leaf_of(d: int, node: np.ndarray) -> np.ndarray:
         return np.isin(node, leaf_arrays[d])
@@ -498,31 +527,15 @@ def _write(src: _Source, path: Path, work: Path, cube: _Cube, spill: int, n: int
             chunk(key, np.fromfile(p, dtype=dtype))     # type: ignore[arg-type]
         comp.done()
 
-        # the empty nodes above nodes with points, then the pages
-        for d, x, y, z in list(entries):
-            while d > 0:
-                d, x, y, z = d - 1, x // 2, y // 2, z // 2
-                if (d, x, y, z) in entries:
-                    break
-                entries[(d, x, y, z)] = (0, 0, 0)
-        entries.setdefault((0, 0, 0, 0), (0, 0, 0))
-        pages = hierarchy_pages(entries, page_entries)
         evlr_start = fh.tell()
-        data_start = evlr_start + _EVLR_HEADER
-        page_at: dict[tuple[int, int, int, int], tuple[int, int]] = {}
-        at = data_start
-        for root, page in pages:
-            page_at[root] = (at, 32 * len(page))
-            at += 32 * len(page)
-        blob = b"".join(_ENTRY.pack(*k, *(page_at[k] if cnt == -1 else (off, size)), cnt)
-                        for _, page in pages for k, off, size, cnt in page)
+        blob, root_page = _hierarchy(entries, page_entries, evlr_start + _EVLR_HEADER)
         fh.write(struct.pack("<H16sHQ32s", 0, b"copc", 1000, len(blob), b"EPT hierarchy"))
         fh.write(blob)
 
         # the VLRs, then the header, in front of the points
         fh.seek(_HEADER_SIZE)
         info = struct.pack("<5d2Q2d11Q", *cube.centre, cube.half, 2.0 * cube.half / 2 ** grid_bits,
-                           *page_at[(0, 0, 0, 0)], gps[0], gps[1], *([0] * 11))
+                           *root_page, gps[0], gps[1], *([0] * 11))
         fh.write(_vlr("copc", 1, info, "COPC info"))
         fh.write(_vlr("laszip encoded", 22204, vlr.record_data(), "lazrs variable chunks"))
         if eb_data is not None:
