@@ -60,7 +60,7 @@ labelling of that graph: no loop).  This lets the cloth follow steep slopes
 that its stiffness would otherwise bridge.
 
 ``adaptive=False`` is the reference.  With ``adaptive`` (the default) three
-things change, for relief:
+things change, for relief and sparse points:
 
 * the cloth falls on the points less their trend plane (:func:`trend_plane`,
   least squares through the lower half of the cells, as SMRF's opening uses
@@ -69,6 +69,10 @@ things change, for relief:
 * :math:`H_p` is the *lowest* candidate that rounds to the particle, not the
   nearest: on a slope under scattered trees the nearest is often a crown, the
   cloth then bridges that particle and lies below the ground on convex ground;
+  a particle without points takes the nearest particle's :math:`H` (not the
+  scanline's first to the right: on sparse points, most particles are empty and
+  the scanline carries heights across cliffs and banks -- terraces at 0.1
+  pts/m2: 81 % total error with it, 8.6 % without);
 * the slope post-processing joins neighbours whose :math:`H` differ by less
   than 0.5 m per metre of resolution (the reference: 0.3 m), since a residual
   slope of 30 % plus the points' scatter in the cell breaks the reference's chains.
@@ -130,8 +134,9 @@ class CSFParameters:
         The slope post-processing of the module docstring.
     adaptive : bool
         Drop the cloth on the points less their trend plane, on the lowest point
-        of each particle, and join slope neighbours within 0.5 m x the resolution
-        in the post-processing (module docstring).  False: the reference's CSF.
+        of each particle (empty particles: the nearest particle's), and join slope
+        neighbours within 0.5 m x the resolution in the post-processing (module
+        docstring).  False: the reference's CSF.
     """
 
     cloth_resolution_m: float = 1.0
@@ -178,6 +183,17 @@ def _scanline_fill(h: np.ndarray) -> np.ndarray:
         idx = distance_transform_edt(~ok, return_distances=False, return_indices=True)
         out[todo] = h[tuple(i[todo] for i in idx)]
     return out
+
+
+def _nearest_fill(h: np.ndarray) -> np.ndarray:
+    """NaN cells take the value of the nearest valued cell (the adaptive CSF's fill)."""
+    from scipy.ndimage import distance_transform_edt
+
+    ok = np.isfinite(h)
+    if ok.all() or not ok.any():
+        return h
+    idx = distance_transform_edt(~ok, return_distances=False, return_indices=True)
+    return h[tuple(idx)]
 
 
 def _family_lines(nr: int, nc: int, dr: int, dc: int) -> np.ndarray:
@@ -315,7 +331,8 @@ def cloth_surface(heights: np.ndarray, params: CSFParameters | None = None) -> n
         Height of the cloth at each particle, metres (real, not inverted).
     """
     params = params or CSFParameters()
-    hv = _scanline_fill(-np.asarray(heights, dtype=np.float64))  # intersection heights, inverted
+    hv = -np.asarray(heights, dtype=np.float64)                  # intersection heights, inverted
+    hv = _nearest_fill(hv) if params.adaptive else _scanline_fill(hv)
     if not np.isfinite(hv).any():
         return np.full(hv.shape, np.nan)
     z, movable = _simulate(hv, params)
