@@ -299,6 +299,10 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("lidar/jobs.py", "tile_jobs", "ValueError", "no tiles given"):
         "argument check; the CLI expands TILE... and refuses a glob matching nothing",
     ("lidar/jobs.py", "_client", "ValueError", "workers must be at least 1, got {}"): _ARG,
+    ("lidar/copc_write.py", "hierarchy_pages", "ValueError", "page_entries must be at least 9 (a node "): _ARG,
+    ("lidar/copc_write.py", "write_copc", "ValueError", "grid must be a power of two from 8 to 12"): _ARG,
+    ("lidar/copc_write.py", "write_copc", "ValueError", "max_points, bucket_points and chunk_poin"): _ARG,
+    ("lidar/copc_write.py", "write_copc", "ValueError", "page_entries must be at least 9 (a node "): _ARG,
     ("lidar/raster.py", "rasterize", "ValueError", "unknown raster {}; use one of {}"): _ENUM,
     ("lidar/raster.py", "rasterize", "ValueError", "cell_m must be positive, got {}"): _ARG,
     ("lidar/raster.py", "rasterize", "ValueError", "unknown fill {}"): _ENUM,

@@ -38,6 +38,9 @@ _overlap_opt = click.option(
                    "2 sd), left out of the ground filter.")
 @click.option("--hag", is_flag=True,
               help="Write each point's height above the ground TIN as the extra dimension HeightAboveGround.")
+@click.option("--copc", is_flag=True,
+              help="Write the classified copies as COPC (LAZ 1.4 octree, <tile>.copc.laz in a folder OUT; one "
+                   "TILE and OUT ending in .laz: that file).")
 @click.option("--max-building-m", type=POSITIVE, default=60.0, show_default=True,
               help="PTD: size of the largest building, metres: one seed (the lowest last return) per "
                    "window of this size.")
@@ -63,7 +66,8 @@ _overlap_opt = click.option(
 @_workers_opt
 @_scheduler_opt
 @_resume_opt
-def ground(paths: tuple[str, ...], output: str, method: str, noise: bool, hag: bool, max_building_m: float,
+def ground(paths: tuple[str, ...], output: str, method: str, noise: bool, hag: bool, copc: bool,
+           max_building_m: float,
            iteration_angle_deg: float, adaptive: bool,
            iteration_distance_m: float, window_m: float, slope: float, elevation_threshold_m: float,
            overlap_m: float | None, crs: str | None, workers: int | None, scheduler: str | None,
@@ -80,6 +84,7 @@ def ground(paths: tuple[str, ...], output: str, method: str, noise: bool, hag: b
       lidarcat lidar ground 'tiles/*.laz' -o classified/ --workers 4
       lidarcat lidar ground tiles/ -o classified/ --method ptd --max-building-m 80
       lidarcat lidar ground tiles/ -o classified/ --noise --hag
+      lidarcat lidar ground tiles/ -o classified/ --copc
     """
     from ..stages import lidar as actions
 
@@ -89,7 +94,7 @@ def ground(paths: tuple[str, ...], output: str, method: str, noise: bool, hag: b
                                   adaptive=adaptive if method == "smrf" else None)
     files, crs, _ = tile_sources(paths, crs)
     with progress_bar(len(files), "ground tiles") as bar:
-        outs = actions.ground(files, output, crs=crs, method=method, params=p, noise=noise, hag=hag,
+        outs = actions.ground(files, output, crs=crs, method=method, params=p, noise=noise, hag=hag, copc=copc,
                               overlap_m=overlap_m,
                               workers=workers, scheduler=scheduler, resume=resume,
                               progress=bar.update if bar is not None else None)

@@ -692,8 +692,11 @@ def confusion(reference_ground: Any, classified_ground: Any) -> Confusion:
 # --------------------------------------------------------------------------- files
 def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground: np.ndarray,
                           crs: Any = None, *, noise: np.ndarray | None = None,
-                          hag_m: np.ndarray | None = None) -> Path:
+                          hag_m: np.ndarray | None = None, copc: bool = False) -> Path:
     """Copy the LAS/LAZ file *src* to *dst* with class 2 set on *ground* (atomically).
+
+    With *copc* the copy is a COPC file (:func:`lidarcat.lidar.copc_write.write_copc`:
+    LAS 1.4, point format 6-8, an octree of LAZ chunks) instead of LAS/LAZ by *dst*'s suffix.
 
     With *noise* (bool, one per point) those points get class 7 (noise; a point
     both noise and ground stays ground).  With *hag_m* (float, one per point,
@@ -751,6 +754,10 @@ def write_classified_copy(src: str | os.PathLike, dst: str | os.PathLike, ground
                                                      description="height above ground, m"))
         las.HeightAboveGround = hag_m.astype(np.float32)
     ascii_header_text(las.header, src)   # laspy writes no non-ASCII header text (issue 24)
+    if copc:
+        from ..lidar.copc_write import write_copc
+
+        return write_copc(las, dst, crs=crs)
     add_las_crs(las.header, crs)
     compress = dst.suffix.lower() == ".laz"
     with atomic_write(dst, "wb") as fh:
@@ -798,12 +805,14 @@ def ground_tile(job: TileJob) -> None:
                               method=method, params=params_from_dict(method, job.params))
     hag = height_above_ground(xyz, g)[:n_own] if job.params.get("hag") else None
     write_classified_copy(job.tile, job.output, g[:n_own], crs=cloud.crs,
-                          noise=noise[:n_own] if job.params.get("noise") else None, hag_m=hag)
+                          noise=noise[:n_own] if job.params.get("noise") else None, hag_m=hag,
+                          copc=bool(job.params.get("copc")))
 
 
 def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *, crs: Any = None,
                    method: str = "smrf", params: PTDParameters | SMRFParameters | CSFParameters | None = None,
-                   noise: bool = False, hag: bool = False, overlap_m: float | None = None, workers: int | None = None, scheduler: str | None = None,
+                   noise: bool = False, hag: bool = False, copc: bool = False, overlap_m: float | None = None,
+                   workers: int | None = None, scheduler: str | None = None,
                    resume: bool = True, progress: Callable[[int], Any] | None = None) -> list[Path]:
     """Classify LAS/LAZ tiles into copies, each with the points of its neighbours.
 
@@ -822,6 +831,9 @@ def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *
     hag : bool
         Write each point's height above the ground TIN as the extra dimension
         ``HeightAboveGround`` (:func:`lidarcat.production.noise.height_above_ground`).
+    copc : bool
+        Write COPC files (:func:`lidarcat.lidar.copc_write.write_copc`): one tile and *out*
+        ending in ``.laz``: that file; else ``<tile name>.copc.laz`` in the folder *out*.
     overlap_m : float, optional
         Buffer of neighbour points, metres (default :func:`default_overlap_m`).
     workers, scheduler, resume
@@ -838,11 +850,16 @@ def classify_tiles(paths: Sequence[str | os.PathLike], out: str | os.PathLike, *
 
     if method not in GROUND_METHODS:
         raise ValueError(f"unknown ground method {method!r}; use one of {', '.join(GROUND_METHODS)}")
-    pdict: dict[str, Any] = {"method": method, "noise": bool(noise), "hag": bool(hag)}
+    pdict: dict[str, Any] = {"method": method, "noise": bool(noise), "hag": bool(hag), "copc": bool(copc)}
     if params is not None:
         pdict.update(dataclasses.asdict(params))
     ov = default_overlap_m(method, params) if overlap_m is None else float(overlap_m)
     jobs = tile_jobs(ground_tile, paths, out, crs=crs, params=pdict, overlap_m=ov)
+    if copc and len(jobs) == 1 and Path(out).suffix.lower() == ".las":
+        raise ProductError(f"{out}: a COPC file is LAZ; name it .copc.laz")
+    if copc and not (len(jobs) == 1 and Path(out).suffix.lower() == ".laz"):
+        jobs = [dataclasses.replace(j, output=str(Path(out) / (Path(j.tile).name.split(".")[0] + ".copc.laz")))
+                for j in jobs]
     for j in jobs:
         if Path(j.output).resolve() == Path(j.tile).resolve():
             raise ProductError(f"{j.output}: the output would overwrite the input; choose another name or folder")

@@ -56,8 +56,9 @@ def ground_parameters(method: str, **values: Any) -> Any:
 
 def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs: Any = None,
            method: str = "smrf", params: Any = None, noise: bool = False, hag: bool = False,
-           overlap_m: float | None = None, workers: int | None = None, scheduler: str | None = None,
-           resume: bool = True, progress: Callable[[int], Any] | None = None) -> list[str]:
+           copc: bool = False, overlap_m: float | None = None, workers: int | None = None,
+           scheduler: str | None = None, resume: bool = True,
+           progress: Callable[[int], Any] | None = None) -> list[str]:
     """Classify ground (class 2) into LAS/LAZ copies of *tiles* (``lidarcat lidar ground``).
 
     Parameters
@@ -75,6 +76,8 @@ def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs
     noise, hag : bool
         Class 7 on statistical outliers; the extra dimension ``HeightAboveGround``
         (:func:`lidarcat.production.ground.classify_tiles`).
+    copc : bool
+        Write the copies as COPC files (``<tile>.copc.laz``, :mod:`lidarcat.lidar.copc_write`).
     overlap_m : float, optional
         Points of neighbouring tiles read around each tile, metres (default
         :func:`lidarcat.production.ground.default_overlap_m`).
@@ -90,7 +93,7 @@ def ground(tiles: Sequence[str | os.PathLike], output: str | os.PathLike, *, crs
 
     p = ground_parameters(method) if params is None else params
     written = classify_tiles([Path(t) for t in tiles], output, crs=crs, method=method, params=p,
-                             noise=noise, hag=hag, overlap_m=overlap_m, workers=workers, scheduler=scheduler, resume=resume,
+                             noise=noise, hag=hag, copc=copc, overlap_m=overlap_m, workers=workers, scheduler=scheduler, resume=resume,
                              progress=progress)
     return [str(w) for w in written]
 

@@ -8,6 +8,8 @@ survey.toml::
                                 # or "csf" (cloth simulation filter)
     noise = false               # ground: class 7 on isolated points (statistical outlier test)
     hag = false                 # ground: extra dimension HeightAboveGround (m) in the classified copies
+    smrf_adaptive = true        # ground (smrf): cell grown to the point spacing (false: the fixed grid)
+    copc = false                # ground: the classified copies as COPC (ground/<tile>.copc.laz)
     dtm = true                  # dtm.tif: TIN of the ground sampled at cell centres (gaps stay NaN)
     dsm = true                  # dsm.tif: highest first return per cell
     ndsm = false                # ndsm.tif: DSM - DTM (needs dtm and dsm)
@@ -125,9 +127,9 @@ def run(ctx: Context, tmp: Path) -> dict:
     done: dict[str, Any] = {"crs": str(crs), "files": []}
     if cfg["ground"]:
         method = cfg["filter"]
-        params = params_from_dict(method, {})
+        params = params_from_dict(method, {"adaptive": cfg["smrf_adaptive"]} if method == "smrf" else {})
         outs = [Path(p) for p in ground(tiles, tmp / "ground", crs=crs, method=method, params=params,
-                                        noise=cfg["noise"], hag=cfg["hag"], resume=False)]
+                                        noise=cfg["noise"], hag=cfg["hag"], copc=cfg["copc"], resume=False)]
         for m in (tmp / "ground").glob("*.done.json"):   # resume markers of the tile runner: not products
             m.unlink()
         tiles = sorted(outs)

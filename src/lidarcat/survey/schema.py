@@ -339,6 +339,11 @@ class ProductsSettings:
     noise: bool = _key(BOOLEAN, False, "ground: class 7 on isolated points (statistical outlier test)")
     hag: bool = _key(BOOLEAN, False, "ground: extra dimension HeightAboveGround (m) in the classified copies")
     stats: bool = _key(BOOLEAN, False, "stats.tif: min, max, mean, count, stdev of the point heights per cell")
+    smrf_adaptive: bool = _key(BOOLEAN, True, "ground (smrf): cell grown to the point spacing, trend continued "
+                                               "beyond the edge (false: Pingel's fixed grid, lidar ground "
+                                               "--fixed-grid)")
+    copc: bool = _key(BOOLEAN, False, "ground: the classified copies as COPC, ground/<tile>.copc.laz (lidar "
+                                      "ground --copc)")
 
     def to_dict(self) -> dict[str, Any]:
         """The table as the stage's parameters."""

@@ -33,6 +33,15 @@ Heights carry 3 cm of Gaussian noise.  Landscapes (``LANDSCAPES``):
 ``low_outliers``
     Gently rolling terrain with houses and trees and 0.3 % of the pulses
     returned 5-20 m below the ground.
+
+Broken terrain (``BROKEN_LANDSCAPES``, not in ``LANDSCAPES``, whose figures
+the benchmarks keep):
+
+``terraces``
+    8 m cliffs every 40 m (wavy in plan) on a 10 % slope, a mesa 30 m across
+    and 15 m high, houses 12 x 12 m and 6 m high on the terraces; one return
+    per pulse (no trees).  The weakest case of the adaptive SMRF at 0.1-0.3
+    pulses/m2 (docs/figures.md).
 """
 
 from __future__ import annotations
@@ -44,9 +53,10 @@ import numpy as np
 
 from .._util.frozen import frozen_array
 
-__all__ = ["Landscape", "make_landscape", "LANDSCAPES"]
+__all__ = ["Landscape", "make_landscape", "LANDSCAPES", "BROKEN_LANDSCAPES"]
 
 LANDSCAPES = ("steep", "forest", "bridge", "city", "low_outliers")
+BROKEN_LANDSCAPES = ("terraces",)
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,7 +143,7 @@ def make_landscape(name: str, *, size_m: float = 200.0, density: float = 6.0, se
 
     Parameters
     ----------
-    name : {"steep", "forest", "bridge", "city", "low_outliers"}
+    name : {"steep", "forest", "bridge", "city", "low_outliers", "terraces"}
     size_m : float
         Side of the square area, metres.
     density : float
@@ -147,12 +157,14 @@ def make_landscape(name: str, *, size_m: float = 200.0, density: float = 6.0, se
     >>> len(ls) > 9000, bool(ls.ground.any() and not ls.ground.all())
     (True, True)
     """
-    if name not in LANDSCAPES:
-        raise ValueError(f"unknown landscape {name!r}; use one of {', '.join(LANDSCAPES)}")
+    if name not in LANDSCAPES + BROKEN_LANDSCAPES:
+        raise ValueError(f"unknown landscape {name!r}; use one of {', '.join(LANDSCAPES + BROKEN_LANDSCAPES)}")
     if not (size_m > 0 and density > 0):
         raise ValueError("size_m and density must be positive")
     rng = np.random.default_rng(seed)
     n = int(round(size_m * size_m * density))
+    if name == "terraces":
+        return _terraces(rng, n, size_m)
     x = rng.uniform(0, size_m, n)
     y = rng.uniform(0, size_m, n)
     zg = _terrain(name, x, y, size_m)
@@ -216,3 +228,16 @@ def make_landscape(name: str, *, size_m: float = 200.0, density: float = 6.0, se
         gt &= ~lo
     zs = zs + rng.normal(0.0, 0.03, len(zs))
     return Landscape(name, np.column_stack([xs, ys, zs]), rn, nr, gt)
+
+
+def _terraces(rng: np.random.Generator, n: int, size: float) -> Landscape:
+    """The ``terraces`` landscape (module docstring): *n* single returns over a *size* square."""
+    x, y = rng.uniform(0, size, n), rng.uniform(0, size, n)
+    zg = 8.0 * np.floor((x + 10 * np.sin(y / 25)) / 40.0) + 0.1 * x + 0.05 * y
+    mesa = np.hypot(x - 0.7 * size, y - 0.3 * size) < 15
+    zg = zg + np.where(mesa, 15.0, 0.0)
+    house = ((np.mod(x, 50) > 20) & (np.mod(x, 50) < 32) & (np.mod(y, 60) > 10) & (np.mod(y, 60) < 22)
+             & ~mesa)
+    xyz = np.column_stack([x, y, zg + np.where(house, 6.0, 0.0) + rng.normal(0, 0.03, n)])
+    one = np.ones(n, np.uint8)
+    return Landscape("terraces", xyz, one, one, ~house)
