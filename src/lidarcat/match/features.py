@@ -67,10 +67,11 @@ class FeatureOptions:
     max_side_px: int = 4000
     contrast_threshold: float = 0.0175
     max_size_px: float = 16.0
+    unique_positions: bool = True
 
     def key(self) -> str:
         return json.dumps([self.max_features, self.level, self.max_side_px, self.contrast_threshold,
-                           self.max_size_px])
+                           self.max_size_px] + ([] if self.unique_positions else ["all orientations"]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,7 +154,10 @@ def detect(image: np.ndarray, options: FeatureOptions = FeatureOptions()) -> Fea
     size = np.array([k.size for k in kps], dtype=np.float32)
     # OpenCV's keypoint coordinates: pixel centres at integers; undo the level's halvings
     xy = (pt + 0.5) * (2 ** level) - 0.5
-    small = np.flatnonzero(size <= options.max_size_px) if options.max_size_px > 0 else np.arange(len(pt))
+    cand = np.arange(len(pt))
+    if options.unique_positions:          # one keypoint per extremum (module docstring: orientations)
+        cand = np.sort(np.unique(pt, axis=0, return_index=True)[1])
+    small = cand[size[cand] <= options.max_size_px] if options.max_size_px > 0 else cand
     keep = small[_spread(pt[small], resp[small], work.shape, options.max_features)]
     return Features(xy[keep], np.clip(np.rint(desc[keep]), 0, 255).astype(np.uint8), resp[keep],
                     size[keep] * (2 ** level), level)
