@@ -43,11 +43,10 @@ def test_pyramid_level_and_max_features():
 
 def test_one_keypoint_per_extremum():
     """OpenCV's SIFT gives a keypoint per orientation peak at one position (about a fifth of them here);
-    two tracks through one image point would carry the same error twice (tracks of the duplicates were
-    7 % of a rendered block's tie points, their errors correlated 1.0)."""
+    ``unique_positions`` keeps one (off by default: the tracks join the twins)."""
     img = _texture(4, (480, 640))
-    every = detect(img, FeatureOptions(unique_positions=False))
-    one = detect(img, FeatureOptions())
+    every = detect(img, FeatureOptions())
+    one = detect(img, FeatureOptions(unique_positions=True))
     n_positions = len(np.unique(every.xy_px, axis=0))
     assert n_positions < 0.95 * len(every)                   # the duplicates exist
     assert len(np.unique(one.xy_px, axis=0)) == len(one) == n_positions

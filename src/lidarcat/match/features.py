@@ -11,13 +11,13 @@ keeps about the same well-spread points in a quarter of the time.  A keypoint fo
 
 in the full photo (pixel centres at integers, as :mod:`lidarcat.geometry.camera`).
 
-One keypoint per extremum: SIFT assigns a keypoint a second (third) orientation when its gradient
-histogram has another peak within 80 % of the highest (Lowe 2004, section 5), so about a fifth of
-OpenCV's keypoints share their position with another.  Each would be matched on its own and make a
-track of its own: on the rendered test block 7 % of the tie points were such twins, two tracks
-through the same image points whose errors are the same (correlation 1.0), which the adjustment
-counted as independent, twice the weight they deserve.  Only the first keypoint at each position
-is kept (``unique_positions``); the feature budget then holds distinct points.
+Twin keypoints: SIFT assigns a keypoint a second (third) orientation when its gradient histogram
+has another peak within 80 % of the highest (Lowe 2004, section 5), so about a fifth of OpenCV's
+keypoints share their position with another.  All are kept and matched (the orientation that a
+photo lists first depends on its rotation: keeping only the first loses 15-20 % of the matches
+between strips flown in opposite directions); :func:`lidarcat.match.tracks.build_tracks` makes
+the twins one node, so that they give one track, not two with the same errors.
+``unique_positions`` keeps one keypoint per position at detection (off).
 
 Keypoints larger than ``max_size_px`` (diameter at the detection level) are dropped: measured
 on the rendered test block, the observations of keypoints over 15 px are within 1 px of truth
@@ -69,7 +69,8 @@ class FeatureOptions:
         Largest keypoint diameter kept, pixels of the detection level (a blob's position is
         as good as its scale: the large ones are the least precise; 0 keeps all).
     unique_positions : bool
-        One keypoint per position (the first orientation of an extremum; module docstring).
+        One keypoint per position (the first orientation of an extremum; module docstring), off:
+        twins are joined in the tracks instead.
     """
 
     max_features: int = 8000
@@ -77,7 +78,7 @@ class FeatureOptions:
     max_side_px: int = 4000
     contrast_threshold: float = 0.0175
     max_size_px: float = 16.0
-    unique_positions: bool = True
+    unique_positions: bool = False
 
     def key(self) -> str:
         return json.dumps([self.max_features, self.level, self.max_side_px, self.contrast_threshold,
