@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -50,7 +52,9 @@ def test_one_keypoint_per_extremum():
     n_positions = len(np.unique(every.xy_px, axis=0))
     assert n_positions < 0.95 * len(every)                   # the duplicates exist
     assert len(np.unique(one.xy_px, axis=0)) == len(one) == n_positions
-    assert FeatureOptions().key() != FeatureOptions(unique_positions=False).key()
+    assert FeatureOptions().key() == FeatureOptions(unique_positions=False).key() \
+        != FeatureOptions(unique_positions=True).key()
+    assert json.loads(FeatureOptions().key()) == [8000, None, 4000, 0.0175, 16.0]    # the caches of before stay valid
 
 
 def test_cache_detects_once(tmp_path):

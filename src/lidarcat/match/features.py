@@ -82,7 +82,7 @@ class FeatureOptions:
 
     def key(self) -> str:
         return json.dumps([self.max_features, self.level, self.max_side_px, self.contrast_threshold,
-                           self.max_size_px] + ([] if self.unique_positions else ["all orientations"]))
+                           self.max_size_px] + (["one per position"] if self.unique_positions else []))
 
 
 @dataclass(frozen=True, eq=False)
