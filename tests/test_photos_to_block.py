@@ -185,7 +185,7 @@ def test_scoring_counts_a_two_ray_mismatch_on_both_rays():
     np.testing.assert_allclose(err[2:], [0.0, 0.0, 4.0])
 
 
-#: seeds of the slow acceptance tests (10-12 are the bench rows of docs/figures.md "Honest sds" at 1000 x 750 px)
+#: seeds of the slow acceptance tests (10-13 are the bench rows of docs/figures.md "Honest sds" at 1000 x 750 px)
 ACCEPTANCE_SEEDS = (10, 11, 12, 13, 14, 15)
 
 
