@@ -185,6 +185,18 @@ def test_scoring_counts_a_two_ray_mismatch_on_both_rays():
     np.testing.assert_allclose(err[2:], [0.0, 0.0, 4.0])
 
 
+def test_pooled_honesty_accepts_honest_sds_and_rejects_sds_too_small():
+    """The pooled statistics of the slow acceptance test can fail: N(0, 1) errors pass, the same errors
+    over sds 1.5 x too small (about 40 beyond 3 "sd" expected) do not."""
+    rng = np.random.default_rng(0)
+    z = [rng.standard_normal((24, 6)) for _ in range(6)]
+    h = bench.pooled_honesty(z)
+    assert h["n"] == 864 and h["bound_over3"] == 8 and h["expected_over3"] == pytest.approx(2.33, abs=0.01)
+    assert h["over3"] <= h["bound_over3"] and 0.8 <= h["rms_z"] <= 1.25
+    h = bench.pooled_honesty([1.5 * a for a in z])
+    assert h["over3"] > h["bound_over3"] and h["rms_z"] > 1.25
+
+
 #: seeds of the slow acceptance tests (10-13 are the bench rows of docs/figures.md "Honest sds" at 1000 x 750 px)
 ACCEPTANCE_SEEDS = (10, 11, 12, 13, 14, 15)
 
