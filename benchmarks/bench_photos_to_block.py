@@ -73,7 +73,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 __all__ = ["run_block", "score_tracks", "score_block", "format_table", "rescore", "plant_gross", "MISMATCH_PX",
-           "WRONG_RAY_PX"]
+           "WRONG_RAY_PX", "pooled_honesty", "P_OVER_3"]
 
 #: planted mismatches of two-ray points, px (across the epipolar line: the part two rays can reveal)
 MISMATCH_PX = (3.5, 5.0, 8.0, 12.0, 20.0, 35.0, 50.0)
@@ -83,6 +83,38 @@ WRONG_RAY_PX = (3.5, 6.0, 10.0, 25.0, 50.0)
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
 EO_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+#: P(|z| > 3) of a standard normal z: the share of honest orientation errors beyond 3 sd
+P_OVER_3 = 0.0026997960632601866
+
+
+def pooled_honesty(z: Any, alpha: float = 0.001) -> dict[str, Any]:
+    """"Every orientation within 3 sd" and "sds honest" as statistics pooled over seeds.
+
+    With honest sds every normalised error ``z = (adjusted - true) / sd`` is N(0, 1), so a share
+    :data:`P_OVER_3` of them lies beyond 3 sd *whatever their correlation* (the expectation of a count
+    is the sum of the marginals): over ``n`` elements the count of ``|z| > 3`` has expectation
+    ``n P_OVER_3``; for independent z it is binomial, and its ``1 - alpha`` quantile is the bound
+    (a count above it rejects honesty at level *alpha*; correlated z -- one roll shared by a block's
+    photos -- widen the count's spread, so the level is then larger than *alpha*).  The pooled rms z
+    is the empirical / predicted sd ratio.
+
+    Parameters
+    ----------
+    z : sequence of arrays
+        Normalised errors (any shape), e.g. one (P, 6) array per seed.
+    alpha : float
+        Level of the bound.
+
+    Returns
+    -------
+    dict with n, rms_z, over3 (count of |z| > 3), expected_over3, bound_over3
+    """
+    from scipy.stats import binom
+
+    zz = np.concatenate([np.asarray(a, dtype=np.float64).ravel() for a in z])
+    n = len(zz)
+    return {"n": n, "rms_z": float(np.sqrt(np.mean(zz ** 2))), "over3": int(np.sum(np.abs(zz) > 3.0)),
+            "expected_over3": n * P_OVER_3, "bound_over3": int(binom.ppf(1.0 - alpha, n, P_OVER_3))}
 
 
 def _load() -> float:
@@ -398,8 +430,11 @@ def format_table(rows: list[dict[str, Any]]) -> str:
         per = np.sqrt(np.mean(za ** 2, axis=0))
         zq = np.concatenate([r["z_points"] for r in rs])
         per_seed = ", ".join(f"{r['rms_z']:.2f}" for r in rs)
+        h = pooled_honesty([r["z_apriori"] for r in rs])
         lines.append(f"\n{variant or 'as given'}: rms z of the orientations (empirical / predicted sd) "
-                     f"{np.sqrt(np.mean(za ** 2)):.2f} over {len(rs)} seed(s) (per seed {per_seed}); per element "
+                     f"{h['rms_z']:.2f} over {len(rs)} seed(s) (per seed {per_seed}); |z| > 3: {h['over3']} of "
+                     f"{h['n']} (expected {h['expected_over3']:.1f}, binomial 99.9 % bound {h['bound_over3']}); "
+                     f"per element "
                      + ", ".join(f"{n} {v:.2f}" for n, v in zip(EO_NAMES, per))
                      + (f"; tie points E, N, h {', '.join(f'{v:.2f}' for v in np.sqrt(np.mean(zq ** 2, axis=0)))}"
                         f" ({len(zq)} points)" if len(zq) else "")

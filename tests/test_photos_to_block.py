@@ -12,8 +12,10 @@ a priori sd of every matched observation (``sd_x_mm, sd_y_mm``), the variance co
 make sigma0 1 and the chi-square test pass, and gross matches planted into the matched table
 (mismatched two-ray points, a wrong ray of a multi-ray point, 3.5-50 px) named by the default
 snooping while the good observations are kept.
-Slow: the acceptance block itself, 24 photos of 1000 x 750 px, seeds 0 and 1, and the planted gross
-matches on it.
+Slow: the acceptance block itself, 24 photos of 1000 x 750 px, on six seeds: the per-seed facts, and
+"every orientation within 3 sd" with "sds honest" as statistics pooled over the seeds (the count of
+|z| > 3 against its binomial bound, the pooled empirical / predicted ratio in 0.8-1.25; the reasoning
+is in that test's docstring); and the planted gross matches on it.
 """
 
 from __future__ import annotations
@@ -139,13 +141,14 @@ def test_planted_gross_matches_are_named(six, tmp_path):
     _assert_planted_named(s, folder, tmp_path / "adjust", planted)
 
 
-def _assert_acceptance(sc, max_z=3.0):
+def _assert_acceptance(sc, max_z: float | None = 3.0):
     assert sc["status"] == "converged"
     assert sc["kept"] >= 0.95 * sc["observations"]             # snooping removes a few, not the block
     assert sc["kept_within1"] >= 0.99                          # >= 99 % of the kept within 1 px of truth
     assert sc["kept_over3_unnamed"] == 0                       # every kept one > 3 px off named
     assert sc["rms_px"] <= 0.5                                 # image residual RMS
-    assert sc["max_z"] <= max_z                                # every orientation within 3 sd of truth
+    if max_z is not None:                                      # every orientation within 3 sd of truth
+        assert sc["max_z"] <= max_z
 
 
 def test_six_photos_matched_and_adjusted_within_truth(six, tmp_path):
@@ -182,16 +185,73 @@ def test_scoring_counts_a_two_ray_mismatch_on_both_rays():
     np.testing.assert_allclose(err[2:], [0.0, 0.0, 4.0])
 
 
+def test_pooled_honesty_accepts_honest_sds_and_rejects_sds_too_small():
+    """The pooled statistics of the slow acceptance test can fail: N(0, 1) errors pass, the same errors
+    over sds 1.5 x too small (about 40 beyond 3 "sd" expected) do not."""
+    rng = np.random.default_rng(0)
+    z = [rng.standard_normal((24, 6)) for _ in range(6)]
+    h = bench.pooled_honesty(z)
+    assert h["n"] == 864 and h["bound_over3"] == 8 and h["expected_over3"] == pytest.approx(2.33, abs=0.01)
+    assert h["over3"] <= h["bound_over3"] and 0.8 <= h["rms_z"] <= 1.25
+    h = bench.pooled_honesty([1.5 * a for a in z])
+    assert h["over3"] > h["bound_over3"] and h["rms_z"] > 1.25
+
+
+#: seeds of the slow acceptance tests (10-13 are the bench rows of docs/figures.md "Honest sds" at 1000 x 750 px)
+ACCEPTANCE_SEEDS = (10, 11, 12, 13, 14, 15)
+
+
+@pytest.fixture(scope="module")
+def acceptance_blocks(tmp_path_factory):
+    """The 24-photo block of 1000 x 750 px matched and adjusted for every seed of :data:`ACCEPTANCE_SEEDS`,
+    adjusted as the matched sds are written and with ``--variance-components``: {seed: (as given, vce)}
+    scores (slow: 2-10 min a seed)."""
+    out = {}
+    for seed in ACCEPTANCE_SEEDS:
+        tmp = tmp_path_factory.mktemp(f"block{seed}")
+        s, sc = _photos_to_block(tmp, seed=seed, per_strip=12, size=(1000, 750))
+        r = CliRunner().invoke(cli, ["adjust", str(tmp / "survey"), "--eo-constraints", "--snooping", "remove",
+                                     "--variance-components", "-o", str(tmp / "adjust_vc")])
+        assert r.exit_code in (0, 3), r.output
+        out[seed] = (sc, bench.score_block(s, tmp / "survey", tmp / "adjust_vc"))
+    return out
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, 1])
-def test_acceptance_block_24_photos(tmp_path, seed):
-    """Issue 28's first acceptance line on the 24-photo block, but "sds honest": the empirical /
-    predicted ratio of the orientation errors is not asserted -- one block's errors are dominated by
-    one common roll (a single sample per seed: rms z 0.47-1.51 per seed); pooled over 10 seeds of
-    the 640 x 480 block it is 1.03 (docs/figures.md, benchmarks/bench_photos_to_block.py)."""
-    s, sc = _photos_to_block(tmp_path, seed=seed, per_strip=12, size=(1000, 750))
-    assert sc["photos"] == 24 and sc["tie_points"] >= 2000
-    _assert_acceptance(sc)
+@pytest.mark.parametrize("seed", ACCEPTANCE_SEEDS)
+def test_acceptance_block_24_photos(acceptance_blocks, seed):
+    """Issue 28's first acceptance line on the 24-photo block, per seed, for both adjustments: converged,
+    >= 99 % of the kept tie observations within 1 px of truth, every kept one > 3 px off named, residual
+    RMS <= 0.5 px.  "Every orientation within 3 sd" and "sds honest" are claims about the sds' statistics
+    and are tested pooled over the seeds (:func:`test_acceptance_orientations_within_3_sd_over_seeds`)."""
+    for sc in acceptance_blocks[seed]:
+        assert sc["photos"] == 24 and sc["tie_points"] >= 2000
+        _assert_acceptance(sc, max_z=None)
+
+
+@pytest.mark.slow
+def test_acceptance_orientations_within_3_sd_over_seeds(acceptance_blocks):
+    """"Every orientation within 3 sd of truth" and "sds honest (empirical / predicted 0.8-1.25 over seeds)",
+    as statistics over the seeds.
+
+    Read literally, per seed, the first cannot hold together with the second: with honest sds each
+    normalised error ``z = (adjusted - true) / sd`` is N(0, 1) and exceeds 3 with probability 0.27 %, so
+    the largest of a block's 24 x 6 = 144 |z| exceeds 3 with probability 1 - 0.9973^144 = 32 % (for
+    independent z); on six seeds at least one block would fail with probability 90 %.  A test of the
+    sds that can fail is the count of |z| > 3 over all seeds (6 x 144 = 864 elements): its expectation
+    is 864 x 0.27 % = 2.3 whatever the correlation of the z, and its binomial 99.9 % quantile (8) is the
+    bound (:func:`bench_photos_to_block.pooled_honesty`); sds 1.5 x too small would put about 40 beyond
+    3 "sd".  The second is the pooled rms z, the empirical / predicted ratio, in 0.8-1.25.  One seed
+    alone does not measure it: a block's largest errors are one roll (omega with Y0) shared by its 24
+    photos, about one sample per seed (rms z 0.4-1.7 per seed, docs/figures.md "Honest sds").  Both are
+    asserted for the adjustment with variance components (the sds the residuals ask for: what
+    ``lidarcat run`` adjusts) and for the sds as ``match`` writes them.
+    """
+    for k, variant in enumerate(("as given", "vce")):
+        h = bench.pooled_honesty([acceptance_blocks[seed][k]["z_apriori"] for seed in ACCEPTANCE_SEEDS])
+        assert h["n"] == len(ACCEPTANCE_SEEDS) * 24 * 6
+        assert h["over3"] <= h["bound_over3"], (variant, h)
+        assert 0.8 <= h["rms_z"] <= 1.25, (variant, h)
 
 
 @pytest.mark.slow

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -39,6 +41,20 @@ def test_pyramid_level_and_max_features():
     assert pyramid_level(17310, 11310, 4000) == 3
     f = detect(_texture(2, (480, 640)), FeatureOptions(max_features=100))
     assert len(f) == 100 and f.descriptors.dtype == np.uint8
+
+
+def test_one_keypoint_per_extremum():
+    """OpenCV's SIFT gives a keypoint per orientation peak at one position (about a fifth of them here);
+    ``unique_positions`` keeps one (off by default: the tracks join the twins)."""
+    img = _texture(4, (480, 640))
+    every = detect(img, FeatureOptions())
+    one = detect(img, FeatureOptions(unique_positions=True))
+    n_positions = len(np.unique(every.xy_px, axis=0))
+    assert n_positions < 0.95 * len(every)                   # the duplicates exist
+    assert len(np.unique(one.xy_px, axis=0)) == len(one) == n_positions
+    assert FeatureOptions().key() == FeatureOptions(unique_positions=False).key() \
+        != FeatureOptions(unique_positions=True).key()
+    assert json.loads(FeatureOptions().key()) == [8000, None, 4000, 0.0175, 16.0]    # the caches of before stay valid
 
 
 def test_cache_detects_once(tmp_path):

@@ -89,3 +89,20 @@ def test_distribution_keeps_the_best_per_cell():
     keep = distribute(t, xy, np.array([[100, 100], [100, 100]]), score, grid=(2, 2), per_cell=1)
     assert keep.tolist() == [False, True, False, False]
     assert distribute(t, xy, np.array([[100, 100], [100, 100]]), score, grid=(2, 2), per_cell=0).all()
+
+
+def test_twin_keypoints_make_one_track():
+    """Two keypoints at one position (SIFT's second orientation) matched to different photos join one
+    track; without the positions they were two tracks through the same image point."""
+    xy = [np.array([[10.0, 20.0], [10.0, 20.0], [50.0, 60.0]]), np.array([[11.0, 21.0], [70.0, 80.0]]),
+          np.array([[12.0, 22.0], [90.0, 10.0]])]
+    pairs = np.array([[0, 1], [0, 2], [1, 2]])
+    matches = [(np.array([0, 2]), np.array([0, 1])), (np.array([1]), np.array([0])), (np.array([0]), np.array([0]))]
+    apart = build_tracks([3, 2, 2], pairs, matches)
+    assert apart.n_tracks == 1 and apart.n_inconsistent == 1     # kp 0 and 1 of photo 0 in one component: dropped
+    apart = build_tracks([3, 2, 2], pairs[:2], matches[:2])
+    assert apart.n_tracks == 3                                  # (0:0, 1:0), (0:2, 1:1), (0:1, 2:0)
+    joined = build_tracks([3, 2, 2], pairs, matches, xy_px=xy)
+    assert joined.n_tracks == 2 and joined.n_inconsistent == 0
+    assert joined.track.tolist() == [0, 0, 0, 1, 1]
+    assert joined.photo.tolist() == [0, 1, 2, 0, 1] and joined.keypoint.tolist() == [0, 0, 0, 2, 1]

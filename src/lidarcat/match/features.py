@@ -11,6 +11,14 @@ keeps about the same well-spread points in a quarter of the time.  A keypoint fo
 
 in the full photo (pixel centres at integers, as :mod:`lidarcat.geometry.camera`).
 
+Twin keypoints: SIFT assigns a keypoint a second (third) orientation when its gradient histogram
+has another peak within 80 % of the highest (Lowe 2004, section 5), so about a fifth of OpenCV's
+keypoints share their position with another.  All are kept and matched (the orientation that a
+photo lists first depends on its rotation: keeping only the first loses 15-20 % of the matches
+between strips flown in opposite directions); :func:`lidarcat.match.tracks.build_tracks` makes
+the twins one node, so that they give one track, not two with the same errors.
+``unique_positions`` keeps one keypoint per position at detection (off).
+
 Keypoints larger than ``max_size_px`` (diameter at the detection level) are dropped: measured
 on the rendered test block, the observations of keypoints over 15 px are within 1 px of truth
 in 93 % of cases against 99.4 % for 3-15 px.  At most ``max_features`` keypoints are kept, the strongest responses first, spread over
@@ -60,6 +68,9 @@ class FeatureOptions:
     max_size_px : float
         Largest keypoint diameter kept, pixels of the detection level (a blob's position is
         as good as its scale: the large ones are the least precise; 0 keeps all).
+    unique_positions : bool
+        One keypoint per position (the first orientation of an extremum; module docstring), off:
+        twins are joined in the tracks instead.
     """
 
     max_features: int = 8000
@@ -67,10 +78,11 @@ class FeatureOptions:
     max_side_px: int = 4000
     contrast_threshold: float = 0.0175
     max_size_px: float = 16.0
+    unique_positions: bool = False
 
     def key(self) -> str:
         return json.dumps([self.max_features, self.level, self.max_side_px, self.contrast_threshold,
-                           self.max_size_px])
+                           self.max_size_px] + (["one per position"] if self.unique_positions else []))
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,7 +165,10 @@ def detect(image: np.ndarray, options: FeatureOptions = FeatureOptions()) -> Fea
     size = np.array([k.size for k in kps], dtype=np.float32)
     # OpenCV's keypoint coordinates: pixel centres at integers; undo the level's halvings
     xy = (pt + 0.5) * (2 ** level) - 0.5
-    small = np.flatnonzero(size <= options.max_size_px) if options.max_size_px > 0 else np.arange(len(pt))
+    cand = np.arange(len(pt))
+    if options.unique_positions:          # one keypoint per extremum (module docstring: orientations)
+        cand = np.sort(np.unique(pt, axis=0, return_index=True)[1])
+    small = cand[size[cand] <= options.max_size_px] if options.max_size_px > 0 else cand
     keep = small[_spread(pt[small], resp[small], work.shape, options.max_features)]
     return Features(xy[keep], np.clip(np.rint(desc[keep]), 0, 255).astype(np.uint8), resp[keep],
                     size[keep] * (2 ** level), level)
