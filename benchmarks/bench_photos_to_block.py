@@ -301,7 +301,7 @@ def run_block(work: Path, seed: int, *, per_strip: int = 12, size: tuple[int, in
         folder = new
     row["s_match"], _ = cli("match", str(folder), "-o", str(work / "match"), *match_args)
     row["s_adjust"], _ = cli("adjust", str(folder), "--eo-constraints", "--snooping", "remove",
-                             "-o", str(work / "adjust"), *adjust_args)
+                             "--no-variance-components", "-o", str(work / "adjust"), *adjust_args)
     row["load_after"] = _load()
     row.update(score_block(s, folder, work / "adjust"))
     if variance_components:     # the same matched block adjusted with --variance-components

@@ -477,7 +477,7 @@ def match_block(cameras: Sequence[Camera], eos: Sequence[np.ndarray | None], fea
                          f"(first: photos {ids[pair_reports[0].a]!r}-{ids[pair_reports[0].b]!r}: "
                          f"{pair_reports[0].reason or 'no inliers'})")
     ms = [kept[k] for k in ok]
-    tracks = build_tracks([len(x) for x in xy_all], pairs[ok], [(m.i, m.j) for m in ms])
+    tracks = build_tracks([len(x) for x in xy_all], pairs[ok], [(m.i, m.j) for m in ms], xy_px=xy_all)
     # score: rays, then the mean ratio of the track's matches (lower = more distinctive)
     offset = np.r_[0, np.cumsum([len(x) for x in xy_all])]
     node_track = np.full(int(offset[-1]), -1, np.int64)
