@@ -41,7 +41,8 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-EO_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_photos_to_block import eo_errors  # noqa: E402  (the orientation scored as the tie-point benchmark does)
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
@@ -120,14 +121,7 @@ def hand_measure(s: Any, root: Path, truth: dict[str, np.ndarray], sd_px: float 
 def score(s: Any, truth_points: Path, adjust_dir: Path, assess_dir: Path | None = None) -> dict[str, Any]:
     """Orientation against truth (rms position m, attitude deg, max and rms |error|/sd), GPS check points'
     RMSE E, N, h (m), sigma0^2, the chi-square test, line observations, the PEC class when assessed."""
-    eop = {r["photo"]: r for r in _rows(adjust_dir / "eop.csv")}
-    truth = np.asarray(s.true_eo, float).copy()
-    truth[:, 3:] = np.degrees(truth[:, 3:])
-    est = np.array([[float(eop[p][c]) for c in EO_NAMES] for p in s.photo_ids])
-    sd = np.array([[float(eop[p]["sd_" + c]) for c in EO_NAMES] for p in s.photo_ids])
-    d = est - truth
-    d[:, 3:] = (d[:, 3:] + 180.0) % 360.0 - 180.0
-    z = d / sd
+    d, z = eo_errors(s, adjust_dir)
     tp = {r["point"]: np.array([float(r[c]) for c in ("E", "N", "h")]) for r in _rows(truth_points)}
     chk = [r for r in _rows(adjust_dir / "points.csv") if r["role"] == "check" and r["point"] in tp]
     e = np.array([[float(r["E"]), float(r["N"]), float(r["h"])] - tp[r["point"]] for r in chk]).reshape(-1, 3)

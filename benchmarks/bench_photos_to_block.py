@@ -72,8 +72,8 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-__all__ = ["run_block", "score_tracks", "score_block", "format_table", "rescore", "plant_gross", "MISMATCH_PX",
-           "WRONG_RAY_PX", "pooled_honesty", "P_OVER_3"]
+__all__ = ["eo_errors", "run_block", "score_tracks", "score_block", "format_table", "rescore", "plant_gross",
+           "MISMATCH_PX", "WRONG_RAY_PX", "pooled_honesty", "P_OVER_3"]
 
 #: planted mismatches of two-ray points, px (across the epipolar line: the part two rays can reveal)
 MISMATCH_PX = (3.5, 5.0, 8.0, 12.0, 20.0, 35.0, 50.0)
@@ -314,6 +314,19 @@ def run_block(work: Path, seed: int, *, per_strip: int = 12, size: tuple[int, in
     return row
 
 
+def eo_errors(s: Any, adjust_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(adjusted - true, (adjusted - true) / sd) of every photo's orientation in *adjust_dir*'s eop.csv,
+    shape (n_photos, 6): X0, Y0, Z0 in metres, omega, phi, kappa in degrees (wrapped to +-180)."""
+    eop = {r["photo"]: r for r in _rows(adjust_dir / "eop.csv")}
+    truth = np.asarray(s.true_eo, float).copy()
+    truth[:, 3:] = np.degrees(truth[:, 3:])
+    est = np.array([[float(eop[p][c]) for c in EO_NAMES] for p in s.photo_ids])
+    sd = np.array([[float(eop[p]["sd_" + c]) for c in EO_NAMES] for p in s.photo_ids])
+    d = est - truth
+    d[:, 3:] = (d[:, 3:] + 180.0) % 360.0 - 180.0
+    return d, d / sd
+
+
 def score_block(s: Any, folder: Path, adjust_dir: Path, prefix: str = "tp") -> dict[str, Any]:
     """The table's scores of one matched and adjusted block (see the module docstring)."""
     obs = [r for r in _rows(folder / "image_points.csv") if r["point"].startswith(prefix)]
@@ -346,14 +359,7 @@ def score_block(s: Any, folder: Path, adjust_dir: Path, prefix: str = "tp") -> d
                          if f"{r['photo']}\t{r['point']}" not in removed]) / pixel_mm
     summary = json.loads((adjust_dir / "summary.json").read_text(encoding="utf-8"))
     vcs = {g["group"]: g for g in (summary.get("variance_components") or {}).get("groups", [])}
-    eop = {r["photo"]: r for r in _rows(adjust_dir / "eop.csv")}
-    truth = np.asarray(s.true_eo, float).copy()
-    truth[:, 3:] = np.degrees(truth[:, 3:])
-    est = np.array([[float(eop[p][c]) for c in EO_NAMES] for p in s.photo_ids])
-    sd = np.array([[float(eop[p]["sd_" + c]) for c in EO_NAMES] for p in s.photo_ids])
-    d = est - truth
-    d[:, 3:] = (d[:, 3:] + 180.0) % 360.0 - 180.0
-    z = d / sd
+    d, z = eo_errors(s, adjust_dir)
     sigma0 = float(np.sqrt(summary["sigma0_sq"]))
     return {
         "photos": len(s.photo_ids), "tie_points": len(np.unique(point)), "observations": len(obs),

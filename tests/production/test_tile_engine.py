@@ -112,18 +112,19 @@ def test_read_done_output_gives_only_the_vouched_bytes(tmp_path):
 
 
 # --------------------------------------------------------------------------- edge buffers
-def _tiles(tmp_path):
-    """Two adjacent 20 m LAS tiles of 400 points each (E 0-20 and 20-40)."""
+def _tiles(tmp_path, starts_m=(0.0, 20.0)):
+    """20 m LAS tiles of 400 points each starting at these eastings (default two adjacent ones,
+    E 0-20 and 20-40)."""
     laspy = pytest.importorskip("laspy")
     import numpy as np
 
     rng = np.random.default_rng(1)
     paths = []
-    for k in range(2):
+    for k, e0 in enumerate(starts_m):
         header = laspy.LasHeader(point_format=1, version="1.2")
         header.scales, header.offsets = [0.01] * 3, [500000.0, 7000000.0, 0.0]
         las = laspy.LasData(header)
-        las.x = 500000.0 + 20.0 * k + rng.uniform(0, 20, 400)
+        las.x = 500000.0 + e0 + rng.uniform(0, 20, 400)
         las.y = 7000000.0 + rng.uniform(0, 20, 400)
         las.z = rng.uniform(10, 20, 400)
         las.classification = np.full(400, 2, dtype=np.uint8)
@@ -227,19 +228,7 @@ def test_fresh_las_tiles_are_neighbours_only_of_the_tiles_they_touch(tmp_path):
     """Three tiles in a row (E 0-20, 20-40, 80-100): with a 5 m overlap the first and the last
     are not neighbours.  Header bounds are unverified claims, so tile_jobs measures them first
     (before, every unverified tile was every tile's neighbour: n^2 reads)."""
-    laspy = pytest.importorskip("laspy")
-    import numpy as np
-
-    paths = _tiles(tmp_path)
-    header = laspy.LasHeader(point_format=1, version="1.2")
-    header.scales, header.offsets = [0.01] * 3, [500000.0, 7000000.0, 0.0]
-    las = laspy.LasData(header)
-    rng = np.random.default_rng(2)
-    las.x = 500080.0 + rng.uniform(0, 20, 400)
-    las.y = 7000000.0 + rng.uniform(0, 20, 400)
-    las.z = rng.uniform(10, 20, 400)
-    paths.append(tmp_path / "t2.las")
-    las.write(str(paths[-1]))
+    paths = _tiles(tmp_path, starts_m=(0.0, 20.0, 80.0))
     jobs = {j.tile.rsplit("/", 1)[-1]: j for j in tile_jobs_for(paths, tmp_path / "out")}
     names = {k: sorted(n.rsplit("/", 1)[-1] for n in j.neighbours) for k, j in jobs.items()}
     assert names == {"t0.las": ["t1.las"], "t1.las": ["t0.las"], "t2.las": []}
