@@ -17,7 +17,7 @@ ray from the camera to the vertex on the rendered surface).
         [--compare] [--occlusion-photos 6]
 
 ``--compare`` also scores each block without the per-photo test (:func:`lidarcat.photocontrol.check_photo`)
-from the same renders; a GSD given alone renders the same block (seed) as in the full run.
+and with the measurements alone on their photo rejected (``(alone rej.)`` rows), from the same renders; a GSD given alone renders the same block (seed) as in the full run.
 
 Prints one row per block (flight, GSD, seed) and the pooled figures.
 """
@@ -100,7 +100,7 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
                 size: tuple[int, int] = (800, 600), n_strips: int = 2, per_strip: int = 3,
                 focal_mm: float = 100.0, supersample: int = 4, params: Any = None,
                 min_photos: int = 2, keep_photos: bool = False, photo_test: bool = True,
-                compare: bool = False) -> dict:
+                compare: bool = False, alone: str = "keep") -> dict:
     """Render one flight, measure every vertex on every photo as ``measure-control`` does, score.
 
     Returns a dict: ``errors`` (px) and ``normalised`` (dx/sd, dy/sd) of the accepted
@@ -109,7 +109,8 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     ``photo_test``: each photo's measurements tested against their common displacement
     (:func:`lidarcat.photocontrol.check_photo`) before the multi-photo test, as the stage does;
     ``compare``: also the figures of the other choice, under ``without_photo_test`` (or
-    ``with_photo_test``), from the same renders.
+    ``with_photo_test``), and with the measurements alone on their photo rejected
+    (``alone_rejected``), from the same renders; ``alone``: check_photo's choice for those.
     """
     from lidarcat.photocontrol import VertexTarget, check_photo, measure_photo, predict_points
     from lidarcat.stages.measure_control import dsm_of_points
@@ -130,6 +131,7 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     dsms = [dsm_of_points(clip) for _, _, clip in data.vertices]      # as the stage: the DSM of the 30 m clip
     per_vertex: dict[int, list] = {}
     per_vertex_checked: dict[int, list] = {}
+    per_vertex_alone: dict[int, list] = {}
 
     def decide(pv: dict) -> dict:
         return _decide(pv, cam, approx, eo_cov, V, covs, ids, truth, vis_truth, min_photos)
@@ -157,16 +159,19 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
         ms = measure_photo(ph.image, cam, approx[k], targets, params) if params else \
             measure_photo(ph.image, cam, approx[k], targets)
         # as the stage: each photo's measurements against their common displacement
-        checked = check_photo(ms, cam, approx[k], eo_cov, V, covs)
+        checked = check_photo(ms, cam, approx[k], eo_cov, V, covs, alone=alone)
+        checked_alone = check_photo(ms, cam, approx[k], eo_cov, V, covs, alone="reject")
         for i, m in enumerate(ms):
             per_vertex.setdefault(i, []).append((k, m))
             per_vertex_checked.setdefault(i, []).append((k, checked[i]))
+            per_vertex_alone.setdefault(i, []).append((k, checked_alone[i]))
             truth[(i, k)] = tp[i]
             vis_truth[(i, k)] = bool(vis[i])
     out = decide(per_vertex_checked if photo_test else per_vertex)
     if compare:
         out["without_photo_test" if photo_test else "with_photo_test"] = \
             decide(per_vertex if photo_test else per_vertex_checked)
+        out["alone_rejected"] = decide(per_vertex_alone)
     return dict(out, occluded_pairs=occluded_pairs, n_photos=len(eo), photos=photos)
 
 
@@ -289,7 +294,7 @@ def main() -> None:
           f"({time.perf_counter() - t:.0f} s)")
     print(f"{'flight':>6} {'gsd':>5} {'seed':>4} {'n':>3} {'median':>7} {'p95':>6} {'max':>6} {'norm sd':>7} "
           f"{'occl':>4} {'occ.acc':>7} {'s':>5}  statuses")
-    all_e, all_n, occ_acc, occ, all_w = [], [], 0, 0, []
+    all_e, all_n, occ_acc, occ, all_w, all_a = [], [], 0, 0, [], []
     for fi, f in enumerate(a.flights):
         centre, heading = FLIGHTS[f]
         for gi, g in enumerate(a.gsd):
@@ -305,6 +310,11 @@ def main() -> None:
                     print(f"{'(w/o':>6} {'ph.)':>5} {seed:4d} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f} "
                           f"{'':>4} {w['occluded_accepted']:7d} {'':>5}  {w['statuses']}", flush=True)
                     all_w.append(w["errors"])
+                    w = r["alone_rejected"]
+                    n, med, p95, mx, sd = summary(w["errors"], w["normalised"])
+                    print(f"{'(alone':>6} {'rej.)':>5} {seed:4d} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f} "
+                          f"{'':>4} {w['occluded_accepted']:7d} {'':>5}  {w['statuses']}", flush=True)
+                    all_a.append(w["errors"])
                 all_e.append(r["errors"])
                 all_n.append(r["normalised"])
                 occ_acc += r["occluded_accepted"]
@@ -321,6 +331,10 @@ def main() -> None:
         print(f"without the per-photo test: {len(w)} measurements, max {w.max() if len(w) else math.nan:.2f} px, "
               f"{int(np.sum(w > 3.0))} more than 3 px off")
     print(f"with it: {n} measurements, {int(np.sum(np.concatenate(all_e) > 3.0))} more than 3 px off")
+    if a.compare:
+        w = np.concatenate(all_a)
+        print(f"with it, those alone on their photo rejected: {len(w)} measurements, "
+              f"max {w.max() if len(w) else math.nan:.2f} px, {int(np.sum(w > 3.0))} more than 3 px off")
     t = time.perf_counter()
     o = occlusion_block(data, max_photos=a.occlusion_photos) if a.occlusion_photos > 0 else None
     if o is not None:

@@ -75,3 +75,6 @@ def test_two_that_disagree_are_both_rejected_and_one_alone_is_kept():
         ["measured", "no_edges", "measured"]
     alone = [m if k == 1 else m.failed("no_edges", "x") for k, m in enumerate(ms)]
     assert check_photo(alone, CAM, APPROX_EO, EO_COV, VERTS, VCOV)[1].status == "measured"
+    out = check_photo(alone, CAM, APPROX_EO, EO_COV, VERTS, VCOV, alone="reject")[1]
+    assert out.status == "rejected"
+    assert out.reason == "alone on its photo: not tested against the photo's common shift (prediction sd 20 px)"

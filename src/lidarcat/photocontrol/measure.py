@@ -90,7 +90,7 @@ wide, not the prediction's ~20 px.  With three or more measurements the one with
 normalised residual beyond the 99.9 % point of :math:`\chi^2_2` is rejected and the test
 repeated (a fit locked onto another corner of the same roof is one gross value among the
 photo's); two that disagree are both rejected (which one is off cannot be told); a measurement
-alone on its photo cannot be tested and is kept.
+alone on its photo cannot be tested and is kept (``alone="reject"`` rejects it).
 """
 
 from __future__ import annotations
@@ -102,6 +102,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .._util.frozen import frozen_array
+from ..errors import LidarcatError
 from ..geometry.camera import Camera
 from .predict import Prediction, face_labels, pixel_jacobians, pixel_positions, roof_edges
 
@@ -798,7 +799,7 @@ def check_consistency(measurements: Sequence[Measurement], cameras: Sequence[Cam
 
 
 def check_photo(measurements: Sequence[Measurement], camera: Camera, eo: Any, eo_cov: Any, vertices_m: Any,
-                vertex_covs: Any, *, model_sd_px: float = 0.5) -> list[Measurement]:
+                vertex_covs: Any, *, model_sd_px: float = 0.5, alone: str = "keep") -> list[Measurement]:
     """The per-photo test of one photo's measurements against their common displacement (module docstring, step 5).
 
     Parameters
@@ -809,6 +810,10 @@ def check_photo(measurements: Sequence[Measurement], camera: Camera, eo: Any, eo
     vertices_m : (N, 3) the LiDAR vertices (same order); vertex_covs : (N, 3, 3) their covariances (m^2)
     model_sd_px : float
         Sd (px) added to each offset for what the linear model of the orientation's error does not see.
+    alone : ``"keep"`` or ``"reject"``
+        A measurement alone on its photo cannot be tested: kept (default), or rejected with the
+        reason (over real roofs, a fit locked onto another corner of the same roof is then caught
+        only by the other photos' test, whose tolerance is the prediction's ~20 px).
 
     Returns
     -------
@@ -820,6 +825,12 @@ def check_photo(measurements: Sequence[Measurement], camera: Camera, eo: Any, eo
     vc = np.asarray(vertex_covs, dtype=np.float64).reshape(-1, 3, 3)
     live = [k for k, m in enumerate(out) if m and np.isfinite(m.px).all() and np.isfinite(m.cov_px2).all()
             and np.isfinite(m.predicted_px).all()]
+    if alone not in ("keep", "reject"):
+        raise LidarcatError(f"alone must be 'keep' or 'reject', got {alone!r}")
+    if len(live) == 1 and alone == "reject":
+        m = out[live[0]]
+        out[live[0]] = m.failed("rejected", f"alone on its photo: not tested against the photo's common shift "
+                                            f"(prediction sd {math.sqrt(max(np.linalg.eigvalsh(m.predicted_cov_px2))):.0f} px)")
     if len(live) < 2:
         return out
     jp, jx = pixel_jacobians(camera, eo, v[live])
