@@ -85,8 +85,9 @@ across the frame.  Linearised, the offset of vertex *i* (measured minus predicte
 :math:`\hat\delta_{-i} = N_{-i}^{-1}\sum_{j\ne i} J_j^T C_j^{-1} d_j` with
 :math:`N_{-i} = P^{-1} + \sum_{j\ne i} J_j^T C_j^{-1} J_j`, and :math:`d_i` is tested against
 :math:`J_i\hat\delta_{-i}` with covariance :math:`J_i N_{-i}^{-1} J_i^T + C_i`: two other
-vertices fix shift, rotation and scale to a fraction of a pixel, so the test is a few pixels
-wide, not the prediction's ~20 px.  With three or more measurements the one with the largest
+vertices spread over the frame fix shift, rotation and scale to a fraction of a pixel, so the
+test is a few pixels wide, not the prediction's ~20 px (a close pair leaves the rotation near its
+prior: ~5 px at 500 px from it).  With three or more measurements the one with the largest
 normalised residual beyond the 99.9 % point of :math:`\chi^2_2` is rejected and the test
 repeated (a fit locked onto another corner of the same roof is one gross value among the
 photo's); two that disagree are both rejected (which one is off cannot be told); a measurement
