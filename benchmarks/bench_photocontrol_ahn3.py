@@ -14,6 +14,10 @@ against the vertex projected with the true orientation, and against the occlusio
 ray from the camera to the vertex on the rendered surface).
 
     PYTHONPATH=src python benchmarks/bench_photocontrol_ahn3.py [--flights F1 F2 F3 F4] [--gsd 0.05 0.10 0.15] [--seeds 0]
+        [--compare] [--occlusion-photos 6]
+
+``--compare`` also scores each block without the per-photo test (:func:`lidarcat.photocontrol.check_photo`)
+and with the measurements alone on their photo rejected (``(alone rej.)`` rows), from the same renders; a GSD given alone renders the same block (seed) as in the full run.
 
 Prints one row per block (flight, GSD, seed) and the pooled figures.
 """
@@ -34,6 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TILES = [ROOT / "tests" / "data" / "lidar" / f"ahn3_cropped_{i}.laz" for i in (1, 2)]
 VERTICES = ROOT / "tests" / "data" / "extract" / "ahn3_vertices.csv"
 #: flights: centre (E, N) and strip heading (deg from north), over clusters of the listed vertices
+GSDS = (0.05, 0.10, 0.15)
 FLIGHTS = {
     "F1": ((85003.0, 447474.0), 90.0),     # A01 A11 (A10 A14 and more at the larger GSDs)
     "F2": ((84910.0, 447468.0), 90.0),     # A03 A04
@@ -94,14 +99,20 @@ def load_ahn3(bounds: tuple[float, float, float, float] | None = None, *, cell_m
 def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd: float, seed: int, *,
                 size: tuple[int, int] = (800, 600), n_strips: int = 2, per_strip: int = 3,
                 focal_mm: float = 100.0, supersample: int = 4, params: Any = None,
-                min_photos: int = 2, keep_photos: bool = False) -> dict:
+                min_photos: int = 2, keep_photos: bool = False, photo_test: bool = True,
+                compare: bool = False, alone: str = "keep") -> dict:
     """Render one flight, measure every vertex on every photo as ``measure-control`` does, score.
 
     Returns a dict: ``errors`` (px) and ``normalised`` (dx/sd, dy/sd) of the accepted
     measurements, ``statuses`` (counts), ``occluded_accepted`` (accepted where the truth says
     occluded), ``occluded_pairs`` (vertex-photo pairs in the frame but occluded), ``n_photos``.
+    ``photo_test``: each photo's measurements tested against their common displacement
+    (:func:`lidarcat.photocontrol.check_photo`) before the multi-photo test, as the stage does;
+    ``compare``: also the figures of the other choice, under ``without_photo_test`` (or
+    ``with_photo_test``), and with the measurements alone on their photo rejected
+    (``alone_rejected``), from the same renders; ``alone``: check_photo's choice for those.
     """
-    from lidarcat.photocontrol import VertexTarget, check_consistency, measure_photo, predict_points
+    from lidarcat.photocontrol import VertexTarget, check_photo, measure_photo, predict_points
     from lidarcat.stages.measure_control import dsm_of_points
     from lidarcat.synthetic.aerial import Exposure, project_to_pixels
     from lidarcat.synthetic.aerial import aerial_camera
@@ -119,6 +130,12 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     ids = [pid for pid, _, _ in data.vertices]
     dsms = [dsm_of_points(clip) for _, _, clip in data.vertices]      # as the stage: the DSM of the 30 m clip
     per_vertex: dict[int, list] = {}
+    per_vertex_checked: dict[int, list] = {}
+    per_vertex_alone: dict[int, list] = {}
+
+    def decide(pv: dict) -> dict:
+        return _decide(pv, cam, approx, eo_cov, V, covs, ids, truth, vis_truth, min_photos)
+
     truth, vis_truth, photos = {}, {}, {}
     occluded_pairs = 0
     for k in range(len(eo)):
@@ -141,10 +158,28 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
         targets = [VertexTarget(cp.enh_m, cp.planes, clip, pr) for (_, cp, clip), pr in zip(data.vertices, prs)]
         ms = measure_photo(ph.image, cam, approx[k], targets, params) if params else \
             measure_photo(ph.image, cam, approx[k], targets)
+        # as the stage: each photo's measurements against their common displacement
+        checked = check_photo(ms, cam, approx[k], eo_cov, V, covs, alone=alone)
+        checked_alone = check_photo(ms, cam, approx[k], eo_cov, V, covs, alone="reject")
         for i, m in enumerate(ms):
             per_vertex.setdefault(i, []).append((k, m))
+            per_vertex_checked.setdefault(i, []).append((k, checked[i]))
+            per_vertex_alone.setdefault(i, []).append((k, checked_alone[i]))
             truth[(i, k)] = tp[i]
             vis_truth[(i, k)] = bool(vis[i])
+    out = decide(per_vertex_checked if photo_test else per_vertex)
+    if compare:
+        out["without_photo_test" if photo_test else "with_photo_test"] = \
+            decide(per_vertex if photo_test else per_vertex_checked)
+        out["alone_rejected"] = decide(per_vertex_alone)
+    return dict(out, occluded_pairs=occluded_pairs, n_photos=len(eo), photos=photos)
+
+
+def _decide(per_vertex: dict, cam: Any, approx: np.ndarray, eo_cov: np.ndarray, V: np.ndarray, covs: np.ndarray,
+            ids: list, truth: dict, vis_truth: dict, min_photos: int) -> dict:
+    """The multi-photo test and the one-photo rule of the stage, scored against truth."""
+    from lidarcat.photocontrol import check_consistency
+
     errs, norm, counts, occ_acc, rows, decisions = [], [], {}, 0, [], []
     for i, lst in per_vertex.items():
         ks = [k for k, _ in lst]
@@ -164,8 +199,7 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
                 norm.extend((d / np.sqrt(np.diag(m.cov_px2))).tolist())
                 rows.append((ids[i], k, float(np.hypot(*d)), np.asarray(m.px), truth[(i, k)], np.sqrt(np.diag(m.cov_px2))))
     return dict(errors=np.array(errs), normalised=np.array(norm), statuses=counts, occluded_accepted=occ_acc,
-                occluded_pairs=occluded_pairs, n_photos=len(eo), rows=rows, photos=photos,
-                decisions=decisions)
+                rows=rows, decisions=decisions)
 
 
 def look_at(centre_m: np.ndarray, target_m: np.ndarray, kappa: float = 0.0) -> np.ndarray:
@@ -246,11 +280,13 @@ def summary(e: np.ndarray, nz: np.ndarray) -> tuple[int, float, float, float, fl
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flights", nargs="+", default=list(FLIGHTS), choices=list(FLIGHTS))
-    ap.add_argument("--gsd", type=float, nargs="+", default=[0.05, 0.10, 0.15])
+    ap.add_argument("--gsd", type=float, nargs="+", default=list(GSDS))
     ap.add_argument("--seeds", type=int, nargs="+", default=[0],
                     help="the block's seed is 100 seed + 10 flight + GSD index")
     ap.add_argument("--supersample", type=int, default=4, help="rays per pixel side at edges")
-    ap.add_argument("--occlusion-photos", type=int, default=6, help="oblique photos of hidden vertices")
+    ap.add_argument("--occlusion-photos", type=int, default=6, help="oblique photos of hidden vertices (0: none)")
+    ap.add_argument("--compare", action="store_true",
+                    help="also print each block without the per-photo test (check_photo), from the same renders")
     a = ap.parse_args()
     t = time.perf_counter()
     data = load_ahn3()
@@ -258,14 +294,27 @@ def main() -> None:
           f"({time.perf_counter() - t:.0f} s)")
     print(f"{'flight':>6} {'gsd':>5} {'seed':>4} {'n':>3} {'median':>7} {'p95':>6} {'max':>6} {'norm sd':>7} "
           f"{'occl':>4} {'occ.acc':>7} {'s':>5}  statuses")
-    all_e, all_n, occ_acc, occ = [], [], 0, 0
+    all_e, all_n, occ_acc, occ, all_w, all_a = [], [], 0, 0, [], []
     for fi, f in enumerate(a.flights):
         centre, heading = FLIGHTS[f]
         for gi, g in enumerate(a.gsd):
             for s0 in a.seeds:
-                seed = 100 * s0 + 10 * list(FLIGHTS).index(f) + gi
+                # the GSD's index in the default list, so that one GSD alone renders the same block
+                gk = GSDS.index(g) if g in GSDS else gi
+                seed = 100 * s0 + 10 * list(FLIGHTS).index(f) + gk
                 t = time.perf_counter()
-                r = score_block(data, centre, heading, g, seed, supersample=a.supersample)
+                r = score_block(data, centre, heading, g, seed, supersample=a.supersample, compare=a.compare)
+                if a.compare:
+                    w = r["without_photo_test"]
+                    n, med, p95, mx, sd = summary(w["errors"], w["normalised"])
+                    print(f"{'(w/o':>6} {'ph.)':>5} {seed:4d} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f} "
+                          f"{'':>4} {w['occluded_accepted']:7d} {'':>5}  {w['statuses']}", flush=True)
+                    all_w.append(w["errors"])
+                    w = r["alone_rejected"]
+                    n, med, p95, mx, sd = summary(w["errors"], w["normalised"])
+                    print(f"{'(alone':>6} {'rej.)':>5} {seed:4d} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f} "
+                          f"{'':>4} {w['occluded_accepted']:7d} {'':>5}  {w['statuses']}", flush=True)
+                    all_a.append(w["errors"])
                 all_e.append(r["errors"])
                 all_n.append(r["normalised"])
                 occ_acc += r["occluded_accepted"]
@@ -277,11 +326,21 @@ def main() -> None:
                 n, med, p95, mx, sd = summary(np.concatenate(all_e), np.concatenate(all_n))
                 print(f"{'so far':>6} {'':>5} {'':>4} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f}", flush=True)
     n, med, p95, mx, sd = summary(np.concatenate(all_e), np.concatenate(all_n))
+    if a.compare:
+        w = np.concatenate(all_w)
+        print(f"without the per-photo test: {len(w)} measurements, max {w.max() if len(w) else math.nan:.2f} px, "
+              f"{int(np.sum(w > 3.0))} more than 3 px off")
+    print(f"with it: {n} measurements, {int(np.sum(np.concatenate(all_e) > 3.0))} more than 3 px off")
+    if a.compare:
+        w = np.concatenate(all_a)
+        print(f"with it, those alone on their photo rejected: {len(w)} measurements, "
+              f"max {w.max() if len(w) else math.nan:.2f} px, {int(np.sum(w > 3.0))} more than 3 px off")
     t = time.perf_counter()
-    o = occlusion_block(data, max_photos=a.occlusion_photos)
-    print(f"occlusion: {o['views']} hidden views found (60 deg off nadir, GSD 0.10 at the vertex), {o['hidden']} hidden vertex-photo "
-          f"pairs on {a.occlusion_photos} photos, measured {o['measured_hidden']} ({o['statuses']}; "
-          f"{time.perf_counter() - t:.0f} s)")
+    o = occlusion_block(data, max_photos=a.occlusion_photos) if a.occlusion_photos > 0 else None
+    if o is not None:
+        print(f"occlusion: {o['views']} hidden views found (60 deg off nadir, GSD 0.10 at the vertex), {o['hidden']} "
+              f"hidden vertex-photo pairs on {a.occlusion_photos} photos, measured {o['measured_hidden']} "
+              f"({o['statuses']}; {time.perf_counter() - t:.0f} s)")
     print(f"pooled: {n} measurements, median {med:.2f} px, 95 % {p95:.2f} px, max {mx:.2f} px, normalised sd "
           f"{sd:.2f}; occluded vertex-photo pairs {occ}, of them accepted {occ_acc}")
 

@@ -16,13 +16,14 @@ texel off the roof edge: median 0.78 px, largest 2.58 px.)  The assertions keep 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from lidarcat.control.vertices import extract_roof
-from lidarcat.photocontrol import (MeasureParams, Measurement, VertexTarget, check_consistency, measure_photo,
-                                   predict_points)
+from lidarcat.photocontrol import (MeasureParams, Measurement, VertexTarget, check_consistency, check_photo,
+                                   measure_photo, predict_points)
 from lidarcat.synthetic.aerial import aerial_survey
 
 EO_COV = np.diag([2.0**2] * 3 + [math.radians(0.5) ** 2] * 3)
@@ -76,6 +77,30 @@ def test_measured_vertices_are_within_a_pixel_of_truth(block):
     assert tried >= 16 and len(errs) >= 7, (tried, len(errs))
     assert np.median(errs) < 0.4 and errs.max() < 1.5, errs   # issue 29: median 0.3 px, none 3 px off
     assert 0.6 < np.std(norm) < 1.5
+
+
+def test_photo_test_keeps_the_rendered_measurements_and_rejects_one_moved_to_another_corner(block):
+    s, found, images = block
+    verts = np.array([f[1].enh_m for f in found])
+    vcovs = np.array([f[1].cov_m2 for f in found])
+    kept = moved = 0
+    for k, pid in enumerate(s.photo_ids):
+        ms = measure_photo(images[pid], s.camera, s.approx_eo[k], _targets(s, found, k))
+        ok = [i for i, m in enumerate(ms) if m]
+        out = check_photo(ms, s.camera, s.approx_eo[k], EO_COV, verts, vcovs)
+        assert [m.status for m in out] == [m.status for m in ms]     # all within ~1 px of truth: none rejected
+        kept += len(ok)
+        if len(ok) >= 3:
+            # the last one: its neighbour and a far vertex fix shift, rotation and scale (a vertex far from
+            # a close pair of the others is less constrained: the pair leaves kappa to its 0.5 deg prior)
+            bad = list(ms)
+            bad[ok[-1]] = replace(ms[ok[-1]], px=np.asarray(ms[ok[-1]].px) + [20.0, -22.0])
+            out = check_photo(bad, s.camera, s.approx_eo[k], EO_COV, verts, vcovs)
+            assert out[ok[-1]].status == "rejected", out[ok[-1]].reason
+            assert out[ok[-1]].reason.startswith("inconsistent with the photo's common shift: ")
+            assert all(out[i].status == "measured" for i in ok[:-1])
+            moved += 1
+    assert kept >= 7 and moved >= 2, (kept, moved)
 
 
 def test_dark_saturated_and_blank_photos_are_reported_not_measured(block):

@@ -5,7 +5,7 @@
               and the vertex's covariance; visibility from the LiDAR DSM; a roof edge as a control line (end
               points and covariance from the two plane fits).
 ``measure``   The vertex in the image: a face template for the shift, roof-edge lines for the pixel, their
-              intersection with its covariance; the fitted edges as line observations; the multi-photo test.
+              intersection with its covariance; the fitted edges as line observations; the per-photo and multi-photo tests.
 ``review``    Image chips with the predicted ellipse and the measured point and lines, and a gallery of them.
 ============  ============================================================
 """
@@ -33,6 +33,7 @@ from .measure import (  # noqa: F401
     STATUSES,
     VertexTarget,
     check_consistency,
+    check_photo,
     grey,
     measure_photo,
     measure_vertex,
@@ -58,6 +59,7 @@ __all__ = [
     "STATUSES",
     "VertexTarget",
     "check_consistency",
+    "check_photo",
     "grey",
     "measure_photo",
     "measure_vertex",

@@ -73,6 +73,25 @@ normalised residual beyond the 99.9 % point of :math:`\chi^2_2` is rejected and
 the intersection repeated; a forward intersection farther from the LiDAR vertex
 than the 99.9 % point of :math:`\chi^2_3` rejects all of that vertex's
 measurements.  Every decision is returned with its reason.
+
+**5. Consistency within a photo** (:func:`check_photo`).  The approximate orientation's error
+:math:`\delta` (6 parameters, covariance :math:`P`, 2 m / 0.5 deg typically: ~20 px at GSD
+0.15 m) moves all of a photo's predictions nearly alike: a common shift, with rotation and scale
+across the frame.  Linearised, the offset of vertex *i* (measured minus predicted) is
+:math:`d_i = J_i\delta + e_i` with :math:`J_i` the pixel Jacobian w.r.t. the orientation and
+:math:`e_i` independent, of covariance :math:`C_i` = the measurement's + the LiDAR vertex's
+(:math:`K_i V_i K_i^T`, :math:`K_i` the Jacobian w.r.t. the point) + ``model_sd_px``\ :sup:`2`
+:math:`I` (what the linear model does not see).  Leaving vertex *i* out, the others estimate
+:math:`\hat\delta_{-i} = N_{-i}^{-1}\sum_{j\ne i} J_j^T C_j^{-1} d_j` with
+:math:`N_{-i} = P^{-1} + \sum_{j\ne i} J_j^T C_j^{-1} J_j`, and :math:`d_i` is tested against
+:math:`J_i\hat\delta_{-i}` with covariance :math:`J_i N_{-i}^{-1} J_i^T + C_i`: two other
+vertices spread over the frame fix shift, rotation and scale to a fraction of a pixel, so the
+test is a few pixels wide, not the prediction's ~20 px (a close pair leaves the rotation near its
+prior: ~5 px at 500 px from it).  With three or more measurements the one with the largest
+normalised residual beyond the 99.9 % point of :math:`\chi^2_2` is rejected and the test
+repeated (a fit locked onto another corner of the same roof is one gross value among the
+photo's); two that disagree are both rejected (which one is off cannot be told); a measurement
+alone on its photo cannot be tested and is kept (``alone="reject"`` rejects it).
 """
 
 from __future__ import annotations
@@ -84,11 +103,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from .._util.frozen import frozen_array
+from ..errors import LidarcatError
 from ..geometry.camera import Camera
 from .predict import Prediction, face_labels, pixel_jacobians, pixel_positions, roof_edges
 
 __all__ = ["Measurement", "MeasureParams", "VertexTarget", "STATUSES", "EdgeLine", "measure_photo", "measure_vertex",
-           "check_consistency", "grey"]
+           "check_consistency", "check_photo", "grey"]
 
 #: statuses of a measurement and their meaning
 STATUSES: dict[str, str] = {
@@ -777,3 +797,77 @@ def check_consistency(measurements: Sequence[Measurement], cameras: Sequence[Cam
                                                    f"{float(np.linalg.norm(dv)):.2f} m from the LiDAR vertex "
                                                    f"(normalised {math.sqrt(q):.1f}): not this vertex")
         return out
+
+
+def check_photo(measurements: Sequence[Measurement], camera: Camera, eo: Any, eo_cov: Any, vertices_m: Any,
+                vertex_covs: Any, *, model_sd_px: float = 0.5, alone: str = "keep") -> list[Measurement]:
+    """The per-photo test of one photo's measurements against their common displacement (module docstring, step 5).
+
+    Parameters
+    ----------
+    measurements : sequence of Measurement (one photo, one per vertex; those not ``measured`` pass untouched)
+    camera : Camera
+    eo : (6,) the approximate orientation the predictions were made with (m, rad); eo_cov : (6, 6)
+    vertices_m : (N, 3) the LiDAR vertices (same order); vertex_covs : (N, 3, 3) their covariances (m^2)
+    model_sd_px : float
+        Sd (px) added to each offset for what the linear model of the orientation's error does not see.
+    alone : ``"keep"`` or ``"reject"``
+        A measurement alone on its photo cannot be tested: kept (default), or rejected with the
+        reason (over real roofs, a fit locked onto another corner of the same roof is then caught
+        only by the other photos' test, whose tolerance is the prediction's ~20 px).
+
+    Returns
+    -------
+    list of Measurement
+        The same, inconsistent ones with status ``"rejected"`` and the reason.
+    """
+    out = list(measurements)
+    v = np.asarray(vertices_m, dtype=np.float64).reshape(-1, 3)
+    vc = np.asarray(vertex_covs, dtype=np.float64).reshape(-1, 3, 3)
+    live = [k for k, m in enumerate(out) if m and np.isfinite(m.px).all() and np.isfinite(m.cov_px2).all()
+            and np.isfinite(m.predicted_px).all()]
+    if alone not in ("keep", "reject"):
+        raise LidarcatError(f"alone must be 'keep' or 'reject', got {alone!r}")
+    if len(live) == 1 and alone == "reject":
+        m = out[live[0]]
+        out[live[0]] = m.failed("rejected", f"alone on its photo: not tested against the photo's common shift "
+                                            f"(prediction sd {math.sqrt(max(np.linalg.eigvalsh(m.predicted_cov_px2))):.0f} px)")
+    if len(live) < 2:
+        return out
+    jp, jx = pixel_jacobians(camera, eo, v[live])
+    p_inv = np.linalg.pinv(np.asarray(eo_cov, dtype=np.float64).reshape(6, 6))
+    d = {k: np.asarray(out[k].px) - np.asarray(out[k].predicted_px) for k in live}
+    jac = dict(zip(live, jp))
+    cov = {k: np.asarray(out[k].cov_px2) + jx[i] @ vc[k] @ jx[i].T + np.eye(2) * model_sd_px**2
+           for i, k in enumerate(live)}
+    w = {k: np.linalg.inv(cov[k]) for k in live}
+
+    def loo(k: int, among: list[int]) -> tuple[float, float]:
+        """(normalised, px) residual of vertex k against the common displacement from the others."""
+        n_mat = p_inv.copy()
+        rhs = np.zeros(6)
+        for j in among:
+            if j != k:
+                n_mat += jac[j].T @ w[j] @ jac[j]
+                rhs += jac[j].T @ w[j] @ d[j]
+        n_inv = np.linalg.inv(n_mat)
+        r = d[k] - jac[k] @ (n_inv @ rhs)
+        q = float(r @ np.linalg.solve(jac[k] @ n_inv @ jac[k].T + cov[k], r))
+        return q, float(np.hypot(*r))
+
+    while len(live) >= 2:
+        res = {k: loo(k, live) for k in live}
+        worst = max(live, key=lambda k: res[k][0])
+        if res[worst][0] <= _CHI2_2:
+            break
+        if len(live) == 2:
+            for k in live:
+                out[k] = out[k].failed("rejected", f"inconsistent with the photo's common shift: {res[k][1]:.1f} px "
+                                                   f"from the other vertex's (normalised {math.sqrt(res[k][0]):.1f}); "
+                                                   f"which of the two is off cannot be told")
+            break
+        out[worst] = out[worst].failed(
+            "rejected", f"inconsistent with the photo's common shift: {res[worst][1]:.1f} px (normalised "
+                        f"{math.sqrt(res[worst][0]):.1f}, from the other {len(live) - 1} vertices)")
+        live.remove(worst)
+    return out

@@ -10,7 +10,9 @@ sds and image files, the LiDAR tiles, and the LiDAR control vertices (ground poi
 2. predicts it in every photo with its ellipse and its visibility over a DSM of those points
    (:mod:`lidarcat.photocontrol.predict`);
 3. measures it photo by photo (:func:`lidarcat.photocontrol.measure.measure_photo`) and tests the
-   measurements of each vertex across the photos (:func:`~lidarcat.photocontrol.measure.check_consistency`).
+   measurements of each photo against their common displacement
+   (:func:`~lidarcat.photocontrol.measure.check_photo`) and of each vertex across the photos
+   (:func:`~lidarcat.photocontrol.measure.check_consistency`).
 
 It writes, into the output folder first:
 
@@ -417,7 +419,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         raise SurveyError(f"lines must be one of {', '.join(LINE_MODES)}, got {lines!r}")
     from ..control.vertices import extract_roof
     from ..lidar.clipping import clip
-    from ..photocontrol import (VertexTarget, check_consistency, chip_image, gallery as tile_gallery,
+    from ..photocontrol import (VertexTarget, check_consistency, check_photo, chip_image, gallery as tile_gallery,
                                 measure_photo, predict_points)
     from ..photocontrol import edge_line_m, roof_edges
     from ..photocontrol.measure import Measurement, MeasureParams
@@ -501,6 +503,9 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         p_ph = p if not direction_from_kappa else dataclasses.replace(
             p or MeasureParams(), direction_sd_deg=max(0.1, math.degrees(math.sqrt(max(float(covs[pid][5, 5]), 0.0)))))
         ms = measure_photo(img, survey.camera_of(pid), eos[pid], [t for _, t in targets[pid]], p_ph)
+        ms = check_photo(ms, survey.camera_of(pid), eos[pid], covs[pid],
+                         [vertex_info[vid][0].enh_m for vid, _ in targets[pid]],
+                         [vertex_info[vid][0].cov_m2 for vid, _ in targets[pid]])
         for (vid, _), m in zip(targets[pid], ms):
             per_vertex.setdefault(vid, []).append((pid, m))
         if gallery:   # keep the windows of the chips, not the photos (a block's photos do not fit in memory)
