@@ -45,6 +45,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
+from lidarcat.lidar.copc import read_hierarchy  # noqa: E402
+
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -165,26 +167,10 @@ def _writer(sizes: list[int], size_m: float) -> None:
             dt, base, peak = (float(v) for v in res.stdout.split())
             with laspy.CopcReader.open(str(out)) as r:
                 assert r.header.point_count == n, "points lost"
-            raw = out.read_bytes()
-            pages = _count_pages(raw)
+            pages = read_hierarchy(out)[1]
             print(f"| {n:,} | {laz.stat().st_size / 1e6:.1f} | {out.stat().st_size / 1e6:.1f} | {pages} | {dt:.1f} | "
                   f"{base:.0f} | {peak:.0f} |", flush=True)
     print(f"load: {' '.join(f'{v:.2f}' for v in os.getloadavg())} (1, 5, 15 min)")
-
-
-def _count_pages(raw: bytes) -> int:
-    import struct
-
-    info = struct.unpack_from("<5d2Q2d", raw, 375 + 54)
-    todo, pages = [(int(info[5]), int(info[6]))], 0
-    while todo:
-        off, size = todo.pop()
-        pages += 1
-        for i in range(size // 32):
-            e = struct.unpack_from("<4iQii", raw, off + 32 * i)
-            if e[6] == -1:
-                todo.append((e[4], e[5]))
-    return pages
 
 
 if __name__ == "__main__":

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import struct
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from lidarcat.lidar.copc import read_hierarchy
 from lidarcat.lidar.copc_write import hierarchy_pages, write_copc
 
 DATA = Path(__file__).resolve().parent.parent / "data" / "lidar"
@@ -17,21 +17,7 @@ N = 208_432
 
 def _pages(path):
     """Every hierarchy entry (key -> (offset, bytes, count)) by following the pages; the number of pages."""
-    raw = Path(path).read_bytes()
-    info = struct.unpack_from("<5d2Q2d", raw, 375 + 54)
-    todo = [(int(info[5]), int(info[6]))]
-    entries, pages = {}, 0
-    while todo:
-        off, size = todo.pop()
-        pages += 1
-        for i in range(size // 32):
-            e = struct.unpack_from("<4iQii", raw, off + 32 * i)
-            if e[6] == -1:
-                todo.append((e[4], e[5]))
-            else:
-                assert e[:4] not in entries
-                entries[e[:4]] = e[4:]
-    return entries, pages
+    return read_hierarchy(path)
 
 
 @pytest.fixture(scope="module")
@@ -53,6 +39,17 @@ def test_several_pages_and_every_node_once(paged):
     # leaves hold at most max_points; a node with children holds at most one point per voxel
     parents = {(d - 1, x // 2, y // 2, z // 2) for d, x, y, z in entries if d}
     assert max(c for k, (_, _, c) in entries.items() if k not in parents) <= 4000
+
+
+def test_a_truncated_hierarchy_is_a_located_error(paged, tmp_path):
+    from lidarcat.errors import LidarFormatError
+
+    raw = Path(paged).read_bytes()
+    cut = tmp_path / "cut.copc.laz"
+    cut.write_bytes(raw[:-20])    # the hierarchy EVLR is the file's last record
+    with pytest.raises(LidarFormatError, match=rf"^{cut}: a hierarchy page at byte \d+ \(\d+ bytes\) is past "
+                                               rf"the end of the file \({len(raw) - 20} bytes\)$"):
+        read_hierarchy(cut)
 
 
 def test_laspy_reads_every_point_by_bounds_and_levels(paged):

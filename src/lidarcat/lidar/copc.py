@@ -64,7 +64,7 @@ from ._las import (LAS_ATTRIBUTES, MAX_LAZ_POINTS_PER_BYTE, check_coords, decode
                    layered_items_only_point14, open_checked)
 from .cloud import PointCloud
 
-__all__ = ["is_copc", "read_copc_box", "CopcRead", "COPC_INFO_BYTES"]
+__all__ = ["is_copc", "read_copc_box", "read_hierarchy", "CopcRead", "COPC_INFO_BYTES"]
 
 #: size of the COPC info VLR payload
 COPC_INFO_BYTES = 160
@@ -233,6 +233,37 @@ def _check_nodes(path: Path, nodes: list[Any], header: Any, size: int) -> None:
     if total > int(header.point_count):
         raise LidarFormatError(f"{path}: corrupt COPC hierarchy: the nodes of one query hold {total:,} points, "
                                f"more than the {int(header.point_count):,} of the header")
+
+
+def read_hierarchy(path: str | os.PathLike) -> tuple[dict[tuple[int, int, int, int], tuple[int, int, int]], int]:
+    """Every node of a COPC file's hierarchy and the number of hierarchy pages, by following the pages.
+
+    The ``copc info`` VLR (at byte 375 + 54 of a COPC file) gives the root page's offset and size; a page
+    is 32-byte entries (key ``d x y z`` as int32, offset uint64, byte size int32, point count int32);
+    a count of -1 points to a child page.  Returns ``{(d, x, y, z): (offset, bytes, point_count)}`` and
+    the page count.  An entry listed twice or a page outside the file is a :class:`LidarFormatError`.
+    """
+    path = Path(path)
+    raw = path.read_bytes()
+    info = struct.unpack_from("<5d2Q2d", raw, 375 + 54)
+    todo = [(int(info[5]), int(info[6]))]
+    entries: dict[tuple[int, int, int, int], tuple[int, int, int]] = {}
+    pages = 0
+    while todo:
+        off, size = todo.pop()
+        if off + size > len(raw):
+            raise LidarFormatError(f"{path}: a hierarchy page at byte {off} ({size} bytes) is past the end "
+                                   f"of the file ({len(raw)} bytes)")
+        pages += 1
+        for i in range(size // 32):
+            e = struct.unpack_from("<4iQii", raw, off + 32 * i)
+            if e[6] == -1:
+                todo.append((e[4], e[5]))
+            elif e[:4] in entries:
+                raise LidarFormatError(f"{path}: hierarchy node {e[:4]} is listed twice")
+            else:
+                entries[e[:4]] = e[4:]
+    return entries, pages
 
 
 def read_copc_box(path: str | os.PathLike, box: tuple[float, float, float, float], *,
