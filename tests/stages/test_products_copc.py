@@ -5,12 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from lidarcat.lidar.copc import is_copc
-from lidarcat.pipeline.plan import plan_pipeline
-from lidarcat.pipeline.runner import run_stages
 from lidarcat.production.ground import SMRFParameters, classify_tiles
-from lidarcat.survey.folder import Survey
 
-from test_products_stage import BASE, CRS, _work, survey  # noqa: F401  (the fixture survey: two tiles of the scene)
+from test_products_stage import BASE, CRS, run_products, survey  # noqa: F401  (the fixture survey: two tiles of the scene)
 
 
 def test_products_copc_and_fixed_grid(survey, tmp_path, monkeypatch):  # noqa: F811
@@ -29,13 +26,8 @@ def test_products_copc_and_fixed_grid(survey, tmp_path, monkeypatch):  # noqa: F
     # so the parameters the stage passes are checked directly
     monkeypatch.setattr(actions, "ground", spy)
     root, _, truth = survey
-    work = _work(root, tmp_path, BASE + '\n[products]\ncopc = true\nsmrf_adaptive = false\ndtm = true\ndsm = false\n'
-                                        'contours = false\ncell_m = 2.0\n')
-    s = Survey.load(work)
-    stage = next(st for st in plan_pipeline(s) if st.name == "products")
-    rec = run_stages([stage], tmp_path / "out", values={"survey": s})[0]
-    assert rec.status == "ran", rec.reason
-    folder = tmp_path / "out" / "products"
+    rec, folder = run_products(root, tmp_path, BASE + '\n[products]\ncopc = true\nsmrf_adaptive = false\ndtm = true\n'
+                                                      'dsm = false\ncontours = false\ncell_m = 2.0\n')
     assert sorted(rec.result["ground"]["tiles"]) == ["ground/east.copc.laz", "ground/west.copc.laz"]
     assert len(seen) == 1 and seen[0]["copc"] is True and seen[0]["params"] == SMRFParameters(adaptive=False)
     assert (folder / "dtm.tif").exists()

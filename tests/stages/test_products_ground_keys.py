@@ -5,11 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from lidarcat.lidar import read_points
-from lidarcat.pipeline.plan import plan_pipeline
-from lidarcat.pipeline.runner import run_stages
-from lidarcat.survey.folder import Survey
 
-from test_products_stage import BASE, _work, survey  # noqa: F401  (the fixture survey: two tiles of the scene)
+from test_products_stage import BASE, run_products, survey  # noqa: F401  (the fixture survey: two tiles of the scene)
 
 
 def test_products_noise_hag_stats_and_csf(survey, tmp_path):  # noqa: F811
@@ -17,13 +14,8 @@ def test_products_noise_hag_stats_and_csf(survey, tmp_path):  # noqa: F811
     import rasterio
 
     root, _, truth = survey
-    work = _work(root, tmp_path, BASE + '\n[products]\nfilter = "csf"\nnoise = true\nhag = true\nstats = true\n'
-                                        'cell_m = 2.0\ncontours = false\n')
-    s = Survey.load(work)
-    stage = next(st for st in plan_pipeline(s) if st.name == "products")
-    rec = run_stages([stage], tmp_path / "out", values={"survey": s})[0]
-    assert rec.status == "ran", rec.reason
-    folder = tmp_path / "out" / "products"
+    rec, folder = run_products(root, tmp_path, BASE + '\n[products]\nfilter = "csf"\nnoise = true\nhag = true\n'
+                                                      'stats = true\ncell_m = 2.0\ncontours = false\n')
     assert rec.result["ground"]["filter"] == "csf" and "stats.tif" in rec.result["files"]
     for name, ref in truth.items():
         las = laspy.read(folder / "ground" / f"{name}.laz")

@@ -44,6 +44,16 @@ def _work(root, tmp_path, toml):
     return work
 
 
+def run_products(root, tmp_path, toml):
+    """The products stage of a copy of the survey at *root* with *toml*, run into ``tmp_path/out``;
+    returns (stage record, products folder), the stage asserted to have run."""
+    s = Survey.load(_work(root, tmp_path, toml))
+    stage = next(st for st in plan_pipeline(s) if st.name == "products")
+    rec = run_stages([stage], tmp_path / "out", values={"survey": s})[0]
+    assert rec.status == "ran", rec.reason
+    return rec, tmp_path / "out" / "products"
+
+
 @pytest.fixture(scope="module")
 def survey(tmp_path_factory):
     """A survey with two LiDAR tiles of the synthetic scene whose classes are all 1 (unclassified)."""
