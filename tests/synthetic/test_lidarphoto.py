@@ -10,7 +10,7 @@ import pytest
 
 from lidarcat.synthetic.aerial import Exposure, project_to_pixels
 from lidarcat.synthetic.aerial import aerial_camera
-from lidarcat.synthetic.lidarphoto import (cast_rays, flight_poses, lidar_surface, rasterise_tin, render_lidar_photo,
+from lidarcat.synthetic.lidarphoto import (cast_rays, flight_poses, lidar_surface, render_lidar_photo,
                                            roof_patch, vertex_visible)
 
 V = np.array([10.0, 20.0, 8.0])
@@ -45,14 +45,18 @@ def scene():
     return xyz, surf
 
 
-def test_rasterised_tin_is_exact_on_a_plane():
+def test_surface_of_points_on_a_plane_is_the_plane():
+    """The TIN raster (production.terrain.tin_grid, rows turned to run from the south) at the cell
+    centres of the surface's own origin: exact on a plane."""
     rng = np.random.default_rng(3)
     xy = rng.uniform(0, 20, (400, 2))
     z = 2.0 + 0.3 * xy[:, 0] - 0.7 * xy[:, 1]
-    out = rasterise_tin(xy, z[:, None], (20, 20))
-    r, c = np.nonzero(np.isfinite(out[..., 0]))
-    assert len(r) > 300
-    assert np.allclose(out[r, c, 0], 2.0 + 0.3 * c - 0.7 * r, atol=1e-9)
+    surf = lidar_surface(np.column_stack([xy, z]), np.ones(400), (2.03, 2.07, 18.0, 18.0), cell_m=0.5)
+    ny, nx = surf.height.shape
+    e = surf.origin_m[0] + (np.arange(nx) + 0.5) * 0.5
+    n = surf.origin_m[1] + (np.arange(ny) + 0.5) * 0.5
+    assert surf.origin_m[0] <= 2.03 and surf.origin_m[1] <= 2.07
+    assert np.allclose(surf.height, 2.0 + 0.3 * e[None, :] - 0.7 * n[:, None], atol=1e-4)
 
 
 def test_patch_is_continuous_across_its_edges(scene):

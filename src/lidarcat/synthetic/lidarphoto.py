@@ -67,10 +67,11 @@ import numpy as np
 from ..errors import LidarcatError
 from ..geometry.camera import Camera
 from ..geometry.collinearity import rotation_matrix
+from ..production.terrain import tin_grid
 from ._photo import Exposure, RenderedPhoto
 from ._texture import sun_vector
 
-__all__ = ["RoofPatch", "LidarSurface", "roof_patch", "lidar_surface", "rasterise_tin", "cast_rays", "render_lidar_photo",
+__all__ = ["RoofPatch", "LidarSurface", "roof_patch", "lidar_surface", "cast_rays", "render_lidar_photo",
            "vertex_visible", "flight_poses", "AMBIENT"]
 
 #: ambient share of the shading
@@ -338,10 +339,13 @@ def lidar_surface(xyz_m: Any, intensity: Any, bounds: Sequence[float], *, cell_m
     if near.sum() < 3:
         raise LidarcatError(f"fewer than 3 LiDAR points within {bounds}")
     xyz, inten = xyz[near], inten[near]
-    nx, ny = int(math.ceil((e1 - e0) / cell_m)), int(math.ceil((n1 - n0) / cell_m))
     lo, hi = np.percentile(inten, [2, 98])
     alb = 0.06 + 0.34 * np.clip((inten - lo) / max(hi - lo, 1e-9), 0, 1)
-    vals = rasterise_tin((xyz[:, :2] - [e0, n0]) / cell_m - 0.5, np.column_stack([xyz[:, 2], alb]), (ny, nx))
+    # the production TIN gridder (rows from the north, bounds snapped to the cell), flipped to rows from the south
+    hgrid = tin_grid(xyz, cell_m, (e0, n0, e1, n1), max_edge_m=None)
+    agrid = tin_grid(np.column_stack([xyz[:, :2], alb]), cell_m, (e0, n0, e1, n1), max_edge_m=None)
+    vals = np.stack([hgrid.grid[::-1], agrid.grid[::-1]], axis=-1).astype(np.float64)
+    e0, n0 = hgrid.transform.x0, hgrid.transform.y0 - hgrid.grid.shape[0] * cell_m
     bad = ~np.isfinite(vals[..., 0])
     if bad.any():
         idx = distance_transform_edt(bad, return_distances=False, return_indices=True)
@@ -355,58 +359,6 @@ def lidar_surface(xyz_m: Any, intensity: Any, bounds: Sequence[float], *, cell_m
         top = max(top, p.top_m)
     return LidarSurface(np.array([e0, n0]), float(cell_m), height, albedo,
                         np.stack([gx, gy]).astype(np.float32), tuple(patches), top + 0.05, bottom - 0.05)
-
-
-def rasterise_tin(xy: np.ndarray, values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Linear interpolation on the Delaunay triangulation of *xy* at the integer cells of a raster.
-
-    Parameters
-    ----------
-    xy : (N, 2) point positions in cell units (column, row; cell centres at integers)
-    values : (N, V) values at the points
-    shape : (rows, columns)
-
-    Returns
-    -------
-    (rows, columns, V) float64; NaN outside the triangulation.  Each triangle's cells (bounding
-    box, barycentric coordinates >= -1e-9) are filled at once, triangles grouped by box size.
-    """
-    from scipy.spatial import Delaunay
-
-    ny, nx = shape
-    vals = np.asarray(values, dtype=np.float64).reshape(len(xy), -1)
-    out = np.full((ny, nx, vals.shape[1]), np.nan)
-    tri = Delaunay(xy).simplices
-    p = xy[tri]                                          # (T, 3, 2)
-    c0 = np.ceil(p.min(axis=1) - 1e-9).astype(np.int64)
-    c1 = np.floor(p.max(axis=1) + 1e-9).astype(np.int64)
-    size = np.max(c1 - c0 + 1, axis=1)
-    keep = (size > 0) & (c1[:, 0] >= 0) & (c1[:, 1] >= 0) & (c0[:, 0] < nx) & (c0[:, 1] < ny)
-    a, b, c = p[:, 0], p[:, 1], p[:, 2]
-    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-    keep &= np.abs(det) > 1e-12
-    k = 2
-    while keep.any():
-        sel = np.flatnonzero(keep & (size <= k))
-        keep[sel] = False
-        off = np.stack(np.meshgrid(np.arange(k), np.arange(k)), -1).reshape(-1, 2)
-        for ch in range(0, len(sel), max(1, 4_000_000 // (k * k))):
-            t = sel[ch:ch + max(1, 4_000_000 // (k * k))]
-            q = c0[t, None, :] + off[None]                   # (t, k^2, 2)
-            ax, ay = a[t, None, 0], a[t, None, 1]
-            dx, dy = q[..., 0] - ax, q[..., 1] - ay
-            dt = det[t, None]
-            l1 = (dx * (c[t, None, 1] - ay) - dy * (c[t, None, 0] - ax)) / dt
-            l2 = ((b[t, None, 0] - ax) * dy - (b[t, None, 1] - ay) * dx) / dt
-            inside = (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9) & (q[..., 0] >= 0) & (q[..., 1] >= 0) \
-                & (q[..., 0] < nx) & (q[..., 1] < ny)
-            ti, qi = np.nonzero(inside)
-            tt = tri[t[ti]]
-            w1, w2 = l1[ti, qi][:, None], l2[ti, qi][:, None]
-            v = vals[tt[:, 0]] * (1 - w1 - w2) + vals[tt[:, 1]] * w1 + vals[tt[:, 2]] * w2
-            out[q[ti, qi, 1], q[ti, qi, 0]] = v
-        k *= 2
-    return out
 
 
 def cast_rays(surf: LidarSurface, centre_m: Any, d: np.ndarray, *, step_m: float = 0.2,
