@@ -278,6 +278,35 @@ def test_bad_line_decision_rows_are_located_and_nothing_is_written(blocks, tmp_p
     assert _state(root) == before
 
 
+@pytest.mark.parametrize("key, cells, message", [
+    (("L003", "102"), {"decision": "ok"}, "edited_decisions.csv:{n}: decision must be accept or reject, got 'ok'"),
+    (("L003", "102"), {"row_px": "abc"}, "edited_decisions.csv:{n}: field 'row_px': "),
+    (("L003", "102"), {"photo": "109"}, "edited_decisions.csv:{n}: field 'photo': unknown photo '109' (not in "
+                                        "photos.csv)"),
+    (("L003", "102"), {"point": "X9"}, "edited_decisions.csv:{n}: field 'point': unknown point 'X9' (not in "
+                                       "ground_points.csv)"),
+    (("L005", "101"), {"decision": "accept"}, "edited_decisions.csv:{n}: decision accept needs col_px and row_px "
+                                              "(photo '101', point 'L005')"),
+    (("L003", "102"), {"sd_col_px": "-0.5"}, "edited_decisions.csv:{n}: field 'sd_col_px': must be positive, "
+                                             "got -0.5"),
+    (("L003", "102"), {"point": "L004"}, "edited_decisions.csv:{n}: point 'L004' on photo '102' is listed twice "
+                                         "(also on line {m}); keep one row"),
+], ids=["decision", "pixel", "photo", "point", "no-pixel", "sd", "twice"])
+def test_bad_point_decision_rows_are_located_and_nothing_is_written(blocks, tmp_path, key, cells, message):
+    _, src = blocks
+    root = _copy(src, tmp_path)
+    dec = _rows(root / "out" / "measure_control" / "decisions.csv")
+    k = next(i for i, r in enumerate(dec) if (r["point"], r["photo"]) == key)
+    m = next((i for i, r in enumerate(dec) if (r["point"], r["photo"]) == ("L004", "102")), 0)
+    d, _ = _edited(root, tmp_path, point_changes={key: cells})
+    before = _state(root)
+    res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(d)])
+    assert res.exit_code == 2, res.output
+    n, m = (m + 2, k + 2) if "twice" in message else (k + 2, m + 2)      # the second of the two rows is reported
+    assert f"{d.parent}/" + message.format(n=n, m=m) in res.output.replace("\n", " ")
+    assert _state(root) == before
+
+
 def test_a_duplicated_line_row_is_located(blocks, tmp_path):
     _, src = blocks
     root = _copy(src, tmp_path)

@@ -31,8 +31,11 @@ It writes, into the output folder first:
   vertex's own status where the photo was not measured, ``no image edge`` where the edge was not
   found, ``in the point`` where the vertex's point observation already carries it);
 
+* ``line_candidates.csv`` -- the 3-D line of every edge of line_decisions.csv (what ``line_decisions=`` reads);
+
 and then the accepted observations into the survey's ``image_points.csv`` (atomically; the
-survey is loaded again from the new table, and the old file restored if it does not load).  A
+survey is loaded again from the new table, and the old file restored if it does not load; nothing
+accepted: the survey's tables are not rewritten).  A
 vertex and photo that already has an observation there keeps it (``replace=True`` measures it
 again and replaces it).  Pixel sds go to ``sd_x_mm, sd_y_mm`` (times the camera's pixel size).
 
@@ -46,6 +49,26 @@ come from the same fits, so one photo never gives both: ``lines="add"`` (default
 points, and the edges of the photos where the vertex's point was not measured (two edges of which
 one is weak, edges on one image line: the strong ones alone); ``"only"`` writes every photo's
 edges and no points; ``"none"`` no lines.  A line file that does not load leaves both tables as they were.
+
+**Feeding the decisions back** (``decisions=``, ``line_decisions=``; the review of issue 29).  Both reports
+can be edited -- ``decision`` flipped between ``accept`` and ``reject``, the pixels moved -- and fed back
+together or alone; then nothing is measured.  Each file *replaces* the survey's rows of the pairs it lists
+(rows a user deleted from it are not touched): decisions.csv the (photo, point) rows of image_points.csv,
+line_decisions.csv the (line, photo) observations of line_control.csv.  An accepted edge needs its 3-D line:
+line_decisions.csv names it only by id, so the run writes every edge's line (end points, ``cov_m2``, ``point``;
+rejected and not-found edges too) to ``line_candidates.csv`` beside it, in line_control.csv's columns, and the
+feedback takes the lines from there (else from the survey's line_control.csv); a line is written when an
+observation of it remains, dropped with its last one.  One photo never gives a vertex's point and its edges
+(they come from the same fits): an edge accepted on a photo where the vertex's point is accepted too (in the
+decisions.csv fed back, else in image_points.csv) is an error.  Every bad row is one error with ``file:line``
+(a decision other than accept/reject, a pixel or sd that is not a number, an unknown photo, point or line, a
+line's ``point`` changed, an accepted row without pixels or with an edge of zero length, a pair listed twice),
+raised before anything is written; the tables then go through the same atomic write and reload as a
+measurement's.  ``lidarcat run`` does not read edited decisions (no survey.toml key): the review is a step
+between runs -- ``lidarcat measure-control SURVEY --decisions RUN/measure_control/decisions.csv ...`` writes the
+run's reviewed observations into the survey, and the next run's :func:`planned` skips the stage once every
+vertex has an observation; while one has none, the stage runs again and measures every pair without an
+observation, those the user rejected too (a rejection is not remembered across runs).
 
 **Sds of the edge fits.**  The predicted direction of an edge observes the fitted slope
 (``direction_sd_deg``): taken from the photo's kappa sd (the image turns with kappa; omega and phi
@@ -215,8 +238,17 @@ def _decision_rows(ms: Sequence[Any]) -> list[list[Any]]:
     return rows
 
 
-def _read_decisions(path: Path) -> list[dict[str, Any]]:
-    from .._util import read_csv_table
+def _read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
+    """The rows of an edited decisions.csv.
+
+    Raises
+    ------
+    SurveyError
+        ``file:line``: a decision other than accept/reject, an unknown photo or ground point, a pixel or sd that is
+        not a number, an accepted row without its pixel, a non-positive sd, a photo and point listed twice.
+    """
+    from .._util import excerpt, read_csv_table
+    from ..errors import location
 
     t = read_csv_table(path, required=("photo", "point", "decision", "col_px", "row_px"),
                        optional=("sd_col_px", "sd_row_px", "status", "reason", "pred_col_px", "pred_row_px",
@@ -226,13 +258,29 @@ def _read_decisions(path: Path) -> list[dict[str, Any]]:
     cols, rows_ = t.floats("col_px", required=False), t.floats("row_px", required=False)
     sdc = t.floats("sd_col_px", required=False) if t.has("sd_col_px") else np.full(len(t.rows), np.nan)
     sdr = t.floats("sd_row_px", required=False) if t.has("sd_row_px") else np.full(len(t.rows), np.nan)
+    known_photos = set(survey.photo_ids)
+    known_points = set(np.asarray(survey.ground_points.point, dtype=str).tolist())
+    seen: dict[tuple[str, str], int] = {}
     for k, line in enumerate(t.lines):
         d = str(dec[k]).strip().lower()
         if d not in ("accept", "reject"):
             raise SurveyError(f"{path}:{line}: decision must be accept or reject, got {dec[k]!r}")
+        if photos[k] not in known_photos:
+            raise SurveyError(f"{location(path, line, 'photo')}: unknown photo {excerpt(photos[k])} (not in "
+                              f"photos.csv)")
+        if points[k] not in known_points:
+            raise SurveyError(f"{location(path, line, 'point')}: unknown point {excerpt(points[k])} (not in "
+                              f"ground_points.csv)")
+        if (photos[k], points[k]) in seen:
+            raise SurveyError(f"{path}:{line}: point {excerpt(points[k])} on photo {excerpt(photos[k])} is listed "
+                              f"twice (also on line {seen[(photos[k], points[k])]}); keep one row")
+        seen[(photos[k], points[k])] = line
         if d == "accept" and not (np.isfinite(cols[k]) and np.isfinite(rows_[k])):
             raise SurveyError(f"{path}:{line}: decision accept needs col_px and row_px (photo {photos[k]!r}, "
                               f"point {points[k]!r})")
+        for name, v in (("sd_col_px", sdc[k]), ("sd_row_px", sdr[k])):
+            if d == "accept" and v <= 0:
+                raise SurveyError(f"{location(path, line, name)}: must be positive, got {v:g}")
         out.append({"photo": str(photos[k]), "point": str(points[k]), "accept": d == "accept",
                     "px": np.array([cols[k], rows_[k]]), "sd": np.array([sdc[k], sdr[k]])})
     return out
@@ -351,7 +399,7 @@ def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decis
     header = table_rows = None
     n_acc = 0
     if decisions is not None:
-        rows = _read_decisions(Path(decisions))
+        rows = _read_decisions(Path(decisions), survey)
         accepted = [d for d in rows if d["accept"]]
         header, table_rows = _table(survey, accepted, replace=True, drop={(d["photo"], d["point"]) for d in rows})
         summary.update(decisions=str(decisions), accepted=len(accepted), rejected=len(rows) - len(accepted))
