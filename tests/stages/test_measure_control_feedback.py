@@ -199,6 +199,17 @@ def test_edges_accepted_instead_of_the_point_go_to_line_control_and_back(blocks,
     np.testing.assert_allclose(lines[0].cov_m2[np.triu_indices(6)],
                                [float(v) for v in cand[lines[0].line]["cov_m2"].split()])
 
+    # the point accepted again while its edges stay in line_control.csv: one photo counted twice, refused
+    orig = root / "out" / "measure_control" / "decisions.csv"
+    n = next(i for i, r in enumerate(_rows(orig)) if (r["point"], r["photo"]) == ("L003", "102")) + 2
+    before = _state(root)
+    res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(orig)])
+    assert res.exit_code == 2
+    assert (f"{orig}:{n}: point 'L003' on photo '102': its roof edges on this photo are line observations in "
+            f"line_control.csv, from the same fits; accept the point or its edges, not both"
+            in res.output.replace("\n", " ")), res.output
+    assert _state(root) == before
+
     # rejected again (alone): the observations go, and the lines without observations with them
     _, ld2 = _edited(root, tmp_path)
     res = CliRunner().invoke(cli, ["measure-control", str(root), "--line-decisions", str(ld2)])

@@ -60,7 +60,8 @@ rejected and not-found edges too) to ``line_candidates.csv`` beside it, in line_
 feedback takes the lines from there (else from the survey's line_control.csv); a line is written when an
 observation of it remains, dropped with its last one.  One photo never gives a vertex's point and its edges
 (they come from the same fits): an edge accepted on a photo where the vertex's point is accepted too (in the
-decisions.csv fed back, else in image_points.csv) is an error.  Every bad row is one error with ``file:line``
+decisions.csv fed back, else in image_points.csv) is an error, and so is a point accepted where the new
+line_control.csv has edges of its vertex on that photo.  Every bad row is one error with ``file:line``
 (a decision other than accept/reject, a pixel or sd that is not a number, an unknown photo, point or line, a
 line's ``point`` changed, an accepted row without pixels or with an edge of zero length, a pair listed twice),
 raised before anything is written; the tables then go through the same atomic write and reload as a
@@ -282,7 +283,7 @@ def _read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
             if d == "accept" and v <= 0:
                 raise SurveyError(f"{location(path, line, name)}: must be positive, got {v:g}")
         out.append({"photo": str(photos[k]), "point": str(points[k]), "accept": d == "accept",
-                    "px": np.array([cols[k], rows_[k]]), "sd": np.array([sdc[k], sdr[k]])})
+                    "px": np.array([cols[k], rows_[k]]), "sd": np.array([sdc[k], sdr[k]]), "at": line})
     return out
 
 
@@ -403,7 +404,8 @@ def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decis
         accepted = [d for d in rows if d["accept"]]
         header, table_rows = _table(survey, accepted, replace=True, drop={(d["photo"], d["point"]) for d in rows})
         summary.update(decisions=str(decisions), accepted=len(accepted), rejected=len(rows) - len(accepted))
-        with_point = {(str(r[0]), str(r[1])): f"accepted in {Path(decisions).name}" for r in table_rows}
+        with_point = {(str(r[0]), str(r[1])): "in image_points.csv" for r in table_rows}
+        with_point.update({(d["photo"], d["point"]): f"accepted in {Path(decisions).name}" for d in accepted})
         n_acc = len(accepted)
     else:
         with_point = {(str(a), str(b)): "in image_points.csv"
@@ -427,6 +429,15 @@ def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decis
         lines_out = (lp, lh, lrows, f"LiDAR roof edges as control lines: lidarcat measure-control, decisions of "
                                     f"{lpath.name} (3-D lines from {LINE_CANDIDATES})")
         summary.update(line_decisions=str(lpath), lines_accepted=n_lines, lines_rejected=len(fed) - n_lines)
+    if decisions is not None:   # a point accepted where the line table (kept rows) has the vertex's edges
+        own = survey.files.get("line_control")
+        edges = _edge_pairs(*lines_out[1:3]) if lines_out is not None else _edge_pairs(None, Path(own)) \
+            if own is not None else set()
+        for d in accepted:
+            if (d["photo"], d["point"]) in edges:
+                raise SurveyError(f"{decisions}:{d['at']}: point {d['point']!r} on photo {d['photo']!r}: its roof "
+                                  f"edges on this photo are line observations in line_control.csv, from the same "
+                                  f"fits; accept the point or its edges, not both")
     comment = f"LiDAR control observations: lidarcat measure-control, decisions of " \
               f"{Path(decisions).name if decisions is not None else ''}"
     if table is None:
@@ -439,6 +450,23 @@ def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decis
     write_json_atomic(out / "measure_control.json", summary)
     return MeasureControlResult(ip_path, out, {"accepted": n_acc, "lines_accepted": n_lines}, n_acc, summary,
                                 None if lines_out is None else lines_out[0], n_lines)
+
+
+def _edge_pairs(header: Sequence[str] | None, rows: Any) -> set[tuple[str, str]]:
+    """(photo, point) of the line observations of line_control rows (*header*, *rows*), or of the file *rows*
+    (*header* None), whose line names its LiDAR ``point``."""
+    if header is None:
+        from .._util import read_csv_table
+        from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
+
+        if not Path(rows).is_file():
+            return set()
+        t = read_csv_table(rows, required=("line", "photo"), optional=tuple(
+            c for c in (*LINE_COLUMNS, *LINE_EXTRA_COLUMNS) if c not in ("line", "photo")))
+        header, rows = t.header, t.rows
+    cells = [dict(zip(header, (str(v) for v in r))) for r in rows]
+    point = {c["line"]: c.get("point", "") for c in cells if not c["photo"]}
+    return {(c["photo"], point[c["line"]]) for c in cells if c["photo"] and point.get(c["line"])}
 
 
 def _table(survey: Any, new: list[dict[str, Any]], replace: bool, drop: set | None = None
