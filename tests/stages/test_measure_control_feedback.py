@@ -205,8 +205,8 @@ def test_edges_accepted_instead_of_the_point_go_to_line_control_and_back(blocks,
     before = _state(root)
     res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(orig)])
     assert res.exit_code == 2
-    assert (f"{orig}:{n}: point 'L003' on photo '102': its roof edges on this photo are line observations in "
-            f"line_control.csv, from the same fits; accept the point or its edges, not both"
+    assert (f"{orig}:{n}: point 'L003' on photo '102': measured from the same edge fits as its roof edges on this "
+            f"photo in line_control.csv; accept the point or its edges, not both"
             in res.output.replace("\n", " ")), res.output
     assert _state(root) == before
 
@@ -217,6 +217,23 @@ def test_edges_accepted_instead_of_the_point_go_to_line_control_and_back(blocks,
     assert res.output.splitlines() == [f"0 roof-edge line observations accepted -> {root / 'line_control.csv'}"]
     assert [r for r in _rows(root / "line_control.csv")] == []
     assert _lidar_obs(root) == {("102", "L004")}          # image_points.csv untouched without --decisions
+
+
+def test_a_point_and_an_edge_typed_by_hand_may_share_a_photo(blocks, tmp_path):
+    """L001 on photo 101 was not measured (near_border): its point and one edge measured by hand are independent
+    observations, both written."""
+    _, src = blocks
+    root = _copy(src, tmp_path)
+    d, ld = _edited(root, tmp_path,
+                    {("L001", "101"): {"decision": "accept", "col_px": "183.5", "row_px": "451.0", "sd_col_px": "0.5",
+                                       "sd_row_px": "0.5"}},
+                    {("L001/1-2", "101"): {"decision": "accept", "col1_px": "183.5", "row1_px": "451", "col2_px":
+                                           "215", "row2_px": "451.5", "sd_px": "0.5"}})
+    res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(d), "--line-decisions", str(ld)])
+    assert res.exit_code == 0, res.output
+    assert _lidar_obs(root) == {("101", "L001"), ("102", "L003"), ("102", "L004")}
+    assert [(r["line"], r["photo"]) for r in _rows(root / "line_control.csv")] == [("L001/1-2", ""),
+                                                                                    ("L001/1-2", "101")]
 
 
 def test_a_hand_line_and_other_photos_observations_are_kept(blocks, tmp_path):
@@ -271,7 +288,7 @@ def test_a_hand_line_and_other_photos_observations_are_kept(blocks, tmp_path):
      "edited_lines.csv:{n}: line 'L003/1-2' on photo '102': its two image points coincide (an edge of zero length)"),
     ({("L003/1-2", "102"): {"decision": "accept"}},
      "edited_lines.csv:{n}: line 'L003/1-2' on photo '102': vertex 'L003' has a point observation on this photo "
-     "(in image_points.csv), which carries this edge; accept the point or its edges, not both"),
+     "(in image_points.csv) measured from the same edge fits; accept the point or its edges, not both"),
 ], ids=["decision", "pixel", "line", "photo", "point", "no-pixels", "sd", "zero-length", "point-and-edge"])
 def test_bad_line_decision_rows_are_located_and_nothing_is_written(blocks, tmp_path, change, message):
     _, src = blocks

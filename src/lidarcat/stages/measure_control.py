@@ -59,9 +59,10 @@ line_decisions.csv names it only by id, so the run writes every edge's line (end
 rejected and not-found edges too) to ``line_candidates.csv`` beside it, in line_control.csv's columns, and the
 feedback takes the lines from there (else from the survey's line_control.csv); a line is written when an
 observation of it remains, dropped with its last one.  One photo never gives a vertex's point and its edges
-(they come from the same fits): an edge accepted on a photo where the vertex's point is accepted too (in the
-decisions.csv fed back, else in image_points.csv) is an error, and so is a point accepted where the new
-line_control.csv has edges of its vertex on that photo.  Every bad row is one error with ``file:line``
+(they come from the same fits): an ``in_point`` edge accepted where the vertex's point on the photo is accepted
+too (in the decisions.csv fed back, else in image_points.csv) is an error, and so is a ``measured`` point accepted
+where the new line_control.csv has edges of its vertex on that photo; a point typed by hand (a row of another
+status) may sit beside measured edges (independent measurements).  Every bad row is one error with ``file:line``
 (a decision other than accept/reject, a pixel or sd that is not a number, an unknown photo, point or line, a
 line's ``point`` changed, an accepted row without pixels or with an edge of zero length, a pair listed twice),
 raised before anything is written; the tables then go through the same atomic write and reload as a
@@ -256,6 +257,7 @@ def _read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
                                  "pred_sd_px"))
     out = []
     photos, points, dec = t.column("photo"), t.column("point"), t.column("decision")
+    status = t.column("status") if t.has("status") else [""] * len(t.rows)
     cols, rows_ = t.floats("col_px", required=False), t.floats("row_px", required=False)
     sdc = t.floats("sd_col_px", required=False) if t.has("sd_col_px") else np.full(len(t.rows), np.nan)
     sdr = t.floats("sd_row_px", required=False) if t.has("sd_row_px") else np.full(len(t.rows), np.nan)
@@ -283,7 +285,8 @@ def _read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
             if d == "accept" and v <= 0:
                 raise SurveyError(f"{location(path, line, name)}: must be positive, got {v:g}")
         out.append({"photo": str(photos[k]), "point": str(points[k]), "accept": d == "accept",
-                    "px": np.array([cols[k], rows_[k]]), "sd": np.array([sdc[k], sdr[k]]), "at": line})
+                    "px": np.array([cols[k], rows_[k]]), "sd": np.array([sdc[k], sdr[k]]), "at": line,
+                    "status": status[k]})
     return out
 
 
@@ -361,7 +364,7 @@ def _read_line_decisions(path: Path, survey: Any) -> tuple[list[dict[str, Any]],
                 raise SurveyError(f"{path}:{ln}: line {excerpt(lid)} on photo {excerpt(photo)}: its two image points "
                                   f"coincide (an edge of zero length)")
         out.append({"line": lid, "point": point, "photo": photo, "accept": dec == "accept", "p1": p1, "p2": p2,
-                    "sd": sd, "at": ln})
+                    "sd": sd, "at": ln, "status": c.get("status", "")})
     return out, known
 
 
@@ -404,23 +407,24 @@ def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decis
         accepted = [d for d in rows if d["accept"]]
         header, table_rows = _table(survey, accepted, replace=True, drop={(d["photo"], d["point"]) for d in rows})
         summary.update(decisions=str(decisions), accepted=len(accepted), rejected=len(rows) - len(accepted))
-        with_point = {(str(r[0]), str(r[1])): "in image_points.csv" for r in table_rows}
-        with_point.update({(d["photo"], d["point"]): f"accepted in {Path(decisions).name}" for d in accepted})
+        with_point = {(str(r[0]), str(r[1])): ("in image_points.csv", False) for r in table_rows}
+        with_point.update({(d["photo"], d["point"]): (f"accepted in {Path(decisions).name}", d["status"] == "measured")
+                           for d in accepted})
         n_acc = len(accepted)
     else:
-        with_point = {(str(a), str(b)): "in image_points.csv"
+        with_point = {(str(a), str(b)): ("in image_points.csv", False)
                       for a, b in zip(survey.image_points.photo, survey.image_points.point)}
     lines_out = None
     n_lines = 0
     if line_decisions is not None:
         lpath = Path(line_decisions)
         fed, known = _read_line_decisions(lpath, survey)
-        for d in fed:   # one photo never gives a vertex's point and its edges (they come from the same fits)
-            if d["accept"] and d["point"] and (d["photo"], d["point"]) in with_point:
+        for d in fed:   # a measured point and the edges it was measured from: never both (the same fits)
+            pair = (d["photo"], d["point"])
+            if d["accept"] and d["point"] and pair in with_point and (d["status"] == "in_point" or with_point[pair][1]):
                 raise SurveyError(f"{lpath}:{d['at']}: line {d['line']!r} on photo {d['photo']!r}: vertex "
-                                  f"{d['point']!r} has a point observation on this photo "
-                                  f"({with_point[(d['photo'], d['point'])]}), which carries this edge; accept "
-                                  f"the point or its edges, not both")
+                                  f"{d['point']!r} has a point observation on this photo ({with_point[pair][0]}) "
+                                  f"measured from the same edge fits; accept the point or its edges, not both")
         own = survey.files.get("line_control")
         lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
             survey.root / "line_control.csv"
@@ -434,10 +438,10 @@ def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decis
         edges = _edge_pairs(*lines_out[1:3]) if lines_out is not None else _edge_pairs(None, Path(own)) \
             if own is not None else set()
         for d in accepted:
-            if (d["photo"], d["point"]) in edges:
-                raise SurveyError(f"{decisions}:{d['at']}: point {d['point']!r} on photo {d['photo']!r}: its roof "
-                                  f"edges on this photo are line observations in line_control.csv, from the same "
-                                  f"fits; accept the point or its edges, not both")
+            if d["status"] == "measured" and (d["photo"], d["point"]) in edges:
+                raise SurveyError(f"{decisions}:{d['at']}: point {d['point']!r} on photo {d['photo']!r}: measured "
+                                  f"from the same edge fits as its roof edges on this photo in line_control.csv; "
+                                  f"accept the point or its edges, not both")
     comment = f"LiDAR control observations: lidarcat measure-control, decisions of " \
               f"{Path(decisions).name if decisions is not None else ''}"
     if table is None:
