@@ -800,7 +800,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                 pages.append(path.name)
     # line control: the roof edges of the vertices tried, per photo (module docstring)
     new_lines: dict[str, tuple[str, Any, Any, Any]] = {}
-    candidates: dict[str, tuple[str, Any, Any, Any]] = {}   # the 3-D line of every edge tried (line_candidates.csv)
+    candidates: dict[str, tuple[str, Any, Any, Any] | None] = {}   # the 3-D line of each edge tried
     new_obs: list[tuple[str, str, Any]] = []
     line_rows: list[list[Any]] = []
     if lines != "none":
@@ -813,7 +813,10 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                 lid = line_id(m.point, planes)
                 if lid not in candidates:
                     pi, pj = cp.planes[planes[0]], cp.planes[planes[1]]
-                    candidates[lid] = (m.point, *edge_line_m(pi, pj, np.array([e.start_m, e.end_m])))
+                    try:
+                        candidates[lid] = (m.point, *edge_line_m(pi, pj, np.array([e.start_m, e.end_m])))
+                    except np.linalg.LinAlgError:      # planes (nearly) parallel: no line (not a candidate)
+                        candidates[lid] = None
                 el = found.get(tuple(planes))
                 status, reason = "not_written", ""
                 if m.status == "not_visible" or m.status in ("too_dark", "saturated", "near_border", "no_vertex"):
@@ -826,7 +829,9 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                     status, reason = "in_point", "the vertex's point observation carries this edge (not written twice)"
                 else:
                     status = "written"
-                    new_lines[lid] = candidates[lid]
+                    new_lines[lid] = candidates[lid] if candidates[lid] is not None else \
+                        (m.point, *edge_line_m(cp.planes[planes[0]], cp.planes[planes[1]],
+                                               np.array([e.start_m, e.end_m])))
                     new_obs.append((lid, m.photo, el))
 
                 def f(v: float, nd: int = 3) -> Any:
@@ -845,7 +850,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
 
         ch = list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS)
-        write_csv_atomic(out / LINE_CANDIDATES, ch, [_line_def_row(ch, lid, *v) for lid, v in candidates.items()],
+        write_csv_atomic(out / LINE_CANDIDATES, ch, [_line_def_row(ch, lid, *v) for lid, v in candidates.items()
+                                                      if v is not None and np.linalg.norm(np.subtract(v[2], v[1])) > 0],
                          comments=["The 3-D control line of every roof edge of line_decisions.csv (line = POINT/"
                                    "plane-plane; end points and cov_m2 from the two plane fits), in line_control.csv's "
                                    "columns: measure-control --line-decisions takes the lines of accepted rows from "
