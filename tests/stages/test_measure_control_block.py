@@ -56,7 +56,8 @@ def block(tmp_path_factory):
             fh.write(f"{v},{x[0]:.4f},{x[1]:.4f},{x[2]:.4f},0.01,0.01,0.03,lidar\n")
     # tie points: random points over the block, their true projections + 0.3 px
     lo, hi = eo[:, :2].min(axis=0) - 20, eo[:, :2].max(axis=0) + 20
-    g = np.column_stack([rng.uniform(lo[0], hi[0], 400), rng.uniform(lo[1], hi[1], 400), ground + rng.uniform(0, 6, 400)])
+    g = np.column_stack([rng.uniform(lo[0], hi[0], 400), rng.uniform(lo[1], hi[1], 400),
+                         ground + rng.uniform(0, 6, 400)])
     px = {p: s.project(p, g) for p in s.photo_ids}
     ok = {p: np.isfinite(x).all(axis=1) & (x[:, 0] > 2) & (x[:, 1] > 2) & (x[:, 0] < 317) & (x[:, 1] < 237)
           for p, x in px.items()}
@@ -146,5 +147,16 @@ def test_lone_photo_reject_rejects_the_lone_measurements_before_the_block(measur
     dec = {(r["point"], r["photo"]): r for r in _rows(out / "decisions.csv")}
     assert dec[MOVED]["decision"] == "reject"
     assert dec[MOVED]["reason"].startswith("alone on its photo: not tested against the photo's common shift")
+    assert json.loads((out / "measure_control.json").read_text())["block_check"] == {"status": "off"}
+    # a survey without tie points: the block test is not run (it would be the per-photo test again)
+    copy = tmp_path / "no_ties"
+    shutil.copytree(root, copy)
+    ip = copy / "image_points.csv"
+    ip.write_text("".join(line for line in ip.read_text().splitlines(True) if ",T" not in line))
+    measure_control(copy, tmp_path / "nt", gallery=False, lines="none", table=tmp_path / "ip_nt.csv")
+    info = json.loads((tmp_path / "nt" / "measure_control.json").read_text())["block_check"]
+    assert info["status"] == "no tie points"
+    assert {(r["point"], r["photo"]): r for r in _rows(tmp_path / "nt" / "decisions.csv")}[MOVED]["decision"] == \
+        "accept"
     with pytest.raises(SurveyError, match="lone_photo must be keep or reject, got 'drop'"):
         measure_control(root, out, gallery=False, lines="none", table=tmp_path / "ip.csv", lone_photo="drop")

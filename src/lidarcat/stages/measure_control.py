@@ -367,7 +367,8 @@ def _line_rows(survey: Any, path: Path | None, new_lines: dict[str, tuple[str, A
 def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_info: dict) -> dict:
     """The block test (:func:`~lidarcat.photocontrol.blockcheck.check_block`) of every photo's measurements, with the
     survey's tie points (image observations of points that are not ground points, photo coordinates to pixels
-    by the camera); *per_vertex* is updated in place.  Returns the test's summary."""
+    by the camera); *per_vertex* is updated in place.  Returns the test's summary.  Without tie points it is
+    not run (it would be the per-photo test again)."""
     from ..photocontrol import TieObservations, check_block
 
     try:
@@ -388,11 +389,13 @@ def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_in
         ok = np.isfinite(px).all(axis=1) & np.isfinite(sd) & (sd > 0)
         if ok.any():
             ties = TieObservations(obs.photo[sel][ok], obs.point[sel][ok], px[ok], sd[ok])
+    if ties is None:
+        return {"status": "no tie points", "message": "the survey's image points hold no tie points: not run"}
     flat = [(vid, pid, m) for vid, lst in per_vertex.items() for pid, m in lst]
-    photos = {pid for _, pid, _ in flat} | (set(ties.photo.tolist()) if ties is not None else set())
+    photos = {pid for _, pid, _ in flat} | set(ties.photo.tolist())
+    cps = {v: vertex_info[v][0] for v in per_vertex}
     bc = check_block([m for _, _, m in flat], {p: survey.camera_of(p) for p in photos}, eos, covs,
-                     {v: vertex_info[v][0].enh_m for v in per_vertex}, {v: vertex_info[v][0].cov_m2 for v in per_vertex},
-                     ties)
+                     {v: cp.enh_m for v, cp in cps.items()}, {v: cp.cov_m2 for v, cp in cps.items()}, ties)
     per_vertex.clear()
     for (vid, pid, _), m in zip(flat, bc.measurements):
         per_vertex.setdefault(vid, []).append((pid, m))
@@ -644,8 +647,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     accepted = [{"photo": m.photo, "point": m.point, "px": np.asarray(m.px), "sd": m.sd_px} for m in results
                 if m and lines != "only"]
     summary = {"vertices": len(verts), "photos": len(photos), "counts": counts, "accepted": len(accepted),
-               "lines": lines, "control_lines": len(new_lines), "block_check": block_info, "line_observations": len(new_obs),
-               "points_written": len(written_points),
+               "lines": lines, "control_lines": len(new_lines), "line_observations": len(new_obs),
+               "points_written": len(written_points), "block_check": block_info,
                "gallery": pages, "params": dataclasses.asdict(p) if p is not None else "default",
                "seconds": round(time.perf_counter() - t_start, 2)}
     write_json_atomic(out / "measure_control.json", json.loads(json.dumps(summary, default=str)))
