@@ -324,11 +324,11 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     used = {ms[k].photo for k in live} | (set(ties.photo.tolist()) if ties is not None else set())
     for pid in sorted(used):
         if not np.all(_dominant_sd(np.asarray(eo_covs[pid], float).reshape(6, 6)) > 0):
-            raise LidarcatError(f"photo {pid!r}: the covariance of its approximate orientation has a zero variance "
-                                "(use inf for a free parameter)")
+            raise LidarcatError(f"photo {pid!r}: the covariance of its approximate orientation has a zero or "
+                                "undefined variance (use inf for a free parameter)")
     for v in sorted({ms[k].point for k in live}):
         if not np.all(_dominant_sd(np.asarray(vertex_covs[v], float).reshape(3, 3)) > 0):
-            raise LidarcatError(f"point {v!r}: the covariance of the LiDAR vertex has a zero variance")
+            raise LidarcatError(f"point {v!r}: the covariance of the LiDAR vertex has a zero or undefined variance")
 
     # --- the tie points: in photo coordinates, cleaned on their own -------------------------------------
     n_t = 0 if ties is None else len(ties)
