@@ -61,9 +61,9 @@ points of centimetres), so the block test is then ``check_photo``'s test of ever
 its 0.5 px linearisation margin, plus the ellipse test of the lone ones: one test over all photos,
 no better for a lone measurement.
 
-Over the real AHN3 roofs (block F2, GSD 0.15 m, tie points from the truth + 0.3 px; docs/photocontrol.md)
-the three gross lone measurements (33, 32, 43 px) are rejected with w 26-40 and the five good ones
-(0.09-0.21 px) kept.
+Over the real AHN3 roofs (five blocks at GSD 0.10-0.15 m, tie points from the truth + 0.3 px;
+docs/photocontrol.md) the six gross measurements left by the per-photo test (5-47 px, three of them
+alone on their photo) are rejected with w 6-74 and the 37 good ones kept.
 """
 
 from __future__ import annotations
