@@ -75,3 +75,58 @@ def test_each_figure_is_drawn_once_and_holds_its_text(drawn, case):
     assert len(figs) == 4 and draws[0] == 4  # one draw per figure
     for fig in figs:
         _assert_inside(fig)
+
+
+def _quality_cases():
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-10, 10, (300, 2))
+    en = np.column_stack([rng.uniform(677_000, 678_000, 12), rng.uniform(7_183_000, 7_184_500, 12)])
+    cov = np.tile(np.diag([0.01, 0.004]), (12, 1, 1))
+    grid = np.meshgrid(np.linspace(-10, 10, 6), np.linspace(-7, 7, 5))
+    gxy = np.column_stack([g.ravel() for g in grid])
+    r = np.linspace(0, 12, 30)
+    photos = {f"DSC_{k:05d}_strip_north": int(v) for k, v in enumerate(rng.integers(50, 400, 15))}
+    return {
+        "residual_vectors": lambda q: q.residual_vectors_figure(xy, rng.normal(0, 0.002, (300, 2)), (20.0, 15.0),
+                                                                0.004),
+        "residual_histograms": lambda q: q.residual_histograms_figure(rng.normal(0, 0.4, (300, 2))),
+        "ellipses": lambda q: q.ellipses_figure(en[:6], cov[:6], en, cov, [f"photo {k}" for k in range(6)]),
+        "coverage": lambda q: q.coverage_figure(rng.integers(0, 9, (30, 40)), (677_000, 678_000, 7_183_000,
+                                                                               7_183_750), en[:4]),
+        "control_map": lambda q: q.control_map_figure({"control": (en[:6], rng.normal(0, 0.05, (6, 2)),
+                                                                   rng.normal(0, 0.05, 6)),
+                                                       "check": (en[6:], rng.normal(0, 0.05, (6, 2)),
+                                                                 rng.normal(0, 0.05, 6))}),
+        "distortion": lambda q: q.distortion_figure(gxy, 1e-3 * gxy, r, 1e-5 * r ** 3, (20.0, 15.0), 0.004,
+                                                    "camera long-camera-identifier"),
+        "density": lambda q: q.density_figure(rng.uniform(0, 12, (30, 40)), (677_000, 678_000, 7_183_000,
+                                                                              7_183_750), 25.0),
+        "thumbnails": lambda q: q.thumbnails_figure([("dtm.tif, the terrain model of the block", rng.normal(
+            size=(40, 50)), "heights"), ("orthophoto A", rng.uniform(0, 255, (40, 50)), "photo"),
+            ("hillshade", rng.normal(size=(40, 50)), "shade"), ("mosaic", rng.integers(0, 255, (40, 50, 3),
+                                                                                          dtype=np.uint8), "rgb")]),
+        "track_length": lambda q: q.track_length_figure(rng.integers(2, 7, 500), photos),
+    }
+
+
+@pytest.mark.parametrize("name", list(_quality_cases()))
+def test_each_quality_figure_is_drawn_once_and_holds_its_text(monkeypatch, name):
+    from lidarcat.report import quality_figures as q
+
+    figs, draws = [], [0]
+    real_png, real_draw = q._png, Figure.draw
+
+    def counting_draw(self, renderer):
+        draws[0] += 1
+        return real_draw(self, renderer)
+
+    def keep(fig):
+        figs.append(fig)
+        return real_png(fig)
+
+    monkeypatch.setattr(Figure, "draw", counting_draw)
+    monkeypatch.setattr(q, "_png", keep)
+    png = _quality_cases()[name](q)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(figs) == 1 and draws[0] == 1
+    _assert_inside(figs[0])

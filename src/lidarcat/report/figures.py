@@ -2,7 +2,9 @@
 
 Block layout (thesis Figures 8, 16, 17), planimetric discrepancy vectors
 (Figure 20), height discrepancies (Figure 21) and normal Q-Q plots (Figure 22);
-:mod:`lidarcat.report.document` places them in the report.
+:mod:`lidarcat.report.document` places them in the report.  Every report figure
+(these and :mod:`lidarcat.report.quality_figures`) has its margins fixed in inches
+(:func:`fixed_figure`) and is drawn once (:func:`png_bytes`).
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["layout_figure", "vector_figure", "height_figure", "qq_figure"]
+__all__ = ["layout_figure", "vector_figure", "height_figure", "qq_figure", "fixed_figure", "png_bytes", "wrap_text",
+           "text_width_in", "text_height_in"]
 
 _MAX_LABELS = 150  # point labels on the maps only up to this many points
 
@@ -30,10 +33,14 @@ _DPI = 110
 _CHAR_EM = 0.62  # upper bound of a DejaVu Sans character's advance, in em (digits 0.64, lower case ~0.55)
 
 
-def _fig_png(fig: Any) -> bytes:
-    # One draw.  ``savefig(bbox_inches="tight")`` -- and savefig with any layout engine -- draws the
-    # figure once to measure it and once more to paint it; the margins are fixed in inches instead
-    # (:func:`_new_fig`), sized for the text each figure holds (docs/figures.md, "The report figures").
+def png_bytes(fig: Any) -> bytes:
+    """The PNG of *fig* at its own dpi, drawn once.
+
+    ``savefig(bbox_inches="tight")`` -- and ``savefig`` with any layout engine -- draws a figure
+    once to measure it and once more to paint it; the report's figures have their margins fixed in
+    inches instead (:func:`fixed_figure`), sized for the text they hold (docs/figures.md, "The report
+    figures: one draw").
+    """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     buf = io.BytesIO()
@@ -41,39 +48,48 @@ def _fig_png(fig: Any) -> bytes:
     return buf.getvalue()
 
 
-def _text_in(n_chars: int, size_pt: float) -> float:
+def text_width_in(n_chars: int, size_pt: float) -> float:
     """Width in inches that *n_chars* characters of *size_pt* points take at most."""
     return n_chars * _CHAR_EM * size_pt / 72.0
 
 
-def _wrap(text: str, width_in: float, size_pt: float) -> str:
+def wrap_text(text: str, width_in: float, size_pt: float) -> str:
     """*text* broken into lines of at most *width_in* inches at *size_pt* points."""
     return textwrap.fill(text, max(12, int(width_in * 72.0 / (_CHAR_EM * size_pt))))
 
 
-def _lines_in(text: str, size_pt: float) -> float:
+def text_height_in(text: str, size_pt: float) -> float:
     """Height in inches of the lines of *text* at *size_pt* points."""
     return (text.count("\n") + 1) * 1.25 * size_pt / 72.0
 
 
-def _new_fig(w: float, h: float, n: int = 1, ncols: int = 1, *, left: float = 1.05, right: float = 0.4,
-             bottom: float = 0.6, top: float = 0.45, wspace: float = 0.0, hspace: float = 0.0) -> tuple[Any, Any]:
-    """A *w* x *h* inch figure of *n* axes in *ncols* columns, with fixed margins in inches.
+def fixed_figure(w: float, h: float, nrows: int = 1, ncols: int = 1, *, dpi: float = _DPI, left: float = 1.05,
+                 right: float = 0.4, bottom: float = 0.6, top: float = 0.45, wspace: float = 0.0,
+                 hspace: float = 0.0) -> tuple[Any, np.ndarray]:
+    """A *w* x *h* inch figure of *nrows* x *ncols* axes (flat array), with fixed margins in inches.
 
     *left*, *right*, *bottom*, *top*: from the figure's edges to the axes; *wspace*, *hspace*:
     between neighbouring axes.  The defaults fit a map axes (7-digit tick labels, axis labels,
-    a one-line title of 10 pt).
+    a one-line title of 10 pt).  No layout engine: :func:`png_bytes` draws it once.
     """
     from matplotlib.figure import Figure
 
-    nrows = max(1, n // ncols)
-    fig = Figure(figsize=(w, h), dpi=_DPI)
+    fig = Figure(figsize=(w, h), dpi=dpi)
     ax_w = max((w - left - right - (ncols - 1) * wspace) / ncols, 0.5)
     ax_h = max((h - bottom - top - (nrows - 1) * hspace) / nrows, 0.5)
     fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
                         wspace=wspace / ax_w, hspace=hspace / ax_h)
-    axes = fig.subplots(nrows, ncols, squeeze=False)
-    return fig, axes.ravel()
+    return fig, fig.subplots(nrows, ncols, squeeze=False).ravel()
+
+
+def _fig_png(fig: Any) -> bytes:
+    """:func:`png_bytes` (the figures of this module call it by this name)."""
+    return png_bytes(fig)
+
+
+def _new_fig(w: float, h: float, n: int = 1, ncols: int = 1, **margins: float) -> tuple[Any, Any]:
+    """:func:`fixed_figure` of *n* axes in *ncols* columns at the accuracy report's 110 dpi."""
+    return fixed_figure(w, h, max(1, n // ncols), ncols, **margins)
 
 
 def _label(ax: Any, text: str, xy: tuple[float, float], east: bool, dx: float, dy: float, **kw: Any) -> None:
@@ -100,8 +116,8 @@ def layout_figure(points: list[dict[str, Any]], fps: Mapping[str, np.ndarray],
                   centres: np.ndarray | None, title: str) -> bytes:
     """PNG of the block layout: photo footprints *fps* (``{photo: (4, 2) E, N}``), projection
     *centres* ((k, 2) E, N in m, or None) and *points* (``point``, ``E``, ``N``, ``role``) by role."""
-    title = _wrap(title, 8.5 - 1.05 - 0.4, 10)
-    fig, (ax,) = _new_fig(8.5, 8.5, top=0.2 + _lines_in(title, 10))
+    title = wrap_text(title, 8.5 - 1.05 - 0.4, 10)
+    fig, (ax,) = _new_fig(8.5, 8.5, top=0.2 + text_height_in(title, 10))
     for pid, poly in fps.items():
         closed = np.vstack([poly, poly[:1]])
         ax.fill(closed[:, 0], closed[:, 1], alpha=0.06, color="#2c7a2c")
@@ -143,9 +159,9 @@ def vector_figure(a: Any) -> bytes:
     extent = max(float(np.ptp(e)), float(np.ptp(n)), 1.0)
     dmax = max(float(np.max(a.planimetric)), 1e-6)
     scale = 0.12 * extent / dmax  # arrow length on the map per metre of discrepancy
-    title = _wrap(f"Planimetric discrepancies dE, dN ({a.settings['sign'].replace('_', ' ')}); "
+    title = wrap_text(f"Planimetric discrepancies dE, dN ({a.settings['sign'].replace('_', ' ')}); "
                   f"arrows x{scale:.0f}", 8.0 - 1.05 - 0.4, 10)
-    fig, (ax,) = _new_fig(8.0, 7.5, top=0.2 + _lines_in(title, 10))
+    fig, (ax,) = _new_fig(8.0, 7.5, top=0.2 + text_height_in(title, 10))
     q = ax.quiver(e, n, d[:, 0] * scale, d[:, 1] * scale, angles="xy", scale_units="xy", scale=1,
                   color="#1f5fa8", width=0.004)
     ax.scatter(e, n, s=10, c="#1f5fa8")
@@ -169,11 +185,11 @@ def height_figure(a: Any) -> bytes:
     scale = 0.12 * extent / dmax
     labels = a.n <= _MAX_LABELS
     # below the bars: the point ids turned 90 degrees (7 pt), else the axis label
-    bottom = 0.35 + (_text_in(max((len(str(p)) for p in a.points), default=1), 7) if labels else 0.3)
+    bottom = 0.35 + (text_width_in(max((len(str(p)) for p in a.points), default=1), 7) if labels else 0.3)
     ax_w = (13.0 - 1.05 - 0.3 - 1.0) / 2
-    title1 = _wrap(f"Height discrepancies dh on the map (up red, down blue; arrows x{scale:.0f})", ax_w, 10)
+    title1 = wrap_text(f"Height discrepancies dh on the map (up red, down blue; arrows x{scale:.0f})", ax_w, 10)
     fig, (ax1, ax2) = _new_fig(13.0, 6.0, 2, 2, right=0.3, bottom=max(0.6, bottom), wspace=1.0,
-                               top=0.2 + _lines_in(title1, 10))
+                               top=0.2 + text_height_in(title1, 10))
     cols = np.where(dh >= 0, "#c0392b", "#1f5fa8")
     ax1.quiver(e, n, np.zeros_like(dh), dh * scale, angles="xy", scale_units="xy", scale=1, color=cols,
                width=0.005)
@@ -221,8 +237,8 @@ def qq_figure(a: Any) -> bytes:
         t = a.tests.get("filliben", {}).get(comp)
         txt = f"{comp}: r = {t.statistic:.4f}, r_crit = {t.critical:.3f} -> {t.verdict}" if t and t.applicable \
             else f"{comp}: {t.reason if t else 'no test'}"
-        titles.append(_wrap(txt, ax_w, 9))
-    title_in = 0.15 + max(_lines_in(t, 9) for t in titles)
+        titles.append(wrap_text(txt, ax_w, 9))
+    title_in = 0.15 + max(text_height_in(t, 9) for t in titles)
     fig, axes = _new_fig(10.0, 9.0, 4, 2, left=0.8, right=0.3, bottom=0.55, top=title_in, wspace=0.8,
                          hspace=0.55 + title_in)
     for ax, (comp, x), txt in zip(axes, comps, titles):
