@@ -99,3 +99,19 @@ def test_bad_runner_keys_are_located_errors(survey, tmp_path, extra, message):
         _load(survey, tmp_path, TOML + extra)
     line = int(ei.value.args[0].split("survey.toml:")[1].split(":")[0])
     assert line == len((TOML + extra).splitlines())        # the key's own line
+
+
+@pytest.mark.slow
+def test_a_real_cluster_of_two_draws_the_same_charts_and_stats(survey, tmp_path):
+    """workers = 2 for real: a LocalCluster of 2 processes, its address handed on; the same bytes."""
+    outs = {}
+    for w in (1, 2):
+        (tmp_path / f"w{w}").mkdir()
+        _, rec = _run(survey, tmp_path / f"w{w}", TOML + f"workers = {w}\n", tmp_path / f"out{w}")
+        assert rec.status == "ran"
+        outs[w] = tmp_path / f"out{w}" / "products"
+    names = sorted(str(p.relative_to(outs[1])) for p in outs[1].rglob("*") if p.is_file())
+    assert names == sorted(str(p.relative_to(outs[2])) for p in outs[2].rglob("*") if p.is_file())
+    assert len([n for n in names if n.startswith("charts/")]) == 8 and "stats.tif" in names
+    for n in names:
+        assert (outs[1] / n).read_bytes() == (outs[2] / n).read_bytes(), n
