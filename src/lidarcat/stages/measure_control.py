@@ -66,11 +66,18 @@ status) may sit beside measured edges (independent measurements).  Every bad row
 (a decision other than accept/reject, a pixel or sd that is not a number, an unknown photo, point or line, a
 line's ``point`` changed, an accepted row without pixels or with an edge of zero length, a pair listed twice),
 raised before anything is written; the tables then go through the same atomic write and reload as a
-measurement's.  ``lidarcat run`` does not read edited decisions (no survey.toml key): the review is a step
-between runs -- ``lidarcat measure-control SURVEY --decisions RUN/measure_control/decisions.csv ...`` writes the
-run's reviewed observations into the survey, and the next run's :func:`planned` skips the stage once every
-vertex has an observation; while one has none, the stage runs again and measures every pair without an
-observation, those the user rejected too (a rejection is not remembered across runs).
+measurement's.
+
+**The review remembered** (:mod:`lidarcat.survey.decisions`).  Feeding back also records the user's word on
+every pair the files list (an ``in_point`` edge left at ``reject`` excepted: its point carries it) in the
+survey's ``control_decisions.csv`` (``[files] control_decisions``, added when missing; written and rolled back
+with the tables).  A measurement -- this command and the ``lidarcat run`` stage alike -- never measures a
+rejected pair again (its decisions.csv row: ``user_rejected``, "rejected by the user (control_decisions.csv:LINE)";
+its edges on the photo ``not_written`` with that reason; a rejected edge is never written), nor an accepted one
+unless ``replace`` (a user-accepted edge's observation is kept while its vertex is measured on other photos).
+:func:`planned` counts a vertex as done when it has an observation or the user's decision on every oriented
+photo, so ``lidarcat run`` stops planning the stage after a full review.  The run measures into its own tables;
+``lidarcat measure-control SURVEY --decisions RUN/measure_control/decisions.csv ...`` feeds its review back.
 
 **Sds of the edge fits.**  The predicted direction of an edge observes the fitted slope
 (``direction_sd_deg``): taken from the photo's kappa sd (the image turns with kappa; omega and phi
@@ -470,8 +477,9 @@ def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decis
 def _recorded(survey: Any, rows: list[dict[str, Any]], path: Path, fed: list[dict[str, Any]], lpath: Path
               ) -> tuple[Path, list[str], list[list[str]], str]:
     """control_decisions.csv (path, header, rows, comment) after recording every row of a fed-back decisions.csv
-    (*rows* of *path*) and line_decisions.csv (*fed* of *lpath*): the user's word on each pair they list
-    (:mod:`lidarcat.survey.decisions`)."""
+    (*rows* of *path*) and line_decisions.csv (*fed* of *lpath*) -- the user's word on each pair they list
+    (:mod:`lidarcat.survey.decisions`) -- but an ``in_point`` edge left at ``reject`` (not written because the
+    vertex's point carries it, not rejected)."""
     from ..survey.decisions import DECISION_COLUMNS, ControlDecision, merged_rows, now_utc
 
     def src(p: Path) -> str:
@@ -484,7 +492,8 @@ def _recorded(survey: Any, rows: list[dict[str, Any]], path: Path, fed: list[dic
     new = [ControlDecision("point", d["photo"], d["point"], "accept" if d["accept"] else "reject",
                            f"{src(path)}:{d['at']}", date) for d in rows] + \
           [ControlDecision("line", d["photo"], d["line"], "accept" if d["accept"] else "reject",
-                           f"{src(lpath)}:{d['at']}", date) for d in fed]
+                           f"{src(lpath)}:{d['at']}", date) for d in fed
+           if d["accept"] or d["status"] != "in_point"]   # an edge its point carries: no decision on the edge
     own = survey.files.get("control_decisions")
     return (Path(own) if own is not None else survey.root / "control_decisions.csv", list(DECISION_COLUMNS),
             merged_rows(survey.control_decisions, new),
@@ -678,13 +687,15 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     points : ids, optional
         Measure these ground points (default: every ground point of source ``lidar``).
     decisions : path, optional
-        An edited decisions.csv: write its accepted rows, measure nothing.
+        An edited decisions.csv: write its accepted rows, measure nothing; every row is recorded in the
+        survey's control_decisions.csv (module docstring, "The review remembered"; not with *table*).
     line_decisions : path, optional
         An edited line_decisions.csv (with line_candidates.csv beside it): write its accepted rows as line
         observations, measure nothing (module docstring, "Feeding the decisions back").
     params : MeasureParams, optional
     replace : bool
-        Measure (and replace) vertex/photo pairs that already have an observation.
+        Measure (and replace) vertex/photo pairs that already have an observation or that the user accepted
+        (control_decisions.csv); never the pairs the user rejected.
     gallery : bool
         Write the chips.
     table : path, optional
@@ -932,7 +943,9 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
             survey.root / "line_control.csv"
         lh, lrows = _line_rows(survey, Path(own) if own is not None else None, new_lines, new_obs,
-                               set(vertex_info), set() if replace else set(user.of("line", "accept")))
+                               set(vertex_info), {k for k, d in user.of("line", "accept").items() if d.photo
+                                                  not in {pid for pid, lst in targets.items() for v, _ in lst
+                                                          if v == d.point}})   # the user's, not measured now
         lines_out = (lp, lh, lrows, "LiDAR roof edges as control lines: lidarcat measure-control (line = POINT/"
                                     "plane-plane; end points and cov_m2 from the two plane fits; observations: the "
                                     "edge fits' two equivalent points, px)")
