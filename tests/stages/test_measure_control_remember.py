@@ -140,9 +140,8 @@ def test_a_rejection_fed_back_is_recorded_and_never_measured_again(blocks, tmp_p
         assert (r["status"], r["reason"], r["decision"], r["col_px"]) == (
             "user_rejected", f"rejected by the user (control_decisions.csv:{rec[('point', ph, v)][0]})", "reject", "")
     edges = [e for e in _rows(out / "line_decisions.csv") if (e["point"], e["photo"]) == ("L003", "102")]
-    assert [(e["status"], e["reason"]) for e in edges] == [
-        ("not_written", f"user_rejected: rejected by the user (control_decisions.csv:{rec[('point', '102', 'L003')][0]})")
-    ] * 3
+    why = f"rejected by the user (control_decisions.csv:{rec[('point', '102', 'L003')][0]})"
+    assert [(e["status"], e["reason"]) for e in edges] == [("not_written", f"user_rejected: {why}")] * 3
     assert _state(root) == before                      # nothing measured, nothing written into the survey
 
     # --replace measures the accepted pair again (its record stays); the rejected ones still not
@@ -207,6 +206,27 @@ def test_a_partial_review_leaves_the_stage_planned_and_the_run_skips_the_rejecte
     got = {(r["photo"], r["point"]) for r in _rows(run / "image_points.csv") if r["point"].startswith("L")}
     assert got == {("102", "L004")}
     assert _state(root) == before               # the run's table is its own
+
+    # through `lidarcat run`'s runner: the same; the review is one of the stage's hashed inputs
+    import dataclasses
+
+    from lidarcat.pipeline.runner import run_stages
+
+    def stage(sv):
+        return dataclasses.replace({st.name: st for st in plan_pipeline(sv)}["measure_control"], requires=())
+
+    recs = run_stages([stage(sv)], tmp_path / "out", values={"survey": sv})
+    assert [r.status for r in recs] == ["ran"], [r.reason for r in recs]
+    assert recs[0].result["counts"]["user_rejected"] == 1 and recs[0].result["accepted"] == 0
+    dec = {(r["point"], r["photo"]): r for r in _rows(tmp_path / "out" / "measure_control" / "decisions.csv")}
+    assert dec[("L003", "102")]["reason"] == "rejected by the user (control_decisions.csv:2)"
+    assert ("L004", "102") not in dec             # accepted (observed): left alone without replace
+    assert [r.status for r in run_stages([stage(sv)], tmp_path / "out", values={"survey": sv})] == ["reused"]
+    with open(root / "control_decisions.csv", "a") as fh:
+        fh.write("point,101,L001,reject,,\n")
+    sv = Survey.load(root)
+    recs = run_stages([stage(sv)], tmp_path / "out", values={"survey": sv})
+    assert [r.status for r in recs] == ["ran"] and recs[0].result["counts"]["user_rejected"] == 2
 
 
 def test_line_decisions_are_remembered(blocks, tmp_path):

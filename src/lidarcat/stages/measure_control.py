@@ -618,7 +618,7 @@ def _add_files_key(toml_path: Path, key: str, path: Path) -> None:
 
 def _line_rows(survey: Any, path: Path | None, new_lines: dict[str, tuple[str, Any, Any, Any]],
                new_obs: list[tuple[str, str, Any]], replace_points: set[str],
-               keep: set[tuple[str, str]] = frozenset()) -> tuple[list[str], list[list[Any]]]:   # type: ignore[assignment]
+               keep: set[tuple[str, str]] | None = None) -> tuple[list[str], list[list[Any]]]:
     """The new line_control.csv: the kept rows of *path* (lines of other points, their observations, the
     observations ``(photo, line)`` in *keep* -- accepted by the user -- and their lines), then the lines
     measured now (``id -> (point, A, B, cov)``) and their observations ``(line, photo, EdgeLine)``."""
@@ -630,6 +630,7 @@ def _line_rows(survey: Any, path: Path | None, new_lines: dict[str, tuple[str, A
     if path is not None and path.is_file():
         t = read_csv_table(path, required=("line",), optional=tuple(c for c in header if c != "line"))
         col = {h: i for i, h in enumerate(t.header)}
+        keep = keep or set()
         kept_lines = {lid for _, lid in keep} - set(new_lines)
         for r in t.rows:
             lid, pid = r[col["line"]], r[col["photo"]] if "photo" in col else ""
@@ -782,8 +783,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
             cloud = clip(list(survey.lidar_paths), enh[:2], dsm_radius_m, height_filter=None, crs=crs)
             xyz = np.asarray(cloud.xyz, dtype=np.float64)
         except LidarcatError as ex:
-            results += [told(vid, pid, Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan), "no_vertex",
-                                                   f"no LiDAR around the vertex: {ex}")) for pid in photos]
+            results += [told(vid, pid, Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan),
+                                                   "no_vertex", f"no LiDAR around the vertex: {ex}")) for pid in photos]
             continue
         cp = extract_roof(xyz, enh[:2], point_id=vid)
         if not cp or np.linalg.norm(cp.enh_m - enh) > max_shift_m:
@@ -805,6 +806,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
             pr = predict_points(cam, eos[pid], covs[pid], cp.enh_m[None], cp.cov_m2[None], points=[vid], photo=pid,
                                 dsm=dsm)[0]
             targets.setdefault(pid, []).append((vid, VertexTarget(cp.enh_m, cp.planes, xyz, pr)))
+    tried = {(pid, vid) for pid, lst in targets.items() for vid, _ in lst}
     per_vertex: dict[str, list[tuple[str, Any]]] = {}
     images: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
     for j, pid in enumerate(photos):
@@ -943,9 +945,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
             survey.root / "line_control.csv"
         lh, lrows = _line_rows(survey, Path(own) if own is not None else None, new_lines, new_obs,
-                               set(vertex_info), {k for k, d in user.of("line", "accept").items() if d.photo
-                                                  not in {pid for pid, lst in targets.items() for v, _ in lst
-                                                          if v == d.point}})   # the user's, not measured now
+                               set(vertex_info), {k for k, d in user.of("line", "accept").items()   # the user's,
+                                                  if (d.photo, d.point) not in tried})            # not measured now
         lines_out = (lp, lh, lrows, "LiDAR roof edges as control lines: lidarcat measure-control (line = POINT/"
                                     "plane-plane; end points and cov_m2 from the two plane fits; observations: the "
                                     "edge fits' two equivalent points, px)")
