@@ -181,7 +181,8 @@ def test_edges_accepted_instead_of_the_point_go_to_line_control_and_back(blocks,
     assert res.exit_code == 0, res.output
     assert res.output.splitlines() == [
         f"1 control observations accepted -> {root / 'image_points.csv'}",
-        f"2 roof-edge line observations accepted -> {root / 'line_control.csv'}"]
+        f"2 roof-edge line observations accepted -> {root / 'line_control.csv'}",
+        f"the review recorded -> {root / 'control_decisions.csv'} (62 decisions)"]
     assert _lidar_obs(root) == {("102", "L004")}
     sv = Survey.load(root)
     assert sv.files["line_control"] == root / "line_control.csv"      # survey.toml got the key
@@ -213,7 +214,8 @@ def test_edges_accepted_instead_of_the_point_go_to_line_control_and_back(blocks,
     _, ld2 = _edited(root)
     res = CliRunner().invoke(cli, ["measure-control", str(root), "--line-decisions", str(ld2)])
     assert res.exit_code == 0, res.output
-    assert res.output.splitlines() == [f"0 roof-edge line observations accepted -> {root / 'line_control.csv'}"]
+    assert res.output.splitlines() == [f"0 roof-edge line observations accepted -> {root / 'line_control.csv'}",
+                                       f"the review recorded -> {root / 'control_decisions.csv'} (60 decisions)"]
     assert [r for r in _rows(root / "line_control.csv")] == []
     assert _lidar_obs(root) == {("102", "L004")}          # image_points.csv untouched without --decisions
 

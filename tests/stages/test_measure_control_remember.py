@@ -382,3 +382,14 @@ def test_an_edge_its_point_carries_is_not_recorded_as_rejected(blocks, tmp_path)
     assert carried == {("L003/1-2", "102"), ("L003/2-3", "102"), ("L004/1-2", "102"), ("L004/2-3", "102")}
     assert {(k[2], k[1]) for k in rec} == {(r["line"], r["photo"]) for r in ldec} - carried
     assert all(r.kind == "line" and r.decision == "reject" for _, r in rec.values())
+
+    # an edge accepted instead of its point, then carried by the point again: its record goes with it
+    d, ld2 = _edited(root, {("L003", "102"): {"decision": "reject"}}, {("L003/1-2", "102"): {"decision": "accept"}})
+    _run(root, "--decisions", str(d), "--line-decisions", str(ld2))
+    assert _recorded(root)[("line", "102", "L003/1-2")][1].decision == "accept"
+    out = root / "out" / "measure_control"
+    _run(root, "--decisions", str(out / "decisions.csv"), "--line-decisions", str(out / "line_decisions.csv"))
+    rec = _recorded(root)
+    assert ("line", "102", "L003/1-2") not in rec and rec[("point", "102", "L003")][1].decision == "accept"
+    assert _lidar_obs(root) == {("102", "L003"), ("102", "L004")}
+    assert [r for r in _rows(root / "line_control.csv")] == []

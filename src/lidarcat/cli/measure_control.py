@@ -90,6 +90,9 @@ def measure_control(survey, points, decisions, line_decisions, replace, no_galle
             click.echo(f"{res.accepted} control observations accepted -> {res.image_points}")
         if res.line_control is not None:
             click.echo(f"{res.lines_written} roof-edge line observations accepted -> {res.line_control}")
+        if "control_decisions" in res.summary:
+            click.echo(f"the review recorded -> {res.summary['control_decisions']} "
+                       f"({res.summary['control_decision_rows']} decisions)")
         return
     counts = ", ".join(f"{v} {k}" for k, v in sorted(res.counts.items()))
     click.echo(f"{res.accepted} control observations accepted ({counts})")

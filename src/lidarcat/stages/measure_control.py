@@ -462,7 +462,7 @@ def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decis
     if table is None:
         told = _recorded(survey, rows if decisions is not None else [], Path(decisions or "."),
                          fed if line_decisions is not None else [], Path(line_decisions or "."))
-        summary.update(control_decisions=str(told[0]), decisions_recorded=len(told[2]))
+        summary.update(control_decisions=str(told[0]), control_decision_rows=len(told[2]))
         _write_checked(survey, ip_path, header, table_rows, comment, lines_out, told)
     else:
         if lines_out is not None:
@@ -479,7 +479,7 @@ def _recorded(survey: Any, rows: list[dict[str, Any]], path: Path, fed: list[dic
     """control_decisions.csv (path, header, rows, comment) after recording every row of a fed-back decisions.csv
     (*rows* of *path*) and line_decisions.csv (*fed* of *lpath*) -- the user's word on each pair they list
     (:mod:`lidarcat.survey.decisions`) -- but an ``in_point`` edge left at ``reject`` (not written because the
-    vertex's point carries it, not rejected)."""
+    vertex's point carries it, not rejected: no decision, an earlier one of the pair dropped)."""
     from ..survey.decisions import DECISION_COLUMNS, ControlDecision, merged_rows, now_utc
 
     def src(p: Path) -> str:
@@ -489,14 +489,15 @@ def _recorded(survey: Any, rows: list[dict[str, Any]], path: Path, fed: list[dic
             return p.resolve().as_posix()
 
     date = now_utc()
+    carried = {("line", d["photo"], d["line"]) for d in fed if not d["accept"] and d["status"] == "in_point"}
     new = [ControlDecision("point", d["photo"], d["point"], "accept" if d["accept"] else "reject",
                            f"{src(path)}:{d['at']}", date) for d in rows] + \
           [ControlDecision("line", d["photo"], d["line"], "accept" if d["accept"] else "reject",
                            f"{src(lpath)}:{d['at']}", date) for d in fed
-           if d["accept"] or d["status"] != "in_point"]   # an edge its point carries: no decision on the edge
+           if ("line", d["photo"], d["line"]) not in carried]   # an edge its point carries: no decision on the edge
     own = survey.files.get("control_decisions")
     return (Path(own) if own is not None else survey.root / "control_decisions.csv", list(DECISION_COLUMNS),
-            merged_rows(survey.control_decisions, new),
+            merged_rows(survey.control_decisions, new, carried),
             "The user's review of the LiDAR control measured in the photos (lidarcat measure-control --decisions / "
             "--line-decisions): a rejected pair is never measured again, an accepted one only with --replace; "
             "delete a row to have its pair measured again.")

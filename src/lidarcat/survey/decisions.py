@@ -19,8 +19,9 @@ One table for both kinds, one row per reviewed pair::
   typed by hand); ``date`` -- when it was recorded (ISO 8601; may be empty).
 
 A pair is listed once.  Recording a review (:func:`merged_rows`) replaces the row of each pair the review lists
-(keeping the old row, its source and date, when the decision did not change) and keeps the rows of the pairs it
-does not list.
+(keeping the old row, its source and date, when the decision did not change), drops the rows of pairs it says
+nothing about any more (an edge carried by its vertex's point again) and keeps the rows of the pairs it does not
+list.
 
 The meaning (enforced by the stage): a **rejected** pair is never measured again (its row in a later run's
 decisions.csv says ``rejected by the user (control_decisions.csv:LINE)``); an **accepted** pair is not measured
@@ -155,13 +156,18 @@ def now_utc() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def merged_rows(old: ControlDecisions, new: Sequence[ControlDecision]) -> list[list[str]]:
+def merged_rows(old: ControlDecisions, new: Sequence[ControlDecision],
+                forget: Iterable[tuple[str, str, str]] = ()) -> list[list[str]]:
     """The rows of control_decisions.csv after recording *new*: each of *old*'s rows in place -- replaced by the
-    new decision of its pair when that differs (an unchanged decision keeps its source and date) --, then the
-    pairs *old* does not have, in *new*'s order."""
+    new decision of its pair when that differs (an unchanged decision keeps its source and date), dropped when
+    its pair ``(kind, photo, id)`` is in *forget* (no decision any more) --, then the pairs *old* does not have,
+    in *new*'s order."""
     fresh = {(d.kind, d.photo, d.id): d for d in new}
+    gone = set(forget) - set(fresh)
     rows = []
     for r in old.rows:
+        if (r.kind, r.photo, r.id) in gone:
+            continue
         d = fresh.pop((r.kind, r.photo, r.id), None)
         rows.append((r if d is None or d.decision == r.decision else d).cells())
     return rows + [d.cells() for d in fresh.values()]
