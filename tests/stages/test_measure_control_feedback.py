@@ -66,7 +66,7 @@ def _state(root):
     """The bytes of the files measure-control may write into the survey (None: absent)."""
     return {n: (root / n).read_bytes() if (root / n).is_file() else None
             for n in ("image_points.csv", "image_points.csv.json", "line_control.csv", "line_control.csv.json",
-                      "survey.toml")}
+                      "control_decisions.csv", "control_decisions.csv.json", "survey.toml")}
 
 
 def _lidar_obs(root):
@@ -181,7 +181,8 @@ def test_edges_accepted_instead_of_the_point_go_to_line_control_and_back(blocks,
     assert res.exit_code == 0, res.output
     assert res.output.splitlines() == [
         f"1 control observations accepted -> {root / 'image_points.csv'}",
-        f"2 roof-edge line observations accepted -> {root / 'line_control.csv'}"]
+        f"2 roof-edge line observations accepted -> {root / 'line_control.csv'}",
+        f"the review recorded -> {root / 'control_decisions.csv'} (62 decisions)"]
     assert _lidar_obs(root) == {("102", "L004")}
     sv = Survey.load(root)
     assert sv.files["line_control"] == root / "line_control.csv"      # survey.toml got the key
@@ -213,7 +214,8 @@ def test_edges_accepted_instead_of_the_point_go_to_line_control_and_back(blocks,
     _, ld2 = _edited(root)
     res = CliRunner().invoke(cli, ["measure-control", str(root), "--line-decisions", str(ld2)])
     assert res.exit_code == 0, res.output
-    assert res.output.splitlines() == [f"0 roof-edge line observations accepted -> {root / 'line_control.csv'}"]
+    assert res.output.splitlines() == [f"0 roof-edge line observations accepted -> {root / 'line_control.csv'}",
+                                       f"the review recorded -> {root / 'control_decisions.csv'} (60 decisions)"]
     assert [r for r in _rows(root / "line_control.csv")] == []
     assert _lidar_obs(root) == {("102", "L004")}          # image_points.csv untouched without --decisions
 
@@ -364,8 +366,8 @@ def test_survey_that_does_not_load_with_the_new_tables_is_restored_byte_for_byte
     d, ld = _edited(root, {("L003", "102"): {"decision": "reject"}},
                     {("L003/2-3", "102"): {"decision": "accept"}})
     expect = (f"{root / 'line_control.csv'}:2: field 'cov_m2': not a covariance (not positive semi-definite) (the "
-              f"survey does not load with the new tables: image_points.csv, line_control.csv, survey.toml put back "
-              f"as they were)")
+              f"survey does not load with the new tables: image_points.csv, line_control.csv, control_decisions.csv, "
+              f"survey.toml put back as they were)")
     before = _state(root)
     assert before["line_control.csv"] is None
     res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(d), "--line-decisions", str(ld)])
@@ -387,5 +389,5 @@ def test_survey_that_does_not_load_with_the_new_tables_is_restored_byte_for_byte
     res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(d), "--line-decisions", str(ld)])
     assert res.exit_code == 2
     assert (f"field 'cov_m2': not a covariance (not positive semi-definite) (the survey does not load with the new "
-            f"tables: image_points.csv, line_control.csv put back as they were)") in res.output.replace("\n", " ")
+            f"tables: image_points.csv, line_control.csv, control_decisions.csv put back as they were)") in res.output.replace("\n", " ")
     assert _state(root) == before

@@ -34,11 +34,14 @@ line_decisions.csv and pass them back with --decisions and/or --line-decisions: 
 measured, the rows of the pairs each file lists are replaced by its accepted rows (points
 into image_points.csv, edges into line_control.csv with their 3-D line from
 line_candidates.csv beside line_decisions.csv; keep the two together). A vertex's point and
-its edges on one photo come from the same fits: accept one or the other, not both.
+its edges on one photo come from the same fits: accept one or the other, not both. Each
+row fed back is recorded in the survey's control_decisions.csv ([files] control_decisions):
+a later measure-control or `lidarcat run` never measures a rejected pair again (its row says
+"rejected by the user (control_decisions.csv:LINE)"), an accepted one only with --replace.
 \b
 Exit status: 0 done, 2 bad input (no LiDAR vertex, no tiles, no orientation, a bad row of
 a decisions file, a survey that would not load with the new tables); image_points.csv,
-line_control.csv and survey.toml are left as they were then.
+line_control.csv, control_decisions.csv and survey.toml are left as they were then.
 """
 
 
@@ -51,7 +54,8 @@ line_control.csv and survey.toml are left as they were then.
 @click.option("--line-decisions", type=click.Path(exists=True, dir_okay=False), default=None,
               help="An edited line_decisions.csv (line_candidates.csv beside it): write its accepted rows to "
                    "line_control.csv, measure nothing. With --decisions or alone.")
-@click.option("--replace", is_flag=True, help="Measure again (and replace) vertex/photo pairs already observed.")
+@click.option("--replace", is_flag=True, help="Measure again (and replace) vertex/photo pairs already observed or "
+                                                "accepted by the user; never those the user rejected.")
 @click.option("--no-gallery", is_flag=True, help="Do not write the PNG chips.")
 @click.option("--lines", "lines", type=click.Choice(["add", "only", "none"]), default="add", show_default=True,
               help="Roof edges as line control (line_control.csv): add = the edges of photos where the vertex's "
@@ -93,6 +97,9 @@ def measure_control(survey, points, decisions, line_decisions, replace, no_galle
             click.echo(f"{res.accepted} control observations accepted -> {res.image_points}")
         if res.line_control is not None:
             click.echo(f"{res.lines_written} roof-edge line observations accepted -> {res.line_control}")
+        if "control_decisions" in res.summary:
+            click.echo(f"the review recorded -> {res.summary['control_decisions']} "
+                       f"({res.summary['control_decision_rows']} decisions)")
         return
     counts = ", ".join(f"{v} {k}" for k, v in sorted(res.counts.items()))
     click.echo(f"{res.accepted} control observations accepted ({counts})")

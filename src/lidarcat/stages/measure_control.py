@@ -69,11 +69,18 @@ status) may sit beside measured edges (independent measurements).  Every bad row
 (a decision other than accept/reject, a pixel or sd that is not a number, an unknown photo, point or line, a
 line's ``point`` changed, an accepted row without pixels or with an edge of zero length, a pair listed twice),
 raised before anything is written; the tables then go through the same atomic write and reload as a
-measurement's.  ``lidarcat run`` does not read edited decisions (no survey.toml key): the review is a step
-between runs -- ``lidarcat measure-control SURVEY --decisions RUN/measure_control/decisions.csv ...`` writes the
-run's reviewed observations into the survey, and the next run's :func:`planned` skips the stage once every
-vertex has an observation; while one has none, the stage runs again and measures every pair without an
-observation, those the user rejected too (a rejection is not remembered across runs).
+measurement's.
+
+**The review remembered** (:mod:`lidarcat.survey.decisions`).  Feeding back also records the user's word on
+every pair the files list (an ``in_point`` edge left at ``reject`` excepted: its point carries it) in the
+survey's ``control_decisions.csv`` (``[files] control_decisions``, added when missing; written and rolled back
+with the tables).  A measurement -- this command and the ``lidarcat run`` stage alike -- never measures a
+rejected pair again (its decisions.csv row: ``user_rejected``, "rejected by the user (control_decisions.csv:LINE)";
+its edges on the photo ``not_written`` with that reason; a rejected edge is never written), nor an accepted one
+unless ``replace`` (a user-accepted edge's observation is kept while its vertex is measured on other photos).
+:func:`planned` counts a vertex as done when it has an observation or the user's decision on every oriented
+photo, so ``lidarcat run`` stops planning the stage after a full review.  The run measures into its own tables;
+``lidarcat measure-control SURVEY --decisions RUN/measure_control/decisions.csv ...`` feeds its review back.
 
 **Sds of the edge fits.**  The predicted direction of an edge observes the fitted slope
 (``direction_sd_deg``): taken from the photo's kappa sd (the image turns with kappa; omega and phi
@@ -177,8 +184,10 @@ def dsm_of_points(xyz: np.ndarray, cell_m: float = 0.5) -> Callable[[np.ndarray,
 
 
 def planned(survey: Any) -> str | None:
-    """Why ``lidarcat run`` skips the stage (None: planned): it needs images, LiDAR tiles and LiDAR vertices
-    of which some photo has no observation yet."""
+    """Why ``lidarcat run`` skips the stage (None: planned): it needs images, LiDAR tiles and a LiDAR vertex
+    still open -- one with no observation (a point in image_points.csv or an edge in line_control.csv) of
+    which some photo with an approximate orientation has no decision of the user (control_decisions.csv).
+    A vertex the user rejected on every photo is done: the run does not plan it again."""
     if not getattr(survey, "has_images", False):
         return "the photos have no image files"
     if not survey.lidar_paths:
@@ -187,8 +196,14 @@ def planned(survey: Any) -> str | None:
     if not verts:
         return "the survey has no LiDAR control vertices (ground points of source lidar)"
     observed = set(np.asarray(survey.image_points.point, dtype=str).tolist())
-    if all(v in observed for v, _ in verts):
-        return "every LiDAR control vertex has image observations; `lidarcat measure-control` measures again"
+    own = survey.files.get("line_control")
+    observed |= {pt for _, pt in _edge_pairs(None, Path(own))} if own is not None else set()
+    told = survey.control_decisions.of("point")
+    oriented = [ph.id for ph in survey.photos if ph.position_m is not None and ph.attitude_deg is not None]
+    if all(v in observed or (oriented and all((pid, v) in told for pid in oriented)) for v, _ in verts):
+        return "every LiDAR control vertex has image observations" + (
+            " or the user's decision on every photo (control_decisions.csv)" if told else "") + \
+            "; `lidarcat measure-control` measures again"
     return None
 
 
@@ -448,7 +463,10 @@ def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decis
     comment = f"LiDAR control observations: lidarcat measure-control, decisions of " \
               f"{Path(decisions).name if decisions is not None else ''}"
     if table is None:
-        _write_checked(survey, ip_path, header, table_rows, comment, lines_out)
+        told = _recorded(survey, rows if decisions is not None else [], Path(decisions or "."),
+                         fed if line_decisions is not None else [], Path(line_decisions or "."))
+        summary.update(control_decisions=str(told[0]), control_decision_rows=len(told[2]))
+        _write_checked(survey, ip_path, header, table_rows, comment, lines_out, told)
     else:
         if lines_out is not None:
             write_csv_atomic(lines_out[0], lines_out[1], lines_out[2], comments=[lines_out[3]])
@@ -457,6 +475,35 @@ def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decis
     write_json_atomic(out / "measure_control.json", summary)
     return MeasureControlResult(ip_path, out, {"accepted": n_acc, "lines_accepted": n_lines}, n_acc, summary,
                                 None if lines_out is None else lines_out[0], n_lines)
+
+
+def _recorded(survey: Any, rows: list[dict[str, Any]], path: Path, fed: list[dict[str, Any]], lpath: Path
+              ) -> tuple[Path, list[str], list[list[str]], str]:
+    """control_decisions.csv (path, header, rows, comment) after recording every row of a fed-back decisions.csv
+    (*rows* of *path*) and line_decisions.csv (*fed* of *lpath*) -- the user's word on each pair they list
+    (:mod:`lidarcat.survey.decisions`) -- but an ``in_point`` edge left at ``reject`` (not written because the
+    vertex's point carries it, not rejected: no decision, an earlier one of the pair dropped)."""
+    from ..survey.decisions import DECISION_COLUMNS, ControlDecision, merged_rows, now_utc
+
+    def src(p: Path) -> str:
+        try:
+            return p.resolve().relative_to(survey.root.resolve()).as_posix()
+        except ValueError:
+            return p.resolve().as_posix()
+
+    date = now_utc()
+    carried = {("line", d["photo"], d["line"]) for d in fed if not d["accept"] and d["status"] == "in_point"}
+    new = [ControlDecision("point", d["photo"], d["point"], "accept" if d["accept"] else "reject",
+                           f"{src(path)}:{d['at']}", date) for d in rows] + \
+          [ControlDecision("line", d["photo"], d["line"], "accept" if d["accept"] else "reject",
+                           f"{src(lpath)}:{d['at']}", date) for d in fed
+           if ("line", d["photo"], d["line"]) not in carried]   # an edge its point carries: no decision on the edge
+    own = survey.files.get("control_decisions")
+    return (Path(own) if own is not None else survey.root / "control_decisions.csv", list(DECISION_COLUMNS),
+            merged_rows(survey.control_decisions, new, carried),
+            "The user's review of the LiDAR control measured in the photos (lidarcat measure-control --decisions / "
+            "--line-decisions): a rejected pair is never measured again, an accepted one only with --replace; "
+            "delete a row to have its pair measured again.")
 
 
 def _edge_pairs(header: Sequence[str] | None, rows: Any) -> set[tuple[str, str]]:
@@ -512,25 +559,24 @@ def _table(survey: Any, new: list[dict[str, Any]], replace: bool, drop: set | No
 
 
 def _write_checked(survey: Any, ip_path: Path, header: list[str] | None, rows: list[list[Any]] | None, comment: str,
-                   lines: tuple[Path, list[str], list[list[Any]], str] | None = None) -> None:
-    """Replace image_points.csv (unless *header* is None; and line_control.csv, survey.toml's ``[files]
-    line_control`` when it has none) atomically, then load the survey; put the old files back if it does not load
-    (the error says so)."""
+                   lines: tuple[Path, list[str], list[list[Any]], str] | None = None,
+                   told: tuple[Path, list[str], list[list[Any]], str] | None = None) -> None:
+    """Replace image_points.csv (unless *header* is None; and line_control.csv, control_decisions.csv *told*,
+    survey.toml's ``[files]`` keys of the two when it has none) atomically, then load the survey; put the old files
+    back if it does not load (the error says so)."""
     from .._util import atomic_write
     from ..survey.folder import Survey
 
-    paths = [ip_path]
-    if lines is not None:
-        paths.append(lines[0])
-        if survey.files.get("line_control") is None and not survey.embedded:
-            paths.append(survey.toml_path)
+    tables = {k: v for k, v in (("line_control", lines), ("control_decisions", told)) if v is not None}
+    keys = [k for k in tables if survey.files.get(k) is None and not survey.embedded]
+    paths = [ip_path, *(v[0] for v in tables.values())] + ([survey.toml_path] if keys else [])
     paths += [q.with_name(q.name + ".json") for q in paths if q.suffix == ".csv"]   # the tables' metadata
     old = {q: (q.read_bytes() if q.is_file() else None) for q in paths}
     try:
-        if lines is not None:
-            write_csv_atomic(lines[0], lines[1], lines[2], comments=[lines[3]])
-            if survey.toml_path in paths[2:]:
-                _add_line_control_key(survey.toml_path, lines[0])
+        for key, v in tables.items():
+            write_csv_atomic(v[0], v[1], v[2], comments=[v[3]])
+            if key in keys:
+                _add_files_key(survey.toml_path, key, v[0])
         if header is not None:
             write_csv_atomic(ip_path, header, rows, comments=[comment])
         Survey.load(survey.root if not survey.embedded else survey.toml_path)
@@ -550,15 +596,20 @@ def _write_checked(survey: Any, ip_path: Path, header: list[str] | None, rows: l
 
 def _add_line_control_key(toml_path: Path, lines_path: Path) -> None:
     """survey.toml with ``line_control = "..."`` in its ``[files]`` table (appended when it has none)."""
+    _add_files_key(toml_path, "line_control", lines_path)
+
+
+def _add_files_key(toml_path: Path, key: str, path: Path) -> None:
+    """survey.toml with ``key = "path"`` in its ``[files]`` table (appended when it has none)."""
     from .._util import atomic_write
     from .._util.tables import toml_line
 
     text = toml_path.read_text(encoding="utf-8")
     try:
-        rel = lines_path.resolve().relative_to(toml_path.parent.resolve()).as_posix()
+        rel = path.resolve().relative_to(toml_path.parent.resolve()).as_posix()
     except ValueError:
-        rel = lines_path.resolve().as_posix()
-    entry = f'line_control = "{rel}"'
+        rel = path.resolve().as_posix()
+    entry = f'{key} = "{rel}"'
     at = toml_line(text, "files")
     lines = text.splitlines()
     if at is None:
@@ -570,9 +621,11 @@ def _add_line_control_key(toml_path: Path, lines_path: Path) -> None:
 
 
 def _line_rows(survey: Any, path: Path | None, new_lines: dict[str, tuple[str, Any, Any, Any]],
-               new_obs: list[tuple[str, str, Any]], replace_points: set[str]) -> tuple[list[str], list[list[Any]]]:
-    """The new line_control.csv: the kept rows of *path* (lines of other points, their observations), then the
-    lines measured now (``id -> (point, A, B, cov)``) and their observations ``(line, photo, EdgeLine)``."""
+               new_obs: list[tuple[str, str, Any]], replace_points: set[str],
+               keep: set[tuple[str, str]] | None = None) -> tuple[list[str], list[list[Any]]]:
+    """The new line_control.csv: the kept rows of *path* (lines of other points, their observations, the
+    observations ``(photo, line)`` in *keep* -- accepted by the user -- and their lines), then the lines
+    measured now (``id -> (point, A, B, cov)``) and their observations ``(line, photo, EdgeLine)``."""
     from .._util import read_csv_table
     from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
 
@@ -581,9 +634,12 @@ def _line_rows(survey: Any, path: Path | None, new_lines: dict[str, tuple[str, A
     if path is not None and path.is_file():
         t = read_csv_table(path, required=("line",), optional=tuple(c for c in header if c != "line"))
         col = {h: i for i, h in enumerate(t.header)}
+        keep = keep or set()
+        kept_lines = {lid for _, lid in keep} - set(new_lines)
         for r in t.rows:
-            lid = r[col["line"]]
-            if lid in new_lines or lid.split("/")[0] in replace_points:
+            lid, pid = r[col["line"]], r[col["photo"]] if "photo" in col else ""
+            if (lid in new_lines or lid.split("/")[0] in replace_points) and (pid, lid) not in keep and not (
+                    not pid and lid in kept_lines):
                 continue
             rows.append([r[col[c]] if c in col else "" for c in header])
 
@@ -676,13 +732,15 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     points : ids, optional
         Measure these ground points (default: every ground point of source ``lidar``).
     decisions : path, optional
-        An edited decisions.csv: write its accepted rows, measure nothing.
+        An edited decisions.csv: write its accepted rows, measure nothing; every row is recorded in the
+        survey's control_decisions.csv (module docstring, "The review remembered"; not with *table*).
     line_decisions : path, optional
         An edited line_decisions.csv (with line_candidates.csv beside it): write its accepted rows as line
         observations, measure nothing (module docstring, "Feeding the decisions back").
     params : MeasureParams, optional
     replace : bool
-        Measure (and replace) vertex/photo pairs that already have an observation.
+        Measure (and replace) vertex/photo pairs that already have an observation or that the user accepted
+        (control_decisions.csv); never the pairs the user rejected.
     gallery : bool
         Write the chips.
     table : path, optional
@@ -755,6 +813,15 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                           f"(X0 .. kappa) of any photo: nothing to predict with")
     p = params
     observed = {(str(a), str(b)) for a, b in zip(survey.image_points.photo, survey.image_points.point)}
+    # the user's review (control_decisions.csv): rejected pairs never measured, accepted ones not unless replace
+    user = survey.control_decisions
+    rejected, line_rejected = user.of("point", "reject"), user.of("line", "reject")
+    kept = set(user.of("point", "accept")) | {(d.photo, d.point) for d in user.of("line", "accept").values()}
+
+    def told(vid: str, pid: str, m: Any = None) -> Any:
+        d = rejected.get((pid, vid))
+        return m if d is None else Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan),
+                                               "user_rejected", user.reason(d))
     crs = survey.lidar_crs or survey.crs
     results: list[Any] = []
     targets: dict[str, list[tuple[str, Any]]] = {}
@@ -768,26 +835,30 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
             cloud = clip(list(survey.lidar_paths), enh[:2], dsm_radius_m, height_filter=None, crs=crs)
             xyz = np.asarray(cloud.xyz, dtype=np.float64)
         except LidarcatError as ex:
-            results += [Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan), "no_vertex",
-                                    f"no LiDAR around the vertex: {ex}") for pid in photos]
+            results += [told(vid, pid, Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan),
+                                                   "no_vertex", f"no LiDAR around the vertex: {ex}")) for pid in photos]
             continue
         cp = extract_roof(xyz, enh[:2], point_id=vid)
         if not cp or np.linalg.norm(cp.enh_m - enh) > max_shift_m:
             why = (f"the vertex is not extracted again ({cp.status}: {cp.reason})" if not cp else
                    f"the vertex extracted again lies {float(np.linalg.norm(cp.enh_m - enh)):.2f} m from the "
                    f"ground point (> {max_shift_m:g} m)")
-            results += [Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan), "no_vertex", why)
-                        for pid in photos]
+            results += [told(vid, pid, Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan),
+                                                   "no_vertex", why)) for pid in photos]
             continue
         vertex_info[vid] = (cp, xyz, {e.planes: e for e in roof_edges(cp.enh_m, cp.planes, xyz)})
         dsm = dsm_of_points(xyz)
         for pid in photos:
-            if (pid, vid) in observed and not replace:
+            if (pid, vid) in rejected:
+                results.append(told(vid, pid))
+                continue
+            if ((pid, vid) in observed or (pid, vid) in kept) and not replace:
                 continue
             cam = survey.camera_of(pid)
             pr = predict_points(cam, eos[pid], covs[pid], cp.enh_m[None], cp.cov_m2[None], points=[vid], photo=pid,
                                 dsm=dsm)[0]
             targets.setdefault(pid, []).append((vid, VertexTarget(cp.enh_m, cp.planes, xyz, pr)))
+    tried = {(pid, vid) for pid, lst in targets.items() for vid, _ in lst}
     per_vertex: dict[str, list[tuple[str, Any]]] = {}
     images: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
     for j, pid in enumerate(photos):
@@ -871,7 +942,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                         candidates[lid] = None
                 el = found.get(tuple(planes))
                 status, reason = "not_written", ""
-                if m.status == "not_visible" or m.status in ("too_dark", "saturated", "near_border", "no_vertex"):
+                if m.status in ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected"):
                     reason = f"{m.status}: {m.reason}"
                 elif m.status == "rejected":
                     reason = f"the vertex's measurement was rejected: {m.reason}"
@@ -879,6 +950,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                     reason = "no image edge found (or too weak for a line without its vertex)"
                 elif m and lines == "add":
                     status, reason = "in_point", "the vertex's point observation carries this edge (not written twice)"
+                elif (m.photo, lid) in line_rejected:
+                    status, reason = "user_rejected", user.reason(line_rejected[(m.photo, lid)])
                 else:
                     status = "written"
                     new_lines[lid] = candidates[lid] if candidates[lid] is not None else \
@@ -925,7 +998,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
             survey.root / "line_control.csv"
         lh, lrows = _line_rows(survey, Path(own) if own is not None else None, new_lines, new_obs,
-                               set(vertex_info))
+                               set(vertex_info), {k for k, d in user.of("line", "accept").items()   # the user's,
+                                                  if (d.photo, d.point) not in tried})            # not measured now
         lines_out = (lp, lh, lrows, "LiDAR roof edges as control lines: lidarcat measure-control (line = POINT/"
                                     "plane-plane; end points and cov_m2 from the two plane fits; observations: the "
                                     "edge fits' two equivalent points, px)")

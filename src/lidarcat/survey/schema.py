@@ -135,6 +135,8 @@ class FilesTable:
                                           "photos.csv rig_exposure (docs/cameras.md, Rigs)")
     line_control: str | None = _key(STRING, None, "line_control.csv: control lines (LiDAR roof edges) and their "
                                                   "measurements in the photos (docs/lines.md)")
+    control_decisions: str | None = _key(STRING, None, "control_decisions.csv: the user's review of the LiDAR "
+                                                       "control measured in the photos (docs/photocontrol.md)")
 
 
 @dataclass(frozen=True)
