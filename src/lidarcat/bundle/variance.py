@@ -275,7 +275,8 @@ def line_group(result: BundleResult, *, reject: bool = False) -> tuple[int, floa
         (NaN when the result has no photo covariances: adjusted with ``precision`` ``none``) and of
         ``r^T Sigma_r^-1 r``; None when the problem has no line observations.
     """
-    from .line_tests import line_tests     # line_tests imports solve: kept out of the module's imports
+    # line_tests imports solve: kept out of the module's imports
+    from .line_tests import line_tests
     from .lines import line_terms
 
     L = getattr(result.problem, "lines", None)
