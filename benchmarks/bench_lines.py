@@ -4,6 +4,8 @@ Usage::
 
     PYTHONPATH=src python benchmarks/bench_lines.py [--seeds 20]
     PYTHONPATH=src python benchmarks/bench_lines.py --measured [--seeds 2] [--size 1000 750] [--keep DIR]
+    PYTHONPATH=src python benchmarks/bench_lines.py --cache DIR [--calibrate 1,2,3,4] [--validate 5,6,7,8]
+    PYTHONPATH=src python benchmarks/bench_lines.py --correlation
 
 On :func:`lidarcat.synthetic.lines.line_block` (2 strips x 6 photos, f = 50 mm, 1000 m, image sd
 5 um, 12 roof lines seen on 2-3 photos each, GNSS 2 m / IMU 0.5 deg as weak constraints) prints per
@@ -24,6 +26,18 @@ only`` (every photo's edges as lines, no point).  Printed per variant, pooled ov
 orientation's rms errors (position m, attitude deg) against truth, the sd and max of the normalised
 errors, the line observations written and their errors against the true projection of the LiDAR
 line (median px across, rms of the normalised error: honest near 1).
+
+``--cache DIR [--calibrate 1,2,3,4] [--validate 5,6,7,8] [--adjust cal|val|both] [--floors
+default|cal|both]`` (issue 29 session 5, docs/lines.md, docs/figures.md): the same blocks kept under
+``DIR/seedN`` (rendered and matched once), ``measure-control`` once per mode with every edge fit recorded,
+so that the two line floors (``MeasureParams.line_sd_px``, ``line_direction_sd_deg``) can be applied
+afterwards; the floors of greatest likelihood on the calibration seeds' edges against truth, the line
+rms z of both seed sets under the default and the calibrated floors, then every seed adjusted with
+``--lines none | add | only`` x floors x without / with ``--variance-components``: orientation rms
+errors and rms z (position, attitude), line rms z, check points, the line factor.
+
+``--correlation``: the neglected cross-photo correlation of one 3-D line's observations, measured on
+``line_block`` with the lines' sd across raised from 3 cm to 40 cm (docs/lines.md).
 """
 
 from __future__ import annotations
@@ -349,21 +363,39 @@ def calibrate_floors(obs: list[dict], off_px: float | None = None) -> tuple[floa
     return float(abs(best.x[0])), float(abs(best.x[1]))
 
 
+def cached_block(cache, seed: int) -> None:
+    """``CACHE/seedN/survey``: the block of ``bench_measured_control.build`` rendered and matched (``lidarcat
+    match``), ``CACHE/seedN/DONE`` written when complete; nothing when it is there."""
+    import shutil
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_measured_control as mc
+
+    d = Path(cache) / f"seed{seed}"
+    if (d / "DONE").is_file():
+        return
+    shutil.rmtree(d, ignore_errors=True)
+    mc.build(d / "survey", seed, (1000, 750))
+    r = mc._cli("match", str(d / "survey"), "-o", str(d / "match"))
+    if r.returncode != 0:
+        raise RuntimeError(f"seed {seed}: lidarcat match failed: {r.stderr[-2000:]}")
+    (d / "DONE").write_text("rendered and matched\n")
+
+
 def cached_measure(cache, seeds: list[int]) -> None:
-    """Per cached seed (``CACHE/seedN/survey`` rendered and matched, ``bench_measured_control.build`` +
-    ``lidarcat match``): ``measure-control --lines MODE`` into ``survey-MODE`` with the edge fits recorded
-    (``edges-MODE.pkl``); skipped when done."""
+    """Per seed (:func:`cached_block`): ``measure-control --lines MODE`` into ``survey-MODE`` with the edge
+    fits recorded (``edges-MODE.pkl``); skipped when done."""
     import pickle
     import shutil
-    import time
     from pathlib import Path
 
     from lidarcat.stages.measure_control import measure_control
 
     for seed in seeds:
         d = Path(cache) / f"seed{seed}"
-        while not (d / "DONE").is_file():     # rendered and matched by another process
-            time.sleep(20)
+        cached_block(cache, seed)
         for mode in MODES:
             root = d / f"survey-{mode}"
             if (d / f"edges-{mode}.pkl").is_file():
@@ -398,6 +430,9 @@ def cached_adjust(cache, seeds: list[int], floors: dict[str, tuple[float, float]
         d = Path(cache) / f"seed{seed}"
         s = load_aerial_survey(d / "survey")
         for mode in MODES:
+            if mode != "none" and not (d / f"survey-{mode}" / "line_control.csv").is_file():
+                print(f"seed {seed} {mode}: no roof edge measured, no line control", flush=True)
+                continue
             recs = pickle.loads((d / f"edges-{mode}.pkl").read_bytes())
             for fname, (off, dd) in (floors.items() if mode != "none" else [("-", (math.nan, math.nan))]):
                 root = d / f"survey-{mode}-{fname}" if mode != "none" else d / "survey-none"
