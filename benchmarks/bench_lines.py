@@ -446,9 +446,11 @@ def cached_adjust(cache, seeds: list[int], floors: dict[str, tuple[float, float]
                     adj = d / f"adj-{mode}-{fname}-{'vc' if vc else 'w'}"
                     if not (adj / "summary.json").is_file():
                         shutil.rmtree(adj, ignore_errors=True)
+                        # --max-iter 300: a block held by one or two lines and the GNSS/IMU converges slowly
+                        # (seed 3: more than the default 50 iterations)
                         r = mc._cli("adjust", str(root), "--control", "lidar", "--eo-constraints", "--snooping",
                                     "remove", "--variance-components" if vc else "--no-variance-components",
-                                    "-o", str(adj))
+                                    "--max-iter", "300", "-o", str(adj))
                         if r.returncode not in (0, 3):
                             print(f"seed {seed} {mode} {fname} vc={vc}: exit {r.returncode} {r.stdout[-800:]}"
                                   f"{r.stderr[-800:]}", flush=True)
