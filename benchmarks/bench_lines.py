@@ -468,7 +468,8 @@ def cached_adjust(cache, seeds: list[int], floors: dict[str, tuple[float, float]
                     out.append(row)
                     print(json.dumps({k: v for k, v in row.items() if k not in ("d", "z", "lz2")}, default=float)
                           + f" pos {np.sqrt(np.mean(dd_[:, :3]**2)):.3f} zpos {np.sqrt(np.mean(z[:, :3]**2)):.2f}"
-                          f" zatt {np.sqrt(np.mean(z[:, 3:]**2)):.2f} lz {np.sqrt(np.mean(lz) / 2) if len(lz) else 0:.2f}",
+                          f" zatt {np.sqrt(np.mean(z[:, 3:]**2)):.2f}"
+                          f" lz {np.sqrt(np.mean(lz) / 2) if len(lz) else 0:.2f}",
                           flush=True)
     return out
 
