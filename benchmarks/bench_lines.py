@@ -455,18 +455,23 @@ def cached_adjust(cache, seeds: list[int], floors: dict[str, tuple[float, float]
                             print(f"seed {seed} {mode} {fname} vc={vc}: exit {r.returncode} {r.stdout[-800:]}"
                                   f"{r.stderr[-800:]}", flush=True)
                             continue
+                    summ = json.loads((adj / "summary.json").read_text())
+                    if not summ.get("converged"):
+                        print(f"seed {seed} {mode} {fname} vc={vc}: not converged", flush=True)
+                        continue
                     sc = mc.score(s, root / "truth" / "points.csv", adj)
                     dd_, z = mc.eo_errors(s, adj)
-                    summ = json.loads((adj / "summary.json").read_text())
                     fac = {g["group"]: g for g in (summ.get("variance_components") or {}).get("groups", [])}
                     row = {"seed": seed, "mode": mode, "floors": fname, "vc": vc, "d": dd_, "z": z, "lz2": lz,
+                           "chi2_photo": _photo_chi2(s, adj, dd_),
                            "check": sc["check_rmse_m"], "sigma0_sq": sc["sigma0_sq"],
                            "lines": sc["line_observations"],
                            "line_factor": (fac.get("lines") or {}).get("factor"),
                            "line_estimated": (fac.get("lines") or {}).get("estimated"),
                            "factors": {g: (v["factor"], v["estimated"]) for g, v in fac.items()}}
                     out.append(row)
-                    print(json.dumps({k: v for k, v in row.items() if k not in ("d", "z", "lz2")}, default=float)
+                    brief = {k: v for k, v in row.items() if k not in ("d", "z", "lz2", "chi2_photo")}
+                    print(json.dumps(brief, default=float)
                           + f" pos {np.sqrt(np.mean(dd_[:, :3]**2)):.3f} zpos {np.sqrt(np.mean(z[:, :3]**2)):.2f}"
                           f" zatt {np.sqrt(np.mean(z[:, 3:]**2)):.2f}"
                           f" lz {np.sqrt(np.mean(lz) / 2) if len(lz) else 0:.2f}",
@@ -474,11 +479,35 @@ def cached_adjust(cache, seeds: list[int], floors: dict[str, tuple[float, float]
     return out
 
 
+def _photo_chi2(s, adj, d: np.ndarray) -> np.ndarray:
+    """Per photo ``d^T C^-1 d`` (chi2(6) when honest) of its orientation error *d* (m, deg) against its 6 x 6
+    covariance in *adj*/eop_covariance.csv (m, rad)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_measured_control as mc
+
+    names = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+    rows = {r["photo"]: r for r in mc._rows(adj / "eop_covariance.csv")}
+    out = []
+    for k, pid in enumerate(s.photo_ids):
+        C = np.zeros((6, 6))
+        for i in range(6):
+            for j in range(i, 6):
+                key = next(c for c in rows[pid] if c.startswith(f"c_{names[i]}_{names[j]}_"))
+                C[i, j] = C[j, i] = float(rows[pid][key])
+        dk = np.r_[d[k, :3], np.radians(d[k, 3:])]
+        out.append(float(dk @ np.linalg.solve(C, dk)))
+    return np.array(out)
+
+
 def pooled_table(rows: list, title: str) -> None:
     """Print the pooled table of :func:`cached_adjust` rows, one line per (mode, floors, vc)."""
     print(f"\n{title}")
     print(f"{'mode':5s} {'floors':>8s} {'vc':>3s} {'seeds':>5s} {'pos m':>6s} {'att deg':>7s} {'z pos':>5s} "
-          f"{'z att':>5s} {'max|z|':>6s} {'lines':>5s} {'line z':>6s} {'check E/N/h m':>20s} {'line factor':>11s}")
+          f"{'z att':>5s} {'photo':>5s} {'max|z|':>6s} {'lines':>5s} {'line z':>6s} {'check E/N/h m':>20s} "
+          f"{'line factor':>11s}")
     keys = sorted({(r["mode"], r["floors"], r["vc"]) for r in rows}, key=lambda k: (MODES.index(k[0]), k[1], k[2]))
     for mode, fl, vc in keys:
         g = [r for r in rows if (r["mode"], r["floors"], r["vc"]) == (mode, fl, vc)]
@@ -489,7 +518,9 @@ def pooled_table(rows: list, title: str) -> None:
         lf = [r["line_factor"] for r in g if r["line_estimated"]]
         print(f"{mode:5s} {fl:>8s} {'yes' if vc else 'no':>3s} {len(g):5d} {np.sqrt(np.mean(d[:, :3]**2)):6.3f} "
               f"{np.sqrt(np.mean(d[:, 3:]**2)):7.4f} {np.sqrt(np.mean(z[:, :3]**2)):5.2f} "
-              f"{np.sqrt(np.mean(z[:, 3:]**2)):5.2f} {np.abs(z).max():6.2f} {sum(r['lines'] for r in g):5d} "
+              f"{np.sqrt(np.mean(z[:, 3:]**2)):5.2f} "
+              f"{np.sqrt(np.mean(np.concatenate([r['chi2_photo'] for r in g])) / 6):5.2f} {np.abs(z).max():6.2f} "
+              f"{sum(r['lines'] for r in g):5d} "
               f"{np.sqrt(np.mean(lz) / 2) if len(lz) else float('nan'):6.2f} "
               f"{' / '.join(f'{v:.3f}' for v in np.sqrt(np.nanmean(ck**2, axis=0))):>20s} "
               f"{(f'{np.median(lf):.2f} ({len(lf)})' if lf else '-'):>11s}")
