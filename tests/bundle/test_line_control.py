@@ -221,7 +221,7 @@ def test_measured_lines_orient_a_block_with_few_corners_honestly(tmp_path):
     the roof edges of the photos where a vertex's point was not measured), each adjusted with variance
     components (what `lidarcat adjust` and `lidarcat run` do on a matched survey).  The edges improve the
     orientation (0.62 m -> 0.05 m seen, 627 s at load 12) and keep it honest: every element within 3 sd,
-    rms error/sd at most 1.25 (docs/figures.md: pooled over eight seeds the sds are on the safe side with the edges;
+    rms error/sd at most 1.25 (docs/figures.md: pooled over six blocks the sds are on the safe side with the edges;
     per seed only the upper bound is a fact, 36 strongly correlated elements), the line observations'
     errors against the true projection of their LiDAR line within their sds (rms at most 1.25)."""
     import shutil
