@@ -13,7 +13,8 @@ block, and a wrong tie point had to be 1.5-2 px off before its w-test saw it.
 The model
 ---------
 Observations in groups ``g`` (tie-point image coordinates, control-point image coordinates,
-control coordinates, GNSS positions, IMU attitudes), uncorrelated between groups,
+control coordinates, GNSS positions, IMU attitudes, image observations of control lines: below),
+uncorrelated between groups,
 
 .. math::  D(l) = \sum_g \sigma_g^2 \, Q_g ,
 
@@ -60,6 +61,25 @@ squares left out) gave the tie points a factor of 61 (their sds x 7.8) -- the bl
 their neighbours' residuals -- and four planted matches of 3.4-6.1 px went unnamed; from the
 cleaned adjustment the factor is 0.63 (sds x 0.79) and all 19 are named.
 
+Line observations.  The image observations of control lines (:mod:`lidarcat.bundle.lines`) are the
+group ``lines``.  Each is a pair of residuals with a full 2 x 2 covariance ``Sigma_r = Sigma_img +
+J_L Sigma_AB J_L^T``, the measured edge's part and the 3-D line's (the plane fits'), so its share of
+the sums is ``r^T Sigma_r^-1 r`` and ``tr(Q_vv P)``, the redundancy numbers of
+:func:`lidarcat.bundle.line_tests.line_tests` (exact: the observation depends on one photo, ``Q_vv =
+Sigma_r - A C_i A^T``).  They are not rows of the point statistics (:func:`group_labels`): the group is
+summed from the line tests of the result.  Its factor scales the *image* part only -- the edge sds
+``sd_mm`` a measurement writes (floors such as ``MeasureParams.line_sd_px`` included) -- and leaves the
+3-D line's covariance, propagated from the LiDAR plane fits and shared with the point control, as
+given.  The group's model is then ``D(r) = sigma_lines^2 Sigma_img + J_L Sigma_AB J_L^T``, not a
+multiple of one cofactor, but the iteration is the same: ``v^T P v`` of the group has expectation
+``r_g`` exactly when ``sigma_lines^2`` is right, and each round moves the factor by the ratio, so the
+fixed point is that ``sigma_lines^2`` (a little slower to converge, and its sd a little larger than
+``sqrt(2 / r_g)``, the smaller the image part's share of ``Sigma_r``).  A line observation its test
+rejects (``w`` above the critical value of ``line_tests``) is left out of the sums in the rounds of
+:func:`snoop_with_components` (the line snooping of ``lidarcat adjust --snooping remove`` removes it
+after them).  Measured on :func:`lidarcat.synthetic.lines.line_block` (edges measured to 4 um,
+declared 8 um): the factor comes out 0.25 within its sd (tests/bundle/test_variance_lines.py).
+
 The module is the engine: arrays in, arrays out; :func:`iterate_components` takes the adjustment
 to run as a callable, :func:`snoop_with_components` is it with Baarda's data snooping
 (:func:`lidarcat.bundle.reliability.snoop`), what ``lidarcat adjust --variance-components`` runs
@@ -82,13 +102,15 @@ from .reliability import snoop
 from .result import BundleResult
 
 __all__ = ["GROUPS", "MIN_REDUNDANCY", "MIN_DATUM_REDUNDANCY", "VarianceComponent", "VarianceComponents",
-           "group_labels", "estimate_components", "scaled_problem", "iterate_components", "snoop_with_components"]
+           "group_labels", "line_group", "estimate_components", "scaled_problem", "iterate_components",
+           "snoop_with_components"]
 
 log = logging.getLogger(__name__)
 
 #: the observation groups: image coordinates of tie points, image coordinates of control and check
-#: points (targets), control coordinates, GNSS positions (X0, Y0, Z0), IMU attitudes (omega, phi, kappa)
-GROUPS = ("tie", "target", "control", "gnss", "imu")
+#: points (targets), control coordinates, GNSS positions (X0, Y0, Z0), IMU attitudes (omega, phi, kappa), image
+#: observations of control lines (their image part; module docstring, "Line observations")
+GROUPS = ("tie", "target", "control", "gnss", "imu", "lines")
 #: a group with less redundancy keeps its a priori factor (sd of the estimate ~ sqrt(2 / r) = 45 %)
 MIN_REDUNDANCY = 10.0
 #: the weighted orientations (GNSS, IMU groups), possibly the datum: estimated with at least this redundancy
@@ -136,6 +158,14 @@ class VarianceComponent:
         """Factor of the group's a priori sds, ``sqrt(factor)``."""
         return math.sqrt(self.factor)
 
+    @property
+    def factor_sd(self) -> float:
+        """Approximate sd of the estimated factor, ``factor sqrt(2 / redundancy)`` (``v_g^T P_g v_g`` ~
+        ``chi^2(r_g)``); NaN when not estimated."""
+        if not self.estimated or not (self.redundancy > 0):
+            return math.nan
+        return self.factor * math.sqrt(2.0 / self.redundancy)
+
     def to_dict(self) -> dict[str, Any]:
         def num(v: float) -> float | None:
             return None if not math.isfinite(v) else float(v)
@@ -143,7 +173,8 @@ class VarianceComponent:
         return {"group": self.group, "n": int(self.n), "redundancy": num(self.redundancy), "vtpv": num(self.vtpv),
                 "sigma0_sq": num(self.sigma0_sq), "sigma0": num(math.sqrt(self.sigma0_sq))
                 if math.isfinite(self.sigma0_sq) else None, "factor": num(self.factor),
-                "sd_scale": num(self.sd_scale), "estimated": bool(self.estimated)}
+                "sd_scale": num(self.sd_scale), "factor_sd": num(self.factor_sd),
+                "estimated": bool(self.estimated)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -186,7 +217,8 @@ class VarianceComponents:
 def group_labels(problem: BundleProblem) -> np.ndarray:
     """Group index (into :data:`GROUPS`) of every scalar observation, in the row order of
     :class:`lidarcat.bundle.redundancy.Reliability` (image observations, control points, GNSS/INS
-    constraints; 6 columns), -1 where there is no observation (free axes, unused columns).
+    constraints; 6 columns), -1 where there is no observation (free axes, unused columns).  The line
+    observations (group ``lines``) are not among these rows: :func:`line_group` sums them.
 
     Returns
     -------
@@ -224,9 +256,47 @@ def _normalised_squares(problem: BundleProblem, result: BundleResult) -> np.ndar
     return np.concatenate(parts)
 
 
+def line_group(result: BundleResult, *, reject: bool = False) -> tuple[int, float, float] | None:
+    """The line observations' share of the sums: ``(n, r_g, v_g^T P_g v_g)`` (module docstring, "Line
+    observations").
+
+    Parameters
+    ----------
+    result : BundleResult
+        Its problem's ``lines`` (their sds the weights).
+    reject : bool
+        Leave out the observations whose 2-D test rejects (``w`` above the critical value of
+        :func:`lidarcat.bundle.line_tests.line_tests`, alpha_1 0.001).
+
+    Returns
+    -------
+    (int, float, float) or None
+        Scalar observations summed (2 per line observation), the sum of their redundancy numbers
+        (NaN when the result has no photo covariances: adjusted with ``precision`` ``none``) and of
+        ``r^T Sigma_r^-1 r``; None when the problem has no line observations.
+    """
+    # line_tests imports solve: kept out of the module's imports
+    from .line_tests import line_tests
+    from .lines import line_terms
+
+    L = getattr(result.problem, "lines", None)
+    if L is None or not len(L.line_index):
+        return None
+    T = line_terms(L, result.eo_params, result.problem.focal_length_mm, jacobians=False)
+    sq = np.einsum("ki,kij,kj->k", T.r, T.P, T.r)
+    if not np.isfinite(np.asarray(result.eo_cov)).all():
+        return 2 * len(sq), math.nan, float(sq.sum())
+    t = line_tests(result)
+    use = np.isfinite(t.redundancy).all(axis=1) & np.isfinite(sq)
+    if reject:
+        use &= ~(np.nan_to_num(t.w, nan=0.0) > t.critical_w)
+    return 2 * int(use.sum()), float(t.redundancy[use].sum()), float(sq[use].sum())
+
+
 def estimate_components(result: BundleResult, redundancy: np.ndarray, *, exclude: np.ndarray | None = None,
                         factors: dict[str, float] | None = None,
-                        min_redundancy: float = MIN_REDUNDANCY) -> tuple[VarianceComponent, ...]:
+                        min_redundancy: float = MIN_REDUNDANCY,
+                        reject_lines: bool = False) -> tuple[VarianceComponent, ...]:
     """One Förstner estimate ``sigma_g^2 = v_g^T P_g v_g / r_g`` per group (module docstring).
 
     Parameters
@@ -244,6 +314,8 @@ def estimate_components(result: BundleResult, redundancy: np.ndarray, *, exclude
     min_redundancy : float
         Groups with less are not estimated (``estimated=False``, factor unchanged); the GNSS and IMU
         groups need at least :data:`MIN_DATUM_REDUNDANCY` as well.
+    reject_lines : bool
+        Leave the line observations whose test rejects out of the ``lines`` sums (:func:`line_group`).
 
     Returns
     -------
@@ -258,25 +330,31 @@ def estimate_components(result: BundleResult, redundancy: np.ndarray, *, exclude
     use = (lab >= 0) & np.isfinite(sq) & np.isfinite(red)
     if exclude is not None:
         use &= ~np.asarray(exclude, bool)[:, None]
+    lines = line_group(result, reject=reject_lines)
     out = []
     for g, name in enumerate(GROUPS):
-        present = lab == g
-        if not present.any():
-            continue
-        m = use & present
-        r_g = float(red[m].sum())
-        vtpv = float(sq[m].sum())
+        if name == "lines":
+            if lines is None:
+                continue
+            n_g, r_g, vtpv = lines
+        else:
+            present = lab == g
+            if not present.any():
+                continue
+            m = use & present
+            n_g, r_g, vtpv = int(m.sum()), float(red[m].sum()), float(sq[m].sum())
         s2 = vtpv / r_g if r_g > 0 else math.nan
         old = 1.0 if factors is None else float(factors.get(name, 1.0))
         need = max(min_redundancy, MIN_DATUM_REDUNDANCY) if name in DATUM_GROUPS else min_redundancy
         est = r_g >= need and math.isfinite(s2) and s2 > 0
         new = float(np.clip(old * s2, *FACTOR_BOUNDS)) if est else old
-        out.append(VarianceComponent(name, int(m.sum()), r_g, vtpv, s2, new, bool(est)))
+        out.append(VarianceComponent(name, n_g, r_g, vtpv, s2, new, bool(est)))
     return tuple(out)
 
 
 def scaled_problem(problem: BundleProblem, factors: dict[str, float]) -> BundleProblem:
-    """*problem* with the sds of each group multiplied by ``sqrt(factors[group])`` (missing: 1)."""
+    """*problem* with the sds of each group multiplied by ``sqrt(factors[group])`` (missing: 1); of the
+    line observations the image sds ``lines.sd_mm`` (the 3-D lines' covariance stays)."""
     p = problem
     if not factors or all(v == 1.0 for v in factors.values()):
         return p
@@ -292,6 +370,8 @@ def scaled_problem(problem: BundleProblem, factors: dict[str, float]) -> BundleP
         sd[:, :3] *= s["gnss"]
         sd[:, 3:] *= s["imu"]
         kw["eo_constraint_sd"] = sd
+    if getattr(p, "lines", None) is not None and s["lines"] != 1.0:
+        kw["lines"] = dataclasses.replace(p.lines, sd_mm=np.asarray(p.lines.sd_mm) * s["lines"])
     return dataclasses.replace(p, **kw)
 
 
@@ -304,6 +384,7 @@ def iterate_components(
     tol_min: float = 0.002,
     min_redundancy: float = MIN_REDUNDANCY,
     factors: dict[str, float] | None = None,
+    reject_lines: bool = False,
 ) -> VarianceComponents:
     """Iterate the variance factors of the groups to their fixed point (module docstring).
 
@@ -325,6 +406,8 @@ def iterate_components(
         of 40 to 3 %.
     factors : dict, optional
         Starting factors (default 1).
+    reject_lines : bool
+        Leave rejected line observations out of the ``lines`` sums (:func:`estimate_components`).
 
     Returns
     -------
@@ -343,7 +426,8 @@ def iterate_components(
             log.warning("variance components: round %d did not converge; factors of round %d kept", rounds,
                         rounds - 1)
             break
-        est = estimate_components(result, red, exclude=exclude, factors=cur, min_redundancy=min_redundancy)
+        est = estimate_components(result, red, exclude=exclude, factors=cur, min_redundancy=min_redundancy,
+                                  reject_lines=reject_lines)
         history.append({c.group: c.sigma0_sq for c in est})
         # the factors this adjustment used, with the estimate of this round
         comps = tuple(dataclasses.replace(c, factor=float(cur.get(c.group, 1.0))) for c in est)
@@ -399,7 +483,7 @@ def snoop_with_components(problem: BundleProblem, *, mode: str = "remove", **sno
             exclude = np.array([k in kept for k in keys], dtype=bool)
         return res, np.asarray(rel.redundancy), exclude, sres
 
-    vc = iterate_components(problem, one)
+    vc = iterate_components(problem, one, reject_lines=mode != "off")
     if mode == "report":    # every observation, at the factors of the last round that converged
         vc = dataclasses.replace(vc, payload=snoop(scaled_problem(problem, vc.factors()), mode="report",
                                                    **snoop_kw))
