@@ -236,6 +236,8 @@ def verdict(auto: dict[str, Any], hand: dict[str, Any]) -> list[str]:
     for k in ("pos_rms_m", "att_rms_deg"):
         if auto[k] > RATIO * hand[k]:
             bad.append(f"{k} {auto[k] / hand[k]:.2f} x hand > {RATIO}")
+    if (hand.get("measured") or {}).get("accepted"):     # the reference must be by hand only
+        bad.append(f"the hand run measured {hand['measured']['accepted']} observations itself")
     pec = auto.get("pec") or {}
     if not (pec.get("planimetric") == pec.get("altimetric") == "A"):
         bad.append(f"PEC {pec.get('planimetric')}/{pec.get('altimetric')} (not A/A)")
@@ -262,6 +264,11 @@ def pooled(results: list[dict[str, Any]], variant: str) -> dict[str, Any]:
         out["pec"] = classify_pec(e, sets[0][0], sets[0][1]).classes
     for k in ("lidar_observations", "line_observations", "lidar_removed_by_snooping"):
         out[k] = sum(r.get(k, 0) for r in ok)
+    st = [(r.get("measured") or {}).get("status") or {} for r in ok]
+    n_meas, n_rej = sum(x.get("measured", 0) for x in st), sum(x.get("rejected", 0) for x in st)
+    n_vis = sum(x.get("not_visible", 0) for x in st)
+    out["measured_total"] = (f"{n_meas} / {n_rej} ({sum(sum(x.values()) for x in st) - n_meas - n_rej - n_vis}, "
+                             f"{n_vis})") if any(st) else "-"
     return out
 
 
@@ -271,23 +278,28 @@ def _public(r: dict[str, Any]) -> dict[str, Any]:
 
 def table(results: list[dict[str, Any]]) -> str:
     """The markdown table of docs/figures.md: per seed and pooled, auto beside hand."""
-    head = ("| seed | control | exit | vertex obs. (measured / rejected) | line obs. | removed by snooping "
-            "| position rms (m) | attitude rms (deg) | auto/hand pos. / att. | max \\|error\\|/sd | "
-            "check RMSE E / N / h (m) | PEC | acceptance |\n"
-            "|---|---|---:|---|---:|---:|---:|---:|---|---:|---|---|---|")
+    head = ("| seed | control | exit | vertex obs. | measure_control: measured / rejected (not measured, not visible) "
+            "| line obs. | removed by snooping | position rms (m) | attitude rms (deg) | auto/hand pos. / att. "
+            "| max \\|error\\|/sd | check RMSE E / N / h (m) | PEC 1:2000 | acceptance |\n"
+            "|---|---|---|---:|---|---:|---:|---:|---:|---|---:|---|---|---|")
     rows = [head]
 
     def fmt(seed: Any, name: str, v: dict[str, Any], ratio: str, acc: str) -> str:
+        exits = ", ".join(str(x) for x in v["exits"]) if "exits" in v else str(v.get("exit"))
         if "error" in v:
-            return f"| {seed} | {name} | {v.get('exit')} | {v['error'][:60]} | | | | | | | | | {acc} |"
+            return f"| {seed} | {name} | {exits} | | {v['error'][:60]} | | | | | | | | | {acc} |"
         m = v.get("measured") or {}
-        st = m.get("status") or {}
-        meas = (f"{v['lidar_observations']} ({m.get('accepted', '-')} / {st.get('rejected', 0)})" if m
-                else f"{v['lidar_observations']}")
+        st = dict(m.get("status") or {})
+        if "measured_total" in v:
+            meas = v["measured_total"]
+        elif st:
+            n_meas, n_rej, n_vis = st.pop("measured", 0), st.pop("rejected", 0), st.pop("not_visible", 0)
+            meas = f"{n_meas} / {n_rej} ({sum(st.values())}, {n_vis})"
+        else:
+            meas = "-"
         pec = v.get("pec") or {}
         pec_s = f"{pec.get('planimetric', '-')} / {pec.get('altimetric', '-')}"
-        exits = v.get("exits", v.get("exit"))
-        return (f"| {seed} | {name} | {exits} | {meas} | {v['line_observations']} | "
+        return (f"| {seed} | {name} | {exits} | {v['lidar_observations']} | {meas} | {v['line_observations']} | "
                 f"{v.get('lidar_removed_by_snooping', 0)} | {v['pos_rms_m']:.3f} | {v['att_rms_deg']:.4f} | {ratio} | "
                 f"{v['max_z']:.2f} | {' / '.join(f'{x:.3f}' for x in v['check_rmse_m'])} | {pec_s} | {acc} |")
 
