@@ -18,7 +18,8 @@ Every LiDAR control vertex (ground point of source lidar) is extracted again fro
 survey's tiles, predicted in every photo with its ellipse from the approximate orientation
 (photos.csv sds) and the vertex's covariance, tested for visibility on the LiDAR DSM, and
 measured: a template of its roof faces gives the shift, the roof edges fitted in the photo
-meet in the vertex. Measurements that disagree across photos are rejected. OUTDIR (default
+meet in the vertex. Measurements that disagree (within a photo, with the block and its tie
+points: --block-check, across photos) are rejected. OUTDIR (default
 SURVEY/out/measure_control) gets decisions.csv (one row per vertex and photo, with status,
 reason and an editable decision accept/reject), gallery_NN.png (chips: prediction ellipse
 yellow, edges green, measurement red) and measure_control.json; the accepted observations
@@ -43,6 +44,12 @@ decisions file); nothing is written to image_points.csv then.
 @click.option("--lines", "lines", type=click.Choice(["add", "only", "none"]), default="add", show_default=True,
               help="Roof edges as line control (line_control.csv): add = the edges of photos where the vertex's "
                    "point was not measured; only = every photo's edges, no points; none.")
+@click.option("--block-check/--no-block-check", default=True, show_default=True,
+              help="Test the measurements in one bundle adjustment with the survey's tie points (a measurement "
+                   "alone on its photo is tested through them).")
+@click.option("--lone-photo", type=click.Choice(["keep", "reject"]), default="keep", show_default=True,
+              help="A measurement alone on its photo (the per-photo test cannot test it): keep it for the block "
+                   "test, or reject it.")
 @click.option("--search-sigma", type=POSITIVE, default=3.5, show_default=True,
               help="Search the vertex within this many sigmas of its predicted ellipse.")
 @click.option("--max-shift", "max_shift_m", type=POSITIVE, default=0.5, show_default=True,
@@ -50,8 +57,8 @@ decisions file); nothing is written to image_points.csv then.
 @output_option(outdir=True, type=click.Path(file_okay=False),
                help="Report folder (default SURVEY/out/measure_control).")
 @json_option(help="Print the counts as JSON.")
-def measure_control(survey, points, decisions, replace, no_gallery, lines, search_sigma, max_shift_m, outdir,
-                    as_json) -> None:
+def measure_control(survey, points, decisions, replace, no_gallery, lines, block_check, lone_photo, search_sigma,
+                    max_shift_m, outdir, as_json) -> None:
     """LiDAR roof vertices found and measured in the photos, into image_points.csv."""
     from ..photocontrol import MeasureParams
     from ..stages.measure_control import measure_control as action
@@ -65,7 +72,7 @@ def measure_control(survey, points, decisions, replace, no_gallery, lines, searc
 
         res = action(survey, outdir, points=ids, decisions=decisions, replace=replace, gallery=not no_gallery,
                      params=MeasureParams(search_sigma=search_sigma), max_shift_m=max_shift_m, lines=lines,
-                     progress=progress)
+                     block_check=block_check, lone_photo=lone_photo, progress=progress)
     if as_json:
         echo_json({**res.to_dict(), "summary": res.summary})
         return

@@ -11,7 +11,10 @@ sds and image files, the LiDAR tiles, and the LiDAR control vertices (ground poi
    (:mod:`lidarcat.photocontrol.predict`);
 3. measures it photo by photo (:func:`lidarcat.photocontrol.measure.measure_photo`) and tests the
    measurements of each photo against their common displacement
-   (:func:`~lidarcat.photocontrol.measure.check_photo`) and of each vertex across the photos
+   (:func:`~lidarcat.photocontrol.measure.check_photo`; ``lone_photo``: a measurement alone on its photo
+   kept or rejected), then all of them in one bundle adjustment with the survey's tie points
+   (``block_check``, :func:`~lidarcat.photocontrol.blockcheck.check_block`: a lone measurement on a photo
+   with tie points is tested through them), and of each vertex across the photos
    (:func:`~lidarcat.photocontrol.measure.check_consistency`).
 
 It writes, into the output folder first:
@@ -361,12 +364,52 @@ def _line_rows(survey: Any, path: Path | None, new_lines: dict[str, tuple[str, A
     return header, rows
 
 
+def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_info: dict) -> dict:
+    """The block test (:func:`~lidarcat.photocontrol.blockcheck.check_block`) of every photo's measurements, with the
+    survey's tie points (image observations of points that are not ground points, photo coordinates to pixels
+    by the camera); *per_vertex* is updated in place.  Returns the test's summary.  Without tie points it is
+    not run (it would be the per-photo test again)."""
+    from ..photocontrol import TieObservations, check_block
+
+    try:
+        obs = survey.photo_observations()
+    except SurveyError as ex:
+        log.warning("measure-control: no tie points for the block test: %s", ex)
+        obs = None
+    ties = None
+    if obs is not None and len(obs):
+        ground = set(np.asarray(survey.ground_points.point, dtype=str).tolist())
+        sel = np.flatnonzero(~np.isin(obs.point.astype(str), list(ground)) & np.isin(obs.photo.astype(str), list(eos)))
+        px, sd = np.full((len(sel), 2), np.nan), np.full(len(sel), np.nan)
+        for pid in sorted(set(obs.photo[sel].tolist())):
+            on = obs.photo[sel] == pid
+            cam = survey.camera_of(pid)
+            px[on] = cam.photo_to_pixel(obs.xy_mm[sel[on]], on_fail="nan")
+            sd[on] = np.mean(obs.sd_mm[sel[on]] / [cam.pixel_size_x_mm, cam.pixel_size_y_mm], axis=1)
+        ok = np.isfinite(px).all(axis=1) & np.isfinite(sd) & (sd > 0)
+        if ok.any():
+            ties = TieObservations(obs.photo[sel][ok], obs.point[sel][ok], px[ok], sd[ok])
+    if ties is None:
+        return {"status": "no tie points", "message": "the survey's image points hold no tie points: not run"}
+    flat = [(vid, pid, m) for vid, lst in per_vertex.items() for pid, m in lst]
+    photos = {pid for _, pid, _ in flat} | set(ties.photo.tolist())
+    cps = {v: vertex_info[v][0] for v in per_vertex}
+    bc = check_block([m for _, _, m in flat], {p: survey.camera_of(p) for p in photos}, eos, covs,
+                     {v: cp.enh_m for v, cp in cps.items()}, {v: cp.cov_m2 for v, cp in cps.items()}, ties)
+    per_vertex.clear()
+    for (vid, pid, _), m in zip(flat, bc.measurements):
+        per_vertex.setdefault(vid, []).append((pid, m))
+    log.info("measure-control: block test %s: %d tested, %d rejected, %d untestable, %d tie observations",
+             bc.status, bc.tested, len(bc.rejected), len(bc.untestable), bc.ties_used)
+    return bc.summary()
+
+
 def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points: Sequence[str] | None = None,
                     decisions: str | Path | None = None, params: Any = None, replace: bool = False,
                     gallery: bool = True, table: str | Path | None = None, dsm_radius_m: float = 30.0,
                     max_shift_m: float = 0.5, default_sd: tuple[float, float] = (2.0, 0.5),
                     min_photos: int = 1, lines: str = "add", line_table: str | Path | None = None,
-                    direction_from_kappa: bool = True,
+                    direction_from_kappa: bool = True, block_check: bool = True, lone_photo: str = "keep",
                     progress: Callable[[int, int], Any] | None = None) -> MeasureControlResult:
     """LiDAR control vertices measured in the photos into image_points.csv (module docstring).
 
@@ -402,6 +445,12 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         Write the line control there instead of the survey's line_control.csv (``lidarcat run``).
     direction_from_kappa : bool
         ``direction_sd_deg`` of each photo from its kappa sd (module docstring); False: *params*'.
+    block_check : bool
+        Test the measurements in one bundle adjustment with the survey's tie points
+        (:func:`~lidarcat.photocontrol.blockcheck.check_block`; module docstring).
+    lone_photo : {"keep", "reject"}
+        A measurement alone on its photo, which the per-photo test cannot test
+        (:func:`~lidarcat.photocontrol.measure.check_photo`'s ``alone``): kept for the block test, or rejected.
     progress : callable(done, total), optional
 
     Returns
@@ -417,6 +466,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
 
     if lines not in LINE_MODES:
         raise SurveyError(f"lines must be one of {', '.join(LINE_MODES)}, got {lines!r}")
+    if lone_photo not in ("keep", "reject"):
+        raise SurveyError(f"lone_photo must be keep or reject, got {lone_photo!r}")
     from ..control.vertices import extract_roof
     from ..lidar.clipping import clip
     from ..photocontrol import (VertexTarget, check_consistency, check_photo, chip_image, gallery as tile_gallery,
@@ -505,13 +556,14 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         ms = measure_photo(img, survey.camera_of(pid), eos[pid], [t for _, t in targets[pid]], p_ph)
         ms = check_photo(ms, survey.camera_of(pid), eos[pid], covs[pid],
                          [vertex_info[vid][0].enh_m for vid, _ in targets[pid]],
-                         [vertex_info[vid][0].cov_m2 for vid, _ in targets[pid]])
+                         [vertex_info[vid][0].cov_m2 for vid, _ in targets[pid]], alone=lone_photo)
         for (vid, _), m in zip(targets[pid], ms):
             per_vertex.setdefault(vid, []).append((pid, m))
         if gallery:   # keep the windows of the chips, not the photos (a block's photos do not fit in memory)
             for (vid, _), m in zip(targets[pid], ms):
                 if m.status != "not_visible":
                     images[(pid, vid)] = _window(img, m, _CHIP_HALF_PX)
+    block_info = _check_block(survey, per_vertex, eos, covs, vertex_info) if block_check else {"status": "off"}
     for vid, lst in per_vertex.items():
         cp = vertex_info[vid][0]
         pids = [pid for pid, _ in lst]
@@ -596,7 +648,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                 if m and lines != "only"]
     summary = {"vertices": len(verts), "photos": len(photos), "counts": counts, "accepted": len(accepted),
                "lines": lines, "control_lines": len(new_lines), "line_observations": len(new_obs),
-               "points_written": len(written_points),
+               "points_written": len(written_points), "block_check": block_info,
                "gallery": pages, "params": dataclasses.asdict(p) if p is not None else "default",
                "seconds": round(time.perf_counter() - t_start, 2)}
     write_json_atomic(out / "measure_control.json", json.loads(json.dumps(summary, default=str)))
