@@ -232,7 +232,7 @@ def verdict(auto: dict[str, Any], hand: dict[str, Any]) -> list[str]:
     if auto["exit"] != 0:
         bad.append(f"exit {auto['exit']}")
     if auto["max_z"] > MAX_Z:
-        bad.append(f"max |error|/sd {auto['max_z']:.2f} > {MAX_Z}")
+        bad.append(f"max \\|error\\|/sd {auto['max_z']:.2f} > {MAX_Z}")
     for k in ("pos_rms_m", "att_rms_deg"):
         if auto[k] > RATIO * hand[k]:
             bad.append(f"{k} {auto[k] / hand[k]:.2f} x hand > {RATIO}")
@@ -245,9 +245,9 @@ def verdict(auto: dict[str, Any], hand: dict[str, Any]) -> list[str]:
 
 
 def pooled(results: list[dict[str, Any]], variant: str) -> dict[str, Any]:
-    """The pooled scores of *variant* over the seeds: rms over every photo of every seed, the largest
+    """The pooled scores of *variant* over the seeds where both runs adjusted (paired): rms over every photo, the largest
     |error|/sd, check-point RMSE over every check point and their PEC class."""
-    ok = [r[variant] for r in results if "error" not in r[variant]]
+    ok = [r[variant] for r in results if "error" not in r["auto"] and "error" not in r["hand"]]   # paired
     if not ok:
         return {}
     d = np.vstack([r["_d"] for r in ok])
@@ -308,7 +308,8 @@ def table(results: list[dict[str, Any]]) -> str:
         ratio = (f"{a['pos_rms_m'] / h['pos_rms_m']:.2f} / {a['att_rms_deg'] / h['att_rms_deg']:.2f}"
                  if "error" not in a and "error" not in h else "-")
         bad = verdict(a, h)
-        rows.append(fmt(r["seed"], "by hand", h, "", ""))
+        rows.append(fmt(f"{r['seed']} ({r['visible_vertices']} of {r['vertices']} vertices in view)", "by hand", h, "",
+                        ""))
         rows.append(fmt(r["seed"], "automatic", a, ratio, "pass" if not bad else "**fail**: " + "; ".join(bad)))
     pa, ph = pooled(results, "auto"), pooled(results, "hand")
     if pa and ph:
@@ -339,7 +340,7 @@ def main(argv: list[str] | None = None) -> None:
             from lidarcat.synthetic.aerial import load_aerial_survey
 
             s = load_aerial_survey(d / "auto")
-            n_truth, n_hand = len(_lidar_points(d / "auto")), None
+            n_truth = len(_lidar_points(d / "auto"))
             auto = rescore(s, d / "auto", d / "run-auto")
             hand = rescore(s, d / "hand", d / "run-hand")
         else:
@@ -347,10 +348,13 @@ def main(argv: list[str] | None = None) -> None:
             s, truth = build(d / "auto", seed, tuple(a.size))
             n_truth = len(truth)
             shutil.copytree(d / "auto", d / "hand")
-            n_hand = hand_measure(s, d / "hand", truth, seed=seed)
+            hand_measure(s, d / "hand", truth, seed=seed)
             auto = run_variant(s, d / "auto", d / "run-auto")
             hand = run_variant(s, d / "hand", d / "run-hand")
-        r = {"seed": seed, "vertices": n_truth, "hand_rows": n_hand, "auto": auto, "hand": hand}
+        lid = _lidar_points(d / "hand")
+        hand_obs = [x["point"] for x in _rows(d / "hand" / "image_points.csv") if x["point"] in lid]
+        r = {"seed": seed, "vertices": n_truth, "hand_rows": len(hand_obs), "visible_vertices": len(set(hand_obs)),
+             "auto": auto, "hand": hand}
         if "error" not in auto and "error" not in hand:
             r["ratio"] = {"position": auto["pos_rms_m"] / hand["pos_rms_m"],
                           "attitude": auto["att_rms_deg"] / hand["att_rms_deg"]}
