@@ -245,8 +245,8 @@ def verdict(auto: dict[str, Any], hand: dict[str, Any]) -> list[str]:
 
 
 def pooled(results: list[dict[str, Any]], variant: str) -> dict[str, Any]:
-    """The pooled scores of *variant* over the seeds where both runs adjusted (paired): rms over every photo, the largest
-    |error|/sd, check-point RMSE over every check point and their PEC class."""
+    """The pooled scores of *variant* over the seeds where both runs adjusted (paired): rms over every
+    photo, the largest |error|/sd, check-point RMSE over every check point and their PEC class."""
     ok = [r[variant] for r in results if "error" not in r["auto"] and "error" not in r["hand"]]   # paired
     if not ok:
         return {}
