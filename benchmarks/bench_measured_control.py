@@ -312,7 +312,7 @@ def table(results: list[dict[str, Any]]) -> str:
                         ""))
         rows.append(fmt(r["seed"], "automatic", a, ratio, "pass" if not bad else "**fail**: " + "; ".join(bad)))
     pa, ph = pooled(results, "auto"), pooled(results, "hand")
-    if pa and ph:
+    if pa and ph and len(results) > 1:
         ratio = f"{pa['pos_rms_m'] / ph['pos_rms_m']:.2f} / {pa['att_rms_deg'] / ph['att_rms_deg']:.2f}"
         pa["pec"], ph["pec"] = pa.get("pec") or {}, ph.get("pec") or {}
         rows.append(fmt("pooled", "by hand", ph, "", ""))
