@@ -83,6 +83,11 @@ def test_csv_trajectory_and_times_outside(tmp_path):
     np.testing.assert_allclose(pos, [[30, 0, 600], [120, 0, 600]])
     # heading 90 (east, clockwise from north) is k = 0; pitch nose-up 1 deg is p = -1 deg
     np.testing.assert_allclose(np.degrees(att[0]), [0.5, -1.0, 0.0], atol=1e-12)
+    # a time rounded 1e-10 s past the last record (adjusted standard time -> week seconds) takes its pose
+    pos, _ = tr.at(np.array([12.0 + 1e-10, 10.0 - 1e-10]))
+    np.testing.assert_allclose(pos, [[120, 0, 600], [0, 0, 600]], atol=1e-12)
+    with pytest.raises(ProductError, match=r"point 1: GPS time 12.000002 s is outside the trajectory"):
+        tr.at(np.array([12.0 + 2e-6]))
     with pytest.raises(ProductError, match=r"point 2: GPS time 12.500000 s is outside the trajectory .*traj.csv"):
         tr.at(np.array([11.0, 12.5]))
     p.write_text("time,E,N,H,roll_deg,pitch_deg,heading_deg\n10,0,0,600,0,0,90\n10,1,0,600,0,0,90\n",

@@ -76,3 +76,34 @@ def test_report_mode_without_variance_components_keeps_every_observation(tmp_pat
     assert len(sc.result.bundle.problem.photo_index) == len(p.photo_index)     # report: every observation
     i = sc.result.index("cam.k1")
     assert abs(sc.result.estimates[i] - K1) > 100 * sc.result.sd[i]
+
+
+def test_run_selfcal_stage_removes_the_gross_matches_before_estimating(tmp_path, distorted):
+    """The ``selfcal`` stage of ``lidarcat run`` on the matched survey with ``[self_calibration] parameters =
+    "k1"``: as ``lidarcat adjust --self-calibrate`` on a matched survey, the 17 planted gross matches are
+    removed (the plan weights the GNSS/IMU orientation, photos.csv's sds) and k1 comes within 3 sd of the
+    truth -- kept, they pull it over 100 sd away (the test above)."""
+    from lidarcat.pipeline.plan import plan_pipeline
+    from lidarcat.stages import selfcal
+    from lidarcat.stages.context import StageContext
+    from lidarcat.survey.folder import Survey
+
+    p, _, planted = distorted
+    s = _write(tmp_path / "s", p, obs_sd_mm=repr(0.6 * MATCH_PIXEL_MM))
+    with open(s / "survey.toml", "a", encoding="utf-8") as fh:
+        fh.write('\n[self_calibration]\nparameters = "k1"\n')
+    survey = Survey.load(s)
+    stage = next(st for st in plan_pipeline(survey) if st.name == "selfcal")
+    assert stage.params == {"eo_constraints": True}
+    tmp = tmp_path / "out" / "selfcal"
+    tmp.mkdir(parents=True)
+    ctx = StageContext(tmp_path / "out", {"survey": survey})
+    ctx.stage, ctx.current = stage, stage.name          # as the runner hands the planned stage over
+    got = selfcal.run(ctx, tmp)
+    assert got["blunders_removed"] == 17
+    assert {(b["photo"], b["point"]) for b in _table(tmp / "blunders.csv")} == planted
+    k1 = got["additional_parameters"]["cam.k1"]
+    assert abs(k1["estimate"] - K1) < 3 * k1["sd"] and k1["significant"]
+    summary = json.loads((tmp / "summary.json").read_text(encoding="utf-8"))
+    assert summary["snooping"]["mode"] == "remove"
+    assert {g["group"] for g in summary["variance_components"]["groups"]} >= {"tie"}

@@ -357,8 +357,10 @@ def snoop(
         max_rejections = max(100, math.ceil(MAX_REJECTED_SHARE * n_groups))
     rel = rel_first
     more = False
+    hold_eo = eo_is_datum(p)       # no control point: a photo's GNSS/INS group is named, never removed
     if robust != "none" and res.success:
-        res, cur, rel, found, k = _robust(p, sub, res, rel, robust, level, power, adjust_kwargs, base=cur)
+        res, cur, rel, found, k = _robust(p, sub, res, rel, robust, level, power, adjust_kwargs, base=cur,
+                                          hold_eo=hold_eo)
         blunders += found
         n_adj += k
     iteration = n_rej = 0
@@ -366,7 +368,6 @@ def snoop(
     tried_snoop = np.zeros(len(p.photo_index), dtype=bool)  # snooping rejections tested (large blocks)
     near = _Neighbours(p) if multiple else None
     single = False                 # after a failed multiple round: one group at a time
-    hold_eo = eo_is_datum(p)       # no control point: a photo's GNSS/INS group is named, never removed
     for _round in range(20):
         while rel is not None:
             pick = _pickable(rel, hold_eo)
@@ -655,10 +656,13 @@ def _warm_points(res: BundleResult, nxt: BundleProblem) -> np.ndarray:
     return np.asarray(res.points_m)[[pos[str(q)] for q in nxt.point_ids]]
 
 
-def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int = 20, base=None):
+def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int = 20, base=None,
+            hold_eo: bool = False):
     """IRLS with the Danish or Huber weight function on the group tests; returns the state after
     removing the groups weighted below :data:`ROBUST_CUT`.  *base*: the problem *res* adjusted (the
-    groups of *sub* of *p*; default *p*)."""
+    groups of *sub* of *p*; default *p*).  *hold_eo* (:func:`eo_is_datum`): the GNSS/INS groups keep
+    their weight -- weighted down, the datum of their photo would go with them; snooping names the
+    rejected ones (:data:`EO_DATUM_NOTE`)."""
     base = p if base is None else base
     n_img = len(base.photo_index)
     k_con = len(base.constraint_point_index)
@@ -677,6 +681,8 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
         new = np.ones_like(u)
         big = u > 1
         new[big] = np.maximum(np.exp(1 - u[big] ** 2) if method == "danish" else 1.0 / u[big], ROBUST_FLOOR)
+        if hold_eo:
+            new[rel.kind == "eo"] = 1.0
         if np.allclose(new, factor, rtol=1e-3, atol=1e-6):
             break
         # only the groups cut below ROBUST_CUT leave the re-weighting (snooping with the original weights

@@ -12,7 +12,8 @@ _EPILOG = """\b
 Examples:
   lidarcat measure-control survey/
   lidarcat measure-control survey/ --points L001,L002 --replace
-  lidarcat measure-control survey/ --decisions survey/out/measure_control/decisions.csv
+  lidarcat measure-control survey/ --decisions survey/out/measure_control/decisions.csv \\
+      --line-decisions survey/out/measure_control/line_decisions.csv
 \b
 Every LiDAR control vertex (ground point of source lidar) is extracted again from the
 survey's tiles, predicted in every photo with its ellipse from the approximate orientation
@@ -23,13 +24,24 @@ points: --block-check, across photos) are rejected. OUTDIR (default
 SURVEY/out/measure_control) gets decisions.csv (one row per vertex and photo, with status,
 reason and an editable decision accept/reject), gallery_NN.png (chips: prediction ellipse
 yellow, edges green, measurement red) and measure_control.json; the accepted observations
-go into image_points.csv last (pixels with their sds). Edit decisions.csv and pass it with
---decisions to write exactly the accepted rows. Roof edges fitted in the photos go to
+go into image_points.csv last (pixels with their sds). Roof edges fitted in the photos go to
 line_control.csv as line control (--lines; line_decisions.csv says per edge and photo why
-one was not written); survey.toml gets [files] line_control when it has none.
+one was not written; line_candidates.csv holds the 3-D line of each edge); survey.toml gets
+[files] line_control when it has none.
 \b
-Exit status: 0 done, 2 bad input (no LiDAR vertex, no tiles, no orientation, a bad
-decisions file); nothing is written to image_points.csv then.
+Review: edit decision (accept/reject, and the pixels if need be) in decisions.csv and/or
+line_decisions.csv and pass them back with --decisions and/or --line-decisions: nothing is
+measured, the rows of the pairs each file lists are replaced by its accepted rows (points
+into image_points.csv, edges into line_control.csv with their 3-D line from
+line_candidates.csv beside line_decisions.csv; keep the two together). A vertex's point and
+its edges on one photo come from the same fits: accept one or the other, not both. Each
+row fed back is recorded in the survey's control_decisions.csv ([files] control_decisions):
+a later measure-control or `lidarcat run` never measures a rejected pair again (its row says
+"rejected by the user (control_decisions.csv:LINE)"), an accepted one only with --replace.
+\b
+Exit status: 0 done, 2 bad input (no LiDAR vertex, no tiles, no orientation, a bad row of
+a decisions file, a survey that would not load with the new tables); image_points.csv,
+line_control.csv, control_decisions.csv and survey.toml are left as they were then.
 """
 
 
@@ -38,8 +50,12 @@ decisions file); nothing is written to image_points.csv then.
 @click.option("--points", default=None, metavar="ID,ID",
               help="Measure these ground points (default: every ground point of source lidar).")
 @click.option("--decisions", type=click.Path(exists=True, dir_okay=False), default=None,
-              help="An edited decisions.csv: write its accepted rows, measure nothing.")
-@click.option("--replace", is_flag=True, help="Measure again (and replace) vertex/photo pairs already observed.")
+              help="An edited decisions.csv: write its accepted rows to image_points.csv, measure nothing.")
+@click.option("--line-decisions", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="An edited line_decisions.csv (line_candidates.csv beside it): write its accepted rows to "
+                   "line_control.csv, measure nothing. With --decisions or alone.")
+@click.option("--replace", is_flag=True, help="Measure again (and replace) vertex/photo pairs already observed or "
+                                                "accepted by the user; never those the user rejected.")
 @click.option("--no-gallery", is_flag=True, help="Do not write the PNG chips.")
 @click.option("--lines", "lines", type=click.Choice(["add", "only", "none"]), default="add", show_default=True,
               help="Roof edges as line control (line_control.csv): add = the edges of photos where the vertex's "
@@ -57,8 +73,8 @@ decisions file); nothing is written to image_points.csv then.
 @output_option(outdir=True, type=click.Path(file_okay=False),
                help="Report folder (default SURVEY/out/measure_control).")
 @json_option(help="Print the counts as JSON.")
-def measure_control(survey, points, decisions, replace, no_gallery, lines, block_check, lone_photo, search_sigma,
-                    max_shift_m, outdir, as_json) -> None:
+def measure_control(survey, points, decisions, line_decisions, replace, no_gallery, lines, block_check, lone_photo,
+                    search_sigma, max_shift_m, outdir, as_json) -> None:
     """LiDAR roof vertices found and measured in the photos, into image_points.csv."""
     from ..photocontrol import MeasureParams
     from ..stages.measure_control import measure_control as action
@@ -70,11 +86,20 @@ def measure_control(survey, points, decisions, replace, no_gallery, lines, block
                 bar.length = total
                 bar.update(done - bar.pos)
 
-        res = action(survey, outdir, points=ids, decisions=decisions, replace=replace, gallery=not no_gallery,
-                     params=MeasureParams(search_sigma=search_sigma), max_shift_m=max_shift_m, lines=lines,
-                     block_check=block_check, lone_photo=lone_photo, progress=progress)
+        res = action(survey, outdir, points=ids, decisions=decisions, line_decisions=line_decisions, replace=replace,
+                     gallery=not no_gallery, params=MeasureParams(search_sigma=search_sigma), max_shift_m=max_shift_m,
+                     lines=lines, block_check=block_check, lone_photo=lone_photo, progress=progress)
     if as_json:
         echo_json({**res.to_dict(), "summary": res.summary})
+        return
+    if decisions is not None or line_decisions is not None:
+        if decisions is not None:
+            click.echo(f"{res.accepted} control observations accepted -> {res.image_points}")
+        if res.line_control is not None:
+            click.echo(f"{res.lines_written} roof-edge line observations accepted -> {res.line_control}")
+        if "control_decisions" in res.summary:
+            click.echo(f"the review recorded -> {res.summary['control_decisions']} "
+                       f"({res.summary['control_decision_rows']} decisions)")
         return
     counts = ", ".join(f"{v} {k}" for k, v in sorted(res.counts.items()))
     click.echo(f"{res.accepted} control observations accepted ({counts})")

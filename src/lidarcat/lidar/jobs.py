@@ -578,38 +578,50 @@ def run_tasks(func: Callable[[Any], Any], tasks: Iterable[Any], *, workers: int 
             if progress is not None:
                 progress(1)
         return out
+    with _client(workers, scheduler) as client:
+        results: dict[int, Any] = {}
+        for k, r in _windowed(client, func, ((t,) for t in tasks), retries=retries, window=window,
+                              workers=int(workers or 1)):
+            results[k] = r
+            if progress is not None:
+                progress(1)
+    return [results[k] for k in range(len(results))]
+
+
+def _windowed(client: Any, func: Callable[..., Any], args: Iterable[tuple[Any, ...]], *, retries: int,
+              window: int, workers: int = 1) -> Iterator[tuple[int, Any]]:
+    """``(k, func(*args_k))`` as tasks finish on *client*: the argument tuples are taken lazily, at most
+    *window* per worker in flight; keys unique per call (runs may share a scheduler); the first
+    failing task's error is raised here and the tasks still in flight are cancelled."""
     from dask.distributed import as_completed
 
-    with _client(workers, scheduler) as client:
-        limit = max(1, window) * max(1, len(client.scheduler_info().get("workers", {})) or int(workers or 1))
-        it = iter(enumerate(tasks))
-        results: dict[int, Any] = {}
-        order: dict[Any, int] = {}   # the futures in flight and their task numbers
-        name, run = getattr(func, "__name__", "task"), uuid.uuid4().hex[:12]   # keys unique on a shared scheduler
+    limit = max(1, window) * max(1, len(client.scheduler_info().get("workers", {})) or workers)
+    it = iter(enumerate(args))
+    order: dict[Any, int] = {}   # the futures in flight and their task numbers
+    name, run = getattr(func, "__name__", "task"), uuid.uuid4().hex[:12]
 
-        def submit(queue: Any) -> bool:
-            for k, t in it:
-                fut = client.submit(func, t, retries=retries, pure=False, key=f"{name}-{run}-{k}")
-                order[fut] = k
-                queue.add(fut)
-                return True
-            return False
+    def submit(queue: Any) -> bool:
+        for k, a in it:
+            fut = client.submit(func, *a, retries=retries, pure=False, key=f"{name}-{run}-{k}")
+            order[fut] = k
+            queue.add(fut)
+            return True
+        return False
 
-        pending = as_completed([])
-        for _ in range(limit):
-            if not submit(pending):
-                break
-        try:
-            for fut in pending:
-                results[order.pop(fut)] = fut.result()  # re-raises the worker's error
-                fut.release()
-                if progress is not None:
-                    progress(1)
-                submit(pending)
-        except BaseException:
+    pending = as_completed([])
+    for _ in range(limit):
+        if not submit(pending):
+            break
+    try:
+        for fut in pending:
+            k = order.pop(fut)
+            r = fut.result()  # re-raises the worker's error
+            fut.release()
+            yield k, r
+            submit(pending)
+    finally:
+        if order:   # an error, or the caller stopped early
             client.cancel(list(order))
-            raise
-    return [results[k] for k in range(len(results))]
 
 
 def run_on_client(client: Any, jobs: Sequence[TileJob], *, rings: Sequence[TileJob] | None = None,
@@ -680,7 +692,8 @@ def map_tasks(func: Callable[[Any, Any], Any], shared: Any, items: Sequence[Any]
     *workers* threads (for code that releases the GIL); ``processes``, a ``LocalCluster`` of
     *workers* single-threaded worker processes as :func:`run_jobs` starts; else the address of a
     running Dask scheduler (``tcp://host:8786``).  On Dask, *shared* is scattered once to every
-    worker (each task gets that worker's copy), *func* is pickled by cloudpickle, and each task's
+    worker (each task gets that worker's copy), *func* is pickled by cloudpickle, the items are
+    submitted as :func:`run_tasks` submits its tasks (a few per worker in flight), and each task's
     result comes back to this process: keep results small.  A script that uses ``processes`` needs
     the ``if __name__ == "__main__":`` guard (the workers are spawned).
 
@@ -726,21 +739,13 @@ def map_tasks(func: Callable[[Any, Any], Any], shared: Any, items: Sequence[Any]
         with dask_client(workers, scheduler) as own:
             return map_tasks(func, shared, items, workers=workers, scheduler=scheduler, client=own,
                              retries=retries, progress=progress)
-    import uuid
-
-    from dask.distributed import as_completed
-
     ctx = client.scatter(shared, broadcast=True, hash=False)
-    name = f"{getattr(func, '__name__', 'task')}-{uuid.uuid4().hex[:8]}"   # unique on a shared cluster
-    futures = client.map(func, [ctx] * n, items, retries=retries, pure=False, key=[f"{name}-{k}" for k in range(n)])
-    index = {f.key: k for k, f in enumerate(futures)}
-    try:
-        for d, fut in enumerate(as_completed(futures), 1):
-            out[index[fut.key]] = fut.result()  # re-raises the worker's located error
-            fut.release()
+    try:   # the window of run_tasks: 4 items per worker in flight, the workers never wait for the next
+        for d, (k, r) in enumerate(_windowed(client, func, ((ctx, it) for it in items), retries=retries, window=4,
+                                             workers=int(workers)), 1):
+            out[k] = r
             if progress is not None:
                 progress(d, n)
     finally:
-        client.cancel(futures)
         ctx.release()
     return out

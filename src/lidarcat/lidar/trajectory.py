@@ -73,7 +73,7 @@ import numpy as np
 from ..errors import LidarFormatError, ProductError
 
 __all__ = ["Trajectory", "SBET_FIELDS", "read_sbet", "write_sbet", "read_trajectory_csv", "read_trajectory",
-           "match_time_base", "aviation_to_map", "map_to_aviation"]
+           "match_time_base", "aviation_to_map", "map_to_aviation", "END_TOLERANCE_S"]
 
 #: the 17 fields of an SBET record, in file order
 SBET_FIELDS = ("time", "latitude", "longitude", "altitude", "x_velocity", "y_velocity", "z_velocity",
@@ -81,6 +81,8 @@ SBET_FIELDS = ("time", "latitude", "longitude", "altitude", "x_velocity", "y_vel
                "z_acceleration", "x_angular_rate", "y_angular_rate", "z_angular_rate")
 
 _WEEK_S = 604800.0
+#: how far (s) a time may lie outside a trajectory's records and still take the end record's pose
+END_TOLERANCE_S = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -139,20 +141,24 @@ class Trajectory:
     def at(self, time_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Position (M, 3) and attitude (M, 3) at GPS times (M,), linear between records.
 
+        A time up to :data:`END_TOLERANCE_S` (1 microsecond) before the first record or after the
+        last takes that record's pose: converting adjusted standard GPS time to week seconds
+        rounds the last point of a flight ~1e-10 s past the end (at 70 m/s a microsecond is 0.07 mm).
+
         Raises
         ------
         ProductError
             A time outside the trajectory (names the first such point, 1-based, and its time).
         """
         t = np.asarray(time_s, dtype=float).ravel()
-        out = np.flatnonzero(~((t >= self.time_s[0]) & (t <= self.time_s[-1])))
+        out = np.flatnonzero(~((t >= self.time_s[0] - END_TOLERANCE_S) & (t <= self.time_s[-1] + END_TOLERANCE_S)))
         if out.size:
             i = int(out[0])
             raise ProductError(f"point {i + 1}: GPS time {t[i]:.6f} s is outside the trajectory "
                                f"{self.source} ({self.time_s[0]:.3f} .. {self.time_s[-1]:.3f} s; "
                                f"{out.size} points outside)")
         j = np.clip(np.searchsorted(self.time_s, t, side="right") - 1, 0, len(self) - 2)
-        w = ((t - self.time_s[j]) / (self.time_s[j + 1] - self.time_s[j]))[:, None]
+        w = np.clip((t - self.time_s[j]) / (self.time_s[j + 1] - self.time_s[j]), 0.0, 1.0)[:, None]
         pos = (1 - w) * self.position_m[j] + w * self.position_m[j + 1]
         att = np.unwrap(self.attitude_rad, axis=0)
         a = (1 - w) * att[j] + w * att[j + 1]

@@ -61,9 +61,9 @@ points of centimetres), so the block test is then ``check_photo``'s test of ever
 its 0.5 px linearisation margin, plus the ellipse test of the lone ones: one test over all photos,
 no better for a lone measurement.
 
-Over the real AHN3 roofs (block F2, GSD 0.15 m, tie points from the truth + 0.3 px; docs/photocontrol.md)
-the three gross lone measurements (33, 32, 43 px) are rejected with w 26-40 and the five good ones
-(0.09-0.21 px) kept.
+Over the real AHN3 roofs (five blocks at GSD 0.10-0.15 m, tie points from the truth + 0.3 px;
+docs/photocontrol.md) the six gross measurements left by the per-photo test (5-47 px, three of them
+alone on their photo) are rejected with w 6-74 and the 37 good ones kept.
 """
 
 from __future__ import annotations
@@ -324,11 +324,11 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     used = {ms[k].photo for k in live} | (set(ties.photo.tolist()) if ties is not None else set())
     for pid in sorted(used):
         if not np.all(_dominant_sd(np.asarray(eo_covs[pid], float).reshape(6, 6)) > 0):
-            raise LidarcatError(f"photo {pid!r}: the covariance of its approximate orientation has a zero variance "
-                                "(use inf for a free parameter)")
+            raise LidarcatError(f"photo {pid!r}: the covariance of its approximate orientation has a zero or "
+                                "undefined variance (use inf for a free parameter)")
     for v in sorted({ms[k].point for k in live}):
         if not np.all(_dominant_sd(np.asarray(vertex_covs[v], float).reshape(3, 3)) > 0):
-            raise LidarcatError(f"point {v!r}: the covariance of the LiDAR vertex has a zero variance")
+            raise LidarcatError(f"point {v!r}: the covariance of the LiDAR vertex has a zero or undefined variance")
 
     # --- the tie points: in photo coordinates, cleaned on their own -------------------------------------
     n_t = 0 if ties is None else len(ties)

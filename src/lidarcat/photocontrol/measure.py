@@ -121,6 +121,7 @@ STATUSES: dict[str, str] = {
     "too_dark": "the window is too dark to measure",
     "saturated": "the window is saturated",
     "near_border": "the search window reaches past the photo's border",
+    "user_rejected": "rejected by the user in a review (the survey's control_decisions.csv): not measured again",
 }
 
 _CHI2_2 = 13.815510557964274   # chi2(2) 99.9 %

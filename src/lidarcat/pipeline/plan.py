@@ -196,7 +196,7 @@ def plan_pipeline(survey: Any, *, extracted_set: str = "lidar", scale: float | N
     if "products" in survey_tables(survey):  # only surveys that ask for LiDAR products get the stage
         stages.append(_products_stage(survey, files_lidar))
     if selfcal.planned(survey):
-        stages.append(Stage("selfcal", "selfcal", selfcal.run, inputs=_after_match(files),
+        stages.append(Stage("selfcal", "selfcal", selfcal.run, inputs=_after_match(files), params=dict(eo),
                             description="adjustment with additional parameters ([self_calibration])"))
     upstream = tuple(s.name for s in stages)
     stages.append(Stage("report", "report", report.run, uses=upstream,

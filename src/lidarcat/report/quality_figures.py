@@ -23,28 +23,30 @@ Each function takes arrays (no files) and returns the PNG of one figure:
 
 from __future__ import annotations
 
-import io
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+
+from .figures import fixed_figure, png_bytes, text_height_in, text_width_in, wrap_text
 
 __all__ = ["residual_vectors_figure", "residual_histograms_figure", "ellipses_figure", "coverage_figure",
            "control_map_figure", "distortion_figure", "density_figure", "thumbnails_figure",
            "track_length_figure", "ellipse_axes"]
 
 
+_DPI = 90
+
+
 def _png(fig: Any) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    return buf.getvalue()
+    """The PNG of *fig*, drawn once (:func:`lidarcat.report.figures.png_bytes`)."""
+    return png_bytes(fig)
 
 
-def _fig(w: float, h: float, ncols: int = 1, nrows: int = 1) -> tuple[Any, np.ndarray]:
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(w, h))
-    return fig, np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False).ravel())
+def _fig(w: float, h: float, ncols: int = 1, nrows: int = 1, **margins: float) -> tuple[Any, np.ndarray]:
+    """A figure of *nrows* x *ncols* axes at 90 dpi with fixed *margins* in inches
+    (:func:`lidarcat.report.figures.fixed_figure`)."""
+    return fixed_figure(w, h, nrows, ncols, dpi=_DPI, **margins)
 
 
 def _map_axes(ax: Any) -> None:
@@ -83,12 +85,14 @@ def residual_vectors_figure(xy_mm: np.ndarray, v_mm: np.ndarray, frame_mm: tuple
     cx = (np.arange(nx) + 0.5) / nx * w - w / 2
     cy = (np.arange(ny) + 0.5) / ny * h - h / 2
     gx, gy = np.meshgrid(cx, cy)
-    fig, (ax,) = _fig(7.5, 7.5 * h / w + 0.8)
-    ax.add_patch(_rect(-w / 2, -h / 2, w, h))
-    ax.scatter(xy_mm[:, 0], xy_mm[:, 1], s=2, color="#bbbbbb", zorder=1)
     ok = n.reshape(ny, nx) > 0
     big = max(float(np.nanmax(np.hypot(mx, my))), 1e-12)
     scale = 0.6 * (w / nx) / big          # the longest mean vector spans 60 % of a cell
+    title = wrap_text(f"mean residual per cell ({nx} x {ny}); longest {big / pixel_mm:.2f} px, drawn x{scale:.0f}",
+                      7.5 - 1.1, 9)
+    fig, (ax,) = _fig(7.5, 7.5 * h / w + 0.8, left=0.8, right=0.3, bottom=0.55, top=0.15 + text_height_in(title, 9))
+    ax.add_patch(_rect(-w / 2, -h / 2, w, h))
+    ax.scatter(xy_mm[:, 0], xy_mm[:, 1], s=2, color="#bbbbbb", zorder=1)
     ax.quiver(gx[ok], gy[ok], mx.reshape(ny, nx)[ok], my.reshape(ny, nx)[ok], angles="xy", scale_units="xy",
               scale=1 / scale, color="#c0392b", width=0.004, zorder=3)
     ax.set_xlim(-w / 2, w / 2)
@@ -96,8 +100,7 @@ def residual_vectors_figure(xy_mm: np.ndarray, v_mm: np.ndarray, frame_mm: tuple
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
-    ax.set_title(f"mean residual per cell ({nx} x {ny}); longest {big / pixel_mm:.2f} px, "
-                 f"drawn x{scale:.0f}", fontsize=9)
+    ax.set_title(title, fontsize=9)
     return _png(fig)
 
 
@@ -109,7 +112,7 @@ def _rect(x: float, y: float, w: float, h: float) -> Any:
 
 def residual_histograms_figure(v_px: np.ndarray) -> bytes:
     """Histograms of the x and y image residuals (px) with the normal density of their sd."""
-    fig, axes = _fig(9, 3.2, ncols=2)
+    fig, axes = _fig(9, 3.2, ncols=2, left=0.75, right=0.2, bottom=0.55, top=0.35, wspace=0.6)
     for ax, comp, name in zip(axes, v_px.T, ("x", "y")):
         sd = float(np.std(comp)) or 1.0
         lim = max(4 * sd, float(np.max(np.abs(comp))))
@@ -142,7 +145,8 @@ def ellipses_figure(centres_en: np.ndarray, centre_cov: np.ndarray, points_en: n
     """1-sigma plan ellipses of the projection centres (left) and of the object points (right)."""
     from matplotlib.collections import EllipseCollection
 
-    fig, axes = _fig(11, 5.2, ncols=2)
+    ax_w = (11 - 1.05 - 0.4 - 1.1) / 2
+    fig, axes = _fig(11, 5.2, ncols=2, wspace=1.1, top=0.55)   # room for a title of two lines
     for ax, xy, cov, what, colour in ((axes[0], centres_en, centre_cov, "projection centres", "#2c7a2c"),
                                       (axes[1], points_en, point_cov, "object points", "#1f5fa8")):
         if len(xy) == 0:
@@ -160,7 +164,8 @@ def ellipses_figure(centres_en: np.ndarray, centre_cov: np.ndarray, points_en: n
             for (e, n), lab in zip(xy, labels):
                 ax.annotate(str(lab), (e, n), fontsize=7, xytext=(3, 3), textcoords="offset points")
         _map_axes(ax)
-        ax.set_title(f"{what}: 1-sigma ellipses x{k:g}; largest semi-axis {100 * big:.1f} cm", fontsize=9)
+        ax.set_title(wrap_text(f"{what}: 1-sigma ellipses x{k:g}; largest semi-axis {100 * big:.1f} cm", ax_w, 9),
+                     fontsize=9)
     return _png(fig)
 
 
@@ -169,7 +174,7 @@ def coverage_figure(count: np.ndarray, extent: tuple[float, float, float, float]
     """Photos per ground cell: *count* (rows, cols) over *extent* (xmin, xmax, ymin, ymax), north up."""
     from matplotlib.colors import BoundaryNorm, ListedColormap
 
-    fig, (ax,) = _fig(7.5, 6.5)
+    fig, (ax,) = _fig(7.5, 6.5, right=0.2, top=0.2)   # the colour bar takes its room from the axes
     top = int(max(count.max(), 1))
     colours = ["#ffffff", "#d7301f", "#fc8d59", "#fdcc8a", "#c2e699", "#78c679", "#31a354", "#006837"]
     levels = list(range(0, min(top, 7) + 1)) + [max(top, 7) + 1]
@@ -190,13 +195,15 @@ def control_map_figure(points: Mapping[str, tuple[np.ndarray, np.ndarray, np.nda
 
     *points* maps a role (``control``, ``check``) to ``(en (n, 2) m, d_en (n, 2) m, d_h (n,) m)``.
     """
-    fig, (ax,) = _fig(8, 7)
+    k_title = "plan residual vectors x{k:g} (longest {big:.1f} cm); labels: height residual (cm)"
     style = {"control": ("^", "#c0392b"), "check": ("o", "#1f5fa8")}
     all_xy = np.vstack([v[0] for v in points.values() if len(v[0])] or [np.zeros((1, 2))])
     span = float(max(np.ptp(all_xy[:, 0]), np.ptp(all_xy[:, 1]), 1.0))
     d_all = np.concatenate([np.hypot(*v[1].T) for v in points.values() if len(v[0])] or [np.zeros(1)])
     big = max(float(np.nanmax(d_all)), 1e-9)
     k = _nice(0.08 * span / big)
+    title = wrap_text(k_title.format(k=k, big=100 * big), 8 - 1.45, 9)
+    fig, (ax,) = _fig(8, 7, top=0.15 + text_height_in(title, 9))
     for role, (xy, d, dh) in points.items():
         if not len(xy):
             continue
@@ -211,8 +218,7 @@ def control_map_figure(points: Mapping[str, tuple[np.ndarray, np.ndarray, np.nda
                                 color=c)
     _map_axes(ax)
     ax.legend(fontsize=8, loc="best")
-    ax.set_title(f"plan residual vectors x{k:g} (longest {100 * big:.1f} cm); labels: height residual (cm)",
-                 fontsize=9)
+    ax.set_title(title, fontsize=9)
     return _png(fig)
 
 
@@ -230,13 +236,17 @@ def distortion_figure(xy_mm: np.ndarray, d_mm: np.ndarray, r_mm: np.ndarray, dr_
                       frame_mm: tuple[float, float], pixel_mm: float, title: str) -> bytes:
     """The camera's distortion: vectors *d_mm* at *xy_mm* over the frame, and the radial curve *dr_mm*(*r_mm*)."""
     w, h = frame_mm
-    fig, axes = _fig(11, 4.6, ncols=2)
-    ax = axes[0]
-    ax.add_patch(_rect(-w / 2, -h / 2, w, h))
     mag = np.hypot(d_mm[:, 0], d_mm[:, 1])
     big = max(float(mag.max()), 1e-12)
     spacing = float(np.min(np.diff(np.unique(xy_mm[:, 0])))) if len(np.unique(xy_mm[:, 0])) > 1 else w / 10
     k = 0.9 * spacing / big
+    ax_w = (11 - 0.8 - 0.3 - 1.0) / 2
+    titles = [wrap_text(f"{title}: distortion, largest {big / pixel_mm:.1f} px, drawn x{k:.0f}", ax_w, 9),
+              wrap_text("radial distortion along the radius (to the frame corner)", ax_w, 9)]
+    fig, axes = _fig(11, 4.6, ncols=2, left=0.8, right=0.3, bottom=0.55, wspace=1.0,
+                     top=0.15 + max(text_height_in(t, 9) for t in titles))
+    ax = axes[0]
+    ax.add_patch(_rect(-w / 2, -h / 2, w, h))
     ax.quiver(xy_mm[:, 0], xy_mm[:, 1], d_mm[:, 0], d_mm[:, 1], mag / pixel_mm, angles="xy", scale_units="xy",
               scale=1 / k, cmap="viridis", width=0.004)
     ax.set_aspect("equal")
@@ -244,20 +254,20 @@ def distortion_figure(xy_mm: np.ndarray, d_mm: np.ndarray, r_mm: np.ndarray, dr_
     ax.set_ylim(-h / 2 * 1.05, h / 2 * 1.05)
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
-    ax.set_title(f"{title}: distortion, largest {big / pixel_mm:.1f} px, drawn x{k:.0f}", fontsize=9)
+    ax.set_title(titles[0], fontsize=9)
     ax = axes[1]
     ax.plot(r_mm, dr_mm / pixel_mm, color="#1f5fa8")
     ax.axhline(0, color="#888888", lw=0.5)
     ax.set_xlabel("radius (mm)")
     ax.set_ylabel("radial distortion (px)")
     ax.grid(True, lw=0.3, alpha=0.5)
-    ax.set_title("radial distortion along the radius (to the frame corner)", fontsize=9)
+    ax.set_title(titles[1], fontsize=9)
     return _png(fig)
 
 
 def density_figure(density: np.ndarray, extent: tuple[float, float, float, float], cell_m: float) -> bytes:
     """LiDAR points per m2 on cells of *cell_m* (rows, cols), north up, over *extent* (xmin, xmax, ymin, ymax)."""
-    fig, (ax,) = _fig(7.5, 6.5)
+    fig, (ax,) = _fig(7.5, 6.5, right=0.2, top=0.35)   # the colour bar takes its room from the axes
     shown = np.where(density > 0, density, np.nan)
     vmax = float(np.nanpercentile(shown, 99)) if np.isfinite(shown).any() else 1.0
     im = ax.imshow(shown, extent=extent, origin="upper", cmap="viridis", vmin=0, vmax=vmax, interpolation="nearest")
@@ -273,10 +283,13 @@ def thumbnails_figure(images: Sequence[tuple[str, np.ndarray, str]], ncols: int 
     n = len(images)
     ncols = min(ncols, n)
     nrows = -(-n // ncols)
-    fig, axes = _fig(3.6 * ncols, 3.4 * nrows, ncols=ncols, nrows=nrows)
+    titles = [wrap_text(t, 3.4, 8) for t, _, _ in images]
+    head = 0.1 + max(text_height_in(t, 8) for t in titles)
+    fig, axes = _fig(3.6 * ncols, 3.4 * nrows, ncols=ncols, nrows=nrows, left=0.1, right=0.1, bottom=0.1, top=head,
+                     wspace=0.2, hspace=head + 0.1)
     for ax in axes:
         ax.set_axis_off()
-    for ax, (title, a, kind) in zip(axes, images):
+    for ax, (_, a, kind), title in zip(axes, images, titles):
         if kind == "rgb" and a.ndim == 3:
             ax.imshow(a, interpolation="nearest")
         elif kind == "photo":   # grey photo values as they are (a contrast stretch turns texture into noise)
@@ -294,7 +307,10 @@ def thumbnails_figure(images: Sequence[tuple[str, np.ndarray, str]], ncols: int 
 
 def track_length_figure(track_lengths: np.ndarray, per_photo: Mapping[str, int]) -> bytes:
     """Tie points by track length (photos that see them) and tie points per photo."""
-    fig, axes = _fig(10, 3.4, ncols=2)
+    ids = list(per_photo)
+    turned = len(ids) > 12
+    below = text_width_in(max((len(str(i)) for i in ids), default=1), 7) if turned else 0.15
+    fig, axes = _fig(10, 3.4, ncols=2, left=0.8, right=0.2, bottom=0.55 + below, top=0.35, wspace=0.9)
     lengths = np.asarray(track_lengths, dtype=int)
     top = int(lengths.max()) if len(lengths) else 2
     axes[0].bar(np.arange(2, top + 1), np.bincount(lengths, minlength=top + 1)[2:], color="#7aa6d6")
@@ -302,10 +318,9 @@ def track_length_figure(track_lengths: np.ndarray, per_photo: Mapping[str, int])
     axes[0].set_ylabel("tie points")
     axes[0].set_title(f"{len(lengths)} tie points, mean track {lengths.mean() if len(lengths) else 0:.2f}",
                       fontsize=9)
-    ids = list(per_photo)
     axes[1].bar(range(len(ids)), [per_photo[i] for i in ids], color="#2c7a2c")
     axes[1].set_xticks(range(len(ids)))
-    axes[1].set_xticklabels(ids, rotation=90 if len(ids) > 12 else 0, fontsize=7)
+    axes[1].set_xticklabels(ids, rotation=90 if turned else 0, fontsize=7)
     axes[1].set_xlabel("photo")
     axes[1].set_ylabel("tie points measured")
     return _png(fig)

@@ -34,8 +34,11 @@ It writes, into the output folder first:
   vertex's own status where the photo was not measured, ``no image edge`` where the edge was not
   found, ``in the point`` where the vertex's point observation already carries it);
 
+* ``line_candidates.csv`` -- the 3-D line of every edge of line_decisions.csv (what ``line_decisions=`` reads);
+
 and then the accepted observations into the survey's ``image_points.csv`` (atomically; the
-survey is loaded again from the new table, and the old file restored if it does not load).  A
+survey is loaded again from the new table, and the old file restored if it does not load; nothing
+accepted: the survey's tables are not rewritten).  A
 vertex and photo that already has an observation there keeps it (``replace=True`` measures it
 again and replaces it).  Pixel sds go to ``sd_x_mm, sd_y_mm`` (times the camera's pixel size).
 
@@ -49,6 +52,35 @@ come from the same fits, so one photo never gives both: ``lines="add"`` (default
 points, and the edges of the photos where the vertex's point was not measured (two edges of which
 one is weak, edges on one image line: the strong ones alone); ``"only"`` writes every photo's
 edges and no points; ``"none"`` no lines.  A line file that does not load leaves both tables as they were.
+
+**Feeding the decisions back** (``decisions=``, ``line_decisions=``; the review of issue 29).  Both reports
+can be edited -- ``decision`` flipped between ``accept`` and ``reject``, the pixels moved -- and fed back
+together or alone; then nothing is measured.  Each file *replaces* the survey's rows of the pairs it lists
+(rows a user deleted from it are not touched): decisions.csv the (photo, point) rows of image_points.csv,
+line_decisions.csv the (line, photo) observations of line_control.csv.  An accepted edge needs its 3-D line:
+line_decisions.csv names it only by id, so the run writes every edge's line (end points, ``cov_m2``, ``point``;
+rejected and not-found edges too) to ``line_candidates.csv`` beside it, in line_control.csv's columns, and the
+feedback takes the lines from there (else from the survey's line_control.csv); a line is written when an
+observation of it remains, dropped with its last one.  One photo never gives a vertex's point and its edges
+(they come from the same fits): an ``in_point`` edge accepted where the vertex's point on the photo is accepted
+too (in the decisions.csv fed back, else in image_points.csv) is an error, and so is a ``measured`` point accepted
+where the new line_control.csv has edges of its vertex on that photo; a point typed by hand (a row of another
+status) may sit beside measured edges (independent measurements).  Every bad row is one error with ``file:line``
+(a decision other than accept/reject, a pixel or sd that is not a number, an unknown photo, point or line, a
+line's ``point`` changed, an accepted row without pixels or with an edge of zero length, a pair listed twice),
+raised before anything is written; the tables then go through the same atomic write and reload as a
+measurement's.
+
+**The review remembered** (:mod:`lidarcat.survey.decisions`).  Feeding back also records the user's word on
+every pair the files list (an ``in_point`` edge left at ``reject`` excepted: its point carries it) in the
+survey's ``control_decisions.csv`` (``[files] control_decisions``, added when missing; written and rolled back
+with the tables).  A measurement -- this command and the ``lidarcat run`` stage alike -- never measures a
+rejected pair again (its decisions.csv row: ``user_rejected``, "rejected by the user (control_decisions.csv:LINE)";
+its edges on the photo ``not_written`` with that reason; a rejected edge is never written), nor an accepted one
+unless ``replace`` (a user-accepted edge's observation is kept while its vertex is measured on other photos).
+:func:`planned` counts a vertex as done when it has an observation or the user's decision on every oriented
+photo, so ``lidarcat run`` stops planning the stage after a full review.  The run measures into its own tables;
+``lidarcat measure-control SURVEY --decisions RUN/measure_control/decisions.csv ...`` feeds its review back.
 
 **Sds of the edge fits.**  The predicted direction of an edge observes the fitted slope
 (``direction_sd_deg``): taken from the photo's kappa sd (the image turns with kappa; omega and phi
@@ -73,7 +105,7 @@ from ..errors import LidarcatError, SurveyError
 from .context import StageContext as Context
 
 __all__ = ["measure_control", "run", "planned", "MeasureControlResult", "DECISION_FIELDS", "LINE_DECISION_FIELDS",
-           "LINE_MODES", "lidar_vertices", "dsm_of_points", "line_id"]
+           "LINE_MODES", "LINE_CANDIDATES", "lidar_vertices", "dsm_of_points", "line_id"]
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +117,8 @@ LINE_DECISION_FIELDS = ["line", "point", "photo", "status", "reason", "col1_px",
                         "sd_px", "ratio", "decision"]
 #: values of ``lines``
 LINE_MODES = ("add", "only", "none")
+#: the file beside line_decisions.csv with the 3-D line of each of its line ids
+LINE_CANDIDATES = "line_candidates.csv"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,8 +184,10 @@ def dsm_of_points(xyz: np.ndarray, cell_m: float = 0.5) -> Callable[[np.ndarray,
 
 
 def planned(survey: Any) -> str | None:
-    """Why ``lidarcat run`` skips the stage (None: planned): it needs images, LiDAR tiles and LiDAR vertices
-    of which some photo has no observation yet."""
+    """Why ``lidarcat run`` skips the stage (None: planned): it needs images, LiDAR tiles and a LiDAR vertex
+    still open -- one with no observation (a point in image_points.csv or an edge in line_control.csv) of
+    which some photo with an approximate orientation has no decision of the user (control_decisions.csv).
+    A vertex the user rejected on every photo is done: the run does not plan it again."""
     if not getattr(survey, "has_images", False):
         return "the photos have no image files"
     if not survey.lidar_paths:
@@ -160,8 +196,14 @@ def planned(survey: Any) -> str | None:
     if not verts:
         return "the survey has no LiDAR control vertices (ground points of source lidar)"
     observed = set(np.asarray(survey.image_points.point, dtype=str).tolist())
-    if all(v in observed for v, _ in verts):
-        return "every LiDAR control vertex has image observations; `lidarcat measure-control` measures again"
+    own = survey.files.get("line_control")
+    observed |= {pt for _, pt in _edge_pairs(None, Path(own))} if own is not None else set()
+    told = survey.control_decisions.of("point")
+    oriented = [ph.id for ph in survey.photos if ph.position_m is not None and ph.attitude_deg is not None]
+    if all(v in observed or (oriented and all((pid, v) in told for pid in oriented)) for v, _ in verts):
+        return "every LiDAR control vertex has image observations" + (
+            " or the user's decision on every photo (control_decisions.csv)" if told else "") + \
+            "; `lidarcat measure-control` measures again"
     return None
 
 
@@ -216,27 +258,269 @@ def _decision_rows(ms: Sequence[Any]) -> list[list[Any]]:
     return rows
 
 
-def _read_decisions(path: Path) -> list[dict[str, Any]]:
-    from .._util import read_csv_table
+def _read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
+    """The rows of an edited decisions.csv.
+
+    Raises
+    ------
+    SurveyError
+        ``file:line``: a decision other than accept/reject, an unknown photo or ground point, a pixel or sd that is
+        not a number, an accepted row without its pixel, a non-positive sd, a photo and point listed twice.
+    """
+    from .._util import excerpt, read_csv_table
+    from ..errors import location
 
     t = read_csv_table(path, required=("photo", "point", "decision", "col_px", "row_px"),
                        optional=("sd_col_px", "sd_row_px", "status", "reason", "pred_col_px", "pred_row_px",
                                  "pred_sd_px"))
     out = []
     photos, points, dec = t.column("photo"), t.column("point"), t.column("decision")
+    status = t.column("status") if t.has("status") else [""] * len(t.rows)
     cols, rows_ = t.floats("col_px", required=False), t.floats("row_px", required=False)
     sdc = t.floats("sd_col_px", required=False) if t.has("sd_col_px") else np.full(len(t.rows), np.nan)
     sdr = t.floats("sd_row_px", required=False) if t.has("sd_row_px") else np.full(len(t.rows), np.nan)
+    known_photos = set(survey.photo_ids)
+    known_points = set(np.asarray(survey.ground_points.point, dtype=str).tolist())
+    seen: dict[tuple[str, str], int] = {}
     for k, line in enumerate(t.lines):
         d = str(dec[k]).strip().lower()
         if d not in ("accept", "reject"):
             raise SurveyError(f"{path}:{line}: decision must be accept or reject, got {dec[k]!r}")
+        if photos[k] not in known_photos:
+            raise SurveyError(f"{location(path, line, 'photo')}: unknown photo {excerpt(photos[k])} (not in "
+                              f"photos.csv)")
+        if points[k] not in known_points:
+            raise SurveyError(f"{location(path, line, 'point')}: unknown point {excerpt(points[k])} (not in "
+                              f"ground_points.csv)")
+        if (photos[k], points[k]) in seen:
+            raise SurveyError(f"{path}:{line}: point {excerpt(points[k])} on photo {excerpt(photos[k])} is listed "
+                              f"twice (also on line {seen[(photos[k], points[k])]}); keep one row")
+        seen[(photos[k], points[k])] = line
         if d == "accept" and not (np.isfinite(cols[k]) and np.isfinite(rows_[k])):
             raise SurveyError(f"{path}:{line}: decision accept needs col_px and row_px (photo {photos[k]!r}, "
                               f"point {points[k]!r})")
+        for name, v in (("sd_col_px", sdc[k]), ("sd_row_px", sdr[k])):
+            if d == "accept" and v <= 0:
+                raise SurveyError(f"{location(path, line, name)}: must be positive, got {v:g}")
         out.append({"photo": str(photos[k]), "point": str(points[k]), "accept": d == "accept",
-                    "px": np.array([cols[k], rows_[k]]), "sd": np.array([sdc[k], sdr[k]])})
+                    "px": np.array([cols[k], rows_[k]]), "sd": np.array([sdc[k], sdr[k]]), "at": line,
+                    "status": status[k]})
     return out
+
+
+def _known_lines(path: Path, survey: Any) -> dict[str, tuple[str, dict[str, str]]]:
+    """The 3-D lines a line_decisions.csv at *path* may name: line id -> (its LiDAR point, the cells of its row in
+    line_control.csv's columns), from :data:`LINE_CANDIDATES` beside *path* (the run that wrote it), else from the
+    survey's line_control.csv."""
+    from .._util import read_csv_table
+    from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
+
+    out: dict[str, tuple[str, dict[str, str]]] = {}
+    own = survey.files.get("line_control")
+    for src in (Path(own) if own is not None else None, path.with_name(LINE_CANDIDATES)):
+        if src is None or not src.is_file():
+            continue
+        t = read_csv_table(src, required=("line", "photo"), optional=tuple(
+            c for c in (*LINE_COLUMNS, *LINE_EXTRA_COLUMNS) if c not in ("line", "photo")))
+        for r in t.rows:
+            cells = dict(zip(t.header, r))
+            if not cells["photo"]:
+                lid = cells["line"]
+                out[lid] = (cells.get("point", ""), cells)   # the candidates (read last) win
+    return out
+
+
+_LINE_PX = ("col1_px", "row1_px", "col2_px", "row2_px", "sd_px")
+
+
+def _read_line_decisions(path: Path, survey: Any) -> tuple[list[dict[str, Any]], dict[str, tuple[str, dict]]]:
+    """The rows of an edited line_decisions.csv and the 3-D lines they name (:func:`_known_lines`).
+
+    Raises
+    ------
+    SurveyError
+        ``file:line``: a decision other than accept/reject, an unknown photo or line, a ``point`` that is not the
+        line's, a pixel or sd that is not a number, an accepted row without its pixels or with a zero-length edge,
+        a line listed twice for one photo.
+    """
+    from .._util import excerpt, read_csv_table
+    from ..errors import location
+
+    t = read_csv_table(path, required=("line", "photo", "decision", *_LINE_PX),
+                       optional=("point", "status", "reason", "ratio"))
+    known = _known_lines(path, survey)
+    px = np.column_stack([t.floats(c, required=False) for c in _LINE_PX])
+    photos = set(survey.photo_ids)
+    out: list[dict[str, Any]] = []
+    seen: dict[tuple[str, str], int] = {}
+    for k, (row, ln) in enumerate(zip(t.rows, t.lines)):
+        c = dict(zip(t.header, row))
+        lid, photo, dec = c["line"], c["photo"], c["decision"].lower()
+        if dec not in ("accept", "reject"):
+            raise SurveyError(f"{path}:{ln}: decision must be accept or reject, got {c['decision']!r}")
+        if photo not in photos:
+            raise SurveyError(f"{location(path, ln, 'photo')}: unknown photo {excerpt(photo)} (not in photos.csv)")
+        if lid not in known:
+            raise SurveyError(f"{location(path, ln, 'line')}: unknown line {excerpt(lid)}: neither "
+                              f"{LINE_CANDIDATES} beside this file nor the survey's line_control.csv defines it")
+        point = known[lid][0]
+        if c.get("point") and point and c["point"] != point:
+            raise SurveyError(f"{location(path, ln, 'point')}: line {excerpt(lid)} is of point {excerpt(point)}, "
+                              f"not {excerpt(c['point'])}")
+        if (lid, photo) in seen:
+            raise SurveyError(f"{path}:{ln}: line {excerpt(lid)} on photo {excerpt(photo)} is listed twice (also on "
+                              f"line {seen[(lid, photo)]}); keep one row")
+        seen[(lid, photo)] = ln
+        p1, p2, sd = px[k, :2], px[k, 2:4], px[k, 4]
+        if dec == "accept":
+            if not np.isfinite(px[k]).all():
+                raise SurveyError(f"{path}:{ln}: decision accept needs col1_px, row1_px, col2_px, row2_px and sd_px "
+                                  f"(line {excerpt(lid)}, photo {excerpt(photo)})")
+            if sd <= 0:
+                raise SurveyError(f"{location(path, ln, 'sd_px')}: must be positive, got {c['sd_px']}")
+            if np.hypot(*(p2 - p1)) <= 0:
+                raise SurveyError(f"{path}:{ln}: line {excerpt(lid)} on photo {excerpt(photo)}: its two image points "
+                                  f"coincide (an edge of zero length)")
+        out.append({"line": lid, "point": point, "photo": photo, "accept": dec == "accept", "p1": p1, "p2": p2,
+                    "sd": sd, "at": ln, "status": c.get("status", "")})
+    return out, known
+
+
+def _fed_line_rows(path: Path | None, known: dict[str, tuple[str, dict]], fed: list[dict[str, Any]]
+                   ) -> tuple[list[str], list[list[Any]]]:
+    """The new line_control.csv after a fed-back line_decisions.csv *fed*: the rows of *path* of the (line, photo)
+    pairs the file does not list kept; its accepted rows added as observations; each of its lines defined (from
+    *known*) when an observation of it remains, dropped when none does."""
+    from .._util import read_csv_table
+    from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
+
+    header = list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS)
+    lids = list(dict.fromkeys(d["line"] for d in fed))
+    pairs = {(d["line"], d["photo"]) for d in fed}
+    rows: list[list[Any]] = []
+    observed = {d["line"] for d in fed if d["accept"]}
+    if path is not None and path.is_file():
+        t = read_csv_table(path, required=("line", "photo"), optional=tuple(h for h in header if h not in
+                                                                            ("line", "photo")))
+        for r in t.rows:
+            c = dict(zip(t.header, r))
+            if (c["line"], c["photo"]) in pairs or (not c["photo"] and c["line"] in lids):
+                continue
+            if c["photo"]:
+                observed.add(c["line"])
+            rows.append([c.get(h, "") for h in header])
+    rows += [[known[lid][1].get(h, "") for h in header] for lid in lids if lid in observed]
+    rows += [_line_obs_row(header, d["line"], d["photo"], d["p1"], d["p2"], d["sd"]) for d in fed if d["accept"]]
+    return header, rows
+
+
+def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decisions: Any,
+               table: Any, line_table: Any) -> MeasureControlResult:
+    """Write the accepted rows of an edited decisions.csv and/or line_decisions.csv, measure nothing."""
+    summary: dict[str, Any] = {}
+    header = table_rows = None
+    n_acc = 0
+    if decisions is not None:
+        rows = _read_decisions(Path(decisions), survey)
+        accepted = [d for d in rows if d["accept"]]
+        header, table_rows = _table(survey, accepted, replace=True, drop={(d["photo"], d["point"]) for d in rows})
+        summary.update(decisions=str(decisions), accepted=len(accepted), rejected=len(rows) - len(accepted))
+        with_point = {(str(r[0]), str(r[1])): ("in image_points.csv", False) for r in table_rows}
+        with_point.update({(d["photo"], d["point"]): (f"accepted in {Path(decisions).name}", d["status"] == "measured")
+                           for d in accepted})
+        n_acc = len(accepted)
+    else:
+        with_point = {(str(a), str(b)): ("in image_points.csv", False)
+                      for a, b in zip(survey.image_points.photo, survey.image_points.point)}
+    lines_out = None
+    n_lines = 0
+    if line_decisions is not None:
+        lpath = Path(line_decisions)
+        fed, known = _read_line_decisions(lpath, survey)
+        for d in fed:   # a measured point and the edges it was measured from: never both (the same fits)
+            pair = (d["photo"], d["point"])
+            if d["accept"] and d["point"] and pair in with_point and (d["status"] == "in_point" or with_point[pair][1]):
+                raise SurveyError(f"{lpath}:{d['at']}: line {d['line']!r} on photo {d['photo']!r}: vertex "
+                                  f"{d['point']!r} has a point observation on this photo ({with_point[pair][0]}) "
+                                  f"measured from the same edge fits; accept the point or its edges, not both")
+        own = survey.files.get("line_control")
+        lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
+            survey.root / "line_control.csv"
+        lh, lrows = _fed_line_rows(Path(own) if own is not None else None, known, fed)
+        n_lines = sum(d["accept"] for d in fed)
+        lines_out = (lp, lh, lrows, f"LiDAR roof edges as control lines: lidarcat measure-control, decisions of "
+                                    f"{lpath.name} (3-D lines from {LINE_CANDIDATES})")
+        summary.update(line_decisions=str(lpath), lines_accepted=n_lines, lines_rejected=len(fed) - n_lines)
+    if decisions is not None:   # a point accepted where the line table (kept rows) has the vertex's edges
+        own = survey.files.get("line_control")
+        edges = _edge_pairs(*lines_out[1:3]) if lines_out is not None else _edge_pairs(None, Path(own)) \
+            if own is not None else set()
+        for d in accepted:
+            if d["status"] == "measured" and (d["photo"], d["point"]) in edges:
+                raise SurveyError(f"{decisions}:{d['at']}: point {d['point']!r} on photo {d['photo']!r}: measured "
+                                  f"from the same edge fits as its roof edges on this photo in line_control.csv; "
+                                  f"accept the point or its edges, not both")
+    comment = f"LiDAR control observations: lidarcat measure-control, decisions of " \
+              f"{Path(decisions).name if decisions is not None else ''}"
+    if table is None:
+        told = _recorded(survey, rows if decisions is not None else [], Path(decisions or "."),
+                         fed if line_decisions is not None else [], Path(line_decisions or "."))
+        summary.update(control_decisions=str(told[0]), control_decision_rows=len(told[2]))
+        _write_checked(survey, ip_path, header, table_rows, comment, lines_out, told)
+    else:
+        if lines_out is not None:
+            write_csv_atomic(lines_out[0], lines_out[1], lines_out[2], comments=[lines_out[3]])
+        if header is not None:
+            write_csv_atomic(ip_path, header, table_rows, comments=[comment])
+    write_json_atomic(out / "measure_control.json", summary)
+    return MeasureControlResult(ip_path, out, {"accepted": n_acc, "lines_accepted": n_lines}, n_acc, summary,
+                                None if lines_out is None else lines_out[0], n_lines)
+
+
+def _recorded(survey: Any, rows: list[dict[str, Any]], path: Path, fed: list[dict[str, Any]], lpath: Path
+              ) -> tuple[Path, list[str], list[list[str]], str]:
+    """control_decisions.csv (path, header, rows, comment) after recording every row of a fed-back decisions.csv
+    (*rows* of *path*) and line_decisions.csv (*fed* of *lpath*) -- the user's word on each pair they list
+    (:mod:`lidarcat.survey.decisions`) -- but an ``in_point`` edge left at ``reject`` (not written because the
+    vertex's point carries it, not rejected: no decision, an earlier one of the pair dropped)."""
+    from ..survey.decisions import DECISION_COLUMNS, ControlDecision, merged_rows, now_utc
+
+    def src(p: Path) -> str:
+        try:
+            return p.resolve().relative_to(survey.root.resolve()).as_posix()
+        except ValueError:
+            return p.resolve().as_posix()
+
+    date = now_utc()
+    carried = {("line", d["photo"], d["line"]) for d in fed if not d["accept"] and d["status"] == "in_point"}
+    new = [ControlDecision("point", d["photo"], d["point"], "accept" if d["accept"] else "reject",
+                           f"{src(path)}:{d['at']}", date) for d in rows] + \
+          [ControlDecision("line", d["photo"], d["line"], "accept" if d["accept"] else "reject",
+                           f"{src(lpath)}:{d['at']}", date) for d in fed
+           if ("line", d["photo"], d["line"]) not in carried]   # an edge its point carries: no decision on the edge
+    own = survey.files.get("control_decisions")
+    return (Path(own) if own is not None else survey.root / "control_decisions.csv", list(DECISION_COLUMNS),
+            merged_rows(survey.control_decisions, new, carried),
+            "The user's review of the LiDAR control measured in the photos (lidarcat measure-control --decisions / "
+            "--line-decisions): a rejected pair is never measured again, an accepted one only with --replace; "
+            "delete a row to have its pair measured again.")
+
+
+def _edge_pairs(header: Sequence[str] | None, rows: Any) -> set[tuple[str, str]]:
+    """(photo, point) of the line observations of line_control rows (*header*, *rows*), or of the file *rows*
+    (*header* None), whose line names its LiDAR ``point``."""
+    if header is None:
+        from .._util import read_csv_table
+        from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
+
+        if not Path(rows).is_file():
+            return set()
+        t = read_csv_table(rows, required=("line", "photo"), optional=tuple(
+            c for c in (*LINE_COLUMNS, *LINE_EXTRA_COLUMNS) if c not in ("line", "photo")))
+        header, rows = t.header, t.rows
+    cells = [dict(zip(header, (str(v) for v in r))) for r in rows]
+    point = {c["line"]: c.get("point", "") for c in cells if not c["photo"]}
+    return {(c["photo"], point[c["line"]]) for c in cells if c["photo"] and point.get(c["line"])}
 
 
 def _table(survey: Any, new: list[dict[str, Any]], replace: bool, drop: set | None = None
@@ -274,48 +558,58 @@ def _table(survey: Any, new: list[dict[str, Any]], replace: bool, drop: set | No
     return header, rows
 
 
-def _write_checked(survey: Any, ip_path: Path, header: list[str], rows: list[list[Any]], comment: str,
-                   lines: tuple[Path, list[str], list[list[Any]], str] | None = None) -> None:
-    """Replace image_points.csv (and line_control.csv, survey.toml's ``[files] line_control`` when it has none)
-    atomically, then load the survey; put the old files back if it does not load."""
+def _write_checked(survey: Any, ip_path: Path, header: list[str] | None, rows: list[list[Any]] | None, comment: str,
+                   lines: tuple[Path, list[str], list[list[Any]], str] | None = None,
+                   told: tuple[Path, list[str], list[list[Any]], str] | None = None) -> None:
+    """Replace image_points.csv (unless *header* is None; and line_control.csv, control_decisions.csv *told*,
+    survey.toml's ``[files]`` keys of the two when it has none) atomically, then load the survey; put the old files
+    back if it does not load (the error says so)."""
     from .._util import atomic_write
     from ..survey.folder import Survey
 
-    paths = [ip_path]
-    if lines is not None:
-        paths.append(lines[0])
-        if survey.files.get("line_control") is None and not survey.embedded:
-            paths.append(survey.toml_path)
+    tables = {k: v for k, v in (("line_control", lines), ("control_decisions", told)) if v is not None}
+    keys = [k for k in tables if survey.files.get(k) is None and not survey.embedded]
+    paths = [ip_path, *(v[0] for v in tables.values())] + ([survey.toml_path] if keys else [])
     paths += [q.with_name(q.name + ".json") for q in paths if q.suffix == ".csv"]   # the tables' metadata
     old = {q: (q.read_bytes() if q.is_file() else None) for q in paths}
     try:
-        if lines is not None:
-            write_csv_atomic(lines[0], lines[1], lines[2], comments=[lines[3]])
-            if survey.toml_path in paths[2:]:
-                _add_line_control_key(survey.toml_path, lines[0])
-        write_csv_atomic(ip_path, header, rows, comments=[comment])
+        for key, v in tables.items():
+            write_csv_atomic(v[0], v[1], v[2], comments=[v[3]])
+            if key in keys:
+                _add_files_key(survey.toml_path, key, v[0])
+        if header is not None:
+            write_csv_atomic(ip_path, header, rows, comments=[comment])
         Survey.load(survey.root if not survey.embedded else survey.toml_path)
-    except (SurveyError, OSError):
+    except (SurveyError, OSError) as ex:
         for q, data in old.items():
             if data is None:
                 q.unlink(missing_ok=True)
             else:
                 with atomic_write(q, "wb") as fh:
                     fh.write(data)
+        if isinstance(ex, SurveyError):
+            names = ", ".join(q.name for q in paths if q.suffix != ".json")
+            raise SurveyError(f"{ex} (the survey does not load with the new tables: {names} put back as they "
+                              f"were)") from ex
         raise
 
 
 def _add_line_control_key(toml_path: Path, lines_path: Path) -> None:
     """survey.toml with ``line_control = "..."`` in its ``[files]`` table (appended when it has none)."""
+    _add_files_key(toml_path, "line_control", lines_path)
+
+
+def _add_files_key(toml_path: Path, key: str, path: Path) -> None:
+    """survey.toml with ``key = "path"`` in its ``[files]`` table (appended when it has none)."""
     from .._util import atomic_write
     from .._util.tables import toml_line
 
     text = toml_path.read_text(encoding="utf-8")
     try:
-        rel = lines_path.resolve().relative_to(toml_path.parent.resolve()).as_posix()
+        rel = path.resolve().relative_to(toml_path.parent.resolve()).as_posix()
     except ValueError:
-        rel = lines_path.resolve().as_posix()
-    entry = f'line_control = "{rel}"'
+        rel = path.resolve().as_posix()
+    entry = f'{key} = "{rel}"'
     at = toml_line(text, "files")
     lines = text.splitlines()
     if at is None:
@@ -327,41 +621,57 @@ def _add_line_control_key(toml_path: Path, lines_path: Path) -> None:
 
 
 def _line_rows(survey: Any, path: Path | None, new_lines: dict[str, tuple[str, Any, Any, Any]],
-               new_obs: list[tuple[str, str, Any]], replace_points: set[str]) -> tuple[list[str], list[list[Any]]]:
-    """The new line_control.csv: the kept rows of *path* (lines of other points, their observations), then the
-    lines measured now (``id -> (point, A, B, cov)``) and their observations ``(line, photo, EdgeLine)``."""
+               new_obs: list[tuple[str, str, Any]], replace_points: set[str],
+               keep: set[tuple[str, str]] | None = None) -> tuple[list[str], list[list[Any]]]:
+    """The new line_control.csv: the kept rows of *path* (lines of other points, their observations, the
+    observations ``(photo, line)`` in *keep* -- accepted by the user -- and their lines), then the lines
+    measured now (``id -> (point, A, B, cov)``) and their observations ``(line, photo, EdgeLine)``."""
     from .._util import read_csv_table
-    from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS, cov6_cell
+    from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
 
     header = list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS)
     rows: list[list[Any]] = []
     if path is not None and path.is_file():
         t = read_csv_table(path, required=("line",), optional=tuple(c for c in header if c != "line"))
         col = {h: i for i, h in enumerate(t.header)}
+        keep = keep or set()
+        kept_lines = {lid for _, lid in keep} - set(new_lines)
         for r in t.rows:
-            lid = r[col["line"]]
-            if lid in new_lines or lid.split("/")[0] in replace_points:
+            lid, pid = r[col["line"]], r[col["photo"]] if "photo" in col else ""
+            if (lid in new_lines or lid.split("/")[0] in replace_points) and (pid, lid) not in keep and not (
+                    not pid and lid in kept_lines):
                 continue
             rows.append([r[col[c]] if c in col else "" for c in header])
 
-    def rnd(v: float, nd: int) -> float:
-        return round(float(v), nd)
-
     for lid, (pt, a, b, cov) in new_lines.items():
-        c = np.asarray(cov, float)
-        t_ = (np.asarray(b, float) - np.asarray(a, float)) / float(np.linalg.norm(np.subtract(b, a)))
-        across = np.eye(3) - np.outer(t_, t_)
-        sd_across = math.sqrt(max(float(np.max(np.linalg.eigvalsh(across @ c[:3, :3] @ across))),
-                                  float(np.max(np.linalg.eigvalsh(across @ c[3:, 3:] @ across))), 1e-8))
-        row = {"line": lid, "point": pt, "e1_m": rnd(a[0], 4), "n1_m": rnd(a[1], 4), "h1_m": rnd(a[2], 4),
-               "e2_m": rnd(b[0], 4), "n2_m": rnd(b[1], 4), "h2_m": rnd(b[2], 4), "sd_across_m": rnd(sd_across, 5),
-               "cov_m2": cov6_cell(c)}
-        rows.append([row.get(h, "") for h in header])
+        rows.append(_line_def_row(header, lid, pt, a, b, cov))
     for lid, pid, el in new_obs:
-        row = {"line": lid, "photo": pid, "col1_px": rnd(el.p1_px[0], 3), "row1_px": rnd(el.p1_px[1], 3),
-               "col2_px": rnd(el.p2_px[0], 3), "row2_px": rnd(el.p2_px[1], 3), "sd_px": rnd(el.sd_px, 4)}
-        rows.append([row.get(h, "") for h in header])
+        rows.append(_line_obs_row(header, lid, pid, el.p1_px, el.p2_px, el.sd_px))
     return header, rows
+
+
+def _line_def_row(header: Sequence[str], lid: str, point: str, a: Any, b: Any, cov: Any) -> list[Any]:
+    """A line row of line_control.csv: end points *a*, *b* (m), ``sd_across_m`` (the larger across-line sd of
+    the two ends) and the full 6 x 6 covariance *cov* (m^2) as ``cov_m2``."""
+    from ..survey.lines import cov6_cell
+
+    c = np.asarray(cov, float)
+    t_ = (np.asarray(b, float) - np.asarray(a, float)) / float(np.linalg.norm(np.subtract(b, a)))
+    across = np.eye(3) - np.outer(t_, t_)
+    sd_across = math.sqrt(max(float(np.max(np.linalg.eigvalsh(across @ c[:3, :3] @ across))),
+                              float(np.max(np.linalg.eigvalsh(across @ c[3:, 3:] @ across))), 1e-8))
+    row = {"line": lid, "point": point, "e1_m": round(float(a[0]), 4), "n1_m": round(float(a[1]), 4),
+           "h1_m": round(float(a[2]), 4), "e2_m": round(float(b[0]), 4), "n2_m": round(float(b[1]), 4),
+           "h2_m": round(float(b[2]), 4), "sd_across_m": round(sd_across, 5), "cov_m2": cov6_cell(c)}
+    return [row.get(h, "") for h in header]
+
+
+def _line_obs_row(header: Sequence[str], lid: str, photo: str, p1_px: Any, p2_px: Any, sd_px: float) -> list[Any]:
+    """An observation row of line_control.csv: the edge's two points in the photo and their sd across, px."""
+    row = {"line": lid, "photo": photo, "col1_px": round(float(p1_px[0]), 3), "row1_px": round(float(p1_px[1]), 3),
+           "col2_px": round(float(p2_px[0]), 3), "row2_px": round(float(p2_px[1]), 3),
+           "sd_px": round(float(sd_px), 4)}
+    return [row.get(h, "") for h in header]
 
 
 def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_info: dict) -> dict:
@@ -405,7 +715,8 @@ def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_in
 
 
 def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points: Sequence[str] | None = None,
-                    decisions: str | Path | None = None, params: Any = None, replace: bool = False,
+                    decisions: str | Path | None = None, line_decisions: str | Path | None = None,
+                    params: Any = None, replace: bool = False,
                     gallery: bool = True, table: str | Path | None = None, dsm_radius_m: float = 30.0,
                     max_shift_m: float = 0.5, default_sd: tuple[float, float] = (2.0, 0.5),
                     min_photos: int = 1, lines: str = "add", line_table: str | Path | None = None,
@@ -421,10 +732,15 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     points : ids, optional
         Measure these ground points (default: every ground point of source ``lidar``).
     decisions : path, optional
-        An edited decisions.csv: write its accepted rows, measure nothing.
+        An edited decisions.csv: write its accepted rows, measure nothing; every row is recorded in the
+        survey's control_decisions.csv (module docstring, "The review remembered"; not with *table*).
+    line_decisions : path, optional
+        An edited line_decisions.csv (with line_candidates.csv beside it): write its accepted rows as line
+        observations, measure nothing (module docstring, "Feeding the decisions back").
     params : MeasureParams, optional
     replace : bool
-        Measure (and replace) vertex/photo pairs that already have an observation.
+        Measure (and replace) vertex/photo pairs that already have an observation or that the user accepted
+        (control_decisions.csv); never the pairs the user rejected.
     gallery : bool
         Write the chips.
     table : path, optional
@@ -482,18 +798,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     out.mkdir(parents=True, exist_ok=True)
     ip_path = Path(table) if table is not None else \
         Path(survey.files.get("image_points", survey.root / survey.config.files.image_points))
-    if decisions is not None:
-        rows = _read_decisions(Path(decisions))
-        accepted = [d for d in rows if d["accept"]]
-        header, table_rows = _table(survey, accepted, replace=True, drop={(d["photo"], d["point"]) for d in rows})
-        summary = {"decisions": str(decisions), "accepted": len(accepted), "rejected": len(rows) - len(accepted)}
-        write_json_atomic(out / "measure_control.json", summary)
-        comment = f"LiDAR control observations: lidarcat measure-control, decisions of {Path(decisions).name}"
-        if table is None:
-            _write_checked(survey, ip_path, header, table_rows, comment)
-        else:
-            write_csv_atomic(ip_path, header, table_rows, comments=[comment])
-        return MeasureControlResult(ip_path, out, {"accepted": len(accepted)}, len(accepted), summary)
+    if decisions is not None or line_decisions is not None:
+        return _feed_back(survey, out, ip_path, decisions, line_decisions, table, line_table)
 
     verts = lidar_vertices(survey, points)
     if not verts:
@@ -507,6 +813,15 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                           f"(X0 .. kappa) of any photo: nothing to predict with")
     p = params
     observed = {(str(a), str(b)) for a, b in zip(survey.image_points.photo, survey.image_points.point)}
+    # the user's review (control_decisions.csv): rejected pairs never measured, accepted ones not unless replace
+    user = survey.control_decisions
+    rejected, line_rejected = user.of("point", "reject"), user.of("line", "reject")
+    kept = set(user.of("point", "accept")) | {(d.photo, d.point) for d in user.of("line", "accept").values()}
+
+    def told(vid: str, pid: str, m: Any = None) -> Any:
+        d = rejected.get((pid, vid))
+        return m if d is None else Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan),
+                                               "user_rejected", user.reason(d))
     crs = survey.lidar_crs or survey.crs
     results: list[Any] = []
     targets: dict[str, list[tuple[str, Any]]] = {}
@@ -520,26 +835,30 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
             cloud = clip(list(survey.lidar_paths), enh[:2], dsm_radius_m, height_filter=None, crs=crs)
             xyz = np.asarray(cloud.xyz, dtype=np.float64)
         except LidarcatError as ex:
-            results += [Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan), "no_vertex",
-                                    f"no LiDAR around the vertex: {ex}") for pid in photos]
+            results += [told(vid, pid, Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan),
+                                                   "no_vertex", f"no LiDAR around the vertex: {ex}")) for pid in photos]
             continue
         cp = extract_roof(xyz, enh[:2], point_id=vid)
         if not cp or np.linalg.norm(cp.enh_m - enh) > max_shift_m:
             why = (f"the vertex is not extracted again ({cp.status}: {cp.reason})" if not cp else
                    f"the vertex extracted again lies {float(np.linalg.norm(cp.enh_m - enh)):.2f} m from the "
                    f"ground point (> {max_shift_m:g} m)")
-            results += [Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan), "no_vertex", why)
-                        for pid in photos]
+            results += [told(vid, pid, Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan),
+                                                   "no_vertex", why)) for pid in photos]
             continue
         vertex_info[vid] = (cp, xyz, {e.planes: e for e in roof_edges(cp.enh_m, cp.planes, xyz)})
         dsm = dsm_of_points(xyz)
         for pid in photos:
-            if (pid, vid) in observed and not replace:
+            if (pid, vid) in rejected:
+                results.append(told(vid, pid))
+                continue
+            if ((pid, vid) in observed or (pid, vid) in kept) and not replace:
                 continue
             cam = survey.camera_of(pid)
             pr = predict_points(cam, eos[pid], covs[pid], cp.enh_m[None], cp.cov_m2[None], points=[vid], photo=pid,
                                 dsm=dsm)[0]
             targets.setdefault(pid, []).append((vid, VertexTarget(cp.enh_m, cp.planes, xyz, pr)))
+    tried = {(pid, vid) for pid, lst in targets.items() for vid, _ in lst}
     per_vertex: dict[str, list[tuple[str, Any]]] = {}
     images: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
     for j, pid in enumerate(photos):
@@ -604,6 +923,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                 pages.append(path.name)
     # line control: the roof edges of the vertices tried, per photo (module docstring)
     new_lines: dict[str, tuple[str, Any, Any, Any]] = {}
+    candidates: dict[str, tuple[str, Any, Any, Any] | None] = {}   # the 3-D line of each edge tried
     new_obs: list[tuple[str, str, Any]] = []
     line_rows: list[list[Any]] = []
     if lines != "none":
@@ -614,9 +934,15 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
             found = {tuple(el.planes): el for el in m.edge_lines}
             for planes, e in edges.items():
                 lid = line_id(m.point, planes)
+                if lid not in candidates:
+                    pi, pj = cp.planes[planes[0]], cp.planes[planes[1]]
+                    try:
+                        candidates[lid] = (m.point, *edge_line_m(pi, pj, np.array([e.start_m, e.end_m])))
+                    except np.linalg.LinAlgError:      # planes (nearly) parallel: no line (not a candidate)
+                        candidates[lid] = None
                 el = found.get(tuple(planes))
                 status, reason = "not_written", ""
-                if m.status == "not_visible" or m.status in ("too_dark", "saturated", "near_border", "no_vertex"):
+                if m.status in ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected"):
                     reason = f"{m.status}: {m.reason}"
                 elif m.status == "rejected":
                     reason = f"the vertex's measurement was rejected: {m.reason}"
@@ -624,12 +950,13 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                     reason = "no image edge found (or too weak for a line without its vertex)"
                 elif m and lines == "add":
                     status, reason = "in_point", "the vertex's point observation carries this edge (not written twice)"
+                elif (m.photo, lid) in line_rejected:
+                    status, reason = "user_rejected", user.reason(line_rejected[(m.photo, lid)])
                 else:
                     status = "written"
-                    if lid not in new_lines:
-                        pi, pj = cp.planes[planes[0]], cp.planes[planes[1]]
-                        a, b, cov = edge_line_m(pi, pj, np.array([e.start_m, e.end_m]))
-                        new_lines[lid] = (m.point, a, b, cov)
+                    new_lines[lid] = candidates[lid] if candidates[lid] is not None else \
+                        (m.point, *edge_line_m(cp.planes[planes[0]], cp.planes[planes[1]],
+                                               np.array([e.start_m, e.end_m])))
                     new_obs.append((lid, m.photo, el))
 
                 def f(v: float, nd: int = 3) -> Any:
@@ -642,7 +969,18 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                                   "accept" if status == "written" else "reject"])
         write_csv_atomic(out / "line_decisions.csv", LINE_DECISION_FIELDS, line_rows, comments=[
             "LiDAR roof edges measured in the photos as line control (lidarcat measure-control): one row per edge "
-            "(line = POINT/plane-plane) and photo tried; written rows went to line_control.csv."])
+            "(line = POINT/plane-plane) and photo tried; written rows went to line_control.csv. Edit decision "
+            "(accept/reject; the pixels col1_px .. row2_px, sd_px) and feed the file back with --line-decisions; "
+            "the 3-D lines are in line_candidates.csv beside it."])
+        from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
+
+        ch = list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS)
+        write_csv_atomic(out / LINE_CANDIDATES, ch, [_line_def_row(ch, lid, *v) for lid, v in candidates.items()
+                                                      if v is not None and np.linalg.norm(np.subtract(v[2], v[1])) > 0],
+                         comments=["The 3-D control line of every roof edge of line_decisions.csv (line = POINT/"
+                                   "plane-plane; end points and cov_m2 from the two plane fits), in line_control.csv's "
+                                   "columns: measure-control --line-decisions takes the lines of accepted rows from "
+                                   "here."])
     written_points = {m.point for m in results if m and lines != "only"}
     accepted = [{"photo": m.photo, "point": m.point, "px": np.asarray(m.px), "sd": m.sd_px} for m in results
                 if m and lines != "only"]
@@ -660,12 +998,14 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
             survey.root / "line_control.csv"
         lh, lrows = _line_rows(survey, Path(own) if own is not None else None, new_lines, new_obs,
-                               set(vertex_info))
+                               set(vertex_info), {k for k, d in user.of("line", "accept").items()   # the user's,
+                                                  if (d.photo, d.point) not in tried})            # not measured now
         lines_out = (lp, lh, lrows, "LiDAR roof edges as control lines: lidarcat measure-control (line = POINT/"
                                     "plane-plane; end points and cov_m2 from the two plane fits; observations: the "
                                     "edge fits' two equivalent points, px)")
     if table is None:
-        _write_checked(survey, ip_path, header, table_rows, comment, lines_out)
+        if accepted or lines_out is not None:   # nothing new: the survey's tables (and their notes) stay as they are
+            _write_checked(survey, ip_path, header, table_rows, comment, lines_out)
     else:
         if lines_out is not None:
             write_csv_atomic(lines_out[0], lines_out[1], lines_out[2], comments=[lines_out[3]])

@@ -44,6 +44,8 @@ survey.toml::
     swath = true                       # swath.tif/.png/.json: swath separation image (USGS LBS)
     calibration_trajectory = "sbet.out"    # calibration.json: boresight, scan-angle scale (and bias with:)
     calibration_control = "runway.csv"
+    workers = 2                 # ground, models, stats and charts on one local Dask cluster of 2 processes
+    scheduler = "tcp://10.0.0.5:8786"  # or on a running Dask cluster (wins over workers)
 
 Charts (:mod:`lidarcat.production.charts`): one PDF and PNG per sheet of the
 index that holds mosaic cells or contours (sheets outside the data get no
@@ -61,6 +63,11 @@ dtm.tif`` makes them, by the same actions (:func:`lidarcat.stages.lidar.ground`,
 points within 50 m, mosaicked into one GeoTIFF over the survey.  Contours and
 the hypsometric image are made over the whole survey area in one piece
 (:mod:`lidarcat.production.contours`, :mod:`lidarcat.production.terrain`).
+The tile work of the stage (ground, DTM, DSM, stats and the charts, one task per
+sheet) runs in the run's process by default; ``workers = N`` starts one local
+Dask cluster of N worker processes for all of it (:func:`lidarcat.lidar.jobs.dask_client`)
+and hands its address to every action, as ``scheduler`` hands a running
+cluster's; the products are the same either way.
 Everything carries the LiDAR CRS; the stage writes
 into its temporary folder and the runner moves it into ``OUTDIR/products/``
 only when it succeeded.
@@ -68,14 +75,15 @@ only when it succeeded.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 from ..survey.schema import ProductsSettings
 from .context import StageContext as Context
 
-__all__ = ["run", "settings", "PRODUCTS_KEYS", "asked", "chart_mosaic_path", "chart_sheets", "write_charts", "deliver",
+__all__ = ["run", "settings", "PRODUCTS_KEYS", "runner", "asked", "chart_mosaic_path", "chart_sheets", "write_charts", "deliver",
            "contour_options", "contour_checks", "lidar_checks"]
 
 #: keys of the [products] table and their defaults (lidarcat.survey.schema.ProductsSettings)
@@ -89,6 +97,27 @@ def settings(survey: Any) -> dict[str, Any]:
     return {} if cfg is None else cfg.to_dict()
 
 
+def runner(cfg: dict[str, Any]) -> dict[str, Any]:
+    """``{"workers": N or None, "scheduler": ADDRESS or None}`` of the ``[products]`` keys *cfg*, as the
+    tile actions take them: ``workers = 1`` (the default) is None, the run's own process."""
+    workers = cfg.get("workers") or 1
+    return {"workers": workers if workers > 1 else None, "scheduler": cfg.get("scheduler")}
+
+
+@contextlib.contextmanager
+def _tile_runner(cfg: dict[str, Any]) -> Iterator[dict[str, Any]]:
+    """The runner keywords of every tile action of one stage run: a local cluster of ``workers``
+    processes is started once for all of them and handed on by its address."""
+    r = runner(cfg)
+    if r["workers"] is None or r["scheduler"] is not None:
+        yield {"workers": None, "scheduler": r["scheduler"]}
+        return
+    from ..lidar.jobs import dask_client
+
+    with dask_client(r["workers"], "processes") as client:
+        yield {"workers": None, "scheduler": client.scheduler.address}
+
+
 def asked(cfg: dict[str, Any]) -> list[str]:
     """The products a ``[products]`` table asks for, in the order the stage makes them."""
     return ([k for k in ("ground", "dtm", "dsm", "ndsm", "stats", "contours", "hypsometry", "charts") if cfg.get(k)]
@@ -97,6 +126,12 @@ def asked(cfg: dict[str, Any]) -> list[str]:
 
 def run(ctx: Context, tmp: Path) -> dict:
     """Ground classification, DTM, DSM, nDSM, contours, hypsometric image and sheets of the survey's tiles."""
+    with _tile_runner({k: ctx.params[k] for k in ("workers", "scheduler")}) as par:
+        return _products(ctx, tmp, par)
+
+
+def _products(ctx: Context, tmp: Path, par: dict[str, Any]) -> dict:
+    """:func:`run` with the runner keywords *par* of the tile actions."""
     import json
 
     import numpy as np
@@ -129,7 +164,7 @@ def run(ctx: Context, tmp: Path) -> dict:
         method = cfg["filter"]
         params = params_from_dict(method, {"adaptive": cfg["smrf_adaptive"]} if method == "smrf" else {})
         outs = [Path(p) for p in ground(tiles, tmp / "ground", crs=crs, method=method, params=params,
-                                        noise=cfg["noise"], hag=cfg["hag"], copc=cfg["copc"], resume=False)]
+                                        noise=cfg["noise"], hag=cfg["hag"], copc=cfg["copc"], resume=False, **par)]
         for m in (tmp / "ground").glob("*.done.json"):   # resume markers of the tile runner: not products
             m.unlink()
         tiles = sorted(outs)
@@ -150,7 +185,7 @@ def run(ctx: Context, tmp: Path) -> dict:
     def model(kind: str, **extra: bool) -> np.ndarray:
         """The DTM or DSM of the tiles by the action of ``lidarcat lidar dtm|dsm TILES -o <kind>.tif``."""
         terrain_model(kind, tiles, tmp / f"{kind}.tif", crs=crs, cell_m=cell, max_edge_m=cfg["max_edge_m"],
-                      text=cfg["text_grid"], hillshade=cfg["hillshade"], resume=False, **extra)
+                      text=cfg["text_grid"], hillshade=cfg["hillshade"], resume=False, **par, **extra)
         rasters[f"{kind}.tif"] = read_grid(tmp / f"{kind}.tif")
         done["files"] += [f"{kind}.tif"] + [n for n, on in ((f"{kind}_hillshade.tif", cfg["hillshade"]),
                                                              (f"{kind}.txt", cfg["text_grid"]),
@@ -177,7 +212,7 @@ def run(ctx: Context, tmp: Path) -> dict:
             done["files"] += ["ndsm.txt", "ndsm.prj"]
         tick()
     if cfg["stats"]:   # the action of `lidarcat lidar stats TILES -o stats.tif`
-        statistics_raster(tiles, tmp / "stats.tif", crs=crs, cell_m=cell, resume=False)
+        statistics_raster(tiles, tmp / "stats.tif", crs=crs, cell_m=cell, resume=False, **par)
         done["files"].append("stats.tif")
         done["stats"] = {"cell_m": cell, "bands": ["min", "max", "mean", "count", "stdev"]}
         tick()
@@ -212,7 +247,7 @@ def run(ctx: Context, tmp: Path) -> dict:
         done["files"].append("sheets" + vext)
         tick()
     if cfg.get("charts"):
-        done["charts"] = chart_sheets(ctx, features, spots, area, cfg, crs, tmp)
+        done["charts"] = chart_sheets(ctx, features, spots, area, cfg, crs, tmp, **par)
         done["files"] += done["charts"]["files"]
         tick()
     if cfg.get("swath") or cfg.get("calibration_trajectory"):
@@ -309,8 +344,10 @@ def chart_mosaic_path(ctx: Context, cfg: dict[str, Any]) -> Path:
 
 
 def chart_sheets(ctx: Context, features: list[dict[str, Any]], spots: Any, area: tuple[float, float, float, float],
-                 cfg: dict[str, Any], crs: Any, tmp: Path) -> dict[str, Any]:
-    """charts/<sheet>.pdf and .png of the run (:func:`write_charts` with the ``[products]`` keys)."""
+                 cfg: dict[str, Any], crs: Any, tmp: Path, *, workers: int | None = None,
+                 scheduler: str | None = None) -> dict[str, Any]:
+    """charts/<sheet>.pdf and .png of the run (:func:`write_charts` with the ``[products]`` keys, on the
+    tile runner of *workers* / *scheduler*)."""
     import datetime
 
     from ..lidar.crs import crs_label, resolve_crs
@@ -331,7 +368,7 @@ def chart_sheets(ctx: Context, features: list[dict[str, Any]], spots: Any, area:
                        contour_interval_m=cfg["contour_interval_m"], master_every=cfg["master_every"])
     out = write_charts(mosaic_path, features, spots, tmp / "charts", crs=crs, title=title,
                        index=cfg["sheet_index"], size_m=cfg["sheet_size_m"] or 1000.0, area=area,
-                       dpi=int(cfg["chart_dpi"]))
+                       dpi=int(cfg["chart_dpi"]), workers=workers, scheduler=scheduler)
     out["files"] = [f"charts/{f}" for f in out["files"]]
     return out
 

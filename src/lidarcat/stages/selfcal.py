@@ -28,14 +28,34 @@ def planned(survey: Any) -> bool:
 
 
 def run(ctx: Context, tmp: Path) -> dict:
-    """Adjustment with additional parameters -> the adjustment folder; the result keeps the tests."""
-    from ..survey.selfcal import selfcal_adjust, write_selfcal
+    """Adjustment with additional parameters -> the adjustment folder; the result keeps the tests.
 
-    survey, res = selfcal_adjust(ctx["survey"])
-    summary = write_selfcal(res, tmp, extra={"crs": survey.crs, "height_system": survey.height_system})
+    On a matched survey (image observations with sds of their own, the automatic tie points of
+    ``lidarcat match``) the rule of the ``adjust-SET`` stages applies
+    (:func:`lidarcat.stages.adjust.auto_variance_components`): data snooping in ``remove`` mode with
+    the group variance factors, before the parameters are estimated -- a gross automatic match would
+    otherwise pull the additional parameters (``blunders.csv`` and the summary's ``snooping`` say what
+    was removed).  Hand-measured blocks (the thesis's) are adjusted with every observation, as before.
+    Photos with GNSS/IMU sds (photos.csv ``sd_X0`` ..) are weighted constraints, as in the ``adjust-SET``
+    stages (the plan's ``eo_constraints``).
+    """
+    from ..survey.selfcal import selfcal_snooped, write_selfcal
+    from .adjust import auto_variance_components
+
+    matched = auto_variance_components(ctx["survey"])
+    sc = selfcal_snooped(ctx["survey"], snooping="remove" if matched else "off", variance_components=matched,
+                         eo_constraints=bool(ctx.params.get("eo_constraints")))   # photos.csv sd_X0..: GNSS/IMU
+    survey, res = sc.survey, sc.result
+    extra: dict[str, Any] = {"crs": survey.crs, "height_system": survey.height_system}
+    if sc.variance_components is not None:
+        extra["variance_components"] = sc.variance_components.summary()
+    summary = write_selfcal(res, tmp, extra=extra, snooping=sc.snooping)
     keep = ("additional_parameters", "frame_offset", "parameter_groups", "parameters_off", "parameters_on",
             "warnings", "control_set", "status")
-    return {k: summary.get(k) for k in keep}
+    out = {k: summary.get(k) for k in keep}
+    if sc.snooping is not None:
+        out["blunders_removed"] = len(summary.get("blunders") or [])
+    return out
 
 
 def markdown(sc: Mapping[str, Any]) -> list[str]:

@@ -9,6 +9,7 @@
 ``motion``      The camera's motion during an exposure: the rolling shutter of the survey's cameras in the bundle.
 ``rigs``        Rigs from the survey: a rig TOML of cameras with fixed relative poses, and photos.csv's exposures.
 ``lines``       line_control.csv: control lines (LiDAR roof edges) and their image observations; line_residuals.csv.
+``decisions``   control_decisions.csv: the user's review of the LiDAR control measured in the photos, remembered.
 ==============  ============================================================
 """
 

@@ -55,6 +55,7 @@ from ._tables import (
     load_image_points,
     load_photos,
 )
+from .decisions import ControlDecisions, read_control_decisions
 from .lines import photo_cameras, read_line_control
 from .rigs import check_rig_exposures
 from .schema import (
@@ -291,6 +292,9 @@ class Survey:
     config : SurveyConfig
         survey.toml parsed and checked (:mod:`lidarcat.survey.schema`), read once: every table,
         e.g. ``config.mapping.gsd_m``; the stages read their tables here.
+    control_decisions : ControlDecisions
+        control_decisions.csv (``[files] control_decisions``): the user's review of the LiDAR control
+        measured in the photos (:mod:`lidarcat.survey.decisions`); empty without the key.
     """
 
     root: Path
@@ -313,6 +317,7 @@ class Survey:
     embedded: bool = False
     files: dict[str, Path] = field(default_factory=dict)
     config: SurveyConfig = field(default=None, repr=False)  # type: ignore[assignment]
+    control_decisions: ControlDecisions = field(default_factory=ControlDecisions)
 
     # ------------------------------------------------------------ load
     @classmethod
@@ -375,8 +380,11 @@ class Survey:
         if rigs_path is not None or any(p.rig_exposure for p in photos):
             check_rig_exposures(photos, rigs_path, cameras, photos_path)  # type: ignore[arg-type]
         lines_path = file_of("line_control")
-        if lines_path is not None:
-            read_line_control(lines_path, photo_ids, photo_cameras(photos, cameras))   # located errors at load
+        control_lines = read_line_control(lines_path, photo_ids, photo_cameras(photos, cameras))[0] \
+            if lines_path is not None else []   # located errors at load
+        dec_path = file_of("control_decisions")   # the user's review of the LiDAR control (survey.decisions)
+        decisions = read_control_decisions(dec_path, photo_ids, ground.point, [c.line for c in control_lines]) \
+            if dec_path is not None else ControlDecisions()
         jobs_path = file_of("extraction_jobs")
         job_words = job_tokens(jobs_path) if jobs_path else set()
 
@@ -419,7 +427,8 @@ class Survey:
                      cameras=cameras, photos=photos, image_points=image_points,
                      ground_points=ground, control_sets=control_sets, lidar_paths=lidar_paths,
                      lidar_crs=lidar_crs, extraction_jobs=jobs_path, settings=settings,
-                     assessment=assessment, embedded=embedded, files=files, config=t)
+                     assessment=assessment, embedded=embedded, files=files, config=t,
+                     control_decisions=decisions)
         log.info("loaded survey %r: %d photos, %d measurements, %d ground points, control sets %s",
                  name, len(photos), len(image_points), len(ground), ", ".join(control_sets) or "-")
         return survey

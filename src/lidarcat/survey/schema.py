@@ -135,6 +135,8 @@ class FilesTable:
                                           "photos.csv rig_exposure (docs/cameras.md, Rigs)")
     line_control: str | None = _key(STRING, None, "line_control.csv: control lines (LiDAR roof edges) and their "
                                                   "measurements in the photos (docs/lines.md)")
+    control_decisions: str | None = _key(STRING, None, "control_decisions.csv: the user's review of the LiDAR "
+                                                       "control measured in the photos (docs/photocontrol.md)")
 
 
 @dataclass(frozen=True)
@@ -344,6 +346,12 @@ class ProductsSettings:
                                                "--fixed-grid)")
     copc: bool = _key(BOOLEAN, False, "ground: the classified copies as COPC, ground/<tile>.copc.laz (lidar "
                                       "ground --copc)")
+    workers: int = _key(INTEGER, 1, "tile runner of ground, the models, stats and the charts: 1 runs them in "
+                                    "the run's process, N > 1 on one local Dask cluster of N worker processes "
+                                    "(lidarcat[cluster]; --workers of the lidar commands and lidarcat chart); "
+                                    "the products are the same")
+    scheduler: str | None = _key(STRING, None, "address of a running Dask scheduler, e.g. \"tcp://10.0.0.5:8786\" "
+                                               "(every worker must see the survey's paths); wins over workers")
 
     def to_dict(self) -> dict[str, Any]:
         """The table as the stage's parameters."""
@@ -590,6 +598,10 @@ def _mapping(r: _Reader, v: dict[str, Any]) -> MappingSettings:
     return MappingSettings(**v)
 
 
+#: a Dask scheduler address: PROTOCOL://HOST[:PORT] (tcp, tls, ucx, inproc, ...)
+_SCHEDULER_ADDRESS = re.compile(r"[a-z][a-z0-9+.-]*://[^\s/]+")
+
+
 def _products(r: _Reader, v: dict[str, Any]) -> ProductsSettings:
     from ..production.ground import GROUND_METHODS
     from ..production.sheets import SHEET_INDEXES
@@ -625,6 +637,12 @@ def _products(r: _Reader, v: dict[str, Any]) -> ProductsSettings:
     if v["contour_edge_peel"] < 0:
         raise r.err(t, "contour_edge_peel", f"must be 0 or more, got {excerpt(v['contour_edge_peel'])}")
     _checks(r, v)
+    if v["workers"] < 1:
+        raise r.err(t, "workers", f"must be 1 (in the run's process) or more (Dask worker processes), got "
+                                  f"{excerpt(v['workers'])}")
+    if v["scheduler"] is not None and not _SCHEDULER_ADDRESS.fullmatch(v["scheduler"]):
+        raise r.err(t, "scheduler", f"expected the address of a Dask scheduler such as 'tcp://10.0.0.5:8786', "
+                                    f"got {excerpt(v['scheduler'])}")
     wrong = [str(x) for x in v["delivery"] if x not in ("tfw", "shp", "dxf")]
     if wrong:
         raise r.err(t, "delivery", f"{', '.join(map(excerpt, wrong))}: use tfw, shp, dxf")
