@@ -208,7 +208,10 @@ def rescore(s: Any, root: Path, out: Path) -> dict[str, Any]:
     code, secs = (ex.read_text().split() + ["nan"])[:2] if ex.is_file() else ("nan", "nan")
     res: dict[str, Any] = {"exit": int(code) if code.lstrip("-").isdigit() else None, "seconds": float(secs)}
     if not (out / "adjust-lidar" / "eop.csv").is_file():
-        res["error"] = "no adjust-lidar/eop.csv"
+        log = out / "lidarcat.log"
+        failed = [ln.split("failed after", 1)[1].split(":", 1)[1].strip() for ln in
+                  (log.read_text().splitlines() if log.is_file() else []) if "stage adjust-lidar: failed" in ln]
+        res["error"] = "adjust-lidar failed: " + (failed[0] if failed else "no adjust-lidar/eop.csv")
         return res
     res.update(score(s, root / "truth" / "points.csv", out / "adjust-lidar", out / "assess-lidar",
                      _lidar_points(root)))
@@ -227,7 +230,7 @@ MAX_Z, RATIO = 3.0, 1.5
 def verdict(auto: dict[str, Any], hand: dict[str, Any]) -> list[str]:
     """The acceptance items *auto* fails (empty: passes)."""
     if "error" in auto or "error" in hand:
-        return [f"no adjustment: {auto.get('error') or hand.get('error')}"]
+        return ["no adjustment"]
     bad = []
     if auto["exit"] != 0:
         bad.append(f"exit {auto['exit']}")
@@ -287,7 +290,7 @@ def table(results: list[dict[str, Any]]) -> str:
     def fmt(seed: Any, name: str, v: dict[str, Any], ratio: str, acc: str) -> str:
         exits = ", ".join(str(x) for x in v["exits"]) if "exits" in v else str(v.get("exit"))
         if "error" in v:
-            return f"| {seed} | {name} | {exits} | | {v['error'][:60]} | | | | | | | | | {acc} |"
+            return f"| {seed} | {name} | {exits} | | {v['error'][:110]} | | | | | | | | | {acc} |"
         m = v.get("measured") or {}
         st = dict(m.get("status") or {})
         if "measured_total" in v:
