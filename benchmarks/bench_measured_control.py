@@ -290,7 +290,7 @@ def table(results: list[dict[str, Any]]) -> str:
     def fmt(seed: Any, name: str, v: dict[str, Any], ratio: str, acc: str) -> str:
         exits = ", ".join(str(x) for x in v["exits"]) if "exits" in v else str(v.get("exit"))
         if "error" in v:
-            return f"| {seed} | {name} | {exits} | | {v['error'][:110]} | | | | | | | | | {acc} |"
+            return f"| {seed} | {name} | {exits} | | {v['error'].split(' (')[0][:110]} | | | | | | | | | {acc} |"
         m = v.get("measured") or {}
         st = dict(m.get("status") or {})
         if "measured_total" in v:
