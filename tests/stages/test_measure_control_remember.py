@@ -308,7 +308,7 @@ def test_line_decisions_are_remembered(blocks, tmp_path):
 def test_bad_rows_of_control_decisions_are_located(blocks, tmp_path, row, message):
     src, _ = blocks
     root = _copy(src, tmp_path)
-    from lidarcat.stages.measure_control import _add_files_key
+    from lidarcat.stages._control_tables import add_files_key as _add_files_key
 
     cells = row.split(",")
     (root / "control_decisions.csv").write_text(
@@ -323,7 +323,7 @@ def test_bad_rows_of_control_decisions_are_located(blocks, tmp_path, row, messag
 def test_a_hand_written_table_loads_and_a_line_of_line_control_may_be_named(blocks, tmp_path):
     src, _ = blocks
     root = _copy(src, tmp_path)
-    from lidarcat.stages.measure_control import _add_files_key
+    from lidarcat.stages._control_tables import add_files_key as _add_files_key
 
     (root / "control_decisions.csv").write_text("kind,photo,id,decision\nPOINT,101,L001,Reject\nline,102,L003/1-2,"
                                                 "accept\n")
