@@ -667,6 +667,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     per_vertex, images = _measure_photos(survey, photos, targets, vertex_info, eos, covs, params=params,
                                          direction_from_kappa=direction_from_kappa, lone_photo=lone_photo,
                                          gallery=gallery, progress=progress, done=len(verts), total=total)
+    tried = {(pid, vid) for pid, lst in targets.items() for vid, _ in lst}
     block_info = _check_block(survey, per_vertex, eos, covs, vertex_info) if block_check else {"status": "off"}
     results += _check_vertices(survey, per_vertex, vertex_info, eos, covs, min_photos)
     order = {pid: k for k, pid in enumerate(survey.photo_ids)}
@@ -687,7 +688,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     write_json_atomic(out / "measure_control.json", json.loads(json.dumps(summary, default=str)))
     lp = _write_tables(survey, ip_path, accepted, replace=replace, table=table, line_table=line_table,
                        new_lines=new_lines, new_obs=new_obs, vertex_info=vertex_info,
-                       keep_lines=set(review.user.of("line", "accept")))
+                       keep_lines={k for k, d in review.user.of("line", "accept").items()    # the user's, not
+                                   if (d.photo, d.point) not in tried})                     # measured now
     if progress is not None:
         progress(total, total)
     log.info("measure-control: %d vertices, %d accepted observations -> %s; %d line observations", len(verts),
