@@ -146,21 +146,21 @@ def test_edge_line_observation_is_a_line_observation():
 def test_line_table_keeps_other_lines_and_replaces_the_measured_vertex(tmp_path):
     """measure-control's line_control.csv: a hand-made line and the lines of vertices not measured now are kept,
     the re-measured vertex's rows replaced; survey.toml gets [files] line_control once."""
-    from lidarcat.stages import measure_control as mc
+    from lidarcat.stages import _control_tables as mc
 
     p = tmp_path / "line_control.csv"
     p.write_text("\n".join([HEADER, _line("R9"), _obs("R9", "a"), _line("L1/1-2", "L1"), _obs("L1/1-2", "a"),
                             _line("L2/1-3", "L2"), _obs("L2/1-3", "b")]) + "\n")
     el = measure.EdgeLine((0, 1), [10.0, 20.0], [30.0, 40.0], 0.4, 4.0)
     cov = np.eye(6) * 1e-4
-    header, rows = mc._line_rows(None, p, {"L1/1-2": ("L1", [0.0, 0, 0], [1.0, 0, 0], cov)}, [("L1/1-2", "b", el)],
-                                 {"L1"})
+    header, rows = mc.line_control_rows(None, p, {"L1/1-2": ("L1", [0.0, 0, 0], [1.0, 0, 0], cov)},
+                                        [("L1/1-2", "b", el)], {"L1"})
     got = [(r[0], r[1]) for r in rows]
     assert got == [("R9", ""), ("R9", "a"), ("L2/1-3", ""), ("L2/1-3", "b"), ("L1/1-2", ""), ("L1/1-2", "b")]
     assert header[-2:] == ["point", "cov_m2"] and rows[-2][-2] == "L1"
     toml = tmp_path / "survey.toml"
     toml.write_text('[survey]\nname = "x"\n\n[files]\ncamera = "camera.toml"\n\n[lidar]\ncrs = "EPSG:1"\n')
-    mc._add_line_control_key(toml, tmp_path / "line_control.csv")
+    mc.add_line_control_key(toml, tmp_path / "line_control.csv")
     import tomllib
 
     assert tomllib.loads(toml.read_text())["files"] == {"line_control": "line_control.csv", "camera": "camera.toml"}

@@ -21,7 +21,7 @@ from lidarcat.lidar.trajectory import (
     read_trajectory,
     write_sbet,
 )
-from lidarcat.production.lidarchecks import _ins, georeference, pulses_from_points
+from lidarcat.production.lidarcalib import _ins, georeference, pulses_from_points
 from lidarcat.stages.lidar import system_calibration
 from lidarcat.synthetic.strips import synthetic_strips
 

@@ -254,7 +254,7 @@ def test_a_hand_line_and_other_photos_observations_are_kept(blocks, tmp_path):
     l004_on_101 = {"line": "L004/1-2", "photo": "101", "col1_px": "10", "row1_px": "10", "col2_px": "40",
                    "row2_px": "12", "sd_px": "0.5"}
     _write(root / "line_control.csv", header, [hand, hand_obs, l004, l004_on_101])
-    from lidarcat.stages.measure_control import _add_line_control_key
+    from lidarcat.stages._control_tables import add_line_control_key as _add_line_control_key
 
     _add_line_control_key(root / "survey.toml", root / "line_control.csv")
     d, ld = _edited(root, {("L003", "102"): {"decision": "reject"}},

@@ -308,7 +308,7 @@ def test_line_decisions_are_remembered(blocks, tmp_path):
 def test_bad_rows_of_control_decisions_are_located(blocks, tmp_path, row, message):
     src, _ = blocks
     root = _copy(src, tmp_path)
-    from lidarcat.stages.measure_control import _add_files_key
+    from lidarcat.stages._control_tables import add_files_key as _add_files_key
 
     cells = row.split(",")
     (root / "control_decisions.csv").write_text(
@@ -323,7 +323,7 @@ def test_bad_rows_of_control_decisions_are_located(blocks, tmp_path, row, messag
 def test_a_hand_written_table_loads_and_a_line_of_line_control_may_be_named(blocks, tmp_path):
     src, _ = blocks
     root = _copy(src, tmp_path)
-    from lidarcat.stages.measure_control import _add_files_key
+    from lidarcat.stages._control_tables import add_files_key as _add_files_key
 
     (root / "control_decisions.csv").write_text("kind,photo,id,decision\nPOINT,101,L001,Reject\nline,102,L003/1-2,"
                                                 "accept\n")
@@ -393,3 +393,33 @@ def test_an_edge_its_point_carries_is_not_recorded_as_rejected(blocks, tmp_path)
     assert ("line", "102", "L003/1-2") not in rec and rec[("point", "102", "L003")][1].decision == "accept"
     assert _lidar_obs(root) == {("102", "L003"), ("102", "L004")}
     assert [r for r in _rows(root / "line_control.csv")] == []
+
+
+def test_replace_measures_an_accepted_edge_again_instead_of_writing_it_twice(blocks, tmp_path):
+    """--replace measures a pair whose edges the user accepted again: each new edge observation replaces the
+    accepted one of its line and photo (the accepted observations are kept only while their vertex is measured on
+    other photos), never one row beside the other."""
+    _, src = blocks
+    root = _copy(src, tmp_path)
+    rep = root / "out" / "lines_only"
+    measure_control(root, rep, lines="only", replace=True, points=["L004"], table=rep / "ip.csv",
+                    line_table=rep / "lc.csv", gallery=False)
+    d, ld = rep / "decisions.csv", rep / "line_decisions.csv"
+    dec = _rows(d)
+    for r in dec:
+        r["decision"] = "reject"
+    _write(d, DECISION_FIELDS, dec)
+    _run(root, "--decisions", str(d), "--line-decisions", str(ld))
+    accepted = [(r["line"], r["photo"]) for r in _rows(root / "line_control.csv") if r["photo"]]
+    assert sorted(accepted) == [("L004/1-2", "102"), ("L004/2-3", "102")]
+    table = root / "control_decisions.csv"      # the user reopens L004 on 102 (deletes its point's record)
+    table.write_text("".join(t for t in table.read_text().splitlines(keepends=True)
+                             if not t.startswith("point,102,L004,")))
+    run = tmp_path / "run"
+    run.mkdir()
+    measure_control(root, run, table=run / "image_points.csv", line_table=run / "line_control.csv", gallery=False,
+                    replace=True, lines="only", points=["L004"])
+    written = [(r["line"], r["photo"]) for r in _rows(run / "line_decisions.csv") if r["status"] == "written"]
+    assert sorted(written) == [("L004/1-2", "102"), ("L004/2-3", "102")]
+    obs = [(r["line"], r["photo"]) for r in _rows(run / "line_control.csv") if r["photo"]]
+    assert sorted(obs) == [("L004/1-2", "102"), ("L004/2-3", "102")]      # once each

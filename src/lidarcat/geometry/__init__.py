@@ -13,6 +13,8 @@
 ``rigs``          Camera rigs: sensors with fixed relative poses moved as one body per exposure, and Jacobians.
 ``tin``           One Delaunay point locator (a walk) and barycentric weights, for every TIN surface.
 ================  ============================================================
+
+Private: ``_distortion_limits`` (whether a frame camera's distortion can be inverted over its frame).
 """
 
 from __future__ import annotations

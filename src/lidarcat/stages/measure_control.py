@@ -102,6 +102,8 @@ import numpy as np
 
 from .._util import write_csv_atomic, write_json_atomic
 from ..errors import LidarcatError, SurveyError
+from ._control_review import LINE_CANDIDATES, feed_back
+from ._control_tables import edge_pairs, image_point_rows, line_control_rows, line_def_row, write_checked
 from .context import StageContext as Context
 
 __all__ = ["measure_control", "run", "planned", "MeasureControlResult", "DECISION_FIELDS", "LINE_DECISION_FIELDS",
@@ -117,8 +119,6 @@ LINE_DECISION_FIELDS = ["line", "point", "photo", "status", "reason", "col1_px",
                         "sd_px", "ratio", "decision"]
 #: values of ``lines``
 LINE_MODES = ("add", "only", "none")
-#: the file beside line_decisions.csv with the 3-D line of each of its line ids
-LINE_CANDIDATES = "line_candidates.csv"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,7 +197,7 @@ def planned(survey: Any) -> str | None:
         return "the survey has no LiDAR control vertices (ground points of source lidar)"
     observed = set(np.asarray(survey.image_points.point, dtype=str).tolist())
     own = survey.files.get("line_control")
-    observed |= {pt for _, pt in _edge_pairs(None, Path(own))} if own is not None else set()
+    observed |= {pt for _, pt in edge_pairs(None, Path(own))} if own is not None else set()
     told = survey.control_decisions.of("point")
     oriented = [ph.id for ph in survey.photos if ph.position_m is not None and ph.attitude_deg is not None]
     if all(v in observed or (oriented and all((pid, v) in told for pid in oriented)) for v, _ in verts):
@@ -258,422 +258,6 @@ def _decision_rows(ms: Sequence[Any]) -> list[list[Any]]:
     return rows
 
 
-def _read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
-    """The rows of an edited decisions.csv.
-
-    Raises
-    ------
-    SurveyError
-        ``file:line``: a decision other than accept/reject, an unknown photo or ground point, a pixel or sd that is
-        not a number, an accepted row without its pixel, a non-positive sd, a photo and point listed twice.
-    """
-    from .._util import excerpt, read_csv_table
-    from ..errors import location
-
-    t = read_csv_table(path, required=("photo", "point", "decision", "col_px", "row_px"),
-                       optional=("sd_col_px", "sd_row_px", "status", "reason", "pred_col_px", "pred_row_px",
-                                 "pred_sd_px"))
-    out = []
-    photos, points, dec = t.column("photo"), t.column("point"), t.column("decision")
-    status = t.column("status") if t.has("status") else [""] * len(t.rows)
-    cols, rows_ = t.floats("col_px", required=False), t.floats("row_px", required=False)
-    sdc = t.floats("sd_col_px", required=False) if t.has("sd_col_px") else np.full(len(t.rows), np.nan)
-    sdr = t.floats("sd_row_px", required=False) if t.has("sd_row_px") else np.full(len(t.rows), np.nan)
-    known_photos = set(survey.photo_ids)
-    known_points = set(np.asarray(survey.ground_points.point, dtype=str).tolist())
-    seen: dict[tuple[str, str], int] = {}
-    for k, line in enumerate(t.lines):
-        d = str(dec[k]).strip().lower()
-        if d not in ("accept", "reject"):
-            raise SurveyError(f"{path}:{line}: decision must be accept or reject, got {dec[k]!r}")
-        if photos[k] not in known_photos:
-            raise SurveyError(f"{location(path, line, 'photo')}: unknown photo {excerpt(photos[k])} (not in "
-                              f"photos.csv)")
-        if points[k] not in known_points:
-            raise SurveyError(f"{location(path, line, 'point')}: unknown point {excerpt(points[k])} (not in "
-                              f"ground_points.csv)")
-        if (photos[k], points[k]) in seen:
-            raise SurveyError(f"{path}:{line}: point {excerpt(points[k])} on photo {excerpt(photos[k])} is listed "
-                              f"twice (also on line {seen[(photos[k], points[k])]}); keep one row")
-        seen[(photos[k], points[k])] = line
-        if d == "accept" and not (np.isfinite(cols[k]) and np.isfinite(rows_[k])):
-            raise SurveyError(f"{path}:{line}: decision accept needs col_px and row_px (photo {photos[k]!r}, "
-                              f"point {points[k]!r})")
-        for name, v in (("sd_col_px", sdc[k]), ("sd_row_px", sdr[k])):
-            if d == "accept" and v <= 0:
-                raise SurveyError(f"{location(path, line, name)}: must be positive, got {v:g}")
-        out.append({"photo": str(photos[k]), "point": str(points[k]), "accept": d == "accept",
-                    "px": np.array([cols[k], rows_[k]]), "sd": np.array([sdc[k], sdr[k]]), "at": line,
-                    "status": status[k]})
-    return out
-
-
-def _known_lines(path: Path, survey: Any) -> dict[str, tuple[str, dict[str, str]]]:
-    """The 3-D lines a line_decisions.csv at *path* may name: line id -> (its LiDAR point, the cells of its row in
-    line_control.csv's columns), from :data:`LINE_CANDIDATES` beside *path* (the run that wrote it), else from the
-    survey's line_control.csv."""
-    from .._util import read_csv_table
-    from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
-
-    out: dict[str, tuple[str, dict[str, str]]] = {}
-    own = survey.files.get("line_control")
-    for src in (Path(own) if own is not None else None, path.with_name(LINE_CANDIDATES)):
-        if src is None or not src.is_file():
-            continue
-        t = read_csv_table(src, required=("line", "photo"), optional=tuple(
-            c for c in (*LINE_COLUMNS, *LINE_EXTRA_COLUMNS) if c not in ("line", "photo")))
-        for r in t.rows:
-            cells = dict(zip(t.header, r))
-            if not cells["photo"]:
-                lid = cells["line"]
-                out[lid] = (cells.get("point", ""), cells)   # the candidates (read last) win
-    return out
-
-
-_LINE_PX = ("col1_px", "row1_px", "col2_px", "row2_px", "sd_px")
-
-
-def _read_line_decisions(path: Path, survey: Any) -> tuple[list[dict[str, Any]], dict[str, tuple[str, dict]]]:
-    """The rows of an edited line_decisions.csv and the 3-D lines they name (:func:`_known_lines`).
-
-    Raises
-    ------
-    SurveyError
-        ``file:line``: a decision other than accept/reject, an unknown photo or line, a ``point`` that is not the
-        line's, a pixel or sd that is not a number, an accepted row without its pixels or with a zero-length edge,
-        a line listed twice for one photo.
-    """
-    from .._util import excerpt, read_csv_table
-    from ..errors import location
-
-    t = read_csv_table(path, required=("line", "photo", "decision", *_LINE_PX),
-                       optional=("point", "status", "reason", "ratio"))
-    known = _known_lines(path, survey)
-    px = np.column_stack([t.floats(c, required=False) for c in _LINE_PX])
-    photos = set(survey.photo_ids)
-    out: list[dict[str, Any]] = []
-    seen: dict[tuple[str, str], int] = {}
-    for k, (row, ln) in enumerate(zip(t.rows, t.lines)):
-        c = dict(zip(t.header, row))
-        lid, photo, dec = c["line"], c["photo"], c["decision"].lower()
-        if dec not in ("accept", "reject"):
-            raise SurveyError(f"{path}:{ln}: decision must be accept or reject, got {c['decision']!r}")
-        if photo not in photos:
-            raise SurveyError(f"{location(path, ln, 'photo')}: unknown photo {excerpt(photo)} (not in photos.csv)")
-        if lid not in known:
-            raise SurveyError(f"{location(path, ln, 'line')}: unknown line {excerpt(lid)}: neither "
-                              f"{LINE_CANDIDATES} beside this file nor the survey's line_control.csv defines it")
-        point = known[lid][0]
-        if c.get("point") and point and c["point"] != point:
-            raise SurveyError(f"{location(path, ln, 'point')}: line {excerpt(lid)} is of point {excerpt(point)}, "
-                              f"not {excerpt(c['point'])}")
-        if (lid, photo) in seen:
-            raise SurveyError(f"{path}:{ln}: line {excerpt(lid)} on photo {excerpt(photo)} is listed twice (also on "
-                              f"line {seen[(lid, photo)]}); keep one row")
-        seen[(lid, photo)] = ln
-        p1, p2, sd = px[k, :2], px[k, 2:4], px[k, 4]
-        if dec == "accept":
-            if not np.isfinite(px[k]).all():
-                raise SurveyError(f"{path}:{ln}: decision accept needs col1_px, row1_px, col2_px, row2_px and sd_px "
-                                  f"(line {excerpt(lid)}, photo {excerpt(photo)})")
-            if sd <= 0:
-                raise SurveyError(f"{location(path, ln, 'sd_px')}: must be positive, got {c['sd_px']}")
-            if np.hypot(*(p2 - p1)) <= 0:
-                raise SurveyError(f"{path}:{ln}: line {excerpt(lid)} on photo {excerpt(photo)}: its two image points "
-                                  f"coincide (an edge of zero length)")
-        out.append({"line": lid, "point": point, "photo": photo, "accept": dec == "accept", "p1": p1, "p2": p2,
-                    "sd": sd, "at": ln, "status": c.get("status", "")})
-    return out, known
-
-
-def _fed_line_rows(path: Path | None, known: dict[str, tuple[str, dict]], fed: list[dict[str, Any]]
-                   ) -> tuple[list[str], list[list[Any]]]:
-    """The new line_control.csv after a fed-back line_decisions.csv *fed*: the rows of *path* of the (line, photo)
-    pairs the file does not list kept; its accepted rows added as observations; each of its lines defined (from
-    *known*) when an observation of it remains, dropped when none does."""
-    from .._util import read_csv_table
-    from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
-
-    header = list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS)
-    lids = list(dict.fromkeys(d["line"] for d in fed))
-    pairs = {(d["line"], d["photo"]) for d in fed}
-    rows: list[list[Any]] = []
-    observed = {d["line"] for d in fed if d["accept"]}
-    if path is not None and path.is_file():
-        t = read_csv_table(path, required=("line", "photo"), optional=tuple(h for h in header if h not in
-                                                                            ("line", "photo")))
-        for r in t.rows:
-            c = dict(zip(t.header, r))
-            if (c["line"], c["photo"]) in pairs or (not c["photo"] and c["line"] in lids):
-                continue
-            if c["photo"]:
-                observed.add(c["line"])
-            rows.append([c.get(h, "") for h in header])
-    rows += [[known[lid][1].get(h, "") for h in header] for lid in lids if lid in observed]
-    rows += [_line_obs_row(header, d["line"], d["photo"], d["p1"], d["p2"], d["sd"]) for d in fed if d["accept"]]
-    return header, rows
-
-
-def _feed_back(survey: Any, out: Path, ip_path: Path, decisions: Any, line_decisions: Any,
-               table: Any, line_table: Any) -> MeasureControlResult:
-    """Write the accepted rows of an edited decisions.csv and/or line_decisions.csv, measure nothing."""
-    summary: dict[str, Any] = {}
-    header = table_rows = None
-    n_acc = 0
-    if decisions is not None:
-        rows = _read_decisions(Path(decisions), survey)
-        accepted = [d for d in rows if d["accept"]]
-        header, table_rows = _table(survey, accepted, replace=True, drop={(d["photo"], d["point"]) for d in rows})
-        summary.update(decisions=str(decisions), accepted=len(accepted), rejected=len(rows) - len(accepted))
-        with_point = {(str(r[0]), str(r[1])): ("in image_points.csv", False) for r in table_rows}
-        with_point.update({(d["photo"], d["point"]): (f"accepted in {Path(decisions).name}", d["status"] == "measured")
-                           for d in accepted})
-        n_acc = len(accepted)
-    else:
-        with_point = {(str(a), str(b)): ("in image_points.csv", False)
-                      for a, b in zip(survey.image_points.photo, survey.image_points.point)}
-    lines_out = None
-    n_lines = 0
-    if line_decisions is not None:
-        lpath = Path(line_decisions)
-        fed, known = _read_line_decisions(lpath, survey)
-        for d in fed:   # a measured point and the edges it was measured from: never both (the same fits)
-            pair = (d["photo"], d["point"])
-            if d["accept"] and d["point"] and pair in with_point and (d["status"] == "in_point" or with_point[pair][1]):
-                raise SurveyError(f"{lpath}:{d['at']}: line {d['line']!r} on photo {d['photo']!r}: vertex "
-                                  f"{d['point']!r} has a point observation on this photo ({with_point[pair][0]}) "
-                                  f"measured from the same edge fits; accept the point or its edges, not both")
-        own = survey.files.get("line_control")
-        lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
-            survey.root / "line_control.csv"
-        lh, lrows = _fed_line_rows(Path(own) if own is not None else None, known, fed)
-        n_lines = sum(d["accept"] for d in fed)
-        lines_out = (lp, lh, lrows, f"LiDAR roof edges as control lines: lidarcat measure-control, decisions of "
-                                    f"{lpath.name} (3-D lines from {LINE_CANDIDATES})")
-        summary.update(line_decisions=str(lpath), lines_accepted=n_lines, lines_rejected=len(fed) - n_lines)
-    if decisions is not None:   # a point accepted where the line table (kept rows) has the vertex's edges
-        own = survey.files.get("line_control")
-        edges = _edge_pairs(*lines_out[1:3]) if lines_out is not None else _edge_pairs(None, Path(own)) \
-            if own is not None else set()
-        for d in accepted:
-            if d["status"] == "measured" and (d["photo"], d["point"]) in edges:
-                raise SurveyError(f"{decisions}:{d['at']}: point {d['point']!r} on photo {d['photo']!r}: measured "
-                                  f"from the same edge fits as its roof edges on this photo in line_control.csv; "
-                                  f"accept the point or its edges, not both")
-    comment = f"LiDAR control observations: lidarcat measure-control, decisions of " \
-              f"{Path(decisions).name if decisions is not None else ''}"
-    if table is None:
-        told = _recorded(survey, rows if decisions is not None else [], Path(decisions or "."),
-                         fed if line_decisions is not None else [], Path(line_decisions or "."))
-        summary.update(control_decisions=str(told[0]), control_decision_rows=len(told[2]))
-        _write_checked(survey, ip_path, header, table_rows, comment, lines_out, told)
-    else:
-        if lines_out is not None:
-            write_csv_atomic(lines_out[0], lines_out[1], lines_out[2], comments=[lines_out[3]])
-        if header is not None:
-            write_csv_atomic(ip_path, header, table_rows, comments=[comment])
-    write_json_atomic(out / "measure_control.json", summary)
-    return MeasureControlResult(ip_path, out, {"accepted": n_acc, "lines_accepted": n_lines}, n_acc, summary,
-                                None if lines_out is None else lines_out[0], n_lines)
-
-
-def _recorded(survey: Any, rows: list[dict[str, Any]], path: Path, fed: list[dict[str, Any]], lpath: Path
-              ) -> tuple[Path, list[str], list[list[str]], str]:
-    """control_decisions.csv (path, header, rows, comment) after recording every row of a fed-back decisions.csv
-    (*rows* of *path*) and line_decisions.csv (*fed* of *lpath*) -- the user's word on each pair they list
-    (:mod:`lidarcat.survey.decisions`) -- but an ``in_point`` edge left at ``reject`` (not written because the
-    vertex's point carries it, not rejected: no decision, an earlier one of the pair dropped)."""
-    from ..survey.decisions import DECISION_COLUMNS, ControlDecision, merged_rows, now_utc
-
-    def src(p: Path) -> str:
-        try:
-            return p.resolve().relative_to(survey.root.resolve()).as_posix()
-        except ValueError:
-            return p.resolve().as_posix()
-
-    date = now_utc()
-    carried = {("line", d["photo"], d["line"]) for d in fed if not d["accept"] and d["status"] == "in_point"}
-    new = [ControlDecision("point", d["photo"], d["point"], "accept" if d["accept"] else "reject",
-                           f"{src(path)}:{d['at']}", date) for d in rows] + \
-          [ControlDecision("line", d["photo"], d["line"], "accept" if d["accept"] else "reject",
-                           f"{src(lpath)}:{d['at']}", date) for d in fed
-           if ("line", d["photo"], d["line"]) not in carried]   # an edge its point carries: no decision on the edge
-    own = survey.files.get("control_decisions")
-    return (Path(own) if own is not None else survey.root / "control_decisions.csv", list(DECISION_COLUMNS),
-            merged_rows(survey.control_decisions, new, carried),
-            "The user's review of the LiDAR control measured in the photos (lidarcat measure-control --decisions / "
-            "--line-decisions): a rejected pair is never measured again, an accepted one only with --replace; "
-            "delete a row to have its pair measured again.")
-
-
-def _edge_pairs(header: Sequence[str] | None, rows: Any) -> set[tuple[str, str]]:
-    """(photo, point) of the line observations of line_control rows (*header*, *rows*), or of the file *rows*
-    (*header* None), whose line names its LiDAR ``point``."""
-    if header is None:
-        from .._util import read_csv_table
-        from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
-
-        if not Path(rows).is_file():
-            return set()
-        t = read_csv_table(rows, required=("line", "photo"), optional=tuple(
-            c for c in (*LINE_COLUMNS, *LINE_EXTRA_COLUMNS) if c not in ("line", "photo")))
-        header, rows = t.header, t.rows
-    cells = [dict(zip(header, (str(v) for v in r))) for r in rows]
-    point = {c["line"]: c.get("point", "") for c in cells if not c["photo"]}
-    return {(c["photo"], point[c["line"]]) for c in cells if c["photo"] and point.get(c["line"])}
-
-
-def _table(survey: Any, new: list[dict[str, Any]], replace: bool, drop: set | None = None
-           ) -> tuple[list[str], list[list[Any]]]:
-    """The new image_points.csv: the kept rows, then the accepted control observations.
-
-    With *replace*, rows of the (photo, point) pairs of *new* and of *drop* go; without, a pair
-    already observed keeps its row and its new observation is not added.
-    """
-    ip = survey.image_points
-    pairs = {(d["photo"], d["point"]) for d in new} | (drop or set())
-    keep = np.array([not (replace and (str(a), str(b)) in pairs) for a, b in zip(ip.photo, ip.point)], bool)
-    have = {(str(a), str(b)) for a, b, k in zip(ip.photo, ip.point, keep) if k}
-    new = [d for d in new if (d["photo"], d["point"]) not in have]
-    with_xy = bool(np.isfinite(ip.xy_mm).any()) or survey.settings.observations == "corrected" and len(ip) > 0
-    header = ["photo", "point", "col_px", "row_px"] + (["x_mm", "y_mm"] if with_xy else []) + ["sd_x_mm", "sd_y_mm"]
-
-    def num(v: float, nd: int = 6) -> Any:
-        return "" if not np.isfinite(v) else round(float(v), nd)
-
-    rows: list[list[Any]] = []
-    for i in np.flatnonzero(keep):
-        r = [ip.photo[i], ip.point[i], num(ip.pixel_px[i, 0], 3), num(ip.pixel_px[i, 1], 3)]
-        if with_xy:
-            r += [num(ip.xy_mm[i, 0]), num(ip.xy_mm[i, 1])]
-        rows.append(r + [num(ip.sd_mm[i, 0]), num(ip.sd_mm[i, 1])])
-    for d in new:
-        cam = survey.camera_of(d["photo"])
-        r = [d["photo"], d["point"], round(float(d["px"][0]), 3), round(float(d["px"][1]), 3)]
-        if with_xy:
-            xy = cam.pixel_to_photo(np.asarray(d["px"], float)[None])[0]
-            r += [round(float(xy[0]), 6), round(float(xy[1]), 6)]
-        sd = np.asarray(d["sd"], float) * np.array([cam.pixel_size_x_mm, cam.pixel_size_y_mm])
-        rows.append(r + [num(sd[0], 6), num(sd[1], 6)])
-    return header, rows
-
-
-def _write_checked(survey: Any, ip_path: Path, header: list[str] | None, rows: list[list[Any]] | None, comment: str,
-                   lines: tuple[Path, list[str], list[list[Any]], str] | None = None,
-                   told: tuple[Path, list[str], list[list[Any]], str] | None = None) -> None:
-    """Replace image_points.csv (unless *header* is None; and line_control.csv, control_decisions.csv *told*,
-    survey.toml's ``[files]`` keys of the two when it has none) atomically, then load the survey; put the old files
-    back if it does not load (the error says so)."""
-    from .._util import atomic_write
-    from ..survey.folder import Survey
-
-    tables = {k: v for k, v in (("line_control", lines), ("control_decisions", told)) if v is not None}
-    keys = [k for k in tables if survey.files.get(k) is None and not survey.embedded]
-    paths = [ip_path, *(v[0] for v in tables.values())] + ([survey.toml_path] if keys else [])
-    paths += [q.with_name(q.name + ".json") for q in paths if q.suffix == ".csv"]   # the tables' metadata
-    old = {q: (q.read_bytes() if q.is_file() else None) for q in paths}
-    try:
-        for key, v in tables.items():
-            write_csv_atomic(v[0], v[1], v[2], comments=[v[3]])
-            if key in keys:
-                _add_files_key(survey.toml_path, key, v[0])
-        if header is not None:
-            write_csv_atomic(ip_path, header, rows, comments=[comment])
-        Survey.load(survey.root if not survey.embedded else survey.toml_path)
-    except (SurveyError, OSError) as ex:
-        for q, data in old.items():
-            if data is None:
-                q.unlink(missing_ok=True)
-            else:
-                with atomic_write(q, "wb") as fh:
-                    fh.write(data)
-        if isinstance(ex, SurveyError):
-            names = ", ".join(q.name for q in paths if q.suffix != ".json")
-            raise SurveyError(f"{ex} (the survey does not load with the new tables: {names} put back as they "
-                              f"were)") from ex
-        raise
-
-
-def _add_line_control_key(toml_path: Path, lines_path: Path) -> None:
-    """survey.toml with ``line_control = "..."`` in its ``[files]`` table (appended when it has none)."""
-    _add_files_key(toml_path, "line_control", lines_path)
-
-
-def _add_files_key(toml_path: Path, key: str, path: Path) -> None:
-    """survey.toml with ``key = "path"`` in its ``[files]`` table (appended when it has none)."""
-    from .._util import atomic_write
-    from .._util.tables import toml_line
-
-    text = toml_path.read_text(encoding="utf-8")
-    try:
-        rel = path.resolve().relative_to(toml_path.parent.resolve()).as_posix()
-    except ValueError:
-        rel = path.resolve().as_posix()
-    entry = f'{key} = "{rel}"'
-    at = toml_line(text, "files")
-    lines = text.splitlines()
-    if at is None:
-        lines += ["", "[files]", entry]
-    else:
-        lines.insert(at, entry)
-    with atomic_write(toml_path, "w") as fh:
-        fh.write("\n".join(lines) + "\n")
-
-
-def _line_rows(survey: Any, path: Path | None, new_lines: dict[str, tuple[str, Any, Any, Any]],
-               new_obs: list[tuple[str, str, Any]], replace_points: set[str],
-               keep: set[tuple[str, str]] | None = None) -> tuple[list[str], list[list[Any]]]:
-    """The new line_control.csv: the kept rows of *path* (lines of other points, their observations, the
-    observations ``(photo, line)`` in *keep* -- accepted by the user -- and their lines), then the lines
-    measured now (``id -> (point, A, B, cov)``) and their observations ``(line, photo, EdgeLine)``."""
-    from .._util import read_csv_table
-    from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
-
-    header = list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS)
-    rows: list[list[Any]] = []
-    if path is not None and path.is_file():
-        t = read_csv_table(path, required=("line",), optional=tuple(c for c in header if c != "line"))
-        col = {h: i for i, h in enumerate(t.header)}
-        keep = keep or set()
-        kept_lines = {lid for _, lid in keep} - set(new_lines)
-        for r in t.rows:
-            lid, pid = r[col["line"]], r[col["photo"]] if "photo" in col else ""
-            if (lid in new_lines or lid.split("/")[0] in replace_points) and (pid, lid) not in keep and not (
-                    not pid and lid in kept_lines):
-                continue
-            rows.append([r[col[c]] if c in col else "" for c in header])
-
-    for lid, (pt, a, b, cov) in new_lines.items():
-        rows.append(_line_def_row(header, lid, pt, a, b, cov))
-    for lid, pid, el in new_obs:
-        rows.append(_line_obs_row(header, lid, pid, el.p1_px, el.p2_px, el.sd_px))
-    return header, rows
-
-
-def _line_def_row(header: Sequence[str], lid: str, point: str, a: Any, b: Any, cov: Any) -> list[Any]:
-    """A line row of line_control.csv: end points *a*, *b* (m), ``sd_across_m`` (the larger across-line sd of
-    the two ends) and the full 6 x 6 covariance *cov* (m^2) as ``cov_m2``."""
-    from ..survey.lines import cov6_cell
-
-    c = np.asarray(cov, float)
-    t_ = (np.asarray(b, float) - np.asarray(a, float)) / float(np.linalg.norm(np.subtract(b, a)))
-    across = np.eye(3) - np.outer(t_, t_)
-    sd_across = math.sqrt(max(float(np.max(np.linalg.eigvalsh(across @ c[:3, :3] @ across))),
-                              float(np.max(np.linalg.eigvalsh(across @ c[3:, 3:] @ across))), 1e-8))
-    row = {"line": lid, "point": point, "e1_m": round(float(a[0]), 4), "n1_m": round(float(a[1]), 4),
-           "h1_m": round(float(a[2]), 4), "e2_m": round(float(b[0]), 4), "n2_m": round(float(b[1]), 4),
-           "h2_m": round(float(b[2]), 4), "sd_across_m": round(sd_across, 5), "cov_m2": cov6_cell(c)}
-    return [row.get(h, "") for h in header]
-
-
-def _line_obs_row(header: Sequence[str], lid: str, photo: str, p1_px: Any, p2_px: Any, sd_px: float) -> list[Any]:
-    """An observation row of line_control.csv: the edge's two points in the photo and their sd across, px."""
-    row = {"line": lid, "photo": photo, "col1_px": round(float(p1_px[0]), 3), "row1_px": round(float(p1_px[1]), 3),
-           "col2_px": round(float(p2_px[0]), 3), "row2_px": round(float(p2_px[1]), 3),
-           "sd_px": round(float(sd_px), 4)}
-    return [row.get(h, "") for h in header]
-
-
 def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_info: dict) -> dict:
     """The block test (:func:`~lidarcat.photocontrol.blockcheck.check_block`) of every photo's measurements, with the
     survey's tie points (image observations of points that are not ground points, photo coordinates to pixels
@@ -712,6 +296,274 @@ def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_in
     log.info("measure-control: block test %s: %d tested, %d rejected, %d untestable, %d tie observations",
              bc.status, bc.tested, len(bc.rejected), len(bc.untestable), bc.ties_used)
     return bc.summary()
+
+
+@dataclasses.dataclass(frozen=True)
+class _Review:
+    """The user's review (control_decisions.csv) as a measurement sees it (module docstring, "The review
+    remembered"): the rejected pairs and edges, the pairs accepted (a point or one of its edges)."""
+
+    user: Any
+    rejected: dict
+    line_rejected: dict
+    kept: set
+
+    @classmethod
+    def of(cls, survey: Any) -> "_Review":
+        user = survey.control_decisions
+        kept = set(user.of("point", "accept")) | {(d.photo, d.point) for d in user.of("line", "accept").values()}
+        return cls(user, user.of("point", "reject"), user.of("line", "reject"), kept)
+
+    def told(self, vid: str, pid: str, m: Any = None) -> Any:
+        """*m*, or the pair's ``user_rejected`` measurement when the user rejected it."""
+        d = self.rejected.get((pid, vid))
+        return m if d is None else _unmeasured(vid, pid, "user_rejected", self.user.reason(d))
+
+
+def _unmeasured(vid: str, pid: str, status: str, reason: str) -> Any:
+    from ..photocontrol.measure import Measurement
+
+    return Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan), status, reason)
+
+
+def _predict(survey: Any, verts: list[tuple[str, np.ndarray]], photos: list[str], eos: dict, covs: dict,
+             review: _Review, *, replace: bool, dsm_radius_m: float, max_shift_m: float,
+             progress: Callable[[int, int], Any] | None, total: int) -> tuple[list[Any], dict, dict]:
+    """Step 1: every vertex extracted again from the LiDAR around it and predicted in every photo.
+
+    Returns the measurements of the pairs not measured (``no_vertex``, ``user_rejected``), the targets of each
+    photo (``photo -> [(vertex, VertexTarget)]``; not the pairs observed or accepted by the user, unless
+    *replace*) and each vertex extracted (``vertex -> (ControlPoint, LiDAR points (N, 3), roof edges by
+    planes)``).
+    """
+    from ..control.vertices import extract_roof
+    from ..lidar.clipping import clip
+    from ..photocontrol import VertexTarget, predict_points, roof_edges
+
+    observed = {(str(a), str(b)) for a, b in zip(survey.image_points.photo, survey.image_points.point)}
+    crs = survey.lidar_crs or survey.crs
+    results: list[Any] = []
+    targets: dict[str, list[tuple[str, Any]]] = {}
+    vertex_info: dict[str, tuple[Any, np.ndarray, dict]] = {}
+    for i, (vid, enh) in enumerate(verts):
+        if progress is not None:
+            progress(i, total)
+        try:
+            cloud = clip(list(survey.lidar_paths), enh[:2], dsm_radius_m, height_filter=None, crs=crs)
+            xyz = np.asarray(cloud.xyz, dtype=np.float64)
+        except LidarcatError as ex:
+            results += [review.told(vid, pid, _unmeasured(vid, pid, "no_vertex", f"no LiDAR around the vertex: {ex}"))
+                        for pid in photos]
+            continue
+        cp = extract_roof(xyz, enh[:2], point_id=vid)
+        if not cp or np.linalg.norm(cp.enh_m - enh) > max_shift_m:
+            why = (f"the vertex is not extracted again ({cp.status}: {cp.reason})" if not cp else
+                   f"the vertex extracted again lies {float(np.linalg.norm(cp.enh_m - enh)):.2f} m from the "
+                   f"ground point (> {max_shift_m:g} m)")
+            results += [review.told(vid, pid, _unmeasured(vid, pid, "no_vertex", why)) for pid in photos]
+            continue
+        vertex_info[vid] = (cp, xyz, {e.planes: e for e in roof_edges(cp.enh_m, cp.planes, xyz)})
+        dsm = dsm_of_points(xyz)
+        for pid in photos:
+            if (pid, vid) in review.rejected:
+                results.append(review.told(vid, pid))
+                continue
+            if ((pid, vid) in observed or (pid, vid) in review.kept) and not replace:
+                continue
+            cam = survey.camera_of(pid)
+            pr = predict_points(cam, eos[pid], covs[pid], cp.enh_m[None], cp.cov_m2[None], points=[vid], photo=pid,
+                                dsm=dsm)[0]
+            targets.setdefault(pid, []).append((vid, VertexTarget(cp.enh_m, cp.planes, xyz, pr)))
+    return results, targets, vertex_info
+
+
+def _measure_photos(survey: Any, photos: list[str], targets: dict, vertex_info: dict, eos: dict, covs: dict, *,
+                    params: Any, direction_from_kappa: bool, lone_photo: str, gallery: bool,
+                    progress: Callable[[int, int], Any] | None, done: int, total: int) -> tuple[dict, dict]:
+    """Step 2: each photo read once, its targets measured and tested against their common displacement.
+
+    Returns the measurements by vertex (``vertex -> [(photo, Measurement)]``) and, with *gallery*, the window of
+    each chip and its origin (``(photo, vertex) -> (window, (col, row))``; a block's photos do not fit in memory).
+    """
+    from ..match import read_image
+    from ..photocontrol import check_photo, measure_photo
+    from ..photocontrol.measure import MeasureParams
+
+    per_vertex: dict[str, list[tuple[str, Any]]] = {}
+    images: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
+    for j, pid in enumerate(photos):
+        if progress is not None:
+            progress(done + j, total)
+        if pid not in targets:
+            continue
+        img = read_image(survey.image_path(pid), lambda msg, pid=pid: SurveyError(f"photo {pid!r}: {msg}"))
+        # the predicted edge directions are good to the photo's kappa sd (module docstring)
+        p_ph = params if not direction_from_kappa else dataclasses.replace(
+            params or MeasureParams(),
+            direction_sd_deg=max(0.1, math.degrees(math.sqrt(max(float(covs[pid][5, 5]), 0.0)))))
+        ms = measure_photo(img, survey.camera_of(pid), eos[pid], [t for _, t in targets[pid]], p_ph)
+        ms = check_photo(ms, survey.camera_of(pid), eos[pid], covs[pid],
+                         [vertex_info[vid][0].enh_m for vid, _ in targets[pid]],
+                         [vertex_info[vid][0].cov_m2 for vid, _ in targets[pid]], alone=lone_photo)
+        for (vid, _), m in zip(targets[pid], ms):
+            per_vertex.setdefault(vid, []).append((pid, m))
+        if gallery:
+            for (vid, _), m in zip(targets[pid], ms):
+                if m.status != "not_visible":
+                    images[(pid, vid)] = _window(img, m, _CHIP_HALF_PX)
+    return per_vertex, images
+
+
+def _check_vertices(survey: Any, per_vertex: dict, vertex_info: dict, eos: dict, covs: dict,
+                    min_photos: int) -> list[Any]:
+    """Step 3 (after the block test): each vertex's measurements tested across the photos, and rejected where
+    fewer than *min_photos* remain."""
+    from ..photocontrol import check_consistency
+
+    results: list[Any] = []
+    for vid, lst in per_vertex.items():
+        cp = vertex_info[vid][0]
+        pids = [pid for pid, _ in lst]
+        checked = check_consistency([m for _, m in lst], [survey.camera_of(pid) for pid in pids],
+                                    np.array([eos[pid] for pid in pids]), np.array([covs[pid] for pid in pids]),
+                                    cp.enh_m, cp.cov_m2)
+        n_ok = sum(bool(m) for m in checked)
+        if 0 < n_ok < min_photos:
+            checked = [m.failed("rejected", f"measured on {n_ok} photo(s) only (< {min_photos}): no check across "
+                                            f"photos, and a free point needs two rays") if m else m for m in checked]
+        results += checked
+    return results
+
+
+def _write_report(out: Path, results: list[Any], images: dict, gallery: bool) -> list[str]:
+    """Step 4: decisions.csv and the gallery pages (their names) into *out*."""
+    import cv2
+
+    from ..photocontrol import chip_image, gallery as tile_gallery
+
+    write_csv_atomic(out / "decisions.csv", DECISION_FIELDS, _decision_rows(results), comments=[
+        "LiDAR vertices measured in the photos (lidarcat measure-control). Edit decision (accept/reject) and feed "
+        "the file back with --decisions; pixels col_px, row_px; pred_sd_px = semi-major axis of the prediction's "
+        "1-sigma ellipse."])
+    tried = [m for m in results if (m.photo, m.point) in images]
+    pages = []
+    if gallery and tried:
+        per_page = 48
+        for k0 in range(0, len(tried), per_page):
+            chunk = tried[k0:k0 + per_page]
+            img = tile_gallery([chip_image(images[(m.photo, m.point)][0], _moved(m, images[(m.photo, m.point)][1]),
+                                           half_px=_CHIP_HALF_PX, zoom=3) for m in chunk],
+                               [f"{m.point} {m.photo} {m.status}" for m in chunk], columns=6)
+            path = out / f"gallery_{k0 // per_page + 1:02d}.png"
+            ok, buf = cv2.imencode(".png", img)
+            if ok:
+                from .._util import atomic_write
+
+                with atomic_write(path, "wb") as fh:
+                    fh.write(buf.tobytes())
+                pages.append(path.name)
+    return pages
+
+
+def _edge_status(m: Any, lid: str, el: Any, lines: str, review: _Review) -> tuple[str, str]:
+    """(status, reason) of the roof edge *lid* of measurement *m*'s vertex on its photo (*el*: its image edge or
+    None): ``written`` or why not (module docstring, "Line control")."""
+    if m.status in ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected"):
+        return "not_written", f"{m.status}: {m.reason}"
+    if m.status == "rejected":
+        return "not_written", f"the vertex's measurement was rejected: {m.reason}"
+    if el is None:
+        return "not_written", "no image edge found (or too weak for a line without its vertex)"
+    if m and lines == "add":
+        return "in_point", "the vertex's point observation carries this edge (not written twice)"
+    if (m.photo, lid) in review.line_rejected:
+        return "user_rejected", review.user.reason(review.line_rejected[(m.photo, lid)])
+    return "written", ""
+
+
+def _line_control(out: Path, results: list[Any], vertex_info: dict, lines: str, review: _Review
+                  ) -> tuple[dict[str, tuple[str, Any, Any, Any]], list[tuple[str, str, Any]]]:
+    """Step 5: the roof edges of the vertices tried, per photo, into line_decisions.csv and their 3-D lines into
+    line_candidates.csv (module docstring, "Line control").  Returns the lines to write (``id -> (point, A, B,
+    cov)``) and their observations (``(line, photo, EdgeLine)``)."""
+    from ..photocontrol import edge_line_m
+    from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
+
+    def f(v: float, nd: int = 3) -> Any:
+        return "" if v is None or not np.isfinite(v) else round(float(v), nd)
+
+    new_lines: dict[str, tuple[str, Any, Any, Any]] = {}
+    candidates: dict[str, tuple[str, Any, Any, Any] | None] = {}   # the 3-D line of each edge tried
+    new_obs: list[tuple[str, str, Any]] = []
+    line_rows: list[list[Any]] = []
+    for m in results:
+        if m.point not in vertex_info:
+            continue
+        cp, _, edges = vertex_info[m.point]
+        found = {tuple(el.planes): el for el in m.edge_lines}
+        for planes, e in edges.items():
+            lid = line_id(m.point, planes)
+            if lid not in candidates:
+                pi, pj = cp.planes[planes[0]], cp.planes[planes[1]]
+                try:
+                    candidates[lid] = (m.point, *edge_line_m(pi, pj, np.array([e.start_m, e.end_m])))
+                except np.linalg.LinAlgError:      # planes (nearly) parallel: no line (not a candidate)
+                    candidates[lid] = None
+            el = found.get(tuple(planes))
+            status, reason = _edge_status(m, lid, el, lines, review)
+            if status == "written":
+                new_lines[lid] = candidates[lid] if candidates[lid] is not None else \
+                    (m.point, *edge_line_m(cp.planes[planes[0]], cp.planes[planes[1]],
+                                           np.array([e.start_m, e.end_m])))
+                new_obs.append((lid, m.photo, el))
+            line_rows.append([lid, m.point, m.photo, status, reason,
+                              *(f(v) for v in (el.p1_px if el else (None, None))),
+                              *(f(v) for v in (el.p2_px if el else (None, None))),
+                              f(el.sd_px if el else None, 4), f(el.ratio if el else None, 2),
+                              "accept" if status == "written" else "reject"])
+    write_csv_atomic(out / "line_decisions.csv", LINE_DECISION_FIELDS, line_rows, comments=[
+        "LiDAR roof edges measured in the photos as line control (lidarcat measure-control): one row per edge "
+        "(line = POINT/plane-plane) and photo tried; written rows went to line_control.csv. Edit decision "
+        "(accept/reject; the pixels col1_px .. row2_px, sd_px) and feed the file back with --line-decisions; "
+        "the 3-D lines are in line_candidates.csv beside it."])
+    ch = list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS)
+    write_csv_atomic(out / LINE_CANDIDATES, ch, [line_def_row(ch, lid, *v) for lid, v in candidates.items()
+                                                  if v is not None and np.linalg.norm(np.subtract(v[2], v[1])) > 0],
+                     comments=["The 3-D control line of every roof edge of line_decisions.csv (line = POINT/"
+                               "plane-plane; end points and cov_m2 from the two plane fits), in line_control.csv's "
+                               "columns: measure-control --line-decisions takes the lines of accepted rows from "
+                               "here."])
+    return new_lines, new_obs
+
+
+def _write_tables(survey: Any, ip_path: Path, accepted: list[dict[str, Any]], *, replace: bool,
+                  table: Any, line_table: Any, new_lines: dict, new_obs: list, vertex_info: dict,
+                  keep_lines: set) -> Path | None:
+    """Step 6: the accepted observations into image_points.csv and line_control.csv (the survey's, through
+    :func:`~lidarcat.stages._control_tables.write_checked`, unless nothing is new; or *table*, *line_table*).
+    *keep_lines*: the line observations ``(photo, line)`` accepted by the user that stay.  Returns the line
+    table written, if any."""
+    header, table_rows = image_point_rows(survey, accepted, replace=replace)
+    comment = ("LiDAR control observations: lidarcat measure-control (roof vertices measured in the photos, col_px, "
+               "row_px)")
+    lines_out = None
+    if new_obs:
+        own = survey.files.get("line_control")
+        lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
+            survey.root / "line_control.csv"
+        lh, lrows = line_control_rows(survey, Path(own) if own is not None else None, new_lines, new_obs,
+                                      set(vertex_info), keep_lines)
+        lines_out = (lp, lh, lrows, "LiDAR roof edges as control lines: lidarcat measure-control (line = POINT/"
+                                    "plane-plane; end points and cov_m2 from the two plane fits; observations: the "
+                                    "edge fits' two equivalent points, px)")
+    if table is None:
+        if accepted or lines_out is not None:   # nothing new: the survey's tables (and their notes) stay as they are
+            write_checked(survey, ip_path, header, table_rows, comment, lines_out)
+    else:
+        if lines_out is not None:
+            write_csv_atomic(lines_out[0], lines_out[1], lines_out[2], comments=[lines_out[3]])
+        write_csv_atomic(ip_path, header, table_rows, comments=[comment])
+    return None if lines_out is None else lines_out[0]
 
 
 def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points: Sequence[str] | None = None,
@@ -778,18 +630,10 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     SurveyError
         No LiDAR vertex, no LiDAR tiles, no approximate orientation, a bad decisions file.
     """
-    import cv2
-
     if lines not in LINE_MODES:
         raise SurveyError(f"lines must be one of {', '.join(LINE_MODES)}, got {lines!r}")
     if lone_photo not in ("keep", "reject"):
         raise SurveyError(f"lone_photo must be keep or reject, got {lone_photo!r}")
-    from ..control.vertices import extract_roof
-    from ..lidar.clipping import clip
-    from ..photocontrol import (VertexTarget, check_consistency, check_photo, chip_image, gallery as tile_gallery,
-                                measure_photo, predict_points)
-    from ..photocontrol import edge_line_m, roof_edges
-    from ..photocontrol.measure import Measurement, MeasureParams
     from ..survey.folder import Survey
 
     t_start = time.perf_counter()
@@ -799,7 +643,9 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     ip_path = Path(table) if table is not None else \
         Path(survey.files.get("image_points", survey.root / survey.config.files.image_points))
     if decisions is not None or line_decisions is not None:
-        return _feed_back(survey, out, ip_path, decisions, line_decisions, table, line_table)
+        summary, n_acc, n_lines, lp = feed_back(survey, out, ip_path, decisions, line_decisions, table, line_table)
+        return MeasureControlResult(ip_path, out, {"accepted": n_acc, "lines_accepted": n_lines}, n_acc, summary,
+                                    lp, n_lines)
 
     verts = lidar_vertices(survey, points)
     if not verts:
@@ -811,211 +657,44 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     if not eos:
         raise SurveyError(f"{survey.files.get('photos', survey.toml_path)}: no approximate orientation "
                           f"(X0 .. kappa) of any photo: nothing to predict with")
-    p = params
-    observed = {(str(a), str(b)) for a, b in zip(survey.image_points.photo, survey.image_points.point)}
     # the user's review (control_decisions.csv): rejected pairs never measured, accepted ones not unless replace
-    user = survey.control_decisions
-    rejected, line_rejected = user.of("point", "reject"), user.of("line", "reject")
-    kept = set(user.of("point", "accept")) | {(d.photo, d.point) for d in user.of("line", "accept").values()}
-
-    def told(vid: str, pid: str, m: Any = None) -> Any:
-        d = rejected.get((pid, vid))
-        return m if d is None else Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan),
-                                               "user_rejected", user.reason(d))
-    crs = survey.lidar_crs or survey.crs
-    results: list[Any] = []
-    targets: dict[str, list[tuple[str, Any]]] = {}
-    vertex_info: dict[str, tuple[Any, np.ndarray]] = {}
+    review = _Review.of(survey)
     photos = [pid for pid in survey.photo_ids if pid in eos]
     total = len(verts) + len(photos)
-    for i, (vid, enh) in enumerate(verts):
-        if progress is not None:
-            progress(i, total)
-        try:
-            cloud = clip(list(survey.lidar_paths), enh[:2], dsm_radius_m, height_filter=None, crs=crs)
-            xyz = np.asarray(cloud.xyz, dtype=np.float64)
-        except LidarcatError as ex:
-            results += [told(vid, pid, Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan),
-                                                   "no_vertex", f"no LiDAR around the vertex: {ex}")) for pid in photos]
-            continue
-        cp = extract_roof(xyz, enh[:2], point_id=vid)
-        if not cp or np.linalg.norm(cp.enh_m - enh) > max_shift_m:
-            why = (f"the vertex is not extracted again ({cp.status}: {cp.reason})" if not cp else
-                   f"the vertex extracted again lies {float(np.linalg.norm(cp.enh_m - enh)):.2f} m from the "
-                   f"ground point (> {max_shift_m:g} m)")
-            results += [told(vid, pid, Measurement(vid, pid, np.full(2, np.nan), np.full((2, 2), np.nan),
-                                                   "no_vertex", why)) for pid in photos]
-            continue
-        vertex_info[vid] = (cp, xyz, {e.planes: e for e in roof_edges(cp.enh_m, cp.planes, xyz)})
-        dsm = dsm_of_points(xyz)
-        for pid in photos:
-            if (pid, vid) in rejected:
-                results.append(told(vid, pid))
-                continue
-            if ((pid, vid) in observed or (pid, vid) in kept) and not replace:
-                continue
-            cam = survey.camera_of(pid)
-            pr = predict_points(cam, eos[pid], covs[pid], cp.enh_m[None], cp.cov_m2[None], points=[vid], photo=pid,
-                                dsm=dsm)[0]
-            targets.setdefault(pid, []).append((vid, VertexTarget(cp.enh_m, cp.planes, xyz, pr)))
+    results, targets, vertex_info = _predict(survey, verts, photos, eos, covs, review, replace=replace,
+                                             dsm_radius_m=dsm_radius_m, max_shift_m=max_shift_m, progress=progress,
+                                             total=total)
+    per_vertex, images = _measure_photos(survey, photos, targets, vertex_info, eos, covs, params=params,
+                                         direction_from_kappa=direction_from_kappa, lone_photo=lone_photo,
+                                         gallery=gallery, progress=progress, done=len(verts), total=total)
     tried = {(pid, vid) for pid, lst in targets.items() for vid, _ in lst}
-    per_vertex: dict[str, list[tuple[str, Any]]] = {}
-    images: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
-    for j, pid in enumerate(photos):
-        if progress is not None:
-            progress(len(verts) + j, total)
-        if pid not in targets:
-            continue
-        from ..match import read_image
-
-        img = read_image(survey.image_path(pid), lambda msg, pid=pid: SurveyError(f"photo {pid!r}: {msg}"))
-        # the predicted edge directions are good to the photo's kappa sd (module docstring)
-        p_ph = p if not direction_from_kappa else dataclasses.replace(
-            p or MeasureParams(), direction_sd_deg=max(0.1, math.degrees(math.sqrt(max(float(covs[pid][5, 5]), 0.0)))))
-        ms = measure_photo(img, survey.camera_of(pid), eos[pid], [t for _, t in targets[pid]], p_ph)
-        ms = check_photo(ms, survey.camera_of(pid), eos[pid], covs[pid],
-                         [vertex_info[vid][0].enh_m for vid, _ in targets[pid]],
-                         [vertex_info[vid][0].cov_m2 for vid, _ in targets[pid]], alone=lone_photo)
-        for (vid, _), m in zip(targets[pid], ms):
-            per_vertex.setdefault(vid, []).append((pid, m))
-        if gallery:   # keep the windows of the chips, not the photos (a block's photos do not fit in memory)
-            for (vid, _), m in zip(targets[pid], ms):
-                if m.status != "not_visible":
-                    images[(pid, vid)] = _window(img, m, _CHIP_HALF_PX)
     block_info = _check_block(survey, per_vertex, eos, covs, vertex_info) if block_check else {"status": "off"}
-    for vid, lst in per_vertex.items():
-        cp = vertex_info[vid][0]
-        pids = [pid for pid, _ in lst]
-        checked = check_consistency([m for _, m in lst], [survey.camera_of(pid) for pid in pids],
-                                    np.array([eos[pid] for pid in pids]), np.array([covs[pid] for pid in pids]),
-                                    cp.enh_m, cp.cov_m2)
-        n_ok = sum(bool(m) for m in checked)
-        if 0 < n_ok < min_photos:
-            checked = [m.failed("rejected", f"measured on {n_ok} photo(s) only (< {min_photos}): no check across "
-                                            f"photos, and a free point needs two rays") if m else m for m in checked]
-        results += checked
+    results += _check_vertices(survey, per_vertex, vertex_info, eos, covs, min_photos)
     order = {pid: k for k, pid in enumerate(survey.photo_ids)}
     results.sort(key=lambda m: (m.point, order.get(m.photo, 0)))
     counts: dict[str, int] = {}
     for m in results:
         counts[m.status] = counts.get(m.status, 0) + 1
-    # the report first
-    write_csv_atomic(out / "decisions.csv", DECISION_FIELDS, _decision_rows(results), comments=[
-        "LiDAR vertices measured in the photos (lidarcat measure-control). Edit decision (accept/reject) and feed "
-        "the file back with --decisions; pixels col_px, row_px; pred_sd_px = semi-major axis of the prediction's "
-        "1-sigma ellipse."])
-    tried = [m for m in results if (m.photo, m.point) in images]
-    pages = []
-    if gallery and tried:
-        per_page = 48
-        for k0 in range(0, len(tried), per_page):
-            chunk = tried[k0:k0 + per_page]
-            img = tile_gallery([chip_image(images[(m.photo, m.point)][0], _moved(m, images[(m.photo, m.point)][1]),
-                                           half_px=_CHIP_HALF_PX, zoom=3) for m in chunk],
-                               [f"{m.point} {m.photo} {m.status}" for m in chunk], columns=6)
-            path = out / f"gallery_{k0 // per_page + 1:02d}.png"
-            ok, buf = cv2.imencode(".png", img)
-            if ok:
-                from .._util import atomic_write
-
-                with atomic_write(path, "wb") as fh:
-                    fh.write(buf.tobytes())
-                pages.append(path.name)
-    # line control: the roof edges of the vertices tried, per photo (module docstring)
-    new_lines: dict[str, tuple[str, Any, Any, Any]] = {}
-    candidates: dict[str, tuple[str, Any, Any, Any] | None] = {}   # the 3-D line of each edge tried
-    new_obs: list[tuple[str, str, Any]] = []
-    line_rows: list[list[Any]] = []
-    if lines != "none":
-        for m in results:
-            if m.point not in vertex_info:
-                continue
-            cp, _, edges = vertex_info[m.point]
-            found = {tuple(el.planes): el for el in m.edge_lines}
-            for planes, e in edges.items():
-                lid = line_id(m.point, planes)
-                if lid not in candidates:
-                    pi, pj = cp.planes[planes[0]], cp.planes[planes[1]]
-                    try:
-                        candidates[lid] = (m.point, *edge_line_m(pi, pj, np.array([e.start_m, e.end_m])))
-                    except np.linalg.LinAlgError:      # planes (nearly) parallel: no line (not a candidate)
-                        candidates[lid] = None
-                el = found.get(tuple(planes))
-                status, reason = "not_written", ""
-                if m.status in ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected"):
-                    reason = f"{m.status}: {m.reason}"
-                elif m.status == "rejected":
-                    reason = f"the vertex's measurement was rejected: {m.reason}"
-                elif el is None:
-                    reason = "no image edge found (or too weak for a line without its vertex)"
-                elif m and lines == "add":
-                    status, reason = "in_point", "the vertex's point observation carries this edge (not written twice)"
-                elif (m.photo, lid) in line_rejected:
-                    status, reason = "user_rejected", user.reason(line_rejected[(m.photo, lid)])
-                else:
-                    status = "written"
-                    new_lines[lid] = candidates[lid] if candidates[lid] is not None else \
-                        (m.point, *edge_line_m(cp.planes[planes[0]], cp.planes[planes[1]],
-                                               np.array([e.start_m, e.end_m])))
-                    new_obs.append((lid, m.photo, el))
-
-                def f(v: float, nd: int = 3) -> Any:
-                    return "" if v is None or not np.isfinite(v) else round(float(v), nd)
-
-                line_rows.append([lid, m.point, m.photo, status, reason,
-                                  *(f(v) for v in (el.p1_px if el else (None, None))),
-                                  *(f(v) for v in (el.p2_px if el else (None, None))),
-                                  f(el.sd_px if el else None, 4), f(el.ratio if el else None, 2),
-                                  "accept" if status == "written" else "reject"])
-        write_csv_atomic(out / "line_decisions.csv", LINE_DECISION_FIELDS, line_rows, comments=[
-            "LiDAR roof edges measured in the photos as line control (lidarcat measure-control): one row per edge "
-            "(line = POINT/plane-plane) and photo tried; written rows went to line_control.csv. Edit decision "
-            "(accept/reject; the pixels col1_px .. row2_px, sd_px) and feed the file back with --line-decisions; "
-            "the 3-D lines are in line_candidates.csv beside it."])
-        from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
-
-        ch = list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS)
-        write_csv_atomic(out / LINE_CANDIDATES, ch, [_line_def_row(ch, lid, *v) for lid, v in candidates.items()
-                                                      if v is not None and np.linalg.norm(np.subtract(v[2], v[1])) > 0],
-                         comments=["The 3-D control line of every roof edge of line_decisions.csv (line = POINT/"
-                                   "plane-plane; end points and cov_m2 from the two plane fits), in line_control.csv's "
-                                   "columns: measure-control --line-decisions takes the lines of accepted rows from "
-                                   "here."])
+    pages = _write_report(out, results, images, gallery)   # the report first
+    new_lines, new_obs = _line_control(out, results, vertex_info, lines, review) if lines != "none" else ({}, [])
     written_points = {m.point for m in results if m and lines != "only"}
     accepted = [{"photo": m.photo, "point": m.point, "px": np.asarray(m.px), "sd": m.sd_px} for m in results
                 if m and lines != "only"]
     summary = {"vertices": len(verts), "photos": len(photos), "counts": counts, "accepted": len(accepted),
                "lines": lines, "control_lines": len(new_lines), "line_observations": len(new_obs),
                "points_written": len(written_points), "block_check": block_info,
-               "gallery": pages, "params": dataclasses.asdict(p) if p is not None else "default",
+               "gallery": pages, "params": dataclasses.asdict(params) if params is not None else "default",
                "seconds": round(time.perf_counter() - t_start, 2)}
     write_json_atomic(out / "measure_control.json", json.loads(json.dumps(summary, default=str)))
-    header, table_rows = _table(survey, accepted, replace=replace)
-    comment = "LiDAR control observations: lidarcat measure-control (roof vertices measured in the photos, col_px, row_px)"
-    lines_out = None
-    if new_obs:
-        own = survey.files.get("line_control")
-        lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
-            survey.root / "line_control.csv"
-        lh, lrows = _line_rows(survey, Path(own) if own is not None else None, new_lines, new_obs,
-                               set(vertex_info), {k for k, d in user.of("line", "accept").items()   # the user's,
-                                                  if (d.photo, d.point) not in tried})            # not measured now
-        lines_out = (lp, lh, lrows, "LiDAR roof edges as control lines: lidarcat measure-control (line = POINT/"
-                                    "plane-plane; end points and cov_m2 from the two plane fits; observations: the "
-                                    "edge fits' two equivalent points, px)")
-    if table is None:
-        if accepted or lines_out is not None:   # nothing new: the survey's tables (and their notes) stay as they are
-            _write_checked(survey, ip_path, header, table_rows, comment, lines_out)
-    else:
-        if lines_out is not None:
-            write_csv_atomic(lines_out[0], lines_out[1], lines_out[2], comments=[lines_out[3]])
-        write_csv_atomic(ip_path, header, table_rows, comments=[comment])
+    lp = _write_tables(survey, ip_path, accepted, replace=replace, table=table, line_table=line_table,
+                       new_lines=new_lines, new_obs=new_obs, vertex_info=vertex_info,
+                       keep_lines={k for k, d in review.user.of("line", "accept").items()    # the user's, not
+                                   if (d.photo, d.point) not in tried})                     # measured now
     if progress is not None:
         progress(total, total)
     log.info("measure-control: %d vertices, %d accepted observations -> %s; %d line observations", len(verts),
              len(accepted), ip_path, len(new_obs))
-    return MeasureControlResult(ip_path, out, counts, len(accepted), summary,
-                                None if lines_out is None else lines_out[0], len(new_obs))
+    return MeasureControlResult(ip_path, out, counts, len(accepted), summary, lp, len(new_obs))
 
 
 def run(ctx: Context, tmp: Path) -> dict:
