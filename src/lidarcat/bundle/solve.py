@@ -20,7 +20,7 @@ so v'Pv is quartic in ``t`` (seed 3 of the measured-control benchmark: 820 t^4 f
 observations against a GNSS decrease of a few units).  The full step is rejected, lambda
 grows, the next damped step is accepted but short, lambda shrinks, and so on: linear
 convergence at a rate near 1 (>100 iterations, corrections of mm-cm that never fall under
-``tol_m`` in 50).  The damping rule is not at fault (Nielsen's would alternate the same way),
+``tol_m`` in 50).  The damping rule is not at fault (the nearly undamped step itself raises v'Pv),
 nor the line Jacobian (exact): the Gauss-Newton model is.
 
 The cure is the second-order term of the path (Transtrum & Sethna 2012, "geodesic
