@@ -3,7 +3,7 @@ r"""Tests of the line observations of one adjustment: residuals, redundancy, w-t
 The statistics of :mod:`lidarcat.bundle.lines` (its docstring derives them): every line
 observation depends on one photo's orientation only, so its residual cofactor is exact from
 that photo's 6 x 6 covariance, ``Q_vv = Sigma_r - A C_i A^T``; redundancy numbers
-``diag(Q_vv P)``; the 2-D group test ``T = e^T Q_vv^-1 e ~ chi2(2)`` at the B-method level of
+from ``Q_vv P`` (below); the 2-D group test ``T = e^T Q_vv^-1 e ~ chi2(2)`` at the B-method level of
 :mod:`lidarcat.bundle.redundancy` (q = 2, the power of the 1-D test); data snooping removes the
 worst rejected observation and re-adjusts until none rejects.
 
@@ -61,7 +61,7 @@ class LineTests:
     sd_mm : (m, 2)
         A priori sds of the two residuals (square roots of the diagonal of ``Sigma_r``).
     redundancy : (m, 2)
-        ``diag(Q_vv P)``.
+        The diagonal of ``P^1/2 Q_vv P^1/2`` (in [0, 1], summing to ``tr(Q_vv P)``; module docstring).
     w : (m,)
         ``sqrt(e^T Q_vv^-1 e)`` of the 2-D group test; NaN where untestable.
     w_components : (m, 2)
