@@ -254,3 +254,87 @@ def test_measured_lines_orient_a_block_with_few_corners_honestly(tmp_path):
     assert add["att_rms_deg"] < 0.5 * none["att_rms_deg"], (none, add)
     assert add["max_z"] <= 3.0 and add["rms_z"] <= 1.25, add
     assert np.sqrt(np.mean(lz**2)) <= 1.25
+
+
+
+def _short_edges(p, frac):
+    """The measured segments shrunk to *frac* of their length about their middles (the same image
+    lines): the 3-D end points project far outside them, the two residuals become correlated."""
+    L = p.lines
+    mid = 0.5 * (L.xy1_mm + L.xy2_mm)
+    return dataclasses.replace(p, lines=dataclasses.replace(
+        L, xy1_mm=mid + frac * (L.xy1_mm - mid), xy2_mm=mid + frac * (L.xy2_mm - mid)))
+
+
+def test_redundancy_of_a_correlated_pair_is_in_0_1():
+    """End points projected at s = 3, 4 along the measured edge (correlation 0.999) on a photo held
+    weakly in one direction: diag(Q_vv P) is -0.35 and 1.35 (seed 4 of the measured-control
+    benchmark: -1.66 and 2.42, its test left empty); the symmetric numbers are in [0, 1] with the
+    same sum, the eigenvalues of Q_vv P (0.0017, 0.996) are kept."""
+    from lidarcat.bundle.line_tests import symmetric_redundancy
+
+    sa, sb = 3.0, 4.0
+    S = 1e-4 * np.array([[(1 - sa) ** 2 + sa**2, (1 - sa) * (1 - sb) + sa * sb],
+                         [(1 - sa) * (1 - sb) + sa * sb, (1 - sb) ** 2 + sb**2]])
+    P = np.linalg.inv(S)
+    A = np.random.default_rng(4).normal(size=(2, 6)) * 0.01
+    C = np.linalg.inv(A.T @ P @ A + np.diag([1e2, 1e2, 1e2, 1e-2, 1e6, 1e6]))
+    Q = S - A @ C @ A.T
+    naive = np.diag(Q @ P)
+    assert naive.min() < -0.3 and naive.max() > 1.3
+    red, lam = symmetric_redundancy(Q[None], P[None])
+    assert np.all((red >= 0) & (red <= 1))
+    assert red.sum() == pytest.approx(naive.sum(), abs=1e-9)
+    assert lam[0] == pytest.approx(np.linalg.eigvals(Q @ P).real.min(), rel=1e-6)
+    # nothing adjusted (Q_vv = Sigma): 1, 1; the observation fixes its photo (Q_vv = 0): 0, 0
+    np.testing.assert_allclose(symmetric_redundancy(S[None], P[None])[0], [[1.0, 1.0]], atol=1e-9)
+    red0, lam0 = symmetric_redundancy(np.zeros((1, 2, 2)), P[None])
+    np.testing.assert_allclose(red0, [[0.0, 0.0]])
+    assert lam0[0] == 0.0
+    # a rounding below 0 (Q_vv slightly negative) is clipped
+    red1, lam1 = symmetric_redundancy(-1e-12 * S[None], P[None])
+    assert np.all(red1 == 0.0) and lam1[0] == 0.0
+
+
+def test_short_edges_redundancy_sums_to_the_dof_and_every_observation_is_tested():
+    """A block with short measured edges (s_A, s_B far outside [0, 1]): the line numbers in [0, 1]
+    add up with the image points' and constraints' to the dof; a 20 px gross edge is named."""
+    from lidarcat.bundle.redundancy import reliability
+
+    b = line_block(seed=0, n_control_points=3)
+    p = _short_edges(b.problem, 0.05)
+    res = adjust(p, initial=(b.initial_eo, None))
+    assert res.success
+    t = line_tests(res)
+    assert np.all((t.redundancy >= 0) & (t.redundancy <= 1))
+    total = np.nansum(reliability(res).redundancy) + t.redundancy.sum()
+    assert total == pytest.approx(res.dof, abs=1e-6)
+    assert np.isfinite(t.w).all() and not any(t.untestable)
+    L = p.lines
+    k = int(np.flatnonzero(np.bincount(L.line_index)[L.line_index] > 1)[0])
+    d = L.xy2_mm[k] - L.xy1_mm[k]
+    n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+    xy1, xy2 = L.xy1_mm.copy(), L.xy2_mm.copy()
+    xy1[k] += 20 * PIXEL_MM * n
+    xy2[k] += 20 * PIXEL_MM * n
+    bad = dataclasses.replace(p, lines=dataclasses.replace(L, xy1_mm=xy1, xy2_mm=xy2))
+    tb = line_tests(adjust(bad, initial=(b.initial_eo, None)))
+    assert tb.labels[tb.rejected[0]] == L.observation_labels(p.photo_ids)[k]
+
+
+def test_an_observation_without_redundancy_is_untestable_with_the_reason():
+    """A photo covariance that leaves Q_vv no positive direction (here: inflated a millionfold):
+    no w, the reason named, the numbers clipped to 0."""
+    b = line_block(seed=0)
+    res = adjust(b.problem, initial=(b.initial_eo, None))
+    i = int(b.problem.lines.photo_index[0])
+    cov = np.array(res.eo_cov)
+    cov[i] *= 1e6
+    t = line_tests(dataclasses.replace(res, eo_cov=cov))
+    on_i = b.problem.lines.photo_index == i
+    assert np.isnan(t.w[on_i]).all() and np.isfinite(t.w[~on_i]).all()
+    assert np.all(t.redundancy[on_i] == 0.0)
+    photo = b.problem.photo_ids[i]
+    assert all(why.endswith(f"< 0.001: the orientation of photo {photo} rests on this observation")
+               for why in t.untestable[on_i])
+    assert not any(t.untestable[~on_i])

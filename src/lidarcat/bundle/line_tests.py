@@ -3,9 +3,24 @@ r"""Tests of the line observations of one adjustment: residuals, redundancy, w-t
 The statistics of :mod:`lidarcat.bundle.lines` (its docstring derives them): every line
 observation depends on one photo's orientation only, so its residual cofactor is exact from
 that photo's 6 x 6 covariance, ``Q_vv = Sigma_r - A C_i A^T``; redundancy numbers
-``diag(Q_vv P)``; the 2-D group test ``T = e^T Q_vv^-1 e ~ chi2(2)`` at the B-method level of
+from ``Q_vv P`` (below); the 2-D group test ``T = e^T Q_vv^-1 e ~ chi2(2)`` at the B-method level of
 :mod:`lidarcat.bundle.redundancy` (q = 2, the power of the 1-D test); data snooping removes the
 worst rejected observation and re-adjusts until none rejects.
+
+Redundancy numbers of a correlated pair
+---------------------------------------
+The two residuals of one observation are correlated (``Sigma_r`` is full: both depend on the
+same measured ``p1, p2``; when the projected end points lie far outside the measured segment,
+``s_A, s_B`` >> 1, the correlation approaches 1).  Then the diagonal of ``Q_vv P`` is no
+redundancy at all: only its trace ``r = tr(Q_vv P)`` and its eigenvalues (in [0, 1], those of
+the projector ``I - A N^-1 A^T P``) are invariant, and a single diagonal element can be any
+number -- seed 4 of the measured-control benchmark gave -1.66 and 2.42 (sum 0.77) on one
+observation.  The per-residual numbers reported here are the diagonal of the symmetric form
+``R = P^{1/2} Q_vv P^{1/2}`` (the same trace and eigenvalues; the diagonal of a symmetric matrix
+with eigenvalues in [0, 1] lies in [0, 1]), rounding clipped to [0, 1], so they add with the
+other observations' numbers to the degrees of freedom.  An observation is untestable when the
+smallest eigenvalue of ``R`` is below 1e-3 (``Q_vv`` singular: its photo's orientation rests on
+it in that direction); ``untestable`` names the reason.
 """
 
 from __future__ import annotations
@@ -22,7 +37,7 @@ from .lines import line_terms
 from .redundancy import critical_values, family_alpha
 from .solve import adjust
 
-__all__ = ["LineSnooping", "LineTests", "line_tests", "snoop_lines"]
+__all__ = ["LineSnooping", "LineTests", "MIN_REDUNDANCY", "line_tests", "snoop_lines", "symmetric_redundancy"]
 
 
 # ---------------------------------------------------------------------------
@@ -46,11 +61,13 @@ class LineTests:
     sd_mm : (m, 2)
         A priori sds of the two residuals (square roots of the diagonal of ``Sigma_r``).
     redundancy : (m, 2)
-        ``diag(Q_vv P)``.
+        The diagonal of ``P^1/2 Q_vv P^1/2`` (in [0, 1], summing to ``tr(Q_vv P)``; module docstring).
     w : (m,)
         ``sqrt(e^T Q_vv^-1 e)`` of the 2-D group test; NaN where untestable.
     w_components : (m, 2)
         ``e_k / sqrt(q_vv,kk)``.
+    untestable : (m,) str
+        Why ``w`` is NaN (empty where tested).
     critical_w : float
         ``sqrt(chi2_{1-alpha_2}(2))`` of the B-method at the given level.
     """
@@ -66,6 +83,7 @@ class LineTests:
     w_components: np.ndarray
     critical_w: float
     alpha_1: float
+    untestable: np.ndarray | None = None
 
     @property
     def rejected(self) -> np.ndarray:
@@ -116,10 +134,14 @@ def line_tests(result: Any, *, level: float | None = 0.001, power: float = 0.80,
     T = line_terms(L, result.eo_params, p.focal_length_mm)
     C = np.asarray(result.eo_cov)[L.photo_index] / result.variance_factor          # cofactors
     qvv = T.cov - T.A @ C @ np.transpose(T.A, (0, 2, 1))
-    red = np.einsum("kij,kji->ki", qvv, T.P)
+    red, lam_min = symmetric_redundancy(qvv, T.P)
     e = -T.r
     m = len(e)
-    testable = red.min(axis=1, initial=1.0) > 1e-3 if m else np.zeros(0, dtype=bool)
+    testable = lam_min > MIN_REDUNDANCY
+    why = np.array([""] * m, dtype=object)
+    for k in np.flatnonzero(~testable):
+        why[k] = (f"smallest redundancy eigenvalue {lam_min[k]:.2g} < {MIN_REDUNDANCY:g}: the orientation of "
+                  f"photo {p.photo_ids[L.photo_index[k]]} rests on this observation")
     w = np.full(m, np.nan)
     if testable.any():
         w[testable] = np.sqrt(np.einsum("ki,kij,kj->k", e[testable], np.linalg.inv(qvv[testable]), e[testable]))
@@ -135,7 +157,31 @@ def line_tests(result: Any, *, level: float | None = 0.001, power: float = 0.80,
         residuals_mm=frozen_array(T.r), residuals_px=frozen_array(px),
         sd_mm=frozen_array(np.sqrt(np.diagonal(T.cov, axis1=1, axis2=2))),
         redundancy=frozen_array(red), w=frozen_array(w), w_components=frozen_array(wc),
-        critical_w=crit, alpha_1=alpha)
+        critical_w=crit, alpha_1=alpha, untestable=frozen_array(why, dtype=object))
+
+
+#: an observation whose smallest redundancy eigenvalue is below this is not tested
+MIN_REDUNDANCY = 1e-3
+
+
+def symmetric_redundancy(qvv: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(diag R (m, 2), smallest eigenvalue of R (m,))`` of ``R = P^{1/2} Q_vv P^{1/2}`` per observation.
+
+    *qvv*, *P* (m, 2, 2): residual cofactors and weights.  The eigenvalues are clipped to [0, 1]
+    (rounding) before the diagonal is formed, so each number is in [0, 1] and the pair sums to
+    ``tr(Q_vv P)`` (module docstring).
+    """
+    m = len(qvv)
+    if not m:
+        return np.zeros((0, 2)), np.zeros(0)
+    lp, vp = np.linalg.eigh(P)
+    half = vp @ (np.sqrt(np.clip(lp, 0.0, None))[:, :, None] * np.transpose(vp, (0, 2, 1)))
+    R = half @ qvv @ half
+    R = 0.5 * (R + np.transpose(R, (0, 2, 1)))
+    lr, vr = np.linalg.eigh(R)
+    lr = np.clip(lr, 0.0, 1.0)
+    diag = np.einsum("kij,kj->ki", vr**2, lr)
+    return diag, lr[:, 0]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -67,7 +67,8 @@ Testing (as point control)
 Every line observation depends on one photo's orientation only, so its residual cofactor is
 exact from that photo's 6 x 6 covariance ``C_i`` (the ``eo_cov`` of the result, divided by
 the variance factor): ``Q_vv = Sigma_r - A C_i A^T`` (2 x 2).  Redundancy numbers are
-``diag(Q_vv P)``; the group test is ``T = e^T Q_vv^{-1} e ~ chi2(2)`` (``e = -r``), reported
+the diagonal of ``P^1/2 Q_vv P^1/2`` (:mod:`lidarcat.bundle.line_tests`: the two residuals are
+correlated, ``diag(Q_vv P)`` is no redundancy); the group test is ``T = e^T Q_vv^{-1} e ~ chi2(2)`` (``e = -r``), reported
 as ``w = sqrt(T)`` against the B-method critical value of :mod:`lidarcat.bundle.redundancy`
 (q = 2).  :func:`lidarcat.bundle.line_tests.line_tests` evaluates them;
 :func:`lidarcat.bundle.line_tests.snoop_lines` removes the worst rejected line observation,
