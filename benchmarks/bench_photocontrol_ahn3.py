@@ -275,6 +275,8 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     (``without_photo_test``), with the per-photo test only (``photo_test_only``) and with the
     measurements alone on their photo rejected (``alone_rejected``), from the same renders;
     ``alone``: check_photo's choice for those.  Renders are cached under *cache* (None: not).
+    ``lists``: the per-photo measurements (``raw``, ``checked``), the photos rendered (``used``),
+    the ties and what the block check is called with.
     """
     from lidarcat.photocontrol import VertexTarget, check_photo, measure_photo, predict_points
     from lidarcat.stages.measure_control import dsm_of_points
@@ -367,7 +369,9 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
         out["alone_rejected"] = decide(checked_alone)
     return dict(out, occluded_pairs=occluded_pairs, n_photos=len(eo), photos=photos, ties=tie_report,
                 tie_score=tie_score, block=block_info,
-                seconds=dict(render=t_render, ties=t_ties, block=t_block))
+                seconds=dict(render=t_render, ties=t_ties, block=t_block),
+                lists=dict(raw=raw, checked=checked, used=used, ties=tie_obs, approx=approx[used], camera=cam,
+                           eo_cov=eo_cov, vertices=V, vertex_covs=covs, ids=ids))
 
 
 def run_check_block(per_photo: list, camera: Any, eos: np.ndarray, eo_cov: np.ndarray, V: np.ndarray,
