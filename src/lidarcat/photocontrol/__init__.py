@@ -1,13 +1,16 @@
 """Stage ``measure-control``: LiDAR roof vertices predicted, found and measured in the photos (issue 29).
 
-============  ============================================================
-``predict``   Predicted pixel of a vertex (and its roof edges) with the ellipse propagated from the orientation's
-              and the vertex's covariance; visibility from the LiDAR DSM; a roof edge as a control line (end
-              points and covariance from the two plane fits).
-``measure``   The vertex in the image: a face template for the shift, roof-edge lines for the pixel, their
-              intersection with its covariance; the fitted edges as line observations; the per-photo and multi-photo tests.
-``review``    Image chips with the predicted ellipse and the measured point and lines, and a gallery of them.
-============  ============================================================
+==============  ============================================================
+``predict``     Predicted pixel of a vertex (and its roof edges) with the ellipse propagated from the orientation's
+                and the vertex's covariance; visibility from the LiDAR DSM; a roof edge as a control line (end
+                points and covariance from the two plane fits).
+``measure``     The vertex in the image: a face template for the shift, roof-edge lines for the pixel, their
+                intersection with its covariance; the fitted edges as line observations; the per-photo and multi-photo tests.
+``blockcheck``  The block test of the vertex measurements: one bundle adjustment with the tie points, the
+                approximate orientations and the LiDAR vertices as weighted observations; the measurements
+                w-tested worst first (a measurement alone on its photo is tested through its tie points).
+``review``      Image chips with the predicted ellipse and the measured point and lines, and a gallery of them.
+==============  ============================================================
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from .measure import (  # noqa: F401
     measure_photo,
     measure_vertex,
 )
+from .blockcheck import BlockCheck, TieObservations, check_block  # noqa: F401
 from .review import chip_centre, chip_image, gallery  # noqa: F401
 
 __all__ = [
@@ -63,6 +67,9 @@ __all__ = [
     "grey",
     "measure_photo",
     "measure_vertex",
+    "BlockCheck",
+    "TieObservations",
+    "check_block",
     "chip_centre",
     "chip_image",
     "gallery",

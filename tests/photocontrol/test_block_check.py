@@ -1,0 +1,175 @@
+"""The block test of the vertex measurements (photocontrol.check_block) on a synthetic block with
+known truth: 2 strips x 3 photos at GSD 0.15 m, the approximate orientation 2 m / 0.5 deg off, tie
+points projected with the true orientation plus 0.3 px noise, each vertex measured on a few photos
+(true projection + 0.3 px); one photo has a single measurement (as the gross ones over the AHN3
+roofs)."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pytest
+
+from lidarcat.errors import LidarcatError
+from lidarcat.photocontrol import BlockCheck, Measurement, TieObservations, check_block, check_photo, pixel_positions
+from lidarcat.synthetic.aerial import aerial_camera
+
+CAM = aerial_camera((1000, 750))                   # c = 35 mm, 0.036 mm pixels
+H = 146.0                                          # GSD 0.15 m
+EO_COV = np.diag([2.0**2] * 3 + [math.radians(0.5) ** 2] * 3)
+CENTRES = [(-60.0, -30.0), (0.0, -30.0), (60.0, -30.0), (-60.0, 30.0), (0.0, 30.0), (60.0, 30.0)]
+PHOTOS = [f"p{k}" for k in range(6)]
+#: vertices (E, N, h) and the photos each is measured on; p0 has A1 alone, p5 has A4 alone
+VERTS = {"A1": np.array([-70.0, -10.0, 9.0]), "A2": np.array([-10.0, 0.0, 7.5]),
+         "A3": np.array([20.0, 5.0, 11.0]), "A4": np.array([70.0, 15.0, 8.0])}
+MEASURED = {"A1": ["p0", "p3"], "A2": ["p1", "p3", "p4"], "A3": ["p1", "p2", "p4"], "A4": ["p5", "p2"]}
+VCOV = {v: np.diag([0.01**2, 0.01**2, 0.03**2]) for v in VERTS}
+
+
+def block(seed: int, moved: dict[tuple[str, str], tuple[float, float]] | None = None, gross_ties: int = 0,
+          n_ground: int = 250):
+    """(measurements, eos, truth eos, ties) of one seed."""
+    rng = np.random.default_rng(seed)
+    truth = {p: np.array([e, n, H, *np.radians(rng.normal(0, 1.0, 3))]) for p, (e, n) in zip(PHOTOS, CENTRES)}
+    approx = {p: truth[p] + np.r_[rng.normal(0, 2.0, 3), np.radians(rng.normal(0, 0.5, 3))] for p in PHOTOS}
+    ground = np.column_stack([rng.uniform(-130, 130, n_ground), rng.uniform(-100, 100, n_ground),
+                              rng.uniform(0, 12, n_ground)])
+    photo, point, px = [], [], []
+    for p in PHOTOS:
+        uv = pixel_positions(CAM, truth[p], ground)
+        inside = np.isfinite(uv).all(axis=1) & (uv[:, 0] > 5) & (uv[:, 1] > 5) & (uv[:, 0] < 995) & (uv[:, 1] < 745)
+        for j in np.flatnonzero(inside):
+            photo.append(p)
+            point.append(f"T{j}")
+            px.append(uv[j] + rng.normal(0, 0.3, 2))
+    px = np.array(px)
+    if gross_ties:
+        bad = rng.choice(len(px), gross_ties, replace=False)
+        ang = rng.uniform(0, 2 * np.pi, gross_ties)
+        px[bad] += 20.0 * np.column_stack([np.cos(ang), np.sin(ang)])
+    ties = TieObservations(photo, point, px, np.full(len(px), 0.3))
+    ms = []
+    for v, photos in MEASURED.items():
+        for p in photos:
+            t = pixel_positions(CAM, truth[p], VERTS[v][None])[0]
+            assert np.isfinite(t).all() and 0 < t[0] < 1000 and 0 < t[1] < 750, (v, p, t)
+            m = t + rng.normal(0, 0.3, 2) + np.asarray((moved or {}).get((v, p), (0.0, 0.0)))
+            pred = pixel_positions(CAM, approx[p], VERTS[v][None])[0]
+            ms.append(Measurement(v, p, m, np.eye(2) * 0.3**2, "measured", predicted_px=pred,
+                                  predicted_cov_px2=np.eye(2) * 20.0**2))
+    return ms, approx, truth, ties
+
+
+def run(ms, approx, ties, **kw) -> BlockCheck:
+    return check_block(ms, {p: CAM for p in PHOTOS}, approx, {p: EO_COV for p in PHOTOS}, VERTS, VCOV, ties, **kw)
+
+
+def test_the_planted_block_has_lone_measurements_and_a_20_px_prediction():
+    ms, approx, truth, ties = block(0)
+    on = {p: sum(m.photo == p for m in ms) for p in PHOTOS}
+    assert on["p0"] == 1 and on["p5"] == 1
+    assert len(ties) > 400
+    # the approximate orientation puts the vertices 5-40 px off
+    d = [float(np.hypot(*(np.asarray(m.px) - np.asarray(m.predicted_px)))) for m in ms]
+    assert max(d) > 10.0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
+def test_clean_block_rejects_nothing_and_orients_the_photos(seed):
+    ms, approx, truth, ties = block(seed)
+    bc = run(ms, approx, ties)
+    assert bc.status == "ok", bc.message
+    assert [m.status for m in bc.measurements] == ["measured"] * len(ms), [m.reason for m in bc.measurements]
+    assert bc.rejected == () and bc.untestable == ()
+    assert bc.tested == len(ms) and bc.ties_rejected == 0
+    # the adjusted orientations agree with the truth within their covariance (from the block, not the 2 m
+    # prior): chi-square(6) 99.9 % point; over seeds 5-24 the mean of this statistic was 5.1 (6 expected)
+    for p in PHOTOS:
+        err = bc.eo[p] - truth[p]
+        assert err @ np.linalg.solve(bc.eo_cov[p], err) < 22.46, p
+        assert np.sqrt(bc.eo_cov[p][0, 0]) < 0.5                # far below the prior's 2 m
+
+
+def test_a_lone_measurement_30_px_off_is_rejected_by_the_block():
+    ms, approx, truth, ties = block(0, moved={("A1", "p0"): (30.0, 0.0)})
+    # check_photo cannot test it: alone on its photo
+    p0 = [m for m in ms if m.photo == "p0"]
+    assert [m.status for m in check_photo(p0, CAM, approx["p0"], EO_COV, [VERTS["A1"]], [VCOV["A1"]])] == ["measured"]
+    bc = run(ms, approx, ties)
+    st = {(m.point, m.photo): m for m in bc.measurements}
+    assert st[("A1", "p0")].status == "rejected"
+    assert [k for k, m in st.items() if m.status != "measured"] == [("A1", "p0")]
+    reason = st[("A1", "p0")].reason
+    got = re.fullmatch(r"inconsistent with the block \((\d+) tie points on its photo and 9 other vertex "
+                       r"observations\): ([0-9.]+) px, w = ([0-9.]+) \(critical 3\.42\)", reason)
+    assert got, reason
+    assert 40 < int(got.group(1)) <= sum(ties.photo == "p0")      # those whose point has another ray
+    assert float(got.group(2)) == pytest.approx(30.0, abs=1.5)
+    assert float(got.group(3)) > 20.0
+    assert bc.rejected[0][:2] == ("A1", "p0")
+
+
+def test_a_measurement_moved_on_a_shared_photo_is_rejected_and_the_others_kept():
+    ms, approx, truth, ties = block(1, moved={("A3", "p2"): (-12.0, 16.0)})
+    bc = run(ms, approx, ties)
+    bad = [(m.point, m.photo) for m in bc.measurements if m.status == "rejected"]
+    assert bad == [("A3", "p2")]
+
+
+def test_gross_ties_reject_no_good_measurement():
+    # (over seeds 0-29 with 8 gross ties: 1 good measurement of 300 rejected, 1.4 px at w 4.1 -- the level's
+    # false alarms, 0.84 expected at alpha_2 = 0.0028; seed 1 is that one)
+    for seed in (0, 2, 3):
+        ms, approx, truth, ties = block(seed, gross_ties=8)
+        bc = run(ms, approx, ties)
+        assert bc.status == "ok", bc.message
+        assert all(m.status == "measured" for m in bc.measurements), [m.reason for m in bc.measurements]
+        assert bc.ties_rejected >= 8
+    # and the lone gross one is still found
+    ms, approx, truth, ties = block(0, moved={("A4", "p5"): (0.0, -32.0)}, gross_ties=8)
+    bc = run(ms, approx, ties)
+    assert [(m.point, m.photo) for m in bc.measurements if m.status == "rejected"] == [("A4", "p5")]
+
+
+def test_without_ties_a_lone_measurement_is_untestable_and_kept():
+    ms, approx, truth, ties = block(0, moved={("A1", "p0"): (30.0, 0.0)})
+    bc = run(ms, approx, None)
+    assert bc.status == "ok" and bc.ties_used == 0
+    assert all(m.status == "measured" for m in bc.measurements)
+    assert ("A1", "p0") in bc.untestable and ("A4", "p5") in bc.untestable
+    assert bc.tested == len(ms) - 2
+
+
+def test_without_ties_two_that_disagree_on_a_photo_are_both_rejected():
+    # ties=None: the block test is check_photo's per-photo test, all photos at once; p4 has A2 and A3 only
+    for seed in (0, 1):
+        ms, approx, truth, ties = block(seed, moved={("A2", "p4"): (25.0, 10.0)})
+        bc = run(ms, approx, None)
+        out = {(m.point, m.photo): m for m in bc.measurements}
+        assert [k for k, m in out.items() if m.status == "rejected"] == [("A2", "p4"), ("A3", "p4")]
+        first, second = sorted([out[("A2", "p4")].reason, out[("A3", "p4")].reason], key=len)
+        assert re.fullmatch(r"inconsistent with the block \(no tie points on its photo; 9 other vertex "
+                            r"observations\): [0-9.]+ px, w = [0-9.]+ \(critical 3\.42\)", first), first
+        assert "which of the two is off cannot be told" in second
+        # with the tie points the block tells which: A2 alone
+        bc = run(ms, approx, ties)
+        assert [(m.point, m.photo) for m in bc.measurements if m.status == "rejected"] == [("A2", "p4")]
+        assert check_photo([m for m in ms if m.photo == "p4"], CAM, approx["p4"], EO_COV,
+                           [VERTS["A2"], VERTS["A3"]], [VCOV["A2"], VCOV["A3"]])[1].status == "rejected"
+
+
+def test_a_measurement_on_an_unknown_photo_is_a_located_error():
+    ms, approx, truth, ties = block(0)
+    ms = ms + [Measurement("A1", "p9", np.array([10.0, 10.0]), np.eye(2) * 0.09, "measured")]
+    with pytest.raises(LidarcatError, match=r"^photo 'p9': a measurement of point 'A1' but no camera for it"):
+        run(ms, approx, ties)
+    cams = {p: CAM for p in PHOTOS + ["p9"]}
+    with pytest.raises(LidarcatError, match=r"^photo 'p9': a measurement of point 'A1' but no approximate "):
+        check_block(ms, cams, approx, {p: EO_COV for p in PHOTOS}, VERTS, VCOV, ties)
+    bad = TieObservations(list(ties.photo[:3]) + ["p7"], list(ties.point[:4]), ties.px[:4], 0.3)
+    with pytest.raises(LidarcatError, match=r"^photo 'p7': tie observations but no camera for it"):
+        run(block(0)[0], approx, bad)
+    with pytest.raises(LidarcatError, match=r"^point 'B9': measured on photo 'p0' but no vertex coordinates"):
+        run([Measurement("B9", "p0", np.array([10.0, 10.0]), np.eye(2) * 0.09, "measured")], approx, ties)
