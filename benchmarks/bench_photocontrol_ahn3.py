@@ -133,7 +133,8 @@ def render_cached(data: Ahn3, camera: Any, eo: np.ndarray, *, exposure: Any, sun
 
 @dataclasses.dataclass(frozen=True)
 class Ties:
-    """Tie observations of a block (as :class:`lidarcat.photocontrol.blockcheck.TieObservations`)."""
+    """Tie observations of a block by photo index and track (:class:`lidarcat.photocontrol.TieObservations`
+    takes them by id)."""
 
     photo: np.ndarray       # (n,) index into the block's photos
     point: np.ndarray       # (n,) tie point index
@@ -376,14 +377,11 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
 
 def run_check_block(per_photo: list, camera: Any, eos: np.ndarray, eo_cov: np.ndarray, V: np.ndarray,
                     covs: np.ndarray, ties: Ties, photo_ids: list, point_ids: list) -> tuple[list, dict]:
-    """:func:`lidarcat.photocontrol.blockcheck.check_block` on the block (per photo lists of measurements,
-    one per vertex; *photo_ids* of the photos, *point_ids* of the vertices), or the stand-in
-    :func:`check_block_standin` while that module is not there (the report's ``source`` says which)."""
-    n = len(eos)
-    try:
-        from lidarcat.photocontrol.blockcheck import TieObservations, check_block
-    except ImportError:
-        return check_block_standin(per_photo, [camera] * n, eos, np.repeat(eo_cov[None], n, axis=0), V, covs, ties)
+    """:func:`lidarcat.photocontrol.check_block` on the block (per photo lists of measurements, one per
+    vertex; *photo_ids* of the photos, *point_ids* of the vertices), as the stage calls it after
+    ``check_photo``: returns the measurements (per photo) and a report of the check."""
+    from lidarcat.photocontrol import TieObservations, check_block
+
     flat = [m for ms in per_photo for m in ms]
     pids = np.array(photo_ids, dtype=object)
     t = TieObservations(pids[ties.photo], np.array([f"t{v}" for v in ties.point], dtype=object), ties.px, ties.sd_px)
@@ -396,154 +394,6 @@ def run_check_block(per_photo: list, camera: Any, eos: np.ndarray, eo_cov: np.nd
     return out, dict(source="check_block", status=bc.status, tested=bc.tested, rejected=len(bc.rejected),
                      untestable=len(bc.untestable), ties_used=bc.ties_used, ties_rejected=bc.ties_rejected,
                      message=bc.message)
-
-
-def check_block_standin(per_photo: list, cameras: list, eos: np.ndarray, eo_covs: np.ndarray, V: np.ndarray,
-                        covs: np.ndarray, ties: Ties, *, level: float = 0.001, iterations: int = 6) -> tuple[list, dict]:
-    """A stand-in of the block check (used only while ``lidarcat.photocontrol.blockcheck`` is missing).
-
-    One Gauss-Newton adjustment of the block: unknowns the photos' orientations (the approximate
-    ones observed with *eo_covs*), the tie points (from the intersected approximate rays) and the
-    vertices (observed at the LiDAR with *covs*); observations the ties (``sd_px``) and the
-    measured vertices (``cov_px2``).  Tie observations beyond 4 sd (normalised, chi2(2) 99.99 %)
-    are dropped twice.  Then data snooping of the vertex observations: the w-test of each 2-D
-    residual, ``v^T Q_vv^-1 v`` against chi2(2) at *level*, the worst beyond rejected and the
-    adjustment repeated.  Returns the measurements (rejected ones with the reason) and a report.
-    """
-    from scipy import sparse
-    from scipy.sparse.linalg import splu
-    from scipy.stats import chi2
-    from lidarcat.geometry.collinearity import rotation_matrix
-    from lidarcat.photocontrol.predict import pixel_jacobians, pixel_positions
-
-    n_ph, n_v = len(eos), len(V)
-    out = [list(ms) for ms in per_photo]
-    vobs = [(k, i) for k, ms in enumerate(out) for i, m in enumerate(ms)
-            if m and np.isfinite(m.px).all() and np.isfinite(m.cov_px2).all()]
-    # tie points: renumbered, those with >= 2 observations, initial values by least-squares ray intersection
-    tp_ids, tpt = np.unique(ties.point, return_inverse=True)
-    n_t = len(tp_ids)
-    keep_tie = (np.bincount(tpt, minlength=n_t) >= 2)[tpt]
-    cen = np.zeros((n_t, 3))
-    A = np.zeros((n_t, 3, 3))
-    for k in range(n_ph):
-        sel = np.flatnonzero(ties.photo == k)
-        if not len(sel):
-            continue
-        m = rotation_matrix(eos[k][3:6])
-        d = np.column_stack([cameras[k].pixel_to_photo(ties.px[sel]), np.full(len(sel), -cameras[k].focal_length_mm)]) @ m
-        d /= np.linalg.norm(d, axis=1)[:, None]
-        P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-        np.add.at(A, tpt[sel], P)
-        np.add.at(cen, tpt[sel], np.einsum("nij,j->ni", P, eos[k][:3]))
-    T = np.linalg.solve(A + 1e-9 * np.eye(3)[None], cen[..., None])[..., 0]
-    eo = np.array(eos, float).copy()
-    Vx = np.array(V, float).copy()
-    Leo = [np.linalg.inv(np.linalg.cholesky(c)) for c in eo_covs]
-    Lv = [np.linalg.inv(np.linalg.cholesky(c)) for c in covs]
-    n_par = 6 * n_ph + 3 * n_t + 3 * n_v
-    ip, it, iv = 0, 6 * n_ph, 6 * n_ph + 3 * n_t
-
-    def system(live: list) -> tuple:
-        """Whitened residuals and Jacobian (sparse), and the row slices of the live vertex observations."""
-        rows, cols, vals, r, tie_order = [], [], [], [], []
-        nrow = 0
-
-        def add(res: np.ndarray, jblocks: list) -> None:
-            nonlocal nrow
-            nr = len(res)
-            r.append(res)
-            for c0, jb in jblocks:          # jb (nr, w) dense block at column c0 (per-row column offset array)
-                rr = np.repeat(np.arange(nr), jb.shape[1]) + nrow
-                cc = (np.asarray(c0)[:, None] + np.arange(jb.shape[1])[None]).reshape(-1) if np.ndim(c0) else \
-                    np.tile(c0 + np.arange(jb.shape[1]), nr)
-                rows.append(rr)
-                cols.append(cc)
-                vals.append(jb.reshape(-1))
-            nrow += nr
-
-        for k in range(n_ph):
-            sel = np.flatnonzero((ties.photo == k) & keep_tie)
-            if not len(sel):
-                continue
-            tie_order.append(sel)
-            q = pixel_positions(cameras[k], eo[k], T[tpt[sel]])
-            je, jx = pixel_jacobians(cameras[k], eo[k], T[tpt[sel]])
-            w = 1.0 / ties.sd_px[sel]
-            res = ((ties.px[sel] - q) * w[:, None]).reshape(-1)
-            je = (je * w[:, None, None]).reshape(-1, 6)
-            jx = (jx * w[:, None, None]).reshape(-1, 3)
-            add(np.nan_to_num(res), [(ip + 6 * k, np.nan_to_num(je)),
-                                           (np.repeat(it + 3 * tpt[sel], 2), np.nan_to_num(jx))])
-        vrows = []
-        for (k, i) in live:
-            m = out[k][i]
-            L = np.linalg.inv(np.linalg.cholesky(np.asarray(m.cov_px2)))
-            q = pixel_positions(cameras[k], eo[k], Vx[i:i + 1])[0]
-            je, jx = pixel_jacobians(cameras[k], eo[k], Vx[i:i + 1])
-            vrows.append(nrow)
-            add(L @ (np.asarray(m.px) - q), [(ip + 6 * k, L @ je[0]), (iv + 3 * i, L @ jx[0])])
-        for k in range(n_ph):
-            add(Leo[k] @ (eos[k] - eo[k]), [(ip + 6 * k, Leo[k])])
-        for i in range(n_v):
-            add(Lv[i] @ (V[i] - Vx[i]), [(iv + 3 * i, Lv[i])])
-        J = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                              shape=(nrow, n_par))
-        return np.concatenate(r), J, vrows, np.concatenate(tie_order) if tie_order else np.empty(0, np.int64)
-
-    def adjust(live: list) -> tuple:
-        nonlocal eo, T, Vx
-        for _ in range(iterations):
-            r, J, vrows, _ = system(live)
-            N = (J.T @ J).tocsc() + sparse.identity(n_par, format="csc") * 1e-12
-            lu = splu(N)
-            dx = lu.solve(J.T @ r)
-            eo = eo + dx[ip:it].reshape(n_ph, 6)
-            T = T + dx[it:iv].reshape(n_t, 3)
-            Vx = Vx + dx[iv:].reshape(n_v, 3)
-            if np.max(np.abs(dx)) < 1e-6:
-                break
-        r, J, vrows, order = system(live)
-        lu = splu((J.T @ J).tocsc() + sparse.identity(n_par, format="csc") * 1e-12)
-        return r, J, vrows, lu, order
-
-    live = list(vobs)
-    dropped_ties = 0
-    for _ in range(2):                    # the gross ties out (normalised residual beyond 4 per axis pair)
-        r, J, vrows, lu, order = adjust(live)
-        rt = r[:2 * len(order)].reshape(-1, 2)
-        bad = np.einsum("ij,ij->i", rt, rt) > chi2.ppf(0.9999, 2)
-        if not bad.any():
-            break
-        keep_tie[order[bad]] = False
-        # a track left with one ray has no point: its last observation goes too
-        alone = np.bincount(tpt[keep_tie], minlength=n_t) < 2
-        keep_tie &= ~alone[tpt]
-        dropped_ties += int(bad.sum())
-    crit = chi2.ppf(1 - level, 2)
-    rejected = []
-    while live:
-        r, J, vrows, lu, _ = adjust(live)
-        worst, worst_t, worst_px = None, crit, 0.0
-        for (k, i), r0 in zip(live, vrows):
-            Ji = J[r0:r0 + 2].toarray()
-            X = lu.solve(np.ascontiguousarray(Ji.T))
-            Q = np.eye(2) - Ji @ X
-            v = r[r0:r0 + 2]
-            tval = float(v @ np.linalg.solve(Q, v))
-            if tval > worst_t:
-                m = out[k][i]
-                worst, worst_t = (k, i), tval
-                worst_px = float(np.hypot(*np.linalg.cholesky(np.asarray(m.cov_px2)) @ v))
-        if worst is None:
-            break
-        k, i = worst
-        out[k][i] = out[k][i].failed("rejected", f"block check (stand-in): w-test {math.sqrt(worst_t):.1f} "
-                                                 f"(residual {worst_px:.1f} px) beyond the {1 - level:.1%} point")
-        live.remove(worst)
-        rejected.append(worst)
-    return out, dict(source="stand-in", dropped_ties=dropped_ties, rejected=len(rejected),
-                     tested=len(vobs))
 
 
 def _decide(per_vertex: dict, cam: Any, approx: np.ndarray, eo_cov: np.ndarray, V: np.ndarray, covs: np.ndarray,

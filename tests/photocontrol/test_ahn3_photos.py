@@ -10,7 +10,6 @@ projection and the occlusion truth.
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 
 import numpy as np
@@ -62,21 +61,18 @@ def test_the_matched_ties_of_the_pair_against_the_renderers_truth(pair):
     assert ts["gross_tracks"] <= 0.02 * ts["tracks"]
 
 
-def test_the_block_check_rejects_a_lone_measurement_moved_20_px(pair):
-    # every measured vertex moved alone on its photo: the photo's own test cannot see it (nothing to
-    # compare with), the block check does (the ties orient the photo); the others stay measured
+def test_the_block_check_of_the_pair_keeps_its_good_measurements(pair):
+    # the block check (photocontrol.check_block: one adjustment with the matched ties, the vertex
+    # observations snooped) runs on the pair and rejects none of its measurements (all < 1 px, above);
+    # its power against gross values is tested in tests/photocontrol/test_block_check.py, and on the
+    # whole benchmark (docs/figures.md)
     L = pair["lists"]
     assert L["ties"] is not None
-    ms = [list(x) for x in L["raw"]]
-    measured = [(k, i) for k, x in enumerate(ms) for i, m in enumerate(x) if m]
-    assert len(measured) >= 2
-    k, i = measured[0]
-    m = ms[k][i]
-    ms[k][i] = dataclasses.replace(m, px=np.asarray(m.px) + [14.0, -14.0])
-    out, info = run_check_block(ms, L["camera"], L["approx"], L["eo_cov"], L["vertices"], L["vertex_covs"],
-                                L["ties"], [f"p{j}" for j in L["used"]], L["ids"])
-    assert out[k][i].status == "rejected", (out[k][i].reason, info)
-    assert all(out[kk][ii] for kk, ii in measured[1:]), info
+    out, info = run_check_block(L["checked"], L["camera"], L["approx"], L["eo_cov"], L["vertices"],
+                                L["vertex_covs"], L["ties"], [f"p{j}" for j in L["used"]], L["ids"])
+    assert info["source"] == "check_block" and info["status"] == "ok", info
+    assert info["ties_used"] >= 100, info
+    assert [[m.status for m in x] for x in out] == [[m.status for m in x] for x in L["checked"]]
 
 
 @pytest.mark.slow
