@@ -8,16 +8,28 @@ the rest is the TIN of the first returns with the intensity as albedo), and synt
 (2 strips x 3 photos, 800 x 600 px, c = 100 mm, over four clusters of vertices, GSD 5-15 cm, exposure and sun per photo, the
 approximate orientation 2 m / 0.5 deg off) photograph it.  Each vertex is predicted
 (:func:`lidarcat.photocontrol.predict_points`, occlusion on the DSM of the LiDAR as the stage
-builds it), measured (:func:`lidarcat.photocontrol.measure_photo`) and tested across the
-photos (:func:`lidarcat.photocontrol.check_consistency`); the accepted measurements are scored
-against the vertex projected with the true orientation, and against the occlusion truth (the
-ray from the camera to the vertex on the rendered surface).
+builds it), measured (:func:`lidarcat.photocontrol.measure_photo`), tested on its photo
+(:func:`lidarcat.photocontrol.check_photo`), in the block (:func:`lidarcat.photocontrol.check_block`:
+one adjustment with the tie points, the vertex observations snooped) and across the photos
+(:func:`lidarcat.photocontrol.check_consistency`, a vertex accepted on one photo rejected); the
+accepted measurements are scored against the vertex projected with the true orientation, and
+against the occlusion truth (the ray from the camera to the vertex on the rendered surface).
 
-    PYTHONPATH=src python benchmarks/bench_photocontrol_ahn3.py [--flights F1 F2 F3 F4] [--gsd 0.05 0.10 0.15] [--seeds 0]
-        [--compare] [--occlusion-photos 6]
+The tie points are those ``lidarcat match`` finds (:func:`block_ties`: SIFT, ``match_block``
+guided by the approximate orientations on a 2 m LiDAR DSM, least-squares refinement), scored
+against the renderer's truth (:func:`score_ties`: each track's reference ray, true orientation,
+meets the rendered surface; the hit projected into the track's other photos); ``--ties true``
+uses true ties + 0.3 px noise instead (the fallback, labelled).
 
-``--compare`` also scores each block without the per-photo test (:func:`lidarcat.photocontrol.check_photo`)
-and with the measurements alone on their photo rejected (``(alone rej.)`` rows), from the same renders; a GSD given alone renders the same block (seed) as in the full run.
+    PYTHONPATH=src python benchmarks/bench_photocontrol_ahn3.py [--flights F1 F2 F3 F4] [--gsd 0.05 0.10 0.15]
+        [--seeds 0 1] [--compare] [--occlusion-photos 6] [--cache DIR] [--out FILE.jsonl]
+    PYTHONPATH=src python benchmarks/bench_photocontrol_ahn3.py --pool FILE.jsonl ...   # the pooled table
+
+``--compare`` also scores each block without the per-photo test and the block check (``(none)``
+rows), with the per-photo test only (``(photo)``) and with the measurements alone on their photo
+rejected (``(alone)``), from the same renders; a GSD given alone renders the same block (seed) as
+in the full run.  Renders (and ties) are cached as npz under ``--cache`` (default
+/tmp/ahn3b/cache), named by a hash of what they depend on, so reruns only measure.
 
 Prints one row per block (flight, GSD, seed) and the pooled figures.
 """
@@ -158,19 +170,30 @@ def lidar_dsm_surface(data: Ahn3, cell_m: float = 2.0) -> Any:
 
 
 def block_ties(data: Ahn3, camera: Any, approx: np.ndarray, images: list[np.ndarray], *,
-               refine: bool = True) -> tuple[Ties, dict]:
+               refine: bool = True, cache: Path | None = None) -> tuple[Ties, dict]:
     """Tie points of the rendered photos as ``lidarcat match`` (stages/match.py) finds them.
 
     SIFT features (:func:`lidarcat.match.features.detect`), :func:`lidarcat.match.match_block` guided
     by the approximate orientations on the LiDAR DSM, least-squares refinement and the observation
     sds (:func:`lidarcat.match.refine.refine_with_precision`, :func:`~lidarcat.match.refine.observation_sds`);
     the sd of an observation is the larger of its column/row sds.  Returns the ties and a report
-    (tracks, observations, pairs verified, seconds).
+    (tracks, observations, pairs verified, seconds).  Cached under *cache* by a hash of the images
+    and orientations.
     """
     from lidarcat.match import FeatureOptions, MatchOptions, match_block
     from lidarcat.match.features import detect, grey8
     from lidarcat.match.refine import observation_sds, refine_with_precision
 
+    path = None
+    if cache is not None:
+        h = hashlib.sha1(np.round(np.asarray(approx, float), 9).tobytes())
+        for im in images:
+            h.update(np.ascontiguousarray(im).tobytes())
+        h.update(repr((camera.columns_px, camera.rows_px, float(camera.focal_length_mm), refine)).encode())
+        path = Path(cache) / f"ties_{h.hexdigest()[:16]}.npz"
+        if path.exists():
+            with np.load(path) as z:
+                return Ties(z["photo"], z["point"], z["px"], z["sd_px"]), json.loads(str(z["report"]))
     t = time.perf_counter()
     feats = [detect(im, FeatureOptions()) for im in images]
     res = match_block([camera] * len(images), list(approx), lambda i: feats[i], surface=lidar_dsm_surface(data),
@@ -186,6 +209,12 @@ def block_ties(data: Ahn3, camera: Any, approx: np.ndarray, images: list[np.ndar
     rep = dict(tracks=int(len(np.unique(tr.track))), observations=int(len(tr.track)),
                pairs=sum(1 for r in res.pairs if r.n_inliers > 0), pairs_tried=len(res.pairs),
                seconds=time.perf_counter() - t)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.stem + ".part.npz")
+        np.savez_compressed(tmp, photo=ties.photo, point=ties.point, px=ties.px, sd_px=ties.sd_px,
+                            report=json.dumps(rep))
+        tmp.replace(path)
     return ties, rep
 
 
@@ -337,7 +366,7 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     if ties != "none" and len(used) >= 2:
         if ties == "match":
             try:
-                tie_obs, tie_report = block_ties(data, cam, approx[used], images)
+                tie_obs, tie_report = block_ties(data, cam, approx[used], images, cache=cache)
             except Exception as exc:          # noqa: BLE001 -- reported, then the labelled fallback
                 tie_report = dict(failed=f"{type(exc).__name__}: {exc}")
         if tie_obs is None:
