@@ -42,6 +42,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import pickle
 import time
 from pathlib import Path
 from typing import Any
@@ -536,6 +537,7 @@ def _row(label: str, g: str, seed: str, e: np.ndarray, nz: np.ndarray, extra: st
 def pool_table(files: list[str]) -> None:
     """The per-block rows and the pooled figures of the JSON-lines files of ``--out`` (markdown)."""
     recs = [json.loads(line) for f in files for line in Path(f).read_text().splitlines() if line.strip()]
+    recs = list({(r["flight"], r["gsd"], r["seed"]): r for r in recs}.values())    # a block run twice: once
     recs.sort(key=lambda r: (r["flight"], r["gsd"], r["seed"]))
     print("| flight | GSD | seed | n | median px | 95 % px | max px | norm. sd | > 3 px | occl | occ. acc. "
           "| without block check: n / max / > 3 px | ties: tracks / > 3 px |")
@@ -594,6 +596,7 @@ def main() -> None:
                     help="tie points of the block check: the matcher on the renders, true + 0.3 px, none")
     ap.add_argument("--no-block-check", action="store_true", help="the per-photo test only (as before the block check)")
     ap.add_argument("--cache", default=str(CACHE), help="folder of the rendered photos (npz); '' : none")
+    ap.add_argument("--scene", default="", help="pickle of the loaded scene: read when there, else written")
     ap.add_argument("--out", default="", help="append each block's figures to this JSON-lines file")
     ap.add_argument("--pool", nargs="+", default=[], help="print the pooled table of these JSON-lines files, nothing run")
     ap.add_argument("--compare", action="store_true",
@@ -605,7 +608,12 @@ def main() -> None:
         return
     cache = Path(a.cache) if a.cache else None
     t = time.perf_counter()
-    data = load_ahn3()
+    if a.scene and Path(a.scene).exists():
+        data = pickle.loads(Path(a.scene).read_bytes())
+    else:
+        data = load_ahn3()
+        if a.scene:
+            Path(a.scene).write_bytes(pickle.dumps(data))
     print(f"scene: {len(data.vertices)} vertices extracted, surface {data.surface.height.shape} cells "
           f"({time.perf_counter() - t:.0f} s)")
     head = f"{'flight':>8} {'gsd':>5} {'seed':>4} {'n':>3} {'median':>7} {'p95':>6} {'max':>6} {'norm sd':>7} {'>3px':>4}"
