@@ -8,16 +8,28 @@ the rest is the TIN of the first returns with the intensity as albedo), and synt
 (2 strips x 3 photos, 800 x 600 px, c = 100 mm, over four clusters of vertices, GSD 5-15 cm, exposure and sun per photo, the
 approximate orientation 2 m / 0.5 deg off) photograph it.  Each vertex is predicted
 (:func:`lidarcat.photocontrol.predict_points`, occlusion on the DSM of the LiDAR as the stage
-builds it), measured (:func:`lidarcat.photocontrol.measure_photo`) and tested across the
-photos (:func:`lidarcat.photocontrol.check_consistency`); the accepted measurements are scored
-against the vertex projected with the true orientation, and against the occlusion truth (the
-ray from the camera to the vertex on the rendered surface).
+builds it), measured (:func:`lidarcat.photocontrol.measure_photo`), tested on its photo
+(:func:`lidarcat.photocontrol.check_photo`), in the block (:func:`lidarcat.photocontrol.check_block`:
+one adjustment with the tie points, the vertex observations snooped) and across the photos
+(:func:`lidarcat.photocontrol.check_consistency`, a vertex accepted on one photo rejected); the
+accepted measurements are scored against the vertex projected with the true orientation, and
+against the occlusion truth (the ray from the camera to the vertex on the rendered surface).
 
-    PYTHONPATH=src python benchmarks/bench_photocontrol_ahn3.py [--flights F1 F2 F3 F4] [--gsd 0.05 0.10 0.15] [--seeds 0]
-        [--compare] [--occlusion-photos 6]
+The tie points are those ``lidarcat match`` finds (:func:`block_ties`: SIFT, ``match_block``
+guided by the approximate orientations on a 2 m LiDAR DSM, least-squares refinement), scored
+against the renderer's truth (:func:`score_ties`: each track's reference ray, true orientation,
+meets the rendered surface; the hit projected into the track's other photos); ``--ties true``
+uses true ties + 0.3 px noise instead (the fallback, labelled).
 
-``--compare`` also scores each block without the per-photo test (:func:`lidarcat.photocontrol.check_photo`)
-and with the measurements alone on their photo rejected (``(alone rej.)`` rows), from the same renders; a GSD given alone renders the same block (seed) as in the full run.
+    PYTHONPATH=src python benchmarks/bench_photocontrol_ahn3.py [--flights F1 F2 F3 F4] [--gsd 0.05 0.10 0.15]
+        [--seeds 0 1] [--compare] [--occlusion-photos 6] [--cache DIR] [--out FILE.jsonl]
+    PYTHONPATH=src python benchmarks/bench_photocontrol_ahn3.py --pool FILE.jsonl ...   # the pooled table
+
+``--compare`` also scores each block without the per-photo test and the block check (``(none)``
+rows), with the per-photo test only (``(photo)``) and with the measurements alone on their photo
+rejected (``(alone)``), from the same renders; a GSD given alone renders the same block (seed) as
+in the full run.  Renders (and ties) are cached as npz under ``--cache`` (default
+/tmp/ahn3b/cache), named by a hash of what they depend on, so reruns only measure.
 
 Prints one row per block (flight, GSD, seed) and the pooled figures.
 """
@@ -27,7 +39,10 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import hashlib
+import json
 import math
+import pickle
 import time
 from pathlib import Path
 from typing import Any
@@ -55,6 +70,7 @@ class Ahn3:
     vertices: list
     surface: Any
     ground_m: float
+    key: str = ""
 
 
 def load_ahn3(bounds: tuple[float, float, float, float] | None = None, *, cell_m: float = 0.1,
@@ -93,14 +109,189 @@ def load_ahn3(bounds: tuple[float, float, float, float] | None = None, *, cell_m
         found.append((pid, cp, clip))
     surf = lidar_surface(xyz[first], inten[first], bounds, cell_m=cell_m, patches=patches)
     ground = float(np.percentile(xyz[first, 2], 10))
-    return Ahn3(xyz, found, surf, ground)
+    h = hashlib.sha1(np.ascontiguousarray(surf.height).tobytes())
+    h.update(np.ascontiguousarray(surf.albedo).tobytes())
+    h.update(repr([pid for pid, _, _ in found]).encode())
+    return Ahn3(xyz, found, surf, ground, h.hexdigest()[:12])
+
+
+CACHE = Path("/tmp/ahn3b/cache")
+
+
+def render_cached(data: Ahn3, camera: Any, eo: np.ndarray, *, exposure: Any, sun_azimuth_deg: float,
+                  sun_elevation_deg: float, supersample: int, cache: Path | None, tag: str = "") -> np.ndarray:
+    """The rendered photo (uint8), from *cache* when rendered before (npz named by *tag* and a hash of
+    everything the render depends on: the scene, camera, orientation, exposure, sun, supersampling)."""
+    from lidarcat.synthetic.lidarphoto import render_lidar_photo
+
+    path = None
+    if cache is not None and data.key:
+        h = hashlib.sha1(repr((data.key, camera.columns_px, camera.rows_px, float(camera.focal_length_mm),
+                               np.round(np.asarray(eo, float), 9).tolist(), repr(exposure),
+                               round(float(sun_azimuth_deg), 9), round(float(sun_elevation_deg), 9),
+                               int(supersample))).encode()).hexdigest()[:16]
+        path = Path(cache) / f"{tag}{'_' if tag else ''}{h}.npz"
+        if path.exists():
+            with np.load(path) as z:
+                return z["image"]
+    img = render_lidar_photo(data.surface, camera, eo, exposure=exposure, sun_azimuth_deg=sun_azimuth_deg,
+                             sun_elevation_deg=sun_elevation_deg, supersample=supersample).image
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.stem + ".part.npz")
+        np.savez_compressed(tmp, image=img)
+        tmp.replace(path)
+    return img
+
+
+@dataclasses.dataclass(frozen=True)
+class Ties:
+    """Tie observations of a block by photo index and track (:class:`lidarcat.photocontrol.TieObservations`
+    takes them by id)."""
+
+    photo: np.ndarray       # (n,) index into the block's photos
+    point: np.ndarray       # (n,) tie point index
+    px: np.ndarray          # (n, 2) column, row
+    sd_px: np.ndarray       # (n,)
+
+
+def lidar_dsm_surface(data: Ahn3, cell_m: float = 2.0) -> Any:
+    """The guided search's height surface as ``lidarcat match`` builds it from the tiles: the highest
+    LiDAR point per 2 m cell (:data:`lidarcat.stages.match.SURFACE_CELL_M`), north-up, sd 1 m."""
+    from lidarcat.match import HeightSurface
+
+    xyz = data.xyz
+    x0, y1 = math.floor(xyz[:, 0].min()), math.ceil(xyz[:, 1].max())
+    col = ((xyz[:, 0] - x0) // cell_m).astype(np.int64)
+    row = ((y1 - xyz[:, 1]) // cell_m).astype(np.int64)
+    g = np.full((row.max() + 1, col.max() + 1), -np.inf)
+    np.maximum.at(g, (row, col), xyz[:, 2])
+    g[~np.isfinite(g)] = np.nan
+    return HeightSurface(float(np.nanmean(g)), g, float(x0), float(y1), float(cell_m), sd_m=1.0)
+
+
+def block_ties(data: Ahn3, camera: Any, approx: np.ndarray, images: list[np.ndarray], *,
+               refine: bool = True, cache: Path | None = None) -> tuple[Ties, dict]:
+    """Tie points of the rendered photos as ``lidarcat match`` (stages/match.py) finds them.
+
+    SIFT features (:func:`lidarcat.match.features.detect`), :func:`lidarcat.match.match_block` guided
+    by the approximate orientations on the LiDAR DSM, least-squares refinement and the observation
+    sds (:func:`lidarcat.match.refine.refine_with_precision`, :func:`~lidarcat.match.refine.observation_sds`);
+    the sd of an observation is the larger of its column/row sds.  Returns the ties and a report
+    (tracks, observations, pairs verified, seconds).  Cached under *cache* by a hash of the images
+    and orientations.
+    """
+    from lidarcat.match import FeatureOptions, MatchOptions, match_block
+    from lidarcat.match.features import detect, grey8
+    from lidarcat.match.refine import observation_sds, refine_with_precision
+
+    path = None
+    if cache is not None:
+        h = hashlib.sha1(np.round(np.asarray(approx, float), 9).tobytes())
+        for im in images:
+            h.update(np.ascontiguousarray(im).tobytes())
+        h.update(repr((camera.columns_px, camera.rows_px, float(camera.focal_length_mm), refine)).encode())
+        path = Path(cache) / f"ties_{h.hexdigest()[:16]}.npz"
+        if path.exists():
+            with np.load(path) as z:
+                return Ties(z["photo"], z["point"], z["px"], z["sd_px"]), json.loads(str(z["report"]))
+    t = time.perf_counter()
+    feats = [detect(im, FeatureOptions()) for im in images]
+    res = match_block([camera] * len(images), list(approx), lambda i: feats[i], surface=lidar_dsm_surface(data),
+                      options=MatchOptions())
+    tr = res.tracks
+    xy = res.xy_px
+    ref_sd = None
+    if refine and len(tr.track):
+        ref = refine_with_precision(tr.track, tr.photo, xy, lambda i: grey8(images[i]), half_px=7)
+        xy, ref_sd = ref.xy_px, ref.sd_px
+    sd = observation_sds(tr.track, tr.photo, ref_sd).max(axis=1)
+    ties = Ties(np.asarray(tr.photo, np.int64), np.asarray(tr.track, np.int64), np.asarray(xy, float), sd)
+    rep = dict(tracks=int(len(np.unique(tr.track))), observations=int(len(tr.track)),
+               pairs=sum(1 for r in res.pairs if r.n_inliers > 0), pairs_tried=len(res.pairs),
+               seconds=time.perf_counter() - t)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.stem + ".part.npz")
+        np.savez_compressed(tmp, photo=ties.photo, point=ties.point, px=ties.px, sd_px=ties.sd_px,
+                            report=json.dumps(rep))
+        tmp.replace(path)
+    return ties, rep
+
+
+def true_ties(data: Ahn3, camera: Any, eo: np.ndarray, images: list[np.ndarray], *, noise_px: float = 0.3,
+              per_photo: int = 200, seed: int = 0) -> Ties:
+    """The fallback: tie points on a grid of each photo, the true ray's hit on the rendered surface
+    projected into the other photos with the true orientations, plus *noise_px* normal noise."""
+    from lidarcat.photocontrol.predict import pixel_positions
+    from lidarcat.synthetic.lidarphoto import cast_rays, vertex_visible
+    from lidarcat.geometry.collinearity import rotation_matrix
+
+    rng = np.random.default_rng(seed)
+    W, H = camera.columns_px, camera.rows_px
+    photo, point, px = [], [], []
+    n_pt = 0
+    for k in range(len(eo)):
+        cr = np.column_stack([rng.uniform(20, W - 20, per_photo), rng.uniform(20, H - 20, per_photo)])
+        m = rotation_matrix(eo[k][3:6])
+        d = np.column_stack([camera.pixel_to_photo(cr), np.full(len(cr), -camera.focal_length_mm)]) @ m
+        X, _ = cast_rays(data.surface, eo[k][:3], d)
+        for j in range(len(eo)):
+            q = pixel_positions(camera, eo[j], X)
+            ok = np.isfinite(q).all(axis=1) & (q[:, 0] > 5) & (q[:, 1] > 5) & (q[:, 0] < W - 5) & (q[:, 1] < H - 5)
+            if j != k:
+                ok &= vertex_visible(data.surface, eo[j], np.where(np.isfinite(X), X, 0.0))
+            if j != k:
+                q = q + rng.normal(0, noise_px, q.shape)
+            photo.append(np.full(int(ok.sum()), j))
+            point.append(n_pt + np.flatnonzero(ok))
+            px.append(q[ok])
+        n_pt += len(cr)
+    photo, point, px = np.concatenate(photo), np.concatenate(point), np.vstack(px)
+    keep = np.isin(point, np.flatnonzero(np.bincount(point, minlength=n_pt) >= 2))
+    return Ties(photo[keep], point[keep], px[keep], np.full(int(keep.sum()), noise_px))
+
+
+def score_ties(data: Ahn3, camera: Any, eo: np.ndarray, ties: Ties, *, gross_px: float = 3.0) -> dict:
+    """The ties against the renderer's truth: each observation's true ray (true orientation) meets
+    the rendered surface; the hit of a track's first observation (its reference) is projected into
+    the track's other photos.  Returns the transfer errors (px) of the other observations and the
+    tracks with one more than *gross_px* off."""
+    from lidarcat.photocontrol.predict import pixel_positions
+    from lidarcat.synthetic.lidarphoto import cast_rays
+    from lidarcat.geometry.collinearity import rotation_matrix
+
+    if not len(ties.point):
+        return dict(errors=np.empty(0), tracks=0, gross_tracks=0, observations=0)
+    order = np.lexsort((ties.photo, ties.point))
+    pt, ph, xy = ties.point[order], ties.photo[order], ties.px[order]
+    first = np.r_[True, pt[1:] != pt[:-1]]
+    ref_of = np.maximum.accumulate(np.where(first, np.arange(len(pt)), 0))
+    X = np.full((len(pt), 3), np.nan)
+    for k in np.unique(ph[first]):
+        sel = np.flatnonzero(first & (ph == k))
+        m = rotation_matrix(eo[k][3:6])
+        d = np.column_stack([camera.pixel_to_photo(xy[sel]), np.full(len(sel), -camera.focal_length_mm)]) @ m
+        X[sel] = cast_rays(data.surface, eo[k][:3], d)[0]
+    err = np.full(len(pt), np.nan)
+    for k in np.unique(ph):
+        sel = np.flatnonzero(~first & (ph == k))
+        q = pixel_positions(camera, eo[k], X[ref_of[sel]])
+        err[sel] = np.hypot(*(q - xy[sel]).T)
+    e = err[~first]
+    bad = np.zeros(len(pt), bool)
+    bad[~first] = ~(e <= gross_px)
+    gross = np.unique(pt[bad])
+    return dict(errors=e[np.isfinite(e)], tracks=int(first.sum()), gross_tracks=int(len(gross)),
+                observations=int(len(pt)), no_hit=int(np.sum(~np.isfinite(e))))
 
 
 def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd: float, seed: int, *,
                 size: tuple[int, int] = (800, 600), n_strips: int = 2, per_strip: int = 3,
                 focal_mm: float = 100.0, supersample: int = 4, params: Any = None,
                 min_photos: int = 2, keep_photos: bool = False, photo_test: bool = True,
-                compare: bool = False, alone: str = "keep") -> dict:
+                block_test: bool = True, compare: bool = False, alone: str = "keep",
+                ties: str = "match", cache: Path | None = CACHE, tag: str = "") -> dict:
     """Render one flight, measure every vertex on every photo as ``measure-control`` does, score.
 
     Returns a dict: ``errors`` (px) and ``normalised`` (dx/sd, dy/sd) of the accepted
@@ -108,15 +299,21 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     occluded), ``occluded_pairs`` (vertex-photo pairs in the frame but occluded), ``n_photos``.
     ``photo_test``: each photo's measurements tested against their common displacement
     (:func:`lidarcat.photocontrol.check_photo`) before the multi-photo test, as the stage does;
-    ``compare``: also the figures of the other choice, under ``without_photo_test`` (or
-    ``with_photo_test``), and with the measurements alone on their photo rejected
-    (``alone_rejected``), from the same renders; ``alone``: check_photo's choice for those.
+    ``block_test``: then the block check (:func:`check_block`: one adjustment of the block with the
+    tie points, the vertex observations snooped); ``ties``: ``"match"`` (the matcher on the
+    renders, scored against truth under ``tie_score``), ``"true"`` (true + 0.3 px, the fallback) or
+    ``"none"``; ``compare``: also the figures without the per-photo test and the block check
+    (``without_photo_test``), with the per-photo test only (``photo_test_only``) and with the
+    measurements alone on their photo rejected (``alone_rejected``), from the same renders;
+    ``alone``: check_photo's choice for those.  Renders are cached under *cache* (None: not).
+    ``lists``: the per-photo measurements (``raw``, ``checked``), the photos rendered (``used``),
+    the ties and what the block check is called with.
     """
     from lidarcat.photocontrol import VertexTarget, check_photo, measure_photo, predict_points
     from lidarcat.stages.measure_control import dsm_of_points
     from lidarcat.synthetic.aerial import Exposure, project_to_pixels
     from lidarcat.synthetic.aerial import aerial_camera
-    from lidarcat.synthetic.lidarphoto import flight_poses, render_lidar_photo, vertex_visible
+    from lidarcat.synthetic.lidarphoto import flight_poses, vertex_visible
 
     cam = dataclasses.replace(aerial_camera(size), focal_length_mm=float(focal_mm))
     eo = flight_poses(centre, data.ground_m, gsd, cam, n_strips=n_strips, per_strip=per_strip,
@@ -129,15 +326,11 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     covs = np.array([cp.cov_m2 for _, cp, _ in data.vertices])
     ids = [pid for pid, _, _ in data.vertices]
     dsms = [dsm_of_points(clip) for _, _, clip in data.vertices]      # as the stage: the DSM of the 30 m clip
-    per_vertex: dict[int, list] = {}
-    per_vertex_checked: dict[int, list] = {}
-    per_vertex_alone: dict[int, list] = {}
-
-    def decide(pv: dict) -> dict:
-        return _decide(pv, cam, approx, eo_cov, V, covs, ids, truth, vis_truth, min_photos)
+    t_render = 0.0
 
     truth, vis_truth, photos = {}, {}, {}
     occluded_pairs = 0
+    used, images, raw, checked, checked_alone = [], [], [], [], []
     for k in range(len(eo)):
         pid = f"p{k}"
         tp = project_to_pixels(cam, eo[k], V)
@@ -149,30 +342,88 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
             continue
         vis = vertex_visible(data.surface, eo[k], V)
         occluded_pairs += int(np.sum(inside & ~vis))
-        ph = render_lidar_photo(data.surface, cam, eo[k],
-                                exposure=Exposure.random(100 * seed + k, noise_sd=1.0),
-                                sun_azimuth_deg=sun_az + rng.normal(0, 1), sun_elevation_deg=sun_el + rng.normal(0, 1),
-                                supersample=supersample)
+        t0 = time.perf_counter()
+        img = render_cached(data, cam, eo[k], exposure=Exposure.random(100 * seed + k, noise_sd=1.0),
+                            sun_azimuth_deg=sun_az + rng.normal(0, 1), sun_elevation_deg=sun_el + rng.normal(0, 1),
+                            supersample=supersample, cache=cache, tag=f"{tag}{'_' if tag else ''}s{seed}_p{k}")
+        t_render += time.perf_counter() - t0
         if keep_photos:
-            photos[pid] = ph.image
+            photos[pid] = img
         targets = [VertexTarget(cp.enh_m, cp.planes, clip, pr) for (_, cp, clip), pr in zip(data.vertices, prs)]
-        ms = measure_photo(ph.image, cam, approx[k], targets, params) if params else \
-            measure_photo(ph.image, cam, approx[k], targets)
+        ms = measure_photo(img, cam, approx[k], targets, params) if params else \
+            measure_photo(img, cam, approx[k], targets)
         # as the stage: each photo's measurements against their common displacement
-        checked = check_photo(ms, cam, approx[k], eo_cov, V, covs, alone=alone)
-        checked_alone = check_photo(ms, cam, approx[k], eo_cov, V, covs, alone="reject")
-        for i, m in enumerate(ms):
-            per_vertex.setdefault(i, []).append((k, m))
-            per_vertex_checked.setdefault(i, []).append((k, checked[i]))
-            per_vertex_alone.setdefault(i, []).append((k, checked_alone[i]))
+        used.append(k)
+        images.append(img)
+        raw.append(list(ms))
+        checked.append(check_photo(ms, cam, approx[k], eo_cov, V, covs, alone=alone))
+        checked_alone.append(check_photo(ms, cam, approx[k], eo_cov, V, covs, alone="reject"))
+        for i in range(len(ms)):
             truth[(i, k)] = tp[i]
             vis_truth[(i, k)] = bool(vis[i])
-    out = decide(per_vertex_checked if photo_test else per_vertex)
+
+    t0 = time.perf_counter()
+    tie_obs, tie_report, tie_score = None, {}, {}
+    if ties != "none" and len(used) >= 2:
+        if ties == "match":
+            try:
+                tie_obs, tie_report = block_ties(data, cam, approx[used], images, cache=cache)
+            except Exception as exc:          # noqa: BLE001 -- reported, then the labelled fallback
+                tie_report = dict(failed=f"{type(exc).__name__}: {exc}")
+        if tie_obs is None:
+            tie_obs = true_ties(data, cam, eo[used], images, seed=seed)
+            tie_report = dict(tie_report, source="true + 0.3 px (fallback)")
+        else:
+            tie_report = dict(tie_report, source="match_block")
+        tie_score = score_ties(data, cam, eo[used], tie_obs)
+    t_ties = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    blocked = checked
+    block_info: dict = {}
+    if block_test and tie_obs is not None:
+        blocked, block_info = run_check_block(checked, cam, approx[used], eo_cov, V, covs, tie_obs,
+                                              [f"p{k}" for k in used], ids)
+    t_block = time.perf_counter() - t0
+
+    def decide(per_photo: list) -> dict:
+        pv: dict[int, list] = {}
+        for k, ms in zip(used, per_photo):
+            for i, m in enumerate(ms):
+                pv.setdefault(i, []).append((k, m))
+        return _decide(pv, cam, approx, eo_cov, V, covs, ids, truth, vis_truth, min_photos)
+
+    main_set = blocked if (photo_test and block_test and tie_obs is not None) else checked if photo_test else raw
+    out = decide(main_set)
     if compare:
-        out["without_photo_test" if photo_test else "with_photo_test"] = \
-            decide(per_vertex if photo_test else per_vertex_checked)
-        out["alone_rejected"] = decide(per_vertex_alone)
-    return dict(out, occluded_pairs=occluded_pairs, n_photos=len(eo), photos=photos)
+        out["without_photo_test"] = decide(raw)
+        out["photo_test_only"] = decide(checked)
+        out["alone_rejected"] = decide(checked_alone)
+    return dict(out, occluded_pairs=occluded_pairs, n_photos=len(eo), photos=photos, ties=tie_report,
+                tie_score=tie_score, block=block_info,
+                seconds=dict(render=t_render, ties=t_ties, block=t_block),
+                lists=dict(raw=raw, checked=checked, used=used, ties=tie_obs, approx=approx[used], camera=cam,
+                           eo_cov=eo_cov, vertices=V, vertex_covs=covs, ids=ids))
+
+
+def run_check_block(per_photo: list, camera: Any, eos: np.ndarray, eo_cov: np.ndarray, V: np.ndarray,
+                    covs: np.ndarray, ties: Ties, photo_ids: list, point_ids: list) -> tuple[list, dict]:
+    """:func:`lidarcat.photocontrol.check_block` on the block (per photo lists of measurements, one per
+    vertex; *photo_ids* of the photos, *point_ids* of the vertices), as the stage calls it after
+    ``check_photo``: returns the measurements (per photo) and a report of the check."""
+    from lidarcat.photocontrol import TieObservations, check_block
+
+    flat = [m for ms in per_photo for m in ms]
+    pids = np.array(photo_ids, dtype=object)
+    t = TieObservations(pids[ties.photo], np.array([f"t{v}" for v in ties.point], dtype=object), ties.px, ties.sd_px)
+    bc = check_block(flat, {p: camera for p in photo_ids}, dict(zip(photo_ids, eos)),
+                     {p: eo_cov for p in photo_ids}, dict(zip(point_ids, V)), dict(zip(point_ids, covs)), t)
+    out, j = [], 0
+    for ms in per_photo:
+        out.append(list(bc.measurements[j:j + len(ms)]))
+        j += len(ms)
+    return out, dict(source="check_block", status=bc.status, tested=bc.tested, rejected=len(bc.rejected),
+                     untestable=len(bc.untestable), ties_used=bc.ties_used, ties_rejected=bc.ties_rejected,
+                     message=bc.message)
 
 
 def _decide(per_vertex: dict, cam: Any, approx: np.ndarray, eo_cov: np.ndarray, V: np.ndarray, covs: np.ndarray,
@@ -277,25 +528,100 @@ def summary(e: np.ndarray, nz: np.ndarray) -> tuple[int, float, float, float, fl
     return len(e), float(np.median(e)), float(np.percentile(e, 95)), float(e.max()), float(np.std(nz))
 
 
+def _row(label: str, g: str, seed: str, e: np.ndarray, nz: np.ndarray, extra: str = "") -> str:
+    n, med, p95, mx, sd = summary(e, nz)
+    return (f"{label:>8} {g:>5} {seed:>4} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f} "
+            f"{int(np.sum(e > 3.0)):4d} {extra}")
+
+
+def pool_table(files: list[str]) -> None:
+    """The per-block rows and the pooled figures of the JSON-lines files of ``--out`` (markdown)."""
+    recs = [json.loads(line) for f in files for line in Path(f).read_text().splitlines() if line.strip()]
+    recs = list({(r["flight"], r["gsd"], r["seed"]): r for r in recs}.values())    # a block run twice: once
+    recs.sort(key=lambda r: (r["flight"], r["gsd"], r["seed"]))
+    print("| flight | GSD | seed | n | median px | 95 % px | max px | norm. sd | > 3 px | occl | occ. acc. "
+          "| without block check: n / max / > 3 px | ties: tracks / > 3 px |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|")
+
+    def fmt(v: float) -> str:
+        return "-" if not np.isfinite(v) else f"{v:.2f}"
+
+    pools: dict[str, list] = {}
+    for r in recs:
+        e, nz = np.array(r["main"]["errors"]), np.array(r["main"]["normalised"])
+        n, med, p95, mx, sd = summary(e, nz)
+        po = r.get("photo_test_only")
+        other = "-"
+        if po is not None:
+            pe = np.array(po["errors"])
+            other = f"{len(pe)} / {fmt(pe.max() if len(pe) else math.nan)} / {int(np.sum(pe > 3))}"
+        print(f"| {r['flight']} | {r['gsd']:.2f} | {r['seed']} | {n} | {fmt(med)} | {fmt(p95)} | {fmt(mx)} | "
+              f"{fmt(sd)} | {int(np.sum(e > 3))} | {r['occluded_pairs']} | {r['occluded_accepted']} | {other} | "
+              f"{r['tie_tracks']} / {r['tie_gross']} |")
+        for key in ("main", "without_photo_test", "photo_test_only", "alone_rejected"):
+            if key in r:
+                pools.setdefault(key, []).append((r[key]["errors"], r[key]["normalised"]))
+    for key, lab in (("main", "pooled (block check)"), ("photo_test_only", "pooled, per-photo test only"),
+                     ("without_photo_test", "pooled, neither"), ("alone_rejected", "pooled, alone rejected")):
+        if key not in pools:
+            continue
+        e = np.concatenate([np.asarray(x, float) for x, _ in pools[key]])
+        nz = np.concatenate([np.asarray(x, float) for _, x in pools[key]])
+        n, med, p95, mx, sd = summary(e, nz)
+        print(f"{lab}: n {n}, median {fmt(med)}, 95 % {fmt(p95)}, max {fmt(mx)}, normalised sd {fmt(sd)}, "
+              f"> 3 px {int(np.sum(e > 3))}")
+    st: dict[str, int] = {}
+    for r in recs:
+        for k, v in r["statuses"].items():
+            st[k] = st.get(k, 0) + v
+    te = np.concatenate([np.asarray(r["tie_errors"], float) for r in recs]) if recs else np.empty(0)
+    print(f"statuses: {st}; hidden pairs {sum(r['occluded_pairs'] for r in recs)}, accepted "
+          f"{sum(r['occluded_accepted'] for r in recs)}")
+    if len(te):
+        print(f"ties: {sum(r['tie_tracks'] for r in recs)} tracks, {sum(r['tie_gross'] for r in recs)} with an "
+              f"observation > 3 px off; transfer error median {np.median(te):.2f} px, 95 % {np.percentile(te, 95):.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flights", nargs="+", default=list(FLIGHTS), choices=list(FLIGHTS))
     ap.add_argument("--gsd", type=float, nargs="+", default=list(GSDS))
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0],
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1],
                     help="the block's seed is 100 seed + 10 flight + GSD index")
     ap.add_argument("--supersample", type=int, default=4, help="rays per pixel side at edges")
+    ap.add_argument("--size", type=int, nargs=2, default=[800, 600], help="photo columns, rows")
+    ap.add_argument("--per-strip", type=int, default=3, help="photos per strip (2 strips)")
     ap.add_argument("--occlusion-photos", type=int, default=6, help="oblique photos of hidden vertices (0: none)")
+    ap.add_argument("--ties", choices=["match", "true", "none"], default="match",
+                    help="tie points of the block check: the matcher on the renders, true + 0.3 px, none")
+    ap.add_argument("--no-block-check", action="store_true", help="the per-photo test only (as before the block check)")
+    ap.add_argument("--cache", default=str(CACHE), help="folder of the rendered photos (npz); '' : none")
+    ap.add_argument("--scene", default="", help="pickle of the loaded scene: read when there, else written")
+    ap.add_argument("--out", default="", help="append each block's figures to this JSON-lines file")
+    ap.add_argument("--pool", nargs="+", default=[], help="print the pooled table of these JSON-lines files, nothing run")
     ap.add_argument("--compare", action="store_true",
-                    help="also print each block without the per-photo test (check_photo), from the same renders")
+                    help="also print each block without the per-photo test and the block check, with the per-photo "
+                         "test only, and with the measurements alone on their photo rejected (same renders)")
     a = ap.parse_args()
+    if a.pool:
+        pool_table(a.pool)
+        return
+    cache = Path(a.cache) if a.cache else None
     t = time.perf_counter()
-    data = load_ahn3()
+    if a.scene and Path(a.scene).exists():
+        data = pickle.loads(Path(a.scene).read_bytes())
+    else:
+        data = load_ahn3()
+        if a.scene:
+            Path(a.scene).write_bytes(pickle.dumps(data))
     print(f"scene: {len(data.vertices)} vertices extracted, surface {data.surface.height.shape} cells "
           f"({time.perf_counter() - t:.0f} s)")
-    print(f"{'flight':>6} {'gsd':>5} {'seed':>4} {'n':>3} {'median':>7} {'p95':>6} {'max':>6} {'norm sd':>7} "
-          f"{'occl':>4} {'occ.acc':>7} {'s':>5}  statuses")
-    all_e, all_n, occ_acc, occ, all_w, all_a = [], [], 0, 0, [], []
-    for fi, f in enumerate(a.flights):
+    head = f"{'flight':>8} {'gsd':>5} {'seed':>4} {'n':>3} {'median':>7} {'p95':>6} {'max':>6} {'norm sd':>7} {'>3px':>4}"
+    print(head + " occl occ.acc     s  ties | statuses")
+    pools: dict[str, list] = {"main": [], "without_photo_test": [], "photo_test_only": [], "alone_rejected": []}
+    occ_acc, occ, tie_e, tie_tr, tie_gross = 0, 0, [], 0, 0
+    statuses: dict[str, int] = {}
+    for f in a.flights:
         centre, heading = FLIGHTS[f]
         for gi, g in enumerate(a.gsd):
             for s0 in a.seeds:
@@ -303,46 +629,77 @@ def main() -> None:
                 gk = GSDS.index(g) if g in GSDS else gi
                 seed = 100 * s0 + 10 * list(FLIGHTS).index(f) + gk
                 t = time.perf_counter()
-                r = score_block(data, centre, heading, g, seed, supersample=a.supersample, compare=a.compare)
+                r = score_block(data, centre, heading, g, seed, supersample=a.supersample, compare=a.compare,
+                                size=tuple(a.size), per_strip=a.per_strip, ties=a.ties,
+                                block_test=not a.no_block_check, cache=cache, tag=f"{f}_g{g:.2f}")
                 if a.compare:
-                    w = r["without_photo_test"]
-                    n, med, p95, mx, sd = summary(w["errors"], w["normalised"])
-                    print(f"{'(w/o':>6} {'ph.)':>5} {seed:4d} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f} "
-                          f"{'':>4} {w['occluded_accepted']:7d} {'':>5}  {w['statuses']}", flush=True)
-                    all_w.append(w["errors"])
-                    w = r["alone_rejected"]
-                    n, med, p95, mx, sd = summary(w["errors"], w["normalised"])
-                    print(f"{'(alone':>6} {'rej.)':>5} {seed:4d} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f} "
-                          f"{'':>4} {w['occluded_accepted']:7d} {'':>5}  {w['statuses']}", flush=True)
-                    all_a.append(w["errors"])
-                all_e.append(r["errors"])
-                all_n.append(r["normalised"])
+                    for key, lab in (("without_photo_test", "(none)"), ("photo_test_only", "(photo)"),
+                                     ("alone_rejected", "(alone)")):
+                        w = r[key]
+                        pools[key].append((w["errors"], w["normalised"]))
+                        print(_row(lab, "", str(seed), w["errors"], w["normalised"],
+                                   f"{'':>4} {w['occluded_accepted']:7d}"), flush=True)
+                pools["main"].append((r["errors"], r["normalised"]))
                 occ_acc += r["occluded_accepted"]
                 occ += r["occluded_pairs"]
-                n, med, p95, mx, sd = summary(r["errors"], r["normalised"])
-                print(f"{f:>6} {g:5.2f} {seed:4d} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f} "
-                      f"{r['occluded_pairs']:4d} {r['occluded_accepted']:7d} {time.perf_counter() - t:5.0f}  "
-                      f"{r['statuses']}", flush=True)
-                n, med, p95, mx, sd = summary(np.concatenate(all_e), np.concatenate(all_n))
-                print(f"{'so far':>6} {'':>5} {'':>4} {n:3d} {med:7.2f} {p95:6.2f} {mx:6.2f} {sd:7.2f}", flush=True)
-    n, med, p95, mx, sd = summary(np.concatenate(all_e), np.concatenate(all_n))
-    if a.compare:
-        w = np.concatenate(all_w)
-        print(f"without the per-photo test: {len(w)} measurements, max {w.max() if len(w) else math.nan:.2f} px, "
-              f"{int(np.sum(w > 3.0))} more than 3 px off")
-    print(f"with it: {n} measurements, {int(np.sum(np.concatenate(all_e) > 3.0))} more than 3 px off")
-    if a.compare:
-        w = np.concatenate(all_a)
-        print(f"with it, those alone on their photo rejected: {len(w)} measurements, "
-              f"max {w.max() if len(w) else math.nan:.2f} px, {int(np.sum(w > 3.0))} more than 3 px off")
+                for k2, v in r["statuses"].items():
+                    statuses[k2] = statuses.get(k2, 0) + v
+                ts = r["tie_score"]
+                tinfo = ""
+                if ts:
+                    tie_e.append(ts["errors"])
+                    tie_tr += ts["tracks"]
+                    tie_gross += ts["gross_tracks"]
+                    te = ts["errors"]
+                    tinfo = (f"{r['ties'].get('source', '')}: {ts['tracks']} tracks {ts['observations']} obs, "
+                             f"median {np.median(te) if len(te) else math.nan:.2f} px, "
+                             f"{ts['gross_tracks']} tracks > 3 px; block {r['block']}")
+                if r["ties"].get("failed"):
+                    tinfo += f" [match failed: {r['ties']['failed']}]"
+                sec = r["seconds"]
+                print(_row(f, f"{g:.2f}", str(seed), r["errors"], r["normalised"],
+                           f"{r['occluded_pairs']:4d} {r['occluded_accepted']:7d} {time.perf_counter() - t:5.0f}"
+                           f" (render {sec['render']:.0f} ties {sec['ties']:.0f} block {sec['block']:.0f}) | "
+                           f"{r['statuses']}"), flush=True)
+                if tinfo:
+                    print(f"{'':>8} ties {tinfo}", flush=True)
+                if a.out:
+                    rec = dict(flight=f, gsd=g, seed=seed, statuses=r["statuses"], occluded_pairs=r["occluded_pairs"],
+                               occluded_accepted=r["occluded_accepted"], ties=r["ties"], block=r["block"],
+                               tie_errors=ts.get("errors", np.empty(0)).tolist() if ts else [],
+                               tie_tracks=ts.get("tracks", 0) if ts else 0,
+                               tie_gross=ts.get("gross_tracks", 0) if ts else 0,
+                               rows=[(pid, k, e, px.tolist(), tp.tolist(), sd.tolist())
+                                     for pid, k, e, px, tp, sd in r["rows"]])
+                    for key in ("main", "without_photo_test", "photo_test_only", "alone_rejected"):
+                        w = r if key == "main" else r.get(key)
+                        if w is not None:
+                            rec[key] = dict(errors=w["errors"].tolist(), normalised=w["normalised"].tolist(),
+                                            occluded_accepted=w["occluded_accepted"])
+                    with open(a.out, "a") as fh:
+                        fh.write(json.dumps(rec, default=str) + "\n")
+                e = np.concatenate([x for x, _ in pools["main"]])
+                nz = np.concatenate([x for _, x in pools["main"]])
+                print(_row("so far", "", "", e, nz), flush=True)
+    print(head)
+    for key, lab in (("without_photo_test", "none"), ("photo_test_only", "photo"), ("alone_rejected", "alone"),
+                     ("main", "pooled")):
+        if pools[key]:
+            e = np.concatenate([x for x, _ in pools[key]])
+            nz = np.concatenate([x for _, x in pools[key]])
+            print(_row(lab, "", "", e, nz))
+    te = np.concatenate(tie_e) if tie_e else np.empty(0)
+    if len(te):
+        print(f"ties: {tie_tr} tracks, transfer error median {np.median(te):.2f} px, 95 % {np.percentile(te, 95):.2f} "
+              f"px; {tie_gross} tracks with an observation > 3 px off")
+    print(f"statuses (all blocks): {statuses}")
+    print(f"occluded vertex-photo pairs {occ}, of them accepted {occ_acc}")
     t = time.perf_counter()
     o = occlusion_block(data, max_photos=a.occlusion_photos) if a.occlusion_photos > 0 else None
     if o is not None:
         print(f"occlusion: {o['views']} hidden views found (60 deg off nadir, GSD 0.10 at the vertex), {o['hidden']} "
               f"hidden vertex-photo pairs on {a.occlusion_photos} photos, measured {o['measured_hidden']} "
               f"({o['statuses']}; {time.perf_counter() - t:.0f} s)")
-    print(f"pooled: {n} measurements, median {med:.2f} px, 95 % {p95:.2f} px, max {mx:.2f} px, normalised sd "
-          f"{sd:.2f}; occluded vertex-photo pairs {occ}, of them accepted {occ_acc}")
 
 
 if __name__ == "__main__":

@@ -52,9 +52,20 @@ from the vertex found in ``band_px``.
 
 **3. Vertex.**  Line *i* in the image: :math:`m_i^T x = c_i` (unit normal
 :math:`m_i`), with the variance :math:`w_i^{-1}` of its offset at the vertex.
-:math:`w_i^{-1}` adds ``line_sd_px``\ :sup:`2` (0.25 px) for what the fit cannot see
-(blur, the texture next to the edge; it makes the normalised errors' sd about 1 on the
-anti-aliased, per-ray shaded renders).  The vertex is the weighted
+:math:`w_i^{-1}` adds what the fit cannot see: the texture next to the edge moves the gradient
+peaks of a whole stretch of the edge alike (the profiles are smoothed along it, the texture is
+correlated over pixels), an offset of the line that its residual scatter does not show, the
+larger the weaker the edge against the texture; so
+:math:`\sigma_0^2 + (k/\rho_i)^2` with :math:`\rho_i` the edge's median gradient over the
+texture's (the ratio the edge was accepted by), ``vertex_sd_px`` :math:`\sigma_0` = 0.1 px and
+``vertex_texture_px`` :math:`k` = 1 px: chosen on the AHN3 renders of one set of seeds
+(benchmarks/bench_photocontrol_ahn3.py; the accepted measurements' normalised errors' sd, their
+points kept, 1.01 where a constant 0.25 px gave 0.75) and validated on another (1.00; 0.85).
+Measured again with the new weights, the weak line weighs less in the point, whose errors shrink
+(a 0.9 px one to 0.5 px): sd 0.88 and 0.73 (same blocks).  What is left of the over-estimate on
+clean edges is the fit's own floor (``min_sd_px`` with the station correlation factor), which the
+line observations share.  (The line observations, :class:`EdgeLine`, keep ``line_sd_px``.)
+The vertex is the weighted
 least-squares point :math:`x = (\sum w_i m_i m_i^T)^{-1} \sum w_i m_i c_i` with
 covariance :math:`(\sum w_i m_i m_i^T)^{-1}` (two lines: their intersection).
 Of two edges found on one image line (less than ``min_angle_deg`` apart) the one
@@ -407,10 +418,15 @@ class MeasureParams:
     two_line_ratio: float = 3.5
     #: sd of a line's position from what the fit cannot see (texture next to the edge, blur), added (px);
     #: 0.25 makes the normalised errors' sd 1.0 over the benchmark's blocks (0.5 was needed while the
-    #: renders painted roof shading into the plan albedo lattice, a texel off the roof edge)
+    #: renders painted roof shading into the plan albedo lattice, a texel off the roof edge); the line
+    #: observations (EdgeLine) use it, the vertex vertex_sd_px and vertex_texture_px below
     line_sd_px: float = 0.25
     #: sd of the predicted edge direction in the photo (deg), an observation of each line's slope (0: free)
     direction_sd_deg: float = 1.0
+    #: the vertex: sd added to each line's offset, sqrt(vertex_sd_px^2 + (vertex_texture_px / ratio)^2) with
+    #: ratio the edge's gradient over the texture's (module docstring, step 3; calibrated on the AHN3 renders)
+    vertex_sd_px: float = 0.10
+    vertex_texture_px: float = 1.0
     #: a roof edge as a line observation (EdgeLine): sd of its direction from what the fit cannot see (deg),
     #: added to the free fit's (texture correlated along the edge tilts a fitted line)
     line_direction_sd_deg: float = 0.5
@@ -582,7 +598,7 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                        edge_lines=edge_lines(use, True))
     while True:
         x, n_mat, chi2 = _intersect([fits[i] for i in use], mm[use], np.array(cc)[use], [covs[i] for i in use],
-                                    origin, p.line_sd_px)
+                                    origin, p.vertex_sd_px, p.vertex_texture_px)
         if len(use) <= 2 or chi2 <= _CHI2_1 * (len(use) - 2):
             break
         # the line farthest (normalised) from the others' point goes
@@ -590,7 +606,7 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
         for i in use:
             rest = [j for j in use if j != i]
             xr, _, _ = _intersect([fits[j] for j in rest], mm[rest], np.array(cc)[rest], [covs[j] for j in rest],
-                                  origin, p.line_sd_px)
+                                  origin, p.vertex_sd_px, p.vertex_texture_px)
             res.append(abs(float(mm[i] @ xr) - cc[i]))
         drop = use[int(np.argmax(res))]
         why.append(f"edge of planes {fits_planes[drop][0] + 1}-{fits_planes[drop][1] + 1}: does not meet the "
@@ -612,14 +628,19 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                    reason="; ".join(why), lines=tuple(lines), edge_lines=edge_lines(use, False))
 
 
-def _intersect(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, origin: np.ndarray, line_sd_px: float):
-    """Weighted least-squares point of lines m^T x = c (module docstring, step 3): point, normal matrix, chi2."""
+def _intersect(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, origin: np.ndarray, sd_px: float,
+               texture_px: float = 0.0):
+    """Weighted least-squares point of lines m^T x = c (module docstring, step 3): point, normal matrix, chi2.
+
+    Each line's offset variance: its fit's at the point, plus ``sd_px^2 + (texture_px / ratio)^2``
+    (ratio: the edge's gradient over the texture's, ``fit[3]``)."""
     x = origin.copy()
     for _ in range(3):
         w = []
-        for (u, _), (cov, b) in zip(fits, covs):
+        for (u, fit), (cov, b) in zip(fits, covs):
             jv = np.array([1.0, float((x - origin) @ u)])
-            w.append(1.0 / (max(float(jv @ cov @ jv), 1e-8) / (1.0 + b * b) + line_sd_px**2))
+            extra = sd_px**2 + (texture_px / max(float(fit[3]), 1e-9)) ** 2
+            w.append(1.0 / (max(float(jv @ cov @ jv), 1e-8) / (1.0 + b * b) + extra))
         w = np.array(w)
         n_mat = (mm * w[:, None]).T @ mm
         x = np.linalg.solve(n_mat, (mm * w[:, None]).T @ cc)
