@@ -34,13 +34,20 @@ touching faces.
 with more of them than ``max_planes`` (or when faces merge across a larger
 clip) the faces of a small corner may be lost, and the nearest surviving
 intersection lies metres away.  :func:`extract_roof` therefore segments the
-clip again at the smaller radii ``scales x radius_m`` while the vertex found
-lies farther than ``near_m`` from the position, and keeps the nearest over all
+clip again at the smaller radii ``scales x radius_m`` and 4 and 3 m (those
+below ``radius_m``, at least 3 m, largest first) and keeps the nearest over all
 scales (a smaller clip's vertex replaces the first only when it is another
-corner, farther than ``max(0.5 m, 4 sd_plan)`` from it: the same corner is kept
-from the larger clip).  Two distinct vertices (as far apart) whose distances from the
-position differ by less than ``ambiguity_m`` give the status ``ambiguous``
-with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
+corner, farther than ``a = max(0.5 m, 4 sd_plan)`` from it -- the same corner is kept
+from the larger clip -- and nearer by the measure :func:`select_vertex` ranks with,
+the plan distance plus 3 x the 3-D sd); it stops at the first vertex within ``near_m``.
+(Retrying only down to ``0.5 radius_m`` let the AHN3 ``--find`` candidates C0135 and
+C0162 come back, as ``ok``, as another corner 1.6-4.7 m away at clip radii 5-12 m:
+``benchmarks/bench_extract_sweep.py``, docs/extraction.md.  Retrying whenever a nearer
+distinct corner is possible -- the vertex farther than ``a / 2`` from the position --
+also fixes two AHN3 corners 1.2 m apart, but the small noisy clips then give spurious
+corners: 29 of 200 synthetic pyramids at 2 pts/m^2 and 0.15 m noise failed.)
+Two distinct vertices (as far apart) whose distances from the position differ
+by less than ``ambiguity_m`` give the status ``ambiguous`` with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
 reason, and :attr:`ControlPoint.offset_m` is written with every point.
 """
 
@@ -563,7 +570,7 @@ def extract_roof(
     # larger clip holds more faces, and the faces of the corner asked for may merge
     # with others or fall below the max_planes largest
     max_off = p.max_offset_m if p.max_offset_m is not None else 0.5 * p.radius_m
-    radii = [p.radius_m] + [f * p.radius_m for f in p.scales if f * p.radius_m >= 3.0]
+    radii = _retry_radii(p)
     first, best, others = None, None, []
     for r in radii:
         pr = p.replace(radius_m=r, max_offset_m=max_off)
@@ -573,8 +580,10 @@ def extract_roof(
         if cp.status in ("ok", "imprecise"):
             off = float(np.hypot(*(cp.enh_m[:2] - center)))
             # a smaller clip replaces the vertex only with ANOTHER corner nearer the position: the same
-            # corner again (within _apart_m of it) is kept from the larger clip, whose faces hold more points
-            if best is None or (off < best[0] - 0.05
+            # corner again (within _apart_m of it) is kept from the larger clip, whose faces hold more points;
+            # "nearer" penalised by 3 x the 3-D sd, as select_vertex ranks the corners of one clip (a small
+            # clip's few points give imprecise triples, of noise rather than of another corner)
+            if best is None or (off + 3.0 * _sd3(cp) < best[0] + 3.0 * _sd3(best[1]) - 0.05
                                 and np.hypot(*(cp.enh_m[:2] - best[1].enh_m[:2])) > _apart_m(best[1])):
                 best = (off, cp)
             if best[0] <= p.near_m:
@@ -583,6 +592,25 @@ def extract_roof(
         return first
     off, cp = best
     return _check_choice(cp, off, center, others, p)
+
+
+#: the smallest clip radii of the retries (m): a corner whose faces are lost in every larger clip
+#: (merged with a neighbour's, or below the max_planes largest) is still found in one of these
+_MIN_RETRY_RADII_M = (4.0, 3.0)
+
+
+def _retry_radii(p: ExtractionParams) -> list[float]:
+    """Clip radii (m) tried in turn: ``radius_m``, then ``scales x radius_m`` and 4 and 3 m, descending, >= 3 m."""
+    if not p.scales:
+        return [p.radius_m]
+    smaller = {round(f * p.radius_m, 6) for f in p.scales} | set(_MIN_RETRY_RADII_M)
+    return [p.radius_m] + sorted((r for r in smaller if 3.0 <= r < p.radius_m - 1e-6), reverse=True)
+
+
+def _sd3(cp: ControlPoint) -> float:
+    """Root of the covariance trace (m; infinite when unknown)."""
+    v = float(np.trace(cp.cov_m2))
+    return math.sqrt(v) if np.isfinite(v) and v >= 0 else math.inf
 
 
 def _apart_m(cp: ControlPoint) -> float:
