@@ -9,7 +9,7 @@ The bound ``k`` on ``|d| / sd`` (d the 3-D displacement from the 8 m vertex, sd 
 covariance): two estimates of one corner with honest covariances C_8, C_r differ by a Mahalanobis distance
 ``sqrt(d' (C_8 + C_r)^-1 d)`` below ``sqrt(chi2_3(0.999)) = 4.03`` (taking the clips as independent, the
 lenient reading); with C_r about C_8 that is ``|d| <= 4.03 sqrt(2) sd = 5.7 sd``.  Another corner lies at
-least 0.5 m away: 17-100 sd for these vertices (sd 5-30 mm), so the bound separates "same corner" from
+least 0.5 m away: 17-106 sd for these vertices (sd 4.7-28.5 mm), so the bound separates "same corner" from
 "another corner" however the small moves are judged.
 """
 
