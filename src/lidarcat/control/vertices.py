@@ -34,13 +34,24 @@ touching faces.
 with more of them than ``max_planes`` (or when faces merge across a larger
 clip) the faces of a small corner may be lost, and the nearest surviving
 intersection lies metres away.  :func:`extract_roof` therefore segments the
-clip again at the smaller radii ``scales x radius_m`` while the vertex found
-lies farther than ``near_m`` from the position, and keeps the nearest over all
+clip again at the smaller radii ``scales x radius_m`` and 4 and 3 m (those
+below ``radius_m``, at least 3 m, largest first) and keeps the nearest over all
 scales (a smaller clip's vertex replaces the first only when it is another
-corner, farther than ``max(0.5 m, 4 sd_plan)`` from it: the same corner is kept
-from the larger clip).  Two distinct vertices (as far apart) whose distances from the
-position differ by less than ``ambiguity_m`` give the status ``ambiguous``
-with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
+corner, farther than ``a = max(0.5 m, 4 sd_plan)`` from it -- the same corner is kept
+from the larger clip -- and nearer by the measure :func:`select_vertex` ranks with,
+the plan distance plus 3 x the 3-D sd).  It retries while a nearer distinct
+corner is possible: another corner lies more than ``a`` from the vertex found,
+so at more than ``a - o`` from the position when the vertex is ``o`` from it,
+which is nearer only if ``o > a / 2``; it stops at the first vertex within
+``min(near_m, a / 2)``.  (Retrying only beyond ``near_m`` and only down to
+``0.5 radius_m`` let 12 of the 178 ``--find`` candidates of the AHN3 tiles come
+back, as ``ok``, as another corner 1-6 m away at some clip radius of 4-12 m; now
+4 do, 3 of them only at 4 m: ``benchmarks/bench_extract_sweep.py``,
+docs/extraction.md.)
+Two distinct vertices (as far apart) whose distances from the position differ
+by less than ``ambiguity_m`` (the same penalised distance: a rival of a small
+clip's few noisy points is no rival of a precise corner) give the status
+``ambiguous`` with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
 reason, and :attr:`ControlPoint.offset_m` is written with every point.
 """
 
@@ -408,8 +419,8 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
     LiDAR surface.  Further faces join when their distance from the point is
     below ``join_sigma`` standard deviations plus half their RMS and they have
     a point within ``support_m``; the point is then re-intersected by least
-    squares.  *others*, when given, receives every qualifying vertex (E, N, h),
-    the chosen one included, so that a caller can test the choice for ambiguity.
+    squares.  *others*, when given, receives every qualifying vertex (E, N, h,
+    3-D sd), the chosen one included, so that a caller can test the choice for ambiguity.
     """
     center = np.asarray(center_en, dtype=np.float64).reshape(-1)[:2]
     info = info or {}
@@ -443,7 +454,7 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
             sd3 = float(np.sqrt(max(np.trace(cp.cov_m2), 0.0)))
             found.append((off + 3.0 * sd3, t, cp))
             if others is not None:
-                others.append(np.array(cp.enh_m))
+                others.append(np.append(cp.enh_m, _sd3(cp)))
     if not found:
         if reasons and len(planes) == 3:
             return ControlPoint.failed(point_id, center, "ill_conditioned", reasons[0],
@@ -563,7 +574,7 @@ def extract_roof(
     # larger clip holds more faces, and the faces of the corner asked for may merge
     # with others or fall below the max_planes largest
     max_off = p.max_offset_m if p.max_offset_m is not None else 0.5 * p.radius_m
-    radii = [p.radius_m] + [f * p.radius_m for f in p.scales if f * p.radius_m >= 3.0]
+    radii = _retry_radii(p)
     first, best, others = None, None, []
     for r in radii:
         pr = p.replace(radius_m=r, max_offset_m=max_off)
@@ -573,16 +584,37 @@ def extract_roof(
         if cp.status in ("ok", "imprecise"):
             off = float(np.hypot(*(cp.enh_m[:2] - center)))
             # a smaller clip replaces the vertex only with ANOTHER corner nearer the position: the same
-            # corner again (within _apart_m of it) is kept from the larger clip, whose faces hold more points
-            if best is None or (off < best[0] - 0.05
+            # corner again (within _apart_m of it) is kept from the larger clip, whose faces hold more points;
+            # "nearer" penalised by 3 x the 3-D sd, as select_vertex ranks the corners of one clip (a small
+            # clip's few points give imprecise triples, of noise rather than of another corner)
+            if best is None or (off + 3.0 * _sd3(cp) < best[0] + 3.0 * _sd3(best[1]) - 0.05
                                 and np.hypot(*(cp.enh_m[:2] - best[1].enh_m[:2])) > _apart_m(best[1])):
                 best = (off, cp)
-            if best[0] <= p.near_m:
+            if best[0] <= min(p.near_m, 0.5 * _apart_m(best[1])):
                 break
     if best is None:
         return first
     off, cp = best
     return _check_choice(cp, off, center, others, p)
+
+
+#: the smallest clip radii of the retries (m): a corner whose faces are lost in every larger clip
+#: (merged with a neighbour's, or below the max_planes largest) is still found in one of these
+_MIN_RETRY_RADII_M = (4.0, 3.0)
+
+
+def _retry_radii(p: ExtractionParams) -> list[float]:
+    """Clip radii (m) tried in turn: ``radius_m``, then ``scales x radius_m`` and 4 and 3 m, descending, >= 3 m."""
+    if not p.scales:
+        return [p.radius_m]
+    smaller = {round(f * p.radius_m, 6) for f in p.scales} | set(_MIN_RETRY_RADII_M)
+    return [p.radius_m] + sorted((r for r in smaller if 3.0 <= r < p.radius_m - 1e-6), reverse=True)
+
+
+def _sd3(cp: ControlPoint) -> float:
+    """Root of the covariance trace (m; infinite when unknown)."""
+    v = float(np.trace(cp.cov_m2))
+    return math.sqrt(v) if np.isfinite(v) and v >= 0 else math.inf
 
 
 def _apart_m(cp: ControlPoint) -> float:
@@ -604,7 +636,9 @@ def _check_choice(cp: ControlPoint, off: float, center: np.ndarray, others: list
         if np.hypot(*(v[:2] - cp.enh_m[:2])) <= apart:
             continue
         d = float(np.hypot(*(v[:2] - center)))
-        if d - off < p.ambiguity_m and all(np.hypot(*(v[:2] - w[:2])) > apart for _, w in rivals):
+        # "about as near" by the penalised distance select_vertex ranks with (a rival of a small clip's
+        # few noisy points is no rival of a precise corner)
+        if (d + 3.0 * v[3]) - (off + 3.0 * _sd3(cp)) < p.ambiguity_m and all(np.hypot(*(v[:2] - w[:2])) > apart for _, w in rivals):
             rivals.append((d, v))
     if rivals:
         listed = "; ".join(f"{v[0]:.2f} {v[1]:.2f} {v[2]:.2f} at {d:.2f} m"
