@@ -78,11 +78,12 @@ class ExtractionParams:
     #: search radius: max plan distance (m) of the vertex from the approximate
     #: position; None = half the clip radius (4 m at the default 8 m, 2.5 m in the thesis preset)
     max_offset_m: float | None = None
-    #: the vertex asked for: when the chosen vertex lies farther than this (m) from the
-    #: approximate position, the clip is segmented again at smaller radii (``scales``) and
-    #: the vertex nearest the position over all scales wins; an ``ok`` vertex farther than
-    #: this says so in its reason (1.5 m: beyond the 1-m-per-axis uncertainty of a position
-    #: picked by hand or by ``--find``, so that the first clip's vertex is kept for them)
+    #: the vertex asked for: the clip is segmented again at smaller radii (``scales``) while a
+    #: nearer distinct corner is possible, and the search stops at the first vertex within
+    #: ``min(near_m, a / 2)`` of the position (``a``: how far apart two corners are told apart;
+    #: :mod:`lidarcat.control.vertices`); an ``ok`` vertex farther than this (m) says so in
+    #: its reason (1.5 m: beyond the 1-m-per-axis uncertainty of a position picked by hand or
+    #: by ``--find``)
     near_m: float = 1.5
     #: clip radii of the retries, as fractions of ``radius_m`` (each at least 3 m)
     scales: tuple = (0.65, 0.5)
