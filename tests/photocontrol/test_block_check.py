@@ -176,3 +176,105 @@ def test_a_measurement_on_an_unknown_photo_is_a_located_error():
     with pytest.raises(LidarcatError, match=r"^photo 'p2': the covariance of its approximate orientation has a zero or "):
         check_block(block(0)[0], {p: CAM for p in PHOTOS}, approx,
                     {**{p: EO_COV for p in PHOTOS}, "p2": np.zeros((6, 6))}, VERTS, VCOV, ties)
+
+
+# --- roof edges as line control in the block test (lines=, issue 29 session 5) ------------------------------
+#: 3-D roof lines (end points A, B; E, N, h) of vertices that have no point measurement ("R*")
+LINES = {"R1/0-1": ("R1", [-40.0, -20.0, 6.0], [-40.0, -12.0, 6.5]), "R2/0-1": ("R2", [30.0, 20.0, 9.0], [37.0, 20.0, 9.0]),
+         "R3/1-2": ("R3", [5.0, -25.0, 7.0], [10.0, -20.0, 7.0]), "R4/0-2": ("R4", [-20.0, 30.0, 8.0], [-20.0, 36.0, 10.0])}
+LCOV = np.diag([0.01**2] * 6)
+
+
+def edges(seed: int, truth: dict, moved: dict[tuple[str, str], float] | None = None, sd_px: float = 0.3,
+          lines: dict | None = None) -> list:
+    """Every line of LINES on every photo that sees both its ends: the true projection's points at 20 % and
+    80 % of the segment plus *sd_px* noise across, *moved* px across (the edge's normal, +90 deg in pixels)."""
+    from lidarcat.photocontrol import EdgeObservation
+
+    rng = np.random.default_rng(1000 + seed)
+    out = []
+    for lid, (pt, a, b) in (lines or LINES).items():
+        for p in PHOTOS:
+            ab = pixel_positions(CAM, truth[p], np.array([a, b]))
+            if not (np.isfinite(ab).all() and (ab > 20).all() and (ab[:, 0] < 980).all() and (ab[:, 1] < 730).all()):
+                continue
+            t = (ab[1] - ab[0]) / np.hypot(*(ab[1] - ab[0]))
+            n = np.array([-t[1], t[0]])
+            shift = (moved or {}).get((lid, p), 0.0)
+            p1 = ab[0] + 0.2 * (ab[1] - ab[0]) + n * (rng.normal(0, sd_px) + shift)
+            p2 = ab[0] + 0.8 * (ab[1] - ab[0]) + n * (rng.normal(0, sd_px) + shift)
+            out.append(EdgeObservation(lid, pt, p, p1, p2, sd_px, a, b, LCOV))
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_clean_edges_are_never_rejected(seed):
+    ms, approx, truth, ties = block(seed)
+    es = edges(seed, truth)
+    assert len(es) >= 8 and len({e.photo for e in es}) >= 5
+    bc = run(ms, approx, ties, lines=es)
+    assert bc.status == "ok", bc.message
+    assert bc.lines_rejected == () and bc.line_reasons == {} and bc.rejected == ()
+    assert bc.lines_tested == len(es) and bc.lines_untestable == ()
+    assert all(m.status == "measured" for m in bc.measurements)
+    assert bc.summary()["lines_tested"] == len(es)
+    for p in PHOTOS:        # the orientations still agree with the truth within their covariance
+        err = bc.eo[p] - truth[p]
+        assert err @ np.linalg.solve(bc.eo_cov[p], err) < 22.46, p
+
+
+@pytest.mark.parametrize("seed,shift", [(0, 50.0), (1, -40.0), (2, 60.0)])
+def test_an_edge_moved_across_its_line_is_rejected_with_its_offset(seed, shift):
+    ms, approx, truth, ties = block(seed)
+    es = edges(seed, truth, moved={("R1/0-1", "p3"): shift})
+    assert ("R1/0-1", "p3") in {(e.line, e.photo) for e in es}
+    assert not any(m.photo == "p3" and m.point == "R1" for m in ms)      # no vertex point of R1 anywhere
+    bc = run(ms, approx, ties, lines=es)
+    assert bc.status == "ok", bc.message
+    assert [(ln, p) for ln, p, *_ in bc.lines_rejected] == [("R1/0-1", "p3")]
+    assert list(bc.line_reasons) == [("R1/0-1", "p3")]
+    reason = bc.line_reasons[("R1/0-1", "p3")]
+    n_ties = sum(ties.photo == "p3")
+    got = re.fullmatch(r"roof edge inconsistent with the block \((\d+) tie points on its photo, 10 vertex "
+                       rf"observations and {len(es) - 1} other edges\): ([0-9.]+) px off its LiDAR line, "
+                       r"w = ([0-9.]+) \(critical 3\.42\)", reason)
+    assert got, reason
+    assert 40 < int(got.group(1)) <= n_ties
+    assert float(got.group(2)) == pytest.approx(abs(shift), abs=1.5)
+    assert float(got.group(3)) > 20.0
+    assert bc.lines_rejected[0][3] == pytest.approx(float(got.group(2)), abs=0.05)
+    assert all(m.status == "measured" for m in bc.measurements)        # no vertex point indicted
+
+
+def test_an_edge_stands_for_its_vertex_point_on_that_photo_and_indicts_it():
+    # A2 is measured on p1, p3, p4; its edges on p3 are given: the point on p3 is not adjusted, the edges are;
+    # one of them 45 px off rejects the point on p3 with it (the same fits)
+    ms, approx, truth, ties = block(0)
+    a2 = VERTS["A2"]
+    own = {"A2/0-1": ("A2", a2, a2 + [0.0, 8.0, 0.0]), "A2/1-2": ("A2", a2, a2 + [7.0, 0.0, 1.0])}
+    es = [e for e in edges(0, truth, moved={("A2/0-1", "p3"): 45.0}, lines=own) if e.photo == "p3"]
+    assert len(es) == 2
+    bc = run(ms, approx, ties, lines=es)
+    assert [(ln, p) for ln, p, *_ in bc.lines_rejected] == [("A2/0-1", "p3")]
+    assert bc.rejected == ()                 # the point was not tested itself
+    st = {(m.point, m.photo): m for m in bc.measurements}
+    assert st[("A2", "p3")].status == "rejected"
+    assert re.fullmatch(r"inconsistent with the block: its roof edge A2/0-1 on this photo is ([0-9.]+) px off its "
+                        r"LiDAR line \(w = [0-9.]+\)", st[("A2", "p3")].reason)
+    assert [k for k, m in st.items() if m.status != "measured"] == [("A2", "p3")]
+    # clean: the point on p3 is kept (not tested twice), its edges tested
+    es = [e for e in edges(0, truth, lines=own) if e.photo == "p3"]
+    bc = run(ms, approx, ties, lines=es)
+    assert bc.lines_rejected == () and bc.lines_tested == 2 and bc.tested == len(ms) - 1
+    assert all(m.status == "measured" for m in bc.measurements)
+
+
+def test_a_bad_edge_observation_is_a_located_error():
+    from lidarcat.photocontrol import EdgeObservation
+
+    with pytest.raises(LidarcatError, match=r"^edge R1/0-1 on photo 'p0': points, line, covariance and sd_px must"):
+        EdgeObservation("R1/0-1", "R1", "p0", [1.0, 2.0], [5.0, 6.0], 0.0, [0, 0, 0], [1, 0, 0], LCOV)
+    ms, approx, truth, ties = block(0)
+    e = EdgeObservation("R1/0-1", "R1", "p8", [1.0, 2.0], [5.0, 6.0], 0.3, [0, 0, 0], [1, 0, 0], LCOV)
+    with pytest.raises(LidarcatError, match=r"^photo 'p8': an edge of line 'R1/0-1' but no camera for it"):
+        run(ms, approx, ties, lines=[e])
