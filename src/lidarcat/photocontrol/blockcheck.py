@@ -545,6 +545,7 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
         warm = {p: np.asarray(res.eo_params)[j] for j, p in enumerate(photos)}
         is_edge = worst_e > worst_v
         partner = None
+        others = int(v_in.sum()) - (not is_edge)         # the vertex observations beside the rejected one
         if is_edge:
             i = int(np.argmax(e_ratio))
             w, crit = float(lt.w[i]), float(lt.critical_w)
@@ -564,7 +565,6 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
             v_in[a] = False
             if partner is not None:
                 v_in[partner] = False
-        others = int(v_in.sum())
         n_ties_photo = ties_on.get(pid, 0)
         more = v_in.any() or t_keep.any() or e_in.any()
         prob, photos = problem(v_in, e_in) if more else (None, photos)
