@@ -119,7 +119,11 @@ def line_tests(result: Any, *, level: float | None = 0.001, power: float = 0.80,
     red = np.einsum("kij,kji->ki", qvv, T.P)
     e = -T.r
     m = len(e)
-    testable = red.min(axis=1, initial=1.0) > 1e-3 if m else np.zeros(0, dtype=bool)
+    # testable: both redundancy numbers of the observation's two independent components above 1e-3 -- the
+    # eigenvalues of Q_vv P (real: similar to P^1/2 Q_vv P^1/2), not its diagonal: with A, B far outside the
+    # measured segment r_A, r_B are strongly correlated and the diagonal leaves [0, 1] (negative entries)
+    lam = np.linalg.eigvals(qvv @ T.P).real if m else np.zeros((0, 2))
+    testable = lam.min(axis=1, initial=1.0) > 1e-3 if m else np.zeros(0, dtype=bool)
     w = np.full(m, np.nan)
     if testable.any():
         w[testable] = np.sqrt(np.einsum("ki,kij,kj->k", e[testable], np.linalg.inv(qvv[testable]), e[testable]))

@@ -493,8 +493,12 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
         eo0 = np.array([warm.get(p, np.asarray(eos[p], float).reshape(6)) for p in photos])
         if prob.lines is not None and precision == "none":
             precision = "photos"                 # the line tests need the photos' covariances
-        return adjust(prob, initial=(eo0, intersect_points(prob, eo0)), check=False, precision=precision,
-                      max_iter=max_iter)
+        res = adjust(prob, initial=(eo0, intersect_points(prob, eo0)), check=False, precision=precision,
+                     max_iter=max_iter)
+        if not res.success and prob.lines is not None:    # a block held by few lines converges slowly
+            res = adjust(prob, initial=(np.asarray(res.eo_params), np.asarray(res.points_m)), check=False,
+                         precision=precision, max_iter=4 * max_iter)
+        return res
 
     v_in = np.ones(len(live), dtype=bool)
     e_in = np.ones(n_e, dtype=bool)

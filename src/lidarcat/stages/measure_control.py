@@ -674,11 +674,44 @@ def _line_obs_row(header: Sequence[str], lid: str, photo: str, p1_px: Any, p2_px
     return [row.get(h, "") for h in header]
 
 
-def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_info: dict) -> dict:
-    """The block test (:func:`~lidarcat.photocontrol.blockcheck.check_block`) of every photo's measurements, with the
-    survey's tie points (image observations of points that are not ground points, photo coordinates to pixels
-    by the camera); *per_vertex* is updated in place.  Returns the test's summary.  Without tie points it is
-    not run (it would be the per-photo test again)."""
+# --- the block test of the roof edges (issue 29, session 5) ---------------------------------------------------
+#: statuses of a vertex measurement whose roof edges are never written (nor tested)
+_NO_EDGE_STATUSES = ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected", "rejected")
+
+
+def _block_edges(per_vertex: dict, vertex_info: dict, lines: str, line_rejected: Any) -> list[Any]:
+    """The roof edges the line rows would write now (as in :func:`measure_control`'s line loop), with their 3-D
+    lines, for the block test."""
+    from ..photocontrol import EdgeObservation, edge_line_m
+
+    out = []
+    if lines == "none":
+        return out
+    for vid, lst in per_vertex.items():
+        cp, _, edges = vertex_info[vid]
+        for pid, m in lst:
+            if m.status in _NO_EDGE_STATUSES or (m and lines == "add"):
+                continue
+            for el in m.edge_lines:
+                lid, e = line_id(vid, el.planes), edges.get(tuple(el.planes))
+                if e is None or (pid, lid) in line_rejected:
+                    continue
+                try:
+                    a, b, cov = edge_line_m(cp.planes[el.planes[0]], cp.planes[el.planes[1]],
+                                            np.array([e.start_m, e.end_m]))
+                    out.append(EdgeObservation(lid, vid, pid, el.p1_px, el.p2_px, el.sd_px, a, b, cov))
+                except (np.linalg.LinAlgError, LidarcatError):     # no line: the line loop says why
+                    continue
+    return out
+
+
+def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_info: dict,
+                 edges: Sequence[Any] = (), line_reasons: dict | None = None) -> dict:
+    """The block test (:func:`~lidarcat.photocontrol.blockcheck.check_block`) of every photo's measurements and the
+    roof *edges* (:func:`_block_edges`), with the survey's tie points (image observations of points that are not
+    ground points, photo coordinates to pixels by the camera); *per_vertex* is updated in place, the reasons of
+    the rejected edges go to *line_reasons* ((line, photo) -> reason).  Returns the test's summary.  Without tie
+    points it is not run (it would be the per-photo test again)."""
     from ..photocontrol import TieObservations, check_block
 
     try:
@@ -705,7 +738,10 @@ def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_in
     photos = {pid for _, pid, _ in flat} | set(ties.photo.tolist())
     cps = {v: vertex_info[v][0] for v in per_vertex}
     bc = check_block([m for _, _, m in flat], {p: survey.camera_of(p) for p in photos}, eos, covs,
-                     {v: cp.enh_m for v, cp in cps.items()}, {v: cp.cov_m2 for v, cp in cps.items()}, ties)
+                     {v: cp.enh_m for v, cp in cps.items()}, {v: cp.cov_m2 for v, cp in cps.items()}, ties,
+                     lines=edges)
+    if line_reasons is not None:
+        line_reasons.update(bc.line_reasons)
     per_vertex.clear()
     for (vid, pid, _), m in zip(flat, bc.measurements):
         per_vertex.setdefault(vid, []).append((pid, m))
@@ -882,7 +918,10 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
             for (vid, _), m in zip(targets[pid], ms):
                 if m.status != "not_visible":
                     images[(pid, vid)] = _window(img, m, _CHIP_HALF_PX)
-    block_info = _check_block(survey, per_vertex, eos, covs, vertex_info) if block_check else {"status": "off"}
+    block_lines: dict[tuple[str, str], str] = {}       # (line, photo) -> why the block test rejected the edge
+    block_info = _check_block(survey, per_vertex, eos, covs, vertex_info,
+                              _block_edges(per_vertex, vertex_info, lines, line_rejected), block_lines) \
+        if block_check else {"status": "off"}
     for vid, lst in per_vertex.items():
         cp = vertex_info[vid][0]
         pids = [pid for pid, _ in lst]
@@ -944,6 +983,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                 status, reason = "not_written", ""
                 if m.status in ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected"):
                     reason = f"{m.status}: {m.reason}"
+                elif (lid, m.photo) in block_lines:
+                    reason = block_lines[(lid, m.photo)]
                 elif m.status == "rejected":
                     reason = f"the vertex's measurement was rejected: {m.reason}"
                 elif el is None:
