@@ -6,6 +6,7 @@ roofs)."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 
@@ -278,3 +279,111 @@ def test_a_bad_edge_observation_is_a_located_error():
     e = EdgeObservation("R1/0-1", "R1", "p8", [1.0, 2.0], [5.0, 6.0], 0.3, [0, 0, 0], [1, 0, 0], LCOV)
     with pytest.raises(LidarcatError, match=r"^photo 'p8': an edge of line 'R1/0-1' but no camera for it"):
         run(ms, approx, ties, lines=[e])
+
+
+def test_measure_control_does_not_write_an_edge_the_block_test_rejects(tmp_path, monkeypatch):
+    """The stage's wiring (lines=add): the roof edges of a vertex whose point was not measured go into the block
+    test; the one moved 50 px is not written to line_control.csv and line_decisions.csv says why.  The photos are
+    never looked at: extraction, roof edges, the 3-D line and the measurement are replaced by the truth."""
+    import csv
+    import types
+
+    import lidarcat.control.vertices as cv
+    import lidarcat.lidar.clipping as lc
+    import lidarcat.match as lm
+    import lidarcat.photocontrol as pc
+    from lidarcat.photocontrol import EdgeLine
+    from lidarcat.photocontrol.predict import RoofEdge
+    from lidarcat.stages.measure_control import line_id, measure_control
+    from lidarcat.synthetic.aerial import aerial_survey
+
+    root = tmp_path / "s"
+    s = aerial_survey(root, n_strips=2, photos_per_strip=3, gsd_m=0.15, image_size_px=(320, 240), side_overlap=0.6,
+                      lidar_density_m2=0.05, n_gps_points=4, seed=3)
+    rng = np.random.default_rng(0)
+    eo = s.true_eo
+    ground = float(np.mean(eo[:, 2])) - 0.15 * s.camera.focal_length_mm / s.camera.pixel_size_x_mm
+    centre = np.r_[np.mean(eo[:, :2], axis=0), ground + 8.0]
+    ends = np.array([centre + [-1.2, -0.4, 0.0], centre + [1.2, 0.4, 0.2]])    # the roof line of vertex R1
+    # vertex points measured as in tests/stages/test_measure_control_block.py (they hold the block's datum; with one
+    # short line alone the worst-first test may take a good edge first: module docstring)
+    pts = {"V1": ["101", "203"], "V2": ["102", "103", "202"], "V3": ["103", "201"], "V4": ["202", "203"]}
+    verts = {v: np.r_[np.mean([eo[s.index(p), :2] for p in ph], axis=0) + rng.normal(0, 1.0, 2), ground + 8.0]
+             for v, ph in pts.items()}
+    verts["R1"] = ends[0]
+    with open(root / "ground_points.csv", "a") as fh:
+        for v, x in verts.items():
+            fh.write(f"{v},{x[0]:.4f},{x[1]:.4f},{x[2]:.4f},0.01,0.01,0.03,lidar\n")
+    lo, hi = eo[:, :2].min(axis=0) - 20, eo[:, :2].max(axis=0) + 20
+    g = np.column_stack([rng.uniform(lo[0], hi[0], 400), rng.uniform(lo[1], hi[1], 400), ground + rng.uniform(0, 6, 400)])
+    px = {p: s.project(p, g) for p in s.photo_ids}
+    ok = {p: np.isfinite(x).all(axis=1) & (x[:, 0] > 2) & (x[:, 1] > 2) & (x[:, 0] < 317) & (x[:, 1] < 237)
+          for p, x in px.items()}
+    two = np.sum(list(ok.values()), axis=0) >= 2
+    with open(root / "image_points.csv", "a") as fh:
+        for p in s.photo_ids:
+            for j in np.flatnonzero(ok[p] & two):
+                c, r = px[p][j] + rng.normal(0, 0.3, 2)
+                fh.write(f"{p},T{j:04d},{c:.3f},{r:.3f}\n")
+    seen = [p for p in s.photo_ids if ((s.project(p, ends) > 4) & (s.project(p, ends) < [316, 236])).all()]
+    assert len(seen) >= 3, seen
+    moved = seen[1]
+
+    class Vertex:
+        cov_m2, planes, status, reason = np.diag([0.01**2, 0.01**2, 0.03**2]), [0, 1], "ok", ""
+
+        def __init__(self, enh):
+            self.enh_m = np.asarray(enh, float)
+
+        def __bool__(self):
+            return True
+
+    def measure_photo(img, cam, eo_, targets, params=None):
+        out = []
+        for t in targets:
+            pr = t.prediction
+            els = ()
+            if pr.photo in pts.get(pr.point, []):
+                out.append(Measurement(pr.point, pr.photo, s.project(pr.photo, verts[pr.point][None])[0]
+                                       + rng.normal(0, 0.3, 2), np.eye(2) * 0.09, "measured", predicted_px=pr.px,
+                                       predicted_cov_px2=pr.cov_px2))
+                continue
+            if pr.point == "R1" and pr.photo in seen:
+                ab = s.project(pr.photo, ends)
+                n = np.array([-(ab[1] - ab[0])[1], (ab[1] - ab[0])[0]]) / np.hypot(*(ab[1] - ab[0]))
+                off = n * (50.0 if pr.photo == moved else 0.0)
+                els = (EdgeLine((0, 1), ab[0] + 0.2 * (ab[1] - ab[0]) + off + n * rng.normal(0, 0.3),
+                                ab[0] + 0.8 * (ab[1] - ab[0]) + off + n * rng.normal(0, 0.3), 0.3, 5.0),)
+            out.append(Measurement(pr.point, pr.photo, np.full(2, np.nan), np.full((2, 2), np.nan), "no_edges",
+                                   "1 of 2 edges found", predicted_px=pr.px, predicted_cov_px2=pr.cov_px2,
+                                   edge_lines=els))
+        return out
+
+    monkeypatch.setattr(lc, "clip", lambda *a, **k: types.SimpleNamespace(xyz=np.zeros((10, 3))))
+    monkeypatch.setattr(cv, "extract_roof", lambda xyz, en, point_id=None: Vertex(verts[point_id]))
+    monkeypatch.setattr(pc, "roof_edges", lambda enh, *a, **k: [RoofEdge((0, 1), ends[0], ends[1], 50)]
+                        if np.allclose(enh, ends[0]) else [])
+    monkeypatch.setattr(pc, "edge_line_m", lambda pi, pj, e: (ends[0], ends[1], np.eye(6) * 0.01**2))
+    monkeypatch.setattr(pc, "measure_photo", measure_photo)
+    monkeypatch.setattr(lm, "read_image", lambda *a, **k: np.zeros((240, 320), np.uint8))
+    out = tmp_path / "mc"
+    measure_control(root, out, gallery=False, lines="add", table=tmp_path / "ip.csv",
+                    line_table=tmp_path / "lines.csv")
+
+    def rows(path):
+        with open(path, newline="") as fh:
+            return list(csv.DictReader(ln for ln in fh if not ln.startswith("#")))
+
+    lid = line_id("R1", (0, 1))
+    dec = {r["photo"]: r for r in rows(out / "line_decisions.csv") if r["line"] == lid}
+    assert [p for p, r in dec.items() if r["status"] == "written"] == [p for p in seen if p != moved], (seen, [(p, r["reason"]) for p, r in dec.items()])
+    assert dec[moved]["status"] == "not_written" and dec[moved]["decision"] == "reject"
+    got = re.fullmatch(r"roof edge inconsistent with the block \(\d+ tie points on its photo, 9 vertex observations "
+                       rf"and {len(seen) - 1} other edges\): ([0-9.]+) px off its LiDAR line, w = ([0-9.]+) "
+                       r"\(critical 3\.42\)", dec[moved]["reason"])
+    assert got, dec[moved]["reason"]
+    assert float(got.group(1)) == pytest.approx(50.0, abs=2.0) and float(got.group(2)) > 20.0
+    assert sorted(r["photo"] for r in rows(tmp_path / "lines.csv") if r["photo"]) == sorted(p for p in seen if p != moved)
+    info = json.loads((out / "measure_control.json").read_text())["block_check"]
+    assert info["lines_rejected"] == 1 and info["lines_tested"] == len(seen) and info["tested"] == 9
+    assert info["rejected"] == 0

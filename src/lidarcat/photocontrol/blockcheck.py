@@ -1,4 +1,4 @@
-r"""The block test of the vertex measurements: tie points tie each photo to its neighbours.
+r"""The block test of the vertex measurements and roof edges: tie points tie each photo to its neighbours.
 
 Why.  The per-photo test (:func:`~lidarcat.photocontrol.measure.check_photo`) needs the photo's
 other vertices to know its common shift; a measurement *alone on its photo* cannot be tested
@@ -38,6 +38,42 @@ a gross value raises the tests of its neighbours).  The rejection's reason names
 the measurement from the vertex projected with the block adjusted *without* it (px), the w and
 the basis: ``inconsistent with the block (12 tie points on its photo and 4 other vertex
 observations): 33.2 px, w = 9.1 (critical 3.42)``.
+
+Roof edges (``lines=``).  The edges that measure-control writes as line control (one
+:class:`EdgeObservation` per edge and photo: the two equivalent points of the free edge fit,
+:class:`~lidarcat.photocontrol.measure.EdgeLine`, and the 3-D line of the two planes with its 6 x 6
+covariance, :func:`~lidarcat.photocontrol.predict.edge_line_m`) enter the same adjustment as line
+control (:class:`lidarcat.bundle.lines.LineControl`: the projection plane of the image line contains
+the 3-D line, two residuals per edge, weighted by the image sd and the line's covariance).  Each is
+tested by the 2-D line test of :func:`lidarcat.bundle.line_tests.line_tests`, :math:`T = e^T
+Q_{vv}^{-1} e` with :math:`Q_{vv} = \Sigma_r - A C_i A^T` exact from its photo's covariance -- again
+the leave-one-out test -- on the scale of the vertex tests (``T`` over the same
+:math:`\chi^2_{1-\alpha_2}(2)`): in every round the worst of all vertex and edge observations above
+its critical value is rejected and the block adjusted again.  A rejected edge's reason names the
+distance (px) of the middle of the measured edge from its 3-D line projected with the block adjusted
+*without* it, and w: ``roof edge inconsistent with the block (456 tie points on its photo, 1 vertex
+observations and 3 other edges): 64.8 px off its LiDAR line, w = 25.3 (critical 3.42)``.  Line
+control converges slowly when few lines hold the block's datum: an adjustment that does not converge
+in ``max_iter`` is continued for ``4 max_iter``.
+
+Points and edges of one vertex on one photo come from the same edge fits (the point is the
+intersection of its edges).  Adjusting both would count the fits twice; so where an edge of vertex V
+on photo P is given, V's point measurement on P is *not* adjusted: its edges stand for it (they carry
+more -- each edge on its own, its direction too).  Its verdict is theirs: an edge rejected indicts
+the point (``rejected``, ``inconsistent with the block: its roof edge V/1-2 on this photo is 64.8 px
+off its LiDAR line (w = 25.3)``); a point kept is not tested twice.  The other edges of V on P stay
+(separate fits of separate image edges, each tested itself in the next round).  measure-control
+passes only the edges it would write: with ``--lines add`` those of vertices whose point was not
+measured (so points and edges never meet there), with ``--lines only`` every edge (then the edges
+replace the points in the test).
+
+Bench_lines seed 4 (docs/figures.md): an edge 64 px off its LiDAR line (the approximate orientation
+predicts to ~87 px) with 3 other edges and one vertex observation; without it the block predicts that
+edge to 2.5 px, so its w is 25.3 and it is rejected; the good vertex observation, which a block
+distorted by the edge had rejected (17 px, w 12.5), is kept.  (That needed the line tests' testability
+from the eigenvalues of :math:`Q_{vv} P`: the diagonal of it, the per-component redundancy, leaves
+[0, 1] when the 3-D line's ends lie far outside the measured segment, and the edge was called
+untestable.)
 
 Tie points.  Matched tie points have gross errors too (issue 28), and only the vertex
 measurements get decisions here; so the tie points are cleaned first, on their own: the block of

@@ -14,7 +14,8 @@ sds and image files, the LiDAR tiles, and the LiDAR control vertices (ground poi
    (:func:`~lidarcat.photocontrol.measure.check_photo`; ``lone_photo``: a measurement alone on its photo
    kept or rejected), then all of them in one bundle adjustment with the survey's tie points
    (``block_check``, :func:`~lidarcat.photocontrol.blockcheck.check_block`: a lone measurement on a photo
-   with tie points is tested through them), and of each vertex across the photos
+   with tie points is tested through them; the roof edges that would be written go into the same adjustment as
+   line control and are tested too), and of each vertex across the photos
    (:func:`~lidarcat.photocontrol.measure.check_consistency`).
 
 It writes, into the output folder first:
@@ -32,7 +33,8 @@ It writes, into the output folder first:
   planes) and photo tried: ``line, point, photo, status, reason, col1_px .. row2_px, sd_px,
   ratio, decision``; ``written`` edges went to line_control.csv, the others say why not (the
   vertex's own status where the photo was not measured, ``no image edge`` where the edge was not
-  found, ``in the point`` where the vertex's point observation already carries it);
+  found, ``in the point`` where the vertex's point observation already carries it, ``roof edge inconsistent
+  with the block`` with its offset and w where the block test rejected it);
 
 * ``line_candidates.csv`` -- the 3-D line of every edge of line_decisions.csv (what ``line_decisions=`` reads);
 
