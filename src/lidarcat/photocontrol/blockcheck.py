@@ -67,6 +67,15 @@ passes only the edges it would write: with ``--lines add`` those of vertices who
 measured (so points and edges never meet there), with ``--lines only`` every edge (then the edges
 replace the points in the test).
 
+What the edges cannot tell.  Worst first presumes the largest test is the gross observation's; that
+holds while the observations' tests are nearly independent.  When the block's datum rests on the
+edges of one short line alone (ties and GNSS/IMU otherwise), its observations on the different photos
+are tested against each other and the block, distorted by the gross one, can make a good edge look
+worse (in a synthetic block with one 2.5 m line on three photos and no vertex point, the good edge on
+another strip came out first, w 70, the 50 px one second): then both go -- nothing gross is written,
+a good edge may be lost.  With vertex points or edges of other lines in the block it does not occur
+(the tests).
+
 Bench_lines seed 4 (docs/figures.md): an edge 64 px off its LiDAR line (the approximate orientation
 predicts to ~87 px) with 3 other edges and one vertex observation; without it the block predicts that
 edge to 2.5 px, so its w is 25.3 and it is rejected; the good vertex observation, which a block
