@@ -6,6 +6,7 @@ roofs)."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 
@@ -176,3 +177,213 @@ def test_a_measurement_on_an_unknown_photo_is_a_located_error():
     with pytest.raises(LidarcatError, match=r"^photo 'p2': the covariance of its approximate orientation has a zero or "):
         check_block(block(0)[0], {p: CAM for p in PHOTOS}, approx,
                     {**{p: EO_COV for p in PHOTOS}, "p2": np.zeros((6, 6))}, VERTS, VCOV, ties)
+
+
+# --- roof edges as line control in the block test (lines=, issue 29 session 5) ------------------------------
+#: 3-D roof lines (end points A, B; E, N, h) of vertices that have no point measurement ("R*")
+LINES = {"R1/0-1": ("R1", [-40.0, -20.0, 6.0], [-40.0, -12.0, 6.5]), "R2/0-1": ("R2", [30.0, 20.0, 9.0], [37.0, 20.0, 9.0]),
+         "R3/1-2": ("R3", [5.0, -25.0, 7.0], [10.0, -20.0, 7.0]), "R4/0-2": ("R4", [-20.0, 30.0, 8.0], [-20.0, 36.0, 10.0])}
+LCOV = np.diag([0.01**2] * 6)
+
+
+def edges(seed: int, truth: dict, moved: dict[tuple[str, str], float] | None = None, sd_px: float = 0.3,
+          lines: dict | None = None) -> list:
+    """Every line of LINES on every photo that sees both its ends: the true projection's points at 20 % and
+    80 % of the segment plus *sd_px* noise across, *moved* px across (the edge's normal, +90 deg in pixels)."""
+    from lidarcat.photocontrol import EdgeObservation
+
+    rng = np.random.default_rng(1000 + seed)
+    out = []
+    for lid, (pt, a, b) in (lines or LINES).items():
+        for p in PHOTOS:
+            ab = pixel_positions(CAM, truth[p], np.array([a, b]))
+            if not (np.isfinite(ab).all() and (ab > 20).all() and (ab[:, 0] < 980).all() and (ab[:, 1] < 730).all()):
+                continue
+            t = (ab[1] - ab[0]) / np.hypot(*(ab[1] - ab[0]))
+            n = np.array([-t[1], t[0]])
+            shift = (moved or {}).get((lid, p), 0.0)
+            p1 = ab[0] + 0.2 * (ab[1] - ab[0]) + n * (rng.normal(0, sd_px) + shift)
+            p2 = ab[0] + 0.8 * (ab[1] - ab[0]) + n * (rng.normal(0, sd_px) + shift)
+            out.append(EdgeObservation(lid, pt, p, p1, p2, sd_px, a, b, LCOV))
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_clean_edges_are_never_rejected(seed):
+    ms, approx, truth, ties = block(seed)
+    es = edges(seed, truth)
+    assert len(es) >= 8 and len({e.photo for e in es}) >= 5
+    bc = run(ms, approx, ties, lines=es)
+    assert bc.status == "ok", bc.message
+    assert bc.lines_rejected == () and bc.line_reasons == {} and bc.rejected == ()
+    assert bc.lines_tested == len(es) and bc.lines_untestable == ()
+    assert all(m.status == "measured" for m in bc.measurements)
+    assert bc.summary()["lines_tested"] == len(es)
+    for p in PHOTOS:        # the orientations still agree with the truth within their covariance
+        err = bc.eo[p] - truth[p]
+        assert err @ np.linalg.solve(bc.eo_cov[p], err) < 22.46, p
+
+
+@pytest.mark.parametrize("seed,shift", [(0, 50.0), (1, -40.0), (2, 60.0)])
+def test_an_edge_moved_across_its_line_is_rejected_with_its_offset(seed, shift):
+    ms, approx, truth, ties = block(seed)
+    es = edges(seed, truth, moved={("R1/0-1", "p3"): shift})
+    assert ("R1/0-1", "p3") in {(e.line, e.photo) for e in es}
+    assert not any(m.photo == "p3" and m.point == "R1" for m in ms)      # no vertex point of R1 anywhere
+    bc = run(ms, approx, ties, lines=es)
+    assert bc.status == "ok", bc.message
+    assert [(ln, p) for ln, p, *_ in bc.lines_rejected] == [("R1/0-1", "p3")]
+    assert list(bc.line_reasons) == [("R1/0-1", "p3")]
+    reason = bc.line_reasons[("R1/0-1", "p3")]
+    n_ties = sum(ties.photo == "p3")
+    got = re.fullmatch(r"roof edge inconsistent with the block \((\d+) tie points on its photo, 10 vertex "
+                       rf"observations and {len(es) - 1} other edges\): ([0-9.]+) px off its LiDAR line, "
+                       r"w = ([0-9.]+) \(critical 3\.42\)", reason)
+    assert got, reason
+    assert 40 < int(got.group(1)) <= n_ties
+    assert float(got.group(2)) == pytest.approx(abs(shift), abs=1.5)
+    assert float(got.group(3)) > 20.0
+    assert bc.lines_rejected[0][3] == pytest.approx(float(got.group(2)), abs=0.05)
+    assert all(m.status == "measured" for m in bc.measurements)        # no vertex point indicted
+
+
+def test_an_edge_stands_for_its_vertex_point_on_that_photo_and_indicts_it():
+    # A2 is measured on p1, p3, p4; its edges on p3 are given: the point on p3 is not adjusted, the edges are;
+    # one of them 45 px off rejects the point on p3 with it (the same fits)
+    ms, approx, truth, ties = block(0)
+    a2 = VERTS["A2"]
+    own = {"A2/0-1": ("A2", a2, a2 + [0.0, 8.0, 0.0]), "A2/1-2": ("A2", a2, a2 + [7.0, 0.0, 1.0])}
+    es = [e for e in edges(0, truth, moved={("A2/0-1", "p3"): 45.0}, lines=own) if e.photo == "p3"]
+    assert len(es) == 2
+    bc = run(ms, approx, ties, lines=es)
+    assert [(ln, p) for ln, p, *_ in bc.lines_rejected] == [("A2/0-1", "p3")]
+    assert bc.rejected == ()                 # the point was not tested itself
+    st = {(m.point, m.photo): m for m in bc.measurements}
+    assert st[("A2", "p3")].status == "rejected"
+    assert re.fullmatch(r"inconsistent with the block: its roof edge A2/0-1 on this photo is ([0-9.]+) px off its "
+                        r"LiDAR line \(w = [0-9.]+\)", st[("A2", "p3")].reason)
+    assert [k for k, m in st.items() if m.status != "measured"] == [("A2", "p3")]
+    # clean: the point on p3 is kept (not tested twice), its edges tested
+    es = [e for e in edges(0, truth, lines=own) if e.photo == "p3"]
+    bc = run(ms, approx, ties, lines=es)
+    assert bc.lines_rejected == () and bc.lines_tested == 2 and bc.tested == len(ms) - 1
+    assert all(m.status == "measured" for m in bc.measurements)
+
+
+def test_a_bad_edge_observation_is_a_located_error():
+    from lidarcat.photocontrol import EdgeObservation
+
+    with pytest.raises(LidarcatError, match=r"^edge R1/0-1 on photo 'p0': points, line, covariance and sd_px must"):
+        EdgeObservation("R1/0-1", "R1", "p0", [1.0, 2.0], [5.0, 6.0], 0.0, [0, 0, 0], [1, 0, 0], LCOV)
+    ms, approx, truth, ties = block(0)
+    e = EdgeObservation("R1/0-1", "R1", "p8", [1.0, 2.0], [5.0, 6.0], 0.3, [0, 0, 0], [1, 0, 0], LCOV)
+    with pytest.raises(LidarcatError, match=r"^photo 'p8': an edge of line 'R1/0-1' but no camera for it"):
+        run(ms, approx, ties, lines=[e])
+
+
+def test_measure_control_does_not_write_an_edge_the_block_test_rejects(tmp_path, monkeypatch):
+    """The stage's wiring (lines=add): the roof edges of a vertex whose point was not measured go into the block
+    test; the one moved 50 px is not written to line_control.csv and line_decisions.csv says why.  The photos are
+    never looked at: extraction, roof edges, the 3-D line and the measurement are replaced by the truth."""
+    import csv
+    import types
+
+    import lidarcat.control.vertices as cv
+    import lidarcat.lidar.clipping as lc
+    import lidarcat.match as lm
+    import lidarcat.photocontrol as pc
+    from lidarcat.photocontrol import EdgeLine
+    from lidarcat.photocontrol.predict import RoofEdge
+    from lidarcat.stages.measure_control import line_id, measure_control
+    from lidarcat.synthetic.aerial import aerial_survey
+
+    root = tmp_path / "s"
+    s = aerial_survey(root, n_strips=2, photos_per_strip=3, gsd_m=0.15, image_size_px=(320, 240), side_overlap=0.6,
+                      lidar_density_m2=0.05, n_gps_points=4, seed=3)
+    rng = np.random.default_rng(0)
+    eo = s.true_eo
+    ground = float(np.mean(eo[:, 2])) - 0.15 * s.camera.focal_length_mm / s.camera.pixel_size_x_mm
+    centre = np.r_[np.mean(eo[:, :2], axis=0), ground + 8.0]
+    ends = np.array([centre + [-1.2, -0.4, 0.0], centre + [1.2, 0.4, 0.2]])    # the roof line of vertex R1
+    # vertex points measured as in tests/stages/test_measure_control_block.py (they hold the block's datum; with one
+    # short line alone the worst-first test may take a good edge first: module docstring)
+    pts = {"V1": ["101", "203"], "V2": ["102", "103", "202"], "V3": ["103", "201"], "V4": ["202", "203"]}
+    verts = {v: np.r_[np.mean([eo[s.index(p), :2] for p in ph], axis=0) + rng.normal(0, 1.0, 2), ground + 8.0]
+             for v, ph in pts.items()}
+    verts["R1"] = ends[0]
+    with open(root / "ground_points.csv", "a") as fh:
+        for v, x in verts.items():
+            fh.write(f"{v},{x[0]:.4f},{x[1]:.4f},{x[2]:.4f},0.01,0.01,0.03,lidar\n")
+    lo, hi = eo[:, :2].min(axis=0) - 20, eo[:, :2].max(axis=0) + 20
+    g = np.column_stack([rng.uniform(lo[0], hi[0], 400), rng.uniform(lo[1], hi[1], 400), ground + rng.uniform(0, 6, 400)])
+    px = {p: s.project(p, g) for p in s.photo_ids}
+    ok = {p: np.isfinite(x).all(axis=1) & (x[:, 0] > 2) & (x[:, 1] > 2) & (x[:, 0] < 317) & (x[:, 1] < 237)
+          for p, x in px.items()}
+    two = np.sum(list(ok.values()), axis=0) >= 2
+    with open(root / "image_points.csv", "a") as fh:
+        for p in s.photo_ids:
+            for j in np.flatnonzero(ok[p] & two):
+                c, r = px[p][j] + rng.normal(0, 0.3, 2)
+                fh.write(f"{p},T{j:04d},{c:.3f},{r:.3f}\n")
+    seen = [p for p in s.photo_ids if ((s.project(p, ends) > 4) & (s.project(p, ends) < [316, 236])).all()]
+    assert len(seen) >= 3, seen
+    moved = seen[1]
+
+    class Vertex:
+        cov_m2, planes, status, reason = np.diag([0.01**2, 0.01**2, 0.03**2]), [0, 1], "ok", ""
+
+        def __init__(self, enh):
+            self.enh_m = np.asarray(enh, float)
+
+        def __bool__(self):
+            return True
+
+    def measure_photo(img, cam, eo_, targets, params=None):
+        out = []
+        for t in targets:
+            pr = t.prediction
+            els = ()
+            if pr.photo in pts.get(pr.point, []):
+                out.append(Measurement(pr.point, pr.photo, s.project(pr.photo, verts[pr.point][None])[0]
+                                       + rng.normal(0, 0.3, 2), np.eye(2) * 0.09, "measured", predicted_px=pr.px,
+                                       predicted_cov_px2=pr.cov_px2))
+                continue
+            if pr.point == "R1" and pr.photo in seen:
+                ab = s.project(pr.photo, ends)
+                n = np.array([-(ab[1] - ab[0])[1], (ab[1] - ab[0])[0]]) / np.hypot(*(ab[1] - ab[0]))
+                off = n * (50.0 if pr.photo == moved else 0.0)
+                els = (EdgeLine((0, 1), ab[0] + 0.2 * (ab[1] - ab[0]) + off + n * rng.normal(0, 0.3),
+                                ab[0] + 0.8 * (ab[1] - ab[0]) + off + n * rng.normal(0, 0.3), 0.3, 5.0),)
+            out.append(Measurement(pr.point, pr.photo, np.full(2, np.nan), np.full((2, 2), np.nan), "no_edges",
+                                   "1 of 2 edges found", predicted_px=pr.px, predicted_cov_px2=pr.cov_px2,
+                                   edge_lines=els))
+        return out
+
+    monkeypatch.setattr(lc, "clip", lambda *a, **k: types.SimpleNamespace(xyz=np.zeros((10, 3))))
+    monkeypatch.setattr(cv, "extract_roof", lambda xyz, en, point_id=None: Vertex(verts[point_id]))
+    monkeypatch.setattr(pc, "roof_edges", lambda enh, *a, **k: [RoofEdge((0, 1), ends[0], ends[1], 50)]
+                        if np.allclose(enh, ends[0]) else [])
+    monkeypatch.setattr(pc, "edge_line_m", lambda pi, pj, e: (ends[0], ends[1], np.eye(6) * 0.01**2))
+    monkeypatch.setattr(pc, "measure_photo", measure_photo)
+    monkeypatch.setattr(lm, "read_image", lambda *a, **k: np.zeros((240, 320), np.uint8))
+    out = tmp_path / "mc"
+    measure_control(root, out, gallery=False, lines="add", table=tmp_path / "ip.csv",
+                    line_table=tmp_path / "lines.csv")
+
+    def rows(path):
+        with open(path, newline="") as fh:
+            return list(csv.DictReader(ln for ln in fh if not ln.startswith("#")))
+
+    lid = line_id("R1", (0, 1))
+    dec = {r["photo"]: r for r in rows(out / "line_decisions.csv") if r["line"] == lid}
+    assert [p for p, r in dec.items() if r["status"] == "written"] == [p for p in seen if p != moved], (seen, [(p, r["reason"]) for p, r in dec.items()])
+    assert dec[moved]["status"] == "not_written" and dec[moved]["decision"] == "reject"
+    got = re.fullmatch(r"roof edge inconsistent with the block \(\d+ tie points on its photo, 9 vertex observations "
+                       rf"and {len(seen) - 1} other edges\): ([0-9.]+) px off its LiDAR line, w = ([0-9.]+) "
+                       r"\(critical 3\.42\)", dec[moved]["reason"])
+    assert got, dec[moved]["reason"]
+    assert float(got.group(1)) == pytest.approx(50.0, abs=2.0) and float(got.group(2)) > 20.0
+    assert sorted(r["photo"] for r in rows(tmp_path / "lines.csv") if r["photo"]) == sorted(p for p in seen if p != moved)
+    info = json.loads((out / "measure_control.json").read_text())["block_check"]
+    assert info["lines_rejected"] == 1 and info["lines_tested"] == len(seen) and info["tested"] == 9
+    assert info["rejected"] == 0

@@ -41,7 +41,7 @@ from .measure import (  # noqa: F401
     measure_photo,
     measure_vertex,
 )
-from .blockcheck import BlockCheck, TieObservations, check_block  # noqa: F401
+from .blockcheck import BlockCheck, EdgeObservation, TieObservations, check_block  # noqa: F401
 from .review import chip_centre, chip_image, gallery  # noqa: F401
 
 __all__ = [
@@ -68,6 +68,7 @@ __all__ = [
     "measure_photo",
     "measure_vertex",
     "BlockCheck",
+    "EdgeObservation",
     "TieObservations",
     "check_block",
     "chip_centre",

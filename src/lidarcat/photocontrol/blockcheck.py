@@ -1,4 +1,4 @@
-r"""The block test of the vertex measurements: tie points tie each photo to its neighbours.
+r"""The block test of the vertex measurements and roof edges: tie points tie each photo to its neighbours.
 
 Why.  The per-photo test (:func:`~lidarcat.photocontrol.measure.check_photo`) needs the photo's
 other vertices to know its common shift; a measurement *alone on its photo* cannot be tested
@@ -38,6 +38,51 @@ a gross value raises the tests of its neighbours).  The rejection's reason names
 the measurement from the vertex projected with the block adjusted *without* it (px), the w and
 the basis: ``inconsistent with the block (12 tie points on its photo and 4 other vertex
 observations): 33.2 px, w = 9.1 (critical 3.42)``.
+
+Roof edges (``lines=``).  The edges that measure-control writes as line control (one
+:class:`EdgeObservation` per edge and photo: the two equivalent points of the free edge fit,
+:class:`~lidarcat.photocontrol.measure.EdgeLine`, and the 3-D line of the two planes with its 6 x 6
+covariance, :func:`~lidarcat.photocontrol.predict.edge_line_m`) enter the same adjustment as line
+control (:class:`lidarcat.bundle.lines.LineControl`: the projection plane of the image line contains
+the 3-D line, two residuals per edge, weighted by the image sd and the line's covariance).  Each is
+tested by the 2-D line test of :func:`lidarcat.bundle.line_tests.line_tests`, :math:`T = e^T
+Q_{vv}^{-1} e` with :math:`Q_{vv} = \Sigma_r - A C_i A^T` exact from its photo's covariance -- again
+the leave-one-out test -- on the scale of the vertex tests (``T`` over the same
+:math:`\chi^2_{1-\alpha_2}(2)`): in every round the worst of all vertex and edge observations above
+its critical value is rejected and the block adjusted again.  A rejected edge's reason names the
+distance (px) of the middle of the measured edge from its 3-D line projected with the block adjusted
+*without* it, and w: ``roof edge inconsistent with the block (456 tie points on its photo, 1 vertex
+observations and 3 other edges): 64.8 px off its LiDAR line, w = 25.3 (critical 3.42)``.  Line
+control converges slowly when few lines hold the block's datum: an adjustment that does not converge
+in ``max_iter`` is continued for ``4 max_iter``.
+
+Points and edges of one vertex on one photo come from the same edge fits (the point is the
+intersection of its edges).  Adjusting both would count the fits twice; so where an edge of vertex V
+on photo P is given, V's point measurement on P is *not* adjusted: its edges stand for it (they carry
+more -- each edge on its own, its direction too).  Its verdict is theirs: an edge rejected indicts
+the point (``rejected``, ``inconsistent with the block: its roof edge V/1-2 on this photo is 64.8 px
+off its LiDAR line (w = 25.3)``); a point kept is not tested twice.  The other edges of V on P stay
+(separate fits of separate image edges, each tested itself in the next round).  measure-control
+passes only the edges it would write: with ``--lines add`` those of vertices whose point was not
+measured (so points and edges never meet there), with ``--lines only`` every edge (then the edges
+replace the points in the test).
+
+What the edges cannot tell.  Worst first presumes the largest test is the gross observation's; that
+holds while the observations' tests are nearly independent.  When the block's datum rests on the
+edges of one short line alone (ties and GNSS/IMU otherwise), its observations on the different photos
+are tested against each other and the block, distorted by the gross one, can make a good edge look
+worse (in a synthetic block with one 2.5 m line on three photos and no vertex point, the good edge on
+another strip came out first, w 70, the 50 px one second): then both go -- nothing gross is written,
+a good edge may be lost.  With vertex points or edges of other lines in the block it does not occur
+(the tests).
+
+Bench_lines seed 4 (docs/figures.md): an edge 64 px off its LiDAR line (the approximate orientation
+predicts to ~87 px) with 3 other edges and one vertex observation; without it the block predicts that
+edge to 2.5 px, so its w is 25.3 and it is rejected; the good vertex observation, which a block
+distorted by the edge had rejected (17 px, w 12.5), is kept.  (That needed the line tests' testability
+from the eigenvalues of :math:`Q_{vv} P`: the diagonal of it, the per-component redundancy, leaves
+[0, 1] when the 3-D line's ends lie far outside the measured segment, and the edge was called
+untestable.)
 
 Tie points.  Matched tie points have gross errors too (issue 28), and only the vertex
 measurements get decisions here; so the tie points are cleaned first, on their own: the block of
@@ -82,12 +127,14 @@ from ..geometry.camera import Camera
 from .measure import Measurement
 from .predict import pixel_positions
 
-__all__ = ["TieObservations", "BlockCheck", "check_block", "REASON_PREFIX"]
+__all__ = ["TieObservations", "EdgeObservation", "BlockCheck", "check_block", "REASON_PREFIX", "LINE_REASON_PREFIX"]
 
 log = logging.getLogger(__name__)
 
 #: the reason of a measurement the block test rejects starts with this
 REASON_PREFIX = "inconsistent with the block"
+#: the reason of a roof edge the block test rejects starts with this
+LINE_REASON_PREFIX = "roof edge inconsistent with the block"
 _TIE, _VERTEX = "t:", "v:"      # internal point-id prefixes (a tie id may equal a vertex id)
 
 
@@ -133,6 +180,53 @@ class TieObservations:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
+class EdgeObservation:
+    """A roof edge measured in one photo (:class:`~lidarcat.photocontrol.measure.EdgeLine`) with its 3-D line
+    (:func:`~lidarcat.photocontrol.predict.edge_line_m`): what measure-control writes to line_control.csv.
+
+    Attributes
+    ----------
+    line, point, photo : str
+        Line id, the LiDAR vertex whose edge fits it comes from, the photo.
+    p1_px, p2_px : (2,) float
+        The edge's two equivalent points (column, row, px).
+    sd_px : float
+        Their sd across the edge (px), > 0.
+    a_m, b_m : (3,) float
+        End points of the 3-D line (E, N, h, m); cov_m2 : (6, 6) covariance of (A, B) (m^2).
+    """
+
+    line: str
+    point: str
+    photo: str
+    p1_px: np.ndarray
+    p2_px: np.ndarray
+    sd_px: float
+    a_m: np.ndarray
+    b_m: np.ndarray
+    cov_m2: np.ndarray
+
+    def __post_init__(self) -> None:
+        s = object.__setattr__
+        for k in ("line", "point", "photo"):
+            s(self, k, str(getattr(self, k)))
+        vals = {k: np.asarray(getattr(self, k), dtype=np.float64).reshape(n) for k, n in
+                (("p1_px", 2), ("p2_px", 2), ("a_m", 3), ("b_m", 3))}
+        cov = np.asarray(self.cov_m2, dtype=np.float64).reshape(6, 6)
+        sd = float(self.sd_px)
+        where = f"edge {self.line} on photo {self.photo!r}"
+        if not (all(np.isfinite(v).all() for v in vals.values()) and np.isfinite(cov).all() and math.isfinite(sd)
+                and sd > 0):
+            raise LidarcatError(f"{where}: points, line, covariance and sd_px must be finite, sd_px > 0")
+        if np.hypot(*(vals["p2_px"] - vals["p1_px"])) <= 1e-9 or np.linalg.norm(vals["b_m"] - vals["a_m"]) <= 0:
+            raise LidarcatError(f"{where}: its two image points or its line's end points coincide")
+        for k, v in vals.items():
+            s(self, k, frozen_array(v))
+        s(self, "cov_m2", frozen_array(cov))
+        s(self, "sd_px", sd)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
 class BlockCheck:
     """Outcome of :func:`check_block`.
 
@@ -161,6 +255,14 @@ class BlockCheck:
         ``ok``; ``nothing`` (no accepted measurement); ``not_converged`` (the adjustment failed:
         nothing rejected, see *message*).
     message : str
+    lines_tested : int
+        Edge observations (``lines=``) tested in the last adjustment plus those rejected.
+    lines_untestable : tuple of (line, photo)
+        Edges whose test has no redundancy: kept.
+    lines_rejected : tuple of (line, photo, w, offset_px)
+        The rejected edges, in the order found.
+    line_reasons : dict (line, photo) -> str
+        The reason of every rejected edge (starts with :data:`LINE_REASON_PREFIX`).
     """
 
     measurements: tuple[Measurement, ...]
@@ -175,13 +277,18 @@ class BlockCheck:
     rounds: int = 0
     status: str = "ok"
     message: str = ""
+    lines_tested: int = 0
+    lines_untestable: tuple[tuple[str, str], ...] = ()
+    lines_rejected: tuple[tuple[str, str, float, float], ...] = ()
+    line_reasons: dict[tuple[str, str], str] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         """Counts for a JSON report."""
         return {"status": self.status, "message": self.message, "tested": self.tested,
                 "untestable": len(self.untestable), "rejected": len(self.rejected), "ties_used": self.ties_used,
                 "ties_rejected": self.ties_rejected, "ties_dropped": self.ties_dropped, "rounds": self.rounds,
-                "photos": len(self.eo)}
+                "photos": len(self.eo), "lines_tested": self.lines_tested,
+                "lines_untestable": len(self.lines_untestable), "lines_rejected": len(self.lines_rejected)}
 
 
 def _dominant_sd(cov: np.ndarray) -> np.ndarray:
@@ -261,8 +368,9 @@ def _snoop_ties(ties: TieObservations, keep: np.ndarray, cameras, eos, eo_covs, 
 def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camera], eos: Mapping[str, Any],
                 eo_covs: Mapping[str, Any], vertices_m: Mapping[str, Any], vertex_covs: Mapping[str, Any],
                 ties: TieObservations | None, *, level: float = 0.001, power: float = 0.80,
-                floor_sd_px: float = 0.0, snoop_ties: bool = True, max_iter: int = 50) -> BlockCheck:
-    """The vertex measurements tested in one bundle adjustment of the block (module docstring).
+                floor_sd_px: float = 0.0, snoop_ties: bool = True, max_iter: int = 50,
+                lines: Sequence[EdgeObservation] | None = None) -> BlockCheck:
+    """The vertex measurements (and roof edges) tested in one bundle adjustment of the block (module docstring).
 
     Parameters
     ----------
@@ -289,6 +397,10 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
         Clean the tie points by the engine's data snooping first (default); False: use them as given.
     max_iter : int
         Iterations of each adjustment.
+    lines : sequence of EdgeObservation, optional
+        Roof edges to test as line control (what would be written to line_control.csv).  A vertex
+        measurement on the photo of one of its edges given here is not adjusted (the same fits), it
+        gets the verdict of its edges (module docstring).
 
     Returns
     -------
@@ -297,11 +409,13 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     Raises
     ------
     LidarcatError
-        A measurement or tie observation on a photo without a camera, approximate orientation or
+        A measurement, edge or tie observation on a photo without a camera, approximate orientation or
         covariance (names the photo), a measurement of a vertex without coordinates or covariance
         (names the point), bad tie observations.
     """
     from ..bundle import BundleProblem, adjust
+    from ..bundle.line_tests import line_tests
+    from ..bundle.lines import LineControl
     from ..bundle.redundancy import check_level, reliability
 
     try:
@@ -309,6 +423,7 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     except ValueError as ex:
         raise LidarcatError(f"check_block: {ex}") from None
     ms = list(measurements)
+    edges = list(lines or ())
     live = [k for k, m in enumerate(ms) if m and np.isfinite(m.px).all() and np.isfinite(m.cov_px2).all()]
     for k in live:
         m = ms[k]
@@ -316,12 +431,19 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
         if m.point not in vertices_m or m.point not in vertex_covs:
             raise LidarcatError(f"point {m.point!r}: measured on photo {m.photo!r} but no vertex coordinates or "
                                 "covariance for it")
+    for e in edges:
+        _check_photo_inputs(e.photo, f"an edge of line {e.line!r}", cameras, eos, eo_covs)
+    # a vertex measured on a photo where its edges are tested: the edges stand for it (the same fits)
+    edge_pairs = {(e.point, e.photo) for e in edges}
+    replaced = {(ms[k].point, ms[k].photo): k for k in live if (ms[k].point, ms[k].photo) in edge_pairs}
+    live = [k for k in live if (ms[k].point, ms[k].photo) not in replaced]
     if ties is not None:
         for pid in sorted(set(ties.photo.tolist())):
             _check_photo_inputs(pid, "tie observations", cameras, eos, eo_covs)
-    if not live:
+    if not live and not edges:
         return BlockCheck(tuple(ms), {}, {}, status="nothing", message="no accepted measurement")
-    used = {ms[k].photo for k in live} | (set(ties.photo.tolist()) if ties is not None else set())
+    used = {ms[k].photo for k in live} | {e.photo for e in edges} | \
+        (set(ties.photo.tolist()) if ties is not None else set())
     for pid in sorted(used):
         if not np.all(_dominant_sd(np.asarray(eo_covs[pid], float).reshape(6, 6)) > 0):
             raise LidarcatError(f"photo {pid!r}: the covariance of its approximate orientation has a zero or "
@@ -362,12 +484,22 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     v_photo = np.array([ms[k].photo for k in live], dtype=object)
     v_point = np.array([ms[k].point for k in live], dtype=object)
     t_photo_all = ties.photo if n_t else np.zeros(0, dtype=object)
-    ties_on = {p: int(np.sum(t_keep & (t_photo_all == p))) for p in set(v_photo.tolist())}
+    ties_on = {p: int(np.sum(t_keep & (t_photo_all == p))) for p in set(v_photo.tolist()) | {e.photo for e in edges}}
 
-    def problem(v_in: np.ndarray) -> tuple[Any, np.ndarray]:
-        """The block of the kept ties and the vertex measurements *v_in*; the photo ids."""
+    # --- the roof edges: line control (bundle.lines), one 3-D line per line id --------------------------
+    n_e = len(edges)
+    e_photo = np.array([e.photo for e in edges], dtype=object)
+    line_ids = list(dict.fromkeys(e.line for e in edges))
+    first = {lid: next(e for e in edges if e.line == lid) for lid in line_ids}
+    e_pix = np.array([0.5 * (cameras[e.photo].pixel_size_x_mm + cameras[e.photo].pixel_size_y_mm)
+                      for e in edges]).reshape(n_e)
+    e_xy1 = np.array([cameras[e.photo].pixel_to_photo(np.asarray(e.p1_px)[None])[0] for e in edges]).reshape(n_e, 2)
+    e_xy2 = np.array([cameras[e.photo].pixel_to_photo(np.asarray(e.p2_px)[None])[0] for e in edges]).reshape(n_e, 2)
+
+    def problem(v_in: np.ndarray, e_in: np.ndarray) -> tuple[Any, np.ndarray]:
+        """The block of the kept ties, the vertex measurements *v_in* and the edges *e_in*; the photo ids."""
         tp = t_photo_all[t_keep] if n_t else np.zeros(0, dtype=object)
-        photos = sorted(set(tp.tolist()) | set(v_photo[v_in].tolist()))
+        photos = sorted(set(tp.tolist()) | set(v_photo[v_in].tolist()) | set(e_photo[e_in].tolist()))
         pos = {p: i for i, p in enumerate(photos)}
         verts = sorted(set(v_point[v_in].tolist()))
         tie_ids = sorted(set((_TIE + ties.point[t_keep].astype(str)).tolist())) if n_t else []
@@ -378,6 +510,14 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
             [ppos[_VERTEX + v] for v in v_point[v_in]]
         xy = np.concatenate([t_xy[t_keep], v_xy[v_in]])
         sd = np.concatenate([t_sd[t_keep], v_sd[v_in]])
+        lc = None
+        if e_in.any():
+            ei = np.flatnonzero(e_in)
+            lc = LineControl(line_ids=line_ids, a_m=[first[q].a_m for q in line_ids],
+                             b_m=[first[q].b_m for q in line_ids], cov_m2=[first[q].cov_m2 for q in line_ids],
+                             line_index=[line_ids.index(edges[k].line) for k in ei],
+                             photo_index=[pos[edges[k].photo] for k in ei], xy1_mm=e_xy1[ei], xy2_mm=e_xy2[ei],
+                             sd_mm=[edges[k].sd_px * e_pix[k] for k in ei], pixel_mm=e_pix[ei])
         prob = BundleProblem(
             photo_ids=photos, point_ids=pt_ids, focal_length_mm=[cameras[p].focal_length_mm for p in photos],
             photo_index=np.asarray(ph_idx, dtype=np.int64), point_index=np.asarray(pt_idx, dtype=np.int64),
@@ -388,21 +528,31 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
                                       for v in verts]).reshape(-1, 3),
             eo_constraint_photo_index=np.arange(len(photos)),
             eo_constraint_params=np.array([np.asarray(eos[p], float).reshape(6) for p in photos]),
-            eo_constraint_sd=np.array([_dominant_sd(np.asarray(eo_covs[p], float).reshape(6, 6)) for p in photos]))
+            eo_constraint_sd=np.array([_dominant_sd(np.asarray(eo_covs[p], float).reshape(6, 6)) for p in photos]),
+            lines=lc)
         return prob, np.asarray(photos, dtype=object)
 
     def solve(prob: Any, photos: np.ndarray, warm: dict[str, np.ndarray], precision: str = "none") -> Any:
         from ..bundle.approx import intersect_points
 
         eo0 = np.array([warm.get(p, np.asarray(eos[p], float).reshape(6)) for p in photos])
-        return adjust(prob, initial=(eo0, intersect_points(prob, eo0)), check=False, precision=precision,
-                      max_iter=max_iter)
+        if prob.lines is not None and precision == "none":
+            precision = "photos"                 # the line tests need the photos' covariances
+        res = adjust(prob, initial=(eo0, intersect_points(prob, eo0)), check=False, precision=precision,
+                     max_iter=max_iter)
+        if not res.success and prob.lines is not None:    # a block held by few lines converges slowly
+            res = adjust(prob, initial=(np.asarray(res.eo_params), np.asarray(res.points_m)), check=False,
+                         precision=precision, max_iter=4 * max_iter)
+        return res
 
     v_in = np.ones(len(live), dtype=bool)
+    e_in = np.ones(n_e, dtype=bool)
     rejected: list[tuple[str, str, float, float]] = []
+    e_rejected: list[tuple[str, str, float, float]] = []
+    line_reasons: dict[tuple[str, str], str] = {}
     rounds = 0
     warm = dict(start)
-    prob, photos = problem(v_in)
+    prob, photos = problem(v_in, e_in)
     res = solve(prob, photos, warm)
     rounds += 1
     n_t_used = int(t_keep.sum())
@@ -413,43 +563,67 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
                                   + (f"; {note}" if note else ""))
     n_tie_obs = n_t_used
     untestable: list[tuple[str, str]] = []
+    e_untestable: list[tuple[str, str]] = []
     while True:
+        n_obs = len(prob.photo_index)
+        vrows = np.arange(n_tie_obs, n_obs)              # the vertex observations follow the ties
+        live_in = np.flatnonzero(v_in)                   # vertex observation i of the problem = live_in[i]
+        edge_in = np.flatnonzero(e_in)                   # line observation i of the problem = edge_in[i]
         try:
-            rel = reliability(res, level=level, power=power)
+            rel = reliability(res, level=level, power=power) if n_obs else None
+            lt = line_tests(res, level=level, power=power) if len(edge_in) else None
         except DatumError as ex:
             return BlockCheck(tuple(ms), {}, {}, rejected=tuple(rejected), ties_used=n_t_used,
                               ties_rejected=n_tie_rej, ties_dropped=dropped, rounds=rounds, status="not_converged",
-                              message=f"the block's tests failed ({ex})")
-        n_obs = len(prob.photo_index)
-        vrows = np.arange(n_tie_obs, n_obs)              # the vertex observations follow the ties
-        ratio = np.where(rel.testable[vrows], np.nan_to_num(rel.ratio[vrows], nan=-np.inf), -np.inf)
-        live_in = np.flatnonzero(v_in)                   # vertex observation i of the problem = live_in[i]
-        if not len(vrows) or ratio.max() <= 1.0 or v_in.sum() == 0:
-            untestable = [(str(v_point[live_in[i]]), str(v_photo[live_in[i]]))
-                          for i in np.flatnonzero(~rel.testable[vrows])]
+                              message=f"the block's tests failed ({ex})", lines_rejected=tuple(e_rejected),
+                              line_reasons=dict(line_reasons))
+        ratio = np.where(rel.testable[vrows], np.nan_to_num(rel.ratio[vrows], nan=-np.inf), -np.inf) \
+            if rel is not None and len(vrows) else np.full(0, -np.inf)
+        # the line group test T = w^2 against chi2_{1-alpha_2}(2) = critical_w^2: the same scale as rel.ratio
+        e_ratio = np.nan_to_num((lt.w / lt.critical_w) ** 2, nan=-np.inf) if lt is not None else np.full(0, -np.inf)
+        worst_v = float(ratio.max(initial=-np.inf))
+        worst_e = float(e_ratio.max(initial=-np.inf))
+        if max(worst_v, worst_e) <= 1.0:
+            if rel is not None and len(vrows):
+                untestable = [(str(v_point[live_in[i]]), str(v_photo[live_in[i]]))
+                              for i in np.flatnonzero(~rel.testable[vrows])]
+            if lt is not None:
+                e_untestable = [(edges[edge_in[i]].line, edges[edge_in[i]].photo)
+                                for i in np.flatnonzero(~np.isfinite(lt.w))]
             break
-        i = int(np.argmax(ratio))
-        g = int(vrows[i])
-        w, crit = float(rel.w[g]), float(rel.w_critical[g])
-        a = int(live_in[i])
-        pid, vid = str(v_photo[a]), str(v_point[a])
-        others = int(v_in.sum()) - 1
-        n_ties_photo = ties_on.get(pid, 0)
-        # two measurements on a photo without ties: which of the two is off cannot be told (both go)
-        same = [int(b) for b in np.flatnonzero(v_in & (v_photo == pid)) if b != a]
-        partner = same[0] if n_ties_photo == 0 and len(same) == 1 else None
         warm = {p: np.asarray(res.eo_params)[j] for j, p in enumerate(photos)}
-        v_in[a] = False
-        if partner is not None:
-            v_in[partner] = False
-        prob, photos = problem(v_in) if v_in.any() or t_keep.any() else (None, photos)
+        is_edge = worst_e > worst_v
+        partner = None
+        others = int(v_in.sum()) - (not is_edge)         # the vertex observations beside the rejected one
+        if is_edge:
+            i = int(np.argmax(e_ratio))
+            w, crit = float(lt.w[i]), float(lt.critical_w)
+            a = int(edge_in[i])
+            pid, vid = edges[a].photo, edges[a].line
+            e_in[a] = False
+        else:
+            i = int(np.argmax(ratio))
+            g = int(vrows[i])
+            w, crit = float(rel.w[g]), float(rel.w_critical[g])
+            a = int(live_in[i])
+            pid, vid = str(v_photo[a]), str(v_point[a])
+            # two measurements on a photo without ties: which of the two is off cannot be told (both go)
+            same = [int(b) for b in np.flatnonzero(v_in & (v_photo == pid)) if b != a]
+            partner = same[0] if ties_on.get(pid, 0) == 0 and len(same) == 1 and not \
+                (e_in & (e_photo == pid)).any() else None
+            v_in[a] = False
+            if partner is not None:
+                v_in[partner] = False
+        n_ties_photo = ties_on.get(pid, 0)
+        more = v_in.any() or t_keep.any() or e_in.any()
+        prob, photos = problem(v_in, e_in) if more else (None, photos)
         res_new = solve(prob, photos, warm) if prob is not None else res
         rounds += prob is not None
         if not res_new.success:
-            v_in[a] = True
+            (e_in if is_edge else v_in)[a] = True
             if partner is not None:
                 v_in[partner] = True
-            prob, photos = problem(v_in)
+            prob, photos = problem(v_in, e_in)
             note = "; ".join(x for x in (note, f"the adjustment without {vid} on {pid} did not converge: "
                                                "testing stopped") if x)
             break
@@ -463,30 +637,53 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
             x = pts.get(_VERTEX + str(v_point[b]), np.asarray(vertices_m[str(v_point[b])], float).reshape(3))
             return float(np.hypot(*(np.asarray(ms[live[b]].px) - pixel_positions(cameras[pid], eo_p, x[None])[0])))
 
-        off = offset(a)
-        rejected.append((vid, pid, w, off))
-        basis = (f"{n_ties_photo} tie points on its photo and {others} other vertex observations" if n_ties_photo
-                 else f"no tie points on its photo; {others} other vertex observations")
-        ms[live[a]] = ms[live[a]].failed(
-            "rejected", f"{REASON_PREFIX} ({basis}): {off:.1f} px, w = {w:.1f} (critical {crit:.2f})")
-        if partner is not None:
-            off_b = offset(partner)
-            rejected.append((str(v_point[partner]), pid, math.nan, off_b))
-            ms[live[partner]] = ms[live[partner]].failed(
-                "rejected", f"{REASON_PREFIX}: {off_b:.1f} px; its photo has no tie points and its other measurement "
-                            f"({vid}, w = {w:.1f}) disagrees with it: which of the two is off cannot be told")
+        if is_edge:
+            e = edges[a]
+            off = _edge_offset_px(cameras[pid], eo_p, e)
+            e_rejected.append((vid, pid, w, off))
+            n_other_e = int(e_in.sum())
+            line_reasons[(vid, pid)] = (
+                f"{LINE_REASON_PREFIX} ({n_ties_photo} tie points on its photo, {others} vertex observations and "
+                f"{n_other_e} other edges): {off:.1f} px off its LiDAR line, w = {w:.1f} (critical {crit:.2f})")
+            k_pt = replaced.get((e.point, pid))
+            if k_pt is not None and ms[k_pt]:
+                ms[k_pt] = ms[k_pt].failed("rejected", f"{REASON_PREFIX}: its roof edge {vid} on this photo is "
+                                                       f"{off:.1f} px off its LiDAR line (w = {w:.1f})")
+        else:
+            off = offset(a)
+            rejected.append((vid, pid, w, off))
+            basis = (f"{n_ties_photo} tie points on its photo and {others} other vertex observations"
+                     if n_ties_photo else f"no tie points on its photo; {others} other vertex observations")
+            ms[live[a]] = ms[live[a]].failed(
+                "rejected", f"{REASON_PREFIX} ({basis}): {off:.1f} px, w = {w:.1f} (critical {crit:.2f})")
+            if partner is not None:
+                off_b = offset(partner)
+                rejected.append((str(v_point[partner]), pid, math.nan, off_b))
+                ms[live[partner]] = ms[live[partner]].failed(
+                    "rejected", f"{REASON_PREFIX}: {off_b:.1f} px; its photo has no tie points and its other "
+                                f"measurement ({vid}, w = {w:.1f}) disagrees with it: which of the two is off cannot "
+                                "be told")
         if prob is None:
             break
     tested = int(v_in.sum()) - len(untestable) + len(rejected)
+    e_tested = int(e_in.sum()) - len(e_untestable) + len(e_rejected)
+    kw = dict(tested=tested, rejected=tuple(rejected), ties_used=n_t_used, ties_rejected=n_tie_rej,
+              ties_dropped=dropped, status="ok", message=note, lines_tested=e_tested,
+              lines_untestable=tuple(e_untestable), lines_rejected=tuple(e_rejected), line_reasons=line_reasons)
     if prob is None:          # every measurement rejected
-        return BlockCheck(tuple(ms), {}, {}, tested=tested, rejected=tuple(rejected), ties_used=n_t_used,
-                          ties_rejected=n_tie_rej, ties_dropped=dropped, rounds=rounds, status="ok", message=note)
+        return BlockCheck(tuple(ms), {}, {}, rounds=rounds, **kw)
     final = adjust(prob, initial=(np.asarray(res.eo_params), np.asarray(res.points_m)), check=False,
                    precision="photos", max_iter=max_iter)
     rounds += 1
     use = final if final.success else res
     eo_out = {str(p): np.array(use.eo_params[j]) for j, p in enumerate(photos)}
     cov_out = {str(p): np.array(use.eo_cov[j]) for j, p in enumerate(photos)}
-    return BlockCheck(tuple(ms), eo_out, cov_out, tested=tested, untestable=tuple(untestable),
-                      rejected=tuple(rejected), ties_used=n_t_used, ties_rejected=n_tie_rej, ties_dropped=dropped,
-                      rounds=rounds, status="ok", message=note)
+    return BlockCheck(tuple(ms), eo_out, cov_out, untestable=tuple(untestable), rounds=rounds, **kw)
+
+
+def _edge_offset_px(cam: Camera, eo: np.ndarray, e: EdgeObservation) -> float:
+    """Distance (px) of the middle of the measured edge from its 3-D line projected with *eo*."""
+    ab = pixel_positions(cam, eo, np.array([e.a_m, e.b_m]))
+    d = ab[1] - ab[0]
+    mid = 0.5 * (np.asarray(e.p1_px) + np.asarray(e.p2_px)) - ab[0]
+    return float(abs(d[0] * mid[1] - d[1] * mid[0]) / max(float(np.hypot(*d)), 1e-12))

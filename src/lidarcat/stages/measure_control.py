@@ -14,7 +14,8 @@ sds and image files, the LiDAR tiles, and the LiDAR control vertices (ground poi
    (:func:`~lidarcat.photocontrol.measure.check_photo`; ``lone_photo``: a measurement alone on its photo
    kept or rejected), then all of them in one bundle adjustment with the survey's tie points
    (``block_check``, :func:`~lidarcat.photocontrol.blockcheck.check_block`: a lone measurement on a photo
-   with tie points is tested through them), and of each vertex across the photos
+   with tie points is tested through them; the roof edges that would be written go into the same adjustment as
+   line control and are tested too), and of each vertex across the photos
    (:func:`~lidarcat.photocontrol.measure.check_consistency`).
 
 It writes, into the output folder first:
@@ -32,7 +33,8 @@ It writes, into the output folder first:
   planes) and photo tried: ``line, point, photo, status, reason, col1_px .. row2_px, sd_px,
   ratio, decision``; ``written`` edges went to line_control.csv, the others say why not (the
   vertex's own status where the photo was not measured, ``no image edge`` where the edge was not
-  found, ``in the point`` where the vertex's point observation already carries it);
+  found, ``in the point`` where the vertex's point observation already carries it, ``roof edge inconsistent
+  with the block`` with its offset and w where the block test rejected it);
 
 * ``line_candidates.csv`` -- the 3-D line of every edge of line_decisions.csv (what ``line_decisions=`` reads);
 
@@ -258,11 +260,43 @@ def _decision_rows(ms: Sequence[Any]) -> list[list[Any]]:
     return rows
 
 
-def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_info: dict) -> dict:
-    """The block test (:func:`~lidarcat.photocontrol.blockcheck.check_block`) of every photo's measurements, with the
-    survey's tie points (image observations of points that are not ground points, photo coordinates to pixels
-    by the camera); *per_vertex* is updated in place.  Returns the test's summary.  Without tie points it is
-    not run (it would be the per-photo test again)."""
+#: statuses of a vertex measurement whose roof edges are never written (nor tested)
+_NO_EDGE_STATUSES = ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected", "rejected")
+
+
+def _block_edges(per_vertex: dict, vertex_info: dict, lines: str, line_rejected: Any) -> list[Any]:
+    """The roof edges the line rows would write now (as :func:`_line_control` decides), with their 3-D lines, for
+    the block test."""
+    from ..photocontrol import EdgeObservation, edge_line_m
+
+    out: list[Any] = []
+    if lines == "none":
+        return out
+    for vid, lst in per_vertex.items():
+        cp, _, edges = vertex_info[vid]
+        for pid, m in lst:
+            if m.status in _NO_EDGE_STATUSES or (m and lines == "add"):
+                continue
+            for el in m.edge_lines:
+                lid, e = line_id(vid, el.planes), edges.get(tuple(el.planes))
+                if e is None or (pid, lid) in line_rejected:
+                    continue
+                try:
+                    a, b, cov = edge_line_m(cp.planes[el.planes[0]], cp.planes[el.planes[1]],
+                                            np.array([e.start_m, e.end_m]))
+                    out.append(EdgeObservation(lid, vid, pid, el.p1_px, el.p2_px, el.sd_px, a, b, cov))
+                except (np.linalg.LinAlgError, LidarcatError):     # no line: the line rows say why
+                    continue
+    return out
+
+
+def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_info: dict,
+                 edges: Sequence[Any] = (), line_reasons: dict | None = None) -> dict:
+    """The block test (:func:`~lidarcat.photocontrol.blockcheck.check_block`) of every photo's measurements and the
+    roof *edges* (:func:`_block_edges`), with the survey's tie points (image observations of points that are not
+    ground points, photo coordinates to pixels by the camera); *per_vertex* is updated in place, the reasons of
+    the rejected edges go to *line_reasons* ((line, photo) -> reason).  Returns the test's summary.  Without tie
+    points it is not run (it would be the per-photo test again)."""
     from ..photocontrol import TieObservations, check_block
 
     try:
@@ -289,7 +323,10 @@ def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_in
     photos = {pid for _, pid, _ in flat} | set(ties.photo.tolist())
     cps = {v: vertex_info[v][0] for v in per_vertex}
     bc = check_block([m for _, _, m in flat], {p: survey.camera_of(p) for p in photos}, eos, covs,
-                     {v: cp.enh_m for v, cp in cps.items()}, {v: cp.cov_m2 for v, cp in cps.items()}, ties)
+                     {v: cp.enh_m for v, cp in cps.items()}, {v: cp.cov_m2 for v, cp in cps.items()}, ties,
+                     lines=edges)
+    if line_reasons is not None:
+        line_reasons.update(bc.line_reasons)
     per_vertex.clear()
     for (vid, pid, _), m in zip(flat, bc.measurements):
         per_vertex.setdefault(vid, []).append((pid, m))
@@ -465,11 +502,15 @@ def _write_report(out: Path, results: list[Any], images: dict, gallery: bool) ->
     return pages
 
 
-def _edge_status(m: Any, lid: str, el: Any, lines: str, review: _Review) -> tuple[str, str]:
+def _edge_status(m: Any, lid: str, el: Any, lines: str, review: _Review,
+                 block_lines: dict | None = None) -> tuple[str, str]:
     """(status, reason) of the roof edge *lid* of measurement *m*'s vertex on its photo (*el*: its image edge or
-    None): ``written`` or why not (module docstring, "Line control")."""
+    None): ``written`` or why not (module docstring, "Line control"); *block_lines*: (line, photo) -> why the
+    block test rejected the edge."""
     if m.status in ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected"):
         return "not_written", f"{m.status}: {m.reason}"
+    if block_lines and (lid, m.photo) in block_lines:
+        return "not_written", block_lines[(lid, m.photo)]
     if m.status == "rejected":
         return "not_written", f"the vertex's measurement was rejected: {m.reason}"
     if el is None:
@@ -481,7 +522,8 @@ def _edge_status(m: Any, lid: str, el: Any, lines: str, review: _Review) -> tupl
     return "written", ""
 
 
-def _line_control(out: Path, results: list[Any], vertex_info: dict, lines: str, review: _Review
+def _line_control(out: Path, results: list[Any], vertex_info: dict, lines: str, review: _Review,
+                  block_lines: dict | None = None
                   ) -> tuple[dict[str, tuple[str, Any, Any, Any]], list[tuple[str, str, Any]]]:
     """Step 5: the roof edges of the vertices tried, per photo, into line_decisions.csv and their 3-D lines into
     line_candidates.csv (module docstring, "Line control").  Returns the lines to write (``id -> (point, A, B,
@@ -510,7 +552,7 @@ def _line_control(out: Path, results: list[Any], vertex_info: dict, lines: str, 
                 except np.linalg.LinAlgError:      # planes (nearly) parallel: no line (not a candidate)
                     candidates[lid] = None
             el = found.get(tuple(planes))
-            status, reason = _edge_status(m, lid, el, lines, review)
+            status, reason = _edge_status(m, lid, el, lines, review, block_lines)
             if status == "written":
                 new_lines[lid] = candidates[lid] if candidates[lid] is not None else \
                     (m.point, *edge_line_m(cp.planes[planes[0]], cp.planes[planes[1]],
@@ -668,7 +710,10 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                                          direction_from_kappa=direction_from_kappa, lone_photo=lone_photo,
                                          gallery=gallery, progress=progress, done=len(verts), total=total)
     tried = {(pid, vid) for pid, lst in targets.items() for vid, _ in lst}
-    block_info = _check_block(survey, per_vertex, eos, covs, vertex_info) if block_check else {"status": "off"}
+    block_lines: dict[tuple[str, str], str] = {}       # (line, photo) -> why the block test rejected the edge
+    block_info = _check_block(survey, per_vertex, eos, covs, vertex_info,
+                              _block_edges(per_vertex, vertex_info, lines, review.line_rejected), block_lines) \
+        if block_check else {"status": "off"}
     results += _check_vertices(survey, per_vertex, vertex_info, eos, covs, min_photos)
     order = {pid: k for k, pid in enumerate(survey.photo_ids)}
     results.sort(key=lambda m: (m.point, order.get(m.photo, 0)))
@@ -676,7 +721,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     for m in results:
         counts[m.status] = counts.get(m.status, 0) + 1
     pages = _write_report(out, results, images, gallery)   # the report first
-    new_lines, new_obs = _line_control(out, results, vertex_info, lines, review) if lines != "none" else ({}, [])
+    new_lines, new_obs = _line_control(out, results, vertex_info, lines, review, block_lines) \
+        if lines != "none" else ({}, [])
     written_points = {m.point for m in results if m and lines != "only"}
     accepted = [{"photo": m.photo, "point": m.point, "px": np.asarray(m.px), "sd": m.sd_px} for m in results
                 if m and lines != "only"]
