@@ -25,37 +25,17 @@ from lidarcat.stages.measure_control import (DECISION_FIELDS, LINE_CANDIDATES, L
                                              measure_control, planned)
 from lidarcat.survey.decisions import DECISION_COLUMNS
 from lidarcat.survey.folder import Survey
-from lidarcat.synthetic.aerial import aerial_survey
+
+from control_block import measured_block, read_rows, write_rows
 
 
-def _rows(path):
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(line for line in fh if not line.startswith("#")))
-
-
-def _write(path, fields, rows):
-    with open(path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fields)
-        w.writeheader()
-        w.writerows(rows)
+_rows, _write = read_rows, write_rows
 
 
 @pytest.fixture(scope="module")
 def blocks(tmp_path_factory):
     """(unmeasured survey folder, the same measured by measure-control): copy before changing either."""
-    base = tmp_path_factory.mktemp("remember")
-    root = base / "s"
-    s = aerial_survey(root, n_strips=1, photos_per_strip=2, gsd_m=0.12, image_size_px=(640, 480),
-                      lidar_density_m2=10, lidar_noise_m=0.03, n_gps_points=4, seed=2)
-    sc = s.scene
-    verts = np.array([v for k, b in enumerate(sc.buildings) for v in b.vertices(sc.base_height(k))])
-    gp = root / "ground_points.csv"
-    gp.write_text(gp.read_text().rstrip("\n") + "\n" + "\n".join(
-        f"L{i + 1:03d},{v[0]:.3f},{v[1]:.3f},{v[2]:.3f},0.02,0.02,0.02,lidar" for i, v in enumerate(verts)) + "\n")
-    measured = base / "m"
-    shutil.copytree(root, measured)
-    measure_control(measured, gallery=False)
-    return root, measured
+    return measured_block(tmp_path_factory.mktemp("remember"))
 
 
 def _copy(src, tmp_path):

@@ -1,0 +1,44 @@
+"""What the measure-control review tests share: the small block (2 photos of 640 x 480 px, the synthetic
+town's roof vertices as LiDAR control) before and after one measure-control, and CSV rows in and out."""
+
+from __future__ import annotations
+
+import csv
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from lidarcat.stages.measure_control import measure_control
+from lidarcat.synthetic.aerial import aerial_survey
+
+
+def read_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a CSV written with ``#`` comment lines above its header."""
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(line for line in fh if not line.startswith("#")))
+
+
+def write_rows(path: Path, fields, rows) -> None:
+    """*rows* (dicts) under the header *fields*, as a user's editor would save them."""
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fields)
+        w.writeheader()
+        w.writerows(rows)
+
+
+def measured_block(base: Path) -> tuple[Path, Path]:
+    """(unmeasured survey folder, the same measured by measure-control) under *base*: copy before changing
+    either."""
+    root = base / "s"
+    s = aerial_survey(root, n_strips=1, photos_per_strip=2, gsd_m=0.12, image_size_px=(640, 480),
+                      lidar_density_m2=10, lidar_noise_m=0.03, n_gps_points=4, seed=2)
+    sc = s.scene
+    verts = np.array([v for k, b in enumerate(sc.buildings) for v in b.vertices(sc.base_height(k))])
+    gp = root / "ground_points.csv"
+    gp.write_text(gp.read_text().rstrip("\n") + "\n" + "\n".join(
+        f"L{i + 1:03d},{v[0]:.3f},{v[1]:.3f},{v[2]:.3f},0.02,0.02,0.02,lidar" for i, v in enumerate(verts)) + "\n")
+    measured = base / "m"
+    shutil.copytree(root, measured)
+    measure_control(measured, gallery=False)
+    return root, measured
