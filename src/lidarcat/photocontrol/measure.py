@@ -120,7 +120,7 @@ STATUSES: dict[str, str] = {
     "weak_geometry": "the edges found meet at too small an angle",
     "too_dark": "the window is too dark to measure",
     "saturated": "the window is saturated",
-    "near_border": "the search window reaches past the photo's border",
+    "near_border": "the vertex found lies at the photo's border, or its edges are cut by it too short to fit",
     "user_rejected": "rejected by the user in a review (the survey's control_decisions.csv): not measured again",
 }
 
@@ -486,26 +486,25 @@ def _setup(img: np.ndarray, camera: Camera, eo: Any, t: VertexTarget, p: Measure
         masks.append((tl == -1).astype(np.float32))
     srch = int(min(p.max_search_px, math.ceil(p.search_sigma * pr.sd_max_px) + 2))
     H, W = img.shape
-    m_edge = int(math.ceil(min(float(lens.max()), p.max_edge_px) + p.wide_band_px)) + 2
-    # the search may reach past the border (the photo is continued by its edge values there, where no
-    # template fits); the vertex found must have its edges on the photo (checked in _refine)
-    if c0 - m_edge < 0 or r0 - m_edge < 0 or c0 + m_edge >= W or r0 + m_edge >= H:
-        return base.failed("near_border", f"the vertex's edges, {m_edge} px, around "
-                                          f"column {c0}, row {r0} reach past the photo's border")
-    # the template may reach past the border: the photo is continued by its edge values there
-    import cv2
-
+    b = _border_px(p)
+    if c0 + srch < b or r0 + srch < b or c0 - srch >= W - b or r0 - srch >= H - b:
+        return base.failed("near_border", f"the search window, {srch} px around column {c0}, row {r0}, does "
+                                          f"not reach {b} px inside the photo")
+    # frame edge: the search (and the prediction itself) may reach past the border; only shifts that put
+    # the vertex on the photo, border_px inside, are searched (_scores), and the edges are fitted on
+    # their part inside the photo (_refine).  The template may reach past the border: the photo is
+    # continued by its edge values there (index clipping = replicated border, any offset)
     pad = half + srch
-    chip = cv2.copyMakeBorder(img, pad, pad, pad, pad, cv2.BORDER_REPLICATE)[r0:r0 + 2 * pad + 1,
-                                                                             c0:c0 + 2 * pad + 1]
-    chip = np.ascontiguousarray(chip, dtype=np.float32)
+    rows = np.clip(np.arange(r0 - pad, r0 + pad + 1), 0, H - 1)
+    cols = np.clip(np.arange(c0 - pad, c0 + pad + 1), 0, W - 1)
+    chip = np.ascontiguousarray(img[np.ix_(rows, cols)], dtype=np.float32)
     if float(np.median(chip)) < p.dark:
         return base.failed("too_dark", f"median grey value {float(np.median(chip)):.0f} below {p.dark:g}")
     if float(np.mean(chip >= p.saturation)) > 0.5:
         return base.failed("saturated", f"{100 * float(np.mean(chip >= p.saturation)):.0f} % of the window "
                                         f"at or above {p.saturation:g}")
     return dict(base=base, edges=edges, units=units, lens=lens, t0s=t0s, half=half, srch=srch, chip=chip,
-                masks=masks, c0=c0, r0=r0, vpx=vpx, m_edge=m_edge, size=(W, H))
+                masks=masks, c0=c0, r0=r0, vpx=vpx, size=(W, H))
 
 
 def _scores(ctx: dict, p: MeasureParams) -> np.ndarray:
@@ -513,10 +512,34 @@ def _scores(ctx: dict, p: MeasureParams) -> np.ndarray:
     half, srch = ctx["half"], ctx["srch"]
     if p.coarse == "lines":
         full = _line_score(ctx["chip"], ctx["units"], np.minimum(ctx["lens"], p.max_edge_px), ctx["t0s"])
-        return full[half:half + 2 * srch + 1, half:half + 2 * srch + 1]
-    if p.coarse == "likelihood":
-        return _llr(ctx["chip"], ctx["masks"])
-    raise ValueError(f"coarse must be 'lines' or 'likelihood', got {p.coarse!r}")
+        sc = full[half:half + 2 * srch + 1, half:half + 2 * srch + 1]
+    elif p.coarse == "likelihood":
+        sc = _llr(ctx["chip"], ctx["masks"])
+    else:
+        raise ValueError(f"coarse must be 'lines' or 'likelihood', got {p.coarse!r}")
+    # the search is clipped to the photo: a shift putting the vertex within border_px of the border is not tried
+    W, H = ctx["size"]
+    b = _border_px(p)
+    dc, dr = ctx["c0"] + np.arange(-srch, srch + 1), ctx["r0"] + np.arange(-srch, srch + 1)
+    on = ((dr >= b) & (dr < H - b))[:, None] & ((dc >= b) & (dc < W - b))[None, :]
+    return np.where(on, sc, -np.inf)
+
+
+def _border_px(p: "MeasureParams") -> int:
+    """A vertex nearer than this to the border has no edge profile (``wide_band_px`` + 3 px) beside it (px)."""
+    return int(math.ceil(p.wide_band_px + 3.0)) + 1
+
+
+def _inside_px(origin: np.ndarray, u: np.ndarray, size: tuple[int, int], margin: float) -> float:
+    """How far (px) from *origin* along *u* the line stays *margin* px inside the W x H photo."""
+    W, H = size
+    t = np.inf
+    for o, d, hi in ((origin[0], u[0], W - 1 - margin), (origin[1], u[1], H - 1 - margin)):
+        if d > 1e-12:
+            t = min(t, (hi - o) / d)
+        elif d < -1e-12:
+            t = min(t, (margin - o) / d)
+    return float(max(t, 0.0))
 
 
 def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> Measurement:
@@ -524,19 +547,27 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
     base = replace(ctx["base"], shift_px=shift)
     origin = ctx["vpx"] + shift
     W, H = ctx["size"]
-    me = ctx["m_edge"]
-    if not (me <= origin[0] < W - me and me <= origin[1] < H - me):
-        return base.failed("near_border", f"the vertex found at column {origin[0]:.0f}, row {origin[1]:.0f}: its "
-                                          f"edges, {me} px, reach past the photo's border")
-    fits, why, fits_planes = [], [], []
+    bd = _border_px(p)
+    if not (bd <= origin[0] < W - bd and bd <= origin[1] < H - bd):
+        return base.failed("near_border", f"the vertex found at column {origin[0]:.0f}, row {origin[1]:.0f} lies "
+                                          f"within {bd} px of the photo's border: no edge profile beside it")
+    fits, why, fits_planes, cut_failed = [], [], [], 0
     for k, e in enumerate(ctx["edges"]):
         # the edge's far end is a junction (a vertex, an eave corner) unless the edge is cut at max_edge_px
+        length = min(float(ctx["lens"][k]), p.max_edge_px)
         far = float(ctx["t0s"][k]) if float(ctx["lens"][k]) <= p.max_edge_px else 1.0
-        fit, reason = _fit_edge(img, origin, ctx["units"][k], min(float(ctx["lens"][k]), p.max_edge_px),
+        # fitted on its part inside the photo (the profiles, band_px + 3 px across, on the photo)
+        inside = _inside_px(origin, ctx["units"][k], (W, H), p.band_px + 3.0)
+        cut = inside < length
+        if cut:
+            length, far = inside, 1.0
+        fit, reason = _fit_edge(img, origin, ctx["units"][k], length,
                                 ctx["t0s"][k], p.band_px, p.min_points, p.min_contrast, p.min_sd_px,
                                 p.min_ratio, p.max_scatter_px, p.smooth_px, far, p.direction_sd_deg)
         if fit is None:
-            why.append(f"edge of planes {e.planes[0] + 1}-{e.planes[1] + 1}: {reason}")
+            cut_failed += int(cut)
+            why.append(f"edge of planes {e.planes[0] + 1}-{e.planes[1] + 1}: {reason}"
+                       + (f" (cut at {length:.0f} px by the photo's border)" if cut else ""))
             continue
         fits.append((ctx["units"][k], fit))
         fits_planes.append(e.planes)
@@ -553,7 +584,8 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
 
     base = replace(base, edge_lines=())
     if len(fits) < 2:
-        return replace(base.failed("no_edges", f"{len(fits)} of {len(ctx['edges'])} edges found in the photo"
+        return replace(base.failed("near_border" if len(fits) + cut_failed >= 2 else "no_edges",
+                                   f"{len(fits)} of {len(ctx['edges'])} edges found in the photo"
                                    + (f" ({'; '.join(why)})" if why else "")),
                        edge_lines=edge_lines(range(len(fits)), True))
     lines, mm, cc, covs = [], [], [], []
