@@ -258,21 +258,31 @@ def grey(image: Any) -> np.ndarray:
     return a
 
 
-def _llr(chip: np.ndarray, masks: list[np.ndarray]) -> np.ndarray:
+def _llr(chip: np.ndarray, masks: list[np.ndarray], valid: np.ndarray | None = None) -> np.ndarray:
     """Per pixel of the template: the log-likelihood ratio of one grey level (mean, variance) per face vs one
-    for the whole template, for every shift."""
+    for the whole template, for every shift.  *valid* (0 off the photo): each face's pixels counted per
+    shift, only those on the photo (the replicated border would fake a uniform face)."""
     import cv2
 
     eps = 1.0
     n_tot, s_tot, q_tot, ll = 0.0, 0.0, 0.0, 0.0
+    part = valid is not None and not bool(np.all(valid > 0))
+    if part:
+        chip = chip * valid
     sq = chip * chip
     for m in masks:
-        nk = float(m.sum())
+        nk: Any = float(m.sum())
+        if part:   # a face needs 6 pixels on the photo at a shift to count there
+            nk = np.rint(cv2.matchTemplate(valid, m, cv2.TM_CCORR).astype(np.float64))
+            nk = np.where(nk >= 6, nk, 0.0)
         sk = cv2.matchTemplate(chip, m, cv2.TM_CCORR).astype(np.float64)
         qk = cv2.matchTemplate(sq, m, cv2.TM_CCORR).astype(np.float64)
-        var = np.maximum(qk / nk - (sk / nk) ** 2, 0.0) + eps
+        n1 = np.maximum(nk, 1.0)
+        var = np.maximum(qk / n1 - (sk / n1) ** 2, 0.0) + eps
         ll = ll - 0.5 * nk * np.log(var)
-        n_tot, s_tot, q_tot = n_tot + nk, s_tot + sk, q_tot + qk
+        n_tot, s_tot, q_tot = n_tot + nk, s_tot + sk * (nk > 0), q_tot + qk * (nk > 0)
+    if part:
+        n_tot = np.maximum(n_tot, 1.0)
     var_all = np.maximum(q_tot / n_tot - (s_tot / n_tot) ** 2, 0.0) + eps
     return (ll + 0.5 * n_tot * np.log(var_all)) / n_tot
 
@@ -498,13 +508,15 @@ def _setup(img: np.ndarray, camera: Camera, eo: Any, t: VertexTarget, p: Measure
     rows = np.clip(np.arange(r0 - pad, r0 + pad + 1), 0, H - 1)
     cols = np.clip(np.arange(c0 - pad, c0 + pad + 1), 0, W - 1)
     chip = np.ascontiguousarray(img[np.ix_(rows, cols)], dtype=np.float32)
+    valid = ((np.arange(r0 - pad, r0 + pad + 1) == rows)[:, None]
+             & (np.arange(c0 - pad, c0 + pad + 1) == cols)[None, :]).astype(np.float32)
     if float(np.median(chip)) < p.dark:
         return base.failed("too_dark", f"median grey value {float(np.median(chip)):.0f} below {p.dark:g}")
     if float(np.mean(chip >= p.saturation)) > 0.5:
         return base.failed("saturated", f"{100 * float(np.mean(chip >= p.saturation)):.0f} % of the window "
                                         f"at or above {p.saturation:g}")
     return dict(base=base, edges=edges, units=units, lens=lens, t0s=t0s, half=half, srch=srch, chip=chip,
-                masks=masks, c0=c0, r0=r0, vpx=vpx, size=(W, H))
+                masks=masks, c0=c0, r0=r0, vpx=vpx, size=(W, H), valid=valid)
 
 
 def _scores(ctx: dict, p: MeasureParams) -> np.ndarray:
@@ -514,7 +526,7 @@ def _scores(ctx: dict, p: MeasureParams) -> np.ndarray:
         full = _line_score(ctx["chip"], ctx["units"], np.minimum(ctx["lens"], p.max_edge_px), ctx["t0s"])
         sc = full[half:half + 2 * srch + 1, half:half + 2 * srch + 1]
     elif p.coarse == "likelihood":
-        sc = _llr(ctx["chip"], ctx["masks"])
+        sc = _llr(ctx["chip"], ctx["masks"], ctx["valid"])
     else:
         raise ValueError(f"coarse must be 'lines' or 'likelihood', got {p.coarse!r}")
     # the search is clipped to the photo: a shift putting the vertex within border_px of the border is not tried
@@ -659,7 +671,9 @@ def _intersect(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, origin: n
     return x, n_mat, float(np.sum(w * r * r))
 
 
-def _masked_best(score: np.ndarray, ctx: dict, centre: np.ndarray, cinv: np.ndarray, radius2: float) -> np.ndarray:
+def _masked_best(score: np.ndarray, ctx: dict, centre: np.ndarray, cinv: np.ndarray, radius2: float,
+                 value: bool = False) -> Any:
+    """The best shift (2,) within the ellipse; *value*: its score instead (-inf: none searched on the photo)."""
     srch = ctx["srch"]
     dy, dx = np.mgrid[-srch:srch + 1, -srch:srch + 1]
     d = np.stack([dx + (ctx["c0"] - ctx["vpx"][0]) - centre[0], dy + (ctx["r0"] - ctx["vpx"][1]) - centre[1]],
@@ -667,6 +681,8 @@ def _masked_best(score: np.ndarray, ctx: dict, centre: np.ndarray, cinv: np.ndar
     m2 = np.einsum("...i,ij,...j->...", d, cinv, d)
     sc = np.where(m2 <= radius2, score, -np.inf)
     iy, ix = np.unravel_index(int(np.argmax(sc)), sc.shape)
+    if value:
+        return float(sc[iy, ix])
     return np.array([float(dx[iy, ix] + ctx["c0"] - ctx["vpx"][0]), float(dy[iy, ix] + ctx["r0"] - ctx["vpx"][1])])
 
 
@@ -726,6 +742,13 @@ def measure_photo(image: Any, camera: Camera, eo: Any, targets: Sequence[VertexT
         lim = 1.0 if len(live) > 1 else p.search_sigma**2
         ci = local if len(live) > 1 else np.linalg.inv(np.asarray(targets[k].prediction.cov_px2) + np.eye(2) * 0.25)
         best = _masked_best(scores[k], ctx, start, ci, lim)
+        if not np.isfinite(_masked_best(scores[k], ctx, start, ci, lim, value=True)):
+            # every shift searched puts the vertex off the photo (border_px inside): not on this photo
+            out[k] = ctx["base"].failed("not_visible", "off the photo: no shift searched ("
+                                        + ("about the photo's common shift" if len(live) > 1 else "in its ellipse")
+                                        + f") puts it {_border_px(p)} px inside the frame (predicted at column "
+                                        f"{ctx['vpx'][0]:.0f}, row {ctx['vpx'][1]:.0f})")
+            continue
         if p.coarse != "lines" and p.refine_px > 0:
             # the edges' directional gradient, near the coarse shift: the vertex to a pixel or so
             lines = _scores(ctx, replace(p, coarse="lines"))
