@@ -18,6 +18,7 @@ import pytest
 
 from lidarcat.control.vertices import extract_roof
 from lidarcat.photocontrol import measure_vertex, pixel_jacobians, predict_points, roof_edges
+from lidarcat.photocontrol.predict import frame_distance_sigma
 from lidarcat.synthetic.aerial import aerial_survey
 
 EO_COV = np.diag([2.0**2] * 3 + [math.radians(0.5) ** 2] * 3)
@@ -117,8 +118,10 @@ def test_a_vertex_truly_outside_stays_outside_with_the_reason(scene):
     pr = predict_points(cam, approx, EO_COV, cp.enh_m[None], cp.cov_m2[None], points=["V"], photo="p")[0]
     assert pr.sd_max_px < 120 / 3.6                              # 120 px off is more than 3.5 sd
     assert pr.status == "outside" and not pr
-    assert pr.reason.startswith("predicted at column") and "sigma away: its 3.5-sigma ellipse too)" in pr.reason
-    assert f"off the {cam.columns_px} x {cam.rows_px} frame" in pr.reason
+    assert pr.reason == f"predicted at column {pr.px[0]:.1f}, row {pr.px[1]:.1f}: off the {cam.columns_px} x " \
+                        f"{cam.rows_px} frame"
+    assert frame_distance_sigma(pr.px[None], pr.cov_px2[None], (-0.5, cam.columns_px - 0.5),
+                                (-0.5, cam.rows_px - 0.5))[0] > 3.5
 
 
 def test_a_vertex_at_the_border_is_not_measured_and_says_why(scene):

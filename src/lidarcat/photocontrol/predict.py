@@ -299,10 +299,7 @@ def predict_points(camera: Camera, eo: Any, eo_cov: Any, xyz_m: Any, xyz_cov: An
                                                                         if margin_px else "")
             where = f"predicted at column {px[k, 0]:.1f}, row {px[k, 1]:.1f}"
             if reach[k] > search_sigma:
-                away = f"{reach[k]:.1f}" if reach[k] < 1e3 else "> 1000"
-                status, reason = "outside", (f"{where}" + (f" ({away} sigma away: its {search_sigma:g}-sigma "
-                                                            f"ellipse too)" if search_sigma > 0 else "")
-                                             + f": off the {frame}")
+                status, reason = "outside", f"{where}: off the {frame}"   # its ellipse too
             elif hidden[k]:
                 status, reason = "occluded", "the LiDAR surface rises above the ray to the camera"
             else:
