@@ -17,11 +17,13 @@ import numpy as np
 import pytest
 
 from lidarcat.control.vertices import extract_roof
-from lidarcat.photocontrol import measure_vertex, pixel_jacobians, predict_points, roof_edges
+from lidarcat.photocontrol import MeasureParams, measure_vertex, pixel_jacobians, predict_points, roof_edges
 from lidarcat.photocontrol.predict import frame_distance_sigma
 from lidarcat.synthetic.aerial import aerial_survey
 
 EO_COV = np.diag([2.0**2] * 3 + [math.radians(0.5) ** 2] * 3)
+#: the frame-edge handling (MeasureParams.border 'fit', predict_points' search_sigma 3.5)
+FIT = MeasureParams(border="fit")
 #: inward direction (column, row) of the four sides of the frame
 SIDES = {"left": (1.0, 0.0), "right": (-1.0, 0.0), "top": (0.0, 1.0), "bottom": (0.0, -1.0)}
 
@@ -60,8 +62,8 @@ def scene(tmp_path_factory):
                         continue
                     # measurable on the whole photo from the same approximate orientation: only the frame differs
                     approx = _approx_eo(cam, eo, v, side, 44.0)
-                    pr = predict_points(cam, approx, EO_COV, cp.enh_m[None], cp.cov_m2[None])[0]
-                    m = measure_vertex(img, cam, approx, cp.enh_m, cp.planes, xyz, pr)
+                    pr = predict_points(cam, approx, EO_COV, cp.enh_m[None], cp.cov_m2[None], search_sigma=3.5)[0]
+                    m = measure_vertex(img, cam, approx, cp.enh_m, cp.planes, xyz, pr, FIT)
                     if m and float(np.hypot(*(np.asarray(m.px) - c))) < 1.0:
                         return s, k, img, v, cp, xyz, c, side
     pytest.fail("no vertex measurable on the whole photo with two edges not pointing to a side of the frame")
@@ -103,10 +105,10 @@ def test_a_vertex_predicted_off_the_frame_but_inside_is_measured_within_a_pixel(
     np.testing.assert_allclose(predict_points(cam, eo, EO_COV, v[None], np.zeros((1, 3, 3)))[0].px, truth,
                                atol=1e-6)
     approx = _approx_eo(cam, eo, v, side, 44.0)
-    pr = predict_points(cam, approx, EO_COV, cp.enh_m[None], cp.cov_m2[None], points=["V"], photo="p")[0]
+    pr = predict_points(cam, approx, EO_COV, cp.enh_m[None], cp.cov_m2[None], points=["V"], photo="p", search_sigma=3.5)[0]
     assert not cam.contains(pr.px[None])[0]                      # predicted off the frame ...
     assert pr.status == "visible" and "within its 3.5-sigma ellipse" in pr.reason, pr.reason   # ... a candidate
-    m = measure_vertex(img2, cam, approx, cp.enh_m, cp.planes, xyz, pr)
+    m = measure_vertex(img2, cam, approx, cp.enh_m, cp.planes, xyz, pr, FIT)
     assert m.status == "measured", m.reason
     assert float(np.hypot(*(np.asarray(m.px) - truth))) < 1.0
 
@@ -115,7 +117,7 @@ def test_a_vertex_truly_outside_stays_outside_with_the_reason(scene):
     s, k, img, v, cp, xyz, c, side = scene
     cam, _, truth = _cropped(s, img, c, side, -60)
     approx = _approx_eo(cam, s.true_eo[k], v, side, 60.0)
-    pr = predict_points(cam, approx, EO_COV, cp.enh_m[None], cp.cov_m2[None], points=["V"], photo="p")[0]
+    pr = predict_points(cam, approx, EO_COV, cp.enh_m[None], cp.cov_m2[None], points=["V"], photo="p", search_sigma=3.5)[0]
     assert pr.sd_max_px < 120 / 3.6                              # 120 px off is more than 3.5 sd
     assert pr.status == "outside" and not pr
     assert pr.reason == f"predicted at column {pr.px[0]:.1f}, row {pr.px[1]:.1f}: off the {cam.columns_px} x " \
@@ -128,10 +130,24 @@ def test_a_vertex_at_the_border_is_not_measured_and_says_why(scene):
     s, k, img, v, cp, xyz, c, side = scene
     cam, img2, truth = _cropped(s, img, c, side, 3)
     approx = _approx_eo(cam, s.true_eo[k], v, side, 10.0)
-    pr = predict_points(cam, approx, EO_COV, cp.enh_m[None], cp.cov_m2[None], points=["V"], photo="p")[0]
+    pr = predict_points(cam, approx, EO_COV, cp.enh_m[None], cp.cov_m2[None], points=["V"], photo="p", search_sigma=3.5)[0]
     assert pr.status == "visible"
-    m = measure_vertex(img2, cam, approx, cp.enh_m, cp.planes, xyz, pr)
+    m = measure_vertex(img2, cam, approx, cp.enh_m, cp.planes, xyz, pr, FIT)
     # the search is clipped to the photo 8 px inside: the vertex, 3 px inside, is not found there, and what is
     # found there is no vertex (its edges do not fit): nothing measured at a wrong place
     assert m.status in ("near_border", "no_edges", "weak_geometry"), (m.status, m.reason)
     assert m.reason
+
+
+def test_the_default_keeps_the_edges_rule_off_frame_predictions_outside(scene):
+    s, k, img, v, cp, xyz, c, side = scene
+    cam, img2, truth = _cropped(s, img, c, side, 29)
+    approx = _approx_eo(cam, s.true_eo[k], v, side, 44.0)
+    pr = predict_points(cam, approx, EO_COV, cp.enh_m[None], cp.cov_m2[None], points=["V"], photo="p")[0]
+    assert pr.status == "outside"                                # the predicted pixel alone
+    near = _approx_eo(cam, s.true_eo[k], v, side, 0.0)           # predicted right, 29 px inside
+    pr = predict_points(cam, near, EO_COV, cp.enh_m[None], cp.cov_m2[None], points=["V"], photo="p")[0]
+    m = measure_vertex(img2, cam, near, cp.enh_m, cp.planes, xyz, pr)
+    assert m.status == "near_border" and m.reason.endswith("reach past the photo's border"), m.reason
+    with pytest.raises(ValueError, match="border must be 'edges' or 'fit'"):
+        measure_vertex(img2, cam, near, cp.enh_m, cp.planes, xyz, pr, MeasureParams(border="clip"))

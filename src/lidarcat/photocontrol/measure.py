@@ -424,6 +424,10 @@ class MeasureParams:
     #: a roof edge as a line observation (EdgeLine): sd of its direction from what the fit cannot see (deg),
     #: added to the free fit's (texture correlated along the edge tilts a fitted line)
     line_direction_sd_deg: float = 0.5
+    #: at the frame's border: "edges" -- a vertex whose edges (max_edge_px) reach past the border, predicted or
+    #: found, is near_border; "fit" -- the search clipped to the photo, each face scored on its pixels on the
+    #: photo, the edges fitted on their part inside, near_border only within 8 px (docs/photocontrol.md)
+    border: str = "edges"
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
@@ -496,6 +500,12 @@ def _setup(img: np.ndarray, camera: Camera, eo: Any, t: VertexTarget, p: Measure
         masks.append((tl == -1).astype(np.float32))
     srch = int(min(p.max_search_px, math.ceil(p.search_sigma * pr.sd_max_px) + 2))
     H, W = img.shape
+    m_edge = int(math.ceil(min(float(lens.max()), p.max_edge_px) + p.wide_band_px)) + 2
+    if p.border not in ("edges", "fit"):
+        raise ValueError(f"border must be 'edges' or 'fit', got {p.border!r}")
+    if p.border == "edges" and (c0 - m_edge < 0 or r0 - m_edge < 0 or c0 + m_edge >= W or r0 + m_edge >= H):
+        return base.failed("near_border", f"the vertex's edges, {m_edge} px, around "
+                                          f"column {c0}, row {r0} reach past the photo's border")
     b = _border_px(p)
     if c0 + srch < b or r0 + srch < b or c0 - srch >= W - b or r0 - srch >= H - b:
         return base.failed("near_border", f"the search window, {srch} px around column {c0}, row {r0}, does "
@@ -510,13 +520,15 @@ def _setup(img: np.ndarray, camera: Camera, eo: Any, t: VertexTarget, p: Measure
     chip = np.ascontiguousarray(img[np.ix_(rows, cols)], dtype=np.float32)
     valid = ((np.arange(r0 - pad, r0 + pad + 1) == rows)[:, None]
              & (np.arange(c0 - pad, c0 + pad + 1) == cols)[None, :]).astype(np.float32)
+    if p.border == "edges":
+        valid = np.ones_like(valid)
     if float(np.median(chip)) < p.dark:
         return base.failed("too_dark", f"median grey value {float(np.median(chip)):.0f} below {p.dark:g}")
     if float(np.mean(chip >= p.saturation)) > 0.5:
         return base.failed("saturated", f"{100 * float(np.mean(chip >= p.saturation)):.0f} % of the window "
                                         f"at or above {p.saturation:g}")
     return dict(base=base, edges=edges, units=units, lens=lens, t0s=t0s, half=half, srch=srch, chip=chip,
-                masks=masks, c0=c0, r0=r0, vpx=vpx, size=(W, H), valid=valid)
+                masks=masks, c0=c0, r0=r0, vpx=vpx, size=(W, H), valid=valid, m_edge=m_edge)
 
 
 def _scores(ctx: dict, p: MeasureParams) -> np.ndarray:
@@ -529,6 +541,8 @@ def _scores(ctx: dict, p: MeasureParams) -> np.ndarray:
         sc = _llr(ctx["chip"], ctx["masks"], ctx["valid"])
     else:
         raise ValueError(f"coarse must be 'lines' or 'likelihood', got {p.coarse!r}")
+    if p.border == "edges":
+        return sc
     # the search is clipped to the photo: a shift putting the vertex within border_px of the border is not tried
     W, H = ctx["size"]
     b = _border_px(p)
@@ -559,6 +573,10 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
     base = replace(ctx["base"], shift_px=shift)
     origin = ctx["vpx"] + shift
     W, H = ctx["size"]
+    me = ctx["m_edge"]
+    if p.border == "edges" and not (me <= origin[0] < W - me and me <= origin[1] < H - me):
+        return base.failed("near_border", f"the vertex found at column {origin[0]:.0f}, row {origin[1]:.0f}: its "
+                                          f"edges, {me} px, reach past the photo's border")
     bd = _border_px(p)
     if not (bd <= origin[0] < W - bd and bd <= origin[1] < H - bd):
         return base.failed("near_border", f"the vertex found at column {origin[0]:.0f}, row {origin[1]:.0f} lies "
@@ -570,7 +588,7 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
         far = float(ctx["t0s"][k]) if float(ctx["lens"][k]) <= p.max_edge_px else 1.0
         # fitted on its part inside the photo (the profiles, band_px + 3 px across, on the photo)
         inside = _inside_px(origin, ctx["units"][k], (W, H), p.band_px + 3.0)
-        cut = inside < length
+        cut = p.border == "fit" and inside < length
         if cut:
             length, far = inside, 1.0
         fit, reason = _fit_edge(img, origin, ctx["units"][k], length,

@@ -244,7 +244,7 @@ def occluded(dsm: Callable[[np.ndarray, np.ndarray], np.ndarray], xyz_m: Any, ce
 def predict_points(camera: Camera, eo: Any, eo_cov: Any, xyz_m: Any, xyz_cov: Any, *,
                    points: Sequence[str] | None = None, photo: str = "",
                    dsm: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-                   margin_px: float = 0.0, search_sigma: float = 3.5) -> list[Prediction]:
+                   margin_px: float = 0.0, search_sigma: float = 0.0) -> list[Prediction]:
     """Predicted pixel positions with their covariance and visibility on one photo.
 
     Parameters
@@ -262,7 +262,8 @@ def predict_points(camera: Camera, eo: Any, eo_cov: Any, xyz_m: Any, xyz_cov: An
         The frame less this margin (px) is what the ellipse must reach.
     search_sigma : float
         "outside" only when the ellipse of this many sigmas (the measurement's search,
-        ``MeasureParams.search_sigma``) does not reach the frame; 0: the predicted pixel alone.
+        ``MeasureParams.search_sigma``, 3.5, with ``MeasureParams(border="fit")``) does not reach the
+        frame; 0 (the default): the predicted pixel alone.
 
     Returns
     -------
