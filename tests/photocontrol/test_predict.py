@@ -9,6 +9,7 @@ import pytest
 
 from lidarcat.control.vertices import extract_roof
 from lidarcat.geometry.camera import Camera
+from lidarcat.photocontrol.predict import frame_distance_sigma
 from lidarcat.photocontrol import (ellipse_axes, occluded, pixel_jacobians, pixel_positions, predict_edges,
                                    predict_points, roof_edges)
 from lidarcat.synthetic.aerial import aerial_camera
@@ -99,3 +100,28 @@ def test_roof_edges_of_a_hip_end_are_the_ridge_and_two_hips():
         assert math.degrees(math.asin(-d[2])) == pytest.approx(22.2, abs=1.5)
     segs = predict_edges(aerial_camera(), [v[0], v[1], v[2] + 150.0, 0, 0, 0], np.zeros(6), edges, cp.cov_m2)
     assert len(segs) == 3 and all(np.isfinite(sg["px1"]).all() for sg in segs)
+
+
+def test_off_frame_prediction_is_a_candidate_while_its_search_ellipse_reaches_the_frame():
+    cam = Camera("c", 35.0, 0, 0, 0, 0, 0, 0, 0, 0, 0.036, 0.036, 1000, 750)
+    eo = [0.0, 0.0, 200.0, 0.0, 0.0, 0.0]
+    # 1 m of X0 sd = 35 / 200 / 0.036 = 4.861 px; the frame's right side, column 999.5, is 102.86 m
+    pts = np.array([[105.0, 0.0, 0.0], [150.0, 0.0, 0.0]])                       # 10.4 px and 229.2 px off
+    sd = np.r_[4.0, 0.001, 0.001, 0, 0, 0]                                       # 19.4 px along the columns
+    pr = predict_points(cam, eo, sd, pts, np.zeros((2, 3, 3)), search_sigma=3.5)
+    assert [p.status for p in pr] == ["visible", "outside"]
+    assert pr[0].reason.startswith("predicted at column 1009.9, row 374.5: off the 1000 x 750 frame, 0.5 sigma "
+                                   "away: within its 3.5-sigma ellipse"), pr[0].reason
+    assert pr[1].reason == "predicted at column 1228.7, row 374.5: off the 1000 x 750 frame"
+    # the default (search_sigma 0): the predicted pixel alone
+    assert [p.status for p in predict_points(cam, eo, sd, pts, np.zeros((2, 3, 3)))] == ["outside", "outside"]
+    # the Mahalanobis distance to the frame with a tilted ellipse: the nearest point of the side, by hand
+    cov = np.array([[100.0, 60.0], [60.0, 100.0]])
+    w = np.linalg.inv(cov)
+    ys = np.linspace(-0.5, 749.5, 75001)
+    d = np.zeros((len(ys), 2))                                                   # frame point minus prediction
+    d[:, 0] = 999.5 - 1009.5
+    d[:, 1] = ys - 300.0
+    want = math.sqrt(np.min(np.einsum("ni,ij,nj->n", d, w, d)))
+    got = frame_distance_sigma([[1009.5, 300.0]], [cov], (-0.5, 999.5), (-0.5, 749.5))[0]
+    assert got == pytest.approx(want, abs=1e-4)

@@ -131,7 +131,7 @@ STATUSES: dict[str, str] = {
     "weak_geometry": "the edges found meet at too small an angle",
     "too_dark": "the window is too dark to measure",
     "saturated": "the window is saturated",
-    "near_border": "the search window reaches past the photo's border",
+    "near_border": "the vertex found lies at the photo's border, or its edges are cut by it too short to fit",
     "user_rejected": "rejected by the user in a review (the survey's control_decisions.csv): not measured again",
 }
 
@@ -269,21 +269,31 @@ def grey(image: Any) -> np.ndarray:
     return a
 
 
-def _llr(chip: np.ndarray, masks: list[np.ndarray]) -> np.ndarray:
+def _llr(chip: np.ndarray, masks: list[np.ndarray], valid: np.ndarray | None = None) -> np.ndarray:
     """Per pixel of the template: the log-likelihood ratio of one grey level (mean, variance) per face vs one
-    for the whole template, for every shift."""
+    for the whole template, for every shift.  *valid* (0 off the photo): each face's pixels counted per
+    shift, only those on the photo (the replicated border would fake a uniform face)."""
     import cv2
 
     eps = 1.0
     n_tot, s_tot, q_tot, ll = 0.0, 0.0, 0.0, 0.0
+    part = valid is not None and not bool(np.all(valid > 0))
+    if part:
+        chip = chip * valid
     sq = chip * chip
     for m in masks:
-        nk = float(m.sum())
+        nk: Any = float(m.sum())
+        if part:   # a face needs 6 pixels on the photo at a shift to count there
+            nk = np.rint(cv2.matchTemplate(valid, m, cv2.TM_CCORR).astype(np.float64))
+            nk = np.where(nk >= 6, nk, 0.0)
         sk = cv2.matchTemplate(chip, m, cv2.TM_CCORR).astype(np.float64)
         qk = cv2.matchTemplate(sq, m, cv2.TM_CCORR).astype(np.float64)
-        var = np.maximum(qk / nk - (sk / nk) ** 2, 0.0) + eps
+        n1 = np.maximum(nk, 1.0)
+        var = np.maximum(qk / n1 - (sk / n1) ** 2, 0.0) + eps
         ll = ll - 0.5 * nk * np.log(var)
-        n_tot, s_tot, q_tot = n_tot + nk, s_tot + sk, q_tot + qk
+        n_tot, s_tot, q_tot = n_tot + nk, s_tot + sk * (nk > 0), q_tot + qk * (nk > 0)
+    if part:
+        n_tot = np.maximum(n_tot, 1.0)
     var_all = np.maximum(q_tot / n_tot - (s_tot / n_tot) ** 2, 0.0) + eps
     return (ll + 0.5 * n_tot * np.log(var_all)) / n_tot
 
@@ -430,6 +440,10 @@ class MeasureParams:
     #: a roof edge as a line observation (EdgeLine): sd of its direction from what the fit cannot see (deg),
     #: added to the free fit's (texture correlated along the edge tilts a fitted line)
     line_direction_sd_deg: float = 0.5
+    #: at the frame's border: "edges" -- a vertex whose edges (max_edge_px) reach past the border, predicted or
+    #: found, is near_border; "fit" -- the search clipped to the photo, each face scored on its pixels on the
+    #: photo, the edges fitted on their part inside, near_border only within 8 px (docs/photocontrol.md)
+    border: str = "edges"
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
@@ -503,25 +517,34 @@ def _setup(img: np.ndarray, camera: Camera, eo: Any, t: VertexTarget, p: Measure
     srch = int(min(p.max_search_px, math.ceil(p.search_sigma * pr.sd_max_px) + 2))
     H, W = img.shape
     m_edge = int(math.ceil(min(float(lens.max()), p.max_edge_px) + p.wide_band_px)) + 2
-    # the search may reach past the border (the photo is continued by its edge values there, where no
-    # template fits); the vertex found must have its edges on the photo (checked in _refine)
-    if c0 - m_edge < 0 or r0 - m_edge < 0 or c0 + m_edge >= W or r0 + m_edge >= H:
+    if p.border not in ("edges", "fit"):
+        raise ValueError(f"border must be 'edges' or 'fit', got {p.border!r}")
+    if p.border == "edges" and (c0 - m_edge < 0 or r0 - m_edge < 0 or c0 + m_edge >= W or r0 + m_edge >= H):
         return base.failed("near_border", f"the vertex's edges, {m_edge} px, around "
                                           f"column {c0}, row {r0} reach past the photo's border")
-    # the template may reach past the border: the photo is continued by its edge values there
-    import cv2
-
+    b = _border_px(p)
+    if c0 + srch < b or r0 + srch < b or c0 - srch >= W - b or r0 - srch >= H - b:
+        return base.failed("near_border", f"the search window, {srch} px around column {c0}, row {r0}, does "
+                                          f"not reach {b} px inside the photo")
+    # frame edge: the search (and the prediction itself) may reach past the border; only shifts that put
+    # the vertex on the photo, border_px inside, are searched (_scores), and the edges are fitted on
+    # their part inside the photo (_refine).  The template may reach past the border: the photo is
+    # continued by its edge values there (index clipping = replicated border, any offset)
     pad = half + srch
-    chip = cv2.copyMakeBorder(img, pad, pad, pad, pad, cv2.BORDER_REPLICATE)[r0:r0 + 2 * pad + 1,
-                                                                             c0:c0 + 2 * pad + 1]
-    chip = np.ascontiguousarray(chip, dtype=np.float32)
+    rows = np.clip(np.arange(r0 - pad, r0 + pad + 1), 0, H - 1)
+    cols = np.clip(np.arange(c0 - pad, c0 + pad + 1), 0, W - 1)
+    chip = np.ascontiguousarray(img[np.ix_(rows, cols)], dtype=np.float32)
+    valid = ((np.arange(r0 - pad, r0 + pad + 1) == rows)[:, None]
+             & (np.arange(c0 - pad, c0 + pad + 1) == cols)[None, :]).astype(np.float32)
+    if p.border == "edges":
+        valid = np.ones_like(valid)
     if float(np.median(chip)) < p.dark:
         return base.failed("too_dark", f"median grey value {float(np.median(chip)):.0f} below {p.dark:g}")
     if float(np.mean(chip >= p.saturation)) > 0.5:
         return base.failed("saturated", f"{100 * float(np.mean(chip >= p.saturation)):.0f} % of the window "
                                         f"at or above {p.saturation:g}")
     return dict(base=base, edges=edges, units=units, lens=lens, t0s=t0s, half=half, srch=srch, chip=chip,
-                masks=masks, c0=c0, r0=r0, vpx=vpx, m_edge=m_edge, size=(W, H))
+                masks=masks, c0=c0, r0=r0, vpx=vpx, size=(W, H), valid=valid, m_edge=m_edge)
 
 
 def _scores(ctx: dict, p: MeasureParams) -> np.ndarray:
@@ -529,10 +552,36 @@ def _scores(ctx: dict, p: MeasureParams) -> np.ndarray:
     half, srch = ctx["half"], ctx["srch"]
     if p.coarse == "lines":
         full = _line_score(ctx["chip"], ctx["units"], np.minimum(ctx["lens"], p.max_edge_px), ctx["t0s"])
-        return full[half:half + 2 * srch + 1, half:half + 2 * srch + 1]
-    if p.coarse == "likelihood":
-        return _llr(ctx["chip"], ctx["masks"])
-    raise ValueError(f"coarse must be 'lines' or 'likelihood', got {p.coarse!r}")
+        sc = full[half:half + 2 * srch + 1, half:half + 2 * srch + 1]
+    elif p.coarse == "likelihood":
+        sc = _llr(ctx["chip"], ctx["masks"], ctx["valid"])
+    else:
+        raise ValueError(f"coarse must be 'lines' or 'likelihood', got {p.coarse!r}")
+    if p.border == "edges":
+        return sc
+    # the search is clipped to the photo: a shift putting the vertex within border_px of the border is not tried
+    W, H = ctx["size"]
+    b = _border_px(p)
+    dc, dr = ctx["c0"] + np.arange(-srch, srch + 1), ctx["r0"] + np.arange(-srch, srch + 1)
+    on = ((dr >= b) & (dr < H - b))[:, None] & ((dc >= b) & (dc < W - b))[None, :]
+    return np.where(on, sc, -np.inf)
+
+
+def _border_px(p: "MeasureParams") -> int:
+    """A vertex nearer than this to the border has no edge profile (``wide_band_px`` + 3 px) beside it (px)."""
+    return int(math.ceil(p.wide_band_px + 3.0)) + 1
+
+
+def _inside_px(origin: np.ndarray, u: np.ndarray, size: tuple[int, int], margin: float) -> float:
+    """How far (px) from *origin* along *u* the line stays *margin* px inside the W x H photo."""
+    W, H = size
+    t = np.inf
+    for o, d, hi in ((origin[0], u[0], W - 1 - margin), (origin[1], u[1], H - 1 - margin)):
+        if d > 1e-12:
+            t = min(t, (hi - o) / d)
+        elif d < -1e-12:
+            t = min(t, (margin - o) / d)
+    return float(max(t, 0.0))
 
 
 def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> Measurement:
@@ -541,18 +590,30 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
     origin = ctx["vpx"] + shift
     W, H = ctx["size"]
     me = ctx["m_edge"]
-    if not (me <= origin[0] < W - me and me <= origin[1] < H - me):
+    if p.border == "edges" and not (me <= origin[0] < W - me and me <= origin[1] < H - me):
         return base.failed("near_border", f"the vertex found at column {origin[0]:.0f}, row {origin[1]:.0f}: its "
                                           f"edges, {me} px, reach past the photo's border")
-    fits, why, fits_planes = [], [], []
+    bd = _border_px(p)
+    if not (bd <= origin[0] < W - bd and bd <= origin[1] < H - bd):
+        return base.failed("near_border", f"the vertex found at column {origin[0]:.0f}, row {origin[1]:.0f} lies "
+                                          f"within {bd} px of the photo's border: no edge profile beside it")
+    fits, why, fits_planes, cut_failed = [], [], [], 0
     for k, e in enumerate(ctx["edges"]):
         # the edge's far end is a junction (a vertex, an eave corner) unless the edge is cut at max_edge_px
+        length = min(float(ctx["lens"][k]), p.max_edge_px)
         far = float(ctx["t0s"][k]) if float(ctx["lens"][k]) <= p.max_edge_px else 1.0
-        fit, reason = _fit_edge(img, origin, ctx["units"][k], min(float(ctx["lens"][k]), p.max_edge_px),
+        # fitted on its part inside the photo (the profiles, band_px + 3 px across, on the photo)
+        inside = _inside_px(origin, ctx["units"][k], (W, H), p.band_px + 3.0)
+        cut = p.border == "fit" and inside < length
+        if cut:
+            length, far = inside, 1.0
+        fit, reason = _fit_edge(img, origin, ctx["units"][k], length,
                                 ctx["t0s"][k], p.band_px, p.min_points, p.min_contrast, p.min_sd_px,
                                 p.min_ratio, p.max_scatter_px, p.smooth_px, far, p.direction_sd_deg)
         if fit is None:
-            why.append(f"edge of planes {e.planes[0] + 1}-{e.planes[1] + 1}: {reason}")
+            cut_failed += int(cut)
+            why.append(f"edge of planes {e.planes[0] + 1}-{e.planes[1] + 1}: {reason}"
+                       + (f" (cut at {length:.0f} px by the photo's border)" if cut else ""))
             continue
         fits.append((ctx["units"][k], fit))
         fits_planes.append(e.planes)
@@ -569,7 +630,8 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
 
     base = replace(base, edge_lines=())
     if len(fits) < 2:
-        return replace(base.failed("no_edges", f"{len(fits)} of {len(ctx['edges'])} edges found in the photo"
+        return replace(base.failed("near_border" if len(fits) + cut_failed >= 2 else "no_edges",
+                                   f"{len(fits)} of {len(ctx['edges'])} edges found in the photo"
                                    + (f" ({'; '.join(why)})" if why else "")),
                        edge_lines=edge_lines(range(len(fits)), True))
     lines, mm, cc, covs = [], [], [], []
@@ -648,7 +710,9 @@ def _intersect(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, origin: n
     return x, n_mat, float(np.sum(w * r * r))
 
 
-def _masked_best(score: np.ndarray, ctx: dict, centre: np.ndarray, cinv: np.ndarray, radius2: float) -> np.ndarray:
+def _masked_best(score: np.ndarray, ctx: dict, centre: np.ndarray, cinv: np.ndarray, radius2: float,
+                 value: bool = False) -> Any:
+    """The best shift (2,) within the ellipse; *value*: its score instead (-inf: none searched on the photo)."""
     srch = ctx["srch"]
     dy, dx = np.mgrid[-srch:srch + 1, -srch:srch + 1]
     d = np.stack([dx + (ctx["c0"] - ctx["vpx"][0]) - centre[0], dy + (ctx["r0"] - ctx["vpx"][1]) - centre[1]],
@@ -656,6 +720,8 @@ def _masked_best(score: np.ndarray, ctx: dict, centre: np.ndarray, cinv: np.ndar
     m2 = np.einsum("...i,ij,...j->...", d, cinv, d)
     sc = np.where(m2 <= radius2, score, -np.inf)
     iy, ix = np.unravel_index(int(np.argmax(sc)), sc.shape)
+    if value:
+        return float(sc[iy, ix])
     return np.array([float(dx[iy, ix] + ctx["c0"] - ctx["vpx"][0]), float(dy[iy, ix] + ctx["r0"] - ctx["vpx"][1])])
 
 
@@ -715,6 +781,13 @@ def measure_photo(image: Any, camera: Camera, eo: Any, targets: Sequence[VertexT
         lim = 1.0 if len(live) > 1 else p.search_sigma**2
         ci = local if len(live) > 1 else np.linalg.inv(np.asarray(targets[k].prediction.cov_px2) + np.eye(2) * 0.25)
         best = _masked_best(scores[k], ctx, start, ci, lim)
+        if not np.isfinite(_masked_best(scores[k], ctx, start, ci, lim, value=True)):
+            # every shift searched puts the vertex off the photo (border_px inside): not on this photo
+            out[k] = ctx["base"].failed("not_visible", "off the photo: no shift searched ("
+                                        + ("about the photo's common shift" if len(live) > 1 else "in its ellipse")
+                                        + f") puts it {_border_px(p)} px inside the frame (predicted at column "
+                                        f"{ctx['vpx'][0]:.0f}, row {ctx['vpx'][1]:.0f})")
+            continue
         if p.coarse != "lines" and p.refine_px > 0:
             # the edges' directional gradient, near the coarse shift: the vertex to a pixel or so
             lines = _scores(ctx, replace(p, coarse="lines"))

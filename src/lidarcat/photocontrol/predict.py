@@ -38,8 +38,17 @@ normalised).  A plane's error moves its distance :math:`e_i(x) = \tilde x^T \del
 terms between ``A`` and ``B`` (one plane tilted moves both) included.  Along the line it is
 0 (``A, B`` are defined by their position along it; the observation does not see it).
 
-**Visibility.**  A vertex is *outside* when its predicted pixel lies off the
-frame (a margin keeps the measuring window on the photo), *behind* when it is
+**Visibility.**  A vertex is *outside* when its ``search_sigma`` ellipse (the
+window the measurement searches, 3.5 sigma) does not reach the frame (less a
+margin): the smallest Mahalanobis distance :math:`\min_{x \in F} (x - c)^T
+\Sigma_c^{-1} (x - c)` from the prediction :math:`c` to the frame rectangle
+:math:`F` exceeds ``search_sigma``\ :sup:`2`.  Outside the frame the minimum lies on
+one of its four sides; on the side :math:`x_1 = a` it is at :math:`x_2 = c_2 -
+(W_{12}/W_{22}) (a - c_1)` (:math:`W = \Sigma_c^{-1}`), clipped to the side.  A
+prediction off the frame whose ellipse overlaps it is a candidate (``visible``;
+its reason says so): with the approximate orientation's ~20 px sd a vertex
+predicted 15 px off may be 29 px inside, and the measurement searches only the
+part of the ellipse on the photo.  It is *behind* when it is
 behind the camera, and *occluded* when the LiDAR surface model rises above the
 ray from the vertex towards the projection centre: the DSM is sampled along
 the ray from ``start_m`` (clear of the vertex's own roof) in steps of
@@ -60,12 +69,13 @@ from ..geometry.camera import Camera
 from ..geometry.collinearity import project
 
 __all__ = ["Prediction", "RoofEdge", "pixel_positions", "pixel_jacobians", "predict_points", "occluded",
-           "roof_edges", "predict_edges", "ellipse_axes", "face_labels", "edge_line_m", "VISIBILITY"]
+           "roof_edges", "predict_edges", "ellipse_axes", "face_labels", "edge_line_m", "frame_distance_sigma",
+           "VISIBILITY"]
 
 #: visibility statuses of a prediction and their meaning
 VISIBILITY: dict[str, str] = {
     "visible": "on the photo and not hidden by the LiDAR surface",
-    "outside": "predicted off the photo (or too near its border for the measuring window)",
+    "outside": "predicted off the photo, and its search ellipse does not reach the photo either",
     "behind": "behind the camera",
     "occluded": "hidden by the LiDAR surface between the vertex and the camera",
 }
@@ -126,6 +136,44 @@ def ellipse_axes(cov_px2: Any, k: float = 1.0) -> tuple[float, float, float]:
     val = np.maximum(val, 0.0)
     return (k * math.sqrt(val[1]), k * math.sqrt(val[0]),
             math.degrees(math.atan2(vec[1, 1], vec[0, 1])))
+
+
+def frame_distance_sigma(px: Any, cov_px2: Any, cols: tuple[float, float], rows: tuple[float, float]) -> np.ndarray:
+    """(N,) smallest Mahalanobis distance (sigmas) from each prediction to the frame rectangle; 0 inside.
+
+    Parameters
+    ----------
+    px : (N, 2) column, row (px)
+    cov_px2 : (N, 2, 2) their covariances (px^2)
+    cols, rows : (lo, hi) the rectangle's columns and rows (px)
+
+    Examples
+    --------
+    >>> round(float(frame_distance_sigma([[-10.0, 5.0]], [np.diag([25.0, 25.0])], (0, 99), (0, 99))[0]), 6)
+    2.0
+    """
+    c = np.asarray(px, dtype=np.float64).reshape(-1, 2)
+    cov = np.asarray(cov_px2, dtype=np.float64).reshape(-1, 2, 2)
+    out = np.full(len(c), np.inf)
+    fin = np.isfinite(c).all(axis=1)
+    inside = fin & (c[:, 0] >= cols[0]) & (c[:, 0] <= cols[1]) & (c[:, 1] >= rows[0]) & (c[:, 1] <= rows[1])
+    out[inside] = 0.0
+    todo = fin & ~inside
+    if not todo.any():
+        return out
+    w = np.linalg.pinv(cov[todo] + np.eye(2) * 1e-9)       # (M, 2, 2)
+    cc = c[todo]
+    best = np.full(len(cc), np.inf)
+    for axis, lims, span in ((0, cols, rows), (1, rows, cols)):
+        o = 1 - axis
+        for a in lims:
+            da = a - cc[:, axis]
+            t = cc[:, o] - w[:, axis, o] / np.maximum(w[:, o, o], 1e-300) * da
+            db = np.clip(t, span[0], span[1]) - cc[:, o]
+            d2 = w[:, axis, axis] * da**2 + 2 * w[:, axis, o] * da * db + w[:, o, o] * db**2
+            best = np.minimum(best, d2)
+    out[todo] = np.sqrt(np.maximum(best, 0.0))
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,7 +244,7 @@ def occluded(dsm: Callable[[np.ndarray, np.ndarray], np.ndarray], xyz_m: Any, ce
 def predict_points(camera: Camera, eo: Any, eo_cov: Any, xyz_m: Any, xyz_cov: Any, *,
                    points: Sequence[str] | None = None, photo: str = "",
                    dsm: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-                   margin_px: float = 0.0) -> list[Prediction]:
+                   margin_px: float = 0.0, search_sigma: float = 0.0) -> list[Prediction]:
     """Predicted pixel positions with their covariance and visibility on one photo.
 
     Parameters
@@ -211,7 +259,11 @@ def predict_points(camera: Camera, eo: Any, eo_cov: Any, xyz_m: Any, xyz_cov: An
     dsm : callable, optional
         LiDAR surface ``dsm(e, n) -> h`` for the occlusion test (:func:`occluded`).
     margin_px : float
-        A prediction nearer than this to the frame's border is "outside".
+        The frame less this margin (px) is what the ellipse must reach.
+    search_sigma : float
+        "outside" only when the ellipse of this many sigmas (the measurement's search,
+        ``MeasureParams.search_sigma``, 3.5, with ``MeasureParams(border="fit")``) does not reach the
+        frame; 0 (the default): the predicted pixel alone.
 
     Returns
     -------
@@ -235,15 +287,25 @@ def predict_points(camera: Camera, eo: Any, eo_cov: Any, xyz_m: Any, xyz_cov: An
     jp, jx = pixel_jacobians(camera, eo, x)
     cov = jp @ ec @ jp.transpose(0, 2, 1) + jx @ xc @ jx.transpose(0, 2, 1)
     hidden = occluded(dsm, x, np.asarray(eo, dtype=np.float64)[:3]) if dsm is not None else np.zeros(len(x), bool)
+    lo = -0.5 + margin_px
+    reach = frame_distance_sigma(px, cov, (lo, camera.columns_px - 0.5 - margin_px),
+                                 (lo, camera.rows_px - 0.5 - margin_px))
     out = []
     for k in range(len(x)):
         status, reason = "visible", ""
         if not np.isfinite(px[k]).all():
             status, reason = "behind", "behind the camera or far off the frame"
         elif not camera.contains(px[k][None], margin_px=-margin_px)[0]:
-            status, reason = "outside", (f"predicted at column {px[k, 0]:.1f}, row {px[k, 1]:.1f}: off the "
-                                         f"{camera.columns_px} x {camera.rows_px} frame"
-                                         + (f" less a {margin_px:g} px margin" if margin_px else ""))
+            frame = f"{camera.columns_px} x {camera.rows_px} frame" + (f" less a {margin_px:g} px margin"
+                                                                        if margin_px else "")
+            where = f"predicted at column {px[k, 0]:.1f}, row {px[k, 1]:.1f}"
+            if reach[k] > search_sigma:
+                status, reason = "outside", f"{where}: off the {frame}"   # its ellipse too
+            elif hidden[k]:
+                status, reason = "occluded", "the LiDAR surface rises above the ray to the camera"
+            else:
+                reason = (f"{where}: off the {frame}, {reach[k]:.1f} sigma away: within its "
+                          f"{search_sigma:g}-sigma ellipse, searched on the photo")
         elif hidden[k]:
             status, reason = "occluded", "the LiDAR surface rises above the ray to the camera"
         out.append(Prediction(ids[k], str(photo), px[k], cov[k], status, reason))
