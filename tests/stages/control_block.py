@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -27,10 +28,9 @@ def write_rows(path: Path, fields, rows) -> None:
         w.writerows(rows)
 
 
-def measured_block(base: Path) -> tuple[Path, Path]:
-    """(unmeasured survey folder, the same measured by measure-control) under *base*: copy before changing
-    either."""
-    root = base / "s"
+def make_block(root: Path) -> tuple[Any, np.ndarray]:
+    """The block written to *root* with the town's roof vertices as LiDAR control ``L001`` ..: (the
+    :class:`~lidarcat.synthetic.aerial.AerialSurvey` with its truth, the vertices (N, 3) m in id order)."""
     s = aerial_survey(root, n_strips=1, photos_per_strip=2, gsd_m=0.12, image_size_px=(640, 480),
                       lidar_density_m2=10, lidar_noise_m=0.03, n_gps_points=4, seed=2)
     sc = s.scene
@@ -38,6 +38,14 @@ def measured_block(base: Path) -> tuple[Path, Path]:
     gp = root / "ground_points.csv"
     gp.write_text(gp.read_text().rstrip("\n") + "\n" + "\n".join(
         f"L{i + 1:03d},{v[0]:.3f},{v[1]:.3f},{v[2]:.3f},0.02,0.02,0.02,lidar" for i, v in enumerate(verts)) + "\n")
+    return s, verts
+
+
+def measured_block(base: Path) -> tuple[Path, Path]:
+    """(unmeasured survey folder, the same measured by measure-control) under *base*: copy before changing
+    either."""
+    root = base / "s"
+    make_block(root)
     measured = base / "m"
     shutil.copytree(root, measured)
     measure_control(measured, gallery=False)

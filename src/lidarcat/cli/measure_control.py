@@ -66,6 +66,10 @@ line_control.csv, control_decisions.csv and survey.toml are left as they were th
 @click.option("--lone-photo", type=click.Choice(["keep", "reject"]), default="keep", show_default=True,
               help="A measurement alone on its photo (the per-photo test cannot test it): keep it for the block "
                    "test, or reject it.")
+@click.option("--border", type=click.Choice(["edges", "fit"]), default="edges", show_default=True,
+              help="A vertex near the photo's border: edges = near_border when its roof edges reach past the "
+                   "border; fit = predicted outside only when its search ellipse misses the frame, searched and "
+                   "its edges fitted on the part inside (near_border within 8 px of the border).")
 @click.option("--search-sigma", type=POSITIVE, default=3.5, show_default=True,
               help="Search the vertex within this many sigmas of its predicted ellipse.")
 @click.option("--max-shift", "max_shift_m", type=POSITIVE, default=0.5, show_default=True,
@@ -74,7 +78,7 @@ line_control.csv, control_decisions.csv and survey.toml are left as they were th
                help="Report folder (default SURVEY/out/measure_control).")
 @json_option(help="Print the counts as JSON.")
 def measure_control(survey, points, decisions, line_decisions, replace, no_gallery, lines, block_check, lone_photo,
-                    search_sigma, max_shift_m, outdir, as_json) -> None:
+                    border, search_sigma, max_shift_m, outdir, as_json) -> None:
     """LiDAR roof vertices found and measured in the photos, into image_points.csv."""
     from ..photocontrol import MeasureParams
     from ..stages.measure_control import measure_control as action
@@ -87,7 +91,7 @@ def measure_control(survey, points, decisions, line_decisions, replace, no_galle
                 bar.update(done - bar.pos)
 
         res = action(survey, outdir, points=ids, decisions=decisions, line_decisions=line_decisions, replace=replace,
-                     gallery=not no_gallery, params=MeasureParams(search_sigma=search_sigma), max_shift_m=max_shift_m,
+                     gallery=not no_gallery, params=MeasureParams(search_sigma=search_sigma, border=border), max_shift_m=max_shift_m,
                      lines=lines, block_check=block_check, lone_photo=lone_photo, progress=progress)
     if as_json:
         echo_json({**res.to_dict(), "summary": res.summary})

@@ -365,8 +365,10 @@ def _unmeasured(vid: str, pid: str, status: str, reason: str) -> Any:
 
 def _predict(survey: Any, verts: list[tuple[str, np.ndarray]], photos: list[str], eos: dict, covs: dict,
              review: _Review, *, replace: bool, dsm_radius_m: float, max_shift_m: float,
-             progress: Callable[[int, int], Any] | None, total: int) -> tuple[list[Any], dict, dict]:
-    """Step 1: every vertex extracted again from the LiDAR around it and predicted in every photo.
+             progress: Callable[[int, int], Any] | None, total: int, search_sigma: float = 0.0
+             ) -> tuple[list[Any], dict, dict]:
+    """Step 1: every vertex extracted again from the LiDAR around it and predicted in every photo
+    (*search_sigma* > 0: ``outside`` only when that ellipse misses the frame, :func:`~lidarcat.photocontrol.predict_points`).
 
     Returns the measurements of the pairs not measured (``no_vertex``, ``user_rejected``), the targets of each
     photo (``photo -> [(vertex, VertexTarget)]``; not the pairs observed or accepted by the user, unless
@@ -409,7 +411,7 @@ def _predict(survey: Any, verts: list[tuple[str, np.ndarray]], photos: list[str]
                 continue
             cam = survey.camera_of(pid)
             pr = predict_points(cam, eos[pid], covs[pid], cp.enh_m[None], cp.cov_m2[None], points=[vid], photo=pid,
-                                dsm=dsm)[0]
+                                dsm=dsm, search_sigma=search_sigma)[0]
             targets.setdefault(pid, []).append((vid, VertexTarget(cp.enh_m, cp.planes, xyz, pr)))
     return results, targets, vertex_info
 
@@ -703,9 +705,12 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     review = _Review.of(survey)
     photos = [pid for pid in survey.photo_ids if pid in eos]
     total = len(verts) + len(photos)
+    # the frame edge (MeasureParams.border): "fit" predicts a vertex outside only when its search ellipse misses
+    # the frame, and measures it on the part of the photo there is (docs/photocontrol.md steps 2-3)
+    fit_border = params is not None and getattr(params, "border", "edges") == "fit"
     results, targets, vertex_info = _predict(survey, verts, photos, eos, covs, review, replace=replace,
                                              dsm_radius_m=dsm_radius_m, max_shift_m=max_shift_m, progress=progress,
-                                             total=total)
+                                             total=total, search_sigma=params.search_sigma if fit_border else 0.0)
     per_vertex, images = _measure_photos(survey, photos, targets, vertex_info, eos, covs, params=params,
                                          direction_from_kappa=direction_from_kappa, lone_photo=lone_photo,
                                          gallery=gallery, progress=progress, done=len(verts), total=total)
