@@ -50,3 +50,22 @@ def measured_block(base: Path) -> tuple[Path, Path]:
     shutil.copytree(root, measured)
     measure_control(measured, gallery=False)
     return root, measured
+
+
+def edited_decisions(root: Path, point_changes: dict | None = None, line_changes: dict | None = None,
+                     keep: Any = None) -> tuple[Path, Path]:
+    """The measured block's decisions.csv and line_decisions.csv with *changes* ((point|line, photo) -> cells)
+    applied (and only the rows *keep* says yes to), written beside line_candidates.csv as a user's edit."""
+    from lidarcat.stages.measure_control import DECISION_FIELDS, LINE_DECISION_FIELDS
+
+    out = root / "out" / "measure_control"
+    dec, ldec = read_rows(out / "decisions.csv"), read_rows(out / "line_decisions.csv")
+    for r in dec:
+        r.update((point_changes or {}).get((r["point"], r["photo"]), {}))
+    for r in ldec:
+        r.update((line_changes or {}).get((r["line"], r["photo"]), {}))
+    if keep is not None:
+        dec, ldec = [r for r in dec if keep(r)], [r for r in ldec if keep(r)]
+    write_rows(out / "edited_decisions.csv", DECISION_FIELDS, dec)
+    write_rows(out / "edited_lines.csv", LINE_DECISION_FIELDS, ldec)
+    return out / "edited_decisions.csv", out / "edited_lines.csv"

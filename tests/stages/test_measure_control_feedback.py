@@ -24,7 +24,7 @@ from lidarcat.stages.measure_control import DECISION_FIELDS, LINE_CANDIDATES, LI
 from lidarcat.survey.folder import Survey
 from lidarcat.survey.lines import read_line_control
 
-from control_block import measured_block, read_rows, write_rows
+from control_block import edited_decisions, measured_block, read_rows, write_rows
 
 
 _rows, _write = read_rows, write_rows
@@ -135,18 +135,7 @@ def test_an_unreadable_photo_fails_the_run_and_nothing_is_written(blocks, tmp_pa
 
 # -- the review: decisions fed back --------------------------------------------------------------------------
 
-def _edited(root, point_changes=None, line_changes=None):
-    """decisions.csv and line_decisions.csv of the measured block with *changes* ((point|line, photo) -> cells),
-    written next to line_candidates.csv (a copy of the output folder)."""
-    out = root / "out" / "measure_control"
-    dec, ldec = _rows(out / "decisions.csv"), _rows(out / "line_decisions.csv")
-    for r in dec:
-        r.update((point_changes or {}).get((r["point"], r["photo"]), {}))
-    for r in ldec:
-        r.update((line_changes or {}).get((r["line"], r["photo"]), {}))
-    _write(out / "edited_decisions.csv", DECISION_FIELDS, dec)
-    _write(out / "edited_lines.csv", LINE_DECISION_FIELDS, ldec)
-    return out / "edited_decisions.csv", out / "edited_lines.csv"
+_edited = edited_decisions
 
 
 def test_edges_accepted_instead_of_the_point_go_to_line_control_and_back(blocks, tmp_path):

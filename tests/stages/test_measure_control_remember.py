@@ -26,7 +26,7 @@ from lidarcat.stages.measure_control import (DECISION_FIELDS, LINE_CANDIDATES, L
 from lidarcat.survey.decisions import DECISION_COLUMNS
 from lidarcat.survey.folder import Survey
 
-from control_block import measured_block, read_rows, write_rows
+from control_block import edited_decisions, measured_block, read_rows, write_rows
 
 
 _rows, _write = read_rows, write_rows
@@ -44,20 +44,7 @@ def _copy(src, tmp_path):
     return dst
 
 
-def _edited(root, point_changes=None, line_changes=None, keep=None):
-    """The measured block's decisions.csv and line_decisions.csv with *changes* applied (and only the rows *keep*
-    says yes to), written beside line_candidates.csv."""
-    out = root / "out" / "measure_control"
-    dec, ldec = _rows(out / "decisions.csv"), _rows(out / "line_decisions.csv")
-    for r in dec:
-        r.update((point_changes or {}).get((r["point"], r["photo"]), {}))
-    for r in ldec:
-        r.update((line_changes or {}).get((r["line"], r["photo"]), {}))
-    if keep is not None:
-        dec, ldec = [r for r in dec if keep(r)], [r for r in ldec if keep(r)]
-    _write(out / "edited_decisions.csv", DECISION_FIELDS, dec)
-    _write(out / "edited_lines.csv", LINE_DECISION_FIELDS, ldec)
-    return out / "edited_decisions.csv", out / "edited_lines.csv"
+_edited = edited_decisions
 
 
 def _lidar_obs(root):
