@@ -125,3 +125,20 @@ def test_off_frame_prediction_is_a_candidate_while_its_search_ellipse_reaches_th
     want = math.sqrt(np.min(np.einsum("ni,ij,nj->n", d, w, d)))
     got = frame_distance_sigma([[1009.5, 300.0]], [cov], (-0.5, 999.5), (-0.5, 749.5))[0]
     assert got == pytest.approx(want, abs=1e-4)
+
+
+def test_an_undefined_ellipse_off_the_frame_is_outside_not_an_error():
+    """A vertex covariance that is not finite (NaN from an upstream fit) made frame_distance_sigma's pinv fail
+    ("SVD did not converge") on a real AHN3 block: such a prediction off the frame is outside, one inside stays
+    visible, and the rest of the batch is unaffected."""
+    cam = Camera("c", 35.0, 0, 0, 0, 0, 0, 0, 0, 0, 0.036, 0.036, 1000, 750)
+    eo = [0.0, 0.0, 200.0, 0.0, 0.0, 0.0]
+    pts = np.array([[105.0, 0.0, 0.0], [105.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    xc = np.zeros((3, 3, 3))
+    xc[1] = np.nan
+    xc[2] = np.nan
+    sd = np.r_[4.0, 0.001, 0.001, 0, 0, 0]
+    pr = predict_points(cam, eo, sd, pts, xc, search_sigma=3.5)
+    assert [p.status for p in pr] == ["visible", "outside", "visible"]
+    assert np.isinf(frame_distance_sigma([[1009.9, 374.5]], [np.full((2, 2), np.nan)], (-0.5, 999.5),
+                                         (-0.5, 749.5))[0])

@@ -158,7 +158,7 @@ def frame_distance_sigma(px: Any, cov_px2: Any, cols: tuple[float, float], rows:
     fin = np.isfinite(c).all(axis=1)
     inside = fin & (c[:, 0] >= cols[0]) & (c[:, 0] <= cols[1]) & (c[:, 1] >= rows[0]) & (c[:, 1] <= rows[1])
     out[inside] = 0.0
-    todo = fin & ~inside
+    todo = fin & ~inside & np.isfinite(cov).all(axis=(1, 2))   # an undefined ellipse: inf (outside)
     if not todo.any():
         return out
     w = np.linalg.pinv(cov[todo] + np.eye(2) * 1e-9)       # (M, 2, 2)
@@ -289,7 +289,8 @@ def predict_points(camera: Camera, eo: Any, eo_cov: Any, xyz_m: Any, xyz_cov: An
     hidden = occluded(dsm, x, np.asarray(eo, dtype=np.float64)[:3]) if dsm is not None else np.zeros(len(x), bool)
     lo = -0.5 + margin_px
     reach = frame_distance_sigma(px, cov, (lo, camera.columns_px - 0.5 - margin_px),
-                                 (lo, camera.rows_px - 0.5 - margin_px))
+                                 (lo, camera.rows_px - 0.5 - margin_px)) if search_sigma > 0 else \
+        np.full(len(x), np.inf)       # without a search ellipse a prediction off the frame is outside
     out = []
     for k in range(len(x)):
         status, reason = "visible", ""
