@@ -260,8 +260,10 @@ def _decision_rows(ms: Sequence[Any]) -> list[list[Any]]:
     return rows
 
 
+#: statuses of a vertex not measured on a photo for a reason of the photo or the vertex: its edges there say that reason
+_UNMEASURED = ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected")
 #: statuses of a vertex measurement whose roof edges are never written (nor tested)
-_NO_EDGE_STATUSES = ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected", "rejected")
+_NO_EDGE_STATUSES = _UNMEASURED + ("rejected",)
 
 
 def _block_edges(per_vertex: dict, vertex_info: dict, lines: str, line_rejected: Any) -> list[Any]:
@@ -509,7 +511,7 @@ def _edge_status(m: Any, lid: str, el: Any, lines: str, review: _Review,
     """(status, reason) of the roof edge *lid* of measurement *m*'s vertex on its photo (*el*: its image edge or
     None): ``written`` or why not (module docstring, "Line control"); *block_lines*: (line, photo) -> why the
     block test rejected the edge."""
-    if m.status in ("not_visible", "too_dark", "saturated", "near_border", "no_vertex", "user_rejected"):
+    if m.status in _UNMEASURED:
         return "not_written", f"{m.status}: {m.reason}"
     if block_lines and (lid, m.photo) in block_lines:
         return "not_written", block_lines[(lid, m.photo)]
@@ -707,7 +709,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     total = len(verts) + len(photos)
     # the frame edge (MeasureParams.border): "fit" predicts a vertex outside only when its search ellipse misses
     # the frame, and measures it on the part of the photo there is (docs/photocontrol.md steps 2-3)
-    fit_border = params is not None and getattr(params, "border", "edges") == "fit"
+    fit_border = params is not None and params.border == "fit"
     results, targets, vertex_info = _predict(survey, verts, photos, eos, covs, review, replace=replace,
                                              dsm_radius_m=dsm_radius_m, max_shift_m=max_shift_m, progress=progress,
                                              total=total, search_sigma=params.search_sigma if fit_border else 0.0)
