@@ -365,6 +365,81 @@ def _snoop_ties(ties: TieObservations, keep: np.ndarray, cameras, eos, eo_covs, 
     return _clean_ties(ties.photo, ties.point, out), eo, ""
 
 
+def _live_measurements(ms: list[Measurement], edges: list[EdgeObservation], cameras: Mapping[str, Camera],
+                       eos: Mapping[str, Any], eo_covs: Mapping[str, Any], vertices_m: Mapping[str, Any],
+                       vertex_covs: Mapping[str, Any], ties: TieObservations | None) -> tuple[list[int], dict]:
+    """The indices of the measurements the block adjusts and those its *edges* stand for (``(point, photo) ->
+    index``), the inputs checked (located errors, :func:`check_block`)."""
+    live = [k for k, m in enumerate(ms) if m and np.isfinite(m.px).all() and np.isfinite(m.cov_px2).all()]
+    for k in live:
+        m = ms[k]
+        _check_photo_inputs(m.photo, f"a measurement of point {m.point!r}", cameras, eos, eo_covs)
+        if m.point not in vertices_m or m.point not in vertex_covs:
+            raise LidarcatError(f"point {m.point!r}: measured on photo {m.photo!r} but no vertex coordinates or "
+                                "covariance for it")
+    for e in edges:
+        _check_photo_inputs(e.photo, f"an edge of line {e.line!r}", cameras, eos, eo_covs)
+    # a vertex measured on a photo where its edges are tested: the edges stand for it (the same fits)
+    edge_pairs = {(e.point, e.photo) for e in edges}
+    replaced = {(ms[k].point, ms[k].photo): k for k in live if (ms[k].point, ms[k].photo) in edge_pairs}
+    live = [k for k in live if (ms[k].point, ms[k].photo) not in replaced]
+    if ties is not None:
+        for pid in sorted(set(ties.photo.tolist())):
+            _check_photo_inputs(pid, "tie observations", cameras, eos, eo_covs)
+    if not live and not edges:
+        return live, replaced
+    used = {ms[k].photo for k in live} | {e.photo for e in edges} | \
+        (set(ties.photo.tolist()) if ties is not None else set())
+    for pid in sorted(used):
+        if not np.all(_dominant_sd(np.asarray(eo_covs[pid], float).reshape(6, 6)) > 0):
+            raise LidarcatError(f"photo {pid!r}: the covariance of its approximate orientation has a zero or "
+                                "undefined variance (use inf for a free parameter)")
+    for v in sorted({ms[k].point for k in live}):
+        if not np.all(_dominant_sd(np.asarray(vertex_covs[v], float).reshape(3, 3)) > 0):
+            raise LidarcatError(f"point {v!r}: the covariance of the LiDAR vertex has a zero or undefined variance")
+    return live, replaced
+
+
+def _prepared_ties(ties: TieObservations | None, cameras: Mapping[str, Camera], eos: Mapping[str, Any],
+                   eo_covs: Mapping[str, Any], snoop_ties: bool) -> tuple:
+    """The tie observations in photo coordinates (mm) with their sds, the kept mask (points on >= 2 photos,
+    photos with >= 3 ties, snooped on their own when *snoop_ties*), the ties' adjusted orientations (a warm
+    start), a note, and the counts rejected by snooping and dropped by the ray rules."""
+    n_t = 0 if ties is None else len(ties)
+    t_xy = np.zeros((n_t, 2))
+    t_sd = np.zeros((n_t, 2))
+    for pid in sorted(set(ties.photo.tolist())) if n_t else []:
+        sel = ties.photo == pid
+        cam = cameras[pid]
+        t_xy[sel] = cam.pixel_to_photo(ties.px[sel])
+        t_sd[sel] = cam.photo_sd(ties.px[sel], np.repeat(ties.sd_px[sel, None], 2, axis=1))
+    t_keep = _clean_ties(ties.photo, ties.point) if n_t else np.zeros(0, dtype=bool)
+    dropped = int(n_t - t_keep.sum())
+    start: dict[str, np.ndarray] = {}
+    note = ""
+    n_tie_rej = 0
+    if t_keep.any() and snoop_ties:
+        k0 = int(t_keep.sum())
+        t_keep, start, note = _snoop_ties(ties, t_keep, cameras, eos, eo_covs, t_xy, t_sd)
+        n_tie_rej = k0 - int(t_keep.sum())
+    return t_xy, t_sd, t_keep, start, note, n_tie_rej, dropped
+
+
+def _vertex_photo_coordinates(ms: Sequence[Measurement], cameras: Mapping[str, Camera], floor_sd_px: float
+                              ) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) photo coordinates (mm) of the measurements and (N, 2) the sds of the diagonal that dominates
+    their covariance (plus *floor_sd_px* in quadrature, px), mm."""
+    v_xy = np.zeros((len(ms), 2))
+    v_sd = np.zeros((len(ms), 2))
+    for i, m in enumerate(ms):
+        cam = cameras[m.photo]
+        j = np.asarray(cam.pixel_to_photo_jacobian(np.asarray(m.px)[None]))[0]
+        c = np.asarray(m.cov_px2, float) + np.eye(2) * float(floor_sd_px) ** 2
+        v_xy[i] = cam.pixel_to_photo(np.asarray(m.px, float)[None])[0]
+        v_sd[i] = _dominant_sd(j @ c @ j.T)
+    return v_xy, v_sd
+
+
 def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camera], eos: Mapping[str, Any],
                 eo_covs: Mapping[str, Any], vertices_m: Mapping[str, Any], vertex_covs: Mapping[str, Any],
                 ties: TieObservations | None, *, level: float = 0.001, power: float = 0.80,
@@ -424,63 +499,16 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
         raise LidarcatError(f"check_block: {ex}") from None
     ms = list(measurements)
     edges = list(lines or ())
-    live = [k for k, m in enumerate(ms) if m and np.isfinite(m.px).all() and np.isfinite(m.cov_px2).all()]
-    for k in live:
-        m = ms[k]
-        _check_photo_inputs(m.photo, f"a measurement of point {m.point!r}", cameras, eos, eo_covs)
-        if m.point not in vertices_m or m.point not in vertex_covs:
-            raise LidarcatError(f"point {m.point!r}: measured on photo {m.photo!r} but no vertex coordinates or "
-                                "covariance for it")
-    for e in edges:
-        _check_photo_inputs(e.photo, f"an edge of line {e.line!r}", cameras, eos, eo_covs)
-    # a vertex measured on a photo where its edges are tested: the edges stand for it (the same fits)
-    edge_pairs = {(e.point, e.photo) for e in edges}
-    replaced = {(ms[k].point, ms[k].photo): k for k in live if (ms[k].point, ms[k].photo) in edge_pairs}
-    live = [k for k in live if (ms[k].point, ms[k].photo) not in replaced]
-    if ties is not None:
-        for pid in sorted(set(ties.photo.tolist())):
-            _check_photo_inputs(pid, "tie observations", cameras, eos, eo_covs)
+    live, replaced = _live_measurements(ms, edges, cameras, eos, eo_covs, vertices_m, vertex_covs, ties)
     if not live and not edges:
         return BlockCheck(tuple(ms), {}, {}, status="nothing", message="no accepted measurement")
-    used = {ms[k].photo for k in live} | {e.photo for e in edges} | \
-        (set(ties.photo.tolist()) if ties is not None else set())
-    for pid in sorted(used):
-        if not np.all(_dominant_sd(np.asarray(eo_covs[pid], float).reshape(6, 6)) > 0):
-            raise LidarcatError(f"photo {pid!r}: the covariance of its approximate orientation has a zero or "
-                                "undefined variance (use inf for a free parameter)")
-    for v in sorted({ms[k].point for k in live}):
-        if not np.all(_dominant_sd(np.asarray(vertex_covs[v], float).reshape(3, 3)) > 0):
-            raise LidarcatError(f"point {v!r}: the covariance of the LiDAR vertex has a zero or undefined variance")
 
     # --- the tie points: in photo coordinates, cleaned on their own -------------------------------------
     n_t = 0 if ties is None else len(ties)
-    t_xy = np.zeros((n_t, 2))
-    t_sd = np.zeros((n_t, 2))
-    for pid in sorted(set(ties.photo.tolist())) if n_t else []:
-        sel = ties.photo == pid
-        cam = cameras[pid]
-        t_xy[sel] = cam.pixel_to_photo(ties.px[sel])
-        t_sd[sel] = cam.photo_sd(ties.px[sel], np.repeat(ties.sd_px[sel, None], 2, axis=1))
-    t_keep = _clean_ties(ties.photo, ties.point) if n_t else np.zeros(0, dtype=bool)
-    dropped = int(n_t - t_keep.sum())
-    start: dict[str, np.ndarray] = {}
-    note = ""
-    n_tie_rej = 0
-    if t_keep.any() and snoop_ties:
-        k0 = int(t_keep.sum())
-        t_keep, start, note = _snoop_ties(ties, t_keep, cameras, eos, eo_covs, t_xy, t_sd)
-        n_tie_rej = k0 - int(t_keep.sum())
+    t_xy, t_sd, t_keep, start, note, n_tie_rej, dropped = _prepared_ties(ties, cameras, eos, eo_covs, snoop_ties)
 
     # --- the vertex measurements in photo coordinates ---------------------------------------------------
-    v_xy = np.zeros((len(live), 2))
-    v_sd = np.zeros((len(live), 2))
-    for i, k in enumerate(live):
-        m = ms[k]
-        cam = cameras[m.photo]
-        j = np.asarray(cam.pixel_to_photo_jacobian(np.asarray(m.px)[None]))[0]
-        c = np.asarray(m.cov_px2, float) + np.eye(2) * float(floor_sd_px) ** 2
-        v_xy[i] = cam.pixel_to_photo(np.asarray(m.px, float)[None])[0]
-        v_sd[i] = _dominant_sd(j @ c @ j.T)
+    v_xy, v_sd = _vertex_photo_coordinates([ms[k] for k in live], cameras, floor_sd_px)
     v_photo = np.array([ms[k].photo for k in live], dtype=object)
     v_point = np.array([ms[k].point for k in live], dtype=object)
     t_photo_all = ties.photo if n_t else np.zeros(0, dtype=object)
