@@ -390,3 +390,20 @@ def test_replace_measures_an_accepted_edge_again_instead_of_writing_it_twice(blo
     assert sorted(written) == [("L004/1-2", "102"), ("L004/2-3", "102")]
     obs = [(r["line"], r["photo"]) for r in _rows(run / "line_control.csv") if r["photo"]]
     assert sorted(obs) == [("L004/1-2", "102"), ("L004/2-3", "102")]      # once each
+
+
+def test_lines_only_replace_over_a_measured_point_writes_the_edges_instead_of_beside_it(blocks, tmp_path):
+    """--lines only --replace over the measured block (L003 and L004 points on photo 102 in image_points.csv):
+    the pairs are measured again and their edges replace the points -- one photo never gives a vertex's point and
+    its edges (a double count of the same corner); a pair whose new measurement writes no edge keeps its row."""
+    _, src = blocks
+    root = _copy(src, tmp_path)
+    assert _lidar_obs(root) == {("102", "L003"), ("102", "L004")}
+    _run(root, "--lines", "only", "--replace")
+    out = root / "out" / "measure_control"
+    written = {(r["line"].split("/")[0], r["photo"]) for r in _rows(out / "line_decisions.csv")
+               if r["status"] == "written"}
+    assert written == {("L003", "102"), ("L004", "102")}
+    edges = {(r["photo"], r["line"].split("/")[0]) for r in _rows(root / "line_control.csv") if r["photo"]}
+    assert edges == {("102", "L003"), ("102", "L004")}
+    assert _lidar_obs(root) == set()

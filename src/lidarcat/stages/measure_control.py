@@ -42,7 +42,7 @@ and then the accepted observations into the survey's ``image_points.csv`` (atomi
 survey is loaded again from the new table, and the old file restored if it does not load; nothing
 accepted: the survey's tables are not rewritten).  A
 vertex and photo that already has an observation there keeps it (``replace=True`` measures it
-again and replaces it).  Pixel sds go to ``sd_x_mm, sd_y_mm`` (times the camera's pixel size).
+again and replaces it: by its point, or by its edges where those are written instead, ``lines="only"``).  Pixel sds go to ``sd_x_mm, sd_y_mm`` (times the camera's pixel size).
 
 **Line control** (``lines``).  Each roof edge fitted in a photo (:class:`~lidarcat.photocontrol.measure.EdgeLine`,
 the two-point equivalent of the free line fit) is a line observation of the control line of its two
@@ -589,7 +589,9 @@ def _write_tables(survey: Any, ip_path: Path, accepted: list[dict[str, Any]], *,
     :func:`~lidarcat.stages._control_tables.write_checked`, unless nothing is new; or *table*, *line_table*).
     *keep_lines*: the line observations ``(photo, line)`` accepted by the user that stay.  Returns the line
     table written, if any."""
-    header, table_rows = image_point_rows(survey, accepted, replace=replace)
+    # one photo never gives a vertex's point and its edges: with replace, edges measured now replace the point
+    header, table_rows = image_point_rows(survey, accepted, replace=replace,
+                                          drop={(pid, new_lines[lid][0]) for lid, pid, _ in new_obs})
     comment = ("LiDAR control observations: lidarcat measure-control (roof vertices measured in the photos, col_px, "
                "row_px)")
     lines_out = None
