@@ -407,3 +407,22 @@ def test_lines_only_replace_over_a_measured_point_writes_the_edges_instead_of_be
     edges = {(r["photo"], r["line"].split("/")[0]) for r in _rows(root / "line_control.csv") if r["photo"]}
     assert edges == {("102", "L003"), ("102", "L004")}
     assert _lidar_obs(root) == set()
+
+
+def test_a_point_measured_over_its_written_edges_replaces_them(blocks, tmp_path):
+    """The other way round: over edges written by a lines-only run (L003 and L004 on photo 102), a default run
+    measures the pairs again and writes their points; the edges of those pairs go (no edge is written now, so
+    line_control.csv is rewritten for that alone), never one beside the other."""
+    _, src = blocks
+    root = _copy(src, tmp_path)
+    _run(root, "--lines", "only", "--replace")
+    assert _lidar_obs(root) == set()
+    assert {(r["photo"], r["line"].split("/")[0]) for r in _rows(root / "line_control.csv") if r["photo"]} == {
+        ("102", "L003"), ("102", "L004")}
+    _run(root)
+    out = root / "out" / "measure_control"
+    assert {(r["line"], r["photo"]) for r in _rows(out / "line_decisions.csv") if r["status"] == "in_point"} == {
+        ("L003/1-2", "102"), ("L003/2-3", "102"), ("L004/1-2", "102"), ("L004/2-3", "102")}
+    assert not [r for r in _rows(out / "line_decisions.csv") if r["status"] == "written"]
+    assert _lidar_obs(root) == {("102", "L003"), ("102", "L004")}
+    assert [r for r in _rows(root / "line_control.csv")] == []

@@ -10,8 +10,8 @@ review fed back, :mod:`~lidarcat.stages._control_review`, both write through her
   ``sd_across_m`` the larger across-line sd of the two ends (the largest eigenvalue of the end's
   covariance projected across the line, ``(I - t t^T) C (I - t t^T)``); an observation row the
   edge's two image points and their sd across, px;
-* :func:`edge_pairs` -- (photo, point) of the line observations whose line names its LiDAR point (one
-  photo never gives a vertex's point and its edges);
+* :func:`edge_pairs`, :func:`line_observations` -- (photo, point) of the line observations whose line names
+  its LiDAR point (one photo never gives a vertex's point and its edges), and each observation's point;
 * :func:`write_checked` -- the tables (and survey.toml's ``[files]`` keys, :func:`add_files_key`) written
   atomically, the survey loaded again, and every file put back as it was when it does not load.
 """
@@ -29,12 +29,18 @@ from .._util import write_csv_atomic
 from ..errors import SurveyError
 
 __all__ = ["image_point_rows", "write_checked", "add_files_key", "add_line_control_key", "line_control_rows",
-           "line_def_row", "line_obs_row", "edge_pairs"]
+           "line_def_row", "line_obs_row", "edge_pairs", "line_observations"]
 
 
 def edge_pairs(header: Sequence[str] | None, rows: Any) -> set[tuple[str, str]]:
     """(photo, point) of the line observations of line_control rows (*header*, *rows*), or of the file *rows*
     (*header* None), whose line names its LiDAR ``point``."""
+    return {(photo, point) for (photo, _), point in line_observations(header, rows).items() if point}
+
+
+def line_observations(header: Sequence[str] | None, rows: Any) -> dict[tuple[str, str], str]:
+    """``(photo, line) -> point`` of the line observations of line_control rows (*header*, *rows*), or of the
+    file *rows* (*header* None; none when it does not exist): the LiDAR ``point`` its line names, or ``""``."""
     if header is None:
         from .._util import read_csv_table
         from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
@@ -46,7 +52,7 @@ def edge_pairs(header: Sequence[str] | None, rows: Any) -> set[tuple[str, str]]:
         header, rows = t.header, t.rows
     cells = [dict(zip(header, (str(v) for v in r))) for r in rows]
     point = {c["line"]: c.get("point", "") for c in cells if not c["photo"]}
-    return {(c["photo"], point[c["line"]]) for c in cells if c["photo"] and point.get(c["line"])}
+    return {(c["photo"], c["line"]): point.get(c["line"], "") for c in cells if c["photo"]}
 
 
 def image_point_rows(survey: Any, new: list[dict[str, Any]], replace: bool, drop: set | None = None

@@ -42,18 +42,19 @@ and then the accepted observations into the survey's ``image_points.csv`` (atomi
 survey is loaded again from the new table, and the old file restored if it does not load; nothing
 accepted: the survey's tables are not rewritten).  A
 vertex and photo that already has an observation there keeps it (``replace=True`` measures it
-again and replaces it: by its point, or by its edges where those are written instead, ``lines="only"``).  Pixel sds go to ``sd_x_mm, sd_y_mm`` (times the camera's pixel size).
+again and replaces it: by its point, or by its edges where those are written instead, ``lines="only"``).
+Pixel sds go to ``sd_x_mm, sd_y_mm`` (times the camera's pixel size).
 
 **Line control** (``lines``).  Each roof edge fitted in a photo (:class:`~lidarcat.photocontrol.measure.EdgeLine`,
 the two-point equivalent of the free line fit) is a line observation of the control line of its two
 planes (:func:`~lidarcat.photocontrol.predict.edge_line_m`: end points and their 6 x 6 covariance from
 the plane fits), written to ``line_control.csv`` (``[files] line_control``, added to survey.toml when
-missing; rows of lines this run measured replaced, others kept) with the vertex as the line's
-``point`` (the line is control where the vertex is).  A vertex's point and its edges on one photo
-come from the same fits, so one photo never gives both: ``lines="add"`` (default) writes the
-points, and the edges of the photos where the vertex's point was not measured (two edges of which
-one is weak, edges on one image line: the strong ones alone); ``"only"`` writes every photo's
-edges and no points; ``"none"`` no lines.  A line file that does not load leaves both tables as they were.
+missing; the old observations of each photo and vertex pair written now -- a point or edges -- replaced,
+the others kept) with the vertex as the line's ``point`` (the line is control where the vertex is).
+A vertex's point and its edges on one photo come from the same fits, so one photo never gives both:
+``lines="add"`` (default) writes the points, and the edges of the photos where the vertex's point was not
+measured (two edges of which one is weak, edges on one image line: the strong ones alone); ``"only"`` writes
+every photo's edges and no points; ``"none"`` no lines.  A line file that does not load leaves both tables as they were.
 
 **Feeding the decisions back** (``decisions=``, ``line_decisions=``; the review of issue 29).  Both reports
 can be edited -- ``decision`` flipped between ``accept`` and ``reject``, the pixels moved -- and fed back
@@ -105,7 +106,8 @@ import numpy as np
 from .._util import write_csv_atomic, write_json_atomic
 from ..errors import LidarcatError, SurveyError
 from ._control_review import LINE_CANDIDATES, feed_back
-from ._control_tables import edge_pairs, image_point_rows, line_control_rows, line_def_row, write_checked
+from ._control_tables import (edge_pairs, image_point_rows, line_control_rows, line_def_row, line_observations,
+                              write_checked)
 from .context import StageContext as Context
 
 __all__ = ["measure_control", "run", "planned", "MeasureControlResult", "DECISION_FIELDS", "LINE_DECISION_FIELDS",
@@ -583,24 +585,26 @@ def _line_control(out: Path, results: list[Any], vertex_info: dict, lines: str, 
 
 
 def _write_tables(survey: Any, ip_path: Path, accepted: list[dict[str, Any]], *, replace: bool,
-                  table: Any, line_table: Any, new_lines: dict, new_obs: list, vertex_info: dict,
-                  keep_lines: set) -> Path | None:
+                  table: Any, line_table: Any, new_lines: dict, new_obs: list, vertex_info: dict
+                  ) -> Path | None:
     """Step 6: the accepted observations into image_points.csv and line_control.csv (the survey's, through
     :func:`~lidarcat.stages._control_tables.write_checked`, unless nothing is new; or *table*, *line_table*).
-    *keep_lines*: the line observations ``(photo, line)`` accepted by the user that stay.  Returns the line
-    table written, if any."""
-    # one photo never gives a vertex's point and its edges: with replace, edges measured now replace the point
-    header, table_rows = image_point_rows(survey, accepted, replace=replace,
-                                          drop={(pid, new_lines[lid][0]) for lid, pid, _ in new_obs})
+    One photo never gives a vertex's point and its edges: the (photo, vertex) pairs written now (a point or
+    edges) replace the pair's old observations of either kind (the point row with *replace*: without it an
+    observed pair is not measured); the old observations of every other pair stay (a user-accepted edge, or one
+    whose new measurement failed).  Returns the line table written, if any."""
+    written = {(d["photo"], d["point"]) for d in accepted} | {(pid, new_lines[lid][0]) for lid, pid, _ in new_obs}
+    header, table_rows = image_point_rows(survey, accepted, replace=replace, drop=written)
     comment = ("LiDAR control observations: lidarcat measure-control (roof vertices measured in the photos, col_px, "
                "row_px)")
     lines_out = None
-    if new_obs:
-        own = survey.files.get("line_control")
+    own = survey.files.get("line_control")
+    old = line_observations(None, Path(own)) if own is not None else {}
+    if new_obs or any((ph, pt) in written for (ph, _), pt in old.items()):
         lp = Path(line_table) if line_table is not None else Path(own) if own is not None else \
             survey.root / "line_control.csv"
         lh, lrows = line_control_rows(survey, Path(own) if own is not None else None, new_lines, new_obs,
-                                      set(vertex_info), keep_lines)
+                                      set(vertex_info), {k for k, pt in old.items() if (k[0], pt) not in written})
         lines_out = (lp, lh, lrows, "LiDAR roof edges as control lines: lidarcat measure-control (line = POINT/"
                                     "plane-plane; end points and cov_m2 from the two plane fits; observations: the "
                                     "edge fits' two equivalent points, px)")
@@ -718,7 +722,6 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     per_vertex, images = _measure_photos(survey, photos, targets, vertex_info, eos, covs, params=params,
                                          direction_from_kappa=direction_from_kappa, lone_photo=lone_photo,
                                          gallery=gallery, progress=progress, done=len(verts), total=total)
-    tried = {(pid, vid) for pid, lst in targets.items() for vid, _ in lst}
     block_lines: dict[tuple[str, str], str] = {}       # (line, photo) -> why the block test rejected the edge
     block_info = _check_block(survey, per_vertex, eos, covs, vertex_info,
                               _block_edges(per_vertex, vertex_info, lines, review.line_rejected), block_lines) \
@@ -742,9 +745,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                "seconds": round(time.perf_counter() - t_start, 2)}
     write_json_atomic(out / "measure_control.json", json.loads(json.dumps(summary, default=str)))
     lp = _write_tables(survey, ip_path, accepted, replace=replace, table=table, line_table=line_table,
-                       new_lines=new_lines, new_obs=new_obs, vertex_info=vertex_info,
-                       keep_lines={k for k, d in review.user.of("line", "accept").items()    # the user's, not
-                                   if (d.photo, d.point) not in tried})                     # measured now
+                       new_lines=new_lines, new_obs=new_obs, vertex_info=vertex_info)
     if progress is not None:
         progress(total, total)
     log.info("measure-control: %d vertices, %d accepted observations -> %s; %d line observations", len(verts),
