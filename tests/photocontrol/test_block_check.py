@@ -134,6 +134,30 @@ def test_gross_ties_reject_no_good_measurement():
     assert [(m.point, m.photo) for m in bc.measurements if m.status == "rejected"] == [("A4", "p5")]
 
 
+def test_ties_in_corrected_photo_coordinates_give_the_same_test_as_in_pixels():
+    """A survey's tie observations go in as its adjustment uses them (xy_mm, sd_mm): the same block test as the
+    pixels they come from (the camera's pixel_to_photo and photo_sd are what check_block applies to pixels)."""
+    ms, approx, truth, ties = block(0, moved={("A1", "p0"): (30.0, 0.0)})
+    in_mm = TieObservations(ties.photo, ties.point, xy_mm=CAM.pixel_to_photo(ties.px),
+                            sd_mm=CAM.photo_sd(ties.px, np.repeat(ties.sd_px[:, None], 2, axis=1)))
+    assert in_mm.px is None and in_mm.xy_mm.shape == (len(ties), 2)
+    a, b = run(ms, approx, ties), run(ms, approx, in_mm)
+    assert [(m.status, m.reason) for m in a.measurements] == [(m.status, m.reason) for m in b.measurements]
+    assert [m.status for m in b.measurements].count("rejected") == 1
+    assert (a.ties_used, a.ties_rejected, a.rounds) == (b.ties_used, b.ties_rejected, b.rounds)
+    for p in a.eo:
+        np.testing.assert_allclose(b.eo[p], a.eo[p], rtol=0, atol=1e-9)
+    with pytest.raises(LidarcatError, match=r"^tie observations: give px with sd_px, or xy_mm with sd_mm$"):
+        TieObservations(ties.photo, ties.point, ties.px, ties.sd_px, xy_mm=in_mm.xy_mm, sd_mm=in_mm.sd_mm)
+    with pytest.raises(LidarcatError, match=r"^tie observations: give px with sd_px, or xy_mm with sd_mm$"):
+        TieObservations(ties.photo, ties.point, xy_mm=in_mm.xy_mm)
+    sd = np.array(in_mm.sd_mm)
+    sd[2, 1] = 0.0
+    with pytest.raises(LidarcatError, match=rf"^tie observation of point '{ties.point[2]}' on photo "
+                                            rf"'{ties.photo[2]}': xy_mm and sd_mm must be finite and sd_mm > 0"):
+        TieObservations(ties.photo, ties.point, xy_mm=in_mm.xy_mm, sd_mm=sd)
+
+
 def test_without_ties_a_lone_measurement_is_untestable_and_kept():
     ms, approx, truth, ties = block(0, moved={("A1", "p0"): (30.0, 0.0)})
     bc = run(ms, approx, None)

@@ -15,9 +15,10 @@ The model.  One bundle adjustment (:mod:`lidarcat.bundle`, thesis eq. 08-22) wit
 * observations: the approximate orientation as weighted observations of :math:`p_i` (its
   covariance ``eo_covs``, e.g. 2 m / 0.5 deg), each LiDAR vertex as a weighted control point
   (its covariance from the plane fits, millimetres to centimetres), the tie observations (pixels
-  with ``sd_px``) and the accepted vertex measurements (pixels with ``cov_px2``), both turned into
-  corrected photo coordinates by the camera (:meth:`~lidarcat.geometry.camera.Camera.pixel_to_photo`,
-  covariance :math:`J C J^T`).
+  with ``sd_px``, or a survey's corrected photo coordinates with ``sd_mm`` as its adjustment uses them)
+  and the accepted vertex measurements (pixels with ``cov_px2``), pixels turned into corrected photo
+  coordinates by the camera (:meth:`~lidarcat.geometry.camera.Camera.pixel_to_photo`, covariance
+  :math:`J C J^T`).
 
 The engine weighs per axis; a full covariance :math:`C` is replaced by the diagonal :math:`D`
 with :math:`D_{kk} = \sum_l |C_{kl}|`: :math:`D - C` is diagonally dominant, hence positive
@@ -140,40 +141,56 @@ _TIE, _VERTEX = "t:", "v:"      # internal point-id prefixes (a tie id may equal
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class TieObservations:
-    """Image observations of tie points (no ground coordinates).
+    """Image observations of tie points (no ground coordinates): in pixels, or in corrected photo
+    coordinates as a survey's adjustment uses them (:meth:`lidarcat.survey.folder.Survey.photo_observations`;
+    then they go into the block as they are, with no camera model in between).
 
     Attributes
     ----------
     photo, point : (n,) str
-    px : (n, 2) float
+    px : (n, 2) float or None
         Column, row (px).
-    sd_px : (n,) float
+    sd_px : (n,) float or None
         Sd of each coordinate (px), > 0.
+    xy_mm : (n, 2) float or None
+        Corrected photo coordinates (mm), instead of *px*.
+    sd_mm : (n, 2) float or None
+        Their sds (mm), > 0 (with *xy_mm*).
     """
 
     photo: np.ndarray
     point: np.ndarray
-    px: np.ndarray
-    sd_px: np.ndarray
+    px: np.ndarray | None = None
+    sd_px: np.ndarray | None = None
+    xy_mm: np.ndarray | None = None
+    sd_mm: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         photo = frozen_array([str(v) for v in np.atleast_1d(self.photo)], dtype=object)
         point = frozen_array([str(v) for v in np.atleast_1d(self.point)], dtype=object)
         n = len(photo)
-        px = np.asarray(self.px, dtype=np.float64).reshape(-1, 2) if n else np.zeros((0, 2))
-        sd = np.broadcast_to(np.asarray(self.sd_px, dtype=np.float64), (n,))
-        if len(point) != n or len(px) != n:
-            raise LidarcatError(f"tie observations: photo ({n}), point ({len(point)}) and px ({len(px)}) must "
+        in_mm = self.xy_mm is not None
+        if in_mm == (self.px is not None) or (self.sd_mm is None if in_mm else self.sd_px is None):
+            raise LidarcatError("tie observations: give px with sd_px, or xy_mm with sd_mm")
+        xy, unit = (self.xy_mm, "xy_mm") if in_mm else (self.px, "px")
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2) if n else np.zeros((0, 2))
+        sd = np.broadcast_to(np.asarray(self.sd_mm, dtype=np.float64), (n, 2)) if in_mm else \
+            np.broadcast_to(np.asarray(self.sd_px, dtype=np.float64), (n,))
+        if len(point) != n or len(xy) != n:
+            raise LidarcatError(f"tie observations: photo ({n}), point ({len(point)}) and {unit} ({len(xy)}) must "
                                 "have the same length")
-        bad = ~(np.isfinite(px).all(axis=1) & np.isfinite(sd) & (sd > 0))
+        sd2 = sd.reshape(n, -1)
+        bad = ~(np.isfinite(xy).all(axis=1) & np.isfinite(sd2).all(axis=1) & (sd2 > 0).all(axis=1))
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
-            raise LidarcatError(f"tie observation of point {point[k]!r} on photo {photo[k]!r}: px and sd_px must "
-                                f"be finite and sd_px > 0 (got {px[k].tolist()}, {float(sd[k])})")
+            what = "xy_mm and sd_mm" if in_mm else "px and sd_px"
+            got = sd2[k].tolist() if in_mm else float(sd[k])
+            raise LidarcatError(f"tie observation of point {point[k]!r} on photo {photo[k]!r}: {what} must "
+                                f"be finite and {what.split()[-1]} > 0 (got {xy[k].tolist()}, {got})")
         object.__setattr__(self, "photo", photo)
         object.__setattr__(self, "point", point)
-        object.__setattr__(self, "px", frozen_array(px))
-        object.__setattr__(self, "sd_px", frozen_array(sd))
+        object.__setattr__(self, "xy_mm" if in_mm else "px", frozen_array(xy))
+        object.__setattr__(self, "sd_mm" if in_mm else "sd_px", frozen_array(sd))
 
     def __len__(self) -> int:
         return len(self.photo)
@@ -402,13 +419,15 @@ def _live_measurements(ms: list[Measurement], edges: list[EdgeObservation], came
 
 def _prepared_ties(ties: TieObservations | None, cameras: Mapping[str, Camera], eos: Mapping[str, Any],
                    eo_covs: Mapping[str, Any], snoop_ties: bool) -> tuple:
-    """The tie observations in photo coordinates (mm) with their sds, the kept mask (points on >= 2 photos,
+    """The tie observations in photo coordinates (mm; pixels through the camera) with their sds, the kept mask (points on >= 2 photos,
     photos with >= 3 ties, snooped on their own when *snoop_ties*), the ties' adjusted orientations (a warm
     start), a note, and the counts rejected by snooping and dropped by the ray rules."""
     n_t = 0 if ties is None else len(ties)
     t_xy = np.zeros((n_t, 2))
     t_sd = np.zeros((n_t, 2))
-    for pid in sorted(set(ties.photo.tolist())) if n_t else []:
+    if n_t and ties.xy_mm is not None:          # the survey's corrected photo coordinates, as they are
+        t_xy, t_sd = np.array(ties.xy_mm), np.array(ties.sd_mm)
+    for pid in sorted(set(ties.photo.tolist())) if n_t and ties.xy_mm is None else []:
         sel = ties.photo == pid
         cam = cameras[pid]
         t_xy[sel] = cam.pixel_to_photo(ties.px[sel])
@@ -460,7 +479,8 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     vertices_m : point -> (3,)
         The LiDAR vertices (E, N, h, m); vertex_covs : point -> (3, 3) (m^2).
     ties : TieObservations or None
-        Tie observations (pixels) on the photos; None: the vertices alone tie the photos.
+        Tie observations (pixels, or a survey's corrected photo coordinates) on the photos; None: the vertices
+        alone tie the photos.
     level : float
         alpha of the one-dimensional w-test (B-method: 0.001 gives w 3.42 for a 2-D measurement).
     power : float

@@ -268,28 +268,42 @@ _UNMEASURED = ("not_visible", "too_dark", "saturated", "near_border", "no_vertex
 _NO_EDGE_STATUSES = _UNMEASURED + ("rejected",)
 
 
-def _block_edges(per_vertex: dict, vertex_info: dict, lines: str, line_rejected: Any) -> list[Any]:
-    """The roof edges the line rows would write now (as :func:`_line_control` decides), with their 3-D lines, for
-    the block test."""
-    from ..photocontrol import EdgeObservation, edge_line_m
+def _edge_lines(vertex_info: dict) -> dict[str, tuple[str, Any, Any, Any] | None]:
+    """The 3-D control line of every roof edge of the vertices extracted (``line id -> (point, A, B, cov)``,
+    :func:`~lidarcat.photocontrol.predict.edge_line_m`; None where the two planes give none), computed once for
+    the block test (:func:`_block_edges`) and the line rows (:func:`_line_control`)."""
+    from ..photocontrol import edge_line_m
+
+    out: dict[str, tuple[str, Any, Any, Any] | None] = {}
+    for vid, (cp, _, edges) in vertex_info.items():
+        for planes, e in edges.items():
+            try:
+                out[line_id(vid, planes)] = (vid, *edge_line_m(cp.planes[planes[0]], cp.planes[planes[1]],
+                                                               np.array([e.start_m, e.end_m])))
+            except np.linalg.LinAlgError:      # planes (nearly) parallel: no line
+                out[line_id(vid, planes)] = None
+    return out
+
+
+def _block_edges(per_vertex: dict, lines3d: dict, lines: str, line_rejected: Any) -> list[Any]:
+    """The roof edges the line rows would write now (as :func:`_line_control` decides), with their 3-D lines
+    (*lines3d*, :func:`_edge_lines`), for the block test."""
+    from ..photocontrol import EdgeObservation
 
     out: list[Any] = []
     if lines == "none":
         return out
     for vid, lst in per_vertex.items():
-        cp, _, edges = vertex_info[vid]
         for pid, m in lst:
             if m.status in _NO_EDGE_STATUSES or (m and lines == "add"):
                 continue
             for el in m.edge_lines:
-                lid, e = line_id(vid, el.planes), edges.get(tuple(el.planes))
-                if e is None or (pid, lid) in line_rejected:
+                lid = line_id(vid, el.planes)
+                if lines3d.get(lid) is None or (pid, lid) in line_rejected:
                     continue
                 try:
-                    a, b, cov = edge_line_m(cp.planes[el.planes[0]], cp.planes[el.planes[1]],
-                                            np.array([e.start_m, e.end_m]))
-                    out.append(EdgeObservation(lid, vid, pid, el.p1_px, el.p2_px, el.sd_px, a, b, cov))
-                except (np.linalg.LinAlgError, LidarcatError):     # no line: the line rows say why
+                    out.append(EdgeObservation(lid, vid, pid, el.p1_px, el.p2_px, el.sd_px, *lines3d[lid][1:]))
+                except LidarcatError:     # no line: the line rows say why
                     continue
     return out
 
@@ -298,9 +312,9 @@ def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_in
                  edges: Sequence[Any] = (), line_reasons: dict | None = None) -> dict:
     """The block test (:func:`~lidarcat.photocontrol.blockcheck.check_block`) of every photo's measurements and the
     roof *edges* (:func:`_block_edges`), with the survey's tie points (image observations of points that are not
-    ground points, photo coordinates to pixels by the camera); *per_vertex* is updated in place, the reasons of
-    the rejected edges go to *line_reasons* ((line, photo) -> reason).  Returns the test's summary.  Without tie
-    points it is not run (it would be the per-photo test again)."""
+    ground points, in corrected photo coordinates as the survey's adjustment uses them); *per_vertex* is updated
+    in place, the reasons of the rejected edges go to *line_reasons* ((line, photo) -> reason).  Returns the
+    test's summary.  Without tie points it is not run (it would be the per-photo test again)."""
     from ..photocontrol import TieObservations, check_block
 
     try:
@@ -312,15 +326,10 @@ def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_in
     if obs is not None and len(obs):
         ground = set(np.asarray(survey.ground_points.point, dtype=str).tolist())
         sel = np.flatnonzero(~np.isin(obs.point.astype(str), list(ground)) & np.isin(obs.photo.astype(str), list(eos)))
-        px, sd = np.full((len(sel), 2), np.nan), np.full(len(sel), np.nan)
-        for pid in sorted(set(obs.photo[sel].tolist())):
-            on = obs.photo[sel] == pid
-            cam = survey.camera_of(pid)
-            px[on] = cam.photo_to_pixel(obs.xy_mm[sel[on]], on_fail="nan")
-            sd[on] = np.mean(obs.sd_mm[sel[on]] / [cam.pixel_size_x_mm, cam.pixel_size_y_mm], axis=1)
-        ok = np.isfinite(px).all(axis=1) & np.isfinite(sd) & (sd > 0)
+        xy, sd = obs.xy_mm[sel], obs.sd_mm[sel]           # as the survey's adjustment uses them
+        ok = np.isfinite(xy).all(axis=1) & np.isfinite(sd).all(axis=1) & (sd > 0).all(axis=1)
         if ok.any():
-            ties = TieObservations(obs.photo[sel][ok], obs.point[sel][ok], px[ok], sd[ok])
+            ties = TieObservations(obs.photo[sel][ok], obs.point[sel][ok], xy_mm=xy[ok], sd_mm=sd[ok])
     if ties is None:
         return {"status": "no tie points", "message": "the survey's image points hold no tie points: not run"}
     flat = [(vid, pid, m) for vid, lst in per_vertex.items() for pid, m in lst]
@@ -528,13 +537,12 @@ def _edge_status(m: Any, lid: str, el: Any, lines: str, review: _Review,
     return "written", ""
 
 
-def _line_control(out: Path, results: list[Any], vertex_info: dict, lines: str, review: _Review,
+def _line_control(out: Path, results: list[Any], vertex_info: dict, lines3d: dict, lines: str, review: _Review,
                   block_lines: dict | None = None
                   ) -> tuple[dict[str, tuple[str, Any, Any, Any]], list[tuple[str, str, Any]]]:
-    """Step 5: the roof edges of the vertices tried, per photo, into line_decisions.csv and their 3-D lines into
-    line_candidates.csv (module docstring, "Line control").  Returns the lines to write (``id -> (point, A, B,
-    cov)``) and their observations (``(line, photo, EdgeLine)``)."""
-    from ..photocontrol import edge_line_m
+    """Step 5: the roof edges of the vertices tried, per photo, into line_decisions.csv and their 3-D lines
+    (*lines3d*, :func:`_edge_lines`) into line_candidates.csv (module docstring, "Line control").  Returns the
+    lines to write (``id -> (point, A, B, cov)``) and their observations (``(line, photo, EdgeLine)``)."""
     from ..survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
 
     def f(v: float, nd: int = 3) -> Any:
@@ -547,22 +555,16 @@ def _line_control(out: Path, results: list[Any], vertex_info: dict, lines: str, 
     for m in results:
         if m.point not in vertex_info:
             continue
-        cp, _, edges = vertex_info[m.point]
         found = {tuple(el.planes): el for el in m.edge_lines}
-        for planes, e in edges.items():
+        for planes in vertex_info[m.point][2]:
             lid = line_id(m.point, planes)
-            if lid not in candidates:
-                pi, pj = cp.planes[planes[0]], cp.planes[planes[1]]
-                try:
-                    candidates[lid] = (m.point, *edge_line_m(pi, pj, np.array([e.start_m, e.end_m])))
-                except np.linalg.LinAlgError:      # planes (nearly) parallel: no line (not a candidate)
-                    candidates[lid] = None
+            candidates[lid] = lines3d[lid]      # None: the planes (nearly) parallel, no line (not a candidate)
             el = found.get(tuple(planes))
             status, reason = _edge_status(m, lid, el, lines, review, block_lines)
+            if status == "written" and candidates[lid] is None:
+                status, reason = "not_written", "the two planes give no line (nearly parallel)"
             if status == "written":
-                new_lines[lid] = candidates[lid] if candidates[lid] is not None else \
-                    (m.point, *edge_line_m(cp.planes[planes[0]], cp.planes[planes[1]],
-                                           np.array([e.start_m, e.end_m])))
+                new_lines[lid] = candidates[lid]
                 new_obs.append((lid, m.photo, el))
             line_rows.append([lid, m.point, m.photo, status, reason,
                               *(f(v) for v in (el.p1_px if el else (None, None))),
@@ -722,9 +724,10 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     per_vertex, images = _measure_photos(survey, photos, targets, vertex_info, eos, covs, params=params,
                                          direction_from_kappa=direction_from_kappa, lone_photo=lone_photo,
                                          gallery=gallery, progress=progress, done=len(verts), total=total)
+    lines3d = _edge_lines(vertex_info) if lines != "none" else {}
     block_lines: dict[tuple[str, str], str] = {}       # (line, photo) -> why the block test rejected the edge
     block_info = _check_block(survey, per_vertex, eos, covs, vertex_info,
-                              _block_edges(per_vertex, vertex_info, lines, review.line_rejected), block_lines) \
+                              _block_edges(per_vertex, lines3d, lines, review.line_rejected), block_lines) \
         if block_check else {"status": "off"}
     results += _check_vertices(survey, per_vertex, vertex_info, eos, covs, min_photos)
     order = {pid: k for k, pid in enumerate(survey.photo_ids)}
@@ -733,7 +736,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     for m in results:
         counts[m.status] = counts.get(m.status, 0) + 1
     pages = _write_report(out, results, images, gallery)   # the report first
-    new_lines, new_obs = _line_control(out, results, vertex_info, lines, review, block_lines) \
+    new_lines, new_obs = _line_control(out, results, vertex_info, lines3d, lines, review, block_lines) \
         if lines != "none" else ({}, [])
     written_points = {m.point for m in results if m and lines != "only"}
     accepted = [{"photo": m.photo, "point": m.point, "px": np.asarray(m.px), "sd": m.sd_px} for m in results
