@@ -14,7 +14,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from lidarcat.survey.folder import Survey, example_camera_path  # noqa: E402
-from lidarcat.geometry.camera import load_camera  # noqa: E402
+from lidarcat.survey.cameras import load_camera  # noqa: E402
 
 
 def _best(fn, repeat=3):

@@ -70,7 +70,7 @@ def _truth(folder: Path):
 
     from types import SimpleNamespace
 
-    from lidarcat.geometry.camera import load_cameras
+    from lidarcat.survey.cameras import load_cameras
 
     with open(folder / "truth.pkl", "rb") as fh:
         d = pickle.load(fh)

@@ -51,7 +51,7 @@ _EXPORTS: dict[str, str] = {
     "ClipError": "errors", "DatumError": "errors", "ExtractionError": "errors",
     "AssessmentError": "errors",
     # camera / survey
-    "Camera": "geometry", "load_cameras": "geometry",
+    "Camera": "geometry", "load_cameras": "survey",
     "Survey": "survey", "thesis_survey_path": "survey", "example_camera_path": "survey",
     # bundle adjustment
     "ExteriorOrientation": "bundle", "BundleProblem": "bundle", "BundleResult": "bundle",

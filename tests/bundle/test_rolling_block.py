@@ -159,7 +159,8 @@ def test_camera_readout_time_key(tmp_path):
     """camera.toml's ``readout_time_ms`` (default 0 = global shutter): read, written back, refused
     with the file, line and field when out of range."""
     from lidarcat.errors import SurveyError
-    from lidarcat.geometry.camera import Camera, load_cameras
+    from lidarcat.geometry.camera import Camera
+    from lidarcat.survey.cameras import load_cameras
 
     cam = Camera("drone", 12.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.004, 0.004, 4000, 3000)
     assert cam.readout_time_ms == 0.0 and "readout_time_ms" not in cam.to_toml()

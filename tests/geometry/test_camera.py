@@ -11,8 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import ROOT, THESIS_SURVEY, THESIS_TABLES
-from lidarcat.geometry.camera import SD_KEYS, Camera, load_camera, load_cameras
+from lidarcat.geometry.camera import SD_KEYS, Camera
 from lidarcat.errors import CameraError, SurveyError
+from lidarcat.survey.cameras import load_camera, load_cameras
 
 TOL_PRINTED = 0.0015  # Appendix 1 prints 3 decimals (mm)
 

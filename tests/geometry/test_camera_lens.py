@@ -9,9 +9,10 @@ import pytest
 
 from lidarcat.errors import SurveyError
 from lidarcat.geometry.brown import BrownCamera
-from lidarcat.geometry.camera import Camera, load_cameras
+from lidarcat.geometry.camera import Camera
 from lidarcat.geometry.conversion import image_plane_observations
 from lidarcat.geometry.fisheye import FisheyeCamera
+from lidarcat.survey.cameras import load_cameras
 
 BROWN = BrownCamera("b", 4000, 3000, fx=3000.0, fy=2990.0, cx=2010.0, cy=1490.0, k1=-0.1, k2=0.05, k4=0.01,
                     p1=1e-3, p2=-5e-4, skew=0.5)
@@ -115,7 +116,7 @@ def test_a_free_text_model_still_describes_a_frame_camera(tmp_path):
 def test_a_lens_camera_keeps_its_rolling_shutter_readout(tmp_path):
     """A drone's Brown camera carries ``readout_time_ms`` (the rolling shutter) like a frame camera,
     through the camera table and back."""
-    from lidarcat.geometry.camera import load_camera
+    from lidarcat.survey.cameras import load_camera
 
     (tmp_path / "camera.toml").write_text(
         '[d]\nmodel = "brown"\nwidth_px = 4000\nheight_px = 3000\nfx = 3000.0\nfy = 3000.0\n'

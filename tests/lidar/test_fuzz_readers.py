@@ -31,7 +31,7 @@ from hypothesis import strategies as st
 
 from conftest import LIDAR_DATA, THESIS_SURVEY
 from lidarcat._util import read_csv_table
-from lidarcat.geometry.camera import load_cameras
+from lidarcat.survey.cameras import load_cameras
 from lidarcat.cli.main import cli
 from lidarcat.errors import LidarcatError
 from lidarcat.control.batch import read_jobs

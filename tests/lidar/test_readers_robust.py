@@ -21,7 +21,7 @@ from click.testing import CliRunner
 from conftest import LIDAR_DATA, THESIS_SURVEY
 from conftest import assert_one_line_error
 from lidarcat._util import parse_float, read_csv_table
-from lidarcat.geometry.camera import load_cameras
+from lidarcat.survey.cameras import load_cameras
 from lidarcat.cli.main import cli
 from lidarcat.errors import CRSError, ExtractionError, LidarFormatError, SurveyError
 from lidarcat.control.batch import read_jobs

@@ -14,15 +14,15 @@
 ``tin``           One Delaunay point locator (a walk) and barycentric weights, for every TIN surface.
 ================  ============================================================
 
-Private: ``_distortion_limits`` (whether a frame camera's distortion can be inverted over its frame).
+Private: ``_distortion_limits`` (whether a frame camera's distortion can be inverted over its frame),
+``_camera_tables`` (a camera's ``camera.toml`` table: its keys, ``Camera.from_dict``/``to_dict``/``to_toml``;
+the files are read by :mod:`lidarcat.survey.cameras`).
 """
 
 from __future__ import annotations
 
 from .camera import (  # noqa: F401
     Camera,
-    load_cameras,
-    load_camera,
     CAMERA_KEYS,
     SD_KEYS,
 )
@@ -59,8 +59,6 @@ __all__ = [
     'barycentric',
     'find_simplex',
     'Camera',
-    'load_cameras',
-    'load_camera',
     'CAMERA_KEYS',
     'SD_KEYS',
     'block_sum',

@@ -95,45 +95,28 @@ outer field) has no image-plane coordinate: its photo coordinate is NaN.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
-import re
 from collections.abc import Mapping
-import dataclasses
 from dataclasses import dataclass, field
-from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
-from .._util import excerpt, read_toml, toml_line
-from ..errors import CameraError, SurveyError, location
+from .._util import excerpt
+from ..errors import CameraError
+from ._camera_tables import (CAMERA_KEYS, FLOAT_KEYS, INT_KEYS, LENS_MODELS, LENS_PIXEL_SIZE_MM, MOTION_KEYS, SD_KEYS,
+                             STR_KEYS, CameraTables, camera_error)
 from ._distortion_limits import MAX_RADIAL_SHARE, distortion_fault
 from .brown import BrownCamera
 from .fisheye import FisheyeCamera
 
-__all__ = ["Camera", "load_cameras", "load_camera", "CAMERA_KEYS", "SD_KEYS", "MOTION_KEYS", "MAX_RADIAL_SHARE",
-           "LENS_MODELS", "LENS_PIXEL_SIZE_MM"]
+__all__ = ["Camera", "CAMERA_KEYS", "SD_KEYS", "MOTION_KEYS", "MAX_RADIAL_SHARE", "LENS_MODELS",
+           "LENS_PIXEL_SIZE_MM"]
 
 log = logging.getLogger(__name__)
 
-#: numeric calibration keys of a camera table, in file order
-_FLOAT_KEYS = (
-    "focal_length_mm", "principal_point_x_mm", "principal_point_y_mm",
-    "k1", "k2", "k3", "p1", "p2", "refraction_eps45",
-    "pixel_size_x_mm", "pixel_size_y_mm",
-)
-_INT_KEYS = ("columns_px", "rows_px")
-_STR_KEYS = ("model", "source")
-#: every key a camera table may hold (besides the ``sd_*`` keys)
-CAMERA_KEYS: tuple[str, ...] = _STR_KEYS + _FLOAT_KEYS + _INT_KEYS
-#: the optional standard-deviation keys: ``sd_`` + a calibration key
-SD_KEYS: tuple[str, ...] = tuple(f"sd_{k}" for k in _FLOAT_KEYS)
-#: optional keys of the camera's motion during an exposure (issue 27): the rolling shutter's read-out
-#: time from the top to the bottom row, ms (0: a global shutter, the default)
-MOTION_KEYS: tuple[str, ...] = ("readout_time_ms",)
 _POSITIVE = ("focal_length_mm", "pixel_size_x_mm", "pixel_size_y_mm")
 #: sane ranges of interior orientation values (anything outside is a typo or a unit mix-up):
 #: focal lengths from phone cameras (a few mm) to long aerial lenses, pixels from 0.1 um to
@@ -145,27 +128,6 @@ SANE_RANGES: dict[str, tuple[float, float]] = {
     "columns_px": (1, 1_000_000),
     "rows_px": (1, 1_000_000),
 }
-
-
-#: camera models a camera table may name besides the frame camera (``model = "brown"``)
-LENS_MODELS: dict[str, type] = {"brown": BrownCamera, "fisheye": FisheyeCamera}
-#: the nominal pixel pitch of a Brown or fisheye camera (mm): the unit of its photo coordinates only
-LENS_PIXEL_SIZE_MM = 0.005
-#: keys only a Brown or fisheye table holds (a frame table with one of them names no known model)
-_LENS_ONLY_KEYS = ("width_px", "height_px", "fx", "fy", "cx", "cy", "skew", "k4", "pixel_size_mm")
-_MODEL_NAMES = ("frame",) + tuple(LENS_MODELS)
-
-
-def _short(name: str) -> str:
-    """A key or id from a file, cut for a message (the whole name stays in ``err.field``)."""
-    return name if len(name) <= 60 else name[:60] + "..."
-
-
-def _camera_error(field_name: str, message: str) -> CameraError:
-    err = CameraError(f"field {_short(field_name)!r}: {message}")
-    err.field = field_name  # type: ignore[attr-defined]
-    err.detail = message  # type: ignore[attr-defined]
-    return err
 
 
 def _as_points(a: Any, name: str) -> tuple[np.ndarray, bool]:
@@ -183,8 +145,12 @@ def _out(arr: np.ndarray, single: bool) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class Camera:
+class Camera(CameraTables):
     """Calibration of a frame camera: the interior orientation parameters.
+
+    Its table forms (:meth:`from_dict`, :meth:`to_dict`, :meth:`to_toml`, :meth:`summary`) come from
+    :class:`~lidarcat.geometry._camera_tables.CameraTables`; ``camera.toml`` files are read by
+    :func:`lidarcat.survey.cameras.load_cameras`.
 
     Parameters
     ----------
@@ -249,62 +215,62 @@ class Camera:
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id.strip():
-            raise _camera_error("id", f"camera id must be a non-empty string, got {excerpt(self.id)}")
-        for name in _FLOAT_KEYS:
+            raise camera_error("id", f"camera id must be a non-empty string, got {excerpt(self.id)}")
+        for name in FLOAT_KEYS:
             raw = getattr(self, name)
             if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)):
-                raise _camera_error(name, f"must be a number, got {excerpt(raw)} ({type(raw).__name__})")
+                raise camera_error(name, f"must be a number, got {excerpt(raw)} ({type(raw).__name__})")
             v = float(raw)
             if not math.isfinite(v):
-                raise _camera_error(name, f"must be finite, got {v!r}")
+                raise camera_error(name, f"must be finite, got {v!r}")
             if name in _POSITIVE and v <= 0:
-                raise _camera_error(name, f"must be positive, got {v!r}")
+                raise camera_error(name, f"must be positive, got {v!r}")
             if name in SANE_RANGES and not SANE_RANGES[name][0] <= v <= SANE_RANGES[name][1]:
                 lo, hi = SANE_RANGES[name]
-                raise _camera_error(name, f"{v!r} is outside the sane range {lo:g}..{hi:g} (mm); "
+                raise camera_error(name, f"{v!r} is outside the sane range {lo:g}..{hi:g} (mm); "
                                           "check the value and its unit")
             object.__setattr__(self, name, v)
-        for name in _INT_KEYS:
+        for name in INT_KEYS:
             raw = getattr(self, name)
             if isinstance(raw, bool) or not isinstance(raw, (int, np.integer)):
                 if isinstance(raw, float) and raw.is_integer():
                     raw = int(raw)
                 else:
-                    raise _camera_error(name, f"must be a whole number of pixels, got {excerpt(raw)}")
+                    raise camera_error(name, f"must be a whole number of pixels, got {excerpt(raw)}")
             if raw < 1:
-                raise _camera_error(name, f"must be at least 1 pixel, got {excerpt(raw)}")
+                raise camera_error(name, f"must be at least 1 pixel, got {excerpt(raw)}")
             if raw > SANE_RANGES[name][1]:
-                raise _camera_error(name, f"{excerpt(raw)} pixels is outside the sane range 1..{SANE_RANGES[name][1]:,}")
+                raise camera_error(name, f"{excerpt(raw)} pixels is outside the sane range 1..{SANE_RANGES[name][1]:,}")
             object.__setattr__(self, name, int(raw))
         w, h = self.columns_px * self.pixel_size_x_mm, self.rows_px * self.pixel_size_y_mm
         for name, half in (("principal_point_x_mm", w / 2), ("principal_point_y_mm", h / 2)):
             if abs(getattr(self, name)) > half:
-                raise _camera_error(name, f"{getattr(self, name)!r} mm lies outside the frame "
+                raise camera_error(name, f"{getattr(self, name)!r} mm lies outside the frame "
                                           f"(+-{half:g} mm from its centre); check the value and its unit")
-        for name in _STR_KEYS:
+        for name in STR_KEYS:
             if not isinstance(getattr(self, name), str):
-                raise _camera_error(name, f"must be text, got {excerpt(getattr(self, name))}")
+                raise camera_error(name, f"must be text, got {excerpt(getattr(self, name))}")
         sd: dict[str, float] = {}
         sd_keys = SD_KEYS
         if self.lens is not None:
             if not isinstance(self.lens, (BrownCamera, FisheyeCamera)):
-                raise _camera_error("model", f"a lens must be a BrownCamera or FisheyeCamera, got "
+                raise camera_error("model", f"a lens must be a BrownCamera or FisheyeCamera, got "
                                              f"{type(self.lens).__name__}")
             sd_keys = tuple(f"sd_{q}" for q in self.lens.PARAMETERS)
         for key, raw in dict(self.sd).items():
             if key not in sd_keys:
-                raise _camera_error(key, f"unknown standard-deviation key; allowed: {', '.join(sd_keys)}")
+                raise camera_error(key, f"unknown standard-deviation key; allowed: {', '.join(sd_keys)}")
             if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)):
-                raise _camera_error(key, f"must be a number, got {excerpt(raw)}")
+                raise camera_error(key, f"must be a number, got {excerpt(raw)}")
             v = float(raw)
             if not math.isfinite(v) or v < 0:
-                raise _camera_error(key, f"must be a finite number >= 0, got {v!r}")
+                raise camera_error(key, f"must be a finite number >= 0, got {v!r}")
             sd[key] = v
         object.__setattr__(self, "sd", MappingProxyType(sd))
         raw = self.readout_time_ms
         if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)) \
                 or not (math.isfinite(float(raw)) and 0 <= float(raw) <= 1000):
-            raise _camera_error("readout_time_ms", f"read-out time must be a number of ms in 0..1000 "
+            raise camera_error("readout_time_ms", f"read-out time must be a number of ms in 0..1000 "
                                                    f"(0: a global shutter), got {excerpt(raw)}")
         object.__setattr__(self, "readout_time_ms", float(raw))
         with np.errstate(all="ignore"):  # coefficients near the float maximum: inf/nan, refused below
@@ -316,9 +282,9 @@ class Camera:
                                  self.focal_length_mm, self.k1, self.k2, self.k3, self.p1, self.p2,
                                  self.refraction_eps45)
         if fault is not None:
-            raise _camera_error(*fault)
+            raise camera_error(*fault)
 
-    # ------------------------------------------------------------------ repr / io
+    # ------------------------------------------------------------------ repr
     def __repr__(self) -> str:
         return (f"Camera(id={self.id!r}, focal_length_mm={self.focal_length_mm}, "
                 f"{self.columns_px}x{self.rows_px} px of {self.pixel_size_x_mm} mm)")
@@ -327,18 +293,6 @@ class Camera:
     def frame_size_mm(self) -> tuple[float, float]:
         """Sensor extent (width along x, height along y), mm."""
         return self.columns_px * self.pixel_size_x_mm, self.rows_px * self.pixel_size_y_mm
-
-    def to_dict(self) -> dict[str, Any]:
-        """All parameters as a flat dict (the keys of a ``camera.toml`` table plus ``id``)."""
-        if self.lens is not None:
-            return {"id": self.id, **self._lens_dict()}
-        out: dict[str, Any] = {"id": self.id}
-        for name in CAMERA_KEYS:
-            out[name] = getattr(self, name)
-        out.update(self.sd)
-        if self.readout_time_ms:
-            out["readout_time_ms"] = self.readout_time_ms
-        return out
 
     @classmethod
     def from_model(cls, lens: BrownCamera | FisheyeCamera, *, pixel_size_mm: float = LENS_PIXEL_SIZE_MM,
@@ -363,11 +317,11 @@ class Camera:
         (15.0, array([5., 0.]))
         """
         if not isinstance(lens, (BrownCamera, FisheyeCamera)):
-            raise _camera_error("model", f"a lens must be a BrownCamera or FisheyeCamera, got {type(lens).__name__}")
+            raise camera_error("model", f"a lens must be a BrownCamera or FisheyeCamera, got {type(lens).__name__}")
         t = pixel_size_mm
         if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not (
                 math.isfinite(float(t)) and float(t) > 0):
-            raise _camera_error("pixel_size_mm", f"must be a positive number, got {excerpt(t)}")
+            raise camera_error("pixel_size_mm", f"must be a positive number, got {excerpt(t)}")
         t = float(t)
         c = lens.fx * t
         ty = c / lens.fy
@@ -377,142 +331,6 @@ class Camera:
                    k1=0.0, k2=0.0, k3=0.0, p1=0.0, p2=0.0, refraction_eps45=0.0,
                    pixel_size_x_mm=t, pixel_size_y_mm=ty, columns_px=lens.width_px, rows_px=lens.height_px,
                    model=lens.KIND, source=source, sd=dict(sd or {}), lens=lens, readout_time_ms=readout_time_ms)
-
-    @classmethod
-    def _lens_from_dict(cls, camera_id: str, kind: str, table: Mapping[str, Any]) -> Camera:
-        """A ``model = "brown"`` / ``"fisheye"`` table (module docstring)."""
-        model_cls = LENS_MODELS[kind]
-        params = model_cls.PARAMETERS
-        keys = ("model", "source", "width_px", "height_px", "pixel_size_mm") + params + tuple(
-            f"sd_{q}" for q in params) + MOTION_KEYS
-        for key in table:
-            if key not in keys:
-                raise _camera_error(key, f"unknown key of a {kind} camera; allowed: " + ", ".join(keys))
-        required = ("width_px", "height_px") + tuple(f for f in model_cls.__dataclass_fields__
-                                                     if f in params and model_cls.__dataclass_fields__[f].default
-                                                     is dataclasses.MISSING)
-        for key in required:
-            if key not in table:
-                raise _camera_error(key, f"missing (required for a {kind} camera)")
-        source = table.get("source", "")
-        if not isinstance(source, str):
-            raise _camera_error("source", f"must be text, got {excerpt(source)}")
-        try:
-            lens = model_cls(camera_id, **{k: table[k] for k in ("width_px", "height_px") + params if k in table})
-        except CameraError as ex:
-            m = re.search(r"field '(\w+)': (.*)$", str(ex), re.S)
-            if m is None:
-                raise _camera_error("model", str(ex)) from ex
-            raise _camera_error(m.group(1), m.group(2)) from ex
-        sd = {k: table[k] for k in table if k.startswith("sd_")}
-        return cls.from_model(lens, pixel_size_mm=table.get("pixel_size_mm", LENS_PIXEL_SIZE_MM), source=source,
-                              sd=sd, readout_time_ms=table.get("readout_time_ms", 0.0))
-
-    def _lens_dict(self) -> dict[str, Any]:
-        """The table of a Brown or fisheye camera (``model``, size, parameters, pitch, sds)."""
-        lens = self.lens
-        assert lens is not None
-        out: dict[str, Any] = {"model": lens.KIND}
-        if self.source:
-            out["source"] = self.source
-        out.update({"width_px": lens.width_px, "height_px": lens.height_px})
-        out.update({q: getattr(lens, q) for q in lens.PARAMETERS})
-        out["pixel_size_mm"] = self.pixel_size_x_mm
-        out.update(self.sd)
-        if self.readout_time_ms:
-            out["readout_time_ms"] = self.readout_time_ms
-        return out
-
-    @classmethod
-    def from_dict(cls, camera_id: str, table: Mapping[str, Any]) -> Camera:
-        """Build a camera from a ``camera.toml`` table (flat ``sd_*`` keys).
-
-        ``model = "brown"`` or ``"fisheye"`` makes a camera of that model (module docstring);
-        any other ``model`` text describes a frame camera (``"Kodak DCS Pro 14n"``).
-
-        Raises
-        ------
-        CameraError
-            Unknown or missing key, or an invalid value (names the field); a table with the keys
-            of a Brown/fisheye camera (``fx``, ``width_px``, ...) whose ``model`` is no known model.
-        """
-        kind = table.get("model")
-        if isinstance(kind, str) and kind.strip().lower() in LENS_MODELS:
-            return cls._lens_from_dict(camera_id, kind.strip().lower(), table)
-        lens_keys = [k for k in _LENS_ONLY_KEYS if k in table]
-        if lens_keys and not any(k in table for k in _FLOAT_KEYS + _INT_KEYS):
-            if kind is None:
-                raise _camera_error(lens_keys[0], "a camera with " + ", ".join(lens_keys) + " needs model = "
-                                    "\"brown\" or \"fisheye\" (a frame camera has focal_length_mm, ...)")
-            raise _camera_error("model", f"unknown camera model {excerpt(kind)}; known: " + ", ".join(_MODEL_NAMES))
-        known = set(CAMERA_KEYS) | set(SD_KEYS) | set(MOTION_KEYS)
-        for key in table:
-            if key not in known:
-                raise _camera_error(key, "unknown key; allowed: " + ", ".join(CAMERA_KEYS + SD_KEYS + MOTION_KEYS))
-        for key in _FLOAT_KEYS + _INT_KEYS:
-            if key not in table:
-                raise _camera_error(key, "missing (required)")
-        kwargs = {k: table[k] for k in CAMERA_KEYS if k in table}
-        sd = {k: table[k] for k in SD_KEYS if k in table}
-        return cls(camera_id, sd=sd, **kwargs, **{k: table[k] for k in MOTION_KEYS if k in table})
-
-    def to_toml(self) -> str:
-        """The camera as a ``camera.toml`` table (round-trips through :func:`load_cameras`).
-
-        >>> cam = Camera("a", 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.01, 0.01, 10, 20)
-        >>> print(cam.to_toml().splitlines()[0])
-        [a]
-        """
-        key = self.id if re.fullmatch(r"[A-Za-z0-9_-]+", self.id) else _toml_str(self.id)
-        lines = [f"[{key}]"]
-        if self.lens is not None:
-            for name, v in self._lens_dict().items():
-                lines.append(f"{name} = {_toml_str(v) if isinstance(v, str) else repr(v)}")
-            return "\n".join(lines) + "\n"
-        for name in _STR_KEYS:
-            if getattr(self, name):
-                lines.append(f"{name} = {_toml_str(getattr(self, name))}")
-        for name in _FLOAT_KEYS:
-            lines.append(f"{name} = {getattr(self, name)!r}")
-        for name in _INT_KEYS:
-            lines.append(f"{name} = {getattr(self, name)}")
-        for name in SD_KEYS:
-            if name in self.sd:
-                lines.append(f"{name} = {self.sd[name]!r}")
-        if self.readout_time_ms:
-            lines.append(f"readout_time_ms = {self.readout_time_ms!r}")
-        return "\n".join(lines) + "\n"
-
-    def summary(self) -> dict[str, Any]:
-        """Parameters plus derived figures: frame size (mm), half diagonal, and the
-        largest correction (eq. 03-06) over the frame border, mm and px.
-
-        >>> cam = Camera("a", 50.0, 0.0, 0.0, -1e-4, 0.0, 0.0, 0.0, 0.0, 0.0, 0.01, 0.01, 2001, 1001)
-        >>> round(cam.summary()["max_correction_mm"], 6)  # at the corner, r^2 = 125 mm^2
-        0.139754
-        """
-        border = np.concatenate([
-            np.column_stack([np.linspace(0, self.columns_px - 1, 201), np.zeros(201)]),
-            np.column_stack([np.linspace(0, self.columns_px - 1, 201),
-                             np.full(201, self.rows_px - 1.0)]),
-            np.column_stack([np.zeros(201), np.linspace(0, self.rows_px - 1, 201)]),
-            np.column_stack([np.full(201, self.columns_px - 1.0), np.linspace(0, self.rows_px - 1, 201)]),
-        ])
-        fot = np.asarray(self.pixel_to_fot(border))
-        corr = fot - np.asarray(self.pixel_to_photo(border))
-        mag = np.hypot(corr[:, 0], corr[:, 1])
-        w, h = self.frame_size_mm
-        if self.lens is None:
-            out = self.to_dict()
-        else:                                  # the pinhole's frame keys, the model's table under "lens"
-            out = {"id": self.id, **{name: getattr(self, name) for name in CAMERA_KEYS}, "lens": self._lens_dict()}
-        out.update({
-            "frame_width_mm": w, "frame_height_mm": h,
-            "half_diagonal_mm": math.hypot(w, h) / 2,
-            "max_correction_mm": float(mag.max()),
-            "max_correction_px": float(mag.max() / min(self.pixel_size_x_mm, self.pixel_size_y_mm)),
-        })
-        return out
 
     # ------------------------------------------------------------------ eq. 01-07
     def pixel_to_image_centre(self, colrow_px: Any) -> np.ndarray:
@@ -818,77 +636,3 @@ class Camera:
         inside = ((cr[:, 0] >= lo) & (cr[:, 0] <= self.columns_px - 0.5 + margin_px)
                   & (cr[:, 1] >= lo) & (cr[:, 1] <= self.rows_px - 0.5 + margin_px))
         return _out(inside, single)
-
-
-# ---------------------------------------------------------------------- TOML
-def _toml_str(s: str) -> str:
-    """A TOML basic string (json's escaping is valid TOML for these characters)."""
-    return json.dumps(s, ensure_ascii=False)
-
-
-def load_cameras(path: str | Path) -> dict[str, Camera]:
-    """Read a ``camera.toml``: one table per camera id (format: docs/survey-format.md).
-
-    Parameters
-    ----------
-    path : str or Path
-        The TOML file.
-
-    Returns
-    -------
-    dict[str, Camera]
-        Cameras by id, in file order.
-
-    Raises
-    ------
-    SurveyError
-        Missing, unreadable or non-UTF-8 file, invalid TOML, no camera table, an
-        unknown or missing key, or an invalid value: the message names the file,
-        the line and the key.
-    """
-    path = Path(path)
-    data, text = read_toml(path)
-    cameras: dict[str, Camera] = {}
-    for cam_id, table in data.items():
-        if not isinstance(table, dict):
-            raise SurveyError(f"{location(path, toml_line(text, None, cam_id), _short(cam_id))}: "
-                              f"top-level key outside a camera table; put each camera under "
-                              f"a [camera_id] header")
-        try:
-            cameras[cam_id] = Camera.from_dict(cam_id, table)
-        except CameraError as ex:
-            fld = getattr(ex, "field", None)
-            line = toml_line(text, cam_id, fld if fld in table else None)
-            msg = getattr(ex, "detail", str(ex))
-            raise SurveyError(f"{location(path, line, None if fld is None else _short(fld))}: "
-                              f"camera [{_short(cam_id)}]: {msg}") from ex
-    if not cameras:
-        raise SurveyError(f"{path}: no camera defined; add a [camera_id] table "
-                          f"(see docs/survey-format.md)")
-    return cameras
-
-
-def load_camera(spec: str | Path) -> Camera:
-    """Load one camera from ``FILE`` or ``FILE:ID`` (ID needed when FILE holds several).
-
-    Raises
-    ------
-    SurveyError
-        The file is invalid, the id is unknown, or no id was given for a file
-        with several cameras.
-    """
-    text = str(spec)
-    path, cam_id = Path(text), None
-    if not path.exists() and ":" in text:
-        head, _, tail = text.rpartition(":")
-        path, cam_id = Path(head), tail
-    cameras = load_cameras(path)
-    if cam_id is None:
-        if len(cameras) > 1:
-            raise SurveyError(f"{path}: holds cameras {', '.join(cameras)}; name one as "
-                              f"{path}:ID")
-        return next(iter(cameras.values()))
-    if cam_id not in cameras:
-        raise SurveyError(f"{path}: no camera {cam_id!r}; defined: {', '.join(cameras)}")
-    return cameras[cam_id]
-

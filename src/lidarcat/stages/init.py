@@ -40,9 +40,10 @@ import numpy as np
 
 from .._util import atomic_dir, excerpt, write_csv_atomic, write_text_atomic
 from ..errors import CRSError, SurveyError, location
-from ..geometry.camera import Camera, load_camera
+from ..geometry.camera import Camera
 from ..photos import IMAGE_SUFFIXES, ExifInfo, exif_orientations, read_exif
 from ..photos.exif import utm_crs
+from ..survey.cameras import load_camera
 from ..survey.folder import relative_path
 
 __all__ = ["init_survey", "InitResult", "list_photos", "camera_from_exif", "DEFAULT_POSITION_SD_M",

@@ -2,6 +2,7 @@
 
 ==============  ============================================================
 ``folder``      The survey folder: load, validate and locate a photogrammetric project.
+``cameras``     camera.toml files: the survey's cameras read, every error located (file:line and key).
 ``adjustment``  The survey adapter: a survey folder in, the adjustment folder out.
 ``covariance``  ``eop_covariance.csv``: the full 6 x 6 covariance of every adjusted orientation.
 ``schema``      The survey.toml schema: every table and key, typed, parsed once and validated at load.
@@ -30,6 +31,7 @@ from .folder import (  # noqa: F401
     cameras_of,
     SURVEY_KEYS,
 )
+from .cameras import load_cameras, load_camera  # noqa: F401
 from .schema import (  # noqa: F401
     SurveyConfig,
     MappingSettings,
@@ -75,6 +77,8 @@ __all__ = [
     'correct_measurements',
     'cameras_of',
     'SURVEY_KEYS',
+    'load_cameras',
+    'load_camera',
     'SurveyConfig',
     'MappingSettings',
     'ProductsSettings',

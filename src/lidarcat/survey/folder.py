@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from .._util import excerpt, read_csv_table, write_csv_atomic
-from ..geometry.camera import Camera, load_camera, load_cameras
+from ..geometry.camera import Camera
 from ..errors import SurveyError, location
 from ._tables import (
     PHOTO_COLUMNS,
@@ -55,6 +55,7 @@ from ._tables import (
     load_image_points,
     load_photos,
 )
+from .cameras import load_camera, load_cameras
 from .decisions import ControlDecisions, read_control_decisions
 from .lines import photo_cameras, read_line_control
 from .rigs import check_rig_exposures
