@@ -29,8 +29,8 @@ summaries (``lidarcat run --help`` is generated from it).
 Also here: ``context`` (:class:`~lidarcat.stages.context.StageContext`, what a
 stage sees), ``lidar`` (the actions of the LiDAR production commands) and the private
 ``_feature_cache`` (the match stage's per-photo feature files), ``_control_tables`` (the survey tables
-measure-control writes, reloaded and rolled back) and ``_control_review`` (measure-control's decisions
-fed back and remembered).
+measure-control writes, reloaded and rolled back), ``_control_review`` (measure-control's decisions
+fed back and remembered) and ``_control_report`` (measure-control's decisions.csv and gallery).
 """
 
 from . import adjust, assess, camera, compare, context, extract, init, lidar, mapping, match, products, report, selfcal, thesis

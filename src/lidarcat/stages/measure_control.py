@@ -105,6 +105,7 @@ import numpy as np
 
 from .._util import write_csv_atomic, write_json_atomic
 from ..errors import LidarcatError, SurveyError
+from ._control_report import CHIP_HALF_PX, DECISION_FIELDS, chip_window, write_report
 from ._control_review import LINE_CANDIDATES, feed_back
 from ._control_tables import (edge_pairs, image_point_rows, line_control_rows, line_def_row, line_observations,
                               write_checked)
@@ -115,9 +116,6 @@ __all__ = ["measure_control", "run", "planned", "MeasureControlResult", "DECISIO
 
 log = logging.getLogger(__name__)
 
-#: columns of decisions.csv
-DECISION_FIELDS = ["photo", "point", "status", "reason", "col_px", "row_px", "sd_col_px", "sd_row_px",
-                   "pred_col_px", "pred_row_px", "pred_sd_px", "decision"]
 #: columns of line_decisions.csv
 LINE_DECISION_FIELDS = ["line", "point", "photo", "status", "reason", "col1_px", "row1_px", "col2_px", "row2_px",
                         "sd_px", "ratio", "decision"]
@@ -221,45 +219,6 @@ def _approx(survey: Any, default_sd: tuple[float, float]) -> tuple[dict, dict]:
         sa = np.asarray(ph.sd_attitude_deg, float) if ph.sd_attitude_deg is not None else np.full(3, default_sd[1])
         covs[ph.id] = np.diag(np.r_[sp**2, np.deg2rad(sa) ** 2])
     return eos, covs
-
-
-_CHIP_HALF_PX = 32
-
-
-def _window(img: np.ndarray, m: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
-    """The photo's window about the measured (else predicted) pixel that a chip shows, and its origin (col, row)."""
-    from ..photocontrol import chip_centre
-
-    c = chip_centre(m)
-    if not np.isfinite(c).all():
-        return np.zeros((2 * half + 4, 2 * half + 4), np.float32), np.zeros(2)
-    c0, r0 = int(round(c[0])) - half - 2, int(round(c[1])) - half - 2
-    h, w = img.shape[:2]
-    win = np.zeros((2 * half + 4, 2 * half + 4) + img.shape[2:], img.dtype)
-    rs, cs, re, ce = max(r0, 0), max(c0, 0), min(r0 + 2 * half + 4, h), min(c0 + 2 * half + 4, w)
-    if re > rs and ce > cs:
-        win[rs - r0:re - r0, cs - c0:ce - c0] = img[rs:re, cs:ce]
-    return win, np.array([c0, r0], dtype=np.float64)
-
-
-def _moved(m: Any, origin: np.ndarray) -> Any:
-    """*m* in the coordinates of a window whose top-left pixel is *origin* of the photo."""
-    return dataclasses.replace(m, px=np.asarray(m.px) - origin, predicted_px=np.asarray(m.predicted_px) - origin,
-                               lines=tuple((np.asarray(a) - origin, np.asarray(b) - origin) for a, b in m.lines))
-
-
-def _decision_rows(ms: Sequence[Any]) -> list[list[Any]]:
-    rows = []
-    for m in ms:
-        def f(v: float, nd: int = 3) -> Any:
-            return "" if not np.isfinite(v) else round(float(v), nd)
-
-        sd = m.sd_px if m else np.full(2, np.nan)
-        psd = math.sqrt(max(float(np.max(np.linalg.eigvalsh(np.asarray(m.predicted_cov_px2)))), 0.0)) \
-            if np.isfinite(np.asarray(m.predicted_cov_px2)).all() else math.nan
-        rows.append([m.photo, m.point, m.status, m.reason, f(m.px[0]), f(m.px[1]), f(sd[0]), f(sd[1]),
-                     f(m.predicted_px[0], 2), f(m.predicted_px[1], 2), f(psd, 2), "accept" if m else "reject"])
-    return rows
 
 
 #: statuses of a vertex not measured on a photo for a reason of the photo or the vertex: its edges there say that reason
@@ -462,7 +421,7 @@ def _measure_photos(survey: Any, photos: list[str], targets: dict, vertex_info: 
         if gallery:
             for (vid, _), m in zip(targets[pid], ms):
                 if m.status != "not_visible":
-                    images[(pid, vid)] = _window(img, m, _CHIP_HALF_PX)
+                    images[(pid, vid)] = chip_window(img, m, CHIP_HALF_PX)
     return per_vertex, images
 
 
@@ -485,36 +444,6 @@ def _check_vertices(survey: Any, per_vertex: dict, vertex_info: dict, eos: dict,
                                             f"photos, and a free point needs two rays") if m else m for m in checked]
         results += checked
     return results
-
-
-def _write_report(out: Path, results: list[Any], images: dict, gallery: bool) -> list[str]:
-    """Step 4: decisions.csv and the gallery pages (their names) into *out*."""
-    import cv2
-
-    from ..photocontrol import chip_image, gallery as tile_gallery
-
-    write_csv_atomic(out / "decisions.csv", DECISION_FIELDS, _decision_rows(results), comments=[
-        "LiDAR vertices measured in the photos (lidarcat measure-control). Edit decision (accept/reject) and feed "
-        "the file back with --decisions; pixels col_px, row_px; pred_sd_px = semi-major axis of the prediction's "
-        "1-sigma ellipse."])
-    tried = [m for m in results if (m.photo, m.point) in images]
-    pages = []
-    if gallery and tried:
-        per_page = 48
-        for k0 in range(0, len(tried), per_page):
-            chunk = tried[k0:k0 + per_page]
-            img = tile_gallery([chip_image(images[(m.photo, m.point)][0], _moved(m, images[(m.photo, m.point)][1]),
-                                           half_px=_CHIP_HALF_PX, zoom=3) for m in chunk],
-                               [f"{m.point} {m.photo} {m.status}" for m in chunk], columns=6)
-            path = out / f"gallery_{k0 // per_page + 1:02d}.png"
-            ok, buf = cv2.imencode(".png", img)
-            if ok:
-                from .._util import atomic_write
-
-                with atomic_write(path, "wb") as fh:
-                    fh.write(buf.tobytes())
-                pages.append(path.name)
-    return pages
 
 
 def _edge_status(m: Any, lid: str, el: Any, lines: str, review: _Review,
@@ -735,7 +664,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     counts: dict[str, int] = {}
     for m in results:
         counts[m.status] = counts.get(m.status, 0) + 1
-    pages = _write_report(out, results, images, gallery)   # the report first
+    pages = write_report(out, results, images, gallery)   # the report first
     new_lines, new_obs = _line_control(out, results, vertex_info, lines3d, lines, review, block_lines) \
         if lines != "none" else ({}, [])
     written_points = {m.point for m in results if m and lines != "only"}
