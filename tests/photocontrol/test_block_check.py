@@ -271,6 +271,39 @@ def test_an_edge_moved_across_its_line_is_rejected_with_its_offset(seed, shift):
     assert all(m.status == "measured" for m in bc.measurements)        # no vertex point indicted
 
 
+#: one short roof line (2.5 m), the block's only ground control besides the GNSS/IMU orientations
+SHORT = {"S1/0-1": ("S1", [-5.0, 0.0, 8.0], [-3.0, 1.5, 8.2])}
+
+
+@pytest.mark.parametrize("seed, photos, bad, instead", [
+    (1, ("p0", "p1", "p4"), "p0", None), (1, ("p1", "p3", "p5"), "p5", None),
+    (0, ("p1", "p3", "p5"), "p3", "p5"), (0, ("p0", "p4", "p2"), "p2", "p4")])
+def test_one_short_line_alone_the_gross_edge_goes_and_no_good_one(seed, photos, bad, instead):
+    """The short line's edges on three photos, one 50 px off, no vertex point: the three tests are nearly equal
+    and worst first took a good edge first (the first two cases: the good one on p4 / p3 went, then the gross
+    one) or left the gross one untestable beside a good one (the last two: only the good one on *instead*
+    went).  The backward step puts the good edge back, or rejects the gross one instead of it (lower v'Pv)."""
+    ms, approx, truth, ties = block(seed)
+    es = [e for e in edges(seed, truth, moved={("S1/0-1", bad): 50.0}, lines=SHORT) if e.photo in photos]
+    assert sorted(e.photo for e in es) == sorted(photos)
+    bc = run([], approx, ties, lines=es)
+    assert bc.status == "ok", bc.message
+    assert [(ln, p) for ln, p, *_ in bc.lines_rejected] == [("S1/0-1", bad)]
+    assert list(bc.line_reasons) == [("S1/0-1", bad)] and bc.lines_tested + len(bc.lines_untestable) == 3
+    assert ("S1/0-1", bad) not in bc.lines_untestable
+    got = re.fullmatch(r"roof edge inconsistent with the block \((\d+) tie points on its photo, 0 vertex observations "
+                       r"and 2 other edges\): ([0-9.]+) px off its LiDAR line, (w = ([0-9.]+) \(critical 3\.42\)|"
+                       r"untestable beside the other edge)(; rejected instead of its line's edge on photo (p\d) "
+                       r"\(lower v'Pv\))?", bc.line_reasons[("S1/0-1", bad)])
+    assert got, bc.line_reasons[("S1/0-1", bad)]
+    assert 40 < int(got.group(1)) <= sum(ties.photo == bad)
+    assert float(got.group(2)) == pytest.approx(50.0, abs=3.0)        # from the block without it
+    assert bc.lines_rejected[0][3] == pytest.approx(float(got.group(2)), abs=0.05)
+    assert got.group(6) == instead
+    if got.group(4) is not None:
+        assert float(got.group(4)) > 3.42
+
+
 def test_an_edge_stands_for_its_vertex_point_on_that_photo_and_indicts_it():
     # A2 is measured on p1, p3, p4; its edges on p3 are given: the point on p3 is not adjusted, the edges are;
     # one of them 45 px off rejects the point on p3 with it (the same fits)

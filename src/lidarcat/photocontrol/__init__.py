@@ -11,6 +11,9 @@
                 w-tested worst first (a measurement alone on its photo is tested through its tie points).
 ``review``      Image chips with the predicted ellipse and the measured point and lines, and a gallery of them.
 ==============  ============================================================
+
+Private: ``_block_ties`` (the block test's tie points in photo coordinates, cleaned on their own) and
+``_block_backward`` (its backward step over the roof edges: a rejected edge put back or exchanged).
 """
 
 from __future__ import annotations

@@ -68,14 +68,23 @@ passes only the edges it would write: with ``--lines add`` those of vertices who
 measured (so points and edges never meet there), with ``--lines only`` every edge (then the edges
 replace the points in the test).
 
-What the edges cannot tell.  Worst first presumes the largest test is the gross observation's; that
-holds while the observations' tests are nearly independent.  When the block's datum rests on the
+The backward step over the edges.  Worst first presumes the largest test is the gross observation's;
+that holds while the observations' tests are nearly independent.  When the block's datum rests on the
 edges of one short line alone (ties and GNSS/IMU otherwise), its observations on the different photos
 are tested against each other and the block, distorted by the gross one, can make a good edge look
-worse (in a synthetic block with one 2.5 m line on three photos and no vertex point, the good edge on
-another strip came out first, w 70, the 50 px one second): then both go -- nothing gross is written,
-a good edge may be lost.  With vertex points or edges of other lines in the block it does not occur
-(the tests).
+worse: with one 2.5 m line on three photos and no vertex point, one edge 50 px off, the three w come
+out within a few per cent of each other (12.1, 11.4, 12.7), and the largest may be a good one's -- then
+the good edge goes first and the gross one second, or the gross one is left untestable beside the last
+good one.  So, as the engine's data snooping does (:func:`lidarcat.bundle.reliability.snoop`, whose
+tests of the rays of one point are correlated the same way), a backward step follows the worst-first
+rounds: each rejected edge is put back, and when every test then passes it was a false rejection and
+stays in; otherwise each other edge of its line that is in is rejected instead, in turn, and the
+exchange that lowers :math:`v^T P v` most (the same number of observations out: the likelihood
+decides) is kept when every test passes then (its reason says so: ``rejected instead of its line's
+edge on photo P (lower v'Pv)``, its w from the adjustment with both in).  One change at a time, until
+none.  The reasons of the edges rejected in the end name their offsets from the final block (four such
+blocks are in tests/photocontrol/test_block_check.py).  The vertex measurements have no such step: their
+tests on a tied photo are nearly independent.
 
 Bench_lines seed 4 (docs/figures.md): an edge 64 px off its LiDAR line (the approximate orientation
 predicts to ~87 px) with 3 other edges and one vertex observation; without it the block predicts that
@@ -125,6 +134,8 @@ import numpy as np
 from .._util.frozen import frozen_array
 from ..errors import DatumError, LidarcatError
 from ..geometry.camera import Camera
+from ._block_backward import block_tests, edge_backward_step
+from ._block_ties import dominant_sd, prepared_ties
 from .measure import Measurement
 from .predict import pixel_positions
 
@@ -308,11 +319,6 @@ class BlockCheck:
                 "lines_untestable": len(self.lines_untestable), "lines_rejected": len(self.lines_rejected)}
 
 
-def _dominant_sd(cov: np.ndarray) -> np.ndarray:
-    """(..., k) sds of the diagonal D, D_kk = sum_l |C_kl|, that dominates the covariance C (..., k, k)."""
-    return np.sqrt(np.sum(np.abs(cov), axis=-1))
-
-
 def _located(name: str, pid: str, what: str) -> LidarcatError:
     return LidarcatError(f"photo {pid!r}: {what} but no {name} for it (check_block needs the camera, the "
                          "approximate orientation and its covariance of every photo observed)")
@@ -323,63 +329,6 @@ def _check_photo_inputs(pid: str, what: str, cameras: Mapping[str, Camera], eos:
     for name, table in (("camera", cameras), ("approximate orientation", eos), ("orientation covariance", eo_covs)):
         if pid not in table:
             raise _located(name, pid, what)
-
-
-def _clean_ties(photo: np.ndarray, point: np.ndarray, keep: np.ndarray | None = None, min_rays: int = 2,
-                min_per_photo: int = 3) -> np.ndarray:
-    """(n,) bool: of the tie observations *keep* (default all), those of points with >= *min_rays* photos on
-    photos with >= *min_per_photo* of them (repeated until stable)."""
-    keep = np.ones(len(photo), dtype=bool) if keep is None else np.array(keep, dtype=bool)
-    while keep.any():
-        _, pinv, pcount = np.unique(point[keep], return_inverse=True, return_counts=True)
-        k1 = keep.copy()
-        k1[keep] = pcount[pinv] >= min_rays
-        _, finv, fcount = np.unique(photo[k1], return_inverse=True, return_counts=True) if k1.any() else \
-            (None, np.zeros(0, int), np.zeros(0, int))
-        k2 = k1.copy()
-        k2[k1] = fcount[finv] >= min_per_photo
-        if np.array_equal(k2, keep):
-            break
-        keep = k2
-    return keep
-
-
-def _snoop_ties(ties: TieObservations, keep: np.ndarray, cameras, eos, eo_covs, xy_mm, sd_mm
-                ) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
-    """The ties' own block (approximate orientations as the datum) through the engine's data snooping with
-    its robust start; returns the kept mask, the adjusted orientations and a note."""
-    from ..bundle import BundleProblem
-    from ..bundle.reliability import snoop
-
-    idx = np.flatnonzero(keep)
-    photos = sorted(set(ties.photo[idx].tolist()))
-    ph_pos = {p: i for i, p in enumerate(photos)}
-    pts, pt_index = np.unique(ties.point[idx].astype(str), return_inverse=True)
-    prob = BundleProblem(
-        photo_ids=photos, point_ids=pts, focal_length_mm=[cameras[p].focal_length_mm for p in photos],
-        photo_index=[ph_pos[p] for p in ties.photo[idx]], point_index=pt_index, xy_mm=xy_mm[idx], sd_mm=sd_mm[idx],
-        constraint_point_index=np.zeros(0, int), constraint_enh_m=np.zeros((0, 3)), constraint_sd_m=np.zeros((0, 3)),
-        eo_constraint_photo_index=np.arange(len(photos)),
-        eo_constraint_params=np.array([np.asarray(eos[p], float).reshape(6) for p in photos]),
-        eo_constraint_sd=np.array([_dominant_sd(np.asarray(eo_covs[p], float).reshape(6, 6)) for p in photos]),
-        initial_eo=np.array([np.asarray(eos[p], float).reshape(6) for p in photos]))
-    try:
-        sr = snoop(prob, mode="remove", start="robust", precision="none")
-    except DatumError as ex:
-        log.warning("block check: the tie points' robust start failed (%s); snooping from least squares", ex)
-        try:
-            sr = snoop(prob, mode="remove", start="plain", precision="none")
-        except DatumError as ex2:
-            return np.zeros(len(keep), dtype=bool), {}, f"tie points left out: {ex2}"
-    out = keep.copy()
-    gone = {(b.photo, b.point) for b in sr.blunders if b.kind == "image" and b.removed}
-    for k in idx:
-        if (str(ties.photo[k]), str(ties.point[k])) in gone:
-            out[k] = False
-    eo = {}
-    if sr.result is not None and np.isfinite(np.asarray(sr.result.eo_params)).all():
-        eo = {p: np.asarray(sr.result.eo_params)[i] for i, p in enumerate(photos)}
-    return _clean_ties(ties.photo, ties.point, out), eo, ""
 
 
 def _live_measurements(ms: list[Measurement], edges: list[EdgeObservation], cameras: Mapping[str, Camera],
@@ -408,40 +357,13 @@ def _live_measurements(ms: list[Measurement], edges: list[EdgeObservation], came
     used = {ms[k].photo for k in live} | {e.photo for e in edges} | \
         (set(ties.photo.tolist()) if ties is not None else set())
     for pid in sorted(used):
-        if not np.all(_dominant_sd(np.asarray(eo_covs[pid], float).reshape(6, 6)) > 0):
+        if not np.all(dominant_sd(np.asarray(eo_covs[pid], float).reshape(6, 6)) > 0):
             raise LidarcatError(f"photo {pid!r}: the covariance of its approximate orientation has a zero or "
                                 "undefined variance (use inf for a free parameter)")
     for v in sorted({ms[k].point for k in live}):
-        if not np.all(_dominant_sd(np.asarray(vertex_covs[v], float).reshape(3, 3)) > 0):
+        if not np.all(dominant_sd(np.asarray(vertex_covs[v], float).reshape(3, 3)) > 0):
             raise LidarcatError(f"point {v!r}: the covariance of the LiDAR vertex has a zero or undefined variance")
     return live, replaced
-
-
-def _prepared_ties(ties: TieObservations | None, cameras: Mapping[str, Camera], eos: Mapping[str, Any],
-                   eo_covs: Mapping[str, Any], snoop_ties: bool) -> tuple:
-    """The tie observations in photo coordinates (mm; pixels through the camera) with their sds, the kept mask (points on >= 2 photos,
-    photos with >= 3 ties, snooped on their own when *snoop_ties*), the ties' adjusted orientations (a warm
-    start), a note, and the counts rejected by snooping and dropped by the ray rules."""
-    n_t = 0 if ties is None else len(ties)
-    t_xy = np.zeros((n_t, 2))
-    t_sd = np.zeros((n_t, 2))
-    if n_t and ties.xy_mm is not None:          # the survey's corrected photo coordinates, as they are
-        t_xy, t_sd = np.array(ties.xy_mm), np.array(ties.sd_mm)
-    for pid in sorted(set(ties.photo.tolist())) if n_t and ties.xy_mm is None else []:
-        sel = ties.photo == pid
-        cam = cameras[pid]
-        t_xy[sel] = cam.pixel_to_photo(ties.px[sel])
-        t_sd[sel] = cam.photo_sd(ties.px[sel], np.repeat(ties.sd_px[sel, None], 2, axis=1))
-    t_keep = _clean_ties(ties.photo, ties.point) if n_t else np.zeros(0, dtype=bool)
-    dropped = int(n_t - t_keep.sum())
-    start: dict[str, np.ndarray] = {}
-    note = ""
-    n_tie_rej = 0
-    if t_keep.any() and snoop_ties:
-        k0 = int(t_keep.sum())
-        t_keep, start, note = _snoop_ties(ties, t_keep, cameras, eos, eo_covs, t_xy, t_sd)
-        n_tie_rej = k0 - int(t_keep.sum())
-    return t_xy, t_sd, t_keep, start, note, n_tie_rej, dropped
 
 
 def _vertex_photo_coordinates(ms: Sequence[Measurement], cameras: Mapping[str, Camera], floor_sd_px: float
@@ -455,7 +377,7 @@ def _vertex_photo_coordinates(ms: Sequence[Measurement], cameras: Mapping[str, C
         j = np.asarray(cam.pixel_to_photo_jacobian(np.asarray(m.px)[None]))[0]
         c = np.asarray(m.cov_px2, float) + np.eye(2) * float(floor_sd_px) ** 2
         v_xy[i] = cam.pixel_to_photo(np.asarray(m.px, float)[None])[0]
-        v_sd[i] = _dominant_sd(j @ c @ j.T)
+        v_sd[i] = dominant_sd(j @ c @ j.T)
     return v_xy, v_sd
 
 
@@ -511,13 +433,14 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     from ..bundle import BundleProblem, adjust
     from ..bundle.line_tests import line_tests
     from ..bundle.lines import LineControl
-    from ..bundle.redundancy import check_level, reliability
+    from ..bundle.redundancy import check_level, critical_values, reliability
 
     try:
         check_level(level, power)
     except ValueError as ex:
         raise LidarcatError(f"check_block: {ex}") from None
     ms = list(measurements)
+    given = tuple(ms)
     edges = list(lines or ())
     live, replaced = _live_measurements(ms, edges, cameras, eos, eo_covs, vertices_m, vertex_covs, ties)
     if not live and not edges:
@@ -525,7 +448,7 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
 
     # --- the tie points: in photo coordinates, cleaned on their own -------------------------------------
     n_t = 0 if ties is None else len(ties)
-    t_xy, t_sd, t_keep, start, note, n_tie_rej, dropped = _prepared_ties(ties, cameras, eos, eo_covs, snoop_ties)
+    t_xy, t_sd, t_keep, start, note, n_tie_rej, dropped = prepared_ties(ties, cameras, eos, eo_covs, snoop_ties)
 
     # --- the vertex measurements in photo coordinates ---------------------------------------------------
     v_xy, v_sd = _vertex_photo_coordinates([ms[k] for k in live], cameras, floor_sd_px)
@@ -572,11 +495,11 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
             xy_mm=xy.reshape(-1, 2), sd_mm=sd.reshape(-1, 2),
             constraint_point_index=np.array([ppos[_VERTEX + v] for v in verts], dtype=np.int64),
             constraint_enh_m=np.array([np.asarray(vertices_m[v], float).reshape(3) for v in verts]).reshape(-1, 3),
-            constraint_sd_m=np.array([_dominant_sd(np.asarray(vertex_covs[v], float).reshape(3, 3))
+            constraint_sd_m=np.array([dominant_sd(np.asarray(vertex_covs[v], float).reshape(3, 3))
                                       for v in verts]).reshape(-1, 3),
             eo_constraint_photo_index=np.arange(len(photos)),
             eo_constraint_params=np.array([np.asarray(eos[p], float).reshape(6) for p in photos]),
-            eo_constraint_sd=np.array([_dominant_sd(np.asarray(eo_covs[p], float).reshape(6, 6)) for p in photos]),
+            eo_constraint_sd=np.array([dominant_sd(np.asarray(eo_covs[p], float).reshape(6, 6)) for p in photos]),
             lines=lc)
         return prob, np.asarray(photos, dtype=object)
 
@@ -612,6 +535,7 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     n_tie_obs = n_t_used
     untestable: list[tuple[str, str]] = []
     e_untestable: list[tuple[str, str]] = []
+    stopped = False
     while True:
         n_obs = len(prob.photo_index)
         vrows = np.arange(n_tie_obs, n_obs)              # the vertex observations follow the ties
@@ -674,6 +598,7 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
             prob, photos = problem(v_in, e_in)
             note = "; ".join(x for x in (note, f"the adjustment without {vid} on {pid} did not converge: "
                                                "testing stopped") if x)
+            stopped = True
             break
         res = res_new
         ph = {p: j for j, p in enumerate(photos)}
@@ -689,14 +614,8 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
             e = edges[a]
             off = _edge_offset_px(cameras[pid], eo_p, e)
             e_rejected.append((vid, pid, w, off))
-            n_other_e = int(e_in.sum())
-            line_reasons[(vid, pid)] = (
-                f"{LINE_REASON_PREFIX} ({n_ties_photo} tie points on its photo, {others} vertex observations and "
-                f"{n_other_e} other edges): {off:.1f} px off its LiDAR line, w = {w:.1f} (critical {crit:.2f})")
-            k_pt = replaced.get((e.point, pid))
-            if k_pt is not None and ms[k_pt]:
-                ms[k_pt] = ms[k_pt].failed("rejected", f"{REASON_PREFIX}: its roof edge {vid} on this photo is "
-                                                       f"{off:.1f} px off its LiDAR line (w = {w:.1f})")
+            line_reasons[(vid, pid)] = _edge_reason(n_ties_photo, others, int(e_in.sum()), off, w, crit)
+            _indict(ms, replaced, e, off, w)
         else:
             off = offset(a)
             rejected.append((vid, pid, w, off))
@@ -713,6 +632,30 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
                                 "be told")
         if prob is None:
             break
+    if e_rejected and prob is not None and not stopped:
+        # the backward step (module docstring): a rejected edge put back, or exchanged for another of its line
+        def rebuild(e_try: np.ndarray) -> Any:
+            pr, ph = problem(v_in, e_try)
+            r = solve(pr, ph, {p: np.asarray(res.eo_params)[j] for j, p in enumerate(photos)})
+            return r if r.success else None
+
+        key = {(e.line, e.photo): k for k, e in enumerate(edges)}
+        e_in, res_b, changes, n_adj = edge_backward_step(edges, e_in, [key[r[:2]] for r in e_rejected], res,
+                                                          rebuild, n_tie_obs, level, power)
+        rounds += n_adj
+        if changes:
+            res, prob = res_b, res_b.problem
+            photos = np.asarray(prob.photo_ids, dtype=object)
+            e_rejected, line_reasons = _edges_judged_again(
+                edges, e_rejected, changes, res, cameras, ties_on, int(v_in.sum()), int(e_in.sum()), ms, given,
+                replaced, math.sqrt(critical_values(level, power, 2)[1]))
+            rel, lt = block_tests(res, level, power)
+            vrows = np.arange(n_tie_obs, len(prob.photo_index))
+            live_in, edge_in = np.flatnonzero(v_in), np.flatnonzero(e_in)
+            untestable = [] if rel is None or not len(vrows) else [
+                (str(v_point[live_in[i]]), str(v_photo[live_in[i]])) for i in np.flatnonzero(~rel.testable[vrows])]
+            e_untestable = [] if lt is None else [(edges[edge_in[i]].line, edges[edge_in[i]].photo)
+                                                  for i in np.flatnonzero(~np.isfinite(lt.w))]
     tested = int(v_in.sum()) - len(untestable) + len(rejected)
     e_tested = int(e_in.sum()) - len(e_untestable) + len(e_rejected)
     kw = dict(tested=tested, rejected=tuple(rejected), ties_used=n_t_used, ties_rejected=n_tie_rej,
@@ -727,6 +670,47 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     eo_out = {str(p): np.array(use.eo_params[j]) for j, p in enumerate(photos)}
     cov_out = {str(p): np.array(use.eo_cov[j]) for j, p in enumerate(photos)}
     return BlockCheck(tuple(ms), eo_out, cov_out, untestable=tuple(untestable), rounds=rounds, **kw)
+
+
+def _edge_reason(n_ties: int, n_vertex: int, n_other: int, off: float, w: float, crit: float) -> str:
+    """The reason of a rejected edge: its basis, its offset from its LiDAR line (px) and its w (if testable)."""
+    return (f"{LINE_REASON_PREFIX} ({n_ties} tie points on its photo, {n_vertex} vertex observations and "
+            f"{n_other} other edges): {off:.1f} px off its LiDAR line, " + (
+                f"w = {w:.1f} (critical {crit:.2f})" if math.isfinite(w) else "untestable beside the other edge"))
+
+
+def _indict(ms: list[Measurement], replaced: dict, e: EdgeObservation, off: float, w: float) -> None:
+    """The point measurement that the rejected edge *e* stands for (if any, and accepted) rejected with it."""
+    k_pt = replaced.get((e.point, e.photo))
+    if k_pt is not None and ms[k_pt]:
+        ms[k_pt] = ms[k_pt].failed("rejected", f"{REASON_PREFIX}: its roof edge {e.line} on this photo is "
+                                               f"{off:.1f} px off its LiDAR line (w = {w:.1f})")
+
+
+def _edges_judged_again(edges: list[EdgeObservation], e_rejected: list, changes: list, res: Any,
+                        cameras: Mapping[str, Camera], ties_on: dict, n_vertex: int, n_edges: int,
+                        ms: list[Measurement], given: tuple, replaced: dict, crit: float) -> tuple[list, dict]:
+    """The rejected edges and their reasons after the backward step's *changes* (``(edge put back or exchanged,
+    edge rejected instead or None, its w, ...)``): each one's offset from the final block *res* (adjusted without
+    every rejected edge), the points their edges stand for judged again (*ms* from *given*)."""
+    key = {(e.line, e.photo): k for k, e in enumerate(edges)}
+    rej = {r[:2]: (r[2], None) for r in e_rejected}     # (line, photo) -> (w, photo of the edge it replaced)
+    for a, h, w_h, _ in changes:
+        rej.pop((edges[a].line, edges[a].photo))
+        if h is not None:
+            rej[(edges[h].line, edges[h].photo)] = (w_h, edges[a].photo)
+    for k in replaced.values():
+        ms[k] = given[k]
+    ph = {str(p): j for j, p in enumerate(res.problem.photo_ids)}
+    out, reasons = [], {}
+    for (lid, pid), (w, instead) in rej.items():
+        e = edges[key[(lid, pid)]]
+        off = _edge_offset_px(cameras[pid], np.asarray(res.eo_params)[ph[pid]], e)
+        reasons[(lid, pid)] = _edge_reason(ties_on.get(pid, 0), n_vertex, n_edges, off, w, crit) + (
+            f"; rejected instead of its line's edge on photo {instead} (lower v'Pv)" if instead else "")
+        out.append((lid, pid, w, off))
+        _indict(ms, replaced, e, off, w)
+    return out, reasons
 
 
 def _edge_offset_px(cam: Camera, eo: np.ndarray, e: EdgeObservation) -> float:
