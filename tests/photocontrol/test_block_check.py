@@ -439,8 +439,9 @@ def test_measure_control_does_not_write_an_edge_the_block_test_rejects(tmp_path,
     assert [p for p, r in dec.items() if r["status"] == "written"] == [p for p in seen if p != moved], (seen, [(p, r["reason"]) for p, r in dec.items()])
     assert dec[moved]["status"] == "not_written" and dec[moved]["decision"] == "reject"
     n_v = 9 if with_points else 0
-    got = re.fullmatch(rf"roof edge inconsistent with the block \(\d+ tie points on its photo, {n_v} vertex observations "
-                       rf"and {len(seen) - 1} other edges\): ([0-9.]+) px off its LiDAR line, w = ([0-9.]+) "
+    got = re.fullmatch(rf"roof edge inconsistent with the block \(\d+ tie points on its photo, {n_v} vertex "
+                       rf"observations and {len(seen) - 1} other edges\): ([0-9.]+) px off its LiDAR line, "
+                       r"w = ([0-9.]+) "
                        r"\(critical 3\.42\)", dec[moved]["reason"])
     assert got, dec[moved]["reason"]
     assert float(got.group(1)) == pytest.approx(50.0, abs=2.0) and float(got.group(2)) > (20.0 if with_points else 10.0)
