@@ -62,7 +62,8 @@ from .redundancy import (  # noqa: F401
     check_level, critical_values, family_alpha, noncentrality, reliability)
 from .result import BundleResult
 from ._rounds import OBS_PER_REJECTION, Neighbours as _Neighbours, round_picks as _round_picks  # noqa: F401
-from .robust import START_MODES, put_back, robust_start, start_blunders
+from .robust import (START_MODES, line_normalised, line_start_blunders, put_back, put_back_lines, robust_start,
+                     start_blunders, with_line_weights)
 from .solve import adjust
 
 __all__ = ["Blunder", "Reliability", "SnoopingResult", "SNOOPING_MODES", "ROBUST_METHODS",
@@ -174,6 +175,25 @@ class _Subset:
     obs: np.ndarray       # (n,) bool
     con: np.ndarray       # (k,) bool
     eo: np.ndarray        # (e,) bool
+    lines: np.ndarray | None = None     # (m,) bool: observations of line control (None: the problem has none)
+
+    @classmethod
+    def every(cls, p: BundleProblem) -> _Subset:
+        """Every group of *p*."""
+        m = None if getattr(p, "lines", None) is None else np.ones(len(p.lines.line_index), bool)
+        return cls(np.ones(len(p.photo_index), bool), np.ones(len(p.constraint_point_index), bool),
+                   np.ones(0 if p.eo_constraint_photo_index is None else len(p.eo_constraint_photo_index), bool),
+                   m)
+
+    def copy(self) -> _Subset:
+        return _Subset(self.obs.copy(), self.con.copy(), self.eo.copy(),
+                       None if self.lines is None else self.lines.copy())
+
+    def restore(self, other: _Subset) -> None:
+        """Take the groups of *other* (in place)."""
+        self.obs[:], self.con[:], self.eo[:] = other.obs, other.con, other.eo
+        if self.lines is not None:
+            self.lines[:] = other.lines
 
     def problem(self, p: BundleProblem) -> tuple[BundleProblem, np.ndarray, np.ndarray]:
         """The reduced problem, its photo and point positions in *p* (points with no ray dropped)."""
@@ -193,9 +213,15 @@ class _Subset:
             xy_mm=p.xy_mm[self.obs], sd_mm=p.sd_mm[self.obs],
             constraint_point_index=pt_new[ci[con]], constraint_enh_m=p.constraint_enh_m[con],
             constraint_sd_m=p.constraint_sd_m[con], initial_eo=p.initial_eo,
-            point_role=p.point_role[keep_pt], info=p.info, lines=p.lines, **eo_kw,
+            point_role=p.point_role[keep_pt], info=p.info, lines=self.kept_lines(p), **eo_kw,
             rays=None if p.rays is None else p.rays.select(self.obs))
         return sub, np.arange(p.n_photos), np.flatnonzero(keep_pt)
+
+    def kept_lines(self, p: BundleProblem) -> Any:
+        """The line control of *p* with the observations still in (None when none is left)."""
+        if self.lines is None or p.lines is None or not self.lines.any():
+            return None
+        return p.lines if self.lines.all() else p.lines.select(self.lines)
 
     def remove(self, p: BundleProblem, kind: str, photo: str | None, point: str | None) -> list[str]:
         """Remove one group.  A free point left with no more rays than it lost loses the rest too
@@ -221,6 +247,9 @@ class _Subset:
             if rays.sum() == 1:              # a control point on one photo: nothing left to fix it
                 self.obs &= ~rays
                 partners.append(str(p.photo_ids[p.photo_index[rays]][0]))
+        elif kind == "line":
+            L = p.lines
+            self.lines &= ~((L.line_ids[L.line_index] == point) & (p.photo_ids[L.photo_index] == photo))
         else:
             self.eo &= p.photo_ids[p.eo_constraint_photo_index] != photo
         return partners
@@ -324,8 +353,7 @@ def snoop(
         raise ValueError(f"`start` must be one of {', '.join(START_MODES)}, got {start!r}")
     final_precision = adjust_kwargs.pop("precision", "all")
     p = problem
-    sub = _Subset(np.ones(len(p.photo_index), bool), np.ones(len(p.constraint_point_index), bool),
-                  np.ones(0 if p.eo_constraint_photo_index is None else len(p.eo_constraint_photo_index), bool))
+    sub = _Subset.every(p)
     rs = None
     if mode != "off" and start == "robust":
         if "initial" in adjust_kwargs:
@@ -341,6 +369,8 @@ def snoop(
         rs = None
     else:   # the least squares start without the rejected observations, from the robust estimate
         sub.obs[:] = rs.keep
+        if sub.lines is not None and rs.keep_lines is not None:
+            sub.lines[:] = rs.keep_lines
         cur, _, kept = sub.problem(p)
         first = None
         res = adjust(cur, initial=(np.asarray(rs.eo), np.asarray(rs.points_m)[kept]), precision="none",
@@ -365,6 +395,7 @@ def snoop(
         n_adj += k
     iteration = n_rej = 0
     tried = np.zeros(len(p.photo_index), dtype=bool)      # robust-start rejections tested for putting back
+    tried_lines = np.zeros(0 if sub.lines is None else len(sub.lines), dtype=bool)
     tried_snoop = np.zeros(len(p.photo_index), dtype=bool)  # snooping rejections tested (large blocks)
     near = _Neighbours(p) if multiple else None
     single = False                 # after a failed multiple round: one group at a time
@@ -380,7 +411,7 @@ def snoop(
                 break
             picks = [g] if near is None or single else _round_picks(pick, near, max_rejections - n_rej)
             iteration += 1
-            saved = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
+            saved = sub.copy()
             found: list[Blunder] = []
             for gg in picks:
                 found += _remove_group(p, sub, rel, gg, iteration)
@@ -413,18 +444,26 @@ def snoop(
         if more or rel is None or not backward:
             break
         if rs is not None:   # put back what the robust start rejected at a worse orientation
+            w2 = math.sqrt(critical_values(level, power, 2)[1])
             back = put_back(p, ~rs.keep & ~tried & ~sub.obs, np.asarray(res.eo_params), res.point_ids,
-                            np.asarray(res.points_m), math.sqrt(critical_values(level, power, 2)[1]))
+                            np.asarray(res.points_m), w2)
             tried |= ~rs.keep
-            if back.any():
-                trial = dataclasses.replace(sub, obs=sub.obs | back, con=sub.con.copy(), eo=sub.eo.copy())
+            back_l = np.zeros(0, dtype=bool)
+            if sub.lines is not None and rs.keep_lines is not None:
+                back_l = put_back_lines(p, ~rs.keep_lines & ~tried_lines & ~sub.lines, np.asarray(res.eo_params), w2)
+                tried_lines |= ~rs.keep_lines
+            if back.any() or back_l.any():
+                trial = sub.copy()
+                trial.obs |= back
+                if back_l.any():
+                    trial.lines |= back_l
                 try:
                     prob, _, _ = trial.problem(p)
                     r = _readjust(prob, (np.asarray(res.eo_params), _warm_points_or_new(res, prob, p)),
                                   adjust_kwargs)
                     n_adj += 1
                     if r.success:
-                        log.info("robust start: %d observation(s) put back", int(back.sum()))
+                        log.info("robust start: %d observation(s) put back", int(back.sum() + back_l.sum()))
                         sub, res, cur = trial, r, prob
                         rel = reliability(r, level=level, power=power)
                         continue
@@ -447,10 +486,12 @@ def snoop(
     blunders += _held_blunders(rel, hold_eo, iteration + 1)
     adjust_kwargs = {k: v for k, v in adjust_kwargs.items() if k != "initial"}
     if rs is not None:          # the robust start's rejections still out of the adjustment
-        rej = dataclasses.replace(rs, keep=rs.keep | sub.obs)
+        rej = dataclasses.replace(rs, keep=rs.keep | sub.obs, keep_lines=None if sub.lines is None or rs.keep_lines
+                                  is None else rs.keep_lines | sub.lines)
         w_crit = math.sqrt(critical_values(level, power, 2)[1]) if level is not None else math.nan
-        blunders = start_blunders(p, rej, np.asarray(res.eo_params), res.point_ids, np.asarray(res.points_m),
-                                  w_crit) + blunders
+        blunders = (start_blunders(p, rej, np.asarray(res.eo_params), res.point_ids, np.asarray(res.points_m),
+                                   w_crit) + line_start_blunders(p, rej, np.asarray(res.eo_params), w_crit)
+                    + blunders)
         if mode == "report":    # the adjustment of every observation, when it converges
             from .approx import intersect_points
 
@@ -549,7 +590,7 @@ def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs, hold_e
             continue
         best = back = None
         for h in [None, *(int(o) for o in others)]:
-            trial = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
+            trial = sub.copy()
             trial.obs[a] = True
             if h is not None:
                 trial.obs[h] = False
@@ -606,7 +647,8 @@ def _put_back_many(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs,
                     math.sqrt(critical_values(level, power, 2)[1]))
     if not back.any():
         return False, sub, res, cur, rel, blunders, 0
-    trial = dataclasses.replace(sub, obs=sub.obs | back, con=sub.con.copy(), eo=sub.eo.copy())
+    trial = sub.copy()
+    trial.obs |= back
     try:
         prob, _, _ = trial.problem(p)
         r = _readjust(prob, (np.asarray(res.eo_params), _warm_points_or_new(res, prob, p)), adjust_kwargs)
@@ -668,11 +710,11 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     k_con = len(base.constraint_point_index)
     factor = np.ones(len(rel.kind))
     cur = base
-    saved = (sub.obs.copy(), sub.con.copy(), sub.eo.copy())
+    saved = sub.copy()
     n_adj = 0
     r_cur, rel_cur = res, rel
     crit = {q: critical_values(level, power, q)[1] for q in (1, 2, 3, 6)}
-    kq = np.array([crit[{"image": 2, "control": 3, "eo": 6}[str(k)]] for k in rel.kind])
+    kq = np.array([crit[{"image": 2, "control": 3, "eo": 6, "line": 2}[str(k)]] for k in rel.kind])
     same_cut = 0
     for _ in range(max_iter):
         # normalised residuals with the original sigmas (not the re-weighted ones: a group weighted
@@ -726,7 +768,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     except (DatumError, ValueError) as ex:
         log.warning("robust %s: removing the %d down-weighted group(s) leaves %s; snooping alone", method,
                     len(found), ex)
-        sub.obs[:], sub.con[:], sub.eo[:] = saved
+        sub.restore(saved)
         return res, base, rel, [], n_adj
     n_adj += 1
     rel2 = reliability(r2, level=level, power=power) if r2.success else None
@@ -735,7 +777,8 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
 
 
 def _normalised_sq(p: BundleProblem, res: BundleResult) -> np.ndarray:
-    """Sum of (residual / original sigma)^2 of every group, in the order of :class:`Reliability`."""
+    """Sum of (residual / original sigma)^2 of every group, in the order of :class:`Reliability` (a line
+    observation: ``r^T P r``, its residual pair whitened, :func:`lidarcat.bundle.robust.line_normalised`)."""
     parts = [np.sum((np.asarray(res.residuals_mm) / p.sd_mm) ** 2, axis=1)]
     if len(p.constraint_point_index):
         w = np.where(np.isfinite(p.constraint_sd_m), 1.0 / p.constraint_sd_m, 0.0)
@@ -743,14 +786,21 @@ def _normalised_sq(p: BundleProblem, res: BundleResult) -> np.ndarray:
     if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
         w = np.where(np.isfinite(p.eo_constraint_sd), 1.0 / p.eo_constraint_sd, 0.0)
         parts.append(np.sum((np.asarray(res.eo_constraint_residuals) * w) ** 2, axis=1))
+    if getattr(p, "lines", None) is not None and len(p.lines.line_index):
+        q = line_normalised(p.lines, np.asarray(res.eo_params), p.focal_length_mm)
+        parts.append(np.where(np.isfinite(q), q, np.inf))
     return np.concatenate(parts)
 
 
 def _reweighted(p: BundleProblem, factor: np.ndarray, n_img: int, k_con: int) -> BundleProblem:
-    """*p* with the sigmas of every group divided by sqrt(factor)."""
+    """*p* with the sigmas of every group divided by sqrt(factor) (a line observation: its weight
+    matrix times the factor)."""
     s = 1.0 / np.sqrt(factor)
     kw: dict[str, Any] = {}
-    if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
-        kw = dict(eo_constraint_sd=p.eo_constraint_sd * s[n_img + k_con:, None])
+    n_eo = 0 if p.eo_constraint_photo_index is None else len(p.eo_constraint_photo_index)
+    if n_eo:
+        kw = dict(eo_constraint_sd=p.eo_constraint_sd * s[n_img + k_con:n_img + k_con + n_eo, None])
+    if getattr(p, "lines", None) is not None and len(p.lines.line_index):
+        kw["lines"] = with_line_weights(p.lines, factor[n_img + k_con + n_eo:])
     return dataclasses.replace(p, sd_mm=p.sd_mm * s[:n_img, None],
                                constraint_sd_m=p.constraint_sd_m * s[n_img:n_img + k_con, None], **kw)
