@@ -67,7 +67,7 @@ def round_picks(rel: Reliability, near: Neighbours, limit: int) -> list[int]:
     raising the tests of datum groups far from it.  A round whose largest ratio is such a group
     removes it alone, and such a group is never a second pick (a line observation 60 px off on a
     block held by 2 m GNSS raised the test of a correct control point on a photo that shares no
-    point with the line's: picked together, both went; tests/bundle/test_line_snooping.py).
+    point with the line's: picked together, both went; tests/bundle/test_line_outliers.py).
     """
     ratio = np.where(rel.testable, np.nan_to_num(rel.ratio, nan=-np.inf), -np.inf)
     cand = np.flatnonzero(ratio > 1)
