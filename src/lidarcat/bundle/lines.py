@@ -71,8 +71,10 @@ the diagonal of ``P^1/2 Q_vv P^1/2`` (:mod:`lidarcat.bundle.line_tests`: the two
 correlated, ``diag(Q_vv P)`` is no redundancy); the group test is ``T = e^T Q_vv^{-1} e ~ chi2(2)`` (``e = -r``), reported
 as ``w = sqrt(T)`` against the B-method critical value of :mod:`lidarcat.bundle.redundancy`
 (q = 2).  :func:`lidarcat.bundle.line_tests.line_tests` evaluates them;
-:func:`lidarcat.bundle.line_tests.snoop_lines` removes the worst rejected line observation,
-re-adjusts, and repeats (Baarda's data snooping over the line group).
+:func:`lidarcat.bundle.reliability.snoop` tests them as groups of its one worst-first loop
+beside image points and constraints (and re-weights them in its robust steps, through
+``LineControl.weight``); :func:`lidarcat.bundle.line_tests.snoop_lines` snoops the line group
+alone.
 
 Limits: photos of the plain collinearity (a problem with ``rays`` (rolling shutter, rigs) and
 lines is rejected by :class:`~lidarcat.bundle.problem.BundleProblem`).  In

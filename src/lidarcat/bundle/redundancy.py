@@ -89,6 +89,22 @@ units of that function's own sd); the shift of the orientation of the photo
 itself (image observation, GNSS/INS constraint) or of the photos that see the
 point (control), in metres and radians, comes from the same 9 x 9 blocks.
 
+Line observations
+-----------------
+An observation of line control (``problem.lines``, :mod:`lidarcat.bundle.lines`) is one more
+2-D group: the signed distances ``r`` of the projected end points of a 3-D line from the
+measured image line, with the full 2 x 2 covariance ``Sigma_r`` (its two residuals are
+correlated) and one photo's orientation as its only unknowns, so ``Q_vv = Sigma_r - A C_i A^T``
+with ``C_i`` that photo's 6 x 6 block of the same selected inverse.  Whitened with the
+symmetric ``W = P^{1/2}`` (``e_w = W e``, cofactor ``W Q_vv W``, unit sds) it is tested as every
+other group: ``T = e_w^T (W Q_vv W)^{-1} e_w = e^T Q_vv^{-1} e``, the redundancy numbers are the
+diagonal of ``P^{1/2} Q_vv P^{1/2}`` (in [0, 1], summing to ``tr(Q_vv P)``;
+:mod:`lidarcat.bundle.line_tests`), a direction without redundancy drops out of the test as for
+an image point of two rays.  Its estimated error is returned to mm (``Sigma^{1/2} nabla_w``),
+its MDB is the whitened one times each residual's own sd.  Its rows follow the GNSS/INS groups
+(``kind`` ``line``, the line id in ``point``, components ``a``, ``b``), and its test is part of
+the family the level is derived from.
+
 Data snooping and robust re-weighting, which remove the groups these tests reject,
 live in :mod:`lidarcat.bundle.reliability` (which also re-exports the names of this module).
 """

@@ -16,7 +16,13 @@ removes every other rejected group that is *separate* from those already picked
 such a photo of a picked group), because a blunder raises the tests of the
 groups that share its photo, its point or a neighbouring photo, not of groups
 far away; on the thesis block no two groups are separate, so it is the classic
-one per round.  A backward step then puts back a
+one per round.  Only image observations go together: a control point, a GNSS/INS group
+or an observation of line control carries the datum (an error in it moves the whole
+block), so a round whose largest ratio is one removes it alone.  The observations of
+line control are groups of the same loop (2-D tests, :mod:`lidarcat.bundle.redundancy`,
+"Line observations"), of the robust start and of the re-weighting below, so a wrong
+roof edge is named before it pulls a correct vertex or a photo's GNSS/INS out of the
+adjustment.  A backward step then puts back a
 rejected observation when every test passes with it, or exchanges it for
 another ray of its point when that lowers v'Pv (the tests of the rays of one
 point are correlated), and snooping resumes.  ``robust="danish"`` or
@@ -25,7 +31,9 @@ group a is multiplied by ``f(w_a / c_a)`` with ``c_a`` its critical value,
 ``f(u) = 1`` for ``u <= 1`` and ``exp(1 - u^2)`` (Danish type) or ``1 / u``
 (Huber) beyond; groups whose factor falls below 0.1 are removed together and
 snooping cleans what is left, so the final result and its covariance come from
-the original weights.  All tests use the a priori variance factor (sigma0 = 1:
+the original weights.  The rays that leave with a cut ray of their point (the other
+ray of a two-ray point, :data:`HALF_RAYS_RULE`) are listed as blunders of their own,
+as snooping lists them.  All tests use the a priori variance factor (sigma0 = 1:
 the sigmas are trusted, which the global chi-square test checks).
 
 Two rules for automatic tie points and a GNSS/INS datum

@@ -30,6 +30,14 @@ least-squares step:
 4. observations whose final factor is below :data:`REJECT_BELOW` are rejected; a two-ray
    point loses both rays (no test tells which of the two is wrong).
 
+The observations of line control (``problem.lines``) are re-weighted with the image points:
+``u = sqrt(r^T P r / 2)`` of their residual pair (:func:`line_normalised`), the same loss and
+scale, the factor applied to the whole weight matrix (:func:`with_line_weights`: the 3-D line's
+share of the covariance too, or a line of a few mm could never be weighted down), rejected
+below :data:`REJECT_BELOW` (``RobustStart.keep_lines``) and put back like an image point
+(:func:`put_back_lines`).  A roof edge measured 60 px off on a block held by 2 m GNSS otherwise
+pulled its photo until the re-weighting cut the one correct LiDAR vertex of the block.
+
 Data snooping with the original weights then tests the survivors
 (:func:`lidarcat.bundle.reliability.snoop`), and a rejected observation whose residual
 against the final solution passes the test of a good observation is put back.
