@@ -758,6 +758,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     found: list[Blunder] = []
     cut = np.flatnonzero(factor < ROBUST_CUT)
     listed: set[tuple[str, str, str]] = set()
+    image_row: dict[tuple[str, str], int] | None = None
     for g in cut[np.argsort(factor[cut], kind="stable")]:        # the lowest weight first
         kind = str(rel_cur.kind[g])
         photo = str(rel_cur.photo[g]) if kind != "control" else None
@@ -776,10 +777,13 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
         # every observation that left the adjustment (before, the Danish start left 2 of the matched
         # block's 17 gross matches in a note only)
         for ph in partners if kind == "image" else ():
-            h = np.flatnonzero((rel_cur.kind == "image") & (rel_cur.photo == ph) & (rel_cur.point == point))
-            if not len(h) or ("image", ph, str(point)) in listed:
+            if image_row is None:       # (photo, point) -> row of rel_cur, built once
+                n_i = int(np.sum(rel_cur.kind == "image"))
+                image_row = {(str(a), str(q)): i for i, (a, q) in enumerate(zip(rel_cur.photo[:n_i],
+                                                                                 rel_cur.point[:n_i]))}
+            h0 = image_row.get((ph, str(point)))
+            if h0 is None or ("image", ph, str(point)) in listed:
                 continue
-            h0 = int(h[0])
             found.append(dataclasses.replace(
                 rel_cur.blunder(h0, removed=True, iteration=0, found_by=method),
                 w=float(math.sqrt(u[h0] ** 2 * kq[h0])),
