@@ -394,7 +394,9 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None, *,
     if getattr(pr, "lines", None) is not None:          # line_residuals.csv (survey/lines.py)
         from .lines import write_line_residuals
 
-        summary.update(write_line_residuals(result, folder, write_csv_atomic))
+        rel = None if snooping is None else snooping.reliability
+        summary.update(write_line_residuals(result, folder, write_csv_atomic,
+                                            level=0.001 if rel is None else rel.alpha))
     if snooping is not None:
         summary.update(_write_snooping(snooping, folder, write_csv_atomic))
     if provenance is not None:
