@@ -422,8 +422,8 @@ def line_start_blunders(problem: BundleProblem, rs: RobustStart, eo: np.ndarray,
     w = np.sqrt(np.einsum("ki,kij,kj->k", T.r, T.P, T.r))
     out = []
     for i, k in enumerate(rej):
-        out.append(Blunder(kind="line", photo=str(p.photo_ids[L.photo_index[k]]), point=str(L.line_ids[L.line_index[k]]),
-                           w=float(w[i]) if np.isfinite(w[i]) else math.nan, w_critical=float(w_critical),
+        out.append(Blunder(kind="line", photo=str(p.photo_ids[L.photo_index[k]]),
+                           point=str(L.line_ids[L.line_index[k]]), w=float(w[i]) if np.isfinite(w[i]) else math.nan, w_critical=float(w_critical),
                            redundancy=math.nan, estimated_error=tuple(float(v) for v in -T.r[i]),
                            removed=removed, found_by=str(rs.line_found_by[k]), iteration=0,
                            note="; ".join(x for x in (f"weight {rs.line_weight[k]:.1e}", note) if x)))
