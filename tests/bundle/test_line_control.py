@@ -175,14 +175,20 @@ def test_bad_lines_raise_located_errors():
 
 
 def test_redundancy_numbers_of_lines_points_and_constraints_sum_to_the_dof():
-    """sum r over image points, control points, GNSS/IMU (redundancy.reliability) and the line
-    observations (line_tests) = v'Pv's degrees of freedom: the lines' Q_vv is exact."""
+    """sum r over image points, control points, GNSS/IMU and the line observations (all rows of
+    redundancy.reliability, its line rows those of line_tests) = v'Pv's degrees of freedom: the
+    lines' Q_vv is exact."""
     from lidarcat.bundle.redundancy import reliability
 
     b = line_block(seed=0, n_control_points=3)
     res = adjust(b.problem, initial=(b.initial_eo, None))
-    total = np.nansum(reliability(res).redundancy) + line_tests(res).redundancy.sum()
+    rel = reliability(res)
+    t = line_tests(res)
+    on = rel.kind == "line"
+    np.testing.assert_allclose(rel.redundancy[on, :2], t.redundancy, atol=1e-9)
+    total = np.nansum(rel.redundancy[~on]) + t.redundancy.sum()
     assert total == pytest.approx(res.dof, abs=1e-6)
+    assert np.nansum(rel.redundancy) == pytest.approx(res.dof, abs=1e-6)
     assert res.dof == b.problem.dof == (b.problem.n_observations + 2 * len(b.problem.lines.line_index)
                                         - b.problem.n_unknowns + b.problem.n_constraints)
 
@@ -307,8 +313,11 @@ def test_short_edges_redundancy_sums_to_the_dof_and_every_observation_is_tested(
     assert res.success
     t = line_tests(res)
     assert np.all((t.redundancy >= 0) & (t.redundancy <= 1))
-    total = np.nansum(reliability(res).redundancy) + t.redundancy.sum()
+    rel = reliability(res)
+    on = rel.kind == "line"
+    total = np.nansum(rel.redundancy[~on]) + t.redundancy.sum()
     assert total == pytest.approx(res.dof, abs=1e-6)
+    np.testing.assert_allclose(rel.w[on], t.w, rtol=1e-9)
     assert np.isfinite(t.w).all() and not any(t.untestable)
     L = p.lines
     k = int(np.flatnonzero(np.bincount(L.line_index)[L.line_index] > 1)[0])

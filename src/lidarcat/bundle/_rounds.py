@@ -39,8 +39,8 @@ class Neighbours:
 
     def footprint(self, kind: str, photo: str, point: str) -> np.ndarray:
         """Photos whose unknowns the group's test depends on most: every photo that sees its point
-        (image observation, control point), or its photo (GNSS/INS constraint)."""
-        if kind != "eo":
+        (image observation, control point), or its photo (GNSS/INS constraint, line observation)."""
+        if kind not in ("eo", "line"):
             j = self.point_pos[point]
             return self.of_point.indices[self.of_point.indptr[j]:self.of_point.indptr[j + 1]]
         return np.array([self.photo_pos[photo]])
@@ -54,16 +54,27 @@ def round_picks(rel: Reliability, near: Neighbours, limit: int) -> list[int]:
     """Rejected groups removed together in one round, largest test ratio first.
 
     Rule: a group is picked when none of its photos (an image observation or a control
-    point: every photo that sees its point; a GNSS/INS constraint: its photo) is a photo of
+    point: every photo that sees its point; a GNSS/INS constraint or a line observation: its
+    photo) is a photo of
     a group picked before it in this round or shares a point with one.  Two such groups
     share no unknown and no observation, and neither do the other rays of their points, so
     their residuals are correlated only through the rest of the network (weakly): one
     cannot be the reason the other's test rejects, and both are what one-at-a-time snooping
     would find in two rounds.
+
+    Only image observations are picked together: a control point, a GNSS/INS constraint or an
+    observation of line control carries the datum, and an error in one moves the whole block,
+    raising the tests of datum groups far from it.  A round whose largest ratio is such a group
+    removes it alone, and such a group is never a second pick (a line observation 60 px off on a
+    block held by 2 m GNSS raised the test of a correct control point on a photo that shares no
+    point with the line's: picked together, both went; tests/bundle/test_line_outliers.py).
     """
     ratio = np.where(rel.testable, np.nan_to_num(rel.ratio, nan=-np.inf), -np.inf)
     cand = np.flatnonzero(ratio > 1)
     cand = cand[np.argsort(-ratio[cand], kind="stable")]
+    if len(cand) and str(rel.kind[cand[0]]) != "image":
+        return [int(cand[0])]
+    cand = cand[rel.kind[cand] == "image"]
     blocked = np.zeros(near.adj.shape[0], dtype=bool)
     budget = near.budget.copy()
     points_hit: set[str] = set()
@@ -81,6 +92,6 @@ def round_picks(rel: Reliability, near: Neighbours, limit: int) -> list[int]:
         picks.append(int(g))
         blocked[near.around(fp)] = True
         budget[fp] -= 1
-        if kind != "eo":
+        if kind not in ("eo", "line"):
             points_hit.add(str(rel.point[g]))
     return picks

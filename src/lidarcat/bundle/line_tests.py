@@ -201,7 +201,9 @@ def snoop_lines(result: Any, *, level: float | None = 0.001, power: float = 0.80
 
     Starts from *result* (its solution as the approximations of each re-adjustment); stops when no
     line test rejects or after *max_removed* removals.  Image points and constraints are not
-    tested here (:func:`lidarcat.bundle.reliability.snoop` does those).
+    tested here: :func:`lidarcat.bundle.reliability.snoop` tests the line observations together
+    with them in one worst-first loop (what ``lidarcat adjust`` runs); this is the line group
+    alone, at a fixed level.
     """
     kw = {"precision": "photos", **(adjust_kwargs or {})}
     res = result

@@ -71,8 +71,10 @@ the diagonal of ``P^1/2 Q_vv P^1/2`` (:mod:`lidarcat.bundle.line_tests`: the two
 correlated, ``diag(Q_vv P)`` is no redundancy); the group test is ``T = e^T Q_vv^{-1} e ~ chi2(2)`` (``e = -r``), reported
 as ``w = sqrt(T)`` against the B-method critical value of :mod:`lidarcat.bundle.redundancy`
 (q = 2).  :func:`lidarcat.bundle.line_tests.line_tests` evaluates them;
-:func:`lidarcat.bundle.line_tests.snoop_lines` removes the worst rejected line observation,
-re-adjusts, and repeats (Baarda's data snooping over the line group).
+:func:`lidarcat.bundle.reliability.snoop` tests them as groups of its one worst-first loop
+beside image points and constraints (and re-weights them in its robust steps, through
+``LineControl.weight``); :func:`lidarcat.bundle.line_tests.snoop_lines` snoops the line group
+alone.
 
 Limits: photos of the plain collinearity (a problem with ``rays`` (rolling shutter, rigs) and
 lines is rejected by :class:`~lidarcat.bundle.problem.BundleProblem`).  In
@@ -247,6 +249,11 @@ class LineControl:
         Their sd across the edge (mm).
     pixel_mm : (m,) float, optional
         Pixel size of each observation's photo (mm; NaN: unknown), for residuals in pixels.
+    weight : (m,) float, optional
+        Factor on the weight matrix ``P`` of every observation (default 1): ``Sigma_r / weight``.
+        The robust re-weighting (:mod:`lidarcat.bundle.robust`) sets it; the 3-D line's share
+        of ``Sigma_r`` is scaled with the image share, so a factor near 0 takes the
+        observation out whatever the line's own sd.
     """
 
     line_ids: np.ndarray
@@ -259,6 +266,7 @@ class LineControl:
     xy2_mm: np.ndarray
     sd_mm: np.ndarray
     pixel_mm: np.ndarray | None = None
+    weight: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         s = object.__setattr__
@@ -275,6 +283,8 @@ class LineControl:
         s(self, "sd_mm", frozen_array(np.broadcast_to(np.asarray(self.sd_mm, dtype=float), (m,))))
         s(self, "pixel_mm", frozen_array(np.broadcast_to(
             np.asarray(math.nan if self.pixel_mm is None else self.pixel_mm, dtype=float), (m,))))
+        s(self, "weight", frozen_array(np.broadcast_to(
+            np.asarray(1.0 if self.weight is None else self.weight, dtype=float), (m,))))
         if len(self.photo_index) != m:
             raise DatumError("`line_index` and `photo_index` must have the same length")
         if m and (self.line_index.min() < 0 or self.line_index.max() >= n_l):
@@ -327,7 +337,7 @@ class LineControl:
         """The same lines with the observations *keep* (mask or indices)."""
         return dataclasses.replace(self, line_index=self.line_index[keep], photo_index=self.photo_index[keep],
                                    xy1_mm=self.xy1_mm[keep], xy2_mm=self.xy2_mm[keep], sd_mm=self.sd_mm[keep],
-                                   pixel_mm=self.pixel_mm[keep])
+                                   pixel_mm=self.pixel_mm[keep], weight=self.weight[keep])
 
     def observation_labels(self, photo_ids: Sequence[str]) -> list[str]:
         """``line L on photo P`` of every observation."""
@@ -382,6 +392,7 @@ def line_terms(lines: LineControl, eo: np.ndarray, focal_length_mm: np.ndarray, 
     jl[:, 0, :3] = ja[:m]
     jl[:, 1, 3:] = ja[m:]
     cov += jl @ L.cov_m2[L.line_index] @ np.transpose(jl, (0, 2, 1))
+    cov /= L.weight[:, None, None]
     P = np.linalg.inv(cov)
     if jacobians:
         jang = np.einsum("ki,kij->kj", n2, a_ang)

@@ -89,6 +89,22 @@ units of that function's own sd); the shift of the orientation of the photo
 itself (image observation, GNSS/INS constraint) or of the photos that see the
 point (control), in metres and radians, comes from the same 9 x 9 blocks.
 
+Line observations
+-----------------
+An observation of line control (``problem.lines``, :mod:`lidarcat.bundle.lines`) is one more
+2-D group: the signed distances ``r`` of the projected end points of a 3-D line from the
+measured image line, with the full 2 x 2 covariance ``Sigma_r`` (its two residuals are
+correlated) and one photo's orientation as its only unknowns, so ``Q_vv = Sigma_r - A C_i A^T``
+with ``C_i`` that photo's 6 x 6 block of the same selected inverse.  Whitened with the
+symmetric ``W = P^{1/2}`` (``e_w = W e``, cofactor ``W Q_vv W``, unit sds) it is tested as every
+other group: ``T = e_w^T (W Q_vv W)^{-1} e_w = e^T Q_vv^{-1} e``, the redundancy numbers are the
+diagonal of ``P^{1/2} Q_vv P^{1/2}`` (in [0, 1], summing to ``tr(Q_vv P)``;
+:mod:`lidarcat.bundle.line_tests`), a direction without redundancy drops out of the test as for
+an image point of two rays.  Its estimated error is returned to mm (``Sigma^{1/2} nabla_w``),
+its MDB is the whitened one times each residual's own sd.  Its rows follow the GNSS/INS groups
+(``kind`` ``line``, the line id in ``point``, components ``a``, ``b``), and its test is part of
+the family the level is derived from.
+
 Data snooping and robust re-weighting, which remove the groups these tests reject,
 live in :mod:`lidarcat.bundle.reliability` (which also re-exports the names of this module).
 """
@@ -107,6 +123,7 @@ from .rays import observation_parts
 from ..errors import DatumError
 from .linear import SingularSystem
 from .model import NormalSystem
+from .lines import line_terms
 from .precision import observation_blocks
 from .problem import BundleProblem
 from .result import BundleResult
@@ -116,7 +133,7 @@ __all__ = ["Blunder", "Reliability", "FAMILY_LEVEL", "MIN_REDUNDANCY", "COMPONEN
 
 #: names of the components of each kind of observation group, and their units
 COMPONENTS = {"image": ("x", "y"), "control": ("E", "N", "h"),
-              "eo": ("X0", "Y0", "Z0", "omega", "phi", "kappa")}
+              "eo": ("X0", "Y0", "Z0", "omega", "phi", "kappa"), "line": ("a", "b")}
 #: a group whose smallest redundancy is below this cannot be tested (its error would not show)
 MIN_REDUNDANCY = 1e-3
 #: default family-wise level: probability that a block without blunders has any test rejecting
@@ -218,9 +235,10 @@ class Blunder:
     Attributes
     ----------
     kind : str
-        ``image`` (photo and point), ``control`` (point) or ``eo`` (photo).
+        ``image`` (photo and point), ``control`` (point), ``eo`` (photo) or ``line`` (an
+        observation of line control: its photo, and its line id in ``point``).
     photo, point : str or None
-        Ids; ``photo`` is None for control, ``point`` None for eo.
+        Ids; ``photo`` is None for control, ``point`` None for eo, the line id for line.
     w : float
         ``sqrt(T)`` of the q-dimensional test when it was found (= |w| for q = 1); for a
         group removed by the robust step, sqrt of its sum of squared normalised residuals
@@ -256,12 +274,14 @@ class Blunder:
 
     @property
     def unit(self) -> str:
-        return {"image": "mm", "control": "m", "eo": "m, rad"}[self.kind]
+        return {"image": "mm", "control": "m", "eo": "m, rad", "line": "mm"}[self.kind]
 
     def label(self) -> str:
-        """``image photo 3 point 405`` / ``control point 619`` / ``eo photo 2``."""
+        """``image photo 3 point 405`` / ``control point 619`` / ``eo photo 2`` / ``line R1 on photo 3``."""
         if self.kind == "image":
             return f"image observation photo {self.photo} point {self.point}"
+        if self.kind == "line":
+            return f"line {self.point} on photo {self.photo}"
         if self.kind == "control":
             return f"control point {self.point}"
         return f"GNSS/INS constraint of photo {self.photo}"
@@ -280,9 +300,10 @@ class Reliability:
     """Tests and reliability of every observation group of one adjustment.
 
     Groups are the image observations (in the problem's order), then the
-    control points, then the GNSS/INS constraints.  Per-component arrays have
-    ``width = 6`` columns, NaN beyond the group's components (2 for image, 3
-    for control, 6 for eo) and on free axes.
+    control points, then the GNSS/INS constraints, then the observations of line
+    control (``problem.lines``, in their order; ``point`` holds the line id).
+    Per-component arrays have ``width = 6`` columns, NaN beyond the group's
+    components (2 for image and line, 3 for control, 6 for eo) and on free axes.
 
     Attributes
     ----------
@@ -376,7 +397,7 @@ class Reliability:
             for k, comp in enumerate(COMPONENTS[kind]):
                 ang = kind == "eo" and k >= 3
                 scale = math.degrees(1.0) if ang else 1.0
-                unit = "mm" if kind == "image" else ("deg" if ang else "m")
+                unit = "mm" if kind in ("image", "line") else ("deg" if ang else "m")
                 if not np.isfinite(self.redundancy[g, k]) and kind != "image":
                     continue                                   # a free axis: no observation
                 eff = self.eo_effect[g]
@@ -536,6 +557,11 @@ def reliability(result: BundleResult, *, level: float | None = None, power: floa
         parts.append(dict(kind="eo", photo=p.photo_ids[k], point=np.full(len(k), "", dtype=object), out=out,
                           eff=eff, eff_photo=p.photo_ids[k]))
 
+    # observations of line control (module docstring, "Line observations")
+    L = getattr(p, "lines", None)
+    if L is not None and len(L.line_index):
+        parts.append(_line_part(p, L, eo, S, first_obs_ph, lam0))
+
     qdim = np.concatenate([part["out"][6] for part in parts]).astype(int)
     family, n_family = math.nan, 0
     if level is None:
@@ -566,6 +592,40 @@ def reliability(result: BundleResult, *, level: float | None = None, power: floa
         eo_effect_photo=np.concatenate([np.asarray(part["eff_photo"], dtype=object) for part in parts]),
         alpha=float(level), power=float(power), lam0=lam0, dof=int(p.dof), family_level=family,
         family_tests=n_family)
+
+
+def _line_part(p: BundleProblem, L: Any, eo: np.ndarray, S: np.ndarray, first_obs_ph: np.ndarray,
+               lam0: float) -> dict[str, Any]:
+    """The tests of the line observations as one more part of :func:`reliability` (module docstring,
+    "Line observations"): whitened with the symmetric ``P^1/2`` of each observation, so that the
+    group test of :func:`_group_tests` (unit sds) is ``e^T Q_vv^-1 e`` and its redundancy numbers are
+    the diagonal of ``P^1/2 Q_vv P^1/2``; the estimated error and the MDB are returned to mm."""
+    T = line_terms(L, eo, p.focal_length_mm)
+    ph = L.photo_index
+    m = len(ph)
+    has = first_obs_ph[ph] >= 0                     # a photo with image observations (its 6 x 6 block in S)
+    C = np.zeros((m, 6, 6))
+    C[has] = S[first_obs_ph[ph[has]], :6, :6]
+    lp, vp = np.linalg.eigh(T.P)
+    root = np.sqrt(np.clip(lp, 0.0, None))
+    W = vp @ (root[:, :, None] * np.transpose(vp, (0, 2, 1)))              # P^1/2
+    Wi = vp @ ((1.0 / np.where(root > 0, root, 1.0))[:, :, None] * np.transpose(vp, (0, 2, 1)))  # Sigma^1/2
+    qy = W @ T.A @ C @ np.transpose(T.A, (0, 2, 1)) @ W
+    qy[~has] = np.eye(2)                            # no block: Q_vv 0, untestable
+    e = np.einsum("kij,kj->ki", W, -T.r)
+    r, w_comp, Tst, nab, mdb, bnr, qdim = _group_tests(e, np.ones((m, 2)), qy, lam0)
+    nab = np.einsum("kij,kj->ki", Wi, nab)                                 # mm
+    # external: the whitened MDB of the component with the largest BNR, back in mm (Sigma^1/2), moves
+    # the photo by C A^T P nabla
+    rows = np.arange(m)
+    best = _best_component(bnr)
+    white = np.zeros((m, 2))
+    white[rows, best] = np.nan_to_num(mdb[rows, best], posinf=0.0)
+    g = np.einsum("kji,kjl,kl->ki", T.A, T.P, np.einsum("kij,kj->ki", Wi, white))   # A^T P nabla (6,)
+    eff = np.einsum("kij,kj->ki", C, g)
+    mdb = mdb * np.sqrt(np.diagonal(T.cov, axis1=1, axis2=2))   # in the residual's own sd (mm)
+    return dict(kind="line", photo=p.photo_ids[ph], point=np.asarray(L.line_ids, dtype=object)[L.line_index],
+                out=(r, w_comp, Tst, nab, mdb, bnr, qdim), eff=eff, eff_photo=p.photo_ids[ph])
 
 
 def _dense_cofactor(result: BundleResult) -> tuple[np.ndarray, np.ndarray]:

@@ -16,7 +16,13 @@ removes every other rejected group that is *separate* from those already picked
 such a photo of a picked group), because a blunder raises the tests of the
 groups that share its photo, its point or a neighbouring photo, not of groups
 far away; on the thesis block no two groups are separate, so it is the classic
-one per round.  A backward step then puts back a
+one per round.  Only image observations go together: a control point, a GNSS/INS group
+or an observation of line control carries the datum (an error in it moves the whole
+block), so a round whose largest ratio is one removes it alone.  The observations of
+line control are groups of the same loop (2-D tests, :mod:`lidarcat.bundle.redundancy`,
+"Line observations"), of the robust start and of the re-weighting below, so a wrong
+roof edge is named before it pulls a correct vertex or a photo's GNSS/INS out of the
+adjustment.  A backward step then puts back a
 rejected observation when every test passes with it, or exchanges it for
 another ray of its point when that lowers v'Pv (the tests of the rays of one
 point are correlated), and snooping resumes.  ``robust="danish"`` or
@@ -25,7 +31,9 @@ group a is multiplied by ``f(w_a / c_a)`` with ``c_a`` its critical value,
 ``f(u) = 1`` for ``u <= 1`` and ``exp(1 - u^2)`` (Danish type) or ``1 / u``
 (Huber) beyond; groups whose factor falls below 0.1 are removed together and
 snooping cleans what is left, so the final result and its covariance come from
-the original weights.  All tests use the a priori variance factor (sigma0 = 1:
+the original weights.  The rays that leave with a cut ray of their point (the other
+ray of a two-ray point, :data:`HALF_RAYS_RULE`) are listed as blunders of their own,
+as snooping lists them.  All tests use the a priori variance factor (sigma0 = 1:
 the sigmas are trusted, which the global chi-square test checks).
 
 Two rules for automatic tie points and a GNSS/INS datum
@@ -62,7 +70,8 @@ from .redundancy import (  # noqa: F401
     check_level, critical_values, family_alpha, noncentrality, reliability)
 from .result import BundleResult
 from ._rounds import OBS_PER_REJECTION, Neighbours as _Neighbours, round_picks as _round_picks  # noqa: F401
-from .robust import START_MODES, put_back, robust_start, start_blunders
+from .robust import (START_MODES, line_normalised, line_start_blunders, put_back, put_back_lines, robust_start,
+                     start_blunders, with_line_weights)
 from .solve import adjust
 
 __all__ = ["Blunder", "Reliability", "SnoopingResult", "SNOOPING_MODES", "ROBUST_METHODS",
@@ -174,6 +183,25 @@ class _Subset:
     obs: np.ndarray       # (n,) bool
     con: np.ndarray       # (k,) bool
     eo: np.ndarray        # (e,) bool
+    lines: np.ndarray | None = None     # (m,) bool: observations of line control (None: the problem has none)
+
+    @classmethod
+    def every(cls, p: BundleProblem) -> _Subset:
+        """Every group of *p*."""
+        m = None if getattr(p, "lines", None) is None else np.ones(len(p.lines.line_index), bool)
+        return cls(np.ones(len(p.photo_index), bool), np.ones(len(p.constraint_point_index), bool),
+                   np.ones(0 if p.eo_constraint_photo_index is None else len(p.eo_constraint_photo_index), bool),
+                   m)
+
+    def copy(self) -> _Subset:
+        return _Subset(self.obs.copy(), self.con.copy(), self.eo.copy(),
+                       None if self.lines is None else self.lines.copy())
+
+    def restore(self, other: _Subset) -> None:
+        """Take the groups of *other* (in place)."""
+        self.obs[:], self.con[:], self.eo[:] = other.obs, other.con, other.eo
+        if self.lines is not None:
+            self.lines[:] = other.lines
 
     def problem(self, p: BundleProblem) -> tuple[BundleProblem, np.ndarray, np.ndarray]:
         """The reduced problem, its photo and point positions in *p* (points with no ray dropped)."""
@@ -193,9 +221,15 @@ class _Subset:
             xy_mm=p.xy_mm[self.obs], sd_mm=p.sd_mm[self.obs],
             constraint_point_index=pt_new[ci[con]], constraint_enh_m=p.constraint_enh_m[con],
             constraint_sd_m=p.constraint_sd_m[con], initial_eo=p.initial_eo,
-            point_role=p.point_role[keep_pt], info=p.info, lines=p.lines, **eo_kw,
+            point_role=p.point_role[keep_pt], info=p.info, lines=self.kept_lines(p), **eo_kw,
             rays=None if p.rays is None else p.rays.select(self.obs))
         return sub, np.arange(p.n_photos), np.flatnonzero(keep_pt)
+
+    def kept_lines(self, p: BundleProblem) -> Any:
+        """The line control of *p* with the observations still in (None when none is left)."""
+        if self.lines is None or p.lines is None or not self.lines.any():
+            return None
+        return p.lines if self.lines.all() else p.lines.select(self.lines)
 
     def remove(self, p: BundleProblem, kind: str, photo: str | None, point: str | None) -> list[str]:
         """Remove one group.  A free point left with no more rays than it lost loses the rest too
@@ -221,6 +255,9 @@ class _Subset:
             if rays.sum() == 1:              # a control point on one photo: nothing left to fix it
                 self.obs &= ~rays
                 partners.append(str(p.photo_ids[p.photo_index[rays]][0]))
+        elif kind == "line":
+            L = p.lines
+            self.lines &= ~((L.line_ids[L.line_index] == point) & (p.photo_ids[L.photo_index] == photo))
         else:
             self.eo &= p.photo_ids[p.eo_constraint_photo_index] != photo
         return partners
@@ -324,8 +361,7 @@ def snoop(
         raise ValueError(f"`start` must be one of {', '.join(START_MODES)}, got {start!r}")
     final_precision = adjust_kwargs.pop("precision", "all")
     p = problem
-    sub = _Subset(np.ones(len(p.photo_index), bool), np.ones(len(p.constraint_point_index), bool),
-                  np.ones(0 if p.eo_constraint_photo_index is None else len(p.eo_constraint_photo_index), bool))
+    sub = _Subset.every(p)
     rs = None
     if mode != "off" and start == "robust":
         if "initial" in adjust_kwargs:
@@ -341,6 +377,8 @@ def snoop(
         rs = None
     else:   # the least squares start without the rejected observations, from the robust estimate
         sub.obs[:] = rs.keep
+        if sub.lines is not None and rs.keep_lines is not None:
+            sub.lines[:] = rs.keep_lines
         cur, _, kept = sub.problem(p)
         first = None
         res = adjust(cur, initial=(np.asarray(rs.eo), np.asarray(rs.points_m)[kept]), precision="none",
@@ -365,6 +403,7 @@ def snoop(
         n_adj += k
     iteration = n_rej = 0
     tried = np.zeros(len(p.photo_index), dtype=bool)      # robust-start rejections tested for putting back
+    tried_lines = np.zeros(0 if sub.lines is None else len(sub.lines), dtype=bool)
     tried_snoop = np.zeros(len(p.photo_index), dtype=bool)  # snooping rejections tested (large blocks)
     near = _Neighbours(p) if multiple else None
     single = False                 # after a failed multiple round: one group at a time
@@ -380,7 +419,7 @@ def snoop(
                 break
             picks = [g] if near is None or single else _round_picks(pick, near, max_rejections - n_rej)
             iteration += 1
-            saved = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
+            saved = sub.copy()
             found: list[Blunder] = []
             for gg in picks:
                 found += _remove_group(p, sub, rel, gg, iteration)
@@ -413,18 +452,26 @@ def snoop(
         if more or rel is None or not backward:
             break
         if rs is not None:   # put back what the robust start rejected at a worse orientation
+            w2 = math.sqrt(critical_values(level, power, 2)[1])
             back = put_back(p, ~rs.keep & ~tried & ~sub.obs, np.asarray(res.eo_params), res.point_ids,
-                            np.asarray(res.points_m), math.sqrt(critical_values(level, power, 2)[1]))
+                            np.asarray(res.points_m), w2)
             tried |= ~rs.keep
-            if back.any():
-                trial = dataclasses.replace(sub, obs=sub.obs | back, con=sub.con.copy(), eo=sub.eo.copy())
+            back_l = np.zeros(0, dtype=bool)
+            if sub.lines is not None and rs.keep_lines is not None:
+                back_l = put_back_lines(p, ~rs.keep_lines & ~tried_lines & ~sub.lines, np.asarray(res.eo_params), w2)
+                tried_lines |= ~rs.keep_lines
+            if back.any() or back_l.any():
+                trial = sub.copy()
+                trial.obs |= back
+                if back_l.any():
+                    trial.lines |= back_l
                 try:
                     prob, _, _ = trial.problem(p)
                     r = _readjust(prob, (np.asarray(res.eo_params), _warm_points_or_new(res, prob, p)),
                                   adjust_kwargs)
                     n_adj += 1
                     if r.success:
-                        log.info("robust start: %d observation(s) put back", int(back.sum()))
+                        log.info("robust start: %d observation(s) put back", int(back.sum() + back_l.sum()))
                         sub, res, cur = trial, r, prob
                         rel = reliability(r, level=level, power=power)
                         continue
@@ -447,10 +494,12 @@ def snoop(
     blunders += _held_blunders(rel, hold_eo, iteration + 1)
     adjust_kwargs = {k: v for k, v in adjust_kwargs.items() if k != "initial"}
     if rs is not None:          # the robust start's rejections still out of the adjustment
-        rej = dataclasses.replace(rs, keep=rs.keep | sub.obs)
+        rej = dataclasses.replace(rs, keep=rs.keep | sub.obs, keep_lines=None if sub.lines is None or rs.keep_lines
+                                  is None else rs.keep_lines | sub.lines)
         w_crit = math.sqrt(critical_values(level, power, 2)[1]) if level is not None else math.nan
-        blunders = start_blunders(p, rej, np.asarray(res.eo_params), res.point_ids, np.asarray(res.points_m),
-                                  w_crit) + blunders
+        blunders = (start_blunders(p, rej, np.asarray(res.eo_params), res.point_ids, np.asarray(res.points_m),
+                                   w_crit) + line_start_blunders(p, rej, np.asarray(res.eo_params), w_crit)
+                    + blunders)
         if mode == "report":    # the adjustment of every observation, when it converges
             from .approx import intersect_points
 
@@ -549,7 +598,7 @@ def _refine(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs, hold_e
             continue
         best = back = None
         for h in [None, *(int(o) for o in others)]:
-            trial = dataclasses.replace(sub, obs=sub.obs.copy(), con=sub.con.copy(), eo=sub.eo.copy())
+            trial = sub.copy()
             trial.obs[a] = True
             if h is not None:
                 trial.obs[h] = False
@@ -606,7 +655,8 @@ def _put_back_many(p, sub, blunders, res, cur, rel, level, power, adjust_kwargs,
                     math.sqrt(critical_values(level, power, 2)[1]))
     if not back.any():
         return False, sub, res, cur, rel, blunders, 0
-    trial = dataclasses.replace(sub, obs=sub.obs | back, con=sub.con.copy(), eo=sub.eo.copy())
+    trial = sub.copy()
+    trial.obs |= back
     try:
         prob, _, _ = trial.problem(p)
         r = _readjust(prob, (np.asarray(res.eo_params), _warm_points_or_new(res, prob, p)), adjust_kwargs)
@@ -668,11 +718,11 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     k_con = len(base.constraint_point_index)
     factor = np.ones(len(rel.kind))
     cur = base
-    saved = (sub.obs.copy(), sub.con.copy(), sub.eo.copy())
+    saved = sub.copy()
     n_adj = 0
     r_cur, rel_cur = res, rel
     crit = {q: critical_values(level, power, q)[1] for q in (1, 2, 3, 6)}
-    kq = np.array([crit[{"image": 2, "control": 3, "eo": 6}[str(k)]] for k in rel.kind])
+    kq = np.array([crit[{"image": 2, "control": 3, "eo": 6, "line": 2}[str(k)]] for k in rel.kind])
     same_cut = 0
     for _ in range(max_iter):
         # normalised residuals with the original sigmas (not the re-weighted ones: a group weighted
@@ -707,10 +757,14 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     # remove the groups weighted down (tests of the original weights follow in snooping)
     found: list[Blunder] = []
     cut = np.flatnonzero(factor < ROBUST_CUT)
-    for g in cut:
+    listed: set[tuple[str, str, str]] = set()
+    image_row: dict[tuple[str, str], int] | None = None
+    for g in cut[np.argsort(factor[cut], kind="stable")]:        # the lowest weight first
         kind = str(rel_cur.kind[g])
         photo = str(rel_cur.photo[g]) if kind != "control" else None
         point = str(rel_cur.point[g]) if kind != "eo" else None
+        if (kind, str(photo), str(point)) in listed:             # gone with a ray cut before it
+            continue
         b = rel_cur.blunder(int(g), removed=True, iteration=0, found_by=method)
         # w and the estimated error of the original weights: e / sd relative to the critical value
         partners = sub.remove(p, kind, photo, point)
@@ -718,6 +772,26 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
                                          note="; ".join([f"weight factor {factor[g]:.1e}",
                                                          *(f"the other ray (photo {ph}) removed with it"
                                                            for ph in partners)])))
+        listed.add((kind, str(photo), str(point)))
+        # every ray removed with it is a blunder of its own (as snooping lists them): blunders.csv names
+        # every observation that left the adjustment (before, the Danish start left 2 of the matched
+        # block's 17 gross matches in a note only)
+        for ph in partners if kind == "image" else ():
+            if image_row is None:       # (photo, point) -> row of rel_cur, built once
+                n_i = int(np.sum(rel_cur.kind == "image"))
+                image_row = {(str(a), str(q)): i for i, (a, q) in enumerate(zip(rel_cur.photo[:n_i],
+                                                                                 rel_cur.point[:n_i]))}
+            h0 = image_row.get((ph, str(point)))
+            if h0 is None or ("image", ph, str(point)) in listed:
+                continue
+            found.append(dataclasses.replace(
+                rel_cur.blunder(h0, removed=True, iteration=0, found_by=method),
+                w=float(math.sqrt(u[h0] ** 2 * kq[h0])),
+                note=f"weight factor {factor[h0]:.1e}; removed with the ray of photo {photo} (point {point} "
+                     f"lost {1 + len(partners)} of its rays: " + ("its two rays cannot be told apart)"
+                                                                  if len(partners) == 1 else "a track that may "
+                                                                  "join two ground points)")))
+            listed.add(("image", ph, str(point)))
     if not found:
         return res, base, rel, [], n_adj
     try:
@@ -726,7 +800,7 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
     except (DatumError, ValueError) as ex:
         log.warning("robust %s: removing the %d down-weighted group(s) leaves %s; snooping alone", method,
                     len(found), ex)
-        sub.obs[:], sub.con[:], sub.eo[:] = saved
+        sub.restore(saved)
         return res, base, rel, [], n_adj
     n_adj += 1
     rel2 = reliability(r2, level=level, power=power) if r2.success else None
@@ -735,7 +809,8 @@ def _robust(p, sub, res, rel, method, level, power, adjust_kwargs, max_iter: int
 
 
 def _normalised_sq(p: BundleProblem, res: BundleResult) -> np.ndarray:
-    """Sum of (residual / original sigma)^2 of every group, in the order of :class:`Reliability`."""
+    """Sum of (residual / original sigma)^2 of every group, in the order of :class:`Reliability` (a line
+    observation: ``r^T P r``, its residual pair whitened, :func:`lidarcat.bundle.robust.line_normalised`)."""
     parts = [np.sum((np.asarray(res.residuals_mm) / p.sd_mm) ** 2, axis=1)]
     if len(p.constraint_point_index):
         w = np.where(np.isfinite(p.constraint_sd_m), 1.0 / p.constraint_sd_m, 0.0)
@@ -743,14 +818,21 @@ def _normalised_sq(p: BundleProblem, res: BundleResult) -> np.ndarray:
     if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
         w = np.where(np.isfinite(p.eo_constraint_sd), 1.0 / p.eo_constraint_sd, 0.0)
         parts.append(np.sum((np.asarray(res.eo_constraint_residuals) * w) ** 2, axis=1))
+    if getattr(p, "lines", None) is not None and len(p.lines.line_index):
+        q = line_normalised(p.lines, np.asarray(res.eo_params), p.focal_length_mm)
+        parts.append(np.where(np.isfinite(q), q, np.inf))
     return np.concatenate(parts)
 
 
 def _reweighted(p: BundleProblem, factor: np.ndarray, n_img: int, k_con: int) -> BundleProblem:
-    """*p* with the sigmas of every group divided by sqrt(factor)."""
+    """*p* with the sigmas of every group divided by sqrt(factor) (a line observation: its weight
+    matrix times the factor)."""
     s = 1.0 / np.sqrt(factor)
     kw: dict[str, Any] = {}
-    if p.eo_constraint_photo_index is not None and len(p.eo_constraint_photo_index):
-        kw = dict(eo_constraint_sd=p.eo_constraint_sd * s[n_img + k_con:, None])
+    n_eo = 0 if p.eo_constraint_photo_index is None else len(p.eo_constraint_photo_index)
+    if n_eo:
+        kw = dict(eo_constraint_sd=p.eo_constraint_sd * s[n_img + k_con:n_img + k_con + n_eo, None])
+    if getattr(p, "lines", None) is not None and len(p.lines.line_index):
+        kw["lines"] = with_line_weights(p.lines, factor[n_img + k_con + n_eo:])
     return dataclasses.replace(p, sd_mm=p.sd_mm * s[:n_img, None],
                                constraint_sd_m=p.constraint_sd_m * s[n_img:n_img + k_con, None], **kw)

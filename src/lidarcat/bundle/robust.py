@@ -30,6 +30,14 @@ least-squares step:
 4. observations whose final factor is below :data:`REJECT_BELOW` are rejected; a two-ray
    point loses both rays (no test tells which of the two is wrong).
 
+The observations of line control (``problem.lines``) are re-weighted with the image points:
+``u = sqrt(r^T P r / 2)`` of their residual pair (:func:`line_normalised`), the same loss and
+scale, the factor applied to the whole weight matrix (:func:`with_line_weights`: the 3-D line's
+share of the covariance too, or a line of a few mm could never be weighted down), rejected
+below :data:`REJECT_BELOW` (``RobustStart.keep_lines``) and put back like an image point
+(:func:`put_back_lines`).  A roof edge measured 60 px off on a block held by 2 m GNSS otherwise
+pulled its photo until the re-weighting cut the one correct LiDAR vertex of the block.
+
 Data snooping with the original weights then tests the survivors
 (:func:`lidarcat.bundle.reliability.snoop`), and a rejected observation whose residual
 against the final solution passes the test of a good observation is put back.
@@ -51,7 +59,8 @@ from .screening import SCREEN_K, Screening, screen
 from .solve import adjust
 
 __all__ = ["RobustStart", "robust_start", "LOSSES", "loss_weight", "REJECT_BELOW", "predicted_errors",
-           "start_blunders", "put_back", "START_MODES"]
+           "start_blunders", "put_back", "START_MODES", "line_normalised", "with_line_weights",
+           "line_start_blunders", "put_back_lines"]
 
 log = logging.getLogger(__name__)
 
@@ -110,6 +119,12 @@ class RobustStart:
         The block's robust scale ``s`` at the end.
     converged : bool
         The re-weighting settled (weights stable at the final scale).
+    keep_lines : (m,) bool or None
+        Observations of line control (``problem.lines``) kept; None when the problem has none.
+    line_found_by : (m,) str or None
+        The loss name for a line observation the re-weighting rejected, else empty.
+    line_weight : (m,) float or None
+        Their final weight factors.
     """
 
     keep: np.ndarray
@@ -122,14 +137,20 @@ class RobustStart:
     n_reweightings: int
     scale: float
     converged: bool
+    keep_lines: np.ndarray | None = None
+    line_found_by: np.ndarray | None = None
+    line_weight: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        for f in ("keep", "found_by", "reason", "weight", "eo", "points_m"):
-            object.__setattr__(self, f, frozen_array(getattr(self, f), dtype=None))
+        for f in ("keep", "found_by", "reason", "weight", "eo", "points_m", "keep_lines", "line_found_by",
+                  "line_weight"):
+            if getattr(self, f) is not None:
+                object.__setattr__(self, f, frozen_array(getattr(self, f), dtype=None))
 
     @property
     def n_rejected(self) -> int:
-        return int((~self.keep).sum())
+        """Image and line observations rejected."""
+        return int((~self.keep).sum()) + (0 if self.keep_lines is None else int((~self.keep_lines).sum()))
 
 
 def _reduced(p: BundleProblem, keep: np.ndarray) -> tuple[BundleProblem, np.ndarray]:
@@ -150,6 +171,23 @@ def _reduced(p: BundleProblem, keep: np.ndarray) -> tuple[BundleProblem, np.ndar
 def _u(res_mm: np.ndarray, sd_mm: np.ndarray) -> np.ndarray:
     """Normalised residual per observation: RMS of the two standardised coordinates."""
     return np.sqrt(0.5 * np.sum((res_mm / sd_mm) ** 2, axis=1))
+
+
+def line_normalised(lines: Any, eo: np.ndarray, focal_length_mm: np.ndarray) -> np.ndarray:
+    """``r^T P r`` (m,) of every observation of line control *lines* at *eo* (P, 6), with the weights
+    of *lines* (its residual pair whitened: the line's counterpart of an image point's
+    ``sum (v / sd)^2``); NaN for an end point behind the camera."""
+    from .lines import line_terms
+
+    T = line_terms(lines, np.asarray(eo, dtype=float), focal_length_mm, jacobians=False)
+    q = np.einsum("ki,kij,kj->k", T.r, T.P, T.r)
+    q[np.any(T.u3 >= 0, axis=1)] = np.nan
+    return q
+
+
+def with_line_weights(lines: Any, factor: np.ndarray, floor: float = 0.0) -> Any:
+    """*lines* with the weight of every observation multiplied by *factor* (m,) (at least *floor*)."""
+    return dataclasses.replace(lines, weight=np.asarray(lines.weight) * np.maximum(factor, floor))
 
 
 def _two_ray_partners(p: BundleProblem, keep: np.ndarray, rejected: np.ndarray) -> np.ndarray:
@@ -246,6 +284,10 @@ def robust_start(
             loss = "cauchy"
             log.info("robust start: least squares on the screened block %s; re-weighting (cauchy)", r.status)
     converged = loss == "none"
+    L = getattr(p, "lines", None)
+    m = 0 if L is None else len(L.line_index)
+    w_line = np.ones(m)
+    line_found = np.full(m, "", dtype=object)
     if loss != "none":
         c = LOSSES[loss]
         w_sub = np.ones(len(sub.photo_index))
@@ -253,16 +295,21 @@ def robust_start(
         for t in range(max_reweightings):
             grad = 2.0 ** max(GRADUATION - t, 0)
             cur = dataclasses.replace(sub, sd_mm=sub.sd_mm / np.sqrt(np.maximum(w_sub, WEIGHT_FLOOR))[:, None])
+            if m:       # the line observations re-weighted with the image points (their 2-D u the same way)
+                cur = dataclasses.replace(cur, lines=with_line_weights(L, w_line, WEIGHT_FLOOR))
             r = adjust(cur, initial=(eo, pts), max_iter=iterations_per_weighting, check=False, precision="none",
                        **kwargs)
             n_rw += 1
             if math.isfinite(r.vtpv):
                 eo, pts = np.array(r.eo_params), np.array(r.points_m)
             u = _u(np.asarray(r.residuals_mm), sub.sd_mm)
-            scale = max(1.0, 1.4826 * float(np.median(u)))
+            u_l = np.sqrt(0.5 * line_normalised(L, eo, p.focal_length_mm)) if m else np.zeros(0)
+            u_l = np.where(np.isfinite(u_l), u_l, np.inf)
+            scale = max(1.0, 1.4826 * float(np.median(np.r_[u, u_l])))
             new = loss_weight(loss, u / (c * max(scale, grad)))
-            change = float(np.max(np.abs(new - w_sub), initial=0.0))
-            w_sub = new
+            new_l = loss_weight(loss, u_l / (c * max(scale, grad)))
+            change = float(np.max(np.abs(np.r_[new - w_sub, new_l - w_line]), initial=0.0))
+            w_sub, w_line = new, new_l
             log.debug("robust %s: re-weighting %d, scale %.3g, graduation %g, max change %.3g", loss, t + 1,
                       scale, grad, change)
             if grad <= 1.0 and change < 1e-3 and r.status in ("converged", "max_iterations"):
@@ -277,6 +324,10 @@ def robust_start(
             found[low] = loss
             reason[low] = [f"weight {v:.1e}" for v in weight[low]]
             log.info("robust %s: %d observation(s) weighted below %g", loss, int(low.sum()), REJECT_BELOW)
+        low_l = w_line < REJECT_BELOW
+        if low_l.any():
+            line_found[low_l] = loss
+            log.info("robust %s: %d line observation(s) weighted below %g", loss, int(low_l.sum()), REJECT_BELOW)
         pts_full = np.full((p.n_points, 3), np.nan)
         pts_full[kept_pts] = pts
     else:
@@ -294,7 +345,9 @@ def robust_start(
     has[p.point_index[keep]] = True
     pts_full[~has] = np.nan
     return RobustStart(keep=keep, found_by=found, reason=reason, weight=weight, eo=eo, points_m=pts_full,
-                       screening=scr, n_reweightings=n_rw, scale=scale, converged=converged)
+                       screening=scr, n_reweightings=n_rw, scale=scale, converged=converged,
+                       keep_lines=None if L is None else w_line >= REJECT_BELOW,
+                       line_found_by=None if L is None else line_found, line_weight=None if L is None else w_line)
 
 
 def predicted_errors(problem: BundleProblem, eo: np.ndarray, point_ids: np.ndarray, points_m: np.ndarray,
@@ -349,6 +402,44 @@ def start_blunders(problem: BundleProblem, rs: RobustStart, eo: np.ndarray, poin
                            redundancy=math.nan, estimated_error=tuple(float(v) for v in e[i]),
                            removed=removed, found_by=str(rs.found_by[k]), iteration=0,
                            note="; ".join(x for x in (text, note) if x)))
+    return out
+
+
+def line_start_blunders(problem: BundleProblem, rs: RobustStart, eo: np.ndarray, w_critical: float, *,
+                        removed: bool = True, note: str = "") -> list:
+    """:class:`lidarcat.bundle.redundancy.Blunder` records (kind ``line``) of the line observations *rs*
+    rejected, judged at the adjusted orientations *eo*: ``w = sqrt(r^T P r)`` of their residual pair,
+    the estimated error ``-r`` (mm, at the end points A, B), redundancy NaN."""
+    from .lines import line_terms
+    from .redundancy import Blunder
+
+    p = problem
+    if rs.keep_lines is None or p.lines is None or rs.keep_lines.all():
+        return []
+    L = p.lines
+    rej = np.flatnonzero(~rs.keep_lines)
+    T = line_terms(L.select(rej), np.asarray(eo, dtype=float), p.focal_length_mm, jacobians=False)
+    w = np.sqrt(np.einsum("ki,kij,kj->k", T.r, T.P, T.r))
+    out = []
+    for i, k in enumerate(rej):
+        out.append(Blunder(kind="line", photo=str(p.photo_ids[L.photo_index[k]]),
+                           point=str(L.line_ids[L.line_index[k]]), w=float(w[i]) if np.isfinite(w[i]) else math.nan, w_critical=float(w_critical),
+                           redundancy=math.nan, estimated_error=tuple(float(v) for v in -T.r[i]),
+                           removed=removed, found_by=str(rs.line_found_by[k]), iteration=0,
+                           note="; ".join(x for x in (f"weight {rs.line_weight[k]:.1e}", note) if x)))
+    return out
+
+
+def put_back_lines(problem: BundleProblem, rejected: np.ndarray, eo: np.ndarray, w_critical: float) -> np.ndarray:
+    """Of the line observations *rejected* (m,) bool, those whose residual pair at the orientations
+    *eo* passes the test of a good observation (``sqrt(r^T P r) < w_critical``): the re-weighting
+    judged them at a worse orientation.  Returns an (m,) bool mask."""
+    out = np.zeros(len(rejected), dtype=bool)
+    rej = np.flatnonzero(rejected)
+    if not len(rej):
+        return out
+    q = line_normalised(problem.lines.select(rej), eo, problem.focal_length_mm)
+    out[rej] = np.isfinite(q) & (np.sqrt(np.nan_to_num(q, nan=np.inf)) < w_critical)
     return out
 
 

@@ -325,7 +325,11 @@ def estimate_components(result: BundleResult, redundancy: np.ndarray, *, exclude
     """
     p = result.problem
     lab = group_labels(p)
-    red = np.broadcast_to(np.asarray(redundancy, float), lab.shape)   # (m, 6): Reliability's rows
+    red = np.asarray(redundancy, float)
+    if red.ndim == 2 and len(red) > len(lab):     # Reliability's line rows follow: line_group sums those
+        red = red[:len(lab)]
+        exclude = None if exclude is None else np.asarray(exclude, bool)[:len(lab)]
+    red = np.broadcast_to(red, lab.shape)   # (m, 6): Reliability's rows
     sq = _normalised_squares(p, result)
     use = (lab >= 0) & np.isfinite(sq) & np.isfinite(red)
     if exclude is not None:

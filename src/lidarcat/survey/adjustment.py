@@ -394,7 +394,9 @@ def write_adjustment(result: BundleResult, folder, extra: dict | None = None, *,
     if getattr(pr, "lines", None) is not None:          # line_residuals.csv (survey/lines.py)
         from .lines import write_line_residuals
 
-        summary.update(write_line_residuals(result, folder, write_csv_atomic))
+        rel = None if snooping is None else snooping.reliability
+        summary.update(write_line_residuals(result, folder, write_csv_atomic,
+                                            level=0.001 if rel is None else rel.alpha))
     if snooping is not None:
         summary.update(_write_snooping(snooping, folder, write_csv_atomic))
     if provenance is not None:
@@ -594,7 +596,7 @@ def adjust_survey_into(
         extra["variance_components"] = vc.summary()
     else:
         sres = fit(problem)
-    sres, lines_removed = _snoop_line_control(sres, snoop_kw)
+    lines_removed = [b for b in sres.blunders if b.kind == "line" and b.removed]
     if sres.result is not None:
         rs_test = rolling_shutter_test(survey, sres.result)   # drone photos with exposure times, no model
         if rs_test is not None:
@@ -606,44 +608,20 @@ def adjust_survey_into(
         "elapsed_total_s": time.perf_counter() - t0, "crs": survey.crs, "height_system": survey.height_system,
         "survey": survey.name, "control_set": params["control"], "observations": params["observations"], **extra},
         snooping=sres, provenance=provenance)
-    if lines_removed is not None:
-        _write_removed_lines(folder, sres.result, *lines_removed, provenance)
+    if lines_removed:
+        _write_removed_lines(folder, sres.result, problem, lines_removed, provenance)
     if plan is not None:
         _write_rig_tables(folder, plan, sres.result, selfcal, provenance)
     return sres
 
 
-def _snoop_line_control(sres: SnoopingResult, snoop_kw: dict) -> tuple[SnoopingResult, Any]:
-    """With snooping ``remove``: data snooping over the line observations of line control
-    (:func:`lidarcat.bundle.line_tests.snoop_lines`, at the level of line_residuals.csv) after the
-    point snooping; returns the snooping result with the final adjustment (its point tests
-    recomputed) and ``(problem with every line observation, LineSnooping)``, or None when nothing
-    was removed, there are no lines, or no photo covariances (``precision`` none)."""
-    import dataclasses
-
-    from ..bundle.line_tests import snoop_lines
-    from ..bundle.redundancy import reliability
-
-    res = sres.result
-    if (snoop_kw["mode"] != "remove" or getattr(res.problem, "lines", None) is None or not res.success
-            or snoop_kw["precision"] == "none"):
-        return sres, None
-    kw = {k: snoop_kw[k] for k in ("max_iter", "variance_factor", "chi2_level", "precision")}
-    ls = snoop_lines(res, adjust_kwargs=kw)
-    if not ls.removed:
-        return sres, None
-    for label, w in zip(ls.removed, ls.removed_w):
-        log.info("line snooping: removed %s (w %.2f > %.2f)", label, w, ls.tests.critical_w)
-    rel = sres.reliability
-    if rel is not None and ls.result.success:
-        rel = reliability(ls.result, level=rel.alpha, power=rel.power)
-    return dataclasses.replace(sres, result=ls.result, reliability=rel), (res.problem, ls)
-
-
-def _write_removed_lines(folder, result: BundleResult, full: BundleProblem, ls, provenance: dict | None) -> None:
-    """The line observations line snooping removed: rows of line_residuals.csv (their residuals at the final
-    orientation, the w at their removal, ``rejected`` = ``removed``) and ``line_control.removed`` of
-    summary.json (line, photo, w, w_critical)."""
+def _write_removed_lines(folder, result: BundleResult, full: BundleProblem, removed_lines: list,
+                         provenance: dict | None) -> None:
+    """The line observations data snooping (or the robust start) removed -- tested in the same
+    worst-first loop as the image points and the GNSS/INS groups
+    (:func:`lidarcat.bundle.reliability.snoop`) -- as rows of line_residuals.csv (their residuals at
+    the final orientation, the w at their removal, ``rejected`` = ``removed``) and
+    ``line_control.removed`` of summary.json (line, photo, w, w_critical, found_by)."""
     import csv
     import json
     from pathlib import Path
@@ -659,21 +637,22 @@ def _write_removed_lines(folder, result: BundleResult, full: BundleProblem, ls, 
     pos = {pid: i for i, pid in enumerate(result.photo_ids)}
     eo = np.asarray(result.eo_params)[[pos[str(p)] for p in full.photo_ids]]
     v = line_residuals_mm(full, eo)
-    crit = ls.tests.critical_w
     path = folder / "line_residuals.csv"
     with open(path, encoding="utf-8", newline="") as fh:
         text = fh.read().splitlines()
     comments = [ln[1:].strip() for ln in text if ln.startswith("#")]
     rows = list(csv.reader(ln for ln in text if not ln.startswith("#")))[1:]
     removed = []
-    for label, w in zip(ls.removed, ls.removed_w):
-        k = at[label]
+    for b in removed_lines:
+        k = at[f"line {b.point} on photo {b.photo}"]
         lid, ph = str(L.line_ids[L.line_index[k]]), str(full.photo_ids[L.photo_index[k]])
-        rows.append([lid, ph, *v[k], *(v[k] / L.pixel_mm[k]), math.nan, math.nan, w, crit, "removed"])
-        removed.append({"line": lid, "photo": ph, "w": float(w), "w_critical": float(crit)})
+        rows.append([lid, ph, *v[k], *(v[k] / L.pixel_mm[k]), math.nan, math.nan, b.w, b.w_critical, "removed"])
+        removed.append({"line": lid, "photo": ph, "w": float(b.w), "w_critical": float(b.w_critical),
+                        "found_by": b.found_by})
     write_csv_atomic(path, LINE_RESIDUAL_COLUMNS, rows, comments=comments + [
-        "rejected 'removed': removed by line snooping (--snooping remove), w at its removal, residuals at the "
-        "final orientation"], provenance=provenance)
+        "rejected 'removed': removed by data snooping (--snooping remove; tested with the image points and "
+        "GNSS/INS groups, blunders.csv) or the robust start, w at its removal, residuals at the final "
+        "orientation"], provenance=provenance)
     summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
     summary.setdefault("line_control", {})["removed"] = removed
     write_json_atomic(folder / "summary.json", summary)

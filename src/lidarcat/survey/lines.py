@@ -204,15 +204,17 @@ def photo_cameras(photos: Iterable[Any], cameras: Mapping[str, Any]) -> dict[str
 
 
 def write_line_residuals(result: Any, folder: Path, write_csv: Callable[..., Any],
-                         pixel_mm: float | None = None) -> dict:
+                         pixel_mm: float | None = None, level: float = 0.001) -> dict:
     # pixel_mm None: each observation's own pixel size (LineControl.pixel_mm)
     """``line_residuals.csv`` of an adjustment with line control; returns the summary keys
-    (``line_control``: observations, rejected ones named, the largest w)."""
+    (``line_control``: observations, rejected ones named, the largest w).  *level*: alpha_1 of the
+    tests (``lidarcat adjust`` passes its data snooping's level, so that the 2-D tests here are those
+    of reliability.csv and blunders.csv)."""
     from ..bundle.line_tests import line_tests
 
     p = result.problem
     if np.isfinite(result.eo_cov).all():
-        t = line_tests(result, pixel_mm=pixel_mm)
+        t = line_tests(result, pixel_mm=pixel_mm, level=level)
         rows = [[lid, ph, *v, *vp, *r, w, t.critical_w, bool(w > t.critical_w)]
                 for lid, ph, v, vp, r, w in zip(t.line_ids, t.photo_ids, t.residuals_mm, t.residuals_px,
                                                  t.redundancy, t.w)]
