@@ -89,7 +89,7 @@ class ExtractionParams:
     #: its reason (1.5 m: beyond the 1-m-per-axis uncertainty of a position picked by hand or
     #: by ``--find``)
     near_m: float = 1.5
-    #: clip radii of the retries, as fractions of ``radius_m`` (each at least 3 m)
+    #: clip radii of the retries, as fractions of ``radius_m``, besides 4 and 3 m (each at least 3 m)
     scales: tuple = (0.65, 0.5)
     #: two distinct vertices (> 0.5 m apart) whose distances from the position differ by
     #: less than this (m) make the request "ambiguous" (both listed); 0 never
