@@ -2,7 +2,8 @@
 
     python benchmarks/bench_extract_sweep.py [--workers 2] [--radii 4 5 6 8 10 12]
         [--classes 6 | --classes all] [--cache /tmp/cands.pkl] [--plot docs/figures/extract_radius_sweep.png]
-        [--csv rows.csv] [--quick] [--replot rows.csv]
+        [--csv rows.csv] [--quick] [--replot rows.csv] [--before rows_before.csv] [--cells [C ...]]
+        [--rows rows.pkl [--reuse]]
 
 Issue 29 ("Extraction"): a sweep of radius 4-12 m over the ``--find`` candidates of both tiles must change no
 accepted vertex by more than its sd.  The candidates are those of ``lidarcat extract --find --classes 6`` on
@@ -13,13 +14,18 @@ each other radius whose extraction is ``ok``:
 
 - ``d`` the 3-D displacement from the 8 m vertex (m), ``sd`` the largest axis of the 8 m vertex's 3 x 3
   covariance (m), ratio ``d / sd``;
-- ``m`` the Mahalanobis distance ``sqrt(d' (C_8 + C_r)^-1 d)`` (both covariances, as if independent: the
+- ``maha`` the Mahalanobis distance ``sqrt(d' (C_8 + C_r)^-1 d)`` (both covariances, as if independent: the
   clips share points, so this is the lenient reading);
+- ``maha_diff`` the Mahalanobis distance with the covariance of the difference ``x_r - x_8`` itself: each
+  vertex written as a linear function of its points' errors (:func:`influence`), the points both clips
+  share cancelling, propagated with the plane fit's own error model (iid part plus the cell components of
+  :mod:`lidarcat.control.planes`): chi2 with 3 degrees of freedom when the covariances are honest;
 - the statuses per radius (ok / ambiguous / no_vertex ...).
 
 The points are the ones ``--find`` searched (``--classes 6``, the building class) unless ``--classes all``.
 Prints a table (one row per candidate with a ratio above 1, then the summary per radius) and writes the
-figure of ``d / sd`` against radius.  BLAS is pinned to one thread; ``--workers`` processes share the cloud.
+figure of ``d / sd`` and both Mahalanobis distances against radius.  ``--cells`` with no sizes: the planes'
+covariance of independent points (the code before the cell components), for a before/after comparison.  BLAS is pinned to one thread; ``--workers`` processes share the cloud.
 """
 
 from __future__ import annotations

@@ -529,13 +529,19 @@ def _variance_components(en_abs: np.ndarray, xl: np.ndarray, s2: np.ndarray, w: 
     for i in range(k):
         fq = qxx @ f_mats[i]
         coef[0, i + 1] = coef[i + 1, 0] = sum_w - float(np.sum(f_mats[i] * fq))
-        inv_i, g_i = keys[i]
+        inv_i = keys[i][0]
         for j in range(i, k):
             inv_j, g_j = keys[j]
-            # Z~_i' Z~_j (G_i, G_j): per pair of cells the sum of w over their common points
-            mij = np.bincount(inv_i * g_j + inv_j, weights=w, minlength=g_i * g_j).reshape(g_i, g_j)
-            b = mij - f_mats[i].T @ qxx @ f_mats[j]
-            coef[i + 1, j + 1] = coef[j + 1, i + 1] = float(np.sum(b * b))
+            # ||M - F_i' Q F_j||_F^2 with M = Z~_i' Z~_j (per pair of cells the sum of w over their common
+            # points; at most m non-zeros), expanded so that no G_i x G_j matrix is formed:
+            # ||M||^2 - 2 sum_ab M_ab (F_i' Q F_j)_ab + tr(Q F_i F_i' Q F_j F_j')
+            pair, pinv = np.unique(inv_i * g_j + inv_j, return_inverse=True)
+            mval = np.bincount(pinv.reshape(-1), weights=w)
+            a_idx, b_idx = pair // g_j, pair % g_j
+            cross = np.sum(f_mats[i][:, a_idx] * (qxx @ f_mats[j][:, b_idx]), axis=0)
+            gi, gj = f_mats[i] @ f_mats[i].T, f_mats[j] @ f_mats[j].T
+            coef[i + 1, j + 1] = coef[j + 1, i + 1] = float(
+                np.sum(mval * mval) - 2.0 * np.sum(mval * cross) + np.trace(qxx @ gi @ qxx @ gj))
     t_obs = np.asarray(t_obs)
     # a component is estimated only where the cells show it: z_k of T_k against independent residuals
     # (E = s0^2 c_0k, Var = 2 s0^4 c_kk for Gaussian residuals) above Z_KEEP
