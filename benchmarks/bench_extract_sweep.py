@@ -2,7 +2,8 @@
 
     python benchmarks/bench_extract_sweep.py [--workers 2] [--radii 4 5 6 8 10 12]
         [--classes 6 | --classes all] [--cache /tmp/cands.pkl] [--plot docs/figures/extract_radius_sweep.png]
-        [--csv rows.csv] [--quick] [--replot rows.csv]
+        [--csv rows.csv] [--quick] [--replot rows.csv] [--before rows_before.csv] [--cells [C ...]]
+        [--rows rows.pkl [--reuse]]
 
 Issue 29 ("Extraction"): a sweep of radius 4-12 m over the ``--find`` candidates of both tiles must change no
 accepted vertex by more than its sd.  The candidates are those of ``lidarcat extract --find --classes 6`` on
@@ -13,13 +14,18 @@ each other radius whose extraction is ``ok``:
 
 - ``d`` the 3-D displacement from the 8 m vertex (m), ``sd`` the largest axis of the 8 m vertex's 3 x 3
   covariance (m), ratio ``d / sd``;
-- ``m`` the Mahalanobis distance ``sqrt(d' (C_8 + C_r)^-1 d)`` (both covariances, as if independent: the
+- ``maha`` the Mahalanobis distance ``sqrt(d' (C_8 + C_r)^-1 d)`` (both covariances, as if independent: the
   clips share points, so this is the lenient reading);
+- ``maha_diff`` the Mahalanobis distance with the covariance of the difference ``x_r - x_8`` itself: each
+  vertex written as a linear function of its points' errors (:func:`influence`), the points both clips
+  share cancelling, propagated with the plane fit's own error model (iid part plus the cell components of
+  :mod:`lidarcat.control.planes`): chi2 with 3 degrees of freedom when the covariances are honest;
 - the statuses per radius (ok / ambiguous / no_vertex ...).
 
 The points are the ones ``--find`` searched (``--classes 6``, the building class) unless ``--classes all``.
 Prints a table (one row per candidate with a ratio above 1, then the summary per radius) and writes the
-figure of ``d / sd`` against radius.  BLAS is pinned to one thread; ``--workers`` processes share the cloud.
+figure of ``d / sd`` and both Mahalanobis distances against radius.  ``--cells`` with no sizes: the planes'
+covariance of independent points (the code before the cell components), for a before/after comparison.  BLAS is pinned to one thread; ``--workers`` processes share the cloud.
 """
 
 from __future__ import annotations
@@ -48,21 +54,137 @@ _TREE = None
 
 
 def sweep_one(args):
-    """Extraction of one candidate at every radius: list of (radius, status, enh (3,), cov (3, 3), reason)."""
-    pid, en, radii = args
+    """Extraction of one candidate at every radius.
+
+    Returns ``(pid, en, out)``, *out* a list of ``(radius, status, enh (3,), cov (3, 3), reason, m_exact,
+    self_check)`` with ``m_exact`` the Mahalanobis distance of the vertex from the 8 m vertex with the
+    covariance of their difference (:func:`difference_cov`; NaN for the reference or when either is not ok)
+    and ``self_check`` the ratio of :func:`influence`'s propagated variance trace to the reported one.
+    """
+    pid, en, radii, cells_m = args
+    from lidarcat.control.params import get_params
     from lidarcat.control.vertices import extract_roof
 
     idx = _TREE.query_ball_point(en, r=max(radii) + 0.01, return_sorted=True)
     sub = _XYZ[idx]
+    p = get_params(cells_m=tuple(cells_m))
+    cps = {r: extract_roof(sub, en, params=p.replace(radius_m=r), point_id=pid) for r in radii}
+    infl = {r: influence(cp, p) if cp.status == "ok" else None for r, cp in cps.items()}
+    ref = infl.get(DEFAULT_RADIUS_M)
     out = []
     for r in radii:
-        cp = extract_roof(sub, en, radius_m=r, point_id=pid)
-        out.append((r, cp.status, np.array(cp.enh_m), np.array(cp.cov_m2), cp.reason))
+        cp, m_exact, check = cps[r], np.nan, np.nan
+        if infl[r] is not None:
+            check = float(np.trace(infl[r][4]) / np.trace(cp.cov_m2))
+            if ref is not None and r != DEFAULT_RADIUS_M:
+                d = np.asarray(cp.enh_m) - np.asarray(cps[DEFAULT_RADIUS_M].enh_m)
+                c = difference_cov(infl[r], ref, p.cells_m)
+                # + (1 um)^2: the same points in both clips give the same vertex (c = 0, d = 0)
+                # (a face refit whose propagation does not reproduce the reported covariance gives no test)
+                bound = 4.0 * (np.trace(cp.cov_m2) + np.trace(cps[DEFAULT_RADIUS_M].cov_m2))
+                if np.all(np.isfinite(c)) and np.trace(c) <= bound:
+                    m_exact = float(np.sqrt(d @ np.linalg.solve(c + 1e-12 * np.eye(3), d)))
+        out.append((r, cp.status, np.array(cp.enh_m), np.array(cp.cov_m2), cp.reason, m_exact, check))
     return pid, np.asarray(en), out
+
+
+def influence(cp, p):
+    """The vertex of *cp* as a linear function of its points' errors: ``dx = sum_p L_p eps_p``.
+
+    Each face's plane is ``theta = theta_0 + Q A' W eps`` (the Gauss-Helmert solution linearised; Q the
+    cofactor block of the bordered normal matrix, in a frame at the vertex), the plane distances at the
+    vertex ``dr_i = (0, 0, 0, 1) . dtheta_i`` and the vertex ``dx = G dr`` (G = A^-1 for three planes, the
+    weighted least-squares operator of :func:`~lidarcat.control.vertices.intersect_planes` for more).  The
+    error model of the fit (:mod:`lidarcat.control.planes`): ``Cov(eps_p, eps_q) = s0^2 / w_p [p = q] +
+    sum_k tau_k^2 [same cell of size c_k]``, with the components of the point's face (t-corrected as the fit).
+
+    Returns ``(keys (P, 3) point coordinates, L (P, 3), var_iid (P,), tau (P, K), cov (3, 3))``: per point
+    the row L_p, its independent variance and its cell sds, and the covariance propagated from them (which
+    reproduces ``cp.cov_m2``: the sweep prints the ratio of the traces).
+    """
+    from lidarcat.control.planes import fit_plane
+
+    xyz, labels = (np.asarray(a) for a in cp.labels)
+    x0 = np.asarray(cp.enh_m)
+    planes = list(cp.planes)
+    nmat = np.array([pl.n for pl in planes])
+    var_r = np.array([pl.cov_at(x0)[3, 3] for pl in planes])
+    if len(planes) == 3:
+        g = np.linalg.inv(nmat)
+    else:
+        g = np.linalg.solve(nmat.T @ (nmat / var_r[:, None]), nmat.T / var_r[None, :])
+    sd = np.array([p.sd_en_m, p.sd_en_m, p.sd_h_m])
+    keys, rows, var_iid, taus = [], [], [], []
+    for i, pl in enumerate(planes):
+        pts = xyz[labels == pl.label]
+        loc = pts - x0
+        fit = fit_plane(loc, sd_m=sd, residual_threshold_m=1e9, min_points=3, cells_m=p.cells_m,
+                        grid_origin_m=x0[:2])
+        n = fit.plane.n
+        comps = np.asarray(fit.components or (fit.sigma0**2,), dtype=float)
+        m = len(pts)
+        tcorr = _t_factor(m - 3)
+        w = 1.0 / float((sd**2) @ (n * n))
+        a = np.column_stack([loc, np.ones(m)])
+        big = np.zeros((5, 5))
+        big[:4, :4] = w * a.T @ a
+        big[:3, 4] = big[4, :3] = n
+        q = np.linalg.inv(big)[:4, :4]
+        keys.append(pts)
+        rows.append(np.outer(w * (a @ q[3]), g[:, i]))
+        var_iid.append(np.full(m, tcorr * comps[0] / w))
+        # each cell component with the t factor of its own redundancy (cells - 3), as the fit
+        tk = [_t_factor(len(np.unique(np.floor(pts[:, :2] / c).astype(np.int64), axis=0)) - 3) for c in p.cells_m]
+        taus.append(np.tile(np.sqrt(np.asarray(tk) * comps[1:]), (m, 1)).reshape(m, len(comps) - 1))
+    keys, rows = np.vstack(keys), np.vstack(rows)
+    var_iid, taus = np.concatenate(var_iid), np.vstack(taus)
+    cov = _cov_of(keys, rows, var_iid, taus, p.cells_m)
+    return keys, rows, var_iid, taus, cov
+
+
+def _t_factor(dof: int) -> float:
+    """f / (f - 2), 3 for f <= 4: the t factor the plane fit multiplies each variance component by."""
+    return dof / (dof - 2.0) if dof > 4 else 3.0
+
+
+def _cov_of(keys, rows, var_iid, taus, cells_m):
+    """Covariance (3, 3) of ``sum_p rows_p eps_p`` under the error model of :func:`influence`."""
+    cov = (rows * var_iid[:, None]).T @ rows
+    for k, c in enumerate(cells_m):
+        _, inv = np.unique(np.floor(keys[:, :2] / c).astype(np.int64), axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        s = np.stack([np.bincount(inv, weights=taus[:, k] * rows[:, j]) for j in range(3)], axis=1)
+        cov = cov + s.T @ s
+    return cov
+
+
+def difference_cov(a, b, cells_m):
+    """Covariance (3, 3) of the difference of two vertices from :func:`influence` (shared points shared).
+
+    A point in both clips carries the error model of *b* (the reference clip's face); its rows subtract.
+    """
+    keys = np.vstack([a[0], b[0]])
+    _, inv = np.unique(keys, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    n_a = len(a[0])
+    u = int(inv.max()) + 1
+    rows = np.zeros((u, 3))
+    np.add.at(rows, inv[:n_a], a[1])
+    np.add.at(rows, inv[n_a:], -b[1])
+    var_iid = np.zeros(u)
+    taus = np.zeros((u, a[3].shape[1]))
+    var_iid[inv[:n_a]], taus[inv[:n_a]] = a[2], a[3]
+    var_iid[inv[n_a:]], taus[inv[n_a:]] = b[2], b[3]  # the reference's model where both have the point
+    pts = np.zeros((u, 3))
+    pts[inv] = keys
+    return _cov_of(pts, rows, var_iid, taus, cells_m)
 
 
 def compare(rows, ref_radius: float = DEFAULT_RADIUS_M):
     """Per candidate accepted at *ref_radius*: per other radius d (m), sd (m), d/sd, Mahalanobis, status.
+
+    ``maha`` uses ``C_8 + C_r`` (independent clips), ``maha_diff`` the covariance of the difference with the
+    shared points shared (:func:`difference_cov`).
 
     *rows* as returned by :func:`sweep_one`.  Returns a list of dicts (one per candidate and radius).
     """
@@ -73,9 +195,10 @@ def compare(rows, ref_radius: float = DEFAULT_RADIUS_M):
             continue
         e0, c0 = ref[2], ref[3]
         sd0 = float(np.sqrt(np.linalg.eigvalsh(c0)[-1]))
-        for r, status, e, c, reason in res:
+        for r, status, e, c, reason, m_exact, check in res:
             row = dict(point=pid, radius_m=r, status=status, ref_sd_m=sd0, d_m=np.nan, d_plan_m=np.nan,
-                       dh_m=np.nan, ratio=np.nan, maha=np.nan, sd_m=np.nan, reason=reason)
+                       dh_m=np.nan, ratio=np.nan, maha=np.nan, maha_diff=m_exact, sd_m=np.nan, cov_check=check,
+                       reason=reason)
             if np.all(np.isfinite(e)):
                 d = e - e0
                 row.update(d_m=float(np.linalg.norm(d)), d_plan_m=float(np.hypot(*d[:2])), dh_m=float(d[2]),
@@ -106,10 +229,17 @@ def main() -> None:
     ap.add_argument("--csv", default=None)
     ap.add_argument("--quick", action="store_true", help="the first 20 candidates only")
     ap.add_argument("--replot", default=None, help="a --csv table: draw --plot from it and stop")
+    ap.add_argument("--rows", default=None, help="pickle of the raw extractions (statuses, vertices, covariances) "
+                                                 "written here; with --reuse read instead of extracting")
+    ap.add_argument("--reuse", action="store_true", help="read --rows instead of extracting")
+    ap.add_argument("--before", default=None, help="a --csv table drawn in grey beside (e.g. the --cells run)")
+    ap.add_argument("--cells", type=float, nargs="*", default=None,
+                    help="cells_m of the plane covariance (default: the extraction default; none: independent "
+                         "points, the covariance before the correlated components)")
     a = ap.parse_args()
     title = f"AHN3 --find candidates (classes {a.classes}): vertex at radius r vs the 8 m clip"
     if a.replot:
-        replot(a.replot, a.plot, title)
+        replot(a.replot, a.plot, title, a.before)
         return
     if not all(t.exists() for t in TILES):
         print("AHN3 tiles not found in tests/data/lidar; skipping")
@@ -140,9 +270,12 @@ def main() -> None:
         _XYZ, _ = search_points(cloud, area, get_params(radius_m=max(a.radii)), classes)
     _TREE = cKDTree(_XYZ[:, :2])
     radii = sorted(set(float(r) for r in a.radii) | {DEFAULT_RADIUS_M})
-    tasks = [(c.point.point_id, np.array(c.point.enh_m[:2]), radii) for c in cands]
+    cells_m = tuple(get_params().cells_m if a.cells is None else a.cells)
+    tasks = [(c.point.point_id, np.array(c.point.enh_m[:2]), radii, cells_m) for c in cands]
     t0 = time.perf_counter()
-    if a.workers > 1:
+    if a.reuse and a.rows:
+        rows = pickle.loads(Path(a.rows).read_bytes())
+    elif a.workers > 1:
         import multiprocessing as mp
 
         with ProcessPoolExecutor(a.workers, mp_context=mp.get_context("fork")) as ex:
@@ -150,6 +283,8 @@ def main() -> None:
     else:
         rows = [sweep_one(t) for t in tasks]
     dt = time.perf_counter() - t0
+    if a.rows and not a.reuse:
+        Path(a.rows).write_bytes(pickle.dumps(rows))
     print(f"{len(tasks)} candidates x {len(radii)} radii extracted in {dt:.0f} s ({a.workers} workers); "
           f"points: classes {a.classes} ({len(_XYZ)})")
     table = compare(rows)
@@ -161,40 +296,69 @@ def main() -> None:
             w.writeheader()
             w.writerows(table)
     if a.plot:
-        plot(table, radii, a.plot, title=title)
+        plot(table, radii, a.plot, title=title, before=read_table(a.before) if a.before else None)
+
+
+#: sqrt(chi2_3) quantiles: 99 % and 99.9 %
+CHI3_99, CHI3_999 = 3.368, 4.033
 
 
 def report(rows, table, radii) -> None:
     """Print statuses per radius, the candidates beyond their sd, and the summary per radius."""
     acc = sorted({t["point"] for t in table})
     print(f"\naccepted (ok) at {DEFAULT_RADIUS_M:g} m: {len(acc)} of {len(rows)}")
-    print("\n| radius m | " + " | ".join(f"{s}" for s in ("ok", "other statuses (of the accepted)", "d/sd <= 1",
-                                                             "median d/sd", "max d/sd", "median d mm",
-                                                             "max Mahalanobis")) + " |")
-    print("|---:|---:|---|---:|---:|---:|---:|---:|")
+    checks = np.array([t["cov_check"] for t in table if t["status"] == "ok"], dtype=float)
+    checks = checks[np.isfinite(checks)]
+    if len(checks):
+        print(f"propagated / reported covariance trace (influence rows vs cov_m2): median {np.median(checks):.3f}, "
+              f"range {checks.min():.3f}-{checks.max():.3f}")
+    print("\n| radius m | ok | other statuses | d <= sd | median d/sd | median d mm | median sd mm (8 m) "
+          "| M_ind > 3.37 | median M_ind | M_diff > 3.37 | M_diff > 4.03 | median M_diff | d > 0.5 m |")
+    print("|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in radii:
+        if r == DEFAULT_RADIUS_M:
+            continue
         sel = [t for t in table if t["radius_m"] == r]
         st = Counter(t["status"] for t in sel)
         ok = [t for t in sel if t["status"] == "ok"]
         rat = np.array([t["ratio"] for t in ok])
         mah = np.array([t["maha"] for t in ok])
+        mdf = np.array([t["maha_diff"] for t in ok], dtype=float)
         dd = np.array([t["d_m"] for t in ok])
+        sd0 = np.array([t["ref_sd_m"] for t in ok])
         other = ", ".join(f"{k} {v}" for k, v in sorted(st.items()) if k != "ok") or "-"
         print(f"| {r:g} | {len(ok)} | {other} | {int(np.sum(rat <= 1.0))} | {np.median(rat):.2f} | "
-              f"{np.max(rat):.1f} | {1000 * np.median(dd):.1f} | {np.max(mah):.1f} |")
-    bad = sorted({t["point"] for t in table if t["status"] == "ok" and t["ratio"] > 1.0})
+              f"{1000 * np.median(dd):.1f} | {1000 * np.median(sd0):.1f} | {int(np.sum(mah > CHI3_99))} | "
+              f"{np.median(mah):.2f} | {int(np.sum(mdf > CHI3_99))} | {int(np.sum(mdf > CHI3_999))} | "
+              f"{np.nanmedian(mdf):.2f} | {int(np.sum(dd > 0.5))} |")
+    okr = [t for t in table if t["status"] == "ok" and t["radius_m"] != DEFAULT_RADIUS_M]
+    n_nan = sum(not np.isfinite(t["maha_diff"]) for t in okr)
+    if n_nan:
+        print(f"M_diff not computed (a face refit failed): {n_nan}")
+    bad = sorted({t["point"] for t in okr if t["ratio"] > 1.0})
+    bad_m = sorted({t["point"] for t in okr if t["maha_diff"] > CHI3_999})
     print(f"\ncandidates whose ok vertex moves by more than its sd at some radius: {len(bad)} of {len(acc)}")
-    print("| point | E | N | sd mm (8 m) | d mm at " + " / ".join(f"{r:g}" for r in radii) + " |")
+    print(f"candidates whose move fails the difference test (M_diff > {CHI3_999}, chi2_3 99.9 %) at some radius: "
+          f"{len(bad_m)} of {len(acc)}; at 5-12 m: "
+          f"{len({t['point'] for t in okr if t['maha_diff'] > CHI3_999 and t['radius_m'] >= 5})}")
+    print("| point | E | N | sd mm (8 m) | d mm at " + " / ".join(f"{r:g}" for r in radii) + " | M_diff |")
     ref = {pid: [x for x in res if x[0] == DEFAULT_RADIUS_M][0] for pid, _, res in rows}
     for pid in bad:
         sel = {t["radius_m"]: t for t in table if t["point"] == pid}
         cells = " / ".join("-" if sel[r]["status"] != "ok" else f"{1000 * sel[r]['d_m']:.0f}" for r in radii)
+        mds = " / ".join("-" if sel[r]["status"] != "ok" or r == DEFAULT_RADIUS_M else f"{sel[r]['maha_diff']:.1f}"
+                         for r in radii)
         e = ref[pid][2]
-        print(f"| {pid} | {e[0]:.2f} | {e[1]:.2f} | {1000 * sel[DEFAULT_RADIUS_M]['ref_sd_m']:.1f} | {cells} |")
+        print(f"| {pid} | {e[0]:.2f} | {e[1]:.2f} | {1000 * sel[DEFAULT_RADIUS_M]['ref_sd_m']:.1f} | {cells} | "
+              f"{mds} |")
 
 
-def plot(table, radii, path, title="") -> None:
-    """``|d| / sd`` and the Mahalanobis distance per radius: every candidate a dot (jittered), the median a bar."""
+def plot(table, radii, path, title="", before=None) -> None:
+    """``|d| / sd`` and the two Mahalanobis distances per radius: every candidate a dot (jittered), the median a bar.
+
+    *before*: a table of the same form (e.g. ``--cells`` with no sizes: the covariance of independent
+    points) drawn in grey to the left of each radius.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -202,46 +366,57 @@ def plot(table, radii, path, title="") -> None:
 
     rng = np.random.default_rng(0)
     others = [r for r in radii if r != DEFAULT_RADIUS_M]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6))
-    for ax, key, lab, lines in ((axes[0], "ratio", "|d| / sd  (sd: largest axis of the 8 m vertex)",
-                                 ((1.0, "1 sd"), (4.03 * np.sqrt(2), "5.7 sd"))),
-                                (axes[1], "maha", "Mahalanobis distance with C_8 + C_r",
-                                 ((4.03, "chi2(3) 99.9 %"),))):
-        for r in others:
-            ok = [t for t in table if t["radius_m"] == r and t["status"] == "ok"]
-            y = np.maximum(np.array([t[key] for t in ok]), 1e-2)
-            far = np.array([t["d_m"] > 0.5 for t in ok])
-            x = r + rng.uniform(-0.35, 0.35, len(y))
-            ax.scatter(x[~far], y[~far], s=6, alpha=0.45, color="C0", lw=0)
-            ax.scatter(x[far], y[far], s=18, color="C3", marker="x", label="another corner (> 0.5 m)"
-                       if r == others[0] else None)
-            ax.hlines(np.median(y), r - 0.45, r + 0.45, color="k", lw=2)
-            n_bad = sum(t["status"] != "ok" for t in table if t["radius_m"] == r)
-            if n_bad:
-                ax.annotate(f"{n_bad} not ok", (r, 1.2e-2), ha="center", fontsize=7, color="C1")
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.8))
+    panels = ((axes[0], "ratio", "|d| / sd  (sd: largest axis of the 8 m vertex)", ((1.0, "1 sd"),)),
+              (axes[1], "maha", "Mahalanobis distance with C_8 + C_r (independent clips)",
+               ((CHI3_99, "chi2(3) 99 %"), (CHI3_999, "99.9 %"))),
+              (axes[2], "maha_diff", "Mahalanobis distance with Cov(x_r - x_8) (shared points)",
+               ((CHI3_99, "chi2(3) 99 %"), (CHI3_999, "99.9 %"))))
+    for ax, key, lab, lines in panels:
+        for tab, dx, col, name in ((before, -0.22, "0.6", "before"), (table, 0.22 if before else 0.0, "C0", "now")):
+            if tab is None:
+                continue
+            for r in others:
+                ok = [t for t in tab if t["radius_m"] == r and t["status"] == "ok" and np.isfinite(t.get(key, np.nan))]
+                if not ok:
+                    continue
+                y = np.maximum(np.array([t[key] for t in ok]), 1e-2)
+                far = np.array([t["d_m"] > 0.5 for t in ok])
+                x = r + dx + rng.uniform(-0.18, 0.18, len(y))
+                ax.scatter(x[~far], y[~far], s=5, alpha=0.45, color=col, lw=0,
+                           label=(f"{name} (cells_m off)" if name == "before" else "with the cell components")
+                           if r == others[0] and before is not None else None)
+                ax.scatter(x[far], y[far], s=16, color="C3", marker="x",
+                           label="another corner (> 0.5 m)" if r == others[0] and name == "now" else None)
+                ax.hlines(np.median(y), r + dx - 0.22, r + dx + 0.22, color="k", lw=2)
         for v, txt in lines:
             ax.axhline(v, color="C2" if v == 1.0 else "C1", lw=1, ls="--")
-            ax.annotate(txt, (max(others) + 0.6, v), fontsize=7, va="bottom", ha="right")
+            ax.annotate(txt, (max(others) + 0.9, v), fontsize=7, va="bottom", ha="right")
         ax.set_yscale("log")
         ax.set_xlabel("clip radius (m); reference: the default 8 m")
-        ax.set_ylabel(lab)
+        ax.set_title(lab, fontsize=9)
         ax.set_xticks(others)
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper center", fontsize=7)
+    axes[0].legend(loc="upper right", fontsize=7)
     n = len({t["point"] for t in table})
     fig.suptitle(title + f"\n{n} candidates ok at 8 m; black bar: median", fontsize=10)
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=90)
     print(f"figure: {path}")
 
 
-def replot(csv_path: str, path: str, title: str) -> None:
-    """The figure again from a ``--csv`` table (no extraction)."""
+def read_table(csv_path: str) -> list[dict]:
+    """A ``--csv`` table back as dicts (numbers as floats)."""
     with open(csv_path, newline="") as f:
-        table = [{k: (v if k in ("point", "status", "reason") else float(v)) for k, v in r.items()}
-                 for r in csv.DictReader(f)]
-    plot(table, sorted({t["radius_m"] for t in table}), path, title)
+        return [{k: (v if k in ("point", "status", "reason") else float(v)) for k, v in r.items()}
+                for r in csv.DictReader(f)]
+
+
+def replot(csv_path: str, path: str, title: str, before: str | None = None) -> None:
+    """The figure again from a ``--csv`` table (no extraction)."""
+    table = read_table(csv_path)
+    plot(table, sorted({t["radius_m"] for t in table}), path, title, read_table(before) if before else None)
 
 
 if __name__ == "__main__":

@@ -272,7 +272,7 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
         "min_points must be >= 4 (a plane has 3 d", "sd_en_m and sd_h_m must be positive",
         "residual_threshold_m must be positive, g", "max_offset_m must be positive, got {}",
         "near_m must be positive, got {}", "scales must be fractions in (0, 1), got ",
-        "ambiguity_m must be >= 0, got {}")},
+        "ambiguity_m must be >= 0, got {}", "cells_m must be positive sizes in metres")},
     ("control/params.py", "get_params", "ValueError", "unknown preset {}; choose one of {}"): _ENUM,
     ("control/search.py", "find_jobs", "ValueError", "block_cells must be at least 1, got {}"): _ARG,
     ("control/vertices.py", "ControlPoint.__post_init__", "ValueError", "unknown status {}"): _INTERNAL,

@@ -70,7 +70,7 @@ def segment_faces(xyz: Any, params: ExtractionParams | str | None = None) -> tup
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     origin = xyz.mean(axis=0) if len(xyz) else np.zeros(3)
     loc = xyz - origin
-    faces, info = group_faces(loc, p)
+    faces, info = group_faces(loc, p, grid_origin_m=origin[:2])
     faces = [f for f in faces if p.slope_min_deg < f[0].slope_deg < p.slope_max_deg]
     faces.sort(key=lambda f: -f[0].n_used)
     faces = faces[: p.max_planes]

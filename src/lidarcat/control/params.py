@@ -66,6 +66,10 @@ class ExtractionParams:
     sd_h_m: float = 0.05
     #: scale the covariance by the a-posteriori variance factor
     posterior_variance: bool = True
+    #: cell sizes (m) of the correlated parts of the points' residuals: the planes' covariance adds the
+    #: variance components the residuals show on these grids (:mod:`lidarcat.control.planes`, "Correlated
+    #: residuals"); () = independent points (eq. 37 alone)
+    cells_m: tuple = (1.0, 3.0)
     #: minimum points of a face (thesis: 6)
     min_points: int = 6
     #: faces considered per clip (largest first)
@@ -85,7 +89,7 @@ class ExtractionParams:
     #: its reason (1.5 m: beyond the 1-m-per-axis uncertainty of a position picked by hand or
     #: by ``--find``)
     near_m: float = 1.5
-    #: clip radii of the retries, as fractions of ``radius_m`` (each at least 3 m)
+    #: clip radii of the retries, as fractions of ``radius_m``, besides 4 and 3 m (each at least 3 m)
     scales: tuple = (0.65, 0.5)
     #: two distinct vertices (> 0.5 m apart) whose distances from the position differ by
     #: less than this (m) make the request "ambiguous" (both listed); 0 never
@@ -117,6 +121,8 @@ class ExtractionParams:
             raise ValueError(f"residual_threshold_m must be positive, got {self.residual_threshold_m}")
         if not self.near_m > 0:
             raise ValueError(f"near_m must be positive, got {self.near_m}")
+        if any(not c > 0 for c in self.cells_m):
+            raise ValueError(f"cells_m must be positive sizes in metres, got {self.cells_m!r}")
         if any(not 0 < f < 1 for f in self.scales):
             raise ValueError(f"scales must be fractions in (0, 1), got {self.scales!r}")
         if self.ambiguity_m < 0:

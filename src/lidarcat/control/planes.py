@@ -15,6 +15,62 @@ variance factor :math:`\hat\sigma_0^2 = \sum w_i r_i^2 / (m - 3)` times
 :math:`f / (f - 2)`, f = m - 3 (the standardised error is t-distributed).
 The residuals are :math:`v_i = -\Sigma_i n\, w_i r_i`.
 
+**Correlated residuals** (``cells_m``; the extraction's default ``(1, 3)`` m).
+On real roofs the residuals are not independent: neighbouring points share
+the tiles, the moss and the scan line they lie on, and a face is not a plane
+at the 1-3 cm level.  On the AHN3 tiles the mean of ``n_cell x (cell mean
+residual)^2`` over the residual variance (the design effect, ~1 for
+independent residuals) is a median 1.62 for 1 m cells (docs/extraction.md), so
+:math:`\hat\sigma_0^2 Q` is too small, and the vertex of a smaller clip (part of
+the same faces) moves by several of its sds.  The model: the condition errors
+
+.. math:: \varepsilon = e + \sum_k Z_k u_k,\qquad
+          \mathrm{Cov}(e) = \sigma_0^2 W^{-1},\quad \mathrm{Cov}(u_k) = \tau_k^2 I
+
+with :math:`Z_k` the indicator matrix of the points in the cells of a fixed
+grid of size :math:`c_k` (``floor((E, N) / c_k)`` of the outer frame, so the
+same cells in every clip): an iid part plus one random offset per cell and
+scale -- 1 m for the correlation of neighbouring points, 3 m for the face's own
+departure from a plane at a larger scale (the largest cell that still leaves
+several cells on a face of an 8 m clip, so that its variance can be estimated
+from the face itself).  The estimate is linear in the errors,
+:math:`\delta\theta = -Q A^T W \varepsilon` (Q the 4x4 block of the bordered
+inverse, which satisfies :math:`Q N Q = Q`), so
+
+.. math:: \Sigma_\theta = \sigma_0^2 Q + \sum_k \tau_k^2\, Q F_k F_k^T Q,
+          \qquad F_k = A^T W Z_k
+
+(:math:`F_k` has one column per cell: the sum of :math:`w_i a_i` over its
+points).  **The components are estimated from the face's residuals** by the
+method of moments (MINQUE-like, exact for the fit's leverage): with the
+whitened residuals :math:`\tilde r = R \tilde\varepsilon`,
+:math:`R = I - \tilde A Q \tilde A^T` (a projection of rank m - 3),
+:math:`\tilde Z_k = W^{1/2} Z_k` and :math:`\tilde Z_0 = I`, the statistics
+:math:`T_0 = \sum w_i r_i^2` and :math:`T_k = \sum_{cells} (\sum_{i \in cell} w_i r_i)^2 = \|\tilde Z_k^T \tilde r\|^2`
+have the expectations
+
+.. math:: E[T_k] = \sum_j \vartheta_j\, \|\tilde Z_k^T R \tilde Z_j\|_F^2,
+          \qquad \vartheta = (\sigma_0^2, \tau_1^2, \dots)
+
+(:math:`\|R\|_F^2 = m - 3`; :math:`\|R \tilde Z_k\|_F^2 = \sum w_i - \mathrm{tr}(F_k^T Q F_k)`;
+:math:`\tilde Z_k^T R \tilde Z_j = \tilde Z_k^T \tilde Z_j - F_k^T Q F_j`, all
+small cell-by-cell matrices), a linear system solved for
+:math:`\vartheta \ge 0` (NNLS).  **Consistency for independent points**: a
+component is estimated only when its statistic shows it, i.e. when
+:math:`T_k` exceeds its expectation under independence,
+:math:`\hat\sigma_0^2 \|R \tilde Z_k\|_F^2`, by more than ``Z_KEEP`` = 2 of its
+standard deviations :math:`\hat\sigma_0^2 \sqrt{2 \|\tilde Z_k^T R \tilde Z_k\|_F^2}`
+(a Gaussian quadratic form); otherwise :math:`\tau_k^2 = 0` and the covariance
+is exactly :math:`\hat\sigma_0^2 Q` as before.  Each term is multiplied by the
+t factor f / (f - 2) of its own redundancy (below: m - 3 for
+:math:`\sigma_0^2`, the number of cells minus 3 for :math:`\tau_k^2`): a face of
+a few 3 m cells estimates its large-scale variance from few values.  Without that test the clipped
+noise of :math:`\hat\tau_k^2` inflated the sds of independent points (a
+30-point face: normalised errors' sd 0.87 instead of 1.0); with it, 1.01 (300
+simulated faces), and 1.02-1.07 for faces with 1 m or 3 m cell offsets of 2 cm
+over 3 cm noise, where :math:`\hat\sigma_0^2 Q` gives 1.38 and 3.13
+(tests/control/test_plane_covariance.py).
+
 **Iterative rejection**: points whose residual exceeds the threshold are
 removed and the plane refitted, until none remains (thesis: 0.15 m on the
 height residual; the thesis preset tests the vertical distance to the
@@ -228,6 +284,9 @@ class PlaneFit:
     residual_m: np.ndarray  # (M,) tested residual (nan for never fitted)
     sigma0: float
     reason: str = ""
+    #: variance components of the covariance: (sigma0^2, tau^2 (m^2) per cell size of ``cells_m``); empty
+    #: when ``cells_m`` is empty (the covariance is then sigma0^2 Q)
+    components: tuple = ()
 
     def __bool__(self) -> bool:
         return self.plane is not None
@@ -300,6 +359,8 @@ def fit_plane(
     residual_kind: str = "normal",
     min_points: int = 6,
     posterior_variance: bool = True,
+    cells_m: Any = (),
+    grid_origin_m: Any = (0.0, 0.0),
     label: int = 0,
 ) -> PlaneFit:
     """Fit one plane by the combined adjustment (eq. 33-37) with iterative rejection.
@@ -324,6 +385,13 @@ def fit_plane(
         Fewer remaining points make the fit fail.
     posterior_variance : bool
         Scale the cofactor matrix by the a-posteriori variance factor.
+    cells_m : sequence of float
+        Cell sizes (m) of the correlated residual components (module docstring, "Correlated
+        residuals"); the extraction uses ``(1.0, 3.0)``.  Empty: independent points, the
+        covariance is :math:`\\hat\\sigma_0^2 Q` (eq. 37).  Needs *posterior_variance*.
+    grid_origin_m : (2,) float
+        E, N (m) of the origin of *xyz*'s frame when it is reduced: the cells are the grid
+        ``floor((E, N) / c)`` of the outer frame, the same for every clip of a roof.
 
     Returns
     -------
@@ -394,9 +462,104 @@ def fit_plane(
     sigma0_2 = float(np.sum(w * r * r) / dof) if dof > 0 else math.nan
     # with the variance factor estimated from m - 3 redundancies, the standardised
     # error is t-distributed: its variance is dof / (dof - 2), not 1
-    scale = sigma0_2 * (dof / (dof - 2.0) if dof > 4 else 3.0) \
-        if posterior_variance and np.isfinite(sigma0_2) else 1.0
-    local = Plane(n=n, d=d, cov=qxx * scale, centroid_m=xl_all[idx].mean(axis=0),
+    tcorr = _t_factor(dof)
+    components: tuple = ()
+    if posterior_variance and np.isfinite(sigma0_2) and len(cells_m):
+        en_abs = x_all[idx, :2] + np.asarray(grid_origin_m, dtype=np.float64).reshape(2)
+        comp = _variance_components(en_abs, xl_all[idx], s2_all[idx], w, r, qxx, n, cells_m)
+        components = comp.variances
+        cov = comp.cov
+    else:
+        cov = qxx * (sigma0_2 * tcorr if posterior_variance and np.isfinite(sigma0_2) else 1.0)
+    local = Plane(n=n, d=d, cov=cov, centroid_m=xl_all[idx].mean(axis=0),
                   n_used=m, n_rejected=m_all - m, rms_m=float(np.sqrt(np.mean(r * r))), label=label)
     plane = translated(local, origin)
-    return PlaneFit(plane, used, resid, math.sqrt(sigma0_2) if np.isfinite(sigma0_2) else math.nan)
+    return PlaneFit(plane, used, resid, math.sqrt(sigma0_2) if np.isfinite(sigma0_2) else math.nan,
+                    components=components)
+
+
+def _t_factor(dof: int) -> float:
+    """Variance of a standardised error whose variance was estimated with *dof* redundancies: f / (f - 2).
+
+    3 for f <= 4 (the t distribution's variance is infinite at f <= 2; a fixed, generous cap)."""
+    return dof / (dof - 2.0) if dof > 4 else 3.0
+
+
+#: a cell component is estimated when its statistic exceeds its value for independent residuals by this
+#: many standard deviations (one-sided; module docstring)
+Z_KEEP = 2.0
+
+
+@dataclass(frozen=True, eq=False)
+class _Components:
+    """Variance components of one plane fit and the covariance of ``(n, d)`` they give (local frame)."""
+
+    variances: tuple  # (sigma0^2, tau_1^2 (m^2), ...) in the order of cells_m
+    cov: np.ndarray  # (4, 4), each component times its t factor
+
+
+def _variance_components(en_abs: np.ndarray, xl: np.ndarray, s2: np.ndarray, w: np.ndarray, r: np.ndarray,
+                         qxx: np.ndarray, n: np.ndarray, cells_m: Any) -> _Components:
+    """Moment estimates of sigma0^2 and the cell variances tau_k^2, and the plane covariance (module docstring).
+
+    *en_abs* (m, 2) E, N of the points used (absolute: the cells are a fixed grid, the same in every clip), *xl* the
+    same in the local frame, *s2* (m, 3) their variances, *w* (m,) the condition weights, *r* (m,) the
+    condition residuals (m), *qxx* the 4x4 cofactor block of the bordered normal matrix, *n* the unit normal.
+    """
+    from scipy.optimize import nnls
+
+    m = len(xl)
+    # design rows at the adjusted observations x + v, as in the last normal matrix of _gh_solve
+    v = -(s2 * n[None, :]) * (r * w)[:, None]
+    a_mat = np.column_stack([xl + v, np.ones(m)])
+    keys, f_mats, t_obs = [], [], [float(np.sum(w * r * r))]
+    for c in cells_m:
+        cell = np.floor(en_abs / float(c)).astype(np.int64)
+        _, inv = np.unique(cell, axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        g = int(inv.max()) + 1
+        keys.append((inv, g))
+        # F_k = A~' Z~_k (4, G): per cell the sum of w_i a_i
+        f_mats.append(np.stack([np.bincount(inv, weights=w * a_mat[:, j], minlength=g) for j in range(4)]))
+        t_obs.append(float(np.sum(np.bincount(inv, weights=w * r, minlength=g) ** 2)))
+    k = len(keys)
+    coef = np.zeros((k + 1, k + 1))
+    coef[0, 0] = m - 3.0  # ||R~||_F^2, R~ = I - A~ Q A~' of rank m - 3
+    sum_w = float(np.sum(w))
+    for i in range(k):
+        fq = qxx @ f_mats[i]
+        coef[0, i + 1] = coef[i + 1, 0] = sum_w - float(np.sum(f_mats[i] * fq))
+        inv_i = keys[i][0]
+        for j in range(i, k):
+            inv_j, g_j = keys[j]
+            # ||M - F_i' Q F_j||_F^2 with M = Z~_i' Z~_j (per pair of cells the sum of w over their common
+            # points; at most m non-zeros), expanded so that no G_i x G_j matrix is formed:
+            # ||M||^2 - 2 sum_ab M_ab (F_i' Q F_j)_ab + tr(Q F_i F_i' Q F_j F_j')
+            pair, pinv = np.unique(inv_i * g_j + inv_j, return_inverse=True)
+            mval = np.bincount(pinv.reshape(-1), weights=w)
+            a_idx, b_idx = pair // g_j, pair % g_j
+            cross = np.sum(f_mats[i][:, a_idx] * (qxx @ f_mats[j][:, b_idx]), axis=0)
+            gi, gj = f_mats[i] @ f_mats[i].T, f_mats[j] @ f_mats[j].T
+            coef[i + 1, j + 1] = coef[j + 1, i + 1] = float(
+                np.sum(mval * mval) - 2.0 * np.sum(mval * cross) + np.trace(qxx @ gi @ qxx @ gj))
+    t_obs = np.asarray(t_obs)
+    # a component is estimated only where the cells show it: z_k of T_k against independent residuals
+    # (E = s0^2 c_0k, Var = 2 s0^4 c_kk for Gaussian residuals) above Z_KEEP
+    s0_2 = t_obs[0] / max(m - 3.0, 1.0)
+    var = np.zeros(k + 1)
+    var[0] = s0_2
+    keep = [0] + [i + 1 for i in range(k)
+                  if coef[i + 1, i + 1] > 0 and
+                  (t_obs[i + 1] - s0_2 * coef[0, i + 1]) / (s0_2 * math.sqrt(2.0 * coef[i + 1, i + 1])) > Z_KEEP]
+    if len(keep) > 1:
+        sol, _ = nnls(coef[np.ix_(keep, keep)], t_obs[keep])
+        var[keep] = sol
+        if var[0] <= 0.0:  # all of the misclosure in the cells: keep the iid part at its usual estimate
+            var[0] = s0_2
+    # sigma0^2 Q N Q = sigma0^2 Q (Q the bordered inverse's block); each component times the t factor
+    # f / (f - 2) of its own redundancy: m - 3 points, G_k - 3 cells
+    cov = _t_factor(m - 3) * var[0] * qxx
+    for i in range(k):
+        fq = qxx @ f_mats[i]
+        cov = cov + _t_factor(keys[i][1] - 3) * var[i + 1] * fq @ fq.T
+    return _Components(tuple(float(x) for x in var), 0.5 * (cov + cov.T))

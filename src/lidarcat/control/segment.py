@@ -227,14 +227,16 @@ def _segment_ransac(xyz: np.ndarray, p: ExtractionParams) -> tuple[np.ndarray, d
     return labels, info
 
 
-def _fit_groups(xyz: np.ndarray, labels: np.ndarray, p: ExtractionParams) -> list[tuple[Plane, np.ndarray]]:
-    """Fit every labelled group with the extraction's own rejection settings."""
+def _fit_groups(xyz: np.ndarray, labels: np.ndarray, p: ExtractionParams,
+                grid_origin_m: Any = (0.0, 0.0)) -> list[tuple[Plane, np.ndarray]]:
+    """Fit every labelled group with the extraction's own rejection settings (*grid_origin_m*: see fit_plane)."""
     out = []
     for g in np.unique(labels[labels >= 0]):
         idx = np.flatnonzero(labels == g)
         fit = fit_plane(xyz[idx], sd_m=(p.sd_en_m, p.sd_en_m, p.sd_h_m),
                         residual_threshold_m=p.residual_threshold_m, residual_kind=p.residual_kind,
-                        min_points=p.min_points, posterior_variance=p.posterior_variance)
+                        min_points=p.min_points, posterior_variance=p.posterior_variance, cells_m=p.cells_m,
+                        grid_origin_m=grid_origin_m)
         if fit:
             out.append((fit.plane, idx[fit.used]))
     return out
@@ -416,7 +418,8 @@ def _drop_outer_edges(xyz: np.ndarray, labels: np.ndarray, k: int = 12,
     return out
 
 
-def group_faces(loc: np.ndarray, p: ExtractionParams) -> tuple[list[tuple[Plane, np.ndarray]], dict[str, Any]]:
+def group_faces(loc: np.ndarray, p: ExtractionParams,
+                grid_origin_m: Any = (0.0, 0.0)) -> tuple[list[tuple[Plane, np.ndarray]], dict[str, Any]]:
     """Group the points *loc* (reduced to their centroid) into faces and fit a plane to each.
 
     Parameters
@@ -424,6 +427,9 @@ def group_faces(loc: np.ndarray, p: ExtractionParams) -> tuple[list[tuple[Plane,
     loc : (N, 3) float
         Clip points in metres, reduced to their centroid.
     p : ExtractionParams
+    grid_origin_m : (2,) float
+        E, N (m) of the origin of *loc*: the planes' correlation cells (``p.cells_m``) are a fixed
+        grid of the outer frame, the same in every clip.
 
     Returns
     -------
@@ -434,7 +440,7 @@ def group_faces(loc: np.ndarray, p: ExtractionParams) -> tuple[list[tuple[Plane,
     """
     segment = {"thesis": _segment_thesis, "ransac": _segment_ransac, "region": _segment_region}[p.method]
     labels, info = segment(loc, p)
-    faces = _fit_groups(loc, labels, p)
+    faces = _fit_groups(loc, labels, p, grid_origin_m)
     if p.method != "thesis":
         # assign by the fitted faces, re-fit, and assign again with the better
         # intersection lines (a self-consistent partition)
@@ -442,5 +448,5 @@ def group_faces(loc: np.ndarray, p: ExtractionParams) -> tuple[list[tuple[Plane,
             lab2 = _refine_assignment(loc, faces, p, info["dist_tol_m"], info["spacing_m"])
             if it == 1 and p.drop_outer_edges:
                 lab2 = _drop_outer_edges(loc, lab2, max_slope_deg=p.slope_max_deg)
-            faces = _fit_groups(loc, lab2, p)
+            faces = _fit_groups(loc, lab2, p, grid_origin_m)
     return faces, info
