@@ -444,6 +444,11 @@ class MeasureParams:
     #: found, is near_border; "fit" -- the search clipped to the photo, each face scored on its pixels on the
     #: photo, the edges fitted on their part inside, near_border only within 8 px (docs/photocontrol.md)
     border: str = "edges"
+    #: edges found on one image line only: the vertex located along it where two of them, on either side of
+    #: it, meet at along_min_angle_deg or more (deg), if its sd along the line is at most along_max_sd_px
+    #: (px; 0: never, weak_geometry) -- module docstring, step 3a
+    along_min_angle_deg: float = 5.0
+    along_max_sd_px: float = 1.5
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
@@ -647,6 +652,7 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
     mm = np.array(mm)
     use = list(range(len(fits)))
     # two edges on one image line: the one turned farther from its predicted direction goes
+    dropped = []
     for i in range(len(fits)):
         for j in range(i + 1, len(fits)):
             if i in use and j in use and \
@@ -655,9 +661,23 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                 why.append(f"edge of planes {fits_planes[drop][0] + 1}-{fits_planes[drop][1] + 1}: found on "
                            f"the line of another edge")
                 use.remove(drop)
+                dropped.append(drop)
     if len(use) < 2:
-        return replace(base.failed("weak_geometry", "the edges found lie on one image line"),
-                       edge_lines=edge_lines(use, True))
+        # the edges found lie on one image line: located along it where the line bends (step 3a)
+        found = _along_line(fits, mm, np.array(cc), covs, use[0], dropped, origin, p) if len(use) == 1 \
+            else "no edge left"
+        if isinstance(found, str):
+            return replace(base.failed("weak_geometry", f"the edges found lie on one image line: {found}"
+                                       + (f" ({'; '.join(why)})" if why else "")),
+                           edge_lines=edge_lines(use, True))
+        x, cov_x, o, how = found
+        pk, po = fits_planes[use[0]], fits_planes[o]
+        return replace(base, px=x, cov_px2=cov_x, status="measured",
+                       reason=f"located along one edge: the edges of planes {pk[0] + 1}-{pk[1] + 1} and "
+                              f"{po[0] + 1}-{po[1] + 1} lie nearly on one image line, {how}"
+                       + (f" ({'; '.join(w for w in why if 'found on the line' not in w)})"
+                          if any('found on the line' not in w for w in why) else ""),
+                       lines=(lines[use[0]], lines[o]), edge_lines=edge_lines([use[0], o], False))
     while True:
         x, n_mat, chi2 = _intersect([fits[i] for i in use], mm[use], np.array(cc)[use], [covs[i] for i in use],
                                     origin, p.vertex_sd_px, p.vertex_texture_px)
@@ -688,6 +708,47 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
     cov_x = np.linalg.inv(n_mat)
     return replace(base, px=x, cov_px2=0.5 * (cov_x + cov_x.T), status="measured",
                    reason="; ".join(why), lines=tuple(lines), edge_lines=edge_lines(use, False))
+
+
+def _along_line(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, k: int, dropped: list, origin: np.ndarray,
+                p: MeasureParams) -> Any:
+    """The vertex on the one image line *k* found, located along it where it bends (step 3a).
+
+    *dropped*: the edges dropped as found on *k*'s line.  Of those on the other side of the vertex
+    (opposite half-lines) meeting *k* at ``along_min_angle_deg`` or more, the one at the largest
+    angle is intersected with *k*.  Returns ``(x, cov, other edge, how)`` or the reason (str) why the
+    vertex cannot be located along the line."""
+    uk = fits[k][0]
+    cand = [(math.degrees(math.acos(min(1.0, abs(float(mm[k] @ mm[o]))))), o) for o in dropped
+            if float(fits[o][0] @ uk) < 0]
+    if not cand:
+        return "no edge of the vertex on the other side of it, not located along the line"
+    ang, o = max(cand)
+    if ang < p.along_min_angle_deg:
+        return (f"the edges on either side of the vertex meet at {ang:.1f} deg (< {p.along_min_angle_deg:g}): "
+                f"not located along the line")
+    weak = [i for i in (k, o) if float(fits[i][1][3]) < p.two_line_ratio]
+    if weak:
+        return (f"of the two edges meeting at {ang:.0f} deg one is weak (gradient {float(fits[weak[0]][1][3]):.1f} x "
+                f"the texture's, < {p.two_line_ratio:g}): not located along the line")
+    x, n_mat, _ = _intersect([fits[k], fits[o]], mm[[k, o]], cc[[k, o]], [covs[k], covs[o]], origin,
+                             p.vertex_sd_px, p.vertex_texture_px)
+    d = np.array([mm[k][1], -mm[k][0]])
+    t = np.array([mm[k], d])
+    ct = t @ np.linalg.inv(n_mat) @ t.T
+    sd_across, sd_along = math.sqrt(ct[0, 0]), math.sqrt(ct[1, 1])
+    if sd_along > p.along_max_sd_px:
+        return (f"the edges on either side of the vertex meet at {ang:.0f} deg: along the line to "
+                f"{sd_along:.1f} px only (> {p.along_max_sd_px:g})")
+    # the point must lie between the two fitted stretches (the stations start t0 from the vertex)
+    s_x = float(uk @ (x - origin))
+    lo, hi = -float(fits[o][1][2][0]) - 2.0 * sd_along, float(fits[k][1][2][0]) + 2.0 * sd_along
+    if not lo <= s_x <= hi:
+        return (f"the edges on either side of the vertex meet {s_x:+.1f} px along the line from where they "
+                f"were fitted, inside a fitted stretch: not located along the line")
+    cov_x = t.T @ ct @ t
+    return x, 0.5 * (cov_x + cov_x.T), o, (f"their intersection at {ang:.0f} deg: sd {sd_across:.2f} px "
+                                           f"across the edge, {sd_along:.2f} px along it")
 
 
 def _intersect(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, origin: np.ndarray, sd_px: float,
