@@ -225,6 +225,10 @@ class Measurement:
         The roof edges fitted in the photo as line observations (:class:`EdgeLine`): of a measured
         vertex the edges its point was intersected from; of a vertex not measured (``no_edges``,
         ``weak_geometry``) its edges found strong (``two_line_ratio`` times the texture).
+    along_line : bool
+        Measured *along one edge* (module docstring, step 3a): the edges found lie nearly on one image
+        line and the point is their intersection, tight across the line, loose along it.  Its edges are
+        line observations beside the point (:attr:`sd_px` then carries the along-line sd only).
     """
 
     point: str
@@ -238,6 +242,7 @@ class Measurement:
     predicted_px: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     predicted_cov_px2: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
     edge_lines: tuple = ()
+    along_line: bool = False
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -251,7 +256,16 @@ class Measurement:
 
     @property
     def sd_px(self) -> np.ndarray:
-        """(2,) sds of column and row (px)."""
+        r"""(2,) sds of column and row (px), as written to image_points.csv (no correlation there).
+
+        Of a point measured along one edge (:attr:`along_line`) both are its sd along the line (the
+        covariance's larger axis): the edges go beside it as line observations and carry what is known
+        across the line, the point what is known along it; the written point adds at most
+        (sd across / sd along)\ :sup:`2` of the line's weight across it again."""
+        if self.along_line:
+            big = float(np.max(np.linalg.eigvalsh(np.asarray(self.cov_px2)))) if np.isfinite(self.cov_px2).all() \
+                else math.nan
+            return np.full(2, math.sqrt(max(big, 0.0)) if math.isfinite(big) else math.nan)
         return np.sqrt(np.maximum(np.diag(self.cov_px2), 0.0))
 
     def failed(self, status: str, reason: str) -> "Measurement":
@@ -447,8 +461,8 @@ class MeasureParams:
     #: edges found on one image line only: the vertex located along it where two of them, on either side of
     #: it, meet at along_min_angle_deg or more (deg), if its sd along the line is at most along_max_sd_px
     #: (px; 0: never, weak_geometry) -- module docstring, step 3a
-    along_min_angle_deg: float = 5.0
-    along_max_sd_px: float = 1.5
+    along_min_angle_deg: float = 2.0
+    along_max_sd_px: float = 5.0
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
@@ -672,7 +686,7 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                            edge_lines=edge_lines(use, True))
         x, cov_x, o, how = found
         pk, po = fits_planes[use[0]], fits_planes[o]
-        return replace(base, px=x, cov_px2=cov_x, status="measured",
+        return replace(base, px=x, cov_px2=cov_x, status="measured", along_line=True,
                        reason=f"located along one edge: the edges of planes {pk[0] + 1}-{pk[1] + 1} and "
                               f"{po[0] + 1}-{po[1] + 1} lie nearly on one image line, {how}"
                        + (f" ({'; '.join(w for w in why if 'found on the line' not in w)})"
@@ -859,7 +873,8 @@ def measure_photo(image: Any, camera: Camera, eo: Any, targets: Sequence[VertexT
         m = _refine(img, ctx, shift, replace(p, band_px=p.wide_band_px))
         if m:   # again from the vertex found, in the narrow band
             m2 = _refine(img, ctx, np.asarray(m.px) - ctx["vpx"], p)
-            m = replace(m2, shift_px=shift) if m2 else m
+            # (a point of crossing edges is not traded for one along a single edge)
+            m = replace(m2, shift_px=shift) if m2 and (m.along_line or not m2.along_line) else m
         out[k] = m
     return out
 

@@ -277,7 +277,7 @@ def _block_edges(per_vertex: dict, vertex_info: dict, lines: str, line_rejected:
     for vid, lst in per_vertex.items():
         cp, _, edges = vertex_info[vid]
         for pid, m in lst:
-            if m.status in _NO_EDGE_STATUSES or (m and lines == "add"):
+            if m.status in _NO_EDGE_STATUSES or (m and lines == "add" and not m.along_line):
                 continue
             for el in m.edge_lines:
                 lid, e = line_id(vid, el.planes), edges.get(tuple(el.planes))
@@ -519,7 +519,7 @@ def _edge_status(m: Any, lid: str, el: Any, lines: str, review: _Review,
         return "not_written", f"the vertex's measurement was rejected: {m.reason}"
     if el is None:
         return "not_written", "no image edge found (or too weak for a line without its vertex)"
-    if m and lines == "add":
+    if m and lines == "add" and not m.along_line:   # a point along one edge: its edges written beside it
         return "in_point", "the vertex's point observation carries this edge (not written twice)"
     if (m.photo, lid) in review.line_rejected:
         return "user_rejected", review.user.reason(review.line_rejected[(m.photo, lid)])
