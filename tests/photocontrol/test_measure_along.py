@@ -117,3 +117,24 @@ def test_switched_off_the_old_outcome_stays():
     m = _measure(12.0, p=MeasureParams(along_max_sd_px=0.0))
     assert m.status == "weak_geometry"
     assert m.reason.startswith("the edges found lie on one image line"), m.reason
+
+
+def test_two_lines_at_a_small_angle_give_the_closed_form_covariance():
+    """var across = v1, var along = (v2 + v1 cos^2 b) / sin^2 b, cov = -v1 cos b / sin b (measure step 3a)."""
+    from lidarcat.photocontrol._along import intersect_lines
+
+    b = math.radians(12.0)
+    m1, m2 = np.array([0.0, 1.0]), np.array([-math.sin(b), math.cos(b)])
+    x_true = np.array([3.0, -2.0])
+    # no fit covariance: each line's offset variance is sd^2 + (texture / ratio)^2
+    fits = [(np.array([1.0, 0.0]), (None, None, None, 4.0)), (np.array([-1.0, 0.0]), (None, None, None, 8.0))]
+    covs = [(np.zeros((2, 2)), 0.0), (np.zeros((2, 2)), 0.0)]
+    x, n_mat, chi2 = intersect_lines(fits, np.array([m1, m2]), np.array([m1 @ x_true, m2 @ x_true]), covs,
+                                     np.zeros(2), 0.1, 1.0)
+    v1, v2 = 0.1**2 + (1.0 / 4.0) ** 2, 0.1**2 + (1.0 / 8.0) ** 2
+    c = np.linalg.inv(n_mat)
+    d = np.array([1.0, 0.0])
+    assert np.allclose(x, x_true) and chi2 < 1e-12
+    assert math.isclose(m1 @ c @ m1, v1, rel_tol=1e-6)
+    assert math.isclose(d @ c @ d, (v2 + v1 * math.cos(b) ** 2) / math.sin(b) ** 2, rel_tol=1e-6)
+    assert math.isclose(abs(m1 @ c @ d), v1 * math.cos(b) / math.sin(b), rel_tol=1e-6)

@@ -150,6 +150,7 @@ import numpy as np
 from .._util.frozen import frozen_array
 from ..errors import LidarcatError
 from ..geometry.camera import Camera
+from ._along import intersect_lines, locate_along
 from .predict import Prediction, face_labels, pixel_jacobians, pixel_positions, roof_edges
 
 __all__ = ["Measurement", "MeasureParams", "VertexTarget", "STATUSES", "EdgeLine", "measure_photo", "measure_vertex",
@@ -712,8 +713,10 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                 dropped.append(drop)
     if len(use) < 2:
         # the edges found lie on one image line: located along it where the line bends (step 3a)
-        found = _along_line(fits, mm, np.array(cc), covs, use[0], dropped, origin, p) if len(use) == 1 \
-            else "no edge left"
+        found = locate_along(fits, mm, np.array(cc), covs, use[0], dropped, origin,
+                             min_angle_deg=p.along_min_angle_deg, max_sd_px=p.along_max_sd_px,
+                             two_line_ratio=p.two_line_ratio, sd_px=p.vertex_sd_px,
+                             texture_px=p.vertex_texture_px) if len(use) == 1 else "no edge left"
         if isinstance(found, str):
             return replace(base.failed("weak_geometry", f"the edges found lie on one image line: {found}"
                                        + (f" ({'; '.join(why)})" if why else "")),
@@ -727,16 +730,16 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                           if any('found on the line' not in w for w in why) else ""),
                        lines=(lines[use[0]], lines[o]), edge_lines=edge_lines([use[0], o], False))
     while True:
-        x, n_mat, chi2 = _intersect([fits[i] for i in use], mm[use], np.array(cc)[use], [covs[i] for i in use],
-                                    origin, p.vertex_sd_px, p.vertex_texture_px)
+        x, n_mat, chi2 = intersect_lines([fits[i] for i in use], mm[use], np.array(cc)[use],
+                                         [covs[i] for i in use], origin, p.vertex_sd_px, p.vertex_texture_px)
         if len(use) <= 2 or chi2 <= _CHI2_1 * (len(use) - 2):
             break
         # the line farthest (normalised) from the others' point goes
         res = []
         for i in use:
             rest = [j for j in use if j != i]
-            xr, _, _ = _intersect([fits[j] for j in rest], mm[rest], np.array(cc)[rest], [covs[j] for j in rest],
-                                  origin, p.vertex_sd_px, p.vertex_texture_px)
+            xr, _, _ = intersect_lines([fits[j] for j in rest], mm[rest], np.array(cc)[rest],
+                                       [covs[j] for j in rest], origin, p.vertex_sd_px, p.vertex_texture_px)
             res.append(abs(float(mm[i] @ xr) - cc[i]))
         drop = use[int(np.argmax(res))]
         why.append(f"edge of planes {fits_planes[drop][0] + 1}-{fits_planes[drop][1] + 1}: does not meet the "
@@ -756,67 +759,6 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
     cov_x = np.linalg.inv(n_mat)
     return replace(base, px=x, cov_px2=0.5 * (cov_x + cov_x.T), status="measured",
                    reason="; ".join(why), lines=tuple(lines), edge_lines=edge_lines(use, False))
-
-
-def _along_line(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, k: int, dropped: list, origin: np.ndarray,
-                p: MeasureParams) -> Any:
-    """The vertex on the one image line *k* found, located along it where it bends (step 3a).
-
-    *dropped*: the edges dropped as found on *k*'s line.  Of those on the other side of the vertex
-    (opposite half-lines) meeting *k* at ``along_min_angle_deg`` or more, the one at the largest
-    angle is intersected with *k*.  Returns ``(x, cov, other edge, how)`` or the reason (str) why the
-    vertex cannot be located along the line."""
-    uk = fits[k][0]
-    cand = [(math.degrees(math.acos(min(1.0, abs(float(mm[k] @ mm[o]))))), o) for o in dropped
-            if float(fits[o][0] @ uk) < 0]
-    if not cand:
-        return "no edge of the vertex on the other side of it, not located along the line"
-    ang, o = max(cand)
-    if ang < p.along_min_angle_deg:
-        return (f"the edges on either side of the vertex meet at {ang:.1f} deg (< {p.along_min_angle_deg:g}): "
-                f"not located along the line")
-    weak = [i for i in (k, o) if float(fits[i][1][3]) < p.two_line_ratio]
-    if weak:
-        return (f"of the two edges meeting at {ang:.0f} deg one is weak (gradient {float(fits[weak[0]][1][3]):.1f} x "
-                f"the texture's, < {p.two_line_ratio:g}): not located along the line")
-    x, n_mat, _ = _intersect([fits[k], fits[o]], mm[[k, o]], cc[[k, o]], [covs[k], covs[o]], origin,
-                             p.vertex_sd_px, p.vertex_texture_px)
-    d = np.array([mm[k][1], -mm[k][0]])
-    t = np.array([mm[k], d])
-    ct = t @ np.linalg.inv(n_mat) @ t.T
-    sd_across, sd_along = math.sqrt(ct[0, 0]), math.sqrt(ct[1, 1])
-    if sd_along > p.along_max_sd_px:
-        return (f"the edges on either side of the vertex meet at {ang:.0f} deg: along the line to "
-                f"{sd_along:.1f} px only (> {p.along_max_sd_px:g})")
-    # the point must lie between the two fitted stretches (the stations start t0 from the vertex)
-    s_x = float(uk @ (x - origin))
-    lo, hi = -float(fits[o][1][2][0]) - 2.0 * sd_along, float(fits[k][1][2][0]) + 2.0 * sd_along
-    if not lo <= s_x <= hi:
-        return (f"the edges on either side of the vertex meet {s_x:+.1f} px along the line from where they "
-                f"were fitted, inside a fitted stretch: not located along the line")
-    cov_x = t.T @ ct @ t
-    return x, 0.5 * (cov_x + cov_x.T), o, (f"their intersection at {ang:.0f} deg: sd {sd_across:.2f} px "
-                                           f"across the edge, {sd_along:.2f} px along it")
-
-
-def _intersect(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, origin: np.ndarray, sd_px: float,
-               texture_px: float = 0.0):
-    """Weighted least-squares point of lines m^T x = c (module docstring, step 3): point, normal matrix, chi2.
-
-    Each line's offset variance: its fit's at the point, plus ``sd_px^2 + (texture_px / ratio)^2``
-    (ratio: the edge's gradient over the texture's, ``fit[3]``)."""
-    x = origin.copy()
-    for _ in range(3):
-        w = []
-        for (u, fit), (cov, b) in zip(fits, covs):
-            jv = np.array([1.0, float((x - origin) @ u)])
-            extra = sd_px**2 + (texture_px / max(float(fit[3]), 1e-9)) ** 2
-            w.append(1.0 / (max(float(jv @ cov @ jv), 1e-8) / (1.0 + b * b) + extra))
-        w = np.array(w)
-        n_mat = (mm * w[:, None]).T @ mm
-        x = np.linalg.solve(n_mat, (mm * w[:, None]).T @ cc)
-    r = mm @ x - cc
-    return x, n_mat, float(np.sum(w * r * r))
 
 
 def _masked_best(score: np.ndarray, ctx: dict, centre: np.ndarray, cinv: np.ndarray, radius2: float,
