@@ -104,10 +104,12 @@ so such a point is written with its *along* sd in both columns (:attr:`Measureme
 bounds the covariance) and its two edges go beside it as line observations (they carry the across
 part; the point repeats at most :math:`(\sigma_\perp/\sigma_\parallel)^2` of it).  A point of
 crossing edges from the first pass is never traded for an along-one-edge point of the second.
-On the six bench seeds' 13 weak_geometry pairs (synthetic town, truth known) the bends are 0.6-13
-deg; the 9 located (2 deg or more) are 0.2-5.6 px from truth, normalised along the line -1.14 to
-+1.15, across within 1 (docs/figures.md): the propagated sd is honest to conservative there.  The
-AHN3 renders have no pair of this kind (no ``weak_geometry`` over the 24 blocks).
+On the six bench seeds' 13 weak_geometry pairs (synthetic town, truth known) the bends are 0.6-14
+deg; the 9 located are 0.2-5.6 px from truth, normalised along the line rms 0.71 (-1.14 to +1.15),
+across 0.31; on eight more seeds (7-14) 6 of 12 located, rms 0.50 along, 0.22 across
+(docs/figures.md, "Along one edge"): conservative, as step 3's sd is on that town (0.83) while it is
+calibrated to 1.0 on the AHN3 renders -- which have no pair of this kind (no ``weak_geometry`` over
+the 24 blocks) -- so no factor is applied.
 
 **4. Consistency over photos** (:func:`check_consistency`).  A measurement
 whose offset from the prediction is outside the 99.9 % ellipse of
