@@ -98,8 +98,9 @@ intersection at 12 deg: sd 0.26 px across the edge, 1.79 px along it") when the 
 ``along_min_angle_deg`` (2 deg), both edges are ``two_line_ratio`` times the texture (two lines, no
 check), the sd along is at most ``along_max_sd_px`` (5 px) and the point lies between the two
 fitted stretches (within 2 sd); else ``weak_geometry`` with the reason ("... meet at 0.4 deg (< 2):
-not located along the line").  The tests downstream (:func:`check_photo`, :func:`check_consistency`,
-the block test) see the elongated covariance.  The survey's image_points.csv holds no correlation,
+not located along the line").  :func:`check_photo` and :func:`check_consistency` test the point with
+its elongated covariance; the block test (:mod:`~lidarcat.photocontrol.blockcheck`) tests its two
+edges and gives the point their verdict (the same fits).  The survey's image_points.csv holds no correlation,
 so such a point is written with its *along* sd in both columns (:attr:`Measurement.sd_px`, which
 bounds the covariance) and its two edges go beside it as line observations (they carry the across
 part; the point repeats at most :math:`(\sigma_\perp/\sigma_\parallel)^2` of it).  A point of
