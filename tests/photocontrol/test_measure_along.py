@@ -138,3 +138,20 @@ def test_two_lines_at_a_small_angle_give_the_closed_form_covariance():
     assert math.isclose(m1 @ c @ m1, v1, rel_tol=1e-6)
     assert math.isclose(d @ c @ d, (v2 + v1 * math.cos(b) ** 2) / math.sin(b) ** 2, rel_tol=1e-6)
     assert math.isclose(abs(m1 @ c @ d), v1 * math.cos(b) / math.sin(b), rel_tol=1e-6)
+
+
+def test_a_fed_back_along_one_edge_point_is_not_taken_for_its_edges_fits(tmp_path):
+    """decisions.csv fed back: an accepted point "located along one edge" may stand beside its written edges
+    (stages._control_review tells it from a point intersected from its edges, which may not)."""
+    from lidarcat.stages._control_review import read_decisions
+
+    p = tmp_path / "decisions.csv"
+    p.write_text("photo,point,status,reason,col_px,row_px,sd_col_px,sd_row_px,decision\n"
+                 "101,C1,measured,\"located along one edge: the edges of planes 3-4 and 1-2 lie nearly on one image "
+                 "line, their intersection at 12 deg: sd 0.26 px across the edge, 1.79 px along it\","
+                 "604.8,637.5,1.8,1.8,accept\n"
+                 "101,C2,measured,,624.9,459.4,0.5,0.27,accept\n")
+    survey = SimpleNamespace(photo_ids=["101"], ground_points=SimpleNamespace(point=np.array(["C1", "C2"])))
+    rows = read_decisions(p, survey)
+    assert [(d["point"], d["status"], d["accept"]) for d in rows] == [("C1", "measured_along", True),
+                                                                       ("C2", "measured", True)]
