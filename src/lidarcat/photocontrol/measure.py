@@ -166,7 +166,8 @@ STATUSES: dict[str, str] = {
     "not_visible": "the prediction is off the photo, behind the camera or occluded",
     "no_vertex": "the LiDAR vertex could not be extracted again (or not where its coordinates say)",
     "no_edges": "fewer than two roof edges of the vertex found in the LiDAR or in the photo",
-    "weak_geometry": "the edges found meet at too small an angle",
+    "weak_geometry": "the edges found meet at too small an angle (on one image line: not bent enough at the vertex to "
+                     "locate it along the line; a point located along one edge is measured, its reason says so)",
     "too_dark": "the window is too dark to measure",
     "saturated": "the window is saturated",
     "near_border": "the vertex found lies at the photo's border, or its edges are cut by it too short to fit",
