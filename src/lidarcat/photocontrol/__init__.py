@@ -10,6 +10,8 @@
                 approximate orientations and the LiDAR vertices as weighted observations; the measurements
                 w-tested worst first (a measurement alone on its photo is tested through its tie points).
 ``review``      Image chips with the predicted ellipse and the measured point and lines, and a gallery of them.
+``_along``      (private) The vertex as the weighted least-squares point of its edge lines, and located along
+                one edge where two edges on either side of it bend (measure steps 3 and 3a).
 ==============  ============================================================
 
 Private: ``_block_ties`` (the block test's tie points in photo coordinates, cleaned on their own) and

@@ -75,6 +75,43 @@ turned farther from its predicted direction goes; with three or more lines, whil
 alone have no check: both must be ``two_line_ratio`` times stronger than the
 texture.
 
+**3a. Along one edge.**  When the edges found lie on one image line (the crossing edges too weak
+against the texture or scattered: faces of nearly the same grey across them) the rule above keeps
+one line, and lines alone cannot place a point along a straight line.  But two edges on *either
+side* of the vertex (opposite half-lines) that both lie on "one" image line are two different roof
+edges: their 3-D lines meet at the vertex at an angle, so their images bend there by some degrees
+(bench_measured_control seed 6, C0003 on photo 203: the edges at -55 and 137 deg, 12 deg as lines).
+Their intersection is the vertex, by the same weighted least squares with the same offset variances
+:math:`w_i^{-1}` (step 3, calibrated on the AHN3 renders: no new constant).  For two lines at angle
+:math:`\beta` with offset variances :math:`v_1, v_2` the covariance in (across, along) the kept line
+:math:`(m_1, d)` is exactly
+
+.. math:: \operatorname{var}_\perp = v_1, \qquad
+          \operatorname{var}_\parallel = \frac{v_2 + v_1\cos^2\beta}{\sin^2\beta}, \qquad
+          \operatorname{cov}_{\perp\parallel} = -\frac{v_1\cos\beta}{\sin\beta}
+          \;(\text{sign by orientation}),
+
+tight across the line, :math:`\approx\sqrt{v_1+v_2}/\beta` along it: 0.2 px offsets at 12 deg give
+~1.5 px along, at 4 deg ~5 px.  The vertex is taken (``measured``, :attr:`Measurement.along_line`,
+reason "located along one edge: the edges of planes 3-4 and 1-2 lie nearly on one image line, their
+intersection at 12 deg: sd 0.26 px across the edge, 1.79 px along it") when the bend is at least
+``along_min_angle_deg`` (2 deg), both edges are ``two_line_ratio`` times the texture (two lines, no
+check), the sd along is at most ``along_max_sd_px`` (5 px) and the point lies between the two
+fitted stretches (within 2 sd); else ``weak_geometry`` with the reason ("... meet at 0.4 deg (< 2):
+not located along the line").  :func:`check_photo` and :func:`check_consistency` test the point with
+its elongated covariance; the block test (:mod:`~lidarcat.photocontrol.blockcheck`) tests its two
+edges and gives the point their verdict (the same fits).  The survey's image_points.csv holds no correlation,
+so such a point is written with its *along* sd in both columns (:attr:`Measurement.sd_px`, which
+bounds the covariance) and its two edges go beside it as line observations (they carry the across
+part; the point repeats at most :math:`(\sigma_\perp/\sigma_\parallel)^2` of it).  A point of
+crossing edges from the first pass is never traded for an along-one-edge point of the second.
+On the six bench seeds' 13 weak_geometry pairs (synthetic town, truth known) the bends are 0.6-14
+deg; the 9 located are 0.2-5.6 px from truth, normalised along the line rms 0.71 (-1.14 to +1.15),
+across 0.31; on eight more seeds (7-14) 6 of 12 located, rms 0.50 along, 0.22 across
+(docs/figures.md, "Along one edge"): conservative, as step 3's sd is on that town (0.83) while it is
+calibrated to 1.0 on the AHN3 renders -- which have no pair of this kind (no ``weak_geometry`` over
+the 24 blocks) -- so no factor is applied.
+
 **4. Consistency over photos** (:func:`check_consistency`).  A measurement
 whose offset from the prediction is outside the 99.9 % ellipse of
 (prediction + measurement) covariance is rejected.  The remaining ones are
@@ -116,6 +153,7 @@ import numpy as np
 from .._util.frozen import frozen_array
 from ..errors import LidarcatError
 from ..geometry.camera import Camera
+from ._along import intersect_lines, locate_along
 from .predict import Prediction, face_labels, pixel_jacobians, pixel_positions, roof_edges
 
 __all__ = ["Measurement", "MeasureParams", "VertexTarget", "STATUSES", "EdgeLine", "measure_photo", "measure_vertex",
@@ -128,7 +166,8 @@ STATUSES: dict[str, str] = {
     "not_visible": "the prediction is off the photo, behind the camera or occluded",
     "no_vertex": "the LiDAR vertex could not be extracted again (or not where its coordinates say)",
     "no_edges": "fewer than two roof edges of the vertex found in the LiDAR or in the photo",
-    "weak_geometry": "the edges found meet at too small an angle",
+    "weak_geometry": "the edges found meet at too small an angle (on one image line: not bent enough at the vertex to "
+                     "locate it along the line; a point located along one edge is measured, its reason says so)",
     "too_dark": "the window is too dark to measure",
     "saturated": "the window is saturated",
     "near_border": "the vertex found lies at the photo's border, or its edges are cut by it too short to fit",
@@ -225,6 +264,10 @@ class Measurement:
         The roof edges fitted in the photo as line observations (:class:`EdgeLine`): of a measured
         vertex the edges its point was intersected from; of a vertex not measured (``no_edges``,
         ``weak_geometry``) its edges found strong (``two_line_ratio`` times the texture).
+    along_line : bool
+        Measured *along one edge* (module docstring, step 3a): the edges found lie nearly on one image
+        line and the point is their intersection, tight across the line, loose along it.  Its edges are
+        line observations beside the point (:attr:`sd_px` then carries the along-line sd only).
     """
 
     point: str
@@ -238,6 +281,7 @@ class Measurement:
     predicted_px: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     predicted_cov_px2: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan))
     edge_lines: tuple = ()
+    along_line: bool = False
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -251,7 +295,16 @@ class Measurement:
 
     @property
     def sd_px(self) -> np.ndarray:
-        """(2,) sds of column and row (px)."""
+        r"""(2,) sds of column and row (px), as written to image_points.csv (no correlation there).
+
+        Of a point measured along one edge (:attr:`along_line`) both are its sd along the line (the
+        covariance's larger axis): the edges go beside it as line observations and carry what is known
+        across the line, the point what is known along it; the written point adds at most
+        (sd across / sd along)\ :sup:`2` of the line's weight across it again."""
+        if self.along_line:
+            big = float(np.max(np.linalg.eigvalsh(np.asarray(self.cov_px2)))) if np.isfinite(self.cov_px2).all() \
+                else math.nan
+            return np.full(2, math.sqrt(max(big, 0.0)) if math.isfinite(big) else math.nan)
         return np.sqrt(np.maximum(np.diag(self.cov_px2), 0.0))
 
     def failed(self, status: str, reason: str) -> "Measurement":
@@ -444,6 +497,11 @@ class MeasureParams:
     #: found, is near_border; "fit" -- the search clipped to the photo, each face scored on its pixels on the
     #: photo, the edges fitted on their part inside, near_border only within 8 px (docs/photocontrol.md)
     border: str = "edges"
+    #: edges found on one image line only: the vertex located along it where two of them, on either side of
+    #: it, meet at along_min_angle_deg or more (deg), if its sd along the line is at most along_max_sd_px
+    #: (px; 0: never, weak_geometry) -- module docstring, step 3a
+    along_min_angle_deg: float = 2.0
+    along_max_sd_px: float = 5.0
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
@@ -647,6 +705,7 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
     mm = np.array(mm)
     use = list(range(len(fits)))
     # two edges on one image line: the one turned farther from its predicted direction goes
+    dropped = []
     for i in range(len(fits)):
         for j in range(i + 1, len(fits)):
             if i in use and j in use and \
@@ -655,20 +714,36 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                 why.append(f"edge of planes {fits_planes[drop][0] + 1}-{fits_planes[drop][1] + 1}: found on "
                            f"the line of another edge")
                 use.remove(drop)
+                dropped.append(drop)
     if len(use) < 2:
-        return replace(base.failed("weak_geometry", "the edges found lie on one image line"),
-                       edge_lines=edge_lines(use, True))
+        # the edges found lie on one image line: located along it where the line bends (step 3a)
+        found = locate_along(fits, mm, np.array(cc), covs, use[0], dropped, origin,
+                             min_angle_deg=p.along_min_angle_deg, max_sd_px=p.along_max_sd_px,
+                             two_line_ratio=p.two_line_ratio, sd_px=p.vertex_sd_px,
+                             texture_px=p.vertex_texture_px) if len(use) == 1 else "no edge left"
+        if isinstance(found, str):
+            return replace(base.failed("weak_geometry", f"the edges found lie on one image line: {found}"
+                                       + (f" ({'; '.join(why)})" if why else "")),
+                           edge_lines=edge_lines(use, True))
+        x, cov_x, o, how = found
+        pk, po = fits_planes[use[0]], fits_planes[o]
+        return replace(base, px=x, cov_px2=cov_x, status="measured", along_line=True,
+                       reason=f"located along one edge: the edges of planes {pk[0] + 1}-{pk[1] + 1} and "
+                              f"{po[0] + 1}-{po[1] + 1} lie nearly on one image line, {how}"
+                       + (f" ({'; '.join(w for w in why if 'found on the line' not in w)})"
+                          if any('found on the line' not in w for w in why) else ""),
+                       lines=(lines[use[0]], lines[o]), edge_lines=edge_lines([use[0], o], False))
     while True:
-        x, n_mat, chi2 = _intersect([fits[i] for i in use], mm[use], np.array(cc)[use], [covs[i] for i in use],
-                                    origin, p.vertex_sd_px, p.vertex_texture_px)
+        x, n_mat, chi2 = intersect_lines([fits[i] for i in use], mm[use], np.array(cc)[use],
+                                         [covs[i] for i in use], origin, p.vertex_sd_px, p.vertex_texture_px)
         if len(use) <= 2 or chi2 <= _CHI2_1 * (len(use) - 2):
             break
         # the line farthest (normalised) from the others' point goes
         res = []
         for i in use:
             rest = [j for j in use if j != i]
-            xr, _, _ = _intersect([fits[j] for j in rest], mm[rest], np.array(cc)[rest], [covs[j] for j in rest],
-                                  origin, p.vertex_sd_px, p.vertex_texture_px)
+            xr, _, _ = intersect_lines([fits[j] for j in rest], mm[rest], np.array(cc)[rest],
+                                       [covs[j] for j in rest], origin, p.vertex_sd_px, p.vertex_texture_px)
             res.append(abs(float(mm[i] @ xr) - cc[i]))
         drop = use[int(np.argmax(res))]
         why.append(f"edge of planes {fits_planes[drop][0] + 1}-{fits_planes[drop][1] + 1}: does not meet the "
@@ -688,26 +763,6 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
     cov_x = np.linalg.inv(n_mat)
     return replace(base, px=x, cov_px2=0.5 * (cov_x + cov_x.T), status="measured",
                    reason="; ".join(why), lines=tuple(lines), edge_lines=edge_lines(use, False))
-
-
-def _intersect(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, origin: np.ndarray, sd_px: float,
-               texture_px: float = 0.0):
-    """Weighted least-squares point of lines m^T x = c (module docstring, step 3): point, normal matrix, chi2.
-
-    Each line's offset variance: its fit's at the point, plus ``sd_px^2 + (texture_px / ratio)^2``
-    (ratio: the edge's gradient over the texture's, ``fit[3]``)."""
-    x = origin.copy()
-    for _ in range(3):
-        w = []
-        for (u, fit), (cov, b) in zip(fits, covs):
-            jv = np.array([1.0, float((x - origin) @ u)])
-            extra = sd_px**2 + (texture_px / max(float(fit[3]), 1e-9)) ** 2
-            w.append(1.0 / (max(float(jv @ cov @ jv), 1e-8) / (1.0 + b * b) + extra))
-        w = np.array(w)
-        n_mat = (mm * w[:, None]).T @ mm
-        x = np.linalg.solve(n_mat, (mm * w[:, None]).T @ cc)
-    r = mm @ x - cc
-    return x, n_mat, float(np.sum(w * r * r))
 
 
 def _masked_best(score: np.ndarray, ctx: dict, centre: np.ndarray, cinv: np.ndarray, radius2: float,
@@ -798,7 +853,8 @@ def measure_photo(image: Any, camera: Camera, eo: Any, targets: Sequence[VertexT
         m = _refine(img, ctx, shift, replace(p, band_px=p.wide_band_px))
         if m:   # again from the vertex found, in the narrow band
             m2 = _refine(img, ctx, np.asarray(m.px) - ctx["vpx"], p)
-            m = replace(m2, shift_px=shift) if m2 else m
+            # (a point of crossing edges is not traded for one along a single edge)
+            m = replace(m2, shift_px=shift) if m2 and (m.along_line or not m2.along_line) else m
         out[k] = m
     return out
 

@@ -51,6 +51,9 @@ def read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
     out = []
     photos, points, dec = t.column("photo"), t.column("point"), t.column("decision")
     status = t.column("status") if t.has("status") else [""] * len(t.rows)
+    # a point located along one edge is written beside its edges (photocontrol.measure, step 3a): not "the same fits"
+    status = [("measured_along" if st == "measured" and str(r).startswith("located along one edge") else st)
+              for st, r in zip(status, t.column("reason") if t.has("reason") else [""] * len(t.rows))]
     cols, rows_ = t.floats("col_px", required=False), t.floats("row_px", required=False)
     sdc = t.floats("sd_col_px", required=False) if t.has("sd_col_px") else np.full(len(t.rows), np.nan)
     sdr = t.floats("sd_row_px", required=False) if t.has("sd_row_px") else np.full(len(t.rows), np.nan)

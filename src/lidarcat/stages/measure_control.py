@@ -254,7 +254,7 @@ def _block_edges(per_vertex: dict, lines3d: dict, lines: str, line_rejected: Any
         return out
     for vid, lst in per_vertex.items():
         for pid, m in lst:
-            if m.status in _NO_EDGE_STATUSES or (m and lines == "add"):
+            if m.status in _NO_EDGE_STATUSES or (m and lines == "add" and not m.along_line):
                 continue
             for el in m.edge_lines:
                 lid = line_id(vid, el.planes)
@@ -459,7 +459,7 @@ def _edge_status(m: Any, lid: str, el: Any, lines: str, review: _Review,
         return "not_written", f"the vertex's measurement was rejected: {m.reason}"
     if el is None:
         return "not_written", "no image edge found (or too weak for a line without its vertex)"
-    if m and lines == "add":
+    if m and lines == "add" and not m.along_line:   # a point along one edge: its edges written beside it
         return "in_point", "the vertex's point observation carries this edge (not written twice)"
     if (m.photo, lid) in review.line_rejected:
         return "user_rejected", review.user.reason(review.line_rejected[(m.photo, lid)])
