@@ -57,8 +57,13 @@ def test_measure_control_writes_observations_decisions_and_gallery(survey):
     # its reason; survey.toml names the file; no edge both in a point and as a line on one photo
     ldec = _rows(folder / "line_decisions.csv")
     assert ldec and all(r["reason"] for r in ldec if r["status"] != "written")
+    # (a point located along one edge is the exception: its two edges are written beside it, as they carry
+    # the across-line part the point's one-sd-for-both-axes row cannot)
+    along = {(a["photo"], a["point"]) for a in acc if a["reason"].startswith("located along one edge")}
     assert not any(r["status"] == "written" and (r["photo"], r["point"]) in {(a["photo"], a["point"]) for a in acc}
-                   for r in ldec)
+                   - along for r in ldec)
+    assert all(sum(r["status"] == "written" and (r["photo"], r["point"]) == pair for r in ldec) == 2
+               for pair in along)
     written = {(r["line"], r["photo"]) for r in ldec if r["status"] == "written"}
     assert len(written) == out["line_observations"]
     if written:
