@@ -19,6 +19,12 @@ each control vertex measured on a photo fixes the two across-ray components of i
 the image sd at the vertex's distance), each photo's GNSS (2 m) its centre and the IMU (0.5 deg) the
 rotation.  The check points' height sd of this model beside the adjustment's shows which observations fix
 the height; the mode that carries it is printed per 1 m at the check points.
+
+Part 3 (``--second-pass``) predicts the pairs the automatic run did not measure again, from the
+orientation of part 1's stage adjustment (with its sds: ties + GNSS/IMU + the measured control, no GPS
+target), measures them with ``MeasureParams(border="fit")`` (``measure_control`` on the debug survey: the
+pairs measured in the first pass are kept), scores each against the true projection and adjusts the
+survey with them as part 1 does; the orientation is scored as ``bench_measured_control.py`` scores it.
 """
 
 from __future__ import annotations
@@ -171,10 +177,77 @@ def rigid_block(kept: Path, rays: list[tuple[str, str, float]], gnss_sd_m: float
                               for v, p, _ in rays}}
 
 
+def second_pass(kept: Path, out: Path) -> list[dict]:
+    """Part 3: the lost pairs measured again with the first adjustment's orientation as the approximate one."""
+    import sys
+
+    from lidarcat.photocontrol.measure import MeasureParams
+    from lidarcat.stages.measure_control import measure_control
+    from lidarcat.synthetic.aerial import load_aerial_survey
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_measured_control import score
+
+    base = out / "debug"
+    first = out / "adjust" / "automatic (as the stage)"
+    s2 = out / "pass2" / "survey"
+    if s2.exists():
+        shutil.rmtree(s2)
+    shutil.copytree(base, s2)
+    adj = {r["photo"]: r for r in _rows(first / "eop.csv")}
+    rows = _rows(s2 / "photos.csv")
+    for r in rows:
+        a = adj[r["photo"]]
+        for k in ("X0", "Y0", "Z0"):
+            r[k], r["sd_" + k] = a[k], a["sd_" + k]
+        for k in ("omega", "phi", "kappa"):          # eop.csv: degrees
+            r[k + "_deg"], r["sd_" + k + "_deg"] = a[k], a["sd_" + k]
+    with open(s2 / "photos.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    res = out / "pass2" / "measure_control"
+    if res.exists():
+        shutil.rmtree(res)
+    measure_control(s2, res, params=MeasureParams(border="fit"), gallery=False)
+    aerial = load_aerial_survey(base)
+    sc = aerial.scene
+    true = np.array([v for k, b in enumerate(sc.buildings) for v in b.vertices(sc.base_height(k))])
+    gp = {r["point"]: np.array([float(r["E"]), float(r["N"]), float(r["h"])]) for r in _rows(base / "ground_points.csv")
+          if r.get("source") == "lidar"}
+    report, new = [], []
+    for r in _rows(res / "decisions.csv"):
+        if r["status"] == "not_visible":
+            continue
+        item = {"pair": f"{r['point']}/{r['photo']}", "status": r["status"],
+                "predicted_sd_px": float(r["pred_sd_px"]), "reason": r["reason"][:160]}
+        if r["status"] == "measured":
+            tv = true[int(np.argmin(np.linalg.norm(true - gp[r["point"]], axis=1)))]
+            m = np.array([float(r["col_px"]), float(r["row_px"])])
+            item["error_px"] = round(float(np.linalg.norm(m - aerial.project(r["photo"], tv[None])[0])), 2)
+            item["sd_px"] = [float(r["sd_col_px"]), float(r["sd_row_px"])]
+            new.append(r)
+        report.append(item)
+    pix = float(next(iter(tomllib.loads((base / "camera.toml").read_text()).values()))["pixel_size_x_mm"])
+    added = [f"{r['photo']},{r['point']},{r['col_px']},{r['row_px']},{float(r['sd_col_px']) * pix:.6f},"
+             f"{float(r['sd_row_px']) * pix:.6f}\n" for r in new]
+    if added:
+        row = adjust_variant(base, out, "+ the second pass's measurements", points=lambda L: L + added)
+        sc_ = score(aerial, base / "truth" / "points.csv", out / "adjust" / "+ the second pass's measurements")
+        hand = score(aerial, base / "truth" / "points.csv", kept / "run-hand" / "adjust-lidar")
+        row.update({"pos_rms_m": round(sc_["pos_rms_m"], 3), "att_rms_deg": round(sc_["att_rms_deg"], 4),
+                    "max_z": round(sc_["max_z"], 2), "check_rmse_vs_truth_m": np.round(sc_["check_rmse_m"], 3).tolist(),
+                    "auto_over_hand": [round(sc_["pos_rms_m"] / hand["pos_rms_m"], 2),
+                                       round(sc_["att_rms_deg"] / hand["att_rms_deg"], 2)]})
+        report.append(row)
+    return report
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("kept", type=Path, help="DIR/seedN kept by bench_measured_control.py --keep DIR")
     ap.add_argument("--out", type=Path, default=Path("/tmp/height_datum"))
+    ap.add_argument("--second-pass", action="store_true", help="part 3 (module docstring)")
     a = ap.parse_args()
     for r in variants(a.kept, a.out):
         print(json.dumps(r), flush=True)
@@ -190,6 +263,9 @@ def main() -> None:
     seen = {(v, p) for v, p, _ in auto}
     for sub in ([], auto, [h for h in hand if (h[0], h[1]) in seen], hand):
         print(json.dumps(rigid_block(a.kept, sub)))
+    if a.second_pass:
+        for r in second_pass(a.kept, a.out):
+            print(json.dumps(r), flush=True)
 
 
 if __name__ == "__main__":
