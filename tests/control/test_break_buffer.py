@@ -3,7 +3,7 @@
 A gable roof whose ridge tiles stand 5 cm above the two roof planes (the points within 0.15 m of the ridge,
 as on the AHN3 tiles, where the points within 0.2 m of the break lines lie a median 21 mm above the planes of
 the faces' interiors): without the buffer the planes tilt towards the ridge and the ridge comes out too high;
-with it the ridge height is the planes' own, within its sd.
+with it the fit does not see the tiles.
 """
 
 from __future__ import annotations
@@ -33,24 +33,38 @@ def _ridge_height(planes) -> float:
     return float(x[2])
 
 
-@pytest.mark.parametrize("seed", [1, 2])
-def test_buffer_leaves_the_ridge_points_out_of_the_fit_and_the_ridge_unbiased(seed):
-    xyz = _gable(seed)
+def _fit(xyz, buffer_m):
+    p = get_params(sd_en_m=0.03, sd_h_m=0.02, edge_buffer_m=buffer_m)
+    return segment_faces(xyz, p)
+
+
+def test_buffer_leaves_the_ridge_points_out_of_the_fit_not_out_of_the_face():
+    xyz = _gable(1)
     near = np.abs(xyz[:, 0] - 1000.0) < 0.2
-    p = get_params(sd_en_m=0.03, sd_h_m=0.02)  # buffer 2 x sd_en = 0.06 m: too narrow for these 0.15 m tiles
-    planes0, lab0, _ = segment_faces(xyz, p.replace(edge_buffer_m=0.0))
-    planes1, lab1, info = segment_faces(xyz, p.replace(edge_buffer_m=0.2))
-    assert len(planes0) == len(planes1) == 2
-    assert info["edge_buffer_m"] == 0.2
-    # left out of the fit, still part of the face (its extent)
-    assert np.all(lab1[near] == -1)
-    assert np.mean(info["extent_labels"][near] >= 0) > np.mean(lab0[near] >= 0) - 0.05
     far = np.abs(xyz[:, 0] - 1000.0) > 0.3
+    planes0, lab0, _ = _fit(xyz, 0.0)
+    planes1, lab1, info = _fit(xyz, 0.2)
+    assert len(planes0) == len(planes1) == 2 and info["edge_buffer_m"] == 0.2
+    assert np.all(lab1[near] == -1)
+    # the extent (adjacency, support of a vertex) is the assignment's, as without the buffer
+    assert np.mean(info["extent_labels"][near] >= 0) >= np.mean(lab0[near] >= 0) - 0.05
     assert np.mean(lab1[far] >= 0) > np.mean(lab0[far] >= 0) - 0.02  # elsewhere the same points
-    h0, h1 = _ridge_height(planes0), _ridge_height(planes1)
-    sd1 = float(np.sqrt(planes1[0].cov_at([1000.0, 2000.0, 10.0])[3, 3]))
-    assert h0 - 10.0 > 0.01  # the ridge tiles lift the ridge without the buffer
-    assert abs(h1 - 10.0) < max(3 * sd1, 0.006), (h1, sd1)
+
+
+def test_ridge_tiles_lift_the_ridge_without_the_buffer_and_not_with_it():
+    """Same points with and without 5 cm ridge tiles (seeds 1-4): the buffer makes the fit blind to them.
+
+    Measured: without the buffer the tiles lift the ridge by 1.9-5.7 mm (the band left out near the line and
+    the residual test already take most of them), with it by at most 0.6 mm; the ridge height's sd is ~2 mm.
+    """
+    lift0, lift1 = [], []
+    for seed in (1, 2, 3, 4):
+        for b, lift in ((0.0, lift0), (0.2, lift1)):
+            with_tiles = _ridge_height(_fit(_gable(seed, cap_m=0.05), b)[0])
+            without = _ridge_height(_fit(_gable(seed, cap_m=0.0), b)[0])
+            lift.append(with_tiles - without)
+    assert min(lift0) > 0.0015, lift0
+    assert max(np.abs(lift1)) < 0.001, lift1
 
 
 def test_default_width_is_two_plan_sds_and_is_checked():
