@@ -12,9 +12,9 @@ covariance): two estimates of one corner with honest covariances C_8, C_r differ
 lenient reading); with C_r about C_8 that is ``|d| <= 4.03 sqrt(2) sd = 5.7 sd``.  The bound is derived
 from chi2_3, not from the sds' size: it holds for the plane covariances with the correlated-residual
 components (lidarcat.control.planes, session 6) as for those of independent points before.  Another corner
-lies at least 0.5 m away: 11-34 sd for these vertices with the break-line buffer (sd 14.9-43.4 mm; before it
-14-32 sd, sd 15.6-36.6 mm; 17-106 sd with the covariance of independent points, sd 4.7-28.5 mm), so the
-bound separates "same corner" from "another corner" however the small moves are judged.
+lies at least 0.5 m away: 14-32 sd for these vertices (sd 15.6-36.6 mm; 17-106 sd with the covariance of
+independent points, sd 4.7-28.5 mm), so the bound separates "same corner" from "another corner" however the
+small moves are judged.
 """
 
 from __future__ import annotations
@@ -33,16 +33,16 @@ K_SD = 4.03 * np.sqrt(2.0)  # 99.9 % of |d| / sd for one corner (module docstrin
 #: --find candidates (E, N of the vertex, m) and the radii tested (the default 8 m first): four that returned
 #: another corner before this change to the retries, and three of the four best-scored candidates; the fourth,
 #: C0001, moves by 15.6 sd at 6 m (its third face there is another face of the same aspect, RMS 57 mm:
-#: docs/extraction.md, "Radius sweep").  Moves in sd as measured with the break-line buffer (session 6; with
-#: the cell components alone, then with the covariance of independent points, in brackets).
+#: docs/extraction.md, "Radius sweep").  Moves in sd as measured with the cell components (with the covariance
+#: of independent points in brackets).
 CASES = [
     ("C0135", 85001.677, 447534.105, (8, 4, 12), "10, 12 m: a corner 4.7 m away, ok with a note"),
     ("C0162", 84980.036, 447556.874, (8, 4, 12), "5-12 m: a corner 1.6 m away and 1.2 m lower, ok"),
     ("C0056", 84939.193, 447432.343, (8, 6, 12), "6, 10, 12 m: the corner C0075 1.2 m away, ok, no note"),
     ("C0075", 84938.551, 447433.399, (8, 4, 12), "6, 12 m: the corner C0056 1.2 m away, ok, no note"),
-    ("C0002", 85009.076, 447538.226, (8, 4, 12), "0.4 / 0.2 sd at 4 / 12 m (0.4 / 0.2; 4.0 / 0.6)"),
-    ("C0004", 85036.952, 447493.695, (8, 4, 12), "1.6 / 0.4 sd at 4 / 12 m (1.4 / 0.4; 3.7 / 1.1)"),
-    ("C0003", 85010.168, 447474.780, (8, 4, 12), "3.1 / 0.4 sd at 4 / 12 m (3.7 / 0.6; 7.2 / 4.7)"),
+    ("C0002", 85009.076, 447538.226, (8, 4, 12), "0.4 / 0.2 sd at 4 / 12 m (4.0 / 0.6)"),
+    ("C0004", 85036.952, 447493.695, (8, 4, 12), "1.4 / 0.4 sd at 4 / 12 m (3.7 / 1.1)"),
+    ("C0003", 85010.168, 447474.780, (8, 4, 12), "3.7 / 0.6 sd at 4 / 12 m (7.2 / 4.7)"),
 ]
 
 

@@ -20,8 +20,8 @@
   edge (eaves, verges: facade points there would pull the face down).
   Assignment and fit are iterated twice.
 
-**Break-line buffer** (``ExtractionParams.edge_buffer_m``, default 2 x ``sd_en_m`` = 0.2 m;
-region / ransac).  After the last assignment, each face is fitted once more without the points
+**Break-line buffer** (``ExtractionParams.edge_buffer_m``: None = 2 x ``sd_en_m``, 0.2 m at the
+default sds; region / ransac; off by default for now, see docs/extraction.md "Radius sweep", item 4).  After the last assignment, each face is fitted once more without the points
 within the buffer (in plan) of its break lines: its intersection lines with the faces whose points
 reach them (ridges, hips, valleys; :func:`_buffer_break_lines`).  Why: a face's plane must not depend
 on the clip, yet the points along its break lines are both *systematic* and *assigned differently
