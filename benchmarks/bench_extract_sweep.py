@@ -3,7 +3,7 @@
     python benchmarks/bench_extract_sweep.py [--workers 2] [--radii 4 5 6 8 10 12]
         [--classes 6 | --classes all] [--cache /tmp/cands.pkl] [--plot docs/figures/extract_radius_sweep.png]
         [--csv rows.csv] [--quick] [--replot rows.csv] [--before rows_before.csv] [--cells [C ...]]
-        [--rows rows.pkl [--reuse]]
+        [--rows rows.pkl [--reuse]] [--labels BEFORE NOW] [--buffer M]
 
 Issue 29 ("Extraction"): a sweep of radius 4-12 m over the ``--find`` candidates of both tiles must change no
 accepted vertex by more than its sd.  The candidates are those of ``lidarcat extract --find --classes 6`` on
@@ -25,7 +25,8 @@ each other radius whose extraction is ``ok``:
 The points are the ones ``--find`` searched (``--classes 6``, the building class) unless ``--classes all``.
 Prints a table (one row per candidate with a ratio above 1, then the summary per radius) and writes the
 figure of ``d / sd`` and both Mahalanobis distances against radius.  ``--cells`` with no sizes: the planes'
-covariance of independent points (the code before the cell components), for a before/after comparison.  BLAS is pinned to one thread; ``--workers`` processes share the cloud.
+covariance of independent points (the code before the cell components), for a before/after comparison;
+``--buffer 0``: no break-line buffer (:mod:`lidarcat.control.segment`; the code before it).  BLAS is pinned to one thread; ``--workers`` processes share the cloud.
 """
 
 from __future__ import annotations
@@ -61,13 +62,14 @@ def sweep_one(args):
     covariance of their difference (:func:`difference_cov`; NaN for the reference or when either is not ok)
     and ``self_check`` the ratio of :func:`influence`'s propagated variance trace to the reported one.
     """
-    pid, en, radii, cells_m = args
+    pid, en, radii, cells_m, *rest = args
+    buffer_m = rest[0] if rest else None
     from lidarcat.control.params import get_params
     from lidarcat.control.vertices import extract_roof
 
     idx = _TREE.query_ball_point(en, r=max(radii) + 0.01, return_sorted=True)
     sub = _XYZ[idx]
-    p = get_params(cells_m=tuple(cells_m))
+    p = get_params(cells_m=tuple(cells_m), edge_buffer_m=buffer_m)
     cps = {r: extract_roof(sub, en, params=p.replace(radius_m=r), point_id=pid) for r in radii}
     infl = {r: influence(cp, p) if cp.status == "ok" else None for r, cp in cps.items()}
     ref = infl.get(DEFAULT_RADIUS_M)
@@ -233,13 +235,18 @@ def main() -> None:
                                                  "written here; with --reuse read instead of extracting")
     ap.add_argument("--reuse", action="store_true", help="read --rows instead of extracting")
     ap.add_argument("--before", default=None, help="a --csv table drawn in grey beside (e.g. the --cells run)")
+    ap.add_argument("--buffer", type=float, default=None,
+                    help="edge_buffer_m of the faces' break-line buffer (default: the extraction default; 0: none, "
+                         "the code before the buffer)")
+    ap.add_argument("--labels", nargs=2, default=["before", "now"], metavar=("BEFORE", "NOW"),
+                    help="legend names of the --before table and of this one")
     ap.add_argument("--cells", type=float, nargs="*", default=None,
                     help="cells_m of the plane covariance (default: the extraction default; none: independent "
                          "points, the covariance before the correlated components)")
     a = ap.parse_args()
     title = f"AHN3 --find candidates (classes {a.classes}): vertex at radius r vs the 8 m clip"
     if a.replot:
-        replot(a.replot, a.plot, title, a.before)
+        replot(a.replot, a.plot, title, a.before, tuple(a.labels))
         return
     if not all(t.exists() for t in TILES):
         print("AHN3 tiles not found in tests/data/lidar; skipping")
@@ -271,7 +278,7 @@ def main() -> None:
     _TREE = cKDTree(_XYZ[:, :2])
     radii = sorted(set(float(r) for r in a.radii) | {DEFAULT_RADIUS_M})
     cells_m = tuple(get_params().cells_m if a.cells is None else a.cells)
-    tasks = [(c.point.point_id, np.array(c.point.enh_m[:2]), radii, cells_m) for c in cands]
+    tasks = [(c.point.point_id, np.array(c.point.enh_m[:2]), radii, cells_m, a.buffer) for c in cands]
     t0 = time.perf_counter()
     if a.reuse and a.rows:
         rows = pickle.loads(Path(a.rows).read_bytes())
@@ -296,7 +303,8 @@ def main() -> None:
             w.writeheader()
             w.writerows(table)
     if a.plot:
-        plot(table, radii, a.plot, title=title, before=read_table(a.before) if a.before else None)
+        plot(table, radii, a.plot, title=title, before=read_table(a.before) if a.before else None,
+             labels=tuple(a.labels))
 
 
 #: sqrt(chi2_3) quantiles: 99 % and 99.9 %
@@ -353,11 +361,11 @@ def report(rows, table, radii) -> None:
               f"{mds} |")
 
 
-def plot(table, radii, path, title="", before=None) -> None:
+def plot(table, radii, path, title="", before=None, labels=("before", "now")) -> None:
     """``|d| / sd`` and the two Mahalanobis distances per radius: every candidate a dot (jittered), the median a bar.
 
     *before*: a table of the same form (e.g. ``--cells`` with no sizes: the covariance of independent
-    points) drawn in grey to the left of each radius.
+    points) drawn in grey to the left of each radius; *labels* name the two in the legend.
     """
     import matplotlib
 
@@ -384,7 +392,7 @@ def plot(table, radii, path, title="", before=None) -> None:
                 far = np.array([t["d_m"] > 0.5 for t in ok])
                 x = r + dx + rng.uniform(-0.18, 0.18, len(y))
                 ax.scatter(x[~far], y[~far], s=5, alpha=0.45, color=col, lw=0,
-                           label=(f"{name} (cells_m off)" if name == "before" else "with the cell components")
+                           label=(labels[0] if name == "before" else labels[1])
                            if r == others[0] and before is not None else None)
                 ax.scatter(x[far], y[far], s=16, color="C3", marker="x",
                            label="another corner (> 0.5 m)" if r == others[0] and name == "now" else None)
@@ -413,10 +421,12 @@ def read_table(csv_path: str) -> list[dict]:
                 for r in csv.DictReader(f)]
 
 
-def replot(csv_path: str, path: str, title: str, before: str | None = None) -> None:
+def replot(csv_path: str, path: str, title: str, before: str | None = None,
+           labels: tuple = ("before", "now")) -> None:
     """The figure again from a ``--csv`` table (no extraction)."""
     table = read_table(csv_path)
-    plot(table, sorted({t["radius_m"] for t in table}), path, title, read_table(before) if before else None)
+    plot(table, sorted({t["radius_m"] for t in table}), path, title, read_table(before) if before else None,
+         labels)
 
 
 if __name__ == "__main__":

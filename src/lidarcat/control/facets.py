@@ -71,13 +71,20 @@ def segment_faces(xyz: Any, params: ExtractionParams | str | None = None) -> tup
     origin = xyz.mean(axis=0) if len(xyz) else np.zeros(3)
     loc = xyz - origin
     faces, info = group_faces(loc, p, grid_origin_m=origin[:2])
+    extent = info.pop("extent_idx", None)
+    faces = [(pl, idx, idx if extent is None else extent[k]) for k, (pl, idx) in enumerate(faces)]
     faces = [f for f in faces if p.slope_min_deg < f[0].slope_deg < p.slope_max_deg]
     faces.sort(key=lambda f: -f[0].n_used)
     faces = faces[: p.max_planes]
     out_labels = np.full(len(xyz), -1)
+    ext_labels = np.full(len(xyz), -1)
     planes = []
-    for k, (pl, idx) in enumerate(faces):
+    for k, (pl, idx, ext) in enumerate(faces):
+        ext_labels[ext] = k
+    for k, (pl, idx, ext) in enumerate(faces):
         out_labels[idx] = k
         planes.append(translated(pl, origin, label=k))
     info["n_faces"] = len(planes)
+    if extent is not None:
+        info["extent_labels"] = ext_labels
     return planes, out_labels, info

@@ -359,9 +359,15 @@ def _on_surface(x: np.ndarray, xyz: np.ndarray, tree_all, r: float, tol: float =
 
 def _face_support(xyz: np.ndarray, labels: np.ndarray, m: int, p: ExtractionParams,
                   info: dict | None) -> tuple[list, float, float]:
-    """Plan KD-tree of each of the *m* faces' points, point spacing (m), support distance (m)."""
+    """Plan KD-tree of each of the *m* faces' points, point spacing (m), support distance (m).
+
+    A face's extent is its points before the break-line buffer (``info["extent_labels"]``,
+    :mod:`lidarcat.control.segment`) when there is one: the buffer leaves points out of the fit, not
+    out of the roof."""
     from scipy.spatial import cKDTree
 
+    if info is not None and info.get("extent_labels") is not None and len(info["extent_labels"]) == len(labels):
+        labels = info["extent_labels"]
     trees = [cKDTree(xyz[labels == k, :2]) for k in range(m)]
     spacing = _spacing(xyz, info)
     support = p.support_m if p.support_m is not None else max(1.5, 4.0 * spacing)
