@@ -16,12 +16,15 @@ sds and image files, the LiDAR tiles, and the LiDAR control vertices (ground poi
    (``block_check``, :func:`~lidarcat.photocontrol.blockcheck.check_block`: a lone measurement on a photo
    with tie points is tested through them; the roof edges that would be written go into the same adjustment as
    line control and are tested too), and of each vertex across the photos
-   (:func:`~lidarcat.photocontrol.measure.check_consistency`).
+   (:func:`~lidarcat.photocontrol.measure.check_consistency`);
+4. (``second_pass``) predicts again, from the block test's adjusted orientation, the pairs lost at the frame
+   or to the edges, and measures them (below, "The second pass").
 
 It writes, into the output folder first:
 
 * ``decisions.csv`` -- one row per vertex and photo: ``photo, point, status, reason, col_px, row_px,
-  sd_col_px, sd_row_px, pred_col_px, pred_row_px, pred_sd_px, decision``; ``decision`` is
+  sd_col_px, sd_row_px, pred_col_px, pred_row_px, pred_sd_px, pass, decision`` (``pass``: 1, 2 for the second
+  pass, empty where no pass tried the pair); ``decision`` is
   ``accept`` for accepted measurements and ``reject`` otherwise.  A user may edit ``decision`` (and
   the pixel) and feed the file back (``decisions=``): then nothing is measured, the accepted rows
   are written;
@@ -84,6 +87,25 @@ unless ``replace`` (a user-accepted edge's observation is kept while its vertex 
 :func:`planned` counts a vertex as done when it has an observation or the user's decision on every oriented
 photo, so ``lidarcat run`` stops planning the stage after a full review.  The run measures into its own tables;
 ``lidarcat measure-control SURVEY --decisions RUN/measure_control/decisions.csv ...`` feeds its review back.
+
+**The second pass** (``second_pass``, default on).  The first pass predicts from photos.csv (2 m / 0.5 deg: a
+vertex's ellipse has a sd of ~20-30 px), so a vertex near the frame is ``outside`` or ``near_border`` and one
+whose edges the wide search confuses is ``no_edges`` or ``weak_geometry``.  The block test's last adjustment
+(ties + GNSS/IMU + the accepted measurements and edges) gives every photo of the block an orientation and its
+covariance far tighter than that (seed 6 of bench_measured_control: C0003 on photo 202 from 27.9 px to 6.95 px
+sd).  So after the block test the pairs of status ``near_border``, ``no_edges``, ``weak_geometry`` and
+``not_visible`` *because of the frame* (the prediction ``outside`` it, or no shift searched on the photo) --
+never ``occluded``, ``behind``, ``rejected``, ``user_rejected`` or ``no_vertex`` -- are predicted again from it
+(still hidden or behind the camera: left as they were) and measured with ``MeasureParams(border="fit")``: the
+tighter ellipse lets a vertex cut by the frame be searched on the part of the photo there is.  The new
+measurements go through the same tests before anything is written: ``check_photo`` on each photo (with the
+photo's accepted first-pass measurements beside them, predicted from the same orientation; only the new ones
+take its verdict), the block test again over every measurement and edge (its verdict on the edges replaces the
+first's; the block's datum is still photos.csv, not the adjusted orientation), then ``check_consistency``.  A
+pair the second pass measured (accepted or rejected) has ``pass`` 2 in decisions.csv and its new prediction; a
+pair it tried and lost again keeps its first row, the reason extended by ``; second pass: STATUS: REASON``.
+Without the block test (``block_check=False``, no tie points, nothing measured, not converged) there is no
+adjusted orientation, and the second pass is not run (``measure_control.json``: ``second_pass.status``).
 
 **Sds of the edge fits.**  The predicted direction of an edge observes the fitted slope
 (``direction_sd_deg``): taken from the photo's kappa sd (the image turns with kappa; omega and phi
