@@ -296,7 +296,8 @@ def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_in
     ground points, in corrected photo coordinates as the survey's adjustment uses them); *per_vertex* is updated
     in place, the reasons of the rejected edges go to *line_reasons* ((line, photo) -> reason), the adjusted
     orientation of every photo of its final adjustment and its covariance to *adjusted* (photo -> ((6,),
-    (6, 6)); the second pass predicts from them).  Returns the test's summary.  Without tie points it is not run (it would be the per-photo test again)."""
+    (6, 6)); the second pass predicts from them).  Returns the test's summary.  Without tie points it is not
+    run (it would be the per-photo test again)."""
     from ..photocontrol import TieObservations, check_block
 
     try:
@@ -464,7 +465,7 @@ def _retried(m: Any) -> bool:
 
 def _second_pass(survey: Any, per_vertex: dict, vertex_info: dict, adjusted: dict, *, params: Any,
                  direction_from_kappa: bool, lone_photo: str, gallery: bool, images: dict) -> dict:
-    """Step 2b (module docstring, "The second pass"): the pairs of *per_vertex* lost at the frame or to the
+    """Step 4 (module docstring, "The second pass"): the pairs of *per_vertex* lost at the frame or to the
     edges (:func:`_retried`) predicted again from the block test's orientation (*adjusted*: photo -> (eo,
     cov)), measured with ``border="fit"`` and tested against the photo's common displacement together with the
     photo's accepted first-pass measurements (predicted again the same way; only the new ones take its
