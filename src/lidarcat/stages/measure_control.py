@@ -661,7 +661,8 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                     max_shift_m: float = 0.5, default_sd: tuple[float, float] = (2.0, 0.5),
                     min_photos: int = 1, lines: str = "add", line_table: str | Path | None = None,
                     direction_from_kappa: bool = True, block_check: bool = True, lone_photo: str = "keep",
-                    second_pass: bool = True, progress: Callable[[int, int], Any] | None = None) -> MeasureControlResult:
+                    second_pass: bool = True,
+                    progress: Callable[[int, int], Any] | None = None) -> MeasureControlResult:
     """LiDAR control vertices measured in the photos into image_points.csv (module docstring).
 
     Parameters
