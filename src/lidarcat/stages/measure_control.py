@@ -92,7 +92,7 @@ photo, so ``lidarcat run`` stops planning the stage after a full review.  The ru
 vertex's ellipse has a sd of ~20-30 px), so a vertex near the frame is ``outside`` or ``near_border`` and one
 whose edges the wide search confuses is ``no_edges`` or ``weak_geometry``.  The block test's last adjustment
 (ties + GNSS/IMU + the accepted measurements and edges) gives every photo of the block an orientation and its
-covariance far tighter than that (seed 6 of bench_measured_control: C0003 on photo 202 from 27.9 px to 6.95 px
+covariance far tighter than that (seed 6 of bench_measured_control: C0003 on photo 202 from 27.9 px to 4.2 px
 sd).  So after the block test the pairs of status ``near_border``, ``no_edges``, ``weak_geometry`` and
 ``not_visible`` *because of the frame* (the prediction ``outside`` it, or no shift searched on the photo) --
 never ``occluded``, ``behind``, ``rejected``, ``user_rejected`` or ``no_vertex`` -- are predicted again from it
