@@ -20,7 +20,9 @@ survey's tiles, predicted in every photo with its ellipse from the approximate o
 (photos.csv sds) and the vertex's covariance, tested for visibility on the LiDAR DSM, and
 measured: a template of its roof faces gives the shift, the roof edges fitted in the photo
 meet in the vertex. Measurements that disagree (within a photo, with the block and its tie
-points: --block-check, across photos) are rejected. OUTDIR (default
+points: --block-check, across photos) are rejected. A second pass (--second-pass) then
+predicts the pairs lost at the frame or to the edges again from the block test's adjusted
+orientation and measures them with --border fit. OUTDIR (default
 SURVEY/out/measure_control) gets decisions.csv (one row per vertex and photo, with status,
 reason and an editable decision accept/reject), gallery_NN.png (chips: prediction ellipse
 yellow, edges green, measurement red) and measure_control.json; the accepted observations
@@ -66,6 +68,11 @@ line_control.csv, control_decisions.csv and survey.toml are left as they were th
 @click.option("--lone-photo", type=click.Choice(["keep", "reject"]), default="keep", show_default=True,
               help="A measurement alone on its photo (the per-photo test cannot test it): keep it for the block "
                    "test, or reject it.")
+@click.option("--second-pass/--no-second-pass", default=True, show_default=True,
+              help="After the block test, predict the pairs lost at the frame or to the edges again from the block's "
+                   "adjusted orientation (a far tighter ellipse) and measure them with --border fit; the new "
+                   "measurements go through the same tests (decisions.csv: pass 2). Needs --block-check and tie "
+                   "points.")
 @click.option("--border", type=click.Choice(["edges", "fit"]), default="edges", show_default=True,
               help="A vertex near the photo's border: edges = near_border when its roof edges reach past the "
                    "border; fit = predicted outside only when its search ellipse misses the frame, searched and "
@@ -78,7 +85,7 @@ line_control.csv, control_decisions.csv and survey.toml are left as they were th
                help="Report folder (default SURVEY/out/measure_control).")
 @json_option(help="Print the counts as JSON.")
 def measure_control(survey, points, decisions, line_decisions, replace, no_gallery, lines, block_check, lone_photo,
-                    border, search_sigma, max_shift_m, outdir, as_json) -> None:
+                    second_pass, border, search_sigma, max_shift_m, outdir, as_json) -> None:
     """LiDAR roof vertices found and measured in the photos, into image_points.csv."""
     from ..photocontrol import MeasureParams
     from ..stages.measure_control import measure_control as action
@@ -92,7 +99,8 @@ def measure_control(survey, points, decisions, line_decisions, replace, no_galle
 
         res = action(survey, outdir, points=ids, decisions=decisions, line_decisions=line_decisions, replace=replace,
                      gallery=not no_gallery, params=MeasureParams(search_sigma=search_sigma, border=border), max_shift_m=max_shift_m,
-                     lines=lines, block_check=block_check, lone_photo=lone_photo, progress=progress)
+                     lines=lines, block_check=block_check, lone_photo=lone_photo, second_pass=second_pass,
+                     progress=progress)
     if as_json:
         echo_json({**res.to_dict(), "summary": res.summary})
         return

@@ -4,7 +4,8 @@ Private to :mod:`lidarcat.stages` (:mod:`~lidarcat.stages.measure_control` write
 
 * :func:`decision_rows` -- one row of ``decisions.csv`` per vertex and photo (:data:`DECISION_FIELDS`):
   status and reason, the measured pixel and its sds, the prediction and the semi-major axis of its
-  1-sigma ellipse (the square root of the largest eigenvalue of its covariance), ``accept`` or ``reject``;
+  1-sigma ellipse (the square root of the largest eigenvalue of its covariance), the pass that measured it
+  (1, or 2: the second pass), ``accept`` or ``reject``;
 * :func:`chip_window` -- the window of a photo that a chip shows (read while the photo is in memory: a
   block's photos do not fit there all at once);
 * :func:`write_report` -- decisions.csv and the gallery pages (:mod:`lidarcat.photocontrol.review`:
@@ -27,7 +28,7 @@ __all__ = ["DECISION_FIELDS", "CHIP_HALF_PX", "chip_window", "decision_rows", "w
 
 #: columns of decisions.csv
 DECISION_FIELDS = ["photo", "point", "status", "reason", "col_px", "row_px", "sd_col_px", "sd_row_px",
-                   "pred_col_px", "pred_row_px", "pred_sd_px", "decision"]
+                   "pred_col_px", "pred_row_px", "pred_sd_px", "pass", "decision"]
 
 #: half the side of a gallery chip, px of the photo
 CHIP_HALF_PX = 32
@@ -55,8 +56,14 @@ def _moved(m: Any, origin: np.ndarray) -> Any:
                                lines=tuple((np.asarray(a) - origin, np.asarray(b) - origin) for a, b in m.lines))
 
 
-def decision_rows(ms: Sequence[Any]) -> list[list[Any]]:
-    """The rows of decisions.csv (:data:`DECISION_FIELDS`) of the measurements *ms*."""
+#: statuses of a pair no pass measured (its ``pass`` is empty)
+_NOT_TRIED = ("user_rejected", "no_vertex")
+
+
+def decision_rows(ms: Sequence[Any], second: Any = ()) -> list[list[Any]]:
+    """The rows of decisions.csv (:data:`DECISION_FIELDS`) of the measurements *ms*; *second*: the (photo, point)
+    pairs the second pass measured (``pass`` 2; the others 1, or empty where no pass tried the pair)."""
+    second = set(second)
     rows = []
     for m in ms:
         def f(v: float, nd: int = 3) -> Any:
@@ -66,21 +73,25 @@ def decision_rows(ms: Sequence[Any]) -> list[list[Any]]:
         psd = math.sqrt(max(float(np.max(np.linalg.eigvalsh(np.asarray(m.predicted_cov_px2)))), 0.0)) \
             if np.isfinite(np.asarray(m.predicted_cov_px2)).all() else math.nan
         rows.append([m.photo, m.point, m.status, m.reason, f(m.px[0]), f(m.px[1]), f(sd[0]), f(sd[1]),
-                     f(m.predicted_px[0], 2), f(m.predicted_px[1], 2), f(psd, 2), "accept" if m else "reject"])
+                     f(m.predicted_px[0], 2), f(m.predicted_px[1], 2), f(psd, 2),
+                     2 if (m.photo, m.point) in second else "" if m.status in _NOT_TRIED else 1,
+                     "accept" if m else "reject"])
     return rows
 
 
-def write_report(out: Path, results: list[Any], images: dict, gallery: bool) -> list[str]:
+def write_report(out: Path, results: list[Any], images: dict, gallery: bool, second: Any = ()) -> list[str]:
     """Step 4 of :func:`~lidarcat.stages.measure_control.measure_control`: decisions.csv and the gallery pages
-    (their names) into *out*; *images*: ``(photo, vertex) -> (window, origin)`` of :func:`chip_window`."""
+    (their names) into *out*; *images*: ``(photo, vertex) -> (window, origin)`` of :func:`chip_window`;
+    *second*: the (photo, point) pairs measured by the second pass."""
     import cv2
 
     from ..photocontrol import chip_image, gallery as tile_gallery
 
-    write_csv_atomic(out / "decisions.csv", DECISION_FIELDS, decision_rows(results), comments=[
+    write_csv_atomic(out / "decisions.csv", DECISION_FIELDS, decision_rows(results, second), comments=[
         "LiDAR vertices measured in the photos (lidarcat measure-control). Edit decision (accept/reject) and feed "
         "the file back with --decisions; pixels col_px, row_px; pred_sd_px = semi-major axis of the prediction's "
-        "1-sigma ellipse."])
+        "1-sigma ellipse; pass = the pass that measured the pair (2: predicted again from the block test's "
+        "orientation)."])
     tried = [m for m in results if (m.photo, m.point) in images]
     pages = []
     if gallery and tried:

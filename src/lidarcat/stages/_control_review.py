@@ -47,7 +47,7 @@ def read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
 
     t = read_csv_table(path, required=("photo", "point", "decision", "col_px", "row_px"),
                        optional=("sd_col_px", "sd_row_px", "status", "reason", "pred_col_px", "pred_row_px",
-                                 "pred_sd_px"))
+                                 "pred_sd_px", "pass"))
     out = []
     photos, points, dec = t.column("photo"), t.column("point"), t.column("decision")
     status = t.column("status") if t.has("status") else [""] * len(t.rows)

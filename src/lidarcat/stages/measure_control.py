@@ -16,12 +16,15 @@ sds and image files, the LiDAR tiles, and the LiDAR control vertices (ground poi
    (``block_check``, :func:`~lidarcat.photocontrol.blockcheck.check_block`: a lone measurement on a photo
    with tie points is tested through them; the roof edges that would be written go into the same adjustment as
    line control and are tested too), and of each vertex across the photos
-   (:func:`~lidarcat.photocontrol.measure.check_consistency`).
+   (:func:`~lidarcat.photocontrol.measure.check_consistency`);
+4. (``second_pass``) predicts again, from the block test's adjusted orientation, the pairs lost at the frame
+   or to the edges, and measures them (below, "The second pass").
 
 It writes, into the output folder first:
 
 * ``decisions.csv`` -- one row per vertex and photo: ``photo, point, status, reason, col_px, row_px,
-  sd_col_px, sd_row_px, pred_col_px, pred_row_px, pred_sd_px, decision``; ``decision`` is
+  sd_col_px, sd_row_px, pred_col_px, pred_row_px, pred_sd_px, pass, decision`` (``pass``: 1, 2 for the second
+  pass, empty where no pass tried the pair); ``decision`` is
   ``accept`` for accepted measurements and ``reject`` otherwise.  A user may edit ``decision`` (and
   the pixel) and feed the file back (``decisions=``): then nothing is measured, the accepted rows
   are written;
@@ -84,6 +87,25 @@ unless ``replace`` (a user-accepted edge's observation is kept while its vertex 
 :func:`planned` counts a vertex as done when it has an observation or the user's decision on every oriented
 photo, so ``lidarcat run`` stops planning the stage after a full review.  The run measures into its own tables;
 ``lidarcat measure-control SURVEY --decisions RUN/measure_control/decisions.csv ...`` feeds its review back.
+
+**The second pass** (``second_pass``, default on).  The first pass predicts from photos.csv (2 m / 0.5 deg: a
+vertex's ellipse has a sd of ~20-30 px), so a vertex near the frame is ``outside`` or ``near_border`` and one
+whose edges the wide search confuses is ``no_edges`` or ``weak_geometry``.  The block test's last adjustment
+(ties + GNSS/IMU + the accepted measurements and edges) gives every photo of the block an orientation and its
+covariance far tighter than that (seed 6 of bench_measured_control: C0003 on photo 202 from 27.9 px to 4.2 px
+sd).  So after the block test the pairs of status ``near_border``, ``no_edges``, ``weak_geometry`` and
+``not_visible`` *because of the frame* (the prediction ``outside`` it, or no shift searched on the photo) --
+never ``occluded``, ``behind``, ``rejected``, ``user_rejected`` or ``no_vertex`` -- are predicted again from it
+(still hidden or behind the camera: left as they were) and measured with ``MeasureParams(border="fit")``: the
+tighter ellipse lets a vertex cut by the frame be searched on the part of the photo there is.  The new
+measurements go through the same tests before anything is written: ``check_photo`` on each photo (with the
+photo's accepted first-pass measurements beside them, predicted from the same orientation; only the new ones
+take its verdict), the block test again over every measurement and edge (its verdict on the edges replaces the
+first's; the block's datum is still photos.csv, not the adjusted orientation), then ``check_consistency``.  A
+pair the second pass measured (accepted or rejected) has ``pass`` 2 in decisions.csv and its new prediction; a
+pair it tried and lost again keeps its first row, the reason extended by ``; second pass: STATUS: REASON``.
+Without the block test (``block_check=False``, no tie points, nothing measured, not converged) there is no
+adjusted orientation, and the second pass is not run (``measure_control.json``: ``second_pass.status``).
 
 **Sds of the edge fits.**  The predicted direction of an edge observes the fitted slope
 (``direction_sd_deg``): taken from the photo's kappa sd (the image turns with kappa; omega and phi
@@ -268,12 +290,14 @@ def _block_edges(per_vertex: dict, lines3d: dict, lines: str, line_rejected: Any
 
 
 def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_info: dict,
-                 edges: Sequence[Any] = (), line_reasons: dict | None = None) -> dict:
+                 edges: Sequence[Any] = (), line_reasons: dict | None = None, adjusted: dict | None = None) -> dict:
     """The block test (:func:`~lidarcat.photocontrol.blockcheck.check_block`) of every photo's measurements and the
     roof *edges* (:func:`_block_edges`), with the survey's tie points (image observations of points that are not
     ground points, in corrected photo coordinates as the survey's adjustment uses them); *per_vertex* is updated
-    in place, the reasons of the rejected edges go to *line_reasons* ((line, photo) -> reason).  Returns the
-    test's summary.  Without tie points it is not run (it would be the per-photo test again)."""
+    in place, the reasons of the rejected edges go to *line_reasons* ((line, photo) -> reason), the adjusted
+    orientation of every photo of its final adjustment and its covariance to *adjusted* (photo -> ((6,),
+    (6, 6)); the second pass predicts from them).  Returns the test's summary.  Without tie points it is not
+    run (it would be the per-photo test again)."""
     from ..photocontrol import TieObservations, check_block
 
     try:
@@ -304,6 +328,8 @@ def _check_block(survey: Any, per_vertex: dict, eos: dict, covs: dict, vertex_in
         per_vertex.setdefault(vid, []).append((pid, m))
     log.info("measure-control: block test %s: %d tested, %d rejected, %d untestable, %d tie observations",
              bc.status, bc.tested, len(bc.rejected), len(bc.untestable), bc.ties_used)
+    if adjusted is not None:
+        adjusted.update({p: (bc.eo[p], bc.eo_cov[p]) for p in bc.eo})
     return bc.summary()
 
 
@@ -423,6 +449,85 @@ def _measure_photos(survey: Any, photos: list[str], targets: dict, vertex_info: 
                 if m.status != "not_visible":
                     images[(pid, vid)] = chip_window(img, m, CHIP_HALF_PX)
     return per_vertex, images
+
+
+#: statuses of a pair the second pass predicts and measures again (module docstring, "The second pass"); a
+#: ``not_visible`` pair only when the frame hid it (its reason starts with one of :data:`_FRAME_REASONS`)
+_RETRIED = ("near_border", "no_edges", "weak_geometry")
+_FRAME_REASONS = ("outside:", "off the photo")
+
+
+def _retried(m: Any) -> bool:
+    """Whether the second pass tries the pair of *m* again: lost at the frame or to the edges, not occluded,
+    not behind the camera, not rejected by a test, not the user's."""
+    return m.status in _RETRIED or (m.status == "not_visible" and str(m.reason).startswith(_FRAME_REASONS))
+
+
+def _second_pass(survey: Any, per_vertex: dict, vertex_info: dict, adjusted: dict, *, params: Any,
+                 direction_from_kappa: bool, lone_photo: str, gallery: bool, images: dict) -> dict:
+    """Step 4 (module docstring, "The second pass"): the pairs of *per_vertex* lost at the frame or to the
+    edges (:func:`_retried`) predicted again from the block test's orientation (*adjusted*: photo -> (eo,
+    cov)), measured with ``border="fit"`` and tested against the photo's common displacement together with the
+    photo's accepted first-pass measurements (predicted again the same way; only the new ones take its
+    verdict).  A pair the second pass measures (accepted or rejected by that test) takes the new measurement in
+    *per_vertex* (and its chip in *images*); the others keep theirs, the reason saying what the second pass
+    found.  Returns ``(vertex, photo) -> status`` of the pairs tried."""
+    from ..match import read_image
+    from ..photocontrol import VertexTarget, check_photo, measure_photo, predict_points
+    from ..photocontrol.measure import MeasureParams
+
+    p2 = dataclasses.replace(params or MeasureParams(), border="fit")
+    todo: dict[str, list[tuple[str, int]]] = {}
+    for vid, lst in per_vertex.items():
+        for k, (pid, m) in enumerate(lst):
+            if pid in adjusted and _retried(m):
+                todo.setdefault(pid, []).append((vid, k))
+    tried: dict[tuple[str, str], str] = {}
+    dsms: dict[str, Any] = {}
+    for pid in [p for p in survey.photo_ids if p in todo]:
+        eo, cov = adjusted[pid]
+        cam = survey.camera_of(pid)
+        targets, slots = [], []
+        for vid, k in todo[pid]:
+            cp, xyz, _ = vertex_info[vid]
+            if vid not in dsms:
+                dsms[vid] = dsm_of_points(xyz)
+            pr = predict_points(cam, eo, cov, cp.enh_m[None], cp.cov_m2[None], points=[vid], photo=pid,
+                                dsm=dsms[vid], search_sigma=p2.search_sigma)[0]
+            if pr.status in ("occluded", "behind"):         # hidden now that the orientation is known: as it was
+                old = per_vertex[vid][k][1]
+                per_vertex[vid][k] = (pid, old.failed(old.status, f"{old.reason}; second pass: {pr.status}: "
+                                                                  f"{pr.reason}"))
+                tried[(vid, pid)] = pr.status
+                continue
+            targets.append((vid, VertexTarget(cp.enh_m, cp.planes, xyz, pr)))
+            slots.append(k)
+        if not targets:
+            continue
+        img = read_image(survey.image_path(pid), lambda msg, pid=pid: SurveyError(f"photo {pid!r}: {msg}"))
+        p_ph = p2 if not direction_from_kappa else dataclasses.replace(
+            p2, direction_sd_deg=max(0.1, math.degrees(math.sqrt(max(float(cov[5, 5]), 0.0)))))
+        new = measure_photo(img, cam, eo, [t for _, t in targets], p_ph)
+        # the photo's accepted first-pass measurements beside them, predicted from the same orientation
+        old = [(vid, m) for vid, lst in per_vertex.items() for q, m in lst if q == pid and m]
+        old_pr = [predict_points(cam, eo, cov, vertex_info[vid][0].enh_m[None], vertex_info[vid][0].cov_m2[None],
+                                 points=[vid], photo=pid)[0] for vid, _ in old]
+        both = new + [dataclasses.replace(m, predicted_px=pr.px, predicted_cov_px2=pr.cov_px2)
+                      for (_, m), pr in zip(old, old_pr)]
+        vids = [vid for vid, _ in targets] + [vid for vid, _ in old]
+        checked = check_photo(both, cam, eo, cov, [vertex_info[v][0].enh_m for v in vids],
+                              [vertex_info[v][0].cov_m2 for v in vids], alone=lone_photo)[:len(new)]
+        for (vid, _), k, m in zip(targets, slots, checked):
+            tried[(vid, pid)] = m.status
+            first = per_vertex[vid][k][1]
+            if m.status in ("measured", "rejected"):
+                per_vertex[vid][k] = (pid, m)
+                if gallery:
+                    images[(pid, vid)] = chip_window(img, m, CHIP_HALF_PX)
+            else:
+                per_vertex[vid][k] = (pid, first.failed(first.status, f"{first.reason}; second pass: {m.status}: "
+                                                                      f"{m.reason}"))
+    return tried
 
 
 def _check_vertices(survey: Any, per_vertex: dict, vertex_info: dict, eos: dict, covs: dict,
@@ -556,6 +661,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                     max_shift_m: float = 0.5, default_sd: tuple[float, float] = (2.0, 0.5),
                     min_photos: int = 1, lines: str = "add", line_table: str | Path | None = None,
                     direction_from_kappa: bool = True, block_check: bool = True, lone_photo: str = "keep",
+                    second_pass: bool = True,
                     progress: Callable[[int, int], Any] | None = None) -> MeasureControlResult:
     """LiDAR control vertices measured in the photos into image_points.csv (module docstring).
 
@@ -602,6 +708,10 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
     lone_photo : {"keep", "reject"}
         A measurement alone on its photo, which the per-photo test cannot test
         (:func:`~lidarcat.photocontrol.measure.check_photo`'s ``alone``): kept for the block test, or rejected.
+    second_pass : bool
+        After the block test, predict the pairs lost at the frame or to the edges again from its adjusted
+        orientation and measure them with ``border="fit"`` (module docstring, "The second pass"; needs the
+        block test and tie points).
     progress : callable(done, total), optional
 
     Returns
@@ -655,16 +765,38 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                                          gallery=gallery, progress=progress, done=len(verts), total=total)
     lines3d = _edge_lines(vertex_info) if lines != "none" else {}
     block_lines: dict[tuple[str, str], str] = {}       # (line, photo) -> why the block test rejected the edge
+    adjusted: dict[str, tuple[np.ndarray, np.ndarray]] = {}     # photo -> the block test's orientation, covariance
     block_info = _check_block(survey, per_vertex, eos, covs, vertex_info,
-                              _block_edges(per_vertex, lines3d, lines, review.line_rejected), block_lines) \
-        if block_check else {"status": "off"}
+                              _block_edges(per_vertex, lines3d, lines, review.line_rejected), block_lines,
+                              adjusted) if block_check else {"status": "off"}
+    # the second pass (module docstring): the pairs lost at the frame or to the edges, from the block's orientation
+    tried: dict[tuple[str, str], str] = {}
+    if not second_pass:
+        second_info: dict[str, Any] = {"status": "off"}
+    elif not adjusted:
+        second_info = {"status": "not run", "message": "no orientation of the block test to predict from (block "
+                                                       f"test: {block_info['status']})"}
+    else:
+        tried = _second_pass(survey, per_vertex, vertex_info, adjusted, params=params,
+                             direction_from_kappa=direction_from_kappa, lone_photo=lone_photo, gallery=gallery,
+                             images=images)
+        n_new = sum(st == "measured" for st in tried.values())
+        second_info = {"status": "ok", "tried": len(tried), "measured": n_new,
+                       "rejected": sum(st == "rejected" for st in tried.values())}
+        if n_new:       # the block test again, over every measurement (its verdict on the edges replaces the first's)
+            block_lines.clear()
+            second_info["block_check"] = _check_block(survey, per_vertex, eos, covs, vertex_info,
+                                                      _block_edges(per_vertex, lines3d, lines, review.line_rejected),
+                                                      block_lines)
+        log.info("measure-control: second pass: %d pairs tried again, %d measured", len(tried), n_new)
+    second = {(pid, vid) for (vid, pid), st in tried.items() if st in ("measured", "rejected")}
     results += _check_vertices(survey, per_vertex, vertex_info, eos, covs, min_photos)
     order = {pid: k for k, pid in enumerate(survey.photo_ids)}
     results.sort(key=lambda m: (m.point, order.get(m.photo, 0)))
     counts: dict[str, int] = {}
     for m in results:
         counts[m.status] = counts.get(m.status, 0) + 1
-    pages = write_report(out, results, images, gallery)   # the report first
+    pages = write_report(out, results, images, gallery, second)   # the report first
     new_lines, new_obs = _line_control(out, results, vertex_info, lines3d, lines, review, block_lines) \
         if lines != "none" else ({}, [])
     written_points = {m.point for m in results if m and lines != "only"}
@@ -672,7 +804,7 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
                 if m and lines != "only"]
     summary = {"vertices": len(verts), "photos": len(photos), "counts": counts, "accepted": len(accepted),
                "lines": lines, "control_lines": len(new_lines), "line_observations": len(new_obs),
-               "points_written": len(written_points), "block_check": block_info,
+               "points_written": len(written_points), "block_check": block_info, "second_pass": second_info,
                "gallery": pages, "params": dataclasses.asdict(params) if params is not None else "default",
                "seconds": round(time.perf_counter() - t_start, 2)}
     write_json_atomic(out / "measure_control.json", json.loads(json.dumps(summary, default=str)))
