@@ -112,6 +112,11 @@ def load_ahn3(bounds: tuple[float, float, float, float] | None = None, *, cell_m
     h = hashlib.sha1(np.ascontiguousarray(surf.height).tobytes())
     h.update(np.ascontiguousarray(surf.albedo).tobytes())
     h.update(repr([pid for pid, _, _ in found]).encode())
+    # the exact roof patches are not in the rasters: their vertex and normals go into the key too (without
+    # them a changed extraction reused renders of the old roof geometry, scored against the new vertex)
+    for _, cp, _ in found:
+        h.update(np.ascontiguousarray(cp.enh_m, dtype=np.float64).tobytes())
+        h.update(np.ascontiguousarray([p.n for p in cp.planes], dtype=np.float64).tobytes())
     return Ahn3(xyz, found, surf, ground, h.hexdigest()[:12])
 
 
