@@ -24,7 +24,7 @@ import numpy as np
 
 from .._util import write_csv_atomic
 
-__all__ = ["DECISION_FIELDS", "CHIP_HALF_PX", "chip_window", "decision_rows", "write_report"]
+__all__ = ["DECISION_FIELDS", "CHIP_HALF_PX", "chip_window", "chip_label", "decision_rows", "write_report"]
 
 #: columns of decisions.csv
 DECISION_FIELDS = ["photo", "point", "status", "reason", "col_px", "row_px", "sd_col_px", "sd_row_px",
@@ -33,6 +33,19 @@ DECISION_FIELDS = ["photo", "point", "status", "reason", "col_px", "row_px", "sd
 #: half the side of a gallery chip, px of the photo
 CHIP_HALF_PX = 32
 
+
+
+def chip_label(m: Any, second: Any = ()) -> str:
+    """The gallery chip's caption: point, photo, status, and how a measured pair was measured.
+
+    >>> from types import SimpleNamespace as M
+    >>> chip_label(M(point="C0003", photo="203", status="measured", along_line=True), {("202", "C0003")})
+    'C0003 203 measured along'
+    >>> chip_label(M(point="C0003", photo="202", status="measured", along_line=False), {("202", "C0003")})
+    'C0003 202 measured pass 2'
+    """
+    how = (" along" if getattr(m, "along_line", False) else "") + (" pass 2" if (m.photo, m.point) in second else "")
+    return f"{m.point} {m.photo} {m.status}{how}"
 
 def chip_window(img: np.ndarray, m: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
     """The photo's window about the measured (else predicted) pixel that a chip shows, and its origin (col, row)."""
@@ -100,7 +113,7 @@ def write_report(out: Path, results: list[Any], images: dict, gallery: bool, sec
             chunk = tried[k0:k0 + per_page]
             img = tile_gallery([chip_image(images[(m.photo, m.point)][0], _moved(m, images[(m.photo, m.point)][1]),
                                            half_px=CHIP_HALF_PX, zoom=3) for m in chunk],
-                               [f"{m.point} {m.photo} {m.status}" for m in chunk], columns=6)
+                               [chip_label(m, second) for m in chunk], columns=6)
             path = out / f"gallery_{k0 // per_page + 1:02d}.png"
             ok, buf = cv2.imencode(".png", img)
             if ok:
