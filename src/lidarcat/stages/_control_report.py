@@ -3,7 +3,8 @@
 Private to :mod:`lidarcat.stages` (:mod:`~lidarcat.stages.measure_control` writes through here):
 
 * :func:`decision_rows` -- one row of ``decisions.csv`` per vertex and photo (:data:`DECISION_FIELDS`):
-  status and reason, the measured pixel and its sds, the prediction and the semi-major axis of its
+  status, how the pixel was measured (``method``, :data:`METHODS`, :func:`method_of`) and the reason, the
+  measured pixel and its sds, the prediction and the semi-major axis of its
   1-sigma ellipse (the square root of the largest eigenvalue of its covariance), the pass that measured it
   (1, or 2: the second pass), ``accept`` or ``reject``;
 * :func:`chip_window` -- the window of a photo that a chip shows (read while the photo is in memory: a
@@ -24,15 +25,36 @@ import numpy as np
 
 from .._util import write_csv_atomic
 
-__all__ = ["DECISION_FIELDS", "CHIP_HALF_PX", "chip_window", "chip_label", "decision_rows", "write_report"]
+__all__ = ["DECISION_FIELDS", "METHODS", "method_of", "CHIP_HALF_PX", "chip_window", "chip_label", "decision_rows",
+           "write_report"]
 
 #: columns of decisions.csv
-DECISION_FIELDS = ["photo", "point", "status", "reason", "col_px", "row_px", "sd_col_px", "sd_row_px",
+DECISION_FIELDS = ["photo", "point", "status", "method", "reason", "col_px", "row_px", "sd_col_px", "sd_row_px",
                    "pred_col_px", "pred_row_px", "pred_sd_px", "pass", "decision"]
+
+#: values of decisions.csv's ``method``: how the pair's pixel was measured (empty: no pixel measured)
+METHODS: dict[str, str] = {
+    "corner": "the vertex where its roof edges found in the photo cross (photocontrol.measure, step 3)",
+    "along": "located along one edge (photocontrol.measure, step 3a): tight across the line, loose along it; "
+             "its edges are written beside it as line observations",
+}
 
 #: half the side of a gallery chip, px of the photo
 CHIP_HALF_PX = 32
 
+
+def method_of(m: Any) -> str:
+    """decisions.csv's ``method`` of the measurement *m* (:data:`METHODS`): ``along`` for a point located along
+    one edge, ``corner`` for one where its edges cross, empty where no pixel was measured (accepted or rejected
+    alike: a rejected row the user accepts keeps its meaning).
+
+    >>> from types import SimpleNamespace as M
+    >>> [method_of(M(px=(604.8, 637.5), along_line=a)) for a in (True, False)], method_of(M(px=(float("nan"),) * 2))
+    (['along', 'corner'], '')
+    """
+    if not np.isfinite(np.asarray(m.px, dtype=np.float64)).all():
+        return ""
+    return "along" if getattr(m, "along_line", False) else "corner"
 
 
 def chip_label(m: Any, second: Any = ()) -> str:
@@ -85,8 +107,8 @@ def decision_rows(ms: Sequence[Any], second: Any = ()) -> list[list[Any]]:
         sd = m.sd_px if m else np.full(2, np.nan)
         psd = math.sqrt(max(float(np.max(np.linalg.eigvalsh(np.asarray(m.predicted_cov_px2)))), 0.0)) \
             if np.isfinite(np.asarray(m.predicted_cov_px2)).all() else math.nan
-        rows.append([m.photo, m.point, m.status, m.reason, f(m.px[0]), f(m.px[1]), f(sd[0]), f(sd[1]),
-                     f(m.predicted_px[0], 2), f(m.predicted_px[1], 2), f(psd, 2),
+        rows.append([m.photo, m.point, m.status, method_of(m), m.reason, f(m.px[0]), f(m.px[1]), f(sd[0]),
+                     f(sd[1]), f(m.predicted_px[0], 2), f(m.predicted_px[1], 2), f(psd, 2),
                      2 if (m.photo, m.point) in second else "" if m.status in _NOT_TRIED else 1,
                      "accept" if m else "reject"])
     return rows
@@ -102,9 +124,10 @@ def write_report(out: Path, results: list[Any], images: dict, gallery: bool, sec
 
     write_csv_atomic(out / "decisions.csv", DECISION_FIELDS, decision_rows(results, second), comments=[
         "LiDAR vertices measured in the photos (lidarcat measure-control). Edit decision (accept/reject) and feed "
-        "the file back with --decisions; pixels col_px, row_px; pred_sd_px = semi-major axis of the prediction's "
-        "1-sigma ellipse; pass = the pass that measured the pair (2: predicted again from the block test's "
-        "orientation)."])
+        "the file back with --decisions; method = how the pixel was measured (corner: where the vertex's edges "
+        "cross; along: located along one edge, its edges written beside it); pixels col_px, row_px; pred_sd_px = "
+        "semi-major axis of the prediction's 1-sigma ellipse; pass = the pass that measured the pair (2: predicted "
+        "again from the block test's orientation)."])
     tried = [m for m in results if (m.photo, m.point) in images]
     pages = []
     if gallery and tried:

@@ -24,6 +24,7 @@ import numpy as np
 
 from .._util import write_csv_atomic, write_json_atomic
 from ..errors import SurveyError
+from ._control_report import METHODS
 from ._control_tables import edge_pairs, image_point_rows, line_obs_row, write_checked
 
 __all__ = ["LINE_CANDIDATES", "read_decisions", "known_lines", "read_line_decisions", "fed_line_rows", "feed_back",
@@ -36,24 +37,34 @@ LINE_CANDIDATES = "line_candidates.csv"
 def read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
     """The rows of an edited decisions.csv.
 
+    A ``measured`` row of a point located along one edge (``method`` ``along``) has the status
+    ``measured_along``: it may stand beside its written edges (not "the same fits" as they are).  An empty
+    ``method``, or a file without the column (written before it), falls back to the reason: ``along`` when it
+    starts "located along one edge".
+
     Raises
     ------
     SurveyError
-        ``file:line``: a decision other than accept/reject, an unknown photo or ground point, a pixel or sd that is
-        not a number, an accepted row without its pixel, a non-positive sd, a photo and point listed twice.
+        ``file:line``: a decision other than accept/reject, a method other than corner/along/empty, an unknown
+        photo or ground point, a pixel or sd that is not a number, an accepted row without its pixel, a
+        non-positive sd, a photo and point listed twice.
     """
     from .._util import excerpt, read_csv_table
     from ..errors import location
 
     t = read_csv_table(path, required=("photo", "point", "decision", "col_px", "row_px"),
-                       optional=("sd_col_px", "sd_row_px", "status", "reason", "pred_col_px", "pred_row_px",
+                       optional=("sd_col_px", "sd_row_px", "status", "method", "reason", "pred_col_px", "pred_row_px",
                                  "pred_sd_px", "pass"))
     out = []
     photos, points, dec = t.column("photo"), t.column("point"), t.column("decision")
     status = t.column("status") if t.has("status") else [""] * len(t.rows)
-    # a point located along one edge is written beside its edges (photocontrol.measure, step 3a): not "the same fits"
-    status = [("measured_along" if st == "measured" and str(r).startswith("located along one edge") else st)
-              for st, r in zip(status, t.column("reason") if t.has("reason") else [""] * len(t.rows))]
+    method = [str(v).strip().lower() for v in t.column("method")] if t.has("method") else [""] * len(t.rows)
+    # a point located along one edge is written beside its edges (photocontrol.measure, step 3a): not "the same
+    # fits".  The column ``method`` says so; an empty cell, or a file without the column (written before it),
+    # falls back to the reason's opening words
+    reason = t.column("reason") if t.has("reason") else [""] * len(t.rows)
+    along = [mt == "along" or (not mt and str(r).startswith("located along one edge")) for mt, r in zip(method, reason)]
+    status = [("measured_along" if st == "measured" and a else st) for st, a in zip(status, along)]
     cols, rows_ = t.floats("col_px", required=False), t.floats("row_px", required=False)
     sdc = t.floats("sd_col_px", required=False) if t.has("sd_col_px") else np.full(len(t.rows), np.nan)
     sdr = t.floats("sd_row_px", required=False) if t.has("sd_row_px") else np.full(len(t.rows), np.nan)
@@ -64,6 +75,9 @@ def read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
         d = str(dec[k]).strip().lower()
         if d not in ("accept", "reject"):
             raise SurveyError(f"{path}:{line}: decision must be accept or reject, got {dec[k]!r}")
+        if method[k] not in ("", *METHODS):
+            raise SurveyError(f"{location(path, line, 'method')}: must be {' or '.join(METHODS)} (or empty: no pixel "
+                              f"measured), got {excerpt(t.column('method')[k])}")
         if photos[k] not in known_photos:
             raise SurveyError(f"{location(path, line, 'photo')}: unknown photo {excerpt(photos[k])} (not in "
                               f"photos.csv)")
@@ -82,7 +96,7 @@ def read_decisions(path: Path, survey: Any) -> list[dict[str, Any]]:
                 raise SurveyError(f"{location(path, line, name)}: must be positive, got {v:g}")
         out.append({"photo": str(photos[k]), "point": str(points[k]), "accept": d == "accept",
                     "px": np.array([cols[k], rows_[k]]), "sd": np.array([sdc[k], sdr[k]]), "at": line,
-                    "status": status[k]})
+                    "status": status[k], "along": along[k]})
     return out
 
 

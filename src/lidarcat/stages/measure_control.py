@@ -22,9 +22,10 @@ sds and image files, the LiDAR tiles, and the LiDAR control vertices (ground poi
 
 It writes, into the output folder first:
 
-* ``decisions.csv`` -- one row per vertex and photo: ``photo, point, status, reason, col_px, row_px,
-  sd_col_px, sd_row_px, pred_col_px, pred_row_px, pred_sd_px, pass, decision`` (``pass``: 1, 2 for the second
-  pass, empty where no pass tried the pair); ``decision`` is
+* ``decisions.csv`` -- one row per vertex and photo: ``photo, point, status, method, reason, col_px, row_px,
+  sd_col_px, sd_row_px, pred_col_px, pred_row_px, pred_sd_px, pass, decision`` (``method``: ``corner`` where the
+  vertex's edges cross, ``along`` for a point located along one edge, empty where no pixel was measured;
+  ``pass``: 1, 2 for the second pass, empty where no pass tried the pair); ``decision`` is
   ``accept`` for accepted measurements and ``reject`` otherwise.  A user may edit ``decision`` (and
   the pixel) and feed the file back (``decisions=``): then nothing is measured, the accepted rows
   are written;
@@ -71,10 +72,12 @@ observation of it remains, dropped with its last one.  One photo never gives a v
 (they come from the same fits): an ``in_point`` edge accepted where the vertex's point on the photo is accepted
 too (in the decisions.csv fed back, else in image_points.csv) is an error, and so is a ``measured`` point accepted
 where the new line_control.csv has edges of its vertex on that photo; a point typed by hand (a row of another
-status) may sit beside measured edges (independent measurements).  Every bad row is one error with ``file:line``
-(a decision other than accept/reject, a pixel or sd that is not a number, an unknown photo, point or line, a
-line's ``point`` changed, an accepted row without pixels or with an edge of zero length, a pair listed twice),
-raised before anything is written; the tables then go through the same atomic write and reload as a
+status) may sit beside measured edges (independent measurements), and so may a point located along one edge
+(``method`` ``along``: its edges are written beside it; a file without the column, written before it, is read by
+the reason, "located along one edge").  Every bad row is one error with ``file:line`` (a decision other than
+accept/reject, a method other than corner/along/empty, a pixel or sd that is not a number, an unknown photo,
+point or line, a line's ``point`` changed, an accepted row without pixels or with an edge of zero length, a pair
+listed twice), raised before anything is written; the tables then go through the same atomic write and reload as a
 measurement's.
 
 **The review remembered** (:mod:`lidarcat.survey.decisions`).  Feeding back also records the user's word on
