@@ -53,7 +53,8 @@ behind the camera, and *occluded* when the LiDAR surface model rises above the
 ray from the vertex towards the projection centre: the DSM is sampled along
 the ray from ``start_m`` (clear of the vertex's own roof) in steps of
 ``step_m`` until the ray is above the highest DSM value; a DSM height more than
-``tol_m`` above the ray hides the vertex.
+``tol_m`` above the ray hides the vertex.  :func:`dsm_of_points` makes such a surface of the LiDAR points
+around a vertex: the highest point of each 0.5 m cell.
 """
 
 from __future__ import annotations
@@ -68,9 +69,9 @@ from .._util.frozen import frozen_array
 from ..geometry.camera import Camera
 from ..geometry.collinearity import project
 
-__all__ = ["Prediction", "RoofEdge", "pixel_positions", "pixel_jacobians", "predict_points", "occluded",
-           "roof_edges", "predict_edges", "ellipse_axes", "face_labels", "edge_line_m", "frame_distance_sigma",
-           "VISIBILITY"]
+__all__ = ["Prediction", "RoofEdge", "pixel_positions", "pixel_jacobians", "predict_points", "dsm_of_points",
+           "occluded", "roof_edges", "predict_edges", "ellipse_axes", "face_labels", "edge_line_m",
+           "frame_distance_sigma", "VISIBILITY"]
 
 #: visibility statuses of a prediction and their meaning
 VISIBILITY: dict[str, str] = {
@@ -210,6 +211,29 @@ class Prediction:
     def sd_max_px(self) -> float:
         """Semi-major axis of the 1-sigma ellipse (px)."""
         return ellipse_axes(self.cov_px2)[0]
+
+
+def dsm_of_points(xyz: np.ndarray, cell_m: float = 0.5) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """The highest point of each *cell_m* cell as a surface ``dsm(e, n) -> h`` (NaN outside the points' cells)."""
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    if len(xyz) == 0:
+        return lambda e, n: np.full(np.shape(e), np.nan)
+    lo = xyz[:, :2].min(axis=0)
+    ij = np.floor((xyz[:, :2] - lo) / cell_m).astype(np.int64)
+    shape = ij.max(axis=0) + 1
+    grid = np.full(tuple(int(v) for v in shape), -np.inf)
+    np.maximum.at(grid, (ij[:, 0], ij[:, 1]), xyz[:, 2])
+    grid[~np.isfinite(grid)] = np.nan
+
+    def dsm(e: np.ndarray, n: np.ndarray) -> np.ndarray:
+        i = np.floor((np.asarray(e, dtype=np.float64) - lo[0]) / cell_m).astype(np.int64)
+        j = np.floor((np.asarray(n, dtype=np.float64) - lo[1]) / cell_m).astype(np.int64)
+        inside = (i >= 0) & (j >= 0) & (i < grid.shape[0]) & (j < grid.shape[1])
+        out = np.full(i.shape, np.nan)
+        out[inside] = grid[i[inside], j[inside]]
+        return out
+
+    return dsm
 
 
 def occluded(dsm: Callable[[np.ndarray, np.ndarray], np.ndarray], xyz_m: Any, centre_m: Any, *,

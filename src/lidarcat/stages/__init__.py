@@ -30,7 +30,9 @@ Also here: ``context`` (:class:`~lidarcat.stages.context.StageContext`, what a
 stage sees), ``lidar`` (the actions of the LiDAR production commands) and the private
 ``_feature_cache`` (the match stage's per-photo feature files), ``_control_tables`` (the survey tables
 measure-control writes, reloaded and rolled back), ``_control_review`` (measure-control's decisions
-fed back and remembered) and ``_control_report`` (measure-control's decisions.csv and gallery).
+fed back and remembered), ``_control_report`` (measure-control's decisions.csv and gallery) and ``_second_pass``
+(measure-control's second pass: the pairs lost at the frame or to the edges, predicted again from the block test's
+orientation and measured again).
 """
 
 from . import adjust, assess, camera, compare, context, extract, init, lidar, mapping, match, products, report, selfcal, thesis

@@ -130,10 +130,12 @@ import numpy as np
 
 from .._util import write_csv_atomic, write_json_atomic
 from ..errors import LidarcatError, SurveyError
+from ..photocontrol.predict import dsm_of_points
 from ._control_report import CHIP_HALF_PX, DECISION_FIELDS, chip_window, write_report
 from ._control_review import LINE_CANDIDATES, feed_back
 from ._control_tables import (edge_pairs, image_point_rows, line_control_rows, line_def_row, line_observations,
                               write_checked)
+from ._second_pass import measure_again
 from .context import StageContext as Context
 
 __all__ = ["measure_control", "run", "planned", "MeasureControlResult", "DECISION_FIELDS", "LINE_DECISION_FIELDS",
@@ -185,29 +187,6 @@ def lidar_vertices(survey: Any, points: Sequence[str] | None = None) -> list[tup
     else:
         sel = np.char.lower(src) == "lidar"
     return [(str(ids[i]), np.asarray(gp.enh_m[i], dtype=float)) for i in np.flatnonzero(sel)]
-
-
-def dsm_of_points(xyz: np.ndarray, cell_m: float = 0.5) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-    """The highest point of each *cell_m* cell as a surface ``dsm(e, n) -> h`` (NaN outside the points' cells)."""
-    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    if len(xyz) == 0:
-        return lambda e, n: np.full(np.shape(e), np.nan)
-    lo = xyz[:, :2].min(axis=0)
-    ij = np.floor((xyz[:, :2] - lo) / cell_m).astype(np.int64)
-    shape = ij.max(axis=0) + 1
-    grid = np.full(tuple(int(v) for v in shape), -np.inf)
-    np.maximum.at(grid, (ij[:, 0], ij[:, 1]), xyz[:, 2])
-    grid[~np.isfinite(grid)] = np.nan
-
-    def dsm(e: np.ndarray, n: np.ndarray) -> np.ndarray:
-        i = np.floor((np.asarray(e, dtype=np.float64) - lo[0]) / cell_m).astype(np.int64)
-        j = np.floor((np.asarray(n, dtype=np.float64) - lo[1]) / cell_m).astype(np.int64)
-        inside = (i >= 0) & (j >= 0) & (i < grid.shape[0]) & (j < grid.shape[1])
-        out = np.full(i.shape, np.nan)
-        out[inside] = grid[i[inside], j[inside]]
-        return out
-
-    return dsm
 
 
 def planned(survey: Any) -> str | None:
@@ -452,85 +431,6 @@ def _measure_photos(survey: Any, photos: list[str], targets: dict, vertex_info: 
                 if m.status != "not_visible":
                     images[(pid, vid)] = chip_window(img, m, CHIP_HALF_PX)
     return per_vertex, images
-
-
-#: statuses of a pair the second pass predicts and measures again (module docstring, "The second pass"); a
-#: ``not_visible`` pair only when the frame hid it (its reason starts with one of :data:`_FRAME_REASONS`)
-_RETRIED = ("near_border", "no_edges", "weak_geometry")
-_FRAME_REASONS = ("outside:", "off the photo")
-
-
-def _retried(m: Any) -> bool:
-    """Whether the second pass tries the pair of *m* again: lost at the frame or to the edges, not occluded,
-    not behind the camera, not rejected by a test, not the user's."""
-    return m.status in _RETRIED or (m.status == "not_visible" and str(m.reason).startswith(_FRAME_REASONS))
-
-
-def _second_pass(survey: Any, per_vertex: dict, vertex_info: dict, adjusted: dict, *, params: Any,
-                 direction_from_kappa: bool, lone_photo: str, gallery: bool, images: dict) -> dict:
-    """Step 4 (module docstring, "The second pass"): the pairs of *per_vertex* lost at the frame or to the
-    edges (:func:`_retried`) predicted again from the block test's orientation (*adjusted*: photo -> (eo,
-    cov)), measured with ``border="fit"`` and tested against the photo's common displacement together with the
-    photo's accepted first-pass measurements (predicted again the same way; only the new ones take its
-    verdict).  A pair the second pass measures (accepted or rejected by that test) takes the new measurement in
-    *per_vertex* (and its chip in *images*); the others keep theirs, the reason saying what the second pass
-    found.  Returns ``(vertex, photo) -> status`` of the pairs tried."""
-    from ..match import read_image
-    from ..photocontrol import VertexTarget, check_photo, measure_photo, predict_points
-    from ..photocontrol.measure import MeasureParams
-
-    p2 = dataclasses.replace(params or MeasureParams(), border="fit")
-    todo: dict[str, list[tuple[str, int]]] = {}
-    for vid, lst in per_vertex.items():
-        for k, (pid, m) in enumerate(lst):
-            if pid in adjusted and _retried(m):
-                todo.setdefault(pid, []).append((vid, k))
-    tried: dict[tuple[str, str], str] = {}
-    dsms: dict[str, Any] = {}
-    for pid in [p for p in survey.photo_ids if p in todo]:
-        eo, cov = adjusted[pid]
-        cam = survey.camera_of(pid)
-        targets, slots = [], []
-        for vid, k in todo[pid]:
-            cp, xyz, _ = vertex_info[vid]
-            if vid not in dsms:
-                dsms[vid] = dsm_of_points(xyz)
-            pr = predict_points(cam, eo, cov, cp.enh_m[None], cp.cov_m2[None], points=[vid], photo=pid,
-                                dsm=dsms[vid], search_sigma=p2.search_sigma)[0]
-            if pr.status in ("occluded", "behind"):         # hidden now that the orientation is known: as it was
-                old = per_vertex[vid][k][1]
-                per_vertex[vid][k] = (pid, old.failed(old.status, f"{old.reason}; second pass: {pr.status}: "
-                                                                  f"{pr.reason}"))
-                tried[(vid, pid)] = pr.status
-                continue
-            targets.append((vid, VertexTarget(cp.enh_m, cp.planes, xyz, pr)))
-            slots.append(k)
-        if not targets:
-            continue
-        img = read_image(survey.image_path(pid), lambda msg, pid=pid: SurveyError(f"photo {pid!r}: {msg}"))
-        p_ph = p2 if not direction_from_kappa else dataclasses.replace(
-            p2, direction_sd_deg=max(0.1, math.degrees(math.sqrt(max(float(cov[5, 5]), 0.0)))))
-        new = measure_photo(img, cam, eo, [t for _, t in targets], p_ph)
-        # the photo's accepted first-pass measurements beside them, predicted from the same orientation
-        old = [(vid, m) for vid, lst in per_vertex.items() for q, m in lst if q == pid and m]
-        old_pr = [predict_points(cam, eo, cov, vertex_info[vid][0].enh_m[None], vertex_info[vid][0].cov_m2[None],
-                                 points=[vid], photo=pid)[0] for vid, _ in old]
-        both = new + [dataclasses.replace(m, predicted_px=pr.px, predicted_cov_px2=pr.cov_px2)
-                      for (_, m), pr in zip(old, old_pr)]
-        vids = [vid for vid, _ in targets] + [vid for vid, _ in old]
-        checked = check_photo(both, cam, eo, cov, [vertex_info[v][0].enh_m for v in vids],
-                              [vertex_info[v][0].cov_m2 for v in vids], alone=lone_photo)[:len(new)]
-        for (vid, _), k, m in zip(targets, slots, checked):
-            tried[(vid, pid)] = m.status
-            first = per_vertex[vid][k][1]
-            if m.status in ("measured", "rejected"):
-                per_vertex[vid][k] = (pid, m)
-                if gallery:
-                    images[(pid, vid)] = chip_window(img, m, CHIP_HALF_PX)
-            else:
-                per_vertex[vid][k] = (pid, first.failed(first.status, f"{first.reason}; second pass: {m.status}: "
-                                                                      f"{m.reason}"))
-    return tried
 
 
 def _check_vertices(survey: Any, per_vertex: dict, vertex_info: dict, eos: dict, covs: dict,
@@ -780,9 +680,9 @@ def measure_control(survey_dir: Any, outdir: str | Path | None = None, *, points
         second_info = {"status": "not run", "message": "no orientation of the block test to predict from (block "
                                                        f"test: {block_info['status']})"}
     else:
-        tried = _second_pass(survey, per_vertex, vertex_info, adjusted, params=params,
-                             direction_from_kappa=direction_from_kappa, lone_photo=lone_photo, gallery=gallery,
-                             images=images)
+        tried = measure_again(survey, per_vertex, vertex_info, adjusted, params=params,
+                              direction_from_kappa=direction_from_kappa, lone_photo=lone_photo, gallery=gallery,
+                              images=images)
         n_new = sum(st == "measured" for st in tried.values())
         second_info = {"status": "ok", "tried": len(tried), "measured": n_new,
                        "rejected": sum(st == "rejected" for st in tried.values())}
