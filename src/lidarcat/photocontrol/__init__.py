@@ -14,7 +14,8 @@
                 one edge where two edges on either side of it bend (measure steps 3 and 3a).
 ==============  ============================================================
 
-Private: ``_block_ties`` (the block test's tie points in photo coordinates, cleaned on their own) and
+Private: ``_block_ties`` (the block test's tie points in photo coordinates, cleaned on their own),
+``_block_model`` (its observations in photo coordinates and the bundle problem of each round) and
 ``_block_backward`` (its backward step over the roof edges: a rejected edge put back or exchanged).
 """
 

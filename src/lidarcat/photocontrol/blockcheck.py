@@ -135,6 +135,7 @@ from .._util.frozen import frozen_array
 from ..errors import DatumError, LidarcatError
 from ..geometry.camera import Camera
 from ._block_backward import block_tests, edge_backward_step
+from ._block_model import VERTEX, BlockModel
 from ._block_ties import dominant_sd, prepared_ties
 from .measure import Measurement
 from .predict import pixel_positions
@@ -147,7 +148,6 @@ log = logging.getLogger(__name__)
 REASON_PREFIX = "inconsistent with the block"
 #: the reason of a roof edge the block test rejects starts with this
 LINE_REASON_PREFIX = "roof edge inconsistent with the block"
-_TIE, _VERTEX = "t:", "v:"      # internal point-id prefixes (a tie id may equal a vertex id)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -366,21 +366,6 @@ def _live_measurements(ms: list[Measurement], edges: list[EdgeObservation], came
     return live, replaced
 
 
-def _vertex_photo_coordinates(ms: Sequence[Measurement], cameras: Mapping[str, Camera], floor_sd_px: float
-                              ) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 2) photo coordinates (mm) of the measurements and (N, 2) the sds of the diagonal that dominates
-    their covariance (plus *floor_sd_px* in quadrature, px), mm."""
-    v_xy = np.zeros((len(ms), 2))
-    v_sd = np.zeros((len(ms), 2))
-    for i, m in enumerate(ms):
-        cam = cameras[m.photo]
-        j = np.asarray(cam.pixel_to_photo_jacobian(np.asarray(m.px)[None]))[0]
-        c = np.asarray(m.cov_px2, float) + np.eye(2) * float(floor_sd_px) ** 2
-        v_xy[i] = cam.pixel_to_photo(np.asarray(m.px, float)[None])[0]
-        v_sd[i] = dominant_sd(j @ c @ j.T)
-    return v_xy, v_sd
-
-
 def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camera], eos: Mapping[str, Any],
                 eo_covs: Mapping[str, Any], vertices_m: Mapping[str, Any], vertex_covs: Mapping[str, Any],
                 ties: TieObservations | None, *, level: float = 0.001, power: float = 0.80,
@@ -430,10 +415,7 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
         covariance (names the photo), a measurement of a vertex without coordinates or covariance
         (names the point), bad tie observations.
     """
-    from ..bundle import BundleProblem, adjust
-    from ..bundle.line_tests import line_tests
-    from ..bundle.lines import LineControl
-    from ..bundle.redundancy import check_level, critical_values, reliability
+    from ..bundle.redundancy import check_level
 
     try:
         check_level(level, power)
@@ -445,97 +427,66 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     live, replaced = _live_measurements(ms, edges, cameras, eos, eo_covs, vertices_m, vertex_covs, ties)
     if not live and not edges:
         return BlockCheck(tuple(ms), {}, {}, status="nothing", message="no accepted measurement")
-
-    # --- the tie points: in photo coordinates, cleaned on their own -------------------------------------
-    n_t = 0 if ties is None else len(ties)
+    # step 1: the tie points in photo coordinates, cleaned on their own; the block's observations
     t_xy, t_sd, t_keep, start, note, n_tie_rej, dropped = prepared_ties(ties, cameras, eos, eo_covs, snoop_ties)
-
-    # --- the vertex measurements in photo coordinates ---------------------------------------------------
-    v_xy, v_sd = _vertex_photo_coordinates([ms[k] for k in live], cameras, floor_sd_px)
-    v_photo = np.array([ms[k].photo for k in live], dtype=object)
-    v_point = np.array([ms[k].point for k in live], dtype=object)
-    t_photo_all = ties.photo if n_t else np.zeros(0, dtype=object)
-    ties_on = {p: int(np.sum(t_keep & (t_photo_all == p))) for p in set(v_photo.tolist()) | {e.photo for e in edges}}
-
-    # --- the roof edges: line control (bundle.lines), one 3-D line per line id --------------------------
-    n_e = len(edges)
-    e_photo = np.array([e.photo for e in edges], dtype=object)
-    line_ids = list(dict.fromkeys(e.line for e in edges))
-    first = {lid: next(e for e in edges if e.line == lid) for lid in line_ids}
-    e_pix = np.array([0.5 * (cameras[e.photo].pixel_size_x_mm + cameras[e.photo].pixel_size_y_mm)
-                      for e in edges]).reshape(n_e)
-    e_xy1 = np.array([cameras[e.photo].pixel_to_photo(np.asarray(e.p1_px)[None])[0] for e in edges]).reshape(n_e, 2)
-    e_xy2 = np.array([cameras[e.photo].pixel_to_photo(np.asarray(e.p2_px)[None])[0] for e in edges]).reshape(n_e, 2)
-
-    def problem(v_in: np.ndarray, e_in: np.ndarray) -> tuple[Any, np.ndarray]:
-        """The block of the kept ties, the vertex measurements *v_in* and the edges *e_in*; the photo ids."""
-        tp = t_photo_all[t_keep] if n_t else np.zeros(0, dtype=object)
-        photos = sorted(set(tp.tolist()) | set(v_photo[v_in].tolist()) | set(e_photo[e_in].tolist()))
-        pos = {p: i for i, p in enumerate(photos)}
-        verts = sorted(set(v_point[v_in].tolist()))
-        tie_ids = sorted(set((_TIE + ties.point[t_keep].astype(str)).tolist())) if n_t else []
-        pt_ids = tie_ids + [_VERTEX + v for v in verts]
-        ppos = {q: i for i, q in enumerate(pt_ids)}
-        ph_idx = [pos[p] for p in tp] + [pos[p] for p in v_photo[v_in]]
-        pt_idx = ([ppos[_TIE + str(q)] for q in ties.point[t_keep]] if n_t else []) + \
-            [ppos[_VERTEX + v] for v in v_point[v_in]]
-        xy = np.concatenate([t_xy[t_keep], v_xy[v_in]])
-        sd = np.concatenate([t_sd[t_keep], v_sd[v_in]])
-        lc = None
-        if e_in.any():
-            ei = np.flatnonzero(e_in)
-            lc = LineControl(line_ids=line_ids, a_m=[first[q].a_m for q in line_ids],
-                             b_m=[first[q].b_m for q in line_ids], cov_m2=[first[q].cov_m2 for q in line_ids],
-                             line_index=[line_ids.index(edges[k].line) for k in ei],
-                             photo_index=[pos[edges[k].photo] for k in ei], xy1_mm=e_xy1[ei], xy2_mm=e_xy2[ei],
-                             sd_mm=[edges[k].sd_px * e_pix[k] for k in ei], pixel_mm=e_pix[ei])
-        prob = BundleProblem(
-            photo_ids=photos, point_ids=pt_ids, focal_length_mm=[cameras[p].focal_length_mm for p in photos],
-            photo_index=np.asarray(ph_idx, dtype=np.int64), point_index=np.asarray(pt_idx, dtype=np.int64),
-            xy_mm=xy.reshape(-1, 2), sd_mm=sd.reshape(-1, 2),
-            constraint_point_index=np.array([ppos[_VERTEX + v] for v in verts], dtype=np.int64),
-            constraint_enh_m=np.array([np.asarray(vertices_m[v], float).reshape(3) for v in verts]).reshape(-1, 3),
-            constraint_sd_m=np.array([dominant_sd(np.asarray(vertex_covs[v], float).reshape(3, 3))
-                                      for v in verts]).reshape(-1, 3),
-            eo_constraint_photo_index=np.arange(len(photos)),
-            eo_constraint_params=np.array([np.asarray(eos[p], float).reshape(6) for p in photos]),
-            eo_constraint_sd=np.array([dominant_sd(np.asarray(eo_covs[p], float).reshape(6, 6)) for p in photos]),
-            lines=lc)
-        return prob, np.asarray(photos, dtype=object)
-
-    def solve(prob: Any, photos: np.ndarray, warm: dict[str, np.ndarray], precision: str = "none") -> Any:
-        from ..bundle.approx import intersect_points
-
-        eo0 = np.array([warm.get(p, np.asarray(eos[p], float).reshape(6)) for p in photos])
-        if prob.lines is not None and precision == "none":
-            precision = "photos"                 # the line tests need the photos' covariances
-        res = adjust(prob, initial=(eo0, intersect_points(prob, eo0)), check=False, precision=precision,
-                     max_iter=max_iter)
-        if not res.success and prob.lines is not None:    # a block held by few lines converges slowly
-            res = adjust(prob, initial=(np.asarray(res.eo_params), np.asarray(res.points_m)), check=False,
-                         precision=precision, max_iter=4 * max_iter)
-        return res
-
-    v_in = np.ones(len(live), dtype=bool)
-    e_in = np.ones(n_e, dtype=bool)
-    rejected: list[tuple[str, str, float, float]] = []
-    e_rejected: list[tuple[str, str, float, float]] = []
-    line_reasons: dict[tuple[str, str], str] = {}
-    rounds = 0
-    warm = dict(start)
-    prob, photos = problem(v_in, e_in)
-    res = solve(prob, photos, warm)
-    rounds += 1
-    n_t_used = int(t_keep.sum())
+    blk = BlockModel.of([ms[k] for k in live], edges, ties, (t_xy, t_sd, t_keep), cameras, eos, eo_covs,
+                        vertices_m, vertex_covs, floor_sd_px, max_iter)
+    ties_on = blk.ties_on(set(blk.v_photo.tolist()) | {e.photo for e in edges})
+    tie_counts = dict(ties_used=int(t_keep.sum()), ties_rejected=n_tie_rej, ties_dropped=dropped)
+    # step 2: the block with every observation
+    v_in, e_in = np.ones(len(live), dtype=bool), np.ones(len(edges), dtype=bool)
+    prob, photos = blk.problem(v_in, e_in)
+    res = blk.solve(prob, photos, dict(start))
     if not res.success:
-        return BlockCheck(tuple(ms), {}, {}, ties_used=n_t_used, ties_rejected=n_tie_rej, ties_dropped=dropped,
-                          rounds=rounds, status="not_converged",
+        return BlockCheck(tuple(ms), {}, {}, rounds=1, status="not_converged",
                           message=f"the block adjustment did not converge ({res.message}); nothing rejected"
-                                  + (f"; {note}" if note else ""))
-    n_tie_obs = n_t_used
-    untestable: list[tuple[str, str]] = []
-    e_untestable: list[tuple[str, str]] = []
-    stopped = False
+                                  + (f"; {note}" if note else ""), **tie_counts)
+    st = _Rounds(v_in, e_in, prob, photos, res, note)
+    # step 3: worst first, one rejection per round
+    failed = _worst_first(st, blk, ms, live, replaced, ties_on, tie_counts["ties_used"], level, power)
+    if failed:
+        return BlockCheck(tuple(ms), {}, {}, rejected=tuple(st.rejected), rounds=st.rounds, status="not_converged",
+                          message=failed, lines_rejected=tuple(st.e_rejected), line_reasons=dict(st.line_reasons),
+                          **tie_counts)
+    # step 4: the backward step over the rejected edges
+    if st.e_rejected and st.prob is not None and not st.stopped:
+        _backward(st, blk, ms, given, replaced, ties_on, tie_counts["ties_used"], level, power)
+    # step 5: the final adjustment, its orientations and covariances
+    return _outcome(st, blk, ms, tie_counts)
+
+
+@dataclasses.dataclass(eq=False)
+class _Rounds:
+    """The state of :func:`check_block`'s rounds: the vertex measurements (*v_in*, over the adjusted ones) and
+    edges (*e_in*) still in, the last problem (None: nothing left to adjust), its photos and adjustment, the
+    rejections and reasons so far, the untestable ones of the last round; *stopped*: an adjustment without a
+    rejected observation did not converge (testing stopped)."""
+
+    v_in: np.ndarray
+    e_in: np.ndarray
+    prob: Any
+    photos: np.ndarray
+    res: Any
+    note: str
+    rounds: int = 1
+    rejected: list = dataclasses.field(default_factory=list)
+    e_rejected: list = dataclasses.field(default_factory=list)
+    line_reasons: dict = dataclasses.field(default_factory=dict)
+    untestable: list = dataclasses.field(default_factory=list)
+    e_untestable: list = dataclasses.field(default_factory=list)
+    stopped: bool = False
+
+
+def _worst_first(st: _Rounds, blk: BlockModel, ms: list[Measurement], live: list[int], replaced: dict,
+                 ties_on: dict, n_tie_obs: int, level: float, power: float) -> str:
+    """Step 3 of :func:`check_block`: in each round the worst vertex or edge test above its critical value is
+    rejected (two measurements on a photo without ties: both) and the block adjusted again without it, until
+    every test passes; *ms* and *st* updated.  Returns the message when the block's tests fail (else empty)."""
+    from ..bundle.line_tests import line_tests
+    from ..bundle.redundancy import reliability
+
+    edges, v_photo, v_point, e_photo = blk.edges, blk.v_photo, blk.v_point, blk.e_photo
+    v_in, e_in, res, prob, photos = st.v_in, st.e_in, st.res, st.prob, st.photos
     while True:
         n_obs = len(prob.photo_index)
         vrows = np.arange(n_tie_obs, n_obs)              # the vertex observations follow the ties
@@ -545,10 +496,7 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
             rel = reliability(res, level=level, power=power) if n_obs else None
             lt = line_tests(res, level=level, power=power) if len(edge_in) else None
         except DatumError as ex:
-            return BlockCheck(tuple(ms), {}, {}, rejected=tuple(rejected), ties_used=n_t_used,
-                              ties_rejected=n_tie_rej, ties_dropped=dropped, rounds=rounds, status="not_converged",
-                              message=f"the block's tests failed ({ex})", lines_rejected=tuple(e_rejected),
-                              line_reasons=dict(line_reasons))
+            return f"the block's tests failed ({ex})"
         ratio = np.where(rel.testable[vrows], np.nan_to_num(rel.ratio[vrows], nan=-np.inf), -np.inf) \
             if rel is not None and len(vrows) else np.full(0, -np.inf)
         # the line group test T = w^2 against chi2_{1-alpha_2}(2) = critical_w^2: the same scale as rel.ratio
@@ -557,11 +505,11 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
         worst_e = float(e_ratio.max(initial=-np.inf))
         if max(worst_v, worst_e) <= 1.0:
             if rel is not None and len(vrows):
-                untestable = [(str(v_point[live_in[i]]), str(v_photo[live_in[i]]))
-                              for i in np.flatnonzero(~rel.testable[vrows])]
+                st.untestable = [(str(v_point[live_in[i]]), str(v_photo[live_in[i]]))
+                                 for i in np.flatnonzero(~rel.testable[vrows])]
             if lt is not None:
-                e_untestable = [(edges[edge_in[i]].line, edges[edge_in[i]].photo)
-                                for i in np.flatnonzero(~np.isfinite(lt.w))]
+                st.e_untestable = [(edges[edge_in[i]].line, edges[edge_in[i]].photo)
+                                   for i in np.flatnonzero(~np.isfinite(lt.w))]
             break
         warm = {p: np.asarray(res.eo_params)[j] for j, p in enumerate(photos)}
         is_edge = worst_e > worst_v
@@ -587,89 +535,109 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
             if partner is not None:
                 v_in[partner] = False
         n_ties_photo = ties_on.get(pid, 0)
-        more = v_in.any() or t_keep.any() or e_in.any()
-        prob, photos = problem(v_in, e_in) if more else (None, photos)
-        res_new = solve(prob, photos, warm) if prob is not None else res
-        rounds += prob is not None
+        more = v_in.any() or blk.t_keep.any() or e_in.any()
+        prob, photos = blk.problem(v_in, e_in) if more else (None, photos)
+        res_new = blk.solve(prob, photos, warm) if prob is not None else res
+        st.rounds += prob is not None
         if not res_new.success:
             (e_in if is_edge else v_in)[a] = True
             if partner is not None:
                 v_in[partner] = True
-            prob, photos = problem(v_in, e_in)
-            note = "; ".join(x for x in (note, f"the adjustment without {vid} on {pid} did not converge: "
-                                               "testing stopped") if x)
-            stopped = True
+            prob, photos = blk.problem(v_in, e_in)
+            st.note = "; ".join(x for x in (st.note, f"the adjustment without {vid} on {pid} did not converge: "
+                                                     "testing stopped") if x)
+            st.stopped = True
             break
         res = res_new
         ph = {p: j for j, p in enumerate(photos)}
-        eo_p = np.asarray(res.eo_params)[ph[pid]] if pid in ph else np.asarray(eos[pid], float).reshape(6)
+        eo_p = np.asarray(res.eo_params)[ph[pid]] if pid in ph else np.asarray(blk.eos[pid], float).reshape(6)
         pts = {str(q): np.asarray(res.points_m)[j] for j, q in enumerate(res.point_ids)}
 
         def offset(b: int) -> float:
             """Measurement *b* minus its vertex projected with the block adjusted without it (px)."""
-            x = pts.get(_VERTEX + str(v_point[b]), np.asarray(vertices_m[str(v_point[b])], float).reshape(3))
-            return float(np.hypot(*(np.asarray(ms[live[b]].px) - pixel_positions(cameras[pid], eo_p, x[None])[0])))
+            x = pts.get(VERTEX + str(v_point[b]), np.asarray(blk.vertices_m[str(v_point[b])], float).reshape(3))
+            return float(np.hypot(*(np.asarray(ms[live[b]].px) - pixel_positions(blk.cameras[pid], eo_p,
+                                                                                  x[None])[0])))
 
         if is_edge:
             e = edges[a]
-            off = _edge_offset_px(cameras[pid], eo_p, e)
-            e_rejected.append((vid, pid, w, off))
-            line_reasons[(vid, pid)] = _edge_reason(n_ties_photo, others, int(e_in.sum()), off, w, crit)
+            off = _edge_offset_px(blk.cameras[pid], eo_p, e)
+            st.e_rejected.append((vid, pid, w, off))
+            st.line_reasons[(vid, pid)] = _edge_reason(n_ties_photo, others, int(e_in.sum()), off, w, crit)
             _indict(ms, replaced, e, off, w)
         else:
             off = offset(a)
-            rejected.append((vid, pid, w, off))
+            st.rejected.append((vid, pid, w, off))
             basis = (f"{n_ties_photo} tie points on its photo and {others} other vertex observations"
                      if n_ties_photo else f"no tie points on its photo; {others} other vertex observations")
             ms[live[a]] = ms[live[a]].failed(
                 "rejected", f"{REASON_PREFIX} ({basis}): {off:.1f} px, w = {w:.1f} (critical {crit:.2f})")
             if partner is not None:
                 off_b = offset(partner)
-                rejected.append((str(v_point[partner]), pid, math.nan, off_b))
+                st.rejected.append((str(v_point[partner]), pid, math.nan, off_b))
                 ms[live[partner]] = ms[live[partner]].failed(
                     "rejected", f"{REASON_PREFIX}: {off_b:.1f} px; its photo has no tie points and its other "
                                 f"measurement ({vid}, w = {w:.1f}) disagrees with it: which of the two is off cannot "
                                 "be told")
         if prob is None:
             break
-    if e_rejected and prob is not None and not stopped:
-        # the backward step (module docstring): a rejected edge put back, or exchanged for another of its line
-        def rebuild(e_try: np.ndarray) -> Any:
-            pr, ph = problem(v_in, e_try)
-            r = solve(pr, ph, {p: np.asarray(res.eo_params)[j] for j, p in enumerate(photos)})
-            return r if r.success else None
+    st.res, st.prob, st.photos = res, prob, photos
+    return ""
 
-        key = {(e.line, e.photo): k for k, e in enumerate(edges)}
-        e_in, res_b, changes, n_adj = edge_backward_step(edges, e_in, [key[r[:2]] for r in e_rejected], res,
-                                                          rebuild, n_tie_obs, level, power)
-        rounds += n_adj
-        if changes:
-            res, prob = res_b, res_b.problem
-            photos = np.asarray(prob.photo_ids, dtype=object)
-            e_rejected, line_reasons = _edges_judged_again(
-                edges, e_rejected, changes, res, cameras, ties_on, int(v_in.sum()), int(e_in.sum()), ms, given,
-                replaced, math.sqrt(critical_values(level, power, 2)[1]))
-            rel, lt = block_tests(res, level, power)
-            vrows = np.arange(n_tie_obs, len(prob.photo_index))
-            live_in, edge_in = np.flatnonzero(v_in), np.flatnonzero(e_in)
-            untestable = [] if rel is None or not len(vrows) else [
-                (str(v_point[live_in[i]]), str(v_photo[live_in[i]])) for i in np.flatnonzero(~rel.testable[vrows])]
-            e_untestable = [] if lt is None else [(edges[edge_in[i]].line, edges[edge_in[i]].photo)
-                                                  for i in np.flatnonzero(~np.isfinite(lt.w))]
-    tested = int(v_in.sum()) - len(untestable) + len(rejected)
-    e_tested = int(e_in.sum()) - len(e_untestable) + len(e_rejected)
-    kw = dict(tested=tested, rejected=tuple(rejected), ties_used=n_t_used, ties_rejected=n_tie_rej,
-              ties_dropped=dropped, status="ok", message=note, lines_tested=e_tested,
-              lines_untestable=tuple(e_untestable), lines_rejected=tuple(e_rejected), line_reasons=line_reasons)
-    if prob is None:          # every measurement rejected
-        return BlockCheck(tuple(ms), {}, {}, rounds=rounds, **kw)
-    final = adjust(prob, initial=(np.asarray(res.eo_params), np.asarray(res.points_m)), check=False,
-                   precision="photos", max_iter=max_iter)
-    rounds += 1
-    use = final if final.success else res
-    eo_out = {str(p): np.array(use.eo_params[j]) for j, p in enumerate(photos)}
-    cov_out = {str(p): np.array(use.eo_cov[j]) for j, p in enumerate(photos)}
-    return BlockCheck(tuple(ms), eo_out, cov_out, untestable=tuple(untestable), rounds=rounds, **kw)
+
+def _backward(st: _Rounds, blk: BlockModel, ms: list[Measurement], given: tuple, replaced: dict, ties_on: dict,
+              n_tie_obs: int, level: float, power: float) -> None:
+    """Step 4 of :func:`check_block` (module docstring, "The backward step over the edges"): a rejected edge put
+    back, or exchanged for another of its line; the reasons of the edges rejected in the end and the points
+    they stand for judged again on the final block; *st* and *ms* updated."""
+    from ..bundle.redundancy import critical_values
+
+    edges, res, photos = blk.edges, st.res, st.photos
+
+    def rebuild(e_try: np.ndarray) -> Any:
+        pr, ph = blk.problem(st.v_in, e_try)
+        r = blk.solve(pr, ph, {p: np.asarray(res.eo_params)[j] for j, p in enumerate(photos)})
+        return r if r.success else None
+
+    key = {(e.line, e.photo): k for k, e in enumerate(edges)}
+    e_in, res_b, changes, n_adj = edge_backward_step(edges, st.e_in, [key[r[:2]] for r in st.e_rejected], res,
+                                                      rebuild, n_tie_obs, level, power)
+    st.e_in = e_in
+    st.rounds += n_adj
+    if not changes:
+        return
+    st.res, st.prob = res_b, res_b.problem
+    st.photos = np.asarray(st.prob.photo_ids, dtype=object)
+    st.e_rejected, st.line_reasons = _edges_judged_again(
+        edges, st.e_rejected, changes, st.res, blk.cameras, ties_on, int(st.v_in.sum()), int(e_in.sum()), ms,
+        given, replaced, math.sqrt(critical_values(level, power, 2)[1]))
+    rel, lt = block_tests(st.res, level, power)
+    vrows = np.arange(n_tie_obs, len(st.prob.photo_index))
+    live_in, edge_in = np.flatnonzero(st.v_in), np.flatnonzero(e_in)
+    st.untestable = [] if rel is None or not len(vrows) else [
+        (str(blk.v_point[live_in[i]]), str(blk.v_photo[live_in[i]])) for i in np.flatnonzero(~rel.testable[vrows])]
+    st.e_untestable = [] if lt is None else [(edges[edge_in[i]].line, edges[edge_in[i]].photo)
+                                             for i in np.flatnonzero(~np.isfinite(lt.w))]
+
+
+def _outcome(st: _Rounds, blk: BlockModel, ms: list[Measurement], tie_counts: dict) -> BlockCheck:
+    """Step 5 of :func:`check_block`: the counts, and the final adjustment's orientations and covariances (none
+    when every observation was rejected)."""
+    from ..bundle import adjust
+
+    tested = int(st.v_in.sum()) - len(st.untestable) + len(st.rejected)
+    e_tested = int(st.e_in.sum()) - len(st.e_untestable) + len(st.e_rejected)
+    kw = dict(tested=tested, rejected=tuple(st.rejected), status="ok", message=st.note, lines_tested=e_tested,
+              lines_untestable=tuple(st.e_untestable), lines_rejected=tuple(st.e_rejected),
+              line_reasons=st.line_reasons, **tie_counts)
+    if st.prob is None:          # every measurement rejected
+        return BlockCheck(tuple(ms), {}, {}, rounds=st.rounds, **kw)
+    final = adjust(st.prob, initial=(np.asarray(st.res.eo_params), np.asarray(st.res.points_m)), check=False,
+                   precision="photos", max_iter=blk.max_iter)
+    use = final if final.success else st.res
+    eo_out = {str(p): np.array(use.eo_params[j]) for j, p in enumerate(st.photos)}
+    cov_out = {str(p): np.array(use.eo_cov[j]) for j, p in enumerate(st.photos)}
+    return BlockCheck(tuple(ms), eo_out, cov_out, untestable=tuple(st.untestable), rounds=st.rounds + 1, **kw)
 
 
 def _edge_reason(n_ties: int, n_vertex: int, n_other: int, off: float, w: float, crit: float) -> str:
