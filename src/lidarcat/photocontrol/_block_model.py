@@ -71,6 +71,7 @@ class BlockModel:
     e_pix: np.ndarray
     e_xy1: np.ndarray
     e_xy2: np.ndarray
+    floor_sd_px: float = 0.0
 
     @classmethod
     def of(cls, ms: Sequence[Any], edges: list, ties: Any, prepared: tuple, cameras: Mapping[str, Any],
@@ -91,7 +92,8 @@ class BlockModel:
             np.array([0.5 * (cameras[e.photo].pixel_size_x_mm + cameras[e.photo].pixel_size_y_mm)
                       for e in edges]).reshape(n_e),
             np.array([cameras[e.photo].pixel_to_photo(np.asarray(e.p1_px)[None])[0] for e in edges]).reshape(n_e, 2),
-            np.array([cameras[e.photo].pixel_to_photo(np.asarray(e.p2_px)[None])[0] for e in edges]).reshape(n_e, 2))
+            np.array([cameras[e.photo].pixel_to_photo(np.asarray(e.p2_px)[None])[0] for e in edges]).reshape(n_e, 2),
+            float(floor_sd_px))
 
     def ties_on(self, photos: Any) -> dict[str, int]:
         """Tie observations kept on each of *photos*."""

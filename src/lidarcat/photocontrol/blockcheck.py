@@ -68,6 +68,25 @@ passes only the edges it would write: with ``--lines add`` those of vertices who
 measured (so points and edges never meet there), with ``--lines only`` every edge (then the edges
 replace the points in the test).
 
+Along one edge.  A point located along one edge (:attr:`~lidarcat.photocontrol.measure.Measurement.along_line`,
+measure step 3a) is the intersection of two edges that lie nearly on one image line: its covariance is tight
+across the line (the edges' offsets) and loose along it (their small angle).  measure-control writes its edges
+beside it, so they stand for it here too and test it *across* the line; its position *along* the line is what
+the point adds, and that is tested on the final block (which does not hold the point): with :math:`u` the
+major axis of the point's covariance :math:`C` (the line's direction), :math:`d` the point minus its LiDAR
+vertex projected with the photo's adjusted orientation,
+
+.. math:: w = \frac{u^T d}{\sqrt{u^T (C + J_o \Sigma_o J_o^T + J_x \Sigma_x J_x^T) u}}
+
+(:math:`\Sigma_o` the photo's orientation covariance from the block, :math:`\Sigma_x` the vertex's, :math:`J`
+the pixel Jacobians; ``floor_sd_px`` added to :math:`C`), against the 1-D critical value (3.29 at ``level``
+0.001): the leave-one-out test of the along component alone.  Rejected: ``inconsistent with the block along
+its edge (456 tie points on its photo): 12.1 px along the line from the vertex projected with the block, w =
+6.0 (critical 3.29)``, and measure-control then writes neither the point nor its edges.  Ignored: the
+correlation of the photo's adjusted orientation with the vertex (through its other photos) and with the point's
+own edges (the same fits, in the block) -- small beside a pixel when tie points hold the photo; where they do
+not, the test is weaker, not wrong.  A point with no edge given is adjusted like any vertex measurement.
+
 The backward step over the edges.  Worst first presumes the largest test is the gross observation's;
 that holds while the observations' tests are nearly independent.  When the block's datum rests on the
 edges of one short line alone (ties and GNSS/IMU otherwise), its observations on the different photos
@@ -451,8 +470,8 @@ def check_block(measurements: Sequence[Measurement], cameras: Mapping[str, Camer
     # step 4: the backward step over the rejected edges
     if st.e_rejected and st.prob is not None and not st.stopped:
         _backward(st, blk, ms, given, replaced, ties_on, tie_counts["ties_used"], level, power)
-    # step 5: the final adjustment, its orientations and covariances
-    return _outcome(st, blk, ms, tie_counts)
+    # step 5: the final adjustment, its orientations and covariances; the along-one-edge points tested on it
+    return _outcome(st, blk, ms, tie_counts, replaced, ties_on, level, power)
 
 
 @dataclasses.dataclass(eq=False)
@@ -620,24 +639,64 @@ def _backward(st: _Rounds, blk: BlockModel, ms: list[Measurement], given: tuple,
                                              for i in np.flatnonzero(~np.isfinite(lt.w))]
 
 
-def _outcome(st: _Rounds, blk: BlockModel, ms: list[Measurement], tie_counts: dict) -> BlockCheck:
-    """Step 5 of :func:`check_block`: the counts, and the final adjustment's orientations and covariances (none
-    when every observation was rejected)."""
+def _outcome(st: _Rounds, blk: BlockModel, ms: list[Measurement], tie_counts: dict, replaced: dict,
+             ties_on: dict, level: float, power: float) -> BlockCheck:
+    """Step 5 of :func:`check_block`: the final adjustment's orientations and covariances (none when every
+    observation was rejected), the along-one-edge points tested on it (:func:`_along_tests`), the counts."""
     from ..bundle import adjust
 
     tested = int(st.v_in.sum()) - len(st.untestable) + len(st.rejected)
     e_tested = int(st.e_in.sum()) - len(st.e_untestable) + len(st.e_rejected)
-    kw = dict(tested=tested, rejected=tuple(st.rejected), status="ok", message=st.note, lines_tested=e_tested,
-              lines_untestable=tuple(st.e_untestable), lines_rejected=tuple(st.e_rejected),
-              line_reasons=st.line_reasons, **tie_counts)
+    kw = dict(status="ok", message=st.note, lines_tested=e_tested, lines_untestable=tuple(st.e_untestable),
+              lines_rejected=tuple(st.e_rejected), line_reasons=st.line_reasons, **tie_counts)
     if st.prob is None:          # every measurement rejected
-        return BlockCheck(tuple(ms), {}, {}, rounds=st.rounds, **kw)
+        return BlockCheck(tuple(ms), {}, {}, rounds=st.rounds, tested=tested, rejected=tuple(st.rejected), **kw)
     final = adjust(st.prob, initial=(np.asarray(st.res.eo_params), np.asarray(st.res.points_m)), check=False,
                    precision="photos", max_iter=blk.max_iter)
     use = final if final.success else st.res
     eo_out = {str(p): np.array(use.eo_params[j]) for j, p in enumerate(st.photos)}
     cov_out = {str(p): np.array(use.eo_cov[j]) for j, p in enumerate(st.photos)}
-    return BlockCheck(tuple(ms), eo_out, cov_out, untestable=tuple(st.untestable), rounds=st.rounds + 1, **kw)
+    tested += _along_tests(st, blk, ms, replaced, eo_out, cov_out, ties_on, level, power)
+    return BlockCheck(tuple(ms), eo_out, cov_out, untestable=tuple(st.untestable), rounds=st.rounds + 1,
+                      tested=tested, rejected=tuple(st.rejected), **kw)
+
+
+def _along_tests(st: _Rounds, blk: BlockModel, ms: list[Measurement], replaced: dict, eo: dict, eo_cov: dict,
+                 ties_on: dict, level: float, power: float) -> int:
+    r"""The along-line position of each accepted along-one-edge point whose edges stand for it, tested on the
+    final block (module docstring, "Along one edge"); *ms* and *st* (rejected, untestable) updated.  Returns the
+    number tested."""
+    from ..bundle.redundancy import MIN_REDUNDANCY, critical_values
+    from .predict import pixel_jacobians
+
+    crit = math.sqrt(critical_values(level, power, 1)[1])
+    n = 0
+    for (vid, pid), k in replaced.items():
+        m = ms[k]
+        if not (m and m.along_line):
+            continue
+        if pid not in eo or pid not in eo_cov:
+            st.untestable.append((vid, pid))
+            continue
+        cam, x = blk.cameras[pid], np.asarray(blk.vertices_m[vid], float).reshape(3)
+        jp, jx = pixel_jacobians(cam, eo[pid], x[None])
+        lam, vec = np.linalg.eigh(np.asarray(m.cov_px2, float))
+        u = vec[:, -1]                                   # the line's direction: the covariance's major axis
+        var_m = float(lam[-1]) + blk.floor_sd_px ** 2
+        var_p = float(u @ (jp[0] @ eo_cov[pid] @ jp[0].T
+                           + jx[0] @ np.asarray(blk.vertex_covs[vid], float).reshape(3, 3) @ jx[0].T) @ u)
+        d = float(u @ (np.asarray(m.px) - pixel_positions(cam, eo[pid], x[None])[0]))
+        if not (math.isfinite(d) and math.isfinite(var_p) and var_m / (var_m + var_p) >= MIN_REDUNDANCY):
+            st.untestable.append((vid, pid))
+            continue
+        n += 1
+        w = abs(d) / math.sqrt(var_m + var_p)
+        if w > crit:
+            st.rejected.append((vid, pid, w, abs(d)))
+            ms[k] = m.failed("rejected", f"{REASON_PREFIX} along its edge ({ties_on.get(pid, 0)} tie points on its "
+                                         f"photo): {abs(d):.1f} px along the line from the vertex projected with "
+                                         f"the block, w = {w:.1f} (critical {crit:.2f})")
+    return n
 
 
 def _edge_reason(n_ties: int, n_vertex: int, n_other: int, off: float, w: float, crit: float) -> str:

@@ -100,8 +100,9 @@ check), the sd along is at most ``along_max_sd_px`` (5 px) and the point lies be
 fitted stretches (within 2 sd); else ``weak_geometry`` with the reason ("... meet at 0.4 deg (< 2):
 not located along the line").  :func:`check_photo` and :func:`check_consistency` test the point with
 its elongated covariance; the block test (:mod:`~lidarcat.photocontrol.blockcheck`) tests its two
-edges and gives the point their verdict (the same fits).  The survey's image_points.csv holds no correlation,
-so such a point is written with its *along* sd in both columns (:attr:`Measurement.sd_px`, which
+edges (across the line; an edge rejected rejects the point, the same fits) and the point's position along
+the line on the final block with the point's own covariance ("Along one edge" there).  The survey's
+image_points.csv holds no correlation, so such a point is written with its *along* sd in both columns (:attr:`Measurement.sd_px`, which
 bounds the covariance) and its two edges go beside it as line observations (they carry the across
 part; the point repeats at most :math:`(\sigma_\perp/\sigma_\parallel)^2` of it).  A point of
 crossing edges from the first pass is never traded for an along-one-edge point of the second.
