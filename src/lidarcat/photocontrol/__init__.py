@@ -12,6 +12,8 @@
 ``review``      Image chips with the predicted ellipse and the measured point and lines, and a gallery of them.
 ``_along``      (private) The vertex as the weighted least-squares point of its edge lines, and located along
                 one edge where two edges on either side of it bend (measure steps 3 and 3a).
+``_edge_fit``   (private) A roof edge fitted to sub-pixel across its predicted segment: profiles, peaks, the
+                robust line and its covariance (measure step 2).
 ==============  ============================================================
 
 Private: ``_block_ties`` (the block test's tie points in photo coordinates, cleaned on their own),
