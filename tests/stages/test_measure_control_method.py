@@ -27,9 +27,15 @@ from control_block import edited_decisions, measured_block, read_rows, write_row
 
 ALONG_REASON = ("located along one edge: the edges of planes 1-2 and 2-3 lie nearly on one image line, their "
                 "intersection at 12 deg: sd 0.26 px across the edge, 1.79 px along it")
-#: L003's two edges found on photo 102, as the stage writes them beside an along-one-edge point
-EDGES = {("L003/1-2", "102"): {"status": "written", "reason": "", "decision": "accept"},
-         ("L003/2-3", "102"): {"status": "written", "reason": "", "decision": "accept"}}
+
+
+def _found_edges(root):
+    """L003's edges found on photo 102 (with pixels; ``in_point`` beside its point), as the stage writes them
+    beside an along-one-edge point: ``written``, accepted."""
+    rows = read_rows(root / "out" / "measure_control" / "line_decisions.csv")
+    found = [r["line"] for r in rows if (r["point"], r["photo"]) == ("L003", "102") and r["col1_px"] != ""]
+    assert len(found) == 2, found
+    return {(lid, "102"): {"status": "written", "reason": "", "decision": "accept"} for lid in found}
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +56,7 @@ def _state(root):
 
 def _feed(root, point_cells, fields=DECISION_FIELDS):
     """Feed back L003 on 102 with *point_cells* and its two edges accepted; the decisions file under *fields*."""
-    d, ld = edited_decisions(root, {("L003", "102"): point_cells}, EDGES)
+    d, ld = edited_decisions(root, {("L003", "102"): point_cells}, _found_edges(root))
     write_rows(d, fields, [{k: v for k, v in r.items() if k in fields} for r in read_rows(d)])
     res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(d), "--line-decisions", str(ld)])
     return res, d, ld
@@ -93,7 +99,7 @@ def test_an_along_row_with_a_rewritten_reason_keeps_its_meaning(blocks, tmp_path
     assert res.exit_code == 0, res.output
     pts, lines = _observations(root)
     assert ("102", "L003") in pts                                          # the point beside its two edges
-    assert {("L003/1-2", "102"), ("L003/2-3", "102")} <= lines
+    assert set(_found_edges(root)) <= lines
 
 
 def test_the_column_decides_over_the_reason(blocks, tmp_path):
@@ -103,8 +109,9 @@ def test_the_column_decides_over_the_reason(blocks, tmp_path):
     before = _state(root)
     res, d, ld = _feed(root, {"method": "corner", "reason": ALONG_REASON})
     assert res.exit_code == 2, res.output
-    n = next(i for i, r in enumerate(read_rows(ld)) if (r["line"], r["photo"]) == ("L003/1-2", "102")) + 2
-    assert (f"{ld}:{n}: line 'L003/1-2' on photo '102': vertex 'L003' has a point observation on this photo "
+    lid, _ = min(_found_edges(root))
+    n = next(i for i, r in enumerate(read_rows(ld)) if (r["line"], r["photo"]) == (lid, "102")) + 2
+    assert (f"{ld}:{n}: line '{lid}' on photo '102': vertex 'L003' has a point observation on this photo "
             f"(accepted in {d.name}) measured from the same edge fits; accept the point or its edges, not both"
             in res.output.replace("\n", " ")), res.output
     assert _state(root) == before
