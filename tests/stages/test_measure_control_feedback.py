@@ -4,8 +4,8 @@ and "Bad input").
 
 One small block, fast: :mod:`lidarcat.synthetic.aerial`, seed 2, one strip of two 640 x 480 photos at 0.12 m,
 LiDAR at 10 points/m^2; its 8 roof vertices (two hip roofs) as LiDAR control.  The scene reaches beyond the photos:
-four vertices (L005-L008) lie outside every photo; L003 and L004 are measured on photo 102, L003's edge between
-planes 1 and 3 is not found in the photo (faces of one shade).
+four vertices (L005-L008) lie outside every photo; L003 and L004 are measured on photo 102, L003's north-west hip
+(planes 2 and 3, ``control_block.L003_NO_EDGE``) is not found in the photo (faces of one shade).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from lidarcat.stages.measure_control import DECISION_FIELDS, LINE_CANDIDATES, LI
 from lidarcat.survey.folder import Survey
 from lidarcat.survey.lines import read_line_control
 
-from control_block import edited_decisions, measured_block, read_rows, write_rows
+from control_block import L003_HIP, L003_NO_EDGE, edited_decisions, measured_block, read_rows, write_rows
 
 
 _rows, _write = read_rows, write_rows
@@ -77,11 +77,11 @@ def test_vertex_outside_every_photo_and_edge_without_image_edge_are_reported(blo
                        and e["decision"] == "reject" and e["col1_px"] == "" for e in edges)
     # a roof edge with no image edge, on a photo where its vertex is measured from the other two
     assert dec[("L003", "102")]["status"] == "measured" and dec[("L003", "102")]["decision"] == "accept"
-    e13 = next(e for e in ldec if (e["line"], e["photo"]) == ("L003/1-3", "102"))
-    assert (e13["status"], e13["reason"], e13["decision"], e13["col1_px"]) == (
+    e_no = next(e for e in ldec if (e["line"], e["photo"]) == (L003_NO_EDGE, "102"))
+    assert (e_no["status"], e_no["reason"], e_no["decision"], e_no["col1_px"]) == (
         "not_written", "no image edge found (or too weak for a line without its vertex)", "reject", "")
     assert {(e["line"], e["status"]) for e in ldec if e["point"] == "L003" and e["photo"] == "102"} == {
-        ("L003/1-2", "in_point"), ("L003/1-3", "not_written"), ("L003/2-3", "in_point")}
+        ("L003/1-2", "in_point"), (L003_NO_EDGE, "not_written"), (L003_HIP, "in_point")}
     # only the accepted pairs went into the survey; no line was written (add: the points carry the edges)
     assert _lidar_obs(root) == {(ph, v) for (v, ph), r in dec.items() if r["decision"] == "accept"} == {
         ("102", "L003"), ("102", "L004")}
@@ -90,6 +90,12 @@ def test_vertex_outside_every_photo_and_edge_without_image_edge_are_reported(blo
     cand = _rows(out / LINE_CANDIDATES)
     assert {r["line"] for r in cand} == {e["line"] for e in ldec}
     assert all(r["photo"] == "" and r["cov_m2"] and r["point"] == r["line"].split("/")[0] for r in cand)
+    # which hip is which (the labels follow the faces' point counts, control_block): from the vertex (end 1), the
+    # edge not found runs north-west, the one found south-west (each 2.0-2.7 m in E and in N)
+    for lid, north in ((L003_NO_EDGE, 1), (L003_HIP, -1)):
+        c = next(r for r in cand if r["line"] == lid)
+        de, dn = float(c["e2_m"]) - float(c["e1_m"]), float(c["n2_m"]) - float(c["n1_m"])
+        assert -3.0 < de < -1.5 and 1.5 < north * dn < 3.0, (lid, de, dn)
 
 
 @pytest.mark.parametrize("kind", ["too_dark", "saturated"])
@@ -145,7 +151,7 @@ def test_edges_accepted_instead_of_the_point_go_to_line_control_and_back(blocks,
     # the user prefers L003's two edges on photo 102 to its point, and moves one end of an edge
     d, ld = _edited(root, {("L003", "102"): {"decision": "reject"}},
                     {("L003/1-2", "102"): {"decision": "accept", "col1_px": "398.5", "row1_px": "137.25"},
-                     ("L003/2-3", "102"): {"decision": "accept"}})
+                     (L003_HIP, "102"): {"decision": "accept"}})
     res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(d), "--line-decisions", str(ld)])
     assert res.exit_code == 0, res.output
     assert res.output.splitlines() == [
@@ -157,11 +163,11 @@ def test_edges_accepted_instead_of_the_point_go_to_line_control_and_back(blocks,
     assert sv.files["line_control"] == root / "line_control.csv"      # survey.toml got the key
     lc = _rows(root / "line_control.csv")
     defs = {r["line"]: r for r in lc if not r["photo"]}
-    assert set(defs) == {"L003/1-2", "L003/2-3"}
+    assert set(defs) == {"L003/1-2", L003_HIP}
     for lid, r in defs.items():       # the 3-D line as measure-control computed it, with its covariance
         assert all(r[c] == cand[lid][c] for c in ("e1_m", "n1_m", "h1_m", "e2_m", "n2_m", "h2_m", "cov_m2", "point"))
     obs = {(r["line"], r["photo"]): r for r in lc if r["photo"]}
-    assert set(obs) == {("L003/1-2", "102"), ("L003/2-3", "102")}
+    assert set(obs) == {("L003/1-2", "102"), (L003_HIP, "102")}
     assert (obs[("L003/1-2", "102")]["col1_px"], obs[("L003/1-2", "102")]["row1_px"]) == ("398.5", "137.25")
     lines, lobs = read_line_control(root / "line_control.csv", sv.photo_ids, {p: sv.camera_of(p) for p in sv.photo_ids})
     assert len(lines) == 2 and len(lobs) == 2
@@ -227,14 +233,14 @@ def test_a_hand_line_and_other_photos_observations_are_kept(blocks, tmp_path):
 
     _add_line_control_key(root / "survey.toml", root / "line_control.csv")
     d, ld = _edited(root, {("L003", "102"): {"decision": "reject"}},
-                    {("L003/2-3", "102"): {"decision": "accept"}})
+                    {(L003_HIP, "102"): {"decision": "accept"}})
     # the user keeps only the rows of L003 on photo 102 (the others: not listed, not touched)
     _write(ld, LINE_DECISION_FIELDS, [r for r in _rows(ld) if r["point"] == "L003" and r["photo"] == "102"])
     res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(d), "--line-decisions", str(ld)])
     assert res.exit_code == 0, res.output
     got = [(r["line"], r["photo"]) for r in _rows(root / "line_control.csv")]
-    assert got == [("R1", ""), ("R1", "101"), ("L004/1-2", ""), ("L004/1-2", "101"), ("L003/2-3", ""),
-                   ("L003/2-3", "102")]
+    assert got == [("R1", ""), ("R1", "101"), ("L004/1-2", ""), ("L004/1-2", "101"), (L003_HIP, ""),
+                   (L003_HIP, "102")]
 
 
 # -- bad edited rows: one located error each, nothing written ----------------------------------------------------
@@ -327,13 +333,13 @@ def test_survey_that_does_not_load_with_the_new_tables_is_restored_byte_for_byte
     root = _copy(src, tmp_path)
     out = root / "out" / "measure_control"
     cand = _rows(out / LINE_CANDIDATES)
-    bad = next(r for r in cand if r["line"] == "L003/2-3")
+    bad = next(r for r in cand if r["line"] == L003_HIP)
     bad["cov_m2"] = " ".join(["-1"] + ["0"] * 20)
     from lidarcat.survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
 
     _write(out / LINE_CANDIDATES, list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS), cand)
     d, ld = _edited(root, {("L003", "102"): {"decision": "reject"}},
-                    {("L003/2-3", "102"): {"decision": "accept"}})
+                    {(L003_HIP, "102"): {"decision": "accept"}})
     expect = (f"{root / 'line_control.csv'}:2: field 'cov_m2': not a covariance (not positive semi-definite) (the "
               f"survey does not load with the new tables: image_points.csv, line_control.csv, control_decisions.csv, "
               f"survey.toml put back as they were)")
@@ -354,7 +360,7 @@ def test_survey_that_does_not_load_with_the_new_tables_is_restored_byte_for_byte
     before = _state(root)
     assert before["line_control.csv"] is not None and b"line_control" in before["survey.toml"]
     d, ld = _edited(root, {("L003", "102"): {"decision": "reject"}, ("L004", "102"): {"decision": "reject"}},
-                    {("L003/2-3", "102"): {"decision": "accept"}, ("L004/2-3", "102"): {"decision": "accept"}})
+                    {(L003_HIP, "102"): {"decision": "accept"}, ("L004/2-3", "102"): {"decision": "accept"}})
     res = CliRunner().invoke(cli, ["measure-control", str(root), "--decisions", str(d), "--line-decisions", str(ld)])
     assert res.exit_code == 2
     assert (f"field 'cov_m2': not a covariance (not positive semi-definite) (the survey does not load with the new "

@@ -3,8 +3,9 @@ survey's control_decisions.csv, and a later measurement -- the command or the me
 ``lidarcat run`` -- never measures a rejected pair again (an accepted one only with ``--replace``).
 
 The small fast block of ``test_measure_control_feedback.py``: :mod:`lidarcat.synthetic.aerial`, seed 2, two
-640 x 480 photos at 0.12 m, 8 roof vertices as LiDAR control; L003 and L004 are measured on photo 102 (their edges
-1-2 and 2-3 found, ``in_point``), L001 and L002 are ``near_border`` on 101, every other pair is ``not_visible``.
+640 x 480 photos at 0.12 m, 8 roof vertices as LiDAR control; L003 and L004 are measured on photo 102 (their ridge
+1-2 and one hip found, ``in_point``: L003's 1-3 and L004's 2-3, see ``control_block.L003_HIP``), L001 and L002 are
+``near_border`` on 101, every other pair is ``not_visible``.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from lidarcat.stages.measure_control import (DECISION_FIELDS, LINE_CANDIDATES, L
 from lidarcat.survey.decisions import DECISION_COLUMNS
 from lidarcat.survey.folder import Survey
 
-from control_block import edited_decisions, measured_block, read_rows, write_rows
+from control_block import L003_HIP, L003_NO_EDGE, edited_decisions, measured_block, read_rows, write_rows
 
 
 _rows, _write = read_rows, write_rows
@@ -220,11 +221,11 @@ def test_line_decisions_are_remembered(blocks, tmp_path):
     rec = _recorded(root)
     lines = {(k[2], k[1]): r.decision for k, (_, r) in rec.items() if k[0] == "line"}
     assert {k: v for k, v in lines.items() if k[1] == "102"} == {
-        ("L003/1-2", "102"): "accept", ("L003/2-3", "102"): "accept", ("L003/1-3", "102"): "reject",
+        ("L003/1-2", "102"): "accept", (L003_HIP, "102"): "accept", (L003_NO_EDGE, "102"): "reject",
         ("L004/1-2", "102"): "reject", ("L004/2-3", "102"): "accept", ("L004/1-3", "102"): "reject"}
     assert rec[("line", "102", "L004/1-2")][1].source == f"out/lines_only/line_decisions.csv:{k + 2}"
     obs = {(r["line"], r["photo"]) for r in _rows(root / "line_control.csv") if r["photo"]}
-    assert obs == {("L003/1-2", "102"), ("L003/2-3", "102"), ("L004/2-3", "102")}
+    assert obs == {("L003/1-2", "102"), (L003_HIP, "102"), ("L004/2-3", "102")}
     assert _lidar_obs(root) == set()
 
     lines_before = (root / "line_control.csv").read_bytes()
@@ -254,7 +255,7 @@ def test_line_decisions_are_remembered(blocks, tmp_path):
         "reject")
     assert ldec[("L004/2-3", "102")]["status"] == "written"
     lc = {(r["line"], r["photo"]) for r in _rows(run / "line_control.csv") if r["photo"]}
-    assert lc == {("L003/1-2", "102"), ("L003/2-3", "102"), ("L004/2-3", "102")}
+    assert lc == {("L003/1-2", "102"), (L003_HIP, "102"), ("L004/2-3", "102")}
 
 
 # -- control_decisions.csv at load: one located error per bad row ------------------------------------------------
@@ -313,9 +314,9 @@ def test_records_are_rolled_back_with_the_tables(blocks, tmp_path):
 
     good = _rows(out / LINE_CANDIDATES)
     bad = [dict(r) for r in good]
-    next(r for r in bad if r["line"] == "L003/2-3")["cov_m2"] = " ".join(["-1"] + ["0"] * 20)
+    next(r for r in bad if r["line"] == L003_HIP)["cov_m2"] = " ".join(["-1"] + ["0"] * 20)
     _write(out / LINE_CANDIDATES, list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS), bad)
-    d, ld = _edited(root, {("L003", "102"): {"decision": "reject"}}, {("L003/2-3", "102"): {"decision": "accept"}})
+    d, ld = _edited(root, {("L003", "102"): {"decision": "reject"}}, {(L003_HIP, "102"): {"decision": "accept"}})
     for first in (True, False):
         before = _state(root)
         assert (before["control_decisions.csv"] is None) == first
@@ -333,7 +334,7 @@ def test_records_are_rolled_back_with_the_tables(blocks, tmp_path):
             _run(root, "--decisions", str(d), "--line-decisions", str(ld))
             _write(out / LINE_CANDIDATES, list(LINE_COLUMNS) + list(LINE_EXTRA_COLUMNS), bad)
             d, ld = _edited(root, {("L003", "102"): {"decision": "reject"}, ("L004", "102"): {"decision": "reject"}},
-                            {("L003/2-3", "102"): {"decision": "accept"}, ("L004/2-3", "102"): {"decision": "accept"}})
+                            {(L003_HIP, "102"): {"decision": "accept"}, ("L004/2-3", "102"): {"decision": "accept"}})
 
 
 def test_an_edge_its_point_carries_is_not_recorded_as_rejected(blocks, tmp_path):
@@ -346,7 +347,7 @@ def test_an_edge_its_point_carries_is_not_recorded_as_rejected(blocks, tmp_path)
     _run(root, "--line-decisions", str(ld))
     rec = _recorded(root)
     carried = {(r["line"], r["photo"]) for r in ldec if r["status"] == "in_point"}
-    assert carried == {("L003/1-2", "102"), ("L003/2-3", "102"), ("L004/1-2", "102"), ("L004/2-3", "102")}
+    assert carried == {("L003/1-2", "102"), (L003_HIP, "102"), ("L004/1-2", "102"), ("L004/2-3", "102")}
     assert {(k[2], k[1]) for k in rec} == {(r["line"], r["photo"]) for r in ldec} - carried
     assert all(r.kind == "line" and r.decision == "reject" for _, r in rec.values())
 
@@ -422,7 +423,7 @@ def test_a_point_measured_over_its_written_edges_replaces_them(blocks, tmp_path)
     _run(root)
     out = root / "out" / "measure_control"
     assert {(r["line"], r["photo"]) for r in _rows(out / "line_decisions.csv") if r["status"] == "in_point"} == {
-        ("L003/1-2", "102"), ("L003/2-3", "102"), ("L004/1-2", "102"), ("L004/2-3", "102")}
+        ("L003/1-2", "102"), (L003_HIP, "102"), ("L004/1-2", "102"), ("L004/2-3", "102")}
     assert not [r for r in _rows(out / "line_decisions.csv") if r["status"] == "written"]
     assert _lidar_obs(root) == {("102", "L003"), ("102", "L004")}
     assert [r for r in _rows(root / "line_control.csv")] == []
