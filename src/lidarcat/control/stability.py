@@ -324,6 +324,7 @@ def check_stability(cp: Any, p: Any, extract: Callable[[float], Any]) -> Stabili
     reason = (f"the vertex moves with the clip radius: from the {p.radius_m:g} m clip's vertex by more than "
               f"its sd ({1000 * sd_m:.0f} mm) and than the covariance of the move explains (Mahalanobis "
               f"distance above {limit:.2f}, chi2_3 {100 * p.stability_level:g} %) in clips about it of "
-              f"{'; '.join(parts)}: its faces depend on the clip (eaves, the clip's rim, a neighbour's face); "
+              f"{'; '.join(parts)}: its faces depend on the clip (a face not plane over its extent, eaves, the "
+              f"clip's rim, a neighbour's face); "
               f"check the roof, or ask at another position or radius")
     return StabilityResult(False, limit, sd_m, tuple(tests), reason)
