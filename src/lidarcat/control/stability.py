@@ -50,21 +50,38 @@ than a factor of 2: seen on a few vertices of 4+ planes) the test falls back
 to the lenient one and says so.
 
 **The check** (:func:`check_stability`; ``ExtractionParams.stability_scales``,
-default 0.5 and 1.5 x the radius, i.e. 4 and 12 m at the default 8 m;
-``stability_level`` 0.999).  The vertex is extracted again, at the same position,
-from the clips of the other radii (with their own retries), and the move of
-each that returns a vertex is tested: :math:`M > \sqrt{\chi^2_3(\text{level})}`
-(4.03 at 99.9 %) refuses the vertex.  A clip that returns no vertex (or an
-ambiguous / imprecise one) gives no test and is named in nothing; another
-corner returned by a clip is a move like any other (its :math:`M` is large).
-Why these radii: they are the ends of the range a user or ``--find`` would
-ask at (4-12 m, the sweep of issue 29), and a segmentation that changes with
-the clip changes most between the farthest clips -- on the AHN3 sweep, the
-ends catch most of the candidates that fail at some radius
-(docs/extraction.md, "Radius sweep", session 7).  The level: the sweep
-judges at 99.9 %, and two tests per vertex refuse about 0.2 % of stable
-vertices by chance.  Cost: the two extra clips, about 1 + 0.25 + 2.25 times the
-points of one.
+default 0.5, 0.75, 1.25 and 1.5 x the radius, i.e. 4, 6, 10 and 12 m at the
+default 8 m; ``stability_level`` 0.999).  The vertex is extracted again from
+clips of those radii centred on it (with their own retries; centred on the
+vertex, not on the position asked at, so that the clips are nested about the
+corner itself and the retries rarely run), and the move to each clip that
+returns a vertex is tested.  The vertex is refused when some move is both
+
+- *significant*: :math:`M > \sqrt{\chi^2_3(\text{level})}` (4.03 at 99.9 %),
+  the covariance does not explain it; and
+- *material*: longer than the vertex's sd (the largest axis of its
+  covariance), i.e. it changes the vertex by more than its stated uncertainty.
+
+A significant move shorter than the sd (on the AHN3 sweep, 1-10 mm moves of
+vertices with 10-30 mm sds, where the clips share nearly all points and one
+reassigned edge point gives :math:`M > 4`) leaves the vertex within its sd of
+every clip's; refusing it would cost a good control point for nothing.  A clip
+that returns no vertex (or an ambiguous / imprecise one) gives no test and is
+named in the reason; another corner returned by a clip is a move like any other.
+
+Why these radii: the move of a vertex with the clip is not monotone in the
+radius (a face merges, splits or loses its outer part at one radius and not
+at the next).  On the session-6 sweep of the 178 ``--find`` candidates of the
+AHN3 tiles (radii 4, 5, 6, 10 and 12 m against 8 m), 36 candidates failed the
+difference test at some radius; testing only the ends (4 and 12 m) would have
+caught 19 of them, 4, 6 and 12 m 28, and 4, 6, 10 and 12 m 35
+(docs/extraction.md, "Radius sweep", item 5).  The level: the sweep judges at
+99.9 %; four tests per vertex refuse well under 0.4 % of stable vertices by
+chance, and fewer still with the sd condition.  Cost: the four clips hold
+0.25 + 0.56 + 1.56 + 2.25 = 4.6 times the points of one, and each is
+segmented; the vertex's points must reach ``max(stability_scales) x radius_m``
+beyond it (:func:`lidarcat.control.vertices.extract_roof` skips the larger
+clips when it is given only the clip of ``radius_m``).
 """
 
 from __future__ import annotations

@@ -53,6 +53,13 @@ by less than ``ambiguity_m`` (the same penalised distance: a rival of a small
 clip's few noisy points is no rival of a precise corner) give the status
 ``ambiguous`` with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
 reason, and :attr:`ControlPoint.offset_m` is written with every point.
+
+**Radius stability.**  An ``ok`` vertex is then extracted again from clips of
+``stability_scales x radius_m`` centred on it (4, 6, 10, 12 m at the default)
+and refused as ``unstable`` when it moves by more than its sd and by more than
+the covariance of the difference of the two clips' vertices explains
+(:mod:`lidarcat.control.stability`); the reason names the radii, the moves and
+their Mahalanobis distances.  The vertex is never replaced by another clip's.
 """
 
 from __future__ import annotations
@@ -549,8 +556,10 @@ def extract_roof(
     Returns
     -------
     ControlPoint
-        Truthy when a vertex of 3+ planes was found; otherwise falsy with
-        ``status`` and ``reason`` (degenerate roofs never raise).
+        Truthy when a vertex of 3+ planes was found (and passed the radius-stability check,
+        ``params.stability_scales``; its clips need the points within ``max(stability_scales) x
+        radius_m`` of the vertex, so pass more than the clip, or *clipped* to skip the larger ones);
+        otherwise falsy with ``status`` and ``reason`` (degenerate roofs never raise).
 
     Raises
     ------
