@@ -3,7 +3,7 @@
     python benchmarks/bench_extract_sweep.py [--workers 2] [--radii 4 5 6 8 10 12]
         [--classes 6 | --classes all] [--cache /tmp/cands.pkl] [--plot docs/figures/extract_radius_sweep.png]
         [--csv rows.csv] [--quick] [--replot rows.csv] [--before rows_before.csv] [--cells [C ...]]
-        [--rows rows.pkl [--reuse]] [--labels BEFORE NOW] [--buffer M]
+        [--rows rows.pkl [--reuse]] [--labels BEFORE NOW] [--buffer M] [--check-scales [S ...]] [--time-find]
 
 Issue 29 ("Extraction"): a sweep of radius 4-12 m over the ``--find`` candidates of both tiles must change no
 accepted vertex by more than its sd.  The candidates are those of ``lidarcat extract --find --classes 6`` on
@@ -17,10 +17,16 @@ each other radius whose extraction is ``ok``:
 - ``maha`` the Mahalanobis distance ``sqrt(d' (C_8 + C_r)^-1 d)`` (both covariances, as if independent: the
   clips share points, so this is the lenient reading);
 - ``maha_diff`` the Mahalanobis distance with the covariance of the difference ``x_r - x_8`` itself: each
-  vertex written as a linear function of its points' errors (:func:`influence`), the points both clips
+  vertex written as a linear function of its points' errors (:func:`lidarcat.control.stability.influence`), the points both clips
   share cancelling, propagated with the plane fit's own error model (iid part plus the cell components of
   :mod:`lidarcat.control.planes`): chi2 with 3 degrees of freedom when the covariances are honest;
 - the statuses per radius (ok / ambiguous / no_vertex ...).
+
+- ``check``: the radius-stability check of the 8 m vertex (:mod:`lidarcat.control.stability`: the extraction
+  with the default ``stability_scales``, clips of 4, 6, 10 and 12 m about the vertex): ``stable`` or
+  ``unstable`` (refused); ``check_radius`` 1 on the rows of the radii it used.  The sweep's own extractions
+  run without the check.  The summary counts the candidates refused and the accepted ones whose move still
+  fails the difference test, at the radii the check used (moves shorter than the sd) and at the others (5 m).
 
 The points are the ones ``--find`` searched (``--classes 6``, the building class) unless ``--classes all``.
 Prints a table (one row per candidate with a ratio above 1, then the summary per radius) and writes the
@@ -104,7 +110,7 @@ def compare(rows, ref_radius: float = DEFAULT_RADIUS_M):
     """Per candidate accepted at *ref_radius*: per other radius d (m), sd (m), d/sd, Mahalanobis, status.
 
     ``maha`` uses ``C_8 + C_r`` (independent clips), ``maha_diff`` the covariance of the difference with the
-    shared points shared (:func:`difference_cov`).
+    shared points shared (:func:`lidarcat.control.stability.difference_cov`).
 
     *rows* as returned by :func:`sweep_one`.  Returns a list of dicts (one per candidate and radius); ``check``
     is the 8 m vertex's radius-stability verdict (``stable`` / ``unstable``; empty when not computed: rows of
@@ -170,6 +176,9 @@ def main() -> None:
     ap.add_argument("--cells", type=float, nargs="*", default=None,
                     help="cells_m of the plane covariance (default: the extraction default; none: independent "
                          "points, the covariance before the correlated components)")
+    ap.add_argument("--time-find", action="store_true",
+                    help="time `extract --find --classes 6` on both tiles without and with the radius-stability "
+                         "check (find_candidates, one process) and stop")
     a = ap.parse_args()
     title = f"AHN3 --find candidates (classes {a.classes}): vertex at radius r vs the 8 m clip"
     if a.replot:
@@ -186,6 +195,9 @@ def main() -> None:
 
     print(f"load average before: {os.getloadavg()[0]:.2f}")
     idx, area, cloud = load_cloud(None)
+    if a.time_find:
+        time_find(cloud, area)
+        return
     t0 = time.perf_counter()
     if a.cache and Path(a.cache).exists():
         cands = pickle.loads(Path(a.cache).read_bytes())
@@ -233,6 +245,23 @@ def main() -> None:
     if a.plot:
         plot(table, radii, a.plot, title=title, before=read_table(a.before) if a.before else None,
              labels=tuple(a.labels))
+
+
+def time_find(cloud, area) -> None:
+    """``find_candidates(classes=[6])`` on both tiles without, then with, the radius-stability check: time, counts."""
+    from lidarcat.control.params import get_params
+    from lidarcat.control.vertices import find_candidates
+
+    found = {}
+    for name, p in (("without the check (stability_scales=())", get_params(stability_scales=())),
+                    ("with the check (default)", get_params())):
+        t0 = time.perf_counter()
+        found[name] = find_candidates(cloud, box=area, classes=[6], params=p)
+        print(f"--find {name}: {len(found[name])} candidates in {time.perf_counter() - t0:.0f} s "
+              f"(load average {os.getloadavg()[0]:.2f})")
+    off, on = found.values()
+    gone = [c for c in off if all(np.hypot(*(c.point.enh_m[:2] - k.point.enh_m[:2])) > 1.0 for k in on)]
+    print(f"candidates without the check that are not among those with it (within 1 m): {len(gone)}")
 
 
 #: sqrt(chi2_3) quantiles: 99 % and 99.9 %
