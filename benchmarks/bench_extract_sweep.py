@@ -4,6 +4,7 @@
         [--classes 6 | --classes all] [--cache /tmp/cands.pkl] [--plot docs/figures/extract_radius_sweep.png]
         [--csv rows.csv] [--quick] [--replot rows.csv] [--before rows_before.csv] [--cells [C ...]]
         [--rows rows.pkl [--reuse]] [--labels BEFORE NOW] [--buffer M] [--check-scales [S ...]] [--time-find]
+        [--replot rows.csv --accepted --before rows.csv]
 
 Issue 29 ("Extraction"): a sweep of radius 4-12 m over the ``--find`` candidates of both tiles must change no
 accepted vertex by more than its sd.  The candidates are those of ``lidarcat extract --find --classes 6`` on
@@ -176,13 +177,15 @@ def main() -> None:
     ap.add_argument("--cells", type=float, nargs="*", default=None,
                     help="cells_m of the plane covariance (default: the extraction default; none: independent "
                          "points, the covariance before the correlated components)")
+    ap.add_argument("--accepted", action="store_true",
+                    help="with --replot: draw only the candidates the radius-stability check accepts")
     ap.add_argument("--time-find", action="store_true",
                     help="time `extract --find --classes 6` on both tiles without and with the radius-stability "
                          "check (find_candidates, one process) and stop")
     a = ap.parse_args()
     title = f"AHN3 --find candidates (classes {a.classes}): vertex at radius r vs the 8 m clip"
     if a.replot:
-        replot(a.replot, a.plot, title, a.before, tuple(a.labels))
+        replot(a.replot, a.plot, title, a.before, tuple(a.labels), a.accepted)
         return
     if not all(t.exists() for t in TILES):
         print("AHN3 tiles not found in tests/data/lidar; skipping")
@@ -399,9 +402,12 @@ def read_table(csv_path: str) -> list[dict]:
 
 
 def replot(csv_path: str, path: str, title: str, before: str | None = None,
-           labels: tuple = ("before", "now")) -> None:
-    """The figure again from a ``--csv`` table (no extraction)."""
+           labels: tuple = ("before", "now"), accepted: bool = False) -> None:
+    """The figure again from a ``--csv`` table (no extraction); *accepted*: only the candidates the
+    radius-stability check accepts (column ``check``), e.g. with the whole table as *before*."""
     table = read_table(csv_path)
+    if accepted:
+        table = [t for t in table if t.get("check") == "stable"]
     plot(table, sorted({t["radius_m"] for t in table}), path, title, read_table(before) if before else None,
          labels)
 
