@@ -163,6 +163,8 @@ PRESETS: dict[str, ExtractionParams] = {
         slope_min_deg=4.0, slope_max_deg=30.0, residual_threshold_m=0.15,
         residual_kind="vertical", sd_en_m=0.50, sd_h_m=0.15, min_points=6, max_planes=4,
         aspect_tol_deg=35.0, max_sd_m=2.0,
+        # the thesis's method as published: one clip, no radius-stability check
+        stability_scales=(),
     ),
 }
 
