@@ -3,7 +3,8 @@
     python benchmarks/bench_extract_sweep.py [--workers 2] [--radii 4 5 6 8 10 12]
         [--classes 6 | --classes all] [--cache /tmp/cands.pkl] [--plot docs/figures/extract_radius_sweep.png]
         [--csv rows.csv] [--quick] [--replot rows.csv] [--before rows_before.csv] [--cells [C ...]]
-        [--rows rows.pkl [--reuse]] [--labels BEFORE NOW] [--buffer M]
+        [--rows rows.pkl [--reuse]] [--labels BEFORE NOW] [--buffer M] [--check-scales [S ...]] [--time-find]
+        [--replot rows.csv --accepted --before rows.csv]
 
 Issue 29 ("Extraction"): a sweep of radius 4-12 m over the ``--find`` candidates of both tiles must change no
 accepted vertex by more than its sd.  The candidates are those of ``lidarcat extract --find --classes 6`` on
@@ -17,10 +18,16 @@ each other radius whose extraction is ``ok``:
 - ``maha`` the Mahalanobis distance ``sqrt(d' (C_8 + C_r)^-1 d)`` (both covariances, as if independent: the
   clips share points, so this is the lenient reading);
 - ``maha_diff`` the Mahalanobis distance with the covariance of the difference ``x_r - x_8`` itself: each
-  vertex written as a linear function of its points' errors (:func:`influence`), the points both clips
+  vertex written as a linear function of its points' errors (:func:`lidarcat.control.stability.influence`), the points both clips
   share cancelling, propagated with the plane fit's own error model (iid part plus the cell components of
   :mod:`lidarcat.control.planes`): chi2 with 3 degrees of freedom when the covariances are honest;
 - the statuses per radius (ok / ambiguous / no_vertex ...).
+
+- ``check``: the radius-stability check of the 8 m vertex (:mod:`lidarcat.control.stability`: the extraction
+  with the default ``stability_scales``, clips of 4, 6, 10 and 12 m about the vertex): ``stable`` or
+  ``unstable`` (refused); ``check_radius`` 1 on the rows of the radii it used.  The sweep's own extractions
+  run without the check.  The summary counts the candidates refused and the accepted ones whose move still
+  fails the difference test, at the radii the check used (moves shorter than the sd) and at the others (5 m).
 
 The points are the ones ``--find`` searched (``--classes 6``, the building class) unless ``--classes all``.
 Prints a table (one row per candidate with a ratio above 1, then the summary per radius) and writes the
@@ -55,152 +62,76 @@ _TREE = None
 
 
 def sweep_one(args):
-    """Extraction of one candidate at every radius.
+    """Extraction of one candidate at every radius, and the radius-stability check of its 8 m vertex.
 
-    Returns ``(pid, en, out)``, *out* a list of ``(radius, status, enh (3,), cov (3, 3), reason, m_exact,
+    Returns ``(pid, en, out, check)``, *out* a list of ``(radius, status, enh (3,), cov (3, 3), reason, m_exact,
     self_check)`` with ``m_exact`` the Mahalanobis distance of the vertex from the 8 m vertex with the
-    covariance of their difference (:func:`difference_cov`; NaN for the reference or when either is not ok)
-    and ``self_check`` the ratio of :func:`influence`'s propagated variance trace to the reported one.
+    covariance of their difference (:func:`lidarcat.control.stability.difference_cov`; NaN for the reference,
+    when either is not ok, or when the propagation does not reproduce a reported covariance) and
+    ``self_check`` the ratio of the propagated variance trace to the reported one.  The sweep's extractions
+    run without the check (``stability_scales=()``); *check* is ``(status, reason, scales)`` of the 8 m
+    extraction with it (``extract_roof`` as ``extract --at`` runs it: ``ok`` or ``unstable``; the vertex is
+    the same), or None when the 8 m vertex is not ok or the check is off.
     """
     pid, en, radii, cells_m, *rest = args
     buffer_m = rest[0] if rest else None
+    scales = tuple(rest[1]) if len(rest) > 1 and rest[1] is not None else None
     from lidarcat.control.params import get_params
+    from lidarcat.control.stability import influence, move_distance
     from lidarcat.control.vertices import extract_roof
 
-    idx = _TREE.query_ball_point(en, r=max(radii) + 0.01, return_sorted=True)
+    idx = _TREE.query_ball_point(en, r=max(radii) + 1.5, return_sorted=True)
     sub = _XYZ[idx]
-    p = get_params(cells_m=tuple(cells_m), edge_buffer_m=buffer_m)
+    p_check = get_params(cells_m=tuple(cells_m), edge_buffer_m=buffer_m)
+    if scales is not None:
+        p_check = p_check.replace(stability_scales=scales)
+    p = p_check.replace(stability_scales=())
     cps = {r: extract_roof(sub, en, params=p.replace(radius_m=r), point_id=pid) for r in radii}
     infl = {r: influence(cp, p) if cp.status == "ok" else None for r, cp in cps.items()}
-    ref = infl.get(DEFAULT_RADIUS_M)
+    ref = cps[DEFAULT_RADIUS_M]
     out = []
     for r in radii:
         cp, m_exact, check = cps[r], np.nan, np.nan
         if infl[r] is not None:
-            check = float(np.trace(infl[r][4]) / np.trace(cp.cov_m2))
-            if ref is not None and r != DEFAULT_RADIUS_M:
-                d = np.asarray(cp.enh_m) - np.asarray(cps[DEFAULT_RADIUS_M].enh_m)
-                c = difference_cov(infl[r], ref, p.cells_m)
-                # + (1 um)^2: the same points in both clips give the same vertex (c = 0, d = 0)
-                # (a face refit whose propagation does not reproduce the reported covariance gives no test)
-                bound = 4.0 * (np.trace(cp.cov_m2) + np.trace(cps[DEFAULT_RADIUS_M].cov_m2))
-                if np.all(np.isfinite(c)) and np.trace(c) <= bound:
-                    m_exact = float(np.sqrt(d @ np.linalg.solve(c + 1e-12 * np.eye(3), d)))
+            check = float(np.trace(infl[r].cov_m2) / np.trace(cp.cov_m2))
+            if ref.status == "ok" and r != DEFAULT_RADIUS_M:
+                m, exact = move_distance(cp, ref, infl[r], infl[DEFAULT_RADIUS_M])
+                m_exact = m if exact else np.nan
         out.append((r, cp.status, np.array(cp.enh_m), np.array(cp.cov_m2), cp.reason, m_exact, check))
-    return pid, np.asarray(en), out
-
-
-def influence(cp, p):
-    """The vertex of *cp* as a linear function of its points' errors: ``dx = sum_p L_p eps_p``.
-
-    Each face's plane is ``theta = theta_0 + Q A' W eps`` (the Gauss-Helmert solution linearised; Q the
-    cofactor block of the bordered normal matrix, in a frame at the vertex), the plane distances at the
-    vertex ``dr_i = (0, 0, 0, 1) . dtheta_i`` and the vertex ``dx = G dr`` (G = A^-1 for three planes, the
-    weighted least-squares operator of :func:`~lidarcat.control.vertices.intersect_planes` for more).  The
-    error model of the fit (:mod:`lidarcat.control.planes`): ``Cov(eps_p, eps_q) = s0^2 / w_p [p = q] +
-    sum_k tau_k^2 [same cell of size c_k]``, with the components of the point's face (t-corrected as the fit).
-
-    Returns ``(keys (P, 3) point coordinates, L (P, 3), var_iid (P,), tau (P, K), cov (3, 3))``: per point
-    the row L_p, its independent variance and its cell sds, and the covariance propagated from them (which
-    reproduces ``cp.cov_m2``: the sweep prints the ratio of the traces).
-    """
-    from lidarcat.control.planes import fit_plane
-
-    xyz, labels = (np.asarray(a) for a in cp.labels)
-    x0 = np.asarray(cp.enh_m)
-    planes = list(cp.planes)
-    nmat = np.array([pl.n for pl in planes])
-    var_r = np.array([pl.cov_at(x0)[3, 3] for pl in planes])
-    if len(planes) == 3:
-        g = np.linalg.inv(nmat)
-    else:
-        g = np.linalg.solve(nmat.T @ (nmat / var_r[:, None]), nmat.T / var_r[None, :])
-    sd = np.array([p.sd_en_m, p.sd_en_m, p.sd_h_m])
-    keys, rows, var_iid, taus = [], [], [], []
-    for i, pl in enumerate(planes):
-        pts = xyz[labels == pl.label]
-        loc = pts - x0
-        fit = fit_plane(loc, sd_m=sd, residual_threshold_m=1e9, min_points=3, cells_m=p.cells_m,
-                        grid_origin_m=x0[:2])
-        n = fit.plane.n
-        comps = np.asarray(fit.components or (fit.sigma0**2,), dtype=float)
-        m = len(pts)
-        tcorr = _t_factor(m - 3)
-        w = 1.0 / float((sd**2) @ (n * n))
-        a = np.column_stack([loc, np.ones(m)])
-        big = np.zeros((5, 5))
-        big[:4, :4] = w * a.T @ a
-        big[:3, 4] = big[4, :3] = n
-        q = np.linalg.inv(big)[:4, :4]
-        keys.append(pts)
-        rows.append(np.outer(w * (a @ q[3]), g[:, i]))
-        var_iid.append(np.full(m, tcorr * comps[0] / w))
-        # each cell component with the t factor of its own redundancy (cells - 3), as the fit
-        tk = [_t_factor(len(np.unique(np.floor(pts[:, :2] / c).astype(np.int64), axis=0)) - 3) for c in p.cells_m]
-        taus.append(np.tile(np.sqrt(np.asarray(tk) * comps[1:]), (m, 1)).reshape(m, len(comps) - 1))
-    keys, rows = np.vstack(keys), np.vstack(rows)
-    var_iid, taus = np.concatenate(var_iid), np.vstack(taus)
-    cov = _cov_of(keys, rows, var_iid, taus, p.cells_m)
-    return keys, rows, var_iid, taus, cov
-
-
-def _t_factor(dof: int) -> float:
-    """f / (f - 2), 3 for f <= 4: the t factor the plane fit multiplies each variance component by."""
-    return dof / (dof - 2.0) if dof > 4 else 3.0
-
-
-def _cov_of(keys, rows, var_iid, taus, cells_m):
-    """Covariance (3, 3) of ``sum_p rows_p eps_p`` under the error model of :func:`influence`."""
-    cov = (rows * var_iid[:, None]).T @ rows
-    for k, c in enumerate(cells_m):
-        _, inv = np.unique(np.floor(keys[:, :2] / c).astype(np.int64), axis=0, return_inverse=True)
-        inv = inv.reshape(-1)
-        s = np.stack([np.bincount(inv, weights=taus[:, k] * rows[:, j]) for j in range(3)], axis=1)
-        cov = cov + s.T @ s
-    return cov
-
-
-def difference_cov(a, b, cells_m):
-    """Covariance (3, 3) of the difference of two vertices from :func:`influence` (shared points shared).
-
-    A point in both clips carries the error model of *b* (the reference clip's face); its rows subtract.
-    """
-    keys = np.vstack([a[0], b[0]])
-    _, inv = np.unique(keys, axis=0, return_inverse=True)
-    inv = inv.reshape(-1)
-    n_a = len(a[0])
-    u = int(inv.max()) + 1
-    rows = np.zeros((u, 3))
-    np.add.at(rows, inv[:n_a], a[1])
-    np.add.at(rows, inv[n_a:], -b[1])
-    var_iid = np.zeros(u)
-    taus = np.zeros((u, a[3].shape[1]))
-    var_iid[inv[:n_a]], taus[inv[:n_a]] = a[2], a[3]
-    var_iid[inv[n_a:]], taus[inv[n_a:]] = b[2], b[3]  # the reference's model where both have the point
-    pts = np.zeros((u, 3))
-    pts[inv] = keys
-    return _cov_of(pts, rows, var_iid, taus, cells_m)
+    verdict = None
+    if ref.status == "ok" and p_check.stability_scales:
+        # the sub-cloud holds the points within max(radii) + 1.5 m of the position (the sweep re-clips it,
+        # with the same points in the same order); the check clips reach max(scales) x 8 m about the vertex
+        chk = extract_roof(sub, en, params=p_check.replace(radius_m=DEFAULT_RADIUS_M), point_id=pid)
+        verdict = (chk.status, chk.reason, tuple(p_check.stability_scales))
+    return pid, np.asarray(en), out, verdict
 
 
 def compare(rows, ref_radius: float = DEFAULT_RADIUS_M):
     """Per candidate accepted at *ref_radius*: per other radius d (m), sd (m), d/sd, Mahalanobis, status.
 
     ``maha`` uses ``C_8 + C_r`` (independent clips), ``maha_diff`` the covariance of the difference with the
-    shared points shared (:func:`difference_cov`).
+    shared points shared (:func:`lidarcat.control.stability.difference_cov`).
 
-    *rows* as returned by :func:`sweep_one`.  Returns a list of dicts (one per candidate and radius).
+    *rows* as returned by :func:`sweep_one`.  Returns a list of dicts (one per candidate and radius); ``check``
+    is the 8 m vertex's radius-stability verdict (``stable`` / ``unstable``; empty when not computed: rows of
+    an older run) and ``check_radius`` 1 on the rows of the radii the check used.
     """
     table = []
-    for pid, en, res in rows:
+    for pid, en, res, *rest in rows:
         ref = [x for x in res if x[0] == ref_radius][0]
         if ref[1] != "ok":
             continue
+        verdict = rest[0] if rest else None
+        check = "" if verdict is None else ("unstable" if verdict[0] == "unstable" else "stable")
+        used = set() if verdict is None else {round(s * ref_radius, 6) for s in verdict[2]}
         e0, c0 = ref[2], ref[3]
         sd0 = float(np.sqrt(np.linalg.eigvalsh(c0)[-1]))
+        verdict_s = check
         for r, status, e, c, reason, m_exact, check in res:
             row = dict(point=pid, radius_m=r, status=status, ref_sd_m=sd0, d_m=np.nan, d_plan_m=np.nan,
                        dh_m=np.nan, ratio=np.nan, maha=np.nan, maha_diff=m_exact, sd_m=np.nan, cov_check=check,
-                       reason=reason)
+                       reason=reason, check=verdict_s, check_radius=int(round(r, 6) in used))
             if np.all(np.isfinite(e)):
                 d = e - e0
                 row.update(d_m=float(np.linalg.norm(d)), d_plan_m=float(np.hypot(*d[:2])), dh_m=float(d[2]),
@@ -238,15 +169,23 @@ def main() -> None:
     ap.add_argument("--buffer", type=float, default=None,
                     help="edge_buffer_m of the faces' break-line buffer (default: the extraction default; 0: none, "
                          "the code before the buffer)")
+    ap.add_argument("--check-scales", type=float, nargs="*", default=None,
+                    help="stability_scales of the radius-stability check of the 8 m vertex (default: the "
+                         "extraction default, 0.5 1.5; each scale x 8 m must be among --radii)")
     ap.add_argument("--labels", nargs=2, default=["before", "now"], metavar=("BEFORE", "NOW"),
                     help="legend names of the --before table and of this one")
     ap.add_argument("--cells", type=float, nargs="*", default=None,
                     help="cells_m of the plane covariance (default: the extraction default; none: independent "
                          "points, the covariance before the correlated components)")
+    ap.add_argument("--accepted", action="store_true",
+                    help="with --replot: draw only the candidates the radius-stability check accepts")
+    ap.add_argument("--time-find", action="store_true",
+                    help="time `extract --find --classes 6` on both tiles without and with the radius-stability "
+                         "check (find_candidates, one process) and stop")
     a = ap.parse_args()
     title = f"AHN3 --find candidates (classes {a.classes}): vertex at radius r vs the 8 m clip"
     if a.replot:
-        replot(a.replot, a.plot, title, a.before, tuple(a.labels))
+        replot(a.replot, a.plot, title, a.before, tuple(a.labels), a.accepted)
         return
     if not all(t.exists() for t in TILES):
         print("AHN3 tiles not found in tests/data/lidar; skipping")
@@ -259,6 +198,9 @@ def main() -> None:
 
     print(f"load average before: {os.getloadavg()[0]:.2f}")
     idx, area, cloud = load_cloud(None)
+    if a.time_find:
+        time_find(cloud, area)
+        return
     t0 = time.perf_counter()
     if a.cache and Path(a.cache).exists():
         cands = pickle.loads(Path(a.cache).read_bytes())
@@ -278,7 +220,8 @@ def main() -> None:
     _TREE = cKDTree(_XYZ[:, :2])
     radii = sorted(set(float(r) for r in a.radii) | {DEFAULT_RADIUS_M})
     cells_m = tuple(get_params().cells_m if a.cells is None else a.cells)
-    tasks = [(c.point.point_id, np.array(c.point.enh_m[:2]), radii, cells_m, a.buffer) for c in cands]
+    tasks = [(c.point.point_id, np.array(c.point.enh_m[:2]), radii, cells_m, a.buffer, a.check_scales)
+             for c in cands]
     t0 = time.perf_counter()
     if a.reuse and a.rows:
         rows = pickle.loads(Path(a.rows).read_bytes())
@@ -305,6 +248,23 @@ def main() -> None:
     if a.plot:
         plot(table, radii, a.plot, title=title, before=read_table(a.before) if a.before else None,
              labels=tuple(a.labels))
+
+
+def time_find(cloud, area) -> None:
+    """``find_candidates(classes=[6])`` on both tiles without, then with, the radius-stability check: time, counts."""
+    from lidarcat.control.params import get_params
+    from lidarcat.control.vertices import find_candidates
+
+    found = {}
+    for name, p in (("without the check (stability_scales=())", get_params(stability_scales=())),
+                    ("with the check (default)", get_params())):
+        t0 = time.perf_counter()
+        found[name] = find_candidates(cloud, box=area, classes=[6], params=p)
+        print(f"--find {name}: {len(found[name])} candidates in {time.perf_counter() - t0:.0f} s "
+              f"(load average {os.getloadavg()[0]:.2f})")
+    off, on = found.values()
+    gone = [c for c in off if all(np.hypot(*(c.point.enh_m[:2] - k.point.enh_m[:2])) > 1.0 for k in on)]
+    print(f"candidates without the check that are not among those with it (within 1 m): {len(gone)}")
 
 
 #: sqrt(chi2_3) quantiles: 99 % and 99.9 %
@@ -349,16 +309,36 @@ def report(rows, table, radii) -> None:
     print(f"candidates whose move fails the difference test (M_diff > {CHI3_999}, chi2_3 99.9 %) at some radius: "
           f"{len(bad_m)} of {len(acc)}; at 5-12 m: "
           f"{len({t['point'] for t in okr if t['maha_diff'] > CHI3_999 and t['radius_m'] >= 5})}")
-    print("| point | E | N | sd mm (8 m) | d mm at " + " / ".join(f"{r:g}" for r in radii) + " | M_diff |")
-    ref = {pid: [x for x in res if x[0] == DEFAULT_RADIUS_M][0] for pid, _, res in rows}
-    for pid in bad:
+    checked = {t["point"]: t["check"] for t in table if t["check"]}
+    if checked:
+        refused = sorted(k for k, v in checked.items() if v == "unstable")
+        kept = [t for t in okr if checked.get(t["point"]) == "stable"]
+        left = sorted({t["point"] for t in kept if t["maha_diff"] > CHI3_999})
+        left_other = sorted({t["point"] for t in kept if t["maha_diff"] > CHI3_999 and not t["check_radius"]})
+        print(f"\nradius-stability check of the {DEFAULT_RADIUS_M:g} m vertex: {len(refused)} of {len(checked)} "
+              f"refused as unstable: {' '.join(refused)}")
+        print(f"accepted (stable) with M_diff > {CHI3_999} at some radius: {len(left)} ({' '.join(left)}); at a "
+              f"radius the check did not use: {len(left_other)}")
+        okk = [t for t in kept]
+        for r in radii:
+            if r == DEFAULT_RADIUS_M:
+                continue
+            sel = [t for t in okk if t["radius_m"] == r]
+            mdf = np.array([t["maha_diff"] for t in sel], dtype=float)
+            rat = np.array([t["ratio"] for t in sel])
+            print(f"  accepted, {r:g} m: {len(sel)} ok, d <= sd {int(np.sum(rat <= 1.0))}, M_diff > 4.03 "
+                  f"{int(np.sum(mdf > CHI3_999))}, median M_diff {np.nanmedian(mdf) if len(mdf) else np.nan:.2f}, "
+                  f"d > 0.5 m {int(np.sum(np.array([t['d_m'] for t in sel]) > 0.5))}")
+    print("| point | E | N | sd mm (8 m) | d mm at " + " / ".join(f"{r:g}" for r in radii) + " | M_diff | check |")
+    ref = {row[0]: [x for x in row[2] if x[0] == DEFAULT_RADIUS_M][0] for row in rows}
+    for pid in sorted(set(bad) | set(bad_m)):
         sel = {t["radius_m"]: t for t in table if t["point"] == pid}
         cells = " / ".join("-" if sel[r]["status"] != "ok" else f"{1000 * sel[r]['d_m']:.0f}" for r in radii)
         mds = " / ".join("-" if sel[r]["status"] != "ok" or r == DEFAULT_RADIUS_M else f"{sel[r]['maha_diff']:.1f}"
                          for r in radii)
         e = ref[pid][2]
         print(f"| {pid} | {e[0]:.2f} | {e[1]:.2f} | {1000 * sel[DEFAULT_RADIUS_M]['ref_sd_m']:.1f} | {cells} | "
-              f"{mds} |")
+              f"{mds} | {sel[DEFAULT_RADIUS_M]['check']} |")
 
 
 def plot(table, radii, path, title="", before=None, labels=("before", "now")) -> None:
@@ -417,14 +397,17 @@ def plot(table, radii, path, title="", before=None, labels=("before", "now")) ->
 def read_table(csv_path: str) -> list[dict]:
     """A ``--csv`` table back as dicts (numbers as floats)."""
     with open(csv_path, newline="") as f:
-        return [{k: (v if k in ("point", "status", "reason") else float(v)) for k, v in r.items()}
+        return [{k: (v if k in ("point", "status", "reason", "check") else float(v)) for k, v in r.items()}
                 for r in csv.DictReader(f)]
 
 
 def replot(csv_path: str, path: str, title: str, before: str | None = None,
-           labels: tuple = ("before", "now")) -> None:
-    """The figure again from a ``--csv`` table (no extraction)."""
+           labels: tuple = ("before", "now"), accepted: bool = False) -> None:
+    """The figure again from a ``--csv`` table (no extraction); *accepted*: only the candidates the
+    radius-stability check accepts (column ``check``), e.g. with the whole table as *before*."""
     table = read_table(csv_path)
+    if accepted:
+        table = [t for t in table if t.get("check") == "stable"]
     plot(table, sorted({t["radius_m"] for t in table}), path, title, read_table(before) if before else None,
          labels)
 

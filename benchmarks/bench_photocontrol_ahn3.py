@@ -76,6 +76,7 @@ class Ahn3:
 def load_ahn3(bounds: tuple[float, float, float, float] | None = None, *, cell_m: float = 0.1,
               only: list[str] | None = None) -> Ahn3:
     """Read the tiles, extract the listed vertices inside *bounds* again, build the rendered surface."""
+    from lidarcat.control.params import get_params
     from lidarcat.control.vertices import extract_roof
     from lidarcat.lidar.readers import read_points
     from lidarcat.photocontrol import face_labels
@@ -97,7 +98,8 @@ def load_ahn3(bounds: tuple[float, float, float, float] | None = None, *, cell_m
         if (only and pid not in only) or not (e0 + 6 < e < e1 - 6 and n0 + 6 < n < n1 - 6):
             continue
         clip = xyz[np.hypot(xyz[:, 0] - e, xyz[:, 1] - n) <= 30.0]
-        cp = extract_roof(clip, [e, n], point_id=pid)
+        # the truth scene renders every listed vertex: no radius-stability refusal (lidarcat.control.stability)
+        cp = extract_roof(clip, [e, n], point_id=pid, params=get_params(stability_scales=()))
         if not cp:
             continue
         v = cp.enh_m

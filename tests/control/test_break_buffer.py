@@ -70,14 +70,15 @@ def test_ridge_tiles_lift_the_ridge_without_the_buffer_and_not_with_it():
     assert max(np.abs(lift1)) < 0.001, lift1
 
 
-def test_buffer_is_off_by_default_and_its_auto_width_is_two_plan_sds():
+def test_buffer_is_on_by_default_and_its_auto_width_is_two_plan_sds():
+    """The default since session 7 (None = 2 x sd_en_m); 0 switches it off (the code before it)."""
     xyz = _gable(3, cap_m=0.0)
     p = get_params(sd_en_m=0.03, sd_h_m=0.02)
-    assert p.edge_buffer_m == 0.0
+    assert p.edge_buffer_m is None and get_params().edge_buffer_m is None
     _, lab, info = segment_faces(xyz, p)
+    assert info["edge_buffer_m"] == pytest.approx(0.06) and "extent_labels" in info
+    _, _, info = segment_faces(xyz, p.replace(edge_buffer_m=0.0))
     assert info["edge_buffer_m"] == 0.0 and "extent_labels" not in info
-    _, _, info = segment_faces(xyz, p.replace(edge_buffer_m=None))
-    assert info["edge_buffer_m"] == pytest.approx(0.06)
     with pytest.raises(ValueError, match="edge_buffer_m must be >= 0"):
         get_params(edge_buffer_m=-0.1)
 

@@ -212,9 +212,15 @@ def extract_batch(
                                              ("radius_m", job.radius_m), ("sd_en_m", job.sd_en_m),
                                              ("sd_h_m", job.sd_h_m)) if v is not None})
         try:
-            cloud = points if points is not None else src.query(job, p.radius_m)
+            # the radius-stability check clips up to max(stability_scales) x radius_m about the vertex,
+            # which lies within max_offset_m (default radius_m / 2) of the position
+            reach = p.radius_m
+            if p.stability_scales:
+                reach = p.radius_m * max((1.0, *p.stability_scales)) + (
+                    p.max_offset_m if p.max_offset_m is not None else 0.5 * p.radius_m)
+            cloud = points if points is not None else src.query(job, reach)
             cp = extract_roof(cloud, (job.e_m, job.n_m), params=p, point_id=job.point,
-                              clipped=points is None)
+                              clipped=points is None and reach == p.radius_m)
         except ClipError as ex:
             cp = ControlPoint.failed(job.point, (job.e_m, job.n_m), "too_few_points", str(ex))
         if spec_sd is not None and cp:

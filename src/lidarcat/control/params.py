@@ -106,6 +106,13 @@ class ExtractionParams:
     #: extra planes join the vertex when their distance from it is below join_sigma x its
     #: sd plus half the plane's RMS, with a point of the plane within support_m
     join_sigma: float = 3.0
+    #: radius stability (:mod:`lidarcat.control.stability`): an ``ok`` vertex is extracted again from
+    #: clips of these multiples of ``radius_m`` centred on it (4, 6, 10 and 12 m at the default 8 m: the
+    #: radii of the sweep of issue 29) and refused as "unstable" when its move to one of them is
+    #: significant at ``stability_level`` (Mahalanobis distance with the covariance of the difference
+    #: of the two clips' vertices, chi2 with 3 degrees of freedom); () = no check
+    stability_scales: tuple = (0.5, 0.75, 1.25, 1.5)
+    stability_level: float = 0.999
 
     def __post_init__(self) -> None:
         if self.method not in _METHODS:
@@ -134,6 +141,11 @@ class ExtractionParams:
             raise ValueError(f"cells_m must be positive sizes in metres, got {self.cells_m!r}")
         if any(not 0 < f < 1 for f in self.scales):
             raise ValueError(f"scales must be fractions in (0, 1), got {self.scales!r}")
+        if any(not (f > 0 and f != 1) for f in self.stability_scales):
+            raise ValueError(f"stability_scales must be positive multiples of radius_m other than 1, "
+                             f"got {self.stability_scales!r}")
+        if not 0 < self.stability_level < 1:
+            raise ValueError(f"stability_level must be in (0, 1), got {self.stability_level}")
         if self.ambiguity_m < 0:
             raise ValueError(f"ambiguity_m must be >= 0, got {self.ambiguity_m}")
         if self.max_offset_m is not None and self.max_offset_m <= 0:
@@ -151,6 +163,8 @@ PRESETS: dict[str, ExtractionParams] = {
         slope_min_deg=4.0, slope_max_deg=30.0, residual_threshold_m=0.15,
         residual_kind="vertical", sd_en_m=0.50, sd_h_m=0.15, min_points=6, max_planes=4,
         aspect_tol_deg=35.0, max_sd_m=2.0,
+        # the thesis's method as published: one clip, no radius-stability check
+        stability_scales=(),
     ),
 }
 

@@ -53,6 +53,13 @@ by less than ``ambiguity_m`` (the same penalised distance: a rival of a small
 clip's few noisy points is no rival of a precise corner) give the status
 ``ambiguous`` with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
 reason, and :attr:`ControlPoint.offset_m` is written with every point.
+
+**Radius stability.**  An ``ok`` vertex is then extracted again from clips of
+``stability_scales x radius_m`` centred on it (4, 6, 10, 12 m at the default)
+and refused as ``unstable`` when it moves by more than its sd and by more than
+the covariance of the difference of the two clips' vertices explains
+(:mod:`lidarcat.control.stability`); the reason names the radii, the moves and
+their Mahalanobis distances.  The vertex is never replaced by another clip's.
 """
 
 from __future__ import annotations
@@ -68,6 +75,7 @@ from .._util.frozen import frozen_array
 from .facets import segment_faces
 from .params import ExtractionParams, get_params
 from .planes import Plane
+from .stability import check_stability
 
 __all__ = [
     "ControlPoint",
@@ -100,6 +108,8 @@ STATUSES: dict[str, str] = {
     "no_vertex": "faces found but no three meet near the position",
     "ambiguous": "two distinct vertices about equally near the position (both in the reason)",
     "imprecise": "vertex found but its predicted standard deviation is too large",
+    "unstable": "vertex found but it moves with the clip radius by more than its covariance explains "
+                "(the radii and the Mahalanobis distance in the reason)",
     "bad_input": "input not understood",
 }
 
@@ -546,8 +556,10 @@ def extract_roof(
     Returns
     -------
     ControlPoint
-        Truthy when a vertex of 3+ planes was found; otherwise falsy with
-        ``status`` and ``reason`` (degenerate roofs never raise).
+        Truthy when a vertex of 3+ planes was found (and passed the radius-stability check,
+        ``params.stability_scales``; its clips need the points within ``max(stability_scales) x
+        radius_m`` of the vertex, so pass more than the clip, or *clipped* to skip the larger ones);
+        otherwise falsy with ``status`` and ``reason`` (degenerate roofs never raise).
 
     Raises
     ------
@@ -572,6 +584,7 @@ def extract_roof(
         xyz = _as_xyz(points)
     except ValueError as ex:
         return ControlPoint.failed(point_id, center, "bad_input", str(ex))
+    given = xyz
     if not clipped:
         xyz = xyz[np.sum((xyz[:, :2] - center) ** 2, axis=1) <= p.radius_m**2]
     xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
@@ -601,7 +614,31 @@ def extract_roof(
     if best is None:
         return first
     off, cp = best
-    return _check_choice(cp, off, center, others, p)
+    cp = _check_choice(cp, off, center, others, p)
+    if cp.status == "ok" and p.stability_scales:
+        cp = _check_stability(cp, given, center, p, point_id, clipped)
+    return cp
+
+
+def _check_stability(cp: ControlPoint, given: np.ndarray, center: np.ndarray, p: ExtractionParams,
+                     point_id: str, clipped: bool) -> ControlPoint:
+    """*cp*, or *cp* refused as ``unstable`` when it moves with the clip radius (:mod:`lidarcat.control.stability`).
+
+    The check clips are centred on the vertex found and cut from the points given.  When those are
+    only the clip of ``radius_m`` about *center* (``clipped``), a check clip that would reach beyond it
+    is not tried."""
+    at = np.asarray(cp.enh_m[:2], dtype=np.float64)
+    reach = p.radius_m - float(np.hypot(*(at - center)))
+    scales = tuple(s for s in p.stability_scales if not clipped or s * p.radius_m <= reach)
+    if not scales:
+        return cp
+    q = p.replace(stability_scales=())
+
+    def extract(r: float) -> ControlPoint:
+        return extract_roof(given, at, params=q.replace(radius_m=r), point_id=point_id)
+
+    res = check_stability(cp, p.replace(stability_scales=scales), extract)
+    return cp if res.stable else replace(cp, status="unstable", reason=res.reason)
 
 
 #: the smallest clip radii of the retries (m): a corner whose faces are lost in every larger clip
@@ -821,11 +858,12 @@ def search_cells(xyz: np.ndarray, box: Any, cells: Sequence[tuple[int, int]], p:
         sub = sub[(np.abs(sub[:, 0] - c[0]) <= half) & (np.abs(sub[:, 1] - c[1]) <= half)]
         if len(sub) >= 3 * p.min_points:
             try:
-                planes, labels, _ = segment_faces(sub, p.replace(max_planes=60))
+                planes, labels, info = segment_faces(sub, p.replace(max_planes=60))
             except ValueError:
-                planes, labels = [], None
+                planes, labels, info = [], None, None
             k = 0
-            for v in candidate_vertices(planes, sub, labels, p):
+            # info: the faces' extent (support before the break-line buffer) and the point spacing
+            for v in candidate_vertices(planes, sub, labels, p, info=info):
                 if x0 <= v[0] < x1 and y0 <= v[1] < y1:
                     seeds.append(((i, j, k), v))
                     k += 1
