@@ -156,6 +156,7 @@ from ..errors import LidarcatError
 from ..geometry.camera import Camera
 from ._along import intersect_lines, locate_along
 from ._edge_fit import fit_edge
+from ._weak_edge import weak_edge_tests
 from .predict import Prediction, face_labels, pixel_jacobians, pixel_positions, roof_edges
 
 __all__ = ["Measurement", "MeasureParams", "VertexTarget", "STATUSES", "EdgeLine", "measure_photo", "measure_vertex",
@@ -426,6 +427,9 @@ class MeasureParams:
     #: (px; 0: never, weak_geometry) -- module docstring, step 3a
     along_min_angle_deg: float = 2.0
     along_max_sd_px: float = 5.0
+    #: a weak edge (gradient < two_line_ratio x the texture's) beside two or more strong ones is dropped when its
+    #: offset from the strong edges' point exceeds this many sds (the 95 % point of the normal; step 3b)
+    weak_edge_w: float = 1.96
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
@@ -657,6 +661,18 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                        + (f" ({'; '.join(w for w in why if 'found on the line' not in w)})"
                           if any('found on the line' not in w for w in why) else ""),
                        lines=(lines[use[0]], lines[o]), edge_lines=edge_lines([use[0], o], False))
+    # a weak edge enters the point only if it agrees with the strong edges' point (step 3b)
+    if len(use) >= 3:
+        for i, w in weak_edge_tests(fits, mm, np.array(cc), covs, use, origin, two_line_ratio=p.two_line_ratio,
+                                    min_angle_deg=p.min_angle_deg, sd_px=p.vertex_sd_px,
+                                    texture_px=p.vertex_texture_px):
+            if abs(w) > p.weak_edge_w:
+                strong = [fits_planes[j] for j in use if fits[j][1][3] >= p.two_line_ratio]
+                why.append(f"edge of planes {fits_planes[i][0] + 1}-{fits_planes[i][1] + 1}: weak (gradient "
+                           f"{fits[i][1][3]:.1f} x the texture's) and off the point of the strong edges "
+                           f"{', '.join(f'{a + 1}-{b + 1}' for a, b in strong)} (w {w:+.1f}, "
+                           f"|w| > {p.weak_edge_w:g})")
+                use.remove(i)
     while True:
         x, n_mat, chi2 = intersect_lines([fits[i] for i in use], mm[use], np.array(cc)[use],
                                          [covs[i] for i in use], origin, p.vertex_sd_px, p.vertex_texture_px)
