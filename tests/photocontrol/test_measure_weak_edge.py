@@ -121,3 +121,25 @@ def test_a_correct_weak_edge_is_kept_in_the_point(seed):
         assert len(m.lines) == 3, m.reason
         assert "weak" not in m.reason
         assert _m2(m) < CHI2_2_999
+
+
+def test_the_w_of_a_weak_line_against_the_strong_pair_s_point_is_exact():
+    # strong lines x = 0 and y = 0 (gradient 10 x the texture's: offset variance 0.1^2 + (1/10)^2 = 0.02 px^2
+    # each), the weak line (3 x: 0.1^2 + (1/3)^2) at 45 deg, 1 px off their point (0, 0):
+    # w = -1 / sqrt(m^T diag(0.02, 0.02) m + 0.01 + 1/9) = -1 / sqrt(0.141111)
+    from lidarcat.photocontrol._weak_edge import weak_edge_tests
+
+    s = 1.0 / math.sqrt(2.0)
+    units = [np.array([0.0, 1.0]), np.array([1.0, 0.0]), np.array([s, -s])]
+    ratios = [10.0, 10.0, 3.0]
+    fits = [(u, (np.zeros(2), np.zeros((2, 2)), np.arange(5.0), r)) for u, r in zip(units, ratios)]
+    mm = np.array([[1.0, 0.0], [0.0, 1.0], [s, s]])
+    cc = np.array([0.0, 0.0, 1.0])
+    covs = [(np.zeros((2, 2)), 0.0)] * 3
+    kw = dict(two_line_ratio=3.5, min_angle_deg=20.0, sd_px=0.1, texture_px=1.0)
+    (i, w), = weak_edge_tests(fits, mm, cc, covs, [0, 1, 2], np.zeros(2), **kw)
+    assert i == 2
+    assert w == pytest.approx(-1.0 / math.sqrt(0.02 + 0.01 + 1.0 / 9.0), rel=1e-6)
+    # no strong pair to test against: nothing tested
+    assert weak_edge_tests(fits, mm, cc, covs, [0, 2], np.zeros(2), **kw) == []
+    assert weak_edge_tests(fits, mm, cc, covs, [0, 1, 2], np.zeros(2), **{**kw, "two_line_ratio": 20.0}) == []
