@@ -14,6 +14,8 @@
                 one edge where two edges on either side of it bend (measure steps 3 and 3a).
 ``_edge_fit``   (private) A roof edge fitted to sub-pixel across its predicted segment: profiles, peaks, the
                 robust line and its covariance (measure step 2).
+``_weak_edge``  (private) A weak edge of a vertex w-tested against the point of its strong edges before it
+                enters the point (measure step 3b).
 ==============  ============================================================
 
 Private: ``_block_ties`` (the block test's tie points in photo coordinates, cleaned on their own),

@@ -75,6 +75,30 @@ turned farther from its predicted direction goes; with three or more lines, whil
 alone have no check: both must be ``two_line_ratio`` times stronger than the
 texture.
 
+**3b. A weak edge beside strong ones.**  A *weak* edge (gradient below ``two_line_ratio`` times the
+texture's; two such lines alone are not accepted) beside two or more *strong* ones meeting at
+``min_angle_deg`` or more is tested before it enters the point.  The strong lines alone give the
+point :math:`x_S` with covariance :math:`N_S^{-1}`; the weak line *i*, independent of them, is off it
+by :math:`r_i = m_i^T x_S - c_i` with variance :math:`m_i^T N_S^{-1} m_i + w_i^{-1}` (its offset
+variance above, at :math:`x_S`), and
+
+.. math:: \omega_i = r_i \big/ \sqrt{m_i^T N_S^{-1} m_i + w_i^{-1}}
+
+(the w-test statistic; :math:`w_i` is still the line's weight) is standard normal when the edge is
+right.  It is dropped when :math:`|\omega_i| >` ``weak_edge_w``
+(1.96, the 95 % point), with the reason ("edge of planes 1-3: weak (gradient 2.8 x the texture's)
+and off the point of the strong edges 1-2, 2-3 (w -2.2, \|w\| > 1.96)"; private
+:mod:`~lidarcat.photocontrol._weak_edge`).  Why not the 99.9 % level of the chi2 check: three lines
+leave one degree of freedom, and then every line's offset from the other two's point has the *same*
+:math:`\omega^2 = \chi^2` -- the check cannot tell which line is off, and at 3.29 sd it passes offsets
+that the least-squares point absorbs (bench_measured_control seed 1, C0006 on photo 101: a weak
+edge 2.5 px across, :math:`\chi^2` 4.82, i.e. w 2.2; the point 1.89 px off at 3.7 sd of its
+covariance).  The two lines' prior reliability differs, though: the strong pair is a measurement
+by itself (two strong lines are accepted unchecked), the weak edge only refines it.  Dropping a
+right weak edge costs its share of the precision (in 5 % of the cases), keeping a wrong one biases
+the point by most of its offset with nothing downstream to see it; so the weak edge must agree at
+the 95 % level.  Then the chi2 check runs on the lines left.
+
 **3a. Along one edge.**  When the edges found lie on one image line (the crossing edges too weak
 against the texture or scattered: faces of nearly the same grey across them) the rule above keeps
 one line, and lines alone cannot place a point along a straight line.  But two edges on *either
@@ -156,6 +180,7 @@ from ..errors import LidarcatError
 from ..geometry.camera import Camera
 from ._along import intersect_lines, locate_along
 from ._edge_fit import fit_edge
+from ._weak_edge import weak_edge_tests
 from .predict import Prediction, face_labels, pixel_jacobians, pixel_positions, roof_edges
 
 __all__ = ["Measurement", "MeasureParams", "VertexTarget", "STATUSES", "EdgeLine", "measure_photo", "measure_vertex",
@@ -426,6 +451,9 @@ class MeasureParams:
     #: (px; 0: never, weak_geometry) -- module docstring, step 3a
     along_min_angle_deg: float = 2.0
     along_max_sd_px: float = 5.0
+    #: a weak edge (gradient < two_line_ratio x the texture's) beside two or more strong ones is dropped when its
+    #: offset from the strong edges' point exceeds this many sds (the 95 % point of the normal; step 3b)
+    weak_edge_w: float = 1.96
     #: the lines used must meet at least at this angle (deg)
     min_angle_deg: float = 20.0
     #: edges used up to this far from the vertex (px)
@@ -657,6 +685,18 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                        + (f" ({'; '.join(w for w in why if 'found on the line' not in w)})"
                           if any('found on the line' not in w for w in why) else ""),
                        lines=(lines[use[0]], lines[o]), edge_lines=edge_lines([use[0], o], False))
+    # a weak edge enters the point only if it agrees with the strong edges' point (step 3b)
+    if len(use) >= 3:
+        for i, w in weak_edge_tests(fits, mm, np.array(cc), covs, use, origin, two_line_ratio=p.two_line_ratio,
+                                    min_angle_deg=p.min_angle_deg, sd_px=p.vertex_sd_px,
+                                    texture_px=p.vertex_texture_px):
+            if abs(w) > p.weak_edge_w:
+                strong = [fits_planes[j] for j in use if fits[j][1][3] >= p.two_line_ratio]
+                why.append(f"edge of planes {fits_planes[i][0] + 1}-{fits_planes[i][1] + 1}: weak (gradient "
+                           f"{fits[i][1][3]:.1f} x the texture's) and off the point of the strong edges "
+                           f"{', '.join(f'{a + 1}-{b + 1}' for a, b in strong)} (w {w:+.1f}, "
+                           f"|w| > {p.weak_edge_w:g})")
+                use.remove(i)
     while True:
         x, n_mat, chi2 = intersect_lines([fits[i] for i in use], mm[use], np.array(cc)[use],
                                          [covs[i] for i in use], origin, p.vertex_sd_px, p.vertex_texture_px)
