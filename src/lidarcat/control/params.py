@@ -48,7 +48,7 @@ class ExtractionParams:
     #: None = 2 x ``sd_en_m`` (0.2 m at the default: a point that near the line may, by its plan
     #: error, belong to the other face, and a footprint there mixes both); 0 = no buffer (the
     #: default until the measure-control scenario tests are re-derived for it: docs/extraction.md)
-    edge_buffer_m: float | None = 0.0
+    edge_buffer_m: float | None = None
     #: slope window of triangles / faces (deg)
     slope_min_deg: float = 4.0
     slope_max_deg: float = 65.0
