@@ -443,28 +443,24 @@ def _drop_outer_edges(xyz: np.ndarray, labels: np.ndarray, k: int = 12,
     return out
 
 
-def _buffer_break_lines(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buffer_m: float,
-                        spacing: float) -> np.ndarray:
-    """Labels with the points within *buffer_m* (plan) of a face's break lines left out.
+def _break_line_bands(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buffer_m: float,
+                      spacing: float) -> list[tuple[int, int, np.ndarray]]:
+    """The bands of the faces along their break lines: ``(i, j, idx)`` per face i and break line (i, j).
 
     A break line of face i is its intersection line with a face j whose points reach it (a ridge, hip or
-    valley of the roof, not the extension of a distant face's line across i): a point of i is left out when
-    its plan distance from the line of (i, j) is below *buffer_m* and a point of j lies within
-    ``2 buffer_m + 3 spacing`` of it.  The line is fixed by both faces' interior points, so the points left
-    out are nearly the same in every clip (module docstring, "Break-line buffer").  Returns (N,) int labels
-    into *faces* (-1 unused).
+    valley of the roof, not the extension of a distant face's line across i): a point of i is in the band
+    (i, j) when its plan distance from the line of (i, j) is below *buffer_m* and a point of j lies within
+    ``2 buffer_m + 3 spacing`` of it.  The line is fixed by both faces' interior points, so a band is nearly
+    the same in every clip (module docstring, "Break-line buffer").  *idx* are point indices into *xyz*
+    (a point near two lines is in both bands).
     """
     from scipy.spatial import cKDTree
 
-    m = len(xyz)
-    labels = np.full(m, -1)
-    for k, (_, idx) in enumerate(faces):
-        labels[idx] = k
+    bands: list[tuple[int, int, np.ndarray]] = []
     if len(faces) < 2 or buffer_m <= 0:
-        return labels
+        return bands
     trees = [cKDTree(xyz[idx, :2]) for _, idx in faces]
     reach = 2.0 * buffer_m + 3.0 * spacing
-    drop = np.zeros(m, dtype=bool)
     for i, (pi, idx_i) in enumerate(faces):
         for j, (pj, idx_j) in enumerate(faces):
             if i == j or len(idx_i) == 0 or len(idx_j) == 0:
@@ -482,9 +478,126 @@ def _buffer_break_lines(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], 
                 continue
             dj, _ = trees[j].query(xyz[idx_i[near], :2], k=1, distance_upper_bound=reach)
             sel = idx_i[near][np.isfinite(dj)]
-            drop[sel] = True
-    labels[drop] = -1
+            if len(sel):
+                bands.append((i, j, sel))
+    return bands
+
+
+def _buffer_break_lines(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buffer_m: float,
+                        spacing: float) -> np.ndarray:
+    """Labels with every band of :func:`_break_line_bands` left out (the blanket buffer).
+
+    Returns (N,) int labels into *faces* (-1 unused).
+    """
+    labels = np.full(len(xyz), -1)
+    for k, (_, idx) in enumerate(faces):
+        labels[idx] = k
+    for _, _, sel in _break_line_bands(xyz, faces, buffer_m, spacing):
+        labels[sel] = -1
     return labels
+
+
+def _band_offset(xyz: np.ndarray, fit: PlaneFit, interior: np.ndarray, band: np.ndarray, p: ExtractionParams,
+                 grid_origin_m: Any) -> tuple[float, float, int]:
+    """Mean offset of a band from the plane of the face's interior, and its sd under the fit's error model.
+
+    *fit* is the fit of the points *interior* (indices into *xyz*), *band* the band's point indices.  Returns
+    (offset_m, sd_m, n): the mean of the band's condition residuals ``n . x + d`` (normal upwards, so > 0 =
+    above the plane), the sd of that mean if the band belonged to the plane (module docstring, "Break-line
+    buffer": iid part, cell components, the plane's own error and its correlation with the band through
+    shared cells), and the number of band points averaged (those within the fit's rejection threshold).
+    """
+    pl = fit.plane
+    n, d = np.asarray(pl.n), float(pl.d)
+    org = xyz[interior].mean(axis=0)
+    xi = xyz[interior][fit.used] - org
+    xb = xyz[band] - org
+    d_loc = d + float(n @ org)
+    s2 = np.array([p.sd_en_m, p.sd_en_m, p.sd_h_m]) ** 2
+    w = 1.0 / float(s2 @ (n * n))  # the same condition weight for every point (one sd per axis)
+    r_i = xi @ n + d_loc
+    r_b = xb @ n + d_loc
+    thr = p.residual_threshold_m
+    if thr is None:  # fit_plane's own robust threshold
+        thr = max(0.03, 3.5 * 1.4826 * float(np.median(np.abs(r_i - np.median(r_i)))))
+    keep = np.abs(r_b - np.median(r_b)) <= thr  # a chimney point does not make a band
+    xb, r_b = xb[keep], r_b[keep]
+    nb, ni = len(r_b), len(r_i)
+    if nb == 0 or ni < 4:
+        return math.nan, math.nan, nb
+    # Q: the 4x4 block of the bordered inverse of N = A' W A, constraint n . dn = 0
+    a_i = np.column_stack([xi, np.ones(ni)])
+    big = np.zeros((5, 5))
+    big[:4, :4] = w * a_i.T @ a_i
+    big[:3, 4] = big[4, :3] = n
+    q = np.linalg.inv(big)[:4, :4]
+    abar = np.append(xb.mean(axis=0), 1.0)
+    g = w * (a_i @ (q @ abar))  # mean band residual = mean(eps_B) - g . eps_I
+    comps = fit.components if fit.components else (fit.sigma0**2,)
+    var = _t_factor(ni - 3) * comps[0] * (1.0 / (nb * w) + float(g @ g) / w)
+    en = np.vstack([xyz[band][keep, :2], xyz[interior][fit.used, :2]]) + np.asarray(grid_origin_m).reshape(2)
+    coef = np.concatenate([np.full(nb, 1.0 / nb), -g])
+    for c, tau2 in zip(p.cells_m, comps[1:]):
+        if tau2 <= 0:
+            continue
+        _, inv = np.unique(np.floor(en / float(c)).astype(np.int64), axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        # each component times the t factor of its redundancy, as in the plane's covariance
+        var += _t_factor(len(np.unique(inv[nb:])) - 3) * tau2 * float(np.sum(np.bincount(inv, weights=coef) ** 2))
+    return float(r_b.mean()), math.sqrt(max(var, 0.0)), nb
+
+
+def _t_factor(dof: int) -> float:
+    """f / (f - 2), 3 for f <= 4: the t factor of :mod:`lidarcat.control.planes`' covariance."""
+    return dof / (dof - 2.0) if dof > 4 else 3.0
+
+
+def _tested_buffer(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buf: float, p: ExtractionParams,
+                   spacing: float, grid_origin_m: Any) -> tuple[list[tuple[Plane, np.ndarray]], list[dict]]:
+    """The faces' final fits with the significantly offset bands left out (module docstring).
+
+    Returns the faces (a face with no band dropped, or too few points left, is returned as given) and one
+    record per band: face i, line (i, j), points, offset_m, sd_m, z, dropped.
+    """
+    from scipy.stats import norm as _norm
+
+    bands = _break_line_bands(xyz, faces, buf, spacing)
+    z_crit = float(_norm.ppf(0.5 + 0.5 * p.edge_buffer_level)) if p.edge_buffer_level > 0 else 0.0
+    records: list[dict] = []
+    out = list(faces)
+    for k, face in enumerate(faces):
+        mine = [(j, sel) for i, j, sel in bands if i == k]
+        if not mine:
+            continue
+        in_band = np.zeros(len(xyz), dtype=bool)
+        for _, sel in mine:
+            in_band[sel] = True
+        interior = face[1][~in_band[face[1]]]
+        fit = _fit_one(xyz, interior, p, grid_origin_m) if len(interior) >= p.min_points else None
+        drop = np.zeros(len(xyz), dtype=bool)
+        for j, sel in mine:
+            if z_crit > 0 and fit:
+                off, sd, nb = _band_offset(xyz, fit, interior, sel, p, grid_origin_m)
+                z = off / sd if sd > 0 else math.nan
+                dropped = bool(abs(z) > z_crit)  # nan (no usable band point): kept
+            else:
+                off, sd, nb, z, dropped = math.nan, math.nan, len(sel), math.nan, True
+            records.append({"face": k, "line": (k, j), "n": nb, "offset_m": off, "sd_m": sd, "z": z,
+                            "dropped": dropped})
+            if dropped:
+                drop[sel] = True
+        if not drop.any():
+            continue  # no band offset: the face keeps its fit, identical to no buffer
+        keep = face[1][~drop[face[1]]]
+        if z_crit <= 0 or not (~drop[face[1]] & in_band[face[1]]).any():
+            final = fit if fit else None  # every band dropped: the interior fit is the final one
+        else:
+            final = _fit_one(xyz, keep, p, grid_origin_m) if len(keep) >= p.min_points else None
+        # a face too small for the buffer keeps its first fit (a few points more than none)
+        if final:
+            sel_idx = interior if final is fit else keep
+            out[k] = (final.plane, sel_idx[final.used])
+    return out, records
 
 
 def group_faces(loc: np.ndarray, p: ExtractionParams,
@@ -521,13 +634,7 @@ def group_faces(loc: np.ndarray, p: ExtractionParams,
         buf = 2.0 * p.sd_en_m if p.edge_buffer_m is None else float(p.edge_buffer_m)
         info["edge_buffer_m"] = buf
         if buf > 0 and len(faces) > 1:
-            lab3 = _buffer_break_lines(loc, faces, buf, info["spacing_m"])
-            refit = []
-            for k, face in enumerate(faces):
-                sel = np.flatnonzero(lab3 == k)
-                fit = _fit_one(loc, sel, p, grid_origin_m) if len(sel) >= p.min_points else None
-                # a face too small for the buffer keeps its first fit (a few points more than none)
-                refit.append((fit.plane, sel[fit.used]) if fit else face)
+            refit, info["edge_bands"] = _tested_buffer(loc, faces, buf, p, info["spacing_m"], grid_origin_m)
             # the faces' extent (support of a vertex, adjacency) stays that of the assignment
             info["extent_idx"] = [idx for _, idx in faces]
             faces = refit
