@@ -1,4 +1,4 @@
-"""Grouping the points of a roof clip into faces (thesis 3.2.5, and two robust alternatives).
+r"""Grouping the points of a roof clip into faces (thesis 3.2.5, and two robust alternatives).
 
 **Grouping into faces** (``ExtractionParams.method``):
 
@@ -21,10 +21,10 @@
   Assignment and fit are iterated twice.
 
 **Break-line buffer** (``ExtractionParams.edge_buffer_m``: None = 2 x ``sd_en_m``, 0.2 m at the
-default sds; region / ransac; off by default for now, see docs/extraction.md "Radius sweep", item 4).
+default sds, the default; 0 = off; region / ransac), **tested** (``edge_buffer_level``, below).
 After the last assignment, each face is fitted once more without the points within the buffer (in
-plan) of its break lines: its intersection lines with the faces whose points reach them (ridges,
-hips, valleys; :func:`_buffer_break_lines`).  Why: a face's plane must not depend
+plan) of those of its break lines whose band is off its plane (the test below): its intersection
+lines with the faces whose points reach them (ridges, hips, valleys; :func:`_break_line_bands`).  Why: a face's plane must not depend
 on the clip, yet the points along its break lines are both *systematic* and *assigned differently
 from clip to clip*.
 
@@ -47,6 +47,51 @@ from clip to clip*.
 * The faces' *extent* (adjacency, support of a vertex) stays that of the assignment
   (``info["extent_idx"]``), since the buffer removes points from the fit and not from the roof.
   A face too small to keep ``min_points`` after the buffer keeps its first fit.
+
+**The buffer as a test** (``edge_buffer_level``, default 0.999 two-sided; 0 = no test, every band
+leaves the fit: the blanket buffer of session 6).  On exact planes the band points are as good as
+any: the blanket buffer only throws them away (the synthetic town of
+benchmarks/bench_measured_control.py: vertex rms E error 12.5 -> 16.6 mm on seed 2).  So a band
+leaves a face's fit only when the data show it is off the face's plane.  For face i, let the
+*interior* I be its points outside all its bands, fitted alone (:func:`lidarcat.control.planes.fit_plane`,
+the extraction's settings: :math:`\hat\theta = (n, d)`, cofactor Q, components
+:math:`\hat\sigma_0^2, \hat\tau_k^2`), and B the band of one break line (i, j) (:func:`_break_line_bands`),
+:math:`n_B` points.  The statistic is the band's mean signed residual (normal upwards: > 0 = above)
+
+.. math:: \bar r = c^T r_B, \qquad c = \mathbf 1 / n_B,\quad r_b = n \cdot x_b + d.
+
+If the band belongs to the plane, its condition errors follow the fit's own model
+(:mod:`lidarcat.control.planes`, "Correlated residuals"): :math:`\varepsilon = e + \sum_k Z_k u_k`,
+:math:`\mathrm{Cov}(e) = \sigma_0^2 W^{-1}`, :math:`\mathrm{Cov}(u_k) = \tau_k^2 I`, with the SAME cell
+offsets u for the band and the interior points of a cell.  Linearised, :math:`r_b = \varepsilon_b + a_b^T
+\delta\theta` with :math:`\delta\theta = -Q A_I^T W \varepsilon_I`, so
+
+.. math:: \bar r = c^T \varepsilon_B - g^T \varepsilon_I,\qquad g = W A_I Q \bar a,\quad
+          \bar a = A_B^T c = (\bar x_B, 1),
+
+.. math:: \mathrm{Var}(\bar r) = \sigma_0^2 \Big(\sum_b c_b^2 / w_b + \bar a^T Q \bar a\Big)
+          + \sum_k \tau_k^2 \sum_{\text{cells } s} \Big(\sum_{b \in s} c_b - \sum_{i \in s} g_i\Big)^2
+
+(:math:`g^T W^{-1} g = \bar a^T Q N Q \bar a = \bar a^T Q \bar a`: the plane's prediction variance).  The
+first term is the iid part (:math:`\sigma_0^2 / (n_B w)` for equal weights) plus the plane's error at
+the band; the second the cell offsets the band shares: a 1 m cell offset moves all band points of the
+cell together, so it does not average out over the band's points but only over its cells (along an
+8 m line about 8), minus what the interior fit absorbed of the same cells (a cell shared by band
+and interior lifts both, the difference cancels in part).  A naive t-test (:math:`\sigma_0^2 / n_B`
+alone) fires far too often on real roofs: on the AHN3 tiles the 1 m design effect is a median 1.62
+over the whole face, and a band is a strip one cell wide.  Each component is multiplied by the t
+factor f / (f - 2) of its own redundancy, as in the plane's covariance.  The band's points more than
+the fit's rejection threshold from the band's median residual (a chimney, a dormer's edge) are left
+out of the mean: they are outliers, not an offset of the band.
+
+Decision: :math:`z = \bar r / \mathrm{sd}(\bar r)`; the band leaves the face's final fit when
+:math:`|z| > \Phi^{-1}(1/2 + \text{level}/2)` (3.29 at 0.999).  Two-sided: a band below the plane (a
+sagging valley, a gutter) biases as much as one above.  The final fit is the face without its dropped
+bands; a face with no band dropped keeps its fit exactly, identical to no buffer (so exact planes lose
+nothing, except at the false-positive rate: 0.1 % of bands).  Fallbacks: an interior too small to fit
+(fewer than ``min_points``) keeps all bands (nothing to test against); a face left with fewer than
+``min_points`` keeps its first fit; the extent is the assignment's in every case.  The tests of all
+bands are in ``info["edge_bands"]`` (face, line, points, offset_m, sd_m, z, dropped).
 
 :func:`group_faces` groups the points and fits a plane to each group
 (:func:`lidarcat.control.planes.fit_plane`); the slope window, the order and the
@@ -576,12 +621,13 @@ def _tested_buffer(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buf: 
         fit = _fit_one(xyz, interior, p, grid_origin_m) if len(interior) >= p.min_points else None
         drop = np.zeros(len(xyz), dtype=bool)
         for j, sel in mine:
+            off, sd, nb, z = math.nan, math.nan, len(sel), math.nan
             if z_crit > 0 and fit:
                 off, sd, nb = _band_offset(xyz, fit, interior, sel, p, grid_origin_m)
                 z = off / sd if sd > 0 else math.nan
-                dropped = bool(abs(z) > z_crit)  # nan (no usable band point): kept
-            else:
-                off, sd, nb, z, dropped = math.nan, math.nan, len(sel), math.nan, True
+            # blanket (level 0): every band; tested: a significant offset (nan -- no interior fit, or no
+            # usable band point -- keeps the band, as a face too small for the buffer keeps its first fit)
+            dropped = True if z_crit <= 0 else bool(abs(z) > z_crit)
             records.append({"face": k, "line": (k, j), "n": nb, "offset_m": off, "sd_m": sd, "z": z,
                             "dropped": dropped})
             if dropped:
