@@ -25,8 +25,8 @@ default sds, the default; 0 = off; region / ransac), **tested** (``edge_buffer_l
 After the last assignment, each face is fitted once more without the points within the buffer (in
 plan) of those of its break lines whose band is off its plane (the test below): its intersection
 lines with the faces whose points reach them (ridges, hips, valleys; :func:`_break_line_bands`).
-Why: a face's plane must not depend on the clip, yet the points along its break lines are both *systematic* and *assigned differently
-from clip to clip*.
+Why: a face's plane must not depend on the clip, yet the points along its break lines are both
+*systematic* and *assigned differently from clip to clip*.
 
 * Systematic: on the AHN3 tiles the points within 0.2 m of a face's break lines lie a median
   21 mm above the plane of the face's interior (quartiles 4-40 mm, above on 80 % of 284 faces).
