@@ -85,7 +85,10 @@ the fit's rejection threshold from the band's median residual (a chimney, a dorm
 out of the mean: they are outliers, not an offset of the band.
 
 Decision: :math:`z = \bar r / \mathrm{sd}(\bar r)`; the band leaves the face's final fit when
-:math:`|z| > \Phi^{-1}(1/2 + \text{level}/2)` (3.29 at 0.999).  Two-sided: a band below the plane (a
+:math:`|z| > \Phi^{-1}(1/2 + \text{level}/2)` (3.29 at 0.999) and it has at least ``MIN_BAND_POINTS``
+= 3 points.  The minimum: the mean of one or two residuals follows their heavy tails (single points
+off a roof by 5-10 cm are common), not the Gaussian model; on AHN3 C0162 a 2-point band at -69 mm
+(z -3.8) tilted a 33-point face enough to lose the corner at the candidate's own position.  Two-sided: a band below the plane (a
 sagging valley, a gutter) biases as much as one above.  The final fit is the face without its dropped
 bands; a face with no band dropped keeps its fit exactly, identical to no buffer (so exact planes lose
 nothing, except at the false-positive rate: 0.1 % of bands).  Fallbacks: an interior too small to fit
@@ -583,6 +586,11 @@ def _band_offset(xyz: np.ndarray, fit: PlaneFit, interior: np.ndarray, band: np.
     return float(r_b.mean()), math.sqrt(max(var, 0.0)), nb
 
 
+#: a band of fewer points is kept whatever its offset: the mean of one or two residuals follows their heavy
+#: tails, not the Gaussian model of the test (module docstring, "Break-line buffer")
+MIN_BAND_POINTS = 3
+
+
 def _t_factor(dof: int) -> float:
     """f / (f - 2), 3 for f <= 4: the t factor of :mod:`lidarcat.control.planes`' covariance."""
     return dof / (dof - 2.0) if dof > 4 else 3.0
@@ -618,7 +626,7 @@ def _tested_buffer(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buf: 
                 z = off / sd if sd > 0 else math.nan
             # blanket (level 0): every band; tested: a significant offset (nan -- no interior fit, or no
             # usable band point -- keeps the band, as a face too small for the buffer keeps its first fit)
-            dropped = True if z_crit <= 0 else bool(abs(z) > z_crit)
+            dropped = True if z_crit <= 0 else bool(nb >= MIN_BAND_POINTS and abs(z) > z_crit)
             records.append({"face": k, "line": (k, j), "n": nb, "offset_m": off, "sd_m": sd, "z": z,
                             "dropped": dropped})
             if dropped:
