@@ -97,8 +97,8 @@ nothing, except at the false-positive rate: 0.1 % of bands).  Fallbacks: an inte
 bands are in ``info["edge_bands"]`` (face, line, points, offset_m, sd_m, z, dropped).
 
 Measured (docs/extraction.md, "Radius sweep", item 5): on the synthetic town (exact planes) 2 of 371
-band tests fire and the vertices are the no-buffer ones; on the AHN3 tiles the test drops 20 % of
-the bands (median offset +36 mm, kept ones +8 mm: most bands are a few points, too short to show
+band tests fire and the vertices are the no-buffer ones; on the AHN3 tiles the test drops 17 % of
+the bands (median offset +34 mm, kept ones +9 mm: most bands are a few points, too short to show
 1-3 cm) and recovers a median 70 % of the blanket buffer's vertex move where that exceeds 1 cm.
 
 :func:`group_faces` groups the points and fits a plane to each group
