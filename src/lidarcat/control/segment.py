@@ -597,18 +597,23 @@ def _t_factor(dof: int) -> float:
 
 
 def _tested_buffer(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buf: float, p: ExtractionParams,
-                   spacing: float, grid_origin_m: Any) -> tuple[list[tuple[Plane, np.ndarray]], list[dict]]:
-    """The faces' final fits with the significantly offset bands left out (module docstring).
+                   spacing: float, grid_origin_m: Any
+                   ) -> tuple[list[tuple[Plane, np.ndarray]], list[dict], dict[str, float]]:
+    """The faces' final fits with the offset bands left out (module docstring, "Break-line buffer").
 
-    Returns the faces (a face with no band dropped, or too few points left, is returned as given) and one
-    record per band: face i, line (i, j), points, offset_m, sd_m, z, dropped.
+    Returns the faces (a face with no band dropped, or too few points left, is returned as given), one record
+    per band (face i, line (i, j), points, offset_m, sd_m, z, dropped) and the pooled test of the clip
+    (``q`` = sum of z^2 over the bands of ``MIN_BAND_POINTS`` or more, ``k`` their number, ``p`` its chi2_k
+    tail probability, ``pooled`` 1.0 when significant: every band dropped).
     """
+    from scipy.stats import chi2 as _chi2
     from scipy.stats import norm as _norm
 
     bands = _break_line_bands(xyz, faces, buf, spacing)
-    z_crit = float(_norm.ppf(0.5 + 0.5 * p.edge_buffer_level)) if p.edge_buffer_level > 0 else 0.0
+    level = p.edge_buffer_level
+    z_crit = float(_norm.ppf(0.5 + 0.5 * level)) if level > 0 else 0.0
     records: list[dict] = []
-    out = list(faces)
+    per_face = []
     for k, face in enumerate(faces):
         mine = [(j, sel) for i, j, sel in bands if i == k]
         if not mine:
@@ -618,23 +623,33 @@ def _tested_buffer(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buf: 
             in_band[sel] = True
         interior = face[1][~in_band[face[1]]]
         fit = _fit_one(xyz, interior, p, grid_origin_m) if len(interior) >= p.min_points else None
-        drop = np.zeros(len(xyz), dtype=bool)
         for j, sel in mine:
             off, sd, nb, z = math.nan, math.nan, len(sel), math.nan
             if z_crit > 0 and fit:
                 off, sd, nb = _band_offset(xyz, fit, interior, sel, p, grid_origin_m)
                 z = off / sd if sd > 0 else math.nan
-            # blanket (level 0): every band; tested: a significant offset (nan -- no interior fit, or no
-            # usable band point -- keeps the band, as a face too small for the buffer keeps its first fit)
-            dropped = True if z_crit <= 0 else bool(nb >= MIN_BAND_POINTS and abs(z) > z_crit)
             records.append({"face": k, "line": (k, j), "n": nb, "offset_m": off, "sd_m": sd, "z": z,
-                            "dropped": dropped})
-            if dropped:
-                drop[sel] = True
+                            "dropped": True, "_sel": sel})
+        per_face.append((k, face, in_band, interior, fit))
+    # the pooled test: are this clip's break-line bands off their planes as a whole?
+    zs = np.array([r["z"] for r in records if r["n"] >= MIN_BAND_POINTS and np.isfinite(r["z"])])
+    q = float(np.sum(zs**2))
+    p_tail = float(_chi2.sf(q, len(zs))) if len(zs) else 1.0
+    pooled = z_crit <= 0 or p_tail < 1.0 - level
+    for r in records:
+        # blanket (level 0) or a significant pool: every band; else a band significant alone (nan -- no
+        # interior fit, or no usable band point -- keeps the band, as a face too small keeps its first fit)
+        r["dropped"] = bool(pooled or (r["n"] >= MIN_BAND_POINTS and abs(r["z"]) > z_crit))
+    out = list(faces)
+    for k, face, in_band, interior, fit in per_face:
+        drop = np.zeros(len(xyz), dtype=bool)
+        for r in records:
+            if r["face"] == k and r["dropped"]:
+                drop[r["_sel"]] = True
         if not drop.any():
             continue  # no band offset: the face keeps its fit, identical to no buffer
         keep = face[1][~drop[face[1]]]
-        if z_crit <= 0 or not (~drop[face[1]] & in_band[face[1]]).any():
+        if not (~drop[face[1]] & in_band[face[1]]).any():
             final = fit if fit else None  # every band dropped: the interior fit is the final one
         else:
             final = _fit_one(xyz, keep, p, grid_origin_m) if len(keep) >= p.min_points else None
@@ -642,7 +657,9 @@ def _tested_buffer(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buf: 
         if final:
             sel_idx = interior if final is fit else keep
             out[k] = (final.plane, sel_idx[final.used])
-    return out, records
+    for r in records:
+        del r["_sel"]
+    return out, records, {"q": q, "k": float(len(zs)), "p": p_tail, "pooled": float(pooled)}
 
 
 def group_faces(loc: np.ndarray, p: ExtractionParams,
@@ -679,7 +696,8 @@ def group_faces(loc: np.ndarray, p: ExtractionParams,
         buf = 2.0 * p.sd_en_m if p.edge_buffer_m is None else float(p.edge_buffer_m)
         info["edge_buffer_m"] = buf
         if buf > 0 and len(faces) > 1:
-            refit, info["edge_bands"] = _tested_buffer(loc, faces, buf, p, info["spacing_m"], grid_origin_m)
+            refit, info["edge_bands"], info["edge_bands_pooled"] = _tested_buffer(
+                loc, faces, buf, p, info["spacing_m"], grid_origin_m)
             # the faces' extent (support of a vertex, adjacency) stays that of the assignment
             info["extent_idx"] = [idx for _, idx in faces]
             faces = refit
