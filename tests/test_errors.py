@@ -273,7 +273,7 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
         "residual_threshold_m must be positive, g", "max_offset_m must be positive, got {}",
         "near_m must be positive, got {}", "scales must be fractions in (0, 1), got ",
         "ambiguity_m must be >= 0, got {}", "cells_m must be positive sizes in metres",
-        "edge_buffer_m must be >= 0, got {}",
+        "edge_buffer_m must be >= 0, got {}", "edge_buffer_level must be in [0, 1), got",
         "stability_scales must be positive multip", "stability_level must be in (0, 1), got {")},
     ("control/params.py", "get_params", "ValueError", "unknown preset {}; choose one of {}"): _ENUM,
     ("control/search.py", "find_jobs", "ValueError", "block_cells must be at least 1, got {}"): _ARG,

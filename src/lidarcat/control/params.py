@@ -49,6 +49,11 @@ class ExtractionParams:
     #: error, belong to the other face, and a footprint there mixes both); 0 = no buffer (the
     #: default until the measure-control scenario tests are re-derived for it: docs/extraction.md)
     edge_buffer_m: float | None = None
+    #: the buffer as a TEST: a face's band along one break line leaves its final fit only when the band's
+    #: mean offset from the plane of the face's interior is significant at this two-sided level, under the
+    #: fit's own error model (iid + cell components; :mod:`lidarcat.control.segment`, "Break-line buffer");
+    #: 0 = no test, every band leaves the fit (the blanket buffer)
+    edge_buffer_level: float = 0.999
     #: slope window of triangles / faces (deg)
     slope_min_deg: float = 4.0
     slope_max_deg: float = 65.0
@@ -137,6 +142,8 @@ class ExtractionParams:
             raise ValueError(f"near_m must be positive, got {self.near_m}")
         if self.edge_buffer_m is not None and not self.edge_buffer_m >= 0:
             raise ValueError(f"edge_buffer_m must be >= 0, got {self.edge_buffer_m}")
+        if not 0 <= self.edge_buffer_level < 1:
+            raise ValueError(f"edge_buffer_level must be in [0, 1), got {self.edge_buffer_level}")
         if any(not c > 0 for c in self.cells_m):
             raise ValueError(f"cells_m must be positive sizes in metres, got {self.cells_m!r}")
         if any(not 0 < f < 1 for f in self.scales):

@@ -1,4 +1,4 @@
-"""Grouping the points of a roof clip into faces (thesis 3.2.5, and two robust alternatives).
+r"""Grouping the points of a roof clip into faces (thesis 3.2.5, and two robust alternatives).
 
 **Grouping into faces** (``ExtractionParams.method``):
 
@@ -21,12 +21,12 @@
   Assignment and fit are iterated twice.
 
 **Break-line buffer** (``ExtractionParams.edge_buffer_m``: None = 2 x ``sd_en_m``, 0.2 m at the
-default sds; region / ransac; off by default for now, see docs/extraction.md "Radius sweep", item 4).
+default sds, the default; 0 = off; region / ransac), **tested** (``edge_buffer_level``, below).
 After the last assignment, each face is fitted once more without the points within the buffer (in
-plan) of its break lines: its intersection lines with the faces whose points reach them (ridges,
-hips, valleys; :func:`_buffer_break_lines`).  Why: a face's plane must not depend
-on the clip, yet the points along its break lines are both *systematic* and *assigned differently
-from clip to clip*.
+plan) of those of its break lines whose band is off its plane (the test below): its intersection
+lines with the faces whose points reach them (ridges, hips, valleys; :func:`_break_line_bands`).
+Why: a face's plane must not depend on the clip, yet the points along its break lines are both
+*systematic* and *assigned differently from clip to clip*.
 
 * Systematic: on the AHN3 tiles the points within 0.2 m of a face's break lines lie a median
   21 mm above the plane of the face's interior (quartiles 4-40 mm, above on 80 % of 284 faces).
@@ -47,6 +47,73 @@ from clip to clip*.
 * The faces' *extent* (adjacency, support of a vertex) stays that of the assignment
   (``info["extent_idx"]``), since the buffer removes points from the fit and not from the roof.
   A face too small to keep ``min_points`` after the buffer keeps its first fit.
+
+**The buffer as a test** (``edge_buffer_level``, default 0.999 two-sided; 0 = no test, every band
+leaves the fit: the blanket buffer of session 6).  On exact planes the band points are as good as
+any: the blanket buffer only throws them away (the synthetic town of
+benchmarks/bench_measured_control.py: vertex rms E error 12.5 -> 16.6 mm on seed 2).  So a band
+leaves a face's fit only when the data show it is off the face's plane.  For face i, let the
+*interior* I be its points outside all its bands, fitted alone (:func:`lidarcat.control.planes.fit_plane`,
+the extraction's settings: :math:`\hat\theta = (n, d)`, cofactor Q, components
+:math:`\hat\sigma_0^2, \hat\tau_k^2`), and B the band of one break line (i, j) (:func:`_break_line_bands`),
+:math:`n_B` points.  The statistic is the band's mean signed residual (normal upwards: > 0 = above)
+
+.. math:: \bar r = c^T r_B, \qquad c = \mathbf 1 / n_B,\quad r_b = n \cdot x_b + d.
+
+If the band belongs to the plane, its condition errors follow the fit's own model
+(:mod:`lidarcat.control.planes`, "Correlated residuals"): :math:`\varepsilon = e + \sum_k Z_k u_k`,
+:math:`\mathrm{Cov}(e) = \sigma_0^2 W^{-1}`, :math:`\mathrm{Cov}(u_k) = \tau_k^2 I`, with the SAME cell
+offsets u for the band and the interior points of a cell.  Linearised, :math:`r_b = \varepsilon_b + a_b^T
+\delta\theta` with :math:`\delta\theta = -Q A_I^T W \varepsilon_I`, so
+
+.. math:: \bar r = c^T \varepsilon_B - g^T \varepsilon_I,\qquad g = W A_I Q \bar a,\quad
+          \bar a = A_B^T c = (\bar x_B, 1),
+
+.. math:: \mathrm{Var}(\bar r) = \sigma_0^2 \Big(\sum_b c_b^2 / w_b + \bar a^T Q \bar a\Big)
+          + \sum_k \tau_k^2 \sum_{\text{cells } s} \Big(\sum_{b \in s} c_b - \sum_{i \in s} g_i\Big)^2
+
+(:math:`g^T W^{-1} g = \bar a^T Q N Q \bar a = \bar a^T Q \bar a`: the plane's prediction variance).  The
+first term is the iid part (:math:`\sigma_0^2 / (n_B w)` for equal weights) plus the plane's error at
+the band; the second the cell offsets the band shares: a 1 m cell offset moves all band points of the
+cell together, so it does not average out over the band's points but only over its cells (along an
+8 m line about 8), minus what the interior fit absorbed of the same cells (a cell shared by band
+and interior lifts both, the difference cancels in part).  A naive t-test (:math:`\sigma_0^2 / n_B`
+alone) fires far too often on real roofs: on the AHN3 tiles the 1 m design effect is a median 1.62
+over the whole face, and a band is a strip one cell wide.  Each component is multiplied by the t
+factor f / (f - 2) of its own redundancy, as in the plane's covariance.  The band's points more than
+the fit's rejection threshold from the band's median residual (a chimney, a dormer's edge) are left
+out of the mean: they are outliers, not an offset of the band.
+
+Decision, in two stages at the same level (0.999):
+
+* **Pooled over the clip.**  :math:`q = \sum z^2` over the clip's bands of at least
+  ``MIN_BAND_POINTS`` = 3 points is :math:`\chi^2_K` (K bands) if every band lies on its plane (the
+  bands of different faces, or of one face's different lines, are nearly independent).  When
+  :math:`P(\chi^2_K > q) < 1 - \text{level}`, the clip's break lines are off their planes as a
+  whole, a property of the roofs and the scanner (ridge tiles, footprints across the line), and
+  *every* band leaves the fit: the blanket buffer.  This stage is what keeps the faces independent of
+  the clip: most biased bands are a few points (AHN3: median 5), too short to show 1-3 cm alone, and a
+  decision band by band changes from clip to clip (z 3 in one clip, 3.5 in the next), the very clip
+  dependence the buffer removes (measured: docs/extraction.md, "Radius sweep", item 5).
+* **Band by band** otherwise: a band leaves the fit when :math:`|z| > \Phi^{-1}(1/2 +
+  \text{level}/2)` (3.29 at 0.999) and it has at least 3 points.  The minimum: the mean of one or two
+  residuals follows their heavy tails (single points off a roof by 5-10 cm are common), not the
+  Gaussian model; on AHN3 C0162 a 2-point band at -69 mm (z -3.8) tilted a 33-point face enough to
+  lose the corner at the candidate's own position.
+
+Two-sided: a band below the plane (a sagging valley, a gutter) biases as much as one above.  The final
+fit is the face without its dropped bands; a face with no band dropped keeps its fit exactly, identical
+to no buffer (so exact planes lose nothing, except at the false-positive rate).  Fallbacks: an interior too small to fit
+(fewer than ``min_points``) keeps all bands (nothing to test against); a face left with fewer than
+``min_points`` keeps its first fit; the extent is the assignment's in every case.  The tests of all
+bands are in ``info["edge_bands"]`` (face, line, points, offset_m, sd_m, z, dropped), the pooled test
+in ``info["edge_bands_pooled"]`` (q, k, p, pooled).
+
+Measured (docs/extraction.md, "Radius sweep", item 5): on the synthetic town (exact planes) no clip
+pools and 2 of 371 band tests fire: the vertices are the no-buffer ones (to 0.1 mm).  On the AHN3
+tiles 88 of 89 clips pool (median q/K 7.7) and 87 of the 89 vertices are the blanket buffer's; band by
+band alone, the test dropped only 17 % of the bands (median offset +34 mm, kept ones +9 mm) and the
+radius sweep lost the blanket's stability (72 failing candidates against 36).
 
 :func:`group_faces` groups the points and fits a plane to each group
 (:func:`lidarcat.control.planes.fit_plane`); the slope window, the order and the
@@ -443,28 +510,24 @@ def _drop_outer_edges(xyz: np.ndarray, labels: np.ndarray, k: int = 12,
     return out
 
 
-def _buffer_break_lines(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buffer_m: float,
-                        spacing: float) -> np.ndarray:
-    """Labels with the points within *buffer_m* (plan) of a face's break lines left out.
+def _break_line_bands(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buffer_m: float,
+                      spacing: float) -> list[tuple[int, int, np.ndarray]]:
+    """The bands of the faces along their break lines: ``(i, j, idx)`` per face i and break line (i, j).
 
     A break line of face i is its intersection line with a face j whose points reach it (a ridge, hip or
-    valley of the roof, not the extension of a distant face's line across i): a point of i is left out when
-    its plan distance from the line of (i, j) is below *buffer_m* and a point of j lies within
-    ``2 buffer_m + 3 spacing`` of it.  The line is fixed by both faces' interior points, so the points left
-    out are nearly the same in every clip (module docstring, "Break-line buffer").  Returns (N,) int labels
-    into *faces* (-1 unused).
+    valley of the roof, not the extension of a distant face's line across i): a point of i is in the band
+    (i, j) when its plan distance from the line of (i, j) is below *buffer_m* and a point of j lies within
+    ``2 buffer_m + 3 spacing`` of it.  The line is fixed by both faces' interior points, so a band is nearly
+    the same in every clip (module docstring, "Break-line buffer").  *idx* are point indices into *xyz*
+    (a point near two lines is in both bands).
     """
     from scipy.spatial import cKDTree
 
-    m = len(xyz)
-    labels = np.full(m, -1)
-    for k, (_, idx) in enumerate(faces):
-        labels[idx] = k
+    bands: list[tuple[int, int, np.ndarray]] = []
     if len(faces) < 2 or buffer_m <= 0:
-        return labels
+        return bands
     trees = [cKDTree(xyz[idx, :2]) for _, idx in faces]
     reach = 2.0 * buffer_m + 3.0 * spacing
-    drop = np.zeros(m, dtype=bool)
     for i, (pi, idx_i) in enumerate(faces):
         for j, (pj, idx_j) in enumerate(faces):
             if i == j or len(idx_i) == 0 or len(idx_j) == 0:
@@ -482,9 +545,135 @@ def _buffer_break_lines(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], 
                 continue
             dj, _ = trees[j].query(xyz[idx_i[near], :2], k=1, distance_upper_bound=reach)
             sel = idx_i[near][np.isfinite(dj)]
-            drop[sel] = True
-    labels[drop] = -1
-    return labels
+            if len(sel):
+                bands.append((i, j, sel))
+    return bands
+
+
+def _band_offset(xyz: np.ndarray, fit: PlaneFit, interior: np.ndarray, band: np.ndarray, p: ExtractionParams,
+                 grid_origin_m: Any) -> tuple[float, float, int]:
+    """Mean offset of a band from the plane of the face's interior, and its sd under the fit's error model.
+
+    *fit* is the fit of the points *interior* (indices into *xyz*), *band* the band's point indices.  Returns
+    (offset_m, sd_m, n): the mean of the band's condition residuals ``n . x + d`` (normal upwards, so > 0 =
+    above the plane), the sd of that mean if the band belonged to the plane (module docstring, "Break-line
+    buffer": iid part, cell components, the plane's own error and its correlation with the band through
+    shared cells), and the number of band points averaged (those within the fit's rejection threshold).
+    """
+    pl = fit.plane
+    n, d = np.asarray(pl.n), float(pl.d)
+    org = xyz[interior].mean(axis=0)
+    xi = xyz[interior][fit.used] - org
+    xb = xyz[band] - org
+    d_loc = d + float(n @ org)
+    s2 = np.array([p.sd_en_m, p.sd_en_m, p.sd_h_m]) ** 2
+    w = 1.0 / float(s2 @ (n * n))  # the same condition weight for every point (one sd per axis)
+    r_i = xi @ n + d_loc
+    r_b = xb @ n + d_loc
+    thr = p.residual_threshold_m
+    if thr is None:  # fit_plane's own robust threshold
+        thr = max(0.03, 3.5 * 1.4826 * float(np.median(np.abs(r_i - np.median(r_i)))))
+    keep = np.abs(r_b - np.median(r_b)) <= thr  # a chimney point does not make a band
+    xb, r_b = xb[keep], r_b[keep]
+    nb, ni = len(r_b), len(r_i)
+    if nb == 0 or ni < 4:
+        return math.nan, math.nan, nb
+    # Q: the 4x4 block of the bordered inverse of N = A' W A, constraint n . dn = 0
+    a_i = np.column_stack([xi, np.ones(ni)])
+    big = np.zeros((5, 5))
+    big[:4, :4] = w * a_i.T @ a_i
+    big[:3, 4] = big[4, :3] = n
+    q = np.linalg.inv(big)[:4, :4]
+    abar = np.append(xb.mean(axis=0), 1.0)
+    g = w * (a_i @ (q @ abar))  # mean band residual = mean(eps_B) - g . eps_I
+    comps = fit.components if fit.components else (fit.sigma0**2,)
+    var = _t_factor(ni - 3) * comps[0] * (1.0 / (nb * w) + float(g @ g) / w)
+    en = np.vstack([xyz[band][keep, :2], xyz[interior][fit.used, :2]]) + np.asarray(grid_origin_m).reshape(2)
+    coef = np.concatenate([np.full(nb, 1.0 / nb), -g])
+    for c, tau2 in zip(p.cells_m, comps[1:]):
+        if tau2 <= 0:
+            continue
+        _, inv = np.unique(np.floor(en / float(c)).astype(np.int64), axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        # each component times the t factor of its redundancy, as in the plane's covariance
+        var += _t_factor(len(np.unique(inv[nb:])) - 3) * tau2 * float(np.sum(np.bincount(inv, weights=coef) ** 2))
+    return float(r_b.mean()), math.sqrt(max(var, 0.0)), nb
+
+
+#: a band of fewer points is kept whatever its offset: the mean of one or two residuals follows their heavy
+#: tails, not the Gaussian model of the test (module docstring, "Break-line buffer")
+MIN_BAND_POINTS = 3
+
+
+def _t_factor(dof: int) -> float:
+    """f / (f - 2), 3 for f <= 4: the t factor of :mod:`lidarcat.control.planes`' covariance."""
+    return dof / (dof - 2.0) if dof > 4 else 3.0
+
+
+def _tested_buffer(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buf: float, p: ExtractionParams,
+                   spacing: float, grid_origin_m: Any
+                   ) -> tuple[list[tuple[Plane, np.ndarray]], list[dict], dict[str, float]]:
+    """The faces' final fits with the offset bands left out (module docstring, "Break-line buffer").
+
+    Returns the faces (a face with no band dropped, or too few points left, is returned as given), one record
+    per band (face i, line (i, j), points, offset_m, sd_m, z, dropped) and the pooled test of the clip
+    (``q`` = sum of z^2 over the bands of ``MIN_BAND_POINTS`` or more, ``k`` their number, ``p`` its chi2_k
+    tail probability, ``pooled`` 1.0 when significant: every band dropped).
+    """
+    from scipy.stats import chi2 as _chi2
+    from scipy.stats import norm as _norm
+
+    bands = _break_line_bands(xyz, faces, buf, spacing)
+    level = p.edge_buffer_level
+    z_crit = float(_norm.ppf(0.5 + 0.5 * level)) if level > 0 else 0.0
+    records: list[dict] = []
+    per_face = []
+    for k, face in enumerate(faces):
+        mine = [(j, sel) for i, j, sel in bands if i == k]
+        if not mine:
+            continue
+        in_band = np.zeros(len(xyz), dtype=bool)
+        for _, sel in mine:
+            in_band[sel] = True
+        interior = face[1][~in_band[face[1]]]
+        fit = _fit_one(xyz, interior, p, grid_origin_m) if len(interior) >= p.min_points else None
+        for j, sel in mine:
+            off, sd, nb, z = math.nan, math.nan, len(sel), math.nan
+            if z_crit > 0 and fit:
+                off, sd, nb = _band_offset(xyz, fit, interior, sel, p, grid_origin_m)
+                z = off / sd if sd > 0 else math.nan
+            records.append({"face": k, "line": (k, j), "n": nb, "offset_m": off, "sd_m": sd, "z": z,
+                            "dropped": True, "_sel": sel})
+        per_face.append((k, face, in_band, interior, fit))
+    # the pooled test: are this clip's break-line bands off their planes as a whole?
+    zs = np.array([r["z"] for r in records if r["n"] >= MIN_BAND_POINTS and np.isfinite(r["z"])])
+    q = float(np.sum(zs**2))
+    p_tail = float(_chi2.sf(q, len(zs))) if len(zs) else 1.0
+    pooled = z_crit <= 0 or p_tail < 1.0 - level
+    for r in records:
+        # blanket (level 0) or a significant pool: every band; else a band significant alone (nan -- no
+        # interior fit, or no usable band point -- keeps the band, as a face too small keeps its first fit)
+        r["dropped"] = bool(pooled or (r["n"] >= MIN_BAND_POINTS and abs(r["z"]) > z_crit))
+    out = list(faces)
+    for k, face, in_band, interior, fit in per_face:
+        drop = np.zeros(len(xyz), dtype=bool)
+        for r in records:
+            if r["face"] == k and r["dropped"]:
+                drop[r["_sel"]] = True
+        if not drop.any():
+            continue  # no band offset: the face keeps its fit, identical to no buffer
+        keep = face[1][~drop[face[1]]]
+        if not (~drop[face[1]] & in_band[face[1]]).any():
+            final = fit if fit else None  # every band dropped: the interior fit is the final one
+        else:
+            final = _fit_one(xyz, keep, p, grid_origin_m) if len(keep) >= p.min_points else None
+        # a face too small for the buffer keeps its first fit (a few points more than none)
+        if final:
+            sel_idx = interior if final is fit else keep
+            out[k] = (final.plane, sel_idx[final.used])
+    for r in records:
+        del r["_sel"]
+    return out, records, {"q": q, "k": float(len(zs)), "p": p_tail, "pooled": float(pooled)}
 
 
 def group_faces(loc: np.ndarray, p: ExtractionParams,
@@ -521,13 +710,8 @@ def group_faces(loc: np.ndarray, p: ExtractionParams,
         buf = 2.0 * p.sd_en_m if p.edge_buffer_m is None else float(p.edge_buffer_m)
         info["edge_buffer_m"] = buf
         if buf > 0 and len(faces) > 1:
-            lab3 = _buffer_break_lines(loc, faces, buf, info["spacing_m"])
-            refit = []
-            for k, face in enumerate(faces):
-                sel = np.flatnonzero(lab3 == k)
-                fit = _fit_one(loc, sel, p, grid_origin_m) if len(sel) >= p.min_points else None
-                # a face too small for the buffer keeps its first fit (a few points more than none)
-                refit.append((fit.plane, sel[fit.used]) if fit else face)
+            refit, info["edge_bands"], info["edge_bands_pooled"] = _tested_buffer(
+                loc, faces, buf, p, info["spacing_m"], grid_origin_m)
             # the faces' extent (support of a vertex, adjacency) stays that of the assignment
             info["extent_idx"] = [idx for _, idx in faces]
             faces = refit
