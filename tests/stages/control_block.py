@@ -13,14 +13,16 @@ import numpy as np
 from lidarcat.stages.measure_control import measure_control
 from lidarcat.synthetic.aerial import aerial_survey
 
-# L003's roof edges by plane numbers.  control.facets numbers a vertex's faces by their points, largest first:
-# with the break-line buffer (the default since session 7) 1 = the south face (426 points), 2 = the north face
-# (418), 3 = the west hip face (180).  Without it the two long faces tied at 451 points and the north face came
-# first, so the two hips' labels were swapped (1-3 was the north-west hip).  The edges themselves did not change:
-# on photo 102 the same north-west hip has no image edge, and the south-west hip is found at the same pixels
-# (0.01 px); test_vertex_outside_every_photo_and_edge_without_image_edge_are_reported checks which hip is which.
-L003_NO_EDGE = "L003/2-3"   # the north-west hip (north face x hip face): no image edge on photo 102
-L003_HIP = "L003/1-3"       # the south-west hip (south face x hip face): found on 102, carried by L003's point
+# L003's roof edges by plane numbers.  control.facets numbers a vertex's faces by their points, largest first.
+# With the break-line buffer dropping every band (the blanket buffer of session 7's first hours) 1 = the south
+# face (426 points), 2 = the north face (418), 3 = the west hip face (180).  The default buffer is a test
+# (lidarcat.control.segment, "Break-line buffer"): on this synthetic town, whose faces are exact planes, no band
+# is significant, nothing leaves the fits, the two long faces tie at 451 points and the north face comes first,
+# so 1-3 is the north-west hip.  The edges themselves do not change with the numbering: on photo 102 the
+# north-west hip has no image edge, and the south-west hip is found at the same pixels (0.01 px);
+# test_vertex_outside_every_photo_and_edge_without_image_edge_are_reported checks which hip is which.
+L003_NO_EDGE = "L003/1-3"   # the north-west hip (north face x hip face): no image edge on photo 102
+L003_HIP = "L003/2-3"       # the south-west hip (south face x hip face): found on 102, carried by L003's point
 
 
 def read_rows(path: Path) -> list[dict[str, str]]:
