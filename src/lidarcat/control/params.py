@@ -49,10 +49,11 @@ class ExtractionParams:
     #: error, belong to the other face, and a footprint there mixes both); 0 = no buffer (the
     #: default until the measure-control scenario tests are re-derived for it: docs/extraction.md)
     edge_buffer_m: float | None = None
-    #: the buffer as a TEST: a face's band along one break line leaves its final fit only when the band's
-    #: mean offset from the plane of the face's interior is significant at this two-sided level, under the
-    #: fit's own error model (iid + cell components; :mod:`lidarcat.control.segment`, "Break-line buffer");
-    #: 0 = no test, every band leaves the fit (the blanket buffer)
+    #: the buffer as a TEST at this level (:mod:`lidarcat.control.segment`, "Break-line buffer"): every band
+    #: leaves the faces' fits when the clip's bands are off their planes as a whole (chi2 of their z), else
+    #: only a band whose mean offset from the plane of its face's interior is significant alone (two-sided;
+    #: the sd from the fit's own error model, iid + cell components); 0 = no test, every band leaves the
+    #: fit (the blanket buffer)
     edge_buffer_level: float = 0.999
     #: slope window of triangles / faces (deg)
     slope_min_deg: float = 4.0
