@@ -46,8 +46,8 @@ class ExtractionParams:
     #: face's break lines (ridges, hips, valleys: its intersection lines with the faces that reach
     #: them) are left out of its final fit (:mod:`lidarcat.control.segment`, "Break-line buffer");
     #: None = 2 x ``sd_en_m`` (0.2 m at the default: a point that near the line may, by its plan
-    #: error, belong to the other face, and a footprint there mixes both); 0 = no buffer (the
-    #: default until the measure-control scenario tests are re-derived for it: docs/extraction.md)
+    #: error, belong to the other face, and a footprint there mixes both; the default since session 7,
+    #: tested by ``edge_buffer_level``); 0 = no buffer
     edge_buffer_m: float | None = None
     #: the buffer as a TEST at this level (:mod:`lidarcat.control.segment`, "Break-line buffer"): every band
     #: leaves the faces' fits when the clip's bands are off their planes as a whole (chi2 of their z), else
