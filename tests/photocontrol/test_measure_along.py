@@ -22,7 +22,7 @@ VERTEX = np.array([100.3, 99.6])   # true vertex (col, row px)
 SIZE = 200
 
 
-def _unit(deg: float) -> np.ndarray:
+def unit(deg: float) -> np.ndarray:
     return np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
 
 
@@ -41,16 +41,18 @@ def _photo(a1_deg: float, a2_deg: float, seed: int = 3) -> np.ndarray:
     return img.astype(np.float32)
 
 
-def _ctx(dirs_deg: list[float], start: np.ndarray, p: MeasureParams) -> dict:
-    """_refine's context: the predicted edges from the (shifted) vertex, 50 px long."""
-    units = np.array([_unit(d) for d in dirs_deg])
+def refine_context(dirs_deg: list[float], start: np.ndarray, p: MeasureParams,
+                   planes=((2, 3), (0, 1), (0, 3), (1, 2))) -> dict:
+    """_refine's context: the predicted edges from the (shifted) vertex, 50 px long, of the plane pairs
+    *planes* (also used by test_measure_weak_edge)."""
+    units = np.array([unit(d) for d in dirs_deg])
     t0s = []
     for k, u in enumerate(units):
         sin_min = min((abs(u[0] * o[1] - u[1] * o[0]) if u @ o > 0 else 1.0) for j, o in enumerate(units) if j != k)
         t0s.append(max(4.0, (p.band_px + 1.5) / max(sin_min, 0.2)))
     base = Measurement("V1", "P1", np.full(2, np.nan), np.full((2, 2), np.nan), "not_visible",
                        predicted_px=start, predicted_cov_px2=np.eye(2) * 400.0)
-    edges = [SimpleNamespace(planes=pl) for pl in ((2, 3), (0, 1), (0, 3), (1, 2))][:len(dirs_deg)]
+    edges = [SimpleNamespace(planes=pl) for pl in planes][:len(dirs_deg)]
     return dict(base=base, edges=edges, units=units, lens=np.full(len(dirs_deg), 50.0), t0s=t0s, vpx=start,
                 size=(SIZE, SIZE), m_edge=60)
 
@@ -62,7 +64,7 @@ def _measure(bend_deg: float, start_off=(1.2, -0.8), p: MeasureParams | None = N
     a1, a2 = 30.0, 210.0 - bend_deg
     img = _photo(a1, a2)
     start = VERTEX + np.asarray(start_off)
-    ctx = _ctx([a1, a2, 115.0, 300.0], start, p)
+    ctx = refine_context([a1, a2, 115.0, 300.0], start, p)
     m = _refine(img, ctx, np.zeros(2), p)
     if m:   # again from the vertex found, as measure_photo does
         m2 = _refine(img, ctx, np.asarray(m.px) - start, p)
@@ -82,7 +84,7 @@ def test_a_vertex_on_one_bent_line_is_located_along_it_within_its_sd(bend):
     cov = np.asarray(m.cov_px2)
     w, v = np.linalg.eigh(cov)
     # elongated along the line (the bisector of the two edge directions), tight across it
-    along = _unit(30.0 - bend / 2.0)
+    along = unit(30.0 - bend / 2.0)
     assert abs(float(v[:, 1] @ along)) > math.cos(math.radians(2.0))
     assert math.sqrt(w[1]) > 3.0 * math.sqrt(w[0])
     assert math.sqrt(w[0]) < 0.4

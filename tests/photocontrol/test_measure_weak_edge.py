@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from lidarcat.photocontrol.measure import Measurement, MeasureParams, _refine
+from test_measure_along import refine_context, unit
 
 VERTEX = np.array([100.3, 99.6])   # true vertex (col, row px)
 SIZE = 200
@@ -27,10 +27,6 @@ DIRS = (90.0, 210.0, 330.0)        # edges of planes 1-2, 2-3, 1-3 (planes 0-bas
 GREYS = (150.0, 80.0, 136.0)       # faces 1 (330..90 deg), 2 (90..210), 3 (210..330)
 CHI2_2_999 = 13.815510557964274    # chi2(2) 99.9 %
 CHI2_2_99 = 9.210340371976182      # chi2(2) 99 %
-
-
-def _unit(deg: float) -> np.ndarray:
-    return np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
 
 
 def _photo(off_px: float, seed: int) -> np.ndarray:
@@ -43,7 +39,7 @@ def _photo(off_px: float, seed: int) -> np.ndarray:
     cc, rr = np.meshgrid(g, g)
     ang = np.mod(np.degrees(np.arctan2(rr - VERTEX[1], cc - VERTEX[0])), 360.0)
     in2 = (ang >= 90.0) & (ang < 210.0)
-    u = _unit(330.0)
+    u = unit(330.0)
     n = np.array([-u[1], u[0]])
     s = (cc - VERTEX[0] - off_px * n[0]) * n[0] + (rr - VERTEX[1] - off_px * n[1]) * n[1]
     in1 = ~in2 & (((s > 0) & ((ang >= 270.0) | (ang < 90.0))) | ((ang >= 30.0) & (ang < 90.0)))
@@ -56,16 +52,7 @@ def _photo(off_px: float, seed: int) -> np.ndarray:
 
 def _ctx(start: np.ndarray, p: MeasureParams) -> dict:
     """_refine's context: the three predicted edges from the (shifted) vertex, 50 px long."""
-    units = np.array([_unit(d) for d in DIRS])
-    t0s = []
-    for k, u in enumerate(units):
-        sin_min = min((abs(u[0] * o[1] - u[1] * o[0]) if u @ o > 0 else 1.0) for j, o in enumerate(units) if j != k)
-        t0s.append(max(4.0, (p.band_px + 1.5) / max(sin_min, 0.2)))
-    base = Measurement("V1", "P1", np.full(2, np.nan), np.full((2, 2), np.nan), "not_visible",
-                       predicted_px=start, predicted_cov_px2=np.eye(2) * 400.0)
-    edges = [SimpleNamespace(planes=pl) for pl in ((0, 1), (1, 2), (0, 2))]
-    return dict(base=base, edges=edges, units=units, lens=np.full(3, 50.0), t0s=t0s, vpx=start,
-                size=(SIZE, SIZE), m_edge=60)
+    return refine_context(list(DIRS), start, p, planes=((0, 1), (1, 2), (0, 2)))
 
 
 def _measure(off_px: float, seed: int, p: MeasureParams | None = None) -> tuple[Measurement, Measurement]:
