@@ -393,8 +393,11 @@ def test_extract_takes_every_point_file_as_a_tile(tmp_path):
     a = write_points(tmp_path / "a.laz", west)
     b = write_points(tmp_path / "b.laz", east)
     r = CliRunner().invoke(cli, ["extract", "--lidar", str(a), str(b), "--at", "85008.9", "447469.9", "--json"])
-    assert r.exit_code == 0, r.output
+    # since session 7 the radius-stability check refuses this roof's vertex (its 4 m clip moves it 51 mm,
+    # Mahalanobis 4.54 > 4.03): exit status 1, the vertex still computed and reported with the reason
+    assert r.exit_code == 1, r.output
     p = json.loads(r.output)
     both = CliRunner().invoke(cli, ["extract", "--lidar", str(a), "--lidar", str(b), "--at", "85008.9",
                                     "447469.9", "--json"])
-    assert json.loads(both.output) == p and p["status"] == "ok"
+    assert both.exit_code == 1 and json.loads(both.output) == p
+    assert p["status"] == "unstable" and abs(p["E"] - 85008.866) < 0.01 and abs(p["N"] - 447469.908) < 0.01

@@ -14,9 +14,9 @@ __all__ = ["extract"]
 _EPILOG = """\b
 Examples:
   lidarcat extract jobs.txt -o control.csv --planes planes.csv
-  lidarcat extract --at 84996.5 447473.5 ahn3_1.laz ahn3_2.laz --crs EPSG:7415
+  lidarcat extract --at 84886.0 447427.6 ahn3_1.laz ahn3_2.laz --crs EPSG:7415
   lidarcat extract jobs.txt --preset thesis --figures figs/
-  lidarcat extract --lidar ahn3_1.laz --lidar ahn3_2.laz --crs EPSG:7415 --at 84996.5 447473.5 --json
+  lidarcat extract --lidar ahn3_1.laz --lidar ahn3_2.laz --crs EPSG:7415 --at 84886.0 447427.6 --json
   lidarcat extract --find --lidar ahn3_1.laz --classes 6 -o candidates.geojson
   lidarcat extract --find --lidar ahn3_1.laz ahn3_2.laz --classes 6 --workers 2 -o c.geojson
 \b
@@ -25,7 +25,7 @@ A job line (thesis section 4.2.2): file point E N threshold radius, e.g.
 or a CSV with columns point,E,N[,threshold_m,radius_m,file,sd_en_m,sd_h_m]
 (sd_*: LiDAR point noise in plan / height, m; empty = the preset value).
 Units: metres, degrees. A roof that cannot give a point is a row with a
-status (two_planes, flat_roof, no_vertex, ...) and a reason; the batch goes on.
+status (two_planes, flat_roof, no_vertex, unstable, ...) and a reason; the batch goes on.
 \b
 Tiles: as in `lidarcat lidar clip`, point files (.las .laz .xyz .asc .pts)
 may follow as arguments, or be given with --lidar (repeatable); both forms

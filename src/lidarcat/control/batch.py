@@ -153,8 +153,12 @@ class _Source:
         self._index = None
         self._per_file: dict[Path, Any] = {}
 
-    def query(self, job: Job, radius_m: float):
+    def query(self, job: Job, radius_m: float, clip_m: float | None = None):
+        """The points within *radius_m* of the job's position; *clip_m* (m) is the clip radius the user
+        asked for, named by the metres check when the points are loaded farther out (the radius-stability
+        check's larger clips)."""
         from ..lidar import TileIndex
+        from ..lidar.crs import require_metres
 
         if self.lidar:
             if self._index is None:
@@ -168,6 +172,8 @@ class _Source:
                     raise ExtractionError(f"job {job.point} (line {job.line}): point file {job.file} not found")
                 self._per_file[job.file] = TileIndex.build([job.file], crs=self.crs)
             idx = self._per_file[job.file]
+        if clip_m is not None and clip_m != radius_m:
+            require_metres(idx.crs, f"a clip radius of {clip_m:g} m", str(idx.tiles[0].path) if idx.tiles else "")
         return idx.query_radius((job.e_m, job.n_m), radius_m)
 
 
@@ -218,7 +224,7 @@ def extract_batch(
             if p.stability_scales:
                 reach = p.radius_m * max((1.0, *p.stability_scales)) + (
                     p.max_offset_m if p.max_offset_m is not None else 0.5 * p.radius_m)
-            cloud = points if points is not None else src.query(job, reach)
+            cloud = points if points is not None else src.query(job, reach, clip_m=p.radius_m)
             cp = extract_roof(cloud, (job.e_m, job.n_m), params=p, point_id=job.point,
                               clipped=points is None and reach == p.radius_m)
         except ClipError as ex:
