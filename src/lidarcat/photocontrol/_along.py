@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["intersect_lines", "locate_along"]
+__all__ = ["line_offset_variance", "intersect_lines", "locate_along"]
 
 
 def locate_along(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, k: int, dropped: list, origin: np.ndarray,
@@ -63,6 +63,16 @@ def locate_along(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, k: int,
                                            f"across the edge, {sd_along:.2f} px along it")
 
 
+def line_offset_variance(u: np.ndarray, fit: tuple, cov: np.ndarray, b: float, x: np.ndarray, origin: np.ndarray,
+                         sd_px: float, texture_px: float = 0.0) -> float:
+    """A fitted line's offset variance at the point *x* (px^2, measure step 3): its fit's (offset, slope)
+    covariance *cov* propagated to *x* (direction *u*, slope *b*, relative to *origin*), plus
+    ``sd_px^2 + (texture_px / ratio)^2`` (ratio: the edge's gradient over the texture's, ``fit[3]``)."""
+    jv = np.array([1.0, float((x - origin) @ u)])
+    extra = sd_px**2 + (texture_px / max(float(fit[3]), 1e-9)) ** 2
+    return max(float(jv @ cov @ jv), 1e-8) / (1.0 + b * b) + extra
+
+
 def intersect_lines(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, origin: np.ndarray, sd_px: float,
                     texture_px: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
     """Weighted least-squares point of lines m^T x = c (measure step 3): point (2,), normal matrix (2, 2), chi2.
@@ -71,12 +81,8 @@ def intersect_lines(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, orig
     (ratio: the edge's gradient over the texture's, ``fit[3]``)."""
     x = origin.copy()
     for _ in range(3):
-        w = []
-        for (u, fit), (cov, b) in zip(fits, covs):
-            jv = np.array([1.0, float((x - origin) @ u)])
-            extra = sd_px**2 + (texture_px / max(float(fit[3]), 1e-9)) ** 2
-            w.append(1.0 / (max(float(jv @ cov @ jv), 1e-8) / (1.0 + b * b) + extra))
-        w = np.array(w)
+        w = np.array([1.0 / line_offset_variance(u, fit, cov, b, x, origin, sd_px, texture_px)
+                      for (u, fit), (cov, b) in zip(fits, covs)])
         n_mat = (mm * w[:, None]).T @ mm
         x = np.linalg.solve(n_mat, (mm * w[:, None]).T @ cc)
     r = mm @ x - cc

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from ._along import intersect_lines
+from ._along import intersect_lines, line_offset_variance
 
 __all__ = ["weak_edge_tests"]
 
@@ -64,8 +64,7 @@ def weak_edge_tests(fits: list, mm: np.ndarray, cc: np.ndarray, covs: list, use:
     for i in weak:
         u, fit = fits[i]
         cov, b = covs[i]
-        jv = np.array([1.0, float((xs - origin) @ u)])
-        v_i = max(float(jv @ cov @ jv), 1e-8) / (1.0 + b * b) + sd_px**2 + (texture_px / max(float(fit[3]), 1e-9)) ** 2
+        v_i = line_offset_variance(u, fit, cov, b, xs, origin, sd_px, texture_px)
         r = float(mm[i] @ xs) - float(cc[i])
         out.append((i, r / math.sqrt(float(mm[i] @ c_s @ mm[i]) + v_i)))
     return out
