@@ -39,6 +39,13 @@ def write_rows(path: Path, fields, rows) -> None:
         w.writerows(rows)
 
 
+def copy_survey(src: Path, tmp_path: Path) -> Path:
+    """A copy of the survey folder *src* under *tmp_path* (the module-scoped blocks are never changed)."""
+    dst = tmp_path / "s"
+    shutil.copytree(src, dst)
+    return dst
+
+
 def make_block(root: Path) -> tuple[Any, np.ndarray]:
     """The block written to *root* with the town's roof vertices as LiDAR control ``L001`` ..: (the
     :class:`~lidarcat.synthetic.aerial.AerialSurvey` with its truth, the vertices (N, 3) m in id order)."""

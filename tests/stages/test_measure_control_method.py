@@ -12,7 +12,6 @@ two edges ``written`` -- the rows the stage writes for such a point.
 
 from __future__ import annotations
 
-import shutil
 
 import numpy as np
 import pytest
@@ -23,7 +22,7 @@ from lidarcat.stages._control_report import decision_rows
 from lidarcat.stages.measure_control import DECISION_FIELDS
 from lidarcat.survey.folder import Survey
 
-from control_block import edited_decisions, measured_block, read_rows, write_rows
+from control_block import copy_survey, edited_decisions, measured_block, read_rows, write_rows
 
 ALONG_REASON = ("located along one edge: the edges of planes 1-2 and 2-3 lie nearly on one image line, their "
                 "intersection at 12 deg: sd 0.26 px across the edge, 1.79 px along it")
@@ -43,10 +42,6 @@ def blocks(tmp_path_factory):
     return measured_block(tmp_path_factory.mktemp("method"))
 
 
-def _copy(src, tmp_path):
-    dst = tmp_path / "s"
-    shutil.copytree(src, dst)
-    return dst
 
 
 def _state(root):
@@ -94,7 +89,7 @@ def test_decision_rows_write_along_for_a_point_located_along_one_edge():
 
 def test_an_along_row_with_a_rewritten_reason_keeps_its_meaning(blocks, tmp_path):
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     res, _, _ = _feed(root, {"method": "along", "reason": "checked by hand: the corner under the tree"})
     assert res.exit_code == 0, res.output
     pts, lines = _observations(root)
@@ -105,7 +100,7 @@ def test_an_along_row_with_a_rewritten_reason_keeps_its_meaning(blocks, tmp_path
 def test_the_column_decides_over_the_reason(blocks, tmp_path):
     """A ``corner`` row whose reason says "located along one edge": the same fits as its edges, refused."""
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     before = _state(root)
     res, d, ld = _feed(root, {"method": "corner", "reason": ALONG_REASON})
     assert res.exit_code == 2, res.output
@@ -120,7 +115,7 @@ def test_the_column_decides_over_the_reason(blocks, tmp_path):
 @pytest.mark.parametrize("reason, ok", [(ALONG_REASON, True), ("checked by hand", False)], ids=["along", "rewritten"])
 def test_a_file_without_the_column_is_read_by_the_reason(blocks, tmp_path, reason, ok):
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     before = _state(root)
     res, d, _ = _feed(root, {"reason": reason}, [f for f in DECISION_FIELDS if f != "method"])
     assert "method" not in read_rows(d)[0]
@@ -135,7 +130,7 @@ def test_a_file_without_the_column_is_read_by_the_reason(blocks, tmp_path, reaso
 @pytest.mark.parametrize("cell", ["alongside", "2"])
 def test_a_bad_method_is_a_located_error(blocks, tmp_path, cell):
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     before = _state(root)
     res, d, _ = _feed(root, {"method": cell})
     assert res.exit_code == 2, res.output

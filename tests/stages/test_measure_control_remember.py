@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import csv
 import re
-import shutil
 from datetime import datetime
 
 import numpy as np
@@ -27,7 +26,8 @@ from lidarcat.stages.measure_control import (DECISION_FIELDS, LINE_CANDIDATES, L
 from lidarcat.survey.decisions import DECISION_COLUMNS
 from lidarcat.survey.folder import Survey
 
-from control_block import L003_HIP, L003_NO_EDGE, edited_decisions, measured_block, read_rows, write_rows
+from control_block import (L003_HIP, L003_NO_EDGE, copy_survey, edited_decisions, measured_block, read_rows,
+                           write_rows)
 
 
 _rows, _write = read_rows, write_rows
@@ -39,10 +39,6 @@ def blocks(tmp_path_factory):
     return measured_block(tmp_path_factory.mktemp("remember"))
 
 
-def _copy(src, tmp_path):
-    dst = tmp_path / "s"
-    shutil.copytree(src, dst)
-    return dst
 
 
 _edited = edited_decisions
@@ -73,7 +69,7 @@ def _run(root, *args):
 
 def test_a_rejection_fed_back_is_recorded_and_never_measured_again(blocks, tmp_path):
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     assert planned(Survey.load(root)) is None          # L001, L002, L005-L008 have no observation yet
     d, _ = _edited(root, {("L003", "102"): {"decision": "reject"}})
     _run(root, "--decisions", str(d))
@@ -123,7 +119,7 @@ def test_a_rejection_fed_back_is_recorded_and_never_measured_again(blocks, tmp_p
 
 def test_feeding_back_a_later_report_keeps_the_records_and_a_flipped_row_undoes_a_rejection(blocks, tmp_path):
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     d, _ = _edited(root, {("L003", "102"): {"decision": "reject"}})
     _run(root, "--decisions", str(d))
     _run(root)                                   # the later report: every row user_rejected
@@ -154,7 +150,7 @@ def test_a_partial_review_leaves_the_stage_planned_and_the_run_skips_the_rejecte
     """Only L003 on 102 reviewed (rejected): the open vertices keep the stage in ``lidarcat run``'s plan; the
     stage (its table written beside, as the run does) leaves L003 on 102 alone and measures L004 there again."""
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     d, _ = _edited(root, {("L003", "102"): {"decision": "reject"}},
                    keep=lambda r: (r["point"], r["photo"]) == ("L003", "102"))
     _run(root, "--decisions", str(d))
@@ -202,7 +198,7 @@ def test_line_decisions_are_remembered(blocks, tmp_path):
     rejects L004's edge 1-2: a later measurement (even --replace) keeps the accepted edges, never writes the
     rejected one, and says why; deleting a record reopens its pair."""
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     rep = root / "out" / "lines_only"
     measure_control(root, rep, lines="only", replace=True, points=["L003", "L004"], table=rep / "ip.csv",
                     line_table=rep / "lc.csv", gallery=False)
@@ -275,7 +271,7 @@ def test_line_decisions_are_remembered(blocks, tmp_path):
 ], ids=["kind", "photo", "point", "line", "line-id", "decision", "date", "twice"])
 def test_bad_rows_of_control_decisions_are_located(blocks, tmp_path, row, message):
     src, _ = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     from lidarcat.stages._control_tables import add_files_key as _add_files_key
 
     cells = row.split(",")
@@ -290,7 +286,7 @@ def test_bad_rows_of_control_decisions_are_located(blocks, tmp_path, row, messag
 
 def test_a_hand_written_table_loads_and_a_line_of_line_control_may_be_named(blocks, tmp_path):
     src, _ = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     from lidarcat.stages._control_tables import add_files_key as _add_files_key
 
     (root / "control_decisions.csv").write_text("kind,photo,id,decision\nPOINT,101,L001,Reject\nline,102,L003/1-2,"
@@ -308,7 +304,7 @@ def test_records_are_rolled_back_with_the_tables(blocks, tmp_path):
     """A survey that does not load with the new tables (a corrupted 3-D line reaches line_control.csv) gets
     control_decisions.csv and survey.toml back byte for byte: absent and without the key, then present."""
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     out = root / "out" / "measure_control"
     from lidarcat.survey.lines import LINE_COLUMNS, LINE_EXTRA_COLUMNS
 
@@ -341,7 +337,7 @@ def test_an_edge_its_point_carries_is_not_recorded_as_rejected(blocks, tmp_path)
     """The report's ``in_point`` edges (decision ``reject``: not written because the vertex's point carries them)
     are no decision on the edge: feeding the report back records every other row."""
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     _, ld = _edited(root)
     ldec = _rows(ld)
     _run(root, "--line-decisions", str(ld))
@@ -368,7 +364,7 @@ def test_replace_measures_an_accepted_edge_again_instead_of_writing_it_twice(blo
     accepted one of its line and photo (the accepted observations are kept only while their vertex is measured on
     other photos), never one row beside the other."""
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     rep = root / "out" / "lines_only"
     measure_control(root, rep, lines="only", replace=True, points=["L004"], table=rep / "ip.csv",
                     line_table=rep / "lc.csv", gallery=False)
@@ -398,7 +394,7 @@ def test_lines_only_replace_over_a_measured_point_writes_the_edges_instead_of_be
     the pairs are measured again and their edges replace the points -- one photo never gives a vertex's point and
     its edges (a double count of the same corner); a pair whose new measurement writes no edge keeps its row."""
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     assert _lidar_obs(root) == {("102", "L003"), ("102", "L004")}
     _run(root, "--lines", "only", "--replace")
     out = root / "out" / "measure_control"
@@ -415,7 +411,7 @@ def test_a_point_measured_over_its_written_edges_replaces_them(blocks, tmp_path)
     measures the pairs again and writes their points; the edges of those pairs go (no edge is written now, so
     line_control.csv is rewritten for that alone), never one beside the other."""
     _, src = blocks
-    root = _copy(src, tmp_path)
+    root = copy_survey(src, tmp_path)
     _run(root, "--lines", "only", "--replace")
     assert _lidar_obs(root) == set()
     assert {(r["photo"], r["line"].split("/")[0]) for r in _rows(root / "line_control.csv") if r["photo"]} == {
