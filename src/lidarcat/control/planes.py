@@ -102,7 +102,7 @@ import numpy as np
 
 from .._util.frozen import frozen_array
 
-__all__ = ["Plane", "PlaneFit", "fit_plane", "translated"]
+__all__ = ["t_factor", "Plane", "PlaneFit", "fit_plane", "translated"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -462,7 +462,7 @@ def fit_plane(
     sigma0_2 = float(np.sum(w * r * r) / dof) if dof > 0 else math.nan
     # with the variance factor estimated from m - 3 redundancies, the standardised
     # error is t-distributed: its variance is dof / (dof - 2), not 1
-    tcorr = _t_factor(dof)
+    tcorr = t_factor(dof)
     components: tuple = ()
     if posterior_variance and np.isfinite(sigma0_2) and len(cells_m):
         en_abs = x_all[idx, :2] + np.asarray(grid_origin_m, dtype=np.float64).reshape(2)
@@ -478,7 +478,7 @@ def fit_plane(
                     components=components)
 
 
-def _t_factor(dof: int) -> float:
+def t_factor(dof: int) -> float:
     """Variance of a standardised error whose variance was estimated with *dof* redundancies: f / (f - 2).
 
     3 for f <= 4 (the t distribution's variance is infinite at f <= 2; a fixed, generous cap)."""
@@ -558,8 +558,8 @@ def _variance_components(en_abs: np.ndarray, xl: np.ndarray, s2: np.ndarray, w: 
             var[0] = s0_2
     # sigma0^2 Q N Q = sigma0^2 Q (Q the bordered inverse's block); each component times the t factor
     # f / (f - 2) of its own redundancy: m - 3 points, G_k - 3 cells
-    cov = _t_factor(m - 3) * var[0] * qxx
+    cov = t_factor(m - 3) * var[0] * qxx
     for i in range(k):
         fq = qxx @ f_mats[i]
-        cov = cov + _t_factor(keys[i][1] - 3) * var[i + 1] * fq @ fq.T
+        cov = cov + t_factor(keys[i][1] - 3) * var[i + 1] * fq @ fq.T
     return _Components(tuple(float(x) for x in var), 0.5 * (cov + cov.T))

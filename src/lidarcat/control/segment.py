@@ -128,7 +128,7 @@ from typing import Any
 import numpy as np
 
 from .params import ExtractionParams
-from .planes import Plane, PlaneFit, fit_plane
+from .planes import Plane, PlaneFit, fit_plane, t_factor
 from .triangles import delaunay_facets
 
 __all__ = ["group_faces"]
@@ -587,7 +587,7 @@ def _band_offset(xyz: np.ndarray, fit: PlaneFit, interior: np.ndarray, band: np.
     abar = np.append(xb.mean(axis=0), 1.0)
     g = w * (a_i @ (q @ abar))  # mean band residual = mean(eps_B) - g . eps_I
     comps = fit.components if fit.components else (fit.sigma0**2,)
-    var = _t_factor(ni - 3) * comps[0] * (1.0 / (nb * w) + float(g @ g) / w)
+    var = t_factor(ni - 3) * comps[0] * (1.0 / (nb * w) + float(g @ g) / w)
     en = np.vstack([xyz[band][keep, :2], xyz[interior][fit.used, :2]]) + np.asarray(grid_origin_m).reshape(2)
     coef = np.concatenate([np.full(nb, 1.0 / nb), -g])
     for c, tau2 in zip(p.cells_m, comps[1:]):
@@ -596,18 +596,13 @@ def _band_offset(xyz: np.ndarray, fit: PlaneFit, interior: np.ndarray, band: np.
         _, inv = np.unique(np.floor(en / float(c)).astype(np.int64), axis=0, return_inverse=True)
         inv = inv.reshape(-1)
         # each component times the t factor of its redundancy, as in the plane's covariance
-        var += _t_factor(len(np.unique(inv[nb:])) - 3) * tau2 * float(np.sum(np.bincount(inv, weights=coef) ** 2))
+        var += t_factor(len(np.unique(inv[nb:])) - 3) * tau2 * float(np.sum(np.bincount(inv, weights=coef) ** 2))
     return float(r_b.mean()), math.sqrt(max(var, 0.0)), nb
 
 
 #: a band of fewer points is kept whatever its offset: the mean of one or two residuals follows their heavy
 #: tails, not the Gaussian model of the test (module docstring, "Break-line buffer")
 MIN_BAND_POINTS = 3
-
-
-def _t_factor(dof: int) -> float:
-    """f / (f - 2), 3 for f <= 4: the t factor of :mod:`lidarcat.control.planes`' covariance."""
-    return dof / (dof - 2.0) if dof > 4 else 3.0
 
 
 def _tested_buffer(xyz: np.ndarray, faces: list[tuple[Plane, np.ndarray]], buf: float, p: ExtractionParams,

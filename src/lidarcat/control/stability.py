@@ -93,6 +93,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .._util.frozen import frozen_array
+from .planes import t_factor
 
 __all__ = ["VertexInfluence", "influence", "difference_cov", "move_distance", "StabilityResult",
            "check_stability", "stability_limit"]
@@ -132,11 +133,6 @@ class VertexInfluence:
         object.__setattr__(self, "tau_m", frozen_array(self.tau_m))
         object.__setattr__(self, "cov_m2", frozen_array(self.cov_m2, shape=(3, 3)))
         object.__setattr__(self, "cells_m", tuple(float(c) for c in self.cells_m))
-
-
-def _t_factor(dof: int) -> float:
-    """f / (f - 2), 3 for f <= 4: the t factor the plane fit multiplies each variance component by."""
-    return dof / (dof - 2.0) if dof > 4 else 3.0
 
 
 def influence(cp: Any, p: Any) -> VertexInfluence | None:
@@ -190,9 +186,9 @@ def influence(cp: Any, p: Any) -> VertexInfluence | None:
         q = np.linalg.inv(big)[:4, :4]
         keys.append(pts)
         rows.append(np.outer(w * (a @ q[3]), g[:, i]))
-        var_iid.append(np.full(m, _t_factor(m - 3) * comps[0] / w))
+        var_iid.append(np.full(m, t_factor(m - 3) * comps[0] / w))
         # each cell component with the t factor of its own redundancy (cells - 3), as the fit
-        tk = [_t_factor(len(np.unique(np.floor(pts[:, :2] / c).astype(np.int64), axis=0)) - 3) for c in cells]
+        tk = [t_factor(len(np.unique(np.floor(pts[:, :2] / c).astype(np.int64), axis=0)) - 3) for c in cells]
         tau = np.zeros(len(cells))
         if len(comps) > 1:
             tau = np.sqrt(np.asarray(tk) * np.maximum(comps[1:], 0.0))
