@@ -468,6 +468,69 @@ class MeasureParams:
     dark: float = 12.0
     saturation: float = 250.0
 
+    def __post_init__(self) -> None:
+        """Every field checked (one line naming the field, its allowed range and the value given): a bad value
+        would not fail, it would silently change what is measured (a negative ``weak_edge_w`` drops every weak
+        edge, a zero ``local_search_px`` divides by zero, ``dark`` >= ``saturation`` refuses every photo)."""
+        for name, allowed, ok in _PARAM_RULES:
+            value = getattr(self, name)
+            if not ok(self, value):
+                raise ValueError(f"{name} must be {allowed.format(p=self)}, got {value!r}")
+
+
+def _real(v: Any, *, inf: bool = False) -> bool:
+    """A real number (not a bool), finite unless *inf*."""
+    return (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+            and (math.isfinite(v) or (inf and v == math.inf)))
+
+
+def _int(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _in(lo: float, hi: float, *, lo_open: bool = False, hi_open: bool = False, inf: bool = False):
+    """A test of a real number in the interval from *lo* to *hi* (open ends as given)."""
+    return lambda _p, v: (_real(v, inf=inf) and (v > lo if lo_open else v >= lo)
+                          and (v < hi if hi_open else v <= hi))
+
+
+_POS = (_in(0.0, math.inf, lo_open=True), "a finite number > 0")
+_NONNEG = (_in(0.0, math.inf), "a finite number >= 0")
+_ANGLE = (_in(0.0, 90.0, lo_open=True, hi_open=True), "an angle in (0, 90) deg")
+_SD_DEG = (_in(0.0, 90.0, hi_open=True), "an angle in [0, 90) deg")
+#: (field, allowed range as written in the message, test of (params, value)); the cross-field rules test a
+#: field against one checked before it
+_PARAM_RULES: tuple = tuple((name, allowed, ok) for name, (ok, allowed) in (
+    ("search_sigma", _POS),
+    ("max_search_px", (lambda _p, v: _int(v) and v >= 1, "an integer >= 1")),
+    ("local_search_px", (lambda _p, v: _int(v) and v >= 1, "an integer >= 1")),
+    ("band_px", _POS),
+    ("wide_band_px", (lambda p, v: _real(v) and v >= p.band_px, "a finite number >= band_px ({p.band_px:g})")),
+    ("min_points", (lambda _p, v: _int(v) and v >= 3, "an integer >= 3 (a line with one redundancy)")),
+    ("min_contrast", _NONNEG),
+    ("min_ratio", _NONNEG),
+    ("max_scatter_px", _POS),
+    ("smooth_px", _NONNEG),
+    ("min_sd_px", _POS),
+    ("two_line_ratio", _NONNEG),
+    ("line_sd_px", _NONNEG),
+    ("direction_sd_deg", _SD_DEG),
+    ("vertex_sd_px", _NONNEG),
+    ("vertex_texture_px", _NONNEG),
+    ("line_direction_sd_deg", _SD_DEG),
+    ("border", (lambda _p, v: v in ("edges", "fit"), "'edges' or 'fit'")),
+    ("along_min_angle_deg", _ANGLE),
+    ("along_max_sd_px", _NONNEG),
+    ("weak_edge_w", (_in(0.0, math.inf, lo_open=True, inf=True), "a number > 0 (inf: never dropped)")),
+    ("min_angle_deg", _ANGLE),
+    ("max_edge_px", _POS),
+    ("template_m", _POS),
+    ("coarse", (lambda _p, v: v in ("lines", "likelihood"), "'lines' or 'likelihood'")),
+    ("refine_px", _NONNEG),
+    ("dark", _NONNEG),
+    ("saturation", (lambda p, v: _real(v) and v > p.dark, "a finite number > dark ({p.dark:g})")),
+))
+
 
 @dataclass(frozen=True, eq=False)
 class VertexTarget:
