@@ -74,7 +74,7 @@ def test_local_clip_without_a_vertex_keeps_the_search_vertex_and_says_why(bent):
     assert cp.status == "ok"
     np.testing.assert_array_equal(cp.enh_m, whole.enh_m)
     assert cp.reason.startswith("the clip of 0.5 m about the vertex gives too_few_points (")
-    assert cp.reason.endswith("; the vertex of the search clip is kept")
+    assert cp.reason.endswith("; so do the clips of 0.65-0.8 m: the vertex of the search clip is kept")
 
 
 def _cp(e, n, h=10.0, status="ok", reason=""):
@@ -87,7 +87,8 @@ def test_refit_locally_iterates_to_the_fixed_point():
     target = np.array([1.0, 2.0])
     calls = []
 
-    def extract(c):
+    def extract(c, r):
+        assert r == 5.0
         calls.append(np.array(c))
         x = c + 0.5 * (target - c) if len(calls) < 3 else target  # the third clip is centred near enough
         return _cp(*x)
@@ -100,10 +101,28 @@ def test_refit_locally_iterates_to_the_fixed_point():
 
 
 def test_refit_locally_refuses_another_corner():
-    got = refit_locally(_cp(0.0, 0.0), 5.0, lambda c: _cp(2.0, 0.0), apart_m=0.5)
+    radii = []
+
+    def extract(c, r):
+        radii.append(r)
+        return _cp(2.0, 0.0)
+
+    got = refit_locally(_cp(0.0, 0.0), 5.0, extract, apart_m=0.5)
     np.testing.assert_array_equal(got.enh_m, [0.0, 0.0, 10.0])
+    assert radii == [5.0, 6.5, 8.0]  # LADDER: each clip centred on the vertex, none finds it
     assert got.reason == ("the clip of 5 m about the vertex finds another corner 2.00 m away; "
-                          "the vertex of the search clip is kept")
+                          "so do the clips of 6.5-8 m: the vertex of the search clip is kept")
+
+
+def test_refit_locally_climbs_the_ladder_to_the_first_clip_that_finds_the_corner():
+    def extract(c, r):
+        if r == 5.0:
+            return _cp(0.0, 0.0, status="no_vertex", reason="x")
+        return _cp(0.01, 0.0, 9.0)  # the same corner, 1 cm away
+
+    got = refit_locally(_cp(0.0, 0.0), 5.0, extract, apart_m=0.5)
+    np.testing.assert_array_equal(got.enh_m, [0.01, 0.0, 9.0])
+    assert got.status == "ok" and got.reason == ""
 
 
 def test_fit_radius_parameter_and_presets():

@@ -636,15 +636,14 @@ def _local_vertex(cp: ControlPoint, given: np.ndarray, p: ExtractionParams, poin
 
     The local clips are cut from the points given (all of them: a local clip may reach beyond the search
     clip when the vertex lies off its centre)."""
-    r = float(p.fit_radius_m)
-    q = p.replace(radius_m=r, max_offset_m=None, stability_scales=())
+    q = p.replace(max_offset_m=None, stability_scales=())
     pts = given[np.all(np.isfinite(given), axis=1)]
 
-    def extract(centre: np.ndarray) -> ControlPoint:
+    def extract(centre: np.ndarray, r: float) -> ControlPoint:
         sub = pts[np.sum((pts[:, :2] - centre) ** 2, axis=1) <= r * r]
-        return _extract_clip(sub, centre, q, point_id, [])
+        return _extract_clip(sub, centre, q.replace(radius_m=r), point_id, [])
 
-    return refit_locally(cp, r, extract, _apart_m(cp))
+    return refit_locally(cp, float(p.fit_radius_m), extract, _apart_m(cp))
 
 
 def _check_stability(cp: ControlPoint, given: np.ndarray, center: np.ndarray, p: ExtractionParams,
