@@ -811,8 +811,11 @@ def search_points(cloud: Any, box: Any, p: ExtractionParams, classes: Any) -> tu
     if box is None:
         box = (*xyz[:, :2].min(axis=0), *xyz[:, :2].max(axis=0))
     xmin, ymin, xmax, ymax = (float(v) for v in box)
-    inbox = (xyz[:, 0] >= xmin - p.radius_m) & (xyz[:, 0] <= xmax + p.radius_m) & \
-            (xyz[:, 1] >= ymin - p.radius_m) & (xyz[:, 1] <= ymax + p.radius_m)
+    # every clip of a candidate: its seed's ``radius_m`` and the radius-stability check's clips about its
+    # vertex (search_margin_m of a block of no width); a cloud that holds them gives whole clips at the box's edge
+    pad = search_margin_m(p, 0.0)
+    inbox = (xyz[:, 0] >= xmin - pad) & (xyz[:, 0] <= xmax + pad) & \
+            (xyz[:, 1] >= ymin - pad) & (xyz[:, 1] <= ymax + pad)
     xyz = xyz[inbox]
     return (xyz if len(xyz) else None), (xmin, ymin, xmax, ymax)
 
@@ -827,10 +830,17 @@ def search_margin_m(p: ExtractionParams, cell_m: float) -> float:
     """Points a block of cells needs beyond its own area (m).
 
     A cell is segmented in a square of half-side ``max(w, h)/2 + 2`` about its
-    centre (at most ``cell_m/2 + 2`` beyond an edge), and each seed is refined
-    with the points within ``radius_m`` of it.
+    centre (at most ``cell_m/2 + 2`` beyond an edge); each seed is refined
+    with the points within ``radius_m`` of it, and the vertex found is checked
+    (``p.stability_scales``, :mod:`lidarcat.control.stability`) with clips of up
+    to ``max(stability_scales) x radius_m`` about it, the vertex within 1 m of
+    its seed (a farther one is dropped, whatever its check).  So the reach is
+    ``radius_m x max(1, stability_scales) + 1``: 13 m at the defaults (8 m,
+    1.5), and the margin ``max(cell_m/2 + 2, reach) + 1`` (14 m; 13 m without
+    the check).
     """
-    return max(cell_m / 2.0 + 2.0, float(p.radius_m)) + 1.0
+    reach = float(p.radius_m) * max((1.0, *p.stability_scales)) + 1.0
+    return max(cell_m / 2.0 + 2.0, reach) + 1.0
 
 
 def search_cells(xyz: np.ndarray, box: Any, cells: Sequence[tuple[int, int]], p: ExtractionParams,
