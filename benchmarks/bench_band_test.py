@@ -21,9 +21,10 @@ clip, and segmented with the default parameters (:func:`lidarcat.control.facets.
 
 Printed per source: clips, band tests (3+ points), the sd of ``z`` with its 95 % interval (chi2), the bands
 that fire with the Clopper-Pearson 95 % interval of the rate, the clips that pool with theirs, and the mean of
-``q / K`` (1 when the bands are independent and the sds honest).  With ``--truth`` the lgable clips also
-count the bands holding points of another TRUE plane (points of the neighbouring face assigned to this one),
-separately for the bands that fire and those that do not.
+``q / K`` (1 when the bands are independent and the sds honest).  With ``--truth`` the synthetic roofs also
+split their bands into those holding points of another TRUE plane (points of the neighbouring face assigned
+to this one; the roof's noise-free twin gives each point's true face) and the others: the mean and sd of their
+z and how many fire.
 """
 
 from __future__ import annotations
@@ -89,12 +90,13 @@ def town_clips(seed: int, size: tuple[float, float]):
             yield np.column_stack([e, nn, z + rng.normal(0, 0.03, m)]), np.asarray(v), {"kind": b.kind}
 
 
-def foreign_bands(xyz: np.ndarray, v: np.ndarray, meta: dict, p) -> tuple[int, int, int, int]:
-    """lgable only: (fired, fired with foreign points, kept, kept with foreign points), by the true planes."""
+def foreign_bands(xyz: np.ndarray, v: np.ndarray, meta: dict, p) -> tuple[list, list]:
+    """z of the bands (3+ points) holding points of another TRUE plane, and of the others (the noise-free
+    twin of the roof gives each point's true position, hence its true face)."""
     import lidarcat.control.segment as seg
     from lidarcat.synthetic.roofs import synthetic_roof
 
-    s0 = synthetic_roof("lgable", seed=meta["seed"], noise_h_m=0.0, noise_plan_m=0.0, density_m2=meta["density"],
+    s0 = synthetic_roof(meta["kind"], seed=meta["seed"], noise_h_m=0.0, noise_plan_m=0.0, density_m2=meta["density"],
                         azimuth_deg=meta["az"], slope_deg=meta["slope"], width_m=meta["W"], length_m=meta["L"])
     sel = np.sum((xyz[:, :2] - v[:2]) ** 2, axis=1) <= p.radius_m**2
     sub, x0 = xyz[sel], s0.xyz[sel]  # the same scan: the noise-free twin's points, one for one
@@ -103,11 +105,14 @@ def foreign_bands(xyz: np.ndarray, v: np.ndarray, meta: dict, p) -> tuple[int, i
     ca, sa = math.cos(math.radians(meta["az"])), math.sin(math.radians(meta["az"]))
     dx, dy = x0[:, 0] - 677000.0, x0[:, 1] - 7183000.0
     u, w = ca * dx + sa * dy, -sa * dx + ca * dy
-    W = meta["W"]
-    in_a = (np.abs(w) <= W / 2) & (u >= -W / 2)
-    in_b = (np.abs(u) <= W / 2) & (w >= -W / 2)
-    use_a = in_a & (~in_b | (W / 2 - np.abs(w) >= W / 2 - np.abs(u)))
-    true_plane = np.where(use_a, np.where(w > 0, 0, 1), np.where(u > 0, 2, 3))
+    W, L = meta["W"], (meta["W"] if meta["kind"] == "pyramid" else meta["L"])
+    if meta["kind"] == "lgable":  # max of two gables (roof_height)
+        in_a = (np.abs(w) <= W / 2) & (u >= -W / 2)
+        in_b = (np.abs(u) <= W / 2) & (w >= -W / 2)
+        use_a = in_a & (~in_b | (W / 2 - np.abs(w) >= W / 2 - np.abs(u)))
+        true_plane = np.where(use_a, np.where(w > 0, 0, 1), np.where(u > 0, 2, 3))
+    else:  # hip, pyramid: the least of the four faces' heights
+        true_plane = np.argmin(np.column_stack([W / 2 - w, W / 2 + w, L / 2 - u, L / 2 + u]), axis=1)
     seen: list = []
     orig = seg._band_offset
 
@@ -121,17 +126,13 @@ def foreign_bands(xyz: np.ndarray, v: np.ndarray, meta: dict, p) -> tuple[int, i
         segment_faces(sub, p)
     finally:
         seg._band_offset = orig
-    out = [0, 0, 0, 0]
-    z_crit = 3.2905
+    foreign, clean = [], []
     for interior, band, (off, sd, n) in seen:
         if n < 3 or not sd > 0:
             continue
         own = np.bincount(true_plane[interior]).argmax()
-        foreign = bool(np.any(true_plane[band] != own))
-        k = 0 if abs(off / sd) > z_crit else 2
-        out[k] += 1
-        out[k + 1] += foreign
-    return tuple(out)
+        (foreign if np.any(true_plane[band] != own) else clean).append(off / sd)
+    return foreign, clean
 
 
 def clopper_pearson(k: int, n: int, conf: float = 0.95) -> tuple[float, float]:
@@ -171,7 +172,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--densities", nargs="*", type=float, default=[4.0, 10.0])
     ap.add_argument("--towns", nargs="*", type=int, default=[1, 2, 3], help="town seeds (none: no town)")
     ap.add_argument("--town-size", nargs=2, type=float, default=(500.0, 400.0))
-    ap.add_argument("--truth", action="store_true", help="lgable: bands holding points of another true plane")
+    ap.add_argument("--truth", action="store_true", help="split the bands by points of another true plane")
     a = ap.parse_args(argv)
     p = get_params()
     head = (f"{'source':<22} {'clips':>6} {'bands':>6} {'sd(z)':>6} {'95 % interval':>14} {'mean':>6} {'fired':>5}"
@@ -180,20 +181,27 @@ def main(argv: list[str] | None = None) -> None:
     t0 = time.time()
     for kind in a.kinds:
         for dens in a.densities:
-            recs, pools, fo = [], [], np.zeros(4, int)
+            recs, pools, fo, cl = [], [], [], []
             for xyz, v, meta in roof_clips(kind, a.roofs, dens):
                 r, q = clip_records(xyz, v, p)
                 recs += r
                 pools.append(q)
-                if a.truth and kind == "lgable":
-                    fo += np.array(foreign_bands(xyz, v, meta, p))
+                if a.truth:
+                    f, c = foreign_bands(xyz, v, meta, p)
+                    fo += f
+                    cl += c
             name = f"{kind} {dens:g}/m2"
             rows.append(summarise(name, recs, pools, p.edge_buffer_level))
             all_r.setdefault(kind, []).extend(recs)
             all_p.setdefault(kind, []).extend(pools)
-            if a.truth and kind == "lgable":
-                rows.append(f"  {name}: fired {fo[0]} (with points of another true plane {fo[1]}), "
-                            f"kept {fo[2]} ({fo[3]})")
+            if a.truth:
+                fo, cl = np.array(fo), np.array(cl)
+                fire = lambda z: int(np.sum(np.abs(z) > 3.2905))  # noqa: E731
+                rows.append(f"  {name}: bands with points of another true plane {len(fo)}: mean z "
+                            f"{np.mean(fo) if len(fo) else np.nan:.2f}, sd {np.std(fo) if len(fo) else np.nan:.2f}, "
+                            f"fire {fire(fo)}; only their own: {len(cl)}, mean z "
+                            f"{np.mean(cl) if len(cl) else np.nan:.2f}, sd {np.std(cl) if len(cl) else np.nan:.2f}, "
+                            f"fire {fire(cl)}")
             print(rows[-1], f"({time.time() - t0:.0f} s)", flush=True, file=sys.stderr)
     if a.towns:
         recs, pools = [], []
