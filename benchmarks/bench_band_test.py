@@ -160,7 +160,8 @@ def summarise(name: str, recs: list[dict], pools: list[dict], level: float) -> s
     npool = sum(int(q["pooled"]) for q in pk)
     plo, phi = clopper_pearson(npool, len(pk)) if pk else (math.nan, math.nan)
     qk = sum(q["q"] for q in pk) / max(1.0, sum(q["k"] for q in pk))
-    return (f"{name:<22} {len(pools):6d} {nz:6d} {sd:6.3f} [{sd_lo:5.3f}, {sd_hi:5.3f}] {float(np.mean(z)) if nz else math.nan:6.3f}"
+    mean = float(np.mean(z)) if nz else math.nan
+    return (f"{name:<22} {len(pools):6d} {nz:6d} {sd:6.3f} [{sd_lo:5.3f}, {sd_hi:5.3f}] {mean:6.3f}"
             f" {fired:5d} {100 * fired / max(nz, 1):6.2f} [{100 * lo:5.2f}, {100 * hi:5.2f}]"
             f" {npool:5d} {100 * npool / max(len(pk), 1):6.2f} [{100 * plo:5.2f}, {100 * phi:5.2f}] {qk:6.3f}")
 

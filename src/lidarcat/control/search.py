@@ -2,18 +2,16 @@
 
 The serial search cuts the area into cells of ``cell_m`` and, for each cell,
 segments its points plus a 2 m rim, keeps the vertices of 3+ faces inside the
-cell as seeds and refines each seed with the points within ``radius_m``.  A
-cell therefore needs only the points within
+cell as seeds, refines each seed with the points within ``radius_m`` and checks
+the vertex found (the radius-stability check, ``stability_scales``: clips of up to
+1.5 x ``radius_m`` about a vertex that lies within 1 m of its seed).  A cell
+therefore needs only the points within
 
-    margin = max(cell_m / 2 + 2, radius_m) + 1   (m)
+    margin = max(cell_m / 2 + 2, radius_m x max(1, stability_scales) + 1) + 1   (m)
 
-of it (:func:`~lidarcat.control.vertices.search_margin_m`; the ``cell_m/2`` covers the
-square window of a narrower edge cell), and with the radius-stability check (``stability_scales``)
-
-    margin = max(cell_m / 2 + 2, radius_m x max(1, stability_scales) + 1) + 1   (14 m at the defaults)
-
-since the check cuts clips of up to 1.5 x ``radius_m`` about a vertex that lies within 1 m of its seed.  Here the cell grid, anchored at the
-area's lower-left corner exactly as in the serial run, is split into blocks of
+of it (:func:`~lidarcat.control.vertices.search_margin_m`; 14 m at the defaults, 13 m
+without the check; the ``cell_m/2`` covers the square window of a narrower edge cell).
+Here the cell grid, anchored at the area's lower-left corner exactly as in the serial run, is split into blocks of
 ``block_cells x block_cells`` cells; each block is one
 :class:`~lidarcat.lidar.jobs.TileJob` running :func:`search_block`, that reads from the
 tiles only the points of its block plus the margin (beyond the area too: a
