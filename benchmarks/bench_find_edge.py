@@ -11,7 +11,8 @@ serial run reads the area plus :func:`lidarcat.control.vertices.search_margin_m`
 On the synthetic town of benchmarks/bench_measured_control.py (:func:`lidarcat.synthetic.aerial.aerial_scene`,
 10 points per m2, 3 cm height noise), a search area about its middle whose edges lie ``--inset`` m outside its
 outermost roof vertices (the bounding box of the vertices within ``--size`` of the middle): ``find_candidates``
-with the area's points alone (before) and with the area plus the margin (now), timed alternately.  Printed:
+with the area's points alone (before) and with the area plus the margin (now), timed alternately.  With
+``PYTHONPATH`` of the code before this change, its "area only" row is the old ``--find --box`` run.  Printed:
 time, points read, candidates, how many of them differ (position or status), and, per true roof vertex
 within 12 m of the area's edge, the candidate found before / now.
 """
@@ -27,7 +28,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from lidarcat.control.search import search_area  # noqa: E402
 from lidarcat.control.vertices import find_candidates  # noqa: E402
 from lidarcat.synthetic.aerial import aerial_scene  # noqa: E402
 
@@ -50,6 +50,11 @@ def main(argv: list[str] | None = None) -> None:
     lo, hi = true[sel, :2].min(axis=0) - a.inset, true[sel, :2].max(axis=0) + a.inset
     area = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
     w, h = area[2] - area[0], area[3] - area[1]
+    try:
+        from lidarcat.control.search import search_area
+    except ImportError:  # the code before (PYTHONPATH of an older tree): its "area only" time
+        def search_area(area):
+            return (area[0] - 14.0, area[1] - 14.0, area[2] + 14.0, area[3] + 14.0)
     big = search_area(area)
     rng = np.random.default_rng(a.seed)
     m = int(rng.poisson(10.0 * (big[2] - big[0]) * (big[3] - big[1])))

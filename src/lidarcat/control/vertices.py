@@ -880,8 +880,13 @@ def search_cells(xyz: np.ndarray, box: Any, cells: Sequence[tuple[int, int]], p:
         if progress is not None:
             progress(1)
     found = []
+    # every clip of a kept candidate (its seed's, the retries', the check's about a vertex within 1 m of
+    # the seed) lies within the margin of no width of its seed: those points, in their order, give the
+    # same clips as the whole cloud, without scanning it for each clip
+    reach = search_margin_m(p, 0.0)
     for tag, v in seeds:
-        cp = extract_roof(xyz, v[:2], params=p, point_id="C{:d}_{:d}_{:d}".format(*tag))
+        near = xyz[tree.query_ball_point(v[:2], r=reach, return_sorted=True)]
+        cp = extract_roof(near, v[:2], params=p, point_id="C{:d}_{:d}_{:d}".format(*tag))
         if not cp:
             continue
         if np.hypot(*(cp.enh_m[:2] - v[:2])) > 1.0:
