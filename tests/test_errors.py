@@ -281,6 +281,7 @@ ALLOWED: dict[tuple[str, str, str, str], str] = {
     ("photocontrol/measure.py", "Measurement.__post_init__", "ValueError", "unknown status {}"): _INTERNAL,
     ("photocontrol/measure.py", "_scores", "ValueError", "coarse must be 'lines' or 'likelihood', "): _ENUM,
     ("photocontrol/measure.py", "_setup", "ValueError", "border must be 'edges' or 'fit', got {}"): _ENUM,
+    ("photocontrol/measure.py", "MeasureParams.__post_init__", "ValueError", "{} must be {}, got {}"): _PARAMS,
     ("control/vertices.py", "_as_xyz", "ValueError", "points must be an (N, 3) array or a Poin"):
         "shape check; extract_roof turns it into status 'bad_input'",
     ("control/vertices.py", "extract_roof", "ValueError", "center_en must be (E, N) in metres, got "): _SHAPE,

@@ -86,10 +86,12 @@ def test_a_weak_edge_planted_across_is_dropped_and_the_point_is_the_strong_pair_
     assert abs(w) > MeasureParams().weak_edge_w
 
 
-@pytest.mark.parametrize("off_px, seed", [(1.6, 1), (1.2, 2), (1.2, 3)])
+@pytest.mark.parametrize("off_px, seed", [(1.2, 2), (1.2, 3)])
 def test_without_the_weak_edge_test_the_planted_edge_biases_or_loses_the_point(off_px, seed):
     # the same photos with the test off (the chi2(1) check of the three lines only): the planted edge is
-    # kept and pulls the point more than 3 sd off, or the check drops a strong edge and the vertex is lost
+    # kept and pulls the point more than 3 sd off, or the check drops a strong edge and the vertex is lost.
+    # (1.6 px, seed 1), the lost case, moved to test_measure_three_lines.py: since step 3c the check drops
+    # the weakest of the three lines, the planted edge, and the vertex is measured from the strong pair
     first, _ = _measure(off_px, seed, replace(MeasureParams(), weak_edge_w=math.inf))
     assert "off the point of the strong edges" not in first.reason
     if first:

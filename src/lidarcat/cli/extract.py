@@ -71,6 +71,14 @@ def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bo
               help="Extract one roof at this approximate position (m).")
 @click.option("--radius", type=float, default=None,
               help="Clip radius (m) for --at, --find and CSV jobs without radius_m; default from the preset (8 m; thesis 5 m).")
+@click.option("--fit-radius", "fit_radius", type=float, default=None, metavar="M",
+              help="Refit the vertex's faces from their points within M metres (plan) of it, so that the "
+                   "vertex is the corner's and not the clip's mean (default 4 m; 0: the clip's whole faces, "
+                   "as the thesis preset).")
+@click.option("--stability-check/--no-stability-check", "stability_check", default=None,
+              help="Refuse (status unstable) a vertex that moves when extracted again from clips of "
+                   "0.5-1.5 x the radius by more than its covariance explains (default on; thesis preset "
+                   "off). Off: --find runs about 4x faster.")
 @click.option("--find", is_flag=True, help="Search the tiles (or --box) for every roof vertex of 3+ planes.")
 @click.option("--box", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
               help="Area for --find (m); default: all the tiles.")
@@ -96,13 +104,13 @@ def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bo
               help="--find with --workers/--scheduler: keep each block's result and done-marker here, so a "
                    "rerun skips finished blocks (with --scheduler, a folder every worker sees). "
                    "Default: a temporary folder.")
-def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, planes_out, figures,
+def extract(args, lidar, crs, at, radius, fit_radius, stability_check, find, box, classes, preset, output, planes_out, figures,
             spec_sd, index_cache, as_json, workers, scheduler, work_dir) -> None:
     """Roof planes to control points (Delaunay facets + plane intersection).
 
     Exit status 1 when no roof gave a control point (see below).
     """
-    from ..control.params import get_params
+    from ..stages.extract import extraction_params
 
     jobs, tiles = _split_arguments(args, lidar, job_mode=at is None and not find)
     lidar = tuple(tiles)
@@ -112,7 +120,10 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
     if box is not None and not (box[0] < box[2] and box[1] < box[3]):
         raise click.BadParameter(f"{' '.join(f'{v:g}' for v in box)}: need XMIN < XMAX and YMIN < YMAX",
                                  param_hint="--box")
-    params = get_params(preset, radius_m=radius)
+    if fit_radius is not None and not fit_radius >= 0:
+        raise click.BadParameter(f"must be positive (m), or 0 for whole faces, got {fit_radius:g}",
+                                 param_hint="--fit-radius")
+    params = extraction_params(preset, radius, fit_radius, stability_check)
     modes = sum([jobs is not None, at is not None, bool(find)])
     if modes != 1:
         raise click.UsageError("give exactly one of: a JOBS file, --at E N, or --find")
@@ -134,7 +145,8 @@ def extract(args, lidar, crs, at, radius, find, box, classes, preset, output, pl
     job_list = [Job("P1", at[0], at[1])] if at is not None else read_jobs(jobs)
     with progress_bar(len(job_list), "Extracting roofs") as bar:
         points = extract_action(jobs if at is None else job_list, lidar=lidar or None, crs=crs, preset=preset,
-                                radius_m=radius, spec_sd=tuple(spec_sd) if spec_sd else None,
+                                radius_m=radius, fit_radius_m=fit_radius, stability_check=stability_check,
+                                spec_sd=tuple(spec_sd) if spec_sd else None,
                                 index_cache=index_cache, control_csv=output, planes_csv=planes_out,
                                 figures=figures, progress=bar.update if bar is not None else None)
     if as_json:

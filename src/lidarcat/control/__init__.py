@@ -7,6 +7,7 @@
 ``segment``   Grouping the points into faces: thesis, RANSAC, region growing.
 ``planes``    :class:`Plane` and its Gauss-Helmert fit with rejection (eq. 33-37).
 ``vertices``  Control points from roof planes: intersection (eq. 38-41) with covariance.
+``localfit``  The vertex from the roof near it: extracted again from a fixed clip centred on it (``fit_radius_m``).
 ``stability`` Radius stability of a roof vertex: the same corner from nested clips, and the test of how far it moved.
 ``batch``     Batch roof extraction: job files, tiles, output tables, operator figures.
 ``search``    Tile-parallel roof-vertex search: :func:`~lidarcat.control.vertices.find_candidates` over blocks of cells.

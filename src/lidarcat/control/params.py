@@ -118,6 +118,10 @@ class ExtractionParams:
     #: significant at ``stability_level`` (Mahalanobis distance with the covariance of the difference
     #: of the two clips' vertices, chi2 with 3 degrees of freedom); () = no check
     stability_scales: tuple = (0.5, 0.75, 1.25, 1.5)
+    #: local extraction (:mod:`lidarcat.control.localfit`): the vertex found in the clip of ``radius_m`` is
+    #: extracted again from the clip of this radius (m) centred on it, to a fixed point, so that it is the
+    #: corner's and does not depend on the search clip; None = the search clip's vertex (the thesis)
+    fit_radius_m: float | None = 5.0
     stability_level: float = 0.999
 
     def __post_init__(self) -> None:
@@ -154,6 +158,8 @@ class ExtractionParams:
                              f"got {self.stability_scales!r}")
         if not 0 < self.stability_level < 1:
             raise ValueError(f"stability_level must be in (0, 1), got {self.stability_level}")
+        if self.fit_radius_m is not None and not self.fit_radius_m > 0:
+            raise ValueError(f"fit_radius_m must be positive (m) or None, got {self.fit_radius_m}")
         if self.ambiguity_m < 0:
             raise ValueError(f"ambiguity_m must be >= 0, got {self.ambiguity_m}")
         if self.max_offset_m is not None and self.max_offset_m <= 0:
@@ -172,7 +178,7 @@ PRESETS: dict[str, ExtractionParams] = {
         residual_kind="vertical", sd_en_m=0.50, sd_h_m=0.15, min_points=6, max_planes=4,
         aspect_tol_deg=35.0, max_sd_m=2.0,
         # the thesis's method as published: one clip, no radius-stability check
-        stability_scales=(),
+        stability_scales=(), fit_radius_m=None,
     ),
 }
 

@@ -54,6 +54,11 @@ clip's few noisy points is no rival of a precise corner) give the status
 ``ambiguous`` with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
 reason, and :attr:`ControlPoint.offset_m` is written with every point.
 
+**Local extraction.**  The vertex chosen is then extracted again from the clip of ``fit_radius_m``
+(5 m) centred on it, to a fixed point (:mod:`lidarcat.control.localfit`): the search clip's radius
+decides which corner, the roof within 5 m of the corner decides where.  Off (``None``) in the
+thesis preset.
+
 **Radius stability.**  An ``ok`` vertex is then extracted again from clips of
 ``stability_scales x radius_m`` centred on it (4, 6, 10, 12 m at the default)
 and refused as ``unstable`` when it moves by more than its sd and by more than
@@ -73,6 +78,7 @@ import numpy as np
 
 from .._util.frozen import frozen_array
 from .facets import segment_faces
+from .localfit import refit_locally
 from .params import ExtractionParams, get_params
 from .planes import Plane
 from .stability import check_stability
@@ -556,6 +562,8 @@ def extract_roof(
     Returns
     -------
     ControlPoint
+        The vertex of the clip of ``params.fit_radius_m`` centred on the corner found (when not None:
+        :mod:`lidarcat.control.localfit`; its clips are cut from *points*, so pass more than the clip).
         Truthy when a vertex of 3+ planes was found (and passed the radius-stability check,
         ``params.stability_scales``; its clips need the points within ``max(stability_scales) x
         radius_m`` of the vertex, so pass more than the clip, or *clipped* to skip the larger ones);
@@ -614,10 +622,29 @@ def extract_roof(
     if best is None:
         return first
     off, cp = best
+    if p.fit_radius_m is not None:
+        cp = _local_vertex(cp, given, p, point_id)
+        off = float(np.hypot(*(cp.enh_m[:2] - center)))
     cp = _check_choice(cp, off, center, others, p)
     if cp.status == "ok" and p.stability_scales:
         cp = _check_stability(cp, given, center, p, point_id, clipped)
     return cp
+
+
+def _local_vertex(cp: ControlPoint, given: np.ndarray, p: ExtractionParams, point_id: str) -> ControlPoint:
+    """*cp* extracted again from the clip of ``fit_radius_m`` centred on it (:mod:`lidarcat.control.localfit`).
+
+    The local clips are cut from the points given (all of them: a local clip may reach beyond the search
+    clip when the vertex lies off its centre)."""
+    r = float(p.fit_radius_m)
+    q = p.replace(radius_m=r, max_offset_m=None, stability_scales=())
+    pts = given[np.all(np.isfinite(given), axis=1)]
+
+    def extract(centre: np.ndarray) -> ControlPoint:
+        sub = pts[np.sum((pts[:, :2] - centre) ** 2, axis=1) <= r * r]
+        return _extract_clip(sub, centre, q, point_id, [])
+
+    return refit_locally(cp, r, extract, _apart_m(cp))
 
 
 def _check_stability(cp: ControlPoint, given: np.ndarray, center: np.ndarray, p: ExtractionParams,

@@ -71,7 +71,7 @@ covariance :math:`(\sum w_i m_i m_i^T)^{-1}` (two lines: their intersection).
 Of two edges found on one image line (less than ``min_angle_deg`` apart) the one
 turned farther from its predicted direction goes; with three or more lines, while
 :math:`\chi^2 = \sum w_i (m_i^T x - c_i)^2` exceeds the 99.9 % point of
-:math:`\chi^2_{n-2}`, the line farthest from the others' point goes.  Two lines
+:math:`\chi^2_{n-2}`, one line goes: the one with the largest w, the weakest of three (step 3c).  Two lines
 alone have no check: both must be ``two_line_ratio`` times stronger than the
 texture.
 
@@ -98,6 +98,32 @@ by itself (two strong lines are accepted unchecked), the weak edge only refines 
 right weak edge costs its share of the precision (in 5 % of the cases), keeping a wrong one biases
 the point by most of its offset with nothing downstream to see it; so the weak edge must agree at
 the 95 % level.  Then the chi2 check runs on the lines left.
+
+**3c. Which line goes when the lines do not meet.**  Line *i*'s offset from the point
+:math:`x_{-i}` of the others, :math:`r_i = m_i^T x_{-i} - c_i`, has the variance
+:math:`m_i^T N_{-i}^{-1} m_i + w_i^{-1}` (exact: line *i* is independent of the others), so
+:math:`\omega_i = r_i / \sqrt{m_i^T N_{-i}^{-1} m_i + w_i^{-1}}` is the w-test of "line *i* alone is off"
+(as in 3b).  With two or more redundancies (four lines or more) the line of the largest
+:math:`|\omega_i|` is the likeliest single gross error, and it goes.  With one redundancy (three lines)
+the lines' misclosure is one number, :math:`t = k^T c` (:math:`k` the left null vector of the normals,
+:math:`k^T M = 0`); at :math:`x_{-i}` the other two lines' residuals vanish, so
+:math:`k_i r_i = -t`: every :math:`|\omega_i|` equals :math:`\sqrt{\chi^2}` (but for the offset
+variances' slight dependence on the point) and the raw offsets are
+:math:`r_i = -t/k_i`.  The data cannot tell which line is off.  The largest raw offset (the rule
+before) picks the smallest :math:`|k_i|`, a property of the three edge directions only: the same line
+whichever one is off. On the symmetric 120 deg vertex all :math:`|k_i|` are equal and the noise picks.
+So the choice must come from outside the misclosure, i.e. from the posterior odds of "line *i* is the
+one", :math:`\pi_i\,p(t \mid i)`, where with one redundancy the likelihood carries only the geometry.
+What differs between the lines is their prior reliability, the edge's strength :math:`\rho_i` (its
+gradient over the texture's). A wrong lock (a texture streak, a parallel gutter or shadow line, a
+stretch of texture displacing the gradient peaks) is the likelier the weaker the edge is against its
+surroundings; this is the prior that 3b tests at 95 % and that step 3's :math:`(k/\rho_i)^2` models for
+the random part.  So the weakest of three goes (reason: "... does not meet the other edges at one point
+(1.7 px off, w -4.5; the weakest of three, gradient 4.5 x the texture's)").  The LiDAR prediction does
+not tell the three candidate points apart: after the photo's common shift its sd is about
+``local_search_px`` (8 px), while the three two-line points lie 1-3 px apart, a difference in squared
+Mahalanobis distance below 0.1.  When the three edges are about equally strong, the choice is as
+blind as before (docs/photocontrol.md, "Which line goes").
 
 **3a. Along one edge.**  When the edges found lie on one image line (the crossing edges too weak
 against the texture or scattered: faces of nearly the same grey across them) the rule above keeps
@@ -180,7 +206,7 @@ from ..errors import LidarcatError
 from ..geometry.camera import Camera
 from ._along import intersect_lines, locate_along
 from ._edge_fit import fit_edge
-from ._weak_edge import weak_edge_tests
+from ._weak_edge import weak_edge_tests, worst_line
 from .predict import Prediction, face_labels, pixel_jacobians, pixel_positions, roof_edges
 
 __all__ = ["Measurement", "MeasureParams", "VertexTarget", "STATUSES", "EdgeLine", "measure_photo", "measure_vertex",
@@ -468,6 +494,69 @@ class MeasureParams:
     dark: float = 12.0
     saturation: float = 250.0
 
+    def __post_init__(self) -> None:
+        """Every field checked (one line naming the field, its allowed range and the value given): a bad value
+        would not fail, it would silently change what is measured (a negative ``weak_edge_w`` drops every weak
+        edge, a zero ``local_search_px`` divides by zero, ``dark`` >= ``saturation`` refuses every photo)."""
+        for name, allowed, ok in _PARAM_RULES:
+            value = getattr(self, name)
+            if not ok(self, value):
+                raise ValueError(f"{name} must be {allowed.format(p=self)}, got {value!r}")
+
+
+def _real(v: Any, *, inf: bool = False) -> bool:
+    """A real number (not a bool), finite unless *inf*."""
+    return (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+            and (math.isfinite(v) or (inf and v == math.inf)))
+
+
+def _int(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _in(lo: float, hi: float, *, lo_open: bool = False, hi_open: bool = False, inf: bool = False):
+    """A test of a real number in the interval from *lo* to *hi* (open ends as given)."""
+    return lambda _p, v: (_real(v, inf=inf) and (v > lo if lo_open else v >= lo)
+                          and (v < hi if hi_open else v <= hi))
+
+
+_POS = (_in(0.0, math.inf, lo_open=True), "a finite number > 0")
+_NONNEG = (_in(0.0, math.inf), "a finite number >= 0")
+_ANGLE = (_in(0.0, 90.0, lo_open=True, hi_open=True), "an angle in (0, 90) deg")
+_SD_DEG = (_in(0.0, 90.0, hi_open=True), "an angle in [0, 90) deg")
+#: (field, allowed range as written in the message, test of (params, value)); the cross-field rules test a
+#: field against one checked before it
+_PARAM_RULES: tuple = tuple((name, allowed, ok) for name, (ok, allowed) in (
+    ("search_sigma", _POS),
+    ("max_search_px", (lambda _p, v: _int(v) and v >= 1, "an integer >= 1")),
+    ("local_search_px", (lambda _p, v: _int(v) and v >= 1, "an integer >= 1")),
+    ("band_px", _POS),
+    ("wide_band_px", (lambda p, v: _real(v) and v >= p.band_px, "a finite number >= band_px ({p.band_px:g})")),
+    ("min_points", (lambda _p, v: _int(v) and v >= 3, "an integer >= 3 (a line with one redundancy)")),
+    ("min_contrast", _NONNEG),
+    ("min_ratio", _NONNEG),
+    ("max_scatter_px", _POS),
+    ("smooth_px", _NONNEG),
+    ("min_sd_px", _POS),
+    ("two_line_ratio", _NONNEG),
+    ("line_sd_px", _NONNEG),
+    ("direction_sd_deg", _SD_DEG),
+    ("vertex_sd_px", _NONNEG),
+    ("vertex_texture_px", _NONNEG),
+    ("line_direction_sd_deg", _SD_DEG),
+    ("border", (lambda _p, v: v in ("edges", "fit"), "'edges' or 'fit'")),
+    ("along_min_angle_deg", _ANGLE),
+    ("along_max_sd_px", _NONNEG),
+    ("weak_edge_w", (_in(0.0, math.inf, lo_open=True, inf=True), "a number > 0 (inf: never dropped)")),
+    ("min_angle_deg", _ANGLE),
+    ("max_edge_px", _POS),
+    ("template_m", _POS),
+    ("coarse", (lambda _p, v: v in ("lines", "likelihood"), "'lines' or 'likelihood'")),
+    ("refine_px", _NONNEG),
+    ("dark", _NONNEG),
+    ("saturation", (lambda p, v: _real(v) and v > p.dark, "a finite number > dark ({p.dark:g})")),
+))
+
 
 @dataclass(frozen=True, eq=False)
 class VertexTarget:
@@ -702,16 +791,13 @@ def _refine(img: np.ndarray, ctx: dict, shift: np.ndarray, p: MeasureParams) -> 
                                          [covs[i] for i in use], origin, p.vertex_sd_px, p.vertex_texture_px)
         if len(use) <= 2 or chi2 <= _CHI2_1 * (len(use) - 2):
             break
-        # the line farthest (normalised) from the others' point goes
-        res = []
-        for i in use:
-            rest = [j for j in use if j != i]
-            xr, _, _ = intersect_lines([fits[j] for j in rest], mm[rest], np.array(cc)[rest],
-                                       [covs[j] for j in rest], origin, p.vertex_sd_px, p.vertex_texture_px)
-            res.append(abs(float(mm[i] @ xr) - cc[i]))
-        drop = use[int(np.argmax(res))]
+        # which line goes (module docstring, step 3c): the largest w; of three lines (all w alike) the weakest
+        drop, off, w = worst_line(fits, mm, np.array(cc), covs, use, origin, sd_px=p.vertex_sd_px,
+                                  texture_px=p.vertex_texture_px)
         why.append(f"edge of planes {fits_planes[drop][0] + 1}-{fits_planes[drop][1] + 1}: does not meet the "
-                   f"other edges at one point ({max(res):.1f} px off)")
+                   f"other edges at one point ({abs(off):.1f} px off, w {w:+.1f}"
+                   + (f"; the weakest of three, gradient {fits[drop][1][3]:.1f} x the texture's)" if len(use) == 3
+                      else ")"))
         use.remove(drop)
     if len(use) == 2 and min(fits[i][1][3] for i in use) < p.two_line_ratio:
         weak = min(use, key=lambda i: fits[i][1][3])

@@ -23,13 +23,14 @@ import numpy as np
 from ..errors import LidarcatError
 from .context import StageContext as Context
 
-__all__ = ["extract", "run"]
+__all__ = ["extract", "extraction_params", "run"]
 
 log = logging.getLogger(__name__)
 
 
 def extract(jobs: str | os.PathLike | Sequence[Any], *, lidar: Sequence[str | os.PathLike] | None = None,
             crs: Any = None, preset: str = "default", radius_m: float | None = None,
+            fit_radius_m: float | None = None, stability_check: bool | None = None,
             spec_sd: tuple[float, float] | None = None, index_cache: str | os.PathLike | None = None,
             control_csv: str | os.PathLike | None = None, planes_csv: str | os.PathLike | None = None,
             figures: str | os.PathLike | None = None,
@@ -48,6 +49,12 @@ def extract(jobs: str | os.PathLike | Sequence[Any], *, lidar: Sequence[str | os
         Parameter preset (:func:`lidarcat.control.params.get_params`).
     radius_m : float, optional
         Clip radius of the jobs without one, m (default: the preset's).
+    fit_radius_m : float, optional
+        Plan distance (m) of the local refit of a vertex's faces (:mod:`lidarcat.control.localfit`);
+        0 = the clip's whole faces; default: the preset's (4 m; thesis: whole faces).
+    stability_check : bool, optional
+        Refuse vertices that move with the clip radius (:mod:`lidarcat.control.stability`); default:
+        the preset's (on; thesis: off).
     spec_sd : (plan, height), optional
         Replace the propagated sds by these specification sds, m.
     index_cache : path, optional
@@ -66,14 +73,14 @@ def extract(jobs: str | os.PathLike | Sequence[Any], *, lidar: Sequence[str | os
         One per job, in job order (failed jobs falsy, with a status).
     """
     from ..control.batch import extract_batch, read_jobs, write_control_csv, write_figures, write_planes_csv
-    from ..control.params import get_params
 
     if isinstance(jobs, (str, os.PathLike)):
         source, job_list = f"the jobs of {Path(jobs).name}", read_jobs(jobs)
     else:
         source, job_list = "the given positions", list(jobs)
     points = extract_batch(job_list, lidar=list(lidar) if lidar else None, crs=crs,
-                           params=get_params(preset, radius_m=radius_m), spec_sd=spec_sd, progress=progress,
+                           params=extraction_params(preset, radius_m, fit_radius_m, stability_check),
+                           spec_sd=spec_sd, progress=progress,
                            index_cache=index_cache)
     if control_csv:
         sds = (f"specification sds {spec_sd[0]:g} m (plan), {spec_sd[1]:g} m (height)" if spec_sd
@@ -85,6 +92,23 @@ def extract(jobs: str | os.PathLike | Sequence[Any], *, lidar: Sequence[str | os
     if figures:
         write_figures(figures, points)
     return points
+
+
+def extraction_params(preset: str = "default", radius_m: float | None = None, fit_radius_m: float | None = None,
+                      stability_check: bool | None = None) -> Any:
+    """The :class:`~lidarcat.control.params.ExtractionParams` of *preset* with the user's choices (None: the preset's).
+
+    *fit_radius_m* 0 is the clip's whole faces (``fit_radius_m=None`` of the params); *stability_check*
+    False switches the radius-stability check off (``stability_scales=()``), True on at the default scales.
+    """
+    from ..control.params import ExtractionParams, get_params
+
+    p = get_params(preset, radius_m=radius_m)
+    if fit_radius_m is not None:
+        p = p.replace(fit_radius_m=None if fit_radius_m == 0 else float(fit_radius_m))
+    if stability_check is not None:
+        p = p.replace(stability_scales=ExtractionParams().stability_scales if stability_check else ())
+    return p
 
 
 def run(ctx: Context, tmp: Path) -> dict:
