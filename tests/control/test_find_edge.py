@@ -7,6 +7,7 @@ clips of up to 1.5 x 8 = 12 m about it; the search used to read only ``radius_m`
 apex and the check tested other clips than ``extract --at`` there would.  Now every clip the search cuts holds
 every point of the cloud within its radius, and the seed's verdict (status and reason, with the moves and their
 Mahalanobis distances) is exactly that of :func:`~lidarcat.control.vertices.extract_roof` on the whole cloud.
+With the local refit of the vertex (``fit_radius_m``, the default) the roof is accepted; without it, refused.
 """
 
 from __future__ import annotations
@@ -71,13 +72,13 @@ def _assert_whole(checks, xyz):
         assert got == int(np.sum(np.sum((xyz[:, :2] - at) ** 2, axis=1) <= r * r)), r
 
 
-def _assert_verdict_of_whole_cloud(seeds, xyz):
+def _assert_verdict_of_whole_cloud(seeds, xyz, params=None):
     assert seeds
     for at, cp in seeds:
-        whole = extract_roof(xyz, at)
+        whole = extract_roof(xyz, at, params=params)
         assert (cp.status, cp.reason) == (whole.status, whole.reason)
         np.testing.assert_array_equal(cp.enh_m, whole.enh_m)
-    assert any(cp.status == "unstable" for _, cp in seeds)  # the sagging roof is refused, as at --at
+    return {cp.status for _, cp in seeds}
 
 
 def test_margin_covers_the_check():
@@ -88,13 +89,19 @@ def test_margin_covers_the_check():
     assert search_area(AREA) == (AREA[0] - 14, AREA[1] - 14, AREA[2] + 14, AREA[3] + 14)
 
 
-def test_a_candidate_at_the_area_edge_is_checked_with_all_its_points(monkeypatch):
+@pytest.mark.parametrize("local", [True, False])
+def test_a_candidate_at_the_area_edge_is_checked_with_all_its_points(monkeypatch, local):
+    """Default (local refit of the vertex, ``fit_radius_m``), and the search clip's vertex: the sagging
+    roof's vertex then moves with the clip and is refused, the reason (moves, distances) exactly --at's."""
     xyz = _sagging_pyramid()
+    p = get_params() if local else get_params().replace(fit_radius_m=None)
     spy = _Spy(monkeypatch)
-    find_candidates(xyz, box=AREA)
+    find_candidates(xyz, box=AREA, params=p)
     checks, seeds = spy.near_apex()
     _assert_whole(checks, xyz)
-    _assert_verdict_of_whole_cloud(seeds, xyz)
+    statuses = _assert_verdict_of_whole_cloud(seeds, xyz, p)
+    if not local:
+        assert "unstable" in statuses
 
 
 def test_tiles_serial_and_blocks_read_beyond_the_area(monkeypatch, tmp_path):

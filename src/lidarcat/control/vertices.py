@@ -858,15 +858,16 @@ def search_margin_m(p: ExtractionParams, cell_m: float) -> float:
 
     A cell is segmented in a square of half-side ``max(w, h)/2 + 2`` about its
     centre (at most ``cell_m/2 + 2`` beyond an edge); each seed is refined
-    with the points within ``radius_m`` of it, and the vertex found is checked
-    (``p.stability_scales``, :mod:`lidarcat.control.stability`) with clips of up
-    to ``max(stability_scales) x radius_m`` about it, the vertex within 1 m of
-    its seed (a farther one is dropped, whatever its check).  So the reach is
-    ``radius_m x max(1, stability_scales) + 1``: 13 m at the defaults (8 m,
-    1.5), and the margin ``max(cell_m/2 + 2, reach) + 1`` (14 m; 13 m without
-    the check).
+    with the points within ``radius_m`` of it, the vertex found is extracted
+    again from the clip of ``fit_radius_m`` about it (:mod:`lidarcat.control.localfit`)
+    and checked (``p.stability_scales``, :mod:`lidarcat.control.stability`) with
+    clips of up to ``max(stability_scales) x radius_m`` about it, the vertex
+    within 1 m of its seed (a farther one is dropped, whatever its check).  So
+    the reach is ``max(radius_m x max(1, stability_scales), fit_radius_m) + 1``:
+    13 m at the defaults (8 m, 1.5, 5 m), and the margin
+    ``max(cell_m/2 + 2, reach) + 1`` (14 m; 13 m without the check).
     """
-    reach = float(p.radius_m) * max((1.0, *p.stability_scales)) + 1.0
+    reach = max(float(p.radius_m) * max((1.0, *p.stability_scales)), float(p.fit_radius_m or 0.0)) + 1.0
     return max(cell_m / 2.0 + 2.0, reach) + 1.0
 
 
