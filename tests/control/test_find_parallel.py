@@ -8,7 +8,7 @@ from click.testing import CliRunner
 
 from lidarcat.cli.main import cli
 from lidarcat.control.vertices import find_candidates
-from lidarcat.control.search import find_candidates_tiles, find_jobs
+from lidarcat.control.search import find_candidates_tiles, find_jobs, search_area
 from lidarcat.lidar import TileIndex
 
 LID = Path(__file__).parents[1] / "data" / "lidar"
@@ -25,7 +25,8 @@ def _key(c):
 @pytest.fixture(scope="module")
 def serial():
     idx = TileIndex.build(TILES, crs="EPSG:7415")
-    return idx, find_candidates(idx.query_box(*AREA), box=AREA, classes=[6])
+    # the area plus the margin its candidates' clips reach, as the blocks and the CLI read (test_find_edge.py)
+    return idx, find_candidates(idx.query_box(*search_area(AREA)), box=AREA, classes=[6])
 
 
 def test_blocks_equal_serial_and_resume(serial, tmp_path):
@@ -33,7 +34,7 @@ def test_blocks_equal_serial_and_resume(serial, tmp_path):
     assert len(ref) >= 3
     jobs = find_jobs(idx, AREA, tmp_path, crs="EPSG:7415", classes=[6], block_cells=1)
     assert len(jobs) == 9  # 3 x 3 cells of 20 m
-    # each block reads only the tiles within its margin (13 m) of it: crop 1 ends at E 85000
+    # each block reads only the tiles within its margin (14 m) of it: crop 1 ends at E 85000
     reads = {j.bounds[0]: {Path(p).name for p in (j.tile, *j.neighbours)} for j in jobs}
     assert reads == {84990.0: {"ahn3_cropped_1.laz", "ahn3_cropped_2.laz"},
                      85010.0: {"ahn3_cropped_1.laz", "ahn3_cropped_2.laz"}, 85030.0: {"ahn3_cropped_2.laz"}}

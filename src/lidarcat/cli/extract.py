@@ -191,10 +191,12 @@ def _find(lidar, crs, box, classes, params, output, as_json, index_cache, worker
             cls = [int(c) for c in classes.split(",")]
         except ValueError:
             raise click.BadParameter(f"{classes!r}: expected a comma list of integers", param_hint="--classes")
+    from ..control.search import find_candidates_tiles, n_blocks, search_area
+
     if workers is None and scheduler is None:
-        cands = find_candidates(index.query_box(*area), box=area, params=params, classes=cls)
+        # the area plus the margin the candidates' clips reach (a vertex near the area's edge whole)
+        cands = find_candidates(index.query_box(*search_area(area, params)), box=area, params=params, classes=cls)
     else:  # blocks of cells on Dask; the same candidates (lidarcat.control.search)
-        from ..control.search import find_candidates_tiles, n_blocks
 
         with progress_bar(n_blocks(index, area, params=params), "Searching blocks") as bar:
             cands = find_candidates_tiles(index, area, params=params, classes=cls, crs=crs, workers=workers,

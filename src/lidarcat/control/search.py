@@ -2,18 +2,22 @@
 
 The serial search cuts the area into cells of ``cell_m`` and, for each cell,
 segments its points plus a 2 m rim, keeps the vertices of 3+ faces inside the
-cell as seeds and refines each seed with the points within ``radius_m``.  A
-cell therefore needs only the points within
+cell as seeds, refines each seed with the points within ``radius_m`` and checks
+the vertex found (the radius-stability check, ``stability_scales``: clips of up to
+1.5 x ``radius_m`` about a vertex that lies within 1 m of its seed).  A cell
+therefore needs only the points within
 
-    margin = max(cell_m / 2 + 2, radius_m) + 1   (m)
+    margin = max(cell_m / 2 + 2, radius_m x max(1, stability_scales) + 1) + 1   (m)
 
-of it (:func:`~lidarcat.control.vertices.search_margin_m`; the ``cell_m/2`` covers the
-square window of a narrower edge cell).  Here the cell grid, anchored at the
-area's lower-left corner exactly as in the serial run, is split into blocks of
+of it (:func:`~lidarcat.control.vertices.search_margin_m`; 14 m at the defaults, 13 m
+without the check; the ``cell_m/2`` covers the square window of a narrower edge cell).
+Here the cell grid, anchored at the area's lower-left corner exactly as in the serial run, is split into blocks of
 ``block_cells x block_cells`` cells; each block is one
 :class:`~lidarcat.lidar.jobs.TileJob` running :func:`search_block`, that reads from the
-tiles only the points of its block plus the margin (clipped to the area, as the
-serial run reads the area), searches its cells and writes its candidates,
+tiles only the points of its block plus the margin (beyond the area too: a
+candidate near the area's edge is extracted and checked with all its points, as
+``extract --at`` there would; the serial run reads the area plus the margin,
+:func:`search_area`), searches its cells and writes its candidates,
 tagged ``(i, j, k)`` = cell and seed order, as a ``.npz`` of plain arrays
 (:func:`write_block`; no pickle: the work folder may be shared with other
 machines, and reading it must never run code).  The blocks run through
@@ -64,10 +68,27 @@ from .vertices import (
 if TYPE_CHECKING:
     from ..lidar.jobs import TileJob
 
-__all__ = ["find_candidates_tiles", "find_jobs", "n_blocks", "read_block", "run_find_block", "search_block",
-           "write_block"]
+__all__ = ["find_candidates_tiles", "find_jobs", "n_blocks", "read_block", "run_find_block", "search_area",
+           "search_block", "write_block"]
 
 log = logging.getLogger(__name__)
+
+
+def search_area(area: Sequence[float], params: Any = None, cell_m: float = 20.0) -> tuple[float, float, float, float]:
+    """The box of the points a search of *area* reads: *area* plus
+    :func:`~lidarcat.control.vertices.search_margin_m` on every side (m).
+
+    A candidate near the area's edge is refined and checked (``stability_scales``) with clips that reach
+    beyond the area; reading only the area would cut them.
+
+    Examples
+    --------
+    >>> search_area((0.0, 0.0, 100.0, 50.0))
+    (-14.0, -14.0, 114.0, 64.0)
+    """
+    m = search_margin_m(get_params(params), cell_m)
+    xmin, ymin, xmax, ymax = (float(v) for v in area)
+    return (xmin - m, ymin - m, xmax + m, ymax + m)
 
 
 def find_jobs(index: Any, area: Sequence[float], work_dir: str | os.PathLike, *, crs: Any = None, params: Any = None,
@@ -103,8 +124,7 @@ def find_jobs(index: Any, area: Sequence[float], work_dir: str | os.PathLike, *,
             i1, j1 = min(i0 + block_cells, nx), min(j0 + block_cells, ny)
             bx0, by0 = xmin + i0 * cell_m, ymin + j0 * cell_m
             bx1, by1 = min(xmin + i1 * cell_m, xmax), min(ymin + j1 * cell_m, ymax)
-            tiles = [str(t.path) for t in index.tiles_in_box(max(bx0 - margin, xmin), max(by0 - margin, ymin),
-                                                             min(bx1 + margin, xmax), min(by1 + margin, ymax))]
+            tiles = [str(t.path) for t in index.tiles_in_box(bx0 - margin, by0 - margin, bx1 + margin, by1 + margin)]
             if not tiles:
                 continue
             job_params = {"cells": [i0, i1, j0, j1], "area": [xmin, ymin, xmax, ymax], "cell_m": float(cell_m),
@@ -126,7 +146,7 @@ def run_find_block(job: TileJob) -> list:
     bx0, by0, bx1, by1 = job.bounds
     m = job.overlap_m
     index = TileIndex.build([job.tile, *job.neighbours], crs=job.crs)
-    cloud = index.query_box(max(bx0 - m, xmin), max(by0 - m, ymin), min(bx1 + m, xmax), min(by1 + m, ymax))
+    cloud = index.query_box(bx0 - m, by0 - m, bx1 + m, by1 + m)
     xyz, box = search_points(cloud, (xmin, ymin, xmax, ymax), p, prm["classes"])
     if xyz is None:
         return []
@@ -293,7 +313,7 @@ def find_candidates_tiles(index: Any, area: Sequence[float], *, params: Any = No
                           progress: Callable[[int], Any] | None = None) -> list:
     """Candidates of :func:`~lidarcat.control.vertices.find_candidates` over *area* of the tiles, block-parallel.
 
-    Identical to ``find_candidates(index.query_box(*area), box=area, ...)``.
+    Identical to ``find_candidates(index.query_box(*search_area(area, params)), box=area, ...)``.
 
     Parameters
     ----------

@@ -837,8 +837,11 @@ def search_points(cloud: Any, box: Any, p: ExtractionParams, classes: Any) -> tu
     if box is None:
         box = (*xyz[:, :2].min(axis=0), *xyz[:, :2].max(axis=0))
     xmin, ymin, xmax, ymax = (float(v) for v in box)
-    inbox = (xyz[:, 0] >= xmin - p.radius_m) & (xyz[:, 0] <= xmax + p.radius_m) & \
-            (xyz[:, 1] >= ymin - p.radius_m) & (xyz[:, 1] <= ymax + p.radius_m)
+    # every clip of a candidate: its seed's ``radius_m`` and the radius-stability check's clips about its
+    # vertex (search_margin_m of a block of no width); a cloud that holds them gives whole clips at the box's edge
+    pad = search_margin_m(p, 0.0)
+    inbox = (xyz[:, 0] >= xmin - pad) & (xyz[:, 0] <= xmax + pad) & \
+            (xyz[:, 1] >= ymin - pad) & (xyz[:, 1] <= ymax + pad)
     xyz = xyz[inbox]
     return (xyz if len(xyz) else None), (xmin, ymin, xmax, ymax)
 
@@ -853,10 +856,18 @@ def search_margin_m(p: ExtractionParams, cell_m: float) -> float:
     """Points a block of cells needs beyond its own area (m).
 
     A cell is segmented in a square of half-side ``max(w, h)/2 + 2`` about its
-    centre (at most ``cell_m/2 + 2`` beyond an edge), and each seed is refined
-    with the points within ``radius_m`` of it.
+    centre (at most ``cell_m/2 + 2`` beyond an edge); each seed is refined
+    with the points within ``radius_m`` of it, the vertex found is extracted
+    again from the clip of ``fit_radius_m`` about it (:mod:`lidarcat.control.localfit`)
+    and checked (``p.stability_scales``, :mod:`lidarcat.control.stability`) with
+    clips of up to ``max(stability_scales) x radius_m`` about it, the vertex
+    within 1 m of its seed (a farther one is dropped, whatever its check).  So
+    the reach is ``max(radius_m x max(1, stability_scales), fit_radius_m) + 1``:
+    13 m at the defaults (8 m, 1.5, 5 m), and the margin
+    ``max(cell_m/2 + 2, reach) + 1`` (14 m; 13 m without the check).
     """
-    return max(cell_m / 2.0 + 2.0, float(p.radius_m)) + 1.0
+    reach = max(float(p.radius_m) * max((1.0, *p.stability_scales)), float(p.fit_radius_m or 0.0)) + 1.0
+    return max(cell_m / 2.0 + 2.0, reach) + 1.0
 
 
 def search_cells(xyz: np.ndarray, box: Any, cells: Sequence[tuple[int, int]], p: ExtractionParams,
@@ -896,8 +907,13 @@ def search_cells(xyz: np.ndarray, box: Any, cells: Sequence[tuple[int, int]], p:
         if progress is not None:
             progress(1)
     found = []
+    # every clip of a kept candidate (its seed's, the retries', the check's about a vertex within 1 m of
+    # the seed) lies within the margin of no width of its seed: those points, in their order, give the
+    # same clips as the whole cloud, without scanning it for each clip
+    reach = search_margin_m(p, 0.0)
     for tag, v in seeds:
-        cp = extract_roof(xyz, v[:2], params=p, point_id="C{:d}_{:d}_{:d}".format(*tag))
+        near = xyz[tree.query_ball_point(v[:2], r=reach, return_sorted=True)]
+        cp = extract_roof(near, v[:2], params=p, point_id="C{:d}_{:d}_{:d}".format(*tag))
         if not cp:
             continue
         if np.hypot(*(cp.enh_m[:2] - v[:2])) > 1.0:
