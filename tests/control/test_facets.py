@@ -260,12 +260,15 @@ def test_default_preset_on_dormer_chimney_tree_roof():
     np.testing.assert_allclose(cp.enh_m, v, atol=0.15)
     used = _used_truth_labels(cp, s)
     assert (used == LABELS["chimney"]).sum() == 0 and (used == LABELS["tree"]).sum() == 0
-    # the ridge end under the tree: the canopy points (118 in the clip) stay out of the faces
+    # the ridge end under the tree: the canopy points (118 in the 8 m search clip, 20 in the 5 m clip centred on
+    # the vertex, lidarcat.control.localfit) stay out of the faces
+    near = np.hypot(*(s.xyz[:, :2] - s.vertices[1, :2]).T) <= params.radius_m
+    assert (s.label[near] == LABELS["tree"]).sum() > 100
     cp = extract_roof(s.xyz, s.vertices[1, :2], params=params)
     assert cp, cp.reason
     np.testing.assert_allclose(cp.enh_m, s.vertices[1], atol=0.15)
     xyz, _ = cp.labels
-    assert (s.label[cKDTree(s.xyz).query(xyz)[1]] == LABELS["tree"]).sum() > 100
+    assert (s.label[cKDTree(s.xyz).query(xyz)[1]] == LABELS["tree"]).sum() >= 15
     assert (_used_truth_labels(cp, s) == LABELS["tree"]).sum() == 0
     # the dormer's valley vertex (3 planes: two dormer faces + the main face): at 8 pts/m2
     # the 1.6 m2 dormer faces carry ~13 points each and one of them is lost, so no vertex...

@@ -77,7 +77,11 @@ def test_candidate_vertex_stays_within_k_sd_across_radii(clips, name, e, n, radi
     for r in radii[1:]:
         cp = cps[r]
         d = np.asarray(cp.enh_m) - np.asarray(ref.enh_m)
-        assert cp.status == "ok" and cp.reason == "", (r, cp.status, cp.reason)
+        # ok, with no note -- except the note of the local extraction's fallback (lidarcat.control.localfit): at
+        # C0135 and C0162 no clip of 5-8 m centred on the vertex finds that corner (no_vertex; another corner
+        # 1.6 m away), so the search clip's vertex is kept and its reason says so
+        assert cp.status == "ok" and (cp.reason == "" or cp.reason.endswith(
+            ": the vertex of the search clip is kept") and name in ("C0135", "C0162")), (r, cp.status, cp.reason)
         assert np.linalg.norm(d) <= K_SD * sd, (r, np.linalg.norm(d), sd)
 
 

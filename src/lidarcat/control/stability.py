@@ -50,7 +50,7 @@ than a factor of 2: seen on a few vertices of 4+ planes) the test falls back
 to the lenient one and says so.
 
 **The check** (:func:`check_stability`; ``ExtractionParams.stability_scales``,
-default 0.5, 0.75, 1.25 and 1.5 x the radius, i.e. 4, 6, 10 and 12 m at the
+default 0.5, 0.625, 0.75, 1.25 and 1.5 x the radius, i.e. 4, 5, 6, 10 and 12 m at the
 default 8 m; ``stability_level`` 0.999).  The vertex is extracted again from
 clips of those radii centred on it (with their own retries; centred on the
 vertex, not on the position asked at, so that the clips are nested about the
@@ -68,6 +68,18 @@ reassigned edge point gives :math:`M > 4`) leaves the vertex within its sd of
 every clip's; refusing it would cost a good control point for nothing.  A clip
 that returns no vertex (or an ambiguous / imprecise one) gives no test and is
 named in the reason; another corner returned by a clip is a move like any other.
+
+**With the local extraction** (``fit_radius_m``, the default since session 8:
+:mod:`lidarcat.control.localfit`), the vertex of every search clip that finds the corner is that of the
+5 m clip centred on it, iterated to a fixed point; two search clips give the same vertex to the
+iteration's 1 mm, *not* two estimates from partly different points.  A longer move means that the
+local clip, centred where another search clip found the corner, segments the roof differently (a face
+split, merged or reassigned near the corner): a second fixed point, an error the covariance does not
+hold.  So the test is then the material one alone: some move longer than the vertex's sd refuses it.
+The Mahalanobis distance is still computed and named in the reason.  On the AHN3 sweep the check
+radii 4, 5, 6, 10 and 12 m (``stability_scales`` 0.5, 0.625, 0.75, 1.25, 1.5) are the radii of
+issue 29's sweep: in-sample by construction, so the sweep also reports radii the check does not use
+(docs/extraction.md, "Local extraction").
 
 Why these radii: the move of a vertex with the clip is not monotone in the
 radius (a face merges, splits or loses its outer part at one radius and not
@@ -325,7 +337,10 @@ def check_stability(cp: Any, p: Any, extract: Callable[[float], Any]) -> Stabili
             continue
         m, exact = move_distance(other, cp, influence(other, p), inf_ref)
         tests.append((r, "ok", float(np.linalg.norm(np.asarray(other.enh_m) - np.asarray(cp.enh_m))), m, exact))
-    bad = [t for t in tests if np.isfinite(t[3]) and t[3] > limit and t[2] > sd_m]
+    local = getattr(p, "fit_radius_m", None) is not None
+    # the local extraction: every search clip that finds the corner ends at one fixed point, so any move
+    # longer than the sd is a second fixed point, not sampling (module docstring, "With the local extraction")
+    bad = [t for t in tests if np.isfinite(t[2]) and t[2] > sd_m and (local or (np.isfinite(t[3]) and t[3] > limit))]
     if not bad:
         return StabilityResult(True, limit, sd_m, tuple(tests))
     parts = []
@@ -334,10 +349,17 @@ def check_stability(cp: Any, p: Any, extract: Callable[[float], Any]) -> Stabili
             parts.append(f"{r:g} m {status}")
         else:
             parts.append(f"{r:g} m {1000 * d:.0f} mm, {'M' if exact else 'M_ind'} {m:.2f}")
-    reason = (f"the vertex moves with the clip radius: from the {p.radius_m:g} m clip's vertex by more than "
-              f"its sd ({1000 * sd_m:.0f} mm) and than the covariance of the move explains (Mahalanobis "
-              f"distance above {limit:.2f}, chi2_3 {100 * p.stability_level:g} %) in clips about it of "
-              f"{'; '.join(parts)}: its faces depend on the clip (a face not plane over its extent, eaves, the "
-              f"clip's rim, a neighbour's face); "
-              f"check the roof, or ask at another position or radius")
+    if local:
+        reason = (f"the vertex moves with the clip radius: from the {p.radius_m:g} m clip's vertex by more than "
+                  f"its sd ({1000 * sd_m:.0f} mm) in clips about it of {'; '.join(parts)}: its clip of "
+                  f"{p.fit_radius_m:g} m gives another vertex when centred where another search clip finds the "
+                  f"corner (faces split, merged or reassigned near it); "
+                  f"check the roof, or ask at another position or radius")
+    else:
+        reason = (f"the vertex moves with the clip radius: from the {p.radius_m:g} m clip's vertex by more than "
+                  f"its sd ({1000 * sd_m:.0f} mm) and than the covariance of the move explains (Mahalanobis "
+                  f"distance above {limit:.2f}, chi2_3 {100 * p.stability_level:g} %) in clips about it of "
+                  f"{'; '.join(parts)}: its faces depend on the clip (a face not plane over its extent, eaves, the "
+                  f"clip's rim, a neighbour's face); "
+                  f"check the roof, or ask at another position or radius")
     return StabilityResult(False, limit, sd_m, tuple(tests), reason)

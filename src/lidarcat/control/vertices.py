@@ -60,11 +60,11 @@ decides which corner, the roof within 5 m of the corner decides where.  Off (``N
 thesis preset.
 
 **Radius stability.**  An ``ok`` vertex is then extracted again from clips of
-``stability_scales x radius_m`` centred on it (4, 6, 10, 12 m at the default)
-and refused as ``unstable`` when it moves by more than its sd and by more than
-the covariance of the difference of the two clips' vertices explains
-(:mod:`lidarcat.control.stability`); the reason names the radii, the moves and
-their Mahalanobis distances.  The vertex is never replaced by another clip's.
+``stability_scales x radius_m`` centred on it (4, 5, 6, 10, 12 m at the default)
+and refused as ``unstable`` when it moves by more than its sd (and, without the
+local extraction, by more than the covariance of the difference of the two clips'
+vertices explains; :mod:`lidarcat.control.stability`); the reason names the radii,
+the moves and their Mahalanobis distances.  The vertex is never replaced by another clip's.
 """
 
 from __future__ import annotations
