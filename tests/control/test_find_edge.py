@@ -86,6 +86,8 @@ def test_margin_covers_the_check():
     assert search_margin_m(p, 20.0) == 14.0  # 8 m x 1.5 + 1 m (vertex to seed) + 1 m
     assert search_margin_m(p.replace(stability_scales=()), 20.0) == 13.0  # as before the check
     assert search_margin_m(p.replace(radius_m=10.0), 20.0) == 17.0
+    # the local extraction's largest clip (lidarcat.control.localfit.LADDER: 1.6 x fit_radius_m) about the vertex
+    assert search_margin_m(p.replace(fit_radius_m=10.0, stability_scales=()), 20.0) == 18.0
     assert search_area(AREA) == (AREA[0] - 14, AREA[1] - 14, AREA[2] + 14, AREA[3] + 14)
 
 

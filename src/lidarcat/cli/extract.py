@@ -72,13 +72,13 @@ def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bo
 @click.option("--radius", type=float, default=None,
               help="Clip radius (m) for --at, --find and CSV jobs without radius_m; default from the preset (8 m; thesis 5 m).")
 @click.option("--fit-radius", "fit_radius", type=float, default=None, metavar="M",
-              help="Refit the vertex's faces from their points within M metres (plan) of it, so that the "
-                   "vertex is the corner's and not the clip's mean (default 4 m; 0: the clip's whole faces, "
-                   "as the thesis preset).")
+              help="Extract the vertex found again from the clip of M metres centred on it (to a fixed point; "
+                   "1.3 and 1.6 x M when it finds no vertex there), so that it is the corner's and does not "
+                   "depend on --radius (default 5 m; 0: the search clip's vertex, as the thesis preset).")
 @click.option("--stability-check/--no-stability-check", "stability_check", default=None,
-              help="Refuse (status unstable) a vertex that moves when extracted again from clips of "
-                   "0.5-1.5 x the radius by more than its covariance explains (default on; thesis preset "
-                   "off). Off: --find runs about 4x faster.")
+              help="Refuse (status unstable) a vertex that moves by more than its sd when extracted again "
+                   "from clips of 0.5-1.5 x the radius centred on it (default on; thesis preset off). Off: "
+                   "--find runs about 2.5x faster.")
 @click.option("--find", is_flag=True, help="Search the tiles (or --box) for every roof vertex of 3+ planes.")
 @click.option("--box", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
               help="Area for --find (m); default: all the tiles.")

@@ -78,7 +78,7 @@ import numpy as np
 
 from .._util.frozen import frozen_array
 from .facets import segment_faces
-from .localfit import refit_locally
+from .localfit import LADDER, refit_locally
 from .params import ExtractionParams, get_params
 from .planes import Plane
 from .stability import check_stability
@@ -858,15 +858,16 @@ def search_margin_m(p: ExtractionParams, cell_m: float) -> float:
     A cell is segmented in a square of half-side ``max(w, h)/2 + 2`` about its
     centre (at most ``cell_m/2 + 2`` beyond an edge); each seed is refined
     with the points within ``radius_m`` of it, the vertex found is extracted
-    again from the clip of ``fit_radius_m`` about it (:mod:`lidarcat.control.localfit`)
+    again from the clips of ``fit_radius_m`` (up to ``LADDER[-1] x fit_radius_m``) about it
+    (:mod:`lidarcat.control.localfit`)
     and checked (``p.stability_scales``, :mod:`lidarcat.control.stability`) with
     clips of up to ``max(stability_scales) x radius_m`` about it, the vertex
     within 1 m of its seed (a farther one is dropped, whatever its check).  So
-    the reach is ``max(radius_m x max(1, stability_scales), fit_radius_m) + 1``:
+    the reach is ``max(radius_m x max(1, stability_scales), 1.6 fit_radius_m) + 1``:
     13 m at the defaults (8 m, 1.5, 5 m), and the margin
     ``max(cell_m/2 + 2, reach) + 1`` (14 m; 13 m without the check).
     """
-    reach = max(float(p.radius_m) * max((1.0, *p.stability_scales)), float(p.fit_radius_m or 0.0)) + 1.0
+    reach = max(float(p.radius_m) * max((1.0, *p.stability_scales)), float(p.fit_radius_m or 0.0) * LADDER[-1]) + 1.0
     return max(cell_m / 2.0 + 2.0, reach) + 1.0
 
 
