@@ -76,6 +76,11 @@ iteration's 1 mm, *not* two estimates from partly different points.  A longer mo
 local clip, centred where another search clip found the corner, segments the roof differently (a face
 split, merged or reassigned near the corner): a second fixed point, an error the covariance does not
 hold.  So the test is then the material one alone: some move longer than the vertex's sd refuses it.
+And the clips are centred on the position asked, not on the vertex: what is left to depend on the
+radius is where the search clip finds the corner (the local iteration's start; on the AHN3 sweep
+C0089's 4-10 m clips about its ``--find`` position, 135 mm from the vertex, end at a second fixed
+point 105 mm away, while clips about the vertex all give the first), so the check repeats the request
+itself at the other radii.
 The Mahalanobis distance is still computed and named in the reason.  On the AHN3 sweep the check
 radii 4, 5, 6, 10 and 12 m (``stability_scales`` 0.5, 0.625, 0.75, 1.25, 1.5) are the radii of
 issue 29's sweep: in-sample by construction, so the sweep also reports radii the check does not use

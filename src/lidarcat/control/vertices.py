@@ -650,10 +650,13 @@ def _check_stability(cp: ControlPoint, given: np.ndarray, center: np.ndarray, p:
                      point_id: str, clipped: bool) -> ControlPoint:
     """*cp*, or *cp* refused as ``unstable`` when it moves with the clip radius (:mod:`lidarcat.control.stability`).
 
-    The check clips are centred on the vertex found and cut from the points given.  When those are
-    only the clip of ``radius_m`` about *center* (``clipped``), a check clip that would reach beyond it
-    is not tried."""
-    at = np.asarray(cp.enh_m[:2], dtype=np.float64)
+    The check clips are cut from the points given and centred on the vertex found -- or, with the local
+    extraction (``fit_radius_m``), on *center*, the position asked: there every clip that finds the corner
+    gives the fixed point of :mod:`lidarcat.control.localfit`, and what is left to depend on the radius is
+    where the search finds the corner, so the check repeats the request itself at the other radii.  When
+    the points are only the clip of ``radius_m`` about *center* (``clipped``), a check clip that would
+    reach beyond it is not tried."""
+    at = np.asarray(center if p.fit_radius_m is not None else cp.enh_m[:2], dtype=np.float64)
     reach = p.radius_m - float(np.hypot(*(at - center)))
     scales = tuple(s for s in p.stability_scales if not clipped or s * p.radius_m <= reach)
     if not scales:
