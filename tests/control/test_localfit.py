@@ -157,3 +157,25 @@ def test_cli_fit_radius_and_stability_switches(monkeypatch, tmp_path, bent):
     out = r.invoke(cli, ["extract", "--at", "0", "0", str(tile), "--fit-radius", "-2"])
     assert out.exit_code == 2
     assert "Error: Invalid value for --fit-radius: must be positive (m), or 0 for whole faces, got -2" in out.output
+
+
+def test_the_check_repeats_the_request_with_the_local_extraction_and_centres_on_the_vertex_without(monkeypatch, bent):
+    """Local extraction: the check's clips are centred on the position asked (what is left to depend on the radius is
+    where the search finds the corner); whole faces: on the vertex, as in session 7 (lidarcat.control.vertices)."""
+    import lidarcat.control.vertices as vertices
+    from lidarcat.control.stability import StabilityResult
+
+    centres = []
+
+    def spy(cp, p, extract):
+        centres.append(np.asarray(extract(4.0).approx_en))
+        return StabilityResult(True, 4.03, 0.01)
+
+    monkeypatch.setattr(vertices, "check_stability", spy)
+    xyz, apex = bent
+    at = apex[:2] + [0.6, -0.4]
+    local = extract_roof(xyz, at)
+    whole = extract_roof(xyz, at, params=get_params().replace(fit_radius_m=None))
+    assert local.status == whole.status == "ok"
+    np.testing.assert_array_equal(centres[0], at)
+    np.testing.assert_array_equal(centres[1], whole.enh_m[:2])
