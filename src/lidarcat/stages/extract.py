@@ -50,8 +50,9 @@ def extract(jobs: str | os.PathLike | Sequence[Any], *, lidar: Sequence[str | os
     radius_m : float, optional
         Clip radius of the jobs without one, m (default: the preset's).
     fit_radius_m : float, optional
-        Plan distance (m) of the local refit of a vertex's faces (:mod:`lidarcat.control.localfit`);
-        0 = the clip's whole faces; default: the preset's (4 m; thesis: whole faces).
+        Radius (m) of the local extraction: the vertex found is extracted again from the clip of this
+        radius centred on it (:mod:`lidarcat.control.localfit`; 5 m is the value measured); 0 = off, the
+        search clip's vertex; default: the preset's (off in both presets).
     stability_check : bool, optional
         Refuse vertices that move with the clip radius (:mod:`lidarcat.control.stability`); default:
         the preset's (on; thesis: off).
