@@ -50,7 +50,7 @@ than a factor of 2: seen on a few vertices of 4+ planes) the test falls back
 to the lenient one and says so.
 
 **The check** (:func:`check_stability`; ``ExtractionParams.stability_scales``,
-default 0.5, 0.625, 0.75, 1.25 and 1.5 x the radius, i.e. 4, 5, 6, 10 and 12 m at the
+default 0.5, 0.75, 1.25 and 1.5 x the radius, i.e. 4, 6, 10 and 12 m at the
 default 8 m; ``stability_level`` 0.999).  The vertex is extracted again from
 clips of those radii centred on it (with their own retries; centred on the
 vertex, not on the position asked at, so that the clips are nested about the
@@ -82,9 +82,8 @@ C0089's 4-10 m clips about its ``--find`` position, 135 mm from the vertex, end 
 point 105 mm away, while clips about the vertex all give the first), so the check repeats the request
 itself at the other radii.
 The Mahalanobis distance is still computed and named in the reason.  On the AHN3 sweep the check
-radii 4, 5, 6, 10 and 12 m (``stability_scales`` 0.5, 0.625, 0.75, 1.25, 1.5) are the radii of
-issue 29's sweep: in-sample by construction, so the sweep also reports radii the check does not use
-(docs/extraction.md, "Local extraction").
+radii 4, 6, 10 and 12 m are radii of issue 29's sweep (in-sample), so the sweep also reports radii the
+check does not use, 5, 7, 9 and 11 m (docs/extraction.md, "Local extraction").
 
 Why these radii: the move of a vertex with the clip is not monotone in the
 radius (a face merges, splits or loses its outer part at one radius and not
