@@ -341,7 +341,7 @@ def check_stability(cp: Any, p: Any, extract: Callable[[float], Any]) -> Stabili
             continue
         m, exact = move_distance(other, cp, influence(other, p), inf_ref)
         tests.append((r, "ok", float(np.linalg.norm(np.asarray(other.enh_m) - np.asarray(cp.enh_m))), m, exact))
-    local = getattr(p, "fit_radius_m", None) is not None
+    local = p.fit_radius_m is not None
     # the local extraction: every search clip that finds the corner ends at one fixed point, so any move
     # longer than the sd is a second fixed point, not sampling (module docstring, "With the local extraction")
     bad = [t for t in tests if np.isfinite(t[2]) and t[2] > sd_m and (local or (np.isfinite(t[3]) and t[3] > limit))]
