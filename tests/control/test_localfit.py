@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from lidarcat.control.localfit import CENTRE_TOL_M, refit_locally
+from lidarcat.control.localfit import CENTRE_TOL_M, extract_locally
 from lidarcat.control.params import get_params
 from lidarcat.control.vertices import ControlPoint, extract_roof
 from lidarcat.synthetic.roofs import synthetic_roof
@@ -82,7 +82,7 @@ def _cp(e, n, h=10.0, status="ok", reason=""):
                         approx_en=np.array([0.0, 0.0]))
 
 
-def test_refit_locally_iterates_to_the_fixed_point():
+def test_extract_locally_iterates_to_the_fixed_point():
     """A fake clip extraction whose vertex is halfway between the centre and (1, 2): centres converge there."""
     target = np.array([1.0, 2.0])
     calls = []
@@ -93,34 +93,34 @@ def test_refit_locally_iterates_to_the_fixed_point():
         x = c + 0.5 * (target - c) if len(calls) < 3 else target  # the third clip is centred near enough
         return _cp(*x)
 
-    got = refit_locally(_cp(0.9, 1.9, reason="far note"), 5.0, extract, apart_m=0.5)
+    got = extract_locally(_cp(0.9, 1.9, reason="far note"), 5.0, extract, apart_m=0.5)
     assert got.status == "ok" and got.reason == "far note"  # an ok vertex keeps the search's note
     np.testing.assert_allclose(got.enh_m[:2], target)
     assert len(calls) == 4  # the fourth clip is centred on the third vertex, which it returns again
     np.testing.assert_array_equal(got.approx_en, [0.0, 0.0])
 
 
-def test_refit_locally_refuses_another_corner():
+def test_extract_locally_refuses_another_corner():
     radii = []
 
     def extract(c, r):
         radii.append(r)
         return _cp(2.0, 0.0)
 
-    got = refit_locally(_cp(0.0, 0.0), 5.0, extract, apart_m=0.5)
+    got = extract_locally(_cp(0.0, 0.0), 5.0, extract, apart_m=0.5)
     np.testing.assert_array_equal(got.enh_m, [0.0, 0.0, 10.0])
     assert radii == [5.0, 6.5, 8.0]  # LADDER: each clip centred on the vertex, none finds it
     assert got.reason == ("the clip of 5 m about the vertex finds another corner 2.00 m away; "
                           "so do the clips of 6.5-8 m: the vertex of the search clip is kept")
 
 
-def test_refit_locally_climbs_the_ladder_to_the_first_clip_that_finds_the_corner():
+def test_extract_locally_climbs_the_ladder_to_the_first_clip_that_finds_the_corner():
     def extract(c, r):
         if r == 5.0:
             return _cp(0.0, 0.0, status="no_vertex", reason="x")
         return _cp(0.01, 0.0, 9.0)  # the same corner, 1 cm away
 
-    got = refit_locally(_cp(0.0, 0.0), 5.0, extract, apart_m=0.5)
+    got = extract_locally(_cp(0.0, 0.0), 5.0, extract, apart_m=0.5)
     np.testing.assert_array_equal(got.enh_m, [0.01, 0.0, 9.0])
     assert got.status == "ok" and got.reason == ""
 

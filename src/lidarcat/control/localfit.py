@@ -56,7 +56,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["refit_locally", "CENTRE_TOL_M", "MAX_ROUNDS", "LADDER"]
+__all__ = ["extract_locally", "CENTRE_TOL_M", "MAX_ROUNDS", "LADDER"]
 
 #: the fixed point is reached when the centre moves by less than this (m)
 CENTRE_TOL_M = 0.001
@@ -68,7 +68,7 @@ MAX_ROUNDS = 4
 LADDER = (1.0, 1.3, 1.6)
 
 
-def refit_locally(cp: Any, radius_m: float, extract: Callable[[np.ndarray, float], Any], apart_m: float) -> Any:
+def extract_locally(cp: Any, radius_m: float, extract: Callable[[np.ndarray, float], Any], apart_m: float) -> Any:
     """*cp* extracted again from the clip of *radius_m* centred on it, to the fixed point (module docstring).
 
     Parameters

@@ -78,7 +78,7 @@ import numpy as np
 
 from .._util.frozen import frozen_array
 from .facets import segment_faces
-from .localfit import LADDER, refit_locally
+from .localfit import LADDER, extract_locally
 from .params import ExtractionParams, get_params
 from .planes import Plane
 from .stability import check_stability
@@ -643,7 +643,7 @@ def _local_vertex(cp: ControlPoint, given: np.ndarray, p: ExtractionParams, poin
         sub = pts[np.sum((pts[:, :2] - centre) ** 2, axis=1) <= r * r]
         return _extract_clip(sub, centre, q.replace(radius_m=r), point_id, [])
 
-    return refit_locally(cp, float(p.fit_radius_m), extract, _apart_m(cp))
+    return extract_locally(cp, float(p.fit_radius_m), extract, _apart_m(cp))
 
 
 def _check_stability(cp: ControlPoint, given: np.ndarray, center: np.ndarray, p: ExtractionParams,
