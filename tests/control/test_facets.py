@@ -260,8 +260,8 @@ def test_default_preset_on_dormer_chimney_tree_roof():
     np.testing.assert_allclose(cp.enh_m, v, atol=0.15)
     used = _used_truth_labels(cp, s)
     assert (used == LABELS["chimney"]).sum() == 0 and (used == LABELS["tree"]).sum() == 0
-    # the ridge end under the tree: the canopy points (118 in the 8 m search clip; 20 in the 5 m clip centred on
-    # the vertex with the local extraction, lidarcat.control.localfit) stay out of the faces
+    # the ridge end under the tree: the canopy points (118 in the 8 m search clip, 20 in the 5 m clip centred on
+    # the vertex, lidarcat.control.localfit) stay out of the faces
     near = np.hypot(*(s.xyz[:, :2] - s.vertices[1, :2]).T) <= params.radius_m
     assert (s.label[near] == LABELS["tree"]).sum() > 100
     cp = extract_roof(s.xyz, s.vertices[1, :2], params=params)

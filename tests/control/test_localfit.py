@@ -126,7 +126,7 @@ def test_extract_locally_climbs_the_ladder_to_the_first_clip_that_finds_the_corn
 
 
 def test_fit_radius_parameter_and_presets():
-    assert get_params().fit_radius_m is None  # opt-in (docs/extraction.md, "Local extraction")
+    assert get_params().fit_radius_m == 5.0  # the default since session 9 (docs/extraction.md, "Local extraction")
     assert get_params("thesis").fit_radius_m is None  # the published method: one clip about the position
     with pytest.raises(ValueError, match=r"^fit_radius_m must be positive \(m\) or None, got -1$"):
         get_params(fit_radius_m=-1)
@@ -146,11 +146,11 @@ def test_cli_fit_radius_and_stability_switches(monkeypatch, tmp_path, bent):
     tile = tmp_path / "roof.xyz"
     np.savetxt(tile, bent[0][:50], fmt="%.3f")
     r = CliRunner()
-    out = r.invoke(cli, ["extract", "--at", "0", "0", str(tile), "--fit-radius", "5", "--no-stability-check"])
+    out = r.invoke(cli, ["extract", "--at", "0", "0", str(tile), "--fit-radius", "0", "--no-stability-check"])
     assert out.exit_code == 1, out.output
-    assert seen[-1].fit_radius_m == 5.0 and seen[-1].stability_scales == ()
-    out = r.invoke(cli, ["extract", "--at", "0", "0", str(tile), "--fit-radius", "0"])
-    assert seen[-1].fit_radius_m is None
+    assert seen[-1].fit_radius_m is None and seen[-1].stability_scales == ()
+    out = r.invoke(cli, ["extract", "--at", "0", "0", str(tile)])
+    assert seen[-1].fit_radius_m == 5.0
     out = r.invoke(cli, ["extract", "--at", "0", "0", str(tile), "--fit-radius", "4.5", "--preset", "thesis",
                          "--stability-check"])
     assert seen[-1].fit_radius_m == 4.5 and seen[-1].stability_scales == get_params().stability_scales
@@ -176,8 +176,8 @@ def test_the_check_repeats_the_request_with_the_local_extraction_and_centres_on_
     monkeypatch.setattr(vertices, "check_stability", spy)
     xyz, apex = bent
     at = apex[:2] + [0.6, -0.4]
-    local = extract_roof(xyz, at, params=get_params(fit_radius_m=5.0))
-    whole = extract_roof(xyz, at)
+    local = extract_roof(xyz, at)
+    whole = extract_roof(xyz, at, params=get_params().replace(fit_radius_m=None))
     assert local.status == whole.status == "ok"
     np.testing.assert_array_equal(centres[0], at)
     np.testing.assert_array_equal(centres[1], whole.enh_m[:2])

@@ -5,7 +5,7 @@ the 7 m eaves for k = 0.004) is not four planes, so the plane of each face -- an
 much of the face the clip holds: the 8 m clip's vertex lies 6 cm above the apex (about 6 sd), the 4 m clip's
 2 cm.  The check (session 7: the search clip's whole faces, radii 4, 6, 10 and 12 m) extracts the vertex again from
 clips about it and refuses it (``unstable``), with the radii, the moves and their Mahalanobis distances in the
-reason; with the local extraction (``fit_radius_m=5``, session 8) every clip gives the 5 m clip's vertex and the
+reason; with the local extraction (the default since session 9) every clip gives the 5 m clip's vertex and the
 roof is accepted.  The same pyramid
 with plane faces (k = 0) and the synthetic hip and pyramid roofs with facades and ground are accepted with the
 vertex unchanged.
@@ -49,8 +49,8 @@ def _expected_reason(res, p) -> str:
 def test_a_vertex_that_moves_with_the_clip_is_refused_with_the_radii_and_distances(seed):
     xyz = _sagging_pyramid(seed, k=0.004)
     assert get_params().stability_scales == (0.5, 0.75, 1.25, 1.5) and get_params().radius_m == 8.0
-    # the search clip's whole faces (fit_radius_m=None, the default) and the session-7 radii: the mechanism the
-    # check was built for (with the local extraction this roof is accepted: the test below)
+    # the search clip's whole faces (fit_radius_m=None) and the session-7 radii: the mechanism the check was
+    # built for (with the local extraction, the default, this roof is accepted: the test below)
     p = get_params().replace(fit_radius_m=None, stability_scales=(0.5, 0.75, 1.25, 1.5))
     cp = extract_roof(xyz, AT, params=p)
     raw = extract_roof(xyz, AT, params=p.replace(stability_scales=()))
@@ -74,7 +74,7 @@ def test_a_vertex_that_moves_with_the_clip_is_refused_with_the_radii_and_distanc
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_the_local_extraction_gives_the_sagging_roof_one_vertex_less_biased(seed):
-    """``fit_radius_m=5`` (lidarcat.control.localfit): every clip ends at the 5 m clip centred on the apex -- accepted."""
+    """Default (lidarcat.control.localfit): every clip ends at the 5 m clip centred on the apex -- accepted."""
     xyz = _sagging_pyramid(seed, k=0.004)
     whole = extract_roof(xyz, AT, params=get_params(stability_scales=()).replace(fit_radius_m=None))
     cp = extract_roof(xyz, AT, params=get_params(fit_radius_m=5.0))

@@ -393,16 +393,18 @@ def test_extract_takes_every_point_file_as_a_tile(tmp_path):
     a = write_points(tmp_path / "a.laz", west)
     b = write_points(tmp_path / "b.laz", east)
     r = CliRunner().invoke(cli, ["extract", "--lidar", str(a), str(b), "--at", "85008.9", "447469.9", "--json"])
-    # since session 7 the radius-stability check refuses this roof's vertex (its 4 m clip moves it 51 mm,
-    # Mahalanobis 4.54 > 4.03): exit status 1, the vertex still computed and reported with the reason (with
-    # `--fit-radius 5`, the local extraction of session 8, it is accepted: E N 85008.877 447469.904)
-    assert r.exit_code == 1, r.output
+    # with the search clip's whole faces (`--fit-radius 0`) the radius-stability check refuses this roof's vertex
+    # (its 4 m clip moves it 51 mm, Mahalanobis 4.54 > 4.03; E N 85008.866 447469.908): exit status 1, the vertex
+    # still computed and reported with the reason.  With the local extraction (the default since session 9) every
+    # search clip gives the vertex of the 5 m clip centred on it: accepted, 12 mm from the other
+    assert r.exit_code == 0, r.output
     p = json.loads(r.output)
     both = CliRunner().invoke(cli, ["extract", "--lidar", str(a), "--lidar", str(b), "--at", "85008.9",
                                     "447469.9", "--json"])
-    assert both.exit_code == 1 and json.loads(both.output) == p
-    assert p["status"] == "unstable" and abs(p["E"] - 85008.866) < 0.01 and abs(p["N"] - 447469.908) < 0.01
-    loc = CliRunner().invoke(cli, ["extract", "--lidar", str(a), str(b), "--at", "85008.9", "447469.9", "--json",
-                                   "--fit-radius", "5"])
-    q = json.loads(loc.output)
-    assert loc.exit_code == 0 and q["status"] == "ok" and abs(q["E"] - 85008.877) < 0.01 and abs(q["N"] - 447469.904) < 0.01
+    assert both.exit_code == 0 and json.loads(both.output) == p
+    assert p["status"] == "ok" and abs(p["E"] - 85008.877) < 0.01 and abs(p["N"] - 447469.904) < 0.01
+    whole = CliRunner().invoke(cli, ["extract", "--lidar", str(a), str(b), "--at", "85008.9", "447469.9", "--json",
+                                     "--fit-radius", "0"])
+    q = json.loads(whole.output)
+    assert whole.exit_code == 1 and q["status"] == "unstable"
+    assert abs(q["E"] - 85008.866) < 0.01 and abs(q["N"] - 447469.908) < 0.01

@@ -49,11 +49,35 @@ def test_the_crop_has_both_vertices_as_exact_patches(crop):
 
 
 def test_a_photo_pair_over_real_roofs(pair):
+    # A01 on photo 1 (0.08 px off); A11 on photo 0 is not measured: the test below
     n, med, p95, mx, sd = summary(pair["errors"], pair["normalised"])
     assert pair["n_photos"] == 2
-    assert n >= 2, pair["statuses"]
+    assert n >= 1, pair["statuses"]
     assert mx < 1.0, pair["rows"]
     assert pair["occluded_accepted"] == 0
+
+
+def test_a_wide_band_corner_the_narrow_band_does_not_confirm_is_not_measured(crop, pair):
+    """A11 on photo 0 (measure step 2, tests/photocontrol/test_measure_confirm.py): the coarse shift lands 6 px off,
+    the wide band (3.5 px) reaches the far edge of the ridge cap (a bright stripe of the intensity beside the
+    ridge) and three lines meet 4 px from the true vertex, within their chi2 check, with an sd of 0.2-0.5 px.
+    Until session 9 that point was accepted; the narrow band (1.5 px) about it finds two edges only, one weak,
+    so now the pair is not measured, and the reason gives the point that was not confirmed."""
+    import re
+
+    from lidarcat.synthetic.aerial import project_to_pixels
+    from lidarcat.synthetic.lidarphoto import flight_poses
+
+    cam = pair["lists"]["camera"]
+    eo = flight_poses((85003.0, 447474.0), crop.ground_m, 0.10, cam, n_strips=1, per_strip=2, heading_deg=0.0,
+                      seed=0)
+    m = next(m for m in pair["lists"]["raw"][0] if m.point == "A11")
+    assert m.status == "no_edges" and np.isnan(m.px).all() and m.edge_lines == ()
+    got = re.match(r"the vertex found in the 3\.5 px band \(column ([\d.]+), row ([\d.]+)\) is not found again "
+                   r"from it in the 1\.5 px band: two edges only", m.reason)
+    assert got, m.reason
+    true_px = project_to_pixels(cam, eo[0], crop.vertices[1][1].enh_m[None])[0]
+    assert np.hypot(*(np.array([float(got[1]), float(got[2])]) - true_px)) > 3.0
 
 
 def test_the_matched_ties_of_the_pair_against_the_renderers_truth(pair):
@@ -84,14 +108,16 @@ def test_the_block_check_of_the_pair_keeps_its_good_measurements(pair):
 def test_acceptance_on_blocks_f1_f4_and_hidden_vertices():
     """Issue 29's acceptance numbers on two blocks of the benchmark with the block check on (tie points
     from ``match_block`` on the renders): F1 / GSD 0.10 m / seed 1 (6 photos of 800 x 600 px over A01
-    A11 ...) and F4 / GSD 0.15 m / seed 32, where a fit locked onto another corner of A13 (47 px off)
-    is alone on its photo: the per-photo test keeps it, the block check rejects it; and no hidden
-    vertex measured on oblique photos (~15 min quiet).  The pooled benchmark: docs/figures.md."""
+    A11 ...) and F4 / GSD 0.15 m / seed 132, where a fit locked onto another corner (63 px off) is
+    alone on its photo: the per-photo test keeps it, the block check rejects it; and no hidden
+    vertex measured on oblique photos (~15 min quiet).  The pooled benchmark: docs/figures.md.
+    (Seed 32 was the gross case until session 9: its A13 lock, 47 px off, is no longer measured since the
+    narrow band must confirm the wide band's vertex, tests/photocontrol/test_measure_confirm.py.)"""
     from bench_photocontrol_ahn3 import FLIGHTS, occlusion_block
 
     data = load_ahn3()
     errs, norm = [], []
-    for f, gsd, seed in (("F1", 0.10, 1), ("F4", 0.15, 32)):
+    for f, gsd, seed in (("F1", 0.10, 1), ("F4", 0.15, 132)):
         centre, heading = FLIGHTS[f]
         r = score_block(data, centre, heading, gsd, seed, cache=None, compare=True)
         assert r["ties"]["source"] == "match_block" and r["block"]["source"] == "check_block", (r["ties"], r["block"])

@@ -74,7 +74,7 @@ def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bo
 @click.option("--fit-radius", "fit_radius", type=float, default=None, metavar="M",
               help="Extract the vertex found again from the clip of M metres centred on it (to a fixed point; "
                    "1.3 and 1.6 x M when it finds no vertex there), so that it is the corner's and does not "
-                   "depend on --radius; 5 is the value measured (default off: the search clip's vertex; 0: off).")
+                   "depend on --radius (default 5 m; 0: off, the search clip's vertex, as the thesis preset).")
 @click.option("--stability-check/--no-stability-check", "stability_check", default=None,
               help="Refuse (status unstable) a vertex that moves by more than its sd when extracted again "
                    "from clips of 0.5-1.5 x the radius (default on; thesis preset off). Off: --find ran "

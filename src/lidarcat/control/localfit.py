@@ -13,7 +13,7 @@ segmentation sees to find the faces); the corner is a property of the roof near 
 
 **What.**  The vertex :math:`x_0` found in the clip (its faces are the clip's, its choice
 :func:`~lidarcat.control.vertices.select_vertex`'s) is extracted again from the clip of the fixed radius
-:math:`R` (``fit_radius_m``; 5 m, the thesis's clip, is the value measured; off by default) *centred on it*: the whole chain --
+:math:`R` (``fit_radius_m``, default 5 m: the thesis's clip) *centred on it*: the whole chain --
 height filter, segmentation, break-line buffer, plane fits, intersection -- on those points alone.
 The vertex :math:`x_1` of that clip is again the centre of the next, until the centre moves by less
 than ``CENTRE_TOL_M`` (1 mm):

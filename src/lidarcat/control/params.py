@@ -121,9 +121,9 @@ class ExtractionParams:
     stability_scales: tuple = (0.5, 0.75, 1.25, 1.5)
     #: local extraction (:mod:`lidarcat.control.localfit`): the vertex found in the clip of ``radius_m`` is
     #: extracted again from the clip of this radius (m) centred on it, to a fixed point, so that it is the
-    #: corner's and does not depend on the search clip (5 m: docs/extraction.md, "Local extraction"); None =
-    #: the search clip's vertex (the default: the measured control of issue 29 is not yet re-derived for it)
-    fit_radius_m: float | None = None
+    #: corner's and does not depend on the search clip (5 m, the default since session 9: docs/extraction.md,
+    #: "Local extraction"); None = the search clip's vertex (the thesis preset)
+    fit_radius_m: float | None = 5.0
     stability_level: float = 0.999
 
     def __post_init__(self) -> None:

@@ -69,7 +69,7 @@ every clip's; refusing it would cost a good control point for nothing.  A clip
 that returns no vertex (or an ambiguous / imprecise one) gives no test and is
 named in the reason; another corner returned by a clip is a move like any other.
 
-**With the local extraction** (``fit_radius_m``, opt-in since session 8:
+**With the local extraction** (``fit_radius_m``, the default since session 9:
 :mod:`lidarcat.control.localfit`), the vertex of every search clip that finds the corner is that of the
 5 m clip centred on it, iterated to a fixed point; two search clips give the same vertex to the
 iteration's 1 mm, *not* two estimates from partly different points.  A longer move means that the

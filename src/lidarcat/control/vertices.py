@@ -54,10 +54,10 @@ clip's few noisy points is no rival of a precise corner) give the status
 ``ambiguous`` with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
 reason, and :attr:`ControlPoint.offset_m` is written with every point.
 
-**Local extraction** (opt-in, ``fit_radius_m``, e.g. 5 m).  The vertex chosen is then extracted again
+**Local extraction** (``fit_radius_m``, 5 m by default).  The vertex chosen is then extracted again
 from the clip of ``fit_radius_m`` centred on it, to a fixed point (:mod:`lidarcat.control.localfit`):
 the search clip's radius decides which corner, the roof within 5 m of the corner decides where.  Off
-(``None``) by default and in the thesis preset.
+(``None``) in the thesis preset.
 
 **Radius stability.**  An ``ok`` vertex is then extracted again from clips of
 ``stability_scales x radius_m`` centred on it (4, 6, 10, 12 m at the default)

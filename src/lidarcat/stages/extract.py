@@ -52,7 +52,7 @@ def extract(jobs: str | os.PathLike | Sequence[Any], *, lidar: Sequence[str | os
     fit_radius_m : float, optional
         Radius (m) of the local extraction: the vertex found is extracted again from the clip of this
         radius centred on it (:mod:`lidarcat.control.localfit`; 5 m is the value measured); 0 = off, the
-        search clip's vertex; default: the preset's (off in both presets).
+        search clip's vertex; default: the preset's (5 m; thesis: off).
     stability_check : bool, optional
         Refuse vertices that move with the clip radius (:mod:`lidarcat.control.stability`); default:
         the preset's (on; thesis: off).
