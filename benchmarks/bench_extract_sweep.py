@@ -24,7 +24,7 @@ each other radius whose extraction is ``ok``:
 - the statuses per radius (ok / ambiguous / no_vertex ...).
 
 - ``check``: the radius-stability check of the 8 m vertex (:mod:`lidarcat.control.stability`: the extraction
-  with the default ``stability_scales``, clips of 4, 6, 10 and 12 m about the vertex): ``stable`` or
+  with the default ``stability_scales``, clips of 4, 5, 6, 10 and 12 m about the vertex): ``stable`` or
   ``unstable`` (refused); ``check_radius`` 1 on the rows of the radii it used.  The sweep's own extractions
   run without the check.  The summary counts the candidates refused and the accepted ones whose move still
   fails the difference test, at the radii the check used (moves shorter than the sd) and at the others (5 m).

@@ -113,12 +113,12 @@ class ExtractionParams:
     #: sd plus half the plane's RMS, with a point of the plane within support_m
     join_sigma: float = 3.0
     #: radius stability (:mod:`lidarcat.control.stability`): an ``ok`` vertex is extracted again from
-    #: clips of these multiples of ``radius_m`` centred on it (4, 6, 10 and 12 m at the default 8 m: radii of
+    #: clips of these multiples of ``radius_m`` centred on it (4, 5, 6, 10 and 12 m at the default 8 m: radii of
     #: the sweep of issue 29) and refused as "unstable" when its move to one of them is longer than
     #: its sd and (without the local extraction, ``fit_radius_m=None``) significant at ``stability_level``
     #: (Mahalanobis distance with the covariance of the difference of the two clips' vertices, chi2 with 3
     #: degrees of freedom); () = no check
-    stability_scales: tuple = (0.5, 0.75, 1.25, 1.5)
+    stability_scales: tuple = (0.5, 0.625, 0.75, 1.25, 1.5)
     #: local extraction (:mod:`lidarcat.control.localfit`): the vertex found in the clip of ``radius_m`` is
     #: extracted again from the clip of this radius (m) centred on it, to a fixed point, so that it is the
     #: corner's and does not depend on the search clip (5 m, the default since session 9: docs/extraction.md,

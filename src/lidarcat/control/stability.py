@@ -50,8 +50,8 @@ than a factor of 2: seen on a few vertices of 4+ planes) the test falls back
 to the lenient one and says so.
 
 **The check** (:func:`check_stability`; ``ExtractionParams.stability_scales``,
-default 0.5, 0.75, 1.25 and 1.5 x the radius, i.e. 4, 6, 10 and 12 m at the
-default 8 m; ``stability_level`` 0.999).  The vertex is extracted again from
+default 0.5, 0.625, 0.75, 1.25 and 1.5 x the radius, i.e. 4, 5, 6, 10 and 12 m at the
+default 8 m; ``stability_level`` 0.999; 5 m since session 9).  The vertex is extracted again from
 clips of those radii centred on it (with their own retries; centred on the
 vertex, not on the position asked at, so that the clips are nested about the
 corner itself and the retries rarely run), and the move to each clip that
@@ -82,8 +82,10 @@ C0089's 4-10 m clips about its ``--find`` position, 135 mm from the vertex, end 
 point 105 mm away, while clips about the vertex all give the first), so the check repeats the request
 itself at the other radii.
 The Mahalanobis distance is still computed and named in the reason.  On the AHN3 sweep the check
-radii 4, 6, 10 and 12 m are radii of issue 29's sweep (in-sample), so the sweep also reports radii the
-check does not use, 5, 7, 9 and 11 m (docs/extraction.md, "Local extraction").
+radii 4, 5, 6, 10 and 12 m are radii of issue 29's sweep (in-sample), so the sweep also reports radii the
+check does not use, 4.5-11.5 m (docs/extraction.md, "Local extraction").  5 m joined in session 9: with
+4, 6, 10 and 12 m, one accepted vertex of the AHN3 ``--find`` candidates moved 194 mm at 5 m (2.1 sd,
+Mahalanobis 4.5), a second fixed point no other radius showed.
 
 Why these radii: the move of a vertex with the clip is not monotone in the
 radius (a face merges, splits or loses its outer part at one radius and not
@@ -94,8 +96,8 @@ caught 19 of them, 4, 6 and 12 m 28, and 4, 6, 10 and 12 m 35
 (docs/extraction.md, "Radius sweep", item 5).  The level: the sweep judges at
 99.9 %; four tests per vertex refuse well under 0.4 % of stable vertices by
 chance, and fewer still with the sd condition.  Cost: the four clips hold
-0.25 + 0.56 + 1.56 + 2.25 = 4.6 times the points of one, and each is
-segmented; the vertex's points must reach ``max(stability_scales) x radius_m``
+0.25 + 0.56 + 1.56 + 2.25 = 4.6 times the points of one (five with the 5 m
+clip: 5.0), and each is segmented; the vertex's points must reach ``max(stability_scales) x radius_m``
 beyond it (:func:`lidarcat.control.vertices.extract_roof` skips the larger
 clips when it is given only the clip of ``radius_m``).
 """

@@ -60,7 +60,7 @@ the search clip's radius decides which corner, the roof within 5 m of the corner
 (``None``) in the thesis preset.
 
 **Radius stability.**  An ``ok`` vertex is then extracted again from clips of
-``stability_scales x radius_m`` centred on it (4, 6, 10, 12 m at the default)
+``stability_scales x radius_m`` centred on it (4, 5, 6, 10, 12 m at the default)
 and refused as ``unstable`` when it moves by more than its sd (and, without the
 local extraction, by more than the covariance of the difference of the two clips'
 vertices explains; :mod:`lidarcat.control.stability`); the reason names the radii,
