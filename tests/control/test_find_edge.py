@@ -66,7 +66,7 @@ class _Spy:
 
 def _assert_whole(checks, xyz):
     radii = sorted({r for _, _, r in checks})
-    assert radii == [4.0, 6.0, 10.0, 12.0]
+    assert radii == [4.0, 5.0, 6.0, 10.0, 12.0]    # 0.5, 0.625, 0.75, 1.25, 1.5 x 8 m
     for pts, at, r in checks:
         got = int(np.sum(np.sum((pts[:, :2] - at) ** 2, axis=1) <= r * r))
         assert got == int(np.sum(np.sum((xyz[:, :2] - at) ** 2, axis=1) <= r * r)), r
