@@ -313,7 +313,8 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     (``without_photo_test``), with the per-photo test only (``photo_test_only``) and with the
     measurements alone on their photo rejected (``alone_rejected``), from the same renders;
     ``alone``: check_photo's choice for those.  Renders are cached under *cache* (None: not).
-    ``lists``: the per-photo measurements (``raw``, ``checked``), the photos rendered (``used``),
+    ``lists``: the per-photo measurements (``raw``, ``checked``), the photos rendered (``used``), the true
+    orientation of every photo of the flight (``true_eo``, (n, 6) m, rad),
     the ties and what the block check is called with.
     """
     from lidarcat.photocontrol import VertexTarget, check_photo, measure_photo, predict_points
@@ -408,7 +409,7 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     return dict(out, occluded_pairs=occluded_pairs, n_photos=len(eo), photos=photos, ties=tie_report,
                 tie_score=tie_score, block=block_info,
                 seconds=dict(render=t_render, ties=t_ties, block=t_block),
-                lists=dict(raw=raw, checked=checked, used=used, ties=tie_obs, approx=approx[used], camera=cam,
+                lists=dict(raw=raw, checked=checked, used=used, ties=tie_obs, approx=approx[used], true_eo=eo, camera=cam,
                            eo_cov=eo_cov, vertices=V, vertex_covs=covs, ids=ids))
 
 
