@@ -78,7 +78,8 @@ def _split_arguments(args: tuple[str, ...], lidar: tuple[str, ...], job_mode: bo
 @click.option("--stability-check/--no-stability-check", "stability_check", default=None,
               help="Refuse (status unstable) a vertex that moves by more than its sd when extracted again "
                    "from clips of 0.5-1.5 x the radius (default on; thesis preset off). Off: --find ran "
-                   "1.6x faster on a 60 m AHN3 area, 3.8x over both tiles (docs/extraction.md).")
+                   "2.3x faster on a 60 m AHN3 area with the local extraction (1.6x with --fit-radius 0; "
+                   "session 8, four check radii; docs/extraction.md).")
 @click.option("--find", is_flag=True, help="Search the tiles (or --box) for every roof vertex of 3+ planes.")
 @click.option("--box", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
               help="Area for --find (m); default: all the tiles.")
