@@ -52,9 +52,10 @@ to the lenient one and says so.
 **The check** (:func:`check_stability`; ``ExtractionParams.stability_scales``,
 default 0.5, 0.625, 0.75, 1.25 and 1.5 x the radius, i.e. 4, 5, 6, 10 and 12 m at the
 default 8 m; ``stability_level`` 0.999; 5 m since session 9).  The vertex is extracted again from
-clips of those radii centred on it (with their own retries; centred on the
-vertex, not on the position asked at, so that the clips are nested about the
-corner itself and the retries rarely run), and the move to each clip that
+clips of those radii centred on it (with their own retries; with whole faces,
+``fit_radius_m=None``, centred on the vertex, not on the position asked at, so that
+the clips are nested about the corner itself and the retries rarely run; with the
+local extraction, the default, on the position asked: below), and the move to each clip that
 returns a vertex is tested.  The vertex is refused when some move is both
 
 - *significant*: :math:`M > \sqrt{\chi^2_3(\text{level})}` (4.03 at 99.9 %),
@@ -94,8 +95,10 @@ AHN3 tiles (radii 4, 5, 6, 10 and 12 m against 8 m), 36 candidates failed the
 difference test at some radius; testing only the ends (4 and 12 m) would have
 caught 19 of them, 4, 6 and 12 m 28, and 4, 6, 10 and 12 m 35
 (docs/extraction.md, "Radius sweep", item 5).  The level: the sweep judges at
-99.9 %; four tests per vertex refuse well under 0.4 % of stable vertices by
-chance, and fewer still with the sd condition.  Cost: the four clips hold
+99.9 %; five tests per vertex refuse well under 0.5 % of stable vertices by
+chance with whole faces, and fewer still with the sd condition (the local rule,
+any move longer than the sd, has no such bound: on the noisiest synthetic case of
+tests/control/test_control.py it refused 4 of 200, docs/figures.md).  Cost: the four clips hold
 0.25 + 0.56 + 1.56 + 2.25 = 4.6 times the points of one (five with the 5 m
 clip: 5.0), and each is segmented; the vertex's points must reach ``max(stability_scales) x radius_m``
 beyond it (:func:`lidarcat.control.vertices.extract_roof` skips the larger
