@@ -74,8 +74,9 @@ class Ahn3:
 
 
 def load_ahn3(bounds: tuple[float, float, float, float] | None = None, *, cell_m: float = 0.1,
-              only: list[str] | None = None) -> Ahn3:
-    """Read the tiles, extract the listed vertices inside *bounds* again, build the rendered surface."""
+              only: list[str] | None = None, extraction: Any = None) -> Ahn3:
+    """Read the tiles, extract the listed vertices inside *bounds* again (*extraction*: ExtractionParams, default
+    the default's; the stability check off), build the rendered surface."""
     from lidarcat.control.params import get_params
     from lidarcat.control.vertices import extract_roof
     from lidarcat.lidar.readers import read_points
@@ -99,7 +100,7 @@ def load_ahn3(bounds: tuple[float, float, float, float] | None = None, *, cell_m
             continue
         clip = xyz[np.hypot(xyz[:, 0] - e, xyz[:, 1] - n) <= 30.0]
         # the truth scene renders every listed vertex: no radius-stability refusal (lidarcat.control.stability)
-        cp = extract_roof(clip, [e, n], point_id=pid, params=get_params(stability_scales=()))
+        cp = extract_roof(clip, [e, n], point_id=pid, params=get_params(extraction, stability_scales=()))
         if not cp:
             continue
         v = cp.enh_m
@@ -604,6 +605,8 @@ def main() -> None:
                     help="tie points of the block check: the matcher on the renders, true + 0.3 px, none")
     ap.add_argument("--no-block-check", action="store_true", help="the per-photo test only (as before the block check)")
     ap.add_argument("--cache", default=str(CACHE), help="folder of the rendered photos (npz); '' : none")
+    ap.add_argument("--fit-radius", type=float, default=None, metavar="M",
+                    help="the extraction's local clip (m; 0: the search clip's whole faces; default: the default's)")
     ap.add_argument("--scene", default="", help="pickle of the loaded scene: read when there, else written")
     ap.add_argument("--out", default="", help="append each block's figures to this JSON-lines file")
     ap.add_argument("--pool", nargs="+", default=[], help="print the pooled table of these JSON-lines files, nothing run")
@@ -619,7 +622,10 @@ def main() -> None:
     if a.scene and Path(a.scene).exists():
         data = pickle.loads(Path(a.scene).read_bytes())
     else:
-        data = load_ahn3()
+        from lidarcat.control.params import get_params
+
+        ext = None if a.fit_radius is None else get_params().replace(fit_radius_m=a.fit_radius or None)
+        data = load_ahn3(extraction=ext)
         if a.scene:
             Path(a.scene).write_bytes(pickle.dumps(data))
     print(f"scene: {len(data.vertices)} vertices extracted, surface {data.surface.height.shape} cells "
