@@ -188,6 +188,10 @@ PRESETS: dict[str, ExtractionParams] = {
 def get_params(params: ExtractionParams | str | None = None, **overrides: Any) -> ExtractionParams:
     """Resolve a preset name or params object, then apply *overrides*.
 
+    An override of None means "not given" and is dropped (the CLI passes its unset options so): to set a
+    field to None, e.g. ``fit_radius_m`` for the search clip's whole faces, use
+    ``get_params().replace(fit_radius_m=None)``.
+
     >>> get_params("thesis").slope_max_deg
     30.0
     >>> get_params("default", radius_m=12).radius_m
