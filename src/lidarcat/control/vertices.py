@@ -48,7 +48,10 @@ which is nearer only if ``o > a / 2``; it stops at the first vertex within
 back, as ``ok``, as another corner 1-6 m away at some clip radius of 4-12 m; now
 4 do, 3 of them only at 4 m: ``benchmarks/bench_extract_sweep.py``,
 docs/extraction.md.)
-Two distinct vertices (as far apart) whose distances from the position differ
+Two distinct vertices (as far apart; a rival is a vertex some clip chose, or a
+triple with a face that is not the chosen vertex's -- the triples of a corner's
+own faces are that corner: a pyramid's apex is not ambiguous with itself) whose
+distances from the position differ
 by less than ``ambiguity_m`` (the same penalised distance: a rival of a small
 clip's few noisy points is no rival of a precise corner) give the status
 ``ambiguous`` with both listed; an ``ok`` vertex farther than ``near_m`` says so in its
@@ -441,8 +444,10 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
     LiDAR surface.  Further faces join when their distance from the point is
     below ``join_sigma`` standard deviations plus half their RMS and they have
     a point within ``support_m``; the point is then re-intersected by least
-    squares.  *others*, when given, receives every qualifying vertex (E, N, h,
-    3-D sd), the chosen one included, so that a caller can test the choice for ambiguity.
+    squares.  *others*, when given, receives the chosen vertex and every qualifying
+    triple with a face that is not one of the chosen vertex's (E, N, h, 3-D sd), so that a
+    caller can test the choice for ambiguity: a triple of the chosen vertex's own faces is
+    that corner from fewer planes, not another corner.
     """
     center = np.asarray(center_en, dtype=np.float64).reshape(-1)[:2]
     info = info or {}
@@ -475,8 +480,6 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
         if off <= max_off:
             sd3 = float(np.sqrt(max(np.trace(cp.cov_m2), 0.0)))
             found.append((off + 3.0 * sd3, t, cp))
-            if others is not None:
-                others.append(np.append(cp.enh_m, _sd3(cp)))
     if not found:
         if reasons and len(planes) == 3:
             return ControlPoint.failed(point_id, center, "ill_conditioned", reasons[0],
@@ -504,6 +507,14 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
                                min_det=p.min_det)
         if cp2:
             cp = cp2
+        else:
+            members = list(t)
+    if others is not None:
+        # the qualifying vertices for the caller's ambiguity test: the one chosen (with its joined faces),
+        # and every triple with a face that is not one of its faces; a triple of its own faces is the
+        # same corner from fewer planes (a pyramid's apex: four triples scattered by their sd), no rival
+        others.append(np.append(cp.enh_m, _sd3(cp)))
+        others.extend(np.append(c.enh_m, _sd3(c)) for _, tt, c in found if not set(tt) <= set(members))
     sd3 = float(math.sqrt(max(np.trace(cp.cov_m2), 0.0)))
     status, reason = "ok", ""
     if not np.isfinite(sd3) or sd3 > p.max_sd_m:
@@ -699,9 +710,11 @@ def _check_choice(cp: ControlPoint, off: float, center: np.ndarray, others: list
                   p: ExtractionParams) -> ControlPoint:
     """Say when the chosen vertex is far from the position, or another one is about as near.
 
-    Another vertex counts as distinct when it lies farther than ``max(0.5 m, 4 sd_plan)`` from the
-    chosen one (``sd_plan`` the chosen vertex's plan sd): the plane triples of one noisy corner (a
-    pyramid's apex meets four faces) scatter by about their sd and are the same vertex."""
+    *others* are the vertices each clip chose and the triples with a face not among the chosen vertex's
+    (:func:`select_vertex`): the triples of one corner's own faces (a pyramid's apex meets four) scatter
+    by their sd, 0.6-0.7 m on sparse noisy roofs, and are that corner.  Another vertex counts as distinct
+    when it lies farther than ``max(0.5 m, 4 sd_plan)`` from the chosen one (``sd_plan`` the chosen
+    vertex's plan sd): the same corner found again in another clip."""
     apart = _apart_m(cp)
     rivals = []
     for v in others:
