@@ -360,8 +360,11 @@ def plot(table, radii, path, title="", before=None, labels=("before", "now")) ->
                ((CHI3_99, "chi2(3) 99 %"), (CHI3_999, "99.9 %"))),
               (axes[2], "maha_diff", "Mahalanobis distance with Cov(x_r - x_8) (shared points)",
                ((CHI3_99, "chi2(3) 99 %"), (CHI3_999, "99.9 %"))))
+    # offsets, jitter and bars scaled to the spacing of the radii (1 m in the default sweep, 0.5 m in 4-12 m by halves)
+    w = min(1.0, float(np.min(np.diff(others)))) if len(others) > 1 else 1.0
     for ax, key, lab, lines in panels:
-        for tab, dx, col, name in ((before, -0.22, "0.6", "before"), (table, 0.22 if before else 0.0, "C0", "now")):
+        for tab, dx, col, name in ((before, -0.22 * w, "0.6", "before"),
+                                   (table, 0.22 * w if before else 0.0, "C0", "now")):
             if tab is None:
                 continue
             for r in others:
@@ -370,20 +373,20 @@ def plot(table, radii, path, title="", before=None, labels=("before", "now")) ->
                     continue
                 y = np.maximum(np.array([t[key] for t in ok]), 1e-2)
                 far = np.array([t["d_m"] > 0.5 for t in ok])
-                x = r + dx + rng.uniform(-0.18, 0.18, len(y))
+                x = r + dx + rng.uniform(-0.18 * w, 0.18 * w, len(y))
                 ax.scatter(x[~far], y[~far], s=5, alpha=0.45, color=col, lw=0,
                            label=(labels[0] if name == "before" else labels[1])
                            if r == others[0] and before is not None else None)
                 ax.scatter(x[far], y[far], s=16, color="C3", marker="x",
                            label="another corner (> 0.5 m)" if r == others[0] and name == "now" else None)
-                ax.hlines(np.median(y), r + dx - 0.22, r + dx + 0.22, color="k", lw=2)
+                ax.hlines(np.median(y), r + dx - 0.22 * w, r + dx + 0.22 * w, color="k", lw=2)
         for v, txt in lines:
             ax.axhline(v, color="C2" if v == 1.0 else "C1", lw=1, ls="--")
             ax.annotate(txt, (max(others) + 0.9, v), fontsize=7, va="bottom", ha="right")
         ax.set_yscale("log")
         ax.set_xlabel("clip radius (m); reference: the default 8 m")
         ax.set_title(lab, fontsize=9)
-        ax.set_xticks(others)
+        ax.set_xticks(others, [f"{r:g}" for r in others], fontsize=7 if w < 1.0 else None)
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=7)
     n = len({t["point"] for t in table})
