@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import DATA, THESIS_TABLES
+from roof_monte_carlo import monte_carlo_roofs
 from lidarcat.control.vertices import ControlPoint, intersect_planes
 from lidarcat.control.vertices import extract_roof
 from lidarcat.control.facets import Plane, get_params
@@ -166,15 +167,11 @@ CASES = [(k, dens, nh) for k in ("hip", "pyramid") for dens in (2.0, 10.0) for n
 @pytest.mark.parametrize("kind,density,noise", CASES)
 def test_monte_carlo_vertex_is_unbiased_and_covariance_honest(kind, density, noise):
     n_runs = 200
-    rng = np.random.default_rng(0)
     errs, sds, fails = [], [], 0
     params = get_params(sd_en_m=0.03, sd_h_m=noise)
-    for i in range(n_runs):
-        s = synthetic_roof(kind, density_m2=density, noise_h_m=noise, noise_plan_m=0.03,
-                           seed=1000 + i, azimuth_deg=rng.uniform(0, 90),
-                           slope_deg=rng.uniform(25, 45))  # with facades and ground
+    for _, s, at in monte_carlo_roofs(kind, density, noise, range(n_runs)):  # with facades and ground
         v = s.vertices[0]
-        cp = extract_roof(s.xyz, v[:2] + rng.uniform(-1, 1, 2), radius_m=6, params=params)
+        cp = extract_roof(s.xyz, at, radius_m=6, params=params)
         if cp:
             errs.append(cp.enh_m - v)
             sds.append(cp.sd_m)

@@ -18,6 +18,7 @@ import pytest
 from lidarcat.control.params import get_params
 from lidarcat.control.vertices import extract_roof
 from lidarcat.synthetic.roofs import synthetic_roof
+from roof_monte_carlo import monte_carlo_roofs
 
 O = np.array([85000.0, 447000.0, 0.0])
 #: small pyramids and hips around a hip roof with a dormer (E, N offset, length, width, azimuth, kind)
@@ -142,24 +143,14 @@ def test_ahn3_positions_of_the_issue_give_the_vertex_asked_for_at_the_default_ra
         assert cp.offset_m < 0.1 and cp.reason == ""
 
 
-def _sparse_pyramid(run: int):
-    """Run *run* of the extraction Monte Carlo's sparsest pyramid (tests/control/test_control.py: 2 pts/m2, 0.15 m
-    height noise, 0.03 m plan noise; the same draws): the roof and the position asked."""
-    rng = np.random.default_rng(0)
-    for i in range(run + 1):
-        az, slope, off = rng.uniform(0, 90), rng.uniform(25, 45), rng.uniform(-1, 1, 2)
-    s = synthetic_roof("pyramid", density_m2=2.0, noise_h_m=0.15, noise_plan_m=0.03, seed=1000 + run,
-                       azimuth_deg=az, slope_deg=slope)
-    return s, s.vertices[0][:2] + off
-
-
 def test_a_pyramid_apex_is_not_ambiguous_with_the_triples_of_its_own_faces():
     """Four faces meet at the apex; on a sparse noisy roof their four triples scatter by their sd (0.6-0.7 m here),
     and were listed as rivals: run 56 of the Monte Carlo was ``ambiguous`` with a triple of the 3.9 m clip 0.68 m
     from the apex.  A triple of the chosen vertex's own faces is that corner: ``ok``, within 3 sd of the apex."""
     from lidarcat.control.vertices import _extract_clip
 
-    s, at = _sparse_pyramid(56)
+    # run 56 of the Monte Carlo's sparsest pyramid (tests/control/test_control.py): 2 pts/m2, 0.15 m height noise
+    [(_, s, at)] = monte_carlo_roofs("pyramid", 2.0, 0.15, [56])
     p = get_params(sd_en_m=0.03, sd_h_m=0.15, radius_m=6)
     cp = extract_roof(s.xyz, at, params=p)
     assert cp.status == "ok", cp.reason
