@@ -410,8 +410,8 @@ def score_block(data: Ahn3, centre: tuple[float, float], heading_deg: float, gsd
     return dict(out, occluded_pairs=occluded_pairs, n_photos=len(eo), photos=photos, ties=tie_report,
                 tie_score=tie_score, block=block_info,
                 seconds=dict(render=t_render, ties=t_ties, block=t_block),
-                lists=dict(raw=raw, checked=checked, used=used, ties=tie_obs, approx=approx[used], true_eo=eo, camera=cam,
-                           eo_cov=eo_cov, vertices=V, vertex_covs=covs, ids=ids))
+                lists=dict(raw=raw, checked=checked, used=used, ties=tie_obs, approx=approx[used], true_eo=eo,
+                           camera=cam, eo_cov=eo_cov, vertices=V, vertex_covs=covs, ids=ids))
 
 
 def run_check_block(per_photo: list, camera: Any, eos: np.ndarray, eo_cov: np.ndarray, V: np.ndarray,
@@ -614,6 +614,8 @@ def main() -> None:
                     help="also print each block without the per-photo test and the block check, with the per-photo "
                          "test only, and with the measurements alone on their photo rejected (same renders)")
     a = ap.parse_args()
+    if a.fit_radius is not None and a.fit_radius < 0:
+        ap.error(f"--fit-radius must be >= 0 m (0: the search clip's whole faces), got {a.fit_radius:g}")
     if a.pool:
         pool_table(a.pool)
         return

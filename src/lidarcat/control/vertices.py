@@ -509,12 +509,10 @@ def select_vertex(planes: Sequence[Plane], xyz: np.ndarray, labels: np.ndarray, 
             cp = cp2
         else:
             members = list(t)
-    if others is not None:
-        # the qualifying vertices for the caller's ambiguity test: the one chosen (with its joined faces),
-        # and every triple with a face that is not one of its faces; a triple of its own faces is the
-        # same corner from fewer planes (a pyramid's apex: four triples scattered by their sd), no rival
+    if others is not None:  # the chosen vertex, and the triples with a face of their own (docstring)
+        own = frozenset(members)
         others.append(np.append(cp.enh_m, _sd3(cp)))
-        others.extend(np.append(c.enh_m, _sd3(c)) for _, tt, c in found if not set(tt) <= set(members))
+        others.extend(np.append(c.enh_m, _sd3(c)) for _, tt, c in found if not own.issuperset(tt))
     sd3 = float(math.sqrt(max(np.trace(cp.cov_m2), 0.0)))
     status, reason = "ok", ""
     if not np.isfinite(sd3) or sd3 > p.max_sd_m:
@@ -711,8 +709,7 @@ def _check_choice(cp: ControlPoint, off: float, center: np.ndarray, others: list
     """Say when the chosen vertex is far from the position, or another one is about as near.
 
     *others* are the vertices each clip chose and the triples with a face not among the chosen vertex's
-    (:func:`select_vertex`): the triples of one corner's own faces (a pyramid's apex meets four) scatter
-    by their sd, 0.6-0.7 m on sparse noisy roofs, and are that corner.  Another vertex counts as distinct
+    (:func:`select_vertex`; a triple of the corner's own faces is that corner).  Another vertex counts as distinct
     when it lies farther than ``max(0.5 m, 4 sd_plan)`` from the chosen one (``sd_plan`` the chosen
     vertex's plan sd): the same corner found again in another clip."""
     apart = _apart_m(cp)
