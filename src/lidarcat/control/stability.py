@@ -105,9 +105,8 @@ difference test at some radius; testing only the ends (4 and 12 m) would have
 caught 19 of them, 4, 6 and 12 m 28, and 4, 6, 10 and 12 m 35
 (docs/extraction.md, "Radius sweep", item 5).  The level: the sweep judges at
 99.9 %; five tests per vertex refuse well under 0.5 % of stable vertices by
-chance with whole faces, and fewer still with the sd condition (the local rule,
-any move longer than the sd, has no such bound: on the noisiest synthetic case of
-tests/control/test_control.py it refused 4 of 200, docs/figures.md).  Cost: the five clips hold
+chance with whole faces, and fewer still with the sd condition (the local rule
+has no such bound: "With the local extraction" above).  Cost: the five clips hold
 0.25 + 0.39 + 0.56 + 1.56 + 2.25 = 5.0 times the points of one, and each is segmented; the vertex's points must reach ``max(stability_scales) x radius_m``
 beyond it (:func:`lidarcat.control.vertices.extract_roof` skips the larger
 clips when it is given only the clip of ``radius_m``).
